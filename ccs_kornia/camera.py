@@ -1,0 +1,343 @@
+"""Camera, board and distortion models shared by every stage.
+
+Conventions (see ``docs/architecture.md``):
+
+* pixels: the centre of the top-left pixel is ``(0, 0)``, x to the right, y down (OpenCV and
+  ``kornia.geometry.create_meshgrid(..., normalized_coordinates=False)``);
+* board: ``cols x rows`` inner corners; object point ``n = j * cols + i`` is ``(i * s, j * s, 0)``;
+* poses: OpenCV's ``rvec`` (axis-angle, world-to-camera) and ``tvec``;
+* OpenCV distortion: ``(k1, k2, p1, p2, k3)`` (``opencv5``) or ``(k1, k2, p1, p2, k3, k4, k5, k6)``
+  (``rational``), applied on the normalized plane through kornia's ``distort_points``;
+* the paper's radial model (used for training data and the distortion CNN): radii are measured from
+  the image centre ``((W-1)/2, (H-1)/2)`` in units of ``max(W, H)``;
+  distortion ``r_d = r_c (k0 + k1 r_c^2 + k2 r_c^4)`` and correction
+  ``r_c = r_d (k0' + k1' r_d + k2' r_d^2 + k3' r_d^3 + k4' r_d^4)``.
+
+This module imports nothing else of ``ccs_kornia``.
+"""
+
+from __future__ import annotations
+
+import torch
+from kornia.geometry.calibration import distort_points, undistort_points
+from kornia.geometry.conversions import axis_angle_to_rotation_matrix, rotation_matrix_to_axis_angle
+
+__all__ = [
+    "DISTORTION_MODELS",
+    "num_distortion_coeffs",
+    "board_object_points",
+    "intrinsics_matrix",
+    "intrinsics_params",
+    "transform_points_rt",
+    "project_points",
+    "distort_pixels",
+    "undistort_pixels",
+    "radial_distort_points",
+    "radial_undistort_points",
+    "radial_correct_points",
+    "fit_radial_correction",
+    "fit_opencv_distortion",
+    "axis_angle_to_rotation_matrix",
+    "rotation_matrix_to_axis_angle",
+]
+
+#: output distortion models and their coefficient counts (OpenCV order)
+DISTORTION_MODELS: dict[str, int] = {"none": 0, "k1k2": 5, "opencv5": 5, "rational": 8}
+
+
+def num_distortion_coeffs(model: str) -> int:
+    """Number of OpenCV coefficients stored for ``model`` (``k1k2`` stores 5 with p1=p2=k3=0)."""
+    if model not in DISTORTION_MODELS:
+        raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(DISTORTION_MODELS)}.")
+    return DISTORTION_MODELS[model]
+
+
+def board_object_points(
+    cols: int, rows: int, square: float = 1.0, device: torch.device | str | None = None, dtype: torch.dtype = torch.float32
+) -> torch.Tensor:
+    """Object points of a ``cols x rows`` inner-corner board in grid order.
+
+    Args:
+        cols: inner corners per row.
+        rows: number of rows of inner corners.
+        square: side of a square in world units.
+
+    Returns:
+        Tensor of shape :math:`(cols*rows, 3)`, point ``n = j*cols + i`` is ``(i*s, j*s, 0)``.
+
+    Example:
+        >>> board_object_points(3, 2, 0.5)[:4]
+        tensor([[0.0000, 0.0000, 0.0000],
+                [0.5000, 0.0000, 0.0000],
+                [1.0000, 0.0000, 0.0000],
+                [0.0000, 0.5000, 0.0000]])
+    """
+    if cols < 2 or rows < 2:
+        raise ValueError(f"A board needs at least 2x2 inner corners, got {cols}x{rows}.")
+    j, i = torch.meshgrid(
+        torch.arange(rows, device=device, dtype=dtype), torch.arange(cols, device=device, dtype=dtype), indexing="ij"
+    )
+    return torch.stack([i.reshape(-1) * square, j.reshape(-1) * square, torch.zeros_like(i).reshape(-1)], -1)
+
+
+def intrinsics_matrix(params: torch.Tensor) -> torch.Tensor:
+    """Build ``K`` from ``(..., 4)`` parameters ``(fx, fy, cx, cy)``; returns ``(..., 3, 3)``.
+
+    Example:
+        >>> intrinsics_matrix(torch.tensor([500., 510., 320., 240.]))
+        tensor([[500.,   0., 320.],
+                [  0., 510., 240.],
+                [  0.,   0.,   1.]])
+    """
+    if params.shape[-1] != 4:
+        raise ValueError(f"Expected (..., 4) intrinsics (fx, fy, cx, cy), got {tuple(params.shape)}.")
+    fx, fy, cx, cy = params.unbind(-1)
+    z, o = torch.zeros_like(fx), torch.ones_like(fx)
+    return torch.stack([fx, z, cx, z, fy, cy, z, z, o], -1).reshape(*params.shape[:-1], 3, 3)
+
+
+def intrinsics_params(K: torch.Tensor) -> torch.Tensor:
+    """``(..., 3, 3)`` camera matrix to ``(..., 4)`` parameters ``(fx, fy, cx, cy)``."""
+    if K.shape[-2:] != (3, 3):
+        raise ValueError(f"Expected (..., 3, 3) camera matrix, got {tuple(K.shape)}.")
+    return torch.stack([K[..., 0, 0], K[..., 1, 1], K[..., 0, 2], K[..., 1, 2]], -1)
+
+
+def transform_points_rt(points: torch.Tensor, rvec: torch.Tensor, tvec: torch.Tensor) -> torch.Tensor:
+    """Apply ``X_cam = R(rvec) X + tvec``.
+
+    Args:
+        points: :math:`(*, N, 3)` world points.
+        rvec: :math:`(*, 3)` axis-angle rotation.
+        tvec: :math:`(*, 3)` translation.
+
+    Returns:
+        :math:`(*, N, 3)` camera-frame points.
+    """
+    R = axis_angle_to_rotation_matrix(rvec.reshape(-1, 3)).reshape(*rvec.shape[:-1], 3, 3)
+    return points @ R.transpose(-1, -2) + tvec.unsqueeze(-2)
+
+
+def _pad_opencv(dist: torch.Tensor) -> torch.Tensor:
+    n = dist.shape[-1]
+    if n in (4, 5, 8):
+        return dist
+    if n < 4:
+        return torch.nn.functional.pad(dist, [0, 4 - n])
+    raise ValueError(f"OpenCV distortion needs 0, 4, 5 or 8 coefficients, got {n}.")
+
+
+def project_points(
+    points: torch.Tensor,
+    K: torch.Tensor,
+    dist: torch.Tensor | None = None,
+    rvec: torch.Tensor | None = None,
+    tvec: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Project 3D points with a pinhole camera and OpenCV distortion (as ``cv2.projectPoints``).
+
+    Args:
+        points: :math:`(*, N, 3)` points (world frame if ``rvec``/``tvec`` given, else camera frame).
+        K: :math:`(*, 3, 3)` camera matrix.
+        dist: :math:`(*, D)` OpenCV coefficients, ``D`` in ``{0, 4, 5, 8}``; ``None`` for no distortion.
+        rvec: :math:`(*, 3)` axis-angle rotation world-to-camera.
+        tvec: :math:`(*, 3)` translation.
+
+    Returns:
+        :math:`(*, N, 2)` pixel coordinates.
+
+    Example:
+        >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]])
+        >>> project_points(torch.tensor([[0.1, 0.0, 1.0]]), K)
+        tensor([[370., 240.]])
+    """
+    if points.shape[-1] != 3:
+        raise ValueError(f"Expected (*, N, 3) points, got {tuple(points.shape)}.")
+    if rvec is not None:
+        if tvec is None:
+            raise ValueError("rvec given without tvec.")
+        points = transform_points_rt(points, rvec, tvec)
+    xy = points[..., :2] / points[..., 2:3]
+    if dist is not None and dist.shape[-1] > 0 and bool(dist.ne(0).any()):
+        eye = torch.eye(3, device=xy.device, dtype=xy.dtype).expand(*xy.shape[:-2], 3, 3)
+        d = _pad_opencv(dist).expand(*xy.shape[:-2], -1) if dist.dim() == 1 else _pad_opencv(dist)
+        xy = distort_points(xy, eye, d)
+    fx, fy = K[..., 0, 0, None], K[..., 1, 1, None]
+    cx, cy = K[..., 0, 2, None], K[..., 1, 2, None]
+    skew = K[..., 0, 1, None]
+    u = fx * xy[..., 0] + skew * xy[..., 1] + cx
+    v = fy * xy[..., 1] + cy
+    return torch.stack([u, v], -1)
+
+
+def distort_pixels(points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
+    """Ideal (undistorted) pixels to distorted pixels, OpenCV model; ``(*, N, 2)`` in and out."""
+    return distort_points(points, K, _pad_opencv(dist))
+
+
+def undistort_pixels(points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, num_iters: int = 20) -> torch.Tensor:
+    """Distorted pixels to ideal pixels (kornia's fixed-point inverse), ``(*, N, 2)`` in and out."""
+    return undistort_points(points, K, _pad_opencv(dist), num_iters=num_iters)
+
+
+# ----------------------------------------------------------------------------------------------
+# The paper's radial model (image-centred, radius in units of max(W, H))
+# ----------------------------------------------------------------------------------------------
+
+
+def _centre_scale(image_size: tuple[int, int], like: torch.Tensor) -> tuple[torch.Tensor, float]:
+    w, h = image_size
+    centre = torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], device=like.device, dtype=like.dtype)
+    return centre, float(max(w, h))
+
+
+def _apply_radial_factor(points: torch.Tensor, image_size: tuple[int, int], factor_fn) -> torch.Tensor:
+    centre, scale = _centre_scale(image_size, points)
+    q = (points - centre) / scale
+    r = q.norm(dim=-1, keepdim=True)
+    return q * factor_fn(r) * scale + centre
+
+
+def radial_distort_points(points: torch.Tensor, coeffs: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
+    """Paper distortion ``r_d = r_c (k0 + k1 r_c^2 + k2 r_c^4)`` on pixel points.
+
+    Args:
+        points: :math:`(B, N, 2)` ideal pixel coordinates.
+        coeffs: :math:`(B, 3)` ``(k0, k1, k2)``.
+        image_size: ``(W, H)``.
+
+    Returns:
+        :math:`(B, N, 2)` distorted pixel coordinates.
+
+    Example:
+        >>> p = torch.tensor([[[319.5, 239.5], [639., 479.]]])
+        >>> radial_distort_points(p, torch.tensor([[1.0, 0.0, 0.0]]), (640, 480))
+        tensor([[[319.5000, 239.5000],
+                 [639.0000, 479.0000]]])
+    """
+    if coeffs.shape[-1] != 3:
+        raise ValueError(f"Radial distortion needs (B, 3) coefficients (k0, k1, k2), got {tuple(coeffs.shape)}.")
+    k = coeffs.unsqueeze(-2)
+
+    def factor(r):
+        r2 = r * r
+        return k[..., 0:1] + k[..., 1:2] * r2 + k[..., 2:3] * r2 * r2
+
+    return _apply_radial_factor(points, image_size, factor)
+
+
+def radial_undistort_points(
+    points: torch.Tensor, coeffs: torch.Tensor, image_size: tuple[int, int], num_iters: int = 12
+) -> torch.Tensor:
+    """Exact inverse of :func:`radial_distort_points` by Newton's method on the radius.
+
+    Args:
+        points: :math:`(B, N, 2)` distorted pixel coordinates.
+        coeffs: :math:`(B, 3)` distortion ``(k0, k1, k2)``.
+        image_size: ``(W, H)``.
+        num_iters: Newton steps (converges quadratically; 12 reaches float64 rounding for the paper's ranges).
+
+    Returns:
+        :math:`(B, N, 2)` ideal pixel coordinates.
+    """
+    if coeffs.shape[-1] != 3:
+        raise ValueError(f"Radial distortion needs (B, 3) coefficients, got {tuple(coeffs.shape)}.")
+    centre, scale = _centre_scale(image_size, points)
+    q = (points - centre) / scale
+    rd = q.norm(dim=-1, keepdim=True)
+    k = coeffs.unsqueeze(-2)
+    k0, k1, k2 = k[..., 0:1], k[..., 1:2], k[..., 2:3]
+    rc = rd / k0
+    for _ in range(num_iters):
+        r2 = rc * rc
+        f = rc * (k0 + k1 * r2 + k2 * r2 * r2) - rd
+        df = k0 + 3 * k1 * r2 + 5 * k2 * r2 * r2
+        rc = rc - f / df.clamp_min(1e-6)
+    ratio = torch.where(rd > 0, rc / rd.clamp_min(1e-12), 1.0 / k0)
+    return q * ratio * scale + centre
+
+
+def radial_correct_points(points: torch.Tensor, correction: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
+    """Paper correction ``r_c = r_d (k0' + k1' r_d + k2' r_d^2 + k3' r_d^3 + k4' r_d^4)``.
+
+    Args:
+        points: :math:`(B, N, 2)` distorted pixel coordinates.
+        correction: :math:`(B, 5)` correction coefficients.
+        image_size: ``(W, H)``.
+
+    Returns:
+        :math:`(B, N, 2)` corrected pixel coordinates.
+    """
+    if correction.shape[-1] != 5:
+        raise ValueError(f"Radial correction needs (B, 5) coefficients, got {tuple(correction.shape)}.")
+    c = correction.unsqueeze(-2)
+
+    def factor(r):
+        return c[..., 0:1] + r * (c[..., 1:2] + r * (c[..., 2:3] + r * (c[..., 3:4] + r * c[..., 4:5])))
+
+    return _apply_radial_factor(points, image_size, factor)
+
+
+def fit_radial_correction(coeffs: torch.Tensor, image_size: tuple[int, int], num_samples: int = 64) -> torch.Tensor:
+    """Least-squares correction coefficients (B, 5) that best invert distortion ``coeffs`` (B, 3).
+
+    Samples ideal radii up to the image corner, distorts them, and fits
+    ``r_c = r_d * poly4(r_d)`` in closed form. Used as the regression target/oracle of the CNN.
+    """
+    w, h = image_size
+    r_max = 0.5 * (w * w + h * h) ** 0.5 / max(w, h) * 1.02
+    rc = torch.linspace(0.0, r_max, num_samples, device=coeffs.device, dtype=coeffs.dtype)
+    k0, k1, k2 = coeffs[:, 0:1], coeffs[:, 1:2], coeffs[:, 2:3]
+    rd = rc * (k0 + k1 * rc**2 + k2 * rc**4)  # (B, S)
+    A = torch.stack([rd**p for p in range(1, 6)], -1)  # (B, S, 5): r_d * r_d^p
+    sol = torch.linalg.lstsq(A, rc.expand_as(rd).unsqueeze(-1)).solution
+    return sol.squeeze(-1)
+
+
+def fit_opencv_distortion(
+    ideal: torch.Tensor, distorted: torch.Tensor, K: torch.Tensor, model: str = "opencv5", mask: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Closed-form OpenCV coefficients mapping ``ideal`` pixels onto ``distorted`` pixels for a fixed ``K``.
+
+    The OpenCV model is linear in its coefficients once the ideal normalized points are known (the
+    rational model is linearised by multiplying through by its denominator), so this is one batched
+    least-squares solve. It converts the paper's radial model (or any measured displacement field) to
+    the output model, e.g. to initialise the joint refinement.
+
+    Args:
+        ideal: :math:`(B, N, 2)` undistorted pixels.
+        distorted: :math:`(B, N, 2)` distorted pixels.
+        K: :math:`(B, 3, 3)`.
+        model: ``opencv5`` (k1,k2,p1,p2,k3), ``k1k2`` (k1,k2; others zero) or ``rational``.
+        mask: optional :math:`(B, N)` weights.
+
+    Returns:
+        :math:`(B, D)` coefficients in OpenCV order (D = 5, or 8 for ``rational``).
+    """
+    fx, fy = K[:, 0, 0, None], K[:, 1, 1, None]
+    cx, cy = K[:, 0, 2, None], K[:, 1, 2, None]
+    x = (ideal[..., 0] - cx) / fx
+    y = (ideal[..., 1] - cy) / fy
+    xd = (distorted[..., 0] - cx) / fx
+    yd = (distorted[..., 1] - cy) / fy
+    r2 = x * x + y * y
+    # residual rows: xd - x = x*(k1 r2 + k2 r4 + k3 r6) + 2 p1 x y + p2 (r2 + 2x^2)   (rational: times denominator)
+    cols_x = [x * r2, x * r2**2, 2 * x * y, r2 + 2 * x * x, x * r2**3]
+    cols_y = [y * r2, y * r2**2, r2 + 2 * y * y, 2 * x * y, y * r2**3]
+    bx, by = xd - x, yd - y
+    if model == "rational":
+        cols_x += [-xd * r2, -xd * r2**2, -xd * r2**3]
+        cols_y += [-yd * r2, -yd * r2**2, -yd * r2**3]
+    elif model == "k1k2":
+        cols_x, cols_y = cols_x[:2], cols_y[:2]
+    elif model != "opencv5":
+        raise ValueError(f"Unknown model {model!r}.")
+    A = torch.cat([torch.stack(cols_x, -1), torch.stack(cols_y, -1)], -2)  # (B, 2N, P)
+    b = torch.cat([bx, by], -1).unsqueeze(-1)
+    if mask is not None:
+        wgt = torch.cat([mask, mask], -1).to(A.dtype).unsqueeze(-1)
+        A, b = A * wgt, b * wgt
+    sol = torch.linalg.lstsq(A, b).solution.squeeze(-1)
+    if model == "k1k2":
+        sol = torch.cat([sol, torch.zeros_like(sol[:, :1]).expand(-1, 3)], -1)
+    return sol
