@@ -1,0 +1,114 @@
+"""The learned chessboard detector: heatmap UNet → peaks → Gaussian fit → sigma rejection → grid → refinement."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from ccs_kornia.modules.corner_refine import CornerRefiner
+from ccs_kornia.modules.detector import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.grid import collinearity_refine, organize_grid
+from ccs_kornia.modules.heatmap_unet import CornerUNet
+from ccs_kornia.modules.subpixel import gaussian_fit, heatmap_peaks, sigma_outlier_rejection
+
+__all__ = ["DEFAULT_DETECTOR_WEIGHTS", "load_corner_unet", "LearnedChessboardDetector"]
+
+#: weights shipped inside the package (see docs/training.md for how they were made)
+DEFAULT_DETECTOR_WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "corner_unet.pt"
+
+
+def load_corner_unet(path: str | Path | None = None, map_location: str | torch.device = "cpu") -> tuple[CornerUNet, float]:
+    """Load an exported detector checkpoint; returns ``(network in eval mode, training sigma)``.
+
+    Raises:
+        FileNotFoundError: no weights at ``path`` (default: the shipped ones).
+    """
+    path = Path(path) if path is not None else DEFAULT_DETECTOR_WEIGHTS
+    if not path.is_file():
+        raise FileNotFoundError(f"Detector weights not found at {path}.")
+    ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    net = CornerUNet(**ckpt["config"])
+    net.load_state_dict(ckpt["state_dict"])
+    return net.eval(), float(ckpt.get("sigma", 1.5))
+
+
+class LearnedChessboardDetector(ChessboardDetector):
+    """Heatmap-learning chessboard detector (paper §III-B) with an image-based final refinement.
+
+    Steps, each switchable so its effect can be measured:
+
+    1. :class:`CornerUNet` heatmap;
+    2. peaks (kornia ``nms2d`` + threshold + top-k, soft-argmax seeds) and Gaussian surface fitting
+       (batched least squares in log space) giving ``mu`` and ``sigma`` per peak;
+    3. peaks whose ``sigma`` differs from the training sigma are rejected;
+    4. grid organisation into a ``cols x rows`` board (missing corners predicted, wrong boards rejected);
+    5. optional collinearity refinement (only meaningful on undistorted images);
+    6. optional saddle-point refinement on the image (window adapted to the grid spacing).
+
+    Args:
+        net: a trained :class:`CornerUNet`; ``None`` loads ``weights``.
+        weights: path of an exported checkpoint (default: the shipped weights).
+        sigma: training sigma of the heatmaps (read from the checkpoint when loading).
+        peak_threshold: heatmap threshold of a peak.
+        nms_kernel: non-maximum suppression window.
+        max_peaks: peak slots per image.
+        fit_window: Gaussian-fit window (odd).
+        sigma_tolerance: relative sigma tolerance of the outlier rejection.
+        collinearity: run the collinearity refinement.
+        refine: ``"saddle"``, ``"gradient"`` or ``"none"`` image refinement.
+    """
+
+    def __init__(
+        self,
+        net: CornerUNet | None = None,
+        weights: str | Path | None = None,
+        sigma: float = 1.5,
+        peak_threshold: float = 0.25,
+        nms_kernel: int = 5,
+        max_peaks: int = 512,
+        fit_window: int = 7,
+        sigma_tolerance: float = 0.6,
+        collinearity: bool = False,
+        refine: str = "saddle",
+    ) -> None:
+        super().__init__()
+        if net is None:
+            net, sigma = load_corner_unet(weights)
+        self.net = net.eval()
+        self.sigma = sigma
+        self.peak_threshold = peak_threshold
+        self.nms_kernel = nms_kernel
+        self.max_peaks = max_peaks
+        self.fit_window = fit_window
+        self.sigma_tolerance = sigma_tolerance
+        self.collinearity = collinearity
+        if refine not in ("saddle", "gradient", "none"):
+            raise ValueError(f"refine must be 'saddle', 'gradient' or 'none', got {refine!r}.")
+        self.refine = refine
+        self.refiner = CornerRefiner(method=refine) if refine != "none" else None
+
+    @torch.no_grad()
+    def candidates(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Heatmap and sigma-filtered sub-pixel peaks: ``heatmap (B,1,H,W), points (B,M,2), mask (B,M)``."""
+        heat = self.net(images)
+        seeds, _, mask = heatmap_peaks(heat, self.peak_threshold, self.max_peaks, self.nms_kernel)
+        mu, sig, ok = gaussian_fit(heat, seeds, mask, self.fit_window)
+        keep = sigma_outlier_rejection(sig, mask & ok, self.sigma, self.sigma_tolerance)
+        return heat, mu, keep
+
+    @torch.no_grad()
+    def forward(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        """Detect the board on every image of ``(B, 1, H, W)``; corners in grid order."""
+        board_size = self._check_inputs(images, board_size)
+        images = images.float()
+        _, points, keep = self.candidates(images)
+        corners, valid, found = organize_grid(points, keep, board_size, images)
+        if self.collinearity:
+            corners, valid = collinearity_refine(corners, valid & found[:, None], board_size)
+        cells = found[:, None].expand_as(valid)  # every cell of a found board (predicted ones too)
+        if self.refiner is not None and bool(found.any()):
+            corners = self.refiner(images, corners, cells, board_size)
+        reasons = ["learned" if f else "board not found" for f in found.tolist()]
+        corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
+        return DetectionResult(corners=corners.float(), found=found, reasons=reasons)

@@ -1,0 +1,42 @@
+"""Export a Lightning checkpoint to the small weight file shipped in ``ccs_kornia/weights/``.
+
+    python -m ccs_kornia.training.export runs/detector/checkpoints/last.ckpt ccs_kornia/weights/corner_unet.pt
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+
+__all__ = ["export_checkpoint"]
+
+
+def export_checkpoint(ckpt_path: str | Path, out_path: str | Path) -> dict:
+    """Load a ``DetectorLitModule`` checkpoint and write its network config and weights only."""
+    from ccs_kornia.training.detector import DetectorLitModule
+
+    module = DetectorLitModule.load_from_checkpoint(str(ckpt_path), map_location="cpu")
+    payload = module.export()
+    ckpt = torch.load(str(ckpt_path), map_location="cpu", weights_only=False)
+    payload["trained_steps"] = int(ckpt.get("global_step", -1))
+    out = Path(out_path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(payload, out)
+    return payload
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("checkpoint")
+    parser.add_argument("output")
+    args = parser.parse_args(argv)
+    payload = export_checkpoint(args.checkpoint, args.output)
+    n = sum(v.numel() for v in payload["state_dict"].values())
+    print(f"wrote {args.output}: {payload['kind']} {payload['config']}, {n} values, step {payload['trained_steps']}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

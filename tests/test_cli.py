@@ -1,0 +1,326 @@
+"""Tests of the command line (DESIGN section 4): JSON contract, accuracy, and every bad-input case."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from ccs_kornia import cli
+from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.io import write_image
+from ccs_kornia.metrics import e_ip
+
+BOARD = (9, 6)
+K_TRUE = torch.tensor([[600.0, 0.0, 318.0], [0.0, 595.0, 244.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+DIST_TRUE = torch.tensor([-0.15, 0.03, 0.0, 0.0, 0.0], dtype=torch.float64)
+NUM_VIEWS = 7
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    batch = make_calibration_set(K_TRUE, BOARD, 0.025, (640, 480), num_views=NUM_VIEWS, dist=DIST_TRUE, seed=21, supersample=2)
+    folder = tmp_path_factory.mktemp("rendered")
+    files = []
+    for k in range(NUM_VIEWS):
+        path = folder / f"view_{k:02d}.png"
+        assert write_image(path, batch.images[k, 0])
+        files.append(str(path))
+    return folder, files, batch
+
+
+@pytest.fixture(scope="module")
+def real_dir() -> Path:
+    return Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def error_lines(err: str) -> list[str]:
+    return [line for line in err.splitlines() if "error" in line]
+
+
+def assert_one_line_error(err: str, phrase: str) -> None:
+    lines = error_lines(err)
+    assert len(lines) == 1, err
+    assert phrase in lines[0], err
+    assert "Traceback" not in err
+
+
+# ----------------------------------------------------------------------------------------------
+# contract and accuracy on rendered images
+# ----------------------------------------------------------------------------------------------
+
+
+def test_detect_json(rendered, tmp_path, capsys):
+    folder, files, batch = rendered
+    out = tmp_path / "corners.json"
+    code, stdout, _ = run(capsys, "detect", str(folder), "--board", "9x6", "--output", str(out))
+    assert code == 0 and f"{NUM_VIEWS} of {NUM_VIEWS}" in stdout
+    data = json.loads(out.read_text())
+    assert data["board"] == [9, 6]
+    assert [im["path"] for im in data["images"]] == files
+    for k, im in enumerate(data["images"]):
+        assert im["found"] is True and len(im["corners"]) == 54 and len(im["corners"][0]) == 2
+        est = torch.tensor(im["corners"], dtype=torch.float64)
+        gt = batch.corners[k].double()
+        err = min((est - gt).norm(dim=-1).mean(), (est - gt.flip(0)).norm(dim=-1).mean())
+        assert float(err) < 0.1
+
+
+def test_calibrate_json_and_accuracy(rendered, tmp_path, capsys):
+    folder, files, _ = rendered
+    out, yaml, report = tmp_path / "calib.json", tmp_path / "calib.yaml", tmp_path / "report"
+    code, stdout, _ = run(
+        capsys, "calibrate", str(folder / "*.png"), "--board", "9x6", "--square", "0.025", "--output", str(out),
+        "--opencv-yaml", str(yaml), "--report", str(report),
+    )
+    assert code == 0 and "RMS" in stdout
+    data = json.loads(out.read_text())
+    assert data["image_size"] == [640, 480]
+    K = torch.tensor(data["K"], dtype=torch.float64)
+    assert K.shape == (3, 3) and K[0, 1] == 0 and K[1, 0] == 0 and K[2].tolist() == [0, 0, 1]
+    assert data["distortion"]["model"] == "opencv5" and len(data["distortion"]["coeffs"]) == 5
+    assert isinstance(data["rms"], float) and data["rms"] < 0.2
+    assert [v["path"] for v in data["views"]] == files
+    for v in data["views"]:
+        assert set(v) >= {"path", "used", "rms"} and v["used"] is True and v["rms"] < 0.3
+    assert set(data["std"]) >= {"fx", "fy", "cx", "cy", "distortion"}
+    assert float(e_ip(K, K_TRUE)) < 2.0, data["K"]
+    assert abs(data["distortion"]["coeffs"][0] - float(DIST_TRUE[0])) < 0.03
+    # OpenCV can read the YAML back
+    fs = cv2.FileStorage(str(yaml), cv2.FILE_STORAGE_READ)
+    np.testing.assert_allclose(fs.getNode("camera_matrix").mat(), np.array(data["K"]), rtol=1e-12)
+    fs.release()
+    assert (report / "summary.md").is_file() and len(list(report.glob("view_*.png"))) == NUM_VIEWS
+
+
+def test_undistort_matches_opencv(rendered, tmp_path, capsys):
+    folder, files, _ = rendered
+    calib = tmp_path / "calib.json"
+    calib.write_text(json.dumps({"image_size": [640, 480], "K": K_TRUE.tolist(),
+                                 "distortion": {"model": "opencv5", "coeffs": DIST_TRUE.tolist()}}))
+    code, stdout, _ = run(capsys, "undistort", files[0], files[1], "--calibration", str(calib), "--out-dir", str(tmp_path / "und"))
+    assert code == 0 and "undistorted 2 of 2" in stdout
+    ours = cv2.imread(str(tmp_path / "und" / os.path.basename(files[0])), cv2.IMREAD_UNCHANGED).astype(np.float64)
+    src = cv2.imread(files[0], cv2.IMREAD_UNCHANGED)
+    ref = cv2.undistort(src, K_TRUE.numpy(), DIST_TRUE.numpy()).astype(np.float64)
+    diff = np.abs(ours - ref)[10:-10, 10:-10]
+    assert diff.mean() < 0.5 and np.percentile(diff, 99) < 3
+
+
+def test_demo(tmp_path, capsys):
+    code, stdout, _ = run(capsys, "demo", "--out-dir", str(tmp_path / "demo"), "--views", "5")
+    assert code == 0
+    for key in ("fx", "fy", "cx", "cy", "k1", "E_FL", "E_PP", "E_IP", "RMS"):
+        assert key in stdout
+    data = json.loads((tmp_path / "demo" / "calib.json").read_text())
+    assert abs(data["K"][0][0] - 620.0) < 10.0
+    assert len(list((tmp_path / "demo").glob("view_*.png"))) == 5
+
+
+# ----------------------------------------------------------------------------------------------
+# bad input: one clear line, the right exit status, what succeeded still written
+# ----------------------------------------------------------------------------------------------
+
+
+def test_no_images(tmp_path, capsys):
+    code, _, err = run(capsys, "calibrate", str(tmp_path / "missing"), "--board", "9x6", "--output", str(tmp_path / "c.json"))
+    assert code == 2
+    assert_one_line_error(err, "no images found")
+    assert not (tmp_path / "c.json").exists()
+
+
+def test_empty_directory(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    code, _, err = run(capsys, "detect", str(tmp_path / "empty"), "--board", "9x6", "--output", str(tmp_path / "d.json"))
+    assert code == 2
+    assert_one_line_error(err, "no image files")
+
+
+def test_glob_matching_nothing(tmp_path, capsys):
+    code, _, err = run(capsys, "detect", str(tmp_path / "*.png"), "--board", "9x6", "--output", str(tmp_path / "d.json"))
+    assert code == 2
+    assert_one_line_error(err, "glob matched no file")
+
+
+@pytest.mark.parametrize("board", ["9by6", "0x5", "1x1", "9x", "abc"])
+def test_malformed_board(tmp_path, capsys, board):
+    code, _, err = run(capsys, "calibrate", str(tmp_path), "--board", board, "--output", str(tmp_path / "c.json"))
+    assert code == 2
+    assert_one_line_error(err, "invalid board size")
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_malformed_board_subprocess_has_no_traceback(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "ccs_kornia", "calibrate", str(tmp_path), "--board", "9by6", "--output", str(tmp_path / "c.json")],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 2
+    assert len(proc.stderr.strip().splitlines()) == 1 and "invalid board size" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_unreadable_file_among_good_is_skipped(rendered, tmp_path, capsys):
+    folder, files, _ = rendered
+    bad = tmp_path / "broken.png"
+    bad.write_bytes(b"this is not a png")
+    out = tmp_path / "c.json"
+    code, _, err = run(capsys, "calibrate", *files, str(bad), "--board", "9x6", "--output", str(out))
+    assert code == 0
+    assert "warning: skipped" in err and "broken.png" in err and "not a readable image" in err
+    assert "Traceback" not in err
+    data = json.loads(out.read_text())
+    skipped = {s["path"]: s["reason"] for s in data["skipped"]}
+    assert "not a readable image" in skipped[str(bad)]
+    view = [v for v in data["views"] if v["path"] == str(bad)][0]
+    assert view["used"] is False and view["rms"] is None
+
+
+def test_board_never_found(tmp_path, capsys):
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"blank{k}.png"), np.full((120, 160), 128, np.uint8))
+    code, _, err = run(capsys, "calibrate", str(tmp_path), "--board", "9x6", "--output", str(tmp_path / "c.json"))
+    assert code == 2
+    assert_one_line_error(err, "board 9x6 not found in any of 3 images")
+    assert not (tmp_path / "c.json").exists()
+    # detect still writes what it found (nothing) and says so
+    code, _, err = run(capsys, "detect", str(tmp_path), "--board", "9x6", "--output", str(tmp_path / "d.json"))
+    assert code == 2
+    assert_one_line_error(err, "not found in any")
+    assert [im["found"] for im in json.loads((tmp_path / "d.json").read_text())["images"]] == [False] * 3
+
+
+def test_wrong_board_size_finds_nothing(rendered, tmp_path, capsys):
+    # 8x6 on a 9x6 board: sub-boards are rejected, so the user learns the board size is wrong
+    _, files, _ = rendered
+    code, _, err = run(capsys, "calibrate", *files[:3], "--board", "8x6", "--output", str(tmp_path / "c.json"))
+    assert code == 2
+    assert_one_line_error(err, "check --board")
+
+
+def test_fewer_than_three_views(rendered, tmp_path, capsys):
+    _, files, _ = rendered
+    code, _, err = run(capsys, "calibrate", *files[:2], "--board", "9x6", "--output", str(tmp_path / "c.json"))
+    assert code == 2
+    assert_one_line_error(err, "at least 3 are needed")
+    assert not (tmp_path / "c.json").exists()
+
+
+def test_missing_output_directory(rendered, tmp_path, capsys):
+    _, files, _ = rendered
+    target = tmp_path / "no_such_dir" / "c.json"
+    code, _, err = run(capsys, "calibrate", *files, "--board", "9x6", "--output", str(target))
+    assert code == 2
+    assert_one_line_error(err, "does not exist")
+    assert not target.parent.exists()
+
+
+def test_mismatched_image_sizes(rendered, tmp_path, capsys):
+    _, files, _ = rendered
+    odd = tmp_path / "odd.png"
+    src = cv2.imread(files[0], cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(odd), cv2.resize(src, (800, 600), interpolation=cv2.INTER_CUBIC))
+    out = tmp_path / "c.json"
+    code, _, err = run(capsys, "calibrate", *files[:4], str(odd), "--board", "9x6", "--output", str(out))
+    assert code == 0
+    assert "800x600 differs" in err
+    data = json.loads(out.read_text())
+    assert data["image_size"] == [640, 480]
+    view = [v for v in data["views"] if v["path"] == str(odd)][0]
+    assert view["used"] is False and "800x600" in view["reason"]
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="CUDA is available here, so the no-CUDA error cannot happen")
+def test_cuda_without_cuda(rendered, tmp_path, capsys):
+    _, files, _ = rendered
+    code, _, err = run(capsys, "calibrate", *files, "--board", "9x6", "--output", str(tmp_path / "c.json"), "--device", "cuda")
+    assert code == 2
+    assert_one_line_error(err, "CUDA is not available")
+
+
+def test_learned_detector_unavailable(rendered, tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ccs_kornia.modules.learned_detector", None)
+    _, files, _ = rendered
+    code, _, err = run(capsys, "detect", *files[:1], "--board", "9x6", "--output", str(tmp_path / "d.json"), "--detector", "learned")
+    assert code == 2
+    assert_one_line_error(err, "use --detector opencv")
+
+
+def test_internal_error_is_one_line(rendered, tmp_path, capsys, monkeypatch):
+    _, files, _ = rendered
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("synthetic failure\nsecond line")
+
+    monkeypatch.setattr(cli, "_detect_files", boom)
+    argv = ["detect", *files[:1], "--board", "9x6", "--output", str(tmp_path / "d.json")]
+    code, _, err = run(capsys, *argv)
+    assert code == 1
+    assert len(err.strip().splitlines()) == 1 and "CCS_DEBUG=1" in err and "synthetic failure" in err
+    monkeypatch.setenv("CCS_DEBUG", "1")
+    with pytest.raises(RuntimeError, match="synthetic failure"):
+        cli.main(argv)
+
+
+def test_bad_calibration_file(rendered, tmp_path, capsys):
+    _, files, _ = rendered
+    (tmp_path / "bad.json").write_text("{not json")
+    code, _, err = run(capsys, "undistort", files[0], "--calibration", str(tmp_path / "bad.json"), "--out-dir", str(tmp_path / "o"))
+    assert code == 2
+    assert_one_line_error(err, "not a readable JSON file")
+
+
+def test_lightning_commands_forward_or_fail_clearly(capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ccs_kornia.training.cli", None)
+    code, _, err = run(capsys, "fit", "--config", "nothing.yaml")
+    assert code == 2
+    assert_one_line_error(err, "training command line is not available")
+    calls = []
+    fake = type(sys)("fake_training_cli")
+    fake.main = lambda argv: calls.append(argv) or 0
+    monkeypatch.setitem(sys.modules, "ccs_kornia.training.cli", fake)
+    assert cli.main(["validate", "--config", "x.yaml"]) == 0
+    assert calls == [["validate", "--config", "x.yaml"]]
+
+
+# ----------------------------------------------------------------------------------------------
+# real photographs against published references
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "name, board, square, model, reference, tolerance",
+    [
+        ("opencv_left", "9x6", "25", "opencv5", (535.9, 535.9, 342.3, 235.6), 4.0),
+        ("boofcv_sony_hx5v", "4x6", "30", "k1k2", (701.01, 698.65, 308.46, 246.84), 3.0),
+        ("boofcv_bumblebee2_left", "4x6", "30", "k1k2", (524.61, 526.92, 312.45, 247.40), 3.0),
+    ],
+)
+def test_real_sets(real_dir, tmp_path, capsys, name, board, square, model, reference, tolerance):
+    folder = real_dir / name
+    if not folder.is_dir():
+        pytest.skip(f"real data set not present at {folder}")
+    out = tmp_path / "calib.json"
+    code, stdout, err = run(capsys, "calibrate", str(folder), "--board", board, "--square", square, "--model", model,
+                            "--output", str(out))
+    assert code == 0, err
+    data = json.loads(out.read_text())
+    K = data["K"]
+    estimate = (K[0][0], K[1][1], K[0][2], K[1][2])
+    print(name, "fx fy cx cy:", [round(v, 3) for v in estimate], "RMS", round(data["rms"], 4))
+    for est, ref in zip(estimate, reference):
+        assert abs(est - ref) < tolerance, (name, estimate, reference)
+    assert data["num_views"]["used"] >= 10

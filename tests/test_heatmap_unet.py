@@ -1,0 +1,162 @@
+"""Tests of the corner UNet and its detection loss."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from ccs_kornia.losses.heatmap_loss import HeatmapLoss, heatmap_loss
+from ccs_kornia.modules.heatmap_unet import CornerUNet
+
+
+def _num_params(net: torch.nn.Module) -> int:
+    return sum(p.numel() for p in net.parameters())
+
+
+class TestCornerUNet:
+    def test_smoke_default_size(self) -> None:
+        net = CornerUNet()
+        # the shipped default must stay CPU sized (~0.5 M parameters)
+        assert 400_000 < _num_params(net) < 600_000
+        assert "base_channels=8" in repr(net)
+
+    @pytest.mark.parametrize("size", [(61, 97), (16, 16), (1, 1), (33, 17)])
+    def test_output_shape_odd_sizes(self, size: tuple[int, int]) -> None:
+        torch.manual_seed(0)
+        net = CornerUNet(base_channels=4, depth=4).eval()
+        x = torch.rand(3, 1, *size)
+        with torch.no_grad():
+            y = net(x)
+        assert y.shape == (3, 1, *size)
+        assert torch.isfinite(y).all()
+        assert (y >= 0).all() and (y <= 1).all()
+
+    def test_default_output_shape_and_initial_level(self) -> None:
+        torch.manual_seed(0)
+        net = CornerUNet().eval()
+        with torch.no_grad():
+            y = net(torch.rand(2, 1, 61, 97))
+        assert y.shape == (2, 1, 61, 97)
+        # the output bias starts the net near the all-background heatmap (sigmoid(-4) ~ 0.018)
+        assert y.mean().item() < 0.1
+
+    @pytest.mark.parametrize(
+        "kwargs",
+        [
+            {"norm": "group"},
+            {"norm": "none"},
+            {"up_mode": "transposed"},
+            {"depth": 2, "base_channels": 6},
+            {"in_channels": 3},
+        ],
+    )
+    def test_variants(self, kwargs: dict) -> None:
+        torch.manual_seed(0)
+        net = CornerUNet(**{"base_channels": 4, **kwargs}).eval()
+        x = torch.rand(2, net.in_channels, 45, 50)
+        with torch.no_grad():
+            y = net(x)
+        assert y.shape == (2, 1, 45, 50)
+        assert (y >= 0).all() and (y <= 1).all()
+
+    def test_logits_output(self) -> None:
+        torch.manual_seed(0)
+        net = CornerUNet(base_channels=4, depth=2, out_activation="none").eval()
+        with torch.no_grad():
+            y = net(torch.rand(1, 1, 20, 20))
+        # raw logits around the initial output bias, outside [0, 1]
+        assert (y < 0).any()
+        assert CornerUNet(out_activation=None).out_activation == "none"
+
+    def test_batch_consistency(self) -> None:
+        torch.manual_seed(0)
+        net = CornerUNet(base_channels=4).eval()
+        x = torch.rand(3, 1, 37, 53)
+        with torch.no_grad():
+            batched = net(x)
+            single = torch.cat([net(x[i : i + 1]) for i in range(3)])
+        torch.testing.assert_close(batched, single, atol=1e-5, rtol=1e-5)
+
+    def test_padding_is_cropped_back(self) -> None:
+        # output pixel (x, y) is input pixel (x, y): the internal pad is right/bottom, edge-replicated
+        torch.manual_seed(0)
+        net = CornerUNet(base_channels=4, depth=3).eval()
+        x = torch.rand(1, 1, 21, 30)
+        padded = F.pad(x, (0, 2, 0, 3), mode="replicate")  # 24 x 32, a multiple of 8
+        with torch.no_grad():
+            torch.testing.assert_close(net(x), net(padded)[..., :21, :30])
+
+    def test_backward(self) -> None:
+        torch.manual_seed(0)
+        net = CornerUNet(base_channels=4, depth=2).train()
+        x = torch.rand(2, 1, 24, 24)
+        loss = HeatmapLoss(pos_weight=5.0)(net(x), torch.rand(2, 1, 24, 24))
+        loss.backward()
+        grads = [p.grad for p in net.parameters()]
+        assert all(g is not None and torch.isfinite(g).all() for g in grads)
+        assert net.head.weight.grad.abs().sum() > 0
+
+    def test_torch_compile(self) -> None:
+        # fullgraph=True fails on any graph break; aot_eager traces forward through AOTAutograd without the slow
+        # C++ code generation of inductor (checked by hand: inductor gives the same output to 1e-8)
+        torch.manual_seed(0)
+        net = CornerUNet(base_channels=4, depth=2).eval()
+        x = torch.rand(2, 1, 21, 30)
+        compiled = torch.compile(net, fullgraph=True, backend="aot_eager")
+        with torch.no_grad():
+            torch.testing.assert_close(compiled(x), net(x))
+
+    def test_exceptions(self) -> None:
+        net = CornerUNet(base_channels=4, depth=2)
+        with pytest.raises(ValueError, match="shape"):
+            net(torch.rand(1, 32, 32))
+        with pytest.raises(ValueError, match="shape"):
+            net(torch.rand(1, 3, 32, 32))
+        with pytest.raises(ValueError, match="norm"):
+            CornerUNet(norm="layer")
+        with pytest.raises(ValueError, match="out_activation"):
+            CornerUNet(out_activation="relu")
+        with pytest.raises(ValueError, match="up_mode"):
+            CornerUNet(up_mode="nearest")
+        with pytest.raises(ValueError, match="depth"):
+            CornerUNet(depth=0)
+
+
+class TestHeatmapLoss:
+    def test_zero_for_perfect_prediction(self) -> None:
+        target = torch.rand(2, 1, 8, 8)
+        assert heatmap_loss(target, target).item() == 0.0
+        assert HeatmapLoss(pos_weight=10.0)(target, target).item() == 0.0
+
+    def test_values_and_reductions(self) -> None:
+        pred = torch.zeros(1, 1, 4, 4)
+        target = torch.zeros(1, 1, 4, 4)
+        target[..., 1, 1] = 1.0
+        target[..., 1, 2] = 0.05  # below the default 0.1 threshold: not up-weighted
+        assert heatmap_loss(pred, target, "sum").item() == pytest.approx(1.0 + 0.0025)
+        assert heatmap_loss(pred, target, "mean").item() == pytest.approx((1.0 + 0.0025) / 16)
+        assert heatmap_loss(pred, target, "sum", pos_weight=3.0).item() == pytest.approx(4.0 + 0.0025)
+        per_pixel = HeatmapLoss("none", pos_weight=3.0)(pred, target)
+        assert per_pixel.shape == (1, 1, 4, 4)
+        assert per_pixel[0, 0, 1, 1].item() == pytest.approx(4.0)
+        assert per_pixel[0, 0, 1, 2].item() == pytest.approx(0.0025)
+
+    def test_matches_mse_without_weight(self) -> None:
+        pred, target = torch.rand(2, 1, 9, 7), torch.rand(2, 1, 9, 7)
+        torch.testing.assert_close(HeatmapLoss()(pred, target), F.mse_loss(pred, target))
+
+    def test_gradient(self) -> None:
+        pred = torch.rand(1, 1, 6, 6, dtype=torch.float64, requires_grad=True)
+        target = torch.rand(1, 1, 6, 6, dtype=torch.float64)
+        assert torch.autograd.gradcheck(lambda p: heatmap_loss(p, target, pos_weight=2.0), (pred,))
+
+    def test_exceptions(self) -> None:
+        with pytest.raises(ValueError, match="same shape"):
+            heatmap_loss(torch.rand(1, 1, 4, 4), torch.rand(1, 1, 4, 5))
+        with pytest.raises(ValueError, match="same shape"):
+            heatmap_loss(torch.rand(4, 4), torch.rand(4, 4))
+        with pytest.raises(ValueError, match="reduction"):
+            HeatmapLoss(reduction="max")
+        with pytest.raises(ValueError, match="pos_weight"):
+            HeatmapLoss(pos_weight=-1.0)
