@@ -158,7 +158,9 @@ def project_points(
             raise ValueError("rvec given without tvec.")
         points = transform_points_rt(points, rvec, tvec)
     xy = points[..., :2] / points[..., 2:3]
-    if dist is not None and dist.shape[-1] > 0 and bool(dist.ne(0).any()):
+    # applied even when every coefficient is zero: a data-dependent branch would zero the distortion
+    # gradients at the usual zero start and break vmap / torch.compile
+    if dist is not None and dist.shape[-1] > 0:
         eye = torch.eye(3, device=xy.device, dtype=xy.dtype).expand(*xy.shape[:-2], 3, 3)
         d = _pad_opencv(dist).expand(*xy.shape[:-2], -1) if dist.dim() == 1 else _pad_opencv(dist)
         xy = distort_points(xy, eye, d)

@@ -1,0 +1,271 @@
+"""The calibration solver: homographies -> Zhang -> image RANSAC -> joint LM -> outlier check -> LM.
+
+Batched over cameras (C) and views (V); views without a usable board are padded and masked. Every stage is
+a module of its own (``homography.py``, ``zhang.py``, ``ransac.py``, ``refine.py``); this one only composes
+them and keeps the bookkeeping of which view was used and why not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import torch
+from torch import nn
+
+from ccs_kornia.modules.homography import MIN_HOMOGRAPHY_POINTS, find_homographies
+from ccs_kornia.modules.ransac import ImageRansac
+from ccs_kornia.modules.refine import FREE_DISTORTION, RefinementResult, joint_refinement
+from ccs_kornia.modules.zhang import extrinsics_from_homography, zhang_intrinsics
+
+__all__ = ["VIEW_REASONS", "CalibrationResult", "CalibrationSolver", "calibrate"]
+
+#: codes of ``CalibrationResult.view_reason``
+VIEW_REASONS: dict[int, str] = {
+    0: "used",
+    1: "too few corners",
+    2: "homography failed (degenerate corners)",
+    3: "rejected by image RANSAC",
+    4: "reprojection error outlier after refinement",
+}
+
+
+@dataclass
+class CalibrationResult:
+    """Calibration of C cameras from V views each (the C dim is absent for unbatched input)."""
+
+    K: torch.Tensor  #: (C, 3, 3)
+    dist: torch.Tensor  #: (C, D) OpenCV order (k1, k2, p1, p2, k3[, k4, k5, k6])
+    rvec: torch.Tensor  #: (C, V, 3) world-to-camera axis-angle per view
+    tvec: torch.Tensor  #: (C, V, 3)
+    view_rms: torch.Tensor  #: (C, V) px, NaN for views not used
+    used: torch.Tensor  #: (C, V) bool
+    rms: torch.Tensor  #: (C,) OpenCV's definition: sqrt(sum squared error / number of points) over used views
+    std_intrinsics: torch.Tensor  #: (C, 4) std of fx, fy, cx, cy
+    std_dist: torch.Tensor  #: (C, D)
+    success: torch.Tensor  #: (C,) bool
+    model: str
+    view_reason: torch.Tensor  #: (C, V) int64, keys of VIEW_REASONS
+    converged: torch.Tensor  #: (C,) bool, LM met its tolerance
+    candidate_rms: torch.Tensor  #: (C, V) px: every view with a homography under the final model (used or not)
+
+    def tensors(self) -> dict[str, torch.Tensor]:
+        return {f.name: getattr(self, f.name) for f in fields(self) if isinstance(getattr(self, f.name), torch.Tensor)}
+
+
+def _check_inputs(corners, valid, object_points, image_size):
+    if not isinstance(corners, torch.Tensor) or corners.dim() not in (3, 4) or corners.shape[-1] != 2:
+        raise ValueError(f"corners must be (C, V, N, 2) or (V, N, 2), got {tuple(getattr(corners, 'shape', ()))}.")
+    if valid is None:
+        valid = corners.isfinite().all(-1)
+    if valid.shape != corners.shape[:-1]:
+        raise ValueError(f"valid must be {tuple(corners.shape[:-1])}, got {tuple(valid.shape)}.")
+    N = corners.shape[-2]
+    C = corners.shape[0] if corners.dim() == 4 else 1
+    if object_points.dim() == 2:
+        ok = object_points.shape == (N, 3)
+    else:
+        ok = object_points.dim() == 3 and object_points.shape[1:] == (N, 3) and object_points.shape[0] in (1, C)
+    if not ok:
+        raise ValueError(f"object_points must be ({N}, 3) or ({C}, {N}, 3), got {tuple(object_points.shape)}.")
+    if len(image_size) != 2 or min(int(image_size[0]), int(image_size[1])) <= 0:
+        raise ValueError(f"image_size must be (W, H) with positive entries, got {image_size!r}.")
+    if N < MIN_HOMOGRAPHY_POINTS:
+        raise ValueError(f"A board needs at least {MIN_HOMOGRAPHY_POINTS} points, got N={N}.")
+    return valid
+
+
+class CalibrationSolver(nn.Module):
+    r"""Intrinsic calibration from planar-board corners, batched over cameras.
+
+    Args:
+        model: distortion model ``none`` | ``k1k2`` | ``opencv5`` | ``rational`` (OpenCV order).
+        use_ransac: run the image-level RANSAC before the refinement.
+        ransac_iters: RANSAC hypotheses per camera.
+        seed: RANSAC seed (results are deterministic).
+        fix_aspect_ratio: ``fx == fy``.
+        dtype: solve precision.
+        fix_principal_point: principal point at the image centre ``((W-1)/2, (H-1)/2)``.
+        min_corners: views with fewer valid corners are not used.
+        min_views: cameras with fewer usable views fail (``success = False``, values NaN).
+        ransac_sample_size: views per RANSAC subset.
+        ransac_abs_threshold / ransac_rel_threshold: RANSAC inlier threshold ``max(abs, rel * median)`` (px).
+        reject_outliers: after LM, re-evaluate every view under the full model (distortion included) and
+            refine again without views whose RMS exceeds ``max(outlier_abs_threshold,
+            outlier_rel_threshold * median view RMS)``; this also re-admits views RANSAC rejected only
+            because of un-modelled distortion.
+        max_outlier_rounds: rounds of that check.
+        max_iters: LM iterations at most.
+
+    Shape:
+        corners :math:`(C, V, N, 2)` px, valid :math:`(C, V, N)` bool, object_points :math:`(N, 3)` or
+        :math:`(C, N, 3)`, image_size ``(W, H)`` -> :class:`CalibrationResult`. Unbatched :math:`(V, N, 2)`
+        input gives results without the C dim.
+
+    Example:
+        >>> from ccs_kornia.camera import board_object_points, project_points
+        >>> obj = board_object_points(6, 5, 0.1, dtype=torch.float64)
+        >>> K = torch.tensor([[600., 0, 330], [0, 610, 230], [0, 0, 1]], dtype=torch.float64)
+        >>> g = torch.Generator().manual_seed(0)
+        >>> rvec = 0.4 * (torch.rand(8, 3, generator=g, dtype=torch.float64) - 0.5)
+        >>> tvec = torch.tensor([-0.25, -0.2, 1.5], dtype=torch.float64).expand(8, 3)
+        >>> uv = project_points(obj.expand(8, -1, -1), K.expand(8, 3, 3), None, rvec, tvec)
+        >>> res = CalibrationSolver(model="none")(uv, torch.ones(8, 30, dtype=torch.bool), obj, (640, 480))
+        >>> bool((res.K - K).abs().max() < 1e-6), bool(res.success)
+        (True, True)
+    """
+
+    def __init__(
+        self,
+        model: str = "opencv5",
+        use_ransac: bool = True,
+        ransac_iters: int = 32,
+        seed: int = 0,
+        fix_aspect_ratio: bool = False,
+        dtype: torch.dtype = torch.float64,
+        fix_principal_point: bool = False,
+        min_corners: int = 4,
+        min_views: int = 3,
+        ransac_sample_size: int = 4,
+        ransac_abs_threshold: float = 3.0,
+        ransac_rel_threshold: float = 5.0,
+        reject_outliers: bool = True,
+        outlier_abs_threshold: float = 2.0,
+        outlier_rel_threshold: float = 5.0,
+        max_outlier_rounds: int = 2,
+        max_iters: int = 100,
+    ) -> None:
+        super().__init__()
+        if model not in FREE_DISTORTION:
+            raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(FREE_DISTORTION)}.")
+        self.model = model
+        self.use_ransac = use_ransac
+        self.fix_aspect_ratio = fix_aspect_ratio
+        self.fix_principal_point = fix_principal_point
+        self.dtype = dtype
+        self.min_corners = max(int(min_corners), MIN_HOMOGRAPHY_POINTS)
+        self.min_views = max(int(min_views), 1)
+        self.reject_outliers = reject_outliers
+        self.outlier_abs_threshold = outlier_abs_threshold
+        self.outlier_rel_threshold = outlier_rel_threshold
+        self.max_outlier_rounds = max_outlier_rounds
+        self.max_iters = max_iters
+        self.ransac = ImageRansac(
+            num_hypotheses=ransac_iters, sample_size=ransac_sample_size, abs_threshold=ransac_abs_threshold,
+            rel_threshold=ransac_rel_threshold, min_views=self.min_views, seed=seed,
+        )
+
+    def _refine(self, corners, valid, obj, K, rvec, tvec, dist, view_mask, poses_only: bool = False):
+        return joint_refinement(
+            corners, valid, obj, K, rvec, tvec, dist, view_mask, model=self.model,
+            fix_aspect_ratio=self.fix_aspect_ratio, fix_principal_point=self.fix_principal_point,
+            max_iters=self.max_iters, dtype=self.dtype, fix_intrinsics=poses_only, fix_distortion=poses_only,
+        )
+
+    def forward(
+        self,
+        corners: torch.Tensor,
+        valid: torch.Tensor | None,
+        object_points: torch.Tensor,
+        image_size: tuple[int, int],
+    ) -> CalibrationResult:
+        valid = _check_inputs(corners, valid, object_points, image_size)
+        unbatched = corners.dim() == 3
+        if unbatched:
+            corners, valid = corners[None], valid[None]
+        C, V, N = corners.shape[:3]
+        image_size = (int(image_size[0]), int(image_size[1]))
+        dtype, device = self.dtype, corners.device
+        corners = corners.to(dtype)
+        obj = object_points.to(device=device, dtype=dtype)
+        obj = obj.expand(C, N, 3) if obj.dim() == 2 or obj.shape[0] == 1 else obj
+        obj = obj.reshape(C, N, 3)
+        valid = valid.to(device).bool() & corners.isfinite().all(-1)
+
+        # 1. homographies
+        enough = valid.sum(-1) >= self.min_corners
+        H, ok_h = find_homographies(obj[:, None, :, :2], corners, valid & enough[..., None], return_ok=True)
+        candidates = enough & ok_h
+        reason = torch.zeros(C, V, dtype=torch.long, device=device)
+        reason = torch.where(~enough, 1, torch.where(~ok_h, 2, reason))
+
+        # 2. Zhang (inside RANSAC) -> inlier views
+        pp_mode = "centre" if self.fix_principal_point else "auto"
+        if self.use_ransac:
+            inliers, K0 = self.ransac(H, corners, valid, obj, candidates, image_size)
+        else:
+            inliers = candidates
+        if not self.use_ransac or self.fix_aspect_ratio or self.fix_principal_point:
+            K0 = zhang_intrinsics(H, inliers, image_size, pp_mode, self.fix_aspect_ratio)
+        reason = torch.where(candidates & ~inliers, 3, reason)
+
+        # 3. joint LM from the closed form
+        rvec0, tvec0 = extrinsics_from_homography(K0, H)
+        res = self._refine(corners, valid, obj, K0, rvec0, tvec0, None, inliers)
+        used = inliers & res.view_rms.isfinite()
+        cand_rms = res.view_rms
+
+        # 4. outlier check under the full model, refine again
+        if self.reject_outliers:
+            for _ in range(self.max_outlier_rounds):
+                cand_rms, rvec_all, tvec_all = self._evaluate_all(res, corners, valid, obj, H, candidates, used)
+                med = torch.where(used, cand_rms, torch.full_like(cand_rms, float("nan"))).nanmedian(-1).values
+                thr = torch.clamp(self.outlier_rel_threshold * med, min=self.outlier_abs_threshold)
+                new_used = candidates & (cand_rms <= thr[:, None])
+                keep_old = (new_used.sum(-1) < self.min_views) | ~med.isfinite()
+                new_used = torch.where(keep_old[:, None], used, new_used)
+                if bool((new_used == used).all()):
+                    break
+                res = self._refine(corners, valid, obj, res.K, rvec_all, tvec_all, res.dist, new_used)
+                used = new_used & res.view_rms.isfinite()
+            cand_rms = torch.where(used, res.view_rms, cand_rms)
+            reason = torch.where(candidates & ~used & inliers, 4, reason)
+        reason = torch.where(used, 0, torch.where((reason == 0) & ~used, 3, reason))
+
+        success = (used.sum(-1) >= self.min_views) & res.rms.isfinite() & res.K.flatten(1).isfinite().all(-1)
+        success = success & (res.K[:, 0, 0] > 0) & (res.K[:, 1, 1] > 0)
+        nan = float("nan")
+
+        def fail_nan(x: torch.Tensor) -> torch.Tensor:
+            return torch.where(success.view(C, *([1] * (x.dim() - 1))), x, torch.full_like(x, nan))
+
+        out = CalibrationResult(
+            K=fail_nan(res.K),
+            dist=fail_nan(res.dist),
+            rvec=res.rvec,
+            tvec=res.tvec,
+            view_rms=torch.where(used, res.view_rms, torch.full_like(res.view_rms, nan)),
+            used=used,
+            rms=fail_nan(res.rms),
+            std_intrinsics=fail_nan(res.std_intrinsics),
+            std_dist=fail_nan(res.std_dist),
+            success=success,
+            model=self.model,
+            view_reason=reason,
+            converged=res.converged & success,
+            candidate_rms=torch.where(candidates, cand_rms, torch.full_like(cand_rms, nan)),
+        )
+        if unbatched:
+            squeezed = {k: (v[0] if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()}
+            out = CalibrationResult(**squeezed)
+        return out
+
+    def _evaluate_all(self, res: RefinementResult, corners, valid, obj, H, candidates, used):
+        """Per-view RMS of every candidate view under the refined camera (poses re-fitted for unused views)."""
+        if bool((candidates == used).all()):
+            return res.view_rms, res.rvec, res.tvec
+        rvec_h, tvec_h = extrinsics_from_homography(res.K, H)
+        rvec0 = torch.where(used[..., None], res.rvec, rvec_h)
+        tvec0 = torch.where(used[..., None], res.tvec, tvec_h)
+        poses = self._refine(corners, valid, obj, res.K, rvec0, tvec0, res.dist, candidates, poses_only=True)
+        return poses.view_rms, poses.rvec, poses.tvec
+
+
+def calibrate(
+    corners: torch.Tensor,
+    valid: torch.Tensor | None,
+    object_points: torch.Tensor,
+    image_size: tuple[int, int],
+    **kwargs,
+) -> CalibrationResult:
+    """Functional form of :class:`CalibrationSolver` (``kwargs`` go to its constructor)."""
+    return CalibrationSolver(**kwargs)(corners, valid, object_points, image_size)
