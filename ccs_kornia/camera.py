@@ -177,9 +177,42 @@ def distort_pixels(points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor) ->
     return distort_points(points, K, _pad_opencv(dist))
 
 
-def undistort_pixels(points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, num_iters: int = 20) -> torch.Tensor:
-    """Distorted pixels to ideal pixels (kornia's fixed-point inverse), ``(*, N, 2)`` in and out."""
-    return undistort_points(points, K, _pad_opencv(dist), num_iters=num_iters)
+def undistort_pixels(
+    points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, num_iters: int = 20, newton_iters: int = 4
+) -> torch.Tensor:
+    """Distorted pixels to ideal pixels, ``(*, N, 2)`` in and out.
+
+    kornia's fixed-point inverse followed by Newton steps on the normalized plane (5-coefficient models),
+    which fixes the last digits and most of the cases where the fixed point oscillates under strong
+    barrel distortion (kornia #4285). Outside the model's monotonic range no inverse exists; the
+    renderer (``data/synthetic.py``) adds a bisection start for that case.
+    """
+    d = _pad_opencv(dist)
+    ideal = undistort_points(points, K, d, num_iters=num_iters)
+    if d.shape[-1] != 5 or newton_iters <= 0:
+        return ideal
+    fx, fy = K[..., 0, 0, None], K[..., 1, 1, None]
+    cx, cy, skew = K[..., 0, 2, None], K[..., 1, 2, None], K[..., 0, 1, None]
+    yt = (points[..., 1] - cy) / fy
+    xt = (points[..., 0] - cx - skew * yt) / fx
+    yi = (ideal[..., 1] - cy) / fy
+    xi = (ideal[..., 0] - cx - skew * yi) / fx
+    k1, k2, p1, p2, k3 = (d[..., i, None] for i in range(5))
+    for _ in range(newton_iters):
+        r2 = xi * xi + yi * yi
+        g = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        gp = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+        xy = xi * yi
+        ex = xi * g + 2 * p1 * xy + p2 * (r2 + 2 * xi * xi) - xt
+        ey = yi * g + p1 * (r2 + 2 * yi * yi) + 2 * p2 * xy - yt
+        a = g + 2 * xi * xi * gp + 2 * p1 * yi + 6 * p2 * xi
+        c = 2 * xy * gp + 2 * p1 * xi + 2 * p2 * yi
+        e = g + 2 * yi * yi * gp + 6 * p1 * yi + 2 * p2 * xi
+        det = a * e - c * c
+        det = torch.where(det.abs() < 1e-12, torch.full_like(det, 1e-12), det)
+        xi = xi - ((e * ex - c * ey) / det).clamp(-1.0, 1.0)
+        yi = yi - ((a * ey - c * ex) / det).clamp(-1.0, 1.0)
+    return torch.stack([fx * xi + skew * yi + cx, fy * yi + cy], -1)
 
 
 # ----------------------------------------------------------------------------------------------

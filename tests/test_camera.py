@@ -107,3 +107,15 @@ def test_radial_model_roundtrip_and_correction():
         radial_distort_points(pts, coeffs[:, :2], (640, 480))
     with pytest.raises(ValueError):
         radial_correct_points(pts, coeffs, (640, 480))
+
+
+def test_undistort_pixels_strong_barrel():
+    # fx=300 at 640x480 with k1=-0.37: kornia's fixed point alone oscillates near the corners (#4285)
+    K = intrinsics_matrix(torch.tensor([300.0, 300.0, 320.0, 240.0], dtype=F64))[None]
+    dist = torch.tensor([[-0.37, 0.08, 0.0, 0.0, 0.0]], dtype=F64)
+    ideal = torch.stack(torch.meshgrid(torch.linspace(20, 620, 13, dtype=F64), torch.linspace(20, 460, 9, dtype=F64), indexing="xy"), -1).reshape(1, -1, 2)
+    from ccs_kornia.camera import distort_pixels
+
+    distorted = distort_pixels(ideal, K, dist)
+    back = undistort_pixels(distorted, K, dist)
+    assert (back - ideal).abs().max() < 1e-6
