@@ -25,7 +25,7 @@ def test_datamodule_batches_are_seeded_and_shaped():
 
 def test_lit_module_step_reduces_loss_on_a_fixed_batch():
     torch.manual_seed(0)
-    dm = DetectorDataModule(image_size=(64, 64), batch_size=4, supersample=1)
+    dm = DetectorDataModule(image_size=(96, 96), batch_size=4, supersample=1, board_cols=(3, 5), board_rows=(2, 4))
     batch = dm.make_batch(torch.Generator().manual_seed(0))
     module = DetectorLitModule(base_channels=4, depth=2)
     opt = torch.optim.Adam(module.parameters(), lr=3e-3)

@@ -97,7 +97,15 @@ class DetectorDataModule(L.LightningDataModule):
 
     def make_batch(self, generator: torch.Generator) -> dict[str, torch.Tensor]:
         hp = self.hparams
-        b = self.scenes.sample(hp.batch_size, generator)
+        for attempt in range(5):
+            try:
+                b = self.scenes.sample(hp.batch_size, generator)
+                break
+            except RuntimeError:
+                # a rare scene whose board cannot be placed: draw again (the generator has moved on, so
+                # the stream stays deterministic)
+                if attempt == 4:
+                    raise
         w, h = b.image_size
         cols, rows = b.board_size[:, 0:1], b.board_size[:, 1:2]
         n = torch.arange(b.corners.shape[1]).unsqueeze(0)
