@@ -8,7 +8,7 @@ import torch
 
 from ccs_kornia.modules.corner_refine import CornerRefiner
 from ccs_kornia.modules.detector import ChessboardDetector, DetectionResult
-from ccs_kornia.modules.grid import collinearity_refine, organize_grid
+from ccs_kornia.modules.grid import collinearity_refine, organize_grid, predict_missing_corners
 from ccs_kornia.modules.heatmap_unet import CornerUNet
 from ccs_kornia.modules.subpixel import gaussian_fit, heatmap_peaks, sigma_outlier_rejection
 
@@ -91,7 +91,12 @@ class LearnedChessboardDetector(ChessboardDetector):
     @torch.no_grad()
     def candidates(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Heatmap and sigma-filtered sub-pixel peaks: ``heatmap (B,1,H,W), points (B,M,2), mask (B,M)``."""
-        heat = self.net(images)
+        if images.device.type == "cpu":
+            # channels-last convolutions are ~1.7x faster on CPU (measured at 1280x960, 1 thread)
+            self.net.to(memory_format=torch.channels_last)
+            heat = self.net(images.contiguous(memory_format=torch.channels_last)).contiguous()
+        else:
+            heat = self.net(images)
         seeds, _, mask = heatmap_peaks(heat, self.peak_threshold, self.max_peaks, self.nms_kernel)
         mu, sig, ok = gaussian_fit(heat, seeds, mask, self.fit_window)
         keep = sigma_outlier_rejection(sig, mask & ok, self.sigma, self.sigma_tolerance)
@@ -104,11 +109,23 @@ class LearnedChessboardDetector(ChessboardDetector):
         images = images.float()
         _, points, keep = self.candidates(images)
         corners, valid, found = organize_grid(points, keep, board_size, images)
+        reasons = ["learned" if f else "board not found" for f in found.tolist()]
         if self.collinearity:
             corners, valid = collinearity_refine(corners, valid & found[:, None], board_size)
-        cells = found[:, None].expand_as(valid)  # every cell of a found board (predicted ones too)
+        # cells the network missed: predict them from their grid neighbours (local, follows distortion)
+        # instead of keeping the organiser's global-homography guess
+        missing = found[:, None] & ~valid
+        if bool(missing.any()):
+            corners, _ = predict_missing_corners(corners, valid, board_size)
+        cells = found[:, None].expand_as(valid)  # every cell of a found board
         if self.refiner is not None and bool(found.any()):
-            corners = self.refiner(images, corners, cells, board_size)
-        reasons = ["learned" if f else "board not found" for f in found.tolist()]
+            corners, ok = self.refiner(images, corners, cells, board_size, return_ok=True)
+            # a predicted cell is accepted only where the image shows a corner there; one wrong corner
+            # ruins a calibration, so the board is dropped instead
+            unverified = (missing & ~ok).any(1)
+            for b in unverified.nonzero().flatten().tolist():
+                n_bad = int((missing[b] & ~ok[b]).sum())
+                reasons[b] = f"board incomplete: {n_bad} corner(s) not confirmed in the image"
+            found = found & ~unverified
         corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
