@@ -1,4 +1,4 @@
-"""Command line: ``python -m ccs_kornia detect|calibrate|undistort|demo|fit|validate|test|predict``.
+"""Command line: ``python -m ccs_kornia detect|calibrate|calibrate-many|undistort|demo|fit|validate|test|predict``.
 
 The contract (arguments and JSON layout) is fixed by ``DESIGN.md`` section 4; benchmarks rely on
 it. Behaviour on bad input:
@@ -45,7 +45,12 @@ DEMO_VIEWS = 15
 
 
 class UserError(Exception):
-    """A mistake in the user's input that stops the command (exit status 2)."""
+    """A mistake in the user's input that stops the command (exit status 2).
+
+    ``partial`` may hold what was computed before the job had to stop (written by the command).
+    """
+
+    partial: dict[str, Any] | None = None
 
 
 class _Parser(argparse.ArgumentParser):
@@ -87,6 +92,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if value < 0 or 0 < value < 64:
+        raise argparse.ArgumentTypeError(f"expected 0 (off) or at least 64, got {value}")
+    return value
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -124,7 +139,11 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
         if board:
             p.add_argument("--batch-size", default=16, type=_positive_int, metavar="N",
-                           help="images loaded and processed at once (default: 16)")
+                           help="images loaded and processed at once (default: 16; fewer when images are "
+                                "large: at most 64 Mpx per batch)")
+            p.add_argument("--max-detection-side", default=2048, type=_non_negative_int, metavar="PX",
+                           help="detect on a downscaled copy of larger images, then refine corners at full "
+                                "resolution (default: 2048; 0 = always full resolution)")
 
     p = sub.add_parser("detect", help="detect chessboard corners, write them as JSON")
     common(p)
@@ -149,6 +168,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", required=True, metavar="JSON", help="calib.json written by calibrate")
     p.add_argument("--out-dir", required=True, metavar="DIR", help="where to write the images (created)")
     p.set_defaults(func=_cmd_undistort)
+
+    p = sub.add_parser("calibrate-many", help="calibrate many cameras (one directory of images each) with "
+                       "Lightning's Trainer.predict; one JSON line per camera")
+    p.add_argument("sets", nargs="+", metavar="SETS",
+                   help="directories of images (one camera each), parents of such directories, or globs")
+    p.add_argument("--board", required=True, type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6")
+    p.add_argument("--square", default=1.0, type=_positive_float, help="square side in world units (default 1)")
+    p.add_argument("--output", required=True, metavar="JSONL", help="JSON Lines file: one calibration per set")
+    p.add_argument("--model", default="opencv5", choices=MODELS, help="distortion model (default opencv5)")
+    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
+    p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
+    p.add_argument("--no-ransac", dest="use_ransac", action="store_false", help="keep every detected view")
+    p.add_argument("--seed", default=0, type=int, help="RANSAC seed (default 0)")
+    p.add_argument("--sets-per-batch", default=4, type=_positive_int, metavar="N",
+                   help="sets per predict step; sets of one image size are solved in one batched call (default 4)")
+    p.add_argument("--workers", default=0, type=int, metavar="N", help="DataLoader workers loading sets (default 0)")
+    p.add_argument("--batch-size", default=16, type=_positive_int, metavar="N",
+                   help="images handed to the detector at once (default 16)")
+    p.add_argument("--max-detection-side", default=2048, type=_non_negative_int, metavar="PX",
+                   help="detect larger images on a downscaled copy (default 2048; 0 = off)")
+    p.set_defaults(func=_cmd_calibrate_many)
 
     p = sub.add_parser("demo", help="render a synthetic set with a known camera, calibrate it, compare")
     p.add_argument("--out-dir", default="ccs_demo", metavar="DIR", help="where to write images and results (default ./ccs_demo)")
@@ -219,7 +259,10 @@ def _make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac:
         detector = make_detector(args.detector)
     except ValueError as err:
         raise UserError(str(err)) from None
-    return CalibrationPipeline(detector, model=model, use_ransac=use_ransac, seed=seed, detection_batch_size=args.batch_size)
+    return CalibrationPipeline(
+        detector, model=model, use_ransac=use_ransac, seed=seed, detection_batch_size=args.batch_size,
+        max_detection_side=getattr(args, "max_detection_side", 2048) or None,
+    )
 
 
 def _detect_files(command: str, files: list[str], pipeline, board: tuple[int, int], device, batch_size: int) -> dict[str, dict]:
@@ -308,46 +351,43 @@ def _calibrate_files(
     model: str,
     detector_name: str,
 ) -> tuple[dict[str, Any], Any]:
-    """Detect on ``files`` and calibrate; returns (JSON-ready dict, CalibrationResult)."""
+    """Detect on ``files`` and calibrate; returns (JSON-ready dict, CalibrationResult).
+
+    Raises :class:`UserError` when no calibration can be computed; when images were read, the error
+    carries ``partial``: the per-view record (detections and reasons) so the caller can keep it.
+    """
     import torch
+
+    from ccs_kornia.io import calibration_record, plan_views
 
     timings: dict[str, float] = {}
     start = time.perf_counter()
     records = _detect_files(command, files, pipeline, board, device, batch_size)
     timings["load_and_detect_s"] = time.perf_counter() - start
+    views, usable, image_size = plan_views(files, records)
+    for view in views:
+        if view["found"] and "reason" in view:  # found but of another size
+            _warn(command, f"skipped {view['path']}: {view['reason']}")
+    n_found = sum(1 for v in views if v["found"])
 
-    sizes = Counter(tuple(r["image_size"]) for r in records.values() if r["image_size"] is not None)
-    if not sizes:
-        raise UserError(_not_found_message(board, records))
-    # most common size among images where the board was found (ties: first seen)
-    found_sizes = Counter(tuple(r["image_size"]) for r in records.values() if r["found"])
-    if not found_sizes:
-        raise UserError(_not_found_message(board, records))
-    image_size = found_sizes.most_common(1)[0][0]
+    def failure(message: str) -> UserError:
+        err = UserError(message)
+        if any(r.get("image_size") is not None for r in records.values()):
+            err.partial = {
+                "success": False, "error": message, "board": list(board), "square": square,
+                "detector": detector_name, "model": model,
+                "image_size": list(image_size) if image_size else None, "K": None, "distortion": None, "rms": None,
+                "views": views,
+                "num_views": {"files": len(files), "found": n_found, "usable": len(usable), "used": 0},
+                "skipped": [{"path": v["path"], "reason": v["reason"]} for v in views if "reason" in v],
+                "timings": timings,
+            }
+        return err
 
-    views: list[dict[str, Any]] = []
-    usable: list[str] = []
-    for path in files:
-        r = records[path]
-        view: dict[str, Any] = {"path": path, "used": False, "rms": None, "found": r["found"]}
-        if r["found"]:
-            view["corners"] = r["corners"]
-        if "error" in r:
-            view["reason"] = f"unreadable: {r['error']}"
-        elif not r["found"]:
-            view["reason"] = r.get("reason", "board not found")
-        elif tuple(r["image_size"]) != image_size:
-            view["reason"] = (
-                f"image size {r['image_size'][0]}x{r['image_size'][1]} differs from the set's "
-                f"{image_size[0]}x{image_size[1]}"
-            )
-            _warn(command, f"skipped {path}: {view['reason']}")
-        else:
-            usable.append(path)
-        views.append(view)
-    n_found = sum(1 for r in records.values() if r["found"])
+    if image_size is None:
+        raise failure(_not_found_message(board, records))
     if len(usable) < 3:
-        raise UserError(
+        raise failure(
             f"only {len(usable)} usable view(s) of the {board[0]}x{board[1]} board among {len(files)} files "
             f"(board found in {n_found}); at least 3 are needed"
         )
@@ -358,56 +398,30 @@ def _calibrate_files(
     result = pipeline.calibrate(corners, valid, board, square, image_size)
     timings["solve_s"] = time.perf_counter() - start
     if not bool(torch.as_tensor(result.success).all()):
-        raise UserError(
-            f"calibration failed on {len(usable)} views (the views may be degenerate, e.g. all fronto-parallel; "
-            "add views with the board tilted in different directions)"
+        from ccs_kornia.modules.calibrator import VIEW_REASONS
+
+        failed_fit = "in the failed refinement (no consistent camera)"
+        texts = [failed_fit if int(c) == 0 else VIEW_REASONS.get(int(c), "not used by the solver")
+                 for c in result.view_reason.cpu().tolist()]
+        codes = Counter(texts)
+        index = {path: k for k, path in enumerate(usable)}
+        for view in views:
+            if view["path"] in index:
+                view["reason"] = texts[index[view["path"]]]
+        detail = ", ".join(f"{n} {reason}" for reason, n in codes.most_common())
+        raise failure(
+            f"calibration failed on {len(usable)} views ({detail}); the views may be degenerate "
+            "(e.g. all fronto-parallel) or inconsistent: add views with the board tilted in different directions"
         )
-
-    K = result.K.detach().double().cpu()
-    dist = result.dist.detach().double().cpu()
-    view_rms = result.view_rms.detach().double().cpu().tolist()
-    used = result.used.detach().cpu().tolist()
-    rvec = result.rvec.detach().double().cpu().tolist()
-    tvec = result.tvec.detach().double().cpu().tolist()
-    index = {path: k for k, path in enumerate(usable)}
-    from ccs_kornia.modules.calibrator import VIEW_REASONS
-
-    reasons = result.view_reason.cpu().tolist() if getattr(result, "view_reason", None) is not None else None
-    candidate_rms = getattr(result, "candidate_rms", None)
-    candidate_rms = candidate_rms.double().cpu().tolist() if candidate_rms is not None else None
-    for view in views:
-        k = index.get(view["path"])
-        if k is None:
-            continue
-        view["used"] = bool(used[k])
-        vr = view_rms[k]
-        view["rms"] = float(vr) if vr == vr else None  # NaN -> None
-        view["rvec"], view["tvec"] = rvec[k], tvec[k]
-        if not view["used"]:
-            code = int(reasons[k]) if reasons is not None else -1
-            view["reason"] = VIEW_REASONS.get(code, "not used by the solver")
-            if candidate_rms is not None and candidate_rms[k] == candidate_rms[k]:
-                view["rms_if_used"] = float(candidate_rms[k])
-    std_i = result.std_intrinsics.detach().double().cpu().tolist()
-    std_d = result.std_dist.detach().double().cpu().tolist()
-    n_used = int(sum(bool(u) for u in used))
-    data: dict[str, Any] = {
-        "image_size": [int(image_size[0]), int(image_size[1])],
-        "K": K.tolist(),
-        "distortion": {"model": result.model, "coeffs": dist.tolist()},
-        "rms": float(result.rms),
-        "rms_kind": "RMS reprojection error over all corners of the used views, px",
-        "views": views,
-        "std": {"fx": std_i[0], "fy": std_i[1], "cx": std_i[2], "cy": std_i[3], "distortion": std_d},
-        "board": list(board),
-        "square": square,
-        "detector": detector_name,
-        "model": model,
-        "num_views": {"files": len(files), "found": n_found, "usable": len(usable), "used": n_used},
-        "skipped": [{"path": v["path"], "reason": v["reason"]} for v in views if not v["used"] and "reason" in v],
-        "timings": timings,
-    }
+    data = calibration_record(views, usable, image_size, result, board=board, square=square,
+                              detector=detector_name, model=model)
+    data["timings"] = timings
     return data, result
+
+
+def _failed_path(output: str) -> str:
+    stem, ext = os.path.splitext(output)
+    return f"{stem}.failed{ext or '.json'}"
 
 
 def _write_opencv_yaml(path: str, data: dict[str, Any]) -> None:
@@ -445,10 +459,21 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     files = _inputs("calibrate", args.images)
     pipeline = _make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
     start = time.perf_counter()
-    data, result = _calibrate_files(
-        "calibrate", files, args.board, args.square, pipeline, device, args.batch_size, args.model, args.detector
-    )
+    try:
+        data, result = _calibrate_files(
+            "calibrate", files, args.board, args.square, pipeline, device, args.batch_size, args.model, args.detector
+        )
+    except UserError as err:
+        # nothing lost: the per-image detections and reasons go next to the requested output, which
+        # itself is only ever written for a computed calibration
+        if err.partial is not None:
+            failed = _failed_path(args.output)
+            err.partial["device"] = str(device)
+            write_json(failed, err.partial)
+            raise UserError(f"{err}; per-image results written to {failed}") from None
+        raise
     data["device"] = str(device)
+    data["success"] = True
     data["timings"]["total_s"] = time.perf_counter() - start
     write_json(args.output, data)
     if args.opencv_yaml:
@@ -456,8 +481,13 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     if args.report:
         from ccs_kornia.report import write_report
 
+        start = time.perf_counter()
         write_report(args.report, data)
+        data["timings"]["report_s"] = time.perf_counter() - start
+        write_json(args.output, data)
     _print_summary(data, args.output)
+    if args.report:
+        print(f"report: {os.path.join(args.report, 'index.html')}")
     return 0
 
 
@@ -551,6 +581,42 @@ def _cmd_undistort(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------------------------
+# calibrate-many
+# ----------------------------------------------------------------------------------------------
+
+
+def _cmd_calibrate_many(args: argparse.Namespace) -> int:
+    _check_output_file("--output", args.output)
+    device = _resolve_device(args.device)
+    if args.workers < 0:
+        raise UserError(f"--workers must be >= 0, got {args.workers}")
+    try:
+        from ccs_kornia.predict import calibrate_many, find_image_sets
+    except ImportError as err:
+        raise UserError(f"calibrate-many needs Lightning ({err})") from None
+    sets, problems = find_image_sets(args.sets)
+    if not sets:
+        detail = "; ".join(f"{item}: {reason}" for item, reason in problems)
+        raise UserError(f"no image sets found ({detail})")
+    for item, reason in problems:
+        _warn("calibrate-many", f"{item}: {reason}")
+    pipeline = _make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
+    _info(f"calibrating {len(sets)} image sets ({sum(len(f) for _, f in sets)} files) on {device} ...")
+    summary = calibrate_many(
+        sets, args.board, args.output, square=args.square, pipeline=pipeline, detector_name=args.detector,
+        device=str(device), sets_per_batch=args.sets_per_batch, num_workers=args.workers,
+    )
+    if summary["succeeded"] == 0:
+        raise UserError(f"no set could be calibrated ({summary['failed']} failed; reasons in {args.output})")
+    rate = summary["sets"] / max(summary["seconds"], 1e-9)
+    print(
+        f"calibrated {summary['succeeded']} of {summary['sets']} sets in {summary['seconds']:.1f} s "
+        f"({rate:.2f} sets/s); {summary['failed']} failed (see \"error\" in {args.output}); wrote {args.output}"
+    )
+    return 0
+
+
+# ----------------------------------------------------------------------------------------------
 # demo
 # ----------------------------------------------------------------------------------------------
 
@@ -592,8 +658,14 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     output = os.path.join(args.out_dir, "calib.json")
     data, _ = _calibrate_files("demo", files, DEMO_BOARD, DEMO_SQUARE, pipeline, device, 16, "opencv5", args.detector)
     data["device"] = str(device)
+    data["success"] = True
     data["timings"]["render_s"] = render_s
     write_json(output, data)
+    from ccs_kornia.report import write_report
+
+    report_dir = os.path.join(args.out_dir, "report")
+    _make_dir("--out-dir", report_dir)
+    write_report(report_dir, data)
 
     K_est = torch.tensor(data["K"], dtype=torch.float64)
     dist_est = data["distortion"]["coeffs"]
@@ -609,7 +681,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     print(f"E_FL {float(e_fl(K_est, K_true)):.4f} px   E_PP {float(e_pp(K_est, K_true)):.4f} px   "
           f"E_IP {float(e_ip(K_est, K_true)):.4f} px   RMS {data['rms']:.4f} px "
           f"({data['num_views']['used']} of {args.views} views used)")
-    print(f"wrote {len(files)} images, ground_truth.json and calib.json to {args.out_dir}")
+    print(f"wrote {len(files)} images, ground_truth.json, calib.json and report/index.html to {args.out_dir}")
     return 0
 
 

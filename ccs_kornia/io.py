@@ -37,10 +37,17 @@ __all__ = [
     "load_image_gray",
     "parse_board",
     "write_json",
+    "json_line",
     "write_image",
     "ImageBatch",
     "iter_image_batches",
+    "DEFAULT_MAX_BATCH_PIXELS",
+    "plan_views",
+    "calibration_record",
 ]
+
+#: pixels loaded at most in one streamed batch (64 Mpx = 256 MB of float32 grey images)
+DEFAULT_MAX_BATCH_PIXELS = 1 << 26
 
 #: file name endings treated as images when a directory is expanded
 IMAGE_EXTENSIONS: tuple[str, ...] = (
@@ -249,6 +256,16 @@ def _sanitize(obj: Any) -> Any:
     return obj
 
 
+def json_line(data: Any) -> str:
+    """``data`` as one line of strict JSON (tensors/arrays as lists, NaN and infinities as ``null``).
+
+    Example:
+        >>> json_line({"rms": float("nan"), "K": torch.eye(2)})
+        '{"rms": null, "K": [[1.0, 0.0], [0.0, 1.0]]}'
+    """
+    return json.dumps(_sanitize(data), default=_json_default, allow_nan=False)
+
+
 def write_json(path: str | os.PathLike, data: Any, indent: int | None = 1) -> None:
     """Write ``data`` as JSON atomically (temporary file in the same directory, then rename).
 
@@ -325,16 +342,21 @@ class ImageBatch:
         return int(self.images.shape[-1]), int(self.images.shape[-2])
 
 
-def iter_image_batches(files: list[str], batch_size: int = 16) -> Iterator[ImageBatch]:
+def iter_image_batches(
+    files: list[str], batch_size: int = 16, max_pixels: int | None = DEFAULT_MAX_BATCH_PIXELS
+) -> Iterator[ImageBatch]:
     """Stream grey images from disk in batches, so large sets never sit in memory at once.
 
-    Images are grouped by size: a batch holds only images of one size (at most ``batch_size``) and
-    is yielded as soon as it is full; the remainders are yielded at the end. Files that fail to load
-    are reported in ``skipped`` of the next batch yielded (possibly a batch with no images).
+    Images are grouped by size: a batch holds only images of one size (at most ``batch_size``, and
+    at most ``max_pixels`` pixels in all, but always at least one image) and is yielded as soon as it
+    is full; the remainders are yielded at the end. Files that fail to load are reported in
+    ``skipped`` of the next batch yielded (possibly a batch with no images).
 
     Args:
         files: image paths.
         batch_size: most images per batch (>= 1).
+        max_pixels: most pixels per batch (``None``: no limit); bounds memory when images are large
+            (a 24 Mpx photo takes 96 MB as float32).
 
     Yields:
         :class:`ImageBatch` items; every input file appears exactly once, in ``paths`` or ``skipped``.
@@ -357,10 +379,133 @@ def iter_image_batches(files: list[str], batch_size: int = 16) -> Iterator[Image
             skipped.append((path, reason))
             continue
         key = (image.shape[1], image.shape[0])
+        per_batch = batch_size if max_pixels is None else max(1, min(batch_size, max_pixels // (key[0] * key[1])))
         pending.setdefault(key, []).append((path, image))
-        if len(pending[key]) >= batch_size:
+        if len(pending[key]) >= per_batch:
             yield make(pending.pop(key))
     for key in list(pending):
         yield make(pending.pop(key))
     if skipped:
         yield ImageBatch([], None, skipped)
+
+
+def plan_views(
+    files: list[str], records: dict[str, dict[str, Any]]
+) -> tuple[list[dict[str, Any]], list[str], tuple[int, int] | None]:
+    """Decide which detected views enter a calibration, and say why the others do not.
+
+    The image size of the calibration is the most common size among images where the board was
+    found (ties: first seen); found views of another size are excluded with a reason.
+
+    Args:
+        files: the input files, in order.
+        records: per path ``{"found": bool, "corners": list | None, "image_size": [w, h] | None}``
+            plus ``"error"`` (unreadable file) or ``"reason"`` (board not found), as detection wrote them.
+
+    Returns:
+        ``(views, usable, image_size)``: one view dict per file (``path``, ``used`` False, ``rms``
+        None, ``found``, ``corners`` when found, ``reason`` when it cannot be used), the paths usable
+        for the calibration, and the chosen ``(W, H)`` (None when the board was found nowhere).
+    """
+    found_sizes: dict[tuple[int, int], int] = {}
+    for path in files:
+        r = records[path]
+        if r.get("found"):
+            key = (int(r["image_size"][0]), int(r["image_size"][1]))
+            found_sizes[key] = found_sizes.get(key, 0) + 1
+    image_size = max(found_sizes, key=lambda k: found_sizes[k]) if found_sizes else None  # first seen wins ties
+    views: list[dict[str, Any]] = []
+    usable: list[str] = []
+    for path in files:
+        r = records[path]
+        view: dict[str, Any] = {"path": path, "used": False, "rms": None, "found": bool(r.get("found"))}
+        if r.get("found"):
+            view["corners"] = r["corners"]
+        if "error" in r:
+            view["reason"] = f"unreadable: {r['error']}"
+        elif not r.get("found"):
+            view["reason"] = r.get("reason") or "board not found"
+        elif (int(r["image_size"][0]), int(r["image_size"][1])) != image_size:
+            assert image_size is not None
+            view["reason"] = (
+                f"image size {r['image_size'][0]}x{r['image_size'][1]} differs from the set's "
+                f"{image_size[0]}x{image_size[1]}"
+            )
+        else:
+            usable.append(path)
+        views.append(view)
+    return views, usable, image_size
+
+
+def calibration_record(
+    views: list[dict[str, Any]],
+    usable: list[str],
+    image_size: tuple[int, int],
+    result: Any,
+    *,
+    board: tuple[int, int],
+    square: float,
+    detector: str,
+    model: str,
+    reasons: dict[int, str] | None = None,
+) -> dict[str, Any]:
+    """The calibration JSON of ``calibrate`` (DESIGN section 4) from one camera's solver result.
+
+    Args:
+        views: from :func:`plan_views` (updated in place with ``used``, ``rms``, poses, reasons).
+        usable: the paths given to the solver, in the order of the result's views.
+        image_size: ``(W, H)``.
+        result: an unbatched :class:`~ccs_kornia.modules.calibrator.CalibrationResult` (views in the
+            order of ``usable``).
+        board, square, detector, model: recorded as given.
+        reasons: view reason codes to text (default: the solver's ``VIEW_REASONS``).
+
+    Returns:
+        The JSON-ready dict (``image_size``, ``K``, ``distortion``, ``rms``, ``views``, ``std``,
+        ``num_views``, ``skipped``, ...).
+    """
+    if reasons is None:
+        from ccs_kornia.modules.calibrator import VIEW_REASONS as reasons  # noqa: N811
+    K = result.K.detach().double().cpu()
+    dist = result.dist.detach().double().cpu()
+    view_rms = result.view_rms.detach().double().cpu().tolist()
+    used = result.used.detach().cpu().tolist()
+    rvec = result.rvec.detach().double().cpu().tolist()
+    tvec = result.tvec.detach().double().cpu().tolist()
+    codes = result.view_reason.cpu().tolist() if getattr(result, "view_reason", None) is not None else None
+    candidate_rms = getattr(result, "candidate_rms", None)
+    candidate_rms = candidate_rms.detach().double().cpu().tolist() if candidate_rms is not None else None
+    index = {path: k for k, path in enumerate(usable)}
+    for view in views:
+        k = index.get(view["path"])
+        if k is None:
+            continue
+        view["used"] = bool(used[k])
+        vr = view_rms[k]
+        view["rms"] = float(vr) if vr == vr else None  # NaN -> None
+        view["rvec"], view["tvec"] = rvec[k], tvec[k]
+        if not view["used"]:
+            code = int(codes[k]) if codes is not None else -1
+            view["reason"] = reasons.get(code, "not used by the solver")
+            if candidate_rms is not None and candidate_rms[k] == candidate_rms[k]:
+                view["rms_if_used"] = float(candidate_rms[k])
+    std_i = result.std_intrinsics.detach().double().cpu().tolist()
+    std_d = result.std_dist.detach().double().cpu().tolist()
+    n_used = int(sum(bool(u) for u in used))
+    return {
+        "image_size": [int(image_size[0]), int(image_size[1])],
+        "K": K.tolist(),
+        "distortion": {"model": result.model, "coeffs": dist.tolist()},
+        "rms": float(result.rms),
+        "rms_kind": "RMS reprojection error over all corners of the used views, px",
+        "views": views,
+        "std": {"fx": std_i[0], "fy": std_i[1], "cx": std_i[2], "cy": std_i[3], "distortion": std_d},
+        "board": list(board),
+        "square": square,
+        "detector": detector,
+        "model": model,
+        "num_views": {
+            "files": len(views), "found": sum(1 for v in views if v["found"]), "usable": len(usable), "used": n_used,
+        },
+        "skipped": [{"path": v["path"], "reason": v["reason"]} for v in views if not v["used"] and "reason" in v],
+    }

@@ -95,3 +95,33 @@ def test_input_validation(images):
         pipe.calibrate(torch.zeros(4, 54, 2), torch.ones(4, dtype=torch.bool), BOARD, 0.0, (640, 480))
     with pytest.raises(ValueError, match="detector"):
         CalibrationPipeline("magic")
+
+
+def test_result_shortcuts_and_inference_mode(images):
+    # the pipeline drops into other torch code: under inference_mode, on a tensor from elsewhere
+    pipe = CalibrationPipeline("opencv")
+    with torch.inference_mode():
+        out = pipe(images[0, :6].clone(), BOARD, SQUARE)
+    assert out.K.shape == (3, 3) and out.dist.shape == (5,) and out.std.shape == (9,)
+    assert out.rvec.shape == (6, 3) and out.tvec.shape == (6, 3) and out.view_rms.shape == (6,)
+    assert out.used.dtype == torch.bool and out.found.all() and bool(out.calibration.success)
+    assert torch.equal(out.K, out.calibration.K) and float(out.rms) < 0.1
+    assert bool((out.std[:4] > 0).all()) and bool(out.std.isfinite().all())
+
+
+def test_large_images_detected_downscaled_and_refined(sets):
+    # max_detection_side below the image size: detect on a half-size copy, refine at full size
+    s = sets[1]
+    full = CalibrationPipeline("opencv", max_detection_side=None).detect(s.images[:4], BOARD)
+    small = CalibrationPipeline("opencv", max_detection_side=320).detect(s.images[:4], BOARD)
+    assert bool(small.found.all())
+    gt = s.corners[:4].double()
+
+    def err(c):
+        c = c.double()
+        return torch.minimum((c - gt).norm(dim=-1).mean(-1), (c - gt.flip(1)).norm(dim=-1).mean(-1))
+
+    print("corner error full-res detection:", err(full.corners).tolist(), "downscaled+refined:", err(small.corners).tolist())
+    assert float(err(small.corners).max()) < 0.1
+    with pytest.raises(ValueError, match="max_detection_side"):
+        CalibrationPipeline("opencv", max_detection_side=10)

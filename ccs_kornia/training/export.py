@@ -14,9 +14,14 @@ __all__ = ["export_checkpoint"]
 
 
 def export_checkpoint(ckpt_path: str | Path, out_path: str | Path) -> dict:
-    """Load a ``DetectorLitModule`` checkpoint and write its network config and weights only."""
+    """Load a detector (or distortion) checkpoint and write its network config and weights only."""
     from ccs_kornia.training.detector import DetectorLitModule
 
+    state = torch.load(str(ckpt_path), map_location="cpu", weights_only=False).get("state_dict", {})
+    if any(k.startswith("net.encoder.") for k in state):
+        from ccs_kornia.training.distortion import export_distortion_checkpoint
+
+        return export_distortion_checkpoint(ckpt_path, out_path)
     module = DetectorLitModule.load_from_checkpoint(str(ckpt_path), map_location="cpu")
     payload = module.export()
     ckpt = torch.load(str(ckpt_path), map_location="cpu", weights_only=False)

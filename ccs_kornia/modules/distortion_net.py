@@ -1,0 +1,224 @@
+"""CNN that regresses the paper's radial correction from a distorted chessboard image (paper Sec. III-A).
+
+Architecture (the paper's "8 layers encoder with 3 regression layers"): eight ``conv3x3 -> norm -> ReLU``
+layers, five of them with stride 2, then adaptive average pooling to a small ``pool x pool`` map (which keeps
+the coarse layout: curvature near the border means more than near the centre) and three linear layers.
+
+Input handling. Radii of the paper's model are measured from the image centre in units of ``max(W, H)``, so the
+image is *letterboxed*: padded symmetrically to a ``max(W, H)`` square (aspect ratio kept, a radius of 0.5 then
+reaches the middle of the longer side whatever the image size), resized to ``input_size`` with kornia
+(antialiased), and standardised per image. Three fixed channels are appended: a mask of real (not padded) pixels
+and the ``x`` and ``y`` coordinates in the model's radius unit (CoordConv), so the convolutions know how far from
+the centre a curved edge is.
+
+Output parameterisation. The correction factor ``f(r) = k0' + k1' r + ... + k4' r^4`` is represented by its
+values at five Chebyshev nodes on ``[0, 0.75]`` (covering every distorted radius of any aspect ratio); the head
+predicts ``f(node) - 1`` divided by ``output_scale``, and a fixed inverse Vandermonde matrix turns node values
+into monomial coefficients. Node values are well conditioned (they are what the grid loss feels) while the
+monomial coefficients of typical corrections span several orders of magnitude. The last layer starts at zero,
+so an untrained network returns exactly the identity correction ``(1, 0, 0, 0, 0)``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from kornia.color import rgb_to_grayscale
+from kornia.geometry.transform import resize
+from torch import nn
+
+__all__ = ["DistortionNet", "letterbox", "correction_from_node_values", "CORRECTION_NODES"]
+
+_NORMS = ("batch", "group", "none")
+#: radius range covered by the node parameterisation (units of max(W, H)); the image corner is at <= 0.7071
+_R_MAX = 0.75
+#: Chebyshev nodes of the first kind on [0, _R_MAX]
+CORRECTION_NODES: tuple[float, ...] = tuple(
+    0.5 * _R_MAX * (1.0 - math.cos((2 * k + 1) * math.pi / 10.0)) for k in range(5)
+)
+
+
+def _node_to_coeff_matrix(dtype=torch.float64) -> torch.Tensor:
+    """``M`` with ``coeffs = M @ node_values`` (inverse Vandermonde of :data:`CORRECTION_NODES`)."""
+    r = torch.tensor(CORRECTION_NODES, dtype=torch.float64)
+    vander = torch.stack([r**p for p in range(5)], -1)  # f(node_i) = sum_p c_p node_i^p
+    return torch.linalg.inv(vander).to(dtype)
+
+
+def correction_from_node_values(node_values: torch.Tensor) -> torch.Tensor:
+    """Monomial correction coefficients :math:`(B, 5)` from the factor ``f`` at :data:`CORRECTION_NODES`.
+
+    Example:
+        >>> correction_from_node_values(torch.ones(1, 5, dtype=torch.float64)).round(decimals=6).abs()
+        tensor([[1., 0., 0., 0., 0.]], dtype=torch.float64)
+    """
+    if node_values.shape[-1] != 5:
+        raise ValueError(f"node_values must be (..., 5), got {tuple(node_values.shape)}.")
+    m = _node_to_coeff_matrix().to(device=node_values.device, dtype=node_values.dtype)
+    return node_values @ m.T
+
+
+def letterbox(images: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pad images symmetrically to a ``max(H, W)`` square and resize to ``size x size`` (antialiased).
+
+    Args:
+        images: :math:`(B, C, H, W)`.
+        size: output side.
+
+    Returns:
+        letterboxed images :math:`(B, C, size, size)` and the mask of real pixels :math:`(B, 1, size, size)`.
+
+    Example:
+        >>> out, mask = letterbox(torch.ones(1, 1, 30, 60), 32)
+        >>> out.shape, float(mask[0, 0, :, 16].sum())
+        (torch.Size([1, 1, 32, 32]), 16.0)
+    """
+    if images.dim() != 4:
+        raise ValueError(f"images must be (B, C, H, W), got {tuple(images.shape)}.")
+    b, _, h, w = images.shape
+    side = max(h, w)
+    left, top = (side - w) // 2, (side - h) // 2
+    pad = (left, side - w - left, top, side - h - top)
+    mask = torch.ones(b, 1, h, w, device=images.device, dtype=images.dtype)
+    images, mask = F.pad(images, pad), F.pad(mask, pad)
+    if side != size:
+        both = resize(torch.cat([images, mask], 1), (size, size), interpolation="bilinear", antialias=True)
+        images, mask = both[:, :-1], both[:, -1:]
+    return images, mask
+
+
+def _norm_layer(norm: str, channels: int) -> nn.Module:
+    if norm == "batch":
+        return nn.BatchNorm2d(channels)
+    if norm == "group":
+        groups = next(g for g in (8, 4, 2, 1) if channels % g == 0)
+        return nn.GroupNorm(groups, channels)
+    return nn.Identity()
+
+
+class DistortionNet(nn.Module):
+    """Regresses correction coefficients ``(k0', ..., k4')`` of :func:`ccs_kornia.camera.radial_correct_points`.
+
+    Args:
+        base_channels: width of the first layer; the eight layers use ``c, 2c, 2c, 4c, 4c, 8c, 8c, 8c``.
+        input_size: side of the letterboxed network input.
+        norm: ``batch``, ``group`` or ``none``.
+        pool: side of the pooled feature map fed to the head.
+        hidden: widths of the two hidden layers of the head.
+        output_scale: change of the correction factor at a node per unit of network output.
+
+    Shape:
+        - Input: :math:`(B, C, H, W)` with ``C`` = 1 (grey) or 3 (RGB), any ``H, W``, values in ``[0, 1]``.
+        - Output: :math:`(B, 5)` correction coefficients for images of that size.
+
+    Example:
+        >>> net = DistortionNet(base_channels=4, input_size=64).eval()
+        >>> with torch.no_grad():
+        ...     net(torch.rand(2, 1, 48, 64))
+        tensor([[1., 0., 0., 0., 0.],
+                [1., 0., 0., 0., 0.]])
+    """
+
+    _STRIDES = (2, 2, 1, 2, 1, 2, 1, 2)
+    _WIDTHS = (1, 2, 2, 4, 4, 8, 8, 8)
+
+    def __init__(
+        self,
+        base_channels: int = 16,
+        input_size: int = 256,
+        norm: str = "batch",
+        pool: int = 4,
+        hidden: tuple[int, int] = (256, 64),
+        output_scale: float = 0.25,
+    ) -> None:
+        super().__init__()
+        if norm not in _NORMS:
+            raise ValueError(f"norm must be one of {_NORMS}, got {norm!r}.")
+        if input_size < 32:
+            raise ValueError(f"input_size must be >= 32, got {input_size}.")
+        if len(hidden) != 2:
+            raise ValueError(f"hidden must hold two layer widths, got {hidden}.")
+        self.config: dict[str, Any] = {
+            "base_channels": int(base_channels),
+            "input_size": int(input_size),
+            "norm": norm,
+            "pool": int(pool),
+            "hidden": [int(hidden[0]), int(hidden[1])],
+            "output_scale": float(output_scale),
+        }
+        self.input_size, self.output_scale = int(input_size), float(output_scale)
+        layers: list[nn.Module] = []
+        cin = 4  # grey, real-pixel mask, x, y
+        for stride, mult in zip(self._STRIDES, self._WIDTHS):
+            cout = base_channels * mult
+            layers += [
+                nn.Conv2d(cin, cout, 3, stride=stride, padding=1, bias=norm == "none"),
+                _norm_layer(norm, cout),
+                nn.ReLU(inplace=True),
+            ]
+            cin = cout
+        self.encoder = nn.Sequential(*layers)
+        self.pool = nn.AdaptiveAvgPool2d(pool)
+        self.head = nn.Sequential(
+            nn.Flatten(),
+            nn.Linear(cin * pool * pool, hidden[0]),
+            nn.ReLU(inplace=True),
+            nn.Linear(hidden[0], hidden[1]),
+            nn.ReLU(inplace=True),
+            nn.Linear(hidden[1], 5),
+        )
+        last = self.head[-1]
+        nn.init.zeros_(last.weight)
+        nn.init.zeros_(last.bias)
+        s = torch.linspace(-0.5, 0.5, self.input_size)
+        yy, xx = torch.meshgrid(s, s, indexing="ij")
+        self.register_buffer("coords", torch.stack([xx, yy]).unsqueeze(0), persistent=False)
+        self.register_buffer("node_to_coeff", _node_to_coeff_matrix(torch.float32), persistent=False)
+
+    def preprocess(self, images: torch.Tensor) -> torch.Tensor:
+        """Grey, standardised, letterboxed network input :math:`(B, 4, S, S)` (image, mask, x, y)."""
+        if images.dim() != 4 or images.shape[1] not in (1, 3):
+            raise ValueError(f"images must be (B, 1, H, W) or (B, 3, H, W), got {tuple(images.shape)}.")
+        x = images.float()
+        if x.shape[1] == 3:
+            x = rgb_to_grayscale(x)
+        # per-image standardisation before padding, so the zero padding equals the image mean
+        mean = x.mean(dim=(-1, -2), keepdim=True)
+        std = x.std(dim=(-1, -2), keepdim=True) if x.shape[-1] * x.shape[-2] > 1 else torch.ones_like(mean)
+        x = (x - mean) / (std + 1e-3)
+        x, mask = letterbox(x, self.input_size)
+        return torch.cat([x, mask, self.coords.to(x.dtype).expand(x.shape[0], -1, -1, -1)], 1)
+
+    def node_values(self, images: torch.Tensor) -> torch.Tensor:
+        """Correction factor at :data:`CORRECTION_NODES`, :math:`(B, 5)`."""
+        feats = self.pool(self.encoder(self.preprocess(images)))
+        return 1.0 + self.output_scale * self.head(feats)
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        z = self.output_scale * self.head(self.pool(self.encoder(self.preprocess(images))))
+        identity = torch.zeros_like(z)
+        identity[:, 0] = 1.0
+        # M @ 1 = (1, 0, 0, 0, 0): residual around the identity correction
+        return identity + z @ self.node_to_coeff.to(z.dtype).T
+
+    @classmethod
+    def from_export(cls, source: str | Path | dict, map_location: str | torch.device = "cpu") -> DistortionNet:
+        """Network in eval mode from an exported weight file (or its loaded dict) with ``config`` and ``state_dict``."""
+        if isinstance(source, dict):
+            payload = source
+        else:
+            payload = torch.load(str(source), map_location=map_location, weights_only=True)
+        if payload.get("kind", "DistortionNet") != "DistortionNet":
+            raise ValueError(f"Not a DistortionNet export: kind={payload.get('kind')!r}.")
+        cfg = dict(payload["config"])
+        cfg["hidden"] = tuple(cfg.get("hidden", (256, 64)))
+        net = cls(**cfg)
+        net.load_state_dict(payload["state_dict"])
+        return net.eval()
+
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())

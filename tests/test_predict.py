@@ -1,0 +1,109 @@
+"""Tests of ccs_kornia.predict: image sets through Lightning's Trainer.predict (calibrate-many)."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.io import write_image
+from ccs_kornia.metrics import e_ip
+from ccs_kornia.pipeline import CalibrationPipeline
+from ccs_kornia.predict import (
+    CalibrationLitModule,
+    ImageSetDataModule,
+    ImageSetDataset,
+    calibrate_many,
+    find_image_sets,
+)
+
+BOARD = (9, 6)
+K_TRUE = torch.tensor([[560.0, 0.0, 322.0], [0.0, 555.0, 236.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+
+
+@pytest.fixture(scope="module")
+def camera_dirs(tmp_path_factory):
+    """cams/a: 6 views, cams/b: 5 views + a junk file + one odd-size image, cams/c: 2 views, cams/d: junk only."""
+    batch = make_calibration_set(K_TRUE, BOARD, 0.025, (640, 480), num_views=7, seed=5,
+                                 dist=torch.tensor([-0.12, 0.02, 0.0, 0.0, 0.0], dtype=torch.float64))
+    root = tmp_path_factory.mktemp("cams")
+    layout = {"a": range(0, 6), "b": range(2, 7), "c": range(0, 2), "d": []}
+    for name, views in layout.items():
+        (root / name).mkdir()
+        for k in views:
+            assert write_image(root / name / f"v{k}.png", batch.images[k, 0])
+    (root / "b" / "junk.png").write_bytes(b"not an image")
+    cv2.imwrite(str(root / "b" / "odd.png"), np.zeros((100, 120), np.uint8))
+    (root / "d" / "junk.jpg").write_bytes(b"")
+    return root
+
+
+def test_find_image_sets(camera_dirs, tmp_path):
+    sets, problems = find_image_sets([str(camera_dirs)])
+    assert [os.path.basename(n) for n, _ in sets] == ["a", "b", "c", "d"] and problems == []
+    assert len(dict(sets)[str(camera_dirs / "a")]) == 6
+    sets, _ = find_image_sets([str(camera_dirs / "a"), str(camera_dirs / "[ab]"), str(camera_dirs / "a")])
+    assert [os.path.basename(n) for n, _ in sets] == ["a", "b"]  # duplicates removed
+    (tmp_path / "empty").mkdir()
+    sets, problems = find_image_sets([str(tmp_path / "empty"), str(tmp_path / "none"), str(tmp_path / "*.zzz"),
+                                      str(camera_dirs / "a" / "v0.png")])
+    assert sets == [] and len(problems) == 4
+    assert "directory of images" in problems[3][1]
+
+
+def test_dataset_items(camera_dirs):
+    sets, _ = find_image_sets([str(camera_dirs)])
+    ds = ImageSetDataset(sets)
+    item = ds[1]  # b
+    assert item["images"].shape == (5, 1, 480, 640) and item["images"].dtype == torch.float32
+    assert len(item["paths"]) == 5 and len(item["files"]) == 7
+    assert "not a readable image" in item["skipped"][str(camera_dirs / "b" / "junk.png")]
+    assert "differs" in item["skipped"][str(camera_dirs / "b" / "odd.png")]
+    assert ds[3]["images"] is None
+    loader = ImageSetDataModule(sets, sets_per_batch=3).predict_dataloader()
+    assert [len(b) for b in loader] == [3, 1]
+
+
+def test_predict_step_batches_cameras(camera_dirs):
+    sets, _ = find_image_sets([str(camera_dirs)])
+    module = CalibrationLitModule(CalibrationPipeline("opencv"), BOARD, 0.025)
+    ds = ImageSetDataset(sets)
+    records = module.predict_step([ds[i] for i in range(len(ds))], 0)
+    assert [r["success"] for r in records] == [True, True, False, False]
+    for r in records[:2]:
+        assert float(e_ip(torch.tensor(r["K"]), K_TRUE)) < 2.0, r["K"]
+        assert r["rms"] < 0.2 and len(r["views"]) == len(r["views"]) and r["num_views"]["used"] >= 5
+    # the same set calibrated alone (no padding, no other camera in the batch) agrees
+    alone = module.predict_step([ds[0]], 0)[0]
+    np.testing.assert_allclose(alone["K"], records[0]["K"], atol=1e-3)
+    b = records[1]
+    reasons = {os.path.basename(s["path"]): s["reason"] for s in b["skipped"]}
+    assert "unreadable" in reasons["junk.png"] and "differs" in reasons["odd.png"]
+    assert "at least 3" in records[2]["error"] and records[3]["error"] == "no readable image in the set"
+
+
+def test_calibrate_many_writes_jsonl(camera_dirs, tmp_path):
+    sets, _ = find_image_sets([str(camera_dirs)])
+    out = tmp_path / "results.jsonl"
+    summary = calibrate_many(sets, BOARD, str(out), square=0.025, sets_per_batch=2, progress=False)
+    assert summary["sets"] == 4 and summary["succeeded"] == 2 and summary["failed"] == 2
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [os.path.basename(r["set"]) for r in lines] == ["a", "b", "c", "d"]
+    first = lines[0]
+    assert set(first) >= {"set", "success", "image_size", "K", "distortion", "rms", "views", "std", "skipped"}
+    assert first["image_size"] == [640, 480] and len(first["distortion"]["coeffs"]) == 5
+    assert all(v["used"] for v in first["views"])
+
+
+def test_pipeline_imports_no_lightning():
+    import subprocess
+    import sys
+
+    code = "import sys, ccs_kornia.pipeline; print(sorted(m for m in sys.modules if m.split('.')[0] == 'lightning'))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr
