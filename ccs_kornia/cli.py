@@ -198,6 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", default=0, type=int, help="seed of the rendered poses (default 0)")
     p.set_defaults(func=_cmd_demo)
 
+    sub.add_parser("bench", help="benchmarks against OpenCV and other peers (see --help)", add_help=False)
     for name in LIGHTNING_COMMANDS:  # listed for --help; main() forwards them before parsing
         sub.add_parser(name, help=f"LightningCLI {name} (training; --config lightning_configs/<x>.yaml)", add_help=False)
     return parser
@@ -713,6 +714,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in LIGHTNING_COMMANDS:
         return _run_lightning(argv)
+    if argv and argv[0] == "bench":
+        from ccs_kornia.bench.__main__ import main as bench_main
+
+        return bench_main(argv[1:], prog=f"{PROG} bench")
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

@@ -1,0 +1,19 @@
+"""Benchmarks of ccs_kornia against OpenCV and libcbdetect, side by side in one run (DESIGN.md §6).
+
+``python -m ccs_kornia bench [--quick] [--out DIR] [--sections ...] [--markdown docs/benchmarks.md]``
+(also ``python -m ccs_kornia.bench``) writes ``results.json``, ``report.md`` and the RMS box plot to
+``--out``. Sections (paper tables in brackets): ``corners`` (III), ``calibration`` (I), ``real`` (II and the
+RPE box plot), ``distortion`` (IV), ``speed``. Synthetic scenes use seeds from
+:data:`ccs_kornia.data.datamodule.BENCH_SEED_BASE` upwards, which training never uses.
+
+Example:
+    >>> from ccs_kornia.bench import BenchConfig, run_bench
+    >>> results = run_bench(BenchConfig.tiny(sections=("corners",)), "/tmp/bench")  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from ccs_kornia.bench.common import METHODS, SECTIONS, BenchConfig
+from ccs_kornia.bench.runner import run_bench
+
+__all__ = ["BenchConfig", "run_bench", "SECTIONS", "METHODS"]

@@ -1,0 +1,105 @@
+"""``python -m ccs_kornia.bench`` (and ``python -m ccs_kornia bench``): run the benchmarks.
+
+    python -m ccs_kornia bench                     # full run (~45 min on 2 cores)
+    python -m ccs_kornia bench --quick             # a few images per condition (< 5 min)
+    python -m ccs_kornia bench --sections corners speed --out /tmp/bench
+    python -m ccs_kornia bench --markdown docs/benchmarks.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from collections.abc import Sequence
+
+__all__ = ["main", "build_parser"]
+
+
+def build_parser(prog: str = "python -m ccs_kornia bench") -> argparse.ArgumentParser:
+    from ccs_kornia.bench.common import METHODS, SECTIONS
+
+    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="a few images and trials per condition (< 5 min)")
+    size.add_argument("--tiny", action="store_true", help="the smallest run that touches every section (tests)")
+    p.add_argument("--out", default="bench_results", help="output folder for results.json, report.md, box plot")
+    p.add_argument("--markdown", default=None, help="also write the markdown report here (e.g. docs/benchmarks.md)")
+    p.add_argument("--sections", nargs="+", choices=SECTIONS, default=None, help="sections to run (default: all)")
+    p.add_argument("--methods", nargs="+", choices=tuple(METHODS), default=None, help="detection methods")
+    p.add_argument("--corner-images", type=int, default=None, help="images per condition, corner section")
+    p.add_argument("--calib-trials", type=int, default=None, help="trials per condition, calibration section")
+    p.add_argument("--calib-views", type=int, default=None, help="views per trial")
+    p.add_argument("--calib-pool-views", type=int, default=None, help="views rendered per camera (>= --calib-views)")
+    p.add_argument("--calib-trials-per-camera", type=int, default=None, help="trials drawn from one camera's pool")
+    p.add_argument("--real-subsets", type=int, default=None, help="random view subsets per real set")
+    p.add_argument("--real-sets", nargs="+", default=None, help="names of the real sets to run (default: preset's)")
+    p.add_argument("--real-max-images", type=int, default=None, help="at most this many images per real set")
+    p.add_argument("--real-dir", default=None, help="folder of the real sets (default: ../shared/data/real)")
+    p.add_argument("--dc-trials", type=int, default=None, help="trials of the distortion-correction section")
+    p.add_argument("--distortion-weights", default=None, help="DistortionNet export (default: shipped weights)")
+    p.add_argument("--no-cuda", action="store_true", help="do not time CUDA even when present")
+    p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    return p
+
+
+def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia bench") -> int:
+    """Entry point; returns 0 when every section ran, 1 when a section failed, 2 on bad arguments."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = build_parser(prog).parse_args(argv)
+    except SystemExit as exit_:  # --help, or a bad argument (argparse has printed why)
+        return exit_.code if isinstance(exit_.code, int) else 2
+    import torch
+
+    from ccs_kornia.bench.common import BenchConfig
+    from ccs_kornia.bench.runner import run_bench
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    overrides = {}
+    for name in ("corner_images", "calib_trials", "calib_views", "calib_pool_views", "calib_trials_per_camera",
+                 "real_subsets", "real_max_images", "real_dir", "dc_trials", "distortion_weights"):
+        value = getattr(args, name)
+        if value is not None:
+            if isinstance(value, int) and value < 1:
+                print(f"{prog}: error: --{name.replace('_', '-')} must be >= 1", file=sys.stderr)
+                return 2
+            overrides[name] = value
+    if args.real_sets:
+        overrides["real_sets"] = tuple(args.real_sets)
+    if args.sections:
+        overrides["sections"] = tuple(args.sections)
+    if args.methods:
+        overrides["methods"] = tuple(args.methods)
+    if args.no_cuda:
+        overrides["devices"] = ("cpu",)
+    if "calib_views" in overrides and "calib_pool_views" not in overrides:
+        overrides["calib_pool_views"] = overrides["calib_views"]
+    preset = BenchConfig.tiny if args.tiny else BenchConfig.quick if args.quick else BenchConfig.full
+    try:
+        cfg = preset(**overrides)
+        if cfg.calib_pool_views < cfg.calib_views:
+            raise ValueError("--calib-pool-views must be >= --calib-views")
+    except (TypeError, ValueError) as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return 2
+    command = " ".join([prog, *map(shlex.quote, argv)])
+    try:
+        results = run_bench(cfg, args.out, command=command, markdown=args.markdown,
+                            log=lambda msg: print(msg, file=sys.stderr, flush=True))
+    except OSError as err:  # unwritable output folder or markdown path
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    failed = [name for name, sec in results["sections"].items() if "error" in sec]
+    if failed:
+        print(f"{prog}: error: section(s) failed: {', '.join(failed)} (see {args.out}/results.json)", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(prog="python -m ccs_kornia.bench"))

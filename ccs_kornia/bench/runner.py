@@ -1,0 +1,115 @@
+"""Run the benchmark sections and write JSON, markdown and the box plot."""
+
+from __future__ import annotations
+
+import time
+import traceback
+from datetime import datetime, timezone
+from pathlib import Path
+
+import torch
+
+from ccs_kornia.bench.common import SECTIONS, BenchConfig, make_methods
+from ccs_kornia.bench.report import draw_boxplot, machine_info, render_markdown, write_markdown
+
+__all__ = ["run_bench"]
+
+
+def run_bench(
+    cfg: BenchConfig,
+    out_dir: str | Path,
+    command: str = "python -m ccs_kornia bench",
+    markdown: str | Path | None = None,
+    log=print,
+) -> dict:
+    """Run the configured sections; write ``results.json``, ``report.md`` (and ``real_rms_boxplot.png``) to
+    ``out_dir`` and, if given, the markdown report to ``markdown`` as well.
+
+    A section that raises is recorded as ``{"error": ...}`` and the others still run.
+
+    Returns:
+        The results dict (``meta`` and ``sections``), as written to ``results.json``.
+    """
+    from ccs_kornia.io import write_json
+
+    for s in cfg.sections:
+        if s not in SECTIONS:
+            raise ValueError(f"Unknown section {s!r}; expected some of {SECTIONS}.")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    started = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    methods = make_methods(cfg.methods, cfg.learned_batch)
+    for m in methods.values():
+        if not m.available:
+            log(f"[bench] {m.label}: {m.reason} — skipped")
+    meta = {
+        "command": command,
+        "started": started,
+        "machine": machine_info(),
+        "config": cfg.to_dict(),
+        "methods": {k: {"label": m.label, "available": m.available, "reason": m.reason} for k, m in methods.items()},
+        "not_run": [],
+    }
+    results: dict = {"meta": meta, "sections": {}}
+    device = "cpu"  # accuracy sections solve on the CPU in float64; the speed section times CUDA separately
+    for name in SECTIONS:
+        if name not in cfg.sections:
+            continue
+        log(f"[bench] section {name}")
+        ts = time.perf_counter()
+        try:
+            if name == "corners":
+                from ccs_kornia.bench.corners import run_corners
+
+                sec = run_corners(cfg, methods, log=log)
+            elif name == "calibration":
+                from ccs_kornia.bench.calibration import run_calibration
+
+                sec = run_calibration(cfg, methods, device, log=log)
+            elif name == "real":
+                from ccs_kornia.bench.real import run_real
+
+                sec = run_real(cfg, methods, device, log=log)
+            elif name == "distortion":
+                from ccs_kornia.bench.distortion import run_distortion
+
+                sec = run_distortion(cfg, methods, device, log=log)
+            else:
+                from ccs_kornia.bench.speed import run_speed
+
+                sec = run_speed(cfg, methods, log=log)
+        except Exception as err:  # keep the other sections; the error is reported in JSON and markdown
+            log(traceback.format_exc())
+            sec = {"error": f"{type(err).__name__}: {err}"}
+        sec["seconds"] = time.perf_counter() - ts
+        results["sections"][name] = sec
+        log(f"[bench] section {name} done in {sec['seconds']:.1f}s")
+    meta["seconds"] = time.perf_counter() - t0
+    meta["skipped"] = _skipped(meta, results["sections"])
+    boxplot = None
+    if "real" in results["sections"] and "sets" in results["sections"]["real"]:
+        boxplot = draw_boxplot(results["sections"]["real"], out / "real_rms_boxplot.png")
+    write_json(out / "results.json", results)
+    (out / "report.md").write_text(render_markdown(results, boxplot.name if boxplot else None), encoding="utf-8")
+    if markdown is not None:
+        write_markdown(results, markdown, boxplot)
+    log(f"[bench] done in {meta['seconds'] / 60:.1f} min; results in {out}")
+    return results
+
+
+def _skipped(meta: dict, sections: dict) -> list[str]:
+    """Every method, section, set or device that did not run, with the reason."""
+    out = [f"{m['label']}: {m['reason']}" for m in meta["methods"].values() if not m["available"]]
+    for name, sec in sections.items():
+        if "error" in sec:
+            out.append(f"section {name}: failed ({sec['error']})")
+        if "skipped" in sec and isinstance(sec["skipped"], str):
+            out.append(f"section {name}: {sec['skipped']}")
+        for item, why in (sec.get("skipped") or {}).items() if isinstance(sec.get("skipped"), dict) else ():
+            out.append(f"{name} {item}: {why}")
+        for dev, why in (sec.get("skipped_devices") or {}).items():
+            out.append(f"{name} on {dev}: {why}")
+        if sec.get("not_in_section"):
+            out.append(f"{name}: not run for " + ", ".join(sec["not_in_section"]) + " (calib_methods)")
+    return out

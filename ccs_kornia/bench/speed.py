@@ -1,0 +1,126 @@
+"""Section 5: speed, side by side in one run.
+
+* detection images/s of every method at each batch size (the OpenCV peers work image by image whatever
+  the batch; the ccs_kornia OpenCV-based detector spreads a batch over threads; the learned detector runs
+  the network on the whole batch);
+* whole calibration images/s: detection plus solver on one ``calib_views``-view set (ccs_kornia: its
+  detector and batched solver; OpenCV: classic + cornerSubPix and ``calibrateCamera``);
+* calibrations/s of the solver alone, ccs_kornia batched over ``C`` cameras against a loop of
+  ``cv2.calibrateCamera``, on the same noisy corners (0.1 px);
+* peak memory: the process's peak resident set size (CPU) and ``torch.cuda.max_memory_allocated`` (GPU).
+
+CUDA timings run only when CUDA is present (learned detector and solver; the OpenCV peers are CPU-only).
+Best of ``speed_repeats`` runs after one warm-up.
+"""
+
+from __future__ import annotations
+
+import resource
+import sys
+import time
+
+import numpy as np
+import torch
+
+from ccs_kornia.bench.common import BenchConfig, DetectionMethod, ccs_calibrate, cv2_calibrate, render_scenes
+
+__all__ = ["run_speed", "peak_rss_mb"]
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process in MiB."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (1024.0 * 1024.0) if sys.platform == "darwin" else peak / 1024.0
+
+
+def _best(fn, repeats: int, device: str = "cpu") -> float:
+    fn()
+    if device == "cuda":
+        torch.cuda.synchronize()
+    best = float("inf")
+    for _ in range(max(1, repeats)):
+        t = time.perf_counter()
+        fn()
+        if device == "cuda":
+            torch.cuda.synchronize()
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) -> dict:
+    """Run the speed section; returns a dict of timings per device."""
+    n_views = max(cfg.speed_images, cfg.calib_views)
+    scenes = render_scenes(cfg, "clean", 1, n_views, "speed")
+    images = scenes.flat_images
+    det_images = images[: cfg.speed_images]
+    out: dict = {"threads": torch.get_num_threads(), "images": int(det_images.shape[0]), "load_average_start": _load(),
+                 "calibration_views": cfg.calib_views, "devices": {}}
+    devices = [d for d in cfg.devices if d == "cpu" or (d == "cuda" and torch.cuda.is_available())]
+    out["skipped_devices"] = {d: "CUDA not available" for d in cfg.devices if d not in devices}
+    for device in devices:
+        res: dict = {"detection": {}, "calibration": {}, "solver": {}}
+        # detection
+        for key, m in methods.items():
+            if not m.available:
+                continue
+            if device == "cuda" and key != "learned":
+                continue
+            run_images = det_images.to(device)
+            per_batch = {}
+            for bs in sorted({min(b, run_images.shape[0]) for b in cfg.speed_batch_sizes}):
+                def go(m=m, bs=bs):
+                    for i in range(0, run_images.shape[0], bs):
+                        m.detect(run_images[i : i + bs], cfg.board)
+                sec = _best(go, cfg.speed_repeats, device)
+                per_batch[str(bs)] = run_images.shape[0] / sec
+            res["detection"][key] = {"label": m.label, "images_per_s": per_batch}
+            log(f"[speed] {device} detect {m.label:30s} " + "  ".join(f"b{b}: {v:.1f} img/s" for b, v in per_batch.items()))
+        # whole calibration (detect + solve) on one set of views
+        views = images[: cfg.calib_views]
+        ccs_key = "learned" if "learned" in methods and methods["learned"].available else "opencv_saddle"
+        pairs = [(f"ccs_kornia ({methods[ccs_key].label})", ccs_key, "ccs")] if ccs_key in methods else []
+        if device == "cpu" and "opencv_subpix" in methods:
+            pairs.append(("OpenCV (classic+cornerSubPix, calibrateCamera)", "opencv_subpix", "opencv"))
+        for label, key, solver in pairs:
+            m = methods[key]
+
+            def whole(m=m, solver=solver):
+                c, f = m.detect(views.to(device), cfg.board)
+                if solver == "ccs":
+                    ccs_calibrate(c[None], f[None], cfg.board, cfg.square, cfg.image_size, "opencv5", device)
+                else:
+                    cv2_calibrate(c, f, cfg.board, cfg.square, cfg.image_size, "opencv5")
+            sec = _best(whole, cfg.speed_repeats, device)
+            res["calibration"][label] = {"images_per_s": views.shape[0] / sec, "seconds": sec}
+            log(f"[speed] {device} whole calibration {label}: {views.shape[0] / sec:.2f} img/s ({sec:.2f} s)")
+        # solver alone
+        g = torch.Generator().manual_seed(1)
+        truth = scenes.corners[0, : cfg.calib_views].numpy()
+        found1 = np.ones(truth.shape[0], dtype=bool)
+        for C in cfg.speed_solver_cameras:
+            noisy = truth[None] + 0.1 * torch.randn((C, *truth.shape), generator=g, dtype=torch.float64).numpy()
+            found = np.ones(noisy.shape[:2], dtype=bool)
+            t_ccs = _best(lambda: ccs_calibrate(noisy, found, cfg.board, cfg.square, cfg.image_size, "opencv5", device),
+                          cfg.speed_repeats, device)
+            entry = {"ccs_calibrations_per_s": C / t_ccs}
+            if device == "cpu":
+                t_cv = _best(lambda: [cv2_calibrate(noisy[i], found1, cfg.board, cfg.square, cfg.image_size, "opencv5")
+                                      for i in range(C)], cfg.speed_repeats)
+                entry["opencv_calibrations_per_s"] = C / t_cv
+            res["solver"][str(C)] = entry
+            log(f"[speed] {device} solver C={C}: ccs {entry['ccs_calibrations_per_s']:.1f}/s"
+                + (f", cv2 {entry['opencv_calibrations_per_s']:.1f}/s" if "opencv_calibrations_per_s" in entry else ""))
+        res["peak_memory_mb"] = peak_rss_mb() if device == "cpu" else torch.cuda.max_memory_allocated() / 2**20
+        out["devices"][device] = res
+    out["load_average_end"] = _load()
+    return out
+
+
+def _load() -> float | None:
+    """1-minute load average: timings taken while other processes use the cores are not comparable."""
+    try:
+        import os
+
+        return float(os.getloadavg()[0])
+    except (AttributeError, OSError):
+        return None

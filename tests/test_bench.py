@@ -1,0 +1,239 @@
+"""Tests of the benchmark package (``python -m ccs_kornia.bench``) on its tiniest configuration."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from ccs_kornia.bench import BenchConfig, run_bench
+from ccs_kornia.bench.__main__ import main
+from ccs_kornia.bench.common import (
+    corner_errors, cv2_calibrate, ccs_calibrate, make_methods, orient_grid, render_scenes, summary,
+)
+from ccs_kornia.bench.report import HONEST_END, HONEST_START, draw_boxplot, write_markdown
+from ccs_kornia.camera import board_object_points, project_points
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+FAST_METHODS = ("opencv_saddle", "opencv_subpix")
+
+
+def _grid(cols: int, rows: int) -> np.ndarray:
+    i, j = np.meshgrid(np.arange(cols), np.arange(rows))
+    return np.stack([40.0 + 20 * i + 2 * j, 30.0 + 18 * j + 1 * i], -1).reshape(-1, 2)
+
+
+# ----------------------------------------------------------------------------------------------
+# corner bookkeeping
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("board", [(5, 4), (4, 4)])
+def test_corner_errors_allow_board_symmetries(board):
+    cols, rows = board
+    truth = _grid(cols, rows)
+    g = truth.reshape(rows, cols, 2)
+    for variant in (g[::-1, ::-1], g[:, ::-1], g[::-1, :]):
+        assert np.allclose(corner_errors(variant.reshape(-1, 2), truth, board), 0.0)
+    if cols == rows:
+        assert np.allclose(corner_errors(g.transpose(1, 0, 2).reshape(-1, 2), truth, board), 0.0)
+    # a board shifted by one square is wrong whatever the ordering
+    shifted = truth + np.array([20.0, 0.0])
+    assert corner_errors(shifted, truth, board).min() > 5.0
+
+
+def test_orient_grid_fixes_handedness_and_origin():
+    board = (5, 4)
+    truth = _grid(*board)
+    g = truth.reshape(4, 5, 2)
+    mirrored = g[:, ::-1].reshape(-1, 2)
+    out = orient_grid(mirrored, board)
+    np.testing.assert_allclose(out, truth)  # canonical: handedness restored, first corner top-left
+    np.testing.assert_allclose(orient_grid(g[::-1, ::-1].reshape(-1, 2), board), truth)
+
+
+def test_summary_ignores_nan_and_none():
+    s = summary([1.0, np.nan, 3.0, None])
+    assert s["n"] == 2 and s["mean"] == 2.0 and s["max"] == 3.0
+    assert summary([])["mean"] is None
+
+
+# ----------------------------------------------------------------------------------------------
+# scenes, methods, solvers
+# ----------------------------------------------------------------------------------------------
+
+
+def test_render_scenes_seeded_and_quantised():
+    cfg = BenchConfig.tiny()
+    a = render_scenes(cfg, "clean", 1, 2, "corners")
+    b = render_scenes(cfg, "clean", 1, 2, "corners")
+    assert a.images.shape == (1, 2, 1, 240, 320) and a.corners.shape == (1, 2, 24, 2)
+    assert torch.equal(a.images, b.images)
+    assert torch.allclose(a.images * 255, torch.round(a.images * 255), atol=1e-4)
+    other = render_scenes(cfg, "clean", 1, 2, "calibration")  # another section: other scenes
+    assert not torch.equal(a.images, other.images)
+    with pytest.raises(ValueError):
+        render_scenes(cfg, "fog", 1, 1, "corners")
+
+
+def test_methods_detect_rendered_boards_precisely():
+    cfg = BenchConfig.tiny()
+    scenes = render_scenes(cfg, "clean", 1, 2, "corners")
+    methods = make_methods(FAST_METHODS)
+    for m in methods.values():
+        corners, found = m.detect(scenes.flat_images, cfg.board)
+        assert corners.shape == (2, 24, 2) and found.all()
+        for b in range(2):
+            assert corner_errors(corners[b], scenes.flat_corners[b].numpy(), cfg.board).max() < 0.5
+    with pytest.raises(ValueError):
+        make_methods(("nope",))
+
+
+def test_learned_method_reports_missing_weights_or_is_available():
+    from ccs_kornia.modules.learned_detector import DEFAULT_DETECTOR_WEIGHTS
+
+    m = make_methods(("learned",))["learned"]
+    if DEFAULT_DETECTOR_WEIGHTS.is_file():
+        assert m.available and m.reason == ""
+    else:
+        assert not m.available and "weights not available" in m.reason
+        with pytest.raises(RuntimeError):
+            m.detect(torch.zeros(1, 1, 32, 32), (4, 3))
+
+
+def test_solvers_recover_exact_intrinsics():
+    board, square, size = (6, 5), 0.03, (640, 480)
+    obj = board_object_points(*board, square, dtype=torch.float64)
+    K = torch.tensor([[600.0, 0, 322], [0, 590, 236], [0, 0, 1]], dtype=torch.float64)
+    g = torch.Generator().manual_seed(0)
+    V = 6
+    rvec = 0.5 * (torch.rand(V, 3, generator=g, dtype=torch.float64) - 0.5)
+    tvec = torch.tensor([-0.07, -0.06, 0.5], dtype=torch.float64).expand(V, 3)
+    uv = project_points(obj.expand(V, -1, -1), K.expand(V, 3, 3), None, rvec, tvec).numpy()
+    found = np.ones(V, dtype=bool)
+    cv = cv2_calibrate(uv, found, board, square, size, "k1k2")
+    assert cv["success"] and np.allclose(cv["K"], K.numpy(), atol=1e-3) and cv["rms"] < 1e-3
+    ours = ccs_calibrate(uv[None], found[None], board, square, size, "k1k2")
+    assert bool(ours["success"][0]) and np.allclose(ours["K"][0], K.numpy(), atol=1e-3)
+    # fewer than three found views: a failure, not an exception
+    assert not cv2_calibrate(uv, np.array([1, 1, 0, 0, 0, 0], bool), board, square, size)["success"]
+
+
+# ----------------------------------------------------------------------------------------------
+# the whole run
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    md = out / "benchmarks.md"
+    argv = ["--tiny", "--out", str(out), "--markdown", str(md), "--no-cuda", "--methods", *FAST_METHODS,
+            "--sections", "corners", "calibration", "distortion", "speed"]
+    rc = main(argv)
+    return rc, out, md, argv
+
+
+def test_tiny_run_writes_json_and_markdown(tiny_run):
+    rc, out, md, argv = tiny_run
+    assert rc == 0
+    results = json.loads((out / "results.json").read_text())
+    meta, sections = results["meta"], results["sections"]
+    assert meta["config"]["preset"] == "tiny" and meta["machine"]["cores"] >= 1
+    assert set(sections) == {"corners", "calibration", "distortion", "speed"}
+    # corners: every condition and method, rates in [0, 1], sub-pixel errors on clean renders
+    corners = sections["corners"]["conditions"]
+    assert set(corners) == {"clean", "severe"}
+    for cond in corners.values():
+        assert set(cond) == set(FAST_METHODS)
+        for r in cond.values():
+            assert 0.0 <= r["detection_rate"] <= 1.0 and r["images"] == 2
+    assert corners["clean"]["opencv_subpix"]["detection_rate"] == 1.0
+    assert corners["clean"]["opencv_subpix"]["mean_px"] < 0.3
+    # calibration: both solvers for every detector, exact corners give (almost) exact intrinsics
+    calib = sections["calibration"]["conditions"]["blur_noise"]
+    assert set(calib) == {"truth", *FAST_METHODS}
+    assert calib["truth"]["ccs"]["e_ip"] < 1e-3 and calib["truth"]["opencv"]["e_ip"] < 1e-3
+    for r in calib.values():
+        assert {"e_fl", "e_pp", "e_ip", "e_ip_var", "rms", "failures"} <= set(r["ccs"])
+        assert len(r["opencv"]["e_ip_per_trial"]) == 2
+    # distortion: skipped with a reason unless weights are shipped
+    dist = sections["distortion"]
+    assert "skipped" in dist or "methods" in dist
+    # speed: images/s at both batch sizes, solver timings against OpenCV
+    cpu = sections["speed"]["devices"]["cpu"]
+    for r in cpu["detection"].values():
+        assert set(r["images_per_s"]) == {"1", "2"} and all(v > 0 for v in r["images_per_s"].values())
+    assert cpu["solver"]["2"]["ccs_calibrations_per_s"] > 0 and cpu["solver"]["2"]["opencv_calibrations_per_s"] > 0
+    assert cpu["peak_memory_mb"] > 0
+    # markdown: command, machine, tables straight from the JSON, the honest-reading placeholder
+    for text in ((out / "report.md").read_text(), md.read_text()):
+        assert " ".join(argv[:2]) in text and meta["machine"]["cpu"] in text
+        assert "## 1. Corner accuracy" in text and "## 2. Calibration" in text and "## 5. Speed" in text
+        assert HONEST_START in text and HONEST_END in text and "Placeholder" in text
+        mean = corners["clean"]["opencv_subpix"]["mean_px"]
+        assert f"{mean:.4f}" in text
+
+
+def test_markdown_keeps_hand_written_reading(tiny_run, tmp_path):
+    _, out, md, _ = tiny_run
+    results = json.loads((out / "results.json").read_text())
+    target = tmp_path / "b.md"
+    write_markdown(results, target)
+    text = target.read_text()
+    target.write_text(text.replace("_Placeholder", "Our corners beat OpenCV's.\n_Placeholder", 1))
+    write_markdown(results, target)
+    again = target.read_text()
+    assert "Our corners beat OpenCV's." in again and again.count(HONEST_START) == 1
+
+
+def test_distortion_section_with_an_untrained_network(tmp_path):
+    from ccs_kornia.bench.distortion import run_distortion
+    from ccs_kornia.modules.distortion_net import DistortionNet
+
+    net = DistortionNet(base_channels=4, input_size=64)
+    weights = tmp_path / "dnet.pt"
+    torch.save({"kind": "DistortionNet", "config": net.config, "state_dict": net.state_dict()}, weights)
+    cfg = BenchConfig.tiny(dc_views=4, distortion_weights=str(weights))
+    res = run_distortion(cfg, make_methods(("opencv_subpix",)), log=lambda *_: None)
+    r = res["methods"]["opencv_subpix"]
+    # an untrained network predicts the identity correction
+    np.testing.assert_allclose(res["predicted_correction_mean"], [1, 0, 0, 0, 0], atol=1e-6)
+    for variant in ("none", "cnn_points", "cnn_image", "oracle_points"):
+        assert r[variant]["ccs"]["trials"] == 1 and r[variant]["opencv"]["trials"] == 1
+    assert r["none"]["ccs"]["e_ip"] is not None
+    missing = run_distortion(BenchConfig.tiny(distortion_weights=str(tmp_path / "none.pt")), {}, log=lambda *_: None)
+    assert "not available" in missing["skipped"]
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="shared/data/real is not present next to the repository")
+def test_real_section_and_boxplot(tmp_path):
+    from ccs_kornia.bench.real import run_real
+
+    cfg = BenchConfig.tiny(real_dir=str(REAL), real_max_images=5, real_subsets=3)
+    res = run_real(cfg, make_methods(("opencv_subpix",)), log=lambda *_: None)
+    s = res["sets"]["boofcv_bumblebee2_left"]
+    assert s["images"] == 5 and s["reference"] is not None and s["model"] == "k1k2"
+    r = s["methods"]["opencv_subpix"]
+    assert r["found"] == 5
+    # all-image calibration near BoofCV's published one (few views: a loose bound)
+    assert abs(r["all"]["opencv"]["diff_reference"]["fx"]) < 15
+    assert len(r["subsets"]["ccs"]["rms_values"]) == 3
+    png = draw_boxplot(res, tmp_path / "box.png")
+    import cv2
+
+    img = cv2.imread(str(png))
+    assert img is not None and img.shape[0] > 100 and img.shape[1] > 300
+
+
+def test_bad_arguments_exit_2(tmp_path, capsys):
+    assert main(["--tiny", "--calib-trials", "0", "--out", str(tmp_path)]) == 2
+    assert "must be >= 1" in capsys.readouterr().err
+    assert main(["--sections", "nope"]) == 2
+    assert main(["--quick", "--tiny"]) == 2
+    assert main(["--tiny", "--calib-views", "8", "--calib-pool-views", "5", "--out", str(tmp_path)]) == 2
+    with pytest.raises(ValueError):
+        run_bench(BenchConfig.tiny(sections=("nope",)), tmp_path)

@@ -1,0 +1,85 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from ccs_kornia.camera import intrinsics_matrix
+from ccs_kornia.data.augment import textured_background
+from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.modules.detector import make_detector
+from ccs_kornia.modules.learned_detector import DEFAULT_DETECTOR_WEIGHTS, LearnedChessboardDetector
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+
+
+def _error(found_corners: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+    # the grid order may be the 180-degree alternative on symmetric boards
+    e1 = (found_corners - gt).norm(dim=-1).mean(-1)
+    e2 = (found_corners.flip(-2) - gt).norm(dim=-1).mean(-1)
+    return torch.minimum(e1, e2)
+
+
+@pytest.fixture(scope="module")
+def detector():
+    assert DEFAULT_DETECTOR_WEIGHTS.is_file(), "shipped weights are part of the package"
+    return LearnedChessboardDetector()
+
+
+@pytest.fixture(scope="module")
+def views():
+    K = intrinsics_matrix(torch.tensor([600.0, 590.0, 318.0, 242.0]))
+    return {
+        cond: make_calibration_set(K, (9, 6), 0.025, (640, 480), 2, dist=torch.tensor([-0.2, 0.05, 0, 0, 0]),
+                                   condition=cond, seed=9_100_000 + i)
+        for i, cond in enumerate(["clean", "combined"])
+    }
+
+
+def test_finds_boards_with_subpixel_accuracy(detector, views):
+    for cond, limit in (("clean", 0.03), ("combined", 0.25)):
+        s = views[cond]
+        out = detector(s.images, (9, 6))
+        assert out.corners.shape == (2, 54, 2) and out.found.shape == (2,)
+        assert out.found.all(), (cond, out.reasons)
+        assert (_error(out.corners, s.corners) < limit).all(), cond
+
+
+def test_saddle_refinement_improves_on_heatmap_fit(views):
+    s = views["clean"]
+    plain = LearnedChessboardDetector(refine="none")(s.images, (9, 6))
+    refined = LearnedChessboardDetector(refine="saddle")(s.images, (9, 6))
+    assert plain.found.all() and refined.found.all()
+    assert _error(refined.corners, s.corners).mean() < _error(plain.corners, s.corners).mean()
+
+
+def test_no_false_board_and_wrong_size(detector, views):
+    g = torch.Generator().manual_seed(9_200_000)
+    clutter = textured_background(3, (320, 240), g)
+    out = detector(clutter, (9, 6))
+    assert not out.found.any()
+    assert out.reasons == ["board not found"] * 3
+    # a sub-board of the real board is not a board
+    assert not detector(views["clean"].images, (8, 6)).found.any()
+
+
+def test_make_detector_and_exceptions(detector):
+    assert isinstance(make_detector("learned"), LearnedChessboardDetector)
+    with pytest.raises(ValueError):
+        detector(torch.rand(1, 3, 32, 32), (9, 6))
+    with pytest.raises(ValueError):
+        LearnedChessboardDetector(refine="bogus")
+
+
+def test_real_opencv_left_all_found(detector):
+    folder = REAL / "opencv_left"
+    if not folder.is_dir():
+        pytest.skip(f"real data folder {folder} is absent")
+    files = sorted(folder.glob("*.jpg"))
+    imgs = torch.stack([torch.from_numpy(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255)[None] for f in files])
+    out = detector(imgs, (9, 6))
+    # OpenCV's SB detector finds 11 of these 13
+    assert int(out.found.sum()) == len(files)
