@@ -180,7 +180,6 @@ def _local_homographies(
     sums = np.concatenate([w @ feats, np.zeros((len(query), 1))], 1)  # (C, 24), last column 0
     m = sums[:, _NORMAL_INDEX] * _NORMAL_SIGN  # (C, 8, 8)
     b = sums[:, _RHS_INDEX] * _RHS_SIGN  # (C, 8)
-    c = len(query)
     # a small ridge keeps thin support (a straight row, the seed cross) solvable; it pulls the
     # perspective terms towards an affine map first
     scale = np.trace(m, axis1=1, axis2=2)[:, None] / 8.0 + 1e-12

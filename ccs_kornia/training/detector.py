@@ -8,6 +8,7 @@ import torch
 from ccs_kornia.losses.heatmap_loss import HeatmapLoss
 from ccs_kornia.modules.heatmap_unet import CornerUNet
 from ccs_kornia.modules.subpixel import gaussian_fit, heatmap_peaks
+from ccs_kornia.training.common import adamw_one_cycle
 
 __all__ = ["DetectorLitModule"]
 
@@ -78,12 +79,7 @@ class DetectorLitModule(L.LightningModule):
         self.log("val/false_peaks", false, batch_size=bs)
 
     def configure_optimizers(self):
-        opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
-        total = self.trainer.estimated_stepping_batches if self.trainer is not None else 10_000
-        if not isinstance(total, int) or total <= 0 or total > 10**8:
-            total = 10_000
-        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.hparams.lr, total_steps=total, pct_start=0.05)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        return adamw_one_cycle(self, self.hparams.lr, self.hparams.weight_decay)
 
     def export(self) -> dict:
         """The shippable checkpoint: network config and weights only (a few hundred kB)."""

@@ -6,7 +6,6 @@
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import lightning as L
@@ -16,6 +15,7 @@ from ccs_kornia.camera import fit_radial_correction
 from ccs_kornia.losses.grid_loss import GridLoss, grid_loss, grid_targets, normalize_distortion_scale
 from ccs_kornia.modules.distortion_net import DistortionNet
 from ccs_kornia.modules.undistort import correct_points, straightness_rms
+from ccs_kornia.training.common import adamw_one_cycle
 
 __all__ = ["DistortionLitModule", "export_distortion_checkpoint"]
 
@@ -120,12 +120,7 @@ class DistortionLitModule(L.LightningModule):
             self.log("val/straightness_before", before[has].mean(), batch_size=m)
 
     def configure_optimizers(self):
-        opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
-        total = self.trainer.estimated_stepping_batches if self.trainer is not None else 10_000
-        if not isinstance(total, int) or total <= 0 or total > 10**8:
-            total = 10_000
-        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.hparams.lr, total_steps=total, pct_start=0.05)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        return adamw_one_cycle(self, self.hparams.lr, self.hparams.weight_decay)
 
     def export(self) -> dict:
         """The shippable checkpoint: network config and weights only (loadable by ``DistortionNet.from_export``)."""
@@ -138,25 +133,16 @@ class DistortionLitModule(L.LightningModule):
 
 def export_distortion_checkpoint(ckpt_path: str | Path, out_path: str | Path) -> dict:
     """Load a :class:`DistortionLitModule` checkpoint and write its network config and weights only."""
-    module = DistortionLitModule.load_from_checkpoint(str(ckpt_path), map_location="cpu")
-    payload = module.export()
-    ckpt = torch.load(str(ckpt_path), map_location="cpu", weights_only=False)
-    payload["trained_steps"] = int(ckpt.get("global_step", -1))
-    out = Path(out_path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    torch.save(payload, out)
-    return payload
+    from ccs_kornia.training.export import export_checkpoint
+
+    return export_checkpoint(ckpt_path, out_path)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("checkpoint")
-    parser.add_argument("output")
-    args = parser.parse_args(argv)
-    payload = export_distortion_checkpoint(args.checkpoint, args.output)
-    n = sum(v.numel() for v in payload["state_dict"].values())
-    print(f"wrote {args.output}: {payload['kind']} {payload['config']}, {n} values, step {payload['trained_steps']}")
-    return 0
+    """``python -m ccs_kornia.training.distortion CKPT OUT`` (same as ``ccs_kornia.training.export``)."""
+    from ccs_kornia.training.export import main as export_main
+
+    return export_main(argv)
 
 
 if __name__ == "__main__":

@@ -14,17 +14,14 @@ __all__ = ["export_checkpoint"]
 
 
 def export_checkpoint(ckpt_path: str | Path, out_path: str | Path) -> dict:
-    """Load a detector (or distortion) checkpoint and write its network config and weights only."""
-    from ccs_kornia.training.detector import DetectorLitModule
-
-    state = torch.load(str(ckpt_path), map_location="cpu", weights_only=False).get("state_dict", {})
-    if any(k.startswith("net.encoder.") for k in state):
-        from ccs_kornia.training.distortion import export_distortion_checkpoint
-
-        return export_distortion_checkpoint(ckpt_path, out_path)
-    module = DetectorLitModule.load_from_checkpoint(str(ckpt_path), map_location="cpu")
-    payload = module.export()
+    """Load a detector or distortion checkpoint and write its network config and weights only."""
     ckpt = torch.load(str(ckpt_path), map_location="cpu", weights_only=False)
+    if any(k.startswith("net.encoder.") for k in ckpt.get("state_dict", {})):
+        from ccs_kornia.training.distortion import DistortionLitModule as lit_class
+    else:
+        from ccs_kornia.training.detector import DetectorLitModule as lit_class
+    module = lit_class.load_from_checkpoint(str(ckpt_path), map_location="cpu")
+    payload = module.export()
     payload["trained_steps"] = int(ckpt.get("global_step", -1))
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)
