@@ -33,7 +33,7 @@ __all__ = ["main", "build_parser", "UserError", "LIGHTNING_COMMANDS"]
 PROG = "ccs_kornia"
 LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
 MODELS = ("opencv5", "rational", "k1k2", "none")
-DEFAULT_DETECTOR = "opencv"  # switches to "learned" once shipped weights exist
+DEFAULT_DETECTOR = "learned"
 
 # the demo camera: independent fx/fy, off-centre principal point, strong barrel distortion
 DEMO_K = ((620.0, 0.0, 322.0), (0.0, 610.0, 236.0), (0.0, 0.0, 1.0))

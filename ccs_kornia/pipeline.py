@@ -124,7 +124,7 @@ class CalibrationPipeline(nn.Module):
 
     def __init__(
         self,
-        detector: str | ChessboardDetector = "opencv",
+        detector: str | ChessboardDetector = "learned",
         model: str = "opencv5",
         use_ransac: bool = True,
         seed: int = 0,

@@ -214,7 +214,7 @@ class CalibrationLitModule(pl.LightningModule):
     """
 
     def __init__(self, pipeline: CalibrationPipeline, board_size: tuple[int, int], square: float = 1.0,
-                 detector_name: str = "opencv") -> None:
+                 detector_name: str = "learned") -> None:
         super().__init__()
         self.pipeline = pipeline
         self.board_size = (int(board_size[0]), int(board_size[1]))
@@ -334,7 +334,7 @@ def calibrate_many(
     output: str,
     square: float = 1.0,
     pipeline: CalibrationPipeline | None = None,
-    detector_name: str = "opencv",
+    detector_name: str = "learned",
     device: str = "cpu",
     sets_per_batch: int = 4,
     num_workers: int = 0,

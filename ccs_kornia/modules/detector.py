@@ -406,7 +406,7 @@ class OpenCVChessboardDetector(ChessboardDetector):
         )
 
 
-def make_detector(name: str = "opencv", **kwargs) -> ChessboardDetector:
+def make_detector(name: str = "learned", **kwargs) -> ChessboardDetector:
     """Build a detector by name.
 
     Args:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import torch
 
-from ccs_kornia.modules.corner_refine import CornerRefiner
+from ccs_kornia.modules.corner_refine import CornerRefiner, grid_spacing, refine_corners, x_junction_mask
 from ccs_kornia.modules.detector import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.grid import collinearity_refine, organize_grid, predict_missing_corners
 from ccs_kornia.modules.heatmap_unet import CornerUNet
@@ -41,7 +41,8 @@ class LearnedChessboardDetector(ChessboardDetector):
     1. :class:`CornerUNet` heatmap;
     2. peaks (kornia ``nms2d`` + threshold + top-k, soft-argmax seeds) and Gaussian surface fitting
        (batched least squares in log space) giving ``mu`` and ``sigma`` per peak;
-    3. peaks whose ``sigma`` differs from the training sigma are rejected;
+    3. peaks whose ``sigma`` differs from the training sigma are rejected, and so are peaks where the
+       image shows no X-junction;
     4. grid organisation into a ``cols x rows`` board (missing corners predicted, wrong boards rejected);
     5. optional collinearity refinement (only meaningful on undistorted images);
     6. optional saddle-point refinement on the image (window adapted to the grid spacing).
@@ -57,6 +58,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         sigma_tolerance: relative sigma tolerance of the outlier rejection.
         collinearity: run the collinearity refinement.
         refine: ``"saddle"``, ``"gradient"`` or ``"none"`` image refinement.
+        x_junction_check: drop peaks where the image shows no X-junction (clutter, board edges).
     """
 
     def __init__(
@@ -71,6 +73,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         sigma_tolerance: float = 0.6,
         collinearity: bool = False,
         refine: str = "saddle",
+        x_junction_check: bool = True,
     ) -> None:
         super().__init__()
         if net is None:
@@ -83,6 +86,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         self.fit_window = fit_window
         self.sigma_tolerance = sigma_tolerance
         self.collinearity = collinearity
+        self.x_junction_check = x_junction_check
         if refine not in ("saddle", "gradient", "none"):
             raise ValueError(f"refine must be 'saddle', 'gradient' or 'none', got {refine!r}.")
         self.refine = refine
@@ -100,6 +104,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         seeds, _, mask = heatmap_peaks(heat, self.peak_threshold, self.max_peaks, self.nms_kernel)
         mu, sig, ok = gaussian_fit(heat, seeds, mask, self.fit_window)
         keep = sigma_outlier_rejection(sig, mask & ok, self.sigma, self.sigma_tolerance)
+        if self.x_junction_check:
+            keep = x_junction_mask(images, mu, keep)
         return heat, mu, keep
 
     @torch.no_grad()
@@ -117,6 +123,13 @@ class LearnedChessboardDetector(ChessboardDetector):
         missing = found[:, None] & ~valid
         if bool(missing.any()):
             corners, _ = predict_missing_corners(corners, valid, board_size)
+            # extrapolated cells can be off by a good part of a square under strong distortion: a coarse
+            # search first with the gradient-orthogonality fixed point, whose basin is the whole window,
+            # then the regular saddle refinement below polishes
+            spacing = grid_spacing(corners, found[:, None].expand_as(valid), board_size)
+            coarse = refine_corners(images, corners, missing, 0.45 * spacing, method="gradient", iterations=10,
+                                    max_radius=40)
+            corners = torch.where(missing[..., None], coarse, corners)
         cells = found[:, None].expand_as(valid)  # every cell of a found board
         if self.refiner is not None and bool(found.any()):
             corners, ok = self.refiner(images, corners, cells, board_size, return_ok=True)
