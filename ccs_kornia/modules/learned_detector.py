@@ -115,6 +115,12 @@ class LearnedChessboardDetector(ChessboardDetector):
         images = images.float()
         _, points, keep = self.candidates(images)
         corners, valid, found = organize_grid(points, keep, board_size, images)
+        retry = (~found).nonzero().flatten()
+        if retry.numel():
+            # strongly distorted close-ups (wide lenses) bend the lattice more than the organiser's strict
+            # neighbour check allows; every corner is still verified on the image below
+            c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
+            corners[retry], valid[retry], found[retry] = c2, v2, f2
         reasons = ["learned" if f else "board not found" for f in found.tolist()]
         if self.collinearity:
             corners, valid = collinearity_refine(corners, valid & found[:, None], board_size)
