@@ -92,7 +92,7 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _non_negative_int(text: str) -> int:
+def _detection_side(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -141,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--batch-size", default=16, type=_positive_int, metavar="N",
                            help="images loaded and processed at once (default: 16; fewer when images are "
                                 "large: at most 64 Mpx per batch)")
-            p.add_argument("--max-detection-side", default=2048, type=_non_negative_int, metavar="PX",
+            p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
                            help="detect on a downscaled copy of larger images, then refine corners at full "
                                 "resolution (default: 2048; 0 = always full resolution)")
 
@@ -186,7 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", default=0, type=int, metavar="N", help="DataLoader workers loading sets (default 0)")
     p.add_argument("--batch-size", default=16, type=_positive_int, metavar="N",
                    help="images handed to the detector at once (default 16)")
-    p.add_argument("--max-detection-side", default=2048, type=_non_negative_int, metavar="PX",
+    p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
                    help="detect larger images on a downscaled copy (default 2048; 0 = off)")
     p.set_defaults(func=_cmd_calibrate_many)
 
