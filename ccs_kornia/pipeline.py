@@ -16,23 +16,55 @@ patch around each corner (:func:`~ccs_kornia.modules.corner_refine.refine_corner
 takes about a minute on a blank 6000x4000 image and far longer on textured ones, so full-resolution
 detection of 24 Mpx photographs is not a usable default; the refinement keeps their sub-pixel
 precision.
+
+Distortion correction (paper Sec. III-A, on by default): the
+:class:`~ccs_kornia.modules.distortion_net.DistortionNet` predicts a radial correction per view; the views of a
+camera share a lens, so the predictions are pooled into one correction per camera
+(:func:`~ccs_kornia.modules.undistort.aggregate_corrections`). Where it moves pixels by more than
+``min_correction_px``, the images are corrected (:func:`~ccs_kornia.modules.undistort.radial_undistort_image`),
+the board is detected in the corrected images, the corners are mapped back to the original images (boards missed
+there are looked for in the originals) and polished there. The camera is then calibrated in the corrected frame
+(:meth:`CalibrationPipeline.calibrate_corrected`): a pinhole calibration of the corrected corners, the
+correction re-fitted to it, and, beyond the paper, a joint refinement of intrinsics, correction and poses
+(:func:`~ccs_kornia.modules.corrected_frame.refine_centred_radial`) until they stop changing; the output
+OpenCV model's distortion is finally fitted with those intrinsics held. If that fits the observed corners
+clearly worse than the usual joint calibration (a lens whose distortion is not centred on the image), the
+usual one is kept. ``image_rounds`` adds the image-based iteration (undistort with the refined model, refine the
+corners there, recalibrate); it is off by default because the interpolation cost precision on rendered boards.
 """
 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ccs_kornia.camera import board_object_points
+from ccs_kornia.camera import board_object_points, fit_opencv_distortion, project_points
 from ccs_kornia.modules.calibrator import CalibrationResult, CalibrationSolver
+from ccs_kornia.modules.centred_radial import radial_from_correction, refine_centred_radial
 from ccs_kornia.modules.corner_refine import CornerRefiner, grid_spacing, refine_corners
 from ccs_kornia.modules.detector import ChessboardDetector, DetectionResult, make_detector
+from ccs_kornia.modules.undistort import (
+    aggregate_corrections,
+    correct_points,
+    correction_displacement,
+    distort_points_from_correction,
+    fit_correction_to_points,
+    opencv_distorted_frame,
+    opencv_undistort_image,
+    opencv_undistorted_frame,
+    radial_undistort_image,
+)
 
-__all__ = ["PipelineResult", "CalibrationPipeline"]
+#: the shipped distortion-correction network
+DEFAULT_DISTORTION_WEIGHTS = Path(__file__).resolve().parent / "weights" / "distortion_net.pt"
+
+__all__ = ["DEFAULT_DISTORTION_WEIGHTS", "PipelineResult", "CalibrationPipeline"]
 
 
 @dataclass
@@ -44,10 +76,17 @@ class PipelineResult:
             :math:`(C, V)`.
         calibration: the solver's :class:`~ccs_kornia.modules.calibrator.CalibrationResult`
             (camera dimension squeezed away for unbatched input).
+        correction: the radial correction per camera :math:`(5,)` / :math:`(C, 5)`: the network's pooled
+            prediction, or the refined one where the camera was calibrated in the corrected frame (``None`` when
+            distortion correction is off).
+        corrected: per camera, whether the correction was applied (images corrected for detection and the
+            camera calibrated in the corrected frame; bool, ``None`` when off).
     """
 
     detections: DetectionResult
     calibration: CalibrationResult
+    correction: torch.Tensor | None = None
+    corrected: torch.Tensor | None = None
 
     # shortcuts to the tensors most callers want
     @property
@@ -110,6 +149,17 @@ class CalibrationPipeline(nn.Module):
             learned detector; the OpenCV detector works image by image anyway).
         max_detection_side: images whose longer side exceeds this are detected on a downscaled copy
             and refined at full resolution (``None`` or 0: always detect at full resolution).
+        distortion_correction: ``True`` (the shipped :class:`DistortionNet`), ``False`` (off, e.g. for ablation),
+            a weight-file path or a ``DistortionNet``.
+        min_correction_px: the images are corrected only for cameras whose pooled correction moves some pixel
+            by more than this.
+        joint_iters: Levenberg-Marquardt iterations at most of the joint refinement of intrinsics, image-centred
+            radial distortion and poses (0: the pinhole calibration of the corrected corners as it is).
+        image_rounds: rounds of undistorting the images with the refined OpenCV model, refining the corners there
+            and recalibrating, before the corrected-frame calibration (0 by default: on rendered boards the
+            interpolation made the corners worse, see ``docs/benchmarks.md``).
+        max_rms_ratio: the corrected-frame calibration is kept only if its RMS on the observed corners is at most
+            this times (+ 0.01 px) that of the joint calibration; otherwise the joint one is returned.
         solver_kwargs: further options of :class:`~ccs_kornia.modules.calibrator.CalibrationSolver`
             (e.g. ``fix_aspect_ratio=True``).
 
@@ -130,6 +180,11 @@ class CalibrationPipeline(nn.Module):
         seed: int = 0,
         detection_batch_size: int = 16,
         max_detection_side: int | None = 2048,
+        distortion_correction=True,
+        min_correction_px: float = 2.0,
+        joint_iters: int = 50,
+        image_rounds: int = 0,
+        max_rms_ratio: float = 1.25,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -145,6 +200,31 @@ class CalibrationPipeline(nn.Module):
         self.detection_batch_size = detection_batch_size
         self.max_detection_side = int(max_detection_side) if max_detection_side else None
         self.refiner = CornerRefiner()
+        self.distortion_net = self._load_distortion_net(distortion_correction)
+        if joint_iters < 0:
+            raise ValueError(f"joint_iters must be >= 0, got {joint_iters}.")
+        self.min_correction_px = float(min_correction_px)
+        self.joint_iters = int(joint_iters)
+        if image_rounds < 0:
+            raise ValueError(f"image_rounds must be >= 0, got {image_rounds}.")
+        self.image_rounds = int(image_rounds)
+        self.max_rms_ratio = float(max_rms_ratio)
+
+    @staticmethod
+    def _load_distortion_net(spec) -> nn.Module | None:
+        from ccs_kornia.modules.distortion_net import DistortionNet
+
+        if spec is False or spec is None:
+            return None
+        if isinstance(spec, DistortionNet):
+            return spec.eval()
+        path = DEFAULT_DISTORTION_WEIGHTS if spec is True else spec
+        if not os.path.isfile(path):
+            raise FileNotFoundError(
+                f"distortion correction weights not found at {path}; pass distortion_correction=False to calibrate "
+                "without the correction network"
+            )
+        return DistortionNet.from_export(path)
 
     def _detect_chunk(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         """Detect on ``(B, 1, H, W)``, through a downscaled copy when the images are large."""
@@ -228,6 +308,8 @@ class CalibrationPipeline(nn.Module):
         board_size: tuple[int, int],
         square: float,
         image_size: tuple[int, int],
+        init_corners: torch.Tensor | None = None,
+        initial: CalibrationResult | None = None,
     ) -> CalibrationResult:
         """Calibrate from detected corners (the solver stage alone).
 
@@ -237,6 +319,8 @@ class CalibrationPipeline(nn.Module):
             board_size: ``(cols, rows)``; ``N = cols * rows``.
             square: square side in world units (scales the translations only).
             image_size: ``(W, H)``.
+            init_corners, initial: optional start of the solver (undistorted corners / a previous result), see
+                :class:`~ccs_kornia.modules.calibrator.CalibrationSolver`.
 
         Returns:
             The solver's :class:`~ccs_kornia.modules.calibrator.CalibrationResult`.
@@ -255,10 +339,201 @@ class CalibrationPipeline(nn.Module):
             raise ValueError(f"square must be positive, got {square}.")
         object_points = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
         with torch.inference_mode():
-            return self.solver(corners.to(torch.float64), valid.bool(), object_points, (int(image_size[0]), int(image_size[1])))
+            return self.solver(
+                corners.to(torch.float64), valid.bool(), object_points, (int(image_size[0]), int(image_size[1])),
+                init_corners=None if init_corners is None else init_corners.to(corners.device, torch.float64),
+                initial=initial,
+            )
+
+    # ------------------------------------------------------------------------------------------
+    # distortion correction stages (each usable alone, e.g. streamed over a folder of images)
+    # ------------------------------------------------------------------------------------------
+
+    def view_corrections(self, images: torch.Tensor) -> torch.Tensor:
+        """The network's radial correction of each view, :math:`(B, 5)` float64, for images :math:`(B, 1, H, W)`."""
+        if self.distortion_net is None:
+            raise RuntimeError("distortion correction is off for this pipeline.")
+        net = self.distortion_net.to(images.device)
+        with torch.inference_mode():
+            return torch.cat([net(images[i : i + 16].float()) for i in range(0, images.shape[0], 16)]).double()
+
+    def pool_corrections(self, per_view: torch.Tensor, image_size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
+        """One correction per camera from :math:`(C, V, 5)` per-view ones, and whether it is applied :math:`(C,)`
+        (it moves some pixel by more than ``min_correction_px``)."""
+        correction = aggregate_corrections(per_view.double(), image_size)
+        return correction, correction_displacement(correction, image_size) > self.min_correction_px
+
+    def detect_corrected(self, images: torch.Tensor, correction: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        """Detect on radially corrected copies of the images; corners in the original images.
+
+        Boards missed in the corrected images are looked for in the originals. The corners are saddle-refined
+        on the originals at the end (the corrected copies are interpolated).
+
+        Args:
+            images: :math:`(B, 1, H, W)`.
+            correction: :math:`(5,)` or :math:`(B, 5)` correction coefficients.
+            board_size: ``(cols, rows)``.
+        """
+        b, _, h, w = images.shape
+        size = (int(w), int(h))
+        corr = correction.double().to(images.device)
+        corr = corr.expand(b, 5) if corr.dim() == 1 else corr
+        zoom = float(self._correction_zoom(corr, size))
+        with torch.inference_mode():
+            warped = radial_undistort_image(images.float(), corr.float(), zoom=zoom).clamp(0, 1)
+        det = self.detect(warped, board_size)
+        back, ok = distort_points_from_correction(det.corners.double(), corr, size, zoom=zoom, return_valid=True)
+        found = det.found & ok.all(-1) & back.isfinite().all(-1).all(-1)
+        corners = torch.where(found[:, None, None], back, torch.zeros_like(back))
+        reasons = [("corrected image: " + (det.reasons[k] if det.reasons else "found")) if f else ""
+                   for k, f in enumerate(found.tolist())]
+        missed = (~found).nonzero().flatten()
+        if missed.numel():
+            plain = self.detect(images[missed], board_size)
+            corners[missed] = torch.where(plain.found[:, None, None], plain.corners.double(), corners[missed])
+            found[missed] = plain.found
+            for k, i in enumerate(missed.tolist()):
+                reasons[i] = plain.reasons[k] if plain.reasons else ("" if plain.found[k] else "board not found")
+        sel = (found & (torch.arange(b, device=found.device)[:, None] != missed[None, :]).all(-1)).nonzero().flatten()
+        if sel.numel():
+            with torch.inference_mode():
+                cells = torch.ones(sel.numel(), corners.shape[1], dtype=torch.bool, device=corners.device)
+                corners[sel] = self.refiner(images[sel].float(), corners[sel].float(), cells, board_size).double()
+        return DetectionResult(corners.float(), found, reasons)
+
+    def refine_undistorted(
+        self, images: torch.Tensor, corners: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, board_size: tuple[int, int]
+    ) -> torch.Tensor:
+        """Undistort the images with an OpenCV model, refine the corners there, map them back.
+
+        Args:
+            images: :math:`(B, 1, H, W)`; corners: :math:`(B, N, 2)` in the original images (found boards only);
+            K: :math:`(3, 3)` or :math:`(B, 3, 3)`; dist: :math:`(D,)` or :math:`(B, D)`.
+
+        Returns:
+            :math:`(B, N, 2)` float64 refined corners in the original images.
+        """
+        b, n = corners.shape[:2]
+        h, w = images.shape[-2:]
+        K = K.to(device=images.device, dtype=torch.float64)
+        dist = dist.to(device=images.device, dtype=torch.float64)
+        K = K.expand(b, 3, 3) if K.dim() == 2 else K
+        dist = dist.expand(b, -1) if dist.dim() == 1 else dist
+        pts = corners.to(device=images.device, dtype=torch.float64)
+        # the undistorted frame: largest zoom <= 1 that keeps every corner 8 px inside it
+        zoom = 1.0
+        for _ in range(4):
+            u = opencv_undistorted_frame(pts, K, dist, zoom)
+            over = torch.maximum((u[..., 0] - (w - 1) / 2).abs() / ((w - 1) / 2 - 8),
+                                 (u[..., 1] - (h - 1) / 2).abs() / ((h - 1) / 2 - 8))
+            worst = float(over.nan_to_num(1.0).amax())
+            if worst <= 1.0:
+                break
+            zoom = zoom / worst
+        with torch.inference_mode():
+            und = opencv_undistort_image(images.float(), K, dist, zoom=zoom)
+            u = opencv_undistorted_frame(pts, K, dist, zoom)
+            cells = torch.ones(b, n, dtype=torch.bool, device=pts.device)
+            refined = self.refiner(und, u.float(), cells, board_size).double()
+            back = opencv_distorted_frame(refined, K, dist, zoom)
+        ok = back.isfinite().all(-1, keepdim=True) & ((back - pts).norm(dim=-1, keepdim=True) < 2.0)
+        return torch.where(ok, back, pts)
+
+    def calibrate_corrected(
+        self,
+        corners: torch.Tensor,
+        found: torch.Tensor,
+        correction: torch.Tensor,
+        board_size: tuple[int, int],
+        square: float,
+        image_size: tuple[int, int],
+    ) -> tuple[CalibrationResult, int]:
+        """Calibrate in the radially corrected frame, then express the camera in the OpenCV model.
+
+        The paper's order: the correction removes the lens distortion first, so the intrinsics are estimated
+        on (nearly) pinhole corners with only a small residual ``k1, k2`` to absorb what the network missed;
+        estimating strong distortion and intrinsics together is where they trade off against each other.
+        The correction is then re-fitted to that camera (observed corners -> their pinhole projections,
+        :func:`~ccs_kornia.modules.undistort.fit_correction_to_points`) and, beyond the paper, intrinsics,
+        correction and poses are refined together (:func:`~ccs_kornia.modules.corrected_frame.refine_centred_radial`,
+        at most ``joint_iters`` LM iterations). Finally the intrinsics are held and the output model's distortion
+        and the poses are refined on the observed corners (closed-form start, then LM).
+
+        Args:
+            corners: :math:`(C, V, N, 2)` observed corners; found: :math:`(C, V)`.
+            correction: :math:`(C, 5)` initial correction (the network's).
+
+        Returns:
+            (result in the OpenCV model, refined correction :math:`(C, 5)`).
+        """
+        c, v, n = corners.shape[:3]
+        dev = corners.device
+        corners = corners.to(torch.float64)
+        valid = found.to(dev)[..., None].expand(c, v, n)
+        obj = board_object_points(int(board_size[0]), int(board_size[1]), float(square), device=dev, dtype=torch.float64)
+        frame_solver = CalibrationSolver(
+            model="k1k2", use_ransac=self.solver.use_ransac, seed=0, fix_aspect_ratio=self.solver.fix_aspect_ratio,
+            fix_principal_point=self.solver.fix_principal_point,
+        )
+        corr = correction.to(device=dev, dtype=torch.float64)
+        with torch.inference_mode():
+            # 1. pinhole (+ small residual k1, k2) calibration on the network-corrected corners
+            pinhole = correct_points(corners.reshape(c, v * n, 2), corr, image_size).reshape(c, v, n, 2)
+            res = frame_solver(pinhole, valid, obj, image_size)
+            # 2. the correction re-fitted to that camera (absorbs the residual)
+            ideal = project_points(obj.expand(c, v, n, 3), res.K[:, None].expand(c, v, 3, 3), None, res.rvec, res.tvec)
+            use = valid & res.used[..., None]
+            refit = fit_correction_to_points(corners.reshape(c, v * n, 2), ideal.reshape(c, v * n, 2), image_size,
+                                             use.reshape(c, v * n))
+            corr = torch.where((res.success & refit.isfinite().all(-1))[:, None], refit, corr)
+        if self.joint_iters > 0:
+            # 3. intrinsics, image-centred radial distortion and poses together, on the observed corners
+            # (inference tensors cloned for forward-mode autodiff)
+            radial0 = radial_from_correction(corr, image_size)
+            K1, rad1, rv1, tv1, rms1 = refine_centred_radial(
+                corners.clone(), use.clone(), obj.clone(), res.K.nan_to_num(1.0).clone(), res.rvec.clone(),
+                res.tvec.clone(), radial0.clone(), image_size, max_iters=self.joint_iters,
+            )
+            good = res.success & K1.flatten(1).isfinite().all(-1) & rad1.isfinite().all(-1) & rms1.isfinite()
+            res = _with_fields(res, K=torch.where(good[:, None, None], K1, res.K),
+                               rvec=torch.where(good[:, None, None], rv1, res.rvec),
+                               tvec=torch.where(good[:, None, None], tv1, res.tvec))
+        with torch.inference_mode():
+            ideal = project_points(obj.expand(c, v, n, 3), res.K[:, None].expand(c, v, 3, 3), None, res.rvec, res.tvec)
+            fit_model = {"k1k2": "k1k2", "rational": "rational"}.get(self.model, "opencv5")
+            use = (valid & res.used[..., None]).reshape(c, v * n)
+            dist0 = fit_opencv_distortion(ideal.reshape(c, v * n, 2).nan_to_num(0.0), corners.reshape(c, v * n, 2),
+                                          res.K.nan_to_num(0.0), fit_model, mask=use)
+            start = _with_fields(res, dist=dist0.nan_to_num(0.0))
+            out = self.solver(corners, valid, obj, image_size, initial=start, fix_intrinsics=True)
+        return out, corr
+
+    def _image_round(self, flat, corners, found, calib: CalibrationResult, strong, board_size) -> torch.Tensor:
+        """One round of :meth:`refine_undistorted` on every found view of the corrected cameras."""
+        c, v, n = corners.shape[:3]
+        ok = (found & strong[:, None] & calib.success[:, None]).reshape(-1)
+        sel = ok.nonzero().flatten()
+        if sel.numel() == 0:
+            return corners
+        new = corners.clone().reshape(c * v, n, 2)
+        cam = sel // v
+        new[sel] = self.refine_undistorted(flat[sel], new[sel], calib.K[cam], calib.dist[cam], board_size)
+        return new.reshape(c, v, n, 2)
+
+    @staticmethod
+    def _correction_zoom(correction: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+        """Zoom that keeps the farthest original image corner in the frame after correction (in [0.5, 1])."""
+        w, h = size
+        scale = float(max(w, h))
+        r = 0.5 * math.hypot(w - 1, h - 1) / scale
+        c = correction.to(torch.float64)
+        g = r * (c[:, 0] + r * (c[:, 1] + r * (c[:, 2] + r * (c[:, 3] + r * c[:, 4]))))
+        return (r / g.clamp_min(1e-6)).clamp(0.5, 1.0).min()
+
+    # ------------------------------------------------------------------------------------------
 
     def forward(self, images: torch.Tensor, board_size: tuple[int, int], square: float = 1.0) -> PipelineResult:
-        """Detect and calibrate.
+        """Detect and calibrate (with the distortion correction when it is on).
 
         Args:
             images: :math:`(V, 1, H, W)` (one camera) or :math:`(C, V, 1, H, W)` (``C`` cameras of
@@ -269,7 +544,75 @@ class CalibrationPipeline(nn.Module):
         Returns:
             :class:`PipelineResult`.
         """
-        detections = self.detect(images, board_size)
-        image_size = (int(images.shape[-1]), int(images.shape[-2]))
-        calibration = self.calibrate(detections.corners, detections.valid, board_size, square, image_size)
-        return PipelineResult(detections, calibration)
+        if self.distortion_net is None:
+            detections = self.detect(images, board_size)
+            image_size = (int(images.shape[-1]), int(images.shape[-2]))
+            calibration = self.calibrate(detections.corners, detections.valid, board_size, square, image_size)
+            return PipelineResult(detections, calibration)
+        if not isinstance(images, torch.Tensor) or images.dim() not in (4, 5) or images.shape[-3] != 1:
+            shape = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
+            raise ValueError(f"Expected grey images (V, 1, H, W) or (C, V, 1, H, W), got {shape}.")
+        unbatched = images.dim() == 4
+        imgs = images[None] if unbatched else images
+        c, v = imgs.shape[:2]
+        h, w = imgs.shape[-2:]
+        size = (int(w), int(h))
+        n = int(board_size[0]) * int(board_size[1])
+        flat = imgs.reshape(c * v, 1, h, w)
+        correction, strong = self.pool_corrections(self.view_corrections(flat).reshape(c, v, 5), size)
+        corners = torch.zeros(c * v, n, 2, dtype=torch.float64, device=imgs.device)
+        found = torch.zeros(c * v, dtype=torch.bool, device=imgs.device)
+        reasons: list[str] = [""] * (c * v)
+        is_strong = strong.to(imgs.device).repeat_interleave(v)
+        for sel, det in (
+            (is_strong.nonzero().flatten(), None),
+            ((~is_strong).nonzero().flatten(), None),
+        ):
+            if sel.numel() == 0:
+                continue
+            if bool(is_strong[sel[0]]):
+                det = self.detect_corrected(flat[sel], correction.repeat_interleave(v, 0)[sel.cpu()], board_size)
+            else:
+                det = self.detect(flat[sel], board_size)
+            corners[sel] = det.corners.double()
+            found[sel] = det.found
+            for k, i in enumerate(sel.tolist()):
+                reasons[i] = det.reasons[k] if det.reasons else ""
+        corners, found = corners.reshape(c, v, n, 2), found.reshape(c, v)
+        strong_dev = strong.to(corners.device)
+        calib = self.calibrate(corners, found, board_size, square, size)
+        if bool(strong.any()) and self.model != "none":
+            for _ in range(self.image_rounds):
+                corners = self._image_round(flat, corners, found, calib, strong_dev, board_size)
+            corrected, refined = self.calibrate_corrected(corners, found, correction, board_size, square, size)
+            # the corrected-frame model centres the distortion on the image centre; where the lens says otherwise
+            # (clearly worse fit on the observed corners) the joint calibration is kept
+            fits = corrected.rms <= self.max_rms_ratio * calib.rms.nan_to_num(float("inf")) + 0.01
+            strong = strong & (corrected.success & fits).to(strong.device)
+            calib = _select_cameras(strong.to(corners.device), corrected, calib)
+            correction = torch.where(strong.to(refined.device)[:, None], refined, correction.to(refined.device))
+        detections = DetectionResult(corners.to(torch.float32), found, reasons)
+        out = PipelineResult(detections, calib, correction, strong)
+        if unbatched:
+            det = DetectionResult(detections.corners[0], detections.found[0], reasons)
+            cal = CalibrationResult(**{k: (a[0] if isinstance(a, torch.Tensor) else a) for k, a in calib.__dict__.items()})
+            out = PipelineResult(det, cal, correction[0], strong[0])
+        return out
+
+
+def _with_fields(result: CalibrationResult, **fields) -> CalibrationResult:
+    values = dict(result.__dict__)
+    values.update(fields)
+    return CalibrationResult(**values)
+
+
+def _select_cameras(keep: torch.Tensor, a: CalibrationResult, b: CalibrationResult) -> CalibrationResult:
+    """Per camera, ``a`` where ``keep`` else ``b`` (every tensor field has the camera dimension first)."""
+    out = {}
+    for k, va in a.__dict__.items():
+        vb = getattr(b, k)
+        if isinstance(va, torch.Tensor) and isinstance(vb, torch.Tensor) and va.shape == vb.shape:
+            out[k] = torch.where(keep.to(va.device).view(-1, *([1] * (va.dim() - 1))), va, vb)
+        else:
+            out[k] = va
+    return CalibrationResult(**out)

@@ -60,7 +60,7 @@ __all__ = [
 ]
 
 #: radial distortion levels of the paper's model (``mild`` is accepted as an alias of ``level1``)
-RADIAL_LEVELS: tuple[str, ...] = ("none", "level1", "level2", "severe")
+RADIAL_LEVELS: tuple[str, ...] = ("none", "level1", "level2", "severe", "graded")
 #: per-view distortion models of :class:`SyntheticChessboards`
 DISTORTION_MODES: tuple[str, ...] = ("none", "opencv", "radial")
 
@@ -786,6 +786,8 @@ def sample_radial_distortion(
     * ``severe``: barrel distortion that moves the farthest image corner inwards by 15-25 % of its ideal
       radius (``1 - r_d / r_c``), with ``k0 ~ U[0.95, 1.05]`` and ``k2 / k1 ~ U[-0.2, 0.5]``, monotonic
       over the whole image;
+    * ``graded``: like ``severe`` but with the corner displacement drawn from 0 to 25 % and ``k0 = 1``, so
+      every strength from none to severe occurs (a smooth regression target for the distortion CNN);
     * ``any``: one of ``level1``, ``level2``, ``severe`` per view.
 
     Returns:
@@ -814,19 +816,20 @@ def sample_radial_distortion(
         out[:, 0] = _uniform(generator, (n,), 0.8, 1.2, "cpu")
         out[:, 1] = _uniform(generator, (n,), -0.5, -0.35, "cpu")
         out[:, 2] = _uniform(generator, (n,), -0.3, -0.1, "cpu")
-    else:  # severe
+    else:  # severe / graded: parameterised by the displacement of the farthest image corner
+        graded = level == "graded"
         r_corner = _corner_radius(image_size)
         todo = torch.arange(n)
         for _ in range(100):
             m = todo.numel()
-            disp = _uniform(generator, (m,), 0.15, 0.25, "cpu")
-            k0 = _uniform(generator, (m,), 0.95, 1.05, "cpu")
+            disp = _uniform(generator, (m,), 0.0 if graded else 0.15, 0.25, "cpu")
+            k0 = torch.ones(m, dtype=torch.float64) if graded else _uniform(generator, (m,), 0.95, 1.05, "cpu")
             ratio = _uniform(generator, (m,), -0.2, 0.5, "cpu")
             rc = r_corner / (1.0 - disp)
             k1 = ((1.0 - disp) - k0) / (rc**2 + ratio * rc**4)
             k2 = ratio * k1
             slope = k0 + 3 * k1 * rc**2 + 5 * k2 * rc**4  # must stay increasing up to the corner
-            ok = (slope > 0.1) & (k1 < 0)
+            ok = (slope > 0.1) & (k1 <= 0)
             out[todo[ok]] = torch.stack([k0, k1, k2], -1)[ok]
             todo = todo[~ok]
             if todo.numel() == 0:

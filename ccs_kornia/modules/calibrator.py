@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields
 import torch
 from torch import nn
 
+from ccs_kornia.camera import fit_opencv_distortion, project_points
 from ccs_kornia.modules.homography import MIN_HOMOGRAPHY_POINTS, find_homographies
 from ccs_kornia.modules.ransac import ImageRansac
 from ccs_kornia.modules.refine import FREE_DISTORTION, RefinementResult, joint_refinement
@@ -149,16 +150,18 @@ class CalibrationSolver(nn.Module):
         self.outlier_rel_threshold = outlier_rel_threshold
         self.max_outlier_rounds = max_outlier_rounds
         self.max_iters = max_iters
+        self._fix_intrinsics = False
         self.ransac = ImageRansac(
             num_hypotheses=ransac_iters, sample_size=ransac_sample_size, abs_threshold=ransac_abs_threshold,
             rel_threshold=ransac_rel_threshold, min_views=self.min_views, seed=seed,
         )
 
-    def _refine(self, corners, valid, obj, K, rvec, tvec, dist, view_mask, poses_only: bool = False):
+    def _refine(self, corners, valid, obj, K, rvec, tvec, dist, view_mask, poses_only: bool = False, model=None):
         return joint_refinement(
-            corners, valid, obj, K, rvec, tvec, dist, view_mask, model=self.model,
+            corners, valid, obj, K, rvec, tvec, dist, view_mask, model=model or self.model,
             fix_aspect_ratio=self.fix_aspect_ratio, fix_principal_point=self.fix_principal_point,
-            max_iters=self.max_iters, dtype=self.dtype, fix_intrinsics=poses_only, fix_distortion=poses_only,
+            max_iters=self.max_iters, dtype=self.dtype, fix_intrinsics=poses_only or self._fix_intrinsics,
+            fix_distortion=poses_only,
         )
 
     def forward(
@@ -167,11 +170,44 @@ class CalibrationSolver(nn.Module):
         valid: torch.Tensor | None,
         object_points: torch.Tensor,
         image_size: tuple[int, int],
+        init_corners: torch.Tensor | None = None,
+        initial: CalibrationResult | None = None,
+        fix_intrinsics: bool = False,
     ) -> CalibrationResult:
+        """Calibrate.
+
+        Args:
+            corners: :math:`(C, V, N, 2)` / :math:`(V, N, 2)` observed (distorted) pixels.
+            valid: matching bool mask (or ``None``: all finite corners).
+            object_points: :math:`(N, 3)` / :math:`(C, N, 3)`.
+            image_size: ``(W, H)``.
+            init_corners: optional corners of the same views with the lens distortion (mostly) removed, e.g. by
+                the distortion CNN. Homographies, Zhang and RANSAC then run on them (the closed form assumes a
+                pinhole camera), a distortion-free refinement on them gives the initial camera and poses, and the
+                initial distortion is fitted in closed form from those ideal projections to ``corners``
+                (:func:`~ccs_kornia.camera.fit_opencv_distortion`). The final refinement always uses ``corners``.
+            initial: a previous result for the same views (warm start: no RANSAC, its camera, distortion, poses
+                and used views), e.g. after the corners were refined again.
+            fix_intrinsics: with ``initial``, keep its ``fx, fy, cx, cy`` and refine distortion and poses only.
+        """
+        if fix_intrinsics and initial is None:
+            raise ValueError("fix_intrinsics needs an initial result to take the intrinsics from.")
+        self._fix_intrinsics = bool(fix_intrinsics)
+        try:
+            return self._solve(corners, valid, object_points, image_size, init_corners, initial)
+        finally:
+            self._fix_intrinsics = False
+
+    def _solve(self, corners, valid, object_points, image_size, init_corners, initial) -> CalibrationResult:
         valid = _check_inputs(corners, valid, object_points, image_size)
         unbatched = corners.dim() == 3
+        if init_corners is not None and init_corners.shape != corners.shape:
+            raise ValueError(f"init_corners must match corners {tuple(corners.shape)}, got {tuple(init_corners.shape)}.")
         if unbatched:
             corners, valid = corners[None], valid[None]
+            init_corners = None if init_corners is None else init_corners[None]
+            if initial is not None:
+                initial = CalibrationResult(**{k: (v[None] if isinstance(v, torch.Tensor) else v) for k, v in initial.__dict__.items()})
         C, V, N = corners.shape[:3]
         image_size = (int(image_size[0]), int(image_size[1]))
         dtype, device = self.dtype, corners.device
@@ -188,19 +224,50 @@ class CalibrationSolver(nn.Module):
         reason = torch.zeros(C, V, dtype=torch.long, device=device)
         reason = torch.where(~enough, 1, torch.where(~ok_h, 2, reason))
 
-        # 2. Zhang (inside RANSAC) -> inlier views
+        # 2. Zhang (inside RANSAC) -> inlier views; on the undistorted corners when given
         pp_mode = "centre" if self.fix_principal_point else "auto"
-        if self.use_ransac:
-            inliers, K0 = self.ransac(H, corners, valid, obj, candidates, image_size)
+        dist0 = None
+        if initial is not None:
+            warm = initial.used.to(device) & candidates & initial.K.flatten(1).isfinite().all(-1)[:, None]
+            inliers = torch.where((warm.sum(-1) >= self.min_views)[:, None], warm, candidates)
+            K0 = initial.K.to(device=device, dtype=dtype).nan_to_num(0.0)
+            rvec_h, tvec_h = extrinsics_from_homography(K0, H)
+            rvec0 = torch.where(warm[..., None], initial.rvec.to(device=device, dtype=dtype), rvec_h)
+            tvec0 = torch.where(warm[..., None], initial.tvec.to(device=device, dtype=dtype), tvec_h)
+            dist0 = initial.dist.to(device=device, dtype=dtype).nan_to_num(0.0)
         else:
-            inliers = candidates
-        if not self.use_ransac or self.fix_aspect_ratio or self.fix_principal_point:
-            K0 = zhang_intrinsics(H, inliers, image_size, pp_mode, self.fix_aspect_ratio)
+            H_init = H
+            ideal_corners = corners
+            if init_corners is not None:
+                ideal_corners = init_corners.to(device=device, dtype=dtype)
+                H_init, ok_i = find_homographies(obj[:, None, :, :2], ideal_corners, valid & enough[..., None], return_ok=True)
+                candidates = candidates & ok_i
+            if self.use_ransac:
+                inliers, K0 = self.ransac(H_init, ideal_corners, valid, obj, candidates, image_size)
+            else:
+                inliers = candidates
+            if not self.use_ransac or self.fix_aspect_ratio or self.fix_principal_point:
+                K0 = zhang_intrinsics(H_init, inliers, image_size, pp_mode, self.fix_aspect_ratio)
+            rvec0, tvec0 = extrinsics_from_homography(K0, H_init)
+            if init_corners is not None:
+                pin = self._refine(ideal_corners, valid, obj, K0, rvec0, tvec0, None, inliers, model="none")
+                ok_pin = pin.K.flatten(1).isfinite().all(-1)
+                K0 = torch.where(ok_pin[:, None, None], pin.K, K0)
+                rvec0 = torch.where(ok_pin[:, None, None], pin.rvec, rvec0)
+                tvec0 = torch.where(ok_pin[:, None, None], pin.tvec, tvec0)
+                if self.model != "none":
+                    ideal = project_points(obj[:, None].expand(C, V, N, 3), K0[:, None].expand(C, V, 3, 3), None, rvec0, tvec0)
+                    fit_model = "rational" if self.model == "rational" else ("k1k2" if self.model == "k1k2" else "opencv5")
+                    w_fit = (valid & inliers[..., None]).reshape(C, V * N)
+                    dist0 = fit_opencv_distortion(
+                        ideal.reshape(C, V * N, 2).nan_to_num(0.0), corners.reshape(C, V * N, 2).nan_to_num(0.0), K0,
+                        fit_model, mask=w_fit,
+                    )
+                    dist0 = torch.where(dist0.isfinite().all(-1, keepdim=True), dist0, torch.zeros_like(dist0))
         reason = torch.where(candidates & ~inliers, 3, reason)
 
         # 3. joint LM from the closed form
-        rvec0, tvec0 = extrinsics_from_homography(K0, H)
-        res = self._refine(corners, valid, obj, K0, rvec0, tvec0, None, inliers)
+        res = self._refine(corners, valid, obj, K0, rvec0, tvec0, dist0, inliers)
         used = inliers & res.view_rms.isfinite()
         cand_rms = res.view_rms
 

@@ -27,7 +27,13 @@ from torch import nn
 from ccs_kornia import camera
 
 __all__ = [
+    "aggregate_corrections",
     "correct_points",
+    "correction_displacement",
+    "fit_correction_to_points",
+    "opencv_undistort_image",
+    "opencv_undistorted_frame",
+    "opencv_distorted_frame",
     "distort_points_from_correction",
     "invert_correction_radius",
     "radial_undistort_image",
@@ -259,6 +265,175 @@ class RadialUndistort(nn.Module):
 
     def extra_repr(self) -> str:
         return f"zoom={self.zoom}, mode={self.mode}, padding_mode={self.padding_mode}, num_iters={self.num_iters}"
+
+
+def correction_displacement(correction: torch.Tensor, image_size: tuple[int, int], samples: int = 64) -> torch.Tensor:
+    """Largest distance (px) a correction moves any pixel of the image, :math:`(B,)`.
+
+    Measured along the radius from the centre to the farthest image corner; a ``k0'`` other than 1 counts as the
+    zoom it is.
+
+    Example:
+        >>> correction_displacement(torch.tensor([[1.0, 0, 0, 0, 0]]), (64, 48))
+        tensor([0.])
+    """
+    _check_correction(correction)
+    w, h = int(image_size[0]), int(image_size[1])
+    scale = float(max(w, h))
+    r_corner = 0.5 * ((w - 1) ** 2 + (h - 1) ** 2) ** 0.5 / scale
+    r = torch.linspace(0.0, r_corner, samples, device=correction.device, dtype=correction.dtype)
+    g, _ = _radial_map(r.unsqueeze(0), correction.unsqueeze(1))
+    return ((g - r) * scale).abs().amax(-1)
+
+
+def aggregate_corrections(
+    corrections: torch.Tensor, image_size: tuple[int, int], mask: torch.Tensor | None = None, samples: int = 64
+) -> torch.Tensor:
+    """One correction per camera from the per-view predictions of its views.
+
+    All views of one camera share its lens, so the per-view estimates are pooled: at ``samples`` radii up to the
+    image corner the corrected radius is the median over the camera's views (robust to a view whose board says
+    little about the lens), and a 5-coefficient correction is fitted to those medians by least squares.
+
+    Args:
+        corrections: :math:`(C, V, 5)` per-view correction coefficients.
+        image_size: ``(W, H)``.
+        mask: optional :math:`(C, V)` bool, views to pool (a camera without any keeps the identity).
+        samples: radii sampled.
+
+    Returns:
+        :math:`(C, 5)`.
+
+    Example:
+        >>> c = torch.tensor([[[1.0, 0, 0.2, 0, 0], [1.0, 0, 0.2, 0, 0], [1.0, 0, 0.3, 0, 0]]])
+        >>> bool(torch.allclose(aggregate_corrections(c, (64, 48)), c[:, 0], atol=1e-5))
+        True
+    """
+    if corrections.dim() != 3 or corrections.shape[-1] != 5:
+        raise ValueError(f"corrections must be (C, V, 5), got {tuple(corrections.shape)}.")
+    c, v = corrections.shape[:2]
+    if mask is None:
+        mask = torch.ones(c, v, dtype=torch.bool, device=corrections.device)
+    if mask.shape != (c, v):
+        raise ValueError(f"mask must be {(c, v)}, got {tuple(mask.shape)}.")
+    dt = torch.float64
+    w, h = int(image_size[0]), int(image_size[1])
+    r_corner = 0.5 * ((w - 1) ** 2 + (h - 1) ** 2) ** 0.5 / float(max(w, h))
+    r = torch.linspace(0.0, r_corner, samples, device=corrections.device, dtype=dt)
+    g, _ = _radial_map(r.view(1, 1, -1), corrections.to(dt).unsqueeze(2))  # (C, V, S)
+    g = torch.where(mask.unsqueeze(-1), g, torch.full_like(g, float("nan")))
+    med = g.nanmedian(1).values  # (C, S)
+    A = torch.stack([r ** p for p in range(1, 6)], -1)  # (S, 5): g(r) = sum_p c_p r^p
+    sol = torch.linalg.lstsq(A.expand(c, -1, -1), med.nan_to_num(0.0).unsqueeze(-1)).solution.squeeze(-1)
+    ident = torch.zeros_like(sol)
+    ident[:, 0] = 1.0
+    return torch.where(mask.any(1, keepdim=True), sol, ident).to(corrections.dtype)
+
+
+def fit_correction_to_points(
+    distorted: torch.Tensor,
+    ideal: torch.Tensor,
+    image_size: tuple[int, int],
+    mask: torch.Tensor | None = None,
+    fix_k0: bool = True,
+) -> torch.Tensor:
+    """Least-squares correction coefficients mapping ``distorted`` pixels onto ``ideal`` ones.
+
+    ``correct_points`` is linear in the coefficients (``p_c - c = (p_d - c) sum_j k_j' r_d^j``), so this is one
+    batched solve. With ``fix_k0`` the scale at the centre stays 1: a zoom about the centre cannot be told from
+    the focal length, so leaving it free would let a calibration loop drift.
+
+    Args:
+        distorted, ideal: :math:`(B, N, 2)` pixels.
+        image_size: ``(W, H)``.
+        mask: optional :math:`(B, N)` bool of points to use.
+        fix_k0: keep ``k0' = 1``.
+
+    Returns:
+        :math:`(B, 5)` correction coefficients.
+
+    Example:
+        >>> c = torch.tensor([[1.0, 0.0, 0.3, 0.0, 0.1]], dtype=torch.float64)
+        >>> p = torch.rand(1, 50, 2, dtype=torch.float64) * torch.tensor([64.0, 48.0])
+        >>> bool(torch.allclose(fit_correction_to_points(p, correct_points(p, c, (64, 48)), (64, 48)), c))
+        True
+    """
+    _check_points(distorted)
+    if ideal.shape != distorted.shape:
+        raise ValueError(f"ideal must match distorted {tuple(distorted.shape)}, got {tuple(ideal.shape)}.")
+    centre, scale = _centre_scale(image_size, distorted)
+    d = distorted - centre
+    r = d.norm(dim=-1) / scale  # (B, N)
+    powers = torch.stack([r**j for j in range(5)], -1)  # (B, N, 5)
+    A = (d.unsqueeze(-1) * powers.unsqueeze(-2)).reshape(d.shape[0], -1, 5)  # (B, 2N, 5)
+    b = (ideal - centre).reshape(d.shape[0], -1)
+    w = torch.ones_like(r) if mask is None else (mask.to(r.dtype) * torch.isfinite(ideal).all(-1).to(r.dtype))
+    w = w.repeat_interleave(2, -1)
+    A, b = A * w.unsqueeze(-1), b.nan_to_num(0.0) * w
+    if fix_k0:
+        sol = torch.linalg.lstsq(A[..., 1:], (b - A[..., 0]).unsqueeze(-1)).solution.squeeze(-1)
+        return torch.cat([torch.ones_like(sol[:, :1]), sol], -1)
+    return torch.linalg.lstsq(A, b.unsqueeze(-1)).solution.squeeze(-1)
+
+
+def _zoomed_camera(K: torch.Tensor, zoom: float) -> torch.Tensor:
+    """``K`` scaled by ``zoom`` about its principal point (same principal point)."""
+    Kz = K.clone()
+    Kz[..., 0, 0] = K[..., 0, 0] * zoom
+    Kz[..., 1, 1] = K[..., 1, 1] * zoom
+    Kz[..., 0, 1] = K[..., 0, 1] * zoom
+    return Kz
+
+
+def opencv_undistorted_frame(points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, zoom: float = 1.0) -> torch.Tensor:
+    """Distorted pixels to pixels of :func:`opencv_undistort_image`'s output, :math:`(B, N, 2)`.
+
+    Args:
+        points: :math:`(B, N, 2)`; K: :math:`(B, 3, 3)`; dist: :math:`(B, D)` OpenCV coefficients.
+        zoom: focal scale of the undistorted image (its camera is ``K`` with ``fx, fy`` times ``zoom``).
+    """
+    ideal = camera.undistort_pixels(points, K, dist)
+    pp = K[..., None, :2, 2]
+    return (ideal - pp) * zoom + pp
+
+
+def opencv_distorted_frame(points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, zoom: float = 1.0) -> torch.Tensor:
+    """Pixels of :func:`opencv_undistort_image`'s output back to distorted pixels (inverse of
+    :func:`opencv_undistorted_frame`)."""
+    pp = K[..., None, :2, 2]
+    return camera.distort_pixels((points - pp) / zoom + pp, K, dist)
+
+
+def opencv_undistort_image(
+    images: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, zoom: float = 1.0, mode: str = "bilinear"
+) -> torch.Tensor:
+    """Remove OpenCV-model distortion from images (as ``cv2.undistort`` with ``newCameraMatrix = K`` zoomed).
+
+    ``zoom < 1`` keeps more of a barrel-distorted image's periphery in the frame.
+
+    Args:
+        images: :math:`(B, C, H, W)`.
+        K: :math:`(B, 3, 3)`; dist: :math:`(B, D)`.
+        zoom: focal scale of the output camera.
+        mode: interpolation.
+
+    Returns:
+        :math:`(B, C, H, W)`, zeros where the source lies outside the input.
+
+    Example:
+        >>> K = torch.tensor([[[50.0, 0, 31.5], [0, 50, 23.5], [0, 0, 1]]])
+        >>> img = torch.rand(1, 1, 48, 64)
+        >>> bool(torch.allclose(opencv_undistort_image(img, K, torch.zeros(1, 5)), img, atol=1e-5))
+        True
+    """
+    if images.dim() != 4:
+        raise ValueError(f"images must be (B, C, H, W), got {tuple(images.shape)}.")
+    b, _, h, w = images.shape
+    dtype = images.dtype if images.is_floating_point() else torch.float32
+    grid = create_meshgrid(h, w, normalized_coordinates=False, device=images.device, dtype=torch.float64)
+    pts = grid.reshape(1, h * w, 2).expand(b, -1, -1)
+    src = opencv_distorted_frame(pts, K.to(torch.float64), dist.to(torch.float64), zoom).reshape(b, h, w, 2).to(dtype)
+    return remap(images.to(dtype), src[..., 0], src[..., 1], mode=mode, padding_mode="zeros", align_corners=True)
 
 
 def straightness_rms(
