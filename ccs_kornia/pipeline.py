@@ -21,7 +21,7 @@ Distortion correction (paper Sec. III-A, on by default): the
 :class:`~ccs_kornia.modules.distortion_net.DistortionNet` predicts a radial correction per view; the views of a
 camera share a lens, so the predictions are pooled into one correction per camera
 (:func:`~ccs_kornia.modules.undistort.aggregate_corrections`). Where it moves pixels by more than
-``min_correction_px``, the images are corrected (:func:`~ccs_kornia.modules.undistort.radial_undistort_image`),
+``min_correction`` of the half diagonal, the images are corrected (:func:`~ccs_kornia.modules.undistort.radial_undistort_image`),
 the board is detected in the corrected images, the corners are mapped back to the original images (boards missed
 there are looked for in the originals) and polished there. The camera is then calibrated in the corrected frame
 (:meth:`CalibrationPipeline.calibrate_corrected`): a pinhole calibration of the corrected corners, the
@@ -151,8 +151,11 @@ class CalibrationPipeline(nn.Module):
             and refined at full resolution (``None`` or 0: always detect at full resolution).
         distortion_correction: ``True`` (the shipped :class:`DistortionNet`), ``False`` (off, e.g. for ablation),
             a weight-file path or a ``DistortionNet``.
-        min_correction_px: the images are corrected only for cameras whose pooled correction moves some pixel
-            by more than this.
+        min_correction: the correction is applied only to cameras whose pooled correction moves some pixel by
+            more than this fraction of the half image diagonal (0.02: 8 px at 640x480); below that the usual
+            detection and calibration handle the lens.
+        free_distortion_centre: the corrected-frame refinement also estimates the distortion centre (the paper's
+            model centres it on the image centre; real lenses centre it near the principal point).
         joint_iters: Levenberg-Marquardt iterations at most of the joint refinement of intrinsics, image-centred
             radial distortion and poses (0: the pinhole calibration of the corrected corners as it is).
         image_rounds: rounds of undistorting the images with the refined OpenCV model, refining the corners there
@@ -181,10 +184,11 @@ class CalibrationPipeline(nn.Module):
         detection_batch_size: int = 16,
         max_detection_side: int | None = 2048,
         distortion_correction=True,
-        min_correction_px: float = 2.0,
+        min_correction: float = 0.02,
         joint_iters: int = 50,
         image_rounds: int = 0,
         max_rms_ratio: float = 1.25,
+        free_distortion_centre: bool = True,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -203,12 +207,15 @@ class CalibrationPipeline(nn.Module):
         self.distortion_net = self._load_distortion_net(distortion_correction)
         if joint_iters < 0:
             raise ValueError(f"joint_iters must be >= 0, got {joint_iters}.")
-        self.min_correction_px = float(min_correction_px)
+        if not min_correction >= 0:
+            raise ValueError(f"min_correction must be >= 0, got {min_correction}.")
+        self.min_correction = float(min_correction)
         self.joint_iters = int(joint_iters)
         if image_rounds < 0:
             raise ValueError(f"image_rounds must be >= 0, got {image_rounds}.")
         self.image_rounds = int(image_rounds)
         self.max_rms_ratio = float(max_rms_ratio)
+        self.free_distortion_centre = bool(free_distortion_centre)
 
     @staticmethod
     def _load_distortion_net(spec) -> nn.Module | None:
@@ -359,9 +366,10 @@ class CalibrationPipeline(nn.Module):
 
     def pool_corrections(self, per_view: torch.Tensor, image_size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
         """One correction per camera from :math:`(C, V, 5)` per-view ones, and whether it is applied :math:`(C,)`
-        (it moves some pixel by more than ``min_correction_px``)."""
+        (it moves some pixel by more than ``min_correction`` of the half image diagonal)."""
         correction = aggregate_corrections(per_view.double(), image_size)
-        return correction, correction_displacement(correction, image_size) > self.min_correction_px
+        half_diagonal = 0.5 * math.hypot(image_size[0], image_size[1])
+        return correction, correction_displacement(correction, image_size) > self.min_correction * half_diagonal
 
     def detect_corrected(self, images: torch.Tensor, correction: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         """Detect on radially corrected copies of the images; corners in the original images.
@@ -379,14 +387,19 @@ class CalibrationPipeline(nn.Module):
         corr = correction.double().to(images.device)
         corr = corr.expand(b, 5) if corr.dim() == 1 else corr
         zoom = float(self._correction_zoom(corr, size))
-        with torch.inference_mode():
-            warped = radial_undistort_image(images.float(), corr.float(), zoom=zoom).clamp(0, 1)
-        det = self.detect(warped, board_size)
-        back, ok = distort_points_from_correction(det.corners.double(), corr, size, zoom=zoom, return_valid=True)
-        found = det.found & ok.all(-1) & back.isfinite().all(-1).all(-1)
-        corners = torch.where(found[:, None, None], back, torch.zeros_like(back))
-        reasons = [("corrected image: " + (det.reasons[k] if det.reasons else "found")) if f else ""
-                   for k, f in enumerate(found.tolist())]
+        parts_c, parts_f, reasons = [], [], []
+        for i in range(0, b, self.detection_batch_size):
+            chunk = slice(i, i + self.detection_batch_size)
+            with torch.inference_mode():
+                warped = radial_undistort_image(images[chunk].float(), corr[chunk].float(), zoom=zoom).clamp(0, 1)
+            det = self.detect(warped, board_size)
+            back, ok = distort_points_from_correction(det.corners.double(), corr[chunk], size, zoom=zoom, return_valid=True)
+            found_c = det.found & ok.all(-1) & back.isfinite().all(-1).all(-1)
+            parts_c.append(torch.where(found_c[:, None, None], back, torch.zeros_like(back)))
+            parts_f.append(found_c)
+            reasons += [("corrected image: " + (det.reasons[k] if det.reasons else "found")) if f else ""
+                        for k, f in enumerate(found_c.tolist())]
+        corners, found = torch.cat(parts_c), torch.cat(parts_f)
         missed = (~found).nonzero().flatten()
         if missed.numel():
             plain = self.detect(images[missed], board_size)
@@ -439,6 +452,41 @@ class CalibrationPipeline(nn.Module):
         ok = back.isfinite().all(-1, keepdim=True) & ((back - pts).norm(dim=-1, keepdim=True) < 2.0)
         return torch.where(ok, back, pts)
 
+    def solve_with_correction(
+        self,
+        corners: torch.Tensor,
+        found: torch.Tensor,
+        correction: torch.Tensor,
+        apply: torch.Tensor,
+        board_size: tuple[int, int],
+        square: float,
+        image_size: tuple[int, int],
+    ) -> tuple[CalibrationResult, torch.Tensor, torch.Tensor]:
+        """The solver stage of the corrected pipeline: the usual calibration, and for cameras in ``apply`` the
+        corrected-frame one (:meth:`calibrate_corrected`), kept unless it fits the observed corners clearly worse.
+
+        Args:
+            corners: :math:`(C, V, N, 2)`; found: :math:`(C, V)`; correction: :math:`(C, 5)` pooled corrections;
+            apply: :math:`(C,)` bool, cameras to calibrate in the corrected frame.
+
+        Returns:
+            (calibration, correction per camera (re-fitted where applied), applied :math:`(C,)`).
+        """
+        calib = self.calibrate(corners, found, board_size, square, image_size)
+        applied = apply.to(corners.device).clone()
+        correction = correction.to(corners.device)
+        if bool(applied.any()) and self.model != "none":
+            corrected, refined = self.calibrate_corrected(corners, found, correction, board_size, square, image_size)
+            # the corrected-frame model centres the distortion on the image centre; where the lens says otherwise
+            # (clearly worse fit on the observed corners) the usual calibration is kept
+            fits = corrected.rms <= self.max_rms_ratio * calib.rms.nan_to_num(float("inf")) + 0.01
+            applied = applied & corrected.success & fits
+            calib = _select_cameras(applied, corrected, calib)
+            correction = torch.where(applied[:, None], refined, correction)
+        else:
+            applied = torch.zeros_like(applied)
+        return calib, correction, applied
+
     def calibrate_corrected(
         self,
         corners: torch.Tensor,
@@ -490,11 +538,13 @@ class CalibrationPipeline(nn.Module):
             # 3. intrinsics, image-centred radial distortion and poses together, on the observed corners
             # (inference tensors cloned for forward-mode autodiff)
             radial0 = radial_from_correction(corr, image_size)
-            K1, rad1, rv1, tv1, rms1 = refine_centred_radial(
+            K1, rad1, rv1, tv1, rms1, _, std1 = refine_centred_radial(
                 corners.clone(), use.clone(), obj.clone(), res.K.nan_to_num(1.0).clone(), res.rvec.clone(),
                 res.tvec.clone(), radial0.clone(), image_size, max_iters=self.joint_iters,
+                free_centre=self.free_distortion_centre,
             )
             good = res.success & K1.flatten(1).isfinite().all(-1) & rad1.isfinite().all(-1) & rms1.isfinite()
+            std_intrinsics = torch.where(good[:, None], std1, res.std_intrinsics)
             res = _with_fields(res, K=torch.where(good[:, None, None], K1, res.K),
                                rvec=torch.where(good[:, None, None], rv1, res.rvec),
                                tvec=torch.where(good[:, None, None], tv1, res.tvec))
@@ -506,6 +556,10 @@ class CalibrationPipeline(nn.Module):
                                           res.K.nan_to_num(0.0), fit_model, mask=use)
             start = _with_fields(res, dist=dist0.nan_to_num(0.0))
             out = self.solver(corners, valid, obj, image_size, initial=start, fix_intrinsics=True)
+        if self.joint_iters > 0:
+            # the intrinsics were estimated by the joint refinement: report its uncertainty, not the fixed one's 0
+            out = _with_fields(out, std_intrinsics=torch.where(out.success[:, None], std_intrinsics.to(out.K.dtype),
+                                                               out.std_intrinsics))
         return out, corr
 
     def _image_round(self, flat, corners, found, calib: CalibrationResult, strong, board_size) -> torch.Tensor:
@@ -571,7 +625,11 @@ class CalibrationPipeline(nn.Module):
             if sel.numel() == 0:
                 continue
             if bool(is_strong[sel[0]]):
-                det = self.detect_corrected(flat[sel], correction.repeat_interleave(v, 0)[sel.cpu()], board_size)
+                # camera by camera: each camera's correction sets its own zoom
+                parts = [self.detect_corrected(flat[sel[k : k + v]], correction[int(sel[k]) // v], board_size)
+                         for k in range(0, sel.numel(), v)]
+                det = DetectionResult(torch.cat([p.corners for p in parts]), torch.cat([p.found for p in parts]),
+                                      [r for p in parts for r in (p.reasons or [""] * p.found.numel())])
             else:
                 det = self.detect(flat[sel], board_size)
             corners[sel] = det.corners.double()
@@ -579,18 +637,11 @@ class CalibrationPipeline(nn.Module):
             for k, i in enumerate(sel.tolist()):
                 reasons[i] = det.reasons[k] if det.reasons else ""
         corners, found = corners.reshape(c, v, n, 2), found.reshape(c, v)
-        strong_dev = strong.to(corners.device)
-        calib = self.calibrate(corners, found, board_size, square, size)
-        if bool(strong.any()) and self.model != "none":
+        if self.image_rounds and bool(strong.any()) and self.model != "none":
+            calib = self.calibrate(corners, found, board_size, square, size)
             for _ in range(self.image_rounds):
-                corners = self._image_round(flat, corners, found, calib, strong_dev, board_size)
-            corrected, refined = self.calibrate_corrected(corners, found, correction, board_size, square, size)
-            # the corrected-frame model centres the distortion on the image centre; where the lens says otherwise
-            # (clearly worse fit on the observed corners) the joint calibration is kept
-            fits = corrected.rms <= self.max_rms_ratio * calib.rms.nan_to_num(float("inf")) + 0.01
-            strong = strong & (corrected.success & fits).to(strong.device)
-            calib = _select_cameras(strong.to(corners.device), corrected, calib)
-            correction = torch.where(strong.to(refined.device)[:, None], refined, correction.to(refined.device))
+                corners = self._image_round(flat, corners, found, calib, strong.to(corners.device), board_size)
+        calib, correction, strong = self.solve_with_correction(corners, found, correction, strong, board_size, square, size)
         detections = DetectionResult(corners.to(torch.float32), found, reasons)
         out = PipelineResult(detections, calib, correction, strong)
         if unbatched:

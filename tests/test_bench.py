@@ -162,7 +162,7 @@ def test_tiny_run_writes_json_and_markdown(tiny_run):
         assert len(r["opencv"]["e_ip_per_trial"]) == 2
     # distortion: skipped with a reason unless weights are shipped
     dist = sections["distortion"]
-    assert "skipped" in dist or "methods" in dist
+    assert "skipped" in dist or {"network", "severe", "wide"} <= set(dist)
     # speed: images/s at both batch sizes, solver timings against OpenCV
     cpu = sections["speed"]["devices"]["cpu"]
     for r in cpu["detection"].values():
@@ -197,14 +197,23 @@ def test_distortion_section_with_an_untrained_network(tmp_path):
     net = DistortionNet(base_channels=4, input_size=64)
     weights = tmp_path / "dnet.pt"
     torch.save({"kind": "DistortionNet", "config": net.config, "state_dict": net.state_dict()}, weights)
-    cfg = BenchConfig.tiny(dc_views=4, distortion_weights=str(weights))
+    cfg = BenchConfig.tiny(dc_views=4, wide_views=4, distortion_weights=str(weights))
     res = run_distortion(cfg, make_methods(("opencv_subpix",)), log=lambda *_: None)
-    r = res["methods"]["opencv_subpix"]
-    # an untrained network predicts the identity correction
-    np.testing.assert_allclose(res["predicted_correction_mean"], [1, 0, 0, 0, 0], atol=1e-6)
-    for variant in ("none", "cnn_points", "cnn_image", "oracle_points"):
-        assert r[variant]["ccs"]["trials"] == 1 and r[variant]["opencv"]["trials"] == 1
-    assert r["none"]["ccs"]["e_ip"] is not None
+    # an untrained network predicts (nearly) the identity correction: no straightening, no correction applied
+    net_part = res["network"]
+    assert net_part["views"] == 4
+    assert net_part["grid_loss"]["network"] == pytest.approx(net_part["grid_loss"]["identity"], rel=0.05)
+    assert net_part["grid_loss"]["oracle"] < net_part["grid_loss"]["identity"]
+    assert net_part["straightness_after_oracle"] < net_part["straightness_before"]
+    for part in ("severe", "wide"):
+        rows = res[part]["methods"]
+        assert set(rows) == {"ccs_on", "ccs_off", "opencv", "opencv_ccs_corrected"}
+        assert all(r["trials"] == 1 for r in rows.values())
+        assert res[part]["correction_applied"] == 0
+    from ccs_kornia.bench.report import _distortion_md
+
+    md = "\n".join(_distortion_md(res))
+    assert "Straightness" in md and "wide camera" in md
     missing = run_distortion(BenchConfig.tiny(distortion_weights=str(tmp_path / "none.pt")), {}, log=lambda *_: None)
     assert "not available" in missing["skipped"]
 

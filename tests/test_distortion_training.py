@@ -148,7 +148,7 @@ def test_cli_fast_dev_run_and_export(tmp_path):
     ckpt = tmp_path / "ckpt" / "last.ckpt"
     assert ckpt.exists()
     payload = export_distortion_checkpoint(ckpt, tmp_path / "distortion_net.pt")
-    assert payload["trained_steps"] == 1 and payload["config"]["input_size"] == 192
+    assert payload["trained_steps"] == 1 and payload["config"]["input_size"] == 256
     net = DistortionNet.from_export(tmp_path / "distortion_net.pt")
     with torch.no_grad():
         assert net(torch.rand(1, 1, 120, 160)).shape == (1, 5)

@@ -34,7 +34,8 @@ def images(sets):
 
 @pytest.fixture(scope="module")
 def batched_result(images):
-    return CalibrationPipeline("opencv", model="opencv5", seed=0)(images, BOARD, SQUARE)
+    # the detection + solver plumbing; the distortion correction has its own tests below
+    return CalibrationPipeline("opencv", model="opencv5", seed=0, distortion_correction=False)(images, BOARD, SQUARE)
 
 
 def test_batched_shapes(batched_result):
@@ -60,7 +61,7 @@ def test_batched_accuracy(batched_result):
 
 
 def test_unbatched_equals_batched_camera(images, batched_result):
-    pipe = CalibrationPipeline(OpenCVChessboardDetector(), model="opencv5", seed=0)
+    pipe = CalibrationPipeline(OpenCVChessboardDetector(), model="opencv5", seed=0, distortion_correction=False)
     single = pipe(images[1], BOARD, SQUARE)
     assert single.calibration.K.shape == (3, 3) and single.detections.corners.shape == (VIEWS, 54, 2)
     torch.testing.assert_close(single.detections.corners, batched_result.detections.corners[1])
@@ -68,7 +69,7 @@ def test_unbatched_equals_batched_camera(images, batched_result):
 
 
 def test_stages_alone(images, batched_result):
-    pipe = CalibrationPipeline("opencv", model="k1k2", detection_batch_size=3)
+    pipe = CalibrationPipeline("opencv", model="k1k2", detection_batch_size=3, distortion_correction=False)
     det = pipe.detect(images[0], BOARD)
     torch.testing.assert_close(det.corners, batched_result.detections.corners[0])
     # per-view validity is expanded to every corner
@@ -99,7 +100,7 @@ def test_input_validation(images):
 
 def test_result_shortcuts_and_inference_mode(images):
     # the pipeline drops into other torch code: under inference_mode, on a tensor from elsewhere
-    pipe = CalibrationPipeline("opencv")
+    pipe = CalibrationPipeline("opencv")  # distortion correction on (the default)
     with torch.inference_mode():
         out = pipe(images[0, :6].clone(), BOARD, SQUARE)
     assert out.K.shape == (3, 3) and out.dist.shape == (5,) and out.std.shape == (9,)
@@ -125,3 +126,64 @@ def test_large_images_detected_downscaled_and_refined(sets):
     assert float(err(small.corners).max()) < 0.1
     with pytest.raises(ValueError, match="max_detection_side"):
         CalibrationPipeline("opencv", max_detection_side=10)
+
+
+# ----------------------------------------------------------------------------------------------
+# distortion correction (the shipped DistortionNet)
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def corrected_result(images):
+    return CalibrationPipeline("opencv", seed=0)(images, BOARD, SQUARE)
+
+
+def test_correction_on_opencv_lenses(corrected_result):
+    # OpenCV-model lenses (distortion centred on the principal point, with tangential terms): the corrected
+    # path estimates the distortion centre, so it stays accurate where the paper's image-centred model is not
+    out = corrected_result
+    assert out.correction.shape == (2, 5) and out.corrected.shape == (2,) and out.corrected.dtype == torch.bool
+    assert bool(out.found.all()) and bool(out.calibration.success.all())
+    K_true = torch.stack([K for K, _ in CAMERAS])
+    err = e_ip(out.K.double(), K_true)
+    print("E_IP with correction (px):", err.tolist(), "applied:", out.corrected.tolist(), "RMS:", out.rms.tolist())
+    assert float(err.max()) < 1.5, err
+    assert float(out.rms.max()) < 0.1
+    assert bool(out.std.isfinite().all()) and bool((out.std[:, :4] > 0).all())
+
+
+def test_correction_unbatched_equals_batched(images, corrected_result):
+    single = CalibrationPipeline("opencv", seed=0)(images[1], BOARD, SQUARE)
+    assert single.correction.shape == (5,) and single.corrected.shape == ()
+    torch.testing.assert_close(single.correction, corrected_result.correction[1])
+    torch.testing.assert_close(single.detections.corners, corrected_result.detections.corners[1])
+    torch.testing.assert_close(single.K, corrected_result.K[1], atol=1e-6, rtol=1e-9)
+
+
+def test_correction_switch_and_errors(tmp_path):
+    from ccs_kornia.modules.distortion_net import DistortionNet
+
+    assert CalibrationPipeline("opencv", distortion_correction=False).distortion_net is None
+    net = DistortionNet(base_channels=4, input_size=64)
+    assert CalibrationPipeline("opencv", distortion_correction=net).distortion_net is net
+    with pytest.raises(FileNotFoundError, match="distortion_correction=False"):
+        CalibrationPipeline("opencv", distortion_correction=str(tmp_path / "missing.pt"))
+    with pytest.raises(ValueError, match="joint_iters"):
+        CalibrationPipeline("opencv", joint_iters=-1)
+    with pytest.raises(ValueError, match="min_correction"):
+        CalibrationPipeline("opencv", min_correction=-1.0)
+    with pytest.raises(RuntimeError, match="off"):
+        CalibrationPipeline("opencv", distortion_correction=False).view_corrections(torch.zeros(1, 1, 32, 32))
+
+
+def test_correction_on_severe_radial_distortion():
+    # the case the correction is for: the paper's radial model, ~18 % at the image corner
+    K = torch.tensor([[420.0, 0.0, 326.0], [0.0, 425.0, 236.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    rad = torch.tensor([1.0, -0.45, 0.05])
+    s = make_calibration_set(K, BOARD, SQUARE, (640, 480), num_views=12, radial=rad, seed=5, supersample=2)
+    on = CalibrationPipeline("learned")(s.images, BOARD, SQUARE)
+    off = CalibrationPipeline("learned", distortion_correction=False)(s.images, BOARD, SQUARE)
+    e_on, e_off = float(e_ip(on.K.double(), K)), float(e_ip(off.K.double(), K))
+    print(f"E_IP with correction {e_on:.3f} px, without {e_off:.3f} px; applied {bool(on.corrected)}")
+    assert bool(on.corrected) and int(on.found.sum()) >= 10
+    assert e_on < 0.5 and e_on < e_off

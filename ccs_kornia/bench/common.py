@@ -100,8 +100,8 @@ class BenchConfig:
         real_subsets: random view subsets per set.
         real_subset_fraction: fraction of a set's images in one subset.
         real_max_images: at most this many images per set (``None``: all).
-        dc_trials, dc_views: trials and views of the distortion-correction section.
-        dc_radial: the paper's Table IV distortion ``(k0, k1, k2)``.
+        dc_trials, dc_views: trials (cameras) and views of the severe-distortion part of the distortion section.
+        wide_trials, wide_views, wide_size, wide_fx: the paper's wide camera (level-2 distortion) part.
         distortion_weights: DistortionNet export (``None``: the shipped weights).
         speed_batch_sizes: detection batch sizes timed.
         speed_images: images timed per batch size.
@@ -132,9 +132,12 @@ class BenchConfig:
     real_subsets: int = 20
     real_subset_fraction: float = 0.7
     real_max_images: int | None = None
-    dc_trials: int = 10
+    dc_trials: int = 20
     dc_views: int = 15
-    dc_radial: tuple[float, float, float] = (1.0, -0.3, -0.1)
+    wide_trials: int = 20
+    wide_views: int = 15
+    wide_size: tuple[int, int] = (480, 480)
+    wide_fx: tuple[float, float] = (100.0, 300.0)
     distortion_weights: str | None = None
     speed_batch_sizes: tuple[int, ...] = (1, 16)
     speed_images: int = 16
@@ -155,7 +158,7 @@ class BenchConfig:
         """A few images and trials per condition (target: under 5 minutes on 2 idle CPU cores)."""
         base = cls(
             corner_images=8, corner_views_per_camera=4, calib_trials=3, calib_views=10, calib_pool_views=10, calib_trials_per_camera=1,
-            real_subsets=4, real_max_images=12, dc_trials=2, dc_views=10, speed_images=4,
+            real_subsets=4, real_max_images=12, dc_trials=2, dc_views=10, wide_trials=1, wide_views=10, speed_images=4,
             speed_solver_cameras=(1, 16), speed_repeats=1, supersample=2, preset="quick",
             real_sets=("opencv_left", "boofcv_bumblebee2_left"),
             calib_methods=("learned", "opencv_saddle", "opencv_subpix", "opencv_sb"),
@@ -168,7 +171,8 @@ class BenchConfig:
         base = cls(
             image_size=(320, 240), board=(6, 4), supersample=1, corner_conditions=("clean", "severe"),
             corner_images=2, corner_views_per_camera=2, calib_conditions=("blur_noise",), calib_trials=2,
-            calib_views=5, calib_pool_views=5, calib_trials_per_camera=1, real_subsets=2, real_max_images=6, dc_trials=1, dc_views=5,
+            calib_views=5, calib_pool_views=5, calib_trials_per_camera=1, real_subsets=2, real_max_images=6, dc_trials=1, dc_views=5, wide_trials=1, wide_views=5, wide_size=(240, 240),
+            wide_fx=(60.0, 150.0),
             speed_batch_sizes=(1, 2), speed_images=2, speed_solver_cameras=(1, 2), speed_repeats=1,
             real_sets=("boofcv_bumblebee2_left",), calib_methods=("opencv_saddle", "opencv_subpix"),
             preset="tiny",

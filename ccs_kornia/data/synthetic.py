@@ -530,7 +530,10 @@ def _grid_board_coordinates(K, rvec, tvec, square, image_size, dist, radial):
             xn, yn = xn.index_copy(0, idx, xi.view(-1, h, w)), yn.index_copy(0, idx, yi.view(-1, h, w))
             reach = reach.index_copy(0, idx, reach[idx] & ok.view(-1, h, w))
     u, v, front = _normalized_to_board(xn, yn, _board_homography_inverse(rvec, tvec, square, dt))
-    return u, v, reach, front
+    # ideal (undistorted) pixel of every pixel centre, for warping the background like the board
+    ix = Kf[:, 0, 0, None, None] * xn + Kf[:, 0, 1, None, None] * yn + Kf[:, 0, 2, None, None]
+    iy = Kf[:, 1, 1, None, None] * yn + Kf[:, 1, 2, None, None]
+    return u, v, reach, front, ix, iy
 
 
 def _masked_gradient(f: Tensor, valid: Tensor, dim: int) -> Tensor:
@@ -613,7 +616,7 @@ def _render(
     b = K.shape[0]
     w, h = image_size
     dev, dt = K.device, torch.float32
-    u, v, reach, front = _grid_board_coordinates(K, rvec, tvec, square, image_size, dist, radial)
+    u, v, reach, front, ideal_x, ideal_y = _grid_board_coordinates(K, rvec, tvec, square, image_size, dist, radial)
     valid = reach & front
     u = torch.where(valid, u, torch.full_like(u, _FAR))
     v = torch.where(valid, v, torch.full_like(v, _FAR))
@@ -629,6 +632,20 @@ def _render(
     contrast = 0.5 * (light - dark.to(dt).view(b, 1, 1))
     if isinstance(background, Tensor):
         bg = background.to(device=dev, dtype=dt).reshape(-1, h, w).expand(b, h, w)
+        # the background is a scene seen through the same lens: warp it by the view's distortion, so that its
+        # straight edges bend like the board's (the distortion CNN learns from every line in the image)
+        distorted = torch.zeros(b, dtype=torch.bool, device=dev)
+        if radial is not None:
+            distorted |= ~_radial_is_trivial(radial).to(dev)
+        if dist is not None:
+            distorted |= (dist.abs().amax(-1) > 0).to(dev)
+        idx = distorted.nonzero().squeeze(1)
+        if idx.numel() > 0:
+            grid = torch.stack([ideal_x[idx] / max(w - 1, 1) * 2 - 1, ideal_y[idx] / max(h - 1, 1) * 2 - 1], -1)
+            warped = torch.nn.functional.grid_sample(
+                bg[idx].unsqueeze(1), grid.to(dt), mode="bilinear", padding_mode="reflection", align_corners=True
+            )
+            bg = bg.contiguous().index_copy(0, idx, warped[:, 0])
     else:
         bg = torch.full((b, 1, 1), float(background), device=dev, dtype=dt)
     img, pu, pv = _shade(u, v, wu, wv, cols_f, rows_f, border, bg, light, contrast)

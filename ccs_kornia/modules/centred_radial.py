@@ -25,13 +25,16 @@ from ccs_kornia import camera
 __all__ = ["centred_radial_distort", "radial_from_correction", "refine_centred_radial"]
 
 
-def centred_radial_distort(points: torch.Tensor, coeffs: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
+def centred_radial_distort(
+    points: torch.Tensor, coeffs: torch.Tensor, image_size: tuple[int, int], centre_offset: torch.Tensor | None = None
+) -> torch.Tensor:
     """Apply the image-centred radial distortion ``(k1, k2, k3)`` to ideal pixels.
 
     Args:
         points: :math:`(B, N, 2)` ideal pixels.
         coeffs: :math:`(B, 3)`.
         image_size: ``(W, H)``.
+        centre_offset: optional :math:`(B, 2)` shift (px) of the distortion centre from the image centre.
 
     Returns:
         :math:`(B, N, 2)` distorted pixels.
@@ -42,6 +45,8 @@ def centred_radial_distort(points: torch.Tensor, coeffs: torch.Tensor, image_siz
     """
     w, h = int(image_size[0]), int(image_size[1])
     centre = torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], device=points.device, dtype=points.dtype)
+    if centre_offset is not None:
+        centre = centre + centre_offset[:, None, :]
     d = points - centre
     r2 = (d * d).sum(-1, keepdim=True) / float(max(w, h)) ** 2
     k1, k2, k3 = (coeffs[:, None, i : i + 1] for i in range(3))
@@ -73,11 +78,14 @@ def radial_from_correction(correction: torch.Tensor, image_size: tuple[int, int]
 def _residuals(params: torch.Tensor, observed: torch.Tensor, weight: torch.Tensor, obj: torch.Tensor,
                image_size: tuple[int, int], num_views: int) -> torch.Tensor:
     fx, fy, cx, cy = params[0], params[1], params[2], params[3]
-    poses = params[7:].reshape(num_views, 6)
+    free_centre = params.shape[0] == 9 + 6 * num_views
+    start = 9 if free_centre else 7
+    poses = params[start:].reshape(num_views, 6)
     zero, one = torch.zeros_like(fx), torch.ones_like(fx)
     K = torch.stack([torch.stack([fx, zero, cx]), torch.stack([zero, fy, cy]), torch.stack([zero, zero, one])])
     proj = camera.project_points(obj.expand(num_views, -1, -1), K.expand(num_views, 3, 3), None, poses[:, :3], poses[:, 3:])
-    dist = centred_radial_distort(proj.reshape(1, -1, 2), params[4:7][None], image_size).reshape(proj.shape)
+    offset = params[7:9][None] if free_centre else None
+    dist = centred_radial_distort(proj.reshape(1, -1, 2), params[4:7][None], image_size, offset).reshape(proj.shape)
     return ((dist - observed) * weight[..., None]).reshape(-1)
 
 
@@ -92,7 +100,8 @@ def refine_centred_radial(
     image_size: tuple[int, int],
     max_iters: int = 50,
     tol: float = 1e-12,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    free_centre: bool = False,
+) -> tuple[torch.Tensor, ...]:
     """Levenberg-Marquardt over intrinsics, image-centred radial distortion and poses, camera by camera.
 
     Args:
@@ -105,10 +114,15 @@ def refine_centred_radial(
         image_size: ``(W, H)``.
         max_iters: LM iterations at most.
         tol: relative cost decrease below which a camera stops.
+        free_centre: also estimate the distortion centre (a shift from the image centre). Real lenses centre
+            their distortion near the principal point, which need not be the image centre; with strong
+            distortion the two are told apart by the data.
 
     Returns:
-        ``K`` :math:`(C, 3, 3)`, ``radial`` :math:`(C, 3)`, ``rvec``, ``tvec`` :math:`(C, V, 3)` and the RMS
-        reprojection error :math:`(C,)` in px (NaN for a camera with fewer than 8 valid corners).
+        ``K`` :math:`(C, 3, 3)`, ``radial`` :math:`(C, 3)`, ``rvec``, ``tvec`` :math:`(C, V, 3)`, the RMS
+        reprojection error :math:`(C,)` in px (NaN for a camera with fewer than 8 valid corners), the
+        distortion centre's offset from the image centre :math:`(C, 2)` (zeros unless ``free_centre``) and the
+        standard deviations of ``fx, fy, cx, cy`` :math:`(C, 4)` (from the Gauss-Newton covariance).
 
     Example:
         >>> from ccs_kornia.camera import board_object_points, project_points
@@ -122,7 +136,7 @@ def refine_centred_radial(
         >>> uv = centred_radial_distort(uv.reshape(1, -1, 2), k, (320, 240)).reshape(1, 6, 30, 2)
         >>> K_start = torch.diag(torch.tensor([1.02, 0.99, 1.0], dtype=torch.float64)) @ K
         >>> valid = torch.ones(1, 6, 30, dtype=torch.bool)
-        >>> K1, k1, _, _, rms = refine_centred_radial(uv, valid, obj, K_start, rvec, tvec, torch.zeros(1, 3), (320, 240))
+        >>> K1, k1, _, _, rms, _, _ = refine_centred_radial(uv, valid, obj, K_start, rvec, tvec, torch.zeros(1, 3), (320, 240))
         >>> bool((K1 - K).abs().max() < 1e-4), bool((k1 - k).abs().max() < 1e-4), bool(rms < 1e-6)
         (True, True, True)
     """
@@ -138,6 +152,8 @@ def refine_centred_radial(
     K_out, rad_out = K.to(dt).clone(), radial.to(device=corners.device, dtype=dt).clone()
     rv_out, tv_out = rvec.to(dt).clone(), tvec.to(dt).clone()
     rms_out = torch.full((c,), float("nan"), dtype=dt, device=corners.device)
+    centre_out = torch.zeros(c, 2, dtype=dt, device=corners.device)
+    std_out = torch.full((c, 4), float("nan"), dtype=dt, device=corners.device)
     for ci in range(c):
         weight = (valid[ci] & corners[ci].isfinite().all(-1)).to(dt)
         if int(weight.sum()) < 8:
@@ -146,6 +162,7 @@ def refine_centred_radial(
         p = torch.cat([
             torch.stack([K_out[ci, 0, 0], K_out[ci, 1, 1], K_out[ci, 0, 2], K_out[ci, 1, 2]]),
             rad_out[ci],
+            torch.zeros(2 if free_centre else 0, dtype=dt, device=corners.device),
             torch.cat([rv_out[ci], tv_out[ci]], -1).reshape(-1),
         ])
 
@@ -178,7 +195,14 @@ def refine_centred_radial(
                 break
         K_out[ci, 0, 0], K_out[ci, 1, 1], K_out[ci, 0, 2], K_out[ci, 1, 2] = p[0], p[1], p[2], p[3]
         rad_out[ci] = p[4:7]
-        poses = p[7:].reshape(v, 6)
+        if free_centre:
+            centre_out[ci] = p[7:9]
+        poses = p[9 if free_centre else 7 :].reshape(v, 6)
         rv_out[ci], tv_out[ci] = poses[:, :3], poses[:, 3:]
         rms_out[ci] = (cost / weight.sum()) ** 0.5
-    return K_out, rad_out, rv_out, tv_out, rms_out
+        # covariance of the estimate: sigma^2 (J^T J)^-1 with sigma^2 from the residual (dof-corrected)
+        J = jacfwd(fun)(p)
+        dof = max(int(2 * weight.sum()) - p.numel(), 1)
+        cov = torch.linalg.pinv(J.T @ J) * (cost / dof)
+        std_out[ci] = cov.diagonal()[:4].clamp_min(0).sqrt()
+    return K_out, rad_out, rv_out, tv_out, rms_out, centre_out, std_out
