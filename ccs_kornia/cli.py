@@ -161,6 +161,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", default=0, type=int, help="RANSAC seed (default 0)")
     p.add_argument("--report", metavar="DIR", help="also write overlays and a summary to DIR (created)")
     p.add_argument("--opencv-yaml", metavar="FILE", help="also write an OpenCV FileStorage YAML (camera_matrix, ...)")
+    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
+                   help="do not run the distortion-correction network (strongly distorted lenses are then "
+                        "calibrated by the joint refinement alone)")
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("undistort", help="undistort images with a calibration (as cv2.undistort)")
@@ -196,6 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
     p.add_argument("--device", default="cpu", type=_device_arg)
     p.add_argument("--seed", default=0, type=int, help="seed of the rendered poses (default 0)")
+    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
+                   help="calibrate without the distortion-correction network")
     p.set_defaults(func=_cmd_demo)
 
     sub.add_parser("bench", help="benchmarks against OpenCV and other peers (see --help)", add_help=False)
@@ -260,14 +265,24 @@ def _make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac:
         detector = make_detector(args.detector)
     except ValueError as err:
         raise UserError(str(err)) from None
-    return CalibrationPipeline(
-        detector, model=model, use_ransac=use_ransac, seed=seed, detection_batch_size=args.batch_size,
-        max_detection_side=getattr(args, "max_detection_side", 2048) or None,
-    )
+    try:
+        return CalibrationPipeline(
+            detector, model=model, use_ransac=use_ransac, seed=seed, detection_batch_size=args.batch_size,
+            max_detection_side=getattr(args, "max_detection_side", 2048) or None,
+            distortion_correction=bool(getattr(args, "distortion_correction", False)),
+        )
+    except FileNotFoundError as err:
+        raise UserError(str(err).replace("pass distortion_correction=False", "use --no-distortion-correction")) from None
 
 
-def _detect_files(command: str, files: list[str], pipeline, board: tuple[int, int], device, batch_size: int) -> dict[str, dict]:
-    """Stream the files through the detector; return per path ``{found, corners, image_size, reason}``."""
+def _detect_files(
+    command: str, files: list[str], pipeline, board: tuple[int, int], device, batch_size: int, correction=None
+) -> dict[str, dict]:
+    """Stream the files through the detector; return per path ``{found, corners, image_size, reason}``.
+
+    ``correction``: ``(image_size, (5,) coefficients)``: images of that size are detected on radially corrected
+    copies (corners mapped back to the originals).
+    """
     from tqdm import tqdm
 
     from ccs_kornia.io import iter_image_batches
@@ -279,7 +294,10 @@ def _detect_files(command: str, files: list[str], pipeline, board: tuple[int, in
                 records[path] = {"found": False, "corners": None, "image_size": None, "error": reason}
                 _warn(command, f"skipped {path}: {reason}")
             if batch.images is not None:
-                det = pipeline.detect(batch.images.to(device), board)
+                if correction is not None and tuple(batch.image_size) == tuple(correction[0]):
+                    det = pipeline.detect_corrected(batch.images.to(device), correction[1].to(device), board)
+                else:
+                    det = pipeline.detect(batch.images.to(device), board)
                 corners = det.corners.cpu().double().tolist()
                 found = det.found.cpu().tolist()
                 reasons = det.reasons or [""] * len(batch.paths)
@@ -362,8 +380,14 @@ def _calibrate_files(
     from ccs_kornia.io import calibration_record, plan_views
 
     timings: dict[str, float] = {}
+    correction = None
+    if pipeline.distortion_net is not None:
+        start = time.perf_counter()
+        correction = _predict_correction(command, files, pipeline, device, batch_size)
+        timings["distortion_net_s"] = time.perf_counter() - start
     start = time.perf_counter()
-    records = _detect_files(command, files, pipeline, board, device, batch_size)
+    detect_with = (correction["image_size"], correction["coeffs"]) if correction and correction["apply"] else None
+    records = _detect_files(command, files, pipeline, board, device, batch_size, detect_with)
     timings["load_and_detect_s"] = time.perf_counter() - start
     views, usable, image_size = plan_views(files, records)
     for view in views:
@@ -396,7 +420,17 @@ def _calibrate_files(
     corners = torch.tensor([records[p]["corners"] for p in usable], dtype=torch.float64, device=device)
     valid = torch.ones(corners.shape[:-1], dtype=torch.bool, device=device)
     start = time.perf_counter()
-    result = pipeline.calibrate(corners, valid, board, square, image_size)
+    applied = False
+    if correction is not None and correction["apply"] and tuple(correction["image_size"]) == tuple(image_size):
+        result, refined, applied_t = pipeline.solve_with_correction(
+            corners[None], valid[:, 0][None], correction["coeffs"][None].to(device), torch.ones(1, dtype=torch.bool),
+            board, square, image_size,
+        )
+        result = _first_camera(result)
+        applied = bool(applied_t[0])
+        correction["refined"] = refined[0].cpu().tolist()
+    else:
+        result = pipeline.calibrate(corners, valid, board, square, image_size)
     timings["solve_s"] = time.perf_counter() - start
     if not bool(torch.as_tensor(result.success).all()):
         from ccs_kornia.modules.calibrator import VIEW_REASONS
@@ -416,8 +450,57 @@ def _calibrate_files(
         )
     data = calibration_record(views, usable, image_size, result, board=board, square=square,
                               detector=detector_name, model=model)
+    data["distortion_correction"] = _correction_record(correction, applied)
     data["timings"] = timings
     return data, result
+
+
+def _first_camera(result):
+    from ccs_kornia.modules.calibrator import CalibrationResult
+
+    return CalibrationResult(**{k: (v[0] if hasattr(v, "dim") else v) for k, v in result.__dict__.items()})
+
+
+def _predict_correction(command: str, files: list[str], pipeline, device, batch_size: int) -> dict | None:
+    """First pass of the corrected calibration: the network's correction of every image, pooled over the
+    images of the most common size (the camera's)."""
+    from collections import defaultdict
+
+    import torch
+    from tqdm import tqdm
+
+    from ccs_kornia.io import iter_image_batches
+
+    per_size: dict[tuple[int, int], list] = defaultdict(list)
+    with tqdm(total=len(files), unit="img", desc=f"{command}: lens", file=sys.stderr, disable=None, leave=False) as bar:
+        for batch in iter_image_batches(files, batch_size):
+            if batch.images is not None:
+                per_size[tuple(batch.image_size)].append(pipeline.view_corrections(batch.images.to(device)).cpu())
+            bar.update(len(batch.paths) + len(batch.skipped))
+    if not per_size:
+        return None
+    size = max(per_size, key=lambda k: sum(t.shape[0] for t in per_size[k]))
+    views = torch.cat(per_size[size])
+    coeffs, apply = pipeline.pool_corrections(views[None], size)
+    from ccs_kornia.modules.undistort import correction_displacement
+
+    return {"image_size": size, "coeffs": coeffs[0], "apply": bool(apply[0]), "views": int(views.shape[0]),
+            "displacement_px": float(correction_displacement(coeffs, size)[0])}
+
+
+def _correction_record(correction: dict | None, applied: bool) -> dict:
+    if correction is None:
+        return {"enabled": False}
+    return {
+        "enabled": True,
+        "applied": applied,
+        "network_correction": [float(x) for x in correction["coeffs"].tolist()],
+        "network_displacement_px": correction["displacement_px"],
+        "refined_correction": correction.get("refined"),
+        "note": "paper radial correction r_c = r_d (k0' + k1' r_d + ... + k4' r_d^4), radii from the image centre "
+                "in units of max(W, H); applied = detected on corrected images and calibrated in the corrected "
+                "frame (see docs/architecture.md)",
+    }
 
 
 def _failed_path(output: str) -> str:
@@ -655,7 +738,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         },
     )
     # the very path of `calibrate`, on the files just written
-    pipeline = _make_pipeline(argparse.Namespace(detector=args.detector, batch_size=16))
+    pipeline = _make_pipeline(argparse.Namespace(detector=args.detector, batch_size=16,
+                                                 distortion_correction=args.distortion_correction))
     output = os.path.join(args.out_dir, "calib.json")
     data, _ = _calibrate_files("demo", files, DEMO_BOARD, DEMO_SQUARE, pipeline, device, 16, "opencv5", args.detector)
     data["device"] = str(device)

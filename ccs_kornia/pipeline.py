@@ -161,8 +161,9 @@ class CalibrationPipeline(nn.Module):
         image_rounds: rounds of undistorting the images with the refined OpenCV model, refining the corners there
             and recalibrating, before the corrected-frame calibration (0 by default: on rendered boards the
             interpolation made the corners worse, see ``docs/benchmarks.md``).
-        max_rms_ratio: the corrected-frame calibration is kept only if its RMS on the observed corners is at most
-            this times (+ 0.01 px) that of the joint calibration; otherwise the joint one is returned.
+        max_rms_ratio: the corrected-frame calibration is kept only if its radial model's RMS on the observed
+            corners is at most this times that of the usual calibration in the output model (equal parameter
+            counts for ``opencv5``: the better fit wins); otherwise the usual one is returned.
         solver_kwargs: further options of :class:`~ccs_kornia.modules.calibrator.CalibrationSolver`
             (e.g. ``fix_aspect_ratio=True``).
 
@@ -187,7 +188,7 @@ class CalibrationPipeline(nn.Module):
         min_correction: float = 0.02,
         joint_iters: int = 50,
         image_rounds: int = 0,
-        max_rms_ratio: float = 1.25,
+        max_rms_ratio: float = 1.0,
         free_distortion_centre: bool = True,
         **solver_kwargs,
     ) -> None:
@@ -475,11 +476,15 @@ class CalibrationPipeline(nn.Module):
         calib = self.calibrate(corners, found, board_size, square, image_size)
         applied = apply.to(corners.device).clone()
         correction = correction.to(corners.device)
-        if bool(applied.any()) and self.model != "none":
-            corrected, refined = self.calibrate_corrected(corners, found, correction, board_size, square, image_size)
-            # the corrected-frame model centres the distortion on the image centre; where the lens says otherwise
-            # (clearly worse fit on the observed corners) the usual calibration is kept
-            fits = corrected.rms <= self.max_rms_ratio * calib.rms.nan_to_num(float("inf")) + 0.01
+        # the model selection below compares equal parameter counts: the radial model (k1, k2, k3 + centre) against
+        # opencv5 (or the richer rational model); for k1k2 / none the usual calibration is kept
+        if bool(applied.any()) and self.model in ("opencv5", "rational"):
+            corrected, refined, model_rms = self.calibrate_corrected(corners, found, correction, board_size, square,
+                                                                     image_size)
+            # model selection on the observed corners: the radial model about a free centre (the paper's) against
+            # OpenCV's (radial about the principal point + tangential), same number of parameters; the better fit
+            # wins
+            fits = model_rms.to(calib.rms) <= self.max_rms_ratio * calib.rms.nan_to_num(float("inf"))
             applied = applied & corrected.success & fits
             calib = _select_cameras(applied, corrected, calib)
             correction = torch.where(applied[:, None], refined, correction)
@@ -495,7 +500,7 @@ class CalibrationPipeline(nn.Module):
         board_size: tuple[int, int],
         square: float,
         image_size: tuple[int, int],
-    ) -> tuple[CalibrationResult, int]:
+    ) -> tuple[CalibrationResult, torch.Tensor, torch.Tensor]:
         """Calibrate in the radially corrected frame, then express the camera in the OpenCV model.
 
         The paper's order: the correction removes the lens distortion first, so the intrinsics are estimated
@@ -512,7 +517,8 @@ class CalibrationPipeline(nn.Module):
             correction: :math:`(C, 5)` initial correction (the network's).
 
         Returns:
-            (result in the OpenCV model, refined correction :math:`(C, 5)`).
+            (result in the OpenCV model, refined correction :math:`(C, 5)`, RMS reprojection error of the radial
+            model :math:`(C,)`, before the conversion to the output model).
         """
         c, v, n = corners.shape[:3]
         dev = corners.device
@@ -534,6 +540,7 @@ class CalibrationPipeline(nn.Module):
             refit = fit_correction_to_points(corners.reshape(c, v * n, 2), ideal.reshape(c, v * n, 2), image_size,
                                              use.reshape(c, v * n))
             corr = torch.where((res.success & refit.isfinite().all(-1))[:, None], refit, corr)
+        model_rms = None
         if self.joint_iters > 0:
             # 3. intrinsics, image-centred radial distortion and poses together, on the observed corners
             # (inference tensors cloned for forward-mode autodiff)
@@ -545,6 +552,7 @@ class CalibrationPipeline(nn.Module):
             )
             good = res.success & K1.flatten(1).isfinite().all(-1) & rad1.isfinite().all(-1) & rms1.isfinite()
             std_intrinsics = torch.where(good[:, None], std1, res.std_intrinsics)
+            model_rms = torch.where(good, rms1, torch.full_like(rms1, float("inf")))
             res = _with_fields(res, K=torch.where(good[:, None, None], K1, res.K),
                                rvec=torch.where(good[:, None, None], rv1, res.rvec),
                                tvec=torch.where(good[:, None, None], tv1, res.tvec))
@@ -560,7 +568,7 @@ class CalibrationPipeline(nn.Module):
             # the intrinsics were estimated by the joint refinement: report its uncertainty, not the fixed one's 0
             out = _with_fields(out, std_intrinsics=torch.where(out.success[:, None], std_intrinsics.to(out.K.dtype),
                                                                out.std_intrinsics))
-        return out, corr
+        return out, corr, (out.rms if model_rms is None else model_rms)
 
     def _image_round(self, flat, corners, found, calib: CalibrationResult, strong, board_size) -> torch.Tensor:
         """One round of :meth:`refine_undistorted` on every found view of the corrected cameras."""
@@ -637,7 +645,7 @@ class CalibrationPipeline(nn.Module):
             for k, i in enumerate(sel.tolist()):
                 reasons[i] = det.reasons[k] if det.reasons else ""
         corners, found = corners.reshape(c, v, n, 2), found.reshape(c, v)
-        if self.image_rounds and bool(strong.any()) and self.model != "none":
+        if self.image_rounds and bool(strong.any()) and self.model in ("opencv5", "rational"):
             calib = self.calibrate(corners, found, board_size, square, size)
             for _ in range(self.image_rounds):
                 corners = self._image_round(flat, corners, found, calib, strong.to(corners.device), board_size)

@@ -424,7 +424,9 @@ def test_every_view_rejected_by_ransac(rendered, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(CalibrationPipeline, "calibrate", all_rejected)
     _, files, _ = rendered
     out = tmp_path / "c.json"
-    code, _, err = run(capsys, "calibrate", *files[:4], "--board", "9x6", "--output", str(out))
+    # (the solver stage forced here is the usual one: the corrected one is switched off)
+    code, _, err = run(capsys, "calibrate", *files[:4], "--board", "9x6", "--output", str(out),
+                       "--no-distortion-correction")
     assert code == 2
     assert_one_line_error(err, "4 rejected by image RANSAC")
     assert not out.exists()
@@ -492,3 +494,17 @@ def test_calibrate_many_command(rendered, tmp_path, capsys):
     code, _, err = run(capsys, "calibrate-many", str(tmp_path / "nothing"), "--board", "9x6", "--output", str(out))
     assert code == 2
     assert_one_line_error(err, "no image sets found")
+
+
+def test_calibrate_records_the_distortion_correction(rendered, tmp_path, capsys):
+    _, files, _ = rendered
+    on, off = tmp_path / "on.json", tmp_path / "off.json"
+    code, _, err = run(capsys, "calibrate", *files[:6], "--board", "9x6", "--output", str(on))
+    assert code == 0, err
+    rec = json.loads(on.read_text())["distortion_correction"]
+    assert rec["enabled"] is True and isinstance(rec["applied"], bool)
+    assert len(rec["network_correction"]) == 5 and rec["network_displacement_px"] >= 0
+    code, _, err = run(capsys, "calibrate", *files[:6], "--board", "9x6", "--output", str(off), "--no-distortion-correction")
+    assert code == 0, err
+    data = json.loads(off.read_text())
+    assert data["distortion_correction"] == {"enabled": False} and "distortion_net_s" not in data["timings"]
