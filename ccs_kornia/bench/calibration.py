@@ -121,6 +121,13 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
         K_scaled = k0_scaled_intrinsics(K_true, radial, cfg.image_size) if bool((radial[:, 0] != 1).any()) else None
         res: dict = {}
         pool_images = scenes.flat_images
+        corrector = _corrector(cfg, device)
+        pool_corr = None
+        if corrector is not None and "learned" in keys:
+            with Timer() as t_net:
+                pool_corr = corrector.view_corrections(pool_images.to(device)).cpu()
+                pool_corr = pool_corr.reshape(cameras, cfg.calib_pool_views, 5)
+            log(f"[calibration] {cond}: distortion network on {pool_images.shape[0]} views ({t_net.seconds:.1f}s)")
         detections: dict[str, tuple[np.ndarray, np.ndarray]] = {
             "truth": (scenes.corners.numpy(), np.ones(scenes.corners.shape[:2], dtype=bool)),
         }
@@ -147,9 +154,36 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
             cvm["seconds"] = t_cv.seconds
             label = "exact corners" if key == "truth" else methods[key].label
             res[key] = {"label": label, "boards_found": float(found.mean()), "ccs": ccs, "opencv": cvm}
+            if key == "learned" and pool_corr is not None:
+                with Timer() as t_dc:
+                    corr, apply = corrector.pool_corrections(pool_corr[cam[:, None], views], cfg.image_size)
+                    cal, _, applied = corrector.solve_with_correction(
+                        torch.as_tensor(corners, dtype=torch.float64, device=device),
+                        torch.as_tensor(found, dtype=torch.bool, device=device), corr.to(device), apply.to(device),
+                        cfg.board, cfg.square, cfg.image_size,
+                    )
+                dc = calibration_metrics(cal.K.cpu().numpy(), K_true, cal.success.cpu().numpy(), cal.rms.cpu().numpy(),
+                                         cal.used.sum(-1).cpu().numpy(), K_scaled)
+                dc["seconds"] = t_dc.seconds
+                dc["correction_applied"] = int(applied.sum())
+                res[key]["ccs_corrected"] = dc
+                log(f"[calibration] {cond:12s} {label:30s} E_IP ccs + distortion correction {_fmt(dc['e_ip'])} "
+                    f"(applied on {int(applied.sum())}/{len(sub)})")
             log(f"[calibration] {cond:12s} {label:30s} E_IP ccs {_fmt(ccs['e_ip'])} / cv2 {_fmt(cvm['e_ip'])}")
         out["conditions"][cond] = res
     return out
+
+
+def _corrector(cfg: BenchConfig, device: str):
+    """The pipeline whose corrected solver stage the learned detections go through (None without weights)."""
+    from ccs_kornia.bench.distortion import distortion_available
+
+    net, _ = distortion_available(cfg.distortion_weights)
+    if net is None:
+        return None
+    from ccs_kornia.pipeline import CalibrationPipeline
+
+    return CalibrationPipeline("opencv", distortion_correction=net.to(device)).to(device)
 
 
 def _fmt(x) -> str:

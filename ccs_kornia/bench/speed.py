@@ -93,6 +93,18 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
             sec = _best(whole, cfg.speed_repeats, device)
             res["calibration"][label] = {"images_per_s": views.shape[0] / sec, "seconds": sec}
             log(f"[speed] {device} whole calibration {label}: {views.shape[0] / sec:.2f} img/s ({sec:.2f} s)")
+        # the whole product path: CalibrationPipeline with the distortion correction (its default)
+        from ccs_kornia.bench.distortion import distortion_available
+
+        net, why = distortion_available(cfg.distortion_weights)
+        if net is not None and ccs_key == "learned":
+            from ccs_kornia.pipeline import CalibrationPipeline
+
+            pipe = CalibrationPipeline("learned", distortion_correction=net).to(device)
+            sec = _best(lambda: pipe(views.to(device), cfg.board, cfg.square), cfg.speed_repeats, device)
+            label = "ccs_kornia CalibrationPipeline (learned + distortion correction)"
+            res["calibration"][label] = {"images_per_s": views.shape[0] / sec, "seconds": sec}
+            log(f"[speed] {device} whole calibration {label}: {views.shape[0] / sec:.2f} img/s ({sec:.2f} s)")
         # solver alone
         g = torch.Generator().manual_seed(1)
         truth = scenes.corners[0, : cfg.calib_views].numpy()
