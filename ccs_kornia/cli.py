@@ -191,6 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="images handed to the detector at once (default 16)")
     p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
                    help="detect larger images on a downscaled copy (default 2048; 0 = off)")
+    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
+                   help="do not run the distortion-correction network")
     p.set_defaults(func=_cmd_calibrate_many)
 
     p = sub.add_parser("demo", help="render a synthetic set with a known camera, calibrate it, compare")

@@ -243,7 +243,16 @@ class CalibrationLitModule(pl.LightningModule):
                 out[k] = self._failed(item, "no readable image in the set")
                 continue
             start = time.perf_counter()
-            det = self.pipeline.detect(item["images"].to(self.device), board)
+            images = item["images"].to(self.device)
+            correction = None
+            if self.pipeline.distortion_net is not None:
+                size_wh = (int(images.shape[-1]), int(images.shape[-2]))
+                corr, apply = self.pipeline.pool_corrections(self.pipeline.view_corrections(images)[None], size_wh)
+                correction = {"coeffs": corr[0], "apply": bool(apply[0])}
+            if correction is not None and correction["apply"]:
+                det = self.pipeline.detect_corrected(images, correction["coeffs"], board)
+            else:
+                det = self.pipeline.detect(images, board)
             detect_s = time.perf_counter() - start
             corners, found = det.corners.detach().double().cpu().tolist(), det.found.cpu().tolist()
             reasons = det.reasons or [""] * len(found)
@@ -262,7 +271,8 @@ class CalibrationLitModule(pl.LightningModule):
                 out[k] = self._failed(item, f"only {len(usable)} usable view(s) (board found in {n_found} of "
                                             f"{len(item['files'])} files); at least 3 are needed", views)
                 continue
-            plans.setdefault(tuple(image_size), []).append((k, views, usable, {"detect_s": detect_s, "records": records}))
+            plans.setdefault(tuple(image_size), []).append(
+                (k, views, usable, {"detect_s": detect_s, "records": records, "correction": correction}))
 
         # one batched solver call per image size: cameras padded to the same number of views
         for image_size, group in plans.items():
@@ -274,7 +284,17 @@ class CalibrationLitModule(pl.LightningModule):
                 corners[c, : len(usable)] = torch.tensor([extra["records"][p]["corners"] for p in usable], dtype=torch.float64)
                 valid[c, : len(usable)] = True
             start = time.perf_counter()
-            result = self.pipeline.calibrate(corners.to(self.device), valid.to(self.device), board, self.square, image_size)
+            corrections = [extra["correction"] for _, _, _, extra in group]
+            applied = torch.zeros(len(group), dtype=torch.bool)
+            if all(c is not None for c in corrections) and any(c["apply"] for c in corrections):
+                coeffs = torch.stack([c["coeffs"].to(self.device) for c in corrections])
+                apply = torch.tensor([c["apply"] for c in corrections], device=self.device)
+                result, _, applied = self.pipeline.solve_with_correction(
+                    corners.to(self.device), valid[..., 0].to(self.device), coeffs, apply, board, self.square, image_size)
+                applied = applied.cpu()
+            else:
+                result = self.pipeline.calibrate(corners.to(self.device), valid.to(self.device), board, self.square,
+                                                 image_size)
             solve_s = (time.perf_counter() - start) / len(group)
             for c, (k, views, usable, extra) in enumerate(group):
                 one = _camera(result, c, len(usable))
@@ -284,6 +304,11 @@ class CalibrationLitModule(pl.LightningModule):
                     continue
                 record = calibration_record(views, usable, image_size, one, board=board, square=self.square,
                                             detector=self.detector_name, model=self.pipeline.model)
+                corr = extra["correction"]
+                record["distortion_correction"] = (
+                    {"enabled": False} if corr is None else
+                    {"enabled": True, "applied": bool(applied[c]),
+                     "network_correction": [float(x) for x in corr["coeffs"].tolist()]})
                 out[k] = {"set": batch[k]["name"], "success": True, **record,
                           "timings": {"detect_s": extra["detect_s"], "solve_s": solve_s}}
         return [o for o in out if o is not None]
