@@ -387,6 +387,21 @@ class CalibrationPipeline(nn.Module):
         size = (int(w), int(h))
         corr = correction.double().to(images.device)
         corr = corr.expand(b, 5) if corr.dim() == 1 else corr
+        limit = self.max_detection_side
+        if limit is not None and max(h, w) > limit:
+            # large photos: warp and detect an area-downscaled copy (the correction is defined in units of the
+            # image size, so the same coefficients apply), then refine the corners at full resolution
+            scale = max(h, w) / limit
+            small_size = (max(8, round(h / scale)), max(8, round(w / scale)))
+            small = F.interpolate(images.float(), size=small_size, mode="area")
+            det = self.detect_corrected(small, corr, board_size)
+            factor = torch.tensor([w / small_size[1], h / small_size[0]], dtype=det.corners.dtype,
+                                  device=det.corners.device)
+            corners = (det.corners + 0.5) * factor - 0.5
+            found_idx = det.found.nonzero().flatten()
+            if found_idx.numel():
+                corners[found_idx] = self._refine_full_resolution(images, corners[found_idx], found_idx, board_size)
+            return DetectionResult(corners, det.found, det.reasons)
         zoom = float(self._correction_zoom(corr, size))
         parts_c, parts_f, reasons = [], [], []
         for i in range(0, b, self.detection_batch_size):

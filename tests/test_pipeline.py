@@ -188,3 +188,18 @@ def test_correction_on_severe_radial_distortion():
     print(f"E_IP with correction {e_on:.3f} px, without {e_off:.3f} px; applied {bool(on.corrected)}")
     assert bool(on.corrected) and int(on.found.sum()) >= 10
     assert e_on < 0.5 and e_on < e_off
+
+
+def test_detect_corrected_large_images_downscaled_and_refined():
+    # a photo above max_detection_side is warped and detected small, then refined at full resolution
+    K = torch.tensor([[840.0, 0.0, 650.0], [0.0, 845.0, 470.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    s = make_calibration_set(K, BOARD, SQUARE, (1280, 960), num_views=2, radial=torch.tensor([1.0, -0.4, 0.0]),
+                             seed=9, supersample=1)
+    corr = torch.tensor([1.0, 0.0, 0.35, 0.0, 0.1], dtype=torch.float64)
+    full = CalibrationPipeline("opencv", max_detection_side=None).detect_corrected(s.images, corr, BOARD)
+    small = CalibrationPipeline("opencv", max_detection_side=640).detect_corrected(s.images, corr, BOARD)
+    assert bool(full.found.all()) and bool(small.found.all())
+    err_full = (full.corners.double() - s.corners.double()).norm(dim=-1)
+    err_small = (small.corners.double() - s.corners.double()).norm(dim=-1)
+    print("mean corner error full / downscaled:", float(err_full.mean()), float(err_small.mean()))
+    assert float(err_small.mean()) < 0.1 and float(err_small.max()) < 0.5
