@@ -148,6 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("detect", help="detect chessboard corners, write them as JSON")
     common(p)
     p.add_argument("--output", required=True, metavar="JSON", help="corners file to write")
+    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
+                   help="detect on the images as they are (by default a strongly distorted lens's images are "
+                        "corrected for detection; corners are always given in the original images)")
     p.set_defaults(func=_cmd_detect)
 
     p = sub.add_parser("calibrate", help="calibrate a camera from chessboard images")
@@ -337,7 +340,11 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     files = _inputs("detect", args.images)
     pipeline = _make_pipeline(args)
     start = time.perf_counter()
-    records = _detect_files("detect", files, pipeline, args.board, device, args.batch_size)
+    correction = None
+    if pipeline.distortion_net is not None:
+        correction = _predict_correction("detect", files, pipeline, device, args.batch_size)
+    detect_with = (correction["image_size"], correction["coeffs"]) if correction and correction["apply"] else None
+    records = _detect_files("detect", files, pipeline, args.board, device, args.batch_size, detect_with)
     elapsed = time.perf_counter() - start
     images = [{"path": path, **records[path]} for path in files]
     n_found = sum(r["found"] for r in images)
@@ -347,6 +354,8 @@ def _cmd_detect(args: argparse.Namespace) -> int:
         "images": images,
         "skipped": [{"path": r["path"], "reason": r["error"]} for r in images if "error" in r],
         "num_found": n_found,
+        "distortion_correction": _correction_record(
+            correction, bool(detect_with), "detected on corrected images, corners given in the original images"),
         "timings": {"load_and_detect_s": elapsed, "images_per_s": len(files) / max(elapsed, 1e-9)},
     }
     write_json(args.output, data)
@@ -490,7 +499,7 @@ def _predict_correction(command: str, files: list[str], pipeline, device, batch_
             "displacement_px": float(correction_displacement(coeffs, size)[0])}
 
 
-def _correction_record(correction: dict | None, applied: bool) -> dict:
+def _correction_record(correction: dict | None, applied: bool, what: str | None = None) -> dict:
     if correction is None:
         return {"enabled": False}
     return {
@@ -500,8 +509,9 @@ def _correction_record(correction: dict | None, applied: bool) -> dict:
         "network_displacement_px": correction["displacement_px"],
         "refined_correction": correction.get("refined"),
         "note": "paper radial correction r_c = r_d (k0' + k1' r_d + ... + k4' r_d^4), radii from the image centre "
-                "in units of max(W, H); applied = detected on corrected images and calibrated in the corrected "
-                "frame (see docs/architecture.md)",
+                "in units of max(W, H); applied = "
+                + (what or "detected on corrected images and calibrated in the corrected frame")
+                + " (see docs/architecture.md)",
     }
 
 

@@ -77,6 +77,10 @@ def test_detect_json(rendered, tmp_path, capsys):
         gt = batch.corners[k].double()
         err = min((est - gt).norm(dim=-1).mean(), (est - gt.flip(0)).norm(dim=-1).mean())
         assert float(err) < 0.1
+    rec = data["distortion_correction"]
+    assert rec["enabled"] is True and isinstance(rec["applied"], bool) and "original images" in rec["note"]
+    code, _, _ = run(capsys, "detect", str(folder), "--board", "9x6", "--output", str(out), "--no-distortion-correction")
+    assert code == 0 and json.loads(out.read_text())["distortion_correction"] == {"enabled": False}
 
 
 def test_calibrate_json_and_accuracy(rendered, tmp_path, capsys):
