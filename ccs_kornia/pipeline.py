@@ -52,6 +52,7 @@ from ccs_kornia.modules.detector import ChessboardDetector, DetectionResult, mak
 from ccs_kornia.modules.undistort import (
     aggregate_corrections,
     correct_points,
+    corrected_radius,
     correction_displacement,
     distort_points_from_correction,
     fit_correction_to_points,
@@ -603,8 +604,7 @@ class CalibrationPipeline(nn.Module):
         w, h = size
         scale = float(max(w, h))
         r = 0.5 * math.hypot(w - 1, h - 1) / scale
-        c = correction.to(torch.float64)
-        g = r * (c[:, 0] + r * (c[:, 1] + r * (c[:, 2] + r * (c[:, 3] + r * c[:, 4]))))
+        g = corrected_radius(torch.full_like(correction[:, :1], r, dtype=torch.float64), correction.double())[:, 0]
         return (r / g.clamp_min(1e-6)).clamp(0.5, 1.0).min()
 
     # ------------------------------------------------------------------------------------------
@@ -641,20 +641,14 @@ class CalibrationPipeline(nn.Module):
         found = torch.zeros(c * v, dtype=torch.bool, device=imgs.device)
         reasons: list[str] = [""] * (c * v)
         is_strong = strong.to(imgs.device).repeat_interleave(v)
-        for sel, det in (
-            (is_strong.nonzero().flatten(), None),
-            ((~is_strong).nonzero().flatten(), None),
-        ):
-            if sel.numel() == 0:
-                continue
-            if bool(is_strong[sel[0]]):
-                # camera by camera: each camera's correction sets its own zoom
-                parts = [self.detect_corrected(flat[sel[k : k + v]], correction[int(sel[k]) // v], board_size)
-                         for k in range(0, sel.numel(), v)]
-                det = DetectionResult(torch.cat([p.corners for p in parts]), torch.cat([p.found for p in parts]),
-                                      [r for p in parts for r in (p.reasons or [""] * p.found.numel())])
-            else:
-                det = self.detect(flat[sel], board_size)
+        # strongly distorted cameras camera by camera (each correction sets its own zoom), the others in one go
+        groups = [(torch.arange(ci * v, (ci + 1) * v, device=imgs.device), ci) for ci in strong.nonzero().flatten().tolist()]
+        rest = (~is_strong).nonzero().flatten()
+        if rest.numel():
+            groups.append((rest, None))
+        for sel, ci in groups:
+            det = self.detect(flat[sel], board_size) if ci is None else \
+                self.detect_corrected(flat[sel], correction[ci], board_size)
             corners[sel] = det.corners.double()
             found[sel] = det.found
             for k, i in enumerate(sel.tolist()):

@@ -21,6 +21,7 @@ import torch
 from torch.func import jacfwd
 
 from ccs_kornia import camera
+from ccs_kornia.modules.undistort import corrected_radius
 
 __all__ = ["centred_radial_distort", "radial_from_correction", "refine_centred_radial"]
 
@@ -68,8 +69,7 @@ def radial_from_correction(correction: torch.Tensor, image_size: tuple[int, int]
     r_corner = 0.5 * ((w - 1) ** 2 + (h - 1) ** 2) ** 0.5 / float(max(w, h))
     c = correction.to(torch.float64)
     rd = torch.linspace(r_corner / samples, r_corner, samples, device=c.device, dtype=torch.float64)
-    rc = rd * (c[:, 0:1] + rd * (c[:, 1:2] + rd * (c[:, 2:3] + rd * (c[:, 3:4] + rd * c[:, 4:5]))))  # (B, S)
-    rc = rc / c[:, 0:1]
+    rc = corrected_radius(rd.expand(c.shape[0], -1), c) / c[:, 0:1]  # (B, S), the centre's scale divided out
     ratio = rd / rc.clamp_min(1e-9) - 1.0
     A = torch.stack([rc**2, rc**4, rc**6], -1)
     return torch.linalg.lstsq(A, ratio.unsqueeze(-1)).solution.squeeze(-1).to(correction.dtype)

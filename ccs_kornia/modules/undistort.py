@@ -30,6 +30,7 @@ __all__ = [
     "aggregate_corrections",
     "correct_points",
     "correction_displacement",
+    "corrected_radius",
     "fit_correction_to_points",
     "opencv_undistort_image",
     "opencv_undistorted_frame",
@@ -265,6 +266,20 @@ class RadialUndistort(nn.Module):
 
     def extra_repr(self) -> str:
         return f"zoom={self.zoom}, mode={self.mode}, padding_mode={self.padding_mode}, num_iters={self.num_iters}"
+
+
+def corrected_radius(radius: torch.Tensor, correction: torch.Tensor) -> torch.Tensor:
+    """Corrected radius ``r_d * poly4(r_d)`` of distorted radii (units of ``max(W, H)``).
+
+    Args:
+        radius: :math:`(B, S)` distorted radii (or anything broadcasting against ``correction[:, :1]``).
+        correction: :math:`(B, 5)`.
+
+    Example:
+        >>> corrected_radius(torch.tensor([[0.5]]), torch.tensor([[1.0, 0.0, 0.2, 0.0, 0.0]]))
+        tensor([[0.5250]])
+    """
+    return _radial_map(radius, correction.unsqueeze(-2))[0]
 
 
 def correction_displacement(correction: torch.Tensor, image_size: tuple[int, int], samples: int = 64) -> torch.Tensor:
