@@ -18,7 +18,7 @@ import torch
 
 from ccs_kornia.camera import axis_angle_to_rotation_matrix, board_object_points, project_points
 from ccs_kornia.metrics import e_ip
-from ccs_kornia.modules.calibrator import CalibrationSolver
+from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
 
 def synthetic_cameras(

@@ -15,8 +15,10 @@ import time
 
 import torch
 
-from ccs_kornia.modules.heatmap_unet import CornerUNet
-from ccs_kornia.modules.subpixel import gaussian_fit, heatmap_peaks, sigma_outlier_rejection
+from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
+from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
+from ccs_kornia.modules.detection.peaks import heatmap_peaks
+from ccs_kornia.modules.detection.sigma_rejection import sigma_outlier_rejection
 
 
 def _sync(device: torch.device) -> None:

@@ -263,7 +263,7 @@ def _inputs(command: str, items: Sequence[str]) -> list[str]:
 
 
 def _make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: bool = True, seed: int = 0):
-    from ccs_kornia.modules.detector import make_detector
+    from ccs_kornia.modules.detection.factory import make_detector
     from ccs_kornia.pipeline import CalibrationPipeline
 
     try:
@@ -444,7 +444,7 @@ def _calibrate_files(
         result = pipeline.calibrate(corners, valid, board, square, image_size)
     timings["solve_s"] = time.perf_counter() - start
     if not bool(torch.as_tensor(result.success).all()):
-        from ccs_kornia.modules.calibrator import VIEW_REASONS
+        from ccs_kornia.modules.calibration.result import VIEW_REASONS
 
         failed_fit = "in the failed refinement (no consistent camera)"
         texts = [failed_fit if int(c) == 0 else VIEW_REASONS.get(int(c), "not used by the solver")
@@ -467,7 +467,7 @@ def _calibrate_files(
 
 
 def _first_camera(result):
-    from ccs_kornia.modules.calibrator import CalibrationResult
+    from ccs_kornia.modules.calibration.result import CalibrationResult
 
     return CalibrationResult(**{k: (v[0] if hasattr(v, "dim") else v) for k, v in result.__dict__.items()})
 
@@ -493,7 +493,7 @@ def _predict_correction(command: str, files: list[str], pipeline, device, batch_
     size = max(per_size, key=lambda k: sum(t.shape[0] for t in per_size[k]))
     views = torch.cat(per_size[size])
     coeffs, apply = pipeline.pool_corrections(views[None], size)
-    from ccs_kornia.modules.undistort import correction_displacement
+    from ccs_kornia.modules.correction.pooling import correction_displacement
 
     return {"image_size": size, "coeffs": coeffs[0], "apply": bool(apply[0]), "views": int(views.shape[0]),
             "displacement_px": float(correction_displacement(coeffs, size)[0])}

@@ -455,7 +455,7 @@ def calibration_record(
         views: from :func:`plan_views` (updated in place with ``used``, ``rms``, poses, reasons).
         usable: the paths given to the solver, in the order of the result's views.
         image_size: ``(W, H)``.
-        result: an unbatched :class:`~ccs_kornia.modules.calibrator.CalibrationResult` (views in the
+        result: an unbatched :class:`~ccs_kornia.modules.calibration.result.CalibrationResult` (views in the
             order of ``usable``).
         board, square, detector, model: recorded as given.
         reasons: view reason codes to text (default: the solver's ``VIEW_REASONS``).
@@ -465,7 +465,7 @@ def calibration_record(
         ``num_views``, ``skipped``, ...).
     """
     if reasons is None:
-        from ccs_kornia.modules.calibrator import VIEW_REASONS as reasons  # noqa: N811
+        from ccs_kornia.modules.calibration.result import VIEW_REASONS as reasons  # noqa: N811
     K = result.K.detach().double().cpu()
     dist = result.dist.detach().double().cpu()
     view_rms = result.view_rms.detach().double().cpu().tolist()

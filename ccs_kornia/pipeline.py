@@ -1,8 +1,8 @@
 """Chessboard images in, camera calibration out: the composed inference pipeline.
 
-:class:`CalibrationPipeline` chains a :class:`~ccs_kornia.modules.detector.ChessboardDetector` (the
+:class:`CalibrationPipeline` chains a :class:`~ccs_kornia.modules.detection.base.ChessboardDetector` (the
 learned heatmap detector or the OpenCV baseline) and the
-:class:`~ccs_kornia.modules.calibrator.CalibrationSolver` (homographies, Zhang initialisation,
+:class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` (homographies, Zhang initialisation,
 image-level RANSAC, joint Levenberg-Marquardt refinement). Each stage is usable alone
 (:meth:`CalibrationPipeline.detect`, :meth:`CalibrationPipeline.calibrate`), which is how the
 command line streams large image sets: detect batch by batch, then solve once.
@@ -12,60 +12,43 @@ This module imports neither the command line nor Lightning.
 
 Large images (longer side above ``max_detection_side``, 2048 px by default) are detected on an
 area-downscaled copy; the corners are mapped back to full resolution and refined there on a small
-patch around each corner (:func:`~ccs_kornia.modules.corner_refine.refine_corners`). The OpenCV detector
+patch around each corner (:func:`~ccs_kornia.modules.detection.saddle_refine.refine_corners`). The OpenCV detector
 takes about a minute on a blank 6000x4000 image and far longer on textured ones, so full-resolution
 detection of 24 Mpx photographs is not a usable default; the refinement keeps their sub-pixel
 precision.
 
 Distortion correction (paper Sec. III-A, on by default): the
-:class:`~ccs_kornia.modules.distortion_net.DistortionNet` predicts a radial correction per view; the views of a
-camera share a lens, so the predictions are pooled into one correction per camera
-(:func:`~ccs_kornia.modules.undistort.aggregate_corrections`). Where it moves pixels by more than
-``min_correction`` of the half diagonal, the images are corrected (:func:`~ccs_kornia.modules.undistort.radial_undistort_image`),
-the board is detected in the corrected images, the corners are mapped back to the original images (boards missed
-there are looked for in the originals) and polished there. The camera is then calibrated in the corrected frame
-(:meth:`CalibrationPipeline.calibrate_corrected`): a pinhole calibration of the corrected corners, the
-correction re-fitted to it, and, beyond the paper, a joint refinement of intrinsics, correction and poses
-(:func:`~ccs_kornia.modules.corrected_frame.refine_centred_radial`) until they stop changing; the output
-OpenCV model's distortion is finally fitted with those intrinsics held. If that fits the observed corners
-clearly worse than the usual joint calibration (a lens whose distortion is not centred on the image), the
-usual one is kept. ``image_rounds`` adds the image-based iteration (undistort with the refined model, refine the
-corners there, recalibrate); it is off by default because the interpolation cost precision on rendered boards.
+:class:`~ccs_kornia.modules.correction.distortion_net.DistortionNet` predicts a radial correction per view, pooled
+into one per camera (:mod:`~ccs_kornia.modules.correction.pooling`). Where it moves pixels by more than
+``min_correction`` of the half diagonal, the images are corrected
+(:func:`~ccs_kornia.modules.correction.radial_warp.radial_undistort_image`), the board is detected in the corrected
+images, the corners are mapped back to the original images (boards missed there are looked for in the originals)
+and polished there; the camera is then calibrated in the corrected frame
+(:mod:`~ccs_kornia.modules.correction.corrected_frame`), kept unless it fits the observed corners clearly worse
+than the usual joint calibration.
 """
 
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ccs_kornia.camera import board_object_points, fit_opencv_distortion, project_points
-from ccs_kornia.modules.calibrator import CalibrationResult, CalibrationSolver
-from ccs_kornia.modules.centred_radial import radial_from_correction, refine_centred_radial
-from ccs_kornia.modules.corner_refine import CornerRefiner, grid_spacing, refine_corners
-from ccs_kornia.modules.detector import ChessboardDetector, DetectionResult, make_detector
-from ccs_kornia.modules.undistort import (
-    aggregate_corrections,
-    correct_points,
-    corrected_radius,
-    correction_displacement,
-    distort_points_from_correction,
-    fit_correction_to_points,
-    opencv_distorted_frame,
-    opencv_undistort_image,
-    opencv_undistorted_frame,
-    radial_undistort_image,
-)
+from ccs_kornia.camera import board_object_points
+from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.modules.correction import corrected_frame
+from ccs_kornia.modules.correction.distortion_net import load_distortion_net
+from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
+from ccs_kornia.modules.correction.radial_warp import distort_points_from_correction, radial_undistort_image
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.detection.factory import make_detector
+from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners
 
-#: the shipped distortion-correction network
-DEFAULT_DISTORTION_WEIGHTS = Path(__file__).resolve().parent / "weights" / "distortion_net.pt"
-
-__all__ = ["DEFAULT_DISTORTION_WEIGHTS", "PipelineResult", "CalibrationPipeline"]
+__all__ = ["PipelineResult", "CalibrationPipeline"]
 
 
 @dataclass
@@ -75,7 +58,7 @@ class PipelineResult:
     Attributes:
         detections: corners :math:`(V, N, 2)` / :math:`(C, V, N, 2)` and found :math:`(V,)` /
             :math:`(C, V)`.
-        calibration: the solver's :class:`~ccs_kornia.modules.calibrator.CalibrationResult`
+        calibration: the solver's :class:`~ccs_kornia.modules.calibration.result.CalibrationResult`
             (camera dimension squeezed away for unbatched input).
         correction: the radial correction per camera :math:`(5,)` / :math:`(C, 5)`: the network's pooled
             prediction, or the refined one where the camera was calibrated in the corrected frame (``None`` when
@@ -140,7 +123,7 @@ class CalibrationPipeline(nn.Module):
     """Detect chessboard corners and calibrate the camera(s).
 
     Args:
-        detector: a detector name for :func:`~ccs_kornia.modules.detector.make_detector`
+        detector: a detector name for :func:`~ccs_kornia.modules.detection.factory.make_detector`
             (``"opencv"`` or ``"learned"``) or a :class:`ChessboardDetector` instance.
         model: output distortion model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational`` or
             ``none``.
@@ -159,13 +142,10 @@ class CalibrationPipeline(nn.Module):
             model centres it on the image centre; real lenses centre it near the principal point).
         joint_iters: Levenberg-Marquardt iterations at most of the joint refinement of intrinsics, image-centred
             radial distortion and poses (0: the pinhole calibration of the corrected corners as it is).
-        image_rounds: rounds of undistorting the images with the refined OpenCV model, refining the corners there
-            and recalibrating, before the corrected-frame calibration (0 by default: on rendered boards the
-            interpolation made the corners worse, see ``docs/benchmarks.md``).
         max_rms_ratio: the corrected-frame calibration is kept only if its radial model's RMS on the observed
             corners is at most this times that of the usual calibration in the output model (equal parameter
             counts for ``opencv5``: the better fit wins); otherwise the usual one is returned.
-        solver_kwargs: further options of :class:`~ccs_kornia.modules.calibrator.CalibrationSolver`
+        solver_kwargs: further options of :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`
             (e.g. ``fix_aspect_ratio=True``).
 
     Example:
@@ -188,7 +168,6 @@ class CalibrationPipeline(nn.Module):
         distortion_correction=True,
         min_correction: float = 0.02,
         joint_iters: int = 50,
-        image_rounds: int = 0,
         max_rms_ratio: float = 1.0,
         free_distortion_centre: bool = True,
         **solver_kwargs,
@@ -206,34 +185,15 @@ class CalibrationPipeline(nn.Module):
         self.detection_batch_size = detection_batch_size
         self.max_detection_side = int(max_detection_side) if max_detection_side else None
         self.refiner = CornerRefiner()
-        self.distortion_net = self._load_distortion_net(distortion_correction)
+        self.distortion_net = load_distortion_net(distortion_correction)
         if joint_iters < 0:
             raise ValueError(f"joint_iters must be >= 0, got {joint_iters}.")
         if not min_correction >= 0:
             raise ValueError(f"min_correction must be >= 0, got {min_correction}.")
         self.min_correction = float(min_correction)
         self.joint_iters = int(joint_iters)
-        if image_rounds < 0:
-            raise ValueError(f"image_rounds must be >= 0, got {image_rounds}.")
-        self.image_rounds = int(image_rounds)
         self.max_rms_ratio = float(max_rms_ratio)
         self.free_distortion_centre = bool(free_distortion_centre)
-
-    @staticmethod
-    def _load_distortion_net(spec) -> nn.Module | None:
-        from ccs_kornia.modules.distortion_net import DistortionNet
-
-        if spec is False or spec is None:
-            return None
-        if isinstance(spec, DistortionNet):
-            return spec.eval()
-        path = DEFAULT_DISTORTION_WEIGHTS if spec is True else spec
-        if not os.path.isfile(path):
-            raise FileNotFoundError(
-                f"distortion correction weights not found at {path}; pass distortion_correction=False to calibrate "
-                "without the correction network"
-            )
-        return DistortionNet.from_export(path)
 
     def _detect_chunk(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         """Detect on ``(B, 1, H, W)``, through a downscaled copy when the images are large."""
@@ -329,10 +289,10 @@ class CalibrationPipeline(nn.Module):
             square: square side in world units (scales the translations only).
             image_size: ``(W, H)``.
             init_corners, initial: optional start of the solver (undistorted corners / a previous result), see
-                :class:`~ccs_kornia.modules.calibrator.CalibrationSolver`.
+                :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
 
         Returns:
-            The solver's :class:`~ccs_kornia.modules.calibrator.CalibrationResult`.
+            The solver's :class:`~ccs_kornia.modules.calibration.result.CalibrationResult`.
         """
         cols, rows = int(board_size[0]), int(board_size[1])
         if corners.dim() not in (3, 4) or corners.shape[-1] != 2 or corners.shape[-2] != cols * rows:
@@ -403,7 +363,7 @@ class CalibrationPipeline(nn.Module):
             if found_idx.numel():
                 corners[found_idx] = self._refine_full_resolution(images, corners[found_idx], found_idx, board_size)
             return DetectionResult(corners, det.found, det.reasons)
-        zoom = float(self._correction_zoom(corr, size))
+        zoom = float(corrected_frame.correction_zoom(corr, size))
         parts_c, parts_f, reasons = [], [], []
         for i in range(0, b, self.detection_batch_size):
             chunk = slice(i, i + self.detection_batch_size)
@@ -431,44 +391,6 @@ class CalibrationPipeline(nn.Module):
                 corners[sel] = self.refiner(images[sel].float(), corners[sel].float(), cells, board_size).double()
         return DetectionResult(corners.float(), found, reasons)
 
-    def refine_undistorted(
-        self, images: torch.Tensor, corners: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, board_size: tuple[int, int]
-    ) -> torch.Tensor:
-        """Undistort the images with an OpenCV model, refine the corners there, map them back.
-
-        Args:
-            images: :math:`(B, 1, H, W)`; corners: :math:`(B, N, 2)` in the original images (found boards only);
-            K: :math:`(3, 3)` or :math:`(B, 3, 3)`; dist: :math:`(D,)` or :math:`(B, D)`.
-
-        Returns:
-            :math:`(B, N, 2)` float64 refined corners in the original images.
-        """
-        b, n = corners.shape[:2]
-        h, w = images.shape[-2:]
-        K = K.to(device=images.device, dtype=torch.float64)
-        dist = dist.to(device=images.device, dtype=torch.float64)
-        K = K.expand(b, 3, 3) if K.dim() == 2 else K
-        dist = dist.expand(b, -1) if dist.dim() == 1 else dist
-        pts = corners.to(device=images.device, dtype=torch.float64)
-        # the undistorted frame: largest zoom <= 1 that keeps every corner 8 px inside it
-        zoom = 1.0
-        for _ in range(4):
-            u = opencv_undistorted_frame(pts, K, dist, zoom)
-            over = torch.maximum((u[..., 0] - (w - 1) / 2).abs() / ((w - 1) / 2 - 8),
-                                 (u[..., 1] - (h - 1) / 2).abs() / ((h - 1) / 2 - 8))
-            worst = float(over.nan_to_num(1.0).amax())
-            if worst <= 1.0:
-                break
-            zoom = zoom / worst
-        with torch.inference_mode():
-            und = opencv_undistort_image(images.float(), K, dist, zoom=zoom)
-            u = opencv_undistorted_frame(pts, K, dist, zoom)
-            cells = torch.ones(b, n, dtype=torch.bool, device=pts.device)
-            refined = self.refiner(und, u.float(), cells, board_size).double()
-            back = opencv_distorted_frame(refined, K, dist, zoom)
-        ok = back.isfinite().all(-1, keepdim=True) & ((back - pts).norm(dim=-1, keepdim=True) < 2.0)
-        return torch.where(ok, back, pts)
-
     def solve_with_correction(
         self,
         corners: torch.Tensor,
@@ -480,7 +402,8 @@ class CalibrationPipeline(nn.Module):
         image_size: tuple[int, int],
     ) -> tuple[CalibrationResult, torch.Tensor, torch.Tensor]:
         """The solver stage of the corrected pipeline: the usual calibration, and for cameras in ``apply`` the
-        corrected-frame one (:meth:`calibrate_corrected`), kept unless it fits the observed corners clearly worse.
+        corrected-frame one, kept unless it fits the observed corners clearly worse
+        (:func:`~ccs_kornia.modules.correction.corrected_frame.solve_with_correction`).
 
         Args:
             corners: :math:`(C, V, N, 2)`; found: :math:`(C, V)`; correction: :math:`(C, 5)` pooled corrections;
@@ -489,24 +412,12 @@ class CalibrationPipeline(nn.Module):
         Returns:
             (calibration, correction per camera (re-fitted where applied), applied :math:`(C,)`).
         """
-        calib = self.calibrate(corners, found, board_size, square, image_size)
-        applied = apply.to(corners.device).clone()
-        correction = correction.to(corners.device)
-        # the model selection below compares equal parameter counts: the radial model (k1, k2, k3 + centre) against
-        # opencv5 (or the richer rational model); for k1k2 / none the usual calibration is kept
-        if bool(applied.any()) and self.model in ("opencv5", "rational"):
-            corrected, refined, model_rms = self.calibrate_corrected(corners, found, correction, board_size, square,
-                                                                     image_size)
-            # model selection on the observed corners: the radial model about a free centre (the paper's) against
-            # OpenCV's (radial about the principal point + tangential), same number of parameters; the better fit
-            # wins
-            fits = model_rms.to(calib.rms) <= self.max_rms_ratio * calib.rms.nan_to_num(float("inf"))
-            applied = applied & corrected.success & fits
-            calib = _select_cameras(applied, corrected, calib)
-            correction = torch.where(applied[:, None], refined, correction)
-        else:
-            applied = torch.zeros_like(applied)
-        return calib, correction, applied
+        usual = self.calibrate(corners, found, board_size, square, image_size)
+        return corrected_frame.solve_with_correction(
+            self.solver, usual, corners, found, correction, apply, board_size, square, image_size,
+            joint_iters=self.joint_iters, free_distortion_centre=self.free_distortion_centre,
+            max_rms_ratio=self.max_rms_ratio,
+        )
 
     def calibrate_corrected(
         self,
@@ -517,95 +428,17 @@ class CalibrationPipeline(nn.Module):
         square: float,
         image_size: tuple[int, int],
     ) -> tuple[CalibrationResult, torch.Tensor, torch.Tensor]:
-        """Calibrate in the radially corrected frame, then express the camera in the OpenCV model.
-
-        The paper's order: the correction removes the lens distortion first, so the intrinsics are estimated
-        on (nearly) pinhole corners with only a small residual ``k1, k2`` to absorb what the network missed;
-        estimating strong distortion and intrinsics together is where they trade off against each other.
-        The correction is then re-fitted to that camera (observed corners -> their pinhole projections,
-        :func:`~ccs_kornia.modules.undistort.fit_correction_to_points`) and, beyond the paper, intrinsics,
-        correction and poses are refined together (:func:`~ccs_kornia.modules.corrected_frame.refine_centred_radial`,
-        at most ``joint_iters`` LM iterations). Finally the intrinsics are held and the output model's distortion
-        and the poses are refined on the observed corners (closed-form start, then LM).
-
-        Args:
-            corners: :math:`(C, V, N, 2)` observed corners; found: :math:`(C, V)`.
-            correction: :math:`(C, 5)` initial correction (the network's).
+        """Calibrate in the radially corrected frame, then express the camera in the output model
+        (:func:`~ccs_kornia.modules.correction.corrected_frame.calibrate_corrected` with this pipeline's solver).
 
         Returns:
-            (result in the OpenCV model, refined correction :math:`(C, 5)`, RMS reprojection error of the radial
-            model :math:`(C,)`, before the conversion to the output model).
+            (result in the output model, refined correction :math:`(C, 5)`, RMS reprojection error of the radial
+            model :math:`(C,)`).
         """
-        c, v, n = corners.shape[:3]
-        dev = corners.device
-        corners = corners.to(torch.float64)
-        valid = found.to(dev)[..., None].expand(c, v, n)
-        obj = board_object_points(int(board_size[0]), int(board_size[1]), float(square), device=dev, dtype=torch.float64)
-        frame_solver = CalibrationSolver(
-            model="k1k2", use_ransac=self.solver.use_ransac, seed=0, fix_aspect_ratio=self.solver.fix_aspect_ratio,
-            fix_principal_point=self.solver.fix_principal_point,
+        return corrected_frame.calibrate_corrected(
+            self.solver, corners, found, correction, board_size, square, image_size,
+            joint_iters=self.joint_iters, free_distortion_centre=self.free_distortion_centre,
         )
-        corr = correction.to(device=dev, dtype=torch.float64)
-        with torch.inference_mode():
-            # 1. pinhole (+ small residual k1, k2) calibration on the network-corrected corners
-            pinhole = correct_points(corners.reshape(c, v * n, 2), corr, image_size).reshape(c, v, n, 2)
-            res = frame_solver(pinhole, valid, obj, image_size)
-            # 2. the correction re-fitted to that camera (absorbs the residual)
-            ideal = project_points(obj.expand(c, v, n, 3), res.K[:, None].expand(c, v, 3, 3), None, res.rvec, res.tvec)
-            use = valid & res.used[..., None]
-            refit = fit_correction_to_points(corners.reshape(c, v * n, 2), ideal.reshape(c, v * n, 2), image_size,
-                                             use.reshape(c, v * n))
-            corr = torch.where((res.success & refit.isfinite().all(-1))[:, None], refit, corr)
-        model_rms = None
-        if self.joint_iters > 0:
-            # 3. intrinsics, image-centred radial distortion and poses together, on the observed corners
-            # (inference tensors cloned for forward-mode autodiff)
-            radial0 = radial_from_correction(corr, image_size)
-            K1, rad1, rv1, tv1, rms1, _, std1 = refine_centred_radial(
-                corners.clone(), use.clone(), obj.clone(), res.K.nan_to_num(1.0).clone(), res.rvec.clone(),
-                res.tvec.clone(), radial0.clone(), image_size, max_iters=self.joint_iters,
-                free_centre=self.free_distortion_centre,
-            )
-            good = res.success & K1.flatten(1).isfinite().all(-1) & rad1.isfinite().all(-1) & rms1.isfinite()
-            std_intrinsics = torch.where(good[:, None], std1, res.std_intrinsics)
-            model_rms = torch.where(good, rms1, torch.full_like(rms1, float("inf")))
-            res = _with_fields(res, K=torch.where(good[:, None, None], K1, res.K),
-                               rvec=torch.where(good[:, None, None], rv1, res.rvec),
-                               tvec=torch.where(good[:, None, None], tv1, res.tvec))
-        with torch.inference_mode():
-            ideal = project_points(obj.expand(c, v, n, 3), res.K[:, None].expand(c, v, 3, 3), None, res.rvec, res.tvec)
-            fit_model = {"k1k2": "k1k2", "rational": "rational"}.get(self.model, "opencv5")
-            use = (valid & res.used[..., None]).reshape(c, v * n)
-            dist0 = fit_opencv_distortion(ideal.reshape(c, v * n, 2).nan_to_num(0.0), corners.reshape(c, v * n, 2),
-                                          res.K.nan_to_num(0.0), fit_model, mask=use)
-            start = _with_fields(res, dist=dist0.nan_to_num(0.0))
-            out = self.solver(corners, valid, obj, image_size, initial=start, fix_intrinsics=True)
-        if self.joint_iters > 0:
-            # the intrinsics were estimated by the joint refinement: report its uncertainty, not the fixed one's 0
-            out = _with_fields(out, std_intrinsics=torch.where(out.success[:, None], std_intrinsics.to(out.K.dtype),
-                                                               out.std_intrinsics))
-        return out, corr, (out.rms if model_rms is None else model_rms)
-
-    def _image_round(self, flat, corners, found, calib: CalibrationResult, strong, board_size) -> torch.Tensor:
-        """One round of :meth:`refine_undistorted` on every found view of the corrected cameras."""
-        c, v, n = corners.shape[:3]
-        ok = (found & strong[:, None] & calib.success[:, None]).reshape(-1)
-        sel = ok.nonzero().flatten()
-        if sel.numel() == 0:
-            return corners
-        new = corners.clone().reshape(c * v, n, 2)
-        cam = sel // v
-        new[sel] = self.refine_undistorted(flat[sel], new[sel], calib.K[cam], calib.dist[cam], board_size)
-        return new.reshape(c, v, n, 2)
-
-    @staticmethod
-    def _correction_zoom(correction: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
-        """Zoom that keeps the farthest original image corner in the frame after correction (in [0.5, 1])."""
-        w, h = size
-        scale = float(max(w, h))
-        r = 0.5 * math.hypot(w - 1, h - 1) / scale
-        g = corrected_radius(torch.full_like(correction[:, :1], r, dtype=torch.float64), correction.double())[:, 0]
-        return (r / g.clamp_min(1e-6)).clamp(0.5, 1.0).min()
 
     # ------------------------------------------------------------------------------------------
 
@@ -654,10 +487,6 @@ class CalibrationPipeline(nn.Module):
             for k, i in enumerate(sel.tolist()):
                 reasons[i] = det.reasons[k] if det.reasons else ""
         corners, found = corners.reshape(c, v, n, 2), found.reshape(c, v)
-        if self.image_rounds and bool(strong.any()) and self.model in ("opencv5", "rational"):
-            calib = self.calibrate(corners, found, board_size, square, size)
-            for _ in range(self.image_rounds):
-                corners = self._image_round(flat, corners, found, calib, strong.to(corners.device), board_size)
         calib, correction, strong = self.solve_with_correction(corners, found, correction, strong, board_size, square, size)
         detections = DetectionResult(corners.to(torch.float32), found, reasons)
         out = PipelineResult(detections, calib, correction, strong)
@@ -667,20 +496,3 @@ class CalibrationPipeline(nn.Module):
             out = PipelineResult(det, cal, correction[0], strong[0])
         return out
 
-
-def _with_fields(result: CalibrationResult, **fields) -> CalibrationResult:
-    values = dict(result.__dict__)
-    values.update(fields)
-    return CalibrationResult(**values)
-
-
-def _select_cameras(keep: torch.Tensor, a: CalibrationResult, b: CalibrationResult) -> CalibrationResult:
-    """Per camera, ``a`` where ``keep`` else ``b`` (every tensor field has the camera dimension first)."""
-    out = {}
-    for k, va in a.__dict__.items():
-        vb = getattr(b, k)
-        if isinstance(va, torch.Tensor) and isinstance(vb, torch.Tensor) and va.shape == vb.shape:
-            out[k] = torch.where(keep.to(va.device).view(-1, *([1] * (va.dim() - 1))), va, vb)
-        else:
-            out[k] = va
-    return CalibrationResult(**out)

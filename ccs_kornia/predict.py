@@ -34,7 +34,7 @@ from lightning.pytorch.callbacks import BasePredictionWriter
 from torch.utils.data import DataLoader, Dataset
 
 from ccs_kornia.io import IMAGE_EXTENSIONS, calibration_record, json_line, load_image_gray, plan_views
-from ccs_kornia.modules.calibrator import CalibrationResult
+from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.pipeline import CalibrationPipeline
 
 __all__ = [

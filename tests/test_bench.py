@@ -93,7 +93,7 @@ def test_methods_detect_rendered_boards_precisely():
 
 
 def test_learned_method_reports_missing_weights_or_is_available():
-    from ccs_kornia.modules.learned_detector import DEFAULT_DETECTOR_WEIGHTS
+    from ccs_kornia.modules.detection.learned_detector import DEFAULT_DETECTOR_WEIGHTS
 
     m = make_methods(("learned",))["learned"]
     if DEFAULT_DETECTOR_WEIGHTS.is_file():
@@ -192,7 +192,7 @@ def test_markdown_keeps_hand_written_reading(tiny_run, tmp_path):
 
 def test_distortion_section_with_an_untrained_network(tmp_path):
     from ccs_kornia.bench.distortion import run_distortion
-    from ccs_kornia.modules.distortion_net import DistortionNet
+    from ccs_kornia.modules.correction.distortion_net import DistortionNet
 
     net = DistortionNet(base_channels=4, input_size=64)
     weights = tmp_path / "dnet.pt"

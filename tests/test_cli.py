@@ -263,7 +263,7 @@ def test_cuda_without_cuda(rendered, tmp_path, capsys):
 
 
 def test_learned_detector_unavailable(rendered, tmp_path, capsys, monkeypatch):
-    monkeypatch.setitem(sys.modules, "ccs_kornia.modules.learned_detector", None)
+    monkeypatch.setitem(sys.modules, "ccs_kornia.modules.detection.learned_detector", None)
     _, files, _ = rendered
     code, _, err = run(capsys, "detect", *files[:1], "--board", "9x6", "--output", str(tmp_path / "d.json"), "--detector", "learned")
     assert code == 2

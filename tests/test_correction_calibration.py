@@ -11,13 +11,16 @@ import torch
 from ccs_kornia.camera import board_object_points, project_points, radial_undistort_points
 from ccs_kornia.data.synthetic import make_calibration_set
 from ccs_kornia.metrics import e_ip
-from ccs_kornia.modules.calibrator import CalibrationSolver
-from ccs_kornia.modules.centred_radial import centred_radial_distort, radial_from_correction, refine_centred_radial
-from ccs_kornia.modules.undistort import (
-    aggregate_corrections,
-    correct_points,
-    correction_displacement,
-    fit_correction_to_points,
+from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.modules.calibration.centred_radial import (
+    centred_radial_distort,
+    radial_from_correction,
+    refine_centred_radial,
+)
+from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
+from ccs_kornia.modules.correction.radial_warp import correct_points
+from ccs_kornia.modules.correction.correction_fit import fit_correction_to_points
+from ccs_kornia.modules.correction.opencv_warp import (
     opencv_distorted_frame,
     opencv_undistort_image,
     opencv_undistorted_frame,

@@ -11,15 +11,10 @@ import torch
 
 from ccs_kornia.data.synthetic import make_calibration_set
 from ccs_kornia.io import load_image_gray
-from ccs_kornia.modules.detector import (
-    ChessboardDetector,
-    DetectionResult,
-    OpenCVChessboardDetector,
-    board_extends,
-    canonical_corner_order,
-    check_grid,
-    make_detector,
-)
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
+from ccs_kornia.modules.detection.board_checks import board_extends, canonical_corner_order, check_grid
+from ccs_kornia.modules.detection.factory import make_detector
 
 BOARD = (9, 6)
 K = torch.tensor([[620.0, 0.0, 322.0], [0.0, 610.0, 236.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
@@ -150,7 +145,7 @@ def test_make_detector(monkeypatch):
     assert isinstance(make_detector("opencv"), OpenCVChessboardDetector)
     with pytest.raises(ValueError, match="unknown detector"):
         make_detector("magic")
-    monkeypatch.setitem(sys.modules, "ccs_kornia.modules.learned_detector", None)  # import fails
+    monkeypatch.setitem(sys.modules, "ccs_kornia.modules.detection.learned_detector", None)  # import fails
     with pytest.raises(ValueError, match="use --detector opencv"):
         make_detector("learned")
 

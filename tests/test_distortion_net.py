@@ -7,7 +7,7 @@ import time
 import pytest
 import torch
 
-from ccs_kornia.modules.distortion_net import (
+from ccs_kornia.modules.correction.distortion_net import (
     CORRECTION_NODES,
     DistortionNet,
     correction_from_node_values,

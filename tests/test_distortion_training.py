@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from ccs_kornia.data.distortion_datamodule import DistortionDataModule, flip_batch
-from ccs_kornia.modules.distortion_net import DistortionNet
-from ccs_kornia.modules.undistort import straightness_rms
+from ccs_kornia.modules.correction.distortion_net import DistortionNet
+from ccs_kornia.modules.correction.straightness import straightness_rms
 from ccs_kornia.training.distortion import DistortionLitModule, export_distortion_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]

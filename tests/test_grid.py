@@ -15,13 +15,8 @@ from ccs_kornia.camera import (
     project_points,
     rotation_matrix_to_axis_angle,
 )
-from ccs_kornia.modules.grid import (
-    CollinearityRefiner,
-    GridOrganizer,
-    collinearity_refine,
-    is_symmetric_board,
-    organize_grid,
-)
+from ccs_kornia.modules.detection.collinearity import CollinearityRefiner, collinearity_refine
+from ccs_kornia.modules.detection.grid_organizer import GridOrganizer, is_symmetric_board, organize_grid
 
 F64 = torch.float64
 W, H = 640, 480

@@ -7,7 +7,7 @@ import torch
 import torch.nn.functional as F
 
 from ccs_kornia.losses.heatmap_loss import HeatmapLoss, heatmap_loss
-from ccs_kornia.modules.heatmap_unet import CornerUNet
+from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
 
 
 def _num_params(net: torch.nn.Module) -> int:

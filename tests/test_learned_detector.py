@@ -10,8 +10,8 @@ import torch
 from ccs_kornia.camera import intrinsics_matrix
 from ccs_kornia.data.augment import textured_background
 from ccs_kornia.data.synthetic import make_calibration_set
-from ccs_kornia.modules.detector import make_detector
-from ccs_kornia.modules.learned_detector import DEFAULT_DETECTOR_WEIGHTS, LearnedChessboardDetector
+from ccs_kornia.modules.detection.factory import make_detector
+from ccs_kornia.modules.detection.learned_detector import DEFAULT_DETECTOR_WEIGHTS, LearnedChessboardDetector
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 

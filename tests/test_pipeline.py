@@ -7,7 +7,7 @@ import torch
 
 from ccs_kornia.data.synthetic import make_calibration_set
 from ccs_kornia.metrics import e_ip
-from ccs_kornia.modules.detector import OpenCVChessboardDetector
+from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
 from ccs_kornia.pipeline import CalibrationPipeline, PipelineResult
 
 BOARD = (9, 6)
@@ -162,7 +162,7 @@ def test_correction_unbatched_equals_batched(images, corrected_result):
 
 
 def test_correction_switch_and_errors(tmp_path):
-    from ccs_kornia.modules.distortion_net import DistortionNet
+    from ccs_kornia.modules.correction.distortion_net import DistortionNet
 
     assert CalibrationPipeline("opencv", distortion_correction=False).distortion_net is None
     net = DistortionNet(base_channels=4, input_size=64)

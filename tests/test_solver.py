@@ -14,11 +14,13 @@ import torch
 
 from ccs_kornia.camera import axis_angle_to_rotation_matrix, board_object_points, project_points
 from ccs_kornia.metrics import e_fl, e_ip, e_pp, per_view_rms, rms
-from ccs_kornia.modules.calibrator import VIEW_REASONS, CalibrationSolver
-from ccs_kornia.modules.homography import BatchedHomography, find_homographies
-from ccs_kornia.modules.ransac import ImageRansac
-from ccs_kornia.modules.refine import JointRefinement, joint_refinement, project_with_jacobians
-from ccs_kornia.modules.zhang import ZhangInit, extrinsics_from_homography, zhang_intrinsics
+from ccs_kornia.modules.calibration.result import VIEW_REASONS
+from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.modules.calibration.homography import BatchedHomography, find_homographies
+from ccs_kornia.modules.calibration.ransac import ImageRansac
+from ccs_kornia.modules.calibration.refine import JointRefinement, joint_refinement
+from ccs_kornia.modules.calibration.projection import project_with_jacobians
+from ccs_kornia.modules.calibration.zhang import ZhangInit, extrinsics_from_homography, zhang_intrinsics
 
 F64 = torch.float64
 IMAGE_SIZE = (640, 480)

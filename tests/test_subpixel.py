@@ -6,14 +6,9 @@ import pytest
 import torch
 from kornia.geometry.subpix import render_gaussian2d
 
-from ccs_kornia.modules.subpixel import (
-    GaussianFit,
-    HeatmapPeaks,
-    SigmaOutlierRejection,
-    gaussian_fit,
-    heatmap_peaks,
-    sigma_outlier_rejection,
-)
+from ccs_kornia.modules.detection.gaussian_fit import GaussianFit, gaussian_fit
+from ccs_kornia.modules.detection.peaks import HeatmapPeaks, heatmap_peaks
+from ccs_kornia.modules.detection.sigma_rejection import SigmaOutlierRejection, sigma_outlier_rejection
 
 SIGMA = 1.5
 
@@ -254,7 +249,7 @@ class TestSigmaOutlierRejection:
 
 def test_unet_to_subpixel_chain() -> None:
     """Shapes and dtypes flow from the UNet through the three stages (untrained net: no accuracy claim)."""
-    from ccs_kornia.modules.heatmap_unet import CornerUNet
+    from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
 
     torch.manual_seed(0)
     net = CornerUNet(base_channels=4, depth=2).eval()

@@ -9,14 +9,14 @@ import torch
 
 from ccs_kornia import camera
 from ccs_kornia.data.synthetic import render_chessboard, sample_radial_distortion
-from ccs_kornia.modules.undistort import (
+from ccs_kornia.modules.correction.radial_warp import (
     RadialUndistort,
     correct_points,
     distort_points_from_correction,
     invert_correction_radius,
     radial_undistort_image,
-    straightness_rms,
 )
+from ccs_kornia.modules.correction.straightness import straightness_rms
 
 IDENTITY = torch.tensor([[1.0, 0.0, 0.0, 0.0, 0.0]])
 

@@ -304,10 +304,10 @@ def orient_grid(corners: np.ndarray, board: tuple[int, int]) -> np.ndarray:
 
     A board seen from its front keeps ``(step along i) x (step along j) > 0`` in image coordinates
     (y down); a detector that returns the mirrored order gets its columns flipped. Then
-    :func:`ccs_kornia.modules.detector.canonical_corner_order` picks the orientation whose first
+    :func:`ccs_kornia.modules.detection.board_checks.canonical_corner_order` picks the orientation whose first
     corner is nearest the image's top-left, so every method and view follows one convention.
     """
-    from ccs_kornia.modules.detector import canonical_corner_order
+    from ccs_kornia.modules.detection.board_checks import canonical_corner_order
 
     cols, rows = board
     g = np.asarray(corners, dtype=np.float64).reshape(rows, cols, 2)
@@ -444,10 +444,10 @@ def _libcbdetect_method() -> tuple[Callable | None, str]:
 
 
 def _learned_method(batch: int) -> tuple[Callable | None, str]:
-    from ccs_kornia.modules.detector import make_detector
+    from ccs_kornia.modules.detection.factory import make_detector
 
     try:
-        from ccs_kornia.modules.learned_detector import DEFAULT_DETECTOR_WEIGHTS
+        from ccs_kornia.modules.detection.learned_detector import DEFAULT_DETECTOR_WEIGHTS
     except ImportError as err:
         return None, f"learned detector module not available ({err})"
     if not DEFAULT_DETECTOR_WEIGHTS.is_file():
@@ -475,8 +475,8 @@ def _learned_method(batch: int) -> tuple[Callable | None, str]:
 
 
 def _opencv_saddle_method() -> Callable:
-    from ccs_kornia.modules.corner_refine import CornerRefiner
-    from ccs_kornia.modules.detector import OpenCVChessboardDetector
+    from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
+    from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
 
     det, refiner = OpenCVChessboardDetector(), CornerRefiner()
 
@@ -559,7 +559,7 @@ def ccs_calibrate(
     corners: np.ndarray, found: np.ndarray, board: tuple[int, int], square: float, image_size: tuple[int, int],
     model: str = "opencv5", device: str = "cpu",
 ) -> dict:
-    """:class:`~ccs_kornia.modules.calibrator.CalibrationSolver`, batched over cameras (trials).
+    """:class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`, batched over cameras (trials).
 
     Args:
         corners: :math:`(C, V, N, 2)` pixels.
@@ -568,7 +568,7 @@ def ccs_calibrate(
     Returns:
         ``{"success" (C,), "K" (C,3,3), "rms" (C,), "views" (C,) used views}`` as numpy arrays.
     """
-    from ccs_kornia.modules.calibrator import CalibrationSolver
+    from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
     c = torch.as_tensor(corners, dtype=torch.float64, device=device)
     f = torch.as_tensor(found, dtype=torch.bool, device=device)

@@ -36,10 +36,10 @@ from ccs_kornia.bench.common import (
     render_scenes,
 )
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
+from ccs_kornia.modules.correction.distortion_net import DEFAULT_DISTORTION_WEIGHTS
 
-__all__ = ["DEFAULT_DISTORTION_WEIGHTS", "distortion_available", "run_distortion", "render_wide_scenes"]
+__all__ = ["distortion_available", "run_distortion", "render_wide_scenes"]
 
-DEFAULT_DISTORTION_WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "distortion_net.pt"
 
 #: success of a wide-camera calibration: a camera returned, and E_IP below this (px)
 WIDE_SUCCESS_EIP = 5.0
@@ -48,8 +48,8 @@ WIDE_SUCCESS_EIP = 5.0
 def distortion_available(weights: str | Path | None = None):
     """``(net, "")`` when the DistortionNet module and its weights load, else ``(None, reason)``."""
     try:
-        from ccs_kornia.modules import undistort  # noqa: F401
-        from ccs_kornia.modules.distortion_net import DistortionNet
+        from ccs_kornia.modules.correction import radial_warp  # noqa: F401
+        from ccs_kornia.modules.correction.distortion_net import DistortionNet
     except ImportError as err:
         return None, f"distortion correction module not available ({err})"
     path = Path(weights) if weights else DEFAULT_DISTORTION_WEIGHTS
@@ -91,7 +91,8 @@ def render_wide_scenes(cfg: BenchConfig, cameras: int, views: int) -> Scenes:
 def _network_part(pipeline, scenes: Scenes, image_size: tuple[int, int], board: tuple[int, int]) -> dict:
     from ccs_kornia.camera import fit_radial_correction
     from ccs_kornia.losses.grid_loss import grid_loss, normalize_distortion_scale
-    from ccs_kornia.modules.undistort import correct_points, straightness_rms
+    from ccs_kornia.modules.correction.radial_warp import correct_points
+    from ccs_kornia.modules.correction.straightness import straightness_rms
 
     c, v = scenes.images.shape[:2]
     per_view = pipeline.view_corrections(scenes.flat_images)  # (C*V, 5) float64
@@ -201,7 +202,7 @@ def run_distortion(cfg: BenchConfig, methods: dict[str, DetectionMethod], device
     if net is None:
         log(f"[distortion] skipped: {reason}")
         return {"skipped": reason}
-    from ccs_kornia.modules.detector import make_detector
+    from ccs_kornia.modules.detection.factory import make_detector
     from ccs_kornia.pipeline import CalibrationPipeline
 
     try:

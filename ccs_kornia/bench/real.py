@@ -166,7 +166,7 @@ def _pipeline_on_set(cfg, images, board, square, size, model, subsets, reference
     """The product's default path on one set: ``CalibrationPipeline`` with the distortion correction (learned
     detector; detection on corrected images where the pooled correction applies; corrected solver stage)."""
     from ccs_kornia.bench.distortion import distortion_available
-    from ccs_kornia.modules.detector import make_detector
+    from ccs_kornia.modules.detection.factory import make_detector
     from ccs_kornia.pipeline import CalibrationPipeline
 
     net, _ = distortion_available(cfg.distortion_weights)

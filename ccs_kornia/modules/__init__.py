@@ -1,40 +1,41 @@
-"""The stages, each an ``nn.Module`` on batched tensors (see docs/architecture.md)."""
+"""The stages, each an ``nn.Module`` on batched tensors, one sub-package per stage of the paper (see docs/architecture.md).
+
+``correction/`` (distortion correction), ``detection/`` (corners in grid order), ``calibration/`` (the solver).
+
+Names are imported lazily (PEP 562): importing this package loads none of its modules.
+
+Example:
+    >>> import ccs_kornia.modules as m
+    >>> m.CalibrationSolver.__module__
+    'ccs_kornia.modules.calibration.solver'
+"""
 
 from __future__ import annotations
 
-from ccs_kornia.modules.calibrator import CalibrationResult, CalibrationSolver
-from ccs_kornia.modules.corner_refine import CornerRefiner
-from ccs_kornia.modules.detector import ChessboardDetector, DetectionResult, OpenCVChessboardDetector, make_detector
-from ccs_kornia.modules.distortion_net import DistortionNet
-from ccs_kornia.modules.grid import CollinearityRefiner, GridOrganizer
-from ccs_kornia.modules.heatmap_unet import CornerUNet
-from ccs_kornia.modules.homography import BatchedHomography
-from ccs_kornia.modules.learned_detector import LearnedChessboardDetector
-from ccs_kornia.modules.ransac import ImageRansac
-from ccs_kornia.modules.refine import JointRefinement
-from ccs_kornia.modules.subpixel import GaussianFit, HeatmapPeaks, SigmaOutlierRejection
-from ccs_kornia.modules.undistort import RadialUndistort
-from ccs_kornia.modules.zhang import ZhangInit
+from ccs_kornia._lazy import lazy_exports
 
-__all__ = [
-    "BatchedHomography",
-    "CalibrationResult",
-    "CalibrationSolver",
-    "ChessboardDetector",
-    "CollinearityRefiner",
-    "CornerRefiner",
-    "CornerUNet",
-    "DetectionResult",
-    "DistortionNet",
-    "GaussianFit",
-    "GridOrganizer",
-    "HeatmapPeaks",
-    "ImageRansac",
-    "JointRefinement",
-    "LearnedChessboardDetector",
-    "OpenCVChessboardDetector",
-    "RadialUndistort",
-    "SigmaOutlierRejection",
-    "ZhangInit",
-    "make_detector",
-]
+_EXPORTS = {
+    "BatchedHomography": "ccs_kornia.modules.calibration.homography",
+    "CalibrationResult": "ccs_kornia.modules.calibration.result",
+    "CalibrationSolver": "ccs_kornia.modules.calibration.solver",
+    "ChessboardDetector": "ccs_kornia.modules.detection.base",
+    "CollinearityRefiner": "ccs_kornia.modules.detection.collinearity",
+    "CornerRefiner": "ccs_kornia.modules.detection.saddle_refine",
+    "CornerUNet": "ccs_kornia.modules.detection.heatmap_unet",
+    "DetectionResult": "ccs_kornia.modules.detection.base",
+    "DistortionNet": "ccs_kornia.modules.correction.distortion_net",
+    "GaussianFit": "ccs_kornia.modules.detection.gaussian_fit",
+    "GridOrganizer": "ccs_kornia.modules.detection.grid_organizer",
+    "HeatmapPeaks": "ccs_kornia.modules.detection.peaks",
+    "ImageRansac": "ccs_kornia.modules.calibration.ransac",
+    "JointRefinement": "ccs_kornia.modules.calibration.refine",
+    "LearnedChessboardDetector": "ccs_kornia.modules.detection.learned_detector",
+    "OpenCVChessboardDetector": "ccs_kornia.modules.detection.opencv_detector",
+    "RadialUndistort": "ccs_kornia.modules.correction.radial_warp",
+    "SigmaOutlierRejection": "ccs_kornia.modules.detection.sigma_rejection",
+    "ZhangInit": "ccs_kornia.modules.calibration.zhang",
+    "make_detector": "ccs_kornia.modules.detection.factory",
+}
+
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -13,8 +13,9 @@ import torch
 
 from ccs_kornia.camera import fit_radial_correction
 from ccs_kornia.losses.grid_loss import GridLoss, grid_loss, grid_targets, normalize_distortion_scale
-from ccs_kornia.modules.distortion_net import DistortionNet
-from ccs_kornia.modules.undistort import correct_points, straightness_rms
+from ccs_kornia.modules.correction.distortion_net import DistortionNet
+from ccs_kornia.modules.correction.radial_warp import correct_points
+from ccs_kornia.modules.correction.straightness import straightness_rms
 from ccs_kornia.training.common import adamw_one_cycle
 
 __all__ = ["DistortionLitModule", "export_distortion_checkpoint"]

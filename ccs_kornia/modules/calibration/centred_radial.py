@@ -21,7 +21,7 @@ import torch
 from torch.func import jacfwd
 
 from ccs_kornia import camera
-from ccs_kornia.modules.undistort import corrected_radius
+from ccs_kornia.modules.correction.radial_warp import corrected_radius
 
 __all__ = ["centred_radial_distort", "radial_from_correction", "refine_centred_radial"]
 

@@ -22,6 +22,7 @@ so an untrained network returns exactly the identity correction ``(1, 0, 0, 0, 0
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +32,17 @@ from kornia.color import rgb_to_grayscale
 from kornia.geometry.transform import resize
 from torch import nn
 
-__all__ = ["DistortionNet", "letterbox", "correction_from_node_values", "CORRECTION_NODES"]
+__all__ = [
+    "DistortionNet",
+    "letterbox",
+    "correction_from_node_values",
+    "CORRECTION_NODES",
+    "DEFAULT_DISTORTION_WEIGHTS",
+    "load_distortion_net",
+]
+
+#: the shipped distortion-correction network
+DEFAULT_DISTORTION_WEIGHTS = Path(__file__).resolve().parents[2] / "weights" / "distortion_net.pt"
 
 _NORMS = ("batch", "group", "none")
 #: radius range covered by the node parameterisation (units of max(W, H)); the image corner is at <= 0.7071
@@ -222,3 +233,26 @@ class DistortionNet(nn.Module):
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
+
+
+def load_distortion_net(spec: bool | str | Path | DistortionNet | None = True) -> DistortionNet | None:
+    """The distortion network a pipeline runs: ``True`` the shipped one, ``False``/``None`` none, a path or a net.
+
+    Raises:
+        FileNotFoundError: no weight file at the path.
+
+    Example:
+        >>> load_distortion_net(False) is None, type(load_distortion_net(True)).__name__
+        (True, 'DistortionNet')
+    """
+    if spec is False or spec is None:
+        return None
+    if isinstance(spec, DistortionNet):
+        return spec.eval()
+    path = DEFAULT_DISTORTION_WEIGHTS if spec is True else spec
+    if not os.path.isfile(path):
+        raise FileNotFoundError(
+            f"distortion correction weights not found at {path}; pass distortion_correction=False to calibrate "
+            "without the correction network"
+        )
+    return DistortionNet.from_export(path)

@@ -1,56 +1,25 @@
 """The calibration solver: homographies -> Zhang -> image RANSAC -> joint LM -> outlier check -> LM.
 
 Batched over cameras (C) and views (V); views without a usable board are padded and masked. Every stage is
-a module of its own (``homography.py``, ``zhang.py``, ``ransac.py``, ``refine.py``); this one only composes
-them and keeps the bookkeeping of which view was used and why not.
+a module of its own (``homography.py``, ``zhang.py``, ``ransac.py``, ``refine.py`` in
+``ccs_kornia/modules/calibration/``); this one only composes them and keeps the bookkeeping of which view
+was used and why not.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
 
 import torch
 from torch import nn
 
 from ccs_kornia.camera import fit_opencv_distortion, project_points
-from ccs_kornia.modules.homography import MIN_HOMOGRAPHY_POINTS, find_homographies
-from ccs_kornia.modules.ransac import ImageRansac
-from ccs_kornia.modules.refine import FREE_DISTORTION, RefinementResult, joint_refinement
-from ccs_kornia.modules.zhang import extrinsics_from_homography, zhang_intrinsics
+from ccs_kornia.modules.calibration.homography import MIN_HOMOGRAPHY_POINTS, find_homographies
+from ccs_kornia.modules.calibration.ransac import ImageRansac
+from ccs_kornia.modules.calibration.refine import FREE_DISTORTION, RefinementResult, joint_refinement
+from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules.calibration.zhang import extrinsics_from_homography, zhang_intrinsics
 
-__all__ = ["VIEW_REASONS", "CalibrationResult", "CalibrationSolver", "calibrate"]
-
-#: codes of ``CalibrationResult.view_reason``
-VIEW_REASONS: dict[int, str] = {
-    0: "used",
-    1: "too few corners",
-    2: "homography failed (degenerate corners)",
-    3: "rejected by image RANSAC",
-    4: "reprojection error outlier after refinement",
-}
-
-
-@dataclass
-class CalibrationResult:
-    """Calibration of C cameras from V views each (the C dim is absent for unbatched input)."""
-
-    K: torch.Tensor  #: (C, 3, 3)
-    dist: torch.Tensor  #: (C, D) OpenCV order (k1, k2, p1, p2, k3[, k4, k5, k6])
-    rvec: torch.Tensor  #: (C, V, 3) world-to-camera axis-angle per view
-    tvec: torch.Tensor  #: (C, V, 3)
-    view_rms: torch.Tensor  #: (C, V) px, NaN for views not used
-    used: torch.Tensor  #: (C, V) bool
-    rms: torch.Tensor  #: (C,) OpenCV's definition: sqrt(sum squared error / number of points) over used views
-    std_intrinsics: torch.Tensor  #: (C, 4) std of fx, fy, cx, cy
-    std_dist: torch.Tensor  #: (C, D)
-    success: torch.Tensor  #: (C,) bool
-    model: str
-    view_reason: torch.Tensor  #: (C, V) int64, keys of VIEW_REASONS
-    converged: torch.Tensor  #: (C,) bool, LM met its tolerance
-    candidate_rms: torch.Tensor  #: (C, V) px: every view with a homography under the final model (used or not)
-
-    def tensors(self) -> dict[str, torch.Tensor]:
-        return {f.name: getattr(self, f.name) for f in fields(self) if isinstance(getattr(self, f.name), torch.Tensor)}
+__all__ = ["CalibrationSolver", "calibrate"]
 
 
 def _check_inputs(corners, valid, object_points, image_size):

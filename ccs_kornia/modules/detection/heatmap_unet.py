@@ -3,7 +3,7 @@
 The network is the classic UNet of Ronneberger et al.: per level two ``conv3x3 -> norm -> ReLU`` blocks, max-pool
 down, bilinear upsampling (or a transposed convolution) up, skip connections by channel concatenation and a final
 ``1x1`` convolution. Its output is a one-channel heatmap in ``[0, 1]`` in which every inner corner of the board is a
-2-D Gaussian blob (the training target), ready for :mod:`ccs_kornia.modules.subpixel`.
+2-D Gaussian blob (the training target), ready for :mod:`ccs_kornia.modules.detection.peaks`.
 
 Any input size is accepted: the image is padded (edge replication, so the pad does not create artificial step
 edges that could look like board edges) up to a multiple of ``2 ** depth`` and the output is cropped back, so the

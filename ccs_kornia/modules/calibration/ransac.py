@@ -17,7 +17,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia.modules.zhang import zhang_intrinsics
+from ccs_kornia.modules.calibration.zhang import zhang_intrinsics
 
 __all__ = ["hypothesis_view_rms", "image_ransac", "ImageRansac"]
 
@@ -198,7 +198,7 @@ class ImageRansac(nn.Module):
 
     Example:
         >>> from ccs_kornia.camera import board_object_points, project_points
-        >>> from ccs_kornia.modules.homography import find_homographies
+        >>> from ccs_kornia.modules.calibration.homography import find_homographies
         >>> obj = board_object_points(5, 4, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[600., 0, 320], [0, 600, 240], [0, 0, 1]], dtype=torch.float64)
         >>> rvec = 0.3 * torch.randn(6, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)

@@ -6,16 +6,20 @@ from pathlib import Path
 
 import torch
 
-from ccs_kornia.modules.corner_refine import CornerRefiner, grid_spacing, refine_corners, x_junction_mask
-from ccs_kornia.modules.detector import ChessboardDetector, DetectionResult
-from ccs_kornia.modules.grid import collinearity_refine, organize_grid, predict_missing_corners
-from ccs_kornia.modules.heatmap_unet import CornerUNet
-from ccs_kornia.modules.subpixel import gaussian_fit, heatmap_peaks, sigma_outlier_rejection
+from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners, x_junction_mask
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.detection.collinearity import collinearity_refine
+from ccs_kornia.modules.detection.grid_organizer import organize_grid
+from ccs_kornia.modules.detection.missing_corners import predict_missing_corners
+from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
+from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
+from ccs_kornia.modules.detection.peaks import heatmap_peaks
+from ccs_kornia.modules.detection.sigma_rejection import sigma_outlier_rejection
 
 __all__ = ["DEFAULT_DETECTOR_WEIGHTS", "load_corner_unet", "LearnedChessboardDetector"]
 
 #: weights shipped inside the package (see docs/training.md for how they were made)
-DEFAULT_DETECTOR_WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "corner_unet.pt"
+DEFAULT_DETECTOR_WEIGHTS = Path(__file__).resolve().parents[2] / "weights" / "corner_unet.pt"
 
 
 def load_corner_unet(path: str | Path | None = None, map_location: str | torch.device = "cpu") -> tuple[CornerUNet, float]:

@@ -1,0 +1,59 @@
+"""Shape and argument checks shared by the stages (kornia's ``KORNIA_CHECK_SHAPE`` with our error type).
+
+Every stage checks its inputs at the boundary and raises ``ValueError`` with a message that names the
+argument, the expected shape and the shape it got. The shape patterns are kornia's: ``["B", "N", "2"]``
+means three dimensions, the last of size 2; a leading ``"*"`` allows any leading dimensions.
+
+Example:
+    >>> import torch
+    >>> check_shape(torch.zeros(2, 5, 2), ["B", "N", "2"], "points must be (B, N, 2)")
+    >>> check_shape(torch.zeros(2, 5), ["B", "N", "2"], "points must be (B, N, 2)")
+    Traceback (most recent call last):
+    ...
+    ValueError: points must be (B, N, 2), got (2, 5).
+    >>> check_board_size((9, 6))
+    (9, 6)
+"""
+
+from __future__ import annotations
+
+import torch
+from kornia.core.check import KORNIA_CHECK_SHAPE
+
+__all__ = ["check_shape", "check_board_size", "check_points", "check_correction"]
+
+
+def check_shape(x: object, shape: list[str], expected: str) -> None:
+    """Raise ``ValueError(f"{expected}, got {shape}.")`` unless ``x`` is a tensor matching ``shape``.
+
+    Args:
+        x: the argument to check.
+        shape: kornia shape pattern, e.g. ``["B", "1", "H", "W"]``.
+        expected: the start of the message, e.g. ``"image must be (B, 1, H, W)"``.
+    """
+    if not isinstance(x, torch.Tensor):
+        raise ValueError(f"{expected}, got {type(x).__name__}.")
+    if not KORNIA_CHECK_SHAPE(x, shape, raises=False):
+        raise ValueError(f"{expected}, got {tuple(x.shape)}.")
+
+
+def check_board_size(board_size: tuple[int, int]) -> tuple[int, int]:
+    """``(cols, rows)`` as ints, at least 2x2 inner corners; raises ``ValueError`` otherwise."""
+    if len(board_size) != 2:
+        raise ValueError(f"board_size must be (cols, rows), got {board_size}.")
+    cols, rows = int(board_size[0]), int(board_size[1])
+    if cols < 2 or rows < 2:
+        raise ValueError(f"A board needs at least 2x2 inner corners, got {cols}x{rows}.")
+    return cols, rows
+
+
+def check_points(points: torch.Tensor) -> None:
+    """Pixel points :math:`(B, N, 2)`."""
+    check_shape(points, ["B", "N", "2"], "points must be (B, N, 2)")
+
+
+def check_correction(correction: torch.Tensor, batch: int | None = None) -> None:
+    """Radial correction coefficients :math:`(B, 5)` (``B`` 1 or ``batch`` when given)."""
+    check_shape(correction, ["B", "5"], "correction must be (B, 5) coefficients (k0'..k4')")
+    if batch is not None and correction.shape[0] not in (1, batch):
+        raise ValueError(f"correction batch {correction.shape[0]} does not match {batch}.")

@@ -1,0 +1,41 @@
+"""Calibration stage: homographies, Zhang, RANSAC, joint Levenberg-Marquardt, the solver composing them.
+
+Names are imported lazily (PEP 562): importing this package loads none of its modules.
+
+Example:
+    >>> from ccs_kornia.modules.calibration import VIEW_REASONS
+    >>> VIEW_REASONS[0]
+    'used'
+"""
+
+from __future__ import annotations
+
+from ccs_kornia._lazy import lazy_exports
+
+_EXPORTS = {
+    "VIEW_REASONS": "ccs_kornia.modules.calibration.result",
+    "CalibrationResult": "ccs_kornia.modules.calibration.result",
+    "CalibrationSolver": "ccs_kornia.modules.calibration.solver",
+    "calibrate": "ccs_kornia.modules.calibration.solver",
+    "MIN_HOMOGRAPHY_POINTS": "ccs_kornia.modules.calibration.homography",
+    "find_homographies": "ccs_kornia.modules.calibration.homography",
+    "BatchedHomography": "ccs_kornia.modules.calibration.homography",
+    "zhang_intrinsics": "ccs_kornia.modules.calibration.zhang",
+    "extrinsics_from_homography": "ccs_kornia.modules.calibration.zhang",
+    "rotation_translation_from_homography": "ccs_kornia.modules.calibration.zhang",
+    "ZhangInit": "ccs_kornia.modules.calibration.zhang",
+    "hypothesis_view_rms": "ccs_kornia.modules.calibration.ransac",
+    "image_ransac": "ccs_kornia.modules.calibration.ransac",
+    "ImageRansac": "ccs_kornia.modules.calibration.ransac",
+    "project_with_jacobians": "ccs_kornia.modules.calibration.projection",
+    "RefinementResult": "ccs_kornia.modules.calibration.refine",
+    "joint_refinement": "ccs_kornia.modules.calibration.refine",
+    "JointRefinement": "ccs_kornia.modules.calibration.refine",
+    "FREE_DISTORTION": "ccs_kornia.modules.calibration.refine",
+    "centred_radial_distort": "ccs_kornia.modules.calibration.centred_radial",
+    "radial_from_correction": "ccs_kornia.modules.calibration.centred_radial",
+    "refine_centred_radial": "ccs_kornia.modules.calibration.centred_radial",
+}
+
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

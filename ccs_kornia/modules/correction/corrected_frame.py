@@ -1,0 +1,199 @@
+"""Calibration in the radially corrected frame (paper Sec. III-A, and a joint refinement beyond it).
+
+Where the distortion network's pooled correction is applied (:class:`~ccs_kornia.pipeline.CalibrationPipeline`),
+the camera is calibrated in the corrected frame (:func:`calibrate_corrected`): a pinhole calibration of the
+corrected corners, the correction re-fitted to it, and a joint refinement of intrinsics, correction and poses
+(:func:`~ccs_kornia.modules.calibration.centred_radial.refine_centred_radial`) until they stop changing; the
+output OpenCV model's distortion is finally fitted with those intrinsics held. :func:`solve_with_correction` keeps
+it only where it fits the observed corners at least as well as the usual joint calibration (a lens whose
+distortion is not centred on the image keeps the usual one).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from ccs_kornia.camera import board_object_points, fit_opencv_distortion, project_points
+from ccs_kornia.modules.calibration.centred_radial import radial_from_correction, refine_centred_radial
+from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.modules.correction.correction_fit import fit_correction_to_points
+from ccs_kornia.modules.correction.radial_warp import correct_points, corrected_radius
+
+__all__ = ["solve_with_correction", "calibrate_corrected", "correction_zoom", "with_fields", "select_cameras"]
+
+
+def solve_with_correction(
+    solver: CalibrationSolver,
+    usual: CalibrationResult,
+    corners: torch.Tensor,
+    found: torch.Tensor,
+    correction: torch.Tensor,
+    apply: torch.Tensor,
+    board_size: tuple[int, int],
+    square: float,
+    image_size: tuple[int, int],
+    joint_iters: int = 50,
+    free_distortion_centre: bool = True,
+    max_rms_ratio: float = 1.0,
+) -> tuple[CalibrationResult, torch.Tensor, torch.Tensor]:
+    """The solver stage of the corrected pipeline: the usual calibration, and for cameras in ``apply`` the
+    corrected-frame one (:func:`calibrate_corrected`), kept unless it fits the observed corners clearly worse.
+
+    Args:
+        solver: the usual solver (its model is the output model).
+        usual: the usual calibration of these corners by ``solver``.
+        corners: :math:`(C, V, N, 2)`; found: :math:`(C, V)`; correction: :math:`(C, 5)` pooled corrections;
+        apply: :math:`(C,)` bool, cameras to calibrate in the corrected frame.
+        board_size, square, image_size: the board and the image size ``(W, H)``.
+        joint_iters, free_distortion_centre: see :func:`calibrate_corrected`.
+        max_rms_ratio: the corrected-frame calibration is kept only if its radial model's RMS on the observed
+            corners is at most this times that of the usual calibration.
+
+    Returns:
+        (calibration, correction per camera (re-fitted where applied), applied :math:`(C,)`).
+    """
+    calib = usual
+    applied = apply.to(corners.device).clone()
+    correction = correction.to(corners.device)
+    # the model selection below compares equal parameter counts: the radial model (k1, k2, k3 + centre) against
+    # opencv5 (or the richer rational model); for k1k2 / none the usual calibration is kept
+    if bool(applied.any()) and solver.model in ("opencv5", "rational"):
+        corrected, refined, model_rms = calibrate_corrected(solver, corners, found, correction, board_size, square,
+                                                            image_size, joint_iters, free_distortion_centre)
+        # model selection on the observed corners: the radial model about a free centre (the paper's) against
+        # OpenCV's (radial about the principal point + tangential), same number of parameters; the better fit
+        # wins
+        fits = model_rms.to(calib.rms) <= max_rms_ratio * calib.rms.nan_to_num(float("inf"))
+        applied = applied & corrected.success & fits
+        calib = select_cameras(applied, corrected, calib)
+        correction = torch.where(applied[:, None], refined, correction)
+    else:
+        applied = torch.zeros_like(applied)
+    return calib, correction, applied
+
+
+def calibrate_corrected(
+    solver: CalibrationSolver,
+    corners: torch.Tensor,
+    found: torch.Tensor,
+    correction: torch.Tensor,
+    board_size: tuple[int, int],
+    square: float,
+    image_size: tuple[int, int],
+    joint_iters: int = 50,
+    free_distortion_centre: bool = True,
+) -> tuple[CalibrationResult, torch.Tensor, torch.Tensor]:
+    """Calibrate in the radially corrected frame, then express the camera in the OpenCV model.
+
+    The paper's order: the correction removes the lens distortion first, so the intrinsics are estimated
+    on (nearly) pinhole corners with only a small residual ``k1, k2`` to absorb what the network missed;
+    estimating strong distortion and intrinsics together is where they trade off against each other.
+    The correction is then re-fitted to that camera (observed corners -> their pinhole projections,
+    :func:`~ccs_kornia.modules.correction.correction_fit.fit_correction_to_points`) and, beyond the paper,
+    intrinsics, correction and poses are refined together
+    (:func:`~ccs_kornia.modules.calibration.centred_radial.refine_centred_radial`, at most ``joint_iters`` LM
+    iterations). Finally the intrinsics are held and the output model's distortion
+    and the poses are refined on the observed corners (closed-form start, then LM).
+
+    Args:
+        solver: the usual solver: its model is the output model, its RANSAC and intrinsics options carry over.
+        corners: :math:`(C, V, N, 2)` observed corners; found: :math:`(C, V)`.
+        correction: :math:`(C, 5)` initial correction (the network's).
+        board_size, square, image_size: the board and the image size ``(W, H)``.
+        joint_iters: Levenberg-Marquardt iterations at most of the joint refinement (0: the pinhole calibration
+            of the corrected corners as it is).
+        free_distortion_centre: the joint refinement also estimates the distortion centre.
+
+    Returns:
+        (result in the OpenCV model, refined correction :math:`(C, 5)`, RMS reprojection error of the radial
+        model :math:`(C,)`, before the conversion to the output model).
+    """
+    c, v, n = corners.shape[:3]
+    dev = corners.device
+    corners = corners.to(torch.float64)
+    valid = found.to(dev)[..., None].expand(c, v, n)
+    obj = board_object_points(int(board_size[0]), int(board_size[1]), float(square), device=dev, dtype=torch.float64)
+    frame_solver = CalibrationSolver(
+        model="k1k2", use_ransac=solver.use_ransac, seed=0, fix_aspect_ratio=solver.fix_aspect_ratio,
+        fix_principal_point=solver.fix_principal_point,
+    )
+    corr = correction.to(device=dev, dtype=torch.float64)
+    with torch.inference_mode():
+        # 1. pinhole (+ small residual k1, k2) calibration on the network-corrected corners
+        pinhole = correct_points(corners.reshape(c, v * n, 2), corr, image_size).reshape(c, v, n, 2)
+        res = frame_solver(pinhole, valid, obj, image_size)
+        # 2. the correction re-fitted to that camera (absorbs the residual)
+        ideal = project_points(obj.expand(c, v, n, 3), res.K[:, None].expand(c, v, 3, 3), None, res.rvec, res.tvec)
+        use = valid & res.used[..., None]
+        refit = fit_correction_to_points(corners.reshape(c, v * n, 2), ideal.reshape(c, v * n, 2), image_size,
+                                         use.reshape(c, v * n))
+        corr = torch.where((res.success & refit.isfinite().all(-1))[:, None], refit, corr)
+    model_rms = None
+    if joint_iters > 0:
+        # 3. intrinsics, image-centred radial distortion and poses together, on the observed corners
+        # (inference tensors cloned for forward-mode autodiff)
+        radial0 = radial_from_correction(corr, image_size)
+        K1, rad1, rv1, tv1, rms1, _, std1 = refine_centred_radial(
+            corners.clone(), use.clone(), obj.clone(), res.K.nan_to_num(1.0).clone(), res.rvec.clone(),
+            res.tvec.clone(), radial0.clone(), image_size, max_iters=joint_iters,
+            free_centre=free_distortion_centre,
+        )
+        good = res.success & K1.flatten(1).isfinite().all(-1) & rad1.isfinite().all(-1) & rms1.isfinite()
+        std_intrinsics = torch.where(good[:, None], std1, res.std_intrinsics)
+        model_rms = torch.where(good, rms1, torch.full_like(rms1, float("inf")))
+        res = with_fields(res, K=torch.where(good[:, None, None], K1, res.K),
+                          rvec=torch.where(good[:, None, None], rv1, res.rvec),
+                          tvec=torch.where(good[:, None, None], tv1, res.tvec))
+    with torch.inference_mode():
+        ideal = project_points(obj.expand(c, v, n, 3), res.K[:, None].expand(c, v, 3, 3), None, res.rvec, res.tvec)
+        fit_model = {"k1k2": "k1k2", "rational": "rational"}.get(solver.model, "opencv5")
+        use = (valid & res.used[..., None]).reshape(c, v * n)
+        dist0 = fit_opencv_distortion(ideal.reshape(c, v * n, 2).nan_to_num(0.0), corners.reshape(c, v * n, 2),
+                                      res.K.nan_to_num(0.0), fit_model, mask=use)
+        start = with_fields(res, dist=dist0.nan_to_num(0.0))
+        out = solver(corners, valid, obj, image_size, initial=start, fix_intrinsics=True)
+    if joint_iters > 0:
+        # the intrinsics were estimated by the joint refinement: report its uncertainty, not the fixed one's 0
+        out = with_fields(out, std_intrinsics=torch.where(out.success[:, None], std_intrinsics.to(out.K.dtype),
+                                                          out.std_intrinsics))
+    return out, corr, (out.rms if model_rms is None else model_rms)
+
+
+def correction_zoom(correction: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """Zoom that keeps the farthest original image corner in the frame after correction (in [0.5, 1]).
+
+    Args:
+        correction: :math:`(B, 5)` corrections; the smallest zoom over them is returned.
+        size: ``(W, H)``.
+
+    Example:
+        >>> float(correction_zoom(torch.tensor([[1.0, 0.0, 0.0, 0.0, 0.0]]), (64, 48)))
+        1.0
+    """
+    w, h = size
+    scale = float(max(w, h))
+    r = 0.5 * math.hypot(w - 1, h - 1) / scale
+    g = corrected_radius(torch.full_like(correction[:, :1], r, dtype=torch.float64), correction.double())[:, 0]
+    return (r / g.clamp_min(1e-6)).clamp(0.5, 1.0).min()
+
+
+def with_fields(result: CalibrationResult, **fields) -> CalibrationResult:
+    """A copy of ``result`` with some fields replaced."""
+    values = dict(result.__dict__)
+    values.update(fields)
+    return CalibrationResult(**values)
+
+
+def select_cameras(keep: torch.Tensor, a: CalibrationResult, b: CalibrationResult) -> CalibrationResult:
+    """Per camera, ``a`` where ``keep`` else ``b`` (every tensor field has the camera dimension first)."""
+    out = {}
+    for k, va in a.__dict__.items():
+        vb = getattr(b, k)
+        if isinstance(va, torch.Tensor) and isinstance(vb, torch.Tensor) and va.shape == vb.shape:
+            out[k] = torch.where(keep.to(va.device).view(-1, *([1] * (va.dim() - 1))), va, vb)
+        else:
+            out[k] = va
+    return CalibrationResult(**out)

@@ -1,0 +1,49 @@
+"""Detection stage (paper Sec. III-B): images to corners in grid order.
+
+Names are imported lazily (PEP 562): importing this package loads none of its modules.
+
+Example:
+    >>> from ccs_kornia.modules.detection import make_detector
+    >>> type(make_detector("opencv")).__name__
+    'OpenCVChessboardDetector'
+"""
+
+from __future__ import annotations
+
+from ccs_kornia._lazy import lazy_exports
+
+_EXPORTS = {
+    "DetectionResult": "ccs_kornia.modules.detection.base",
+    "ChessboardDetector": "ccs_kornia.modules.detection.base",
+    "DETECTORS": "ccs_kornia.modules.detection.factory",
+    "make_detector": "ccs_kornia.modules.detection.factory",
+    "OpenCVChessboardDetector": "ccs_kornia.modules.detection.opencv_detector",
+    "check_grid": "ccs_kornia.modules.detection.board_checks",
+    "check_saddles": "ccs_kornia.modules.detection.board_checks",
+    "board_extends": "ccs_kornia.modules.detection.board_checks",
+    "canonical_corner_order": "ccs_kornia.modules.detection.board_checks",
+    "CornerUNet": "ccs_kornia.modules.detection.heatmap_unet",
+    "DoubleConv": "ccs_kornia.modules.detection.heatmap_unet",
+    "heatmap_peaks": "ccs_kornia.modules.detection.peaks",
+    "HeatmapPeaks": "ccs_kornia.modules.detection.peaks",
+    "gaussian_fit": "ccs_kornia.modules.detection.gaussian_fit",
+    "GaussianFit": "ccs_kornia.modules.detection.gaussian_fit",
+    "sigma_outlier_rejection": "ccs_kornia.modules.detection.sigma_rejection",
+    "SigmaOutlierRejection": "ccs_kornia.modules.detection.sigma_rejection",
+    "organize_grid": "ccs_kornia.modules.detection.grid_organizer",
+    "GridOrganizer": "ccs_kornia.modules.detection.grid_organizer",
+    "is_symmetric_board": "ccs_kornia.modules.detection.grid_organizer",
+    "collinearity_refine": "ccs_kornia.modules.detection.collinearity",
+    "CollinearityRefiner": "ccs_kornia.modules.detection.collinearity",
+    "predict_missing_corners": "ccs_kornia.modules.detection.missing_corners",
+    "grid_spacing": "ccs_kornia.modules.detection.saddle_refine",
+    "refine_corners": "ccs_kornia.modules.detection.saddle_refine",
+    "CornerRefiner": "ccs_kornia.modules.detection.saddle_refine",
+    "x_junction_mask": "ccs_kornia.modules.detection.saddle_refine",
+    "DEFAULT_DETECTOR_WEIGHTS": "ccs_kornia.modules.detection.learned_detector",
+    "load_corner_unet": "ccs_kornia.modules.detection.learned_detector",
+    "LearnedChessboardDetector": "ccs_kornia.modules.detection.learned_detector",
+}
+
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

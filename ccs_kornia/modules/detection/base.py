@@ -1,0 +1,53 @@
+"""The detector interface: a batch of grey images in, all ``cols*rows`` inner corners in grid order out.
+
+:class:`ChessboardDetector` is the interface every detector implements (the OpenCV baseline in
+:mod:`~ccs_kornia.modules.detection.opencv_detector`, the learned heatmap detector in
+:mod:`~ccs_kornia.modules.detection.learned_detector`); :class:`DetectionResult` is what they return.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from ccs_kornia.modules._checks import check_shape
+
+__all__ = ["DetectionResult", "ChessboardDetector"]
+
+
+@dataclass
+class DetectionResult:
+    """Corners detected on a batch of images.
+
+    Attributes:
+        corners: :math:`(B, N, 2)` pixel coordinates in grid order (``n = j*cols + i``), zeros where
+            the board was not found.
+        found: :math:`(B,)` bool, the board was found (all ``N`` corners are meaningful).
+        reasons: optional per-image text: how the board was found (``"classic"``, ``"sb"``) or why it
+            was not.
+    """
+
+    corners: torch.Tensor
+    found: torch.Tensor
+    reasons: list[str] | None = None
+
+    @property
+    def valid(self) -> torch.Tensor:
+        """:math:`(B, N)` bool mask of meaningful corners (all of a found board)."""
+        return self.found[..., None].expand(self.corners.shape[:-1])
+
+
+class ChessboardDetector(nn.Module):
+    """Interface: ``forward(images (B,1,H,W) in [0,1], board_size (cols, rows)) -> DetectionResult``."""
+
+    def forward(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:  # pragma: no cover
+        raise NotImplementedError
+
+    @staticmethod
+    def _check_inputs(images: torch.Tensor, board_size: tuple[int, int]) -> tuple[int, int]:
+        check_shape(images, ["B", "1", "H", "W"], "Expected grey images of shape (B, 1, H, W)")
+        if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
+            raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
+        return int(board_size[0]), int(board_size[1])

@@ -1,0 +1,211 @@
+"""Checks of a detected corner grid and its canonical order (numpy, one board at a time).
+
+* :func:`check_grid`: the corners form a plausible ``cols x rows`` lattice (no fold, turn or jump);
+* :func:`check_saddles`: every corner is an X-junction of the checker pattern;
+* :func:`board_extends`: the checker pattern does not continue past a side (a sub-board of a larger board);
+* :func:`canonical_corner_order`: of the orderings that describe the same physical grid (reversed for
+  180-degree-symmetric boards, also the 90-degree rotations for square ones) the one whose first corner is
+  nearest the image's top-left corner, so every view of a set uses the same convention.
+
+OpenCV hands us one board at a time anyway, so these run per board on the CPU.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["check_grid", "check_saddles", "board_extends", "canonical_corner_order"]
+
+
+def check_grid(corners: np.ndarray, board_size: tuple[int, int], image_size: tuple[int, int] | None = None) -> str:
+    """Check that ``corners`` form a plausible ``cols x rows`` lattice; return ``""`` or the reason.
+
+    A perspective (and moderately distorted) view of a board keeps, along every row and column,
+    steps that point the same way, turn gently and change length gradually, and all cells keep the
+    same orientation. False positives and mis-ordered detections break one of these.
+
+    Args:
+        corners: :math:`(N, 2)` corners in grid order.
+        board_size: ``(cols, rows)``.
+        image_size: ``(W, H)``; corners outside the image are rejected when given.
+    """
+    cols, rows = board_size
+    pts = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    if pts.shape[0] != cols * rows:
+        return f"expected {cols * rows} corners, got {pts.shape[0]}"
+    if not np.isfinite(pts).all():
+        return "non-finite corner coordinates"
+    if image_size is not None:
+        w, h = image_size
+        if (pts[:, 0] < -0.5).any() or (pts[:, 1] < -0.5).any() or (pts[:, 0] > w - 0.5).any() or (pts[:, 1] > h - 0.5).any():
+            return "corner outside the image"
+    grid = pts.reshape(rows, cols, 2)
+    for name, steps in (("row", grid[:, 1:] - grid[:, :-1]), ("column", (grid[1:] - grid[:-1]).transpose(1, 0, 2))):
+        # steps: (lines, steps per line, 2)
+        length = np.linalg.norm(steps, axis=-1)
+        if (length < 1.0).any():
+            return f"two neighbouring corners along a {name} coincide"
+        if steps.shape[1] >= 2:
+            a, b = steps[:, 1:], steps[:, :-1]
+            cos = (a * b).sum(-1) / (length[:, 1:] * length[:, :-1])
+            if (cos < 0.7).any():
+                return f"a {name} of corners turns by more than 45 degrees"
+            ratio = length[:, 1:] / length[:, :-1]
+            if (ratio > 2.0).any() or (ratio < 0.5).any():
+                return f"corner spacing along a {name} jumps by more than 2x"
+    # every cell must keep the orientation of the board (no fold, no flip)
+    u = grid[:-1, 1:] - grid[:-1, :-1]
+    v = grid[1:, :-1] - grid[:-1, :-1]
+    cross = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+    if not ((cross > 0).all() or (cross < 0).all()):
+        return "the corner lattice folds over itself"
+    return ""
+
+
+def _sample(image: np.ndarray, points: np.ndarray, radius: float) -> np.ndarray:
+    """Mean intensity in small boxes around ``points`` (K, 2); NaN where the box leaves the image."""
+    h, w = image.shape
+    r = max(1, int(round(radius)))
+    out = np.full(points.shape[0], np.nan)
+    for k, (x, y) in enumerate(points):
+        xi, yi = int(round(x)), int(round(y))
+        if xi - r < 0 or yi - r < 0 or xi + r >= w or yi + r >= h:
+            continue
+        out[k] = image[yi - r : yi + r + 1, xi - r : xi + r + 1].mean()
+    return out
+
+
+def board_extends(image: np.ndarray, corners: np.ndarray, board_size: tuple[int, int]) -> str:
+    """Return the side (``"left"``, ...) where the checker pattern continues past the grid, or ``""``.
+
+    Beyond the outermost corners of a true board lies its outermost row of squares and then a
+    uniform margin. One step further out along the lattice, the two squares that would lie outside
+    therefore have the same colour; on a larger board they alternate like those inside. The test
+    compares the contrast between the two outer squares with that between the two inner ones at
+    every point along each side.
+
+    Args:
+        image: grey ``H x W`` image.
+        corners: :math:`(N, 2)` corners in grid order.
+        board_size: ``(cols, rows)``.
+    """
+    cols, rows = board_size
+    grid = np.asarray(corners, dtype=np.float64).reshape(rows, cols, 2)
+    img = image.astype(np.float32)
+    sides = {
+        "top": (grid[0], grid[1]),
+        "bottom": (grid[-1], grid[-2]),
+        "left": (grid[:, 0], grid[:, 1]),
+        "right": (grid[:, -1], grid[:, -2]),
+    }
+    for side, (edge, inner) in sides.items():
+        out = edge - inner  # one lattice step outwards
+        along = np.gradient(edge, axis=0)  # one lattice step along the side
+        virtual = edge + out  # where the next corner would be on a larger board
+        step = np.minimum(np.linalg.norm(out, axis=1), np.linalg.norm(along, axis=1))
+        radius = max(1.0, 0.08 * float(np.median(step)))
+        # quadrant samples close to the virtual corner: robust to foreshortening and bending
+        outer_a = _sample(img, virtual + 0.3 * out + 0.3 * along, radius)
+        outer_b = _sample(img, virtual + 0.3 * out - 0.3 * along, radius)
+        inner_a = _sample(img, virtual - 0.3 * out + 0.3 * along, radius)
+        inner_b = _sample(img, virtual - 0.3 * out - 0.3 * along, radius)
+        d_out, d_in = np.abs(outer_a - outer_b), np.abs(inner_a - inner_b)
+        ok = np.isfinite(d_out) & np.isfinite(d_in) & (d_in > 0.05 * max(float(img.max() - img.min()), 1e-6))
+        if ok.sum() < max(2, (len(edge) + 1) // 2):
+            continue  # the side runs out of the image or has no contrast: cannot tell
+        ratio = d_out[ok] / d_in[ok]
+        # on a larger board the outer squares alternate like the inner ones (ratio ~ 1) and the
+        # colours flip across the side; on a margin they are equal (ratio ~ 0)
+        flips = np.sign(outer_a[ok] - outer_b[ok]) == -np.sign(inner_a[ok] - inner_b[ok])
+        if np.median(ratio) > 0.5 and (flips & (ratio > 0.4)).mean() > 0.7:
+            return side
+    return ""
+
+
+def check_saddles(image: np.ndarray, corners: np.ndarray, board_size: tuple[int, int], max_ratio: float = 1.0) -> str:
+    """Check that the corners are X-junctions of the checker pattern; return ``""`` or the reason.
+
+    Around a true inner corner the four squares alternate (diagonal squares equal, neighbouring
+    ones different). The classic detector sometimes adds a line of points on the board's outer edge
+    (three squares of one colour meet there), which this rejects. For every corner the quadrant
+    means ``a, b, c, d`` (in turn around it) give the saddle strength ``s = |a + c - b - d| / 2`` and
+    the asymmetry ``e = max(|a - c|, |b - d|)``; a corner fails when ``e > max_ratio * s``. A few
+    failures happen on real photographs (glare, blur), so the view is rejected only when most of an
+    outer row/column fails, or more than a quarter of all corners.
+
+    Args:
+        image: grey ``H x W`` image.
+        corners: :math:`(N, 2)` corners in grid order.
+        board_size: ``(cols, rows)``.
+        max_ratio: asymmetry allowed relative to the saddle strength.
+    """
+    cols, rows = board_size
+    grid = np.asarray(corners, dtype=np.float64).reshape(rows, cols, 2)
+    u, v = np.gradient(grid, axis=1), np.gradient(grid, axis=0)
+    step = np.minimum(np.linalg.norm(u, axis=-1), np.linalg.norm(v, axis=-1))
+    radius = max(1.0, 0.08 * float(np.median(step)))
+    p, u, v = grid.reshape(-1, 2), u.reshape(-1, 2), v.reshape(-1, 2)
+    img = image.astype(np.float32)
+    a = _sample(img, p + 0.3 * u + 0.3 * v, radius)
+    b = _sample(img, p - 0.3 * u + 0.3 * v, radius)
+    c = _sample(img, p - 0.3 * u - 0.3 * v, radius)
+    d = _sample(img, p + 0.3 * u - 0.3 * v, radius)
+    strength = np.abs(a + c - b - d) / 2
+    asym = np.maximum(np.abs(a - c), np.abs(b - d))
+    judged = np.isfinite(strength) & np.isfinite(asym)
+    # halfway between neighbouring corners lies a square's edge (no saddle); a saddle there means
+    # the lattice skipped a row or column of corners
+    reference = float(np.nanmedian(strength)) if judged.any() else 0.0
+    u_grid, v_grid = u.reshape(rows, cols, 2), v.reshape(rows, cols, 2)
+    for axis, name in ((1, "row"), (0, "column")):
+        if grid.shape[axis] < 2:
+            continue
+        first = [slice(None)] * 2
+        second = [slice(None)] * 2
+        first[axis], second[axis] = slice(None, -1), slice(1, None)
+        mid = 0.5 * (grid[tuple(first)] + grid[tuple(second)]).reshape(-1, 2)
+        mu = 0.5 * (u_grid[tuple(first)] + u_grid[tuple(second)]).reshape(-1, 2)
+        mv = 0.5 * (v_grid[tuple(first)] + v_grid[tuple(second)]).reshape(-1, 2)
+        ma = _sample(img, mid + 0.25 * mu + 0.25 * mv, radius)
+        mb = _sample(img, mid - 0.25 * mu + 0.25 * mv, radius)
+        mc = _sample(img, mid - 0.25 * mu - 0.25 * mv, radius)
+        md = _sample(img, mid + 0.25 * mu - 0.25 * mv, radius)
+        mid_strength = np.abs(ma + mc - mb - md) / 2
+        mid_asym = np.maximum(np.abs(ma - mc), np.abs(mb - md))
+        skipped = (mid_strength > 0.5 * reference) & (mid_asym < mid_strength)
+        if reference > 0 and skipped.any():
+            return f"the grid skips a {name} of corners (a corner lies between two detected neighbours)"
+    fails = (judged & (asym > max_ratio * np.maximum(strength, 1e-6))).reshape(rows, cols)
+    judged = judged.reshape(rows, cols)
+    lines = {"top": np.s_[0, :], "bottom": np.s_[-1, :], "left": np.s_[:, 0], "right": np.s_[:, -1]}
+    for side, index in lines.items():
+        n_judged, n_fail = int(judged[index].sum()), int(fails[index].sum())
+        if n_fail >= 2 and n_fail >= 0.75 * n_judged:
+            return f"the corners along the {side} side are not chessboard corners (false or shifted detection)"
+    if fails.sum() > 0.25 * max(int(judged.sum()), 1):
+        return f"{int(fails.sum())} of {int(judged.sum())} points are not chessboard corners"
+    return ""
+
+
+def canonical_corner_order(corners: np.ndarray, board_size: tuple[int, int]) -> np.ndarray:
+    """Reorder a detected grid so that its first corner is the one nearest the image's top-left.
+
+    Only orderings that describe the same physical lattice with the same handedness are considered:
+    the 180-degree rotation (reversed order) always, and the 90/270-degree rotations when
+    ``cols == rows``. Object points stay ``(i*s, j*s, 0)``, so every view of a set (and every
+    detector) follows one convention.
+
+    Args:
+        corners: :math:`(N, 2)` corners in grid order.
+        board_size: ``(cols, rows)``.
+
+    Returns:
+        :math:`(N, 2)` reordered corners.
+    """
+    cols, rows = board_size
+    grid = np.asarray(corners).reshape(rows, cols, 2)
+    candidates = [grid, grid[::-1, ::-1]]
+    if cols == rows:
+        candidates += [np.rot90(grid, 1, axes=(0, 1)), np.rot90(grid, 3, axes=(0, 1))]
+    best = min(candidates, key=lambda g: float(np.hypot(g[0, 0, 0], g[0, 0, 1])))
+    return np.ascontiguousarray(best.reshape(-1, 2))
