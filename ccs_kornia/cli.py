@@ -720,7 +720,7 @@ def _cmd_calibrate_many(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     import torch
 
-    from ccs_kornia.data.synthetic import make_calibration_set
+    from ccs_kornia.data.scenes import make_calibration_set
     from ccs_kornia.io import write_image, write_json
     from ccs_kornia.metrics import e_fl, e_ip, e_pp
 

@@ -149,7 +149,7 @@ class CalibrationPipeline(nn.Module):
             (e.g. ``fix_aspect_ratio=True``).
 
     Example:
-        >>> from ccs_kornia.data.synthetic import make_calibration_set
+        >>> from ccs_kornia.data.scenes import make_calibration_set
         >>> K = torch.tensor([[600., 0, 320], [0, 600, 240], [0, 0, 1]], dtype=torch.float64)
         >>> views = make_calibration_set(K, (9, 6), 0.025, (640, 480), num_views=6, seed=1)
         >>> out = CalibrationPipeline("opencv")(views.images, (9, 6), 0.025)  # doctest: +SKIP

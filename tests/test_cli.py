@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from ccs_kornia import cli
-from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.io import write_image
 from ccs_kornia.metrics import e_ip
 

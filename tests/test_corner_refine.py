@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from ccs_kornia.camera import intrinsics_matrix
-from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners
 
 

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from ccs_kornia.camera import board_object_points, project_points, radial_undistort_points
-from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.metrics import e_ip
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.centred_radial import (

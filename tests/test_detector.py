@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.io import load_image_gray
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from ccs_kornia import camera
-from ccs_kornia.data.synthetic import sample_radial_distortion
+from ccs_kornia.data.sampling import sample_radial_distortion
 from ccs_kornia.losses.grid_loss import GridLoss, grid_loss, grid_targets, normalize_distortion_scale, sampling_grid
 from ccs_kornia.modules.correction.distortion_net import correction_from_node_values
 

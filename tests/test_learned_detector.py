@@ -9,7 +9,7 @@ import torch
 
 from ccs_kornia.camera import intrinsics_matrix
 from ccs_kornia.data.augment import textured_background
-from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.learned_detector import DEFAULT_DETECTOR_WEIGHTS, LearnedChessboardDetector
 

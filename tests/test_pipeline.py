@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.metrics import e_ip
 from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
 from ccs_kornia.pipeline import CalibrationPipeline, PipelineResult

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.io import write_image
 from ccs_kornia.metrics import e_ip
 from ccs_kornia.pipeline import CalibrationPipeline

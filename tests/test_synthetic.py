@@ -9,19 +9,12 @@ import torch
 
 from ccs_kornia import camera
 from ccs_kornia.data import augment
-from ccs_kornia.data.synthetic import _opencv_fold, _undistort_opencv
-from ccs_kornia.data.synthetic import (
-    SyntheticBatch,
-    SyntheticChessboards,
-    board_coordinates,
-    gaussian_heatmaps,
-    make_calibration_set,
-    project_board,
-    render_chessboard,
-    sample_opencv_distortion,
-    sample_poses,
-    sample_radial_distortion,
-)
+from ccs_kornia.data.lens import _opencv_fold, _undistort_opencv
+from ccs_kornia.data.scenes import SyntheticBatch, SyntheticChessboards, make_calibration_set
+from ccs_kornia.data.lens import board_coordinates, project_board
+from ccs_kornia.data.targets import gaussian_heatmaps
+from ccs_kornia.data.renderer import render_chessboard
+from ccs_kornia.data.sampling import sample_opencv_distortion, sample_poses, sample_radial_distortion
 
 W, H = 160, 120
 

@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from ccs_kornia import camera
-from ccs_kornia.data.synthetic import render_chessboard, sample_radial_distortion
+from ccs_kornia.data.renderer import render_chessboard
+from ccs_kornia.data.sampling import sample_radial_distortion
 from ccs_kornia.modules.correction.radial_warp import (
     RadialUndistort,
     correct_points,

@@ -20,7 +20,8 @@ import torch
 
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
-from ccs_kornia.data.synthetic import make_calibration_set, sample_radial_distortion
+from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.sampling import sample_radial_distortion
 
 __all__ = [
     "SECTIONS",

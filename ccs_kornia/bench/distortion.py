@@ -63,7 +63,8 @@ def distortion_available(weights: str | Path | None = None):
 
 def render_wide_scenes(cfg: BenchConfig, cameras: int, views: int) -> Scenes:
     """The paper's wide camera: ``cfg.wide_size`` images, ``fx, fy`` in ``cfg.wide_fx``, distortion level 2."""
-    from ccs_kornia.data.synthetic import make_calibration_set, sample_radial_distortion
+    from ccs_kornia.data.scenes import make_calibration_set
+    from ccs_kornia.data.sampling import sample_radial_distortion
 
     w, h = cfg.wide_size
     base = BENCH_SEED_BASE + 250_000

@@ -8,7 +8,8 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
-from ccs_kornia.data.synthetic import SyntheticChessboards, gaussian_heatmaps
+from ccs_kornia.data.scenes import SyntheticChessboards
+from ccs_kornia.data.targets import gaussian_heatmaps
 
 __all__ = ["RenderedBatches", "DetectorDataModule", "TRAIN_SEED_BASE", "VAL_SEED_BASE", "BENCH_SEED_BASE"]
 

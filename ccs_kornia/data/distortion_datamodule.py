@@ -8,7 +8,8 @@ from torch.utils.data import DataLoader
 
 from ccs_kornia.data import augment
 from ccs_kornia.data.datamodule import TRAIN_SEED_BASE, VAL_SEED_BASE, RenderedBatches
-from ccs_kornia.data.synthetic import RADIAL_LEVELS, SyntheticBatch, SyntheticChessboards
+from ccs_kornia.data.sampling import RADIAL_LEVELS
+from ccs_kornia.data.scenes import SyntheticBatch, SyntheticChessboards
 
 __all__ = ["DistortionDataModule", "flip_batch"]
 
@@ -42,8 +43,8 @@ class DistortionDataModule(L.LightningDataModule):
 
     Each view draws its distortion level uniformly from ``levels`` (repeat a level to weight it): ``none``,
     the paper's ``level1`` and ``level2`` ranges, and ``severe`` (15-25 % barrel at the image corner), see
-    :func:`ccs_kornia.data.synthetic.sample_radial_distortion`. Poses, boards, backgrounds and image conditions
-    vary as in :class:`~ccs_kornia.data.synthetic.SyntheticChessboards`.
+    :func:`ccs_kornia.data.sampling.sample_radial_distortion`. Poses, boards, backgrounds and image conditions
+    vary as in :class:`~ccs_kornia.data.scenes.SyntheticChessboards`.
 
     Rendering costs more than a training step on a small CPU, so ``reuse > 1`` serves each rendered training
     batch that many times, mirrored differently each time (none, horizontal, vertical, both): the radial model
