@@ -13,7 +13,7 @@ Example:
 
 from __future__ import annotations
 
-from ccs_kornia.bench.common import METHODS, SECTIONS, BenchConfig
+from ccs_kornia.bench.config import METHODS, SECTIONS, BenchConfig
 from ccs_kornia.bench.runner import run_bench
 
 __all__ = ["BenchConfig", "run_bench", "SECTIONS", "METHODS"]

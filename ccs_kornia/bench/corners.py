@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ccs_kornia.bench.common import BenchConfig, DetectionMethod, Timer, corner_errors, render_scenes, summary
+from ccs_kornia.bench.config import BenchConfig
+from ccs_kornia.bench.methods import DetectionMethod
+from ccs_kornia.bench.common import Timer, summary
+from ccs_kornia.bench.scenes import corner_errors, render_scenes
 
 __all__ = ["run_corners"]
 
