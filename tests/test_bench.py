@@ -122,6 +122,21 @@ def test_solvers_recover_exact_intrinsics():
     assert not cv2_calibrate(uv, np.array([1, 1, 0, 0, 0, 0], bool), board, square, size)["success"]
 
 
+def test_corner_section_has_the_collinearity_rows():
+    from ccs_kornia.bench.corners import run_corners
+
+    methods = make_methods(("learned",))
+    if not methods["learned"].available:
+        pytest.skip(methods["learned"].reason)
+    cfg = BenchConfig.tiny(corner_conditions=("clean",), corner_images=1, corner_views_per_camera=1)
+    res = run_corners(cfg, methods, log=lambda *_: None)["conditions"]["clean"]
+    assert set(res) == {"learned", "learned_collinearity", "learned_collinearity_last"}
+    for key in ("learned_collinearity", "learned_collinearity_last"):
+        assert res[key]["ablation_of"] == "learned" and res[key]["detected"] == 1 and res[key]["mean_px"] < 0.1
+        assert res[key]["common_images"] == res["learned"]["common_images"] == 1
+    assert "ablation_of" not in res["learned"]
+
+
 # ----------------------------------------------------------------------------------------------
 # the whole run
 # ----------------------------------------------------------------------------------------------

@@ -49,6 +49,9 @@ class BenchConfig:
         corner_conditions: conditions of the corner section.
         corner_images: images per condition (corner section).
         corner_views_per_camera: views per random camera in the corner section.
+        corner_ablations: extra rows of the corner section, keys of
+            :data:`~ccs_kornia.bench.methods.ABLATIONS` (run when their base method is among ``methods``; not
+            counted in *mean common*).
         error_threshold: a corner further than this (px) from the truth is wrong.
         calib_conditions: conditions of the calibration section.
         calib_trials: calibration trials per condition.
@@ -82,6 +85,7 @@ class BenchConfig:
     corner_conditions: tuple[str, ...] = CORNER_CONDITIONS
     corner_images: int = 60
     corner_views_per_camera: int = 15
+    corner_ablations: tuple[str, ...] = ("learned_collinearity", "learned_collinearity_last")
     error_threshold: float = 3.0
     calib_conditions: tuple[str, ...] = CALIB_CONDITIONS
     calib_trials: int = 50

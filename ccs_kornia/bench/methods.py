@@ -11,7 +11,15 @@ import torch
 from ccs_kornia.bench.config import METHODS
 from ccs_kornia.bench.scenes import orient_grid
 
-__all__ = ["DetectionMethod", "make_methods"]
+__all__ = ["ABLATIONS", "DetectionMethod", "make_methods", "make_ablations"]
+
+#: ablation rows of the corner section: key -> (the method it varies, its label, detector options)
+ABLATIONS: dict[str, tuple[str, str, dict]] = {
+    # as the detector applies it: after the grid, before the saddle refinement on the image
+    "learned_collinearity": ("learned", "ccs_kornia learned + collinearity", {"collinearity": True}),
+    # as the paper's last step: on the final (saddle-refined) corners
+    "learned_collinearity_last": ("learned", "ccs_kornia learned + collinearity last", {"collinearity_last": True}),
+}
 
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 _SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
@@ -51,8 +59,8 @@ class DetectionMethod:
         reason: why not, when not available.
     """
 
-    def __init__(self, key: str, fn: Callable | None, reason: str = "") -> None:
-        self.key, self.label = key, METHODS.get(key, key)
+    def __init__(self, key: str, fn: Callable | None, reason: str = "", label: str | None = None) -> None:
+        self.key, self.label = key, label or METHODS.get(key, key)
         self._fn = fn
         self.available = fn is not None
         self.reason = reason
@@ -118,7 +126,8 @@ def _libcbdetect_method() -> tuple[Callable | None, str]:
     return _per_image(one), ""
 
 
-def _learned_method(batch: int) -> tuple[Callable | None, str]:
+def _learned_method(batch: int, collinearity_last: bool = False, **options) -> tuple[Callable | None, str]:
+    from ccs_kornia.modules.detection.collinearity import collinearity_refine
     from ccs_kornia.modules.detection.factory import make_detector
 
     try:
@@ -128,7 +137,7 @@ def _learned_method(batch: int) -> tuple[Callable | None, str]:
     if not DEFAULT_DETECTOR_WEIGHTS.is_file():
         return None, f"learned detector: weights not available ({DEFAULT_DETECTOR_WEIGHTS} not found)"
     try:
-        det = make_detector("learned")
+        det = make_detector("learned", **options)
     except Exception as err:  # unreadable or incompatible weights must not stop the other methods
         return None, f"learned detector: weights could not be loaded ({type(err).__name__}: {err})"
 
@@ -138,6 +147,9 @@ def _learned_method(batch: int) -> tuple[Callable | None, str]:
         with torch.inference_mode():
             for i in range(0, images.shape[0], batch):
                 out = det(images[i : i + batch], board)
+                if collinearity_last:
+                    refined, _ = collinearity_refine(out.corners.double(), out.valid, board)
+                    out.corners = torch.where(out.found[:, None, None], refined, out.corners.double())
                 cs.append(out.corners.double().cpu().numpy())
                 fs.append(out.found.cpu().numpy())
         corners, found = np.concatenate(cs), np.concatenate(fs)
@@ -187,4 +199,17 @@ def make_methods(keys: tuple[str, ...] | list[str], learned_batch: int = 8) -> d
         else:
             fn, reason = _libcbdetect_method()
             out[key] = DetectionMethod(key, fn, reason)
+    return out
+
+
+def make_ablations(keys: tuple[str, ...] | list[str], learned_batch: int = 8) -> dict[str, DetectionMethod]:
+    """Build the ablation methods of :data:`ABLATIONS` (e.g. the learned detector with the paper's collinearity
+    refinement on); unavailable ones carry the reason instead of raising."""
+    out: dict[str, DetectionMethod] = {}
+    for key in keys:
+        if key not in ABLATIONS:
+            raise ValueError(f"Unknown ablation {key!r}; expected some of {list(ABLATIONS)}.")
+        base, label, options = ABLATIONS[key]
+        fn, reason = _learned_method(learned_batch, **options)
+        out[key] = DetectionMethod(key, fn, reason, label=label)
     return out
