@@ -17,7 +17,7 @@ from ccs_kornia.bench.methods import make_methods
 from ccs_kornia.bench.report import HONEST_END, HONEST_START, draw_boxplot, write_markdown
 from ccs_kornia.camera import board_object_points, project_points
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
 FAST_METHODS = ("opencv_saddle", "opencv_subpix")
 
 
