@@ -38,8 +38,6 @@ distortion and pose sampling in :mod:`ccs_kornia.data.sampling`, calibration set
 
 from __future__ import annotations
 
-from __future__ import annotations
-
 import torch
 from torch import Tensor
 

@@ -6,7 +6,6 @@ import torch
 
 from ccs_kornia.data.sampling import sample_poses
 
-
 W, H = 160, 120
 
 

@@ -6,7 +6,6 @@ import torch
 
 from ccs_kornia.camera import axis_angle_to_rotation_matrix, board_object_points, project_points
 
-
 F64 = torch.float64
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from _calibration_views import _views
 
 from ccs_kornia.camera import board_object_points, project_points, radial_undistort_points
 from ccs_kornia.metrics import e_ip
@@ -12,8 +13,6 @@ from ccs_kornia.modules.calibration.centred_radial import (
     radial_from_correction,
     refine_centred_radial,
 )
-from _calibration_views import _views
-
 
 SIZE = (640, 480)
 OBJ = board_object_points(9, 6, 0.025, dtype=torch.float64)

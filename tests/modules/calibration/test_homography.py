@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import pytest
 import torch
+from _board_views import all_valid, synthetic
 
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.homography import BatchedHomography, find_homographies
-from _board_views import all_valid, synthetic
-
 
 F64 = torch.float64
 

@@ -6,14 +6,13 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from _board_views import all_valid, synthetic
 
 from ccs_kornia.camera import axis_angle_to_rotation_matrix
 from ccs_kornia.metrics import e_ip
-from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.modules.calibration.refine import JointRefinement, joint_refinement
 from ccs_kornia.modules.calibration.projection import project_with_jacobians
-from _board_views import all_valid, synthetic
-
+from ccs_kornia.modules.calibration.refine import JointRefinement, joint_refinement
+from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
 F64 = torch.float64
 IMAGE_SIZE = (640, 480)

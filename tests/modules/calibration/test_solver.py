@@ -11,14 +11,13 @@ import cv2
 import numpy as np
 import pytest
 import torch
-
-from ccs_kornia.camera import board_object_points
-from ccs_kornia.modules.calibration.result import VIEW_REASONS
-from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.modules.calibration.homography import find_homographies
-from ccs_kornia.modules.calibration.ransac import ImageRansac
 from _board_views import all_valid, synthetic
 
+from ccs_kornia.camera import board_object_points
+from ccs_kornia.modules.calibration.homography import find_homographies
+from ccs_kornia.modules.calibration.ransac import ImageRansac
+from ccs_kornia.modules.calibration.result import VIEW_REASONS
+from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
 F64 = torch.float64
 IMAGE_SIZE = (640, 480)

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import pytest
 import torch
+from _calibration_views import _views
 
 from ccs_kornia.camera import board_object_points, project_points
 from ccs_kornia.metrics import e_ip
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from _calibration_views import _views
-
 
 SIZE = (640, 480)
 OBJ = board_object_points(9, 6, 0.025, dtype=torch.float64)

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import pytest
 import torch
+from _board_views import all_valid, synthetic
 
 from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.zhang import ZhangInit, extrinsics_from_homography, zhang_intrinsics
-from _board_views import all_valid, synthetic
-
 
 F64 = torch.float64
 IMAGE_SIZE = (640, 480)

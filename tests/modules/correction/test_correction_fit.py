@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.modules.correction.radial_warp import correct_points
 from ccs_kornia.modules.correction.correction_fit import fit_correction_to_points
-
+from ccs_kornia.modules.correction.radial_warp import correct_points
 
 SIZE = (640, 480)
 

@@ -13,7 +13,6 @@ from ccs_kornia.modules.correction.opencv_warp import (
     opencv_undistorted_frame,
 )
 
-
 SIZE = (640, 480)
 
 

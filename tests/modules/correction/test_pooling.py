@@ -8,7 +8,6 @@ import torch
 from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
 from ccs_kornia.modules.correction.radial_warp import correct_points
 
-
 SIZE = (640, 480)
 
 

@@ -19,7 +19,6 @@ from ccs_kornia.modules.correction.radial_warp import (
 )
 from ccs_kornia.modules.correction.straightness import straightness_rms
 
-
 IDENTITY = torch.tensor([[1.0, 0.0, 0.0, 0.0, 0.0]])
 
 

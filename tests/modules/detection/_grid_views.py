@@ -14,7 +14,6 @@ from ccs_kornia.camera import (
     rotation_matrix_to_axis_angle,
 )
 
-
 F64 = torch.float64
 W, H = 640, 480
 K = intrinsics_matrix(torch.tensor([600.0, 600.0, (W - 1) / 2, (H - 1) / 2], dtype=F64))

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import pytest
 import torch
+from _grid_views import _views
 
 from ccs_kornia.camera import intrinsics_matrix
 from ccs_kornia.modules.detection.collinearity import CollinearityRefiner, collinearity_refine
-from _grid_views import _views
-
 
 F64 = torch.float64
 W, H = 640, 480

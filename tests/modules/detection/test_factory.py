@@ -6,8 +6,8 @@ import sys
 
 import pytest
 
-from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
 from ccs_kornia.modules.detection.factory import make_detector
+from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
 
 
 def test_make_detector(monkeypatch):

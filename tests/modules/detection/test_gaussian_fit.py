@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import pytest
 import torch
+from _heatmaps import board_like, nearest_error, render
 from kornia.geometry.subpix import render_gaussian2d
 
 from ccs_kornia.modules.detection.gaussian_fit import GaussianFit, gaussian_fit
 from ccs_kornia.modules.detection.peaks import HeatmapPeaks, heatmap_peaks
 from ccs_kornia.modules.detection.sigma_rejection import SigmaOutlierRejection
-from _heatmaps import board_like, nearest_error, render
-
 
 SIGMA = 1.5
 

@@ -8,11 +8,10 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from _grid_views import _corrupt, _views
 
 from ccs_kornia.camera import axis_angle_to_rotation_matrix, intrinsics_matrix
 from ccs_kornia.modules.detection.grid_organizer import GridOrganizer, is_symmetric_board, organize_grid
-from _grid_views import _corrupt, _views
-
 
 F64 = torch.float64
 W, H = 640, 480

@@ -12,7 +12,6 @@ from ccs_kornia.io import load_image_gray
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
 
-
 BOARD = (9, 6)
 K = torch.tensor([[620.0, 0.0, 322.0], [0.0, 610.0, 236.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
 

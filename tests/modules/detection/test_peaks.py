@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import pytest
 import torch
+from _heatmaps import board_like, nearest_error, render
 
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.peaks import HeatmapPeaks, heatmap_peaks
-from _heatmaps import board_like, nearest_error, render
-
 
 SIGMA = 1.5
 

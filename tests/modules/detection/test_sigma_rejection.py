@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import pytest
 import torch
+from _heatmaps import board_like, nearest_error, render
 
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
 from ccs_kornia.modules.detection.sigma_rejection import SigmaOutlierRejection, sigma_outlier_rejection
-from _heatmaps import board_like, nearest_error, render
-
 
 SIGMA = 1.5
 
