@@ -170,6 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="detect larger images on a downscaled copy (default 2048; 0 = off)")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="do not run the distortion-correction network")
+    p.add_argument("--overwrite", action="store_true",
+                   help="start the output file again (default: append, skipping sets already in it)")
     p.set_defaults(func=calibrate_many.run)
 
     p = sub.add_parser("demo", help="render a synthetic set with a known camera, calibrate it, compare")

@@ -1,152 +1,85 @@
-"""Chessboard images in, camera calibration out: the composed inference pipeline.
+"""Chessboard images in, camera calibration out: the one composition of the paper's three stages.
 
-:class:`CalibrationPipeline` chains a :class:`~ccs_kornia.modules.detection.base.ChessboardDetector` (the
-learned heatmap detector or the OpenCV baseline) and the
-:class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` (homographies, Zhang initialisation,
-image-level RANSAC, joint Levenberg-Marquardt refinement). Each stage is usable alone
-(:meth:`CalibrationPipeline.detect`, :meth:`CalibrationPipeline.calibrate`), which is how the
-command line streams large image sets: detect batch by batch, then solve once.
+:meth:`CalibrationPipeline.run` is the only place where the stages are put in order; ``forward`` (tensors), the
+command line (files, :class:`~ccs_kornia.sources.FileSource`), ``calibrate-many`` (Lightning predict) and the
+benchmarks all call it:
 
-Many cameras are calibrated in one call by stacking their views: images ``(C, V, 1, H, W)``.
+1. **correct** (paper Sec. III-A): the :class:`~ccs_kornia.modules.correction.distortion_net.DistortionNet`
+   predicts a radial correction per view; a camera's views share its lens, so the predictions are pooled into one
+   correction per camera (:mod:`~ccs_kornia.modules.correction.pooling`);
+2. **detect** (Sec. III-B): the board is looked for on every image as it is; for a camera whose pooled correction
+   is large, the views missed there are looked for again on corrected copies
+   (:func:`~ccs_kornia.modules.correction.corrected_detection.detect_on_corrected`), corners mapped back to the
+   original images;
+3. **solve** (Sec. III-C): per image size, one batched solver call over the cameras
+   (:class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`: homographies, Zhang, image-level RANSAC,
+   joint Levenberg-Marquardt). Where the image itself says the correction is right — it straightens the detected
+   rows and columns, or it found boards the originals hid — the camera is also calibrated in the corrected frame
+   (:mod:`~ccs_kornia.modules.correction.corrected_frame`) and that calibration is kept only where it fits the
+   observed corners clearly better (``max_rms_ratio``) than the usual one. A lens without distortion is therefore
+   never resampled and its calibration is exactly the one without the correction.
+
+Views are read through a :class:`~ccs_kornia.sources.ViewSource` in batches of one size, bounded in number and in
+pixels, so a folder of large photographs never sits in memory at once; only corners are kept between passes.
+Images larger than ``max_detection_side`` are detected on an area-downscaled copy and refined at full resolution.
 This module imports neither the command line nor Lightning.
-
-Large images (longer side above ``max_detection_side``, 2048 px by default) are detected on an
-area-downscaled copy; the corners are mapped back to full resolution and refined there on a small
-patch around each corner (:func:`~ccs_kornia.modules.detection.saddle_refine.refine_corners`). The OpenCV detector
-takes about a minute on a blank 6000x4000 image and far longer on textured ones, so full-resolution
-detection of 24 Mpx photographs is not a usable default; the refinement keeps their sub-pixel
-precision.
-
-Distortion correction (paper Sec. III-A, on by default): the
-:class:`~ccs_kornia.modules.correction.distortion_net.DistortionNet` predicts a radial correction per view, pooled
-into one per camera (:mod:`~ccs_kornia.modules.correction.pooling`). Where it moves pixels by more than
-``min_correction`` of the half diagonal, the images are corrected
-(:func:`~ccs_kornia.modules.correction.radial_warp.radial_undistort_image`), the board is detected in the corrected
-images, the corners are mapped back to the original images (boards missed there are looked for in the originals)
-and polished there; the camera is then calibrated in the corrected frame
-(:mod:`~ccs_kornia.modules.correction.corrected_frame`), kept unless it fits the observed corners clearly worse
-than the usual joint calibration.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections import Counter
+from typing import Callable
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from ccs_kornia.camera import board_object_points
-from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules.calibration.result import VIEW_REASONS, CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction import corrected_frame
+from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected, straightening_evidence
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
 from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
-from ccs_kornia.modules.correction.radial_warp import distort_points_from_correction, radial_undistort_image
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners
+from ccs_kornia.pipeline_result import PipelineResult, concat_results, select_result
+from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, TensorSource, ViewSource
 
-__all__ = ["PipelineResult", "CalibrationPipeline"]
+__all__ = ["PipelineResult", "CalibrationPipeline", "SIZE_TOLERANCE_PX"]
 
-
-@dataclass
-class PipelineResult:
-    """Detections and calibration of one pipeline call.
-
-    Attributes:
-        detections: corners :math:`(V, N, 2)` / :math:`(C, V, N, 2)` and found :math:`(V,)` /
-            :math:`(C, V)`.
-        calibration: the solver's :class:`~ccs_kornia.modules.calibration.result.CalibrationResult`
-            (camera dimension squeezed away for unbatched input).
-        correction: the radial correction per camera :math:`(5,)` / :math:`(C, 5)`: the network's pooled
-            prediction, or the refined one where the camera was calibrated in the corrected frame (``None`` when
-            distortion correction is off).
-        corrected: per camera, whether the correction was applied (images corrected for detection and the
-            camera calibrated in the corrected frame; bool, ``None`` when off).
-    """
-
-    detections: DetectionResult
-    calibration: CalibrationResult
-    correction: torch.Tensor | None = None
-    corrected: torch.Tensor | None = None
-
-    # shortcuts to the tensors most callers want
-    @property
-    def K(self) -> torch.Tensor:
-        """Camera matrices :math:`(3, 3)` / :math:`(C, 3, 3)` (NaN where the calibration failed)."""
-        return self.calibration.K
-
-    @property
-    def dist(self) -> torch.Tensor:
-        """Distortion coefficients in OpenCV order :math:`(D,)` / :math:`(C, D)`."""
-        return self.calibration.dist
-
-    @property
-    def rvec(self) -> torch.Tensor:
-        """World-to-camera rotations (axis-angle) :math:`(V, 3)` / :math:`(C, V, 3)`."""
-        return self.calibration.rvec
-
-    @property
-    def tvec(self) -> torch.Tensor:
-        """World-to-camera translations :math:`(V, 3)` / :math:`(C, V, 3)` in units of ``square``."""
-        return self.calibration.tvec
-
-    @property
-    def view_rms(self) -> torch.Tensor:
-        """Per-view RMS reprojection error in px :math:`(V,)` / :math:`(C, V)`, NaN for unused views."""
-        return self.calibration.view_rms
-
-    @property
-    def used(self) -> torch.Tensor:
-        """Views used by the final refinement :math:`(V,)` / :math:`(C, V)` bool."""
-        return self.calibration.used
-
-    @property
-    def found(self) -> torch.Tensor:
-        """Views where the board was detected :math:`(V,)` / :math:`(C, V)` bool."""
-        return self.detections.found
-
-    @property
-    def rms(self) -> torch.Tensor:
-        """Overall RMS reprojection error in px, scalar / :math:`(C,)`."""
-        return self.calibration.rms
-
-    @property
-    def std(self) -> torch.Tensor:
-        """Standard deviations of ``(fx, fy, cx, cy, *dist)`` :math:`(4 + D,)` / :math:`(C, 4 + D)`."""
-        return torch.cat([self.calibration.std_intrinsics, self.calibration.std_dist], -1)
+#: views whose size differs from their camera's by at most this many pixels per side are used (cropping or
+#: rounding by a pixel moves no pixel's coordinates: the origin is the top-left pixel's centre)
+SIZE_TOLERANCE_PX = 2
 
 
 class CalibrationPipeline(nn.Module):
-    """Detect chessboard corners and calibrate the camera(s).
+    """Detect chessboard corners and calibrate the camera(s): correct -> detect -> solve (:meth:`run`).
 
     Args:
         detector: a detector name for :func:`~ccs_kornia.modules.detection.factory.make_detector`
             (``"opencv"`` or ``"learned"``) or a :class:`ChessboardDetector` instance.
-        model: output distortion model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational`` or
-            ``none``.
+        model: output distortion model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational`` or ``none``.
         use_ransac: reject inconsistent views with image-level RANSAC before the refinement.
         seed: seed of the RANSAC sampling (results are deterministic for a given seed).
-        detection_batch_size: most images handed to the detector at once (bounds memory of the
-            learned detector; the OpenCV detector works image by image anyway).
-        max_detection_side: images whose longer side exceeds this are detected on a downscaled copy
-            and refined at full resolution (``None`` or 0: always detect at full resolution).
-        distortion_correction: ``True`` (the shipped :class:`DistortionNet`), ``False`` (off, e.g. for ablation),
-            a weight-file path or a ``DistortionNet``.
-        min_correction: the correction is applied only to cameras whose pooled correction moves some pixel by
-            more than this fraction of the half image diagonal (0.02: 8 px at 640x480); below that the usual
-            detection and calibration handle the lens.
-        free_distortion_centre: the corrected-frame refinement also estimates the distortion centre (the paper's
-            model centres it on the image centre; real lenses centre it near the principal point).
-        joint_iters: Levenberg-Marquardt iterations at most of the joint refinement of intrinsics, image-centred
-            radial distortion and poses (0: the pinhole calibration of the corrected corners as it is).
+        detection_batch_size: most images handed to the detector at once.
+        max_batch_pixels: most pixels loaded and detected at once (bounds memory; at least one image).
+        max_detection_side: images whose longer side exceeds this are detected on a downscaled copy and refined at
+            full resolution (``None`` or 0: always detect at full resolution).
+        distortion_correction: ``True`` (the shipped network), ``False`` (off), a weight-file path or a
+            ``DistortionNet``.
+        min_correction: a camera's pooled correction counts as large when it moves some pixel by more than this
+            fraction of the half image diagonal (0.02: 8 px at 640x480); only then is the correction used at all.
+        min_straightening: the corrected-frame calibration is tried only where the correction brings the detected
+            rows' and columns' RMS distance from straight lines below this fraction of what it was (or where it
+            found boards the originals hid).
         max_rms_ratio: the corrected-frame calibration is kept only if its radial model's RMS on the observed
-            corners is at most this times that of the usual calibration in the output model (equal parameter
-            counts for ``opencv5``: the better fit wins); otherwise the usual one is returned.
-        solver_kwargs: further options of :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`
-            (e.g. ``fix_aspect_ratio=True``).
+            corners is at most this times that of the usual calibration (same parameter count for ``opencv5``).
+        joint_iters: LM iterations at most of the corrected-frame joint refinement.
+        free_distortion_centre: the corrected-frame refinement also estimates the distortion centre.
+        solver_kwargs: further options of :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
 
     Example:
         >>> from ccs_kornia.data.scenes import make_calibration_set
@@ -155,8 +88,8 @@ class CalibrationPipeline(nn.Module):
         >>> out = CalibrationPipeline("opencv")(views.images, (6, 4), 0.025)
         >>> out.K.shape, out.found.shape, out.view_rms.shape, bool(out.calibration.success)
         (torch.Size([3, 3]), torch.Size([5]), torch.Size([5]), True)
-        >>> bool((out.K - K).abs().max() < 3.0)
-        True
+        >>> bool((out.K - K).abs().max() < 3.0), bool(out.corrected)
+        (True, False)
     """
 
     def __init__(
@@ -166,11 +99,13 @@ class CalibrationPipeline(nn.Module):
         use_ransac: bool = True,
         seed: int = 0,
         detection_batch_size: int = 16,
+        max_batch_pixels: int | None = DEFAULT_MAX_BATCH_PIXELS,
         max_detection_side: int | None = 2048,
         distortion_correction=True,
         min_correction: float = 0.02,
+        min_straightening: float = 0.8,
+        max_rms_ratio: float = 0.9,
         joint_iters: int = 50,
-        max_rms_ratio: float = 1.0,
         free_distortion_centre: bool = True,
         **solver_kwargs,
     ) -> None:
@@ -180,73 +115,221 @@ class CalibrationPipeline(nn.Module):
             raise ValueError(f"detector must be a name or a ChessboardDetector, got {type(detector).__name__}.")
         if detection_batch_size < 1:
             raise ValueError(f"detection_batch_size must be >= 1, got {detection_batch_size}.")
-        self.solver = CalibrationSolver(model=model, use_ransac=use_ransac, seed=seed, **solver_kwargs)
         if max_detection_side is not None and max_detection_side != 0 and max_detection_side < 64:
             raise ValueError(f"max_detection_side must be >= 64 (or None/0 to disable), got {max_detection_side}.")
+        if joint_iters < 0:
+            raise ValueError(f"joint_iters must be >= 0, got {joint_iters}.")
+        for name, value in (("min_correction", min_correction), ("min_straightening", min_straightening),
+                            ("max_rms_ratio", max_rms_ratio)):
+            if not value >= 0:
+                raise ValueError(f"{name} must be >= 0, got {value}.")
+        self.solver = CalibrationSolver(model=model, use_ransac=use_ransac, seed=seed, **solver_kwargs)
         self.model = model
-        self.detection_batch_size = detection_batch_size
+        self.detection_batch_size = int(detection_batch_size)
+        self.max_batch_pixels = max_batch_pixels
         self.max_detection_side = int(max_detection_side) if max_detection_side else None
         self.refiner = CornerRefiner()
         self.distortion_net = load_distortion_net(distortion_correction)
-        if joint_iters < 0:
-            raise ValueError(f"joint_iters must be >= 0, got {joint_iters}.")
-        if not min_correction >= 0:
-            raise ValueError(f"min_correction must be >= 0, got {min_correction}.")
         self.min_correction = float(min_correction)
-        self.joint_iters = int(joint_iters)
+        self.min_straightening = float(min_straightening)
         self.max_rms_ratio = float(max_rms_ratio)
+        self.joint_iters = int(joint_iters)
         self.free_distortion_centre = bool(free_distortion_centre)
 
-    def _detect_chunk(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
-        """Detect on ``(B, 1, H, W)``, through a downscaled copy when the images are large."""
-        h, w = images.shape[-2:]
-        limit = self.max_detection_side
-        if limit is None or max(h, w) <= limit:
-            return self.detector(images, board_size)
-        scale = max(h, w) / limit
-        small_size = (max(8, round(h / scale)), max(8, round(w / scale)))
-        # area averaging is the anti-aliased downscale (each small pixel is the mean of its footprint)
-        small = F.interpolate(images.float(), size=small_size, mode="area")
-        det = self.detector(small, board_size)
-        # pixel centres: x_full + 0.5 = (x_small + 0.5) * w / w_small
-        factor = torch.tensor([w / small_size[1], h / small_size[0]], dtype=det.corners.dtype, device=det.corners.device)
-        corners = (det.corners + 0.5) * factor - 0.5
-        refined = corners.clone()
-        found = det.found.nonzero().flatten()
-        if found.numel():
-            refined[found] = self._refine_full_resolution(images, corners[found], found, board_size)
-        return DetectionResult(refined, det.found, det.reasons)
+    # ------------------------------------------------------------------------------------------
+    # the composition
+    # ------------------------------------------------------------------------------------------
 
-    def _refine_full_resolution(
-        self, images: torch.Tensor, corners: torch.Tensor, index: torch.Tensor, board_size: tuple[int, int]
-    ) -> torch.Tensor:
-        """Refine corners :math:`(S, N, 2)` of ``images[index]`` on small patches around each corner.
+    def forward(self, images: torch.Tensor, board_size: tuple[int, int], square: float = 1.0) -> PipelineResult:
+        """Detect and calibrate: :meth:`run` on images in memory.
 
-        The refiner smooths and normalises the whole image it is given; on a 24 Mpx photo that alone
-        costs seconds, so every corner gets its own patch (window + smoothing margin) and all patches
-        are refined in one batch.
+        Args:
+            images: :math:`(V, 1, H, W)` (one camera) or :math:`(C, V, 1, H, W)` (``C`` cameras) float in ``[0, 1]``.
+            board_size: ``(cols, rows)`` inner corners.
+            square: square side in world units.
+
+        Returns:
+            :class:`~ccs_kornia.pipeline_result.PipelineResult` (no camera dimension for 4-D input).
         """
-        r = self.refiner
-        h, w = images.shape[-2:]
-        half = int(math.ceil(r.max_radius + 3 * max(r.normalize_sigma, r.smooth_sigma) + 4))
-        s, n = corners.shape[:2]
-        offsets = torch.arange(-half, half + 1, device=images.device)
-        origin = corners.detach().round().long().to(images.device)  # (S, N, 2) patch centres
-        ys = (origin[..., 1, None] + offsets).clamp(0, h - 1)  # (S, N, P), replicate at image borders
-        xs = (origin[..., 0, None] + offsets).clamp(0, w - 1)
-        patches = images[index.to(images.device)[:, None, None, None], 0, ys[..., :, None], xs[..., None, :]]
-        size = 2 * half + 1
-        local = (corners - (origin.to(corners) - half)).reshape(s * n, 1, 2)
-        valid = torch.ones(s, n, dtype=torch.bool, device=corners.device)
-        radius = (r.radius_factor * grid_spacing(corners, valid, board_size)).reshape(s * n, 1)
-        out = refine_corners(
-            patches.reshape(s * n, 1, size, size).float(), local, None, radius, r.method, r.iterations, r.max_radius,
-            r.smooth_sigma, r.normalize_sigma,
+        out = self.run(TensorSource(images), board_size, square)
+        return out.select(0) if images.dim() == 4 else out
+
+    def run(
+        self,
+        source: ViewSource,
+        board_size: tuple[int, int],
+        square: float = 1.0,
+        calibrate: bool = True,
+        progress: Callable[[int], None] | None = None,
+    ) -> PipelineResult:
+        """The stages in order, correct -> detect -> solve, on every camera of ``source``.
+
+        Args:
+            source: the views (:class:`~ccs_kornia.sources.TensorSource` or :class:`~ccs_kornia.sources.FileSource`).
+            board_size: ``(cols, rows)`` inner corners.
+            square: square side in world units.
+            calibrate: ``False`` stops after detection (``calibration`` is ``None``; :meth:`solve` completes it).
+            progress: called with the number of views handled after every batch.
+
+        Returns:
+            A batched :class:`~ccs_kornia.pipeline_result.PipelineResult`.
+        """
+        if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
+            raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
+        board = (int(board_size[0]), int(board_size[1]))
+        device = self._device()
+        c, v, n = source.num_cameras, source.max_views, board[0] * board[1]
+        corners = torch.zeros(c, v, n, 2, dtype=torch.float64, device=device)
+        found = torch.zeros(c, v, dtype=torch.bool, device=device)
+        present = torch.zeros(c, v, dtype=torch.bool, device=device)
+        sizes = torch.zeros(c, v, 2, dtype=torch.long)
+        reasons = [[""] * v for _ in range(c)]
+        per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
+
+        # 1. correct: the network's correction of every view; 2. detect: every view as it is (one streamed pass)
+        for batch in source.batches(batch_size=self.detection_batch_size, max_pixels=self.max_batch_pixels):
+            for (ci, vi), why in batch.failed:
+                reasons[ci][vi] = f"unreadable: {why}"
+            if batch.images is None:
+                continue
+            images = batch.images.to(device)
+            cam = torch.tensor([k[0] for k in batch.keys], device=device)
+            view = torch.tensor([k[1] for k in batch.keys], device=device)
+            det = self.detect_images(images, board)
+            corners[cam, view], found[cam, view], present[cam, view] = det.corners.double(), det.found, True
+            sizes[cam.cpu(), view.cpu()] = torch.tensor([images.shape[-1], images.shape[-2]])
+            for k, (ci, vi) in enumerate(batch.keys):
+                reasons[ci][vi] = (det.reasons[k] if det.reasons else "") or ("" if det.found[k] else "board not found")
+            if self.distortion_net is not None:
+                per_view[cam, view] = self.view_corrections(images)
+            if progress is not None:
+                progress(len(batch.keys) + len(batch.failed))
+
+        image_size = [_main_size(sizes[ci], found[ci].cpu(), present[ci].cpu()) for ci in range(c)]
+        out = PipelineResult(DetectionResult(corners, found, [r for rs in reasons for r in rs]), None, image_size,
+                             present, sizes.to(device), camera_reasons=[""] * c)
+        if self.distortion_net is not None:
+            self._correct(source, out, per_view, _same_size(out), board)
+        return self.solve(out, board, square) if calibrate else out
+
+    def _correct(self, source: ViewSource, out: PipelineResult, per_view: torch.Tensor, same: torch.Tensor,
+                 board: tuple[int, int]) -> None:
+        """Pool the corrections, detect the missed views of strongly distorted cameras on corrected copies, and
+        weigh the evidence for the corrected path (fills ``out``'s correction fields in place)."""
+        c = per_view.shape[0]
+        device = per_view.device
+        det = out.detections
+        correction = torch.zeros(c, 5, dtype=torch.float64, device=device)
+        correction[:, 0] = 1.0
+        large = torch.zeros(c, dtype=torch.bool, device=device)
+        for size in set(out.image_size):
+            sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
+            mask = same[sel] & per_view[sel].isfinite().all(-1)
+            correction[sel], large[sel] = self.pool_corrections(per_view[sel], _positive(size), mask)
+        recovered = torch.zeros(c, dtype=torch.bool, device=device)
+        missed = [(ci, vi) for ci in large.nonzero().flatten().tolist()
+                  for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()]
+        for batch in source.batches(missed, batch_size=self.detection_batch_size, max_pixels=self.max_batch_pixels):
+            if batch.images is None:
+                continue
+            cam = torch.tensor([k[0] for k in batch.keys], device=device)
+            view = torch.tensor([k[1] for k in batch.keys], device=device)
+            got = detect_on_corrected(self.detect_images, self.refine_on_patches, batch.images.to(device), correction[cam], board)
+            ok = got.found
+            det.corners[cam[ok], view[ok]] = got.corners[ok]
+            det.found[cam[ok], view[ok]] = True
+            recovered[cam[ok]] = True
+            v = det.found.shape[1]
+            for k, (ci, vi) in enumerate(batch.keys):
+                if bool(ok[k]):
+                    det.reasons[ci * v + vi] = got.reasons[k]
+        straightness = torch.full((c, 2), float("nan"), dtype=torch.float64, device=device)
+        for size in set(out.image_size):
+            sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
+            before, after = straightening_evidence(det.corners[sel], det.found[sel] & same[sel], correction[sel], board,
+                                                   _positive(size))
+            straightness[sel] = torch.stack([before, after], -1)
+        straightened = straightness[:, 1] < self.min_straightening * straightness[:, 0]
+        out.correction, out.straightness = correction, straightness
+        out.correction_tried = large & (straightened | recovered)
+
+    def solve(self, out: PipelineResult, board_size: tuple[int, int], square: float = 1.0) -> PipelineResult:
+        """The solver stage of :meth:`run` on its detections: one batched solve per image size; where the correction
+        was tried, the corrected-frame calibration competes with the usual one.
+
+        Args:
+            out: a batched result of ``run(..., calibrate=False)``.
+            board_size: ``(cols, rows)``; square: square side in world units.
+
+        Returns:
+            ``out`` with ``calibration``, ``corrected``, ``correction`` (re-fitted where kept) and
+            ``camera_reasons`` filled.
+        """
+        if not square > 0:
+            raise ValueError(f"square must be positive, got {square}.")
+        det = out.detections
+        c, v = det.found.shape
+        device = det.corners.device
+        sizes = out.image_size
+        usable = det.found & _same_size(out)
+        parts, order = [], []
+        corrected = torch.zeros(c, dtype=torch.bool, device=device)
+        correction = out.correction
+        for size in dict.fromkeys(sizes):
+            sel = torch.tensor([s == size for s in sizes], device=device).nonzero().flatten()
+            tried = None if out.correction_tried is None else out.correction_tried[sel]
+            calib, refined, applied = self._solve_group(det.corners[sel], usable[sel], board_size, square, _positive(size),
+                                                        None if correction is None else correction[sel], tried)
+            if applied is not None:
+                corrected[sel] = applied
+                correction = correction.clone()
+                correction[sel] = refined
+            parts.append(calib)
+            order.append(sel)
+        calibration = concat_results(parts)
+        inverse = torch.empty(c, dtype=torch.long, device=device)
+        inverse[torch.cat(order)] = torch.arange(c, device=device)
+        out.calibration = select_result(calibration, inverse)
+        out.correction = correction
+        out.corrected = corrected if correction is not None else None
+        out.camera_reasons = [_camera_reason(out.calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum()))
+                              for ci in range(c)]
+        return out
+
+    def _solve_group(self, corners, found, board_size, square, image_size, correction, tried):
+        usual = self.calibrate(corners, found, board_size, square, image_size)
+        if correction is None or tried is None or not bool(tried.any()):
+            return usual, correction, None if correction is None else torch.zeros_like(tried)
+        # only the cameras the evidence points to, and only those the usual solve could calibrate, go the corrected
+        # way (a camera refused as degenerate stays refused)
+        sel = (tried.to(usual.success.device) & usual.success).nonzero().flatten()
+        applied = torch.zeros_like(tried)
+        if sel.numel() == 0:
+            return usual, correction, applied
+        calib, refined, kept = corrected_frame.solve_with_correction(
+            self.solver, select_result(usual, sel), corners[sel], found[sel], correction[sel],
+            torch.ones(sel.numel(), dtype=torch.bool, device=corners.device), board_size, square, image_size,
+            joint_iters=self.joint_iters, free_distortion_centre=self.free_distortion_centre,
+            max_rms_ratio=self.max_rms_ratio,
         )
-        return out.reshape(s, n, 2) + (origin.to(corners) - half)
+        keep = torch.zeros_like(usual.success)
+        keep[sel] = kept.to(keep.device)
+        merged = corrected_frame.select_cameras(keep, _scatter(calib, sel, usual), usual)
+        correction = correction.clone()
+        correction[sel] = refined.to(correction)
+        applied[sel] = kept.to(applied.device)
+        return merged, correction, applied
+
+    # ------------------------------------------------------------------------------------------
+    # the stages, each usable alone
+    # ------------------------------------------------------------------------------------------
 
     def detect(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
-        """Detect the board on every image.
+        """Stages 1-2 of :meth:`run` (the correction's detection of missed views included) on images in memory.
+
+        The returned result also carries ``correction`` and ``correction_tried`` per camera, so that
+        ``calibrate(det.corners, det.found, board, square, size, det.correction, det.correction_tried)`` gives
+        exactly what ``pipe(images, board, square)`` gives.
 
         Args:
             images: :math:`(V, 1, H, W)` or :math:`(C, V, 1, H, W)` float in ``[0, 1]``.
@@ -255,22 +338,14 @@ class CalibrationPipeline(nn.Module):
         Returns:
             :class:`DetectionResult` with the leading dimensions of ``images``.
         """
-        if not isinstance(images, torch.Tensor) or images.dim() not in (4, 5) or images.shape[-3] != 1:
-            shape = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
-            raise ValueError(f"Expected grey images (V, 1, H, W) or (C, V, 1, H, W), got {shape}.")
-        lead = images.shape[:-3]
-        flat = images.reshape(-1, *images.shape[-3:])
-        with torch.inference_mode():
-            parts = [
-                self._detect_chunk(flat[i : i + self.detection_batch_size], board_size)
-                for i in range(0, flat.shape[0], self.detection_batch_size)
-            ]
-        corners = torch.cat([p.corners for p in parts])
-        found = torch.cat([p.found for p in parts])
-        reasons = None
-        if all(p.reasons is not None for p in parts):
-            reasons = [r for p in parts for r in p.reasons]  # type: ignore[union-attr]
-        return DetectionResult(corners.reshape(*lead, *corners.shape[1:]), found.reshape(lead), reasons)
+        out = self.run(TensorSource(images), board_size, calibrate=False)
+        det = out.detections
+        det.correction, det.correction_tried = out.correction, out.correction_tried
+        if images.dim() == 4:
+            det = select_result(det, 0)
+            det.correction = None if out.correction is None else out.correction[0]
+            det.correction_tried = None if out.correction_tried is None else out.correction_tried[0]
+        return det
 
     def calibrate(
         self,
@@ -279,10 +354,15 @@ class CalibrationPipeline(nn.Module):
         board_size: tuple[int, int],
         square: float,
         image_size: tuple[int, int],
+        correction: torch.Tensor | None = None,
+        correction_tried: torch.Tensor | None = None,
         init_corners: torch.Tensor | None = None,
         initial: CalibrationResult | None = None,
     ) -> CalibrationResult:
-        """Calibrate from detected corners (the solver stage alone).
+        """Stage 3 of :meth:`run`: calibrate from corners.
+
+        Without ``correction`` this is the solver alone; with the ``correction`` and ``correction_tried`` that
+        :meth:`detect` returns, the corrected-frame calibration competes as in :meth:`run`.
 
         Args:
             corners: :math:`(V, N, 2)` or :math:`(C, V, N, 2)` pixels in grid order.
@@ -290,11 +370,12 @@ class CalibrationPipeline(nn.Module):
             board_size: ``(cols, rows)``; ``N = cols * rows``.
             square: square side in world units (scales the translations only).
             image_size: ``(W, H)``.
-            init_corners, initial: optional start of the solver (undistorted corners / a previous result), see
+            correction, correction_tried: :math:`(5,)` / :math:`(C, 5)` and bool scalar / :math:`(C,)`.
+            init_corners, initial: optional start of the solver, see
                 :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
 
         Returns:
-            The solver's :class:`~ccs_kornia.modules.calibration.result.CalibrationResult`.
+            :class:`~ccs_kornia.modules.calibration.result.CalibrationResult`.
         """
         cols, rows = int(board_size[0]), int(board_size[1])
         if corners.dim() not in (3, 4) or corners.shape[-1] != 2 or corners.shape[-2] != cols * rows:
@@ -308,17 +389,20 @@ class CalibrationPipeline(nn.Module):
             raise ValueError(f"valid must have shape {tuple(corners.shape[:-1])}, got {tuple(valid.shape)}.")
         if not square > 0:
             raise ValueError(f"square must be positive, got {square}.")
+        size = (int(image_size[0]), int(image_size[1]))
+        if correction is not None and correction_tried is not None:
+            single = corners.dim() == 3
+            batch = (lambda x: x[None]) if single else (lambda x: x)
+            calib, _, _ = self._solve_group(batch(corners).double(), batch(valid).any(-1), board_size, square, size,
+                                            batch(correction).double(), batch(torch.as_tensor(correction_tried)))
+            return select_result(calib, 0) if single else calib
         object_points = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
         with torch.inference_mode():
             return self.solver(
-                corners.to(torch.float64), valid.bool(), object_points, (int(image_size[0]), int(image_size[1])),
+                corners.to(torch.float64), valid.bool(), object_points, size,
                 init_corners=None if init_corners is None else init_corners.to(corners.device, torch.float64),
                 initial=initial,
             )
-
-    # ------------------------------------------------------------------------------------------
-    # distortion correction stages (each usable alone, e.g. streamed over a folder of images)
-    # ------------------------------------------------------------------------------------------
 
     def view_corrections(self, images: torch.Tensor) -> torch.Tensor:
         """The network's radial correction of each view, :math:`(B, 5)` float64, for images :math:`(B, 1, H, W)`."""
@@ -328,173 +412,108 @@ class CalibrationPipeline(nn.Module):
         with torch.inference_mode():
             return torch.cat([net(images[i : i + 16].float()) for i in range(0, images.shape[0], 16)]).double()
 
-    def pool_corrections(self, per_view: torch.Tensor, image_size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
-        """One correction per camera from :math:`(C, V, 5)` per-view ones, and whether it is applied :math:`(C,)`
+    def pool_corrections(
+        self, per_view: torch.Tensor, image_size: tuple[int, int], mask: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One correction per camera from :math:`(C, V, 5)` per-view ones, and whether it is large :math:`(C,)`
         (it moves some pixel by more than ``min_correction`` of the half image diagonal)."""
-        correction = aggregate_corrections(per_view.double(), image_size)
+        correction = aggregate_corrections(per_view.double().nan_to_num(0.0), image_size, mask)
         half_diagonal = 0.5 * math.hypot(image_size[0], image_size[1])
         return correction, correction_displacement(correction, image_size) > self.min_correction * half_diagonal
 
-    def detect_corrected(self, images: torch.Tensor, correction: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
-        """Detect on radially corrected copies of the images; corners in the original images.
-
-        Boards missed in the corrected images are looked for in the originals. The corners are saddle-refined
-        on the originals at the end (the corrected copies are interpolated).
-
-        Args:
-            images: :math:`(B, 1, H, W)`.
-            correction: :math:`(5,)` or :math:`(B, 5)` correction coefficients.
-            board_size: ``(cols, rows)``.
-        """
-        b, _, h, w = images.shape
-        size = (int(w), int(h))
-        corr = correction.double().to(images.device)
-        corr = corr.expand(b, 5) if corr.dim() == 1 else corr
+    def detect_images(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        """The detector on ``(B, 1, H, W)`` images of one size, through a downscaled copy when they are large."""
+        h, w = images.shape[-2:]
         limit = self.max_detection_side
-        if limit is not None and max(h, w) > limit:
-            # large photos: warp and detect an area-downscaled copy (the correction is defined in units of the
-            # image size, so the same coefficients apply), then refine the corners at full resolution
+        with torch.inference_mode():
+            if limit is None or max(h, w) <= limit:
+                return self.detector(images.float(), board_size)
             scale = max(h, w) / limit
             small_size = (max(8, round(h / scale)), max(8, round(w / scale)))
-            small = F.interpolate(images.float(), size=small_size, mode="area")
-            det = self.detect_corrected(small, corr, board_size)
+            # area averaging is the anti-aliased downscale (each small pixel is the mean of its footprint)
+            det = self.detector(F.interpolate(images.float(), size=small_size, mode="area"), board_size)
+            # pixel centres: x_full + 0.5 = (x_small + 0.5) * w / w_small
             factor = torch.tensor([w / small_size[1], h / small_size[0]], dtype=det.corners.dtype,
                                   device=det.corners.device)
             corners = (det.corners + 0.5) * factor - 0.5
-            found_idx = det.found.nonzero().flatten()
-            if found_idx.numel():
-                corners[found_idx] = self._refine_full_resolution(images, corners[found_idx], found_idx, board_size)
-            return DetectionResult(corners, det.found, det.reasons)
-        zoom = float(corrected_frame.correction_zoom(corr, size))
-        parts_c, parts_f, reasons = [], [], []
-        for i in range(0, b, self.detection_batch_size):
-            chunk = slice(i, i + self.detection_batch_size)
-            with torch.inference_mode():
-                warped = radial_undistort_image(images[chunk].float(), corr[chunk].float(), zoom=zoom).clamp(0, 1)
-            det = self.detect(warped, board_size)
-            back, ok = distort_points_from_correction(det.corners.double(), corr[chunk], size, zoom=zoom, return_valid=True)
-            found_c = det.found & ok.all(-1) & back.isfinite().all(-1).all(-1)
-            parts_c.append(torch.where(found_c[:, None, None], back, torch.zeros_like(back)))
-            parts_f.append(found_c)
-            reasons += [("corrected image: " + (det.reasons[k] if det.reasons else "found")) if f else ""
-                        for k, f in enumerate(found_c.tolist())]
-        corners, found = torch.cat(parts_c), torch.cat(parts_f)
-        missed = (~found).nonzero().flatten()
-        if missed.numel():
-            plain = self.detect(images[missed], board_size)
-            corners[missed] = torch.where(plain.found[:, None, None], plain.corners.double(), corners[missed])
-            found[missed] = plain.found
-            for k, i in enumerate(missed.tolist()):
-                reasons[i] = plain.reasons[k] if plain.reasons else ("" if plain.found[k] else "board not found")
-        sel = (found & (torch.arange(b, device=found.device)[:, None] != missed[None, :]).all(-1)).nonzero().flatten()
-        if sel.numel():
-            with torch.inference_mode():
-                cells = torch.ones(sel.numel(), corners.shape[1], dtype=torch.bool, device=corners.device)
-                corners[sel] = self.refiner(images[sel].float(), corners[sel].float(), cells, board_size).double()
-        return DetectionResult(corners.float(), found, reasons)
+            idx = det.found.nonzero().flatten()
+            if idx.numel():
+                corners[idx] = self.refine_on_patches(images[idx], corners[idx], board_size)
+        return DetectionResult(corners, det.found, det.reasons)
 
-    def solve_with_correction(
-        self,
-        corners: torch.Tensor,
-        found: torch.Tensor,
-        correction: torch.Tensor,
-        apply: torch.Tensor,
-        board_size: tuple[int, int],
-        square: float,
-        image_size: tuple[int, int],
-    ) -> tuple[CalibrationResult, torch.Tensor, torch.Tensor]:
-        """The solver stage of the corrected pipeline: the usual calibration, and for cameras in ``apply`` the
-        corrected-frame one, kept unless it fits the observed corners clearly worse
-        (:func:`~ccs_kornia.modules.correction.corrected_frame.solve_with_correction`).
+    def refine_on_patches(self, images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
+        """Saddle refinement of corners :math:`(S, N, 2)` on ``images`` :math:`(S, 1, H, W)`, one small patch per
+        corner (the refiner smooths and normalises whatever it is given; on a 24 Mpx photo a whole image costs
+        seconds)."""
+        r = self.refiner
+        h, w = images.shape[-2:]
+        half = int(math.ceil(r.max_radius + 3 * max(r.normalize_sigma, r.smooth_sigma) + 4))
+        s, n = corners.shape[:2]
+        offsets = torch.arange(-half, half + 1, device=images.device)
+        origin = corners.detach().round().long().to(images.device)  # (S, N, 2) patch centres
+        ys = (origin[..., 1, None] + offsets).clamp(0, h - 1)  # (S, N, P), replicate at image borders
+        xs = (origin[..., 0, None] + offsets).clamp(0, w - 1)
+        patches = images[torch.arange(s, device=images.device)[:, None, None, None], 0, ys[..., :, None],
+                         xs[..., None, :]]
+        size = 2 * half + 1
+        local = (corners - (origin.to(corners) - half)).reshape(s * n, 1, 2)
+        valid = torch.ones(s, n, dtype=torch.bool, device=corners.device)
+        radius = (r.radius_factor * grid_spacing(corners, valid, board_size)).reshape(s * n, 1)
+        out = refine_corners(patches.reshape(s * n, 1, size, size).float(), local, None, radius, r.method,
+                             r.iterations, r.max_radius, r.smooth_sigma, r.normalize_sigma)
+        return out.reshape(s, n, 2) + (origin.to(corners) - half)
 
-        Args:
-            corners: :math:`(C, V, N, 2)`; found: :math:`(C, V)`; correction: :math:`(C, 5)` pooled corrections;
-            apply: :math:`(C,)` bool, cameras to calibrate in the corrected frame.
+    def _device(self) -> torch.device:
+        for p in self.parameters():
+            return p.device
+        for b in self.buffers():
+            return b.device
+        return torch.device("cpu")
 
-        Returns:
-            (calibration, correction per camera (re-fitted where applied), applied :math:`(C,)`).
-        """
-        usual = self.calibrate(corners, found, board_size, square, image_size)
-        return corrected_frame.solve_with_correction(
-            self.solver, usual, corners, found, correction, apply, board_size, square, image_size,
-            joint_iters=self.joint_iters, free_distortion_centre=self.free_distortion_centre,
-            max_rms_ratio=self.max_rms_ratio,
-        )
 
-    def calibrate_corrected(
-        self,
-        corners: torch.Tensor,
-        found: torch.Tensor,
-        correction: torch.Tensor,
-        board_size: tuple[int, int],
-        square: float,
-        image_size: tuple[int, int],
-    ) -> tuple[CalibrationResult, torch.Tensor, torch.Tensor]:
-        """Calibrate in the radially corrected frame, then express the camera in the output model
-        (:func:`~ccs_kornia.modules.correction.corrected_frame.calibrate_corrected` with this pipeline's solver).
+def _main_size(sizes: torch.Tensor, found: torch.Tensor, present: torch.Tensor) -> tuple[int, int]:
+    """The image size of a camera: the most common among views with a board (else among readable views)."""
+    pick = found if bool(found.any()) else present
+    counts = Counter(tuple(int(x) for x in s) for s in sizes[pick].tolist())
+    return max(counts, key=lambda k: counts[k]) if counts else (0, 0)
 
-        Returns:
-            (result in the output model, refined correction :math:`(C, 5)`, RMS reprojection error of the radial
-            model :math:`(C,)`).
-        """
-        return corrected_frame.calibrate_corrected(
-            self.solver, corners, found, correction, board_size, square, image_size,
-            joint_iters=self.joint_iters, free_distortion_centre=self.free_distortion_centre,
-        )
 
-    # ------------------------------------------------------------------------------------------
+def _scatter(part: CalibrationResult, index: torch.Tensor, like: CalibrationResult) -> CalibrationResult:
+    """``like`` with the cameras ``index`` replaced by ``part``'s (tensor fields of equal trailing shapes)."""
+    values = {}
+    for key, value in like.__dict__.items():
+        new = getattr(part, key)
+        if isinstance(value, torch.Tensor) and isinstance(new, torch.Tensor) and value.shape[1:] == new.shape[1:]:
+            value = value.clone()
+            value[index.to(value.device)] = new.to(value)
+        values[key] = value
+    return type(like)(**values)
 
-    def forward(self, images: torch.Tensor, board_size: tuple[int, int], square: float = 1.0) -> PipelineResult:
-        """Detect and calibrate (with the distortion correction when it is on).
 
-        Args:
-            images: :math:`(V, 1, H, W)` (one camera) or :math:`(C, V, 1, H, W)` (``C`` cameras of
-                one image size) float in ``[0, 1]``.
-            board_size: ``(cols, rows)`` inner corners.
-            square: square side in world units.
+def _positive(size: tuple[int, int]) -> tuple[int, int]:
+    """A camera none of whose views could be read has size (0, 0); the stages need a positive one (its views are
+    all masked)."""
+    return max(1, int(size[0])), max(1, int(size[1]))
 
-        Returns:
-            :class:`PipelineResult`.
-        """
-        if self.distortion_net is None:
-            detections = self.detect(images, board_size)
-            image_size = (int(images.shape[-1]), int(images.shape[-2]))
-            calibration = self.calibrate(detections.corners, detections.valid, board_size, square, image_size)
-            return PipelineResult(detections, calibration)
-        if not isinstance(images, torch.Tensor) or images.dim() not in (4, 5) or images.shape[-3] != 1:
-            shape = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
-            raise ValueError(f"Expected grey images (V, 1, H, W) or (C, V, 1, H, W), got {shape}.")
-        unbatched = images.dim() == 4
-        imgs = images[None] if unbatched else images
-        c, v = imgs.shape[:2]
-        h, w = imgs.shape[-2:]
-        size = (int(w), int(h))
-        n = int(board_size[0]) * int(board_size[1])
-        flat = imgs.reshape(c * v, 1, h, w)
-        correction, strong = self.pool_corrections(self.view_corrections(flat).reshape(c, v, 5), size)
-        corners = torch.zeros(c * v, n, 2, dtype=torch.float64, device=imgs.device)
-        found = torch.zeros(c * v, dtype=torch.bool, device=imgs.device)
-        reasons: list[str] = [""] * (c * v)
-        is_strong = strong.to(imgs.device).repeat_interleave(v)
-        # strongly distorted cameras camera by camera (each correction sets its own zoom), the others in one go
-        groups = [(torch.arange(ci * v, (ci + 1) * v, device=imgs.device), ci) for ci in strong.nonzero().flatten().tolist()]
-        rest = (~is_strong).nonzero().flatten()
-        if rest.numel():
-            groups.append((rest, None))
-        for sel, ci in groups:
-            det = self.detect(flat[sel], board_size) if ci is None else \
-                self.detect_corrected(flat[sel], correction[ci], board_size)
-            corners[sel] = det.corners.double()
-            found[sel] = det.found
-            for k, i in enumerate(sel.tolist()):
-                reasons[i] = det.reasons[k] if det.reasons else ""
-        corners, found = corners.reshape(c, v, n, 2), found.reshape(c, v)
-        calib, correction, strong = self.solve_with_correction(corners, found, correction, strong, board_size, square, size)
-        detections = DetectionResult(corners.to(torch.float32), found, reasons)
-        out = PipelineResult(detections, calib, correction, strong)
-        if unbatched:
-            det = DetectionResult(detections.corners[0], detections.found[0], reasons)
-            cal = CalibrationResult(**{k: (a[0] if isinstance(a, torch.Tensor) else a) for k, a in calib.__dict__.items()})
-            out = PipelineResult(det, cal, correction[0], strong[0])
-        return out
 
+def _same_size(out: PipelineResult) -> torch.Tensor:
+    """:math:`(C, V)` bool: the view was read and its size is within SIZE_TOLERANCE_PX of its camera's."""
+    main = torch.tensor(out.image_size, device=out.view_sizes.device).view(-1, 1, 2)
+    return out.present & ((out.view_sizes - main).abs() <= SIZE_TOLERANCE_PX).all(-1)
+
+
+def _camera_reason(calib: CalibrationResult, c: int, usable: int, present: int) -> str:
+    """Why camera ``c`` was not calibrated ('' where it was)."""
+    if bool(calib.success[c]):
+        return ""
+    if present == 0:
+        return "no readable image"
+    if usable < 3:
+        return f"board found in {usable} of {present} readable views; at least 3 are needed"
+    issues = calib.issues()[c] if hasattr(calib, "issues") else []
+    errors = [i["message"] for i in issues if i.get("severity") == "error"]
+    if errors:
+        return "; ".join(errors)
+    codes = Counter(VIEW_REASONS.get(int(k), "not used") for k in calib.view_reason[c].tolist())
+    detail = ", ".join(f"{n} {why}" for why, n in codes.most_common())
+    return f"calibration failed on {usable} views ({detail})"

@@ -22,21 +22,21 @@ from __future__ import annotations
 import glob
 import logging
 import os
+import signal
 import time
 import warnings
 from collections.abc import Iterable, Sequence
 from typing import Any
 
 import lightning.pytorch as pl
-import numpy as np
 import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 from torch.utils.data import DataLoader, Dataset
 
 from ccs_kornia.io import IMAGE_EXTENSIONS, json_line, load_image_gray
-from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.pipeline import CalibrationPipeline
-from ccs_kornia.records import calibration_record, plan_views
+from ccs_kornia.records import camera_record
+from ccs_kornia.sources import ViewSource
 
 __all__ = [
     "find_image_sets",
@@ -45,10 +45,8 @@ __all__ = [
     "CalibrationLitModule",
     "JsonlPredictionWriter",
     "calibrate_many",
+    "finished_sets",
 ]
-
-_PER_VIEW = ("rvec", "tvec", "view_rms", "used", "view_reason", "candidate_rms")
-
 
 def _images_in(directory: str) -> list[str]:
     return sorted(
@@ -113,15 +111,15 @@ def find_image_sets(items: Iterable[str]) -> tuple[list[tuple[str, list[str]]], 
 
 
 class ImageSetDataset(Dataset):
-    """One item per image set: its grey images stacked, of the set's most common size.
+    """One item per image set: its grey images, decoded (in DataLoader workers, ahead of the model).
 
     Args:
         sets: ``(name, files)`` pairs (see :func:`find_image_sets`).
 
     Item:
-        dict with ``name``, ``files`` (all inputs, in order), ``paths`` (the files in ``images``),
-        ``images`` :math:`(V, 1, H, W)` float in ``[0, 1]`` or ``None`` when no file could be read,
-        and ``skipped``: ``{path: reason}`` for unreadable files and files of another size.
+        dict with ``name``, ``files`` (all inputs, in order) and ``images``: one :math:`(1, H, W)` float tensor in
+        ``[0, 1]`` per file, or the reason string where the file could not be read (sizes may differ: the pipeline
+        decides which views fit the camera).
     """
 
     def __init__(self, sets: Sequence[tuple[str, list[str]]]) -> None:
@@ -132,34 +130,30 @@ class ImageSetDataset(Dataset):
 
     def __getitem__(self, index: int) -> dict[str, Any]:
         name, files = self.sets[index]
-        loaded: list[tuple[str, Any]] = []
-        skipped: dict[str, str] = {}
-        counts: dict[tuple[int, int], int] = {}
+        images: list[Any] = []
         for path in files:
             image, reason = load_image_gray(path)
-            if image is None:
-                skipped[path] = reason
-                continue
-            key = (image.shape[1], image.shape[0])
-            counts[key] = counts.get(key, 0) + 1
-            loaded.append((path, image))
-        images, paths = None, []
-        if counts:
-            size = max(counts, key=lambda k: counts[k])
-            keep = []
-            for path, image in loaded:
-                if (image.shape[1], image.shape[0]) == size:
-                    keep.append(image)
-                    paths.append(path)
-                else:
-                    skipped[path] = (f"image size {image.shape[1]}x{image.shape[0]} differs from the set's "
-                                     f"{size[0]}x{size[1]}")
-            images = torch.from_numpy(np.stack(keep))[:, None]
-        return {"name": name, "files": list(files), "paths": paths, "images": images, "skipped": skipped}
+            images.append(reason if image is None else torch.from_numpy(image)[None])
+        return {"name": name, "files": list(files), "images": images}
+
+
+class _DecodedSource(ViewSource):
+    """The views of a predict batch, decoded by the dataset (unreadable files keep their reason)."""
+
+    def __init__(self, items: list[dict[str, Any]]) -> None:
+        self.items = items
+        super().__init__([len(item["files"]) for item in items], [item["name"] for item in items])
+
+    def describe(self, camera: int, view: int) -> str:
+        return self.items[camera]["files"][view]
+
+    def _load(self, camera: int, view: int) -> tuple[torch.Tensor | None, str]:
+        image = self.items[camera]["images"][view]
+        return (None, image) if isinstance(image, str) else (image, "")
 
 
 def _collate_sets(items: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    # sets differ in view count and image size: keep them as a list, the module pads what it batches
+    # sets differ in view count and image size: keep them as a list, the pipeline pads what it batches
     return items
 
 
@@ -188,19 +182,6 @@ class ImageSetDataModule(pl.LightningDataModule):
         )
 
 
-def _camera(result: CalibrationResult, c: int, views: int) -> CalibrationResult:
-    """Camera ``c`` of a batched result, its first ``views`` views (the rest is padding)."""
-    fields = {}
-    for key, value in result.__dict__.items():
-        if not isinstance(value, torch.Tensor):
-            fields[key] = value
-        elif key in _PER_VIEW:
-            fields[key] = value[c, :views]
-        else:
-            fields[key] = value[c]
-    return CalibrationResult(**fields)
-
-
 class CalibrationLitModule(pl.LightningModule):
     """:class:`~ccs_kornia.pipeline.CalibrationPipeline` as a LightningModule for ``Trainer.predict``.
 
@@ -210,7 +191,8 @@ class CalibrationLitModule(pl.LightningModule):
         square: square side in world units.
         detector_name: recorded in the output.
 
-    ``predict_step`` takes a list of image-set items (:class:`ImageSetDataset`) and returns one
+    ``predict_step`` runs the pipeline's one composition (:meth:`~ccs_kornia.pipeline.CalibrationPipeline.run`)
+    on the sets of the batch (cameras of one image size are solved in one batched call) and returns one
     JSON-ready dict per set.
     """
 
@@ -222,101 +204,24 @@ class CalibrationLitModule(pl.LightningModule):
         self.square = float(square)
         self.detector_name = detector_name
 
-    def _failed(self, item: dict[str, Any], message: str, views: list[dict[str, Any]] | None = None) -> dict[str, Any]:
-        if views is None:
-            views = [{"path": p, "used": False, "rms": None, "found": False, "reason": f"unreadable: {r}"}
-                     for p, r in item["skipped"].items()]
-        return {
-            "set": item["name"], "success": False, "error": message, "image_size": None, "K": None,
-            "distortion": None, "rms": None, "views": views, "board": list(self.board_size), "square": self.square,
-            "detector": self.detector_name, "model": self.pipeline.model,
-            "num_views": {"files": len(item["files"]), "found": sum(1 for v in views if v.get("found")),
-                          "usable": 0, "used": 0},
-            "skipped": [{"path": v["path"], "reason": v["reason"]} for v in views if "reason" in v],
-        }
-
     def predict_step(self, batch: list[dict[str, Any]], batch_idx: int = 0) -> list[dict[str, Any]]:
-        board = self.board_size
-        out: list[dict[str, Any] | None] = [None] * len(batch)
-        plans: dict[tuple[int, int], list[tuple[int, list[dict], list[str], dict]]] = {}
-        for k, item in enumerate(batch):
-            if item["images"] is None:
-                out[k] = self._failed(item, "no readable image in the set")
-                continue
-            start = time.perf_counter()
-            images = item["images"].to(self.device)
-            correction = None
-            if self.pipeline.distortion_net is not None:
-                size_wh = (int(images.shape[-1]), int(images.shape[-2]))
-                corr, apply = self.pipeline.pool_corrections(self.pipeline.view_corrections(images)[None], size_wh)
-                correction = {"coeffs": corr[0], "apply": bool(apply[0])}
-            if correction is not None and correction["apply"]:
-                det = self.pipeline.detect_corrected(images, correction["coeffs"], board)
-            else:
-                det = self.pipeline.detect(images, board)
-            detect_s = time.perf_counter() - start
-            corners, found = det.corners.detach().double().cpu().tolist(), det.found.cpu().tolist()
-            reasons = det.reasons or [""] * len(found)
-            size = [int(item["images"].shape[-1]), int(item["images"].shape[-2])]
-            records: dict[str, dict[str, Any]] = {}
-            for path, reason in item["skipped"].items():
-                records[path] = {"found": False, "corners": None, "image_size": None, "error": reason}
-            for j, path in enumerate(item["paths"]):
-                records[path] = {"found": bool(found[j]), "corners": corners[j] if found[j] else None,
-                                 "image_size": size}
-                if not found[j]:
-                    records[path]["reason"] = reasons[j] or "board not found"
-            views, usable, image_size = plan_views(item["files"], records)
-            if len(usable) < 3:
-                n_found = sum(1 for v in views if v["found"])
-                out[k] = self._failed(item, f"only {len(usable)} usable view(s) (board found in {n_found} of "
-                                            f"{len(item['files'])} files); at least 3 are needed", views)
-                continue
-            plans.setdefault(tuple(image_size), []).append(
-                (k, views, usable, {"detect_s": detect_s, "records": records, "correction": correction}))
-
-        # one batched solver call per image size: cameras padded to the same number of views
-        for image_size, group in plans.items():
-            v_max = max(len(usable) for _, _, usable, _ in group)
-            n = board[0] * board[1]
-            corners = torch.zeros(len(group), v_max, n, 2, dtype=torch.float64)
-            valid = torch.zeros(len(group), v_max, n, dtype=torch.bool)
-            for c, (_, _, usable, extra) in enumerate(group):
-                corners[c, : len(usable)] = torch.tensor([extra["records"][p]["corners"] for p in usable], dtype=torch.float64)
-                valid[c, : len(usable)] = True
-            start = time.perf_counter()
-            corrections = [extra["correction"] for _, _, _, extra in group]
-            applied = torch.zeros(len(group), dtype=torch.bool)
-            if all(c is not None for c in corrections) and any(c["apply"] for c in corrections):
-                coeffs = torch.stack([c["coeffs"].to(self.device) for c in corrections])
-                apply = torch.tensor([c["apply"] for c in corrections], device=self.device)
-                result, _, applied = self.pipeline.solve_with_correction(
-                    corners.to(self.device), valid[..., 0].to(self.device), coeffs, apply, board, self.square, image_size)
-                applied = applied.cpu()
-            else:
-                result = self.pipeline.calibrate(corners.to(self.device), valid.to(self.device), board, self.square,
-                                                 image_size)
-            solve_s = (time.perf_counter() - start) / len(group)
-            for c, (k, views, usable, extra) in enumerate(group):
-                one = _camera(result, c, len(usable))
-                if not bool(one.success):
-                    out[k] = self._failed(batch[k], f"calibration failed on {len(usable)} views (degenerate or "
-                                                    "inconsistent views)", views)
-                    continue
-                record = calibration_record(views, usable, image_size, one, board=board, square=self.square,
-                                            detector=self.detector_name, model=self.pipeline.model)
-                corr = extra["correction"]
-                record["distortion_correction"] = (
-                    {"enabled": False} if corr is None else
-                    {"enabled": True, "applied": bool(applied[c]),
-                     "network_correction": [float(x) for x in corr["coeffs"].tolist()]})
-                out[k] = {"set": batch[k]["name"], "success": True, **record,
-                          "timings": {"detect_s": extra["detect_s"], "solve_s": solve_s}}
-        return [o for o in out if o is not None]
+        start = time.perf_counter()
+        out = self.pipeline.run(_DecodedSource(batch), self.board_size, self.square)
+        seconds = (time.perf_counter() - start) / max(1, len(batch))
+        records = []
+        for c, item in enumerate(batch):
+            one = out.select(c)
+            record = camera_record(one, item["files"], board=self.board_size, square=self.square,
+                                   detector=self.detector_name, model=self.pipeline.model)
+            records.append({"set": item["name"], **record, "timings": {"seconds_per_set": seconds}})
+        return records
 
 
 class JsonlPredictionWriter(BasePredictionWriter):
     """Append one JSON line per image set to ``path`` after every predict batch (flushed at once).
+
+    The file is opened for appending: lines already there are kept (``calibrate_many`` skips their sets), and an
+    interrupted run leaves every finished line intact.
 
     Attributes:
         succeeded / failed: counts of sets written so far.
@@ -330,7 +235,7 @@ class JsonlPredictionWriter(BasePredictionWriter):
         self._handle = None
 
     def on_predict_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
-        self._handle = open(self.path, "w", encoding="utf-8")  # noqa: SIM115 (closed in on_predict_end)
+        self._handle = open(self.path, "a", encoding="utf-8")  # noqa: SIM115 (closed in on_predict_end)
 
     def write_on_batch_end(self, trainer, pl_module, prediction, batch_indices, batch, batch_idx, dataloader_idx) -> None:
         assert self._handle is not None
@@ -346,6 +251,44 @@ class JsonlPredictionWriter(BasePredictionWriter):
         if self._handle is not None:
             self._handle.close()
             self._handle = None
+
+
+def finished_sets(path: str) -> set[str]:
+    """Names of the sets that already have a complete line in a ``calibrate-many`` output file.
+
+    A last line cut short by an interruption is ignored (and will be written again).
+
+    Example:
+        >>> finished_sets("/nonexistent.jsonl")
+        set()
+    """
+    import json
+
+    done: set[str] = set()
+    if not os.path.isfile(path):
+        return done
+    with open(path, encoding="utf-8") as handle:
+        for line in handle:
+            try:
+                record = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(record, dict) and "set" in record:
+                done.add(str(record["set"]))
+    return done
+
+
+def _trim_partial_line(path: str) -> None:
+    """Cut a last line without its newline (an interrupted write), so appended lines start clean."""
+    if not os.path.isfile(path) or os.path.getsize(path) == 0:
+        return
+    with open(path, "rb+") as handle:
+        data = handle.read()
+        if data.endswith(b"\n"):
+            return
+        cut = data.rfind(b"\n") + 1
+        handle.seek(cut)
+        handle.truncate()
 
 
 def _accelerator(device: str) -> tuple[str, Any]:
@@ -365,8 +308,12 @@ def calibrate_many(
     sets_per_batch: int = 4,
     num_workers: int = 0,
     progress: bool = True,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Calibrate every image set with ``Trainer.predict``; write one JSON line per set to ``output``.
+    """Calibrate every image set with ``Trainer.predict``; append one JSON line per set to ``output``.
+
+    Sets that already have a line in ``output`` are skipped (a run resumes where an interrupted one stopped);
+    ``overwrite`` starts the file again.
 
     Args:
         sets: ``(name, files)`` pairs (see :func:`find_image_sets`).
@@ -379,9 +326,11 @@ def calibrate_many(
         sets_per_batch: sets per ``predict_step``.
         num_workers: DataLoader workers loading sets ahead.
         progress: show Lightning's progress bar.
+        overwrite: truncate ``output`` first instead of resuming.
 
     Returns:
-        ``{"sets": int, "succeeded": int, "failed": int, "seconds": float}``.
+        ``{"sets": int, "succeeded": int, "failed": int, "skipped": int, "seconds": float}`` (``skipped``: sets
+        already in ``output``).
 
     Example:
         >>> sets, _ = find_image_sets(["cameras/"])  # doctest: +SKIP
@@ -389,11 +338,21 @@ def calibrate_many(
         {'sets': 300, 'succeeded': 298, 'failed': 2, 'seconds': 412.3}
     """
     pipeline = pipeline if pipeline is not None else CalibrationPipeline(detector_name)
+    if overwrite and os.path.exists(output):
+        open(output, "w", encoding="utf-8").close()  # noqa: SIM115
+    _trim_partial_line(output)
+    done = finished_sets(output)
+    todo = [s for s in sets if str(s[0]) not in done]
+    skipped = len(sets) - len(todo)
+    if not todo:
+        return {"sets": len(sets), "succeeded": 0, "failed": 0, "skipped": skipped, "seconds": 0.0}
+    sets = todo
     module = CalibrationLitModule(pipeline, board_size, square, detector_name)
     data = ImageSetDataModule(sets, sets_per_batch=sets_per_batch, num_workers=num_workers)
     writer = JsonlPredictionWriter(output)
     accelerator, devices = _accelerator(device)
     start = time.perf_counter()
+    sigint = signal.getsignal(signal.SIGINT)
     quiet = [logging.getLogger(name) for name in ("lightning.pytorch", "lightning.fabric", "lightning")]
     levels = [logger.level for logger in quiet]
     for logger in quiet:  # no "GPU available: ..." banners around a command-line tool
@@ -407,10 +366,17 @@ def calibrate_many(
                 accelerator=accelerator, devices=devices, logger=False, enable_checkpointing=False,
                 enable_model_summary=False, enable_progress_bar=progress, callbacks=[writer], inference_mode=True,
             )
-            trainer.predict(module, datamodule=data, return_predictions=False)
+            try:
+                trainer.predict(module, datamodule=data, return_predictions=False)
+            except SystemExit:
+                # Lightning turns Ctrl-C into a graceful shutdown and sys.exit(1); say what it was
+                if trainer.interrupted:
+                    raise KeyboardInterrupt from None
+                raise
     finally:
+        signal.signal(signal.SIGINT, sigint)  # Lightning ignores SIGINT after an interruption
         for logger, level in zip(quiet, levels):
             logger.setLevel(level)
         writer.on_predict_end(None, None)  # type: ignore[arg-type]  # closes the file after an interruption too
-    return {"sets": len(sets), "succeeded": writer.succeeded, "failed": writer.failed,
-            "seconds": time.perf_counter() - start}
+    return {"sets": len(sets) + skipped, "succeeded": writer.succeeded, "failed": writer.failed,
+            "skipped": skipped, "seconds": time.perf_counter() - start}

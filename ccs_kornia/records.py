@@ -1,137 +1,162 @@
-"""The calibration record of ``calibrate`` and ``calibrate-many`` (DESIGN section 4): which views enter a
-calibration and why the others do not, and the JSON of one camera's solver result.
+"""The JSON records of ``detect``, ``calibrate`` and ``calibrate-many`` (DESIGN section 4), made from one camera
+of a :class:`~ccs_kornia.pipeline_result.PipelineResult`: which views entered the calibration, why the others did
+not, the camera, its uncertainty and what the distortion correction did.
 
-Above :mod:`ccs_kornia.io` (files) and beside :mod:`ccs_kornia.pipeline`: it reads the solver's result and its
-reason codes, so ``io.py`` stays free of the solver.
+Above :mod:`ccs_kornia.io` (files) and :mod:`ccs_kornia.pipeline`: ``io.py`` stays free of the solver.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from ccs_kornia.modules.calibration.result import VIEW_REASONS
+from ccs_kornia.pipeline_result import PipelineResult
 
-__all__ = ["plan_views", "calibration_record"]
-
-
-def plan_views(
-    files: list[str], records: dict[str, dict[str, Any]]
-) -> tuple[list[dict[str, Any]], list[str], tuple[int, int] | None]:
-    """Decide which detected views enter a calibration, and say why the others do not.
-
-    The image size of the calibration is the most common size among images where the board was
-    found (ties: first seen); found views of another size are excluded with a reason.
-
-    Args:
-        files: the input files, in order.
-        records: per path ``{"found": bool, "corners": list | None, "image_size": [w, h] | None}``
-            plus ``"error"`` (unreadable file) or ``"reason"`` (board not found), as detection wrote them.
-
-    Returns:
-        ``(views, usable, image_size)``: one view dict per file (``path``, ``used`` False, ``rms``
-        None, ``found``, ``corners`` when found, ``reason`` when it cannot be used), the paths usable
-        for the calibration, and the chosen ``(W, H)`` (None when the board was found nowhere).
-    """
-    found_sizes: dict[tuple[int, int], int] = {}
-    for path in files:
-        r = records[path]
-        if r.get("found"):
-            key = (int(r["image_size"][0]), int(r["image_size"][1]))
-            found_sizes[key] = found_sizes.get(key, 0) + 1
-    image_size = max(found_sizes, key=lambda k: found_sizes[k]) if found_sizes else None  # first seen wins ties
-    views: list[dict[str, Any]] = []
-    usable: list[str] = []
-    for path in files:
-        r = records[path]
-        view: dict[str, Any] = {"path": path, "used": False, "rms": None, "found": bool(r.get("found"))}
-        if r.get("found"):
-            view["corners"] = r["corners"]
-        if "error" in r:
-            view["reason"] = f"unreadable: {r['error']}"
-        elif not r.get("found"):
-            view["reason"] = r.get("reason") or "board not found"
-        elif (int(r["image_size"][0]), int(r["image_size"][1])) != image_size:
-            assert image_size is not None
-            view["reason"] = (
-                f"image size {r['image_size'][0]}x{r['image_size'][1]} differs from the set's "
-                f"{image_size[0]}x{image_size[1]}"
-            )
-        else:
-            usable.append(path)
-        views.append(view)
-    return views, usable, image_size
+__all__ = ["view_records", "camera_record", "correction_record"]
 
 
-def calibration_record(
-    views: list[dict[str, Any]],
-    usable: list[str],
-    image_size: tuple[int, int],
-    result: Any,
-    *,
-    board: tuple[int, int],
-    square: float,
-    detector: str,
-    model: str,
-    reasons: dict[int, str] | None = None,
-) -> dict[str, Any]:
-    """The calibration JSON of ``calibrate`` (DESIGN section 4) from one camera's solver result.
+def _num(x: float) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def view_records(result: PipelineResult, paths: list[str]) -> list[dict[str, Any]]:
+    """One dict per view of one camera: ``path``, ``found``, ``corners`` (when found), ``image_size``, and
+    ``reason`` where the view cannot be used (unreadable, board not found, another image size).
 
     Args:
-        views: from :func:`plan_views` (updated in place with ``used``, ``rms``, poses, reasons).
-        usable: the paths given to the solver, in the order of the result's views.
-        image_size: ``(W, H)``.
-        result: an unbatched :class:`~ccs_kornia.modules.calibration.result.CalibrationResult` (views in the
-            order of ``usable``).
-        board, square, detector, model: recorded as given.
-        reasons: view reason codes to text (default: the solver's
-            :data:`~ccs_kornia.modules.calibration.result.VIEW_REASONS`).
-
-    Returns:
-        The JSON-ready dict (``image_size``, ``K``, ``distortion``, ``rms``, ``views``, ``std``,
-        ``num_views``, ``skipped``, ...).
+        result: one camera of a pipeline run (``result.select(c)``).
+        paths: the view names in order (file paths).
     """
-    if reasons is None:
-        reasons = VIEW_REASONS
-    K = result.K.detach().double().cpu()
-    dist = result.dist.detach().double().cpu()
-    view_rms = result.view_rms.detach().double().cpu().tolist()
-    used = result.used.detach().cpu().tolist()
-    rvec = result.rvec.detach().double().cpu().tolist()
-    tvec = result.tvec.detach().double().cpu().tolist()
-    codes = result.view_reason.cpu().tolist() if getattr(result, "view_reason", None) is not None else None
-    candidate_rms = getattr(result, "candidate_rms", None)
-    candidate_rms = candidate_rms.detach().double().cpu().tolist() if candidate_rms is not None else None
-    index = {path: k for k, path in enumerate(usable)}
-    for view in views:
-        k = index.get(view["path"])
-        if k is None:
-            continue
-        view["used"] = bool(used[k])
-        vr = view_rms[k]
-        view["rms"] = float(vr) if vr == vr else None  # NaN -> None
-        view["rvec"], view["tvec"] = rvec[k], tvec[k]
-        if not view["used"]:
-            code = int(codes[k]) if codes is not None else -1
-            view["reason"] = reasons.get(code, "not used by the solver")
-            if candidate_rms is not None and candidate_rms[k] == candidate_rms[k]:
-                view["rms_if_used"] = float(candidate_rms[k])
-    std_i = result.std_intrinsics.detach().double().cpu().tolist()
-    std_d = result.std_dist.detach().double().cpu().tolist()
-    n_used = int(sum(bool(u) for u in used))
+    det = result.detections
+    main = tuple(int(x) for x in result.image_size)
+    out = []
+    for v, path in enumerate(paths):
+        found = bool(det.found[v])
+        view: dict[str, Any] = {"path": path, "used": False, "rms": None, "found": found}
+        size = tuple(int(x) for x in result.view_sizes[v].tolist()) if result.view_sizes is not None else main
+        if bool(result.present[v]):
+            view["image_size"] = list(size)
+        if found:
+            view["corners"] = det.corners[v].double().cpu().tolist()
+            how = det.reasons[v] if det.reasons else ""
+            if how:
+                view["method"] = how
+        if not bool(result.present[v]):
+            view["reason"] = (det.reasons[v] if det.reasons else "") or "unreadable"
+        elif not found:
+            view["reason"] = (det.reasons[v] if det.reasons else "") or "board not found"
+        elif size != main:
+            from ccs_kornia.pipeline import SIZE_TOLERANCE_PX
+
+            if max(abs(size[0] - main[0]), abs(size[1] - main[1])) > SIZE_TOLERANCE_PX:
+                view["reason"] = f"image size {size[0]}x{size[1]} differs from the camera's {main[0]}x{main[1]}"
+            else:
+                view["note"] = (f"image size {size[0]}x{size[1]} used as {main[0]}x{main[1]} (within "
+                                f"{SIZE_TOLERANCE_PX} px: same pixel grid from the top-left corner)")
+        out.append(view)
+    return out
+
+
+def correction_record(result: PipelineResult) -> dict[str, Any]:
+    """What the distortion correction did for one camera (``{"enabled": False}`` when it is off)."""
+    if result.correction is None:
+        return {"enabled": False}
+    det = result.detections
+    on_corrected = sum(1 for r in (det.reasons or []) if r.startswith("corrected image"))
+    before, after = (None, None) if result.straightness is None else (_num(result.straightness[0]),
+                                                                      _num(result.straightness[1]))
+    from ccs_kornia.modules.correction.pooling import correction_displacement
+
+    size = (max(1, int(result.image_size[0])), max(1, int(result.image_size[1])))
+    displacement = float(correction_displacement(result.correction[None].double(), size)[0])
+    tried, applied = bool(result.correction_tried), bool(result.corrected)
+    if applied:
+        decision = "calibrated in the corrected frame (radial model about a free centre), kept: it fits clearly better"
+    elif tried:
+        decision = "corrected-frame calibration tried, not kept: it did not fit the corners clearly better"
+    elif before is not None and after is not None and after >= before:
+        decision = "not tried: the network's correction does not straighten the detected rows and columns"
+    else:
+        decision = "not tried: the lens is close enough to a pinhole for the usual calibration"
     return {
-        "image_size": [int(image_size[0]), int(image_size[1])],
-        "K": K.tolist(),
-        "distortion": {"model": result.model, "coeffs": dist.tolist()},
-        "rms": float(result.rms),
+        "enabled": True,
+        "tried": tried,
+        "applied": applied,
+        "views_detected_on_corrected_images": on_corrected,
+        "network_displacement_px": displacement,
+        "straightness_before_px": before,
+        "straightness_after_px": after,
+        "correction": [float(x) for x in result.correction.tolist()],
+        "decision": decision,
+        "note": "paper radial correction r_c = r_d (k0' + k1' r_d + ... + k4' r_d^4), radii from the image centre "
+                "in units of max(W, H); straightness = median RMS distance of the detected corners from lines fitted "
+                "to each board row and column, before and after the correction",
+    }
+
+
+def camera_record(
+    result: PipelineResult, paths: list[str], *, board: tuple[int, int], square: float, detector: str, model: str
+) -> dict[str, Any]:
+    """The calibration JSON of one camera (DESIGN section 4) plus what helps users judge it.
+
+    Args:
+        result: one camera of a calibrated pipeline run (``result.select(c)``).
+        paths: the view names in order.
+        board, square, detector, model: recorded as given.
+
+    Returns:
+        JSON-ready dict: ``success``, ``error`` (failed cameras), ``image_size``, ``K``, ``distortion``, ``rms``,
+        ``views``, ``std``, ``num_views``, ``skipped``, ``distortion_correction``, ``diagnostics``.
+    """
+    views = view_records(result, paths)
+    cal = result.calibration
+    success = cal is not None and bool(cal.success)
+    n_found = sum(1 for v in views if v["found"])
+    usable = [v for v in views if v["found"] and "reason" not in v]
+    data: dict[str, Any] = {
+        "success": success,
+        "image_size": [int(result.image_size[0]), int(result.image_size[1])],
+        "K": None, "distortion": None, "rms": None,
         "rms_kind": "RMS reprojection error over all corners of the used views, px",
         "views": views,
-        "std": {"fx": std_i[0], "fy": std_i[1], "cx": std_i[2], "cy": std_i[3], "distortion": std_d},
-        "board": list(board),
-        "square": square,
-        "detector": detector,
-        "model": model,
-        "num_views": {
-            "files": len(views), "found": sum(1 for v in views if v["found"]), "usable": len(usable), "used": n_used,
-        },
-        "skipped": [{"path": v["path"], "reason": v["reason"]} for v in views if not v["used"] and "reason" in v],
+        "board": list(board), "square": square, "detector": detector, "model": model,
     }
+    if cal is not None:
+        codes = cal.view_reason.cpu().tolist()
+        cand = cal.candidate_rms.double().cpu().tolist() if getattr(cal, "candidate_rms", None) is not None else None
+        rms = cal.view_rms.double().cpu().tolist()
+        for v, view in enumerate(views):
+            if "reason" in view or not view["found"]:
+                continue
+            view["used"] = bool(cal.used[v])
+            view["rms"] = _num(rms[v]) if view["used"] else None
+            view["rvec"], view["tvec"] = cal.rvec[v].double().tolist(), cal.tvec[v].double().tolist()
+            if not view["used"]:
+                view["reason"] = VIEW_REASONS.get(int(codes[v]), "not used by the solver") if success else \
+                    "in the failed calibration (no consistent camera)"
+                if cand is not None and _num(cand[v]) is not None:
+                    view["rms_if_used"] = float(cand[v])
+    if success:
+        std_i = cal.std_intrinsics.double().cpu().tolist()
+        data.update({
+            "K": cal.K.double().cpu().tolist(),
+            "distortion": {"model": cal.model, "coeffs": cal.dist.double().cpu().tolist()},
+            "rms": float(cal.rms),
+            "std": {"fx": std_i[0], "fy": std_i[1], "cx": std_i[2], "cy": std_i[3],
+                    "distortion": cal.std_dist.double().cpu().tolist()},
+        })
+    else:
+        data["error"] = result.camera_reasons or "calibration failed"
+    if cal is not None and hasattr(cal, "issues"):
+        issues = cal.issues()[0] if cal.K.dim() == 2 else []
+        data["warnings"] = [i for i in issues if i.get("severity") == "warning"]
+        data["errors"] = [i for i in issues if i.get("severity") == "error"]
+    data["num_views"] = {"files": len(views), "found": n_found, "usable": len(usable),
+                         "used": sum(1 for v in views if v["used"])}
+    data["skipped"] = [{"path": v["path"], "reason": v["reason"]} for v in views if not v["used"] and "reason" in v]
+    data["distortion_correction"] = correction_record(result)
+    if result.diagnostics is not None:
+        data["diagnostics"] = result.diagnostics
+    return data

@@ -196,8 +196,10 @@ def test_detect_corrected_large_images_downscaled_and_refined():
     s = make_calibration_set(K, BOARD, SQUARE, (1280, 960), num_views=2, radial=torch.tensor([1.0, -0.4, 0.0]),
                              seed=9, supersample=1)
     corr = torch.tensor([1.0, 0.0, 0.35, 0.0, 0.1], dtype=torch.float64)
-    full = CalibrationPipeline("opencv", max_detection_side=None).detect_corrected(s.images, corr, BOARD)
-    small = CalibrationPipeline("opencv", max_detection_side=640).detect_corrected(s.images, corr, BOARD)
+    from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected
+
+    pipes = [CalibrationPipeline("opencv", max_detection_side=side) for side in (None, 640)]
+    full, small = (detect_on_corrected(p.detect_images, p.refine_on_patches, s.images, corr, BOARD) for p in pipes)
     assert bool(full.found.all()) and bool(small.found.all())
     err_full = (full.corners.double() - s.corners.double()).norm(dim=-1)
     err_small = (small.corners.double() - s.corners.double()).norm(dim=-1)

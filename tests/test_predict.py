@@ -59,12 +59,14 @@ def test_find_image_sets(camera_dirs, tmp_path):
 def test_dataset_items(camera_dirs):
     sets, _ = find_image_sets([str(camera_dirs)])
     ds = ImageSetDataset(sets)
-    item = ds[1]  # b
-    assert item["images"].shape == (5, 1, 480, 640) and item["images"].dtype == torch.float32
-    assert len(item["paths"]) == 5 and len(item["files"]) == 7
-    assert "not a readable image" in item["skipped"][str(camera_dirs / "b" / "junk.png")]
-    assert "differs" in item["skipped"][str(camera_dirs / "b" / "odd.png")]
-    assert ds[3]["images"] is None
+    item = ds[1]  # b: decoded images in file order, the reason where a file is unreadable
+    images = dict(zip(item["files"], item["images"]))
+    assert len(item["files"]) == 7
+    assert images[str(camera_dirs / "b" / "v2.png")].shape == (1, 480, 640)
+    assert images[str(camera_dirs / "b" / "v2.png")].dtype == torch.float32
+    assert "not a readable image" in images[str(camera_dirs / "b" / "junk.png")]
+    assert images[str(camera_dirs / "b" / "odd.png")].shape == (1, 100, 120)
+    assert all(isinstance(i, str) for i in ds[3]["images"])
     loader = ImageSetDataModule(sets, sets_per_batch=3).predict_dataloader()
     assert [len(b) for b in loader] == [3, 1]
 
@@ -83,8 +85,8 @@ def test_predict_step_batches_cameras(camera_dirs):
     np.testing.assert_allclose(alone["K"], records[0]["K"], atol=1e-3)
     b = records[1]
     reasons = {os.path.basename(s["path"]): s["reason"] for s in b["skipped"]}
-    assert "unreadable" in reasons["junk.png"] and "differs" in reasons["odd.png"]
-    assert "at least 3" in records[2]["error"] and records[3]["error"] == "no readable image in the set"
+    assert "unreadable" in reasons["junk.png"] and "not found" in reasons["odd.png"]
+    assert "at least 3" in records[2]["error"] and records[3]["error"] == "no readable image"
 
 
 def test_calibrate_many_writes_jsonl(camera_dirs, tmp_path):
@@ -107,3 +109,43 @@ def test_pipeline_imports_no_lightning():
     code = "import sys, ccs_kornia.pipeline; print(sorted(m for m in sys.modules if m.split('.')[0] == 'lightning'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+def test_calibrate_many_appends_resumes_and_overwrites(camera_dirs, tmp_path):
+    sets, _ = find_image_sets([str(camera_dirs)])
+    out = tmp_path / "results.jsonl"
+    first = calibrate_many(sets[:2], BOARD, str(out), square=0.025, progress=False)
+    assert first["succeeded"] == 2 and first["skipped"] == 0
+    # an interrupted write left half a line: it is cut, and its set is done again
+    with open(out, "a", encoding="utf-8") as handle:
+        handle.write('{"set": "half')
+    again = calibrate_many(sets, BOARD, str(out), square=0.025, progress=False)
+    assert again["skipped"] == 2 and again["succeeded"] + again["failed"] == 2
+    names = [os.path.basename(json.loads(line)["set"]) for line in out.read_text().splitlines()]
+    assert names == ["a", "b", "c", "d"]
+    nothing = calibrate_many(sets, BOARD, str(out), square=0.025, progress=False)
+    assert nothing["skipped"] == 4 and nothing["succeeded"] == nothing["failed"] == 0
+    fresh = calibrate_many(sets[:1], BOARD, str(out), square=0.025, progress=False, overwrite=True)
+    assert fresh["succeeded"] == 1 and len(out.read_text().splitlines()) == 1
+
+
+def test_calibrate_many_ctrl_c_keeps_finished_lines(camera_dirs, tmp_path, monkeypatch, capsys):
+    from ccs_kornia.cli import main
+
+    sets, _ = find_image_sets([str(camera_dirs)])
+    out = tmp_path / "results.jsonl"
+    calls = {"n": 0}
+    original = CalibrationLitModule.predict_step
+
+    def interrupted(self, batch, batch_idx=0):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return original(self, batch, batch_idx)
+
+    monkeypatch.setattr(CalibrationLitModule, "predict_step", interrupted)
+    code = main(["calibrate-many", str(camera_dirs), "--board", "9x6", "--output", str(out), "--sets-per-batch", "1",
+                 "--detector", "opencv"])
+    assert code == 130 and "interrupted" in capsys.readouterr().err
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [os.path.basename(r["set"]) for r in lines] == ["a"] and lines[0]["success"]

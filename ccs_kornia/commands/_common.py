@@ -18,10 +18,8 @@ __all__ = [
     "make_dir",
     "inputs",
     "make_pipeline",
-    "detect_files",
+    "run_files",
     "not_found_message",
-    "predict_correction",
-    "correction_record",
 ]
 
 PROG = "ccs_kornia"
@@ -105,91 +103,39 @@ def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: 
         raise UserError(str(err).replace("pass distortion_correction=False", "use --no-distortion-correction")) from None
 
 
-def detect_files(
-    command: str, files: list[str], pipeline, board: tuple[int, int], device, batch_size: int, correction=None
-) -> dict[str, dict]:
-    """Stream the files through the detector; return per path ``{found, corners, image_size, reason}``.
+def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int, int], square: float, device,
+              calibrate: bool = True, names: list[str] | None = None):
+    """The pipeline's one composition (:meth:`~ccs_kornia.pipeline.CalibrationPipeline.run`) on image files, with a
+    progress bar; unreadable files are reported on stderr and skipped.
 
-    ``correction``: ``(image_size, (5,) coefficients)``: images of that size are detected on radially corrected
-    copies (corners mapped back to the originals).
+    Returns:
+        ``(result, seconds)``: the batched :class:`~ccs_kornia.pipeline_result.PipelineResult` and the wall time.
     """
+    import time
+
     from tqdm import tqdm
 
-    from ccs_kornia.io import iter_image_batches
+    from ccs_kornia.sources import FileSource
 
-    records: dict[str, dict] = {}
-    with tqdm(total=len(files), unit="img", desc=f"{command}", file=sys.stderr, disable=None, leave=False) as bar:
-        for batch in iter_image_batches(files, batch_size):
-            for path, reason in batch.skipped:
-                records[path] = {"found": False, "corners": None, "image_size": None, "error": reason}
-                warn(command, f"skipped {path}: {reason}")
-            if batch.images is not None:
-                if correction is not None and tuple(batch.image_size) == tuple(correction[0]):
-                    det = pipeline.detect_corrected(batch.images.to(device), correction[1].to(device), board)
-                else:
-                    det = pipeline.detect(batch.images.to(device), board)
-                corners = det.corners.cpu().double().tolist()
-                found = det.found.cpu().tolist()
-                reasons = det.reasons or [""] * len(batch.paths)
-                for k, path in enumerate(batch.paths):
-                    records[path] = {
-                        "found": bool(found[k]),
-                        "corners": corners[k] if found[k] else None,
-                        "image_size": list(batch.image_size),  # type: ignore[arg-type]
-                        "method" if found[k] else "reason": reasons[k] or ("" if found[k] else "board not found"),
-                    }
-            bar.update(len(batch.paths) + len(batch.skipped))
-    return records
+    source = FileSource(cameras, names)
+    pipeline.to(device)
+    start = time.perf_counter()
+    total = sum(source.counts)
+    with tqdm(total=total, unit="img", desc=command, file=sys.stderr, disable=None, leave=False) as bar:
+        out = pipeline.run(source, board, square, calibrate=calibrate, progress=bar.update)
+    seconds = time.perf_counter() - start
+    v = out.present.shape[1]
+    for c, files in enumerate(cameras):
+        for k, path in enumerate(files):
+            if not bool(out.present[c, k]):
+                warn(command, f"skipped {path}: {out.detections.reasons[c * v + k]}")
+    return out, seconds
 
 
-def not_found_message(board: tuple[int, int], records: dict[str, dict]) -> str:
-    readable = sum(1 for r in records.values() if r.get("image_size") is not None)
+def not_found_message(board: tuple[int, int], readable: int, total: int) -> str:
     if readable == 0:
-        return f"none of the {len(records)} input files could be read as an image"
+        return f"none of the {total} input files could be read as an image"
     return (
         f"board {board[0]}x{board[1]} not found in any of {readable} images "
         f"(check --board: COLSxROWS counts inner corners, where four squares meet)"
     )
-
-
-def predict_correction(command: str, files: list[str], pipeline, device, batch_size: int) -> dict | None:
-    """First pass of the corrected calibration: the network's correction of every image, pooled over the
-    images of the most common size (the camera's)."""
-    from collections import defaultdict
-
-    import torch
-    from tqdm import tqdm
-
-    from ccs_kornia.io import iter_image_batches
-
-    per_size: dict[tuple[int, int], list] = defaultdict(list)
-    with tqdm(total=len(files), unit="img", desc=f"{command}: lens", file=sys.stderr, disable=None, leave=False) as bar:
-        for batch in iter_image_batches(files, batch_size):
-            if batch.images is not None:
-                per_size[tuple(batch.image_size)].append(pipeline.view_corrections(batch.images.to(device)).cpu())
-            bar.update(len(batch.paths) + len(batch.skipped))
-    if not per_size:
-        return None
-    size = max(per_size, key=lambda k: sum(t.shape[0] for t in per_size[k]))
-    views = torch.cat(per_size[size])
-    coeffs, apply = pipeline.pool_corrections(views[None], size)
-    from ccs_kornia.modules.correction.pooling import correction_displacement
-
-    return {"image_size": size, "coeffs": coeffs[0], "apply": bool(apply[0]), "views": int(views.shape[0]),
-            "displacement_px": float(correction_displacement(coeffs, size)[0])}
-
-
-def correction_record(correction: dict | None, applied: bool, what: str | None = None) -> dict:
-    if correction is None:
-        return {"enabled": False}
-    return {
-        "enabled": True,
-        "applied": applied,
-        "network_correction": [float(x) for x in correction["coeffs"].tolist()],
-        "network_displacement_px": correction["displacement_px"],
-        "refined_correction": correction.get("refined"),
-        "note": "paper radial correction r_c = r_d (k0' + k1' r_d + ... + k4' r_d^4), radii from the image centre "
-                "in units of max(W, H); applied = "
-                + (what or "detected on corrected images and calibrated in the corrected frame")
-                + " (see docs/architecture.md)",
-    }

@@ -11,14 +11,12 @@ from typing import Any
 from ccs_kornia.commands._common import (
     UserError,
     check_output_file,
-    correction_record,
-    detect_files,
     inputs,
     make_dir,
     make_pipeline,
     not_found_message,
-    predict_correction,
     resolve_device,
+    run_files,
     warn,
 )
 
@@ -36,95 +34,40 @@ def calibrate_files(
     model: str,
     detector_name: str,
 ) -> tuple[dict[str, Any], Any]:
-    """Detect on ``files`` and calibrate; returns (JSON-ready dict, CalibrationResult).
+    """The pipeline's one composition on ``files`` (one camera); returns (JSON-ready dict, PipelineResult of it).
 
-    Raises :class:`UserError` when no calibration can be computed; when images were read, the error
-    carries ``partial``: the per-view record (detections and reasons) so the caller can keep it.
+    Raises :class:`UserError` when no calibration can be computed; when images were read, the error carries
+    ``partial``: the per-view record (detections and reasons) so the caller can keep it.
     """
-    import torch
+    from ccs_kornia.records import camera_record
 
-    from ccs_kornia.records import calibration_record, plan_views
-
-    timings: dict[str, float] = {}
-    correction = None
-    if pipeline.distortion_net is not None:
-        start = time.perf_counter()
-        correction = predict_correction(command, files, pipeline, device, batch_size)
-        timings["distortion_net_s"] = time.perf_counter() - start
-    start = time.perf_counter()
-    detect_with = (correction["image_size"], correction["coeffs"]) if correction and correction["apply"] else None
-    records = detect_files(command, files, pipeline, board, device, batch_size, detect_with)
-    timings["load_and_detect_s"] = time.perf_counter() - start
-    views, usable, image_size = plan_views(files, records)
-    for view in views:
-        if view["found"] and "reason" in view:  # found but of another size
+    out, seconds = run_files(command, pipeline, [files], board, square, device)
+    one = out.select(0)
+    data = camera_record(one, files, board=board, square=square, detector=detector_name, model=model)
+    data["timings"] = {"load_detect_solve_s": seconds, "images_per_s": len(files) / max(seconds, 1e-9)}
+    for view in data["views"]:
+        if view["found"] and "reason" in view and view["reason"].startswith("image size"):
             warn(command, f"skipped {view['path']}: {view['reason']}")
-    n_found = sum(1 for v in views if v["found"])
-
-    def failure(message: str) -> UserError:
+        if "note" in view:
+            warn(command, f"{view['path']}: {view['note']}")
+    for issue in data.get("warnings", []):
+        warn(command, issue.get("message", str(issue)))
+    if not data["success"]:
+        readable = int(one.present.sum())
+        if data["num_views"]["found"] == 0:
+            message = not_found_message(board, readable, len(files))
+        elif data["num_views"]["usable"] < 3:
+            message = (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
+                       f"{len(files)} files (board found in {data['num_views']['found']}); at least 3 are needed")
+        else:
+            message = (f"calibration failed on {data['num_views']['usable']} views: {data['error']}; the views may be "
+                       "degenerate (e.g. all fronto-parallel, or copies of one view) or inconsistent: add views with "
+                       "the board tilted in different directions")
         err = UserError(message)
-        if any(r.get("image_size") is not None for r in records.values()):
-            err.partial = {
-                "success": False, "error": message, "board": list(board), "square": square,
-                "detector": detector_name, "model": model,
-                "image_size": list(image_size) if image_size else None, "K": None, "distortion": None, "rms": None,
-                "views": views,
-                "num_views": {"files": len(files), "found": n_found, "usable": len(usable), "used": 0},
-                "skipped": [{"path": v["path"], "reason": v["reason"]} for v in views if "reason" in v],
-                "timings": timings,
-            }
-        return err
-
-    if image_size is None:
-        raise failure(not_found_message(board, records))
-    if len(usable) < 3:
-        raise failure(
-            f"only {len(usable)} usable view(s) of the {board[0]}x{board[1]} board among {len(files)} files "
-            f"(board found in {n_found}); at least 3 are needed"
-        )
-
-    corners = torch.tensor([records[p]["corners"] for p in usable], dtype=torch.float64, device=device)
-    valid = torch.ones(corners.shape[:-1], dtype=torch.bool, device=device)
-    start = time.perf_counter()
-    applied = False
-    if correction is not None and correction["apply"] and tuple(correction["image_size"]) == tuple(image_size):
-        result, refined, applied_t = pipeline.solve_with_correction(
-            corners[None], valid[:, 0][None], correction["coeffs"][None].to(device), torch.ones(1, dtype=torch.bool),
-            board, square, image_size,
-        )
-        result = first_camera(result)
-        applied = bool(applied_t[0])
-        correction["refined"] = refined[0].cpu().tolist()
-    else:
-        result = pipeline.calibrate(corners, valid, board, square, image_size)
-    timings["solve_s"] = time.perf_counter() - start
-    if not bool(torch.as_tensor(result.success).all()):
-        from ccs_kornia.modules.calibration.result import VIEW_REASONS
-
-        failed_fit = "in the failed refinement (no consistent camera)"
-        texts = [failed_fit if int(c) == 0 else VIEW_REASONS.get(int(c), "not used by the solver")
-                 for c in result.view_reason.cpu().tolist()]
-        codes = Counter(texts)
-        index = {path: k for k, path in enumerate(usable)}
-        for view in views:
-            if view["path"] in index:
-                view["reason"] = texts[index[view["path"]]]
-        detail = ", ".join(f"{n} {reason}" for reason, n in codes.most_common())
-        raise failure(
-            f"calibration failed on {len(usable)} views ({detail}); the views may be degenerate "
-            "(e.g. all fronto-parallel) or inconsistent: add views with the board tilted in different directions"
-        )
-    data = calibration_record(views, usable, image_size, result, board=board, square=square,
-                              detector=detector_name, model=model)
-    data["distortion_correction"] = correction_record(correction, applied)
-    data["timings"] = timings
-    return data, result
-
-
-def first_camera(result):
-    from ccs_kornia.modules.calibration.result import CalibrationResult
-
-    return CalibrationResult(**{k: (v[0] if hasattr(v, "dim") else v) for k, v in result.__dict__.items()})
+        if readable:
+            err.partial = data
+        raise err
+    return data, one
 
 
 def _failed_path(output: str) -> str:

@@ -29,12 +29,19 @@ def run(args: argparse.Namespace) -> int:
     summary = calibrate_many(
         sets, args.board, args.output, square=args.square, pipeline=pipeline, detector_name=args.detector,
         device=str(device), sets_per_batch=args.sets_per_batch, num_workers=args.workers,
+        overwrite=bool(getattr(args, "overwrite", False)),
     )
-    if summary["succeeded"] == 0:
+    if summary["skipped"]:
+        info(f"{summary['skipped']} set(s) already in {args.output} were skipped (--overwrite starts again)")
+    if summary["skipped"] == summary["sets"]:
+        print(f"all {summary['sets']} sets are already in {args.output}; nothing to do (--overwrite starts again)")
+        return 0
+    if summary["succeeded"] == 0 and summary["failed"]:
         raise UserError(f"no set could be calibrated ({summary['failed']} failed; reasons in {args.output})")
-    rate = summary["sets"] / max(summary["seconds"], 1e-9)
+    ran = summary["sets"] - summary["skipped"]
+    rate = ran / max(summary["seconds"], 1e-9)
     print(
-        f"calibrated {summary['succeeded']} of {summary['sets']} sets in {summary['seconds']:.1f} s "
+        f"calibrated {summary['succeeded']} of {ran} sets in {summary['seconds']:.1f} s "
         f"({rate:.2f} sets/s); {summary['failed']} failed (see \"error\" in {args.output}); wrote {args.output}"
     )
     return 0

@@ -1,0 +1,188 @@
+"""What one :class:`~ccs_kornia.pipeline.CalibrationPipeline` run returns, and selecting cameras out of it."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+import torch
+
+from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules.detection.base import DetectionResult
+
+__all__ = ["PipelineResult", "select_result", "concat_results"]
+
+
+def _index(value: Any, idx: torch.Tensor | int) -> Any:
+    if isinstance(value, torch.Tensor) and value.dim() > 0:
+        return value[idx.to(value.device) if isinstance(idx, torch.Tensor) else idx]
+    return value
+
+
+def select_result(result: Any, idx: torch.Tensor | int) -> Any:
+    """Cameras ``idx`` of a dataclass result whose tensor fields all have the camera dimension first.
+
+    An ``int`` drops the camera dimension; a :math:`(K,)` long tensor keeps it. Works for
+    :class:`~ccs_kornia.modules.calibration.result.CalibrationResult` whatever optional fields it carries.
+
+    Example:
+        >>> d = DetectionResult(torch.zeros(3, 5, 4, 2), torch.tensor([[True] * 5] * 3))
+        >>> select_result(d, torch.tensor([0, 2])).corners.shape, select_result(d, 1).found.shape
+        (torch.Size([2, 5, 4, 2]), torch.Size([5]))
+    """
+    values = {}
+    for f in fields(result):
+        v = getattr(result, f.name)
+        values[f.name] = _index(v, idx) if f.name != "reasons" else v
+    return type(result)(**values)
+
+
+def concat_results(parts: Sequence[Any]) -> Any:
+    """Concatenate dataclass results along the camera dimension (non-tensor fields taken from the first).
+
+    Example:
+        >>> a = DetectionResult(torch.zeros(1, 2, 4, 2), torch.ones(1, 2, dtype=torch.bool))
+        >>> concat_results([a, a]).corners.shape
+        torch.Size([2, 2, 4, 2])
+    """
+    first = parts[0]
+    values = {}
+    for f in fields(first):
+        vs = [getattr(p, f.name) for p in parts]
+        if all(isinstance(v, torch.Tensor) and v.dim() > 0 for v in vs):
+            values[f.name] = torch.cat([v.to(vs[0].device) for v in vs])
+        else:
+            values[f.name] = vs[0]
+    return type(first)(**values)
+
+
+@dataclass
+class PipelineResult:
+    """Detections and calibration of ``C`` cameras (the camera dimension is absent for one camera's views).
+
+    Attributes:
+        detections: corners :math:`(C, V, N, 2)` in the original images (zeros where not found), found
+            :math:`(C, V)`; ``reasons`` per view, flattened camera-major.
+        calibration: the solver's :class:`~ccs_kornia.modules.calibration.result.CalibrationResult` per camera
+            (``None`` when the run stopped after detection).
+        image_size: ``(W, H)`` per camera (the size most of its views with a board have).
+        present: :math:`(C, V)` bool, the view exists and could be read (views are padded to the largest camera).
+        view_sizes: :math:`(C, V, 2)` long, ``(W, H)`` of each view (0 where not read); views within
+            :data:`~ccs_kornia.pipeline.SIZE_TOLERANCE_PX` of ``image_size`` are used.
+        correction: :math:`(C, 5)` the lens correction per camera (the network's pooled prediction, or the re-fitted
+            one where the corrected-frame calibration was kept); ``None`` when distortion correction is off.
+        correction_tried: :math:`(C,)` bool, the image evidence asked for the corrected path (it straightened the
+            detected rows and columns, or found boards the originals hid).
+        corrected: :math:`(C,)` bool, the corrected-frame calibration was kept.
+        straightness: :math:`(C, 2)` median row/column RMS (px) of the detected boards before and after the
+            network's correction.
+        camera_reasons: per camera, why it was not calibrated (empty string where it was).
+        diagnostics: per camera, the quality figures of the calibration (see ``docs/diagnostics.md``) or ``None``.
+    """
+
+    detections: DetectionResult
+    calibration: CalibrationResult | None
+    image_size: Any
+    present: torch.Tensor
+    view_sizes: torch.Tensor | None = None
+    correction: torch.Tensor | None = None
+    correction_tried: torch.Tensor | None = None
+    corrected: torch.Tensor | None = None
+    straightness: torch.Tensor | None = None
+    camera_reasons: Any = field(default_factory=list)
+    diagnostics: Any = None
+
+    @property
+    def batched(self) -> bool:
+        """Whether the camera dimension is present."""
+        return self.present.dim() == 2
+
+    def select(self, cameras: int | Sequence[int] | torch.Tensor) -> PipelineResult:
+        """The result of some cameras: an ``int`` gives one camera without the camera dimension.
+
+        Example:
+            >>> d = DetectionResult(torch.zeros(2, 3, 4, 2), torch.zeros(2, 3, dtype=torch.bool), [""] * 6)
+            >>> r = PipelineResult(d, None, [(64, 48), (32, 24)], torch.ones(2, 3, dtype=torch.bool),
+            ...                    camera_reasons=["a", "b"])
+            >>> one = r.select(1)
+            >>> one.detections.corners.shape, one.image_size, one.camera_reasons, one.batched
+            (torch.Size([3, 4, 2]), (32, 24), 'b', False)
+        """
+        if not self.batched:
+            raise ValueError("select() needs a batched result (cameras first).")
+        single = isinstance(cameras, int)
+        idx = cameras if single else torch.as_tensor(list(cameras) if not isinstance(cameras, torch.Tensor)
+                                                     else cameras, dtype=torch.long)
+        picks = [idx] if single else idx.tolist()
+        v = self.present.shape[1]
+        reasons = self.detections.reasons
+        if reasons is not None:
+            per = [reasons[c * v:(c + 1) * v] for c in picks]
+            reasons = [r for p in per for r in p]
+        det = replace(select_result(self.detections, idx), reasons=reasons)
+        pick = (lambda seq: seq[idx]) if single else (lambda seq: [seq[c] for c in picks])
+        return PipelineResult(
+            detections=det,
+            calibration=None if self.calibration is None else select_result(self.calibration, idx),
+            image_size=pick(self.image_size),
+            present=_index(self.present, idx),
+            view_sizes=_index(self.view_sizes, idx),
+            correction=_index(self.correction, idx),
+            correction_tried=_index(self.correction_tried, idx),
+            corrected=_index(self.corrected, idx),
+            straightness=_index(self.straightness, idx),
+            camera_reasons=pick(self.camera_reasons),
+            diagnostics=None if self.diagnostics is None else pick(self.diagnostics),
+        )
+
+    # shortcuts to the tensors most callers want
+    @property
+    def K(self) -> torch.Tensor:
+        """Camera matrices :math:`(3, 3)` / :math:`(C, 3, 3)` (NaN where the calibration failed)."""
+        return self.calibration.K
+
+    @property
+    def dist(self) -> torch.Tensor:
+        """Distortion coefficients in OpenCV order :math:`(D,)` / :math:`(C, D)`."""
+        return self.calibration.dist
+
+    @property
+    def rvec(self) -> torch.Tensor:
+        """World-to-camera rotations (axis-angle) :math:`(V, 3)` / :math:`(C, V, 3)`."""
+        return self.calibration.rvec
+
+    @property
+    def tvec(self) -> torch.Tensor:
+        """World-to-camera translations :math:`(V, 3)` / :math:`(C, V, 3)` in units of ``square``."""
+        return self.calibration.tvec
+
+    @property
+    def view_rms(self) -> torch.Tensor:
+        """Per-view RMS reprojection error in px :math:`(V,)` / :math:`(C, V)`, NaN for unused views."""
+        return self.calibration.view_rms
+
+    @property
+    def used(self) -> torch.Tensor:
+        """Views used by the final refinement :math:`(V,)` / :math:`(C, V)` bool."""
+        return self.calibration.used
+
+    @property
+    def found(self) -> torch.Tensor:
+        """Views where the board was detected :math:`(V,)` / :math:`(C, V)` bool."""
+        return self.detections.found
+
+    @property
+    def rms(self) -> torch.Tensor:
+        """Overall RMS reprojection error in px, scalar / :math:`(C,)`."""
+        return self.calibration.rms
+
+    @property
+    def success(self) -> torch.Tensor:
+        """Whether each camera was calibrated, bool scalar / :math:`(C,)`."""
+        return self.calibration.success
+
+    @property
+    def std(self) -> torch.Tensor:
+        """Standard deviations of ``(fx, fy, cx, cy, *dist)`` :math:`(4 + D,)` / :math:`(C, 4 + D)`."""
+        return torch.cat([self.calibration.std_intrinsics, self.calibration.std_dist], -1)
