@@ -168,11 +168,23 @@ class CalibrationPipeline(nn.Module):
             source: the views (:class:`~ccs_kornia.sources.TensorSource` or :class:`~ccs_kornia.sources.FileSource`).
             board_size: ``(cols, rows)`` inner corners.
             square: square side in world units.
-            calibrate: ``False`` stops after detection (``calibration`` is ``None``; :meth:`solve` completes it).
+            calibrate: ``False`` stops before the solver (``calibration`` is ``None``; :meth:`solve` completes it).
             progress: called with the number of views handled after every batch.
 
         Returns:
             A batched :class:`~ccs_kornia.pipeline_result.PipelineResult`.
+        """
+        return self.finish(self.detect_views(source, board_size, progress), board_size, square, source, calibrate)
+
+    def detect_views(
+        self, source: ViewSource, board_size: tuple[int, int], progress: Callable[[int], None] | None = None
+    ) -> PipelineResult:
+        """One streamed pass over the views: the network's lens correction of each view (stage 1) and the board on
+        each image as it is (stage 2); :meth:`finish` does the rest.
+
+        Returns:
+            A batched :class:`~ccs_kornia.pipeline_result.PipelineResult` without calibration; ``view_corrections``
+            holds the per-view network predictions (``None`` when the correction is off).
         """
         if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
             raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
@@ -184,9 +196,9 @@ class CalibrationPipeline(nn.Module):
         present = torch.zeros(c, v, dtype=torch.bool, device=device)
         sizes = torch.zeros(c, v, 2, dtype=torch.long)
         reasons = [[""] * v for _ in range(c)]
-        per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
-
-        # 1. correct: the network's correction of every view; 2. detect: every view as it is (one streamed pass)
+        per_view = None
+        if self.distortion_net is not None:
+            per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
         for batch in source.batches(batch_size=self.detection_batch_size, max_pixels=self.max_batch_pixels):
             for (ci, vi), why in batch.failed:
                 reasons[ci][vi] = f"unreadable: {why}"
@@ -195,24 +207,44 @@ class CalibrationPipeline(nn.Module):
             images = batch.images.to(device)
             cam = torch.tensor([k[0] for k in batch.keys], device=device)
             view = torch.tensor([k[1] for k in batch.keys], device=device)
+            if per_view is not None:
+                per_view[cam, view] = self.view_corrections(images)
             det = self.detect_images(images, board)
             corners[cam, view], found[cam, view], present[cam, view] = det.corners.double(), det.found, True
             sizes[cam.cpu(), view.cpu()] = torch.tensor([images.shape[-1], images.shape[-2]])
             for k, (ci, vi) in enumerate(batch.keys):
                 reasons[ci][vi] = (det.reasons[k] if det.reasons else "") or ("" if det.found[k] else "board not found")
-            if self.distortion_net is not None:
-                per_view[cam, view] = self.view_corrections(images)
             if progress is not None:
                 progress(len(batch.keys) + len(batch.failed))
-
         image_size = [_main_size(sizes[ci], found[ci].cpu(), present[ci].cpu()) for ci in range(c)]
-        out = PipelineResult(DetectionResult(corners, found, [r for rs in reasons for r in rs]), None, image_size,
-                             present, sizes.to(device), camera_reasons=[""] * c)
-        if self.distortion_net is not None:
-            self._correct(source, out, per_view, _same_size(out), board)
+        return PipelineResult(DetectionResult(corners, found, [r for rs in reasons for r in rs]), None, image_size,
+                              present, sizes.to(device), camera_reasons=[""] * c, view_corrections=per_view)
+
+    def finish(
+        self,
+        out: PipelineResult,
+        board_size: tuple[int, int],
+        square: float = 1.0,
+        source: ViewSource | None = None,
+        calibrate: bool = True,
+    ) -> PipelineResult:
+        """The rest of :meth:`run` after :meth:`detect_views`: the lens correction per camera (pooled; the views
+        missed on the originals looked for on corrected copies, read again from ``source``; the image evidence for
+        the corrected path), then the solver (:meth:`solve`).
+
+        Args:
+            out: a batched result of :meth:`detect_views` (or views taken from one, see
+                :meth:`~ccs_kornia.pipeline_result.PipelineResult.take_views`).
+            board_size, square: the board.
+            source: where the views can be read again (``None``: no second look at missed views).
+            calibrate: run the solver.
+        """
+        board = (int(board_size[0]), int(board_size[1]))
+        if out.view_corrections is not None and self.distortion_net is not None:
+            self._correct(source, out, out.view_corrections, _same_size(out), board)
         return self.solve(out, board, square) if calibrate else out
 
-    def _correct(self, source: ViewSource, out: PipelineResult, per_view: torch.Tensor, same: torch.Tensor,
+    def _correct(self, source: ViewSource | None, out: PipelineResult, per_view: torch.Tensor, same: torch.Tensor,
                  board: tuple[int, int]) -> None:
         """Pool the corrections, detect the missed views of strongly distorted cameras on corrected copies, and
         weigh the evidence for the corrected path (fills ``out``'s correction fields in place)."""
@@ -228,8 +260,9 @@ class CalibrationPipeline(nn.Module):
             correction[sel], large[sel] = self.pool_corrections(per_view[sel], _positive(size), mask)
         recovered = torch.zeros(c, dtype=torch.bool, device=device)
         missed = [(ci, vi) for ci in large.nonzero().flatten().tolist()
-                  for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()]
-        for batch in source.batches(missed, batch_size=self.detection_batch_size, max_pixels=self.max_batch_pixels):
+                  for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()] if source is not None else []
+        for batch in ([] if not missed else source.batches(missed, batch_size=self.detection_batch_size,
+                                                          max_pixels=self.max_batch_pixels)):
             if batch.images is None:
                 continue
             cam = torch.tensor([k[0] for k in batch.keys], device=device)

@@ -77,6 +77,7 @@ class PipelineResult:
         corrected: :math:`(C,)` bool, the corrected-frame calibration was kept.
         straightness: :math:`(C, 2)` median row/column RMS (px) of the detected boards before and after the
             network's correction.
+        view_corrections: :math:`(C, V, 5)` the network's correction of each view (``None`` when it is off).
         camera_reasons: per camera, why it was not calibrated (empty string where it was).
         diagnostics: per camera, the quality figures of the calibration (see ``docs/diagnostics.md``) or ``None``.
     """
@@ -90,6 +91,7 @@ class PipelineResult:
     correction_tried: torch.Tensor | None = None
     corrected: torch.Tensor | None = None
     straightness: torch.Tensor | None = None
+    view_corrections: torch.Tensor | None = None
     camera_reasons: Any = field(default_factory=list)
     diagnostics: Any = None
 
@@ -132,9 +134,47 @@ class PipelineResult:
             correction_tried=_index(self.correction_tried, idx),
             corrected=_index(self.corrected, idx),
             straightness=_index(self.straightness, idx),
+            view_corrections=_index(self.view_corrections, idx),
             camera_reasons=pick(self.camera_reasons),
             diagnostics=None if self.diagnostics is None else pick(self.diagnostics),
         )
+
+    def take_views(self, cameras: torch.Tensor, views: torch.Tensor) -> PipelineResult:
+        """New cameras made of views of these ones, before the correction and solver stages (e.g. benchmark trials
+        drawing subsets of a camera's views): trial ``t`` holds views ``views[t]`` of camera ``cameras[t]``.
+
+        Args:
+            cameras: :math:`(T,)` long; views: :math:`(T, V')` long.
+
+        Returns:
+            A batched result of ``T`` cameras with detections, sizes and per-view corrections only.
+
+        Example:
+            >>> d = DetectionResult(torch.zeros(2, 4, 6, 2), torch.ones(2, 4, dtype=torch.bool), [""] * 8)
+            >>> r = PipelineResult(d, None, [(64, 48), (64, 48)], torch.ones(2, 4, dtype=torch.bool),
+            ...                    torch.full((2, 4, 2), 48), camera_reasons=["", ""])
+            >>> t = r.take_views(torch.tensor([1, 1, 0]), torch.tensor([[0, 2], [1, 3], [0, 1]]))
+            >>> t.detections.corners.shape, t.present.shape, t.image_size
+            (torch.Size([3, 2, 6, 2]), torch.Size([3, 2]), [(64, 48), (64, 48), (64, 48)])
+        """
+        if not self.batched:
+            raise ValueError("take_views() needs a batched result (cameras first).")
+        cam = torch.as_tensor(cameras, dtype=torch.long)
+        view = torch.as_tensor(views, dtype=torch.long)
+        if cam.dim() != 1 or view.dim() != 2 or view.shape[0] != cam.shape[0]:
+            raise ValueError(f"cameras must be (T,) and views (T, V'), got {tuple(cam.shape)}, {tuple(view.shape)}.")
+        v = self.present.shape[1]
+
+        def per_view(x):
+            return None if x is None else x[cam.to(x.device)[:, None], view.to(x.device)]
+
+        reasons = self.detections.reasons
+        if reasons is not None:
+            reasons = [reasons[int(c) * v + int(k)] for c, row in zip(cam.tolist(), view.tolist()) for k in row]
+        det = DetectionResult(per_view(self.detections.corners), per_view(self.detections.found), reasons)
+        return PipelineResult(det, None, [self.image_size[int(c)] for c in cam.tolist()], per_view(self.present),
+                              per_view(self.view_sizes), view_corrections=per_view(self.view_corrections),
+                              camera_reasons=[""] * cam.shape[0])
 
     # shortcuts to the tensors most callers want
     @property

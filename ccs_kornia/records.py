@@ -134,7 +134,8 @@ def camera_record(
             view["rms"] = _num(rms[v]) if view["used"] else None
             view["rvec"], view["tvec"] = cal.rvec[v].double().tolist(), cal.tvec[v].double().tolist()
             if not view["used"]:
-                view["reason"] = VIEW_REASONS.get(int(codes[v]), "not used by the solver") if success else \
+                code = int(codes[v])
+                view["reason"] = VIEW_REASONS.get(code, "not used by the solver") if success or code else \
                     "in the failed calibration (no consistent camera)"
                 if cand is not None and _num(cand[v]) is not None:
                     view["rms_if_used"] = float(cand[v])

@@ -80,7 +80,8 @@ def test_detect_json(rendered, tmp_path, capsys):
         err = (est - gt).norm(dim=-1).mean()  # the canonical order, exactly (no 180-degree flip)
         assert float(err) < 0.1
     rec = data["distortion_correction"]
-    assert rec["enabled"] is True and isinstance(rec["applied"], bool) and "original images" in rec["note"]
+    assert rec["enabled"] is True and isinstance(rec["applied"], bool) and isinstance(rec["tried"], bool)
+    assert rec["views_detected_on_corrected_images"] >= 0 and rec["decision"]
     code, _, _ = run(capsys, "detect", str(folder), "--board", "9x6", "--output", str(out), "--no-distortion-correction")
     assert code == 0 and json.loads(out.read_text())["distortion_correction"] == {"enabled": False}
 
@@ -278,7 +279,7 @@ def test_internal_error_is_one_line(rendered, tmp_path, capsys, monkeypatch):
     def boom(*args, **kwargs):
         raise RuntimeError("synthetic failure\nsecond line")
 
-    monkeypatch.setattr(detect_command, "detect_files", boom)
+    monkeypatch.setattr(detect_command, "run_files", boom)
     argv = ["detect", *files[:1], "--board", "9x6", "--output", str(tmp_path / "d.json")]
     code, _, err = run(capsys, *argv)
     assert code == 1
@@ -424,7 +425,7 @@ def test_every_view_rejected_by_ransac(rendered, tmp_path, capsys, monkeypatch):
         result = real(self, *args, **kwargs)
         result.used = torch.zeros_like(result.used)
         result.view_reason = torch.full_like(result.view_reason, 3)
-        result.success = torch.tensor(False)
+        result.success = torch.zeros_like(result.success)
         return result
 
     monkeypatch.setattr(CalibrationPipeline, "calibrate", all_rejected)
@@ -509,7 +510,7 @@ def test_calibrate_records_the_distortion_correction(rendered, tmp_path, capsys)
     assert code == 0, err
     rec = json.loads(on.read_text())["distortion_correction"]
     assert rec["enabled"] is True and isinstance(rec["applied"], bool)
-    assert len(rec["network_correction"]) == 5 and rec["network_displacement_px"] >= 0
+    assert len(rec["correction"]) == 5 and rec["network_displacement_px"] >= 0
     code, _, err = run(capsys, "calibrate", *files[:6], "--board", "9x6", "--output", str(off), "--no-distortion-correction")
     assert code == 0, err
     data = json.loads(off.read_text())

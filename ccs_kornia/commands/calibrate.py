@@ -60,9 +60,10 @@ def calibrate_files(
             message = (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
                        f"{len(files)} files (board found in {data['num_views']['found']}); at least 3 are needed")
         else:
-            message = (f"calibration failed on {data['num_views']['usable']} views: {data['error']}; the views may be "
-                       "degenerate (e.g. all fronto-parallel, or copies of one view) or inconsistent: add views with "
-                       "the board tilted in different directions")
+            why = data["error"] if data["error"].startswith("calibration failed") else \
+                f"calibration failed on {data['num_views']['usable']} views: {data['error']}"
+            message = (f"{why}; the views may be degenerate (e.g. all fronto-parallel, or copies of one view) or "
+                       "inconsistent: add views with the board tilted in different directions")
         err = UserError(message)
         if readable:
             err.partial = data
