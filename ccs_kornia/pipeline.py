@@ -239,7 +239,9 @@ class CalibrationPipeline(nn.Module):
         """Detect on ``(B, 1, H, W)``, through a downscaled copy when the images are large."""
         h, w = images.shape[-2:]
         limit = self.max_detection_side
-        if limit is None or max(h, w) <= limit:
+        # a detector that picks its own detection scale and refines at full resolution (the learned one with
+        # ``scale="auto"``, modules/detection/scale.py) bounds its memory itself
+        if limit is None or max(h, w) <= limit or getattr(self.detector, "selects_scale", False):
             return self.detector(images, board_size)
         scale = max(h, w) / limit
         small_size = (max(8, round(h / scale)), max(8, round(w / scale)))

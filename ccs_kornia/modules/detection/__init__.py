@@ -1,0 +1,1 @@
+"""Chessboard detection stages (being populated by the restructure, issue 13)."""
