@@ -7,7 +7,7 @@ from pathlib import Path
 import torch
 
 from ccs_kornia.modules.corner_refine import CornerRefiner, grid_spacing, refine_corners, x_junction_mask
-from ccs_kornia.modules.detection.scale import ScaleSelector, detect_at_scale, edge_blur, refine_on_patches
+from ccs_kornia.modules.detection.scale import ScaleSelector, detect_at_scale, refine_from_level
 from ccs_kornia.modules.detector import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.grid import collinearity_refine, organize_grid, predict_missing_corners
 from ccs_kornia.modules.heatmap_unet import CornerUNet
@@ -159,9 +159,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         def refine(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
             if r is None:
                 return pts
-            # soft edges (large squares are often blurred in proportion) widen the saddle window
-            return refine_on_patches(full, pts, board_size, r.radius_factor, r.max_radius, r.method, r.iterations,
-                                     r.smooth_sigma, r.normalize_sigma, blur=edge_blur(full, pts, board_size))
+            return refine_from_level(full, pts, board_size, factor, r.radius_factor, r.max_radius, r.method,
+                                     r.iterations, r.smooth_sigma, r.normalize_sigma)
 
         corners, found, reasons = detect_at_scale(level, images, board_size, factor, self.scale_fallback,
                                                   self.scale_selector.max_pixels, refine)

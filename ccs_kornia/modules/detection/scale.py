@@ -43,6 +43,7 @@ __all__ = [
     "resize_to_level",
     "refine_on_patches",
     "edge_blur",
+    "refine_from_level",
     "detect_at_scale",
     "ScaleSelector",
     "PEAK_RATIO",
@@ -444,6 +445,58 @@ def refine_on_patches(
     return (out, ok) if return_ok else out
 
 
+def refine_from_level(
+    images: torch.Tensor,
+    corners: torch.Tensor,
+    board_size: tuple[int, int],
+    factor: float,
+    radius_factor: float = 0.2,
+    max_radius: int = 12,
+    method: str = "saddle",
+    iterations: int = 5,
+    smooth_sigma: float = 1.0,
+    normalize_sigma: float = 6.0,
+) -> torch.Tensor:
+    r"""Refine at full resolution corners found on a level ``factor`` times smaller, :math:`(B, N, 2)`.
+
+    Coarse to fine: the corners are refined on area-downscaled copies at ``factor / 4``, ``factor / 16``, ... (while
+    above 1.5), then at full resolution, each time with :func:`refine_on_patches` and the usual window (at most
+    ``max_radius`` px of that copy, widened by the boards' :func:`edge_blur` where the edges are soft). Each step shrinks
+    the error of the previous one by about 4, well inside the next window, whatever the factor.
+
+    Args:
+        images: :math:`(B, 1, H, W)` full-resolution images.
+        corners: :math:`(B, N, 2)` complete boards mapped from the level, grid order.
+        board_size: ``(cols, rows)``.
+        factor: full-resolution px per level px.
+        radius_factor, max_radius, method, iterations, smooth_sigma, normalize_sigma: of the refiner
+            (:class:`~ccs_kornia.modules.corner_refine.CornerRefiner`).
+
+    Returns:
+        :math:`(B, N, 2)` refined corners.
+
+    Example:
+        >>> img = torch.zeros(1, 1, 256, 256); img[..., :128, :128] = 1; img[..., 128:, 128:] = 1
+        >>> start = torch.tensor([[[124.0, 131.0], [20.0, 127.5]]])  # 4 px off, as from a level 8x smaller
+        >>> refine_from_level(img, start, (2, 1), 8.0)[0, 0].round(decimals=2)
+        tensor([127.5000, 127.5000])
+    """
+    args = (method, iterations, smooth_sigma, normalize_sigma)
+    steps = []
+    g = factor / 4.0
+    while g > 1.5:
+        steps.append(g)
+        g /= 4.0
+    for g in steps:
+        small, s = resize_to_level(images, g)
+        pts = ((corners.double() + 0.5) / s - 0.5).to(corners.dtype)
+        pts = refine_on_patches(small, pts, board_size, radius_factor, max_radius, *args,
+                                blur=edge_blur(small, pts, board_size))
+        corners = ((pts.double() + 0.5) * s - 0.5).to(corners.dtype)
+    blur = edge_blur(images, corners, board_size)
+    return refine_on_patches(images, corners, board_size, radius_factor, max_radius, *args, blur=blur)
+
+
 class ScaleSelector(nn.Module):
     r"""Per image, the area-downscale factor at which the board's squares have ``target_square`` px.
 
@@ -527,8 +580,7 @@ def detect_at_scale(
         max_pixels: most pixels of a fallback level.
         min_factor: smallest fallback factor (1: no upsampling).
         refine: ``refine(images (b, 1, H, W), corners (b, N, 2), factor) -> corners`` at full resolution, for boards
-            found on a resampled level (default: :func:`refine_on_patches` with the window widened by the boards'
-            :func:`edge_blur`).
+            found on a resampled level (default: :func:`refine_from_level`).
 
     Returns:
         corners :math:`(B, N, 2)` (zeros where not found), found :math:`(B,)` bool, and a reason per image.
@@ -551,7 +603,7 @@ def detect_at_scale(
     n = int(board_size[0]) * int(board_size[1])
     if refine is None:
         def refine(full, pts, factor):
-            return refine_on_patches(full, pts, board_size, blur=edge_blur(full, pts, board_size))
+            return refine_from_level(full, pts, board_size, factor)
     corners = torch.zeros(b, n, 2, dtype=torch.float32, device=images.device)
     found = torch.zeros(b, dtype=torch.bool, device=images.device)
     reasons = ["board not found"] * b
