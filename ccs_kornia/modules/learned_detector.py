@@ -66,7 +66,9 @@ class LearnedChessboardDetector(ChessboardDetector):
         target_square: square size in px the network sees with ``scale="auto"``.
         max_pixels: most pixels of a detection level with ``scale="auto"`` (bounds memory and time).
         scale_fallback: with ``scale="auto"``, relative factors of the levels tried in turn where the board was not
-            found at the chosen one.
+            found at the chosen one (never upsampled).
+        max_upsampling: with ``scale="auto"``, images whose squares are smaller than ``target_square`` are upsampled
+            by at most this factor (1: never).
     """
 
     def __init__(
@@ -86,6 +88,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         target_square: float = 12.0,
         max_pixels: float = 3.2e6,
         scale_fallback: tuple[float, ...] = (0.5, 2.0),
+        max_upsampling: float = 2.0,
     ) -> None:
         super().__init__()
         if net is None:
@@ -107,7 +110,10 @@ class LearnedChessboardDetector(ChessboardDetector):
         if scale not in ("auto", "off"):
             raise ValueError(f"scale must be 'auto' or 'off', got {scale!r}.")
         self.scale = scale
-        self.scale_selector = ScaleSelector(target_square=target_square, max_pixels=max_pixels)
+        if not max_upsampling >= 1:
+            raise ValueError(f"max_upsampling must be >= 1, got {max_upsampling}.")
+        self.scale_selector = ScaleSelector(target_square=target_square, max_pixels=max_pixels,
+                                            min_factor=1.0 / max_upsampling)
         self.scale_fallback = tuple(float(f) for f in scale_fallback)
 
     @property

@@ -230,12 +230,14 @@ def detection_factor(
     max_pixels: float = 3.2e6,
     steps_per_octave: int = 4,
     min_factor: float = 1.0,
+    upsample_square: float = 10.0,
 ) -> torch.Tensor:
     r"""Area-downscale factor per image that brings its squares to ``target_square`` px, :math:`(B,)`.
 
     The factor ``square_size / target_square`` is rounded to ``steps_per_octave`` steps per octave (images of similar
     square size share a level, so they stay batched), then raised to ``min_factor`` (1: never upsample) and to the
-    smallest factor whose level has at most ``max_pixels`` pixels.
+    smallest factor whose level has at most ``max_pixels`` pixels. Squares smaller than the target are upsampled only
+    up to ``upsample_square`` px (upsampling costs time and adds no information: just enough for the network).
 
     Args:
         square_size: :math:`(B,)` square sizes in px (e.g. from :func:`estimate_square_size`).
@@ -244,6 +246,7 @@ def detection_factor(
         max_pixels: most pixels of a detection level (bounds the network's memory and time).
         steps_per_octave: quantisation of the factor.
         min_factor: smallest factor (``< 1`` allows upsampling of tiny squares).
+        upsample_square: square size in px that upsampled squares are brought to.
 
     Returns:
         :math:`(B,)` float64 factors (full-resolution px per level px).
@@ -255,7 +258,9 @@ def detection_factor(
     if not target_square > 0 or not max_pixels > 0 or steps_per_octave < 1 or not min_factor > 0:
         raise ValueError("target_square, max_pixels, steps_per_octave and min_factor must be positive.")
     w, h = int(image_size[0]), int(image_size[1])
-    f = (square_size.double() / target_square).clamp_min(1e-6).nan_to_num(1.0, posinf=1.0)
+    sq = square_size.double().nan_to_num(target_square, posinf=target_square).clamp_min(1e-6)
+    f = sq / target_square
+    f = torch.where(f < 1, (sq / upsample_square).clamp_max(1.0), f)
     f = 2.0 ** (torch.round(torch.log2(f) * steps_per_octave) / steps_per_octave)
     floor = max(float(min_factor), math.sqrt(w * h / float(max_pixels)))
     # the memory floor is rounded up to the same grid so every factor is one of a few levels

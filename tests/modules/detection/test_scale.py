@@ -82,8 +82,10 @@ def test_detection_factor_quantised_and_bounded():
     # a 24 Mpx photo is never detected at more than max_pixels
     big = detection_factor(torch.tensor([8.0]), (6000, 4000), max_pixels=3.2e6)
     assert 6000 * 4000 / float(big) ** 2 <= 3.2e6
-    # upsampling only when allowed
-    assert float(detection_factor(torch.tensor([6.0]), (640, 480), min_factor=0.5)) == 0.5
+    # upsampling only when allowed, and only up to ~10 px squares
+    up = detection_factor(torch.tensor([6.0, 11.0]), (640, 480), min_factor=0.5)
+    assert abs(6.0 / float(up[0]) - 10.0) < 1.5 and float(up[1]) == 1.0
+    assert float(detection_factor(torch.tensor([3.0]), (640, 480), min_factor=0.5)) == 0.5
 
 
 def test_edge_blur_measures_the_blur(views):
