@@ -66,7 +66,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         target_square: square size in px the network sees with ``scale="auto"``.
         max_pixels: most pixels of a detection level with ``scale="auto"`` (bounds memory and time).
         scale_fallback: with ``scale="auto"``, relative factors of the levels tried in turn where the board was not
-            found at the chosen one (never upsampled).
+            found at the chosen one, clamped to the image itself (never upsampled). A finer level resolves thin board
+            margins that a coarse one blurs into an extra row of corners; a coarser one drops clutter.
         max_upsampling: with ``scale="auto"``, images whose squares are smaller than ``target_square`` are upsampled
             by at most this factor (1: never).
     """
@@ -87,7 +88,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         scale: str = "auto",
         target_square: float = 12.0,
         max_pixels: float = 3.2e6,
-        scale_fallback: tuple[float, ...] = (0.5, 2.0),
+        scale_fallback: tuple[float, ...] = (0.5, 2.0, 0.25),
         max_upsampling: float = 2.0,
     ) -> None:
         super().__init__()

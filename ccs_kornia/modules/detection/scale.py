@@ -581,7 +581,8 @@ def detect_at_scale(
         images: :math:`(B, 1, H, W)` full-resolution images.
         board_size: ``(cols, rows)``.
         factor: :math:`(B,)` detection factors (:func:`detection_factor`).
-        fallback: relative factors tried, in order, on the boards not found.
+        fallback: relative factors tried, in order, on the boards not found (clamped to the finest level allowed by
+            ``max_pixels`` and ``min_factor``; a level already tried is skipped).
         max_pixels: most pixels of a fallback level.
         min_factor: smallest fallback factor (1: no upsampling).
         refine: ``refine(images (b, 1, H, W), corners (b, N, 2), factor) -> corners`` at full resolution, for boards
@@ -612,12 +613,13 @@ def detect_at_scale(
     corners = torch.zeros(b, n, 2, dtype=torch.float32, device=images.device)
     found = torch.zeros(b, dtype=torch.bool, device=images.device)
     reasons = ["board not found"] * b
-    attempts = [factor] + [factor * f for f in fallback]
+    # fallback levels are clamped to the finest level allowed (memory, no upsampling); each level is tried once
+    floor = max(float(min_factor), math.sqrt(w * h / max_pixels))
+    attempts = [factor] + [(factor * f).clamp_min(floor) for f in fallback]
     for a, fac in enumerate(attempts):
         todo = ~found.cpu()
-        if a > 0:
-            # a fallback level must fit in memory and not upsample more than allowed
-            todo &= (fac >= max(min_factor, math.sqrt(w * h / max_pixels)) * (1 - 1e-9))
+        for previous in attempts[:a]:
+            todo &= (fac - previous).abs() > 1e-6 * fac
         if not bool(todo.any()):
             continue
         for value in torch.unique(fac[todo]).tolist():
