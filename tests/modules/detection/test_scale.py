@@ -133,9 +133,14 @@ def test_detect_at_scale_skips_levels_over_the_pixel_budget():
         calls.append(tuple(x.shape[-2:]))
         return torch.zeros(x.shape[0], 6, 2), torch.zeros(x.shape[0], dtype=torch.bool), None
 
-    detect_at_scale(detect, torch.rand(1, 1, 200, 200), (3, 2), torch.tensor([2.0]), fallback=(0.5, 0.25),
+    detect_at_scale(detect, torch.rand(1, 1, 200, 200), (3, 2), torch.tensor([2.0]), fallback=(0.5, 0.25, 2.0),
                     max_pixels=20_000)
-    assert calls == [(100, 100)]  # factor 1 (40k px) and 0.5 are over budget / upsampling
+    # factors 1 (40k px) and 0.5 are over the budget: clamped to the finest allowed level (1.41), tried once
+    assert calls == [(100, 100), (141, 141), (50, 50)]
+    # never an upsampled fallback
+    calls.clear()
+    detect_at_scale(detect, torch.rand(1, 1, 64, 64), (3, 2), torch.tensor([1.0]), fallback=(0.5,))
+    assert calls == [(64, 64)]
 
 
 def test_invalid_inputs():
