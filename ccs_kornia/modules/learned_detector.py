@@ -7,7 +7,8 @@ from pathlib import Path
 import torch
 
 from ccs_kornia.modules.corner_refine import CornerRefiner, grid_spacing, refine_corners, x_junction_mask
-from ccs_kornia.modules.detection.scale import ScaleSelector, detect_at_scale, refine_from_level
+from ccs_kornia.modules.detection.patch_refine import refine_from_level
+from ccs_kornia.modules.detection.scale import ScaleSelector, detect_at_scale
 from ccs_kornia.modules.detector import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.grid import collinearity_refine, organize_grid, predict_missing_corners
 from ccs_kornia.modules.heatmap_unet import CornerUNet

@@ -9,15 +9,14 @@ import torch
 import torch.nn.functional as F
 
 from ccs_kornia.data.synthetic import make_calibration_set
+from ccs_kornia.modules.detection import patch_refine as patch_refine_module
 from ccs_kornia.modules.detection import scale as scale_module
+from ccs_kornia.modules.detection.patch_refine import edge_blur, refine_from_level, refine_on_patches, resize_to_level
 from ccs_kornia.modules.detection.scale import (
     ScaleSelector,
     detect_at_scale,
     detection_factor,
-    edge_blur,
     estimate_square_size,
-    refine_on_patches,
-    resize_to_level,
     saddle_scale_response,
 )
 
@@ -42,8 +41,9 @@ def _upscaled(views, factor: float, blur: int = 0):
     return big, (views.corners + 0.5) * factor - 0.5
 
 
-def test_doctests():
-    assert doctest.testmod(scale_module).failed == 0
+@pytest.mark.parametrize("module", [scale_module, patch_refine_module])
+def test_doctests(module):
+    assert doctest.testmod(module).failed == 0
 
 
 def test_shapes(views):
@@ -93,6 +93,15 @@ def test_edge_blur_measures_the_blur(views):
     images = F.avg_pool2d(F.pad(views.images, (3, 3, 3, 3), mode="replicate"), 7, stride=1)  # box 7 px: sigma 2
     soft = edge_blur(images, views.corners, (9, 6))
     assert (sharp < 1.2).all() and ((soft > 1.6) & (soft < 3.2)).all(), (sharp, soft)
+
+
+def test_refine_from_level_converges_from_a_coarse_level(views):
+    images, corners = _upscaled(views, 8.0)
+    start = corners + torch.tensor([2.5, -2.0])  # ~0.4 px of a level 8x smaller
+    refined = refine_from_level(images, start, (9, 6), 8.0)
+    # the same saddles as refined from the truth (the 8x bilinear upsampling itself moves them by ~0.4 px)
+    ideal = refine_on_patches(images, corners, (9, 6), blur=edge_blur(images, corners, (9, 6)))
+    assert (refined - ideal).norm(dim=-1).max() < 0.05
 
 
 def test_refine_on_patches_matches_whole_image_refinement(views):
