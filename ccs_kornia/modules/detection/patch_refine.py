@@ -259,5 +259,6 @@ def refine_from_level(
         pts = refine_on_patches(small, pts, board_size, radius_factor, max_radius, *args,
                                 blur=edge_blur(small, pts, board_size))
         corners = ((pts.double() + 0.5) * s - 0.5).to(corners.dtype)
-    blur = edge_blur(images, corners, board_size)
+    # squares that needed upsampling are small: their window (0.2 square) is the usual one, blur or not
+    blur = edge_blur(images, corners, board_size) if factor > 1 else None
     return refine_on_patches(images, corners, board_size, radius_factor, max_radius, *args, blur=blur)
