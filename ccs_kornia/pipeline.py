@@ -149,7 +149,9 @@ class CalibrationPipeline(nn.Module):
         detection_batch_size: most images handed to the detector at once (bounds memory of the
             learned detector; the OpenCV detector works image by image anyway).
         max_detection_side: images whose longer side exceeds this are detected on a downscaled copy
-            and refined at full resolution (``None`` or 0: always detect at full resolution).
+            and refined at full resolution (``None`` or 0: always detect at full resolution). A detector that picks
+            its own detection level (``selects_scale``: the learned one with ``scale="auto"``) gets the full images
+            directly; the distortion-corrected detection of large images still uses the downscaled copy.
         distortion_correction: ``True`` (the shipped :class:`DistortionNet`), ``False`` (off, e.g. for ablation),
             a weight-file path or a ``DistortionNet``.
         min_correction: the correction is applied only to cameras whose pooled correction moves some pixel by
