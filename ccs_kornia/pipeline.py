@@ -67,7 +67,9 @@ class CalibrationPipeline(nn.Module):
         detection_batch_size: most images handed to the detector at once.
         max_batch_pixels: most pixels loaded and detected at once (bounds memory; at least one image).
         max_detection_side: images whose longer side exceeds this are detected on a downscaled copy and refined at
-            full resolution (``None`` or 0: always detect at full resolution).
+            full resolution (``None`` or 0: always detect at full resolution). A detector that picks its own
+            detection level (``selects_scale``: the learned one with ``scale="auto"``) gets the full images, and the
+            corrected copies of large images are warped at this size.
         distortion_correction: ``True`` (the shipped network), ``False`` (off), a weight-file path or a
             ``DistortionNet``.
         min_correction: a camera's pooled correction counts as large when it moves some pixel by more than this
@@ -459,7 +461,9 @@ class CalibrationPipeline(nn.Module):
         h, w = images.shape[-2:]
         limit = self.max_detection_side
         with torch.inference_mode():
-            if limit is None or max(h, w) <= limit:
+            # a detector that picks its own detection level and refines at full resolution (the learned one with
+            # ``scale="auto"``, modules/detection/scale.py) bounds its memory itself
+            if limit is None or max(h, w) <= limit or getattr(self.detector, "selects_scale", False):
                 return self.detector(images.float(), board_size)
             scale = max(h, w) / limit
             small_size = (max(8, round(h / scale)), max(8, round(w / scale)))
