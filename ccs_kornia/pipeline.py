@@ -28,7 +28,6 @@ This module imports neither the command line nor Lightning.
 from __future__ import annotations
 
 import math
-from collections import Counter
 from typing import Callable
 
 import torch
@@ -36,7 +35,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ccs_kornia.camera import board_object_points
-from ccs_kornia.modules.calibration.result import VIEW_REASONS, CalibrationResult
+from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction import corrected_frame
 from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected, straightening_evidence
@@ -44,15 +43,22 @@ from ccs_kornia.modules.correction.distortion_net import load_distortion_net
 from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.factory import make_detector
-from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners
-from ccs_kornia.pipeline_result import PipelineResult, concat_results, select_result
-from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, TensorSource, ViewSource
+from ccs_kornia.modules.detection.patch_refine import refine_on_patches
+from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
+from ccs_kornia.pipeline_result import (
+    PipelineResult,
+    camera_reason,
+    concat_results,
+    main_size,
+    positive_size,
+    same_size_views,
+    scatter_cameras,
+    select_result,
+)
+from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource  # noqa: F401
 
-__all__ = ["PipelineResult", "CalibrationPipeline", "SIZE_TOLERANCE_PX"]
+__all__ = ["PipelineResult", "CalibrationPipeline"]
 
-#: views whose size differs from their camera's by at most this many pixels per side are used (cropping or
-#: rounding by a pixel moves no pixel's coordinates: the origin is the top-left pixel's centre)
-SIZE_TOLERANCE_PX = 2
 
 
 class CalibrationPipeline(nn.Module):
@@ -218,7 +224,7 @@ class CalibrationPipeline(nn.Module):
                 reasons[ci][vi] = (det.reasons[k] if det.reasons else "") or ("" if det.found[k] else "board not found")
             if progress is not None:
                 progress(len(batch.keys) + len(batch.failed))
-        image_size = [_main_size(sizes[ci], found[ci].cpu(), present[ci].cpu()) for ci in range(c)]
+        image_size = [main_size(sizes[ci], found[ci].cpu(), present[ci].cpu()) for ci in range(c)]
         return PipelineResult(DetectionResult(corners, found, [r for rs in reasons for r in rs]), None, image_size,
                               present, sizes.to(device), camera_reasons=[""] * c, view_corrections=per_view)
 
@@ -243,7 +249,7 @@ class CalibrationPipeline(nn.Module):
         """
         board = (int(board_size[0]), int(board_size[1]))
         if out.view_corrections is not None and self.distortion_net is not None:
-            self._correct(source, out, out.view_corrections, _same_size(out), board)
+            self._correct(source, out, out.view_corrections, same_size_views(out), board)
         return self.solve(out, board, square) if calibrate else out
 
     def _correct(self, source: ViewSource | None, out: PipelineResult, per_view: torch.Tensor, same: torch.Tensor,
@@ -259,7 +265,7 @@ class CalibrationPipeline(nn.Module):
         for size in set(out.image_size):
             sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
             mask = same[sel] & per_view[sel].isfinite().all(-1)
-            correction[sel], large[sel] = self.pool_corrections(per_view[sel], _positive(size), mask)
+            correction[sel], large[sel] = self.pool_corrections(per_view[sel], positive_size(size), mask)
         recovered = torch.zeros(c, dtype=torch.bool, device=device)
         missed = [(ci, vi) for ci in large.nonzero().flatten().tolist()
                   for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()] if source is not None else []
@@ -282,7 +288,7 @@ class CalibrationPipeline(nn.Module):
         for size in set(out.image_size):
             sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
             before, after = straightening_evidence(det.corners[sel], det.found[sel] & same[sel], correction[sel], board,
-                                                   _positive(size))
+                                                   positive_size(size))
             straightness[sel] = torch.stack([before, after], -1)
         straightened = straightness[:, 1] < self.min_straightening * straightness[:, 0]
         out.correction, out.straightness = correction, straightness
@@ -306,14 +312,14 @@ class CalibrationPipeline(nn.Module):
         c, v = det.found.shape
         device = det.corners.device
         sizes = out.image_size
-        usable = det.found & _same_size(out)
+        usable = det.found & same_size_views(out)
         parts, order = [], []
         corrected = torch.zeros(c, dtype=torch.bool, device=device)
         correction = out.correction
         for size in dict.fromkeys(sizes):
             sel = torch.tensor([s == size for s in sizes], device=device).nonzero().flatten()
             tried = None if out.correction_tried is None else out.correction_tried[sel]
-            calib, refined, applied = self._solve_group(det.corners[sel], usable[sel], board_size, square, _positive(size),
+            calib, refined, applied = self._solve_group(det.corners[sel], usable[sel], board_size, square, positive_size(size),
                                                         None if correction is None else correction[sel], tried)
             if applied is not None:
                 corrected[sel] = applied
@@ -327,7 +333,7 @@ class CalibrationPipeline(nn.Module):
         out.calibration = select_result(calibration, inverse)
         out.correction = correction
         out.corrected = corrected if correction is not None else None
-        out.camera_reasons = [_camera_reason(out.calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum()))
+        out.camera_reasons = [camera_reason(out.calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum()))
                               for ci in range(c)]
         return out
 
@@ -349,7 +355,7 @@ class CalibrationPipeline(nn.Module):
         )
         keep = torch.zeros_like(usual.success)
         keep[sel] = kept.to(keep.device)
-        merged = corrected_frame.select_cameras(keep, _scatter(calib, sel, usual), usual)
+        merged = corrected_frame.select_cameras(keep, scatter_cameras(calib, sel, usual), usual)
         correction = correction.clone()
         correction[sel] = refined.to(correction)
         applied[sel] = kept.to(applied.device)
@@ -479,26 +485,11 @@ class CalibrationPipeline(nn.Module):
         return DetectionResult(corners, det.found, det.reasons)
 
     def refine_on_patches(self, images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
-        """Saddle refinement of corners :math:`(S, N, 2)` on ``images`` :math:`(S, 1, H, W)`, one small patch per
-        corner (the refiner smooths and normalises whatever it is given; on a 24 Mpx photo a whole image costs
-        seconds)."""
+        """Saddle refinement of whole boards :math:`(S, N, 2)` on ``images`` :math:`(S, 1, H, W)`, one small patch per
+        corner (:func:`~ccs_kornia.modules.detection.patch_refine.refine_on_patches` with this pipeline's refiner)."""
         r = self.refiner
-        h, w = images.shape[-2:]
-        half = int(math.ceil(r.max_radius + 3 * max(r.normalize_sigma, r.smooth_sigma) + 4))
-        s, n = corners.shape[:2]
-        offsets = torch.arange(-half, half + 1, device=images.device)
-        origin = corners.detach().round().long().to(images.device)  # (S, N, 2) patch centres
-        ys = (origin[..., 1, None] + offsets).clamp(0, h - 1)  # (S, N, P), replicate at image borders
-        xs = (origin[..., 0, None] + offsets).clamp(0, w - 1)
-        patches = images[torch.arange(s, device=images.device)[:, None, None, None], 0, ys[..., :, None],
-                         xs[..., None, :]]
-        size = 2 * half + 1
-        local = (corners - (origin.to(corners) - half)).reshape(s * n, 1, 2)
-        valid = torch.ones(s, n, dtype=torch.bool, device=corners.device)
-        radius = (r.radius_factor * grid_spacing(corners, valid, board_size)).reshape(s * n, 1)
-        out = refine_corners(patches.reshape(s * n, 1, size, size).float(), local, None, radius, r.method,
-                             r.iterations, r.max_radius, r.smooth_sigma, r.normalize_sigma)
-        return out.reshape(s, n, 2) + (origin.to(corners) - half)
+        return refine_on_patches(images.float(), corners.float(), board_size, r.radius_factor, r.max_radius, r.method,
+                                 r.iterations, r.smooth_sigma, r.normalize_sigma).to(corners.dtype)
 
     def _device(self) -> torch.device:
         for p in self.parameters():
@@ -507,50 +498,3 @@ class CalibrationPipeline(nn.Module):
             return b.device
         return torch.device("cpu")
 
-
-def _main_size(sizes: torch.Tensor, found: torch.Tensor, present: torch.Tensor) -> tuple[int, int]:
-    """The image size of a camera: the most common among views with a board (else among readable views)."""
-    pick = found if bool(found.any()) else present
-    counts = Counter(tuple(int(x) for x in s) for s in sizes[pick].tolist())
-    return max(counts, key=lambda k: counts[k]) if counts else (0, 0)
-
-
-def _scatter(part: CalibrationResult, index: torch.Tensor, like: CalibrationResult) -> CalibrationResult:
-    """``like`` with the cameras ``index`` replaced by ``part``'s (tensor fields of equal trailing shapes)."""
-    values = {}
-    for key, value in like.__dict__.items():
-        new = getattr(part, key)
-        if isinstance(value, torch.Tensor) and isinstance(new, torch.Tensor) and value.shape[1:] == new.shape[1:]:
-            value = value.clone()
-            value[index.to(value.device)] = new.to(value)
-        values[key] = value
-    return type(like)(**values)
-
-
-def _positive(size: tuple[int, int]) -> tuple[int, int]:
-    """A camera none of whose views could be read has size (0, 0); the stages need a positive one (its views are
-    all masked)."""
-    return max(1, int(size[0])), max(1, int(size[1]))
-
-
-def _same_size(out: PipelineResult) -> torch.Tensor:
-    """:math:`(C, V)` bool: the view was read and its size is within SIZE_TOLERANCE_PX of its camera's."""
-    main = torch.tensor(out.image_size, device=out.view_sizes.device).view(-1, 1, 2)
-    return out.present & ((out.view_sizes - main).abs() <= SIZE_TOLERANCE_PX).all(-1)
-
-
-def _camera_reason(calib: CalibrationResult, c: int, usable: int, present: int) -> str:
-    """Why camera ``c`` was not calibrated ('' where it was)."""
-    if bool(calib.success[c]):
-        return ""
-    if present == 0:
-        return "no readable image"
-    if usable < 3:
-        return f"board found in {usable} of {present} readable views; at least 3 are needed"
-    issues = calib.issues()[c] if hasattr(calib, "issues") else []
-    errors = [i["message"] for i in issues if i.get("severity") == "error"]
-    if errors:
-        return "; ".join(errors)
-    codes = Counter(VIEW_REASONS.get(int(k), "not used") for k in calib.view_reason[c].tolist())
-    detail = ", ".join(f"{n} {why}" for why, n in codes.most_common())
-    return f"calibration failed on {usable} views ({detail})"

@@ -2,16 +2,27 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import torch
 
-from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules.calibration.result import VIEW_REASONS, CalibrationResult
 from ccs_kornia.modules.detection.base import DetectionResult
+from ccs_kornia.sources import SIZE_TOLERANCE_PX
 
-__all__ = ["PipelineResult", "select_result", "concat_results"]
+__all__ = [
+    "PipelineResult",
+    "select_result",
+    "concat_results",
+    "scatter_cameras",
+    "main_size",
+    "same_size_views",
+    "positive_size",
+    "camera_reason",
+]
 
 
 def _index(value: Any, idx: torch.Tensor | int) -> Any:
@@ -226,3 +237,50 @@ class PipelineResult:
     def std(self) -> torch.Tensor:
         """Standard deviations of ``(fx, fy, cx, cy, *dist)`` :math:`(4 + D,)` / :math:`(C, 4 + D)`."""
         return torch.cat([self.calibration.std_intrinsics, self.calibration.std_dist], -1)
+
+def main_size(sizes: torch.Tensor, found: torch.Tensor, present: torch.Tensor) -> tuple[int, int]:
+    """The image size of a camera: the most common among views with a board (else among readable views)."""
+    pick = found if bool(found.any()) else present
+    counts = Counter(tuple(int(x) for x in s) for s in sizes[pick].tolist())
+    return max(counts, key=lambda k: counts[k]) if counts else (0, 0)
+
+
+def scatter_cameras(part: CalibrationResult, index: torch.Tensor, like: CalibrationResult) -> CalibrationResult:
+    """``like`` with the cameras ``index`` replaced by ``part``'s (tensor fields of equal trailing shapes)."""
+    values = {}
+    for key, value in like.__dict__.items():
+        new = getattr(part, key)
+        if isinstance(value, torch.Tensor) and isinstance(new, torch.Tensor) and value.shape[1:] == new.shape[1:]:
+            value = value.clone()
+            value[index.to(value.device)] = new.to(value)
+        values[key] = value
+    return type(like)(**values)
+
+
+def positive_size(size: tuple[int, int]) -> tuple[int, int]:
+    """A camera none of whose views could be read has size (0, 0); the stages need a positive one (its views are
+    all masked)."""
+    return max(1, int(size[0])), max(1, int(size[1]))
+
+
+def same_size_views(out: PipelineResult) -> torch.Tensor:
+    """:math:`(C, V)` bool: the view was read and its size is within SIZE_TOLERANCE_PX of its camera's."""
+    main = torch.tensor(out.image_size, device=out.view_sizes.device).view(-1, 1, 2)
+    return out.present & ((out.view_sizes - main).abs() <= SIZE_TOLERANCE_PX).all(-1)
+
+
+def camera_reason(calib: CalibrationResult, c: int, usable: int, present: int) -> str:
+    """Why camera ``c`` was not calibrated ('' where it was)."""
+    if bool(calib.success[c]):
+        return ""
+    if present == 0:
+        return "no readable image"
+    if usable < 3:
+        return f"board found in {usable} of {present} readable views; at least 3 are needed"
+    issues = calib.issues()[c] if hasattr(calib, "issues") else []
+    errors = [i["message"] for i in issues if i.get("severity") == "error"]
+    if errors:
+        return "; ".join(errors)
+    codes = Counter(VIEW_REASONS.get(int(k), "not used") for k in calib.view_reason[c].tolist())
+    detail = ", ".join(f"{n} {why}" for why, n in codes.most_common())
+    return f"calibration failed on {usable} views ({detail})"

@@ -12,6 +12,7 @@ from typing import Any
 
 from ccs_kornia.modules.calibration.result import VIEW_REASONS
 from ccs_kornia.pipeline_result import PipelineResult
+from ccs_kornia.sources import SIZE_TOLERANCE_PX
 
 __all__ = ["view_records", "camera_record", "correction_record"]
 
@@ -48,8 +49,6 @@ def view_records(result: PipelineResult, paths: list[str]) -> list[dict[str, Any
         elif not found:
             view["reason"] = (det.reasons[v] if det.reasons else "") or "board not found"
         elif size != main:
-            from ccs_kornia.pipeline import SIZE_TOLERANCE_PX
-
             if max(abs(size[0] - main[0]), abs(size[1] - main[1])) > SIZE_TOLERANCE_PX:
                 view["reason"] = f"image size {size[0]}x{size[1]} differs from the camera's {main[0]}x{main[1]}"
             else:

@@ -14,11 +14,15 @@ from dataclasses import dataclass, field
 
 import torch
 
-__all__ = ["LoadedBatch", "ViewSource", "TensorSource", "FileSource", "DEFAULT_MAX_BATCH_PIXELS"]
+__all__ = ["LoadedBatch", "ViewSource", "TensorSource", "FileSource", "DEFAULT_MAX_BATCH_PIXELS", "SIZE_TOLERANCE_PX"]
 
 #: pixels loaded at most in one batch (16 Mpx = 64 MB of float32 grey images): bounds the detector's
 #: activations too, which are a few times the input per image
 DEFAULT_MAX_BATCH_PIXELS = 1 << 24
+
+#: views whose size differs from their camera's by at most this many pixels per side are used (cropping or
+#: rounding by a pixel moves no pixel's coordinates: the origin is the top-left pixel's centre)
+SIZE_TOLERANCE_PX = 2
 
 
 @dataclass

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from collections import Counter
 from typing import Any
 
 from ccs_kornia.commands._common import (
