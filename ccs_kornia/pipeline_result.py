@@ -150,6 +150,37 @@ class PipelineResult:
             diagnostics=None if self.diagnostics is None else pick(self.diagnostics),
         )
 
+    @classmethod
+    def from_detections(
+        cls,
+        corners: torch.Tensor,
+        found: torch.Tensor,
+        image_size: tuple[int, int],
+        view_corrections: torch.Tensor | None = None,
+    ) -> PipelineResult:
+        """A result holding corners detected elsewhere (another detector, a file), for the pipeline's remaining
+        stages (:meth:`~ccs_kornia.pipeline.CalibrationPipeline.finish`).
+
+        Args:
+            corners: :math:`(C, V, N, 2)`; found: :math:`(C, V)` bool; image_size: ``(W, H)`` of every view.
+            view_corrections: optional :math:`(C, V, 5)` network corrections of the views.
+
+        Example:
+            >>> r = PipelineResult.from_detections(torch.zeros(2, 3, 12, 2), torch.ones(2, 3, dtype=torch.bool), (64, 48))
+            >>> r.present.shape, r.image_size, r.view_sizes[0, 0].tolist()
+            (torch.Size([2, 3]), [(64, 48), (64, 48)], [64, 48])
+        """
+        if corners.dim() != 4 or corners.shape[-1] != 2 or found.shape != corners.shape[:2]:
+            raise ValueError(f"corners must be (C, V, N, 2) and found (C, V), got {tuple(corners.shape)}, "
+                             f"{tuple(found.shape)}.")
+        c, v = found.shape
+        size = (int(image_size[0]), int(image_size[1]))
+        sizes = torch.tensor(size, device=corners.device).expand(c, v, 2).clone()
+        det = DetectionResult(corners.double(), found.bool(), ["" if f else "board not found" for f in
+                                                               found.reshape(-1).tolist()])
+        return cls(det, None, [size] * c, torch.ones(c, v, dtype=torch.bool, device=corners.device), sizes,
+                   view_corrections=view_corrections, camera_reasons=[""] * c)
+
     def take_views(self, cameras: torch.Tensor, views: torch.Tensor) -> PipelineResult:
         """New cameras made of views of these ones, before the correction and solver stages (e.g. benchmark trials
         drawing subsets of a camera's views): trial ``t`` holds views ``views[t]`` of camera ``cameras[t]``.

@@ -37,6 +37,7 @@ from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods import DetectionMethod
 from ccs_kornia.bench.scenes import render_scenes
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
+from ccs_kornia.sources import TensorSource
 
 __all__ = ["run_calibration"]
 
@@ -78,13 +79,16 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
         K_scaled = k0_scaled_intrinsics(K_true, radial, cfg.image_size) if bool((radial[:, 0] != 1).any()) else None
         res: dict = {}
         pool_images = scenes.flat_images
-        corrector = _corrector(cfg, device)
-        pool_corr = None
-        if corrector is not None and "learned" in keys:
+        corrector = _corrector(cfg, device) if "learned" in keys else None
+        pool_out = None
+        if corrector is not None:
+            # the product path (CalibrationPipeline: network, detection, second look) once over each camera's pool;
+            # every trial then runs the rest of the pipeline on its views (take_views + finish)
             with Timer() as t_net:
-                pool_corr = corrector.view_corrections(pool_images.to(device)).cpu()
-                pool_corr = pool_corr.reshape(cameras, cfg.calib_pool_views, 5)
-            log(f"[calibration] {cond}: distortion network on {pool_images.shape[0]} views ({t_net.seconds:.1f}s)")
+                h, w = pool_images.shape[-2:]
+                pool_out = corrector.run(TensorSource(pool_images.reshape(cameras, cfg.calib_pool_views, 1, h, w)),
+                                         cfg.board, cfg.square, calibrate=False)
+            log(f"[calibration] {cond}: pipeline detection on {pool_images.shape[0]} views ({t_net.seconds:.1f}s)")
         detections: dict[str, tuple[np.ndarray, np.ndarray]] = {
             "truth": (scenes.corners.numpy(), np.ones(scenes.corners.shape[:2], dtype=bool)),
         }
@@ -111,14 +115,11 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
             cvm["seconds"] = t_cv.seconds
             label = "exact corners" if key == "truth" else methods[key].label
             res[key] = {"label": label, "boards_found": float(found.mean()), "ccs": ccs, "opencv": cvm}
-            if key == "learned" and pool_corr is not None:
+            if key == "learned" and pool_out is not None:
                 with Timer() as t_dc:
-                    corr, apply = corrector.pool_corrections(pool_corr[cam[:, None], views], cfg.image_size)
-                    cal, _, applied = corrector.solve_with_correction(
-                        torch.as_tensor(corners, dtype=torch.float64, device=device),
-                        torch.as_tensor(found, dtype=torch.bool, device=device), corr.to(device), apply.to(device),
-                        cfg.board, cfg.square, cfg.image_size,
-                    )
+                    done = corrector.finish(pool_out.take_views(torch.as_tensor(cam), torch.as_tensor(views)),
+                                            cfg.board, cfg.square)
+                    cal, applied = done.calibration, done.corrected
                 dc = calibration_metrics(cal.K.cpu().numpy(), K_true, cal.success.cpu().numpy(), cal.rms.cpu().numpy(),
                                          cal.used.sum(-1).cpu().numpy(), K_scaled)
                 dc["seconds"] = t_dc.seconds
@@ -139,4 +140,4 @@ def _corrector(cfg: BenchConfig, device: str):
         return None
     from ccs_kornia.pipeline import CalibrationPipeline
 
-    return CalibrationPipeline("opencv", distortion_correction=net.to(device)).to(device)
+    return CalibrationPipeline("learned", distortion_correction=net.to(device)).to(device)

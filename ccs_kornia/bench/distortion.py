@@ -25,7 +25,13 @@ import time
 import numpy as np
 import torch
 
-from ccs_kornia.bench.common import _fmt, calibration_metrics, cv2_calibrate, distortion_available, k0_scaled_intrinsics
+from ccs_kornia.bench.common import (
+    _fmt,
+    calibration_metrics,
+    cv2_calibrate,
+    distortion_available,
+    k0_scaled_intrinsics,
+)
 from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods import DetectionMethod
 from ccs_kornia.bench.scenes import Scenes, quantize, render_scenes
@@ -150,11 +156,13 @@ def _calibrate_scenes(scenes: Scenes, cfg: BenchConfig, size: tuple[int, int], o
             add("opencv", d["K"], d["success"], d["rms"], d["views"])
             # OpenCV's corners through ccs_kornia's corrected solver (the pooled correction of the same views)
             t0 = time.perf_counter()
-            corr, apply = on.pool_corrections(on.view_corrections(imgs).reshape(1, V, 5), size)
             cc = torch.as_tensor(c, dtype=torch.float64, device=device)[None]
             ff = torch.as_tensor(f, dtype=torch.bool, device=device)[None]
             if int(ff.sum()) >= 3:
-                cal, _, _ = on.solve_with_correction(cc, ff, corr, apply, cfg.board, cfg.square, size)
+                from ccs_kornia.pipeline_result import PipelineResult
+
+                given = PipelineResult.from_detections(cc, ff, size, on.view_corrections(imgs).reshape(1, V, 5))
+                cal = on.finish(given, cfg.board, cfg.square).calibration
                 add("opencv_ccs_corrected", cal.K[0].cpu(), cal.success[0], cal.rms[0], cal.used[0].sum())
             else:
                 add("opencv_ccs_corrected", np.full((3, 3), np.nan), False, float("nan"), int(ff.sum()))

@@ -170,6 +170,7 @@ def _pipeline_on_set(cfg, images, board, square, size, model, subsets, reference
     from ccs_kornia.bench.common import distortion_available
     from ccs_kornia.modules.detection.factory import make_detector
     from ccs_kornia.pipeline import CalibrationPipeline
+    from ccs_kornia.sources import TensorSource
 
     net, _ = distortion_available(cfg.distortion_weights)
     if net is None:
@@ -180,38 +181,35 @@ def _pipeline_on_set(cfg, images, board, square, size, model, subsets, reference
         return None
     pipe = CalibrationPipeline(detector, model=model, distortion_correction=net).to(device)
     n_img = images.shape[0]
+    source = TensorSource(images[None])
     with Timer() as t:
-        per_view = pipe.view_corrections(images.to(device)).cpu()
-        corr, apply = pipe.pool_corrections(per_view[None], size)
-        if bool(apply[0]):
-            det = pipe.detect_corrected(images.to(device), corr[0].to(device), board)
-        else:
-            det = pipe.detect(images.to(device), board)
-        corners = det.corners.double().cpu()
-        found = det.found.cpu()
-        cal, _, applied = pipe.solve_with_correction(corners[None].to(device), found[None].to(device), corr.to(device),
-                                                     apply.to(device), board, square, size)
+        full = pipe.run(source, board, square)  # the product path, as `calibrate` runs it
+    one = full.select(0)
+    cal, corners, found = one.calibration, one.detections.corners.double().cpu(), one.found.cpu()
     res: dict = {"label": "ccs_kornia pipeline (+ correction)", "found": int(found.sum()),
-                 "seconds_per_image": t.seconds / n_img, "correction_applied": bool(applied[0]),
-                 "correction_gate": bool(apply[0])}
+                 "seconds_per_image": t.seconds / n_img, "correction_applied": bool(one.corrected),
+                 "correction_gate": bool(one.correction_tried)}
     c_np, f_np = corners.numpy(), found.numpy()
     cv = cv2_calibrate(c_np, f_np, board, square, size, model)
     res["all"] = {
-        "ccs": _one(_params(cal.K[0].cpu().numpy()), float(cal.rms[0]), int(cal.used[0].sum()), bool(cal.success[0]),
+        "ccs": _one(_params(cal.K.cpu().numpy()), float(cal.rms), int(cal.used.sum()), bool(cal.success),
                     reference, spec),
         "opencv": _one(_params(cv["K"]), cv["rms"], cv["views"], cv["success"], reference, spec),
     }
-    sub_corr, sub_apply = pipe.pool_corrections(per_view[subsets], size)
+    # view subsets: the same detections (the second look at missed views included), the rest of the pipeline per
+    # subset (pooled correction, evidence, solver)
+    subs = torch.as_tensor(subsets, dtype=torch.long)
+    trials = full.take_views(torch.zeros(subs.shape[0], dtype=torch.long), subs)
+    done = pipe.finish(trials, board, square)
+    cal_s = done.calibration
     sc, sf = corners[subsets], found[subsets]
-    cal_s, _, applied_s = pipe.solve_with_correction(sc.to(device), sf.to(device), sub_corr.to(device),
-                                                     sub_apply.to(device), board, square, size)
     cvs = [cv2_calibrate(sc[i].numpy(), sf[i].numpy(), board, square, size, model) for i in range(len(subsets))]
     res["subsets"] = {
         "ccs": _spread(_params(cal_s.K.cpu().numpy()), cal_s.rms.cpu().numpy(), cal_s.success.cpu().numpy()),
         "opencv": _spread(_params(np.stack([d["K"] for d in cvs])), np.array([d["rms"] for d in cvs]),
                           np.array([d["success"] for d in cvs])),
     }
-    res["subsets_correction_applied"] = int(applied_s.sum())
+    res["subsets_correction_applied"] = 0 if done.corrected is None else int(done.corrected.sum())
     return res
 
 
