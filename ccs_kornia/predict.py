@@ -33,7 +33,8 @@ import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 from torch.utils.data import DataLoader, Dataset
 
-from ccs_kornia.io import IMAGE_EXTENSIONS, calibration_record, json_line, load_image_gray, plan_views
+from ccs_kornia.io import IMAGE_EXTENSIONS, json_line, load_image_gray
+from ccs_kornia.records import calibration_record, plan_views
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.pipeline import CalibrationPipeline
 

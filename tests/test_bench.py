@@ -11,9 +11,9 @@ import torch
 
 from ccs_kornia.bench import BenchConfig, run_bench
 from ccs_kornia.bench.__main__ import main
-from ccs_kornia.bench.common import (
-    corner_errors, cv2_calibrate, ccs_calibrate, make_methods, orient_grid, render_scenes, summary,
-)
+from ccs_kornia.bench.scenes import corner_errors, orient_grid, render_scenes
+from ccs_kornia.bench.common import cv2_calibrate, ccs_calibrate, summary
+from ccs_kornia.bench.methods import make_methods
 from ccs_kornia.bench.report import HONEST_END, HONEST_START, draw_boxplot, write_markdown
 from ccs_kornia.camera import board_object_points, project_points
 
@@ -120,6 +120,21 @@ def test_solvers_recover_exact_intrinsics():
     assert bool(ours["success"][0]) and np.allclose(ours["K"][0], K.numpy(), atol=1e-3)
     # fewer than three found views: a failure, not an exception
     assert not cv2_calibrate(uv, np.array([1, 1, 0, 0, 0, 0], bool), board, square, size)["success"]
+
+
+def test_corner_section_has_the_collinearity_rows():
+    from ccs_kornia.bench.corners import run_corners
+
+    methods = make_methods(("learned",))
+    if not methods["learned"].available:
+        pytest.skip(methods["learned"].reason)
+    cfg = BenchConfig.tiny(corner_conditions=("clean",), corner_images=1, corner_views_per_camera=1)
+    res = run_corners(cfg, methods, log=lambda *_: None)["conditions"]["clean"]
+    assert set(res) == {"learned", "learned_collinearity", "learned_collinearity_last"}
+    for key in ("learned_collinearity", "learned_collinearity_last"):
+        assert res[key]["ablation_of"] == "learned" and res[key]["detected"] == 1 and res[key]["mean_px"] < 0.1
+        assert res[key]["common_images"] == res["learned"]["common_images"] == 1
+    assert "ablation_of" not in res["learned"]
 
 
 # ----------------------------------------------------------------------------------------------

@@ -57,14 +57,12 @@ def test_matches_ground_truth(detected, rendered):
     assert bool(detected.found.all()), detected.reasons
     gt = rendered.corners.to(torch.float64)
     est = detected.corners.to(torch.float64)
-    # the renderer may order a view either way; the detector's own convention is tested below
-    err = torch.minimum((est - gt).norm(dim=-1).mean(-1), (est - gt.flip(1)).norm(dim=-1).mean(-1))
+    # the renderer's order exactly: these views are rolled by less than 90 degrees, where the OpenCV detector's
+    # convention (first corner nearest the image's top-left, test_order_convention) agrees with the renderer's
+    err = (est - gt).norm(dim=-1).mean(-1)
     assert float(err.max()) < 0.1, err
     # no systematic half-pixel shift
-    signed = torch.where(
-        ((est - gt).norm(dim=-1).mean(-1) < (est - gt.flip(1)).norm(dim=-1).mean(-1))[:, None, None], est - gt, est - gt.flip(1)
-    )
-    assert float(signed.mean((0, 1)).abs().max()) < 0.03
+    assert float((est - gt).mean((0, 1)).abs().max()) < 0.03
 
 
 def test_order_convention(detected):

@@ -12,7 +12,8 @@ import torch
 from ccs_kornia.data.distortion_datamodule import DistortionDataModule, flip_batch
 from ccs_kornia.modules.correction.distortion_net import DistortionNet
 from ccs_kornia.modules.correction.straightness import straightness_rms
-from ccs_kornia.training.distortion import DistortionLitModule, export_distortion_checkpoint
+from ccs_kornia.training.distortion import DistortionLitModule
+from ccs_kornia.training.export import export_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -147,7 +148,7 @@ def test_cli_fast_dev_run_and_export(tmp_path):
     assert "max_steps=1" in proc.stderr + proc.stdout
     ckpt = tmp_path / "ckpt" / "last.ckpt"
     assert ckpt.exists()
-    payload = export_distortion_checkpoint(ckpt, tmp_path / "distortion_net.pt")
+    payload = export_checkpoint(ckpt, tmp_path / "distortion_net.pt")
     assert payload["trained_steps"] == 1 and payload["config"]["input_size"] == 256
     net = DistortionNet.from_export(tmp_path / "distortion_net.pt")
     with torch.no_grad():

@@ -13,7 +13,14 @@ Example:
 
 from __future__ import annotations
 
-from ccs_kornia.bench.common import METHODS, SECTIONS, BenchConfig
-from ccs_kornia.bench.runner import run_bench
+from ccs_kornia._lazy import lazy_exports
+
+_EXPORTS = {
+    "BenchConfig": "ccs_kornia.bench.config",
+    "METHODS": "ccs_kornia.bench.config",
+    "SECTIONS": "ccs_kornia.bench.config",
+    "run_bench": "ccs_kornia.bench.runner",
+}
 
 __all__ = ["BenchConfig", "run_bench", "SECTIONS", "METHODS"]
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

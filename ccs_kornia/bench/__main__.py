@@ -18,7 +18,7 @@ __all__ = ["main", "build_parser"]
 
 
 def build_parser(prog: str = "python -m ccs_kornia bench") -> argparse.ArgumentParser:
-    from ccs_kornia.bench.common import METHODS, SECTIONS
+    from ccs_kornia.bench.config import METHODS, SECTIONS
 
     p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     size = p.add_mutually_exclusive_group()
@@ -59,7 +59,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
         return exit_.code if isinstance(exit_.code, int) else 2
     import torch
 
-    from ccs_kornia.bench.common import BenchConfig
+    from ccs_kornia.bench.config import BenchConfig
     from ccs_kornia.bench.runner import run_bench
 
     if args.threads:

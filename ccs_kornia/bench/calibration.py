@@ -14,7 +14,7 @@ than 3 boards found, or the solver failed) are counted, not averaged.
 Note on ``level2``: its ``k0`` in ``[0.8, 1.2]`` scales the image about its centre, which no lens model
 can tell from a change of focal length; every method that does not learn ``k0`` from image content carries
 about ``|k0 - 1| (fx + fy)`` in ``E_FL``. For such conditions ``e_ip_k0`` also scores the result against the
-``k0``-scaled camera (:func:`k0_scaled_intrinsics`), which is what the images show. The paper's radial model
+``k0``-scaled camera (:func:`~ccs_kornia.bench.common.k0_scaled_intrinsics`), which is what the images show. The paper's radial model
 is centred on the image centre, not the principal point, and is not exactly an OpenCV model either: the
 ``exact corners`` row shows that floor.
 """
@@ -24,64 +24,21 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ccs_kornia.bench.config import BenchConfig
+from ccs_kornia.bench.methods import DetectionMethod
 from ccs_kornia.bench.common import (
-    BenchConfig, DetectionMethod, Timer, ccs_calibrate, cv2_calibrate, render_scenes, summary,
+    Timer,
+    _fmt,
+    calibration_metrics,
+    ccs_calibrate,
+    cv2_calibrate,
+    distortion_available,
+    k0_scaled_intrinsics,
 )
+from ccs_kornia.bench.scenes import render_scenes
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
-from ccs_kornia.metrics import e_fl, e_ip, e_pp
 
-__all__ = ["run_calibration", "calibration_metrics", "k0_scaled_intrinsics"]
-
-
-def calibration_metrics(
-    K: np.ndarray, K_true: np.ndarray, success: np.ndarray, rms: np.ndarray, views: np.ndarray,
-    K_scaled: np.ndarray | None = None,
-) -> dict:
-    """Paper metrics over trials: ``K (T,3,3)``, ``K_true (T,3,3)``, ``success (T,)``, ``rms (T,)``, ``views (T,)``.
-
-    ``K_scaled`` (optional, ``(T,3,3)``): the true camera with the radial model's ``k0`` folded in (see
-    :func:`k0_scaled_intrinsics`); gives ``e_ip_k0``, the error that is left once the unobservable scale is
-    set aside.
-    """
-    Kt, Kg = torch.as_tensor(K, dtype=torch.float64), torch.as_tensor(K_true, dtype=torch.float64)
-    fl, pp, ip = e_fl(Kt, Kg).numpy(), e_pp(Kt, Kg).numpy(), e_ip(Kt, Kg).numpy()
-    ok = np.asarray(success, dtype=bool) & np.isfinite(ip)
-    s_ip = summary(ip[ok])
-    extra = {}
-    if K_scaled is not None:
-        extra["e_ip_k0"] = summary(e_ip(Kt, torch.as_tensor(K_scaled, dtype=torch.float64)).numpy()[ok])["mean"]
-    return {**extra,
-        "trials": int(len(ok)),
-        "failures": int((~ok).sum()),
-        "e_fl": summary(fl[ok])["mean"],
-        "e_pp": summary(pp[ok])["mean"],
-        "e_ip": s_ip["mean"],
-        "e_ip_median": s_ip["median"],
-        "e_ip_var": s_ip["var"],
-        "e_ip_max": s_ip["max"],
-        "rms": summary(np.asarray(rms)[ok])["mean"],
-        "views_used": summary(np.asarray(views, dtype=np.float64)[ok])["mean"],
-        "e_ip_per_trial": [float(v) if k else None for v, k in zip(ip, ok)],
-    }
-
-
-def k0_scaled_intrinsics(K: np.ndarray, radial: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
-    """The camera a view with the paper's radial ``k0`` looks like near the image centre ``c``.
-
-    ``r_d ~ k0 r_c`` for small radii, so the image is the ideal one scaled by ``k0`` about ``c``:
-    ``f' = k0 f`` and ``p' = c + k0 (p - c)``. No calibration can tell that scale from the focal length.
-
-    Args:
-        K: :math:`(T, 3, 3)`; radial: :math:`(T, 3)` ``(k0, k1, k2)``; image_size: ``(W, H)``.
-    """
-    K = np.array(K, dtype=np.float64, copy=True)
-    k0 = np.asarray(radial, dtype=np.float64)[:, 0]
-    c = np.array([(image_size[0] - 1) / 2.0, (image_size[1] - 1) / 2.0])
-    K[:, 0, 0] *= k0
-    K[:, 1, 1] *= k0
-    K[:, 0, 2] = c[0] + k0 * (K[:, 0, 2] - c[0])
-    K[:, 1, 2] = c[1] + k0 * (K[:, 1, 2] - c[1])
-    return K
+__all__ = ["run_calibration"]
 
 
 def _trial_subsets(cfg: BenchConfig, cameras: int, per_camera: int, cond_index: int) -> np.ndarray:
@@ -176,7 +133,6 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
 
 def _corrector(cfg: BenchConfig, device: str):
     """The pipeline whose corrected solver stage the learned detections go through (None without weights)."""
-    from ccs_kornia.bench.distortion import distortion_available
 
     net, _ = distortion_available(cfg.distortion_weights)
     if net is None:
@@ -184,7 +140,3 @@ def _corrector(cfg: BenchConfig, device: str):
     from ccs_kornia.pipeline import CalibrationPipeline
 
     return CalibrationPipeline("opencv", distortion_correction=net.to(device)).to(device)
-
-
-def _fmt(x) -> str:
-    return "   n/a" if x is None else f"{x:.3f}"

@@ -9,7 +9,7 @@ Three parts, all on scenes rendered with benchmark seeds (never used in training
 * **severe**: ``dc_trials`` cameras x ``dc_views`` views with severe distortion. ccs_kornia's pipeline with the
   correction on and off (ablation), OpenCV (classic detector + ``cornerSubPix`` + ``calibrateCamera``), and
   OpenCV's detections calibrated by ccs_kornia's corrected solver. E_IP is measured against the camera with
-  the distortion's ``k0`` folded in (:func:`~ccs_kornia.bench.calibration.k0_scaled_intrinsics`): a zoom about
+  the distortion's ``k0`` folded in (:func:`~ccs_kornia.bench.common.k0_scaled_intrinsics`): a zoom about
   the centre that no calibration can tell from the focal length.
 * **wide**: the paper's wide camera, 480x480, ``fx, fy`` in 100-300 px, distortion level 2: success rate (a
   calibration returned with E_IP under 5 px) and E_IP, same methods.
@@ -21,44 +21,22 @@ model centres it; OpenCV's model centres it on the principal point (within 3 % o
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from ccs_kornia.bench.calibration import _fmt, calibration_metrics, k0_scaled_intrinsics
-from ccs_kornia.bench.common import (
-    BenchConfig,
-    DetectionMethod,
-    Scenes,
-    cv2_calibrate,
-    quantize,
-    render_scenes,
-)
+from ccs_kornia.bench.config import BenchConfig
+from ccs_kornia.bench.methods import DetectionMethod
+from ccs_kornia.bench.scenes import Scenes, quantize, render_scenes
+from ccs_kornia.bench.common import _fmt, calibration_metrics, cv2_calibrate, distortion_available, k0_scaled_intrinsics
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
 from ccs_kornia.modules.correction.distortion_net import DEFAULT_DISTORTION_WEIGHTS
 
-__all__ = ["distortion_available", "run_distortion", "render_wide_scenes"]
+__all__ = ["run_distortion", "render_wide_scenes"]
 
 
 #: success of a wide-camera calibration: a camera returned, and E_IP below this (px)
 WIDE_SUCCESS_EIP = 5.0
-
-
-def distortion_available(weights: str | Path | None = None):
-    """``(net, "")`` when the DistortionNet module and its weights load, else ``(None, reason)``."""
-    try:
-        from ccs_kornia.modules.correction import radial_warp  # noqa: F401
-        from ccs_kornia.modules.correction.distortion_net import DistortionNet
-    except ImportError as err:
-        return None, f"distortion correction module not available ({err})"
-    path = Path(weights) if weights else DEFAULT_DISTORTION_WEIGHTS
-    if not path.is_file():
-        return None, f"distortion correction weights not available ({path} not found)"
-    try:
-        return DistortionNet.from_export(path), ""
-    except Exception as err:  # a half-written or incompatible export must not stop the other sections
-        return None, f"distortion correction weights could not be loaded ({type(err).__name__}: {err})"
 
 
 def render_wide_scenes(cfg: BenchConfig, cameras: int, views: int) -> Scenes:

@@ -18,7 +18,9 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.bench.common import BenchConfig, DetectionMethod, Timer, ccs_calibrate, cv2_calibrate, summary
+from ccs_kornia.bench.config import BenchConfig
+from ccs_kornia.bench.methods import DetectionMethod
+from ccs_kornia.bench.common import Timer, ccs_calibrate, cv2_calibrate, summary
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
 
 __all__ = ["REAL_SETS", "default_real_dir", "load_reference", "load_real_set", "run_real"]
@@ -165,7 +167,7 @@ def run_real(cfg: BenchConfig, methods: dict[str, DetectionMethod], device: str 
 def _pipeline_on_set(cfg, images, board, square, size, model, subsets, reference, spec, device) -> dict | None:
     """The product's default path on one set: ``CalibrationPipeline`` with the distortion correction (learned
     detector; detection on corrected images where the pooled correction applies; corrected solver stage)."""
-    from ccs_kornia.bench.distortion import distortion_available
+    from ccs_kornia.bench.common import distortion_available
     from ccs_kornia.modules.detection.factory import make_detector
     from ccs_kornia.pipeline import CalibrationPipeline
 

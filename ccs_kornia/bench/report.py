@@ -96,7 +96,10 @@ def _corners_md(sec: dict) -> list[str]:
         f"*Detected*: whole board found and every corner within {sec['threshold_px']:g} px. Errors (px) over the "
         "corners of correctly detected boards; *mean common*: on the images every method detected. "
         "*Wrong boards*: share of returned boards with a corner off by more than the threshold; *wrong corners*: "
-        "share of returned corners off by more than it.",
+        "share of returned corners off by more than it. *+ collinearity*: the learned detector with the paper's "
+        "collinearity refinement on (off by default; it runs before the saddle refinement on the image); "
+        "*+ collinearity last*: the refinement applied to the final corners instead, the paper's order. Both are "
+        "ablation rows on the same images, not part of *mean common*.",
         "",
     ]
     for cond, res in sec["conditions"].items():

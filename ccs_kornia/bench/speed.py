@@ -22,7 +22,10 @@ import time
 import numpy as np
 import torch
 
-from ccs_kornia.bench.common import BenchConfig, DetectionMethod, ccs_calibrate, cv2_calibrate, render_scenes
+from ccs_kornia.bench.config import BenchConfig
+from ccs_kornia.bench.methods import DetectionMethod
+from ccs_kornia.bench.common import ccs_calibrate, cv2_calibrate
+from ccs_kornia.bench.scenes import render_scenes
 
 __all__ = ["run_speed", "peak_rss_mb"]
 
@@ -94,7 +97,7 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
             res["calibration"][label] = {"images_per_s": views.shape[0] / sec, "seconds": sec}
             log(f"[speed] {device} whole calibration {label}: {views.shape[0] / sec:.2f} img/s ({sec:.2f} s)")
         # the whole product path: CalibrationPipeline with the distortion correction (its default)
-        from ccs_kornia.bench.distortion import distortion_available
+        from ccs_kornia.bench.common import distortion_available
 
         net, why = distortion_available(cfg.distortion_weights)
         if net is not None and ccs_key == "learned":

@@ -36,7 +36,10 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.bench.common import BenchConfig, DetectionMethod, corner_errors, quantize, summary
+from ccs_kornia.bench.common import summary
+from ccs_kornia.bench.config import BenchConfig
+from ccs_kornia.bench.methods import DetectionMethod
+from ccs_kornia.bench.scenes import corner_errors, quantize
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
 
 __all__ = ["WILD_CONDITIONS", "WILD_REAL_SETS", "wild_spec", "PeakMemory", "run_wild"]

@@ -1,12 +1,11 @@
 """Lightning training of the radial distortion CNN (paper Sec. III-A, Eq. 1), and its weight export.
 
     python -m ccs_kornia fit --config lightning_configs/distortion.yaml
-    python -m ccs_kornia.training.distortion runs/distortion/checkpoints/last.ckpt ccs_kornia/weights/distortion_net.pt
+    python -m ccs_kornia.training.export runs/distortion/checkpoints/last.ckpt ccs_kornia/weights/distortion_net.pt
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import lightning as L
 import torch
@@ -18,7 +17,7 @@ from ccs_kornia.modules.correction.radial_warp import correct_points
 from ccs_kornia.modules.correction.straightness import straightness_rms
 from ccs_kornia.training.common import adamw_one_cycle
 
-__all__ = ["DistortionLitModule", "export_distortion_checkpoint"]
+__all__ = ["DistortionLitModule"]
 
 
 class DistortionLitModule(L.LightningModule):
@@ -130,21 +129,3 @@ class DistortionLitModule(L.LightningModule):
             "config": dict(self.net.config),
             "state_dict": {k: v.detach().cpu() for k, v in self.net.state_dict().items()},
         }
-
-
-def export_distortion_checkpoint(ckpt_path: str | Path, out_path: str | Path) -> dict:
-    """Load a :class:`DistortionLitModule` checkpoint and write its network config and weights only."""
-    from ccs_kornia.training.export import export_checkpoint
-
-    return export_checkpoint(ckpt_path, out_path)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m ccs_kornia.training.distortion CKPT OUT`` (same as ``ccs_kornia.training.export``)."""
-    from ccs_kornia.training.export import main as export_main
-
-    return export_main(argv)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,0 +1,164 @@
+"""What the benchmark runs and at which size: sections, conditions, methods, :class:`BenchConfig` presets."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, replace
+
+__all__ = ["SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "BenchConfig"]
+
+SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild")
+#: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
+CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
+#: conditions of the synthetic calibration section (paper Table I)
+CALIB_CONDITIONS: tuple[str, ...] = ("blur_noise", "bad_lighting", "level1", "level2")
+#: detection methods: key -> label used in the reports
+METHODS: dict[str, str] = {
+    "learned": "ccs_kornia learned",
+    "opencv_saddle": "opencv+saddle",
+    "opencv_subpix": "cv2 classic+cornerSubPix",
+    "opencv_sb": "cv2 findChessboardCornersSB",
+    "libcbdetect": "libcbdetect",
+}
+#: condition name -> (photometric condition of ``augment.CONDITIONS``, radial level or None)
+_CONDITION_PARTS: dict[str, tuple[str, str | None]] = {
+    "clean": ("clean", None),
+    "blur_noise": ("blur_noise", None),
+    "noise": ("blur_noise", None),
+    "bad_lighting": ("bad_lighting", None),
+    "combined": ("combined", None),
+    "mild": ("clean", "level1"),
+    "level1": ("clean", "level1"),
+    "level2": ("clean", "level2"),
+    "severe": ("clean", "severe"),
+}
+#: seed offsets of the sections, so no two sections render the same scene
+_SECTION_SEED = {"corners": 0, "calibration": 100_000, "distortion": 200_000, "speed": 300_000, "wild": 400_000}
+
+
+@dataclass
+class BenchConfig:
+    """What the benchmark runs and at which size (see :meth:`full`, :meth:`quick`, :meth:`tiny`).
+
+    Attributes:
+        sections: sections to run, a subset of :data:`SECTIONS`.
+        methods: detection methods, a subset of :data:`METHODS` (unavailable ones are reported and skipped).
+        image_size: ``(W, H)`` of the synthetic images.
+        board: ``(cols, rows)`` inner corners of the synthetic board.
+        square: square side (m) of the synthetic board.
+        supersample: renderer sub-cells per pixel side.
+        corner_conditions: conditions of the corner section.
+        corner_images: images per condition (corner section).
+        corner_views_per_camera: views per random camera in the corner section.
+        corner_ablations: extra rows of the corner section, keys of
+            :data:`~ccs_kornia.bench.methods.ABLATIONS` (run when their base method is among ``methods``; not
+            counted in *mean common*).
+        error_threshold: a corner further than this (px) from the truth is wrong.
+        calib_conditions: conditions of the calibration section.
+        calib_trials: calibration trials per condition.
+        calib_views: views per trial.
+        calib_pool_views: views rendered per camera; trials of one camera draw ``calib_views`` of them
+            (``calib_pool_views == calib_views`` gives fully independent trials).
+        calib_trials_per_camera: trials drawn from one camera's pool.
+        calib_methods: detection methods of the calibration section (``None``: all of ``methods``).
+        real_dir: folder of the real photograph sets (``None``: ``../shared/data/real`` beside the repo).
+        real_sets: set names to run (``None``: every known set found).
+        real_subsets: random view subsets per set.
+        real_subset_fraction: fraction of a set's images in one subset.
+        real_max_images: at most this many images per set (``None``: all).
+        dc_trials, dc_views: trials (cameras) and views of the severe-distortion part of the distortion section.
+        wide_trials, wide_views, wide_size, wide_fx: the paper's wide camera (level-2 distortion) part.
+        distortion_weights: DistortionNet export (``None``: the shipped weights).
+        speed_batch_sizes: detection batch sizes timed.
+        speed_images: images timed per batch size.
+        speed_solver_cameras: camera counts of the batched solver timing.
+        speed_repeats: repeats of each timing (best is kept).
+        devices: ``cpu`` and/or ``cuda`` (``cuda`` skipped when not present).
+        learned_batch: images per learned-detector call.
+        wild_conditions: conditions of the ``wild`` section (``None``: all of ``bench.wild.WILD_CONDITIONS``).
+        wild_images: images per wild condition; wild_big_images: per condition of 4 Mpx and more.
+        wild_free_images: board-free images of the wild section.
+        wild_real_sets: real sets rescaled in the wild section (``None``: all eight).
+        wild_real_scales: rescaling factors of the real photos; wild_real_images: images per set (``None``: all).
+    """
+
+    sections: tuple[str, ...] = SECTIONS
+    methods: tuple[str, ...] = tuple(METHODS)
+    image_size: tuple[int, int] = (640, 480)
+    board: tuple[int, int] = (9, 6)
+    square: float = 0.025
+    supersample: int = 3
+    corner_conditions: tuple[str, ...] = CORNER_CONDITIONS
+    corner_images: int = 60
+    corner_views_per_camera: int = 15
+    corner_ablations: tuple[str, ...] = ("learned_collinearity", "learned_collinearity_last")
+    error_threshold: float = 3.0
+    calib_conditions: tuple[str, ...] = CALIB_CONDITIONS
+    calib_trials: int = 50
+    calib_views: int = 15
+    calib_pool_views: int = 30
+    calib_trials_per_camera: int = 5
+    calib_methods: tuple[str, ...] | None = None
+    real_dir: str | None = None
+    real_sets: tuple[str, ...] | None = None
+    real_subsets: int = 20
+    real_subset_fraction: float = 0.7
+    real_max_images: int | None = None
+    dc_trials: int = 20
+    dc_views: int = 15
+    wide_trials: int = 20
+    wide_views: int = 15
+    wide_size: tuple[int, int] = (480, 480)
+    wide_fx: tuple[float, float] = (100.0, 300.0)
+    distortion_weights: str | None = None
+    speed_batch_sizes: tuple[int, ...] = (1, 16)
+    speed_images: int = 16
+    speed_solver_cameras: tuple[int, ...] = (1, 16, 64)
+    speed_repeats: int = 2
+    devices: tuple[str, ...] = ("cpu", "cuda")
+    learned_batch: int = 8
+    wild_conditions: tuple[str, ...] | None = None
+    wild_images: int = 20
+    wild_big_images: int = 5
+    wild_free_images: int = 200
+    wild_real_sets: tuple[str, ...] | None = None
+    wild_real_scales: tuple[float, ...] = (0.5, 1.5, 2.0, 4.0)
+    wild_real_images: int | None = 6
+    preset: str = "full"
+    extra: dict = field(default_factory=dict)
+
+    @classmethod
+    def full(cls, **overrides) -> BenchConfig:
+        """The full run (target: under 45 minutes on 2 CPU cores)."""
+        return replace(cls(), **overrides)
+
+    @classmethod
+    def quick(cls, **overrides) -> BenchConfig:
+        """A few images and trials per condition (target: under 5 minutes on 2 idle CPU cores)."""
+        base = cls(
+            corner_images=8, corner_views_per_camera=4, calib_trials=3, calib_views=10, calib_pool_views=10, calib_trials_per_camera=1,
+            real_subsets=4, real_max_images=12, dc_trials=2, dc_views=10, wide_trials=1, wide_views=10, speed_images=4,
+            speed_solver_cameras=(1, 16), speed_repeats=1, supersample=2, preset="quick",
+            real_sets=("opencv_left", "boofcv_bumblebee2_left"),
+            calib_methods=("learned", "opencv_saddle", "opencv_subpix", "opencv_sb"),
+            wild_images=2, wild_big_images=1, wild_free_images=28, wild_real_images=1,
+        )
+        return replace(base, **overrides)
+
+    @classmethod
+    def tiny(cls, **overrides) -> BenchConfig:
+        """The smallest configuration that still exercises every section (used by the tests)."""
+        base = cls(
+            image_size=(320, 240), board=(6, 4), supersample=1, corner_conditions=("clean", "severe"),
+            corner_images=2, corner_views_per_camera=2, calib_conditions=("blur_noise",), calib_trials=2,
+            calib_views=5, calib_pool_views=5, calib_trials_per_camera=1, real_subsets=2, real_max_images=6, dc_trials=1, dc_views=5, wide_trials=1, wide_views=5, wide_size=(240, 240),
+            wide_fx=(60.0, 150.0),
+            speed_batch_sizes=(1, 2), speed_images=2, speed_solver_cameras=(1, 2), speed_repeats=1,
+            real_sets=("boofcv_bumblebee2_left",), calib_methods=("opencv_saddle", "opencv_subpix"),
+            wild_conditions=("img320", "cut"), wild_images=1, wild_big_images=1, wild_free_images=2,
+            wild_real_sets=("boofcv_bumblebee2_left",), wild_real_scales=(0.5,), wild_real_images=1,
+            preset="tiny",
+        )
+        return replace(base, **overrides)
+
+    def to_dict(self) -> dict:
+        return asdict(self)

@@ -1,0 +1,85 @@
+"""``ccs_kornia undistort``: images undistorted with a calibration (as ``cv2.undistort``)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from typing import Any
+
+from ccs_kornia.commands._common import UserError, inputs, make_dir, resolve_device, warn
+
+__all__ = ["run"]
+
+
+def _read_calibration(path: str) -> tuple[Any, Any, tuple[int, int] | None]:
+    import json
+
+    import torch
+
+    try:
+        with open(path, encoding="utf-8") as handle:
+            data = json.load(handle)
+    except FileNotFoundError:
+        raise UserError(f"--calibration {path}: no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise UserError(f"--calibration {path}: not a readable JSON file ({err})") from None
+    try:
+        K = torch.tensor(data["K"], dtype=torch.float64)
+        coeffs = data.get("distortion", {}).get("coeffs") or []
+        dist = torch.tensor([float(c) for c in coeffs], dtype=torch.float64)
+        size = data.get("image_size")
+        size = (int(size[0]), int(size[1])) if size else None
+    except (KeyError, TypeError, ValueError, IndexError) as err:
+        raise UserError(f"--calibration {path}: not a calibration written by 'calibrate' ({type(err).__name__}: {err})") from None
+    if K.shape != (3, 3) or dist.numel() not in (0, 4, 5, 8, 12, 14):
+        raise UserError(f"--calibration {path}: K must be 3x3 and distortion.coeffs have 0, 4, 5, 8, 12 or 14 values")
+    if dist.numel() == 0:
+        dist = torch.zeros(5, dtype=torch.float64)
+    return K, dist, size
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+    from kornia.geometry.calibration import undistort_image
+    from tqdm import tqdm
+
+    from ccs_kornia.io import read_image, write_image
+
+    K, dist, calib_size = _read_calibration(args.calibration)
+    device = resolve_device(args.device)
+    files = inputs("undistort", args.images)
+    make_dir("--out-dir", args.out_dir)
+    K, dist = K.to(device), dist.to(device)
+    written, used_names = 0, set()
+    for path in tqdm(files, unit="img", desc="undistort", file=sys.stderr, disable=None, leave=False):
+        image, reason, depth = read_image(path, gray=False)
+        if image is None:
+            warn("undistort", f"skipped {path}: {reason}")
+            continue
+        h, w = image.shape[:2]
+        if calib_size is not None and (w, h) != calib_size:
+            warn("undistort", f"skipped {path}: image size {w}x{h} differs from the calibration's {calib_size[0]}x{calib_size[1]}")
+            continue
+        stem, ext = os.path.splitext(os.path.basename(path))
+        if ext.lower() not in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"):
+            ext = ".png"
+        name, k = stem + ext, 1
+        while name in used_names:  # same file name from different input folders
+            name, k = f"{stem}_{k}{ext}", k + 1
+        used_names.add(name)
+        target = os.path.join(args.out_dir, name)
+        if os.path.exists(target) and os.path.samefile(target, path):
+            warn("undistort", f"skipped {path}: writing to --out-dir would overwrite the input")
+            continue
+        tensor = torch.from_numpy(image).to(device)
+        tensor = tensor[None, None] if tensor.dim() == 2 else tensor.permute(2, 0, 1)[None]
+        out = undistort_image(tensor.double(), K[None], dist[None])[0]
+        if not write_image(target, out, bit_depth=16 if depth > 8 and ext.lower() in (".png", ".tif", ".tiff") else 8):
+            warn("undistort", f"could not write {target}")
+            continue
+        written += 1
+    if written == 0:
+        raise UserError(f"no image undistorted (all {len(files)} inputs were skipped)")
+    print(f"undistorted {written} of {len(files)} images into {args.out_dir}")
+    return 0

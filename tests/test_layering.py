@@ -1,0 +1,219 @@
+"""The package's layering (docs/architecture.md): what each layer loads, import cycles, dependency rules, file size.
+
+Imports point down only: ``cli`` (and ``commands/``) -> ``pipeline`` -> ``modules/`` -> ``camera``;
+``training/`` -> ``modules/``, ``losses/``, ``data/``; ``data/`` -> ``camera``; nothing in ``modules/`` imports the
+command line, the pipeline, training, the benchmarks or Lightning. The import graph is read from the source with
+``ast``; imports inside functions (lazy imports) count as edges like module-level ones, and a lazy package export
+(``_EXPORTS`` of a PEP 562 ``__init__``) counts as an edge from the package to the module it names.
+
+Importing ``a.b.c`` also runs the ``__init__`` of ``a`` and ``a.b``; that is not an edge here, because every
+``__init__`` of ours imports nothing but :mod:`ccs_kornia._lazy` (checked below), so running it loads nothing.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "ccs_kornia"
+MAX_LINES = 500
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES: dict[str, Path] = {_module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def _resolve(module: str, level: int, current: str, is_package: bool) -> str:
+    if level == 0:
+        return module
+    base = current.split(".") if is_package else current.split(".")[:-1]
+    base = base[: len(base) - (level - 1)]
+    return ".".join(base + ([module] if module else []))
+
+
+def _edges(name: str, path: Path) -> set[str]:
+    """Modules of ours that ``name`` imports (anywhere in the file), plus the targets of lazy exports."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    is_package = path.name == "__init__.py"
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = _resolve(node.module or "", node.level, name, is_package)
+            # ``from pkg import sub`` imports the submodule ``pkg.sub`` when there is one
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base for a in node.names]
+        elif (
+            is_package and isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "_EXPORTS" for t in node.targets)
+        ):
+            targets = [v.value for v in node.value.values]  # type: ignore[attr-defined]
+        else:
+            continue
+        out.update(t for t in targets if t in MODULES and t != name)
+    return out
+
+
+GRAPH: dict[str, set[str]] = {name: _edges(name, path) for name, path in MODULES.items()}
+
+
+def _external_imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(a.name.split(".")[0] for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.add(node.module.split(".")[0])
+    return out
+
+
+def _layer(name: str) -> str:
+    parts = name.split(".")
+    if len(parts) == 1:
+        return "package"
+    return parts[1]
+
+
+# ----------------------------------------------------------------------------------------------
+# what a layer loads, imported alone
+# ----------------------------------------------------------------------------------------------
+
+
+def _loaded_after(code: str) -> set[str]:
+    script = code + "\nimport sys\nprint('\\n'.join(sorted(sys.modules)))\n"
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
+                          cwd=PACKAGE.parent)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return set(proc.stdout.split())
+
+
+def _ours(loaded: set[str], *prefixes: str) -> list[str]:
+    return sorted(m for m in loaded if any(m == p or m.startswith(p + ".") for p in prefixes))
+
+
+def test_camera_alone_loads_no_opencv_and_no_stage():
+    loaded = _loaded_after("import ccs_kornia.camera")
+    assert "cv2" not in loaded
+    assert not _ours(loaded, "ccs_kornia.modules", "ccs_kornia.pipeline", "ccs_kornia.data", "lightning")
+    assert _ours(loaded, "ccs_kornia") == ["ccs_kornia", "ccs_kornia._lazy", "ccs_kornia.camera"]
+
+
+def test_modules_load_no_lightning_cli_pipeline_or_training():
+    names = sorted(n for n in MODULES if n.startswith("ccs_kornia.modules"))
+    loaded = _loaded_after("\n".join(f"import {n}" for n in names))
+    assert not _ours(loaded, "lightning", "pytorch_lightning")
+    assert not _ours(loaded, *(f"ccs_kornia.{x}" for x in (
+        "cli", "commands", "pipeline", "predict", "training", "bench", "data", "losses", "records", "report", "io",
+    )))
+
+
+def test_pipeline_loads_no_lightning():
+    loaded = _loaded_after("import ccs_kornia.pipeline")
+    assert not _ours(loaded, "lightning", "pytorch_lightning")
+    assert not _ours(loaded, "ccs_kornia.cli", "ccs_kornia.commands", "ccs_kornia.training", "ccs_kornia.bench",
+                     "ccs_kornia.predict", "ccs_kornia.data")
+
+
+def test_renderer_does_not_depend_on_the_stages():
+    # the ground truth must never come from the stages it is used to test
+    loaded = _loaded_after("import ccs_kornia.data.scenes, ccs_kornia.data.targets")
+    assert not _ours(loaded, "ccs_kornia.modules", "ccs_kornia.pipeline", "ccs_kornia.losses")
+
+
+# ----------------------------------------------------------------------------------------------
+# the import graph
+# ----------------------------------------------------------------------------------------------
+
+
+def test_package_inits_import_nothing_but_the_lazy_helper():
+    for name, path in MODULES.items():
+        if path.name == "__init__.py":
+            direct = {t for t in _edges(name, path) if t not in _lazy_targets(path)}
+            assert direct <= {"ccs_kornia._lazy"}, (name, direct)
+
+
+def _lazy_targets(path: Path) -> set[str]:
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "_EXPORTS" for t in node.targets):
+            return {v.value for v in node.value.values}  # type: ignore[attr-defined]
+    return set()
+
+
+def test_no_import_cycle():
+    state: dict[str, int] = {}  # 1: on the stack, 2: done
+    stack: list[str] = []
+
+    def visit(node: str) -> None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(GRAPH[node]):
+            if state.get(nxt) == 1:
+                cycle = stack[stack.index(nxt):] + [nxt]
+                pytest.fail("import cycle: " + " -> ".join(cycle))
+            if nxt not in state:
+                visit(nxt)
+        stack.pop()
+        state[node] = 2
+
+    for name in sorted(GRAPH):
+        if name not in state:
+            visit(name)
+
+
+#: layer -> layers of ours it may import (besides itself and the lazy-export helper)
+ALLOWED: dict[str, set[str]] = {
+    "camera": set(),
+    "metrics": set(),
+    "_lazy": set(),
+    "package": set(),
+    "io": set(),
+    "data": {"camera"},
+    "losses": {"camera"},
+    "modules": {"camera"},
+    "pipeline": {"camera", "modules"},
+    "records": {"modules"},
+    "report": {"camera", "io", "report_figures"},
+    "report_figures": set(),
+    "training": {"camera", "modules", "losses", "data"},
+    "predict": {"pipeline", "modules", "io", "records"},
+    # the command line dispatches to everything below it; ``bench`` and ``training.cli`` are entry points it
+    # forwards to (neither imports the command line)
+    "commands": {"commands", "pipeline", "modules", "io", "records", "report", "data", "metrics", "predict"},
+    "cli": {"commands", "io", "training", "bench"},
+    "__main__": {"cli"},
+    "bench": {"camera", "data", "modules", "pipeline", "io", "metrics", "losses"},
+}
+
+
+def test_dependency_rules():
+    problems = []
+    for name, targets in GRAPH.items():
+        layer = _layer(name)
+        assert layer in ALLOWED, f"{name}: no dependency rule for layer {layer!r}"
+        for t in targets:
+            other = _layer(t)
+            if other in (layer, "_lazy") or (layer == "package" and t in _lazy_targets(MODULES[name])):
+                continue
+            if other not in ALLOWED[layer]:
+                problems.append(f"{name} imports {t}")
+    assert not problems, "\n".join(sorted(problems))
+
+
+def test_no_stage_imports_lightning_or_the_command_line():
+    for name, path in MODULES.items():
+        if _layer(name) in ("modules", "pipeline", "camera", "data") and not name.endswith("datamodule"):
+            assert not _external_imports(path) & {"lightning", "pytorch_lightning"}, name
+
+
+def test_no_file_over_500_lines():
+    long = {str(p.relative_to(PACKAGE.parent)): n for p in PACKAGE.rglob("*.py")
+            if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES}
+    assert not long, long
