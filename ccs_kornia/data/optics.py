@@ -74,7 +74,7 @@ def blur_kernel(kind: str, width: float, angle: float = 0.0) -> Tensor:
         angle: motion direction (radians).
 
     Example:
-        >>> blur_kernel("box", 3.0).shape, float(blur_kernel("motion", 10.0, 0.3).sum())
+        >>> blur_kernel("box", 3.0).shape, round(float(blur_kernel("motion", 10.0, 0.3).sum()), 6)
         (torch.Size([3, 3]), 1.0)
     """
     if kind not in BLUR_KINDS:
