@@ -411,6 +411,11 @@ def _grid_board_coordinates(K, rvec, tvec, square, image_size, dist, radial, fis
         fu, fv, ff = _normalized_to_board(rx, ry, G[idx], rz)
         u, v, front = u.index_copy(0, idx, fu), v.index_copy(0, idx, fv), front.index_copy(0, idx, ff)
         reach = reach.index_copy(0, idx, ok)
-        # background of a fisheye view: the scene seen through an equidistant-like mapping is kept as drawn
-        ix, iy = ix.index_copy(0, idx, px[idx].contiguous()), iy.index_copy(0, idx, py[idx].contiguous())
+        # the background is a scene seen through the same lens: a pinhole image of it (focal 0.35 fx, rays
+        # beyond 80 degrees clamped) is looked up along each pixel's ray, so its straight edges bend like the board's
+        zc = rz.clamp_min(math.cos(math.radians(80.0)))
+        fb = 0.35 * Kf[idx, 0, 0].view(-1, 1, 1)
+        bx = Kf[idx, 0, 2].view(-1, 1, 1) + fb * rx / zc
+        by = Kf[idx, 1, 2].view(-1, 1, 1) + 0.35 * Kf[idx, 1, 1].view(-1, 1, 1) * ry / zc
+        ix, iy = ix.index_copy(0, idx, bx), iy.index_copy(0, idx, by)
     return u, v, reach, front, ix, iy

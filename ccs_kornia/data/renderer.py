@@ -187,6 +187,8 @@ def _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, su
             distorted |= ~_radial_is_trivial(radial).to(dev)
         if dist is not None:
             distorted |= (dist.abs().amax(-1) > 0).to(dev)
+        if fisheye is not None:
+            distorted |= (fisheye[:, 4] > 0).to(dev)
         idx = distorted.nonzero().squeeze(1)
         if idx.numel() > 0:
             grid = torch.stack([ideal_x[idx] / max(w - 1, 1) * 2 - 1, ideal_y[idx] / max(h_img - 1, 1) * 2 - 1], -1)
