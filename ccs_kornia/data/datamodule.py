@@ -132,6 +132,8 @@ class DetectorDataModule(L.LightningDataModule):
         wild_prob: share of each batch rendered by :class:`~ccs_kornia.data.wild.WildChessboards` (0: today's data
             only, the default).
         wild: WildSpec fields of those views (``None``: :data:`DETECTOR_WILD`, the recommended recipe).
+        board_free_prob: share of each batch without a board (:func:`~ccs_kornia.data.distractors.board_free_images`
+            without its checker patches, whose corners are real corners), with an empty target heatmap.
     """
 
     def __init__(
@@ -150,11 +152,12 @@ class DetectorDataModule(L.LightningDataModule):
         num_workers: int = 0,
         wild_prob: float = 0.0,
         wild: dict | None = None,
+        board_free_prob: float = 0.0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
-        if not 0.0 <= wild_prob <= 1.0:
-            raise ValueError(f"wild_prob must be in [0, 1], got {wild_prob}.")
+        if not (0.0 <= wild_prob <= 1.0 and 0.0 <= board_free_prob < 1.0):
+            raise ValueError(f"wild_prob must be in [0, 1] and board_free_prob in [0, 1), got {wild_prob}, {board_free_prob}.")
         self.wild = wild_sampler(DETECTOR_WILD if wild is None else wild, image_size) if wild_prob > 0 else None
         self.scenes = SyntheticChessboards(
             image_size=tuple(image_size),
@@ -169,10 +172,12 @@ class DetectorDataModule(L.LightningDataModule):
 
     def make_batch(self, generator: torch.Generator) -> dict[str, torch.Tensor]:
         hp = self.hparams
-        n_wild = int(round(hp.batch_size * hp.wild_prob)) if self.wild is not None else 0
+        n_free = int(round(hp.batch_size * hp.board_free_prob))
+        n_board = hp.batch_size - n_free
+        n_wild = int(round(n_board * hp.wild_prob)) if self.wild is not None else 0
         for attempt in range(5):
             try:
-                parts = [self.scenes.sample(hp.batch_size - n_wild, generator)] if n_wild < hp.batch_size else []
+                parts = [self.scenes.sample(n_board - n_wild, generator)] if n_wild < n_board else []
                 if n_wild:
                     parts.append(self.wild.sample(n_wild, generator))
                 b = concat_batches(parts)
@@ -191,7 +196,17 @@ class DetectorDataModule(L.LightningDataModule):
         # every visible corner is a target, even one too close to the border to count as a valid detection
         visible = exists & inside & torch.isfinite(c).all(-1)
         heatmap = gaussian_heatmaps(c, visible, (w, h), hp.sigma)
-        return {"image": b.images, "heatmap": heatmap, "corners": c, "valid": b.corner_valid}
+        out = {"image": b.images, "heatmap": heatmap, "corners": c, "valid": b.corner_valid}
+        if n_free:
+            from ccs_kornia.data.distractors import DISTRACTOR_KINDS, board_free_images
+
+            kinds = tuple(k for k in DISTRACTOR_KINDS if k != "checker_patches")
+            free, _ = board_free_images(n_free, (w, h), generator, kinds=kinds)
+            n = c.shape[1]
+            out = {"image": torch.cat([b.images, free]), "heatmap": torch.cat([heatmap, torch.zeros_like(free)]),
+                   "corners": torch.cat([c, torch.zeros(n_free, n, 2)]),
+                   "valid": torch.cat([b.corner_valid, torch.zeros(n_free, n, dtype=torch.bool)])}
+        return out
 
     def train_dataloader(self) -> DataLoader:
         ds = RenderedBatches(self.make_batch, TRAIN_SEED_BASE + self.hparams.seed)

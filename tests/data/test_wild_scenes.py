@@ -109,6 +109,9 @@ def test_datamodules_keep_todays_defaults_and_mix_in_wild_views():
                               wild_prob=0.5, wild={**SMALL, "board_cols": [3, 4], "board_rows": [2, 3]})
     w = wild.make_batch(g())
     assert w["image"].shape == (4, 1, 72, 96) and w["heatmap"].shape == (4, 1, 72, 96)
+    free = DetectorDataModule(image_size=(96, 72), batch_size=4, supersample=1, board_cols=(3, 5), board_rows=(2, 4),
+                              board_free_prob=0.25).make_batch(g())
+    assert float(free["heatmap"][-1].abs().max()) == 0.0 and not bool(free["valid"][-1].any())
     dist = DistortionDataModule(image_size=(96, 72), batch_size=4, supersample=1, wild_prob=0.5, board_free_prob=0.25,
                                 wild={"supersample": 1})
     d = dist.make_batch(g())
