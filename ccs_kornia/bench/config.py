@@ -74,6 +74,8 @@ class BenchConfig:
         speed_repeats: repeats of each timing (best is kept).
         devices: ``cpu`` and/or ``cuda`` (``cuda`` skipped when not present).
         learned_batch: images per learned-detector call.
+        wild_methods: detection methods of the ``wild`` section (``None``: all of ``methods``); by default the
+            peers issue 10 names (OpenCV classic + cornerSubPix, SB, libcbdetect) and ours.
         wild_conditions: conditions of the ``wild`` section (``None``: all of ``bench.wild.WILD_CONDITIONS``).
         wild_images: images per wild condition; wild_big_images: per condition of 4 Mpx and more.
         wild_free_images: board-free images of the wild section.
@@ -116,6 +118,7 @@ class BenchConfig:
     speed_repeats: int = 2
     devices: tuple[str, ...] = ("cpu", "cuda")
     learned_batch: int = 8
+    wild_methods: tuple[str, ...] | None = ("learned", "opencv_subpix", "opencv_sb", "libcbdetect")
     wild_conditions: tuple[str, ...] | None = None
     wild_images: int = 20
     wild_big_images: int = 5
@@ -140,7 +143,7 @@ class BenchConfig:
             speed_solver_cameras=(1, 16), speed_repeats=1, supersample=2, preset="quick",
             real_sets=("opencv_left", "boofcv_bumblebee2_left"),
             calib_methods=("learned", "opencv_saddle", "opencv_subpix", "opencv_sb"),
-            wild_images=2, wild_big_images=1, wild_free_images=28, wild_real_images=1,
+            wild_images=2, wild_big_images=1, wild_free_images=21, wild_real_images=1,
         )
         return replace(base, **overrides)
 
@@ -154,7 +157,7 @@ class BenchConfig:
             wide_fx=(60.0, 150.0),
             speed_batch_sizes=(1, 2), speed_images=2, speed_solver_cameras=(1, 2), speed_repeats=1,
             real_sets=("boofcv_bumblebee2_left",), calib_methods=("opencv_saddle", "opencv_subpix"),
-            wild_conditions=("img320", "cut"), wild_images=1, wild_big_images=1, wild_free_images=2,
+            wild_methods=None, wild_conditions=("img320", "cut"), wild_images=1, wild_big_images=1, wild_free_images=2,
             wild_real_sets=("boofcv_bumblebee2_left",), wild_real_scales=(0.5,), wild_real_images=1,
             preset="tiny",
         )

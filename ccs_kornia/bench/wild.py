@@ -335,6 +335,8 @@ def _fmt(x, digits: int = 3) -> str:
 def run_wild(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) -> dict:
     """Run the ``wild`` section; returns ``{"conditions": ..., "board_free": ..., "real": ...}``."""
     ms = _methods_ok(methods)
+    if cfg.wild_methods is not None:
+        ms = {k: m for k, m in ms.items() if k in cfg.wild_methods}
     names = cfg.wild_conditions if cfg.wild_conditions is not None else tuple(WILD_CONDITIONS)
     out: dict = {"memory": PeakMemory.method, "threshold_px": cfg.error_threshold, "conditions": {}}
     for name in names:
