@@ -43,6 +43,7 @@ def build_parser(prog: str = "python -m ccs_kornia bench") -> argparse.ArgumentP
     p.add_argument("--wild-big-images", type=int, default=None, help="images per wild condition of 4 Mpx and more")
     p.add_argument("--wild-free-images", type=int, default=None, help="board-free images, wild section")
     p.add_argument("--wild-real-images", type=int, default=None, help="images per real set and scale, wild section")
+    p.add_argument("--wild-time-limit", type=float, default=None, help="seconds a peer may spend on one wild image")
     p.add_argument("--wild-conditions", nargs="+", default=None, help="wild conditions to run (default: all)")
     p.add_argument("--wild-real-scales", nargs="+", type=float, default=None, help="rescaling of the real photos")
     p.add_argument("--no-cuda", action="store_true", help="do not time CUDA even when present")
@@ -85,6 +86,11 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
                   file=sys.stderr)
             return 2
         overrides["wild_conditions"] = tuple(args.wild_conditions)
+    if args.wild_time_limit is not None:
+        if args.wild_time_limit <= 0:
+            print(f"{prog}: error: --wild-time-limit must be > 0", file=sys.stderr)
+            return 2
+        overrides["wild_time_limit"] = args.wild_time_limit
     if args.wild_real_scales:
         overrides["wild_real_scales"] = tuple(args.wild_real_scales)
     if args.sections:

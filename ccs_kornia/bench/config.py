@@ -76,6 +76,7 @@ class BenchConfig:
         learned_batch: images per learned-detector call.
         wild_methods: detection methods of the ``wild`` section (``None``: all of ``methods``); by default the
             peers issue 10 names (OpenCV classic + cornerSubPix, SB, libcbdetect) and ours.
+        wild_time_limit: seconds a peer may spend on one image of the wild section (then: no board, "timed out").
         wild_conditions: conditions of the ``wild`` section (``None``: all of ``bench.wild.WILD_CONDITIONS``).
         wild_images: images per wild condition; wild_big_images: per condition of 4 Mpx and more.
         wild_free_images: board-free images of the wild section.
@@ -119,6 +120,7 @@ class BenchConfig:
     devices: tuple[str, ...] = ("cpu", "cuda")
     learned_batch: int = 8
     wild_methods: tuple[str, ...] | None = ("learned", "opencv_subpix", "opencv_sb", "libcbdetect")
+    wild_time_limit: float | None = 300.0
     wild_conditions: tuple[str, ...] | None = None
     wild_images: int = 20
     wild_big_images: int = 5
@@ -143,7 +145,7 @@ class BenchConfig:
             speed_solver_cameras=(1, 16), speed_repeats=1, supersample=2, preset="quick",
             real_sets=("opencv_left", "boofcv_bumblebee2_left"),
             calib_methods=("learned", "opencv_saddle", "opencv_subpix", "opencv_sb"),
-            wild_images=2, wild_big_images=1, wild_free_images=21, wild_real_images=1,
+            wild_images=2, wild_big_images=1, wild_free_images=21, wild_real_images=1, wild_time_limit=30.0,
         )
         return replace(base, **overrides)
 

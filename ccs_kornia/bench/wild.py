@@ -28,6 +28,8 @@ from __future__ import annotations
 import math
 import os
 import pickle
+import select
+import signal
 import threading
 import time
 from pathlib import Path
@@ -151,9 +153,10 @@ class PeakMemory:
             self.mb = max(0.0, (peak - self._rss0) / 2**20)
 
 
-#: methods run in a forked child: libcbdetect dies of SIGFPE on some striped images (its own bug), which would
-#: end the whole benchmark; a crash counts as "no board" and is reported
-_ISOLATE = ("libcbdetect",)
+#: peers run in a forked child with a time limit: libcbdetect dies of SIGFPE on some striped images (its own bug)
+#: and OpenCV's classic detector can search for many minutes on a 24 Mpx render; either would stall or end the
+#: whole benchmark. A crash or a timeout counts as "no board" and is reported.
+_ISOLATE = ("opencv_subpix", "opencv_sb", "libcbdetect")
 
 
 def _measure(m: DetectionMethod, image: torch.Tensor, board: tuple[int, int]):
@@ -164,10 +167,11 @@ def _measure(m: DetectionMethod, image: torch.Tensor, board: tuple[int, int]):
     return corners[0], bool(found[0]), secs, mem.mb
 
 
-def _detect_one(m: DetectionMethod, image: torch.Tensor, board: tuple[int, int]):
-    """``(corners (N, 2), found, seconds, peak MB, crashed)`` of one image."""
+def _detect_one(m: DetectionMethod, image: torch.Tensor, board: tuple[int, int], limit: float | None = None):
+    """``(corners (N, 2), found, seconds, peak MB, failure)`` of one image; ``failure`` is ``""``, ``"crashed"``
+    or ``"timed out"`` (then ``seconds`` is the limit)."""
     if m.key not in _ISOLATE or not hasattr(os, "fork"):
-        return (*_measure(m, image, board), False)
+        return (*_measure(m, image, board), "")
     rd, wr = os.pipe()
     pid = os.fork()
     if pid == 0:  # child: measure, send the result, leave without running the parent's exit handlers
@@ -178,13 +182,25 @@ def _detect_one(m: DetectionMethod, image: torch.Tensor, board: tuple[int, int])
         finally:
             os._exit(0)
     os.close(wr)
+    chunks, t0, failure = [], time.perf_counter(), ""
     with os.fdopen(rd, "rb") as fh:
-        data = fh.read()
+        while True:
+            wait = None if limit is None else max(0.0, limit - (time.perf_counter() - t0))
+            ready, _, _ = select.select([fh], [], [], wait)
+            if not ready:
+                os.kill(pid, signal.SIGKILL)
+                failure = "timed out"
+                break
+            chunk = os.read(fh.fileno(), 1 << 20)
+            if not chunk:
+                break
+            chunks.append(chunk)
     os.waitpid(pid, 0)
-    if not data:
+    data = b"".join(chunks)
+    if failure or not data:
         n = board[0] * board[1]
-        return np.zeros((n, 2)), False, math.nan, math.nan, True
-    return (*pickle.loads(data), False)
+        return np.zeros((n, 2)), False, (float(limit) if failure else math.nan), math.nan, failure or "crashed"
+    return (*pickle.loads(data), "")
 
 
 def _methods_ok(methods: dict[str, DetectionMethod]) -> dict[str, DetectionMethod]:
@@ -200,7 +216,7 @@ def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
     n_img = cfg.wild_big_images if w * h >= _BIG else cfg.wild_images
     n = board[0] * board[1]
     per = {k: {"err": np.full(n_img, np.nan), "found": np.zeros(n_img, bool), "ok": np.zeros(n_img, bool),
-               "sec": np.zeros(n_img), "mb": np.zeros(n_img), "crashes": 0} for k in methods}
+               "sec": np.zeros(n_img), "mb": np.zeros(n_img), "crashes": 0, "timeouts": 0} for k in methods}
     squares, render_s = np.zeros(n_img), 0.0
     for i in range(n_img):
         t0 = time.perf_counter()
@@ -213,10 +229,11 @@ def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
         limit = max(cfg.error_threshold, 0.05 * squares[i])
         del batch
         for key, m in methods.items():
-            corners, found, secs, mb, crashed = _detect_one(m, image, board)
+            corners, found, secs, mb, failure = _detect_one(m, image, board, cfg.wild_time_limit)
             r = per[key]
             r["found"][i], r["sec"][i], r["mb"][i] = found, secs, mb
-            r["crashes"] += int(crashed)
+            r["crashes"] += int(failure == "crashed")
+            r["timeouts"] += int(failure == "timed out")
             if found:
                 r["err"][i] = float(np.mean(corner_errors(corners, truth, board)))
                 r["ok"][i] = r["err"][i] <= limit
@@ -232,7 +249,7 @@ def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
             "mean_common_px": summary(r["err"][common])["mean"], "common_images": int(common.sum()),
             "seconds_per_image": float(np.nanmean(r["sec"])) if np.isfinite(r["sec"]).any() else None,
             "peak_mb_per_image": float(np.nanmean(r["mb"])) if n_img and np.isfinite(r["mb"]).any() else None,
-            "crashes": r["crashes"],
+            "crashes": r["crashes"], "timeouts": r["timeouts"],
             "peak_mb_max": float(np.nanmax(r["mb"])) if n_img and np.isfinite(r["mb"]).any() else None,
         }
         log(f"[wild] {name:12s} {methods[key].label:30s} detected {int(r['ok'].sum())}/{n_img} wrong "
@@ -251,7 +268,7 @@ def _board_free(cfg: BenchConfig, methods, log) -> dict:
     out: dict = {"images": n, "boards_searched": [list(b) for b in boards], "kinds": {}, "methods": {}}
     if n < 1:
         return out
-    counts = {k: {"false_boards": 0, "seconds": 0.0, "by_kind": {}, "crashes": 0} for k in methods}
+    counts = {k: {"false_boards": 0, "seconds": 0.0, "by_kind": {}, "crashes": 0, "timeouts": 0} for k in methods}
     g = torch.Generator().manual_seed(_SEED + 900_000)
     per_call = len(DISTRACTOR_KINDS)
     done = 0
@@ -264,17 +281,18 @@ def _board_free(cfg: BenchConfig, methods, log) -> dict:
             board = boards[(done + j) % len(boards)]
             out["kinds"][kinds[j]] = out["kinds"].get(kinds[j], 0) + 1
             for key, m in methods.items():
-                _, found, secs, _, crashed = _detect_one(m, images[j:j + 1], board)
+                _, found, secs, _, failure = _detect_one(m, images[j:j + 1], board, cfg.wild_time_limit)
                 c = counts[key]
                 c["seconds"] += 0.0 if math.isnan(secs) else secs
-                c["crashes"] += int(crashed)
+                c["crashes"] += int(failure == "crashed")
+                c["timeouts"] += int(failure == "timed out")
                 if found:
                     c["false_boards"] += 1
                     c["by_kind"][kinds[j]] = c["by_kind"].get(kinds[j], 0) + 1
         done += m_img
     for key, c in counts.items():
         out["methods"][key] = {"label": methods[key].label, "false_boards": c["false_boards"], "by_kind": c["by_kind"],
-                               "seconds_per_image": c["seconds"] / n, "crashes": c["crashes"]}
+                               "seconds_per_image": c["seconds"] / n, "crashes": c["crashes"], "timeouts": c["timeouts"]}
         log(f"[wild] board-free   {methods[key].label:30s} false boards {c['false_boards']}/{n}")
     return out
 
@@ -303,21 +321,23 @@ def _real(cfg: BenchConfig, methods, log) -> dict:
         pick = np.unique(np.linspace(0, len(files) - 1, k).round().astype(int))
         entry: dict = {"board": list(board), "image_size": list(size), "images": int(len(pick)), "scales": {}}
         for s in cfg.wild_real_scales:
-            res = {key: {"label": m.label, "found": 0, "sec": [], "mb": [], "crashes": 0} for key, m in methods.items()}
+            res = {key: {"label": m.label, "found": 0, "sec": [], "mb": [], "crashes": 0, "timeouts": 0}
+                   for key, m in methods.items()}
             for i in pick:
                 a = images[i, 0].numpy()
                 interp = cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR
                 x = cv2.resize(a, None, fx=float(s), fy=float(s), interpolation=interp)
                 x = quantize(torch.from_numpy(np.ascontiguousarray(x))[None, None].float())
                 for key, m in methods.items():
-                    _, found, secs, mb, crashed = _detect_one(m, x, board)
+                    _, found, secs, mb, failure = _detect_one(m, x, board, cfg.wild_time_limit)
                     r = res[key]
                     r["found"] += int(found)
-                    r["crashes"] += int(crashed)
+                    r["crashes"] += int(failure == "crashed")
+                    r["timeouts"] += int(failure == "timed out")
                     r["sec"].append(secs)
                     r["mb"].append(mb)
             entry["scales"][f"{s:g}"] = {
-                key: {"label": r["label"], "found": r["found"], "crashes": r["crashes"],
+                key: {"label": r["label"], "found": r["found"], "crashes": r["crashes"], "timeouts": r["timeouts"],
                       "seconds_per_image": float(np.nanmean(r["sec"])) if np.isfinite(r["sec"]).any() else None,
                       "peak_mb_per_image": float(np.nanmean(r["mb"])) if np.isfinite(r["mb"]).any() else None}
                 for key, r in res.items()
@@ -338,7 +358,8 @@ def run_wild(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) -
     if cfg.wild_methods is not None:
         ms = {k: m for k, m in ms.items() if k in cfg.wild_methods}
     names = cfg.wild_conditions if cfg.wild_conditions is not None else tuple(WILD_CONDITIONS)
-    out: dict = {"memory": PeakMemory.method, "threshold_px": cfg.error_threshold, "conditions": {}}
+    out: dict = {"memory": PeakMemory.method, "threshold_px": cfg.error_threshold, "time_limit_s": cfg.wild_time_limit,
+                 "isolated": list(_ISOLATE), "conditions": {}}
     for name in names:
         index = tuple(WILD_CONDITIONS).index(name) if name in WILD_CONDITIONS else -1
         out["conditions"][name] = _condition(cfg, name, index, ms, log)

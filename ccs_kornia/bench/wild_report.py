@@ -27,7 +27,8 @@ def wild_markdown(sec: dict) -> list[str]:
         f"most max({sec.get('threshold_px', 3):g} px, 5 % of the square)); *wrong*: boards returned but off by more; "
         "*err*: mean corner error (px) on the boards each method detected, *common*: on the images every method "
         "detected; *s*: seconds per image; *MB*: peak memory per image, the growth of the process' peak resident "
-        f"set during the call ({sec.get('memory', 'RSS')}).",
+        f"set during the call ({sec.get('memory', 'RSS')}). Peers run in a forked child (a crash or more than "
+        f"{sec.get('time_limit_s') or '∞'} s on one image counts as no board, marked *crashed* / *timed out*).",
         "",
     ]
     names = [f"{_SHORT.get(k, k)}" for k in keys]
@@ -43,7 +44,8 @@ def wild_markdown(sec: dict) -> list[str]:
     head = ["condition (size, board, images)"]
     lines += ["*Detected (wrong boards)*", ""]
     lines += _table(head + names, cells(lambda r: f"{r['detected']}/{r['images']} ({r['wrong_boards']})"
-                                         + (f" {r['crashes']} crashed" if r.get("crashes") else "")))
+                                         + (f" {r['crashes']} crashed" if r.get("crashes") else "")
+                                         + (f" {r['timeouts']} timed out" if r.get("timeouts") else "")))
     lines += ["*Mean corner error, px: own detections / common subset (n)*", ""]
     lines += _table(head + names, cells(lambda r: f"{_n(r['mean_px'])} / {_n(r['mean_common_px'])} ({r['common_images']})"))
     lines += ["*Seconds / peak MB per image*", ""]
@@ -56,14 +58,15 @@ def wild_markdown(sec: dict) -> list[str]:
                   + " and ".join(f"{b[0]}x{b[1]}" for b in free["boards_searched"]) + " alternately): false boards "
                   "(target 0).", ""]
         lines += _table(["method", "false boards", "by kind", "s/img"], [
-            [r["label"], f"{r['false_boards']}/{free['images']}" + (f" ({r['crashes']} crashed)" if r.get("crashes") else ""),
+            [r["label"], f"{r['false_boards']}/{free['images']}" + (f" ({r['crashes']} crashed)" if r.get("crashes") else "")
+             + (f" ({r['timeouts']} timed out)" if r.get("timeouts") else ""),
              ", ".join(f"{k} {v}" for k, v in r["by_kind"].items()) or "–", _n(r["seconds_per_image"], 2)]
             for r in free["methods"].values()])
     real = sec.get("real") or {}
     if real.get("sets"):
         scales = real["scales"]
         lines += [f"**Real photos rescaled** (`{real['root']}`; no ground truth: boards found per method, "
-                  "seconds and peak MB per image at the largest scale).", ""]
+                  "seconds and peak MB per image at the largest scale; * = a detector ran out of time on some image).", ""]
         header = ["set (board, size, images)"] + [f"{_SHORT.get(k, k)} x{s:g}" for k in keys for s in scales] + \
                  [f"{_SHORT.get(k, k)} s / MB at x{scales[-1]:g}" for k in keys]
         rows = []
@@ -72,7 +75,7 @@ def wild_markdown(sec: dict) -> list[str]:
             for k in keys:
                 for s in scales:
                     r = e["scales"].get(f"{s:g}", {}).get(k)
-                    row.append("–" if r is None else f"{r['found']}/{e['images']}")
+                    row.append("–" if r is None else f"{r['found']}/{e['images']}" + ("*" if r.get("timeouts") else ""))
             for k in keys:
                 r = e["scales"].get(f"{scales[-1]:g}", {}).get(k)
                 row.append("–" if r is None else f"{_n(r['seconds_per_image'], 1)} / {_n(r['peak_mb_per_image'], 0)}")
