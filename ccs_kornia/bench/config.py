@@ -145,7 +145,7 @@ class BenchConfig:
             speed_solver_cameras=(1, 16), speed_repeats=1, supersample=2, preset="quick",
             real_sets=("opencv_left", "boofcv_bumblebee2_left"),
             calib_methods=("learned", "opencv_saddle", "opencv_subpix", "opencv_sb"),
-            wild_images=2, wild_big_images=1, wild_free_images=21, wild_real_images=1, wild_time_limit=30.0,
+            wild_images=2, wild_big_images=1, wild_free_images=21, wild_real_images=1, wild_time_limit=20.0,
         )
         return replace(base, **overrides)
 

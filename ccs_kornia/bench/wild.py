@@ -59,7 +59,7 @@ WILD_CONDITIONS: dict[str, tuple[tuple[int, int], dict, str]] = {
     "box_blur": ((9, 6), dict(image_sizes=((1280, 960),), square_px=(30.0, 80.0), blur=("box",),
                               blur_fraction=(0.1, 0.3)), "box blur 10-30 % of the square"),
     "gauss_blur": ((9, 6), dict(image_sizes=((1280, 960),), square_px=(30.0, 80.0), blur=("gaussian",),
-                                blur_fraction=(0.1, 0.3)), "Gaussian blur, sigma 5-15 % of the square"),
+                                blur_fraction=(0.1, 0.3)), "Gaussian blur of the same spread (sigma 3-9 % of the square)"),
     "motion_blur": ((9, 6), dict(image_sizes=((1280, 960),), square_px=(30.0, 80.0), blur=("motion",),
                                  blur_fraction=(0.1, 0.3)), "motion blur 10-30 % of the square"),
     "tilt75": ((9, 6), dict(image_sizes=((1280, 960),), square_px=(25.0, 60.0), min_tilt_deg=60.0, max_tilt_deg=75.0),
@@ -111,17 +111,29 @@ def _status(key: str) -> int | None:
     return None
 
 
+def _trim() -> None:
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
 class PeakMemory:
     """Peak growth of the resident set during a ``with`` block, in MiB (``mb``; NaN where unmeasurable).
 
-    Resets the kernel's high-water mark (``/proc/self/clear_refs``), so the peak of this block alone is
-    read from ``VmHWM``; without that file, a thread samples ``VmRSS`` every 5 ms.
+    First hands the allocator's free memory back to the system (glibc ``malloc_trim``), so memory freed by an
+    earlier call is not silently reused and missed; then resets the kernel's high-water mark
+    (``/proc/self/clear_refs``), so the peak of this block alone is read from ``VmHWM``; without that file, a
+    thread samples ``VmRSS`` every 5 ms.
     """
 
-    method = "VmHWM after clear_refs"
+    method = "malloc_trim, then VmHWM after clear_refs"
 
     def __enter__(self) -> PeakMemory:
         self.mb = math.nan
+        _trim()
         self._rss0 = _status("VmRSS:")
         self._thread = None
         try:
@@ -318,7 +330,7 @@ def _real(cfg: BenchConfig, methods, log) -> dict:
         images, files, size = load_real_set(root / name)
         images = images / 255.0 if float(images.max()) > 1.5 else images
         k = len(files) if cfg.wild_real_images is None else min(len(files), int(cfg.wild_real_images))
-        pick = np.unique(np.linspace(0, len(files) - 1, k).round().astype(int))
+        pick = np.unique(((np.arange(k) + 0.5) * len(files) / k).astype(int))  # evenly spread, centred
         entry: dict = {"board": list(board), "image_size": list(size), "images": int(len(pick)), "scales": {}}
         for s in cfg.wild_real_scales:
             res = {key: {"label": m.label, "found": 0, "sec": [], "mb": [], "crashes": 0, "timeouts": 0}

@@ -8,8 +8,9 @@ point spread (a 0.3-1 px Gaussian), sensor noise, saturation at 1, the tone curv
 JPEG. Per-image parameters are drawn from a ``torch.Generator`` (CPU draws, so a seed gives the same images on
 every device).
 
-Blur widths ``w`` (px): *box*: a ``w x w`` box with anti-aliased (fractional) edges; *gaussian*: sigma
-``w / 2``; *motion*: a segment of length ``w`` at a random angle. Kernels up to 15 px wide are applied with
+Blur widths ``w`` (px), all three with the same spread (standard deviation ``w / sqrt(12)`` along the blur):
+*box*: a ``w x w`` box with anti-aliased (fractional) edges; *gaussian*: sigma ``w / sqrt(12)``; *motion*: a
+segment of length ``w`` at a random angle. Kernels up to 15 px wide are applied with
 ``conv2d`` in bands of rows; wider ones with FFTs on overlapping tiles, so memory stays bounded.
 """
 
@@ -25,6 +26,7 @@ __all__ = [
     "BLUR_KINDS",
     "square_size_px",
     "blur_kernel",
+    "gaussian_kernel",
     "convolve",
     "scaled_blur",
     "psf_and_gamma",
@@ -70,7 +72,7 @@ def blur_kernel(kind: str, width: float, angle: float = 0.0) -> Tensor:
 
     Args:
         kind: one of :data:`BLUR_KINDS`.
-        width: box side, twice the Gaussian sigma, or the motion length, in px.
+        width: box side, motion length, or ``sqrt(12)`` x the Gaussian sigma (the same spread), in px.
         angle: motion direction (radians).
 
     Example:
@@ -89,7 +91,7 @@ def blur_kernel(kind: str, width: float, angle: float = 0.0) -> Tensor:
         k1 = (torch.minimum(t + 0.5, torch.tensor(w / 2)) - torch.maximum(t - 0.5, torch.tensor(-w / 2))).clamp_min(0)
         k = k1[:, None] * k1[None, :]
     elif kind == "gaussian":
-        sigma = w / 2
+        sigma = w / math.sqrt(12.0)
         half = max(1, math.ceil(3.5 * sigma))
         t = torch.arange(-half, half + 1, dtype=torch.float64)
         k1 = torch.exp(-0.5 * (t / sigma) ** 2)
@@ -106,6 +108,11 @@ def blur_kernel(kind: str, width: float, angle: float = 0.0) -> Tensor:
                 wgt = (1 - (x - x0 - dx).abs()) * (1 - (y - y0 - dy).abs())
                 k.index_put_(((y0 + dy).long(), (x0 + dx).long()), wgt, accumulate=True)
     return (k / k.sum()).float()
+
+
+def gaussian_kernel(sigma: float) -> Tensor:
+    """Normalised Gaussian kernel of standard deviation ``sigma`` px (``(1, 1)`` below 0.05 px)."""
+    return blur_kernel("gaussian", math.sqrt(12.0) * sigma) if sigma > 0.05 else torch.ones(1, 1)
 
 
 def _conv_one(img: Tensor, kernel: Tensor, tile: int = _TILE) -> Tensor:
@@ -188,7 +195,7 @@ def psf_and_gamma(images: Tensor, generator: torch.Generator, sigma=(0.3, 1.0), 
     b = images.shape[0]
     s = _u(generator, b, sigma)
     g = _u(generator, b, gamma)
-    kernels = [blur_kernel("gaussian", 2 * float(si)) if si > 0.05 else torch.ones(1, 1) for si in s]
+    kernels = [gaussian_kernel(float(si)) for si in s]
     out = convolve(images, kernels).clamp(0.0, 1.0)
     return out.pow((1.0 / g).to(out).view(b, 1, 1, 1))
 
@@ -299,7 +306,7 @@ def apply_optics(
     sig = psf_sigma if isinstance(psf_sigma, (tuple, list)) else (psf_sigma, psf_sigma)
     if max(sig) > 0:
         s = _u(g, b, sig)
-        out = convolve(out, [blur_kernel("gaussian", 2 * float(v)) if v > 0.05 else torch.ones(1, 1) for v in s])
+        out = convolve(out, [gaussian_kernel(float(v)) for v in s])
     if noise_sigma is not None and (max(noise_sigma) if isinstance(noise_sigma, (tuple, list)) else noise_sigma) > 0:
         out = augment.add_noise(out.clamp_min(0.0), g, sigma=noise_sigma)
     out = out.clamp(0.0, 1.0)
