@@ -15,9 +15,9 @@ import time
 
 import torch
 
-from ccs_kornia.data.scenes import SyntheticChessboards
 from ccs_kornia.data.renderer import render_chessboard
 from ccs_kornia.data.sampling import sample_poses
+from ccs_kornia.data.scenes import SyntheticChessboards
 
 
 def _sync(device: str) -> None:

@@ -15,8 +15,8 @@ import time
 
 import torch
 
-from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
+from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
 from ccs_kornia.modules.detection.sigma_rejection import sigma_outlier_rejection
 

@@ -150,11 +150,13 @@ class CalibrationPipeline(nn.Module):
 
     Example:
         >>> from ccs_kornia.data.scenes import make_calibration_set
-        >>> K = torch.tensor([[600., 0, 320], [0, 600, 240], [0, 0, 1]], dtype=torch.float64)
-        >>> views = make_calibration_set(K, (9, 6), 0.025, (640, 480), num_views=6, seed=1)
-        >>> out = CalibrationPipeline("opencv")(views.images, (9, 6), 0.025)  # doctest: +SKIP
-        >>> out.K.shape, out.found.shape, out.view_rms.shape  # doctest: +SKIP
-        (torch.Size([3, 3]), torch.Size([6]), torch.Size([6]))
+        >>> K = torch.tensor([[300., 0, 160], [0, 300, 120], [0, 0, 1]], dtype=torch.float64)
+        >>> views = make_calibration_set(K, (6, 4), 0.025, (320, 240), num_views=5, seed=1, supersample=1)
+        >>> out = CalibrationPipeline("opencv")(views.images, (6, 4), 0.025)
+        >>> out.K.shape, out.found.shape, out.view_rms.shape, bool(out.calibration.success)
+        (torch.Size([3, 3]), torch.Size([5]), torch.Size([5]), True)
+        >>> bool((out.K - K).abs().max() < 3.0)
+        True
     """
 
     def __init__(

@@ -34,9 +34,9 @@ from lightning.pytorch.callbacks import BasePredictionWriter
 from torch.utils.data import DataLoader, Dataset
 
 from ccs_kornia.io import IMAGE_EXTENSIONS, json_line, load_image_gray
-from ccs_kornia.records import calibration_record, plan_views
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.pipeline import CalibrationPipeline
+from ccs_kornia.records import calibration_record, plan_views
 
 __all__ = [
     "find_image_sets",

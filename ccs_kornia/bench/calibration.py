@@ -24,8 +24,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ccs_kornia.bench.config import BenchConfig
-from ccs_kornia.bench.methods import DetectionMethod
 from ccs_kornia.bench.common import (
     Timer,
     _fmt,
@@ -35,6 +33,8 @@ from ccs_kornia.bench.common import (
     distortion_available,
     k0_scaled_intrinsics,
 )
+from ccs_kornia.bench.config import BenchConfig
+from ccs_kornia.bench.methods import DetectionMethod
 from ccs_kornia.bench.scenes import render_scenes
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
 

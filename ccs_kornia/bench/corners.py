@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ccs_kornia.bench.common import Timer, summary
 from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods import ABLATIONS, DetectionMethod, make_ablations
-from ccs_kornia.bench.common import Timer, summary
 from ccs_kornia.bench.scenes import corner_errors, render_scenes
 
 __all__ = ["run_corners"]

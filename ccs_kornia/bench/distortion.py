@@ -25,10 +25,10 @@ import time
 import numpy as np
 import torch
 
+from ccs_kornia.bench.common import _fmt, calibration_metrics, cv2_calibrate, distortion_available, k0_scaled_intrinsics
 from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods import DetectionMethod
 from ccs_kornia.bench.scenes import Scenes, quantize, render_scenes
-from ccs_kornia.bench.common import _fmt, calibration_metrics, cv2_calibrate, distortion_available, k0_scaled_intrinsics
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
 from ccs_kornia.modules.correction.distortion_net import DEFAULT_DISTORTION_WEIGHTS
 
@@ -41,8 +41,8 @@ WIDE_SUCCESS_EIP = 5.0
 
 def render_wide_scenes(cfg: BenchConfig, cameras: int, views: int) -> Scenes:
     """The paper's wide camera: ``cfg.wide_size`` images, ``fx, fy`` in ``cfg.wide_fx``, distortion level 2."""
-    from ccs_kornia.data.scenes import make_calibration_set
     from ccs_kornia.data.sampling import sample_radial_distortion
+    from ccs_kornia.data.scenes import make_calibration_set
 
     w, h = cfg.wide_size
     base = BENCH_SEED_BASE + 250_000

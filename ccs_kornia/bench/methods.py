@@ -162,8 +162,8 @@ def _learned_method(batch: int, collinearity_last: bool = False, **options) -> t
 
 
 def _opencv_saddle_method() -> Callable:
-    from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
     from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
+    from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
 
     det, refiner = OpenCVChessboardDetector(), CornerRefiner()
 

@@ -18,9 +18,9 @@ import cv2
 import numpy as np
 import torch
 
+from ccs_kornia.bench.common import Timer, ccs_calibrate, cv2_calibrate, summary
 from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods import DetectionMethod
-from ccs_kornia.bench.common import Timer, ccs_calibrate, cv2_calibrate, summary
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
 
 __all__ = ["REAL_SETS", "default_real_dir", "load_reference", "load_real_set", "run_real"]

@@ -22,9 +22,9 @@ import time
 import numpy as np
 import torch
 
+from ccs_kornia.bench.common import ccs_calibrate, cv2_calibrate
 from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods import DetectionMethod
-from ccs_kornia.bench.common import ccs_calibrate, cv2_calibrate
 from ccs_kornia.bench.scenes import render_scenes
 
 __all__ = ["run_speed", "peak_rss_mb"]

@@ -8,7 +8,15 @@ import torch
 from torch import Tensor
 
 from ccs_kornia import camera
-from ccs_kornia.data._util import _batched, _board_tensors, _check_size, _padded_object_points, _rand, _randint, _uniform
+from ccs_kornia.data._util import (
+    _batched,
+    _board_tensors,
+    _check_size,
+    _padded_object_points,
+    _rand,
+    _randint,
+    _uniform,
+)
 from ccs_kornia.data.lens import _undistort_opencv, project_board
 
 __all__ = ["RADIAL_LEVELS", "sample_radial_distortion", "sample_opencv_distortion", "sample_poses"]

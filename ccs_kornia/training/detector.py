@@ -6,8 +6,8 @@ import lightning as L
 import torch
 
 from ccs_kornia.losses.heatmap_loss import HeatmapLoss
-from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
+from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
 from ccs_kornia.training.common import adamw_one_cycle
 

@@ -6,7 +6,6 @@
 
 from __future__ import annotations
 
-
 import lightning as L
 import torch
 

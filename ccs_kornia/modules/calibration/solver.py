@@ -8,7 +8,6 @@ was used and why not.
 
 from __future__ import annotations
 
-
 import torch
 from torch import nn
 

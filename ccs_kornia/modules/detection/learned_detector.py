@@ -6,14 +6,14 @@ from pathlib import Path
 
 import torch
 
-from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners, x_junction_mask
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
-from ccs_kornia.modules.detection.grid_organizer import organize_grid
-from ccs_kornia.modules.detection.missing_corners import predict_missing_corners
-from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
+from ccs_kornia.modules.detection.grid_organizer import organize_grid
+from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
+from ccs_kornia.modules.detection.missing_corners import predict_missing_corners
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
+from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners, x_junction_mask
 from ccs_kornia.modules.detection.sigma_rejection import sigma_outlier_rejection
 
 __all__ = ["DEFAULT_DETECTOR_WEIGHTS", "load_corner_unet", "LearnedChessboardDetector"]

@@ -1,4 +1,4 @@
-"""Tests of the corner UNet and its detection loss."""
+"""Tests of the corner UNet."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.losses.heatmap_loss import HeatmapLoss, heatmap_loss
+from ccs_kornia.losses.heatmap_loss import HeatmapLoss
 from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
 
 
@@ -20,6 +20,16 @@ class TestCornerUNet:
         # the shipped default must stay CPU sized (~0.5 M parameters)
         assert 400_000 < _num_params(net) < 600_000
         assert "base_channels=8" in repr(net)
+
+    def test_device_and_dtype(self, device: torch.device, dtype: torch.dtype) -> None:
+        torch.manual_seed(0)
+        net = CornerUNet(base_channels=4, depth=3).eval()
+        x = torch.rand(2, 1, 33, 47, dtype=torch.float64)
+        with torch.no_grad():
+            ref = net.double()(x)
+            y = net.to(device, dtype)(x.to(device, dtype))
+        assert y.shape == (2, 1, 33, 47) and y.dtype == dtype and y.device.type == device.type
+        torch.testing.assert_close(y.cpu().double(), ref, atol=1e-4, rtol=0)
 
     @pytest.mark.parametrize("size", [(61, 97), (16, 16), (1, 1), (33, 17)])
     def test_output_shape_odd_sizes(self, size: tuple[int, int]) -> None:
@@ -121,42 +131,3 @@ class TestCornerUNet:
             CornerUNet(up_mode="nearest")
         with pytest.raises(ValueError, match="depth"):
             CornerUNet(depth=0)
-
-
-class TestHeatmapLoss:
-    def test_zero_for_perfect_prediction(self) -> None:
-        target = torch.rand(2, 1, 8, 8)
-        assert heatmap_loss(target, target).item() == 0.0
-        assert HeatmapLoss(pos_weight=10.0)(target, target).item() == 0.0
-
-    def test_values_and_reductions(self) -> None:
-        pred = torch.zeros(1, 1, 4, 4)
-        target = torch.zeros(1, 1, 4, 4)
-        target[..., 1, 1] = 1.0
-        target[..., 1, 2] = 0.05  # below the default 0.1 threshold: not up-weighted
-        assert heatmap_loss(pred, target, "sum").item() == pytest.approx(1.0 + 0.0025)
-        assert heatmap_loss(pred, target, "mean").item() == pytest.approx((1.0 + 0.0025) / 16)
-        assert heatmap_loss(pred, target, "sum", pos_weight=3.0).item() == pytest.approx(4.0 + 0.0025)
-        per_pixel = HeatmapLoss("none", pos_weight=3.0)(pred, target)
-        assert per_pixel.shape == (1, 1, 4, 4)
-        assert per_pixel[0, 0, 1, 1].item() == pytest.approx(4.0)
-        assert per_pixel[0, 0, 1, 2].item() == pytest.approx(0.0025)
-
-    def test_matches_mse_without_weight(self) -> None:
-        pred, target = torch.rand(2, 1, 9, 7), torch.rand(2, 1, 9, 7)
-        torch.testing.assert_close(HeatmapLoss()(pred, target), F.mse_loss(pred, target))
-
-    def test_gradient(self) -> None:
-        pred = torch.rand(1, 1, 6, 6, dtype=torch.float64, requires_grad=True)
-        target = torch.rand(1, 1, 6, 6, dtype=torch.float64)
-        assert torch.autograd.gradcheck(lambda p: heatmap_loss(p, target, pos_weight=2.0), (pred,))
-
-    def test_exceptions(self) -> None:
-        with pytest.raises(ValueError, match="same shape"):
-            heatmap_loss(torch.rand(1, 1, 4, 4), torch.rand(1, 1, 4, 5))
-        with pytest.raises(ValueError, match="same shape"):
-            heatmap_loss(torch.rand(4, 4), torch.rand(4, 4))
-        with pytest.raises(ValueError, match="reduction"):
-            HeatmapLoss(reduction="max")
-        with pytest.raises(ValueError, match="pos_weight"):
-            HeatmapLoss(pos_weight=-1.0)

@@ -9,7 +9,7 @@ import torch
 from ccs_kornia.data.datamodule import DetectorDataModule, RenderedBatches
 from ccs_kornia.training.detector import DetectorLitModule
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_datamodule_batches_are_seeded_and_shaped():

@@ -13,7 +13,7 @@ from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.learned_detector import DEFAULT_DETECTOR_WEIGHTS, LearnedChessboardDetector
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
 
 
 def _error(found_corners: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:

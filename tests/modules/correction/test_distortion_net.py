@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import pytest
 import torch
 
@@ -29,6 +27,20 @@ def test_shapes_any_size_untrained_is_identity(small_net, shape):
         out = small_net(torch.rand(*shape))
     assert out.shape == (shape[0], 5)
     torch.testing.assert_close(out, IDENTITY.expand(shape[0], 5))
+
+
+def test_device_and_input_dtype(device, dtype):
+    # the network runs in float32 (its input is converted), any input dtype on any device gives the same correction
+    torch.manual_seed(0)
+    net = DistortionNet(base_channels=4, input_size=64, hidden=(32, 16)).eval()
+    with torch.no_grad():
+        net.head[-1].weight.normal_(0, 0.1)
+    x = torch.rand(2, 1, 48, 64)
+    with torch.no_grad():
+        ref = net(x)
+        out = net.to(device)(x.to(device, dtype))
+    assert out.shape == (2, 5) and out.device.type == device.type
+    torch.testing.assert_close(out.cpu(), ref, atol=1e-5, rtol=1e-5)
 
 
 def test_preprocess_channels_and_standardisation(small_net):
@@ -117,22 +129,13 @@ def test_export_round_trip(tmp_path):
         DistortionNet.from_export({"kind": "CornerUNet", "config": {}, "state_dict": {}})
 
 
-def test_default_size_and_cpu_speed():
+def test_default_size():
+    # its CPU speed is measured by benchmarks/bench_distortion_net.py
     net = DistortionNet().eval()
     n = net.num_parameters()
     assert 0.5e6 < n < 2e6, n
-    x = torch.rand(1, 1, 480, 640)
-    times = []
     with torch.no_grad():
-        net(x)
-        for _ in range(5):
-            t0 = time.perf_counter()
-            net(x)
-            times.append(time.perf_counter() - t0)
-    # best of five: the test machine's cores are shared, the fastest run is the network's own cost
-    ms = min(times) * 1e3
-    print(f"DistortionNet: {n} parameters, {ms:.1f} ms per 640x480 image on CPU (best of 5)")
-    assert ms < 1000.0
+        assert net(torch.rand(1, 1, 480, 640)).shape == (1, 5)
 
 
 def test_exceptions():

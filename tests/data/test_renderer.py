@@ -1,45 +1,19 @@
-from __future__ import annotations
+"""Tests of the renderer: shapes, batching, exact ground truth, area sampling, distortion models."""
 
-import math
+from __future__ import annotations
 
 import cv2
 import numpy as np
 import pytest
 import torch
+from _render_helpers import _K, _poses
 
 from ccs_kornia import camera
-from ccs_kornia.data import augment
-from ccs_kornia.data.lens import _opencv_fold, _undistort_opencv
-from ccs_kornia.data.scenes import SyntheticBatch, SyntheticChessboards, make_calibration_set
 from ccs_kornia.data.lens import board_coordinates, project_board
-from ccs_kornia.data.targets import gaussian_heatmaps
 from ccs_kornia.data.renderer import render_chessboard
 from ccs_kornia.data.sampling import sample_opencv_distortion, sample_poses, sample_radial_distortion
 
 W, H = 160, 120
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # the test machine is shared: one thread avoids barrier stalls between oversubscribed workers
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
-def _K(fx=200.0, fy=205.0, cx=80.3, cy=59.2, dtype=torch.float32):
-    return torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=dtype)
-
-
-def _poses(n, K=None, board=(5, 4), square=0.03, size=(W, H), seed=0, **kw):
-    K = _K() if K is None else K
-    return sample_poses(K, board, square, size, n, torch.Generator().manual_seed(seed), **kw)
-
-
-# ----------------------------------------------------------------------------------------------
-# renderer: shapes, batching, exceptions
-# ----------------------------------------------------------------------------------------------
 
 
 def test_render_smoke_shapes():
@@ -85,11 +59,6 @@ def test_render_exceptions():
         render_chessboard(_K(), r, t, (5, 4), 0.03, (W, H), supersample=0)
     with pytest.raises(ValueError):
         render_chessboard(_K(), r, t, (5, 4), 0.03, (W, H), background=torch.zeros(2, 1, 10, 10))
-
-
-# ----------------------------------------------------------------------------------------------
-# geometry: ground truth and the inverse mapping
-# ----------------------------------------------------------------------------------------------
 
 
 def _coverage(centres: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -275,193 +244,3 @@ def test_unreachable_pixels_are_black():
     img, _ = render_chessboard(K, r, t, (5, 4), 0.03, (W, H), radial=radial, supersample=1, background=0.5)
     assert float(img[0, 0, 0, 0]) == 0.0 and float(img[0, 0, -1, -1]) == 0.0
     assert float(img[0, 0, H // 2, W // 2]) > 0.05
-
-
-# ----------------------------------------------------------------------------------------------
-# sampling
-# ----------------------------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("model", ["none", "opencv", "radial"])
-def test_sample_poses_keep_corners_inside(model):
-    K = _K()
-    gen = torch.Generator().manual_seed(8)
-    dist = sample_opencv_distortion(K, (W, H), 1, gen)[0] if model == "opencv" else None
-    radial = sample_radial_distortion(1, "severe", (W, H), gen)[0] if model == "radial" else None
-    margin = 6.0
-    r, t = sample_poses(K, (5, 4), 0.03, (W, H), 24, gen, dist=dist, radial=radial, margin=margin)
-    obj = camera.board_object_points(5, 4, 0.03).expand(24, -1, -1).double()
-    pix, ok = project_board(obj, K.double().expand(24, 3, 3), r.double(), t.double(), (W, H),
-                            None if dist is None else dist.double().expand(24, 5),
-                            None if radial is None else radial.double().expand(24, 3))
-    assert bool(ok.all())
-    assert float(pix[..., 0].min()) >= margin and float(pix[..., 0].max()) <= W - 1 - margin
-    assert float(pix[..., 1].min()) >= margin and float(pix[..., 1].max()) <= H - 1 - margin
-    # varied poses: tilts up to 50 degrees about both axes, varied in-plane rotations and distances
-    R = camera.axis_angle_to_rotation_matrix(r)
-    tilt = torch.rad2deg(torch.acos(R[:, 2, 2].clamp(-1, 1)))
-    assert float(tilt.max()) > 25 and float(tilt.max()) <= 50.5
-    assert float(R[:, 0, 2].abs().max()) > 0.2 and float(R[:, 1, 2].abs().max()) > 0.2
-    roll = torch.rad2deg(torch.atan2(R[:, 1, 0], R[:, 0, 0]))
-    assert float(roll.max() - roll.min()) > 90
-    assert float(t[:, 2].max() / t[:, 2].min()) > 1.3
-
-
-def test_sample_poses_deterministic_and_raises():
-    a = _poses(5, seed=11)
-    b = _poses(5, seed=11)
-    c = _poses(5, seed=12)
-    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
-    assert not torch.equal(a[0], c[0])
-    with pytest.raises(RuntimeError):
-        _poses(2, margin=70.0)  # impossible: margin larger than half the image height
-    with pytest.raises(ValueError):
-        _poses(2, fill_range=(0.0, 0.5))
-
-
-def test_radial_levels():
-    gen = torch.Generator().manual_seed(9)
-    l1 = sample_radial_distortion(200, "level1", (640, 480), gen)
-    assert bool((l1[:, 0] == 1).all()) and bool(((l1[:, 1] >= -0.35) & (l1[:, 1] <= -0.2)).all())
-    assert bool(((l1[:, 2] >= -0.1) & (l1[:, 2] <= 0)).all())
-    l2 = sample_radial_distortion(200, "level2", (640, 480), gen)
-    assert bool(((l2[:, 0] >= 0.8) & (l2[:, 0] <= 1.2)).all()) and bool(((l2[:, 1] >= -0.5) & (l2[:, 1] <= -0.35)).all())
-    assert bool(((l2[:, 2] >= -0.3) & (l2[:, 2] <= -0.1)).all())
-    assert torch.equal(sample_radial_distortion(3, "none", (640, 480), gen), torch.tensor([[1.0, 0, 0]] * 3))
-    sev = sample_radial_distortion(200, "severe", (640, 480), gen).double()
-    # displacement of the farthest image corner: 15-25 % of its ideal radius, monotonic up to it
-    rd = 0.5 * math.hypot(639, 479) / 640
-    corner = torch.tensor([[[639.0, 479.0]]], dtype=torch.float64).expand(200, 1, 2)
-    ideal = camera.radial_undistort_points(corner, sev, (640, 480))
-    rc = (ideal[:, 0] - torch.tensor([319.5, 239.5], dtype=torch.float64)).norm(dim=-1) / 640
-    disp = 1 - rd / rc
-    assert float(disp.min()) > 0.149 and float(disp.max()) < 0.251
-    slope = sev[:, 0] + 3 * sev[:, 1] * rc**2 + 5 * sev[:, 2] * rc**4
-    assert float(slope.min()) > 0
-    anyl = sample_radial_distortion(300, "any", (640, 480), gen)
-    assert bool((anyl[:, 1] < 0).all())
-    with pytest.raises(ValueError):
-        sample_radial_distortion(2, "extreme", (640, 480), gen)
-
-
-def test_opencv_distortion_sampling_is_invertible_over_the_image():
-    gen = torch.Generator().manual_seed(10)
-    K = camera.intrinsics_matrix(torch.tensor([[300.0, 300.0, 319.5, 239.5], [800.0, 800.0, 319.5, 239.5]])).repeat(50, 1, 1)
-    d = sample_opencv_distortion(K, (640, 480), 100, gen).double()
-    assert bool(((d[:, 0] >= -0.4) & (d[:, 0] <= 0.1)).all()) and bool((d[:, 2:4].abs() <= 2e-3).all())
-    # the farthest image corner must be reached before the radial factor folds
-    corners = torch.tensor([[[0.0, 0.0], [639.0, 479.0]]], dtype=torch.float64).expand(100, 2, 2)
-    ideal, residual = _undistort_opencv(corners, K.double(), d)  # fixed point + Newton
-    assert float(residual.max()) < 1e-6
-    r_fold, _ = _opencv_fold(d)
-    xn = (ideal - K[:, None, :2, 2].double()) / torch.stack([K[:, 0, 0], K[:, 1, 1]], -1)[:, None].double()
-    assert bool((xn.norm(dim=-1) < r_fold[:, None]).all())
-
-
-# ----------------------------------------------------------------------------------------------
-# data sets
-# ----------------------------------------------------------------------------------------------
-
-
-def test_make_calibration_set():
-    K = torch.tensor([[250.0, 0.0, 99.5], [0.0, 250.0, 74.5], [0.0, 0.0, 1.0]])
-    b = make_calibration_set(K, (6, 4), 0.025, (200, 150), num_views=3, condition="blur_noise", seed=3, supersample=1)
-    assert isinstance(b, SyntheticBatch) and len(b) == 3
-    assert b.images.shape == (3, 1, 150, 200) and b.corners.shape == (3, 24, 2)
-    assert bool(b.corner_valid.all()) and b.image_size == (200, 150)
-    assert torch.equal(b.K, K.expand(3, 3, 3)) and torch.equal(b.board_size, torch.tensor([[6, 4]] * 3))
-    assert bool((b.dist == 0).all()) and torch.equal(b.radial, torch.tensor([[1.0, 0, 0]] * 3))
-    assert bool((b.condition == augment.CONDITIONS.index("blur_noise")).all())
-    again = make_calibration_set(K, (6, 4), 0.025, (200, 150), num_views=3, condition="blur_noise", seed=3, supersample=1)
-    assert torch.equal(b.images, again.images) and torch.equal(b.corners, again.corners)
-    other = make_calibration_set(K, (6, 4), 0.025, (200, 150), num_views=3, condition="blur_noise", seed=4, supersample=1)
-    assert not torch.equal(b.corners, other.corners)
-    # ground truth is the forward projection of the stored parameters
-    obj = camera.board_object_points(6, 4, 0.025).expand(3, -1, -1)
-    proj = camera.project_points(obj, b.K, b.dist, b.rvec, b.tvec)
-    assert float((proj - b.corners).abs().max()) < 1e-3
-    moved = b.to("cpu")
-    assert torch.equal(moved.images, b.images) and moved.image_size == b.image_size
-    with pytest.raises(ValueError):
-        make_calibration_set(K, condition="foggy")
-    with pytest.raises(ValueError):
-        make_calibration_set(K.expand(2, 3, 3))
-
-
-def test_synthetic_chessboards_sample():
-    data = SyntheticChessboards(image_size=(128, 96), board_cols=(4, 6), board_rows=(3, 5), fx_range=(120, 200),
-                                partial_prob=0.5, supersample=2)
-    gen = torch.Generator().manual_seed(0)
-    b = data.sample(6, gen)
-    assert b.images.shape == (6, 1, 96, 128) and b.corners.shape == (6, 30, 2) == (6, data.max_corners, 2)
-    assert float(b.images.min()) >= 0 and float(b.images.max()) <= 1
-    cols, rows = b.board_size[:, 0], b.board_size[:, 1]
-    assert bool(((cols >= 4) & (cols <= 6) & (rows >= 3) & (rows <= 5)).all())
-    n = torch.arange(30)
-    exists = n[None] < (cols * rows)[:, None]
-    assert not bool((b.corner_valid & ~exists).any())
-    v = b.corners[b.corner_valid]
-    assert float(v[:, 0].min()) >= data.margin and float(v[:, 0].max()) <= 127 - data.margin
-    # each view keeps at least 30 % of its corners
-    assert bool((b.corner_valid.sum(1) >= 0.3 * (cols * rows)).all())
-    # radial views carry (k0, k1, k2), OpenCV views k1.., the rest identity coefficients
-    assert b.dist.shape == (6, 5) and b.radial.shape == (6, 3) and b.condition.shape == (6,)
-    # same generator seed, same batch
-    b2 = data.sample(6, torch.Generator().manual_seed(0))
-    assert torch.equal(b.images, b2.images) and torch.equal(b.corners, b2.corners)
-
-
-def test_synthetic_chessboards_ground_truth_matches_render():
-    """Ground truth of random scenes (all distortion modes) agrees with cornerSubPix on the rendered image."""
-    data = SyntheticChessboards(image_size=(200, 150), board_cols=(5, 6), board_rows=(4, 5), fx_range=(180, 260),
-                                conditions=("clean",), supersample=3, max_roll_deg=30.0, fill_range=(0.6, 0.9))
-    b = data.sample(6, torch.Generator().manual_seed(2))
-    errs = []
-    for i in range(6):
-        im = cv2.GaussianBlur(b.images[i, 0].numpy(), (0, 0), 1.0)
-        c = b.corners[i][b.corner_valid[i]].numpy()
-        out = cv2.cornerSubPix(im, c.reshape(-1, 1, 2).copy() + 0.4, (3, 3), (-1, -1), (3, 50, 1e-5))
-        errs.append(np.linalg.norm(out.reshape(-1, 2) - c, axis=1))
-    assert np.concatenate(errs).mean() < 0.06
-
-
-def test_synthetic_chessboards_options():
-    with pytest.raises(ValueError):
-        SyntheticChessboards(distortion="fisheye")
-    with pytest.raises(ValueError):
-        SyntheticChessboards(conditions=("rain",))
-    with pytest.raises(ValueError):
-        SyntheticChessboards(board_cols=(5, 3))
-    data = SyntheticChessboards(image_size=(96, 72), board_cols=(3, 4), board_rows=(3, 3), fx_range=(90, 120),
-                                distortion="radial", radial_level="severe", supersample=1)
-    b = data.sample(3, torch.Generator().manual_seed(1))
-    assert bool((b.radial[:, 1] < 0).all()) and bool((b.dist == 0).all())
-    data = SyntheticChessboards(image_size=(96, 72), board_cols=(3, 4), board_rows=(3, 3), fx_range=(90, 120),
-                                distortion=("none",), supersample=1)
-    b = data.sample(2, torch.Generator().manual_seed(1))
-    assert bool((b.dist == 0).all()) and torch.equal(b.radial, torch.tensor([[1.0, 0, 0]] * 2))
-
-
-# ----------------------------------------------------------------------------------------------
-# heatmaps
-# ----------------------------------------------------------------------------------------------
-
-
-def test_gaussian_heatmaps():
-    corners = torch.tensor([[[10.0, 8.0], [30.3, 20.6], [50.0, 5.0]], [[0.0, 0.0], [63.0, 47.0], [5.0, 5.0]]])
-    valid = torch.tensor([[True, True, False], [True, True, False]])
-    hm = gaussian_heatmaps(corners, valid, (64, 48), sigma=1.5)
-    assert hm.shape == (2, 1, 48, 64)
-    assert float(hm[0, 0, 8, 10]) == 1.0 and float(hm[1, 0, 0, 0]) == 1.0 and float(hm[1, 0, 47, 63]) == 1.0
-    expected = math.exp(-(0.3**2 + 0.4**2) / (2 * 1.5**2))
-    assert abs(float(hm[0, 0, 21, 30]) - expected) < 1e-6
-    assert float(hm[0, 0].max()) == 1.0 and float(hm[0, 0, 5, 50]) == 0.0  # invalid corner ignored
-    # equals a dense max over Gaussians (within the 3-sigma window)
-    ys, xs = torch.meshgrid(torch.arange(48.0), torch.arange(64.0), indexing="ij")
-    d2 = (xs[None] - corners[0, :2, 0, None, None]) ** 2 + (ys[None] - corners[0, :2, 1, None, None]) ** 2
-    dense = torch.exp(-d2 / (2 * 1.5**2)).amax(0)
-    window = hm[0, 0] > 0
-    assert torch.allclose(hm[0, 0][window], dense[window], atol=1e-6)
-    assert float(dense[~window].max()) < 0.02
-    with pytest.raises(ValueError):
-        gaussian_heatmaps(corners, valid[:, :2], (64, 48))

@@ -15,7 +15,7 @@ from ccs_kornia.modules.correction.straightness import straightness_rms
 from ccs_kornia.training.distortion import DistortionLitModule
 from ccs_kornia.training.export import export_checkpoint
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -1,21 +1,16 @@
+"""Tests of the grid organiser: unordered peaks to a board in the canonical grid order."""
+
 from __future__ import annotations
 
 import math
-import time
 
 import cv2
 import numpy as np
 import pytest
 import torch
+from _grid_views import _corrupt, _views
 
-from ccs_kornia.camera import (
-    axis_angle_to_rotation_matrix,
-    board_object_points,
-    intrinsics_matrix,
-    project_points,
-    rotation_matrix_to_axis_angle,
-)
-from ccs_kornia.modules.detection.collinearity import CollinearityRefiner, collinearity_refine
+from ccs_kornia.camera import axis_angle_to_rotation_matrix, intrinsics_matrix
 from ccs_kornia.modules.detection.grid_organizer import GridOrganizer, is_symmetric_board, organize_grid
 
 F64 = torch.float64
@@ -23,65 +18,11 @@ W, H = 640, 480
 K = intrinsics_matrix(torch.tensor([600.0, 600.0, (W - 1) / 2, (H - 1) / 2], dtype=F64))
 
 
-def _pose(tilt_deg: float, azimuth: float, roll: float, dist: float, shift=(0.0, 0.0)):
-    rz = axis_angle_to_rotation_matrix(torch.tensor([[0.0, 0.0, roll]], dtype=F64))[0]
-    t = math.radians(tilt_deg)
-    tilt_axis = torch.tensor([[t * math.cos(azimuth), t * math.sin(azimuth), 0.0]], dtype=F64)
-    rt = axis_angle_to_rotation_matrix(tilt_axis)[0]
-    rvec = rotation_matrix_to_axis_angle((rt @ rz)[None])[0]
-    return rvec, torch.tensor([shift[0] * dist, shift[1] * dist, dist], dtype=F64)
-
-
-def _views(cols, rows, n, seed, tilt=(0.0, 60.0), roll=None, dist_coeffs=None, square=1.0):
-    """Random board views (B, N, 2) fully inside a 640x480 image, plus their (rvec, tvec)."""
-    g = torch.Generator().manual_seed(seed)
-    rnd = lambda: float(torch.rand(1, generator=g))  # noqa: E731
-    obj = board_object_points(cols, rows, square, dtype=F64)
-    centre = obj.mean(0) * torch.tensor([1.0, 1.0, 0.0], dtype=F64)
-    d = None if dist_coeffs is None else torch.tensor(dist_coeffs, dtype=F64)
-    out, poses = [], []
-    while len(out) < n:
-        r = rnd() * 2 * math.pi if roll is None else roll + (rnd() - 0.5) * 0.2
-        depth = max(cols, rows) * square * 600.0 / (250 + 250 * rnd())  # board 250-500 px wide
-        shift = ((rnd() - 0.5) * 0.3, (rnd() - 0.5) * 0.3)
-        rvec, tvec = _pose(tilt[0] + rnd() * (tilt[1] - tilt[0]), rnd() * 2 * math.pi, r, depth, shift)
-        # the board's own frame is centred so that poses are about its middle
-        tvec = tvec - (axis_angle_to_rotation_matrix(rvec[None])[0] @ centre)
-        uv = project_points(obj, K, d, rvec, tvec)
-        if uv[:, 0].min() < 8 or uv[:, 0].max() > W - 9 or uv[:, 1].min() < 8 or uv[:, 1].max() > H - 9:
-            continue
-        out.append(uv)
-        poses.append((rvec, tvec))
-    return torch.stack(out), poses
-
-
 def _shuffle(points, g, noise=0.2):
     b, n, _ = points.shape
     noisy = points + noise * torch.randn(points.shape, generator=g, dtype=points.dtype)
     perm = torch.stack([torch.randperm(n, generator=g) for _ in range(b)])
     return torch.gather(noisy, 1, perm[..., None].expand(-1, -1, 2)), torch.ones(b, n, dtype=torch.bool)
-
-
-def _corrupt(gt, g, missing=0.0, extra=0.0, noise=0.2):
-    """Drop a fraction of corners, add false peaks (half near the board), shuffle, pad."""
-    b, n, _ = gt.shape
-    m = n + int(extra * n)
-    pts = torch.zeros(b, m, 2, dtype=gt.dtype)
-    mask = torch.zeros(b, m, dtype=torch.bool)
-    kept = torch.zeros(b, n, dtype=torch.bool)
-    for k in range(b):
-        keep = torch.rand(n, generator=g) >= missing
-        real = gt[k][keep] + noise * torch.randn(int(keep.sum()), 2, generator=g, dtype=gt.dtype)
-        n_extra = int(extra * n)
-        lo, hi = gt[k].min(0).values, gt[k].max(0).values
-        near = (lo + hi) / 2 + (torch.rand(n_extra // 2, 2, generator=g, dtype=gt.dtype) * 2 - 1) * (hi - lo) * 0.65
-        far = torch.rand(n_extra - n_extra // 2, 2, generator=g, dtype=gt.dtype) * torch.tensor([W, H], dtype=gt.dtype)
-        allp = torch.cat([real, near, far])
-        allp = allp[torch.randperm(len(allp), generator=g)]
-        pts[k, : len(allp)] = allp
-        mask[k, : len(allp)] = True
-        kept[k] = keep
-    return pts, mask, kept
 
 
 def _labellings(gt, cols, rows):
@@ -96,11 +37,6 @@ def _labellings(gt, cols, rows):
 def _convention(gt, cols, rows):
     """The documented ordering without an image: corner 0 with the smallest x + y."""
     return min(_labellings(gt, cols, rows), key=lambda o: float(o[0].sum()))
-
-
-# ----------------------------------------------------------------------------------------------
-# organize_grid
-# ----------------------------------------------------------------------------------------------
 
 
 def test_smoke_and_module():
@@ -325,126 +261,3 @@ def test_image_resolves_180_degrees_for_non_symmetric_boards(board):
         if ok:
             # (OpenCV's unrefined corners are only good to a couple of pixels; a wrong label is a square off)
             assert (corners[b] - torch.from_numpy(cv.reshape(-1, 2)).double()).norm(dim=-1).max() < 5.0
-
-
-def test_organize_speed():
-    gt, _ = _views(11, 8, 8, seed=15)
-    pts, mask, _ = _corrupt(gt, torch.Generator().manual_seed(15), missing=0.05, extra=0.15)
-    organize_grid(pts[:1], mask[:1], (11, 8))
-    t0 = time.perf_counter()
-    found = organize_grid(pts, mask, (11, 8))[2]
-    per_image = (time.perf_counter() - t0) / len(gt)
-    assert found.all()
-    assert per_image < 0.1  # a few ms on an idle core; loose bound for shared CI machines
-
-
-# ----------------------------------------------------------------------------------------------
-# collinearity_refine
-# ----------------------------------------------------------------------------------------------
-
-
-def test_collinearity_exact_on_lines():
-    gt, _ = _views(9, 6, 4, seed=20, tilt=(30.0, 60.0))
-    valid = torch.ones(4, 54, dtype=torch.bool)
-    valid[:, [0, 13, 40]] = False
-    refined, ok = collinearity_refine(gt, valid, (9, 6))
-    assert ok.all()
-    assert (refined - gt).norm(dim=-1).max() < 1e-8
-
-
-@pytest.mark.parametrize("board", [(9, 6), (11, 8)])
-def test_collinearity_reduces_noise(board):
-    cols, rows = board
-    gt, _ = _views(cols, rows, 20, seed=21)
-    g = torch.Generator().manual_seed(21)
-    noisy = gt + 0.2 * torch.randn(gt.shape, generator=g, dtype=F64)
-    valid = torch.ones(gt.shape[:2], dtype=torch.bool)
-    before = (noisy - gt).norm(dim=-1).mean()
-    for concurrent in (False, True):
-        refined, ok = collinearity_refine(noisy, valid, board, concurrent=concurrent)
-        after = (refined - gt).norm(dim=-1).mean()
-        assert ok.all()
-        assert after < 0.7 * before  # at least a 30 % reduction
-
-
-def test_collinearity_recovers_missing_corners():
-    gt, _ = _views(9, 6, 20, seed=22)
-    g = torch.Generator().manual_seed(22)
-    noisy = gt + 0.2 * torch.randn(gt.shape, generator=g, dtype=F64)
-    valid = torch.rand(gt.shape[:2], generator=g) >= 0.15
-    noisy = torch.where(valid[..., None], noisy, torch.full_like(noisy, float("nan")))  # holes hold garbage
-    refined, ok = collinearity_refine(noisy, valid, (9, 6))
-    grid_valid = valid.reshape(-1, 6, 9)
-    lines_ok = (grid_valid.sum(2, keepdim=True) >= 3) & (grid_valid.sum(1, keepdim=True) >= 3)
-    assert torch.equal(ok, valid | lines_ok.reshape(-1, 54))
-    recovered = ok & ~valid
-    assert recovered.sum() > 100 and torch.isfinite(refined[ok]).all()
-    err = (refined - gt).norm(dim=-1)[recovered]
-    assert err.mean() < 0.2 and err.max() < 0.8
-    # the paper's independent lines recover them too, less steadily
-    paper, _ = collinearity_refine(noisy, valid, (9, 6), concurrent=False)
-    err_paper = (paper - gt).norm(dim=-1)[recovered]
-    assert err.mean() < err_paper.mean() < 0.3
-
-
-def test_collinearity_robust_to_one_bad_corner():
-    gt, _ = _views(9, 6, 6, seed=23)
-    g = torch.Generator().manual_seed(23)
-    noisy = gt + 0.1 * torch.randn(gt.shape, generator=g, dtype=F64)
-    noisy[:, 22] += torch.tensor([3.0, -3.0], dtype=F64)  # one corner badly off
-    valid = torch.ones(gt.shape[:2], dtype=torch.bool)
-    others = torch.ones(54, dtype=torch.bool)
-    others[22] = False
-    plain = (collinearity_refine(noisy, valid, (9, 6), iterations=1)[0] - gt).norm(dim=-1)[:, others].mean()
-    robust = (collinearity_refine(noisy, valid, (9, 6), iterations=3)[0] - gt).norm(dim=-1)[:, others].mean()
-    assert robust < 0.6 * plain
-
-
-def test_collinearity_undefined_lines_and_blend():
-    gt, _ = _views(5, 5, 1, seed=24)
-    valid = torch.ones(1, 25, dtype=torch.bool)
-    valid[0, 5:10] = False  # row 1 empty: its corners cannot be recovered
-    valid[0, 0] = False  # column 0 keeps 3 corners: recoverable
-    noisy = gt + 0.3
-    refined, ok = collinearity_refine(noisy, valid, (5, 5), min_points=3)
-    assert not ok[0, 5:10].any() and ok[0, 0] and ok[0, 10:].all()
-    assert torch.equal(refined[0, 5:10], noisy[0, 5:10])  # untouched
-    assert not collinearity_refine(noisy, valid, (5, 5), min_points=4)[1][0, 0]
-    kept, _ = collinearity_refine(noisy, valid, (5, 5), blend=0.0)
-    assert torch.allclose(kept[0, valid[0]], noisy[0, valid[0]])
-    assert torch.allclose(kept[0, 0], refined[0, 0])  # missing corners always take the intersection
-
-
-def test_collinearity_batch_and_module():
-    gt, _ = _views(8, 6, 3, seed=25)
-    noisy = gt + 0.2 * torch.randn(gt.shape, generator=torch.Generator().manual_seed(25), dtype=F64)
-    valid = torch.rand(gt.shape[:2], generator=torch.Generator().manual_seed(26)) > 0.1
-    refiner = CollinearityRefiner((8, 6))
-    batch, ok = refiner(noisy, valid)
-    for b in range(3):
-        one, ok1 = refiner(noisy[b : b + 1], valid[b : b + 1])
-        assert torch.allclose(one[0], batch[b], atol=1e-10) and torch.equal(ok1[0], ok[b])
-    assert "board_size=(8, 6)" in repr(refiner)
-
-
-def test_collinearity_gradcheck():
-    gt, _ = _views(4, 3, 1, seed=27)
-    noisy = (gt + 0.2 * torch.randn(gt.shape, generator=torch.Generator().manual_seed(27), dtype=F64)).requires_grad_()
-    valid = torch.ones(1, 12, dtype=torch.bool)
-    valid[0, 5] = False
-    for concurrent in (False, True):
-        fn = lambda c: collinearity_refine(c, valid, (4, 3), iterations=2, concurrent=concurrent)[0]  # noqa: E731
-        assert torch.autograd.gradcheck(fn, (noisy,))
-
-
-def test_collinearity_exceptions():
-    with pytest.raises(ValueError):
-        collinearity_refine(torch.zeros(1, 53, 2), torch.ones(1, 53, dtype=torch.bool), (9, 6))
-    with pytest.raises(ValueError):
-        collinearity_refine(torch.zeros(54, 2), torch.ones(54, dtype=torch.bool), (9, 6))
-    with pytest.raises(ValueError):
-        collinearity_refine(torch.zeros(1, 54, 2), torch.ones(1, 53, dtype=torch.bool), (9, 6))
-    with pytest.raises(ValueError):
-        collinearity_refine(torch.zeros(1, 54, 2), torch.ones(1, 54, dtype=torch.bool), (9, 6), min_points=1)
-    with pytest.raises(ValueError):
-        collinearity_refine(torch.zeros(1, 54, 2), torch.ones(1, 54, dtype=torch.bool), (9, 6), blend=2.0)

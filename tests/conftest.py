@@ -1,0 +1,26 @@
+"""Fixtures shared by every test: the devices and dtypes the stage tests run on.
+
+``device``: ``cpu`` always, ``cuda`` too where ``torch.cuda.is_available()``; ``dtype``: float32 and float64.
+A test takes them as arguments; it then runs once per device (and dtype), so the batched stages are checked on
+the GPU wherever one is present.
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+DTYPES = [torch.float32, torch.float64]
+
+
+@pytest.fixture(params=DEVICES)
+def device(request) -> torch.device:
+    """The device a stage test runs on (cpu, and cuda when present)."""
+    return torch.device(request.param)
+
+
+@pytest.fixture(params=DTYPES, ids=["float32", "float64"])
+def dtype(request) -> torch.dtype:
+    """The floating dtype a stage test runs in (float32 and float64)."""
+    return request.param
