@@ -25,7 +25,13 @@ import time
 import numpy as np
 import torch
 
-from ccs_kornia.bench.common import _fmt, calibration_metrics, cv2_calibrate, distortion_available, k0_scaled_intrinsics
+from ccs_kornia.bench.common import (
+    _fmt,
+    calibration_metrics,
+    cv2_calibrate,
+    distortion_available,
+    k0_scaled_intrinsics,
+)
 from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods import DetectionMethod
 from ccs_kornia.bench.scenes import Scenes, quantize, render_scenes

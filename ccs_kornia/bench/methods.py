@@ -131,7 +131,9 @@ def _learned_method(batch: int, collinearity_last: bool = False, **options) -> t
     from ccs_kornia.modules.detection.factory import make_detector
 
     try:
-        from ccs_kornia.modules.detection.learned_detector import DEFAULT_DETECTOR_WEIGHTS
+        from ccs_kornia.modules.detection.learned_detector import (
+            DEFAULT_DETECTOR_WEIGHTS,
+        )
     except ImportError as err:
         return None, f"learned detector module not available ({err})"
     if not DEFAULT_DETECTOR_WEIGHTS.is_file():

@@ -9,7 +9,12 @@ from pathlib import Path
 
 from ccs_kornia.bench.config import SECTIONS, BenchConfig
 from ccs_kornia.bench.methods import make_methods
-from ccs_kornia.bench.report import draw_boxplot, machine_info, render_markdown, write_markdown
+from ccs_kornia.bench.report import (
+    draw_boxplot,
+    machine_info,
+    render_markdown,
+    write_markdown,
+)
 
 __all__ = ["run_bench"]
 

@@ -8,7 +8,12 @@ from torch.utils.data import DataLoader
 
 from ccs_kornia.data import augment
 from ccs_kornia.data.datamodule import (
-    DISTORTION_WILD, TRAIN_SEED_BASE, VAL_SEED_BASE, RenderedBatches, concat_batches, wild_sampler,
+    DISTORTION_WILD,
+    TRAIN_SEED_BASE,
+    VAL_SEED_BASE,
+    RenderedBatches,
+    concat_batches,
+    wild_sampler,
 )
 from ccs_kornia.data.sampling import RADIAL_LEVELS
 from ccs_kornia.data.scenes import SyntheticBatch, SyntheticChessboards

@@ -16,7 +16,11 @@ from torch import Tensor
 
 from ccs_kornia import camera
 from ccs_kornia.data import augment
-from ccs_kornia.data.lens import _board_homography_inverse, _normalized_to_board, _to_normalized
+from ccs_kornia.data.lens import (
+    _board_homography_inverse,
+    _normalized_to_board,
+    _to_normalized,
+)
 from ccs_kornia.data.optics import apply_optics
 
 __all__ = ["DISTRACTOR_KINDS", "board_free_images"]

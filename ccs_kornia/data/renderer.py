@@ -41,8 +41,19 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ccs_kornia.data._util import _batched, _board_tensors, _check_size, _padded_object_points, _per_item
-from ccs_kornia.data.lens import _FAR, _grid_board_coordinates, _radial_is_trivial, project_board
+from ccs_kornia.data._util import (
+    _batched,
+    _board_tensors,
+    _check_size,
+    _padded_object_points,
+    _per_item,
+)
+from ccs_kornia.data.lens import (
+    _FAR,
+    _grid_board_coordinates,
+    _radial_is_trivial,
+    project_board,
+)
 from ccs_kornia.data.marks import MarkPattern
 
 __all__ = ["MAX_BAND_PIXELS", "render_chessboard", "fisheye_rows", "ChessboardRenderer"]

@@ -9,7 +9,14 @@ from torch import Tensor
 
 from ccs_kornia import camera
 from ccs_kornia.data import augment
-from ccs_kornia.data._util import _batched, _check_size, _padded_object_points, _rand, _randint, _uniform
+from ccs_kornia.data._util import (
+    _batched,
+    _check_size,
+    _padded_object_points,
+    _rand,
+    _randint,
+    _uniform,
+)
 from ccs_kornia.data.lens import project_board
 from ccs_kornia.data.renderer import _render, render_chessboard
 from ccs_kornia.data.sampling import (

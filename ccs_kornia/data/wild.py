@@ -26,7 +26,11 @@ from ccs_kornia.data.lens import project_board
 from ccs_kornia.data.marks import MARK_KINDS, make_marks
 from ccs_kornia.data.optics import BLUR_KINDS, apply_optics, square_size_px
 from ccs_kornia.data.renderer import _render
-from ccs_kornia.data.sampling import _sample_poses_batched, sample_opencv_distortion, sample_radial_distortion
+from ccs_kornia.data.sampling import (
+    _sample_poses_batched,
+    sample_opencv_distortion,
+    sample_radial_distortion,
+)
 from ccs_kornia.data.scenes import SyntheticBatch, _corner_validity
 
 __all__ = ["LENSES", "WildSpec", "WildChessboards"]

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from ccs_kornia.bench.__main__ import main
-from ccs_kornia.bench.wild import WILD_CONDITIONS, PeakMemory, wild_spec
+from ccs_kornia.bench.wild import WILD_CONDITIONS, wild_spec
 
 FAST = ("opencv_saddle", "opencv_subpix")
 

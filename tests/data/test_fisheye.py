@@ -11,18 +11,14 @@ import torch
 
 from ccs_kornia import camera
 from ccs_kornia.data.fisheye import (
-    kb_distort_theta, kb_project, kb_unproject, sample_fisheye_cameras, sample_fisheye_poses,
+    kb_distort_theta,
+    kb_project,
+    kb_unproject,
+    sample_fisheye_cameras,
+    sample_fisheye_poses,
 )
 from ccs_kornia.data.lens import project_board
 from ccs_kornia.data.renderer import render_chessboard
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def _cameras(n=6, size=(640, 480), seed=0):

@@ -4,24 +4,23 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 import torch
 
 from ccs_kornia.data.marks import MARK_KINDS, make_marks
-from ccs_kornia.data.optics import apply_optics, blur_kernel, convolve, scaled_blur, square_size_px
+from ccs_kornia.data.optics import (
+    apply_optics,
+    blur_kernel,
+    convolve,
+    scaled_blur,
+    square_size_px,
+)
 from ccs_kornia.data.renderer import render_chessboard
 
 K = torch.tensor([[400.0, 0.0, 159.5], [0.0, 400.0, 119.5], [0.0, 0.0, 1.0]])
 RV, TV = torch.tensor([[0.2, -0.15, 0.1]]), torch.tensor([[-0.07, -0.05, 0.6]])
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 @pytest.mark.parametrize("kind", ["aruco", "dots", "tiles"])

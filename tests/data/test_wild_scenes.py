@@ -18,12 +18,6 @@ from ccs_kornia.data.wild import WildChessboards, WildSpec
 SMALL = dict(image_sizes=((240, 180),), board_cols=(5, 6), board_rows=(4, 5), supersample=1)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def _sample(n=4, seed=0, **kw):
