@@ -4,6 +4,7 @@
     python -m ccs_kornia bench --quick             # a few images per condition (< 5 min)
     python -m ccs_kornia bench --sections corners speed --out /tmp/bench
     python -m ccs_kornia bench --markdown docs/benchmarks.md
+    python -m ccs_kornia bench --quick --sections wild    # detection in the wild (~10 min on 2 cores)
 """
 
 from __future__ import annotations
@@ -38,6 +39,13 @@ def build_parser(prog: str = "python -m ccs_kornia bench") -> argparse.ArgumentP
     p.add_argument("--real-dir", default=None, help="folder of the real sets (default: ../shared/data/real)")
     p.add_argument("--dc-trials", type=int, default=None, help="trials of the distortion-correction section")
     p.add_argument("--distortion-weights", default=None, help="DistortionNet export (default: shipped weights)")
+    p.add_argument("--wild-images", type=int, default=None, help="images per condition, wild section")
+    p.add_argument("--wild-big-images", type=int, default=None, help="images per wild condition of 4 Mpx and more")
+    p.add_argument("--wild-free-images", type=int, default=None, help="board-free images, wild section")
+    p.add_argument("--wild-real-images", type=int, default=None, help="images per real set and scale, wild section")
+    p.add_argument("--wild-time-limit", type=float, default=None, help="seconds a peer may spend on one wild image")
+    p.add_argument("--wild-conditions", nargs="+", default=None, help="wild conditions to run (default: all)")
+    p.add_argument("--wild-real-scales", nargs="+", type=float, default=None, help="rescaling of the real photos")
     p.add_argument("--no-cuda", action="store_true", help="do not time CUDA even when present")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     return p
@@ -59,7 +67,8 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
         torch.set_num_threads(args.threads)
     overrides = {}
     for name in ("corner_images", "calib_trials", "calib_views", "calib_pool_views", "calib_trials_per_camera",
-                 "real_subsets", "real_max_images", "real_dir", "dc_trials", "distortion_weights"):
+                 "real_subsets", "real_max_images", "real_dir", "dc_trials", "distortion_weights", "wild_images",
+                 "wild_big_images", "wild_free_images", "wild_real_images"):
         value = getattr(args, name)
         if value is not None:
             if isinstance(value, int) and value < 1:
@@ -68,6 +77,22 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
             overrides[name] = value
     if args.real_sets:
         overrides["real_sets"] = tuple(args.real_sets)
+    if args.wild_conditions:
+        from ccs_kornia.bench.wild import WILD_CONDITIONS
+
+        unknown = [c for c in args.wild_conditions if c not in WILD_CONDITIONS]
+        if unknown:
+            print(f"{prog}: error: unknown wild condition(s) {unknown}; expected some of {list(WILD_CONDITIONS)}",
+                  file=sys.stderr)
+            return 2
+        overrides["wild_conditions"] = tuple(args.wild_conditions)
+    if args.wild_time_limit is not None:
+        if args.wild_time_limit <= 0:
+            print(f"{prog}: error: --wild-time-limit must be > 0", file=sys.stderr)
+            return 2
+        overrides["wild_time_limit"] = args.wild_time_limit
+    if args.wild_real_scales:
+        overrides["wild_real_scales"] = tuple(args.wild_real_scales)
     if args.sections:
         overrides["sections"] = tuple(args.sections)
     if args.methods:

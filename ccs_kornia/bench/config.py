@@ -6,7 +6,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 __all__ = ["SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "BenchConfig"]
 
-SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed")
+SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
 #: conditions of the synthetic calibration section (paper Table I)
@@ -32,7 +32,7 @@ _CONDITION_PARTS: dict[str, tuple[str, str | None]] = {
     "severe": ("clean", "severe"),
 }
 #: seed offsets of the sections, so no two sections render the same scene
-_SECTION_SEED = {"corners": 0, "calibration": 100_000, "distortion": 200_000, "speed": 300_000}
+_SECTION_SEED = {"corners": 0, "calibration": 100_000, "distortion": 200_000, "speed": 300_000, "wild": 400_000}
 
 
 @dataclass
@@ -74,6 +74,14 @@ class BenchConfig:
         speed_repeats: repeats of each timing (best is kept).
         devices: ``cpu`` and/or ``cuda`` (``cuda`` skipped when not present).
         learned_batch: images per learned-detector call.
+        wild_methods: detection methods of the ``wild`` section (``None``: all of ``methods``); by default the
+            peers issue 10 names (OpenCV classic + cornerSubPix, SB, libcbdetect) and ours.
+        wild_time_limit: seconds a peer may spend on one image of the wild section (then: no board, "timed out").
+        wild_conditions: conditions of the ``wild`` section (``None``: all of ``bench.wild.WILD_CONDITIONS``).
+        wild_images: images per wild condition; wild_big_images: per condition of 4 Mpx and more.
+        wild_free_images: board-free images of the wild section.
+        wild_real_sets: real sets rescaled in the wild section (``None``: all eight).
+        wild_real_scales: rescaling factors of the real photos; wild_real_images: images per set (``None``: all).
     """
 
     sections: tuple[str, ...] = SECTIONS
@@ -111,6 +119,15 @@ class BenchConfig:
     speed_repeats: int = 2
     devices: tuple[str, ...] = ("cpu", "cuda")
     learned_batch: int = 8
+    wild_methods: tuple[str, ...] | None = ("learned", "opencv_subpix", "opencv_sb", "libcbdetect")
+    wild_time_limit: float | None = 300.0
+    wild_conditions: tuple[str, ...] | None = None
+    wild_images: int = 20
+    wild_big_images: int = 5
+    wild_free_images: int = 200
+    wild_real_sets: tuple[str, ...] | None = None
+    wild_real_scales: tuple[float, ...] = (0.5, 1.5, 2.0, 4.0)
+    wild_real_images: int | None = 6
     preset: str = "full"
     extra: dict = field(default_factory=dict)
 
@@ -128,6 +145,7 @@ class BenchConfig:
             speed_solver_cameras=(1, 16), speed_repeats=1, supersample=2, preset="quick",
             real_sets=("opencv_left", "boofcv_bumblebee2_left"),
             calib_methods=("learned", "opencv_saddle", "opencv_subpix", "opencv_sb"),
+            wild_images=2, wild_big_images=1, wild_free_images=21, wild_real_images=1, wild_time_limit=20.0,
         )
         return replace(base, **overrides)
 
@@ -141,6 +159,8 @@ class BenchConfig:
             wide_fx=(60.0, 150.0),
             speed_batch_sizes=(1, 2), speed_images=2, speed_solver_cameras=(1, 2), speed_repeats=1,
             real_sets=("boofcv_bumblebee2_left",), calib_methods=("opencv_saddle", "opencv_subpix"),
+            wild_methods=None, wild_conditions=("img320", "cut"), wild_images=1, wild_big_images=1, wild_free_images=2,
+            wild_real_sets=("boofcv_bumblebee2_left",), wild_real_scales=(0.5,), wild_real_images=1,
             preset="tiny",
         )
         return replace(base, **overrides)

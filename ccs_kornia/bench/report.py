@@ -280,6 +280,12 @@ def _speed_md(sec: dict) -> list[str]:
     return lines + [""]
 
 
+def _wild_md(sec: dict) -> list[str]:
+    from ccs_kornia.bench.wild_report import wild_markdown
+
+    return wild_markdown(sec)
+
+
 def render_markdown(results: dict, boxplot: str | None = None, honest: str | None = None) -> str:
     """The report of one run as markdown (``honest`` replaces the placeholder of the hand-written section)."""
     meta = results["meta"]
@@ -322,9 +328,10 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
         "real": "## 3. Real photographs (paper Table II and RPE box plot)",
         "distortion": "## 4. With and without distortion correction (paper Table IV)",
         "speed": "## 5. Speed",
+        "wild": "## 6. Detection in the wild (issue 10)",
     }
     render = {"corners": _corners_md, "calibration": _calibration_md, "real": lambda s: _real_md(s, boxplot),
-              "distortion": _distortion_md, "speed": _speed_md}
+              "distortion": _distortion_md, "speed": _speed_md, "wild": _wild_md}
     for name, title in titles.items():
         if name not in sections:
             continue

@@ -79,6 +79,10 @@ def run_bench(
                 from ccs_kornia.bench.distortion import run_distortion
 
                 sec = run_distortion(cfg, methods, device, log=log)
+            elif name == "wild":
+                from ccs_kornia.bench.wild import run_wild
+
+                sec = run_wild(cfg, methods, log=log)
             else:
                 from ccs_kornia.bench.speed import run_speed
 

@@ -284,10 +284,24 @@ def jpeg(
     return torch.from_numpy(out).to(device=images.device, dtype=images.dtype) / 255.0
 
 
-def _chunks(batch: int, pixels: int, device) -> list[slice]:
-    """Batch slices bounding the size of full-resolution temporaries (about 2^23 pixels per slice)."""
-    step = max(1, (1 << 23) // max(1, pixels))
-    return [slice(i, min(batch, i + step)) for i in range(0, batch, step)]
+def _bands(batch: int, h: int, w: int, pixels: int = 1 << 22):
+    """``(batch slice, y0, y1)`` pieces of about ``pixels`` pixels: bounds the full-size temporaries."""
+    step = max(1, pixels // max(1, h * w))
+    rows = max(1, min(h, pixels // max(1, w)))
+    for i in range(0, batch, step):
+        sl = slice(i, min(batch, i + step))
+        for y0 in range(0, h, rows if step == 1 else h):
+            yield sl, y0, min(h, y0 + (rows if step == 1 else h))
+
+
+def _upsample_rows(grid: torch.Tensor, h: int, w: int, y0: int, y1: int) -> torch.Tensor:
+    """Rows ``y0 .. y1 - 1`` of ``F.interpolate(grid, (h, w), bilinear, align_corners=True)``."""
+    gh = grid.shape[-2]
+    sy = torch.arange(y0, y1, device=grid.device, dtype=grid.dtype) * ((gh - 1) / max(h - 1, 1))
+    i0 = sy.floor().clamp(0, gh - 2).long()
+    f = (sy - i0.to(sy.dtype)).view(1, 1, -1, 1)
+    rows = grid[:, :, i0] * (1 - f) + grid[:, :, i0 + 1] * f
+    return F.interpolate(rows, size=(y1 - y0, w), mode="bilinear", align_corners=True)
 
 
 def textured_background(
@@ -361,12 +375,13 @@ def textured_background(
         shapes.append(("line", {**frame(), "len": u(0.05, 0.7) * dim, "thick": u(0.5, 3.0) * present(), "val": u(0, 1)}))
 
     xs = torch.arange(w, device=device, dtype=dtype).view(1, 1, 1, w)
-    ys = torch.arange(h, device=device, dtype=dtype).view(1, 1, h, 1)
     out = torch.empty(b, 1, h, w, device=device, dtype=dtype)
-    for sl in _chunks(b, h * w, device):
-        canvas = base[sl].expand(-1, 1, h, w).clone()
+    for sl, y0, y1 in _bands(b, h, w):
+        hb = y1 - y0
+        ys = torch.arange(y0, y1, device=device, dtype=dtype).view(1, 1, hb, 1)
+        canvas = base[sl].expand(-1, 1, hb, w).clone()
         for grid in grids:
-            canvas += F.interpolate(grid[sl], size=(h, w), mode="bilinear", align_corners=True)
+            canvas += _upsample_rows(grid[sl], h, w, y0, y1)
         # shapes are composited in place: large temporaries are the main cost on CPU
         for kind, p in shapes:
             p = {k: v[sl] for k, v in p.items()}
@@ -390,7 +405,7 @@ def textured_background(
             else:
                 sd = torch.maximum(yr.abs_().sub_(p["thick"]), xr.abs_().sub_(p["len"]), out=yr)
                 canvas.lerp_(p["val"].expand_as(canvas), sd.neg_().add_(0.5).clamp_(0.0, 1.0))
-        out[sl] = canvas.clamp_(0.0, 1.0)
+        out[sl, :, y0:y1] = canvas.clamp_(0.0, 1.0)
     return out
 
 

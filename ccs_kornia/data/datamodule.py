@@ -8,10 +8,73 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
-from ccs_kornia.data.scenes import SyntheticChessboards
+from ccs_kornia.data.scenes import SyntheticBatch, SyntheticChessboards
 from ccs_kornia.data.targets import gaussian_heatmaps
 
-__all__ = ["RenderedBatches", "DetectorDataModule", "TRAIN_SEED_BASE", "VAL_SEED_BASE", "BENCH_SEED_BASE"]
+__all__ = [
+    "RenderedBatches", "DetectorDataModule", "TRAIN_SEED_BASE", "VAL_SEED_BASE", "BENCH_SEED_BASE", "wild_sampler",
+    "concat_batches", "DETECTOR_WILD", "DISTORTION_WILD",
+]
+
+#: recommended :class:`~ccs_kornia.data.wild.WildSpec` fields for the detector's training views (used with
+#: ``wild_prob``; the datamodule's ``image_size`` replaces ``image_sizes``): squares from 6 to 60 px (the pyramid
+#: brings bigger ones into this range), every lens, marks, blur up to 30 % of the square, glare, shadows, noise,
+#: JPEG, and the realistic point spread and gamma on every view
+DETECTOR_WILD: dict = {
+    "board_cols": (3, 11), "board_rows": (2, 8), "square_px": (6.0, 60.0), "max_tilt_deg": 75.0,
+    "lenses": ("pinhole", "pinhole", "opencv", "radial", "fisheye"), "fov_deg": (120.0, 200.0),
+    "partial_prob": 0.6, "cut_prob": 0.2, "marks": ("none", "none", "aruco", "dots", "tiles"),
+    "blur": ("none", "box", "gaussian", "motion"), "blur_fraction": (0.0, 0.3), "psf_sigma": (0.3, 1.0),
+    "gamma": (1.0, 2.4), "glare_prob": 0.15, "shadow_prob": 0.2, "noise_sigma": (0.0, 0.04), "jpeg_prob": 0.2,
+    "jpeg_quality": (20, 90), "lighting_prob": 0.2, "supersample": 3, "margin": 1.0, "min_square_px": 4.0,
+}
+#: recommended fields for the distortion network's views (``radial`` lenses get the datamodule's level;
+#: undistorted views stay pinhole): the wider world of sizes, blur and light, boards of any size
+DISTORTION_WILD: dict = {
+    "board_cols": (4, 11), "board_rows": (3, 8), "square_px": (5.0, 40.0), "max_tilt_deg": 70.0,
+    "partial_prob": 0.3, "cut_prob": 0.1, "marks": ("none", "none", "aruco", "dots"),
+    "blur": ("none", "box", "gaussian", "motion"), "blur_fraction": (0.0, 0.25), "psf_sigma": (0.3, 1.0),
+    "gamma": (1.0, 2.4), "glare_prob": 0.1, "shadow_prob": 0.15, "noise_sigma": (0.0, 0.03), "jpeg_prob": 0.2,
+    "jpeg_quality": (30, 90), "lighting_prob": 0.2, "supersample": 2, "margin": 1.0,
+}
+
+
+def wild_sampler(fields: dict | None, image_size: tuple[int, int], **forced):
+    """A :class:`~ccs_kornia.data.wild.WildChessboards` rendering at ``image_size`` from WildSpec ``fields``
+    (YAML-friendly: lists become tuples)."""
+    from ccs_kornia.data.wild import WildChessboards, WildSpec
+
+    def tup(v):
+        return tuple(tup(x) for x in v) if isinstance(v, (list, tuple)) else v
+
+    kw = {k: tup(v) for k, v in (fields or {}).items()}
+    kw.update(forced)
+    kw["image_sizes"] = (tuple(int(x) for x in image_size),)
+    return WildChessboards(WildSpec(**kw))
+
+
+def concat_batches(parts: list[SyntheticBatch]) -> SyntheticBatch:
+    """One :class:`SyntheticBatch` from several of the same image size (corners zero-padded to the largest N)."""
+    if len(parts) == 1:
+        return parts[0]
+    n = max(p.corners.shape[1] for p in parts)
+
+    def pad(t, fill=0):
+        return torch.nn.functional.pad(t, (0, 0, 0, n - t.shape[1]) if t.dim() == 3 else (0, n - t.shape[1]), value=fill)
+
+    fisheye = torch.cat([p.fisheye if p.fisheye is not None else torch.zeros(len(p), 5) for p in parts])
+    marks = torch.cat([p.marks if p.marks is not None else torch.zeros(len(p), dtype=torch.long) for p in parts])
+    cond = [p.condition for p in parts]
+    return SyntheticBatch(
+        images=torch.cat([p.images for p in parts]), corners=torch.cat([pad(p.corners) for p in parts]),
+        corner_valid=torch.cat([pad(p.corner_valid, False) for p in parts]),
+        board_size=torch.cat([p.board_size for p in parts]), square=torch.cat([p.square for p in parts]),
+        K=torch.cat([p.K for p in parts]), dist=torch.cat([p.dist for p in parts]),
+        radial=torch.cat([p.radial for p in parts]), rvec=torch.cat([p.rvec for p in parts]),
+        tvec=torch.cat([p.tvec for p in parts]), image_size=parts[0].image_size,
+        condition=None if any(c is None for c in cond) else torch.cat(cond), fisheye=fisheye, marks=marks,
+    )
+
 
 #: Seed ranges. Training streams start at TRAIN_SEED_BASE + seed, validation at VAL_SEED_BASE + seed and
 #: benchmarks use BENCH_SEED_BASE and above, so the three never share a generator state.
@@ -66,6 +129,11 @@ class DetectorDataModule(L.LightningDataModule):
         seed: offset into the training / validation seed ranges.
         val_batches: fixed number of validation batches.
         num_workers: DataLoader workers (0 renders in the training process).
+        wild_prob: share of each batch rendered by :class:`~ccs_kornia.data.wild.WildChessboards` (0: today's data
+            only, the default).
+        wild: WildSpec fields of those views (``None``: :data:`DETECTOR_WILD`, the recommended recipe).
+        board_free_prob: share of each batch without a board (:func:`~ccs_kornia.data.distractors.board_free_images`
+            without its checker patches, whose corners are real corners), with an empty target heatmap.
     """
 
     def __init__(
@@ -82,9 +150,15 @@ class DetectorDataModule(L.LightningDataModule):
         seed: int = 0,
         val_batches: int = 16,
         num_workers: int = 0,
+        wild_prob: float = 0.0,
+        wild: dict | None = None,
+        board_free_prob: float = 0.0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
+        if not (0.0 <= wild_prob <= 1.0 and 0.0 <= board_free_prob < 1.0):
+            raise ValueError(f"wild_prob must be in [0, 1] and board_free_prob in [0, 1), got {wild_prob}, {board_free_prob}.")
+        self.wild = wild_sampler(DETECTOR_WILD if wild is None else wild, image_size) if wild_prob > 0 else None
         self.scenes = SyntheticChessboards(
             image_size=tuple(image_size),
             board_cols=tuple(board_cols),
@@ -98,9 +172,15 @@ class DetectorDataModule(L.LightningDataModule):
 
     def make_batch(self, generator: torch.Generator) -> dict[str, torch.Tensor]:
         hp = self.hparams
+        n_free = int(round(hp.batch_size * hp.board_free_prob))
+        n_board = hp.batch_size - n_free
+        n_wild = int(round(n_board * hp.wild_prob)) if self.wild is not None else 0
         for attempt in range(5):
             try:
-                b = self.scenes.sample(hp.batch_size, generator)
+                parts = [self.scenes.sample(n_board - n_wild, generator)] if n_wild < n_board else []
+                if n_wild:
+                    parts.append(self.wild.sample(n_wild, generator))
+                b = concat_batches(parts)
                 break
             except RuntimeError:
                 # a rare scene whose board cannot be placed: draw again (the generator has moved on, so
@@ -116,7 +196,17 @@ class DetectorDataModule(L.LightningDataModule):
         # every visible corner is a target, even one too close to the border to count as a valid detection
         visible = exists & inside & torch.isfinite(c).all(-1)
         heatmap = gaussian_heatmaps(c, visible, (w, h), hp.sigma)
-        return {"image": b.images, "heatmap": heatmap, "corners": c, "valid": b.corner_valid}
+        out = {"image": b.images, "heatmap": heatmap, "corners": c, "valid": b.corner_valid}
+        if n_free:
+            from ccs_kornia.data.distractors import DISTRACTOR_KINDS, board_free_images
+
+            kinds = tuple(k for k in DISTRACTOR_KINDS if k != "checker_patches")
+            free, _ = board_free_images(n_free, (w, h), generator, kinds=kinds)
+            n = c.shape[1]
+            out = {"image": torch.cat([b.images, free]), "heatmap": torch.cat([heatmap, torch.zeros_like(free)]),
+                   "corners": torch.cat([c, torch.zeros(n_free, n, 2)]),
+                   "valid": torch.cat([b.corner_valid, torch.zeros(n_free, n, dtype=torch.bool)])}
+        return out
 
     def train_dataloader(self) -> DataLoader:
         ds = RenderedBatches(self.make_batch, TRAIN_SEED_BASE + self.hparams.seed)

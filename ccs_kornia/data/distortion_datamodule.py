@@ -7,7 +7,14 @@ import torch
 from torch.utils.data import DataLoader
 
 from ccs_kornia.data import augment
-from ccs_kornia.data.datamodule import TRAIN_SEED_BASE, VAL_SEED_BASE, RenderedBatches
+from ccs_kornia.data.datamodule import (
+    DISTORTION_WILD,
+    TRAIN_SEED_BASE,
+    VAL_SEED_BASE,
+    RenderedBatches,
+    concat_batches,
+    wild_sampler,
+)
 from ccs_kornia.data.sampling import RADIAL_LEVELS
 from ccs_kornia.data.scenes import SyntheticBatch, SyntheticChessboards
 
@@ -67,6 +74,13 @@ class DistortionDataModule(L.LightningDataModule):
         seed: offset into the training / validation seed ranges.
         val_batches: fixed number of validation batches.
         num_workers: DataLoader workers for training (0 renders in the training process).
+        wild_prob: share of each level's views rendered by :class:`~ccs_kornia.data.wild.WildChessboards` (square
+            sizes, marks, blur scaled to the square, glare, shadows, point spread and gamma; 0, the default, keeps
+            today's data).
+        wild: WildSpec fields of those views (``None``: :data:`~ccs_kornia.data.datamodule.DISTORTION_WILD`);
+            their lens is set by the level (``none``: an undistorted pinhole).
+        board_free_prob: share of each batch that shows no board at all (:func:`~ccs_kornia.data.distractors.board_free_images`:
+            clutter, stripes, tiles, noise ...), with the identity as target (``level`` of ``none``, or 0).
     """
 
     def __init__(
@@ -85,9 +99,14 @@ class DistortionDataModule(L.LightningDataModule):
         seed: int = 0,
         val_batches: int = 8,
         num_workers: int = 0,
+        wild_prob: float = 0.0,
+        wild: dict | None = None,
+        board_free_prob: float = 0.0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
+        if not (0.0 <= wild_prob <= 1.0 and 0.0 <= board_free_prob < 1.0):
+            raise ValueError(f"wild_prob must be in [0, 1] and board_free_prob in [0, 1), got {wild_prob}, {board_free_prob}.")
         levels = tuple(levels)
         if not levels:
             raise ValueError("levels must not be empty.")
@@ -112,13 +131,21 @@ class DistortionDataModule(L.LightningDataModule):
             lvl: SyntheticChessboards(distortion="none" if lvl == "none" else "radial", radial_level=lvl, **common)
             for lvl in dict.fromkeys(levels)
         }
+        fields = DISTORTION_WILD if wild is None else wild
+        self.wild = {
+            lvl: wild_sampler(fields, image_size, lenses=("pinhole",) if lvl == "none" else ("radial",),
+                              radial_level="none" if lvl == "none" else lvl)
+            for lvl in dict.fromkeys(levels)
+        } if wild_prob > 0 else None
         self._cached: dict[str, torch.Tensor] | None = None
         self._uses = 0
 
     def make_batch(self, generator: torch.Generator) -> dict[str, torch.Tensor]:
         """Render one batch; each view's level drawn from ``levels``."""
-        b = int(self.hparams.batch_size)
-        which = torch.randint(0, len(self.levels), (b,), generator=generator)
+        hp = self.hparams
+        b = int(hp.batch_size)
+        n_free = int(round(b * hp.board_free_prob))
+        which = torch.randint(0, len(self.levels), (b - n_free,), generator=generator)
         parts: list[SyntheticBatch] = []
         level_idx: list[torch.Tensor] = []
         for name, scenes in self.scenes.items():
@@ -126,16 +153,34 @@ class DistortionDataModule(L.LightningDataModule):
             count = int(sum(int((which == k).sum()) for k in ids))
             if count == 0:
                 continue
-            parts.append(scenes.sample(count, generator))
+            n_wild = int(round(count * hp.wild_prob)) if self.wild is not None else 0
+            sub = ([scenes.sample(count - n_wild, generator)] if n_wild < count else []) + \
+                ([self.wild[name].sample(n_wild, generator)] if n_wild else [])
+            parts.append(concat_batches(sub))
             level_idx.append(torch.full((count,), ids[0], dtype=torch.long))
+        if n_free:
+            parts.append(self._board_free(n_free, generator))
+            level_idx.append(torch.full((n_free,), self.levels.index("none") if "none" in self.levels else 0))
+        batch = concat_batches(parts)
         return {
-            "image": torch.cat([p.images for p in parts]),
-            "radial": torch.cat([p.radial for p in parts]),
-            "corners": torch.cat([p.corners for p in parts]),
-            "valid": torch.cat([p.corner_valid for p in parts]),
-            "board_size": torch.cat([p.board_size for p in parts]),
+            "image": batch.images,
+            "radial": batch.radial,
+            "corners": batch.corners,
+            "valid": batch.corner_valid,
+            "board_size": batch.board_size,
             "level": torch.cat(level_idx),
         }
+
+    def _board_free(self, n: int, generator: torch.Generator) -> SyntheticBatch:
+        from ccs_kornia.data.distractors import board_free_images
+
+        images, _ = board_free_images(n, tuple(self.hparams.image_size), generator)
+        return SyntheticBatch(
+            images=images, corners=torch.zeros(n, 1, 2), corner_valid=torch.zeros(n, 1, dtype=torch.bool),
+            board_size=torch.full((n, 2), 2, dtype=torch.long), square=torch.ones(n), K=torch.eye(3).expand(n, 3, 3),
+            dist=torch.zeros(n, 5), radial=torch.tensor([1.0, 0.0, 0.0]).expand(n, 3).clone(), rvec=torch.zeros(n, 3),
+            tvec=torch.zeros(n, 3), image_size=tuple(self.hparams.image_size),
+        )
 
     def make_train_batch(self, generator: torch.Generator) -> dict[str, torch.Tensor]:
         """A fresh batch every ``reuse`` calls; in between, mirrored copies of the last one."""

@@ -21,6 +21,7 @@ import torch
 from torch import Tensor
 
 from ccs_kornia import camera
+from ccs_kornia.data.fisheye import is_fisheye, kb_project, kb_unproject
 
 __all__ = ["project_board", "board_coordinates"]
 
@@ -85,11 +86,13 @@ def project_board(
     image_size: tuple[int, int],
     dist: Tensor | None = None,
     radial: Tensor | None = None,
+    fisheye: Tensor | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Forward model: world points to distorted pixels, with a visibility flag.
 
     Applies the pose, the pinhole ``K`` with OpenCV distortion (``camera.project_points``) and then the
-    paper's radial distortion (``camera.radial_distort_points``).
+    paper's radial distortion (``camera.radial_distort_points``); views marked as fisheyes in ``fisheye``
+    use the Kannala-Brandt lens instead (:func:`ccs_kornia.data.fisheye.kb_project`, ``cv2.fisheye``'s model).
 
     Args:
         object_points: :math:`(B, N, 3)` world points.
@@ -98,12 +101,19 @@ def project_board(
         image_size: ``(W, H)``.
         dist: optional :math:`(B, 5)` OpenCV coefficients.
         radial: optional :math:`(B, 3)` paper coefficients.
+        fisheye: optional :math:`(B, 5)` ``(k1, k2, k3, k4, theta_max)``; rows with ``theta_max = 0`` are not
+            fisheyes.
 
     Returns:
         pixels :math:`(B, N, 2)` and ``ok`` :math:`(B, N)`: in front of the camera and inside the part of
-        each distortion model that does not fold over (where the renderer can show them).
+        each distortion model that does not fold over (where the renderer can show them); for fisheyes,
+        inside the lens' image circle.
     """
     cam = camera.transform_points_rt(object_points, rvec, tvec)
+    fe_mask = is_fisheye(fisheye)
+    kb_pix = kb_ok = None
+    if fe_mask is not None and bool(fe_mask.any()):
+        kb_pix, kb_ok = kb_project(cam, K, fisheye)
     z = cam[..., 2]
     ok = z > 1e-9
     cam = torch.cat([cam[..., :2], torch.where(ok, z, torch.ones_like(z)).unsqueeze(-1)], -1)
@@ -118,6 +128,10 @@ def project_board(
         r_fold, _ = _radial_fold(radial)
         ok = ok & (_paper_radius(pix, image_size) < r_fold.to(pix.dtype).unsqueeze(-1))
         pix = camera.radial_distort_points(pix, radial.to(pix.dtype), image_size)
+    if kb_pix is not None:
+        sel = fe_mask.view(-1, 1)
+        pix = torch.where(sel.unsqueeze(-1), kb_pix.to(pix.dtype), pix)
+        ok = torch.where(sel, kb_ok, ok)
     return pix, ok
 
 
@@ -211,9 +225,11 @@ def _board_homography_inverse(rvec: Tensor, tvec: Tensor, square: Tensor, dtype)
     return (scale * torch.linalg.inv(M)).to(dtype)
 
 
-def _normalized_to_board(xn: Tensor, yn: Tensor, G: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def _normalized_to_board(xn: Tensor, yn: Tensor, G: Tensor, zn: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    """Board coordinates where the rays ``(xn, yn, zn)`` (``zn = 1``: normalised pixels) meet the board plane."""
     shape = (G.shape[0],) + (1,) * (xn.dim() - 1)
-    q = [G[:, r, 0].reshape(shape) * xn + G[:, r, 1].reshape(shape) * yn + G[:, r, 2].reshape(shape) for r in range(3)]
+    q = [G[:, r, 0].reshape(shape) * xn + G[:, r, 1].reshape(shape) * yn for r in range(3)]
+    q = [qr + (G[:, r, 2].reshape(shape) if zn is None else G[:, r, 2].reshape(shape) * zn) for r, qr in enumerate(q)]
     # third component is 1 / depth along the ray: positive where the plane is hit in front of the camera
     front = q[2] > 1e-12
     inv = 1.0 / torch.where(front, q[2], torch.ones_like(q[2]))
@@ -309,19 +325,24 @@ def _radial_inverse_grid(px: Tensor, py: Tensor, radial: Tensor, image_size: tup
     return qx * ratio * scale + cx, qy * ratio * scale + cy, reach
 
 
-def _opencv_inverse_grid(xt: Tensor, yt: Tensor, K: Tensor, dist: Tensor, image_size: tuple[int, int], stride: int = 8):
-    """OpenCV-model inverse for a full pixel grid ``(b, H, W)`` of normalized distorted coordinates.
+def _opencv_inverse_grid(
+    xt: Tensor, yt: Tensor, K: Tensor, dist: Tensor, image_size: tuple[int, int], stride: int = 8, rows=None
+):
+    """OpenCV-model inverse for a pixel grid ``(b, H, W)`` of normalized distorted coordinates (image rows
+    ``rows = (y0, y1)``, default all).
 
     Exact inverse (``camera.undistort_pixels`` + Newton) on a coarse grid every ``stride`` pixels,
     bilinearly upsampled as the start (error ~1e-2 px), then two Newton steps on every pixel (quadratic
     convergence: ~1e-7 px).
     """
-    w, h = image_size
+    w = image_size[0]
+    y0, y1 = (0, image_size[1]) if rows is None else rows
+    h = y1 - y0
     b = xt.shape[0]
     dt = xt.dtype
     wc, hc = max(2, math.ceil((w - 1) / stride) + 1), max(2, math.ceil((h - 1) / stride) + 1)
     ys, xs = torch.meshgrid(
-        torch.linspace(0, h - 1, hc, device=xt.device, dtype=dt), torch.linspace(0, w - 1, wc, device=xt.device, dtype=dt),
+        torch.linspace(y0, y1 - 1, hc, device=xt.device, dtype=dt), torch.linspace(0, w - 1, wc, device=xt.device, dtype=dt),
         indexing="ij",
     )
     coarse = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1).unsqueeze(0).expand(b, -1, -1)
@@ -336,12 +357,18 @@ def _opencv_inverse_grid(xt: Tensor, yt: Tensor, K: Tensor, dist: Tensor, image_
     return xi, yi, ok
 
 
-def _grid_board_coordinates(K, rvec, tvec, square, image_size, dist, radial):
-    """:func:`board_coordinates` of every pixel centre, as ``(B, H, W)`` fields ``u, v, reach, front``."""
-    w, h = image_size
+def _grid_board_coordinates(K, rvec, tvec, square, image_size, dist, radial, fisheye=None, rows=None):
+    """:func:`board_coordinates` of every pixel centre, as ``(B, H, W)`` fields ``u, v, reach, front``.
+
+    ``rows = (y0, y1)`` restricts the grid to image rows ``y0 <= y < y1`` (the renderer's bands); ``fisheye``
+    views (``(B, 5)``, see :mod:`ccs_kornia.data.fisheye`) use the Kannala-Brandt inverse.
+    """
+    w, h_img = image_size
+    y0, y1 = (0, h_img) if rows is None else (int(rows[0]), int(rows[1]))
+    h = y1 - y0
     b = K.shape[0]
     dev, dt = K.device, torch.float32
-    ys, xs = torch.meshgrid(torch.arange(h, device=dev, dtype=dt), torch.arange(w, device=dev, dtype=dt), indexing="ij")
+    ys, xs = torch.meshgrid(torch.arange(y0, y1, device=dev, dtype=dt), torch.arange(w, device=dev, dtype=dt), indexing="ij")
     px, py = xs.expand(b, h, w), ys.expand(b, h, w)
     reach = torch.ones(b, h, w, dtype=torch.bool, device=dev)
     rad_idx = torch.zeros(0, dtype=torch.long, device=dev)
@@ -360,7 +387,7 @@ def _grid_board_coordinates(K, rvec, tvec, square, image_size, dist, radial):
         only, both = cv_mask & ~rad_mask, cv_mask & rad_mask
         idx = only.nonzero().squeeze(1)
         if idx.numel() > 0:  # regular distorted grid: coarse exact start + Newton
-            xi, yi, ok = _opencv_inverse_grid(xn[idx], yn[idx], Kf[idx], dist[idx].to(dt), image_size)
+            xi, yi, ok = _opencv_inverse_grid(xn[idx], yn[idx], Kf[idx], dist[idx].to(dt), image_size, rows=(y0, y1))
             xn, yn = xn.index_copy(0, idx, xi), yn.index_copy(0, idx, yi)
             reach = reach.index_copy(0, idx, reach[idx] & ok)
         idx = both.nonzero().squeeze(1)
@@ -372,8 +399,23 @@ def _grid_board_coordinates(K, rvec, tvec, square, image_size, dist, radial):
             ok = (residual < 1e-2) & ((xi * xi + yi * yi).sqrt() < r_fold.to(dt).unsqueeze(-1))
             xn, yn = xn.index_copy(0, idx, xi.view(-1, h, w)), yn.index_copy(0, idx, yi.view(-1, h, w))
             reach = reach.index_copy(0, idx, reach[idx] & ok.view(-1, h, w))
-    u, v, front = _normalized_to_board(xn, yn, _board_homography_inverse(rvec, tvec, square, dt))
+    G = _board_homography_inverse(rvec, tvec, square, dt)
+    u, v, front = _normalized_to_board(xn, yn, G)
     # ideal (undistorted) pixel of every pixel centre, for warping the background like the board
     ix = Kf[:, 0, 0, None, None] * xn + Kf[:, 0, 1, None, None] * yn + Kf[:, 0, 2, None, None]
     iy = Kf[:, 1, 1, None, None] * yn + Kf[:, 1, 2, None, None]
+    fe_mask = is_fisheye(fisheye)
+    if fe_mask is not None and bool(fe_mask.any()):
+        idx = fe_mask.nonzero().squeeze(1)
+        rx, ry, rz, ok = kb_unproject(xn[idx], yn[idx], fisheye[idx].to(dev))
+        fu, fv, ff = _normalized_to_board(rx, ry, G[idx], rz)
+        u, v, front = u.index_copy(0, idx, fu), v.index_copy(0, idx, fv), front.index_copy(0, idx, ff)
+        reach = reach.index_copy(0, idx, ok)
+        # the background is a scene seen through the same lens: a pinhole image of it (focal 0.35 fx, rays
+        # beyond 80 degrees clamped) is looked up along each pixel's ray, so its straight edges bend like the board's
+        zc = rz.clamp_min(math.cos(math.radians(80.0)))
+        fb = 0.35 * Kf[idx, 0, 0].view(-1, 1, 1)
+        bx = Kf[idx, 0, 2].view(-1, 1, 1) + fb * rx / zc
+        by = Kf[idx, 1, 2].view(-1, 1, 1) + 0.35 * Kf[idx, 1, 1].view(-1, 1, 1) * ry / zc
+        ix, iy = ix.index_copy(0, idx, bx), iy.index_copy(0, idx, by)
     return u, v, reach, front, ix, iy

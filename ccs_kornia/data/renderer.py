@@ -41,10 +41,22 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ccs_kornia.data._util import _batched, _board_tensors, _check_size, _padded_object_points, _per_item
-from ccs_kornia.data.lens import _FAR, _grid_board_coordinates, _radial_is_trivial, project_board
+from ccs_kornia.data._util import (
+    _batched,
+    _board_tensors,
+    _check_size,
+    _padded_object_points,
+    _per_item,
+)
+from ccs_kornia.data.lens import (
+    _FAR,
+    _grid_board_coordinates,
+    _radial_is_trivial,
+    project_board,
+)
+from ccs_kornia.data.marks import MarkPattern
 
-__all__ = ["render_chessboard", "ChessboardRenderer"]
+__all__ = ["MAX_BAND_PIXELS", "render_chessboard", "fisheye_rows", "ChessboardRenderer"]
 
 
 def _masked_gradient(f: Tensor, valid: Tensor, dim: int) -> Tensor:
@@ -86,8 +98,9 @@ def _axis_filter(x: Tensor, width: Tensor, hi_checker: Tensor, border: float):
     return (hbb - lb) * inv, m, f
 
 
-def _shade(u, v, wu, wv, cols, rows, border, bg, light, contrast):
-    """Box-filtered grey level: background outside the board, light on it, minus the dark squares.
+def _shade(u, v, wu, wv, cols, rows, border, bg, light, contrast, marks=None, bidx=None):
+    """Box-filtered grey level: background outside the board, light on it, minus the dark squares (and the
+    marks' ink, :meth:`MarkPattern.coverage`).
 
     The dark-square indicator is ``m_u m_v (1 + s(u) s(v)) / 2`` (checker-area masks ``m``, square wave
     ``s``); over an axis-aligned box its mean factorises into per-axis means.
@@ -95,6 +108,8 @@ def _shade(u, v, wu, wv, cols, rows, border, bg, light, contrast):
     bu, mu, fu = _axis_filter(u, wu, cols, border)
     bv, mv, fv = _axis_filter(v, wv, rows, border)
     value = bg + (light - bg) * (bu * bv) - contrast * (mu * mv + fu * fv)
+    if marks is not None:
+        value = value - 2.0 * contrast * marks.coverage(u, v, wu, wv, bidx)
     return value, (bu, mu, fu), (bv, mv, fv)
 
 
@@ -106,6 +121,11 @@ def _straddles(x: Tensor, support: Tensor, hi_checker: Tensor, border: float) ->
     on_board = (hi >= -1.0 - border) & (lo <= hi_checker + border)
     crosses = (torch.floor(lo) != torch.floor(hi)) | ((lo < -1.0 - border) | (hi > hi_checker + border))
     return on_board & crosses
+
+
+#: pixels (over the batch) rendered at once; bigger images are rendered in bands of rows, which keeps the
+#: renderer's memory bounded (about 120 bytes per pixel of a band) whatever the image size
+MAX_BAND_PIXELS = 1 << 21
 
 
 def _render(
@@ -123,11 +143,38 @@ def _render(
     border: float,
     dark: Tensor,
     light: Tensor,
+    fisheye: Tensor | None = None,
+    marks: MarkPattern | None = None,
+    max_band_pixels: int | None = None,
 ) -> Tensor:
+    """Render ``(B, 1, H, W)`` in bands of rows (one row of halo each side for the footprint's Jacobian, so
+    the result does not depend on the band size)."""
     b = K.shape[0]
     w, h = image_size
+    limit = MAX_BAND_PIXELS if max_band_pixels is None else int(max_band_pixels)
+    band = max(1, min(h, limit // max(1, b * w)))
+    if band >= h:
+        return _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, supersample, background,
+                            border, dark, light, fisheye, marks, 0, h)
+    out = torch.empty(b, 1, h, w, device=K.device, dtype=torch.float32)
+    for y0 in range(0, h, band):
+        y1 = min(h, y0 + band)
+        ya, yb = max(0, y0 - 1), min(h, y1 + 1)
+        img = _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, supersample, background,
+                           border, dark, light, fisheye, marks, ya, yb)
+        out[:, :, y0:y1] = img[:, :, y0 - ya:y1 - ya]
+    return out
+
+
+def _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, supersample, background, border,
+                 dark, light, fisheye, marks, y0, y1) -> Tensor:
+    b = K.shape[0]
+    w, h_img = image_size
+    h = y1 - y0
     dev, dt = K.device, torch.float32
-    u, v, reach, front, ideal_x, ideal_y = _grid_board_coordinates(K, rvec, tvec, square, image_size, dist, radial)
+    u, v, reach, front, ideal_x, ideal_y = _grid_board_coordinates(
+        K, rvec, tvec, square, image_size, dist, radial, fisheye, rows=(y0, y1)
+    )
     valid = reach & front
     u = torch.where(valid, u, torch.full_like(u, _FAR))
     v = torch.where(valid, v, torch.full_like(v, _FAR))
@@ -142,7 +189,8 @@ def _render(
     light = light.to(dt).view(b, 1, 1)
     contrast = 0.5 * (light - dark.to(dt).view(b, 1, 1))
     if isinstance(background, Tensor):
-        bg = background.to(device=dev, dtype=dt).reshape(-1, h, w).expand(b, h, w)
+        bg_full = background.to(device=dev, dtype=dt).reshape(-1, h_img, w).expand(b, h_img, w)
+        bg = bg_full[:, y0:y1]
         # the background is a scene seen through the same lens: warp it by the view's distortion, so that its
         # straight edges bend like the board's (the distortion CNN learns from every line in the image)
         distorted = torch.zeros(b, dtype=torch.bool, device=dev)
@@ -150,16 +198,18 @@ def _render(
             distorted |= ~_radial_is_trivial(radial).to(dev)
         if dist is not None:
             distorted |= (dist.abs().amax(-1) > 0).to(dev)
+        if fisheye is not None:
+            distorted |= (fisheye[:, 4] > 0).to(dev)
         idx = distorted.nonzero().squeeze(1)
         if idx.numel() > 0:
-            grid = torch.stack([ideal_x[idx] / max(w - 1, 1) * 2 - 1, ideal_y[idx] / max(h - 1, 1) * 2 - 1], -1)
+            grid = torch.stack([ideal_x[idx] / max(w - 1, 1) * 2 - 1, ideal_y[idx] / max(h_img - 1, 1) * 2 - 1], -1)
             warped = torch.nn.functional.grid_sample(
-                bg[idx].unsqueeze(1), grid.to(dt), mode="bilinear", padding_mode="reflection", align_corners=True
+                bg_full[idx].unsqueeze(1), grid.to(dt), mode="bilinear", padding_mode="reflection", align_corners=True
             )
             bg = bg.contiguous().index_copy(0, idx, warped[:, 0])
     else:
         bg = torch.full((b, 1, 1), float(background), device=dev, dtype=dt)
-    img, pu, pv = _shade(u, v, wu, wv, cols_f, rows_f, border, bg, light, contrast)
+    img, pu, pv = _shade(u, v, wu, wv, cols_f, rows_f, border, bg, light, contrast, marks)
     s = int(supersample)
     if s > 1:
         # only pixels whose footprint straddles an edge need sub-cells; elsewhere one box is exact
@@ -186,7 +236,7 @@ def _render(
                 for ox in offsets:
                     val, _, _ = _shade(
                         eu + eux * ox + euy * oy, ev + evx * ox + evy * oy, ewu, ewv, ecols, erows, border,
-                        ebg, elight, econ,
+                        ebg, elight, econ, marks, bi,
                     )
                     acc += val
             img = img.reshape(-1).index_copy(0, idx, acc / float(s * s)).view(b, h, w)
@@ -208,6 +258,10 @@ def render_chessboard(
     border: float = 1.0,
     dark: float | Tensor = 0.1,
     light: float | Tensor = 0.9,
+    fisheye: Tensor | None = None,
+    fov_deg: float | Tensor = 180.0,
+    marks: MarkPattern | None = None,
+    max_band_pixels: int | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Render chessboards seen by (distorted) cameras, with their exact corner positions.
 
@@ -224,6 +278,14 @@ def render_chessboard(
         background: ``None`` (0.5), a grey level, or :math:`(B, 1, H, W)` / :math:`(1, 1, H, W)` images.
         border: width of the light border around the checker area, in squares.
         dark, light: grey levels of the squares (numbers or :math:`(B,)` tensors).
+        fisheye: optional Kannala-Brandt coefficients ``(k1, k2, k3, k4)`` :math:`(4,)` or :math:`(B, 4)`
+            (``cv2.fisheye``'s model, :mod:`ccs_kornia.data.fisheye`); the views become fisheyes (``dist`` and
+            ``radial`` must then be ``None``).
+        fov_deg: field of view of the fisheyes' image circle in degrees (number or :math:`(B,)`; a view with
+            ``fov_deg <= 0`` stays a pinhole); pixels beyond it are black.
+        marks: optional marks in the light squares (:func:`ccs_kornia.data.marks.make_marks`); the corners
+            do not move.
+        max_band_pixels: pixels rendered at once (default :data:`MAX_BAND_PIXELS`); bounds the memory.
 
     Returns:
         images :math:`(B, 1, H, W)` float32 in ``[0, 1]`` and corners :math:`(B, N, 2)` (distorted pixels,
@@ -256,15 +318,33 @@ def render_chessboard(
         background = 0.5
     dark_t = _per_item(dark, b, "dark", dev, torch.float32)
     light_t = _per_item(light, b, "light", dev, torch.float32)
-    images = _render(K, rvec, tvec, cols, rows, square_t, (w, h), dist, radial, supersample, background, border, dark_t, light_t)
+    fe = fisheye_rows(fisheye, fov_deg, b, dev)
+    if fe is not None and (dist is not None or radial is not None):
+        raise ValueError("A fisheye view takes no OpenCV or radial distortion (pass dist=None, radial=None).")
+    if marks is not None:
+        if marks.sat.shape[0] != b:
+            raise ValueError(f"marks hold {marks.sat.shape[0]} views, expected {b}.")
+        marks = marks.to(dev)
+    images = _render(K, rvec, tvec, cols, rows, square_t, (w, h), dist, radial, supersample, background, border, dark_t,
+                     light_t, fe, marks, max_band_pixels)
     n_max = int((cols * rows).max())
     obj, exists = _padded_object_points(cols, rows, square_t.to(torch.float64), n_max)
     pix, _ = project_board(
         obj, K.to(torch.float64), rvec.to(torch.float64), tvec.to(torch.float64), (w, h),
         None if dist is None else dist.to(torch.float64), None if radial is None else radial.to(torch.float64),
+        None if fe is None else fe.to(torch.float64),
     )
     corners = (pix * exists.unsqueeze(-1)).to(fdt)
     return images, corners
+
+
+def fisheye_rows(fisheye: Tensor | None, fov_deg, b: int, device) -> Tensor | None:
+    """The renderer's ``(B, 5)`` lens rows ``(k1..k4, theta_max)`` from coefficients and fields of view."""
+    if fisheye is None:
+        return None
+    k = _batched(fisheye, b, (4,), "fisheye", device, torch.float64)
+    fov = _per_item(fov_deg, b, "fov_deg", device, torch.float64)
+    return torch.cat([k, torch.deg2rad(fov.clamp_min(0.0)).unsqueeze(-1) / 2], -1)
 
 
 class ChessboardRenderer(torch.nn.Module):

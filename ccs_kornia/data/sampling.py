@@ -182,8 +182,15 @@ def _sample_poses_batched(
     min_visible: float = 0.3,
     candidates: int = 24,
     max_rounds: int = 60,
+    square_px: Tensor | None = None,
+    min_tilt_deg: float = 0.0,
+    cut: Tensor | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Rejection sampling of one pose per item, ``candidates`` proposals per pending item per round.
+
+    ``square_px`` ``(B,)`` (optional) sets the distance so that a fronto-parallel square would span that many
+    pixels (instead of ``fill_range``); ``min_tilt_deg`` forces steep views; ``cut`` ``(B,)`` asks for views
+    whose inner corners are all inside the image while the board's outer squares cross the image border.
 
     Everything is float64 on the CPU (a few thousand points per round). Returns ``(B, 3)`` rvec, tvec.
     """
@@ -194,6 +201,7 @@ def _sample_poses_batched(
     done = torch.zeros(b, dtype=torch.bool)
     n_max = int((cols * rows).max())
     part = torch.zeros(b, dtype=torch.bool) if partial is None else partial.cpu()
+    cut_all = torch.zeros(b, dtype=torch.bool) if cut is None else cut.cpu()
     for _ in range(max_rounds):
         pend = (~done).nonzero().squeeze(1)
         if pend.numel() == 0:
@@ -201,11 +209,11 @@ def _sample_poses_batched(
         m = candidates
         sel = pend.repeat_interleave(m)
         pm = sel.numel()
-        Kc, cc, rc, sc, pc = K[sel], cols[sel], rows[sel], square[sel], part[sel]
+        Kc, cc, rc, sc, pc, cutc = K[sel], cols[sel], rows[sel], square[sel], part[sel], cut_all[sel]
         dc = None if dist is None else dist[sel]
         radc = None if radial is None else radial[sel]
         roll = _uniform(generator, (pm,), -1.0, 1.0, "cpu") * math.radians(max_roll_deg)
-        tilt = _uniform(generator, (pm,), 0.0, math.radians(max_tilt_deg), "cpu")
+        tilt = _uniform(generator, (pm,), math.radians(min(min_tilt_deg, max_tilt_deg)), math.radians(max_tilt_deg), "cpu")
         azim = _uniform(generator, (pm,), 0.0, 2 * math.pi, "cpu")
         fill = _uniform(generator, (pm,), float(fill_range[0]), float(fill_range[1]), "cpu")
         pos = _rand(generator, (pm, 2), "cpu")
@@ -216,6 +224,8 @@ def _sample_poses_batched(
         ey = roll.sin().abs() * wb + roll.cos().abs() * hb
         fx, fy = Kc[:, 0, 0], Kc[:, 1, 1]
         z = torch.maximum(fx * ex / (fill * w), fy * ey / (fill * h))
+        if square_px is not None:
+            z = torch.sqrt(fx * fy) * sc / square_px[sel].double()
         bx, by = fx * ex / z, fy * ey / z
         lo_x, hi_x = margin + 0.5 * bx, w - 1 - margin - 0.5 * bx
         lo_y, hi_y = margin + 0.5 * by, h - 1 - margin - 0.5 * by
@@ -225,11 +235,13 @@ def _sample_poses_batched(
         hi_x = torch.where(too_wide, torch.full_like(hi_x, (w - 1) / 2), hi_x)
         lo_y = torch.where(too_tall, torch.full_like(lo_y, (h - 1) / 2), lo_y)
         hi_y = torch.where(too_tall, torch.full_like(hi_y, (h - 1) / 2), hi_y)
-        # partial views may put the centre up to a third of the board outside the image
-        lo_x = torch.where(pc, -0.3 * bx, lo_x)
-        hi_x = torch.where(pc, w - 1 + 0.3 * bx, hi_x)
-        lo_y = torch.where(pc, -0.3 * by, lo_y)
-        hi_y = torch.where(pc, h - 1 + 0.3 * by, hi_y)
+        # partial views may put the centre up to a third of the board outside the image; cut views sit
+        # near the border so that the outer squares leave the image
+        loose = pc | cutc
+        lo_x = torch.where(loose, torch.where(cutc, 0.5 * bx - 1.5 * bx / (cc + 1), -0.3 * bx), lo_x)
+        hi_x = torch.where(loose, torch.where(cutc, w - 1 - 0.5 * bx + 1.5 * bx / (cc + 1), w - 1 + 0.3 * bx), hi_x)
+        lo_y = torch.where(loose, torch.where(cutc, 0.5 * by - 1.5 * by / (rc + 1), -0.3 * by), lo_y)
+        hi_y = torch.where(loose, torch.where(cutc, h - 1 - 0.5 * by + 1.5 * by / (rc + 1), h - 1 + 0.3 * by), hi_y)
         target = torch.stack([lo_x + (hi_x - lo_x) * pos[:, 0], lo_y + (hi_y - lo_y) * pos[:, 1]], -1).unsqueeze(1)
         # the target is a distorted pixel: find the ideal pixel it comes from
         if radc is not None:
@@ -265,6 +277,8 @@ def _sample_poses_batched(
         d_v = torch.where(has_v, d_v, torch.full_like(d_v, math.inf)).amin(-1)
         spacing_ok = torch.minimum(d_h, d_v) >= min_square_px
         valid = torch.where(pc, part_ok, full_ok) & spacing_ok & torch.isfinite(tvec).all(-1)
+        if bool(cutc.any()):
+            valid &= ~cutc | _outer_squares_cut(Kc, rvec, tvec, cc, rc, sc, image_size, dc, radc)
         valid = valid.view(-1, m)
         got = valid.any(-1)
         first = valid.to(torch.uint8).argmax(-1)
@@ -278,6 +292,19 @@ def _sample_poses_batched(
             "relax margin, fill_range or max_tilt_deg, or use a smaller board."
         )
     return rvec_out, tvec_out
+
+
+def _outer_squares_cut(K, rvec, tvec, cols, rows, square, image_size, dist, radial) -> Tensor:
+    """Whether some outer corner of the checker area (the board's outermost squares) falls outside the image."""
+    w, h = image_size
+    z = torch.zeros_like(square)
+    outer = torch.stack([
+        torch.stack([-square, -square, z], -1), torch.stack([cols.double() * square, -square, z], -1),
+        torch.stack([-square, rows.double() * square, z], -1), torch.stack([cols.double() * square, rows.double() * square, z], -1),
+    ], 1)
+    pix, ok = project_board(outer, K, rvec, tvec, image_size, dist, radial)
+    out = (pix[..., 0] < 0) | (pix[..., 0] > w - 1) | (pix[..., 1] < 0) | (pix[..., 1] > h - 1) | ~ok
+    return out.any(-1)
 
 
 def sample_poses(

@@ -9,7 +9,14 @@ from torch import Tensor
 
 from ccs_kornia import camera
 from ccs_kornia.data import augment
-from ccs_kornia.data._util import _batched, _check_size, _padded_object_points, _rand, _randint, _uniform
+from ccs_kornia.data._util import (
+    _batched,
+    _check_size,
+    _padded_object_points,
+    _rand,
+    _randint,
+    _uniform,
+)
 from ccs_kornia.data.lens import project_board
 from ccs_kornia.data.renderer import _render, render_chessboard
 from ccs_kornia.data.sampling import (
@@ -44,6 +51,9 @@ class SyntheticBatch:
         tvec: :math:`(B, 3)` translation.
         image_size: ``(W, H)``.
         condition: optional :math:`(B,)` long index into :data:`ccs_kornia.data.augment.CONDITIONS`.
+        fisheye: optional :math:`(B, 5)` Kannala-Brandt lens rows ``(k1, k2, k3, k4, theta_max)``
+            (``theta_max = 0``: not a fisheye view), see :mod:`ccs_kornia.data.fisheye`.
+        marks: optional :math:`(B,)` long index into :data:`ccs_kornia.data.marks.MARK_KINDS`.
     """
 
     images: Tensor
@@ -58,6 +68,8 @@ class SyntheticBatch:
     tvec: Tensor
     image_size: tuple[int, int]
     condition: Tensor | None = None
+    fisheye: Tensor | None = None
+    marks: Tensor | None = None
 
     def to(self, device: torch.device | str) -> SyntheticBatch:
         """Copy of the batch with every tensor on ``device``."""

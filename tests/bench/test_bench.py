@@ -13,7 +13,12 @@ from ccs_kornia.bench import BenchConfig, run_bench
 from ccs_kornia.bench.__main__ import main
 from ccs_kornia.bench.common import ccs_calibrate, cv2_calibrate, summary
 from ccs_kornia.bench.methods import make_methods
-from ccs_kornia.bench.report import HONEST_END, HONEST_START, draw_boxplot, write_markdown
+from ccs_kornia.bench.report import (
+    HONEST_END,
+    HONEST_START,
+    draw_boxplot,
+    write_markdown,
+)
 from ccs_kornia.bench.scenes import corner_errors, orient_grid, render_scenes
 from ccs_kornia.camera import board_object_points, project_points
 

@@ -11,7 +11,11 @@ from _render_helpers import _K, _poses
 from ccs_kornia import camera
 from ccs_kornia.data.lens import board_coordinates, project_board
 from ccs_kornia.data.renderer import render_chessboard
-from ccs_kornia.data.sampling import sample_opencv_distortion, sample_poses, sample_radial_distortion
+from ccs_kornia.data.sampling import (
+    sample_opencv_distortion,
+    sample_poses,
+    sample_radial_distortion,
+)
 
 W, H = 160, 120
 

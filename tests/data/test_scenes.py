@@ -9,7 +9,11 @@ import torch
 
 from ccs_kornia import camera
 from ccs_kornia.data import augment
-from ccs_kornia.data.scenes import SyntheticBatch, SyntheticChessboards, make_calibration_set
+from ccs_kornia.data.scenes import (
+    SyntheticBatch,
+    SyntheticChessboards,
+    make_calibration_set,
+)
 
 
 def test_make_calibration_set():
