@@ -1,0 +1,2 @@
+"""Calibration stage: homographies, closed-form initialisations, the batched Levenberg–Marquardt core and
+the camera models it refines."""
