@@ -472,8 +472,9 @@ def kb_unproject_points(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, 
 
     Example:
         >>> K = torch.tensor([[300., 0, 320], [0, 300, 240], [0, 0, 1]], dtype=torch.float64)
-        >>> kb_unproject_points(torch.tensor([[791.2389, 240.0]], dtype=torch.float64), K, torch.zeros(4)).round(decimals=4)
-        tensor([[1., 0., 0.]], dtype=torch.float64)
+        >>> ray = kb_unproject_points(torch.tensor([[791.2389, 240.0]], dtype=torch.float64), K, torch.zeros(4))
+        >>> bool((ray - torch.tensor([1.0, 0.0, 0.0])).abs().max() < 1e-6)  # 90 degrees
+        True
     """
     theta, ca, sa = _kb_angles(points, K, D, num_iters)
     return torch.stack([theta.sin() * ca, theta.sin() * sa, theta.cos()], -1)
@@ -485,8 +486,7 @@ def kb_undistort_points(
     """Pixels to normalized points ``tan(theta) (cos phi, sin phi)`` (``cv2.fisheye.undistortPoints``).
 
     Args:
-        points: :math:`(*, N, 2)` pixels; K :math:`(*, 3, 3)`; D :math:`(*, 4)`.
-        P: optional :math:`(*, 3, 3)` new camera matrix: the result is then in its pixels.
+        points: :math:`(*, N, 2)` pixels; K :math:`(*, 3, 3)`; D :math:`(*, 4)`; P: optional new camera matrix.
 
     Returns:
         :math:`(*, N, 2)`; only meaningful below 90 degrees (use :func:`kb_unproject_points` beyond).

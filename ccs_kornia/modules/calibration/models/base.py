@@ -44,6 +44,21 @@ class CameraModel:
         """Which parameters are estimated by default (all of them unless a model says otherwise)."""
         return [True] * self.num_params
 
+    def columns(self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True) -> tuple:
+        """Projection and derivatives in column form (what the LM core consumes; no stacking copies).
+
+        Args:
+            points: :math:`(C, *, 3)` camera-frame points.
+            params: :math:`(C, P)` parameters.
+            jacobians: also return the derivative columns.
+
+        Returns:
+            ``(uv, du_dp, dv_dp, du_dX, dv_dX)``: uv :math:`(C, *, 2)`; ``du_dp``/``dv_dp`` lists of ``P`` tensors
+            and ``du_dX``/``dv_dX`` lists of 3 tensors, each :math:`(C, *)` (or broadcastable to it); only ``uv``
+            (the rest ``None``) without ``jacobians``.
+        """
+        raise NotImplementedError
+
     def project(
         self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True
     ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
@@ -58,7 +73,15 @@ class CameraModel:
             uv :math:`(C, *, 2)`, d uv / d params :math:`(C, *, 2, P)` and d uv / d points :math:`(C, *, 2, 3)`
             (``None`` without ``jacobians``).
         """
-        raise NotImplementedError
+        uv, ju, jv, xu, xv = self.columns(points, params, jacobians)
+        if not jacobians:
+            return uv, None, None
+        shape = uv.shape[:-1]
+
+        def stack(cu, cv):
+            return torch.stack([torch.stack([c.expand(shape) for c in cu], -1), torch.stack([c.expand(shape) for c in cv], -1)], -2)
+
+        return uv, stack(ju, jv), stack(xu, xv)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r})"

@@ -51,10 +51,8 @@ class CentredRadialModel(CameraModel):
         offset = K.new_zeros(K.shape[0], 2) if offset is None else offset.to(K.dtype)
         return torch.cat([intr, radial.to(K.dtype), offset], -1)
 
-    def project(
-        self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True
-    ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
-        """See :meth:`CameraModel.project`."""
+    def columns(self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True) -> tuple:
+        """See :meth:`CameraModel.columns`."""
         check_projection_inputs(points, params, self.num_params)
         p = broadcast_params(params, points)
         w, h = self.image_size
@@ -70,21 +68,14 @@ class CentredRadialModel(CameraModel):
         f = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
         uv = torch.stack([ccx + dx * f, ccy + dy * f], -1)
         if not jacobians:
-            return uv, None, None
+            return uv, None, None, None, None
 
         # M = d p_d / d (p - c) = f I + (2 f' / S^2) d d^T
         fp = 2 * (k1 + r2 * (2 * k2 + 3 * k3 * r2)) * inv_s2
         m00, m01, m11 = f + fp * dx * dx, fp * dx * dy, f + fp * dy * dy
         ju = [m00 * x, m01 * y, m00, m01, dx * r2, dx * r2 * r2, dx * r2 * r2 * r2, 1 - m00, -m01]
         jv = [m01 * x, m11 * y, m01, m11, dy * r2, dy * r2 * r2, dy * r2 * r2 * r2, -m01, 1 - m11]
-        J = torch.stack([torch.stack(ju, -1), torch.stack(jv, -1)], -2)
         # d p / d Xc = diag(fx, fy) [[1, 0, -x], [0, 1, -y]] / z
         ax, ay = fx * inv_z, fy * inv_z
-        Jx = torch.stack(
-            [
-                torch.stack([m00 * ax, m01 * ay, -(m00 * ax * x + m01 * ay * y)], -1),
-                torch.stack([m01 * ax, m11 * ay, -(m01 * ax * x + m11 * ay * y)], -1),
-            ],
-            -2,
-        )
-        return uv, J, Jx
+        xu = [m00 * ax, m01 * ay, -(m00 * ax * x + m01 * ay * y)]
+        return uv, ju, jv, xu, [m01 * ax, m11 * ay, -(m01 * ax * x + m11 * ay * y)]

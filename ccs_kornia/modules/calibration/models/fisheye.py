@@ -42,10 +42,8 @@ class KannalaBrandtModel(CameraModel):
         D = K.new_zeros(K.shape[0], 4) if D is None else D.to(K.dtype).expand(K.shape[0], 4)
         return torch.cat([intr, D], -1)
 
-    def project(
-        self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True
-    ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
-        """See :meth:`CameraModel.project`."""
+    def columns(self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True) -> tuple:
+        """See :meth:`CameraModel.columns`."""
         check_projection_inputs(points, params, self.num_params)
         p = broadcast_params(params, points)
         X, Y, Z = points.unbind(-1)
@@ -65,13 +63,12 @@ class KannalaBrandtModel(CameraModel):
         s = t_over_r * poly
         uv = torch.stack([fx * s * X + cx, fy * s * Y + cy], -1)
         if not jacobians:
-            return uv, None, None
+            return uv, None, None, None, None
 
-        zeros, ones = torch.zeros_like(X), torch.ones_like(X)
+        zeros, ones = torch.zeros((), dtype=X.dtype, device=X.device), torch.ones((), dtype=X.dtype, device=X.device)
         tk = [t_over_r * t2, t_over_r * t2 * t2, t_over_r * t2 * t2 * t2, t_over_r * t2 * t2 * t2 * t2]
         ju = [s * X, zeros, ones, zeros, *(fx * X * c for c in tk)]
         jv = [zeros, s * Y, zeros, ones, *(fy * Y * c for c in tk)]
-        J = torch.stack([torch.stack(ju, -1), torch.stack(jv, -1)], -2)
 
         dpoly = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))  # d theta_d / d theta
         inv_rho2 = 1.0 / (r2 + Z * Z)
@@ -79,11 +76,4 @@ class KannalaBrandtModel(CameraModel):
         g = torch.where(near_axis, (2 * k1 - 2.0 / 3.0) * inv_z * inv_z * inv_z, g_far)
         sz = -dpoly * inv_rho2  # d s / d Z
         gxy = g * X * Y
-        Jx = torch.stack(
-            [
-                torch.stack([fx * (s + g * X * X), fx * gxy, fx * X * sz], -1),
-                torch.stack([fy * gxy, fy * (s + g * Y * Y), fy * Y * sz], -1),
-            ],
-            -2,
-        )
-        return uv, J, Jx
+        return uv, ju, jv, [fx * (s + g * X * X), fx * gxy, fx * X * sz], [fy * gxy, fy * (s + g * Y * Y), fy * Y * sz]
