@@ -191,7 +191,10 @@ def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6):
 
 def _schur_step(U, W, Vb, eg, ep, lam, used_f):
     """Damped Gauss-Newton step: eliminate the pose blocks, solve the camera block, back-substitute."""
-    Ud = U + torch.diag_embed(U.diagonal(dim1=-2, dim2=-1) * lam[:, None])
+    dU = U.diagonal(dim1=-2, dim2=-1)
+    # a floor keeps the damped system definite where a column vanishes (e.g. a distortion centre at k = 0)
+    dU = torch.maximum(dU, 1e-12 * dU.amax(-1, keepdim=True).clamp_min(1e-300)) if dU.shape[-1] else dU
+    Ud = U + torch.diag_embed(dU * lam[:, None])
     Vd = Vb + torch.diag_embed(Vb.diagonal(dim1=-2, dim2=-1) * lam[:, None, None])
     Vinv = _sym_inverse(Vd)
     Vinv = torch.where(Vinv.isfinite(), Vinv, torch.zeros_like(Vinv))
