@@ -84,7 +84,7 @@ def main() -> None:
             Kc = r["K"]
             used = [found[i] for i in r["used"]]
             print(f"{label:26s} fx {Kc[0, 0]:8.2f} fy {Kc[1, 1]:8.2f} cx {Kc[0, 2]:8.2f} cy {Kc[1, 2]:8.2f} "
-                  f"D {np.array2string(r['D'], precision=4)} RMS {r["rms"]:.5f} px, views used {len(used)}/{len(found)}")
+                  f"D {np.array2string(r['D'], precision=4)} RMS {r['rms']:.5f} px, views used {len(used)}/{len(found)}")
             # ours on exactly cv2's views, for an RMS on the same data
             sub = torch.tensor([found.index(i) for i in used])
             mine = calibrate_fisheye(uv[sub], None, torch.tensor(obj), size)
