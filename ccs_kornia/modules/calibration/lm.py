@@ -159,6 +159,19 @@ def _check(model, params, rvec, tvec, object_points, corners, weights):
         raise ValueError(f"weights must be ({C}, {V}, {N}), got {tuple(weights.shape)}.")
 
 
+def _exp_so3(w: torch.Tensor) -> torch.Tensor:
+    """Rodrigues' formula for (..., 3) rotation vectors (a few fused ops; series near 0)."""
+    t2 = (w * w).sum(-1)[..., None, None]
+    small = t2 < 1e-10
+    ts = torch.where(small, 1.0, t2).sqrt()
+    a = torch.where(small, 1 - t2 / 6, ts.sin() / ts)
+    b = torch.where(small, 0.5 - t2 / 24, (1 - ts.cos()) / torch.where(small, 1.0, t2))
+    x, y, z = w.unbind(-1)
+    o = torch.zeros_like(x)
+    K = torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).view(*w.shape[:-1], 3, 3)
+    return torch.eye(3, dtype=w.dtype, device=w.device) + a * K + b * (K @ K)
+
+
 def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6):
     """Per-camera normal equations at (R, t, params): cost, U (C,F,F), W (C,V,F,6), V (C,V,6,6), eg, ep."""
     q = torch.einsum("cvij,cnj->cvni", R, obj)
@@ -170,7 +183,7 @@ def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6):
     r = uv - obs
     shape = r.shape[:-1]
     cols = [*ju, *ru, *xu, r[..., 0], *jv, *rv, *xv, r[..., 1]]
-    A = torch.stack([c.expand(shape) for c in cols], 2)  # (C, V, 2K, N): u rows then v rows, K = P + 7
+    A = torch.stack([c if c.shape == shape else c.expand(shape) for c in cols], 2)  # (C, V, 2K, N): u rows then v rows, K = P + 7
     if sw is not None:
         A = A * sw[:, :, None, :]
     C, V, _, N = A.shape
@@ -211,8 +224,7 @@ def _lm_iteration(model, s, c, eye6, ftol, xtol):
     active = ~s["done"]
     dg, dp = _schur_step(s["U"], s["W"], s["Vb"], s["eg"], s["ep"], lam, c["used_f"])
     x_n = x + (c["B"] @ dg.unsqueeze(-1)).squeeze(-1)
-    dR = axis_angle_to_rotation_matrix(dp[..., :3].reshape(-1, 3)).reshape(R.shape)
-    R_n, t_n = dR @ R, tv + dp[..., 3:]
+    R_n, t_n = _exp_so3(dp[..., :3]) @ R, tv + dp[..., 3:]
     new = _normal_equations(model, R_n, t_n, x_n, c["obj"], c["obs"], c["sw"], c["Bn"], c["used"], eye6)
     cost_n = new[0]
 
@@ -224,10 +236,16 @@ def _lm_iteration(model, s, c, eye6, ftol, xtol):
     finished = (accept & small_decrease) | small_step | (lam > 1e16)
     finished = active & (finished | (torch.where(accept, cost_n, cost) <= c["floor"]))
 
-    a = [accept.view(-1, *([1] * d)) for d in range(4)]
-    for k, v in zip(("cost", "U", "W", "Vb", "eg", "ep"), new):
-        s[k] = torch.where(a[v.dim() - 1], v, s[k])
-    s["x"], s["R"], s["tv"] = torch.where(a[1], x_n, x), torch.where(a[3], R_n, R), torch.where(a[2], t_n, tv)
+    names, values = ("cost", "U", "W", "Vb", "eg", "ep", "x", "R", "tv"), (*new, x_n, R_n, t_n)
+    mode = "mask"
+    if x.device.type == "cpu":  # reading a flag costs nothing on the host: skip the selects when all agree
+        mode = "all" if bool(accept.all()) else ("none" if not bool(accept.any()) else "mask")
+    if mode == "all":
+        s.update(zip(names, values))
+    elif mode == "mask":
+        a = [accept.view(-1, *([1] * d)) for d in range(4)]
+        for k, v in zip(names, values):
+            s[k] = torch.where(a[v.dim() - 1], v, s[k])
     s["lam"] = torch.where(active, torch.where(accept, (lam / 10).clamp_min(1e-15), lam * 10), lam)
     s["iters"] = s["iters"] + active.long()
     s["done"] = s["done"] | finished

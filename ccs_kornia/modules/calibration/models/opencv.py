@@ -69,48 +69,66 @@ class OpenCVModel(CameraModel):
         return torch.cat([intr, d8[:, list(self.coeff_index)]], -1)
 
     def columns(self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True) -> tuple:
-        """See :meth:`CameraModel.columns`."""
+        """See :meth:`CameraModel.columns` (terms of coefficients outside the variant are skipped, not zeroed)."""
         check_projection_inputs(points, params, self.num_params)
         p = broadcast_params(params, points)
         X, Y, Z = points.unbind(-1)
         inv_z = 1.0 / Z
         x, y = X * inv_z, Y * inv_z
         fx, fy, cx, cy = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-        d = dict(zip(self.coeff_index, p[..., 4:].unbind(-1)))
-        zero = torch.zeros((), dtype=points.dtype, device=points.device)
-        k1, k2, p1, p2, k3, k4, k5, k6 = (d.get(i, zero) for i in range(8))
-        rational = len(self.coeff_index) > 5
-        r2 = x * x + y * y
-        r4 = r2 * r2
-        r6 = r4 * r2
-        a = 1 + k1 * r2 + k2 * r4 + k3 * r6
-        inv_b = 1.0 / (1 + k4 * r2 + k5 * r4 + k6 * r6) if rational else torch.ones_like(r2)
-        rad = a * inv_b
-        xy2 = 2 * x * y
-        xd = x * rad + p1 * xy2 + p2 * (r2 + 2 * x * x)
-        yd = y * rad + p1 * (r2 + 2 * y * y) + p2 * xy2
+        k = dict(zip(self.coeff_index, p[..., 4:].unbind(-1)))
+        radial, tangential, k3on, rational = 0 in k, 2 in k, 4 in k, 5 in k
+        xx, yy, xy = x * x, y * y, x * y
+        r2 = xx + yy
+        rad, drad, inv_b = 1.0, 0.0, None
+        if radial:
+            if k3on:
+                rad = 1 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]))
+                drad = k[0] + r2 * (2 * k[1] + 3 * k[4] * r2)
+            else:
+                rad = 1 + r2 * (k[0] + r2 * k[1])
+                drad = k[0] + 2 * k[1] * r2
+            if rational:
+                inv_b = 1.0 / (1 + r2 * (k[5] + r2 * (k[6] + r2 * k[7])))
+                rad = rad * inv_b
+                drad = (drad - rad * (k[5] + r2 * (2 * k[6] + 3 * k[7] * r2))) * inv_b
+        xd, yd = (x * rad, y * rad) if radial else (x, y)
+        if tangential:
+            xy2 = 2 * xy
+            xd = xd + k[2] * xy2 + k[3] * (r2 + 2 * xx)
+            yd = yd + k[2] * (r2 + 2 * yy) + k[3] * xy2
         uv = torch.stack([fx * xd + cx, fy * yd + cy], -1)
         if not jacobians:
             return uv, None, None, None, None
 
         zeros, ones = torch.zeros((), dtype=x.dtype, device=x.device), torch.ones((), dtype=x.dtype, device=x.device)
         ju, jv = [xd, zeros, ones, zeros], [zeros, yd, zeros, ones]
-        xb, yb = x * inv_b, y * inv_b
-        du = [xb * r2, xb * r4, xy2, r2 + 2 * x * x, xb * r6]
-        dv = [yb * r2, yb * r4, r2 + 2 * y * y, xy2, yb * r6]
-        if rational:
-            xab, yab = -xb * rad, -yb * rad
-            du += [xab * r2, xab * r4, xab * r6]
-            dv += [yab * r2, yab * r4, yab * r6]
-        ju += [fx * du[i] for i in self.coeff_index]
-        jv += [fy * dv[i] for i in self.coeff_index]
+        cu, cv = {}, {}
+        if radial:
+            xs, ys = (x, y) if inv_b is None else (x * inv_b, y * inv_b)
+            cu[0], cv[0] = fx * xs * r2, fy * ys * r2
+            cu[1], cv[1] = cu[0] * r2, cv[0] * r2
+            if k3on:
+                cu[4], cv[4] = cu[1] * r2, cv[1] * r2
+            if rational:
+                cu[5], cv[5] = -cu[0] * rad, -cv[0] * rad
+                cu[6], cv[6] = cu[5] * r2, cv[5] * r2
+                cu[7], cv[7] = cu[6] * r2, cv[6] * r2
+        if tangential:
+            cu[2], cv[2] = fx * xy2, fy * (r2 + 2 * yy)
+            cu[3], cv[3] = fx * (r2 + 2 * xx), fy * xy2
+        ju += [cu[i] for i in self.coeff_index]
+        jv += [cv[i] for i in self.coeff_index]
 
         # d uv / d Xc = diag(fx, fy) d(xd, yd)/d(x, y) d(x, y)/d Xc
-        da = k1 + 2 * k2 * r2 + 3 * k3 * r4
-        drad = (da - rad * (k4 + 2 * k5 * r2 + 3 * k6 * r4)) * inv_b if rational else da
-        cross = xy2 * drad + 2 * p1 * x + 2 * p2 * y
-        gx0 = fx * (rad + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x) * inv_z
-        gx1 = fx * cross * inv_z
-        gy0 = fy * cross * inv_z
-        gy1 = fy * (rad + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x) * inv_z
+        fxz, fyz = fx * inv_z, fy * inv_z
+        if radial:
+            a00, a01, a11 = rad + 2 * xx * drad, 2 * xy * drad, rad + 2 * yy * drad
+        else:
+            a00, a01, a11 = ones, zeros, ones
+        if tangential:
+            a00 = a00 + 2 * k[2] * y + 6 * k[3] * x
+            a01 = a01 + 2 * k[2] * x + 2 * k[3] * y
+            a11 = a11 + 6 * k[2] * y + 2 * k[3] * x
+        gx0, gx1, gy0, gy1 = fxz * a00, fxz * a01, fyz * a01, fyz * a11
         return uv, ju, jv, [gx0, gx1, -(gx0 * x + gx1 * y)], [gy0, gy1, -(gy0 * x + gy1 * y)]
