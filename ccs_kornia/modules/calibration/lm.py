@@ -363,12 +363,14 @@ def levenberg_marquardt(
             if not bool(alive.all()):
                 leaving = ~alive
                 for k, v in work.items():
-                    full[k][idx[leaving]] = v[leaving]
+                    if v is not full[k]:  # (an entry never updated is still the full tensor itself)
+                        full[k][idx[leaving]] = v[leaving]
                 idx = idx[alive]
                 work = {k: v[alive] for k, v in work.items()}
                 wc = {k: (None if v is None else v[alive]) for k, v in wc.items()}
     for k, v in work.items():
-        full[k][idx] = v
+        if v is not full[k]:
+            full[k][idx] = v
     x, R, tv, cost, U, W, Vb = (full[k] for k in ("x", "R", "tv", "cost", "U", "W", "Vb"))
     iters, converged = full["iters"], full["converged"]
 

@@ -212,7 +212,7 @@ def test_joint_refinement_wrapper_reproduces_refine_py(model, flags):
     a = old(uv, valid, OBJ, K, rvec + 0.01, tvec, None, None, model=model, **flags)
     b = new(uv, valid, OBJ, K, rvec + 0.01, tvec, None, None, model=model, **flags)
     torch.testing.assert_close(b.K, a.K, atol=5e-6, rtol=0)  # both stop at a relative cost decrease of 1e-12
-    torch.testing.assert_close(b.dist, a.dist, atol=1e-6, rtol=0)
+    torch.testing.assert_close(b.dist, a.dist, atol=1e-5, rtol=0)  # k3 is weakly determined
     torch.testing.assert_close(b.std_intrinsics, a.std_intrinsics, atol=1e-9, rtol=1e-5)
     torch.testing.assert_close(b.std_dist, a.std_dist, atol=1e-9, rtol=1e-5)
     torch.testing.assert_close(b.view_rms, a.view_rms, atol=1e-7, rtol=0, equal_nan=True)
