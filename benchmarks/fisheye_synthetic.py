@@ -40,6 +40,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fail", type=float, default=20.0, help="E_IP (px) above which a calibration counts as failed")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--device", default="cpu", help="device of ccs_kornia's solve (OpenCV runs on the CPU)")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     import cv2
@@ -58,7 +59,8 @@ def main() -> None:
           f"{int((theta > np.pi / 2).sum())}, beyond 75 deg: {int((theta > np.radians(75)).sum())}")
 
     t = time.perf_counter()
-    res = calibrate_fisheye(uv, None, obj, size)
+    res = calibrate_fisheye(uv.to(a.device), None, obj.to(a.device), size)
+    res = type(res)(**{k: v.cpu() for k, v in res.__dict__.items()})
     t_ours = time.perf_counter() - t
     ours = [e_ip(res.K[c], K[c]) if bool(res.success[c]) else float("inf") for c in range(a.trials)]
 
