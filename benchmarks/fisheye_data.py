@@ -13,7 +13,7 @@ import math
 
 import torch
 
-from ccs_kornia.camera import board_object_points, kb_project_points
+from ccs_kornia.camera import board_object_points, kb_project_points, kb_unproject_points, rotation_matrix_to_axis_angle
 
 __all__ = ["random_kb_cameras", "random_board_views"]
 
@@ -55,8 +55,6 @@ def _rotation_from(e3: torch.Tensor, g: torch.Generator) -> torch.Tensor:
 def random_board_views(K, D, views: int, cols: int = 9, rows: int = 6, square: float = 0.03, image_size=(640, 480),
                        fov_range=None, max_tilt_deg: float = 70.0, seed: int = 0):
     """Board poses and exact corners for each camera: rvec, tvec (T,V,3), uv (T,V,N,2), obj (N,3)."""
-    from ccs_kornia.camera import rotation_matrix_to_axis_angle
-
     g = torch.Generator().manual_seed(seed + 1)
     dt = torch.float64
     W, H = image_size
@@ -68,7 +66,6 @@ def random_board_views(K, D, views: int, cols: int = 9, rows: int = 6, square: f
     for c in range(T):
         Kc, Dc = K[c], D[c]
         # theta at the half diagonal (the field of view's rim)
-        from ccs_kornia.camera import kb_unproject_points
         rim = kb_unproject_points(torch.tensor([[Kc[0, 2] + half_diag, Kc[1, 2]]], dtype=dt), Kc, Dc)
         tmax = float(torch.atan2(rim[0, :2].norm(), rim[0, 2]))
         got_r, got_t, got_uv = [], [], []

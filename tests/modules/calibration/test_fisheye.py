@@ -19,9 +19,10 @@ F64 = torch.float64
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 OBJ = board_object_points(9, 6, 0.03, dtype=F64)
 SIZE = (640, 480)
-REAL = os.path.join(os.path.dirname(__file__), "..", "..", "..", "..", "..", "shared", "data", "real")
-if not os.path.isdir(REAL):
-    REAL = "/work/shared/data/real"
+# the repository's convention: ../shared/data/real beside the checkout (a worktree one level deeper also works)
+_ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", ".."))
+REAL = next((p for p in (os.path.join(_ROOT, "..", "shared", "data", "real"), os.path.join(_ROOT, "..", "..", "shared", "data", "real"))
+             if os.path.isdir(p)), os.path.join(_ROOT, "..", "shared", "data", "real"))
 
 
 def _camera(fov_deg=190.0, D=(0.02, -0.01, 0.002, -0.0005)):

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["CameraModel", "check_projection_inputs"]
+__all__ = ["CameraModel", "check_projection_inputs", "broadcast_params"]
 
 
 def check_projection_inputs(points: torch.Tensor, params: torch.Tensor, num_params: int) -> None:
