@@ -65,6 +65,7 @@ def calibrate_fisheye(
     outlier_abs_threshold: float = 2.0,
     outlier_rel_threshold: float = 5.0,
     max_iters: int = 100,
+    fix: tuple[str, ...] = (),
 ) -> FisheyeCalibrationResult:
     r"""Calibrate Kannala–Brandt fisheye cameras from planar-board corners, no intrinsic guess needed.
 
@@ -81,6 +82,8 @@ def calibrate_fisheye(
         outlier_abs_threshold, outlier_rel_threshold: a view is left out when its RMS exceeds
             ``max(abs, rel * median view RMS)``.
         max_iters: LM iterations per stage.
+        fix: parameters kept at their initial values, by name (``fx, fy, cx, cy, k1..k4``; e.g. ``("k3", "k4")``
+            as ``cv2.fisheye.CALIB_FIX_K3 | CALIB_FIX_K4``, or ``("cx", "cy")`` for the image centre).
 
     Returns:
         :class:`FisheyeCalibrationResult` (no camera dim for unbatched input; failed cameras have NaN values).
@@ -118,6 +121,10 @@ def calibrate_fisheye(
     w = w * candidates[..., None]
     obj = object_points.to(device=dev, dtype=dt)
     model = KannalaBrandtModel()
+    unknown = set(fix) - set(model.param_names)
+    if unknown:
+        raise ValueError(f"Unknown parameters to fix {sorted(unknown)}; expected names from {model.param_names}.")
+    free = [n not in fix for n in model.param_names]
 
     # 1. hypotheses; 2. LM on every kept hypothesis as a camera of the batch
     p0, rv0, tv0, init_rms, _ = init_fisheye(corners, w, obj, image_size, num_hypotheses, keep)
@@ -126,7 +133,7 @@ def calibrate_fisheye(
     wk = (w[:, None] * ok0[..., None]).reshape(C * k, V, N)
     ck = corners[:, None].expand(C, k, V, N, 2).reshape(C * k, V, N, 2)
     res = levenberg_marquardt(model, p0.reshape(C * k, 8), rv0.reshape(C * k, V, 3), tv0.reshape(C * k, V, 3),
-                              obj, ck, wk, max_iters=max_iters)
+                              obj, ck, wk, free=free, max_iters=max_iters)
     n_used = res.view_used.sum(-1).view(C, k)
     key = torch.where(res.rms.isfinite(), res.rms, float("inf")).view(C, k) - 1e6 * n_used  # most views, then rms
     best = key.argmin(-1)
@@ -148,7 +155,7 @@ def calibrate_fisheye(
     used = candidates & (cand_rms <= thr[:, None])
     used = torch.where((used.sum(-1) >= min_views)[:, None], used, used0)
     final = levenberg_marquardt(model, params, poses.rvec, poses.tvec, obj, corners, w * used[..., None],
-                                max_iters=max_iters)
+                                free=free, max_iters=max_iters)
     used = final.view_used
 
     success = (used.sum(-1) >= min_views) & final.rms.isfinite() & final.params.isfinite().all(-1)
@@ -182,16 +189,18 @@ class FisheyeCalibrator(nn.Module):
     """
 
     def __init__(self, num_hypotheses: int = 32, keep: int = 3, min_corners: int = 6, min_views: int = 3,
-                 outlier_abs_threshold: float = 2.0, outlier_rel_threshold: float = 5.0, max_iters: int = 100) -> None:
+                 outlier_abs_threshold: float = 2.0, outlier_rel_threshold: float = 5.0, max_iters: int = 100,
+                 fix: tuple[str, ...] = ()) -> None:
         super().__init__()
         self.num_hypotheses, self.keep = num_hypotheses, keep
         self.min_corners, self.min_views = min_corners, min_views
         self.outlier_abs_threshold, self.outlier_rel_threshold = outlier_abs_threshold, outlier_rel_threshold
         self.max_iters = max_iters
+        self.fix = tuple(fix)
 
     def forward(self, corners, valid, object_points, image_size, weights=None) -> FisheyeCalibrationResult:
         return calibrate_fisheye(
             corners, valid, object_points, image_size, weights, num_hypotheses=self.num_hypotheses, keep=self.keep,
             min_corners=self.min_corners, min_views=self.min_views, outlier_abs_threshold=self.outlier_abs_threshold,
-            outlier_rel_threshold=self.outlier_rel_threshold, max_iters=self.max_iters,
+            outlier_rel_threshold=self.outlier_rel_threshold, max_iters=self.max_iters, fix=self.fix,
         )

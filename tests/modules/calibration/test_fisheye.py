@@ -163,6 +163,10 @@ def test_module_and_exceptions():
         calibrate_fisheye(uv, torch.ones(4, 3, dtype=torch.bool), OBJ, SIZE)
     with pytest.raises(ValueError, match="object_points"):
         calibrate_fisheye(uv, None, OBJ[:5], SIZE)
+    fixed = calibrate_fisheye(uv, None, OBJ, SIZE, fix=("k3", "k4"))
+    assert bool(fixed.success) and bool((fixed.D[2:] == 0).all()) and bool((fixed.std_dist[2:] == 0).all())
+    with pytest.raises(ValueError, match="fix"):
+        calibrate_fisheye(uv, None, OBJ, SIZE, fix=("k5",))
     # too few views: failure with NaN values, no exception
     out = calibrate_fisheye(uv[:2], None, OBJ, SIZE)
     assert not bool(out.success) and bool(out.K.isnan().all())
