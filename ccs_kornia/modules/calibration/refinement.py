@@ -1,0 +1,248 @@
+"""Drop-in replacements of the two former solvers, built on the one LM core (:mod:`.lm`).
+
+* :func:`joint_refinement`: the signature and :class:`RefinementResult` of ``modules/refine.py``
+  (OpenCV polynomial models), so :class:`~ccs_kornia.modules.calibrator.CalibrationSolver` can call it unchanged;
+* :func:`refine_centred_radial`: the signature and return tuple of ``modules/centred_radial.py`` (the paper's
+  radial model about the image centre, optionally a free centre), now batched over cameras.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from ccs_kornia.camera import num_distortion_coeffs
+from ccs_kornia.modules.calibration.lm import levenberg_marquardt
+from ccs_kornia.modules.calibration.models import OPENCV_VARIANTS, CentredRadialModel, OpenCVModel
+
+__all__ = ["RefinementResult", "joint_refinement", "JointRefinement", "refine_centred_radial"]
+
+
+@dataclass
+class RefinementResult:
+    """Output of :func:`joint_refinement` (C cameras, V views, D coefficients)."""
+
+    K: torch.Tensor  #: (C, 3, 3)
+    dist: torch.Tensor  #: (C, D) OpenCV order
+    rvec: torch.Tensor  #: (C, V, 3)
+    tvec: torch.Tensor  #: (C, V, 3)
+    view_rms: torch.Tensor  #: (C, V) RMS reprojection error per view in px, NaN for unused views
+    rms: torch.Tensor  #: (C,) sqrt(sum squared error / number of points), as cv2.calibrateCamera
+    std_intrinsics: torch.Tensor  #: (C, 4) standard deviations of fx, fy, cx, cy (0 where fixed)
+    std_dist: torch.Tensor  #: (C, D) standard deviations of the coefficients (0 where fixed)
+    converged: torch.Tensor  #: (C,) bool
+    iterations: torch.Tensor  #: (C,) LM iterations used
+    num_points: torch.Tensor  #: (C,) corners used
+    covariance: torch.Tensor | None = None  #: (C, 4 + D', 4 + D') covariance of fx, fy, cx, cy and the model's coefficients
+
+
+def _k_matrix(params: torch.Tensor) -> torch.Tensor:
+    K = params.new_zeros(params.shape[0], 3, 3)
+    K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = params[:, 0], params[:, 1], params[:, 2], params[:, 3], 1
+    return K
+
+
+def _batch(corners, valid, object_points, K, rvec, tvec, dist, view_mask):
+    """Add the camera dim to unbatched inputs and check shapes."""
+    unbatched = corners.dim() == 3
+    if unbatched:
+        corners, valid, rvec, tvec = corners[None], valid[None], rvec[None], tvec[None]
+        K = K[None] if K.dim() == 2 else K
+        dist = dist[None] if dist is not None and dist.dim() == 1 else dist
+        view_mask = None if view_mask is None else view_mask[None]
+        object_points = object_points[None] if object_points.dim() == 3 else object_points
+    if corners.dim() != 4 or corners.shape[-1] != 2:
+        raise ValueError(f"corners must be (C, V, N, 2) or (V, N, 2), got {tuple(corners.shape)}.")
+    C, V, N = corners.shape[:3]
+    if valid.shape != (C, V, N):
+        raise ValueError(f"valid must be {(C, V, N)}, got {tuple(valid.shape)}.")
+    if K.shape != (C, 3, 3):
+        raise ValueError(f"K must be ({C}, 3, 3), got {tuple(K.shape)}.")
+    if view_mask is not None and view_mask.shape != (C, V):
+        raise ValueError(f"view_mask must be ({C}, {V}), got {tuple(view_mask.shape)}.")
+    return corners, valid, object_points, K, rvec, tvec, dist, view_mask, unbatched
+
+
+def joint_refinement(
+    corners: torch.Tensor,
+    valid: torch.Tensor,
+    object_points: torch.Tensor,
+    K: torch.Tensor,
+    rvec: torch.Tensor,
+    tvec: torch.Tensor,
+    dist: torch.Tensor | None = None,
+    view_mask: torch.Tensor | None = None,
+    model: str = "opencv5",
+    fix_aspect_ratio: bool = False,
+    fix_principal_point: bool = False,
+    max_iters: int = 100,
+    ftol: float = 1e-12,
+    xtol: float = 1e-12,
+    lambda_init: float = 1e-3,
+    dtype: torch.dtype = torch.float64,
+    fix_intrinsics: bool = False,
+    fix_distortion: bool = False,
+    weights: torch.Tensor | None = None,
+) -> RefinementResult:
+    r"""Levenberg–Marquardt over intrinsics, OpenCV distortion and poses (``modules/refine.py``'s interface).
+
+    Args:
+        corners: :math:`(C, V, N, 2)` observed pixels (or :math:`(V, N, 2)`); invalid entries may be NaN.
+        valid: :math:`(C, V, N)` bool.
+        object_points: :math:`(N, 3)` or :math:`(C, N, 3)`.
+        K: :math:`(C, 3, 3)` initial camera matrices (zero skew).
+        rvec, tvec: :math:`(C, V, 3)` initial poses.
+        dist: :math:`(C, D')` initial OpenCV coefficients (default zeros).
+        view_mask: :math:`(C, V)` views to use (default: views with a valid corner).
+        model: ``none`` | ``k1k2`` | ``opencv5`` | ``rational``.
+        fix_aspect_ratio, fix_principal_point, fix_intrinsics, fix_distortion: keep those at their initial values.
+        max_iters, ftol, xtol, lambda_init, dtype: see :func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`.
+        weights: optional :math:`(C, V, N)` per-corner inverse variances (multiplied by ``valid``).
+
+    Returns:
+        :class:`RefinementResult` (no camera dim for unbatched input), with the covariance of the model's
+        ``fx, fy, cx, cy`` and coefficients.
+
+    Example:
+        >>> from ccs_kornia.camera import board_object_points, project_points
+        >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)
+        >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
+        >>> rvec = torch.tensor([[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]], dtype=torch.float64)
+        >>> tvec = torch.tensor([[-0.1, -0.1, 1.0]], dtype=torch.float64).expand(3, 3)
+        >>> uv = project_points(obj.expand(3, -1, -1), K.expand(3, 3, 3), None, rvec, tvec)
+        >>> res = joint_refinement(uv, torch.ones(3, 12, dtype=torch.bool), obj, K * 1.01, rvec, tvec, model="none")
+        >>> bool(res.rms < 1e-6)
+        True
+    """
+    if model not in OPENCV_VARIANTS:
+        raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(OPENCV_VARIANTS)}.")
+    corners, valid, object_points, K, rvec, tvec, dist, view_mask, unbatched = _batch(
+        corners, valid, object_points, K, rvec, tvec, dist, view_mask
+    )
+    C, V, N = corners.shape[:3]
+    cam = OpenCVModel(model)
+    params = cam.params_from(K.to(device=corners.device, dtype=dtype), None if dist is None else dist.to(corners.device))
+    w = valid.bool() & (valid.bool().any(-1, keepdim=True) if view_mask is None else view_mask.bool()[..., None])
+    w = w.to(dtype) if weights is None else w.to(dtype) * weights.to(dtype)
+    free = [not fix_intrinsics] * 2 + [not (fix_intrinsics or fix_principal_point)] * 2
+    free += [not fix_distortion] * (cam.num_params - 4)
+    res = levenberg_marquardt(
+        cam, params, rvec, tvec, object_points, corners, w, free=free,
+        fix_aspect_ratio=fix_aspect_ratio and not fix_intrinsics, max_iters=max_iters, ftol=ftol, xtol=xtol,
+        lambda_init=lambda_init, dtype=dtype,
+    )
+    D = num_distortion_coeffs(model)
+    std = res.param_std
+    std8 = cam.dist8(std[:, : cam.num_params])
+    out = RefinementResult(
+        K=_k_matrix(res.params), dist=cam.dist8(res.params)[:, :D], rvec=res.rvec, tvec=res.tvec,
+        view_rms=res.view_rms, rms=res.rms, std_intrinsics=std[:, :4], std_dist=std8[:, :D],
+        converged=res.converged, iterations=res.iterations, num_points=res.num_points,
+        covariance=res.param_covariance,
+    )
+    if unbatched:
+        out = RefinementResult(**{k: v[0] for k, v in out.__dict__.items()})
+    return out
+
+
+class JointRefinement(nn.Module):
+    """Module form of :func:`joint_refinement` (options fixed at construction, as ``modules/refine.py``'s).
+
+    Example:
+        >>> JointRefinement(model="k1k2").model
+        'k1k2'
+    """
+
+    def __init__(self, model: str = "opencv5", fix_aspect_ratio: bool = False, fix_principal_point: bool = False,
+                 max_iters: int = 100, ftol: float = 1e-12, xtol: float = 1e-12, dtype: torch.dtype = torch.float64) -> None:
+        super().__init__()
+        if model not in OPENCV_VARIANTS:
+            raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(OPENCV_VARIANTS)}.")
+        self.model, self.fix_aspect_ratio, self.fix_principal_point = model, fix_aspect_ratio, fix_principal_point
+        self.max_iters, self.ftol, self.xtol, self.dtype = max_iters, ftol, xtol, dtype
+
+    def forward(self, corners, valid, object_points, K, rvec, tvec, dist=None, view_mask=None) -> RefinementResult:
+        return joint_refinement(
+            corners, valid, object_points, K, rvec, tvec, dist, view_mask, model=self.model,
+            fix_aspect_ratio=self.fix_aspect_ratio, fix_principal_point=self.fix_principal_point,
+            max_iters=self.max_iters, ftol=self.ftol, xtol=self.xtol, dtype=self.dtype,
+        )
+
+
+def refine_centred_radial(
+    corners: torch.Tensor,
+    valid: torch.Tensor,
+    object_points: torch.Tensor,
+    K: torch.Tensor,
+    rvec: torch.Tensor,
+    tvec: torch.Tensor,
+    radial: torch.Tensor,
+    image_size: tuple[int, int],
+    max_iters: int = 50,
+    tol: float = 1e-12,
+    free_centre: bool = False,
+) -> tuple[torch.Tensor, ...]:
+    """Intrinsics, image-centred radial distortion ``(k1, k2, k3)`` and poses (``modules/centred_radial.py``'s API).
+
+    Batched over cameras by the LM core (one call, no loop over cameras).
+
+    Args:
+        corners: :math:`(C, V, N, 2)` observed (distorted) pixels.
+        valid: :math:`(C, V, N)` bool.
+        object_points: :math:`(N, 3)` board points.
+        K: :math:`(C, 3, 3)` initial intrinsics; rvec, tvec: :math:`(C, V, 3)` initial poses.
+        radial: :math:`(C, 3)` initial ``(k1, k2, k3)``.
+        image_size: ``(W, H)``.
+        max_iters: accepted LM steps at most (each may need a few damping increases: the core runs up to
+            ``10 * max_iters`` iterations).
+        tol: relative cost decrease below which a camera stops.
+        free_centre: also estimate the distortion centre's offset from the image centre.
+
+    Returns:
+        ``K`` :math:`(C, 3, 3)`, ``radial`` :math:`(C, 3)`, ``rvec``, ``tvec`` :math:`(C, V, 3)`, RMS :math:`(C,)`
+        (NaN for a camera with fewer than 8 valid corners, whose inputs are returned unchanged), centre offset
+        :math:`(C, 2)` and standard deviations of ``fx, fy, cx, cy`` :math:`(C, 4)`.
+
+    Example:
+        >>> from ccs_kornia.camera import board_object_points, project_points
+        >>> obj = board_object_points(6, 5, 0.1, dtype=torch.float64)
+        >>> K = torch.tensor([[[300., 0, 160], [0, 300, 120], [0, 0, 1]]], dtype=torch.float64)
+        >>> rvec = 0.5 * (torch.rand(1, 6, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64) - 0.5)
+        >>> tvec = torch.tensor([-0.25, -0.2, 1.2], dtype=torch.float64).expand(1, 6, 3)
+        >>> uv = project_points(obj.expand(1, 6, -1, -1), K[:, None].expand(1, 6, 3, 3), None, rvec, tvec)
+        >>> out = refine_centred_radial(uv, torch.ones(1, 6, 30, dtype=torch.bool), obj, K * 1.01, rvec, tvec,
+        ...                             torch.zeros(1, 3), (320, 240))
+        >>> bool(out[4] < 1e-6)
+        True
+    """
+    if corners.dim() != 4 or corners.shape[-1] != 2:
+        raise ValueError(f"corners must be (C, V, N, 2), got {tuple(corners.shape)}.")
+    c, v, n = corners.shape[:3]
+    if valid.shape != (c, v, n):
+        raise ValueError(f"valid must be {(c, v, n)}, got {tuple(valid.shape)}.")
+    if radial.shape != (c, 3):
+        raise ValueError(f"radial must be {(c, 3)}, got {tuple(radial.shape)}.")
+    dt, dev = torch.float64, corners.device
+    cam = CentredRadialModel(image_size, free_centre)
+    K0 = K.to(device=dev, dtype=dt)
+    params = cam.params_from(K0, radial.to(device=dev, dtype=dt))
+    w = (valid.bool() & corners.isfinite().all(-1)).to(dt)
+    enough = w.sum((1, 2)) >= 8
+    w = w * enough[:, None, None]
+    res = levenberg_marquardt(
+        cam, params, rvec, tvec, object_points, corners, w, max_iters=10 * max_iters, ftol=tol, dtype=dt
+    )
+    e1, e2 = enough[:, None], enough[:, None, None]
+    p = torch.where(e1, res.params, params)
+    nan = torch.full((c,), float("nan"), dtype=dt, device=dev)
+    return (
+        torch.where(e2, _k_matrix(p), K0),
+        p[:, 4:7],
+        torch.where(e2, res.rvec, rvec.to(dt)),
+        torch.where(e2, res.tvec, tvec.to(dt)),
+        torch.where(enough, res.rms, nan),
+        p[:, 7:9] if free_centre else torch.zeros(c, 2, dtype=dt, device=dev),
+        torch.where(e1, res.param_std[:, :4], nan[:, None]),
+    )
