@@ -22,7 +22,7 @@ from torch import nn
 from ccs_kornia.camera import kb_unproject_points
 from ccs_kornia.modules.calibration.fisheye_init import board_to_ray_poses, init_fisheye
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
-from ccs_kornia.modules.calibration.models import KannalaBrandtModel
+from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
 
 __all__ = ["FisheyeCalibrationResult", "calibrate_fisheye", "FisheyeCalibrator"]
 

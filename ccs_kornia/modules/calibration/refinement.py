@@ -1,7 +1,7 @@
 """Drop-in replacements of the two former solvers, built on the one LM core (:mod:`.lm`).
 
 * :func:`joint_refinement`: the signature and :class:`RefinementResult` of ``modules/refine.py``
-  (OpenCV polynomial models), so :class:`~ccs_kornia.modules.calibrator.CalibrationSolver` can call it unchanged;
+  (OpenCV polynomial models), so :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` can call it unchanged;
 * :func:`refine_centred_radial`: the signature and return tuple of ``modules/centred_radial.py`` (the paper's
   radial model about the image centre, optionally a free centre), now batched over cameras.
 """
@@ -15,7 +15,8 @@ from torch import nn
 
 from ccs_kornia.camera import num_distortion_coeffs
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
-from ccs_kornia.modules.calibration.models import OPENCV_VARIANTS, CentredRadialModel, OpenCVModel
+from ccs_kornia.modules.calibration.models.centred_radial import CentredRadialModel
+from ccs_kornia.modules.calibration.models.opencv import OPENCV_VARIANTS, OpenCVModel
 
 __all__ = ["RefinementResult", "joint_refinement", "JointRefinement", "refine_centred_radial"]
 

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from _real_data import REAL_DATA
 
 from ccs_kornia.camera import board_object_points, kb_project_points, rotation_matrix_to_axis_angle, transform_points_rt
 from ccs_kornia.modules.calibration.fisheye_calibration import FisheyeCalibrator, calibrate_fisheye
@@ -19,10 +20,7 @@ F64 = torch.float64
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 OBJ = board_object_points(9, 6, 0.03, dtype=F64)
 SIZE = (640, 480)
-# the repository's convention: ../shared/data/real beside the checkout (a worktree one level deeper also works)
-_ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", ".."))
-REAL = next((p for p in (os.path.join(_ROOT, "..", "shared", "data", "real"), os.path.join(_ROOT, "..", "..", "shared", "data", "real"))
-             if os.path.isdir(p)), os.path.join(_ROOT, "..", "shared", "data", "real"))
+REAL = str(REAL_DATA)  # $CCS_REAL_DATA, else ../shared/data/real beside the checkout
 
 
 def _camera(fov_deg=190.0, D=(0.02, -0.01, 0.002, -0.0005)):

@@ -201,7 +201,7 @@ def test_device_and_input_dtype(device, dtype):
                                    {"fix_intrinsics": True}, {"fix_distortion": True}])
 def test_joint_refinement_wrapper_reproduces_refine_py(model, flags):
     from ccs_kornia.modules.calibration.refinement import joint_refinement as new
-    from ccs_kornia.modules.refine import joint_refinement as old
+    from ccs_kornia.modules.calibration.refine import joint_refinement as old
 
     g = torch.Generator().manual_seed(1)
     _, p, rvec, tvec, uv = _opencv_set(C=2, V=8, noise=0.1, seed=2)
@@ -224,8 +224,8 @@ def test_joint_refinement_wrapper_reproduces_refine_py(model, flags):
 
 def test_refine_centred_radial_wrapper_reproduces_the_former_loop():
     from ccs_kornia.modules.calibration.refinement import refine_centred_radial as new
-    from ccs_kornia.modules.centred_radial import centred_radial_distort
-    from ccs_kornia.modules.centred_radial import refine_centred_radial as old
+    from ccs_kornia.modules.calibration.centred_radial import centred_radial_distort
+    from ccs_kornia.modules.calibration.centred_radial import refine_centred_radial as old
 
     K = torch.tensor([[430.0, 0.0, 329.0], [0.0, 433.0, 233.0], [0.0, 0.0, 1.0]], dtype=F64)
     rvec, tvec = _poses(2, 8, seed=5, depth=0.45)

@@ -22,7 +22,7 @@ from ccs_kornia.modules.calibration.models import (
     OpenCVModel,
     camera_model,
 )
-from ccs_kornia.modules.centred_radial import centred_radial_distort
+from ccs_kornia.modules.calibration.centred_radial import centred_radial_distort
 
 F64 = torch.float64
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -100,7 +100,7 @@ def test_opencv_matches_cv2_project_points(variant):
 
 
 def test_opencv_params_round_trip_and_refine_equivalence():
-    from ccs_kornia.modules.refine import project_with_jacobians
+    from ccs_kornia.modules.calibration.projection import project_with_jacobians
 
     m = OpenCVModel("rational")
     p = torch.tensor([OPENCV_PARAMS["rational"]], dtype=F64)

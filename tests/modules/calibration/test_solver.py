@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 from _board_views import all_valid, synthetic
+from _real_data import REAL_DATA
 
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.homography import find_homographies
@@ -127,7 +128,7 @@ REAL_SETS = [
 
 @pytest.fixture(scope="module")
 def real_root() -> Path:
-    root = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
+    root = REAL_DATA
     if not root.is_dir():
         pytest.skip(f"real image sets not available at {root}")
     return root

@@ -4,32 +4,28 @@
 * :class:`CentredRadialModel`: the paper's radial distortion about a free centre;
 * :class:`KannalaBrandtModel`: ``cv2.fisheye``'s Kannala–Brandt model (k1..k4), valid beyond 90 degrees.
 
-:func:`camera_model` builds one by name.
+:func:`~ccs_kornia.modules.calibration.models.factory.camera_model` builds one by name.
+
+Names are imported lazily (PEP 562): importing this package loads none of its modules.
+
+Example:
+    >>> from ccs_kornia.modules.calibration.models import camera_model
+    >>> camera_model("fisheye").param_names[4:]
+    ('k1', 'k2', 'k3', 'k4')
 """
 
 from __future__ import annotations
 
-from ccs_kornia.modules.calibration.models.base import CameraModel
-from ccs_kornia.modules.calibration.models.centred_radial import CentredRadialModel
-from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
-from ccs_kornia.modules.calibration.models.opencv import OPENCV_VARIANTS, OpenCVModel
+from ccs_kornia._lazy import lazy_exports
 
-__all__ = ["CameraModel", "OpenCVModel", "OPENCV_VARIANTS", "CentredRadialModel", "KannalaBrandtModel", "camera_model"]
+_EXPORTS = {
+    "CameraModel": "ccs_kornia.modules.calibration.models.base",
+    "OpenCVModel": "ccs_kornia.modules.calibration.models.opencv",
+    "OPENCV_VARIANTS": "ccs_kornia.modules.calibration.models.opencv",
+    "CentredRadialModel": "ccs_kornia.modules.calibration.models.centred_radial",
+    "KannalaBrandtModel": "ccs_kornia.modules.calibration.models.fisheye",
+    "camera_model": "ccs_kornia.modules.calibration.models.factory",
+}
 
-
-def camera_model(name: str, image_size: tuple[int, int] | None = None) -> CameraModel:
-    """A model by name: an OpenCV variant, ``fisheye`` or ``centred_radial`` (needs ``image_size``).
-
-    Example:
-        >>> camera_model("fisheye").param_names[4:]
-        ('k1', 'k2', 'k3', 'k4')
-    """
-    if name in OPENCV_VARIANTS:
-        return OpenCVModel(name)
-    if name == "fisheye":
-        return KannalaBrandtModel()
-    if name == "centred_radial":
-        if image_size is None:
-            raise ValueError("The centred_radial model needs image_size.")
-        return CentredRadialModel(image_size)
-    raise ValueError(f"Unknown camera model {name!r}; expected one of {sorted([*OPENCV_VARIANTS, 'fisheye', 'centred_radial'])}.")
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -3,7 +3,7 @@
 ``p = (fx x + cx, fy y + cy)`` is the pinhole pixel, ``c = ((W-1)/2 + ox, (H-1)/2 + oy)`` the distortion centre
 (the image centre shifted by ``(ox, oy)`` px), ``r = |p - c| / max(W, H)`` and
 ``p_d = c + (p - c) (1 + k1 r^2 + k2 r^4 + k3 r^6)``, as
-:func:`ccs_kornia.modules.centred_radial.centred_radial_distort`. Parameters are
+:func:`ccs_kornia.modules.calibration.centred_radial.centred_radial_distort`. Parameters are
 ``fx, fy, cx, cy, k1, k2, k3, ox, oy``; by default the centre offset is fixed (``default_free``).
 """
 
