@@ -13,6 +13,9 @@ import torch
 from torch import nn
 
 from ccs_kornia.camera import fit_opencv_distortion, project_points
+from ccs_kornia.modules.calibration.degeneracy import (
+    DegeneracyThresholds, check_degeneracy, duplicate_views, issues_from_tensors,
+)
 from ccs_kornia.modules.homography import MIN_HOMOGRAPHY_POINTS, find_homographies
 from ccs_kornia.modules.ransac import ImageRansac
 from ccs_kornia.modules.refine import FREE_DISTORTION, RefinementResult, joint_refinement
@@ -27,6 +30,7 @@ VIEW_REASONS: dict[int, str] = {
     2: "homography failed (degenerate corners)",
     3: "rejected by image RANSAC",
     4: "reprojection error outlier after refinement",
+    5: "copy of an earlier view (not an independent observation)",
 }
 
 
@@ -48,6 +52,18 @@ class CalibrationResult:
     view_reason: torch.Tensor  #: (C, V) int64, keys of VIEW_REASONS
     converged: torch.Tensor  #: (C,) bool, LM met its tolerance
     candidate_rms: torch.Tensor  #: (C, V) px: every view with a homography under the final model (used or not)
+    # --- trust (issue 12): covariance and degeneracy checks; see modules/calibration/degeneracy.py ---
+    cov_camera: torch.Tensor | None = None  #: (C, 4 + D, 4 + D) covariance of (fx, fy, cx, cy, dist)
+    check_severity: torch.Tensor | None = None  #: (C, K) int64 per degeneracy.CHECKS: 0 ok, 1 warning, 2 error
+    check_value: torch.Tensor | None = None  #: (C, K) float64 measured value of each check
+    check_views: torch.Tensor | None = None  #: (C, K, V) bool, views each check names
+
+    def issues(self) -> list[list[dict]]:
+        """Per camera, the warnings and errors of the degeneracy checks as JSON-able dicts
+        ``{"check", "severity", "message", "views"}`` (one list per camera, also for an unbatched result)."""
+        if self.check_severity is None:
+            return [[] for _ in range(1 if self.K.dim() == 2 else self.K.shape[0])]
+        return issues_from_tensors(self.check_severity, self.check_value, self.check_views)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         return {f.name: getattr(self, f.name) for f in fields(self) if isinstance(getattr(self, f.name), torch.Tensor)}
@@ -96,6 +112,10 @@ class CalibrationSolver(nn.Module):
             because of un-modelled distortion.
         max_outlier_rounds: rounds of that check.
         max_iters: LM iterations at most.
+        checks: run the degeneracy checks of :mod:`~ccs_kornia.modules.calibration.degeneracy`: copies of a view
+            are dropped before the solve (reason 5), a camera failing a check with severity ``error`` gets
+            ``success = False``, and every result carries ``check_*`` tensors (see ``CalibrationResult.issues``).
+        thresholds: :class:`~ccs_kornia.modules.calibration.degeneracy.DegeneracyThresholds` of those checks.
 
     Shape:
         corners :math:`(C, V, N, 2)` px, valid :math:`(C, V, N)` bool, object_points :math:`(N, 3)` or
@@ -134,8 +154,12 @@ class CalibrationSolver(nn.Module):
         outlier_rel_threshold: float = 5.0,
         max_outlier_rounds: int = 2,
         max_iters: int = 100,
+        checks: bool = True,
+        thresholds: DegeneracyThresholds | None = None,
     ) -> None:
         super().__init__()
+        self.checks = checks
+        self.thresholds = thresholds or DegeneracyThresholds(min_views=max(int(min_views), 1))
         if model not in FREE_DISTORTION:
             raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(FREE_DISTORTION)}.")
         self.model = model
@@ -223,6 +247,11 @@ class CalibrationSolver(nn.Module):
         candidates = enough & ok_h
         reason = torch.zeros(C, V, dtype=torch.long, device=device)
         reason = torch.where(~enough, 1, torch.where(~ok_h, 2, reason))
+        duplicate_of = torch.full((C, V), -1, dtype=torch.long, device=device)
+        if self.checks:  # copies of a view are not independent observations: drop them before anything else
+            duplicate_of = duplicate_views(corners, valid, candidates, self.thresholds.duplicate_px)
+            candidates = candidates & (duplicate_of < 0)
+            reason = torch.where(duplicate_of >= 0, 5, reason)
 
         # 2. Zhang (inside RANSAC) -> inlier views; on the undistorted corners when given
         pp_mode = "centre" if self.fix_principal_point else "auto"
@@ -290,6 +319,13 @@ class CalibrationSolver(nn.Module):
 
         success = (used.sum(-1) >= self.min_views) & res.rms.isfinite() & res.K.flatten(1).isfinite().all(-1)
         success = success & (res.K[:, 0, 0] > 0) & (res.K[:, 1, 1] > 0)
+        report = None
+        if self.checks:
+            report = check_degeneracy(
+                corners, valid, obj, image_size, used, res.rvec, res.K, res.std_intrinsics, self.model,
+                self.fix_aspect_ratio, self.fix_principal_point, duplicate_of, self.thresholds,
+            )
+            success = success & ~report.errors
         nan = float("nan")
 
         def fail_nan(x: torch.Tensor) -> torch.Tensor:
@@ -310,6 +346,10 @@ class CalibrationSolver(nn.Module):
             view_reason=reason,
             converged=res.converged & success,
             candidate_rms=torch.where(candidates, cand_rms, torch.full_like(cand_rms, nan)),
+            cov_camera=fail_nan(res.cov_camera),
+            check_severity=None if report is None else report.severity,
+            check_value=None if report is None else report.value,
+            check_views=None if report is None else report.views,
         )
         if unbatched:
             squeezed = {k: (v[0] if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()}

@@ -50,6 +50,8 @@ class RefinementResult:
     converged: torch.Tensor  #: (C,) bool
     iterations: torch.Tensor  #: (C,) LM iterations used
     num_points: torch.Tensor  #: (C,) corners used
+    #: (C, 4 + D, 4 + D) covariance of (fx, fy, cx, cy, dist) (zero rows/columns for fixed parameters)
+    cov_camera: torch.Tensor | None = None
 
 
 def _projection_columns(
@@ -444,6 +446,12 @@ def joint_refinement(
     cov_g = _sym_inverse(S) * sigma2[:, None, None]
     cov_i = P @ cov_g[:, :n_i, :n_i] @ P.transpose(-1, -2)
     std_intr = cov_i.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
+    # full covariance of (fx, fy, cx, cy, dist[:D]): free parameters mapped through the intrinsics basis
+    E = torch.zeros(C, 4 + D, n_g, dtype=dtype, device=device)
+    E[:, :4, :n_i] = P
+    for k, j in enumerate(free_d):
+        E[:, 4 + j, n_i + k] = 1
+    cov_camera = E @ cov_g @ E.transpose(-1, -2)
     std8 = torch.zeros(C, 8, dtype=dtype, device=device)
     if n_d:
         std8[:, free_d] = cov_g[:, n_i:, n_i:].diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
@@ -468,6 +476,7 @@ def joint_refinement(
         converged=converged & used.any(-1),
         iterations=iters,
         num_points=n_pts.long(),
+        cov_camera=cov_camera,
     )
     if unbatched:
         res = RefinementResult(**{k: v[0] for k, v in res.__dict__.items()})
