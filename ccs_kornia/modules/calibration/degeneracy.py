@@ -5,7 +5,7 @@ camera: copies of one photo, boards that are all parallel (fronto-parallel: the 
 against the distance), too few corners for the unknowns, boards that never reach the image borders (the
 distortion is extrapolated there). Each check here returns, per camera, a measured value, a severity
 (``OK``, ``WARNING``, ``ERROR``) and the views concerned; :class:`DegeneracyReport` turns them into
-messages. The solver refuses (``success = False``) a camera with an ``ERROR`` and lists ``WARNING``\ s.
+messages. The solver refuses (``success = False``) a camera with an ``ERROR`` and lists the warnings.
 
 Every threshold of :class:`DegeneracyThresholds` is a measured choice; the measurements are in
 ``docs/diagnostics.md``.
@@ -35,6 +35,7 @@ __all__ = [
     "duplicate_views",
     "pose_spread",
     "corners_per_unknown",
+    "covered_pixels",
     "image_coverage",
     "check_degeneracy",
     "DegeneracyChecks",
@@ -84,7 +85,7 @@ class DegeneracyThresholds:
     tilt_direction_deg: float = 3.0
     per_unknown_error: float = 1.5
     per_unknown_warning: float = 3.0
-    coverage_warning: float = 0.25
+    coverage_warning: float = 0.20
     focal_std_warning: float = 0.02
     focal_std_error: float = 0.10
 
@@ -255,6 +256,58 @@ def corners_per_unknown(valid: torch.Tensor, used: torch.Tensor, camera_unknowns
     return obs / unknowns.clamp_min(1)
 
 
+def covered_pixels(
+    corners: torch.Tensor,
+    valid: torch.Tensor,
+    object_points: torch.Tensor,
+    used: torch.Tensor,
+    pixels: torch.Tensor,
+) -> torch.Tensor:
+    r"""Which pixels lie inside the board of some used view.
+
+    A pixel is covered when, mapped onto the board plane by the view's homography, it falls inside the extent
+    of the view's valid object points (the homography ignores lens distortion, which is fine for coverage).
+
+    Args:
+        corners: :math:`(C, V, N, 2)` px.
+        valid: :math:`(C, V, N)` bool.
+        object_points: :math:`(N, 3)` or :math:`(C, N, 3)` planar board points.
+        used: :math:`(C, V)` bool.
+        pixels: :math:`(G, 2)` px.
+
+    Returns:
+        :math:`(C, G)` bool.
+
+    Example:
+        >>> obj = torch.tensor([[0., 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+        >>> uv = torch.tensor([[[[10., 10], [50, 10], [10, 50], [50, 50]]]])
+        >>> covered_pixels(uv, torch.ones(1, 1, 4, dtype=torch.bool), obj, torch.ones(1, 1, dtype=torch.bool),
+        ...                torch.tensor([[30., 30], [70, 30]])).tolist()
+        [[True, False]]
+    """
+    from ccs_kornia.modules.homography import find_homographies
+
+    C, V, N = valid.shape
+    dtype = torch.float64
+    obj = object_points.to(device=corners.device, dtype=dtype)
+    obj = obj.expand(C, N, 3) if obj.dim() == 2 else obj
+    ok_view = used.bool() & (valid.sum(-1) >= 4)
+    H, ok = find_homographies(obj[:, None, :, :2], corners.to(dtype), valid & ok_view[..., None], return_ok=True)
+    ok_view = ok_view & ok
+    px = pixels.to(device=corners.device, dtype=dtype)
+    cells = torch.cat([px, torch.ones_like(px[:, :1])], -1)  # (G, 3)
+    Hinv = torch.linalg.inv(torch.where(ok_view[..., None, None], H, torch.eye(3, dtype=dtype, device=H.device)))
+    b = torch.einsum("cvij,gj->cvgi", Hinv, cells)
+    bxy = b[..., :2] / b[..., 2:]
+    vo = (valid & ok_view[..., None])[..., None]
+    big = torch.tensor(float("inf"), dtype=dtype, device=corners.device)
+    lo = torch.where(vo, obj[:, None, :, :2], big).amin(2)  # (C, V, 2)
+    hi = torch.where(vo, obj[:, None, :, :2], -big).amax(2)
+    # b_z = 1 / (h31 X + h32 Y + 1) > 0 on the visible side of the board plane's vanishing line
+    inside = ((bxy >= lo[:, :, None]) & (bxy <= hi[:, :, None])).all(-1) & (b[..., 2] > 0) & ok_view[..., None]
+    return inside.any(1)
+
+
 def image_coverage(
     corners: torch.Tensor,
     valid: torch.Tensor,
@@ -265,9 +318,7 @@ def image_coverage(
 ) -> torch.Tensor:
     r"""Fraction of the image covered by the union of the boards of the used views.
 
-    A cell of a ``grid`` over the image is covered when its centre, mapped onto the board plane by the
-    view's homography, falls inside the extent of the valid object points (the homography ignores lens
-    distortion, which is fine at the resolution of the grid).
+    The centres of a ``grid`` of cells over the image are tested with :func:`covered_pixels`.
 
     Args:
         corners: :math:`(C, V, N, 2)` px.
@@ -288,34 +339,17 @@ def image_coverage(
         ...                (100, 100), grid=(10, 10)).tolist()
         [[1.0, 1.0]]
     """
-    from ccs_kornia.modules.homography import find_homographies
-
-    C, V, N = valid.shape
-    dtype = torch.float64
-    obj = object_points.to(device=corners.device, dtype=dtype)
-    obj = obj.expand(C, N, 3) if obj.dim() == 2 else obj
-    ok_view = used.bool() & (valid.sum(-1) >= 4)
-    H, ok = find_homographies(obj[:, None, :, :2], corners.to(dtype), valid & ok_view[..., None], return_ok=True)
-    ok_view = ok_view & ok
     W_, H_ = int(image_size[0]), int(image_size[1])
     gx, gy = int(grid[0]), int(grid[1])
-    xs = (torch.arange(gx, dtype=dtype, device=corners.device) + 0.5) * W_ / gx - 0.5
-    ys = (torch.arange(gy, dtype=dtype, device=corners.device) + 0.5) * H_ / gy - 0.5
+    dtype = torch.float64
+    xs = (torch.arange(gx, dtype=dtype) + 0.5) * W_ / gx - 0.5
+    ys = (torch.arange(gy, dtype=dtype) + 0.5) * H_ / gy - 0.5
     yy, xx = torch.meshgrid(ys, xs, indexing="ij")
-    cells = torch.stack([xx.reshape(-1), yy.reshape(-1), torch.ones_like(xx.reshape(-1))], -1)  # (G, 3)
-    Hinv = torch.linalg.inv(torch.where(ok_view[..., None, None], H, torch.eye(3, dtype=dtype, device=H.device)))
-    b = torch.einsum("cvij,gj->cvgi", Hinv, cells)
-    bxy = b[..., :2] / b[..., 2:]
-    vo = (valid & ok_view[..., None])[..., None]
-    big = torch.tensor(float("inf"), dtype=dtype, device=corners.device)
-    lo = torch.where(vo, obj[:, None, :, :2], big).amin(2)  # (C, V, 2)
-    hi = torch.where(vo, obj[:, None, :, :2], -big).amax(2)
-    # b_z = 1 / (h31 X + h32 Y + 1) > 0 on the visible side of the board plane's vanishing line
-    inside = ((bxy >= lo[:, :, None]) & (bxy <= hi[:, :, None])).all(-1) & (b[..., 2] > 0) & ok_view[..., None]
-    covered = inside.any(1).to(dtype)  # (C, G)
+    cells = torch.stack([xx.reshape(-1), yy.reshape(-1)], -1)
+    covered = covered_pixels(corners, valid, object_points, used, cells).to(dtype)  # (C, G)
     half_diag = math.hypot((W_ - 1) / 2, (H_ - 1) / 2)
     r = ((cells[:, 0] - (W_ - 1) / 2) ** 2 + (cells[:, 1] - (H_ - 1) / 2) ** 2).sqrt() / half_diag
-    outer = r > 0.6
+    outer = (r > 0.6).to(covered.device)
     return torch.stack([covered.mean(-1), covered[:, outer].mean(-1)], -1)
 
 
@@ -403,6 +437,9 @@ def _message(name, s, v, idx, c, duplicate_of, t: DegeneracyThresholds) -> str:
     if name == "image_coverage":
         return (f"the boards cover {100 * v:.0f} % of the image: the distortion is extrapolated elsewhere; "
                 "add views with the board near the image corners and edges")
+    if name == "focal_uncertainty" and not math.isfinite(v):
+        return ("the uncertainty of the focal length could not be computed (singular information matrix: some "
+                "parameter is not determined by these views); try a distortion model with fewer coefficients")
     if name == "focal_uncertainty":
         return (f"the focal length is uncertain (standard deviation {100 * v:.1f} % of fx): add views with the board "
                 "tilted in different directions and filling more of the image")
@@ -500,7 +537,7 @@ def check_degeneracy(
         rel = torch.maximum(std_intrinsics[:, 0] / K[:, 0, 0].abs(), std_intrinsics[:, 1] / K[:, 1, 1].abs()).to(f64)
         val[:, 6] = rel
         bad = ~rel.isfinite() & used.any(-1)
-        sev[:, 6] = torch.where(bad | (rel > t.focal_std_error), ERROR, torch.where(rel > t.focal_std_warning, WARNING, OK))
+        sev[:, 6] = torch.where(rel > t.focal_std_error, ERROR, torch.where(bad | (rel > t.focal_std_warning), WARNING, OK))
     rep = DegeneracyReport(sev, val, views, duplicate_of, t.min_views, t)
     if unbatched:
         rep = DegeneracyReport(sev[0], val[0], views[0], duplicate_of[0], t.min_views, t)
