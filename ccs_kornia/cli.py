@@ -455,6 +455,10 @@ def _calibrate_files(
             if view["path"] in index:
                 view["reason"] = texts[index[view["path"]]]
         detail = ", ".join(f"{n} {reason}" for reason, n in codes.most_common())
+        # trust (issue 12): the solver's refusals name the problem and the views
+        refusals = [i["message"] for i in result.issues()[0] if i["severity"] == "error"] if hasattr(result, "issues") else []
+        if refusals:
+            raise failure(f"calibration refused on {len(usable)} views: " + "; ".join(refusals))
         raise failure(
             f"calibration failed on {len(usable)} views ({detail}); the views may be degenerate "
             "(e.g. all fronto-parallel) or inconsistent: add views with the board tilted in different directions"

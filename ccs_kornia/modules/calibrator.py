@@ -259,7 +259,12 @@ class CalibrationSolver(nn.Module):
         if initial is not None:
             warm = initial.used.to(device) & candidates & initial.K.flatten(1).isfinite().all(-1)[:, None]
             inliers = torch.where((warm.sum(-1) >= self.min_views)[:, None], warm, candidates)
-            K0 = initial.K.to(device=device, dtype=dtype).nan_to_num(0.0)
+            K0 = initial.K.to(device=device, dtype=dtype)
+            f0 = float(max(image_size))  # a failed (NaN) initial camera gets a finite stand-in (it fails again below)
+            K_fb = torch.tensor([[f0, 0, (image_size[0] - 1) / 2], [0, f0, (image_size[1] - 1) / 2], [0, 0, 1]],
+                                dtype=dtype, device=device)
+            init_ok = K0.flatten(1).isfinite().all(-1)
+            K0 = torch.where(init_ok[:, None, None], K0, K_fb)
             rvec_h, tvec_h = extrinsics_from_homography(K0, H)
             rvec0 = torch.where(warm[..., None], initial.rvec.to(device=device, dtype=dtype), rvec_h)
             tvec0 = torch.where(warm[..., None], initial.tvec.to(device=device, dtype=dtype), tvec_h)
@@ -319,6 +324,8 @@ class CalibrationSolver(nn.Module):
 
         success = (used.sum(-1) >= self.min_views) & res.rms.isfinite() & res.K.flatten(1).isfinite().all(-1)
         success = success & (res.K[:, 0, 0] > 0) & (res.K[:, 1, 1] > 0)
+        if initial is not None and self._fix_intrinsics:  # intrinsics held at a failed (NaN) initial camera
+            success = success & init_ok
         report = None
         if self.checks:
             report = check_degeneracy(
