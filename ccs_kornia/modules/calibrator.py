@@ -60,7 +60,7 @@ class CalibrationResult:
 
     def issues(self) -> list[list[dict]]:
         """Per camera, the warnings and errors of the degeneracy checks as JSON-able dicts
-        ``{"check", "severity", "message", "views"}`` (one list per camera, also for an unbatched result)."""
+        ``{"check", "severity", "message", "advice", "views"}`` (one list per camera, also for an unbatched result)."""
         if self.check_severity is None:
             return [[] for _ in range(1 if self.K.dim() == 2 else self.K.shape[0])]
         return issues_from_tensors(self.check_severity, self.check_value, self.check_views)

@@ -202,6 +202,17 @@ def _sym_inverse(A: torch.Tensor) -> torch.Tensor:
     return torch.where(good[..., None, None], inv, torch.full_like(inv, float("nan")))
 
 
+def _pseudo_inverse(A: torch.Tensor, rcond: float = 1e-15) -> torch.Tensor:
+    """Inverse of symmetric PSD matrices (Jacobi-scaled) with eigenvalues clamped at ``rcond`` times the
+    largest: finite, and huge along (nearly) null directions."""
+    d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
+    As = A * d[..., :, None] * d[..., None, :]
+    ev, U = torch.linalg.eigh(As)
+    ev = ev.clamp_min(rcond * ev.amax(-1, keepdim=True).clamp_min(1e-300))
+    inv = (U / ev[..., None, :]) @ U.transpose(-1, -2)
+    return inv * d[..., :, None] * d[..., None, :]
+
+
 def _normalize_inputs(corners, valid, object_points, K, rvec, tvec, dist, view_mask):
     """Add the camera dim to unbatched inputs; returns tensors plus an ``unbatched`` flag."""
     unbatched = corners.dim() == 3
@@ -443,7 +454,13 @@ def joint_refinement(
     n_params = n_g + 6 * used.sum(-1)
     dof = (2 * n_pts - n_params.to(dtype)).clamp_min(1)
     sigma2 = sq.sum((1, 2)) / dof
-    cov_g = _sym_inverse(S) * sigma2[:, None, None]
+    cov_g = _sym_inverse(S)
+    # trust (issue 12): a (numerically) singular information matrix gives a huge, not a NaN, variance along the
+    # undetermined directions, so the checks can tell which parameters the views do not constrain
+    singular = ~cov_g.flatten(1).isfinite().all(-1) & S.flatten(1).isfinite().all(-1)
+    if bool(singular.any()):
+        cov_g[singular] = _pseudo_inverse(S[singular])
+    cov_g = cov_g * sigma2[:, None, None]
     cov_i = P @ cov_g[:, :n_i, :n_i] @ P.transpose(-1, -2)
     std_intr = cov_i.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
     # full covariance of (fx, fy, cx, cy, dist[:D]): free parameters mapped through the intrinsics basis

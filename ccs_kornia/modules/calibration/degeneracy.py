@@ -81,14 +81,14 @@ class DegeneracyThresholds:
     duplicate_px: float = 0.5
     near_identical_px: float = 5.0
     min_views: int = 3
-    parallel_error_deg: float = 3.0
-    parallel_warning_deg: float = 15.0
+    parallel_error_deg: float = 8.0
+    parallel_warning_deg: float = 20.0
     tilt_direction_deg: float = 3.0
-    per_unknown_error: float = 1.5
-    per_unknown_warning: float = 3.0
+    per_unknown_error: float = 1.25
+    per_unknown_warning: float = 2.0
     coverage_warning: float = 0.20
     focal_std_warning: float = 0.02
-    focal_std_error: float = 0.10
+    focal_std_error: float = 0.05
 
 
 def num_camera_unknowns(model: str, fix_aspect_ratio: bool = False, fix_principal_point: bool = False) -> int:
@@ -288,7 +288,7 @@ class DegeneracyReport:
         return (self.severity == ERROR).any(-1)
 
     def issues(self) -> list[list[dict]]:
-        """Per camera, the failed checks as JSON-able dicts ``{"check", "severity", "message", "views"}``."""
+        """Per camera, the failed checks as JSON-able dicts ``{"check", "severity", "message", "advice", "views"}``."""
         return issues_from_tensors(self.severity, self.value, self.views, self.duplicate_of, self.thresholds)
 
 
@@ -310,44 +310,50 @@ def issues_from_tensors(severity, value, views, duplicate_of=None, thresholds=No
                 continue
             v = float(value[c, k])
             idx = views[c, k].nonzero().flatten().tolist()
-            items.append({"check": name, "severity": _SEVERITY[s], "message": _message(name, s, v, idx, c, duplicate_of, t),
+            problem, advice = _message(name, s, v, idx, c, duplicate_of, t)
+            items.append({"check": name, "severity": _SEVERITY[s], "message": f"{problem}: {advice}", "advice": advice,
                           "views": idx})
         out.append(items)
     return out
 
 
-def _message(name, s, v, idx, c, duplicate_of, t: DegeneracyThresholds) -> str:
+def _message(name, s, v, idx, c, duplicate_of, t: DegeneracyThresholds) -> tuple[str, str]:
+    """(problem, advice) of a failed check."""
     views = _views_text(idx)
     if name == "duplicate_views":
         pairs = ""
         if duplicate_of is not None:
             pairs = " (" + ", ".join(f"{i}={int(duplicate_of[c, i])}" for i in idx[:8]) + ")"
-        text = f"views {views} are copies of earlier views{pairs} and were not used: remove duplicate views {views}"
+        problem = f"views {views} are copies of earlier views{pairs} and were not used"
+        advice = f"remove duplicate views {views}"
         if s == ERROR:
-            text += f"; only {int(v)} distinct view(s) remain, {t.min_views} needed: add views of the board in other poses"
-        return text
+            problem += f"; only {int(v)} distinct view(s) remain, {t.min_views} needed"
+            advice += " and add views of the board in other poses"
+        return problem, advice
     if name == "near_identical_views":
-        return f"views {views} nearly coincide with another view: they add no new pose; move the board between shots"
+        return f"views {views} nearly coincide with another view (no new pose)", "move the board between shots"
     if name == "pose_diversity":
-        return (f"the board planes of all views are nearly parallel (largest angle between two views {v:.1f} deg): "
-                "the focal length is poorly determined; tilt the board more (views are nearly fronto-parallel or "
-                "all tilted the same way), by 20-45 deg in different directions")
+        return (f"the board planes of all views are nearly parallel (largest angle between two views {v:.1f} deg), "
+                "so the focal length is poorly determined",
+                "tilt the board more (views are nearly fronto-parallel or all tilted the same way), by 20-45 deg in "
+                "different directions")
     if name == "tilt_direction":
-        return (f"all views are tilted about one axis (spread across it {v:.1f} deg): tilt the board about the other "
-                "axis too (left/right as well as up/down)")
+        return (f"all views are tilted about one axis (spread across it {v:.1f} deg)",
+                "tilt the board about the other axis too (left/right as well as up/down)")
     if name == "corners_per_unknown":
-        return (f"only {v:.1f} observations per unknown for this model: add views, use a board with more corners "
-                "or a distortion model with fewer coefficients")
+        return (f"only {v:.1f} observations per unknown for this model",
+                "add views, use a board with more corners or a distortion model with fewer coefficients")
     if name == "image_coverage":
-        return (f"the boards cover {100 * v:.0f} % of the image: the distortion is extrapolated elsewhere; "
+        return (f"the boards cover {100 * v:.0f} % of the image, the distortion is extrapolated elsewhere",
                 "add views with the board near the image corners and edges")
     if name == "focal_uncertainty" and not math.isfinite(v):
         return ("the uncertainty of the focal length could not be computed (singular information matrix: some "
-                "parameter is not determined by these views); try a distortion model with fewer coefficients")
+                "parameter is not determined by these views)", "try a distortion model with fewer coefficients")
     if name == "focal_uncertainty":
-        return (f"the focal length is uncertain (standard deviation {100 * v:.1f} % of fx): add views with the board "
-                "tilted in different directions and filling more of the image")
-    return name
+        amount = f"{100 * v:.1f} %" if v < 1 else "over 100 %"
+        return (f"the focal length is uncertain (standard deviation {amount} of it)",
+                "add views with the board tilted in different directions and filling more of the image")
+    return name, ""
 
 
 def check_degeneracy(

@@ -217,7 +217,7 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
     for i in issues:
         (bad if i["severity"] == "error" else weak).append(i["message"])
         if i["severity"] == "error":
-            advice.append(i["message"].split(": ")[-1])
+            advice.append(i.get("advice") or i["message"])
 
     def num(key):
         v = figures.get(key)
@@ -305,7 +305,8 @@ def diagnose(
         per camera a dict with the keys:
 
         - ``success`` (bool), ``rms_px``: the solver's;
-        - ``errors`` / ``warnings``: lists of ``{"check", "severity", "message", "views"}`` (degeneracy checks);
+        - ``errors`` / ``warnings``: lists of ``{"check", "severity", "message", "advice", "views"}`` (degeneracy
+          checks, views numbered as in ``corners``);
         - ``checks``: ``{name: measured value}`` of every check of :data:`~.degeneracy.CHECKS`;
         - ``std``: ``{"fx", "fy", "cx", "cy"}`` px and ``"dist"`` (list) standard deviations;
         - ``uncertainty_centre_px``, ``uncertainty_corners_px`` (top-left, top-right, bottom-left,
