@@ -46,6 +46,15 @@ __all__ = [
 ]
 
 
+def _nanrms(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
+    return x.pow(2).nanmean(dim).sqrt()
+
+
+def _nanmax(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
+    m = x.nan_to_num(float("-inf")).amax(dim)
+    return torch.where(m == float("-inf"), torch.full_like(m, float("nan")), m)
+
+
 def split_views(used: torch.Tensor, parts: int) -> torch.Tensor:
     r"""Deal the used views of each camera round-robin into ``parts`` disjoint subsets.
 
@@ -129,15 +138,15 @@ def cross_validation(
     diff = projection_difference(Ka, da, Kb, db, px, compensate_rotation=fit)
     halves_ok = ok[:, 0] & ok[:, 1]
     nan = torch.full_like(diff[:, 0], float("nan"))
-    cv_rms = torch.where(halves_ok, diff.pow(2).mean(-1).sqrt(), nan)
-    cv_max = torch.where(halves_ok, diff.amax(-1), nan)
+    cv_rms = torch.where(halves_ok, _nanrms(diff), nan)
+    cv_max = torch.where(halves_ok, _nanmax(diff), nan)
     expected, expected_grid = nan, torch.full_like(diff, float("nan"))
     if sub.cov_camera is not None:
         cov = sub.cov_camera.reshape(C, S, 4 + D, 4 + D)
         ua = projection_uncertainty(Ka, da, cov[:, 0].nan_to_num(0.0), px, worst=False, compensate_rotation=fit)
         ub = projection_uncertainty(Kb, db, cov[:, 1].nan_to_num(0.0), px, worst=False, compensate_rotation=fit)
         expected_grid = torch.where(halves_ok[:, None], (2 * (ua**2 + ub**2)).sqrt(), expected_grid)
-        expected = torch.where(halves_ok, (2 * (ua**2 + ub**2)).mean(-1).sqrt(), nan)
+        expected = torch.where(halves_ok, _nanrms((2 * (ua**2 + ub**2)).sqrt()), nan)
 
     # held-out views: poses fitted with each fold's camera fixed, started from the full solution's poses
     Kf, df = K[:, 2:].reshape(C * k, 3, 3), dist[:, 2:].reshape(C * k, D)
@@ -241,6 +250,15 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
         advice.append("add views tilted in different directions (20-45 deg) and filling more of the image")
     elif unc_cov > t.good_uncertainty_px:
         weak.append(f"projection uncertainty up to {unc_cov:.2f} px where the boards were")
+    fold = num("unprojectable_fraction")
+    if fold:
+        text = (f"the distortion model has no inverse over {100 * fold:.0f} % of the image (it folds before reaching "
+                "those pixels)")
+        if figures.get("unprojectable_covered"):
+            bad.append(text + ", also where the boards were")
+            advice.append("use a distortion model that fits the lens (wide or fisheye lenses need a richer one)")
+        else:
+            weak.append(text + ": use a distortion model that fits the lens there")
     if unc_max is not None and unc_max > t.extrapolation_px:
         weak.append(f"projection uncertainty up to {unc_max:.1f} px outside the boards (distortion extrapolated): "
                     "add views with the board near the image corners")
@@ -318,6 +336,9 @@ def diagnose(
           the principal point's uncertainty in full);
         - ``uncertainty_covered_px``: the worst of ``uncertainty_grid_px`` where some board was
           (``covered_fraction`` of the grid): where the calibration is measured rather than extrapolated;
+        - ``unprojectable_fraction``: fraction of the grid where the distortion model has no inverse (it folds
+          before reaching those pixels; their figures are None and left out of the maxima and RMS);
+          ``unprojectable_covered``: some of them lie where boards were;
         - ``cv_rms_px``, ``cv_max_px``: difference of two calibrations from disjoint halves of the views, RMS and
           max over the grid (the best-aligning rotation fitted out); ``cv_covered_rms_px``: RMS where some board
           was; ``cv_expected_rms_px`` / ``cv_covered_expected_rms_px``: what the halves' covariances predict for
@@ -373,20 +394,24 @@ def diagnose(
         if unc5 is not None and good:
             fig["uncertainty_centre_px"] = _f(unc5[c, 0])
             fig["uncertainty_corners_px"] = [_f(x) for x in unc5[c, 1:].tolist()]
-            fig["uncertainty_max_px"] = _f(unc_grid[c].amax())
-            fig["uncertainty_covered_px"] = _f(unc_grid[c][covered[c]].amax()) if bool(covered[c].any()) else None
+            fig["uncertainty_max_px"] = _f(_nanmax(unc_grid[c]))
+            fig["uncertainty_covered_px"] = _f(_nanmax(unc_grid[c][covered[c]])) if bool(covered[c].any()) else None
+            no_ray = unc_grid[c].isnan()
+            fig["unprojectable_fraction"] = _f(no_ray.double().mean())
+            fig["unprojectable_covered"] = bool((no_ray & covered[c]).any())
             fig["uncertainty_grid_px"] = [[_f(x) for x in row] for row in unc_grid[c].reshape(g).tolist()]
             fig["uncertainty_fixed_ray_px"] = {"centre": _f(unc_fixed[c, 0]),
                                                "corners": [_f(x) for x in unc_fixed[c, 1:].tolist()]}
         else:
             fig.update(uncertainty_centre_px=None, uncertainty_corners_px=None, uncertainty_max_px=None,
-                       uncertainty_covered_px=None, uncertainty_grid_px=None, uncertainty_fixed_ray_px=None)
+                       uncertainty_covered_px=None, uncertainty_grid_px=None, uncertainty_fixed_ray_px=None,
+                       unprojectable_fraction=None, unprojectable_covered=None)
         for key in ("cv_rms_px", "cv_max_px", "cv_expected_rms_px", "heldout_rms_px"):
             fig[key] = _f(cv[key][c]) if cv is not None and good else None
         fig["cv_covered_rms_px"] = fig["cv_covered_expected_rms_px"] = None
         if cv is not None and good and bool(covered[c].any()):
-            fig["cv_covered_rms_px"] = _f(cv["cv_grid_px"][c][covered[c]].pow(2).mean().sqrt())
-            fig["cv_covered_expected_rms_px"] = _f(cv["cv_expected_grid_px"][c][covered[c]].pow(2).mean().sqrt())
+            fig["cv_covered_rms_px"] = _f(_nanrms(cv["cv_grid_px"][c][covered[c]]))
+            fig["cv_covered_expected_rms_px"] = _f(_nanrms(cv["cv_expected_grid_px"][c][covered[c]]))
         fig["heldout_views"] = int(cv["heldout_views"][c]) if cv is not None and good else 0
         fig["covered_fraction"] = _f(covered[c].double().mean())
         fig["verdict"], fig["reasons"] = verdict(fig, issues[c], thresholds)

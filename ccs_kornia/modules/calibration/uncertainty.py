@@ -13,7 +13,7 @@ import torch
 from ccs_kornia.camera import undistort_pixels
 from ccs_kornia.modules.refine import project_with_jacobians
 
-__all__ = ["image_points", "projection_uncertainty", "projection_difference"]
+__all__ = ["ROUNDTRIP_TOL_PX", "image_points", "projection_uncertainty", "projection_difference"]
 
 
 def image_points(image_size: tuple[int, int], grid: tuple[int, int] | None = None, dtype=torch.float64) -> torch.Tensor:
@@ -34,14 +34,22 @@ def image_points(image_size: tuple[int, int], grid: tuple[int, int] | None = Non
     return torch.stack([xx.reshape(-1), yy.reshape(-1)], -1)
 
 
+#: a pixel whose unprojected ray does not project back within this (px) has no inverse under the model
+ROUNDTRIP_TOL_PX = 0.01
+
+
 def _rays(K: torch.Tensor, dist: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
-    """(C, G, 3) camera-frame rays (z = 1) of pixels (G, 2) under each camera."""
+    """(C, G, 3) camera-frame rays (z = 1) of pixels (G, 2) under each camera; NaN where the distortion model has
+    no inverse (it folds before reaching that pixel: the ray does not project back onto it)."""
     C, G = K.shape[0], pixels.shape[0]
     px = pixels.to(K).expand(C, G, 2)
     ideal = undistort_pixels(px, K, dist) if dist.shape[-1] else px
     x = (ideal[..., 0] - K[:, None, 0, 2]) / K[:, None, 0, 0]
     y = (ideal[..., 1] - K[:, None, 1, 2]) / K[:, None, 1, 1]
-    return torch.stack([x, y, torch.ones_like(x)], -1)
+    rays = torch.stack([x, y, torch.ones_like(x)], -1)
+    back = _project_rays(rays.nan_to_num(0.0), K, dist)
+    ok = ((back - px).norm(dim=-1) <= ROUNDTRIP_TOL_PX) & rays.isfinite().all(-1)
+    return torch.where(ok[..., None], rays, torch.full_like(rays, float("nan")))
 
 
 def _project_rays(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, jacobians: bool = False):
@@ -61,10 +69,13 @@ def _project_rays(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, jacob
 
 def _remove_rotation(field: torch.Tensor, A: torch.Tensor, fit: torch.Tensor) -> torch.Tensor:
     """Subtract from ``field`` (C, G, 2, P) the least-squares fit over the points ``fit`` (G,) bool of a camera
-    rotation, ``A`` (C, G, 2, 3) = d pixel / d rotation."""
-    Af = A[:, fit].flatten(1, 2)  # (C, 2F, 3)
-    ff = field[:, fit].flatten(1, 2)  # (C, 2F, P)
-    w = torch.linalg.solve(Af.transpose(-1, -2) @ Af, Af.transpose(-1, -2) @ ff)  # (C, 3, P)
+    rotation, ``A`` (C, G, 2, 3) = d pixel / d rotation; points with non-finite values are left out of the fit."""
+    use = fit.to(A.device)[None] & A.isfinite().flatten(2).all(-1) & field.isfinite().flatten(2).all(-1)  # (C, G)
+    w8 = use[..., None, None].to(A.dtype)
+    Af = (A.nan_to_num(0.0) * w8).flatten(1, 2)  # (C, 2G, 3)
+    ff = (field.nan_to_num(0.0) * w8).flatten(1, 2)  # (C, 2G, P)
+    eye = 1e-12 * torch.eye(3, dtype=A.dtype, device=A.device)
+    w = torch.linalg.solve(Af.transpose(-1, -2) @ Af + eye, Af.transpose(-1, -2) @ ff)  # (C, 3, P)
     return field - (A.flatten(1, 2) @ w).unflatten(1, field.shape[1:3])
 
 
@@ -97,7 +108,7 @@ def projection_uncertainty(
         compensate_rotation: :math:`(G,)` bool, pixels over which a camera rotation is fitted out (None: no).
 
     Returns:
-        :math:`(C, G)` px.
+        :math:`(C, G)` px; NaN where the distortion model has no inverse (see :data:`ROUNDTRIP_TOL_PX`).
 
     Example:
         >>> K = torch.tensor([[[500., 0, 320], [0, 500, 240], [0, 0, 1]]], dtype=torch.float64)
@@ -139,7 +150,7 @@ def projection_difference(
         compensate_rotation: :math:`(G,)` bool, pixels over which the rotation is fitted (None: no).
 
     Returns:
-        :math:`(C, G)` px.
+        :math:`(C, G)` px; NaN where camera ``a``'s distortion model has no inverse.
 
     Example:
         >>> K = torch.tensor([[[500., 0, 320], [0, 500, 240], [0, 0, 1]]], dtype=torch.float64)

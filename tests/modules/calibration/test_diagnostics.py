@@ -317,7 +317,7 @@ def test_projection_uncertainty_matches_monte_carlo(compensate):
     grid = image_points(SIZE, (16, 12))
     px = torch.cat([grid, image_points(SIZE)])
     fit = (torch.arange(px.shape[0]) < grid.shape[0]) if compensate else None
-    pred = projection_uncertainty(res.K, res.dist, res.cov_camera, px, compensate_rotation=fit)[:, -5:].median(0).values
+    pred = projection_uncertainty(res.K, res.dist, res.cov_camera, px, compensate_rotation=fit)[:, -5:].nanmedian(0).values
     q, _, A = _project_rays(_rays(d["K"], d["dist"], px).expand(res.K.shape[0], -1, -1), res.K, res.dist, True)
     dq = (q - px)[..., None]
     if compensate:
@@ -335,7 +335,7 @@ def test_projection_uncertainty_grows_with_noise_and_fewer_views():
     for key, V, noise in (("base", 16, (0.2, 0.2)), ("noisy", 16, (0.6, 0.6)), ("few", 5, (0.2, 0.2))):
         d = views(C=8, V=V, noise=noise, seed=17)
         res = solver(d["uv"], d["valid"], d["obj"], SIZE)
-        out[key] = projection_uncertainty(res.K, res.dist, res.cov_camera, image_points(SIZE)).median(0).values
+        out[key] = projection_uncertainty(res.K, res.dist, res.cov_camera, image_points(SIZE)).nanmedian(0).values
     assert (out["noisy"] > 2 * out["base"]).all() and (out["few"] > out["base"]).all()
 
 
@@ -389,7 +389,8 @@ def test_diagnose_is_json_and_documented_keys():
     keys = {"success", "rms_px", "errors", "warnings", "checks", "std", "uncertainty_centre_px",
             "uncertainty_corners_px", "uncertainty_max_px", "uncertainty_covered_px", "uncertainty_grid_px",
             "uncertainty_fixed_ray_px", "cv_rms_px", "cv_max_px", "cv_expected_rms_px", "cv_covered_rms_px",
-            "cv_covered_expected_rms_px", "heldout_rms_px", "heldout_views", "covered_fraction", "verdict", "reasons"}
+            "cv_covered_expected_rms_px", "heldout_rms_px", "heldout_views", "covered_fraction", "unprojectable_fraction",
+            "unprojectable_covered", "verdict", "reasons"}
     assert all(set(f) == keys for f in figs), set(figs[0]) ^ keys
     for key in sorted(keys):
         assert f"``{key}``" in diagnose.__doc__, key
