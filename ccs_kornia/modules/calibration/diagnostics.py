@@ -183,7 +183,7 @@ class VerdictThresholds:
     Attributes:
         good_uncertainty_px / usable_uncertainty_px: worst projection uncertainty over the covered image.
         extrapolation_px: worst projection uncertainty over the whole image above which the uncovered parts
-            (usually the corners) are reported.
+            (usually the corners) are reported; a failure when the ``image_coverage`` check flagged the set too.
         cv_ratio: split-half difference over the difference the covariances predict (whole image) above which
             the model does not explain the data (lens not fitting the model, wrong corners); counts only when
             the difference over the covered image also exceeds ``cv_min_px``.
@@ -260,8 +260,13 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
         else:
             weak.append(text + ": use a distortion model that fits the lens there")
     if unc_max is not None and unc_max > t.extrapolation_px:
-        weak.append(f"projection uncertainty up to {unc_max:.1f} px outside the boards (distortion extrapolated): "
-                    "add views with the board near the image corners")
+        text = (f"projection uncertainty up to {unc_max:.1f} px outside the boards (distortion extrapolated): "
+                "add views with the board near the image corners")
+        if any(i["check"] == "image_coverage" for i in issues):  # small coverage and a wild extrapolation
+            bad.append(text)
+            advice.append("add views with the board near the image corners and edges")
+        else:
+            weak.append(text)
     if cv is None:
         weak.append("no cross-validation (too few views for two independent halves)")
     elif cv_exp:
