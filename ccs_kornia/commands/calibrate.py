@@ -110,6 +110,10 @@ def calibrate_files(
             if view["path"] in index:
                 view["reason"] = texts[index[view["path"]]]
         detail = ", ".join(f"{n} {reason}" for reason, n in codes.most_common())
+        # the solver's refusals (degeneracy checks, issue 12) name the problem and the views
+        refusals = [i["message"] for i in result.issues()[0] if i["severity"] == "error"]
+        if refusals:
+            raise failure(f"calibration refused on {len(usable)} views: " + "; ".join(refusals))
         raise failure(
             f"calibration failed on {len(usable)} views ({detail}); the views may be degenerate "
             "(e.g. all fronto-parallel) or inconsistent: add views with the board tilted in different directions"

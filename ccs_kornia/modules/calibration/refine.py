@@ -49,6 +49,8 @@ class RefinementResult:
     converged: torch.Tensor  #: (C,) bool
     iterations: torch.Tensor  #: (C,) LM iterations used
     num_points: torch.Tensor  #: (C,) corners used
+    #: (C, 4 + D, 4 + D) covariance of (fx, fy, cx, cy, dist) (zero rows/columns for fixed parameters)
+    cov_camera: torch.Tensor | None = None
 
 
 def _sym_solve(A: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -73,6 +75,17 @@ def _sym_inverse(A: torch.Tensor) -> torch.Tensor:
     inv = torch.cholesky_inverse(torch.where(good[..., None, None], L, eye))
     inv = inv * d[..., :, None] * d[..., None, :]
     return torch.where(good[..., None, None], inv, torch.full_like(inv, float("nan")))
+
+
+def _pseudo_inverse(A: torch.Tensor, rcond: float = 1e-15) -> torch.Tensor:
+    """Inverse of symmetric PSD matrices (Jacobi-scaled) with eigenvalues clamped at ``rcond`` times the
+    largest: finite, and huge along (nearly) null directions."""
+    d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
+    As = A * d[..., :, None] * d[..., None, :]
+    ev, U = torch.linalg.eigh(As)
+    ev = ev.clamp_min(rcond * ev.amax(-1, keepdim=True).clamp_min(1e-300))
+    inv = (U / ev[..., None, :]) @ U.transpose(-1, -2)
+    return inv * d[..., :, None] * d[..., None, :]
 
 
 def _normalize_inputs(corners, valid, object_points, K, rvec, tvec, dist, view_mask):
@@ -316,9 +329,21 @@ def joint_refinement(
     n_params = n_g + 6 * used.sum(-1)
     dof = (2 * n_pts - n_params.to(dtype)).clamp_min(1)
     sigma2 = sq.sum((1, 2)) / dof
-    cov_g = _sym_inverse(S) * sigma2[:, None, None]
+    cov_g = _sym_inverse(S)
+    # trust (issue 12): a (numerically) singular information matrix gives a huge, not a NaN, variance along the
+    # undetermined directions, so the checks can tell which parameters the views do not constrain
+    singular = ~cov_g.flatten(1).isfinite().all(-1) & S.flatten(1).isfinite().all(-1)
+    if bool(singular.any()):
+        cov_g[singular] = _pseudo_inverse(S[singular])
+    cov_g = cov_g * sigma2[:, None, None]
     cov_i = P @ cov_g[:, :n_i, :n_i] @ P.transpose(-1, -2)
     std_intr = cov_i.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
+    # full covariance of (fx, fy, cx, cy, dist[:D]): free parameters mapped through the intrinsics basis
+    E = torch.zeros(C, 4 + D, n_g, dtype=dtype, device=device)
+    E[:, :4, :n_i] = P
+    for k, j in enumerate(free_d):
+        E[:, 4 + j, n_i + k] = 1
+    cov_camera = E @ cov_g @ E.transpose(-1, -2)
     std8 = torch.zeros(C, 8, dtype=dtype, device=device)
     if n_d:
         std8[:, free_d] = cov_g[:, n_i:, n_i:].diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
@@ -343,6 +368,7 @@ def joint_refinement(
         converged=converged & used.any(-1),
         iterations=iters,
         num_points=n_pts.long(),
+        cov_camera=cov_camera,
     )
     if unbatched:
         res = RefinementResult(**{k: v[0] for k, v in res.__dict__.items()})

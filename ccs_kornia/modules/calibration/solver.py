@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from ccs_kornia.camera import fit_opencv_distortion, project_points
+from ccs_kornia.modules.calibration.degeneracy import DegeneracyThresholds, check_degeneracy, duplicate_views
 from ccs_kornia.modules.calibration.homography import MIN_HOMOGRAPHY_POINTS, find_homographies
 from ccs_kornia.modules.calibration.ransac import ImageRansac
 from ccs_kornia.modules.calibration.refine import FREE_DISTORTION, RefinementResult, joint_refinement
@@ -64,6 +65,10 @@ class CalibrationSolver(nn.Module):
             because of un-modelled distortion.
         max_outlier_rounds: rounds of that check.
         max_iters: LM iterations at most.
+        checks: run the degeneracy checks of :mod:`~ccs_kornia.modules.calibration.degeneracy`: copies of a view
+            are dropped before the solve (reason 5), a camera failing a check with severity ``error`` gets
+            ``success = False``, and every result carries ``check_*`` tensors (see ``CalibrationResult.issues``).
+        thresholds: :class:`~ccs_kornia.modules.calibration.degeneracy.DegeneracyThresholds` of those checks.
 
     Shape:
         corners :math:`(C, V, N, 2)` px, valid :math:`(C, V, N)` bool, object_points :math:`(N, 3)` or
@@ -102,8 +107,12 @@ class CalibrationSolver(nn.Module):
         outlier_rel_threshold: float = 5.0,
         max_outlier_rounds: int = 2,
         max_iters: int = 100,
+        checks: bool = True,
+        thresholds: DegeneracyThresholds | None = None,
     ) -> None:
         super().__init__()
+        self.checks = checks
+        self.thresholds = thresholds or DegeneracyThresholds(min_views=max(int(min_views), 1))
         if model not in FREE_DISTORTION:
             raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(FREE_DISTORTION)}.")
         self.model = model
@@ -191,6 +200,11 @@ class CalibrationSolver(nn.Module):
         candidates = enough & ok_h
         reason = torch.zeros(C, V, dtype=torch.long, device=device)
         reason = torch.where(~enough, 1, torch.where(~ok_h, 2, reason))
+        duplicate_of = torch.full((C, V), -1, dtype=torch.long, device=device)
+        if self.checks:  # copies of a view are not independent observations: drop them before anything else
+            duplicate_of = duplicate_views(corners, valid, candidates, self.thresholds.duplicate_px)
+            candidates = candidates & (duplicate_of < 0)
+            reason = torch.where(duplicate_of >= 0, 5, reason)
 
         # 2. Zhang (inside RANSAC) -> inlier views; on the undistorted corners when given
         pp_mode = "centre" if self.fix_principal_point else "auto"
@@ -198,7 +212,12 @@ class CalibrationSolver(nn.Module):
         if initial is not None:
             warm = initial.used.to(device) & candidates & initial.K.flatten(1).isfinite().all(-1)[:, None]
             inliers = torch.where((warm.sum(-1) >= self.min_views)[:, None], warm, candidates)
-            K0 = initial.K.to(device=device, dtype=dtype).nan_to_num(0.0)
+            K0 = initial.K.to(device=device, dtype=dtype)
+            f0 = float(max(image_size))  # a failed (NaN) initial camera gets a finite stand-in (it fails again below)
+            K_fb = torch.tensor([[f0, 0, (image_size[0] - 1) / 2], [0, f0, (image_size[1] - 1) / 2], [0, 0, 1]],
+                                dtype=dtype, device=device)
+            init_ok = K0.flatten(1).isfinite().all(-1)
+            K0 = torch.where(init_ok[:, None, None], K0, K_fb)
             rvec_h, tvec_h = extrinsics_from_homography(K0, H)
             rvec0 = torch.where(warm[..., None], initial.rvec.to(device=device, dtype=dtype), rvec_h)
             tvec0 = torch.where(warm[..., None], initial.tvec.to(device=device, dtype=dtype), tvec_h)
@@ -258,6 +277,15 @@ class CalibrationSolver(nn.Module):
 
         success = (used.sum(-1) >= self.min_views) & res.rms.isfinite() & res.K.flatten(1).isfinite().all(-1)
         success = success & (res.K[:, 0, 0] > 0) & (res.K[:, 1, 1] > 0)
+        if initial is not None and self._fix_intrinsics:  # intrinsics held at a failed (NaN) initial camera
+            success = success & init_ok
+        report = None
+        if self.checks:
+            report = check_degeneracy(
+                corners, valid, obj, image_size, used, res.rvec, res.K, res.std_intrinsics, self.model,
+                self.fix_aspect_ratio, self.fix_principal_point, duplicate_of, self.thresholds,
+            )
+            success = success & ~report.errors
         nan = float("nan")
 
         def fail_nan(x: torch.Tensor) -> torch.Tensor:
@@ -278,6 +306,10 @@ class CalibrationSolver(nn.Module):
             view_reason=reason,
             converged=res.converged & success,
             candidate_rms=torch.where(candidates, cand_rms, torch.full_like(cand_rms, nan)),
+            cov_camera=fail_nan(res.cov_camera),
+            check_severity=None if report is None else report.severity,
+            check_value=None if report is None else report.value,
+            check_views=None if report is None else report.views,
         )
         if unbatched:
             squeezed = {k: (v[0] if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()}

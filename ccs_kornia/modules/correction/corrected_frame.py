@@ -151,8 +151,13 @@ def calibrate_corrected(
         ideal = project_points(obj.expand(c, v, n, 3), res.K[:, None].expand(c, v, 3, 3), None, res.rvec, res.tvec)
         fit_model = {"k1k2": "k1k2", "rational": "rational"}.get(solver.model, "opencv5")
         use = (valid & res.used[..., None]).reshape(c, v * n)
+        # a refused camera has a NaN K; a finite stand-in keeps the closed form defined (the final solve refuses
+        # that camera again)
+        k_safe = torch.tensor([[max(image_size), 0, (image_size[0] - 1) / 2], [0, max(image_size), (image_size[1] - 1) / 2],
+                               [0, 0, 1]], dtype=res.K.dtype, device=dev)
+        k_safe = torch.where(res.success[:, None, None] & res.K.isfinite(), res.K, k_safe)
         dist0 = fit_opencv_distortion(ideal.reshape(c, v * n, 2).nan_to_num(0.0), corners.reshape(c, v * n, 2),
-                                      res.K.nan_to_num(0.0), fit_model, mask=use)
+                                      k_safe, fit_model, mask=use)
         start = with_fields(res, dist=dist0.nan_to_num(0.0))
         out = solver(corners, valid, obj, image_size, initial=start, fix_intrinsics=True)
     if joint_iters > 0:
