@@ -1,14 +1,17 @@
-"""Calibrations per second: the LM core (through CalibrationSolver) against cv2.calibrateCamera on the same corners.
+"""Calibrations per second of the whole CalibrationSolver against cv2.calibrateCamera on the same corners.
 
 Synthetic cameras as ``bench_solver.py`` (independent fx, fy, cx, cy, opencv5 distortion), 15 views of a 9x6 board,
-corners with Gaussian noise. For C = 1, 64, 256 cameras prints:
+corners with Gaussian noise (0.1 px). For C = 1, 64, 256 cameras prints, in one run, best of ``--repeats``:
 
-* ``cv2.calibrateCamera`` in a Python loop (flags 0, one thread);
-* ``CalibrationSolver`` (homographies -> Zhang -> RANSAC -> LM -> outlier check) with the former ``refine.py`` LM
-  and with the LM core (``modules/calibration/refinement.joint_refinement``), batched over the C cameras;
-* the LM alone (both implementations) from the same Zhang start.
+* ``cv2.calibrateCamera`` in a Python loop (flags 0, one thread; for C > 16 a 16-camera loop scaled to C);
+* ``CalibrationSolver`` (homographies -> copies -> Zhang/RANSAC -> LM core -> outlier check -> degeneracy
+  checks), batched over the C cameras, and the same with ``checks=False``;
+* the ratio of the solver's calibrations/s to OpenCV's (> 1: faster).
 
-    python benchmarks/lm_speed.py [--cameras 1 64 256] [--device cpu|cuda] [--threads 1]
+``--profile`` adds the time of every solver stage (the stage functions wrapped with timers; their sum is close
+to the whole call). The machine's load average is printed: compare ratios within one run.
+
+    python benchmarks/lm_speed.py [--cameras 1 64 256] [--device cpu|cuda] [--threads 1] [--profile]
 """
 
 from __future__ import annotations
@@ -17,34 +20,84 @@ import argparse
 import os
 import sys
 import time
+from collections import defaultdict
 
 import cv2
-import numpy as np
 import torch
 
 sys.path.insert(0, os.path.dirname(__file__))
 from bench_solver import opencv_loop, synthetic_cameras  # noqa: E402
 
-import ccs_kornia.modules.calibrator as calibrator  # noqa: E402
+import ccs_kornia.modules.calibration.solver as solver_mod  # noqa: E402
 from ccs_kornia.metrics import e_ip  # noqa: E402
-from ccs_kornia.modules import refine  # noqa: E402
-from ccs_kornia.modules.calibration import refinement  # noqa: E402
-from ccs_kornia.modules.homography import find_homographies  # noqa: E402
-from ccs_kornia.modules.zhang import extrinsics_from_homography, zhang_intrinsics  # noqa: E402
+from ccs_kornia.modules.calibration.solver import CalibrationSolver  # noqa: E402
+
+#: solver stages: (label, module attribute of solver.py or (object, method name))
+STAGES = [
+    ("homographies", "find_homographies"),
+    ("copies (duplicate_views)", "duplicate_views"),
+    ("Zhang + RANSAC", ("ImageRansac", "forward")),
+    ("Zhang (no RANSAC)", "zhang_intrinsics"),
+    ("poses from H", "extrinsics_from_homography"),
+    ("LM core (joint_refinement)", "joint_refinement"),
+    ("degeneracy checks", "check_degeneracy"),
+]
 
 
 def timed(fn, repeats, device):
     fn()  # warm-up
-    if device == "cuda":
-        torch.cuda.synchronize()
     best = float("inf")
     for _ in range(repeats):
+        if device == "cuda":
+            torch.cuda.synchronize()
         t = time.perf_counter()
         out = fn()
         if device == "cuda":
             torch.cuda.synchronize()
         best = min(best, time.perf_counter() - t)
     return best, out
+
+
+def profile_stages(solver, args, repeats, device):
+    """Per-stage seconds of one solver call (best of ``repeats`` per stage), and the whole call."""
+    spent = defaultdict(list)
+    originals = []
+    for label, target in STAGES:
+        owner, name = (solver_mod, target) if isinstance(target, str) else (getattr(solver_mod, target[0]), target[1])
+        if not hasattr(owner, name):
+            continue
+        fn = getattr(owner, name)
+
+        def wrap(*a, _fn=fn, _label=label, **k):
+            if device == "cuda":
+                torch.cuda.synchronize()
+            t = time.perf_counter()
+            out = _fn(*a, **k)
+            if device == "cuda":
+                torch.cuda.synchronize()
+            spent[_label][-1] += time.perf_counter() - t
+            return out
+
+        originals.append((owner, name, fn))
+        setattr(owner, name, wrap)
+    try:
+        for label, _ in STAGES:
+            spent[label].append(0.0)
+        solver(*args)
+        rows = defaultdict(lambda: float("inf"))
+        whole = float("inf")
+        for _ in range(repeats):
+            for label, _ in STAGES:
+                spent[label].append(0.0)
+            t = time.perf_counter()
+            solver(*args)
+            whole = min(whole, time.perf_counter() - t)
+            for label, _ in STAGES:
+                rows[label] = min(rows[label], spent[label][-1])
+    finally:
+        for owner, name, fn in originals:
+            setattr(owner, name, fn)
+    return rows, whole
 
 
 def main() -> None:
@@ -54,38 +107,35 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=0.1)
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--profile", action="store_true", help="time every solver stage")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     cv2.setNumThreads(a.threads)
     size = (640, 480)
-    print(f"{a.views} views of a 9x6 board, noise {a.noise} px, device {a.device}, {a.threads} thread(s); best of {a.repeats}")
-    print(f"{'cameras':>7} {'method':44s} {'s':>8} {'cal/s':>8} {'E_IP px':>8}")
+    print(f"{a.views} views of a 9x6 board, noise {a.noise} px, device {a.device}, {a.threads} thread(s); best of "
+          f"{a.repeats}; load average {' '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} CPUs")
+    print(f"{'cameras':>7} {'method':34s} {'s':>8} {'cal/s':>8} {'x cv2':>6} {'E_IP px':>8}")
     for C in a.cameras:
         K, dist, obj, uv = synthetic_cameras(C, a.views, a.noise, seed=C)
         valid = torch.ones(uv.shape[:-1], dtype=torch.bool)
-        rows = []
         n_cv = min(C, 16)  # OpenCV runs camera after camera: time a few and scale
-        t, (Kcv, _) = timed(lambda: opencv_loop(obj, uv[:n_cv], size), max(1, a.repeats if C == 1 else 1), "cpu")
-        rows.append(("cv2.calibrateCamera (loop)", t * C / n_cv, float(e_ip(torch.tensor(Kcv), K[:n_cv]).mean())))
+        t_cv, (Kcv, _) = timed(lambda: opencv_loop(obj, uv[:n_cv], size), a.repeats if C <= 16 else 1, "cpu")
+        t_cv = t_cv * C / n_cv
+        rows = [("cv2.calibrateCamera (loop)", t_cv, float(e_ip(torch.tensor(Kcv), K[:n_cv]).mean()))]
         uvd, vd, objd = uv.to(a.device), valid.to(a.device), obj.to(a.device)
-        for label, fn in [("CalibrationSolver + refine.py LM (former)", refine.joint_refinement),
-                          ("CalibrationSolver + LM core", refinement.joint_refinement)]:
-            calibrator.joint_refinement = fn
-            solver = calibrator.CalibrationSolver(model="opencv5")
-            t, res = timed(lambda: solver(uvd, vd, objd, size), a.repeats, a.device)
-            rows.append((label, t, float(e_ip(res.K.cpu(), K).mean())))
-        calibrator.joint_refinement = refine.joint_refinement
-        # the LM alone, from Zhang's closed form
-        H = find_homographies(objd[:, :2], uvd, vd)
-        used = torch.ones(C, a.views, dtype=torch.bool, device=a.device)
-        K0 = zhang_intrinsics(H, used, size)
-        rv0, tv0 = extrinsics_from_homography(K0, H)
-        for label, fn in [("LM alone: refine.py (former)", refine.joint_refinement), ("LM alone: LM core", refinement.joint_refinement)]:
-            t, res = timed(lambda: fn(uvd, vd, objd, K0, rv0, tv0, model="opencv5"), a.repeats, a.device)
+        for label, solver in [("CalibrationSolver", CalibrationSolver(model="opencv5")),
+                              ("CalibrationSolver(checks=False)", CalibrationSolver(model="opencv5", checks=False))]:
+            t, res = timed(lambda: solver(uvd, vd, objd, size), a.repeats if C <= 64 else max(1, a.repeats // 2), a.device)
             rows.append((label, t, float(e_ip(res.K.cpu(), K).mean())))
         for label, t, e in rows:
-            print(f"{C:7d} {label:44s} {t:8.3f} {C / t:8.1f} {e:8.3f}")
+            print(f"{C:7d} {label:34s} {t:8.4f} {C / t:8.1f} {t_cv / t:6.2f} {e:8.4f}")
+        if a.profile:
+            stages, whole = profile_stages(CalibrationSolver(model="opencv5"), (uvd, vd, objd, size), a.repeats, a.device)
+            for label, t in stages.items():
+                if t > 0:
+                    print(f"{'':7s}   stage {label:28s} {t:8.4f} {100 * t / whole:5.1f} %")
+            print(f"{'':7s}   {'(rest: bookkeeping, outlier check)':34s} {whole - sum(stages.values()):8.4f}")
 
 
 if __name__ == "__main__":

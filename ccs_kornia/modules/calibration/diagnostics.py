@@ -28,10 +28,8 @@ from torch import nn
 
 from ccs_kornia.modules.calibration.coverage import covered_pixels
 from ccs_kornia.modules.calibration.degeneracy import CHECKS, issues_from_tensors
-from ccs_kornia.modules.calibration.uncertainty import (
-    image_points, projection_difference, projection_uncertainty,
-)
-from ccs_kornia.modules.calibration.refine import joint_refinement
+from ccs_kornia.modules.calibration.refinement import joint_refinement
+from ccs_kornia.modules.calibration.uncertainty import image_points, projection_difference, projection_uncertainty
 
 __all__ = [
     "image_points",

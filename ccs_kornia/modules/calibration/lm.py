@@ -17,7 +17,8 @@ views and all cameras are solved by the same tensor ops.
   other devices).
 * The covariance of the free camera parameters is marginalised over the poses (inverse of the Schur
   complement at the solution), scaled by ``sigma^2 = cost / dof`` (or 1 when the weights are absolute inverse
-  variances).
+  variances); where that complement is numerically singular, a pseudo-inverse (huge, not NaN, variances along
+  the undetermined directions).
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ class LMResult:
     view_rms: torch.Tensor  #: (C, V) RMS reprojection error in px over the used corners, NaN for unused views
     rms: torch.Tensor  #: (C,) sqrt(sum squared error / number of corners) over the used corners (px)
     covariance: torch.Tensor  #: (C, F, F) covariance of the free coordinates, marginalised over the poses
+    information: torch.Tensor  #: (C, F, F) J^T W J of the free coordinates, poses eliminated (Schur complement)
     basis: torch.Tensor  #: (C, P, F) parameter increment = basis @ free increment
     sigma2: torch.Tensor  #: (C,) variance factor applied to the covariance
     iterations: torch.Tensor  #: (C,) int64 iterations run while the camera was active
@@ -141,6 +143,15 @@ def _sym_inverse(A: torch.Tensor) -> torch.Tensor:
     L = torch.where(good[..., None, None], L, torch.eye(A.shape[-1], dtype=A.dtype, device=A.device))
     inv = torch.cholesky_inverse(L) * d[..., :, None] * d[..., None, :]
     return torch.where(good[..., None, None], inv, torch.full_like(inv, float("nan")))
+
+
+def _pseudo_inverse(A: torch.Tensor, rcond: float = 1e-15) -> torch.Tensor:
+    """Inverse of symmetric PSD matrices (Jacobi-scaled) with eigenvalues clamped at ``rcond`` times the largest:
+    finite, and huge along (nearly) null directions."""
+    d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
+    ev, U = torch.linalg.eigh(A * d[..., :, None] * d[..., None, :])
+    ev = ev.clamp_min(rcond * ev.amax(-1, keepdim=True).clamp_min(1e-300))
+    return (U / ev[..., None, :]) @ U.transpose(-1, -2) * d[..., :, None] * d[..., None, :]
 
 
 def _check(model, params, rvec, tvec, object_points, corners, weights):
@@ -389,13 +400,19 @@ def levenberg_marquardt(
     F = B.shape[-1]
     dof = (2 * n_pts - F - 6 * used.sum(-1)).clamp_min(1).to(dtype)
     sigma2 = torch.ones_like(cost) if absolute_weights else cost / dof
-    cov = _sym_inverse(S) * sigma2[:, None, None]
+    cov = _sym_inverse(S)
+    # a (numerically) singular information matrix gives a huge, not a NaN, variance along the undetermined
+    # directions, so the degeneracy checks can tell which parameters the views do not constrain
+    singular = ~cov.flatten(1).isfinite().all(-1) & S.flatten(1).isfinite().all(-1) & used.any(-1)
+    if F and bool(singular.any()):
+        cov[singular] = _pseudo_inverse(S[singular])
+    cov = cov * sigma2[:, None, None]
 
     rvec_out = rotation_matrix_to_axis_angle(R.reshape(-1, 3, 3)).reshape(C, V, 3)
     rvec_out = torch.where(used[..., None], rvec_out, rvec.to(dtype))
     tvec_out = torch.where(used[..., None], tv, tvec.to(dtype))
     return LMResult(
-        params=x, rvec=rvec_out, tvec=tvec_out, cost=cost, view_rms=view_rms, rms=rms, covariance=cov, basis=B,
+        params=x, rvec=rvec_out, tvec=tvec_out, cost=cost, view_rms=view_rms, rms=rms, covariance=cov, information=S, basis=B,
         sigma2=sigma2, iterations=iters, converged=converged & used.any(-1), num_points=n_pts, view_used=used,
     )
 

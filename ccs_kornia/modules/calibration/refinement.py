@@ -1,9 +1,10 @@
-"""Drop-in replacements of the two former solvers, built on the one LM core (:mod:`.lm`).
+"""Joint refinement of intrinsics, OpenCV distortion and every pose on the one LM core (:mod:`.lm`).
 
-* :func:`joint_refinement`: the signature and :class:`RefinementResult` of ``modules/refine.py``
-  (OpenCV polynomial models), so :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` can call it unchanged;
-* :func:`refine_centred_radial`: the signature and return tuple of ``modules/centred_radial.py`` (the paper's
-  radial model about the image centre, optionally a free centre), now batched over cameras.
+:func:`joint_refinement` takes and returns the camera in OpenCV's terms (``K``, coefficients in OpenCV order),
+with the options :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` needs (fixed aspect ratio,
+principal point, intrinsics or distortion); the core does the work with
+:class:`~ccs_kornia.modules.calibration.models.opencv.OpenCVModel`, batched over cameras, and gives the full
+covariance of the camera (``cov_camera``).
 """
 
 from __future__ import annotations
@@ -15,10 +16,12 @@ from torch import nn
 
 from ccs_kornia.camera import num_distortion_coeffs
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
-from ccs_kornia.modules.calibration.models.centred_radial import CentredRadialModel
 from ccs_kornia.modules.calibration.models.opencv import OPENCV_VARIANTS, OpenCVModel
 
-__all__ = ["RefinementResult", "joint_refinement", "JointRefinement", "refine_centred_radial"]
+__all__ = ["FREE_DISTORTION", "RefinementResult", "joint_refinement", "JointRefinement", "camera_covariance"]
+
+#: indices (OpenCV order k1, k2, p1, p2, k3, k4, k5, k6) estimated by each model; the rest stay 0
+FREE_DISTORTION: dict[str, list[int]] = {name: list(index) for name, index in OPENCV_VARIANTS.items()}
 
 
 @dataclass
@@ -36,7 +39,27 @@ class RefinementResult:
     converged: torch.Tensor  #: (C,) bool
     iterations: torch.Tensor  #: (C,) LM iterations used
     num_points: torch.Tensor  #: (C,) corners used
-    covariance: torch.Tensor | None = None  #: (C, 4 + D', 4 + D') covariance of fx, fy, cx, cy and the model's coefficients
+    #: (C, 4 + D, 4 + D) covariance of (fx, fy, cx, cy, dist) (zero rows/columns for fixed parameters)
+    cov_camera: torch.Tensor | None = None
+
+
+def camera_covariance(model: str, param_covariance: torch.Tensor) -> torch.Tensor:
+    """Covariance :math:`(C, 4 + D, 4 + D)` of ``(fx, fy, cx, cy, dist[:D])`` in OpenCV's storage (``D`` of
+    :func:`~ccs_kornia.camera.num_distortion_coeffs`) from that of an :class:`OpenCVModel` variant's parameters
+    :math:`(C, P, P)`: a selection, zero rows and columns for stored coefficients outside the variant (``k1k2``
+    stores ``p1 = p2 = k3 = 0``).
+
+    Example:
+        >>> camera_covariance("k1k2", torch.eye(6)[None]).shape
+        torch.Size([1, 9, 9])
+    """
+    index = OPENCV_VARIANTS[model]
+    D = num_distortion_coeffs(model)
+    E = param_covariance.new_zeros(4 + D, 4 + len(index))
+    E[:4, :4] = torch.eye(4, dtype=E.dtype, device=E.device)
+    for k, j in enumerate(index):
+        E[4 + j, 4 + k] = 1
+    return E @ param_covariance @ E.T
 
 
 def _k_matrix(params: torch.Tensor) -> torch.Tensor:
@@ -87,7 +110,7 @@ def joint_refinement(
     fix_distortion: bool = False,
     weights: torch.Tensor | None = None,
 ) -> RefinementResult:
-    r"""Levenberg–Marquardt over intrinsics, OpenCV distortion and poses (``modules/refine.py``'s interface).
+    r"""Levenberg–Marquardt over intrinsics, OpenCV distortion and poses (the LM core with the OpenCV model).
 
     Args:
         corners: :math:`(C, V, N, 2)` observed pixels (or :math:`(V, N, 2)`); invalid entries may be NaN.
@@ -135,13 +158,12 @@ def joint_refinement(
         lambda_init=lambda_init, dtype=dtype,
     )
     D = num_distortion_coeffs(model)
-    std = res.param_std
-    std8 = cam.dist8(std[:, : cam.num_params])
+    cov = camera_covariance(model, res.param_covariance)
+    std = cov.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
     out = RefinementResult(
         K=_k_matrix(res.params), dist=cam.dist8(res.params)[:, :D], rvec=res.rvec, tvec=res.tvec,
-        view_rms=res.view_rms, rms=res.rms, std_intrinsics=std[:, :4], std_dist=std8[:, :D],
-        converged=res.converged, iterations=res.iterations, num_points=res.num_points,
-        covariance=res.param_covariance,
+        view_rms=res.view_rms, rms=res.rms, std_intrinsics=std[:, :4], std_dist=std[:, 4:],
+        converged=res.converged, iterations=res.iterations, num_points=res.num_points, cov_camera=cov,
     )
     if unbatched:
         out = RefinementResult(**{k: v[0] for k, v in out.__dict__.items()})
@@ -149,7 +171,7 @@ def joint_refinement(
 
 
 class JointRefinement(nn.Module):
-    """Module form of :func:`joint_refinement` (options fixed at construction, as ``modules/refine.py``'s).
+    """Module form of :func:`joint_refinement` (options fixed at construction).
 
     Example:
         >>> JointRefinement(model="k1k2").model
@@ -171,79 +193,3 @@ class JointRefinement(nn.Module):
             max_iters=self.max_iters, ftol=self.ftol, xtol=self.xtol, dtype=self.dtype,
         )
 
-
-def refine_centred_radial(
-    corners: torch.Tensor,
-    valid: torch.Tensor,
-    object_points: torch.Tensor,
-    K: torch.Tensor,
-    rvec: torch.Tensor,
-    tvec: torch.Tensor,
-    radial: torch.Tensor,
-    image_size: tuple[int, int],
-    max_iters: int = 50,
-    tol: float = 1e-12,
-    free_centre: bool = False,
-) -> tuple[torch.Tensor, ...]:
-    """Intrinsics, image-centred radial distortion ``(k1, k2, k3)`` and poses (``modules/centred_radial.py``'s API).
-
-    Batched over cameras by the LM core (one call, no loop over cameras).
-
-    Args:
-        corners: :math:`(C, V, N, 2)` observed (distorted) pixels.
-        valid: :math:`(C, V, N)` bool.
-        object_points: :math:`(N, 3)` board points.
-        K: :math:`(C, 3, 3)` initial intrinsics; rvec, tvec: :math:`(C, V, 3)` initial poses.
-        radial: :math:`(C, 3)` initial ``(k1, k2, k3)``.
-        image_size: ``(W, H)``.
-        max_iters: accepted LM steps at most (each may need a few damping increases: the core runs up to
-            ``10 * max_iters`` iterations).
-        tol: relative cost decrease below which a camera stops.
-        free_centre: also estimate the distortion centre's offset from the image centre.
-
-    Returns:
-        ``K`` :math:`(C, 3, 3)`, ``radial`` :math:`(C, 3)`, ``rvec``, ``tvec`` :math:`(C, V, 3)`, RMS :math:`(C,)`
-        (NaN for a camera with fewer than 8 valid corners, whose inputs are returned unchanged), centre offset
-        :math:`(C, 2)` and standard deviations of ``fx, fy, cx, cy`` :math:`(C, 4)`.
-
-    Example:
-        >>> from ccs_kornia.camera import board_object_points, project_points
-        >>> obj = board_object_points(6, 5, 0.1, dtype=torch.float64)
-        >>> K = torch.tensor([[[300., 0, 160], [0, 300, 120], [0, 0, 1]]], dtype=torch.float64)
-        >>> rvec = 0.5 * (torch.rand(1, 6, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64) - 0.5)
-        >>> tvec = torch.tensor([-0.25, -0.2, 1.2], dtype=torch.float64).expand(1, 6, 3)
-        >>> uv = project_points(obj.expand(1, 6, -1, -1), K[:, None].expand(1, 6, 3, 3), None, rvec, tvec)
-        >>> out = refine_centred_radial(uv, torch.ones(1, 6, 30, dtype=torch.bool), obj, K * 1.01, rvec, tvec,
-        ...                             torch.zeros(1, 3), (320, 240))
-        >>> bool(out[4] < 1e-6)
-        True
-    """
-    if corners.dim() != 4 or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (C, V, N, 2), got {tuple(corners.shape)}.")
-    c, v, n = corners.shape[:3]
-    if valid.shape != (c, v, n):
-        raise ValueError(f"valid must be {(c, v, n)}, got {tuple(valid.shape)}.")
-    if radial.shape != (c, 3):
-        raise ValueError(f"radial must be {(c, 3)}, got {tuple(radial.shape)}.")
-    dt, dev = torch.float64, corners.device
-    cam = CentredRadialModel(image_size, free_centre)
-    K0 = K.to(device=dev, dtype=dt)
-    params = cam.params_from(K0, radial.to(device=dev, dtype=dt))
-    w = (valid.bool() & corners.isfinite().all(-1)).to(dt)
-    enough = w.sum((1, 2)) >= 8
-    w = w * enough[:, None, None]
-    res = levenberg_marquardt(
-        cam, params, rvec, tvec, object_points, corners, w, max_iters=10 * max_iters, ftol=tol, dtype=dt
-    )
-    e1, e2 = enough[:, None], enough[:, None, None]
-    p = torch.where(e1, res.params, params)
-    nan = torch.full((c,), float("nan"), dtype=dt, device=dev)
-    return (
-        torch.where(e2, _k_matrix(p), K0),
-        p[:, 4:7],
-        torch.where(e2, res.rvec, rvec.to(dt)),
-        torch.where(e2, res.tvec, tvec.to(dt)),
-        torch.where(enough, res.rms, nan),
-        p[:, 7:9] if free_centre else torch.zeros(c, 2, dtype=dt, device=dev),
-        torch.where(e1, res.param_std[:, :4], nan[:, None]),
-    )

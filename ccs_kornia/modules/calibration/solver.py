@@ -1,9 +1,9 @@
 """The calibration solver: homographies -> Zhang -> image RANSAC -> joint LM -> outlier check -> LM.
 
 Batched over cameras (C) and views (V); views without a usable board are padded and masked. Every stage is
-a module of its own (``homography.py``, ``zhang.py``, ``ransac.py``, ``refine.py`` in
-``ccs_kornia/modules/calibration/``); this one only composes them and keeps the bookkeeping of which view
-was used and why not.
+a module of its own (``homography.py``, ``zhang.py``, ``ransac.py``, ``refinement.py`` on the one LM core
+``lm.py``, ``degeneracy.py`` in ``ccs_kornia/modules/calibration/``); this one only composes them and keeps the
+bookkeeping of which view was used and why not.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from ccs_kornia.camera import fit_opencv_distortion, project_points
 from ccs_kornia.modules.calibration.degeneracy import DegeneracyThresholds, check_degeneracy, duplicate_views
 from ccs_kornia.modules.calibration.homography import MIN_HOMOGRAPHY_POINTS, find_homographies
 from ccs_kornia.modules.calibration.ransac import ImageRansac
-from ccs_kornia.modules.calibration.refine import FREE_DISTORTION, RefinementResult, joint_refinement
+from ccs_kornia.modules.calibration.refinement import FREE_DISTORTION, RefinementResult, joint_refinement
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.zhang import extrinsics_from_homography, zhang_intrinsics
 
@@ -127,17 +127,17 @@ class CalibrationSolver(nn.Module):
         self.outlier_rel_threshold = outlier_rel_threshold
         self.max_outlier_rounds = max_outlier_rounds
         self.max_iters = max_iters
-        self._fix_intrinsics = False
         self.ransac = ImageRansac(
             num_hypotheses=ransac_iters, sample_size=ransac_sample_size, abs_threshold=ransac_abs_threshold,
             rel_threshold=ransac_rel_threshold, min_views=self.min_views, seed=seed,
         )
 
-    def _refine(self, corners, valid, obj, K, rvec, tvec, dist, view_mask, poses_only: bool = False, model=None):
+    def _refine(self, corners, valid, obj, K, rvec, tvec, dist, view_mask, fix_intrinsics: bool = False,
+                poses_only: bool = False, model=None):
         return joint_refinement(
             corners, valid, obj, K, rvec, tvec, dist, view_mask, model=model or self.model,
             fix_aspect_ratio=self.fix_aspect_ratio, fix_principal_point=self.fix_principal_point,
-            max_iters=self.max_iters, dtype=self.dtype, fix_intrinsics=poses_only or self._fix_intrinsics,
+            max_iters=self.max_iters, dtype=self.dtype, fix_intrinsics=poses_only or fix_intrinsics,
             fix_distortion=poses_only,
         )
 
@@ -169,13 +169,9 @@ class CalibrationSolver(nn.Module):
         """
         if fix_intrinsics and initial is None:
             raise ValueError("fix_intrinsics needs an initial result to take the intrinsics from.")
-        self._fix_intrinsics = bool(fix_intrinsics)
-        try:
-            return self._solve(corners, valid, object_points, image_size, init_corners, initial)
-        finally:
-            self._fix_intrinsics = False
+        return self._solve(corners, valid, object_points, image_size, init_corners, initial, bool(fix_intrinsics))
 
-    def _solve(self, corners, valid, object_points, image_size, init_corners, initial) -> CalibrationResult:
+    def _solve(self, corners, valid, object_points, image_size, init_corners, initial, fix_intrinsics) -> CalibrationResult:
         valid = _check_inputs(corners, valid, object_points, image_size)
         unbatched = corners.dim() == 3
         if init_corners is not None and init_corners.shape != corners.shape:
@@ -254,7 +250,7 @@ class CalibrationSolver(nn.Module):
         reason = torch.where(candidates & ~inliers, 3, reason)
 
         # 3. joint LM from the closed form
-        res = self._refine(corners, valid, obj, K0, rvec0, tvec0, dist0, inliers)
+        res = self._refine(corners, valid, obj, K0, rvec0, tvec0, dist0, inliers, fix_intrinsics)
         used = inliers & res.view_rms.isfinite()
         cand_rms = res.view_rms
 
@@ -269,7 +265,7 @@ class CalibrationSolver(nn.Module):
                 new_used = torch.where(keep_old[:, None], used, new_used)
                 if bool((new_used == used).all()):
                     break
-                res = self._refine(corners, valid, obj, res.K, rvec_all, tvec_all, res.dist, new_used)
+                res = self._refine(corners, valid, obj, res.K, rvec_all, tvec_all, res.dist, new_used, fix_intrinsics)
                 used = new_used & res.view_rms.isfinite()
             cand_rms = torch.where(used, res.view_rms, cand_rms)
             reason = torch.where(candidates & ~used & inliers, 4, reason)
@@ -277,7 +273,7 @@ class CalibrationSolver(nn.Module):
 
         success = (used.sum(-1) >= self.min_views) & res.rms.isfinite() & res.K.flatten(1).isfinite().all(-1)
         success = success & (res.K[:, 0, 0] > 0) & (res.K[:, 1, 1] > 0)
-        if initial is not None and self._fix_intrinsics:  # intrinsics held at a failed (NaN) initial camera
+        if initial is not None and fix_intrinsics:  # intrinsics held at a failed (NaN) initial camera
             success = success & init_ok
         report = None
         if self.checks:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 
 from ccs_kornia.camera import undistort_pixels
-from ccs_kornia.modules.calibration.projection import project_with_jacobians
+from ccs_kornia.modules.calibration.models.opencv import OpenCVModel
 
 __all__ = ["ROUNDTRIP_TOL_PX", "image_points", "projection_uncertainty", "projection_difference"]
 
@@ -55,16 +55,14 @@ def _rays(K: torch.Tensor, dist: torch.Tensor, pixels: torch.Tensor) -> torch.Te
 def _project_rays(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, jacobians: bool = False):
     """Pixels (C, G, 2) of rays (C, G, 3); with ``jacobians`` also d pixel / d (fx, fy, cx, cy, dist)
     (C, G, 2, 4+D) and d pixel / d camera rotation (C, G, 2, 3)."""
-    C, G = rays.shape[:2]
     D = dist.shape[-1]
-    intr = torch.stack([K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]], -1)
-    dist8 = torch.zeros(C, 8, dtype=K.dtype, device=K.device)
-    dist8[:, :D] = dist
-    out = project_with_jacobians(rays[:, None], torch.zeros(C, 1, 3, dtype=K.dtype, device=K.device), intr, dist8, jacobians)
+    model = OpenCVModel("rational")  # every coefficient present, in OpenCV order: the first 4 + D columns
+    uv, J, Jx = model.project(rays, model.params_from(K, dist), jacobians)
     if not jacobians:
-        return out[0][:, 0]
-    uv, Ji, Jd, Jp = out
-    return uv[:, 0], torch.cat([Ji[:, 0], Jd[:, 0, ..., :D]], -1), Jp[:, 0, ..., :3]
+        return uv
+    # the camera rotated, R <- exp(w) R at w = 0: d Xc / d w = -[Xc]_x, so each row becomes Xc x (d uv / d Xc)
+    Jw = torch.linalg.cross(rays[..., None, :].expand_as(Jx), Jx, dim=-1)
+    return uv, J[..., : 4 + D], Jw
 
 
 def _remove_rotation(field: torch.Tensor, A: torch.Tensor, fit: torch.Tensor) -> torch.Tensor:

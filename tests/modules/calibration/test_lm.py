@@ -1,4 +1,4 @@
-"""The LM core: recovery, batching, weights and covariance, parameter basis, wrappers equal to the former solvers."""
+"""The LM core: recovery, batching, weights and covariance, parameter basis, wrappers against a dense reference."""
 
 from __future__ import annotations
 
@@ -195,13 +195,29 @@ def test_device_and_input_dtype(device, dtype):
     torch.testing.assert_close(res.params.cpu(), ref.params, atol=tol, rtol=1e-4 if dtype == torch.float32 else 1e-9)
 
 
-# ------------------------------------------------------------------------------------ wrappers = former solvers
+# ------------------------------------------------------------------ wrappers against an independent reference
+def _reference_lsq(residual, x0, dof_params):
+    """Dense reference solve: MINPACK's LM (scipy) on ``residual`` (any parametrisation, autodiff Jacobian), and
+    the Gauss-Newton covariance ``sigma^2 (J^T J)^+`` at its solution."""
+    from scipy.optimize import least_squares
+    from torch.func import jacfwd
+
+    f = lambda x: residual(torch.from_numpy(x)).numpy()  # noqa: E731
+    jac = lambda x: jacfwd(residual)(torch.from_numpy(x)).numpy()  # noqa: E731
+    sol = least_squares(f, x0.numpy(), jac=jac, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
+    x = torch.from_numpy(sol.x)
+    J, r = jacfwd(residual)(x), residual(x)
+    cost = float(r @ r)
+    cov = torch.linalg.pinv(J.T @ J) * cost / max(dof_params, 1)
+    return x, r, cov
+
+
 @pytest.mark.parametrize("model", ["none", "k1k2", "opencv5"])
 @pytest.mark.parametrize("flags", [{}, {"fix_aspect_ratio": True}, {"fix_principal_point": True},
                                    {"fix_intrinsics": True}, {"fix_distortion": True}])
-def test_joint_refinement_wrapper_reproduces_refine_py(model, flags):
-    from ccs_kornia.modules.calibration.refinement import joint_refinement as new
-    from ccs_kornia.modules.calibration.refine import joint_refinement as old
+def test_joint_refinement_matches_a_dense_reference(model, flags):
+    """The OpenCV wrapper on the core against a dense LM over OpenCV's projection (kornia) in axis-angle poses."""
+    from ccs_kornia.modules.calibration.refinement import joint_refinement
 
     g = torch.Generator().manual_seed(1)
     _, p, rvec, tvec, uv = _opencv_set(C=2, V=8, noise=0.1, seed=2)
@@ -209,23 +225,69 @@ def test_joint_refinement_wrapper_reproduces_refine_py(model, flags):
     K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = p[:, 0] * 1.02, p[:, 1] * 1.02, p[:, 2] + 3, p[:, 3] - 2, 1
     valid = torch.rand(uv.shape[:-1], generator=g) > 0.1
     valid[1, 3] = False
-    a = old(uv, valid, OBJ, K, rvec + 0.01, tvec, None, None, model=model, **flags)
-    b = new(uv, valid, OBJ, K, rvec + 0.01, tvec, None, None, model=model, **flags)
-    torch.testing.assert_close(b.K, a.K, atol=5e-6, rtol=0)  # both stop at a relative cost decrease of 1e-12
-    torch.testing.assert_close(b.dist, a.dist, atol=1e-5, rtol=0)  # k3 is weakly determined
-    torch.testing.assert_close(b.std_intrinsics, a.std_intrinsics, atol=1e-9, rtol=1e-5)
-    torch.testing.assert_close(b.std_dist, a.std_dist, atol=1e-9, rtol=1e-5)
-    torch.testing.assert_close(b.view_rms, a.view_rms, atol=1e-7, rtol=0, equal_nan=True)
-    assert torch.equal(a.converged, b.converged) and torch.equal(a.num_points, b.num_points)
-    # unbatched input
-    c = new(uv[0], valid[0], OBJ, K[0], rvec[0] + 0.01, tvec[0], None, None, model=model, **flags)
-    torch.testing.assert_close(c.K, b.K[0], atol=1e-9, rtol=0)
+    b = joint_refinement(uv, valid, OBJ, K, rvec + 0.01, tvec, None, None, model=model, **flags)
+    idx = list(OpenCVModel(model).coeff_index)
+    D = 0 if model == "none" else 5
+    for c in range(2):
+        used = valid[c].any(-1)
+        w = valid[c][used].to(F64)[..., None]
+        Vu = int(used.sum())
+        fixed_k = [float(K[c, 0, 0]), float(K[c, 1, 1]), float(K[c, 0, 2]), float(K[c, 1, 2])]
+        aspect = fixed_k[0] / fixed_k[1]
+        free_k = [] if flags.get("fix_intrinsics") else (
+            ["fy"] if flags.get("fix_aspect_ratio") else ["fx", "fy"]) + ([] if flags.get("fix_principal_point") else ["cx", "cy"])
+        nd = 0 if flags.get("fix_distortion") else len(idx)
+
+        def unpack(x):
+            named = dict(zip(["fx", "fy", "cx", "cy"], fixed_k))
+            vals = dict(zip(free_k, x[: len(free_k)]))
+            fy = vals.get("fy", torch.tensor(named["fy"], dtype=F64))
+            fx = aspect * fy if flags.get("fix_aspect_ratio") else vals.get("fx", torch.tensor(named["fx"], dtype=F64))
+            cx, cy = (vals.get(k, torch.tensor(named[k], dtype=F64)) for k in ("cx", "cy"))
+            z, o = torch.zeros((), dtype=F64), torch.ones((), dtype=F64)
+            Km = torch.stack([torch.stack([fx, z, cx]), torch.stack([z, fy, cy]), torch.stack([z, z, o])])
+            d8 = torch.zeros(8, dtype=F64)
+            if nd:
+                d8 = d8.index_put((torch.tensor(idx),), x[len(free_k): len(free_k) + nd])
+            poses = x[len(free_k) + nd:].reshape(Vu, 6)
+            return Km, d8, poses
+
+        def residual(x):
+            Km, d8, poses = unpack(x)
+            proj = project_points(OBJ.expand(Vu, -1, -1), Km.expand(Vu, 3, 3), d8[:D].expand(Vu, D) if D else None,
+                                  poses[:, :3], poses[:, 3:])
+            return ((proj - uv[c][used]) * w).reshape(-1)
+
+        x0 = torch.cat([torch.tensor([fixed_k[["fx", "fy", "cx", "cy"].index(k)] for k in free_k], dtype=F64),
+                        torch.zeros(nd, dtype=F64), torch.cat([rvec[c][used] + 0.01, tvec[c][used]], -1).reshape(-1)])
+        n_free = len(free_k) + nd + 6 * Vu
+        x, r, cov = _reference_lsq(residual, x0, int(2 * valid[c].sum()) - n_free)
+        Km, d8, _ = unpack(x)
+        # the core stops at a relative cost decrease of 1e-12 (the reference at 1e-15): ~1e-8 relative in a flat valley
+        torch.testing.assert_close(b.K[c], Km, atol=2e-5, rtol=0)
+        torch.testing.assert_close(b.dist[c], d8[:D], atol=1e-5, rtol=0)  # k3 is weakly determined
+        std = cov.diagonal().clamp_min(0).sqrt()
+        std_k = dict(zip(free_k, std[: len(free_k)]))
+        if flags.get("fix_aspect_ratio"):
+            std_k["fx"] = aspect * std_k["fy"]
+        ref_std_k = torch.stack([std_k.get(k, torch.zeros((), dtype=F64)) for k in ("fx", "fy", "cx", "cy")])
+        torch.testing.assert_close(b.std_intrinsics[c], ref_std_k, atol=1e-9, rtol=1e-5)
+        ref_std_d = torch.zeros(8, dtype=F64)
+        if nd:
+            ref_std_d[idx] = std[len(free_k): len(free_k) + nd]
+        torch.testing.assert_close(b.std_dist[c], ref_std_d[:D], atol=1e-9, rtol=1e-5)
+        view_rms = (r.reshape(Vu, -1, 2) ** 2).sum((-1, -2)) / valid[c][used].sum(-1)
+        torch.testing.assert_close(b.view_rms[c][used], view_rms.sqrt(), atol=1e-7, rtol=0)
+        assert bool(b.view_rms[c][~used].isnan().all()) and int(b.num_points[c]) == int(valid[c].sum())
+    # the full covariance agrees with the standard deviations; unbatched input
+    torch.testing.assert_close(b.cov_camera.diagonal(dim1=-2, dim2=-1).sqrt(), torch.cat([b.std_intrinsics, b.std_dist], -1))
+    c1 = joint_refinement(uv[0], valid[0], OBJ, K[0], rvec[0] + 0.01, tvec[0], None, None, model=model, **flags)
+    torch.testing.assert_close(c1.K, b.K[0], atol=1e-9, rtol=0)
 
 
-def test_refine_centred_radial_wrapper_reproduces_the_former_loop():
-    from ccs_kornia.modules.calibration.refinement import refine_centred_radial as new
-    from ccs_kornia.modules.calibration.centred_radial import centred_radial_distort
-    from ccs_kornia.modules.calibration.centred_radial import refine_centred_radial as old
+def test_refine_centred_radial_matches_a_dense_reference():
+    """The paper's radial model on the core against a dense LM over the same projection written with kornia."""
+    from ccs_kornia.modules.calibration.centred_radial import centred_radial_distort, refine_centred_radial
 
     K = torch.tensor([[430.0, 0.0, 329.0], [0.0, 433.0, 233.0], [0.0, 0.0, 1.0]], dtype=F64)
     rvec, tvec = _poses(2, 8, seed=5, depth=0.45)
@@ -236,15 +298,34 @@ def test_refine_centred_radial_wrapper_reproduces_the_former_loop():
     valid = torch.ones(uv.shape[:-1], dtype=torch.bool)
     K0 = (torch.diag(torch.tensor([1.02, 0.99, 1.0], dtype=F64)) @ K).expand(2, 3, 3)
     for fc in (False, True):
-        a = old(uv, valid, OBJ, K0, rvec, tvec, torch.zeros(2, 3), (640, 480), free_centre=fc)
-        b = new(uv, valid, OBJ, K0, rvec, tvec, torch.zeros(2, 3), (640, 480), free_centre=fc)
-        torch.testing.assert_close(b[0], a[0], atol=1e-6, rtol=0)  # K
-        torch.testing.assert_close(b[1], a[1], atol=1e-8, rtol=0)  # k1..k3
-        torch.testing.assert_close(b[4], a[4], atol=1e-9, rtol=0)  # rms
-        torch.testing.assert_close(b[5], a[5], atol=1e-6, rtol=0)  # centre offset
-        torch.testing.assert_close(b[6], a[6], rtol=1e-5, atol=0)  # std of fx, fy, cx, cy
+        b = refine_centred_radial(uv, valid, OBJ, K0, rvec, tvec, torch.zeros(2, 3), (640, 480), free_centre=fc,
+                                  covariance=True)
+        nc = 2 if fc else 0
+        for c in range(2):
+            def residual(x):
+                fx, fy, cx, cy = x[:4]
+                z, o = torch.zeros((), dtype=F64), torch.ones((), dtype=F64)
+                Km = torch.stack([torch.stack([fx, z, cx]), torch.stack([z, fy, cy]), torch.stack([z, z, o])])
+                poses = x[7 + nc:].reshape(8, 6)
+                proj = project_points(OBJ.expand(8, -1, -1), Km.expand(8, 3, 3), None, poses[:, :3], poses[:, 3:])
+                off = x[7:9][None] if fc else None
+                return (centred_radial_distort(proj.reshape(1, -1, 2), x[4:7][None], (640, 480), off).reshape(8, 54, 2)
+                        - uv[c]).reshape(-1)
+
+            x0 = torch.cat([K0[c, 0, 0:1], K0[c, 1, 1:2], K0[c, :2, 2], torch.zeros(3 + nc, dtype=F64),
+                            torch.cat([rvec[c], tvec[c]], -1).reshape(-1)])
+            x, r, cov = _reference_lsq(residual, x0, 2 * 8 * 54 - x0.numel())
+            torch.testing.assert_close(b[0][c], torch.tensor([[x[0], 0, x[2]], [0, x[1], x[3]], [0, 0, 1]], dtype=F64),
+                                       atol=1e-6, rtol=0)  # K
+            torch.testing.assert_close(b[1][c], x[4:7], atol=1e-6, rtol=0)  # k1..k3 (k3 ~ -4.2, weakly determined)
+            torch.testing.assert_close(b[4][c], (r @ r / (8 * 54)).sqrt(), atol=1e-9, rtol=0)  # rms
+            torch.testing.assert_close(b[5][c], x[7:9] if fc else torch.zeros(2, dtype=F64), atol=1e-6, rtol=0)
+            torch.testing.assert_close(b[6][c], cov.diagonal()[:4].sqrt(), rtol=1e-5, atol=0)  # std of fx, fy, cx, cy
+            s_ = cov.diagonal()[: 7 + nc].sqrt()
+            diff = (b[7][c, : 7 + nc, : 7 + nc] - cov[: 7 + nc, : 7 + nc]) / (s_[:, None] * s_[None, :])
+            assert float(diff.abs().max()) < 1e-4  # the full covariance, in units of the standard deviations
     few = valid.clone()
     few[1] = False
     few[1, 0, :7] = True  # camera 1 has fewer than 8 corners: left unchanged, NaN rms
-    out = new(uv, few, OBJ, K0, rvec, tvec, torch.zeros(2, 3), (640, 480))
+    out = refine_centred_radial(uv, few, OBJ, K0, rvec, tvec, torch.zeros(2, 3), (640, 480))
     assert bool(out[4][1].isnan()) and torch.equal(out[0][1], K0[1]) and bool(out[4][0] < 0.1)

@@ -99,18 +99,19 @@ def test_opencv_matches_cv2_project_points(variant):
     np.testing.assert_allclose(uv, ref, atol=1e-9, rtol=0)
 
 
-def test_opencv_params_round_trip_and_refine_equivalence():
-    from ccs_kornia.modules.calibration.projection import project_with_jacobians
-
+def test_opencv_params_round_trip_and_jacobians_match_cv2_project_points():
     m = OpenCVModel("rational")
     p = torch.tensor([OPENCV_PARAMS["rational"]], dtype=F64)
     K = torch.tensor([[[510.0, 0, 322.0], [0, 505.0, 241.0], [0, 0, 1]]], dtype=F64)
     torch.testing.assert_close(m.params_from(K, m.dist8(p)), p)
     X = _points(C=1)
     uv, J, Jx = m.project(X, p)
-    uv_ref, Ji, Jd, _ = project_with_jacobians(X, torch.zeros(1, 3, 3, dtype=F64), p[:, :4], m.dist8(p))
-    torch.testing.assert_close(uv, uv_ref, atol=1e-9, rtol=0)
-    torch.testing.assert_close(J, torch.cat([Ji, Jd], -1), atol=1e-9, rtol=1e-12)
+    # OpenCV's own derivatives: columns rvec (3), tvec (3), fx fy, cx cy, k1 k2 p1 p2 k3 k4 k5 k6
+    ref, jac = cv2.projectPoints(X.reshape(-1, 3).numpy(), np.zeros(3), np.zeros(3), K[0].numpy(), m.dist8(p)[0].numpy())
+    jac = torch.from_numpy(jac).reshape(-1, 2, jac.shape[-1])
+    torch.testing.assert_close(uv.reshape(-1, 2), torch.from_numpy(ref.reshape(-1, 2)), atol=1e-9, rtol=0)
+    torch.testing.assert_close(J.reshape(-1, 2, 12), jac[..., 6:18], atol=1e-7, rtol=1e-9)
+    torch.testing.assert_close(Jx.reshape(-1, 2, 3), jac[..., 3:6], atol=1e-7, rtol=1e-9)
 
 
 def test_fisheye_matches_cv2_fisheye_in_front_and_is_continuous_beyond_90_degrees():
