@@ -21,6 +21,7 @@ def covered_pixels(
     object_points: torch.Tensor,
     used: torch.Tensor,
     pixels: torch.Tensor,
+    homographies: torch.Tensor | None = None,
 ) -> torch.Tensor:
     r"""Which pixels lie inside the board of some used view.
 
@@ -33,6 +34,8 @@ def covered_pixels(
         object_points: :math:`(N, 3)` or :math:`(C, N, 3)` planar board points.
         used: :math:`(C, V)` bool.
         pixels: :math:`(G, 2)` px.
+        homographies: :math:`(C, V, 3, 3)` board-to-image homographies of these views when already computed
+            (e.g. by the solver; NaN where none), else they are fitted here.
 
     Returns:
         :math:`(C, G)` bool.
@@ -49,7 +52,11 @@ def covered_pixels(
     obj = object_points.to(device=corners.device, dtype=dtype)
     obj = obj.expand(C, N, 3) if obj.dim() == 2 else obj
     ok_view = used.bool() & (valid.sum(-1) >= 4)
-    H, ok = find_homographies(obj[:, None, :, :2], corners.to(dtype), valid & ok_view[..., None], return_ok=True)
+    if homographies is None:
+        H, ok = find_homographies(obj[:, None, :, :2], corners.to(dtype), valid & ok_view[..., None], return_ok=True)
+    else:
+        H = homographies.to(device=corners.device, dtype=dtype)
+        ok = H.flatten(-2).isfinite().all(-1)
     ok_view = ok_view & ok
     px = pixels.to(device=corners.device, dtype=dtype)
     cells = torch.cat([px, torch.ones_like(px[:, :1])], -1)  # (G, 3)
@@ -72,6 +79,7 @@ def image_coverage(
     used: torch.Tensor,
     image_size: tuple[int, int],
     grid: tuple[int, int] = (32, 24),
+    homographies: torch.Tensor | None = None,
 ) -> torch.Tensor:
     r"""Fraction of the image covered by the union of the boards of the used views.
 
@@ -84,6 +92,7 @@ def image_coverage(
         used: :math:`(C, V)` bool.
         image_size: ``(W, H)``.
         grid: cells ``(across, down)``.
+        homographies: see :func:`covered_pixels`.
 
     Returns:
         :math:`(C, 2)`: covered fraction of all cells, and of the cells in the outer ring (beyond 60 % of the
@@ -103,7 +112,7 @@ def image_coverage(
     ys = (torch.arange(gy, dtype=dtype) + 0.5) * H_ / gy - 0.5
     yy, xx = torch.meshgrid(ys, xs, indexing="ij")
     cells = torch.stack([xx.reshape(-1), yy.reshape(-1)], -1)
-    covered = covered_pixels(corners, valid, object_points, used, cells).to(dtype)  # (C, G)
+    covered = covered_pixels(corners, valid, object_points, used, cells, homographies).to(dtype)  # (C, G)
     half_diag = math.hypot((W_ - 1) / 2, (H_ - 1) / 2)
     r = ((cells[:, 0] - (W_ - 1) / 2) ** 2 + (cells[:, 1] - (H_ - 1) / 2) ** 2).sqrt() / half_diag
     outer = (r > 0.6).to(covered.device)

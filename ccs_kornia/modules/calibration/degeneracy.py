@@ -23,6 +23,7 @@ from torch import nn
 
 from ccs_kornia.camera import axis_angle_to_rotation_matrix
 from ccs_kornia.modules.calibration.coverage import covered_pixels, image_coverage
+from ccs_kornia.modules.calibration.duplicates import _batch, duplicate_views, view_differences
 
 __all__ = [
     "CHECKS",
@@ -53,7 +54,7 @@ CHECKS: tuple[str, ...] = (
     "tilt_direction",  # spread of the board normals across the main tilt direction (degrees)
     "corners_per_unknown",  # observations (2 per corner) per unknown (camera + 6 per view)
     "image_coverage",  # fraction of the image inside some board
-    "focal_uncertainty",  # relative standard deviation of fx / fy from the covariance
+    "focal_uncertainty",  # relative std of fx, fy (to themselves) and cx, cy (to the image size), covariance
 )
 
 _FREE_DIST = {"none": 0, "k1k2": 2, "opencv5": 5, "rational": 8}
@@ -101,95 +102,6 @@ def num_camera_unknowns(model: str, fix_aspect_ratio: bool = False, fix_principa
     if model not in _FREE_DIST:
         raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(_FREE_DIST)}.")
     return (1 if fix_aspect_ratio else 2) + (0 if fix_principal_point else 2) + _FREE_DIST[model]
-
-
-def _batch(corners: torch.Tensor, valid: torch.Tensor | None):
-    if corners.dim() not in (3, 4) or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (C, V, N, 2) or (V, N, 2), got {tuple(corners.shape)}.")
-    if valid is None:
-        valid = corners.isfinite().all(-1)
-    if valid.shape != corners.shape[:-1]:
-        raise ValueError(f"valid must be {tuple(corners.shape[:-1])}, got {tuple(valid.shape)}.")
-    unbatched = corners.dim() == 3
-    if unbatched:
-        corners, valid = corners[None], valid[None]
-    return corners, valid.bool() & corners.isfinite().all(-1), unbatched
-
-
-def view_differences(corners: torch.Tensor, valid: torch.Tensor | None = None, min_common: int = 4) -> torch.Tensor:
-    r"""RMS distance (px) between the corners of every pair of views of a camera.
-
-    Computed over the corners valid in both views, for the board order as given and reversed (a symmetric
-    board may be detected rotated by 180 degrees, which reverses the grid order); the smaller is kept.
-
-    Args:
-        corners: :math:`(C, V, N, 2)` or :math:`(V, N, 2)` px.
-        valid: matching bool mask (default: finite corners).
-        min_common: pairs with fewer common corners get ``inf``.
-
-    Returns:
-        :math:`(C, V, V)` (or :math:`(V, V)`), ``inf`` on the diagonal.
-
-    Example:
-        >>> uv = torch.rand(3, 20, 2) * 100
-        >>> d = view_differences(torch.stack([uv[0], uv[1], uv[0] + 0.1]))
-        >>> round(float(d[0, 2]), 3), bool(d[0, 1] > 1)
-        (0.141, True)
-    """
-    corners, valid, unbatched = _batch(corners, valid)
-    C, V, N = valid.shape
-    x = torch.where(valid[..., None], corners, torch.zeros((), dtype=corners.dtype, device=corners.device))
-    x = x.to(torch.float64)
-    out = torch.full((C, V, V), float("inf"), dtype=torch.float64, device=corners.device)
-    for flip in (False, True):
-        y, vy = (x.flip(-2), valid.flip(-1)) if flip else (x, valid)
-        for i in range(V):  # one row of pairs at a time: memory C * V * N
-            common = valid[:, i : i + 1] & vy  # (C, V, N)
-            sq = ((x[:, i : i + 1] - y) ** 2).sum(-1) * common
-            n = common.sum(-1)
-            rms = (sq.sum(-1) / n.clamp_min(1)).sqrt()
-            rms = torch.where(n >= min_common, rms, torch.full_like(rms, float("inf")))
-            out[:, i] = torch.minimum(out[:, i], rms)
-    eye = torch.eye(V, dtype=torch.bool, device=corners.device)
-    out = out.masked_fill(eye, float("inf"))
-    return out[0] if unbatched else out
-
-
-def duplicate_views(
-    corners: torch.Tensor, valid: torch.Tensor | None = None, view_mask: torch.Tensor | None = None, tol: float = 0.5
-) -> torch.Tensor:
-    r"""Index of the earlier view each view copies (corners within ``tol`` px RMS), -1 for distinct views.
-
-    Copies are not independent observations (the same photo twice, or a board that did not move): kept, they
-    shrink the reported uncertainty by the square root of the number of copies while adding no information.
-
-    Args:
-        corners: :math:`(C, V, N, 2)` or :math:`(V, N, 2)` px.
-        valid: matching bool mask.
-        view_mask: :math:`(C, V)` views to consider (default: views with >= 4 valid corners).
-        tol: RMS corner difference in px.
-
-    Returns:
-        :math:`(C, V)` int64.
-
-    Example:
-        >>> uv = torch.rand(2, 20, 2) * 100
-        >>> duplicate_views(torch.stack([uv[0], uv[1], uv[0], uv[0] + 0.01])).tolist()
-        [-1, -1, 0, 0]
-    """
-    corners, valid, unbatched = _batch(corners, valid)
-    C, V, _ = valid.shape
-    if view_mask is None:
-        view_mask = valid.sum(-1) >= 4
-    elif unbatched:
-        view_mask = view_mask[None]
-    view_mask = view_mask.bool()
-    d = view_differences(corners, valid)
-    close = (d <= tol) & view_mask[:, :, None] & view_mask[:, None, :]
-    earlier = torch.ones(V, V, dtype=torch.bool, device=d.device).tril(-1)  # [j, i]: i < j
-    close = close & earlier
-    first = torch.where(close.any(-1), close.float().argmax(-1), torch.full((C, V), -1, device=d.device))
-    return first[0] if unbatched else first
 
 
 def _normals(rvec: torch.Tensor) -> torch.Tensor:
@@ -351,7 +263,8 @@ def _message(name, s, v, idx, c, duplicate_of, t: DegeneracyThresholds) -> tuple
                 "parameter is not determined by these views)", "try a distortion model with fewer coefficients")
     if name == "focal_uncertainty":
         amount = f"{100 * v:.1f} %" if v < 1 else "over 100 %"
-        return (f"the focal length is uncertain (standard deviation {amount} of it)",
+        return (f"the focal length or principal point is uncertain (standard deviation {amount} of the focal "
+                "length or of the image size)",
                 "add views with the board tilted in different directions and filling more of the image")
     return name, ""
 
@@ -370,6 +283,8 @@ def check_degeneracy(
     fix_principal_point: bool = False,
     duplicate_of: torch.Tensor | None = None,
     thresholds: DegeneracyThresholds | None = None,
+    differences: torch.Tensor | None = None,
+    homographies: torch.Tensor | None = None,
 ) -> DegeneracyReport:
     r"""Run every check of :data:`CHECKS` on a (solved) calibration.
 
@@ -384,6 +299,8 @@ def check_degeneracy(
         model, fix_aspect_ratio, fix_principal_point: the solver's model (for the unknowns count).
         duplicate_of: :math:`(C, V)` from :func:`duplicate_views` (computed here when None).
         thresholds: :class:`DegeneracyThresholds`.
+        differences: :math:`(C, V, V)` from :func:`view_differences` when already computed.
+        homographies: :math:`(C, V, 3, 3)` of the views when already computed (for the coverage).
 
     Returns:
         :class:`DegeneracyReport`.
@@ -395,12 +312,15 @@ def check_degeneracy(
         K = None if K is None else K[None]
         std_intrinsics = None if std_intrinsics is None else std_intrinsics[None]
         duplicate_of = None if duplicate_of is None else duplicate_of[None]
+        differences = None if differences is None else differences[None]
+        homographies = None if homographies is None else homographies[None]
     C, V, _ = valid.shape
     dev, f64 = corners.device, torch.float64
     used = used.bool()
     cand = valid.sum(-1) >= 4
+    d = view_differences(corners, valid) if differences is None else differences
     if duplicate_of is None:
-        duplicate_of = duplicate_views(corners, valid, cand, t.duplicate_px)
+        duplicate_of = duplicate_views(corners, valid, cand, t.duplicate_px, d)
     sev = torch.zeros(C, len(CHECKS), dtype=torch.long, device=dev)
     val = torch.full((C, len(CHECKS)), float("nan"), dtype=f64, device=dev)
     views = torch.zeros(C, len(CHECKS), V, dtype=torch.bool, device=dev)
@@ -413,7 +333,6 @@ def check_degeneracy(
     sev[:, 0] = torch.where(dup.any(-1), torch.where(distinct < t.min_views, ERROR, WARNING), OK)
 
     # near-identical used views (not copies): value = smallest RMS difference between two used views
-    d = view_differences(corners, valid)
     pair = used[:, :, None] & used[:, None, :]
     d = torch.where(pair, d, torch.full_like(d, float("inf")))
     near = (d <= t.near_identical_px).any(-1)
@@ -438,13 +357,16 @@ def check_degeneracy(
     sev[:, 4] = torch.where(ratio < t.per_unknown_error, ERROR, torch.where(ratio < t.per_unknown_warning, WARNING, OK))
 
     # image coverage
-    cov = image_coverage(corners, valid, object_points, used, image_size)
+    cov = image_coverage(corners, valid, object_points, used, image_size, homographies=homographies)
     val[:, 5] = cov[:, 0]
     sev[:, 5] = torch.where(used.any(-1) & (cov[:, 0] < t.coverage_warning), WARNING, OK)
 
-    # focal uncertainty from the covariance
+    # focal uncertainty from the covariance; the principal point's (relative to the image size) counts too: a
+    # singular information matrix can put its huge variance there while the focal's comes out tiny
     if K is not None and std_intrinsics is not None:
         rel = torch.maximum(std_intrinsics[:, 0] / K[:, 0, 0].abs(), std_intrinsics[:, 1] / K[:, 1, 1].abs()).to(f64)
+        rel_pp = torch.maximum(std_intrinsics[:, 2] / image_size[0], std_intrinsics[:, 3] / image_size[1]).to(f64)
+        rel = torch.where(rel_pp > rel, rel_pp, rel)  # (NaN-propagating max)
         val[:, 6] = rel
         bad = ~rel.isfinite() & used.any(-1)
         sev[:, 6] = torch.where(rel > t.focal_std_error, ERROR, torch.where(bad | (rel > t.focal_std_warning), WARNING, OK))

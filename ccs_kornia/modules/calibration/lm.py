@@ -23,13 +23,14 @@ views and all cameras are solved by the same tensor ops.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
 from torch import nn
 
-from ccs_kornia.camera import axis_angle_to_rotation_matrix, rotation_matrix_to_axis_angle
+from ccs_kornia.camera import rotation_matrix_to_axis_angle
 from ccs_kornia.modules.calibration.models.base import CameraModel
 
 __all__ = ["LMResult", "parameter_basis", "levenberg_marquardt", "LevenbergMarquardt"]
@@ -126,23 +127,23 @@ def parameter_basis(
 def _sym_solve(A: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Solve SPD systems (..., F, F) x = b with Jacobi scaling; systems that fail give 0."""
     d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
-    As = A * d[..., :, None] * d[..., None, :]
-    L, info = torch.linalg.cholesky_ex(As)
-    good = info == 0
-    L = torch.where(good[..., None, None], L, torch.eye(A.shape[-1], dtype=A.dtype, device=A.device))
-    x = torch.cholesky_solve((b * d).unsqueeze(-1), L).squeeze(-1) * d
-    return torch.where(good[..., None] & x.isfinite(), x, torch.zeros_like(x))
+    dd = d[..., :, None] * d[..., None, :]
+    L, info = torch.linalg.cholesky_ex(A * dd)
+    bad = info != 0
+    # a failed factor is replaced by the identity (its solution is then zeroed)
+    L = L.masked_fill(bad[..., None, None], 0.0) + torch.diag_embed(bad[..., None].to(A.dtype).expand(d.shape))
+    x = (torch.cholesky_inverse(L) @ (b * d).unsqueeze(-1)).squeeze(-1) * d
+    return x.masked_fill(bad[..., None] | ~x.isfinite(), 0.0)
 
 
-def _sym_inverse(A: torch.Tensor) -> torch.Tensor:
-    """Inverse of SPD matrices with Jacobi scaling; failures give NaN."""
+def _sym_inverse(A: torch.Tensor, fail: float = float("nan")) -> torch.Tensor:
+    """Inverse of SPD matrices with Jacobi scaling; failures give ``fail`` (NaN)."""
     d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
-    As = A * d[..., :, None] * d[..., None, :]
-    L, info = torch.linalg.cholesky_ex(As)
-    good = info == 0
-    L = torch.where(good[..., None, None], L, torch.eye(A.shape[-1], dtype=A.dtype, device=A.device))
-    inv = torch.cholesky_inverse(L) * d[..., :, None] * d[..., None, :]
-    return torch.where(good[..., None, None], inv, torch.full_like(inv, float("nan")))
+    dd = d[..., :, None] * d[..., None, :]
+    L, info = torch.linalg.cholesky_ex(A * dd)
+    bad = (info != 0)[..., None, None]
+    L = L.masked_fill(bad, 0.0) + torch.diag_embed(bad[..., 0].to(A.dtype).expand(d.shape))
+    return (torch.cholesky_inverse(L) * dd).masked_fill(bad, fail)
 
 
 def _pseudo_inverse(A: torch.Tensor, rcond: float = 1e-15) -> torch.Tensor:
@@ -170,36 +171,42 @@ def _check(model, params, rvec, tvec, object_points, corners, weights):
         raise ValueError(f"weights must be ({C}, {V}, {N}), got {tuple(weights.shape)}.")
 
 
+#: index of the entries of [w]_x in a flat 3x3 (row-major) from (0, w1, w2, w3, -w1, -w2, -w3)
+_SKEW = torch.tensor([0, 6, 2, 3, 0, 4, 5, 1, 0])
+
+
 def _exp_so3(w: torch.Tensor) -> torch.Tensor:
-    """Rodrigues' formula for (..., 3) rotation vectors (a few fused ops; series near 0)."""
-    t2 = (w * w).sum(-1)[..., None, None]
-    small = t2 < 1e-10
-    ts = torch.where(small, 1.0, t2).sqrt()
-    a = torch.where(small, 1 - t2 / 6, ts.sin() / ts)
-    b = torch.where(small, 0.5 - t2 / 24, (1 - ts.cos()) / torch.where(small, 1.0, t2))
-    x, y, z = w.unbind(-1)
-    o = torch.zeros_like(x)
-    K = torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).view(*w.shape[:-1], 3, 3)
-    return torch.eye(3, dtype=w.dtype, device=w.device) + a * K + b * (K @ K)
+    """Rodrigues' formula ``I + sinc(t) K + (1 - cos t) / t^2 K^2`` for (..., 3) rotation vectors, ``t = |w|``,
+    with ``K = [w]_x``; ``torch.sinc`` is exact at and near 0, so there is no branch."""
+    t = (w * w).sum(-1).sqrt()[..., None, None]
+    a = torch.sinc(t * (1 / math.pi))
+    b = 0.5 * torch.sinc(t * (0.5 / math.pi)).square()
+    K = torch.cat([torch.zeros_like(w[..., :1]), w, -w], -1)[..., _SKEW.to(w.device)].view(*w.shape[:-1], 3, 3)
+    R = a * K + b * (K @ K)
+    R.diagonal(dim1=-2, dim2=-1).add_(1.0)
+    return R
 
 
-def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6):
+def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expanded):
     """Per-camera normal equations at (R, t, params): cost, U (C,F,F), W (C,V,F,6), V (C,V,6,6), eg, ep."""
-    q = torch.einsum("cvij,cnj->cvni", R, obj)
-    uv, ju, jv, xu, xv = model.columns(q + t[:, :, None, :], params)
-    qx, qy, qz = q.unbind(-1)
-    # rotation R <- exp(w) R: d Xc / d w = -[q]_x, so d u / d w = q x (d u / d Xc)
-    ru = [qy * xu[2] - qz * xu[1], qz * xu[0] - qx * xu[2], qx * xu[1] - qy * xu[0]]
-    rv = [qy * xv[2] - qz * xv[1], qz * xv[0] - qx * xv[2], qx * xv[1] - qy * xv[0]]
-    r = uv - obs
-    shape = r.shape[:-1]
-    cols = [*ju, *ru, *xu, r[..., 0], *jv, *rv, *xv, r[..., 1]]
-    A = torch.stack([c if c.shape == shape else c.expand(shape) for c in cols], 2)  # (C, V, 2K, N): u rows then v rows, K = P + 7
+    C, V = R.shape[:2]
+    q = torch.matmul(obj[:, None].expand(C, V, -1, 3), R.transpose(-1, -2))  # (C, V, N, 3) = R X
+    uv, dp, (dx, dy, dz) = model.columns(q + t[:, :, None, :], params)
+    qx, qy, qz = q[..., 0:1], q[..., 1:2], q[..., 2:3]
+    # rotation R <- exp(w) R: d Xc / d w = -[q]_x, so d uv / d w = q x (d uv / d Xc), both rows at once
+    cols = [*dp, qy * dz - qz * dy, qz * dx - qx * dz, qx * dy - qy * dx, dx, dy, dz, uv - obs]
+    shape = uv.shape
+    for i, col in enumerate(cols):  # constant columns (e.g. d uv / d cx) are expanded once per solve
+        if col.shape != shape:
+            key = (id(col), shape)
+            if key not in expanded:
+                expanded[key] = (col, col.expand(shape).contiguous())  # (col kept alive: its id stays unique)
+            cols[i] = expanded[key][1]
+    A = torch.stack(cols, 2)  # (C, V, K, N, 2), K = P + 7: contiguous columns
     if sw is not None:
-        A = A * sw[:, :, None, :]
-    C, V, _, N = A.shape
-    A = A.view(C, V, 2, len(cols) // 2, N)
-    G = (A @ A.transpose(-1, -2)).sum(2)  # (C, V, K, K): J^T J, J^T r and r^T r per view
+        A = A * sw[:, :, None, :, None]
+    A = A.view(C, V, len(cols), -1)
+    G = A @ A.transpose(-1, -2)  # (C, V, K, K): J^T J, J^T r and r^T r per view
     P = params.shape[-1]
     Gpp, Gpk, Gkk = G[..., :P, :P].sum(1), G[..., :P, P : P + 6], G[..., P : P + 6, P : P + 6]
     gp, gk = G[..., :P, P + 6].sum(1), G[..., P : P + 6, P + 6]
@@ -229,14 +236,14 @@ def _schur_step(U, W, Vb, eg, ep, lam, used_f):
     return dg, dp * used_f[..., None]
 
 
-def _lm_iteration(model, s, c, eye6, ftol, xtol):
+def _lm_iteration(model, s, c, eye6, ftol, xtol, expanded):
     """One LM iteration of every camera in the state ``s`` (updated in place); done cameras keep their values."""
     x, R, tv, lam, cost = s["x"], s["R"], s["tv"], s["lam"], s["cost"]
     active = ~s["done"]
     dg, dp = _schur_step(s["U"], s["W"], s["Vb"], s["eg"], s["ep"], lam, c["used_f"])
-    x_n = x + (c["B"] @ dg.unsqueeze(-1)).squeeze(-1)
+    x_n = x + (dg if c["Bn"] is None else (c["B"] @ dg.unsqueeze(-1)).squeeze(-1))
     R_n, t_n = _exp_so3(dp[..., :3]) @ R, tv + dp[..., 3:]
-    new = _normal_equations(model, R_n, t_n, x_n, c["obj"], c["obs"], c["sw"], c["Bn"], c["used"], eye6)
+    new = _normal_equations(model, R_n, t_n, x_n, c["obj"], c["obs"], c["sw"], c["Bn"], c["used"], eye6, expanded)
     cost_n = new[0]
 
     accept = (cost_n < cost) & active
@@ -351,13 +358,14 @@ def levenberg_marquardt(
     park = torch.zeros(3, dtype=dtype, device=device)
     park[2] = 1.0 + 10.0 * float(obj.abs().amax()) if obj.numel() else 1.0
     tv = torch.where(used[..., None] & tvec.isfinite(), tvec.to(dtype), park)
-    R = axis_angle_to_rotation_matrix(rv.reshape(-1, 3)).reshape(C, V, 3, 3)
+    R = _exp_so3(rv)
 
     if check_every is None:
         check_every = 1 if device.type == "cpu" else 10
     const = {"obj": obj, "obs": obs, "sw": sw, "B": B, "Bn": Bn, "used": used, "used_f": used_f,
              "floor": (w.sum((1, 2)) * 1e-20).clamp_min(1e-300)}  # floor: an RMS of 1e-10 px, a perfect fit
-    eq = _normal_equations(model, R, tv, x, obj, obs, sw, Bn, used, eye6)
+    expanded: dict = {}
+    eq = _normal_equations(model, R, tv, x, obj, obs, sw, Bn, used, eye6, expanded)
     done = ~used.any(-1)
     full = dict(zip(("cost", "U", "W", "Vb", "eg", "ep"), eq))
     full.update(x=x, R=R, tv=tv, lam=torch.full((C,), lambda_init, dtype=dtype, device=device), done=done,
@@ -366,7 +374,7 @@ def levenberg_marquardt(
     idx = torch.arange(C, device=device)
     work, wc = dict(full), const
     for it in range(max_iters):
-        _lm_iteration(model, work, wc, eye6, ftol, xtol)
+        _lm_iteration(model, work, wc, eye6, ftol, xtol, expanded)
         if (it + 1) % check_every == 0:
             alive = ~work["done"]
             if not bool(alive.any()):
@@ -386,8 +394,8 @@ def levenberg_marquardt(
     iters, converged = full["iters"], full["converged"]
 
     # statistics at the solution
-    q = torch.einsum("cvij,cnj->cvni", R, obj)
-    uv, _, _ = model.project(q + tv[:, :, None, :], x, jacobians=False)
+    q = torch.matmul(obj[:, None].expand(C, V, N, 3), R.transpose(-1, -2))
+    uv = model.columns(q + tv[:, :, None, :], x, jacobians=False)[0]
     sq = torch.where(on, ((uv - obs) ** 2).sum(-1), 0.0)
     n_view = on.sum(-1)
     view_rms = torch.where(used, (sq.sum(-1) / n_view.clamp_min(1)).sqrt(), float("nan"))

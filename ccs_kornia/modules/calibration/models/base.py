@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["CameraModel", "check_projection_inputs", "broadcast_params"]
+__all__ = ["CameraModel", "check_projection_inputs", "broadcast_params", "unit_columns"]
 
 
 def check_projection_inputs(points: torch.Tensor, params: torch.Tensor, num_params: int) -> None:
@@ -47,15 +47,18 @@ class CameraModel:
     def columns(self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True) -> tuple:
         """Projection and derivatives in column form (what the LM core consumes; no stacking copies).
 
+        A column holds the derivative of both image coordinates, ``(d u, d v)`` in its last dim, so one tensor
+        op computes the two rows of the Jacobian at once.
+
         Args:
             points: :math:`(C, *, 3)` camera-frame points.
             params: :math:`(C, P)` parameters.
             jacobians: also return the derivative columns.
 
         Returns:
-            ``(uv, du_dp, dv_dp, du_dX, dv_dX)``: uv :math:`(C, *, 2)`; ``du_dp``/``dv_dp`` lists of ``P`` tensors
-            and ``du_dX``/``dv_dX`` lists of 3 tensors, each :math:`(C, *)` (or broadcastable to it); only ``uv``
-            (the rest ``None``) without ``jacobians``.
+            ``(uv, d_dp, d_dX)``: uv :math:`(C, *, 2)`; ``d_dp`` a list of ``P`` tensors and ``d_dX`` a list of 3
+            tensors (with respect to the camera-frame point), each :math:`(C, *, 2)` or broadcastable to it;
+            ``(uv, None, None)`` without ``jacobians``.
         """
         raise NotImplementedError
 
@@ -73,15 +76,10 @@ class CameraModel:
             uv :math:`(C, *, 2)`, d uv / d params :math:`(C, *, 2, P)` and d uv / d points :math:`(C, *, 2, 3)`
             (``None`` without ``jacobians``).
         """
-        uv, ju, jv, xu, xv = self.columns(points, params, jacobians)
+        uv, dp, dx = self.columns(points, params, jacobians)
         if not jacobians:
             return uv, None, None
-        shape = uv.shape[:-1]
-
-        def stack(cu, cv):
-            return torch.stack([torch.stack([c.expand(shape) for c in cu], -1), torch.stack([c.expand(shape) for c in cv], -1)], -2)
-
-        return uv, stack(ju, jv), stack(xu, xv)
+        return uv, torch.stack([c.expand(uv.shape) for c in dp], -1), torch.stack([c.expand(uv.shape) for c in dx], -1)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r})"
@@ -90,3 +88,20 @@ class CameraModel:
 def broadcast_params(params: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """View params :math:`(C, P)` as :math:`(C, 1, ..., 1, P)` against points :math:`(C, *, 3)`."""
     return params.reshape(params.shape[0], *([1] * (points.dim() - 2)), params.shape[-1])
+
+
+_UNITS: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+
+
+def unit_columns(like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The constant columns ``(1, 0)`` and ``(0, 1)`` (derivatives of ``u, v`` by ``cx`` and ``cy``).
+
+    The same two tensors are returned for a dtype and device (never written to), so the LM core can recognise
+    them and expand them once per solve.
+    """
+    key = (like.dtype, like.device)
+    if key not in _UNITS:
+        with torch.inference_mode(False):
+            e = torch.eye(2, dtype=like.dtype, device=like.device)
+        _UNITS[key] = (e[0], e[1])
+    return _UNITS[key]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.modules.calibration.models.base import CameraModel, broadcast_params, check_projection_inputs
+from ccs_kornia.modules.calibration.models.base import CameraModel, broadcast_params, check_projection_inputs, unit_columns
 
 __all__ = ["CentredRadialModel"]
 
@@ -57,25 +57,25 @@ class CentredRadialModel(CameraModel):
         p = broadcast_params(params, points)
         w, h = self.image_size
         inv_s2 = 1.0 / float(max(w, h)) ** 2
-        X, Y, Z = points.unbind(-1)
-        inv_z = 1.0 / Z
-        x, y = X * inv_z, Y * inv_z
-        fx, fy, cx, cy = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-        k1, k2, k3 = p[..., 4], p[..., 5], p[..., 6]
-        ccx, ccy = (w - 1) / 2.0 + p[..., 7], (h - 1) / 2.0 + p[..., 8]
-        dx, dy = fx * x + cx - ccx, fy * y + cy - ccy
-        r2 = (dx * dx + dy * dy) * inv_s2
-        f = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        uv = torch.stack([ccx + dx * f, ccy + dy * f], -1)
+        inv_z = 1.0 / points[..., 2:3]
+        xy = points[..., :2] * inv_z
+        f, c = p[..., 0:2], p[..., 2:4]
+        k1, k2, k3 = p[..., 4:5], p[..., 5:6], p[..., 6:7]
+        centre = p[..., 7:9] + torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], dtype=p.dtype, device=p.device)
+        d = f * xy + c - centre  # pinhole pixel relative to the distortion centre
+        r2 = (d * d).sum(-1, keepdim=True) * inv_s2
+        fr = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        uv = centre + d * fr
         if not jacobians:
-            return uv, None, None, None, None
+            return uv, None, None
 
-        # M = d p_d / d (p - c) = f I + (2 f' / S^2) d d^T
-        fp = 2 * (k1 + r2 * (2 * k2 + 3 * k3 * r2)) * inv_s2
-        m00, m01, m11 = f + fp * dx * dx, fp * dx * dy, f + fp * dy * dy
-        ju = [m00 * x, m01 * y, m00, m01, dx * r2, dx * r2 * r2, dx * r2 * r2 * r2, 1 - m00, -m01]
-        jv = [m01 * x, m11 * y, m01, m11, dy * r2, dy * r2 * r2, dy * r2 * r2 * r2, -m01, 1 - m11]
+        # M = d p_d / d (p - c) = fr I + (2 fr' / S^2) d d^T, by columns m0 = (m00, m01), m1 = (m01, m11)
+        ex, ey = unit_columns(uv)
+        fpd = (2 * inv_s2) * (k1 + r2 * (2 * k2 + 3 * k3 * r2)) * d
+        m0, m1 = fpd * d[..., 0:1] + fr * ex, fpd * d[..., 1:2] + fr * ey
+        x, y = xy[..., 0:1], xy[..., 1:2]
+        dr = d * r2
+        dp = [m0 * x, m1 * y, m0, m1, dr, dr * r2, dr * r2 * r2, ex - m0, ey - m1]
         # d p / d Xc = diag(fx, fy) [[1, 0, -x], [0, 1, -y]] / z
-        ax, ay = fx * inv_z, fy * inv_z
-        xu = [m00 * ax, m01 * ay, -(m00 * ax * x + m01 * ay * y)]
-        return uv, ju, jv, xu, [m01 * ax, m11 * ay, -(m01 * ax * x + m11 * ay * y)]
+        dx, dy = m0 * (p[..., 0:1] * inv_z), m1 * (p[..., 1:2] * inv_z)
+        return uv, dp, [dx, dy, -(dx * x + dy * y)]

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.modules.calibration.models.base import CameraModel, broadcast_params, check_projection_inputs
+from ccs_kornia.modules.calibration.models.base import CameraModel, broadcast_params, check_projection_inputs, unit_columns
 
 __all__ = ["KannalaBrandtModel"]
 
@@ -46,10 +46,10 @@ class KannalaBrandtModel(CameraModel):
         """See :meth:`CameraModel.columns`."""
         check_projection_inputs(points, params, self.num_params)
         p = broadcast_params(params, points)
-        X, Y, Z = points.unbind(-1)
-        fx, fy, cx, cy = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-        k1, k2, k3, k4 = p[..., 4], p[..., 5], p[..., 6], p[..., 7]
-        r2 = X * X + Y * Y
+        XY, Z = points[..., :2], points[..., 2:3]
+        f, c = p[..., 0:2], p[..., 2:4]
+        k1, k2, k3, k4 = p[..., 4:5], p[..., 5:6], p[..., 6:7], p[..., 7:8]
+        r2 = (XY * XY).sum(-1, keepdim=True)
         r = r2.sqrt()
         theta = torch.atan2(r, Z)
         t2 = theta * theta
@@ -61,19 +61,22 @@ class KannalaBrandtModel(CameraModel):
         # theta / r and s = theta_d / r, with their series about the axis
         t_over_r = torch.where(near_axis, inv_z * (1 - r2 * inv_z * inv_z / 3), theta / r_safe)
         s = t_over_r * poly
-        uv = torch.stack([fx * s * X + cx, fy * s * Y + cy], -1)
+        fXY = f * XY
+        uv = fXY * s + c
         if not jacobians:
-            return uv, None, None, None, None
+            return uv, None, None
 
-        zeros, ones = torch.zeros((), dtype=X.dtype, device=X.device), torch.ones((), dtype=X.dtype, device=X.device)
-        tk = [t_over_r * t2, t_over_r * t2 * t2, t_over_r * t2 * t2 * t2, t_over_r * t2 * t2 * t2 * t2]
-        ju = [s * X, zeros, ones, zeros, *(fx * X * c for c in tk)]
-        jv = [zeros, s * Y, zeros, ones, *(fy * Y * c for c in tk)]
+        ex, ey = unit_columns(uv)
+        sXY = s * XY
+        g1 = fXY * (t_over_r * t2)
+        t4 = t2 * t2
+        dp = [sXY * ex, sXY * ey, ex, ey, g1, g1 * t2, g1 * t4, g1 * t4 * t2]
 
         dpoly = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))  # d theta_d / d theta
         inv_rho2 = 1.0 / (r2 + Z * Z)
         g_far = (dpoly * Z * inv_rho2 - s) / (r_safe * r_safe)
         g = torch.where(near_axis, (2 * k1 - 2.0 / 3.0) * inv_z * inv_z * inv_z, g_far)
-        sz = -dpoly * inv_rho2  # d s / d Z
-        gxy = g * X * Y
-        return uv, ju, jv, [fx * (s + g * X * X), fx * gxy, fx * X * sz], [fy * gxy, fy * (s + g * Y * Y), fy * Y * sz]
+        gXY = g * XY  # d s / d (X, Y) = g (X, Y); d s / d Z = -dpoly / rho^2
+        dX = f * (s * ex + gXY * XY[..., 0:1])
+        dY = f * (s * ey + gXY * XY[..., 1:2])
+        return uv, dp, [dX, dY, fXY * (-dpoly * inv_rho2)]

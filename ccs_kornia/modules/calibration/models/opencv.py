@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.modules.calibration.models.base import CameraModel, broadcast_params, check_projection_inputs
+from ccs_kornia.modules.calibration.models.base import CameraModel, broadcast_params, check_projection_inputs, unit_columns
 
 __all__ = ["OPENCV_VARIANTS", "OpenCVModel"]
 
@@ -72,15 +72,15 @@ class OpenCVModel(CameraModel):
         """See :meth:`CameraModel.columns` (terms of coefficients outside the variant are skipped, not zeroed)."""
         check_projection_inputs(points, params, self.num_params)
         p = broadcast_params(params, points)
-        X, Y, Z = points.unbind(-1)
-        inv_z = 1.0 / Z
-        x, y = X * inv_z, Y * inv_z
-        fx, fy, cx, cy = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-        k = dict(zip(self.coeff_index, p[..., 4:].unbind(-1)))
+        inv_z = 1.0 / points[..., 2:3]
+        xy = points[..., :2] * inv_z  # (C, *, 2) normalised coordinates
+        f, c = p[..., 0:2], p[..., 2:4]
+        k = {i: p[..., 4 + j : 5 + j] for j, i in enumerate(self.coeff_index)}  # (C, 1.., 1) each
         radial, tangential, k3on, rational = 0 in k, 2 in k, 4 in k, 5 in k
-        xx, yy, xy = x * x, y * y, x * y
-        r2 = xx + yy
-        rad, drad, inv_b = 1.0, 0.0, None
+        x, y = xy[..., 0:1], xy[..., 1:2]
+        sq = xy * xy
+        r2 = sq.sum(-1, keepdim=True)
+        pd, drad, inv_b = xy, None, None
         if radial:
             if k3on:
                 rad = 1 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]))
@@ -92,43 +92,42 @@ class OpenCVModel(CameraModel):
                 inv_b = 1.0 / (1 + r2 * (k[5] + r2 * (k[6] + r2 * k[7])))
                 rad = rad * inv_b
                 drad = (drad - rad * (k[5] + r2 * (2 * k[6] + 3 * k[7] * r2))) * inv_b
-        xd, yd = (x * rad, y * rad) if radial else (x, y)
+            pd = xy * rad
         if tangential:
-            xy2 = 2 * xy
-            xd = xd + k[2] * xy2 + k[3] * (r2 + 2 * xx)
-            yd = yd + k[2] * (r2 + 2 * yy) + k[3] * xy2
-        uv = torch.stack([fx * xd + cx, fy * yd + cy], -1)
+            xy2 = 2 * x * y
+            r2p = r2 + 2 * sq
+            t1 = torch.cat([xy2, r2p[..., 1:2]], -1)  # d (xd, yd) / d p1
+            t2 = torch.cat([r2p[..., 0:1], xy2], -1)  # d (xd, yd) / d p2
+            pd = pd + k[2] * t1 + k[3] * t2
+        uv = pd * f + c
         if not jacobians:
-            return uv, None, None, None, None
+            return uv, None, None
 
-        zeros, ones = torch.zeros((), dtype=x.dtype, device=x.device), torch.ones((), dtype=x.dtype, device=x.device)
-        ju, jv = [xd, zeros, ones, zeros], [zeros, yd, zeros, ones]
-        cu, cv = {}, {}
+        ex, ey = unit_columns(uv)
+        cols = {}
         if radial:
-            xs, ys = (x, y) if inv_b is None else (x * inv_b, y * inv_b)
-            cu[0], cv[0] = fx * xs * r2, fy * ys * r2
-            cu[1], cv[1] = cu[0] * r2, cv[0] * r2
+            cols[0] = f * (xy if inv_b is None else xy * inv_b) * r2
+            cols[1] = cols[0] * r2
             if k3on:
-                cu[4], cv[4] = cu[1] * r2, cv[1] * r2
+                cols[4] = cols[1] * r2
             if rational:
-                cu[5], cv[5] = -cu[0] * rad, -cv[0] * rad
-                cu[6], cv[6] = cu[5] * r2, cv[5] * r2
-                cu[7], cv[7] = cu[6] * r2, cv[6] * r2
+                cols[5] = -cols[0] * rad
+                cols[6] = cols[5] * r2
+                cols[7] = cols[6] * r2
         if tangential:
-            cu[2], cv[2] = fx * xy2, fy * (r2 + 2 * yy)
-            cu[3], cv[3] = fx * (r2 + 2 * xx), fy * xy2
-        ju += [cu[i] for i in self.coeff_index]
-        jv += [cv[i] for i in self.coeff_index]
+            cols[2], cols[3] = f * t1, f * t2
+        dp = [pd * ex, pd * ey, ex, ey, *(cols[i] for i in self.coeff_index)]
 
-        # d uv / d Xc = diag(fx, fy) d(xd, yd)/d(x, y) d(x, y)/d Xc
-        fxz, fyz = fx * inv_z, fy * inv_z
-        if radial:
-            a00, a01, a11 = rad + 2 * xx * drad, 2 * xy * drad, rad + 2 * yy * drad
-        else:
-            a00, a01, a11 = ones, zeros, ones
+        # d uv / d Xc = diag(fx, fy) d(xd, yd)/d(x, y) d(x, y)/d Xc, with d(xd, yd)/d(x, y) = [[a00, a01], [a01, a11]]
+        fz = f * inv_z
+        if not (radial or tangential):
+            dx, dy = fz * ex, fz * ey
+            return uv, dp, [dx, dy, -(dx * x + dy * y)]
+        diag, off = (rad + 2 * sq * drad, (xy2 if tangential else 2 * x * y) * drad) if radial else (1.0, 0.0)
         if tangential:
-            a00 = a00 + 2 * k[2] * y + 6 * k[3] * x
-            a01 = a01 + 2 * k[2] * x + 2 * k[3] * y
-            a11 = a11 + 6 * k[2] * y + 2 * k[3] * x
-        gx0, gx1, gy0, gy1 = fxz * a00, fxz * a01, fyz * a01, fyz * a11
-        return uv, ju, jv, [gx0, gx1, -(gx0 * x + gx1 * y)], [gy0, gy1, -(gy0 * x + gy1 * y)]
+            p1y, p2x = k[2] * y, k[3] * x
+            diag = diag + 2 * torch.cat([p1y + 3 * p2x, 3 * p1y + p2x], -1)
+            off = off + 2 * (k[2] * x + k[3] * y)
+        dx = fz * torch.cat([diag[..., 0:1], off], -1)
+        dy = fz * torch.cat([off, diag[..., 1:2]], -1)
+        return uv, dp, [dx, dy, -(dx * x + dy * y)]
