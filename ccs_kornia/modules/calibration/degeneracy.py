@@ -259,8 +259,9 @@ def _message(name, s, v, idx, c, duplicate_of, t: DegeneracyThresholds) -> tuple
         return (f"the boards cover {100 * v:.0f} % of the image, the distortion is extrapolated elsewhere",
                 "add views with the board near the image corners and edges")
     if name == "focal_uncertainty" and not math.isfinite(v):
-        return ("the uncertainty of the focal length could not be computed (singular information matrix: some "
-                "parameter is not determined by these views)", "try a distortion model with fewer coefficients")
+        return ("the uncertainty of the camera could not be computed (non-finite information matrix: the solution "
+                "is numerically broken or some parameter is not determined by these views)",
+                "add views with the board tilted in different directions, or try a model with fewer coefficients")
     if name == "focal_uncertainty":
         amount = f"{100 * v:.1f} %" if v < 1 else "over 100 %"
         return (f"the focal length or principal point is uncertain (standard deviation {amount} of the focal "
@@ -368,8 +369,9 @@ def check_degeneracy(
         rel_pp = torch.maximum(std_intrinsics[:, 2] / image_size[0], std_intrinsics[:, 3] / image_size[1]).to(f64)
         rel = torch.where(rel_pp > rel, rel_pp, rel)  # (NaN-propagating max)
         val[:, 6] = rel
+        # not computable (a non-finite information matrix: the solution overflowed somewhere) is refused too
         bad = ~rel.isfinite() & used.any(-1)
-        sev[:, 6] = torch.where(rel > t.focal_std_error, ERROR, torch.where(bad | (rel > t.focal_std_warning), WARNING, OK))
+        sev[:, 6] = torch.where(bad | (rel > t.focal_std_error), ERROR, torch.where(rel > t.focal_std_warning, WARNING, OK))
     rep = DegeneracyReport(sev, val, views, duplicate_of, t.min_views, t)
     if unbatched:
         rep = DegeneracyReport(sev[0], val[0], views[0], duplicate_of[0], t.min_views, t)

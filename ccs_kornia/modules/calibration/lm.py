@@ -30,7 +30,6 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from ccs_kornia.camera import rotation_matrix_to_axis_angle
 from ccs_kornia.modules.calibration.models.base import CameraModel
 
 __all__ = ["LMResult", "parameter_basis", "levenberg_marquardt", "LevenbergMarquardt"]
@@ -124,14 +123,15 @@ def parameter_basis(
     return torch.stack(cols, -1)
 
 
-def _sym_solve(A: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Solve SPD systems (..., F, F) x = b with Jacobi scaling; systems that fail give 0."""
+def _sym_solve(A: torch.Tensor, b: torch.Tensor, eye: torch.Tensor | None = None) -> torch.Tensor:
+    """Solve SPD systems (..., F, F) x = b with Jacobi scaling; systems that fail give 0 (``eye``: I_F)."""
     d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
-    dd = d[..., :, None] * d[..., None, :]
-    L, info = torch.linalg.cholesky_ex(A * dd)
+    L, info = torch.linalg.cholesky_ex(A * (d[..., :, None] * d[..., None, :]))
     bad = info != 0
     # a failed factor is replaced by the identity (its solution is then zeroed)
-    L = L.masked_fill(bad[..., None, None], 0.0) + torch.diag_embed(bad[..., None].to(A.dtype).expand(d.shape))
+    eye = torch.eye(A.shape[-1], dtype=A.dtype, device=A.device) if eye is None else eye
+    L = torch.where(bad[..., None, None], eye, L)
+    # (the inverse, not cholesky_solve: a camera's result does not depend on the other cameras of the batch)
     x = (torch.cholesky_inverse(L) @ (b * d).unsqueeze(-1)).squeeze(-1) * d
     return x.masked_fill(bad[..., None] | ~x.isfinite(), 0.0)
 
@@ -187,6 +187,23 @@ def _exp_so3(w: torch.Tensor) -> torch.Tensor:
     return R
 
 
+def _log_so3(R: torch.Tensor) -> torch.Tensor:
+    """Rotation vectors (..., 3) of rotation matrices (..., 3, 3): the inverse of :func:`_exp_so3` (angle in
+    [0, pi]); the axis from the skew part, or from the symmetric part beyond 90 degrees (exact at pi)."""
+    cos = ((R.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) * 0.5).clamp(-1.0, 1.0)
+    v = torch.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    sin2 = torch.linalg.vector_norm(v, dim=-1)  # 2 sin(theta)
+    theta = torch.atan2(0.5 * sin2, cos)
+    # below 90 degrees: w = theta / (2 sin theta) v (-> v / 2 at 0)
+    small = (theta / sin2.clamp_min(1e-300)).masked_fill(sin2 < 1e-12, 0.5)[..., None] * v
+    # beyond: (R + R^T) / 2 - cos I = (1 - cos) a a^T; its largest column gives +-a, the skew part the sign
+    B = 0.5 * (R + R.transpose(-1, -2)) - cos[..., None, None] * torch.eye(3, dtype=R.dtype, device=R.device)
+    col = B.gather(-1, B.diagonal(dim1=-2, dim2=-1).argmax(-1)[..., None, None].expand(*B.shape[:-1], 1))[..., 0]
+    a = torch.nn.functional.normalize(col, dim=-1)
+    a = torch.where((a * v).sum(-1, keepdim=True) < 0, -a, a)
+    return torch.where((cos < 0)[..., None], a * theta[..., None], small)
+
+
 def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expanded):
     """Per-camera normal equations at (R, t, params): cost, U (C,F,F), W (C,V,F,6), V (C,V,6,6), eg, ep."""
     C, V = R.shape[:2]
@@ -220,30 +237,33 @@ def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expa
     return cost, Gpp, Gpk, Gkk, gp, gk
 
 
-def _schur_step(U, W, Vb, eg, ep, lam, used_f):
+def _schur_step(U, W, Vb, eg, ep, lam, used_f, eyeF):
     """Damped Gauss-Newton step: eliminate the pose blocks, solve the camera block, back-substitute."""
     dU = U.diagonal(dim1=-2, dim2=-1)
     # a floor keeps the damped system definite where a column vanishes (e.g. a distortion centre at k = 0)
-    dU = torch.maximum(dU, 1e-12 * dU.amax(-1, keepdim=True).clamp_min(1e-300)) if dU.shape[-1] else dU
-    Ud = U + torch.diag_embed(dU * lam[:, None])
-    Vd = Vb + torch.diag_embed(Vb.diagonal(dim1=-2, dim2=-1) * lam[:, None, None])
-    Vinv = _sym_inverse(Vd)
-    Vinv = torch.where(Vinv.isfinite(), Vinv, torch.zeros_like(Vinv))
+    if dU.shape[-1]:
+        dU = torch.maximum(dU, 1e-12 * dU.amax(-1, keepdim=True).clamp_min(1e-300))
+    Ud = U.clone()
+    Ud.diagonal(dim1=-2, dim2=-1).add_(dU * lam[:, None])
+    Vd = Vb.clone()
+    Vd.diagonal(dim1=-2, dim2=-1).mul_((1 + lam)[:, None, None])
+    # the damped 6x6 pose blocks are definite (unused views: the identity); a failed inverse is zeroed
+    Vinv = torch.linalg.inv_ex(Vd)[0].nan_to_num_(0.0, 0.0, 0.0)
     Y = W @ Vinv  # (C, V, F, 6)
     S = Ud - (Y @ W.transpose(-1, -2)).sum(1)
-    dg = _sym_solve(S, -eg + (Y @ ep.unsqueeze(-1)).squeeze(-1).sum(1))
-    dp = (Vinv @ (-ep - (W.transpose(-1, -2) @ dg[:, None, :, None]).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
-    return dg, dp * used_f[..., None]
+    dg = _sym_solve(S, (Y @ ep.unsqueeze(-1)).sum(1).squeeze(-1) - eg, eyeF)
+    dp = (Vinv @ (ep.unsqueeze(-1) + W.transpose(-1, -2) @ dg[:, None, :, None])).squeeze(-1)
+    return dg, dp * (-used_f)[..., None]
 
 
-def _lm_iteration(model, s, c, eye6, ftol, xtol, expanded):
+def _lm_iteration(model, s, c, eyes, ftol, xtol, expanded):
     """One LM iteration of every camera in the state ``s`` (updated in place); done cameras keep their values."""
     x, R, tv, lam, cost = s["x"], s["R"], s["tv"], s["lam"], s["cost"]
     active = ~s["done"]
-    dg, dp = _schur_step(s["U"], s["W"], s["Vb"], s["eg"], s["ep"], lam, c["used_f"])
+    dg, dp = _schur_step(s["U"], s["W"], s["Vb"], s["eg"], s["ep"], lam, c["used_f"], eyes[1])
     x_n = x + (dg if c["Bn"] is None else (c["B"] @ dg.unsqueeze(-1)).squeeze(-1))
     R_n, t_n = _exp_so3(dp[..., :3]) @ R, tv + dp[..., 3:]
-    new = _normal_equations(model, R_n, t_n, x_n, c["obj"], c["obs"], c["sw"], c["Bn"], c["used"], eye6, expanded)
+    new = _normal_equations(model, R_n, t_n, x_n, c["obj"], c["obs"], c["sw"], c["Bn"], c["used"], eyes[0], expanded)
     cost_n = new[0]
 
     accept = (cost_n < cost) & active
@@ -351,6 +371,7 @@ def levenberg_marquardt(
         B, identity = basis.to(device=device, dtype=dtype), False
     Bn = None if identity else B
     eye6 = torch.eye(6, dtype=dtype, device=device)
+    eyeF = torch.eye(B.shape[-1], dtype=dtype, device=device)
     used_f = used.to(dtype)
 
     # unused views are parked in front of the camera so their (zero-weighted) projections stay finite
@@ -374,7 +395,7 @@ def levenberg_marquardt(
     idx = torch.arange(C, device=device)
     work, wc = dict(full), const
     for it in range(max_iters):
-        _lm_iteration(model, work, wc, eye6, ftol, xtol, expanded)
+        _lm_iteration(model, work, wc, (eye6, eyeF), ftol, xtol, expanded)
         if (it + 1) % check_every == 0:
             alive = ~work["done"]
             if not bool(alive.any()):
@@ -416,7 +437,7 @@ def levenberg_marquardt(
         cov[singular] = _pseudo_inverse(S[singular])
     cov = cov * sigma2[:, None, None]
 
-    rvec_out = rotation_matrix_to_axis_angle(R.reshape(-1, 3, 3)).reshape(C, V, 3)
+    rvec_out = _log_so3(R)
     rvec_out = torch.where(used[..., None], rvec_out, rvec.to(dtype))
     tvec_out = torch.where(used[..., None], tv, tvec.to(dtype))
     return LMResult(

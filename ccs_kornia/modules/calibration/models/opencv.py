@@ -69,10 +69,15 @@ class OpenCVModel(CameraModel):
         return torch.cat([intr, d8[:, list(self.coeff_index)]], -1)
 
     def columns(self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True) -> tuple:
-        """See :meth:`CameraModel.columns` (terms of coefficients outside the variant are skipped, not zeroed)."""
+        """See :meth:`CameraModel.columns` (terms of coefficients outside the variant are skipped, not zeroed).
+
+        (Written with in-place ops on fresh tensors: the LM core calls it once per iteration, and on small
+        problems the cost is the number of tensor ops. No fused multiply-adds: their vectorised and scalar paths
+        round differently, which would make a camera's result depend on its place in the batch.)
+        """
         check_projection_inputs(points, params, self.num_params)
         p = broadcast_params(params, points)
-        inv_z = 1.0 / points[..., 2:3]
+        inv_z = points[..., 2:3].reciprocal()
         xy = points[..., :2] * inv_z  # (C, *, 2) normalised coordinates
         f, c = p[..., 0:2], p[..., 2:4]
         k = {i: p[..., 4 + j : 5 + j] for j, i in enumerate(self.coeff_index)}  # (C, 1.., 1) each
@@ -80,38 +85,41 @@ class OpenCVModel(CameraModel):
         x, y = xy[..., 0:1], xy[..., 1:2]
         sq = xy * xy
         r2 = sq.sum(-1, keepdim=True)
-        pd, drad, inv_b = xy, None, None
+        drad = inv_b = None
         if radial:
             if k3on:
-                rad = 1 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]))
-                drad = k[0] + r2 * (2 * k[1] + 3 * k[4] * r2)
+                rad = (r2 * k[4]).add_(k[1]).mul_(r2).add_(k[0]).mul_(r2).add_(1.0)
+                drad = (r2 * (3 * k[4])).add_(2 * k[1]).mul_(r2).add_(k[0])
             else:
-                rad = 1 + r2 * (k[0] + r2 * k[1])
-                drad = k[0] + 2 * k[1] * r2
+                rad = (r2 * k[1]).add_(k[0]).mul_(r2).add_(1.0)
+                drad = (r2 * (2 * k[1])).add_(k[0])
             if rational:
-                inv_b = 1.0 / (1 + r2 * (k[5] + r2 * (k[6] + r2 * k[7])))
-                rad = rad * inv_b
-                drad = (drad - rad * (k[5] + r2 * (2 * k[6] + 3 * k[7] * r2))) * inv_b
+                inv_b = (r2 * k[7]).add_(k[6]).mul_(r2).add_(k[5]).mul_(r2).add_(1.0).reciprocal_()
+                rad = rad.mul_(inv_b)
+                dden = (r2 * (3 * k[7])).add_(2 * k[6]).mul_(r2).add_(k[5])
+                drad = drad.sub_(dden.mul_(rad)).mul_(inv_b)
             pd = xy * rad
+        else:
+            pd = xy.clone()
         if tangential:
-            xy2 = 2 * x * y
-            r2p = r2 + 2 * sq
+            xy2 = (x * y).mul_(2.0)
+            r2p = (sq * 2.0).add_(r2)
             t1 = torch.cat([xy2, r2p[..., 1:2]], -1)  # d (xd, yd) / d p1
             t2 = torch.cat([r2p[..., 0:1], xy2], -1)  # d (xd, yd) / d p2
-            pd = pd + k[2] * t1 + k[3] * t2
-        uv = pd * f + c
+            pd.add_(k[2] * t1).add_(k[3] * t2)
+        uv = (pd * f).add_(c)
         if not jacobians:
             return uv, None, None
 
         ex, ey = unit_columns(uv)
         cols = {}
         if radial:
-            cols[0] = f * (xy if inv_b is None else xy * inv_b) * r2
+            cols[0] = (f * (xy if inv_b is None else xy * inv_b)).mul_(r2)
             cols[1] = cols[0] * r2
             if k3on:
                 cols[4] = cols[1] * r2
             if rational:
-                cols[5] = -cols[0] * rad
+                cols[5] = (cols[0] * rad).neg_()
                 cols[6] = cols[5] * r2
                 cols[7] = cols[6] * r2
         if tangential:
@@ -122,12 +130,16 @@ class OpenCVModel(CameraModel):
         fz = f * inv_z
         if not (radial or tangential):
             dx, dy = fz * ex, fz * ey
-            return uv, dp, [dx, dy, -(dx * x + dy * y)]
-        diag, off = (rad + 2 * sq * drad, (xy2 if tangential else 2 * x * y) * drad) if radial else (1.0, 0.0)
+            return uv, dp, [dx, dy, (dx * x).add_(dy * y).neg_()]
+        if radial:
+            diag = (sq * drad).mul_(2.0).add_(rad)
+            off = (xy2 if tangential else (x * y).mul_(2.0)) * drad
+        else:
+            diag, off = torch.ones_like(xy), torch.zeros_like(x)
         if tangential:
             p1y, p2x = k[2] * y, k[3] * x
-            diag = diag + 2 * torch.cat([p1y + 3 * p2x, 3 * p1y + p2x], -1)
-            off = off + 2 * (k[2] * x + k[3] * y)
+            diag.add_(torch.cat([(p2x * 3.0).add_(p1y), (p1y * 3.0).add_(p2x)], -1).mul_(2.0))
+            off.add_((k[2] * x).add_(k[3] * y).mul_(2.0))
         dx = fz * torch.cat([diag[..., 0:1], off], -1)
         dy = fz * torch.cat([off, diag[..., 1:2]], -1)
-        return uv, dp, [dx, dy, -(dx * x + dy * y)]
+        return uv, dp, [dx, dy, (dx * x).add_(dy * y).neg_()]
