@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
-from ccs_kornia.camera import axis_angle_to_rotation_matrix
 from ccs_kornia.modules.calibration.coverage import covered_pixels, image_coverage
 from ccs_kornia.modules.calibration.duplicates import _batch, duplicate_views, view_differences
+from ccs_kornia.modules.calibration.so3 import exp_so3
 
 __all__ = [
     "CHECKS",
@@ -105,7 +105,7 @@ def num_camera_unknowns(model: str, fix_aspect_ratio: bool = False, fix_principa
 
 
 def _normals(rvec: torch.Tensor) -> torch.Tensor:
-    R = axis_angle_to_rotation_matrix(rvec.reshape(-1, 3).to(torch.float64)).reshape(*rvec.shape[:-1], 3, 3)
+    R = exp_so3(rvec.to(torch.float64))
     return R[..., :, 2]  # board z axis in the camera frame
 
 
@@ -322,56 +322,49 @@ def check_degeneracy(
     d = view_differences(corners, valid) if differences is None else differences
     if duplicate_of is None:
         duplicate_of = duplicate_views(corners, valid, cand, t.duplicate_px, d)
-    sev = torch.zeros(C, len(CHECKS), dtype=torch.long, device=dev)
-    val = torch.full((C, len(CHECKS)), float("nan"), dtype=f64, device=dev)
-    views = torch.zeros(C, len(CHECKS), V, dtype=torch.bool, device=dev)
+    # every check gives a value, an error flag and a warning flag per camera (columns stacked once at the end)
+    any_used, no = used.any(-1), torch.zeros(C, dtype=torch.bool, device=dev)
 
     # duplicates: value = distinct candidate views
     dup = duplicate_of >= 0
     distinct = (cand & ~dup).sum(-1)
-    val[:, 0] = distinct.to(f64)
-    views[:, 0] = dup
-    sev[:, 0] = torch.where(dup.any(-1), torch.where(distinct < t.min_views, ERROR, WARNING), OK)
+    has_dup = dup.any(-1)
 
     # near-identical used views (not copies): value = smallest RMS difference between two used views
-    pair = used[:, :, None] & used[:, None, :]
-    d = torch.where(pair, d, torch.full_like(d, float("inf")))
+    d = d.masked_fill(~(used[:, :, None] & used[:, None, :]), float("inf"))
     near = (d <= t.near_identical_px).any(-1)
-    val[:, 1] = d.amin((-1, -2))
-    views[:, 1] = near
-    sev[:, 1] = torch.where(near.any(-1), WARNING, OK)
 
     # pose diversity and tilt direction
     spread = pose_spread(rvec, used)
-    val[:, 2], val[:, 3] = spread[:, 0], spread[:, 1]
     enough = used.sum(-1) >= 2
-    sev[:, 2] = torch.where(enough & (spread[:, 0] < t.parallel_error_deg), ERROR,
-                            torch.where(enough & (spread[:, 0] < t.parallel_warning_deg), WARNING, OK))
-    one_axis = enough & (sev[:, 2] == OK) & (spread[:, 1] < t.tilt_direction_deg)
-    sev[:, 3] = torch.where(one_axis, WARNING, OK)
-    views[:, 2] = used & (sev[:, 2:3] > OK)
-    views[:, 3] = used & one_axis[:, None]
+    par_err = enough & (spread[:, 0] < t.parallel_error_deg)
+    par_warn = par_err | (enough & (spread[:, 0] < t.parallel_warning_deg))
+    one_axis = enough & ~par_warn & (spread[:, 1] < t.tilt_direction_deg)
 
     # observations per unknown
     ratio = corners_per_unknown(valid, used, num_camera_unknowns(model, fix_aspect_ratio, fix_principal_point))
-    val[:, 4] = ratio
-    sev[:, 4] = torch.where(ratio < t.per_unknown_error, ERROR, torch.where(ratio < t.per_unknown_warning, WARNING, OK))
 
     # image coverage
-    cov = image_coverage(corners, valid, object_points, used, image_size, homographies=homographies)
-    val[:, 5] = cov[:, 0]
-    sev[:, 5] = torch.where(used.any(-1) & (cov[:, 0] < t.coverage_warning), WARNING, OK)
+    cov = image_coverage(corners, valid, object_points, used, image_size, homographies=homographies)[:, 0]
 
     # focal uncertainty from the covariance; the principal point's (relative to the image size) counts too: a
     # singular information matrix can put its huge variance there while the focal's comes out tiny
+    rel, rel_err, rel_warn = torch.full((C,), float("nan"), dtype=f64, device=dev), no, no
     if K is not None and std_intrinsics is not None:
         rel = torch.maximum(std_intrinsics[:, 0] / K[:, 0, 0].abs(), std_intrinsics[:, 1] / K[:, 1, 1].abs()).to(f64)
         rel_pp = torch.maximum(std_intrinsics[:, 2] / image_size[0], std_intrinsics[:, 3] / image_size[1]).to(f64)
         rel = torch.where(rel_pp > rel, rel_pp, rel)  # (NaN-propagating max)
-        val[:, 6] = rel
         # not computable (a non-finite information matrix: the solution overflowed somewhere) is refused too
-        bad = ~rel.isfinite() & used.any(-1)
-        sev[:, 6] = torch.where(bad | (rel > t.focal_std_error), ERROR, torch.where(rel > t.focal_std_warning, WARNING, OK))
+        rel_err = (~rel.isfinite() & any_used) | (rel > t.focal_std_error)
+        rel_warn = rel > t.focal_std_warning
+
+    val = torch.stack([distinct.to(f64), d.amin((-1, -2)), spread[:, 0], spread[:, 1], ratio, cov, rel], -1)
+    err = torch.stack([has_dup & (distinct < t.min_views), no, par_err, no, ratio < t.per_unknown_error, no, rel_err], -1)
+    warn = torch.stack([has_dup, near.any(-1), par_warn, one_axis, ratio < t.per_unknown_warning,
+                        any_used & (cov < t.coverage_warning), rel_warn], -1)
+    sev = torch.maximum(err.long() * ERROR, warn.long() * WARNING)
+    none_v = torch.zeros_like(used)
+    views = torch.stack([dup, near, used & par_warn[:, None], used & one_axis[:, None], none_v, none_v, none_v], 1)
     rep = DegeneracyReport(sev, val, views, duplicate_of, t.min_views, t)
     if unbatched:
         rep = DegeneracyReport(sev[0], val[0], views[0], duplicate_of[0], t.min_views, t)

@@ -143,6 +143,15 @@ def image_ransac(
     n_views = view_mask.sum(-1)
     S = num_hypotheses
 
+    if early_accept and not return_details:
+        # every candidate view fits the all-views hypothesis within the absolute floor of the threshold: it is a
+        # consensus of all candidates, so the random hypotheses could only return the same inliers and camera
+        K_all = zhang_intrinsics(H, view_mask, image_size)
+        rms_all = hypothesis_view_rms(K_all[:, None], H, obj_xy, obs, valid)[:, 0]
+        easy = ((rms_all <= abs_threshold) | ~view_mask).all(-1) | (n_views < min_views)
+        if bool(easy.all()):
+            return view_mask, K_all
+
     # random subsets: the k smallest of per-view random keys among the candidate views
     if generator is None:
         generator = torch.Generator().manual_seed(0)
@@ -153,15 +162,6 @@ def image_ransac(
     sample = torch.zeros(C, S, V, dtype=torch.bool, device=device).scatter_(-1, idx, True)
     sample = sample & view_mask[:, None]
     sample[:, 0] = view_mask  # hypothesis 0: all views
-
-    if early_accept and not return_details:
-        # every candidate view fits the all-views hypothesis within the absolute floor of the threshold: it is a
-        # consensus of all candidates, so the random hypotheses could only return the same inliers and camera
-        K_all = zhang_intrinsics(H, view_mask, image_size)
-        rms_all = hypothesis_view_rms(K_all[:, None], H, obj_xy, obs, valid)[:, 0]
-        easy = ((rms_all <= abs_threshold) | ~view_mask).all(-1) | (n_views < min_views)
-        if bool(easy.all()):
-            return view_mask, K_all
 
     K_hyp = zhang_intrinsics(
         H[:, None].expand(C, S, V, 3, 3).reshape(C * S, V, 3, 3), sample.reshape(C * S, V), image_size

@@ -11,7 +11,12 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.modules.calibration.models.base import CameraModel, broadcast_params, check_projection_inputs, unit_columns
+from ccs_kornia.modules.calibration.models.base import (
+    CameraModel,
+    broadcast_params,
+    check_projection_inputs,
+    unit_columns,
+)
 
 __all__ = ["CentredRadialModel"]
 
