@@ -195,14 +195,15 @@ def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expa
     P = params.shape[-1]
     Gpp, Gpk, Gkk = G[..., :P, :P].sum(1), G[..., :P, P : P + 6], G[..., P : P + 6, P : P + 6]
     gp, gk = G[..., :P, P + 6].sum(1), G[..., P : P + 6, P + 6]
-    cost = G[..., P + 6, P + 6].sum(1)
+    view_cost = G[..., P + 6, P + 6]  # (C, V) weighted squared residuals per view
+    cost = view_cost.sum(1)
     cost = torch.where(cost.isfinite(), cost, torch.full_like(cost, float("inf")))
     if basis is not None:
         Bt = basis.transpose(-1, -2)
         Gpp, gp = Bt @ Gpp @ basis, (Bt @ gp.unsqueeze(-1)).squeeze(-1)
         Gpk = torch.einsum("cpf,cvpk->cvfk", basis, Gpk)
     Gkk = torch.where(used[..., None, None], Gkk, eye6)
-    return cost, Gpp, Gpk, Gkk, gp, gk
+    return cost, Gpp, Gpk, Gkk, gp, gk, view_cost
 
 
 def _schur_step(U, W, Vb, eg, ep, lam, used_f, eyeF):
@@ -242,7 +243,7 @@ def _lm_iteration(model, s, c, eyes, ftol, xtol, expanded):
     finished = (accept & small_decrease) | small_step | (lam > 1e16)
     finished = active & (finished | (torch.where(accept, cost_n, cost) <= c["floor"]))
 
-    names, values = ("cost", "U", "W", "Vb", "eg", "ep", "x", "R", "tv"), (*new, x_n, R_n, t_n)
+    names, values = ("cost", "U", "W", "Vb", "eg", "ep", "vc", "x", "R", "tv"), (*new, x_n, R_n, t_n)
     mode = "mask"
     if x.device.type == "cpu":  # reading a flag costs nothing on the host: skip the selects when all agree
         mode = "all" if bool(accept.all()) else ("none" if not bool(accept.any()) else "mask")
@@ -356,7 +357,7 @@ def levenberg_marquardt(
     expanded: dict = {}
     eq = _normal_equations(model, R, tv, x, obj, obs, sw, Bn, used, eye6, expanded)
     done = ~used.any(-1)
-    full = dict(zip(("cost", "U", "W", "Vb", "eg", "ep"), eq))
+    full = dict(zip(("cost", "U", "W", "Vb", "eg", "ep", "vc"), eq))
     full.update(x=x, R=R, tv=tv, lam=torch.full((C,), lambda_init, dtype=dtype, device=device), done=done,
                 converged=done.clone(), iters=torch.zeros(C, dtype=torch.long, device=device))
     # the working set: every camera still iterating; it shrinks (a gather) only at the "all done?" checks
@@ -379,17 +380,20 @@ def levenberg_marquardt(
     for k, v in work.items():
         if v is not full[k]:
             full[k][idx] = v
-    x, R, tv, cost, U, W, Vb = (full[k] for k in ("x", "R", "tv", "cost", "U", "W", "Vb"))
+    x, R, tv, cost, U, W, Vb, vc = (full[k] for k in ("x", "R", "tv", "cost", "U", "W", "Vb", "vc"))
     iters, converged = full["iters"], full["converged"]
 
-    # statistics at the solution
-    q = torch.matmul(obj[:, None].expand(C, V, N, 3), R.transpose(-1, -2))
-    uv = model.columns(q + tv[:, :, None, :], x, jacobians=False)[0]
-    sq = torch.where(on, ((uv - obs) ** 2).sum(-1), 0.0)
+    # statistics at the solution (unit weights: the squared residuals per view are in the normal equations)
+    if sw is None:
+        sq_view = vc
+    else:
+        q = torch.matmul(obj[:, None].expand(C, V, N, 3), R.transpose(-1, -2))
+        uv = model.columns(q + tv[:, :, None, :], x, jacobians=False)[0]
+        sq_view = torch.where(on, ((uv - obs) ** 2).sum(-1), 0.0).sum(-1)
     n_view = on.sum(-1)
-    view_rms = torch.where(used, (sq.sum(-1) / n_view.clamp_min(1)).sqrt(), float("nan"))
+    view_rms = (sq_view / n_view.clamp_min(1)).sqrt().masked_fill(~used, float("nan"))
     n_pts = n_view.sum(-1)
-    rms = torch.where(n_pts > 0, (sq.sum((1, 2)) / n_pts.clamp_min(1)).sqrt(), float("nan"))
+    rms = (sq_view.sum(-1) / n_pts.clamp_min(1)).sqrt().masked_fill(n_pts == 0, float("nan"))
 
     Vinv = _sym_inverse(Vb)
     Vinv = torch.where(used[..., None, None] & Vinv.isfinite(), Vinv, torch.zeros_like(Vinv))
