@@ -54,7 +54,7 @@ CHECKS: tuple[str, ...] = (
     "tilt_direction",  # spread of the board normals across the main tilt direction (degrees)
     "corners_per_unknown",  # observations (2 per corner) per unknown (camera + 6 per view)
     "image_coverage",  # fraction of the image inside some board
-    "focal_uncertainty",  # relative std of fx, fy (to themselves) and cx, cy (to the image size), covariance
+    "focal_uncertainty",  # relative std of fx, fy from the covariance (or of cx, cy to the image size when > 1)
 )
 
 _FREE_DIST = {"none": 0, "k1k2": 2, "opencv5": 5, "rational": 8}
@@ -347,13 +347,13 @@ def check_degeneracy(
     # image coverage
     cov = image_coverage(corners, valid, object_points, used, image_size, homographies=homographies)[:, 0]
 
-    # focal uncertainty from the covariance; the principal point's (relative to the image size) counts too: a
-    # singular information matrix can put its huge variance there while the focal's comes out tiny
+    # focal uncertainty from the covariance; a principal point not determined at all (std beyond the image size)
+    # counts too: a singular information matrix can put its huge variance there while the focal's comes out tiny
     rel, rel_err, rel_warn = torch.full((C,), float("nan"), dtype=f64, device=dev), no, no
     if K is not None and std_intrinsics is not None:
         rel = torch.maximum(std_intrinsics[:, 0] / K[:, 0, 0].abs(), std_intrinsics[:, 1] / K[:, 1, 1].abs()).to(f64)
         rel_pp = torch.maximum(std_intrinsics[:, 2] / image_size[0], std_intrinsics[:, 3] / image_size[1]).to(f64)
-        rel = torch.where(rel_pp > rel, rel_pp, rel)  # (NaN-propagating max)
+        rel = torch.where((rel_pp > 1.0) & (rel_pp > rel), rel_pp, rel)
         # not computable (a non-finite information matrix: the solution overflowed somewhere) is refused too
         rel_err = (~rel.isfinite() & any_used) | (rel > t.focal_std_error)
         rel_warn = rel > t.focal_std_warning
