@@ -6,6 +6,7 @@ fraction, and the diagnostics separate the projection uncertainty where the boar
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -105,15 +106,19 @@ def image_coverage(
         ...                (100, 100), grid=(10, 10)).tolist()
         [[1.0, 1.0]]
     """
-    W_, H_ = int(image_size[0]), int(image_size[1])
-    gx, gy = int(grid[0]), int(grid[1])
-    dtype = torch.float64
-    xs = (torch.arange(gx, dtype=dtype) + 0.5) * W_ / gx - 0.5
-    ys = (torch.arange(gy, dtype=dtype) + 0.5) * H_ / gy - 0.5
-    yy, xx = torch.meshgrid(ys, xs, indexing="ij")
-    cells = torch.stack([xx.reshape(-1), yy.reshape(-1)], -1)
-    covered = covered_pixels(corners, valid, object_points, used, cells, homographies).to(dtype)  # (C, G)
-    half_diag = math.hypot((W_ - 1) / 2, (H_ - 1) / 2)
-    r = ((cells[:, 0] - (W_ - 1) / 2) ** 2 + (cells[:, 1] - (H_ - 1) / 2) ** 2).sqrt() / half_diag
-    outer = (r > 0.6).to(covered.device)
-    return torch.stack([covered.mean(-1), covered[:, outer].mean(-1)], -1)
+    cells, outer = _grid(int(image_size[0]), int(image_size[1]), int(grid[0]), int(grid[1]))
+    covered = covered_pixels(corners, valid, object_points, used, cells, homographies).to(torch.float64)  # (C, G)
+    return torch.stack([covered.mean(-1), covered[:, outer.to(covered.device)].mean(-1)], -1)
+
+
+@functools.lru_cache(maxsize=16)
+def _grid(W_: int, H_: int, gx: int, gy: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Cell centres (G, 2) of a ``gx x gy`` grid over a ``W_ x H_`` image and the outer-ring flags (G,)."""
+    with torch.inference_mode(False):  # (cached: ordinary tensors, whatever mode the first call ran in)
+        xs = (torch.arange(gx, dtype=torch.float64) + 0.5) * W_ / gx - 0.5
+        ys = (torch.arange(gy, dtype=torch.float64) + 0.5) * H_ / gy - 0.5
+        yy, xx = torch.meshgrid(ys, xs, indexing="ij")
+        cells = torch.stack([xx.reshape(-1), yy.reshape(-1)], -1)
+        half_diag = math.hypot((W_ - 1) / 2, (H_ - 1) / 2)
+        r = ((cells[:, 0] - (W_ - 1) / 2) ** 2 + (cells[:, 1] - (H_ - 1) / 2) ** 2).sqrt() / half_diag
+    return cells, r > 0.6

@@ -109,6 +109,8 @@ def parameter_basis(
         raise ValueError(f"free must name or flag the {P} parameters {model.param_names}, got {len(mask)} entries.")
     C = params.shape[0]
     eye = torch.eye(P, dtype=params.dtype, device=params.device)
+    if all(mask) and not fix_aspect_ratio:
+        return eye.expand(C, P, P)
     cols = []
     if fix_aspect_ratio:
         if not (mask[0] and mask[1]):
@@ -377,9 +379,12 @@ def levenberg_marquardt(
                 idx = idx[alive]
                 work = {k: v[alive] for k, v in work.items()}
                 wc = {k: (None if v is None else v[alive]) for k, v in wc.items()}
-    for k, v in work.items():
-        if v is not full[k]:
-            full[k][idx] = v
+    if idx.numel() == C:  # no camera left early: the working set is the whole batch
+        full = work
+    else:
+        for k, v in work.items():
+            if v is not full[k]:
+                full[k][idx] = v
     x, R, tv, cost, U, W, Vb, vc = (full[k] for k in ("x", "R", "tv", "cost", "U", "W", "Vb", "vc"))
     iters, converged = full["iters"], full["converged"]
 

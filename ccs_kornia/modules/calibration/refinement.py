@@ -55,17 +55,17 @@ def camera_covariance(model: str, param_covariance: torch.Tensor) -> torch.Tenso
     """
     index = OPENCV_VARIANTS[model]
     D = num_distortion_coeffs(model)
-    E = param_covariance.new_zeros(4 + D, 4 + len(index))
-    E[:4, :4] = torch.eye(4, dtype=E.dtype, device=E.device)
-    for k, j in enumerate(index):
-        E[4 + j, 4 + k] = 1
-    return E @ param_covariance @ E.T
+    if len(index) == D:  # every stored coefficient is a parameter, in order
+        return param_covariance
+    rows = torch.tensor([0, 1, 2, 3, *(4 + j for j in index)], device=param_covariance.device)
+    out = param_covariance.new_zeros(*param_covariance.shape[:-2], 4 + D, 4 + D)
+    out[..., rows[:, None], rows] = param_covariance
+    return out
 
 
 def _k_matrix(params: torch.Tensor) -> torch.Tensor:
-    K = params.new_zeros(params.shape[0], 3, 3)
-    K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = params[:, 0], params[:, 1], params[:, 2], params[:, 3], 1
-    return K
+    z, o = torch.zeros_like(params[:, :1]), torch.ones_like(params[:, :1])
+    return torch.cat([params[:, 0:1], z, params[:, 2:3], z, params[:, 1:2], params[:, 3:4], z, z, o], -1).view(-1, 3, 3)
 
 
 def _batch(corners, valid, object_points, K, rvec, tvec, dist, view_mask):
