@@ -67,7 +67,7 @@ class CalibrationPipeline(nn.Module):
     Args:
         detector: a detector name for :func:`~ccs_kornia.modules.detection.factory.make_detector`
             (``"opencv"`` or ``"learned"``) or a :class:`ChessboardDetector` instance.
-        model: output distortion model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational`` or ``none``.
+        model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational``, ``none`` or ``fisheye`` (cv2.fisheye's).
         use_ransac: reject inconsistent views with image-level RANSAC before the refinement.
         seed: seed of the RANSAC sampling (results are deterministic for a given seed).
         detection_batch_size: most images handed to the detector at once.
@@ -127,8 +127,7 @@ class CalibrationPipeline(nn.Module):
             raise ValueError(f"max_detection_side must be >= 64 (or None/0 to disable), got {max_detection_side}.")
         if joint_iters < 0:
             raise ValueError(f"joint_iters must be >= 0, got {joint_iters}.")
-        for name, value in (("min_correction", min_correction), ("min_straightening", min_straightening),
-                            ("max_rms_ratio", max_rms_ratio)):
+        for name, value in (("min_correction", min_correction), ("min_straightening", min_straightening), ("max_rms_ratio", max_rms_ratio)):
             if not value >= 0:
                 raise ValueError(f"{name} must be >= 0, got {value}.")
         self.solver = CalibrationSolver(model=model, use_ransac=use_ransac, seed=seed, **solver_kwargs)
@@ -339,7 +338,8 @@ class CalibrationPipeline(nn.Module):
 
     def _solve_group(self, corners, found, board_size, square, image_size, correction, tried):
         usual = self.calibrate(corners, found, board_size, square, image_size)
-        if correction is None or tried is None or not bool(tried.any()):
+        # (the corrected frame's radial model is a pinhole lens's: not for fisheye cameras)
+        if correction is None or tried is None or not bool(tried.any()) or self.model == "fisheye":
             return usual, correction, None if correction is None else torch.zeros_like(tried)
         # only the cameras the evidence points to, and only those the usual solve could calibrate, go the corrected
         # way (a camera refused as degenerate stays refused)

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.camera import board_object_points, project_points
+from ccs_kornia.camera import board_object_points, kb_project_points, project_points
 from ccs_kornia.io import load_image_gray
 from ccs_kornia.report_figures import (
     DISPLAY_MAX_SIDE,
@@ -98,6 +98,7 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     K = torch.tensor(data["K"], dtype=torch.float64)
     coeffs = data["distortion"]["coeffs"] or [0.0] * 5
     dist = torch.tensor(coeffs, dtype=torch.float64)
+    fisheye = data["distortion"]["model"] == "fisheye"
     cols, rows = (int(v) for v in data["board"])
     size = (int(data["image_size"][0]), int(data["image_size"][1]))
     obj = board_object_points(cols, rows, float(data["square"]), dtype=torch.float64)
@@ -109,8 +110,9 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     projected: dict[int, np.ndarray] = {}
     for index, view in enumerate(views):
         if view.get("corners") is not None and view.get("rvec") is not None:
-            uv = project_points(obj, K, dist, torch.tensor(view["rvec"], dtype=torch.float64),
-                                torch.tensor(view["tvec"], dtype=torch.float64)).numpy()
+            project = kb_project_points if fisheye else project_points
+            uv = project(obj, K, dist, torch.tensor(view["rvec"], dtype=torch.float64),
+                         torch.tensor(view["tvec"], dtype=torch.float64)).numpy()
             if np.isfinite(uv).all():
                 projected[index] = uv
     used_idx = [i for i, v in enumerate(views) if v.get("used") and i in projected]
@@ -166,7 +168,7 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
                             "corners were seen: empty borders mean extrapolated distortion there."))
     if first_used is not None:
         base, gray, detected = first_used
-        preview = _undistorted_preview(gray, K, dist, base, detected, (cols, rows))
+        preview = _undistorted_preview(gray, K, dist, base, detected, (cols, rows), fisheye)
         if _write_png(os.path.join(directory, "undistorted.png"), preview, written):
             figures.append(("undistorted.png", "Undistorted preview",
                             "A used view and the same view undistorted with the calibration. Red lines are "

@@ -211,3 +211,25 @@ def test_boofcv_fisheye_uses_every_board():
     res = calibrate_fisheye(uv, None, board_object_points(6, 4, 0.03, dtype=F64), size)
     assert uv.shape[0] == 26 and bool(res.used.all()) and float(res.rms) < 0.25
     assert abs(float(res.K[0, 0]) - 190.15) < 2 and abs(float(res.K[0, 2]) - 318.6) < 2
+
+
+# ------------------------------------------------------------------------------------- through CalibrationSolver
+def test_solver_fisheye_model_and_checks():
+    from ccs_kornia.modules.calibration.solver import CalibrationSolver
+
+    K, D = _camera(170.0)
+    _, _, uv = _views(K, D, V=8, seed=4)
+    res = CalibrationSolver(model="fisheye")(uv, None, OBJ, SIZE)
+    assert res.model == "fisheye" and bool(res.success) and res.dist.shape == (4,)
+    torch.testing.assert_close(res.K, K, atol=1e-6, rtol=0)
+    torch.testing.assert_close(res.dist, D, atol=1e-7, rtol=0)
+    assert res.cov_camera.shape == (8, 8) and bool((res.view_reason == 0).all())
+    # copies of one view are refused before the fisheye solve, as for the pinhole models
+    copies = uv[:1].expand(4, -1, -1)
+    refused = CalibrationSolver(model="fisheye")(copies, None, OBJ, SIZE)
+    assert not bool(refused.success) and bool((refused.view_reason[1:] == 5).all())
+    assert any(i["check"] == "duplicate_views" for i in refused.issues()[0])
+    # batched over cameras, a failed camera beside a good one
+    batch = torch.stack([uv, uv.clone().fill_(float("nan"))])
+    both = CalibrationSolver(model="fisheye")(batch, None, OBJ, SIZE)
+    assert both.success.tolist() == [True, False] and bool(both.K[1].isnan().all())
