@@ -154,6 +154,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="do not run the distortion-correction network (strongly distorted lenses are then "
                         "calibrated by the joint refinement alone)")
+    p.add_argument("--no-diagnostics", dest="diagnostics", action="store_false",
+                   help="skip the quality figures (cross-validation of two halves of the views, held-out views, "
+                        "projection uncertainty) and the verdict; they cost a few more solves")
     p.set_defaults(func=calibrate.run)
 
     p = sub.add_parser("undistort", help="undistort images with a calibration (as cv2.undistort)")
@@ -177,6 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
     p.add_argument("--no-ransac", dest="use_ransac", action="store_false", help="keep every detected view")
     p.add_argument("--seed", default=0, type=int, help="RANSAC seed (default 0)")
+    p.add_argument("--diagnostics", action="store_true",
+                   help="also compute each set's quality figures and verdict (a few more solves per set)")
     p.add_argument("--sets-per-batch", default=4, type=_positive_int, metavar="N",
                    help="sets per predict step; sets of one image size are solved in one batched call (default 4)")
     p.add_argument("--workers", default=0, type=int, metavar="N", help="DataLoader workers loading sets (default 0)")

@@ -20,9 +20,7 @@ benchmarks all call it:
    never resampled and its calibration is exactly the one without the correction.
 
 Views are read through a :class:`~ccs_kornia.sources.ViewSource` in batches of one size, bounded in number and in
-pixels, so a folder of large photographs never sits in memory at once; only corners are kept between passes.
-Images larger than ``max_detection_side`` are detected on an area-downscaled copy and refined at full resolution.
-This module imports neither the command line nor Lightning.
+pixels (only corners are kept between passes). No command line, no Lightning here.
 """
 
 from __future__ import annotations
@@ -45,16 +43,8 @@ from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResul
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
-from ccs_kornia.pipeline_result import (
-    PipelineResult,
-    camera_reason,
-    concat_results,
-    main_size,
-    positive_size,
-    same_size_views,
-    scatter_cameras,
-    select_result,
-)
+from ccs_kornia.pipeline_result import (PipelineResult, camera_reason, concat_results, diagnose_cameras, main_size,  # isort: skip
+                                        positive_size, same_size_views, scatter_cameras, select_result)
 from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource  # noqa: F401
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
@@ -87,6 +77,8 @@ class CalibrationPipeline(nn.Module):
             corners is at most this times that of the usual calibration (same parameter count for ``opencv5``).
         joint_iters: LM iterations at most of the corrected-frame joint refinement.
         free_distortion_centre: the corrected-frame refinement also estimates the distortion centre.
+        diagnostics: also compute each camera's quality figures and verdict (``PipelineResult.diagnostics``; see
+            :func:`~ccs_kornia.modules.calibration.diagnostics.diagnose`: several more solves per camera).
         solver_kwargs: further options of :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
 
     Example:
@@ -115,6 +107,7 @@ class CalibrationPipeline(nn.Module):
         max_rms_ratio: float = 0.9,
         joint_iters: int = 50,
         free_distortion_centre: bool = True,
+        diagnostics: bool = False,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -131,7 +124,7 @@ class CalibrationPipeline(nn.Module):
             if not value >= 0:
                 raise ValueError(f"{name} must be >= 0, got {value}.")
         self.solver = CalibrationSolver(model=model, use_ransac=use_ransac, seed=seed, **solver_kwargs)
-        self.model = model
+        self.model, self.diagnostics = model, bool(diagnostics)
         self.detection_batch_size = int(detection_batch_size)
         self.max_batch_pixels = max_batch_pixels
         self.max_detection_side = int(max_detection_side) if max_detection_side else None
@@ -334,6 +327,8 @@ class CalibrationPipeline(nn.Module):
         out.corrected = corrected if correction is not None else None
         out.camera_reasons = [camera_reason(out.calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum()))
                               for ci in range(c)]
+        if self.diagnostics:
+            out.diagnostics = diagnose_cameras(self.solver, out, usable, board_size, square)
         return out
 
     def _solve_group(self, corners, found, board_size, square, image_size, correction, tried):

@@ -179,14 +179,16 @@ def _overlay(gray: np.ndarray, detected: np.ndarray, projected: np.ndarray | Non
             cv2.drawMarker(vis, _pt(p), _RED, cv2.MARKER_CROSS, 2 * radius, 1)
     for d in det:
         cv2.circle(vis, _pt(d), radius + 1, _GREEN, 1, _AA)
-    cv2.circle(vis, _pt(det[0]), 2 * radius + 2, _BLUE, 2, _AA)
+    if len(det):
+        cv2.circle(vis, _pt(det[0]), 2 * radius + 2, _BLUE, 2, _AA)
     header = np.full((30, vis.shape[1], 3), 255, np.uint8)
     _text(header, title, (6, 20), 0.5)
-    items = [("circle", _GREEN, "detected corner"), ("ring", _BLUE, "first grid corner")]
+    items = [("circle", _GREEN, "detected corner"), ("ring", _BLUE, "first grid corner")] if len(det) else []
     if proj is not None:
         items[1:1] = [("cross", _RED, "reprojected"), ("line", _YELLOW, f"residual x{gain:g}")]
     out = np.vstack([header, vis])
-    _legend(out, items, (out.shape[1] - 6, 36))
+    if items:
+        _legend(out, items, (out.shape[1] - 6, 36))
     return out
 
 

@@ -116,8 +116,30 @@ def test_calibrate_json_and_accuracy(rendered, tmp_path, capsys):
     assert fs.getNode("avg_reprojection_error").real() == pytest.approx(data["rms"])
     fs.release()
     assert (report / "summary.md").is_file() and len(list((report / "views").glob("view_*.png"))) == NUM_VIEWS
-    for name in ("index.html", "rms_per_view.png", "residuals.png", "coverage.png", "undistorted.png"):
+    for name in ("index.html", "rms_per_view.png", "residuals.png", "coverage.png", "undistorted.png",
+                 "distortion_field.png", "uncertainty.png"):
         assert (report / name).is_file(), name
+    # quality figures and verdict (issue 12): in the JSON, on stdout and in the report
+    q = data["diagnostics"]
+    assert q["verdict"].split(":")[0] in ("good", "usable", "not reliable") and "verdict: " in stdout
+    assert 0 < q["heldout_rms_px"] < 0.5 and q["cv_rms_px"] is not None and 0 < q["uncertainty_centre_px"] < 2.0
+    assert len(q["uncertainty_corners_px"]) == 4 and len(q["uncertainty_grid_px"]) == 12
+    assert "Is this calibration good?" in (report / "index.html").read_text()
+
+
+def test_calibrate_without_diagnostics_and_overlay_of_a_view_without_board(rendered, tmp_path, capsys):
+    folder, files, _ = rendered
+    blank = tmp_path / "blank.png"
+    assert write_image(blank, torch.full((480, 640), 0.5))
+    out, report = tmp_path / "calib.json", tmp_path / "report"
+    code, stdout, err = run(capsys, "calibrate", *files, str(blank), "--board", "9x6", "--output", str(out),
+                            "--no-diagnostics", "--report", str(report), "--detector", "opencv")
+    assert code == 0, err
+    data = json.loads(out.read_text())
+    assert "diagnostics" not in data and "verdict" not in stdout
+    # every view has an overlay, the one without a board too (the user sees why it failed)
+    assert len(list((report / "views").glob("view_*.png"))) == NUM_VIEWS + 1
+    assert (report / "views" / f"view_{NUM_VIEWS:04d}_blank.png").is_file()
 
 
 def test_undistort_matches_opencv(rendered, tmp_path, capsys):

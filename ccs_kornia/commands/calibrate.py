@@ -186,3 +186,9 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         f"{data['distortion']['model']} ({coeffs})"
     )
     print(f"RMS {data['rms']:.4f} px over {n['used']} views (board found in {n['found']} of {n['files']} files); wrote {output}")
+    quality = data.get("diagnostics")
+    if quality:
+        figures = [f"{label} {quality[key]:.2f} px" for label, key in (
+            ("held-out views", "heldout_rms_px"), ("halves differ by", "cv_rms_px"),
+            ("uncertainty at the centre", "uncertainty_centre_px")) if quality.get(key) is not None]
+        print(f"verdict: {quality['verdict']}" + (f" ({', '.join(figures)})" if figures else ""))

@@ -12,14 +12,27 @@ import torch
 from torch import nn
 
 from ccs_kornia.camera import fit_opencv_distortion, project_points
-from ccs_kornia.modules.calibration.degeneracy import DegeneracyThresholds, check_degeneracy
-from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
+from ccs_kornia.modules.calibration.degeneracy import (
+    DegeneracyThresholds,
+    check_degeneracy,
+)
 from ccs_kornia.modules.calibration.duplicates import duplicate_views, view_differences
-from ccs_kornia.modules.calibration.homography import MIN_HOMOGRAPHY_POINTS, find_homographies
+from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
+from ccs_kornia.modules.calibration.homography import (
+    MIN_HOMOGRAPHY_POINTS,
+    find_homographies,
+)
 from ccs_kornia.modules.calibration.ransac import ImageRansac
-from ccs_kornia.modules.calibration.refinement import FREE_DISTORTION, RefinementResult, joint_refinement
+from ccs_kornia.modules.calibration.refinement import (
+    FREE_DISTORTION,
+    RefinementResult,
+    joint_refinement,
+)
 from ccs_kornia.modules.calibration.result import CalibrationResult
-from ccs_kornia.modules.calibration.zhang import extrinsics_from_homography, zhang_intrinsics
+from ccs_kornia.modules.calibration.zhang import (
+    extrinsics_from_homography,
+    zhang_intrinsics,
+)
 
 __all__ = ["CalibrationSolver", "calibrate"]
 

@@ -233,3 +233,23 @@ def test_solver_fisheye_model_and_checks():
     batch = torch.stack([uv, uv.clone().fill_(float("nan"))])
     both = CalibrationSolver(model="fisheye")(batch, None, OBJ, SIZE)
     assert both.success.tolist() == [True, False] and bool(both.K[1].isnan().all())
+
+
+def test_diagnostics_of_a_fisheye_calibration():
+    """Quality figures with the Kannala-Brandt model: rays beyond 90 degrees, held-out poses on the LM core."""
+    from ccs_kornia.modules.calibration.diagnostics import diagnose
+    from ccs_kornia.modules.calibration.solver import CalibrationSolver
+    from ccs_kornia.modules.calibration.uncertainty import projection_difference
+
+    K, D = _camera(190.0)
+    _, _, uv = _views(K, D, V=12, seed=5)
+    uv = uv + 0.2 * torch.randn(uv.shape, generator=torch.Generator().manual_seed(0), dtype=F64)
+    solver = CalibrationSolver(model="fisheye")
+    res = solver(uv, None, OBJ, SIZE)
+    q = diagnose(res, uv, None, OBJ, SIZE, solver=solver)[0]
+    assert q["success"] and 0.1 < q["heldout_rms_px"] < 0.4  # about the 0.2 px noise per axis
+    assert 0 < q["uncertainty_centre_px"] < 0.5 and q["cv_rms_px"] is not None
+    # the same camera against itself: no difference, also for pixels beyond 90 degrees
+    px = torch.tensor([[320.0, 240.0], [5.0, 240.0], [630.0, 20.0]], dtype=F64)
+    d = projection_difference(res.K[None], res.dist[None], res.K[None], res.dist[None], px, model="fisheye")
+    assert bool((d.nan_to_num(0.0) < 1e-6).all()) and bool(d[0, :2].isfinite().all())
