@@ -31,7 +31,7 @@ from ccs_kornia.commands._common import PROG, UserError
 __all__ = ["main", "build_parser", "UserError", "LIGHTNING_COMMANDS"]
 
 LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
-MODELS = ("opencv5", "rational", "k1k2", "none", "fisheye")
+MODELS = ("auto", "opencv5", "rational", "k1k2", "none", "fisheye")
 DEFAULT_DETECTOR = "learned"
 
 
@@ -142,9 +142,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--square", default=1.0, type=_positive_float,
                    help="square side in world units (scales the poses only; default 1)")
     p.add_argument("--output", required=True, metavar="JSON", help="calibration file to write")
-    p.add_argument("--model", default="opencv5", choices=MODELS,
-                   help="distortion model: opencv5 (k1,k2,p1,p2,k3; default), rational (k1..k6), k1k2, none, "
-                        "fisheye (Kannala-Brandt k1..k4, as cv2.fisheye)")
+    p.add_argument("--model", default="auto", choices=MODELS,
+                   help="camera model: auto (default: k1k2, opencv5, rational or fisheye, chosen by cross-validation "
+                        "on held-out views; the JSON says which and why), opencv5 (k1,k2,p1,p2,k3), rational (k1..k6), "
+                        "k1k2, none, fisheye (Kannala-Brandt k1..k4, as cv2.fisheye)")
     p.add_argument("--no-ransac", dest="use_ransac", action="store_false", help="keep every detected view")
     p.add_argument("--seed", default=0, type=int, help="RANSAC seed (default 0)")
     p.add_argument("--report", metavar="DIR", help="also write overlays and a summary to DIR (created)")
@@ -175,7 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--board", required=True, type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6")
     p.add_argument("--square", default=1.0, type=_positive_float, help="square side in world units (default 1)")
     p.add_argument("--output", required=True, metavar="JSONL", help="JSON Lines file: one calibration per set")
-    p.add_argument("--model", default="opencv5", choices=MODELS, help="distortion model (default opencv5)")
+    p.add_argument("--model", default="auto", choices=MODELS,
+                   help="camera model (default auto: chosen per set by cross-validation; see calibrate --help)")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
     p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
     p.add_argument("--no-ransac", dest="use_ransac", action="store_false", help="keep every detected view")

@@ -33,19 +33,36 @@ import torch.nn.functional as F
 from torch import nn
 
 from ccs_kornia.camera import board_object_points
+from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.modules.correction import corrected_frame
-from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected, straightening_evidence
+from ccs_kornia.modules.correction.corrected_detection import (
+    detect_on_corrected,
+    straightening_evidence,
+)
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
-from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
+from ccs_kornia.modules.correction.pooling import (
+    aggregate_corrections,
+    correction_displacement,
+)
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
-from ccs_kornia.pipeline_result import (PipelineResult, camera_reason, concat_results, diagnose_cameras, main_size,  # isort: skip
-                                        positive_size, same_size_views, scatter_cameras, select_result)
-from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource  # noqa: F401
+from ccs_kornia.pipeline_result import (
+    PipelineResult,
+    main_size,
+    positive_size,
+    same_size_views,
+    select_result,
+)
+from ccs_kornia.pipeline_solve import solve_detections, solve_group
+from ccs_kornia.sources import (  # noqa: F401
+    DEFAULT_MAX_BATCH_PIXELS,
+    SIZE_TOLERANCE_PX,
+    TensorSource,
+    ViewSource,
+)
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
 
@@ -57,7 +74,9 @@ class CalibrationPipeline(nn.Module):
     Args:
         detector: a detector name for :func:`~ccs_kornia.modules.detection.factory.make_detector`
             (``"opencv"`` or ``"learned"``) or a :class:`ChessboardDetector` instance.
-        model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational``, ``none`` or ``fisheye`` (cv2.fisheye's).
+        model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational``, ``none``, ``fisheye`` (cv2.fisheye's) or
+            ``auto`` (one of :data:`~ccs_kornia.modules.calibration.model_selection.AUTO_MODELS` per camera, by
+            cross-validation; ``PipelineResult.model_selection`` says which and why).
         use_ransac: reject inconsistent views with image-level RANSAC before the refinement.
         seed: seed of the RANSAC sampling (results are deterministic for a given seed).
         detection_batch_size: most images handed to the detector at once.
@@ -123,7 +142,11 @@ class CalibrationPipeline(nn.Module):
         for name, value in (("min_correction", min_correction), ("min_straightening", min_straightening), ("max_rms_ratio", max_rms_ratio)):
             if not value >= 0:
                 raise ValueError(f"{name} must be >= 0, got {value}.")
-        self.solver = CalibrationSolver(model=model, use_ransac=use_ransac, seed=seed, **solver_kwargs)
+        names = AUTO_MODELS if model == "auto" else (model,)
+        self.solvers = nn.ModuleDict({m: CalibrationSolver(model=m, use_ransac=use_ransac, seed=seed, **solver_kwargs)
+                                      for m in names})
+        self.solver = self.solvers[names[1] if model == "auto" else model]  # the stage alone's (auto: opencv5)
+        self.selection = ModelSelection(dict(self.solvers)) if model == "auto" else None
         self.model, self.diagnostics = model, bool(diagnostics)
         self.detection_batch_size = int(detection_batch_size)
         self.max_batch_pixels = max_batch_pixels
@@ -287,74 +310,19 @@ class CalibrationPipeline(nn.Module):
         out.correction_tried = large & (straightened | recovered)
 
     def solve(self, out: PipelineResult, board_size: tuple[int, int], square: float = 1.0) -> PipelineResult:
-        """The solver stage of :meth:`run` on its detections: one batched solve per image size; where the correction
-        was tried, the corrected-frame calibration competes with the usual one.
+        """The solver stage of :meth:`run` on its detections (:func:`~ccs_kornia.pipeline_solve.solve_detections`):
+        one batched solve per image size (per model with ``model="auto"``); where the correction was tried, the
+        corrected-frame calibration competes with the usual one.
 
         Args:
             out: a batched result of ``run(..., calibrate=False)``.
             board_size: ``(cols, rows)``; square: square side in world units.
 
         Returns:
-            ``out`` with ``calibration``, ``corrected``, ``correction`` (re-fitted where kept) and
-            ``camera_reasons`` filled.
+            ``out`` with ``calibration``, ``corrected``, ``correction`` (re-fitted where kept), ``camera_reasons``,
+            ``model_selection`` and ``diagnostics`` (when computed) filled.
         """
-        if not square > 0:
-            raise ValueError(f"square must be positive, got {square}.")
-        det = out.detections
-        c, v = det.found.shape
-        device = det.corners.device
-        sizes = out.image_size
-        usable = det.found & same_size_views(out)
-        parts, order = [], []
-        corrected = torch.zeros(c, dtype=torch.bool, device=device)
-        correction = out.correction
-        for size in dict.fromkeys(sizes):
-            sel = torch.tensor([s == size for s in sizes], device=device).nonzero().flatten()
-            tried = None if out.correction_tried is None else out.correction_tried[sel]
-            calib, refined, applied = self._solve_group(det.corners[sel], usable[sel], board_size, square, positive_size(size),
-                                                        None if correction is None else correction[sel], tried)
-            if applied is not None:
-                corrected[sel] = applied
-                correction = correction.clone()
-                correction[sel] = refined
-            parts.append(calib)
-            order.append(sel)
-        calibration = concat_results(parts)
-        inverse = torch.empty(c, dtype=torch.long, device=device)
-        inverse[torch.cat(order)] = torch.arange(c, device=device)
-        out.calibration = select_result(calibration, inverse)
-        out.correction = correction
-        out.corrected = corrected if correction is not None else None
-        out.camera_reasons = [camera_reason(out.calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum()))
-                              for ci in range(c)]
-        if self.diagnostics:
-            out.diagnostics = diagnose_cameras(self.solver, out, usable, board_size, square)
-        return out
-
-    def _solve_group(self, corners, found, board_size, square, image_size, correction, tried):
-        usual = self.calibrate(corners, found, board_size, square, image_size)
-        # (the corrected frame's radial model is a pinhole lens's: not for fisheye cameras)
-        if correction is None or tried is None or not bool(tried.any()) or self.model == "fisheye":
-            return usual, correction, None if correction is None else torch.zeros_like(tried)
-        # only the cameras the evidence points to, and only those the usual solve could calibrate, go the corrected
-        # way (a camera refused as degenerate stays refused)
-        sel = (tried.to(usual.success.device) & usual.success).nonzero().flatten()
-        applied = torch.zeros_like(tried)
-        if sel.numel() == 0:
-            return usual, correction, applied
-        calib, refined, kept = corrected_frame.solve_with_correction(
-            self.solver, select_result(usual, sel), corners[sel], found[sel], correction[sel],
-            torch.ones(sel.numel(), dtype=torch.bool, device=corners.device), board_size, square, image_size,
-            joint_iters=self.joint_iters, free_distortion_centre=self.free_distortion_centre,
-            max_rms_ratio=self.max_rms_ratio,
-        )
-        keep = torch.zeros_like(usual.success)
-        keep[sel] = kept.to(keep.device)
-        merged = corrected_frame.select_cameras(keep, scatter_cameras(calib, sel, usual), usual)
-        correction = correction.clone()
-        correction[sel] = refined.to(correction)
-        applied[sel] = kept.to(applied.device)
-        return merged, correction, applied
+        return solve_detections(self, out, (int(board_size[0]), int(board_size[1])), square)
 
     # ------------------------------------------------------------------------------------------
     # the stages, each usable alone
@@ -426,11 +394,12 @@ class CalibrationPipeline(nn.Module):
         if not square > 0:
             raise ValueError(f"square must be positive, got {square}.")
         size = (int(image_size[0]), int(image_size[1]))
-        if correction is not None and correction_tried is not None:
+        if (correction is not None and correction_tried is not None) or self.model == "auto":
             single = corners.dim() == 3
-            batch = (lambda x: x[None]) if single else (lambda x: x)
-            calib, _, _ = self._solve_group(batch(corners).double(), batch(valid).any(-1), board_size, square, size,
-                                            batch(correction).double(), batch(torch.as_tensor(correction_tried)))
+            batch = (lambda x: None if x is None else x[None]) if single else (lambda x: x)
+            calib = solve_group(self, batch(corners).double(), batch(valid).any(-1), board_size, square, size,
+                                None if correction is None else batch(correction).double(),
+                                None if correction_tried is None else batch(torch.as_tensor(correction_tried)))[0]
             return select_result(calib, 0) if single else calib
         object_points = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
         with torch.inference_mode():

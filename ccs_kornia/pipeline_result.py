@@ -46,6 +46,47 @@ def select_result(result: Any, idx: torch.Tensor | int) -> Any:
     for f in fields(result):
         v = getattr(result, f.name)
         values[f.name] = _index(v, idx) if f.name != "reasons" else v
+    models = values.get("model")
+    if isinstance(models, tuple):  # cameras of several models (``model="auto"``, see concat_results)
+        models = models[idx] if isinstance(idx, int) else tuple(models[i] for i in torch.as_tensor(idx).tolist())
+        values["model"] = models
+        if isinstance(models, str) or len(set(models)) == 1:
+            one = models if isinstance(models, str) else models[0]
+            values = _trim(values, dist_width(one))
+            values["model"] = models if isinstance(models, str) else one
+    return type(result)(**values)
+
+
+def dist_width(model: str) -> int:
+    """Distortion coefficients a calibration of ``model`` stores (``fisheye``: k1..k4; OpenCV variants: 0, 5 or 8)."""
+    from ccs_kornia.camera import num_distortion_coeffs
+
+    return 4 if model == "fisheye" else num_distortion_coeffs(model)
+
+
+def _trim(values: dict[str, Any], width: int) -> dict[str, Any]:
+    """Distortion fields cut back to ``width`` coefficients (after NaN padding for mixed models)."""
+    out = dict(values)
+    for key in ("dist", "std_dist"):
+        if isinstance(out.get(key), torch.Tensor):
+            out[key] = out[key][..., :width]
+    if isinstance(out.get("cov_camera"), torch.Tensor):
+        out["cov_camera"] = out["cov_camera"][..., : 4 + width, : 4 + width]
+    return out
+
+
+def _pad(result: Any, width: int) -> Any:
+    """A calibration result with its distortion fields NaN-padded to ``width`` coefficients."""
+    values = {f.name: getattr(result, f.name) for f in fields(result)}
+    for key in ("dist", "std_dist"):
+        v = values[key]
+        values[key] = torch.cat([v, v.new_full((*v.shape[:-1], width - v.shape[-1]), float("nan"))], -1)
+    cov = values.get("cov_camera")
+    if isinstance(cov, torch.Tensor):
+        n = 4 + width
+        padded = cov.new_full((*cov.shape[:-2], n, n), float("nan"))
+        padded[..., : cov.shape[-2], : cov.shape[-1]] = cov
+        values["cov_camera"] = padded
     return type(result)(**values)
 
 
@@ -58,6 +99,14 @@ def concat_results(parts: Sequence[Any]) -> Any:
         torch.Size([2, 2, 4, 2])
     """
     first = parts[0]
+    models = [getattr(p, "model", None) for p in parts]
+    if any(isinstance(m, tuple) for m in models) or len({m for m in models if isinstance(m, str)}) > 1:
+        # cameras of several models (``model="auto"``): one distortion width (NaN-padded), the model per camera
+        width = max(p.dist.shape[-1] for p in parts)
+        names = tuple(n for p, m in zip(parts, models) for n in (m if isinstance(m, tuple) else (m,) * p.K.shape[0]))
+        parts = [_pad(p, width) if p.dist.shape[-1] < width else p for p in parts]
+        first = replace(parts[0], model=names)
+        parts = [first, *parts[1:]]
     values = {}
     for f in fields(first):
         vs = [getattr(p, f.name) for p in parts]
@@ -91,6 +140,8 @@ class PipelineResult:
         view_corrections: :math:`(C, V, 5)` the network's correction of each view (``None`` when it is off).
         camera_reasons: per camera, why it was not calibrated (empty string where it was).
         diagnostics: per camera, the quality figures of the calibration (see ``docs/diagnostics.md``) or ``None``.
+        model_selection: with ``model="auto"``, per camera the choice and its figures (see
+            :class:`~ccs_kornia.modules.calibration.model_selection.ModelSelection`); else ``None``.
     """
 
     detections: DetectionResult
@@ -105,6 +156,7 @@ class PipelineResult:
     view_corrections: torch.Tensor | None = None
     camera_reasons: Any = field(default_factory=list)
     diagnostics: Any = None
+    model_selection: Any = None
 
     @property
     def batched(self) -> bool:
@@ -148,6 +200,7 @@ class PipelineResult:
             view_corrections=_index(self.view_corrections, idx),
             camera_reasons=pick(self.camera_reasons),
             diagnostics=None if self.diagnostics is None else pick(self.diagnostics),
+            model_selection=None if self.model_selection is None else pick(self.model_selection),
         )
 
     @classmethod
@@ -317,12 +370,12 @@ def camera_reason(calib: CalibrationResult, c: int, usable: int, present: int) -
     return f"calibration failed on {usable} views ({detail})"
 
 
-def diagnose_cameras(solver: Any, out: PipelineResult, usable: torch.Tensor, board_size: tuple[int, int],
+def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, board_size: tuple[int, int],
                      square: float) -> list[dict | None]:
     """Quality figures and verdict of each camera of a solved ``out`` (one
     :func:`~ccs_kornia.modules.calibration.diagnostics.diagnose` call per image size; ``None`` for a camera
-    without a computed calibration). The halves and folds of the cross-validation are solved by ``solver`` (the
-    usual path: a camera calibrated in the corrected frame is cross-validated without it)."""
+    without a computed calibration). The halves and folds of the cross-validation are solved by ``solvers[model]``
+    (the usual path: a camera calibrated in the corrected frame is cross-validated without it)."""
     from ccs_kornia.camera import board_object_points
     from ccs_kornia.modules.calibration.diagnostics import diagnose
 
@@ -331,15 +384,16 @@ def diagnose_cameras(solver: Any, out: PipelineResult, usable: torch.Tensor, boa
     cols, rows = int(board_size[0]), int(board_size[1])
     obj = board_object_points(cols, rows, float(square), device=det.corners.device, dtype=torch.float64)
     diagnostics: list[dict | None] = [None] * found.shape[0]
-    for size in dict.fromkeys(out.image_size):
-        sel = torch.tensor([s == size for s in out.image_size], device=found.device) & cal.success.to(found.device)
-        sel = sel.nonzero().flatten()
+    models = cal.model if isinstance(cal.model, tuple) else (cal.model,) * found.shape[0]
+    for size, model in dict.fromkeys(zip(out.image_size, models)):
+        sel = torch.tensor([s == size and m == model for s, m in zip(out.image_size, models)], device=found.device)
+        sel = (sel & cal.success.to(found.device)).nonzero().flatten()
         if sel.numel() == 0:
             continue
         corners = det.corners[sel].to(torch.float64)
         valid = found[sel][..., None].expand(corners.shape[:-1])
         with torch.inference_mode():
-            figures = diagnose(select_result(cal, sel), corners, valid, obj, positive_size(size), solver=solver)
+            figures = diagnose(select_result(cal, sel), corners, valid, obj, positive_size(size), solver=solvers[model])
         for k, ci in enumerate(sel.tolist()):
             diagnostics[ci] = figures[k]
     return diagnostics

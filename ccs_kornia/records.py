@@ -107,7 +107,8 @@ def camera_record(
 
     Returns:
         JSON-ready dict: ``success``, ``error`` (failed cameras), ``image_size``, ``K``, ``distortion``, ``rms``,
-        ``views``, ``std``, ``num_views``, ``skipped``, ``distortion_correction``, ``diagnostics``.
+        ``views``, ``std``, ``num_views``, ``skipped``, ``distortion_correction``, ``diagnostics``,
+        ``model_selection`` (``model="auto"``).
     """
     views = view_records(result, paths)
     cal = result.calibration
@@ -159,4 +160,6 @@ def camera_record(
     data["distortion_correction"] = correction_record(result)
     if result.diagnostics is not None:
         data["diagnostics"] = result.diagnostics
+    if getattr(result, "model_selection", None) is not None:
+        data["model_selection"] = result.model_selection  # --model auto: the choice, the runner-up, the figures
     return data

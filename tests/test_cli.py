@@ -92,7 +92,7 @@ def test_calibrate_json_and_accuracy(rendered, tmp_path, capsys):
     out, yaml, report = tmp_path / "calib.json", tmp_path / "calib.yaml", tmp_path / "report"
     code, stdout, _ = run(
         capsys, "calibrate", str(folder / "*.png"), "--board", "9x6", "--square", "0.025", "--output", str(out),
-        "--opencv-yaml", str(yaml), "--report", str(report),
+        "--opencv-yaml", str(yaml), "--report", str(report), "--model", "opencv5",
     )
     assert code == 0 and "RMS" in stdout
     data = json.loads(out.read_text())
@@ -363,6 +363,36 @@ def test_real_sets(real_dir, tmp_path, capsys, name, board, square, model, refer
     assert data["num_views"]["used"] >= 10
 
 
+@pytest.mark.parametrize(
+    "name, board, square, chosen, reference",
+    [
+        ("boofcv_sony_hx5v", "4x6", "30", "k1k2", 701.01),  # opencv5 over-fits this 24-corner board (fx 707)
+        ("boofcv_bumblebee2_left", "4x6", "30", None, 524.61),
+        ("ros_fisheye_mono", "8x6", "0.108", "fisheye", 290.05),
+        ("boofcv_fisheye_chessboard", "6x4", "0.03", "fisheye", None),
+    ],
+)
+def test_model_auto_on_real_sets(real_dir, tmp_path, capsys, name, board, square, chosen, reference):
+    """The default ``--model auto``: the published focal length within 3 px, fisheye for the fisheye lenses, the
+    choice and the runner-up in the JSON and on stdout."""
+    folder = real_dir / name
+    if not folder.is_dir():
+        pytest.skip(f"real data set not present at {folder}")
+    out = tmp_path / "calib.json"
+    code, stdout, err = run(capsys, "calibrate", str(folder), "--board", board, "--square", square, "--output",
+                            str(out), "--no-diagnostics")
+    assert code == 0, err
+    data = json.loads(out.read_text())
+    choice = data["model_selection"]
+    assert data["model"] == "auto" and choice["chosen"] == data["distortion"]["model"]
+    assert choice["runner_up"] in ("k1k2", "opencv5", "rational", "fisheye") and choice["runner_up"] != choice["chosen"]
+    assert f"model: {choice['chosen']} chosen by cross-validation" in stdout
+    if chosen is not None:
+        assert choice["chosen"] == chosen, choice
+    if reference is not None:
+        assert abs(data["K"][0][0] - reference) < 3.0, (data["K"], choice)
+
+
 def test_fisheye_real_set_yaml_and_undistort(real_dir, tmp_path, capsys):
     """``--model fisheye`` on the ROS fisheye set: ost.yaml's camera, a ROS camera_info with ``equidistant``, an
     OpenCV YAML that names the model, a report, and undistort with a balance."""
@@ -487,9 +517,9 @@ def test_failures_keep_per_image_results(tmp_path, capsys):
 def test_every_view_rejected_by_ransac(rendered, tmp_path, capsys, monkeypatch):
     # real detections, then a solver outcome where image RANSAC rejected every view (as a set of
     # mutually inconsistent views gives); hard to render reliably, so the solver's verdict is forced
-    from ccs_kornia.pipeline import CalibrationPipeline
+    from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
-    real = CalibrationPipeline.calibrate
+    real = CalibrationSolver.forward
 
     def all_rejected(self, *args, **kwargs):
         result = real(self, *args, **kwargs)
@@ -498,12 +528,12 @@ def test_every_view_rejected_by_ransac(rendered, tmp_path, capsys, monkeypatch):
         result.success = torch.zeros_like(result.success)
         return result
 
-    monkeypatch.setattr(CalibrationPipeline, "calibrate", all_rejected)
+    monkeypatch.setattr(CalibrationSolver, "forward", all_rejected)
     _, files, _ = rendered
     out = tmp_path / "c.json"
     # (the solver stage forced here is the usual one: the corrected one is switched off)
     code, _, err = run(capsys, "calibrate", *files[:4], "--board", "9x6", "--output", str(out),
-                       "--no-distortion-correction")
+                       "--no-distortion-correction", "--model", "opencv5")
     assert code == 2
     assert_one_line_error(err, "4 rejected by image RANSAC")
     assert not out.exists()

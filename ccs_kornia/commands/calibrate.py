@@ -186,9 +186,15 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         f"{data['distortion']['model']} ({coeffs})"
     )
     print(f"RMS {data['rms']:.4f} px over {n['used']} views (board found in {n['found']} of {n['files']} files); wrote {output}")
+    choice = data.get("model_selection")
+    if choice:
+        held = choice["heldout_rms_px"]
+        figures = ", ".join(f"{m} {v:.3f}" for m, v in held.items() if v is not None)
+        print(f"model: {choice['chosen']} chosen by cross-validation (runner-up {choice['runner_up']}; "
+              f"held-out RMS px: {figures})")
     quality = data.get("diagnostics")
     if quality:
         figures = [f"{label} {quality[key]:.2f} px" for label, key in (
-            ("held-out views", "heldout_rms_px"), ("halves differ by", "cv_rms_px"),
+            ("held-out views", "heldout_rms_px"), ("halves differ where the boards were by", "cv_covered_rms_px"),
             ("uncertainty at the centre", "uncertainty_centre_px")) if quality.get(key) is not None]
         print(f"verdict: {quality['verdict']}" + (f" ({', '.join(figures)})" if figures else ""))

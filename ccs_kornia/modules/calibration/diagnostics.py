@@ -351,7 +351,7 @@ def diagnose(
         - ``uncertainty_centre_px``, ``uncertainty_corners_px`` (top-left, top-right, bottom-left,
           bottom-right), ``uncertainty_max_px`` over the grid, ``uncertainty_grid_px`` (``down`` lists of
           ``across`` values): worst-direction standard deviation of the projection of a fixed ray, with the camera
-          rotation the data cannot tell from a principal-point shift fitted out over the grid (mrcal-style, see
+          rotation the data cannot tell from a principal-point shift fitted out where boards were (mrcal-style, see
           :func:`projection_uncertainty`);
         - ``uncertainty_fixed_ray_px``: ``{"centre", "corners"}``, the same without that compensation (includes
           the principal point's uncertainty in full);
@@ -383,17 +383,20 @@ def diagnose(
     lens = "fisheye" if getattr(result, "model", None) == "fisheye" else "opencv"
     ok = result.success.bool()
     Kc, dc = K.nan_to_num(1.0), dist.nan_to_num(0.0)
+    gpx = image_points(image_size, grid).to(corners.device)
+    covered = covered_pixels(corners, valid, object_points, result.used & ok[:, None], gpx)  # (C, G)
     unc5 = unc_grid = unc_fixed = None
     if result.cov_camera is not None:
         cov = result.cov_camera.nan_to_num(0.0)
         five = image_points(image_size).to(corners.device)
-        px = torch.cat([image_points(image_size, grid).to(corners.device), five])
-        fit = torch.arange(px.shape[0], device=px.device) < px.shape[0] - 5
+        px = torch.cat([gpx, five])
+        # the rotation is fitted where boards were (all the grid when none was): the extrapolated rest of a wide
+        # lens's image, often tens of px uncertain, would otherwise set the rotation and spoil the centre's figure
+        on_boards = torch.where(covered.any(-1, keepdim=True), covered, torch.ones_like(covered))
+        fit = torch.cat([on_boards, torch.zeros_like(on_boards[:, :5])], -1)
         unc = projection_uncertainty(Kc, dc, cov, px, compensate_rotation=fit, model=lens)
         unc_grid, unc5 = unc[:, :-5], unc[:, -5:]
         unc_fixed = projection_uncertainty(Kc, dc, cov, five, model=lens)
-    gpx = image_points(image_size, grid).to(corners.device)
-    covered = covered_pixels(corners, valid, object_points, result.used & ok[:, None], gpx)  # (C, G)
     cv = None
     if solver is not None and bool(ok.any()):
         cv = cross_validation(solver, corners, valid, object_points, image_size, result, folds, grid)

@@ -32,6 +32,8 @@ from torch import nn
 from ccs_kornia.modules.calibration.models.base import CameraModel
 from ccs_kornia.modules.calibration.so3 import exp_so3 as _exp_so3
 from ccs_kornia.modules.calibration.so3 import log_so3 as _log_so3
+from ccs_kornia.modules.calibration.spd_inverse import pseudo_inverse as _pseudo_inverse
+from ccs_kornia.modules.calibration.spd_inverse import spd_inverse as _sym_inverse
 
 __all__ = ["LMResult", "parameter_basis", "levenberg_marquardt", "LevenbergMarquardt"]
 
@@ -137,25 +139,6 @@ def _sym_solve(A: torch.Tensor, b: torch.Tensor, eye: torch.Tensor | None = None
     # (the inverse, not cholesky_solve: a camera's result does not depend on the other cameras of the batch)
     x = (torch.cholesky_inverse(L) @ (b * d).unsqueeze(-1)).squeeze(-1) * d
     return x.masked_fill(bad[..., None] | ~x.isfinite(), 0.0)
-
-
-def _sym_inverse(A: torch.Tensor, fail: float = float("nan")) -> torch.Tensor:
-    """Inverse of SPD matrices with Jacobi scaling; failures give ``fail`` (NaN)."""
-    d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
-    dd = d[..., :, None] * d[..., None, :]
-    L, info = torch.linalg.cholesky_ex(A * dd)
-    bad = (info != 0)[..., None, None]
-    L = L.masked_fill(bad, 0.0) + torch.diag_embed(bad[..., 0].to(A.dtype).expand(d.shape))
-    return (torch.cholesky_inverse(L) * dd).masked_fill(bad, fail)
-
-
-def _pseudo_inverse(A: torch.Tensor, rcond: float = 1e-15) -> torch.Tensor:
-    """Inverse of symmetric PSD matrices (Jacobi-scaled) with eigenvalues clamped at ``rcond`` times the largest:
-    finite, and huge along (nearly) null directions."""
-    d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
-    ev, U = torch.linalg.eigh(A * d[..., :, None] * d[..., None, :])
-    ev = ev.clamp_min(rcond * ev.amax(-1, keepdim=True).clamp_min(1e-300))
-    return (U / ev[..., None, :]) @ U.transpose(-1, -2) * d[..., :, None] * d[..., None, :]
 
 
 def _check(model, params, rvec, tvec, object_points, corners, weights):

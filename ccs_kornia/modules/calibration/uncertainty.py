@@ -73,9 +73,10 @@ def _project_rays(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, jacob
 
 
 def _remove_rotation(field: torch.Tensor, A: torch.Tensor, fit: torch.Tensor) -> torch.Tensor:
-    """Subtract from ``field`` (C, G, 2, P) the least-squares fit over the points ``fit`` (G,) bool of a camera
+    """Subtract from ``field`` (C, G, 2, P) the least-squares fit over the points ``fit`` (G,) or (C, G) bool of a camera
     rotation, ``A`` (C, G, 2, 3) = d pixel / d rotation; points with non-finite values are left out of the fit."""
-    use = fit.to(A.device)[None] & A.isfinite().flatten(2).all(-1) & field.isfinite().flatten(2).all(-1)  # (C, G)
+    fit = fit.to(A.device)
+    use = (fit if fit.dim() == 2 else fit[None]) & A.isfinite().flatten(2).all(-1) & field.isfinite().flatten(2).all(-1)
     w8 = use[..., None, None].to(A.dtype)
     Af = (A.nan_to_num(0.0) * w8).flatten(1, 2)  # (C, 2G, 3)
     ff = (field.nan_to_num(0.0) * w8).flatten(1, 2)  # (C, 2G, P)
@@ -111,7 +112,8 @@ def projection_uncertainty(
         pixels: :math:`(G, 2)` pixels, e.g. from :func:`image_points`.
         worst: worst-direction standard deviation (square root of the largest eigenvalue of
             :math:`\Sigma_q`, as mrcal); else the RMS over both directions (:math:`\sqrt{tr \Sigma_q / 2}`).
-        compensate_rotation: :math:`(G,)` bool, pixels over which a camera rotation is fitted out (None: no).
+        compensate_rotation: :math:`(G,)` or per camera :math:`(C, G)` bool, pixels over which a camera rotation is
+            fitted out (None: no).
         model: ``opencv`` (any OpenCV variant: ``dist`` in OpenCV order) or ``fisheye`` (``dist`` = k1..k4).
 
     Returns:

@@ -1,0 +1,139 @@
+"""The solver stage of :class:`~ccs_kornia.pipeline.CalibrationPipeline` (paper Sec. III-C) on its detections.
+
+Per image size, one batched solve over the cameras; with ``model="auto"`` every candidate model solves every
+camera and :class:`~ccs_kornia.modules.calibration.model_selection.ModelSelection` picks one per camera; where the
+image evidence asked for the lens correction, the corrected-frame calibration then competes with the usual one.
+Kept apart from ``pipeline.py`` so that file stays the composition; the functions take the pipeline for its
+solvers and options.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from ccs_kornia.camera import board_object_points
+from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules.correction import corrected_frame
+from ccs_kornia.pipeline_result import (
+    PipelineResult,
+    camera_reason,
+    concat_results,
+    diagnose_cameras,
+    positive_size,
+    same_size_views,
+    scatter_cameras,
+    select_result,
+)
+
+__all__ = ["solve_detections", "solve_group"]
+
+
+def _merge(parts: list[CalibrationResult], order: list[torch.Tensor], count: int) -> CalibrationResult:
+    """Parts over disjoint camera indices back in camera order."""
+    device = order[0].device
+    inverse = torch.empty(count, dtype=torch.long, device=device)
+    inverse[torch.cat(order)] = torch.arange(count, device=device)
+    return select_result(concat_results(parts), inverse)
+
+
+def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int], square: float) -> PipelineResult:
+    """:meth:`CalibrationPipeline.solve <ccs_kornia.pipeline.CalibrationPipeline.solve>`: fills ``out``'s
+    ``calibration``, ``corrected``, ``correction``, ``camera_reasons``, ``model_selection`` and (when the pipeline
+    computes them) ``diagnostics``."""
+    if not square > 0:
+        raise ValueError(f"square must be positive, got {square}.")
+    det = out.detections
+    c = det.found.shape[0]
+    device = det.corners.device
+    sizes = out.image_size
+    usable = det.found & same_size_views(out)
+    parts, order = [], []
+    corrected = torch.zeros(c, dtype=torch.bool, device=device)
+    correction = out.correction
+    selection: list[dict | None] = [None] * c
+    for size in dict.fromkeys(sizes):
+        sel = torch.tensor([s == size for s in sizes], device=device).nonzero().flatten()
+        tried = None if out.correction_tried is None else out.correction_tried[sel]
+        calib, refined, applied, table = solve_group(pipe, det.corners[sel], usable[sel], board_size, square,
+                                                     positive_size(size), None if correction is None else correction[sel],
+                                                     tried)
+        if applied is not None:
+            corrected[sel] = applied
+            correction = correction.clone()
+            correction[sel] = refined
+        for k, ci in enumerate(sel.tolist()):
+            selection[ci] = None if table is None else table[k]
+        parts.append(calib)
+        order.append(sel)
+    out.calibration = _merge(parts, order, c)
+    out.correction = correction
+    out.corrected = corrected if correction is not None else None
+    out.model_selection = selection if pipe.model == "auto" else None
+    out.camera_reasons = [camera_reason(out.calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum()))
+                          for ci in range(c)]
+    if pipe.diagnostics:
+        out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, board_size, square)
+    return out
+
+
+def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_size: tuple[int, int], square: float,
+                image_size: tuple[int, int], correction: torch.Tensor | None, tried: torch.Tensor | None):
+    """Cameras of one image size: ``(calibration, correction, applied, model_selection)`` (the last two ``None``
+    without a correction / without ``model="auto"``)."""
+    cols, rows = int(board_size[0]), int(board_size[1])
+    obj = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
+    valid = found[..., None].expand(corners.shape[:-1]).bool()
+    if pipe.model != "auto":
+        with torch.inference_mode():
+            usual = pipe.solver(corners.to(torch.float64), valid, obj, image_size)
+        return (*_compete(pipe, pipe.solver, usual, corners, found, board_size, square, image_size, correction, tried),
+                None)
+    with torch.inference_mode():
+        results, chosen, table = pipe.selection(corners.to(torch.float64), valid, obj, image_size)
+    fallback = next(iter(results))  # cameras no model calibrated keep that model's (failed) result
+    names = [n or fallback for n in chosen]
+    parts, order = [], []
+    applied = None if correction is None else torch.zeros(corners.shape[0], dtype=torch.bool, device=corners.device)
+    for name in dict.fromkeys(names):
+        sel = torch.tensor([n == name for n in names], device=corners.device).nonzero().flatten()
+        calib, refined, kept = _compete(
+            pipe, pipe.solvers[name], select_result(results[name], sel), corners[sel], found[sel], board_size, square,
+            image_size, None if correction is None else correction[sel], None if tried is None else tried[sel],
+        )
+        if correction is not None:
+            correction = correction.clone()
+            correction[sel] = refined
+            applied[sel] = kept
+        parts.append(calib)
+        order.append(sel)
+    return _merge(parts, order, corners.shape[0]), correction, applied, table
+
+
+def _compete(pipe: Any, solver: Any, usual: CalibrationResult, corners, found, board_size, square, image_size,
+             correction, tried):
+    """Where the evidence asked for it, the corrected-frame calibration against the usual one (kept where it fits
+    the observed corners clearly better); returns ``(calibration, correction, applied)``."""
+    # (the corrected frame's radial model is a pinhole lens's: not for fisheye cameras)
+    if correction is None or tried is None or not bool(tried.any()) or solver.model == "fisheye":
+        return usual, correction, None if correction is None else torch.zeros_like(tried)
+    # only the cameras the evidence points to, and only those the usual solve could calibrate, go the corrected
+    # way (a camera refused as degenerate stays refused)
+    sel = (tried.to(usual.success.device) & usual.success).nonzero().flatten()
+    applied = torch.zeros_like(tried)
+    if sel.numel() == 0:
+        return usual, correction, applied
+    calib, refined, kept = corrected_frame.solve_with_correction(
+        solver, select_result(usual, sel), corners[sel], found[sel], correction[sel],
+        torch.ones(sel.numel(), dtype=torch.bool, device=corners.device), board_size, square, image_size,
+        joint_iters=pipe.joint_iters, free_distortion_centre=pipe.free_distortion_centre,
+        max_rms_ratio=pipe.max_rms_ratio,
+    )
+    keep = torch.zeros_like(usual.success)
+    keep[sel] = kept.to(keep.device)
+    merged = corrected_frame.select_cameras(keep, scatter_cameras(calib, sel, usual), usual)
+    correction = correction.clone()
+    correction[sel] = refined.to(correction)
+    applied[sel] = kept.to(applied.device)
+    return merged, correction, applied

@@ -1,0 +1,91 @@
+"""Model choice by cross-validation (``model="auto"``): the rule, the module, mixed-model batches."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from ccs_kornia.camera import board_object_points, kb_project_points, project_points
+from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelSelection, choose_models, rank_models
+from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.pipeline_result import select_result
+
+F64 = torch.float64
+OBJ = board_object_points(9, 6, 0.03, dtype=F64)
+NAN = math.nan
+
+
+def test_rank_models_rule():
+    # held-out alone would pick opencv5; within 5 % the halves' agreement picks k1k2
+    assert rank_models([0.200, 0.195, 0.197, 0.3], [1.0, 9.0, 50.0, 2.0]) == [0, 1, 2, 3]
+    # a model far worse on held-out views loses whatever its halves say
+    assert rank_models([0.5, 0.2], [0.1, 30.0]) == [1, 0]
+    # halves not computed: held-out error decides among the contenders; NaN models are left out
+    assert rank_models([0.2, 0.201, NAN], [NAN, NAN, 1.0]) == [0, 1]
+    assert rank_models([NAN, NAN], [1.0, 2.0]) == []
+
+
+def test_choose_models_batched_and_exceptions():
+    heldout = torch.tensor([[0.2, NAN], [0.3, NAN]])
+    halves = torch.tensor([[1.0, 1.0], [0.5, 1.0]])
+    assert choose_models(heldout, halves).tolist() == [0, -1]
+    with pytest.raises(ValueError, match="heldout"):
+        choose_models(heldout, halves[:1])
+
+
+def _views(V=12, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    rv = 0.8 * (torch.rand(V, 3, generator=g, dtype=F64) - 0.5)
+    tv = torch.stack([-0.12 + 0.15 * torch.randn(V, generator=g, dtype=F64),
+                      -0.08 + 0.1 * torch.randn(V, generator=g, dtype=F64),
+                      0.22 + 0.1 * torch.rand(V, generator=g, dtype=F64)], -1)
+    return rv, tv, g
+
+
+def _two_cameras():
+    """A fisheye camera (190 degrees across) and a pinhole camera with radial distortion, 12 noisy views each."""
+    rv, tv, g = _views()
+    K = torch.tensor([[150.0, 0, 321], [0, 151, 239], [0, 0, 1]], dtype=F64)
+    D = torch.tensor([0.03, -0.01, 0.004, -0.001], dtype=F64)
+    fish = kb_project_points(OBJ.expand(12, -1, -1), K.expand(12, 3, 3), D.expand(12, 4), rv, tv)
+    K2 = torch.tensor([[520.0, 0, 322], [0, 522, 241], [0, 0, 1]], dtype=F64)
+    rv2, tv2, _ = _views(seed=1)
+    tv2 = tv2 * torch.tensor([1.0, 1.0, 2.0], dtype=F64)
+    dist = torch.tensor([-0.25, 0.08, 0, 0, 0], dtype=F64)
+    pin = project_points(OBJ.expand(12, -1, -1), K2.expand(12, 3, 3), dist, rv2, tv2)
+    uv = torch.stack([fish, pin]) + 0.1 * torch.randn(2, 12, 54, 2, generator=g, dtype=F64)
+    return uv, K, K2
+
+
+def test_module_picks_fisheye_for_a_fisheye_and_a_polynomial_model_for_a_pinhole_lens():
+    uv, K, K2 = _two_cameras()
+    valid = torch.ones(2, 12, 54, dtype=torch.bool) & uv.isfinite().all(-1)
+    select = ModelSelection({m: CalibrationSolver(model=m) for m in AUTO_MODELS})
+    results, chosen, table = select(uv, valid, OBJ, (640, 480))
+    assert chosen[0] == "fisheye" and chosen[1] in ("k1k2", "opencv5")
+    assert set(results) == set(AUTO_MODELS) and table[0]["chosen"] == "fisheye"
+    assert table[1]["runner_up"] in AUTO_MODELS and table[1]["runner_up"] != chosen[1]
+    assert set(table[0]["heldout_rms_px"]) == set(AUTO_MODELS)
+    with pytest.raises(ValueError, match="Expected corners"):
+        select(uv[0], valid[0], OBJ, (640, 480))
+    with pytest.raises(ValueError, match="at least one"):
+        ModelSelection({})
+
+
+def test_pipeline_auto_mixed_models_in_one_batch():
+    """Two cameras, two models: one batched result, each camera's own width of coefficients when selected."""
+    from ccs_kornia.pipeline import CalibrationPipeline
+    from ccs_kornia.pipeline_solve import solve_group
+
+    uv, K, K2 = _two_cameras()
+    pipe = CalibrationPipeline("opencv", model="auto", distortion_correction=False)
+    calib, _, _, table = solve_group(pipe, uv, torch.ones(2, 12, dtype=torch.bool), (9, 6), 0.03, (640, 480), None, None)
+    assert calib.model[0] == "fisheye" and calib.model[1] == table[1]["chosen"] and calib.dist.shape == (2, 5)
+    one, two = select_result(calib, 0), select_result(calib, 1)
+    assert one.model == "fisheye" and one.dist.shape == (4,) and one.cov_camera.shape == (8, 8)
+    assert two.dist.shape == (5,) and bool((one.K - K).abs().max() < 2) and bool((two.K - K2).abs().max() < 5)
+    # the stage alone gives the same as the composition
+    alone = pipe.calibrate(uv[1], torch.ones(12, dtype=torch.bool), (9, 6), 0.03, (640, 480))
+    assert alone.model == two.model and torch.allclose(alone.K, two.K)
