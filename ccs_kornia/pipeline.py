@@ -36,6 +36,7 @@ from torch import nn
 
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction import corrected_frame
 from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected, straightening_evidence
@@ -207,7 +208,12 @@ class CalibrationPipeline(nn.Module):
         per_view = None
         if self.distortion_net is not None:
             per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
-        for batch in source.batches(batch_size=self.detection_batch_size, max_pixels=self.max_batch_pixels):
+        batches = iter(source.batches(batch_size=self.detection_batch_size, max_pixels=self.max_batch_pixels))
+        while True:
+            with stage("image loading"):
+                batch = next(batches, None)
+            if batch is None:
+                break
             for (ci, vi), why in batch.failed:
                 reasons[ci][vi] = f"unreadable: {why}"
             if batch.images is None:
@@ -249,8 +255,12 @@ class CalibrationPipeline(nn.Module):
         """
         board = (int(board_size[0]), int(board_size[1]))
         if out.view_corrections is not None and self.distortion_net is not None:
-            self._correct(source, out, out.view_corrections, same_size_views(out), board)
-        return self.solve(out, board, square) if calibrate else out
+            with stage("correction evidence"):
+                self._correct(source, out, out.view_corrections, same_size_views(out), board)
+        if not calibrate:
+            return out
+        with stage("solver"):
+            return self.solve(out, board, square)
 
     def _correct(self, source: ViewSource | None, out: PipelineResult, per_view: torch.Tensor, same: torch.Tensor,
                  board: tuple[int, int]) -> None:
@@ -450,7 +460,7 @@ class CalibrationPipeline(nn.Module):
         if self.distortion_net is None:
             raise RuntimeError("distortion correction is off for this pipeline.")
         net = self.distortion_net.to(images.device)
-        with torch.inference_mode():
+        with torch.inference_mode(), stage("distortion network"):
             return torch.cat([net(images[i : i + 16].float()) for i in range(0, images.shape[0], 16)]).double()
 
     def pool_corrections(
@@ -488,8 +498,9 @@ class CalibrationPipeline(nn.Module):
         """Saddle refinement of whole boards :math:`(S, N, 2)` on ``images`` :math:`(S, 1, H, W)`, one small patch per
         corner (:func:`~ccs_kornia.modules.detection.patch_refine.refine_on_patches` with this pipeline's refiner)."""
         r = self.refiner
-        return refine_on_patches(images.float(), corners.float(), board_size, r.radius_factor, r.max_radius, r.method,
-                                 r.iterations, r.smooth_sigma, r.normalize_sigma).to(corners.dtype)
+        with stage("saddle refinement"):
+            return refine_on_patches(images.float(), corners.float(), board_size, r.radius_factor, r.max_radius, r.method,
+                                     r.iterations, r.smooth_sigma, r.normalize_sigma).to(corners.dtype)
 
     def _device(self) -> torch.device:
         for p in self.parameters():

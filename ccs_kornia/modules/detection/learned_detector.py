@@ -6,6 +6,7 @@ from pathlib import Path
 
 import torch
 
+from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
@@ -136,21 +137,24 @@ class LearnedChessboardDetector(ChessboardDetector):
         With ``full`` (the full-resolution images of a downscaled level ``images``, ``x_full + 0.5 = (x + 0.5) * scale``)
         the X-junction test runs on ``full``, where thin board margins are still resolved.
         """
-        if images.device.type == "cpu":
-            # channels-last convolutions are ~1.7x faster on CPU (measured at 1280x960, 1 thread)
-            self.net.to(memory_format=torch.channels_last)
-            heat = self.net(images.contiguous(memory_format=torch.channels_last)).contiguous()
-        else:
-            heat = self.net(images)
-        seeds, _, mask = heatmap_peaks(heat, self.peak_threshold, self.max_peaks, self.nms_kernel)
-        mu, sig, ok = gaussian_fit(heat, seeds, mask, self.fit_window)
-        keep = sigma_outlier_rejection(sig, mask & ok, self.sigma, self.sigma_tolerance)
-        if self.x_junction_check and full is not None and scale is not None:
-            # --- scale selection: same circle geometry as on the level, sampled at full resolution ---
-            f = float(scale.max())
-            keep = x_junction_mask(full, (mu + 0.5) * scale.to(mu) - 0.5, keep, max_radius=15.0 * f)
-        elif self.x_junction_check:
-            keep = x_junction_mask(images, mu, keep)
+        with stage("heatmap network"):
+            if images.device.type == "cpu":
+                # channels-last convolutions are ~1.7x faster on CPU (measured at 1280x960, 1 thread)
+                self.net.to(memory_format=torch.channels_last)
+                heat = self.net(images.contiguous(memory_format=torch.channels_last)).contiguous()
+            else:
+                heat = self.net(images)
+        with stage("peaks + Gaussian fit + sigma rejection"):
+            seeds, _, mask = heatmap_peaks(heat, self.peak_threshold, self.max_peaks, self.nms_kernel)
+            mu, sig, ok = gaussian_fit(heat, seeds, mask, self.fit_window)
+            keep = sigma_outlier_rejection(sig, mask & ok, self.sigma, self.sigma_tolerance)
+        with stage("X-junction check"):
+            if self.x_junction_check and full is not None and scale is not None:
+                # --- scale selection: same circle geometry as on the level, sampled at full resolution ---
+                f = float(scale.max())
+                keep = x_junction_mask(full, (mu + 0.5) * scale.to(mu) - 0.5, keep, max_radius=15.0 * f)
+            elif self.x_junction_check:
+                keep = x_junction_mask(images, mu, keep)
         return heat, mu, keep
 
     @torch.no_grad()
@@ -161,7 +165,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         if self.scale == "off":
             return self.detect_level(images, board_size)
         # --- scale selection (modules/detection/scale.py): detect on each image's level, refine at full resolution ---
-        _, factor = self.scale_selector(images)
+        with stage("square-size estimate"):
+            _, factor = self.scale_selector(images)
         r = self.refiner
 
         def level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
@@ -171,8 +176,9 @@ class LearnedChessboardDetector(ChessboardDetector):
         def refine(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
             if r is None:
                 return pts
-            return refine_from_level(full, pts, board_size, factor, r.radius_factor, r.max_radius, r.method,
-                                     r.iterations, r.smooth_sigma, r.normalize_sigma)
+            with stage("saddle refinement"):
+                return refine_from_level(full, pts, board_size, factor, r.radius_factor, r.max_radius, r.method,
+                                         r.iterations, r.smooth_sigma, r.normalize_sigma)
 
         corners, found, reasons = detect_at_scale(level, images, board_size, factor, self.scale_fallback,
                                                   self.scale_selector.max_pixels, refine)
@@ -188,13 +194,14 @@ class LearnedChessboardDetector(ChessboardDetector):
         ``full`` and ``scale``: see :meth:`candidates`.
         """
         _, points, keep = self.candidates(images, full, scale)
-        corners, valid, found = organize_grid(points, keep, board_size, images)
-        retry = (~found).nonzero().flatten()
-        if retry.numel():
-            # strongly distorted close-ups (wide lenses) bend the lattice more than the organiser's strict
-            # neighbour check allows; every corner is still verified on the image below
-            c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
-            corners[retry], valid[retry], found[retry] = c2, v2, f2
+        with stage("grid organiser"):
+            corners, valid, found = organize_grid(points, keep, board_size, images)
+            retry = (~found).nonzero().flatten()
+            if retry.numel():
+                # strongly distorted close-ups (wide lenses) bend the lattice more than the organiser's strict
+                # neighbour check allows; every corner is still verified on the image below
+                c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
+                corners[retry], valid[retry], found[retry] = c2, v2, f2
         reasons = ["learned" if f else "board not found" for f in found.tolist()]
         if self.collinearity:
             corners, valid = collinearity_refine(corners, valid & found[:, None], board_size)
@@ -202,17 +209,19 @@ class LearnedChessboardDetector(ChessboardDetector):
         # instead of keeping the organiser's global-homography guess
         missing = found[:, None] & ~valid
         if bool(missing.any()):
-            corners, _ = predict_missing_corners(corners, valid, board_size)
-            # extrapolated cells can be off by a good part of a square under strong distortion: a coarse
-            # search first with the gradient-orthogonality fixed point, whose basin is the whole window,
-            # then the regular saddle refinement below polishes
-            spacing = grid_spacing(corners, found[:, None].expand_as(valid), board_size)
-            coarse = refine_corners(images, corners, missing, 0.45 * spacing, method="gradient", iterations=10,
-                                    max_radius=40)
-            corners = torch.where(missing[..., None], coarse, corners)
+            with stage("missing corners"):
+                corners, _ = predict_missing_corners(corners, valid, board_size)
+                # extrapolated cells can be off by a good part of a square under strong distortion: a coarse
+                # search first with the gradient-orthogonality fixed point, whose basin is the whole window,
+                # then the regular saddle refinement below polishes
+                spacing = grid_spacing(corners, found[:, None].expand_as(valid), board_size)
+                coarse = refine_corners(images, corners, missing, 0.45 * spacing, method="gradient", iterations=10,
+                                        max_radius=40)
+                corners = torch.where(missing[..., None], coarse, corners)
         cells = found[:, None].expand_as(valid)  # every cell of a found board
         if self.refiner is not None and bool(found.any()):
-            corners, ok = self.refiner(images, corners, cells, board_size, return_ok=True)
+            with stage("saddle refinement"):
+                corners, ok = self.refiner(images, corners, cells, board_size, return_ok=True)
             # a predicted cell is accepted only where the image shows a corner there; one wrong corner
             # ruins a calibration, so the board is dropped instead
             unverified = (missing & ~ok).any(1)

@@ -35,6 +35,7 @@ import torch.nn.functional as F
 from kornia.filters import gaussian_blur2d
 from torch import nn
 
+from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.detection.patch_refine import _check_images, level_size, refine_from_level, resize_to_level
 
 __all__ = ["PEAK_RATIO", "saddle_scale_response", "estimate_square_size", "detection_factor", "ScaleSelector",
@@ -373,7 +374,8 @@ def detect_at_scale(
         for value in torch.unique(fac[todo]).tolist():
             idx = (todo & (fac == value)).nonzero().flatten()
             full = images[idx.to(images.device)]
-            level, scale = resize_to_level(full, value)
+            with stage("level resize"):
+                level, scale = resize_to_level(full, value)
             resampled = level.shape[-2:] != images.shape[-2:]
             c, f, r = detect(level, board_size, full if resampled else None, scale if resampled else None)
             c = c.to(images.device)
