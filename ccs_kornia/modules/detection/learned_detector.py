@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import torch
 
+from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
@@ -55,7 +57,8 @@ class LearnedChessboardDetector(ChessboardDetector):
     6. optional saddle-point refinement on the image (window adapted to the grid spacing).
 
     Args:
-        net: a trained :class:`CornerUNet`; ``None`` loads ``weights``.
+        net: a trained :class:`CornerUNet` (a copy with its batch normalisation folded is used); ``None`` loads
+            ``weights``.
         weights: path of an exported checkpoint (default: the shipped weights).
         sigma: training sigma of the heatmaps (read from the checkpoint when loading).
         peak_threshold: heatmap threshold of a peak.
@@ -100,7 +103,10 @@ class LearnedChessboardDetector(ChessboardDetector):
         super().__init__()
         if net is None:
             net, sigma = load_corner_unet(weights)
-        self.net = net.eval()
+        elif has_batchnorm(net):
+            net = copy.deepcopy(net)  # the caller's network (e.g. one in training) is left as it is
+        # inference only: batch normalisation folded into the convolutions (same heatmap, ~15 % less CPU time)
+        self.net = fold_batchnorm(net)
         self.sigma = sigma
         self.peak_threshold = peak_threshold
         self.nms_kernel = nms_kernel
