@@ -176,23 +176,36 @@ def refine_corners(
     r = torch.nan_to_num(r, nan=5.0, posinf=float(max_radius)).clamp(1.5, float(max_radius))
     if method == "saddle":
         return _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma, normalize_sigma, return_ok)
-    rmax = int(torch.ceil(r.max()).item()) if r.numel() else 2
-    offs = torch.arange(-rmax, rmax + 1, device=dev, dtype=dt)
-    oy, ox = torch.meshgrid(offs, offs, indexing="ij")
-    off = torch.stack([ox.reshape(-1), oy.reshape(-1)], -1)  # (P,2)
-    d2 = (off**2).sum(-1)  # (P,)
-    # Gaussian weight of width ~radius/1.5 with a hard cut at the radius: far pixels belong to other corners
-    wgt = torch.exp(-d2[None, None] / (2 * (r[..., None] / 1.5) ** 2)) * (d2[None, None] <= r[..., None] ** 2)
+    return _refine_gradient(img, corners, valid, r, iterations, return_ok)
 
-    grads = spatial_gradient(img, mode="diff", order=1, normalized=False)  # (B,1,2,H,W)
-    src = grads[:, 0]  # (B,2,H,W): gx, gy in px units
 
-    c = corners.to(dt).clone()
-    ok = torch.zeros(b, n, dtype=torch.bool, device=dev)
-    step = torch.zeros(b, n, dtype=dt, device=dev)
+def _refine_gradient(img, corners, valid, r, iterations, return_ok):
+    """The gradient branch of :func:`refine_corners` on the images that have valid corners, each image's valid
+    corners first (other corners are returned unchanged, so they are not computed)."""
+    b, n = corners.shape[:2]
+    dev, dt = corners.device, torch.float32
+    start = corners.to(dt)
+    valid = valid & torch.isfinite(start).all(-1)
+    count = valid.sum(1)
+    k = int(count.max()) if b else 0
+    ok_out = torch.zeros(b, n, dtype=torch.bool, device=dev)
+    if k == 0:
+        return (corners, ok_out) if return_ok else corners
+    rows = (count > 0).nonzero().flatten()
+    order = torch.argsort((~valid[rows]).to(torch.int8), dim=1, stable=True)[:, :k]  # valid corners first
+    c0 = start[rows].gather(1, order[..., None].expand(-1, -1, 2))
+    sub_valid = valid[rows].gather(1, order)
+    rr = r[rows].gather(1, order)
+    rmax = int(torch.ceil(rr[sub_valid].max()).item())
+    off, wgt = _window(rr, rmax)
+    grads = spatial_gradient(img[rows], mode="diff", order=1, normalized=False)  # (b',1,2,H,W)
+    src = grads[:, 0]  # (b',2,H,W): gx, gy in px units
+    c = c0.clone()
+    ok = torch.zeros_like(sub_valid)
+    step = torch.zeros_like(rr)
     for _ in range(iterations):
-        pts = c[:, :, None, :] + off[None, None]  # (B,N,P,2)
-        s = _sample(src, pts)  # (B,C,N,P)
+        pts = c[:, :, None, :] + off[None, None]  # (b',K,P,2)
+        s = _sample(src, pts)  # (b',C,K,P)
         gx, gy = s[:, 0], s[:, 1]
         a11 = (wgt * gx * gx).sum(-1)
         a12 = (wgt * gx * gy).sum(-1)
@@ -205,14 +218,15 @@ def refine_corners(
         det = torch.where(ok, det, torch.ones_like(det))
         new = torch.stack([(a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det], -1)
         step = (new - c).norm(dim=-1)
-        keep = valid & ok & torch.isfinite(new).all(-1) & (step <= r)
+        keep = sub_valid & ok & torch.isfinite(new).all(-1) & (step <= rr)
         c = torch.where(keep[..., None], new, c)
-    moved = (c - corners.to(dt)).norm(dim=-1)
-    inside = valid & (moved <= r)
-    c = torch.where(inside[..., None], c, corners.to(dt))
-    if return_ok:
-        return c.to(corners.dtype), inside & ok & (step <= r)
-    return c.to(corners.dtype)
+    inside = sub_valid & ((c - c0).norm(dim=-1) <= rr)
+    c = torch.where(inside[..., None], c, c0)
+    out = start.clone()
+    out[rows] = out[rows].scatter(1, order[..., None].expand(-1, -1, 2), c)
+    ok_out[rows] = ok_out[rows].scatter(1, order, inside & ok & (step <= rr))
+    out = out.to(corners.dtype)
+    return (out, ok_out) if return_ok else out
 
 
 def _sample_window(src: torch.Tensor, centre: torch.Tensor, rmax: int) -> torch.Tensor:

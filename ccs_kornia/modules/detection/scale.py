@@ -151,6 +151,7 @@ def estimate_square_size(
     base_sigma: float = 1.5,
     edge_penalty: float = 2.0,
     max_pixels: float = 1.0e6,
+    coarse_first: bool = True,
 ) -> torch.Tensor:
     r"""Square size of the chessboard in each image, in px, from the image alone :math:`(B,)`.
 
@@ -165,6 +166,10 @@ def estimate_square_size(
         gamma: scale normalisation exponent.
         base_sigma, edge_penalty: of :func:`saddle_scale_response`.
         max_pixels: larger images are estimated on an area-downscaled copy of this many pixels.
+        coarse_first: compute the scales on the image itself (squares below ``2 base_sigma / ratio``, about 8 px) only
+            for the images whose strongest coarser scale is one of the two lowest (``False``: always; the coarser
+            octaves are then reached through the image's own blur, which moves the estimate by a fraction of a
+            step).
 
     Returns:
         :math:`(B,)` float32 square sizes in px.
@@ -192,8 +197,19 @@ def estimate_square_size(
         if min_square >= max_square:
             max_square = 2 * min_square
     sig = _sigmas(ratio * min_square, ratio * max_square, steps_per_octave)
-    resp = saddle_scale_response(images, sig, gamma=gamma, num_peaks=num_peaks, base_sigma=base_sigma,
-                                 edge_penalty=edge_penalty)
+    kw = {"gamma": gamma, "num_peaks": num_peaks, "base_sigma": base_sigma, "edge_penalty": edge_penalty}
+    # scales on the image itself cost about two thirds of the whole pyramid; they matter only for squares at the
+    # bottom of the range, so the coarser octaves come first and the image's own octave is added only for images
+    # whose strongest coarse scale is one of the two lowest (their response is then exactly the full one)
+    n_fine = int((sig < 2 * base_sigma).sum())
+    if coarse_first and n_fine > 0 and sig.numel() - n_fine >= 3:
+        resp = torch.zeros(images.shape[0], sig.numel(), dtype=torch.float32, device=images.device)
+        resp[:, n_fine:] = saddle_scale_response(images, sig[n_fine:], **kw)
+        low = (resp[:, n_fine:].argmax(-1) <= 1).nonzero().flatten()
+        if low.numel():
+            resp[low] = saddle_scale_response(images[low], sig, **kw)
+    else:
+        resp = saddle_scale_response(images, sig, **kw)
     log_r = resp.clamp_min(1e-12).log()
     k = log_r.argmax(-1)
     # sub-step refinement: parabola through the neighbouring log-responses
