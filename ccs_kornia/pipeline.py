@@ -56,7 +56,7 @@ from ccs_kornia.pipeline_result import (
     scatter_cameras,
     select_result,
 )
-from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource  # noqa: F401
+from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource, prefetched  # noqa: F401
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
 
@@ -208,7 +208,9 @@ class CalibrationPipeline(nn.Module):
         per_view = None
         if self.distortion_net is not None:
             per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
-        batches = iter(source.batches(batch_size=self.detection_batch_size, max_pixels=self.max_batch_pixels))
+        batches = source.batches(batch_size=self.detection_batch_size, max_pixels=self.max_batch_pixels)
+        # decoding files overlaps the work on the previous batch
+        batches = prefetched(batches) if getattr(source, "decodes", False) else iter(batches)
         while True:
             with stage("image loading"):
                 batch = next(batches, None)
