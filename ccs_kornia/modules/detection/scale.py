@@ -363,7 +363,8 @@ def detect_at_scale(
         board_size: ``(cols, rows)``.
         factor: :math:`(B,)` detection factors (:func:`detection_factor`).
         fallback: relative factors tried, in order, on the boards not found (clamped to the finest level allowed by
-            ``max_pixels`` and ``min_factor``; a level already tried is skipped).
+            ``max_pixels`` and ``min_factor``; a level already tried is skipped); with any fallback, the finest level
+            allowed is tried last.
         max_pixels: most pixels of a fallback level.
         min_factor: smallest fallback factor (1: no upsampling).
         refine: ``refine(images (b, 1, H, W), corners (b, N, 2), factor) -> corners`` at full resolution, for boards
@@ -397,6 +398,11 @@ def detect_at_scale(
     # fallback levels are clamped to the finest level allowed (memory, no upsampling); each level is tried once
     floor = max(float(min_factor), math.sqrt(w * h / max_pixels))
     attempts = [factor] + [(factor * f).clamp_min(floor) for f in fallback]
+    if fallback:
+        # last, the finest level allowed (the image itself when it fits): a wrong square-size estimate (measured on
+        # GoPro photos whose scene has strong saddles at 10x the board's scale) must not hide a board the relative
+        # fallbacks never reach
+        attempts.append(torch.full_like(factor, floor))
     for a, fac in enumerate(attempts):
         todo = ~found.cpu()
         for previous in attempts[:a]:

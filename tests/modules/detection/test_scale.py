@@ -193,3 +193,17 @@ def test_learned_detector_finds_rescaled_soft_boards(views):
     e1 = (out.corners - corners).norm(dim=-1).mean(-1)
     e2 = (out.corners.flip(-2) - corners).norm(dim=-1).mean(-1)
     assert (torch.minimum(e1, e2) < 0.15).all(), torch.minimum(e1, e2)
+
+
+def test_detect_at_scale_tries_the_image_itself_last():
+    # a wrong square-size estimate (factor 8) must not hide a board only the image itself shows
+    tried = []
+
+    def detect(x, board, full, scale):
+        tried.append(tuple(x.shape[-2:]))
+        hit = x.shape[-1] == 128
+        n = board[0] * board[1]
+        return torch.zeros(x.shape[0], n, 2), torch.full((x.shape[0],), hit), ["found" if hit else "no"] * x.shape[0]
+
+    c, f, r = detect_at_scale(detect, torch.rand(1, 1, 96, 128), (4, 3), torch.tensor([8.0]), (0.5, 2.0, 0.25))
+    assert bool(f[0]) and tried[-1] == (96, 128)
