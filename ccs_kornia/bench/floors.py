@@ -24,7 +24,8 @@ import torch
 from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 
-__all__ = ["network_flops", "conv_rate", "compute_floors", "profile_default_path", "STAGE_ORDER"]
+__all__ = ["network_flops", "conv_rate", "compute_floors", "profile_detector", "profile_default_path", "end_to_end",
+           "STAGE_ORDER"]
 
 #: the stages of the default path, in the order they run (names of :func:`ccs_kornia.modules._timing.stage`)
 STAGE_ORDER: tuple[str, ...] = (
@@ -59,11 +60,13 @@ class _ConvStack(nn.Module):
         return torch.relu(self.d(torch.cat([y, y, y], 1))) + w.mean()
 
 
-def conv_rate(size: tuple[int, int] = (240, 320), batch: int = 4, repeats: int = 3) -> dict:
-    """The machine's GFLOP/s on :class:`_ConvStack` (channels-last float32, ``torch.get_num_threads()`` threads).
+def conv_rate(size: tuple[int, int] = (240, 320), batch: int = 4, repeats: int = 3,
+              dtype: torch.dtype = torch.float32) -> dict:
+    """The machine's GFLOP/s on :class:`_ConvStack` (channels-last, ``torch.get_num_threads()`` threads), in
+    ``dtype`` (float32, or bfloat16 under CPU autocast as the heatmap network runs on CPUs with native bfloat16).
 
     Returns:
-        ``{"gflops": best rate, "flops": per call, "seconds": best time, "input": [B, 8, H, W]}``.
+        ``{"gflops": best rate, "flops": per call, "seconds": best time, "input": [B, 8, H, W], "dtype"}``.
     """
     torch.manual_seed(0)
     net = _ConvStack().eval().to(memory_format=torch.channels_last)
@@ -72,22 +75,26 @@ def conv_rate(size: tuple[int, int] = (240, 320), batch: int = 4, repeats: int =
         net(x)
     flops = int(counter.get_total_flops())
     best = float("inf")
-    with torch.inference_mode():
+    low = dtype != torch.float32
+    with torch.inference_mode(), torch.autocast("cpu", dtype=dtype, enabled=low):
         net(x)
         for _ in range(max(1, repeats)):
             t = time.perf_counter()
             net(x)
             best = min(best, time.perf_counter() - t)
-    return {"gflops": flops / best / 1e9, "flops": flops, "seconds": best, "input": [batch, 8, *size]}
+    return {"gflops": flops / best / 1e9, "flops": flops, "seconds": best, "input": [batch, 8, *size],
+            "dtype": str(dtype).replace("torch.", "")}
 
 
-def compute_floors(images: torch.Tensor, rate_gflops: float) -> dict:
+def compute_floors(images: torch.Tensor, rates: dict[str, float]) -> dict:
     """FLOPs per image and floor times of the shipped networks for ``images`` :math:`(B, 1, H, W)`.
 
     The heatmap UNet is counted at each image's detection level (:class:`~ccs_kornia.modules.detection.scale.
-    ScaleSelector` of the shipped detector) and at full resolution; the DistortionNet at its input size.
+    ScaleSelector` of the shipped detector) and at full resolution, the DistortionNet at its input size; each floor
+    is ``FLOPs / rate`` for every measured rate of ``rates`` (``{"float32": GFLOP/s, "bfloat16": GFLOP/s}``).
     """
     from ccs_kornia.modules.correction.distortion_net import load_distortion_net
+    from ccs_kornia.modules.detection.heatmap_unet import effective_precision
     from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
     from ccs_kornia.modules.detection.patch_refine import level_size
 
@@ -97,27 +104,76 @@ def compute_floors(images: torch.Tensor, rate_gflops: float) -> dict:
         _, factor = det.scale_selector(images.float())
     levels = Counter(level_size((w, h), float(f)) for f in factor.tolist())
     per_level = {lv: network_flops(det.net, (1, 1, *lv)) for lv in levels}
-    level_flops = sum(per_level[lv] * n for lv, n in levels.items()) / max(1, images.shape[0])
-    full_flops = network_flops(det.net, (1, 1, h, w))
-    out = {
-        "rate_gflops": rate_gflops,
-        "image_size": [int(w), int(h)],
-        "unet_levels": {f"{lv[1]}x{lv[0]}": n for lv, n in sorted(levels.items(), reverse=True)},
-        "unet_gflop_level": level_flops / 1e9,
-        "unet_gflop_full": full_flops / 1e9,
-        "unet_floor_ms_level": level_flops / rate_gflops / 1e6,
-        "unet_floor_ms_full": full_flops / rate_gflops / 1e6,
+    gflop = {
+        "unet_level": sum(per_level[lv] * n for lv, n in levels.items()) / max(1, images.shape[0]) / 1e9,
+        "unet_full": network_flops(det.net, (1, 1, h, w)) / 1e9,
     }
+    out: dict = {"image_size": [int(w), int(h)], "rates_gflops": dict(rates),
+                 "unet_precision": effective_precision(det.precision, images.device),
+                 "unet_levels": {f"{lv[1]}x{lv[0]}": n for lv, n in sorted(levels.items(), reverse=True)}}
     try:
         dnet = load_distortion_net(True)
         size = dnet.input_size
         # the network on its letterboxed input (image, mask, x, y); the letterbox itself is preprocessing
-        flops = network_flops(nn.Sequential(dnet.encoder, dnet.pool, dnet.head), (1, 4, size, size))
-        out.update({"distortion_input": size, "distortion_gflop": flops / 1e9,
-                    "distortion_floor_ms": flops / rate_gflops / 1e6})
+        gflop["distortion"] = network_flops(nn.Sequential(dnet.encoder, dnet.pool, dnet.head), (1, 4, size, size)) / 1e9
+        out["distortion_input"] = [size, size]
     except FileNotFoundError as err:
         out["distortion_skipped"] = str(err)
+    out["gflop_per_image"] = gflop
+    out["floor_ms_per_image"] = {f"{k}@{dt}": 1000.0 * g / r for k, g in gflop.items() for dt, r in rates.items()}
     return out
+
+
+def profile_detector(images: torch.Tensor, board: tuple[int, int], batch_sizes: tuple[int, ...] = (16, 1),
+                     repeats: int = 2) -> dict:
+    """Per-stage exclusive time of the shipped learned detector on ``images`` at each batch size (best of
+    ``repeats`` after a warm-up): ``{batch: {"images_per_s", "stages": {stage: ms per image}}}``."""
+    from ccs_kornia.modules._timing import StageProfile
+    from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
+
+    from ccs_kornia.modules.detection.heatmap_unet import effective_precision
+
+    det = LearnedChessboardDetector()
+    n = images.shape[0]
+    out: dict = {"precision": effective_precision(det.precision, images.device)}
+    with torch.inference_mode():
+        det(images[: min(n, max(batch_sizes))], board)
+        for bs in batch_sizes:
+            bs = min(bs, n)
+            best = None
+            for _ in range(max(1, repeats)):
+                with StageProfile() as prof:
+                    for i in range(0, n, bs):
+                        det(images[i : i + bs], board)
+                if best is None or prof.wall < best.wall:
+                    best = prof
+            out[str(bs)] = {"images_per_s": n / best.wall,
+                            "stages": {k: 1000 * v / n for k, v, _, _ in best.table()}}
+    return out
+
+
+def end_to_end(folder: str, board: tuple[int, int], timeout: float = 600.0) -> dict:
+    """Wall time of ``python -m ccs_kornia calibrate FOLDER --board CxR --output ...`` in a fresh interpreter (what
+    a user waits for: start-up and imports included), and the command's own timing from its JSON."""
+    import json
+    import subprocess
+    import sys
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out_json = os.path.join(tmp, "calib.json")
+        cmd = [sys.executable, "-m", "ccs_kornia", "calibrate", folder, "--board", f"{board[0]}x{board[1]}",
+               "--output", out_json]
+        t = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+        wall = time.perf_counter() - t
+        result = {"command": " ".join(["python", *cmd[1:-1], "OUT.json"]), "wall_s": wall, "returncode": proc.returncode}
+        if proc.returncode == 0 and os.path.isfile(out_json):
+            data = json.load(open(out_json))
+            result.update({"views_used": data.get("num_views"), "rms": data.get("rms"),
+                           "pipeline_s": (data.get("timings") or {}).get("total_s")})
+        else:
+            result["error"] = proc.stderr[-500:]
+    return result
 
 
 def _write_pngs(images: torch.Tensor, folder: str) -> list[str]:

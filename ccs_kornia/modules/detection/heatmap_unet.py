@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["CornerUNet", "DoubleConv", "cpu_has_native_bf16", "run_heatmap", "PRECISIONS"]
+__all__ = ["CornerUNet", "DoubleConv", "cpu_has_native_bf16", "effective_precision", "run_heatmap", "PRECISIONS"]
 
 #: network precisions of :func:`run_heatmap`
 PRECISIONS = ("auto", "float32", "bfloat16")
@@ -209,6 +209,15 @@ def cpu_has_native_bf16() -> bool:
 _NATIVE_BF16: bool | None = None
 
 
+def effective_precision(precision: str, device: torch.device | str = "cpu") -> str:
+    """The dtype :func:`run_heatmap` computes in for ``precision`` on ``device``: ``"float32"`` or ``"bfloat16"``."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
+    cpu = torch.device(device).type == "cpu"
+    low = precision == "bfloat16" or (precision == "auto" and cpu and cpu_has_native_bf16())
+    return "bfloat16" if low else "float32"
+
+
 def run_heatmap(net: nn.Module, images: torch.Tensor, precision: str = "float32") -> torch.Tensor:
     """The heatmap of ``images`` :math:`(B, 1, H, W)` as float32 :math:`(B, 1, H, W)`, run the fast way for the device.
 
@@ -221,11 +230,8 @@ def run_heatmap(net: nn.Module, images: torch.Tensor, precision: str = "float32"
         >>> run_heatmap(net, torch.rand(1, 1, 32, 48)).shape
         torch.Size([1, 1, 32, 48])
     """
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
-    cpu = images.device.type == "cpu"
-    low = precision == "bfloat16" or (precision == "auto" and cpu and cpu_has_native_bf16())
-    if cpu:
+    low = effective_precision(precision, images.device) == "bfloat16"
+    if images.device.type == "cpu":
         net.to(memory_format=torch.channels_last)
         images = images.contiguous(memory_format=torch.channels_last)
     if low:
