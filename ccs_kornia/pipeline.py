@@ -36,7 +36,7 @@ from torch import nn
 
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.result import CalibrationResult
-from ccs_kornia.modules._timing import stage
+from ccs_kornia.modules._timing import stage, timed
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction import corrected_frame
 from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected, straightening_evidence
@@ -51,15 +51,15 @@ from ccs_kornia.pipeline_result import (
     camera_reason,
     concat_results,
     main_size,
+    module_device,
     positive_size,
     same_size_views,
     scatter_cameras,
     select_result,
 )
-from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource, prefetched  # noqa: F401
+from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource, load_batches  # noqa: F401
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
-
 
 
 class CalibrationPipeline(nn.Module):
@@ -198,7 +198,7 @@ class CalibrationPipeline(nn.Module):
         if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
             raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
         board = (int(board_size[0]), int(board_size[1]))
-        device = self._device()
+        device = module_device(self)
         c, v, n = source.num_cameras, source.max_views, board[0] * board[1]
         corners = torch.zeros(c, v, n, 2, dtype=torch.float64, device=device)
         found = torch.zeros(c, v, dtype=torch.bool, device=device)
@@ -208,14 +208,8 @@ class CalibrationPipeline(nn.Module):
         per_view = None
         if self.distortion_net is not None:
             per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
-        batches = source.batches(batch_size=self.detection_batch_size, max_pixels=self.max_batch_pixels)
-        # decoding files overlaps the work on the previous batch
-        batches = prefetched(batches) if getattr(source, "decodes", False) else iter(batches)
-        while True:
-            with stage("image loading"):
-                batch = next(batches, None)
-            if batch is None:
-                break
+        # decoding files overlaps the work on the previous batch (sources.load_batches)
+        for batch in timed(load_batches(source, None, self.detection_batch_size, self.max_batch_pixels), "image loading"):
             for (ci, vi), why in batch.failed:
                 reasons[ci][vi] = f"unreadable: {why}"
             if batch.images is None:
@@ -281,8 +275,8 @@ class CalibrationPipeline(nn.Module):
         recovered = torch.zeros(c, dtype=torch.bool, device=device)
         missed = [(ci, vi) for ci in large.nonzero().flatten().tolist()
                   for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()] if source is not None else []
-        for batch in ([] if not missed else source.batches(missed, batch_size=self.detection_batch_size,
-                                                          max_pixels=self.max_batch_pixels)):
+        for batch in ([] if not missed else load_batches(source, missed, self.detection_batch_size,
+                                                        self.max_batch_pixels)):
             if batch.images is None:
                 continue
             cam = torch.tensor([k[0] for k in batch.keys], device=device)
@@ -503,11 +497,4 @@ class CalibrationPipeline(nn.Module):
         with stage("saddle refinement"):
             return refine_on_patches(images.float(), corners.float(), board_size, r.radius_factor, r.max_radius, r.method,
                                      r.iterations, r.smooth_sigma, r.normalize_sigma).to(corners.dtype)
-
-    def _device(self) -> torch.device:
-        for p in self.parameters():
-            return p.device
-        for b in self.buffers():
-            return b.device
-        return torch.device("cpu")
 

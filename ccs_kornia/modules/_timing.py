@@ -19,11 +19,11 @@ from __future__ import annotations
 import time
 from collections import defaultdict
 from contextlib import contextmanager
-from typing import Iterator
+from typing import Iterable, Iterator
 
 import torch
 
-__all__ = ["stage", "StageProfile"]
+__all__ = ["stage", "timed", "StageProfile"]
 
 _ACTIVE: list[StageProfile] = []
 
@@ -90,3 +90,25 @@ def stage(name: str) -> Iterator[None]:
         rec.calls[name] += 1
         if rec._stack:
             rec._stack[-1][1] += total
+
+
+def timed(items: Iterable, name: str) -> Iterator:
+    """Iterate over ``items``, charging the time spent producing each item to the stage ``name`` (e.g. the image
+    loading of a batch iterator; the work done on an item between two steps is not included).
+
+    Example:
+        >>> with StageProfile() as prof:
+        ...     total = sum(timed(iter(range(3)), "produce"))
+        >>> total, prof.calls["produce"]
+        (3, 4)
+    """
+    it = iter(items)
+    while True:
+        with stage(name):
+            item = next(it, _END)
+        if item is _END:
+            return
+        yield item
+
+
+_END = object()
