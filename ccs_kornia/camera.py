@@ -8,6 +8,8 @@ Conventions (see ``docs/architecture.md``):
 * poses: OpenCV's ``rvec`` (axis-angle, world-to-camera) and ``tvec``;
 * OpenCV distortion: ``(k1, k2, p1, p2, k3)`` (``opencv5``) or ``(k1, k2, p1, p2, k3, k4, k5, k6)``
   (``rational``), applied on the normalized plane through kornia's ``distort_points``;
+* Kannala-Brandt fisheye (``cv2.fisheye``): ``theta = atan2(r, z)``,
+  ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``, ``D = (k1, k2, k3, k4)``;
 * the paper's radial model (used for training data and the distortion CNN): radii are measured from
   the image centre ``((W-1)/2, (H-1)/2)`` in units of ``max(W, H)``;
   distortion ``r_d = r_c (k0 + k1 r_c^2 + k2 r_c^4)`` and correction
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import torch
 from kornia.geometry.calibration import distort_points, undistort_points
+from kornia.geometry.camera.distortion_kannala_brandt import distort_points_kannala_brandt
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix, rotation_matrix_to_axis_angle
 
 __all__ = [
@@ -37,6 +40,10 @@ __all__ = [
     "radial_correct_points",
     "fit_radial_correction",
     "fit_opencv_distortion",
+    "kb_project_points",
+    "kb_distort_points",
+    "kb_unproject_points",
+    "kb_undistort_points",
     "axis_angle_to_rotation_matrix",
     "rotation_matrix_to_axis_angle",
 ]
@@ -376,3 +383,118 @@ def fit_opencv_distortion(
     if model == "k1k2":
         sol = torch.cat([sol, torch.zeros_like(sol[:, :1]).expand(-1, 3)], -1)
     return sol
+
+
+# ----------------------------------------------------------------------------------------------
+# Kannala-Brandt fisheye (cv2.fisheye's model), valid beyond 90 degrees
+# ----------------------------------------------------------------------------------------------
+
+
+def _kb_params(K: torch.Tensor, D: torch.Tensor) -> torch.Tensor:
+    if K.shape[-2:] != (3, 3) or D.shape[-1] != 4:
+        raise ValueError(f"Kannala-Brandt needs K (*, 3, 3) and D (*, 4), got {tuple(K.shape)} and {tuple(D.shape)}.")
+    intr, D = intrinsics_params(K), D.to(K.dtype)
+    shape = torch.broadcast_shapes(intr.shape[:-1], D.shape[:-1])
+    return torch.cat([intr.expand(*shape, 4), D.expand(*shape, 4)], -1)
+
+
+def kb_project_points(
+    points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, rvec: torch.Tensor | None = None, tvec: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Project 3D points with the Kannala-Brandt model (as ``cv2.fisheye.projectPoints``, zero skew).
+
+    ``theta = atan2(r, z)``, so points at or beyond 90 degrees from the axis project too (``cv2.fisheye`` uses
+    ``atan(r / z)``, which agrees for ``z > 0``).
+
+    Args:
+        points: :math:`(*, N, 3)` points (world frame with ``rvec``/``tvec``, else camera frame).
+        K: :math:`(*, 3, 3)`; D: :math:`(*, 4)` ``k1..k4``; rvec, tvec: :math:`(*, 3)` optional pose.
+
+    Returns:
+        :math:`(*, N, 2)` pixels.
+
+    Example:
+        >>> K = torch.tensor([[300., 0, 320], [0, 300, 240], [0, 0, 1]])
+        >>> kb_project_points(torch.tensor([[1.0, 0.0, 0.0]]), K, torch.zeros(4))  # 90 degrees: r = f pi / 2
+        tensor([[791.2389, 240.0000]])
+    """
+    if points.shape[-1] != 3:
+        raise ValueError(f"Expected (*, N, 3) points, got {tuple(points.shape)}.")
+    if rvec is not None:
+        if tvec is None:
+            raise ValueError("rvec given without tvec.")
+        points = transform_points_rt(points, rvec, tvec)
+    p = _kb_params(K, D).unsqueeze(-2)
+    r = points[..., :2].norm(dim=-1)
+    theta = torch.atan2(r, points[..., 2])
+    t2 = theta * theta
+    theta_d = theta * (1 + t2 * (p[..., 4] + t2 * (p[..., 5] + t2 * (p[..., 6] + t2 * p[..., 7]))))
+    scale = torch.where(r > 0, theta_d / torch.where(r > 0, r, torch.ones_like(r)), 1.0 / points[..., 2])
+    return torch.stack([p[..., 0] * scale * points[..., 0] + p[..., 2], p[..., 1] * scale * points[..., 1] + p[..., 3]], -1)
+
+
+def kb_distort_points(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor) -> torch.Tensor:
+    """Normalized points on the ``z = 1`` plane to pixels (``cv2.fisheye.distortPoints`` of normalized points).
+
+    Kornia's ``distort_points_kannala_brandt`` (its ``k0..k3`` are ``cv2.fisheye``'s ``k1..k4``); points
+    :math:`(*, N, 2)`, K :math:`(*, 3, 3)`, D :math:`(*, 4)` -> :math:`(*, N, 2)` pixels.
+    """
+    return distort_points_kannala_brandt(points, _kb_params(K, D).unsqueeze(-2).expand(*points.shape[:-1], 8))
+
+
+def _kb_angles(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, num_iters: int):
+    """Pixels to (theta, unit direction in the image plane) by Newton on theta (start: theta_d)."""
+    p = _kb_params(K, D).unsqueeze(-2)
+    fx, fy, cx, cy = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    skew = K[..., 0, 1, None]
+    b = (points[..., 1] - cy) / fy
+    a = (points[..., 0] - cx - skew * b) / fx
+    theta_d = (a * a + b * b).sqrt()
+    k1, k2, k3, k4 = p[..., 4], p[..., 5], p[..., 6], p[..., 7]
+    theta = theta_d
+    for _ in range(num_iters):
+        t2 = theta * theta
+        f = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - theta_d
+        df = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+        theta = theta - f / torch.where(df.abs() > 1e-12, df, torch.full_like(df, 1e-12))
+    safe = torch.where(theta_d > 0, theta_d, torch.ones_like(theta_d))
+    return theta, torch.where(theta_d > 0, a / safe, torch.ones_like(a)), torch.where(theta_d > 0, b / safe, torch.zeros_like(b))
+
+
+def kb_unproject_points(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, num_iters: int = 20) -> torch.Tensor:
+    """Pixels to unit viewing rays, the inverse of :func:`kb_project_points` (valid beyond 90 degrees).
+
+    Args:
+        points: :math:`(*, N, 2)` pixels; K :math:`(*, 3, 3)`; D :math:`(*, 4)`; num_iters: Newton steps on theta.
+
+    Returns:
+        :math:`(*, N, 3)` unit rays ``(sin(theta) cos(phi), sin(theta) sin(phi), cos(theta))``.
+
+    Example:
+        >>> K = torch.tensor([[300., 0, 320], [0, 300, 240], [0, 0, 1]], dtype=torch.float64)
+        >>> ray = kb_unproject_points(torch.tensor([[791.2389, 240.0]], dtype=torch.float64), K, torch.zeros(4))
+        >>> bool((ray - torch.tensor([1.0, 0.0, 0.0])).abs().max() < 1e-6)  # 90 degrees
+        True
+    """
+    theta, ca, sa = _kb_angles(points, K, D, num_iters)
+    return torch.stack([theta.sin() * ca, theta.sin() * sa, theta.cos()], -1)
+
+
+def kb_undistort_points(
+    points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, P: torch.Tensor | None = None, num_iters: int = 20
+) -> torch.Tensor:
+    """Pixels to normalized points ``tan(theta) (cos phi, sin phi)`` (``cv2.fisheye.undistortPoints``).
+
+    Args:
+        points: :math:`(*, N, 2)` pixels; K :math:`(*, 3, 3)`; D :math:`(*, 4)`; P: optional new camera matrix.
+
+    Returns:
+        :math:`(*, N, 2)`; only meaningful below 90 degrees (use :func:`kb_unproject_points` beyond).
+    """
+    theta, ca, sa = _kb_angles(points, K, D, num_iters)
+    t = theta.tan()
+    xy = torch.stack([t * ca, t * sa], -1)
+    if P is None:
+        return xy
+    x, y = xy.unbind(-1)
+    return torch.stack([P[..., 0, 0, None] * x + P[..., 0, 1, None] * y + P[..., 0, 2, None], P[..., 1, 1, None] * y + P[..., 1, 2, None]], -1)

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from _real_data import REAL_DATA
 
 from ccs_kornia import cli
 from ccs_kornia.commands import _common
@@ -40,7 +41,7 @@ def rendered(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def real_dir() -> Path:
-    return Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+    return REAL_DATA
 
 
 def run(capsys, *argv: str) -> tuple[int, str, str]:

@@ -11,6 +11,7 @@ intrinsics are compared with it within the tolerance the set's README states.
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -41,8 +42,9 @@ _IMAGE_EXT = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 
 
 def default_real_dir() -> Path:
-    """``shared/data/real`` next to the repository (the layout CI uses)."""
-    return Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real"
+    """``$CCS_REAL_DATA`` when set, else ``shared/data/real`` next to the repository (the layout CI uses)."""
+    env = os.environ.get("CCS_REAL_DATA")
+    return Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real"
 
 
 def load_reference(path: Path) -> dict | None:

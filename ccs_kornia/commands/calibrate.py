@@ -58,6 +58,9 @@ def calibrate_files(
         elif data["num_views"]["usable"] < 3:
             message = (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
                        f"{len(files)} files (board found in {data['num_views']['found']}); at least 3 are needed")
+        elif data.get("errors"):  # the solver's refusals (degeneracy checks) name the problem and the views
+            message = (f"calibration refused on {data['num_views']['usable']} views: "
+                       + "; ".join(i["message"] for i in data["errors"]))
         else:
             why = data["error"] if data["error"].startswith("calibration failed") else \
                 f"calibration failed on {data['num_views']['usable']} views: {data['error']}"

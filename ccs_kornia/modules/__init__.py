@@ -28,7 +28,7 @@ _EXPORTS = {
     "GridOrganizer": "ccs_kornia.modules.detection.grid_organizer",
     "HeatmapPeaks": "ccs_kornia.modules.detection.peaks",
     "ImageRansac": "ccs_kornia.modules.calibration.ransac",
-    "JointRefinement": "ccs_kornia.modules.calibration.refine",
+    "JointRefinement": "ccs_kornia.modules.calibration.refinement",
     "LearnedChessboardDetector": "ccs_kornia.modules.detection.learned_detector",
     "OpenCVChessboardDetector": "ccs_kornia.modules.detection.opencv_detector",
     "RadialUndistort": "ccs_kornia.modules.correction.radial_warp",

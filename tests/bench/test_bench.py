@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from _real_data import REAL_DATA
 
 from ccs_kornia.bench import BenchConfig, run_bench
 from ccs_kornia.bench.__main__ import main
@@ -22,7 +22,7 @@ from ccs_kornia.bench.report import (
 from ccs_kornia.bench.scenes import corner_errors, orient_grid, render_scenes
 from ccs_kornia.camera import board_object_points, project_points
 
-REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
+REAL = REAL_DATA
 FAST_METHODS = ("opencv_saddle", "opencv_subpix")
 
 

@@ -1,4 +1,5 @@
-"""Calibration stage: homographies, Zhang, RANSAC, joint Levenberg-Marquardt, the solver composing them.
+"""Calibration stage: homographies, Zhang, RANSAC, the one Levenberg-Marquardt core and its camera models, the solver
+composing them, fisheye initialisation and calibration.
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 
@@ -27,14 +28,40 @@ _EXPORTS = {
     "hypothesis_view_rms": "ccs_kornia.modules.calibration.ransac",
     "image_ransac": "ccs_kornia.modules.calibration.ransac",
     "ImageRansac": "ccs_kornia.modules.calibration.ransac",
-    "project_with_jacobians": "ccs_kornia.modules.calibration.projection",
-    "RefinementResult": "ccs_kornia.modules.calibration.refine",
-    "joint_refinement": "ccs_kornia.modules.calibration.refine",
-    "JointRefinement": "ccs_kornia.modules.calibration.refine",
-    "FREE_DISTORTION": "ccs_kornia.modules.calibration.refine",
+    "RefinementResult": "ccs_kornia.modules.calibration.refinement",
+    "joint_refinement": "ccs_kornia.modules.calibration.refinement",
+    "JointRefinement": "ccs_kornia.modules.calibration.refinement",
+    "FREE_DISTORTION": "ccs_kornia.modules.calibration.refinement",
     "centred_radial_distort": "ccs_kornia.modules.calibration.centred_radial",
     "radial_from_correction": "ccs_kornia.modules.calibration.centred_radial",
     "refine_centred_radial": "ccs_kornia.modules.calibration.centred_radial",
+    "LMResult": "ccs_kornia.modules.calibration.lm",
+    "levenberg_marquardt": "ccs_kornia.modules.calibration.lm",
+    "LevenbergMarquardt": "ccs_kornia.modules.calibration.lm",
+    "parameter_basis": "ccs_kornia.modules.calibration.lm",
+    "CameraModel": "ccs_kornia.modules.calibration.models.base",
+    "OpenCVModel": "ccs_kornia.modules.calibration.models.opencv",
+    "OPENCV_VARIANTS": "ccs_kornia.modules.calibration.models.opencv",
+    "CentredRadialModel": "ccs_kornia.modules.calibration.models.centred_radial",
+    "KannalaBrandtModel": "ccs_kornia.modules.calibration.models.fisheye",
+    "camera_model": "ccs_kornia.modules.calibration.models.factory",
+    "board_to_ray_poses": "ccs_kornia.modules.calibration.fisheye_init",
+    "focal_hypotheses": "ccs_kornia.modules.calibration.fisheye_init",
+    "init_fisheye": "ccs_kornia.modules.calibration.fisheye_init",
+    "FisheyeCalibrationResult": "ccs_kornia.modules.calibration.fisheye_calibration",
+    "calibrate_fisheye": "ccs_kornia.modules.calibration.fisheye_calibration",
+    "FisheyeCalibrator": "ccs_kornia.modules.calibration.fisheye_calibration",
+    "DegeneracyThresholds": "ccs_kornia.modules.calibration.degeneracy",
+    "check_degeneracy": "ccs_kornia.modules.calibration.degeneracy",
+    "duplicate_views": "ccs_kornia.modules.calibration.duplicates",
+    "view_differences": "ccs_kornia.modules.calibration.duplicates",
+    "exp_so3": "ccs_kornia.modules.calibration.so3",
+    "log_so3": "ccs_kornia.modules.calibration.so3",
+    "projection_uncertainty": "ccs_kornia.modules.calibration.uncertainty",
+    "cross_validation": "ccs_kornia.modules.calibration.diagnostics",
+    "verdict": "ccs_kornia.modules.calibration.diagnostics",
+    "diagnose": "ccs_kornia.modules.calibration.diagnostics",
+    "CalibrationDiagnostics": "ccs_kornia.modules.calibration.diagnostics",
 }
 
 __all__ = sorted(_EXPORTS)

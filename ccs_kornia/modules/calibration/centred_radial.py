@@ -11,16 +11,17 @@ inverse of this map; :func:`radial_from_correction` converts such a correction i
 principal point instead; where the two centres differ, strong distortion makes OpenCV's fit trade the principal
 point and focal length against its distortion terms, which is what calibrating in the corrected frame avoids.
 
-Cameras are solved one after the other (dense normal equations with ``7 + 6 V`` unknowns each, Jacobian by
-forward-mode autodiff).
+All cameras are solved together by the one LM core (:func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`
+with :class:`~ccs_kornia.modules.calibration.models.centred_radial.CentredRadialModel`: analytic derivatives,
+poses eliminated by a Schur complement, no loop over cameras).
 """
 
 from __future__ import annotations
 
 import torch
-from torch.func import jacfwd
 
-from ccs_kornia import camera
+from ccs_kornia.modules.calibration.lm import levenberg_marquardt
+from ccs_kornia.modules.calibration.models.centred_radial import CentredRadialModel
 from ccs_kornia.modules.correction.radial_warp import corrected_radius
 
 __all__ = ["centred_radial_distort", "radial_from_correction", "refine_centred_radial"]
@@ -75,20 +76,6 @@ def radial_from_correction(correction: torch.Tensor, image_size: tuple[int, int]
     return torch.linalg.lstsq(A, ratio.unsqueeze(-1)).solution.squeeze(-1).to(correction.dtype)
 
 
-def _residuals(params: torch.Tensor, observed: torch.Tensor, weight: torch.Tensor, obj: torch.Tensor,
-               image_size: tuple[int, int], num_views: int) -> torch.Tensor:
-    fx, fy, cx, cy = params[0], params[1], params[2], params[3]
-    free_centre = params.shape[0] == 9 + 6 * num_views
-    start = 9 if free_centre else 7
-    poses = params[start:].reshape(num_views, 6)
-    zero, one = torch.zeros_like(fx), torch.ones_like(fx)
-    K = torch.stack([torch.stack([fx, zero, cx]), torch.stack([zero, fy, cy]), torch.stack([zero, zero, one])])
-    proj = camera.project_points(obj.expand(num_views, -1, -1), K.expand(num_views, 3, 3), None, poses[:, :3], poses[:, 3:])
-    offset = params[7:9][None] if free_centre else None
-    dist = centred_radial_distort(proj.reshape(1, -1, 2), params[4:7][None], image_size, offset).reshape(proj.shape)
-    return ((dist - observed) * weight[..., None]).reshape(-1)
-
-
 def refine_centred_radial(
     corners: torch.Tensor,
     valid: torch.Tensor,
@@ -101,8 +88,9 @@ def refine_centred_radial(
     max_iters: int = 50,
     tol: float = 1e-12,
     free_centre: bool = False,
+    covariance: bool = False,
 ) -> tuple[torch.Tensor, ...]:
-    """Levenberg-Marquardt over intrinsics, image-centred radial distortion and poses, camera by camera.
+    """Levenberg-Marquardt over intrinsics, image-centred radial distortion and poses, batched over cameras.
 
     Args:
         corners: :math:`(C, V, N, 2)` observed (distorted) pixels.
@@ -112,17 +100,21 @@ def refine_centred_radial(
         rvec, tvec: :math:`(C, V, 3)` initial poses.
         radial: :math:`(C, 3)` initial ``(k1, k2, k3)``.
         image_size: ``(W, H)``.
-        max_iters: LM iterations at most.
+        max_iters: accepted LM steps at most (each may need a few damping increases: the core runs up to
+            ``10 * max_iters`` iterations).
         tol: relative cost decrease below which a camera stops.
         free_centre: also estimate the distortion centre (a shift from the image centre). Real lenses centre
             their distortion near the principal point, which need not be the image centre; with strong
             distortion the two are told apart by the data.
+        covariance: also return the covariance :math:`(C, 9, 9)` of ``fx, fy, cx, cy, k1, k2, k3, ox, oy``
+            (marginalised over the poses; zero rows and columns for the centre unless ``free_centre``).
 
     Returns:
         ``K`` :math:`(C, 3, 3)`, ``radial`` :math:`(C, 3)`, ``rvec``, ``tvec`` :math:`(C, V, 3)`, the RMS
-        reprojection error :math:`(C,)` in px (NaN for a camera with fewer than 8 valid corners), the
-        distortion centre's offset from the image centre :math:`(C, 2)` (zeros unless ``free_centre``) and the
-        standard deviations of ``fx, fy, cx, cy`` :math:`(C, 4)` (from the Gauss-Newton covariance).
+        reprojection error :math:`(C,)` in px (NaN for a camera with fewer than 8 valid corners, whose inputs are
+        returned unchanged), the distortion centre's offset from the image centre :math:`(C, 2)` (zeros unless
+        ``free_centre``) and the standard deviations of ``fx, fy, cx, cy`` :math:`(C, 4)`; with ``covariance``,
+        the covariance last.
 
     Example:
         >>> from ccs_kornia.camera import board_object_points, project_points
@@ -147,62 +139,33 @@ def refine_centred_radial(
         raise ValueError(f"valid must be {(c, v, n)}, got {tuple(valid.shape)}.")
     if radial.shape != (c, 3):
         raise ValueError(f"radial must be {(c, 3)}, got {tuple(radial.shape)}.")
-    dt = torch.float64
-    obj = object_points.to(corners.device, dt)
-    K_out, rad_out = K.to(dt).clone(), radial.to(device=corners.device, dtype=dt).clone()
-    rv_out, tv_out = rvec.to(dt).clone(), tvec.to(dt).clone()
-    rms_out = torch.full((c,), float("nan"), dtype=dt, device=corners.device)
-    centre_out = torch.zeros(c, 2, dtype=dt, device=corners.device)
-    std_out = torch.full((c, 4), float("nan"), dtype=dt, device=corners.device)
-    for ci in range(c):
-        weight = (valid[ci] & corners[ci].isfinite().all(-1)).to(dt)
-        if int(weight.sum()) < 8:
-            continue
-        observed = corners[ci].to(dt).nan_to_num(0.0)
-        p = torch.cat([
-            torch.stack([K_out[ci, 0, 0], K_out[ci, 1, 1], K_out[ci, 0, 2], K_out[ci, 1, 2]]),
-            rad_out[ci],
-            torch.zeros(2 if free_centre else 0, dtype=dt, device=corners.device),
-            torch.cat([rv_out[ci], tv_out[ci]], -1).reshape(-1),
-        ])
+    dt, dev = torch.float64, corners.device
+    cam = CentredRadialModel(image_size, free_centre)
+    K0 = K.to(device=dev, dtype=dt)
+    params = cam.params_from(K0, radial.to(device=dev, dtype=dt))
+    w = (valid.bool() & corners.isfinite().all(-1)).to(dt)
+    enough = w.sum((1, 2)) >= 8
+    w = w * enough[:, None, None]
+    res = levenberg_marquardt(
+        cam, params, rvec, tvec, object_points, corners, w, max_iters=10 * max_iters, ftol=tol, dtype=dt
+    )
+    e1, e2 = enough[:, None], enough[:, None, None]
+    p = torch.where(e1, res.params, params)
+    nan = torch.full((c,), float("nan"), dtype=dt, device=dev)
+    cov = torch.where(e2, res.param_covariance, float("nan"))
+    out = (
+        torch.where(e2, _k_matrix(p), K0),
+        p[:, 4:7],
+        torch.where(e2, res.rvec, rvec.to(dt)),
+        torch.where(e2, res.tvec, tvec.to(dt)),
+        torch.where(enough, res.rms, nan),
+        p[:, 7:9] if free_centre else torch.zeros(c, 2, dtype=dt, device=dev),
+        cov.diagonal(dim1=-2, dim2=-1)[:, :4].clamp_min(0).sqrt(),
+    )
+    return (*out, cov) if covariance else out
 
-        def fun(q: torch.Tensor) -> torch.Tensor:
-            return _residuals(q, observed, weight, obj, image_size, v)
 
-        r = fun(p)
-        cost = float(r @ r)
-        lam = 1e-3
-        for _ in range(max_iters):
-            J = jacfwd(fun)(p)
-            A, g = J.T @ J, J.T @ r
-            diag = A.diagonal().clamp_min(1e-12)
-            step, r_new, cost_new = None, r, cost
-            for _ in range(10):
-                trial = torch.linalg.solve(A + lam * torch.diag(diag), -g)
-                r_try = fun(p + trial)
-                c_try = float(r_try @ r_try)
-                if c_try < cost:
-                    step, r_new, cost_new = trial, r_try, c_try
-                    break
-                lam *= 10.0
-            if step is None:
-                break
-            p, r = p + step, r_new
-            rel = (cost - cost_new) / max(cost, 1e-300)
-            cost = cost_new
-            lam = max(lam / 10.0, 1e-12)
-            if rel < tol:
-                break
-        K_out[ci, 0, 0], K_out[ci, 1, 1], K_out[ci, 0, 2], K_out[ci, 1, 2] = p[0], p[1], p[2], p[3]
-        rad_out[ci] = p[4:7]
-        if free_centre:
-            centre_out[ci] = p[7:9]
-        poses = p[9 if free_centre else 7 :].reshape(v, 6)
-        rv_out[ci], tv_out[ci] = poses[:, :3], poses[:, 3:]
-        rms_out[ci] = (cost / weight.sum()) ** 0.5
-        # covariance of the estimate: sigma^2 (J^T J)^-1 with sigma^2 from the residual (dof-corrected)
-        J = jacfwd(fun)(p)
-        dof = max(int(2 * weight.sum()) - p.numel(), 1)
-        cov = torch.linalg.pinv(J.T @ J) * (cost / dof)
-        std_out[ci] = cov.diagonal()[:4].clamp_min(0).sqrt()
-    return K_out, rad_out, rv_out, tv_out, rms_out, centre_out, std_out
+def _k_matrix(params: torch.Tensor) -> torch.Tensor:
+    K = params.new_zeros(params.shape[0], 3, 3)
+    K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = params[:, 0], params[:, 1], params[:, 2], params[:, 3], 1
+    return K

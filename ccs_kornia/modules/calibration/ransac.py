@@ -9,7 +9,9 @@
    while a median taken from each hypothesis alone would let a bad hypothesis loosen its own threshold.
 4. The best hypothesis has the most inliers, then the lowest mean inlier RMS; K is refitted on its inliers.
 
-Hypothesis 0 always uses all views, so an outlier-free set is never worse off than plain Zhang.
+Hypothesis 0 always uses all views, so an outlier-free set is never worse off than plain Zhang. It is tried
+first: when every candidate view fits it within ``abs_threshold`` (the floor of the threshold), all views are
+inliers of it, no hypothesis can have more, and the random ones are skipped (same inliers, same K).
 """
 
 from __future__ import annotations
@@ -80,6 +82,7 @@ def image_ransac(
     min_views: int = 3,
     generator: torch.Generator | None = None,
     return_details: bool = False,
+    early_accept: bool = True,
 ):
     r"""Image-level RANSAC; see the module docstring.
 
@@ -97,6 +100,9 @@ def image_ransac(
         min_views: a camera with fewer candidate views skips RANSAC (all candidates are inliers).
         generator: torch.Generator for the subsets (CPU); default seed 0.
         return_details: also return a dict with ``view_rms`` (C, V) under the final K and ``threshold`` (C,).
+        early_accept: first try the all-views hypothesis alone; when every candidate view of every camera fits
+            it within ``abs_threshold``, return it (the same inliers and camera the random hypotheses would give,
+            without them).
 
     Returns:
         inliers :math:`(C, V)` bool and K :math:`(C, 3, 3)` refitted on the inliers (no C dim for unbatched
@@ -106,7 +112,7 @@ def image_ransac(
         out = image_ransac(
             H[None], corners[None], valid[None], object_points, None if view_mask is None else view_mask[None],
             image_size, num_hypotheses, sample_size, abs_threshold, rel_threshold, min_views, generator,
-            return_details,
+            return_details, early_accept,
         )
         squeezed = [out[0][0], out[1][0]]
         if return_details:
@@ -136,6 +142,15 @@ def image_ransac(
     view_mask = view_mask.bool() & H.flatten(-2).isfinite().all(-1)
     n_views = view_mask.sum(-1)
     S = num_hypotheses
+
+    if early_accept and not return_details:
+        # every candidate view fits the all-views hypothesis within the absolute floor of the threshold: it is a
+        # consensus of all candidates, so the random hypotheses could only return the same inliers and camera
+        K_all = zhang_intrinsics(H, view_mask, image_size)
+        rms_all = hypothesis_view_rms(K_all[:, None], H, obj_xy, obs, valid)[:, 0]
+        easy = ((rms_all <= abs_threshold) | ~view_mask).all(-1) | (n_views < min_views)
+        if bool(easy.all()):
+            return view_mask, K_all
 
     # random subsets: the k smallest of per-view random keys among the candidate views
     if generator is None:

@@ -15,6 +15,7 @@ VIEW_REASONS: dict[int, str] = {
     2: "homography failed (degenerate corners)",
     3: "rejected by image RANSAC",
     4: "reprojection error outlier after refinement",
+    5: "copy of an earlier view (not an independent observation)",
 }
 
 
@@ -36,6 +37,20 @@ class CalibrationResult:
     view_reason: torch.Tensor  #: (C, V) int64, keys of VIEW_REASONS
     converged: torch.Tensor  #: (C,) bool, LM met its tolerance
     candidate_rms: torch.Tensor  #: (C, V) px: every view with a homography under the final model (used or not)
+    # covariance and degeneracy checks (issue 12); see modules/calibration/degeneracy.py
+    cov_camera: torch.Tensor | None = None  #: (C, 4 + D, 4 + D) covariance of (fx, fy, cx, cy, dist)
+    check_severity: torch.Tensor | None = None  #: (C, K) int64 per degeneracy.CHECKS: 0 ok, 1 warning, 2 error
+    check_value: torch.Tensor | None = None  #: (C, K) float64 measured value of each check
+    check_views: torch.Tensor | None = None  #: (C, K, V) bool, views each check names
+
+    def issues(self) -> list[list[dict]]:
+        """Per camera, the warnings and errors of the degeneracy checks as JSON-able dicts
+        ``{"check", "severity", "message", "advice", "views"}`` (one list per camera, also for an unbatched result)."""
+        if self.check_severity is None:
+            return [[] for _ in range(1 if self.K.dim() == 2 else self.K.shape[0])]
+        from ccs_kornia.modules.calibration.degeneracy import issues_from_tensors
+
+        return issues_from_tensors(self.check_severity, self.check_value, self.check_views)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         return {f.name: getattr(self, f.name) for f in fields(self) if isinstance(getattr(self, f.name), torch.Tensor)}

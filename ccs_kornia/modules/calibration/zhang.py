@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia.camera import rotation_matrix_to_axis_angle
+from ccs_kornia.modules.calibration.so3 import log_so3
 
 __all__ = ["zhang_intrinsics", "extrinsics_from_homography", "rotation_translation_from_homography", "ZhangInit"]
 
@@ -203,7 +203,7 @@ def extrinsics_from_homography(K: torch.Tensor, H: torch.Tensor) -> tuple[torch.
     if K.dim() == 3 and H.dim() == 4 and K.shape[0] == H.shape[0]:
         K = K[:, None]
     R, t = rotation_translation_from_homography(K, H)
-    rvec = rotation_matrix_to_axis_angle(R.reshape(-1, 3, 3)).reshape(*R.shape[:-2], 3)
+    rvec = log_so3(R)
     return rvec, t
 
 

@@ -3,10 +3,12 @@
 Where the distortion network's pooled correction is applied (:class:`~ccs_kornia.pipeline.CalibrationPipeline`),
 the camera is calibrated in the corrected frame (:func:`calibrate_corrected`): a pinhole calibration of the
 corrected corners, the correction re-fitted to it, and a joint refinement of intrinsics, correction and poses
-(:func:`~ccs_kornia.modules.calibration.centred_radial.refine_centred_radial`) until they stop changing; the
-output OpenCV model's distortion is finally fitted with those intrinsics held. :func:`solve_with_correction` keeps
-it only where it fits the observed corners at least as well as the usual joint calibration (a lens whose
-distortion is not centred on the image keeps the usual one).
+(:func:`~ccs_kornia.modules.calibration.centred_radial.refine_centred_radial`, on the one LM core) until they stop
+changing; the output OpenCV model's distortion is finally fitted with those intrinsics held, and the camera's
+covariance combines both (the joint refinement's for the intrinsics, the fit's for the distortion given them,
+plus what the intrinsics' uncertainty propagates into it). :func:`solve_with_correction` keeps it only where it
+fits the observed corners at least as well as the usual joint calibration (a lens whose distortion is not
+centred on the image keeps the usual one).
 """
 
 from __future__ import annotations
@@ -17,6 +19,9 @@ import torch
 
 from ccs_kornia.camera import board_object_points, fit_opencv_distortion, project_points
 from ccs_kornia.modules.calibration.centred_radial import radial_from_correction, refine_centred_radial
+from ccs_kornia.modules.calibration.lm import levenberg_marquardt
+from ccs_kornia.modules.calibration.models.opencv import OpenCVModel
+from ccs_kornia.modules.calibration.refinement import camera_covariance
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction.correction_fit import fit_correction_to_points
@@ -96,7 +101,10 @@ def calibrate_corrected(
     intrinsics, correction and poses are refined together
     (:func:`~ccs_kornia.modules.calibration.centred_radial.refine_centred_radial`, at most ``joint_iters`` LM
     iterations). Finally the intrinsics are held and the output model's distortion
-    and the poses are refined on the observed corners (closed-form start, then LM).
+    and the poses are refined on the observed corners (closed-form start, then LM). The result's ``cov_camera``
+    (and standard deviations) take the intrinsics block from the joint refinement (from the corrected-frame
+    calibration when ``joint_iters`` is 0); the distortion block is the output fit's given those intrinsics plus
+    the intrinsics' uncertainty propagated through that fit (:func:`_propagated_covariance`).
 
     Args:
         solver: the usual solver: its model is the output model, its RANSAC and intrinsics options carry over.
@@ -131,35 +139,69 @@ def calibrate_corrected(
         refit = fit_correction_to_points(corners.reshape(c, v * n, 2), ideal.reshape(c, v * n, 2), image_size,
                                          use.reshape(c, v * n))
         corr = torch.where((res.success & refit.isfinite().all(-1))[:, None], refit, corr)
-    model_rms = None
-    if joint_iters > 0:
-        # 3. intrinsics, image-centred radial distortion and poses together, on the observed corners
-        # (inference tensors cloned for forward-mode autodiff)
-        radial0 = radial_from_correction(corr, image_size)
-        K1, rad1, rv1, tv1, rms1, _, std1 = refine_centred_radial(
-            corners.clone(), use.clone(), obj.clone(), res.K.nan_to_num(1.0).clone(), res.rvec.clone(),
-            res.tvec.clone(), radial0.clone(), image_size, max_iters=joint_iters,
-            free_centre=free_distortion_centre,
-        )
-        good = res.success & K1.flatten(1).isfinite().all(-1) & rad1.isfinite().all(-1) & rms1.isfinite()
-        std_intrinsics = torch.where(good[:, None], std1, res.std_intrinsics)
-        model_rms = torch.where(good, rms1, torch.full_like(rms1, float("inf")))
-        res = with_fields(res, K=torch.where(good[:, None, None], K1, res.K),
-                          rvec=torch.where(good[:, None, None], rv1, res.rvec),
-                          tvec=torch.where(good[:, None, None], tv1, res.tvec))
-    with torch.inference_mode():
+        model_rms = None
+        cov_k = res.cov_camera[:, :4, :4]
+        if joint_iters > 0:
+            # 3. intrinsics, image-centred radial distortion and poses together, on the observed corners
+            radial0 = radial_from_correction(corr, image_size)
+            K1, rad1, rv1, tv1, rms1, _, _, cov1 = refine_centred_radial(
+                corners, use, obj, res.K.nan_to_num(1.0), res.rvec, res.tvec, radial0, image_size,
+                max_iters=joint_iters, free_centre=free_distortion_centre, covariance=True,
+            )
+            good = res.success & K1.flatten(1).isfinite().all(-1) & rad1.isfinite().all(-1) & rms1.isfinite()
+            cov_k = torch.where(good[:, None, None], cov1[:, :4, :4], cov_k)
+            model_rms = torch.where(good, rms1, torch.full_like(rms1, float("inf")))
+            res = with_fields(res, K=torch.where(good[:, None, None], K1, res.K),
+                              rvec=torch.where(good[:, None, None], rv1, res.rvec),
+                              tvec=torch.where(good[:, None, None], tv1, res.tvec))
         ideal = project_points(obj.expand(c, v, n, 3), res.K[:, None].expand(c, v, 3, 3), None, res.rvec, res.tvec)
         fit_model = {"k1k2": "k1k2", "rational": "rational"}.get(solver.model, "opencv5")
         use = (valid & res.used[..., None]).reshape(c, v * n)
+        # a refused camera has a NaN K; a finite stand-in keeps the closed form defined (the final solve refuses
+        # that camera again)
+        k_safe = torch.tensor([[max(image_size), 0, (image_size[0] - 1) / 2], [0, max(image_size), (image_size[1] - 1) / 2],
+                               [0, 0, 1]], dtype=res.K.dtype, device=dev)
+        k_safe = torch.where(res.success[:, None, None] & res.K.isfinite(), res.K, k_safe)
         dist0 = fit_opencv_distortion(ideal.reshape(c, v * n, 2).nan_to_num(0.0), corners.reshape(c, v * n, 2),
-                                      res.K.nan_to_num(0.0), fit_model, mask=use)
+                                      k_safe, fit_model, mask=use)
         start = with_fields(res, dist=dist0.nan_to_num(0.0))
         out = solver(corners, valid, obj, image_size, initial=start, fix_intrinsics=True)
-    if joint_iters > 0:
-        # the intrinsics were estimated by the joint refinement: report its uncertainty, not the fixed one's 0
-        out = with_fields(out, std_intrinsics=torch.where(out.success[:, None], std_intrinsics.to(out.K.dtype),
-                                                          out.std_intrinsics))
+        # the intrinsics were estimated before the final fit held them: report their uncertainty, not a fixed 0
+        cov = _propagated_covariance(solver.model, out, corners, valid, obj, cov_k.to(out.K.dtype))
+        ok = out.success & cov.flatten(1).isfinite().all(-1)
+        std = cov.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
+        out = with_fields(out, cov_camera=torch.where(ok[:, None, None], cov, out.cov_camera),
+                          std_intrinsics=torch.where(ok[:, None], std[:, :4], out.std_intrinsics),
+                          std_dist=torch.where(ok[:, None], std[:, 4:], out.std_dist))
     return out, corr, (out.rms if model_rms is None else model_rms)
+
+
+def _propagated_covariance(model, out, corners, valid, obj, cov_k):
+    """Covariance :math:`(C, 4 + D, 4 + D)` of the output camera whose intrinsics were held in its last fit.
+
+    ``cov_k`` :math:`(C, 4, 4)` is the intrinsics' covariance where they were estimated. The last fit makes the
+    distortion ``d`` (and the poses) a function of the intrinsics ``k``; linearised with the information matrix
+    ``S`` of the output model at the solution (poses eliminated, one evaluation of the LM core):
+    ``d d / d k = A = -S_dd^-1 S_dk``, ``Cov(k, d) = cov_k A^T`` and ``Cov(d) = sigma^2 S_dd^-1 + A cov_k A^T``
+    (the fit's own noise plus the intrinsics' uncertainty carried into the distortion).
+    """
+    cam = OpenCVModel(model)
+    c, v, n = corners.shape[:3]
+    if cam.num_params == 4:
+        return cov_k
+    params = cam.params_from(out.K.nan_to_num(1.0), out.dist.nan_to_num(0.0))
+    w = valid & out.used[..., None]
+    lm = levenberg_marquardt(cam, params, out.rvec, out.tvec, obj, corners, w, max_iters=0)
+    S = lm.information
+    Sdd, Sdk = S[:, 4:, 4:], S[:, 4:, :4]
+    d = Sdd.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
+    scaled = (Sdd * d[:, :, None] * d[:, None, :]).nan_to_num(0.0)
+    Sdd_inv = torch.linalg.pinv(scaled, hermitian=True) * d[:, :, None] * d[:, None, :]
+    A = -Sdd_inv @ Sdk
+    kd = cov_k @ A.transpose(-1, -2)
+    dd = Sdd_inv * lm.sigma2[:, None, None] + A @ kd
+    full = torch.cat([torch.cat([cov_k, kd], -1), torch.cat([kd.transpose(-1, -2), dd], -1)], -2)
+    return camera_covariance(model, full)
 
 
 def correction_zoom(correction: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:

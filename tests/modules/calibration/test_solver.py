@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 from _board_views import all_valid, synthetic
+from _real_data import REAL_DATA
 
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.homography import find_homographies
@@ -52,6 +53,31 @@ class TestRansacAndSolver:
         # without RANSAC the post-refinement check still finds them (but the corrupted LM start is worse)
         res_nr = CalibrationSolver(use_ransac=False)(bad, valid, obj, IMAGE_SIZE)
         assert not res_nr.used[0, 3] and not res_nr.used[1, 7] and (res_nr.K - K).abs().max() < 1e-6
+
+    def test_ransac_shortcut_gives_the_full_ransac_result(self):
+        from ccs_kornia.modules.calibration.ransac import image_ransac
+
+        for dist, noise, seed in [(None, 0.1, 3), (DIST5, 0.3, 5), (DIST5 * 3, 0.1, 7)]:
+            K, obj, uv, _, _ = synthetic(C=3, V=12, dist=dist, noise=noise, seed=seed)
+            H = find_homographies(obj[:, :2], uv, all_valid(uv))
+            for views in (uv, corrupt(uv)):  # all views consistent (shortcut), and gross outliers (full RANSAC)
+                args = (H, views, all_valid(views), obj, None, IMAGE_SIZE)
+                fast = image_ransac(*args, generator=torch.Generator().manual_seed(0))
+                full = image_ransac(*args, generator=torch.Generator().manual_seed(0), early_accept=False)
+                assert torch.equal(fast[0], full[0])
+                torch.testing.assert_close(fast[1], full[1], atol=1e-9, rtol=1e-12)
+
+    def test_no_per_call_state(self):
+        K, obj, uv, _, _ = synthetic(C=1, V=10, dist=DIST5, noise=0.1, seed=4)
+        solver = CalibrationSolver()
+        before = dict(solver.__dict__)
+        first = solver(uv, None, obj, IMAGE_SIZE)
+        solver(uv, None, obj, IMAGE_SIZE, initial=first, fix_intrinsics=True)
+        assert solver.__dict__.keys() == before.keys() and not hasattr(solver, "_fix_intrinsics")
+        assert all(solver.__dict__[k] is v for k, v in before.items() if k != "_modules")
+        again = solver(uv, None, obj, IMAGE_SIZE)  # a fixed-intrinsics call leaves nothing behind
+        torch.testing.assert_close(again.K, first.K, atol=0, rtol=0)
+        assert not first.K.is_inference()  # results are ordinary tensors (the solve runs in inference mode)
 
     def test_views_rejected_for_unmodelled_distortion_are_readmitted(self):
         K, obj, uv, _, _ = synthetic(C=2, V=12, dist=DIST5 * 1.5, seed=12)
@@ -127,7 +153,7 @@ REAL_SETS = [
 
 @pytest.fixture(scope="module")
 def real_root() -> Path:
-    root = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
+    root = REAL_DATA
     if not root.is_dir():
         pytest.skip(f"real image sets not available at {root}")
     return root

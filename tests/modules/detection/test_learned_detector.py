@@ -1,11 +1,11 @@
 from __future__ import annotations
 
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 import torch
+from _real_data import REAL_DATA
 
 from ccs_kornia.camera import intrinsics_matrix
 from ccs_kornia.data.augment import textured_background
@@ -20,7 +20,7 @@ from ccs_kornia.modules.detection.learned_detector import (
     LearnedChessboardDetector,
 )
 
-REAL = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
+REAL = REAL_DATA
 
 
 def _error(found_corners: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from _real_data import REAL_DATA
 
 from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.io import load_image_gray
@@ -31,7 +32,7 @@ def detected(rendered):
 
 @pytest.fixture(scope="module")
 def real_dir() -> Path:
-    return Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
+    return REAL_DATA
 
 
 def test_interface_and_shapes(detected, rendered):

@@ -1,0 +1,206 @@
+"""Fisheye (Kannala–Brandt) calibration: hypotheses initialisation -> LM -> view check -> LM, batched over cameras.
+
+1. :func:`~ccs_kornia.modules.calibration.fisheye_init.init_fisheye` proposes the best few equidistant cameras
+   (focal-length hypotheses, principal point at the image centre) with every view's pose;
+2. the LM core refines ``fx, fy, cx, cy, k1..k4`` and all poses for every kept hypothesis at once (they are
+   extra cameras of the batch) and the lowest-cost one is kept per camera;
+3. every view is re-posed under that camera (ray DLT, then a poses-only LM): views whose error is an outlier
+   (``max(abs, rel * median)``) are left out, views that failed the initialisation are re-admitted when they
+   now fit, and the LM runs once more on the views kept.
+
+The result's ``K`` and ``D`` are ``cv2.fisheye``'s (zero skew), ready for ``cv2.fisheye.undistortImage`` and
+kornia's Kannala–Brandt functions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from ccs_kornia.camera import kb_unproject_points
+from ccs_kornia.modules.calibration.fisheye_init import board_to_ray_poses, init_fisheye
+from ccs_kornia.modules.calibration.lm import levenberg_marquardt
+from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
+
+__all__ = ["FisheyeCalibrationResult", "calibrate_fisheye", "FisheyeCalibrator"]
+
+
+@dataclass
+class FisheyeCalibrationResult:
+    """Kannala–Brandt calibration of C cameras from V views each."""
+
+    K: torch.Tensor  #: (C, 3, 3)
+    D: torch.Tensor  #: (C, 4) k1..k4 (cv2.fisheye)
+    rvec: torch.Tensor  #: (C, V, 3) world-to-camera axis-angle
+    tvec: torch.Tensor  #: (C, V, 3)
+    view_rms: torch.Tensor  #: (C, V) px, NaN for views not used
+    used: torch.Tensor  #: (C, V) bool
+    rms: torch.Tensor  #: (C,) over the used views (cv2's definition)
+    std_intrinsics: torch.Tensor  #: (C, 4) std of fx, fy, cx, cy
+    std_dist: torch.Tensor  #: (C, 4) std of k1..k4
+    covariance: torch.Tensor  #: (C, 8, 8) covariance of fx, fy, cx, cy, k1..k4 marginalised over the poses
+    success: torch.Tensor  #: (C,) bool
+    converged: torch.Tensor  #: (C,) bool
+    candidate_rms: torch.Tensor  #: (C, V) px of every view with corners under the final camera (used or not)
+
+
+def _kmat(p: torch.Tensor) -> torch.Tensor:
+    K = p.new_zeros(*p.shape[:-1], 3, 3)
+    K[..., 0, 0], K[..., 1, 1], K[..., 0, 2], K[..., 1, 2], K[..., 2, 2] = p[..., 0], p[..., 1], p[..., 2], p[..., 3], 1
+    return K
+
+
+def calibrate_fisheye(
+    corners: torch.Tensor,
+    valid: torch.Tensor | None,
+    object_points: torch.Tensor,
+    image_size: tuple[int, int],
+    weights: torch.Tensor | None = None,
+    num_hypotheses: int = 32,
+    keep: int = 3,
+    min_corners: int = 6,
+    min_views: int = 3,
+    outlier_abs_threshold: float = 2.0,
+    outlier_rel_threshold: float = 5.0,
+    max_iters: int = 100,
+    fix: tuple[str, ...] = (),
+) -> FisheyeCalibrationResult:
+    r"""Calibrate Kannala–Brandt fisheye cameras from planar-board corners, no intrinsic guess needed.
+
+    Args:
+        corners: :math:`(C, V, N, 2)` or :math:`(V, N, 2)` pixels.
+        valid: matching bool mask (``None``: the finite corners).
+        object_points: :math:`(N, 3)` planar board points (``Z = 0``).
+        image_size: ``(W, H)``.
+        weights: optional per-corner inverse variances (same shape as ``valid``).
+        num_hypotheses: focal lengths tried by the initialisation.
+        keep: hypotheses refined per camera.
+        min_corners: views with fewer corners are not used.
+        min_views: cameras with fewer usable views fail.
+        outlier_abs_threshold, outlier_rel_threshold: a view is left out when its RMS exceeds
+            ``max(abs, rel * median view RMS)``.
+        max_iters: LM iterations per stage.
+        fix: parameters kept at their initial values, by name (``fx, fy, cx, cy, k1..k4``; e.g. ``("k3", "k4")``
+            as ``cv2.fisheye.CALIB_FIX_K3 | CALIB_FIX_K4``, or ``("cx", "cy")`` for the image centre).
+
+    Returns:
+        :class:`FisheyeCalibrationResult` (no camera dim for unbatched input; failed cameras have NaN values).
+
+    Example:
+        >>> from ccs_kornia.camera import board_object_points, kb_project_points
+        >>> obj = board_object_points(6, 4, 0.05, dtype=torch.float64)
+        >>> K = torch.tensor([[200., 0, 322], [0, 201, 237], [0, 0, 1]], dtype=torch.float64)
+        >>> D = torch.tensor([0.02, -0.01, 0.002, 0.0], dtype=torch.float64)
+        >>> rv = torch.tensor([[0.3, 0.2, 0.0], [-0.2, 0.9, 0.1], [0.1, -0.4, 0.3], [0.5, 0.1, -0.2]], dtype=torch.float64)
+        >>> tv = torch.tensor([[-0.1, -0.05, 0.3], [0.0, -0.05, 0.25], [-0.2, 0.0, 0.3], [-0.1, -0.2, 0.3]], dtype=torch.float64)
+        >>> uv = kb_project_points(obj.expand(4, -1, -1), K.expand(4, 3, 3), D.expand(4, 4), rv, tv)
+        >>> res = calibrate_fisheye(uv, None, obj, (640, 480))
+        >>> bool(res.success), bool((res.K - K).abs().max() < 1e-6), bool(res.rms < 1e-6)
+        (True, True, True)
+    """
+    unbatched = corners.dim() == 3
+    if unbatched:
+        corners = corners[None]
+        valid = None if valid is None else valid[None]
+        weights = None if weights is None else weights[None]
+    if corners.dim() != 4 or corners.shape[-1] != 2:
+        raise ValueError(f"corners must be (C, V, N, 2) or (V, N, 2), got {tuple(corners.shape)}.")
+    C, V, N = corners.shape[:3]
+    if valid is not None and valid.shape != (C, V, N):
+        raise ValueError(f"valid must be {(C, V, N)}, got {tuple(valid.shape)}.")
+    if weights is not None and weights.shape != (C, V, N):
+        raise ValueError(f"weights must be {(C, V, N)}, got {tuple(weights.shape)}.")
+    if object_points.shape != (N, 3):
+        raise ValueError(f"object_points must be ({N}, 3), got {tuple(object_points.shape)}.")
+    dt, dev = torch.float64, corners.device
+    ok_pts = corners.isfinite().all(-1) & (True if valid is None else valid.bool())
+    w = ok_pts.to(dt) if weights is None else torch.where(ok_pts, weights.to(dt), 0.0)
+    candidates = (w > 0).sum(-1) >= min_corners
+    w = w * candidates[..., None]
+    obj = object_points.to(device=dev, dtype=dt)
+    model = KannalaBrandtModel()
+    unknown = set(fix) - set(model.param_names)
+    if unknown:
+        raise ValueError(f"Unknown parameters to fix {sorted(unknown)}; expected names from {model.param_names}.")
+    free = [n not in fix for n in model.param_names]
+
+    # 1. hypotheses; 2. LM on every kept hypothesis as a camera of the batch
+    p0, rv0, tv0, init_rms, _ = init_fisheye(corners, w, obj, image_size, num_hypotheses, keep)
+    k = p0.shape[1]
+    ok0 = init_rms.isfinite()
+    wk = (w[:, None] * ok0[..., None]).reshape(C * k, V, N)
+    ck = corners[:, None].expand(C, k, V, N, 2).reshape(C * k, V, N, 2)
+    res = levenberg_marquardt(model, p0.reshape(C * k, 8), rv0.reshape(C * k, V, 3), tv0.reshape(C * k, V, 3),
+                              obj, ck, wk, free=free, max_iters=max_iters)
+    n_used = res.view_used.sum(-1).view(C, k)
+    key = torch.where(res.rms.isfinite(), res.rms, float("inf")).view(C, k) - 1e6 * n_used  # most views, then rms
+    best = key.argmin(-1)
+    sel = torch.arange(C, device=dev) * k + best
+    params, rvec, tvec = res.params[sel], res.rvec[sel], res.tvec[sel]
+
+    # 3. re-pose every candidate view under the refined camera, reject outliers, refine again
+    K, D = _kmat(params), params[:, 4:]
+    rays = kb_unproject_points(corners.to(dt).nan_to_num(0.0), K[:, None], D[:, None])
+    rv_d, tv_d, ok_d = board_to_ray_poses(rays, obj[:, :2], w)
+    used0 = res.view_used[sel]
+    rv_c = torch.where(used0[..., None], rvec, rv_d)
+    tv_c = torch.where(used0[..., None], tvec, tv_d)
+    wc = w * (used0 | ok_d)[..., None]
+    poses = levenberg_marquardt(model, params, rv_c, tv_c, obj, corners, wc, free=[False] * 8, max_iters=max_iters)
+    cand_rms = poses.view_rms
+    med = torch.where(used0, cand_rms, float("nan")).nanmedian(-1).values
+    thr = torch.clamp(outlier_rel_threshold * med, min=outlier_abs_threshold)
+    used = candidates & (cand_rms <= thr[:, None])
+    used = torch.where((used.sum(-1) >= min_views)[:, None], used, used0)
+    final = levenberg_marquardt(model, params, poses.rvec, poses.tvec, obj, corners, w * used[..., None],
+                                free=free, max_iters=max_iters)
+    used = final.view_used
+
+    success = (used.sum(-1) >= min_views) & final.rms.isfinite() & final.params.isfinite().all(-1)
+    success = success & (final.params[:, 0] > 0) & (final.params[:, 1] > 0)
+    nan = float("nan")
+
+    def fail_nan(x: torch.Tensor) -> torch.Tensor:
+        return torch.where(success.view(C, *([1] * (x.dim() - 1))), x, torch.full_like(x, nan))
+
+    std = final.param_std
+    # candidate RMS: the final camera, each candidate view's pose refined alone where it was not used
+    cand = torch.where(used, final.view_rms, cand_rms)
+    out = FisheyeCalibrationResult(
+        K=fail_nan(_kmat(final.params)), D=fail_nan(final.params[:, 4:]), rvec=final.rvec, tvec=final.tvec,
+        view_rms=torch.where(used, final.view_rms, nan), used=used, rms=fail_nan(final.rms),
+        std_intrinsics=fail_nan(std[:, :4]), std_dist=fail_nan(std[:, 4:]), covariance=fail_nan(final.param_covariance),
+        success=success, converged=final.converged & success,
+        candidate_rms=torch.where(candidates, cand, nan),
+    )
+    if unbatched:
+        out = FisheyeCalibrationResult(**{f: v[0] for f, v in out.__dict__.items()})
+    return out
+
+
+class FisheyeCalibrator(nn.Module):
+    """Module form of :func:`calibrate_fisheye` (options fixed at construction).
+
+    Example:
+        >>> FisheyeCalibrator(keep=2).keep
+        2
+    """
+
+    def __init__(self, num_hypotheses: int = 32, keep: int = 3, min_corners: int = 6, min_views: int = 3,
+                 outlier_abs_threshold: float = 2.0, outlier_rel_threshold: float = 5.0, max_iters: int = 100,
+                 fix: tuple[str, ...] = ()) -> None:
+        super().__init__()
+        self.num_hypotheses, self.keep = num_hypotheses, keep
+        self.min_corners, self.min_views = min_corners, min_views
+        self.outlier_abs_threshold, self.outlier_rel_threshold = outlier_abs_threshold, outlier_rel_threshold
+        self.max_iters = max_iters
+        self.fix = tuple(fix)
+
+    def forward(self, corners, valid, object_points, image_size, weights=None) -> FisheyeCalibrationResult:
+        return calibrate_fisheye(
+            corners, valid, object_points, image_size, weights, num_hypotheses=self.num_hypotheses, keep=self.keep,
+            min_corners=self.min_corners, min_views=self.min_views, outlier_abs_threshold=self.outlier_abs_threshold,
+            outlier_rel_threshold=self.outlier_rel_threshold, max_iters=self.max_iters, fix=self.fix,
+        )

@@ -1,0 +1,483 @@
+"""The one Levenberg–Marquardt core: camera parameters and all board poses, batched over cameras.
+
+Unknowns per camera: the free camera parameters (a :class:`~ccs_kornia.modules.calibration.models.CameraModel`'s
+intrinsics and distortion, possibly fixed or tied through a basis) and one 6-dof pose per view. The normal
+equations have the bundle-adjustment arrow structure (a small dense camera block, independent 6x6 pose
+blocks), so every step eliminates the pose blocks with a Schur complement: the cost is linear in the number of
+views and all cameras are solved by the same tensor ops.
+
+* Rotations are updated multiplicatively, ``R <- exp(w) R``, so the pose derivatives are
+  ``d uv / d w = (d uv / d Xc) (-[R X]_x)`` and ``d uv / d t = d uv / d Xc``, built from the model's
+  derivative with respect to the camera-frame point.
+* Per-corner weights :math:`(C, V, N)` are inverse variances (0: corner unused); the cost is
+  ``sum w |uv - observed|^2``.
+* Every iteration runs on the whole batch: a camera that has converged keeps its values through per-camera
+  masks, so there is no Python loop over cameras and no host synchronisation inside an iteration; "all done"
+  is checked every ``check_every`` iterations (every iteration on CPU, where it costs nothing; every 10 on
+  other devices).
+* The covariance of the free camera parameters is marginalised over the poses (inverse of the Schur
+  complement at the solution), scaled by ``sigma^2 = cost / dof`` (or 1 when the weights are absolute inverse
+  variances); where that complement is numerically singular, a pseudo-inverse (huge, not NaN, variances along
+  the undetermined directions).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from ccs_kornia.modules.calibration.models.base import CameraModel
+from ccs_kornia.modules.calibration.so3 import exp_so3 as _exp_so3
+from ccs_kornia.modules.calibration.so3 import log_so3 as _log_so3
+
+__all__ = ["LMResult", "parameter_basis", "levenberg_marquardt", "LevenbergMarquardt"]
+
+
+@dataclass
+class LMResult:
+    """Output of :func:`levenberg_marquardt` (C cameras, V views, P parameters, F free coordinates)."""
+
+    params: torch.Tensor  #: (C, P) camera parameters
+    rvec: torch.Tensor  #: (C, V, 3) axis-angle, world-to-camera (initial value kept for unused views)
+    tvec: torch.Tensor  #: (C, V, 3)
+    cost: torch.Tensor  #: (C,) weighted sum of squared residuals
+    view_rms: torch.Tensor  #: (C, V) RMS reprojection error in px over the used corners, NaN for unused views
+    rms: torch.Tensor  #: (C,) sqrt(sum squared error / number of corners) over the used corners (px)
+    covariance: torch.Tensor  #: (C, F, F) covariance of the free coordinates, marginalised over the poses
+    information: torch.Tensor  #: (C, F, F) J^T W J of the free coordinates, poses eliminated (Schur complement)
+    basis: torch.Tensor  #: (C, P, F) parameter increment = basis @ free increment
+    sigma2: torch.Tensor  #: (C,) variance factor applied to the covariance
+    iterations: torch.Tensor  #: (C,) int64 iterations run while the camera was active
+    converged: torch.Tensor  #: (C,) bool, a tolerance was met (False for cameras without data)
+    num_points: torch.Tensor  #: (C,) int64 corners with positive weight
+    view_used: torch.Tensor  #: (C, V) bool, views with at least one weighted corner
+
+    @property
+    def param_covariance(self) -> torch.Tensor:
+        """(C, P, P) covariance of all parameters (zero rows/columns for fixed ones)."""
+        return self.basis @ self.covariance @ self.basis.transpose(-1, -2)
+
+    @property
+    def param_std(self) -> torch.Tensor:
+        """(C, P) standard deviations of the parameters (0 where fixed)."""
+        return self.param_covariance.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
+
+
+def parameter_basis(
+    model: CameraModel,
+    params: torch.Tensor,
+    free: Sequence[bool] | Sequence[str] | None = None,
+    fix_aspect_ratio: bool = False,
+) -> torch.Tensor:
+    """Basis :math:`(C, P, F)` mapping free increments to parameter increments.
+
+    Args:
+        model: the camera model (gives ``P`` and the parameter names).
+        params: :math:`(C, P)` current parameters (the aspect ratio is taken from them).
+        free: which parameters move: ``P`` booleans or a list of parameter names (default
+            ``model.default_free()``).
+        fix_aspect_ratio: tie ``fx`` and ``fy`` so that ``fx / fy`` keeps its current value (both must be free);
+            the tied coordinate moves ``fy`` by 1 and ``fx`` by the aspect ratio.
+
+    Returns:
+        The basis; the tied focal coordinate comes first, then the other free parameters in order.
+
+    Example:
+        >>> from ccs_kornia.modules.calibration.models import OpenCVModel
+        >>> m = OpenCVModel("k1k2")
+        >>> p = torch.tensor([[600., 500., 320., 240., 0., 0.]])
+        >>> B = parameter_basis(m, p, free=["fx", "fy", "k1", "k2"], fix_aspect_ratio=True)
+        >>> B.shape, B[0, :2, 0].tolist()
+        (torch.Size([1, 6, 3]), [1.2000000476837158, 1.0])
+    """
+    P = model.num_params
+    if params.dim() != 2 or params.shape[-1] != P:
+        raise ValueError(f"params must be (C, {P}), got {tuple(params.shape)}.")
+    if free is None:
+        mask = list(model.default_free())
+    elif len(free) and all(isinstance(f, str) for f in free):
+        unknown = set(free) - set(model.param_names)
+        if unknown:
+            raise ValueError(f"Unknown parameter names {sorted(unknown)}; the model has {model.param_names}.")
+        mask = [n in free for n in model.param_names]
+    else:
+        mask = [bool(f) for f in free]
+    if len(mask) != P:
+        raise ValueError(f"free must name or flag the {P} parameters {model.param_names}, got {len(mask)} entries.")
+    C = params.shape[0]
+    eye = torch.eye(P, dtype=params.dtype, device=params.device)
+    if all(mask) and not fix_aspect_ratio:
+        return eye.expand(C, P, P)
+    cols = []
+    if fix_aspect_ratio:
+        if not (mask[0] and mask[1]):
+            raise ValueError("fix_aspect_ratio needs both fx and fy free.")
+        col = torch.zeros(C, P, dtype=params.dtype, device=params.device)
+        col[:, 0], col[:, 1] = params[:, 0] / params[:, 1], 1.0
+        cols.append(col)
+    for i in range(P):
+        if mask[i] and not (fix_aspect_ratio and i < 2):
+            cols.append(eye[i].expand(C, P))
+    if not cols:
+        return params.new_zeros(C, P, 0)
+    return torch.stack(cols, -1)
+
+
+def _sym_solve(A: torch.Tensor, b: torch.Tensor, eye: torch.Tensor | None = None) -> torch.Tensor:
+    """Solve SPD systems (..., F, F) x = b with Jacobi scaling; systems that fail give 0 (``eye``: I_F)."""
+    d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
+    L, info = torch.linalg.cholesky_ex(A * (d[..., :, None] * d[..., None, :]))
+    bad = info != 0
+    # a failed factor is replaced by the identity (its solution is then zeroed)
+    eye = torch.eye(A.shape[-1], dtype=A.dtype, device=A.device) if eye is None else eye
+    L = torch.where(bad[..., None, None], eye, L)
+    # (the inverse, not cholesky_solve: a camera's result does not depend on the other cameras of the batch)
+    x = (torch.cholesky_inverse(L) @ (b * d).unsqueeze(-1)).squeeze(-1) * d
+    return x.masked_fill(bad[..., None] | ~x.isfinite(), 0.0)
+
+
+def _sym_inverse(A: torch.Tensor, fail: float = float("nan")) -> torch.Tensor:
+    """Inverse of SPD matrices with Jacobi scaling; failures give ``fail`` (NaN)."""
+    d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
+    dd = d[..., :, None] * d[..., None, :]
+    L, info = torch.linalg.cholesky_ex(A * dd)
+    bad = (info != 0)[..., None, None]
+    L = L.masked_fill(bad, 0.0) + torch.diag_embed(bad[..., 0].to(A.dtype).expand(d.shape))
+    return (torch.cholesky_inverse(L) * dd).masked_fill(bad, fail)
+
+
+def _pseudo_inverse(A: torch.Tensor, rcond: float = 1e-15) -> torch.Tensor:
+    """Inverse of symmetric PSD matrices (Jacobi-scaled) with eigenvalues clamped at ``rcond`` times the largest:
+    finite, and huge along (nearly) null directions."""
+    d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
+    ev, U = torch.linalg.eigh(A * d[..., :, None] * d[..., None, :])
+    ev = ev.clamp_min(rcond * ev.amax(-1, keepdim=True).clamp_min(1e-300))
+    return (U / ev[..., None, :]) @ U.transpose(-1, -2) * d[..., :, None] * d[..., None, :]
+
+
+def _check(model, params, rvec, tvec, object_points, corners, weights):
+    if not isinstance(model, CameraModel):
+        raise TypeError(f"model must be a CameraModel, got {type(model).__name__}.")
+    if corners.dim() != 4 or corners.shape[-1] != 2:
+        raise ValueError(f"corners must be (C, V, N, 2), got {tuple(corners.shape)}.")
+    C, V, N = corners.shape[:3]
+    if params.shape != (C, model.num_params):
+        raise ValueError(f"params must be ({C}, {model.num_params}), got {tuple(params.shape)}.")
+    if rvec.shape != (C, V, 3) or tvec.shape != (C, V, 3):
+        raise ValueError(f"rvec/tvec must be ({C}, {V}, 3), got {tuple(rvec.shape)} and {tuple(tvec.shape)}.")
+    if object_points.shape not in ((N, 3), (C, N, 3)):
+        raise ValueError(f"object_points must be ({N}, 3) or ({C}, {N}, 3), got {tuple(object_points.shape)}.")
+    if weights is not None and weights.shape != (C, V, N):
+        raise ValueError(f"weights must be ({C}, {V}, {N}), got {tuple(weights.shape)}.")
+
+
+def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expanded):
+    """Per-camera normal equations at (R, t, params): cost, U (C,F,F), W (C,V,F,6), V (C,V,6,6), eg, ep."""
+    C, V = R.shape[:2]
+    q = torch.matmul(obj[:, None].expand(C, V, -1, 3), R.transpose(-1, -2))  # (C, V, N, 3) = R X
+    uv, dp, (dx, dy, dz) = model.columns(q + t[:, :, None, :], params)
+    qx, qy, qz = q[..., 0:1], q[..., 1:2], q[..., 2:3]
+    # rotation R <- exp(w) R: d Xc / d w = -[q]_x, so d uv / d w = q x (d uv / d Xc), both rows at once
+    cols = [*dp, qy * dz - qz * dy, qz * dx - qx * dz, qx * dy - qy * dx, dx, dy, dz, uv - obs]
+    shape = uv.shape
+    for i, col in enumerate(cols):  # constant columns (e.g. d uv / d cx) are expanded once per solve
+        if col.shape != shape:
+            key = (id(col), shape)
+            if key not in expanded:
+                expanded[key] = (col, col.expand(shape).contiguous())  # (col kept alive: its id stays unique)
+            cols[i] = expanded[key][1]
+    A = torch.stack(cols, 2)  # (C, V, K, N, 2), K = P + 7: contiguous columns
+    if sw is not None:
+        A = A * sw[:, :, None, :, None]
+    A = A.view(C, V, len(cols), -1)
+    G = A @ A.transpose(-1, -2)  # (C, V, K, K): J^T J, J^T r and r^T r per view
+    P = params.shape[-1]
+    Gpp, Gpk, Gkk = G[..., :P, :P].sum(1), G[..., :P, P : P + 6], G[..., P : P + 6, P : P + 6]
+    gp, gk = G[..., :P, P + 6].sum(1), G[..., P : P + 6, P + 6]
+    view_cost = G[..., P + 6, P + 6]  # (C, V) weighted squared residuals per view
+    cost = view_cost.sum(1)
+    cost = torch.where(cost.isfinite(), cost, torch.full_like(cost, float("inf")))
+    if basis is not None:
+        Bt = basis.transpose(-1, -2)
+        Gpp, gp = Bt @ Gpp @ basis, (Bt @ gp.unsqueeze(-1)).squeeze(-1)
+        Gpk = torch.einsum("cpf,cvpk->cvfk", basis, Gpk)
+    Gkk = torch.where(used[..., None, None], Gkk, eye6)
+    return cost, Gpp, Gpk, Gkk, gp, gk, view_cost
+
+
+def _schur_step(U, W, Vb, eg, ep, lam, used_f, eyeF):
+    """Damped Gauss-Newton step: eliminate the pose blocks, solve the camera block, back-substitute."""
+    dU = U.diagonal(dim1=-2, dim2=-1)
+    # a floor keeps the damped system definite where a column vanishes (e.g. a distortion centre at k = 0)
+    if dU.shape[-1]:
+        dU = torch.maximum(dU, 1e-12 * dU.amax(-1, keepdim=True).clamp_min(1e-300))
+    Ud = U.clone()
+    Ud.diagonal(dim1=-2, dim2=-1).add_(dU * lam[:, None])
+    Vd = Vb.clone()
+    Vd.diagonal(dim1=-2, dim2=-1).mul_((1 + lam)[:, None, None])
+    # the damped 6x6 pose blocks are definite (unused views: the identity); a failed inverse is zeroed
+    Vinv = torch.linalg.inv_ex(Vd)[0].nan_to_num_(0.0, 0.0, 0.0)
+    Y = W @ Vinv  # (C, V, F, 6)
+    S = Ud - (Y @ W.transpose(-1, -2)).sum(1)
+    dg = _sym_solve(S, (Y @ ep.unsqueeze(-1)).sum(1).squeeze(-1) - eg, eyeF)
+    dp = (Vinv @ (ep.unsqueeze(-1) + W.transpose(-1, -2) @ dg[:, None, :, None])).squeeze(-1)
+    return dg, dp * (-used_f)[..., None]
+
+
+def _lm_iteration(model, s, c, eyes, ftol, xtol, expanded):
+    """One LM iteration of every camera in the state ``s`` (updated in place); done cameras keep their values."""
+    x, R, tv, lam, cost = s["x"], s["R"], s["tv"], s["lam"], s["cost"]
+    active = ~s["done"]
+    dg, dp = _schur_step(s["U"], s["W"], s["Vb"], s["eg"], s["ep"], lam, c["used_f"], eyes[1])
+    x_n = x + (dg if c["Bn"] is None else (c["B"] @ dg.unsqueeze(-1)).squeeze(-1))
+    R_n, t_n = _exp_so3(dp[..., :3]) @ R, tv + dp[..., 3:]
+    new = _normal_equations(model, R_n, t_n, x_n, c["obj"], c["obs"], c["sw"], c["Bn"], c["used"], eyes[0], expanded)
+    cost_n = new[0]
+
+    accept = (cost_n < cost) & active
+    scale = torch.cat([x.abs(), tv.abs().flatten(1), torch.ones_like(x[:, :1])], -1).amax(-1)
+    step = torch.cat([dg.abs(), dp.abs().flatten(1), torch.zeros_like(x[:, :1])], -1).amax(-1)
+    small_step = step <= xtol * scale
+    small_decrease = (cost - cost_n).abs() <= ftol * cost
+    finished = (accept & small_decrease) | small_step | (lam > 1e16)
+    finished = active & (finished | (torch.where(accept, cost_n, cost) <= c["floor"]))
+
+    names, values = ("cost", "U", "W", "Vb", "eg", "ep", "vc", "x", "R", "tv"), (*new, x_n, R_n, t_n)
+    mode = "mask"
+    if x.device.type == "cpu":  # reading a flag costs nothing on the host: skip the selects when all agree
+        mode = "all" if bool(accept.all()) else ("none" if not bool(accept.any()) else "mask")
+    if mode == "all":
+        s.update(zip(names, values))
+    elif mode == "mask":
+        a = [accept.view(-1, *([1] * d)) for d in range(4)]
+        for k, v in zip(names, values):
+            s[k] = torch.where(a[v.dim() - 1], v, s[k])
+    s["lam"] = torch.where(active, torch.where(accept, (lam / 10).clamp_min(1e-15), lam * 10), lam)
+    s["iters"] = s["iters"] + active.long()
+    s["done"] = s["done"] | finished
+    s["converged"] = s["converged"] | finished
+
+
+def levenberg_marquardt(
+    model: CameraModel,
+    params: torch.Tensor,
+    rvec: torch.Tensor,
+    tvec: torch.Tensor,
+    object_points: torch.Tensor,
+    corners: torch.Tensor,
+    weights: torch.Tensor | None = None,
+    free: Sequence[bool] | Sequence[str] | None = None,
+    fix_aspect_ratio: bool = False,
+    basis: torch.Tensor | None = None,
+    max_iters: int = 100,
+    ftol: float = 1e-12,
+    xtol: float = 1e-12,
+    lambda_init: float = 1e-3,
+    check_every: int | None = None,
+    absolute_weights: bool = False,
+    dtype: torch.dtype = torch.float64,
+) -> LMResult:
+    r"""Batched Levenberg–Marquardt over camera parameters and per-view poses (see the module doc).
+
+    Args:
+        model: camera model (``project`` with analytic derivatives).
+        params: :math:`(C, P)` initial parameters.
+        rvec: :math:`(C, V, 3)` initial axis-angle rotations (world to camera).
+        tvec: :math:`(C, V, 3)` initial translations.
+        object_points: :math:`(N, 3)` or :math:`(C, N, 3)` board points.
+        corners: :math:`(C, V, N, 2)` observed pixels (entries with weight 0 may be NaN).
+        weights: :math:`(C, V, N)` per-corner inverse variances (bool accepted; 0 = unused). Default: finite
+            corners with weight 1.
+        free: parameters to estimate (``P`` booleans or names; default ``model.default_free()``).
+        fix_aspect_ratio: keep ``fx / fy`` at its initial value.
+        basis: :math:`(C, P, F)` explicit basis of the free increments (overrides ``free``/``fix_aspect_ratio``),
+            for any tie between parameters.
+        max_iters: iterations at most.
+        ftol: a camera stops when an accepted step decreases its cost by less than ``ftol`` relative.
+        xtol: a camera stops when its step is below ``xtol`` times its largest parameter magnitude.
+        lambda_init: initial Marquardt damping (relative to the diagonal).
+        check_every: iterations between "all cameras done?" checks (a host sync); default 1 on CPU, 10 else.
+        absolute_weights: the weights are absolute inverse variances: covariance without the ``sigma^2`` factor.
+        dtype: solve precision.
+
+    Returns:
+        :class:`LMResult`.
+
+    Example:
+        >>> from ccs_kornia.camera import board_object_points, project_points
+        >>> from ccs_kornia.modules.calibration.models import OpenCVModel
+        >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)
+        >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
+        >>> rvec = torch.tensor([[[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]]], dtype=torch.float64)
+        >>> tvec = torch.tensor([-0.1, -0.1, 1.0], dtype=torch.float64).expand(1, 3, 3)
+        >>> uv = project_points(obj.expand(3, -1, -1), K.expand(3, 3, 3), None, rvec[0], tvec[0])[None]
+        >>> p0 = torch.tensor([[505., 495., 322., 238.]], dtype=torch.float64)
+        >>> res = levenberg_marquardt(OpenCVModel("none"), p0, rvec, tvec, obj, uv)
+        >>> res.params.round(decimals=6).tolist(), res.covariance.shape
+        ([[500.0, 500.0, 320.0, 240.0]], torch.Size([1, 4, 4]))
+    """
+    _check(model, params, rvec, tvec, object_points, corners, weights)
+    device = corners.device
+    C, V, N = corners.shape[:3]
+    finite = corners.isfinite().all(-1)
+    w = finite.to(dtype) if weights is None else torch.where(finite, weights.to(dtype), 0.0)
+    w = w.clamp_min(0)
+    on = w > 0
+    used = on.any(-1)
+    # rows are weighted by sqrt(w); skipped when every weight is 0 or 1 and every corner is used
+    sw = None if bool((w == 1).all()) else w.sqrt()
+    obs = torch.where(on[..., None], corners.to(dtype), torch.zeros((), dtype=dtype, device=device))
+    obj = object_points.to(device=device, dtype=dtype)
+    obj = obj.expand(C, N, 3) if obj.dim() == 2 else obj
+    x = params.to(device=device, dtype=dtype).clone()
+    if basis is None:
+        B = parameter_basis(model, x, free, fix_aspect_ratio)
+        identity = B.shape[-1] == x.shape[-1] and not fix_aspect_ratio
+    else:
+        if basis.dim() != 3 or basis.shape[:2] != (C, x.shape[-1]):
+            raise ValueError(f"basis must be ({C}, {x.shape[-1]}, F), got {tuple(basis.shape)}.")
+        B, identity = basis.to(device=device, dtype=dtype), False
+    Bn = None if identity else B
+    eye6 = torch.eye(6, dtype=dtype, device=device)
+    eyeF = torch.eye(B.shape[-1], dtype=dtype, device=device)
+    used_f = used.to(dtype)
+
+    # unused views are parked in front of the camera so their (zero-weighted) projections stay finite
+    rv = torch.where(used[..., None] & rvec.isfinite(), rvec.to(dtype), 0.0)
+    park = torch.zeros(3, dtype=dtype, device=device)
+    park[2] = 1.0 + 10.0 * float(obj.abs().amax()) if obj.numel() else 1.0
+    tv = torch.where(used[..., None] & tvec.isfinite(), tvec.to(dtype), park)
+    R = _exp_so3(rv)
+
+    if check_every is None:
+        check_every = 1 if device.type == "cpu" else 10
+    const = {"obj": obj, "obs": obs, "sw": sw, "B": B, "Bn": Bn, "used": used, "used_f": used_f,
+             "floor": (w.sum((1, 2)) * 1e-20).clamp_min(1e-300)}  # floor: an RMS of 1e-10 px, a perfect fit
+    expanded: dict = {}
+    eq = _normal_equations(model, R, tv, x, obj, obs, sw, Bn, used, eye6, expanded)
+    done = ~used.any(-1)
+    full = dict(zip(("cost", "U", "W", "Vb", "eg", "ep", "vc"), eq))
+    full.update(x=x, R=R, tv=tv, lam=torch.full((C,), lambda_init, dtype=dtype, device=device), done=done,
+                converged=done.clone(), iters=torch.zeros(C, dtype=torch.long, device=device))
+    # the working set: every camera still iterating; it shrinks (a gather) only at the "all done?" checks
+    idx = torch.arange(C, device=device)
+    work, wc = dict(full), const
+    for it in range(max_iters):
+        _lm_iteration(model, work, wc, (eye6, eyeF), ftol, xtol, expanded)
+        if (it + 1) % check_every == 0:
+            alive = ~work["done"]
+            if not bool(alive.any()):
+                break
+            if not bool(alive.all()):
+                leaving = ~alive
+                for k, v in work.items():
+                    if v is not full[k]:  # (an entry never updated is still the full tensor itself)
+                        full[k][idx[leaving]] = v[leaving]
+                idx = idx[alive]
+                work = {k: v[alive] for k, v in work.items()}
+                wc = {k: (None if v is None else v[alive]) for k, v in wc.items()}
+    if idx.numel() == C:  # no camera left early: the working set is the whole batch
+        full = work
+    else:
+        for k, v in work.items():
+            if v is not full[k]:
+                full[k][idx] = v
+    x, R, tv, cost, U, W, Vb, vc = (full[k] for k in ("x", "R", "tv", "cost", "U", "W", "Vb", "vc"))
+    iters, converged = full["iters"], full["converged"]
+
+    # statistics at the solution (unit weights: the squared residuals per view are in the normal equations)
+    if sw is None:
+        sq_view = vc
+    else:
+        q = torch.matmul(obj[:, None].expand(C, V, N, 3), R.transpose(-1, -2))
+        uv = model.columns(q + tv[:, :, None, :], x, jacobians=False)[0]
+        sq_view = torch.where(on, ((uv - obs) ** 2).sum(-1), 0.0).sum(-1)
+    n_view = on.sum(-1)
+    view_rms = (sq_view / n_view.clamp_min(1)).sqrt().masked_fill(~used, float("nan"))
+    n_pts = n_view.sum(-1)
+    rms = (sq_view.sum(-1) / n_pts.clamp_min(1)).sqrt().masked_fill(n_pts == 0, float("nan"))
+
+    Vinv = _sym_inverse(Vb)
+    Vinv = torch.where(used[..., None, None] & Vinv.isfinite(), Vinv, torch.zeros_like(Vinv))
+    S = U - ((W @ Vinv) @ W.transpose(-1, -2)).sum(1)
+    F = B.shape[-1]
+    dof = (2 * n_pts - F - 6 * used.sum(-1)).clamp_min(1).to(dtype)
+    sigma2 = torch.ones_like(cost) if absolute_weights else cost / dof
+    cov = _sym_inverse(S)
+    # a (numerically) singular information matrix gives a huge, not a NaN, variance along the undetermined
+    # directions, so the degeneracy checks can tell which parameters the views do not constrain
+    singular = ~cov.flatten(1).isfinite().all(-1) & S.flatten(1).isfinite().all(-1) & used.any(-1)
+    if F and bool(singular.any()):
+        cov[singular] = _pseudo_inverse(S[singular])
+    cov = cov * sigma2[:, None, None]
+
+    rvec_out = _log_so3(R)
+    rvec_out = torch.where(used[..., None], rvec_out, rvec.to(dtype))
+    tvec_out = torch.where(used[..., None], tv, tvec.to(dtype))
+    return LMResult(
+        params=x, rvec=rvec_out, tvec=tvec_out, cost=cost, view_rms=view_rms, rms=rms, covariance=cov, information=S, basis=B,
+        sigma2=sigma2, iterations=iters, converged=converged & used.any(-1), num_points=n_pts, view_used=used,
+    )
+
+
+class LevenbergMarquardt(nn.Module):
+    r"""Module form of :func:`levenberg_marquardt`: the model and options are fixed at construction.
+
+    Args:
+        model: camera model.
+        free: parameters to estimate (booleans or names).
+        fix_aspect_ratio: keep ``fx / fy``.
+        max_iters, ftol, xtol, lambda_init, check_every, absolute_weights, dtype: see :func:`levenberg_marquardt`.
+
+    Shape:
+        params :math:`(C, P)`, rvec/tvec :math:`(C, V, 3)`, object_points :math:`(N, 3)`, corners
+        :math:`(C, V, N, 2)`, weights :math:`(C, V, N)` -> :class:`LMResult`.
+
+    Example:
+        >>> from ccs_kornia.modules.calibration.models import KannalaBrandtModel
+        >>> lm = LevenbergMarquardt(KannalaBrandtModel(), free=["fx", "fy", "cx", "cy", "k1", "k2"])
+        >>> lm.max_iters
+        100
+    """
+
+    def __init__(
+        self,
+        model: CameraModel,
+        free: Sequence[bool] | Sequence[str] | None = None,
+        fix_aspect_ratio: bool = False,
+        max_iters: int = 100,
+        ftol: float = 1e-12,
+        xtol: float = 1e-12,
+        lambda_init: float = 1e-3,
+        check_every: int | None = None,
+        absolute_weights: bool = False,
+        dtype: torch.dtype = torch.float64,
+    ) -> None:
+        super().__init__()
+        self.model = model
+        self.free = None if free is None else list(free)
+        self.fix_aspect_ratio = fix_aspect_ratio
+        self.max_iters = max_iters
+        self.ftol, self.xtol, self.lambda_init = ftol, xtol, lambda_init
+        self.check_every = check_every
+        self.absolute_weights = absolute_weights
+        self.dtype = dtype
+
+    def forward(
+        self,
+        params: torch.Tensor,
+        rvec: torch.Tensor,
+        tvec: torch.Tensor,
+        object_points: torch.Tensor,
+        corners: torch.Tensor,
+        weights: torch.Tensor | None = None,
+    ) -> LMResult:
+        return levenberg_marquardt(
+            self.model, params, rvec, tvec, object_points, corners, weights, free=self.free,
+            fix_aspect_ratio=self.fix_aspect_ratio, max_iters=self.max_iters, ftol=self.ftol, xtol=self.xtol,
+            lambda_init=self.lambda_init, check_every=self.check_every, absolute_weights=self.absolute_weights,
+            dtype=self.dtype,
+        )

@@ -1,0 +1,195 @@
+"""Joint refinement of intrinsics, OpenCV distortion and every pose on the one LM core (:mod:`.lm`).
+
+:func:`joint_refinement` takes and returns the camera in OpenCV's terms (``K``, coefficients in OpenCV order),
+with the options :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` needs (fixed aspect ratio,
+principal point, intrinsics or distortion); the core does the work with
+:class:`~ccs_kornia.modules.calibration.models.opencv.OpenCVModel`, batched over cameras, and gives the full
+covariance of the camera (``cov_camera``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from ccs_kornia.camera import num_distortion_coeffs
+from ccs_kornia.modules.calibration.lm import levenberg_marquardt
+from ccs_kornia.modules.calibration.models.opencv import OPENCV_VARIANTS, OpenCVModel
+
+__all__ = ["FREE_DISTORTION", "RefinementResult", "joint_refinement", "JointRefinement", "camera_covariance"]
+
+#: indices (OpenCV order k1, k2, p1, p2, k3, k4, k5, k6) estimated by each model; the rest stay 0
+FREE_DISTORTION: dict[str, list[int]] = {name: list(index) for name, index in OPENCV_VARIANTS.items()}
+
+
+@dataclass
+class RefinementResult:
+    """Output of :func:`joint_refinement` (C cameras, V views, D coefficients)."""
+
+    K: torch.Tensor  #: (C, 3, 3)
+    dist: torch.Tensor  #: (C, D) OpenCV order
+    rvec: torch.Tensor  #: (C, V, 3)
+    tvec: torch.Tensor  #: (C, V, 3)
+    view_rms: torch.Tensor  #: (C, V) RMS reprojection error per view in px, NaN for unused views
+    rms: torch.Tensor  #: (C,) sqrt(sum squared error / number of points), as cv2.calibrateCamera
+    std_intrinsics: torch.Tensor  #: (C, 4) standard deviations of fx, fy, cx, cy (0 where fixed)
+    std_dist: torch.Tensor  #: (C, D) standard deviations of the coefficients (0 where fixed)
+    converged: torch.Tensor  #: (C,) bool
+    iterations: torch.Tensor  #: (C,) LM iterations used
+    num_points: torch.Tensor  #: (C,) corners used
+    #: (C, 4 + D, 4 + D) covariance of (fx, fy, cx, cy, dist) (zero rows/columns for fixed parameters)
+    cov_camera: torch.Tensor | None = None
+
+
+def camera_covariance(model: str, param_covariance: torch.Tensor) -> torch.Tensor:
+    """Covariance :math:`(C, 4 + D, 4 + D)` of ``(fx, fy, cx, cy, dist[:D])`` in OpenCV's storage (``D`` of
+    :func:`~ccs_kornia.camera.num_distortion_coeffs`) from that of an :class:`OpenCVModel` variant's parameters
+    :math:`(C, P, P)`: a selection, zero rows and columns for stored coefficients outside the variant (``k1k2``
+    stores ``p1 = p2 = k3 = 0``).
+
+    Example:
+        >>> camera_covariance("k1k2", torch.eye(6)[None]).shape
+        torch.Size([1, 9, 9])
+    """
+    index = OPENCV_VARIANTS[model]
+    D = num_distortion_coeffs(model)
+    if len(index) == D:  # every stored coefficient is a parameter, in order
+        return param_covariance
+    rows = torch.tensor([0, 1, 2, 3, *(4 + j for j in index)], device=param_covariance.device)
+    out = param_covariance.new_zeros(*param_covariance.shape[:-2], 4 + D, 4 + D)
+    out[..., rows[:, None], rows] = param_covariance
+    return out
+
+
+def _k_matrix(params: torch.Tensor) -> torch.Tensor:
+    z, o = torch.zeros_like(params[:, :1]), torch.ones_like(params[:, :1])
+    return torch.cat([params[:, 0:1], z, params[:, 2:3], z, params[:, 1:2], params[:, 3:4], z, z, o], -1).view(-1, 3, 3)
+
+
+def _batch(corners, valid, object_points, K, rvec, tvec, dist, view_mask):
+    """Add the camera dim to unbatched inputs and check shapes."""
+    unbatched = corners.dim() == 3
+    if unbatched:
+        corners, valid, rvec, tvec = corners[None], valid[None], rvec[None], tvec[None]
+        K = K[None] if K.dim() == 2 else K
+        dist = dist[None] if dist is not None and dist.dim() == 1 else dist
+        view_mask = None if view_mask is None else view_mask[None]
+        object_points = object_points[None] if object_points.dim() == 3 else object_points
+    if corners.dim() != 4 or corners.shape[-1] != 2:
+        raise ValueError(f"corners must be (C, V, N, 2) or (V, N, 2), got {tuple(corners.shape)}.")
+    C, V, N = corners.shape[:3]
+    if valid.shape != (C, V, N):
+        raise ValueError(f"valid must be {(C, V, N)}, got {tuple(valid.shape)}.")
+    if K.shape != (C, 3, 3):
+        raise ValueError(f"K must be ({C}, 3, 3), got {tuple(K.shape)}.")
+    if view_mask is not None and view_mask.shape != (C, V):
+        raise ValueError(f"view_mask must be ({C}, {V}), got {tuple(view_mask.shape)}.")
+    return corners, valid, object_points, K, rvec, tvec, dist, view_mask, unbatched
+
+
+def joint_refinement(
+    corners: torch.Tensor,
+    valid: torch.Tensor,
+    object_points: torch.Tensor,
+    K: torch.Tensor,
+    rvec: torch.Tensor,
+    tvec: torch.Tensor,
+    dist: torch.Tensor | None = None,
+    view_mask: torch.Tensor | None = None,
+    model: str = "opencv5",
+    fix_aspect_ratio: bool = False,
+    fix_principal_point: bool = False,
+    max_iters: int = 100,
+    ftol: float = 1e-12,
+    xtol: float = 1e-12,
+    lambda_init: float = 1e-3,
+    dtype: torch.dtype = torch.float64,
+    fix_intrinsics: bool = False,
+    fix_distortion: bool = False,
+    weights: torch.Tensor | None = None,
+) -> RefinementResult:
+    r"""Levenberg–Marquardt over intrinsics, OpenCV distortion and poses (the LM core with the OpenCV model).
+
+    Args:
+        corners: :math:`(C, V, N, 2)` observed pixels (or :math:`(V, N, 2)`); invalid entries may be NaN.
+        valid: :math:`(C, V, N)` bool.
+        object_points: :math:`(N, 3)` or :math:`(C, N, 3)`.
+        K: :math:`(C, 3, 3)` initial camera matrices (zero skew).
+        rvec, tvec: :math:`(C, V, 3)` initial poses.
+        dist: :math:`(C, D')` initial OpenCV coefficients (default zeros).
+        view_mask: :math:`(C, V)` views to use (default: views with a valid corner).
+        model: ``none`` | ``k1k2`` | ``opencv5`` | ``rational``.
+        fix_aspect_ratio, fix_principal_point, fix_intrinsics, fix_distortion: keep those at their initial values.
+        max_iters, ftol, xtol, lambda_init, dtype: see :func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`.
+        weights: optional :math:`(C, V, N)` per-corner inverse variances (multiplied by ``valid``).
+
+    Returns:
+        :class:`RefinementResult` (no camera dim for unbatched input), with the covariance of the model's
+        ``fx, fy, cx, cy`` and coefficients.
+
+    Example:
+        >>> from ccs_kornia.camera import board_object_points, project_points
+        >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)
+        >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
+        >>> rvec = torch.tensor([[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]], dtype=torch.float64)
+        >>> tvec = torch.tensor([[-0.1, -0.1, 1.0]], dtype=torch.float64).expand(3, 3)
+        >>> uv = project_points(obj.expand(3, -1, -1), K.expand(3, 3, 3), None, rvec, tvec)
+        >>> res = joint_refinement(uv, torch.ones(3, 12, dtype=torch.bool), obj, K * 1.01, rvec, tvec, model="none")
+        >>> bool(res.rms < 1e-6)
+        True
+    """
+    if model not in OPENCV_VARIANTS:
+        raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(OPENCV_VARIANTS)}.")
+    corners, valid, object_points, K, rvec, tvec, dist, view_mask, unbatched = _batch(
+        corners, valid, object_points, K, rvec, tvec, dist, view_mask
+    )
+    C, V, N = corners.shape[:3]
+    cam = OpenCVModel(model)
+    params = cam.params_from(K.to(device=corners.device, dtype=dtype), None if dist is None else dist.to(corners.device))
+    w = valid.bool() & (valid.bool().any(-1, keepdim=True) if view_mask is None else view_mask.bool()[..., None])
+    w = w.to(dtype) if weights is None else w.to(dtype) * weights.to(dtype)
+    free = [not fix_intrinsics] * 2 + [not (fix_intrinsics or fix_principal_point)] * 2
+    free += [not fix_distortion] * (cam.num_params - 4)
+    res = levenberg_marquardt(
+        cam, params, rvec, tvec, object_points, corners, w, free=free,
+        fix_aspect_ratio=fix_aspect_ratio and not fix_intrinsics, max_iters=max_iters, ftol=ftol, xtol=xtol,
+        lambda_init=lambda_init, dtype=dtype,
+    )
+    D = num_distortion_coeffs(model)
+    cov = camera_covariance(model, res.param_covariance)
+    std = cov.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
+    out = RefinementResult(
+        K=_k_matrix(res.params), dist=cam.dist8(res.params)[:, :D], rvec=res.rvec, tvec=res.tvec,
+        view_rms=res.view_rms, rms=res.rms, std_intrinsics=std[:, :4], std_dist=std[:, 4:],
+        converged=res.converged, iterations=res.iterations, num_points=res.num_points, cov_camera=cov,
+    )
+    if unbatched:
+        out = RefinementResult(**{k: v[0] for k, v in out.__dict__.items()})
+    return out
+
+
+class JointRefinement(nn.Module):
+    """Module form of :func:`joint_refinement` (options fixed at construction).
+
+    Example:
+        >>> JointRefinement(model="k1k2").model
+        'k1k2'
+    """
+
+    def __init__(self, model: str = "opencv5", fix_aspect_ratio: bool = False, fix_principal_point: bool = False,
+                 max_iters: int = 100, ftol: float = 1e-12, xtol: float = 1e-12, dtype: torch.dtype = torch.float64) -> None:
+        super().__init__()
+        if model not in OPENCV_VARIANTS:
+            raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(OPENCV_VARIANTS)}.")
+        self.model, self.fix_aspect_ratio, self.fix_principal_point = model, fix_aspect_ratio, fix_principal_point
+        self.max_iters, self.ftol, self.xtol, self.dtype = max_iters, ftol, xtol, dtype
+
+    def forward(self, corners, valid, object_points, K, rvec, tvec, dist=None, view_mask=None) -> RefinementResult:
+        return joint_refinement(
+            corners, valid, object_points, K, rvec, tvec, dist, view_mask, model=self.model,
+            fix_aspect_ratio=self.fix_aspect_ratio, fix_principal_point=self.fix_principal_point,
+            max_iters=self.max_iters, ftol=self.ftol, xtol=self.xtol, dtype=self.dtype,
+        )
+
