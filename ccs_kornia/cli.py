@@ -31,7 +31,7 @@ from ccs_kornia.commands._common import PROG, UserError
 __all__ = ["main", "build_parser", "UserError", "LIGHTNING_COMMANDS"]
 
 LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
-MODELS = ("opencv5", "rational", "k1k2", "none")
+MODELS = ("opencv5", "rational", "k1k2", "none", "fisheye")
 DEFAULT_DETECTOR = "learned"
 
 
@@ -86,6 +86,16 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _unit_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text}")
+    return value
+
+
 def _device_arg(text: str) -> str:
     if text == "cpu" or text == "cuda" or (text.startswith("cuda:") and text[5:].isdigit()):
         return text
@@ -133,20 +143,29 @@ def build_parser() -> argparse.ArgumentParser:
                    help="square side in world units (scales the poses only; default 1)")
     p.add_argument("--output", required=True, metavar="JSON", help="calibration file to write")
     p.add_argument("--model", default="opencv5", choices=MODELS,
-                   help="distortion model: opencv5 (k1,k2,p1,p2,k3; default), rational (k1..k6), k1k2, none")
+                   help="distortion model: opencv5 (k1,k2,p1,p2,k3; default), rational (k1..k6), k1k2, none, "
+                        "fisheye (Kannala-Brandt k1..k4, as cv2.fisheye)")
     p.add_argument("--no-ransac", dest="use_ransac", action="store_false", help="keep every detected view")
     p.add_argument("--seed", default=0, type=int, help="RANSAC seed (default 0)")
     p.add_argument("--report", metavar="DIR", help="also write overlays and a summary to DIR (created)")
     p.add_argument("--opencv-yaml", metavar="FILE", help="also write an OpenCV FileStorage YAML (camera_matrix, ...)")
+    p.add_argument("--ros-yaml", metavar="FILE", help="also write a ROS camera_info YAML (distortion_model plumb_bob, "
+                   "rational_polynomial or equidistant for fisheye)")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="do not run the distortion-correction network (strongly distorted lenses are then "
                         "calibrated by the joint refinement alone)")
+    p.add_argument("--no-diagnostics", dest="diagnostics", action="store_false",
+                   help="skip the quality figures (cross-validation of two halves of the views, held-out views, "
+                        "projection uncertainty) and the verdict; they cost a few more solves")
     p.set_defaults(func=calibrate.run)
 
     p = sub.add_parser("undistort", help="undistort images with a calibration (as cv2.undistort)")
     common(p, board=False)
     p.add_argument("--calibration", required=True, metavar="JSON", help="calib.json written by calibrate")
     p.add_argument("--out-dir", required=True, metavar="DIR", help="where to write the images (created)")
+    p.add_argument("--balance", default=0.0, type=_unit_float, metavar="B",
+                   help="fisheye calibrations only: 0 keeps the central field without black borders (default), "
+                        "1 the whole field (as cv2.fisheye.estimateNewCameraMatrixForUndistortRectify)")
     p.set_defaults(func=undistort.run)
 
     p = sub.add_parser("calibrate-many", help="calibrate many cameras (one directory of images each) with "
@@ -161,6 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
     p.add_argument("--no-ransac", dest="use_ransac", action="store_false", help="keep every detected view")
     p.add_argument("--seed", default=0, type=int, help="RANSAC seed (default 0)")
+    p.add_argument("--diagnostics", action="store_true",
+                   help="also compute each set's quality figures and verdict (a few more solves per set)")
     p.add_argument("--sets-per-batch", default=4, type=_positive_int, metavar="N",
                    help="sets per predict step; sets of one image size are solved in one batched call (default 4)")
     p.add_argument("--workers", default=0, type=int, metavar="N", help="DataLoader workers loading sets (default 0)")

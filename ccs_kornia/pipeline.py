@@ -20,9 +20,7 @@ benchmarks all call it:
    never resampled and its calibration is exactly the one without the correction.
 
 Views are read through a :class:`~ccs_kornia.sources.ViewSource` in batches of one size, bounded in number and in
-pixels, so a folder of large photographs never sits in memory at once; only corners are kept between passes.
-Images larger than ``max_detection_side`` are detected on an area-downscaled copy and refined at full resolution.
-This module imports neither the command line nor Lightning.
+pixels (only corners are kept between passes). No command line, no Lightning here.
 """
 
 from __future__ import annotations
@@ -46,17 +44,8 @@ from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResul
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
-from ccs_kornia.pipeline_result import (
-    PipelineResult,
-    camera_reason,
-    concat_results,
-    main_size,
-    module_device,
-    positive_size,
-    same_size_views,
-    scatter_cameras,
-    select_result,
-)
+from ccs_kornia.pipeline_result import (PipelineResult, camera_reason, concat_results, diagnose_cameras, main_size,  # isort: skip
+                                        module_device, positive_size, same_size_views, scatter_cameras, select_result)
 from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource, load_batches  # noqa: F401
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
@@ -68,7 +57,7 @@ class CalibrationPipeline(nn.Module):
     Args:
         detector: a detector name for :func:`~ccs_kornia.modules.detection.factory.make_detector`
             (``"opencv"`` or ``"learned"``) or a :class:`ChessboardDetector` instance.
-        model: output distortion model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational`` or ``none``.
+        model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational``, ``none`` or ``fisheye`` (cv2.fisheye's).
         use_ransac: reject inconsistent views with image-level RANSAC before the refinement.
         seed: seed of the RANSAC sampling (results are deterministic for a given seed).
         detection_batch_size: most images handed to the detector at once.
@@ -88,6 +77,8 @@ class CalibrationPipeline(nn.Module):
             corners is at most this times that of the usual calibration (same parameter count for ``opencv5``).
         joint_iters: LM iterations at most of the corrected-frame joint refinement.
         free_distortion_centre: the corrected-frame refinement also estimates the distortion centre.
+        diagnostics: also compute each camera's quality figures and verdict (``PipelineResult.diagnostics``; see
+            :func:`~ccs_kornia.modules.calibration.diagnostics.diagnose`: several more solves per camera).
         solver_kwargs: further options of :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
 
     Example:
@@ -116,6 +107,7 @@ class CalibrationPipeline(nn.Module):
         max_rms_ratio: float = 0.9,
         joint_iters: int = 50,
         free_distortion_centre: bool = True,
+        diagnostics: bool = False,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -128,12 +120,11 @@ class CalibrationPipeline(nn.Module):
             raise ValueError(f"max_detection_side must be >= 64 (or None/0 to disable), got {max_detection_side}.")
         if joint_iters < 0:
             raise ValueError(f"joint_iters must be >= 0, got {joint_iters}.")
-        for name, value in (("min_correction", min_correction), ("min_straightening", min_straightening),
-                            ("max_rms_ratio", max_rms_ratio)):
+        for name, value in (("min_correction", min_correction), ("min_straightening", min_straightening), ("max_rms_ratio", max_rms_ratio)):
             if not value >= 0:
                 raise ValueError(f"{name} must be >= 0, got {value}.")
         self.solver = CalibrationSolver(model=model, use_ransac=use_ransac, seed=seed, **solver_kwargs)
-        self.model = model
+        self.model, self.diagnostics = model, bool(diagnostics)
         self.detection_batch_size = int(detection_batch_size)
         self.max_batch_pixels = max_batch_pixels
         self.max_detection_side = int(max_detection_side) if max_detection_side else None
@@ -341,11 +332,14 @@ class CalibrationPipeline(nn.Module):
         out.corrected = corrected if correction is not None else None
         out.camera_reasons = [camera_reason(out.calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum()))
                               for ci in range(c)]
+        if self.diagnostics:
+            out.diagnostics = diagnose_cameras(self.solver, out, usable, board_size, square)
         return out
 
     def _solve_group(self, corners, found, board_size, square, image_size, correction, tried):
         usual = self.calibrate(corners, found, board_size, square, image_size)
-        if correction is None or tried is None or not bool(tried.any()):
+        # (the corrected frame's radial model is a pinhole lens's: not for fisheye cameras)
+        if correction is None or tried is None or not bool(tried.any()) or self.model == "fisheye":
             return usual, correction, None if correction is None else torch.zeros_like(tried)
         # only the cameras the evidence points to, and only those the usual solve could calibrate, go the corrected
         # way (a camera refused as degenerate stays refused)

@@ -23,6 +23,7 @@ __all__ = [
     "same_size_views",
     "positive_size",
     "camera_reason",
+    "diagnose_cameras",
 ]
 
 
@@ -325,3 +326,31 @@ def module_device(module: torch.nn.Module) -> torch.device:
     for b in module.buffers():
         return b.device
     return torch.device("cpu")
+
+
+def diagnose_cameras(solver: Any, out: PipelineResult, usable: torch.Tensor, board_size: tuple[int, int],
+                     square: float) -> list[dict | None]:
+    """Quality figures and verdict of each camera of a solved ``out`` (one
+    :func:`~ccs_kornia.modules.calibration.diagnostics.diagnose` call per image size; ``None`` for a camera
+    without a computed calibration). The halves and folds of the cross-validation are solved by ``solver`` (the
+    usual path: a camera calibrated in the corrected frame is cross-validated without it)."""
+    from ccs_kornia.camera import board_object_points
+    from ccs_kornia.modules.calibration.diagnostics import diagnose
+
+    det, cal = out.detections, out.calibration
+    found = usable & cal.success[:, None].to(usable.device)
+    cols, rows = int(board_size[0]), int(board_size[1])
+    obj = board_object_points(cols, rows, float(square), device=det.corners.device, dtype=torch.float64)
+    diagnostics: list[dict | None] = [None] * found.shape[0]
+    for size in dict.fromkeys(out.image_size):
+        sel = torch.tensor([s == size for s in out.image_size], device=found.device) & cal.success.to(found.device)
+        sel = sel.nonzero().flatten()
+        if sel.numel() == 0:
+            continue
+        corners = det.corners[sel].to(torch.float64)
+        valid = found[sel][..., None].expand(corners.shape[:-1])
+        with torch.inference_mode():
+            figures = diagnose(select_result(cal, sel), corners, valid, obj, positive_size(size), solver=solver)
+        for k, ci in enumerate(sel.tolist()):
+            diagnostics[ci] = figures[k]
+    return diagnostics

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.camera import board_object_points, project_points
+from ccs_kornia.camera import board_object_points, kb_project_points, project_points
 from ccs_kornia.io import load_image_gray
 from ccs_kornia.report_figures import (
     DISPLAY_MAX_SIDE,
@@ -42,6 +42,12 @@ from ccs_kornia.report_figures import (
     _residual_plot,
     _rms_chart,
     _undistorted_preview,
+)
+from ccs_kornia.report_quality import (
+    distortion_field_plot,
+    quality_html,
+    quality_markdown,
+    uncertainty_plot,
 )
 
 __all__ = ["write_report", "DISPLAY_MAX_SIDE"]
@@ -98,6 +104,7 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     K = torch.tensor(data["K"], dtype=torch.float64)
     coeffs = data["distortion"]["coeffs"] or [0.0] * 5
     dist = torch.tensor(coeffs, dtype=torch.float64)
+    fisheye = data["distortion"]["model"] == "fisheye"
     cols, rows = (int(v) for v in data["board"])
     size = (int(data["image_size"][0]), int(data["image_size"][1]))
     obj = board_object_points(cols, rows, float(data["square"]), dtype=torch.float64)
@@ -109,8 +116,9 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     projected: dict[int, np.ndarray] = {}
     for index, view in enumerate(views):
         if view.get("corners") is not None and view.get("rvec") is not None:
-            uv = project_points(obj, K, dist, torch.tensor(view["rvec"], dtype=torch.float64),
-                                torch.tensor(view["tvec"], dtype=torch.float64)).numpy()
+            project = kb_project_points if fisheye else project_points
+            uv = project(obj, K, dist, torch.tensor(view["rvec"], dtype=torch.float64),
+                         torch.tensor(view["tvec"], dtype=torch.float64)).numpy()
             if np.isfinite(uv).all():
                 projected[index] = uv
     used_idx = [i for i, v in enumerate(views) if v.get("used") and i in projected]
@@ -126,16 +134,20 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
 
     overlay_names: dict[int, str] = {}
     first_used: tuple[str, np.ndarray, np.ndarray] | None = None
-    candidates = [i for i, v in enumerate(views) if v.get("found") and v.get("corners") is not None]
+    # every view gets an overlay: the ones without a board too, titled with the reason (what the user needs to see)
+    candidates = [i for i, v in enumerate(views) if v.get("path")]
     for index in tqdm(candidates, desc="report", unit="view", file=sys.stderr, disable=None if progress is None else not progress,
                       leave=False):
         view = views[index]
         gray, _ = load_image_gray(view["path"])
         if gray is None:
             continue
-        detected = np.asarray(view["corners"], dtype=np.float64)
+        found = view.get("found") and view.get("corners") is not None
+        detected = np.asarray(view["corners"] if found else np.zeros((0, 2)), dtype=np.float64)
         base = os.path.basename(view["path"])
         status = f"used, RMS {_fmt(view.get('rms'))} px" if view.get("used") else f"not used: {view.get('reason', '')}"
+        if not found:
+            status = f"no board: {view.get('reason', 'not found')}"
         title = f"view {index}: {base} - {status}"
         vis = _overlay(gray, detected, projected.get(index), gain, title)
         stem = os.path.splitext(base)[0]
@@ -166,13 +178,26 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
                             "corners were seen: empty borders mean extrapolated distortion there."))
     if first_used is not None:
         base, gray, detected = first_used
-        preview = _undistorted_preview(gray, K, dist, base, detected, (cols, rows))
+        preview = _undistorted_preview(gray, K, dist, base, detected, (cols, rows), fisheye)
         if _write_png(os.path.join(directory, "undistorted.png"), preview, written):
             figures.append(("undistorted.png", "Undistorted preview",
                             "A used view and the same view undistorted with the calibration. Red lines are "
                             "straight; the board's outer corners (green) bow away from them under distortion and "
                             "should sit on them once undistorted."))
 
+    field = distortion_field_plot(size, K.numpy(), dist.numpy(), fisheye)
+    if _write_png(os.path.join(directory, "distortion_field.png"), field, written):
+        figures.append(("distortion_field.png", "Distortion field",
+                        "Where the lens moves each pixel of a pinhole camera with the same K. Beyond the covered "
+                        "part of the image (coverage plot) this is extrapolated by the model."))
+    quality = data.get("diagnostics") or {}
+    if quality.get("uncertainty_grid_px"):
+        fig = uncertainty_plot(size, quality["uncertainty_grid_px"])
+        if _write_png(os.path.join(directory, "uncertainty.png"), fig, written):
+            figures.append(("uncertainty.png", "Projection uncertainty",
+                            "1-sigma uncertainty of where a fixed ray lands, from the parameter covariance (the "
+                            "rotation a principal-point shift mimics fitted out). High values where no board was "
+                            "seen: add views with the board there."))
     written.append(_write_html(os.path.join(directory, "index.html"), data, figures, overlay_names, gain, coverage))
     written.append(_write_markdown(os.path.join(directory, "summary.md"), data, gain))
     return written
@@ -201,7 +226,7 @@ def _write_html(path: str, data: dict[str, Any], figures: list[tuple[str, str, s
     ]
     if coverage is not None:
         parts.append(f"<li>image coverage: {100 * coverage:.0f}% of the cells hold a detected corner</li>")
-    parts += ["</ul>", "<h2>Parameters</h2>", "<table><tr><th>parameter</th><th>value</th><th>std (1 sigma)</th></tr>"]
+    parts += ["</ul>", *quality_html(data.get("diagnostics")), "<h2>Parameters</h2>", "<table><tr><th>parameter</th><th>value</th><th>std (1 sigma)</th></tr>"]
     for name, value, std in _parameter_rows(data):
         digits = 3 if name in ("fx", "fy", "cx", "cy") else 6
         parts.append(f"<tr><td class='l'>{name}</td><td>{_fmt(value, digits)}</td><td>&plusmn; {_fmt(std, digits)}</td></tr>")
@@ -246,6 +271,7 @@ def _write_markdown(path: str, data: dict[str, Any], gain: float) -> str:
     for name, value, std in _parameter_rows(data):
         digits = 3 if name in ("fx", "fy", "cx", "cy") else 6
         lines.append(f"| {name} | {_fmt(value, digits)} | {_fmt(std, digits)} |")
+    lines += quality_markdown(data.get("diagnostics"))
     lines += ["", "| view | used | RMS px | note |", "|---|---|---|---|"]
     for view in data["views"]:
         lines.append(f"| {os.path.basename(view['path'])} | {'yes' if view.get('used') else 'no'} | "

@@ -179,14 +179,16 @@ def _overlay(gray: np.ndarray, detected: np.ndarray, projected: np.ndarray | Non
             cv2.drawMarker(vis, _pt(p), _RED, cv2.MARKER_CROSS, 2 * radius, 1)
     for d in det:
         cv2.circle(vis, _pt(d), radius + 1, _GREEN, 1, _AA)
-    cv2.circle(vis, _pt(det[0]), 2 * radius + 2, _BLUE, 2, _AA)
+    if len(det):
+        cv2.circle(vis, _pt(det[0]), 2 * radius + 2, _BLUE, 2, _AA)
     header = np.full((30, vis.shape[1], 3), 255, np.uint8)
     _text(header, title, (6, 20), 0.5)
-    items = [("circle", _GREEN, "detected corner"), ("ring", _BLUE, "first grid corner")]
+    items = [("circle", _GREEN, "detected corner"), ("ring", _BLUE, "first grid corner")] if len(det) else []
     if proj is not None:
         items[1:1] = [("cross", _RED, "reprojected"), ("line", _YELLOW, f"residual x{gain:g}")]
     out = np.vstack([header, vis])
-    _legend(out, items, (out.shape[1] - 6, 36))
+    if items:
+        _legend(out, items, (out.shape[1] - 6, 36))
     return out
 
 
@@ -333,8 +335,12 @@ def _coverage_plot(size: tuple[int, int], corner_sets: list[np.ndarray], board: 
 
 
 def _undistorted_preview(gray: np.ndarray, K: torch.Tensor, dist: torch.Tensor, name: str,
-                         corners: np.ndarray | None = None, board: tuple[int, int] | None = None) -> np.ndarray:
+                         corners: np.ndarray | None = None, board: tuple[int, int] | None = None,
+                         fisheye: bool = False) -> np.ndarray:
     from kornia.geometry.calibration import undistort_image
+
+    from ccs_kornia.camera import kb_undistort_points
+    from ccs_kornia.modules.correction.fisheye_warp import fisheye_undistort_image
 
     scale = min(1.0, 640 / max(gray.shape))
     if scale < 1.0:
@@ -343,14 +349,25 @@ def _undistorted_preview(gray: np.ndarray, K: torch.Tensor, dist: torch.Tensor, 
     # the same camera on the resized pixel grid (pixel centres: x' + 0.5 = s (x + 0.5))
     Ks[0, 0], Ks[1, 1] = K[0, 0] * scale, K[1, 1] * scale
     Ks[0, 2], Ks[1, 2] = (K[0, 2] + 0.5) * scale - 0.5, (K[1, 2] + 0.5) * scale - 0.5
-    out = undistort_image(torch.from_numpy(gray).double()[None, None], Ks[None], dist[None])[0, 0].numpy()
+    image = torch.from_numpy(gray).double()[None, None]
+    if fisheye:  # a pinhole view of the central field: the same camera at half the focal length (cv2's balance
+        # heuristic puts the principal point far off-centre when the border midpoints lie near 90 degrees)
+        P = Ks[None].clone()
+        P[:, :2, :2] *= 0.5
+        out = fisheye_undistort_image(image, Ks[None], dist[None], P)[0, 0].numpy()
+    else:
+        out = undistort_image(image, Ks[None], dist[None])[0, 0].numpy()
     points = [None, None]
     if corners is not None and board is not None:
         pts = _scaled(corners, scale)
-        und = cv2.undistortPoints(pts.reshape(-1, 1, 2).astype(np.float64), Ks.numpy(), dist.numpy(), P=Ks.numpy())
+        if fisheye:
+            und = kb_undistort_points(torch.from_numpy(pts.reshape(-1, 2).astype(np.float64))[None], Ks[None],
+                                      dist[None], P)[0].numpy()
+        else:
+            und = cv2.undistortPoints(pts.reshape(-1, 1, 2).astype(np.float64), Ks.numpy(), dist.numpy(), P=Ks.numpy())
         points = [pts, und.reshape(-1, 2)]
     tiles = []
-    for label, im, pts in (("original: " + name, gray, points[0]), ("undistorted (as cv2.undistort)", out, points[1])):
+    for label, im, pts in (("original: " + name, gray, points[0]), ("undistorted (as cv2.fisheye.undistortImage)" if fisheye else "undistorted (as cv2.undistort)", out, points[1])):
         tile = cv2.cvtColor(np.clip(im * 255.0, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
         if pts is not None:
             cols, rows = board  # type: ignore[misc]

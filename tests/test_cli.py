@@ -116,8 +116,30 @@ def test_calibrate_json_and_accuracy(rendered, tmp_path, capsys):
     assert fs.getNode("avg_reprojection_error").real() == pytest.approx(data["rms"])
     fs.release()
     assert (report / "summary.md").is_file() and len(list((report / "views").glob("view_*.png"))) == NUM_VIEWS
-    for name in ("index.html", "rms_per_view.png", "residuals.png", "coverage.png", "undistorted.png"):
+    for name in ("index.html", "rms_per_view.png", "residuals.png", "coverage.png", "undistorted.png",
+                 "distortion_field.png", "uncertainty.png"):
         assert (report / name).is_file(), name
+    # quality figures and verdict (issue 12): in the JSON, on stdout and in the report
+    q = data["diagnostics"]
+    assert q["verdict"].split(":")[0] in ("good", "usable", "not reliable") and "verdict: " in stdout
+    assert 0 < q["heldout_rms_px"] < 0.5 and q["cv_rms_px"] is not None and 0 < q["uncertainty_centre_px"] < 2.0
+    assert len(q["uncertainty_corners_px"]) == 4 and len(q["uncertainty_grid_px"]) == 12
+    assert "Is this calibration good?" in (report / "index.html").read_text()
+
+
+def test_calibrate_without_diagnostics_and_overlay_of_a_view_without_board(rendered, tmp_path, capsys):
+    folder, files, _ = rendered
+    blank = tmp_path / "blank.png"
+    assert write_image(blank, torch.full((480, 640), 0.5))
+    out, report = tmp_path / "calib.json", tmp_path / "report"
+    code, stdout, err = run(capsys, "calibrate", *files, str(blank), "--board", "9x6", "--output", str(out),
+                            "--no-diagnostics", "--report", str(report), "--detector", "opencv")
+    assert code == 0, err
+    data = json.loads(out.read_text())
+    assert "diagnostics" not in data and "verdict" not in stdout
+    # every view has an overlay, the one without a board too (the user sees why it failed)
+    assert len(list((report / "views").glob("view_*.png"))) == NUM_VIEWS + 1
+    assert (report / "views" / f"view_{NUM_VIEWS:04d}_blank.png").is_file()
 
 
 def test_undistort_matches_opencv(rendered, tmp_path, capsys):
@@ -339,6 +361,53 @@ def test_real_sets(real_dir, tmp_path, capsys, name, board, square, model, refer
     for est, ref in zip(estimate, reference):
         assert abs(est - ref) < tolerance, (name, estimate, reference)
     assert data["num_views"]["used"] >= 10
+
+
+def test_fisheye_real_set_yaml_and_undistort(real_dir, tmp_path, capsys):
+    """``--model fisheye`` on the ROS fisheye set: ost.yaml's camera, a ROS camera_info with ``equidistant``, an
+    OpenCV YAML that names the model, a report, and undistort with a balance."""
+    import yaml
+
+    folder = real_dir / "ros_fisheye_mono"
+    if not folder.is_dir():
+        pytest.skip(f"real data set not present at {folder}")
+    out, ros, ocv = tmp_path / "calib.json", tmp_path / "ros.yaml", tmp_path / "cv.yaml"
+    code, _, err = run(capsys, "calibrate", str(folder), "--board", "8x6", "--square", "0.108", "--model", "fisheye",
+                       "--detector", "opencv", "--output", str(out), "--ros-yaml", str(ros), "--opencv-yaml", str(ocv),
+                       "--report", str(tmp_path / "report"))
+    assert code == 0, err
+    data = json.loads(out.read_text())
+    K = data["K"]
+    ref = (290.050152, 289.392837, 399.938345, 273.885669)  # reference/ost.yaml
+    assert max(abs(a - b) for a, b in zip((K[0][0], K[1][1], K[0][2], K[1][2]), ref)) < 2.0, K
+    assert data["distortion"]["model"] == "fisheye" and len(data["distortion"]["coeffs"]) == 4
+    assert data["num_views"]["used"] == 24 and data["rms"] < 0.55
+    info = yaml.safe_load(ros.read_text())
+    assert info["distortion_model"] == "equidistant" and info["distortion_coefficients"]["data"] == pytest.approx(
+        data["distortion"]["coeffs"])
+    fs = cv2.FileStorage(str(ocv), cv2.FILE_STORAGE_READ)
+    assert fs.getNode("distortion_model").string() == "fisheye"
+    np.testing.assert_allclose(fs.getNode("camera_matrix").mat(), np.array(K))
+    fs.release()
+    assert (tmp_path / "report" / "undistorted.png").is_file()
+    und = tmp_path / "und"
+    code, stdout, err = run(capsys, "undistort", str(folder / "left-0000.png"), "--calibration", str(out),
+                            "--out-dir", str(und), "--balance", "0.5")
+    assert code == 0 and "undistorted 1 of 1" in stdout, err
+    # the written image is cv2.fisheye.undistortImage's with our new camera matrix (cv2 5.0's own matrix differs
+    # here: border midpoints beyond 90 degrees; tests/modules/correction/test_fisheye_warp.py compares where defined)
+    from ccs_kornia.modules.correction.fisheye_warp import fisheye_new_camera_matrix
+
+    src = cv2.imread(str(folder / "left-0000.png"), cv2.IMREAD_GRAYSCALE)
+    Kn, Dn = np.array(K), np.array(data["distortion"]["coeffs"])
+    P = fisheye_new_camera_matrix(torch.tensor(Kn)[None], torch.tensor(Dn)[None], (src.shape[1], src.shape[0]), 0.5)
+    ref_img = cv2.fisheye.undistortImage(src, Kn, Dn, Knew=P[0].numpy()).astype(np.float64)
+    ours = cv2.imread(str(und / "left-0000.png"), cv2.IMREAD_GRAYSCALE).astype(np.float64)
+    both = (ref_img > 0) & (ours > 0)
+    assert both.mean() > 0.3 and np.median(np.abs(ours - ref_img)[both]) <= 1.0
+    code, _, err = run(capsys, "undistort", str(folder / "left-0000.png"), "--calibration", str(out),
+                       "--out-dir", str(und), "--balance", "2")
+    assert code == 2 and "balance" in err
 
 
 # ----------------------------------------------------------------------------------------------

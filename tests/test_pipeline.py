@@ -214,3 +214,18 @@ def test_detect_corrected_large_images_downscaled_and_refined():
     err_small = (small.corners.double() - s.corners.double()).norm(dim=-1)
     print("mean corner error full / downscaled:", float(err_full.mean()), float(err_small.mean()))
     assert float(err_small.mean()) < 0.1 and float(err_small.max()) < 0.5
+
+
+def test_diagnostics_per_camera_and_select(sets):
+    """``diagnostics=True``: each camera's quality figures, batched like the rest of the result; a camera without a
+    calibration has ``None``."""
+    imgs = torch.stack([sets[0].images, sets[1].images, torch.full_like(sets[1].images, 0.5)])
+    out = CalibrationPipeline("opencv", seed=0, distortion_correction=False, diagnostics=True)(imgs, BOARD, SQUARE)
+    assert out.calibration.success.tolist() == [True, True, False]
+    assert len(out.diagnostics) == 3 and out.diagnostics[2] is None
+    for q in out.diagnostics[:2]:
+        assert q["success"] and q["heldout_rms_px"] < 0.5 and q["uncertainty_centre_px"] < 2.0
+        assert q["verdict"].split(":")[0] in ("good", "usable", "not reliable")
+    assert out.select(1).diagnostics == out.diagnostics[1]
+    plain = CalibrationPipeline("opencv", seed=0, distortion_correction=False)(imgs[:1], BOARD, SQUARE)
+    assert plain.diagnostics is None and torch.equal(plain.calibration.K, out.calibration.K[:1])

@@ -19,7 +19,7 @@ from ccs_kornia.commands._common import (
     warn,
 )
 
-__all__ = ["run", "calibrate_files"]
+__all__ = ["calibrate_files", "ros_camera_info", "run"]
 
 
 def calibrate_files(
@@ -96,9 +96,33 @@ def _write_opencv_yaml(path: str, data: dict[str, Any]) -> None:
         fs.write("camera_matrix", np.array(data["K"], dtype=np.float64))
         coeffs = data["distortion"]["coeffs"] or [0.0, 0.0, 0.0, 0.0, 0.0]
         fs.write("distortion_coefficients", np.array(coeffs, dtype=np.float64).reshape(-1, 1))
+        # which projection the coefficients belong to: cv2.fisheye's k1..k4 or cv2's polynomial model
+        fs.write("distortion_model", "fisheye" if data["distortion"]["model"] == "fisheye" else "opencv")
         fs.write("avg_reprojection_error", float(data["rms"]))
     finally:
         fs.release()
+
+
+#: ROS camera_info names of the models (image_pipeline's camera_calibration writes ``equidistant`` for fisheye)
+ROS_DISTORTION_MODELS = {"fisheye": "equidistant", "rational": "rational_polynomial"}
+
+
+def ros_camera_info(data: dict[str, Any], camera_name: str = "camera") -> str:
+    """The calibration as a ROS ``camera_info`` YAML (``camera_calibration_parsers`` format, monocular:
+    identity rectification, projection ``[K | 0]``)."""
+    K = [float(v) for row in data["K"] for v in row]
+    coeffs = [float(c) for c in (data["distortion"]["coeffs"] or [0.0] * 5)]
+    model = ROS_DISTORTION_MODELS.get(data["distortion"]["model"], "plumb_bob")
+    P = [K[0], K[1], K[2], 0.0, K[3], K[4], K[5], 0.0, K[6], K[7], K[8], 0.0]
+
+    def matrix(rows: int, cols: int, values: list[float]) -> str:
+        return f"  rows: {rows}\n  cols: {cols}\n  data: [{', '.join(f'{v:.9g}' for v in values)}]\n"
+
+    return (f"image_width: {int(data['image_size'][0])}\nimage_height: {int(data['image_size'][1])}\n"
+            f"camera_name: {camera_name}\ncamera_matrix:\n{matrix(3, 3, K)}distortion_model: {model}\n"
+            f"distortion_coefficients:\n{matrix(1, len(coeffs), coeffs)}"
+            f"rectification_matrix:\n{matrix(3, 3, [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0])}"
+            f"projection_matrix:\n{matrix(3, 4, P)}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -107,6 +131,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_file("--output", args.output)
     if args.opencv_yaml:
         check_output_file("--opencv-yaml", args.opencv_yaml)
+    if args.ros_yaml:
+        check_output_file("--ros-yaml", args.ros_yaml)
     if args.report:
         make_dir("--report", args.report)
     device = resolve_device(args.device)
@@ -132,6 +158,12 @@ def run(args: argparse.Namespace) -> int:
     write_json(args.output, data)
     if args.opencv_yaml:
         _write_opencv_yaml(args.opencv_yaml, data)
+    if args.ros_yaml:
+        try:
+            with open(args.ros_yaml, "w", encoding="utf-8") as handle:
+                handle.write(ros_camera_info(data))
+        except OSError as err:
+            raise UserError(f"--ros-yaml {args.ros_yaml}: cannot write ({err.strerror})") from None
     if args.report:
         from ccs_kornia.report import write_report
 
@@ -154,3 +186,9 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         f"{data['distortion']['model']} ({coeffs})"
     )
     print(f"RMS {data['rms']:.4f} px over {n['used']} views (board found in {n['found']} of {n['files']} files); wrote {output}")
+    quality = data.get("diagnostics")
+    if quality:
+        figures = [f"{label} {quality[key]:.2f} px" for label, key in (
+            ("held-out views", "heldout_rms_px"), ("halves differ by", "cv_rms_px"),
+            ("uncertainty at the centre", "uncertainty_centre_px")) if quality.get(key) is not None]
+        print(f"verdict: {quality['verdict']}" + (f" ({', '.join(figures)})" if figures else ""))

@@ -1,4 +1,5 @@
-"""``ccs_kornia undistort``: images undistorted with a calibration (as ``cv2.undistort``)."""
+"""``ccs_kornia undistort``: images undistorted with a calibration (as ``cv2.undistort``; a fisheye calibration as
+``cv2.fisheye.undistortImage`` with ``estimateNewCameraMatrixForUndistortRectify``'s balance)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from ccs_kornia.commands._common import UserError, inputs, make_dir, resolve_dev
 __all__ = ["run"]
 
 
-def _read_calibration(path: str) -> tuple[Any, Any, tuple[int, int] | None]:
+def _read_calibration(path: str) -> tuple[Any, Any, tuple[int, int] | None, bool]:
     import json
 
     import torch
@@ -27,6 +28,7 @@ def _read_calibration(path: str) -> tuple[Any, Any, tuple[int, int] | None]:
     try:
         K = torch.tensor(data["K"], dtype=torch.float64)
         coeffs = data.get("distortion", {}).get("coeffs") or []
+        fisheye = data.get("distortion", {}).get("model") == "fisheye"
         dist = torch.tensor([float(c) for c in coeffs], dtype=torch.float64)
         size = data.get("image_size")
         size = (int(size[0]), int(size[1])) if size else None
@@ -34,9 +36,11 @@ def _read_calibration(path: str) -> tuple[Any, Any, tuple[int, int] | None]:
         raise UserError(f"--calibration {path}: not a calibration written by 'calibrate' ({type(err).__name__}: {err})") from None
     if K.shape != (3, 3) or dist.numel() not in (0, 4, 5, 8, 12, 14):
         raise UserError(f"--calibration {path}: K must be 3x3 and distortion.coeffs have 0, 4, 5, 8, 12 or 14 values")
+    if fisheye and dist.numel() != 4:
+        raise UserError(f"--calibration {path}: a fisheye calibration has 4 distortion coefficients (k1..k4)")
     if dist.numel() == 0:
         dist = torch.zeros(5, dtype=torch.float64)
-    return K, dist, size
+    return K, dist, size, fisheye
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,12 +50,14 @@ def run(args: argparse.Namespace) -> int:
 
     from ccs_kornia.io import read_image, write_image
 
-    K, dist, calib_size = _read_calibration(args.calibration)
+    from ccs_kornia.modules.correction.fisheye_warp import fisheye_new_camera_matrix, fisheye_undistort_image
+
+    K, dist, calib_size, fisheye = _read_calibration(args.calibration)
     device = resolve_device(args.device)
     files = inputs("undistort", args.images)
     make_dir("--out-dir", args.out_dir)
     K, dist = K.to(device), dist.to(device)
-    written, used_names = 0, set()
+    written, used_names, new_K = 0, set(), {}
     for path in tqdm(files, unit="img", desc="undistort", file=sys.stderr, disable=None, leave=False):
         image, reason, depth = read_image(path, gray=False)
         if image is None:
@@ -74,7 +80,13 @@ def run(args: argparse.Namespace) -> int:
             continue
         tensor = torch.from_numpy(image).to(device)
         tensor = tensor[None, None] if tensor.dim() == 2 else tensor.permute(2, 0, 1)[None]
-        out = undistort_image(tensor.double(), K[None], dist[None])[0]
+        if fisheye:
+            size = (w, h)
+            if size not in new_K:
+                new_K[size] = fisheye_new_camera_matrix(K[None], dist[None], size, args.balance)
+            out = fisheye_undistort_image(tensor.double(), K[None], dist[None], new_K[size])[0]
+        else:
+            out = undistort_image(tensor.double(), K[None], dist[None])[0]
         if not write_image(target, out, bit_depth=16 if depth > 8 and ext.lower() in (".png", ".tif", ".tiff") else 8):
             warn("undistort", f"could not write {target}")
             continue

@@ -57,7 +57,7 @@ CHECKS: tuple[str, ...] = (
     "focal_uncertainty",  # relative std of fx, fy from the covariance (or of cx, cy to the image size when > 1)
 )
 
-_FREE_DIST = {"none": 0, "k1k2": 2, "opencv5": 5, "rational": 8}
+_FREE_DIST = {"none": 0, "k1k2": 2, "opencv5": 5, "rational": 8, "fisheye": 4}
 
 
 @dataclass

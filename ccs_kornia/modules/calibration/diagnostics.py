@@ -28,8 +28,14 @@ from torch import nn
 
 from ccs_kornia.modules.calibration.coverage import covered_pixels
 from ccs_kornia.modules.calibration.degeneracy import CHECKS, issues_from_tensors
+from ccs_kornia.modules.calibration.lm import levenberg_marquardt
+from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
 from ccs_kornia.modules.calibration.refinement import joint_refinement
-from ccs_kornia.modules.calibration.uncertainty import image_points, projection_difference, projection_uncertainty
+from ccs_kornia.modules.calibration.uncertainty import (
+    image_points,
+    projection_difference,
+    projection_uncertainty,
+)
 
 __all__ = [
     "image_points",
@@ -133,7 +139,8 @@ def cross_validation(
     Ka, Kb = K[:, 0].nan_to_num(1.0), K[:, 1].nan_to_num(1.0)
     da, db = dist[:, 0].nan_to_num(0.0), dist[:, 1].nan_to_num(0.0)
     fit = torch.ones(px.shape[0], dtype=torch.bool, device=px.device)
-    diff = projection_difference(Ka, da, Kb, db, px, compensate_rotation=fit)
+    lens = "fisheye" if getattr(result, "model", None) == "fisheye" else "opencv"
+    diff = projection_difference(Ka, da, Kb, db, px, compensate_rotation=fit, model=lens)
     halves_ok = ok[:, 0] & ok[:, 1]
     nan = torch.full_like(diff[:, 0], float("nan"))
     cv_rms = torch.where(halves_ok, _nanrms(diff), nan)
@@ -141,8 +148,10 @@ def cross_validation(
     expected, expected_grid = nan, torch.full_like(diff, float("nan"))
     if sub.cov_camera is not None:
         cov = sub.cov_camera.reshape(C, S, 4 + D, 4 + D)
-        ua = projection_uncertainty(Ka, da, cov[:, 0].nan_to_num(0.0), px, worst=False, compensate_rotation=fit)
-        ub = projection_uncertainty(Kb, db, cov[:, 1].nan_to_num(0.0), px, worst=False, compensate_rotation=fit)
+        ua = projection_uncertainty(Ka, da, cov[:, 0].nan_to_num(0.0), px, worst=False, compensate_rotation=fit,
+                                    model=lens)
+        ub = projection_uncertainty(Kb, db, cov[:, 1].nan_to_num(0.0), px, worst=False, compensate_rotation=fit,
+                                    model=lens)
         expected_grid = torch.where(halves_ok[:, None], (2 * (ua**2 + ub**2)).sqrt(), expected_grid)
         expected = torch.where(halves_ok, _nanrms((2 * (ua**2 + ub**2)).sqrt()), nan)
 
@@ -153,11 +162,20 @@ def cross_validation(
     rep = lambda x: x[:, None].expand(C, k, *x.shape[1:]).reshape(C * k, *x.shape[1:])  # noqa: E731
     obj = object_points if object_points.dim() == 2 else rep(object_points)
     model = getattr(solver, "model", "opencv5")
-    pose = joint_refinement(
-        rep(corners), rep(valid), obj, Kf.nan_to_num(1.0), rep(result.rvec).nan_to_num(0.0),
-        rep(result.tvec).nan_to_num(0.0), df.nan_to_num(0.0), held, model=model, fix_intrinsics=True,
-        fix_distortion=True, dtype=K.dtype,
-    )
+    if model == "fisheye":  # the LM core with the Kannala-Brandt model, every camera parameter held
+        kb = KannalaBrandtModel()
+        obj_k = obj if obj.dim() == 2 else obj[0]
+        pose = levenberg_marquardt(
+            kb, kb.params_from(Kf.nan_to_num(1.0), df.nan_to_num(0.0)), rep(result.rvec).nan_to_num(0.0),
+            rep(result.tvec).nan_to_num(0.0), obj_k, rep(corners).nan_to_num(0.0),
+            (rep(valid) & held[..., None]).to(K.dtype), free=[False] * 8,
+        )
+    else:
+        pose = joint_refinement(
+            rep(corners), rep(valid), obj, Kf.nan_to_num(1.0), rep(result.rvec).nan_to_num(0.0),
+            rep(result.tvec).nan_to_num(0.0), df.nan_to_num(0.0), held, model=model, fix_intrinsics=True,
+            fix_distortion=True, dtype=K.dtype,
+        )
     npts = (rep(valid) & held[..., None]).sum(-1).to(K.dtype)
     sq = torch.where(held, pose.view_rms.nan_to_num(0.0) ** 2 * npts, torch.zeros_like(npts))
     sq, npts = sq.reshape(C, k, V).sum((1, 2)), npts.reshape(C, k, V).sum((1, 2))
@@ -362,6 +380,7 @@ def diagnose(
     corners = corners.to(dtype)
     valid = valid.bool() & corners.isfinite().all(-1)
     K, dist = result.K, result.dist
+    lens = "fisheye" if getattr(result, "model", None) == "fisheye" else "opencv"
     ok = result.success.bool()
     Kc, dc = K.nan_to_num(1.0), dist.nan_to_num(0.0)
     unc5 = unc_grid = unc_fixed = None
@@ -370,9 +389,9 @@ def diagnose(
         five = image_points(image_size).to(corners.device)
         px = torch.cat([image_points(image_size, grid).to(corners.device), five])
         fit = torch.arange(px.shape[0], device=px.device) < px.shape[0] - 5
-        unc = projection_uncertainty(Kc, dc, cov, px, compensate_rotation=fit)
+        unc = projection_uncertainty(Kc, dc, cov, px, compensate_rotation=fit, model=lens)
         unc_grid, unc5 = unc[:, :-5], unc[:, -5:]
-        unc_fixed = projection_uncertainty(Kc, dc, cov, five)
+        unc_fixed = projection_uncertainty(Kc, dc, cov, five, model=lens)
     gpx = image_points(image_size, grid).to(corners.device)
     covered = covered_pixels(corners, valid, object_points, result.used & ok[:, None], gpx)  # (C, G)
     cv = None

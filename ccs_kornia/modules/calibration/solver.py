@@ -12,13 +12,27 @@ import torch
 from torch import nn
 
 from ccs_kornia.camera import fit_opencv_distortion, project_points
-from ccs_kornia.modules.calibration.degeneracy import DegeneracyThresholds, check_degeneracy
+from ccs_kornia.modules.calibration.degeneracy import (
+    DegeneracyThresholds,
+    check_degeneracy,
+)
 from ccs_kornia.modules.calibration.duplicates import duplicate_views, view_differences
-from ccs_kornia.modules.calibration.homography import MIN_HOMOGRAPHY_POINTS, find_homographies
+from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
+from ccs_kornia.modules.calibration.homography import (
+    MIN_HOMOGRAPHY_POINTS,
+    find_homographies,
+)
 from ccs_kornia.modules.calibration.ransac import ImageRansac
-from ccs_kornia.modules.calibration.refinement import FREE_DISTORTION, RefinementResult, joint_refinement
+from ccs_kornia.modules.calibration.refinement import (
+    FREE_DISTORTION,
+    RefinementResult,
+    joint_refinement,
+)
 from ccs_kornia.modules.calibration.result import CalibrationResult
-from ccs_kornia.modules.calibration.zhang import extrinsics_from_homography, zhang_intrinsics
+from ccs_kornia.modules.calibration.zhang import (
+    extrinsics_from_homography,
+    zhang_intrinsics,
+)
 
 __all__ = ["CalibrationSolver", "calibrate"]
 
@@ -49,7 +63,11 @@ class CalibrationSolver(nn.Module):
     r"""Intrinsic calibration from planar-board corners, batched over cameras.
 
     Args:
-        model: distortion model ``none`` | ``k1k2`` | ``opencv5`` | ``rational`` (OpenCV order).
+        model: distortion model ``none`` | ``k1k2`` | ``opencv5`` | ``rational`` (OpenCV order) | ``fisheye``
+            (Kannala-Brandt ``k1..k4`` as ``cv2.fisheye``, solved by
+            :func:`~ccs_kornia.modules.calibration.fisheye_calibration.calibrate_fisheye` on the same LM core:
+            its own guess-free initialisation replaces Zhang and RANSAC; the copies and degeneracy checks are
+            the same).
         use_ransac: run the image-level RANSAC before the refinement.
         ransac_iters: RANSAC hypotheses per camera.
         seed: RANSAC seed (results are deterministic).
@@ -118,8 +136,10 @@ class CalibrationSolver(nn.Module):
         super().__init__()
         self.checks = checks
         self.thresholds = thresholds or DegeneracyThresholds(min_views=max(int(min_views), 1))
-        if model not in FREE_DISTORTION:
-            raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(FREE_DISTORTION)}.")
+        if model not in FREE_DISTORTION and model != "fisheye":
+            raise ValueError(
+                f"Unknown distortion model {model!r}; expected one of {sorted([*FREE_DISTORTION, 'fisheye'])}."
+            )
         self.model = model
         self.use_ransac = use_ransac
         self.fix_aspect_ratio = fix_aspect_ratio
@@ -215,6 +235,10 @@ class CalibrationSolver(nn.Module):
             duplicate_of = duplicate_views(corners, valid, candidates, self.thresholds.duplicate_px, differences)
             candidates = candidates & (duplicate_of < 0)
             reason = torch.where(duplicate_of >= 0, 5, reason)
+
+        if self.model == "fisheye":
+            return self._solve_fisheye(corners, valid, obj, image_size, candidates, reason, duplicate_of,
+                                       differences, H, unbatched)
 
         # 2. Zhang (inside RANSAC) -> inlier views; on the undistorted corners when given
         pp_mode = "centre" if self.fix_principal_point else "auto"
@@ -324,6 +348,46 @@ class CalibrationSolver(nn.Module):
         if unbatched:
             squeezed = {k: (v[0] if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()}
             out = CalibrationResult(**squeezed)
+        return out
+
+    def _solve_fisheye(self, corners, valid, obj, image_size, candidates, reason, duplicate_of, differences, H,
+                       unbatched) -> CalibrationResult:
+        """Kannala-Brandt cameras from the candidate views (the pinhole closed form does not hold for them)."""
+        C, V = corners.shape[:2]
+        if not bool((obj == obj[:1]).all()):
+            raise ValueError("model='fisheye' needs one board for every camera of the batch.")
+        fish = calibrate_fisheye(
+            corners, valid & candidates[..., None], obj[0], image_size, min_corners=self.min_corners,
+            min_views=self.min_views, outlier_abs_threshold=self.outlier_abs_threshold,
+            outlier_rel_threshold=self.outlier_rel_threshold, max_iters=self.max_iters,
+            fix=(("cx", "cy") if self.fix_principal_point else ()),
+        )
+        used = fish.used & candidates
+        reason = torch.where(used, 0, torch.where(reason == 0, 4, reason))
+        success = fish.success
+        report = None
+        if self.checks:
+            report = check_degeneracy(
+                corners, valid, obj, image_size, used, fish.rvec, fish.K.nan_to_num(1.0), fish.std_intrinsics,
+                "fisheye", self.fix_aspect_ratio, self.fix_principal_point, duplicate_of, self.thresholds,
+                differences, H,
+            )
+            success = success & ~report.errors
+
+        def fail_nan(x: torch.Tensor) -> torch.Tensor:
+            return torch.where(success.view(C, *([1] * (x.dim() - 1))), x, torch.full_like(x, float("nan")))
+
+        out = CalibrationResult(
+            K=fail_nan(fish.K), dist=fail_nan(fish.D), rvec=fish.rvec, tvec=fish.tvec,
+            view_rms=fish.view_rms, used=used, rms=fail_nan(fish.rms), std_intrinsics=fail_nan(fish.std_intrinsics),
+            std_dist=fail_nan(fish.std_dist), success=success, model="fisheye", view_reason=reason,
+            converged=fish.converged & success, candidate_rms=fish.candidate_rms, cov_camera=fail_nan(fish.covariance),
+            check_severity=None if report is None else report.severity,
+            check_value=None if report is None else report.value,
+            check_views=None if report is None else report.views,
+        )
+        if unbatched:
+            out = CalibrationResult(**{k: (v[0] if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()})
         return out
 
     def _evaluate_all(self, res: RefinementResult, corners, valid, obj, H, candidates, used):

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.camera import undistort_pixels
+from ccs_kornia.camera import kb_unproject_points, undistort_pixels
+from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
 from ccs_kornia.modules.calibration.models.opencv import OpenCVModel
 
 __all__ = ["ROUNDTRIP_TOL_PX", "image_points", "projection_uncertainty", "projection_difference"]
@@ -38,26 +39,32 @@ def image_points(image_size: tuple[int, int], grid: tuple[int, int] | None = Non
 ROUNDTRIP_TOL_PX = 0.01
 
 
-def _rays(K: torch.Tensor, dist: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
-    """(C, G, 3) camera-frame rays (z = 1) of pixels (G, 2) under each camera; NaN where the distortion model has
-    no inverse (it folds before reaching that pixel: the ray does not project back onto it)."""
+def _rays(K: torch.Tensor, dist: torch.Tensor, pixels: torch.Tensor, model: str = "opencv") -> torch.Tensor:
+    """(C, G, 3) camera-frame rays (z = 1; unit rays for ``fisheye``, which sees beyond 90 degrees) of pixels
+    (G, 2) under each camera; NaN where the distortion model has no inverse (it folds before reaching that pixel:
+    the ray does not project back onto it)."""
     C, G = K.shape[0], pixels.shape[0]
     px = pixels.to(K).expand(C, G, 2)
-    ideal = undistort_pixels(px, K, dist) if dist.shape[-1] else px
-    x = (ideal[..., 0] - K[:, None, 0, 2]) / K[:, None, 0, 0]
-    y = (ideal[..., 1] - K[:, None, 1, 2]) / K[:, None, 1, 1]
-    rays = torch.stack([x, y, torch.ones_like(x)], -1)
-    back = _project_rays(rays.nan_to_num(0.0), K, dist)
+    if model == "fisheye":
+        rays = kb_unproject_points(px, K, dist)
+    else:
+        ideal = undistort_pixels(px, K, dist) if dist.shape[-1] else px
+        x = (ideal[..., 0] - K[:, None, 0, 2]) / K[:, None, 0, 0]
+        y = (ideal[..., 1] - K[:, None, 1, 2]) / K[:, None, 1, 1]
+        rays = torch.stack([x, y, torch.ones_like(x)], -1)
+    back = _project_rays(rays.nan_to_num(0.0), K, dist, model=model)
     ok = ((back - px).norm(dim=-1) <= ROUNDTRIP_TOL_PX) & rays.isfinite().all(-1)
     return torch.where(ok[..., None], rays, torch.full_like(rays, float("nan")))
 
 
-def _project_rays(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, jacobians: bool = False):
+def _project_rays(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, jacobians: bool = False,
+                  model: str = "opencv"):
     """Pixels (C, G, 2) of rays (C, G, 3); with ``jacobians`` also d pixel / d (fx, fy, cx, cy, dist)
     (C, G, 2, 4+D) and d pixel / d camera rotation (C, G, 2, 3)."""
     D = dist.shape[-1]
-    model = OpenCVModel("rational")  # every coefficient present, in OpenCV order: the first 4 + D columns
-    uv, J, Jx = model.project(rays, model.params_from(K, dist), jacobians)
+    # OpenCV: every coefficient present, in OpenCV order: the first 4 + D columns
+    lens = KannalaBrandtModel() if model == "fisheye" else OpenCVModel("rational")
+    uv, J, Jx = lens.project(rays, lens.params_from(K, dist), jacobians)
     if not jacobians:
         return uv
     # the camera rotated, R <- exp(w) R at w = 0: d Xc / d w = -[Xc]_x, so each row becomes Xc x (d uv / d Xc)
@@ -84,6 +91,7 @@ def projection_uncertainty(
     pixels: torch.Tensor,
     worst: bool = True,
     compensate_rotation: torch.Tensor | None = None,
+    model: str = "opencv",
 ) -> torch.Tensor:
     r"""Standard deviation (px) of the projection of the rays seen at ``pixels``, from the camera covariance.
 
@@ -104,6 +112,7 @@ def projection_uncertainty(
         worst: worst-direction standard deviation (square root of the largest eigenvalue of
             :math:`\Sigma_q`, as mrcal); else the RMS over both directions (:math:`\sqrt{tr \Sigma_q / 2}`).
         compensate_rotation: :math:`(G,)` bool, pixels over which a camera rotation is fitted out (None: no).
+        model: ``opencv`` (any OpenCV variant: ``dist`` in OpenCV order) or ``fisheye`` (``dist`` = k1..k4).
 
     Returns:
         :math:`(C, G)` px; NaN where the distortion model has no inverse (see :data:`ROUNDTRIP_TOL_PX`).
@@ -114,8 +123,8 @@ def projection_uncertainty(
         >>> projection_uncertainty(K, torch.zeros(1, 0, dtype=torch.float64), cov, torch.tensor([[320., 240.]]))
         tensor([[1.]], dtype=torch.float64)
     """
-    rays = _rays(K, dist, pixels)
-    _, J, A = _project_rays(rays, K, dist, jacobians=True)
+    rays = _rays(K, dist, pixels, model)
+    _, J, A = _project_rays(rays, K, dist, jacobians=True, model=model)
     if compensate_rotation is not None:
         J = _remove_rotation(J, A, compensate_rotation.to(J.device))
     S = J @ cov_camera[:, None] @ J.transpose(-1, -2)  # (C, G, 2, 2)
@@ -133,6 +142,7 @@ def projection_difference(
     dist_b: torch.Tensor,
     pixels: torch.Tensor,
     compensate_rotation: torch.Tensor | None = None,
+    model: str = "opencv",
 ) -> torch.Tensor:
     r"""Distance (px) between where two calibrations of one camera project the same ray.
 
@@ -146,6 +156,7 @@ def projection_difference(
         dist_a, dist_b: :math:`(C, D)`.
         pixels: :math:`(G, 2)`.
         compensate_rotation: :math:`(G,)` bool, pixels over which the rotation is fitted (None: no).
+        model: ``opencv`` or ``fisheye`` (both calibrations).
 
     Returns:
         :math:`(C, G)` px; NaN where camera ``a``'s distortion model has no inverse.
@@ -157,10 +168,10 @@ def projection_difference(
         >>> projection_difference(K, d0, K2, d0, torch.tensor([[0., 0.], [320., 240.]]))
         tensor([[0.5000, 0.5000]], dtype=torch.float64)
     """
-    rays = _rays(K_a, dist_a, pixels)
+    rays = _rays(K_a, dist_a, pixels, model)
     if compensate_rotation is None:
-        q = _project_rays(rays, K_b, dist_b)
+        q = _project_rays(rays, K_b, dist_b, model=model)
         return (q - pixels.to(q)).norm(dim=-1)
-    q, _, A = _project_rays(rays, K_b, dist_b, jacobians=True)
+    q, _, A = _project_rays(rays, K_b, dist_b, jacobians=True, model=model)
     d = _remove_rotation((q - pixels.to(q))[..., None], A, compensate_rotation.to(q.device))
     return d[..., 0].norm(dim=-1)

@@ -211,3 +211,45 @@ def test_boofcv_fisheye_uses_every_board():
     res = calibrate_fisheye(uv, None, board_object_points(6, 4, 0.03, dtype=F64), size)
     assert uv.shape[0] == 26 and bool(res.used.all()) and float(res.rms) < 0.25
     assert abs(float(res.K[0, 0]) - 190.15) < 2 and abs(float(res.K[0, 2]) - 318.6) < 2
+
+
+# ------------------------------------------------------------------------------------- through CalibrationSolver
+def test_solver_fisheye_model_and_checks():
+    from ccs_kornia.modules.calibration.solver import CalibrationSolver
+
+    K, D = _camera(170.0)
+    _, _, uv = _views(K, D, V=8, seed=4)
+    res = CalibrationSolver(model="fisheye")(uv, None, OBJ, SIZE)
+    assert res.model == "fisheye" and bool(res.success) and res.dist.shape == (4,)
+    torch.testing.assert_close(res.K, K, atol=1e-6, rtol=0)
+    torch.testing.assert_close(res.dist, D, atol=1e-7, rtol=0)
+    assert res.cov_camera.shape == (8, 8) and bool((res.view_reason == 0).all())
+    # copies of one view are refused before the fisheye solve, as for the pinhole models
+    copies = uv[:1].expand(4, -1, -1)
+    refused = CalibrationSolver(model="fisheye")(copies, None, OBJ, SIZE)
+    assert not bool(refused.success) and bool((refused.view_reason[1:] == 5).all())
+    assert any(i["check"] == "duplicate_views" for i in refused.issues()[0])
+    # batched over cameras, a failed camera beside a good one
+    batch = torch.stack([uv, uv.clone().fill_(float("nan"))])
+    both = CalibrationSolver(model="fisheye")(batch, None, OBJ, SIZE)
+    assert both.success.tolist() == [True, False] and bool(both.K[1].isnan().all())
+
+
+def test_diagnostics_of_a_fisheye_calibration():
+    """Quality figures with the Kannala-Brandt model: rays beyond 90 degrees, held-out poses on the LM core."""
+    from ccs_kornia.modules.calibration.diagnostics import diagnose
+    from ccs_kornia.modules.calibration.solver import CalibrationSolver
+    from ccs_kornia.modules.calibration.uncertainty import projection_difference
+
+    K, D = _camera(190.0)
+    _, _, uv = _views(K, D, V=12, seed=5)
+    uv = uv + 0.2 * torch.randn(uv.shape, generator=torch.Generator().manual_seed(0), dtype=F64)
+    solver = CalibrationSolver(model="fisheye")
+    res = solver(uv, None, OBJ, SIZE)
+    q = diagnose(res, uv, None, OBJ, SIZE, solver=solver)[0]
+    assert q["success"] and 0.1 < q["heldout_rms_px"] < 0.4  # about the 0.2 px noise per axis
+    assert 0 < q["uncertainty_centre_px"] < 0.5 and q["cv_rms_px"] is not None
+    # the same camera against itself: no difference, also for pixels beyond 90 degrees
+    px = torch.tensor([[320.0, 240.0], [5.0, 240.0], [630.0, 20.0]], dtype=F64)
+    d = projection_difference(res.K[None], res.dist[None], res.K[None], res.dist[None], px, model="fisheye")
+    assert bool((d.nan_to_num(0.0) < 1e-6).all()) and bool(d[0, :2].isfinite().all())

@@ -128,7 +128,7 @@ class TestRansacAndSolver:
         with pytest.raises(ValueError):
             solver(torch.zeros(2, 3, 54, 2), None, obj[:50], IMAGE_SIZE)
         with pytest.raises(ValueError):
-            CalibrationSolver(model="fisheye")
+            CalibrationSolver(model="kannala")
 
     def test_opencv_flags_agree_on_noisy_corners(self):
         K, obj, uv, _, _ = synthetic(C=1, V=15, dist=DIST5, noise=0.1, seed=9)
