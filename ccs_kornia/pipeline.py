@@ -35,37 +35,20 @@ from torch import nn
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules._timing import stage, timed
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.modules.correction.corrected_detection import (
-    detect_on_corrected,
-    straightening_evidence,
-)
+from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected, straightening_evidence
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
-from ccs_kornia.modules.correction.pooling import (
-    aggregate_corrections,
-    correction_displacement,
-)
+from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
-from ccs_kornia.pipeline_result import (
-    PipelineResult,
-    main_size,
-    positive_size,
-    same_size_views,
-    select_result,
-)
+from ccs_kornia.pipeline_result import PipelineResult, main_size, module_device, positive_size, same_size_views, select_result
 from ccs_kornia.pipeline_solve import solve_detections, solve_group
-from ccs_kornia.sources import (  # noqa: F401
-    DEFAULT_MAX_BATCH_PIXELS,
-    SIZE_TOLERANCE_PX,
-    TensorSource,
-    ViewSource,
-)
+from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource, load_batches  # noqa: F401
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
-
 
 
 class CalibrationPipeline(nn.Module):
@@ -212,7 +195,7 @@ class CalibrationPipeline(nn.Module):
         if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
             raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
         board = (int(board_size[0]), int(board_size[1]))
-        device = self._device()
+        device = module_device(self)
         c, v, n = source.num_cameras, source.max_views, board[0] * board[1]
         corners = torch.zeros(c, v, n, 2, dtype=torch.float64, device=device)
         found = torch.zeros(c, v, dtype=torch.bool, device=device)
@@ -222,7 +205,8 @@ class CalibrationPipeline(nn.Module):
         per_view = None
         if self.distortion_net is not None:
             per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
-        for batch in source.batches(batch_size=self.detection_batch_size, max_pixels=self.max_batch_pixels):
+        # decoding files overlaps the work on the previous batch (sources.load_batches)
+        for batch in timed(load_batches(source, None, self.detection_batch_size, self.max_batch_pixels), "image loading"):
             for (ci, vi), why in batch.failed:
                 reasons[ci][vi] = f"unreadable: {why}"
             if batch.images is None:
@@ -264,8 +248,12 @@ class CalibrationPipeline(nn.Module):
         """
         board = (int(board_size[0]), int(board_size[1]))
         if out.view_corrections is not None and self.distortion_net is not None:
-            self._correct(source, out, out.view_corrections, same_size_views(out), board)
-        return self.solve(out, board, square) if calibrate else out
+            with stage("correction evidence"):
+                self._correct(source, out, out.view_corrections, same_size_views(out), board)
+        if not calibrate:
+            return out
+        with stage("solver"):
+            return self.solve(out, board, square)
 
     def _correct(self, source: ViewSource | None, out: PipelineResult, per_view: torch.Tensor, same: torch.Tensor,
                  board: tuple[int, int]) -> None:
@@ -284,8 +272,8 @@ class CalibrationPipeline(nn.Module):
         recovered = torch.zeros(c, dtype=torch.bool, device=device)
         missed = [(ci, vi) for ci in large.nonzero().flatten().tolist()
                   for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()] if source is not None else []
-        for batch in ([] if not missed else source.batches(missed, batch_size=self.detection_batch_size,
-                                                          max_pixels=self.max_batch_pixels)):
+        for batch in ([] if not missed else load_batches(source, missed, self.detection_batch_size,
+                                                        self.max_batch_pixels)):
             if batch.images is None:
                 continue
             cam = torch.tensor([k[0] for k in batch.keys], device=device)
@@ -414,7 +402,7 @@ class CalibrationPipeline(nn.Module):
         if self.distortion_net is None:
             raise RuntimeError("distortion correction is off for this pipeline.")
         net = self.distortion_net.to(images.device)
-        with torch.inference_mode():
+        with torch.inference_mode(), stage("distortion network"):
             return torch.cat([net(images[i : i + 16].float()) for i in range(0, images.shape[0], 16)]).double()
 
     def pool_corrections(
@@ -452,13 +440,7 @@ class CalibrationPipeline(nn.Module):
         """Saddle refinement of whole boards :math:`(S, N, 2)` on ``images`` :math:`(S, 1, H, W)`, one small patch per
         corner (:func:`~ccs_kornia.modules.detection.patch_refine.refine_on_patches` with this pipeline's refiner)."""
         r = self.refiner
-        return refine_on_patches(images.float(), corners.float(), board_size, r.radius_factor, r.max_radius, r.method,
-                                 r.iterations, r.smooth_sigma, r.normalize_sigma).to(corners.dtype)
-
-    def _device(self) -> torch.device:
-        for p in self.parameters():
-            return p.device
-        for b in self.buffers():
-            return b.device
-        return torch.device("cpu")
+        with stage("saddle refinement"):
+            return refine_on_patches(images.float(), corners.float(), board_size, r.radius_factor, r.max_radius, r.method,
+                                     r.iterations, r.smooth_sigma, r.normalize_sigma).to(corners.dtype)
 

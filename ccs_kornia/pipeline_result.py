@@ -15,6 +15,7 @@ from ccs_kornia.sources import SIZE_TOLERANCE_PX
 
 __all__ = [
     "PipelineResult",
+    "module_device",
     "select_result",
     "concat_results",
     "scatter_cameras",
@@ -22,6 +23,7 @@ __all__ = [
     "same_size_views",
     "positive_size",
     "camera_reason",
+    "diagnose_cameras",
 ]
 
 
@@ -368,6 +370,15 @@ def camera_reason(calib: CalibrationResult, c: int, usable: int, present: int) -
     codes = Counter(VIEW_REASONS.get(int(k), "not used") for k in calib.view_reason[c].tolist())
     detail = ", ".join(f"{n} {why}" for why, n in codes.most_common())
     return f"calibration failed on {usable} views ({detail})"
+
+
+def module_device(module: torch.nn.Module) -> torch.device:
+    """The device of a module's first parameter (or buffer); CPU for a module without either."""
+    for p in module.parameters():
+        return p.device
+    for b in module.buffers():
+        return b.device
+    return torch.device("cpu")
 
 
 def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, board_size: tuple[int, int],

@@ -9,12 +9,15 @@ a tensor (:class:`TensorSource`) or file names (:class:`FileSource`).
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+import queue
+import threading
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import torch
 
-__all__ = ["LoadedBatch", "ViewSource", "TensorSource", "FileSource", "DEFAULT_MAX_BATCH_PIXELS", "SIZE_TOLERANCE_PX"]
+__all__ = ["LoadedBatch", "ViewSource", "TensorSource", "FileSource", "prefetched", "DEFAULT_MAX_BATCH_PIXELS",
+           "load_batches", "SIZE_TOLERANCE_PX"]
 
 #: pixels loaded at most in one batch (16 Mpx = 64 MB of float32 grey images): bounds the detector's
 #: activations too, which are a few times the input per image
@@ -38,6 +41,61 @@ class LoadedBatch:
     keys: list[tuple[int, int]] = field(default_factory=list)
     images: torch.Tensor | None = None
     failed: list[tuple[tuple[int, int], str]] = field(default_factory=list)
+
+
+def prefetched(items: Iterable, depth: int = 1) -> Iterator:
+    """Iterate over ``items`` while a background thread produces the next ``depth`` of them.
+
+    Image decoding (OpenCV releases the GIL) then overlaps the work done on the previous batch. Exceptions raised
+    while producing an item are raised here, at that item; closing the iterator early stops the thread.
+
+    Example:
+        >>> list(prefetched(iter(range(4))))
+        [0, 1, 2, 3]
+    """
+    slots: queue.Queue = queue.Queue(maxsize=max(1, depth))
+    stop = threading.Event()
+    end = object()
+
+    def put(entry) -> bool:
+        while not stop.is_set():
+            try:
+                slots.put(entry, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def work() -> None:
+        try:
+            for item in items:
+                if not put((True, item)):
+                    return
+            put((True, end))
+        except BaseException as err:  # noqa: BLE001 - handed to the consumer
+            put((False, err))
+
+    thread = threading.Thread(target=work, name="ccs_kornia-prefetch", daemon=True)
+    thread.start()
+    try:
+        while True:
+            ok, item = slots.get()
+            if not ok:
+                raise item
+            if item is end:
+                return
+            yield item
+    finally:
+        stop.set()
+        thread.join()
+
+
+def load_batches(source: ViewSource, keys: Sequence[tuple[int, int]] | None = None, batch_size: int = 16,
+                 max_pixels: int | None = DEFAULT_MAX_BATCH_PIXELS) -> Iterator[LoadedBatch]:
+    """``source.batches(...)``, prefetched in a thread (:func:`prefetched`) when the source decodes files
+    (``decodes = True``, e.g. :class:`FileSource`), so decoding overlaps the work on the previous batch."""
+    batches = source.batches(keys, batch_size=batch_size, max_pixels=max_pixels)
+    return prefetched(batches) if getattr(source, "decodes", False) else iter(batches)
 
 
 class ViewSource:
@@ -148,10 +206,15 @@ class TensorSource(ViewSource):
 class FileSource(ViewSource):
     """Image files, one list of paths per camera, decoded when their batch is loaded (8/16-bit, colour -> grey).
 
+    The pipeline reads a ``FileSource`` through :func:`prefetched` (``decodes = True``): the next batch is decoded
+    while the current one is processed.
+
     Example:
         >>> FileSource([["a.png", "b.png"], ["c.png"]]).counts
         [2, 1]
     """
+
+    decodes = True
 
     def __init__(self, paths: Sequence[Sequence[str]], names: Sequence[str] | None = None) -> None:
         self.paths = [list(p) for p in paths]

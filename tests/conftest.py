@@ -7,8 +7,14 @@ the GPU wherever one is present.
 
 from __future__ import annotations
 
-import pytest
-import torch
+import os
+
+# sleeping OpenMP waits (see ccs_kornia/__main__.py): on shared cores a spinning pool makes every small tensor op
+# wait for a time slice; read when torch loads, so before the import below
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import pytest  # noqa: E402
+import torch  # noqa: E402
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 DTYPES = [torch.float32, torch.float64]

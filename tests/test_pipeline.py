@@ -165,8 +165,17 @@ def test_correction_switch_and_errors(tmp_path):
     from ccs_kornia.modules.correction.distortion_net import DistortionNet
 
     assert CalibrationPipeline("opencv", distortion_correction=False).distortion_net is None
-    net = DistortionNet(base_channels=4, input_size=64)
-    assert CalibrationPipeline("opencv", distortion_correction=net).distortion_net is net
+    from ccs_kornia.modules._fuse import has_batchnorm
+
+    # a net with batch normalisation runs as a folded copy (the caller's is untouched) with the same output;
+    # a net without it runs as it is
+    net = DistortionNet(base_channels=4, input_size=64).eval()
+    got = CalibrationPipeline("opencv", distortion_correction=net).distortion_net
+    assert got is not net and has_batchnorm(net) and not has_batchnorm(got)
+    x = torch.rand(2, 1, 64, 64, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        torch.testing.assert_close(got(x), net(x), atol=1e-5, rtol=1e-5)
+    assert CalibrationPipeline("opencv", distortion_correction=got).distortion_net is got
     with pytest.raises(FileNotFoundError, match="distortion_correction=False"):
         CalibrationPipeline("opencv", distortion_correction=str(tmp_path / "missing.pt"))
     with pytest.raises(ValueError, match="joint_iters"):

@@ -10,9 +10,13 @@
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 from collections.abc import Sequence
+
+# sleeping OpenMP waits: see ccs_kornia/__main__.py (only effective when torch is not loaded yet)
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __all__ = ["main", "build_parser"]
 

@@ -72,6 +72,7 @@ class BenchConfig:
         speed_images: images timed per batch size.
         speed_solver_cameras: camera counts of the batched solver timing.
         speed_repeats: repeats of each timing (best is kept).
+        speed_real_set: real set timed end to end with ``python -m ccs_kornia calibrate`` (``None``: not run).
         devices: ``cpu`` and/or ``cuda`` (``cuda`` skipped when not present).
         learned_batch: images per learned-detector call.
         wild_methods: detection methods of the ``wild`` section (``None``: all of ``methods``); by default the
@@ -117,6 +118,7 @@ class BenchConfig:
     speed_images: int = 16
     speed_solver_cameras: tuple[int, ...] = (1, 16, 64)
     speed_repeats: int = 2
+    speed_real_set: str | None = "udacity_gopro_wide"
     devices: tuple[str, ...] = ("cpu", "cuda")
     learned_batch: int = 8
     wild_methods: tuple[str, ...] | None = ("learned", "opencv_subpix", "opencv_sb", "libcbdetect")
@@ -157,7 +159,7 @@ class BenchConfig:
             corner_images=2, corner_views_per_camera=2, calib_conditions=("blur_noise",), calib_trials=2,
             calib_views=5, calib_pool_views=5, calib_trials_per_camera=1, real_subsets=2, real_max_images=6, dc_trials=1, dc_views=5, wide_trials=1, wide_views=5, wide_size=(240, 240),
             wide_fx=(60.0, 150.0),
-            speed_batch_sizes=(1, 2), speed_images=2, speed_solver_cameras=(1, 2), speed_repeats=1,
+            speed_batch_sizes=(1, 2), speed_images=2, speed_solver_cameras=(1, 2), speed_repeats=1, speed_real_set=None,
             real_sets=("boofcv_bumblebee2_left",), calib_methods=("opencv_saddle", "opencv_subpix"),
             wild_methods=None, wild_conditions=("img320", "cut"), wild_images=1, wild_big_images=1, wild_free_images=2,
             wild_real_sets=("boofcv_bumblebee2_left",), wild_real_scales=(0.5,), wild_real_images=1,

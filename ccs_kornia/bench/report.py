@@ -263,7 +263,7 @@ def _speed_md(sec: dict) -> list[str]:
              f"{sec['calibration_views']} views for a whole calibration; torch threads {sec['threads']}. Best of the "
              f"repeats after a warm-up. 1-minute load average {_n(sec.get('load_average_start'), 1)} at the start, "
              f"{_n(sec.get('load_average_end'), 1)} at the end (above the core count, other processes shared the "
-             "CPU and the timings are not reliable).", ""]
+             f"CPU and the timings are not reliable); OMP_WAIT_POLICY={sec.get('omp_wait_policy')}.", ""]
     for device, res in sec["devices"].items():
         lines += [f"**{device}** — peak memory {_n(res['peak_memory_mb'], 0)} MiB "
                   + ("(process peak RSS)" if device == "cpu" else "(torch.cuda.max_memory_allocated)"), ""]
@@ -275,8 +275,17 @@ def _speed_md(sec: dict) -> list[str]:
         rows = [[c, _n(r["ccs_calibrations_per_s"], 1), _n(r.get("opencv_calibrations_per_s"), 1)]
                 for c, r in res["solver"].items()]
         lines += _table(["cameras per call", "ccs solver calib/s", "cv2.calibrateCamera calib/s"], rows)
+        if "limit" in res:
+            from ccs_kornia.bench.speed_report import limit_markdown
+
+            lines += limit_markdown(res["limit"], res["detection"], res["calibration"])
     for device, why in sec.get("skipped_devices", {}).items():
         lines.append(f"- {device}: not run ({why})")
+    lines += ["", "GPU path: `benchmarks/gpu_check.sh` (on a CUDA machine, a few minutes) runs the device-parametrised "
+              "tests on CUDA, checks CPU-vs-GPU corners (<= 1e-3 px) and calibrations (<= 1e-6 relative), counts the "
+              "CUDA synchronisations per call and prints detection img/s at batch 1/16/64 and calibrations/s at "
+              "1/64/256 cameras; without CUDA (or `--dry-run`) it says what it would check and runs the CPU half "
+              "(`tests/bench/test_gpu_check.py` runs that dry run)."]
     return lines + [""]
 
 

@@ -7,7 +7,14 @@
   detector and batched solver; OpenCV: classic + cornerSubPix and ``calibrateCamera``);
 * calibrations/s of the solver alone, ccs_kornia batched over ``C`` cameras against a loop of
   ``cv2.calibrateCamera``, on the same noisy corners (0.1 px);
-* peak memory: the process's peak resident set size (CPU) and ``torch.cuda.max_memory_allocated`` (GPU).
+* peak memory: the process's peak resident set size (CPU) and ``torch.cuda.max_memory_allocated`` (GPU);
+* the limit (CPU, :mod:`ccs_kornia.bench.floors`): FLOPs per image of the heatmap UNet (at the detection levels
+  scale selection picks for these images, and at full resolution) and of the DistortionNet, the machine's GFLOP/s
+  on a plain channels-last convolution stack measured in the same run (float32 and bfloat16), hence each network's
+  floor time; the learned detector's per-stage time per image at batch 16 and 1; the per-stage profile of the
+  default path (``CalibrationPipeline``, learned detector, correction on) on the calibration views written as PNG
+  files; and, where the real set ``speed_real_set`` is present, ``python -m ccs_kornia calibrate`` on it end to end
+  in a fresh interpreter.
 
 CUDA timings run only when CUDA is present (learned detector and solver; the OpenCV peers are CPU-only).
 Best of ``speed_repeats`` runs after one warm-up.
@@ -22,7 +29,7 @@ import time
 import numpy as np
 import torch
 
-from ccs_kornia.bench.common import ccs_calibrate, cv2_calibrate
+from ccs_kornia.bench.common import ccs_calibrate, cv2_calibrate, distortion_available
 from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods import DetectionMethod
 from ccs_kornia.bench.scenes import render_scenes
@@ -56,7 +63,10 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
     scenes = render_scenes(cfg, "clean", 1, n_views, "speed")
     images = scenes.flat_images
     det_images = images[: cfg.speed_images]
+    import os
+
     out: dict = {"threads": torch.get_num_threads(), "images": int(det_images.shape[0]), "load_average_start": _load(),
+                 "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
                  "calibration_views": cfg.calib_views, "devices": {}}
     devices = [d for d in cfg.devices if d == "cpu" or (d == "cuda" and torch.cuda.is_available())]
     out["skipped_devices"] = {d: "CUDA not available" for d in cfg.devices if d not in devices}
@@ -97,8 +107,6 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
             res["calibration"][label] = {"images_per_s": views.shape[0] / sec, "seconds": sec}
             log(f"[speed] {device} whole calibration {label}: {views.shape[0] / sec:.2f} img/s ({sec:.2f} s)")
         # the whole product path: CalibrationPipeline with the distortion correction (its default)
-        from ccs_kornia.bench.common import distortion_available
-
         net, why = distortion_available(cfg.distortion_weights)
         if net is not None and ccs_key == "learned":
             from ccs_kornia.pipeline import CalibrationPipeline
@@ -125,9 +133,42 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
             res["solver"][str(C)] = entry
             log(f"[speed] {device} solver C={C}: ccs {entry['ccs_calibrations_per_s']:.1f}/s"
                 + (f", cv2 {entry['opencv_calibrations_per_s']:.1f}/s" if "opencv_calibrations_per_s" in entry else ""))
+        if device == "cpu" and ccs_key == "learned":
+            res["limit"] = _limit(cfg, det_images, views, log)
         res["peak_memory_mb"] = peak_rss_mb() if device == "cpu" else torch.cuda.max_memory_allocated() / 2**20
         out["devices"][device] = res
     out["load_average_end"] = _load()
+    return out
+
+
+def _limit(cfg: BenchConfig, det_images: torch.Tensor, views: torch.Tensor, log) -> dict:
+    """Floors, the detector's and the default path's per-stage profiles, and the real set end to end."""
+    from ccs_kornia.bench.floors import compute_floors, conv_rate, end_to_end, profile_default_path, profile_detector
+    from ccs_kornia.modules.detection.heatmap_unet import cpu_has_native_bf16
+
+    rates = {"float32": conv_rate(repeats=cfg.speed_repeats + 1)["gflops"]}
+    if cpu_has_native_bf16():
+        rates["bfloat16"] = conv_rate(repeats=cfg.speed_repeats + 1, dtype=torch.bfloat16)["gflops"]
+    out: dict = {"floors": compute_floors(det_images, rates)}
+    log("[speed] conv rate " + ", ".join(f"{k} {v:.1f} GFLOP/s" for k, v in rates.items())
+        + f"; UNet {out['floors']['gflop_per_image']['unet_level']:.2f} GFLOP/img at the detection levels")
+    out["detector"] = profile_detector(det_images, cfg.board, tuple(sorted(set(cfg.speed_batch_sizes), reverse=True)),
+                                       cfg.speed_repeats)
+    net, why = distortion_available(cfg.distortion_weights)
+    out["pipeline"] = profile_default_path(views, cfg.board, cfg.square, cfg.speed_repeats,
+                                           distortion_weights=net if net is not None else False)
+    log(f"[speed] default path on {views.shape[0]} PNG files: {out['pipeline']['wall_s']:.2f} s")
+    if cfg.speed_real_set:
+        from pathlib import Path
+
+        from ccs_kornia.bench.real import REAL_SETS, default_real_dir
+
+        folder = Path(cfg.real_dir or default_real_dir()) / cfg.speed_real_set
+        if folder.is_dir() and cfg.speed_real_set in REAL_SETS:
+            out["end_to_end"] = {"set": cfg.speed_real_set, **end_to_end(str(folder), REAL_SETS[cfg.speed_real_set]["board"])}
+            log(f"[speed] {cfg.speed_real_set} end to end: {out['end_to_end']['wall_s']:.2f} s")
+        else:
+            out["end_to_end"] = {"set": cfg.speed_real_set, "skipped": f"{folder} not found"}
     return out
 
 

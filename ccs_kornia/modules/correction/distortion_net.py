@@ -21,6 +21,7 @@ so an untrained network returns exactly the identity correction ``(1, 0, 0, 0, 0
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 from pathlib import Path
@@ -29,8 +30,10 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 from kornia.color import rgb_to_grayscale
-from kornia.geometry.transform import resize
+from kornia.filters import get_gaussian_kernel1d
 from torch import nn
+
+from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
 
 __all__ = [
     "DistortionNet",
@@ -73,8 +76,44 @@ def correction_from_node_values(node_values: torch.Tensor) -> torch.Tensor:
     return node_values @ m.T
 
 
+def _resize_matrix(n: int, left: int, side: int, size: int, device: torch.device) -> torch.Tensor:
+    """One axis of :func:`letterbox` as a :math:`(size, n)` matrix: a signal of length ``n`` placed at ``left`` in
+    zeros of length ``side``, then resized to ``size`` as kornia's ``resize`` (``antialias=True``) does it: a Gaussian
+    of sigma ``(side / size - 1) / 2`` (reflect border) and bilinear interpolation (``align_corners=False``)."""
+    factor = side / size
+    if factor > 1:
+        sigma = max((factor - 1.0) / 2.0, 0.001)
+        k = int(max(4.0 * sigma, 3))
+        k = k if k % 2 else k + 1
+        g = get_gaussian_kernel1d(k, sigma, device=device, dtype=torch.float64)[0]
+    else:
+        k, g = 1, torch.ones(1, device=device, dtype=torch.float64)
+    m = k // 2
+    dst = torch.arange(size, device=device, dtype=torch.float64)
+    real = (factor * (dst + 0.5) - 0.5).clamp_min(0.0)  # torch's bilinear source index (align_corners=False)
+    i0 = real.floor().long().clamp_max(side - 1)
+    i1 = torch.where(i0 < side - 1, i0 + 1, i0)
+    l1 = real - i0.double()
+    pos = torch.cat([i0[:, None], i1[:, None]], 1)[:, :, None] + torch.arange(-m, m + 1, device=device)  # (S, 2, k)
+    if side > 1:  # reflect (no edge repeat) at the padded square's border
+        pos = torch.where(pos < 0, -pos, pos)
+        pos = torch.where(pos > side - 1, 2 * (side - 1) - pos, pos)
+    weight = torch.stack([1.0 - l1, l1], 1)[:, :, None] * g  # (S, 2, k)
+    index = pos - left
+    inside = (index >= 0) & (index < n)  # taps in the zero padding add nothing
+    rows = torch.arange(size, device=device)[:, None, None].expand_as(index)
+    out = torch.zeros(size, n, device=device, dtype=torch.float64)
+    return out.index_put_((rows[inside], index[inside]), weight[inside], accumulate=True)
+
+
 def letterbox(images: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Pad images symmetrically to a ``max(H, W)`` square and resize to ``size x size`` (antialiased).
+
+    The result is kornia's ``resize(pad(images), antialias=True)`` (Gaussian prefilter, bilinear), computed as two
+    matrix products (the separable linear map of each axis) instead of blurring the padded full-size square: the
+    padding is never materialised. Images larger than ``8 * size`` are first area-averaged by an integer factor to at most
+    ``8 * size`` px a side (memory and time bounded on 24 Mpx photographs; area averaging is the anti-aliased
+    shrink the Gaussian prefilter approximates).
 
     Args:
         images: :math:`(B, C, H, W)`.
@@ -90,16 +129,18 @@ def letterbox(images: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tens
     """
     if images.dim() != 4:
         raise ValueError(f"images must be (B, C, H, W), got {tuple(images.shape)}.")
-    b, _, h, w = images.shape
+    b, c, h, w = images.shape
+    if max(h, w) > 8 * size:
+        f = max(h, w) // (4 * size)
+        images = F.interpolate(images, size=(max(1, round(h / f)), max(1, round(w / f))), mode="area")
+        h, w = images.shape[-2:]
     side = max(h, w)
     left, top = (side - w) // 2, (side - h) // 2
-    pad = (left, side - w - left, top, side - h - top)
-    mask = torch.ones(b, 1, h, w, device=images.device, dtype=images.dtype)
-    images, mask = F.pad(images, pad), F.pad(mask, pad)
-    if side != size:
-        both = resize(torch.cat([images, mask], 1), (size, size), interpolation="bilinear", antialias=True)
-        images, mask = both[:, :-1], both[:, -1:]
-    return images, mask
+    mx = _resize_matrix(w, left, side, size, images.device).to(images.dtype)
+    my = _resize_matrix(h, top, side, size, images.device).to(images.dtype)
+    out = my @ (images @ mx.T)  # rows, then columns: (B, C, size, size)
+    mask = (my.sum(-1)[:, None] * mx.sum(-1)[None, :]).expand(b, 1, size, size)
+    return out, mask.contiguous()
 
 
 def _norm_layer(norm: str, channels: int) -> nn.Module:
@@ -197,11 +238,15 @@ class DistortionNet(nn.Module):
         x = images.float()
         if x.shape[1] == 3:
             x = rgb_to_grayscale(x)
-        # per-image standardisation before padding, so the zero padding equals the image mean
-        mean = x.mean(dim=(-1, -2), keepdim=True)
-        std = x.std(dim=(-1, -2), keepdim=True) if x.shape[-1] * x.shape[-2] > 1 else torch.ones_like(mean)
-        x = (x - mean) / (std + 1e-3)
+        # per-image standardisation before padding, so the zero padding equals the image mean; the letterbox is
+        # linear, so it is applied to the small letterboxed image: letterbox((x - m) / s) = (letterbox(x) - m mask) / s
+        if x.shape[-1] * x.shape[-2] > 1:
+            std, mean = torch.std_mean(x, dim=(-1, -2), keepdim=True)
+        else:
+            mean = x.mean(dim=(-1, -2), keepdim=True)
+            std = torch.ones_like(mean)
         x, mask = letterbox(x, self.input_size)
+        x = (x - mean * mask) / (std + 1e-3)
         return torch.cat([x, mask, self.coords.to(x.dtype).expand(x.shape[0], -1, -1, -1)], 1)
 
     def node_values(self, images: torch.Tensor) -> torch.Tensor:
@@ -210,7 +255,11 @@ class DistortionNet(nn.Module):
         return 1.0 + self.output_scale * self.head(feats)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
-        z = self.output_scale * self.head(self.pool(self.encoder(self.preprocess(images))))
+        x = self.preprocess(images)
+        if x.device.type == "cpu" and not self.training:
+            # channels-last convolutions are faster on CPU (oneDNN); the weights follow the input's layout
+            x = x.contiguous(memory_format=torch.channels_last)
+        z = self.output_scale * self.head(self.pool(self.encoder(x)))
         identity = torch.zeros_like(z)
         identity[:, 0] = 1.0
         # M @ 1 = (1, 0, 0, 0, 0): residual around the identity correction
@@ -236,7 +285,8 @@ class DistortionNet(nn.Module):
 
 
 def load_distortion_net(spec: bool | str | Path | DistortionNet | None = True) -> DistortionNet | None:
-    """The distortion network a pipeline runs: ``True`` the shipped one, ``False``/``None`` none, a path or a net.
+    """The distortion network a pipeline runs: ``True`` the shipped one, ``False``/``None`` none, a path or a net
+    (for inference: batch normalisation folded into the convolutions, :func:`~ccs_kornia.modules._fuse.fold_batchnorm`).
 
     Raises:
         FileNotFoundError: no weight file at the path.
@@ -248,11 +298,12 @@ def load_distortion_net(spec: bool | str | Path | DistortionNet | None = True) -
     if spec is False or spec is None:
         return None
     if isinstance(spec, DistortionNet):
-        return spec.eval()
+        # inference only: a copy with batch normalisation folded into the convolutions (the caller's is untouched)
+        return fold_batchnorm(copy.deepcopy(spec) if has_batchnorm(spec) else spec)
     path = DEFAULT_DISTORTION_WEIGHTS if spec is True else spec
     if not os.path.isfile(path):
         raise FileNotFoundError(
             f"distortion correction weights not found at {path}; pass distortion_correction=False to calibrate "
             "without the correction network"
         )
-    return DistortionNet.from_export(path)
+    return fold_batchnorm(DistortionNet.from_export(path))

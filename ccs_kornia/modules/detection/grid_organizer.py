@@ -267,7 +267,9 @@ def organize_grid(
     mask_np = mask_np & np.isfinite(pts_np).all(-1)
     img_np = None
     if image is not None:
-        img_np = image.detach().to("cpu", torch.float64).mean(1).numpy()
+        # only sampled at a few square centres (the colour test): no float64 copy of the whole image
+        img_np = image.detach()[:, 0].to("cpu", torch.float32).numpy() if image.shape[1] == 1 else \
+            image.detach().to("cpu", torch.float32).mean(1).numpy()
     corners = np.zeros((bsz, n_board, 2))
     valid = np.zeros((bsz, n_board), dtype=bool)
     found = np.zeros(bsz, dtype=bool)

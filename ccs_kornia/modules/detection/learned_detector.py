@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import torch
 
+from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
+from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
-from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
+from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
 from ccs_kornia.modules.detection.missing_corners import predict_missing_corners
 from ccs_kornia.modules.detection.patch_refine import refine_from_level
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
@@ -54,7 +57,8 @@ class LearnedChessboardDetector(ChessboardDetector):
     6. optional saddle-point refinement on the image (window adapted to the grid spacing).
 
     Args:
-        net: a trained :class:`CornerUNet`; ``None`` loads ``weights``.
+        net: a trained :class:`CornerUNet` (a copy with its batch normalisation folded is used); ``None`` loads
+            ``weights``.
         weights: path of an exported checkpoint (default: the shipped weights).
         sigma: training sigma of the heatmaps (read from the checkpoint when loading).
         peak_threshold: heatmap threshold of a peak.
@@ -75,6 +79,9 @@ class LearnedChessboardDetector(ChessboardDetector):
             margins that a coarse one blurs into an extra row of corners; a coarser one drops clutter.
         max_upsampling: with ``scale="auto"``, images whose squares are smaller than ``target_square`` are upsampled
             by at most this factor (1: never).
+        precision: of the heatmap network (:func:`~ccs_kornia.modules.detection.heatmap_unet.run_heatmap`):
+            ``"float32"``, ``"bfloat16"`` or ``"auto"`` (bfloat16 on CPUs that compute it natively; the corners are
+            refined on the image in float32 either way).
     """
 
     def __init__(
@@ -95,11 +102,15 @@ class LearnedChessboardDetector(ChessboardDetector):
         max_pixels: float = 3.2e6,
         scale_fallback: tuple[float, ...] = (0.5, 2.0, 0.25),
         max_upsampling: float = 2.0,
+        precision: str = "auto",
     ) -> None:
         super().__init__()
         if net is None:
             net, sigma = load_corner_unet(weights)
-        self.net = net.eval()
+        elif has_batchnorm(net):
+            net = copy.deepcopy(net)  # the caller's network (e.g. one in training) is left as it is
+        # inference only: batch normalisation folded into the convolutions (same heatmap, ~15 % less CPU time)
+        self.net = fold_batchnorm(net)
         self.sigma = sigma
         self.peak_threshold = peak_threshold
         self.nms_kernel = nms_kernel
@@ -121,6 +132,9 @@ class LearnedChessboardDetector(ChessboardDetector):
         self.scale_selector = ScaleSelector(target_square=target_square, max_pixels=max_pixels,
                                             min_factor=1.0 / max_upsampling)
         self.scale_fallback = tuple(float(f) for f in scale_fallback)
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
+        self.precision = precision
 
     @property
     def selects_scale(self) -> bool:
@@ -136,21 +150,19 @@ class LearnedChessboardDetector(ChessboardDetector):
         With ``full`` (the full-resolution images of a downscaled level ``images``, ``x_full + 0.5 = (x + 0.5) * scale``)
         the X-junction test runs on ``full``, where thin board margins are still resolved.
         """
-        if images.device.type == "cpu":
-            # channels-last convolutions are ~1.7x faster on CPU (measured at 1280x960, 1 thread)
-            self.net.to(memory_format=torch.channels_last)
-            heat = self.net(images.contiguous(memory_format=torch.channels_last)).contiguous()
-        else:
-            heat = self.net(images)
-        seeds, _, mask = heatmap_peaks(heat, self.peak_threshold, self.max_peaks, self.nms_kernel)
-        mu, sig, ok = gaussian_fit(heat, seeds, mask, self.fit_window)
-        keep = sigma_outlier_rejection(sig, mask & ok, self.sigma, self.sigma_tolerance)
-        if self.x_junction_check and full is not None and scale is not None:
-            # --- scale selection: same circle geometry as on the level, sampled at full resolution ---
-            f = float(scale.max())
-            keep = x_junction_mask(full, (mu + 0.5) * scale.to(mu) - 0.5, keep, max_radius=15.0 * f)
-        elif self.x_junction_check:
-            keep = x_junction_mask(images, mu, keep)
+        with stage("heatmap network"):
+            heat = run_heatmap(self.net, images, self.precision)
+        with stage("peaks + Gaussian fit + sigma rejection"):
+            seeds, _, mask = heatmap_peaks(heat, self.peak_threshold, self.max_peaks, self.nms_kernel)
+            mu, sig, ok = gaussian_fit(heat, seeds, mask, self.fit_window)
+            keep = sigma_outlier_rejection(sig, mask & ok, self.sigma, self.sigma_tolerance)
+        with stage("X-junction check"):
+            if self.x_junction_check and full is not None and scale is not None:
+                # --- scale selection: same circle geometry as on the level, sampled at full resolution ---
+                f = float(scale.max())
+                keep = x_junction_mask(full, (mu + 0.5) * scale.to(mu) - 0.5, keep, max_radius=15.0 * f)
+            elif self.x_junction_check:
+                keep = x_junction_mask(images, mu, keep)
         return heat, mu, keep
 
     @torch.no_grad()
@@ -161,7 +173,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         if self.scale == "off":
             return self.detect_level(images, board_size)
         # --- scale selection (modules/detection/scale.py): detect on each image's level, refine at full resolution ---
-        _, factor = self.scale_selector(images)
+        with stage("square-size estimate"):
+            _, factor = self.scale_selector(images)
         r = self.refiner
 
         def level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
@@ -171,8 +184,9 @@ class LearnedChessboardDetector(ChessboardDetector):
         def refine(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
             if r is None:
                 return pts
-            return refine_from_level(full, pts, board_size, factor, r.radius_factor, r.max_radius, r.method,
-                                     r.iterations, r.smooth_sigma, r.normalize_sigma)
+            with stage("saddle refinement"):
+                return refine_from_level(full, pts, board_size, factor, r.radius_factor, r.max_radius, r.method,
+                                         r.iterations, r.smooth_sigma, r.normalize_sigma)
 
         corners, found, reasons = detect_at_scale(level, images, board_size, factor, self.scale_fallback,
                                                   self.scale_selector.max_pixels, refine)
@@ -188,13 +202,14 @@ class LearnedChessboardDetector(ChessboardDetector):
         ``full`` and ``scale``: see :meth:`candidates`.
         """
         _, points, keep = self.candidates(images, full, scale)
-        corners, valid, found = organize_grid(points, keep, board_size, images)
-        retry = (~found).nonzero().flatten()
-        if retry.numel():
-            # strongly distorted close-ups (wide lenses) bend the lattice more than the organiser's strict
-            # neighbour check allows; every corner is still verified on the image below
-            c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
-            corners[retry], valid[retry], found[retry] = c2, v2, f2
+        with stage("grid organiser"):
+            corners, valid, found = organize_grid(points, keep, board_size, images)
+            retry = (~found).nonzero().flatten()
+            if retry.numel():
+                # strongly distorted close-ups (wide lenses) bend the lattice more than the organiser's strict
+                # neighbour check allows; every corner is still verified on the image below
+                c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
+                corners[retry], valid[retry], found[retry] = c2, v2, f2
         reasons = ["learned" if f else "board not found" for f in found.tolist()]
         if self.collinearity:
             corners, valid = collinearity_refine(corners, valid & found[:, None], board_size)
@@ -202,17 +217,19 @@ class LearnedChessboardDetector(ChessboardDetector):
         # instead of keeping the organiser's global-homography guess
         missing = found[:, None] & ~valid
         if bool(missing.any()):
-            corners, _ = predict_missing_corners(corners, valid, board_size)
-            # extrapolated cells can be off by a good part of a square under strong distortion: a coarse
-            # search first with the gradient-orthogonality fixed point, whose basin is the whole window,
-            # then the regular saddle refinement below polishes
-            spacing = grid_spacing(corners, found[:, None].expand_as(valid), board_size)
-            coarse = refine_corners(images, corners, missing, 0.45 * spacing, method="gradient", iterations=10,
-                                    max_radius=40)
-            corners = torch.where(missing[..., None], coarse, corners)
+            with stage("missing corners"):
+                corners, _ = predict_missing_corners(corners, valid, board_size)
+                # extrapolated cells can be off by a good part of a square under strong distortion: a coarse
+                # search first with the gradient-orthogonality fixed point, whose basin is the whole window,
+                # then the regular saddle refinement below polishes
+                spacing = grid_spacing(corners, found[:, None].expand_as(valid), board_size)
+                coarse = refine_corners(images, corners, missing, 0.45 * spacing, method="gradient", iterations=10,
+                                        max_radius=40)
+                corners = torch.where(missing[..., None], coarse, corners)
         cells = found[:, None].expand_as(valid)  # every cell of a found board
         if self.refiner is not None and bool(found.any()):
-            corners, ok = self.refiner(images, corners, cells, board_size, return_ok=True)
+            with stage("saddle refinement"):
+                corners, ok = self.refiner(images, corners, cells, board_size, return_ok=True)
             # a predicted cell is accepted only where the image shows a corner there; one wrong corner
             # ruins a calibration, so the board is dropped instead
             unverified = (missing & ~ok).any(1)

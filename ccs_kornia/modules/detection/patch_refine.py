@@ -150,9 +150,9 @@ def refine_on_patches(
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     r"""Refine whole boards at full resolution, each corner on its own small patch.
 
-    The refiner (:func:`~ccs_kornia.modules.detection.saddle_refine.refine_corners`) smooths and normalises the image it is given;
-    on a 24 Mpx photo that alone costs seconds and hundreds of MB, so every corner gets a patch of window plus smoothing
-    margin, and all patches are refined in one batch. The window half-size is ``radius_factor`` times the distance to
+    The refiner (:func:`~ccs_kornia.modules.detection.saddle_refine.refine_corners`) must not smooth and normalise a
+    whole 24 Mpx photo (seconds and hundreds of MB): its saddle fit works on one small region per corner; the gradient
+    fit gets a patch of window plus margin per corner, all patches refined in one batch. The window half-size is ``radius_factor`` times the distance to
     the nearest grid neighbour (clamped to ``[1.5, max_radius]``), as in
     :class:`~ccs_kornia.modules.detection.saddle_refine.CornerRefiner`; with ``blur`` (e.g. from :func:`edge_blur`) it is widened
     to ``blur_factor`` blur widths where the edges are soft (a saddle fit needs a window about as wide as the blur;
@@ -191,6 +191,13 @@ def refine_on_patches(
         radius = torch.maximum(radius, torch.minimum(soft, max_fraction * spacing))
     radius = radius.nan_to_num(5.0, posinf=float(max_radius))
     r_max = int(math.ceil(float(radius.max())))
+    if method == "saddle":
+        # the saddle refiner works on one small region per corner of the image itself (bounded memory whatever the
+        # image size): no patch copy needed
+        out, ok = refine_corners(images.float(), corners.to(images.device).float(), None, radius, method, iterations,
+                                 r_max, smooth_sigma, normalize_sigma, return_ok=True)
+        out, ok = out.to(corners.dtype).to(corners.device), ok.to(corners.device)
+        return (out, ok) if return_ok else out
     half = int(math.ceil(r_max + 3 * max(normalize_sigma, smooth_sigma) + 4))
     offsets = torch.arange(-half, half + 1, device=images.device)
     pts = corners.to(images.device)

@@ -11,13 +11,18 @@ Two estimators, both on a window whose size adapts to each corner's grid spacing
 
 Both sample the image with bilinear interpolation at ``corner + offsets``, so the window is centred
 on the current sub-pixel estimate at every iteration.
+
+The saddle fit smooths and normalises the image only where it looks: around every corner, a region that covers every
+window the iterations can reach is blurred (two small matrix products per region, the separable Gaussian as banded
+matrices over a patch gathered with the image's border rule), giving the values a whole-image blur would give there
+at a fraction of the cost; its normal matrix, fixed by the window, is factorised once per corner.
 """
 
 from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
-from kornia.filters import gaussian_blur2d, spatial_gradient
+from kornia.filters import gaussian_blur2d, get_gaussian_kernel1d, spatial_gradient
 
 __all__ = ["grid_spacing", "refine_corners", "CornerRefiner", "x_junction_mask"]
 
@@ -34,6 +39,57 @@ def _local_mean(img: torch.Tensor, sigma: float) -> torch.Tensor:
     """Gaussian local mean at scale ``sigma`` (separable kernel, replicate border)."""
     k = 2 * int(round(3 * sigma)) + 1
     return gaussian_blur2d(img, (k, k), (sigma, sigma), border_type="replicate", separable=True)
+
+
+def _border_index(idx: torch.Tensor, size: int, mode: str) -> torch.Tensor:
+    """Pixel index of ``idx`` under a border rule: ``"reflect"`` (torch's, no edge repeat) or ``"replicate"``."""
+    if mode == "reflect" and size > 1:
+        idx = torch.where(idx < 0, -idx, idx)
+        idx = torch.where(idx > size - 1, 2 * (size - 1) - idx, idx)
+    return idx.clamp(0, size - 1)
+
+
+def _blurred_regions(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor, q: int, sigma: float,
+                     mode: str) -> torch.Tensor:
+    """``q x q`` regions (top-left pixel ``top_left`` (M, 2) xy of image ``bi`` (M,)) of the image blurred with the
+    Gaussian of :func:`_local_mean` / the smoothing of :func:`refine_corners` (kernel ``2 round(3 sigma) + 1``,
+    border rule ``mode``), without blurring the whole image: the patch that feeds the region, times banded
+    (Toeplitz) matrices of the kernel on both sides. Returns :math:`(M, q, q)`."""
+    h, w = img.shape[-2:]
+    dev = img.device
+    if not sigma > 0:
+        ys = _border_index(top_left[:, 1, None] + torch.arange(q, device=dev), h, mode)
+        xs = _border_index(top_left[:, 0, None] + torch.arange(q, device=dev), w, mode)
+        return img[bi[:, None, None], 0, ys[:, :, None], xs[:, None, :]]
+    k = 2 * int(round(3 * sigma)) + 1
+    m = k // 2
+    span = torch.arange(q + 2 * m, device=dev)
+    ys = _border_index(top_left[:, 1, None] - m + span, h, mode)
+    xs = _border_index(top_left[:, 0, None] - m + span, w, mode)
+    patch = img[bi[:, None, None], 0, ys[:, :, None], xs[:, None, :]]  # (M, q + 2m, q + 2m)
+    g = get_gaussian_kernel1d(k, float(sigma), device=dev, dtype=img.dtype)[0]
+    band = torch.zeros(q + 2 * m, q, device=dev, dtype=img.dtype)
+    taps = torch.arange(k, device=dev)[:, None] + torch.arange(q, device=dev)[None, :]  # (k, q) patch rows
+    band[taps, torch.arange(q, device=dev).expand(k, q)] = g[:, None].expand(k, q)
+    return band.T @ (patch @ band)
+
+
+def _saddle_source(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor, q: int, smooth_sigma: float,
+                   normalize_sigma: float) -> torch.Tensor:
+    """The saddle fit's input image (smoothed, divided by the local mean) on ``q x q`` regions, :math:`(M, 1, q, q)`.
+
+    Equal, up to float rounding, to ``refine_corners``' whole-image source cropped there: pixels outside the image
+    repeat the nearest in-image value, as bilinear sampling with ``padding_mode="border"`` reads it."""
+    src = _blurred_regions(img, bi, top_left, q, smooth_sigma, "reflect")
+    if normalize_sigma > 0:
+        src = src / _blurred_regions(img, bi, top_left, q, normalize_sigma, "replicate").clamp_min(1e-3)
+    h, w = img.shape[-2:]
+    span = torch.arange(q, device=img.device)
+    # local index of the clamped (in-image) pixel of every region pixel
+    iy = ((top_left[:, 1, None] + span).clamp(0, h - 1) - top_left[:, 1, None]).clamp(0, q - 1)
+    ix = ((top_left[:, 0, None] + span).clamp(0, w - 1) - top_left[:, 0, None]).clamp(0, q - 1)
+    src = src.gather(1, iy[:, :, None].expand(-1, -1, q)).gather(2, ix[:, None, :].expand(-1, q, -1))
+    return src[:, None]
 
 
 def grid_spacing(corners: torch.Tensor, valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
@@ -118,52 +174,133 @@ def refine_corners(
     r = torch.as_tensor(radius, dtype=dt, device=dev)
     r = r.expand(b, n) if r.dim() == 0 else r
     r = torch.nan_to_num(r, nan=5.0, posinf=float(max_radius)).clamp(1.5, float(max_radius))
-    rmax = int(torch.ceil(r.max()).item()) if r.numel() else 2
-    offs = torch.arange(-rmax, rmax + 1, device=dev, dtype=dt)
+    if method == "saddle":
+        return _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma, normalize_sigma, return_ok)
+    return _refine_gradient(img, corners, valid, r, iterations, return_ok)
+
+
+def _refine_gradient(img, corners, valid, r, iterations, return_ok):
+    """The gradient branch of :func:`refine_corners` on the images that have valid corners, each image's valid
+    corners first (other corners are returned unchanged, so they are not computed)."""
+    b, n = corners.shape[:2]
+    dev, dt = corners.device, torch.float32
+    start = corners.to(dt)
+    valid = valid & torch.isfinite(start).all(-1)
+    count = valid.sum(1)
+    k = int(count.max()) if b else 0
+    ok_out = torch.zeros(b, n, dtype=torch.bool, device=dev)
+    if k == 0:
+        return (corners, ok_out) if return_ok else corners
+    rows = (count > 0).nonzero().flatten()
+    order = torch.argsort((~valid[rows]).to(torch.int8), dim=1, stable=True)[:, :k]  # valid corners first
+    c0 = start[rows].gather(1, order[..., None].expand(-1, -1, 2))
+    sub_valid = valid[rows].gather(1, order)
+    rr = r[rows].gather(1, order)
+    rmax = int(torch.ceil(rr[sub_valid].max()).item())
+    off, wgt = _window(rr, rmax)
+    grads = spatial_gradient(img[rows], mode="diff", order=1, normalized=False)  # (b',1,2,H,W)
+    src = grads[:, 0]  # (b',2,H,W): gx, gy in px units
+    c = c0.clone()
+    ok = torch.zeros_like(sub_valid)
+    step = torch.zeros_like(rr)
+    for _ in range(iterations):
+        pts = c[:, :, None, :] + off[None, None]  # (b',K,P,2)
+        s = _sample(src, pts)  # (b',C,K,P)
+        gx, gy = s[:, 0], s[:, 1]
+        a11 = (wgt * gx * gx).sum(-1)
+        a12 = (wgt * gx * gy).sum(-1)
+        a22 = (wgt * gy * gy).sum(-1)
+        px, py = pts[..., 0], pts[..., 1]
+        b1 = (wgt * (gx * gx * px + gx * gy * py)).sum(-1)
+        b2 = (wgt * (gx * gy * px + gy * gy * py)).sum(-1)
+        det = a11 * a22 - a12 * a12
+        ok = det.abs() > 1e-12
+        det = torch.where(ok, det, torch.ones_like(det))
+        new = torch.stack([(a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det], -1)
+        step = (new - c).norm(dim=-1)
+        keep = sub_valid & ok & torch.isfinite(new).all(-1) & (step <= rr)
+        c = torch.where(keep[..., None], new, c)
+    inside = sub_valid & ((c - c0).norm(dim=-1) <= rr)
+    c = torch.where(inside[..., None], c, c0)
+    out = start.clone()
+    out[rows] = out[rows].scatter(1, order[..., None].expand(-1, -1, 2), c)
+    ok_out[rows] = ok_out[rows].scatter(1, order, inside & ok & (step <= rr))
+    out = out.to(corners.dtype)
+    return (out, ok_out) if return_ok else out
+
+
+def _sample_window(src: torch.Tensor, centre: torch.Tensor, rmax: int) -> torch.Tensor:
+    """Bilinear samples of regions ``src`` :math:`(M, 1, q, q)` at ``centre + off`` for every offset of the
+    ``(2 rmax + 1)^2`` window (:func:`_window`), :math:`(M, P)`: the offsets are whole pixels, so every sample of a
+    window shares the fractional part of its centre and the window is a blend of four shifted crops (what
+    ``grid_sample`` with ``align_corners=True`` and ``padding_mode="border"`` gives while the window is inside)."""
+    m, q = src.shape[0], src.shape[-1]
+    side = 2 * rmax + 1
+    base = torch.floor(centre)
+    frac = centre - base
+    # top-left pixel of the (side + 1)^2 crop, kept inside the region
+    start = (base.long() - rmax).clamp(0, q - side - 1)
+    frac = torch.where((base.long() - rmax) == start, frac, (centre - (start + rmax).to(centre)).clamp(0, 1))
+    span = torch.arange(side + 1, device=src.device)
+    idx = (start[:, 1, None, None] + span[:, None]) * q + (start[:, 0, None, None] + span[None, :])
+    crop = src.reshape(m, q * q).gather(1, idx.reshape(m, -1)).reshape(m, side + 1, side + 1)
+    fx, fy = frac[:, 0, None, None], frac[:, 1, None, None]
+    top = crop[:, :-1, :-1] + fx * (crop[:, :-1, 1:] - crop[:, :-1, :-1])
+    bottom = crop[:, 1:, :-1] + fx * (crop[:, 1:, 1:] - crop[:, 1:, :-1])
+    return (top + fy * (bottom - top)).reshape(m, side * side)
+
+
+def _window(r: torch.Tensor, rmax: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Offsets :math:`(P, 2)` of a ``(2 rmax + 1)^2`` window and the weights :math:`(..., P)` of radii ``r``: a Gaussian
+    of width ``r / 1.5`` cut at ``r`` (far pixels belong to other corners)."""
+    offs = torch.arange(-rmax, rmax + 1, device=r.device, dtype=r.dtype)
     oy, ox = torch.meshgrid(offs, offs, indexing="ij")
     off = torch.stack([ox.reshape(-1), oy.reshape(-1)], -1)  # (P,2)
     d2 = (off**2).sum(-1)  # (P,)
-    # Gaussian weight of width ~radius/1.5 with a hard cut at the radius: far pixels belong to other corners
-    wgt = torch.exp(-d2[None, None] / (2 * (r[..., None] / 1.5) ** 2)) * (d2[None, None] <= r[..., None] ** 2)
+    return off, torch.exp(-d2 / (2 * (r[..., None] / 1.5) ** 2)) * (d2 <= r[..., None] ** 2)
 
-    if method == "saddle":
-        sig = smooth_sigma
-        k = 2 * int(round(3 * sig)) + 1
-        src = gaussian_blur2d(img, (k, k), (sig, sig)) if sig > 0 else img
-        if normalize_sigma > 0:
-            # divide by the local mean: a multiplicative shading ramp would otherwise add a linear term to
-            # the quadratic and shift its stationary point
-            src = src / _local_mean(img, normalize_sigma).clamp_min(1e-3)
-    else:
-        grads = spatial_gradient(img, mode="diff", order=1, normalized=False)  # (B,1,2,H,W)
-        src = grads[:, 0]  # (B,2,H,W): gx, gy in px units
 
-    c = corners.to(dt).clone()
-    ok = torch.zeros(b, n, dtype=torch.bool, device=dev)
-    step = torch.zeros(b, n, dtype=dt, device=dev)
-    for _ in range(iterations):
-        pts = c[:, :, None, :] + off[None, None]  # (B,N,P,2)
-        s = _sample(src, pts)  # (B,C,N,P)
-        if method == "gradient":
-            gx, gy = s[:, 0], s[:, 1]
-            a11 = (wgt * gx * gx).sum(-1)
-            a12 = (wgt * gx * gy).sum(-1)
-            a22 = (wgt * gy * gy).sum(-1)
-            px, py = pts[..., 0], pts[..., 1]
-            b1 = (wgt * (gx * gx * px + gx * gy * py)).sum(-1)
-            b2 = (wgt * (gx * gy * px + gy * gy * py)).sum(-1)
-            det = a11 * a22 - a12 * a12
-            ok = det.abs() > 1e-12
-            det = torch.where(ok, det, torch.ones_like(det))
-            new = torch.stack([(a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det], -1)
-        else:
-            f = s[:, 0]  # (B,N,P)
-            x, y = off[:, 0], off[:, 1]
-            basis = torch.stack([x * x, x * y, y * y, x, y, torch.ones_like(x)], -1)  # (P,6)
-            bw = basis[None, None] * wgt[..., None]  # (B,N,P,6)
-            ata = torch.einsum("bnpi,pj->bnij", bw, basis) + 1e-9 * torch.eye(6, device=dev, dtype=dt)
-            atb = torch.einsum("bnpi,bnp->bni", bw, f)
-            coef = torch.linalg.solve(ata.double(), atb.double().unsqueeze(-1)).squeeze(-1).to(dt)
+def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma, normalize_sigma, return_ok,
+                   max_elements: int = 1 << 22):
+    """The saddle branch of :func:`refine_corners`, on the valid corners only, each on its own region.
+
+    The window side follows the largest radius among the valid corners (weights are zero beyond a corner's own
+    radius, so a larger window would only add zeros)."""
+    b, n = corners.shape[:2]
+    dev, dt = corners.device, torch.float32
+    start = corners.to(dt)
+    out = start.clone()
+    ok_out = torch.zeros(b, n, dtype=torch.bool, device=dev)
+    sel = (valid & torch.isfinite(start).all(-1)).flatten().nonzero().flatten()
+    if sel.numel() == 0:
+        return (corners, ok_out) if return_ok else corners
+    flat_start, flat_r = start.reshape(-1, 2), r.reshape(-1)
+    rmax = int(torch.ceil(flat_r[sel].max()).item())
+    off, _ = _window(flat_r[:1], rmax)
+    # the region covers every window within rmax + 1 px of the starting pixel (a corner that moves further is
+    # returned unchanged: it moved more than its radius)
+    half = 2 * rmax + 2
+    q = 2 * half + 1
+    pad = 2 * int(round(3 * max(smooth_sigma, normalize_sigma))) + 1
+    chunk = max(1, max_elements // ((q + pad) ** 2))
+    x, y = off[:, 0], off[:, 1]
+    basis = torch.stack([x * x, x * y, y * y, x, y, torch.ones_like(x)], -1)  # (P,6)
+    for part in sel.split(chunk):
+        c0 = flat_start[part]
+        rr = flat_r[part]
+        bw = basis[None] * _window(rr, rmax)[1][..., None]  # (M,P,6)
+        ata = torch.einsum("mpi,pj->mij", bw, basis) + 1e-9 * torch.eye(6, device=dev, dtype=dt)
+        # the window moves with the corner but its weights do not: one factorisation per corner
+        lu, piv = torch.linalg.lu_factor(ata.double())
+        top_left = c0.round().long() - half
+        src = _saddle_source(img, part // n, top_left, q, smooth_sigma, normalize_sigma)
+        c = c0.clone()
+        ok = torch.zeros(c.shape[0], dtype=torch.bool, device=dev)
+        step = torch.zeros(c.shape[0], dtype=dt, device=dev)
+        for _ in range(iterations):
+            f = _sample_window(src, c - top_left.to(dt), rmax)  # (M,P)
+            atb = torch.einsum("mpi,mp->mi", bw, f)
+            coef = torch.linalg.lu_solve(lu, piv, atb.double().unsqueeze(-1)).squeeze(-1).to(dt)
             a, bb, cc, d, e = coef.unbind(-1)[:5]
             # stationary point: [2a b; b 2c] [x y]^T = -[d e]^T ; a saddle has a negative determinant
             det = 4 * a * cc - bb * bb
@@ -172,15 +309,14 @@ def refine_corners(
             sx = (-2 * cc * d + bb * e) / det
             sy = (-2 * a * e + bb * d) / det
             new = c + torch.stack([sx, sy], -1)
-        step = (new - c).norm(dim=-1)
-        keep = valid & ok & torch.isfinite(new).all(-1) & (step <= r)
-        c = torch.where(keep[..., None], new, c)
-    moved = (c - corners.to(dt)).norm(dim=-1)
-    inside = valid & (moved <= r)
-    c = torch.where(inside[..., None], c, corners.to(dt))
-    if return_ok:
-        return c.to(corners.dtype), inside & ok & (step <= r)
-    return c.to(corners.dtype)
+            step = (new - c).norm(dim=-1)
+            keep = ok & torch.isfinite(new).all(-1) & (step <= rr)
+            c = torch.where(keep[..., None], new, c)
+        inside = (c - c0).norm(dim=-1) <= rr
+        out.view(-1, 2)[part] = torch.where(inside[..., None], c, c0)
+        ok_out.view(-1)[part] = inside & ok & (step <= rr)
+    out = out.to(corners.dtype)
+    return (out, ok_out) if return_ok else out
 
 
 class CornerRefiner(torch.nn.Module):

@@ -32,9 +32,10 @@ from typing import Callable
 
 import torch
 import torch.nn.functional as F
-from kornia.filters import gaussian_blur2d
+from kornia.filters import gaussian_blur2d, get_gaussian_kernel1d
 from torch import nn
 
+from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.detection.patch_refine import _check_images, level_size, refine_from_level, resize_to_level
 
 __all__ = ["PEAK_RATIO", "saddle_scale_response", "estimate_square_size", "detection_factor", "ScaleSelector",
@@ -51,9 +52,25 @@ def _sigmas(min_sigma: float, max_sigma: float, steps_per_octave: int) -> torch.
 
 
 def _blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    """kornia's ``gaussian_blur2d`` (separable, reflect border) of one-channel images, as weighted sums of shifted
+    slices on CPU: the same filter, but without oneDNN's one-channel convolution that kornia uses below 256x256 px
+    (4x slower than the slices there)."""
     k = 2 * int(math.ceil(3 * sigma)) + 1
     k = min(k, 2 * ((min(x.shape[-2:]) - 1) // 2) - 1)
-    return gaussian_blur2d(x, (k, k), (sigma, sigma), border_type="reflect", separable=True) if k >= 3 else x
+    if k < 3:
+        return x
+    if x.device.type != "cpu":
+        return gaussian_blur2d(x, (k, k), (sigma, sigma), border_type="reflect", separable=True)
+    g = get_gaussian_kernel1d(k, float(sigma), device=x.device, dtype=x.dtype)[0].tolist()
+    m = k // 2
+    for dim, pad in ((-1, (m, m, 0, 0)), (-2, (0, 0, m, m))):
+        padded = F.pad(x, pad, mode="reflect")
+        size = x.shape[dim]
+        out = padded.narrow(dim, 0, size) * g[0]
+        for tap in range(1, k):
+            out.add_(padded.narrow(dim, tap, size), alpha=g[tap])
+        x = out
+    return x
 
 
 def saddle_scale_response(
@@ -150,6 +167,7 @@ def estimate_square_size(
     base_sigma: float = 1.5,
     edge_penalty: float = 2.0,
     max_pixels: float = 1.0e6,
+    coarse_first: bool = True,
 ) -> torch.Tensor:
     r"""Square size of the chessboard in each image, in px, from the image alone :math:`(B,)`.
 
@@ -164,6 +182,10 @@ def estimate_square_size(
         gamma: scale normalisation exponent.
         base_sigma, edge_penalty: of :func:`saddle_scale_response`.
         max_pixels: larger images are estimated on an area-downscaled copy of this many pixels.
+        coarse_first: compute the scales on the image itself (squares below ``2 base_sigma / ratio``, about 8 px) only
+            for the images whose strongest coarser scale is one of the two lowest (``False``: always; the coarser
+            octaves are then reached through the image's own blur, which moves the estimate by a fraction of a
+            step).
 
     Returns:
         :math:`(B,)` float32 square sizes in px.
@@ -191,8 +213,19 @@ def estimate_square_size(
         if min_square >= max_square:
             max_square = 2 * min_square
     sig = _sigmas(ratio * min_square, ratio * max_square, steps_per_octave)
-    resp = saddle_scale_response(images, sig, gamma=gamma, num_peaks=num_peaks, base_sigma=base_sigma,
-                                 edge_penalty=edge_penalty)
+    kw = {"gamma": gamma, "num_peaks": num_peaks, "base_sigma": base_sigma, "edge_penalty": edge_penalty}
+    # scales on the image itself cost about two thirds of the whole pyramid; they matter only for squares at the
+    # bottom of the range, so the coarser octaves come first and the image's own octave is added only for images
+    # whose strongest coarse scale is one of the two lowest (their response is then exactly the full one)
+    n_fine = int((sig < 2 * base_sigma).sum())
+    if coarse_first and n_fine > 0 and sig.numel() - n_fine >= 3:
+        resp = torch.zeros(images.shape[0], sig.numel(), dtype=torch.float32, device=images.device)
+        resp[:, n_fine:] = saddle_scale_response(images, sig[n_fine:], **kw)
+        low = (resp[:, n_fine:].argmax(-1) <= 1).nonzero().flatten()
+        if low.numel():
+            resp[low] = saddle_scale_response(images[low], sig, **kw)
+    else:
+        resp = saddle_scale_response(images, sig, **kw)
     log_r = resp.clamp_min(1e-12).log()
     k = log_r.argmax(-1)
     # sub-step refinement: parabola through the neighbouring log-responses
@@ -379,7 +412,8 @@ def detect_at_scale(
         for value in torch.unique(fac[todo]).tolist():
             idx = (todo & (fac == value)).nonzero().flatten()
             full = images[idx.to(images.device)]
-            level, scale = resize_to_level(full, value)
+            with stage("level resize"):
+                level, scale = resize_to_level(full, value)
             resampled = level.shape[-2:] != images.shape[-2:]
             c, f, r = detect(level, board_size, full if resampled else None, scale if resampled else None)
             c = c.to(images.device)

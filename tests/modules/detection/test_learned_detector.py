@@ -11,7 +11,14 @@ from ccs_kornia.camera import intrinsics_matrix
 from ccs_kornia.data.augment import textured_background
 from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.modules.detection.factory import make_detector
-from ccs_kornia.modules.detection.learned_detector import DEFAULT_DETECTOR_WEIGHTS, LearnedChessboardDetector
+from ccs_kornia.modules.detection.heatmap_unet import (
+    cpu_has_native_bf16,
+    effective_precision,
+)
+from ccs_kornia.modules.detection.learned_detector import (
+    DEFAULT_DETECTOR_WEIGHTS,
+    LearnedChessboardDetector,
+)
 
 REAL = REAL_DATA
 
@@ -93,3 +100,16 @@ def test_real_opencv_left_at_least_sb(detector):
     # OpenCV's SB detector finds 11 of these 13 (the learned one misses left01, where the board's
     # bottom edge against the dark frame looks like one more row of corners)
     assert int(out.found.sum()) >= 11
+
+
+def test_bfloat16_network_gives_the_float32_corners(views):
+    # precision="auto" runs the heatmap network in bfloat16 on CPUs with native bf16 (and float32 elsewhere): the
+    # corners are refined on the image in float32 either way, so both precisions must give the same corners
+    assert effective_precision("auto", "cpu") == ("bfloat16" if cpu_has_native_bf16() else "float32")
+    assert effective_precision("auto", "cuda") == "float32" and effective_precision("float32", "cpu") == "float32"
+    f32 = LearnedChessboardDetector(precision="float32")
+    bf16 = LearnedChessboardDetector(precision="bfloat16")
+    for s in views.values():
+        a, b = f32(s.images, (9, 6)), bf16(s.images, (9, 6))
+        assert torch.equal(a.found, b.found) and a.found.all()
+        assert (a.corners - b.corners).norm(dim=-1).max() < 1e-3
