@@ -132,7 +132,9 @@ class CalibrationPipeline(nn.Module):
         detection_batch_size: most images handed to the detector at once (bounds memory of the
             learned detector; the OpenCV detector works image by image anyway).
         max_detection_side: images whose longer side exceeds this are detected on a downscaled copy
-            and refined at full resolution (``None`` or 0: always detect at full resolution).
+            and refined at full resolution (``None`` or 0: always detect at full resolution). A detector that picks
+            its own detection level (``selects_scale``: the learned one with ``scale="auto"``) gets the full images
+            directly; the distortion-corrected detection of large images still uses the downscaled copy.
         distortion_correction: ``True`` (the shipped :class:`DistortionNet`), ``False`` (off, e.g. for ablation),
             a weight-file path or a ``DistortionNet``.
         min_correction: the correction is applied only to cameras whose pooled correction moves some pixel by
@@ -201,7 +203,9 @@ class CalibrationPipeline(nn.Module):
         """Detect on ``(B, 1, H, W)``, through a downscaled copy when the images are large."""
         h, w = images.shape[-2:]
         limit = self.max_detection_side
-        if limit is None or max(h, w) <= limit:
+        # a detector that picks its own detection scale and refines at full resolution (the learned one with
+        # ``scale="auto"``, modules/detection/scale.py) bounds its memory itself
+        if limit is None or max(h, w) <= limit or getattr(self.detector, "selects_scale", False):
             return self.detector(images, board_size)
         scale = max(h, w) / limit
         small_size = (max(8, round(h / scale)), max(8, round(w / scale)))

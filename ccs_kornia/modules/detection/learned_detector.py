@@ -12,7 +12,9 @@ from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
 from ccs_kornia.modules.detection.missing_corners import predict_missing_corners
+from ccs_kornia.modules.detection.patch_refine import refine_from_level
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
+from ccs_kornia.modules.detection.scale import ScaleSelector, detect_at_scale
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners, x_junction_mask
 from ccs_kornia.modules.detection.sigma_rejection import sigma_outlier_rejection
 
@@ -63,6 +65,16 @@ class LearnedChessboardDetector(ChessboardDetector):
         collinearity: run the collinearity refinement.
         refine: ``"saddle"``, ``"gradient"`` or ``"none"`` image refinement.
         x_junction_check: drop peaks where the image shows no X-junction (clutter, board edges).
+        scale: ``"auto"``: detect on the pyramid level where the squares have about ``target_square`` px (chosen per
+            image from the image, :mod:`ccs_kornia.modules.detection.scale`) and refine at full resolution;
+            ``"off"``: detect at the input resolution.
+        target_square: square size in px the network sees with ``scale="auto"``.
+        max_pixels: most pixels of a detection level with ``scale="auto"`` (bounds memory and time).
+        scale_fallback: with ``scale="auto"``, relative factors of the levels tried in turn where the board was not
+            found at the chosen one, clamped to the image itself (never upsampled). A finer level resolves thin board
+            margins that a coarse one blurs into an extra row of corners; a coarser one drops clutter.
+        max_upsampling: with ``scale="auto"``, images whose squares are smaller than ``target_square`` are upsampled
+            by at most this factor (1: never).
     """
 
     def __init__(
@@ -78,6 +90,11 @@ class LearnedChessboardDetector(ChessboardDetector):
         collinearity: bool = False,
         refine: str = "saddle",
         x_junction_check: bool = True,
+        scale: str = "auto",
+        target_square: float = 12.0,
+        max_pixels: float = 3.2e6,
+        scale_fallback: tuple[float, ...] = (0.5, 2.0, 0.25),
+        max_upsampling: float = 2.0,
     ) -> None:
         super().__init__()
         if net is None:
@@ -95,10 +112,30 @@ class LearnedChessboardDetector(ChessboardDetector):
             raise ValueError(f"refine must be 'saddle', 'gradient' or 'none', got {refine!r}.")
         self.refine = refine
         self.refiner = CornerRefiner(method=refine) if refine != "none" else None
+        # --- scale selection (modules/detection/scale.py) ---
+        if scale not in ("auto", "off"):
+            raise ValueError(f"scale must be 'auto' or 'off', got {scale!r}.")
+        self.scale = scale
+        if not max_upsampling >= 1:
+            raise ValueError(f"max_upsampling must be >= 1, got {max_upsampling}.")
+        self.scale_selector = ScaleSelector(target_square=target_square, max_pixels=max_pixels,
+                                            min_factor=1.0 / max_upsampling)
+        self.scale_fallback = tuple(float(f) for f in scale_fallback)
+
+    @property
+    def selects_scale(self) -> bool:
+        """Whether the detector picks its own detection level (callers need not downscale large images)."""
+        return self.scale == "auto"
 
     @torch.no_grad()
-    def candidates(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Heatmap and sigma-filtered sub-pixel peaks: ``heatmap (B,1,H,W), points (B,M,2), mask (B,M)``."""
+    def candidates(
+        self, images: torch.Tensor, full: torch.Tensor | None = None, scale: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Heatmap and sigma-filtered sub-pixel peaks: ``heatmap (B,1,H,W), points (B,M,2), mask (B,M)``.
+
+        With ``full`` (the full-resolution images of a downscaled level ``images``, ``x_full + 0.5 = (x + 0.5) * scale``)
+        the X-junction test runs on ``full``, where thin board margins are still resolved.
+        """
         if images.device.type == "cpu":
             # channels-last convolutions are ~1.7x faster on CPU (measured at 1280x960, 1 thread)
             self.net.to(memory_format=torch.channels_last)
@@ -108,7 +145,11 @@ class LearnedChessboardDetector(ChessboardDetector):
         seeds, _, mask = heatmap_peaks(heat, self.peak_threshold, self.max_peaks, self.nms_kernel)
         mu, sig, ok = gaussian_fit(heat, seeds, mask, self.fit_window)
         keep = sigma_outlier_rejection(sig, mask & ok, self.sigma, self.sigma_tolerance)
-        if self.x_junction_check:
+        if self.x_junction_check and full is not None and scale is not None:
+            # --- scale selection: same circle geometry as on the level, sampled at full resolution ---
+            f = float(scale.max())
+            keep = x_junction_mask(full, (mu + 0.5) * scale.to(mu) - 0.5, keep, max_radius=15.0 * f)
+        elif self.x_junction_check:
             keep = x_junction_mask(images, mu, keep)
         return heat, mu, keep
 
@@ -117,7 +158,36 @@ class LearnedChessboardDetector(ChessboardDetector):
         """Detect the board on every image of ``(B, 1, H, W)``; corners in grid order."""
         board_size = self._check_inputs(images, board_size)
         images = images.float()
-        _, points, keep = self.candidates(images)
+        if self.scale == "off":
+            return self.detect_level(images, board_size)
+        # --- scale selection (modules/detection/scale.py): detect on each image's level, refine at full resolution ---
+        _, factor = self.scale_selector(images)
+        r = self.refiner
+
+        def level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
+            out = self.detect_level(x, bs, full, scale)
+            return out.corners, out.found, out.reasons
+
+        def refine(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
+            if r is None:
+                return pts
+            return refine_from_level(full, pts, board_size, factor, r.radius_factor, r.max_radius, r.method,
+                                     r.iterations, r.smooth_sigma, r.normalize_sigma)
+
+        corners, found, reasons = detect_at_scale(level, images, board_size, factor, self.scale_fallback,
+                                                  self.scale_selector.max_pixels, refine)
+        return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
+
+    @torch.no_grad()
+    def detect_level(
+        self, images: torch.Tensor, board_size: tuple[int, int], full: torch.Tensor | None = None,
+        scale: torch.Tensor | None = None,
+    ) -> DetectionResult:
+        """Detect the board at the resolution of ``images`` :math:`(B, 1, H, W)` (float); corners in grid order.
+
+        ``full`` and ``scale``: see :meth:`candidates`.
+        """
+        _, points, keep = self.candidates(images, full, scale)
         corners, valid, found = organize_grid(points, keep, board_size, images)
         retry = (~found).nonzero().flatten()
         if retry.numel():

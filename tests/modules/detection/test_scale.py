@@ -1,0 +1,195 @@
+"""Scale selection of the learned detector (ccs_kornia/modules/detection/scale.py)."""
+
+from __future__ import annotations
+
+import doctest
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.modules.detection import patch_refine as patch_refine_module
+from ccs_kornia.modules.detection import scale as scale_module
+from ccs_kornia.modules.detection.patch_refine import edge_blur, refine_from_level, refine_on_patches, resize_to_level
+from ccs_kornia.modules.detection.scale import (
+    ScaleSelector,
+    detect_at_scale,
+    detection_factor,
+    estimate_square_size,
+    saddle_scale_response,
+)
+
+K = torch.tensor([[800.0, 0, 319.5], [0, 800, 239.5], [0, 0, 1]])
+
+
+@pytest.fixture(scope="module")
+def views():
+    return make_calibration_set(K, (9, 6), 0.025, (640, 480), num_views=2, seed=3, supersample=2)
+
+
+def _square(corners: torch.Tensor, board=(9, 6)) -> torch.Tensor:
+    g = corners.reshape(corners.shape[0], board[1], board[0], 2)
+    d = torch.cat([(g[:, :, 1:] - g[:, :, :-1]).norm(dim=-1).flatten(1), (g[:, 1:] - g[:, :-1]).norm(dim=-1).flatten(1)], 1)
+    return d.median(1).values
+
+
+def _upscaled(views, factor: float, blur: int = 0):
+    big = F.interpolate(views.images, scale_factor=factor, mode="bilinear", align_corners=False)
+    if blur > 1:
+        big = F.avg_pool2d(F.pad(big, (blur // 2,) * 4, mode="replicate"), blur, stride=1)
+    return big, (views.corners + 0.5) * factor - 0.5
+
+
+@pytest.mark.parametrize("module", [scale_module, patch_refine_module])
+def test_doctests(module):
+    assert doctest.testmod(module).failed == 0
+
+
+def test_shapes(views):
+    b = views.images.shape[0]
+    assert saddle_scale_response(views.images, torch.tensor([2.0, 4.0, 8.0])).shape == (b, 3)
+    assert estimate_square_size(views.images).shape == (b,)
+    square, factor = ScaleSelector()(views.images)
+    assert square.shape == (b,) and factor.shape == (b,) and factor.dtype == torch.float64
+    level, s = resize_to_level(views.images, 2.0)
+    assert level.shape == (b, 1, 240, 320) and torch.allclose(s, torch.tensor([2.0, 2.0], dtype=torch.float64))
+    up, s_up = resize_to_level(views.images, 0.5)
+    assert up.shape == (b, 1, 960, 1280) and float(s_up[0]) == 0.5
+    assert edge_blur(views.images, views.corners, (9, 6)).shape == (b,)
+    refined, ok = refine_on_patches(views.images, views.corners, (9, 6), return_ok=True)
+    assert refined.shape == views.corners.shape and ok.shape == views.corners.shape[:2]
+
+
+@pytest.mark.parametrize("factor", [1.0, 3.0, 6.0])
+def test_square_size_estimate_follows_the_board(views, factor):
+    images, corners = _upscaled(views, factor)
+    ratio = estimate_square_size(images) / _square(corners)
+    assert ((ratio > 0.7) & (ratio < 1.4)).all(), ratio
+
+
+def test_batch_matches_single_images(views):
+    both = estimate_square_size(views.images)
+    one = torch.cat([estimate_square_size(views.images[i : i + 1]) for i in range(views.images.shape[0])])
+    assert torch.allclose(both, one)
+
+
+def test_detection_factor_quantised_and_bounded():
+    f = detection_factor(torch.tensor([6.0, 12.0, 13.0, 48.0]), (640, 480))
+    assert f.tolist()[:2] == [1.0, 1.0]  # never upsampled by default
+    assert torch.allclose(torch.log2(f) * 4, torch.round(torch.log2(f) * 4))  # quarter octaves
+    assert float(f[3]) == 4.0
+    # a 24 Mpx photo is never detected at more than max_pixels
+    big = detection_factor(torch.tensor([8.0]), (6000, 4000), max_pixels=3.2e6)
+    assert 6000 * 4000 / float(big) ** 2 <= 3.2e6
+    # upsampling only when allowed, and only up to ~10 px squares
+    up = detection_factor(torch.tensor([6.0, 11.0]), (640, 480), min_factor=0.5)
+    assert abs(6.0 / float(up[0]) - 10.0) < 1.5 and float(up[1]) == 1.0
+    assert float(detection_factor(torch.tensor([3.0]), (640, 480), min_factor=0.5)) == 0.5
+
+
+def test_edge_blur_measures_the_blur(views):
+    sharp = edge_blur(views.images, views.corners, (9, 6))
+    images = F.avg_pool2d(F.pad(views.images, (3, 3, 3, 3), mode="replicate"), 7, stride=1)  # box 7 px: sigma 2
+    soft = edge_blur(images, views.corners, (9, 6))
+    assert (sharp < 1.2).all() and ((soft > 1.6) & (soft < 3.2)).all(), (sharp, soft)
+
+
+def test_refine_from_level_converges_from_a_coarse_level(views):
+    images, corners = _upscaled(views, 8.0)
+    start = corners + torch.tensor([2.5, -2.0])  # ~0.4 px of a level 8x smaller
+    refined = refine_from_level(images, start, (9, 6), 8.0)
+    # the same saddles as refined from the truth (the 8x bilinear upsampling itself moves them by ~0.4 px)
+    ideal = refine_on_patches(images, corners, (9, 6), blur=edge_blur(images, corners, (9, 6)))
+    assert (refined - ideal).norm(dim=-1).max() < 0.05
+
+
+def test_refine_on_patches_matches_whole_image_refinement(views):
+    from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
+
+    start = views.corners + torch.tensor([0.6, -0.4])
+    cells = torch.ones(views.corners.shape[:2], dtype=torch.bool)
+    whole = CornerRefiner()(views.images, start, cells, (9, 6))
+    patches = refine_on_patches(views.images, start, (9, 6))
+    assert (patches - whole).norm(dim=-1).max() < 1e-3
+    assert (patches - views.corners).norm(dim=-1).mean() < 0.05
+
+
+def test_detect_at_scale_groups_levels_and_falls_back():
+    calls = []
+
+    def detect(x, board, full, scale):
+        calls.append((tuple(x.shape), None if full is None else tuple(full.shape)))
+        found = torch.full((x.shape[0],), x.shape[-1] == 80)  # "finds" boards only on the 4x level
+        corners = torch.full((x.shape[0], board[0] * board[1], 2), 10.0)
+        return corners, found, ["learned" if f else "board not found" for f in found.tolist()]
+
+    images = torch.rand(3, 1, 240, 320)
+    corners, found, reasons = detect_at_scale(detect, images, (3, 2), torch.tensor([4.0, 2.0, 2.0]),
+                                              fallback=(2.0,), refine=lambda full, pts, f: pts)
+    assert found.tolist() == [True, True, True] and reasons == ["learned"] * 3
+    # one batched call per level: 4x for image 0, 2x for images 1-2, then their fallback at 4x
+    assert calls == [((2, 1, 120, 160), (2, 1, 240, 320)), ((1, 1, 60, 80), (1, 1, 240, 320)),
+                     ((2, 1, 60, 80), (2, 1, 240, 320))]
+    # level corners are mapped to full-resolution pixel centres
+    assert torch.allclose(corners, torch.full_like(corners, 10.5 * 4 - 0.5))
+
+
+def test_detect_at_scale_skips_levels_over_the_pixel_budget():
+    calls = []
+
+    def detect(x, board, full, scale):
+        calls.append(tuple(x.shape[-2:]))
+        return torch.zeros(x.shape[0], 6, 2), torch.zeros(x.shape[0], dtype=torch.bool), None
+
+    detect_at_scale(detect, torch.rand(1, 1, 200, 200), (3, 2), torch.tensor([2.0]), fallback=(0.5, 0.25, 2.0),
+                    max_pixels=20_000)
+    # factors 1 (40k px) and 0.5 are over the budget: clamped to the finest allowed level (1.41), tried once
+    assert calls == [(100, 100), (141, 141), (50, 50)]
+    # never an upsampled fallback
+    calls.clear()
+    detect_at_scale(detect, torch.rand(1, 1, 64, 64), (3, 2), torch.tensor([1.0]), fallback=(0.5,))
+    assert calls == [(64, 64)]
+
+
+def test_invalid_inputs():
+    with pytest.raises(ValueError):
+        estimate_square_size(torch.rand(2, 3, 32, 32))
+    with pytest.raises(ValueError):
+        estimate_square_size(torch.rand(1, 1, 4, 4))
+    with pytest.raises(ValueError):
+        estimate_square_size(torch.rand(1, 1, 64, 64), min_square=30, max_square=20)
+    with pytest.raises(ValueError):
+        saddle_scale_response(torch.rand(1, 1, 64, 64), torch.tensor([4.0, 2.0]))
+    with pytest.raises(ValueError):
+        detection_factor(torch.tensor([10.0]), (64, 64), target_square=0)
+    with pytest.raises(ValueError):
+        ScaleSelector(max_pixels=-1)
+    with pytest.raises(ValueError):
+        refine_on_patches(torch.rand(1, 1, 32, 32), torch.rand(2, 6, 2), (3, 2))
+    with pytest.raises(ValueError):
+        detect_at_scale(lambda *a: None, torch.rand(2, 1, 32, 32), (3, 2), torch.tensor([1.0]))
+    with pytest.raises(ValueError):
+        detect_at_scale(lambda *a: None, torch.rand(1, 1, 32, 32), (3, 2), torch.tensor([0.0]))
+
+
+def test_learned_detector_scale_option():
+    from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
+
+    with pytest.raises(ValueError):
+        LearnedChessboardDetector(scale="sometimes")
+    assert LearnedChessboardDetector().selects_scale
+    assert not LearnedChessboardDetector(scale="off").selects_scale
+
+
+@pytest.mark.slow
+def test_learned_detector_finds_rescaled_soft_boards(views):
+    """Squares of ~60 px with a 9 px box blur: missed at full resolution (scale="off"), found on the selected level."""
+    from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
+
+    images, corners = _upscaled(views, 4.0, blur=9)
+    out = LearnedChessboardDetector()(images, (9, 6))
+    assert out.found.all(), out.reasons
+    e1 = (out.corners - corners).norm(dim=-1).mean(-1)
+    e2 = (out.corners.flip(-2) - corners).norm(dim=-1).mean(-1)
+    assert (torch.minimum(e1, e2) < 0.15).all(), torch.minimum(e1, e2)
