@@ -21,7 +21,11 @@ import torch
 from ccs_kornia import camera
 from ccs_kornia.data import augment
 from ccs_kornia.data._util import _padded_object_points, _randint, _uniform
-from ccs_kornia.data.fisheye import is_fisheye, sample_fisheye_cameras, sample_fisheye_poses
+from ccs_kornia.data.fisheye import (
+    is_fisheye,
+    sample_fisheye_cameras,
+    sample_fisheye_poses,
+)
 from ccs_kornia.data.lens import project_board
 from ccs_kornia.data.marks import MARK_KINDS, make_marks
 from ccs_kornia.data.optics import BLUR_KINDS, apply_optics, square_size_px

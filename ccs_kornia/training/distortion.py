@@ -12,7 +12,12 @@ import lightning as L
 import torch
 
 from ccs_kornia.camera import fit_radial_correction
-from ccs_kornia.losses.grid_loss import GridLoss, grid_loss, grid_targets, normalize_distortion_scale
+from ccs_kornia.losses.grid_loss import (
+    GridLoss,
+    grid_loss,
+    grid_targets,
+    normalize_distortion_scale,
+)
 from ccs_kornia.modules.correction.distortion_net import DistortionNet
 from ccs_kornia.modules.correction.radial_warp import correct_points
 from ccs_kornia.modules.correction.straightness import straightness_rms
