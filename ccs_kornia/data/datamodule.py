@@ -19,7 +19,8 @@ __all__ = [
 #: recommended :class:`~ccs_kornia.data.wild.WildSpec` fields for the detector's training views (used with
 #: ``wild_prob``; the datamodule's ``image_size`` replaces ``image_sizes``): squares from 6 to 60 px (the pyramid
 #: brings bigger ones into this range), every lens, marks, blur up to 30 % of the square, glare, shadows, noise,
-#: JPEG, and the realistic point spread and gamma on every view
+#: JPEG, the realistic point spread and gamma on every view, light margins of 0.05-1.5 squares and, on a third of the
+#: views, a flat surround of any grey level (dark frames, tablets, white walls)
 DETECTOR_WILD: dict = {
     "board_cols": (3, 11), "board_rows": (2, 8), "square_px": (6.0, 60.0), "max_tilt_deg": 75.0,
     "lenses": ("pinhole", "pinhole", "opencv", "radial", "fisheye"), "fov_deg": (120.0, 200.0),
@@ -27,6 +28,7 @@ DETECTOR_WILD: dict = {
     "blur": ("none", "box", "gaussian", "motion"), "blur_fraction": (0.0, 0.3), "psf_sigma": (0.3, 1.0),
     "gamma": (1.0, 2.4), "glare_prob": 0.15, "shadow_prob": 0.2, "noise_sigma": (0.0, 0.04), "jpeg_prob": 0.2,
     "jpeg_quality": (20, 90), "lighting_prob": 0.2, "supersample": 3, "margin": 1.0, "min_square_px": 4.0,
+    "border_squares": (0.05, 1.5), "surround_prob": 0.35, "surround_level": (0.0, 1.0),
 }
 #: recommended fields for the distortion network's views (``radial`` lenses get the datamodule's level;
 #: undistorted views stay pinhole): the wider world of sizes, blur and light, boards of any size

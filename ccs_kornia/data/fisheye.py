@@ -212,7 +212,8 @@ def sample_fisheye_poses(
     min_visible: float = 0.3,
     candidates: int = 32,
     max_rounds: int = 60,
-) -> tuple[Tensor, Tensor]:
+    strict: bool = True,
+) -> tuple[Tensor, Tensor] | tuple[Tensor, Tensor, Tensor]:
     """Board poses for fisheye views: anywhere in the field of view, often near its edge, steep and curved.
 
     The board's centre lies along a ray at angle ``theta_c`` from the axis (``theta_c = 0.95 theta_max u^b``,
@@ -226,7 +227,8 @@ def sample_fisheye_poses(
         K: :math:`(B, 3, 3)`; fisheye: :math:`(B, 5)`; cols, rows: :math:`(B,)` long; square: :math:`(B,)`.
 
     Returns:
-        rvec, tvec :math:`(B, 3)` float64.
+        rvec, tvec :math:`(B, 3)` float64; raises when some board finds no pose, unless ``strict=False``: then
+        ``(rvec, tvec, done)`` with ``done`` :math:`(B,)` bool (zeros where not done; the caller falls back).
     """
     from ccs_kornia.data._util import _padded_object_points
 
@@ -291,6 +293,8 @@ def sample_fisheye_poses(
         pick = torch.arange(pend.numel()) * candidates + valid.to(torch.uint8).argmax(-1)
         rv_out[pend[got]], tv_out[pend[got]] = rvec[pick[got]], tvec[pick[got]]
         done[pend[got]] = True
+    if not strict:
+        return rv_out, tv_out, done
     if not bool(done.all()):
         raise RuntimeError(f"Could not place {int((~done).sum())} board(s) in the fisheye view(s); relax the pose ranges.")
     return rv_out, tv_out

@@ -79,7 +79,7 @@ def _tri(x: Tensor) -> Tensor:
     return 1.0 - (torch.remainder(x, 2.0) - 1.0).abs()
 
 
-def _axis_filter(x: Tensor, width: Tensor, hi_checker: Tensor, border: float):
+def _axis_filter(x: Tensor, width: Tensor, hi_checker: Tensor, border: float | Tensor):
     """Box-filtered board profiles along one axis over ``[x - width/2, x + width/2]``.
 
     Returns the coverage of the board (checker area plus border), the coverage of the checker area and
@@ -113,7 +113,7 @@ def _shade(u, v, wu, wv, cols, rows, border, bg, light, contrast, marks=None, bi
     return value, (bu, mu, fu), (bv, mv, fv)
 
 
-def _straddles(x: Tensor, support: Tensor, hi_checker: Tensor, border: float) -> Tensor:
+def _straddles(x: Tensor, support: Tensor, hi_checker: Tensor, border: float | Tensor) -> Tensor:
     """Whether ``[x - support/2, x + support/2]`` contains a line of the board along this axis (square
     edges and checker-area bounds are integers; the outer border bounds are ``-1 - border`` and
     ``hi + border``), restricted to the board's extent."""
@@ -140,7 +140,7 @@ def _render(
     radial: Tensor | None,
     supersample: int,
     background: Tensor | float,
-    border: float,
+    border: float | Tensor,
     dark: Tensor,
     light: Tensor,
     fisheye: Tensor | None = None,
@@ -148,7 +148,8 @@ def _render(
     max_band_pixels: int | None = None,
 ) -> Tensor:
     """Render ``(B, 1, H, W)`` in bands of rows (one row of halo each side for the footprint's Jacobian, so
-    the result does not depend on the band size)."""
+    the result does not depend on the band size). ``border``: light margin in squares, a number or a :math:`(B,)`
+    tensor (one per view)."""
     b = K.shape[0]
     w, h = image_size
     limit = MAX_BAND_PIXELS if max_band_pixels is None else int(max_band_pixels)
@@ -186,6 +187,8 @@ def _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, su
     wv = (vx * vx + vy * vy).sqrt().clamp(1e-4, 4.0)
     cols_f = cols.to(dt).view(b, 1, 1)
     rows_f = rows.to(dt).view(b, 1, 1)
+    if isinstance(border, Tensor):
+        border = border.to(device=dev, dtype=dt).reshape(-1, 1, 1).expand(b, 1, 1)
     light = light.to(dt).view(b, 1, 1)
     contrast = 0.5 * (light - dark.to(dt).view(b, 1, 1))
     if isinstance(background, Tensor):
@@ -230,12 +233,13 @@ def _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, su
             eu, ev, eux, euy, evx, evy = (take(t) for t in (u, v, ux, uy, vx, vy))
             ewu, ewv = take(wu) / s, take(wv) / s
             ecols, erows, ebg, elight, econ = (take(t) for t in (cols_f, rows_f, bg, light, contrast))
+            eborder = take(border) if isinstance(border, Tensor) else border
             acc = torch.zeros_like(eu)
             offsets = [(k + 0.5) / s - 0.5 for k in range(s)]
             for oy in offsets:
                 for ox in offsets:
                     val, _, _ = _shade(
-                        eu + eux * ox + euy * oy, ev + evx * ox + evy * oy, ewu, ewv, ecols, erows, border,
+                        eu + eux * ox + euy * oy, ev + evx * ox + evy * oy, ewu, ewv, ecols, erows, eborder,
                         ebg, elight, econ, marks, bi,
                     )
                     acc += val
@@ -255,7 +259,7 @@ def render_chessboard(
     radial: Tensor | None = None,
     supersample: int = 4,
     background: Tensor | float | None = None,
-    border: float = 1.0,
+    border: float | Tensor = 1.0,
     dark: float | Tensor = 0.1,
     light: float | Tensor = 0.9,
     fisheye: Tensor | None = None,
@@ -276,7 +280,8 @@ def render_chessboard(
         radial: optional paper coefficients :math:`(3,)` or :math:`(B, 3)` ``(k0, k1, k2)``.
         supersample: sub-cells per pixel side, each box-filtered analytically (1 is already anti-aliased).
         background: ``None`` (0.5), a grey level, or :math:`(B, 1, H, W)` / :math:`(1, 1, H, W)` images.
-        border: width of the light border around the checker area, in squares.
+        border: width of the light border around the checker area, in squares (a number or a :math:`(B,)` tensor);
+            it never moves the corners.
         dark, light: grey levels of the squares (numbers or :math:`(B,)` tensors).
         fisheye: optional Kannala-Brandt coefficients ``(k1, k2, k3, k4)`` :math:`(4,)` or :math:`(B, 4)`
             (``cv2.fisheye``'s model, :mod:`ccs_kornia.data.fisheye`); the views become fisheyes (``dist`` and
@@ -325,7 +330,8 @@ def render_chessboard(
         if marks.sat.shape[0] != b:
             raise ValueError(f"marks hold {marks.sat.shape[0]} views, expected {b}.")
         marks = marks.to(dev)
-    images = _render(K, rvec, tvec, cols, rows, square_t, (w, h), dist, radial, supersample, background, border, dark_t,
+    border_t = _per_item(border, b, "border", dev, torch.float32) if isinstance(border, Tensor) else float(border)
+    images = _render(K, rvec, tvec, cols, rows, square_t, (w, h), dist, radial, supersample, background, border_t, dark_t,
                      light_t, fe, marks, max_band_pixels)
     n_max = int((cols * rows).max())
     obj, exists = _padded_object_points(cols, rows, square_t.to(torch.float64), n_max)

@@ -185,14 +185,17 @@ def _sample_poses_batched(
     square_px: Tensor | None = None,
     min_tilt_deg: float = 0.0,
     cut: Tensor | None = None,
-) -> tuple[Tensor, Tensor]:
+    strict: bool = True,
+) -> tuple[Tensor, Tensor] | tuple[Tensor, Tensor, Tensor]:
     """Rejection sampling of one pose per item, ``candidates`` proposals per pending item per round.
 
     ``square_px`` ``(B,)`` (optional) sets the distance so that a fronto-parallel square would span that many
     pixels (instead of ``fill_range``); ``min_tilt_deg`` forces steep views; ``cut`` ``(B,)`` asks for views
     whose inner corners are all inside the image while the board's outer squares cross the image border.
 
-    Everything is float64 on the CPU (a few thousand points per round). Returns ``(B, 3)`` rvec, tvec.
+    Everything is float64 on the CPU (a few thousand points per round). Returns ``(B, 3)`` rvec, tvec; raises
+    when some item finds no pose, unless ``strict=False``: then ``(rvec, tvec, done)`` with ``done`` ``(B,)`` bool
+    (the poses of items not done are zeros; the caller falls back).
     """
     w, h = image_size
     b = K.shape[0]
@@ -286,6 +289,8 @@ def _sample_poses_batched(
         rvec_out[pend[got]] = rvec[pick[got]]
         tvec_out[pend[got]] = tvec[pick[got]]
         done[pend[got]] = True
+    if not strict:
+        return rvec_out, tvec_out, done
     if not bool(done.all()):
         raise RuntimeError(
             f"Could not place {int((~done).sum())} board(s) inside the image with margin {margin}px; "

@@ -21,7 +21,11 @@ import torch
 from ccs_kornia import camera
 from ccs_kornia.data import augment
 from ccs_kornia.data._util import _padded_object_points, _randint, _uniform
-from ccs_kornia.data.fisheye import sample_fisheye_cameras, sample_fisheye_poses
+from ccs_kornia.data.fisheye import (
+    is_fisheye,
+    sample_fisheye_cameras,
+    sample_fisheye_poses,
+)
 from ccs_kornia.data.lens import project_board
 from ccs_kornia.data.marks import MARK_KINDS, make_marks
 from ccs_kornia.data.optics import BLUR_KINDS, apply_optics, square_size_px
@@ -64,6 +68,12 @@ class WildSpec:
         noise_sigma: read-noise range; jpeg_prob and jpeg_quality: JPEG compression.
         lighting_prob: probability of the Phong shading + vignetting of ``augment``'s ``bad_lighting``.
         background: ``texture`` (procedural clutter) or ``plain``.
+        border_squares: range of the light margin around the checker area, in squares (uniform per view; the
+            default ``(1, 1)`` draws nothing). Thin margins against a dark surround are where a detector working on
+            a coarse level sees an extra row of false corners.
+        surround_prob: probability that the surround (the background outside the board's margin) becomes a flat
+            grey level drawn from ``surround_level``, independent of the board's paper (dark frames, tablets, dark
+            tables, white walls), keeping ``surround_texture`` (fraction range) of the clutter's contrast.
         supersample: renderer sub-cells per pixel side.
         margin: px a valid corner keeps from the border.
         min_square_px: smallest spacing between neighbouring corners accepted by the pose sampler.
@@ -98,6 +108,10 @@ class WildSpec:
     jpeg_quality: tuple[int, int] = (30, 90)
     lighting_prob: float = 0.0
     background: str = "texture"
+    border_squares: tuple[float, float] = (1.0, 1.0)
+    surround_prob: float = 0.0
+    surround_level: tuple[float, float] = (0.0, 1.0)
+    surround_texture: tuple[float, float] = (0.0, 0.5)
     supersample: int = 2
     margin: float = 4.0
     min_square_px: float = 5.0
@@ -111,6 +125,10 @@ class WildSpec:
             raise ValueError(f"background must be 'texture' or 'plain', got {self.background!r}.")
         if not 0 < self.square_px[0] <= self.square_px[1]:
             raise ValueError(f"square_px must satisfy 0 < low <= high, got {self.square_px}.")
+        if not 0 <= self.border_squares[0] <= self.border_squares[1]:
+            raise ValueError(f"border_squares must satisfy 0 <= low <= high, got {self.border_squares}.")
+        if not 0 <= self.surround_prob <= 1:
+            raise ValueError(f"surround_prob must be in [0, 1], got {self.surround_prob}.")
 
     def replace(self, **changes) -> WildSpec:
         return replace(self, **changes)
@@ -159,6 +177,7 @@ class WildChessboards:
         cx = (w - 1) / 2 + 0.04 * w * _uniform(g, (b,), -1.0, 1.0, "cpu")
         cy = (h - 1) / 2 + 0.04 * h * _uniform(g, (b,), -1.0, 1.0, "cpu")
         K = camera.intrinsics_matrix(torch.stack([fx, fy, cx, cy], -1))
+        K_pin = K.clone()
         fisheye = torch.zeros(b, 5, dtype=torch.float64)
         fidx = fe_mask.nonzero().squeeze(1)
         if fidx.numel():
@@ -181,19 +200,27 @@ class WildChessboards:
             (cols + 1).double(), (rows + 1).double()) * 0.95
         sq_px = torch.where(partial | cut, sq_px, torch.minimum(sq_px, fit))
         rvec, tvec = torch.zeros(b, 3, dtype=torch.float64), torch.zeros(b, 3, dtype=torch.float64)
+        done = torch.ones(b, dtype=torch.bool)
         pidx = (~fe_mask).nonzero().squeeze(1)
         if pidx.numel():
-            rvec[pidx], tvec[pidx] = _sample_poses_batched(
+            rvec[pidx], tvec[pidx], done[pidx] = _sample_poses_batched(
                 K[pidx], cols[pidx], rows[pidx], square[pidx], (w, h), g, dist[pidx], radial[pidx], sp.margin,
                 sp.max_tilt_deg, (0.3, 0.8), sp.max_roll_deg, sp.min_square_px, partial=partial[pidx],
-                square_px=sq_px[pidx], min_tilt_deg=sp.min_tilt_deg, cut=cut[pidx], max_rounds=100,
+                square_px=sq_px[pidx], min_tilt_deg=sp.min_tilt_deg, cut=cut[pidx], max_rounds=100, strict=False,
             )
         if fidx.numel():
-            rvec[fidx], tvec[fidx] = sample_fisheye_poses(
+            rvec[fidx], tvec[fidx], done[fidx] = sample_fisheye_poses(
                 K[fidx], fisheye[fidx], cols[fidx], rows[fidx], square[fidx], (w, h), g, max_tilt_deg=sp.max_tilt_deg,
                 span_deg=sp.fisheye_span_deg, border_bias=sp.fisheye_border_bias, margin=sp.margin,
-                min_square_px=sp.min_square_px, partial=partial[fidx],
+                min_square_px=sp.min_square_px, partial=partial[fidx], strict=False,
             )
+        if not bool(done.all()):
+            # a board that cannot be placed as drawn (e.g. a cut view of a big board at large squares, or a
+            # spacing the lens cannot give) must not end the batch: retry it as a full, less tilted view of
+            # squares that fit, then place it fronto-parallel and centred without lens distortion
+            self._fallback_poses(~done, K, K_pin, dist, radial, fisheye, cols, rows, square, sq_px, fit, rvec, tvec,
+                                 (w, h), g)
+            fidx = is_fisheye(fisheye).nonzero().squeeze(1)
         mark_names = _pick(g, sp.marks, b)
         mark_kind = torch.tensor([MARK_KINDS.index(m) for m in mark_names], dtype=torch.long)
         fill = torch.where(mark_kind == MARK_KINDS.index("aruco"), _uniform(g, (b,), *sp.aruco_fill, "cpu"),
@@ -203,11 +230,17 @@ class WildChessboards:
         dark = _uniform(g, (b,), 0.0, 0.1, "cpu")
         light = torch.maximum(_uniform(g, (b,), 0.5, 1.0, "cpu"), dark + 0.35)
         bg = augment.textured_background(b, (w, h), g, device=device) if sp.background == "texture" else 0.5
+        # margin and surround (drawn only when asked for, so the default spec's stream is unchanged)
+        border: float | torch.Tensor = 1.0
+        if tuple(sp.border_squares) != (1.0, 1.0):
+            border = _uniform(g, (b,), *sp.border_squares, "cpu").float()
+        if sp.surround_prob > 0:
+            bg = self._surround(bg, b, (w, h), g, device)
         f32 = dict(device=device, dtype=torch.float32)
         Kf, rf, tf, sf = K.to(**f32), rvec.to(**f32), tvec.to(**f32), square.to(**f32)
         distf, radf = dist.to(**f32), radial.to(**f32)
         fe_d = fisheye.to(device) if fidx.numel() else None
-        images = _render(Kf, rf, tf, cols.to(device), rows.to(device), sf, (w, h), distf, radf, sp.supersample, bg, 1.0,
+        images = _render(Kf, rf, tf, cols.to(device), rows.to(device), sf, (w, h), distf, radf, sp.supersample, bg, border,
                          dark.to(**f32), light.to(**f32), fe_d, marks)
         obj, exists = _padded_object_points(cols, rows, sf.double().cpu(), self.max_corners)
         pix, ok = project_board(obj, Kf.double().cpu(), rf.double().cpu(), tf.double().cpu(), (w, h), distf.double().cpu(),
@@ -221,6 +254,58 @@ class WildChessboards:
             square=sf, K=Kf, dist=distf, radial=radf, rvec=rf, tvec=tf, image_size=(w, h),
             fisheye=fisheye.to(**f32), marks=mark_kind.to(device),
         )
+
+    def _fallback_poses(self, fail, K, K_pin, dist, radial, fisheye, cols, rows, square, sq_px, fit, rvec, tvec,
+                        size: tuple[int, int], g: torch.Generator) -> None:
+        """Poses (in place) for the views ``fail`` (B,) the sampler could not place: first a retry as full views
+        (no partial / cut) with squares that fit, tilt up to 45 degrees, the spec's margin and spacing; what
+        still fails becomes a pinhole view (distortion and fisheye removed) of the board fronto-parallel and
+        centred, its inner corners spanning 60 % of the image (always inside, so sampling never raises)."""
+        sp = self.spec
+        w, h = size
+        tilt = min(sp.max_tilt_deg, 45.0)
+        fe = is_fisheye(fisheye)
+        left = fail.clone()
+        pidx = (fail & ~fe).nonzero().squeeze(1)
+        if pidx.numel():
+            rv, tv, ok = _sample_poses_batched(
+                K[pidx], cols[pidx], rows[pidx], square[pidx], size, g, dist[pidx], radial[pidx], sp.margin, tilt,
+                (0.3, 0.8), sp.max_roll_deg, sp.min_square_px, square_px=torch.minimum(sq_px[pidx], fit[pidx]) * 0.8,
+                max_rounds=20, strict=False,
+            )
+            rvec[pidx[ok]], tvec[pidx[ok]], left[pidx[ok]] = rv[ok], tv[ok], False
+        fidx = (fail & fe).nonzero().squeeze(1)
+        if fidx.numel():
+            span = (sp.fisheye_span_deg[0], max(sp.fisheye_span_deg[0], 0.5 * sum(sp.fisheye_span_deg)))
+            rv, tv, ok = sample_fisheye_poses(
+                K[fidx], fisheye[fidx], cols[fidx], rows[fidx], square[fidx], size, g, max_tilt_deg=tilt,
+                span_deg=span, border_bias=1.0, margin=sp.margin, min_square_px=sp.min_square_px, max_rounds=20,
+                strict=False,
+            )
+            rvec[fidx[ok]], tvec[fidx[ok]], left[fidx[ok]] = rv[ok], tv[ok], False
+        idx = left.nonzero().squeeze(1)
+        if idx.numel() == 0:
+            return
+        K[idx], dist[idx], fisheye[idx] = K_pin[idx], 0.0, 0.0
+        radial[idx] = torch.tensor([1.0, 0.0, 0.0], dtype=radial.dtype)
+        c, r, s = cols[idx].double(), rows[idx].double(), square[idx].double()
+        # inner corners span 60 % of the smaller image side (about the principal point, at most 4 % off centre)
+        spacing = 0.6 * torch.minimum((w - 1) / (c - 1).clamp_min(1), (h - 1) / (r - 1).clamp_min(1))
+        z = torch.sqrt(K[idx, 0, 0] * K[idx, 1, 1]) * s / spacing
+        rvec[idx] = 0.0
+        tvec[idx] = torch.stack([-(c - 1) * s / 2, -(r - 1) * s / 2, z], -1)
+
+    def _surround(self, bg, b: int, size: tuple[int, int], g: torch.Generator, device) -> torch.Tensor:
+        """Flat surrounds of independent grey level (with a little of the clutter's texture) for some views."""
+        sp = self.spec
+        pick = _uniform(g, (b,), 0.0, 1.0, "cpu") < sp.surround_prob
+        level = _uniform(g, (b,), *sp.surround_level, "cpu").float().to(device).view(b, 1, 1, 1)
+        keep = _uniform(g, (b,), *sp.surround_texture, "cpu").float().to(device).view(b, 1, 1, 1)
+        w, h = size
+        if not isinstance(bg, torch.Tensor):
+            bg = torch.full((b, 1, h, w), float(bg), device=device)
+        flat = (level + keep * (bg - bg.mean(dim=(-2, -1), keepdim=True))).clamp(0.0, 1.0)
+        return torch.where(pick.to(device).view(b, 1, 1, 1), flat, bg)
 
     def _camera(self, images, g, corners, valid, board_size):
         sp = self.spec

@@ -4,7 +4,26 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["adamw_one_cycle"]
+__all__ = ["adamw_one_cycle", "load_exported_weights"]
+
+
+def _plain(x):
+    """Tuples as lists (a config read back from YAML or a file compares equal to the network's own)."""
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    return [_plain(v) for v in x] if isinstance(x, (list, tuple)) else x
+
+
+def load_exported_weights(net: torch.nn.Module, path, kind: str, config: dict) -> None:
+    """Load an exported weight file (:mod:`ccs_kornia.training.export`) into ``net`` (fine-tuning).
+
+    Raises:
+        ValueError: the file holds another network kind or configuration.
+    """
+    payload = torch.load(str(path), map_location="cpu", weights_only=True)
+    if payload.get("kind") != kind or _plain(payload.get("config")) != _plain(config):
+        raise ValueError(f"{path} holds {payload.get('kind')} {payload.get('config')}, expected {kind} {config}.")
+    net.load_state_dict(payload["state_dict"])
 
 
 def adamw_one_cycle(module, lr: float, weight_decay: float, pct_start: float = 0.05) -> dict:

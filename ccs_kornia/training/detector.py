@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import lightning as L
 import torch
 
@@ -9,7 +11,7 @@ from ccs_kornia.losses.heatmap_loss import HeatmapLoss
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
-from ccs_kornia.training.common import adamw_one_cycle
+from ccs_kornia.training.common import adamw_one_cycle, load_exported_weights
 
 __all__ = ["DetectorLitModule"]
 
@@ -33,6 +35,16 @@ class DetectorLitModule(L.LightningModule):
         pos_weight: extra loss weight on pixels near corners (see :class:`HeatmapLoss`).
         sigma: Gaussian sigma of the targets (px), also used by the fit window.
         peak_threshold: heatmap threshold of the validation peak detector.
+        init_weights: an exported weight file (:mod:`ccs_kornia.training.export`, e.g. the shipped
+            ``ccs_kornia/weights/corner_unet.pt``) to start from (fine-tuning); its network config must match
+            ``base_channels`` / ``depth`` / ``norm``. Loaded when fitting starts (``setup("fit")``), before Lightning
+            restores a checkpoint, so a resumed run continues from its checkpoint and ``load_from_checkpoint`` never
+            needs the file. ``None``: random initialisation.
+
+    Example:
+        >>> m = DetectorLitModule(base_channels=4, depth=2)
+        >>> m(torch.zeros(1, 1, 32, 32)).shape
+        torch.Size([1, 1, 32, 32])
     """
 
     def __init__(
@@ -45,11 +57,21 @@ class DetectorLitModule(L.LightningModule):
         pos_weight: float = 10.0,
         sigma: float = 1.5,
         peak_threshold: float = 0.3,
+        init_weights: str | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
         self.net = CornerUNet(base_channels=base_channels, depth=depth, norm=norm)
         self.loss = HeatmapLoss(pos_weight=pos_weight)
+
+    def load_weights(self, path: str | Path) -> None:
+        """Load the network weights of an exported file (raises ``ValueError`` on a config mismatch)."""
+        cfg = {"base_channels": self.hparams.base_channels, "depth": self.hparams.depth, "norm": self.hparams.norm}
+        load_exported_weights(self.net, path, "CornerUNet", cfg)
+
+    def setup(self, stage: str) -> None:
+        if stage == "fit" and self.hparams.init_weights:
+            self.load_weights(self.hparams.init_weights)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         return self.net(images)

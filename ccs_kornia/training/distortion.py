@@ -6,15 +6,22 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import lightning as L
 import torch
 
 from ccs_kornia.camera import fit_radial_correction
-from ccs_kornia.losses.grid_loss import GridLoss, grid_loss, grid_targets, normalize_distortion_scale
+from ccs_kornia.losses.grid_loss import (
+    GridLoss,
+    grid_loss,
+    grid_targets,
+    normalize_distortion_scale,
+)
 from ccs_kornia.modules.correction.distortion_net import DistortionNet
 from ccs_kornia.modules.correction.radial_warp import correct_points
 from ccs_kornia.modules.correction.straightness import straightness_rms
-from ccs_kornia.training.common import adamw_one_cycle
+from ccs_kornia.training.common import adamw_one_cycle, load_exported_weights
 
 __all__ = ["DistortionLitModule"]
 
@@ -46,6 +53,9 @@ class DistortionLitModule(L.LightningModule):
         fix_scale: train on scale-normalised distortion targets (see above).
         lr: peak learning rate of the one-cycle schedule.
         weight_decay: AdamW weight decay.
+        init_weights: an exported weight file (e.g. the shipped ``ccs_kornia/weights/distortion_net.pt``) to start
+            from (fine-tuning); its network config must match. Loaded when fitting starts (``setup("fit")``, before
+            Lightning restores a checkpoint), so resumed runs and ``load_from_checkpoint`` never need the file.
     """
 
     def __init__(
@@ -60,6 +70,7 @@ class DistortionLitModule(L.LightningModule):
         fix_scale: bool = True,
         lr: float = 2e-3,
         weight_decay: float = 1e-4,
+        init_weights: str | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -68,6 +79,14 @@ class DistortionLitModule(L.LightningModule):
             output_scale=output_scale,
         )
         self.loss = GridLoss(grid_size=grid_size)
+
+    def load_weights(self, path: str | Path) -> None:
+        """Load the network weights of an exported file (raises ``ValueError`` on a config mismatch)."""
+        load_exported_weights(self.net, path, "DistortionNet", dict(self.net.config))
+
+    def setup(self, stage: str) -> None:
+        if stage == "fit" and self.hparams.init_weights:
+            self.load_weights(self.hparams.init_weights)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         return self.net(images)

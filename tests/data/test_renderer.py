@@ -248,3 +248,26 @@ def test_unreachable_pixels_are_black():
     img, _ = render_chessboard(K, r, t, (5, 4), 0.03, (W, H), radial=radial, supersample=1, background=0.5)
     assert float(img[0, 0, 0, 0]) == 0.0 and float(img[0, 0, -1, -1]) == 0.0
     assert float(img[0, 0, H // 2, W // 2]) > 0.05
+
+
+def test_per_view_border_keeps_the_corners_and_the_checker_area():
+    r, t = _poses(3, seed=4)
+    K = _K().expand(3, 3, 3)
+    border = torch.tensor([0.05, 0.6, 1.5])
+    img, corners = render_chessboard(K, r, t, (5, 4), 0.03, (W, H), supersample=2, background=0.0, border=border)
+    wide, c_wide = render_chessboard(K, r, t, (5, 4), 0.03, (W, H), supersample=2, background=0.0, border=1.5)
+    assert torch.equal(corners, c_wide)  # the margin never moves the ground truth
+    for i in range(3):  # a tensor border renders each view as the same scalar border does
+        one, _ = render_chessboard(K[i : i + 1], r[i : i + 1], t[i : i + 1], (5, 4), 0.03, (W, H), supersample=2,
+                                   background=0.0, border=float(border[i]))
+        assert torch.allclose(one, img[i : i + 1], atol=1e-5)
+    # pixels whose footprint lies inside the checker area are identical; only the margin and surround change
+    ys, xs = torch.meshgrid(torch.arange(H, dtype=torch.float64), torch.arange(W, dtype=torch.float64), indexing="ij")
+    pix = torch.stack([xs, ys], -1).reshape(1, -1, 2).expand(3, -1, -1)
+    uv, reach, front = board_coordinates(pix, K.double(), r.double(), t.double(), torch.full((3,), 0.03, dtype=torch.float64),
+                                         (W, H))
+    inside = ((uv[..., 0] > -0.8) & (uv[..., 0] < 4.8) & (uv[..., 1] > -0.8) & (uv[..., 1] < 3.8) & reach & front)
+    inside = inside.view(3, 1, H, W)
+    assert bool(inside.any())
+    assert float((img - wide).abs()[inside].max()) < 1e-5
+    assert float((img[0] - wide[0]).abs().max()) > 0.3  # the thin margin shows the dark surround

@@ -118,3 +118,32 @@ def test_concat_batches_pads_corners():
     a, b = _sample(1, seed=1, board_cols=(3, 3), board_rows=(2, 2)), _sample(2, seed=2)
     c = concat_batches([a, b])
     assert len(c) == 3 and c.corners.shape[1] == b.corners.shape[1] and not bool(c.corner_valid[0, 6:].any())
+
+
+def test_margin_and_surround_change_the_image_not_the_corners():
+    base = dict(square_px=(8.0, 10.0), psf_sigma=(0.0, 0.0), noise_sigma=(0.0, 0.0))
+    plain = _sample(3, seed=11, **base)
+    framed = _sample(3, seed=11, border_squares=(0.05, 0.3), surround_prob=1.0, surround_level=(0.0, 0.02),
+                     surround_texture=(0.0, 0.0), **base)
+    assert torch.equal(plain.corners, framed.corners) and torch.equal(plain.corner_valid, framed.corner_valid)
+    assert float((plain.images - framed.images).abs().max()) > 0.2
+    # the surround is flat and dark: most of a 240x180 view around a board of 8-10 px squares
+    assert float((framed.images < 0.1).float().mean()) > 0.3
+    with pytest.raises(ValueError, match="border_squares"):
+        WildSpec(border_squares=(1.0, 0.5))
+
+
+@pytest.mark.parametrize("lens", ["pinhole", "opencv", "fisheye"])
+def test_unplaceable_board_falls_back_instead_of_raising(lens):
+    # inner corners of a 10x7 board 5-6 px apart cannot be 30 px apart (min_square_px) in a 64x48 view, nor can
+    # a cut view of 25 px squares keep them inside: the sampler used to raise "Could not place 1 board(s)"
+    kw = dict(image_sizes=((64, 48),), board_cols=(10, 10), board_rows=(7, 7), lenses=(lens,), supersample=1,
+              psf_sigma=(0.0, 0.0), margin=1.0)
+    for extra in (dict(min_square_px=30.0, square_px=(5.0, 6.0)), dict(cut_prob=1.0, square_px=(25.0, 30.0))):
+        batch = WildChessboards(WildSpec(**kw, **extra)).sample(3, torch.Generator().manual_seed(0))
+        assert batch.images.shape == (3, 1, 48, 64) and bool(torch.isfinite(batch.images).all())
+        # the fallback is a full view: every inner corner is inside the image and labelled valid
+        assert bool(batch.corner_valid[:, :70].all())
+        c = batch.corners[:, :70]
+        assert bool(((c[..., 0] >= 1.0) & (c[..., 0] <= 62.0) & (c[..., 1] >= 1.0) & (c[..., 1] <= 46.0)).all())
+

@@ -4,6 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 from ccs_kornia.data.datamodule import DetectorDataModule, RenderedBatches
@@ -53,3 +54,32 @@ def test_cli_fit_fast_dev_run(tmp_path):
     out = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "fast_dev_run" in (out.stdout + out.stderr)
+
+
+def test_init_weights_starts_from_an_exported_file(tmp_path):
+    torch.manual_seed(0)
+    src = DetectorLitModule(base_channels=4, depth=2)
+    path = tmp_path / "w.pt"
+    torch.save(src.export(), path)
+    torch.manual_seed(1)
+    module = DetectorLitModule(base_channels=4, depth=2, init_weights=str(path))
+    x = torch.rand(1, 1, 32, 32)
+    src.eval(), module.eval()
+    assert not torch.allclose(module(x), src(x))  # not loaded at construction (load_from_checkpoint needs no file)
+    module.setup("fit")
+    for k, v in src.net.state_dict().items():
+        assert torch.equal(module.net.state_dict()[k], v)
+    assert torch.allclose(module(x), src(x))
+    module.setup("validate")  # only fitting loads
+    other = DetectorLitModule(base_channels=8, depth=2, init_weights=str(path))
+    with pytest.raises(ValueError, match="expected CornerUNet"):
+        other.setup("fit")
+
+
+def test_init_weights_loads_the_shipped_file():
+    path = REPO / "ccs_kornia" / "weights" / "corner_unet.pt"
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    module = DetectorLitModule(**payload["config"], init_weights=str(path))
+    module.setup("fit")
+    state = module.net.state_dict()
+    assert all(torch.equal(state[k], v) for k, v in payload["state_dict"].items())

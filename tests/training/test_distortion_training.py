@@ -153,3 +153,15 @@ def test_cli_fast_dev_run_and_export(tmp_path):
     net = DistortionNet.from_export(tmp_path / "distortion_net.pt")
     with torch.no_grad():
         assert net(torch.rand(1, 1, 120, 160)).shape == (1, 5)
+
+
+def test_init_weights_starts_from_the_shipped_file():
+    path = REPO / "ccs_kornia" / "weights" / "distortion_net.pt"
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    module = DistortionLitModule(**payload["config"], init_weights=str(path))
+    assert not all(torch.equal(module.net.state_dict()[k], v) for k, v in payload["state_dict"].items())
+    module.setup("fit")
+    assert all(torch.equal(module.net.state_dict()[k], v) for k, v in payload["state_dict"].items())
+    small = DistortionLitModule(base_channels=4, input_size=64, hidden=(16, 8), init_weights=str(path))
+    with pytest.raises(ValueError, match="expected DistortionNet"):
+        small.setup("fit")
