@@ -152,6 +152,8 @@ def camera_record(
         data["error"] = result.camera_reasons or "calibration failed"
     if cal is not None and hasattr(cal, "issues"):
         issues = cal.issues()[0] if cal.K.dim() == 2 else []
+        for issue in issues:  # the views a check names, as the user's files
+            issue["files"] = [paths[v] for v in issue.get("views", []) if 0 <= v < len(paths)]
         data["warnings"] = [i for i in issues if i.get("severity") == "warning"]
         data["errors"] = [i for i in issues if i.get("severity") == "error"]
     data["num_views"] = {"files": len(views), "found": n_found, "usable": len(usable),

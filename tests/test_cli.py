@@ -127,6 +127,20 @@ def test_calibrate_json_and_accuracy(rendered, tmp_path, capsys):
     assert "Is this calibration good?" in (report / "index.html").read_text()
 
 
+def test_copies_of_one_photo_are_refused_with_their_file_names(rendered, tmp_path, capsys):
+    _, files, _ = rendered
+    copies = []
+    for k in range(4):
+        target = tmp_path / f"copy{k}.png"
+        target.write_bytes(Path(files[1]).read_bytes())
+        copies.append(str(target))
+    out = tmp_path / "c.json"
+    code, _, err = run(capsys, "calibrate", *copies, "--board", "9x6", "--output", str(out), "--detector", "opencv")
+    assert code == 2 and not out.exists()
+    assert_one_line_error(err, "copies of earlier views")
+    assert "(files: copy1.png, copy2.png, copy3.png)" in err
+
+
 def test_calibrate_without_diagnostics_and_overlay_of_a_view_without_board(rendered, tmp_path, capsys):
     folder, files, _ = rendered
     blank = tmp_path / "blank.png"

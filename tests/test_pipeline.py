@@ -229,3 +229,32 @@ def test_diagnostics_per_camera_and_select(sets):
     assert out.select(1).diagnostics == out.diagnostics[1]
     plain = CalibrationPipeline("opencv", seed=0, distortion_correction=False)(imgs[:1], BOARD, SQUARE)
     assert plain.diagnostics is None and torch.equal(plain.calibration.K, out.calibration.K[:1])
+
+
+@pytest.mark.parametrize("detector", ["opencv", "learned"])
+@pytest.mark.parametrize("model", ["opencv5", "fisheye", "auto"])
+def test_no_crash_and_no_nan_without_a_reason(detector, model, sets):
+    """Whatever the input, a result: success with finite values, or failure with a reason per camera."""
+    g = torch.Generator().manual_seed(3)
+    good = sets[0].images[:4]
+    cases = {
+        "noise": torch.rand(4, 1, 48, 64, generator=g),
+        "blank": torch.zeros(3, 1, 48, 64),
+        "tiny": torch.rand(3, 1, 8, 8, generator=g),
+        "nan": torch.full((3, 1, 48, 64), float("nan")),
+        "single view": good[:1],
+        "two views": good[:2],
+        "copies": good[:1].expand(4, -1, -1, -1).clone(),
+    }
+    pipe = CalibrationPipeline(detector, model=model, distortion_correction=False)
+    for name, images in cases.items():
+        with torch.inference_mode():
+            out = pipe(images, BOARD, SQUARE)
+        assert not bool(out.success), name
+        assert isinstance(out.camera_reasons, str) and out.camera_reasons, name
+    # a good camera beside a hopeless one, batched
+    both = torch.stack([good, torch.rand(4, 1, 480, 640, generator=g)])
+    with torch.inference_mode():
+        out = pipe(both, BOARD, SQUARE)
+    assert out.calibration.success.tolist() == [False, False] or not out.camera_reasons[1] == ""
+    assert out.camera_reasons[1] and bool(out.calibration.K[1].isnan().all())

@@ -127,12 +127,26 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
                 res[key]["ccs_corrected"] = dc
                 log(f"[calibration] {cond:12s} {label:30s} E_IP ccs + distortion correction {_fmt(dc['e_ip'])} "
                     f"(applied on {int(applied.sum())}/{len(sub)})")
+                # the command line's default: the same path with the model chosen per trial (model="auto")
+                auto_pipe = _corrector(cfg, device, model="auto")
+                with Timer() as t_auto:
+                    done = auto_pipe.finish(pool_out.take_views(torch.as_tensor(cam), torch.as_tensor(views)),
+                                            cfg.board, cfg.square)
+                    cal = done.calibration
+                auto = calibration_metrics(cal.K.cpu().numpy(), K_true, cal.success.cpu().numpy(),
+                                           cal.rms.cpu().numpy(), cal.used.sum(-1).cpu().numpy(), K_scaled)
+                auto["seconds"] = t_auto.seconds
+                chosen = [s["chosen"] for s in done.model_selection if s and s["chosen"]]
+                auto["models"] = {m: chosen.count(m) for m in sorted(set(chosen))}
+                res[key]["ccs_auto"] = auto
+                log(f"[calibration] {cond:12s} {label:30s} E_IP ccs+dc --model auto {_fmt(auto['e_ip'])} "
+                    f"(chosen {auto['models']})")
             log(f"[calibration] {cond:12s} {label:30s} E_IP ccs {_fmt(ccs['e_ip'])} / cv2 {_fmt(cvm['e_ip'])}")
         out["conditions"][cond] = res
     return out
 
 
-def _corrector(cfg: BenchConfig, device: str):
+def _corrector(cfg: BenchConfig, device: str, model: str = "opencv5"):
     """The pipeline whose corrected solver stage the learned detections go through (None without weights)."""
 
     net, _ = distortion_available(cfg.distortion_weights)
@@ -140,4 +154,4 @@ def _corrector(cfg: BenchConfig, device: str):
         return None
     from ccs_kornia.pipeline import CalibrationPipeline
 
-    return CalibrationPipeline("learned", distortion_correction=net.to(device)).to(device)
+    return CalibrationPipeline("learned", model=model, distortion_correction=net.to(device)).to(device)

@@ -164,7 +164,8 @@ def _calibration_md(sec: dict) -> list[str]:
         rows = []
         scaled = any("e_ip_k0" in r["ccs"] for r in res.values())
         for r in res.values():
-            for solver, name in (("ccs", "ccs"), ("ccs_corrected", "ccs+dc"), ("opencv", "cv2")):
+            for solver, name in (("ccs", "ccs"), ("ccs_corrected", "ccs+dc"), ("ccs_auto", "ccs+dc auto"),
+                                 ("opencv", "cv2")):
                 if solver not in r:
                     continue
                 m = r[solver]

@@ -50,7 +50,7 @@ def calibrate_files(
         if "note" in view:
             warn(command, f"{view['path']}: {view['note']}")
     for issue in data.get("warnings", []):
-        warn(command, issue.get("message", str(issue)))
+        warn(command, issue.get("message", str(issue)) + _files_note(issue))
     if not data["success"]:
         readable = int(one.present.sum())
         if data["num_views"]["found"] == 0:
@@ -60,7 +60,7 @@ def calibrate_files(
                        f"{len(files)} files (board found in {data['num_views']['found']}); at least 3 are needed")
         elif data.get("errors"):  # the solver's refusals (degeneracy checks) name the problem and the views
             message = (f"calibration refused on {data['num_views']['usable']} views: "
-                       + "; ".join(i["message"] for i in data["errors"]))
+                       + "; ".join(i["message"] + _files_note(i) for i in data["errors"]))
         else:
             why = data["error"] if data["error"].startswith("calibration failed") else \
                 f"calibration failed on {data['num_views']['usable']} views: {data['error']}"
@@ -71,6 +71,15 @@ def calibrate_files(
             err.partial = data
         raise err
     return data, one
+
+
+def _files_note(issue: dict[str, Any], most: int = 6) -> str:
+    """`` (files: a.jpg, b.jpg, ...)`` for the views a degeneracy check names."""
+    names = [os.path.basename(f) for f in issue.get("files", [])]
+    if not names:
+        return ""
+    more = f", ... ({len(names)} in all)" if len(names) > most else ""
+    return f" (files: {', '.join(names[:most])}{more})"
 
 
 def _failed_path(output: str) -> str:

@@ -100,7 +100,13 @@ class OpenCVChessboardDetector(ChessboardDetector):
                 return None
             return pts
 
-        ok, corners = cv2.findChessboardCorners(gray8, board_size, flags=_CLASSIC_FLAGS)
+        # a board needs a few pixels per square; OpenCV's adaptive threshold fails outright on tiny images
+        if min(h, w) < 3 * (min(board_size) + 1) or max(h, w) < 3 * (max(board_size) + 1):
+            return None, f"image {w}x{h} too small for a {board_size[0]}x{board_size[1]} board"
+        try:
+            ok, corners = cv2.findChessboardCorners(gray8, board_size, flags=_CLASSIC_FLAGS)
+        except cv2.error as err:  # never an exception for one odd image: it is reported as not found
+            return None, f"OpenCV failed on this image ({str(err).strip().splitlines()[-1][:120]})"
         if ok and corners is not None:
             half = _subpix_half_window(corners.reshape(-1, 2), board_size, self.window_fraction, self.window_limits)
             refined = cv2.cornerSubPix(

@@ -108,3 +108,10 @@ def test_real_false_positive_and_sub_board(real_dir):
     assert corners is None and "continues" in reason
     corners, reason = det.detect_one(left02, (9, 6))
     assert corners is not None and reason == "classic"
+
+
+def test_tiny_images_are_not_found_with_a_reason():
+    from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
+
+    out = OpenCVChessboardDetector()(torch.rand(2, 1, 8, 8), (9, 6))
+    assert not bool(out.found.any()) and all("too small" in r for r in out.reasons)
