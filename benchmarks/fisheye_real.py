@@ -15,17 +15,14 @@ from __future__ import annotations
 import argparse
 import glob
 import os
-import sys
 import time
 
 import cv2
 import numpy as np
 import torch
 
-sys.path.insert(0, os.path.dirname(__file__))
-from fisheye_opencv import opencv_fisheye  # noqa: E402
-
-from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye  # noqa: E402
+from ccs_kornia.bench.fisheye_opencv import opencv_fisheye
+from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
 
 SETS = {
     # name: (cols, rows, square, reference fx, fy, cx, cy or None, intrinsic guess for cv2 or None)

@@ -12,18 +12,14 @@ over each method's successful trials.
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 import time
 
 import numpy as np
 import torch
 
-sys.path.insert(0, os.path.dirname(__file__))
-from fisheye_data import random_board_views, random_kb_cameras  # noqa: E402
-from fisheye_opencv import opencv_fisheye  # noqa: E402
-
-from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye  # noqa: E402
+from ccs_kornia.bench.fisheye_data import random_board_views, random_kb_cameras
+from ccs_kornia.bench.fisheye_opencv import opencv_fisheye
+from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
 
 
 def e_ip(K, K_true):

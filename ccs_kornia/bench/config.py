@@ -6,7 +6,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 __all__ = ["SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "BenchConfig"]
 
-SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild")
+SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
 #: conditions of the synthetic calibration section (paper Table I)
@@ -82,6 +82,9 @@ class BenchConfig:
         wild_images: images per wild condition; wild_big_images: per condition of 4 Mpx and more.
         wild_free_images: board-free images of the wild section.
         wild_real_sets: real sets rescaled in the wild section (``None``: all eight).
+        fisheye_trials, fisheye_views, fisheye_noise, fisheye_fov, fisheye_fail_px: the synthetic part of the
+            ``fisheye`` section (cameras, views each, corner noise px, field of view range in degrees, E_IP above
+            which a calibration counts as failed); fisheye_real_sets: its real sets.
         wild_real_scales: rescaling factors of the real photos; wild_real_images: images per set (``None``: all).
     """
 
@@ -130,6 +133,12 @@ class BenchConfig:
     wild_real_sets: tuple[str, ...] | None = None
     wild_real_scales: tuple[float, ...] = (0.5, 1.5, 2.0, 4.0)
     wild_real_images: int | None = 6
+    fisheye_trials: int = 50
+    fisheye_views: int = 15
+    fisheye_noise: float = 0.1
+    fisheye_fov: tuple[float, float] = (120.0, 200.0)
+    fisheye_fail_px: float = 20.0
+    fisheye_real_sets: tuple[str, ...] = ("ros_fisheye_mono", "boofcv_fisheye_chessboard")
     preset: str = "full"
     extra: dict = field(default_factory=dict)
 
@@ -148,6 +157,7 @@ class BenchConfig:
             real_sets=("opencv_left", "boofcv_bumblebee2_left"),
             calib_methods=("learned", "opencv_saddle", "opencv_subpix", "opencv_sb"),
             wild_images=2, wild_big_images=1, wild_free_images=21, wild_real_images=1, wild_time_limit=20.0,
+            fisheye_trials=8,
         )
         return replace(base, **overrides)
 
@@ -163,7 +173,7 @@ class BenchConfig:
             real_sets=("boofcv_bumblebee2_left",), calib_methods=("opencv_saddle", "opencv_subpix"),
             wild_methods=None, wild_conditions=("img320", "cut"), wild_images=1, wild_big_images=1, wild_free_images=2,
             wild_real_sets=("boofcv_bumblebee2_left",), wild_real_scales=(0.5,), wild_real_images=1,
-            preset="tiny",
+            fisheye_trials=2, fisheye_views=6, fisheye_real_sets=(), preset="tiny",
         )
         return replace(base, **overrides)
 

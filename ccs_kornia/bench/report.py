@@ -339,9 +339,12 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
         "distortion": "## 4. With and without distortion correction (paper Table IV)",
         "speed": "## 5. Speed",
         "wild": "## 6. Detection in the wild (issue 10)",
+        "fisheye": "## 7. Fisheye lenses (issue 11)",
     }
+    from ccs_kornia.bench.fisheye import fisheye_md
+
     render = {"corners": _corners_md, "calibration": _calibration_md, "real": lambda s: _real_md(s, boxplot),
-              "distortion": _distortion_md, "speed": _speed_md, "wild": _wild_md}
+              "distortion": _distortion_md, "speed": _speed_md, "wild": _wild_md, "fisheye": fisheye_md}
     for name, title in titles.items():
         if name not in sections:
             continue

@@ -83,6 +83,10 @@ def run_bench(
                 from ccs_kornia.bench.wild import run_wild
 
                 sec = run_wild(cfg, methods, log=log)
+            elif name == "fisheye":
+                from ccs_kornia.bench.fisheye import run_fisheye
+
+                sec = run_fisheye(cfg, log=log)
             else:
                 from ccs_kornia.bench.speed import run_speed
 
