@@ -45,7 +45,7 @@ from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
 from ccs_kornia.pipeline_result import PipelineResult, main_size, module_device, positive_size, same_size_views, select_result
-from ccs_kornia.pipeline_solve import solve_detections, solve_group
+from ccs_kornia.pipeline_solve import look_again_with_camera, solve_detections, solve_group
 from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource, load_batches  # noqa: F401
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
@@ -79,6 +79,8 @@ class CalibrationPipeline(nn.Module):
             corners is at most this times that of the usual calibration (same parameter count for ``opencv5``).
         joint_iters: LM iterations at most of the corrected-frame joint refinement.
         free_distortion_centre: the corrected-frame refinement also estimates the distortion centre.
+        calibrated_look: views missed on the originals of a camera calibrated with the fisheye model are looked for
+            again on virtual pinhole views of the calibrated lens, and the camera is solved again with them.
         diagnostics: also compute each camera's quality figures and verdict (``PipelineResult.diagnostics``; see
             :func:`~ccs_kornia.modules.calibration.diagnostics.diagnose`: several more solves per camera).
         solver_kwargs: further options of :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
@@ -110,6 +112,7 @@ class CalibrationPipeline(nn.Module):
         joint_iters: int = 50,
         free_distortion_centre: bool = True,
         diagnostics: bool = False,
+        calibrated_look: bool = True,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -130,7 +133,7 @@ class CalibrationPipeline(nn.Module):
                                       for m in names})
         self.solver = self.solvers[names[1] if model == "auto" else model]  # the stage alone's (auto: opencv5)
         self.selection = ModelSelection(dict(self.solvers)) if model == "auto" else None
-        self.model, self.diagnostics = model, bool(diagnostics)
+        self.model, self.diagnostics, self.calibrated_look = model, bool(diagnostics), bool(calibrated_look)
         self.detection_batch_size = int(detection_batch_size)
         self.max_batch_pixels = max_batch_pixels
         self.max_detection_side = int(max_detection_side) if max_detection_side else None
@@ -253,7 +256,12 @@ class CalibrationPipeline(nn.Module):
         if not calibrate:
             return out
         with stage("solver"):
-            return self.solve(out, board, square)
+            out = self.solve(out, board, square)
+        # a fisheye lens, once calibrated, straightens the boards its rim hid from the detector: look again, solve again
+        if self.calibrated_look and source is not None and look_again_with_camera(self, source, out, board):
+            with stage("solver"):
+                out = self.solve(out, board, square)
+        return out
 
     def _correct(self, source: ViewSource | None, out: PipelineResult, per_view: torch.Tensor, same: torch.Tensor,
                  board: tuple[int, int]) -> None:

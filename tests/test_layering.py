@@ -180,7 +180,7 @@ ALLOWED: dict[str, set[str]] = {
     "data": {"camera"},
     "losses": {"camera"},
     "modules": {"camera"},
-    "pipeline_solve": {"camera", "modules", "pipeline_result"},
+    "pipeline_solve": {"camera", "modules", "pipeline_result", "sources"},
     "pipeline": {"camera", "modules", "sources", "pipeline_result", "pipeline_solve"},
     "records": {"modules", "pipeline_result", "sources"},
     "report": {"camera", "io", "report_figures", "report_quality"},

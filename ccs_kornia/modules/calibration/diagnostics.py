@@ -98,6 +98,7 @@ def cross_validation(
     result,
     folds: int = 5,
     grid: tuple[int, int] = (16, 12),
+    fit: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     r"""Split-half cross-validation and k-fold held-out reprojection error, in one batched solver call.
 
@@ -111,6 +112,8 @@ def cross_validation(
         result: the solver's batched result (``K``, ``dist``, ``rvec``, ``tvec``, ``used``, ``rms``).
         folds: folds of the held-out error (at most the number of used views).
         grid: pixels of the comparison grid.
+        fit: :math:`(C, G)` bool, grid pixels over which the rotation between the halves is fitted (``None``: all;
+            :func:`diagnose` passes where the boards were, so a wide lens's extrapolated rim does not set it).
 
     Returns:
         dict of :math:`(C,)` tensors (NaN where a half or fold could not be calibrated): ``cv_rms_px`` and
@@ -138,7 +141,7 @@ def cross_validation(
     # split halves
     Ka, Kb = K[:, 0].nan_to_num(1.0), K[:, 1].nan_to_num(1.0)
     da, db = dist[:, 0].nan_to_num(0.0), dist[:, 1].nan_to_num(0.0)
-    fit = torch.ones(px.shape[0], dtype=torch.bool, device=px.device)
+    fit = torch.ones(px.shape[0], dtype=torch.bool, device=px.device) if fit is None else fit.to(px.device)
     lens = "fisheye" if getattr(result, "model", None) == "fisheye" else "opencv"
     diff = projection_difference(Ka, da, Kb, db, px, compensate_rotation=fit, model=lens)
     halves_ok = ok[:, 0] & ok[:, 1]
@@ -399,7 +402,8 @@ def diagnose(
         unc_fixed = projection_uncertainty(Kc, dc, cov, five, model=lens)
     cv = None
     if solver is not None and bool(ok.any()):
-        cv = cross_validation(solver, corners, valid, object_points, image_size, result, folds, grid)
+        on_grid = torch.where(covered.any(-1, keepdim=True), covered, torch.ones_like(covered))
+        cv = cross_validation(solver, corners, valid, object_points, image_size, result, folds, grid, fit=on_grid)
     if result.check_severity is not None:
         issues = issues_from_tensors(result.check_severity, result.check_value, result.check_views)
     else:
