@@ -232,7 +232,7 @@ def test_diagnostics_per_camera_and_select(sets):
 
 
 @pytest.mark.parametrize("detector", ["opencv", "learned"])
-@pytest.mark.parametrize("model", ["opencv5", "fisheye", "auto"])
+@pytest.mark.parametrize("model", ["none", "k1k2", "opencv5", "rational", "fisheye", "auto"])
 def test_no_crash_and_no_nan_without_a_reason(detector, model, sets):
     """Whatever the input, a result: success with finite values, or failure with a reason per camera."""
     g = torch.Generator().manual_seed(3)
@@ -258,3 +258,19 @@ def test_no_crash_and_no_nan_without_a_reason(detector, model, sets):
         out = pipe(both, BOARD, SQUARE)
     assert out.calibration.success.tolist() == [False, False] or not out.camera_reasons[1] == ""
     assert out.camera_reasons[1] and bool(out.calibration.K[1].isnan().all())
+
+
+@pytest.mark.parametrize("detector", ["opencv", "learned"])
+def test_huge_board_free_images_and_wrong_shapes(detector):
+    """A 24 Mpx board-free image gives a failed result with a reason (bounded memory, see the pipeline's streaming);
+    only malformed shapes raise, and they raise ValueError."""
+    g = torch.Generator().manual_seed(4)
+    huge = torch.rand(1, 1, 1, 3000, 4000, generator=g).expand(1, 3, 1, 3000, 4000)
+    pipe = CalibrationPipeline(detector, distortion_correction=False)
+    with torch.inference_mode():
+        out = pipe(huge, BOARD, SQUARE)
+    assert out.calibration.success.tolist() == [False] and out.camera_reasons[0]
+    for bad in (torch.rand(3, 48, 64), torch.rand(2, 2, 1, 1, 48, 64)):
+        with pytest.raises(ValueError):
+            pipe(bad, BOARD, SQUARE)
+
