@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     )
     # the very path of `calibrate`, on the files just written
     pipeline = make_pipeline(argparse.Namespace(detector=args.detector, batch_size=16,
-                                                 distortion_correction=args.distortion_correction))
+                                                 distortion_correction=args.distortion_correction, diagnostics=True))
     output = os.path.join(args.out_dir, "calib.json")
     data, _ = calibrate_files("demo", files, DEMO_BOARD, DEMO_SQUARE, pipeline, device, 16, "opencv5", args.detector)
     data["device"] = str(device)
@@ -81,5 +81,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"E_FL {float(e_fl(K_est, K_true)):.4f} px   E_PP {float(e_pp(K_est, K_true)):.4f} px   "
           f"E_IP {float(e_ip(K_est, K_true)):.4f} px   RMS {data['rms']:.4f} px "
           f"({data['num_views']['used']} of {args.views} views used)")
+    quality = data.get("diagnostics") or {}
+    if quality:
+        print(f"verdict: {quality['verdict']} (held-out views {quality['heldout_rms_px']:.3f} px, two halves differ "
+              f"by {quality['cv_covered_rms_px']:.3f} px where the boards were, projection uncertainty "
+              f"{quality['uncertainty_centre_px']:.3f} px at the centre)")
     print(f"wrote {len(files)} images, ground_truth.json, calib.json and report/index.html to {args.out_dir}")
     return 0
