@@ -179,6 +179,8 @@ def test_demo(tmp_path, capsys):
     assert abs(data["K"][0][0] - 620.0) < 10.0
     assert len(list((tmp_path / "demo").glob("view_*.png"))) == 5
     assert (tmp_path / "demo" / "report" / "index.html").is_file()
+    assert "verdict: " in stdout and data["diagnostics"]["uncertainty_centre_px"] is not None
+    assert "Is this calibration good?" in (tmp_path / "demo" / "report" / "index.html").read_text()
 
 
 # ----------------------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ from ccs_kornia.commands._common import (
     warn,
 )
 
-__all__ = ["calibrate_files", "ros_camera_info", "run"]
+__all__ = ["calibrate_files", "ros_camera_info", "run", "verdict_line"]
 
 
 def calibrate_files(
@@ -201,9 +201,16 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         figures = ", ".join(f"{m} {v:.3f}" for m, v in held.items() if v is not None)
         print(f"model: {choice['chosen']} chosen by cross-validation (runner-up {choice['runner_up']}; "
               f"held-out RMS px: {figures})")
-    quality = data.get("diagnostics")
-    if quality:
-        figures = [f"{label} {quality[key]:.2f} px" for label, key in (
-            ("held-out views", "heldout_rms_px"), ("halves differ where the boards were by", "cv_covered_rms_px"),
-            ("uncertainty at the centre", "uncertainty_centre_px")) if quality.get(key) is not None]
-        print(f"verdict: {quality['verdict']}" + (f" ({', '.join(figures)})" if figures else ""))
+    line = verdict_line(data.get("diagnostics"))
+    if line:
+        print(line)
+
+
+def verdict_line(quality: dict[str, Any] | None) -> str:
+    """``verdict: ... (held-out views ... px, ...)`` from the diagnostics (empty without them)."""
+    if not quality:
+        return ""
+    figures = [f"{label} {quality[key]:.3f} px" for label, key in (
+        ("held-out views", "heldout_rms_px"), ("halves differ where the boards were by", "cv_covered_rms_px"),
+        ("uncertainty at the centre", "uncertainty_centre_px")) if quality.get(key) is not None]
+    return f"verdict: {quality['verdict']}" + (f" ({', '.join(figures)})" if figures else "")

@@ -7,7 +7,7 @@ import os
 import time
 
 from ccs_kornia.commands._common import info, make_dir, make_pipeline, resolve_device
-from ccs_kornia.commands.calibrate import calibrate_files
+from ccs_kornia.commands.calibrate import calibrate_files, verdict_line
 
 __all__ = ["run", "DEMO_K", "DEMO_DIST", "DEMO_IMAGE_SIZE", "DEMO_BOARD", "DEMO_SQUARE", "DEMO_VIEWS"]
 
@@ -81,10 +81,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"E_FL {float(e_fl(K_est, K_true)):.4f} px   E_PP {float(e_pp(K_est, K_true)):.4f} px   "
           f"E_IP {float(e_ip(K_est, K_true)):.4f} px   RMS {data['rms']:.4f} px "
           f"({data['num_views']['used']} of {args.views} views used)")
-    quality = data.get("diagnostics") or {}
-    if quality:
-        print(f"verdict: {quality['verdict']} (held-out views {quality['heldout_rms_px']:.3f} px, two halves differ "
-              f"by {quality['cv_covered_rms_px']:.3f} px where the boards were, projection uncertainty "
-              f"{quality['uncertainty_centre_px']:.3f} px at the centre)")
+    line = verdict_line(data.get("diagnostics"))
+    if line:
+        print(line)
     print(f"wrote {len(files)} images, ground_truth.json, calib.json and report/index.html to {args.out_dir}")
     return 0
