@@ -140,8 +140,8 @@ def _compete(pipe: Any, solver: Any, usual: CalibrationResult, corners, found, b
 
 
 def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: tuple[int, int]) -> bool:
-    """Views missed on the originals of cameras calibrated with the fisheye model, looked for on virtual pinhole
-    views of the calibrated lens (:func:`~ccs_kornia.modules.correction.calibrated_detection.detect_with_calibrated_lens`);
+    """Views missed on the originals (or rejected as outliers) of cameras calibrated with the fisheye model, looked
+    for on virtual pinhole views of the calibrated lens (:func:`~ccs_kornia.modules.correction.calibrated_detection.detect_with_calibrated_lens`);
     fills ``out.detections`` in place and returns whether a board was found (the cameras are then solved again).
 
     Only fisheye cameras: there the boards near the rim are too curved for the detector, and the calibrated model is
@@ -158,7 +158,11 @@ def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: t
     same = same_size_views(out)
     ok = cal.success.to(same.device)
     cams = [ci for ci in ok.nonzero().flatten().tolist() if models[ci] == "fisheye"]
-    missed = [(ci, vi) for ci in cams for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()]
+    # views without a board, and views whose corners the solver rejected as an outlier (wrong corners on the
+    # original image: a board near the rim found, but mislabelled)
+    outlier = cal.view_reason.to(same.device) == 4
+    retry = same & (~det.found | outlier)
+    missed = [(ci, vi) for ci in cams for vi in retry[ci].nonzero().flatten().tolist()]
     if not missed:
         return False
     lens = {ci: select_result(cal, ci) for ci in cams}

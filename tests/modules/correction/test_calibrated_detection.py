@@ -21,9 +21,10 @@ F64 = torch.float64
 
 
 def test_directions_and_rays():
-    assert view_directions(False) == [(0.0, 0.0)]
-    ring = view_directions(True, tilt_deg=50.0, ring=4)
-    assert len(ring) == 5 and all(abs(math.hypot(*d) - 50.0) < 1e-9 for d in ring[1:])
+    assert view_directions(False) == [(0.0, 0.0, 110.0)]
+    views = view_directions(True)
+    tilts = sorted({round(math.hypot(y, p), 6) for y, p, _ in views[1:]})
+    assert len(views) == 19 and tilts == [35.0, 55.0] and {f for *_, f in views} == {110.0, 130.0}
     rays, f = virtual_view_rays((0.0, 0.0), 90.0, 5)
     assert rays.shape == (25, 3) and abs(f - 2.5) < 1e-12 and torch.allclose(rays[12], torch.tensor([0.0, 0, 1], dtype=F64))
     tilted, _ = virtual_view_rays((30.0, 0.0), 90.0, 5)
