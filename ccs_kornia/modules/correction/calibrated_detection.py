@@ -53,8 +53,9 @@ def view_directions(wide: bool, fov_deg: float = 110.0) -> list[tuple[float, flo
 
 
 def virtual_view_rays(direction: tuple[float, float], fov_deg: float, side: int, dtype=torch.float64,
-                      device=None) -> tuple[torch.Tensor, float]:
-    r"""Camera-frame rays :math:`(side * side, 3)` of a square virtual pinhole view and its focal length (px).
+                      device=None) -> tuple[torch.Tensor, float, torch.Tensor]:
+    r"""Camera-frame rays :math:`(side * side, 3)` of a square virtual pinhole view, its focal length (px) and its
+    rotation :math:`(3, 3)` (virtual-view ray -> camera-frame ray: ``ray @ R.T``).
 
     Args:
         direction: (yaw, pitch) in degrees: where the virtual camera looks.
@@ -68,7 +69,7 @@ def virtual_view_rays(direction: tuple[float, float], fov_deg: float, side: int,
     yaw, pitch = direction
     R = axis_angle_to_rotation_matrix(torch.tensor([[math.radians(-pitch), math.radians(yaw), 0.0]], dtype=dtype,
                                                    device=device))[0]
-    return rays @ R.T, f
+    return rays @ R.T, f, R
 
 
 def _project(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, fisheye: bool) -> torch.Tensor:
@@ -124,11 +125,10 @@ def detect_with_calibrated_lens(
     reasons = ["board not found on the virtual pinhole views of the calibrated lens"] * b
     K64, d64 = K.to(device, torch.float64), dist.to(device, torch.float64)
     for k, (yaw, pitch, fov) in enumerate(view_directions(fisheye, fov_deg)):
-        direction = (yaw, pitch)
         todo = (~found).nonzero().flatten()
         if todo.numel() == 0:
             break
-        rays, f = virtual_view_rays(direction, fov, side, device=device)
+        rays, f, R = virtual_view_rays((yaw, pitch), fov, side, device=device)
         src = _project(rays.expand(todo.numel(), -1, -1), K64[todo], d64[todo], fisheye)
         src = src.reshape(todo.numel(), side, side, 2).float()
         # rays the camera cannot see land outside the image: zeros there, as the border of any undistortion
@@ -143,9 +143,6 @@ def detect_with_calibrated_lens(
         pix = got.corners[hit].to(device, torch.float64)
         c = (side - 1) / 2
         local = torch.stack([(pix[..., 0] - c) / f, (pix[..., 1] - c) / f, torch.ones_like(pix[..., 0])], -1)
-        yaw, pitch = direction
-        R = axis_angle_to_rotation_matrix(torch.tensor([[math.radians(-pitch), math.radians(yaw), 0.0]],
-                                                       dtype=torch.float64, device=device))[0]
         back = _project(local @ R.T, K64[idx], d64[idx], fisheye)
         inside = back.isfinite().all(-1).all(-1) & (back >= 0).all(-1).all(-1)
         inside = inside & (back[..., 0] <= w - 1).all(-1) & (back[..., 1] <= h - 1).all(-1)

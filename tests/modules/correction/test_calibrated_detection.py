@@ -25,9 +25,10 @@ def test_directions_and_rays():
     views = view_directions(True)
     tilts = sorted({round(math.hypot(y, p), 6) for y, p, _ in views[1:]})
     assert len(views) == 19 and tilts == [35.0, 55.0] and {f for *_, f in views} == {110.0, 130.0}
-    rays, f = virtual_view_rays((0.0, 0.0), 90.0, 5)
+    rays, f, R = virtual_view_rays((0.0, 0.0), 90.0, 5)
     assert rays.shape == (25, 3) and abs(f - 2.5) < 1e-12 and torch.allclose(rays[12], torch.tensor([0.0, 0, 1], dtype=F64))
-    tilted, _ = virtual_view_rays((30.0, 0.0), 90.0, 5)
+    tilted, _, R30 = virtual_view_rays((30.0, 0.0), 90.0, 5)
+    assert torch.allclose(R, torch.eye(3, dtype=F64)) and torch.allclose(R30 @ R30.T, torch.eye(3, dtype=F64))
     centre = tilted[12] / tilted[12].norm()
     assert abs(math.degrees(math.acos(float(centre[2]))) - 30.0) < 1e-9
 
