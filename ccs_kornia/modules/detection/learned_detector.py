@@ -67,7 +67,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         fit_window: Gaussian-fit window (odd).
         sigma_tolerance: relative sigma tolerance of the outlier rejection.
         collinearity: run the collinearity refinement.
-        refine: ``"saddle"``, ``"gradient"`` or ``"none"`` image refinement.
+        refine: ``"symmetric"`` (saddle fit + point-symmetry polish), ``"saddle"``, ``"gradient"`` or ``"none"``
+            image refinement.
         x_junction_check: drop peaks where the image shows no X-junction (clutter, board edges).
         scale: ``"auto"``: detect on the pyramid level where the squares have about ``target_square`` px (chosen per
             image from the image, :mod:`ccs_kornia.modules.detection.scale`) and refine at full resolution;
@@ -95,7 +96,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         fit_window: int = 7,
         sigma_tolerance: float = 0.6,
         collinearity: bool = False,
-        refine: str = "saddle",
+        refine: str = "symmetric",
         x_junction_check: bool = True,
         scale: str = "auto",
         target_square: float = 12.0,
@@ -119,8 +120,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         self.sigma_tolerance = sigma_tolerance
         self.collinearity = collinearity
         self.x_junction_check = x_junction_check
-        if refine not in ("saddle", "gradient", "none"):
-            raise ValueError(f"refine must be 'saddle', 'gradient' or 'none', got {refine!r}.")
+        if refine not in ("saddle", "symmetric", "gradient", "none"):
+            raise ValueError(f"refine must be 'symmetric', 'saddle', 'gradient' or 'none', got {refine!r}.")
         self.refine = refine
         self.refiner = CornerRefiner(method=refine) if refine != "none" else None
         # --- scale selection (modules/detection/scale.py) ---
