@@ -1,0 +1,96 @@
+"""Point-symmetry polish (ccs_kornia/modules/detection/symmetry_refine.py) and the ``"symmetric"`` refiner."""
+
+from __future__ import annotations
+
+import doctest
+
+import pytest
+import torch
+from kornia.filters import gaussian_blur2d
+
+from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.modules.detection import symmetry_refine as symmetry_module
+from ccs_kornia.modules.detection.patch_refine import edge_blur
+from ccs_kornia.modules.detection.saddle_refine import (
+    CornerRefiner,
+    _sample_window,
+    _window,
+    refine_corners,
+)
+from ccs_kornia.modules.detection.symmetry_refine import symmetry_polish
+
+K = torch.tensor([[800.0, 0, 319.5], [0, 800, 239.5], [0, 0, 1]])
+
+
+def _junction(size: int, centre: tuple[float, float], angle: float = 0.0, skew: float = 0.0, ss: int = 8):
+    """A blurred, sheared X-junction (a chessboard corner under an affine view), supersampled ``ss`` times."""
+    n = size * ss
+    t = (torch.arange(n, dtype=torch.float64) + 0.5) / ss - 0.5
+    y, x = torch.meshgrid(t, t, indexing="ij")
+    u, v = x - centre[0], y - centre[1]
+    e1 = torch.tensor([torch.cos(torch.tensor(angle)), torch.sin(torch.tensor(angle))], dtype=torch.float64)
+    e2 = torch.tensor([torch.cos(torch.tensor(angle + torch.pi / 2 + skew)),
+                       torch.sin(torch.tensor(angle + torch.pi / 2 + skew))], dtype=torch.float64)
+    s1 = u * e1[1] - v * e1[0]
+    s2 = u * e2[1] - v * e2[0]
+    img = (0.2 + 0.6 * ((s1 > 0) == (s2 > 0)).double())[None, None]
+    img = torch.nn.functional.avg_pool2d(img, ss)
+    return gaussian_blur2d(img.float(), (9, 9), (1.2, 1.2))
+
+
+def test_doctests():
+    assert doctest.testmod(symmetry_module).failed == 0
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_shapes_and_exact_on_a_sheared_corner(dtype):
+    truth = torch.tensor([[31.37, 30.81]])
+    img = _junction(64, (31.37, 30.81), angle=0.3, skew=0.5).to(dtype)
+    r = torch.tensor([8.0, 8.0])
+    w = _window(r, 8)[1]
+    start = truth.repeat(2, 1) + torch.tensor([[0.6, -0.4], [-0.3, 0.5]])
+    out, ok, asym = symmetry_polish(img.expand(2, -1, -1, -1), start.to(dtype), r.to(dtype), 8, _sample_window,
+                                    w.to(dtype))
+    assert out.shape == (2, 2) and ok.shape == (2,) and asym.shape == (2,)
+    assert bool(ok.all()) and float(asym.max()) < 0.01
+    assert float((out - truth).norm(dim=-1).max()) < 0.01
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.02])
+def test_the_symmetric_refiner_beats_the_saddle_fit_under_blur(noise):
+    """Under perspective and blur the quadratic fit is biased; the polish is not (measured when written: 0.0084 ->
+    0.0023 px without noise, 0.038 -> 0.025 px with it)."""
+    views = make_calibration_set(K, (9, 6), 0.025, (640, 480), num_views=3, seed=11, supersample=4)
+    images = gaussian_blur2d(views.images, (13, 13), (1.5, 1.5))
+    images = images + noise * torch.randn(images.shape, generator=torch.Generator().manual_seed(1))
+    cells = torch.ones(views.corners.shape[:2], dtype=torch.bool)
+    err = {}
+    for method in ("saddle", "symmetric"):
+        out = CornerRefiner(method=method)(images, views.corners + 0.3, cells, (9, 6))
+        err[method] = float((out - views.corners).norm(dim=-1).mean())
+    assert err["symmetric"] < 0.8 * err["saddle"], err
+
+
+def test_polish_keeps_the_saddle_verdict():
+    """A point where the image shows no corner is still rejected (the polish never turns ``ok`` on)."""
+    img = torch.full((1, 1, 48, 48), 0.5)
+    img[..., :, 24:] = 0.9  # a straight edge, no junction
+    _, ok = refine_corners(img, torch.tensor([[[24.0, 24.0]]]), radius=6.0, method="symmetric", return_ok=True)
+    assert not bool(ok.any())
+
+
+def test_invalid_method():
+    with pytest.raises(ValueError, match="method must be one of"):
+        refine_corners(torch.zeros(1, 1, 8, 8), torch.zeros(1, 1, 2), method="cone")
+
+
+def test_edge_blur_is_not_fooled_by_noise_on_large_squares():
+    """Noise summed over the many samples across a 280 px square once read as 30 px of blur."""
+    size, sq = 900, 280
+    yy, xx = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+    board = (((xx - 30) // sq + (yy - 30) // sq) % 2 == 0).float()[None, None] * 0.6 + 0.2
+    board = gaussian_blur2d(board, (13, 13), (2.0, 2.0))
+    noisy = board + 0.01 * torch.randn(board.shape, generator=torch.Generator().manual_seed(0))
+    g = torch.stack(torch.meshgrid(torch.arange(2) * sq + 30 + sq - 0.5, torch.arange(2) * sq + 30 + sq - 0.5,
+                                   indexing="xy"), -1).reshape(1, 4, 2).float()
+    assert abs(float(edge_blur(noisy, g, (2, 2))) - 2.0) < 0.5
