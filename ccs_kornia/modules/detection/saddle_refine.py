@@ -23,6 +23,8 @@ at a fraction of the cost; its normal matrix, fixed by the window, is factorised
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from kornia.filters import gaussian_blur2d, get_gaussian_kernel1d, spatial_gradient
@@ -37,6 +39,8 @@ METHODS = ("saddle", "symmetric", "gradient")
 POLISH_WINDOW = 1.5
 #: Gauss-Newton steps of the polish (the saddle fit leaves it a few hundredths of a px to go)
 POLISH_ITERATIONS = 4
+#: farthest the polish may move a saddle point (px); beyond it the saddle point is kept
+POLISH_MAX_MOVE = 2.0
 
 
 def _sample(image: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
@@ -87,21 +91,28 @@ def _blurred_regions(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor
 
 
 def _saddle_source(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor, q: int, smooth_sigma: float,
-                   normalize_sigma: float) -> torch.Tensor:
-    """The saddle fit's input image (smoothed, divided by the local mean) on ``q x q`` regions, :math:`(M, 1, q, q)`.
+                   normalize_sigma: float, with_plain: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+    """The saddle fit's input image (smoothed, divided by the local mean) on ``q x q`` regions, :math:`(M, 1, q, q)`
+    (with ``with_plain``, also the smoothed regions before the division).
 
     Equal, up to float rounding, to ``refine_corners``' whole-image source cropped there: pixels outside the image
     repeat the nearest in-image value, as bilinear sampling with ``padding_mode="border"`` reads it."""
-    src = _blurred_regions(img, bi, top_left, q, smooth_sigma, "reflect")
+    plain = _blurred_regions(img, bi, top_left, q, smooth_sigma, "reflect")
+    src = plain
     if normalize_sigma > 0:
-        src = src / _blurred_regions(img, bi, top_left, q, normalize_sigma, "replicate").clamp_min(1e-3)
+        src = plain / _blurred_regions(img, bi, top_left, q, normalize_sigma, "replicate").clamp_min(1e-3)
     h, w = img.shape[-2:]
     span = torch.arange(q, device=img.device)
     # local index of the clamped (in-image) pixel of every region pixel
     iy = ((top_left[:, 1, None] + span).clamp(0, h - 1) - top_left[:, 1, None]).clamp(0, q - 1)
     ix = ((top_left[:, 0, None] + span).clamp(0, w - 1) - top_left[:, 0, None]).clamp(0, q - 1)
-    src = src.gather(1, iy[:, :, None].expand(-1, -1, q)).gather(2, ix[:, None, :].expand(-1, q, -1))
-    return src[:, None]
+
+    def clamp(x: torch.Tensor) -> torch.Tensor:
+        return x.gather(1, iy[:, :, None].expand(-1, -1, q)).gather(2, ix[:, None, :].expand(-1, q, -1))[:, None]
+
+    if with_plain:
+        return clamp(src), (clamp(plain) if normalize_sigma > 0 else None)
+    return clamp(src)
 
 
 def grid_spacing(corners: torch.Tensor, valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
@@ -278,8 +289,8 @@ def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma,
                    polish: bool = False, max_elements: int = 1 << 22):
     """The saddle branch of :func:`refine_corners`, on the valid corners only, each on its own region.
 
-    The window side follows the largest radius among the valid corners (weights are zero beyond a corner's own
-    radius, so a larger window would only add zeros). With ``polish`` (method ``"symmetric"``), the saddle fit's
+    Corners are grouped by radius; a group's window side follows its largest radius (weights are zero beyond a
+    corner's own radius, so a larger window would only add zeros). With ``polish`` (method ``"symmetric"``), the saddle fit's
     point (and its verdict, ``ok``) is then polished by :func:`symmetry_polish` on the same region, smoothed but not
     normalised, in a window :data:`POLISH_WINDOW` times wider."""
     b, n = corners.shape[:2]
@@ -291,69 +302,84 @@ def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma,
     if sel.numel() == 0:
         return (corners, ok_out) if return_ok else corners
     flat_start, flat_r = start.reshape(-1, 2), r.reshape(-1)
-    rmax = int(torch.ceil(flat_r[sel].max()).item())
-    off, _ = _window(flat_r[:1], rmax)
-    # the region covers every window within rmax + 1 px of the starting pixel (a corner that moves further is
-    # returned unchanged: it moved more than its radius)
-    half = 2 * rmax + 2
-    if polish:
-        polish_r = (POLISH_WINDOW * flat_r).clamp(2.5, POLISH_WINDOW * max_radius)
-        polish_max = int(torch.ceil(polish_r[sel].max()).item())
-        half = max(half, rmax + polish_max + 2)
-    q = 2 * half + 1
-    pad = 2 * int(round(3 * max(smooth_sigma, normalize_sigma))) + 1
-    chunk = max(1, max_elements // ((q + pad) ** 2))
-    x, y = off[:, 0], off[:, 1]
-    basis = torch.stack([x * x, x * y, y * y, x, y, torch.ones_like(x)], -1)  # (P,6)
-    for part in sel.split(chunk):
-        c0 = flat_start[part]
-        rr = flat_r[part]
-        bw = basis[None] * _window(rr, rmax)[1][..., None]  # (M,P,6)
-        ata = torch.einsum("mpi,pj->mij", bw, basis) + 1e-9 * torch.eye(6, device=dev, dtype=dt)
-        # the window moves with the corner but its weights do not: one factorisation per corner
-        lu, piv = torch.linalg.lu_factor(ata.double())
-        top_left = c0.round().long() - half
-        src = _saddle_source(img, part // n, top_left, q, smooth_sigma, normalize_sigma)
-        c = c0.clone()
-        ok = torch.zeros(c.shape[0], dtype=torch.bool, device=dev)
-        step = torch.zeros(c.shape[0], dtype=dt, device=dev)
-        for _ in range(iterations):
-            f = _sample_window(src, c - top_left.to(dt), rmax)  # (M,P)
-            atb = torch.einsum("mpi,mp->mi", bw, f)
-            coef = torch.linalg.lu_solve(lu, piv, atb.double().unsqueeze(-1)).squeeze(-1).to(dt)
-            a, bb, cc, d, e = coef.unbind(-1)[:5]
-            # stationary point: [2a b; b 2c] [x y]^T = -[d e]^T ; a saddle has a negative determinant
-            det = 4 * a * cc - bb * bb
-            ok = det < -1e-12
-            det = torch.where(ok, det, -torch.ones_like(det))
-            sx = (-2 * cc * d + bb * e) / det
-            sy = (-2 * a * e + bb * d) / det
-            new = c + torch.stack([sx, sy], -1)
-            step = (new - c).norm(dim=-1)
-            keep = ok & torch.isfinite(new).all(-1) & (step <= rr)
-            c = torch.where(keep[..., None], new, c)
-        inside = (c - c0).norm(dim=-1) <= rr
-        c = torch.where(inside[..., None], c, c0)
-        ok = inside & ok & (step <= rr)
+    polish_r = (POLISH_WINDOW * flat_r).clamp(2.5, POLISH_WINDOW * max_radius) if polish else None
+    # corners are processed in groups of similar radius (sizes 2^(k/2)): the window and the region of a group
+    # follow its own largest radius, so a board's far, small corners do not pay for its near, large ones
+    bucket = torch.ceil(2 * torch.log2(flat_r[sel].clamp_min(1.0))).long()
+    for key in torch.unique(bucket).tolist():
+        group = sel[bucket == key]
+        rmax = int(torch.ceil(flat_r[group].max()).item())
+        off, _ = _window(flat_r[:1], rmax)
+        # the region covers every window within rmax + 1 px of the starting pixel (a corner that moves further is
+        # returned unchanged: it moved more than its radius), and the polish's wider window around the saddle point
+        # plus its largest move and the gradient's border
+        half = 2 * rmax + 2
         if polish:
-            pr = polish_r[part]
-            # two sources, the more symmetric result wins per corner: the normalised one cancels shading (bad
-            # light: 0.025 -> 0.016 px, where the plain one gives 0.043), the plain one keeps small squares and
-            # board borders exact (the local mean sees the next square or the background there)
-            w = _window(pr, polish_max)[1]
-            local = c - top_left.to(dt)
-            polished, moved, asym = symmetry_polish(src, local, pr, polish_max, _sample_window, w, POLISH_ITERATIONS)
-            if normalize_sigma > 0:
-                plain = _saddle_source(img, part // n, top_left, q, smooth_sigma, 0.0)
-                p2, m2, a2 = symmetry_polish(plain, local, pr, polish_max, _sample_window, w, POLISH_ITERATIONS)
-                better = m2 & (~moved | (a2 < asym))
-                polished = torch.where(better[:, None], p2, polished)
-                moved = moved | m2
-            c = torch.where((ok & moved)[..., None], polished + top_left.to(dt), c)
-        out.view(-1, 2)[part] = c
-        ok_out.view(-1)[part] = ok
+            polish_max = int(torch.ceil(polish_r[group].max()).item())
+            half = max(half, rmax + polish_max + int(math.ceil(POLISH_MAX_MOVE)) + 2)
+        q = 2 * half + 1
+        pad = 2 * int(round(3 * max(smooth_sigma, normalize_sigma))) + 1
+        chunk = max(1, max_elements // ((q + pad) ** 2))
+        x, y = off[:, 0], off[:, 1]
+        basis = torch.stack([x * x, x * y, y * y, x, y, torch.ones_like(x)], -1)  # (P,6)
+        for part in group.split(chunk):
+            c, ok = _saddle_group(img, flat_start[part], flat_r[part], part // n, rmax, half, basis, iterations,
+                                  smooth_sigma, normalize_sigma,
+                                  None if polish_r is None else (polish_r[part], polish_max))
+            out.view(-1, 2)[part] = c
+            ok_out.view(-1)[part] = ok
     out = out.to(corners.dtype)
     return (out, ok_out) if return_ok else out
+
+
+def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smooth_sigma, normalize_sigma, polish):
+    """Saddle fit (and polish, with ``polish = (radii, window half-size)``) of one group of corners on their regions:
+    ``(corners (M, 2), ok (M,))``."""
+    dev, dt = c0.device, torch.float32
+    q = 2 * half + 1
+    bw = basis[None] * _window(rr, rmax)[1][..., None]  # (M,P,6)
+    ata = torch.einsum("mpi,pj->mij", bw, basis) + 1e-9 * torch.eye(6, device=dev, dtype=dt)
+    # the window moves with the corner but its weights do not: one factorisation per corner
+    lu, piv = torch.linalg.lu_factor(ata.double())
+    top_left = c0.round().long() - half
+    src, plain = _saddle_source(img, image_index, top_left, q, smooth_sigma, normalize_sigma, with_plain=True)
+    c = c0.clone()
+    ok = torch.zeros(c.shape[0], dtype=torch.bool, device=dev)
+    step = torch.zeros(c.shape[0], dtype=dt, device=dev)
+    for _ in range(iterations):
+        f = _sample_window(src, c - top_left.to(dt), rmax)  # (M,P)
+        atb = torch.einsum("mpi,mp->mi", bw, f)
+        coef = torch.linalg.lu_solve(lu, piv, atb.double().unsqueeze(-1)).squeeze(-1).to(dt)
+        a, bb, cc, d, e = coef.unbind(-1)[:5]
+        # stationary point: [2a b; b 2c] [x y]^T = -[d e]^T ; a saddle has a negative determinant
+        det = 4 * a * cc - bb * bb
+        ok = det < -1e-12
+        det = torch.where(ok, det, -torch.ones_like(det))
+        sx = (-2 * cc * d + bb * e) / det
+        sy = (-2 * a * e + bb * d) / det
+        new = c + torch.stack([sx, sy], -1)
+        step = (new - c).norm(dim=-1)
+        keep = ok & torch.isfinite(new).all(-1) & (step <= rr)
+        c = torch.where(keep[..., None], new, c)
+    inside = (c - c0).norm(dim=-1) <= rr
+    c = torch.where(inside[..., None], c, c0)
+    ok = inside & ok & (step <= rr)
+    if polish is not None:
+        pr, polish_max = polish
+        reach = pr.clamp_max(POLISH_MAX_MOVE)
+        # two sources, the more symmetric result wins per corner: the normalised one cancels shading (bad
+        # light: 0.025 -> 0.016 px, where the plain one gives 0.043), the plain one keeps small squares and
+        # board borders exact (the local mean sees the next square or the background there)
+        w = _window(pr, polish_max)[1]
+        local = c - top_left.to(dt)
+        polished, moved, asym = symmetry_polish(src, local, reach, polish_max, _sample_window, w, POLISH_ITERATIONS)
+        if plain is not None:
+            p2, m2, a2 = symmetry_polish(plain, local, reach, polish_max, _sample_window, w, POLISH_ITERATIONS)
+            better = m2 & (~moved | (a2 < asym))
+            polished = torch.where(better[:, None], p2, polished)
+            moved = moved | m2
+        c = torch.where((ok & moved)[..., None], polished + top_left.to(dt), c)
+    return c, ok
 
 
 class CornerRefiner(torch.nn.Module):

@@ -26,17 +26,6 @@ import torch
 __all__ = ["symmetry_polish"]
 
 
-def _central_gradient(src: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Central differences of regions :math:`(M, 1, q, q)` (one-sided at the region border), px units."""
-    gx = torch.zeros_like(src)
-    gy = torch.zeros_like(src)
-    gx[..., 1:-1] = 0.5 * (src[..., 2:] - src[..., :-2])
-    gx[..., 0], gx[..., -1] = src[..., 1] - src[..., 0], src[..., -1] - src[..., -2]
-    gy[..., 1:-1, :] = 0.5 * (src[..., 2:, :] - src[..., :-2, :])
-    gy[..., 0, :], gy[..., -1, :] = src[..., 1, :] - src[..., 0, :], src[..., -1, :] - src[..., -2, :]
-    return gx, gy
-
-
 def symmetry_polish(
     src: torch.Tensor,
     corners: torch.Tensor,
@@ -73,14 +62,22 @@ def symmetry_polish(
         >>> symmetry_polish(img, torch.tensor([[20.2, 19.1]]), r, 6, _sample_window, w)[0].round(decimals=2)
         tensor([[19.5000, 19.5000]])
     """
-    gx, gy = _central_gradient(src)
+    m, side = corners.shape[0], 2 * rmax + 1
+
+    def window(c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        # one window a pixel wider: its central differences are the gradient's bilinear samples (shift and
+        # difference commute), so values and gradient come from a single gather
+        big = sample_window(src, c, rmax + 1).reshape(m, side + 2, side + 2)
+        f = big[:, 1:-1, 1:-1].reshape(m, -1)
+        a = (0.5 * (big[:, 1:-1, 2:] - big[:, 1:-1, :-2])).reshape(m, -1)
+        b = (0.5 * (big[:, 2:, 1:-1] - big[:, :-2, 1:-1])).reshape(m, -1)
+        return f, a, b
+
     c0 = corners
     c = corners.clone()
-    ok = torch.ones(c.shape[0], dtype=torch.bool, device=c.device)
+    ok = torch.ones(m, dtype=torch.bool, device=c.device)
     for _ in range(iterations):
-        f = sample_window(src, c, rmax)
-        a = sample_window(gx, c, rmax)
-        b = sample_window(gy, c, rmax)
+        f, a, b = window(c)
         res = f - f.flip(-1)
         jx, jy = a - a.flip(-1), b - b.flip(-1)
         axx, axy, ayy = (weights * jx * jx).sum(-1), (weights * jx * jy).sum(-1), (weights * jy * jy).sum(-1)
