@@ -303,11 +303,7 @@ def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma,
         return (corners, ok_out) if return_ok else corners
     flat_start, flat_r = start.reshape(-1, 2), r.reshape(-1)
     polish_r = (POLISH_WINDOW * flat_r).clamp(2.5, POLISH_WINDOW * max_radius) if polish else None
-    # corners are processed in groups of similar radius (sizes 2^(k/2)): the window and the region of a group
-    # follow its own largest radius, so a board's far, small corners do not pay for its near, large ones
-    bucket = torch.ceil(2 * torch.log2(flat_r[sel].clamp_min(1.0))).long()
-    for key in torch.unique(bucket).tolist():
-        group = sel[bucket == key]
+    for group in _radius_groups(sel, flat_r[sel]):
         rmax = int(torch.ceil(flat_r[group].max()).item())
         off, _ = _window(flat_r[:1], rmax)
         # the region covers every window within rmax + 1 px of the starting pixel (a corner that moves further is
@@ -330,6 +326,25 @@ def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma,
             ok_out.view(-1)[part] = ok
     out = out.to(corners.dtype)
     return (out, ok_out) if return_ok else out
+
+
+def _radius_groups(sel: torch.Tensor, radius: torch.Tensor, min_group: int = 128) -> list[torch.Tensor]:
+    """``sel`` split into groups of similar radius (half-octaves of ``radius``, smallest first), each of at least
+    ``min_group`` corners except the last: a group's window and region follow its own largest radius, so a batch's
+    far, small corners do not pay for its near, large ones, while a single board (a few dozen corners) stays one group
+    (every group costs a few ms of fixed overhead)."""
+    octave = torch.ceil(2 * torch.log2(radius.clamp_min(1.0))).long()
+    order = torch.argsort(octave, stable=True)
+    keys, counts = torch.unique_consecutive(octave[order], return_counts=True)
+    groups, start, size = [], 0, 0
+    for count in counts.tolist():
+        size += count
+        if size >= min_group:
+            groups.append(sel[order[start:start + size]])
+            start, size = start + size, 0
+    if size:
+        groups.append(sel[order[start:start + size]])
+    return groups
 
 
 def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smooth_sigma, normalize_sigma, polish):
