@@ -84,7 +84,9 @@ class BenchConfig:
         wild_real_sets: real sets rescaled in the wild section (``None``: all eight).
         fisheye_trials, fisheye_views, fisheye_noise, fisheye_fov, fisheye_fail_px: the synthetic part of the
             ``fisheye`` section (cameras, views each, corner noise px, field of view range in degrees, E_IP above
-            which a calibration counts as failed); fisheye_real_sets: its real sets.
+            which a calibration counts as failed); fisheye_rendered: also render those cameras' views and let every
+            method detect its own corners (:mod:`~ccs_kornia.bench.fisheye_rendered`); fisheye_real_sets: its
+            real sets.
         wild_real_scales: rescaling factors of the real photos; wild_real_images: images per set (``None``: all).
     """
 
@@ -138,6 +140,7 @@ class BenchConfig:
     fisheye_noise: float = 0.1
     fisheye_fov: tuple[float, float] = (120.0, 200.0)
     fisheye_fail_px: float = 20.0
+    fisheye_rendered: bool = True
     fisheye_real_sets: tuple[str, ...] = ("ros_fisheye_mono", "boofcv_fisheye_chessboard")
     preset: str = "full"
     extra: dict = field(default_factory=dict)

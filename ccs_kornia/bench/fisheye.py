@@ -6,6 +6,9 @@ corners plus ``fisheye_noise`` px of Gaussian noise; both solvers get the same c
 detector would give at best). A calibration fails when it raises, returns non-finite values or is more than
 ``fisheye_fail_px`` (E_IP) off; E_IP statistics are over each method's successful trials.
 
+*Rendered* (:mod:`~ccs_kornia.bench.fisheye_rendered`): the same kind of cameras, views rendered through the lens,
+every method detecting its own corners (the issue's "on its own corners").
+
 *Real*: the fisheye sets of ``real_dir``: (a) OpenCV classic corners (cornerSubPix, 11x11 px window) through
 ``CalibrationSolver(model="fisheye")`` and through ``cv2.fisheye.calibrate`` (views it rejects dropped and rerun, as
 ROS does); (b) the default product path (``CalibrationPipeline``, learned detector, ``model="auto"``): boards found,
@@ -150,9 +153,14 @@ def _real(cfg: BenchConfig, log) -> dict:
 
 def run_fisheye(cfg: BenchConfig, log=print) -> dict:
     """Run the fisheye section; returns ``{"synthetic": ..., "real": {set: ...}}``."""
-    return {"fov": list(cfg.fisheye_fov), "trials": cfg.fisheye_trials, "views": cfg.fisheye_views,
-            "noise_px": cfg.fisheye_noise, "fail_px": cfg.fisheye_fail_px, "synthetic": _synthetic(cfg, log),
-            "real": _real(cfg, log)}
+    from ccs_kornia.bench.fisheye_rendered import run_fisheye_rendered
+
+    out = {"fov": list(cfg.fisheye_fov), "trials": cfg.fisheye_trials, "views": cfg.fisheye_views,
+           "noise_px": cfg.fisheye_noise, "fail_px": cfg.fisheye_fail_px, "synthetic": _synthetic(cfg, log)}
+    if cfg.fisheye_rendered:
+        out["rendered"] = run_fisheye_rendered(cfg, log)
+    out["real"] = _real(cfg, log)
+    return out
 
 
 def _f(x, digits: int = 3) -> str:
@@ -175,6 +183,10 @@ def fisheye_md(sec: dict) -> list[str]:
         lines.append(f"| {label} | {s['failures']}/{s['trials']} | {_f(s.get('e_ip_mean'), 4)} | "
                      f"{_f(s.get('e_ip_var'), 5)} | {_f(s.get('e_ip_median'), 4)} | {_f(s.get('e_ip_max'))} | "
                      f"{s['seconds']:.1f} |")
+    if "rendered" in sec:
+        from ccs_kornia.bench.fisheye_rendered import fisheye_rendered_md
+
+        lines += [""] + fisheye_rendered_md(sec["rendered"], sec["fail_px"])
     lines += ["", "Real fisheye sets (*classic*: OpenCV classic corners + cornerSubPix 11x11; *default path*: "
               "learned detector, `--model auto`):", "",
               "| set | method | boards / views used | fx | fy | cx | cy | RMS px | max diff to reference |",

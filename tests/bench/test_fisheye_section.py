@@ -1,4 +1,5 @@
-"""bench §7 (fisheye): both solvers on the same synthetic Kannala-Brandt corners, real sets when present."""
+"""bench §7 (fisheye): both solvers on the same synthetic Kannala-Brandt corners, every method on its own corners of
+rendered fisheye views, real sets when present."""
 
 from __future__ import annotations
 
@@ -16,8 +17,14 @@ def test_synthetic_part_and_markdown():
         assert s["trials"] == 3 and 0 <= s["failures"] <= 3
     ours = sec["synthetic"]["ccs"]
     assert ours["failures"] == 0 and ours["e_ip_mean"] < 2.0  # 0.1 px noise, exact model
+    # rendered: every method on its own corners; ours finds and calibrates every camera
+    rendered = sec["rendered"]["methods"]
+    assert set(rendered) == {"ccs_fisheye", "ccs_auto", "opencv_subpix", "opencv_sb"}
+    assert rendered["ccs_fisheye"]["failures"] == 0 and rendered["ccs_fisheye"]["e_ip_mean"] < 2.0
+    assert all(0 <= r["boards_found"] <= 24 and len(r["e_ip_per_trial"]) == 3 for r in rendered.values())
     md = "\n".join(fisheye_md(sec))
     assert "cv2.fisheye.calibrate" in md and "| ccs_kornia" in md and sec["real"] == {}
+    assert "Rendered: 3 Kannala-Brandt cameras" in md and "OpenCV SB → cv2.fisheye" in md
 
 
 def test_real_set_through_both_solvers():
