@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from ccs_kornia.camera import fit_opencv_distortion, project_points
+from ccs_kornia.modules._threads import small_problem_threads
 from ccs_kornia.modules.calibration.degeneracy import (
     DegeneracyThresholds,
     check_degeneracy,
@@ -203,7 +204,7 @@ class CalibrationSolver(nn.Module):
             raise ValueError("fix_intrinsics needs an initial result to take the intrinsics from.")
         # no autograd through the solver (LM, closed forms): inference mode spares the dispatcher's autograd and
         # version-counter work on every small op; the results are cloned out as ordinary tensors
-        with torch.inference_mode():
+        with torch.inference_mode(), small_problem_threads(corners.shape[:-1].numel(), corners.device):
             out = self._solve(corners, valid, object_points, image_size, init_corners, initial, bool(fix_intrinsics))
         if torch.is_inference_mode_enabled():
             return out

@@ -1,0 +1,35 @@
+"""One intra-op thread for small problems (ccs_kornia/modules/_threads.py)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from ccs_kornia.modules._threads import SINGLE_THREAD_ELEMENTS, small_problem_threads
+
+
+@pytest.fixture
+def two_threads():
+    old = torch.get_num_threads()
+    torch.set_num_threads(2)
+    yield
+    torch.set_num_threads(old)
+
+
+def test_small_problem_runs_on_one_thread_and_restores(two_threads):
+    with small_problem_threads(SINGLE_THREAD_ELEMENTS, torch.device("cpu")):
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == 2
+
+
+def test_large_problem_and_other_devices_keep_the_threads(two_threads):
+    with small_problem_threads(SINGLE_THREAD_ELEMENTS + 1, torch.device("cpu")):
+        assert torch.get_num_threads() == 2
+    with small_problem_threads(10, torch.device("cuda")):
+        assert torch.get_num_threads() == 2
+
+
+def test_threads_restored_when_the_block_raises(two_threads):
+    with pytest.raises(RuntimeError), small_problem_threads(10, torch.device("cpu")):
+        raise RuntimeError("inside")
+    assert torch.get_num_threads() == 2
