@@ -37,6 +37,10 @@ REAL_SETS: dict[str, dict] = {
                          "reference": "reference/intrinsic.yaml"},
     "boofcv_bumblebee2_left": {"board": (4, 6), "square": 0.03, "model": "k1k2", "tol_f": 3.0, "tol_pp": 3.0,
                                "reference": "reference/intrinsicLeft.yaml"},
+    # the stereo partner (same instants as the left set): its intrinsics are the "right" camera of BoofCV's stereo
+    # calibration
+    "boofcv_bumblebee2_right": {"board": (4, 6), "square": 0.03, "model": "k1k2", "tol_f": 3.0, "tol_pp": 3.0,
+                                "reference": "stereo.yaml", "reference_section": "right"},
 }
 _IMAGE_EXT = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 
@@ -47,11 +51,17 @@ def default_real_dir() -> Path:
     return Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real"
 
 
-def load_reference(path: Path) -> dict | None:
-    """``{fx, fy, cx, cy}`` from an OpenCV ``.yml`` (``camera_matrix``) or a BoofCV ``.yaml`` (``pinhole``)."""
+def load_reference(path: Path, section: str | None = None) -> dict | None:
+    """``{fx, fy, cx, cy}`` from an OpenCV ``.yml`` (``camera_matrix``) or a BoofCV ``.yaml`` (``pinhole``; with
+    ``section``, the camera under that top-level key of a stereo file, e.g. ``"right"``)."""
     if not path.is_file():
         return None
     text = path.read_text(errors="replace")
+    if section is not None:
+        m = re.search(rf"^{re.escape(section)}:\s*$(.*?)(?=^\S|\Z)", text, re.MULTILINE | re.DOTALL)
+        if m is None:
+            return None
+        text = m.group(1)
     if "camera_matrix" in text:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
         K = fs.getNode("camera_matrix").mat()
@@ -119,7 +129,8 @@ def run_real(cfg: BenchConfig, methods: dict[str, DetectionMethod], device: str 
         spec = REAL_SETS[name]
         board, square, model = spec["board"], spec["square"], spec["model"]
         images, files, size = load_real_set(folder, cfg.real_max_images)
-        reference = load_reference(folder / spec["reference"]) if "reference" in spec else None
+        reference = (load_reference(folder / spec["reference"], spec.get("reference_section"))
+                     if "reference" in spec else None)
         n_img = len(files)
         k = max(3, min(n_img - 1, int(round(cfg.real_subset_fraction * n_img))))
         rng = np.random.default_rng(BENCH_SEED_BASE + sum(map(ord, name)))

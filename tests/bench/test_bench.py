@@ -266,3 +266,15 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
     assert main(["--tiny", "--calib-views", "8", "--calib-pool-views", "5", "--out", str(tmp_path)]) == 2
     with pytest.raises(ValueError):
         run_bench(BenchConfig.tiny(sections=("nope",)), tmp_path)
+
+
+def test_load_reference_reads_one_camera_of_a_stereo_file(tmp_path):
+    from ccs_kornia.bench.real import load_reference
+
+    path = tmp_path / "stereo.yaml"
+    path.write_text("left:\n  pinhole:\n    fx: 1.5\n    fy: 2.5\n    cx: 3.5\n    cy: 4.5\nmodel: stereo_camera\n"
+                    "right:\n  pinhole:\n    fx: 10.0\n    fy: 20.0\n    cx: 30.0\n    cy: 40.0\n")
+    assert load_reference(path, "right") == {"fx": 10.0, "fy": 20.0, "cx": 30.0, "cy": 40.0}
+    assert load_reference(path, "left") == {"fx": 1.5, "fy": 2.5, "cx": 3.5, "cy": 4.5}
+    assert load_reference(path) == {"fx": 1.5, "fy": 2.5, "cx": 3.5, "cy": 4.5}  # the first camera
+    assert load_reference(path, "middle") is None and load_reference(tmp_path / "none.yaml") is None
