@@ -186,7 +186,7 @@ def fisheye_md(sec: dict) -> list[str]:
     if "rendered" in sec:
         from ccs_kornia.bench.fisheye_rendered import fisheye_rendered_md
 
-        lines += [""] + fisheye_rendered_md(sec["rendered"], sec["fail_px"])
+        lines += [""] + fisheye_rendered_md(sec["rendered"], sec["fail_px"])[:-1]
     lines += ["", "Real fisheye sets (*classic*: OpenCV classic corners + cornerSubPix 11x11; *default path*: "
               "learned detector, `--model auto`):", "",
               "| set | method | boards / views used | fx | fy | cx | cy | RMS px | max diff to reference |",
