@@ -33,3 +33,28 @@ def test_threads_restored_when_the_block_raises(two_threads):
     with pytest.raises(RuntimeError), small_problem_threads(10, torch.device("cpu")):
         raise RuntimeError("inside")
     assert torch.get_num_threads() == 2
+
+
+def test_light_stages_run_on_one_thread_under_passive_waits_and_the_network_on_all(two_threads, monkeypatch):
+    from ccs_kornia.modules._threads import full_threads, light_stages_single_thread
+
+    monkeypatch.setenv("OMP_WAIT_POLICY", "passive")
+    with light_stages_single_thread(torch.device("cpu")):
+        assert torch.get_num_threads() == 1
+        with full_threads():
+            assert torch.get_num_threads() == 2
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == 2
+    with full_threads():  # outside: no change
+        assert torch.get_num_threads() == 2
+
+
+def test_light_stages_keep_the_threads_with_spinning_waits(two_threads, monkeypatch):
+    from ccs_kornia.modules._threads import light_stages_single_thread
+
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    with light_stages_single_thread(torch.device("cpu")):
+        assert torch.get_num_threads() == 2
+    monkeypatch.delenv("OMP_WAIT_POLICY")
+    with light_stages_single_thread(torch.device("cpu")):
+        assert torch.get_num_threads() == 2

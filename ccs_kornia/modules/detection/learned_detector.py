@@ -9,6 +9,7 @@ import torch
 
 from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
 from ccs_kornia.modules._timing import stage
+from ccs_kornia.modules._threads import full_threads, light_stages_single_thread
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
@@ -152,7 +153,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         With ``full`` (the full-resolution images of a downscaled level ``images``, ``x_full + 0.5 = (x + 0.5) * scale``)
         the X-junction test runs on ``full``, where thin board margins are still resolved.
         """
-        with stage("heatmap network"):
+        with stage("heatmap network"), full_threads():
             heat = run_heatmap(self.net, images, self.precision)
         with stage("peaks + Gaussian fit + sigma rejection"):
             seeds, _, mask = heatmap_peaks(heat, self.peak_threshold, self.max_peaks, self.nms_kernel)
@@ -171,7 +172,10 @@ class LearnedChessboardDetector(ChessboardDetector):
     def forward(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         """Detect the board on every image of ``(B, 1, H, W)``; corners in grid order."""
         board_size = self._check_inputs(images, board_size)
-        images = images.float()
+        with light_stages_single_thread(images.device):
+            return self._detect(images.float(), board_size)
+
+    def _detect(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         if self.scale == "off":
             return self.detect_level(images, board_size)
         # --- scale selection (modules/detection/scale.py): detect on each image's level, refine at full resolution ---
