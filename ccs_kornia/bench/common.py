@@ -22,6 +22,7 @@ __all__ = [
     "distortion_available",
     "summary",
     "Timer",
+    "e_ip_px",
 ]
 
 _CV2_FLAGS = {
@@ -87,6 +88,12 @@ def ccs_calibrate(
         "rms": res.rms.cpu().numpy(),
         "views": res.used.sum(-1).cpu().numpy(),
     }
+
+
+def e_ip_px(K, K_true) -> float:
+    """:func:`ccs_kornia.metrics.e_ip` of one camera (arrays or tensors, 3x3) as a float."""
+    as64 = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float64)  # noqa: E731
+    return float(e_ip(as64(K), as64(K_true)))
 
 
 def summary(values, prefix: str = "") -> dict:

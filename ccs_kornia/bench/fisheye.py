@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.bench.common import Timer, summary
+from ccs_kornia.bench.common import Timer, e_ip_px, summary
 from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.fisheye_data import random_board_views, random_kb_cameras
 from ccs_kornia.bench.fisheye_opencv import opencv_fisheye
@@ -40,11 +40,6 @@ FISHEYE_SETS: dict[str, tuple] = {
     "boofcv_fisheye_chessboard": (6, 4, 0.03, None, ((190.0, 0.0, 319.5), (0.0, 190.0, 319.5), (0.0, 0.0, 1.0))),
 }
 _SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
-
-
-def _e_ip(K: np.ndarray, K_true: np.ndarray) -> float:
-    return 0.5 * float(abs(K[0, 0] - K_true[0, 0]) + abs(K[1, 1] - K_true[1, 1]) + abs(K[0, 2] - K_true[0, 2])
-                       + abs(K[1, 2] - K_true[1, 2]))
 
 
 def _scores(errors: list[float], fail: float, seconds: float) -> dict:
@@ -65,13 +60,13 @@ def _synthetic(cfg: BenchConfig, log) -> dict:
     uv = uv + cfg.fisheye_noise * torch.randn(uv.shape, generator=g, dtype=torch.float64)
     with Timer() as t_ours, torch.inference_mode():
         res = CalibrationSolver(model="fisheye")(uv, None, obj, size)
-    ours = [_e_ip(res.K[c].numpy(), K[c].numpy()) if bool(res.success[c]) else float("inf")
+    ours = [e_ip_px(res.K[c].numpy(), K[c].numpy()) if bool(res.success[c]) else float("inf")
             for c in range(cfg.fisheye_trials)]
     cv = []
     with Timer() as t_cv:
         for c in range(cfg.fisheye_trials):
             r = opencv_fisheye(obj.numpy(), [uv[c, v].numpy() for v in range(cfg.fisheye_views)], size)
-            cv.append(_e_ip(r["K"], K[c].numpy()) if r["ok"] else float("inf"))
+            cv.append(e_ip_px(r["K"], K[c].numpy()) if r["ok"] else float("inf"))
     out = {"ccs": _scores(ours, cfg.fisheye_fail_px, t_ours.seconds),
            "opencv": _scores(cv, cfg.fisheye_fail_px, t_cv.seconds)}
     for key, label in (("ccs", "ccs_kornia fisheye"), ("opencv", "cv2.fisheye.calibrate")):

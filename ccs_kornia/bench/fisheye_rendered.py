@@ -22,13 +22,12 @@ import copy
 import numpy as np
 import torch
 
-from ccs_kornia.bench.common import Timer, summary
+from ccs_kornia.bench.common import Timer, e_ip_px, summary
 from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.fisheye_data import random_board_views, random_kb_cameras, render_kb_views
 from ccs_kornia.bench.fisheye_opencv import opencv_fisheye
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
-from ccs_kornia.metrics import e_ip
 
 __all__ = ["RENDERED_METHODS", "run_fisheye_rendered", "fisheye_rendered_md"]
 
@@ -42,11 +41,6 @@ RENDERED_METHODS = {
     "opencv_subpix": "OpenCV classic + cornerSubPix → cv2.fisheye",
     "opencv_sb": "OpenCV SB → cv2.fisheye",
 }
-
-
-def _e_ip(K, K_true) -> float:
-    as64 = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float64)  # noqa: E731
-    return float(e_ip(as64(K), as64(K_true)))
 
 
 def _ours(images: torch.Tensor, K_true: torch.Tensor, log) -> dict[str, dict]:
@@ -66,7 +60,7 @@ def _ours(images: torch.Tensor, K_true: torch.Tensor, log) -> dict[str, dict]:
             one = res.select(c)
             cal = one.calibration
             ok = bool(cal.success) and bool(torch.isfinite(cal.K).all())
-            errors.append(_e_ip(cal.K, K_true[c]) if ok else float("inf"))
+            errors.append(e_ip_px(cal.K, K_true[c]) if ok else float("inf"))
             found.append(int(one.found.sum()))
             if one.model_selection:
                 chosen.append(one.model_selection.get("chosen"))
@@ -88,7 +82,7 @@ def _opencv(images: torch.Tensor, K_true: torch.Tensor, key: str, log) -> dict:
             idx = np.nonzero(ok)[0]
             found.append(len(idx))
             r = opencv_fisheye(obj, [corners[i] for i in idx], _SIZE) if len(idx) >= 3 else {"ok": False}
-            errors.append(_e_ip(r["K"], K_true[c]) if r["ok"] else float("inf"))
+            errors.append(e_ip_px(r["K"], K_true[c]) if r["ok"] else float("inf"))
     log(f"[fisheye] rendered {key}: {sum(found)} boards found ({t.seconds:.1f}s)")
     return {"errors": errors, "found": found, "seconds": t.seconds}
 

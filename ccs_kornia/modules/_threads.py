@@ -36,18 +36,25 @@ SINGLE_THREAD_ELEMENTS = 16384
 
 
 @contextmanager
-def small_problem_threads(elements: int, device: torch.device) -> Iterator[None]:
-    """Run the block on one intra-op thread when ``elements <= SINGLE_THREAD_ELEMENTS`` on the CPU; the previous
-    thread count is restored on exit."""
+def _num_threads(n: int) -> Iterator[None]:
+    """The block on ``n`` intra-op threads; the previous count restored on exit."""
     old = torch.get_num_threads()
-    if device.type != "cpu" or elements > SINGLE_THREAD_ELEMENTS or old <= 1:
-        yield
-        return
-    torch.set_num_threads(1)
+    torch.set_num_threads(n)
     try:
         yield
     finally:
         torch.set_num_threads(old)
+
+
+@contextmanager
+def small_problem_threads(elements: int, device: torch.device) -> Iterator[None]:
+    """Run the block on one intra-op thread when ``elements <= SINGLE_THREAD_ELEMENTS`` on the CPU; the previous
+    thread count is restored on exit."""
+    if device.type != "cpu" or elements > SINGLE_THREAD_ELEMENTS or torch.get_num_threads() <= 1:
+        yield
+        return
+    with _num_threads(1):
+        yield
 
 
 def passive_waits() -> bool:
@@ -55,6 +62,7 @@ def passive_waits() -> bool:
     return os.environ.get("OMP_WAIT_POLICY", "").strip().upper() == "PASSIVE"
 
 
+#: thread counts replaced by the active :func:`light_stages_single_thread` blocks (innermost last)
 _FULL: list[int] = []
 
 
@@ -67,12 +75,11 @@ def light_stages_single_thread(device: torch.device) -> Iterator[None]:
         yield
         return
     _FULL.append(old)
-    torch.set_num_threads(1)
     try:
-        yield
+        with _num_threads(1):
+            yield
     finally:
         _FULL.pop()
-        torch.set_num_threads(old)
 
 
 @contextmanager
@@ -81,8 +88,5 @@ def full_threads() -> Iterator[None]:
     if not _FULL:
         yield
         return
-    torch.set_num_threads(_FULL[-1])
-    try:
+    with _num_threads(_FULL[-1]):
         yield
-    finally:
-        torch.set_num_threads(1)
