@@ -66,6 +66,7 @@ def calibrate_fisheye(
     outlier_rel_threshold: float = 5.0,
     max_iters: int = 100,
     fix: tuple[str, ...] = (),
+    initial: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
 ) -> FisheyeCalibrationResult:
     r"""Calibrate Kannala–Brandt fisheye cameras from planar-board corners, no intrinsic guess needed.
 
@@ -84,6 +85,10 @@ def calibrate_fisheye(
         max_iters: LM iterations per stage.
         fix: parameters kept at their initial values, by name (``fx, fy, cx, cy, k1..k4``; e.g. ``("k3", "k4")``
             as ``cv2.fisheye.CALIB_FIX_K3 | CALIB_FIX_K4``, or ``("cx", "cy")`` for the image centre).
+        initial: warm start ``(K (C, 3, 3), D (C, 4), rvec (C, V, 3), tvec (C, V, 3), used (C, V))``, e.g. the
+            calibration of all the views when subsets of them are calibrated (cross-validation): the hypotheses are
+            skipped and the LM starts from this camera and the poses of the views it used. Cameras without a finite
+            initial camera, or with fewer than ``min_views`` usable initial views, start from the hypotheses.
 
     Returns:
         :class:`FisheyeCalibrationResult` (no camera dim for unbatched input; failed cameras have NaN values).
@@ -126,6 +131,57 @@ def calibrate_fisheye(
         raise ValueError(f"Unknown parameters to fix {sorted(unknown)}; expected names from {model.param_names}.")
     free = [n not in fix for n in model.param_names]
 
+    if initial is not None:
+        K0, D0, rv_i, tv_i, used_i = (x.to(dev) for x in initial)
+        if unbatched:
+            K0, D0, rv_i, tv_i, used_i = K0[None], D0[None], rv_i[None], tv_i[None], used_i[None]
+        p_i = torch.cat([K0[:, 0, 0:1], K0[:, 1, 1:2], K0[:, 0, 2:3], K0[:, 1, 2:3], D0], -1).to(dt)
+        used_i = used_i.bool() & candidates & rv_i.isfinite().all(-1) & tv_i.isfinite().all(-1)
+        warm = p_i.isfinite().all(-1) & (used_i.sum(-1) >= min_views)
+        if bool(warm.any()):
+            out = _merge_cameras(
+                warm, lambda sel: _calibrate(model, corners[sel], w[sel], candidates[sel], obj, free, min_views,
+                                             outlier_abs_threshold, outlier_rel_threshold, max_iters,
+                                             (p_i[sel], rv_i[sel].to(dt), tv_i[sel].to(dt), used_i[sel])),
+                lambda sel: _calibrate(model, corners[sel], w[sel], candidates[sel], obj, free, min_views,
+                                       outlier_abs_threshold, outlier_rel_threshold, max_iters, None, image_size,
+                                       num_hypotheses, keep))
+            return FisheyeCalibrationResult(**{f: v[0] for f, v in out.__dict__.items()}) if unbatched else out
+    out = _calibrate(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold, outlier_rel_threshold,
+                     max_iters, None, image_size, num_hypotheses, keep)
+    if unbatched:
+        out = FisheyeCalibrationResult(**{f: v[0] for f, v in out.__dict__.items()})
+    return out
+
+
+def _merge_cameras(first: torch.Tensor, run_first, run_rest) -> FisheyeCalibrationResult:
+    """Results of ``run_first`` on the cameras where ``first`` (C,) holds and of ``run_rest`` on the others, merged."""
+    if bool(first.all()):
+        return run_first(first.nonzero().flatten())
+    a, b = first.nonzero().flatten(), (~first).nonzero().flatten()
+    ra, rb = run_first(a), run_rest(b)
+    merged = {}
+    for f, va in ra.__dict__.items():
+        vb = getattr(rb, f)
+        v = va.new_empty((first.shape[0], *va.shape[1:]))
+        v[a], v[b] = va, vb
+        merged[f] = v
+    return FisheyeCalibrationResult(**merged)
+
+
+def _calibrate(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold, outlier_rel_threshold,
+               max_iters, initial, image_size=None, num_hypotheses=32, keep=3) -> FisheyeCalibrationResult:
+    """Steps 1-3 of :func:`calibrate_fisheye` on batched cameras (``w`` the corner weights, ``candidates`` (C, V));
+    with ``initial = (params (C, 8), rvec, tvec, used)`` step 1 is replaced by one LM from that start."""
+    C, V, N = corners.shape[:3]
+    dev = corners.device
+    if initial is not None:
+        p_i, rv_i, tv_i, used_i = initial
+        res = levenberg_marquardt(model, p_i, rv_i.nan_to_num(0.0), tv_i.nan_to_num(0.0), obj, corners,
+                                  w * used_i[..., None], free=free, max_iters=max_iters)
+        params, rvec, tvec, used0 = res.params, res.rvec, res.tvec, res.view_used
+        return _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold,
+                       outlier_rel_threshold, max_iters, params, rvec, tvec, used0)
     # 1. hypotheses; 2. LM on every kept hypothesis as a camera of the batch
     p0, rv0, tv0, init_rms, _ = init_fisheye(corners, w, obj, image_size, num_hypotheses, keep)
     k = p0.shape[1]
@@ -139,12 +195,19 @@ def calibrate_fisheye(
     best = key.argmin(-1)
     sel = torch.arange(C, device=dev) * k + best
     params, rvec, tvec = res.params[sel], res.rvec[sel], res.tvec[sel]
+    return _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold, outlier_rel_threshold,
+                   max_iters, params, rvec, tvec, res.view_used[sel])
 
-    # 3. re-pose every candidate view under the refined camera, reject outliers, refine again
+
+def _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold, outlier_rel_threshold,
+            max_iters, params, rvec, tvec, used0) -> FisheyeCalibrationResult:
+    """Step 3 of :func:`calibrate_fisheye`: re-pose every candidate view under the refined camera, reject outliers,
+    refine again."""
+    C = corners.shape[0]
+    dt = torch.float64
     K, D = _kmat(params), params[:, 4:]
     rays = kb_unproject_points(corners.to(dt).nan_to_num(0.0), K[:, None], D[:, None])
     rv_d, tv_d, ok_d = board_to_ray_poses(rays, obj[:, :2], w)
-    used0 = res.view_used[sel]
     rv_c = torch.where(used0[..., None], rvec, rv_d)
     tv_c = torch.where(used0[..., None], tvec, tv_d)
     wc = w * (used0 | ok_d)[..., None]
@@ -175,8 +238,6 @@ def calibrate_fisheye(
         success=success, converged=final.converged & success,
         candidate_rms=torch.where(candidates, cand, nan),
     )
-    if unbatched:
-        out = FisheyeCalibrationResult(**{f: v[0] for f, v in out.__dict__.items()})
     return out
 
 

@@ -245,7 +245,7 @@ class CalibrationSolver(nn.Module):
 
         if self.model == "fisheye":
             return self._solve_fisheye(corners, valid, obj, image_size, candidates, reason, duplicate_of,
-                                       differences, H, unbatched)
+                                       differences, H, unbatched, initial)
 
         # 2. Zhang (inside RANSAC) -> inlier views; on the undistorted corners when given
         pp_mode = "centre" if self.fix_principal_point else "auto"
@@ -358,16 +358,25 @@ class CalibrationSolver(nn.Module):
         return out
 
     def _solve_fisheye(self, corners, valid, obj, image_size, candidates, reason, duplicate_of, differences, H,
-                       unbatched) -> CalibrationResult:
-        """Kannala-Brandt cameras from the candidate views (the pinhole closed form does not hold for them)."""
+                       unbatched, initial=None) -> CalibrationResult:
+        """Kannala-Brandt cameras from the candidate views (the pinhole closed form does not hold for them; with
+        ``initial``, its camera and poses replace the focal-length hypotheses)."""
         C, V = corners.shape[:2]
         if not bool((obj == obj[:1]).all()):
             raise ValueError("model='fisheye' needs one board for every camera of the batch.")
+        warm = None
+        if initial is not None:
+            if getattr(initial, "model", None) != "fisheye" or initial.dist.shape[-1] != 4:
+                raise ValueError(f"A fisheye solver's initial result must be a fisheye calibration, got model "
+                                 f"{getattr(initial, 'model', None)!r}.")
+            device = corners.device
+            warm = (initial.K.to(device), initial.dist.to(device), initial.rvec.to(device), initial.tvec.to(device),
+                    initial.used.to(device))
         fish = calibrate_fisheye(
             corners, valid & candidates[..., None], obj[0], image_size, min_corners=self.min_corners,
             min_views=self.min_views, outlier_abs_threshold=self.outlier_abs_threshold,
             outlier_rel_threshold=self.outlier_rel_threshold, max_iters=self.max_iters,
-            fix=(("cx", "cy") if self.fix_principal_point else ()),
+            fix=(("cx", "cy") if self.fix_principal_point else ()), initial=warm,
         )
         used = fish.used & candidates
         reason = torch.where(used, 0, torch.where(reason == 0, 4, reason))

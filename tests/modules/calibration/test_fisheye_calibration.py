@@ -135,6 +135,28 @@ def test_calibrate_fisheye_noise_outliers_and_uncertainty():
     torch.testing.assert_close(res.covariance.diagonal()[:4].sqrt(), res.std_intrinsics)
 
 
+def test_warm_start_from_the_full_calibration_matches_the_cold_start():
+    # cross-validation calibrates subsets of the views starting from the calibration of all of them
+    K, D = _camera(170.0)
+    _, _, uv = _views(K, D, V=12, seed=5)
+    uvn = uv + 0.1 * torch.randn(uv.shape, generator=torch.Generator().manual_seed(2), dtype=F64)
+    full = calibrate_fisheye(uvn, None, OBJ, SIZE)
+    subset = torch.arange(12) % 3 != 0  # 8 of the 12 views
+    valid = subset[:, None].expand(12, 54)
+    cold = calibrate_fisheye(uvn[None].expand(2, -1, -1, -1), valid[None].expand(2, -1, -1), OBJ, SIZE)
+    nan_K = torch.stack([full.K, torch.full_like(full.K, float("nan"))])  # camera 1: no finite start -> hypotheses
+    initial = (nan_K, full.D.expand(2, 4), full.rvec.expand(2, -1, -1), full.tvec.expand(2, -1, -1),
+               (full.used & subset).expand(2, -1))
+    warm = calibrate_fisheye(uvn[None].expand(2, -1, -1, -1), valid[None].expand(2, -1, -1), OBJ, SIZE,
+                             initial=initial)
+    assert bool(warm.success.all()) and torch.equal(warm.used, cold.used) and int(warm.used[0].sum()) == 8
+    torch.testing.assert_close(warm.K, cold.K, atol=1e-6, rtol=0)
+    torch.testing.assert_close(warm.D, cold.D, atol=1e-8, rtol=0)
+    torch.testing.assert_close(warm.rms, cold.rms, atol=1e-9, rtol=0)
+    one = calibrate_fisheye(uvn, valid, OBJ, SIZE, initial=tuple(x[0] for x in initial))  # unbatched
+    torch.testing.assert_close(one.K, cold.K[0], atol=1e-6, rtol=0)
+
+
 def test_against_cv2_fisheye_where_opencv_works():
     K, D = _camera(150.0)
     rv, tv, uv = _views(K, D, V=10, seed=7)
@@ -233,6 +255,12 @@ def test_solver_fisheye_model_and_checks():
     batch = torch.stack([uv, uv.clone().fill_(float("nan"))])
     both = CalibrationSolver(model="fisheye")(batch, None, OBJ, SIZE)
     assert both.success.tolist() == [True, False] and bool(both.K[1].isnan().all())
+    # warm start from a fisheye result (the same camera back), and only from a fisheye result
+    again = CalibrationSolver(model="fisheye")(uv, None, OBJ, SIZE, initial=res)
+    torch.testing.assert_close(again.K, res.K, atol=1e-6, rtol=0)
+    pinhole = CalibrationSolver(model="k1k2")(uv, None, OBJ, SIZE)
+    with pytest.raises(ValueError, match="fisheye calibration"):
+        CalibrationSolver(model="fisheye")(uv, None, OBJ, SIZE, initial=pinhole)
 
 
 def test_diagnostics_of_a_fisheye_calibration():
