@@ -45,7 +45,7 @@ from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
 from ccs_kornia.pipeline_result import PipelineResult, main_size, module_device, positive_size, same_size_views, select_result
-from ccs_kornia.pipeline_solve import look_again_with_camera, solve_detections, solve_group
+from ccs_kornia.pipeline_solve import diagnose_solved, look_again_with_camera, solve_detections, solve_group
 from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource, load_batches  # noqa: F401
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
@@ -255,12 +255,17 @@ class CalibrationPipeline(nn.Module):
                 self._correct(source, out, out.view_corrections, same_size_views(out), board)
         if not calibrate:
             return out
+        look = self.calibrated_look and source is not None
         with stage("solver"):
-            out = self.solve(out, board, square)
+            # with a second look to come, the diagnostics wait for the final solve
+            out = solve_detections(self, out, board, square, diagnostics=self.diagnostics and not look)
         # a fisheye lens, once calibrated, straightens the boards its rim hid from the detector: look again, solve again
-        if self.calibrated_look and source is not None and look_again_with_camera(self, source, out, board):
+        if look and look_again_with_camera(self, source, out, board):
             with stage("solver"):
                 out = self.solve(out, board, square)
+        elif look and self.diagnostics:
+            with stage("solver"):
+                out = diagnose_solved(self, out, board, square)
         return out
 
     def _correct(self, source: ViewSource | None, out: PipelineResult, per_view: torch.Tensor, same: torch.Tensor,

@@ -38,10 +38,11 @@ def _merge(parts: list[CalibrationResult], order: list[torch.Tensor], count: int
     return select_result(concat_results(parts), inverse)
 
 
-def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int], square: float) -> PipelineResult:
+def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int], square: float,
+                     diagnostics: bool | None = None) -> PipelineResult:
     """:meth:`CalibrationPipeline.solve <ccs_kornia.pipeline.CalibrationPipeline.solve>`: fills ``out``'s
-    ``calibration``, ``corrected``, ``correction``, ``camera_reasons``, ``model_selection`` and (when the pipeline
-    computes them) ``diagnostics``."""
+    ``calibration``, ``corrected``, ``correction``, ``camera_reasons``, ``model_selection`` and (when
+    ``diagnostics``, by default the pipeline's setting) ``diagnostics``."""
     if not square > 0:
         raise ValueError(f"square must be positive, got {square}.")
     det = out.detections
@@ -73,8 +74,15 @@ def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int]
     out.model_selection = selection if pipe.model == "auto" else None
     out.camera_reasons = [camera_reason(out.calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum()))
                           for ci in range(c)]
-    if pipe.diagnostics:
+    if pipe.diagnostics if diagnostics is None else diagnostics:
         out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, board_size, square)
+    return out
+
+
+def diagnose_solved(pipe: Any, out: PipelineResult, board_size: tuple[int, int], square: float) -> PipelineResult:
+    """The diagnostics of a result :func:`solve_detections` solved without them (fills ``out.diagnostics``)."""
+    usable = out.detections.found & same_size_views(out)
+    out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, (int(board_size[0]), int(board_size[1])), square)
     return out
 
 

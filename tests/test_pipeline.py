@@ -231,6 +231,18 @@ def test_diagnostics_per_camera_and_select(sets):
     assert plain.diagnostics is None and torch.equal(plain.calibration.K, out.calibration.K[:1])
 
 
+def test_diagnostics_after_the_second_look_equal_those_without_it(sets):
+    """With the calibrated second look on, the first solve leaves the diagnostics to the final one (or computes them
+    afterwards when nothing was recovered): the figures equal those of a pipeline without the look."""
+    imgs = sets[1].images[None]
+    kw = dict(seed=0, distortion_correction=False, diagnostics=True, model="fisheye")
+    looked = CalibrationPipeline("opencv", calibrated_look=True, **kw)(imgs, BOARD, SQUARE)
+    plain = CalibrationPipeline("opencv", calibrated_look=False, **kw)(imgs, BOARD, SQUARE)
+    assert looked.diagnostics is not None and looked.diagnostics[0]["success"]
+    assert looked.diagnostics == plain.diagnostics
+    torch.testing.assert_close(looked.calibration.K, plain.calibration.K, atol=0, rtol=0)
+
+
 @pytest.mark.parametrize("detector", ["opencv", "learned"])
 @pytest.mark.parametrize("model", ["none", "k1k2", "opencv5", "rational", "fisheye", "auto"])
 def test_no_crash_and_no_nan_without_a_reason(detector, model, sets):

@@ -63,29 +63,34 @@ def symmetry_polish(
         tensor([[19.5000, 19.5000]])
     """
     m, side = corners.shape[0], 2 * rmax + 1
+    # offsets d and -d sit at k and P - 1 - k of the row-major window: the residual and the Jacobian are odd in d and
+    # the weights even, so the normal equations over the first half of the window are exactly half those over all
+    # of it (the centre contributes zero) and the step is the same
+    half = side * side // 2
+    w_half = weights[:, None, :half]
 
-    def window(c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def odd_parts(c: torch.Tensor) -> torch.Tensor:
         # one window a pixel wider: its central differences are the gradient's bilinear samples (shift and
-        # difference commute), so values and gradient come from a single gather
+        # difference commute), so values and gradient come from a single gather; (M, 3, half): twice the gradient's
+        # x and y parts of the Jacobian, and the residual
         big = sample_window(src, c, rmax + 1).reshape(m, side + 2, side + 2)
-        f = big[:, 1:-1, 1:-1].reshape(m, -1)
-        a = (0.5 * (big[:, 1:-1, 2:] - big[:, 1:-1, :-2])).reshape(m, -1)
-        b = (0.5 * (big[:, 2:, 1:-1] - big[:, :-2, 1:-1])).reshape(m, -1)
-        return f, a, b
+        parts = torch.stack([big[:, 1:-1, 2:] - big[:, 1:-1, :-2], big[:, 2:, 1:-1] - big[:, :-2, 1:-1],
+                             big[:, 1:-1, 1:-1]], 1).reshape(m, 3, -1)
+        return parts[..., :half] - parts[..., half + 1:].flip(-1)
 
     c0 = corners
     c = corners.clone()
     ok = torch.ones(m, dtype=torch.bool, device=c.device)
     for _ in range(iterations):
-        f, a, b = window(c)
-        res = f - f.flip(-1)
-        jx, jy = a - a.flip(-1), b - b.flip(-1)
-        axx, axy, ayy = (weights * jx * jx).sum(-1), (weights * jx * jy).sum(-1), (weights * jy * jy).sum(-1)
-        gx_, gy_ = (weights * jx * res).sum(-1), (weights * jy * res).sum(-1)
+        odd = odd_parts(c)
+        # [[axx, axy, gx], [axy, ayy, gy]] of the doubled Jacobian in one batched product
+        normal = torch.bmm(odd[:, :2] * w_half, odd.transpose(1, 2))
+        axx, axy, ayy, gx_, gy_ = normal[:, 0, 0], normal[:, 0, 1], normal[:, 1, 1], normal[:, 0, 2], normal[:, 1, 2]
         det = axx * ayy - axy * axy
         good = det > 1e-12 * (axx + ayy).square().clamp_min(1e-30)
         det = torch.where(good, det, torch.ones_like(det))
-        step = -torch.stack([(ayy * gx_ - axy * gy_) / det, (axx * gy_ - axy * gx_) / det], -1)
+        # the doubled Jacobian scales the normal matrix by 4 and the gradient by 2: the step is twice this solve
+        step = -2.0 * torch.stack([(ayy * gx_ - axy * gy_) / det, (axx * gy_ - axy * gx_) / det], -1)
         norm = step.norm(dim=-1, keepdim=True)
         step = step * (max_step / norm.clamp_min(max_step))
         step = torch.where((good & torch.isfinite(step).all(-1))[:, None], step, torch.zeros_like(step))
