@@ -15,9 +15,10 @@ from ccs_kornia.modules.detection.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
-from ccs_kornia.modules.detection.missing_corners import predict_missing_corners
+from ccs_kornia.modules.detection.missing_corners import lattice_deviation, predict_missing_corners
 from ccs_kornia.modules.detection.patch_refine import refine_from_level
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
+from ccs_kornia.modules.detection.saddle_candidates import SIGMA_PER_SQUARE, saddle_candidates
 from ccs_kornia.modules.detection.scale import ScaleSelector, detect_at_scale
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners
 from ccs_kornia.modules.detection.x_junction import x_junction_mask
@@ -42,6 +43,11 @@ def load_corner_unet(path: str | Path | None = None, map_location: str | torch.d
     net = CornerUNet(**ckpt["config"])
     net.load_state_dict(ckpt["state_dict"])
     return net.eval(), float(ckpt.get("sigma", 1.5))
+
+
+#: a board found from saddle candidates is refused where a refined corner lies farther than this (in squares) from where
+#: its row and column neighbours put it (exact lattices, 75-degree tilt included: at most 0.04)
+SADDLE_MAX_DEVIATION = 0.08
 
 
 class LearnedChessboardDetector(ChessboardDetector):
@@ -85,6 +91,9 @@ class LearnedChessboardDetector(ChessboardDetector):
         precision: of the heatmap network (:func:`~ccs_kornia.modules.detection.heatmap_unet.run_heatmap`):
             ``"float32"``, ``"bfloat16"`` or ``"auto"`` (bfloat16 on CPUs that compute it natively; the corners are
             refined on the image in float32 either way).
+        saddle_retry: where the organiser finds no board among the network's peaks, try it again on the image's own
+            saddle points at the level's square scale (:mod:`~ccs_kornia.modules.detection.saddle_candidates`:
+            boards with marks inside the white squares, whose corners the network misses).
     """
 
     def __init__(
@@ -106,6 +115,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         scale_fallback: tuple[float, ...] = (0.5, 2.0, 0.25),
         max_upsampling: float = 2.0,
         precision: str = "auto",
+        saddle_retry: bool = True,
     ) -> None:
         super().__init__()
         if net is None:
@@ -138,6 +148,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
         self.precision = precision
+        self.saddle_retry = bool(saddle_retry)
 
     @property
     def selects_scale(self) -> bool:
@@ -196,17 +207,73 @@ class LearnedChessboardDetector(ChessboardDetector):
 
         corners, found, reasons = detect_at_scale(level, images, board_size, factor, self.scale_fallback,
                                                   self.scale_selector.max_pixels, refine)
+        missed = (~found).nonzero().flatten()
+        if self.saddle_retry and missed.numel():
+            # last resort, on the same levels: boards whose corners the network missed at every level (marks inside
+            # the white squares), from the image's own saddle points
+            def saddle_level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
+                out = self.detect_level(x, bs, full, scale, source="saddle")
+                return out.corners, out.found, out.reasons
+
+            c2, f2, r2 = detect_at_scale(saddle_level, images[missed], board_size, factor[missed.to(factor.device)],
+                                         self.scale_fallback, self.scale_selector.max_pixels, refine)
+            # the lattice check again after the full-resolution refinement (which sees the marks in more detail)
+            dev = lattice_deviation(c2.double(), board_size).amax(-1)
+            f2 = f2.to(dev.device) & (dev <= SADDLE_MAX_DEVIATION)
+            for k, i in enumerate(missed.tolist()):
+                if bool(f2[k]):
+                    corners[i], found[i], reasons[i] = c2[k].to(corners), True, r2[k]
+                elif r2[k].startswith("board refused"):
+                    reasons[i] = r2[k]
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
+
+    def _saddle_board(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        """:meth:`detect_level` on :func:`~ccs_kornia.modules.detection.saddle_candidates.saddle_candidates` of
+        ``images`` (a level whose squares have about ``target_square`` px) instead of the network's peaks.
+
+        No X-junction check: its circle test counts the colour changes around a point, and a mark inside a white
+        square adds changes (on held-out ChArUco renders it kept 0-16 of 40 true corners). In its place, a board whose
+        refined corners leave the smooth lattice of their neighbours by more than :data:`SADDLE_MAX_DEVIATION` squares
+        is refused: near a mark a corner can converge onto the mark's own junctions."""
+        with stage("saddle candidates"):
+            points, keep = saddle_candidates(images, SIGMA_PER_SQUARE * self.scale_selector.target_square,
+                                             self.max_peaks)
+        with stage("grid organiser"):
+            corners, valid, found = organize_grid(points, keep, board_size, images)
+            retry = (~found).nonzero().flatten()
+            if retry.numel():
+                c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
+                corners[retry], valid[retry], found[retry] = c2, v2, f2
+        if bool(found.any()):
+            # a candidate beside a mark can sit a seventh of a square off its junction, beyond the saddle fit's
+            # window: the coarse gradient search the predicted cells get (basin: the whole window) first
+            spacing = grid_spacing(corners, valid, board_size)
+            coarse = refine_corners(images, corners, valid & found[:, None], 0.45 * spacing, method="gradient",
+                                    iterations=10, max_radius=40)
+            corners = torch.where(valid[..., None], coarse, corners)
+        out = self._complete(images, board_size, corners, valid, found)
+        if bool(out.found.any()):
+            dev = lattice_deviation(out.corners.double(), board_size).amax(-1)
+            off = out.found & (dev > SADDLE_MAX_DEVIATION)
+            for b in off.nonzero().flatten().tolist():
+                out.reasons[b] = f"board refused: a corner {float(dev[b]):.2f} squares off its neighbours' lattice"
+            out.found = out.found & ~off
+            out.corners = torch.where(out.found[:, None, None], out.corners, torch.zeros_like(out.corners))
+        out.reasons = [("learned (saddle candidates)" if f else r) for f, r in zip(out.found.tolist(), out.reasons)]
+        return out
 
     @torch.no_grad()
     def detect_level(
         self, images: torch.Tensor, board_size: tuple[int, int], full: torch.Tensor | None = None,
-        scale: torch.Tensor | None = None,
+        scale: torch.Tensor | None = None, source: str = "network",
     ) -> DetectionResult:
         """Detect the board at the resolution of ``images`` :math:`(B, 1, H, W)` (float); corners in grid order.
 
-        ``full`` and ``scale``: see :meth:`candidates`.
+        ``full`` and ``scale``: see :meth:`candidates`. ``source``: the corner candidates, ``"network"`` (the heatmap's
+        peaks) or ``"saddle"`` (the image's saddle points, :meth:`_saddle_board`).
         """
+        if source == "saddle":
+            return self._saddle_board(images, board_size)
         _, points, keep = self.candidates(images, full, scale)
         with stage("grid organiser"):
             corners, valid, found = organize_grid(points, keep, board_size, images)
@@ -216,6 +283,11 @@ class LearnedChessboardDetector(ChessboardDetector):
                 # neighbour check allows; every corner is still verified on the image below
                 c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
                 corners[retry], valid[retry], found[retry] = c2, v2, f2
+        return self._complete(images, board_size, corners, valid, found)
+
+    def _complete(self, images: torch.Tensor, board_size: tuple[int, int], corners: torch.Tensor, valid: torch.Tensor,
+                  found: torch.Tensor) -> DetectionResult:
+        """Organised boards -> complete, refined boards: missing cells predicted and confirmed on the image."""
         reasons = ["learned" if f else "board not found" for f in found.tolist()]
         if self.collinearity:
             corners, valid = collinearity_refine(corners, valid & found[:, None], board_size)

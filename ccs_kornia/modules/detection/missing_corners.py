@@ -6,7 +6,7 @@ import torch
 
 from ccs_kornia.modules._checks import check_board_size
 
-__all__ = ["predict_missing_corners"]
+__all__ = ["lattice_deviation", "predict_missing_corners"]
 
 
 def predict_missing_corners(
@@ -44,40 +44,91 @@ def predict_missing_corners(
     b = corners.shape[0]
     g = corners.reshape(b, rows, cols, 2).clone()
     v = valid.reshape(b, rows, cols).clone()
-
-    def shifted(x: torch.Tensor, k: int, dim: int) -> torch.Tensor:
-        # value of the cell k steps further along ``dim`` (zero / False beyond the board)
-        out = torch.zeros_like(x)
-        n = x.shape[dim]
-        if abs(k) >= n:
-            return out
-        src = x.narrow(dim, max(k, 0), n - abs(k))
-        out.narrow(dim, max(-k, 0), n - abs(k)).copy_(src)
-        return out
-
     for _ in range(passes):
         if bool(v.all()):
             break
-        total = torch.zeros_like(g)
-        count = torch.zeros(g.shape[:-1], dtype=g.dtype, device=g.device)
-        for dim in (1, 2):  # rows (along j) and columns (along i)
-            for sgn in (1, -1):
-                p1, v1 = shifted(g, sgn, dim), shifted(v, sgn, dim)
-                p2, v2 = shifted(g, 2 * sgn, dim), shifted(v, 2 * sgn, dim)
-                p3, v3 = shifted(g, 3 * sgn, dim), shifted(v, 3 * sgn, dim)
-                quad = v1 & v2 & v3
-                lin = v1 & v2 & ~v3
-                est = torch.where(quad[..., None], 3 * p1 - 3 * p2 + p3, 2 * p1 - p2)
-                use = quad | lin
-                total = total + est * use[..., None]
-                count = count + use
-            pa, va = shifted(g, 1, dim), shifted(v, 1, dim)
-            pb, vb = shifted(g, -1, dim), shifted(v, -1, dim)
-            mid = va & vb
-            # the midpoint is the most reliable estimate: count it twice
-            total = total + (pa + pb) * mid[..., None]
-            count = count + 2 * mid
+        estimate, count = _neighbour_estimate(g, v)
         fill = ~v & (count > 0)
-        g = torch.where(fill[..., None], total / count.clamp_min(1)[..., None], g)
+        g = torch.where(fill[..., None], estimate, g)
         v = v | fill
     return g.reshape(b, -1, 2), v.reshape(b, -1)
+
+
+def lattice_deviation(corners: torch.Tensor, board_size: tuple[int, int], return_estimate: bool = False
+                      ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+    r"""How far each corner of complete boards lies from where its row and column neighbours put it, in squares.
+
+    The prediction is :func:`predict_missing_corners`' estimate of the cell from its neighbours (the corner itself
+    left out), the distance is divided by the board's median distance between neighbouring corners. A board's corners
+    follow a smooth lattice (perspective, lens distortion), so a corner that converged onto a different junction
+    (e.g. a corner of a ChArUco mark) stands out.
+
+    Args:
+        corners: :math:`(B, N, 2)` grid-ordered corners of complete boards, ``N = cols * rows``.
+        board_size: ``(cols, rows)``.
+
+        return_estimate: also return the positions :math:`(B, N, 2)` the neighbours predict.
+
+    Returns:
+        :math:`(B, N)` deviations in squares (and the predicted positions).
+
+    Example:
+        >>> from ccs_kornia.camera import board_object_points
+        >>> pts = board_object_points(5, 4)[None, :, :2] * 10
+        >>> pts[0, 7] += torch.tensor([3.0, 0.0])  # one corner 0.3 squares off
+        >>> dev = lattice_deviation(pts, (5, 4))
+        >>> int(dev.argmax()), round(float(dev.max()), 2)
+        (7, 0.3)
+    """
+    cols, rows = check_board_size(board_size)
+    if corners.dim() != 3 or corners.shape[1] != cols * rows or corners.shape[-1] != 2:
+        raise ValueError(f"corners must be (B, {cols * rows}, 2), got {tuple(corners.shape)}.")
+    b = corners.shape[0]
+    g = corners.reshape(b, rows, cols, 2)
+    v = torch.ones(g.shape[:-1], dtype=torch.bool, device=g.device)
+    estimate, count = _neighbour_estimate(g, v)
+    from ccs_kornia.modules.detection.saddle_refine import grid_spacing
+
+    # the board's median square: a displaced corner must not shrink its own yardstick
+    spacing = grid_spacing(corners, v.reshape(b, -1), board_size).median(-1).values[:, None, None]
+    dev = (g - estimate).norm(dim=-1) / spacing.clamp_min(1e-6)
+    dev = torch.where(count > 0, dev, torch.zeros_like(dev)).reshape(b, -1)
+    if return_estimate:
+        return dev, torch.where((count > 0)[..., None], estimate, g).reshape(b, -1, 2)
+    return dev
+
+
+def _shifted(x: torch.Tensor, k: int, dim: int) -> torch.Tensor:
+    """Value of the cell ``k`` steps further along ``dim`` (zero / False beyond the board)."""
+    out = torch.zeros_like(x)
+    n = x.shape[dim]
+    if abs(k) >= n:
+        return out
+    src = x.narrow(dim, max(k, 0), n - abs(k))
+    out.narrow(dim, max(-k, 0), n - abs(k)).copy_(src)
+    return out
+
+
+def _neighbour_estimate(g: torch.Tensor, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every cell's position from its valid row and column neighbours (the cell itself not used), ``(B, rows, cols,
+    2)``, and the weight of the estimates behind it ``(B, rows, cols)`` (0: none)."""
+    total = torch.zeros_like(g)
+    count = torch.zeros(g.shape[:-1], dtype=g.dtype, device=g.device)
+    for dim in (1, 2):  # rows (along j) and columns (along i)
+        for sgn in (1, -1):
+            p1, v1 = _shifted(g, sgn, dim), _shifted(v, sgn, dim)
+            p2, v2 = _shifted(g, 2 * sgn, dim), _shifted(v, 2 * sgn, dim)
+            p3, v3 = _shifted(g, 3 * sgn, dim), _shifted(v, 3 * sgn, dim)
+            quad = v1 & v2 & v3
+            lin = v1 & v2 & ~v3
+            est = torch.where(quad[..., None], 3 * p1 - 3 * p2 + p3, 2 * p1 - p2)
+            use = quad | lin
+            total = total + est * use[..., None]
+            count = count + use
+        pa, va = _shifted(g, 1, dim), _shifted(v, 1, dim)
+        pb, vb = _shifted(g, -1, dim), _shifted(v, -1, dim)
+        mid = va & vb
+        # the midpoint is the most reliable estimate: count it twice
+        total = total + (pa + pb) * mid[..., None]
+        count = count + 2 * mid
+    return total / count.clamp_min(1)[..., None], count
