@@ -243,6 +243,27 @@ def test_diagnostics_after_the_second_look_equal_those_without_it(sets):
     torch.testing.assert_close(looked.calibration.K, plain.calibration.K, atol=0, rtol=0)
 
 
+def test_second_look_runs_without_the_saddle_retry_and_restores_it(sets, monkeypatch):
+    """The calibrated look's virtual views run the learned detector without its saddle-candidate last resort (which
+    would only add its cost to every view without a board); the detector's setting is restored afterwards, also when
+    the look fails."""
+    import ccs_kornia.pipeline_solve as pipeline_solve
+
+    imgs = sets[1].images.clone()
+    imgs[3] = 0.5  # a view without a board: the look runs for it
+    pipe = CalibrationPipeline("learned", seed=0, distortion_correction=False, model="fisheye")
+    seen = []
+
+    def look(pipe_, *args):
+        seen.append(pipe_.detector.saddle_retry)
+        raise RuntimeError("look failed")
+
+    monkeypatch.setattr(pipeline_solve, "_look", look)
+    with pytest.raises(RuntimeError, match="look failed"):
+        pipe(imgs[None], BOARD, SQUARE)
+    assert seen == [False] and pipe.detector.saddle_retry is True
+
+
 @pytest.mark.parametrize("detector", ["opencv", "learned"])
 @pytest.mark.parametrize("model", ["none", "k1k2", "opencv5", "rational", "fisheye", "auto"])
 def test_no_crash_and_no_nan_without_a_reason(detector, model, sets):
