@@ -260,11 +260,16 @@ def _distortion_md(sec: dict) -> list[str]:
 
 
 def _speed_md(sec: dict) -> list[str]:
+    loads = [x for x in (sec.get("load_average_start"), sec.get("load_average_end")) if x is not None]
+    busy = bool(loads) and max(loads) > float(sec.get("threads") or 1)
+    # the run's own process counts about one towards the load: above the thread count, others shared the CPU
+    verdict = ("above the thread count: other processes shared the CPU and the timings are not reliable" if busy
+               else "at most the thread count")
     lines = [f"{sec['images']} images for detection (a batch size above that is capped to it), "
              f"{sec['calibration_views']} views for a whole calibration; torch threads {sec['threads']}. Best of the "
              f"repeats after a warm-up. 1-minute load average {_n(sec.get('load_average_start'), 1)} at the start, "
-             f"{_n(sec.get('load_average_end'), 1)} at the end (above the core count, other processes shared the "
-             f"CPU and the timings are not reliable); OMP_WAIT_POLICY={sec.get('omp_wait_policy')}.", ""]
+             f"{_n(sec.get('load_average_end'), 1)} at the end ({verdict}); "
+             f"OMP_WAIT_POLICY={sec.get('omp_wait_policy')}.", ""]
     for device, res in sec["devices"].items():
         lines += [f"**{device}** — peak memory {_n(res['peak_memory_mb'], 0)} MiB "
                   + ("(process peak RSS)" if device == "cpu" else "(torch.cuda.max_memory_allocated)"), ""]
