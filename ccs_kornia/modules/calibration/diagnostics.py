@@ -31,11 +31,7 @@ from ccs_kornia.modules.calibration.degeneracy import CHECKS, issues_from_tensor
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
 from ccs_kornia.modules.calibration.refinement import joint_refinement
-from ccs_kornia.modules.calibration.uncertainty import (
-    image_points,
-    projection_difference,
-    projection_uncertainty,
-)
+from ccs_kornia.modules.calibration.uncertainty import image_points, projection_difference, projection_uncertainty
 
 __all__ = [
     "image_points",
@@ -79,25 +75,18 @@ def split_views(used: torch.Tensor, parts: int) -> torch.Tensor:
 
 
 def _solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, result=None, warm=None):
-    """One solver call for every (camera, subset): cameras (C * S) with the other views masked out.
-
-    A fisheye solver starts the subsets marked in ``warm`` (S,) from ``result`` (the calibration of all the views):
-    its focal-length hypotheses cost more than the rest of the solve. Only for the k-fold training sets: their
-    optima lie next to the full one (the same held-out errors to 4 digits on every real set); the two halves start
-    cold, since where a model is barely constrained (k1..k4 of a fisheye model on a narrow lens) where its LM ends
-    depends on where it starts (boofcv_sony_hx5v: halves differing by 62 px warm, 5 px cold)."""
+    """One solver call for every (camera, subset): cameras (C * S) with the other views masked out. A fisheye solver
+    starts the subsets of ``warm`` (S,: the k-fold sets; same held-out errors to 4 digits on the real sets) from
+    ``result`` instead of its costly hypotheses; the halves start cold (a barely constrained fit ends near its start:
+    boofcv_sony_hx5v's fisheye halves 62 px apart warm, 5 cold)."""
     C, S, V = subsets.shape
     N = corners.shape[2]
-    c = corners[:, None].expand(C, S, V, N, 2).reshape(C * S, V, N, 2)
-    v = (valid[:, None] & subsets[..., None]).reshape(C * S, V, N)
-    o = obj if obj.dim() == 2 else obj[:, None].expand(C, S, N, 3).reshape(C * S, N, 3)
+    rep = lambda x: x[:, None].expand(C, S, *x.shape[1:]).reshape(C * S, *x.shape[1:])  # noqa: E731
+    c, v = rep(corners), (valid[:, None] & subsets[..., None]).reshape(C * S, V, N)
+    o = obj if obj.dim() == 2 else rep(obj)
     fisheye = getattr(solver, "model", None) == "fisheye" and getattr(result, "model", None) == "fisheye"
     if warm is None or not fisheye or not bool(warm.any()):
         return solver(c, v, o, image_size)
-
-    def rep(x: torch.Tensor) -> torch.Tensor:
-        return x[:, None].expand(C, S, *x.shape[1:]).reshape(C * S, *x.shape[1:])
-
     initial = type(result)(**{k: (rep(x) if isinstance(x, torch.Tensor) and x.dim() and x.shape[0] == C else x)
                               for k, x in result.__dict__.items()})
     cold = ~warm.to(initial.K.device).bool().repeat(C)

@@ -11,6 +11,7 @@ from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules._threads import full_threads, light_stages_single_thread
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.detection.board_checks import board_extends
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
@@ -257,6 +258,14 @@ class LearnedChessboardDetector(ChessboardDetector):
             off = out.found & (dev > SADDLE_MAX_DEVIATION)
             for b in off.nonzero().flatten().tolist():
                 out.reasons[b] = f"board refused: a corner {float(dev[b]):.2f} squares off its neighbours' lattice"
+            # a sub-board of a larger board is a perfect lattice too: the image must show the board end at every
+            # side (the organiser's own test looks for candidates beyond the sides, which this source can lack)
+            for b in (out.found & ~off).nonzero().flatten().tolist():
+                side = board_extends(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
+                                     board_size)
+                if side:
+                    off[b] = True
+                    out.reasons[b] = f"board refused: the checker pattern continues past its {side} side"
             out.found = out.found & ~off
             out.corners = torch.where(out.found[:, None, None], out.corners, torch.zeros_like(out.corners))
         out.reasons = [("learned (saddle candidates)" if f else r) for f, r in zip(out.found.tolist(), out.reasons)]

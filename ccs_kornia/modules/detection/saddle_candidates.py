@@ -56,8 +56,9 @@ def saddle_candidates(
     Example:
         >>> img = torch.zeros(1, 1, 48, 48); img[..., :24, :24] = 1; img[..., 24:, 24:] = 1
         >>> pts, ok = saddle_candidates(img, 3.0)
-        >>> pts[0][ok[0]].tolist()
-        [[23.0, 23.0]]
+        >>> found = pts[0][ok[0]]  # the one junction, at (23.5, 23.5): a whole pixel next to it
+        >>> found.shape, bool(((found - 23.5).abs() <= 0.5).all())
+        (torch.Size([1, 2]), True)
     """
     if images.dim() != 4 or images.shape[1] != 1:
         raise ValueError(f"Expected grey images (B, 1, H, W), got {tuple(images.shape)}.")

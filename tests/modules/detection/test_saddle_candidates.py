@@ -87,3 +87,15 @@ def test_ecocheck_like_board_found_only_from_saddle_candidates():
     assert bool(out.found[0]) and "saddle candidates" in out.reasons[0]
     err = (out.corners[0].double() - truth).norm(dim=-1)
     assert float(err.mean()) < 0.05 and float(err.max()) < 0.2
+
+
+def test_saddle_source_refuses_a_sub_board():
+    """A sub-board of a larger board is a perfect lattice, so the lattice check cannot refuse it; the organiser's test
+    and the image test of the board's sides do (tests/test_cli.py's wrong board size covers a case only the image
+    test caught: a sub-board on a corrected copy)."""
+    img, _ = _checker(square=12, cols=9, rows=6)
+    det = LearnedChessboardDetector()
+    whole = det.detect_level(img, (9, 6), source="saddle")
+    assert bool(whole.found[0]) and "saddle candidates" in whole.reasons[0]
+    part = det.detect_level(img, (8, 6), source="saddle")
+    assert not bool(part.found[0])
