@@ -244,9 +244,9 @@ def test_diagnostics_after_the_second_look_equal_those_without_it(sets):
 
 
 def test_second_look_runs_without_the_saddle_retry_and_restores_it(sets, monkeypatch):
-    """The calibrated look's virtual views run the learned detector without its saddle-candidate last resort (which
-    would only add its cost to every view without a board); the detector's setting is restored afterwards, also when
-    the look fails."""
+    """The calibrated look's virtual views run the learned detector without its saddle-candidate last resort and with
+    only the finer fallback level (the rest would only add their cost to every view without a board); the detector's
+    settings are restored afterwards, also when the look fails."""
     import ccs_kornia.pipeline_solve as pipeline_solve
 
     imgs = sets[1].images.clone()
@@ -255,13 +255,15 @@ def test_second_look_runs_without_the_saddle_retry_and_restores_it(sets, monkeyp
     seen = []
 
     def look(pipe_, *args):
-        seen.append(pipe_.detector.saddle_retry)
+        seen.append((pipe_.detector.saddle_retry, pipe_.detector.scale_fallback))
         raise RuntimeError("look failed")
 
+    fallback = pipe.detector.scale_fallback
     monkeypatch.setattr(pipeline_solve, "_look", look)
     with pytest.raises(RuntimeError, match="look failed"):
         pipe(imgs[None], BOARD, SQUARE)
-    assert seen == [False] and pipe.detector.saddle_retry is True
+    assert seen == [(False, (0.5,))]
+    assert pipe.detector.saddle_retry is True and pipe.detector.scale_fallback == fallback
 
 
 @pytest.mark.parametrize("detector", ["opencv", "learned"])
