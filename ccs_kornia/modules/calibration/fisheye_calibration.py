@@ -131,6 +131,11 @@ def calibrate_fisheye(
         raise ValueError(f"Unknown parameters to fix {sorted(unknown)}; expected names from {model.param_names}.")
     free = [n not in fix for n in model.param_names]
 
+    def cold(sel: torch.Tensor) -> FisheyeCalibrationResult:
+        return _calibrate(model, corners[sel], w[sel], candidates[sel], obj, free, min_views, outlier_abs_threshold,
+                          outlier_rel_threshold, max_iters, None, image_size, num_hypotheses, keep)
+
+    warm = torch.zeros(C, dtype=torch.bool, device=dev)
     if initial is not None:
         K0, D0, rv_i, tv_i, used_i = (x.to(dev) for x in initial)
         if unbatched:
@@ -138,17 +143,12 @@ def calibrate_fisheye(
         p_i = torch.cat([K0[:, 0, 0:1], K0[:, 1, 1:2], K0[:, 0, 2:3], K0[:, 1, 2:3], D0], -1).to(dt)
         used_i = used_i.bool() & candidates & rv_i.isfinite().all(-1) & tv_i.isfinite().all(-1)
         warm = p_i.isfinite().all(-1) & (used_i.sum(-1) >= min_views)
-        if bool(warm.any()):
-            out = _merge_cameras(
-                warm, lambda sel: _calibrate(model, corners[sel], w[sel], candidates[sel], obj, free, min_views,
-                                             outlier_abs_threshold, outlier_rel_threshold, max_iters,
-                                             (p_i[sel], rv_i[sel].to(dt), tv_i[sel].to(dt), used_i[sel])),
-                lambda sel: _calibrate(model, corners[sel], w[sel], candidates[sel], obj, free, min_views,
-                                       outlier_abs_threshold, outlier_rel_threshold, max_iters, None, image_size,
-                                       num_hypotheses, keep))
-            return FisheyeCalibrationResult(**{f: v[0] for f, v in out.__dict__.items()}) if unbatched else out
-    out = _calibrate(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold, outlier_rel_threshold,
-                     max_iters, None, image_size, num_hypotheses, keep)
+
+    def warm_start(sel: torch.Tensor) -> FisheyeCalibrationResult:
+        return _calibrate(model, corners[sel], w[sel], candidates[sel], obj, free, min_views, outlier_abs_threshold,
+                          outlier_rel_threshold, max_iters, (p_i[sel], rv_i[sel].to(dt), tv_i[sel].to(dt), used_i[sel]))
+
+    out = _merge_cameras(warm, warm_start, cold)
     if unbatched:
         out = FisheyeCalibrationResult(**{f: v[0] for f, v in out.__dict__.items()})
     return out
@@ -156,9 +156,11 @@ def calibrate_fisheye(
 
 def _merge_cameras(first: torch.Tensor, run_first, run_rest) -> FisheyeCalibrationResult:
     """Results of ``run_first`` on the cameras where ``first`` (C,) holds and of ``run_rest`` on the others, merged."""
-    if bool(first.all()):
-        return run_first(first.nonzero().flatten())
     a, b = first.nonzero().flatten(), (~first).nonzero().flatten()
+    if a.numel() == 0:
+        return run_rest(b)
+    if b.numel() == 0:
+        return run_first(a)
     ra, rb = run_first(a), run_rest(b)
     merged = {}
     for f, va in ra.__dict__.items():

@@ -239,19 +239,11 @@ class LearnedChessboardDetector(ChessboardDetector):
         with stage("saddle candidates"):
             points, keep = saddle_candidates(images, SIGMA_PER_SQUARE * self.scale_selector.target_square,
                                              self.max_peaks)
-        with stage("grid organiser"):
-            corners, valid, found = organize_grid(points, keep, board_size, images)
-            retry = (~found).nonzero().flatten()
-            if retry.numel():
-                c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
-                corners[retry], valid[retry], found[retry] = c2, v2, f2
+        corners, valid, found = _organize(points, keep, board_size, images)
         if bool(found.any()):
             # a candidate beside a mark can sit a seventh of a square off its junction, beyond the saddle fit's
             # window: the coarse gradient search the predicted cells get (basin: the whole window) first
-            spacing = grid_spacing(corners, valid, board_size)
-            coarse = refine_corners(images, corners, valid & found[:, None], 0.45 * spacing, method="gradient",
-                                    iterations=10, max_radius=40)
-            corners = torch.where(valid[..., None], coarse, corners)
+            corners = _coarse_search(images, corners, valid & found[:, None], valid, board_size)
         out = self._complete(images, board_size, corners, valid, found)
         if bool(out.found.any()):
             dev = lattice_deviation(out.corners.double(), board_size).amax(-1)
@@ -284,14 +276,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         if source == "saddle":
             return self._saddle_board(images, board_size)
         _, points, keep = self.candidates(images, full, scale)
-        with stage("grid organiser"):
-            corners, valid, found = organize_grid(points, keep, board_size, images)
-            retry = (~found).nonzero().flatten()
-            if retry.numel():
-                # strongly distorted close-ups (wide lenses) bend the lattice more than the organiser's strict
-                # neighbour check allows; every corner is still verified on the image below
-                c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
-                corners[retry], valid[retry], found[retry] = c2, v2, f2
+        corners, valid, found = _organize(points, keep, board_size, images)
         return self._complete(images, board_size, corners, valid, found)
 
     def _complete(self, images: torch.Tensor, board_size: tuple[int, int], corners: torch.Tensor, valid: torch.Tensor,
@@ -307,12 +292,8 @@ class LearnedChessboardDetector(ChessboardDetector):
             with stage("missing corners"):
                 corners, _ = predict_missing_corners(corners, valid, board_size)
                 # extrapolated cells can be off by a good part of a square under strong distortion: a coarse
-                # search first with the gradient-orthogonality fixed point, whose basin is the whole window,
-                # then the regular saddle refinement below polishes
-                spacing = grid_spacing(corners, found[:, None].expand_as(valid), board_size)
-                coarse = refine_corners(images, corners, missing, 0.45 * spacing, method="gradient", iterations=10,
-                                        max_radius=40)
-                corners = torch.where(missing[..., None], coarse, corners)
+                # search first, then the regular saddle refinement below polishes
+                corners = _coarse_search(images, corners, missing, found[:, None].expand_as(valid), board_size)
         cells = found[:, None].expand_as(valid)  # every cell of a found board
         if self.refiner is not None and bool(found.any()):
             with stage("saddle refinement"):
@@ -326,3 +307,25 @@ class LearnedChessboardDetector(ChessboardDetector):
             found = found & ~unverified
         corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
+
+
+def _organize(points: torch.Tensor, keep: torch.Tensor, board_size: tuple[int, int], images: torch.Tensor):
+    """:func:`organize_grid`, then again with the wide-lens tolerance where no board was found: strongly distorted
+    close-ups bend the lattice more than the strict neighbour check allows (every corner is still verified on the
+    image afterwards)."""
+    with stage("grid organiser"):
+        corners, valid, found = organize_grid(points, keep, board_size, images)
+        retry = (~found).nonzero().flatten()
+        if retry.numel():
+            c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
+            corners[retry], valid[retry], found[retry] = c2, v2, f2
+    return corners, valid, found
+
+
+def _coarse_search(images: torch.Tensor, corners: torch.Tensor, cells: torch.Tensor, spaced: torch.Tensor,
+                   board_size: tuple[int, int]) -> torch.Tensor:
+    """``corners`` with ``cells`` moved by the gradient-orthogonality fixed point, whose basin is the whole window
+    (0.45 x the grid spacing measured over the ``spaced`` cells)."""
+    spacing = grid_spacing(corners, spaced, board_size)
+    coarse = refine_corners(images, corners, cells, 0.45 * spacing, method="gradient", iterations=10, max_radius=40)
+    return torch.where(cells[..., None], coarse, corners)
