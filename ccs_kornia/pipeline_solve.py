@@ -172,11 +172,11 @@ def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: t
     v = det.found.shape[1]
     # on the virtual views only the finer fallback level pays (without any: ros_fisheye_mono at 0.5x 24 -> 23
     # boards, boofcv_fisheye_chessboard at 0.5x 26 -> 25); the coarser ones and the learned detector's
-    # saddle-candidate last resort (boards with marks) only add their cost to every view without a board
+    # last resort (OpenCV's candidates: boards with marks) only add their cost to every view without a board
     # (boofcv_fisheye_chessboard's look 7.4 -> 5.7 s; 1x, 0.5x and 2x copies of the fisheye sets and GoPro: the
     # same boards and RMS)
-    saved = {k: getattr(pipe.detector, k) for k in ("saddle_retry", "scale_fallback") if hasattr(pipe.detector, k)}
-    for k, off in (("saddle_retry", False), ("scale_fallback", (0.5,))):
+    saved = {k: getattr(pipe.detector, k) for k in ("opencv_retry", "scale_fallback") if hasattr(pipe.detector, k)}
+    for k, off in (("opencv_retry", False), ("scale_fallback", (0.5,))):
         if k in saved:
             setattr(pipe.detector, k, off)
     try:

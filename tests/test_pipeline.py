@@ -243,9 +243,9 @@ def test_diagnostics_after_the_second_look_equal_those_without_it(sets):
     torch.testing.assert_close(looked.calibration.K, plain.calibration.K, atol=0, rtol=0)
 
 
-def test_second_look_runs_without_the_saddle_retry_and_restores_it(sets, monkeypatch):
-    """The calibrated look's virtual views run the learned detector without its saddle-candidate last resort and with
-    only the finer fallback level (the rest would only add their cost to every view without a board); the detector's
+def test_second_look_runs_without_the_opencv_retry_and_restores_it(sets, monkeypatch):
+    """The calibrated look's virtual views run the learned detector without its last resort (OpenCV's candidates) and with only
+    the finer fallback level (the rest would only add their cost to every view without a board); the detector's
     settings are restored afterwards, also when the look fails."""
     import ccs_kornia.pipeline_solve as pipeline_solve
 
@@ -255,7 +255,7 @@ def test_second_look_runs_without_the_saddle_retry_and_restores_it(sets, monkeyp
     seen = []
 
     def look(pipe_, *args):
-        seen.append((pipe_.detector.saddle_retry, pipe_.detector.scale_fallback))
+        seen.append((pipe_.detector.opencv_retry, pipe_.detector.scale_fallback))
         raise RuntimeError("look failed")
 
     fallback = pipe.detector.scale_fallback
@@ -263,7 +263,7 @@ def test_second_look_runs_without_the_saddle_retry_and_restores_it(sets, monkeyp
     with pytest.raises(RuntimeError, match="look failed"):
         pipe(imgs[None], BOARD, SQUARE)
     assert seen == [(False, (0.5,))]
-    assert pipe.detector.saddle_retry is True and pipe.detector.scale_fallback == fallback
+    assert pipe.detector.opencv_retry is True and pipe.detector.scale_fallback == fallback
 
 
 @pytest.mark.parametrize("detector", ["opencv", "learned"])

@@ -21,6 +21,8 @@ _EXPORTS = {
     "check_grid": "ccs_kornia.modules.detection.board_checks",
     "check_saddles": "ccs_kornia.modules.detection.board_checks",
     "board_extends": "ccs_kornia.modules.detection.board_checks",
+    "skipped_line": "ccs_kornia.modules.detection.board_checks",
+    "opencv_candidates": "ccs_kornia.modules.detection.opencv_candidates",
     "canonical_corner_order": "ccs_kornia.modules.detection.board_checks",
     "CornerUNet": "ccs_kornia.modules.detection.heatmap_unet",
     "DoubleConv": "ccs_kornia.modules.detection.heatmap_unet",

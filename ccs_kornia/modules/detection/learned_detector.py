@@ -11,15 +11,15 @@ from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules._threads import full_threads, light_stages_single_thread
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
-from ccs_kornia.modules.detection.board_checks import board_extends
+from ccs_kornia.modules.detection.board_checks import board_extends, skipped_line
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
 from ccs_kornia.modules.detection.missing_corners import lattice_deviation, predict_missing_corners
+from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, opencv_level_factor
 from ccs_kornia.modules.detection.patch_refine import refine_from_level
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
-from ccs_kornia.modules.detection.saddle_candidates import SIGMA_PER_SQUARE, saddle_candidates
 from ccs_kornia.modules.detection.scale import ScaleSelector, detect_at_scale
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners
 from ccs_kornia.modules.detection.x_junction import x_junction_mask
@@ -46,9 +46,13 @@ def load_corner_unet(path: str | Path | None = None, map_location: str | torch.d
     return net.eval(), float(ckpt.get("sigma", 1.5))
 
 
-#: a board found from saddle candidates is refused where a refined corner lies farther than this (in squares) from where
-#: its row and column neighbours put it (exact lattices, 75-degree tilt included: at most 0.04)
-SADDLE_MAX_DEVIATION = 0.08
+#: a board found from OpenCV's candidates is refused where a refined corner lies farther than this (in squares) from
+#: where its row and column neighbours put it (exact lattices, 75-degree tilt included: at most 0.04)
+MAX_LATTICE_DEVIATION = 0.08
+#: refinement window of boards from OpenCV's candidates, in grid spacings: such boards are mostly ones with marks in
+#: their white squares, and the usual 0.2 reaches the marks' frames (held-out ChArUco renders: from OpenCV's corners,
+#: 12/12 boards within 0.043 px mean with 0.1 or 0.12, one corner 3 px off with 0.15, five boards lost with 0.2)
+MARKED_RADIUS_FACTOR = 0.1
 
 
 class LearnedChessboardDetector(ChessboardDetector):
@@ -92,9 +96,10 @@ class LearnedChessboardDetector(ChessboardDetector):
         precision: of the heatmap network (:func:`~ccs_kornia.modules.detection.heatmap_unet.run_heatmap`):
             ``"float32"``, ``"bfloat16"`` or ``"auto"`` (bfloat16 on CPUs that compute it natively; the corners are
             refined on the image in float32 either way).
-        saddle_retry: where the organiser finds no board among the network's peaks, try it again on the image's own
-            saddle points at the level's square scale (:mod:`~ccs_kornia.modules.detection.saddle_candidates`:
-            boards with marks inside the white squares, whose corners the network misses).
+        opencv_retry: where no level gave a board from the network's peaks, look again on the corners of OpenCV's
+            classic detector on a bounded level (:mod:`~ccs_kornia.modules.detection.opencv_candidates`: above all
+            boards with marks inside the white squares, whose corners the network misses), organised, refined and
+            checked as the network's, plus a lattice check.
     """
 
     def __init__(
@@ -116,7 +121,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         scale_fallback: tuple[float, ...] = (0.5, 2.0, 0.25),
         max_upsampling: float = 2.0,
         precision: str = "auto",
-        saddle_retry: bool = True,
+        opencv_retry: bool = True,
     ) -> None:
         super().__init__()
         if net is None:
@@ -149,7 +154,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
         self.precision = precision
-        self.saddle_retry = bool(saddle_retry)
+        self.opencv_retry = bool(opencv_retry)
 
     @property
     def selects_scale(self) -> bool:
@@ -185,7 +190,17 @@ class LearnedChessboardDetector(ChessboardDetector):
         """Detect the board on every image of ``(B, 1, H, W)``; corners in grid order."""
         board_size = self._check_inputs(images, board_size)
         with light_stages_single_thread(images.device):
-            return self._detect(images.float(), board_size)
+            out = self._detect(images.float(), board_size)
+            with stage("grid checks"):
+                # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
+                # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners
+                for b in out.found.nonzero().flatten().tolist():
+                    reason = skipped_line(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
+                                          board_size)
+                    if reason:
+                        out.found[b], out.reasons[b] = False, f"board refused: {reason}"
+                        out.corners[b] = 0.0
+            return out
 
     def _detect(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         if self.scale == "off":
@@ -199,28 +214,33 @@ class LearnedChessboardDetector(ChessboardDetector):
             out = self.detect_level(x, bs, full, scale)
             return out.corners, out.found, out.reasons
 
-        def refine(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
+        def refine(full: torch.Tensor, pts: torch.Tensor, factor: float, radius_factor: float | None = None):
             if r is None:
                 return pts
             with stage("saddle refinement"):
-                return refine_from_level(full, pts, board_size, factor, r.radius_factor, r.max_radius, r.method,
-                                         r.iterations, r.smooth_sigma, r.normalize_sigma)
+                return refine_from_level(full, pts, board_size, factor, radius_factor or r.radius_factor,
+                                         r.max_radius, r.method, r.iterations, r.smooth_sigma, r.normalize_sigma)
 
         corners, found, reasons = detect_at_scale(level, images, board_size, factor, self.scale_fallback,
                                                   self.scale_selector.max_pixels, refine)
         missed = (~found).nonzero().flatten()
-        if self.saddle_retry and missed.numel():
-            # last resort, on the same levels: boards whose corners the network missed at every level (marks inside
-            # the white squares), from the image's own saddle points
-            def saddle_level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
-                out = self.detect_level(x, bs, full, scale, source="saddle")
+        if self.opencv_retry and missed.numel():
+            # last resort: OpenCV's quads on one bounded level (they need no square-size estimate), refined with a
+            # narrow window (these are mostly boards with marks)
+            def opencv_level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
+                out = self.detect_level(x, bs, full, scale, source="opencv")
                 return out.corners, out.found, out.reasons
 
-            c2, f2, r2 = detect_at_scale(saddle_level, images[missed], board_size, factor[missed.to(factor.device)],
-                                         self.scale_fallback, self.scale_selector.max_pixels, refine)
+            def narrow(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
+                return refine(full, pts, factor, MARKED_RADIUS_FACTOR)
+
+            h, w = images.shape[-2:]
+            levels = torch.full((missed.numel(),), opencv_level_factor((w, h)), dtype=factor.dtype)
+            c2, f2, r2 = detect_at_scale(opencv_level, images[missed], board_size, levels, (),
+                                         self.scale_selector.max_pixels, narrow)
             # the lattice check again after the full-resolution refinement (which sees the marks in more detail)
             dev = lattice_deviation(c2.double(), board_size).amax(-1)
-            f2 = f2.to(dev.device) & (dev <= SADDLE_MAX_DEVIATION)
+            f2 = f2.to(dev.device) & (dev <= MAX_LATTICE_DEVIATION)
             for k, i in enumerate(missed.tolist()):
                 if bool(f2[k]):
                     corners[i], found[i], reasons[i] = c2[k].to(corners), True, r2[k]
@@ -228,30 +248,31 @@ class LearnedChessboardDetector(ChessboardDetector):
                     reasons[i] = r2[k]
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
 
-    def _saddle_board(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
-        """:meth:`detect_level` on :func:`~ccs_kornia.modules.detection.saddle_candidates.saddle_candidates` of
-        ``images`` (a level whose squares have about ``target_square`` px) instead of the network's peaks.
+    def _opencv_board(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        """:meth:`detect_level` on :func:`~ccs_kornia.modules.detection.opencv_candidates.opencv_candidates` of
+        ``images`` instead of the network's peaks.
 
-        No X-junction check: its circle test counts the colour changes around a point, and a mark inside a white
-        square adds changes (on held-out ChArUco renders it kept 0-16 of 40 true corners). In its place, a board whose
-        refined corners leave the smooth lattice of their neighbours by more than :data:`SADDLE_MAX_DEVIATION` squares
-        is refused: near a mark a corner can converge onto the mark's own junctions."""
-        with stage("saddle candidates"):
-            points, keep = saddle_candidates(images, SIGMA_PER_SQUARE * self.scale_selector.target_square,
-                                             self.max_peaks)
+        OpenCV's corners are within a px: no coarse search (the marks pull it: 0.3 -> 0.9 px on held-out ChArUco
+        renders) and a narrow refinement window (:data:`MARKED_RADIUS_FACTOR`). No X-junction check: its circle test
+        counts the colour changes around a point, and a mark inside a white square adds changes. In its place, a
+        board whose refined corners leave the smooth lattice of their neighbours by more than
+        :data:`MAX_LATTICE_DEVIATION` squares is refused (near a mark a corner can converge onto the mark's own
+        junctions), and so is a board whose checker pattern continues past a side (OpenCV returns sub-boards)."""
+        with stage("opencv candidates"):
+            points, keep = opencv_candidates(images, board_size)
         corners, valid, found = _organize(points, keep, board_size, images)
-        if bool(found.any()):
-            # a candidate beside a mark can sit a seventh of a square off its junction, beyond the saddle fit's
-            # window: the coarse gradient search the predicted cells get (basin: the whole window) first
-            corners = _coarse_search(images, corners, valid & found[:, None], valid, board_size)
-        out = self._complete(images, board_size, corners, valid, found)
+        refiner = self.refiner
+        if refiner is not None:
+            refiner = copy.copy(refiner)
+            refiner.radius_factor = MARKED_RADIUS_FACTOR
+        out = self._complete(images, board_size, corners, valid, found, refiner)
         if bool(out.found.any()):
             dev = lattice_deviation(out.corners.double(), board_size).amax(-1)
-            off = out.found & (dev > SADDLE_MAX_DEVIATION)
+            off = out.found & (dev > MAX_LATTICE_DEVIATION)
             for b in off.nonzero().flatten().tolist():
                 out.reasons[b] = f"board refused: a corner {float(dev[b]):.2f} squares off its neighbours' lattice"
             # a sub-board of a larger board is a perfect lattice too: the image must show the board end at every
-            # side (the organiser's own test looks for candidates beyond the sides, which this source can lack)
+            # side (the organiser's own test looks for candidates beyond the sides, which this source lacks)
             for b in (out.found & ~off).nonzero().flatten().tolist():
                 side = board_extends(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
                                      board_size)
@@ -260,7 +281,7 @@ class LearnedChessboardDetector(ChessboardDetector):
                     out.reasons[b] = f"board refused: the checker pattern continues past its {side} side"
             out.found = out.found & ~off
             out.corners = torch.where(out.found[:, None, None], out.corners, torch.zeros_like(out.corners))
-        out.reasons = [("learned (saddle candidates)" if f else r) for f, r in zip(out.found.tolist(), out.reasons)]
+        out.reasons = [("learned (opencv candidates)" if f else r) for f, r in zip(out.found.tolist(), out.reasons)]
         return out
 
     @torch.no_grad()
@@ -271,17 +292,19 @@ class LearnedChessboardDetector(ChessboardDetector):
         """Detect the board at the resolution of ``images`` :math:`(B, 1, H, W)` (float); corners in grid order.
 
         ``full`` and ``scale``: see :meth:`candidates`. ``source``: the corner candidates, ``"network"`` (the heatmap's
-        peaks) or ``"saddle"`` (the image's saddle points, :meth:`_saddle_board`).
+        peaks) or ``"opencv"`` (OpenCV's classic detector, :meth:`_opencv_board`).
         """
-        if source == "saddle":
-            return self._saddle_board(images, board_size)
+        if source == "opencv":
+            return self._opencv_board(images, board_size)
         _, points, keep = self.candidates(images, full, scale)
         corners, valid, found = _organize(points, keep, board_size, images)
         return self._complete(images, board_size, corners, valid, found)
 
     def _complete(self, images: torch.Tensor, board_size: tuple[int, int], corners: torch.Tensor, valid: torch.Tensor,
-                  found: torch.Tensor) -> DetectionResult:
-        """Organised boards -> complete, refined boards: missing cells predicted and confirmed on the image."""
+                  found: torch.Tensor, refiner: CornerRefiner | None = None) -> DetectionResult:
+        """Organised boards -> complete, refined boards: missing cells predicted and confirmed on the image
+        (``refiner``: default, the detector's)."""
+        refiner = self.refiner if refiner is None else refiner
         reasons = ["learned" if f else "board not found" for f in found.tolist()]
         if self.collinearity:
             corners, valid = collinearity_refine(corners, valid & found[:, None], board_size)
@@ -295,9 +318,9 @@ class LearnedChessboardDetector(ChessboardDetector):
                 # search first, then the regular saddle refinement below polishes
                 corners = _coarse_search(images, corners, missing, found[:, None].expand_as(valid), board_size)
         cells = found[:, None].expand_as(valid)  # every cell of a found board
-        if self.refiner is not None and bool(found.any()):
+        if refiner is not None and bool(found.any()):
             with stage("saddle refinement"):
-                corners, ok = self.refiner(images, corners, cells, board_size, return_ok=True)
+                corners, ok = refiner(images, corners, cells, board_size, return_ok=True)
             # a predicted cell is accepted only where the image shows a corner there; one wrong corner
             # ruins a calibration, so the board is dropped instead
             unverified = (missing & ~ok).any(1)

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ccs_kornia.modules.detection.board_checks import board_extends, canonical_corner_order, check_grid
+from ccs_kornia.modules.detection.board_checks import (
+    _sample,
+    board_extends,
+    canonical_corner_order,
+    check_grid,
+    check_saddles,
+    skipped_line,
+)
 
 
 def _lattice(cols: int, rows: int, step: float = 20.0, origin=(50.0, 40.0)) -> np.ndarray:
@@ -47,3 +54,31 @@ def test_board_extends_on_synthetic_image():
     assert board_extends(img, full, (5, 4)) == ""
     sub = _lattice(4, 4, 20.0, (79.5, 59.5))
     assert board_extends(img, sub, (4, 4)) == "right"
+
+
+def _checker_image(square: int = 16, size: int = 160) -> np.ndarray:
+    yy, xx = np.mgrid[:size, :size]
+    return ((xx // square + yy // square) % 2).astype(np.float32)  # corners at square - 0.5 + square k
+
+
+def test_skipped_line_spares_a_board_and_refuses_every_other_corner():
+    img = _checker_image()
+    board = _lattice(5, 4, 16.0, (31.5, 31.5))
+    assert skipped_line(img, board, (5, 4)) == "" and check_saddles(img, board, (5, 4)) == ""
+    every_other = _lattice(4, 3, 32.0, (15.5, 15.5))  # the corners between them are saddles too
+    assert "skips a row" in skipped_line(img, every_other, (4, 3))
+    assert "skips" in check_saddles(img, every_other, (4, 3)), "check_saddles runs the same test first"
+    # every other corner along the rows only: the midpoints along a row are corners, those down a column edges
+    along_rows = _lattice(3, 4, 16.0, (31.5, 31.5))
+    along_rows[:, 0] = 31.5 + 2.0 * (along_rows[:, 0] - 31.5)
+    assert "skips a row" in skipped_line(img, along_rows, (3, 4))
+    down_columns = _lattice(3, 4, 16.0, (31.5, 31.5))
+    down_columns[:, 1] = 31.5 + 2.0 * (down_columns[:, 1] - 31.5)
+    assert "skips a column" in skipped_line(img, down_columns, (3, 4))
+
+
+def test_box_sample_is_the_box_mean_and_nan_outside():
+    img = np.arange(100, dtype=np.float32).reshape(10, 10)
+    out = _sample(img, np.array([[4.0, 5.0], [0.0, 0.0], [7.6, 2.2], [9.0, 5.0]]), 1.0)
+    assert out[0] == img[4:7, 3:6].mean() and out[2] == img[1:4, 7:10].mean()
+    assert np.isnan(out[1]) and np.isnan(out[3]), "a box leaving the image has no mean"
