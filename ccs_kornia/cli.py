@@ -148,6 +148,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "k1k2, none, fisheye (Kannala-Brandt k1..k4, as cv2.fisheye)")
     p.add_argument("--no-ransac", dest="use_ransac", action="store_false", help="keep every detected view")
     p.add_argument("--seed", default=0, type=int, help="RANSAC seed (default 0)")
+    p.add_argument("--unweighted", dest="weigh_corners", action="store_false",
+                   help="count every corner equally (the plain least-squares fit, as cv2.calibrateCamera: the lowest "
+                        "RMS; by default corners are weighted by the precision measured on their image, which gives "
+                        "more accurate cameras and a slightly higher RMS)")
     p.add_argument("--report", metavar="DIR", help="also write overlays and a summary to DIR (created)")
     p.add_argument("--opencv-yaml", metavar="FILE", help="also write an OpenCV FileStorage YAML (camera_matrix, ...)")
     p.add_argument("--ros-yaml", metavar="FILE", help="also write a ROS camera_info YAML (distortion_model plumb_bob, "
@@ -182,6 +186,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
     p.add_argument("--no-ransac", dest="use_ransac", action="store_false", help="keep every detected view")
     p.add_argument("--seed", default=0, type=int, help="RANSAC seed (default 0)")
+    p.add_argument("--unweighted", dest="weigh_corners", action="store_false",
+                   help="count every corner equally (the plain least-squares fit, as cv2.calibrateCamera: the lowest "
+                        "RMS; by default corners are weighted by the precision measured on their image, which gives "
+                        "more accurate cameras and a slightly higher RMS)")
     p.add_argument("--diagnostics", action="store_true",
                    help="also compute each set's quality figures and verdict (a few more solves per set)")
     p.add_argument("--sets-per-batch", default=4, type=_positive_int, metavar="N",

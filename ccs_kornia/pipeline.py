@@ -41,6 +41,7 @@ from ccs_kornia.modules.correction.corrected_detection import detect_on_correcte
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
 from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
@@ -83,6 +84,10 @@ class CalibrationPipeline(nn.Module):
             again on virtual pinhole views of the calibrated lens, and the camera is solved again with them.
         diagnostics: also compute each camera's quality figures and verdict (``PipelineResult.diagnostics``; see
             :func:`~ccs_kornia.modules.calibration.diagnostics.diagnose`: several more solves per camera).
+        weigh_corners: measure each detected corner's precision on its image
+            (:func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_uncertainty`, ``DetectionResult.sigma``)
+            and weight the solver's refinements by it, so a view's soft or shaded corners count less
+            (:func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_weights`).
         solver_kwargs: further options of :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
 
     Example:
@@ -113,6 +118,7 @@ class CalibrationPipeline(nn.Module):
         free_distortion_centre: bool = True,
         diagnostics: bool = False,
         calibrated_look: bool = True,
+        weigh_corners: bool = True,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -144,6 +150,7 @@ class CalibrationPipeline(nn.Module):
         self.max_rms_ratio = float(max_rms_ratio)
         self.joint_iters = int(joint_iters)
         self.free_distortion_centre = bool(free_distortion_centre)
+        self.weigh_corners = bool(weigh_corners)
 
     # ------------------------------------------------------------------------------------------
     # the composition
@@ -201,6 +208,7 @@ class CalibrationPipeline(nn.Module):
         device = module_device(self)
         c, v, n = source.num_cameras, source.max_views, board[0] * board[1]
         corners = torch.zeros(c, v, n, 2, dtype=torch.float64, device=device)
+        sigma = torch.full((c, v, n), float("nan"), dtype=torch.float32, device=device) if self.weigh_corners else None
         found = torch.zeros(c, v, dtype=torch.bool, device=device)
         present = torch.zeros(c, v, dtype=torch.bool, device=device)
         sizes = torch.zeros(c, v, 2, dtype=torch.long)
@@ -221,13 +229,15 @@ class CalibrationPipeline(nn.Module):
                 per_view[cam, view] = self.view_corrections(images)
             det = self.detect_images(images, board)
             corners[cam, view], found[cam, view], present[cam, view] = det.corners.double(), det.found, True
+            if sigma is not None and det.sigma is not None:
+                sigma[cam, view] = det.sigma.to(sigma)
             sizes[cam.cpu(), view.cpu()] = torch.tensor([images.shape[-1], images.shape[-2]])
             for k, (ci, vi) in enumerate(batch.keys):
                 reasons[ci][vi] = (det.reasons[k] if det.reasons else "") or ("" if det.found[k] else "board not found")
             if progress is not None:
                 progress(len(batch.keys) + len(batch.failed))
         image_size = [main_size(sizes[ci], found[ci].cpu(), present[ci].cpu()) for ci in range(c)]
-        return PipelineResult(DetectionResult(corners, found, [r for rs in reasons for r in rs]), None, image_size,
+        return PipelineResult(DetectionResult(corners, found, [r for rs in reasons for r in rs], sigma), None, image_size,
                               present, sizes.to(device), camera_reasons=[""] * c, view_corrections=per_view)
 
     def finish(
@@ -295,6 +305,8 @@ class CalibrationPipeline(nn.Module):
             ok = got.found
             det.corners[cam[ok], view[ok]] = got.corners[ok]
             det.found[cam[ok], view[ok]] = True
+            if det.sigma is not None and bool(ok.any()):  # the precision on the original image
+                det.sigma[cam[ok], view[ok]] = self.corner_sigma(batch.images.to(device)[ok], got.corners[ok], board)
             recovered[cam[ok]] = True
             v = det.found.shape[1]
             for k, (ci, vi) in enumerate(batch.keys):
@@ -435,7 +447,9 @@ class CalibrationPipeline(nn.Module):
             # a detector that picks its own detection level and refines at full resolution (the learned one with
             # ``scale="auto"``, modules/detection/scale.py) bounds its memory itself
             if limit is None or max(h, w) <= limit or getattr(self.detector, "selects_scale", False):
-                return self.detector(images.float(), board_size)
+                det = self.detector(images.float(), board_size)
+                sigma = self.corner_sigma(images, det.corners, board_size, det.found) if self.weigh_corners else None
+                return DetectionResult(det.corners, det.found, det.reasons, sigma)
             scale = max(h, w) / limit
             small_size = (max(8, round(h / scale)), max(8, round(w / scale)))
             # area averaging is the anti-aliased downscale (each small pixel is the mean of its footprint)
@@ -447,7 +461,17 @@ class CalibrationPipeline(nn.Module):
             idx = det.found.nonzero().flatten()
             if idx.numel():
                 corners[idx] = self.refine_on_patches(images[idx], corners[idx], board_size)
-        return DetectionResult(corners, det.found, det.reasons)
+            sigma = self.corner_sigma(images, corners, board_size, det.found) if self.weigh_corners else None
+        return DetectionResult(corners, det.found, det.reasons, sigma)
+
+    def corner_sigma(self, images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int],
+                     found: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-corner precision :math:`(B, N)` of boards :math:`(B, N, 2)` on ``images`` :math:`(B, 1, H, W)` (NaN where
+        ``found`` is false; :func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_uncertainty`)."""
+        found = torch.ones(corners.shape[0], dtype=torch.bool, device=corners.device) if found is None else found
+        with stage("corner uncertainty"):
+            return corner_uncertainty(images.float(), corners.float(), found[:, None].expand(corners.shape[:2]),
+                                      board_size).to(corners.device)
 
     def refine_on_patches(self, images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
         """Saddle refinement of whole boards :math:`(S, N, 2)` on ``images`` :math:`(S, 1, H, W)`, one small patch per

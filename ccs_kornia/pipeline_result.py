@@ -14,6 +14,7 @@ from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.sources import SIZE_TOLERANCE_PX
 
 __all__ = [
+    "corner_weights_of",
     "PipelineResult",
     "module_device",
     "select_result",
@@ -268,7 +269,8 @@ class PipelineResult:
         reasons = self.detections.reasons
         if reasons is not None:
             reasons = [reasons[int(c) * v + int(k)] for c, row in zip(cam.tolist(), view.tolist()) for k in row]
-        det = DetectionResult(per_view(self.detections.corners), per_view(self.detections.found), reasons)
+        det = DetectionResult(per_view(self.detections.corners), per_view(self.detections.found), reasons,
+                              per_view(self.detections.sigma))
         return PipelineResult(det, None, [self.image_size[int(c)] for c in cam.tolist()], per_view(self.present),
                               per_view(self.view_sizes), view_corrections=per_view(self.view_corrections),
                               camera_reasons=[""] * cam.shape[0])
@@ -381,12 +383,23 @@ def module_device(module: torch.nn.Module) -> torch.device:
     return torch.device("cpu")
 
 
+def corner_weights_of(sigma: torch.Tensor | None, cameras: torch.Tensor, valid: torch.Tensor) -> torch.Tensor | None:
+    """The solver's per-corner weights :math:`(C', V, N)` of ``cameras`` from the detections' per-corner precision
+    (:func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_weights`; ``None`` without one)."""
+    if sigma is None:
+        return None
+    from ccs_kornia.modules.detection.corner_uncertainty import corner_weights
+
+    return corner_weights(sigma[cameras.to(sigma.device)].to(valid.device), valid)
+
+
 def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, board_size: tuple[int, int],
-                     square: float) -> list[dict | None]:
+                     square: float, weigh: bool = True) -> list[dict | None]:
     """Quality figures and verdict of each camera of a solved ``out`` (one
     :func:`~ccs_kornia.modules.calibration.diagnostics.diagnose` call per image size; ``None`` for a camera
     without a computed calibration). The halves and folds of the cross-validation are solved by ``solvers[model]``
-    (the usual path: a camera calibrated in the corrected frame is cross-validated without it)."""
+    (the usual path: a camera calibrated in the corrected frame is cross-validated without it), with the per-corner
+    weights the solve had (``weigh``)."""
     from ccs_kornia.camera import board_object_points
     from ccs_kornia.modules.calibration.diagnostics import diagnose
 
@@ -403,8 +416,10 @@ def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, bo
             continue
         corners = det.corners[sel].to(torch.float64)
         valid = found[sel][..., None].expand(corners.shape[:-1])
+        weights = corner_weights_of(det.sigma, sel, valid) if weigh else None
         with torch.inference_mode():
-            figures = diagnose(select_result(cal, sel), corners, valid, obj, positive_size(size), solver=solvers[model])
+            figures = diagnose(select_result(cal, sel), corners, valid, obj, positive_size(size), solver=solvers[model],
+                               weights=weights)
         for k, ci in enumerate(sel.tolist()):
             diagnostics[ci] = figures[k]
     return diagnostics

@@ -20,6 +20,7 @@ from ccs_kornia.pipeline_result import (
     PipelineResult,
     camera_reason,
     concat_results,
+    corner_weights_of,
     diagnose_cameras,
     positive_size,
     same_size_views,
@@ -59,7 +60,7 @@ def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int]
         tried = None if out.correction_tried is None else out.correction_tried[sel]
         calib, refined, applied, table = solve_group(pipe, det.corners[sel], usable[sel], board_size, square,
                                                      positive_size(size), None if correction is None else correction[sel],
-                                                     tried)
+                                                     tried, None if det.sigma is None else det.sigma[sel])
         if applied is not None:
             corrected[sel] = applied
             correction = correction.clone()
@@ -75,31 +76,36 @@ def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int]
     out.camera_reasons = [camera_reason(out.calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum()))
                           for ci in range(c)]
     if pipe.diagnostics if diagnostics is None else diagnostics:
-        out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, board_size, square)
+        out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, board_size, square, pipe.weigh_corners)
     return out
 
 
 def diagnose_solved(pipe: Any, out: PipelineResult, board_size: tuple[int, int], square: float) -> PipelineResult:
     """The diagnostics of a result :func:`solve_detections` solved without them (fills ``out.diagnostics``)."""
     usable = out.detections.found & same_size_views(out)
-    out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, (int(board_size[0]), int(board_size[1])), square)
+    out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, (int(board_size[0]), int(board_size[1])), square,
+                                       pipe.weigh_corners)
     return out
 
 
 def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_size: tuple[int, int], square: float,
-                image_size: tuple[int, int], correction: torch.Tensor | None, tried: torch.Tensor | None):
+                image_size: tuple[int, int], correction: torch.Tensor | None, tried: torch.Tensor | None,
+                sigma: torch.Tensor | None = None):
     """Cameras of one image size: ``(calibration, correction, applied, model_selection)`` (the last two ``None``
-    without a correction / without ``model="auto"``)."""
+    without a correction / without ``model="auto"``). ``sigma``: the corners' :math:`(C, V, N)` precision, weighting
+    the solves where the pipeline weighs corners."""
     cols, rows = int(board_size[0]), int(board_size[1])
     obj = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
     valid = found[..., None].expand(corners.shape[:-1]).bool()
+    every = torch.arange(corners.shape[0], device=corners.device)
+    weights = corner_weights_of(sigma, every, valid) if pipe.weigh_corners else None
     if pipe.model != "auto":
         with torch.inference_mode():
-            usual = pipe.solver(corners.to(torch.float64), valid, obj, image_size)
+            usual = pipe.solver(corners.to(torch.float64), valid, obj, image_size, weights=weights)
         return (*_compete(pipe, pipe.solver, usual, corners, found, board_size, square, image_size, correction, tried),
                 None)
     with torch.inference_mode():
-        results, chosen, table = pipe.selection(corners.to(torch.float64), valid, obj, image_size)
+        results, chosen, table = pipe.selection(corners.to(torch.float64), valid, obj, image_size, weights=weights)
     fallback = next(iter(results))  # cameras no model calibrated keep that model's (failed) result
     names = [n or fallback for n in chosen]
     parts, order = [], []
@@ -206,6 +212,8 @@ def _look(pipe: Any, source: Any, missed: list, lens: dict, det: Any, board: tup
             if bool(got.found[k]):
                 det.corners[ci, vi] = got.corners[k].to(det.corners)
                 det.found[ci, vi] = True
+                if det.sigma is not None:  # found on a virtual view: precision unknown (the median weight)
+                    det.sigma[ci, vi] = float("nan")
                 if det.reasons is not None:
                     det.reasons[ci * v + vi] = got.reasons[k]
                 recovered = True

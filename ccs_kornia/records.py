@@ -122,6 +122,8 @@ def camera_record(
         "rms_kind": "RMS reprojection error over all corners of the used views, px",
         "views": views,
         "board": list(board), "square": square, "detector": detector, "model": model,
+        # the fit weights each corner by the precision measured on its image (plain least squares with --unweighted)
+        "corner_weights": result.detections.sigma is not None,
     }
     if cal is not None:
         codes = cal.view_reason.cpu().tolist()

@@ -96,7 +96,7 @@ def test_calibrate_json_and_accuracy(rendered, tmp_path, capsys):
     )
     assert code == 0 and "RMS" in stdout
     data = json.loads(out.read_text())
-    assert data["image_size"] == [640, 480]
+    assert data["image_size"] == [640, 480] and data["corner_weights"] is True
     K = torch.tensor(data["K"], dtype=torch.float64)
     assert K.shape == (3, 3) and K[0, 1] == 0 and K[1, 0] == 0 and K[2].tolist() == [0, 0, 1]
     assert data["distortion"]["model"] == "opencv5" and len(data["distortion"]["coeffs"]) == 5
@@ -147,10 +147,11 @@ def test_calibrate_without_diagnostics_and_overlay_of_a_view_without_board(rende
     assert write_image(blank, torch.full((480, 640), 0.5))
     out, report = tmp_path / "calib.json", tmp_path / "report"
     code, stdout, err = run(capsys, "calibrate", *files, str(blank), "--board", "9x6", "--output", str(out),
-                            "--no-diagnostics", "--report", str(report), "--detector", "opencv")
+                            "--no-diagnostics", "--report", str(report), "--detector", "opencv", "--unweighted")
     assert code == 0, err
     data = json.loads(out.read_text())
     assert "diagnostics" not in data and "verdict" not in stdout
+    assert data["corner_weights"] is False, "--unweighted: the plain least-squares fit"
     # every view has an overlay, the one without a board too (the user sees why it failed)
     assert len(list((report / "views").glob("view_*.png"))) == NUM_VIEWS + 1
     assert (report / "views" / f"view_{NUM_VIEWS:04d}_blank.png").is_file()

@@ -309,3 +309,25 @@ def test_huge_board_free_images_and_wrong_shapes(detector):
         with pytest.raises(ValueError):
             pipe(bad, BOARD, SQUARE)
 
+
+
+def test_corner_precision_weights_the_solve(sets):
+    """The pipeline measures every found corner's precision (``detections.sigma``) and weights the solve by it;
+    ``weigh_corners=False`` is the plain least-squares fit on the same corners."""
+    from ccs_kornia.camera import board_object_points
+    from ccs_kornia.modules.detection.corner_uncertainty import corner_weights
+
+    imgs = sets[0].images
+    weighted = CalibrationPipeline("opencv", seed=0, distortion_correction=False)(imgs, BOARD, SQUARE)
+    plain = CalibrationPipeline("opencv", seed=0, distortion_correction=False, weigh_corners=False)(imgs, BOARD, SQUARE)
+    sigma, found = weighted.detections.sigma, weighted.detections.found
+    assert sigma.shape == weighted.detections.corners.shape[:-1] and plain.detections.sigma is None
+    assert bool(sigma[found].isfinite().all()) and bool(sigma[~found].isnan().all())
+    torch.testing.assert_close(weighted.detections.corners, plain.detections.corners)
+    obj = board_object_points(*BOARD, SQUARE, dtype=torch.float64)
+    valid = found[:, None].expand(sigma.shape)
+    w = corner_weights(sigma[None], valid[None])[0]
+    direct = CalibrationPipeline("opencv", seed=0, distortion_correction=False).solver(
+        plain.detections.corners.double(), valid, obj, (640, 480), weights=w)
+    torch.testing.assert_close(weighted.K, direct.K)
+    assert not torch.equal(weighted.K, plain.K)

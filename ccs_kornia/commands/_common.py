@@ -99,6 +99,7 @@ def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: 
             max_detection_side=getattr(args, "max_detection_side", 2048) or None,
             distortion_correction=bool(getattr(args, "distortion_correction", False)),
             diagnostics=bool(getattr(args, "diagnostics", False)),
+            weigh_corners=bool(getattr(args, "weigh_corners", True)),
         )
     except FileNotFoundError as err:
         raise UserError(str(err).replace("pass distortion_correction=False", "use --no-distortion-correction")) from None

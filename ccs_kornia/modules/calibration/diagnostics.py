@@ -33,17 +33,8 @@ from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
 from ccs_kornia.modules.calibration.refinement import joint_refinement
 from ccs_kornia.modules.calibration.uncertainty import image_points, projection_difference, projection_uncertainty
 
-__all__ = [
-    "image_points",
-    "projection_uncertainty",
-    "projection_difference",
-    "split_views",
-    "cross_validation",
-    "VerdictThresholds",
-    "verdict",
-    "diagnose",
-    "CalibrationDiagnostics",
-]
+__all__ = ["image_points", "projection_uncertainty", "projection_difference", "split_views", "cross_validation",
+           "VerdictThresholds", "verdict", "diagnose", "CalibrationDiagnostics"]
 
 
 def _nanrms(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
@@ -74,7 +65,7 @@ def split_views(used: torch.Tensor, parts: int) -> torch.Tensor:
     return used[:, None] & (rank[:, None] % parts == p)
 
 
-def _solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, result=None, warm=None):
+def _solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, result=None, warm=None, weights=None):
     """One solver call for every (camera, subset): cameras (C * S) with the other views masked out. A fisheye solver
     starts the subsets of ``warm`` (S,: the k-fold sets; same held-out errors to 4 digits on the real sets) from
     ``result`` instead of its costly hypotheses; the halves start cold (a barely constrained fit ends near its start:
@@ -84,15 +75,16 @@ def _solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, 
     rep = lambda x: x[:, None].expand(C, S, *x.shape[1:]).reshape(C * S, *x.shape[1:])  # noqa: E731
     c, v = rep(corners), (valid[:, None] & subsets[..., None]).reshape(C * S, V, N)
     o = obj if obj.dim() == 2 else rep(obj)
+    kw = {} if weights is None else {"weights": rep(weights) * v}
     fisheye = getattr(solver, "model", None) == "fisheye" and getattr(result, "model", None) == "fisheye"
     if warm is None or not fisheye or not bool(warm.any()):
-        return solver(c, v, o, image_size)
+        return solver(c, v, o, image_size, **kw)
     initial = type(result)(**{k: (rep(x) if isinstance(x, torch.Tensor) and x.dim() and x.shape[0] == C else x)
                               for k, x in result.__dict__.items()})
     cold = ~warm.to(initial.K.device).bool().repeat(C)
     initial.K = torch.where(cold[:, None, None], float("nan"), initial.K)  # no finite camera: the hypotheses
     initial.used = initial.used.bool() & subsets.reshape(C * S, V)
-    return solver(c, v, o, image_size, initial=initial)
+    return solver(c, v, o, image_size, initial=initial, **kw)
 
 
 def cross_validation(
@@ -105,6 +97,7 @@ def cross_validation(
     folds: int = 5,
     grid: tuple[int, int] = (16, 12),
     fit: torch.Tensor | None = None,
+    weights: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     r"""Split-half cross-validation and k-fold held-out reprojection error, in one batched solver call.
 
@@ -120,6 +113,7 @@ def cross_validation(
         grid: pixels of the comparison grid.
         fit: :math:`(C, G)` bool, grid pixels over which the rotation between the halves is fitted (``None``: all;
             :func:`diagnose` passes where the boards were, so a wide lens's extrapolated rim does not set it).
+        weights: optional :math:`(C, V, N)` per-corner weights the solver was given (the subsets get theirs).
 
     Returns:
         dict of :math:`(C,)` tensors (NaN where a half or fold could not be calibrated): ``cv_rms_px`` and
@@ -137,7 +131,7 @@ def cross_validation(
     train = used[:, None] & ~fold
     subsets = torch.cat([halves, train], 1)  # (C, 2 + k, V)
     warm = torch.arange(2 + k, device=corners.device) >= 2  # the k-fold training sets, not the halves
-    sub = _solve_subsets(solver, corners, valid, object_points, image_size, subsets, result, warm)
+    sub = _solve_subsets(solver, corners, valid, object_points, image_size, subsets, result, warm, weights)
     S = 2 + k
     K = sub.K.reshape(C, S, 3, 3)
     D = sub.dist.shape[-1]
@@ -336,6 +330,7 @@ def diagnose(
     folds: int = 5,
     grid: tuple[int, int] = (16, 12),
     thresholds: VerdictThresholds | None = None,
+    weights: torch.Tensor | None = None,
 ) -> list[dict]:
     r"""Quality figures and verdict of a calibration, one JSON-able dict per camera.
 
@@ -348,6 +343,7 @@ def diagnose(
         solver: the solver that made ``result``, for cross-validation and held-out error (skipped if None).
         folds: folds of the held-out error.
         grid: ``(across, down)`` pixels of the uncertainty / cross-validation grids.
+        weights: the per-corner weights the solver was given, if any (its cross-validation subsets get them too).
         thresholds: :class:`VerdictThresholds`.
 
     Returns:
@@ -384,6 +380,7 @@ def diagnose(
         valid = corners.isfinite().all(-1)
     if unbatched:
         corners, valid = corners[None], valid[None]
+        weights = None if weights is None else weights[None]
         result = type(result)(**{k: (v[None] if isinstance(v, torch.Tensor) else v) for k, v in result.__dict__.items()})
     C = corners.shape[0]
     dtype = result.K.dtype
@@ -410,7 +407,8 @@ def diagnose(
     cv = None
     if solver is not None and bool(ok.any()):
         on_grid = torch.where(covered.any(-1, keepdim=True), covered, torch.ones_like(covered))
-        cv = cross_validation(solver, corners, valid, object_points, image_size, result, folds, grid, fit=on_grid)
+        cv = cross_validation(solver, corners, valid, object_points, image_size, result, folds, grid, fit=on_grid,
+                              weights=weights)
     if result.check_severity is not None:
         issues = issues_from_tensors(result.check_severity, result.check_value, result.check_views)
     else:
@@ -489,9 +487,9 @@ class CalibrationDiagnostics(nn.Module):
         self.grid = grid
         self.thresholds = thresholds or VerdictThresholds()
 
-    def forward(self, result, corners, valid, object_points, image_size) -> list[dict]:
+    def forward(self, result, corners, valid, object_points, image_size, weights=None) -> list[dict]:
         return diagnose(result, corners, valid, object_points, image_size, self.solver, self.folds, self.grid,
-                        self.thresholds)
+                        self.thresholds, weights)
 
     def extra_repr(self) -> str:
         return f"folds={self.folds}, grid={self.grid}, thresholds={asdict(self.thresholds)}"

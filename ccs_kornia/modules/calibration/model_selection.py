@@ -115,7 +115,8 @@ class ModelSelection(nn.Module):
         self.folds, self.tolerance = int(folds), float(tolerance)
 
     def forward(self, corners: torch.Tensor, valid: torch.Tensor, object_points: torch.Tensor,
-                image_size: tuple[int, int]) -> tuple[dict[str, CalibrationResult], list[str | None], list[dict]]:
+                image_size: tuple[int, int], weights: torch.Tensor | None = None,
+                ) -> tuple[dict[str, CalibrationResult], list[str | None], list[dict]]:
         if corners.dim() != 4 or valid.shape != corners.shape[:-1]:
             raise ValueError(f"Expected corners (C, V, N, 2) and valid (C, V, N), got {tuple(corners.shape)} and "
                              f"{tuple(valid.shape)}.")
@@ -123,11 +124,12 @@ class ModelSelection(nn.Module):
         results, heldout, halves = {}, [], []
         for name in names:
             solver = self.solvers[name]
-            res = solver(corners, valid, object_points, image_size)
+            res = solver(corners, valid, object_points, image_size, weights=weights)
             results[name] = res
             nan = torch.full(res.success.shape, float("nan"), dtype=torch.float64, device=corners.device)
             if bool(res.success.any()):
-                cv = cross_validation(solver, corners, valid, object_points, image_size, res, self.folds)
+                cv = cross_validation(solver, corners, valid, object_points, image_size, res, self.folds,
+                                      weights=weights)
                 ok = res.success.to(nan.device)
                 heldout.append(torch.where(ok, cv["heldout_rms_px"].to(nan), nan))
                 halves.append(torch.where(ok, cv["cv_rms_px"].to(nan), nan))

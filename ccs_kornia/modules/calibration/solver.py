@@ -166,12 +166,12 @@ class CalibrationSolver(nn.Module):
         )
 
     def _refine(self, corners, valid, obj, K, rvec, tvec, dist, view_mask, fix_intrinsics: bool = False,
-                poses_only: bool = False, model=None):
+                poses_only: bool = False, model=None, weights=None):
         return joint_refinement(
             corners, valid, obj, K, rvec, tvec, dist, view_mask, model=model or self.model,
             fix_aspect_ratio=self.fix_aspect_ratio, fix_principal_point=self.fix_principal_point,
             max_iters=self.max_iters, ftol=self.ftol, lambda_init=self.lambda_init, dtype=self.dtype,
-            fix_intrinsics=poses_only or fix_intrinsics, fix_distortion=poses_only,
+            fix_intrinsics=poses_only or fix_intrinsics, fix_distortion=poses_only, weights=weights,
         )
 
     def forward(
@@ -183,6 +183,7 @@ class CalibrationSolver(nn.Module):
         init_corners: torch.Tensor | None = None,
         initial: CalibrationResult | None = None,
         fix_intrinsics: bool = False,
+        weights: torch.Tensor | None = None,
     ) -> CalibrationResult:
         """Calibrate.
 
@@ -199,24 +200,33 @@ class CalibrationSolver(nn.Module):
             initial: a previous result for the same views (warm start: no RANSAC, its camera, distortion, poses
                 and used views), e.g. after the corners were refined again.
             fix_intrinsics: with ``initial``, keep its ``fx, fy, cx, cy`` and refine distortion and poses only.
+            weights: optional per-corner inverse variances, shaped as ``valid`` (e.g.
+                :func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_weights`): the refinements minimise the
+                weighted reprojection error (homographies, the closed form and RANSAC stay unweighted); the RMS figures
+                stay plain pixels.
         """
         if fix_intrinsics and initial is None:
             raise ValueError("fix_intrinsics needs an initial result to take the intrinsics from.")
         # no autograd through the solver (LM, closed forms): inference mode spares the dispatcher's autograd and
         # version-counter work on every small op; the results are cloned out as ordinary tensors
         with torch.inference_mode(), small_problem_threads(corners.shape[:-1].numel(), corners.device):
-            out = self._solve(corners, valid, object_points, image_size, init_corners, initial, bool(fix_intrinsics))
+            out = self._solve(corners, valid, object_points, image_size, init_corners, initial, bool(fix_intrinsics),
+                              weights)
         if torch.is_inference_mode_enabled():
             return out
         return CalibrationResult(**{k: (v.clone() if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()})
 
-    def _solve(self, corners, valid, object_points, image_size, init_corners, initial, fix_intrinsics) -> CalibrationResult:
+    def _solve(self, corners, valid, object_points, image_size, init_corners, initial, fix_intrinsics,
+               weights=None) -> CalibrationResult:
         valid = _check_inputs(corners, valid, object_points, image_size)
+        if weights is not None and weights.shape != valid.shape:
+            raise ValueError(f"weights must be {tuple(valid.shape)} (as valid), got {tuple(weights.shape)}.")
         unbatched = corners.dim() == 3
         if init_corners is not None and init_corners.shape != corners.shape:
             raise ValueError(f"init_corners must match corners {tuple(corners.shape)}, got {tuple(init_corners.shape)}.")
         if unbatched:
             corners, valid = corners[None], valid[None]
+            weights = None if weights is None else weights[None]
             init_corners = None if init_corners is None else init_corners[None]
             if initial is not None:
                 initial = CalibrationResult(**{k: (v[None] if isinstance(v, torch.Tensor) else v) for k, v in initial.__dict__.items()})
@@ -228,6 +238,8 @@ class CalibrationSolver(nn.Module):
         obj = obj.expand(C, N, 3) if obj.dim() == 2 or obj.shape[0] == 1 else obj
         obj = obj.reshape(C, N, 3)
         valid = valid.to(device).bool() & corners.isfinite().all(-1)
+        if weights is not None:
+            weights = torch.where(valid, weights.to(device=device, dtype=dtype), 0.0)
 
         # 1. homographies
         enough = valid.sum(-1) >= self.min_corners
@@ -245,7 +257,7 @@ class CalibrationSolver(nn.Module):
 
         if self.model == "fisheye":
             return self._solve_fisheye(corners, valid, obj, image_size, candidates, reason, duplicate_of,
-                                       differences, H, unbatched, initial)
+                                       differences, H, unbatched, initial, weights)
 
         # 2. Zhang (inside RANSAC) -> inlier views; on the undistorted corners when given
         pp_mode = "centre" if self.fix_principal_point else "auto"
@@ -295,7 +307,7 @@ class CalibrationSolver(nn.Module):
         reason = torch.where(candidates & ~inliers, 3, reason)
 
         # 3. joint LM from the closed form
-        res = self._refine(corners, valid, obj, K0, rvec0, tvec0, dist0, inliers, fix_intrinsics)
+        res = self._refine(corners, valid, obj, K0, rvec0, tvec0, dist0, inliers, fix_intrinsics, weights=weights)
         used = inliers & res.view_rms.isfinite()
         cand_rms = res.view_rms
 
@@ -310,7 +322,8 @@ class CalibrationSolver(nn.Module):
                 new_used = torch.where(keep_old[:, None], used, new_used)
                 if bool((new_used == used).all()):
                     break
-                res = self._refine(corners, valid, obj, res.K, rvec_all, tvec_all, res.dist, new_used, fix_intrinsics)
+                res = self._refine(corners, valid, obj, res.K, rvec_all, tvec_all, res.dist, new_used, fix_intrinsics,
+                                   weights=weights)
                 used = new_used & res.view_rms.isfinite()
             cand_rms = torch.where(used, res.view_rms, cand_rms)
             reason = torch.where(candidates & ~used & inliers, 4, reason)
@@ -358,7 +371,7 @@ class CalibrationSolver(nn.Module):
         return out
 
     def _solve_fisheye(self, corners, valid, obj, image_size, candidates, reason, duplicate_of, differences, H,
-                       unbatched, initial=None) -> CalibrationResult:
+                       unbatched, initial=None, weights=None) -> CalibrationResult:
         """Kannala-Brandt cameras from the candidate views (the pinhole closed form does not hold for them; with
         ``initial``, its camera and poses replace the focal-length hypotheses)."""
         C, V = corners.shape[:2]
@@ -376,7 +389,7 @@ class CalibrationSolver(nn.Module):
             corners, valid & candidates[..., None], obj[0], image_size, min_corners=self.min_corners,
             min_views=self.min_views, outlier_abs_threshold=self.outlier_abs_threshold,
             outlier_rel_threshold=self.outlier_rel_threshold, max_iters=self.max_iters,
-            fix=(("cx", "cy") if self.fix_principal_point else ()), initial=warm,
+            fix=(("cx", "cy") if self.fix_principal_point else ()), initial=warm, weights=weights,
         )
         used = fish.used & candidates
         reason = torch.where(used, 0, torch.where(reason == 0, 4, reason))

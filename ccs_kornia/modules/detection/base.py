@@ -27,11 +27,14 @@ class DetectionResult:
         found: :math:`(B,)` bool, the board was found (all ``N`` corners are meaningful).
         reasons: optional per-image text: how the board was found (``"classic"``, ``"sb"``) or why it
             was not.
+        sigma: optional :math:`(B, N)` per-corner precision (px, relative; NaN where unknown), e.g. from
+            :func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_uncertainty`.
     """
 
     corners: torch.Tensor
     found: torch.Tensor
     reasons: list[str] | None = None
+    sigma: torch.Tensor | None = None
 
     @property
     def valid(self) -> torch.Tensor:
