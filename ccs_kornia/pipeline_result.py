@@ -383,14 +383,16 @@ def module_device(module: torch.nn.Module) -> torch.device:
     return torch.device("cpu")
 
 
-def corner_weights_of(sigma: torch.Tensor | None, cameras: torch.Tensor, valid: torch.Tensor) -> torch.Tensor | None:
-    """The solver's per-corner weights :math:`(C', V, N)` of ``cameras`` from the detections' per-corner precision
-    (:func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_weights`; ``None`` without one)."""
+def corner_weights_of(sigma: torch.Tensor | None, valid: torch.Tensor,
+                      cameras: torch.Tensor | None = None) -> torch.Tensor | None:
+    """The solver's per-corner weights :math:`(C', V, N)` of ``cameras`` (default: all) from the detections' per-corner
+    precision (:func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_weights`; ``None`` without one)."""
     if sigma is None:
         return None
     from ccs_kornia.modules.detection.corner_uncertainty import corner_weights
 
-    return corner_weights(sigma[cameras.to(sigma.device)].to(valid.device), valid)
+    sigma = sigma if cameras is None else sigma[cameras.to(sigma.device)]
+    return corner_weights(sigma.to(valid.device), valid)
 
 
 def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, board_size: tuple[int, int],
@@ -416,7 +418,7 @@ def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, bo
             continue
         corners = det.corners[sel].to(torch.float64)
         valid = found[sel][..., None].expand(corners.shape[:-1])
-        weights = corner_weights_of(det.sigma, sel, valid) if weigh else None
+        weights = corner_weights_of(det.sigma, valid, sel) if weigh else None
         with torch.inference_mode():
             figures = diagnose(select_result(cal, sel), corners, valid, obj, positive_size(size), solver=solvers[model],
                                weights=weights)

@@ -97,8 +97,7 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
     cols, rows = int(board_size[0]), int(board_size[1])
     obj = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
     valid = found[..., None].expand(corners.shape[:-1]).bool()
-    every = torch.arange(corners.shape[0], device=corners.device)
-    weights = corner_weights_of(sigma, every, valid) if pipe.weigh_corners else None
+    weights = corner_weights_of(sigma, valid) if pipe.weigh_corners else None
     if pipe.model != "auto":
         with torch.inference_mode():
             usual = pipe.solver(corners.to(torch.float64), valid, obj, image_size, weights=weights)

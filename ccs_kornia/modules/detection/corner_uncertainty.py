@@ -26,6 +26,7 @@ import torch
 from torch import nn
 
 from ccs_kornia.modules.detection.saddle_refine import _saddle_source, _sample_window, _window, grid_spacing
+from ccs_kornia.modules.detection.symmetry_refine import symmetry_terms
 
 __all__ = ["corner_uncertainty", "corner_weights", "CornerUncertainty"]
 
@@ -86,16 +87,10 @@ def corner_uncertainty(
     top_left = torch.floor(c).long() - (rmax + 1)
     src = _saddle_source(images.float(), bi.to(images.device), top_left, q, smooth_sigma, 0.0)
     local = c - top_left.to(c.dtype)
-    m, side = c.shape[0], 2 * rmax + 1
-    big = _sample_window(src, local, rmax + 1).reshape(m, side + 2, side + 2)
-    # values and twice the gradient on the window, (M, 3, P); the residual and Jacobian are odd in the offset, so
-    # the first half of the window (offsets d against -d) holds every term once
-    parts = torch.stack([big[:, 1:-1, 2:] - big[:, 1:-1, :-2], big[:, 2:, 1:-1] - big[:, :-2, 1:-1],
-                         2.0 * big[:, 1:-1, 1:-1]], 1).reshape(m, 3, -1)
-    half = side * side // 2
-    odd = 0.5 * (parts[..., :half] - parts[..., half + 1:].flip(-1))  # J_x, J_y, r
+    half = (2 * rmax + 1) ** 2 // 2
+    odd = symmetry_terms(src, local, rmax, _sample_window)  # twice J_x, twice J_y, r
     w = _window(r, rmax)[1][:, :half]
-    jx, jy, res = odd[:, 0], odd[:, 1], odd[:, 2]
+    jx, jy, res = 0.5 * odd[:, 0], 0.5 * odd[:, 1], odd[:, 2]
     # the full window's normal matrix is twice the half's; s^2 is a ratio of the two halves' sums
     axx, axy, ayy = 2 * (w * jx * jx).sum(-1), 2 * (w * jx * jy).sum(-1), 2 * (w * jy * jy).sum(-1)
     s2 = (w * res * res).sum(-1) / w.sum(-1).clamp_min(1e-12)

@@ -1,8 +1,7 @@
 r"""Corner candidates from OpenCV's classic detector: the learned detector's last source.
 
-Where neither the heatmap network's peaks nor the image's own saddle points
-(:mod:`~ccs_kornia.modules.detection.saddle_candidates`) give a board, OpenCV's quad-based
-``cv2.findChessboardCorners`` often still does: it segments the dark squares and links their corners, so marks inside
+Where the heatmap network's peaks give no board at any level, OpenCV's quad-based ``cv2.findChessboardCorners``
+often still does: it segments the dark squares and links their corners, so marks inside
 the white squares (ChArUco, ECoCheck) do not disturb it, and it needs no square-size estimate (a scene with strong
 saddles at ten times the board's scale misleads ours). Its corners are only candidates here: the learned detector puts
 them in its own grid order, refines them on the image with its own refiner and applies its own lattice and sub-board
@@ -23,11 +22,12 @@ import cv2
 import numpy as np
 import torch
 
+from ccs_kornia.modules.detection.opencv_detector import _CLASSIC_FLAGS
+
 __all__ = ["OPENCV_MAX_PIXELS", "opencv_level_factor", "opencv_candidates"]
 
 #: most pixels of the level OpenCV's classic detector searches (a 1280x960 photo at full resolution)
 OPENCV_MAX_PIXELS = 1.3e6
-_CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 
 
 def opencv_level_factor(image_size: tuple[int, int], max_pixels: float = OPENCV_MAX_PIXELS) -> float:

@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import torch
 
-__all__ = ["symmetry_polish"]
+__all__ = ["symmetry_polish", "symmetry_terms"]
 
 
 def symmetry_polish(
@@ -63,26 +63,14 @@ def symmetry_polish(
         tensor([[19.5000, 19.5000]])
     """
     m, side = corners.shape[0], 2 * rmax + 1
-    # offsets d and -d sit at k and P - 1 - k of the row-major window: the residual and the Jacobian are odd in d and
-    # the weights even, so the normal equations over the first half of the window are exactly half those over all
-    # of it (the centre contributes zero) and the step is the same
-    half = side * side // 2
-    w_half = weights[:, None, :half]
-
-    def odd_parts(c: torch.Tensor) -> torch.Tensor:
-        # one window a pixel wider: its central differences are the gradient's bilinear samples (shift and
-        # difference commute), so values and gradient come from a single gather; (M, 3, half): twice the gradient's
-        # x and y parts of the Jacobian, and the residual
-        big = sample_window(src, c, rmax + 1).reshape(m, side + 2, side + 2)
-        parts = torch.stack([big[:, 1:-1, 2:] - big[:, 1:-1, :-2], big[:, 2:, 1:-1] - big[:, :-2, 1:-1],
-                             big[:, 1:-1, 1:-1]], 1).reshape(m, 3, -1)
-        return parts[..., :half] - parts[..., half + 1:].flip(-1)
+    # the normal equations over the first half of the window (symmetry_terms) are exactly half those over all of it
+    w_half = weights[:, None, : side * side // 2]
 
     c0 = corners
     c = corners.clone()
     ok = torch.ones(m, dtype=torch.bool, device=c.device)
     for _ in range(iterations):
-        odd = odd_parts(c)
+        odd = symmetry_terms(src, c, rmax, sample_window)
         # [[axx, axy, gx], [axy, ayy, gy]] of the doubled Jacobian in one batched product
         normal = torch.bmm(odd[:, :2] * w_half, odd.transpose(1, 2))
         axx, axy, ayy, gx_, gy_ = normal[:, 0, 0], normal[:, 0, 1], normal[:, 1, 1], normal[:, 0, 2], normal[:, 1, 2]
@@ -102,3 +90,35 @@ def symmetry_polish(
     mean = (weights * f).sum(-1, keepdim=True) / weights.sum(-1, keepdim=True).clamp_min(1e-12)
     asym = (weights * (f - f.flip(-1)).square()).sum(-1) / (4 * weights * (f - mean).square()).sum(-1).clamp_min(1e-12)
     return torch.where(ok[:, None], c, c0), ok, asym
+
+
+def symmetry_terms(
+    src: torch.Tensor,
+    centre: torch.Tensor,
+    rmax: int,
+    sample_window: Callable[[torch.Tensor, torch.Tensor, int], torch.Tensor],
+) -> torch.Tensor:
+    r"""The point-symmetry residual ``r(d) = I(c + d) - I(c - d)`` and twice its Jacobian ``grad I(c + d) - grad I(c - d)``
+    over the first half of the window, :math:`(M, 3, P_{half})` (rows: twice ``J_x``, twice ``J_y``, ``r``).
+
+    Offsets ``d`` and ``-d`` sit at ``k`` and ``P - 1 - k`` of the row-major window: the residual and the Jacobian
+    are odd in ``d``, so the first half holds every term once (the centre contributes zero) and, with even weights,
+    sums over it are exactly half those over the whole window. Values and gradient come from a single gather: one
+    window a pixel wider, whose central differences are the gradient's bilinear samples (shift and difference commute).
+
+    Args:
+        src: :math:`(M, 1, q, q)` regions; centre: :math:`(M, 2)` points in region coordinates; rmax: window half-size;
+        sample_window: as for :func:`symmetry_polish`.
+
+    Example:
+        >>> from ccs_kornia.modules.detection.saddle_refine import _sample_window
+        >>> img = torch.zeros(1, 1, 41, 41); img[..., :20, :20] = 1; img[..., 20:, 20:] = 1
+        >>> symmetry_terms(img, torch.tensor([[19.5, 19.5]]), 6, _sample_window)[:, 2].abs().max().item()
+        0.0
+    """
+    m, side = centre.shape[0], 2 * rmax + 1
+    half = side * side // 2
+    big = sample_window(src, centre, rmax + 1).reshape(m, side + 2, side + 2)
+    parts = torch.stack([big[:, 1:-1, 2:] - big[:, 1:-1, :-2], big[:, 2:, 1:-1] - big[:, :-2, 1:-1],
+                         big[:, 1:-1, 1:-1]], 1).reshape(m, 3, -1)
+    return parts[..., :half] - parts[..., half + 1:].flip(-1)
