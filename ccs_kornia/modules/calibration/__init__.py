@@ -34,6 +34,7 @@ _EXPORTS = {
     "FREE_DISTORTION": "ccs_kornia.modules.calibration.refinement",
     "centred_radial_distort": "ccs_kornia.modules.calibration.centred_radial",
     "radial_from_correction": "ccs_kornia.modules.calibration.centred_radial",
+    "radial_from_points": "ccs_kornia.modules.calibration.centred_radial",
     "refine_centred_radial": "ccs_kornia.modules.calibration.centred_radial",
     "LMResult": "ccs_kornia.modules.calibration.lm",
     "levenberg_marquardt": "ccs_kornia.modules.calibration.lm",

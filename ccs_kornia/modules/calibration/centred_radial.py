@@ -24,7 +24,7 @@ from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.models.centred_radial import CentredRadialModel
 from ccs_kornia.modules.correction.radial_warp import corrected_radius
 
-__all__ = ["centred_radial_distort", "radial_from_correction", "refine_centred_radial"]
+__all__ = ["centred_radial_distort", "radial_from_correction", "radial_from_points", "refine_centred_radial"]
 
 
 def centred_radial_distort(
@@ -74,6 +74,51 @@ def radial_from_correction(correction: torch.Tensor, image_size: tuple[int, int]
     ratio = rd / rc.clamp_min(1e-9) - 1.0
     A = torch.stack([rc**2, rc**4, rc**6], -1)
     return torch.linalg.lstsq(A, ratio.unsqueeze(-1)).solution.squeeze(-1).to(correction.dtype)
+
+
+def radial_from_points(
+    ideal: torch.Tensor, distorted: torch.Tensor, image_size: tuple[int, int], mask: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Least-squares ``(k1, k2, k3)`` (:math:`(B, 3)`) of the image-centred model mapping ``ideal`` onto ``distorted``.
+
+    The model is linear in its coefficients (``p_d - p = (p - c) (k1 r^2 + k2 r^4 + k3 r^6)``, ``r`` of the ideal
+    pixel), so this is one batched solve, and it only uses the radii where points were observed. (Converting a
+    fitted correction instead, :func:`radial_from_correction`, extrapolates it to the image corner: a strong
+    correction that folds beyond the board gives absurd coefficients there.)
+
+    Args:
+        ideal, distorted: :math:`(B, N, 2)` pixels.
+        image_size: ``(W, H)``.
+        mask: optional :math:`(B, N)` bool of the points to use (non-finite points are never used).
+
+    Returns:
+        :math:`(B, 3)`; zeros for a batch entry with fewer than 3 usable points.
+
+    Example:
+        >>> p = torch.rand(1, 40, 2, dtype=torch.float64) * torch.tensor([64.0, 48.0])
+        >>> k = torch.tensor([[-0.3, 0.1, -0.02]], dtype=torch.float64)
+        >>> bool(torch.allclose(radial_from_points(p, centred_radial_distort(p, k, (64, 48)), (64, 48)), k))
+        True
+    """
+    if ideal.dim() != 3 or ideal.shape[-1] != 2 or distorted.shape != ideal.shape:
+        raise ValueError(f"ideal and distorted must both be (B, N, 2), got {tuple(ideal.shape)}, {tuple(distorted.shape)}.")
+    if mask is not None and mask.shape != ideal.shape[:2]:
+        raise ValueError(f"mask must be {tuple(ideal.shape[:2])}, got {tuple(mask.shape)}.")
+    w, h = int(image_size[0]), int(image_size[1])
+    dt = torch.float64
+    centre = torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], device=ideal.device, dtype=dt)
+    d = ideal.to(dt) - centre
+    r2 = (d * d).sum(-1) / float(max(w, h)) ** 2  # (B, N)
+    use = torch.isfinite(ideal).all(-1) & torch.isfinite(distorted).all(-1)
+    if mask is not None:
+        use = use & mask.to(use.device).bool()
+    A = (d.unsqueeze(-1) * torch.stack([r2, r2**2, r2**3], -1).unsqueeze(-2)).reshape(d.shape[0], -1, 3)
+    b = (distorted.to(dt) - ideal.to(dt)).reshape(d.shape[0], -1)
+    wgt = use.to(dt).repeat_interleave(2, -1)
+    A, b = (A * wgt.unsqueeze(-1)).nan_to_num(0.0), (b * wgt).nan_to_num(0.0)
+    sol = torch.linalg.lstsq(A, b.unsqueeze(-1)).solution.squeeze(-1)
+    ok = (use.sum(-1) >= 3)[:, None] & sol.isfinite()
+    return torch.where(ok, sol, torch.zeros_like(sol)).to(ideal.dtype)
 
 
 def refine_centred_radial(

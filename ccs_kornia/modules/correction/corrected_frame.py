@@ -18,7 +18,7 @@ import math
 import torch
 
 from ccs_kornia.camera import board_object_points, fit_opencv_distortion, project_points
-from ccs_kornia.modules.calibration.centred_radial import radial_from_correction, refine_centred_radial
+from ccs_kornia.modules.calibration.centred_radial import radial_from_points, refine_centred_radial
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.models.opencv import OpenCVModel
 from ccs_kornia.modules.calibration.refinement import camera_covariance
@@ -142,8 +142,12 @@ def calibrate_corrected(
         model_rms = None
         cov_k = res.cov_camera[:, :4, :4]
         if joint_iters > 0:
-            # 3. intrinsics, image-centred radial distortion and poses together, on the observed corners
-            radial0 = radial_from_correction(corr, image_size)
+            # 3. intrinsics, image-centred radial distortion and poses together, on the observed corners; the
+            # distortion starts from a fit to those corners (where they are: the refitted correction extrapolated
+            # to the image corner can fold, and its conversion then starts the LM at k ~ 1e9, which needed more
+            # than 500 iterations, or ended in a wrong minimum, on a level-2 camera of bench §4 wide)
+            radial0 = radial_from_points(ideal.reshape(c, v * n, 2), corners.reshape(c, v * n, 2), image_size,
+                                         use.reshape(c, v * n))
             K1, rad1, rv1, tv1, rms1, _, _, cov1 = refine_centred_radial(
                 corners, use, obj, res.K.nan_to_num(1.0), res.rvec, res.tvec, radial0, image_size,
                 max_iters=joint_iters, free_centre=free_distortion_centre, covariance=True,
