@@ -271,8 +271,8 @@ class CalibrationPipeline(nn.Module):
             out = solve_detections(self, out, board, square, diagnostics=self.diagnostics and not look)
         # a fisheye lens, once calibrated, straightens the boards its rim hid from the detector: look again, solve again
         if look and look_again_with_camera(self, source, out, board):
-            with stage("solver"):
-                out = self.solve(out, board, square)
+            with stage("solver"):  # with the models chosen above (the look only adds views of fisheye cameras)
+                out = solve_detections(self, out, board, square, keep_models=True)
         elif look and self.diagnostics:
             with stage("solver"):
                 out = diagnose_solved(self, out, board, square)

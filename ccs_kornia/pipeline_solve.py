@@ -40,10 +40,15 @@ def _merge(parts: list[CalibrationResult], order: list[torch.Tensor], count: int
 
 
 def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int], square: float,
-                     diagnostics: bool | None = None) -> PipelineResult:
+                     diagnostics: bool | None = None, keep_models: bool = False) -> PipelineResult:
     """:meth:`CalibrationPipeline.solve <ccs_kornia.pipeline.CalibrationPipeline.solve>`: fills ``out``'s
     ``calibration``, ``corrected``, ``correction``, ``camera_reasons``, ``model_selection`` and (when
-    ``diagnostics``, by default the pipeline's setting) ``diagnostics``."""
+    ``diagnostics``, by default the pipeline's setting) ``diagnostics``.
+
+    With ``keep_models`` (``model="auto"``, after a first solve), each camera is solved again with the model chosen
+    in ``out.model_selection`` instead of choosing again: the solve after the second look, whose few recovered views
+    would cost a whole cross-validation of every model (1.5 s of udacity_gopro_wide's 13 s) to confirm the choice
+    that sent the camera to the look. The tables say on how many views the choice was made."""
     if not square > 0:
         raise ValueError(f"square must be positive, got {square}.")
     det = out.detections
@@ -55,12 +60,16 @@ def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int]
     corrected = torch.zeros(c, dtype=torch.bool, device=device)
     correction = out.correction
     selection: list[dict | None] = [None] * c
+    previous = out.model_selection if keep_models and pipe.model == "auto" else None
     for size in dict.fromkeys(sizes):
         sel = torch.tensor([s == size for s in sizes], device=device).nonzero().flatten()
         tried = None if out.correction_tried is None else out.correction_tried[sel]
+        models = None if previous is None else [(previous[ci] or {}).get("chosen") for ci in sel.tolist()]
         calib, refined, applied, table = solve_group(pipe, det.corners[sel], usable[sel], board_size, square,
                                                      positive_size(size), None if correction is None else correction[sel],
-                                                     tried, None if det.sigma is None else det.sigma[sel])
+                                                     tried, None if det.sigma is None else det.sigma[sel], models)
+        if table is None and previous is not None:  # the choice of the first solve, and the views it saw
+            table = [_chosen_before(previous[ci], int(usable[ci].sum())) for ci in sel.tolist()]
         if applied is not None:
             corrected[sel] = applied
             correction = correction.clone()
@@ -88,12 +97,22 @@ def diagnose_solved(pipe: Any, out: PipelineResult, board_size: tuple[int, int],
     return out
 
 
+def _chosen_before(table: dict | None, views: int) -> dict | None:
+    """A model-selection table of a first solve (its ``views``: those the choice saw), noting that the second look
+    changed the views (recovered missed ones, or re-detected rejected ones) and how many the calibration uses."""
+    if table is None:
+        return None
+    return {**table, "note": f"chosen on the {table.get('views')} views of the first solve, before the second look "
+                             f"on the calibrated lens; the final calibration uses {views}"}
+
+
 def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_size: tuple[int, int], square: float,
                 image_size: tuple[int, int], correction: torch.Tensor | None, tried: torch.Tensor | None,
-                sigma: torch.Tensor | None = None):
+                sigma: torch.Tensor | None = None, models: list[str | None] | None = None):
     """Cameras of one image size: ``(calibration, correction, applied, model_selection)`` (the last two ``None``
     without a correction / without ``model="auto"``). ``sigma``: the corners' :math:`(C, V, N)` precision, weighting
-    the solves where the pipeline weighs corners."""
+    the solves where the pipeline weighs corners. ``models`` (``model="auto"`` only): a model name per camera to
+    solve with instead of choosing (the table is then ``None``; a camera without a name gets the first candidate)."""
     cols, rows = int(board_size[0]), int(board_size[1])
     obj = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
     valid = found[..., None].expand(corners.shape[:-1]).bool()
@@ -103,16 +122,25 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
             usual = pipe.solver(corners.to(torch.float64), valid, obj, image_size, weights=weights)
         return (*_compete(pipe, pipe.solver, usual, corners, found, board_size, square, image_size, correction, tried),
                 None)
-    with torch.inference_mode():
-        results, chosen, table = pipe.selection(corners.to(torch.float64), valid, obj, image_size, weights=weights)
-    fallback = next(iter(results))  # cameras no model calibrated keep that model's (failed) result
-    names = [n or fallback for n in chosen]
+    if models is None:
+        with torch.inference_mode():
+            results, chosen, table = pipe.selection(corners.to(torch.float64), valid, obj, image_size, weights=weights)
+        fallback = next(iter(results))  # cameras no model calibrated keep that model's (failed) result
+        names = [n or fallback for n in chosen]
+    else:
+        names, table, results = [n or next(iter(pipe.solvers)) for n in models], None, None
     parts, order = [], []
     applied = None if correction is None else torch.zeros(corners.shape[0], dtype=torch.bool, device=corners.device)
     for name in dict.fromkeys(names):
         sel = torch.tensor([n == name for n in names], device=corners.device).nonzero().flatten()
+        if results is None:
+            with torch.inference_mode():
+                usual = pipe.solvers[name](corners[sel].to(torch.float64), valid[sel], obj, image_size,
+                                           weights=None if weights is None else weights[sel])
+        else:
+            usual = select_result(results[name], sel)
         calib, refined, kept = _compete(
-            pipe, pipe.solvers[name], select_result(results[name], sel), corners[sel], found[sel], board_size, square,
+            pipe, pipe.solvers[name], usual, corners[sel], found[sel], board_size, square,
             image_size, None if correction is None else correction[sel], None if tried is None else tried[sel],
         )
         if correction is not None:

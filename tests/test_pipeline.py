@@ -266,6 +266,38 @@ def test_second_look_runs_without_the_opencv_retry_and_restores_it(sets, monkeyp
     assert pipe.detector.opencv_retry is True and pipe.detector.scale_fallback == fallback
 
 
+def test_solve_after_the_second_look_keeps_the_chosen_model(sets, monkeypatch):
+    """With ``model="auto"`` the models are compared once: the solve after a look that changed the views uses the
+    model chosen before it (the table says on how many views), and calibrates on every view."""
+    import ccs_kornia.pipeline as pipeline_module
+
+    imgs = sets[1].images.clone()
+    imgs[2] = 0.5  # missed by the detector; the (fake) look recovers it
+    kw = dict(seed=0, distortion_correction=False, weigh_corners=False)  # (the fake look's corners have no precision)
+    pipe = CalibrationPipeline("opencv", model="auto", **kw)
+    calls = []
+    select = pipe.selection.forward
+    monkeypatch.setattr(pipe.selection, "forward", lambda *a, **k: calls.append(1) or select(*a, **k))
+
+    def look(pipe_, source, out, board):
+        out.detections.corners[0, 2] = sets[1].corners[2].to(out.detections.corners)
+        out.detections.found[0, 2] = True
+        return True
+
+    monkeypatch.setattr(pipeline_module, "look_again_with_camera", look)
+    out = pipe(imgs[None], BOARD, SQUARE)
+    assert len(calls) == 1
+    table = out.model_selection[0]
+    assert table["views"] == VIEWS - 1 and f"final calibration uses {VIEWS}" in table["note"]
+    assert bool(out.calibration.success[0]) and int(out.calibration.used[0].sum()) == VIEWS
+    assert out.calibration.model == table["chosen"]
+    # the same camera as a fixed-model pipeline given the same views
+    fixed = CalibrationPipeline("opencv", model=table["chosen"], **kw)
+    given = PipelineResult.from_detections(out.detections.corners, out.detections.found, (640, 480))
+    ref = fixed.finish(given, BOARD, SQUARE).calibration
+    torch.testing.assert_close(out.calibration.K, ref.K)
+
+
 @pytest.mark.parametrize("detector", ["opencv", "learned"])
 @pytest.mark.parametrize("model", ["none", "k1k2", "opencv5", "rational", "fisheye", "auto"])
 def test_no_crash_and_no_nan_without_a_reason(detector, model, sets):

@@ -87,8 +87,8 @@ class ModelSelection(nn.Module):
     Shape:
         corners :math:`(C, V, N, 2)`, valid :math:`(C, V, N)`, object_points :math:`(N, 3)`, image_size ``(W, H)``
         -> ``(results, chosen, table)``: ``{name: CalibrationResult}`` of every model, the chosen name per camera
-        (``None`` where no model calibrated it) and per camera ``{"chosen", "runner_up", "heldout_rms_px":
-        {name: px}, "halves_rms_px": {name: px}}``.
+        (``None`` where no model calibrated it) and per camera ``{"chosen", "runner_up", "views" (with a board),
+        "heldout_rms_px": {name: px}, "halves_rms_px": {name: px}, "rule"}``.
 
     Example:
         >>> from ccs_kornia.camera import board_object_points, project_points
@@ -137,6 +137,7 @@ class ModelSelection(nn.Module):
                 heldout.append(nan)
                 halves.append(nan)
         H, S = torch.stack(heldout), torch.stack(halves)
+        views = valid.any(-1).sum(-1).tolist()
         chosen: list[str | None] = []
         table = []
         for c in range(H.shape[1]):
@@ -146,7 +147,7 @@ class ModelSelection(nn.Module):
             name = ranking[0] if ranking else None
             chosen.append(name)
             table.append({
-                "chosen": name, "runner_up": ranking[1] if len(ranking) > 1 else None,
+                "chosen": name, "runner_up": ranking[1] if len(ranking) > 1 else None, "views": int(views[c]),
                 "heldout_rms_px": {n: _num(H[i, c]) for i, n in enumerate(names)},
                 "halves_rms_px": {n: _num(S[i, c]) for i, n in enumerate(names)},
                 "rule": f"lowest disagreement of two halves among models within {100 * self.tolerance:g} % of the "
