@@ -76,6 +76,10 @@ class CalibrationPipeline(nn.Module):
         min_straightening: the corrected-frame calibration is tried only where the correction brings the detected
             rows' and columns' RMS distance from straight lines below this fraction of what it was (or where it
             found boards the originals hid).
+        misfit_ratio: it is also tried, where the correction is large, when the usual model's RMS is above this many
+            times the corners' scatter about smooth curves along the board's rows and columns
+            (:func:`~ccs_kornia.modules.correction.straightness.line_noise_rms`): that model cannot describe the lens,
+            whatever the network's estimate straightens (``inf``: never).
         max_rms_ratio: the corrected-frame calibration is kept only if its radial model's RMS on the observed
             corners is at most this times that of the usual calibration (same parameter count for ``opencv5``).
         joint_iters: LM iterations at most of the corrected-frame joint refinement.
@@ -113,6 +117,7 @@ class CalibrationPipeline(nn.Module):
         distortion_correction=True,
         min_correction: float = 0.02,
         min_straightening: float = 0.8,
+        misfit_ratio: float = 8.0,
         max_rms_ratio: float = 0.9,
         joint_iters: int = 50,
         free_distortion_centre: bool = True,
@@ -131,7 +136,8 @@ class CalibrationPipeline(nn.Module):
             raise ValueError(f"max_detection_side must be >= 64 (or None/0 to disable), got {max_detection_side}.")
         if joint_iters < 0:
             raise ValueError(f"joint_iters must be >= 0, got {joint_iters}.")
-        for name, value in (("min_correction", min_correction), ("min_straightening", min_straightening), ("max_rms_ratio", max_rms_ratio)):
+        for name, value in (("min_correction", min_correction), ("min_straightening", min_straightening),
+                            ("max_rms_ratio", max_rms_ratio), ("misfit_ratio", misfit_ratio)):
             if not value >= 0:
                 raise ValueError(f"{name} must be >= 0, got {value}.")
         names = AUTO_MODELS if model == "auto" else (model,)
@@ -147,6 +153,7 @@ class CalibrationPipeline(nn.Module):
         self.distortion_net = load_distortion_net(distortion_correction)
         self.min_correction = float(min_correction)
         self.min_straightening = float(min_straightening)
+        self.misfit_ratio = float(misfit_ratio)
         self.max_rms_ratio = float(max_rms_ratio)
         self.joint_iters = int(joint_iters)
         self.free_distortion_centre = bool(free_distortion_centre)
@@ -436,8 +443,13 @@ class CalibrationPipeline(nn.Module):
         """One correction per camera from :math:`(C, V, 5)` per-view ones, and whether it is large :math:`(C,)`
         (it moves some pixel by more than ``min_correction`` of the half image diagonal)."""
         correction = aggregate_corrections(per_view.double().nan_to_num(0.0), image_size, mask)
+        return correction, self.correction_is_large(correction, image_size)
+
+    def correction_is_large(self, correction: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
+        """:math:`(C,)`: the corrections :math:`(C, 5)` move some pixel by more than ``min_correction`` of the half
+        image diagonal."""
         half_diagonal = 0.5 * math.hypot(image_size[0], image_size[1])
-        return correction, correction_displacement(correction, image_size) > self.min_correction * half_diagonal
+        return correction_displacement(correction, image_size) > self.min_correction * half_diagonal
 
     def detect_images(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         """The detector on ``(B, 1, H, W)`` images of one size, through a downscaled copy when they are large."""
