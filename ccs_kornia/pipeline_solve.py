@@ -116,10 +116,11 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
                 image_size: tuple[int, int], correction: torch.Tensor | None, tried: torch.Tensor | None,
                 sigma: torch.Tensor | None = None, models: list[str | None] | None = None):
     """Cameras of one image size: ``(calibration, correction, applied, model_selection, tried)`` (``applied`` and
-    ``tried`` ``None`` without a correction, ``model_selection`` without ``model="auto"``; ``tried``: the cameras sent
-    to the corrected frame, by the image evidence or by the usual model's misfit). ``sigma``: the corners' :math:`(C, V, N)` precision, weighting
-    the solves where the pipeline weighs corners. ``models`` (``model="auto"`` only): a model name per camera to
-    solve with instead of choosing (the table is then ``None``; a camera without a name gets the first candidate)."""
+    ``tried`` ``None`` without a correction, ``model_selection`` without ``model="auto"``; ``tried``: the cameras
+    sent to the corrected frame, by the image evidence or by the usual model's misfit). ``sigma``: the corners'
+    :math:`(C, V, N)` precision, weighting the solves where the pipeline weighs corners. ``models``
+    (``model="auto"`` only): a model name per camera to solve with instead of choosing (the table is then ``None``;
+    a camera without a name gets the first candidate)."""
     cols, rows = int(board_size[0]), int(board_size[1])
     obj = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
     valid = found[..., None].expand(corners.shape[:-1]).bool()
@@ -189,8 +190,7 @@ def _compete(pipe: Any, solver: Any, usual: CalibrationResult, corners, found, b
     cameras the evidence sent to the corrected frame, the usual model's misfit included)."""
     # (the corrected frame's radial model is a pinhole lens's: not for fisheye cameras)
     if correction is None or tried is None or solver.model == "fisheye":
-        none = None if correction is None or tried is None else torch.zeros_like(tried)
-        return usual, correction, none, none
+        return usual, correction, None if correction is None or tried is None else torch.zeros_like(tried), tried
     if solver.model in ("opencv5", "rational"):  # (the models the corrected frame competes with)
         tried = tried | _misfit(pipe, usual, corners, found, board_size, image_size, correction).to(tried.device)
     if not bool(tried.any()):

@@ -294,7 +294,8 @@ def test_usual_model_misfit_sends_the_camera_to_the_corrected_frame():
     for ratio in (8.0, math.inf):
         pipe = CalibrationPipeline("opencv", misfit_ratio=ratio)
         assert bool(pipe.correction_is_large(correction[None], size)[0])
-        out = pipe.calibrate(uv, found, BOARD, SQUARE, size, correction=correction, correction_tried=torch.tensor(False))
+        out = pipe.calibrate(uv, found, BOARD, SQUARE, size, correction=correction,
+                             correction_tried=torch.tensor(False))
         errors[ratio] = float(e_ip(out.K[None], K_ref[None]))
     assert errors[8.0] < 0.2 and errors[math.inf] > 10.0, errors
     with pytest.raises(ValueError, match="misfit_ratio"):

@@ -101,7 +101,8 @@ def radial_from_points(
         True
     """
     if ideal.dim() != 3 or ideal.shape[-1] != 2 or distorted.shape != ideal.shape:
-        raise ValueError(f"ideal and distorted must both be (B, N, 2), got {tuple(ideal.shape)}, {tuple(distorted.shape)}.")
+        raise ValueError(f"ideal and distorted must both be (B, N, 2), got {tuple(ideal.shape)}, "
+                         f"{tuple(distorted.shape)}.")
     if mask is not None and mask.shape != ideal.shape[:2]:
         raise ValueError(f"mask must be {tuple(ideal.shape[:2])}, got {tuple(mask.shape)}.")
     w, h = int(image_size[0]), int(image_size[1])
