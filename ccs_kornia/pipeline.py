@@ -73,13 +73,6 @@ class CalibrationPipeline(nn.Module):
             ``DistortionNet``.
         min_correction: a camera's pooled correction counts as large when it moves some pixel by more than this
             fraction of the half image diagonal (0.02: 8 px at 640x480); only then is the correction used at all.
-        min_straightening: the corrected-frame calibration is tried only where the correction brings the detected
-            rows' and columns' RMS distance from straight lines below this fraction of what it was (or where it
-            found boards the originals hid).
-        misfit_ratio: it is also tried, where the correction is large, when the usual model's RMS is above this many
-            times the corners' scatter about smooth curves along the board's rows and columns
-            (:func:`~ccs_kornia.modules.correction.straightness.line_noise_rms`): that model cannot describe the lens,
-            whatever the network's estimate straightens (``inf``: never).
         max_rms_ratio: the corrected-frame calibration is kept only if its radial model's RMS on the observed
             corners is at most this times that of the usual calibration (same parameter count for ``opencv5``).
         joint_iters: LM iterations at most of the corrected-frame joint refinement.
@@ -116,8 +109,6 @@ class CalibrationPipeline(nn.Module):
         max_detection_side: int | None = 2048,
         distortion_correction=True,
         min_correction: float = 0.02,
-        min_straightening: float = 0.8,
-        misfit_ratio: float = 8.0,
         max_rms_ratio: float = 0.9,
         joint_iters: int = 50,
         free_distortion_centre: bool = True,
@@ -136,8 +127,7 @@ class CalibrationPipeline(nn.Module):
             raise ValueError(f"max_detection_side must be >= 64 (or None/0 to disable), got {max_detection_side}.")
         if joint_iters < 0:
             raise ValueError(f"joint_iters must be >= 0, got {joint_iters}.")
-        for name, value in (("min_correction", min_correction), ("min_straightening", min_straightening),
-                            ("max_rms_ratio", max_rms_ratio), ("misfit_ratio", misfit_ratio)):
+        for name, value in (("min_correction", min_correction), ("max_rms_ratio", max_rms_ratio)):
             if not value >= 0:
                 raise ValueError(f"{name} must be >= 0, got {value}.")
         names = AUTO_MODELS if model == "auto" else (model,)
@@ -152,8 +142,6 @@ class CalibrationPipeline(nn.Module):
         self.refiner = CornerRefiner()
         self.distortion_net = load_distortion_net(distortion_correction)
         self.min_correction = float(min_correction)
-        self.min_straightening = float(min_straightening)
-        self.misfit_ratio = float(misfit_ratio)
         self.max_rms_ratio = float(max_rms_ratio)
         self.joint_iters = int(joint_iters)
         self.free_distortion_centre = bool(free_distortion_centre)
@@ -325,9 +313,11 @@ class CalibrationPipeline(nn.Module):
             before, after = straightening_evidence(det.corners[sel], det.found[sel] & same[sel], correction[sel], board,
                                                    positive_size(size))
             straightness[sel] = torch.stack([before, after], -1)
-        straightened = straightness[:, 1] < self.min_straightening * straightness[:, 0]
         out.correction, out.straightness = correction, straightness
-        out.correction_tried = large & (straightened | recovered)
+        # every camera with a large correction goes to the corrected frame, where the observed corners referee it
+        # against the usual calibration; a gate on the network's correction straightening the boards (or on the
+        # usual model's misfit) kept 5 of 50 held-out level-2 cameras from it (E_IP 1.4-19 px instead of <= 0.24)
+        out.correction_tried = large | recovered
 
     def solve(self, out: PipelineResult, board_size: tuple[int, int], square: float = 1.0) -> PipelineResult:
         """The solver stage of :meth:`run` on its detections (:func:`~ccs_kornia.pipeline_solve.solve_detections`):

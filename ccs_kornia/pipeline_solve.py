@@ -9,7 +9,6 @@ solvers and options.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import torch
@@ -17,7 +16,6 @@ import torch
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.correction import corrected_frame
-from ccs_kornia.modules.correction.straightness import line_noise_rms
 from ccs_kornia.pipeline_result import (
     PipelineResult,
     camera_reason,
@@ -67,13 +65,10 @@ def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int]
         sel = torch.tensor([s == size for s in sizes], device=device).nonzero().flatten()
         tried = None if out.correction_tried is None else out.correction_tried[sel]
         models = None if previous is None else [(previous[ci] or {}).get("chosen") for ci in sel.tolist()]
-        calib, refined, applied, table, tried = solve_group(
+        calib, refined, applied, table = solve_group(
             pipe, det.corners[sel], usable[sel], board_size, square, positive_size(size),
             None if correction is None else correction[sel], tried, None if det.sigma is None else det.sigma[sel],
             models)
-        if tried is not None:  # (the usual model's misfit may have sent more cameras to the corrected frame)
-            out.correction_tried = out.correction_tried.clone()
-            out.correction_tried[sel] = tried.to(out.correction_tried.device)
         if table is None and previous is not None:  # the choice of the first solve, and the views it saw
             table = [_chosen_before(previous[ci], int(usable[ci].sum())) for ci in sel.tolist()]
         if applied is not None:
@@ -115,9 +110,8 @@ def _chosen_before(table: dict | None, views: int) -> dict | None:
 def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_size: tuple[int, int], square: float,
                 image_size: tuple[int, int], correction: torch.Tensor | None, tried: torch.Tensor | None,
                 sigma: torch.Tensor | None = None, models: list[str | None] | None = None):
-    """Cameras of one image size: ``(calibration, correction, applied, model_selection, tried)`` (``applied`` and
-    ``tried`` ``None`` without a correction, ``model_selection`` without ``model="auto"``; ``tried``: the cameras
-    sent to the corrected frame, by the image evidence or by the usual model's misfit). ``sigma``: the corners'
+    """Cameras of one image size: ``(calibration, correction, applied, model_selection)`` (the last two ``None``
+    without a correction / without ``model="auto"``). ``sigma``: the corners'
     :math:`(C, V, N)` precision, weighting the solves where the pipeline weighs corners. ``models``
     (``model="auto"`` only): a model name per camera to solve with instead of choosing (the table is then ``None``;
     a camera without a name gets the first candidate)."""
@@ -128,9 +122,8 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
     if pipe.model != "auto":
         with torch.inference_mode():
             usual = pipe.solver(corners.to(torch.float64), valid, obj, image_size, weights=weights)
-        calib, correction, applied, tried = _compete(pipe, pipe.solver, usual, corners, found, board_size, square,
-                                                     image_size, correction, tried)
-        return calib, correction, applied, None, tried
+        return (*_compete(pipe, pipe.solver, usual, corners, found, board_size, square, image_size, correction, tried),
+                None)
     if models is None:
         with torch.inference_mode():
             results, chosen, table = pipe.selection(corners.to(torch.float64), valid, obj, image_size, weights=weights)
@@ -140,7 +133,6 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
         names, table, results = [n or next(iter(pipe.solvers)) for n in models], None, None
     parts, order = [], []
     applied = None if correction is None else torch.zeros(corners.shape[0], dtype=torch.bool, device=corners.device)
-    tried_out = None if tried is None or correction is None else tried.clone()
     for name in dict.fromkeys(names):
         sel = torch.tensor([n == name for n in names], device=corners.device).nonzero().flatten()
         if results is None:
@@ -149,7 +141,7 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
                                            weights=None if weights is None else weights[sel])
         else:
             usual = select_result(results[name], sel)
-        calib, refined, kept, tried_here = _compete(
+        calib, refined, kept = _compete(
             pipe, pipe.solvers[name], usual, corners[sel], found[sel], board_size, square,
             image_size, None if correction is None else correction[sel], None if tried is None else tried[sel],
         )
@@ -157,50 +149,24 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
             correction = correction.clone()
             correction[sel] = refined
             applied[sel] = kept
-        if tried_out is not None:
-            tried_out[sel] = tried_here.to(tried_out.device)
         parts.append(calib)
         order.append(sel)
-    return _merge(parts, order, corners.shape[0]), correction, applied, table, tried_out
-
-
-def _misfit(pipe: Any, usual: CalibrationResult, corners, found, board_size, image_size, correction) -> torch.Tensor:
-    """:math:`(C,)` cameras with a large correction whose usual calibration leaves an RMS above ``pipe.misfit_ratio``
-    times the corners' own scatter (:func:`~ccs_kornia.modules.correction.straightness.line_noise_rms`, median over
-    the camera's views): the usual model cannot describe the lens, whatever the network's estimate straightens.
-
-    Measured on held-out renders (seeds 7,850,000+ and 7,800,000+, 640x480): undistorted cameras 1.1-3.5 (clean,
-    blur + noise, bad lighting), the real sets 1.8-2.7, level-2 cameras whose network correction did not straighten
-    their boards 19-48 (E_IP 2.7-19 px without the corrected frame)."""
-    ratio = float(getattr(pipe, "misfit_ratio", math.inf))
-    c, v, n = corners.shape[:3]
-    if not math.isfinite(ratio):
-        return torch.zeros(c, dtype=torch.bool, device=corners.device)
-    valid = found[..., None].expand(c, v, n)
-    scatter = line_noise_rms(corners.reshape(c * v, n, 2), valid.reshape(c * v, n), board_size).reshape(c, v)
-    scatter = torch.where(found, scatter, torch.full_like(scatter, float("nan"))).nanmedian(1).values
-    misfit = usual.rms.to(scatter).nan_to_num(0.0) > ratio * scatter  # (False where no scatter could be measured)
-    return misfit & usual.success.to(misfit.device) & pipe.correction_is_large(correction, image_size).to(misfit.device)
+    return _merge(parts, order, corners.shape[0]), correction, applied, table
 
 
 def _compete(pipe: Any, solver: Any, usual: CalibrationResult, corners, found, board_size, square, image_size,
              correction, tried):
     """Where the evidence asked for it, the corrected-frame calibration against the usual one (kept where it fits
-    the observed corners clearly better); returns ``(calibration, correction, applied, tried)`` (``tried``: the
-    cameras the evidence sent to the corrected frame, the usual model's misfit included)."""
+    the observed corners clearly better); returns ``(calibration, correction, applied)``."""
     # (the corrected frame's radial model is a pinhole lens's: not for fisheye cameras)
-    if correction is None or tried is None or solver.model == "fisheye":
-        return usual, correction, None if correction is None or tried is None else torch.zeros_like(tried), tried
-    if solver.model in ("opencv5", "rational"):  # (the models the corrected frame competes with)
-        tried = tried | _misfit(pipe, usual, corners, found, board_size, image_size, correction).to(tried.device)
-    if not bool(tried.any()):
-        return usual, correction, torch.zeros_like(tried), tried
+    if correction is None or tried is None or not bool(tried.any()) or solver.model == "fisheye":
+        return usual, correction, None if correction is None or tried is None else torch.zeros_like(tried)
     # only the cameras the evidence points to, and only those the usual solve could calibrate, go the corrected
     # way (a camera refused as degenerate stays refused)
     sel = (tried.to(usual.success.device) & usual.success).nonzero().flatten()
     applied = torch.zeros_like(tried)
     if sel.numel() == 0:
-        return usual, correction, applied, tried
+        return usual, correction, applied
     calib, refined, kept = corrected_frame.solve_with_correction(
         solver, select_result(usual, sel), corners[sel], found[sel], correction[sel],
         torch.ones(sel.numel(), dtype=torch.bool, device=corners.device), board_size, square, image_size,
@@ -213,7 +179,7 @@ def _compete(pipe: Any, solver: Any, usual: CalibrationResult, corners, found, b
     correction = correction.clone()
     correction[sel] = refined.to(correction)
     applied[sel] = kept.to(applied.device)
-    return merged, correction, applied, tried
+    return merged, correction, applied
 
 
 def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: tuple[int, int]) -> bool:

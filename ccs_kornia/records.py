@@ -75,9 +75,6 @@ def correction_record(result: PipelineResult) -> dict[str, Any]:
         decision = "calibrated in the corrected frame (radial model about a free centre), kept: it fits clearly better"
     elif tried:
         decision = "corrected-frame calibration tried, not kept: it did not fit the corners clearly better"
-    elif before is not None and after is not None and after >= before:
-        decision = ("not tried: the network's correction does not straighten the detected rows and columns, and the "
-                    "usual model fits them")
     else:
         decision = "not tried: the lens is close enough to a pinhole for the usual calibration"
     return {

@@ -7,7 +7,7 @@ from torch import nn
 
 from ccs_kornia.modules._checks import check_points
 
-__all__ = ["straightness_rms", "line_noise_rms"]
+__all__ = ["straightness_rms"]
 
 
 def straightness_rms(
@@ -71,66 +71,3 @@ def straightness_rms(
     terms = torch.where(use, count, torch.zeros_like(count)).sum(-1)
     rms = torch.sqrt(total / terms.clamp_min(1.0))
     return rms.to(corners.dtype), terms.to(torch.long)
-
-
-def line_noise_rms(
-    corners: torch.Tensor, valid: torch.Tensor, board_size: tuple[int, int], degree: int = 3, min_points: int = 6
-) -> torch.Tensor:
-    """Scatter (px, per coordinate) of board corners about smooth curves along each row and column, :math:`(B,)`.
-
-    Each row's and column's ``x`` and ``y`` are fitted as polynomials of ``degree`` in the grid index (least squares);
-    lens distortion and perspective bend and space a line smoothly, which the cubic absorbs over a board's line, so
-    what is left is the detection noise, measured without any camera model. (A calibration whose RMS is many times
-    this cannot describe the lens.) Lines with fewer than ``min_points`` valid corners are skipped.
-
-    Args:
-        corners: :math:`(B, N, 2)` corners in grid order ``n = j * cols + i``, ``N = cols * rows``.
-        valid: :math:`(B, N)` bool.
-        board_size: ``(cols, rows)``.
-        degree: of the polynomial along a line.
-        min_points: smallest line that counts (at least ``degree + 2``).
-
-    Returns:
-        :math:`(B,)` float64 ``sqrt(SSE / dof)`` over both coordinates of every line that counts (NaN where none does).
-
-    Example:
-        >>> t = torch.arange(8.0)
-        >>> x, y = torch.meshgrid(t * 20 + 0.02 * t**2, t * 20, indexing="xy")  # curved, spaced unevenly, no noise
-        >>> xy = torch.stack([x, y], -1).reshape(1, 64, 2)
-        >>> noisy = xy + 0.1 * torch.randn(1, 64, 2, generator=torch.Generator().manual_seed(0))
-        >>> valid = torch.ones(1, 64, dtype=torch.bool)
-        >>> round(float(line_noise_rms(xy, valid, (8, 8))), 3), round(float(line_noise_rms(noisy, valid, (8, 8))), 1)
-        (0.0, 0.1)
-    """
-    check_points(corners)
-    cols, rows = int(board_size[0]), int(board_size[1])
-    b, n = corners.shape[:2]
-    if n != cols * rows:
-        raise ValueError(f"corners must have {cols * rows} points for a {cols}x{rows} board, got {n}.")
-    if valid.shape != (b, n):
-        raise ValueError(f"valid must be {(b, n)}, got {tuple(valid.shape)}.")
-    if min_points < degree + 2:
-        raise ValueError(f"min_points must be at least degree + 2 = {degree + 2}, got {min_points}.")
-    dt = torch.float64
-    ok = (valid.bool() & torch.isfinite(corners).all(-1)).reshape(b, rows, cols)
-    grid = torch.where(ok[..., None], corners.to(dt).reshape(b, rows, cols, 2), torch.zeros((), dtype=dt,
-                                                                                         device=corners.device))
-    sse = torch.zeros(b, dtype=dt, device=corners.device)
-    dof = torch.zeros(b, dtype=dt, device=corners.device)
-    eye = torch.eye(degree + 1, dtype=dt, device=corners.device)
-    for lines, mask in ((grid, ok), (grid.transpose(1, 2), ok.transpose(1, 2))):  # rows, then columns
-        m = lines.shape[2]
-        if m < min_points:
-            continue
-        t = torch.linspace(-1.0, 1.0, m, dtype=dt, device=corners.device)
-        A = torch.stack([t**k for k in range(degree + 1)], -1)  # (m, d + 1)
-        w = mask.to(dt)  # (B, L, m)
-        count = w.sum(-1)
-        use = count >= min_points
-        AtA = (A * w[..., None]).transpose(-1, -2) @ A  # (B, L, d + 1, d + 1)
-        Aty = (A * w[..., None]).transpose(-1, -2) @ lines  # (B, L, d + 1, 2)
-        coef = torch.linalg.solve(torch.where(use[..., None, None], AtA, eye), Aty)
-        res = (lines - A @ coef) * w[..., None]
-        sse = sse + torch.where(use, res.pow(2).sum((-1, -2)), 0.0).sum(-1)
-        dof = dof + torch.where(use, 2 * (count - degree - 1), 0.0).sum(-1)
-    return torch.where(dof > 0, (sse / dof.clamp_min(1)).sqrt(), torch.full_like(sse, float("nan")))
