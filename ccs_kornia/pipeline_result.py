@@ -135,8 +135,8 @@ class PipelineResult:
             :data:`~ccs_kornia.pipeline.SIZE_TOLERANCE_PX` of ``image_size`` are used.
         correction: :math:`(C, 5)` the lens correction per camera (the network's pooled prediction, or the re-fitted
             one where the corrected-frame calibration was kept); ``None`` when distortion correction is off.
-        correction_tried: :math:`(C,)` bool, the image evidence asked for the corrected path (it straightened the
-            detected rows and columns, or found boards the originals hid).
+        correction_tried: :math:`(C,)` bool, the corrected-frame calibration competed (the pooled correction is
+            large).
         corrected: :math:`(C,)` bool, the corrected-frame calibration was kept.
         straightness: :math:`(C, 2)` median row/column RMS (px) of the detected boards before and after the
             network's correction.
