@@ -290,7 +290,6 @@ class CalibrationPipeline(nn.Module):
             sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
             mask = same[sel] & per_view[sel].isfinite().all(-1)
             correction[sel], large[sel] = self.pool_corrections(per_view[sel], positive_size(size), mask)
-        recovered = torch.zeros(c, dtype=torch.bool, device=device)
         missed = [(ci, vi) for ci in large.nonzero().flatten().tolist()
                   for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()] if source is not None else []
         for batch in ([] if not missed else load_batches(source, missed, self.detection_batch_size,
@@ -305,7 +304,6 @@ class CalibrationPipeline(nn.Module):
             det.found[cam[ok], view[ok]] = True
             if det.sigma is not None and bool(ok.any()):  # the precision on the original image
                 det.sigma[cam[ok], view[ok]] = self.corner_sigma(batch.images.to(device)[ok], got.corners[ok], board)
-            recovered[cam[ok]] = True
             v = det.found.shape[1]
             for k, (ci, vi) in enumerate(batch.keys):
                 if bool(ok[k]):
@@ -320,7 +318,7 @@ class CalibrationPipeline(nn.Module):
         # every camera with a large correction goes to the corrected frame, where the observed corners referee it
         # against the usual calibration; a gate on the network's correction straightening the boards (or on the
         # usual model's misfit) kept 5 of 50 held-out level-2 cameras from it (E_IP 1.4-19 px instead of <= 0.24)
-        out.correction_tried = large | recovered
+        out.correction_tried = large
 
     def solve(self, out: PipelineResult, board_size: tuple[int, int], square: float = 1.0) -> PipelineResult:
         """The solver stage of :meth:`run` on its detections (:func:`~ccs_kornia.pipeline_solve.solve_detections`):
