@@ -394,8 +394,8 @@ def _kb_params(K: torch.Tensor, D: torch.Tensor) -> torch.Tensor:
     if K.shape[-2:] != (3, 3) or D.shape[-1] != 4:
         raise ValueError(f"Kannala-Brandt needs K (*, 3, 3) and D (*, 4), got {tuple(K.shape)} and {tuple(D.shape)}.")
     intr, D = intrinsics_params(K), D.to(K.dtype)
-    shape = torch.broadcast_shapes(intr.shape[:-1], D.shape[:-1])
-    return torch.cat([intr.expand(*shape, 4), D.expand(*shape, 4)], -1)
+    # broadcast_tensors, not torch.broadcast_shapes: the latter imports sympy on first use (0.4 s per process)
+    return torch.cat(torch.broadcast_tensors(intr, D), -1)
 
 
 def kb_project_points(

@@ -20,7 +20,7 @@ from __future__ import annotations
 import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
 
-__all__ = ["check_shape", "check_board_size", "check_points", "check_correction"]
+__all__ = ["broadcast_shapes", "check_shape", "check_board_size", "check_points", "check_correction"]
 
 
 def check_shape(x: object, shape: list[str], expected: str) -> None:
@@ -35,6 +35,23 @@ def check_shape(x: object, shape: list[str], expected: str) -> None:
         raise ValueError(f"{expected}, got {type(x).__name__}.")
     if not KORNIA_CHECK_SHAPE(x, shape, raises=False):
         raise ValueError(f"{expected}, got {tuple(x.shape)}.")
+
+
+def broadcast_shapes(*shapes: tuple[int, ...]) -> torch.Size:
+    """``torch.broadcast_shapes`` without its first-call cost: torch's imports ``torch.fx``'s symbolic shapes and sympy
+    (0.4 s, a tenth of a small calibration from the command line).
+
+    Example:
+        >>> broadcast_shapes((3, 1, 4), (5, 4))
+        torch.Size([3, 5, 4])
+    """
+    out = [1] * max((len(s) for s in shapes), default=0)
+    for s in shapes:
+        for i, d in enumerate(s, len(out) - len(s)):
+            if d != 1 and out[i] not in (1, d):
+                raise ValueError(f"Shapes {[tuple(s) for s in shapes]} cannot be broadcast together.")
+            out[i] = d if d != 1 else out[i]
+    return torch.Size(out)
 
 
 def check_board_size(board_size: tuple[int, int]) -> tuple[int, int]:

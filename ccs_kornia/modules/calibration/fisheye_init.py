@@ -16,6 +16,7 @@ import math
 import torch
 
 from ccs_kornia.camera import kb_project_points, kb_unproject_points, rotation_matrix_to_axis_angle
+from ccs_kornia.modules._checks import broadcast_shapes
 
 __all__ = ["board_to_ray_poses", "focal_hypotheses", "init_fisheye"]
 
@@ -45,7 +46,7 @@ def board_to_ray_poses(
     """
     if rays.shape[-1] != 3 or object_xy.shape[-1] != 2:
         raise ValueError(f"rays must be (*, N, 3) and object_xy (*, N, 2), got {tuple(rays.shape)}, {tuple(object_xy.shape)}.")
-    shape = torch.broadcast_shapes(rays.shape[:-1], object_xy.shape[:-1])
+    shape = broadcast_shapes(rays.shape[:-1], object_xy.shape[:-1])
     a = rays.expand(*shape, 3)
     a = a / a.norm(dim=-1, keepdim=True).clamp_min(1e-300)
     xy = object_xy.to(a.dtype).expand(*shape, 2)

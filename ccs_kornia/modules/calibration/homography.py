@@ -11,6 +11,8 @@ import torch
 from kornia.geometry.homography import find_homography_dlt
 from torch import nn
 
+from ccs_kornia.modules._checks import broadcast_shapes
+
 __all__ = ["MIN_HOMOGRAPHY_POINTS", "find_homographies", "BatchedHomography"]
 
 #: a homography has 8 degrees of freedom: 4 correspondences in general position
@@ -48,13 +50,13 @@ def find_homographies(
         raise ValueError(f"object_xy must be (*, N, 2), got {tuple(object_xy.shape)}.")
     if object_xy.shape[-2] != image_xy.shape[-2]:
         raise ValueError(f"object_xy has {object_xy.shape[-2]} points but image_xy has {image_xy.shape[-2]}.")
-    batch_shape = torch.broadcast_shapes(object_xy.shape[:-2], image_xy.shape[:-2])
+    batch_shape = broadcast_shapes(object_xy.shape[:-2], image_xy.shape[:-2])
     num_points = image_xy.shape[-2]
     if valid is None:
         valid = torch.ones(image_xy.shape[:-1], dtype=torch.bool, device=image_xy.device)
     if valid.shape[-1] != num_points:
         raise ValueError(f"valid must be (*, {num_points}), got {tuple(valid.shape)}.")
-    batch_shape = torch.broadcast_shapes(batch_shape, valid.shape[:-1])
+    batch_shape = broadcast_shapes(batch_shape, valid.shape[:-1])
     if num_points < MIN_HOMOGRAPHY_POINTS:
         raise ValueError(f"A homography needs at least {MIN_HOMOGRAPHY_POINTS} points per view, got N={num_points}.")
 

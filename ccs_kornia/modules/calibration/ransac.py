@@ -19,6 +19,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ccs_kornia.modules._checks import broadcast_shapes
 from ccs_kornia.modules.calibration.zhang import zhang_intrinsics
 
 __all__ = ["hypothesis_view_rms", "image_ransac", "ImageRansac"]
@@ -41,7 +42,7 @@ def hypothesis_view_rms(
     """
     # pose from K^-1 H; scoring only needs the first two rotation columns, orthonormalised symmetrically
     # (bisector construction: as good as the SVD's nearest rotation here, and ~10x cheaper for C*S*V poses)
-    shape = torch.broadcast_shapes(K[:, :, None].shape, H[:, None].shape)
+    shape = broadcast_shapes(K[:, :, None].shape, H[:, None].shape)
     A = torch.linalg.solve(K[:, :, None].expand(shape), H[:, None].expand(shape))
     a1, a2, a3 = A[..., :, 0], A[..., :, 1], A[..., :, 2]
     lam = 2.0 / (a1.norm(dim=-1) + a2.norm(dim=-1)).clamp_min(1e-300)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ccs_kornia.modules._checks import broadcast_shapes
 from ccs_kornia.modules.calibration.so3 import log_so3
 
 __all__ = ["zhang_intrinsics", "extrinsics_from_homography", "rotation_translation_from_homography", "ZhangInit"]
@@ -213,7 +214,7 @@ def rotation_translation_from_homography(K: torch.Tensor, H: torch.Tensor) -> tu
     ``K`` and ``H`` broadcast against each other (no automatic per-camera unsqueeze here).
     """
     dtype = torch.promote_types(K.dtype, H.dtype)
-    shape = torch.broadcast_shapes(K.shape, H.shape)
+    shape = broadcast_shapes(K.shape, H.shape)
     A = torch.linalg.solve(K.to(dtype).expand(shape), H.to(dtype).expand(shape))
     a1, a2, a3 = A[..., :, 0], A[..., :, 1], A[..., :, 2]
     lam = 2.0 / (a1.norm(dim=-1) + a2.norm(dim=-1)).clamp_min(1e-300)
