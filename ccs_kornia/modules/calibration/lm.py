@@ -37,6 +37,9 @@ from ccs_kornia.modules.calibration.spd_inverse import spd_inverse as _sym_inver
 
 __all__ = ["LMResult", "parameter_basis", "levenberg_marquardt", "LevenbergMarquardt"]
 
+#: iterations over which ``stall_tol`` compares the cost
+STALL_WINDOW = 10
+
 
 @dataclass
 class LMResult:
@@ -262,6 +265,7 @@ def levenberg_marquardt(
     check_every: int | None = None,
     absolute_weights: bool = False,
     dtype: torch.dtype = torch.float64,
+    stall_tol: float = 0.0,
 ) -> LMResult:
     r"""Batched Levenberg–Marquardt over camera parameters and per-view poses (see the module doc).
 
@@ -285,6 +289,9 @@ def levenberg_marquardt(
         check_every: iterations between "all cameras done?" checks (a host sync); default 1 on CPU, 10 else.
         absolute_weights: the weights are absolute inverse variances: covariance without the ``sigma^2`` factor.
         dtype: solve precision.
+        stall_tol: a camera also stops (converged) when :data:`STALL_WINDOW` iterations together lowered its cost by
+            at most ``stall_tol`` relative (0: never): a crawl along a direction the data barely determine, where
+            every step still passes ``ftol`` but the fit no longer changes for any practical purpose.
 
     Returns:
         :class:`LMResult`.
@@ -345,11 +352,17 @@ def levenberg_marquardt(
     full = dict(zip(("cost", "U", "W", "Vb", "eg", "ep", "vc"), eq))
     full.update(x=x, R=R, tv=tv, lam=torch.full((C,), lambda_init, dtype=dtype, device=device), done=done,
                 converged=done.clone(), iters=torch.zeros(C, dtype=torch.long, device=device))
+    full["stall_ref"] = full["cost"].clone()
     # the working set: every camera still iterating; it shrinks (a gather) only at the "all done?" checks
     idx = torch.arange(C, device=device)
     work, wc = dict(full), const
     for it in range(max_iters):
         _lm_iteration(model, work, wc, (eye6, eyeF), ftol, xtol, expanded)
+        if stall_tol > 0 and (it + 1) % STALL_WINDOW == 0:
+            stalled = ~work["done"] & (work["stall_ref"] - work["cost"] <= stall_tol * work["cost"])
+            work["done"] = work["done"] | stalled
+            work["converged"] = work["converged"] | stalled
+            work["stall_ref"] = work["cost"].clone()
         if (it + 1) % check_every == 0:
             alive = ~work["done"]
             if not bool(alive.any()):

@@ -109,6 +109,7 @@ def joint_refinement(
     fix_intrinsics: bool = False,
     fix_distortion: bool = False,
     weights: torch.Tensor | None = None,
+    stall_tol: float = 0.0,
 ) -> RefinementResult:
     r"""Levenberg–Marquardt over intrinsics, OpenCV distortion and poses (the LM core with the OpenCV model).
 
@@ -122,7 +123,8 @@ def joint_refinement(
         view_mask: :math:`(C, V)` views to use (default: views with a valid corner).
         model: ``none`` | ``k1k2`` | ``opencv5`` | ``rational``.
         fix_aspect_ratio, fix_principal_point, fix_intrinsics, fix_distortion: keep those at their initial values.
-        max_iters, ftol, xtol, lambda_init, dtype: see :func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`.
+        max_iters, ftol, xtol, lambda_init, dtype, stall_tol: see
+            :func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`.
         weights: optional :math:`(C, V, N)` per-corner inverse variances (multiplied by ``valid``).
 
     Returns:
@@ -155,7 +157,7 @@ def joint_refinement(
     res = levenberg_marquardt(
         cam, params, rvec, tvec, object_points, corners, w, free=free,
         fix_aspect_ratio=fix_aspect_ratio and not fix_intrinsics, max_iters=max_iters, ftol=ftol, xtol=xtol,
-        lambda_init=lambda_init, dtype=dtype,
+        lambda_init=lambda_init, dtype=dtype, stall_tol=stall_tol,
     )
     D = num_distortion_coeffs(model)
     cov = camera_covariance(model, res.param_covariance)

@@ -73,6 +73,25 @@ class TestRefinement:
             assert (res.dist - dist).abs().max() < 1e-8
         assert res.view_rms.shape == (3, 15) and res.std_intrinsics.shape == (3, 4)
 
+    def test_a_crawl_stops_where_the_cost_stalls(self):
+        # the rational model on 8 noisy views of a narrow lens: its extra coefficients are barely determined and
+        # the LM crawls (to fx = 714 +- 2095 px after 1000 iterations on seed 1; the truth is 524): the stall rule
+        # stops it where 10 iterations change the cost by < 1e-4, within the camera's uncertainty of the long run
+        K, obj, uv, rv, tv = synthetic(C=1, V=8, dist=DIST5, noise=0.2, seed=1)
+        kw = dict(model="rational", max_iters=100, ftol=1e-10, lambda_init=1e-5)
+        crawl = joint_refinement(uv, all_valid(uv), obj, K * 1.02, rv, tv, **kw)
+        stop = joint_refinement(uv, all_valid(uv), obj, K * 1.02, rv, tv, stall_tol=1e-4, **kw)
+        assert int(crawl.iterations.max()) == 100 and int(stop.iterations.max()) <= 50 and bool(stop.converged.all())
+        assert ((stop.rms - crawl.rms) / crawl.rms).abs().max() < 5e-3
+        assert ((stop.K - crawl.K)[:, :2].abs().amax((-1, -2)) < 3 * stop.std_intrinsics.amax(-1)).all()
+
+    def test_the_stall_rule_lets_a_converging_fit_finish(self):
+        # 3 views, exact corners, OpenCV's five coefficients: 40 iterations of steady progress, cost to ~0
+        K, obj, uv, rv, tv = synthetic(C=1, V=3, dist=DIST5, seed=8)
+        res = joint_refinement(uv, all_valid(uv), obj, K * 1.02, rv, tv, model="opencv5", max_iters=100, ftol=1e-10,
+                               lambda_init=1e-5, stall_tol=1e-4)
+        assert bool(res.rms.max() < 1e-6)
+
     def test_masks_unbatched_and_fixed_parameters(self):
         K, obj, uv, rvec, tvec = synthetic(C=1, V=8, seed=5)
         valid = all_valid(uv)
