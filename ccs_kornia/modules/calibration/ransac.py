@@ -99,7 +99,8 @@ def image_ransac(
         abs_threshold: inlier threshold floor in px.
         rel_threshold: inlier threshold as a multiple of the best median view RMS.
         min_views: a camera with fewer candidate views skips RANSAC (all candidates are inliers).
-        generator: torch.Generator for the subsets (CPU); default seed 0.
+        generator: torch.Generator for the subsets (CPU); default seed 0. The same subsets of view indices serve
+            every camera: a camera's result does not depend on the others in the batch.
         return_details: also return a dict with ``view_rms`` (C, V) under the final K and ``threshold`` (C,).
         early_accept: first try the all-views hypothesis alone; when every candidate view of every camera fits
             it within ``abs_threshold``, return it (the same inliers and camera the random hypotheses would give,
@@ -153,10 +154,12 @@ def image_ransac(
         if bool(easy.all()):
             return view_mask, K_all
 
-    # random subsets: the k smallest of per-view random keys among the candidate views
+    # random subsets: the k smallest of per-view random keys among the candidate views. The keys are drawn view by
+    # view (key[s, v] is draw v * S + s of the stream) and shared by the cameras, so a camera's subsets depend on its
+    # own views only, not on the other cameras of the batch or on how many views the batch is padded to
     if generator is None:
         generator = torch.Generator().manual_seed(0)
-    keys = torch.rand(C, S, V, generator=generator, dtype=torch.float64).to(device)
+    keys = torch.rand(V, S, generator=generator, dtype=torch.float64).T.to(device).expand(C, S, V)
     keys = torch.where(view_mask[:, None], keys, torch.full_like(keys, 2.0))
     k = min(sample_size, V)
     idx = keys.topk(k, dim=-1, largest=False).indices

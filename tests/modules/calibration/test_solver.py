@@ -67,6 +67,26 @@ class TestRansacAndSolver:
                 assert torch.equal(fast[0], full[0])
                 torch.testing.assert_close(fast[1], full[1], atol=1e-9, rtol=1e-12)
 
+    def test_ransac_result_of_a_camera_does_not_depend_on_the_batch(self):
+        # strict thresholds make the inliers depend on the random subsets: a camera must get the same ones alone,
+        # in a batch with other cameras, and padded with empty views (calibrate vs calibrate-many, ragged sets)
+        from ccs_kornia.modules.calibration.ransac import image_ransac
+
+        K, obj, uv, _, _ = synthetic(C=3, V=12, dist=DIST5 * 1.5, noise=0.2, seed=12)
+        valid = all_valid(uv)
+        H = find_homographies(obj[:, :2], uv, valid)
+        strict = dict(image_size=IMAGE_SIZE, abs_threshold=0.0, rel_threshold=1.0, early_accept=False)
+        alone = image_ransac(H[:1], uv[:1], valid[:1], obj, generator=torch.Generator().manual_seed(0), **strict)
+        batch = image_ransac(H, uv, valid, obj, generator=torch.Generator().manual_seed(0), **strict)
+        pad = lambda x, fill: torch.cat([x, torch.full((3, 3, *x.shape[2:]), fill, dtype=x.dtype)], 1)  # noqa: E731
+        padded = image_ransac(pad(H, float("nan")), pad(uv, 0.0), pad(valid, False), obj,
+                              generator=torch.Generator().manual_seed(0), **strict)
+        assert 3 <= int(alone[0].sum()) < 12  # the subsets matter here
+        assert torch.equal(alone[0][0], batch[0][0]) and torch.equal(alone[0][0], padded[0][0, :12])
+        assert not padded[0][:, 12:].any()
+        torch.testing.assert_close(alone[1][0], batch[1][0], atol=1e-9, rtol=1e-12)
+        torch.testing.assert_close(alone[1][0], padded[1][0], atol=1e-9, rtol=1e-12)
+
     def test_no_per_call_state(self):
         K, obj, uv, _, _ = synthetic(C=1, V=10, dist=DIST5, noise=0.1, seed=4)
         solver = CalibrationSolver()
