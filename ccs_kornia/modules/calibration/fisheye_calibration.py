@@ -15,6 +15,7 @@ kornia's Kannala–Brandt functions.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import torch
 from torch import nn
@@ -67,6 +68,7 @@ def calibrate_fisheye(
     max_iters: int = 100,
     fix: tuple[str, ...] = (),
     initial: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+    stall_tol: float = 0.0,
 ) -> FisheyeCalibrationResult:
     r"""Calibrate Kannala–Brandt fisheye cameras from planar-board corners, no intrinsic guess needed.
 
@@ -83,6 +85,8 @@ def calibrate_fisheye(
         outlier_abs_threshold, outlier_rel_threshold: a view is left out when its RMS exceeds
             ``max(abs, rel * median view RMS)``.
         max_iters: LM iterations per stage.
+        stall_tol: of the LM (:func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`): a stage also stops
+            where 10 iterations lowered the cost by at most this fraction.
         fix: parameters kept at their initial values, by name (``fx, fy, cx, cy, k1..k4``; e.g. ``("k3", "k4")``
             as ``cv2.fisheye.CALIB_FIX_K3 | CALIB_FIX_K4``, or ``("cx", "cy")`` for the image centre).
         initial: warm start ``(K (C, 3, 3), D (C, 4), rvec (C, V, 3), tvec (C, V, 3), used (C, V))``, e.g. the
@@ -130,10 +134,11 @@ def calibrate_fisheye(
     if unknown:
         raise ValueError(f"Unknown parameters to fix {sorted(unknown)}; expected names from {model.param_names}.")
     free = [n not in fix for n in model.param_names]
+    lm = partial(levenberg_marquardt, max_iters=max_iters, stall_tol=stall_tol)
 
     def cold(sel: torch.Tensor) -> FisheyeCalibrationResult:
         return _calibrate(model, corners[sel], w[sel], candidates[sel], obj, free, min_views, outlier_abs_threshold,
-                          outlier_rel_threshold, max_iters, None, image_size, num_hypotheses, keep)
+                          outlier_rel_threshold, lm, None, image_size, num_hypotheses, keep)
 
     warm = torch.zeros(C, dtype=torch.bool, device=dev)
     if initial is not None:
@@ -146,7 +151,7 @@ def calibrate_fisheye(
 
     def warm_start(sel: torch.Tensor) -> FisheyeCalibrationResult:
         return _calibrate(model, corners[sel], w[sel], candidates[sel], obj, free, min_views, outlier_abs_threshold,
-                          outlier_rel_threshold, max_iters, (p_i[sel], rv_i[sel].to(dt), tv_i[sel].to(dt), used_i[sel]))
+                          outlier_rel_threshold, lm, (p_i[sel], rv_i[sel].to(dt), tv_i[sel].to(dt), used_i[sel]))
 
     out = _merge_cameras(warm, warm_start, cold)
     if unbatched:
@@ -172,37 +177,36 @@ def _merge_cameras(first: torch.Tensor, run_first, run_rest) -> FisheyeCalibrati
 
 
 def _calibrate(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold, outlier_rel_threshold,
-               max_iters, initial, image_size=None, num_hypotheses=32, keep=3) -> FisheyeCalibrationResult:
+               lm, initial, image_size=None, num_hypotheses=32, keep=3) -> FisheyeCalibrationResult:
     """Steps 1-3 of :func:`calibrate_fisheye` on batched cameras (``w`` the corner weights, ``candidates`` (C, V));
     with ``initial = (params (C, 8), rvec, tvec, used)`` step 1 is replaced by one LM from that start."""
     C, V, N = corners.shape[:3]
     dev = corners.device
     if initial is not None:
         p_i, rv_i, tv_i, used_i = initial
-        res = levenberg_marquardt(model, p_i, rv_i.nan_to_num(0.0), tv_i.nan_to_num(0.0), obj, corners,
-                                  w * used_i[..., None], free=free, max_iters=max_iters)
+        res = lm(model, p_i, rv_i.nan_to_num(0.0), tv_i.nan_to_num(0.0), obj, corners, w * used_i[..., None],
+                 free=free)
         params, rvec, tvec, used0 = res.params, res.rvec, res.tvec, res.view_used
         return _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold,
-                       outlier_rel_threshold, max_iters, params, rvec, tvec, used0)
+                       outlier_rel_threshold, lm, params, rvec, tvec, used0)
     # 1. hypotheses; 2. LM on every kept hypothesis as a camera of the batch
     p0, rv0, tv0, init_rms, _ = init_fisheye(corners, w, obj, image_size, num_hypotheses, keep)
     k = p0.shape[1]
     ok0 = init_rms.isfinite()
     wk = (w[:, None] * ok0[..., None]).reshape(C * k, V, N)
     ck = corners[:, None].expand(C, k, V, N, 2).reshape(C * k, V, N, 2)
-    res = levenberg_marquardt(model, p0.reshape(C * k, 8), rv0.reshape(C * k, V, 3), tv0.reshape(C * k, V, 3),
-                              obj, ck, wk, free=free, max_iters=max_iters)
+    res = lm(model, p0.reshape(C * k, 8), rv0.reshape(C * k, V, 3), tv0.reshape(C * k, V, 3), obj, ck, wk, free=free)
     n_used = res.view_used.sum(-1).view(C, k)
     key = torch.where(res.rms.isfinite(), res.rms, float("inf")).view(C, k) - 1e6 * n_used  # most views, then rms
     best = key.argmin(-1)
     sel = torch.arange(C, device=dev) * k + best
     params, rvec, tvec = res.params[sel], res.rvec[sel], res.tvec[sel]
     return _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold, outlier_rel_threshold,
-                   max_iters, params, rvec, tvec, res.view_used[sel])
+                   lm, params, rvec, tvec, res.view_used[sel])
 
 
 def _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold, outlier_rel_threshold,
-            max_iters, params, rvec, tvec, used0) -> FisheyeCalibrationResult:
+            lm, params, rvec, tvec, used0) -> FisheyeCalibrationResult:
     """Step 3 of :func:`calibrate_fisheye`: re-pose every candidate view under the refined camera, reject outliers,
     refine again."""
     C = corners.shape[0]
@@ -213,14 +217,13 @@ def _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_thr
     rv_c = torch.where(used0[..., None], rvec, rv_d)
     tv_c = torch.where(used0[..., None], tvec, tv_d)
     wc = w * (used0 | ok_d)[..., None]
-    poses = levenberg_marquardt(model, params, rv_c, tv_c, obj, corners, wc, free=[False] * 8, max_iters=max_iters)
+    poses = lm(model, params, rv_c, tv_c, obj, corners, wc, free=[False] * 8)
     cand_rms = poses.view_rms
     med = torch.where(used0, cand_rms, float("nan")).nanmedian(-1).values
     thr = torch.clamp(outlier_rel_threshold * med, min=outlier_abs_threshold)
     used = candidates & (cand_rms <= thr[:, None])
     used = torch.where((used.sum(-1) >= min_views)[:, None], used, used0)
-    final = levenberg_marquardt(model, params, poses.rvec, poses.tvec, obj, corners, w * used[..., None],
-                                free=free, max_iters=max_iters)
+    final = lm(model, params, poses.rvec, poses.tvec, obj, corners, w * used[..., None], free=free)
     used = final.view_used
 
     success = (used.sum(-1) >= min_views) & final.rms.isfinite() & final.params.isfinite().all(-1)
@@ -253,12 +256,12 @@ class FisheyeCalibrator(nn.Module):
 
     def __init__(self, num_hypotheses: int = 32, keep: int = 3, min_corners: int = 6, min_views: int = 3,
                  outlier_abs_threshold: float = 2.0, outlier_rel_threshold: float = 5.0, max_iters: int = 100,
-                 fix: tuple[str, ...] = ()) -> None:
+                 fix: tuple[str, ...] = (), stall_tol: float = 0.0) -> None:
         super().__init__()
         self.num_hypotheses, self.keep = num_hypotheses, keep
         self.min_corners, self.min_views = min_corners, min_views
         self.outlier_abs_threshold, self.outlier_rel_threshold = outlier_abs_threshold, outlier_rel_threshold
-        self.max_iters = max_iters
+        self.max_iters, self.stall_tol = max_iters, stall_tol
         self.fix = tuple(fix)
 
     def forward(self, corners, valid, object_points, image_size, weights=None) -> FisheyeCalibrationResult:
@@ -266,4 +269,5 @@ class FisheyeCalibrator(nn.Module):
             corners, valid, object_points, image_size, weights, num_hypotheses=self.num_hypotheses, keep=self.keep,
             min_corners=self.min_corners, min_views=self.min_views, outlier_abs_threshold=self.outlier_abs_threshold,
             outlier_rel_threshold=self.outlier_rel_threshold, max_iters=self.max_iters, fix=self.fix,
+            stall_tol=self.stall_tol,
         )

@@ -400,6 +400,7 @@ class CalibrationSolver(nn.Module):
             min_views=self.min_views, outlier_abs_threshold=self.outlier_abs_threshold,
             outlier_rel_threshold=self.outlier_rel_threshold, max_iters=self.max_iters,
             fix=(("cx", "cy") if self.fix_principal_point else ()), initial=warm, weights=weights,
+            stall_tol=self.stall_tol,
         )
         used = fish.used & candidates
         reason = torch.where(used, 0, torch.where(reason == 0, 4, reason))
