@@ -298,7 +298,11 @@ class LearnedChessboardDetector(ChessboardDetector):
             return self._opencv_board(images, board_size)
         _, points, keep = self.candidates(images, full, scale)
         corners, valid, found = _organize(points, keep, board_size, images)
-        return self._complete(images, board_size, corners, valid, found)
+        refiner = self.refiner
+        if refiner is not None and full is not None:  # a resampled level: its corners are refined again at full size
+            refiner = copy.copy(refiner)
+            refiner.wide = False
+        return self._complete(images, board_size, corners, valid, found, refiner)
 
     def _complete(self, images: torch.Tensor, board_size: tuple[int, int], corners: torch.Tensor, valid: torch.Tensor,
                   found: torch.Tensor, refiner: CornerRefiner | None = None) -> DetectionResult:

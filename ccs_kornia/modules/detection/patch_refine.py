@@ -150,6 +150,7 @@ def refine_on_patches(
     blur: torch.Tensor | None = None,
     blur_factor: float = 2.0,
     max_fraction: float = 0.3,
+    wide: bool = True,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     r"""Refine whole boards at full resolution, each corner on its own small patch.
 
@@ -169,6 +170,7 @@ def refine_on_patches(
         return_ok: also return the refiner's :math:`(B, N)` mask of corners that found a proper saddle.
         blur: optional :math:`(B,)` edge blur (Gaussian sigma, px) per board.
         blur_factor, max_fraction: see above.
+        wide: the refiner's wide polish (off on the coarse steps of :func:`refine_from_level`).
 
     Returns:
         :math:`(B, N, 2)` refined corners (and the mask with ``return_ok``).
@@ -198,7 +200,7 @@ def refine_on_patches(
         # the saddle refiner works on one small region per corner of the image itself (bounded memory whatever the
         # image size): no patch copy needed
         out, ok = refine_corners(images.float(), corners.to(images.device).float(), None, radius, method, iterations,
-                                 r_max, smooth_sigma, normalize_sigma, return_ok=True)
+                                 r_max, smooth_sigma, normalize_sigma, return_ok=True, wide=wide)
         out, ok = out.to(corners.dtype).to(corners.device), ok.to(corners.device)
         return (out, ok) if return_ok else out
     half = int(math.ceil(r_max + 3 * max(normalize_sigma, smooth_sigma) + 4))
@@ -267,7 +269,7 @@ def refine_from_level(
         small, s = resize_to_level(images, g)
         pts = ((corners.double() + 0.5) / s - 0.5).to(corners.dtype)
         pts = refine_on_patches(small, pts, board_size, radius_factor, max_radius, *args,
-                                blur=edge_blur(small, pts, board_size))
+                                blur=edge_blur(small, pts, board_size), wide=False)
         corners = ((pts.double() + 0.5) * s - 0.5).to(corners.dtype)
     # squares that needed upsampling are small: their window (0.2 square) is the usual one, blur or not
     blur = edge_blur(images, corners, board_size) if factor > 1 else None

@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from kornia.filters import gaussian_blur2d, get_gaussian_kernel1d, spatial_gradient
 
-from ccs_kornia.modules.detection.symmetry_refine import symmetry_polish
+from ccs_kornia.modules.detection.symmetry_refine import WIDE_MAX_MOVE, WIDE_WINDOW, symmetry_polish, wide_polish
 
 __all__ = ["METHODS", "POLISH_PLAIN_MARGIN", "POLISH_WINDOW", "CornerRefiner", "grid_spacing", "refine_corners"]
 
@@ -163,6 +163,7 @@ def refine_corners(
     smooth_sigma: float = 1.0,
     normalize_sigma: float = 6.0,
     return_ok: bool = False,
+    wide: bool = True,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     r"""Refine corner positions on the image.
 
@@ -183,6 +184,8 @@ def refine_corners(
 
         return_ok: also return a :math:`(B, N)` mask of corners whose last iteration found a proper
             saddle (or gradient solution) and that stayed within their radius.
+        wide: with ``"symmetric"``, the wide polish (:func:`~ccs_kornia.modules.detection.symmetry_refine.wide_polish`)
+            where it holds; off for a coarse step whose only aim is the next window.
 
     Returns:
         :math:`(B, N, 2)` refined corners. A corner that moves by more than its radius keeps its input
@@ -211,7 +214,7 @@ def refine_corners(
     r = torch.nan_to_num(r, nan=5.0, posinf=float(max_radius)).clamp(1.5, float(max_radius))
     if method in ("saddle", "symmetric"):
         return _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma, normalize_sigma, return_ok,
-                              polish=method == "symmetric")
+                              polish=method == "symmetric", wide=wide)
     return _refine_gradient(img, corners, valid, r, iterations, return_ok)
 
 
@@ -297,13 +300,12 @@ def _window(r: torch.Tensor, rmax: int) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma, normalize_sigma, return_ok,
-                   polish: bool = False, max_elements: int = 1 << 22):
-    """The saddle branch of :func:`refine_corners`, on the valid corners only, each on its own region.
-
-    Corners are grouped by radius; a group's window side follows its largest radius (weights are zero beyond a
-    corner's own radius, so a larger window would only add zeros). With ``polish`` (method ``"symmetric"``), the saddle fit's
-    point (and its verdict, ``ok``) is then polished by :func:`symmetry_polish` on the same region, smoothed but not
-    normalised, in a window :data:`POLISH_WINDOW` times wider."""
+                   polish: bool = False, max_elements: int = 1 << 22, wide: bool = True):
+    """The saddle branch of :func:`refine_corners`, on the valid corners only, each on its own region. Corners are
+    grouped by radius; a group's window side follows its largest radius (weights are zero beyond a corner's own radius).
+    With ``polish`` (method ``"symmetric"``), the saddle fit's point (and its verdict, ``ok``) is then polished by
+    :func:`symmetry_polish` on the same region in a window :data:`POLISH_WINDOW` times wider, then (``wide``) by
+    :func:`wide_polish` in one :data:`WIDE_WINDOW` times wider where it holds."""
     b, n = corners.shape[:2]
     dev, dt = corners.device, torch.float32
     start = corners.to(dt)
@@ -314,16 +316,17 @@ def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma,
         return (corners, ok_out) if return_ok else corners
     flat_start, flat_r = start.reshape(-1, 2), r.reshape(-1)
     polish_r = (POLISH_WINDOW * flat_r).clamp(2.5, POLISH_WINDOW * max_radius) if polish else None
+    wide_r = (WIDE_WINDOW * flat_r).clamp(2.5, WIDE_WINDOW * max_radius) if polish and wide else polish_r
     for group in _radius_groups(sel, flat_r[sel]):
         rmax = int(torch.ceil(flat_r[group].max()).item())
         off, _ = _window(flat_r[:1], rmax)
         # the region covers every window within rmax + 1 px of the starting pixel (a corner that moves further is
-        # returned unchanged: it moved more than its radius), and the polish's wider window around the saddle point
-        # plus its largest move and the gradient's border
+        # returned unchanged), and the polishes' windows around the saddle point plus their moves and a border
         half = 2 * rmax + 2
         if polish:
-            polish_max = int(torch.ceil(polish_r[group].max()).item())
-            half = max(half, rmax + polish_max + int(math.ceil(POLISH_MAX_MOVE)) + 2)
+            polish_max, wide_max = (int(torch.ceil(x[group].max()).item()) for x in (polish_r, wide_r))
+            moves = POLISH_MAX_MOVE + (WIDE_MAX_MOVE if wide_max > polish_max else 0.0)
+            half = max(half, rmax + max(polish_max, wide_max) + int(math.ceil(moves)) + 2)
         q = 2 * half + 1
         pad = 2 * int(round(3 * max(smooth_sigma, normalize_sigma))) + 1
         chunk = max(1, max_elements // ((q + pad) ** 2))
@@ -332,7 +335,7 @@ def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma,
         for part in group.split(chunk):
             c, ok = _saddle_group(img, flat_start[part], flat_r[part], part // n, rmax, half, basis, iterations,
                                   smooth_sigma, normalize_sigma,
-                                  None if polish_r is None else (polish_r[part], polish_max))
+                                  None if polish_r is None else (polish_r[part], polish_max, wide_r[part], wide_max))
             out.view(-1, 2)[part] = c
             ok_out.view(-1)[part] = ok
     out = out.to(corners.dtype)
@@ -384,7 +387,7 @@ def _saddle_iterations(src, c0, rr, top_left, bw, lu, piv, rmax, iterations):
 
 
 def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smooth_sigma, normalize_sigma, polish):
-    """Saddle fit (and polish, with ``polish = (radii, window half-size)``) of one group of corners on their regions:
+    """Saddle fit (and polish, with ``polish = (radii, window half-size, wide radii, wide half-size)``) of one group of corners on their regions:
     ``(corners (M, 2), ok (M,))``."""
     dev, dt = c0.device, torch.float32
     q = 2 * half + 1
@@ -420,7 +423,7 @@ def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smoot
         c, ok = torch.where(plain_chosen[:, None], cp, cn), okn | plain_chosen
         src, c0, rr, top_left = src[:m], c0[:m], rr[:m], top_left[:m]
     if polish is not None:
-        pr, polish_max = polish
+        pr, polish_max, wr, wide_max = polish
         reach = pr.clamp_max(POLISH_MAX_MOVE)
         # two sources per corner: the normalised one cancels shading (bench section 1, bad light: 0.025 px with the
         # saddle fit, 0.043 after a plain polish), the plain one keeps small squares, board borders and real lenses
@@ -436,7 +439,12 @@ def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smoot
             # section 1, bad light: 0.043 px plain only, 0.016 tie, 0.019 margin)
             better = m2 & (~moved | (a2 < POLISH_PLAIN_MARGIN * asym) | plain_chosen)
             polished = torch.where(better[:, None], p2, polished)
+            asym = torch.where(better, a2, asym)
+            src = torch.where(better[:, None, None, None], plain, src)
             moved = moved | m2
+        if wide_max > polish_max:
+            polished = wide_polish(src, polished, moved, asym, image_index, wr.clamp_max(WIDE_MAX_MOVE), wide_max,
+                                   _sample_window, _window(wr, wide_max)[1])
         c = torch.where((ok & moved)[..., None], polished + top_left.to(dt), c)
     return c, ok
 
@@ -453,6 +461,7 @@ class CornerRefiner(torch.nn.Module):
         radius_factor: window half-size as a fraction of the distance to the nearest grid neighbour.
         iterations: fixed-point iterations.
         max_radius: largest window half-size in px.
+        wide: the wide polish of ``"symmetric"`` (off where the corners are refined again at a finer resolution).
     """
 
     def __init__(
@@ -463,8 +472,10 @@ class CornerRefiner(torch.nn.Module):
         max_radius: int = 12,
         smooth_sigma: float = 1.0,
         normalize_sigma: float = 6.0,
+        wide: bool = True,
     ) -> None:
         super().__init__()
+        self.wide = wide
         self.smooth_sigma = smooth_sigma
         self.normalize_sigma = normalize_sigma
         self.method = method
@@ -484,5 +495,5 @@ class CornerRefiner(torch.nn.Module):
         radius = self.radius_factor * spacing
         return refine_corners(
             image, corners, valid, radius, self.method, self.iterations, self.max_radius,
-            self.smooth_sigma, self.normalize_sigma, return_ok,
+            self.smooth_sigma, self.normalize_sigma, return_ok, self.wide,
         )

@@ -23,7 +23,18 @@ from collections.abc import Callable
 
 import torch
 
-__all__ = ["symmetry_polish", "symmetry_terms"]
+__all__ = ["WIDE_MARGIN", "WIDE_MAX_MOVE", "WIDE_WINDOW", "symmetry_polish", "symmetry_terms", "wide_polish"]
+
+#: the wide polish's window radius, in saddle-fit windows (0.4 x the grid spacing with the default 0.2)
+WIDE_WINDOW = 2.0
+#: farthest the wide polish may move a corner (px): further, it has found another optimum, not a better estimate
+WIDE_MAX_MOVE = 0.5
+
+#: a board keeps the wide polish where at least half of its corners are left at most this many times as asymmetric
+#: as by the usual polish
+WIDE_MARGIN = 1.15
+#: Gauss-Newton steps of the wide polish (it starts from the usual polish's point)
+WIDE_ITERATIONS = 2
 
 
 def symmetry_polish(
@@ -122,3 +133,51 @@ def symmetry_terms(
     parts = torch.stack([big[:, 1:-1, 2:] - big[:, 1:-1, :-2], big[:, 2:, 1:-1] - big[:, :-2, 1:-1],
                          big[:, 1:-1, 1:-1]], 1).reshape(m, 3, -1)
     return parts[..., :half] - parts[..., half + 1:].flip(-1)
+
+
+def wide_polish(
+    src: torch.Tensor,
+    polished: torch.Tensor,
+    ok: torch.Tensor,
+    asymmetry: torch.Tensor,
+    board: torch.Tensor,
+    reach: torch.Tensor,
+    rmax: int,
+    sample_window: Callable[[torch.Tensor, torch.Tensor, int], torch.Tensor],
+    weights: torch.Tensor,
+) -> torch.Tensor:
+    r"""The polished points again, in a wider window, on the boards where it sees the corners as point-symmetric as
+    the usual window does, :math:`(M, 2)`.
+
+    A wider window averages more pixels. On wild renders held out from the benchmark's seeds (realistic optics; seeds
+    7,777,500+, 10 images per condition; window 0.4 instead of 0.3 x the grid spacing) the mean corner error drops
+    under strong noise 0.063 -> 0.057 px, box / Gaussian / motion blur 0.039 / 0.039 / 0.032 -> 0.032 / 0.032 / 0.027,
+    20-30 px squares 0.024 -> 0.021, JPEG 0.049 -> 0.044, 60-75 degrees of tilt 0.030 -> 0.026 (fisheye renders
+    0.032 -> 0.033, the one loss). It also reaches what breaks the symmetry: marks inside the white squares and the
+    curvature of strongly distorted lines (a 0.5 x spacing window kept everywhere: dots 0.027 -> 0.055, fisheye 0.029 ->
+    0.058 px). There the asymmetry it leaves, relative to the usual window's, grows (per-board median ratio 1.0-1.1
+    under noise or JPEG, 2.4 with ArUco marks, 6.5 with dots), so a board keeps the wide result only where at least
+    half of its corners have a ratio of at most :data:`WIDE_MARGIN` (ArUco 0.018 -> 0.017, dots 0.028 -> 0.027).
+
+    Args:
+        src: :math:`(M, 1, q, q)` regions (each corner's chosen source); polished: :math:`(M, 2)` points of the usual
+            polish in region coordinates; ok: :math:`(M,)` where that polish succeeded; asymmetry: :math:`(M,)` the
+            asymmetry it left; board: :math:`(M,)` board (image) index of each corner; reach: :math:`(M,)` largest
+            move; rmax: half-size of the wide window; sample_window, weights: as for :func:`symmetry_polish`.
+
+    Example:
+        >>> from ccs_kornia.modules.detection.saddle_refine import _sample_window, _window
+        >>> img = torch.zeros(1, 1, 41, 41); img[..., :20, :20] = 1; img[..., 20:, 20:] = 1
+        >>> r = torch.tensor([9.0])
+        >>> p = wide_polish(img, torch.tensor([[19.6, 19.4]]), torch.tensor([True]), torch.tensor([0.01]),
+        ...                 torch.tensor([0]), r.clamp_max(0.5), 9, _sample_window, _window(r, 9)[1])
+        >>> p.round(decimals=1)  # the corner is at (19.5, 19.5)
+        tensor([[19.5000, 19.5000]])
+    """
+    wide, moved, asym_wide = symmetry_polish(src, polished, reach, rmax, sample_window, weights, WIDE_ITERATIONS)
+    agree = ok & moved & (asym_wide <= WIDE_MARGIN * asymmetry)
+    n = int(board.max()) + 1
+    votes = torch.zeros(n, device=src.device).index_add_(0, board, agree.float())
+    total = torch.zeros(n, device=src.device).index_add_(0, board, ok.float())
+    take = ok & moved & (2 * votes >= total.clamp_min(1))[board]
+    return torch.where(take[:, None], wide, polished)

@@ -134,3 +134,40 @@ def test_board_wide_vote_keeps_the_plain_fit_under_strong_motion_blur(monkeypatc
     voted = mean_error()
     monkeypatch.setattr(saddle_refine, "DUAL_VOTE_MARGIN", float("inf"))
     assert voted < 0.15 and mean_error() > 0.3
+
+
+def _noisy_junctions(count: int, sigma: float, seed: int = 0):
+    """``count`` noisy copies of one junction (true corner at (20.3, 19.6) of 41x41 regions)."""
+    g = torch.Generator().manual_seed(seed)
+    img = _junction(41, (20.3, 19.6), 0.3, 0.2).float()
+    return img.expand(count, 1, 41, 41) + sigma * torch.randn(count, 1, 41, 41, generator=g)
+
+
+def test_wide_polish_averages_noise_on_a_symmetric_board():
+    from ccs_kornia.modules.detection.symmetry_refine import wide_polish
+
+    src, truth = _noisy_junctions(64, 0.05), torch.tensor([20.3, 19.6])
+    start = truth.expand(64, 2) + 0.3
+    r, rw = torch.full((64,), 4.5), torch.full((64,), 7.0)
+    usual, ok, asym = symmetry_polish(src, start, r, 5, _sample_window, _window(r, 5)[1])
+    board = torch.zeros(64, dtype=torch.long)  # one board: the vote is over all of them
+    wide = wide_polish(src, usual, ok, asym, board, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
+    err_usual, err_wide = (usual - truth).norm(dim=-1).mean(), (wide - truth).norm(dim=-1).mean()
+    assert bool(ok.all()) and float(err_wide) < 0.85 * float(err_usual)
+
+
+def test_wide_polish_is_refused_where_marks_break_the_symmetry():
+    from ccs_kornia.modules.detection.symmetry_refine import wide_polish
+
+    src, truth = _noisy_junctions(16, 0.01), torch.tensor([20.3, 19.6])
+    src = src.clone()
+    src[..., 13:16, 25:28] = 0.5  # a mark in a square, inside the wide window only (ArUco / dot codes)
+    r, rw = torch.full((16,), 4.5), torch.full((16,), 7.0)
+    usual, ok, asym = symmetry_polish(src, truth.expand(16, 2) + 0.2, r, 5, _sample_window, _window(r, 5)[1])
+    board = torch.zeros(16, dtype=torch.long)
+    wide = wide_polish(src, usual, ok, asym, board, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
+    assert bool(ok.all()) and torch.equal(wide, usual)
+    clean = _noisy_junctions(16, 0.01)  # the same corners without the mark: the wide result is taken
+    usual, ok, asym = symmetry_polish(clean, truth.expand(16, 2) + 0.2, r, 5, _sample_window, _window(r, 5)[1])
+    wide = wide_polish(clean, usual, ok, asym, board, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
+    assert not torch.equal(wide, usual)
