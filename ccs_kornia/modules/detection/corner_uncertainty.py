@@ -25,7 +25,8 @@ import math
 import torch
 from torch import nn
 
-from ccs_kornia.modules.detection.saddle_refine import _saddle_source, _sample_window, _window, grid_spacing
+from ccs_kornia.modules.detection.grid_geometry import grid_spacing
+from ccs_kornia.modules.detection.saddle_refine import _saddle_source, _sample_window, _window
 from ccs_kornia.modules.detection.symmetry_refine import symmetry_terms
 
 __all__ = ["corner_uncertainty", "corner_weights", "CornerUncertainty"]

@@ -21,7 +21,8 @@ from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, op
 from ccs_kornia.modules.detection.patch_refine import refine_from_level
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
 from ccs_kornia.modules.detection.scale import ScaleSelector, detect_at_scale
-from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners
+from ccs_kornia.modules.detection.grid_geometry import grid_spacing
+from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, refine_corners
 from ccs_kornia.modules.detection.x_junction import x_junction_mask
 from ccs_kornia.modules.detection.sigma_rejection import sigma_outlier_rejection
 

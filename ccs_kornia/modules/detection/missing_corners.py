@@ -87,7 +87,7 @@ def lattice_deviation(corners: torch.Tensor, board_size: tuple[int, int], return
     g = corners.reshape(b, rows, cols, 2)
     v = torch.ones(g.shape[:-1], dtype=torch.bool, device=g.device)
     estimate, count = _neighbour_estimate(g, v)
-    from ccs_kornia.modules.detection.saddle_refine import grid_spacing
+    from ccs_kornia.modules.detection.grid_geometry import grid_spacing
 
     # the board's median square: a displaced corner must not shrink its own yardstick
     spacing = grid_spacing(corners, v.reshape(b, -1), board_size).median(-1).values[:, None, None]

@@ -16,7 +16,8 @@ import math
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.modules.detection.saddle_refine import grid_spacing, refine_corners
+from ccs_kornia.modules.detection.grid_geometry import grid_spacing
+from ccs_kornia.modules.detection.saddle_refine import refine_corners
 
 __all__ = ["level_size", "resize_to_level", "edge_blur", "refine_on_patches", "refine_from_level"]
 
@@ -200,7 +201,8 @@ def refine_on_patches(
         # the saddle refiner works on one small region per corner of the image itself (bounded memory whatever the
         # image size): no patch copy needed
         out, ok = refine_corners(images.float(), corners.to(images.device).float(), None, radius, method, iterations,
-                                 r_max, smooth_sigma, normalize_sigma, return_ok=True, wide=wide)
+                                 r_max, smooth_sigma, normalize_sigma, return_ok=True,
+                                 board_size=board_size if wide else None)
         out, ok = out.to(corners.dtype).to(corners.device), ok.to(corners.device)
         return (out, ok) if return_ok else out
     half = int(math.ceil(r_max + 3 * max(normalize_sigma, smooth_sigma) + 4))

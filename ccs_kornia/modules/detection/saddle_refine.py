@@ -31,9 +31,19 @@ import torch
 import torch.nn.functional as F
 from kornia.filters import gaussian_blur2d, get_gaussian_kernel1d, spatial_gradient
 
-from ccs_kornia.modules.detection.symmetry_refine import WIDE_MAX_MOVE, WIDE_WINDOW, symmetry_polish, wide_polish
+from ccs_kornia.modules.detection.grid_geometry import grid_spacing
+from ccs_kornia.modules.detection.symmetry_refine import (
+    WIDE_MAX_MOVE,
+    WIDE_WINDOW,
+    symmetry_polish,
+    wide_allowed,
+    wide_polish,
+    wide_vote,
+)
 
-__all__ = ["METHODS", "POLISH_PLAIN_MARGIN", "POLISH_WINDOW", "CornerRefiner", "grid_spacing", "refine_corners"]
+__all__ = [
+    "METHODS", "POLISH_PLAIN_MARGIN", "POLISH_WINDOW", "CornerRefiner", "refine_corners",
+]
 
 #: refinement methods of :func:`refine_corners`
 METHODS = ("saddle", "symmetric", "gradient")
@@ -126,32 +136,6 @@ def _saddle_source(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor, 
     return clamp(src)
 
 
-def grid_spacing(corners: torch.Tensor, valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
-    """Distance from each grid corner to its nearest valid 4-neighbour in the grid, ``(B, N)``.
-
-    Args:
-        corners: :math:`(B, N, 2)` corners in grid order, ``N = cols * rows``.
-        valid: :math:`(B, N)` bool.
-        board_size: ``(cols, rows)``.
-
-    Returns:
-        :math:`(B, N)` spacing in px (``inf`` where no neighbour is valid).
-    """
-    cols, rows = board_size
-    b = corners.shape[0]
-    g = corners.reshape(b, rows, cols, 2)
-    v = valid.reshape(b, rows, cols)
-    inf = torch.full((b, rows, cols), float("inf"), device=corners.device, dtype=corners.dtype)
-    best = inf.clone()
-    dx = (g[:, :, 1:] - g[:, :, :-1]).norm(dim=-1).masked_fill(~(v[:, :, 1:] & v[:, :, :-1]), float("inf"))
-    dy = (g[:, 1:] - g[:, :-1]).norm(dim=-1).masked_fill(~(v[:, 1:] & v[:, :-1]), float("inf"))
-    best[:, :, 1:] = torch.minimum(best[:, :, 1:], dx)
-    best[:, :, :-1] = torch.minimum(best[:, :, :-1], dx)
-    best[:, 1:] = torch.minimum(best[:, 1:], dy)
-    best[:, :-1] = torch.minimum(best[:, :-1], dy)
-    return best.reshape(b, -1)
-
-
 def refine_corners(
     image: torch.Tensor,
     corners: torch.Tensor,
@@ -163,7 +147,7 @@ def refine_corners(
     smooth_sigma: float = 1.0,
     normalize_sigma: float = 6.0,
     return_ok: bool = False,
-    wide: bool = True,
+    board_size: tuple[int, int] | None = None,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     r"""Refine corner positions on the image.
 
@@ -184,8 +168,10 @@ def refine_corners(
 
         return_ok: also return a :math:`(B, N)` mask of corners whose last iteration found a proper
             saddle (or gradient solution) and that stayed within their radius.
-        wide: with ``"symmetric"``, the wide polish (:func:`~ccs_kornia.modules.detection.symmetry_refine.wide_polish`)
-            where it holds; off for a coarse step whose only aim is the next window.
+        board_size: ``(cols, rows)`` when the corners are whole boards in grid order: with ``"symmetric"``, the
+            wide polish (:func:`~ccs_kornia.modules.detection.symmetry_refine.wide_polish`) is then kept where the
+            board's rows and columns, through the usual polish's corners, are straight (:func:`wide_allowed`).
+            ``None`` (e.g. a coarse step whose only aim is the next window): no wide polish.
 
     Returns:
         :math:`(B, N, 2)` refined corners. A corner that moves by more than its radius keeps its input
@@ -214,7 +200,7 @@ def refine_corners(
     r = torch.nan_to_num(r, nan=5.0, posinf=float(max_radius)).clamp(1.5, float(max_radius))
     if method in ("saddle", "symmetric"):
         return _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma, normalize_sigma, return_ok,
-                              polish=method == "symmetric", wide=wide)
+                              polish=method == "symmetric", board_size=board_size)
     return _refine_gradient(img, corners, valid, r, iterations, return_ok)
 
 
@@ -300,12 +286,13 @@ def _window(r: torch.Tensor, rmax: int) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma, normalize_sigma, return_ok,
-                   polish: bool = False, max_elements: int = 1 << 22, wide: bool = True):
+                   polish: bool = False, max_elements: int = 1 << 22, board_size: tuple[int, int] | None = None):
     """The saddle branch of :func:`refine_corners`, on the valid corners only, each on its own region. Corners are
     grouped by radius; a group's window side follows its largest radius (weights are zero beyond a corner's own radius).
     With ``polish`` (method ``"symmetric"``), the saddle fit's point (and its verdict, ``ok``) is then polished by
     :func:`symmetry_polish` on the same region in a window :data:`POLISH_WINDOW` times wider, then (``wide``) by
-    :func:`wide_polish` in one :data:`WIDE_WINDOW` times wider where it holds."""
+    :func:`wide_polish` in one :data:`WIDE_WINDOW` times wider (with ``board_size``), kept per board by
+    :func:`wide_vote` where the lines are straight (:func:`wide_allowed`)."""
     b, n = corners.shape[:2]
     dev, dt = corners.device, torch.float32
     start = corners.to(dt)
@@ -316,7 +303,10 @@ def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma,
         return (corners, ok_out) if return_ok else corners
     flat_start, flat_r = start.reshape(-1, 2), r.reshape(-1)
     polish_r = (POLISH_WINDOW * flat_r).clamp(2.5, POLISH_WINDOW * max_radius) if polish else None
-    wide_r = (WIDE_WINDOW * flat_r).clamp(2.5, WIDE_WINDOW * max_radius) if polish and wide else polish_r
+    wide = polish and board_size is not None
+    wide_r = (WIDE_WINDOW * flat_r).clamp(2.5, WIDE_WINDOW * max_radius) if wide else polish_r
+    if wide:
+        wide_out, agree_out, tried_out = out.clone(), ok_out.clone(), ok_out.clone()
     for group in _radius_groups(sel, flat_r[sel]):
         rmax = int(torch.ceil(flat_r[group].max()).item())
         off, _ = _window(flat_r[:1], rmax)
@@ -333,11 +323,17 @@ def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma,
         x, y = off[:, 0], off[:, 1]
         basis = torch.stack([x * x, x * y, y * y, x, y, torch.ones_like(x)], -1)  # (P,6)
         for part in group.split(chunk):
-            c, ok = _saddle_group(img, flat_start[part], flat_r[part], part // n, rmax, half, basis, iterations,
-                                  smooth_sigma, normalize_sigma,
-                                  None if polish_r is None else (polish_r[part], polish_max, wide_r[part], wide_max))
+            c, ok, *wide_part = _saddle_group(img, flat_start[part], flat_r[part], part // n, rmax, half, basis,
+                                              iterations, smooth_sigma, normalize_sigma,
+                                              None if polish_r is None else (polish_r[part], polish_max, wide_r[part],
+                                                                             wide_max))
             out.view(-1, 2)[part] = c
             ok_out.view(-1)[part] = ok
+            if wide_part:
+                wide_out.view(-1, 2)[part], agree_out.view(-1)[part], tried_out.view(-1)[part] = wide_part
+    if wide:
+        tried_out &= wide_allowed(out, ok_out, board_size)
+        out = torch.where(wide_vote(agree_out & tried_out, tried_out)[..., None], wide_out, out)
     out = out.to(corners.dtype)
     return (out, ok_out) if return_ok else out
 
@@ -387,8 +383,9 @@ def _saddle_iterations(src, c0, rr, top_left, bw, lu, piv, rmax, iterations):
 
 
 def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smooth_sigma, normalize_sigma, polish):
-    """Saddle fit (and polish, with ``polish = (radii, window half-size, wide radii, wide half-size)``) of one group of corners on their regions:
-    ``(corners (M, 2), ok (M,))``."""
+    """Saddle fit (and polish, with ``polish = (radii, window half-size, wide radii, wide half-size)``) of one group
+    of corners on their regions: ``(corners (M, 2), ok (M,))``, and with a wider wide window the wide polish's
+    ``(corners (M, 2), agree (M,), tried (M,))`` (see :func:`wide_polish`)."""
     dev, dt = c0.device, torch.float32
     q = 2 * half + 1
     bw = basis[None] * _window(rr, rmax)[1][..., None]  # (M,P,6)
@@ -442,10 +439,11 @@ def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smoot
             asym = torch.where(better, a2, asym)
             src = torch.where(better[:, None, None, None], plain, src)
             moved = moved | m2
-        if wide_max > polish_max:
-            polished = wide_polish(src, polished, moved, asym, image_index, wr.clamp_max(WIDE_MAX_MOVE), wide_max,
-                                   _sample_window, _window(wr, wide_max)[1])
         c = torch.where((ok & moved)[..., None], polished + top_left.to(dt), c)
+        if wide_max > polish_max:
+            wide, agree = wide_polish(src, polished, moved, asym, wr.clamp_max(WIDE_MAX_MOVE), wide_max, _sample_window,
+                                      _window(wr, wide_max)[1])
+            return c, ok, wide + top_left.to(dt), agree & ok, ok & moved
     return c, ok
 
 
@@ -495,5 +493,5 @@ class CornerRefiner(torch.nn.Module):
         radius = self.radius_factor * spacing
         return refine_corners(
             image, corners, valid, radius, self.method, self.iterations, self.max_radius,
-            self.smooth_sigma, self.normalize_sigma, return_ok, self.wide,
+            self.smooth_sigma, self.normalize_sigma, return_ok, board_size if self.wide else None,
         )

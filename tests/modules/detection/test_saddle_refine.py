@@ -7,7 +7,8 @@ import torch
 
 from ccs_kornia.camera import intrinsics_matrix
 from ccs_kornia.data.scenes import make_calibration_set
-from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, grid_spacing, refine_corners
+from ccs_kornia.modules.detection.grid_geometry import grid_spacing
+from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, refine_corners
 
 
 @pytest.fixture(scope="module")

@@ -144,30 +144,69 @@ def _noisy_junctions(count: int, sigma: float, seed: int = 0):
 
 
 def test_wide_polish_averages_noise_on_a_symmetric_board():
-    from ccs_kornia.modules.detection.symmetry_refine import wide_polish
+    from ccs_kornia.modules.detection.symmetry_refine import wide_polish, wide_vote
 
     src, truth = _noisy_junctions(64, 0.05), torch.tensor([20.3, 19.6])
     start = truth.expand(64, 2) + 0.3
     r, rw = torch.full((64,), 4.5), torch.full((64,), 7.0)
     usual, ok, asym = symmetry_polish(src, start, r, 5, _sample_window, _window(r, 5)[1])
-    board = torch.zeros(64, dtype=torch.long)  # one board: the vote is over all of them
-    wide = wide_polish(src, usual, ok, asym, board, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
+    wide, agree = wide_polish(src, usual, ok, asym, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
+    assert bool(wide_vote(agree[None], ok[None]).all())  # one board: the vote is over all of them
     err_usual, err_wide = (usual - truth).norm(dim=-1).mean(), (wide - truth).norm(dim=-1).mean()
     assert bool(ok.all()) and float(err_wide) < 0.85 * float(err_usual)
 
 
 def test_wide_polish_is_refused_where_marks_break_the_symmetry():
-    from ccs_kornia.modules.detection.symmetry_refine import wide_polish
+    from ccs_kornia.modules.detection.symmetry_refine import wide_polish, wide_vote
 
     src, truth = _noisy_junctions(16, 0.01), torch.tensor([20.3, 19.6])
     src = src.clone()
     src[..., 13:16, 25:28] = 0.5  # a mark in a square, inside the wide window only (ArUco / dot codes)
     r, rw = torch.full((16,), 4.5), torch.full((16,), 7.0)
     usual, ok, asym = symmetry_polish(src, truth.expand(16, 2) + 0.2, r, 5, _sample_window, _window(r, 5)[1])
-    board = torch.zeros(16, dtype=torch.long)
-    wide = wide_polish(src, usual, ok, asym, board, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
-    assert bool(ok.all()) and torch.equal(wide, usual)
+    _, agree = wide_polish(src, usual, ok, asym, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
+    assert bool(ok.all()) and not bool(wide_vote(agree[None], ok[None]).any())
     clean = _noisy_junctions(16, 0.01)  # the same corners without the mark: the wide result is taken
     usual, ok, asym = symmetry_polish(clean, truth.expand(16, 2) + 0.2, r, 5, _sample_window, _window(r, 5)[1])
-    wide = wide_polish(clean, usual, ok, asym, board, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
-    assert not torch.equal(wide, usual)
+    wide, agree = wide_polish(clean, usual, ok, asym, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
+    assert bool(wide_vote(agree[None], ok[None]).all()) and not torch.equal(wide, usual)
+
+
+def _bent_board(bend: float, noise: float = 0.0):
+    """A 9x7 board of 24 px squares in a 260x220 image whose rows and columns bend into parabolas of sagitta ``bend``
+    px per grid step, and its true corners (rendered 4x supersampled)."""
+    cols, rows, sq, ss = 9, 7, 24.0, 4
+    h, w = 220, 260
+    ys, xs = torch.meshgrid(torch.arange(h * ss) / ss + 0.5 / ss - 0.5, torch.arange(w * ss) / ss + 0.5 / ss - 0.5,
+                            indexing="ij")
+    k = 2 * bend / sq**2  # y'' of the lines
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+    u = xs - 0.5 * k * (ys - cy) ** 2  # board coordinates of each pixel: x bent along y, y along x
+    v = ys - 0.5 * k * (xs - cx) ** 2
+    i, j = torch.floor((u - cx) / sq + 0.5 * (cols + 1)), torch.floor((v - cy) / sq + 0.5 * (rows + 1))
+    img = ((i + j) % 2 == 0).float().reshape(h, ss, w, ss).mean((1, 3))[None, None]
+    img = 0.2 + 0.6 * img + noise * torch.randn(1, 1, h, w, generator=torch.Generator().manual_seed(1))
+    gi, gj = torch.meshgrid(torch.arange(1, rows + 1.0), torch.arange(1, cols + 1.0), indexing="ij")
+    bu, bv = cx + (gj - 0.5 * (cols + 1)) * sq, cy + (gi - 0.5 * (rows + 1)) * sq
+    # invert the bend by fixed-point iteration: x = u + k/2 (y - cy)^2, y = v + k/2 (x - cx)^2
+    x, y = bu.clone(), bv.clone()
+    for _ in range(50):
+        x, y = bu + 0.5 * k * (y - cy) ** 2, bv + 0.5 * k * (x - cx) ** 2
+    return img, torch.stack([x, y], -1).reshape(1, -1, 2), (cols, rows)
+
+
+def test_the_wide_polish_is_kept_on_straight_boards_and_left_on_bent_ones():
+    """The refiner's wide polish changes a straight board's corners and leaves a strongly bent one's as the usual
+    polish puts them (its wider window would see the bend)."""
+    from ccs_kornia.modules.detection.grid_geometry import line_sagitta
+    from ccs_kornia.modules.detection.saddle_refine import refine_corners
+
+    for bend, kept in ((0.0, True), (0.6, False)):
+        img, truth, board = _bent_board(bend, noise=0.03)
+        assert abs(float(line_sagitta(truth, torch.ones(1, 63, dtype=torch.bool), board).median()) - bend) < 0.05
+        start = truth + 0.3
+        usual = refine_corners(img, start, None, 4.8, "symmetric", max_radius=12)
+        wide = refine_corners(img, start, None, 4.8, "symmetric", max_radius=12, board_size=board)
+        changed = (wide - usual).norm(dim=-1) > 1e-4
+        assert float(changed.float().mean()) > 0.9 if kept else not bool(changed.any())
+        assert float((usual - truth).norm(dim=-1).mean()) < 0.1
