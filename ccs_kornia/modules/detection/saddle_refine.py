@@ -29,8 +29,9 @@ import math
 
 import torch
 import torch.nn.functional as F
-from kornia.filters import gaussian_blur2d, get_gaussian_kernel1d, spatial_gradient
+from kornia.filters import gaussian_blur2d, spatial_gradient
 
+from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules.detection.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.symmetry_refine import (
     WIDE_MAX_MOVE,
@@ -104,7 +105,7 @@ def _blurred_regions(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor
     ys = _border_index(top_left[:, 1, None] - m + span, h, mode)
     xs = _border_index(top_left[:, 0, None] - m + span, w, mode)
     patch = img[bi[:, None, None], 0, ys[:, :, None], xs[:, None, :]]  # (M, q + 2m, q + 2m)
-    g = get_gaussian_kernel1d(k, float(sigma), device=dev, dtype=img.dtype)[0]
+    g = gaussian_kernel1d(k, sigma, dev, img.dtype)
     band = torch.zeros(q + 2 * m, q, device=dev, dtype=img.dtype)
     taps = torch.arange(k, device=dev)[:, None] + torch.arange(q, device=dev)[None, :]  # (k, q) patch rows
     band[taps, torch.arange(q, device=dev).expand(k, q)] = g[:, None].expand(k, q)

@@ -32,9 +32,10 @@ from typing import Callable
 
 import torch
 import torch.nn.functional as F
-from kornia.filters import gaussian_blur2d, get_gaussian_kernel1d
+from kornia.filters import gaussian_blur2d
 from torch import nn
 
+from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.detection.patch_refine import _check_images, level_size, refine_from_level, resize_to_level
 
@@ -61,7 +62,7 @@ def _blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
         return x
     if x.device.type != "cpu":
         return gaussian_blur2d(x, (k, k), (sigma, sigma), border_type="reflect", separable=True)
-    g = get_gaussian_kernel1d(k, float(sigma), device=x.device, dtype=x.dtype)[0].tolist()
+    g = gaussian_kernel1d(k, sigma, dtype=x.dtype).tolist()
     m = k // 2
     for dim, pad in ((-1, (m, m, 0, 0)), (-2, (0, 0, m, m))):
         padded = F.pad(x, pad, mode="reflect")
