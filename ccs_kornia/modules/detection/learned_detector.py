@@ -300,13 +300,9 @@ class LearnedChessboardDetector(ChessboardDetector):
         _, points, keep = self.candidates(images, full, scale)
         corners, valid, found = _organize(points, keep, board_size, images)
         refiner = self.refiner
-        if refiner is not None and full is not None:
-            # a resampled level: its corners are refined again at full size, so here the refinement only confirms the
-            # cells (the saddle fit's verdict) and starts the full-size one: no polish
+        if refiner is not None and full is not None:  # a resampled level: its corners are refined again at full size
             refiner = copy.copy(refiner)
             refiner.wide = False
-            if refiner.method == "symmetric":
-                refiner.method = "saddle"
         return self._complete(images, board_size, corners, valid, found, refiner)
 
     def _complete(self, images: torch.Tensor, board_size: tuple[int, int], corners: torch.Tensor, valid: torch.Tensor,
