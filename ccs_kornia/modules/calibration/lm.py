@@ -426,7 +426,8 @@ class LevenbergMarquardt(nn.Module):
         model: camera model.
         free: parameters to estimate (booleans or names).
         fix_aspect_ratio: keep ``fx / fy``.
-        max_iters, ftol, xtol, lambda_init, check_every, absolute_weights, dtype: see :func:`levenberg_marquardt`.
+        max_iters, ftol, xtol, lambda_init, check_every, absolute_weights, dtype, stall_tol: see
+            :func:`levenberg_marquardt`.
 
     Shape:
         params :math:`(C, P)`, rvec/tvec :math:`(C, V, 3)`, object_points :math:`(N, 3)`, corners
@@ -451,8 +452,10 @@ class LevenbergMarquardt(nn.Module):
         check_every: int | None = None,
         absolute_weights: bool = False,
         dtype: torch.dtype = torch.float64,
+        stall_tol: float = 0.0,
     ) -> None:
         super().__init__()
+        self.stall_tol = stall_tol
         self.model = model
         self.free = None if free is None else list(free)
         self.fix_aspect_ratio = fix_aspect_ratio
@@ -475,5 +478,5 @@ class LevenbergMarquardt(nn.Module):
             self.model, params, rvec, tvec, object_points, corners, weights, free=self.free,
             fix_aspect_ratio=self.fix_aspect_ratio, max_iters=self.max_iters, ftol=self.ftol, xtol=self.xtol,
             lambda_init=self.lambda_init, check_every=self.check_every, absolute_weights=self.absolute_weights,
-            dtype=self.dtype,
+            dtype=self.dtype, stall_tol=self.stall_tol,
         )

@@ -160,6 +160,19 @@ def test_module_and_exceptions():
     before = dict(lm.__dict__)
     res = lm(p, rvec, tvec, OBJ, uv)
     assert float(res.rms) < 1e-8 and lm.__dict__.keys() == before.keys() and lm.max_iters == 50
+    # the module passes the stall rule on (test_refine.py checks the rule itself)
+    from ccs_kornia.modules.calibration import lm as lm_module
+
+    seen = {}
+
+    def spy(*args, **kwargs):
+        seen.update(kwargs)
+        return levenberg_marquardt(*args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(lm_module, "levenberg_marquardt", spy)
+        LevenbergMarquardt(m, max_iters=50, stall_tol=1e-4)(p, rvec, tvec, OBJ, uv)
+    assert seen["stall_tol"] == 1e-4 and LevenbergMarquardt(m).stall_tol == 0.0
     with pytest.raises(ValueError, match="corners"):
         levenberg_marquardt(m, p, rvec, tvec, OBJ, uv[0])
     with pytest.raises(ValueError, match="params"):
