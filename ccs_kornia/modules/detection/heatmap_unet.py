@@ -232,7 +232,9 @@ def run_heatmap(net: nn.Module, images: torch.Tensor, precision: str = "float32"
     """
     low = effective_precision(precision, images.device) == "bfloat16"
     if images.device.type == "cpu":
-        net.to(memory_format=torch.channels_last)
+        # converted once (re-applying ``to`` walks every module, ~1 ms per call)
+        if not all(p.is_contiguous(memory_format=torch.channels_last) for p in net.parameters() if p.dim() == 4):
+            net.to(memory_format=torch.channels_last)
         images = images.contiguous(memory_format=torch.channels_last)
     if low:
         with torch.autocast(images.device.type, dtype=torch.bfloat16):
