@@ -16,7 +16,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["CornerUNet", "DoubleConv", "cpu_has_native_bf16", "effective_precision", "run_heatmap", "PRECISIONS"]
+__all__ = ["CornerUNet", "DoubleConv", "cpu_has_native_bf16", "effective_precision", "run_heatmap", "PRECISIONS",
+           "TILE_PIXELS", "TILE_SIDE", "TILE_MARGIN"]
 
 #: network precisions of :func:`run_heatmap`
 PRECISIONS = ("auto", "float32", "bfloat16")
@@ -218,23 +219,54 @@ def effective_precision(precision: str, device: torch.device | str = "cpu") -> s
     return "bfloat16" if low else "float32"
 
 
-def run_heatmap(net: nn.Module, images: torch.Tensor, precision: str = "float32") -> torch.Tensor:
+#: inputs above this many pixels run through the network in tiles (:func:`run_heatmap`): in one piece, a 3.2 Mpx
+#: detection level (a 24 Mpx photograph's) adds 400 MB to the peak memory, a quarter of the 1.5 GB budget
+TILE_PIXELS = 2_000_000
+#: core side of a tile (px, a multiple of every network depth's ``2 ** depth`` up to 6)
+TILE_SIDE = 1024
+#: context around each tile's core (px, a multiple of ``2 ** depth``): more than the shipped network's receptive
+#: radius (about 92 px: two 3x3 convolutions per level, 4 levels down and up), so a core's output equals the
+#: untiled one's up to float rounding
+TILE_MARGIN = 128
+
+
+def run_heatmap(net: nn.Module, images: torch.Tensor, precision: str = "float32",
+                tile_pixels: int | None = TILE_PIXELS) -> torch.Tensor:
     """The heatmap of ``images`` :math:`(B, 1, H, W)` as float32 :math:`(B, 1, H, W)`, run the fast way for the device.
 
     On CPU the network runs channels-last (oneDNN's fast layout); with ``precision="bfloat16"`` (or ``"auto"`` on a
     CPU with native bfloat16, :func:`cpu_has_native_bf16`) its convolutions run in bfloat16 under autocast. On other
-    devices it runs as it is (float32; ``"bfloat16"`` autocasts there too).
+    devices it runs as it is (float32; ``"bfloat16"`` autocasts there too). Inputs of more than ``tile_pixels`` pixels
+    (``None``: never) run in tiles of :data:`TILE_SIDE` px with :data:`TILE_MARGIN` px of context, aligned to the
+    network's pooling grid, so memory stays bounded whatever the size (the network's normalisation must be per pixel
+    at inference, as batch norm is, for the tiles to agree with the whole).
 
     Example:
         >>> net = CornerUNet().eval()
         >>> run_heatmap(net, torch.rand(1, 1, 32, 48)).shape
         torch.Size([1, 1, 32, 48])
     """
-    low = effective_precision(precision, images.device) == "bfloat16"
     if images.device.type == "cpu":
         # converted once (re-applying ``to`` walks every module, ~1 ms per call)
         if not all(p.is_contiguous(memory_format=torch.channels_last) for p in net.parameters() if p.dim() == 4):
             net.to(memory_format=torch.channels_last)
+    h, w = images.shape[-2:]
+    if tile_pixels is None or h * w <= tile_pixels:
+        return _run_whole(net, images, precision)
+    out = torch.empty(images.shape[0], 1, h, w, dtype=torch.float32, device=images.device)
+    for y0 in range(0, h, TILE_SIDE):
+        for x0 in range(0, w, TILE_SIDE):
+            y1, x1 = min(y0 + TILE_SIDE, h), min(x0 + TILE_SIDE, w)
+            ya, xa = max(0, y0 - TILE_MARGIN), max(0, x0 - TILE_MARGIN)
+            heat = _run_whole(net, images[..., ya:min(h, y1 + TILE_MARGIN), xa:min(w, x1 + TILE_MARGIN)], precision)
+            out[..., y0:y1, x0:x1] = heat[..., y0 - ya:y1 - ya, x0 - xa:x1 - xa]
+    return out
+
+
+def _run_whole(net: nn.Module, images: torch.Tensor, precision: str) -> torch.Tensor:
+    """:func:`run_heatmap` on the whole input at once."""
+    low = effective_precision(precision, images.device) == "bfloat16"
+    if images.device.type == "cpu":
         images = images.contiguous(memory_format=torch.channels_last)
     if low:
         with torch.autocast(images.device.type, dtype=torch.bfloat16):
