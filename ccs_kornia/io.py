@@ -129,7 +129,10 @@ def _decode(path: str, flags: int) -> tuple[np.ndarray | None, str]:
     return image, ""
 
 
-#: rows of a colour image converted to float at once by :func:`read_image`
+#: colour images of more pixels are converted to float by :func:`read_image` ``_STRIPE_ROWS`` rows at a time (smaller
+#: ones at once: on udacity_gopro_wide's 1.2 Mpx photos the stripes' many mid-size buffers raised the peak RSS by
+#: 20-70 MB)
+_STRIPED_PIXELS = 4_000_000
 _STRIPE_ROWS = 256
 
 
@@ -170,11 +173,14 @@ def read_image(path: str | os.PathLike, gray: bool = True) -> tuple[np.ndarray |
             image = image[..., 0]
     if min(image.shape[:2]) < 8:
         return None, f"image too small ({image.shape[1]}x{image.shape[0]})", 0
-    if image.ndim == 2:
-        return np.ascontiguousarray(_to_float(image), dtype=np.float32), "", depth
-    # colour: converted in float so that 16-bit data keep their precision, a stripe of rows at a time (per-pixel
-    # operations, so the same values): a 24 Mpx photo in float at once is 288 MB more peak memory
     code = cv2.COLOR_BGR2GRAY if gray else cv2.COLOR_BGR2RGB
+    if image.ndim == 2 or image.shape[0] * image.shape[1] <= _STRIPED_PIXELS:
+        image = _to_float(image)
+        if image.ndim == 3:  # converted in float so that 16-bit data keep their precision
+            image = cv2.cvtColor(image, code)
+        return np.ascontiguousarray(image, dtype=np.float32), "", depth
+    # a large colour photo: a stripe of rows at a time (per-pixel operations, so the same values); at once, a 24 Mpx
+    # photo's float copy alone is 288 MB of peak memory
     out = np.empty(image.shape[:2] if gray else image.shape, dtype=np.float32)
     for top in range(0, image.shape[0], _STRIPE_ROWS):
         out[top:top + _STRIPE_ROWS] = cv2.cvtColor(_to_float(image[top:top + _STRIPE_ROWS]), code)

@@ -98,12 +98,13 @@ class TestLoadImage:
         rgb, _ = load_image(tmp_path / "red.png", gray=False)
         assert rgb.shape == (16, 16, 3) and rgb[0, 0, 0] == pytest.approx(1.0)
 
-    def test_colour_is_converted_a_stripe_at_a_time_with_the_same_values(self, tmp_path):
-        """Colour images are converted to float a stripe of rows at a time (bounded memory on big photos): the values
-        are those of converting the whole image at once, 8- and 16-bit, grey and RGB output."""
+    def test_colour_is_converted_a_stripe_at_a_time_with_the_same_values(self, tmp_path, monkeypatch):
+        """Large colour images are converted to float a stripe of rows at a time (bounded memory on big photos): the
+        values are those of converting the whole image at once, 8- and 16-bit, grey and RGB output."""
         from ccs_kornia import io as io_module
 
         rng = np.random.default_rng(0)
+        monkeypatch.setattr(io_module, "_STRIPED_PIXELS", 1000)
         for dtype, scale in ((np.uint8, 255.0), (np.uint16, 65535.0)):
             bgr = rng.integers(0, int(scale) + 1, size=(io_module._STRIPE_ROWS * 2 + 37, 50, 3)).astype(dtype)
             cv2.imwrite(str(tmp_path / "c.png"), bgr)
