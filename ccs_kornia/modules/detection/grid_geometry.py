@@ -12,6 +12,7 @@ chord between its two neighbours one grid step away on either side, ``|y''| s^2 
 from __future__ import annotations
 
 import torch
+from kornia.geometry.line import fit_line
 
 from ccs_kornia.modules._checks import check_board_size, check_shape
 
@@ -52,15 +53,20 @@ def grid_spacing(corners: torch.Tensor, valid: torch.Tensor, board_size: tuple[i
 def _lines_sagitta(pts: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """Sagitta at each point of lines ``pts`` :math:`(L, P, 2)` with weights ``w`` :math:`(L, P)` in {0, 1}:
     :math:`(L, P)`, ``inf`` on lines with fewer than :data:`MIN_LINE_CORNERS` valid points."""
-    wsum = w.sum(-1, keepdim=True)
-    mean = (w[..., None] * pts).sum(-2) / wsum.clamp_min(1)
-    d = (pts - mean[:, None]) * w[..., None]
-    # the line's direction: principal axis of its points (closed form of the 2x2 scatter matrix)
-    sxx, syy, sxy = (d[..., 0] ** 2).sum(-1), (d[..., 1] ** 2).sum(-1), (d[..., 0] * d[..., 1]).sum(-1)
-    theta = 0.5 * torch.atan2(2 * sxy, sxx - syy)
-    u = torch.stack([theta.cos(), theta.sin()], -1)
-    t = (d * u[:, None]).sum(-1)
-    y = d[..., 0] * -u[:, None, 1] + d[..., 1] * u[:, None, 0]
+    sag = torch.full_like(w, float("inf"))
+    wsum = w.sum(-1)
+    fitted = wsum >= MIN_LINE_CORNERS
+    if not bool(fitted.any()):
+        return sag
+    pts, w, wsum = pts[fitted], w[fitted], wsum[fitted, None]
+    # the line's frame: kornia's total-least-squares line through the weighted centroid
+    line = fit_line(pts, w)
+    u, origin = line.direction, line.origin
+    if not (pts.requires_grad or w.requires_grad):  # kornia wraps a constant line's tensors as parameters
+        u, origin = u.detach(), origin.detach()
+    d = pts - origin[:, None]
+    t = (d * u[:, None]).sum(-1) * w
+    y = (d[..., 1] * u[:, None, 0] - d[..., 0] * u[:, None, 1]) * w
     scale = t.abs().amax(-1, keepdim=True).clamp_min(1e-6)
     ts = t / scale  # in [-1, 1]: a well-conditioned cubic
     powers = torch.stack([torch.ones_like(ts), ts, ts**2, ts**3], -1) * w[..., None]
@@ -74,9 +80,9 @@ def _lines_sagitta(pts: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     second = torch.where(wsum >= CUBIC_LINE_CORNERS, second[1], second[0])
     inf = torch.full_like(t, float("inf"))
     span = torch.where(w > 0, t, -inf).amax(-1, keepdim=True) - torch.where(w > 0, t, inf).amin(-1, keepdim=True)
-    step = span / (wsum - 1).clamp_min(1)  # mean grid step along the line
-    sag = second.abs() * step**2 / 2
-    return torch.where(wsum >= MIN_LINE_CORNERS, sag, torch.full_like(sag, float("inf")))
+    step = span / (wsum - 1)  # mean grid step along the line
+    sag[fitted] = second.abs() * step**2 / 2
+    return sag
 
 
 def line_sagitta(corners: torch.Tensor, valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
