@@ -219,6 +219,40 @@ def _methods_ok(methods: dict[str, DetectionMethod]) -> dict[str, DetectionMetho
     return {k: m for k, m in methods.items() if m.available}
 
 
+#: a corner counts as visible where the 8-bit image varies by at least this much (of full scale) within a quarter
+#: square of it; a saturating glare can flatten both the black and the white squares around a corner to 1
+VISIBLE_CONTRAST = 0.05
+
+
+def corners_visible(image: np.ndarray, corners: np.ndarray, square_px: float) -> np.ndarray:
+    """Per corner, whether the image shows it: intensity range at least :data:`VISIBLE_CONTRAST` within
+    ``max(2, square_px / 4)`` px of it (a square window; corners outside the image are not visible).
+
+    Args:
+        image: :math:`(H, W)` grey image in ``[0, 1]``.
+        corners: :math:`(N, 2)` true corners, px.
+        square_px: the board's square size in px.
+
+    Returns:
+        :math:`(N,)` bool.
+
+    Example:
+        >>> img = np.zeros((40, 40)); img[:20, :20] = img[20:, 20:] = 1.0
+        >>> corners_visible(img, np.array([[19.5, 19.5], [5.0, 5.0]]), 16.0).tolist()
+        [True, False]
+    """
+    h, w = image.shape
+    r = max(2, int(round(square_px / 4)))
+    out = np.zeros(len(corners), dtype=bool)
+    for k, (x, y) in enumerate(np.asarray(corners, dtype=np.float64)):
+        if not (np.isfinite(x) and np.isfinite(y) and 0 <= x < w and 0 <= y < h):
+            continue
+        xi, yi = int(round(x)), int(round(y))
+        patch = image[max(0, yi - r):yi + r + 1, max(0, xi - r):xi + r + 1]
+        out[k] = patch.size > 0 and float(patch.max() - patch.min()) >= VISIBLE_CONTRAST
+    return out
+
+
 def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
     spec, board = wild_spec(name, cfg.supersample)
     from ccs_kornia.data.wild import WildChessboards
@@ -230,6 +264,7 @@ def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
     per = {k: {"err": np.full(n_img, np.nan), "found": np.zeros(n_img, bool), "ok": np.zeros(n_img, bool),
                "sec": np.zeros(n_img), "mb": np.zeros(n_img), "crashes": 0, "timeouts": 0} for k in methods}
     squares, render_s = np.zeros(n_img), 0.0
+    visible = np.zeros(n_img, bool)
     for i in range(n_img):
         t0 = time.perf_counter()
         batch = scenes.sample(1, torch.Generator().manual_seed(_SEED + 1000 * index + i))
@@ -239,6 +274,7 @@ def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
 
         squares[i] = float(square_size_px(batch.corners[:, :n].double(), batch.corner_valid[:, :n], batch.board_size)[0])
         limit = max(cfg.error_threshold, 0.05 * squares[i])
+        visible[i] = bool(corners_visible(image[0, 0].double().numpy(), truth, squares[i]).all())
         del batch
         for key, m in methods.items():
             corners, found, secs, mb, failure = _detect_one(m, image, board, cfg.wild_time_limit)
@@ -256,6 +292,7 @@ def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
         res[key] = {
             "label": methods[key].label, "images": n_img, "found": int(r["found"].sum()), "detected": int(r["ok"].sum()),
             "detection_rate": float(r["ok"].mean()) if n_img else None,
+            "detected_visible": int((r["ok"] & visible).sum()),
             "wrong_boards": int((r["found"] & ~r["ok"]).sum()),
             "mean_px": summary(good)["mean"], "median_px": summary(good)["median"],
             "mean_common_px": summary(r["err"][common])["mean"], "common_images": int(common.sum()),
@@ -269,7 +306,7 @@ def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
             f"{_fmt(res[key]['peak_mb_per_image'], 0)} MB")
     return {"description": WILD_CONDITIONS[name][2], "board": list(board), "image_size": [w, h],
             "square_px": {"min": float(squares.min()), "max": float(squares.max())} if n_img else None,
-            "render_seconds": render_s, "methods": res}
+            "render_seconds": render_s, "visible_images": int(visible.sum()), "methods": res}
 
 
 def _board_free(cfg: BenchConfig, methods, log) -> dict:

@@ -42,10 +42,24 @@ def wild_markdown(sec: dict) -> list[str]:
                 for n, c in conds.items()]
 
     head = ["condition (size, board, images)"]
-    lines += ["*Detected (wrong boards)*", ""]
-    lines += _table(head + names, cells(lambda r: f"{r['detected']}/{r['images']} ({r['wrong_boards']})"
-                                         + (f" {r['crashes']} crashed" if r.get("crashes") else "")
-                                         + (f" {r['timeouts']} timed out" if r.get("timeouts") else "")))
+    lines += ["*Detected (wrong boards)*; where some renders hide corners (e.g. a glare saturating black and white "
+              "squares alike), *visible*: renders whose every corner the image shows (intensity range of at least "
+              "5 % of full scale within a quarter square), and in brackets the boards detected among them", ""]
+    hidden = any(c.get("visible_images") is not None and c["visible_images"] < next(iter(c["methods"].values()),
+                 {"images": 0})["images"] for c in conds.values())
+
+    def detected(c: dict, r: dict) -> str:
+        text = f"{r['detected']}/{r['images']} ({r['wrong_boards']})"
+        v = c.get("visible_images")
+        if v is not None and v < r["images"] and r.get("detected_visible") is not None:
+            text += f" [{r['detected_visible']}/{v}]"
+        return (text + (f" {r['crashes']} crashed" if r.get("crashes") else "")
+                + (f" {r['timeouts']} timed out" if r.get("timeouts") else ""))
+
+    rows = [[label(n, c)] + ([str(c.get("visible_images", "–"))] if hidden else [])
+            + [("–" if c["methods"].get(k) is None else detected(c, c["methods"][k])) for k in keys]
+            for n, c in conds.items()]
+    lines += _table(head + (["visible"] if hidden else []) + names, rows)
     lines += ["*Mean corner error, px: own detections / common subset (n)*", ""]
     lines += _table(head + names, cells(lambda r: f"{_n(r['mean_px'])} / {_n(r['mean_common_px'])} ({r['common_images']})"))
     lines += ["*Seconds / peak MB per image*", ""]

@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -63,6 +64,7 @@ def test_tiny_wild_run_writes_its_table(tmp_path):
         for r in cond["methods"].values():
             assert r["images"] == 1 and 0.0 <= r["detection_rate"] <= 1.0 and r["seconds_per_image"] >= 0
     assert sec["conditions"]["img320"]["methods"]["opencv_subpix"]["detected"] == 1
+    assert sec["conditions"]["img320"]["visible_images"] == 1  # a clean render shows every corner
     free = sec["board_free"]
     assert free["images"] == 2 and all(r["false_boards"] == 0 for r in free["methods"].values())
     if real is not None:
@@ -77,3 +79,31 @@ def test_tiny_wild_run_writes_its_table(tmp_path):
 def test_unknown_wild_condition_is_a_usage_error(tmp_path, capsys):
     assert main(["--tiny", "--sections", "wild", "--out", str(tmp_path), "--wild-conditions", "nope"]) == 2
     assert "unknown wild condition" in capsys.readouterr().err
+
+
+def test_corners_under_a_saturating_glare_are_not_visible():
+    """Both colours clipped to white around a corner: no detector can see it; a bright but unclipped lobe leaves it."""
+    from ccs_kornia.bench.wild import corners_visible
+
+    yy, xx = np.mgrid[0:64, 0:64]
+    checker = (((xx // 16) + (yy // 16)) % 2).astype(np.float64) * 0.9 + 0.05
+    corners = np.array([[15.5, 15.5], [31.5, 31.5], [47.5, 47.5]])
+    lobe = np.exp(-((xx - 47.5) ** 2 + (yy - 47.5) ** 2) / 8.0**2)
+    assert corners_visible(np.clip(checker + 3.0 * lobe, 0, 1), corners, 16.0).tolist() == [True, True, False]
+    assert corners_visible(np.clip(checker + 0.03 * lobe, 0, 1), corners, 16.0).all()
+    assert not corners_visible(checker, np.array([[-3.0, 5.0], [np.nan, 1.0]]), 16.0).any()
+
+
+def test_visible_column_appears_only_where_renders_hide_corners():
+    from ccs_kornia.bench.wild_report import wild_markdown
+
+    def cond(visible):
+        return {"description": "d", "board": [9, 6], "image_size": [640, 480], "visible_images": visible,
+                "methods": {"learned": {"images": 20, "detected": 11, "wrong_boards": 0, "detected_visible": 11,
+                                        "mean_px": 0.05, "mean_common_px": 0.05, "common_images": 5,
+                                        "seconds_per_image": 0.2, "peak_mb_per_image": 50.0}}}
+
+    text = "\n".join(wild_markdown({"conditions": {"glare": cond(11)}}))
+    assert "| visible |" in text and "11/20 (0) [11/11]" in text
+    text = "\n".join(wild_markdown({"conditions": {"noise": cond(20)}}))
+    assert "| visible |" not in text and "11/20 (0) |" in text

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import math
 from pathlib import Path
 
 import torch
@@ -13,6 +14,7 @@ from ccs_kornia.modules._threads import full_threads, light_stages_single_thread
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.board_checks import board_extends, skipped_line
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
+from ccs_kornia.modules.detection.foreshortening import detect_foreshortened
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
@@ -101,6 +103,9 @@ class LearnedChessboardDetector(ChessboardDetector):
             classic detector on a bounded level (:mod:`~ccs_kornia.modules.detection.opencv_candidates`: above all
             boards with marks inside the white squares, whose corners the network misses), organised, refined and
             checked as the network's, plus a lattice check.
+        foreshortened_retry: where still no board was found, look on copies of the finest level allowed compressed
+            2:1 along four directions in turn (:mod:`~ccs_kornia.modules.detection.foreshortening`: boards at a
+            grazing angle, whose squares are foreshortened 2-4:1).
     """
 
     def __init__(
@@ -123,6 +128,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         max_upsampling: float = 2.0,
         precision: str = "auto",
         opencv_retry: bool = True,
+        foreshortened_retry: bool = True,
     ) -> None:
         super().__init__()
         if net is None:
@@ -156,6 +162,7 @@ class LearnedChessboardDetector(ChessboardDetector):
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
         self.precision = precision
         self.opencv_retry = bool(opencv_retry)
+        self.foreshortened_retry = bool(foreshortened_retry)
 
     @property
     def selects_scale(self) -> bool:
@@ -247,6 +254,20 @@ class LearnedChessboardDetector(ChessboardDetector):
                     corners[i], found[i], reasons[i] = c2[k].to(corners), True, r2[k]
                 elif r2[k].startswith("board refused"):
                     reasons[i] = r2[k]
+        missed = (~found).nonzero().flatten()
+        if self.foreshortened_retry and missed.numel():
+            # boards at a grazing angle: the finest level allowed, compressed along one direction at a time
+            h, w = images.shape[-2:]
+            floor = max(1.0, math.sqrt(w * h / self.scale_selector.max_pixels))
+
+            def compressed(x: torch.Tensor, bs: tuple[int, int]):
+                out = self.detect_level(x, bs, resampled=True)
+                return out.corners, out.found, out.reasons
+
+            c3, f3, r3 = detect_foreshortened(compressed, images[missed], board_size, refine, floor)
+            for k, i in enumerate(missed.tolist()):
+                if bool(f3[k]):
+                    corners[i], found[i], reasons[i] = c3[k].to(corners), True, r3[k]
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
 
     def _opencv_board(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
@@ -288,19 +309,22 @@ class LearnedChessboardDetector(ChessboardDetector):
     @torch.no_grad()
     def detect_level(
         self, images: torch.Tensor, board_size: tuple[int, int], full: torch.Tensor | None = None,
-        scale: torch.Tensor | None = None, source: str = "network",
+        scale: torch.Tensor | None = None, source: str = "network", resampled: bool | None = None,
     ) -> DetectionResult:
         """Detect the board at the resolution of ``images`` :math:`(B, 1, H, W)` (float); corners in grid order.
 
         ``full`` and ``scale``: see :meth:`candidates`. ``source``: the corner candidates, ``"network"`` (the heatmap's
-        peaks) or ``"opencv"`` (OpenCV's classic detector, :meth:`_opencv_board`).
+        peaks) or ``"opencv"`` (OpenCV's classic detector, :meth:`_opencv_board`). ``resampled``: the level is a
+        resampled copy whose corners are refined again at full size (no wide polish here; default: ``full`` given).
         """
         if source == "opencv":
             return self._opencv_board(images, board_size)
         _, points, keep = self.candidates(images, full, scale)
         corners, valid, found = _organize(points, keep, board_size, images)
         refiner = self.refiner
-        if refiner is not None and full is not None:  # a resampled level: its corners are refined again at full size
+        if resampled is None:
+            resampled = full is not None
+        if refiner is not None and resampled:  # a resampled level: its corners are refined again at full size
             refiner = copy.copy(refiner)
             refiner.wide = False
         return self._complete(images, board_size, corners, valid, found, refiner)

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
-from ccs_kornia.modules.detection.grid_geometry import line_sagitta
+from ccs_kornia.modules.detection.grid_geometry import MIN_SHEAR_SHRINK, grid_spacing, line_sagitta
 
 
 def _grid(cols: int = 9, rows: int = 6, step: float = 20.0, dtype=torch.float64) -> torch.Tensor:
@@ -77,3 +79,34 @@ def test_gradcheck():
     corners.requires_grad_(True)
     valid = torch.ones(1, 25, dtype=torch.bool)
     assert torch.autograd.gradcheck(lambda c: line_sagitta(c, valid, (5, 5)), (corners,))
+
+
+def _sheared(angle_deg: float, cols: int = 5, rows: int = 4, step: float = 20.0) -> torch.Tensor:
+    a = torch.deg2rad(torch.tensor(angle_deg, dtype=torch.float64))
+    ex = torch.tensor([step, 0.0], dtype=torch.float64)
+    ey = step * torch.stack([torch.cos(a), torch.sin(a)])
+    j, i = torch.meshgrid(torch.arange(rows, dtype=torch.float64), torch.arange(cols, dtype=torch.float64), indexing="ij")
+    return (i.reshape(-1, 1) * ex + j.reshape(-1, 1) * ey)[None]
+
+
+@pytest.mark.parametrize("angle", [90.0, 60.0, 45.0])
+def test_spacing_is_the_nearest_neighbour_on_cells_of_45_degrees_and_more(angle):
+    sp = grid_spacing(_sheared(angle), torch.ones(1, 20, dtype=torch.bool), (5, 4))
+    torch.testing.assert_close(sp, torch.full_like(sp, 20.0))
+
+
+@pytest.mark.parametrize("angle", [30.0, 20.0, 150.0])
+def test_spacing_shrinks_with_the_height_of_sheared_cells(angle):
+    """Below 45 degrees the next edge passes a corner at the cell's height: spacing x sqrt(2) sin(angle)."""
+    sp = grid_spacing(_sheared(angle), torch.ones(1, 20, dtype=torch.bool), (5, 4))
+    want = 20.0 * math.sqrt(2.0) * math.sin(math.radians(angle))
+    torch.testing.assert_close(sp, torch.full_like(sp, want))
+
+
+def test_degenerate_cells_keep_a_window_and_lonely_corners_no_spacing():
+    flat = _sheared(0.5)
+    sp = grid_spacing(flat, torch.ones(1, 20, dtype=torch.bool), (5, 4))
+    assert float(sp.min()) >= 20.0 * MIN_SHEAR_SHRINK - 1e-9
+    valid = torch.zeros(1, 20, dtype=torch.bool)
+    valid[0, 0] = True
+    assert bool(torch.isinf(grid_spacing(_sheared(90.0), valid, (5, 4))).all())
