@@ -40,13 +40,14 @@ from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected, straightening_evidence
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
 from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
-from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, detector_options
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
 from ccs_kornia.pipeline_result import PipelineResult, main_size, module_device, positive_size, same_size_views, select_result
-from ccs_kornia.pipeline_solve import diagnose_solved, look_again_with_camera, solve_detections, solve_group
+from ccs_kornia.pipeline_solve import diagnose_solved, look_again_with_camera, look_foreshortened, solve_detections
+from ccs_kornia.pipeline_solve import solve_group
 from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource, load_batches  # noqa: F401
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
@@ -225,7 +226,9 @@ class CalibrationPipeline(nn.Module):
             view = torch.tensor([k[1] for k in batch.keys], device=device)
             if per_view is not None:
                 per_view[cam, view] = self.view_corrections(images)
-            det = self.detect_images(images, board)
+            # the detector's costly last resort (boards at a grazing angle) waits for the views the other looks miss
+            with detector_options(self.detector, foreshortened_retry=False):
+                det = self.detect_images(images, board)
             corners[cam, view], found[cam, view], present[cam, view] = det.corners.double(), det.found, True
             if sigma is not None and det.sigma is not None:
                 sigma[cam, view] = det.sigma.to(sigma)
@@ -262,16 +265,23 @@ class CalibrationPipeline(nn.Module):
             with stage("correction evidence"):
                 self._correct(source, out, out.view_corrections, same_size_views(out), board)
         if not calibrate:
+            if source is not None:
+                look_foreshortened(self, source, out, board)
             return out
         look = self.calibrated_look and source is not None
         with stage("solver"):
             # with a second look to come, the diagnostics wait for the final solve
-            out = solve_detections(self, out, board, square, diagnostics=self.diagnostics and not look)
-        # a fisheye lens, once calibrated, straightens the boards its rim hid from the detector: look again, solve again
-        if look and look_again_with_camera(self, source, out, board):
-            with stage("solver"):  # with the models chosen above (the look only adds views of fisheye cameras)
-                out = solve_detections(self, out, board, square, keep_models=True)
-        elif look and self.diagnostics:
+            out = solve_detections(self, out, board, square, diagnostics=self.diagnostics and source is None)
+        # a fisheye lens, once calibrated, straightens the boards its rim hid from the detector: look again; then the
+        # last resort on what is still missed; solve again where either found a board
+        recovered = look and look_again_with_camera(self, source, out, board)
+        recovered = (source is not None and look_foreshortened(self, source, out, board)) or recovered
+        if recovered:
+            # with the models chosen above (the looks add a few views), unless a camera had none (too few views)
+            chosen = out.model_selection is None or all((m or {}).get("chosen") for m in out.model_selection)
+            with stage("solver"):
+                out = solve_detections(self, out, board, square, keep_models=chosen)
+        elif source is not None and self.diagnostics:
             with stage("solver"):
                 out = diagnose_solved(self, out, board, square)
         return out
@@ -298,7 +308,10 @@ class CalibrationPipeline(nn.Module):
                 continue
             cam = torch.tensor([k[0] for k in batch.keys], device=device)
             view = torch.tensor([k[1] for k in batch.keys], device=device)
-            got = detect_on_corrected(self.detect_images, self.refine_on_patches, batch.images.to(device), correction[cam], board)
+            # the primary pass already looked on the foreshortened levels (8 detections more per view without a board)
+            with detector_options(self.detector, foreshortened_retry=False):
+                got = detect_on_corrected(self.detect_images, self.refine_on_patches, batch.images.to(device),
+                                          correction[cam], board)
             ok = got.found
             det.corners[cam[ok], view[ok]] = got.corners[ok]
             det.found[cam[ok], view[ok]] = True

@@ -7,14 +7,16 @@
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any, Iterator
 
 import torch
 from torch import nn
 
 from ccs_kornia.modules._checks import check_shape
 
-__all__ = ["DetectionResult", "ChessboardDetector"]
+__all__ = ["DetectionResult", "ChessboardDetector", "detector_options"]
 
 
 @dataclass
@@ -54,3 +56,28 @@ class ChessboardDetector(nn.Module):
         if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
             raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
         return int(board_size[0]), int(board_size[1])
+
+
+@contextmanager
+def detector_options(detector: Any, **options: Any) -> Iterator[Any]:
+    """Set the detector's attributes ``options`` for a ``with`` block, then restore them; options the detector does
+    not have are ignored (e.g. the learned detector's last resorts, switched off for second looks at many views).
+
+    Example:
+        >>> class Det:
+        ...     opencv_retry = True
+        >>> d = Det()
+        >>> with detector_options(d, opencv_retry=False, foreshortened_retry=False):
+        ...     d.opencv_retry, hasattr(d, "foreshortened_retry")
+        (False, False)
+        >>> d.opencv_retry
+        True
+    """
+    saved = {k: getattr(detector, k) for k in options if hasattr(detector, k)}
+    for k in saved:
+        setattr(detector, k, options[k])
+    try:
+        yield detector
+    finally:
+        for k, value in saved.items():
+            setattr(detector, k, value)

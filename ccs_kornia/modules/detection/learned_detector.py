@@ -198,17 +198,54 @@ class LearnedChessboardDetector(ChessboardDetector):
         """Detect the board on every image of ``(B, 1, H, W)``; corners in grid order."""
         board_size = self._check_inputs(images, board_size)
         with light_stages_single_thread(images.device):
-            out = self._detect(images.float(), board_size)
-            with stage("grid checks"):
-                # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
-                # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners
-                for b in out.found.nonzero().flatten().tolist():
-                    reason = skipped_line(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
-                                          board_size)
-                    if reason:
-                        out.found[b], out.reasons[b] = False, f"board refused: {reason}"
-                        out.corners[b] = 0.0
-            return out
+            return self._grid_checks(images, self._detect(images.float(), board_size), board_size)
+
+    @torch.no_grad()
+    def foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        """Only the last resort for boards seen at a grazing angle (``foreshortened_retry``), on ``(B, 1, H, W)``:
+        the finest level allowed compressed along a few directions in turn
+        (:func:`~ccs_kornia.modules.detection.foreshortening.detect_foreshortened`), corners refined at full
+        resolution and checked as in :meth:`forward`. For callers that first try the cheaper looks (the calibration
+        pipeline runs it on the views its other looks missed) with ``foreshortened_retry`` off."""
+        board_size = self._check_inputs(images, board_size)
+        with light_stages_single_thread(images.device):
+            return self._grid_checks(images, self._foreshortened(images.float(), board_size), board_size)
+
+    def _grid_checks(self, images: torch.Tensor, out: DetectionResult, board_size: tuple[int, int]) -> DetectionResult:
+        with stage("grid checks"):
+            # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
+            # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners
+            for b in out.found.nonzero().flatten().tolist():
+                reason = skipped_line(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
+                                      board_size)
+                if reason:
+                    out.found[b], out.reasons[b] = False, f"board refused: {reason}"
+                    out.corners[b] = 0.0
+        return out
+
+    def _refine_at_full_size(self, full: torch.Tensor, pts: torch.Tensor, board_size: tuple[int, int], factor: float,
+                             radius_factor: float | None = None) -> torch.Tensor:
+        """Corners found on a level ``factor`` times coarser, refined on the full-resolution images (coarse to fine)."""
+        r = self.refiner
+        if r is None:
+            return pts
+        with stage("saddle refinement"):
+            return refine_from_level(full, pts, board_size, factor, radius_factor or r.radius_factor, r.max_radius,
+                                     r.method, r.iterations, r.smooth_sigma, r.normalize_sigma)
+
+    def _foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        h, w = images.shape[-2:]
+        floor = max(1.0, math.sqrt(w * h / self.scale_selector.max_pixels))
+
+        def compressed(x: torch.Tensor, bs: tuple[int, int]):
+            out = self.detect_level(x, bs, resampled=True)
+            return out.corners, out.found, out.reasons
+
+        def refine(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
+            return self._refine_at_full_size(full, pts, board_size, factor)
+
+        corners, found, reasons = detect_foreshortened(compressed, images, board_size, refine, floor)
+        return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
 
     def _detect(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         if self.scale == "off":
@@ -216,18 +253,13 @@ class LearnedChessboardDetector(ChessboardDetector):
         # --- scale selection (modules/detection/scale.py): detect on each image's level, refine at full resolution ---
         with stage("square-size estimate"):
             _, factor = self.scale_selector(images)
-        r = self.refiner
 
         def level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
             out = self.detect_level(x, bs, full, scale)
             return out.corners, out.found, out.reasons
 
         def refine(full: torch.Tensor, pts: torch.Tensor, factor: float, radius_factor: float | None = None):
-            if r is None:
-                return pts
-            with stage("saddle refinement"):
-                return refine_from_level(full, pts, board_size, factor, radius_factor or r.radius_factor,
-                                         r.max_radius, r.method, r.iterations, r.smooth_sigma, r.normalize_sigma)
+            return self._refine_at_full_size(full, pts, board_size, factor, radius_factor)
 
         corners, found, reasons = detect_at_scale(level, images, board_size, factor, self.scale_fallback,
                                                   self.scale_selector.max_pixels, refine)
@@ -257,17 +289,10 @@ class LearnedChessboardDetector(ChessboardDetector):
         missed = (~found).nonzero().flatten()
         if self.foreshortened_retry and missed.numel():
             # boards at a grazing angle: the finest level allowed, compressed along one direction at a time
-            h, w = images.shape[-2:]
-            floor = max(1.0, math.sqrt(w * h / self.scale_selector.max_pixels))
-
-            def compressed(x: torch.Tensor, bs: tuple[int, int]):
-                out = self.detect_level(x, bs, resampled=True)
-                return out.corners, out.found, out.reasons
-
-            c3, f3, r3 = detect_foreshortened(compressed, images[missed], board_size, refine, floor)
+            got = self._foreshortened(images[missed], board_size)
             for k, i in enumerate(missed.tolist()):
-                if bool(f3[k]):
-                    corners[i], found[i], reasons[i] = c3[k].to(corners), True, r3[k]
+                if bool(got.found[k]):
+                    corners[i], found[i], reasons[i] = got.corners[k].to(corners), True, got.reasons[k]
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
 
     def _opencv_board(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
