@@ -238,8 +238,9 @@ def run_heatmap(net: nn.Module, images: torch.Tensor, precision: str = "float32"
     CPU with native bfloat16, :func:`cpu_has_native_bf16`) its convolutions run in bfloat16 under autocast. On other
     devices it runs as it is (float32; ``"bfloat16"`` autocasts there too). Inputs of more than ``tile_pixels`` pixels
     (``None``: never) run in tiles of :data:`TILE_SIDE` px with :data:`TILE_MARGIN` px of context, aligned to the
-    network's pooling grid, so memory stays bounded whatever the size (the network's normalisation must be per pixel
-    at inference, as batch norm is, for the tiles to agree with the whole).
+    network's pooling grid, and batches of more pixels a few images at a time, so memory stays bounded whatever the
+    size (the network's normalisation must be per pixel at inference, as batch norm is, for the tiles to agree with
+    the whole).
 
     Example:
         >>> net = CornerUNet().eval()
@@ -250,9 +251,14 @@ def run_heatmap(net: nn.Module, images: torch.Tensor, precision: str = "float32"
         # converted once (re-applying ``to`` walks every module, ~1 ms per call)
         if not all(p.is_contiguous(memory_format=torch.channels_last) for p in net.parameters() if p.dim() == 4):
             net.to(memory_format=torch.channels_last)
-    h, w = images.shape[-2:]
-    if tile_pixels is None or h * w <= tile_pixels:
+    b, _, h, w = images.shape
+    if tile_pixels is None or b * h * w <= tile_pixels:
         return _run_whole(net, images, precision)
+    if b > 1:
+        # a batch of more pixels than a tile runs a few images at a time (the memory of 16 one-megapixel views at
+        # once: +700 MB); the images do not interact, so the heatmaps are the same
+        step = max(1, tile_pixels // (h * w))
+        return torch.cat([run_heatmap(net, images[i:i + step], precision, tile_pixels) for i in range(0, b, step)])
     out = torch.empty(images.shape[0], 1, h, w, dtype=torch.float32, device=images.device)
     for y0 in range(0, h, TILE_SIDE):
         for x0 in range(0, w, TILE_SIDE):

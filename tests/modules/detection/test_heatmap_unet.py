@@ -149,3 +149,21 @@ def test_run_heatmap_in_tiles_equals_the_whole(monkeypatch):
     torch.testing.assert_close(tiled, whole, atol=1e-6, rtol=0)
     assert tiled.shape == (2, 1, 300, 340) and tiled.dtype == torch.float32
 
+
+def test_run_heatmap_runs_a_large_batch_a_few_images_at_a_time(monkeypatch):
+    """A batch of more pixels than ``tile_pixels`` runs in chunks of whole images (memory bounded): same heatmaps,
+    and the network never sees more than the budget at once."""
+    from ccs_kornia.modules.detection.heatmap_unet import run_heatmap
+
+    torch.manual_seed(0)
+    net = CornerUNet().eval()
+    x = torch.rand(5, 1, 64, 80)
+    seen = []
+    with torch.inference_mode():
+        whole = run_heatmap(net, x, tile_pixels=None)
+        hook = net.register_forward_pre_hook(lambda m, inp: seen.append(inp[0].shape[0]))
+        chunked = run_heatmap(net, x, tile_pixels=2 * 64 * 80)
+        hook.remove()
+    torch.testing.assert_close(chunked, whole, atol=1e-6, rtol=0)  # float rounding of other batch shapes
+    assert seen == [2, 2, 1]
+
