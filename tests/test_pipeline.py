@@ -417,4 +417,31 @@ def test_boards_at_a_grazing_angle_are_looked_for_after_the_other_looks(monkeypa
     out = pipe.run(TensorSource(img), board, calibrate=False)
     assert bool(out.detections.found[0, 0]) and "compressed along" in out.detections.reasons[0] and calls == [1]
     err = (out.detections.corners[0, 0] - truth).norm(dim=-1)
-    assert float(err.mean()) < 0.05 and bool(torch.isfinite(out.detections.sigma[0, 0]).all())
+    assert float(err.mean()) < 0.08 and bool(torch.isfinite(out.detections.sigma[0, 0]).all())
+
+
+def test_foreshortened_look_skips_strongly_distorted_cameras():
+    """Cameras whose pooled correction is large are left to the corrected look (a grazing board's squares there are
+    no affine compression of a lattice): only the other camera's missed view is looked at."""
+    from types import SimpleNamespace
+
+    from ccs_kornia.modules.detection.base import DetectionResult
+    from ccs_kornia.pipeline_solve import look_foreshortened
+    from ccs_kornia.sources import TensorSource
+
+    seen = []
+
+    def resort(images, board):
+        seen.append(images.shape[0])
+        b = images.shape[0]
+        return DetectionResult(torch.zeros(b, 12, 2), torch.zeros(b, dtype=torch.bool), ["board not found"] * b)
+
+    detector = SimpleNamespace(foreshortened=resort, foreshortened_retry=True)
+    pipe = SimpleNamespace(detector=detector, detection_batch_size=16, max_batch_pixels=1 << 24)
+    det = DetectionResult(torch.zeros(2, 2, 12, 2), torch.tensor([[True, False], [True, False]]), [""] * 4)
+    out = SimpleNamespace(detections=det, present=torch.ones(2, 2, dtype=torch.bool),
+                          correction_tried=torch.tensor([True, False]))
+    assert not look_foreshortened(pipe, TensorSource(torch.rand(2, 2, 1, 32, 40)), out, (4, 3))
+    assert seen == [1]
+    detector.foreshortened_retry = False
+    assert not look_foreshortened(pipe, TensorSource(torch.rand(2, 2, 1, 32, 40)), out, (4, 3)) and seen == [1]
