@@ -308,7 +308,7 @@ class CalibrationPipeline(nn.Module):
                 continue
             cam = torch.tensor([k[0] for k in batch.keys], device=device)
             view = torch.tensor([k[1] for k in batch.keys], device=device)
-            # the primary pass already looked on the foreshortened levels (8 detections more per view without a board)
+            # the foreshortened levels wait for the end (look_foreshortened), after every cheaper look
             with detector_options(self.detector, foreshortened_retry=False):
                 got = detect_on_corrected(self.detect_images, self.refine_on_patches, batch.images.to(device),
                                           correction[cam], board)
