@@ -16,6 +16,7 @@ from typing import Callable
 
 import torch
 import torch.nn.functional as F
+from kornia.geometry.linalg import transform_points
 from kornia.geometry.transform import warp_affine
 
 from ccs_kornia.modules._timing import stage
@@ -88,10 +89,10 @@ def compress_along(images: torch.Tensor, angle: float, ratio: float = FORESHORTE
 
 
 def map_from_level(points: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
-    r"""Points :math:`(B, N, 2)` of a level of :func:`compress_along` mapped back to the image (``A`` inverted)."""
-    inv = torch.linalg.inv(A.double()).to(points.device)
-    p = points.double()
-    return (p @ inv[:2, :2].T + inv[:2, 2]).to(points.dtype)
+    r"""Points :math:`(B, N, 2)` of a level of :func:`compress_along` mapped back to the image (``A`` inverted,
+    kornia's ``transform_points``)."""
+    inv = torch.linalg.inv(A.double()).to(points.device)[None].expand(points.shape[0], 3, 3)
+    return transform_points(inv, points.double()).to(points.dtype)
 
 
 def detect_foreshortened(
@@ -150,7 +151,11 @@ def detect_foreshortened(
         hit = f.to(images.device).nonzero().flatten()
         if not hit.numel():
             continue
-        pts = (map_from_level(c[hit].to(images.device), A).double() + 0.5) * scale.to(images.device) - 0.5
+        # full resolution -> base level (pixel centres: (x + 0.5) / s - 0.5) -> compressed level, inverted at once
+        to_base = torch.eye(3, dtype=torch.float64)
+        to_base[[0, 1], [0, 1]] = 1.0 / scale.double().cpu()
+        to_base[:2, 2] = 0.5 / scale.double().cpu() - 0.5
+        pts = map_from_level(c[hit].to(images.device).double(), A @ to_base)
         sel = todo[hit]
         corners[sel] = refine(images[sel], pts.float(), ratio * float(scale.max())).to(corners.dtype)
         found[sel] = True
