@@ -23,7 +23,8 @@ def _num(x: float) -> float | None:
 
 
 def view_records(result: PipelineResult, paths: list[str]) -> list[dict[str, Any]]:
-    """One dict per view of one camera: ``path``, ``found``, ``corners`` (when found), ``image_size``, and
+    """One dict per view of one camera: ``path``, ``found``, ``corners`` (when found; ``[None, None]`` at the corners of a
+    partial board that the image does not show), ``hidden_corners`` (their count, where any), ``image_size``, and
     ``reason`` where the view cannot be used (unreadable, board not found, another image size).
 
     Args:
@@ -40,7 +41,10 @@ def view_records(result: PipelineResult, paths: list[str]) -> list[dict[str, Any
         if bool(result.present[v]):
             view["image_size"] = list(size)
         if found:
-            view["corners"] = det.corners[v].double().cpu().tolist()
+            view["corners"] = det.corners[v].double().cpu().tolist()  # null at the hidden corners of a partial board
+            hidden = int((~det.corners[v].isfinite().all(-1)).sum())
+            if hidden:
+                view["hidden_corners"] = hidden
             how = det.reasons[v] if det.reasons else ""
             if how:
                 view["method"] = how
@@ -157,7 +161,8 @@ def camera_record(
         data["warnings"] = [i for i in issues if i.get("severity") == "warning"]
         data["errors"] = [i for i in issues if i.get("severity") == "error"]
     data["num_views"] = {"files": len(views), "found": n_found, "usable": len(usable),
-                         "used": sum(1 for v in views if v["used"])}
+                         "used": sum(1 for v in views if v["used"]),
+                         "partial": sum(1 for v in views if v["used"] and v.get("hidden_corners"))}
     data["skipped"] = [{"path": v["path"], "reason": v["reason"]} for v in views if not v["used"] and "reason" in v]
     data["distortion_correction"] = correction_record(result)
     if result.diagnostics is not None:

@@ -22,6 +22,7 @@ _FONT = cv2.FONT_HERSHEY_SIMPLEX
 _AA = cv2.LINE_AA
 # BGR colours
 _GREEN, _RED, _YELLOW, _BLUE = (0, 170, 0), (0, 0, 230), (0, 215, 255), (230, 90, 0)
+_MAGENTA = (200, 0, 200)
 _ORANGE, _BLACK, _GREY, _WHITE = (0, 140, 255), (0, 0, 0), (150, 150, 150), (255, 255, 255)
 
 
@@ -74,7 +75,7 @@ def _vertical_text(img: np.ndarray, text: str, centre: tuple[int, int], scale: f
 
 
 def _legend(img: np.ndarray, items: list[tuple[str, Any, str]], top_right: tuple[int, int]) -> None:
-    """Draw a boxed legend; ``items`` are ``(kind, colour, label)`` with kind circle|cross|line|bar|dash."""
+    """Draw a boxed legend; ``items`` are ``(kind, colour, label)`` with kind circle|cross|x|line|bar|dash."""
     scale, pad, row = 0.45, 8, 20
     width = max(cv2.getTextSize(label, _FONT, scale, 1)[0][0] for _, _, label in items) + 3 * pad + 24
     height = row * len(items) + pad
@@ -92,6 +93,8 @@ def _legend(img: np.ndarray, items: list[tuple[str, Any, str]], top_right: tuple
             cv2.circle(img, (cx, cy), 7, colour, 2, _AA)
         elif kind == "cross":
             cv2.drawMarker(img, (cx, cy), colour, cv2.MARKER_CROSS, 10, 1)
+        elif kind == "x":
+            cv2.drawMarker(img, (cx, cy), colour, cv2.MARKER_TILTED_CROSS, 10, 2)
         elif kind == "line":
             cv2.line(img, (cx - 10, cy), (cx + 10, cy), colour, 2, _AA)
         elif kind == "dash":
@@ -174,18 +177,25 @@ def _overlay(gray: np.ndarray, detected: np.ndarray, projected: np.ndarray | Non
     if projected is not None:
         proj = _scaled(projected, scale)
         for d, p in zip(det, proj):
+            if not np.isfinite(p).all():
+                continue
+            if not np.isfinite(d).all():  # a hidden corner of a partial board: where the camera puts it
+                cv2.drawMarker(vis, _pt(p), _MAGENTA, cv2.MARKER_TILTED_CROSS, 2 * radius, 2)
+                continue
             tip = d + gain * (p - d)
             cv2.line(vis, _pt(d), _pt(tip), _YELLOW, 1, _AA)
             cv2.drawMarker(vis, _pt(p), _RED, cv2.MARKER_CROSS, 2 * radius, 1)
-    for d in det:
+    for d in det[np.isfinite(det).all(-1)]:
         cv2.circle(vis, _pt(d), radius + 1, _GREEN, 1, _AA)
-    if len(det):
+    if len(det) and np.isfinite(det[0]).all():
         cv2.circle(vis, _pt(det[0]), 2 * radius + 2, _BLUE, 2, _AA)
     header = np.full((30, vis.shape[1], 3), 255, np.uint8)
     _text(header, title, (6, 20), 0.5)
     items = [("circle", _GREEN, "detected corner"), ("ring", _BLUE, "first grid corner")] if len(det) else []
     if proj is not None:
         items[1:1] = [("cross", _RED, "reprojected"), ("line", _YELLOW, f"residual x{gain:g}")]
+        if len(det) and not np.isfinite(det).all():
+            items.append(("x", _MAGENTA, "hidden corner (glare, occluder)"))
     out = np.vstack([header, vis])
     if items:
         _legend(out, items, (out.shape[1] - 6, 36))
@@ -271,6 +281,8 @@ def _image_canvas(size: tuple[int, int], title: str, right_margin: int = 130) ->
 def _residual_plot(size: tuple[int, int], detected: np.ndarray, residual: np.ndarray) -> np.ndarray:
     fig, box, scale = _image_canvas(size, "Residuals (reprojected - detected) of the used views, magnified", 150)
     x0, y0, w, h = box
+    measured = np.isfinite(detected).all(-1) & np.isfinite(residual).all(-1)  # partial boards: hidden corners NaN
+    detected, residual = detected[measured], residual[measured]
     cv2.rectangle(fig, (x0, y0), (x0 + w, y0 + h), (245, 245, 245), -1)
     length = np.linalg.norm(residual, axis=-1)
     p95 = float(np.percentile(length, 95)) if length.size else 0.0
@@ -305,6 +317,7 @@ def _coverage_plot(size: tuple[int, int], corner_sets: list[np.ndarray], board: 
     cells_y = max(1, int(round(cells_x * size[1] / size[0])))
     counts = np.zeros((cells_y, cells_x), np.int64)
     all_pts = np.concatenate(corner_sets) if corner_sets else np.zeros((0, 2))
+    all_pts = all_pts[np.isfinite(all_pts).all(-1)]  # partial boards: hidden corners NaN
     if len(all_pts):
         ix = np.clip(((all_pts[:, 0] + 0.5) / size[0] * cells_x).astype(int), 0, cells_x - 1)
         iy = np.clip(((all_pts[:, 1] + 0.5) / size[1] * cells_y).astype(int), 0, cells_y - 1)
@@ -321,6 +334,8 @@ def _coverage_plot(size: tuple[int, int], corner_sets: list[np.ndarray], board: 
     cols, rows = board
     for pts in corner_sets:  # board outlines through the four outer corners
         outline = pts[[0, cols - 1, cols * rows - 1, (rows - 1) * cols]]
+        if not np.isfinite(outline).all():  # an outer corner of a partial board is hidden
+            continue
         poly = np.round(np.array([x0, y0]) + (outline + 0.5) * scale).astype(np.int32)
         cv2.polylines(fig, [poly], True, _ORANGE, 1, _AA)
     for p in all_pts:
@@ -374,6 +389,9 @@ def _undistorted_preview(gray: np.ndarray, K: torch.Tensor, dist: torch.Tensor, 
             grid = pts.reshape(rows, cols, 2)
             # outer rows and columns of the board: the corners (green) against the straight chord (red)
             for line in (grid[0], grid[-1], grid[:, 0], grid[:, -1]):
+                line = line[np.isfinite(line).all(-1)]  # partial boards: hidden corners NaN
+                if len(line) < 2:
+                    continue
                 ends = line[[0, -1]]
                 d = ends[1] - ends[0]
                 d = d / (np.linalg.norm(d) + 1e-12)

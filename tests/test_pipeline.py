@@ -445,3 +445,38 @@ def test_foreshortened_look_skips_strongly_distorted_cameras():
     assert seen == [1]
     detector.foreshortened_retry = False
     assert not look_foreshortened(pipe, TensorSource(torch.rand(2, 2, 1, 32, 40)), out, (4, 3)) and seen == [1]
+
+
+def test_partial_boards_are_calibrated_on_their_visible_corners(sets, tmp_path):
+    """Saturated spots flatten a corner of three views: those boards are kept with the corner NaN (``valid`` leaves it
+    out), the solver uses the others, and the JSON record writes null for it and counts it."""
+    from ccs_kornia.io import write_json
+    from ccs_kornia.records import camera_record
+
+    s = sets[0]
+    images = s.images.clone()
+    h, w = images.shape[-2:]
+    yy, xx = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    for v, k in ((1, 22), (4, 30), (7, 40)):  # an inner corner of each board
+        x, y = (float(c) for c in s.corners[v, k])
+        r = 0.4 * float((s.corners[v, k + 1] - s.corners[v, k]).norm())  # flat within about half a square
+        spot = torch.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * r**2))
+        images[v, 0] = (images[v, 0] + 2.0 * spot).clamp(max=1.0)
+    out = CalibrationPipeline("learned", model="opencv5", seed=0, distortion_correction=False)(images, BOARD, SQUARE)
+    det, cal = out.detections, out.calibration
+    assert bool(det.found.all())
+    hidden = ~det.valid
+    assert sorted(hidden.any(-1).nonzero().flatten().tolist()) == [1, 4, 7]
+    assert hidden[1, 22] and hidden[4, 30] and hidden[7, 40]
+    assert bool(det.corners[hidden].isnan().all()) and int(hidden.sum()) <= 3 * 6
+    err = (det.corners[det.valid].double() - s.corners[det.valid].double()).norm(dim=-1)
+    assert float(err.mean()) < 0.03 and float(err.max()) < 0.5  # the largest beside a spot (measured 0.33)
+    assert bool(cal.success) and bool(cal.used.all()) and bool(cal.view_rms.isfinite().all())
+    assert float(e_ip(cal.K.double()[None], CAMERAS[0][0][None])) < 2.0
+    record = camera_record(out, [f"v{i}.png" for i in range(VIEWS)], board=BOARD, square=SQUARE, detector="learned",
+                           model="opencv5")
+    assert record["num_views"]["partial"] == 3 and record["views"][4]["hidden_corners"] == int(hidden[4].sum())
+    write_json(tmp_path / "calib.json", record)
+    import json
+
+    assert json.loads((tmp_path / "calib.json").read_text())["views"][4]["corners"][30] == [None, None]

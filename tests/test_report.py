@@ -103,3 +103,18 @@ def test_other_distortion_models(tmp_path, coeffs):
     write_report(str(tmp_path), data, progress=False)
     text = (tmp_path / "index.html").read_text()
     assert ("k6" in text) == bool(coeffs)
+
+
+def test_partial_boards_are_drawn_without_their_hidden_corners(tmp_path):
+    """A view with hidden corners (null in the JSON, NaN here) is drawn and plotted on its measured corners, the hidden
+    ones marked where the camera puts them."""
+    data = _calibration(tmp_path)
+    data["views"][1]["corners"][0] = [float("nan"), float("nan")]  # the first grid corner: an outer one
+    data["views"][1]["corners"][8] = [None, None]
+    data["views"][1]["hidden_corners"] = 2
+    write_report(tmp_path / "rep", data)
+    assert (tmp_path / "rep" / "index.html").exists()
+    for name in ("residuals.png", "coverage.png"):
+        assert cv2.imread(str(tmp_path / "rep" / name)) is not None
+    view = cv2.imread(str(next((tmp_path / "rep" / "views").glob("view_0001_*.png"))))
+    assert view is not None and (np.abs(view.astype(int) - (200, 0, 200)).sum(-1) < 30).sum() > 20  # magenta marks

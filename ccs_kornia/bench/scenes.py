@@ -153,7 +153,8 @@ def orient_grid(corners: np.ndarray, board: tuple[int, int]) -> np.ndarray:
 
 
 def corner_errors(pred: np.ndarray, truth: np.ndarray, board: tuple[int, int]) -> np.ndarray:
-    """Per-corner distance ``(N,)`` to the truth under the best of :func:`lattice_orderings`."""
+    """Per-corner distance ``(N,)`` to the truth under the best of :func:`lattice_orderings` (NaN at the hidden
+    corners of a partial board, which the ordering ignores)."""
     cols, rows = board
     g = np.asarray(pred, dtype=np.float64).reshape(rows, cols, 2)
     t = np.asarray(truth, dtype=np.float64).reshape(-1, 2)
@@ -163,6 +164,6 @@ def corner_errors(pred: np.ndarray, truth: np.ndarray, board: tuple[int, int]) -
         if cand.shape != t.shape:
             continue
         err = np.linalg.norm(cand - t, axis=-1)
-        if err.mean() < best_mean:
-            best, best_mean = err, err.mean()
+        if np.isfinite(err).any() and np.nanmean(err) < best_mean:
+            best, best_mean = err, np.nanmean(err)
     return best

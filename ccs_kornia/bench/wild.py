@@ -283,7 +283,7 @@ def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
             r["crashes"] += int(failure == "crashed")
             r["timeouts"] += int(failure == "timed out")
             if found:
-                r["err"][i] = float(np.mean(corner_errors(corners, truth, board)))
+                r["err"][i] = float(np.nanmean(corner_errors(corners, truth, board)))
                 r["ok"][i] = r["err"][i] <= limit
     common = np.logical_and.reduce([r["ok"] for r in per.values()]) if per else np.zeros(n_img, bool)
     res: dict = {}

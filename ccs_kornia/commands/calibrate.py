@@ -194,7 +194,9 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         f"fx {K[0][0]:.3f}  fy {K[1][1]:.3f}  cx {K[0][2]:.3f}  cy {K[1][2]:.3f}  "
         f"{data['distortion']['model']} ({coeffs})"
     )
-    print(f"RMS {data['rms']:.4f} px over {n['used']} views (board found in {n['found']} of {n['files']} files); wrote {output}")
+    partial = f", {n['partial']} of them partial (corners under glare or occluded left out)" if n.get("partial") else ""
+    print(f"RMS {data['rms']:.4f} px over {n['used']} views (board found in {n['found']} of {n['files']} files{partial}); "
+          f"wrote {output}")
     choice = data.get("model_selection")
     if choice:
         held = choice["heldout_rms_px"]

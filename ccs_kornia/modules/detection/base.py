@@ -25,8 +25,10 @@ class DetectionResult:
 
     Attributes:
         corners: :math:`(B, N, 2)` pixel coordinates in grid order (``n = j*cols + i``), zeros where
-            the board was not found.
-        found: :math:`(B,)` bool, the board was found (all ``N`` corners are meaningful).
+            the board was not found, NaN at the corners of a found board that the image does not show (a partial
+            board: glare, an occluder).
+        found: :math:`(B,)` bool, the board was found (its identity and order are known; :attr:`valid` says which
+            corners were measured).
         reasons: optional per-image text: how the board was found (``"classic"``, ``"sb"``) or why it
             was not.
         sigma: optional :math:`(B, N)` per-corner precision (px, relative; NaN where unknown), e.g. from
@@ -40,8 +42,8 @@ class DetectionResult:
 
     @property
     def valid(self) -> torch.Tensor:
-        """:math:`(B, N)` bool mask of meaningful corners (all of a found board)."""
-        return self.found[..., None].expand(self.corners.shape[:-1])
+        """:math:`(B, N)` bool mask of measured corners (those of a found board, less any hidden ones)."""
+        return self.found[..., None] & self.corners.isfinite().all(-1)
 
 
 class ChessboardDetector(nn.Module):

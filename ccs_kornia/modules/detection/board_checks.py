@@ -64,10 +64,12 @@ def check_grid(corners: np.ndarray, board_size: tuple[int, int], image_size: tup
 
 
 def _sample(image: np.ndarray, points: np.ndarray, radius: float) -> np.ndarray:
-    """Mean intensity in small boxes around ``points`` (K, 2); NaN where the box leaves the image."""
+    """Mean intensity in small boxes around ``points`` (K, 2); NaN where the box leaves the image or a point is not
+    finite (the hidden corners of a partial board)."""
     h, w = image.shape
     r = max(1, int(round(radius)))
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    pts = np.where(np.isfinite(pts).all(-1, keepdims=True), pts, -float(r) - 1.0)
     out = np.full(pts.shape[0], np.nan)
     xi, yi = np.rint(pts[:, 0]).astype(np.int64), np.rint(pts[:, 1]).astype(np.int64)
     inside = (xi - r >= 0) & (yi - r >= 0) & (xi + r < w) & (yi + r < h)

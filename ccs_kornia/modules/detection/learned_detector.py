@@ -18,6 +18,7 @@ from ccs_kornia.modules.detection.foreshortening import detect_foreshortened
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
+from ccs_kornia.modules.detection.hidden_corners import hidden_corners, settle_partial_boards
 from ccs_kornia.modules.detection.missing_corners import lattice_deviation, predict_missing_corners
 from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, opencv_level_factor
 from ccs_kornia.modules.detection.patch_refine import refine_from_level
@@ -106,6 +107,9 @@ class LearnedChessboardDetector(ChessboardDetector):
         foreshortened_retry: where still no board was found, look on copies of the finest level allowed compressed
             2:1 along four directions in turn (:mod:`~ccs_kornia.modules.detection.foreshortening`: boards at a
             grazing angle, whose squares are foreshortened 2-4:1).
+        partial_boards: keep a found board whose unconfirmed corners the image does not show (saturating glare, an
+            occluder: :mod:`~ccs_kornia.modules.detection.hidden_corners`), with those corners NaN (left out of
+            ``DetectionResult.valid``); otherwise such a board is refused as incomplete.
     """
 
     def __init__(
@@ -129,6 +133,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         precision: str = "auto",
         opencv_retry: bool = True,
         foreshortened_retry: bool = True,
+        partial_boards: bool = True,
     ) -> None:
         super().__init__()
         if net is None:
@@ -163,6 +168,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         self.precision = precision
         self.opencv_retry = bool(opencv_retry)
         self.foreshortened_retry = bool(foreshortened_retry)
+        self.partial_boards = bool(partial_boards)
 
     @property
     def selects_scale(self) -> bool:
@@ -212,6 +218,9 @@ class LearnedChessboardDetector(ChessboardDetector):
             return self._grid_checks(images, self._foreshortened(images.float(), board_size), board_size)
 
     def _grid_checks(self, images: torch.Tensor, out: DetectionResult, board_size: tuple[int, int]) -> DetectionResult:
+        if self.partial_boards:
+            with stage("partial boards"):
+                out = settle_partial_boards(images, out, board_size)
         with stage("grid checks"):
             # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
             # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners
@@ -372,17 +381,24 @@ class LearnedChessboardDetector(ChessboardDetector):
                 # search first, then the regular saddle refinement below polishes
                 corners = _coarse_search(images, corners, missing, found[:, None].expand_as(valid), board_size)
         cells = found[:, None].expand_as(valid)  # every cell of a found board
+        hidden = torch.zeros_like(valid)
         if refiner is not None and bool(found.any()):
             with stage("saddle refinement"):
                 corners, ok = refiner(images, corners, cells, board_size, return_ok=True)
             # a predicted cell is accepted only where the image shows a corner there; one wrong corner
-            # ruins a calibration, so the board is dropped instead
-            unverified = (missing & ~ok).any(1)
+            # ruins a calibration, so the board is dropped instead, unless the image shows no checker there (glare,
+            # an occluder): then the corner is left out, and so is any corner where the checker has all but faded
+            # (confirmed saddles at the rim of a glare are off by pixels: held-out glare renders, up to 9 px)
+            unconfirmed = missing & ~ok
+            if self.partial_boards:
+                hidden = cells & hidden_corners(images, corners, cells & ~unconfirmed, board_size)
+            unverified = (unconfirmed & ~hidden).any(1)
             for b in unverified.nonzero().flatten().tolist():
-                n_bad = int((missing[b] & ~ok[b]).sum())
+                n_bad = int((unconfirmed[b] & ~hidden[b]).sum())
                 reasons[b] = f"board incomplete: {n_bad} corner(s) not confirmed in the image"
             found = found & ~unverified
         corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
+        corners = corners.masked_fill(hidden[..., None] & found[:, None, None], float("nan"))
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
 
 

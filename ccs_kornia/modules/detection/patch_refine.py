@@ -17,6 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from ccs_kornia.modules.detection.grid_geometry import grid_spacing
+from ccs_kornia.modules.detection.missing_corners import predict_missing_corners
 from ccs_kornia.modules.detection.saddle_refine import refine_corners
 
 __all__ = ["level_size", "resize_to_level", "edge_blur", "refine_on_patches", "refine_from_level"]
@@ -246,7 +247,8 @@ def refine_from_level(
 
     Args:
         images: :math:`(B, 1, H, W)` full-resolution images.
-        corners: :math:`(B, N, 2)` complete boards mapped from the level, grid order.
+        corners: :math:`(B, N, 2)` complete boards mapped from the level, grid order; NaN at the hidden corners of a
+            partial board (:mod:`~ccs_kornia.modules.detection.hidden_corners`), which stay NaN.
         board_size: ``(cols, rows)``.
         factor: full-resolution px per level px.
         radius_factor, max_radius, method, iterations, smooth_sigma, normalize_sigma: of the refiner
@@ -261,6 +263,15 @@ def refine_from_level(
         >>> refine_from_level(img, start, (2, 1), 8.0)[0, 0].round(decimals=2)
         tensor([127.5000, 127.5000])
     """
+    hidden = ~corners.isfinite().all(-1)
+    if bool(hidden.any()):
+        # hidden corners ride along at the place their neighbours predict (the windows and the edge blur are measured
+        # on whole boards) and come back NaN
+        filled, _ = predict_missing_corners(corners.masked_fill(hidden[..., None], 0.0), ~hidden, board_size,
+                                            passes=max(board_size))
+        out = refine_from_level(images, filled, board_size, factor, radius_factor, max_radius, method, iterations,
+                                smooth_sigma, normalize_sigma)
+        return out.masked_fill(hidden[..., None], float("nan"))
     args = (method, iterations, smooth_sigma, normalize_sigma)
     steps = []
     g = factor / 4.0

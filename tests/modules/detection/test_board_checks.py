@@ -82,3 +82,13 @@ def test_box_sample_is_the_box_mean_and_nan_outside():
     out = _sample(img, np.array([[4.0, 5.0], [0.0, 0.0], [7.6, 2.2], [9.0, 5.0]]), 1.0)
     assert out[0] == img[4:7, 3:6].mean() and out[2] == img[1:4, 7:10].mean()
     assert np.isnan(out[1]) and np.isnan(out[3]), "a box leaving the image has no mean"
+
+
+def test_skipped_line_judges_partial_boards_on_their_measured_corners():
+    img = _checker_image()
+    board = _lattice(5, 4, 16.0, (31.5, 31.5))
+    board[7] = np.nan  # a hidden corner of a partial board
+    assert skipped_line(img, board, (5, 4)) == ""
+    every_other = _lattice(4, 3, 32.0, (15.5, 15.5))
+    every_other[5] = np.nan
+    assert "skips a row" in skipped_line(img, every_other, (4, 3))

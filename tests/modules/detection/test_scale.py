@@ -207,3 +207,17 @@ def test_detect_at_scale_tries_the_image_itself_last():
 
     c, f, r = detect_at_scale(detect, torch.rand(1, 1, 96, 128), (4, 3), torch.tensor([8.0]), (0.5, 2.0, 0.25))
     assert bool(f[0]) and tried[-1] == (96, 128)
+
+
+def test_refine_from_level_keeps_hidden_corners_hidden(views):
+    """The hidden (NaN) corners of a partial board ride along at their predicted place and come back NaN; the others
+    converge as on a whole board."""
+    images, corners = _upscaled(views, 8.0)
+    start = corners + torch.tensor([2.5, -2.0])
+    start[0, 10] = float("nan")
+    start[1, [0, 1, 9]] = float("nan")
+    refined = refine_from_level(images, start, (9, 6), 8.0)
+    hidden = start.isnan().any(-1)
+    assert bool(refined[hidden].isnan().all()) and bool(refined[~hidden].isfinite().all())
+    ideal = refine_on_patches(images, corners, (9, 6), blur=edge_blur(images, corners, (9, 6)))
+    assert (refined - ideal)[~hidden].norm(dim=-1).max() < 0.05

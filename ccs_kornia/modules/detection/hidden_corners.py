@@ -1,0 +1,178 @@
+"""Corners of a found board that the image does not show (glare, an occluder): partial boards.
+
+A saturating reflection on a glossy print flattens a few squares to white; the board is still identified by the rest
+of its corners (the grid organiser's lattice, its borders and its size), but the corners under the glare cannot be
+measured. Rather than drop the whole view, those corners are left out (NaN in the detector's output, so that no
+consumer can take a guess for a measurement) and the others are kept.
+
+* :func:`checker_contrast`: the intensity range within a quarter square of each corner of a board in grid order;
+* :func:`hidden_corners`: corners where that contrast is a small fraction of the board's own, i.e. the image shows
+  no checker there;
+* :func:`settle_partial_boards`: on the boards with hidden corners, the full-resolution corners next to the glare
+  whose point symmetry is far worse than the board's are left out too (the saddle fit confirms them, yet the glare's
+  edge pulls them by pixels), and a board left with fewer than :data:`MIN_VISIBLE_FRACTION` of its corners is
+  refused.
+
+A predicted corner whose saddle the refiner cannot confirm *and* whose checker contrast is still there is not hidden:
+something else is in the image at that place (a wrong lattice, a board of another size), and the detector refuses the
+board as before.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from ccs_kornia.modules.detection.base import DetectionResult
+from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
+
+__all__ = ["HIDDEN_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MIN_VISIBLE_FRACTION", "checker_contrast",
+           "hidden_corners", "settle_partial_boards"]
+
+#: a corner is hidden where its checker contrast is below this fraction of the median of the board's visible corners
+HIDDEN_CONTRAST_FRACTION = 0.25
+#: on a partial board, a corner whose point-symmetry residual (:func:`corner_uncertainty`) exceeds this multiple of the
+#: board's median is left out (at the rim of a glare: 26-65x for corners 4-6 px off, at most 15x for good ones)
+MAX_ASYMMETRY_RATIO = 20.0
+#: a partial board keeps at least this fraction of its corners
+MIN_VISIBLE_FRACTION = 0.5
+# the contrast is measured within this many squares of the corner along either grid axis: marks inside the white
+# squares (ChArUco, ECoCheck) keep a margin of about a quarter square clear
+QUARTER = 0.25
+
+
+def _check(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int]) -> tuple[int, int]:
+    if not isinstance(images, torch.Tensor) or images.dim() != 4 or images.shape[1] != 1:
+        raise ValueError(f"images must be (B, 1, H, W), got {tuple(getattr(images, 'shape', ()))}.")
+    cols, rows = int(board_size[0]), int(board_size[1])
+    if min(cols, rows) < 2:
+        raise ValueError(f"board_size must have at least 2 corners a side, got {board_size}.")
+    if corners.dim() != 3 or corners.shape[0] != images.shape[0] or corners.shape[1:] != (cols * rows, 2):
+        raise ValueError(f"corners must be ({images.shape[0]}, {cols * rows}, 2), got {tuple(corners.shape)}.")
+    return cols, rows
+
+
+def checker_contrast(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
+    r"""Contrast around each corner, :math:`(B, N)` (image units): the intensity range within a quarter square.
+
+    The image is sampled on a 5 x 5 grid spanning a quarter square on either side of the corner along the local grid
+    axes (the half differences of the corner's neighbours, one-sided on the board's rim). A visible corner shows the
+    full black-white step there, marks inside the white squares (ChArUco, ECoCheck) or not; a corner under saturating
+    glare shows about none.
+
+    Args:
+        images: :math:`(B, 1, H, W)` grey images in ``[0, 1]``.
+        corners: :math:`(B, N, 2)` complete boards in grid order (``n = j * cols + i``).
+        board_size: ``(cols, rows)``.
+
+    Returns:
+        :math:`(B, N)` contrast (NaN where a corner or a neighbour is not finite).
+
+    Example:
+        >>> img = torch.zeros(1, 1, 64, 64); img[..., :32, :32] = 1; img[..., 32:, 32:] = 1
+        >>> pts = torch.tensor([[[15.5, 15.5], [31.5, 15.5], [15.5, 31.5], [31.5, 31.5]]])
+        >>> checker_contrast(img, pts, (2, 2))[0].tolist()
+        [0.0, 1.0, 1.0, 1.0]
+    """
+    cols, rows = _check(images, corners, board_size)
+    b = corners.shape[0]
+    g = corners.double().reshape(b, rows, cols, 2)
+    u = torch.gradient(g, dim=2)[0]  # one square along a row
+    v = torch.gradient(g, dim=1)[0]  # one square along a column
+    steps = torch.linspace(-QUARTER, QUARTER, 5, dtype=g.dtype, device=g.device)
+    su, sv = torch.meshgrid(steps, steps, indexing="ij")
+    offsets = su.reshape(-1, 1, 1, 1, 1) * u + sv.reshape(-1, 1, 1, 1, 1) * v  # (K, B, rows, cols, 2)
+    pts = (g + offsets).permute(1, 0, 2, 3, 4).reshape(b, -1, 2)
+    h, w = images.shape[-2:]
+    grid = torch.stack([(pts[..., 0] + 0.5) * (2.0 / w) - 1.0, (pts[..., 1] + 0.5) * (2.0 / h) - 1.0], -1)
+    vals = F.grid_sample(images.float(), grid[:, None].to(images.device, torch.float32).nan_to_num(-2.0),
+                         mode="bilinear", padding_mode="border", align_corners=False)[:, 0, 0]
+    vals = vals.reshape(b, -1, rows * cols).to(corners.device)
+    contrast = (vals.amax(1) - vals.amin(1)).to(corners.dtype)
+    finite = g.isfinite().all(-1) & u.isfinite().all(-1) & v.isfinite().all(-1)
+    return torch.where(finite.reshape(b, -1), contrast, torch.full_like(contrast, float("nan")))
+
+
+def hidden_corners(
+    images: torch.Tensor, corners: torch.Tensor, visible: torch.Tensor, board_size: tuple[int, int],
+    fraction: float = HIDDEN_CONTRAST_FRACTION,
+) -> torch.Tensor:
+    r"""Corners the image does not show: checker contrast below ``fraction`` of the median over ``visible``.
+
+    Args:
+        images: :math:`(B, 1, H, W)` grey images in ``[0, 1]``.
+        corners: :math:`(B, N, 2)` complete boards in grid order (missing corners predicted).
+        visible: :math:`(B, N)` bool, corners known to be visible (e.g. confirmed by the saddle refinement): the
+            board's own contrast.
+        board_size: ``(cols, rows)``.
+        fraction: see above.
+
+    Returns:
+        :math:`(B, N)` bool (False on boards without a visible corner).
+
+    Example:
+        >>> img = torch.zeros(1, 1, 96, 128)  # 4 x 3 squares of 32 px: 3 x 2 inner corners
+        >>> for i in range(4):
+        ...     for j in range(3):
+        ...         img[..., 32 * j:32 * j + 32, 32 * i:32 * i + 32] = float((i + j) % 2)
+        >>> img[..., :, 80:] = 1.0  # glare saturates the right-hand squares
+        >>> pts = torch.tensor([[[32.0 * i - 0.5, 32.0 * j - 0.5] for j in (1, 2) for i in (1, 2, 3)]])
+        >>> hidden_corners(img, pts, torch.ones(1, 6, dtype=torch.bool), (3, 2)).tolist()
+        [[False, False, True, False, False, True]]
+    """
+    if not 0 < fraction < 1:
+        raise ValueError(f"fraction must be in (0, 1), got {fraction}.")
+    contrast = checker_contrast(images, corners, board_size)
+    if visible.shape != contrast.shape:
+        raise ValueError(f"visible must be {tuple(contrast.shape)}, got {tuple(visible.shape)}.")
+    reference = torch.where(visible.to(contrast.device), contrast, torch.full_like(contrast, float("nan")))
+    reference = reference.nanmedian(-1, keepdim=True).values
+    return (contrast < fraction * reference).nan_to_num(False) & reference.isfinite()
+
+
+def settle_partial_boards(
+    images: torch.Tensor, result: DetectionResult, board_size: tuple[int, int],
+    max_asymmetry: float = MAX_ASYMMETRY_RATIO, min_visible: float = MIN_VISIBLE_FRACTION,
+) -> DetectionResult:
+    r"""On the found boards with hidden (NaN) corners, also leave out the corners whose point symmetry is more than
+    ``max_asymmetry`` times worse than the board's median, then refuse the boards left with fewer than ``min_visible``
+    of their corners. Boards without hidden corners are returned as they are.
+
+    Args:
+        images: :math:`(B, 1, H, W)` the full-resolution images of ``result``.
+        result: a :class:`~ccs_kornia.modules.detection.base.DetectionResult` (modified in place and returned).
+        board_size: ``(cols, rows)``.
+        max_asymmetry, min_visible: see above.
+
+    Returns:
+        ``result``.
+
+    Example:
+        >>> img = torch.zeros(1, 1, 96, 128)
+        >>> for i in range(4):
+        ...     for j in range(3):
+        ...         img[..., 32 * j:32 * j + 32, 32 * i:32 * i + 32] = float((i + j) % 2)
+        >>> pts = torch.tensor([[[32.0 * i - 0.5, 32.0 * j - 0.5] for j in (1, 2) for i in (1, 2, 3)]])
+        >>> pts[0, 2:] = float("nan")  # four of six corners hidden: too few left
+        >>> out = settle_partial_boards(img, DetectionResult(pts, torch.tensor([True]), ["learned"]), (3, 2))
+        >>> out.found.tolist(), out.reasons
+        ([False], ['board incomplete: 4 of 6 corners hidden'])
+    """
+    n = result.corners.shape[1]
+    partial = result.found & ~result.corners.isfinite().all(-1).all(-1)
+    idx = partial.nonzero().flatten()
+    if idx.numel() == 0:
+        return result
+    corners = result.corners[idx]
+    sigma = corner_uncertainty(images[idx.to(images.device)], corners, corners.isfinite().all(-1), board_size)
+    ratio = sigma / sigma.nanmedian(-1, keepdim=True).values.clamp_min(1e-12)
+    corners = corners.masked_fill((ratio > max_asymmetry)[..., None].to(corners.device), float("nan"))
+    result.corners[idx] = corners
+    visible = corners.isfinite().all(-1).sum(-1)
+    for k, b in enumerate(idx.tolist()):
+        if int(visible[k]) < min_visible * n:
+            result.found[b] = False
+            result.corners[b] = 0.0
+            if result.reasons is not None:
+                result.reasons[b] = f"board incomplete: {n - int(visible[k])} of {n} corners hidden"
+    return result
