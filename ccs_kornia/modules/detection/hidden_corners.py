@@ -26,11 +26,14 @@ import torch.nn.functional as F
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 
-__all__ = ["HIDDEN_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MIN_VISIBLE_FRACTION", "checker_contrast",
-           "hidden_corners", "settle_partial_boards"]
+__all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MIN_VISIBLE_FRACTION",
+           "checker_contrast", "hidden_corners", "settle_partial_boards"]
 
 #: a corner is hidden where its checker contrast is below this fraction of the median of the board's visible corners
 HIDDEN_CONTRAST_FRACTION = 0.25
+#: a predicted corner that the saddle refinement cannot confirm is hidden below this fraction (at the rim of a glare
+#: the contrast has faded to 30-60 % of the board's where the saddles are lost)
+UNCONFIRMED_CONTRAST_FRACTION = 0.6
 #: on a partial board, a corner whose point-symmetry residual (:func:`corner_uncertainty`) exceeds this multiple of the
 #: board's median is left out (at the rim of a glare: 26-65x for corners 4-6 px off, at most 15x for good ones)
 MAX_ASYMMETRY_RATIO = 20.0
@@ -95,7 +98,7 @@ def checker_contrast(images: torch.Tensor, corners: torch.Tensor, board_size: tu
 
 def hidden_corners(
     images: torch.Tensor, corners: torch.Tensor, visible: torch.Tensor, board_size: tuple[int, int],
-    fraction: float = HIDDEN_CONTRAST_FRACTION,
+    fraction: float | torch.Tensor = HIDDEN_CONTRAST_FRACTION,
 ) -> torch.Tensor:
     r"""Corners the image does not show: checker contrast below ``fraction`` of the median over ``visible``.
 
@@ -105,7 +108,7 @@ def hidden_corners(
         visible: :math:`(B, N)` bool, corners known to be visible (e.g. confirmed by the saddle refinement): the
             board's own contrast.
         board_size: ``(cols, rows)``.
-        fraction: see above.
+        fraction: see above; a float or a :math:`(B, N)` tensor (one per corner).
 
     Returns:
         :math:`(B, N)` bool (False on boards without a visible corner).
@@ -120,14 +123,15 @@ def hidden_corners(
         >>> hidden_corners(img, pts, torch.ones(1, 6, dtype=torch.bool), (3, 2)).tolist()
         [[False, False, True, False, False, True]]
     """
-    if not 0 < fraction < 1:
+    fraction = torch.as_tensor(fraction, dtype=torch.float64)
+    if not bool(((fraction > 0) & (fraction < 1)).all()):
         raise ValueError(f"fraction must be in (0, 1), got {fraction}.")
     contrast = checker_contrast(images, corners, board_size)
     if visible.shape != contrast.shape:
         raise ValueError(f"visible must be {tuple(contrast.shape)}, got {tuple(visible.shape)}.")
     reference = torch.where(visible.to(contrast.device), contrast, torch.full_like(contrast, float("nan")))
     reference = reference.nanmedian(-1, keepdim=True).values
-    return (contrast < fraction * reference).nan_to_num(False) & reference.isfinite()
+    return (contrast < fraction.to(contrast) * reference).nan_to_num(False) & reference.isfinite()
 
 
 def settle_partial_boards(

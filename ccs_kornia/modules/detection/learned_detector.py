@@ -18,7 +18,12 @@ from ccs_kornia.modules.detection.foreshortening import detect_foreshortened
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
-from ccs_kornia.modules.detection.hidden_corners import hidden_corners, settle_partial_boards
+from ccs_kornia.modules.detection.hidden_corners import (
+    HIDDEN_CONTRAST_FRACTION,
+    UNCONFIRMED_CONTRAST_FRACTION,
+    hidden_corners,
+    settle_partial_boards,
+)
 from ccs_kornia.modules.detection.missing_corners import lattice_deviation, predict_missing_corners
 from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, opencv_level_factor
 from ccs_kornia.modules.detection.patch_refine import refine_from_level
@@ -354,7 +359,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         if source == "opencv":
             return self._opencv_board(images, board_size)
         _, points, keep = self.candidates(images, full, scale)
-        corners, valid, found = _organize(points, keep, board_size, images)
+        corners, valid, found = _organize(points, keep, board_size, images,
+                                          PARTIAL_MIN_FRACTION if self.partial_boards else None)
         refiner = self.refiner
         if resampled is None:
             resampled = full is not None
@@ -386,12 +392,13 @@ class LearnedChessboardDetector(ChessboardDetector):
             with stage("saddle refinement"):
                 corners, ok = refiner(images, corners, cells, board_size, return_ok=True)
             # a predicted cell is accepted only where the image shows a corner there; one wrong corner
-            # ruins a calibration, so the board is dropped instead, unless the image shows no checker there (glare,
-            # an occluder): then the corner is left out, and so is any corner where the checker has all but faded
-            # (confirmed saddles at the rim of a glare are off by pixels: held-out glare renders, up to 9 px)
+            # ruins a calibration, so the board is dropped instead, unless the checker has faded there (glare, an
+            # occluder): then the corner is left out, and so is any corner where the checker has all but faded
+            # (confirmed saddles at the rim of a glare are off by pixels: bench glare renders, up to 9 px)
             unconfirmed = missing & ~ok
             if self.partial_boards:
-                hidden = cells & hidden_corners(images, corners, cells & ~unconfirmed, board_size)
+                fraction = torch.where(unconfirmed, UNCONFIRMED_CONTRAST_FRACTION, HIDDEN_CONTRAST_FRACTION)
+                hidden = cells & hidden_corners(images, corners, cells & ~unconfirmed, board_size, fraction)
             unverified = (unconfirmed & ~hidden).any(1)
             for b in unverified.nonzero().flatten().tolist():
                 n_bad = int((unconfirmed[b] & ~hidden[b]).sum())
@@ -402,15 +409,27 @@ class LearnedChessboardDetector(ChessboardDetector):
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
 
 
-def _organize(points: torch.Tensor, keep: torch.Tensor, board_size: tuple[int, int], images: torch.Tensor):
+#: with partial boards, the organiser is asked again for a board of which only this fraction of the corners has a peak
+PARTIAL_MIN_FRACTION = 0.5
+
+
+def _organize(points: torch.Tensor, keep: torch.Tensor, board_size: tuple[int, int], images: torch.Tensor,
+              partial_fraction: float | None = None):
     """:func:`organize_grid`, then again with the wide-lens tolerance where no board was found: strongly distorted
     close-ups bend the lattice more than the strict neighbour check allows (every corner is still verified on the
-    image afterwards)."""
+    image afterwards); then, with ``partial_fraction``, again accepting a board of which only that fraction of the
+    corners has a peak (a glare over the board's middle: the missing cells must then show no checker, see
+    :meth:`LearnedChessboardDetector._complete`)."""
     with stage("grid organiser"):
         corners, valid, found = organize_grid(points, keep, board_size, images)
         retry = (~found).nonzero().flatten()
         if retry.numel():
             c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
+            corners[retry], valid[retry], found[retry] = c2, v2, f2
+        retry = (~found).nonzero().flatten()
+        if partial_fraction is not None and retry.numel():
+            c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry],
+                                       min_fraction=partial_fraction)
             corners[retry], valid[retry], found[retry] = c2, v2, f2
     return corners, valid, found
 
