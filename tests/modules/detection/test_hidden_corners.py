@@ -154,3 +154,38 @@ def test_scoring_ignores_hidden_corners():
     pred[5] = np.nan
     err = corner_errors(pred, truth, (4, 3))
     assert np.isnan(err[5]) and np.allclose(np.delete(err, 5), math.hypot(0.1, 0.1))
+
+
+def test_fraction_may_differ_per_corner():
+    """The detector asks more of a confirmed corner than of one the refinement could not confirm: a per-corner
+    fraction."""
+    img, pts = _board()
+    img[..., 64:80, 88:104] = 0.1 + 0.4 * (img[..., 64:80, 88:104] - 0.1)  # corner 7 faded to 40 % of the contrast
+    visible = torch.ones(1, 20, dtype=torch.bool)
+    assert not bool(hidden_corners(img, pts, visible, (5, 4)).any())
+    fraction = torch.full((1, 20), 0.25)
+    fraction[0, 7] = 0.6
+    assert hidden_corners(img, pts, visible, (5, 4), fraction)[0].nonzero().flatten().tolist() == [7]
+    with pytest.raises(ValueError, match="fraction"):
+        hidden_corners(img, pts, visible, (5, 4), torch.zeros(1, 20))
+
+
+def test_the_organiser_is_asked_for_half_a_board_only_with_partial_boards(monkeypatch):
+    """With partial boards, a view without a board is organised once more with ``min_fraction`` 0.5."""
+    import ccs_kornia.modules.detection.learned_detector as ld
+
+    calls = []
+    real = ld.organize_grid
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs.get("min_fraction"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ld, "organize_grid", spy)
+    points, keep = torch.rand(1, 10, 2) * 50, torch.ones(1, 10, dtype=torch.bool)
+    images = torch.rand(1, 1, 64, 64)
+    ld._organize(points, keep, (5, 4), images)
+    assert calls == [None, None]
+    calls.clear()
+    ld._organize(points, keep, (5, 4), images, ld.PARTIAL_MIN_FRACTION)
+    assert calls == [None, None, 0.5]
