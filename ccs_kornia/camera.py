@@ -351,7 +351,7 @@ def fit_opencv_distortion(
         distorted: :math:`(B, N, 2)` distorted pixels.
         K: :math:`(B, 3, 3)`.
         model: ``opencv5`` (k1,k2,p1,p2,k3), ``k1k2`` (k1,k2; others zero) or ``rational``.
-        mask: optional :math:`(B, N)` weights.
+        mask: optional :math:`(B, N)` weights (non-finite points are never used).
 
     Returns:
         :math:`(B, D)` coefficients in OpenCV order (D = 5, or 8 for ``rational``).
@@ -376,9 +376,11 @@ def fit_opencv_distortion(
         raise ValueError(f"Unknown model {model!r}.")
     A = torch.cat([torch.stack(cols_x, -1), torch.stack(cols_y, -1)], -2)  # (B, 2N, P)
     b = torch.cat([bx, by], -1).unsqueeze(-1)
-    if mask is not None:
-        wgt = torch.cat([mask, mask], -1).to(A.dtype).unsqueeze(-1)
-        A, b = A * wgt, b * wgt
+    # points that are not finite (the hidden corners of a partial board) never count
+    use = ideal.isfinite().all(-1) & distorted.isfinite().all(-1)
+    wgt = use.to(A.dtype) if mask is None else mask.to(A.dtype) * use.to(A.dtype)
+    wgt = torch.cat([wgt, wgt], -1).unsqueeze(-1)
+    A, b = (A * wgt).nan_to_num(0.0), (b * wgt).nan_to_num(0.0)
     sol = torch.linalg.lstsq(A, b).solution.squeeze(-1)
     if model == "k1k2":
         sol = torch.cat([sol, torch.zeros_like(sol[:, :1]).expand(-1, 3)], -1)

@@ -412,7 +412,7 @@ class CalibrationPipeline(nn.Module):
                 f"got {tuple(corners.shape)}."
             )
         if valid.shape == corners.shape[:-2]:
-            valid = valid[..., None].expand(corners.shape[:-1])
+            valid = valid[..., None] & corners.isfinite().all(-1)  # partial boards: hidden corners are NaN
         if valid.shape != corners.shape[:-1]:
             raise ValueError(f"valid must have shape {tuple(corners.shape[:-1])}, got {tuple(valid.shape)}.")
         if not square > 0:
@@ -486,7 +486,7 @@ class CalibrationPipeline(nn.Module):
         ``found`` is false; :func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_uncertainty`)."""
         found = torch.ones(corners.shape[0], dtype=torch.bool, device=corners.device) if found is None else found
         with stage("corner uncertainty"):
-            return corner_uncertainty(images.float(), corners.float(), found[:, None].expand(corners.shape[:2]),
+            return corner_uncertainty(images.float(), corners.float(), found[:, None] & corners.isfinite().all(-1),
                                       board_size).to(corners.device)
 
     def refine_on_patches(self, images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:

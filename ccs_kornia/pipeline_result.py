@@ -417,7 +417,7 @@ def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, bo
         if sel.numel() == 0:
             continue
         corners = det.corners[sel].to(torch.float64)
-        valid = found[sel][..., None].expand(corners.shape[:-1])
+        valid = found[sel][..., None] & corners.isfinite().all(-1)  # partial boards: hidden corners are NaN
         weights = corner_weights_of(det.sigma, valid, sel) if weigh else None
         with torch.inference_mode():
             figures = diagnose(select_result(cal, sel), corners, valid, obj, positive_size(size), solver=solvers[model],

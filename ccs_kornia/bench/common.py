@@ -78,7 +78,7 @@ def ccs_calibrate(
 
     c = torch.as_tensor(corners, dtype=torch.float64, device=device)
     f = torch.as_tensor(found, dtype=torch.bool, device=device)
-    valid = f[..., None].expand(c.shape[:-1])
+    valid = f[..., None] & c.isfinite().all(-1)
     obj = board_object_points(board[0], board[1], square, dtype=torch.float64, device=device)
     with torch.inference_mode():
         res = CalibrationSolver(model=model)(c, valid, obj, image_size)

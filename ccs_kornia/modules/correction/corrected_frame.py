@@ -122,7 +122,7 @@ def calibrate_corrected(
     c, v, n = corners.shape[:3]
     dev = corners.device
     corners = corners.to(torch.float64)
-    valid = found.to(dev)[..., None].expand(c, v, n)
+    valid = found.to(dev)[..., None] & corners.isfinite().all(-1)  # partial boards: hidden corners are NaN
     obj = board_object_points(int(board_size[0]), int(board_size[1]), float(square), device=dev, dtype=torch.float64)
     frame_solver = CalibrationSolver(
         model="k1k2", use_ransac=solver.use_ransac, seed=0, fix_aspect_ratio=solver.fix_aspect_ratio,

@@ -48,9 +48,10 @@ def fit_correction_to_points(
     powers = torch.stack([r**j for j in range(5)], -1)  # (B, N, 5)
     A = (d.unsqueeze(-1) * powers.unsqueeze(-2)).reshape(d.shape[0], -1, 5)  # (B, 2N, 5)
     b = (ideal - centre).reshape(d.shape[0], -1)
-    w = torch.ones_like(r) if mask is None else (mask.to(r.dtype) * torch.isfinite(ideal).all(-1).to(r.dtype))
+    w = torch.ones_like(r) if mask is None else mask.to(r.dtype)
+    w = w * (torch.isfinite(ideal).all(-1) & torch.isfinite(distorted).all(-1)).to(r.dtype)
     w = w.repeat_interleave(2, -1)
-    A, b = A * w.unsqueeze(-1), b.nan_to_num(0.0) * w
+    A, b = A.nan_to_num(0.0) * w.unsqueeze(-1), b.nan_to_num(0.0) * w
     if fix_k0:
         sol = torch.linalg.lstsq(A[..., 1:], (b - A[..., 0]).unsqueeze(-1)).solution.squeeze(-1)
         return torch.cat([torch.ones_like(sol[:, :1]), sol], -1)
