@@ -262,7 +262,8 @@ def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
     n_img = cfg.wild_big_images if w * h >= _BIG else cfg.wild_images
     n = board[0] * board[1]
     per = {k: {"err": np.full(n_img, np.nan), "found": np.zeros(n_img, bool), "ok": np.zeros(n_img, bool),
-               "sec": np.zeros(n_img), "mb": np.zeros(n_img), "crashes": 0, "timeouts": 0} for k in methods}
+               "partial": np.zeros(n_img, bool), "sec": np.zeros(n_img), "mb": np.zeros(n_img), "crashes": 0,
+               "timeouts": 0} for k in methods}
     squares, render_s = np.zeros(n_img), 0.0
     visible = np.zeros(n_img, bool)
     for i in range(n_img):
@@ -283,6 +284,7 @@ def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
             r["crashes"] += int(failure == "crashed")
             r["timeouts"] += int(failure == "timed out")
             if found:
+                r["partial"][i] = not np.isfinite(corners).all()  # hidden corners (glare, cut) left out
                 r["err"][i] = float(np.nanmean(corner_errors(corners, truth, board)))
                 r["ok"][i] = r["err"][i] <= limit
     common = np.logical_and.reduce([r["ok"] for r in per.values()]) if per else np.zeros(n_img, bool)
@@ -293,6 +295,7 @@ def _condition(cfg: BenchConfig, name: str, index: int, methods, log) -> dict:
             "label": methods[key].label, "images": n_img, "found": int(r["found"].sum()), "detected": int(r["ok"].sum()),
             "detection_rate": float(r["ok"].mean()) if n_img else None,
             "detected_visible": int((r["ok"] & visible).sum()),
+            "partial_boards": int((r["ok"] & r["partial"]).sum()),
             "wrong_boards": int((r["found"] & ~r["ok"]).sum()),
             "mean_px": summary(good)["mean"], "median_px": summary(good)["median"],
             "mean_common_px": summary(r["err"][common])["mean"], "common_images": int(common.sum()),

@@ -44,12 +44,16 @@ def wild_markdown(sec: dict) -> list[str]:
     head = ["condition (size, board, images)"]
     lines += ["*Detected (wrong boards)*; where some renders hide corners (e.g. a glare saturating black and white "
               "squares alike), *visible*: renders whose every corner the image shows (intensity range of at least "
-              "5 % of full scale within a quarter square), and in brackets the boards detected among them", ""]
+              "5 % of full scale within a quarter square), and in brackets the boards detected among them; "
+              "*p*: of the detected boards, those returned with corners left out (partial boards: glare, a border)",
+              ""]
     hidden = any(c.get("visible_images") is not None and c["visible_images"] < next(iter(c["methods"].values()),
                  {"images": 0})["images"] for c in conds.values())
 
     def detected(c: dict, r: dict) -> str:
         text = f"{r['detected']}/{r['images']} ({r['wrong_boards']})"
+        if r.get("partial_boards"):
+            text += f" {r['partial_boards']}p"
         v = c.get("visible_images")
         if v is not None and v < r["images"] and r.get("detected_visible") is not None:
             text += f" [{r['detected_visible']}/{v}]"
