@@ -157,6 +157,33 @@ def test_calibrate_without_diagnostics_and_overlay_of_a_view_without_board(rende
     assert (report / "views" / f"view_{NUM_VIEWS:04d}_blank.png").is_file()
 
 
+def test_calibrate_with_glare_keeps_partial_boards(rendered, tmp_path, capsys):
+    """Saturated spots over a corner of two views: the default path (learned detector, correction, diagnostics,
+    report) keeps those boards with the corner left out: null in the JSON, counted, marked in the report, said."""
+    folder, files, batch = rendered
+    h, w = batch.images.shape[-2:]
+    yy, xx = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    glared = list(files)
+    for v, k in ((2, 21), (5, 31)):
+        x, y = (float(c) for c in batch.corners[v, k])
+        r = 0.4 * float((batch.corners[v, k + 1] - batch.corners[v, k]).norm())
+        spot = torch.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * r**2))
+        glared[v] = str(tmp_path / f"glare_{v}.png")
+        assert write_image(glared[v], (batch.images[v, 0] + 2.0 * spot).clamp(max=1.0))
+    out, report = tmp_path / "calib.json", tmp_path / "report"
+    code, stdout, err = run(capsys, "calibrate", *glared, "--board", "9x6", "--output", str(out), "--report",
+                            str(report))
+    assert code == 0, err
+    data = json.loads(out.read_text())
+    assert data["num_views"]["used"] == NUM_VIEWS and data["num_views"]["partial"] == 2
+    assert "2 of them partial" in stdout
+    for v, k in ((2, 21), (5, 31)):
+        view = data["views"][v]
+        assert view["hidden_corners"] >= 1 and view["corners"][k] == [None, None]
+    assert float(e_ip(torch.tensor(data["K"], dtype=torch.float64)[None], K_TRUE[None])) < 2.0
+    assert (report / "views" / "view_0002_glare_2.png").is_file()
+
+
 def test_undistort_matches_opencv(rendered, tmp_path, capsys):
     folder, files, _ = rendered
     calib = tmp_path / "calib.json"

@@ -13,9 +13,10 @@ consumer can take a guess for a measurement) and the others are kept.
   edge pulls them by pixels), and a board left with fewer than :data:`MIN_VISIBLE_FRACTION` of its corners is
   refused.
 
-A predicted corner whose saddle the refiner cannot confirm *and* whose checker contrast is still there is not hidden:
-something else is in the image at that place (a wrong lattice, a board of another size), and the detector refuses the
-board as before.
+A predicted corner whose saddle the refiner cannot confirm *and* whose contrast is still there (at least
+:data:`UNCONFIRMED_CONTRAST_FRACTION` of the board's) is not hidden: something else is in the image at that place (a
+wrong lattice, a board of another size), and the detector refuses the board as before. A corner outside the image (a
+board cut by its border) reads as flat and is hidden too.
 """
 
 from __future__ import annotations
@@ -35,13 +36,14 @@ HIDDEN_CONTRAST_FRACTION = 0.25
 #: the contrast has faded to 30-60 % of the board's where the saddles are lost)
 UNCONFIRMED_CONTRAST_FRACTION = 0.6
 #: on a partial board, a corner whose point-symmetry residual (:func:`corner_uncertainty`) exceeds this multiple of the
-#: board's median is left out (at the rim of a glare: 26-65x for corners 4-6 px off, at most 15x for good ones)
+#: board's median is left out (at the rim of a glare, on bench glare renders and on opencv_left photos with a spot added:
+#: 26-65x for corners 4-6 px off, at most 15x for good ones)
 MAX_ASYMMETRY_RATIO = 20.0
 #: a partial board keeps at least this fraction of its corners
 MIN_VISIBLE_FRACTION = 0.5
 # the contrast is measured within this many squares of the corner along either grid axis: marks inside the white
 # squares (ChArUco, ECoCheck) keep a margin of about a quarter square clear
-QUARTER = 0.25
+CONTRAST_RADIUS = 0.25
 
 
 def _check(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int]) -> tuple[int, int]:
@@ -72,17 +74,21 @@ def checker_contrast(images: torch.Tensor, corners: torch.Tensor, board_size: tu
         :math:`(B, N)` contrast (NaN where a corner or a neighbour is not finite).
 
     Example:
-        >>> img = torch.zeros(1, 1, 64, 64); img[..., :32, :32] = 1; img[..., 32:, 32:] = 1
-        >>> pts = torch.tensor([[[15.5, 15.5], [31.5, 15.5], [15.5, 31.5], [31.5, 31.5]]])
-        >>> checker_contrast(img, pts, (2, 2))[0].tolist()
-        [0.0, 1.0, 1.0, 1.0]
+        >>> img = torch.zeros(1, 1, 96, 128)  # 4 x 3 squares of 32 px: 3 x 2 inner corners
+        >>> for i in range(4):
+        ...     for j in range(3):
+        ...         img[..., 32 * j:32 * j + 32, 32 * i:32 * i + 32] = float((i + j) % 2)
+        >>> img[..., 16:48, 80:112] = 1.0  # glare over the top right-hand corner
+        >>> pts = torch.tensor([[[32.0 * i - 0.5, 32.0 * j - 0.5] for j in (1, 2) for i in (1, 2, 3)]])
+        >>> checker_contrast(img, pts, (3, 2))[0].tolist()
+        [1.0, 1.0, 0.0, 1.0, 1.0, 1.0]
     """
     cols, rows = _check(images, corners, board_size)
     b = corners.shape[0]
     g = corners.double().reshape(b, rows, cols, 2)
     u = torch.gradient(g, dim=2)[0]  # one square along a row
     v = torch.gradient(g, dim=1)[0]  # one square along a column
-    steps = torch.linspace(-QUARTER, QUARTER, 5, dtype=g.dtype, device=g.device)
+    steps = torch.linspace(-CONTRAST_RADIUS, CONTRAST_RADIUS, 5, dtype=g.dtype, device=g.device)
     su, sv = torch.meshgrid(steps, steps, indexing="ij")
     offsets = su.reshape(-1, 1, 1, 1, 1) * u + sv.reshape(-1, 1, 1, 1, 1) * v  # (K, B, rows, cols, 2)
     pts = (g + offsets).permute(1, 0, 2, 3, 4).reshape(b, -1, 2)
