@@ -28,6 +28,7 @@ def run(args: argparse.Namespace) -> int:
     one = out.select(0)
     images = view_records(one, files)
     n_found = sum(r["found"] for r in images)
+    n_partial = sum(1 for r in images if r.get("hidden_corners"))
     data = {
         "board": list(args.board),
         "detector": args.detector,
@@ -35,11 +36,14 @@ def run(args: argparse.Namespace) -> int:
         "skipped": [{"path": r["path"], "reason": r["reason"]} for r in images if not r["found"] and "reason" in r
                     and r["reason"].startswith("unreadable")],
         "num_found": n_found,
+        "num_partial": n_partial,
         "distortion_correction": correction_record(one),
         "timings": {"load_and_detect_s": elapsed, "images_per_s": len(files) / max(elapsed, 1e-9)},
     }
     write_json(args.output, data)
     if n_found == 0:
         raise UserError(not_found_message(args.board, int(one.present.sum()), len(files)) + f"; wrote {args.output}")
-    print(f"found the {args.board[0]}x{args.board[1]} board in {n_found} of {len(files)} images; wrote {args.output}")
+    partial = f" ({n_partial} partial: corners under glare or occluded are null)" if n_partial else ""
+    print(f"found the {args.board[0]}x{args.board[1]} board in {n_found} of {len(files)} images{partial}; "
+          f"wrote {args.output}")
     return 0
