@@ -39,7 +39,7 @@ def cv2_calibrate(
     """``cv2.calibrateCamera`` on the found views of one camera.
 
     Args:
-        corners: :math:`(V, N, 2)` pixels.
+        corners: :math:`(V, N, 2)` pixels (NaN at the hidden corners of a partial board: left out).
         found: :math:`(V,)` bool.
         model: ``opencv5`` (flags 0), ``k1k2`` (ZERO_TANGENT_DIST + FIX_K3) or ``none``.
 
@@ -51,9 +51,12 @@ def cv2_calibrate(
     fail = {"success": False, "K": np.full((3, 3), np.nan), "dist": None, "rms": float("nan"), "views": int(len(idx))}
     if len(idx) < 3:
         return fail
-    img_pts = [corners[i].reshape(-1, 1, 2).astype(np.float32) for i in idx]
+    # a partial board (hidden corners NaN) gives OpenCV its measured corners only, as any view may
+    keep = [np.isfinite(corners[i]).all(-1) for i in idx]
+    img_pts = [corners[i][k].reshape(-1, 1, 2).astype(np.float32) for i, k in zip(idx, keep)]
+    obj_pts = [obj[k] for k in keep]
     try:
-        rms, K, dist, _, _ = cv2.calibrateCamera([obj] * len(idx), img_pts, tuple(int(s) for s in image_size), None, None,
+        rms, K, dist, _, _ = cv2.calibrateCamera(obj_pts, img_pts, tuple(int(s) for s in image_size), None, None,
                                                  flags=_CV2_FLAGS[model])
     except cv2.error:
         return fail

@@ -125,6 +125,14 @@ def test_solvers_recover_exact_intrinsics():
     assert bool(ours["success"][0]) and np.allclose(ours["K"][0], K.numpy(), atol=1e-3)
     # fewer than three found views: a failure, not an exception
     assert not cv2_calibrate(uv, np.array([1, 1, 0, 0, 0, 0], bool), board, square, size)["success"]
+    # partial boards: both solvers leave the hidden (NaN) corners out
+    partial = uv.copy()
+    partial[1, [0, 7, 12]] = np.nan
+    partial[4, 20] = np.nan
+    cv = cv2_calibrate(partial, found, board, square, size, "k1k2")
+    assert cv["success"] and np.allclose(cv["K"], K.numpy(), atol=1e-3) and cv["rms"] < 1e-3
+    ours = ccs_calibrate(partial[None], found[None], board, square, size, "k1k2")
+    assert bool(ours["success"][0]) and np.allclose(ours["K"][0], K.numpy(), atol=1e-3)
 
 
 def test_corner_section_has_the_collinearity_rows():
