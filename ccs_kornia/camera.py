@@ -376,10 +376,8 @@ def fit_opencv_distortion(
         raise ValueError(f"Unknown model {model!r}.")
     A = torch.cat([torch.stack(cols_x, -1), torch.stack(cols_y, -1)], -2)  # (B, 2N, P)
     b = torch.cat([bx, by], -1).unsqueeze(-1)
-    # points that are not finite (the hidden corners of a partial board) never count
-    use = ideal.isfinite().all(-1) & distorted.isfinite().all(-1)
-    wgt = use.to(A.dtype) if mask is None else mask.to(A.dtype) * use.to(A.dtype)
-    wgt = torch.cat([wgt, wgt], -1).unsqueeze(-1)
+    wgt = (ideal.isfinite().all(-1) & distorted.isfinite().all(-1)).to(A.dtype)  # partial boards: NaN never counts
+    wgt = torch.cat([wgt, wgt] if mask is None else [wgt * mask, wgt * mask], -1).to(A.dtype).unsqueeze(-1)
     A, b = (A * wgt).nan_to_num(0.0), (b * wgt).nan_to_num(0.0)
     sol = torch.linalg.lstsq(A, b).solution.squeeze(-1)
     if model == "k1k2":
