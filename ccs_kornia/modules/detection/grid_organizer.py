@@ -106,6 +106,7 @@ def _organize_one(
     max_seeds: int,
     sigma: float,
     image: np.ndarray | None,
+    partial: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     n_board = cols * rows
     corners = np.zeros((n_board, 2))
@@ -136,7 +137,7 @@ def _organize_one(
         basis = _board_basis(cells)
         cells = cells @ basis.T
         lat.cells = {(int(c[0]), int(c[1])): int(i) for c, i in zip(cells, idx)}
-        win = _select_window(cells, cols, rows, min_count, line_fraction)
+        win = _select_window(cells, cols, rows, min_count, line_fraction, partial)
         if win is None:
             continue
         oa, ob, transposed, _ = win
@@ -217,6 +218,7 @@ def organize_grid(
     min_fraction: float = 0.7,
     line_fraction: float = 0.5,
     max_seeds: int = 6,
+    partial: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     r"""Assign chessboard indices to unordered corner peaks.
 
@@ -238,6 +240,8 @@ def organize_grid(
         line_fraction: least occupancy of each border row/column of the board; a line just outside
             the board with this occupancy means a larger board (rejected).
         max_seeds: seeds tried per image before giving up.
+        partial: boards may lack corners (glare, an occluder; use with a low ``min_fraction``): a border line may
+            then be nearly empty where the lattice spans the whole board in that direction.
 
     Returns:
         - corners :math:`(B, N, 2)`, ``N = cols*rows``, grid order ``n = j*cols + i``; cells without a
@@ -285,6 +289,7 @@ def organize_grid(
             max_seeds,
             1.5,
             None if img_np is None else img_np[b],
+            partial,
         )
     return (
         torch.from_numpy(corners).to(device=points.device, dtype=points.dtype),

@@ -318,9 +318,13 @@ def _board_basis(cells: np.ndarray) -> np.ndarray:
 
 
 def _select_window(
-    cells: np.ndarray, cols: int, rows: int, min_count: int, line_fraction: float
+    cells: np.ndarray, cols: int, rows: int, min_count: int, line_fraction: float, partial: bool = False
 ) -> tuple[int, int, bool, int] | None:
-    """Best ``cols x rows`` window of the lattice; returns (offset_a, offset_b, transposed, count)."""
+    """Best ``cols x rows`` window of the lattice; returns (offset_a, offset_b, transposed, count).
+
+    Every border line of the window must hold ``line_fraction`` of its corners, so that the window cannot slide by a
+    line; with ``partial``, not where the lattice spans exactly the window in that direction (it cannot slide there:
+    a glare over one side of the board leaves its outermost corners at both ends)."""
     lo = cells.min(0).astype(np.int64)
     ext = cells.max(0).astype(np.int64) - lo + 1
     occ = np.zeros(tuple(ext), dtype=bool)
@@ -337,8 +341,9 @@ def _select_window(
                 count = int(sub.sum())
                 if count < min_count:
                     continue
-                borders = (sub[0].mean(), sub[-1].mean(), sub[:, 0].mean(), sub[:, -1].mean())
-                if min(borders) < line_fraction:
+                borders = [] if partial and ext[0] == wa else [sub[0].mean(), sub[-1].mean()]
+                borders += [] if partial and ext[1] == wb else [sub[:, 0].mean(), sub[:, -1].mean()]
+                if borders and min(borders) < line_fraction:
                     continue
                 outside = []
                 if oa > 0:

@@ -429,7 +429,7 @@ def _organize(points: torch.Tensor, keep: torch.Tensor, board_size: tuple[int, i
         retry = (~found).nonzero().flatten()
         if partial_fraction is not None and retry.numel():
             c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry],
-                                       min_fraction=partial_fraction)
+                                       min_fraction=partial_fraction, partial=True)
             corners[retry], valid[retry], found[retry] = c2, v2, f2
     return corners, valid, found
 
