@@ -64,9 +64,9 @@ def lattice_deviation(corners: torch.Tensor, board_size: tuple[int, int], return
     (e.g. a corner of a ChArUco mark) stands out.
 
     Args:
-        corners: :math:`(B, N, 2)` grid-ordered corners of complete boards, ``N = cols * rows``.
+        corners: :math:`(B, N, 2)` grid-ordered corners of found boards, ``N = cols * rows``; NaN for the hidden
+            corners of partial boards (they predict nothing and get deviation 0).
         board_size: ``(cols, rows)``.
-
         return_estimate: also return the positions :math:`(B, N, 2)` the neighbours predict.
 
     Returns:
@@ -85,16 +85,17 @@ def lattice_deviation(corners: torch.Tensor, board_size: tuple[int, int], return
         raise ValueError(f"corners must be (B, {cols * rows}, 2), got {tuple(corners.shape)}.")
     b = corners.shape[0]
     g = corners.reshape(b, rows, cols, 2)
-    v = torch.ones(g.shape[:-1], dtype=torch.bool, device=g.device)
+    v = g.isfinite().all(-1)  # hidden corners of partial boards (NaN) are no neighbours
+    g = torch.where(v[..., None], g, torch.zeros_like(g))
     estimate, count = _neighbour_estimate(g, v)
     from ccs_kornia.modules.detection.grid_geometry import grid_spacing
 
     # the board's median square: a displaced corner must not shrink its own yardstick
     spacing = grid_spacing(corners, v.reshape(b, -1), board_size).median(-1).values[:, None, None]
     dev = (g - estimate).norm(dim=-1) / spacing.clamp_min(1e-6)
-    dev = torch.where(count > 0, dev, torch.zeros_like(dev)).reshape(b, -1)
+    dev = torch.where((count > 0) & v, dev, torch.zeros_like(dev)).reshape(b, -1)
     if return_estimate:
-        return dev, torch.where((count > 0)[..., None], estimate, g).reshape(b, -1, 2)
+        return dev, torch.where((count > 0)[..., None], estimate, corners.reshape(b, rows, cols, 2)).reshape(b, -1, 2)
     return dev
 
 

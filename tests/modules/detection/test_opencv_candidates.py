@@ -97,6 +97,25 @@ def test_lattice_deviation_flags_a_displaced_corner_and_spares_perspective():
         lattice_deviation(uv[:, :10], (9, 6))
 
 
+def test_lattice_deviation_of_a_partial_board():
+    """Hidden corners (NaN) are no neighbours and get deviation 0: a partial board is judged on its measured corners
+    (a NaN there used to refuse every partial board found from OpenCV's candidates)."""
+    obj = board_object_points(9, 6, 1.0, dtype=torch.float64)
+    K = torch.tensor([[600.0, 0.0, 320.0], [0.0, 600.0, 240.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    uv = project_points(obj[None], K[None], None, torch.tensor([[0.3, 0.2, 0.1]], dtype=torch.float64),
+                        torch.tensor([[-4.0, -2.5, 12.0]], dtype=torch.float64))
+    partial = uv.clone()
+    partial[0, [21, 22, 30, 31]] = float("nan")
+    dev, estimate = lattice_deviation(partial, (9, 6), return_estimate=True)
+    assert bool(dev.isfinite().all()) and float(dev.max()) < 0.75 * MAX_LATTICE_DEVIATION
+    assert float(dev[0, [21, 22, 30, 31]].abs().max()) == 0.0
+    spacing = float((uv[0, 1] - uv[0, 0]).norm())
+    # the hole's cells from their rows and columns (extrapolated, under perspective): within a few hundredths of a square
+    assert float((estimate[0, [21, 22, 30, 31]] - uv[0, [21, 22, 30, 31]]).norm(dim=-1).max()) < 0.05 * spacing
+    partial[0, 11] += torch.tensor([0.15 * spacing, 0.0], dtype=torch.float64)
+    assert float(lattice_deviation(partial, (9, 6))[0, 11]) > MAX_LATTICE_DEVIATION  # the board is refused
+
+
 def test_opencv_source_refuses_a_sub_board(monkeypatch):
     """OpenCV's classic detector can return a sub-board of a larger board (8x6 on a 9x6 board), a perfect lattice the
     lattice check cannot refuse, and without candidates beyond its sides the organiser cannot either: the image test of
