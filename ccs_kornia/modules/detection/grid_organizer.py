@@ -73,6 +73,7 @@ from ccs_kornia.modules.detection.lattice import (
     _cross_seeds,
     _fit_homography,
     _Lattice,
+    _placement_contrast,
     _prune_inconsistent,
     _select_window,
     _square_contrast,
@@ -137,10 +138,15 @@ def _organize_one(
         basis = _board_basis(cells)
         cells = cells @ basis.T
         lat.cells = {(int(c[0]), int(c[1])): int(i) for c, i in zip(cells, idx)}
-        win = _select_window(cells, cols, rows, min_count, line_fraction, partial)
-        if win is None:
+        windows = _select_window(cells, cols, rows, min_count, line_fraction, partial)
+        if not windows:
             continue
-        oa, ob, transposed, _ = win
+        if len(windows) > 1:
+            # a partial board's lattice shorter than the board: the hidden lines go where the image shows no checker
+            if image is None:
+                continue
+            windows.sort(key=lambda w: _placement_contrast(image, cells, p[idx], w, cols, rows))
+        oa, ob, transposed, _ = windows[0]
         wa, wb = (rows, cols) if transposed else (cols, rows)
         inside = (cells[:, 0] >= oa) & (cells[:, 0] < oa + wa) & (cells[:, 1] >= ob) & (cells[:, 1] < ob + wb)
         # restart the bookkeeping with the window only
@@ -241,7 +247,8 @@ def organize_grid(
             the board with this occupancy means a larger board (rejected).
         max_seeds: seeds tried per image before giving up.
         partial: boards may lack corners (glare, an occluder; use with a low ``min_fraction``): a border line may
-            then be nearly empty where the lattice spans the whole board in that direction.
+            then be nearly empty where the lattice spans the whole board in that direction, and a lattice shorter
+            than the board is placed where ``image`` shows no checker at its empty cells (refused without ``image``).
 
     Returns:
         - corners :math:`(B, N, 2)`, ``N = cols*rows``, grid order ``n = j*cols + i``; cells without a

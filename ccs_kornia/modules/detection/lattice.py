@@ -319,30 +319,33 @@ def _board_basis(cells: np.ndarray) -> np.ndarray:
 
 def _select_window(
     cells: np.ndarray, cols: int, rows: int, min_count: int, line_fraction: float, partial: bool = False
-) -> tuple[int, int, bool, int] | None:
-    """Best ``cols x rows`` window of the lattice; returns (offset_a, offset_b, transposed, count).
+) -> list[tuple[int, int, bool, int]]:
+    """Best ``cols x rows`` windows of the lattice, as (offset_a, offset_b, transposed, count); empty if none.
 
     Every border line of the window must hold ``line_fraction`` of its corners, so that the window cannot slide by a
-    line; with ``partial``, not where the lattice spans exactly the window in that direction (it cannot slide there:
-    a glare over one side of the board leaves its outermost corners at both ends)."""
+    line, and the one best window is returned. With ``partial``, a border line may be nearly empty where the lattice
+    spans exactly the window in that direction (a glare over one side of the board leaves its outermost corners at
+    both ends), and where the lattice is shorter than the board (a glare across it) every placement holding the whole
+    lattice is returned: the image decides (:func:`_placement_contrast`)."""
     lo = cells.min(0).astype(np.int64)
     ext = cells.max(0).astype(np.int64) - lo + 1
     occ = np.zeros(tuple(ext), dtype=bool)
     ci = cells.astype(np.int64) - lo
     occ[ci[:, 0], ci[:, 1]] = True
-    best = None
     orientations = [(cols, rows, False)] + ([(rows, cols, True)] if cols != rows else [])
+    windows = []
     for wa, wb, transposed in orientations:
-        if ext[0] < wa or ext[1] < wb:
+        if not partial and (ext[0] < wa or ext[1] < wb):
             continue
-        for oa in range(ext[0] - wa + 1):
-            for ob in range(ext[1] - wb + 1):
-                sub = occ[oa : oa + wa, ob : ob + wb]
+        # offsets of windows inside the lattice, or (partial, a lattice shorter than the board) holding it whole
+        for oa in range(min(0, ext[0] - wa), max(0, ext[0] - wa) + 1):
+            for ob in range(min(0, ext[1] - wb), max(0, ext[1] - wb) + 1):
+                sub = occ[max(oa, 0) : oa + wa, max(ob, 0) : ob + wb]
                 count = int(sub.sum())
                 if count < min_count:
                     continue
-                borders = [] if partial and ext[0] == wa else [sub[0].mean(), sub[-1].mean()]
-                borders += [] if partial and ext[1] == wb else [sub[:, 0].mean(), sub[:, -1].mean()]
+                borders = [] if partial and ext[0] <= wa else [sub[0].mean(), sub[-1].mean()]
+                borders += [] if partial and ext[1] <= wb else [sub[:, 0].mean(), sub[:, -1].mean()]
                 if borders and min(borders) < line_fraction:
                     continue
                 outside = []
@@ -356,9 +359,42 @@ def _select_window(
                     outside.append(occ[oa : oa + wa, ob + wb].mean())
                 if outside and max(outside) >= line_fraction:
                     continue  # a (nearly) full line beyond the window: the board is larger than asked
-                if best is None or count > best[3]:
-                    best = (int(oa + lo[0]), int(ob + lo[1]), transposed, count)
-    return best
+                windows.append((int(oa + lo[0]), int(ob + lo[1]), transposed, count))
+    if not windows:
+        return []
+    most = max(w[3] for w in windows)
+    best = [w for w in windows if w[3] == most]
+    return best if partial else best[:1]
+
+
+def _placement_contrast(image: np.ndarray, cells: np.ndarray, pts: np.ndarray,
+                        window: tuple[int, int, bool, int], cols: int, rows: int) -> float:
+    """Largest checker contrast (intensity range on a 5 x 5 grid within a quarter square along the lattice axes) at the
+    empty cells of a window of the lattice ``cells`` -> ``pts``: about none where a glare hides the board, and beyond
+    the board's edge the outer squares against the margin show the full step (cells outside the image read flat)."""
+    oa, ob, transposed, _ = window
+    wa, wb = (rows, cols) if transposed else (cols, rows)
+    grid = np.stack(np.meshgrid(np.arange(oa, oa + wa), np.arange(ob, ob + wb), indexing="ij"), -1).reshape(-1, 2)
+    taken = {(int(a), int(b)) for a, b in cells}
+    empty = np.array([c for c in grid if (int(c[0]), int(c[1])) not in taken], dtype=np.float64).reshape(-1, 2)
+    if len(empty) == 0:
+        return 0.0
+    s = np.linspace(-0.25, 0.25, 5)
+    off = np.stack(np.meshgrid(s, s, indexing="ij"), -1).reshape(-1, 2)
+    xy = _apply_h(_fit_homography(cells, pts), (empty[:, None] + off[None]).reshape(-1, 2))
+    height, width = image.shape
+    x0, y0 = np.floor(xy[:, 0]), np.floor(xy[:, 1])
+    inside = np.isfinite(xy).all(1) & (x0 >= 0) & (y0 >= 0) & (x0 < width - 1) & (y0 < height - 1)
+    xi, yi = x0[inside].astype(np.int64), y0[inside].astype(np.int64)
+    fx, fy = xy[inside, 0] - x0[inside], xy[inside, 1] - y0[inside]
+    values = np.full(len(xy), np.nan)
+    values[inside] = ((image[yi, xi] * (1 - fx) + image[yi, xi + 1] * fx) * (1 - fy)
+                      + (image[yi + 1, xi] * (1 - fx) + image[yi + 1, xi + 1] * fx) * fy)
+    values = values.reshape(len(empty), -1)
+    seen = np.isfinite(values).any(1)
+    if not seen.any():
+        return 0.0
+    return float((np.nanmax(values[seen], 1) - np.nanmin(values[seen], 1)).max())
 
 
 def _prune_inconsistent(lat: _Lattice, check_tolerance: float, sigma: float, max_drops: int = 12) -> float:

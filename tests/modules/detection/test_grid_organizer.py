@@ -266,8 +266,8 @@ def test_image_resolves_180_degrees_for_non_symmetric_boards(board):
 def test_partial_board_may_lose_most_of_a_border_line():
     """A glare over one side leaves a border column with its two end corners only: with ``partial``, the lattice
     still spans the whole board there (the window cannot slide), so it is found with the hidden cells invalid;
-    without it the border test refuses it, and a lattice one column short of the board stays refused (it could
-    slide)."""
+    without it the border test refuses it, and a lattice one column short of the board is refused without an image
+    (it could slide; see test_hidden_corners.py for the image's say)."""
     gt, _ = _views(9, 6, 2, seed=11)
     grid = gt.reshape(2, 6, 9, 2)
     visible = torch.ones(6, 9, dtype=torch.bool)

@@ -189,3 +189,29 @@ def test_the_organiser_is_asked_for_half_a_board_only_with_partial_boards(monkey
     calls.clear()
     ld._organize(points, keep, (5, 4), images, ld.PARTIAL_MIN_FRACTION)
     assert calls == [None, None, 0.5]
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_the_organiser_puts_the_lines_a_glare_hides_where_the_image_shows_no_checker(side):
+    """A glare over three of nine corner columns leaves a lattice one third shorter than the board, which could sit at
+    four places along it: the empty cells go under the glare (no checker), not beyond the visible edge (where the
+    outer squares meet the margin)."""
+    from ccs_kornia.modules.detection.grid_organizer import organize_grid
+
+    img, pts = _board(9, 6)
+    grid = pts[0].reshape(6, 9, 2)
+    hidden = slice(6, 9) if side == "right" else slice(0, 3)
+    x = grid[0, hidden, 0]
+    lo, hi = (float(x.min()) - 12, img.shape[-1]) if side == "right" else (0, float(x.max()) + 12)
+    img[..., :, int(lo):int(hi)] = 1.0
+    shown = torch.ones(6, 9, dtype=torch.bool)
+    shown[:, hidden] = False
+    peaks = grid[shown][None]
+    corners, valid, found = organize_grid(peaks, torch.ones(1, peaks.shape[1], dtype=torch.bool), (9, 6), img,
+                                          min_fraction=0.5, partial=True)
+    assert bool(found[0]) and int(valid.sum()) == 36
+    nearest = torch.cdist(corners[0], pts[0]).min(1)
+    assert float(nearest.values.max()) < 1e-3  # every cell, hidden ones included, on its true corner
+    assert set(nearest.indices[~valid[0]].tolist()) == set(torch.arange(54).reshape(6, 9)[:, hidden].flatten().tolist())
+    # without the image the organiser cannot tell the placements apart: it is only asked with one
+    assert not bool(organize_grid(peaks, torch.ones(1, 36, dtype=torch.bool), (9, 6), min_fraction=0.5)[2][0])
