@@ -10,7 +10,8 @@ consumer can take a guess for a measurement) and the others are kept.
   no checker there;
 * :func:`settle_partial_boards`: on the boards with hidden corners, the full-resolution corners next to the glare
   whose point symmetry is far worse than the board's are left out too (the saddle fit confirms them, yet the glare's
-  edge pulls them by pixels), and a board left with fewer than :data:`MIN_VISIBLE_FRACTION` of its corners is
+  edge pulls them by pixels), on any board a corner whose symmetry is worse still (it converged onto an edge or into a
+  square: a confident wrong corner), and a board left with fewer than :data:`MIN_VISIBLE_FRACTION` of its corners is
   refused.
 
 A predicted corner whose saddle the refiner cannot confirm *and* whose contrast is still there (at least
@@ -27,8 +28,8 @@ import torch.nn.functional as F
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 
-__all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MIN_VISIBLE_FRACTION",
-           "checker_contrast", "hidden_corners", "settle_partial_boards"]
+__all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MAX_ASYMMETRY_RATIO_WHOLE",
+           "MIN_VISIBLE_FRACTION", "checker_contrast", "hidden_corners", "settle_partial_boards"]
 
 #: a corner is hidden where its checker contrast is below this fraction of the median of the board's visible corners
 HIDDEN_CONTRAST_FRACTION = 0.25
@@ -39,6 +40,11 @@ UNCONFIRMED_CONTRAST_FRACTION = 0.6
 #: board's median is left out (at the rim of a glare, on bench glare renders and on opencv_left photos with a spot added:
 #: 26-65x for corners 4-6 px off, at most 15x for good ones)
 MAX_ASYMMETRY_RATIO = 20.0
+#: on any board, a corner whose point-symmetry residual exceeds this multiple of the board's median is left out: it lies
+#: on an edge or inside a square, not on a junction (real sets: 46-178x for corners 2.7-23 px from
+#: ``findChessboardCornersSB``'s; held-out wild renders: 36-39x for corners 6-11 px off; good corners up to 21.5x at a
+#: fisheye's rim, where the lines curve within the window)
+MAX_ASYMMETRY_RATIO_WHOLE = 30.0
 #: a partial board keeps at least this fraction of its corners
 MIN_VISIBLE_FRACTION = 0.5
 # the contrast is measured within this many squares of the corner along either grid axis: marks inside the white
@@ -143,16 +149,17 @@ def hidden_corners(
 def settle_partial_boards(
     images: torch.Tensor, result: DetectionResult, board_size: tuple[int, int],
     max_asymmetry: float = MAX_ASYMMETRY_RATIO, min_visible: float = MIN_VISIBLE_FRACTION,
+    max_asymmetry_whole: float = MAX_ASYMMETRY_RATIO_WHOLE,
 ) -> DetectionResult:
-    r"""On the found boards with hidden (NaN) corners, also leave out the corners whose point symmetry is more than
-    ``max_asymmetry`` times worse than the board's median, then refuse the boards left with fewer than ``min_visible``
-    of their corners. Boards without hidden corners are returned as they are.
+    r"""Leave out the corners of the found boards whose point symmetry is far worse than the board's median (more than
+    ``max_asymmetry`` times on boards with hidden (NaN) corners, ``max_asymmetry_whole`` times on the others), then
+    refuse the boards left with fewer than ``min_visible`` of their corners.
 
     Args:
         images: :math:`(B, 1, H, W)` the full-resolution images of ``result``.
         result: a :class:`~ccs_kornia.modules.detection.base.DetectionResult` (modified in place and returned).
         board_size: ``(cols, rows)``.
-        max_asymmetry, min_visible: see above.
+        max_asymmetry, min_visible, max_asymmetry_whole: see above.
 
     Returns:
         ``result``.
@@ -169,14 +176,15 @@ def settle_partial_boards(
         ([False], ['board incomplete: 4 of 6 corners hidden'])
     """
     n = result.corners.shape[1]
-    partial = result.found & ~result.corners.isfinite().all(-1).all(-1)
-    idx = partial.nonzero().flatten()
+    idx = result.found.nonzero().flatten()
     if idx.numel() == 0:
         return result
     corners = result.corners[idx]
-    sigma = corner_uncertainty(images[idx.to(images.device)], corners, corners.isfinite().all(-1), board_size)
+    measured = corners.isfinite().all(-1)
+    sigma = corner_uncertainty(images[idx.to(images.device)], corners, measured, board_size)
     ratio = sigma / sigma.nanmedian(-1, keepdim=True).values.clamp_min(1e-12)
-    corners = corners.masked_fill((ratio > max_asymmetry)[..., None].to(corners.device), float("nan"))
+    limit = torch.where(measured.all(-1), max_asymmetry_whole, max_asymmetry)[:, None]
+    corners = corners.masked_fill((ratio > limit.to(ratio))[..., None].to(corners.device), float("nan"))
     result.corners[idx] = corners
     visible = corners.isfinite().all(-1).sum(-1)
     for k, b in enumerate(idx.tolist()):

@@ -223,9 +223,15 @@ class LearnedChessboardDetector(ChessboardDetector):
             return self._grid_checks(images, self._foreshortened(images.float(), board_size), board_size)
 
     def _grid_checks(self, images: torch.Tensor, out: DetectionResult, board_size: tuple[int, int]) -> DetectionResult:
-        if self.partial_boards:
-            with stage("partial boards"):
-                out = settle_partial_boards(images, out, board_size)
+        with stage("partial boards"):
+            # corners far less point-symmetric than their board's lie on an edge or in a square: left out (partial
+            # boards) or, without partial boards, the board is refused (whole boards or nothing)
+            out = settle_partial_boards(images, out, board_size)
+            if not self.partial_boards:
+                for b in (out.found & ~out.corners.isfinite().all(-1).all(-1)).nonzero().flatten().tolist():
+                    k = int((~out.corners[b].isfinite().all(-1)).sum())
+                    out.found[b], out.reasons[b] = False, f"board refused: {k} corner(s) not on a junction"
+                    out.corners[b] = 0.0
         with stage("grid checks"):
             # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
             # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners

@@ -91,8 +91,8 @@ def test_exceptions():
 
 
 def test_settle_leaves_out_a_corner_pulled_off_by_a_glare_edge():
-    """On a partial board, a corner whose neighbourhood is far less point-symmetric than the board's is left out;
-    boards without hidden corners are left as they are."""
+    """On a partial board, a corner whose neighbourhood is far less point-symmetric than the board's is left out (on
+    a whole board only where it is far worse still)."""
     img, pts = _board()
     img = img + 0.02 * torch.randn(img.shape, generator=torch.Generator().manual_seed(0))  # sensor noise
     img[..., 62:71, 97:106] = 1.0  # a bright patch in a dark quadrant of corner 7 (x 95.5, y 71.5)
@@ -102,8 +102,44 @@ def test_settle_leaves_out_a_corner_pulled_off_by_a_glare_edge():
     out = settle_partial_boards(torch.cat([img, img]), res, (5, 4))
     assert out.found.tolist() == [True, True]
     assert (~out.corners[0].isfinite().all(-1)).nonzero().flatten().tolist() == [7, 12]
-    assert bool(out.corners[1].isfinite().all())  # not a partial board: not judged
-    assert out.valid.sum(-1).tolist() == [18, 20]
+    # on a whole board only beyond the wider limit (MAX_ASYMMETRY_RATIO_WHOLE); this one is 103x the board's median
+    assert (~out.corners[1].isfinite().all(-1)).nonzero().flatten().tolist() == [7]
+    assert out.valid.sum(-1).tolist() == [18, 19]
+
+
+def test_settle_leaves_out_a_corner_off_its_junction_on_any_board():
+    """A corner that converged onto an edge (a third of a square off its junction) is far less point-symmetric than
+    its board's: left out on a whole board too, the others kept."""
+    img, pts = _board()
+    img = img + 0.02 * torch.randn(img.shape, generator=torch.Generator().manual_seed(0))
+    wrong = pts.clone()
+    wrong[0, 7, 0] += 8.0  # on the edge between two squares, 8 px (1/3 square) right of the junction
+    out = settle_partial_boards(img, DetectionResult(wrong, torch.tensor([True]), ["learned"]), (5, 4))
+    assert out.found.tolist() == [True]
+    assert (~out.corners[0].isfinite().all(-1)).nonzero().flatten().tolist() == [7]
+    out = settle_partial_boards(img, DetectionResult(pts.clone(), torch.tensor([True]), ["learned"]), (5, 4))
+    assert bool(out.corners.isfinite().all())
+
+
+def test_a_wrong_corner_of_a_cut_board_is_left_out_not_reported():
+    """A held-out render of a board cut by the image border whose corner 0, 8 px from the border, used to be reported
+    6 px off (on an edge): left out now; without partial boards the board is refused instead."""
+    from ccs_kornia.bench.scenes import quantize
+    from ccs_kornia.bench.wild import WILD_CONDITIONS, wild_spec
+    from ccs_kornia.data.wild import WildChessboards
+    from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
+
+    spec, board = wild_spec("cut")
+    seed = 7_777_900 + 1000 * list(WILD_CONDITIONS).index("cut") + 4
+    batch = WildChessboards(spec).sample(1, torch.Generator().manual_seed(seed))
+    n = board[0] * board[1]
+    img, truth = quantize(batch.images), batch.corners[0, :n].double()
+    out = LearnedChessboardDetector()(img, board)
+    assert bool(out.found[0]) and (~out.valid[0]).nonzero().flatten().tolist() == [0]
+    err = (out.corners[0].double() - truth).norm(dim=-1)[out.valid[0]]
+    assert float(err.max()) < 0.2
+    whole = LearnedChessboardDetector(partial_boards=False)(img, board)
+    assert not bool(whole.found[0]) and whole.reasons[0] == "board refused: 1 corner(s) not on a junction"
 
 
 def test_settle_refuses_a_board_with_too_few_corners_left():
