@@ -28,6 +28,21 @@ _SHORT = {"learned": "learned", "opencv_saddle": "cv+saddle", "opencv_subpix": "
           "libcbdetect": "cbdetect", "truth": "exact", "pipeline": "pipeline+dc"}
 
 
+def _cpu_vector() -> str:
+    """The CPU's widest vector extension and whether bfloat16 is native, e.g. ``"AVX2, no native bfloat16"``."""
+    from ccs_kornia.modules.detection.heatmap_unet import cpu_has_native_bf16
+
+    flags: set[str] = set()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            flags = next((set(line.split(":", 1)[1].split()) for line in fh if line.startswith("flags")), set())
+    except OSError:
+        pass
+    widest = next((name for flag, name in (("avx512f", "AVX-512"), ("avx2", "AVX2"), ("avx", "AVX"), ("sse4_2", "SSE4.2"))
+                   if flag in flags), "unknown")
+    return f"{widest}, {'native' if cpu_has_native_bf16() else 'no native'} bfloat16"
+
+
 def machine_info() -> dict:
     """CPU model, core count, library versions and GPU (if any) of this machine."""
     import kornia
@@ -54,6 +69,8 @@ def machine_info() -> dict:
         "numpy": np.__version__,
         "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
         "load_average": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
+        # speed figures depend on it more than on most code changes: bfloat16 convolutions only where it is native
+        "cpu_vector": _cpu_vector(),
     }
     try:
         from importlib.metadata import version
@@ -320,8 +337,9 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
         "",
         f"- command: `{meta['command']}`",
         f"- preset: `{cfg['preset']}`; started {meta['started']}, took {meta['seconds'] / 60:.1f} min",
-        f"- machine: {mach['cpu']}, {mach['cores']} cores (torch threads {mach['torch_threads']}), "
-        f"GPU: {mach['gpu'] or 'none'}; 1-minute load average at the start {_n(mach.get('load_average'), 1)}",
+        f"- machine: {mach['cpu']} ({mach.get('cpu_vector', 'vector extensions not recorded')}), {mach['cores']} cores "
+        f"(torch threads {mach['torch_threads']}), GPU: {mach['gpu'] or 'none'}; 1-minute load average at the start "
+        f"{_n(mach.get('load_average'), 1)}",
         f"- software: Python {mach['python']}, torch {mach['torch']}, kornia {mach['kornia']}, OpenCV {mach['opencv']}, "
         f"numpy {mach['numpy']}, libcbdetect {mach['libcbdetect'] or 'not installed'}",
         f"- synthetic scenes: {cfg['image_size'][0]}x{cfg['image_size'][1]}, board {cfg['board'][0]}x{cfg['board'][1]}, "

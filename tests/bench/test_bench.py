@@ -200,6 +200,7 @@ def test_tiny_run_writes_json_and_markdown(tiny_run):
     # markdown: command, machine, tables straight from the JSON, the honest-reading placeholder
     for text in ((out / "report.md").read_text(), md.read_text()):
         assert " ".join(argv[:2]) in text and meta["machine"]["cpu"] in text
+        assert meta["machine"]["cpu_vector"] in text and "bfloat16" in meta["machine"]["cpu_vector"]
         assert "## 1. Corner accuracy" in text and "## 2. Calibration" in text and "## 5. Speed" in text
         assert HONEST_START in text and HONEST_END in text and "Placeholder" in text
         mean = corners["clean"]["opencv_subpix"]["mean_px"]
