@@ -149,3 +149,34 @@ def test_calibrate_many_ctrl_c_keeps_finished_lines(camera_dirs, tmp_path, monke
     assert code == 130 and "interrupted" in capsys.readouterr().err
     lines = [json.loads(line) for line in out.read_text().splitlines()]
     assert [os.path.basename(r["set"]) for r in lines] == ["a"] and lines[0]["success"]
+
+
+def test_calibrate_many_keeps_partial_boards_of_one_camera_in_a_batch(tmp_path):
+    """Two cameras calibrated in one batch by the default path, saturated spots over a corner of two views of the
+    second: its record has those corners null and counts them; the clean camera's record has none; both cameras
+    agree with the truth."""
+    batch = make_calibration_set(K_TRUE, BOARD, 0.025, (640, 480), num_views=7, seed=5,
+                                 dist=torch.tensor([-0.12, 0.02, 0.0, 0.0, 0.0], dtype=torch.float64))
+    h, w = batch.images.shape[-2:]
+    yy, xx = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    glared = {1: 21, 4: 31}
+    for name in ("clean", "glare"):
+        (tmp_path / name).mkdir()
+        for v in range(7):
+            image = batch.images[v, 0]
+            if name == "glare" and v in glared:
+                x, y = (float(c) for c in batch.corners[v, glared[v]])
+                r = 0.4 * float((batch.corners[v, glared[v] + 1] - batch.corners[v, glared[v]]).norm())
+                image = (image + 2.0 * torch.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * r**2))).clamp(max=1.0)
+            assert write_image(tmp_path / name / f"v{v}.png", image)
+    sets, _ = find_image_sets([str(tmp_path / "clean"), str(tmp_path / "glare")])
+    out = tmp_path / "results.jsonl"
+    summary = calibrate_many(sets, BOARD, str(out), square=0.025, sets_per_batch=2, progress=False)
+    assert summary["succeeded"] == 2
+    clean, glare = (json.loads(line) for line in out.read_text().splitlines())
+    assert clean["num_views"]["partial"] == 0 and glare["num_views"]["partial"] == 2
+    for v, k in glared.items():
+        assert glare["views"][v]["hidden_corners"] >= 1 and glare["views"][v]["corners"][k] == [None, None]
+    for record in (clean, glare):
+        assert record["num_views"]["used"] == 7
+        assert float(e_ip(torch.tensor(record["K"]), K_TRUE)) < 2.0, record["K"]
