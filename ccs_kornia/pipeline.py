@@ -40,7 +40,7 @@ from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected, straightening_evidence
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
 from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
-from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, detector_options
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, detector_options, measured_corners
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
@@ -412,7 +412,7 @@ class CalibrationPipeline(nn.Module):
                 f"got {tuple(corners.shape)}."
             )
         if valid.shape == corners.shape[:-2]:
-            valid = valid[..., None] & corners.isfinite().all(-1)  # partial boards: hidden corners are NaN
+            valid = measured_corners(corners, valid)
         if valid.shape != corners.shape[:-1]:
             raise ValueError(f"valid must have shape {tuple(corners.shape[:-1])}, got {tuple(valid.shape)}.")
         if not square > 0:
@@ -486,7 +486,7 @@ class CalibrationPipeline(nn.Module):
         ``found`` is false; :func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_uncertainty`)."""
         found = torch.ones(corners.shape[0], dtype=torch.bool, device=corners.device) if found is None else found
         with stage("corner uncertainty"):
-            return corner_uncertainty(images.float(), corners.float(), found[:, None] & corners.isfinite().all(-1),
+            return corner_uncertainty(images.float(), corners.float(), measured_corners(corners, found),
                                       board_size).to(corners.device)
 
     def refine_on_patches(self, images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:

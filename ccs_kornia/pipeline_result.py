@@ -10,7 +10,7 @@ from typing import Any
 import torch
 
 from ccs_kornia.modules.calibration.result import VIEW_REASONS, CalibrationResult
-from ccs_kornia.modules.detection.base import DetectionResult
+from ccs_kornia.modules.detection.base import DetectionResult, measured_corners
 from ccs_kornia.sources import SIZE_TOLERANCE_PX
 
 __all__ = [
@@ -417,7 +417,7 @@ def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, bo
         if sel.numel() == 0:
             continue
         corners = det.corners[sel].to(torch.float64)
-        valid = found[sel][..., None] & corners.isfinite().all(-1)  # partial boards: hidden corners are NaN
+        valid = measured_corners(corners, found[sel])
         weights = corner_weights_of(det.sigma, valid, sel) if weigh else None
         with torch.inference_mode():
             figures = diagnose(select_result(cal, sel), corners, valid, obj, positive_size(size), solver=solvers[model],

@@ -16,7 +16,7 @@ import torch
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.correction import corrected_frame
-from ccs_kornia.modules.detection.base import detector_options
+from ccs_kornia.modules.detection.base import detector_options, measured_corners
 from ccs_kornia.pipeline_result import (
     PipelineResult,
     camera_reason,
@@ -118,7 +118,7 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
     a camera without a name gets the first candidate)."""
     cols, rows = int(board_size[0]), int(board_size[1])
     obj = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
-    valid = found[..., None].bool() & corners.isfinite().all(-1)  # partial boards: hidden corners are NaN
+    valid = measured_corners(corners, found)
     weights = corner_weights_of(sigma, valid) if pipe.weigh_corners else None
     if pipe.model != "auto":
         with torch.inference_mode():

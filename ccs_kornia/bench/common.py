@@ -13,6 +13,7 @@ import torch
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.metrics import e_fl, e_ip, e_pp
 from ccs_kornia.modules.correction.distortion_net import DEFAULT_DISTORTION_WEIGHTS
+from ccs_kornia.modules.detection.base import measured_corners
 
 __all__ = [
     "cv2_calibrate",
@@ -81,7 +82,7 @@ def ccs_calibrate(
 
     c = torch.as_tensor(corners, dtype=torch.float64, device=device)
     f = torch.as_tensor(found, dtype=torch.bool, device=device)
-    valid = f[..., None] & c.isfinite().all(-1)
+    valid = measured_corners(c, f)
     obj = board_object_points(board[0], board[1], square, dtype=torch.float64, device=device)
     with torch.inference_mode():
         res = CalibrationSolver(model=model)(c, valid, obj, image_size)

@@ -26,6 +26,7 @@ from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction.correction_fit import fit_correction_to_points
 from ccs_kornia.modules.correction.radial_warp import correct_points, corrected_radius
+from ccs_kornia.modules.detection.base import measured_corners
 
 __all__ = ["solve_with_correction", "calibrate_corrected", "correction_zoom", "with_fields", "select_cameras"]
 
@@ -122,7 +123,7 @@ def calibrate_corrected(
     c, v, n = corners.shape[:3]
     dev = corners.device
     corners = corners.to(torch.float64)
-    valid = found.to(dev)[..., None] & corners.isfinite().all(-1)  # partial boards: hidden corners are NaN
+    valid = measured_corners(corners, found.to(dev))
     obj = board_object_points(int(board_size[0]), int(board_size[1]), float(square), device=dev, dtype=torch.float64)
     frame_solver = CalibrationSolver(
         model="k1k2", use_ransac=solver.use_ransac, seed=0, fix_aspect_ratio=solver.fix_aspect_ratio,

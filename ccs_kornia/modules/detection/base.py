@@ -16,7 +16,19 @@ from torch import nn
 
 from ccs_kornia.modules._checks import check_shape
 
-__all__ = ["DetectionResult", "ChessboardDetector", "detector_options"]
+__all__ = ["DetectionResult", "ChessboardDetector", "detector_options", "measured_corners"]
+
+
+def measured_corners(corners: torch.Tensor, found: torch.Tensor) -> torch.Tensor:
+    """Mask :math:`(..., N)` of the measured corners: those of found views (``found`` :math:`(...)`) that are finite (a
+    partial board's hidden corners are NaN).
+
+    Example:
+        >>> c = torch.tensor([[[1.0, 2.0], [float("nan"), 0.0]], [[0.0, 0.0], [0.0, 0.0]]])
+        >>> measured_corners(c, torch.tensor([True, False])).tolist()
+        [[True, False], [False, False]]
+    """
+    return found.bool()[..., None] & corners.isfinite().all(-1)
 
 
 @dataclass
@@ -43,7 +55,7 @@ class DetectionResult:
     @property
     def valid(self) -> torch.Tensor:
         """:math:`(B, N)` bool mask of measured corners (those of a found board, less any hidden ones)."""
-        return self.found[..., None] & self.corners.isfinite().all(-1)
+        return measured_corners(self.corners, self.found)
 
 
 class ChessboardDetector(nn.Module):

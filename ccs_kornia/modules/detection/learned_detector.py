@@ -228,9 +228,9 @@ class LearnedChessboardDetector(ChessboardDetector):
             # boards) or, without partial boards, the board is refused (whole boards or nothing)
             out = settle_partial_boards(images, out, board_size)
             if not self.partial_boards:
-                for b in (out.found & ~out.corners.isfinite().all(-1).all(-1)).nonzero().flatten().tolist():
-                    k = int((~out.corners[b].isfinite().all(-1)).sum())
-                    out.found[b], out.reasons[b] = False, f"board refused: {k} corner(s) not on a junction"
+                left_out = (out.found[:, None] & ~out.valid).sum(-1)
+                for b in left_out.nonzero().flatten().tolist():
+                    out.found[b], out.reasons[b] = False, f"board refused: {int(left_out[b])} corner(s) not on a junction"
                     out.corners[b] = 0.0
         with stage("grid checks"):
             # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
