@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 __all__: list[str] = []  # helpers of grid_organizer.py only
@@ -381,16 +382,10 @@ def _placement_contrast(image: np.ndarray, cells: np.ndarray, pts: np.ndarray,
         return 0.0
     s = np.linspace(-0.25, 0.25, 5)
     off = np.stack(np.meshgrid(s, s, indexing="ij"), -1).reshape(-1, 2)
-    xy = _apply_h(_fit_homography(cells, pts), (empty[:, None] + off[None]).reshape(-1, 2))
-    height, width = image.shape
-    x0, y0 = np.floor(xy[:, 0]), np.floor(xy[:, 1])
-    inside = np.isfinite(xy).all(1) & (x0 >= 0) & (y0 >= 0) & (x0 < width - 1) & (y0 < height - 1)
-    xi, yi = x0[inside].astype(np.int64), y0[inside].astype(np.int64)
-    fx, fy = xy[inside, 0] - x0[inside], xy[inside, 1] - y0[inside]
-    values = np.full(len(xy), np.nan)
-    values[inside] = ((image[yi, xi] * (1 - fx) + image[yi, xi + 1] * fx) * (1 - fy)
-                      + (image[yi + 1, xi] * (1 - fx) + image[yi + 1, xi + 1] * fx) * fy)
-    values = values.reshape(len(empty), -1)
+    xy = _apply_h(_fit_homography(cells, pts), (empty[:, None] + off[None]).reshape(-1, 2)).astype(np.float32)
+    # bilinear samples; NaN outside the image
+    values = cv2.remap(np.ascontiguousarray(image, dtype=np.float32), xy[:, :1], xy[:, 1:], cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan")).reshape(len(empty), -1)
     seen = np.isfinite(values).any(1)
     if not seen.any():
         return 0.0
