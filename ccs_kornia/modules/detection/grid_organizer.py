@@ -16,7 +16,9 @@ Instead a lattice is grown from a seed corner:
 2. growth, one ring per round: every empty cell next to the lattice is predicted with a homography
    fitted to the lattice points around it (Gaussian weights in lattice distance, so it stays local
    under residual distortion), and takes the nearest unused peak within ``tolerance`` x (local
-   square size) of the prediction;
+   square size) of the prediction; with ``partial``, a lattice still short of ``min_fraction`` then
+   bridges a gap of empty cells (a glare band across the board) where at least three peaks beyond it
+   fit a homography of the whole lattice within half that tolerance, and grows on from them;
 3. basis: under shear and foreshortening a square's diagonal can be shorter than its side, so the
    seed may have picked a sheared basis of the same point lattice; the integer change of basis
    that makes the lattice most compact recovers the board's rows and columns;
@@ -73,11 +75,10 @@ from ccs_kornia.modules.detection.lattice import (
     _cross_seeds,
     _fit_homography,
     _Lattice,
-    _placement_contrast,
     _prune_inconsistent,
     _select_window,
-    _square_contrast,
 )
+from ccs_kornia.modules.detection.lattice_evidence import _empty_cells_flat, _placement_contrast, _square_contrast
 
 __all__ = ["organize_grid", "GridOrganizer", "is_symmetric_board"]
 
@@ -133,6 +134,8 @@ def _organize_one(
             continue
         attempts += 1
         lat.grow()
+        if partial and len(lat.cells) < min_count:
+            lat.bridge(max(cols, rows))
         cells, idx = lat.arrays()
         tried_points[idx] = True
         basis = _board_basis(cells)
@@ -146,6 +149,8 @@ def _organize_one(
             if image is None:
                 continue
             windows.sort(key=lambda w: _placement_contrast(image, cells, p[idx], w, cols, rows))
+            if not _empty_cells_flat(image, cells, p[idx], windows[0], cols, rows):
+                continue  # the image shows a checker at the empty cells: corners missed, not hidden
         oa, ob, transposed, _ = windows[0]
         wa, wb = (rows, cols) if transposed else (cols, rows)
         inside = (cells[:, 0] >= oa) & (cells[:, 0] < oa + wa) & (cells[:, 1] >= ob) & (cells[:, 1] < ob + wb)
@@ -248,7 +253,8 @@ def organize_grid(
         max_seeds: seeds tried per image before giving up.
         partial: boards may lack corners (glare, an occluder; use with a low ``min_fraction``): a border line may
             then be nearly empty where the lattice spans the whole board in that direction, and a lattice shorter
-            than the board is placed where ``image`` shows no checker at its empty cells (refused without ``image``).
+            than the board is placed where ``image`` shows no checker at its empty cells (refused without ``image``, and
+            where most of them show one: corners the network missed, not hidden ones).
 
     Returns:
         - corners :math:`(B, N, 2)`, ``N = cols*rows``, grid order ``n = j*cols + i``; cells without a

@@ -16,8 +16,10 @@ consumer can take a guess for a measurement) and the others are kept.
 
 A predicted corner whose saddle the refiner cannot confirm *and* whose contrast is still there (at least
 :data:`UNCONFIRMED_CONTRAST_FRACTION` of the board's) is not hidden: something else is in the image at that place (a
-wrong lattice, a board of another size), and the detector refuses the board as before. A corner outside the image (a
-board cut by its border) reads as flat and is hidden too.
+wrong lattice, a board of another size), and the detector refuses the board as before, unless it lies next to a
+hidden corner (:func:`glare_rim`): at the rim of a glare one side of the junction is saturated, the saddle fit fails
+and the quarter square still spans most of the board's contrast. A corner outside the image (a board cut by its
+border) reads as flat and is hidden too.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 
 __all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MAX_ASYMMETRY_RATIO_WHOLE",
-           "MIN_VISIBLE_FRACTION", "checker_contrast", "hidden_corners", "settle_partial_boards"]
+           "MIN_VISIBLE_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "settle_partial_boards"]
 
 #: a corner is hidden where its checker contrast is below this fraction of the median of the board's visible corners
 HIDDEN_CONTRAST_FRACTION = 0.25
@@ -46,7 +48,7 @@ MAX_ASYMMETRY_RATIO = 20.0
 #: fisheye's rim, where the lines curve within the window)
 MAX_ASYMMETRY_RATIO_WHOLE = 30.0
 #: a partial board keeps at least this fraction of its corners
-MIN_VISIBLE_FRACTION = 0.5
+MIN_VISIBLE_FRACTION = 0.4
 # the contrast is measured within this many squares of the corner along either grid axis: marks inside the white
 # squares (ChArUco, ECoCheck) keep a margin of about a quarter square clear
 CONTRAST_RADIUS = 0.25
@@ -144,6 +146,31 @@ def hidden_corners(
     reference = torch.where(visible.to(contrast.device), contrast, torch.full_like(contrast, float("nan")))
     reference = reference.nanmedian(-1, keepdim=True).values
     return (contrast < fraction.to(contrast) * reference).nan_to_num(False) & reference.isfinite()
+
+
+def glare_rim(candidates: torch.Tensor, hidden: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
+    r"""The ``candidates`` next to a ``hidden`` corner (one grid step along a row or a column).
+
+    Args:
+        candidates: :math:`(B, N)` bool, e.g. the predicted corners the saddle refinement could not confirm.
+        hidden: :math:`(B, N)` bool, the corners the image does not show (:func:`hidden_corners`).
+        board_size: ``(cols, rows)``, ``N = cols * rows`` in grid order.
+
+    Returns:
+        :math:`(B, N)` bool.
+
+    Example:
+        >>> hidden = torch.tensor([[False, True, False, False, False, False]])  # 3 x 2 board, corner (1, 0) hidden
+        >>> glare_rim(torch.ones(1, 6, dtype=torch.bool), hidden, (3, 2)).tolist()
+        [[True, False, True, False, True, False]]
+    """
+    cols, rows = int(board_size[0]), int(board_size[1])
+    if candidates.shape != hidden.shape or candidates.dim() != 2 or candidates.shape[1] != cols * rows:
+        raise ValueError(f"candidates and hidden must both be (B, {cols * rows}), got {tuple(candidates.shape)} and "
+                         f"{tuple(hidden.shape)}.")
+    h = F.pad(hidden.reshape(-1, rows, cols).float(), (1, 1, 1, 1))
+    near = h[:, :-2, 1:-1] + h[:, 2:, 1:-1] + h[:, 1:-1, :-2] + h[:, 1:-1, 2:]
+    return candidates & ~hidden & (near > 0).reshape(hidden.shape)
 
 
 def settle_partial_boards(

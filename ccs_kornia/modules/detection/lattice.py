@@ -4,8 +4,10 @@
 * seeds: peaks whose nearest neighbours form a "cross" (two non-parallel pairs of opposite neighbours);
 * :class:`_Lattice`: growth from a seed, one ring per round, matching the nearest free peak to each prediction;
 * the board basis (undoing a sheared seed basis), the ``cols x rows`` window, the leave-one-out consistency
-  check, the test that the board continues past an edge, and the square-colour contrast that tells the two
-  180-degree orientations of a non-symmetric board apart.
+  check and the test that the board continues past an edge.
+
+What the image says about a lattice (a partial board's placement, the two 180-degree orientations of a
+non-symmetric board) is in :mod:`~ccs_kornia.modules.detection.lattice_evidence`.
 
 See :mod:`~ccs_kornia.modules.detection.grid_organizer` for the method as a whole.
 """
@@ -14,7 +16,6 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 
 __all__: list[str] = []  # helpers of grid_organizer.py only
@@ -217,13 +218,14 @@ class _Lattice:
         return cells, idx
 
     def match(
-        self, query: np.ndarray, support_cells: np.ndarray, support_idx: np.ndarray, tol: float | None = None
+        self, query: np.ndarray, support_cells: np.ndarray, support_idx: np.ndarray, tol: float | None = None,
+        sigma: float | None = None,
     ) -> int:
         """Predict ``query`` cells from the support, accept the nearest free peaks; returns #added."""
         tol = self.tol if tol is None else tol
         if len(query) == 0:
             return 0
-        pred, jac = _local_homographies(support_cells, self.p[support_idx], query, self.sigma)
+        pred, jac = _local_homographies(support_cells, self.p[support_idx], query, self.sigma if sigma is None else sigma)
         spacing = np.minimum(np.linalg.norm(jac[:, :, 0], axis=1), np.linalg.norm(jac[:, :, 1], axis=1))
         free = self.cell_of_point < 0
         if not free.any():
@@ -271,6 +273,27 @@ class _Lattice:
             occ[ci[:, 0], ci[:, 1]] = True
             dead |= cand & ~occ
             dead &= _count_neighbours(occ) < 2
+
+    def bridge(self, max_side: int, min_added: int = 3) -> bool:
+        """Peaks across a gap of empty cells (a glare over the board's middle splits its corners into separate
+        clusters, which :meth:`grow` cannot join): every free cell of the ``max_side`` x ``max_side`` windows that hold
+        the lattice, predicted by a wide-weighted homography of the whole lattice (the prediction extrapolates over the
+        gap) and matched with half the growth tolerance. Kept, and grown further, only where at least ``min_added``
+        peaks fit; returns whether the lattice grew."""
+        cells, idx = self.arrays()
+        lo, hi = cells.min(0).astype(np.int64), cells.max(0).astype(np.int64)
+        if (hi - lo + 1 > max_side).any():
+            return False
+        a = np.arange(hi[0] - max_side + 1, lo[0] + max_side)
+        b = np.arange(hi[1] - max_side + 1, lo[1] + max_side)
+        grid = np.stack(np.meshgrid(a, b, indexing="ij"), -1).reshape(-1, 2)
+        query = np.array([c for c in grid if (int(c[0]), int(c[1])) not in self.cells], dtype=np.float64)
+        saved = dict(self.cells), self.cell_of_point.copy()
+        if self.match(query.reshape(-1, 2), cells, idx, 0.5 * self.tol, sigma=float(max_side)) < min_added:
+            self.cells, self.cell_of_point = saved
+            return False
+        self.grow()
+        return True
 
 
 def _dilate(mask: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -368,30 +391,6 @@ def _select_window(
     return best if partial else best[:1]
 
 
-def _placement_contrast(image: np.ndarray, cells: np.ndarray, pts: np.ndarray,
-                        window: tuple[int, int, bool, int], cols: int, rows: int) -> float:
-    """Largest checker contrast (intensity range on a 5 x 5 grid within a quarter square along the lattice axes) at the
-    empty cells of a window of the lattice ``cells`` -> ``pts``: about none where a glare hides the board, and beyond
-    the board's edge the outer squares against the margin show the full step (cells outside the image read flat)."""
-    oa, ob, transposed, _ = window
-    wa, wb = (rows, cols) if transposed else (cols, rows)
-    grid = np.stack(np.meshgrid(np.arange(oa, oa + wa), np.arange(ob, ob + wb), indexing="ij"), -1).reshape(-1, 2)
-    taken = {(int(a), int(b)) for a, b in cells}
-    empty = np.array([c for c in grid if (int(c[0]), int(c[1])) not in taken], dtype=np.float64).reshape(-1, 2)
-    if len(empty) == 0:
-        return 0.0
-    s = np.linspace(-0.25, 0.25, 5)
-    off = np.stack(np.meshgrid(s, s, indexing="ij"), -1).reshape(-1, 2)
-    xy = _apply_h(_fit_homography(cells, pts), (empty[:, None] + off[None]).reshape(-1, 2)).astype(np.float32)
-    # bilinear samples; NaN outside the image
-    values = cv2.remap(np.ascontiguousarray(image, dtype=np.float32), xy[:, :1], xy[:, 1:], cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan")).reshape(len(empty), -1)
-    seen = np.isfinite(values).any(1)
-    if not seen.any():
-        return 0.0
-    return float((np.nanmax(values[seen], 1) - np.nanmin(values[seen], 1)).max())
-
-
 def _prune_inconsistent(lat: _Lattice, check_tolerance: float, sigma: float, max_drops: int = 12) -> float:
     """Leave-one-out check of every lattice corner against its neighbours' homography prediction.
 
@@ -455,22 +454,3 @@ def _board_extends(
             return True
         start += len(line)
     return False
-
-
-def _square_contrast(image: np.ndarray, h: np.ndarray, cols: int, rows: int) -> float:
-    """Mean brightness of the squares that should be light minus those that should be dark.
-
-    Under the colour convention (the outer square at corner 0 is dark), the inner square with
-    corners ``(i, j)`` to ``(i + 1, j + 1)`` and centre ``(i + 0.5, j + 0.5)`` is dark iff ``i + j`` is even.
-    Positive for a labelling that agrees with the image; nan when too few squares are visible.
-    """
-    j, i = np.meshgrid(np.arange(rows - 1), np.arange(cols - 1), indexing="ij")
-    centres = np.stack([i.ravel() + 0.5, j.ravel() + 0.5], -1).astype(np.float64)
-    dark = ((i + j) % 2 == 0).ravel()
-    xy = np.round(_apply_h(h, centres)).astype(np.int64)
-    height, width = image.shape
-    inside = (xy[:, 0] >= 0) & (xy[:, 0] < width) & (xy[:, 1] >= 0) & (xy[:, 1] < height)
-    if (inside & dark).sum() == 0 or (inside & ~dark).sum() == 0:
-        return float("nan")
-    values = image[xy[inside, 1], xy[inside, 0]]
-    return float(values[~dark[inside]].mean() - values[dark[inside]].mean())

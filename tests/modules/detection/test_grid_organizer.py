@@ -284,3 +284,33 @@ def test_partial_board_may_lose_most_of_a_border_line():
     short = grid[:, :, 1:][:, visible[:, 1:]].reshape(2, -1, 2)  # column 0 gone: 8 columns of peaks
     pts, mask = _shuffle(short, torch.Generator().manual_seed(12))
     assert not organize_grid(pts, mask, (9, 6), min_fraction=0.5, partial=True)[2].any()
+
+
+def test_partial_board_bridges_a_washed_out_band():
+    """A glare across the board's middle washes out whole columns: the peaks fall into two clusters that growth alone
+    cannot join (no cell of the gap has a peak). With ``partial``, the lattice bridges the gap (the far cluster fits
+    the homography of the near one), so the board is found with the band's cells invalid; without ``partial`` the
+    lattice stays at one cluster, under the asked fraction."""
+    gt, _ = _views(9, 6, 2, seed=21)
+    grid = gt.reshape(2, 6, 9, 2)
+    visible = torch.ones(6, 9, dtype=torch.bool)
+    visible[:, 3:6] = False  # columns 3-5 washed out: 3 + 3 columns of peaks
+    visible[5, 8] = False
+    pts, mask = _shuffle(grid[:, visible].reshape(2, -1, 2), torch.Generator().manual_seed(21))
+    corners, valid, found = organize_grid(pts, mask, (9, 6), min_fraction=0.4, partial=True)
+    assert found.all()
+    assert (valid.sum(1) == int(visible.sum())).all()
+    for b in range(2):
+        best = min(_labellings(gt[b], 9, 6), key=lambda o: float((corners[b] - o).norm(dim=-1)[valid[b]].max()))
+        assert (corners[b] - best).norm(dim=-1)[valid[b]].max() < 1.0
+    assert not organize_grid(pts, mask, (9, 6), min_fraction=0.4)[2].any()
+
+
+def test_bridge_does_not_join_a_pattern_wider_than_the_board():
+    """Two clusters of checker corners whose union is wider than the board (a gap of one column, 10 columns in all)
+    are not a 9x6 board with a washed-out column: the bridged lattice continues past the board's side."""
+    cells = torch.stack(torch.meshgrid(torch.arange(10.0), torch.arange(6.0), indexing="xy"), -1).reshape(-1, 2)
+    keep = (cells[:, 0] < 4) | (cells[:, 0] > 4)
+    pts = (40.0 + 30.0 * cells[keep])[None].double()
+    pts, mask = _shuffle(pts, torch.Generator().manual_seed(5))
+    assert not organize_grid(pts, mask, (9, 6), min_fraction=0.4, partial=True)[2].any()
