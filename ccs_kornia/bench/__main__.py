@@ -36,6 +36,8 @@ def build_parser(prog: str = "python -m ccs_kornia bench") -> argparse.ArgumentP
     p.add_argument("--calib-trials", type=int, default=None, help="trials per condition, calibration section")
     p.add_argument("--calib-views", type=int, default=None, help="views per trial")
     p.add_argument("--calib-pool-views", type=int, default=None, help="views rendered per camera (>= --calib-views)")
+    p.add_argument("--calib-conditions", nargs="+", default=None,
+                   help="conditions of the calibration section (default: preset's)")
     p.add_argument("--calib-trials-per-camera", type=int, default=None, help="trials drawn from one camera's pool")
     p.add_argument("--real-subsets", type=int, default=None, help="random view subsets per real set")
     p.add_argument("--real-sets", nargs="+", default=None, help="names of the real sets to run (default: preset's)")
@@ -81,6 +83,15 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
             overrides[name] = value
     if args.real_sets:
         overrides["real_sets"] = tuple(args.real_sets)
+    if args.calib_conditions:
+        from ccs_kornia.bench.config import CALIB_CONDITIONS
+
+        unknown = [c for c in args.calib_conditions if c not in CALIB_CONDITIONS]
+        if unknown:
+            print(f"{prog}: error: unknown calibration condition(s) {unknown}; expected some of {list(CALIB_CONDITIONS)}",
+                  file=sys.stderr)
+            return 2
+        overrides["calib_conditions"] = tuple(args.calib_conditions)
     if args.wild_conditions:
         from ccs_kornia.bench.wild import WILD_CONDITIONS
 

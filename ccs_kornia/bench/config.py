@@ -9,8 +9,8 @@ __all__ = ["SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "Benc
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
-#: conditions of the synthetic calibration section (paper Table I)
-CALIB_CONDITIONS: tuple[str, ...] = ("blur_noise", "bad_lighting", "level1", "level2")
+#: conditions of the synthetic calibration section (paper Table I, then the realistic optics of issue 10)
+CALIB_CONDITIONS: tuple[str, ...] = ("blur_noise", "bad_lighting", "level1", "level2", "optics", "optics_blur_noise")
 #: detection methods: key -> label used in the reports
 METHODS: dict[str, str] = {
     "learned": "ccs_kornia learned",
@@ -30,7 +30,12 @@ _CONDITION_PARTS: dict[str, tuple[str, str | None]] = {
     "level1": ("clean", "level1"),
     "level2": ("clean", "level2"),
     "severe": ("clean", "severe"),
+    "optics": ("clean", None),
+    "optics_blur_noise": ("blur_noise", None),
 }
+#: conditions finished by a camera's last mile, as every ``wild`` render is (``data.optics.apply_optics``: a 0.3-1 px
+#: Gaussian point spread, read and shot noise, a tone curve of gamma 1.8-2.4): optics kinder to no detector than ours
+OPTICS_CONDITIONS: tuple[str, ...] = ("optics", "optics_blur_noise")
 #: seed offsets of the sections, so no two sections render the same scene
 _SECTION_SEED = {"corners": 0, "calibration": 100_000, "distortion": 200_000, "speed": 300_000, "wild": 400_000}
 

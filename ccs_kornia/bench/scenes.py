@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ccs_kornia.bench.config import _CONDITION_PARTS, _SECTION_SEED, BenchConfig
+from ccs_kornia.bench.config import _CONDITION_PARTS, _SECTION_SEED, OPTICS_CONDITIONS, BenchConfig
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
 from ccs_kornia.data.sampling import sample_radial_distortion
 from ccs_kornia.data.scenes import make_calibration_set
@@ -78,7 +78,8 @@ def render_scenes(
     Args:
         cfg: benchmark configuration (image size, board, supersampling).
         condition: a key of the corner / calibration conditions (``clean``, ``blur_noise``, ``bad_lighting``,
-            ``combined``, ``mild``/``level1``, ``level2``, ``severe``).
+            ``combined``, ``mild``/``level1``, ``level2``, ``severe``, and ``optics`` / ``optics_blur_noise``: ``clean``
+            / ``blur_noise`` through the camera's last mile of the wild renders, see ``OPTICS_CONDITIONS``).
         cameras: number of random cameras.
         views: views per camera.
         section: section name (selects a disjoint seed range).
@@ -90,7 +91,9 @@ def render_scenes(
     if condition not in _CONDITION_PARTS:
         raise ValueError(f"Unknown condition {condition!r}; expected one of {sorted(_CONDITION_PARTS)}.")
     photometric, level = _CONDITION_PARTS[condition]
-    cond_index = sorted(_CONDITION_PARTS).index(condition)
+    # seed index: the older conditions in sorted order, the optics ones after them (their seeds never move)
+    names = sorted(c for c in _CONDITION_PARTS if c not in OPTICS_CONDITIONS) + list(OPTICS_CONDITIONS)
+    cond_index = names.index(condition)
     base = BENCH_SEED_BASE + _SECTION_SEED[section] + 1000 * cond_index
     gen = torch.Generator().manual_seed(base)
     Ks = random_cameras(cameras, cfg.image_size, gen)
@@ -108,7 +111,14 @@ def render_scenes(
             radial=rad[c] if (level is not None or radial is not None) else None,
             condition=photometric, seed=base + 1 + c, supersample=cfg.supersample,
         )
-        imgs.append(quantize(batch.images))
+        images = batch.images
+        if condition in OPTICS_CONDITIONS:
+            from ccs_kornia.data.optics import apply_optics
+
+            v = images.shape[0]  # no blur, glare or shadow: the square size and the board's place are not used
+            images = apply_optics(images, torch.Generator().manual_seed(base + 501 + c), torch.zeros(v),
+                                  torch.zeros(v, 2), torch.zeros(v), noise_sigma=(0.0, 0.01))
+        imgs.append(quantize(images))
         pts.append(batch.corners.double())
     return Scenes(
         images=torch.stack(imgs), corners=torch.stack(pts), K=Ks, radial=rad, condition=condition,

@@ -31,7 +31,8 @@ from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 
 __all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MAX_ASYMMETRY_RATIO_WHOLE",
-           "MIN_VISIBLE_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "settle_partial_boards"]
+           "MIN_VISIBLE_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "settle_partial_boards",
+           "spans_board"]
 
 #: a corner is hidden where its checker contrast is below this fraction of the median of the board's visible corners
 HIDDEN_CONTRAST_FRACTION = 0.25
@@ -171,6 +172,32 @@ def glare_rim(candidates: torch.Tensor, hidden: torch.Tensor, board_size: tuple[
     h = F.pad(hidden.reshape(-1, rows, cols).float(), (1, 1, 1, 1))
     near = h[:, :-2, 1:-1] + h[:, 2:, 1:-1] + h[:, 1:-1, :-2] + h[:, 1:-1, 2:]
     return candidates & ~hidden & (near > 0).reshape(hidden.shape)
+
+
+def spans_board(valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
+    r"""Whether the ``valid`` corners reach all four border lines of the board (its first and last row and column).
+
+    Such a lattice has one place on the board; a shorter one was placed by what the image shows at its empty cells,
+    and only the corners confirmed there vouch for that placement.
+
+    Args:
+        valid: :math:`(B, N)` bool, ``N = cols * rows`` in grid order.
+        board_size: ``(cols, rows)``.
+
+    Returns:
+        :math:`(B,)` bool.
+
+    Example:
+        >>> valid = torch.ones(2, 6, dtype=torch.bool)
+        >>> valid[1, [2, 5]] = False  # 3 x 2 board without its last column
+        >>> spans_board(valid, (3, 2)).tolist()
+        [True, False]
+    """
+    cols, rows = int(board_size[0]), int(board_size[1])
+    if valid.dim() != 2 or valid.shape[1] != cols * rows:
+        raise ValueError(f"valid must be (B, {cols * rows}), got {tuple(valid.shape)}.")
+    g = valid.reshape(-1, rows, cols)
+    return g[:, 0].any(-1) & g[:, -1].any(-1) & g[:, :, 0].any(-1) & g[:, :, -1].any(-1)
 
 
 def settle_partial_boards(

@@ -24,6 +24,7 @@ from ccs_kornia.modules.detection.hidden_corners import (
     glare_rim,
     hidden_corners,
     settle_partial_boards,
+    spans_board,
 )
 from ccs_kornia.modules.detection.missing_corners import lattice_deviation, predict_missing_corners
 from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, opencv_level_factor
@@ -408,10 +409,13 @@ class LearnedChessboardDetector(ChessboardDetector):
                 hidden = cells & hidden_corners(images, corners, cells & ~unconfirmed, board_size, fraction)
                 # at a glare's rim nothing is taken on trust: the saddle is lost while the checker still shows (60-90 %
                 # of the board's contrast), or the glare's edge pulls a confirmed saddle by pixels where the checker has
-                # faded (held-out glare render: 4.5 px off at 43 % of the contrast, 7.8x the median asymmetry)
+                # faded (held-out glare render: 4.5 px off at 43 % of the contrast, 7.8x the median asymmetry). An
+                # unconfirmed corner is excused so only where the lattice spans the board: a shorter one was placed by
+                # the image, and its unconfirmed corners are what refuses a wrong placement (held-out ArUco render:
+                # four of them, and 45 px off once they were excused)
                 rim = glare_rim(cells, hidden, board_size)
                 faded = hidden_corners(images, corners, cells & ~unconfirmed, board_size, UNCONFIRMED_CONTRAST_FRACTION)
-                hidden |= rim & (unconfirmed | faded)
+                hidden |= rim & ((unconfirmed & spans_board(valid, board_size)[:, None]) | faded)
             unverified = (unconfirmed & ~hidden).any(1)
             for b in unverified.nonzero().flatten().tolist():
                 n_bad = int((unconfirmed[b] & ~hidden[b]).sum())
