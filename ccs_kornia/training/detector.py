@@ -40,6 +40,10 @@ class DetectorLitModule(L.LightningModule):
             ``base_channels`` / ``depth`` / ``norm``. Loaded when fitting starts (``setup("fit")``), before Lightning
             restores a checkpoint, so a resumed run continues from its checkpoint and ``load_from_checkpoint`` never
             needs the file. ``None``: random initialisation.
+        teacher_weights: an exported weight file of a trained detector (any width) whose heatmaps the network also
+            learns (distillation: a smaller network learns what the teacher sees on the real sets as well as the
+            renders' exact targets); the teacher is frozen and never saved in checkpoints. ``None``: no teacher.
+        teacher_loss_weight: weight of the distillation term (the heatmap loss against the teacher's heatmap).
 
     Example:
         >>> m = DetectorLitModule(base_channels=4, depth=2)
@@ -58,11 +62,14 @@ class DetectorLitModule(L.LightningModule):
         sigma: float = 1.5,
         peak_threshold: float = 0.3,
         init_weights: str | None = None,
+        teacher_weights: str | None = None,
+        teacher_loss_weight: float = 1.0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
         self.net = CornerUNet(base_channels=base_channels, depth=depth, norm=norm)
         self.loss = HeatmapLoss(pos_weight=pos_weight)
+        object.__setattr__(self, "teacher", None)  # not a submodule: never trained, never in a checkpoint
 
     def load_weights(self, path: str | Path) -> None:
         """Load the network weights of an exported file (raises ``ValueError`` on a config mismatch)."""
@@ -72,6 +79,11 @@ class DetectorLitModule(L.LightningModule):
     def setup(self, stage: str) -> None:
         if stage == "fit" and self.hparams.init_weights:
             self.load_weights(self.hparams.init_weights)
+        if stage == "fit" and self.hparams.teacher_weights and self.teacher is None:
+            from ccs_kornia.modules.detection.learned_detector import load_corner_unet
+
+            teacher, _ = load_corner_unet(self.hparams.teacher_weights)
+            object.__setattr__(self, "teacher", teacher.requires_grad_(False).eval())
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         return self.net(images)
@@ -80,6 +92,12 @@ class DetectorLitModule(L.LightningModule):
         pred = self.net(batch["image"])
         loss = self.loss(pred, batch["heatmap"])
         self.log("train/loss", loss, prog_bar=True, batch_size=pred.shape[0])
+        if self.teacher is not None:
+            with torch.no_grad():
+                soft = self.teacher.to(pred.device)(batch["image"])
+            distil = self.loss(pred, soft)
+            self.log("train/distil", distil, prog_bar=True, batch_size=pred.shape[0])
+            loss = loss + self.hparams.teacher_loss_weight * distil
         return loss
 
     def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:

@@ -84,6 +84,27 @@ def test_render_scenes_seeded_and_quantised():
         render_scenes(cfg, "fog", 1, 1, "corners")
 
 
+def test_optics_conditions_finish_the_renders_and_keep_the_other_seeds():
+    """The realistic-optics conditions are the clean / blur+noise sets through the wild renders' camera chain (point
+    spread, noise, a tone curve: brighter mid-tones, softer edges); adding them moved no other condition's scenes."""
+    from ccs_kornia.bench.config import CALIB_CONDITIONS, OPTICS_CONDITIONS
+
+    cfg = BenchConfig.tiny()
+    assert set(OPTICS_CONDITIONS) <= set(CALIB_CONDITIONS)
+    optics = render_scenes(cfg, "optics", 1, 2, "calibration")
+    assert torch.equal(optics.images, render_scenes(cfg, "optics", 1, 2, "calibration").images)
+    assert torch.allclose(optics.images * 255, torch.round(optics.images * 255), atol=1e-4)
+    clean = render_scenes(cfg, "clean", 1, 2, "calibration")
+    assert not torch.equal(optics.K, clean.K)  # seeds of its own
+    assert float(optics.images.mean()) > float(clean.images.mean())  # gamma > 1 lifts the mid-tones
+    # the older conditions' seed index: their sorted order without the optics conditions (seed base + 1000 x index)
+    severe = render_scenes(cfg, "severe", 1, 1, "calibration")
+    gen = torch.Generator().manual_seed(9_000_000 + 100_000 + 1000 * 8)
+    from ccs_kornia.bench.scenes import random_cameras
+
+    assert torch.equal(severe.K, random_cameras(1, cfg.image_size, gen))
+
+
 def test_methods_detect_rendered_boards_precisely():
     cfg = BenchConfig.tiny()
     scenes = render_scenes(cfg, "clean", 1, 2, "corners")
@@ -272,6 +293,8 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
     assert "must be >= 1" in capsys.readouterr().err
     assert main(["--sections", "nope"]) == 2
     assert main(["--quick", "--tiny"]) == 2
+    assert main(["--tiny", "--sections", "calibration", "--calib-conditions", "fog", "--out", str(tmp_path)]) == 2
+    assert "unknown calibration condition" in capsys.readouterr().err
     assert main(["--tiny", "--calib-views", "8", "--calib-pool-views", "5", "--out", str(tmp_path)]) == 2
     with pytest.raises(ValueError):
         run_bench(BenchConfig.tiny(sections=("nope",)), tmp_path)

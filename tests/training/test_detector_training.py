@@ -83,3 +83,28 @@ def test_init_weights_loads_the_shipped_file():
     module.setup("fit")
     state = module.net.state_dict()
     assert all(torch.equal(state[k], v) for k, v in payload["state_dict"].items())
+
+
+def test_teacher_heatmaps_add_a_distillation_term_and_stay_out_of_checkpoints(tmp_path):
+    """A narrower student learns the shipped network's heatmaps as well as the exact targets; the frozen teacher is no
+    submodule: not in the state dict, the optimiser or the export."""
+    torch.manual_seed(0)
+    dm = DetectorDataModule(image_size=(64, 64), batch_size=2, supersample=1, board_cols=(3, 5), board_rows=(2, 4))
+    batch = dm.make_batch(torch.Generator().manual_seed(0))
+    teacher = DetectorLitModule(base_channels=4, depth=2)
+    path = tmp_path / "teacher.pt"
+    torch.save(teacher.export(), path)
+    student = DetectorLitModule(base_channels=2, depth=2, teacher_weights=str(path), teacher_loss_weight=0.5)
+    assert student.teacher is None  # loaded when fitting starts
+    student.setup("fit")
+    student.log = lambda *a, **k: None  # no trainer attached
+    loss = student.training_step(batch, 0)
+    pred = student(batch["image"])
+    with torch.no_grad():
+        soft = teacher.eval()(batch["image"])
+    expected = student.loss(pred, batch["heatmap"]) + 0.5 * student.loss(pred, soft)
+    assert torch.allclose(loss, expected)
+    assert not any(k.startswith("teacher") for k in student.state_dict())
+    assert all(not p.requires_grad for p in student.teacher.parameters())
+    assert sum(p.numel() for p in student.parameters()) == sum(p.numel() for p in student.net.parameters())
+    assert student.export()["config"]["base_channels"] == 2
