@@ -83,24 +83,19 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
             overrides[name] = value
     if args.real_sets:
         overrides["real_sets"] = tuple(args.real_sets)
-    if args.calib_conditions:
-        from ccs_kornia.bench.config import CALIB_CONDITIONS
-
-        unknown = [c for c in args.calib_conditions if c not in CALIB_CONDITIONS]
+    for name, kind in (("calib_conditions", "calibration"), ("wild_conditions", "wild")):
+        asked = getattr(args, name)
+        if not asked:
+            continue
+        if kind == "wild":
+            from ccs_kornia.bench.wild import WILD_CONDITIONS as known
+        else:
+            from ccs_kornia.bench.config import CALIB_CONDITIONS as known
+        unknown = [c for c in asked if c not in known]
         if unknown:
-            print(f"{prog}: error: unknown calibration condition(s) {unknown}; expected some of {list(CALIB_CONDITIONS)}",
-                  file=sys.stderr)
+            print(f"{prog}: error: unknown {kind} condition(s) {unknown}; expected some of {list(known)}", file=sys.stderr)
             return 2
-        overrides["calib_conditions"] = tuple(args.calib_conditions)
-    if args.wild_conditions:
-        from ccs_kornia.bench.wild import WILD_CONDITIONS
-
-        unknown = [c for c in args.wild_conditions if c not in WILD_CONDITIONS]
-        if unknown:
-            print(f"{prog}: error: unknown wild condition(s) {unknown}; expected some of {list(WILD_CONDITIONS)}",
-                  file=sys.stderr)
-            return 2
-        overrides["wild_conditions"] = tuple(args.wild_conditions)
+        overrides[name] = tuple(asked)
     if args.wild_time_limit is not None:
         if args.wild_time_limit <= 0:
             print(f"{prog}: error: --wild-time-limit must be > 0", file=sys.stderr)
