@@ -34,7 +34,8 @@ _CONDITION_PARTS: dict[str, tuple[str, str | None]] = {
     "optics_blur_noise": ("blur_noise", None),
 }
 #: conditions finished by a camera's last mile, as every ``wild`` render is (``data.optics.apply_optics``: a 0.3-1 px
-#: Gaussian point spread, read and shot noise, a tone curve of gamma 1.8-2.4): optics kinder to no detector than ours
+#: Gaussian point spread, read and shot noise, a tone curve of gamma 1.8-2.4; issue 10: the plain renders are kinder
+#: to our detector than real optics)
 OPTICS_CONDITIONS: tuple[str, ...] = ("optics", "optics_blur_noise")
 #: seed offsets of the sections, so no two sections render the same scene
 _SECTION_SEED = {"corners": 0, "calibration": 100_000, "distortion": 200_000, "speed": 300_000, "wild": 400_000}
