@@ -78,7 +78,12 @@ from ccs_kornia.modules.detection.lattice import (
     _prune_inconsistent,
     _select_window,
 )
-from ccs_kornia.modules.detection.lattice_evidence import _empty_cells_flat, _placement_contrast, _square_contrast
+from ccs_kornia.modules.detection.lattice_evidence import (
+    _empty_cell_contrast,
+    _empty_cells_flat,
+    _placement_contrast,
+    _square_contrast,
+)
 
 __all__ = ["organize_grid", "GridOrganizer", "is_symmetric_board"]
 
@@ -148,9 +153,11 @@ def _organize_one(
             # a partial board's lattice shorter than the board: the hidden lines go where the image shows no checker
             if image is None:
                 continue
-            windows.sort(key=lambda w: _placement_contrast(image, cells, p[idx], w, cols, rows))
-            if not _empty_cells_flat(image, cells, p[idx], windows[0], cols, rows):
+            scored = [(w, _empty_cell_contrast(image, cells, p[idx], w, cols, rows)) for w in windows]
+            scored.sort(key=lambda ws: _placement_contrast(ws[1]))
+            if not _empty_cells_flat(image, cells, p[idx], scored[0][1]):
                 continue  # the image shows a checker at the empty cells: corners missed, not hidden
+            windows = [scored[0][0]]
         oa, ob, transposed, _ = windows[0]
         wa, wb = (rows, cols) if transposed else (cols, rows)
         inside = (cells[:, 0] >= oa) & (cells[:, 0] < oa + wa) & (cells[:, 1] >= ob) & (cells[:, 1] < ob + wb)

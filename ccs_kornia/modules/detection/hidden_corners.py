@@ -31,8 +31,8 @@ from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 
 __all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MAX_ASYMMETRY_RATIO_WHOLE",
-           "MIN_VISIBLE_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "settle_partial_boards",
-           "spans_board"]
+           "MIN_VISIBLE_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "relative_contrast",
+           "settle_partial_boards", "spans_board"]
 
 #: a corner is hidden where its checker contrast is below this fraction of the median of the board's visible corners
 HIDDEN_CONTRAST_FRACTION = 0.25
@@ -141,12 +141,38 @@ def hidden_corners(
     fraction = torch.as_tensor(fraction, dtype=torch.float64)
     if not bool(((fraction > 0) & (fraction < 1)).all()):
         raise ValueError(f"fraction must be in (0, 1), got {fraction}.")
+    relative = relative_contrast(images, corners, visible, board_size)
+    return (relative < fraction.to(relative)).nan_to_num(False)
+
+
+def relative_contrast(
+    images: torch.Tensor, corners: torch.Tensor, visible: torch.Tensor, board_size: tuple[int, int]
+) -> torch.Tensor:
+    r""":func:`checker_contrast` of every corner over its median on the ``visible`` corners of the board (what
+    :func:`hidden_corners` compares with its fractions; one measurement serves several thresholds).
+
+    Args:
+        images, corners, visible, board_size: see :func:`hidden_corners`.
+
+    Returns:
+        :math:`(B, N)`, NaN on boards without a visible corner and at corners whose contrast cannot be measured.
+
+    Example:
+        >>> img = torch.zeros(1, 1, 96, 128)
+        >>> for i in range(4):
+        ...     for j in range(3):
+        ...         img[..., 32 * j:32 * j + 32, 32 * i:32 * i + 32] = float((i + j) % 2)
+        >>> img[..., :, 80:] = 1.0
+        >>> pts = torch.tensor([[[32.0 * i - 0.5, 32.0 * j - 0.5] for j in (1, 2) for i in (1, 2, 3)]])
+        >>> relative_contrast(img, pts, torch.ones(1, 6, dtype=torch.bool), (3, 2)).tolist()
+        [[1.0, 1.0, 0.0, 1.0, 1.0, 0.0]]
+    """
     contrast = checker_contrast(images, corners, board_size)
     if visible.shape != contrast.shape:
         raise ValueError(f"visible must be {tuple(contrast.shape)}, got {tuple(visible.shape)}.")
     reference = torch.where(visible.to(contrast.device), contrast, torch.full_like(contrast, float("nan")))
     reference = reference.nanmedian(-1, keepdim=True).values
-    return (contrast < fraction.to(contrast) * reference).nan_to_num(False) & reference.isfinite()
+    return torch.where(reference > 0, contrast / reference, torch.full_like(contrast, float("nan")))
 
 
 def glare_rim(candidates: torch.Tensor, hidden: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:

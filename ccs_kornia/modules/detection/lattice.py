@@ -350,7 +350,7 @@ def _select_window(
     line, and the one best window is returned. With ``partial``, a border line may be nearly empty where the lattice
     spans exactly the window in that direction (a glare over one side of the board leaves its outermost corners at
     both ends), and where the lattice is shorter than the board (a glare across it) every placement holding the whole
-    lattice is returned: the image decides (:func:`_placement_contrast`)."""
+    lattice is returned: the image decides (:mod:`~ccs_kornia.modules.detection.lattice_evidence`)."""
     lo = cells.min(0).astype(np.int64)
     ext = cells.max(0).astype(np.int64) - lo + 1
     occ = np.zeros(tuple(ext), dtype=bool)

@@ -1,7 +1,7 @@
 """What the image says about a lattice of :mod:`~ccs_kornia.modules.detection.lattice` (numpy, float64).
 
 * :func:`_cell_contrast`: the checker contrast at lattice cells (a quarter-square intensity range);
-* :func:`_placement_contrast`, :func:`_empty_cells_flat`: where a partial board's lattice, shorter than the board, sits
+* :func:`_empty_cell_contrast`, :func:`_placement_contrast`, :func:`_empty_cells_flat`: where a partial board's lattice, shorter than the board, sits
   on it: its empty cells must show no checker (a glare, an occluder), unlike the margin beyond the board's edge or
   corners that the network missed;
 * :func:`_square_contrast`: the square colours that tell the two 180-degree orientations of a non-symmetric board
@@ -48,22 +48,27 @@ def _empty_cells(cells: np.ndarray, window: tuple[int, int, bool, int], cols: in
     return np.array([c for c in grid if (int(c[0]), int(c[1])) not in taken], dtype=np.float64).reshape(-1, 2)
 
 
-def _placement_contrast(image: np.ndarray, cells: np.ndarray, pts: np.ndarray,
-                        window: tuple[int, int, bool, int], cols: int, rows: int) -> float:
-    """Largest :func:`_cell_contrast` at the empty cells of a window of the lattice ``cells`` -> ``pts``: about none
-    where a glare hides the board, and beyond the board's edge the outer squares against the margin show the full step
-    (cells outside the image read flat)."""
-    contrast = _cell_contrast(image, cells, pts, _empty_cells(cells, window, cols, rows))
-    return float(np.nanmax(contrast)) if np.isfinite(contrast).any() else 0.0
+def _empty_cell_contrast(image: np.ndarray, cells: np.ndarray, pts: np.ndarray,
+                         window: tuple[int, int, bool, int], cols: int, rows: int) -> np.ndarray:
+    """:func:`_cell_contrast` at the empty cells of a window of the lattice ``cells`` -> ``pts``: about none where a
+    glare hides the board, and beyond the board's edge the outer squares against the margin show the full step (cells
+    outside the image read NaN)."""
+    return _cell_contrast(image, cells, pts, _empty_cells(cells, window, cols, rows))
 
 
-def _empty_cells_flat(image: np.ndarray, cells: np.ndarray, pts: np.ndarray, window: tuple[int, int, bool, int],
-                      cols: int, rows: int, fraction: float = 0.5) -> bool:
-    """Whether most empty cells of the window show no checker (median :func:`_cell_contrast` below ``fraction`` of the
-    lattice's own): a lattice short of the board because something hides the rest, not because the network missed
-    corners that the image shows (a coarse level of ``ros_fisheye_mono/left-0016``: 0.81 of the board's contrast at
-    the best placement's empty cells, against at most 0.19 under the glares of bench and held-out renders)."""
-    empty = _cell_contrast(image, cells, pts, _empty_cells(cells, window, cols, rows))
+def _placement_contrast(empty: np.ndarray) -> float:
+    """The largest contrast of :func:`_empty_cell_contrast` (0 where none is measured): the placement with the least
+    is the one under the glare."""
+    return float(np.nanmax(empty)) if np.isfinite(empty).any() else 0.0
+
+
+def _empty_cells_flat(image: np.ndarray, cells: np.ndarray, pts: np.ndarray, empty: np.ndarray,
+                      fraction: float = 0.5) -> bool:
+    """Whether most empty cells of a placement show no checker (median of their :func:`_empty_cell_contrast`
+    ``empty`` below ``fraction`` of the lattice's own contrast): a lattice short of the board because something hides
+    the rest, not because the network missed corners that the image shows (a coarse level of
+    ``ros_fisheye_mono/left-0016``: 0.81 of the board's contrast at the best placement's empty cells, against at most
+    0.19 under the glares of bench and held-out renders)."""
     own = np.nanmedian(_cell_contrast(image, cells, pts, cells))
     return not np.isfinite(empty).any() or bool(np.nanmedian(empty) < fraction * own)
 

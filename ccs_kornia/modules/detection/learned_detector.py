@@ -22,7 +22,7 @@ from ccs_kornia.modules.detection.hidden_corners import (
     HIDDEN_CONTRAST_FRACTION,
     UNCONFIRMED_CONTRAST_FRACTION,
     glare_rim,
-    hidden_corners,
+    relative_contrast,
     settle_partial_boards,
     spans_board,
 )
@@ -405,8 +405,9 @@ class LearnedChessboardDetector(ChessboardDetector):
             # (confirmed saddles at the rim of a glare are off by pixels: bench glare renders, up to 9 px)
             unconfirmed = missing & ~ok
             if self.partial_boards:
-                fraction = torch.where(unconfirmed, UNCONFIRMED_CONTRAST_FRACTION, HIDDEN_CONTRAST_FRACTION)
-                hidden = cells & hidden_corners(images, corners, cells & ~unconfirmed, board_size, fraction)
+                relative = relative_contrast(images, corners, cells & ~unconfirmed, board_size)
+                faded = (relative < UNCONFIRMED_CONTRAST_FRACTION).nan_to_num(False)
+                hidden = cells & ((relative < HIDDEN_CONTRAST_FRACTION).nan_to_num(False) | (unconfirmed & faded))
                 # at a glare's rim nothing is taken on trust: the saddle is lost while the checker still shows (60-90 %
                 # of the board's contrast), or the glare's edge pulls a confirmed saddle by pixels where the checker has
                 # faded (held-out glare render: 4.5 px off at 43 % of the contrast, 7.8x the median asymmetry). An
@@ -414,7 +415,6 @@ class LearnedChessboardDetector(ChessboardDetector):
                 # the image, and its unconfirmed corners are what refuses a wrong placement (held-out ArUco render:
                 # four of them, and 45 px off once they were excused)
                 rim = glare_rim(cells, hidden, board_size)
-                faded = hidden_corners(images, corners, cells & ~unconfirmed, board_size, UNCONFIRMED_CONTRAST_FRACTION)
                 hidden |= rim & ((unconfirmed & spans_board(valid, board_size)[:, None]) | faded)
             unverified = (unconfirmed & ~hidden).any(1)
             for b in unverified.nonzero().flatten().tolist():
