@@ -233,11 +233,14 @@ def settle_partial_boards(
 ) -> DetectionResult:
     r"""Leave out the corners of the found boards whose point symmetry is far worse than the board's median (more than
     ``max_asymmetry`` times on boards with hidden (NaN) corners, ``max_asymmetry_whole`` times on the others), then
-    refuse the boards left with fewer than ``min_visible`` of their corners.
+    refuse the boards left with fewer than ``min_visible`` of their corners. The point-symmetry residuals it measured
+    are kept as the result's per-corner precision (``sigma``, NaN at the corners left out and off the boards found),
+    so that a solver weighing corners by it need not measure them again.
 
     Args:
         images: :math:`(B, 1, H, W)` the full-resolution images of ``result``.
-        result: a :class:`~ccs_kornia.modules.detection.base.DetectionResult` (modified in place and returned).
+        result: a :class:`~ccs_kornia.modules.detection.base.DetectionResult` (modified in place, ``sigma``
+            replaced, and returned).
         board_size: ``(cols, rows)``.
         max_asymmetry, min_visible, max_asymmetry_whole: see above.
 
@@ -257,6 +260,8 @@ def settle_partial_boards(
     """
     n = result.corners.shape[1]
     idx = result.found.nonzero().flatten()
+    result.sigma = torch.full(result.corners.shape[:2], float("nan"), dtype=torch.float32,
+                              device=result.corners.device)
     if idx.numel() == 0:
         return result
     corners = result.corners[idx]
@@ -266,11 +271,14 @@ def settle_partial_boards(
     limit = torch.where(measured.all(-1), max_asymmetry_whole, max_asymmetry)[:, None]
     corners = corners.masked_fill((ratio > limit.to(ratio))[..., None].to(corners.device), float("nan"))
     result.corners[idx] = corners
+    result.sigma[idx] = sigma.to(result.sigma).masked_fill(~corners.isfinite().all(-1).to(result.sigma.device),
+                                                           float("nan"))
     visible = corners.isfinite().all(-1).sum(-1)
     for k, b in enumerate(idx.tolist()):
         if int(visible[k]) < min_visible * n:
             result.found[b] = False
             result.corners[b] = 0.0
+            result.sigma[b] = float("nan")
             if result.reasons is not None:
                 result.reasons[b] = f"board incomplete: {n - int(visible[k])} of {n} corners hidden"
     return result

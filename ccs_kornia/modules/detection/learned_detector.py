@@ -233,7 +233,7 @@ class LearnedChessboardDetector(ChessboardDetector):
                 left_out = (out.found[:, None] & ~out.valid).sum(-1)
                 for b in left_out.nonzero().flatten().tolist():
                     out.found[b], out.reasons[b] = False, f"board refused: {int(left_out[b])} corner(s) not on a junction"
-                    out.corners[b] = 0.0
+                    out.corners[b], out.sigma[b] = 0.0, float("nan")
         with stage("grid checks"):
             # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
             # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners
@@ -242,7 +242,7 @@ class LearnedChessboardDetector(ChessboardDetector):
                                       board_size)
                 if reason:
                     out.found[b], out.reasons[b] = False, f"board refused: {reason}"
-                    out.corners[b] = 0.0
+                    out.corners[b], out.sigma[b] = 0.0, float("nan")
         return out
 
     def _refine_at_full_size(self, full: torch.Tensor, pts: torch.Tensor, board_size: tuple[int, int], factor: float,

@@ -116,11 +116,21 @@ def test_settle_leaves_out_a_corner_off_its_junction_on_any_board():
     img = img + 0.02 * torch.randn(img.shape, generator=torch.Generator().manual_seed(0))
     wrong = pts.clone()
     wrong[0, 7, 0] += 8.0  # on the edge between two squares, 8 px (1/3 square) right of the junction
-    out = settle_partial_boards(img, DetectionResult(wrong, torch.tensor([True]), ["learned"]), (5, 4))
+    out = settle_partial_boards(img, DetectionResult(wrong.clone(), torch.tensor([True]), ["learned"]), (5, 4))
     assert out.found.tolist() == [True]
     assert (~out.corners[0].isfinite().all(-1)).nonzero().flatten().tolist() == [7]
+    # the precision it measured is the result's sigma: NaN where left out, corner_uncertainty's elsewhere
+    from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
+
+    measured = torch.ones(1, 20, dtype=torch.bool)
+    expected = corner_uncertainty(img, wrong, measured, (5, 4))
+    assert out.sigma.isnan().nonzero()[:, 1].tolist() == [7]
+    assert torch.equal(out.sigma[out.valid], expected[out.valid])
     out = settle_partial_boards(img, DetectionResult(pts.clone(), torch.tensor([True]), ["learned"]), (5, 4))
     assert bool(out.corners.isfinite().all())
+    assert torch.equal(out.sigma, corner_uncertainty(img, pts, measured, (5, 4)))
+    gone = settle_partial_boards(img, DetectionResult(pts.clone(), torch.tensor([False]), ["board not found"]), (5, 4))
+    assert bool(gone.sigma.isnan().all())
 
 
 def test_a_wrong_corner_of_a_cut_board_is_left_out_not_reported():
