@@ -80,6 +80,11 @@ class LearnedChessboardDetector(ChessboardDetector):
     5. optional collinearity refinement (only meaningful on undistorted images);
     6. optional saddle-point refinement on the image (window adapted to the grid spacing).
 
+    Its :class:`DetectionResult` carries each corner's point-symmetry residual (``sigma``,
+    :func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_uncertainty`), measured for the asymmetry check
+    (:func:`~ccs_kornia.modules.detection.hidden_corners.settle_partial_boards`) and reused by solvers that weigh
+    corners by it.
+
     Args:
         net: a trained :class:`CornerUNet` (a copy with its batch normalisation folded is used); ``None`` loads
             ``weights``.
