@@ -37,6 +37,8 @@ _CONDITION_PARTS: dict[str, tuple[str, str | None]] = {
 #: Gaussian point spread, read and shot noise, a tone curve of gamma 1.8-2.4; issue 10: the plain renders are kinder
 #: to our detector than real optics)
 OPTICS_CONDITIONS: tuple[str, ...] = ("optics", "optics_blur_noise")
+#: the real sets with fisheye lenses (section 7 calibrates them with a fisheye model; section 3 leaves them out)
+FISHEYE_REAL_SETS: tuple[str, ...] = ("ros_fisheye_mono", "boofcv_fisheye_chessboard")
 #: seed offsets of the sections, so no two sections render the same scene
 _SECTION_SEED = {"corners": 0, "calibration": 100_000, "distortion": 200_000, "speed": 300_000, "wild": 400_000}
 
@@ -147,7 +149,7 @@ class BenchConfig:
     fisheye_fov: tuple[float, float] = (120.0, 200.0)
     fisheye_fail_px: float = 20.0
     fisheye_rendered: bool = True
-    fisheye_real_sets: tuple[str, ...] = ("ros_fisheye_mono", "boofcv_fisheye_chessboard")
+    fisheye_real_sets: tuple[str, ...] = FISHEYE_REAL_SETS
     preset: str = "full"
     extra: dict = field(default_factory=dict)
 

@@ -286,6 +286,10 @@ def test_real_section_and_boxplot(tmp_path):
 
     img = cv2.imread(str(png))
     assert img is not None and img.shape[0] > 100 and img.shape[1] > 300
+    # the fisheye sets are section 7's (a fisheye model on both sides), named so in the skip reason
+    skipped = run_real(BenchConfig.tiny(real_dir=str(REAL), real_sets=("ros_fisheye_mono", "nope")), {},
+                       log=lambda *_: None)["skipped"]
+    assert "section 7" in skipped["ros_fisheye_mono"] and "unknown set" in skipped["nope"]
 
 
 def test_bad_arguments_exit_2(tmp_path, capsys):
