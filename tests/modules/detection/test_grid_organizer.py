@@ -263,6 +263,20 @@ def test_image_resolves_180_degrees_for_non_symmetric_boards(board):
             assert (corners[b] - torch.from_numpy(cv.reshape(-1, 2)).double()).norm(dim=-1).max() < 5.0
 
 
+def _found_with_hidden_cells(gt, visible, seed, min_fraction):
+    """The visible corners of ``gt`` (B, 54, 2) shuffled and organised with ``partial``: every board found, exactly the
+    visible cells valid, each within 1 px of one of its labellings. Returns the shuffled peaks and their mask."""
+    grid = gt.reshape(gt.shape[0], 6, 9, 2)
+    pts, mask = _shuffle(grid[:, visible].reshape(gt.shape[0], -1, 2), torch.Generator().manual_seed(seed))
+    corners, valid, found = organize_grid(pts, mask, (9, 6), min_fraction=min_fraction, partial=True)
+    assert found.all()
+    assert (valid.sum(1) == int(visible.sum())).all()
+    for b in range(gt.shape[0]):
+        best = min(_labellings(gt[b], 9, 6), key=lambda o: float((corners[b] - o).norm(dim=-1)[valid[b]].max()))
+        assert (corners[b] - best).norm(dim=-1)[valid[b]].max() < 1.0
+    return pts, mask
+
+
 def test_partial_board_may_lose_most_of_a_border_line():
     """A glare over one side leaves a border column with its two end corners only: with ``partial``, the lattice
     still spans the whole board there (the window cannot slide), so it is found with the hidden cells invalid;
@@ -273,13 +287,7 @@ def test_partial_board_may_lose_most_of_a_border_line():
     visible = torch.ones(6, 9, dtype=torch.bool)
     visible[1:5, 0] = False  # column 0: only its end corners
     visible[2:4, 1:4] = False  # and a hole inside
-    pts, mask = _shuffle(grid[:, visible].reshape(2, -1, 2), torch.Generator().manual_seed(11))
-    corners, valid, found = organize_grid(pts, mask, (9, 6), min_fraction=0.5, partial=True)
-    assert found.all()
-    assert (valid.sum(1) == int(visible.sum())).all()
-    for b in range(2):
-        best = min(_labellings(gt[b], 9, 6), key=lambda o: float((corners[b] - o).norm(dim=-1)[valid[b]].max()))
-        assert (corners[b] - best).norm(dim=-1)[valid[b]].max() < 1.0
+    pts, mask = _found_with_hidden_cells(gt, visible, 11, 0.5)
     assert not organize_grid(pts, mask, (9, 6), min_fraction=0.5)[2].any()
     short = grid[:, :, 1:][:, visible[:, 1:]].reshape(2, -1, 2)  # column 0 gone: 8 columns of peaks
     pts, mask = _shuffle(short, torch.Generator().manual_seed(12))
@@ -292,17 +300,10 @@ def test_partial_board_bridges_a_washed_out_band():
     the homography of the near one), so the board is found with the band's cells invalid; without ``partial`` the
     lattice stays at one cluster, under the asked fraction."""
     gt, _ = _views(9, 6, 2, seed=21)
-    grid = gt.reshape(2, 6, 9, 2)
     visible = torch.ones(6, 9, dtype=torch.bool)
     visible[:, 3:6] = False  # columns 3-5 washed out: 3 + 3 columns of peaks
     visible[5, 8] = False
-    pts, mask = _shuffle(grid[:, visible].reshape(2, -1, 2), torch.Generator().manual_seed(21))
-    corners, valid, found = organize_grid(pts, mask, (9, 6), min_fraction=0.4, partial=True)
-    assert found.all()
-    assert (valid.sum(1) == int(visible.sum())).all()
-    for b in range(2):
-        best = min(_labellings(gt[b], 9, 6), key=lambda o: float((corners[b] - o).norm(dim=-1)[valid[b]].max()))
-        assert (corners[b] - best).norm(dim=-1)[valid[b]].max() < 1.0
+    pts, mask = _found_with_hidden_cells(gt, visible, 21, 0.4)
     assert not organize_grid(pts, mask, (9, 6), min_fraction=0.4)[2].any()
 
 
