@@ -92,3 +92,33 @@ def test_skipped_line_judges_partial_boards_on_their_measured_corners():
     every_other = _lattice(4, 3, 32.0, (15.5, 15.5))
     every_other[5] = np.nan
     assert "skips a row" in skipped_line(img, every_other, (4, 3))
+
+
+def _charuco_image(square: int = 24, size: int = 264, fill: float = 0.6) -> np.ndarray:
+    """A checker whose white squares carry a dark marker block of side ``fill`` squares (ChArUco-like)."""
+    img = _checker_image(square, size)
+    margin = int(round(square * (1 - fill) / 2))
+    for y0 in range(0, size, square):
+        for x0 in range(0, size, square):
+            if img[y0, x0] > 0.5:
+                img[y0 + margin:y0 + square - margin, x0 + margin:x0 + square - margin] = 0.0
+    return img
+
+
+def test_skipped_line_refuses_a_lattice_through_every_other_corner_of_a_marked_board():
+    # bench section 6, ChArUco renders: a network missed the corners of one parity, the organiser joined the others
+    # along steps (2, 0) and (1, 1) squares into an 8 x 5 board whose 20 other corners fell off the board ('hidden')
+    img, s = _charuco_image(), 24
+    cols, rows = 8, 5
+    board = np.full((rows, cols, 2), np.nan)
+    for r in range(rows):
+        for c in range(cols):
+            i, j = 2 * c - r - 3, r  # in squares; the lattice's corners are those on the board below
+            if 0 <= i <= 8 and 0 <= j <= 8:
+                board[r, c] = (s * (i + 1) - 0.5, s * (j + 1) - 0.5)
+    assert 12 <= np.isfinite(board[..., 0]).sum() < cols * rows
+    assert "skips a row" in skipped_line(img, board.reshape(-1, 2), (cols, rows))
+    # the true partial board with the same corners hidden passes
+    true = _lattice(cols, rows, float(s), (s - 0.5, s - 0.5)).reshape(rows, cols, 2)
+    true[~np.isfinite(board[..., 0])] = np.nan
+    assert skipped_line(img, true.reshape(-1, 2), (cols, rows)) == ""
