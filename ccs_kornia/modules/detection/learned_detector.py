@@ -426,6 +426,14 @@ class LearnedChessboardDetector(ChessboardDetector):
                 n_bad = int((unconfirmed[b] & ~hidden[b]).sum())
                 reasons[b] = f"board incomplete: {n_bad} corner(s) not confirmed in the image"
             found = found & ~unverified
+            # a partial board is checked for skipped lines here already, so that a refused lattice through every
+            # other corner (a level where one parity of the corners lost its peaks: ChArUco renders) leaves the
+            # other levels and looks their turn (forward's final check would refuse it with nothing else tried)
+            for b in (found & hidden.any(1)).nonzero().flatten().tolist():
+                shown = corners[b].masked_fill(hidden[b, :, None], float("nan"))
+                reason = skipped_line(images[b, 0].float().cpu().numpy(), shown.double().cpu().numpy(), board_size)
+                if reason:
+                    found[b], reasons[b] = False, f"board refused: {reason}"
         corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
         corners = corners.masked_fill(hidden[..., None] & found[:, None, None], float("nan"))
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
