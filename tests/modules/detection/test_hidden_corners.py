@@ -340,3 +340,37 @@ def test_unconfirmed_corners_of_a_placed_lattice_still_refuse_it():
     out = LearnedChessboardDetector()(img, board)
     assert bool(out.found[0]) and bool(out.valid[0].all())
     assert float((out.corners[0].double() - truth).norm(dim=-1).max()) < 0.1
+
+
+def test_a_partial_board_refused_for_skipped_lines_at_its_level_leaves_the_other_levels_their_turn(monkeypatch):
+    """The skipped-line test runs on a partial board where it was found (a lattice through every other corner of a
+    ChArUco board, whose other corners lost their peaks at that level, looks like a partial board): refused there,
+    the other levels and looks are tried, instead of the final check refusing the image with nothing else tried."""
+    import ccs_kornia.modules.detection.learned_detector as ld
+    from ccs_kornia.bench.scenes import quantize
+    from ccs_kornia.bench.wild import wild_spec
+    from ccs_kornia.data.wild import WildChessboards
+
+    spec, board = wild_spec("glare")
+    batch = WildChessboards(spec).sample(1, torch.Generator().manual_seed(HELD_OUT_GLARE_SEED + 33))
+    img = quantize(batch.images)
+    levels, hidden_seen = [], []
+    detect_level = ld.LearnedChessboardDetector.detect_level
+
+    def counted(self, *args, **kwargs):
+        levels.append(1)
+        return detect_level(self, *args, **kwargs)
+
+    monkeypatch.setattr(ld.LearnedChessboardDetector, "detect_level", counted)
+    assert bool(ld.LearnedChessboardDetector()(img, board).found[0]) and len(levels) == 1
+
+    def refuse(image, corners, board_size):
+        hidden_seen.append(int(np.isnan(corners).any(-1).sum()))
+        return "the grid skips a row of corners (a corner lies between two detected neighbours)"
+
+    monkeypatch.setattr(ld, "skipped_line", refuse)
+    levels.clear()
+    out = ld.LearnedChessboardDetector()(img, board)
+    assert not bool(out.found[0]) and "skips a row" in out.reasons[0]
+    assert hidden_seen and hidden_seen[0] >= 3, "the partial board was judged with its hidden corners left out"
+    assert len(levels) > 1, "the other levels were looked at after the refusal"
