@@ -464,8 +464,8 @@ class CalibrationPipeline(nn.Module):
             # ``scale="auto"``, modules/detection/scale.py) bounds its memory itself
             if limit is None or max(h, w) <= limit or getattr(self.detector, "selects_scale", False):
                 det = self.detector(images.float(), board_size)  # the learned one measures sigma (asymmetry check)
-                sigma = None if not self.weigh_corners else det.sigma if det.sigma is not None else self.corner_sigma(
-                    images, det.corners, board_size, det.found)
+                sigma = (det.sigma if det.sigma is not None else self.corner_sigma(images, det.corners, board_size,
+                                                                                   det.found)) if self.weigh_corners else None
                 return DetectionResult(det.corners, det.found, det.reasons, sigma)
             scale = max(h, w) / limit
             small_size = (max(8, round(h / scale)), max(8, round(w / scale)))
