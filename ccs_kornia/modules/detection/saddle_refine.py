@@ -87,6 +87,15 @@ def _border_index(idx: torch.Tensor, size: int, mode: str) -> torch.Tensor:
     return idx.clamp(0, size - 1)
 
 
+def _gather_regions(img: torch.Tensor, bi: torch.Tensor, ys: torch.Tensor, xs: torch.Tensor) -> torch.Tensor:
+    """``img[bi, 0, ys[:, :, None], xs[:, None, :]]`` of a one-channel batch (M regions of rows ``ys`` (M, P) and columns
+    ``xs`` (M, Q)) as one ``take`` on the flat image: the same values, in about half the time of the four-index
+    gather (which computes an offset per index tensor and element)."""
+    h, w = img.shape[-2:]
+    lin = (bi[:, None, None] * (h * w) + ys[:, :, None] * w) + xs[:, None, :]
+    return img.reshape(-1).take(lin)
+
+
 def _blurred_regions(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor, q: int, sigma: float,
                      mode: str) -> torch.Tensor:
     """``q x q`` regions (top-left pixel ``top_left`` (M, 2) xy of image ``bi`` (M,)) of the image blurred with the
@@ -98,13 +107,13 @@ def _blurred_regions(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor
     if not sigma > 0:
         ys = _border_index(top_left[:, 1, None] + torch.arange(q, device=dev), h, mode)
         xs = _border_index(top_left[:, 0, None] + torch.arange(q, device=dev), w, mode)
-        return img[bi[:, None, None], 0, ys[:, :, None], xs[:, None, :]]
+        return _gather_regions(img, bi, ys, xs)
     k = 2 * int(round(3 * sigma)) + 1
     m = k // 2
     span = torch.arange(q + 2 * m, device=dev)
     ys = _border_index(top_left[:, 1, None] - m + span, h, mode)
     xs = _border_index(top_left[:, 0, None] - m + span, w, mode)
-    patch = img[bi[:, None, None], 0, ys[:, :, None], xs[:, None, :]]  # (M, q + 2m, q + 2m)
+    patch = _gather_regions(img, bi, ys, xs)  # (M, q + 2m, q + 2m)
     g = gaussian_kernel1d(k, sigma, dev, img.dtype)
     band = torch.zeros(q + 2 * m, q, device=dev, dtype=img.dtype)
     taps = torch.arange(k, device=dev)[:, None] + torch.arange(q, device=dev)[None, :]  # (k, q) patch rows
