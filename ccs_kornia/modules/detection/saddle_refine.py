@@ -29,7 +29,7 @@ import math
 
 import torch
 import torch.nn.functional as F
-from kornia.filters import gaussian_blur2d, spatial_gradient
+from kornia.filters import spatial_gradient
 
 from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules.detection.grid_geometry import grid_spacing
@@ -73,12 +73,6 @@ def _sample(image: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     return F.grid_sample(image, torch.stack([gx, gy], -1), mode="bilinear", padding_mode="border", align_corners=True)
 
 
-def _local_mean(img: torch.Tensor, sigma: float) -> torch.Tensor:
-    """Gaussian local mean at scale ``sigma`` (separable kernel, replicate border)."""
-    k = 2 * int(round(3 * sigma)) + 1
-    return gaussian_blur2d(img, (k, k), (sigma, sigma), border_type="replicate", separable=True)
-
-
 def _border_index(idx: torch.Tensor, size: int, mode: str) -> torch.Tensor:
     """Pixel index of ``idx`` under a border rule: ``"reflect"`` (torch's, no edge repeat) or ``"replicate"``."""
     if mode == "reflect" and size > 1:
@@ -88,9 +82,8 @@ def _border_index(idx: torch.Tensor, size: int, mode: str) -> torch.Tensor:
 
 
 def _gather_regions(img: torch.Tensor, bi: torch.Tensor, ys: torch.Tensor, xs: torch.Tensor) -> torch.Tensor:
-    """``img[bi, 0, ys[:, :, None], xs[:, None, :]]`` of a one-channel batch (M regions of rows ``ys`` (M, P) and columns
-    ``xs`` (M, Q)) as one ``take`` on the flat image: the same values, in about half the time of the four-index
-    gather (which computes an offset per index tensor and element)."""
+    """``img[bi, 0, ys[:, :, None], xs[:, None, :]]`` (regions of rows ``ys`` (M, P), columns ``xs`` (M, Q)) as one
+    ``take`` on the flat image: the same values, faster than the four-index gather."""
     h, w = img.shape[-2:]
     lin = (bi[:, None, None] * (h * w) + ys[:, :, None] * w) + xs[:, None, :]
     return img.reshape(-1).take(lin)
@@ -98,10 +91,10 @@ def _gather_regions(img: torch.Tensor, bi: torch.Tensor, ys: torch.Tensor, xs: t
 
 def _blurred_regions(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor, q: int, sigma: float,
                      mode: str) -> torch.Tensor:
-    """``q x q`` regions (top-left pixel ``top_left`` (M, 2) xy of image ``bi`` (M,)) of the image blurred with the
-    Gaussian of :func:`_local_mean` / the smoothing of :func:`refine_corners` (kernel ``2 round(3 sigma) + 1``,
-    border rule ``mode``), without blurring the whole image: the patch that feeds the region, times banded
-    (Toeplitz) matrices of the kernel on both sides. Returns :math:`(M, q, q)`."""
+    """``q x q`` regions (top-left pixel ``top_left`` (M, 2) xy of image ``bi`` (M,)) of the image blurred as
+    kornia's ``gaussian_blur2d`` blurs the whole image (kernel ``2 round(3 sigma) + 1``, border rule ``mode``), without
+    blurring the whole image: the patch that feeds the region, times banded (Toeplitz) matrices of the kernel on both
+    sides. Returns :math:`(M, q, q)`."""
     h, w = img.shape[-2:]
     dev = img.device
     if not sigma > 0:
