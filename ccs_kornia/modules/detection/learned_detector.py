@@ -30,7 +30,7 @@ from ccs_kornia.modules.detection.missing_corners import lattice_deviation, pred
 from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, opencv_level_factor
 from ccs_kornia.modules.detection.patch_refine import refine_from_level
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
-from ccs_kornia.modules.detection.scale import ScaleSelector, detect_at_scale
+from ccs_kornia.modules.detection.scale import TARGET_SQUARE, ScaleSelector, detect_at_scale
 from ccs_kornia.modules.detection.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner, refine_corners
 from ccs_kornia.modules.detection.x_junction import x_junction_mask
@@ -138,7 +138,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         refine: str = "symmetric",
         x_junction_check: bool = True,
         scale: str = "auto",
-        target_square: float = 12.0,
+        target_square: float = TARGET_SQUARE,
         max_pixels: float = 3.2e6,
         scale_fallback: tuple[float, ...] = (0.5, 2.0, 0.25),
         max_upsampling: float = 2.0,
@@ -257,8 +257,12 @@ class LearnedChessboardDetector(ChessboardDetector):
         if r is None:
             return pts
         with stage("saddle refinement"):
-            return refine_from_level(full, pts, board_size, factor, radius_factor or r.radius_factor, r.max_radius,
-                                     r.method, r.iterations, r.smooth_sigma, r.normalize_sigma)
+            out, ok = refine_from_level(full, pts, board_size, factor, radius_factor or r.radius_factor, r.max_radius,
+                                        r.method, r.iterations, r.smooth_sigma, r.normalize_sigma, return_ok=True)
+        # a corner that found no saddle within its window at full resolution kept its position from the level, which
+        # can be px off (held-out glare renders: a corner at the spot's rim 2.2-2.7 px off): left out like a hidden
+        # one (real sets: 6 of 5,196 corners)
+        return out.masked_fill((~ok.to(out.device) & out.isfinite().all(-1))[..., None], float("nan"))
 
     def _foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         h, w = images.shape[-2:]

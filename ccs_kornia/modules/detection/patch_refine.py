@@ -237,7 +237,8 @@ def refine_from_level(
     iterations: int = 5,
     smooth_sigma: float = 1.0,
     normalize_sigma: float = 6.0,
-) -> torch.Tensor:
+    return_ok: bool = False,
+) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     r"""Refine at full resolution corners found on a level ``factor`` times smaller, :math:`(B, N, 2)`.
 
     Coarse to fine: the corners are refined on area-downscaled copies at ``factor / 4``, ``factor / 16``, ... (while
@@ -253,9 +254,11 @@ def refine_from_level(
         factor: full-resolution px per level px.
         radius_factor, max_radius, method, iterations, smooth_sigma, normalize_sigma: of the refiner
             (:class:`~ccs_kornia.modules.detection.saddle_refine.CornerRefiner`).
+        return_ok: also return the full-resolution step's :math:`(B, N)` mask of corners that found a proper saddle
+            within their window (False at hidden corners); the others keep the position they came with.
 
     Returns:
-        :math:`(B, N, 2)` refined corners.
+        :math:`(B, N, 2)` refined corners (and the mask with ``return_ok``).
 
     Example:
         >>> img = torch.zeros(1, 1, 256, 256); img[..., :128, :128] = 1; img[..., 128:, 128:] = 1
@@ -269,9 +272,10 @@ def refine_from_level(
         # on whole boards) and come back NaN
         filled, _ = predict_missing_corners(corners.masked_fill(hidden[..., None], 0.0), ~hidden, board_size,
                                             passes=max(board_size))
-        out = refine_from_level(images, filled, board_size, factor, radius_factor, max_radius, method, iterations,
-                                smooth_sigma, normalize_sigma)
-        return out.masked_fill(hidden[..., None], float("nan"))
+        out, ok = refine_from_level(images, filled, board_size, factor, radius_factor, max_radius, method, iterations,
+                                    smooth_sigma, normalize_sigma, return_ok=True)
+        out = out.masked_fill(hidden[..., None], float("nan"))
+        return (out, ok & ~hidden) if return_ok else out
     args = (method, iterations, smooth_sigma, normalize_sigma)
     steps = []
     g = factor / 4.0
@@ -286,4 +290,5 @@ def refine_from_level(
         corners = ((pts.double() + 0.5) * s - 0.5).to(corners.dtype)
     # squares that needed upsampling are small: their window (0.2 square) is the usual one, blur or not
     blur = edge_blur(images, corners, board_size) if factor > 1 else None
-    return refine_on_patches(images, corners, board_size, radius_factor, max_radius, *args, blur=blur)
+    return refine_on_patches(images, corners, board_size, radius_factor, max_radius, *args, return_ok=return_ok,
+                             blur=blur)

@@ -39,12 +39,16 @@ from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.detection.patch_refine import _check_images, level_size, refine_from_level, resize_to_level
 
-__all__ = ["PEAK_RATIO", "saddle_scale_response", "estimate_square_size", "detection_factor", "ScaleSelector",
+__all__ = ["PEAK_RATIO", "TARGET_SQUARE", "saddle_scale_response", "estimate_square_size", "detection_factor", "ScaleSelector",
            "detect_at_scale"]
 
 #: sigma* / square where the saddle response (gamma = 3, edge penalty 2) peaks, measured on rendered boards under
 #: perspective and blur (median over 96 renders of 8-300 px squares; an ideal sinusoidal checker gives 0.39)
 PEAK_RATIO = 0.365
+#: square size (px of the level) the learned detector runs its heatmap network at. The network was trained on squares
+#: of 6-17 px; 9 px (down from 12) runs it on 0.56x the pixels, measured the same on every real set's boards, bench
+#: section 1's errors and the held-out wild renders' detections (docs/benchmarks.md section 5, issue 14)
+TARGET_SQUARE = 9.0
 
 
 def _sigmas(min_sigma: float, max_sigma: float, steps_per_octave: int) -> torch.Tensor:
@@ -242,7 +246,7 @@ def estimate_square_size(
 def detection_factor(
     square_size: torch.Tensor,
     image_size: tuple[int, int],
-    target_square: float = 12.0,
+    target_square: float = TARGET_SQUARE,
     max_pixels: float = 3.2e6,
     steps_per_octave: int = 4,
     min_factor: float = 1.0,
@@ -268,7 +272,7 @@ def detection_factor(
         :math:`(B,)` float64 factors (full-resolution px per level px).
 
     Example:
-        >>> detection_factor(torch.tensor([12.0, 50.0, 100.0]), (640, 480))
+        >>> detection_factor(torch.tensor([9.0, 36.0, 72.0]), (640, 480))
         tensor([1., 4., 8.], dtype=torch.float64)
     """
     if not target_square > 0 or not max_pixels > 0 or steps_per_octave < 1 or not min_factor > 0:
@@ -305,13 +309,13 @@ class ScaleSelector(nn.Module):
         >>> views = make_calibration_set(K, (9, 6), 0.025, (640, 480), num_views=2, seed=0, supersample=1)
         >>> big = F.interpolate(views.images, scale_factor=4.0, mode="bilinear")  # squares ~60 px
         >>> square, factor = ScaleSelector()(big)
-        >>> square.shape, [round(f, 2) for f in factor.tolist()]  # squares of ~11 px on the level
-        (torch.Size([2]), [5.66, 5.66])
+        >>> square.shape, [round(f, 2) for f in factor.tolist()]  # squares of ~9 px on the level
+        (torch.Size([2]), [6.73, 6.73])
     """
 
     def __init__(
         self,
-        target_square: float = 12.0,
+        target_square: float = TARGET_SQUARE,
         max_pixels: float = 3.2e6,
         min_level_square: float = 6.0,
         steps_per_octave: int = 4,

@@ -283,7 +283,9 @@ def test_glare_rim_is_the_row_and_column_neighbours_of_hidden_corners():
 def test_a_board_whose_saddles_are_lost_at_the_glare_rim_is_found():
     """A held-out glare render (seed 7,790,026) whose spot loses the saddles of three predicted corners at its rim, where
     the checker still shows, and pulls a confirmed one 4.5 px at 43 % of the board's contrast: once refused as
-    incomplete; now found without the rim corners, the others as precise as on any board."""
+    incomplete; now found without the rim corners, the others as precise as on any board. Corner 49, below the spot,
+    finds no saddle within its window at full resolution from the 9 px level (it would keep its level position, 2.7 px
+    off): left out too."""
     from ccs_kornia.bench.scenes import quantize
     from ccs_kornia.bench.wild import wild_spec
     from ccs_kornia.data.wild import WildChessboards
@@ -295,7 +297,7 @@ def test_a_board_whose_saddles_are_lost_at_the_glare_rim_is_found():
     out = LearnedChessboardDetector()(img, board)
     assert bool(out.found[0])
     measured = out.valid[0]
-    assert set((~measured).nonzero().flatten().tolist()) == {19, 20, 21, 29, 30, 31, 39, 40, 41}
+    assert set((~measured).nonzero().flatten().tolist()) == {19, 20, 21, 29, 30, 31, 39, 40, 41, 49}
     err = (out.corners[0].double() - truth).norm(dim=-1)[measured]
     assert float(err.mean()) < 0.12 and float(err.max()) < 0.5  # measured: 0.085, 0.31
 

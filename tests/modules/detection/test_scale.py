@@ -75,7 +75,7 @@ def test_batch_matches_single_images(views):
 
 
 def test_detection_factor_quantised_and_bounded():
-    f = detection_factor(torch.tensor([6.0, 12.0, 13.0, 48.0]), (640, 480))
+    f = detection_factor(torch.tensor([6.0, 12.0, 13.0, 48.0]), (640, 480), target_square=12.0)
     assert f.tolist()[:2] == [1.0, 1.0]  # never upsampled by default
     assert torch.allclose(torch.log2(f) * 4, torch.round(torch.log2(f) * 4))  # quarter octaves
     assert float(f[3]) == 4.0
@@ -83,7 +83,7 @@ def test_detection_factor_quantised_and_bounded():
     big = detection_factor(torch.tensor([8.0]), (6000, 4000), max_pixels=3.2e6)
     assert 6000 * 4000 / float(big) ** 2 <= 3.2e6
     # upsampling only when allowed, and only up to ~10 px squares
-    up = detection_factor(torch.tensor([6.0, 11.0]), (640, 480), min_factor=0.5)
+    up = detection_factor(torch.tensor([6.0, 11.0]), (640, 480), target_square=12.0, min_factor=0.5)
     assert abs(6.0 / float(up[0]) - 10.0) < 1.5 and float(up[1]) == 1.0
     assert float(detection_factor(torch.tensor([3.0]), (640, 480), min_factor=0.5)) == 0.5
 
@@ -102,6 +102,22 @@ def test_refine_from_level_converges_from_a_coarse_level(views):
     # the same saddles as refined from the truth (the 8x bilinear upsampling itself moves them by ~0.4 px)
     ideal = refine_on_patches(images, corners, (9, 6), blur=edge_blur(images, corners, (9, 6)))
     assert (refined - ideal).norm(dim=-1).max() < 0.05
+
+
+def test_refine_from_level_says_which_corners_found_no_saddle(views):
+    """``return_ok``: False where the full-resolution window shows no saddle (there the corner keeps the position it
+    came with) and at hidden corners; True elsewhere."""
+    images, corners = _upscaled(views, 8.0)
+    start = corners + torch.tensor([2.5, -2.0])
+    x, y = corners[0, 20].round().long().tolist()
+    images = images.clone()
+    images[0, 0, y - 40:y + 41, x - 40:x + 41] = 0.5  # corner 20 of view 0 painted over
+    start[1, 3] = float("nan")
+    refined, ok = refine_from_level(images, start, (9, 6), 8.0, return_ok=True)
+    expected = torch.ones_like(ok)
+    expected[0, 20] = expected[1, 3] = False
+    assert torch.equal(ok, expected)
+    assert bool(refined[1, 3].isnan().all())
 
 
 def test_refine_on_patches_matches_whole_image_refinement(views):

@@ -134,7 +134,9 @@ def test_board_wide_vote_keeps_the_plain_fit_under_strong_motion_blur(monkeypatc
 
     voted = mean_error()
     monkeypatch.setattr(saddle_refine, "DUAL_VOTE_MARGIN", float("inf"))
-    assert voted < 0.15 and mean_error() > 0.25  # measured: 0.071 and 0.295 (3 corners left out, 6 still 1-3 px off)
+    # measured: 0.037 (1 corner left out) and 0.148 (11 left out: their full-resolution fit found no saddle or they are
+    # far less point-symmetric than the board; 2 still 1-3 px off)
+    assert voted < 0.1 and mean_error() > 0.12
 
 
 def _noisy_junctions(count: int, sigma: float, seed: int = 0):
