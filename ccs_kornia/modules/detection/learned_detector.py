@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+from contextlib import nullcontext
 from pathlib import Path
 
 import torch
@@ -282,7 +283,10 @@ class LearnedChessboardDetector(ChessboardDetector):
         if self.scale == "off":
             return self.detect_level(images, board_size)
         # --- scale selection (modules/detection/scale.py): detect on each image's level, refine at full resolution ---
-        with stage("square-size estimate"):
+        # the square-size estimate is a few whole-image filters: on a batch of a megapixel or more both threads pay
+        # off (16 images of 640x480: 6.3 -> 3.8 ms per image), on one small image waking the second does not
+        big = images[0].numel() * len(images) >= 1e6
+        with stage("square-size estimate"), (full_threads() if big else nullcontext()):
             _, factor = self.scale_selector(images)
 
         def level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
