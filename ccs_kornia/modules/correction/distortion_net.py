@@ -106,6 +106,22 @@ def _resize_matrix(n: int, left: int, side: int, size: int, device: torch.device
     return out.index_put_((rows[inside], index[inside]), weight[inside], accumulate=True)
 
 
+def _banded_rows(m: torch.Tensor, x: torch.Tensor, block: int = 32) -> torch.Tensor:
+    """``m @ x`` for a resize matrix ``m`` :math:`(S, N)` whose rows are short runs of taps moving along ``N`` and
+    ``x`` :math:`(..., N, K)`: each block of ``block`` output rows multiplies only the input rows its taps reach (the
+    dense product of a 1280 px side down to 256 spends nineteen of twenty multiplications on zeros)."""
+    nz = m != 0
+    used = nz.any(1)
+    first = torch.where(used, nz.to(torch.int8).argmax(1), m.shape[1])
+    last = torch.where(used, m.shape[1] - 1 - nz.flip(1).to(torch.int8).argmax(1), -1)
+    out = x.new_zeros(x.shape[:-2] + (m.shape[0], x.shape[-1]))
+    for s in range(0, m.shape[0], block):
+        lo, hi = int(first[s:s + block].min()), int(last[s:s + block].max()) + 1
+        if hi > lo:
+            out[..., s:s + block, :] = m[s:s + block, lo:hi] @ x[..., lo:hi, :]
+    return out
+
+
 def letterbox(images: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Pad images symmetrically to a ``max(H, W)`` square and resize to ``size x size`` (antialiased).
 
@@ -138,7 +154,7 @@ def letterbox(images: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tens
     left, top = (side - w) // 2, (side - h) // 2
     mx = _resize_matrix(w, left, side, size, images.device).to(images.dtype)
     my = _resize_matrix(h, top, side, size, images.device).to(images.dtype)
-    out = my @ (images @ mx.T)  # rows, then columns: (B, C, size, size)
+    out = _banded_rows(my, _banded_rows(mx, images.transpose(-1, -2)).transpose(-1, -2))  # columns, then rows
     mask = (my.sum(-1)[:, None] * mx.sum(-1)[None, :]).expand(b, 1, size, size)
     return out, mask.contiguous()
 

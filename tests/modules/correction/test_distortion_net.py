@@ -68,6 +68,21 @@ def test_letterbox_keeps_aspect_and_centre():
         letterbox(torch.rand(30, 60), 20)
 
 
+@pytest.mark.parametrize("size", [(480, 640), (960, 1280), (300, 200)])
+def test_letterbox_is_kornias_antialiased_resize_of_the_padded_square(size):
+    # the banded products must give what kornia gives on the materialised square (dense: 1e-7 apart as well)
+    import torch.nn.functional as F
+    from kornia.geometry.transform import resize
+
+    h, w = size
+    img = torch.rand(2, 1, h, w, generator=torch.Generator().manual_seed(3))
+    side = max(h, w)
+    left, top = (side - w) // 2, (side - h) // 2
+    square = F.pad(img, (left, side - w - left, top, side - h - top))
+    out, _ = letterbox(img, 256)
+    assert torch.allclose(out, resize(square, (256, 256), antialias=True), atol=1e-6)
+
+
 def test_node_parameterisation_round_trip():
     torch.manual_seed(1)
     values = 1 + 0.3 * torch.rand(4, 5, dtype=torch.float64)
