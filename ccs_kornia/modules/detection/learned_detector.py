@@ -285,7 +285,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         # --- scale selection (modules/detection/scale.py): detect on each image's level, refine at full resolution ---
         # the square-size estimate is a few whole-image filters: on a batch of a megapixel or more both threads pay
         # off (16 images of 640x480: 6.3 -> 3.8 ms per image), on one small image waking the second does not
-        big = images[0].numel() * len(images) >= 1e6
+        big = images.numel() >= 1e6
         with stage("square-size estimate"), (full_threads() if big else nullcontext()):
             _, factor = self.scale_selector(images)
 
