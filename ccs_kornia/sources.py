@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import queue
 import threading
-from collections.abc import Iterable, Iterator, Sequence
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import torch
@@ -98,6 +100,22 @@ def load_batches(source: ViewSource, keys: Sequence[tuple[int, int]] | None = No
     return prefetched(batches) if getattr(source, "decodes", False) else iter(batches)
 
 
+def _ordered_map(fn: Callable, items: Sequence, workers: int) -> Iterator:
+    """``fn`` of every item, in order, computed by ``workers`` threads at most ``2 workers`` items ahead of the
+    consumer (bounded memory; OpenCV's decoders release the GIL, so two threads decode two files at once)."""
+    if workers <= 1 or len(items) <= 1:
+        yield from (fn(item) for item in items)
+        return
+    with ThreadPoolExecutor(workers, thread_name_prefix="ccs_kornia-decode") as pool:
+        ahead: deque = deque()
+        for item in items:
+            ahead.append(pool.submit(fn, item))
+            if len(ahead) >= 2 * workers:
+                yield ahead.popleft().result()
+        while ahead:
+            yield ahead.popleft().result()
+
+
 class ViewSource:
     """``C`` cameras of views, loaded on demand (subclasses implement :meth:`_load`).
 
@@ -105,6 +123,9 @@ class ViewSource:
         counts: number of views of each camera.
         names: a name per camera (default ``camera0``, ``camera1``, ...).
     """
+
+    #: threads that load views at once (:class:`FileSource`: two decoders)
+    decode_workers = 1
 
     def __init__(self, counts: Sequence[int], names: Sequence[str] | None = None) -> None:
         self.counts = [int(c) for c in counts]
@@ -159,8 +180,7 @@ class ViewSource:
             failed = []
             return batch
 
-        for key in keys:
-            image, reason = self._load(*key)
+        for key, (image, reason) in zip(keys, _ordered_map(lambda k: self._load(*k), keys, self.decode_workers)):
             if image is None:
                 failed.append((key, reason))
                 continue
@@ -215,6 +235,7 @@ class FileSource(ViewSource):
     """
 
     decodes = True
+    decode_workers = 2
 
     def __init__(self, paths: Sequence[Sequence[str]], names: Sequence[str] | None = None) -> None:
         self.paths = [list(p) for p in paths]

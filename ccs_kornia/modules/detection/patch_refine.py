@@ -16,6 +16,7 @@ import math
 import torch
 import torch.nn.functional as F
 
+from ccs_kornia.modules._resize import area_resize
 from ccs_kornia.modules.detection.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.missing_corners import predict_missing_corners
 from ccs_kornia.modules.detection.saddle_refine import refine_corners
@@ -62,7 +63,7 @@ def resize_to_level(images: torch.Tensor, factor: float) -> tuple[torch.Tensor, 
     if size == (h, w):
         level = images.float()
     elif factor > 1:
-        level = F.interpolate(images.float(), size=size, mode="area")
+        level = area_resize(images.float(), size)
     else:
         level = F.interpolate(images.float(), size=size, mode="bilinear", align_corners=False)
     scale = torch.tensor([w / size[1], h / size[0]], dtype=torch.float64, device=images.device)

@@ -36,6 +36,7 @@ from kornia.filters import gaussian_blur2d
 from torch import nn
 
 from ccs_kornia.modules._kernels import gaussian_kernel1d
+from ccs_kornia.modules._resize import area_resize
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.detection.patch_refine import _check_images, level_size, refine_from_level, resize_to_level
 
@@ -212,7 +213,7 @@ def estimate_square_size(
     pre = max(1.0, math.sqrt(h * w / max_pixels))
     if pre > 1.0:
         # large images: estimated on an area-downscaled copy (squares below 4 px of it are not searched for)
-        images = F.interpolate(images.float(), size=(max(8, round(h / pre)), max(8, round(w / pre))), mode="area")
+        images = area_resize(images.float(), (max(8, round(h / pre)), max(8, round(w / pre))))
         pre = math.sqrt(h * w / (images.shape[-2] * images.shape[-1]))
         min_square, max_square = max(4.0, min_square / pre), max_square / pre
         if min_square >= max_square:

@@ -54,6 +54,19 @@ def test_preprocess_channels_and_standardisation(small_net):
     torch.testing.assert_close(x[0, 3, [0, -1], 0], torch.tensor([-0.5, 0.5]))  # y coordinate channel
 
 
+def test_preprocess_standardises_with_the_images_mean_and_std(small_net):
+    """The standardisation (from the sum and the sum of squares) is ``torch.std_mean``'s within float rounding, also for
+    a flat image (where the 1e-3 in the denominator keeps it finite)."""
+    images = torch.cat([0.2 + 0.5 * torch.rand(2, 1, 40, 64), torch.full((1, 1, 40, 64), 0.7)])
+    std, mean = torch.std_mean(images, dim=(-1, -2), keepdim=True)
+    box, mask = letterbox(images, 64)
+    expected = (box - mean * mask) / (std + 1e-3)
+    got = small_net.preprocess(images)[:, :1]
+    torch.testing.assert_close(got[:2], expected[:2], atol=2e-5, rtol=1e-5)
+    # the flat image: zero up to its mean's rounding, amplified by 1 / 1e-3
+    assert got[2].abs().max() < 1e-3 and expected[2].abs().max() < 1e-3
+
+
 def test_letterbox_keeps_aspect_and_centre():
     img = torch.zeros(1, 1, 30, 60)
     img[..., 13:17, 28:32] = 1.0  # a blob at the image centre

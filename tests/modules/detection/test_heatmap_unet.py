@@ -167,3 +167,23 @@ def test_run_heatmap_runs_a_large_batch_a_few_images_at_a_time(monkeypatch):
     torch.testing.assert_close(chunked, whole, atol=1e-6, rtol=0)  # float rounding of other batch shapes
     assert seen == [2, 2, 1]
 
+
+
+@pytest.mark.parametrize("norm", ["batch", "none"])
+def test_inference_splits_the_first_up_convolution_exactly(norm):
+    """At inference on CPU each up level convolves the skip connection and the upsampled features separately and adds
+    (no channels-last concatenation): the heatmap of the concatenating path (autograd on) up to float rounding."""
+    torch.manual_seed(0)
+    net = CornerUNet(norm=norm).eval()
+    for m in net.modules():  # non-trivial normalisation statistics
+        if isinstance(m, torch.nn.BatchNorm2d):
+            m.running_mean.uniform_(-0.2, 0.2)
+            m.running_var.uniform_(0.5, 1.5)
+    x = torch.rand(2, 1, 45, 70).contiguous(memory_format=torch.channels_last)
+    net = net.to(memory_format=torch.channels_last)
+    with torch.enable_grad():
+        concatenated = net(x).detach()
+    with torch.inference_mode():
+        split = net(x)
+    torch.testing.assert_close(split, concatenated, atol=1e-6, rtol=0)
+    assert not torch.equal(split, torch.zeros_like(split))
