@@ -211,8 +211,11 @@ def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: t
     # last resort (OpenCV's candidates: boards with marks) only add their cost to every view without a board
     # (boofcv_fisheye_chessboard's look 7.4 -> 5.7 s; 1x, 0.5x and 2x copies of the fisheye sets and GoPro: the
     # same boards and RMS)
-    # (the foreshortened levels likewise: four more detections on every view without a board)
-    with detector_options(pipe.detector, opencv_retry=False, scale_fallback=(0.5,), foreshortened_retry=False):
+    # (the foreshortened levels likewise: four more detections on every view without a board; and the finest levels,
+    # which found none of the boards the looks found on the fisheye sets and GoPro at 0.5x, 1x and 2x while costing
+    # the most on every view without a board: boofcv_fisheye_chessboard's look 7.2 -> X s)
+    with detector_options(pipe.detector, opencv_retry=False, scale_fallback=(0.5,), scale_finest=False,
+                          foreshortened_retry=False):
         return _look(pipe, source, missed, lens, det, board, v)
 
 

@@ -77,9 +77,10 @@ def area_resize(images: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     if (h, w) == (height, width):
         return images
     # torch's own is as fast from a factor of about 2.8 (640x480 to 226x170) and faster beyond (1280x960 to 160x120:
-    # 0.8 against 3.0 ms)
+    # 0.8 against 3.0 ms), and for integer factors (two 1280x960 to 640x480: 5.2 against 9.1 ms)
     small = max(height / max(h, 1), width / max(w, 1)) >= 2.5
-    if images.device.type != "cpu" or h > height or w > width or not images.is_floating_point() or small:
+    integer = height % h == 0 and width % w == 0
+    if images.device.type != "cpu" or h > height or w > width or not images.is_floating_point() or small or integer:
         return F.interpolate(images, size=(h, w), mode="area")
     mx = area_matrix(width, w, images.dtype)
     my = area_matrix(height, h, images.dtype)

@@ -108,6 +108,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         scale_fallback: with ``scale="auto"``, relative factors of the levels tried in turn where the board was not
             found at the chosen one, clamped to the image itself (never upsampled). A finer level resolves thin board
             margins that a coarse one blurs into an extra row of corners; a coarser one drops clutter.
+        scale_finest: with a fallback, then also the octaves below the finest fallback and the finest level allowed
+            (a wrong square-size estimate; :func:`~ccs_kornia.modules.detection.scale.detect_at_scale`).
         max_upsampling: with ``scale="auto"``, images whose squares are smaller than ``target_square`` are upsampled
             by at most this factor (1: never).
         precision: of the heatmap network (:func:`~ccs_kornia.modules.detection.heatmap_unet.run_heatmap`):
@@ -142,6 +144,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         target_square: float = TARGET_SQUARE,
         max_pixels: float = 3.2e6,
         scale_fallback: tuple[float, ...] = (0.5, 2.0, 0.25),
+        scale_finest: bool = True,
         max_upsampling: float = 2.0,
         precision: str = "auto",
         opencv_retry: bool = True,
@@ -176,6 +179,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         self.scale_selector = ScaleSelector(target_square=target_square, max_pixels=max_pixels,
                                             min_factor=1.0 / max_upsampling)
         self.scale_fallback = tuple(float(f) for f in scale_fallback)
+        self.scale_finest = bool(scale_finest)
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
         self.precision = precision
@@ -297,7 +301,7 @@ class LearnedChessboardDetector(ChessboardDetector):
             return self._refine_at_full_size(full, pts, board_size, factor, radius_factor)
 
         corners, found, reasons = detect_at_scale(level, images, board_size, factor, self.scale_fallback,
-                                                  self.scale_selector.max_pixels, refine)
+                                                  self.scale_selector.max_pixels, refine, finest=self.scale_finest)
         missed = (~found).nonzero().flatten()
         if self.opencv_retry and missed.numel():
             # last resort: OpenCV's quads on one bounded level (they need no square-size estimate), refined with a
