@@ -206,15 +206,14 @@ def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: t
         return False
     lens = {ci: select_result(cal, ci) for ci in cams}
     v = det.found.shape[1]
-    # on the virtual views only the finer fallback level pays (without any: ros_fisheye_mono at 0.5x 24 -> 23
-    # boards, boofcv_fisheye_chessboard at 0.5x 26 -> 25); the coarser ones and the learned detector's
-    # last resort (OpenCV's candidates: boards with marks) only add their cost to every view without a board
-    # (boofcv_fisheye_chessboard's look 7.4 -> 5.7 s; 1x, 0.5x and 2x copies of the fisheye sets and GoPro: the
-    # same boards and RMS)
-    # (the foreshortened levels likewise: four more detections on every view without a board; and the finest levels,
-    # which found none of the boards the looks found on the fisheye sets and GoPro at 0.5x, 1x and 2x while costing
-    # the most on every view without a board: boofcv_fisheye_chessboard's look 7.2 -> X s)
-    with detector_options(pipe.detector, opencv_retry=False, scale_fallback=(0.5,), scale_finest=False,
+    # on the virtual views only the finer fallback levels pay (without any: ros_fisheye_mono at 0.5x 24 -> 23
+    # boards, boofcv_fisheye_chessboard at 0.5x 26 -> 25; without the 0.25: ros_fisheye_mono at 0.5x 24 -> 23 again);
+    # the coarser ones, the octaves below and the finest level (detect_at_scale's last tries for a wrong square-size
+    # estimate) and the learned detector's last resorts (OpenCV's candidates: boards with marks; the foreshortened
+    # levels) only add their cost to every view without a board: boofcv_fisheye_chessboard's look 7.5 -> 4.6 s
+    # without the octaves and the finest level, with the same boards and RMS on the fisheye sets and GoPro at 0.5x,
+    # 1x and 2x (scratch measurement of stop 31)
+    with detector_options(pipe.detector, opencv_retry=False, scale_fallback=(0.5, 0.25), scale_finest=False,
                           foreshortened_retry=False):
         return _look(pipe, source, missed, lens, det, board, v)
 

@@ -83,6 +83,17 @@ def gaussian_fit(
     num = seeds.shape[1]
     radius = window // 2
     out_dtype = heatmap.dtype
+    k = int(mask.sum(1).max()) if batch and num else 0
+    if k < num:
+        # only the seeds asked for are fitted, each image's first (peak finders pad to a fixed count of which a
+        # few dozen are above threshold: 16 renders of 640x480, 512 seeds, at most 92 masked in); the others
+        # come back as unfitted slots
+        order = torch.argsort((~mask.bool()).to(torch.int8), dim=1, stable=True)[:, :k]
+        pick = order[..., None].expand(-1, -1, 2)
+        mu_k, sigma_k, ok_k = gaussian_fit(heatmap, seeds.gather(1, pick), mask.gather(1, order), window, eps)
+        mu = seeds.to(out_dtype).scatter(1, pick, mu_k)
+        sigma = torch.zeros_like(mu).scatter(1, pick, sigma_k)
+        return mu, sigma, torch.zeros_like(mask, dtype=torch.bool).scatter(1, order, ok_k)
 
     with torch.no_grad():
         finite = torch.isfinite(seeds).all(-1)
