@@ -245,8 +245,8 @@ def test_diagnostics_after_the_second_look_equal_those_without_it(sets):
 
 def test_second_look_runs_without_the_opencv_retry_and_restores_it(sets, monkeypatch):
     """The calibrated look's virtual views run the learned detector without its last resort (OpenCV's candidates) and with only
-    the finer fallback level (the rest would only add their cost to every view without a board); the detector's
-    settings are restored afterwards, also when the look fails."""
+    the finer fallback levels, without the octaves below them and the finest level (the rest would only add their
+    cost to every view without a board); the detector's settings are restored afterwards, also when the look fails."""
     import ccs_kornia.pipeline_solve as pipeline_solve
 
     imgs = sets[1].images.clone()
@@ -255,15 +255,16 @@ def test_second_look_runs_without_the_opencv_retry_and_restores_it(sets, monkeyp
     seen = []
 
     def look(pipe_, *args):
-        seen.append((pipe_.detector.opencv_retry, pipe_.detector.scale_fallback))
+        seen.append((pipe_.detector.opencv_retry, pipe_.detector.scale_fallback, pipe_.detector.scale_finest))
         raise RuntimeError("look failed")
 
     fallback = pipe.detector.scale_fallback
     monkeypatch.setattr(pipeline_solve, "_look", look)
     with pytest.raises(RuntimeError, match="look failed"):
         pipe(imgs[None], BOARD, SQUARE)
-    assert seen == [(False, (0.5,))]
+    assert seen == [(False, (0.5, 0.25), False)]
     assert pipe.detector.opencv_retry is True and pipe.detector.scale_fallback == fallback
+    assert pipe.detector.scale_finest is True
 
 
 def test_a_large_correction_is_tried_even_where_it_does_not_straighten():
