@@ -237,3 +237,27 @@ def test_refine_from_level_keeps_hidden_corners_hidden(views):
     assert bool(refined[hidden].isnan().all()) and bool(refined[~hidden].isfinite().all())
     ideal = refine_on_patches(images, corners, (9, 6), blur=edge_blur(images, corners, (9, 6)))
     assert (refined - ideal)[~hidden].norm(dim=-1).max() < 0.05
+
+
+def test_detect_at_scale_steps_down_by_octaves_before_the_image_itself():
+    """Below the finest relative fallback the levels go down an octave at a time (each costs a quarter of the next
+    finer one), so a board the estimate put 8x too coarse is found at 4x, not at full size; ``finest=False`` stops at
+    the relative fallbacks."""
+    tried = []
+
+    def detect(x, board, full, scale):
+        tried.append(x.shape[-1])
+        hit = x.shape[-1] == 128  # only the 4x level shows the board
+        n = board[0] * board[1]
+        return torch.zeros(x.shape[0], n, 2), torch.full((x.shape[0],), hit), ["found" if hit else "no"] * x.shape[0]
+
+    images = torch.rand(1, 1, 384, 512)
+    c, f, r = detect_at_scale(detect, images, (4, 3), torch.tensor([32.0]), (0.5, 2.0, 0.25),
+                              refine=lambda full, pts, fac: pts)
+    assert bool(f[0]) and tried == [16, 32, 8, 64, 128]  # 32x, 16x, 64x, 8x, then 4x: full size never needed
+    tried.clear()
+    c, f, r = detect_at_scale(detect, images, (4, 3), torch.tensor([32.0]), (0.5, 2.0, 0.25), finest=False)
+    assert not bool(f[0]) and tried == [16, 32, 8, 64]
+    tried.clear()
+    detect_at_scale(detect, images[..., :256, :320], (4, 3), torch.tensor([8.0]), (0.5, 2.0, 0.25))
+    assert tried == [40, 80, 20, 160, 320]  # 8x, 4x, 16x, 2x, and at 1x the image itself (no octave in between)
