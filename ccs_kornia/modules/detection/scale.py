@@ -38,7 +38,7 @@ from torch import nn
 from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules._resize import area_resize
 from ccs_kornia.modules._timing import stage
-from ccs_kornia.modules.detection.patch_refine import _check_images, level_size, refine_from_level, resize_to_level
+from ccs_kornia.modules.detection.patch_refine import _check_images, refine_from_level, resize_to_level
 
 __all__ = ["PEAK_RATIO", "TARGET_SQUARE", "saddle_scale_response", "estimate_square_size", "detection_factor", "ScaleSelector",
            "detect_at_scale"]
