@@ -58,3 +58,32 @@ def test_light_stages_keep_the_threads_with_spinning_waits(two_threads, monkeypa
     monkeypatch.delenv("OMP_WAIT_POLICY")
     with light_stages_single_thread(torch.device("cpu")):
         assert torch.get_num_threads() == 2
+
+
+def test_detector_refines_at_full_resolution_on_all_threads_under_passive_waits(two_threads, monkeypatch):
+    """Under passive waits the level's refinement runs on one thread and the full-resolution refinement, whose regions
+    are large, on all (measured faster at 640x480 and on 1280x960 photos)."""
+    import ccs_kornia.modules.detection.learned_detector as learned
+    from ccs_kornia.data.scenes import make_calibration_set
+    from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
+
+    monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")
+    seen = {"full": [], "level": []}
+    full, level = learned.refine_from_level, CornerRefiner.forward
+
+    def full_spy(*args, **kwargs):
+        seen["full"].append(torch.get_num_threads())
+        return full(*args, **kwargs)
+
+    def level_spy(self, *args, **kwargs):
+        seen["level"].append(torch.get_num_threads())
+        return level(self, *args, **kwargs)
+
+    monkeypatch.setattr(learned, "refine_from_level", full_spy)
+    monkeypatch.setattr(CornerRefiner, "forward", level_spy)
+    K = torch.tensor([[800.0, 0, 319.5], [0, 800, 239.5], [0, 0, 1]])
+    views = make_calibration_set(K, (9, 6), 0.025, (640, 480), num_views=1, seed=0, supersample=1)  # ~15 px squares
+    out = learned.LearnedChessboardDetector()(views.images, (9, 6))
+    assert bool(out.found.all()) and seen["full"] and seen["level"]
+    assert set(seen["full"]) == {2} and set(seen["level"]) == {1}
+    assert torch.get_num_threads() == 2
