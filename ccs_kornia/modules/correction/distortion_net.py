@@ -34,7 +34,7 @@ from kornia.filters import get_gaussian_kernel1d
 from torch import nn
 
 from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
-from ccs_kornia.modules._resize import banded_product
+from ccs_kornia.modules._resize import separable_product
 
 __all__ = [
     "DistortionNet",
@@ -139,7 +139,7 @@ def letterbox(images: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tens
     left, top = (side - w) // 2, (side - h) // 2
     mx = _resize_matrix(w, left, side, size, images.device).to(images.dtype)
     my = _resize_matrix(h, top, side, size, images.device).to(images.dtype)
-    out = banded_product(my, banded_product(mx, images.transpose(-1, -2)).transpose(-1, -2))  # columns, then rows
+    out = separable_product(my, mx, images)
     mask = (my.sum(-1)[:, None] * mx.sum(-1)[None, :]).expand(b, 1, size, size)
     return out, mask.contiguous()
 

@@ -42,7 +42,7 @@ def x_junction_mask(
     count = mask.sum(1)
     k = int(count.max()) if b and m else 0
     if k == 0:
-        return mask & False
+        return torch.zeros_like(mask)
     if k < m:
         # only the candidates are tested: each image's first (a detector pads its peaks to a fixed count, of which
         # a few dozen are candidates; 16 renders of 640x480: 512 peaks, at most 75 candidates)
