@@ -220,6 +220,8 @@ class LearnedChessboardDetector(ChessboardDetector):
     def forward(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         """Detect the board on every image of ``(B, 1, H, W)``; corners in grid order."""
         board_size = self._check_inputs(images, board_size)
+        if images.shape[0] == 0:  # an empty batch (e.g. a folder's last, empty chunk): nothing to look at
+            return _empty_result(images, board_size)
         with light_stages_single_thread(images.device):
             return self._grid_checks(images, self._detect(images.float(), board_size), board_size)
 
@@ -231,6 +233,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         resolution and checked as in :meth:`forward`. For callers that first try the cheaper looks (the calibration
         pipeline runs it on the views its other looks missed) with ``foreshortened_retry`` off."""
         board_size = self._check_inputs(images, board_size)
+        if images.shape[0] == 0:
+            return _empty_result(images, board_size)
         with light_stages_single_thread(images.device):
             return self._grid_checks(images, self._foreshortened(images.float(), board_size), board_size)
 
@@ -456,6 +460,12 @@ class LearnedChessboardDetector(ChessboardDetector):
 
 #: with partial boards, the organiser is asked again for a board of which only this fraction of the corners has a peak
 PARTIAL_MIN_FRACTION = 0.4
+
+
+def _empty_result(images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+    n = board_size[0] * board_size[1]
+    return DetectionResult(corners=images.new_zeros(0, n, 2, dtype=torch.float32),
+                           found=torch.zeros(0, dtype=torch.bool, device=images.device), reasons=[])
 
 
 def _organize(points: torch.Tensor, keep: torch.Tensor, board_size: tuple[int, int], images: torch.Tensor,

@@ -29,7 +29,6 @@ import math
 
 import torch
 import torch.nn.functional as F
-from kornia.filters import spatial_gradient
 
 from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules.detection.grid_geometry import grid_spacing
@@ -63,6 +62,14 @@ DUAL_VOTE_MARGIN = 0.75
 DUAL_VOTE_BOARD_FRACTION = 0.2
 #: the plain source's polish is kept unless its asymmetry exceeds the normalised one's by this factor
 POLISH_PLAIN_MARGIN = 1.5
+
+
+def _central_differences(image: torch.Tensor) -> torch.Tensor:
+    """``I(x + 1) - I(x - 1)`` along x and y of ``image`` (B,1,H,W), replicated border -> (B,2,H,W): kornia's
+    ``spatial_gradient(mode="diff", normalized=False)`` as two subtractions (its 3x3 convolution with one input and two
+    output channels took 26 ms on six 285x381 images, the subtractions under 1 ms; the same values)."""
+    p = F.pad(image, (1, 1, 1, 1), mode="replicate")
+    return torch.cat([p[..., 1:-1, 2:] - p[..., 1:-1, :-2], p[..., 2:, 1:-1] - p[..., :-2, 1:-1]], 1)
 
 
 def _sample(image: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
@@ -226,8 +233,7 @@ def _refine_gradient(img, corners, valid, r, iterations, return_ok):
     rr = r[rows].gather(1, order)
     rmax = int(torch.ceil(rr[sub_valid].max()).item())
     off, wgt = _window(rr, rmax)
-    grads = spatial_gradient(img[rows], mode="diff", order=1, normalized=False)  # (b',1,2,H,W)
-    src = grads[:, 0]  # (b',2,H,W): gx, gy in px units
+    src = _central_differences(img[rows])  # (b',2,H,W): gx, gy in px units
     c = c0.clone()
     ok = torch.zeros_like(sub_valid)
     step = torch.zeros_like(rr)
@@ -273,9 +279,10 @@ def _sample_window(src: torch.Tensor, centre: torch.Tensor, rmax: int) -> torch.
     idx = (start[:, 1, None, None] + span[:, None]) * q + (start[:, 0, None, None] + span[None, :])
     crop = src.reshape(m, q * q).gather(1, idx.reshape(m, -1)).reshape(m, side + 1, side + 1)
     fx, fy = frac[:, 0, None, None], frac[:, 1, None, None]
-    top = crop[:, :-1, :-1] + fx * (crop[:, :-1, 1:] - crop[:, :-1, :-1])
-    bottom = crop[:, 1:, :-1] + fx * (crop[:, 1:, 1:] - crop[:, 1:, :-1])
-    return (top + fy * (bottom - top)).reshape(m, side * side)
+    # separable: every row blended along x once, then neighbouring rows along y (the rows a 2x2 blend would take
+    # twice; same values, a third fewer operations)
+    rows = crop[:, :, :-1] + fx * (crop[:, :, 1:] - crop[:, :, :-1])
+    return (rows[:, :-1] + fy * (rows[:, 1:] - rows[:, :-1])).reshape(m, side * side)
 
 
 def _window(r: torch.Tensor, rmax: int) -> tuple[torch.Tensor, torch.Tensor]:

@@ -90,6 +90,13 @@ def test_make_detector_and_exceptions(detector):
         LearnedChessboardDetector(refine="bogus")
 
 
+def test_empty_batch(detector):
+    # a batch of no images is answered, not an error from deep inside the square-size estimate
+    for call in (detector, detector.foreshortened):
+        out = call(torch.zeros(0, 1, 48, 64), (4, 3))
+        assert out.corners.shape == (0, 12, 2) and out.found.shape == (0,) and out.reasons == []
+
+
 def test_real_opencv_left_at_least_sb(detector):
     folder = REAL / "opencv_left"
     if not folder.is_dir():

@@ -81,3 +81,23 @@ def test_exceptions():
         refine_corners(torch.rand(1, 1, 8, 8), torch.rand(2, 2, 2))
     with pytest.raises(ValueError):
         refine_corners(torch.rand(1, 1, 8, 8), torch.rand(1, 2, 2), method="nope")
+
+
+def test_window_samples_and_gradient_match_the_reference_ops(device):
+    from kornia.filters import spatial_gradient
+
+    from ccs_kornia.modules.detection.saddle_refine import _central_differences, _sample, _sample_window
+
+    g = torch.Generator().manual_seed(5)
+    img = torch.rand(3, 1, 20, 23, generator=g).to(device)
+    # the gradient the coarse search samples: kornia's, value for value
+    assert torch.equal(_central_differences(img), spatial_gradient(img, mode="diff", order=1, normalized=False)[:, 0])
+    # the separable window blend: grid_sample's bilinear samples at centre + offset while the window is inside
+    regions = torch.rand(4, 1, 17, 17, generator=g).to(device)
+    centre = torch.tensor([[8.3, 7.9], [6.0, 10.5], [9.75, 8.2], [7.1, 6.6]], device=device)
+    rmax = 4
+    offs = torch.arange(-rmax, rmax + 1, device=device, dtype=torch.float32)
+    oy, ox = torch.meshgrid(offs, offs, indexing="ij")
+    pts = centre[:, None] + torch.stack([ox.reshape(-1), oy.reshape(-1)], -1)
+    ref = torch.stack([_sample(regions[i : i + 1], pts[i][None, None])[0, 0, 0] for i in range(4)])
+    torch.testing.assert_close(_sample_window(regions, centre, rmax), ref, atol=1e-5, rtol=0)
