@@ -47,7 +47,7 @@ from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
 from ccs_kornia.pipeline_result import PipelineResult, main_size, module_device, positive_size, same_size_views, select_result
 from ccs_kornia.pipeline_solve import diagnose_solved, look_again_with_camera, look_foreshortened, solve_detections
-from ccs_kornia.pipeline_solve import solve_group
+from ccs_kornia.pipeline_solve import SECOND_LOOK_OPTIONS, solve_group
 from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource, load_batches  # noqa: F401
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
@@ -308,8 +308,8 @@ class CalibrationPipeline(nn.Module):
                 continue
             cam = torch.tensor([k[0] for k in batch.keys], device=device)
             view = torch.tensor([k[1] for k in batch.keys], device=device)
-            # the foreshortened levels wait for the end (look_foreshortened), after every cheaper look
-            with detector_options(self.detector, foreshortened_retry=False):
+            # the foreshortened levels wait for the end (look_foreshortened); second-look levels only (pipeline_solve)
+            with detector_options(self.detector, foreshortened_retry=False, **SECOND_LOOK_OPTIONS):
                 got = detect_on_corrected(self.detect_images, self.refine_on_patches, batch.images.to(device),
                                           correction[cam], board)
             ok = got.found

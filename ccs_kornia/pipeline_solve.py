@@ -32,6 +32,16 @@ from ccs_kornia.pipeline_result import (
 __all__ = ["solve_detections", "solve_group"]
 
 
+#: the learned detector's options on the second looks at missed views (the calibrated lens's virtual views, the
+#: corrected copies): only the finer fallback levels pay (without any: ros_fisheye_mono at 0.5x 24 -> 23 boards,
+#: boofcv_fisheye_chessboard at 0.5x 26 -> 25; without the 0.25: ros_fisheye_mono at 0.5x 24 -> 23 again); the coarser
+#: one, the octaves below and the finest level (detect_at_scale's last tries for a wrong square-size estimate) and
+#: OpenCV's candidates (boards with marks) only add their cost to every view without a board: boofcv_fisheye_chessboard's
+#: calibrated look 7.5 -> 4.6 s with the same boards and RMS on the fisheye sets and GoPro at 0.5x, 1x and 2x (stop 31);
+#: MEASURED_CORRECTED
+SECOND_LOOK_OPTIONS = {"opencv_retry": False, "scale_fallback": (0.5, 0.25), "scale_finest": False}
+
+
 def _merge(parts: list[CalibrationResult], order: list[torch.Tensor], count: int) -> CalibrationResult:
     """Parts over disjoint camera indices back in camera order."""
     device = order[0].device
@@ -206,15 +216,7 @@ def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: t
         return False
     lens = {ci: select_result(cal, ci) for ci in cams}
     v = det.found.shape[1]
-    # on the virtual views only the finer fallback levels pay (without any: ros_fisheye_mono at 0.5x 24 -> 23
-    # boards, boofcv_fisheye_chessboard at 0.5x 26 -> 25; without the 0.25: ros_fisheye_mono at 0.5x 24 -> 23 again);
-    # the coarser ones, the octaves below and the finest level (detect_at_scale's last tries for a wrong square-size
-    # estimate) and the learned detector's last resorts (OpenCV's candidates: boards with marks; the foreshortened
-    # levels) only add their cost to every view without a board: boofcv_fisheye_chessboard's look 7.5 -> 4.6 s
-    # without the octaves and the finest level, with the same boards and RMS on the fisheye sets and GoPro at 0.5x,
-    # 1x and 2x (scratch measurement of stop 31)
-    with detector_options(pipe.detector, opencv_retry=False, scale_fallback=(0.5, 0.25), scale_finest=False,
-                          foreshortened_retry=False):
+    with detector_options(pipe.detector, foreshortened_retry=False, **SECOND_LOOK_OPTIONS):
         return _look(pipe, source, missed, lens, det, board, v)
 
 
