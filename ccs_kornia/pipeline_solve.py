@@ -38,7 +38,9 @@ __all__ = ["solve_detections", "solve_group"]
 #: one, the octaves below and the finest level (detect_at_scale's last tries for a wrong square-size estimate) and
 #: OpenCV's candidates (boards with marks) only add their cost to every view without a board: boofcv_fisheye_chessboard's
 #: calibrated look 7.5 -> 4.6 s with the same boards and RMS on the fisheye sets and GoPro at 0.5x, 1x and 2x (stop 31);
-#: MEASURED_CORRECTED
+#: on the corrected copies: the same boards and RMS on the eight real sets (boofcv_fisheye_chessboard's 2 of 9 found
+#: there, 2.5 -> 2.0 s; udacity_gopro_wide's and udacity_camera_cal's missed photo 0.72 -> 0.27 and 0.62 -> 0.24 s) and
+#: every figure of bench sections 2 and 4 unchanged (stop 32)
 SECOND_LOOK_OPTIONS = {"opencv_retry": False, "scale_fallback": (0.5, 0.25), "scale_finest": False}
 
 
