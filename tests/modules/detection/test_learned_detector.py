@@ -113,6 +113,8 @@ def test_bfloat16_network_gives_the_float32_corners(views):
     # precision="auto" runs the heatmap network in bfloat16 on CPUs with native bf16 (and float32 elsewhere): the
     # corners are refined on the image in float32 either way, so both precisions must give the same corners
     assert effective_precision("auto", "cpu") == ("bfloat16" if cpu_has_native_bf16() else "float32")
+    # the default is float32 on every machine: bfloat16 changed which boards were found on an AVX512-BF16 CPU
+    assert LearnedChessboardDetector().precision == "float32"
     assert effective_precision("auto", "cuda") == "float32" and effective_precision("float32", "cpu") == "float32"
     f32 = LearnedChessboardDetector(precision="float32")
     bf16 = LearnedChessboardDetector(precision="bfloat16")
