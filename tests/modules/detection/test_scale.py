@@ -261,3 +261,13 @@ def test_detect_at_scale_steps_down_by_octaves_before_the_image_itself():
     tried.clear()
     detect_at_scale(detect, images[..., :256, :320], (4, 3), torch.tensor([8.0]), (0.5, 2.0, 0.25))
     assert tried == [40, 80, 20, 160, 320]  # 8x, 4x, 16x, 2x, and at 1x the image itself (no octave in between)
+
+
+def test_rows_is_indexing_without_a_copy_for_a_run():
+    from ccs_kornia.modules.detection.scale import _rows
+
+    x = torch.rand(5, 1, 4, 6)
+    for idx in ([1, 2, 3], [0, 2, 4], [3], [0, 1, 2, 3, 4]):
+        i = torch.tensor(idx)
+        assert torch.equal(_rows(x, i), x[i])
+    assert _rows(x, torch.tensor([1, 2, 3])).data_ptr() == x[1].data_ptr()  # a view: no copy of the images
