@@ -6,7 +6,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.modules._resize import area_matrix, area_resize, banded_product
+from ccs_kornia.modules._resize import area_matrix, area_resize, banded_product, halve
 
 
 @pytest.mark.parametrize("size", [(480, 640, 285, 381), (96, 128, 87, 116), (50, 70, 25, 35), (64, 48, 63, 47)])
@@ -46,3 +46,12 @@ def test_banded_product_equals_the_dense_product():
     m = area_matrix(200, 70)
     x = torch.rand(3, 200, 5)
     torch.testing.assert_close(banded_product(m, x, block=8), m @ x)
+
+
+@pytest.mark.parametrize("shape", [(2, 1, 480, 640), (1, 1, 481, 643), (3, 2, 150, 200), (1, 1, 9, 7)])
+def test_halve_equals_avg_pool_and_area_resize_uses_it(shape):
+    x = torch.rand(shape, generator=torch.Generator().manual_seed(2))
+    assert torch.equal(halve(x), F.avg_pool2d(x, 2))
+    if shape[-2] % 2 == 0 and shape[-1] % 2 == 0:
+        half = (shape[-2] // 2, shape[-1] // 2)
+        assert torch.equal(area_resize(x, half), F.interpolate(x, size=half, mode="area"))

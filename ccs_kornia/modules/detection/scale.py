@@ -36,7 +36,7 @@ from kornia.filters import gaussian_blur2d
 from torch import nn
 
 from ccs_kornia.modules._kernels import gaussian_kernel1d
-from ccs_kornia.modules._resize import area_resize
+from ccs_kornia.modules._resize import area_resize, halve
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.detection.patch_refine import _check_images, refine_from_level, resize_to_level
 
@@ -128,13 +128,13 @@ def saddle_scale_response(
     # skip the octaves below the first scale on the raw image (no blur needed to decimate an unblurred image
     # whose next blur is at least twice the decimation's)
     while float(sig[0]) / step >= 2 * base_sigma and min(level.shape[-2:]) >= 32:
-        level = F.avg_pool2d(level, 2)
+        level = halve(level)
         step *= 2
     blur = 0.0  # blur of ``level`` in its own px (the image's own blur is ignored)
     for k in range(sig.numel()):
         s = float(sig[k]) / step
         while s >= 2 * base_sigma and min(level.shape[-2:]) >= 32:
-            level = F.avg_pool2d(level, 2)
+            level = halve(level)
             step *= 2
             blur, s = blur / 2, s / 2
         if 6 * s + 3 >= min(level.shape[-2:]):
