@@ -659,3 +659,17 @@ def test_calibrate_records_the_distortion_correction(rendered, tmp_path, capsys)
     assert code == 0, err
     data = json.loads(off.read_text())
     assert data["distortion_correction"] == {"enabled": False} and "distortion_net_s" not in data["timings"]
+
+
+def test_network_precision_option_reaches_the_learned_detector(capsys):
+    parser = cli.build_parser()
+    args = parser.parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json"])
+    assert args.network_precision == "float32"  # the default: the same corners on every machine
+    args = parser.parse_args(["detect", "a.png", "--board", "9x6", "--output", "o.json", "--network-precision",
+                              "bfloat16", "--no-distortion-correction"])
+    assert _common.make_pipeline(args).detector.precision == "bfloat16"
+    args.detector = "opencv"  # the option is the learned detector's; the OpenCV one ignores it
+    assert type(_common.make_pipeline(args).detector).__name__ == "OpenCVChessboardDetector"
+    with pytest.raises(SystemExit):
+        parser.parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json", "--network-precision", "int8"])
+    assert "--network-precision" in capsys.readouterr().err

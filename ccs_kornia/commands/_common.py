@@ -89,8 +89,11 @@ def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: 
     from ccs_kornia.modules.detection.factory import make_detector
     from ccs_kornia.pipeline import CalibrationPipeline
 
+    options = {}
+    if args.detector == "learned" and getattr(args, "network_precision", None):
+        options["precision"] = args.network_precision
     try:
-        detector = make_detector(args.detector)
+        detector = make_detector(args.detector, **options)
     except ValueError as err:
         raise UserError(str(err)) from None
     try:
