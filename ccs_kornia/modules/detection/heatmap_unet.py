@@ -90,7 +90,9 @@ class _Up(nn.Module):
         # the first convolution of the concatenation is the sum of one convolution per part: on CPU the channels-last
         # concatenation costs as much as the convolution after it (7 levels of 285x381: 141 -> 116 ms for the four)
         c = skip.shape[1]
-        y = F.conv2d(up, first.weight[:, c:], first.bias, padding=1) + F.conv2d(skip, first.weight[:, :c], None, padding=1)
+        # summed in place: a new tensor for the sum cost more than the addition (7 levels of 288x384: 50 -> 29 ms)
+        y = F.conv2d(up, first.weight[:, c:], first.bias, padding=1)
+        y.add_(F.conv2d(skip, first.weight[:, :c], None, padding=1))
         for layer in list(self.conv)[1:]:
             y = layer(y)
         return y
