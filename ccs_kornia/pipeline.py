@@ -308,8 +308,8 @@ class CalibrationPipeline(nn.Module):
                 continue
             cam = torch.tensor([k[0] for k in batch.keys], device=device)
             view = torch.tensor([k[1] for k in batch.keys], device=device)
-            # the foreshortened levels wait for the end (look_foreshortened); second-look levels only (pipeline_solve)
-            with detector_options(self.detector, foreshortened_retry=False, **SECOND_LOOK_OPTIONS):
+            # a second look: finer fallback levels only, no last resorts (pipeline_solve.SECOND_LOOK_OPTIONS)
+            with detector_options(self.detector, **SECOND_LOOK_OPTIONS):
                 got = detect_on_corrected(self.detect_images, self.refine_on_patches, batch.images.to(device),
                                           correction[cam], board)
             ok = got.found

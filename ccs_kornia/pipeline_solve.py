@@ -36,12 +36,14 @@ __all__ = ["solve_detections", "solve_group"]
 #: corrected copies): only the finer fallback levels pay (without any: ros_fisheye_mono at 0.5x 24 -> 23 boards,
 #: boofcv_fisheye_chessboard at 0.5x 26 -> 25; without the 0.25: ros_fisheye_mono at 0.5x 24 -> 23 again); the coarser
 #: one, the octaves below and the finest level (detect_at_scale's last tries for a wrong square-size estimate) and
-#: OpenCV's candidates (boards with marks) only add their cost to every view without a board: boofcv_fisheye_chessboard's
+#: OpenCV's candidates (boards with marks) only add their cost to every view without a board (the foreshortened levels
+#: wait for look_foreshortened, after every cheaper look): boofcv_fisheye_chessboard's
 #: calibrated look 7.5 -> 4.6 s with the same boards and RMS on the fisheye sets and GoPro at 0.5x, 1x and 2x (stop 31);
-#: on the corrected copies: the same boards and RMS on the eight real sets (boofcv_fisheye_chessboard's 2 of 9 found
-#: there, 2.5 -> 2.0 s; udacity_gopro_wide's and udacity_camera_cal's missed photo 0.72 -> 0.27 and 0.62 -> 0.24 s) and
+#: on the corrected copies: the same boards and RMS on the eight real sets (boofcv_fisheye_chessboard's 3 of 10 found
+#: there, 3.4 -> 2.4 s; udacity_gopro_wide's and udacity_camera_cal's missed photo 1.13 -> 0.41 and 0.96 -> 0.28 s) and
 #: every figure of bench sections 2 and 4 unchanged (stop 32)
-SECOND_LOOK_OPTIONS = {"opencv_retry": False, "scale_fallback": (0.5, 0.25), "scale_finest": False}
+SECOND_LOOK_OPTIONS = {"opencv_retry": False, "scale_fallback": (0.5, 0.25), "scale_finest": False,
+                       "foreshortened_retry": False}
 
 
 def _merge(parts: list[CalibrationResult], order: list[torch.Tensor], count: int) -> CalibrationResult:
@@ -218,7 +220,7 @@ def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: t
         return False
     lens = {ci: select_result(cal, ci) for ci in cams}
     v = det.found.shape[1]
-    with detector_options(pipe.detector, foreshortened_retry=False, **SECOND_LOOK_OPTIONS):
+    with detector_options(pipe.detector, **SECOND_LOOK_OPTIONS):
         return _look(pipe, source, missed, lens, det, board, v)
 
 
