@@ -102,6 +102,15 @@ def _device_arg(text: str) -> str:
     raise argparse.ArgumentTypeError(f"invalid device {text!r}: expected cpu, cuda or cuda:N")
 
 
+def _jobs_arg(text: str) -> int | str:
+    if text == "auto":
+        return text
+    try:
+        return _positive_int(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"invalid --jobs {text!r}: expected a positive integer or auto") from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argparse parser of every command except the Lightning ones (forwarded untouched)."""
     parser = _Parser(
@@ -122,9 +131,12 @@ def build_parser() -> argparse.ArgumentParser:
                            help=f"corner detector (default: {DEFAULT_DETECTOR})")
         p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
         if board:
-            p.add_argument("--batch-size", default=16, type=_positive_int, metavar="N",
-                           help="images loaded and processed at once (default: 16; fewer when images are "
-                                "large: at most 64 Mpx per batch)")
+            p.add_argument("--batch-size", default=8, type=_positive_int, metavar="N",
+                           help="images loaded and processed at once by each process (default: 8; fewer when "
+                                "images are large: at most 16 Mpx per batch)")
+            p.add_argument("--jobs", default="auto", type=_jobs_arg, metavar="N",
+                           help="processes detecting on the CPU, one thread each (default: auto, one per core, at "
+                                "most 4; 1 = this process only); any number gives the same corners")
             p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
                            help="detect on a downscaled copy of larger images, then refine corners at full "
                                 "resolution (default: 2048; 0 = always full resolution)")

@@ -25,6 +25,7 @@ pixels (only corners are kept between passes). No command line, no Lightning her
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Callable
 
@@ -35,9 +36,9 @@ from torch import nn
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
-from ccs_kornia.modules._timing import stage, timed
+from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected, straightening_evidence
+from ccs_kornia.modules.correction.corrected_detection import straightening_evidence
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
 from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, detector_options, measured_corners
@@ -46,9 +47,10 @@ from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
 from ccs_kornia.pipeline_result import PipelineResult, main_size, module_device, positive_size, same_size_views, select_result
-from ccs_kornia.pipeline_solve import diagnose_solved, look_again_with_camera, look_foreshortened, solve_detections
-from ccs_kornia.pipeline_solve import SECOND_LOOK_OPTIONS, solve_group
-from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource, load_batches  # noqa: F401
+from ccs_kornia.pipeline_solve import diagnose_solved, look_again_with_camera, look_foreshortened, look_on_corrected
+from ccs_kornia.pipeline_solve import solve_detections, solve_group
+from ccs_kornia.batch_workers import default_workers, map_batches
+from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource  # noqa: F401
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
 
@@ -65,6 +67,8 @@ class CalibrationPipeline(nn.Module):
         use_ransac: reject inconsistent views with image-level RANSAC before the refinement.
         seed: seed of the RANSAC sampling (results are deterministic for a given seed).
         detection_batch_size: most images handed to the detector at once.
+        workers: processes that detect a source's views on CPU (:mod:`~ccs_kornia.batch_workers`: forked, one thread
+            each, the same batches and results with any number; ``"auto"``: one per core, at most 4).
         max_batch_pixels: most pixels loaded and detected at once (bounds memory; at least one image).
         max_detection_side: images whose longer side exceeds this are detected on a downscaled copy and refined at
             full resolution (``None`` or 0: always detect at full resolution). A detector that picks its own
@@ -109,6 +113,7 @@ class CalibrationPipeline(nn.Module):
         use_ransac: bool = True,
         seed: int = 0,
         detection_batch_size: int = 16,
+        workers: int | str = 1,
         max_batch_pixels: int | None = DEFAULT_MAX_BATCH_PIXELS,
         max_detection_side: int | None = 2048,
         distortion_correction=True,
@@ -141,6 +146,9 @@ class CalibrationPipeline(nn.Module):
         self.selection = ModelSelection(dict(self.solvers)) if model == "auto" else None
         self.model, self.diagnostics, self.calibrated_look = model, bool(diagnostics), bool(calibrated_look)
         self.detection_batch_size = int(detection_batch_size)
+        if workers != "auto" and not (isinstance(workers, int) and workers >= 1):
+            raise ValueError(f"workers must be an int >= 1 or 'auto', got {workers!r}.")
+        self.workers = default_workers("cpu") if workers == "auto" else workers
         self.max_batch_pixels = max_batch_pixels
         self.max_detection_side = int(max_detection_side) if max_detection_side else None
         self.refiner = CornerRefiner()
@@ -215,24 +223,23 @@ class CalibrationPipeline(nn.Module):
         per_view = None
         if self.distortion_net is not None:
             per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
-        # decoding files overlaps the work on the previous batch (sources.load_batches)
-        for batch in timed(load_batches(source, None, self.detection_batch_size, self.max_batch_pixels), "image loading"):
+        device_workers = self.workers if device.type == "cpu" else 1
+        # batches of views, in forked worker processes on CPU (batch_workers.py: the same batches for any number)
+        for batch in map_batches(functools.partial(self._detect_batch, board=board, device=device), source, None,
+                                 self.detection_batch_size, self.max_batch_pixels, device_workers):
             for (ci, vi), why in batch.failed:
                 reasons[ci][vi] = f"unreadable: {why}"
-            if batch.images is None:
+            if batch.size is None:
                 continue
-            images = batch.images.to(device)
+            corrections, det = batch.value
             cam = torch.tensor([k[0] for k in batch.keys], device=device)
             view = torch.tensor([k[1] for k in batch.keys], device=device)
             if per_view is not None:
-                per_view[cam, view] = self.view_corrections(images)
-            # the detector's costly last resort (boards at a grazing angle) waits for the views the other looks miss
-            with detector_options(self.detector, foreshortened_retry=False):
-                det = self.detect_images(images, board)
-            corners[cam, view], found[cam, view], present[cam, view] = det.corners.double(), det.found, True
+                per_view[cam, view] = corrections.to(device)
+            corners[cam, view], found[cam, view], present[cam, view] = det.corners.to(device).double(), det.found.to(device), True
             if sigma is not None and det.sigma is not None:
                 sigma[cam, view] = det.sigma.to(sigma)
-            sizes[cam.cpu(), view.cpu()] = torch.tensor([images.shape[-1], images.shape[-2]])
+            sizes[cam.cpu(), view.cpu()] = torch.tensor(batch.size)
             for k, (ci, vi) in enumerate(batch.keys):
                 reasons[ci][vi] = (det.reasons[k] if det.reasons else "") or ("" if det.found[k] else "board not found")
             if progress is not None:
@@ -240,6 +247,14 @@ class CalibrationPipeline(nn.Module):
         image_size = [main_size(sizes[ci], found[ci].cpu(), present[ci].cpu()) for ci in range(c)]
         return PipelineResult(DetectionResult(corners, found, [r for rs in reasons for r in rs], sigma), None, image_size,
                               present, sizes.to(device), camera_reasons=[""] * c, view_corrections=per_view)
+
+    def _detect_batch(self, images: torch.Tensor, board: tuple[int, int], device: torch.device):
+        """One batch of :meth:`detect_views`: the network's correction of each view (or ``None``) and the detection."""
+        images = images.to(device)
+        corrections = self.view_corrections(images) if self.distortion_net is not None else None
+        # the detector's costly last resort (boards at a grazing angle) waits for the views the other looks miss
+        with detector_options(self.detector, foreshortened_retry=False):
+            return corrections, self.detect_images(images, board)
 
     def finish(
         self,
@@ -300,27 +315,8 @@ class CalibrationPipeline(nn.Module):
             sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
             mask = same[sel] & per_view[sel].isfinite().all(-1)
             correction[sel], large[sel] = self.pool_corrections(per_view[sel], positive_size(size), mask)
-        missed = [(ci, vi) for ci in large.nonzero().flatten().tolist()
-                  for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()] if source is not None else []
-        for batch in ([] if not missed else load_batches(source, missed, self.detection_batch_size,
-                                                        self.max_batch_pixels)):
-            if batch.images is None:
-                continue
-            cam = torch.tensor([k[0] for k in batch.keys], device=device)
-            view = torch.tensor([k[1] for k in batch.keys], device=device)
-            # a second look: finer fallback levels only, no last resorts (pipeline_solve.SECOND_LOOK_OPTIONS)
-            with detector_options(self.detector, **SECOND_LOOK_OPTIONS):
-                got = detect_on_corrected(self.detect_images, self.refine_on_patches, batch.images.to(device),
-                                          correction[cam], board)
-            ok = got.found
-            det.corners[cam[ok], view[ok]] = got.corners[ok]
-            det.found[cam[ok], view[ok]] = True
-            if det.sigma is not None and bool(ok.any()):  # the precision on the original image
-                det.sigma[cam[ok], view[ok]] = self.corner_sigma(batch.images.to(device)[ok], got.corners[ok], board)
-            v = det.found.shape[1]
-            for k, (ci, vi) in enumerate(batch.keys):
-                if bool(ok[k]):
-                    det.reasons[ci * v + vi] = got.reasons[k]
+        if source is not None:
+            look_on_corrected(self, source, out, correction, large, same, board)
         straightness = torch.full((c, 2), float("nan"), dtype=torch.float64, device=device)
         for size in set(out.image_size):
             sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()

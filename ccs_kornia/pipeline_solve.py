@@ -197,6 +197,37 @@ def _compete(pipe: Any, solver: Any, usual: CalibrationResult, corners, found, b
     return merged, correction, applied
 
 
+def look_on_corrected(pipe: Any, source: Any, out: PipelineResult, correction: torch.Tensor, large: torch.Tensor,
+                      same: torch.Tensor, board: tuple[int, int]) -> None:
+    """Views missed on the originals of cameras whose pooled correction is ``large`` :math:`(C,)`, looked for on
+    copies corrected by ``correction`` :math:`(C, 5)`
+    (:func:`~ccs_kornia.modules.correction.corrected_detection.detect_on_corrected`); fills ``out.detections`` in
+    place. A second look: finer fallback levels only, no last resorts (:data:`SECOND_LOOK_OPTIONS`)."""
+    from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected
+    from ccs_kornia.sources import load_batches
+
+    det = out.detections
+    device, v = det.corners.device, det.found.shape[1]
+    missed = [(ci, vi) for ci in large.nonzero().flatten().tolist()
+              for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()]
+    for batch in ([] if not missed else load_batches(source, missed, pipe.detection_batch_size, pipe.max_batch_pixels)):
+        if batch.images is None:
+            continue
+        cam = torch.tensor([k[0] for k in batch.keys], device=device)
+        view = torch.tensor([k[1] for k in batch.keys], device=device)
+        images = batch.images.to(device)
+        with detector_options(pipe.detector, **SECOND_LOOK_OPTIONS):
+            got = detect_on_corrected(pipe.detect_images, pipe.refine_on_patches, images, correction[cam], board)
+        ok = got.found
+        det.corners[cam[ok], view[ok]] = got.corners[ok]
+        det.found[cam[ok], view[ok]] = True
+        if det.sigma is not None and bool(ok.any()):  # the precision on the original image
+            det.sigma[cam[ok], view[ok]] = pipe.corner_sigma(images[ok], got.corners[ok], board)
+        for k, (ci, vi) in enumerate(batch.keys):
+            if bool(ok[k]):
+                det.reasons[ci * v + vi] = got.reasons[k]
+
+
 def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: tuple[int, int]) -> bool:
     """Views missed on the originals (or rejected as outliers) of cameras calibrated with the fisheye model, looked
     for on virtual pinhole views of the calibrated lens (:func:`~ccs_kornia.modules.correction.calibrated_detection.detect_with_calibrated_lens`);

@@ -673,3 +673,26 @@ def test_network_precision_option_reaches_the_learned_detector(capsys):
     with pytest.raises(SystemExit):
         parser.parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json", "--network-precision", "int8"])
     assert "--network-precision" in capsys.readouterr().err
+
+
+def test_jobs_option_sets_the_pipeline_workers(capsys):
+    from ccs_kornia.batch_workers import default_workers
+
+    parser = cli.build_parser()
+    args = parser.parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json", "--no-distortion-correction"])
+    assert args.jobs == "auto" and args.batch_size == 8
+    assert _common.make_pipeline(args).workers == default_workers("cpu")
+    args = parser.parse_args(["detect", "a.png", "--board", "9x6", "--output", "o.json", "--jobs", "3",
+                              "--no-distortion-correction"])
+    assert _common.make_pipeline(args).workers == 3
+    for bad in ("0", "two"):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json", "--jobs", bad])
+        assert "--jobs" in capsys.readouterr().err
+
+
+def test_the_bench_times_the_default_path_with_the_command_line_batch_size():
+    from ccs_kornia.bench.floors import CLI_BATCH_SIZE
+
+    args = cli.build_parser().parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json"])
+    assert args.batch_size == CLI_BATCH_SIZE

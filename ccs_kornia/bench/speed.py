@@ -157,7 +157,9 @@ def _limit(cfg: BenchConfig, det_images: torch.Tensor, views: torch.Tensor, log)
     net, why = distortion_available(cfg.distortion_weights)
     out["pipeline"] = profile_default_path(views, cfg.board, cfg.square, cfg.speed_repeats,
                                            distortion_weights=net if net is not None else False)
-    log(f"[speed] default path on {views.shape[0]} PNG files: {out['pipeline']['wall_s']:.2f} s")
+    pl = out["pipeline"]
+    log(f"[speed] default path on {views.shape[0]} PNG files: {pl['wall_s']:.2f} s with {pl['workers']} process(es), "
+        f"{pl['serial_wall_s']:.2f} s in one")
     if cfg.speed_real_set:
         from pathlib import Path
 

@@ -99,6 +99,7 @@ def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: 
     try:
         return CalibrationPipeline(
             detector, model=model, use_ransac=use_ransac, seed=seed, detection_batch_size=args.batch_size,
+            workers=getattr(args, "jobs", 1),
             max_detection_side=getattr(args, "max_detection_side", 2048) or None,
             distortion_correction=bool(getattr(args, "distortion_correction", False)),
             diagnostics=bool(getattr(args, "diagnostics", False)),

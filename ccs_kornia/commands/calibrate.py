@@ -29,7 +29,6 @@ def calibrate_files(
     square: float,
     pipeline,
     device,
-    batch_size: int,
     model: str,
     detector_name: str,
 ) -> tuple[dict[str, Any], Any]:
@@ -150,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         data, result = calibrate_files(
-            "calibrate", files, args.board, args.square, pipeline, device, args.batch_size, args.model, args.detector
+            "calibrate", files, args.board, args.square, pipeline, device, args.model, args.detector
         )
     except UserError as err:
         # nothing lost: the per-image detections and reasons go next to the requested output, which

@@ -53,10 +53,10 @@ def run(args: argparse.Namespace) -> int:
         },
     )
     # the very path of `calibrate`, on the files just written
-    pipeline = make_pipeline(argparse.Namespace(detector=args.detector, batch_size=16,
+    pipeline = make_pipeline(argparse.Namespace(detector=args.detector, batch_size=8, jobs="auto",
                                                  distortion_correction=args.distortion_correction, diagnostics=True))
     output = os.path.join(args.out_dir, "calib.json")
-    data, _ = calibrate_files("demo", files, DEMO_BOARD, DEMO_SQUARE, pipeline, device, 16, "opencv5", args.detector)
+    data, _ = calibrate_files("demo", files, DEMO_BOARD, DEMO_SQUARE, pipeline, device, "opencv5", args.detector)
     data["device"] = str(device)
     data["success"] = True
     data["timings"]["render_s"] = render_s
