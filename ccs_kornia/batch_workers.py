@@ -13,12 +13,14 @@ thread. Where fork is not available, or on other devices, the batches run here, 
 
 from __future__ import annotations
 
+import functools
 import multiprocessing
 import os
 import pickle
 import signal
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,7 +30,8 @@ import torch
 from ccs_kornia.modules._timing import stage, timed
 from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, ViewSource, prefetched
 
-__all__ = ["BatchOutput", "MAX_AUTO_WORKERS", "WORKER_STAGE", "chunks", "default_workers", "map_batches", "usable_cores"]
+__all__ = ["BatchOutput", "MAX_AUTO_WORKERS", "WORKER_STAGE", "chunks", "default_workers", "map_batches", "usable_cores",
+           "worker_pool"]
 
 #: worker processes at most for ``workers="auto"`` (each holds its batch and its activations)
 MAX_AUTO_WORKERS = 4
@@ -36,8 +39,8 @@ MAX_AUTO_WORKERS = 4
 #: the profile's stage (:mod:`~ccs_kornia.modules._timing`) of the waits for the workers
 WORKER_STAGE = "detection in worker processes"
 
-#: what a forked worker runs: ``(fn, source, batch_size, max_pixels)``, set by :func:`map_batches` before forking
-_TASK: tuple | None = None
+#: what a forked worker runs, set by :func:`worker_pool` before forking
+_TASK: Callable | None = None
 
 
 @dataclass
@@ -47,7 +50,7 @@ class BatchOutput:
     Attributes:
         keys: ``(camera, view)`` of each image of the batch.
         size: ``(width, height)`` of its images (``None`` when no view of the chunk loaded).
-        value: ``fn(images)`` (``None`` when no view loaded).
+        value: ``fn(images, keys)`` (``None`` when no view loaded).
         failed: ``((camera, view), reason)`` for views of the chunk that could not be loaded.
     """
 
@@ -107,7 +110,11 @@ def _outputs(fn: Callable, batches: Iterator) -> Iterator[BatchOutput]:
             yield BatchOutput(failed=batch.failed)
             continue
         size = (int(batch.images.shape[-1]), int(batch.images.shape[-2]))
-        yield BatchOutput(batch.keys, size, fn(batch.images), batch.failed)
+        yield BatchOutput(batch.keys, size, fn(batch.images, batch.keys), batch.failed)
+
+
+def _chunk_outputs(fn: Callable, source: ViewSource, batch_size: int, max_pixels, keys: list) -> list[BatchOutput]:
+    return list(_outputs(fn, _loaded(source, [keys], batch_size, max_pixels)))
 
 
 def _start_worker() -> None:
@@ -117,30 +124,74 @@ def _start_worker() -> None:
     torch.set_num_threads(1)
 
 
-def _run_chunk(keys: list[tuple[int, int]]) -> bytes:
-    fn, source, batch_size, max_pixels = _TASK
+@contextmanager
+def worker_pool(fn: Callable[[Any], Any], workers: int = 1) -> Iterator[Callable[[Iterable], Iterator]]:
+    """A function ``run(items)`` that yields ``fn(item)`` for each item, in order, computed by ``workers`` forked
+    processes (``workers=1``, or no fork available: here, one after the other).
+
+    ``fn`` and everything it uses are inherited by the fork (a bound method or a closure will do, nothing of it is
+    pickled); the items and the results are pickled (by value: tensors are copied). The processes live as long as
+    the ``with`` block.
+
+    Example:
+        >>> with worker_pool(lambda x: x * x, workers=2) as run:
+        ...     list(run([1, 2, 3]))
+        [1, 4, 9]
+    """
+    global _TASK
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}.")
+    if workers == 1 or not _can_fork():
+        yield lambda items: (fn(item) for item in items)
+        return
+    if _TASK is not None:
+        raise RuntimeError("worker pools cannot be nested.")
+    _TASK = fn
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"), initializer=_start_worker)
+    # fork every worker now, before the caller's block starts threads of its own (e.g. a file prefetcher)
+    pool.submit(int).result()
+
+    def run(items: Iterable) -> Iterator:
+        results = pool.map(_call, [pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL) for item in items])
+        while True:
+            with stage(WORKER_STAGE):  # the workers' own stages are not seen here
+                data = next(results, None)
+            if data is None:
+                return
+            yield pickle.loads(data)
+
+    try:
+        yield run
+    finally:
+        _TASK = None
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _call(data: bytes) -> bytes:
     with torch.inference_mode():
-        out = list(_outputs(fn, _loaded(source, [keys], batch_size, max_pixels)))
+        out = _TASK(pickle.loads(data))
     # plain pickle: tensors by value (multiprocessing's pickler would pass them through shared memory files)
     return pickle.dumps(out, protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def map_batches(
-    fn: Callable[[torch.Tensor], Any],
+    fn: Callable[[torch.Tensor, list[tuple[int, int]]], Any],
     source: ViewSource,
     keys: Sequence[tuple[int, int]] | None = None,
     batch_size: int = 16,
     max_pixels: int | None = DEFAULT_MAX_BATCH_PIXELS,
     workers: int = 1,
 ) -> Iterator[BatchOutput]:
-    """``fn(images)`` of every batch of views, in order; with ``workers > 1``, computed by that many forked processes.
+    """``fn(images, keys)`` of every batch of views, in order; with ``workers > 1``, computed by that many forked
+    processes.
 
     The views are split into :func:`chunks` of ``batch_size``, each loaded in batches of one image size and at most
     ``max_pixels`` (:meth:`~ccs_kornia.sources.ViewSource.batches`): the same batches with any ``workers``. In this
     process, decoding is prefetched in a thread (:func:`~ccs_kornia.sources.prefetched`); a worker decodes its own.
 
     Args:
-        fn: the work on one batch :math:`(B, 1, H, W)` on the CPU; its result must pickle (tensors, lists, numbers).
+        fn: the work on one batch :math:`(B, 1, H, W)` of views ``keys`` (``(camera, view)`` each) on the CPU; its
+            result must pickle (tensors, lists, numbers).
             Workers inherit it (and everything it uses) by fork, so it may be a bound method or a closure.
         source: the views.
         keys: ``(camera, view)`` pairs (default: every view).
@@ -152,13 +203,11 @@ def map_batches(
         :class:`BatchOutput` per batch, chunk by chunk in order.
 
     Example:
-        >>> from ccs_kornia.modules._timing import stage, timed
-from ccs_kornia.sources import TensorSource
+        >>> from ccs_kornia.sources import TensorSource
         >>> src = TensorSource(torch.rand(5, 1, 8, 8))
-        >>> [(o.keys, round(float(o.value), 1)) for o in map_batches(lambda x: x.shape[0] / 10, src, batch_size=2)]
+        >>> [(o.keys, round(float(o.value), 1)) for o in map_batches(lambda x, k: x.shape[0] / 10, src, batch_size=2)]
         [([(0, 0), (0, 1)], 0.2), ([(0, 2), (0, 3)], 0.2), ([(0, 4)], 0.1)]
     """
-    global _TASK
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}.")
     if keys is None:
@@ -171,18 +220,6 @@ from ccs_kornia.sources import TensorSource
         batches = prefetched(batches) if getattr(source, "decodes", False) else batches
         yield from _outputs(fn, timed(batches, "image loading"))
         return
-    if _TASK is not None:
-        raise RuntimeError("map_batches with workers > 1 cannot be nested.")
-    _TASK = (fn, source, batch_size, max_pixels)
-    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"), initializer=_start_worker)
-    try:
-        results = pool.map(_run_chunk, parts)
-        while True:
-            with stage(WORKER_STAGE):  # the workers' own stages are not seen here
-                data = next(results, None)
-            if data is None:
-                return
-            yield from pickle.loads(data)
-    finally:
-        _TASK = None
-        pool.shutdown(wait=True, cancel_futures=True)
+    with worker_pool(functools.partial(_chunk_outputs, fn, source, batch_size, max_pixels), workers) as run:
+        for outputs in run(parts):
+            yield from outputs

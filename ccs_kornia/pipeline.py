@@ -223,10 +223,10 @@ class CalibrationPipeline(nn.Module):
         per_view = None
         if self.distortion_net is not None:
             per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
-        device_workers = self.workers if device.type == "cpu" else 1
         # batches of views, in forked worker processes on CPU (batch_workers.py: the same batches for any number)
         for batch in map_batches(functools.partial(self._detect_batch, board=board, device=device), source, None,
-                                 self.detection_batch_size, self.max_batch_pixels, device_workers):
+                                 self.detection_batch_size, self.max_batch_pixels,
+                                 self.workers if device.type == "cpu" else 1):
             for (ci, vi), why in batch.failed:
                 reasons[ci][vi] = f"unreadable: {why}"
             if batch.size is None:
@@ -248,7 +248,7 @@ class CalibrationPipeline(nn.Module):
         return PipelineResult(DetectionResult(corners, found, [r for rs in reasons for r in rs], sigma), None, image_size,
                               present, sizes.to(device), camera_reasons=[""] * c, view_corrections=per_view)
 
-    def _detect_batch(self, images: torch.Tensor, board: tuple[int, int], device: torch.device):
+    def _detect_batch(self, images: torch.Tensor, keys: list, board: tuple[int, int], device: torch.device):
         """One batch of :meth:`detect_views`: the network's correction of each view (or ``None``) and the detection."""
         images = images.to(device)
         corrections = self.view_corrections(images) if self.distortion_net is not None else None

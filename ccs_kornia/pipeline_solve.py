@@ -9,14 +9,16 @@ solvers and options.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import torch
 
+from ccs_kornia.batch_workers import map_batches, worker_pool
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.correction import corrected_frame
-from ccs_kornia.modules.detection.base import detector_options, measured_corners
+from ccs_kornia.modules.detection.base import DetectionResult, cat_detections, detector_options, measured_corners
 from ccs_kornia.pipeline_result import (
     PipelineResult,
     camera_reason,
@@ -202,30 +204,40 @@ def look_on_corrected(pipe: Any, source: Any, out: PipelineResult, correction: t
     """Views missed on the originals of cameras whose pooled correction is ``large`` :math:`(C,)`, looked for on
     copies corrected by ``correction`` :math:`(C, 5)`
     (:func:`~ccs_kornia.modules.correction.corrected_detection.detect_on_corrected`); fills ``out.detections`` in
-    place. A second look: finer fallback levels only, no last resorts (:data:`SECOND_LOOK_OPTIONS`)."""
+    place. A second look: finer fallback levels only, no last resorts (:data:`SECOND_LOOK_OPTIONS`); each view alone,
+    by the pipeline's worker processes on CPU."""
     from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected
-    from ccs_kornia.sources import load_batches
 
     det = out.detections
     device, v = det.corners.device, det.found.shape[1]
     missed = [(ci, vi) for ci in large.nonzero().flatten().tolist()
               for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()]
-    for batch in ([] if not missed else load_batches(source, missed, pipe.detection_batch_size, pipe.max_batch_pixels)):
-        if batch.images is None:
-            continue
-        cam = torch.tensor([k[0] for k in batch.keys], device=device)
-        view = torch.tensor([k[1] for k in batch.keys], device=device)
-        images = batch.images.to(device)
-        with detector_options(pipe.detector, **SECOND_LOOK_OPTIONS):
-            got = detect_on_corrected(pipe.detect_images, pipe.refine_on_patches, images, correction[cam], board)
+
+    def look(images: torch.Tensor, keys: list) -> tuple[DetectionResult, torch.Tensor | None]:
+        images = images.to(device)
+        got = detect_on_corrected(pipe.detect_images, pipe.refine_on_patches, images,
+                                  correction[torch.tensor([k[0] for k in keys], device=device)], board)
         ok = got.found
-        det.corners[cam[ok], view[ok]] = got.corners[ok]
-        det.found[cam[ok], view[ok]] = True
-        if det.sigma is not None and bool(ok.any()):  # the precision on the original image
-            det.sigma[cam[ok], view[ok]] = pipe.corner_sigma(images[ok], got.corners[ok], board)
-        for k, (ci, vi) in enumerate(batch.keys):
-            if bool(ok[k]):
-                det.reasons[ci * v + vi] = got.reasons[k]
+        # the precision on the original image
+        sigma = pipe.corner_sigma(images[ok], got.corners[ok], board) if det.sigma is not None and bool(ok.any()) else None
+        return got, sigma
+
+    if not missed:
+        return
+    with detector_options(pipe.detector, **SECOND_LOOK_OPTIONS):
+        for batch in map_batches(look, source, missed, 1, pipe.max_batch_pixels, _workers(pipe, device)):
+            if batch.size is None or not bool(batch.value[0].found.any()):
+                continue
+            (got, sigma), (ci, vi) = batch.value, batch.keys[0]
+            det.corners[ci, vi], det.found[ci, vi] = got.corners[0].to(det.corners), True
+            if sigma is not None:
+                det.sigma[ci, vi] = sigma[0].to(det.sigma)
+            det.reasons[ci * v + vi] = got.reasons[0]
+
+
+def _workers(pipe: Any, device: torch.device) -> int:
+    """The pipeline's worker processes for work on ``device`` (only the CPU's work is shared out)."""
+    return pipe.workers if device.type == "cpu" else 1
 
 
 def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: tuple[int, int]) -> bool:
@@ -257,30 +269,39 @@ def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: t
 
 def _look(pipe: Any, source: Any, missed: list, lens: dict, det: Any, board: tuple[int, int], v: int) -> bool:
     """The batches of :func:`look_again_with_camera`."""
-    from ccs_kornia.modules.correction.calibrated_detection import (
-        detect_with_calibrated_lens,
-    )
+    from ccs_kornia.modules.correction.calibrated_detection import detect_with_calibrated_lens
     from ccs_kornia.sources import load_batches
 
     recovered = False
-    for batch in load_batches(source, missed, pipe.detection_batch_size, pipe.max_batch_pixels):
-        if batch.images is None:
-            continue
-        device = det.corners.device
-        K = torch.stack([lens[ci].K for ci, _ in batch.keys]).to(device)
-        dist = torch.stack([lens[ci].dist for ci, _ in batch.keys]).to(device)
-        got = detect_with_calibrated_lens(pipe.detect_images, pipe.refine_on_patches, batch.images.to(device), K, dist,
-                                          True, board)
-        for k, (ci, vi) in enumerate(batch.keys):
-            if bool(got.found[k]):
-                det.corners[ci, vi] = got.corners[k].to(det.corners)
-                det.found[ci, vi] = True
-                if det.sigma is not None:  # found on a virtual view: precision unknown (the median weight)
-                    det.sigma[ci, vi] = float("nan")
-                if det.reasons is not None:
-                    det.reasons[ci * v + vi] = got.reasons[k]
-                recovered = True
+    device = det.corners.device
+    # each virtual view is detected alone, by the pipeline's worker processes on CPU: a missed view's 19 virtual views
+    # are its only work (udacity_gopro_wide's GOPR0055, whose board is larger than the frame: 2.3 -> X s on 2 cores)
+    workers = _workers(pipe, device)
+    with worker_pool(functools.partial(pipe.detect_images, board_size=board), workers) as run:
+        def detect(views: torch.Tensor, _board: tuple[int, int]) -> DetectionResult:
+            return cat_detections(list(run(views.split(1))))
+
+        for batch in load_batches(source, missed, pipe.detection_batch_size, pipe.max_batch_pixels):
+            if batch.images is not None:
+                K = torch.stack([lens[ci].K for ci, _ in batch.keys]).to(device)
+                dist = torch.stack([lens[ci].dist for ci, _ in batch.keys]).to(device)
+                got = detect_with_calibrated_lens(detect, pipe.refine_on_patches, batch.images.to(device), K, dist, True,
+                                                  board, views_at_once=workers)
+                recovered = _take(got, batch.keys, det, v) or recovered
     return recovered
+
+
+def _take(got: DetectionResult, keys: list, det: DetectionResult, v: int) -> bool:
+    """The boards of the calibrated look into ``det`` (in place); whether there was one."""
+    for k, (ci, vi) in enumerate(keys):
+        if bool(got.found[k]):
+            det.corners[ci, vi] = got.corners[k].to(det.corners)
+            det.found[ci, vi] = True
+            if det.sigma is not None:  # found on a virtual view: precision unknown (the median weight)
+                det.sigma[ci, vi] = float("nan")
+            if det.reasons is not None:
+                det.reasons[ci * v + vi] = got.reasons[k]
+    return bool(got.found.any())
 
 
 def look_foreshortened(pipe: Any, source: Any, out: PipelineResult, board: tuple[int, int]) -> bool:

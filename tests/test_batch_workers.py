@@ -17,7 +17,8 @@ from ccs_kornia.sources import FileSource, TensorSource
 linux = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="worker processes are forked on Linux only")
 
 
-def _sum_and_pid(images: torch.Tensor):
+def _sum_and_pid(images: torch.Tensor, keys: list):
+    assert len(keys) == images.shape[0]
     return images.sum((1, 2, 3)), os.getpid(), torch.get_num_threads()
 
 
@@ -65,7 +66,7 @@ def test_unreadable_files_are_reported_by_the_workers_too(tmp_path):
         torch.testing.assert_close(sums, torch.tensor([0.0, 40, 80, 120]) / 255 * 140)
 
 
-def _fail_on_bright(images: torch.Tensor):
+def _fail_on_bright(images: torch.Tensor, keys: list):
     if float(images.max()) > 0.5:
         raise RuntimeError("too bright")
     return images.shape[0]
@@ -102,3 +103,25 @@ def test_pipeline_detects_the_same_corners_with_two_workers(tmp_path):
     assert torch.equal(one.sigma, two.sigma) and one.reasons == two.reasons
     with pytest.raises(ValueError, match="workers must be an int >= 1 or 'auto'"):
         CalibrationPipeline("opencv", workers=0)
+
+
+@linux
+def test_worker_pool_maps_in_order_in_other_processes():
+    from ccs_kornia.batch_workers import worker_pool
+
+    offset = torch.arange(3.0)  # inherited by the fork, not pickled
+
+    def work(x: torch.Tensor):
+        return x + offset, os.getpid()
+
+    items = [torch.full((3,), float(k)) for k in range(6)]
+    with worker_pool(work, workers=2) as run:
+        out = list(run(items))
+        again = list(run(items[:2]))
+        with pytest.raises(RuntimeError, match="cannot be nested"):
+            with worker_pool(work, workers=2):
+                pass
+    assert [o[0].tolist() for o in out] == [[k, k + 1, k + 2] for k in range(6)]
+    assert os.getpid() not in {o[1] for o in out} and len(again) == 2
+    with worker_pool(work, workers=1) as run:
+        assert {o[1] for o in run(items)} == {os.getpid()}

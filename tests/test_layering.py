@@ -201,7 +201,7 @@ ALLOWED: dict[str, set[str]] = {
     "data": {"camera"},
     "losses": {"camera"},
     "modules": {"camera"},
-    "pipeline_solve": {"camera", "modules", "pipeline_result", "sources"},
+    "pipeline_solve": {"camera", "modules", "pipeline_result", "sources", "batch_workers"},
     "pipeline": {"camera", "modules", "sources", "batch_workers", "pipeline_result", "pipeline_solve"},
     "records": {"modules", "pipeline_result", "sources"},
     "report": {"camera", "io", "report_figures", "report_quality"},
@@ -214,7 +214,8 @@ ALLOWED: dict[str, set[str]] = {
     "commands": {"commands", "pipeline", "modules", "io", "records", "report", "data", "metrics", "predict", "sources"},
     "cli": {"commands", "io", "training", "bench"},
     "__main__": {"cli"},
-    "bench": {"camera", "data", "modules", "pipeline", "pipeline_result", "sources", "io", "metrics", "losses"},
+    "bench": {"camera", "data", "modules", "pipeline", "pipeline_result", "sources", "batch_workers", "io", "metrics",
+              "losses"},
 }
 
 
