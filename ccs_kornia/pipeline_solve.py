@@ -9,16 +9,15 @@ solvers and options.
 
 from __future__ import annotations
 
-import functools
 from typing import Any
 
 import torch
 
-from ccs_kornia.batch_workers import map_batches, worker_pool
+from ccs_kornia.batch_workers import map_batches
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.correction import corrected_frame
-from ccs_kornia.modules.detection.base import DetectionResult, cat_detections, detector_options, measured_corners
+from ccs_kornia.modules.detection.base import DetectionResult, detector_options, measured_corners
 from ccs_kornia.pipeline_result import (
     PipelineResult,
     camera_reason,
@@ -273,35 +272,26 @@ def _look(pipe: Any, source: Any, missed: list, lens: dict, det: Any, board: tup
     from ccs_kornia.sources import load_batches
 
     recovered = False
-    device = det.corners.device
-    # each virtual view is detected alone, by the pipeline's worker processes on CPU: a missed view's 19 virtual views
-    # are its only work (udacity_gopro_wide's GOPR0055, whose board is larger than the frame: 2.3 -> X s on 2 cores)
-    workers = _workers(pipe, device)
-    with worker_pool(functools.partial(pipe.detect_images, board_size=board), workers) as run:
-        def detect(views: torch.Tensor, _board: tuple[int, int]) -> DetectionResult:
-            return cat_detections(list(run(views.split(1))))
-
-        for batch in load_batches(source, missed, pipe.detection_batch_size, pipe.max_batch_pixels):
-            if batch.images is not None:
-                K = torch.stack([lens[ci].K for ci, _ in batch.keys]).to(device)
-                dist = torch.stack([lens[ci].dist for ci, _ in batch.keys]).to(device)
-                got = detect_with_calibrated_lens(detect, pipe.refine_on_patches, batch.images.to(device), K, dist, True,
-                                                  board, views_at_once=workers)
-                recovered = _take(got, batch.keys, det, v) or recovered
+    for batch in load_batches(source, missed, pipe.detection_batch_size, pipe.max_batch_pixels):
+        if batch.images is None:
+            continue
+        device = det.corners.device
+        K = torch.stack([lens[ci].K for ci, _ in batch.keys]).to(device)
+        dist = torch.stack([lens[ci].dist for ci, _ in batch.keys]).to(device)
+        # in this process: the virtual views' work is the network's, which uses every core already (worker processes
+        # measured no faster on udacity_gopro_wide's GOPR0055, 2.0 against 2.1 s)
+        got = detect_with_calibrated_lens(pipe.detect_images, pipe.refine_on_patches, batch.images.to(device), K, dist,
+                                          True, board)
+        for k, (ci, vi) in enumerate(batch.keys):
+            if bool(got.found[k]):
+                det.corners[ci, vi] = got.corners[k].to(det.corners)
+                det.found[ci, vi] = True
+                if det.sigma is not None:  # found on a virtual view: precision unknown (the median weight)
+                    det.sigma[ci, vi] = float("nan")
+                if det.reasons is not None:
+                    det.reasons[ci * v + vi] = got.reasons[k]
+                recovered = True
     return recovered
-
-
-def _take(got: DetectionResult, keys: list, det: DetectionResult, v: int) -> bool:
-    """The boards of the calibrated look into ``det`` (in place); whether there was one."""
-    for k, (ci, vi) in enumerate(keys):
-        if bool(got.found[k]):
-            det.corners[ci, vi] = got.corners[k].to(det.corners)
-            det.found[ci, vi] = True
-            if det.sigma is not None:  # found on a virtual view: precision unknown (the median weight)
-                det.sigma[ci, vi] = float("nan")
-            if det.reasons is not None:
-                det.reasons[ci * v + vi] = got.reasons[k]
-    return bool(got.found.any())
 
 
 def look_foreshortened(pipe: Any, source: Any, out: PipelineResult, board: tuple[int, int]) -> bool:

@@ -72,15 +72,6 @@ def virtual_view_rays(direction: tuple[float, float], fov_deg: float, side: int,
     return rays @ R.T, f, R
 
 
-def _virtual_view(images: torch.Tensor, rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, fisheye: bool,
-                  side: int) -> torch.Tensor:
-    """The virtual pinhole view :math:`(B, 1, side, side)` of rays :math:`(side^2, 3)` on each image under its camera."""
-    src = _project(rays.expand(images.shape[0], -1, -1), K, dist, fisheye).reshape(images.shape[0], side, side, 2)
-    # rays the camera cannot see land outside the image: zeros there, as the border of any undistortion
-    src = torch.nan_to_num(src.float(), nan=-10.0)
-    return remap(images.float(), src[..., 0], src[..., 1], mode="bilinear", align_corners=True).clamp(0, 1)
-
-
 def _project(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, fisheye: bool) -> torch.Tensor:
     """Pixels (B, P, 2) of rays (B, P, 3) under each camera; NaN where a pinhole camera cannot see the ray."""
     if fisheye:
@@ -99,8 +90,6 @@ def detect_with_calibrated_lens(
     board_size: tuple[int, int],
     fov_deg: float = 110.0,
     side: int = 480,
-    max_batch: int = 8,
-    views_at_once: int = 1,
 ) -> DetectionResult:
     r"""Look for the board on virtual pinhole views of each image under its calibrated camera.
 
@@ -112,12 +101,6 @@ def detect_with_calibrated_lens(
         fisheye: Kannala-Brandt model (the ring of tilted views is looked at too).
         board_size: ``(cols, rows)``.
         fov_deg, side: field of view of the axis view (and the first rings), size of each virtual view.
-        max_batch: virtual views handed to ``detect`` at once.
-        views_at_once: the views of :func:`view_directions` are looked at this many at a time, on every image still
-            without a board (in ``detect`` calls of at most ``max_batch``); of each, the first view in order whose
-            board lands inside the image is kept. More views at once give a parallel ``detect`` more to share out at
-            the cost of views looked at after the one that finds the board; a ``detect`` that finds the same board on a
-            view whatever else it is handed gives the same result with any value.
 
     Returns:
         :class:`DetectionResult` in the original images' pixels; ``reasons`` say which view found the board.
@@ -141,40 +124,34 @@ def detect_with_calibrated_lens(
     found = torch.zeros(b, dtype=torch.bool, device=device)
     reasons = ["board not found on the virtual pinhole views of the calibrated lens"] * b
     K64, d64 = K.to(device, torch.float64), dist.to(device, torch.float64)
-    directions = view_directions(fisheye, fov_deg)
-    geometry = [virtual_view_rays((yaw, pitch), fov, side, device=device) for yaw, pitch, fov in directions]
-    starts: dict[int, torch.Tensor] = {}
-    for first in range(0, len(directions), views_at_once):
-        todo = [i for i in range(b) if i not in starts]
-        if not todo:
+    for k, (yaw, pitch, fov) in enumerate(view_directions(fisheye, fov_deg)):
+        todo = (~found).nonzero().flatten()
+        if todo.numel() == 0:
             break
-        ks = list(range(first, min(first + views_at_once, len(directions))))
-        idx = torch.tensor(todo, device=device)
-        # the next views of every image still without a board, detected together (image-major)
-        views = torch.stack([_virtual_view(images[idx], geometry[k][0], K64[idx], d64[idx], fisheye, side) for k in ks],
-                            1).reshape(-1, 1, side, side)
-        parts = [detect(views[i : i + max_batch], board_size) for i in range(0, views.shape[0], max_batch)]
-        hits = torch.cat([p.found.to(device) for p in parts]).reshape(len(todo), len(ks))
-        got = torch.cat([p.corners.to(device, torch.float64) for p in parts]).reshape(len(todo), len(ks), n, 2)
-        for j, i in enumerate(todo):
-            for d in hits[j].nonzero().flatten().tolist():
-                # virtual-view pixels -> rays -> the calibrated projection in the original image: the first view (in
-                # order) whose board lands inside the image
-                _, f, R = geometry[ks[d]]
-                c = (side - 1) / 2
-                pix = got[j, d]
-                local = torch.stack([(pix[:, 0] - c) / f, (pix[:, 1] - c) / f, torch.ones_like(pix[:, 0])], -1)
-                back = _project((local @ R.T)[None], K64[i : i + 1], d64[i : i + 1], fisheye)[0]
-                if bool(back.isfinite().all() & (back >= 0).all() & (back[:, 0] <= w - 1).all()
-                        & (back[:, 1] <= h - 1).all()):
-                    starts[i] = back
-                    yaw, pitch, fov = directions[ks[d]]
-                    reasons[i] = f"found on virtual pinhole view {ks[d]} of the calibrated lens (direction {yaw:.0f}, " \
-                                 f"{pitch:.0f} deg, {fov:.0f} deg wide)"
-                    break
-    if starts:
-        # one refinement of every board found, whatever views_at_once
-        idx = torch.tensor(sorted(starts), device=device)
-        corners[idx] = refine(images[idx], torch.stack([starts[i] for i in sorted(starts)]).float(), board_size).to(corners)
+        rays, f, R = virtual_view_rays((yaw, pitch), fov, side, device=device)
+        src = _project(rays.expand(todo.numel(), -1, -1), K64[todo], d64[todo], fisheye)
+        src = src.reshape(todo.numel(), side, side, 2).float()
+        # rays the camera cannot see land outside the image: zeros there, as the border of any undistortion
+        src = torch.nan_to_num(src, nan=-10.0)
+        view = remap(images[todo].float(), src[..., 0], src[..., 1], mode="bilinear", align_corners=True)
+        got = detect(view.clamp(0, 1), board_size)
+        hit = got.found.to(device)
+        if not bool(hit.any()):
+            continue
+        idx = todo[hit]
+        # virtual-view pixels -> rays -> the calibrated projection in the original image
+        pix = got.corners[hit].to(device, torch.float64)
+        c = (side - 1) / 2
+        local = torch.stack([(pix[..., 0] - c) / f, (pix[..., 1] - c) / f, torch.ones_like(pix[..., 0])], -1)
+        back = _project(local @ R.T, K64[idx], d64[idx], fisheye)
+        inside = back.isfinite().all(-1).all(-1) & (back >= 0).all(-1).all(-1)
+        inside = inside & (back[..., 0] <= w - 1).all(-1) & (back[..., 1] <= h - 1).all(-1)
+        if not bool(inside.any()):
+            continue
+        idx, back = idx[inside], back[inside]
+        corners[idx] = refine(images[idx], back.float(), board_size).to(corners)
         found[idx] = True
+        for i in idx.tolist():
+            reasons[i] = f"found on virtual pinhole view {k} of the calibrated lens (direction {yaw:.0f}, " \
+                         f"{pitch:.0f} deg, {fov:.0f} deg wide)"
     return DetectionResult(corners, found, reasons)

@@ -16,7 +16,7 @@ from torch import nn
 
 from ccs_kornia.modules._checks import check_shape
 
-__all__ = ["DetectionResult", "ChessboardDetector", "cat_detections", "detector_options", "measured_corners"]
+__all__ = ["DetectionResult", "ChessboardDetector", "detector_options", "measured_corners"]
 
 
 def measured_corners(corners: torch.Tensor, found: torch.Tensor) -> torch.Tensor:
@@ -56,20 +56,6 @@ class DetectionResult:
     def valid(self) -> torch.Tensor:
         """:math:`(B, N)` bool mask of measured corners (those of a found board, less any hidden ones)."""
         return measured_corners(self.corners, self.found)
-
-
-def cat_detections(parts: list[DetectionResult]) -> DetectionResult:
-    """The detections of consecutive batches as one (``reasons`` / ``sigma`` kept where every part has them).
-
-    Example:
-        >>> a = DetectionResult(torch.zeros(2, 4, 2), torch.tensor([True, False]), ["x", "y"])
-        >>> out = cat_detections([a, a])
-        >>> out.corners.shape, out.found.tolist(), out.reasons, out.sigma
-        (torch.Size([4, 4, 2]), [True, False, True, False], ['x', 'y', 'x', 'y'], None)
-    """
-    reasons = None if any(p.reasons is None for p in parts) else [r for p in parts for r in p.reasons]
-    sigma = None if any(p.sigma is None for p in parts) else torch.cat([p.sigma for p in parts])
-    return DetectionResult(torch.cat([p.corners for p in parts]), torch.cat([p.found for p in parts]), reasons, sigma)
 
 
 class ChessboardDetector(nn.Module):

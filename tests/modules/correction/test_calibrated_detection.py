@@ -52,46 +52,6 @@ def test_corners_are_mapped_back_exactly():
     assert torch.allclose(back.float(), pix, atol=1e-3)
 
 
-def test_the_first_view_in_order_wins_whatever_views_at_once():
-    """Views are looked at several at a time (a parallel detector shares them out): the board kept is still the one
-    of the first view in order whose board lands in the image, and every image is refined once."""
-    K = torch.tensor([[160.0, 0, 319.5], [0, 161, 239.5], [0, 0, 1]], dtype=F64).expand(3, 3, 3)
-    D = torch.tensor([0.02, -0.01, 0.002, 0.0], dtype=F64).expand(3, 4)
-    images = torch.zeros(3, 1, 480, 640)
-    images[1] = 0.5  # image 1 is seen on no view, image 2 on views 4 and 9
-    images[2] = 1.0
-    seen = {0: {0}, 2: {4, 9}}
-    calls = []
-
-    def fake(views, board):
-        # which image a view shows: its mean brightness (the virtual views' black borders aside)
-        level = views.flatten(1).amax(-1)
-        ids = [0 if float(v) < 0.25 else (1 if float(v) < 0.75 else 2) for v in level]
-        calls.append(len(ids))
-        k = fake.order
-        found = []
-        for i in ids:
-            found.append(k[i].pop(0) in seen.get(i, set()))
-        pix = torch.tensor([[[200.0, 200.0], [260.0, 200.0], [200.0, 260.0], [260.0, 260.0]]]).expand(len(ids), -1, -1)
-        return DetectionResult(pix.clone(), torch.tensor(found), ["fake"] * len(ids))
-
-    refined = []
-    outs = []
-    for at_once in (1, 4, 19):
-        # the views each image is shown, in the order the function asks for them
-        fake.order = {i: list(range(19)) for i in range(3)}
-        calls.clear()
-        out = detect_with_calibrated_lens(fake, lambda i, c, b: refined.append(i.shape[0]) or c, images, K, D, True,
-                                          (2, 2), max_batch=8, views_at_once=at_once)
-        assert max(calls) <= 8
-        outs.append(out)
-    for out in outs:
-        assert out.found.tolist() == [True, False, True]
-        assert "view 0 " in out.reasons[0] and "view 4 " in out.reasons[2] and "not found" in out.reasons[1]
-        torch.testing.assert_close(out.corners, outs[0].corners)
-    assert refined == [2, 2, 2]  # one refinement of both boards per call
-
-
 def test_shape_errors():
     with pytest.raises(ValueError, match="Expected images"):
         detect_with_calibrated_lens(None, None, torch.rand(1, 8, 8), torch.eye(3)[None], torch.zeros(1, 4), True, (2, 2))
