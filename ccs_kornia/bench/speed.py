@@ -88,6 +88,8 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
                 per_batch[str(bs)] = run_images.shape[0] / sec
             res["detection"][key] = {"label": m.label, "images_per_s": per_batch}
             log(f"[speed] {device} detect {m.label:30s} " + "  ".join(f"b{b}: {v:.1f} img/s" for b, v in per_batch.items()))
+            if device == "cpu" and key == "learned":
+                res["detection"][key]["workers"] = _detect_in_workers(m, run_images, cfg, log)
         # whole calibration (detect + solve) on one set of views
         views = images[: cfg.calib_views]
         ccs_key = "learned" if "learned" in methods and methods["learned"].available else "opencv_saddle"
@@ -139,6 +141,23 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
         out["devices"][device] = res
     out["load_average_end"] = _load()
     return out
+
+
+def _detect_in_workers(m: DetectionMethod, images: torch.Tensor, cfg: BenchConfig, log) -> dict:
+    """Images/s of the detector in the worker processes a folder gets (``calibrate --jobs auto``: one per core, batches
+    of the command line's size), the processes' start included."""
+    from ccs_kornia.batch_workers import default_workers, map_batches
+    from ccs_kornia.bench.floors import CLI_BATCH_SIZE
+    from ccs_kornia.sources import TensorSource
+
+    # (fewer when the images make fewer batches)
+    workers = min(default_workers("cpu"), -(-images.shape[0] // CLI_BATCH_SIZE))
+    source = TensorSource(images)
+    sec = _best(lambda: list(map_batches(lambda x, keys: m.detect(x, cfg.board), source, None, CLI_BATCH_SIZE, None,
+                                         workers)), cfg.speed_repeats, "cpu")
+    log(f"[speed] cpu detect {m.label}: {images.shape[0] / sec:.1f} img/s in {workers} worker process(es), batches of "
+        f"{CLI_BATCH_SIZE}")
+    return {"processes": workers, "batch": CLI_BATCH_SIZE, "images_per_s": images.shape[0] / sec}
 
 
 def _limit(cfg: BenchConfig, det_images: torch.Tensor, views: torch.Tensor, log) -> dict:

@@ -73,6 +73,11 @@ def limit_markdown(lim: dict, detection: dict, calibration: dict) -> list[str]:
             got = learned["images_per_s"].get(b) or learned["images_per_s"].get(max(learned["images_per_s"], key=int))
             rows.append([f"learned detection img/s, batch {b}", f">= {TARGETS[key]:.0f}", _n(got, 1),
                          _n((cv or {}).get("images_per_s", {}).get(b), 1)])
+        work = learned.get("workers")
+        if work:
+            rows.append([f"learned detection img/s, {work['processes']} worker processes, batches of {work['batch']}",
+                         f">= {TARGETS['detect_b16']:.0f}", _n(work["images_per_s"], 1),
+                         _n((cv or {}).get("images_per_s", {}).get("16"), 1)])
     ours = next((r for label, r in calibration.items() if "CalibrationPipeline" in label), None)
     theirs = next((r for label, r in calibration.items() if label.startswith("OpenCV")), None)
     if ours:
