@@ -13,7 +13,7 @@ from typing import Any
 
 import torch
 
-from ccs_kornia.batch_workers import map_batches
+from ccs_kornia.batch_workers import map_batches, worker_pool
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.correction import corrected_frame
@@ -142,7 +142,8 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
                 None)
     if models is None:
         with torch.inference_mode():
-            results, chosen, table = pipe.selection(corners.to(torch.float64), valid, obj, image_size, weights=weights)
+            results, chosen, table = pipe.selection(corners.to(torch.float64), valid, obj, image_size, weights=weights,
+                                                    map_models=_map_in_workers(_workers(pipe, corners.device)))
         fallback = next(iter(results))  # cameras no model calibrated keep that model's (failed) result
         names = [n or fallback for n in chosen]
     else:
@@ -232,6 +233,16 @@ def look_on_corrected(pipe: Any, source: Any, out: PipelineResult, correction: t
             if sigma is not None:
                 det.sigma[ci, vi] = sigma[0].to(det.sigma)
             det.reasons[ci * v + vi] = got.reasons[0]
+
+
+def _map_in_workers(workers: int):
+    """``map_models`` of :class:`~ccs_kornia.modules.calibration.model_selection.ModelSelection`: the models solved
+    by forked worker processes, one thread each (the solver of a few cameras runs on one thread anyway)."""
+    def map_models(fn, items: list) -> list:
+        with worker_pool(fn, min(workers, len(items))) as run:
+            return list(run(items))
+
+    return map_models
 
 
 def _workers(pipe: Any, device: torch.device) -> int:

@@ -18,6 +18,7 @@ set (0.514 vs 0.513 px); with the halves' agreement (17 vs 2 px; 606 vs 8 px) bo
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import torch
 from torch import nn
@@ -116,20 +117,29 @@ class ModelSelection(nn.Module):
 
     def forward(self, corners: torch.Tensor, valid: torch.Tensor, object_points: torch.Tensor,
                 image_size: tuple[int, int], weights: torch.Tensor | None = None,
+                map_models: Callable[[Callable, list[str]], list] | None = None,
                 ) -> tuple[dict[str, CalibrationResult], list[str | None], list[dict]]:
+        """``map_models(fn, names)``: ``[fn(name) for name in names]`` computed elsewhere (e.g. by worker processes;
+        each model's solve and cross-validation are independent); default here, one after the other."""
         if corners.dim() != 4 or valid.shape != corners.shape[:-1]:
             raise ValueError(f"Expected corners (C, V, N, 2) and valid (C, V, N), got {tuple(corners.shape)} and "
                              f"{tuple(valid.shape)}.")
         names = list(self.solvers.keys())
-        results, heldout, halves = {}, [], []
-        for name in names:
+
+        def solve(name: str) -> tuple[CalibrationResult, dict | None]:
             solver = self.solvers[name]
             res = solver(corners, valid, object_points, image_size, weights=weights)
+            if not bool(res.success.any()):
+                return res, None
+            return res, cross_validation(solver, corners, valid, object_points, image_size, res, self.folds,
+                                         weights=weights)
+
+        solved = (map_models or (lambda fn, items: [fn(item) for item in items]))(solve, names)
+        results, heldout, halves = {}, [], []
+        for name, (res, cv) in zip(names, solved):
             results[name] = res
             nan = torch.full(res.success.shape, float("nan"), dtype=torch.float64, device=corners.device)
-            if bool(res.success.any()):
-                cv = cross_validation(solver, corners, valid, object_points, image_size, res, self.folds,
-                                      weights=weights)
+            if cv is not None:
                 ok = res.success.to(nan.device)
                 heldout.append(torch.where(ok, cv["heldout_rms_px"].to(nan), nan))
                 halves.append(torch.where(ok, cv["cv_rms_px"].to(nan), nan))

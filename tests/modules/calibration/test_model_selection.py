@@ -74,6 +74,27 @@ def test_module_picks_fisheye_for_a_fisheye_and_a_polynomial_model_for_a_pinhole
         ModelSelection({})
 
 
+def test_models_solved_elsewhere_give_the_same_choice():
+    """``map_models`` (the pipeline's worker processes) only moves where each model's solve runs."""
+    from ccs_kornia.batch_workers import worker_pool
+
+    uv, _, _ = _two_cameras()
+    valid = torch.ones(2, 12, 54, dtype=torch.bool) & uv.isfinite().all(-1)
+    select = ModelSelection({m: CalibrationSolver(model=m) for m in ("k1k2", "fisheye")})
+    results, chosen, table = select(uv, valid, OBJ, (640, 480))
+    asked = []
+
+    def in_workers(fn, names):
+        asked.extend(names)
+        with worker_pool(fn, 2) as run:
+            return list(run(names))
+
+    results2, chosen2, table2 = select(uv, valid, OBJ, (640, 480), map_models=in_workers)
+    assert asked == ["k1k2", "fisheye"] and chosen2 == chosen and table2 == table
+    for name in results:
+        assert torch.equal(results[name].K, results2[name].K) and torch.equal(results[name].rms, results2[name].rms)
+
+
 def test_pipeline_auto_mixed_models_in_one_batch():
     """Two cameras, two models: one batched result, each camera's own width of coefficients when selected."""
     from ccs_kornia.pipeline import CalibrationPipeline
