@@ -22,6 +22,7 @@ import sys
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -154,16 +155,25 @@ def worker_pool(fn: Callable[[Any], Any], workers: int = 1) -> Iterator[Callable
     def run(items: Iterable) -> Iterator:
         results = pool.map(_call, [pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL) for item in items])
         while True:
-            with stage(WORKER_STAGE):  # the workers' own stages are not seen here
-                data = next(results, None)
+            try:
+                with stage(WORKER_STAGE):  # the workers' own stages are not seen here
+                    data = next(results, None)
+            except BrokenProcessPool:
+                raise RuntimeError("a worker process stopped unexpectedly (out of memory?): run again with fewer "
+                                   "processes (--jobs / workers) or smaller batches (--batch-size)") from None
             if data is None:
                 return
             yield pickle.loads(data)
 
+    finished = False
     try:
         yield run
+        finished = True
     finally:
         _TASK = None
+        if not finished:  # an error or Ctrl-C here: the workers' current items are not waited for
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                process.terminate()
         pool.shutdown(wait=True, cancel_futures=True)
 
 

@@ -125,3 +125,20 @@ def test_worker_pool_maps_in_order_in_other_processes():
     assert os.getpid() not in {o[1] for o in out} and len(again) == 2
     with worker_pool(work, workers=1) as run:
         assert {o[1] for o in run(items)} == {os.getpid()}
+
+
+def _die_on_three(x: int) -> int:
+    if x == 3:
+        os._exit(9)  # as the kernel's out-of-memory killer would
+    return x
+
+
+@linux
+def test_a_worker_that_dies_is_an_error_that_says_what_to_do():
+    from ccs_kornia.batch_workers import worker_pool
+
+    with pytest.raises(RuntimeError, match="worker process stopped unexpectedly.*--jobs"):
+        with worker_pool(_die_on_three, workers=2) as run:
+            list(run(range(6)))
+    with worker_pool(_die_on_three, workers=2) as run:  # the next pool starts afresh
+        assert list(run([1, 2])) == [1, 2]
