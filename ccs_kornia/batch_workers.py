@@ -5,10 +5,12 @@ Most of a view's detection is small tensor and numpy operations, which one proce
 1.5x faster on 2 cores than one process with two threads (udacity_gopro_wide's 36 photos 7.4 -> 4.1 s; opencv_left's
 13, 1.72 -> 1.14 s). :func:`map_batches` splits the views into the same batches whatever the number of workers
 (:func:`chunks` of ``batch_size`` views, then the source's own batches of one image size within each), so a set gives
-the same answer with any number of workers, on any machine.
+the same corners with any number of workers (the distortion network's per-view predictions agree to 4e-6: float
+rounding of one thread against two). :func:`worker_pool` maps any function over items the same way (the pipeline's
+model selection solves its four models at once).
 
 Workers are forked (Linux; the model is shared, not copied or pickled) and only for CPU work; each runs one intra-op
-thread. Where fork is not available, or on other devices, the batches run here, in order.
+thread. Where fork is not available, or on other devices, the work runs here, in order.
 """
 
 from __future__ import annotations
@@ -31,8 +33,8 @@ import torch
 from ccs_kornia.modules._timing import stage, timed
 from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, ViewSource, prefetched
 
-__all__ = ["BatchOutput", "MAX_AUTO_WORKERS", "WORKER_STAGE", "chunks", "default_workers", "map_batches", "usable_cores",
-           "worker_pool"]
+__all__ = ["BatchOutput", "MAX_AUTO_WORKERS", "WORKER_STAGE", "chunks", "default_workers", "map_batches",
+           "usable_cores", "worker_pool"]
 
 #: worker processes at most for ``workers="auto"`` (each holds its batch and its activations)
 MAX_AUTO_WORKERS = 4

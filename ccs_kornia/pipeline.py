@@ -236,7 +236,8 @@ class CalibrationPipeline(nn.Module):
             view = torch.tensor([k[1] for k in batch.keys], device=device)
             if per_view is not None:
                 per_view[cam, view] = corrections.to(device)
-            corners[cam, view], found[cam, view], present[cam, view] = det.corners.to(device).double(), det.found.to(device), True
+            corners[cam, view], found[cam, view] = det.corners.to(device).double(), det.found.to(device)
+            present[cam, view] = True
             if sigma is not None and det.sigma is not None:
                 sigma[cam, view] = det.sigma.to(sigma)
             sizes[cam.cpu(), view.cpu()] = torch.tensor(batch.size)

@@ -218,9 +218,9 @@ def look_on_corrected(pipe: Any, source: Any, out: PipelineResult, correction: t
         got = detect_on_corrected(pipe.detect_images, pipe.refine_on_patches, images,
                                   correction[torch.tensor([k[0] for k in keys], device=device)], board)
         ok = got.found
-        # the precision on the original image
-        sigma = pipe.corner_sigma(images[ok], got.corners[ok], board) if det.sigma is not None and bool(ok.any()) else None
-        return got, sigma
+        if det.sigma is None or not bool(ok.any()):
+            return got, None
+        return got, pipe.corner_sigma(images[ok], got.corners[ok], board)  # the precision on the original image
 
     if not missed:
         return
