@@ -204,8 +204,9 @@ def look_on_corrected(pipe: Any, source: Any, out: PipelineResult, correction: t
     """Views missed on the originals of cameras whose pooled correction is ``large`` :math:`(C,)`, looked for on
     copies corrected by ``correction`` :math:`(C, 5)`
     (:func:`~ccs_kornia.modules.correction.corrected_detection.detect_on_corrected`); fills ``out.detections`` in
-    place. A second look: finer fallback levels only, no last resorts (:data:`SECOND_LOOK_OPTIONS`); each view alone,
-    by the pipeline's worker processes on CPU."""
+    place. A second look: finer fallback levels only, no last resorts (:data:`SECOND_LOOK_OPTIONS`), in the pipeline's
+    batches (one view at a time changed rendered fisheye cameras' E_IP in the 4th digit, bench section 7), by its worker
+    processes on CPU."""
     from ccs_kornia.modules.correction.corrected_detection import detect_on_corrected
 
     det = out.detections
@@ -225,14 +226,18 @@ def look_on_corrected(pipe: Any, source: Any, out: PipelineResult, correction: t
     if not missed:
         return
     with detector_options(pipe.detector, **SECOND_LOOK_OPTIONS):
-        for batch in map_batches(look, source, missed, 1, pipe.max_batch_pixels, _workers(pipe, device)):
+        for batch in map_batches(look, source, missed, pipe.detection_batch_size, pipe.max_batch_pixels,
+                                 _workers(pipe, device)):
             if batch.size is None or not bool(batch.value[0].found.any()):
                 continue
-            (got, sigma), (ci, vi) = batch.value, batch.keys[0]
-            det.corners[ci, vi], det.found[ci, vi] = got.corners[0].to(det.corners), True
+            (got, sigma), ok = batch.value, batch.value[0].found
+            cam = torch.tensor([k[0] for k in batch.keys], device=device)[ok]
+            view = torch.tensor([k[1] for k in batch.keys], device=device)[ok]
+            det.corners[cam, view], det.found[cam, view] = got.corners[ok].to(det.corners), True
             if sigma is not None:
-                det.sigma[ci, vi] = sigma[0].to(det.sigma)
-            det.reasons[ci * v + vi] = got.reasons[0]
+                det.sigma[cam, view] = sigma.to(det.sigma)
+            for k in ok.nonzero().flatten().tolist():
+                det.reasons[batch.keys[k][0] * v + batch.keys[k][1]] = got.reasons[k]
 
 
 def _map_in_workers(workers: int):
