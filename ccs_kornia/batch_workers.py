@@ -39,8 +39,8 @@ __all__ = ["BatchOutput", "MAX_AUTO_WORKERS", "WORKER_STAGE", "chunks", "default
 #: worker processes at most for ``workers="auto"`` (each holds its batch and its activations)
 MAX_AUTO_WORKERS = 4
 
-#: the profile's stage (:mod:`~ccs_kornia.modules._timing`) of the waits for the workers
-WORKER_STAGE = "detection in worker processes"
+#: the profile's stage (:mod:`~ccs_kornia.modules._timing`) of the waits for the workers (their own stages are not seen)
+WORKER_STAGE = "worker processes"
 
 #: what a forked worker runs, set by :func:`worker_pool` before forking
 _TASK: Callable | None = None
