@@ -34,7 +34,7 @@ from ccs_kornia.modules._timing import stage, timed
 from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, ViewSource, prefetched
 
 __all__ = ["BatchOutput", "MAX_AUTO_WORKERS", "WORKER_STAGE", "chunks", "default_workers", "map_batches",
-           "usable_cores", "worker_pool"]
+           "usable_cores", "worker_pool", "workers_on"]
 
 #: worker processes at most for ``workers="auto"`` (each holds its batch and its activations)
 MAX_AUTO_WORKERS = 4
@@ -84,9 +84,17 @@ def default_workers(device: torch.device | str = "cpu") -> int:
         >>> 1 <= default_workers("cpu") <= MAX_AUTO_WORKERS, default_workers("cuda")
         (True, 1)
     """
-    if torch.device(device).type != "cpu" or not _can_fork():
-        return 1
-    return min(usable_cores(), MAX_AUTO_WORKERS)
+    return workers_on(device, min(usable_cores(), MAX_AUTO_WORKERS) if _can_fork() else 1)
+
+
+def workers_on(device: torch.device | str, workers: int) -> int:
+    """``workers`` for work on ``device``: only the CPU's work is shared out (1 elsewhere).
+
+    Example:
+        >>> workers_on("cpu", 2), workers_on("cuda:0", 2)
+        (2, 1)
+    """
+    return workers if torch.device(device).type == "cpu" else 1
 
 
 def chunks(keys: Sequence, size: int) -> list[list]:

@@ -49,7 +49,7 @@ from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
 from ccs_kornia.pipeline_result import PipelineResult, main_size, module_device, positive_size, same_size_views, select_result
 from ccs_kornia.pipeline_solve import diagnose_solved, look_again_with_camera, look_foreshortened, look_on_corrected
 from ccs_kornia.pipeline_solve import solve_detections, solve_group
-from ccs_kornia.batch_workers import default_workers, map_batches
+from ccs_kornia.batch_workers import default_workers, map_batches, workers_on
 from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource  # noqa: F401
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
@@ -226,7 +226,7 @@ class CalibrationPipeline(nn.Module):
         # batches of views, in forked worker processes on CPU (batch_workers.py: the same batches for any number)
         for batch in map_batches(functools.partial(self._detect_batch, board=board, device=device), source, None,
                                  self.detection_batch_size, self.max_batch_pixels,
-                                 self.workers if device.type == "cpu" else 1):
+                                 workers_on(device, self.workers)):
             for (ci, vi), why in batch.failed:
                 reasons[ci][vi] = f"unreadable: {why}"
             if batch.size is None:

@@ -13,7 +13,7 @@ from typing import Any
 
 import torch
 
-from ccs_kornia.batch_workers import map_batches, worker_pool
+from ccs_kornia.batch_workers import map_batches, worker_pool, workers_on
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.correction import corrected_frame
@@ -143,7 +143,7 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
     if models is None:
         with torch.inference_mode():
             results, chosen, table = pipe.selection(corners.to(torch.float64), valid, obj, image_size, weights=weights,
-                                                    map_models=_map_in_workers(_workers(pipe, corners.device)))
+                                                    map_models=_map_in_workers(workers_on(corners.device, pipe.workers)))
         fallback = next(iter(results))  # cameras no model calibrated keep that model's (failed) result
         names = [n or fallback for n in chosen]
     else:
@@ -227,7 +227,7 @@ def look_on_corrected(pipe: Any, source: Any, out: PipelineResult, correction: t
         return
     with detector_options(pipe.detector, **SECOND_LOOK_OPTIONS):
         for batch in map_batches(look, source, missed, pipe.detection_batch_size, pipe.max_batch_pixels,
-                                 _workers(pipe, device)):
+                                 workers_on(device, pipe.workers)):
             if batch.size is None or not bool(batch.value[0].found.any()):
                 continue
             (got, sigma), ok = batch.value, batch.value[0].found
@@ -248,11 +248,6 @@ def _map_in_workers(workers: int):
             return list(run(items))
 
     return map_models
-
-
-def _workers(pipe: Any, device: torch.device) -> int:
-    """The pipeline's worker processes for work on ``device`` (only the CPU's work is shared out)."""
-    return pipe.workers if device.type == "cpu" else 1
 
 
 def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: tuple[int, int]) -> bool:
