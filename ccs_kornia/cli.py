@@ -25,6 +25,7 @@ import os
 import sys
 from collections.abc import Sequence
 
+from ccs_kornia.allocator import keep_freed_memory
 from ccs_kornia.commands import calibrate, calibrate_many, demo, detect, undistort
 from ccs_kornia.commands._common import PROG, UserError
 
@@ -263,6 +264,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv: arguments without the program name (default ``sys.argv[1:]``).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
+    keep_freed_memory()  # this process is ours: freed tensors' memory is reused instead of mapped afresh
     if argv and argv[0] in LIGHTNING_COMMANDS:
         return _run_lightning(argv)
     if argv and argv[0] == "bench":

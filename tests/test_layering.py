@@ -195,6 +195,7 @@ ALLOWED: dict[str, set[str]] = {
     "_lazy": set(),
     "package": set(),
     "io": set(),
+    "allocator": set(),
     "sources": {"io"},
     "batch_workers": {"modules", "sources"},
     "pipeline_result": {"camera", "modules", "sources"},
@@ -212,10 +213,10 @@ ALLOWED: dict[str, set[str]] = {
     # the command line dispatches to everything below it; ``bench`` and ``training.cli`` are entry points it
     # forwards to (neither imports the command line)
     "commands": {"commands", "pipeline", "modules", "io", "records", "report", "data", "metrics", "predict", "sources"},
-    "cli": {"commands", "io", "training", "bench"},
+    "cli": {"allocator", "commands", "io", "training", "bench"},
     "__main__": {"cli"},
-    "bench": {"camera", "data", "modules", "pipeline", "pipeline_result", "sources", "batch_workers", "io", "metrics",
-              "losses"},
+    "bench": {"allocator", "camera", "data", "modules", "pipeline", "pipeline_result", "sources", "batch_workers", "io",
+              "metrics", "losses"},
 }
 
 

@@ -428,21 +428,18 @@ def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smoot
         # two sources per corner: the normalised one cancels shading (bench section 1, bad light: 0.025 px with the
         # saddle fit, 0.043 after a plain polish), the plain one keeps small squares, board borders and real lenses
         # exact (the local mean sees the next square or the background there)
-        w = _window(pr, polish_max)[1]
-        local = c - top_left.to(dt)
-        if plain is None:
-            polished, moved, asym = symmetry_polish(src, local, reach, polish_max, _sample_window, w, POLISH_ITERATIONS)
-        else:  # both sources in one call (half the small operations; the same values)
-            pb, mb, ab = symmetry_polish(both, local.repeat(2, 1), reach.repeat(2), polish_max, _sample_window,
-                                         w.repeat(2, 1), POLISH_ITERATIONS)
-            polished, moved, asym, p2, m2, a2 = pb[:m], mb[:m], ab[:m], pb[m:], mb[m:], ab[m:]
+        w, local = _window(pr, polish_max)[1], c - top_left.to(dt)
+        k = 1 if plain is None else 2  # both sources in one call (half the small operations; the same values)
+        pb, mb, ab = symmetry_polish(src if k == 1 else both, local.repeat(k, 1), reach.repeat(k), polish_max,
+                                     _sample_window, w.repeat(k, 1), POLISH_ITERATIONS)
+        polished, moved, asym, p2, m2, a2 = pb[:m], mb[:m], ab[:m], pb[m:], mb[m:], ab[m:]
+        if plain is not None:
             # the normalised source must be clearly more symmetric to win: where the two are close, the division's
             # own reshaping of the junction outweighs the shading it removes (udacity_gopro_wide, fisheye model: RMS
             # 0.414 plain only, 0.467 with the plain result needing only to tie, 0.417 with this margin; bench
             # section 1, bad light: 0.043 px plain only, 0.016 tie, 0.019 margin)
             better = m2 & (~moved | (a2 < POLISH_PLAIN_MARGIN * asym) | plain_chosen)
-            polished = torch.where(better[:, None], p2, polished)
-            asym = torch.where(better, a2, asym)
+            polished, asym = torch.where(better[:, None], p2, polished), torch.where(better, a2, asym)
             src = torch.where(better[:, None, None, None], plain, src)
             moved = moved | m2
         c = torch.where((ok & moved)[..., None], polished + top_left.to(dt), c)
