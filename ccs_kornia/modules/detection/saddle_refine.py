@@ -262,16 +262,16 @@ def _sample_window(src: torch.Tensor, centre: torch.Tensor, rmax: int) -> torch.
     """Bilinear samples of regions ``src`` :math:`(M, 1, q, q)` at ``centre + off`` for the offsets of the
     ``(2 rmax + 1)^2`` window (:func:`_window`), :math:`(M, P)`: whole-pixel offsets share their centre's fraction, so
     the window is a blend of shifted crops (``grid_sample``'s values, ``align_corners=True``, while inside)."""
-    m, q = src.shape[0], src.shape[-1]
-    side = 2 * rmax + 1
+    m, q, side = src.shape[0], src.shape[-1], 2 * rmax + 1
     base = torch.floor(centre)
-    frac = centre - base
     # top-left pixel of the (side + 1)^2 crop, kept inside the region
-    start = (base.long() - rmax).clamp(0, q - side - 1)
-    frac = torch.where((base.long() - rmax) == start, frac, (centre - (start + rmax).to(centre)).clamp(0, 1))
+    corner = base.long() - rmax
+    start = corner.clamp(0, q - side - 1)
+    frac = torch.where(corner == start, centre - base, (centre - (start + rmax).to(centre)).clamp(0, 1))
     span = torch.arange(side + 1, device=src.device)
-    idx = (start[:, 1, None, None] + span[:, None]) * q + (start[:, 0, None, None] + span[None, :])
-    crop = src.reshape(m, q * q).gather(1, idx.reshape(m, -1)).reshape(m, side + 1, side + 1)
+    # the crop's flat indices: its offsets in a row-major region (one small grid) shifted by its top-left pixel's
+    idx = (start[:, 1] * q + start[:, 0])[:, None] + (span[:, None] * q + span[None, :]).reshape(1, -1)
+    crop = src.reshape(m, q * q).gather(1, idx).reshape(m, side + 1, side + 1)
     fx, fy = frac[:, 0, None, None], frac[:, 1, None, None]
     # each row blended along x once, then pairs of rows along y (the same values as 2x2 blends, a third fewer ops)
     rows = crop[:, :, :-1] + fx * (crop[:, :, 1:] - crop[:, :, :-1])
