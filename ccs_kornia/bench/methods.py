@@ -65,10 +65,11 @@ class DetectionMethod:
         self.available = fn is not None
         self.reason = reason
 
-    def detect(self, images: torch.Tensor, board: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    def detect(self, images: torch.Tensor, board: tuple[int, int], **options) -> tuple[np.ndarray, np.ndarray]:
+        """``options``: of the method (the learned detector's ``batch``: images per call, default the bench's)."""
         if not self.available:
             raise RuntimeError(f"{self.label} is not available: {self.reason}")
-        corners, found = self._fn(images, board)
+        corners, found = self._fn(images, board, **options)
         return np.asarray(corners, dtype=np.float64), np.asarray(found, dtype=bool)
 
     def __repr__(self) -> str:
@@ -143,7 +144,7 @@ def _learned_method(batch: int, collinearity_last: bool = False, **options) -> t
     except Exception as err:  # unreadable or incompatible weights must not stop the other methods
         return None, f"learned detector: weights could not be loaded ({type(err).__name__}: {err})"
 
-    def run(images: torch.Tensor, board: tuple[int, int]):
+    def run(images: torch.Tensor, board: tuple[int, int], batch: int = batch):
         cs, fs = [], []
         det.to(images.device)
         with torch.inference_mode():

@@ -81,9 +81,13 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
             run_images = det_images.to(device)
             per_batch = {}
             for bs in sorted({min(b, run_images.shape[0]) for b in cfg.speed_batch_sizes}):
-                def go(m=m, bs=bs):
+                # the learned detector at the timed batch size (its method otherwise splits calls into the bench's
+                # batches of cfg.learned_batch: until stop 34 its "batch 16" column was two calls of 8)
+                options = {"batch": bs} if key.startswith("learned") else {}
+
+                def go(m=m, bs=bs, options=options):
                     for i in range(0, run_images.shape[0], bs):
-                        m.detect(run_images[i : i + bs], cfg.board)
+                        m.detect(run_images[i : i + bs], cfg.board, **options)
                 sec = _best(go, cfg.speed_repeats, device)
                 per_batch[str(bs)] = run_images.shape[0] / sec
             res["detection"][key] = {"label": m.label, "images_per_s": per_batch}

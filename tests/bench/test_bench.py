@@ -130,6 +130,24 @@ def test_learned_method_reports_missing_weights_or_is_available():
             m.detect(torch.zeros(1, 1, 32, 32), (4, 3))
 
 
+def test_learned_method_runs_at_the_batch_it_is_given():
+    # the speed section times the learned detector at batch 1 and 16: its calls must be of that size, not the
+    # bench's usual batches of cfg.learned_batch
+    m = make_methods(("learned",), learned_batch=2)["learned"]
+    if not m.available:
+        pytest.skip(m.reason)
+    det, sizes = m._fn.detector, []
+    hook = det.register_forward_pre_hook(lambda mod, args: sizes.append(args[0].shape[0]))
+    try:
+        images = torch.zeros(4, 1, 48, 64)
+        m.detect(images, (4, 3))
+        m.detect(images, (4, 3), batch=4)
+        m.detect(images[:3], (4, 3), batch=1)
+    finally:
+        hook.remove()
+    assert sizes == [2, 2, 4, 1, 1, 1]
+
+
 def test_solvers_recover_exact_intrinsics():
     board, square, size = (6, 5), 0.03, (640, 480)
     obj = board_object_points(*board, square, dtype=torch.float64)
