@@ -125,22 +125,22 @@ def _saddle_source(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor, 
 
     Equal, up to float rounding, to ``refine_corners``' whole-image source cropped there: pixels outside the image
     repeat the nearest in-image value, as bilinear sampling with ``padding_mode="border"`` reads it."""
-    plain = _blurred_regions(img, bi, top_left, q, smooth_sigma, "reflect")
-    src = plain
+    src = plain = _blurred_regions(img, bi, top_left, q, smooth_sigma, "reflect")
     if normalize_sigma > 0:
         src = plain / _blurred_regions(img, bi, top_left, q, normalize_sigma, "replicate").clamp_min(1e-3)
     h, w = img.shape[-2:]
-    span = torch.arange(q, device=img.device)
-    # local index of the clamped (in-image) pixel of every region pixel
-    iy = ((top_left[:, 1, None] + span).clamp(0, h - 1) - top_left[:, 1, None]).clamp(0, q - 1)
-    ix = ((top_left[:, 0, None] + span).clamp(0, w - 1) - top_left[:, 0, None]).clamp(0, q - 1)
+    # regions over the image's border (the others stay): local index of the clamped (in-image) pixel of every pixel
+    edge = ((top_left < 0).any(1) | (top_left[:, 1] + q > h) | (top_left[:, 0] + q > w)).nonzero().flatten()
+    tl, span = top_left[edge], torch.arange(q, device=img.device)
+    iy = ((tl[:, 1, None] + span).clamp(0, h - 1) - tl[:, 1, None]).clamp(0, q - 1)[:, :, None].expand(-1, -1, q)
+    ix = ((tl[:, 0, None] + span).clamp(0, w - 1) - tl[:, 0, None]).clamp(0, q - 1)[:, None, :].expand(-1, q, -1)
 
-    def clamp(x: torch.Tensor) -> torch.Tensor:
-        return x.gather(1, iy[:, :, None].expand(-1, -1, q)).gather(2, ix[:, None, :].expand(-1, q, -1))[:, None]
+    def clamp(x: torch.Tensor) -> torch.Tensor:  # in place: x is this function's own
+        if edge.numel():
+            x[edge] = x[edge].gather(1, iy).gather(2, ix)
+        return x[:, None]
 
-    if with_plain:
-        return clamp(src), (clamp(plain) if normalize_sigma > 0 else None)
-    return clamp(src)
+    return (clamp(src), clamp(plain) if normalize_sigma > 0 else None) if with_plain else clamp(src)
 
 
 def refine_corners(

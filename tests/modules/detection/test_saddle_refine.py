@@ -101,3 +101,30 @@ def test_window_samples_and_gradient_match_the_reference_ops(device):
     pts = centre[:, None] + torch.stack([ox.reshape(-1), oy.reshape(-1)], -1)
     ref = torch.stack([_sample(regions[i : i + 1], pts[i][None, None])[0, 0, 0] for i in range(4)])
     torch.testing.assert_close(_sample_window(regions, centre, rmax), ref, atol=1e-5, rtol=0)
+
+
+def test_region_source_matches_the_whole_image_filters_at_the_border(device):
+    # the saddle fit's source on small regions (only regions over the image's border are clamped) against kornia's
+    # whole-image filters cropped with the border rule the bilinear sampling uses (repeat the nearest in-image pixel)
+    from kornia.filters import gaussian_blur2d
+
+    from ccs_kornia.modules.detection.saddle_refine import _saddle_source
+
+    g = torch.Generator().manual_seed(6)
+    img = torch.rand(2, 1, 40, 50, generator=g).to(device)
+    q = 15
+    # regions around in-image corners (their centre, top_left + 7, is in the image): inside, across the top-left and
+    # the bottom-right borders, at the origin, across one border only
+    top_left = torch.tensor([[10, 12], [-5, -3], [40, 30], [-7, 30], [0, 0], [20, -7]], device=device)
+    bi = torch.tensor([0, 1, 0, 1, 1, 0], device=device)
+    src, plain = _saddle_source(img, bi, top_left, q, 1.0, 6.0, with_plain=True)
+    smooth = gaussian_blur2d(img, (7, 7), (1.0, 1.0), border_type="reflect")
+    mean = gaussian_blur2d(img, (37, 37), (6.0, 6.0), border_type="replicate")
+    span = torch.arange(q, device=device)
+    for k in range(top_left.shape[0]):
+        ys = (top_left[k, 1] + span).clamp(0, 39)
+        xs = (top_left[k, 0] + span).clamp(0, 49)
+        ref_plain = smooth[bi[k], 0][ys[:, None], xs[None, :]]
+        ref_src = ref_plain / mean[bi[k], 0][ys[:, None], xs[None, :]].clamp_min(1e-3)
+        torch.testing.assert_close(plain[k, 0], ref_plain, atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(src[k, 0], ref_src, atol=1e-4, rtol=1e-4)
