@@ -15,13 +15,13 @@ def _has_mallopt() -> bool:
 
 
 # a fresh interpreter (the settings are per process): page faults of ten rounds of three 8 MiB tensors written and
-# freed together, after one warm-up round, with or without the settings. glibc's default adapts its mapping threshold
-# to the freed size, but gives the heap's free top back to the system once it exceeds twice that (3 x 8 > 2 x 8 MiB),
-# so each round faults its pages in again, as the detector's batches of regions did
+# freed together, after one warm-up round, under this module's settings or under glibc's starting thresholds made
+# fixed (128 KiB: every such tensor mapped afresh and unmapped when freed, as the detector's regions were; glibc's own
+# adaptive default lies in between and depends on the address layout, so it is not what is compared)
 _FAULTS = """
 import resource, sys, torch
 from ccs_kornia.allocator import keep_freed_memory
-took = keep_freed_memory() if sys.argv[1] == "keep" else None
+took = keep_freed_memory() if sys.argv[1] == "keep" else keep_freed_memory(128 << 10, 128 << 10)
 def cycle():
     for _ in range(10):
         xs = [torch.empty(2 << 20).fill_(1.0) for _ in range(3)]
@@ -45,10 +45,11 @@ def test_freed_memory_is_reused_without_page_faults():
     assert took == "True"
     # 3 x 8 MiB written ten times is 61,440 pages: reused memory faults none of them again
     assert kept < 500
-    _, plain = _faults("plain")
-    assert plain > 10 * kept + 5000
+    took, mapped = _faults("map")
+    assert took == "True"
+    assert mapped > 50_000  # each tensor's pages faulted in again, every round
 
 
-def test_keep_freed_memory_returns_bool():
-    assert keep_freed_memory() in (True, False)
-    assert keep_freed_memory(1 << 20, 1 << 26) in (True, False)
+def test_keep_freed_memory_says_whether_it_applied():
+    # (this process gets the command line's settings, which the CLI tests give it anyway)
+    assert keep_freed_memory() is (_has_mallopt())
