@@ -128,7 +128,12 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
     start = time.perf_counter()
     total = sum(source.counts)
     with tqdm(total=total, unit="img", desc=command, file=sys.stderr, disable=None, leave=False) as bar:
-        out = pipeline.run(source, board, square, calibrate=calibrate, progress=bar.update)
+        def advance(views: int) -> None:
+            bar.update(views)
+            if bar.n >= total:  # detection done; what follows can take as long (second looks at missed views)
+                bar.set_description_str(f"{command}: {'solving; ' if calibrate else ''}second looks at any missed views")
+
+        out = pipeline.run(source, board, square, calibrate=calibrate, progress=advance)
     seconds = time.perf_counter() - start
     v = out.present.shape[1]
     for c, files in enumerate(cameras):
