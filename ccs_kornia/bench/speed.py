@@ -165,8 +165,11 @@ def _detect_in_workers(m: DetectionMethod, images: torch.Tensor, cfg: BenchConfi
     # (fewer when the images make fewer batches)
     workers = min(default_workers("cpu"), -(-images.shape[0] // CLI_BATCH_SIZE))
     source = TensorSource(images)
-    sec = _best(lambda: list(map_batches(lambda x, keys: m.detect(x, cfg.board), source, None, CLI_BATCH_SIZE, None,
-                                         workers)), cfg.speed_repeats, "cpu")
+    def detect(x: torch.Tensor, keys: list) -> tuple:  # each worker's batch in one call, as calibrate's
+        return m.detect(x, cfg.board, batch=CLI_BATCH_SIZE)
+
+    sec = _best(lambda: list(map_batches(detect, source, None, CLI_BATCH_SIZE, None, workers)), cfg.speed_repeats,
+                "cpu")
     log(f"[speed] cpu detect {m.label}: {images.shape[0] / sec:.1f} img/s in {workers} worker process(es), batches of "
         f"{CLI_BATCH_SIZE}")
     return {"processes": workers, "batch": CLI_BATCH_SIZE, "images_per_s": images.shape[0] / sec}
