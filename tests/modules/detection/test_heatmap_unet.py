@@ -168,6 +168,26 @@ def test_run_heatmap_runs_a_large_batch_a_few_images_at_a_time(monkeypatch):
     assert seen == [2, 2, 1]
 
 
+def test_run_heatmap_runs_a_batch_above_batch_pixels_in_chunks_on_cpu():
+    """On CPU a batch of more than ``batch_pixels`` pixels runs a few whole images at a time (its activations stay in
+    the cache): the same heatmaps as in one call; ``None`` runs it whole."""
+    from ccs_kornia.modules.detection.heatmap_unet import run_heatmap
+
+    torch.manual_seed(0)
+    net = CornerUNet().eval()
+    x = torch.rand(7, 1, 48, 64)
+    seen = []
+    with torch.inference_mode():
+        hook = net.register_forward_pre_hook(lambda m, inp: seen.append(inp[0].shape[0]))
+        whole = run_heatmap(net, x, batch_pixels=None)
+        chunked = run_heatmap(net, x, batch_pixels=3 * 48 * 64 + 10)
+        single = run_heatmap(net, x[:2], batch_pixels=10)  # fewer pixels than one image: one image at a time
+        hook.remove()
+    torch.testing.assert_close(chunked, whole, atol=1e-6, rtol=0)  # float rounding of other batch shapes
+    torch.testing.assert_close(single, whole[:2], atol=1e-6, rtol=0)
+    assert seen == [7, 3, 2, 2, 1, 1]  # as few chunks as allowed, as even as can be
+
+
 
 @pytest.mark.parametrize("norm", ["batch", "none"])
 def test_inference_splits_the_first_up_convolution_exactly(norm):
