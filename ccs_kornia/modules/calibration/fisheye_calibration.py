@@ -195,7 +195,8 @@ def _calibrate(model, corners, w, candidates, obj, free, min_views, outlier_abs_
     ok0 = init_rms.isfinite()
     wk = (w[:, None] * ok0[..., None]).reshape(C * k, V, N)
     ck = corners[:, None].expand(C, k, V, N, 2).reshape(C * k, V, N, 2)
-    res = lm(model, p0.reshape(C * k, 8), rv0.reshape(C * k, V, 3), tv0.reshape(C * k, V, 3), obj, ck, wk, free=free)
+    res = lm(model, p0.reshape(C * k, 8), rv0.reshape(C * k, V, 3), tv0.reshape(C * k, V, 3), obj, ck, wk, free=free,
+             groups=torch.arange(C, device=dev).repeat_interleave(k))
     n_used = res.view_used.sum(-1).view(C, k)
     key = torch.where(res.rms.isfinite(), res.rms, float("inf")).view(C, k) - 1e6 * n_used  # most views, then rms
     best = key.argmin(-1)
