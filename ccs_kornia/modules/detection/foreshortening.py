@@ -20,6 +20,7 @@ from kornia.geometry.linalg import transform_points
 from kornia.geometry.transform import warp_affine
 
 from ccs_kornia.modules._timing import stage
+from ccs_kornia.modules.detection.base import image_rows
 from ccs_kornia.modules.detection.patch_refine import _check_images, resize_to_level
 
 __all__ = ["FORESHORTENING_DIRECTIONS", "FORESHORTENING_RATIO", "compress_along", "map_from_level",
@@ -157,7 +158,7 @@ def detect_foreshortened(
         to_base[:2, 2] = 0.5 / scale.double().cpu() - 0.5
         pts = map_from_level(c[hit].to(images.device).double(), A @ to_base)
         sel = todo[hit]
-        corners[sel] = refine(images[sel], pts.float(), ratio * float(scale.max())).to(corners.dtype)
+        corners[sel] = refine(image_rows(images, sel), pts.float(), ratio * float(scale.max())).to(corners.dtype)
         found[sel] = True
         for k in hit.tolist():
             reasons[int(todo[k])] = f"{r[k]} (level compressed along {angle:g} degrees)"

@@ -27,7 +27,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.modules.detection.base import DetectionResult
+from ccs_kornia.modules.detection.base import DetectionResult, image_rows
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 
 __all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MAX_ASYMMETRY_RATIO_WHOLE",
@@ -266,7 +266,7 @@ def settle_partial_boards(
         return result
     corners = result.corners[idx]
     measured = corners.isfinite().all(-1)
-    sigma = corner_uncertainty(images[idx.to(images.device)], corners, measured, board_size)
+    sigma = corner_uncertainty(image_rows(images, idx), corners, measured, board_size)
     ratio = sigma / sigma.nanmedian(-1, keepdim=True).values.clamp_min(1e-12)
     limit = torch.where(measured.all(-1), max_asymmetry_whole, max_asymmetry)[:, None]
     corners = corners.masked_fill((ratio > limit.to(ratio))[..., None].to(corners.device), float("nan"))

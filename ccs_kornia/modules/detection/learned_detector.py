@@ -12,7 +12,7 @@ import torch
 from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules._threads import full_threads, light_stages_single_thread
-from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, image_rows
 from ccs_kornia.modules.detection.board_checks import board_extends, skipped_line
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.foreshortening import detect_foreshortened
@@ -323,7 +323,7 @@ class LearnedChessboardDetector(ChessboardDetector):
 
             h, w = images.shape[-2:]
             levels = torch.full((missed.numel(),), opencv_level_factor((w, h)), dtype=factor.dtype)
-            c2, f2, r2 = detect_at_scale(opencv_level, images[missed], board_size, levels, (),
+            c2, f2, r2 = detect_at_scale(opencv_level, image_rows(images, missed), board_size, levels, (),
                                          self.scale_selector.max_pixels, narrow)
             # the lattice check again after the full-resolution refinement (which sees the marks in more detail)
             dev = lattice_deviation(c2.double(), board_size).amax(-1)
@@ -336,7 +336,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         missed = (~found).nonzero().flatten()
         if self.foreshortened_retry and missed.numel():
             # boards at a grazing angle: the finest level allowed, compressed along one direction at a time
-            got = self._foreshortened(images[missed], board_size)
+            got = self._foreshortened(image_rows(images, missed), board_size)
             for k, i in enumerate(missed.tolist()):
                 if bool(got.found[k]):
                     corners[i], found[i], reasons[i] = got.corners[k].to(corners), True, got.reasons[k]

@@ -263,11 +263,11 @@ def test_detect_at_scale_steps_down_by_octaves_before_the_image_itself():
     assert tried == [40, 80, 20, 160, 320]  # 8x, 4x, 16x, 2x, and at 1x the image itself (no octave in between)
 
 
-def test_rows_is_indexing_without_a_copy_for_a_run():
-    from ccs_kornia.modules.detection.scale import _rows
+def test_image_rows_is_indexing_without_a_copy_for_a_run():
+    from ccs_kornia.modules.detection.base import image_rows
 
     x = torch.rand(5, 1, 4, 6)
     for idx in ([1, 2, 3], [0, 2, 4], [3], [0, 1, 2, 3, 4]):
         i = torch.tensor(idx)
-        assert torch.equal(_rows(x, i), x[i])
-    assert _rows(x, torch.tensor([1, 2, 3])).data_ptr() == x[1].data_ptr()  # a view: no copy of the images
+        assert torch.equal(image_rows(x, i), x[i])
+    assert image_rows(x, torch.tensor([1, 2, 3])).data_ptr() == x[1].data_ptr()  # a view: no copy of the images
