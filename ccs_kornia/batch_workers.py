@@ -110,6 +110,17 @@ def chunks(keys: Sequence, size: int) -> list[list]:
     return [keys[i : i + size] for i in range(0, len(keys), size)]
 
 
+def _single_image_batches(source: ViewSource, part: list, max_pixels: int | None) -> list[list]:
+    """``part`` as one chunk per view where every view is known to hold more than half of ``max_pixels`` (each loads
+    as a batch of its own anyway, so the batches are the same), else ``[part]``: a folder of ten 27 Mpx photographs
+    made chunks of 8 and 2 images, and one worker process detected eight of them while the other waited."""
+    if max_pixels is None or len(part) < 2:
+        return [part]
+    if all((px := source.pixels(*key)) is not None and 2 * px > max_pixels for key in part):
+        return [[key] for key in part]
+    return [part]
+
+
 def _loaded(source: ViewSource, parts: Sequence[Sequence], batch_size: int, max_pixels) -> Iterator:
     for part in parts:
         yield from source.batches(part, batch_size=batch_size, max_pixels=max_pixels)
@@ -232,7 +243,7 @@ def map_batches(
         raise ValueError(f"workers must be >= 1, got {workers}.")
     if keys is None:
         keys = [(c, v) for c, n in enumerate(source.counts) for v in range(n)]
-    parts = chunks(keys, batch_size)
+    parts = [piece for part in chunks(keys, batch_size) for piece in _single_image_batches(source, part, max_pixels)]
     workers = min(workers, len(parts)) if _can_fork() else 1
     if workers <= 1:
         batches = _loaded(source, parts, batch_size, max_pixels)

@@ -33,6 +33,7 @@ __all__ = [
     "IMAGE_EXTENSIONS",
     "expand_inputs",
     "read_image",
+    "image_pixels",
     "load_image",
     "load_image_gray",
     "parse_board",
@@ -111,6 +112,44 @@ def expand_inputs(items: Iterable[str]) -> tuple[list[str], list[tuple[str, str]
         else:
             problems.append((item, "no such file or directory"))
     return files, problems
+
+
+#: JPEG start-of-frame markers (baseline, progressive, lossless, arithmetic): their segment holds the image size
+_JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+
+
+def image_pixels(path: str | os.PathLike) -> int | None:
+    """Pixels of a PNG or JPEG file from its header alone (``None`` for other formats or an unreadable header): the
+    number of pixels, which a rotation by the file's EXIF orientation does not change.
+
+    Example:
+        >>> import tempfile, os
+        >>> path = os.path.join(tempfile.mkdtemp(), "a.png")
+        >>> write_image(path, np.zeros((30, 40), np.uint8))
+        True
+        >>> image_pixels(path)
+        1200
+    """
+    try:
+        with open(path, "rb") as f:
+            head = f.read(24)
+            if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+                return int.from_bytes(head[16:20], "big") * int.from_bytes(head[20:24], "big")
+            if head[:2] != b"\xff\xd8":
+                return None
+            f.seek(2)
+            while True:  # JPEG segments: marker, big-endian length, payload; the size is in the start of frame
+                marker = f.read(4)
+                if len(marker) < 4 or marker[0] != 0xFF:
+                    return None
+                length = int.from_bytes(marker[2:4], "big")
+                if marker[1] in _JPEG_SOF:
+                    frame = f.read(5)
+                    return int.from_bytes(frame[1:3], "big") * int.from_bytes(frame[3:5], "big") if len(frame) == 5 \
+                        else None
+                f.seek(length - 2, os.SEEK_CUR)
+    except OSError:
+        return None
 
 
 def _decode(path: str, flags: int) -> tuple[np.ndarray | None, str]:

@@ -152,6 +152,10 @@ class ViewSource:
         """One view as :math:`(1, H, W)` float in ``[0, 1]``, or ``(None, reason)``."""
         raise NotImplementedError
 
+    def pixels(self, camera: int, view: int) -> int | None:
+        """Pixels of one view without loading it, where cheaply known (``None``: unknown)."""
+        return None
+
     def batches(
         self,
         keys: Sequence[tuple[int, int]] | None = None,
@@ -219,6 +223,9 @@ class TensorSource(ViewSource):
         self.images = cams
         super().__init__([t.shape[0] for t in cams], names)
 
+    def pixels(self, camera: int, view: int) -> int | None:
+        return int(self.images[camera].shape[-1] * self.images[camera].shape[-2])
+
     def _load(self, camera: int, view: int) -> tuple[torch.Tensor | None, str]:
         image = self.images[camera][view]
         return (image if image.is_floating_point() else image.float() / 255.0), ""
@@ -244,6 +251,11 @@ class FileSource(ViewSource):
 
     def describe(self, camera: int, view: int) -> str:
         return self.paths[camera][view]
+
+    def pixels(self, camera: int, view: int) -> int | None:
+        from ccs_kornia.io import image_pixels
+
+        return image_pixels(self.paths[camera][view])  # PNG and JPEG headers
 
     def _load(self, camera: int, view: int) -> tuple[torch.Tensor | None, str]:
         from ccs_kornia.io import load_image_gray

@@ -50,6 +50,29 @@ def test_workers_give_the_batches_and_values_of_one_process():
 
 
 @linux
+def test_views_that_load_alone_are_shared_out_one_by_one(tmp_path):
+    """Views known (from their size or their file's header) to load as a batch of their own each go to the workers
+    one at a time (ten large photographs were chunks of 8 and 2: one process worked while the other waited); the
+    batches are the ones of one process."""
+    paths = []
+    for k in range(5):
+        paths.append(str(tmp_path / f"v{k}.{'png' if k % 2 else 'jpg'}"))
+        cv2.imwrite(paths[-1], np.full((10, 14), 40 * k, dtype=np.uint8))
+    for source in (FileSource([paths]), TensorSource(torch.rand(5, 1, 10, 14))):
+        serial = list(map_batches(_sum_and_pid, source, batch_size=4, max_pixels=200))  # 140 px each: alone
+        parallel = list(map_batches(_sum_and_pid, source, batch_size=4, max_pixels=200, workers=2))
+        assert [o.keys for o in serial] == [o.keys for o in parallel] == [[(0, k)] for k in range(5)]
+        assert len({o.value[1] for o in parallel}) == 2
+        for a, b in zip(serial, parallel):
+            assert torch.equal(a.value[0], b.value[0])
+        together = list(map_batches(_sum_and_pid, source, batch_size=4, max_pixels=280, workers=2))
+        assert [o.keys for o in together] == [[(0, 0), (0, 1)], [(0, 2), (0, 3)], [(0, 4)]]  # chunks of 4 kept
+    (tmp_path / "v9.tif").write_bytes(b"II*\x00")
+    assert FileSource([[str(tmp_path / "v9.tif"), paths[0]]]).pixels(0, 0) is None  # not read from a header
+    assert FileSource([paths]).pixels(0, 1) == 140
+
+
+@linux
 def test_unreadable_files_are_reported_by_the_workers_too(tmp_path):
     paths = []
     for k in range(4):

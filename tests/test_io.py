@@ -13,6 +13,7 @@ import torch
 from ccs_kornia.io import (
     ImageBatch,
     expand_inputs,
+    image_pixels,
     iter_image_batches,
     load_image,
     load_image_gray,
@@ -220,3 +221,18 @@ class TestIterImageBatches:
     def test_invalid_batch_size(self):
         with pytest.raises(ValueError):
             list(iter_image_batches([], batch_size=0))
+
+
+def test_image_pixels_reads_png_and_jpeg_headers(tmp_path):
+    """The pixel count from the header alone (baseline and progressive JPEG, 8/16-bit and colour PNG); other formats,
+    missing files and garbage: None."""
+    cases = {"a.png": np.zeros((37, 53), np.uint8), "b.png": np.zeros((20, 30, 3), np.uint16),
+             "c.jpg": np.zeros((41, 67, 3), np.uint8), "d.bmp": np.zeros((5, 7), np.uint8)}
+    for name, image in cases.items():
+        cv2.imwrite(str(tmp_path / name), image)
+    cv2.imwrite(str(tmp_path / "e.jpg"), np.zeros((33, 45), np.uint8), [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])
+    assert image_pixels(tmp_path / "a.png") == 37 * 53 and image_pixels(tmp_path / "b.png") == 600
+    assert image_pixels(tmp_path / "c.jpg") == 41 * 67 and image_pixels(tmp_path / "e.jpg") == 33 * 45
+    (tmp_path / "f.jpg").write_bytes(b"\xff\xd8\xff\xe0\x00")  # a truncated JPEG
+    for name in ("d.bmp", "f.jpg", "missing.png"):
+        assert image_pixels(tmp_path / name) is None
