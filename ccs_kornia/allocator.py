@@ -7,8 +7,9 @@ the refiners allocate thousands of short-lived tensors of a few MB (one batch's 
 measured on udacity_gopro_wide's refinement calls, 24,000-40,000 page faults and 0.05-0.12 s of system time per
 0.5-0.7 s pass, none with these settings. The learned detector on the bench's speed scene, eight alternating pairs of
 runs (median of each run's best of four): batch 16 20.1 -> 22.1 img/s (faster in 6 of 8 pairs), batch 1 13.8 -> 14.5
-(5 of 8); the same corners (a float64 solve can differ in its 15th digit, as between any two runs). The command line applies them at start (the process is ours); library
-users may call :func:`keep_freed_memory` in their own program, or not.
+(5 of 8); the same corners (a float64 solve can differ in its 15th digit, as between any two runs). The command line
+applies them at start (the process is ours); library users may call :func:`keep_freed_memory` in their own program,
+or not.
 """
 
 from __future__ import annotations

@@ -284,7 +284,8 @@ def _speed_md(sec: dict) -> list[str]:
                else "at most the thread count")
     lines = [f"{sec['images']} images for detection (a batch size above that is capped to it), "
              f"{sec['calibration_views']} views for a whole calibration; torch threads {sec['threads']}. Best of the "
-             f"repeats after a warm-up (the solvers: of as many calls as fill half a second). 1-minute load average {_n(sec.get('load_average_start'), 1)} at the start, "
+             f"repeats after a warm-up (the solvers: of as many calls as fill half a second). 1-minute load average "
+             f"{_n(sec.get('load_average_start'), 1)} at the start, "
              f"{_n(sec.get('load_average_end'), 1)} at the end ({verdict}); "
              f"OMP_WAIT_POLICY={sec.get('omp_wait_policy')}.", ""]
     for device, res in sec["devices"].items():

@@ -131,7 +131,8 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
         def advance(views: int) -> None:
             bar.update(views)
             if bar.n >= total:  # detection done; what follows can take as long (second looks at missed views)
-                bar.set_description_str(f"{command}: {'solving; ' if calibrate else ''}second looks at any missed views")
+                waiting = f"{'solving; ' if calibrate else ''}second looks at any missed views"
+                bar.set_description_str(f"{command}: {waiting}")
 
         out = pipeline.run(source, board, square, calibrate=calibrate, progress=advance)
     seconds = time.perf_counter() - start

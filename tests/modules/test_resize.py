@@ -32,7 +32,8 @@ def test_area_resize_of_a_large_image_is_torchs_own(monkeypatch):
 
     x = torch.rand(1, 1, 60, 80)
     calls = []
-    monkeypatch.setattr(_resize, "separable_product", lambda *a: calls.append(1) or F.interpolate(x, (41, 55), mode="area"))
+    monkeypatch.setattr(_resize, "separable_product",
+                        lambda *a: calls.append(1) or F.interpolate(x, (41, 55), mode="area"))
     area_resize(x, (41, 55))
     assert calls == [1]
     monkeypatch.setattr(_resize, "BANDED_MAX_PIXELS", 60 * 80 - 1)

@@ -365,7 +365,7 @@ def levenberg_marquardt(
     idx = torch.arange(C, device=device)
     work, wc = dict(full), const
     if groups is not None:  # a group per problem and number of used views; its best converged cost so far
-        key = groups.to(device).long() * (V + 1) + used.sum(-1)
+        key, has_views = groups.to(device).long() * (V + 1) + used.sum(-1), used.any(-1)
         best = torch.full((int(key.max()) + 1 if C else 0,), float("inf"), dtype=dtype, device=device)
     for it in range(max_iters):
         _lm_iteration(model, work, wc, (eye6, eyeF), ftol, xtol, expanded)
@@ -376,7 +376,7 @@ def levenberg_marquardt(
             work["stall_ref"] = work["cost"].clone()
         if (it + 1) % check_every == 0:
             if groups is not None:
-                fit = work["converged"] & work["cost"].isfinite() & used[idx].any(-1)
+                fit = work["converged"] & work["cost"].isfinite() & has_views[idx]
                 best.scatter_reduce_(0, key[idx], torch.where(fit, work["cost"], float("inf")), "amin")
                 work["done"] = work["done"] | (work["cost"] > DOMINATED_RATIO * best[key[idx]])
             alive = ~work["done"]

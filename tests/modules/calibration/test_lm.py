@@ -107,12 +107,14 @@ def test_groups_stop_a_start_far_above_a_converged_one():
     p0, r0, t0 = _perturbed(p, rvec, tvec)
     far = p0.clone()
     far[:, :2] *= 4.0
-    args = (m, torch.cat([p0, far]), torch.cat([r0, r0 + 0.8]), torch.cat([t0, 1.5 * t0]), OBJ, uv.expand(2, -1, -1, -1))
+    args = (m, torch.cat([p0, far]), torch.cat([r0, r0 + 0.8]), torch.cat([t0, 1.5 * t0]), OBJ,
+            uv.expand(2, -1, -1, -1))
     free = levenberg_marquardt(*args)
     grouped = levenberg_marquardt(*args, groups=torch.tensor([0, 0]))
     apart = levenberg_marquardt(*args, groups=torch.tensor([0, 1]))
     assert free.iterations.tolist()[1] == 100 and not bool(free.converged[1])  # the crawl
-    assert grouped.iterations.tolist() == [free.iterations.tolist()[0]] * 2 and grouped.converged.tolist() == [True, False]
+    assert grouped.iterations.tolist() == [free.iterations.tolist()[0]] * 2
+    assert grouped.converged.tolist() == [True, False]
     assert float(grouped.rms[1]) > 10 * float(grouped.rms[0])
     torch.testing.assert_close(grouped.params[0], free.params[0], atol=1e-9, rtol=1e-12)
     assert torch.equal(apart.iterations, free.iterations)
