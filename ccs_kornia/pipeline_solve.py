@@ -279,7 +279,6 @@ def look_again_with_camera(pipe: Any, source: Any, out: PipelineResult, board: t
 
 def _look(pipe: Any, source: Any, missed: list, lens: dict, det: Any, board: tuple[int, int], v: int) -> bool:
     """The batches of :func:`look_again_with_camera`."""
-    from ccs_kornia.modules.correction.calibrated_detection import detect_with_calibrated_lens
     from ccs_kornia.sources import load_batches
 
     recovered = False
@@ -291,8 +290,7 @@ def _look(pipe: Any, source: Any, missed: list, lens: dict, det: Any, board: tup
         dist = torch.stack([lens[ci].dist for ci, _ in batch.keys]).to(device)
         # in this process: the virtual views' work is the network's, which uses every core already (worker processes
         # measured no faster on udacity_gopro_wide's GOPR0055, 2.0 against 2.1 s)
-        got = detect_with_calibrated_lens(pipe.detect_images, pipe.refine_on_patches, batch.images.to(device), K, dist,
-                                          True, board)
+        got = _calibrated_passes(pipe, batch.images.to(device), K, dist, board)
         for k, (ci, vi) in enumerate(batch.keys):
             if bool(got.found[k]):
                 det.corners[ci, vi] = got.corners[k].to(det.corners)
@@ -303,6 +301,35 @@ def _look(pipe: Any, source: Any, missed: list, lens: dict, det: Any, board: tup
                     det.reasons[ci * v + vi] = got.reasons[k]
                 recovered = True
     return recovered
+
+
+def _calibrated_passes(pipe: Any, images: torch.Tensor, K: torch.Tensor, dist: torch.Tensor,
+                       board: tuple[int, int]) -> Any:
+    """:func:`~ccs_kornia.modules.correction.calibrated_detection.detect_with_calibrated_lens` in two passes over the
+    virtual views: each on the level its square-size estimate picks, then, for the images still without a board, on
+    the detector's fallback levels only.
+
+    A board near a fisheye's rim is found on the first level of some view (the real fisheye sets: 12 of 12, the same
+    views as with the fallbacks); the fallbacks, finer levels of up to 16x the pixels, rescue the low-resolution
+    images (ros_fisheye_mono at half size: 2 of its 5 views). One pass with the fallbacks paid them on every view
+    before the view that had the board: boofcv_fisheye_chessboard's look 6.2 -> 2.2 s, ros_fisheye_mono's 0.79 ->
+    0.42 s; a view with no board in reach pays both passes, as before (udacity_gopro_wide's GOPR0055, 2.2 s)."""
+    from ccs_kornia.modules.correction.calibrated_detection import detect_with_calibrated_lens
+
+    def look(x: torch.Tensor, k: torch.Tensor, d: torch.Tensor) -> Any:
+        return detect_with_calibrated_lens(pipe.detect_images, pipe.refine_on_patches, x, k, d, True, board)
+
+    fallback = getattr(pipe.detector, "scale_fallback", ())
+    with detector_options(pipe.detector, scale_fallback=()):
+        got = look(images, K, dist)
+    missed = (~got.found).nonzero().flatten()
+    if fallback and missed.numel():
+        with detector_options(pipe.detector, scale_primary=False):
+            again = look(images[missed], K[missed], dist[missed])
+        for j, i in enumerate(missed.tolist()):
+            if bool(again.found[j]):
+                got.corners[i], got.found[i], got.reasons[i] = again.corners[j], True, again.reasons[j]
+    return got
 
 
 def look_foreshortened(pipe: Any, source: Any, out: PipelineResult, board: tuple[int, int]) -> bool:

@@ -484,3 +484,32 @@ def test_partial_boards_are_calibrated_on_their_visible_corners(sets, tmp_path):
     import json
 
     assert json.loads((tmp_path / "calib.json").read_text())["views"][4]["corners"][30] == [None, None]
+
+
+def test_calibrated_look_tries_the_fallback_levels_in_a_second_pass_only():
+    """The calibrated look: every virtual view on its first level, then the fallback levels for the images still
+    without a board (the detector's options set for each pass, and restored)."""
+    from types import SimpleNamespace
+
+    from ccs_kornia.modules.detection.base import DetectionResult
+    from ccs_kornia.pipeline_solve import _calibrated_passes
+
+    detector = SimpleNamespace(scale_fallback=(0.5, 0.25), scale_primary=True)
+    passes = []
+
+    def detect_images(views, board):
+        passes.append((detector.scale_fallback, detector.scale_primary, views.shape[0]))
+        # image 0 "shows" its board on the first level, image 1 only on a fallback level
+        hit = torch.tensor([bool(v.max() < 0.5) or not detector.scale_primary for v in views])
+        return DetectionResult(torch.full((views.shape[0], 6, 2), 239.5), hit, ["x"] * views.shape[0])
+
+    pipe = SimpleNamespace(detector=detector, detect_images=detect_images, refine_on_patches=lambda i, c, b: c)
+    images = torch.stack([torch.full((1, 240, 320), 0.25), torch.full((1, 240, 320), 0.75)])
+    K = torch.tensor([[200.0, 0, 159.5], [0, 200, 119.5], [0, 0, 1]], dtype=torch.float64).expand(2, 3, 3)
+    got = _calibrated_passes(pipe, images, K, torch.zeros(2, 4, dtype=torch.float64), (3, 2))
+    assert got.found.tolist() == [True, True]
+    assert "view 0 " in got.reasons[0] and "view 0 " in got.reasons[1]
+    # pass one: every view of the wide lens (19) without fallbacks while image 1 has no board; pass two: image 1 alone
+    assert passes[0] == ((), True, 2) and all(p[:2] == ((), True) for p in passes[:19])
+    assert passes[19] == ((0.5, 0.25), False, 1) and len(passes) == 20
+    assert detector.scale_fallback == (0.5, 0.25) and detector.scale_primary is True

@@ -19,14 +19,8 @@ from ccs_kornia.modules.detection.foreshortening import detect_foreshortened
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
-from ccs_kornia.modules.detection.hidden_corners import (
-    HIDDEN_CONTRAST_FRACTION,
-    UNCONFIRMED_CONTRAST_FRACTION,
-    glare_rim,
-    relative_contrast,
-    settle_partial_boards,
-    spans_board,
-)
+from ccs_kornia.modules.detection.hidden_corners import (HIDDEN_CONTRAST_FRACTION, UNCONFIRMED_CONTRAST_FRACTION,
+                                                         glare_rim, relative_contrast, settle_partial_boards, spans_board)
 from ccs_kornia.modules.detection.missing_corners import lattice_deviation, predict_missing_corners
 from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, opencv_level_factor
 from ccs_kornia.modules.detection.patch_refine import refine_from_level
@@ -181,6 +175,7 @@ class LearnedChessboardDetector(ChessboardDetector):
                                             min_factor=1.0 / max_upsampling)
         self.scale_fallback = tuple(float(f) for f in scale_fallback)
         self.scale_finest = bool(scale_finest)
+        self.scale_primary = True  # False: only the fallback levels (a second pass, detect_at_scale's ``primary``)
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
         self.precision = precision
@@ -309,7 +304,8 @@ class LearnedChessboardDetector(ChessboardDetector):
             return self._refine_at_full_size(full, pts, board_size, factor, radius_factor)
 
         corners, found, reasons = detect_at_scale(level, images, board_size, factor, self.scale_fallback,
-                                                  self.scale_selector.max_pixels, refine, finest=self.scale_finest)
+                                                  self.scale_selector.max_pixels, refine, finest=self.scale_finest,
+                                                  primary=self.scale_primary)
         missed = (~found).nonzero().flatten()
         if self.opencv_retry and missed.numel():
             # last resort: OpenCV's quads on one bounded level (they need no square-size estimate), refined with a

@@ -355,6 +355,7 @@ def detect_at_scale(
     refine: Callable[[torch.Tensor, torch.Tensor, float], torch.Tensor] | None = None,
     min_factor: float = 1.0,
     finest: bool = True,
+    primary: bool = True,
 ) -> tuple[torch.Tensor, torch.Tensor, list[str]]:
     r"""Run ``detect`` on each image's detection level; corners at full resolution.
 
@@ -379,6 +380,8 @@ def detect_at_scale(
         refine: ``refine(images (b, 1, H, W), corners (b, N, 2), factor) -> corners`` at full resolution, for boards
             found on a resampled level (default: :func:`refine_from_level`).
         finest: see ``fallback``.
+        primary: ``False``: the levels ``factor`` itself skipped (a caller that has tried them already: only the
+            fallback levels that differ from them are tried).
 
     Returns:
         corners :math:`(B, N, 2)` (zeros where not found), found :math:`(B,)` bool, and a reason per image.
@@ -420,6 +423,8 @@ def detect_at_scale(
             step = step / 2
         attempts.append(torch.full_like(factor, floor))
     for a, fac in enumerate(attempts):
+        if a == 0 and not primary:
+            continue
         todo = ~found.cpu()
         for previous in attempts[:a]:
             todo &= (fac - previous).abs() > 1e-6 * fac

@@ -211,6 +211,24 @@ def test_learned_detector_finds_rescaled_soft_boards(views):
     assert (torch.minimum(e1, e2) < 0.15).all(), torch.minimum(e1, e2)
 
 
+def test_detect_at_scale_without_the_primary_levels():
+    # a second pass (primary=False): only the fallback levels, and none that equals an image's primary level
+    calls = []
+
+    def detect(x, board, full, scale):
+        calls.append(tuple(x.shape[-2:]))
+        return torch.zeros(x.shape[0], 6, 2), torch.zeros(x.shape[0], dtype=torch.bool), None
+
+    c, f, r = detect_at_scale(detect, torch.rand(2, 1, 200, 200), (3, 2), torch.tensor([2.0, 1.0]), fallback=(0.5,),
+                              finest=False, primary=False)
+    # image 0: its fallback (factor 1, the image itself); image 1's fallback clamps to its primary (1): skipped
+    assert calls == [(200, 200)] and f.tolist() == [False, False] and r == ["board not found"] * 2
+    calls.clear()
+    detect_at_scale(detect, torch.rand(2, 1, 200, 200), (3, 2), torch.tensor([2.0, 1.0]), fallback=(0.5,),
+                    finest=False)
+    assert calls == [(200, 200), (100, 100), (200, 200)]
+
+
 def test_detect_at_scale_tries_the_image_itself_last():
     # a wrong square-size estimate (factor 8) must not hide a board only the image itself shows
     tried = []
