@@ -312,10 +312,11 @@ def _calibrated_passes(pipe: Any, images: torch.Tensor, K: torch.Tensor, dist: t
     A board near a fisheye's rim is found on the first level of some view (the real fisheye sets: 9 of 9 boards, and
     8 of 8 at half size, on the same views as with the fallbacks); the fallbacks, finer levels of up to 16x the
     pixels, find the others (bench section 7's renders: 733 boards of 750, 723 with the second pass left out where
-    the lens's focal length exceeds the axis view's; ros_fisheye_mono at half size: 2 of its 5 missed views). One pass with the fallbacks paid them on every view before the one that
-    had the board: boofcv_fisheye_chessboard's look 6.2 -> 2.2-2.5 s, ros_fisheye_mono's 0.79 -> 0.42 s; a view with
-    no board in reach pays both passes, the first one on top of the old cost (udacity_gopro_wide's GOPR0055, a board
-    larger than the frame: 2.2-2.5 -> 2.8-3.2 s). The same boards on bench section 7 (733 and 732 of 750)."""
+    the lens's focal length exceeds the axis view's; ros_fisheye_mono at half size: 2 of its 5 missed views). One
+    pass with the fallbacks paid them on every view before the one that had the board: boofcv_fisheye_chessboard's
+    look 6.2 -> 2.2-2.5 s, ros_fisheye_mono's 0.79 -> 0.42 s; a view with no board in reach pays both passes, the
+    first one on top of the old cost (udacity_gopro_wide's GOPR0055, a board larger than the frame: 2.2-2.5 ->
+    2.8-3.2 s). The same boards on bench section 7 (733 and 732 of 750)."""
     from ccs_kornia.modules.correction.calibrated_detection import detect_with_calibrated_lens
 
     def look(x: torch.Tensor, k: torch.Tensor, d: torch.Tensor) -> Any:
