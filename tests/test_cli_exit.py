@@ -12,14 +12,16 @@ def _program(code: str, *args: str) -> subprocess.CompletedProcess:
 
 
 def test_status_handlers_and_flushed_output(tmp_path):
-    # an exit handler registered while the command ran still runs, after the command's own output, and the piped
-    # (block-buffered) output arrives whole
-    code = ("import atexit, sys; from ccs_kornia import cli; atexit.register(lambda: print('handler ran')); "
-            "print('x' * 100_000); sys.argv = ['ccs-kornia', *sys.argv[1:]]; cli.run()")
+    # a thread that is not a daemon is waited for, an exit handler registered while the command ran still runs, after
+    # the command's own output, and the piped (block-buffered) output arrives whole
+    code = ("import atexit, sys, threading, time; from ccs_kornia import cli; "
+            "atexit.register(lambda: print('handler ran')); print('x' * 100_000); "
+            "threading.Thread(target=lambda: (time.sleep(0.3), print('thread done'))).start(); "
+            "sys.argv = ['ccs-kornia', *sys.argv[1:]]; cli.run()")
     proc = _program(code, "calibrate", str(tmp_path), "--board", "9by6", "--output", str(tmp_path / "c.json"))
     assert proc.returncode == 2 and "invalid board size" in proc.stderr
     lines = proc.stdout.splitlines()
-    assert lines == ["x" * 100_000, "handler ran"]
+    assert lines == ["x" * 100_000, "thread done", "handler ran"]
 
 
 def test_success_status_and_module_entry():
