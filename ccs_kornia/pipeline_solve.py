@@ -9,6 +9,7 @@ solvers and options.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import torch
@@ -288,8 +289,8 @@ def _look(pipe: Any, source: Any, missed: list, lens: dict, det: Any, board: tup
         device = det.corners.device
         K = torch.stack([lens[ci].K for ci, _ in batch.keys]).to(device)
         dist = torch.stack([lens[ci].dist for ci, _ in batch.keys]).to(device)
-        # in this process: the virtual views' work is the network's, which uses every core already (worker processes
-        # measured no faster on udacity_gopro_wide's GOPR0055, 2.0 against 2.1 s)
+        # the images of a batch here, their virtual views by the worker processes (a whole image per process measured
+        # no faster: udacity_gopro_wide misses one view, GOPR0055)
         got = _calibrated_passes(pipe, batch.images.to(device), K, dist, board)
         for k, (ci, vi) in enumerate(batch.keys):
             if bool(got.found[k]):
@@ -317,10 +318,14 @@ def _calibrated_passes(pipe: Any, images: torch.Tensor, K: torch.Tensor, dist: t
     look 6.2 -> 2.2-2.5 s, ros_fisheye_mono's 0.79 -> 0.42 s; a view with no board in reach pays both passes, the
     first one on top of the old cost (udacity_gopro_wide's GOPR0055, a board larger than the frame: 2.2-2.5 ->
     2.8-3.2 s). The same boards on bench section 7 (733 and 732 of 750)."""
-    from ccs_kornia.modules.correction.calibrated_detection import detect_with_calibrated_lens
+    from ccs_kornia.modules.correction.calibrated_detection import VIEWS_PER_ROUND, detect_with_calibrated_lens
+
+    workers = workers_on(images.device, pipe.workers)
+    pool = functools.partial(worker_pool, workers=min(workers, VIEWS_PER_ROUND)) if workers > 1 else None
 
     def look(x: torch.Tensor, k: torch.Tensor, d: torch.Tensor) -> Any:
-        return detect_with_calibrated_lens(pipe.detect_images, pipe.refine_on_patches, x, k, d, True, board)
+        return detect_with_calibrated_lens(pipe.detect_images, pipe.refine_on_patches, x, k, d, True, board,
+                                           view_pool=pool)
 
     fallback = getattr(pipe.detector, "scale_fallback", ())
     with detector_options(pipe.detector, scale_fallback=()):

@@ -15,8 +15,10 @@ rows by 3 %, 1.06 -> 1.02 px), the calibrated Kannala-Brandt model does.
 
 from __future__ import annotations
 
+import functools
 import math
-from typing import Callable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 
 import torch
 from kornia.geometry.grid import create_meshgrid
@@ -29,7 +31,7 @@ from ccs_kornia.camera import (
 )
 from ccs_kornia.modules.detection.base import DetectionResult
 
-__all__ = ["view_directions", "virtual_view_rays", "detect_with_calibrated_lens"]
+__all__ = ["VIEWS_PER_ROUND", "view_directions", "virtual_view_rays", "detect_with_calibrated_lens"]
 
 
 def view_directions(wide: bool, fov_deg: float = 110.0) -> list[tuple[float, float, float]]:
@@ -62,14 +64,20 @@ def virtual_view_rays(direction: tuple[float, float], fov_deg: float, side: int,
         fov_deg: its full field of view across.
         side: its size in pixels.
     """
-    f = (side / 2) / math.tan(math.radians(fov_deg / 2))
+    f, R = _view_frame(direction, fov_deg, side, dtype, device)
     grid = create_meshgrid(side, side, normalized_coordinates=False, device=device, dtype=dtype).reshape(-1, 2)
     c = (side - 1) / 2
     rays = torch.stack([(grid[:, 0] - c) / f, (grid[:, 1] - c) / f, torch.ones_like(grid[:, 0])], -1)
+    return rays @ R.T, f, R
+
+
+def _view_frame(direction: tuple[float, float], fov_deg: float, side: int, dtype=torch.float64,
+                device=None) -> tuple[float, torch.Tensor]:
+    """The focal length (px) and rotation :math:`(3, 3)` of :func:`virtual_view_rays`' view."""
     yaw, pitch = direction
     R = axis_angle_to_rotation_matrix(torch.tensor([[math.radians(-pitch), math.radians(yaw), 0.0]], dtype=dtype,
                                                    device=device))[0]
-    return rays @ R.T, f, R
+    return (side / 2) / math.tan(math.radians(fov_deg / 2)), R
 
 
 def _project(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, fisheye: bool) -> torch.Tensor:
@@ -78,6 +86,32 @@ def _project(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, fisheye: b
         return kb_project_points(rays, K, dist)
     uv = project_points(rays, K, dist if dist.shape[-1] else None)
     return torch.where((rays[..., 2:] > 1e-6), uv, torch.full_like(uv, float("nan")))
+
+
+#: virtual views looked at per round (:func:`detect_with_calibrated_lens`): each view of a round is looked at on the
+#: images without a board before the round, so a round's views can run at once (``view_pool``: one per worker process
+#: on 2 cores) and give the same boards whatever runs them; a board found on the first view of a round costs its
+#: second view's work on that image
+VIEWS_PER_ROUND = 2
+
+
+@contextmanager
+def _in_order(fn: Callable) -> Iterator[Callable[[Iterable], Iterator]]:
+    yield lambda items: (fn(item) for item in items)
+
+
+def _look_at_view(detect: Callable, images: torch.Tensor, K64: torch.Tensor, d64: torch.Tensor, fisheye: bool,
+                  board_size: tuple[int, int], side: int, item: tuple) -> DetectionResult:
+    """The detection on virtual view ``item = ((yaw, pitch, fov), todo)`` of the images ``todo`` (virtual-view
+    pixels)."""
+    (yaw, pitch, fov), todo = item
+    rays = virtual_view_rays((yaw, pitch), fov, side, device=images.device)[0]
+    src = _project(rays.expand(todo.numel(), -1, -1), K64[todo], d64[todo], fisheye)
+    src = src.reshape(todo.numel(), side, side, 2).float()
+    # rays the camera cannot see land outside the image: zeros there, as the border of any undistortion
+    src = torch.nan_to_num(src, nan=-10.0)
+    view = remap(images[todo].float(), src[..., 0], src[..., 1], mode="bilinear", align_corners=True)
+    return detect(view.clamp(0, 1), board_size)
 
 
 def detect_with_calibrated_lens(
@@ -90,8 +124,12 @@ def detect_with_calibrated_lens(
     board_size: tuple[int, int],
     fov_deg: float = 110.0,
     side: int = 480,
+    view_pool: Callable[[Callable], AbstractContextManager] | None = None,
 ) -> DetectionResult:
     r"""Look for the board on virtual pinhole views of each image under its calibrated camera.
+
+    The views (:func:`view_directions`) are looked at in rounds of :data:`VIEWS_PER_ROUND`, each on the images
+    still without a board; an image takes its board from the first view, in order, that finds it.
 
     Args:
         detect: a detector ``(images (B,1,h,w), board) -> DetectionResult``.
@@ -101,6 +139,10 @@ def detect_with_calibrated_lens(
         fisheye: Kannala-Brandt model (the ring of tilted views is looked at too).
         board_size: ``(cols, rows)``.
         fov_deg, side: field of view of the axis view (and the first rings), size of each virtual view.
+        view_pool: ``view_pool(fn)``, a context manager giving ``run(items)`` that yields ``fn(item)`` for each item
+            in order, e.g. ``functools.partial(batch_workers.worker_pool, workers=2)`` to look at a round's views
+            in forked processes (``fn`` is made before the block and inherited by them); default: here, in order.
+            The boards are the same either way.
 
     Returns:
         :class:`DetectionResult` in the original images' pixels; ``reasons`` say which view found the board.
@@ -124,34 +166,34 @@ def detect_with_calibrated_lens(
     found = torch.zeros(b, dtype=torch.bool, device=device)
     reasons = ["board not found on the virtual pinhole views of the calibrated lens"] * b
     K64, d64 = K.to(device, torch.float64), dist.to(device, torch.float64)
-    for k, (yaw, pitch, fov) in enumerate(view_directions(fisheye, fov_deg)):
-        todo = (~found).nonzero().flatten()
-        if todo.numel() == 0:
-            break
-        rays, f, R = virtual_view_rays((yaw, pitch), fov, side, device=device)
-        src = _project(rays.expand(todo.numel(), -1, -1), K64[todo], d64[todo], fisheye)
-        src = src.reshape(todo.numel(), side, side, 2).float()
-        # rays the camera cannot see land outside the image: zeros there, as the border of any undistortion
-        src = torch.nan_to_num(src, nan=-10.0)
-        view = remap(images[todo].float(), src[..., 0], src[..., 1], mode="bilinear", align_corners=True)
-        got = detect(view.clamp(0, 1), board_size)
-        hit = got.found.to(device)
-        if not bool(hit.any()):
-            continue
-        idx = todo[hit]
-        # virtual-view pixels -> rays -> the calibrated projection in the original image
-        pix = got.corners[hit].to(device, torch.float64)
-        c = (side - 1) / 2
-        local = torch.stack([(pix[..., 0] - c) / f, (pix[..., 1] - c) / f, torch.ones_like(pix[..., 0])], -1)
-        back = _project(local @ R.T, K64[idx], d64[idx], fisheye)
-        inside = back.isfinite().all(-1).all(-1) & (back >= 0).all(-1).all(-1)
-        inside = inside & (back[..., 0] <= w - 1).all(-1) & (back[..., 1] <= h - 1).all(-1)
-        if not bool(inside.any()):
-            continue
-        idx, back = idx[inside], back[inside]
-        corners[idx] = refine(images[idx], back.float(), board_size).to(corners)
-        found[idx] = True
-        for i in idx.tolist():
-            reasons[i] = f"found on virtual pinhole view {k} of the calibrated lens (direction {yaw:.0f}, " \
-                         f"{pitch:.0f} deg, {fov:.0f} deg wide)"
+    views = list(enumerate(view_directions(fisheye, fov_deg)))
+    look = functools.partial(_look_at_view, detect, images, K64, d64, fisheye, board_size, side)
+    with (view_pool or _in_order)(look) as run:
+        for start in range(0, len(views), VIEWS_PER_ROUND):
+            todo = (~found).nonzero().flatten()
+            if todo.numel() == 0:
+                break
+            batch = views[start:start + VIEWS_PER_ROUND]
+            for (k, (yaw, pitch, fov)), got in zip(batch, run([(direction, todo) for _, direction in batch])):
+                # an image whose board an earlier view of the round found keeps that one
+                hit = got.found.to(device) & ~found[todo]
+                if not bool(hit.any()):
+                    continue
+                idx = todo[hit]
+                # virtual-view pixels -> rays -> the calibrated projection in the original image
+                pix = got.corners[hit].to(device, torch.float64)
+                f, R = _view_frame((yaw, pitch), fov, side, device=device)
+                c = (side - 1) / 2
+                local = torch.stack([(pix[..., 0] - c) / f, (pix[..., 1] - c) / f, torch.ones_like(pix[..., 0])], -1)
+                back = _project(local @ R.T, K64[idx], d64[idx], fisheye)
+                inside = back.isfinite().all(-1).all(-1) & (back >= 0).all(-1).all(-1)
+                inside = inside & (back[..., 0] <= w - 1).all(-1) & (back[..., 1] <= h - 1).all(-1)
+                if not bool(inside.any()):
+                    continue
+                idx, back = idx[inside], back[inside]
+                corners[idx] = refine(images[idx], back.float(), board_size).to(corners)
+                found[idx] = True
+                for i in idx.tolist():
+                    reasons[i] = f"found on virtual pinhole view {k} of the calibrated lens (direction {yaw:.0f}, " \
+                                 f"{pitch:.0f} deg, {fov:.0f} deg wide)"
     return DetectionResult(corners, found, reasons)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import functools
 import math
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -10,7 +12,9 @@ import torch
 from _real_data import REAL_DATA
 
 from ccs_kornia.camera import kb_unproject_points
+from ccs_kornia.batch_workers import worker_pool
 from ccs_kornia.modules.correction.calibrated_detection import (
+    VIEWS_PER_ROUND,
     detect_with_calibrated_lens,
     view_directions,
     virtual_view_rays,
@@ -50,6 +54,56 @@ def test_corners_are_mapped_back_exactly():
     f = 240 / math.tan(math.radians(55))
     back = rays[..., :2] / rays[..., 2:] * f + 239.5
     assert torch.allclose(back.float(), pix, atol=1e-3)
+
+
+FISH_K = torch.tensor([[160.0, 0, 319.5], [0, 161, 239.5], [0, 0, 1]], dtype=F64)
+FISH_D = torch.tensor([0.02, -0.01, 0.002, 0.0], dtype=F64)
+
+
+def _bright_centre_detector(images, board):
+    """'Finds' a fixed 2x2 board on the virtual views whose centre is bright."""
+    b = images.shape[0]
+    pix = torch.tensor([[[230.0, 230.0], [250.0, 230.0], [230.0, 250.0], [250.0, 250.0]]]).expand(b, -1, -1).clone()
+    return DetectionResult(pix, images[:, 0, 240, 240] > 0.5, ["fake"] * b)
+
+
+def test_views_in_rounds_the_first_view_wins():
+    """Each round's views look at the images without a board before the round; the first view in order keeps it."""
+    calls = []
+
+    def every_view(images, board):
+        calls.append(images.shape[0])
+        return _bright_centre_detector(torch.ones_like(images), board)
+
+    out = detect_with_calibrated_lens(every_view, lambda i, c, b: c, torch.rand(2, 1, 480, 640),
+                                      FISH_K.expand(2, 3, 3), FISH_D.expand(2, 4), True, (2, 2))
+    assert out.found.tolist() == [True, True] and all("virtual pinhole view 0 " in r for r in out.reasons)
+    assert calls == [2] * VIEWS_PER_ROUND  # one round, both views on both images; then nothing is left to look for
+
+
+def test_view_pool_gives_the_same_boards():
+    """The views of a round in two forked processes: the same boards, corners and views as in order here."""
+    images = torch.zeros(3, 1, 480, 640)
+    images[0, :, :, 420:] = 1  # seen at the centre of views turned to the right only
+    images[1, :, :120] = 1  # ... turned up only
+    rounds = []
+
+    @contextmanager
+    def recorded(fn):
+        with worker_pool(fn, workers=2) as run:
+            yield lambda items: (rounds.append([k[0] for k in items]), run(items))[1]
+
+    args = (_bright_centre_detector, lambda i, c, b: c, images, FISH_K.expand(3, 3, 3), FISH_D.expand(3, 4), True,
+            (2, 2))
+    here = detect_with_calibrated_lens(*args)
+    pooled = detect_with_calibrated_lens(*args, view_pool=recorded)
+    assert here.found.tolist() == [True, True, False]
+    assert "view 1 " in here.reasons[0] and "view 5 " in here.reasons[1]  # a round's first and second view
+    assert pooled.found.tolist() == here.found.tolist() and pooled.reasons == here.reasons
+    assert torch.equal(pooled.corners, here.corners)
+    views = view_directions(True)
+    # every round but the last has VIEWS_PER_ROUND views, in order (the third image keeps every round going)
+    assert [d for r in rounds for d in r] == views and {len(r) for r in rounds[:-1]} == {VIEWS_PER_ROUND}
 
 
 def test_shape_errors():
