@@ -396,12 +396,13 @@ def corner_weights_of(sigma: torch.Tensor | None, valid: torch.Tensor,
 
 
 def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, board_size: tuple[int, int],
-                     square: float, weigh: bool = True) -> list[dict | None]:
+                     square: float, weigh: bool = True, solutions: Any = None) -> list[dict | None]:
     """Quality figures and verdict of each camera of a solved ``out`` (one
     :func:`~ccs_kornia.modules.calibration.diagnostics.diagnose` call per image size; ``None`` for a camera
     without a computed calibration). The halves and folds of the cross-validation are solved by ``solvers[model]``
     (the usual path: a camera calibrated in the corrected frame is cross-validated without it), with the per-corner
-    weights the solve had (``weigh``)."""
+    weights the solve had (``weigh``); ``solutions``: the model selection's solved cross-validation subsets
+    (:class:`~ccs_kornia.modules.calibration.subset_solutions.SubsetSolutions`), used where the inputs are the same."""
     from ccs_kornia.camera import board_object_points
     from ccs_kornia.modules.calibration.diagnostics import diagnose
 
@@ -421,7 +422,7 @@ def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, bo
         weights = corner_weights_of(det.sigma, valid, sel) if weigh else None
         with torch.inference_mode():
             figures = diagnose(select_result(cal, sel), corners, valid, obj, positive_size(size), solver=solvers[model],
-                               weights=weights)
+                               weights=weights, solutions=solutions)
         for k, ci in enumerate(sel.tolist()):
             diagnostics[ci] = figures[k]
     return diagnostics

@@ -17,6 +17,7 @@ import torch
 from ccs_kornia.batch_workers import map_batches, worker_pool, workers_on
 from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.modules.correction import corrected_frame
 from ccs_kornia.modules.detection.base import DetectionResult, detector_options, measured_corners
 from ccs_kornia.pipeline_result import (
@@ -78,6 +79,8 @@ def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int]
     correction = out.correction
     selection: list[dict | None] = [None] * c
     previous = out.model_selection if keep_models and pipe.model == "auto" else None
+    # the model selection's cross-validations, kept for the diagnostics of the same calibrations (diagnose_solved)
+    pipe.subset_solutions = SubsetSolutions()
     for size in dict.fromkeys(sizes):
         sel = torch.tensor([s == size for s in sizes], device=device).nonzero().flatten()
         tried = None if out.correction_tried is None else out.correction_tried[sel]
@@ -103,7 +106,8 @@ def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int]
     out.camera_reasons = [camera_reason(out.calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum()))
                           for ci in range(c)]
     if pipe.diagnostics if diagnostics is None else diagnostics:
-        out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, board_size, square, pipe.weigh_corners)
+        out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, board_size, square, pipe.weigh_corners,
+                                           pipe.subset_solutions)
     return out
 
 
@@ -111,7 +115,7 @@ def diagnose_solved(pipe: Any, out: PipelineResult, board_size: tuple[int, int],
     """The diagnostics of a result :func:`solve_detections` solved without them (fills ``out.diagnostics``)."""
     usable = out.detections.found & same_size_views(out)
     out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, (int(board_size[0]), int(board_size[1])), square,
-                                       pipe.weigh_corners)
+                                       pipe.weigh_corners, getattr(pipe, "subset_solutions", None))
     return out
 
 
@@ -144,7 +148,8 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
     if models is None:
         with torch.inference_mode():
             results, chosen, table = pipe.selection(corners.to(torch.float64), valid, obj, image_size, weights=weights,
-                                                    map_models=_map_in_workers(workers_on(corners.device, pipe.workers)))
+                                                    map_models=_map_in_workers(workers_on(corners.device, pipe.workers)),
+                                                    solutions=getattr(pipe, "subset_solutions", None))
         fallback = next(iter(results))  # cameras no model calibrated keep that model's (failed) result
         names = [n or fallback for n in chosen]
     else:

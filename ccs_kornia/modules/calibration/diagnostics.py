@@ -31,6 +31,7 @@ from ccs_kornia.modules.calibration.degeneracy import CHECKS, issues_from_tensor
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
 from ccs_kornia.modules.calibration.refinement import joint_refinement
+from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions, solve_subsets
 from ccs_kornia.modules.calibration.uncertainty import image_points, projection_difference, projection_uncertainty
 
 __all__ = ["image_points", "projection_uncertainty", "projection_difference", "split_views", "cross_validation",
@@ -65,28 +66,6 @@ def split_views(used: torch.Tensor, parts: int) -> torch.Tensor:
     return used[:, None] & (rank[:, None] % parts == p)
 
 
-def _solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, result=None, warm=None, weights=None):
-    """One solver call for every (camera, subset): cameras (C * S) with the other views masked out. A fisheye solver
-    starts the subsets of ``warm`` (S,: the k-fold sets; same held-out errors to 4 digits on the real sets) from
-    ``result`` instead of its costly hypotheses; the halves start cold (a barely constrained fit ends near its start:
-    boofcv_sony_hx5v's fisheye halves 62 px apart warm, 5 cold)."""
-    C, S, V = subsets.shape
-    N = corners.shape[2]
-    rep = lambda x: x[:, None].expand(C, S, *x.shape[1:]).reshape(C * S, *x.shape[1:])  # noqa: E731
-    c, v = rep(corners), (valid[:, None] & subsets[..., None]).reshape(C * S, V, N)
-    o = obj if obj.dim() == 2 else rep(obj)
-    kw = {} if weights is None else {"weights": rep(weights) * v}
-    fisheye = getattr(solver, "model", None) == "fisheye" and getattr(result, "model", None) == "fisheye"
-    if warm is None or not fisheye or not bool(warm.any()):
-        return solver(c, v, o, image_size, **kw)
-    initial = type(result)(**{k: (rep(x) if isinstance(x, torch.Tensor) and x.dim() and x.shape[0] == C else x)
-                              for k, x in result.__dict__.items()})
-    cold = ~warm.to(initial.K.device).bool().repeat(C)
-    initial.K = torch.where(cold[:, None, None], float("nan"), initial.K)  # no finite camera: the hypotheses
-    initial.used = initial.used.bool() & subsets.reshape(C * S, V)
-    return solver(c, v, o, image_size, initial=initial, **kw)
-
-
 def cross_validation(
     solver: nn.Module,
     corners: torch.Tensor,
@@ -98,6 +77,7 @@ def cross_validation(
     grid: tuple[int, int] = (16, 12),
     fit: torch.Tensor | None = None,
     weights: torch.Tensor | None = None,
+    solutions: SubsetSolutions | None = None,
 ) -> dict[str, torch.Tensor]:
     r"""Split-half cross-validation and k-fold held-out reprojection error, in one batched solver call.
 
@@ -114,6 +94,8 @@ def cross_validation(
         fit: :math:`(C, G)` bool, grid pixels over which the rotation between the halves is fitted (``None``: all;
             :func:`diagnose` passes where the boards were, so a wide lens's extrapolated rim does not set it).
         weights: optional :math:`(C, V, N)` per-corner weights the solver was given (the subsets get theirs).
+        solutions: where the subsets' solutions are kept (:class:`~.subset_solutions.SubsetSolutions`): the solver
+            call is skipped when one for the same inputs is there, and this one is added otherwise.
 
     Returns:
         dict of :math:`(C,)` tensors (NaN where a half or fold could not be calibrated): ``cv_rms_px`` and
@@ -131,7 +113,13 @@ def cross_validation(
     train = used[:, None] & ~fold
     subsets = torch.cat([halves, train], 1)  # (C, 2 + k, V)
     warm = torch.arange(2 + k, device=corners.device) >= 2  # the k-fold training sets, not the halves
-    sub = _solve_subsets(solver, corners, valid, object_points, image_size, subsets, result, warm, weights)
+    key = None if solutions is None else solutions.key(solver, corners, valid, object_points, image_size, result,
+                                                       folds, weights)
+    sub = None if key is None else solutions.get(key)
+    if sub is None:
+        sub = solve_subsets(solver, corners, valid, object_points, image_size, subsets, result, warm, weights)
+        if key is not None:
+            solutions.put(key, sub)
     S = 2 + k
     K = sub.K.reshape(C, S, 3, 3)
     D = sub.dist.shape[-1]
@@ -331,6 +319,7 @@ def diagnose(
     grid: tuple[int, int] = (16, 12),
     thresholds: VerdictThresholds | None = None,
     weights: torch.Tensor | None = None,
+    solutions: SubsetSolutions | None = None,
 ) -> list[dict]:
     r"""Quality figures and verdict of a calibration, one JSON-able dict per camera.
 
@@ -345,6 +334,7 @@ def diagnose(
         grid: ``(across, down)`` pixels of the uncertainty / cross-validation grids.
         weights: the per-corner weights the solver was given, if any (its cross-validation subsets get them too).
         thresholds: :class:`VerdictThresholds`.
+        solutions: the cross-validation's solved subsets kept by an earlier one (:func:`cross_validation`).
 
     Returns:
         per camera a dict with the keys:
@@ -408,7 +398,7 @@ def diagnose(
     if solver is not None and bool(ok.any()):
         on_grid = torch.where(covered.any(-1, keepdim=True), covered, torch.ones_like(covered))
         cv = cross_validation(solver, corners, valid, object_points, image_size, result, folds, grid, fit=on_grid,
-                              weights=weights)
+                              weights=weights, solutions=solutions)
     if result.check_severity is not None:
         issues = issues_from_tensors(result.check_severity, result.check_value, result.check_views)
     else:

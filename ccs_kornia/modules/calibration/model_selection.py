@@ -18,13 +18,14 @@ set (0.514 vs 0.513 px); with the halves' agreement (17 vs 2 px; 606 vs 8 px) bo
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Any, Callable
 
 import torch
 from torch import nn
 
 from ccs_kornia.modules.calibration.diagnostics import cross_validation
 from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 
 __all__ = ["AUTO_MODELS", "HELDOUT_TOLERANCE", "ModelSelection", "SOLVE_COST_RANK", "choose_models", "rank_models"]
 
@@ -125,28 +126,38 @@ class ModelSelection(nn.Module):
     def forward(self, corners: torch.Tensor, valid: torch.Tensor, object_points: torch.Tensor,
                 image_size: tuple[int, int], weights: torch.Tensor | None = None,
                 map_models: Callable[[Callable, list[str]], list] | None = None,
+                solutions: SubsetSolutions | None = None,
                 ) -> tuple[dict[str, CalibrationResult], list[str | None], list[dict]]:
         """``map_models(fn, names)``: ``[fn(name) for name in names]`` computed elsewhere (e.g. by worker processes;
-        each model's solve and cross-validation are independent); default here, one after the other."""
+        each model's solve and cross-validation are independent); default here, one after the other. ``solutions``
+        (:class:`~.subset_solutions.SubsetSolutions`): where each model's solved cross-validation subsets are kept,
+        for the diagnostics of the chosen one (:func:`~.diagnostics.diagnose`)."""
         if corners.dim() != 4 or valid.shape != corners.shape[:-1]:
             raise ValueError(f"Expected corners (C, V, N, 2) and valid (C, V, N), got {tuple(corners.shape)} and "
                              f"{tuple(valid.shape)}.")
         names = list(self.solvers.keys())
 
-        def solve(name: str) -> tuple[CalibrationResult, dict | None]:
+        def solve(name: str) -> tuple[CalibrationResult, dict | None, Any]:
             solver = self.solvers[name]
             res = solver(corners, valid, object_points, image_size, weights=weights)
             if not bool(res.success.any()):
-                return res, None
-            return res, cross_validation(solver, corners, valid, object_points, image_size, res, self.folds,
-                                         weights=weights)
+                return res, None, None
+            kept = SubsetSolutions(1)
+            cv = cross_validation(solver, corners, valid, object_points, image_size, res, self.folds, weights=weights,
+                                  solutions=kept)
+            # the subsets' solution travels back with the figures (from a worker process too): ``solutions`` keeps it
+            return res, cv, kept.get(kept.key(solver, corners, valid, object_points, image_size, res, self.folds,
+                                              weights))
 
         # costliest first, so worker processes finish together (the results do not depend on the order)
         order = sorted(names, key=lambda n: -SOLVE_COST_RANK.get(n, 0))
         solved = dict(zip(order, (map_models or (lambda fn, items: [fn(item) for item in items]))(solve, order)))
         results, heldout, halves = {}, [], []
         for name in names:
-            res, cv = solved[name]
+            res, cv, subsets = solved[name]
+            if solutions is not None and subsets is not None:
+                solutions.put(solutions.key(self.solvers[name], corners, valid, object_points, image_size, res,
+                                            self.folds, weights), subsets)
             results[name] = res
             nan = torch.full(res.success.shape, float("nan"), dtype=torch.float64, device=corners.device)
             if cv is not None:
