@@ -80,7 +80,7 @@ def choose_models(heldout: torch.Tensor, halves: torch.Tensor, tolerance: float 
 #: the models' usual cost (solve and cross-validation) in ascending order; :class:`ModelSelection` hands them to
 #: ``map_models`` costliest first. Measured on five real sets (s, one process each): fisheye 0.18-0.53, rational
 #: 0.16-0.46, opencv5 0.10-0.31, k1k2 0.07-0.22; in two worker processes the longest first ends the selection
-#: sooner (udacity_camera_cal 0.62 -> 0.43 s, udacity_gopro_wide 0.82 -> 0.69 s)
+#: sooner (udacity_camera_cal 0.62 -> 0.42 s, udacity_gopro_wide 0.82 -> 0.66 s)
 SOLVE_COST_RANK = {"k1k2": 0, "opencv5": 1, "rational": 2, "fisheye": 3}
 
 
