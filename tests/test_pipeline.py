@@ -515,3 +515,20 @@ def test_calibrated_look_tries_the_fallback_levels_in_a_second_pass_only():
     assert passes[0] == ((), True, 2) and all(p[:2] == ((), True) for p in passes[:19])
     assert passes[19:] == [((0.5, 0.25), False, 1)] * 2
     assert detector.scale_fallback == (0.5, 0.25) and detector.scale_primary is True
+
+
+def test_diagnostics_reuse_the_model_selections_cross_validation(images, monkeypatch):
+    """``calibrate``'s path (model "auto", diagnostics after the second looks) on one camera: the verdict's
+    cross-validation reuses the chosen model's solved subsets from the model selection instead of solving them again.
+    (Cameras batched with others of another model are diagnosed in their own group, whose subsets are solved anew.)"""
+    import ccs_kornia.modules.calibration.diagnostics as diagnostics
+    from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS
+    from ccs_kornia.sources import TensorSource
+
+    solved, real = [], diagnostics.solve_subsets
+    monkeypatch.setattr(diagnostics, "solve_subsets", lambda *a, **k: (solved.append(a[0].model), real(*a, **k))[1])
+    pipe = CalibrationPipeline("opencv", model="auto", diagnostics=True, distortion_correction=False)
+    out = pipe.run(TensorSource(images[:1]), BOARD, SQUARE)
+    assert sorted(solved) == sorted(AUTO_MODELS)  # the model selection's four solves, none for the diagnostics
+    chosen = out.model_selection[0]["chosen"]
+    assert out.diagnostics[0]["heldout_rms_px"] == out.model_selection[0]["heldout_rms_px"][chosen]
