@@ -115,7 +115,7 @@ def diagnose_solved(pipe: Any, out: PipelineResult, board_size: tuple[int, int],
     """The diagnostics of a result :func:`solve_detections` solved without them (fills ``out.diagnostics``)."""
     usable = out.detections.found & same_size_views(out)
     out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, (int(board_size[0]), int(board_size[1])), square,
-                                       pipe.weigh_corners, getattr(pipe, "subset_solutions", None))
+                                       pipe.weigh_corners, pipe.subset_solutions)
     return out
 
 
@@ -149,7 +149,7 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
         with torch.inference_mode():
             results, chosen, table = pipe.selection(corners.to(torch.float64), valid, obj, image_size, weights=weights,
                                                     map_models=_map_in_workers(workers_on(corners.device, pipe.workers)),
-                                                    solutions=getattr(pipe, "subset_solutions", None))
+                                                    solutions=pipe.subset_solutions)
         fallback = next(iter(results))  # cameras no model calibrated keep that model's (failed) result
         names = [n or fallback for n in chosen]
     else:

@@ -146,8 +146,7 @@ class ModelSelection(nn.Module):
             cv = cross_validation(solver, corners, valid, object_points, image_size, res, self.folds, weights=weights,
                                   solutions=kept)
             # the subsets' solution travels back with the figures (from a worker process too): ``solutions`` keeps it
-            return res, cv, kept.get(kept.key(solver, corners, valid, object_points, image_size, res, self.folds,
-                                              weights))
+            return res, cv, kept.latest()
 
         # costliest first, so worker processes finish together (the results do not depend on the order)
         order = sorted(names, key=lambda n: -SOLVE_COST_RANK.get(n, 0))

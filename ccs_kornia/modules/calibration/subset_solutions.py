@@ -43,6 +43,8 @@ class SubsetSolutions:
         'solved'
         >>> kept.get(kept.key(solver, x.clone(), x[..., 0] > 0, x[0, 0], (640, 480), None, 4, None)) is None
         True
+        >>> kept.latest()
+        'solved'
     """
 
     def __init__(self, size: int = 8) -> None:
@@ -64,6 +66,10 @@ class SubsetSolutions:
             if kept[0] is key[0] and _same(kept[1:], key[1:]):
                 return solution
         return None
+
+    def latest(self) -> Any:
+        """The solution kept last (``None`` if none)."""
+        return self._entries[-1][1] if self._entries else None
 
     def put(self, key: tuple, solution: Any) -> None:
         """Keep ``solution`` for ``key`` (copies of its tensors, so later in-place changes cannot make it match)."""
