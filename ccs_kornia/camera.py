@@ -376,8 +376,10 @@ def fit_opencv_distortion(
         raise ValueError(f"Unknown model {model!r}.")
     A = torch.cat([torch.stack(cols_x, -1), torch.stack(cols_y, -1)], -2)  # (B, 2N, P)
     b = torch.cat([bx, by], -1).unsqueeze(-1)
-    wgt = (ideal.isfinite().all(-1) & distorted.isfinite().all(-1)).to(A.dtype)  # partial boards: NaN never counts
-    wgt = torch.cat([wgt, wgt] if mask is None else [wgt * mask, wgt * mask], -1).to(A.dtype).unsqueeze(-1)
+    # points that are not finite (the hidden corners of a partial board) never count
+    use = (ideal.isfinite().all(-1) & distorted.isfinite().all(-1)).to(A.dtype)
+    wgt = use if mask is None else use * mask.to(A.dtype)
+    wgt = torch.cat([wgt, wgt], -1).unsqueeze(-1)  # one weight per x row and per y row of A
     A, b = (A * wgt).nan_to_num(0.0), (b * wgt).nan_to_num(0.0)
     sol = torch.linalg.lstsq(A, b).solution.squeeze(-1)
     if model == "k1k2":
@@ -430,7 +432,9 @@ def kb_project_points(
     t2 = theta * theta
     theta_d = theta * (1 + t2 * (p[..., 4] + t2 * (p[..., 5] + t2 * (p[..., 6] + t2 * p[..., 7]))))
     scale = torch.where(r > 0, theta_d / torch.where(r > 0, r, torch.ones_like(r)), 1.0 / points[..., 2])
-    return torch.stack([p[..., 0] * scale * points[..., 0] + p[..., 2], p[..., 1] * scale * points[..., 1] + p[..., 3]], -1)
+    u = p[..., 0] * scale * points[..., 0] + p[..., 2]
+    v = p[..., 1] * scale * points[..., 1] + p[..., 3]
+    return torch.stack([u, v], -1)
 
 
 def kb_distort_points(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor) -> torch.Tensor:
@@ -457,8 +461,12 @@ def _kb_angles(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, num_iters
         f = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - theta_d
         df = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
         theta = theta - f / torch.where(df.abs() > 1e-12, df, torch.full_like(df, 1e-12))
-    safe = torch.where(theta_d > 0, theta_d, torch.ones_like(theta_d))
-    return theta, torch.where(theta_d > 0, a / safe, torch.ones_like(a)), torch.where(theta_d > 0, b / safe, torch.zeros_like(b))
+    # the direction of the centre pixel itself is arbitrary: (1, 0)
+    off_centre = theta_d > 0
+    safe = torch.where(off_centre, theta_d, torch.ones_like(theta_d))
+    cos_phi = torch.where(off_centre, a / safe, torch.ones_like(a))
+    sin_phi = torch.where(off_centre, b / safe, torch.zeros_like(b))
+    return theta, cos_phi, sin_phi
 
 
 def kb_unproject_points(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, num_iters: int = 20) -> torch.Tensor:
@@ -497,4 +505,6 @@ def kb_undistort_points(
     if P is None:
         return xy
     x, y = xy.unbind(-1)
-    return torch.stack([P[..., 0, 0, None] * x + P[..., 0, 1, None] * y + P[..., 0, 2, None], P[..., 1, 1, None] * y + P[..., 1, 2, None]], -1)
+    u = P[..., 0, 0, None] * x + P[..., 0, 1, None] * y + P[..., 0, 2, None]
+    v = P[..., 1, 1, None] * y + P[..., 1, 2, None]
+    return torch.stack([u, v], -1)

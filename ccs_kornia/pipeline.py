@@ -461,9 +461,13 @@ class CalibrationPipeline(nn.Module):
             # a detector that picks its own detection level and refines at full resolution (the learned one with
             # ``scale="auto"``, modules/detection/scale.py) bounds its memory itself
             if limit is None or max(h, w) <= limit or getattr(self.detector, "selects_scale", False):
-                det = self.detector(images.float(), board_size)  # the learned one measures sigma (asymmetry check)
-                sigma = (det.sigma if det.sigma is not None else self.corner_sigma(images, det.corners, board_size,
-                                                                                   det.found)) if self.weigh_corners else None
+                det = self.detector(images.float(), board_size)
+                sigma = None
+                if self.weigh_corners:
+                    # the learned detector has measured them on these images (its asymmetry check)
+                    sigma = det.sigma
+                    if sigma is None:
+                        sigma = self.corner_sigma(images, det.corners, board_size, det.found)
                 return DetectionResult(det.corners, det.found, det.reasons, sigma)
             scale = max(h, w) / limit
             small_size = (max(8, round(h / scale)), max(8, round(w / scale)))

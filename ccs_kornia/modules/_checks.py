@@ -20,7 +20,9 @@ from __future__ import annotations
 import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
 
-__all__ = ["broadcast_shapes", "check_shape", "check_board_size", "check_points", "check_correction"]
+__all__ = [
+    "broadcast_shapes", "check_shape", "check_board_size", "check_points", "check_correction", "check_grey_images",
+]
 
 
 def check_shape(x: object, shape: list[str], expected: str) -> None:
@@ -74,3 +76,12 @@ def check_correction(correction: torch.Tensor, batch: int | None = None) -> None
     check_shape(correction, ["B", "5"], "correction must be (B, 5) coefficients (k0'..k4')")
     if batch is not None and correction.shape[0] not in (1, batch):
         raise ValueError(f"correction batch {correction.shape[0]} does not match {batch}.")
+
+
+def check_grey_images(images: torch.Tensor) -> None:
+    """Grey images :math:`(B, 1, H, W)` of at least 8x8 px (a detection level and its refinement window need them)."""
+    if not isinstance(images, torch.Tensor) or images.dim() != 4 or images.shape[1] != 1:
+        shape = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
+        raise ValueError(f"Expected grey images (B, 1, H, W), got {shape}.")
+    if min(images.shape[-2:]) < 8:
+        raise ValueError(f"Images must be at least 8x8 px, got {tuple(images.shape[-2:])}.")

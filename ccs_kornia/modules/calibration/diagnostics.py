@@ -151,7 +151,11 @@ def cross_validation(
     Kf, df = K[:, 2:].reshape(C * k, 3, 3), dist[:, 2:].reshape(C * k, D)
     okf = ok[:, 2:].reshape(C * k)
     held = fold.reshape(C * k, V) & okf[:, None]
-    rep = lambda x: x[:, None].expand(C, k, *x.shape[1:]).reshape(C * k, *x.shape[1:])  # noqa: E731
+
+    def rep(x: torch.Tensor) -> torch.Tensor:
+        """(C, ...) -> (C * k, ...): each camera's tensor once per fold."""
+        return x[:, None].expand(C, k, *x.shape[1:]).reshape(C * k, *x.shape[1:])
+
     obj = object_points if object_points.dim() == 2 else rep(object_points)
     model = getattr(solver, "model", "opencv5")
     if model == "fisheye":  # the LM core with the Kannala-Brandt model, every camera parameter held
@@ -245,7 +249,8 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
     cv, cv_cov, cv_exp = num("cv_rms_px"), num("cv_covered_rms_px"), num("cv_expected_rms_px")
     cv_cov_exp = num("cv_covered_expected_rms_px")
     if rms is None:
-        return "not reliable: " + ("; ".join(dict.fromkeys(advice)) or "the calibration failed"), bad or ["no calibration"]
+        reasons = "; ".join(dict.fromkeys(advice)) or "the calibration failed"
+        return "not reliable: " + reasons, bad or ["no calibration"]
     if rms > t.usable_rms_px:
         bad.append(f"reprojection RMS {rms:.2f} px: the corners or the lens model are off")
         advice.append("check the corner detections in the report, or choose a distortion model that fits the lens")

@@ -79,13 +79,20 @@ class SubsetSolutions:
 
 
 def solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, result=None, warm=None, weights=None):
-    """One solver call for every (camera, subset): cameras (C * S) with the other views masked out. A fisheye solver
-    starts the subsets of ``warm`` (S,: the k-fold sets; same held-out errors to 4 digits on the real sets) from
-    ``result`` instead of its costly hypotheses; the halves start cold (a barely constrained fit ends near its start:
-    boofcv_sony_hx5v's fisheye halves 62 px apart warm, 5 cold)."""
+    """One solver call for every (camera, subset): cameras (C * S) with the other views masked out.
+
+    A fisheye solver starts the subsets marked in ``warm`` (S,) from ``result`` (the calibration of all the views):
+    its focal-length hypotheses cost more than the rest of the solve. Only for the k-fold training sets: their
+    optima lie next to the full one (the same held-out errors to 4 digits on every real set); the two halves start
+    cold, since where a model is barely constrained (k1..k4 of a fisheye model on a narrow lens) where its LM ends
+    depends on where it starts (boofcv_sony_hx5v: halves differing by 62 px warm, 5 px cold)."""
     C, S, V = subsets.shape
     N = corners.shape[2]
-    rep = lambda x: x[:, None].expand(C, S, *x.shape[1:]).reshape(C * S, *x.shape[1:])  # noqa: E731
+
+    def rep(x: torch.Tensor) -> torch.Tensor:
+        """(C, ...) -> (C * S, ...): each camera's tensor once per subset."""
+        return x[:, None].expand(C, S, *x.shape[1:]).reshape(C * S, *x.shape[1:])
+
     c, v = rep(corners), (valid[:, None] & subsets[..., None]).reshape(C * S, V, N)
     o = obj if obj.dim() == 2 else rep(obj)
     kw = {} if weights is None else {"weights": rep(weights) * v}

@@ -19,9 +19,10 @@ import torch.nn.functional as F
 from kornia.geometry.linalg import transform_points
 from kornia.geometry.transform import warp_affine
 
+from ccs_kornia.modules._checks import check_grey_images
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.detection.base import image_rows
-from ccs_kornia.modules.detection.patch_refine import _check_images, resize_to_level
+from ccs_kornia.modules.detection.patch_refine import resize_to_level
 
 __all__ = ["FORESHORTENING_DIRECTIONS", "FORESHORTENING_RATIO", "compress_along", "map_from_level",
            "detect_foreshortened"]
@@ -54,7 +55,7 @@ def compress_along(images: torch.Tensor, angle: float, ratio: float = FORESHORTE
         >>> level.shape, A[0].tolist()
         (torch.Size([2, 1, 48, 32]), [0.5, 0.0, -0.25])
     """
-    _check_images(images)
+    check_grey_images(images)
     if not ratio >= 1:
         raise ValueError(f"ratio must be >= 1, got {ratio}.")
     h, w = images.shape[-2:]
@@ -132,7 +133,7 @@ def detect_foreshortened(
         >>> c.shape, f.tolist(), r[0]
         (torch.Size([2, 12, 2]), [False, False], 'board not found')
     """
-    _check_images(images)
+    check_grey_images(images)
     if not factor >= 1:
         raise ValueError(f"factor must be >= 1, got {factor}.")
     b = images.shape[0]

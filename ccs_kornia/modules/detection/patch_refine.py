@@ -16,20 +16,13 @@ import math
 import torch
 import torch.nn.functional as F
 
+from ccs_kornia.modules._checks import check_grey_images
 from ccs_kornia.modules._resize import area_resize
 from ccs_kornia.modules.detection.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.missing_corners import predict_missing_corners
 from ccs_kornia.modules.detection.saddle_refine import refine_corners
 
 __all__ = ["level_size", "resize_to_level", "edge_blur", "refine_on_patches", "refine_from_level"]
-
-
-def _check_images(images: torch.Tensor) -> None:
-    if not isinstance(images, torch.Tensor) or images.dim() != 4 or images.shape[1] != 1:
-        shape = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
-        raise ValueError(f"Expected grey images (B, 1, H, W), got {shape}.")
-    if min(images.shape[-2:]) < 8:
-        raise ValueError(f"Images must be at least 8x8 px, got {tuple(images.shape[-2:])}.")
 
 
 def level_size(image_size: tuple[int, int], factor: float) -> tuple[int, int]:
@@ -57,7 +50,7 @@ def resize_to_level(images: torch.Tensor, factor: float) -> tuple[torch.Tensor, 
         >>> small.shape, scale.tolist()
         (torch.Size([2, 1, 120, 160]), [4.0, 4.0])
     """
-    _check_images(images)
+    check_grey_images(images)
     h, w = images.shape[-2:]
     size = level_size((w, h), factor)
     if size == (h, w):
@@ -96,7 +89,7 @@ def edge_blur(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int
         >>> round(float(edge_blur(img, pts, (2, 1))), 1)
         3.0
     """
-    _check_images(images)
+    check_grey_images(images)
     cols, rows = int(board_size[0]), int(board_size[1])
     b = corners.shape[0]
     g = corners.float().reshape(b, rows, cols, 2)
@@ -183,7 +176,7 @@ def refine_on_patches(
         >>> refine_on_patches(img, torch.tensor([[[31.0, 32.2], [10.0, 31.5]]]), (2, 1))[0, 0].round(decimals=2)
         tensor([31.5000, 31.5000])
     """
-    _check_images(images)
+    check_grey_images(images)
     if corners.dim() != 3 or corners.shape[0] != images.shape[0] or corners.shape[-1] != 2:
         raise ValueError(f"corners must be (B, N, 2) with B={images.shape[0]}, got {tuple(corners.shape)}.")
     b, n = corners.shape[:2]

@@ -35,11 +35,12 @@ import torch.nn.functional as F
 from kornia.filters import gaussian_blur2d
 from torch import nn
 
+from ccs_kornia.modules._checks import check_grey_images
 from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules._resize import area_resize, halve
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.detection.base import image_rows
-from ccs_kornia.modules.detection.patch_refine import _check_images, refine_from_level, resize_to_level
+from ccs_kornia.modules.detection.patch_refine import refine_from_level, resize_to_level
 
 __all__ = ["PEAK_RATIO", "TARGET_SQUARE", "saddle_scale_response", "estimate_square_size", "detection_factor", "ScaleSelector",
            "detect_at_scale"]
@@ -49,7 +50,7 @@ __all__ = ["PEAK_RATIO", "TARGET_SQUARE", "saddle_scale_response", "estimate_squ
 PEAK_RATIO = 0.365
 #: square size (px of the level) the learned detector runs its heatmap network at. The network was trained on squares
 #: of 6-17 px; 9 px (down from 12) runs it on 0.56x the pixels, measured the same on every real set's boards, bench
-#: section 1's errors and the held-out wild renders' detections (docs/benchmarks.md section 5, issue 14)
+#: section 1's errors and the held-out wild renders' detections (docs/benchmarks.md section 5)
 TARGET_SQUARE = 9.0
 
 
@@ -118,7 +119,7 @@ def saddle_scale_response(
         >>> r.shape, r.argmax(-1).tolist()  # strongest at sigma ~0.37 x 15 px
         (torch.Size([2, 4]), [1, 1])
     """
-    _check_images(images)
+    check_grey_images(images)
     b = images.shape[0]
     sig = torch.as_tensor(sigmas, dtype=torch.float64).flatten()
     if sig.numel() == 0 or not bool((sig[1:] > sig[:-1]).all()) or not float(sig[0]) > 0:
@@ -204,7 +205,7 @@ def estimate_square_size(
         >>> estimate_square_size(views.images).round()  # true median squares: 14.1 and 15.2 px
         tensor([15., 15.])
     """
-    _check_images(images)
+    check_grey_images(images)
     ratio = PEAK_RATIO * math.sqrt(gamma / 3.0)
     if max_square is None:
         max_square = min(images.shape[-2:]) / 3.0
@@ -334,7 +335,7 @@ class ScaleSelector(nn.Module):
 
     def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Square size :math:`(B,)` in px and detection factor :math:`(B,)` of grey images :math:`(B, 1, H, W)`."""
-        _check_images(images)
+        check_grey_images(images)
         h, w = images.shape[-2:]
         floor = max(self.min_factor, math.sqrt(w * h / self.max_pixels))
         min_square = max(4.0, self.min_level_square * floor)
@@ -394,7 +395,7 @@ def detect_at_scale(
         >>> c.shape, f.tolist()
         (torch.Size([3, 12, 2]), [False, False, False])
     """
-    _check_images(images)
+    check_grey_images(images)
     b, _, h, w = images.shape
     factor = torch.as_tensor(factor, dtype=torch.float64).flatten()
     if factor.numel() != b:
