@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU path proven in one call (issue 14 item 4), under 6 minutes on a GPU machine:
+# The GPU path proven in one call, under 6 minutes on a GPU machine:
 #   device-parametrised tests on CUDA, CPU-vs-GPU corners (<= 1e-3 px) and calibrations (<= 1e-6 relative),
 #   CUDA synchronisations per call, detection images/s at batch 1/16/64, calibrations/s at 1/64/256 cameras.
 # Without CUDA it is a dry run: it says what it would check and runs the CPU half.

@@ -41,10 +41,10 @@ __all__ = ["solve_detections", "solve_group"]
 #: one, the octaves below and the finest level (detect_at_scale's last tries for a wrong square-size estimate) and
 #: OpenCV's candidates (boards with marks) only add their cost to every view without a board (the foreshortened levels
 #: wait for look_foreshortened, after every cheaper look): boofcv_fisheye_chessboard's
-#: calibrated look 7.5 -> 4.6 s with the same boards and RMS on the fisheye sets and GoPro at 0.5x, 1x and 2x (stop 31);
+#: calibrated look 7.5 -> 4.6 s with the same boards and RMS on the fisheye sets and GoPro at 0.5x, 1x and 2x;
 #: on the corrected copies: the same boards and RMS on the eight real sets (boofcv_fisheye_chessboard's 3 of 10 found
 #: there, 3.4 -> 2.4 s; udacity_gopro_wide's and udacity_camera_cal's missed photo 1.13 -> 0.41 and 0.96 -> 0.28 s) and
-#: every figure of bench sections 2 and 4 unchanged (stop 32)
+#: every figure of bench sections 2 and 4 unchanged
 SECOND_LOOK_OPTIONS = {"opencv_retry": False, "scale_fallback": (0.5, 0.25), "scale_finest": False,
                        "foreshortened_retry": False}
 

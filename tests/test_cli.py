@@ -119,7 +119,7 @@ def test_calibrate_json_and_accuracy(rendered, tmp_path, capsys):
     for name in ("index.html", "rms_per_view.png", "residuals.png", "coverage.png", "undistorted.png",
                  "distortion_field.png", "uncertainty.png"):
         assert (report / name).is_file(), name
-    # quality figures and verdict (issue 12): in the JSON, on stdout and in the report
+    # quality figures and verdict: in the JSON, on stdout and in the report
     q = data["diagnostics"]
     assert q["verdict"].split(":")[0] in ("good", "usable", "not reliable") and "verdict: " in stdout
     assert 0 < q["heldout_rms_px"] < 0.5 and q["cv_rms_px"] is not None and 0 < q["uncertainty_centre_px"] < 2.0
@@ -485,7 +485,7 @@ def test_fisheye_real_set_yaml_and_undistort(real_dir, tmp_path, capsys):
 
 
 # ----------------------------------------------------------------------------------------------
-# more bad input (issue 5): formats, odd sizes, solver failures, outputs
+# more bad input: formats, odd sizes, solver failures, outputs
 # ----------------------------------------------------------------------------------------------
 
 

@@ -9,7 +9,7 @@ __all__ = ["SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "Benc
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
-#: conditions of the synthetic calibration section (paper Table I, then the realistic optics of issue 10)
+#: conditions of the synthetic calibration section (paper Table I, then realistic optics)
 CALIB_CONDITIONS: tuple[str, ...] = ("blur_noise", "bad_lighting", "level1", "level2", "optics", "optics_blur_noise")
 #: detection methods: key -> label used in the reports
 METHODS: dict[str, str] = {
@@ -34,8 +34,8 @@ _CONDITION_PARTS: dict[str, tuple[str, str | None]] = {
     "optics_blur_noise": ("blur_noise", None),
 }
 #: conditions finished by a camera's last mile, as every ``wild`` render is (``data.optics.apply_optics``: a 0.3-1 px
-#: Gaussian point spread, read and shot noise, a tone curve of gamma 1.8-2.4; issue 10: the plain renders are kinder
-#: to our detector than real optics)
+#: Gaussian point spread, read and shot noise, a tone curve of gamma 1.8-2.4: the plain renders are kinder to our
+#: detector than real optics)
 OPTICS_CONDITIONS: tuple[str, ...] = ("optics", "optics_blur_noise")
 #: the real sets with fisheye lenses (section 7 calibrates them with a fisheye model; section 3 leaves them out)
 FISHEYE_REAL_SETS: tuple[str, ...] = ("ros_fisheye_mono", "boofcv_fisheye_chessboard")
@@ -84,7 +84,7 @@ class BenchConfig:
         devices: ``cpu`` and/or ``cuda`` (``cuda`` skipped when not present).
         learned_batch: images per learned-detector call.
         wild_methods: detection methods of the ``wild`` section (``None``: all of ``methods``); by default the
-            peers issue 10 names (OpenCV classic + cornerSubPix, SB, libcbdetect) and ours.
+            usual peers (OpenCV classic + cornerSubPix, SB, libcbdetect) and ours.
         wild_time_limit: seconds a peer may spend on one image of the wild section (then: no board, "timed out").
         wild_conditions: conditions of the ``wild`` section (``None``: all of ``bench.wild.WILD_CONDITIONS``).
         wild_images: images per wild condition; wild_big_images: per condition of 4 Mpx and more.

@@ -1,4 +1,4 @@
-"""Section 7: fisheye lenses (issue 11) — the Kannala-Brandt model against ``cv2.fisheye.calibrate``.
+"""Section 7: fisheye lenses — the Kannala-Brandt model against ``cv2.fisheye.calibrate``.
 
 *Synthetic*: ``fisheye_trials`` Kannala-Brandt cameras (640x480, horizontal field of view uniform in
 ``fisheye_fov`` degrees, :mod:`~ccs_kornia.bench.fisheye_data`), ``fisheye_views`` board views each with exact

@@ -1,4 +1,4 @@
-"""The GPU path proven in one call (issue 14 item 4): ``benchmarks/gpu_check.sh`` / ``python -m ccs_kornia.bench.gpu_check``.
+"""The GPU path proven in one call: ``benchmarks/gpu_check.sh`` / ``python -m ccs_kornia.bench.gpu_check``.
 
 On a machine with CUDA, in a few minutes:
 

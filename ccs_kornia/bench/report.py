@@ -362,8 +362,8 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
         "real": "## 3. Real photographs (paper Table II and RPE box plot)",
         "distortion": "## 4. With and without distortion correction (paper Table IV)",
         "speed": "## 5. Speed",
-        "wild": "## 6. Detection in the wild (issue 10)",
-        "fisheye": "## 7. Fisheye lenses (issue 11)",
+        "wild": "## 6. Detection in the wild",
+        "fisheye": "## 7. Fisheye lenses",
     }
     from ccs_kornia.bench.fisheye import fisheye_md
 

@@ -89,7 +89,7 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
             per_batch = {}
             for bs in sorted({min(b, run_images.shape[0]) for b in cfg.speed_batch_sizes}):
                 # the learned detector at the timed batch size (its method otherwise splits calls into the bench's
-                # batches of cfg.learned_batch: until stop 34 its "batch 16" column was two calls of 8)
+                # batches of cfg.learned_batch, and a "batch 16" column would time two calls of 8)
                 options = {"batch": bs} if key.startswith("learned") else {}
 
                 def go(m=m, bs=bs, options=options):

@@ -1,11 +1,11 @@
 """Markdown of the speed section's limit: network floors, the detector's and the default path's stage profiles,
-the real set end to end, next to issue 14's targets (used by :mod:`ccs_kornia.bench.report`)."""
+the real set end to end, next to the speed targets (used by :mod:`ccs_kornia.bench.report`)."""
 
 from __future__ import annotations
 
 __all__ = ["TARGETS", "limit_markdown"]
 
-#: issue 14's targets on 2 CPU cores at 640x480
+#: the speed targets on 2 CPU cores at 640x480
 TARGETS = {"detect_b16": 50.0, "detect_b1": 25.0, "calibration_s": 1.0, "end_to_end_s": 6.0}
 
 
@@ -94,7 +94,7 @@ def limit_markdown(lim: dict, detection: dict, calibration: dict) -> list[str]:
                      f"<= {TARGETS['calibration_s']:.1f}", _n(pipe["wall_s"]), _n((theirs or {}).get("seconds"))])
     if e2e and "wall_s" in e2e:
         rows.append([f"{e2e['set']} end to end s", f"<= {TARGETS['end_to_end_s']:.0f}", _n(e2e["wall_s"]), "—"])
-    lines += ["Issue 14's targets (2 CPU cores, 640x480) against this run, OpenCV classic + cornerSubPix of the same "
+    lines += ["The speed targets (2 CPU cores, 640x480) against this run, OpenCV classic + cornerSubPix of the same "
               "run beside:", ""]
     lines += _table(["figure", "target", "ccs_kornia", "OpenCV"], rows)
     return lines

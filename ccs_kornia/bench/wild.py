@@ -1,4 +1,4 @@
-"""Section ``wild``: detection in the wild (issue 10 item 4), on renders with exact ground truth, board-free
+"""Section ``wild``: detection in the wild, on renders with exact ground truth, board-free
 images and rescaled real photos.
 
 *Synthetic conditions* (:data:`WILD_CONDITIONS`, rendered by :class:`ccs_kornia.data.wild.WildChessboards` from

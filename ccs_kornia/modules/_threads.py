@@ -4,8 +4,8 @@ Two rules. :func:`small_problem_threads`: the solver's small problems run on one
 :func:`light_stages_single_thread`: under passive waits the detector's light stages (scale estimate, peaks,
 organiser, the level's refinement: many small ops) run on one thread and only the network's convolutions and the
 full-resolution refinement (:func:`full_threads`) on all; measured on 2 idle cores at 640x480 with
-``OMP_WAIT_POLICY=PASSIVE``: 12.5 -> 14.1 img/s at batch 1, 19.6 -> 20.9 at batch 16 (the full-resolution refinement,
-whose regions grew since, on both threads again in stop 31: 12.9 -> 13.4 and 18.7 -> 20.8); with spinning waits two
+``OMP_WAIT_POLICY=PASSIVE``: 12.5 -> 14.1 img/s at batch 1, 19.6 -> 20.9 at batch 16 (with the full-resolution
+refinement's larger regions on both threads: 12.9 -> 13.4 and 18.7 -> 20.8); with spinning waits two
 threads stay faster (refinement of 16 images 76 ms on two threads, 125 on one), so nothing changes there.
 
 The solver's tensors are small (a camera is 15 views x 54 corners): every op is a few microseconds of work, and on

@@ -37,7 +37,7 @@ class CalibrationResult:
     view_reason: torch.Tensor  #: (C, V) int64, keys of VIEW_REASONS
     converged: torch.Tensor  #: (C,) bool, LM met its tolerance
     candidate_rms: torch.Tensor  #: (C, V) px: every view with a homography under the final model (used or not)
-    # covariance and degeneracy checks (issue 12); see modules/calibration/degeneracy.py
+    # covariance and degeneracy checks; see modules/calibration/degeneracy.py
     cov_camera: torch.Tensor | None = None  #: (C, 4 + D, 4 + D) covariance of (fx, fy, cx, cy, dist)
     check_severity: torch.Tensor | None = None  #: (C, K) int64 per degeneracy.CHECKS: 0 ok, 1 warning, 2 error
     check_value: torch.Tensor | None = None  #: (C, K) float64 measured value of each check

@@ -1,4 +1,4 @@
-"""Results a user can trust (issue 12, items 1-2): degenerate input refused or flagged, honest uncertainty,
+"""Results a user can trust: degenerate input refused or flagged, honest uncertainty,
 projection uncertainty, cross-validation, verdict.
 
 Corners are projected analytically (``project_points``) with Gaussian noise: no rendering, so the statistical
@@ -264,7 +264,7 @@ def test_pose_spread_measures():
 
 # ------------------------------------------------------------------------------------------ honest uncertainty
 def test_fx_std_is_calibrated_over_200_trials():
-    """Done-when of issue 12: |fx error| within 1 std in 55-80 % and within 2 std in >= 90 % of 200 trials."""
+    """An honest fx std: |fx error| within 1 std in 55-80 % and within 2 std in >= 90 % of 200 trials."""
     d = views(C=200, V=20, nv=(5, 20), tilt=(5.0, 50.0), noise=(0.1, 0.5), seed=2024)
     res = CalibrationSolver()(d["uv"], d["valid"], d["obj"], SIZE)
     assert bool(res.success.all())

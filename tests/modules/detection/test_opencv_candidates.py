@@ -20,7 +20,7 @@ from ccs_kornia.modules.detection.opencv_candidates import (
 )
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-#: held-out renders: the tuning seeds of the earlier sessions, disjoint from the benchmark's and training's
+#: held-out renders: the seeds the detector options were tuned on, disjoint from the benchmark's and training's
 TUNE_SEED = 7_777_000
 
 
