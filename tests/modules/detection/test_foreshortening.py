@@ -97,8 +97,8 @@ def test_a_board_at_a_grazing_angle_is_found_only_on_a_compressed_level():
     from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
 
     spec, board = wild_spec("tilt75")
-    # render 27 (the network shipped before 2026-12-01 found render 21 only on a compressed level, this one not at
-    # all; the wild fine-tuned one finds 21 on an isotropic level and this one only compressed)
+    # render 27 (the base model, before the wild fine-tune, found render 21 only on a compressed level, this one not
+    # at all; the wild fine-tuned one finds 21 on an isotropic level and this one only compressed)
     batch = WildChessboards(spec).sample(1, torch.Generator().manual_seed(HELD_OUT_SEED + 900 + 27))
     n = board[0] * board[1]
     img, truth = quantize(batch.images), batch.corners[0, :n].double()
