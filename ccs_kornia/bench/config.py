@@ -178,8 +178,8 @@ class BenchConfig:
         base = cls(
             image_size=(320, 240), board=(6, 4), supersample=1, corner_conditions=("clean", "severe"),
             corner_images=2, corner_views_per_camera=2, calib_conditions=("blur_noise",), calib_trials=2,
-            calib_views=5, calib_pool_views=5, calib_trials_per_camera=1, real_subsets=2, real_max_images=6, dc_trials=1, dc_views=5, wide_trials=1, wide_views=5, wide_size=(240, 240),
-            wide_fx=(60.0, 150.0),
+            calib_views=5, calib_pool_views=5, calib_trials_per_camera=1, real_subsets=2, real_max_images=6,
+            dc_trials=1, dc_views=5, wide_trials=1, wide_views=5, wide_size=(240, 240), wide_fx=(60.0, 150.0),
             speed_batch_sizes=(1, 2), speed_images=2, speed_solver_cameras=(1, 2), speed_repeats=1, speed_real_set=None,
             real_sets=("boofcv_bumblebee2_left",), calib_methods=("opencv_saddle", "opencv_subpix"),
             wild_methods=None, wild_conditions=("img320", "cut"), wild_images=1, wild_big_images=1, wild_free_images=2,

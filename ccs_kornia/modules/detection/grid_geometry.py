@@ -4,9 +4,10 @@ rows and columns (:func:`line_sagitta`).
 A lens's distortion bends the board's rows and columns; perspective does not. Window-based refinements that assume
 a point-symmetric neighbourhood (:mod:`~ccs_kornia.modules.detection.symmetry_refine`) are biased by that bend, more
 the wider their window. :func:`line_sagitta` estimates the bend at each corner from the corners themselves: a cubic
-(a parabola on lines of three or four corners) is fitted (least squares) to every row and every column in the line's own frame, which averages the corners' noise
-over the line, and its second derivative at the corner gives the *sagitta*: the distance of the corner from the
-chord between its two neighbours one grid step away on either side, ``|y''| s^2 / 2`` for a step of ``s`` px.
+(a parabola on lines of three or four corners) is fitted (least squares) to every row and every column in the
+line's own frame, which averages the corners' noise over the line, and its second derivative at the corner gives the
+*sagitta*: the distance of the corner from the chord between its two neighbours one grid step away on either side,
+``|y''| s^2 / 2`` for a step of ``s`` px.
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
 """What the image says about a lattice of :mod:`~ccs_kornia.modules.detection.lattice` (numpy, float64).
 
 * :func:`_cell_contrast`: the checker contrast at lattice cells (a quarter-square intensity range);
-* :func:`_empty_cell_contrast`, :func:`_placement_contrast`, :func:`_empty_cells_flat`: where a partial board's lattice, shorter than the board, sits
-  on it: its empty cells must show no checker (a glare, an occluder), unlike the margin beyond the board's edge or
-  corners that the network missed;
+* :func:`_empty_cell_contrast`, :func:`_placement_contrast`, :func:`_empty_cells_flat`: where a partial board's
+  lattice, shorter than the board, sits on it: its empty cells must show no checker (a glare, an occluder), unlike
+  the margin beyond the board's edge or corners that the network missed;
 * :func:`_square_contrast`: the square colours that tell the two 180-degree orientations of a non-symmetric board
   apart.
 

@@ -152,11 +152,11 @@ def refine_on_patches(
 
     The refiner (:func:`~ccs_kornia.modules.detection.saddle_refine.refine_corners`) must not smooth and normalise a
     whole 24 Mpx photo (seconds and hundreds of MB): its saddle fit works on one small region per corner; the gradient
-    fit gets a patch of window plus margin per corner, all patches refined in one batch. The window half-size is ``radius_factor`` times the distance to
-    the nearest grid neighbour (clamped to ``[1.5, max_radius]``), as in
-    :class:`~ccs_kornia.modules.detection.saddle_refine.CornerRefiner`; with ``blur`` (e.g. from :func:`edge_blur`) it is widened
-    to ``blur_factor`` blur widths where the edges are soft (a saddle fit needs a window about as wide as the blur;
-    large squares are often blurred in proportion), but never beyond ``max_fraction`` of the spacing.
+    fit gets a patch of window plus margin per corner, all patches refined in one batch. The window half-size is
+    ``radius_factor`` times the distance to the nearest grid neighbour (clamped to ``[1.5, max_radius]``), as in
+    :class:`~ccs_kornia.modules.detection.saddle_refine.CornerRefiner`; with ``blur`` (e.g. from :func:`edge_blur`) it
+    is widened to ``blur_factor`` blur widths where the edges are soft (a saddle fit needs a window about as wide as
+    the blur; large squares are often blurred in proportion), but never beyond ``max_fraction`` of the spacing.
 
     Args:
         images: :math:`(B, 1, H, W)` full-resolution images.
