@@ -193,7 +193,10 @@ def test_undistort_matches_opencv(rendered, tmp_path, capsys):
     assert code == 0 and "undistorted 2 of 2" in stdout
     ours = cv2.imread(str(tmp_path / "und" / os.path.basename(files[0])), cv2.IMREAD_UNCHANGED).astype(np.float64)
     src = cv2.imread(files[0], cv2.IMREAD_UNCHANGED)
-    ref = cv2.undistort(src, K_TRUE.numpy(), DIST_TRUE.numpy()).astype(np.float64)
+    # --balance 0 (default) is OpenCV's alpha 0 with the principal point centred (this lens is monotonic throughout
+    # and the JSON has no views to bound it)
+    P, _ = cv2.getOptimalNewCameraMatrix(K_TRUE.numpy(), DIST_TRUE.numpy(), (640, 480), 0.0, centerPrincipalPoint=True)
+    ref = cv2.undistort(src, K_TRUE.numpy(), DIST_TRUE.numpy(), newCameraMatrix=P).astype(np.float64)
     diff = np.abs(ours - ref)[10:-10, 10:-10]
     assert diff.mean() < 0.5 and np.percentile(diff, 99) < 3
 
@@ -609,7 +612,8 @@ def test_report_directory_cannot_be_created(rendered, tmp_path, capsys):
 
 
 def test_undistort_roundtrip_of_our_json(rendered, tmp_path, capsys):
-    # calibrate -> JSON -> undistort equals cv2.undistort with the JSON's parameters
+    # calibrate -> JSON -> undistort equals cv2.undistort with the JSON's parameters and the view's camera framed
+    # within the field its corners reached
     folder, files, _ = rendered
     calib = tmp_path / "calib.json"
     assert run(capsys, "calibrate", str(folder), "--board", "9x6", "--output", str(calib))[0] == 0
@@ -617,8 +621,13 @@ def test_undistort_roundtrip_of_our_json(rendered, tmp_path, capsys):
     code, _, _ = run(capsys, "undistort", files[2], "--calibration", str(calib), "--out-dir", str(tmp_path / "u"))
     assert code == 0
     ours = cv2.imread(str(tmp_path / "u" / os.path.basename(files[2])), cv2.IMREAD_UNCHANGED).astype(np.float64)
+    from ccs_kornia.modules.correction.opencv_warp import opencv_valid_radius, opencv_view_camera_matrix
+
+    K, dist = torch.tensor(data["K"])[None], torch.tensor(data["distortion"]["coeffs"])[None]
+    corners = torch.tensor([c for v in data["views"] if v["used"] for c in v["corners"]], dtype=torch.float64)
+    P = opencv_view_camera_matrix(K, dist, (640, 480), 0.0, max_radius=opencv_valid_radius(K, dist, corners[None]))
     ref = cv2.undistort(cv2.imread(files[2], cv2.IMREAD_UNCHANGED), np.array(data["K"]),
-                        np.array(data["distortion"]["coeffs"])).astype(np.float64)
+                        np.array(data["distortion"]["coeffs"]), newCameraMatrix=P[0].numpy()).astype(np.float64)
     diff = np.abs(ours - ref)[10:-10, 10:-10]
     assert diff.mean() < 0.5 and np.percentile(diff, 99) < 3
 

@@ -51,8 +51,8 @@ def opencv_valid_radius(K: torch.Tensor, dist: torch.Tensor, points: torch.Tenso
     Example:
         >>> K = torch.tensor([[[500.0, 0, 319.5], [0, 500, 239.5], [0, 0, 1]]], dtype=torch.float64)
         >>> dist = torch.tensor([[-0.3, 0.0, 0.0, 0.0, 0.0]], dtype=torch.float64)  # r_d' = 1 - 0.9 r^2
-        >>> round(opencv_valid_radius(K, dist).item(), 3)  # 1 / sqrt(0.9)
-        1.054
+        >>> round(opencv_valid_radius(K, dist).item(), 2)  # just below 1 / sqrt(0.9) = 1.054
+        1.05
     """
     _check(K, dist)
     K, dist = K.to(torch.float64), dist.to(torch.float64)
@@ -65,10 +65,11 @@ def opencv_valid_radius(K: torch.Tensor, dist: torch.Tensor, points: torch.Tenso
     r_d = r * num / den
     bad = torch.zeros_like(r_d, dtype=torch.bool)
     bad[:, 1:] = (r_d[:, 1:] <= r_d[:, :-1]) | (den[:, 1:] <= 0)
-    # the last sample before the mapping first stops increasing (the top where it never does)
+    # two samples before the mapping first stops increasing: the peak lies between those before and after it (the top
+    # where it never stops)
     index = torch.arange(_RADIUS_SAMPLES + 1, device=K.device)
-    first_bad = torch.where(bad, index, _RADIUS_SAMPLES + 1).amin(-1)
-    radius = r[0, (first_bad - 1).clamp(min=0)]
+    first_bad = torch.where(bad, index, _RADIUS_SAMPLES + 2).amin(-1)
+    radius = r[0, (first_bad - 2).clamp(min=0)]
     if points is not None:
         if points.dim() != 3 or points.shape[0] != K.shape[0] or points.shape[-1] != 2:
             raise ValueError(f"points must be ({K.shape[0]}, N, 2), got {tuple(points.shape)}.")
@@ -119,7 +120,7 @@ def opencv_view_camera_matrix(
         >>> P0[0, 0, 0] > P1[0, 0, 0]  # 1 shows more; for this barrel lens both more than K (cv2.undistort)
         tensor(True)
         >>> round(P0[0, 0, 0].item(), 1), round(P1[0, 0, 0].item(), 1)  # getOptimalNewCameraMatrix: 476.3, 433.1
-        (476.3, 433.2)
+        (476.3, 433.1)
     """
     _check(K, dist)
     K, dist = K.to(torch.float64), dist.to(torch.float64)

@@ -105,7 +105,7 @@ def view_camera_matrix(
     image_size: tuple[int, int],
     balance: float = 0.0,
     fov: float | None = None,
-    num_directions: int = 720,
+    num_directions: int = 360,
 ) -> torch.Tensor:
     r"""The camera matrix of an undistorted view centred on the optical axis (see the module's description).
 
@@ -166,12 +166,27 @@ def view_camera_matrix(
 
 
 def _region_extent(to_pixels, max_radius, image_size, num_directions, dtype, device):
-    """Largest ``|x|`` and ``|y|`` of the valid visible region, each :math:`(B,)`."""
+    """Largest ``|x|`` and ``|y|`` of the valid visible region, each :math:`(B,)`.
+
+    The region's extreme points are often corners of the image (sharp in direction), so each of the four extremes
+    found on the coarse ring of directions is refined on a finer ring around it.
+    """
     b = max_radius.shape[0]
-    angles = torch.arange(num_directions, dtype=dtype, device=device) * (2 * math.pi / num_directions)
-    dirs = torch.stack([angles.cos(), angles.sin()], -1)[None].expand(b, -1, -1)
-    pts = valid_region_radii(to_pixels, max_radius, image_size, dirs)[..., None] * dirs
-    return pts[..., 0].abs().amax(-1), pts[..., 1].abs().amax(-1)
+    step = 2 * math.pi / num_directions
+    angles = (torch.arange(num_directions, dtype=dtype, device=device) * step)[None].expand(b, -1)
+    fine = torch.linspace(-step, step, 65, dtype=dtype, device=device)
+
+    def points(phi: torch.Tensor) -> torch.Tensor:
+        dirs = torch.stack([phi.cos(), phi.sin()], -1)
+        return valid_region_radii(to_pixels, max_radius, image_size, dirs)[..., None] * dirs
+
+    coarse = points(angles)
+    signs = ((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0))  # +x, -x, +y, -y
+    best = torch.stack([(sign * coarse[..., axis]).argmax(-1) for axis, sign in signs], -1)  # (B, 4)
+    around = angles.gather(1, best)[..., None] + fine  # (B, 4, 65): one call for the four refinements
+    refined = points(around.reshape(b, -1)).reshape(b, 4, -1, 2)
+    ext = [(sign * refined[:, k, :, axis]).amax(-1).clamp_min(0.0) for k, (axis, sign) in enumerate(signs)]
+    return torch.maximum(ext[0], ext[1]), torch.maximum(ext[2], ext[3])
 
 
 def horizontal_fov(K: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
