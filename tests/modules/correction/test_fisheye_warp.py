@@ -164,3 +164,18 @@ def test_undistort_image_blanks_rays_beyond_the_valid_field():
     assert bool((out[0, 0][theta > angle[0] + 1e-3] == 0).all())
     kept = out[0, 0][(theta < angle[0] - 1e-3) & in_image]
     assert kept.numel() > 1000 and bool(((kept - 1).abs() < 1e-9).all())
+
+
+def test_view_camera_matrix_on_every_device(device):
+    size = (640, 480)
+    on = [fisheye_view_camera_matrix(WIDE_K.to(device), WIDE_D.to(device), size, b) for b in (0.0, 1.0)]
+    off = [fisheye_view_camera_matrix(WIDE_K, WIDE_D, size, b) for b in (0.0, 1.0)]
+    for a, b in zip(on, off):
+        assert a.device.type == device.type
+        torch.testing.assert_close(a.cpu(), b)
+    small = WIDE_K.clone()
+    small[0, :2] /= 10.0  # the same lens on a 64x48 image
+    angle = fisheye_valid_angle(small.to(device), WIDE_D.to(device))
+    out = fisheye_undistort_image(torch.ones(1, 1, 48, 64, device=device), small.to(device), WIDE_D.to(device),
+                                  max_angle=angle)
+    assert out.shape == (1, 1, 48, 64) and out.device.type == device.type
