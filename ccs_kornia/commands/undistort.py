@@ -80,16 +80,17 @@ def _view_camera(K: Any, dist: Any, fisheye: bool, size: tuple[int, int], field:
     from ccs_kornia.modules.correction.view_camera import horizontal_fov
 
     make = fisheye_view_camera_matrix if fisheye else opencv_view_camera_matrix
+    balance, fov_asked = getattr(args, "balance", 0.0), getattr(args, "fov", None)
     try:
-        new_K = make(K[None], dist[None], size, args.balance, args.fov, field)
+        new_K = make(K[None], dist[None], size, balance, fov_asked, field)
     except ValueError as err:
         raise UserError(f"--calibration {args.calibration}: cannot frame an undistorted view: {err}") from None
     fov = float(horizontal_fov(new_K, size)[0])
     angle = math.degrees(float(field[0]) if fisheye else math.atan(float(field[0])))
-    if args.fov is not None and fov < args.fov - 0.05:
-        warn("undistort", f"--fov {args.fov:g} clamped to {fov:.1f} degrees, the valid field of the lens model "
+    if fov_asked is not None and fov < fov_asked - 0.05:
+        warn("undistort", f"--fov {fov_asked:g} clamped to {fov:.1f} degrees, the valid field of the lens model "
                           f"(monotonic and calibrated up to {angle:.1f} degrees from the axis)")
-    how = f"--fov {args.fov:g}" if args.fov is not None else f"--balance {args.balance:g}"
+    how = f"--fov {fov_asked:g}" if fov_asked is not None else f"--balance {balance:g}"
     info(f"undistort: {size[0]}x{size[1]} view ({how}): horizontal field of view {fov:.1f} degrees, "
          f"f = {float(new_K[0, 0, 0]):.1f} px, valid field up to {angle:.1f} degrees from the axis")
     return new_K

@@ -55,8 +55,7 @@ def valid_region_radii(
         :math:`(B, P)` radii: the first exit from the image along each direction, at most ``max_radius``.
 
     Example:
-        >>> K = torch.tensor([[100.0, 0, 49.5], [0, 100, 39.5], [0, 0, 1]], dtype=torch.float64)
-        >>> pix = lambda p: p * 100.0 + torch.tensor([49.5, 39.5], dtype=torch.float64)  # no distortion
+        >>> pix = lambda p: p * 100.0 + torch.tensor([49.5, 39.5], dtype=torch.float64)  # f 100, no distortion
         >>> dirs = torch.tensor([[[1.0, 0.0], [0.0, 1.0]]], dtype=torch.float64)
         >>> valid_region_radii(pix, torch.tensor([5.0], dtype=torch.float64), (100, 80), dirs)
         tensor([[0.4950, 0.3950]], dtype=torch.float64)
@@ -79,7 +78,7 @@ def valid_region_radii(
     index = torch.arange(_SCAN_STEPS, device=directions.device)
     first_out = torch.where(~ok, index, _SCAN_STEPS).amin(-1)
     lo = top[..., 0] * first_out.to(directions.dtype) / _SCAN_STEPS
-    hi = top[..., 0] * (first_out + 1).clamp(max=_SCAN_STEPS).to(directions.dtype) / _SCAN_STEPS
+    hi = top[..., 0] * (first_out + 1).to(directions.dtype) / _SCAN_STEPS
     open_end = first_out == _SCAN_STEPS
     if not bool(open_end.all()):
         for _ in range(_BISECTIONS):
