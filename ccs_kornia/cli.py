@@ -78,6 +78,16 @@ def _detection_side(text: str) -> int:
     return value
 
 
+def _view_angle(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an angle in degrees between 0 and 180, got {text!r}") from None
+    if not 0.0 < value < 180.0:
+        raise argparse.ArgumentTypeError(f"expected an angle in degrees between 0 and 180, got {text}")
+    return value
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -182,13 +192,19 @@ def build_parser() -> argparse.ArgumentParser:
                         "projection uncertainty) and the verdict; they cost a few more solves")
     p.set_defaults(func=calibrate.run)
 
-    p = sub.add_parser("undistort", help="undistort images with a calibration (as cv2.undistort)")
+    p = sub.add_parser("undistort", help="undistort images with a calibration: pinhole views centred on the optical "
+                       "axis, framed within the lens's valid field (every model, fisheye included)")
     common(p, board=False)
     p.add_argument("--calibration", required=True, metavar="JSON", help="calib.json written by calibrate")
     p.add_argument("--out-dir", required=True, metavar="DIR", help="where to write the images (created)")
-    p.add_argument("--balance", default=0.0, type=_unit_float, metavar="B",
-                   help="fisheye calibrations only: 0 keeps the central field without black borders (default), "
-                        "1 the whole field (as cv2.fisheye.estimateNewCameraMatrixForUndistortRectify)")
+    framing = p.add_mutually_exclusive_group()
+    framing.add_argument("--balance", default=0.0, type=_unit_float, metavar="B",
+                         help="0 (default): the largest view without black borders; 1: the whole valid field "
+                              "visible (black corners); between: linear in the focal length. The valid field is "
+                              "where the lens model is monotonic and the calibration's corners reached")
+    framing.add_argument("--fov", type=_view_angle, metavar="DEG",
+                         help="horizontal field of view of the output in degrees instead of --balance (clamped to "
+                              "the valid field, with a warning)")
     p.set_defaults(func=undistort.run)
 
     p = sub.add_parser("calibrate-many", help="calibrate many cameras (one directory of images each) with "

@@ -13,8 +13,8 @@ Writes into ``DIR``:
   coloured by length, with a scale arrow and a colour bar;
 * ``coverage.png``: how many detected corners fall in each cell of the image, with the outline of
   every used board (a calibration is well constrained only where corners were seen);
-* ``undistorted.png``: one used view next to its undistorted version (same parameters as
-  ``cv2.undistort``);
+* ``undistorted.png``: one used view next to its undistorted version (the view ``undistort --balance 0``
+  writes);
 * ``summary.md``: the parameter and view tables as Markdown.
 
 Only what ``calibrate`` writes into its JSON is used, plus the images themselves. Large images are
@@ -178,10 +178,13 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
                             "corners were seen: empty borders mean extrapolated distortion there."))
     if first_used is not None:
         base, gray, detected = first_used
-        preview = _undistorted_preview(gray, K, dist, base, detected, (cols, rows), fisheye)
+        seen = np.concatenate(detected_used) if detected_used else None
+        preview = _undistorted_preview(gray, K, dist, base, detected, (cols, rows), fisheye, seen)
         if _write_png(os.path.join(directory, "undistorted.png"), preview, written):
             figures.append(("undistorted.png", "Undistorted preview",
-                            "A used view and the same view undistorted with the calibration. Red lines are "
+                            "A used view and the same view undistorted with the calibration, as 'undistort "
+                            "--balance 0' writes it: a pinhole view centred on the optical axis, the largest "
+                            "without black borders within the lens's valid field. Red lines are "
                             "straight; the board's outer corners (green) bow away from them under distortion and "
                             "should sit on them once undistorted."))
 

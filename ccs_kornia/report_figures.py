@@ -351,12 +351,25 @@ def _coverage_plot(size: tuple[int, int], corner_sets: list[np.ndarray], board: 
 
 def _undistorted_preview(gray: np.ndarray, K: torch.Tensor, dist: torch.Tensor, name: str,
                          corners: np.ndarray | None = None, board: tuple[int, int] | None = None,
-                         fisheye: bool = False) -> np.ndarray:
-    from kornia.geometry.calibration import undistort_image
-
+                         fisheye: bool = False, seen: np.ndarray | None = None) -> np.ndarray:
+    """A view next to what ``undistort --balance 0`` makes of it (``seen``: the calibration's corners, which bound
+    the lens's valid field)."""
     from ccs_kornia.camera import kb_undistort_points
-    from ccs_kornia.modules.correction.fisheye_warp import fisheye_undistort_image
+    from ccs_kornia.modules.correction.fisheye_warp import (
+        fisheye_undistort_image,
+        fisheye_valid_angle,
+        fisheye_view_camera_matrix,
+    )
+    from ccs_kornia.modules.correction.opencv_warp import (
+        opencv_undistort_image,
+        opencv_valid_radius,
+        opencv_view_camera_matrix,
+    )
+    from ccs_kornia.modules.correction.view_camera import horizontal_fov
 
+    points_seen = None if seen is None else torch.from_numpy(np.asarray(seen, np.float64).reshape(1, -1, 2))
+    valid_field = fisheye_valid_angle if fisheye else opencv_valid_radius
+    field = valid_field(K[None], dist[None], points_seen)  # angles and radii do not change with the scale below
     scale = min(1.0, 640 / max(gray.shape))
     if scale < 1.0:
         gray = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
@@ -365,13 +378,13 @@ def _undistorted_preview(gray: np.ndarray, K: torch.Tensor, dist: torch.Tensor, 
     Ks[0, 0], Ks[1, 1] = K[0, 0] * scale, K[1, 1] * scale
     Ks[0, 2], Ks[1, 2] = (K[0, 2] + 0.5) * scale - 0.5, (K[1, 2] + 0.5) * scale - 0.5
     image = torch.from_numpy(gray).double()[None, None]
-    if fisheye:  # a pinhole view of the central field: the same camera at half the focal length (cv2's balance
-        # heuristic puts the principal point far off-centre when the border midpoints lie near 90 degrees)
-        P = Ks[None].clone()
-        P[:, :2, :2] *= 0.5
-        out = fisheye_undistort_image(image, Ks[None], dist[None], P)[0, 0].numpy()
+    size = (gray.shape[1], gray.shape[0])
+    if fisheye:
+        P = fisheye_view_camera_matrix(Ks[None], dist[None], size, 0.0, max_angle=field)
+        out = fisheye_undistort_image(image, Ks[None], dist[None], P, max_angle=field)[0, 0].numpy()
     else:
-        out = undistort_image(image, Ks[None], dist[None])[0, 0].numpy()
+        P = opencv_view_camera_matrix(Ks[None], dist[None], size, 0.0, max_radius=field)
+        out = opencv_undistort_image(image, Ks[None], dist[None], new_K=P, max_radius=field)[0, 0].numpy()
     points = [None, None]
     if corners is not None and board is not None:
         pts = _scaled(corners, scale)
@@ -379,10 +392,11 @@ def _undistorted_preview(gray: np.ndarray, K: torch.Tensor, dist: torch.Tensor, 
             und = kb_undistort_points(torch.from_numpy(pts.reshape(-1, 2).astype(np.float64))[None], Ks[None],
                                       dist[None], P)[0].numpy()
         else:
-            und = cv2.undistortPoints(pts.reshape(-1, 1, 2).astype(np.float64), Ks.numpy(), dist.numpy(), P=Ks.numpy())
+            und = cv2.undistortPoints(pts.reshape(-1, 1, 2).astype(np.float64), Ks.numpy(), dist.numpy(), P=P[0].numpy())
         points = [pts, und.reshape(-1, 2)]
+    label = f"undistorted (undistort --balance 0: {float(horizontal_fov(P, size)[0]):.0f} deg across)"
     tiles = []
-    for label, im, pts in (("original: " + name, gray, points[0]), ("undistorted (as cv2.fisheye.undistortImage)" if fisheye else "undistorted (as cv2.undistort)", out, points[1])):
+    for label, im, pts in (("original: " + name, gray, points[0]), (label, out, points[1])):
         tile = cv2.cvtColor(np.clip(im * 255.0, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
         if pts is not None:
             cols, rows = board  # type: ignore[misc]

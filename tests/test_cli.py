@@ -193,7 +193,10 @@ def test_undistort_matches_opencv(rendered, tmp_path, capsys):
     assert code == 0 and "undistorted 2 of 2" in stdout
     ours = cv2.imread(str(tmp_path / "und" / os.path.basename(files[0])), cv2.IMREAD_UNCHANGED).astype(np.float64)
     src = cv2.imread(files[0], cv2.IMREAD_UNCHANGED)
-    ref = cv2.undistort(src, K_TRUE.numpy(), DIST_TRUE.numpy()).astype(np.float64)
+    # --balance 0 (default) is OpenCV's alpha 0 with the principal point centred (this lens is monotonic throughout
+    # and the JSON has no views to bound it)
+    P, _ = cv2.getOptimalNewCameraMatrix(K_TRUE.numpy(), DIST_TRUE.numpy(), (640, 480), 0.0, centerPrincipalPoint=True)
+    ref = cv2.undistort(src, K_TRUE.numpy(), DIST_TRUE.numpy(), newCameraMatrix=P).astype(np.float64)
     diff = np.abs(ours - ref)[10:-10, 10:-10]
     assert diff.mean() < 0.5 and np.percentile(diff, 99) < 3
 
@@ -468,13 +471,16 @@ def test_fisheye_real_set_yaml_and_undistort(real_dir, tmp_path, capsys):
     code, stdout, err = run(capsys, "undistort", str(folder / "left-0000.png"), "--calibration", str(out),
                             "--out-dir", str(und), "--balance", "0.5")
     assert code == 0 and "undistorted 1 of 1" in stdout, err
-    # the written image is cv2.fisheye.undistortImage's with our new camera matrix (cv2 5.0's own matrix differs
-    # here: border midpoints beyond 90 degrees; tests/modules/correction/test_fisheye_warp.py compares where defined)
-    from ccs_kornia.modules.correction.fisheye_warp import fisheye_new_camera_matrix
+    # the written image is cv2.fisheye.undistortImage's with the view's camera, framed within the field the
+    # calibration's corners reached (cv2's own matrix puts the view off-centre here: border midpoints near 90 degrees)
+    from ccs_kornia.modules.correction.fisheye_warp import fisheye_valid_angle, fisheye_view_camera_matrix
 
     src = cv2.imread(str(folder / "left-0000.png"), cv2.IMREAD_GRAYSCALE)
     Kn, Dn = np.array(K), np.array(data["distortion"]["coeffs"])
-    P = fisheye_new_camera_matrix(torch.tensor(Kn)[None], torch.tensor(Dn)[None], (src.shape[1], src.shape[0]), 0.5)
+    seen = torch.tensor(np.array([c for v in data["views"] if v["used"] for c in v["corners"]], np.float64))[None]
+    angle = fisheye_valid_angle(torch.tensor(Kn)[None], torch.tensor(Dn)[None], seen)
+    P = fisheye_view_camera_matrix(torch.tensor(Kn)[None], torch.tensor(Dn)[None], (src.shape[1], src.shape[0]), 0.5,
+                                   max_angle=angle)
     ref_img = cv2.fisheye.undistortImage(src, Kn, Dn, Knew=P[0].numpy()).astype(np.float64)
     ours = cv2.imread(str(und / "left-0000.png"), cv2.IMREAD_GRAYSCALE).astype(np.float64)
     both = (ref_img > 0) & (ours > 0)
@@ -609,7 +615,8 @@ def test_report_directory_cannot_be_created(rendered, tmp_path, capsys):
 
 
 def test_undistort_roundtrip_of_our_json(rendered, tmp_path, capsys):
-    # calibrate -> JSON -> undistort equals cv2.undistort with the JSON's parameters
+    # calibrate -> JSON -> undistort equals cv2.undistort with the JSON's parameters and the view's camera framed
+    # within the field its corners reached
     folder, files, _ = rendered
     calib = tmp_path / "calib.json"
     assert run(capsys, "calibrate", str(folder), "--board", "9x6", "--output", str(calib))[0] == 0
@@ -617,8 +624,13 @@ def test_undistort_roundtrip_of_our_json(rendered, tmp_path, capsys):
     code, _, _ = run(capsys, "undistort", files[2], "--calibration", str(calib), "--out-dir", str(tmp_path / "u"))
     assert code == 0
     ours = cv2.imread(str(tmp_path / "u" / os.path.basename(files[2])), cv2.IMREAD_UNCHANGED).astype(np.float64)
+    from ccs_kornia.modules.correction.opencv_warp import opencv_valid_radius, opencv_view_camera_matrix
+
+    K, dist = torch.tensor(data["K"])[None], torch.tensor(data["distortion"]["coeffs"])[None]
+    corners = torch.tensor(np.array([c for v in data["views"] if v["used"] for c in v["corners"]], np.float64))
+    P = opencv_view_camera_matrix(K, dist, (640, 480), 0.0, max_radius=opencv_valid_radius(K, dist, corners[None]))
     ref = cv2.undistort(cv2.imread(files[2], cv2.IMREAD_UNCHANGED), np.array(data["K"]),
-                        np.array(data["distortion"]["coeffs"])).astype(np.float64)
+                        np.array(data["distortion"]["coeffs"]), newCameraMatrix=P[0].numpy()).astype(np.float64)
     diff = np.abs(ours - ref)[10:-10, 10:-10]
     assert diff.mean() < 0.5 and np.percentile(diff, 99) < 3
 

@@ -1,5 +1,10 @@
-"""``ccs_kornia undistort``: images undistorted with a calibration (as ``cv2.undistort``; a fisheye calibration as
-``cv2.fisheye.undistortImage`` with ``estimateNewCameraMatrixForUndistortRectify``'s balance)."""
+"""``ccs_kornia undistort``: images undistorted with a calibration into pinhole views along the optical axis.
+
+The view's camera comes from the lens's valid field (where the model is monotonic and the calibration's corners
+reached, read from the JSON's views when it has them): ``--balance 0`` the largest view without black borders,
+``1`` the whole valid field, ``--fov`` an explicit horizontal field of view (see ``docs/undistortion.md``). The
+images are then resampled as ``cv2.undistort`` / ``cv2.fisheye.undistortImage`` with that ``newCameraMatrix``.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +13,7 @@ import os
 import sys
 from typing import Any
 
-from ccs_kornia.commands._common import UserError, inputs, make_dir, resolve_device, warn
+from ccs_kornia.commands._common import UserError, info, inputs, make_dir, resolve_device, warn
 
 __all__ = ["run"]
 
@@ -43,20 +48,71 @@ def _read_calibration(path: str) -> tuple[Any, Any, tuple[int, int] | None, bool
     return K, dist, size, fisheye
 
 
+def _calibrated_corners(path: str) -> Any:
+    """The corners of the calibration's used views, :math:`(1, N, 2)` (hidden ones NaN), or ``None`` without any.
+
+    They bound the valid field (beyond them the model is extrapolated); a calibration without views is framed by
+    the monotonic range of its model within the image alone.
+    """
+    import json
+
+    import torch
+
+    try:
+        with open(path, encoding="utf-8") as handle:
+            views = json.load(handle).get("views") or []
+        rows = [[float("nan") if c is None else float(c) for c in corner[:2]]
+                for view in views if isinstance(view, dict) and view.get("used") and view.get("corners")
+                for corner in view["corners"]]
+        points = torch.tensor(rows, dtype=torch.float64).reshape(1, -1, 2)
+    except (OSError, ValueError, TypeError, AttributeError, IndexError, RuntimeError):
+        return None
+    return points if bool(points.isfinite().all(-1).any()) else None
+
+
+def _view_camera(K: Any, dist: Any, fisheye: bool, size: tuple[int, int], field: Any, args: argparse.Namespace) -> Any:
+    """The undistorted view's camera for images of ``size`` (``--balance`` or ``--fov``), with a warning when
+    ``--fov`` is clamped to the valid field and one line saying how the view is framed."""
+    import math
+
+    from ccs_kornia.modules.correction.fisheye_warp import fisheye_view_camera_matrix
+    from ccs_kornia.modules.correction.opencv_warp import opencv_view_camera_matrix
+    from ccs_kornia.modules.correction.view_camera import horizontal_fov
+
+    make = fisheye_view_camera_matrix if fisheye else opencv_view_camera_matrix
+    balance, fov_asked = getattr(args, "balance", 0.0), getattr(args, "fov", None)
+    try:
+        new_K = make(K[None], dist[None], size, balance, fov_asked, field)
+    except ValueError as err:
+        raise UserError(f"--calibration {args.calibration}: cannot frame an undistorted view: {err}") from None
+    fov = float(horizontal_fov(new_K, size)[0])
+    angle = math.degrees(float(field[0]) if fisheye else math.atan(float(field[0])))
+    if fov_asked is not None and fov < fov_asked - 0.05:
+        warn("undistort", f"--fov {fov_asked:g} clamped to {fov:.1f} degrees, the valid field of the lens model "
+                          f"(monotonic and calibrated up to {angle:.1f} degrees from the axis)")
+    how = f"--fov {fov_asked:g}" if fov_asked is not None else f"--balance {balance:g}"
+    info(f"undistort: {size[0]}x{size[1]} view ({how}): horizontal field of view {fov:.1f} degrees, "
+         f"f = {float(new_K[0, 0, 0]):.1f} px, valid field up to {angle:.1f} degrees from the axis")
+    return new_K
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
-    from kornia.geometry.calibration import undistort_image
     from tqdm import tqdm
 
     from ccs_kornia.io import read_image, write_image
-
-    from ccs_kornia.modules.correction.fisheye_warp import fisheye_new_camera_matrix, fisheye_undistort_image
+    from ccs_kornia.modules.correction.fisheye_warp import fisheye_undistort_image, fisheye_valid_angle
+    from ccs_kornia.modules.correction.opencv_warp import opencv_undistort_image, opencv_valid_radius
 
     K, dist, calib_size, fisheye = _read_calibration(args.calibration)
     device = resolve_device(args.device)
     files = inputs("undistort", args.images)
     make_dir("--out-dir", args.out_dir)
     K, dist = K.to(device), dist.to(device)
+    corners = _calibrated_corners(args.calibration)
+    corners = None if corners is None else corners.to(device)
+    valid_field = fisheye_valid_angle if fisheye else opencv_valid_radius
+    field = valid_field(K[None], dist[None], corners)  # radians (fisheye) or tan of the angle
     written, used_names, new_K = 0, set(), {}
     for path in tqdm(files, unit="img", desc="undistort", file=sys.stderr, disable=None, leave=False):
         image, reason, depth = read_image(path, gray=False)
@@ -80,13 +136,13 @@ def run(args: argparse.Namespace) -> int:
             continue
         tensor = torch.from_numpy(image).to(device)
         tensor = tensor[None, None] if tensor.dim() == 2 else tensor.permute(2, 0, 1)[None]
+        size = (w, h)
+        if size not in new_K:
+            new_K[size] = _view_camera(K, dist, fisheye, size, field, args)
         if fisheye:
-            size = (w, h)
-            if size not in new_K:
-                new_K[size] = fisheye_new_camera_matrix(K[None], dist[None], size, args.balance)
-            out = fisheye_undistort_image(tensor.double(), K[None], dist[None], new_K[size])[0]
+            out = fisheye_undistort_image(tensor.double(), K[None], dist[None], new_K[size], max_angle=field)[0]
         else:
-            out = undistort_image(tensor.double(), K[None], dist[None])[0]
+            out = opencv_undistort_image(tensor.double(), K[None], dist[None], new_K=new_K[size], max_radius=field)[0]
         if not write_image(target, out, bit_depth=16 if depth > 8 and ext.lower() in (".png", ".tif", ".tiff") else 8):
             warn("undistort", f"could not write {target}")
             continue

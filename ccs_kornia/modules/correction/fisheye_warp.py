@@ -1,14 +1,25 @@
-"""Fisheye (Kannala-Brandt) images to pinhole images: ``cv2.fisheye``'s new camera matrix and undistortion."""
+"""Fisheye (Kannala-Brandt) images to pinhole images: the view's camera matrix and the undistortion.
+
+:func:`fisheye_view_camera_matrix` frames the view from the lens's valid field (:func:`fisheye_valid_angle`: where
+``theta_d(theta)`` increases and the calibration's corners reached); :func:`fisheye_new_camera_matrix` is
+``cv2.fisheye.estimateNewCameraMatrixForUndistortRectify``, kept for comparison: it undistorts the border
+midpoints, which on a lens seeing 90 degrees or more at its borders gives an off-centre, sheared or degenerate view.
+"""
 
 from __future__ import annotations
+
+import math
 
 import torch
 from kornia.geometry.grid import create_meshgrid
 from kornia.geometry.transform import remap
 
 from ccs_kornia import camera
+from ccs_kornia.modules.correction.view_camera import MAX_VIEW_ANGLE_DEG, view_camera_matrix
 
-__all__ = ["fisheye_new_camera_matrix", "fisheye_undistort_image"]
+__all__ = ["fisheye_new_camera_matrix", "fisheye_undistort_image", "fisheye_valid_angle", "fisheye_view_camera_matrix"]
+
+_ANGLE_SAMPLES = 4096
 
 
 def _check(K: torch.Tensor, D: torch.Tensor) -> None:
@@ -16,6 +27,96 @@ def _check(K: torch.Tensor, D: torch.Tensor) -> None:
         raise ValueError(f"K must be (B, 3, 3), got {tuple(K.shape)}.")
     if D.shape != (K.shape[0], 4):
         raise ValueError(f"D must be ({K.shape[0]}, 4), got {tuple(D.shape)}.")
+
+
+def fisheye_valid_angle(K: torch.Tensor, D: torch.Tensor, points: torch.Tensor | None = None) -> torch.Tensor:
+    r"""The valid field of a Kannala-Brandt lens: the largest angle from the axis a pinhole view of it may show.
+
+    The smallest of: the angle where ``theta_d(theta) = theta (1 + k1 theta^2 + ... + k4 theta^8)`` stops
+    increasing (beyond it several directions share one image radius), the widest angle ``points`` reach (the
+    calibration's corners: beyond them the polynomial is extrapolated), and
+    :data:`~ccs_kornia.modules.correction.view_camera.MAX_VIEW_ANGLE_DEG`. The image's own extent is applied
+    when the view is framed (:func:`fisheye_view_camera_matrix`), so without ``points`` the bound is the
+    monotonic range within the image.
+
+    Args:
+        K: :math:`(B, 3, 3)`; D: :math:`(B, 4)` ``k1..k4``.
+        points: :math:`(B, N, 2)` optional pixels seen in calibration (NaN rows are ignored).
+
+    Returns:
+        :math:`(B,)` angle in radians.
+
+    Example:
+        >>> K = torch.tensor([[[300.0, 0, 319.5], [0, 300, 239.5], [0, 0, 1]]], dtype=torch.float64)
+        >>> D = torch.tensor([[-0.3, 0.0, 0.0, 0.0]], dtype=torch.float64)  # d theta_d / d theta = 1 - 0.9 theta^2
+        >>> round(math.degrees(fisheye_valid_angle(K, D).item()), 1)  # folds at 1 / sqrt(0.9) rad
+        60.4
+    """
+    _check(K, D)
+    K, D = K.to(torch.float64), D.to(torch.float64)
+    top = math.radians(MAX_VIEW_ANGLE_DEG)
+    theta = torch.linspace(0.0, top, _ANGLE_SAMPLES + 1, dtype=K.dtype, device=K.device)[None]
+    t2 = theta * theta
+    k1, k2, k3, k4 = (D[:, i, None] for i in range(4))
+    slope = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+    # the last sample before the slope first stops being positive (the top where it never does)
+    index = torch.arange(_ANGLE_SAMPLES + 1, device=K.device)
+    first_bad = torch.where(slope <= 0, index, _ANGLE_SAMPLES + 1).amin(-1)
+    angle = theta[0, (first_bad - 1).clamp(min=0)]
+    if points is not None:
+        if points.dim() != 3 or points.shape[0] != K.shape[0] or points.shape[-1] != 2:
+            raise ValueError(f"points must be ({K.shape[0]}, N, 2), got {tuple(points.shape)}.")
+        rays = camera.kb_unproject_points(points.to(K), K, D)
+        seen = torch.acos(rays[..., 2].clamp(-1.0, 1.0))
+        seen = torch.where(seen.isfinite(), seen, torch.zeros_like(seen)).amax(-1)
+        angle = torch.minimum(angle, torch.where(seen > 0, seen, angle))
+    return angle
+
+
+def fisheye_view_camera_matrix(
+    K: torch.Tensor,
+    D: torch.Tensor,
+    image_size: tuple[int, int],
+    balance: float = 0.0,
+    fov: float | None = None,
+    max_angle: torch.Tensor | None = None,
+) -> torch.Tensor:
+    r"""The camera of a pinhole view of a fisheye image along its axis, framed within the lens's valid field.
+
+    The view is centred on the optical axis with ``fy' / fx' = fy / fx``; ``balance = 0`` is the largest view
+    without black pixels (every pixel inside the image and within ``max_angle`` of the axis), ``balance = 1`` the
+    smallest zoom showing all of that region, linear in the focal length between; ``fov`` a horizontal field of
+    view in degrees instead, clamped to the region (see
+    :func:`~ccs_kornia.modules.correction.view_camera.view_camera_matrix`).
+
+    Args:
+        K: :math:`(B, 3, 3)`; D: :math:`(B, 4)` ``k1..k4``.
+        image_size: ``(W, H)`` of the fisheye images and of the view.
+        balance: in ``[0, 1]``.
+        fov: horizontal field of view in degrees (overrides ``balance``).
+        max_angle: :math:`(B,)` valid field in radians (default: :func:`fisheye_valid_angle` without points).
+
+    Returns:
+        :math:`(B, 3, 3)` camera matrix for :func:`fisheye_undistort_image`.
+
+    Example:
+        >>> K = torch.tensor([[[300.0, 0, 319.5], [0, 300, 239.5], [0, 0, 1]]], dtype=torch.float64)
+        >>> D = torch.tensor([[0.05, -0.01, 0.002, 0.0]], dtype=torch.float64)
+        >>> P0 = fisheye_view_camera_matrix(K, D, (640, 480))
+        >>> P1 = fisheye_view_camera_matrix(K, D, (640, 480), balance=1.0)
+        >>> P0[0, 0, 2].item(), P0[0, 1, 2].item(), bool(P1[0, 0, 0] < P0[0, 0, 0])  # centred; 1 shows more
+        (319.5, 239.5, True)
+    """
+    _check(K, D)
+    K, D = K.to(torch.float64), D.to(torch.float64)
+    if max_angle is None:
+        max_angle = fisheye_valid_angle(K, D)
+
+    def to_pixels(plane: torch.Tensor) -> torch.Tensor:
+        rays = torch.cat([plane, torch.ones_like(plane[..., :1])], -1)
+        return camera.kb_project_points(rays, K, D)
+
+    return view_camera_matrix(to_pixels, K, torch.tan(max_angle.to(K)), image_size, balance, fov)
 
 
 def fisheye_new_camera_matrix(
@@ -70,15 +171,22 @@ def fisheye_new_camera_matrix(
 
 
 def fisheye_undistort_image(
-    images: torch.Tensor, K: torch.Tensor, D: torch.Tensor, new_K: torch.Tensor | None = None, mode: str = "bilinear"
+    images: torch.Tensor,
+    K: torch.Tensor,
+    D: torch.Tensor,
+    new_K: torch.Tensor | None = None,
+    mode: str = "bilinear",
+    max_angle: torch.Tensor | None = None,
 ) -> torch.Tensor:
     r"""Fisheye images to pinhole images with camera ``new_K`` (as ``cv2.fisheye.undistortImage``).
 
     Args:
         images: :math:`(B, C, H, W)`.
         K: :math:`(B, 3, 3)`; D: :math:`(B, 4)` ``k1..k4`` (``cv2.fisheye``).
-        new_K: :math:`(B, 3, 3)` camera of the output (``None``: ``K``; see :func:`fisheye_new_camera_matrix`).
+        new_K: :math:`(B, 3, 3)` camera of the output (``None``: ``K``; see :func:`fisheye_view_camera_matrix`).
         mode: interpolation.
+        max_angle: :math:`(B,)` optional valid field in radians (:func:`fisheye_valid_angle`): pixels whose ray is
+            farther from the axis are zero too (no folded or extrapolated content in a wide view's corners).
 
     Returns:
         :math:`(B, C, H, W)`, zeros where the source lies outside the input or behind the lens.
@@ -102,5 +210,8 @@ def fisheye_undistort_image(
     y = (pix[..., 1] - new_K[:, None, 1, 2]) / new_K[:, None, 1, 1]
     rays = torch.stack([x, y, torch.ones_like(x)], -1)
     src = camera.kb_project_points(rays, K.to(torch.float64), D.to(torch.float64))
+    if max_angle is not None:
+        beyond = torch.atan(torch.hypot(x, y)) > max_angle.to(x)[:, None]
+        src = torch.where(beyond[..., None], torch.full_like(src, -2.0), src)  # -2: outside, so zero-padded
     src = src.reshape(b, h, w, 2).to(dtype)
     return remap(images.to(dtype), src[..., 0], src[..., 1], mode=mode, padding_mode="zeros", align_corners=True)
