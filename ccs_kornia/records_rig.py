@@ -89,7 +89,7 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
         JSON-ready dict: ``convention``, ``cameras`` (each as ``calibrate`` writes one, with ``name``, the joint fit's
         ``K``, ``distortion``, ``rms`` and ``std``, and the camera's own calibration under ``single_camera``),
         ``extrinsics``, ``rms``, ``rms_matrix`` (camera x frame, ``None`` where unused), ``frames``, ``pairs``,
-        ``verdict``.
+        ``board_poses`` (board -> camera 0 per frame), ``verdict``.
     """
     rig = out.rig
     cameras = []
@@ -124,6 +124,8 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
         "frame_labels": list(out.frames.labels),
         "frames_matched_by": out.frames.by,
         "pairs": pairs,
+        "board_poses": [{"rvec": [_num(v) for v in r], "tvec": [_num(v) for v in t]}
+                        for r, t in zip(rig.board_rvec.double().tolist(), rig.board_tvec.double().tolist())],
         "verdict": rig.verdict,
     }
 
