@@ -254,14 +254,13 @@ class RigPipeline(nn.Module):
         Returns:
             :class:`RigPipelineResult`.
         """
-        from ccs_kornia.modules.calibration import RigCamera, RigSolver
-
         c = source.num_cameras
         names = list(names) if names is not None else [f"cam{i}" for i in range(c)]
         if c < 2:
             raise ValueError(f"a rig needs at least two cameras, got {c}.")
         if len(frames.index) != c or len(names) != c:
             raise ValueError(f"{len(frames.index)} frame lists and {len(names)} names for {c} cameras.")
+        from ccs_kornia.modules.calibration import RigCamera, RigSolver
         cameras = cameras if cameras is not None else self.detect_and_calibrate(source, board_size, square, progress)
         corners, valid, weights = rig_observations(cameras, frames)
         models, initial, reason = [], [], ""
