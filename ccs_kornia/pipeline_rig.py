@@ -164,6 +164,13 @@ def unconnected_cameras(valid: torch.Tensor, names: Sequence[str], labels: Seque
             f"to it ({names[0]} sees frames {frames_of(0)}; {views})")
 
 
+def _same_position(counts: Sequence[int]) -> FrameTable:
+    """Frames of in-memory views: frame ``f`` is view ``f`` of every camera that has one."""
+    frames = max(counts)
+    return FrameTable([str(f) for f in range(frames)], [[f if f < n else None for f in range(frames)] for n in counts],
+                      "order")
+
+
 class RigPipeline(nn.Module):
     """Calibrate a rig of ``C`` cameras from board images: each camera alone, then jointly with its pose.
 
@@ -201,25 +208,38 @@ class RigPipeline(nn.Module):
         self.solver_kwargs = dict(solver_kwargs or {})
 
     def forward(self, images: torch.Tensor | Sequence[torch.Tensor], board_size: tuple[int, int], square: float = 1.0,
-                names: Sequence[str] | None = None) -> RigPipelineResult:
+                names: Sequence[str] | None = None) -> RigPipelineResult | list[RigPipelineResult]:
         """:meth:`run` on images in memory, frame ``f`` being view ``f`` of every camera.
 
         Args:
-            images: :math:`(C, F, 1, H, W)`, or one :math:`(F_c, 1, H_c, W_c)` per camera (sizes may differ).
+            images: :math:`(C, F, 1, H, W)`, one :math:`(F_c, 1, H_c, W_c)` per camera (sizes may differ), or
+                :math:`(B, C, F, 1, H, W)` for ``B`` rigs: their cameras are detected and calibrated in one batched
+                pipeline run, then each rig is solved (the rig solver starts every rig from its own cameras).
             board_size: ``(cols, rows)`` inner corners; square: square side in world units.
             names: camera names (default ``cam0``, ``cam1``, ...).
+
+        Returns:
+            :class:`RigPipelineResult`, or a list of ``B`` for 6-D input.
         """
+        if isinstance(images, torch.Tensor) and images.dim() == 6:
+            b, c = images.shape[:2]
+            source = TensorSource(images.flatten(0, 1))
+            models = [self.models] * c if isinstance(self.models, str) else list(self.models)
+            cameras = self.detect_and_calibrate(source, board_size, square, models=models * b)
+            table = _same_position([images.shape[2]] * c)
+            return [self.run(_Cameras(source, range(k * c, (k + 1) * c)), board_size, square, table, names,
+                             cameras=cameras[k * c:(k + 1) * c]) for k in range(b)]
         source = TensorSource(images)
-        frames = max(source.counts)
-        table = FrameTable([str(f) for f in range(frames)],
-                           [[f if f < n else None for f in range(frames)] for n in source.counts], "order")
-        return self.run(source, board_size, square, table, names)
+        return self.run(source, board_size, square, _same_position(source.counts), names)
 
     def detect_and_calibrate(self, source: ViewSource, board_size: tuple[int, int], square: float,
-                             progress: Callable[[int], None] | None = None) -> list[PipelineResult]:
-        """Every camera through the single-camera pipeline of its model; one result per camera."""
+                             progress: Callable[[int], None] | None = None,
+                             models: Sequence[str] | None = None) -> list[PipelineResult]:
+        """Every camera through the single-camera pipeline of its model (``models``: per camera of ``source``,
+        default this pipeline's); one result per camera. The cameras of one model go through one batched run."""
         c = source.num_cameras
-        models = [self.models] * c if isinstance(self.models, str) else self.models
+        if models is None:
+            models = [self.models] * c if isinstance(self.models, str) else self.models
         if len(models) != c:
             raise ValueError(f"{len(models)} models for {c} cameras.")
         out: list[PipelineResult | None] = [None] * c

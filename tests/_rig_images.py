@@ -36,16 +36,17 @@ class StereoImages:
     T: torch.Tensor
 
 
-def render_stereo(frames: int = 8, seed: int = 3) -> StereoImages:
-    """Two cameras, ``frames`` frames of the same board poses (both cameras see every board whole)."""
+def render_stereo(frames: int = 8, seed: int = 3, size1: tuple[int, int] = SIZES[1]) -> StereoImages:
+    """Two cameras, ``frames`` frames of the same board poses (both cameras see every board whole); camera 1's
+    images are ``size1``."""
     first = make_calibration_set(K0, BOARD, SQUARE, SIZES[0], num_views=3 * frames, seed=seed, supersample=1,
                                  fill_range=(0.3, 0.5), max_tilt_deg=35.0)
     R0 = axis_angle_to_rotation_matrix(first.rvec.float())
     R1 = R_REL @ R0
     t1 = (R_REL @ first.tvec.float()[..., None])[..., 0] + T_REL
     rvec1 = rotation_matrix_to_axis_angle(R1)
-    images1, corners1 = render_chessboard(K1.expand(len(t1), 3, 3), rvec1, t1, BOARD, SQUARE, SIZES[1], supersample=1)
-    w, h = SIZES[1]
+    images1, corners1 = render_chessboard(K1.expand(len(t1), 3, 3), rvec1, t1, BOARD, SQUARE, size1, supersample=1)
+    w, h = size1
     inside = ((corners1[..., 0] > 12) & (corners1[..., 0] < w - 13) & (corners1[..., 1] > 12)
               & (corners1[..., 1] < h - 13)).all(-1)
     keep = inside.nonzero().flatten()[:frames]

@@ -217,6 +217,7 @@ def test_camera_of_copied_views(stereo, tmp_path, capsys):
     (["--fix-intrinsics", "0=/nonexistent/x.json"], "cannot read"),
     (["--opencv-yaml", "/nonexistent/dir/s.yml"], "does not exist"),
     (["--ros-yaml-dir", "/nonexistent/dir/ros"], "does not exist"),
+    (["--model", "rational", "--kalibr-yaml", "camchain.yaml"], "Kalibr has no rational"),
 ])
 def test_bad_options_stop_before_any_work(tmp_path, capsys, extra, phrase):
     for name in ("a", "b"):

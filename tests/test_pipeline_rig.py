@@ -72,7 +72,7 @@ def stereo():
     return render_stereo(frames=8, seed=3)
 
 
-def _check_rig(out) -> None:
+def _check_rig(out, frames: int = 8) -> None:
     assert out.success, out.reason
     rig = out.rig
     assert rig.R.shape == (2, 3, 3) and rig.T.shape == (2, 3)
@@ -80,7 +80,7 @@ def _check_rig(out) -> None:
     assert abs(baseline - float(T_REL.norm())) < 0.01 * float(T_REL.norm())
     angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(torch.trace(rig.R[1])) - 1) / 2))))
     assert abs(angle - ANGLE_DEG) < 0.1
-    assert out.corners.shape[:2] == (2, 8) and bool(out.valid.any(-1).all())
+    assert out.corners.shape[:2] == (2, frames) and bool(out.valid.any(-1).all())
 
 
 def test_rig_from_rendered_images_of_two_sizes(stereo):
@@ -105,3 +105,18 @@ def test_models_per_camera_and_fixed_intrinsics(stereo):
     _check_rig(out)
     assert out.fixed == [True, False]
     assert torch.allclose(out.rig.cameras[0].K.double(), K0)
+
+
+def test_batch_of_rigs_matches_one_rig_at_a_time():
+    stereo = render_stereo(frames=6, seed=5, size1=(320, 240))
+    one = torch.stack(stereo.images)  # (C, F, 1, H, W)
+    batch = torch.stack([one, one.flip(1)])  # the second rig: the same frames in reverse order
+    pipe = RigPipeline("opencv", models="k1k2", distortion_correction=False, use_ransac=False)
+    outs = pipe(batch, BOARD, SQUARE)
+    single = pipe(one, BOARD, SQUARE)
+    assert isinstance(outs, list) and len(outs) == 2
+    for out in (*outs, single):
+        _check_rig(out, frames=6)
+    for out in outs:
+        assert torch.allclose(out.rig.T, single.rig.T, atol=1e-6) and torch.allclose(out.rig.R, single.rig.R, atol=1e-7)
+    assert torch.equal(outs[1].corners, single.corners.flip(1))

@@ -143,6 +143,9 @@ def run(args: argparse.Namespace) -> int:
     names = parse_names(args.names, c)
     models = parse_models(args.model, c, args.model_choices)
     fixed = parse_fixed(args.fix_intrinsics, c)
+    if args.kalibr_yaml and "rational" in models:
+        raise UserError(f"--kalibr-yaml: Kalibr has no rational (k1..k6) model, asked for camera "
+                        f"{names[models.index('rational')]}; use --model opencv5, k1k2 or fisheye")
     device = resolve_device(args.device)
     files = [_camera_files(names[k], folder) for k, folder in enumerate(folders)]
     frames = match_frames(files)
