@@ -23,8 +23,8 @@ from ccs_kornia.modules.detection.base import ChessboardDetector
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.pipeline import CalibrationPipeline
 from ccs_kornia.pipeline_result import PipelineResult, corner_weights_of, same_size_views
-from ccs_kornia.rig_frames import FrameTable
-from ccs_kornia.sources import TensorSource, ViewSource
+from ccs_kornia.rig_frames import FrameTable, match_frames
+from ccs_kornia.sources import FileSource, TensorSource, ViewSource
 
 __all__ = ["RigPipeline", "RigPipelineResult", "rig_observations", "unconnected_cameras"]
 
@@ -232,6 +232,12 @@ class RigPipeline(nn.Module):
         source = TensorSource(images)
         return self.run(source, board_size, square, _same_position(source.counts), names)
 
+    def run_files(self, paths: Sequence[Sequence[str]], board_size: tuple[int, int], square: float,
+                  names: Sequence[str] | None = None, progress: Callable[[int], None] | None = None) -> RigPipelineResult:
+        """:meth:`run` on image files, one list per camera, matched into frames by
+        :func:`~ccs_kornia.rig_frames.match_frames` (the last number in the names, else natural order)."""
+        return self.run(FileSource(paths, names), board_size, square, match_frames(paths), names, progress)
+
     def detect_and_calibrate(self, source: ViewSource, board_size: tuple[int, int], square: float,
                              progress: Callable[[int], None] | None = None,
                              models: Sequence[str] | None = None) -> list[PipelineResult]:
@@ -309,8 +315,12 @@ class RigPipeline(nn.Module):
         object_points = board_object_points(cols, rows, float(square), dtype=torch.float64)
         solver = RigSolver(models=models, **self.solver_kwargs)
         sizes = [tuple(int(x) for x in r.image_size) for r in cameras]
-        out.rig = solver(corners, valid, object_points, sizes, initial=initial, fixed=fixed if any(fixed) else None,
-                         names=names, weights=weights)
+        try:
+            out.rig = solver(corners, valid, object_points, sizes, initial=initial,
+                             fixed=fixed if any(fixed) else None, names=names, weights=weights)
+        except ValueError as err:  # the solver's refusal (e.g. cameras linked by too few corners), one line
+            out.reason = str(err)
+            return out
         if not out.rig.success:
             out.reason = out.rig.reason or "the joint fit of the rig failed"
         return out

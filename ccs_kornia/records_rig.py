@@ -127,6 +127,9 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
         "board_poses": [{"rvec": [_num(v) for v in r], "tvec": [_num(v) for v in t]}
                         for r, t in zip(rig.board_rvec.double().tolist(), rig.board_tvec.double().tolist())],
         "verdict": rig.verdict,
+        "verdict_reasons": list(getattr(rig, "reasons", []) or []),
+        "fit": {"converged": bool(getattr(rig, "converged", True)), "iterations": int(getattr(rig, "iterations", 0)),
+                "frames_used": [[bool(u) for u in row] for row in rig.used.tolist()]},
     }
 
 

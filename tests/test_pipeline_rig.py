@@ -8,7 +8,7 @@ from types import SimpleNamespace
 
 import pytest
 import torch
-from _rig_images import ANGLE_DEG, BOARD, SQUARE, T_REL, render_stereo
+from _rig_images import ANGLE_DEG, BOARD, SQUARE, T_REL, render_stereo, write_stereo
 
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.pipeline_result import PipelineResult
@@ -80,7 +80,7 @@ def _check_rig(out, frames: int = 8) -> None:
     assert abs(baseline - float(T_REL.norm())) < 0.01 * float(T_REL.norm())
     angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(torch.trace(rig.R[1])) - 1) / 2))))
     assert abs(angle - ANGLE_DEG) < 0.1
-    assert out.corners.shape[:2] == (2, frames) and bool(out.valid.any(-1).all())
+    assert out.corners.shape[:2] == (2, frames) and bool(out.valid.any(-1).any(0).all())
 
 
 def test_rig_from_rendered_images_of_two_sizes(stereo):
@@ -120,3 +120,14 @@ def test_batch_of_rigs_matches_one_rig_at_a_time():
     for out in outs:
         assert torch.allclose(out.rig.T, single.rig.T, atol=1e-6) and torch.allclose(out.rig.R, single.rig.R, atol=1e-7)
     assert torch.equal(outs[1].corners, single.corners.flip(1))
+
+
+def test_rig_from_files_matched_by_number(stereo, tmp_path):
+    # the right camera misses frame 03 and its files are listed in another order
+    left, right = write_stereo(stereo, tmp_path, frames=[list(range(8)), [k for k in range(8) if k != 2]])
+    paths = [sorted(str(p) for p in left.iterdir()), sorted((str(p) for p in right.iterdir()), reverse=True)]
+    pipe = RigPipeline("opencv", models="k1k2", distortion_correction=False, use_ransac=False)
+    out = pipe.run_files(paths, BOARD, SQUARE, names=["left", "right"])
+    _check_rig(out)
+    assert out.frames.by == "number" and out.frames.missing(1) == ["03"]
+    assert not out.valid[1, 2].any() and bool(out.rig.rms_matrix[1, 2].isnan())
