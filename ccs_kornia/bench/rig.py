@@ -163,10 +163,11 @@ def _epipolar(cams, R, T, scene, c) -> float:
     return float((s[0, 1] / n[0, 1].clamp_min(1)).sqrt()) if int(n[0, 1]) else float("nan")
 
 
-def run_rig(cfg=None, trials: int | None = None, frames: int = 20, seed: int = SEED, log=print) -> dict:
-    """Run the benchmark (``trials``: rigs; default ``cfg.rig_trials`` or 10). Returns a JSON-able dict with one
-    row per camera pair (0, c) and the summary per method."""
-    trials = trials if trials is not None else int(getattr(cfg, "rig_trials", 10) if cfg is not None else 10)
+def run_rig(cfg=None, trials: int | None = None, frames: int | None = None, seed: int = SEED, log=print) -> dict:
+    """Run the benchmark (``trials`` rigs of ``frames`` frames; defaults ``cfg.rig_trials`` / ``cfg.rig_frames``, else
+    10 / 20). Returns a JSON-able dict with one row per camera pair (0, c) and the summary per method."""
+    trials = trials if trials is not None else int(getattr(cfg, "rig_trials", 10))
+    frames = frames if frames is not None else int(getattr(cfg, "rig_frames", 20))
     rows = []
     for t in range(trials):
         scene, noise = random_rig(seed + t, frames)
