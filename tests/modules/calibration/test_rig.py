@@ -283,3 +283,62 @@ def test_heldout_needs_frames_and_verdict_flags_bad_data():
     s = scene(2, models=["k1k2", "k1k2"], frames=10, seed=101, noise=3.0)
     res = RigSolver("k1k2")(s.corners, s.valid, s.object_points, s.image_sizes)
     assert res.verdict.startswith("not reliable: "), res.verdict
+
+
+def test_rig_lm_derivatives_match_finite_differences():
+    from ccs_kornia.modules.calibration.models import camera_model
+    from ccs_kornia.modules.calibration.rig_camera import camera_params
+    from ccs_kornia.modules.calibration.rig_lm import _equations, rig_layout
+
+    s = scene(3, frames=4, seed=110, noise=0.5)
+    models = [camera_model(c[0]) for c in s.cameras]
+    layout = rig_layout(models)
+    intr, ext, G = layout
+    params = [camera_params(RigCamera(*c))[None] * 1.001 for c in s.cameras]
+    R = exp_so3(ROT[:3] + 0.01)[None]
+    R[0, 0] = torch.eye(3, dtype=D)
+    T = (TRANS[:3] + 0.003)[None]
+    Rf = exp_so3(s.board_rvec + 0.01)[None]
+    tf = s.board_tvec[None] + 0.002
+    w = s.valid[None].to(D) * 2.0
+    on = w > 0
+    obs = torch.where(on[..., None], s.corners[None], 0.0)
+    obj = s.object_points
+    used = on.any(-1).any(1)
+    eye6 = torch.eye(6, dtype=D)
+    _, _, _, _, eg, ep, _ = _equations(models, params, R, T, Rf, tf, obj, obs, w.sqrt(), on, layout, used, eye6)
+
+    def cost(dg, dp):
+        p = [params[c] + dg[intr[c]][None] for c in range(3)]
+        R2, T2 = R.clone(), T.clone()
+        for c in (1, 2):
+            R2[0, c] = exp_so3(dg[ext[c]][:3]) @ R[0, c]
+            T2[0, c] = T[0, c] + dg[ext[c]][3:]
+        Rf2, tf2 = exp_so3(dp[..., :3]) @ Rf, tf + dp[..., 3:]
+        return float(_equations(models, p, R2, T2, Rf2, tf2, obj, obs, w.sqrt(), on, layout, used, eye6,
+                                jacobians=False)[0])
+
+    zg, zp = torch.zeros(G, dtype=D), torch.zeros(1, 4, 6, dtype=D)
+    for i in range(G):
+        h = 1e-6 * max(1.0, float(torch.cat(params, -1).flatten()[i].abs())) if i < intr[-1].stop else 1e-7
+        dg = zg.clone()
+        dg[i] = h
+        num = (cost(dg, zp) - cost(-dg, zp)) / (2 * h)
+        assert abs(num - 2 * float(eg[0, i])) <= 1e-5 * max(1.0, abs(num)), (i, num, 2 * float(eg[0, i]))
+    for f in range(4):
+        for k in range(6):
+            dp = zp.clone()
+            dp[0, f, k] = 1e-7
+            num = (cost(zg, dp) - cost(zg, -dp)) / 2e-7
+            assert abs(num - 2 * float(ep[0, f, k])) <= 1e-5 * max(1.0, abs(num)), (f, k, num)
+
+
+def test_camera_with_few_frames_is_calibrated_through_the_rig():
+    s = scene(2, models=["k1k2", "k1k2"], frames=10, seed=120)
+    valid = s.valid.clone()
+    valid[1, 2:] = False  # camera 1 sees 2 frames only: too few for its own full calibration
+    corners = torch.where(valid[..., None], s.corners, float("nan"))
+    res = RigSolver("k1k2", folds=0)(corners, valid, s.object_points, s.image_sizes)
+    assert res.success, res.reason
+    assert int(res.used[1].sum()) == 2
+    assert rot_err_deg(res.R[1], s.R[1]) < 1e-5 and float((res.T[1] - s.T[1]).norm()) < 1e-7
