@@ -203,14 +203,16 @@ def run_rig(cfg=None, trials: int | None = None, frames: int | None = None, seed
                              "failed": not (rot <= FAIL_DEG and pct <= FAIL_PCT)}
             rows.append(row)
         log(f"[rig] trial {t + 1}/{trials}: {C} cameras ({', '.join(models)}), noise {noise:.2f} px")
+    def stats(found: list[dict], prefix: str = "") -> dict:
+        return {f"{prefix}{k}_{q}": (float(np.percentile([o[k] for o in found], p)) if found else float("nan"))
+                for k in ("rot_deg", "trans_pct", "epipolar_px") for q, p in (("median", 50), ("p90", 90))}
+
     summary = {}
+    both = [r for r in rows if not (r["ours"]["failed"] or r["opencv"]["failed"])]
     for name in ("ours", "opencv"):
         ok = [r[name] for r in rows if not r[name]["failed"]]
-        summary[name] = {
-            "pairs": len(rows), "failures": sum(r[name]["failed"] for r in rows),
-            **{f"{k}_{q}": (float(np.percentile([o[k] for o in ok], p)) if ok else float("nan"))
-               for k in ("rot_deg", "trans_pct", "epipolar_px") for q, p in (("median", 50), ("p90", 90))},
-        }
+        summary[name] = {"pairs": len(rows), "failures": sum(r[name]["failed"] for r in rows), "common_pairs": len(both),
+                         **stats(ok), **stats([r[name] for r in both], "common_")}
     return {"trials": trials, "frames": frames, "seed": seed, "rows": rows, "summary": summary}
 
 
@@ -222,9 +224,16 @@ def rig_md(sec: dict) -> list[str]:
              f"noise), camera 0 paired with each other camera. Failure: an error, or more than {FAIL_DEG} deg / "
              f"{FAIL_PCT} % of the baseline off. Medians / 90th percentiles over the pairs that did not fail.", "",
              "| method | pairs | failures | rotation deg | translation % | epipolar px |", "|---|---|---|---|---|---|"]
-    for name, label in (("ours", "ccs_kornia RigSolver"), ("opencv", "OpenCV calibrate + stereoCalibrate")):
-        s = sec["summary"][name]
-        lines.append(f"| {label} | {s['pairs']} | {s['failures']} | {s['rot_deg_median']:.3f} / {s['rot_deg_p90']:.3f}"
-                     f" | {s['trans_pct_median']:.2f} / {s['trans_pct_p90']:.2f} | {s['epipolar_px_median']:.3f} / "
-                     f"{s['epipolar_px_p90']:.3f} |")
+    labels = (("ours", "ccs_kornia RigSolver"), ("opencv", "OpenCV calibrate + stereoCalibrate"))
+    for prefix, title in (("", None), ("common_", "On the pairs neither method failed")):
+        if title:
+            n = sec["summary"]["ours"]["common_pairs"]
+            lines += ["", f"{title} ({n}):", "", "| method | rotation deg | translation % | epipolar px |",
+                      "|---|---|---|---|"]
+        for name, label in labels:
+            s = sec["summary"][name]
+            head = f"| {label} | " + ("" if title else f"{s['pairs']} | {s['failures']} | ")
+            lines.append(head + f"{s[prefix + 'rot_deg_median']:.3f} / {s[prefix + 'rot_deg_p90']:.3f} | "
+                         f"{s[prefix + 'trans_pct_median']:.2f} / {s[prefix + 'trans_pct_p90']:.2f} | "
+                         f"{s[prefix + 'epipolar_px_median']:.3f} / {s[prefix + 'epipolar_px_p90']:.3f} |")
     return lines
