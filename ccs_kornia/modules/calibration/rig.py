@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 from ccs_kornia.modules.calibration.models.factory import camera_model
-from ccs_kornia.modules.calibration.rig_camera import RIG_MODELS, RigCamera, camera_from_params, camera_params
+from ccs_kornia.modules.calibration.rig_camera import RIG_MODELS, RigCamera, camera_from_params
 from ccs_kornia.modules.calibration.rig_diagnostics import (
     RigVerdictThresholds,
     epipolar_sums,
@@ -42,7 +42,7 @@ __all__ = ["RigCamera", "RigResult", "RigSolver", "calibrate_rig"]
 
 @dataclass
 class RigResult:
-    """Calibration of one rig of C cameras over F frames (see the rig contract in ``docs/rig.md``)."""
+    """Calibration of one rig of C cameras over F frames (see ``docs/rig.md``)."""
 
     success: bool
     reason: str  #: "" when success; else one line naming cameras / frames
@@ -378,5 +378,3 @@ def calibrate_rig(
     """Functional form of :class:`RigSolver` (``kwargs`` go to its constructor)."""
     return RigSolver(models, **kwargs)(corners, valid, object_points, image_sizes, initial, fixed, names, weights)
 
-
-_ = camera_params  # re-exported helper of RigCamera (kept importable from here)
