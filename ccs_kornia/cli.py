@@ -185,7 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
                        "folder of board images per camera")
     p.add_argument("cameras", nargs="+", metavar="CAM_DIR",
-                   help="one folder (or glob) of images per camera; views match across cameras by the last number "
+                   help="one folder (or quoted glob) of images per camera; views match across cameras by the last number "
                         "in the file names (left07.jpg with right07.jpg), else by sorted order")
     p.add_argument("--board", required=True, type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6")
     p.add_argument("--square", default=1.0, type=_positive_float,

@@ -36,22 +36,30 @@ class StereoImages:
     T: torch.Tensor
 
 
-def render_stereo(frames: int = 8, seed: int = 3, size1: tuple[int, int] = SIZES[1]) -> StereoImages:
-    """Two cameras, ``frames`` frames of the same board poses (both cameras see every board whole); camera 1's
-    images are ``size1``."""
-    first = make_calibration_set(K0, BOARD, SQUARE, SIZES[0], num_views=3 * frames, seed=seed, supersample=1,
+#: a third camera for three-camera rigs: 3 cm below camera 0, turned 3 degrees about the horizontal axis
+R_THIRD = axis_angle_to_rotation_matrix(torch.tensor([[math.radians(3.0), 0.0, 0.0]]))[0]
+T_THIRD = torch.tensor([0.0, -0.03, 0.0])
+
+
+def render_stereo(frames: int = 8, seed: int = 3, size1: tuple[int, int] = SIZES[1], third: bool = False) -> StereoImages:
+    """Two cameras (three with ``third``: camera 0's matrix and size at ``R_THIRD``, ``T_THIRD``), ``frames`` frames
+    of the same board poses (every camera sees every board whole); camera 1's images are ``size1``."""
+    first = make_calibration_set(K0, BOARD, SQUARE, SIZES[0], num_views=4 * frames, seed=seed, supersample=1,
                                  fill_range=(0.3, 0.5), max_tilt_deg=35.0)
     R0 = axis_angle_to_rotation_matrix(first.rvec.float())
-    R1 = R_REL @ R0
-    t1 = (R_REL @ first.tvec.float()[..., None])[..., 0] + T_REL
-    rvec1 = rotation_matrix_to_axis_angle(R1)
-    images1, corners1 = render_chessboard(K1.expand(len(t1), 3, 3), rvec1, t1, BOARD, SQUARE, size1, supersample=1)
-    w, h = size1
-    inside = ((corners1[..., 0] > 12) & (corners1[..., 0] < w - 13) & (corners1[..., 1] > 12)
-              & (corners1[..., 1] < h - 13)).all(-1)
+    others = [(K1, size1, R_REL, T_REL)] + ([(K0, SIZES[0], R_THIRD, T_THIRD)] if third else [])
+    images, inside = [first.images], torch.ones(len(R0), dtype=torch.bool)
+    for K, size, R, T in others:
+        rvec = rotation_matrix_to_axis_angle(R @ R0)
+        t = (R @ first.tvec.float()[..., None])[..., 0] + T
+        image, corners = render_chessboard(K.expand(len(t), 3, 3), rvec, t, BOARD, SQUARE, size, supersample=1)
+        w, h = size
+        inside &= ((corners[..., 0] > 12) & (corners[..., 0] < w - 13) & (corners[..., 1] > 12)
+                   & (corners[..., 1] < h - 13)).all(-1)
+        images.append(image)
     keep = inside.nonzero().flatten()[:frames]
-    assert keep.numel() == frames, f"only {keep.numel()} frames seen whole by both cameras"
-    return StereoImages([first.images[keep], images1[keep]], R_REL, T_REL)
+    assert keep.numel() == frames, f"only {keep.numel()} frames seen whole by every camera"
+    return StereoImages([im[keep] for im in images], R_REL, T_REL)
 
 
 def write_stereo(stereo: StereoImages, folder: Path, names=("left", "right"), pattern="{name}{k:02d}.png",

@@ -166,6 +166,25 @@ def test_rectify_command(rig_run, capsys):
     assert_one_line_error(code, err, "not a readable JSON file")
 
 
+def test_three_cameras(tmp_path, capsys):
+    from _rig_images import R_THIRD, T_THIRD
+
+    rig = render_stereo(frames=8, seed=4, third=True)
+    dirs = write_stereo(rig, tmp_path, names=("a", "b", "c"), pattern="frame_{k:04d}.png")
+    code, out, err = run(capsys, "calibrate-rig", *dirs, *FAST, "--output", tmp_path / "rig.json", "--kalibr-yaml",
+                         tmp_path / "chain.yaml", "--opencv-yaml", tmp_path / "s.yml")
+    assert code == 0, err
+    assert "hold the pair cam0-cam1" in err
+    data = json.loads((tmp_path / "rig.json").read_text())
+    assert [p["cameras"] for p in data["pairs"]] == [[0, 1], [0, 2], [1, 2]]
+    assert data["pairs"][2]["baseline_std"] is None and data["pairs"][1]["baseline_std"] is not None
+    assert np.allclose(data["extrinsics"][2]["T"], T_THIRD.numpy(), atol=2e-3)
+    assert abs(data["pairs"][1]["rotation_deg"] - math.degrees(float(cv2.Rodrigues(R_THIRD.numpy())[0].ravel()[0]))) < 0.1
+    chain = yaml.safe_load((tmp_path / "chain.yaml").read_text())
+    assert sorted(chain) == ["cam0", "cam1", "cam2"] and "T_cn_cnm1" in chain["cam2"]
+    assert out.count("pair ") == 3
+
+
 # ----------------------------------------------------------------------------------------------
 # bad input: one line, exit status 2, nothing written
 # ----------------------------------------------------------------------------------------------
