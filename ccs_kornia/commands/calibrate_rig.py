@@ -270,8 +270,8 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
                      f"(fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f}; {used} views"
                      f"{', intrinsics fixed' if cam.get('fixed') else ''})")
     for pair in data["pairs"]:
-        std = f" ± {pair['baseline_std']:.5g}" if pair.get("baseline_std") is not None else ""
-        rot = f" ± {pair['rotation_std_deg']:.3f}" if pair.get("rotation_std_deg") is not None else ""
+        std = f" ± {pair['baseline_std']:.2g}" if pair.get("baseline_std") is not None else ""
+        rot = f" ± {pair['rotation_std_deg']:.2g}" if pair.get("rotation_std_deg") is not None else ""
         held = f", held-out {fmt(pair['heldout_epipolar_rms'])} px" if pair.get("heldout_epipolar_rms") is not None \
             else ""
         lines.append(f"pair {pair['names'][0]}-{pair['names'][1]}: baseline {pair['baseline']:.5g}{std} (unit of "
