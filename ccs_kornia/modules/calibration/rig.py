@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from ccs_kornia.modules._threads import small_problem_threads
 from ccs_kornia.modules.calibration.board_symmetry import align_frame_orders, board_symmetries, undo_symmetry
 from ccs_kornia.modules.calibration.models.factory import camera_model
 from ccs_kornia.modules.calibration.rig_camera import RIG_MODELS, RigCamera, camera_from_params
@@ -219,7 +220,7 @@ class RigSolver(nn.Module):
                 raise ValueError(f"{names[c]} is fixed but has no initial camera to keep.")
             if initial[c] is not None and initial[c].model != models[c]:
                 raise ValueError(f"{names[c]}: initial camera model {initial[c].model!r} differs from {models[c]!r}.")
-        with torch.inference_mode():
+        with torch.inference_mode(), small_problem_threads(corners.shape[:-1].numel(), corners.device):
             out = self._solve(corners, valid, object_points, [tuple(map(int, s)) for s in image_sizes], models,
                               initial, fixed, names, weights, batched)
         return out if batched else out[0]
