@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from ccs_kornia.modules._threads import small_problem_threads
+from ccs_kornia.modules.calibration.board_symmetry import align_frame_orders, board_symmetries, undo_symmetry
 from ccs_kornia.modules.calibration.models.factory import camera_model
 from ccs_kornia.modules.calibration.rig_camera import RIG_MODELS, RigCamera, camera_from_params
 from ccs_kornia.modules.calibration.rig_diagnostics import (
@@ -66,6 +68,9 @@ class RigResult:
     reasons: list[str] = field(default_factory=list)  #: what made the verdict less than good
     converged: bool = False  #: the joint LM met its tolerance
     iterations: int = 0  #: joint LM iterations
+    #: (C, F) int64: 0 where a camera's corners were used in the detector's numbering, k > 0 where they were
+    #: renumbered by the board's k-th symmetry (1: the 180-degree turn, i.e. reversed) to agree with the frame
+    corner_order: torch.Tensor | None = None
 
     def pair(self, i: int, j: int) -> StereoPair:
         """Pose of camera ``j`` relative to camera ``i`` (``x_j = R x_i + T``) with ``E`` and ``F``."""
@@ -123,6 +128,10 @@ class RigSolver(nn.Module):
             ``min_heldout_frames`` used frames.
         min_heldout_frames: fewer used frames give NaN held-out figures.
         thresholds: :class:`~ccs_kornia.modules.calibration.rig_diagnostics.RigVerdictThresholds`.
+        symmetric_board: the detector may number a symmetric board's corners in any of its symmetric orders (a
+            180-degree turn; also 90 degrees for square grids), differently per camera and frame: each observation
+            is renumbered to agree with the frame's reference camera
+            (:mod:`~ccs_kornia.modules.calibration.board_symmetry`; ``RigResult.corner_order`` says where).
 
     Shape:
         corners :math:`(C, F, N, 2)` or :math:`(B, C, F, N, 2)` px (NaN where not seen), valid :math:`(C, F, N)` /
@@ -152,6 +161,7 @@ class RigSolver(nn.Module):
         folds: int = 5,
         min_heldout_frames: int = 4,
         thresholds: RigVerdictThresholds | None = None,
+        symmetric_board: bool = True,
     ) -> None:
         super().__init__()
         for m in [models] if isinstance(models, str) else models:
@@ -167,6 +177,7 @@ class RigSolver(nn.Module):
         self.folds = int(folds)
         self.min_heldout_frames = max(int(min_heldout_frames), 2)
         self.thresholds = thresholds or RigVerdictThresholds()
+        self.symmetric_board = bool(symmetric_board)
 
     def forward(
         self,
@@ -209,7 +220,7 @@ class RigSolver(nn.Module):
                 raise ValueError(f"{names[c]} is fixed but has no initial camera to keep.")
             if initial[c] is not None and initial[c].model != models[c]:
                 raise ValueError(f"{names[c]}: initial camera model {initial[c].model!r} differs from {models[c]!r}.")
-        with torch.inference_mode():
+        with torch.inference_mode(), small_problem_threads(corners.shape[:-1].numel(), corners.device):
             out = self._solve(corners, valid, object_points, [tuple(map(int, s)) for s in image_sizes], models,
                               initial, fixed, names, weights, batched)
         return out if batched else out[0]
@@ -220,10 +231,12 @@ class RigSolver(nn.Module):
         corners = corners.to(dtype)
         obj = obj.to(device=device, dtype=dtype)
         valid = valid.to(device).bool() & corners.isfinite().all(-1)
-        base_w = valid.to(dtype) if weights is None else torch.where(valid, weights.to(device, dtype), 0.0)
+        weights = valid.to(dtype) if weights is None else weights.to(device, dtype)
+        syms = board_symmetries(obj) if self.symmetric_board else board_symmetries(obj)[:1]
 
         params, rvec, tvec, ok_pose, ok_cam = initial_rig_cameras(corners, valid, obj, sizes, models, initial,
                                                                    self.min_corners)
+        order = torch.zeros(B, C, F, dtype=torch.long, device=device)
         R0 = torch.eye(3, dtype=dtype, device=device).repeat(B, C, 1, 1)
         T0 = torch.zeros(B, C, 3, dtype=dtype, device=device)
         failed = [""] * B
@@ -235,9 +248,19 @@ class RigSolver(nn.Module):
                              f"intrinsics as initial or add frames")
                 continue
             try:
-                R0[b], T0[b] = rig_extrinsics(rvec[b], tvec[b], ok_pose[b], valid[b], names)
+                R0[b], T0[b] = rig_extrinsics(rvec[b], tvec[b], ok_pose[b], valid[b], names, syms)
             except ValueError as e:
                 raise ValueError(f"rig {b}: {e}" if batched else str(e)) from None
+            order[b] = align_frame_orders(exp_so3(rvec[b]), tvec[b], ok_pose[b], valid[b].sum(-1), R0[b], T0[b], syms)
+        if bool(order.any()):  # renumber the corners of observations numbered by another symmetry of the board
+            corners, valid, weights = corners.clone(), valid.clone(), weights.clone()
+            for k in range(1, len(syms)):
+                m = order == k
+                inv = torch.argsort(syms[k].perm)
+                corners[m], valid[m], weights[m] = corners[m][:, inv], valid[m][:, inv], weights[m][:, inv]
+                r, t = undo_symmetry(exp_so3(rvec[m]), tvec[m], syms[k])
+                rvec[m], tvec[m] = log_so3(r), t
+        base_w = torch.where(valid, weights, 0.0)
         alive = torch.tensor([not f for f in failed], device=device)
         used = ok_pose & alive[:, None, None]
         frame_R, frame_t = _frame_poses(rvec, tvec, used, valid, R0, T0)
@@ -268,8 +291,8 @@ class RigSolver(nn.Module):
             res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
 
         held = self._heldout(fit, res, used, corners, valid, models, B, C, F)
-        return [self._result(b, res, used, corners, valid, models, names, sizes, failed[b], ext, intr, held[b])
-                for b in range(B)]
+        return [self._result(b, res, used, corners, valid, models, names, sizes, failed[b], ext, intr, held[b],
+                             order[b]) for b in range(B)]
 
     def _heldout(self, fit, res, used, corners, valid, models, B, C, F):
         """Per rig (C, C) epipolar RMS on held-out frames: k folds over the used frames, all refitted at once."""
@@ -304,7 +327,7 @@ class RigSolver(nn.Module):
             held.append(h)
         return held
 
-    def _result(self, b, res, used, corners, valid, models, names, sizes, failed, ext, intr, held) -> RigResult:
+    def _result(self, b, res, used, corners, valid, models, names, sizes, failed, ext, intr, held, order) -> RigResult:
         C, F = used.shape[1:]
         dtype = res.R.dtype
         nan = float("nan")
@@ -342,7 +365,7 @@ class RigSolver(nn.Module):
             R=res.R[b].clone(), T=T, board_rvec=rvec, board_tvec=tvec, used=u.clone(), rms_matrix=rms_m,
             camera_rms=cam_rms, rms=total, baseline_std=bstd, rotation_std_deg=rstd, intrinsics_std=istd,
             epipolar_rms=epi, heldout_epipolar_rms=held, verdict=verdict, reasons=reasons,
-            converged=bool(res.converged[b]), iterations=int(res.iterations[b]),
+            converged=bool(res.converged[b]), iterations=int(res.iterations[b]), corner_order=order.clone(),
         )
 
 

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 
 import torch
 
+from ccs_kornia.modules.calibration.board_symmetry import BoardSymmetry, symmetry_candidates, undo_symmetry
 from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.models.factory import camera_model
@@ -164,7 +165,8 @@ def _frames_text(frames: list[int]) -> str:
 
 
 def rig_extrinsics(
-    rvec: torch.Tensor, tvec: torch.Tensor, ok: torch.Tensor, valid: torch.Tensor, names: Sequence[str]
+    rvec: torch.Tensor, tvec: torch.Tensor, ok: torch.Tensor, valid: torch.Tensor, names: Sequence[str],
+    symmetries: Sequence[BoardSymmetry] = (),
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Camera poses relative to camera 0 of one rig from per-camera board poses.
 
@@ -172,6 +174,8 @@ def rig_extrinsics(
         rvec, tvec: :math:`(C, F, 3)` board -> camera poses; ok :math:`(C, F)` where they exist.
         valid: :math:`(C, F, N)` the corners (edge weights: corners seen in shared frames).
         names: camera names (for the error).
+        symmetries: the board's symmetries (:func:`~ccs_kornia.modules.calibration.board_symmetry.board_symmetries`):
+            a camera's frames numbered differently from its tree parent's are turned back before averaging.
 
     Returns:
         ``R`` :math:`(C, 3, 3)`, ``T`` :math:`(C, 3)` with ``x_c = R_c x_0 + T_c``.
@@ -206,7 +210,13 @@ def rig_extrinsics(
     for c in order[1:]:
         p = parent[c]
         m = shared[p, c]
-        Rpc, Tpc = relative_pose(Rb[p, m], tvec[p, m], Rb[c, m], tvec[c, m])
+        Rc, tc = Rb[c, m], tvec[c, m]
+        if len(symmetries) > 1:
+            s = symmetry_candidates(Rb[p, m], tvec[p, m], Rc, tc, list(symmetries))
+            for k in range(1, len(symmetries)):
+                Ru, tu = undo_symmetry(Rc, tc, symmetries[k])
+                Rc, tc = torch.where((s == k)[:, None, None], Ru, Rc), torch.where((s == k)[:, None], tu, tc)
+        Rpc, Tpc = relative_pose(Rb[p, m], tvec[p, m], Rc, tc)
         R[c] = Rpc @ R[p]
         T[c] = Rpc @ T[p] + Tpc
     return R, T

@@ -342,3 +342,49 @@ def test_camera_with_few_frames_is_calibrated_through_the_rig():
     assert res.success, res.reason
     assert int(res.used[1].sum()) == 2
     assert rot_err_deg(res.R[1], s.R[1]) < 1e-5 and float((res.T[1] - s.T[1]).norm()) < 1e-7
+
+
+def _renumber(s, turns, cols, rows):
+    """Corners of each camera x frame numbered as a detector that starts from another corner of a symmetric grid:
+    the grid turned by ``turns[c, f]`` quarter turns (2: reversed order)."""
+    corners, valid = s.corners.clone(), s.valid.clone()
+    for c in range(turns.shape[0]):
+        for f in range(turns.shape[1]):
+            k = int(turns[c, f])
+            grid = s.corners[c, f].reshape(rows, cols, 2)
+            vgrid = s.valid[c, f].reshape(rows, cols)
+            corners[c, f] = torch.rot90(grid, k, (0, 1)).reshape(-1, 2)
+            valid[c, f] = torch.rot90(vgrid, k, (0, 1)).reshape(-1)
+    return corners, valid
+
+
+def test_symmetric_board_numbered_differently_per_camera_and_frame():
+    s = scene(3, frames=12, seed=130, drop=0.1)
+    g = torch.Generator().manual_seed(0)
+    turns = 2 * (torch.rand(3, 12, generator=g) < 0.4).long()  # reversed order in 40 % of the observations
+    turns[1] = 2  # a camera whose detector always starts from the other end
+    corners, valid = _renumber(s, turns, 7, 5)
+    models = [c[0] for c in s.cameras]
+    res = RigSolver(models, folds=0)(corners, valid, s.object_points, s.image_sizes)
+    assert res.success, res.reason
+    for c in range(3):
+        assert rot_err_deg(res.R[c], s.R[c]) < 1e-6 and float((res.T[c] - s.T[c]).norm()) < 1e-8
+    assert res.rms < 1e-6 and bool(res.used.sum() >= s.valid.any(-1).sum() - 2)
+    # after the renumbering every camera of a frame numbers the board alike
+    final = (turns + 2 * res.corner_order) % 4
+    for f in range(12):
+        assert final[res.used[:, f], f].unique().numel() <= 1
+    assert bool(res.corner_order.any())
+    with pytest.raises(AssertionError):  # without the renumbering the rig cannot be fitted
+        off = RigSolver(models, folds=0, symmetric_board=False)(corners, valid, s.object_points, s.image_sizes)
+        assert off.success and off.rms < 1e-3 and rot_err_deg(off.R[1], s.R[1]) < 1e-3
+
+
+def test_square_board_quarter_turns():
+    s = render_rig(CAMERAS[:2], [SIZE] * 2, exp_so3(ROT[:2]), TRANS[:2], num_frames=10, seed=131, board=(5, 5))
+    g = torch.Generator().manual_seed(1)
+    turns = torch.randint(0, 4, (2, 10), generator=g)
+    corners, valid = _renumber(s, turns, 5, 5)
+    res = RigSolver([c[0] for c in s.cameras], folds=0)(corners, valid, s.object_points, s.image_sizes)
+    assert res.success and res.rms < 1e-6
+    assert rot_err_deg(res.R[1], s.R[1]) < 1e-6 and float((res.T[1] - s.T[1]).norm()) < 1e-8
