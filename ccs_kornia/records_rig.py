@@ -129,7 +129,10 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
         "verdict": rig.verdict,
         "verdict_reasons": list(getattr(rig, "reasons", []) or []),
         "fit": {"converged": bool(getattr(rig, "converged", True)), "iterations": int(getattr(rig, "iterations", 0)),
-                "frames_used": [[bool(u) for u in row] for row in rig.used.tolist()]},
+                "frames_used": [[bool(u) for u in row] for row in rig.used.tolist()],
+                # per camera and frame: 0 where the corners kept the detector's numbering, k > 0 where the solver
+                # renumbered a symmetric board by its k-th symmetry (1: turned 180 degrees) to agree with the frame
+                "corner_order": None if getattr(rig, "corner_order", None) is None else rig.corner_order.tolist()},
     }
 
 

@@ -82,6 +82,9 @@ def test_rig_json(rig_run, capsys):
             "heldout_epipolar_rms"} <= set(pair)
     assert abs(pair["rotation_deg"] - ANGLE_DEG) < 0.1 and pair["epipolar_rms"] < 0.5
     assert isinstance(data["verdict"], str) and data["verdict"]
+    order = np.array(data["fit"]["corner_order"])
+    assert order.shape == (2, 8) and set(order.ravel().tolist()) <= {0, 1}
+    assert np.array(data["fit"]["frames_used"]).shape == (2, 8) and data["fit"]["converged"]
 
 
 def test_opencv_stereo_yaml_loads_and_rectifies(rig_run):
