@@ -1,4 +1,4 @@
-"""Command line: ``python -m ccs_kornia detect|calibrate|calibrate-many|undistort|demo|fit|validate|test|predict``.
+"""Command line: ``python -m ccs_kornia detect|calibrate|calibrate-rig|rectify|calibrate-many|undistort|demo|fit|...``.
 
 The contract (arguments and JSON layout) is fixed by ``DESIGN.md`` section 4; benchmarks rely on
 it. Behaviour on bad input:
@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from ccs_kornia.allocator import keep_freed_memory
-from ccs_kornia.commands import calibrate, calibrate_many, demo, detect, undistort
+from ccs_kornia.commands import calibrate, calibrate_many, calibrate_rig, demo, detect, rectify, undistort
 from ccs_kornia.commands._common import PROG, UserError
 
 __all__ = ["main", "run", "build_parser", "UserError", "LIGHTNING_COMMANDS"]
@@ -191,6 +191,55 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip the quality figures (cross-validation of two halves of the views, held-out views, "
                         "projection uncertainty) and the verdict; they cost a few more solves")
     p.set_defaults(func=calibrate.run)
+
+    p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
+                       "folder of board images per camera")
+    p.add_argument("cameras", nargs="+", metavar="CAM_DIR",
+                   help="one folder (or quoted glob) of images per camera; views match across cameras by the last number "
+                        "in the file names (left07.jpg with right07.jpg), else by sorted order")
+    p.add_argument("--board", required=True, type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6")
+    p.add_argument("--square", default=1.0, type=_positive_float,
+                   help="square side in world units: the unit of the baselines (metres for ROS and Kalibr; default 1)")
+    p.add_argument("--output", required=True, metavar="JSON", help="rig calibration file to write (rig.json)")
+    p.add_argument("--model", default="auto", metavar="MODEL[,MODEL...]",
+                   help=f"camera model, one for all cameras or one per camera ({', '.join(MODELS)}; default auto: "
+                        "each camera's model chosen by cross-validation as calibrate does)")
+    p.add_argument("--names", metavar="NAME,NAME...", help="camera names (default cam0,cam1,...; ROS file names)")
+    p.add_argument("--fix-intrinsics", action="append", metavar="CAM_INDEX=JSON",
+                   help="keep camera CAM_INDEX's intrinsics as a calibrate JSON gives them (repeatable)")
+    p.add_argument("--opencv-yaml", metavar="FILE", help="also write the pair 0-1 as an OpenCV FileStorage YAML "
+                   "(K1 D1 K2 D2 R T E F R1 R2 P1 P2 Q)")
+    p.add_argument("--ros-yaml-dir", metavar="DIR", help="also write the pair 0-1 as ROS stereo camera_info files "
+                   "(left.yaml, right.yaml, or the --names)")
+    p.add_argument("--kalibr-yaml", metavar="FILE", help="also write a Kalibr camchain YAML")
+    p.add_argument("--report", metavar="DIR", help="also write figures (error per camera and frame, a rectified "
+                   "pair, the rig from above) to DIR (created)")
+    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
+    p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
+    p.add_argument("--jobs", default="auto", type=_jobs_arg, metavar="N",
+                   help="processes detecting on the CPU (default: auto; 1 = this process only)")
+    p.add_argument("--batch-size", default=8, type=_positive_int, metavar="N", help="images detected at once (default 8)")
+    p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
+                   help="detect larger images on a downscaled copy (default 2048; 0 = off)")
+    p.add_argument("--network-precision", default="float32", choices=("float32", "bfloat16", "auto"),
+                   help="the learned detector's network precision (see calibrate --help)")
+    p.add_argument("--no-ransac", dest="use_ransac", action="store_false", help="keep every detected view")
+    p.add_argument("--seed", default=0, type=int, help="RANSAC seed (default 0)")
+    p.add_argument("--unweighted", dest="weigh_corners", action="store_false",
+                   help="count every corner equally (by default corners are weighted by their measured precision)")
+    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
+                   help="do not run the distortion-correction network")
+    p.set_defaults(func=calibrate_rig.run, model_choices=MODELS)
+
+    p = sub.add_parser("rectify", help="rectify stereo image pairs with a rig calibration")
+    p.add_argument("left", metavar="LEFT_IMAGES", help="folder or glob of the first camera's images")
+    p.add_argument("right", metavar="RIGHT_IMAGES", help="folder or glob of the second camera's images")
+    p.add_argument("--calibration", required=True, metavar="JSON", help="rig.json written by calibrate-rig")
+    p.add_argument("--out-dir", required=True, metavar="DIR", help="where to write the rectified images (created)")
+    p.add_argument("--pair", default="0,1", metavar="I,J", help="the cameras of the pair in rig.json (default 0,1)")
+    p.add_argument("--alpha", default=0.0, type=_unit_float,
+                   help="0: only valid pixels (default), 1: every source pixel kept (as cv2.stereoRectify)")
+    p.set_defaults(func=rectify.run)
 
     p = sub.add_parser("undistort", help="undistort images with a calibration: pinhole views centred on the optical "
                        "axis, framed within the lens's valid field (every model, fisheye included)")

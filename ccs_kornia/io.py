@@ -317,11 +317,13 @@ def json_line(data: Any) -> str:
     return json.dumps(_sanitize(data), default=_json_default, allow_nan=False)
 
 
-def write_json(path: str | os.PathLike, data: Any, indent: int | None = 1) -> None:
+def write_json(path: str | os.PathLike, data: Any, indent: int | None = 1, mode: int | None = None) -> None:
     """Write ``data`` as JSON atomically (temporary file in the same directory, then rename).
 
     Tensors and arrays are converted to lists; NaN and infinities become ``null``. A reader never
     sees a half-written file, and an existing file is only replaced once the new one is complete.
+    ``mode`` (e.g. ``0o644``) sets the file's permissions before the rename (default: the temporary
+    file's, owner only).
 
     Raises:
         FileNotFoundError: the parent directory does not exist (it is not created).
@@ -336,6 +338,8 @@ def write_json(path: str | os.PathLike, data: Any, indent: int | None = 1) -> No
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
             handle.write(text)
             handle.write("\n")
+        if mode is not None:
+            os.chmod(tmp, mode)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

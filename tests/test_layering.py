@@ -204,6 +204,10 @@ ALLOWED: dict[str, set[str]] = {
     "pipeline_solve": {"camera", "modules", "pipeline_result", "sources", "batch_workers"},
     "pipeline": {"camera", "modules", "sources", "batch_workers", "pipeline_result", "pipeline_solve"},
     "records": {"modules", "pipeline_result", "sources"},
+    "rig_frames": set(),
+    "pipeline_rig": {"camera", "modules", "sources", "pipeline", "pipeline_result", "rig_frames"},
+    "records_rig": {"modules", "records"},
+    "report_rig": {"camera", "io", "report_figures", "records_rig"},
     "report": {"camera", "io", "report_figures", "report_quality"},
     "report_figures": {"camera", "modules"},
     "report_quality": {"camera", "report_figures"},
@@ -211,7 +215,8 @@ ALLOWED: dict[str, set[str]] = {
     "predict": {"pipeline", "modules", "io", "records", "sources"},
     # the command line dispatches to everything below it; ``bench`` and ``training.cli`` are entry points it
     # forwards to (neither imports the command line)
-    "commands": {"commands", "pipeline", "modules", "io", "records", "report", "data", "metrics", "predict", "sources"},
+    "commands": {"commands", "pipeline", "modules", "io", "records", "report", "data", "metrics", "predict", "sources",
+                 "pipeline_rig", "records_rig", "report_rig", "rig_frames"},
     "cli": {"allocator", "commands", "io", "training", "bench"},
     "__main__": {"cli"},
     "bench": {"allocator", "camera", "data", "modules", "pipeline", "pipeline_result", "sources", "batch_workers", "io",

@@ -6,7 +6,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 __all__ = ["SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "BenchConfig"]
 
-SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye")
+SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye", "rig")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
 #: conditions of the synthetic calibration section (paper Table I, then realistic optics)
@@ -96,6 +96,7 @@ class BenchConfig:
             method detect its own corners (:mod:`~ccs_kornia.bench.fisheye_rendered`); fisheye_real_sets: its
             real sets.
         wild_real_scales: rescaling factors of the real photos; wild_real_images: images per set (``None``: all).
+        rig_trials, rig_frames: rendered rigs of the ``rig`` section and frames per rig (:mod:`~ccs_kornia.bench.rig`).
     """
 
     sections: tuple[str, ...] = SECTIONS
@@ -150,6 +151,8 @@ class BenchConfig:
     fisheye_fail_px: float = 20.0
     fisheye_rendered: bool = True
     fisheye_real_sets: tuple[str, ...] = FISHEYE_REAL_SETS
+    rig_trials: int = 30
+    rig_frames: int = 20
     preset: str = "full"
     extra: dict = field(default_factory=dict)
 
@@ -168,7 +171,7 @@ class BenchConfig:
             real_sets=("opencv_left", "boofcv_bumblebee2_left"),
             calib_methods=("learned", "opencv_saddle", "opencv_subpix", "opencv_sb"),
             wild_images=2, wild_big_images=1, wild_free_images=21, wild_real_images=1, wild_time_limit=20.0,
-            fisheye_trials=8,
+            fisheye_trials=8, rig_trials=3,
         )
         return replace(base, **overrides)
 
@@ -184,7 +187,7 @@ class BenchConfig:
             real_sets=("boofcv_bumblebee2_left",), calib_methods=("opencv_saddle", "opencv_subpix"),
             wild_methods=None, wild_conditions=("img320", "cut"), wild_images=1, wild_big_images=1, wild_free_images=2,
             wild_real_sets=("boofcv_bumblebee2_left",), wild_real_scales=(0.5,), wild_real_images=1,
-            fisheye_trials=2, fisheye_views=6, fisheye_real_sets=(), preset="tiny",
+            fisheye_trials=2, fisheye_views=6, fisheye_real_sets=(), rig_trials=1, rig_frames=10, preset="tiny",
         )
         return replace(base, **overrides)
 

@@ -87,6 +87,10 @@ def run_bench(
                 from ccs_kornia.bench.fisheye import run_fisheye
 
                 sec = run_fisheye(cfg, log=log)
+            elif name == "rig":
+                from ccs_kornia.bench.rig import run_rig
+
+                sec = run_rig(cfg, log=log)
             else:
                 from ccs_kornia.bench.speed import run_speed
 

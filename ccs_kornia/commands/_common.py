@@ -17,6 +17,9 @@ __all__ = [
     "check_output_file",
     "make_dir",
     "inputs",
+    "make_detector_from",
+    "pipeline_options",
+    "missing_weights",
     "make_pipeline",
     "run_files",
     "not_found_message",
@@ -85,28 +88,44 @@ def inputs(command: str, items: Sequence[str]) -> list[str]:
     return files
 
 
-def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: bool = True, seed: int = 0):
+def make_detector_from(args: argparse.Namespace):
+    """The detector the command's ``--detector`` (and ``--network-precision``) name."""
     from ccs_kornia.modules.detection.factory import make_detector
-    from ccs_kornia.pipeline import CalibrationPipeline
 
     options = {}
     if args.detector == "learned" and getattr(args, "network_precision", None):
         options["precision"] = args.network_precision
     try:
-        detector = make_detector(args.detector, **options)
+        return make_detector(args.detector, **options)
     except ValueError as err:
         raise UserError(str(err)) from None
+
+
+def pipeline_options(args: argparse.Namespace, use_ransac: bool = True, seed: int = 0) -> dict:
+    """The :class:`~ccs_kornia.pipeline.CalibrationPipeline` options the command's arguments set."""
+    return dict(
+        use_ransac=use_ransac, seed=seed, detection_batch_size=args.batch_size,
+        workers=getattr(args, "jobs", 1),
+        max_detection_side=getattr(args, "max_detection_side", 2048) or None,
+        distortion_correction=bool(getattr(args, "distortion_correction", False)),
+        diagnostics=bool(getattr(args, "diagnostics", False)),
+        weigh_corners=bool(getattr(args, "weigh_corners", True)),
+    )
+
+
+def missing_weights(err: FileNotFoundError) -> UserError:
+    """The distortion network's missing weights, as the command line says it."""
+    return UserError(str(err).replace("pass distortion_correction=False", "use --no-distortion-correction"))
+
+
+def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: bool = True, seed: int = 0):
+    from ccs_kornia.pipeline import CalibrationPipeline
+
+    detector = make_detector_from(args)
     try:
-        return CalibrationPipeline(
-            detector, model=model, use_ransac=use_ransac, seed=seed, detection_batch_size=args.batch_size,
-            workers=getattr(args, "jobs", 1),
-            max_detection_side=getattr(args, "max_detection_side", 2048) or None,
-            distortion_correction=bool(getattr(args, "distortion_correction", False)),
-            diagnostics=bool(getattr(args, "diagnostics", False)),
-            weigh_corners=bool(getattr(args, "weigh_corners", True)),
-        )
+        return CalibrationPipeline(detector, model=model, **pipeline_options(args, use_ransac, seed))
     except FileNotFoundError as err:
-        raise UserError(str(err).replace("pass distortion_correction=False", "use --no-distortion-correction")) from None
+        raise missing_weights(err) from None
 
 
 def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int, int], square: float, device,

@@ -19,7 +19,7 @@ from ccs_kornia.commands._common import (
     warn,
 )
 
-__all__ = ["calibrate_files", "ros_camera_info", "run", "verdict_line"]
+__all__ = ["calibrate_files", "failure_message", "ros_camera_info", "run", "verdict_line"]
 
 
 def calibrate_files(
@@ -52,24 +52,29 @@ def calibrate_files(
         warn(command, issue.get("message", str(issue)) + _files_note(issue))
     if not data["success"]:
         readable = int(one.present.sum())
-        if data["num_views"]["found"] == 0:
-            message = not_found_message(board, readable, len(files))
-        elif data["num_views"]["usable"] < 3:
-            message = (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
-                       f"{len(files)} files (board found in {data['num_views']['found']}); at least 3 are needed")
-        elif data.get("errors"):  # the solver's refusals (degeneracy checks) name the problem and the views
-            message = (f"calibration refused on {data['num_views']['usable']} views: "
-                       + "; ".join(i["message"] + _files_note(i) for i in data["errors"]))
-        else:
-            why = data["error"] if data["error"].startswith("calibration failed") else \
-                f"calibration failed on {data['num_views']['usable']} views: {data['error']}"
-            message = (f"{why}; the views may be degenerate (e.g. all fronto-parallel, or copies of one view) or "
-                       "inconsistent: add views with the board tilted in different directions")
-        err = UserError(message)
+        err = UserError(failure_message(data, board, readable))
         if readable:
             err.partial = data
         raise err
     return data, one
+
+
+def failure_message(data: dict[str, Any], board: tuple[int, int], readable: int) -> str:
+    """Why a camera's record (:func:`~ccs_kornia.records.camera_record`, ``success`` false) holds no calibration, in
+    one line: board never found, too few usable views, the solver's refusals with the views they name."""
+    files = data["num_views"]["files"]
+    if data["num_views"]["found"] == 0:
+        return not_found_message(board, readable, files)
+    if data["num_views"]["usable"] < 3:
+        return (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
+                f"{files} files (board found in {data['num_views']['found']}); at least 3 are needed")
+    if data.get("errors"):  # the solver's refusals (degeneracy checks) name the problem and the views
+        return (f"calibration refused on {data['num_views']['usable']} views: "
+                + "; ".join(i["message"] + _files_note(i) for i in data["errors"]))
+    why = data["error"] if data["error"].startswith("calibration failed") else \
+        f"calibration failed on {data['num_views']['usable']} views: {data['error']}"
+    return (f"{why}; the views may be degenerate (e.g. all fronto-parallel, or copies of one view) or "
+            "inconsistent: add views with the board tilted in different directions")
 
 
 def _files_note(issue: dict[str, Any], most: int = 6) -> str:
@@ -115,13 +120,20 @@ def _write_opencv_yaml(path: str, data: dict[str, Any]) -> None:
 ROS_DISTORTION_MODELS = {"fisheye": "equidistant", "rational": "rational_polynomial"}
 
 
-def ros_camera_info(data: dict[str, Any], camera_name: str = "camera") -> str:
-    """The calibration as a ROS ``camera_info`` YAML (``camera_calibration_parsers`` format, monocular:
-    identity rectification, projection ``[K | 0]``)."""
+def ros_camera_info(data: dict[str, Any], camera_name: str = "camera", rectification: Any = None,
+                    projection: Any = None) -> str:
+    """The calibration as a ROS ``camera_info`` YAML (``camera_calibration_parsers`` format). Monocular by default:
+    identity rectification, projection ``[K | 0]``; a stereo camera passes its ``rectification`` (3x3, ``R1``/``R2``
+    of the rectification) and ``projection`` (3x4, ``P1``/``P2``)."""
     K = [float(v) for row in data["K"] for v in row]
     coeffs = [float(c) for c in (data["distortion"]["coeffs"] or [0.0] * 5)]
     model = ROS_DISTORTION_MODELS.get(data["distortion"]["model"], "plumb_bob")
     P = [K[0], K[1], K[2], 0.0, K[3], K[4], K[5], 0.0, K[6], K[7], K[8], 0.0]
+    if projection is not None:
+        P = [float(v) for row in projection for v in row]
+    R = [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0]
+    if rectification is not None:
+        R = [float(v) for row in rectification for v in row]
 
     def matrix(rows: int, cols: int, values: list[float]) -> str:
         return f"  rows: {rows}\n  cols: {cols}\n  data: [{', '.join(f'{v:.9g}' for v in values)}]\n"
@@ -129,7 +141,7 @@ def ros_camera_info(data: dict[str, Any], camera_name: str = "camera") -> str:
     return (f"image_width: {int(data['image_size'][0])}\nimage_height: {int(data['image_size'][1])}\n"
             f"camera_name: {camera_name}\ncamera_matrix:\n{matrix(3, 3, K)}distortion_model: {model}\n"
             f"distortion_coefficients:\n{matrix(1, len(coeffs), coeffs)}"
-            f"rectification_matrix:\n{matrix(3, 3, [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0])}"
+            f"rectification_matrix:\n{matrix(3, 3, R)}"
             f"projection_matrix:\n{matrix(3, 4, P)}")
 
 

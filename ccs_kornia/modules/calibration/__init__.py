@@ -1,5 +1,5 @@
 """Calibration stage: homographies, Zhang, RANSAC, the one Levenberg-Marquardt core and its camera models, the solver
-composing them, fisheye initialisation and calibration.
+composing them, fisheye initialisation and calibration, and the rig solver (stereo and multi-camera rigs).
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 
@@ -63,6 +63,18 @@ _EXPORTS = {
     "verdict": "ccs_kornia.modules.calibration.diagnostics",
     "diagnose": "ccs_kornia.modules.calibration.diagnostics",
     "CalibrationDiagnostics": "ccs_kornia.modules.calibration.diagnostics",
+    "RigCamera": "ccs_kornia.modules.calibration.rig_camera",
+    "RigResult": "ccs_kornia.modules.calibration.rig",
+    "RigSolver": "ccs_kornia.modules.calibration.rig",
+    "calibrate_rig": "ccs_kornia.modules.calibration.rig",
+    "RigVerdictThresholds": "ccs_kornia.modules.calibration.rig_diagnostics",
+    "rig_verdict": "ccs_kornia.modules.calibration.rig_diagnostics",
+    "RigLMResult": "ccs_kornia.modules.calibration.rig_lm",
+    "rig_levenberg_marquardt": "ccs_kornia.modules.calibration.rig_lm",
+    "StereoPair": "ccs_kornia.modules.calibration.stereo",
+    "stereo_pair": "ccs_kornia.modules.calibration.stereo",
+    "stereo_rectify": "ccs_kornia.modules.calibration.stereo",
+    "epipolar_distances": "ccs_kornia.modules.calibration.stereo",
 }
 
 __all__ = sorted(_EXPORTS)

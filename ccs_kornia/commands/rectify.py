@@ -1,0 +1,87 @@
+"""``ccs_kornia rectify``: stereo pairs rectified with a ``rig.json`` (``cv2.stereoRectify`` /
+``cv2.fisheye.stereoRectify`` through :func:`~ccs_kornia.modules.calibration.stereo.stereo_rectify`, then
+``initUndistortRectifyMap`` and ``remap``): the rows of the two images of a pair are the same epipolar lines."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from typing import Any
+
+from ccs_kornia.commands._common import UserError, inputs, make_dir, warn
+
+__all__ = ["read_rig", "run"]
+
+
+def read_rig(path: str) -> dict[str, Any]:
+    """A ``rig.json`` written by ``calibrate-rig`` (one clear error line when it is not one)."""
+    try:
+        with open(path, encoding="utf-8") as handle:
+            data = json.load(handle)
+    except FileNotFoundError:
+        raise UserError(f"--calibration {path}: no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise UserError(f"--calibration {path}: not a readable JSON file ({err})") from None
+    if not isinstance(data, dict) or "extrinsics" not in data or "cameras" not in data:
+        raise UserError(f"--calibration {path}: not a rig calibration written by calibrate-rig (no cameras and "
+                        "extrinsics; a single camera's calibration is undistorted with 'undistort')")
+    return data
+
+
+def _pair(text: str, cameras: int) -> tuple[int, int]:
+    parts = text.split(",")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        raise UserError(f"--pair {text}: expected two camera indices, e.g. 0,1")
+    i, j = int(parts[0]), int(parts[1])
+    if i == j or max(i, j) >= cameras:
+        raise UserError(f"--pair {text}: two different cameras of the {cameras} in the calibration (0..{cameras - 1})")
+    return i, j
+
+
+def run(args: argparse.Namespace) -> int:
+    import cv2
+    import numpy as np
+    from tqdm import tqdm
+
+    from ccs_kornia.commands.rig_exports import rectification
+    from ccs_kornia.io import read_image, write_image
+    from ccs_kornia.records_rig import rectify_maps
+    from ccs_kornia.rig_frames import match_frames
+
+    data = read_rig(args.calibration)
+    i, j = _pair(args.pair, len(data["cameras"]))
+    files = [inputs("rectify", [args.left]), inputs("rectify", [args.right])]
+    frames = match_frames(files)
+    pairs = [(files[0][a], files[1][b]) for a, b in zip(*frames.index) if a is not None and b is not None]
+    if not pairs:
+        raise UserError(f"no image of {args.left} pairs with one of {args.right} (frames match by the last number in "
+                        "the file names, else by sorted order)")
+    make_dir("--out-dir", args.out_dir)
+    rect = rectification(data, i, j, alpha=args.alpha)
+    maps = rectify_maps(data, rect, i, j)
+    sizes = [tuple(int(v) for v in data["cameras"][c]["image_size"]) for c in (i, j)]
+    written = 0
+    for left, right in tqdm(pairs, unit="pair", desc="rectify", file=sys.stderr, disable=None, leave=False):
+        images = [read_image(p, gray=False) for p in (left, right)]
+        bad = [(p, why) for p, (im, why, _) in zip((left, right), images) if im is None]
+        bad += [(p, f"image size {im.shape[1]}x{im.shape[0]} differs from the calibration's {s[0]}x{s[1]}")
+                for p, (im, _, _), s in zip((left, right), images, sizes) if im is not None and
+                (im.shape[1], im.shape[0]) != s]
+        if bad:
+            for p, why in bad:
+                warn("rectify", f"skipped the pair of {p}: {why}")
+            continue
+        for path, (image, _, _), (mx, my) in zip((left, right), images, maps):
+            out = cv2.remap(np.ascontiguousarray(image), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+            stem, ext = os.path.splitext(os.path.basename(path))
+            target = os.path.join(args.out_dir, f"{stem}_rect{ext if ext.lower() in ('.png', '.jpg', '.jpeg') else '.png'}")
+            if not write_image(target, out):
+                raise UserError(f"--out-dir {args.out_dir}: could not write {target}")
+        written += 1
+    if written == 0:
+        raise UserError(f"no pair rectified (all {len(pairs)} pairs were skipped)")
+    print(f"rectified {written} of {len(pairs)} pairs into {args.out_dir} (cameras {i} and {j}; rows of a pair are "
+          "epipolar lines)")
+    return 0
