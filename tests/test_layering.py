@@ -195,6 +195,7 @@ ALLOWED: dict[str, set[str]] = {
     "_lazy": set(),
     "package": set(),
     "io": set(),
+    "calibration_file": {"camera"},
     "allocator": set(),
     "sources": {"io"},
     "batch_workers": {"modules", "sources"},
@@ -212,8 +213,9 @@ ALLOWED: dict[str, set[str]] = {
     "predict": {"pipeline", "modules", "io", "records", "sources"},
     # the command line dispatches to everything below it; ``bench`` and ``training.cli`` are entry points it
     # forwards to (neither imports the command line)
-    "commands": {"commands", "pipeline", "modules", "io", "records", "report", "data", "metrics", "predict", "sources"},
-    "cli": {"allocator", "commands", "io", "training", "bench"},
+    "commands": {"commands", "pipeline", "modules", "io", "records", "report", "data", "metrics", "predict", "sources",
+                 "calibration_file"},
+    "cli": {"allocator", "commands", "io", "training", "bench", "package"},
     "__main__": {"cli"},
     "bench": {"allocator", "camera", "data", "modules", "pipeline", "pipeline_result", "sources", "batch_workers", "io",
               "metrics", "losses"},
