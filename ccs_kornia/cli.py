@@ -97,8 +97,8 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         unknown = self._unknown_options() if message.startswith("the following arguments are required") else []
         if unknown:
-            close = difflib.get_close_matches(unknown[0], [o for o in self._option_string_actions if o.startswith("--")],
-                                              n=1)
+            long_options = [o for o in self._option_string_actions if o.startswith("--")]
+            close = difflib.get_close_matches(unknown[0], long_options, n=1)
             hint = f" (did you mean {close[0]}?)" if close else ""
             message = f"unrecognized option{'s' if len(unknown) > 1 else ''} {' '.join(unknown)}{hint}"
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see --help)\n")

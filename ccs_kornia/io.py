@@ -78,9 +78,9 @@ def natural_key(path: str) -> list[Any]:
 def expand_inputs(items: Iterable[str]) -> tuple[list[str], list[tuple[str, str]]]:
     """Expand command-line inputs (files, directories, globs) into a list of image files.
 
-    Directories contribute their image files (by extension, in natural order (:func:`natural_key`), not
-    recursive); globs are expanded (``**`` allowed) and put in natural order; plain files are kept as given, whatever their extension,
-    so that the loader can say why a non-image is skipped. Duplicates are removed, first occurrence
+    Directories contribute their image files (by extension, not recursive) and globs their matches (``**``
+    allowed), in natural order (:func:`natural_key`: ``c2`` before ``c10``); plain files are kept as given, whatever
+    their extension, so that the loader can say why a non-image is skipped. Duplicates are removed, first occurrence
     kept.
 
     Args:
