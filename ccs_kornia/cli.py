@@ -3,45 +3,105 @@
 The contract (arguments and JSON layout) is fixed by ``DESIGN.md`` section 4; benchmarks rely on
 it. Behaviour on bad input:
 
-* a user mistake that stops the whole job (no images, board never found, malformed ``--board``,
-  fewer than 3 usable views, missing output directory, ``--device cuda`` without CUDA, ...) prints
-  one line ``ccs_kornia <command>: error: ...`` on stderr and exits with status 2;
+* a user mistake that stops the whole job before any result (unknown option, malformed ``--board``, no
+  images, none readable, output that cannot be written, ``--device cuda`` without CUDA, a calibration file
+  that is not one, ...) prints one line ``ccs_kornia <command>: error: ...`` on stderr and exits with
+  status 2 (:data:`EXIT_USAGE`);
+* images that were read but gave no result (board found in no image, fewer than 3 usable views, views
+  too degenerate to calibrate) print one such line and exit with status 3 (:data:`EXIT_NO_RESULT`);
 * a problem with some inputs only (unreadable file, board not found in one image, image of another
   size) prints one ``warning`` line per input, is recorded in the JSON with its reason, and the job
   goes on (status 0);
 * an unexpected internal error prints one line and exits with status 1 (``CCS_DEBUG=1`` re-raises
-  it with the traceback).
+  it with the traceback); Ctrl-C exits with status 130.
 
-Output files (``--output``, ``--opencv-yaml``) must go to an existing directory: the parent is not
-created, so a mistyped path fails at once (before any work) instead of scattering results.
-Output *directories* (``--out-dir``, ``--report``) are created when missing. ``calibrate`` writes
-its JSON only when a calibration was computed, so a stale or partial file is never mistaken for one.
+Output files (``--output``, ``--opencv-yaml``, ``--ros-yaml``) must go to an existing directory where
+files can be written, checked before any work: the parent is not created, so a mistyped path fails at
+once instead of scattering results. Output *directories* (``--out-dir``, ``--report``) are created when
+missing (``--report`` only once the calibration succeeded). ``calibrate`` writes its JSON only when a
+calibration was computed, so a stale or partial file is never mistaken for one; a failed run says so
+when it leaves an earlier file at ``--output``. ``docs/command_line.md`` describes all of this.
 """
 
 from __future__ import annotations
 
 import argparse
+import difflib
 import os
+import re
 import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
 from ccs_kornia.allocator import keep_freed_memory
 from ccs_kornia.commands import calibrate, calibrate_many, calibrate_rig, demo, detect, rectify, undistort
-from ccs_kornia.commands._common import PROG, UserError
+from ccs_kornia import __version__
+from ccs_kornia.commands._common import (
+    EXIT_INTERNAL,
+    EXIT_INTERRUPTED,
+    EXIT_NO_RESULT,
+    EXIT_OK,
+    EXIT_USAGE,
+    PROG,
+    UserError,
+)
 
-__all__ = ["main", "run", "build_parser", "UserError", "LIGHTNING_COMMANDS"]
+__all__ = ["main", "run", "build_parser", "UserError", "LIGHTNING_COMMANDS", "EXIT_CODES"]
 
 LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
 MODELS = ("auto", "opencv5", "rational", "k1k2", "none", "fisheye")
 DEFAULT_DETECTOR = "learned"
 
 
+#: the exit statuses, as ``--help`` lists them
+EXIT_CODES = (
+    (EXIT_OK, "success"),
+    (EXIT_INTERNAL, "internal error (CCS_DEBUG=1 shows the traceback)"),
+    (EXIT_USAGE, "usage or input error: bad option, no readable images, output not writable, bad calibration file"),
+    (EXIT_NO_RESULT, "no result: the board was found in no image, or too few usable views to calibrate"),
+    (EXIT_INTERRUPTED, "interrupted (Ctrl-C)"),
+)
+
+_EXIT_HELP = "exit status:\n" + "\n".join(f"  {code:<4} {meaning}" for code, meaning in EXIT_CODES)
+
+_NUMBER = re.compile(r"^-\d+$|^-\d*\.\d+$")
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (no usage dump) and exit status 2."""
+    """argparse with one-line errors (no usage dump) and exit status 2; an unknown option is named first.
+
+    argparse checks the required options before it reports unknown ones, so ``--bord 9x6`` read as
+    "--board is required"; the arguments seen are kept to name the unknown option instead.
+    """
+
+    _seen: list[str] = []
+
+    def parse_known_args(self, args=None, namespace=None):  # type: ignore[override]
+        self._seen = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
+
+    def _unknown_options(self) -> list[str]:
+        known = self._option_string_actions
+        out = []
+        for token in self._seen:
+            if token == "--":
+                break
+            name = token.split("=", 1)[0]
+            if not name.startswith("-") or name == "-" or _NUMBER.match(name) or name in known:
+                continue
+            if name.startswith("--") and any(o.startswith(name) for o in known if o.startswith("--")):
+                continue  # an abbreviation argparse accepts (or reports as ambiguous itself)
+            out.append(name)
+        return out
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+        unknown = self._unknown_options() if message.startswith("the following arguments are required") else []
+        if unknown:
+            long_options = [o for o in self._option_string_actions if o.startswith("--")]
+            close = difflib.get_close_matches(unknown[0], long_options, n=1)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            message = f"unrecognized option{'s' if len(unknown) > 1 else ''} {' '.join(unknown)}{hint}"
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see --help)\n")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -129,8 +189,10 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Camera calibration from chessboard images (batched PyTorch/Kornia).",
         epilog="Training: python -m ccs_kornia fit|validate|test|predict --config lightning_configs/<x>.yaml "
-        "(LightningCLI; see its --help).",
+        "(LightningCLI; see its --help).\n\n" + _EXIT_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
@@ -157,7 +219,8 @@ def build_parser() -> argparse.ArgumentParser:
                                 "machine), bfloat16 (about 1.7x faster on CPUs with native bfloat16, AVX512-BF16 or "
                                 "AMX, slower elsewhere; can find other boards), auto (bfloat16 where native)")
 
-    p = sub.add_parser("detect", help="detect chessboard corners, write them as JSON")
+    p = sub.add_parser("detect", help="detect chessboard corners, write them as JSON", epilog=_EXIT_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     common(p)
     p.add_argument("--output", required=True, metavar="JSON", help="corners file to write")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
@@ -165,11 +228,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "corrected for detection; corners are always given in the original images)")
     p.set_defaults(func=detect.run)
 
-    p = sub.add_parser("calibrate", help="calibrate a camera from chessboard images")
+    p = sub.add_parser("calibrate", help="calibrate a camera from chessboard images", epilog=_EXIT_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     common(p)
     p.add_argument("--square", default=1.0, type=_positive_float,
                    help="square side in world units (scales the poses only; default 1)")
-    p.add_argument("--output", required=True, metavar="JSON", help="calibration file to write")
+    p.add_argument("--output", required=True, metavar="JSON",
+                   help="calibration file to write, only when a calibration was computed: a failed run leaves an "
+                        "earlier file there as it was (and says so) and writes its per-image results to "
+                        "JSON.failed.json, which a later successful run removes")
     p.add_argument("--model", default="auto", choices=MODELS,
                    help="camera model: auto (default: k1k2, opencv5, rational or fisheye, chosen by cross-validation "
                         "on held-out views; the JSON says which and why), opencv5 (k1,k2,p1,p2,k3), rational (k1..k6), "
@@ -180,7 +247,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="count every corner equally (the plain least-squares fit, as cv2.calibrateCamera: the lowest "
                         "RMS; by default corners are weighted by the precision measured on their image, which gives "
                         "more accurate cameras and a slightly higher RMS)")
-    p.add_argument("--report", metavar="DIR", help="also write overlays and a summary to DIR (created)")
+    p.add_argument("--report", metavar="DIR",
+                   help="also write overlays and a summary to DIR (created once the calibration succeeded; the files "
+                        "of an earlier report there are replaced, other files are left alone)")
     p.add_argument("--opencv-yaml", metavar="FILE", help="also write an OpenCV FileStorage YAML (camera_matrix, ...)")
     p.add_argument("--ros-yaml", metavar="FILE", help="also write a ROS camera_info YAML (distortion_model plumb_bob, "
                    "rational_polynomial or equidistant for fisheye)")
@@ -193,7 +262,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=calibrate.run)
 
     p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
-                       "folder of board images per camera")
+                       "folder of board images per camera", epilog=_EXIT_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("cameras", nargs="+", metavar="CAM_DIR",
                    help="one folder (or quoted glob) of images per camera; views match across cameras by the last number "
                         "in the file names (left07.jpg with right07.jpg), else by sorted order")
@@ -242,7 +312,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=rectify.run)
 
     p = sub.add_parser("undistort", help="undistort images with a calibration: pinhole views centred on the optical "
-                       "axis, framed within the lens's valid field (every model, fisheye included)")
+                       "axis, framed within the lens's valid field (every model, fisheye included)",
+                       epilog=_EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     common(p, board=False)
     p.add_argument("--calibration", required=True, metavar="JSON", help="calib.json written by calibrate")
     p.add_argument("--out-dir", required=True, metavar="DIR", help="where to write the images (created)")
@@ -318,13 +389,14 @@ def _run_lightning(argv: list[str]) -> int:
             f"(ccs_kornia.training.cli: {type(err).__name__}: {err})",
             file=sys.stderr,
         )
-        return 2
+        return EXIT_USAGE
     result = lightning_main(argv)
     return int(result or 0)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit status (0 ok, 2 user error, 1 internal error).
+    """Run the command line; returns the exit status (:data:`EXIT_CODES`: 0 ok, 1 internal error, 2 usage or input
+    error, 3 no result, 130 interrupted).
 
     Args:
         argv: arguments without the program name (default ``sys.argv[1:]``).
@@ -341,16 +413,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = parser.parse_args(argv)
     except SystemExit as exit_:
-        return int(exit_.code or 0) if not isinstance(exit_.code, str) else 2
+        return int(exit_.code or 0) if not isinstance(exit_.code, str) else EXIT_USAGE
     command = args.command
     try:
         return int(args.func(args) or 0)
     except UserError as err:
         print(f"{PROG} {command}: error: {err}", file=sys.stderr)
-        return 2
+        return err.exit_code
     except KeyboardInterrupt:
         print(f"{PROG} {command}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except Exception as err:
         if os.environ.get("CCS_DEBUG", "") not in ("", "0"):
             raise
@@ -360,7 +432,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "(run with CCS_DEBUG=1 for the traceback)",
             file=sys.stderr,
         )
-        return 1
+        return EXIT_INTERNAL
 
 
 def run() -> NoReturn:

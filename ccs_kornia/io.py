@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import glob
 import json
+import math
 import os
+import re
 import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -31,6 +33,7 @@ import torch
 
 __all__ = [
     "IMAGE_EXTENSIONS",
+    "natural_key",
     "expand_inputs",
     "read_image",
     "image_pixels",
@@ -38,6 +41,7 @@ __all__ = [
     "load_image_gray",
     "parse_board",
     "write_json",
+    "json_text",
     "json_line",
     "write_image",
     "ImageBatch",
@@ -60,12 +64,23 @@ def _is_image_name(path: str) -> bool:
     return path.lower().endswith(IMAGE_EXTENSIONS)
 
 
+def natural_key(path: str) -> list[Any]:
+    """Sort key ordering the numbers inside names by value: ``calibration2`` before ``calibration10``.
+
+    Example:
+        >>> sorted(["c10.jpg", "c2.jpg", "c1.jpg"], key=natural_key)
+        ['c1.jpg', 'c2.jpg', 'c10.jpg']
+    """
+    parts = re.split(r"(\d+)", path)  # text at the even places, digits at the odd ones: like compares with like
+    return [int(t) if i % 2 else t for i, t in enumerate(parts)] + [path]
+
+
 def expand_inputs(items: Iterable[str]) -> tuple[list[str], list[tuple[str, str]]]:
     """Expand command-line inputs (files, directories, globs) into a list of image files.
 
-    Directories contribute their image files (by extension, sorted, not recursive); globs are
-    expanded (``**`` allowed) and sorted; plain files are kept as given, whatever their extension,
-    so that the loader can say why a non-image is skipped. Duplicates are removed, first occurrence
+    Directories contribute their image files (by extension, not recursive) and globs their matches (``**``
+    allowed), in natural order (:func:`natural_key`: ``c2`` before ``c10``); plain files are kept as given, whatever
+    their extension, so that the loader can say why a non-image is skipped. Duplicates are removed, first occurrence
     kept.
 
     Args:
@@ -93,9 +108,9 @@ def expand_inputs(items: Iterable[str]) -> tuple[list[str], list[tuple[str, str]
     for item in items:
         if os.path.isdir(item):
             found = sorted(
-                os.path.join(item, name)
-                for name in os.listdir(item)
-                if _is_image_name(name) and os.path.isfile(os.path.join(item, name))
+                (os.path.join(item, name) for name in os.listdir(item)
+                 if _is_image_name(name) and os.path.isfile(os.path.join(item, name))),
+                key=natural_key,
             )
             if not found:
                 problems.append((item, f"directory contains no image files ({', '.join(IMAGE_EXTENSIONS[:4])}, ...)"))
@@ -104,7 +119,7 @@ def expand_inputs(items: Iterable[str]) -> tuple[list[str], list[tuple[str, str]
         elif os.path.isfile(item):
             add(item)
         elif _GLOB_CHARS & set(item):
-            found = sorted(p for p in glob.glob(item, recursive=True) if os.path.isfile(p))
+            found = sorted((p for p in glob.glob(item, recursive=True) if os.path.isfile(p)), key=natural_key)
             if not found:
                 problems.append((item, "glob matched no file"))
             for path in found:
@@ -317,13 +332,55 @@ def json_line(data: Any) -> str:
     return json.dumps(_sanitize(data), default=_json_default, allow_nan=False)
 
 
+def _is_flat(value: list) -> bool:
+    """A list written on one line: scalars (``[fx, 0, cx]``) or lists of scalars (a point list ``[[x, y], ...]``)."""
+    return all(not isinstance(v, (dict, list)) or (isinstance(v, list) and not any(isinstance(w, (dict, list))
+                                                                                   for w in v)) for v in value)
+
+
+def json_text(data: Any, indent: int = 1) -> str:
+    """``data`` as strict JSON that people can read: objects one key a line, lists of numbers and point lists on one
+    line (a view's corners ``[[x, y], ...]``), tensors and arrays as lists, NaN and infinities as ``null``.
+
+    Example:
+        >>> print(json_text({"K": torch.eye(2), "rms": float("nan")}))
+        {
+         "K": [[1.0, 0.0], [0.0, 1.0]],
+         "rms": null
+        }
+    """
+    def dump(value: Any, depth: int) -> str:
+        pad, inner = " " * (indent * depth), " " * (indent * (depth + 1))
+        if isinstance(value, dict) and value:
+            items = [f"{inner}{json.dumps(str(k))}: {dump(v, depth + 1)}" for k, v in value.items()]
+            return "{\n" + ",\n".join(items) + f"\n{pad}}}"
+        if isinstance(value, list) and value and not _is_flat(value):
+            return "[\n" + ",\n".join(inner + dump(v, depth + 1) for v in value) + f"\n{pad}]"
+        return json.dumps(value, default=_json_default, allow_nan=False)
+
+    return dump(_sanitize(data), 0)
+
+
+def _file_mode() -> int:
+    """The mode a new file gets under this process's umask (``0o666 & ~umask``; Linux 4.7+ reports the umask without
+    it being set, elsewhere it is set and put back)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as handle:
+            umask = next(int(line.split()[1], 8) for line in handle if line.startswith("Umask:"))
+    except (OSError, ValueError, StopIteration):
+        umask = os.umask(0o022)
+        os.umask(umask)
+    return 0o666 & ~umask
+
+
 def write_json(path: str | os.PathLike, data: Any, indent: int | None = 1, mode: int | None = None) -> None:
     """Write ``data`` as JSON atomically (temporary file in the same directory, then rename).
 
-    Tensors and arrays are converted to lists; NaN and infinities become ``null``. A reader never
-    sees a half-written file, and an existing file is only replaced once the new one is complete.
-    ``mode`` (e.g. ``0o644``) sets the file's permissions before the rename (default: the temporary
-    file's, owner only).
+    Tensors and arrays are converted to lists; NaN and infinities become ``null``; the layout is
+    :func:`json_text`'s (``indent=None``: one line). A reader never sees a half-written file, and an existing file is
+    only replaced once the new one is complete. The file gets the mode an ordinary write would give it: an existing
+    file's own, else the one the umask implies (not the temporary file's private 600); ``mode`` (e.g. ``0o644``)
+    sets it explicitly.
 
     Raises:
         FileNotFoundError: the parent directory does not exist (it is not created).
@@ -332,14 +389,15 @@ def write_json(path: str | os.PathLike, data: Any, indent: int | None = 1, mode:
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
         raise FileNotFoundError(f"output directory does not exist: {directory}")
-    text = json.dumps(_sanitize(data), indent=indent, default=_json_default, allow_nan=False)
+    text = json_line(data) if indent is None else json_text(data, indent)
+    if mode is None:
+        mode = os.stat(path).st_mode & 0o7777 if os.path.isfile(path) else _file_mode()
     fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=".json", dir=directory)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
             handle.write(text)
             handle.write("\n")
-        if mode is not None:
-            os.chmod(tmp, mode)
+        os.chmod(tmp, mode)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

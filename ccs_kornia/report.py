@@ -15,7 +15,10 @@ Writes into ``DIR``:
   every used board (a calibration is well constrained only where corners were seen);
 * ``undistorted.png``: one used view next to its undistorted version (the view ``undistort --balance 0``
   writes);
-* ``summary.md``: the parameter and view tables as Markdown.
+* ``summary.md``: the parameter and view tables as Markdown;
+* ``.ccs_report_files``: the list of the files above, so that a report written again into ``DIR`` first removes
+  what the previous one wrote (overlays of views no longer in the set included) and nothing else: the user's own
+  files there are never touched.
 
 Only what ``calibrate`` writes into its JSON is used, plus the images themselves. Large images are
 drawn at most :data:`DISPLAY_MAX_SIDE` pixels wide/high so the report stays small and quick.
@@ -50,7 +53,10 @@ from ccs_kornia.report_quality import (
     uncertainty_plot,
 )
 
-__all__ = ["write_report", "DISPLAY_MAX_SIDE"]
+__all__ = ["write_report", "DISPLAY_MAX_SIDE", "MANIFEST"]
+
+#: the file, in a report's directory, listing what the report wrote there (paths relative to it, one JSON list)
+MANIFEST = ".ccs_report_files"
 
 _DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
 
@@ -72,6 +78,35 @@ def _write_png(path: str, image: np.ndarray, written: list[str]) -> bool:
     return bool(ok)
 
 
+def _remove_previous(directory: str) -> None:
+    """Remove the files an earlier report listed in its :data:`MANIFEST` (only those, only inside ``directory``), and
+    its ``views`` folder once empty."""
+    import json
+
+    try:
+        with open(os.path.join(directory, MANIFEST), encoding="utf-8") as handle:
+            listed = json.load(handle)
+    except (OSError, ValueError):
+        return
+    root = os.path.realpath(directory)
+    for name in listed if isinstance(listed, list) else []:
+        path = os.path.realpath(os.path.join(root, str(name)))
+        if os.path.commonpath([root, path]) == root and os.path.isfile(path):
+            os.unlink(path)
+    views = os.path.join(directory, "views")
+    if os.path.isdir(views) and not os.listdir(views):
+        os.rmdir(views)
+
+
+def _write_manifest(directory: str, written: list[str]) -> None:
+    import json
+
+    names = sorted(os.path.relpath(path, directory) for path in written)
+    with open(os.path.join(directory, MANIFEST), "w", encoding="utf-8") as handle:
+        json.dump(names, handle, indent=0)
+        handle.write("\n")
+
+
 def _parameter_rows(data: dict[str, Any]) -> list[tuple[str, float, float | None]]:
     K = data["K"]
     std = data.get("std") or {}
@@ -85,6 +120,9 @@ def _parameter_rows(data: dict[str, Any]) -> list[tuple[str, float, float | None
 
 def write_report(directory: str, data: dict[str, Any], progress: bool | None = None) -> list[str]:
     """Write the report of a calibration (the dict ``calibrate`` writes as JSON) into ``directory``.
+
+    What an earlier report wrote into ``directory`` (listed in its :data:`MANIFEST`) is removed first; other files
+    there are left alone.
 
     Args:
         directory: existing output directory.
@@ -109,6 +147,7 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     size = (int(data["image_size"][0]), int(data["image_size"][1]))
     obj = board_object_points(cols, rows, float(data["square"]), dtype=torch.float64)
     views = data["views"]
+    _remove_previous(directory)
     views_dir = os.path.join(directory, "views")
     os.makedirs(views_dir, exist_ok=True)
 
@@ -203,6 +242,7 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
                             "seen: add views with the board there."))
     written.append(_write_html(os.path.join(directory, "index.html"), data, figures, overlay_names, gain, coverage))
     written.append(_write_markdown(os.path.join(directory, "summary.md"), data, gain))
+    _write_manifest(directory, written)
     return written
 
 

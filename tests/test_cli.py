@@ -81,8 +81,10 @@ def test_detect_json(rendered, tmp_path, capsys):
         err = (est - gt).norm(dim=-1).mean()  # the canonical order, exactly (no 180-degree flip)
         assert float(err) < 0.1
     rec = data["distortion_correction"]
-    assert rec["enabled"] is True and isinstance(rec["applied"], bool) and isinstance(rec["tried"], bool)
-    assert rec["views_detected_on_corrected_images"] >= 0 and rec["decision"]
+    # detect calibrates nothing: no view is used, none has an RMS, no corrected-frame calibration is tried
+    assert rec["enabled"] is True and rec["views_detected_on_corrected_images"] >= 0
+    assert not {"tried", "applied", "decision"} & set(rec)
+    assert not any({"used", "rms"} & set(im) for im in data["images"])
     code, _, _ = run(capsys, "detect", str(folder), "--board", "9x6", "--output", str(out), "--no-distortion-correction")
     assert code == 0 and json.loads(out.read_text())["distortion_correction"] == {"enabled": False}
 
@@ -136,7 +138,7 @@ def test_copies_of_one_photo_are_refused_with_their_file_names(rendered, tmp_pat
         copies.append(str(target))
     out = tmp_path / "c.json"
     code, _, err = run(capsys, "calibrate", *copies, "--board", "9x6", "--output", str(out), "--detector", "opencv")
-    assert code == 2 and not out.exists()
+    assert code == _common.EXIT_NO_RESULT and not out.exists()
     assert_one_line_error(err, "copies of earlier views")
     assert "(files: copy1.png, copy2.png, copy3.png)" in err
 
@@ -277,12 +279,12 @@ def test_board_never_found(tmp_path, capsys):
     for k in range(3):
         cv2.imwrite(str(tmp_path / f"blank{k}.png"), np.full((120, 160), 128, np.uint8))
     code, _, err = run(capsys, "calibrate", str(tmp_path), "--board", "9x6", "--output", str(tmp_path / "c.json"))
-    assert code == 2
+    assert code == _common.EXIT_NO_RESULT
     assert_one_line_error(err, "board 9x6 not found in any of 3 images")
     assert not (tmp_path / "c.json").exists()
     # detect still writes what it found (nothing) and says so
     code, _, err = run(capsys, "detect", str(tmp_path), "--board", "9x6", "--output", str(tmp_path / "d.json"))
-    assert code == 2
+    assert code == _common.EXIT_NO_RESULT
     assert_one_line_error(err, "not found in any")
     assert [im["found"] for im in json.loads((tmp_path / "d.json").read_text())["images"]] == [False] * 3
 
@@ -291,14 +293,14 @@ def test_wrong_board_size_finds_nothing(rendered, tmp_path, capsys):
     # 8x6 on a 9x6 board: sub-boards are rejected, so the user learns the board size is wrong
     _, files, _ = rendered
     code, _, err = run(capsys, "calibrate", *files[:3], "--board", "8x6", "--output", str(tmp_path / "c.json"))
-    assert code == 2
+    assert code == _common.EXIT_NO_RESULT
     assert_one_line_error(err, "check --board")
 
 
 def test_fewer_than_three_views(rendered, tmp_path, capsys):
     _, files, _ = rendered
     code, _, err = run(capsys, "calibrate", *files[:2], "--board", "9x6", "--output", str(tmp_path / "c.json"))
-    assert code == 2
+    assert code == _common.EXIT_NO_RESULT
     assert_one_line_error(err, "at least 3 are needed")
     assert not (tmp_path / "c.json").exists()
 
@@ -555,7 +557,7 @@ def test_failures_keep_per_image_results(tmp_path, capsys):
         cv2.imwrite(str(tmp_path / f"blank{k}.png"), np.full((120, 160), 128, np.uint8))
     (tmp_path / "junk.png").write_bytes(b"junk")
     code, _, err = run(capsys, "calibrate", str(tmp_path), "--board", "9x6", "--output", str(tmp_path / "c.json"))
-    assert code == 2
+    assert code == _common.EXIT_NO_RESULT
     assert_one_line_error(err, "per-image results written to")
     assert not (tmp_path / "c.json").exists()
     failed = json.loads((tmp_path / "c.failed.json").read_text())
@@ -584,7 +586,7 @@ def test_every_view_rejected_by_ransac(rendered, tmp_path, capsys, monkeypatch):
     # (the solver stage forced here is the usual one: the corrected one is switched off)
     code, _, err = run(capsys, "calibrate", *files[:4], "--board", "9x6", "--output", str(out),
                        "--no-distortion-correction", "--model", "opencv5")
-    assert code == 2
+    assert code == _common.EXIT_NO_RESULT
     assert_one_line_error(err, "4 rejected by image RANSAC")
     assert not out.exists()
     failed = json.loads((tmp_path / "c.failed.json").read_text())

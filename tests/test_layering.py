@@ -194,6 +194,7 @@ ALLOWED: dict[str, set[str]] = {
     "_lazy": set(),
     "package": set(),
     "io": set(),
+    "calibration_file": {"camera"},
     "allocator": set(),
     "sources": {"io"},
     "batch_workers": {"modules", "sources"},
@@ -216,8 +217,8 @@ ALLOWED: dict[str, set[str]] = {
     # the command line dispatches to everything below it; ``bench`` and ``training.cli`` are entry points it
     # forwards to (neither imports the command line)
     "commands": {"commands", "pipeline", "modules", "io", "records", "report", "data", "metrics", "predict", "sources",
-                 "pipeline_rig", "records_rig", "report_rig", "rig_frames"},
-    "cli": {"allocator", "commands", "io", "training", "bench"},
+                 "pipeline_rig", "records_rig", "report_rig", "rig_frames", "calibration_file"},
+    "cli": {"allocator", "commands", "io", "training", "bench", "package"},
     "__main__": {"cli"},
     "bench": {"allocator", "camera", "data", "modules", "pipeline", "pipeline_result", "sources", "batch_workers", "io",
               "metrics", "losses"},

@@ -81,12 +81,10 @@ def load_reference(path: Path, section: str | None = None) -> dict | None:
 def load_real_set(folder: Path, max_images: int | None = None) -> tuple[torch.Tensor, list[str], tuple[int, int]]:
     """Grey images ``(B, 1, H, W)`` of one set, cropped to the most common size (two Udacity images are one
     pixel larger; cropping the last row/column keeps every pixel coordinate)."""
-    from ccs_kornia.io import load_image_gray
+    from ccs_kornia.io import load_image_gray, natural_key
 
-    def natural(p: Path):  # calibration2 before calibration10
-        return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name)]
-
-    files = sorted((p for p in folder.iterdir() if p.suffix.lower() in _IMAGE_EXT), key=natural)
+    # calibration2 before calibration10
+    files = sorted((p for p in folder.iterdir() if p.suffix.lower() in _IMAGE_EXT), key=lambda p: natural_key(p.name))
     if max_images is not None:
         files = files[:max_images]
     arrays, names = [], []

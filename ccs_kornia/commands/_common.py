@@ -11,10 +11,17 @@ from typing import Any
 __all__ = [
     "PROG",
     "UserError",
+    "NoResult",
+    "EXIT_OK",
+    "EXIT_INTERNAL",
+    "EXIT_USAGE",
+    "EXIT_NO_RESULT",
+    "EXIT_INTERRUPTED",
     "warn",
     "info",
     "resolve_device",
     "check_output_file",
+    "check_output_dir",
     "make_dir",
     "inputs",
     "make_detector_from",
@@ -22,19 +29,36 @@ __all__ = [
     "missing_weights",
     "make_pipeline",
     "run_files",
+    "board_size_hint",
     "not_found_message",
 ]
 
 PROG = "ccs_kornia"
 
 
+#: exit statuses of the command line (``--help`` lists them, ``docs/command_line.md`` explains them)
+EXIT_OK = 0
+EXIT_INTERNAL = 1
+EXIT_USAGE = 2
+EXIT_NO_RESULT = 3
+EXIT_INTERRUPTED = 130
+
+
 class UserError(Exception):
-    """A mistake in the user's input that stops the command (exit status 2).
+    """A mistake in the user's input that stops the command (exit status :data:`EXIT_USAGE`).
 
     ``partial`` may hold what was computed before the job had to stop (written by the command).
     """
 
     partial: dict[str, Any] | None = None
+    exit_code: int = EXIT_USAGE
+
+
+class NoResult(UserError):
+    """The inputs were read but gave no result: the board was found in no image, or no calibration could be computed
+    from the views (exit status :data:`EXIT_NO_RESULT`)."""
+
+    exit_code = EXIT_NO_RESULT
 
 
 def warn(command: str, message: str) -> None:
@@ -57,7 +81,23 @@ def resolve_device(text: str):
     return torch.device(text)
 
 
+def _try_write_in(option: str, path: str, directory: str) -> None:
+    """Create and remove a temporary file in ``directory``: the only sure test that files can be written there
+    (``os.access`` says yes for root in ``/proc`` or on a read-only mount)."""
+    import tempfile
+
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".ccs_write_test_", dir=directory)
+    except OSError as err:
+        raise UserError(f"{option} {path}: cannot write in {directory} ({err.strerror or err})") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
 def check_output_file(option: str, path: str) -> None:
+    """Refuse, before any work, an output file that could not be written: a directory, a missing parent directory
+    (not created, so a mistyped path fails at once), a directory where no file can be created, or an existing file
+    that is not writable."""
     directory = os.path.dirname(os.path.abspath(path))
     if os.path.isdir(path):
         raise UserError(f"{option} {path} is a directory; give a file name")
@@ -65,6 +105,24 @@ def check_output_file(option: str, path: str) -> None:
         raise UserError(f"{option} {path}: output directory {directory} does not exist (create it first)")
     if not os.access(directory, os.W_OK):
         raise UserError(f"{option} {path}: output directory {directory} is not writable")
+    if os.path.exists(path) and not os.access(path, os.W_OK):
+        raise UserError(f"{option} {path}: the existing file is not writable")
+    _try_write_in(option, path, directory)
+
+
+def check_output_dir(option: str, path: str) -> None:
+    """Refuse, before any work, an output directory that could not be made or written, without creating it (a run
+    that fails leaves no empty directory behind; :func:`make_dir` creates it once there is something to write)."""
+    target = os.path.abspath(path)
+    if os.path.exists(target) and not os.path.isdir(target):
+        raise UserError(f"{option} {path} exists and is not a directory")
+    existing = target
+    while not os.path.isdir(existing):  # the nearest existing ancestor is where the first directory gets created
+        parent = os.path.dirname(existing)
+        if os.path.exists(existing) or parent == existing:
+            raise UserError(f"{option} {path}: cannot create directory ({existing} is not a directory)")
+        existing = parent
+    _try_write_in(option, path, existing)
 
 
 def make_dir(option: str, path: str) -> None:
@@ -160,7 +218,25 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
         for k, path in enumerate(files):
             if not bool(out.present[c, k]):
                 warn(command, f"skipped {path}: {out.detections.reasons[c * v + k]}")
+    hint = board_size_hint(board, out.detections.reasons or [])
+    if hint:
+        warn(command, hint)
     return out, seconds
+
+
+def board_size_hint(board: tuple[int, int], reasons: Sequence[str]) -> str:
+    """``the board looks larger than 8x6 in N images: check --board ...`` when boards were refused because their
+    checker pattern continues past a side (a sub-board of the board in the images); ``""`` otherwise.
+
+    Example:
+        >>> board_size_hint((8, 6), ["board refused: the checker pattern continues past its left side", ""])[:49]
+        'the board looks larger than 8x6 in 1 image: check'
+    """
+    n = sum(1 for r in reasons if "continues past" in r)
+    if not n:
+        return ""
+    return (f"the board looks larger than {board[0]}x{board[1]} in {n} image{'s' if n > 1 else ''}: check --board "
+            f"(COLSxROWS counts inner corners, where four squares meet)")
 
 
 def not_found_message(board: tuple[int, int], readable: int, total: int) -> str:

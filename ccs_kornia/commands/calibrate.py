@@ -8,7 +8,9 @@ import time
 from typing import Any
 
 from ccs_kornia.commands._common import (
+    NoResult,
     UserError,
+    check_output_dir,
     check_output_file,
     inputs,
     make_dir,
@@ -34,7 +36,7 @@ def calibrate_files(
 ) -> tuple[dict[str, Any], Any]:
     """The pipeline's one composition on ``files`` (one camera); returns (JSON-ready dict, PipelineResult of it).
 
-    Raises :class:`UserError` when no calibration can be computed; when images were read, the error carries
+    Raises :class:`UserError` when no calibration can be computed: :class:`NoResult` when images were read, with
     ``partial``: the per-view record (detections and reasons) so the caller can keep it.
     """
     from ccs_kornia.records import camera_record
@@ -48,13 +50,15 @@ def calibrate_files(
             warn(command, f"skipped {view['path']}: {view['reason']}")
         if "note" in view:
             warn(command, f"{view['path']}: {view['note']}")
-    for issue in data.get("warnings", []):
+    for issue in data.get("warnings", []) if data["success"] else []:  # a failed camera's figures say nothing
         warn(command, issue.get("message", str(issue)) + _files_note(issue))
     if not data["success"]:
         readable = int(one.present.sum())
-        err = UserError(failure_message(data, board, readable))
-        if readable:
-            err.partial = data
+        message = failure_message(data, board, readable)
+        if not readable:
+            raise UserError(message)
+        err = NoResult(message)
+        err.partial = data
         raise err
     return data, one
 
@@ -154,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     if args.ros_yaml:
         check_output_file("--ros-yaml", args.ros_yaml)
     if args.report:
-        make_dir("--report", args.report)
+        check_output_dir("--report", args.report)  # created once there is a calibration to report
     device = resolve_device(args.device)
     files = inputs("calibrate", args.images)
     pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
@@ -166,16 +170,22 @@ def run(args: argparse.Namespace) -> int:
     except UserError as err:
         # nothing lost: the per-image detections and reasons go next to the requested output, which
         # itself is only ever written for a computed calibration
+        kept = (f"; the existing {os.path.basename(args.output)} was left as it was (not from this run)"
+                if os.path.exists(args.output) else "")
         if err.partial is not None:
             failed = _failed_path(args.output)
             err.partial["device"] = str(device)
             write_json(failed, err.partial)
-            raise UserError(f"{err}; per-image results written to {failed}") from None
+            err.args = (f"{err}; per-image results written to {failed}{kept}",)
+        elif kept:
+            err.args = (f"{err}{kept}",)
         raise
     data["device"] = str(device)
     data["success"] = True
     data["timings"]["total_s"] = time.perf_counter() - start
     write_json(args.output, data)
+    if os.path.isfile(_failed_path(args.output)):  # an earlier failure's record would now be stale
+        os.unlink(_failed_path(args.output))
     if args.opencv_yaml:
         _write_opencv_yaml(args.opencv_yaml, data)
     if args.ros_yaml:
@@ -187,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         from ccs_kornia.report import write_report
 
+        make_dir("--report", args.report)
         start = time.perf_counter()
         write_report(args.report, data)
         data["timings"]["report_s"] = time.perf_counter() - start

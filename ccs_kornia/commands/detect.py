@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from ccs_kornia.commands._common import (
+    NoResult,
     UserError,
     check_output_file,
     inputs,
@@ -13,7 +14,22 @@ from ccs_kornia.commands._common import (
     run_files,
 )
 
-__all__ = ["run"]
+__all__ = ["CORNER_DECIMALS", "run"]
+
+#: corners are written to 1e-4 px (the float32 detections' own digits beyond that are noise, and 17 of them per
+#: coordinate made the file hard to read)
+CORNER_DECIMALS = 4
+
+#: what ``calibrate``'s records hold that does not apply to corners alone (no camera: no view is used, none has an RMS,
+#: no corrected-frame calibration is tried)
+_CALIBRATION_ONLY = {"view": ("used", "rms"), "correction": ("tried", "applied", "decision")}
+
+
+def _image_record(view: dict) -> dict:
+    record = {k: v for k, v in view.items() if k not in _CALIBRATION_ONLY["view"]}
+    if record.get("corners") is not None:
+        record["corners"] = [[None if c is None else round(c, CORNER_DECIMALS) for c in xy] for xy in record["corners"]]
+    return record
 
 
 def run(args: argparse.Namespace) -> int:
@@ -26,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
     pipeline = make_pipeline(args)
     out, elapsed = run_files("detect", pipeline, [files], args.board, 1.0, device, calibrate=False)
     one = out.select(0)
-    images = view_records(one, files)
+    images = [_image_record(view) for view in view_records(one, files)]
+    correction = {k: v for k, v in correction_record(one).items() if k not in _CALIBRATION_ONLY["correction"]}
     n_found = sum(r["found"] for r in images)
     n_partial = sum(1 for r in images if r.get("hidden_corners"))
     data = {
@@ -37,12 +54,14 @@ def run(args: argparse.Namespace) -> int:
                     and r["reason"].startswith("unreadable")],
         "num_found": n_found,
         "num_partial": n_partial,
-        "distortion_correction": correction_record(one),
+        "distortion_correction": correction,
         "timings": {"load_and_detect_s": elapsed, "images_per_s": len(files) / max(elapsed, 1e-9)},
     }
     write_json(args.output, data)
     if n_found == 0:
-        raise UserError(not_found_message(args.board, int(one.present.sum()), len(files)) + f"; wrote {args.output}")
+        readable = int(one.present.sum())
+        raise (NoResult if readable else UserError)(
+            not_found_message(args.board, readable, len(files)) + f"; wrote {args.output}")
     partial = f" ({n_partial} partial: corners under glare or occluded are null)" if n_partial else ""
     print(f"found the {args.board[0]}x{args.board[1]} board in {n_found} of {len(files)} images{partial}; "
           f"wrote {args.output}")

@@ -19,33 +19,17 @@ __all__ = ["run"]
 
 
 def _read_calibration(path: str) -> tuple[Any, Any, tuple[int, int] | None, bool]:
-    import json
-
     import torch
 
+    from ccs_kornia.calibration_file import read_calibration
+
     try:
-        with open(path, encoding="utf-8") as handle:
-            data = json.load(handle)
-    except FileNotFoundError:
-        raise UserError(f"--calibration {path}: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise UserError(f"--calibration {path}: not a readable JSON file ({err})") from None
-    try:
-        K = torch.tensor(data["K"], dtype=torch.float64)
-        coeffs = data.get("distortion", {}).get("coeffs") or []
-        fisheye = data.get("distortion", {}).get("model") == "fisheye"
-        dist = torch.tensor([float(c) for c in coeffs], dtype=torch.float64)
-        size = data.get("image_size")
-        size = (int(size[0]), int(size[1])) if size else None
-    except (KeyError, TypeError, ValueError, IndexError) as err:
-        raise UserError(f"--calibration {path}: not a calibration written by 'calibrate' ({type(err).__name__}: {err})") from None
-    if K.shape != (3, 3) or dist.numel() not in (0, 4, 5, 8, 12, 14):
-        raise UserError(f"--calibration {path}: K must be 3x3 and distortion.coeffs have 0, 4, 5, 8, 12 or 14 values")
-    if fisheye and dist.numel() != 4:
-        raise UserError(f"--calibration {path}: a fisheye calibration has 4 distortion coefficients (k1..k4)")
-    if dist.numel() == 0:
-        dist = torch.zeros(5, dtype=torch.float64)
-    return K, dist, size, fisheye
+        calib = read_calibration(path)
+    except ValueError as err:
+        raise UserError(f"--calibration {path}: {err}") from None
+    K = torch.from_numpy(calib["K"])
+    dist = torch.from_numpy(calib["coeffs"])
+    return K, dist, calib["image_size"], calib["model"] == "fisheye"
 
 
 def _calibrated_corners(path: str) -> Any:

@@ -248,8 +248,13 @@ class LearnedChessboardDetector(ChessboardDetector):
             # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
             # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners
             for b in out.found.nonzero().flatten().tolist():
-                reason = skipped_line(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
-                                      board_size)
+                image, corners = images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy()
+                reason = skipped_line(image, corners, board_size)
+                # a sub-board: the organiser looks for peaks past the sides, which a coarse level can lack on a whole
+                # line (opencv_left at 8x6: left14's ninth column, squares of 5 px there); the image shows the pattern
+                side = "" if reason else board_extends(image, corners, board_size)
+                if side:
+                    reason = f"the checker pattern continues past its {side} side"
                 if reason:
                     out.found[b], out.reasons[b] = False, f"board refused: {reason}"
                     out.corners[b], out.sigma[b] = 0.0, float("nan")
