@@ -273,6 +273,8 @@ def test_essential_fundamental_on_undistorted_corners():
     back = res.pair(1, 0)
     assert torch.allclose(back.R, pair.R.T, atol=1e-12) and torch.allclose(back.T, -pair.R.T @ pair.T, atol=1e-12)
     assert float(res.epipolar_rms[0, 1]) < 1e-6
+    res.T[1] += 0.0  # ordinary tensors: in-place edits allowed
+    res.cameras[0].K[0, 0] += 0.0
 
 
 def test_heldout_needs_frames_and_verdict_flags_bad_data():
