@@ -390,3 +390,29 @@ def test_square_board_quarter_turns():
     res = RigSolver([c[0] for c in s.cameras], folds=0)(corners, valid, s.object_points, s.image_sizes)
     assert res.success and res.rms < 1e-6
     assert rot_err_deg(res.R[1], s.R[1]) < 1e-6 and float((res.T[1] - s.T[1]).norm()) < 1e-8
+
+
+def test_cameras_of_different_image_sizes():
+    K_big = torch.tensor([[1100.0, 0, 650], [0, 1100, 395], [0, 0, 1]], dtype=D)
+    cams = [CAMERAS[0], ("k1k2", K_big, torch.tensor([-0.05, 0.01], dtype=D))]
+    sizes = [SIZE, (1280, 800)]
+    s = render_rig(cams, sizes, exp_so3(ROT[:2]), TRANS[:2], num_frames=10, seed=140, noise_px=0.1)
+    res = RigSolver(["opencv5", "k1k2"])(s.corners, s.valid, s.object_points, sizes)
+    assert res.success and res.image_sizes == sizes
+    assert float((res.cameras[1].K - K_big).abs().max()) < 3.0
+    assert rot_err_deg(res.R[1], s.R[1]) < 0.3 and float((res.T[1] - s.T[1]).norm()) / float(s.T[1].norm()) < 0.01
+
+
+def test_verdict_thresholds_scale_with_image_diagonal():
+    from ccs_kornia.modules.calibration import rig_verdict
+
+    z = torch.zeros(2, 2)
+    base = (torch.tensor([0.0, 0.2]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))
+    rms = torch.tensor([1.5, 0.2])  # px: above 1 px per 1000 px of diagonal at 640x480, below it at 1920x1080
+    small = rig_verdict(["a", "b"], [(640, 480)] * 2, rms, z, z + 0.1, *base)
+    large = rig_verdict(["a", "b"], [(1920, 1080)] * 2, rms, z, z + 0.1, *base)
+    assert small[0] == "usable" and "a: reprojection RMS 1.50 px is high" in small[1]
+    assert large == ("good", [])
+    held = z + 2.0  # held-out epipolar RMS 2 px: above 2 px per 1000 px at 640x480 (1.6 px)
+    assert rig_verdict(["a", "b"], [(640, 480)] * 2, rms * 0.1, z, held, *base)[0].startswith("not reliable: add frames")
+    assert rig_verdict(["a", "b"], [(1920, 1080)] * 2, rms * 0.1, z, held, *base)[0] == "good"
