@@ -301,12 +301,13 @@ class RigSolver(nn.Module):
         nan = torch.full((C, C), float("nan"), dtype=corners.dtype, device=corners.device)
         frames = used.any(1)  # (B, F)
         k = self.folds
-        if k < 2 or int(frames.sum(-1).min()) < self.min_heldout_frames:
+        enough = frames.sum(-1) >= self.min_heldout_frames  # (B,) rigs with frames to hold out
+        if k < 2 or not bool(enough.any()):
             return [nan.clone() for _ in range(B)]
         fold = torch.full((B, F), -1, dtype=torch.long, device=used.device)
         for b in range(B):
             idx = torch.nonzero(frames[b]).flatten()
-            fold[b, idx] = torch.arange(idx.numel(), device=used.device) % min(k, idx.numel())
+            fold[b, idx] = torch.arange(idx.numel(), device=used.device) % max(min(k, idx.numel()), 1)
         folds = [fold == i for i in range(k)]  # (B, F) each
         use = torch.cat([used & ~f[:, None, :] for f in folds])  # (k B, C, F)
 
@@ -317,6 +318,9 @@ class RigSolver(nn.Module):
                   iters=max(self.max_iters // 2, 10))
         held = []
         for b in range(B):
+            if not bool(enough[b]):
+                held.append(nan.clone())
+                continue
             sums = torch.zeros(C, C, dtype=corners.dtype, device=corners.device)
             counts = torch.zeros(C, C, dtype=torch.long, device=corners.device)
             for i in range(k):

@@ -416,3 +416,12 @@ def test_verdict_thresholds_scale_with_image_diagonal():
     held = z + 2.0  # held-out epipolar RMS 2 px: above 2 px per 1000 px at 640x480 (1.6 px)
     assert rig_verdict(["a", "b"], [(640, 480)] * 2, rms * 0.1, z, held, *base)[0].startswith("not reliable: add frames")
     assert rig_verdict(["a", "b"], [(1920, 1080)] * 2, rms * 0.1, z, held, *base)[0] == "good"
+
+
+def test_batch_heldout_per_rig():
+    few, many = scene(2, models=["k1k2"] * 2, frames=8, seed=150), scene(2, models=["k1k2"] * 2, frames=8, seed=151)
+    valid = torch.stack([few.valid, many.valid])
+    valid[0, :, 3:] = False  # the first rig keeps 3 frames: too few to hold some out
+    corners = torch.where(valid[..., None], torch.stack([few.corners, many.corners]), float("nan"))
+    out = RigSolver("k1k2")(corners, valid, few.object_points, few.image_sizes)
+    assert bool(out[0].heldout_epipolar_rms[0, 1].isnan()) and bool(out[1].heldout_epipolar_rms[0, 1].isfinite())
