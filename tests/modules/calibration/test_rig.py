@@ -425,3 +425,18 @@ def test_batch_heldout_per_rig():
     corners = torch.where(valid[..., None], torch.stack([few.corners, many.corners]), float("nan"))
     out = RigSolver("k1k2")(corners, valid, few.object_points, few.image_sizes)
     assert bool(out[0].heldout_epipolar_rms[0, 1].isnan()) and bool(out[1].heldout_epipolar_rms[0, 1].isfinite())
+
+
+def test_reported_uncertainty_matches_the_spread_over_noise_draws():
+    base = render_rig(CAMERAS[:2], [SIZE] * 2, exp_so3(ROT[:2]), TRANS[:2], num_frames=12, seed=170)
+    B = 24
+    g = torch.Generator().manual_seed(5)
+    corners = base.exact[None] + 0.3 * torch.randn((B,) + base.exact.shape, generator=g, dtype=D)
+    valid = base.valid[None].expand(B, -1, -1, -1)
+    out = RigSolver([c[0] for c in base.cameras], folds=0)(corners, valid, base.object_points, base.image_sizes)
+    baseline = torch.tensor([float(r.T[1].norm()) for r in out])
+    ratio = float(baseline.std()) / float(torch.tensor([float(r.baseline_std[1]) for r in out]).mean())
+    assert 0.6 < ratio < 1.6, ratio
+    rot = torch.stack([log_so3(r.R[1] @ base.R[1].T) for r in out]).norm(dim=-1).square().mean().sqrt()
+    ratio = float(rot) * 180 / math.pi / float(torch.tensor([float(r.rotation_std_deg[1]) for r in out]).mean())
+    assert 0.6 < ratio < 1.6, ratio
