@@ -440,3 +440,16 @@ def test_reported_uncertainty_matches_the_spread_over_noise_draws():
     rot = torch.stack([log_so3(r.R[1] @ base.R[1].T) for r in out]).norm(dim=-1).square().mean().sqrt()
     ratio = float(rot) * 180 / math.pi / float(torch.tensor([float(r.rotation_std_deg[1]) for r in out]).mean())
     assert 0.6 < ratio < 1.6, ratio
+
+
+def test_epipolar_distance_of_fisheye_rays_beyond_the_limit_is_nan():
+    from ccs_kornia.camera import kb_project_points
+    from ccs_kornia.modules.calibration import epipolar_distances
+
+    cam = RigCamera("fisheye", K_FISH, torch.zeros(4, dtype=D))
+    X = torch.tensor([[0.1, 0.0, 1.0], [1.0, 0.0, 0.1], [0.2, -0.1, 1.0]], dtype=D)  # the second is 84 deg off axis
+    T = torch.tensor([-0.1, 0.0, 0.0], dtype=D)
+    uv1 = kb_project_points(X, K_FISH, torch.zeros(4, dtype=D))
+    uv2 = kb_project_points(X + T, K_FISH, torch.zeros(4, dtype=D))
+    d = epipolar_distances(cam, cam, torch.eye(3, dtype=D), T, uv1, uv2)
+    assert bool(d[1].isnan()) and float(d[[0, 2]].abs().max()) < 1e-9
