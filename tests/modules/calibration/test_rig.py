@@ -453,3 +453,13 @@ def test_epipolar_distance_of_fisheye_rays_beyond_the_limit_is_nan():
     uv2 = kb_project_points(X + T, K_FISH, torch.zeros(4, dtype=D))
     d = epipolar_distances(cam, cam, torch.eye(3, dtype=D), T, uv1, uv2)
     assert bool(d[1].isnan()) and float(d[[0, 2]].abs().max()) < 1e-9
+
+
+def test_camera_that_sees_no_board_fails_naming_it():
+    s = scene(3, models=["k1k2"] * 3, frames=6, seed=180)
+    valid = s.valid.clone()
+    valid[2] = False
+    corners = torch.where(valid[..., None], s.corners, float("nan"))
+    res = RigSolver("k1k2")(corners, valid, s.object_points, s.image_sizes, names=["a", "b", "top"])
+    assert not res.success and res.reason.startswith("top: the camera alone could not be calibrated")
+    assert res.verdict.startswith("not reliable: ")
