@@ -326,7 +326,9 @@ class RigSolver(nn.Module):
             for i in range(k):
                 r = i * B + b
                 cams = [camera_from_params(models[c], out.params[c][r]) for c in range(C)]
-                s, n = epipolar_sums(cams, out.R[r], out.T[r], corners[b], valid[b], used[b] & folds[i][b][None])
+                trained = use[r].any(-1)  # cameras with frames in this fold's fit (the others were not refitted)
+                s, n = epipolar_sums(cams, out.R[r], out.T[r], corners[b], valid[b],
+                                     used[b] & folds[i][b][None] & trained[:, None])
                 sums, counts = sums + s, counts + n
             h = (sums / counts.clamp_min(1)).sqrt().masked_fill(counts == 0, float("nan"))
             h.fill_diagonal_(0.0)
