@@ -223,6 +223,8 @@ class RigSolver(nn.Module):
         with torch.inference_mode(), small_problem_threads(corners.shape[:-1].numel(), corners.device):
             out = self._solve(corners, valid, object_points, [tuple(map(int, s)) for s in image_sizes], models,
                               initial, fixed, names, weights, batched)
+        if not torch.is_inference_mode_enabled():  # ordinary tensors out (inference tensors refuse in-place edits)
+            out = [_clone(r) for r in out]
         return out if batched else out[0]
 
     def _solve(self, corners, valid, obj, sizes, models, initial, fixed, names, weights, batched):
@@ -296,15 +298,16 @@ class RigSolver(nn.Module):
 
     def _heldout(self, fit, res, used, corners, valid, models, B, C, F):
         """Per rig (C, C) epipolar RMS on held-out frames: k folds over the used frames, all refitted at once."""
-        nan = torch.full((C, C), float("nan"), dtype=corners.dtype)
+        nan = torch.full((C, C), float("nan"), dtype=corners.dtype, device=corners.device)
         frames = used.any(1)  # (B, F)
         k = self.folds
-        if k < 2 or int(frames.sum(-1).min()) < self.min_heldout_frames:
+        enough = frames.sum(-1) >= self.min_heldout_frames  # (B,) rigs with frames to hold out
+        if k < 2 or not bool(enough.any()):
             return [nan.clone() for _ in range(B)]
         fold = torch.full((B, F), -1, dtype=torch.long, device=used.device)
         for b in range(B):
             idx = torch.nonzero(frames[b]).flatten()
-            fold[b, idx] = torch.arange(idx.numel(), device=used.device) % min(k, idx.numel())
+            fold[b, idx] = torch.arange(idx.numel(), device=used.device) % max(min(k, idx.numel()), 1)
         folds = [fold == i for i in range(k)]  # (B, F) each
         use = torch.cat([used & ~f[:, None, :] for f in folds])  # (k B, C, F)
 
@@ -315,12 +318,17 @@ class RigSolver(nn.Module):
                   iters=max(self.max_iters // 2, 10))
         held = []
         for b in range(B):
-            sums = torch.zeros(C, C, dtype=corners.dtype)
-            counts = torch.zeros(C, C, dtype=torch.long)
+            if not bool(enough[b]):
+                held.append(nan.clone())
+                continue
+            sums = torch.zeros(C, C, dtype=corners.dtype, device=corners.device)
+            counts = torch.zeros(C, C, dtype=torch.long, device=corners.device)
             for i in range(k):
                 r = i * B + b
                 cams = [camera_from_params(models[c], out.params[c][r]) for c in range(C)]
-                s, n = epipolar_sums(cams, out.R[r], out.T[r], corners[b], valid[b], used[b] & folds[i][b][None])
+                trained = use[r].any(-1)  # cameras with frames in this fold's fit (the others were not refitted)
+                s, n = epipolar_sums(cams, out.R[r], out.T[r], corners[b], valid[b],
+                                     used[b] & folds[i][b][None] & trained[:, None])
                 sums, counts = sums + s, counts + n
             h = (sums / counts.clamp_min(1)).sqrt().masked_fill(counts == 0, float("nan"))
             h.fill_diagonal_(0.0)
@@ -339,8 +347,8 @@ class RigSolver(nn.Module):
         total = float((torch.where(u, res.sq_error[b], 0.0).sum() / cnt.sum().clamp_min(1)).sqrt())
         cov = res.covariance[b]
         T = res.T[b].clone()
-        bstd = torch.zeros(C, dtype=dtype)
-        rstd = torch.zeros(C, dtype=dtype)
+        bstd = torch.zeros(C, dtype=dtype, device=T.device)
+        rstd = torch.zeros(C, dtype=dtype, device=T.device)
         for c in range(1, C):
             e = ext[c]
             n = T[c] / T[c].norm().clamp_min(1e-300)
@@ -367,6 +375,17 @@ class RigSolver(nn.Module):
             epipolar_rms=epi, heldout_epipolar_rms=held, verdict=verdict, reasons=reasons,
             converged=bool(res.converged[b]), iterations=int(res.iterations[b]), corner_order=order.clone(),
         )
+
+
+def _clone(x):
+    """A copy of a result made of ordinary tensors (of tensors made under inference mode)."""
+    if isinstance(x, torch.Tensor):
+        return x.clone()
+    if isinstance(x, list):
+        return [_clone(v) for v in x]
+    if isinstance(x, (RigResult, RigCamera)):
+        return type(x)(**{k: _clone(v) for k, v in x.__dict__.items()})
+    return x
 
 
 def _frame_poses(rvec, tvec, used, valid, R, T):

@@ -55,8 +55,8 @@ def epipolar_sums(
     over the corners both cameras see in the same frame, on the frames where ``frames`` :math:`(C, F)` is True for
     both (corners :math:`(C, F, N, 2)`, valid :math:`(C, F, N)`)."""
     C = len(cameras)
-    sums = torch.zeros(C, C, dtype=R.dtype)
-    counts = torch.zeros(C, C, dtype=torch.long)
+    sums = torch.zeros(C, C, dtype=R.dtype, device=R.device)
+    counts = torch.zeros(C, C, dtype=torch.long, device=R.device)
     for i in range(C):
         for j in range(i + 1, C):
             m = valid[i] & valid[j] & (frames[i] & frames[j])[:, None]

@@ -7,11 +7,13 @@ Conventions (OpenCV's ``stereoCalibrate``): ``x_j = R x_i + T``, ``E = [T]_x R``
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from ccs_kornia.camera import kb_unproject_points
 from ccs_kornia.modules.calibration.rig_camera import RigCamera, normalized_points
 
 __all__ = ["StereoPair", "stereo_pair", "skew", "epipolar_distances", "stereo_rectify"]
@@ -57,12 +59,15 @@ def stereo_pair(cam_i: RigCamera, cam_j: RigCamera, R: torch.Tensor, T: torch.Te
 
 
 def epipolar_distances(
-    cam_i: RigCamera, cam_j: RigCamera, R: torch.Tensor, T: torch.Tensor, uv_i: torch.Tensor, uv_j: torch.Tensor
+    cam_i: RigCamera, cam_j: RigCamera, R: torch.Tensor, T: torch.Tensor, uv_i: torch.Tensor, uv_j: torch.Tensor,
+    max_angle_deg: float = 80.0,
 ) -> torch.Tensor:
     """Symmetric epipolar distance (px) of matching observed pixels :math:`(M, 2)` of cameras i and j.
 
     Both are undistorted (each with its own model) to ideal pixels ``K x``; the distance is the RMS of the two
-    point-to-epipolar-line distances, each in its own camera's pixels. Returns :math:`(M,)`.
+    point-to-epipolar-line distances, each in its own camera's pixels. A fisheye pixel further than
+    ``max_angle_deg`` from its camera's axis has no meaningful undistorted pixel (it runs to infinity at 90 degrees):
+    its distance is NaN. Returns :math:`(M,)`.
     """
     dtype = R.dtype
     pair = stereo_pair(cam_i, cam_j, R, T)
@@ -74,7 +79,14 @@ def epipolar_distances(
     alg = (xj * lj).sum(-1)
     dj = alg / lj[..., :2].norm(dim=-1).clamp_min(1e-300)
     di = alg / li[..., :2].norm(dim=-1).clamp_min(1e-300)
-    return ((dj * dj + di * di) / 2).sqrt()
+    d = ((dj * dj + di * di) / 2).sqrt()
+    limit = math.cos(math.radians(max_angle_deg))
+    for cam, uv in ((cam_i, uv_i), (cam_j, uv_j)):
+        if cam.model == "fisheye":
+            D = torch.nn.functional.pad(cam.dist.to(dtype), [0, 4 - cam.dist.shape[0]])
+            z = kb_unproject_points(uv.to(dtype)[None], cam.K.to(dtype)[None], D[None])[0, :, 2]
+            d = torch.where(z > limit, d, float("nan"))
+    return d
 
 
 def _np(x) -> np.ndarray:

@@ -273,6 +273,8 @@ def test_essential_fundamental_on_undistorted_corners():
     back = res.pair(1, 0)
     assert torch.allclose(back.R, pair.R.T, atol=1e-12) and torch.allclose(back.T, -pair.R.T @ pair.T, atol=1e-12)
     assert float(res.epipolar_rms[0, 1]) < 1e-6
+    res.T[1] += 0.0  # ordinary tensors: in-place edits allowed
+    res.cameras[0].K[0, 0] += 0.0
 
 
 def test_heldout_needs_frames_and_verdict_flags_bad_data():
@@ -388,3 +390,76 @@ def test_square_board_quarter_turns():
     res = RigSolver([c[0] for c in s.cameras], folds=0)(corners, valid, s.object_points, s.image_sizes)
     assert res.success and res.rms < 1e-6
     assert rot_err_deg(res.R[1], s.R[1]) < 1e-6 and float((res.T[1] - s.T[1]).norm()) < 1e-8
+
+
+def test_cameras_of_different_image_sizes():
+    K_big = torch.tensor([[1100.0, 0, 650], [0, 1100, 395], [0, 0, 1]], dtype=D)
+    cams = [CAMERAS[0], ("k1k2", K_big, torch.tensor([-0.05, 0.01], dtype=D))]
+    sizes = [SIZE, (1280, 800)]
+    s = render_rig(cams, sizes, exp_so3(ROT[:2]), TRANS[:2], num_frames=10, seed=140, noise_px=0.1)
+    res = RigSolver(["opencv5", "k1k2"])(s.corners, s.valid, s.object_points, sizes)
+    assert res.success and res.image_sizes == sizes
+    assert float((res.cameras[1].K - K_big).abs().max()) < 3.0
+    assert rot_err_deg(res.R[1], s.R[1]) < 0.3 and float((res.T[1] - s.T[1]).norm()) / float(s.T[1].norm()) < 0.01
+
+
+def test_verdict_thresholds_scale_with_image_diagonal():
+    from ccs_kornia.modules.calibration import rig_verdict
+
+    z = torch.zeros(2, 2)
+    base = (torch.tensor([0.0, 0.2]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))
+    rms = torch.tensor([1.5, 0.2])  # px: above 1 px per 1000 px of diagonal at 640x480, below it at 1920x1080
+    small = rig_verdict(["a", "b"], [(640, 480)] * 2, rms, z, z + 0.1, *base)
+    large = rig_verdict(["a", "b"], [(1920, 1080)] * 2, rms, z, z + 0.1, *base)
+    assert small[0] == "usable" and "a: reprojection RMS 1.50 px is high" in small[1]
+    assert large == ("good", [])
+    held = z + 2.0  # held-out epipolar RMS 2 px: above 2 px per 1000 px at 640x480 (1.6 px)
+    assert rig_verdict(["a", "b"], [(640, 480)] * 2, rms * 0.1, z, held, *base)[0].startswith("not reliable: add frames")
+    assert rig_verdict(["a", "b"], [(1920, 1080)] * 2, rms * 0.1, z, held, *base)[0] == "good"
+
+
+def test_batch_heldout_per_rig():
+    few, many = scene(2, models=["k1k2"] * 2, frames=8, seed=150), scene(2, models=["k1k2"] * 2, frames=8, seed=151)
+    valid = torch.stack([few.valid, many.valid])
+    valid[0, :, 3:] = False  # the first rig keeps 3 frames: too few to hold some out
+    corners = torch.where(valid[..., None], torch.stack([few.corners, many.corners]), float("nan"))
+    out = RigSolver("k1k2")(corners, valid, few.object_points, few.image_sizes)
+    assert bool(out[0].heldout_epipolar_rms[0, 1].isnan()) and bool(out[1].heldout_epipolar_rms[0, 1].isfinite())
+
+
+def test_reported_uncertainty_matches_the_spread_over_noise_draws():
+    base = render_rig(CAMERAS[:2], [SIZE] * 2, exp_so3(ROT[:2]), TRANS[:2], num_frames=12, seed=170)
+    B = 24
+    g = torch.Generator().manual_seed(5)
+    corners = base.exact[None] + 0.3 * torch.randn((B,) + base.exact.shape, generator=g, dtype=D)
+    valid = base.valid[None].expand(B, -1, -1, -1)
+    out = RigSolver([c[0] for c in base.cameras], folds=0)(corners, valid, base.object_points, base.image_sizes)
+    baseline = torch.tensor([float(r.T[1].norm()) for r in out])
+    ratio = float(baseline.std()) / float(torch.tensor([float(r.baseline_std[1]) for r in out]).mean())
+    assert 0.6 < ratio < 1.6, ratio
+    rot = torch.stack([log_so3(r.R[1] @ base.R[1].T) for r in out]).norm(dim=-1).square().mean().sqrt()
+    ratio = float(rot) * 180 / math.pi / float(torch.tensor([float(r.rotation_std_deg[1]) for r in out]).mean())
+    assert 0.6 < ratio < 1.6, ratio
+
+
+def test_epipolar_distance_of_fisheye_rays_beyond_the_limit_is_nan():
+    from ccs_kornia.camera import kb_project_points
+    from ccs_kornia.modules.calibration import epipolar_distances
+
+    cam = RigCamera("fisheye", K_FISH, torch.zeros(4, dtype=D))
+    X = torch.tensor([[0.1, 0.0, 1.0], [1.0, 0.0, 0.1], [0.2, -0.1, 1.0]], dtype=D)  # the second is 84 deg off axis
+    T = torch.tensor([-0.1, 0.0, 0.0], dtype=D)
+    uv1 = kb_project_points(X, K_FISH, torch.zeros(4, dtype=D))
+    uv2 = kb_project_points(X + T, K_FISH, torch.zeros(4, dtype=D))
+    d = epipolar_distances(cam, cam, torch.eye(3, dtype=D), T, uv1, uv2)
+    assert bool(d[1].isnan()) and float(d[[0, 2]].abs().max()) < 1e-9
+
+
+def test_camera_that_sees_no_board_fails_naming_it():
+    s = scene(3, models=["k1k2"] * 3, frames=6, seed=180)
+    valid = s.valid.clone()
+    valid[2] = False
+    corners = torch.where(valid[..., None], s.corners, float("nan"))
+    res = RigSolver("k1k2")(corners, valid, s.object_points, s.image_sizes, names=["a", "b", "top"])
+    assert not res.success and res.reason.startswith("top: the camera alone could not be calibrated")
+    assert res.verdict.startswith("not reliable: ")
