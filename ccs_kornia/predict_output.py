@@ -64,7 +64,7 @@ def shard_files(output: str) -> list[str]:
 def read_lines(path: str) -> Iterator[tuple[int, int, dict | None]]:
     """The complete lines of a file: ``(offset, length, record)`` with ``record`` the line's JSON object, or
     ``None`` where the line is not a JSON object with a ``set`` key. A last line without its newline (cut short) is
-    not complete and not given.
+    not complete and not given; blank lines are not given.
 
     Example:
         >>> list(read_lines("/nonexistent.jsonl"))
@@ -77,6 +77,9 @@ def read_lines(path: str) -> Iterator[tuple[int, int, dict | None]]:
         for line in handle:
             if not line.endswith(b"\n"):
                 return
+            if not line.strip():  # a blank line says nothing
+                offset += len(line)
+                continue
             try:
                 record = json.loads(line)
             except ValueError:
