@@ -251,6 +251,11 @@ class CalibrationLitModule(pl.LightningModule):
         self.square = float(square)
         self.detector_name = detector_name
 
+    def transfer_batch_to_device(self, batch: Any, device: torch.device, dataloader_idx: int) -> Any:
+        # the decoded images stay on the host: the pipeline moves each detection batch to its own device (the
+        # rank's GPU), a bounded number of pixels at a time, as it does for ``calibrate --device cuda``
+        return batch
+
     def predict_step(self, batch: list[dict[str, Any]], batch_idx: int = 0) -> list[dict[str, Any]]:
         start = time.perf_counter()
         out = self.pipeline.run(_DecodedSource(batch), self.board_size, self.square)
