@@ -221,6 +221,11 @@ class ImageSetDataModule(pl.LightningDataModule):
         starts = range(rank * self.sets_per_batch, len(self.todo), world * self.sets_per_batch)
         return [s for start in starts for s in self.todo[start:start + self.sets_per_batch]]
 
+    def transfer_batch_to_device(self, batch: Any, device: torch.device, dataloader_idx: int) -> Any:
+        # the decoded images stay on the host: the pipeline moves each detection batch to its own device (the
+        # rank's GPU), a bounded number of pixels at a time, as it does for ``calibrate --device cuda``
+        return batch
+
     def predict_dataloader(self) -> DataLoader:
         # consecutive batches of the share are the rank's batches: all full but the last of all
         return DataLoader(
@@ -250,11 +255,6 @@ class CalibrationLitModule(pl.LightningModule):
         self.board_size = (int(board_size[0]), int(board_size[1]))
         self.square = float(square)
         self.detector_name = detector_name
-
-    def transfer_batch_to_device(self, batch: Any, device: torch.device, dataloader_idx: int) -> Any:
-        # the decoded images stay on the host: the pipeline moves each detection batch to its own device (the
-        # rank's GPU), a bounded number of pixels at a time, as it does for ``calibrate --device cuda``
-        return batch
 
     def predict_step(self, batch: list[dict[str, Any]], batch_idx: int = 0) -> list[dict[str, Any]]:
         start = time.perf_counter()
