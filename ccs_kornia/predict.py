@@ -295,20 +295,17 @@ class JsonlPredictionWriter(BasePredictionWriter):
         self.failed = 0
         self._handle = None
 
+    def setup(self, trainer: pl.Trainer, pl_module: pl.LightningModule, stage: str) -> None:
+        # before Lightning's barrier that follows the setup hooks, so before any rank opens its shard
+        if self.overwrite and trainer.is_global_zero:
+            for shard in shard_files(self.path):
+                os.remove(shard)
+            open(self.path, "w", encoding="utf-8").close()  # noqa: SIM115
+
     def on_predict_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
-        rank, world = trainer.global_rank, trainer.world_size
-        shard = shard_path(self.path, rank, world)
-        if self.overwrite and rank == 0:
-            # rank 0 owns the output and the shards no running rank owns; each rank empties its own below
-            owned = {os.path.normpath(shard_path(self.path, r, world)) for r in range(world)}
-            for old in shard_files(self.path):
-                if os.path.normpath(old) not in owned:
-                    os.remove(old)
-            if world > 1:
-                open(self.path, "w", encoding="utf-8").close()  # noqa: SIM115
-        if not self.overwrite:
-            trim_partial_line(shard)
-        self._handle = open(shard, "w" if self.overwrite else "a", encoding="utf-8")  # noqa: SIM115 (closed below)
+        shard = shard_path(self.path, trainer.global_rank, trainer.world_size)
+        trim_partial_line(shard)
+        self._handle = open(shard, "a", encoding="utf-8")  # noqa: SIM115 (closed in on_predict_end or close)
 
     def write_on_batch_end(self, trainer, pl_module, prediction, batch_indices, batch, batch_idx, dataloader_idx) -> None:
         assert self._handle is not None

@@ -128,8 +128,10 @@ def test_calibrate_many_appends_resumes_and_overwrites(camera_dirs, tmp_path):
     assert names == ["a", "b", "c", "d"]
     nothing = calibrate_many(sets, BOARD, str(out), square=0.025, progress=False)
     assert nothing["skipped"] == 4 and nothing["succeeded"] == nothing["failed"] == 0
+    (tmp_path / "results.jsonl.rank3").write_text('{"set": "left by a stopped run"}\n')
     fresh = calibrate_many(sets[:1], BOARD, str(out), square=0.025, progress=False, overwrite=True)
     assert fresh["succeeded"] == 1 and len(out.read_text().splitlines()) == 1
+    assert shard_files(str(out)) == []  # --overwrite starts the shards again too
 
 
 def test_calibrate_many_ctrl_c_keeps_finished_lines(camera_dirs, tmp_path, monkeypatch, capsys):
