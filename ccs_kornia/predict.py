@@ -341,7 +341,7 @@ def launched_as_rank_zero() -> bool:
 
 
 def _launched_by_others() -> bool:
-    # processes started by torchrun, srun or Lightning's launcher: every one of them has to meet the others in the Trainer
+    # processes started by torchrun, srun or Lightning's launcher: each one has to meet the others in the Trainer
     return any(os.environ.get(key) for key in ("WORLD_SIZE", "LOCAL_RANK", "TORCHELASTIC_RUN_ID")) or \
         int(os.environ.get("SLURM_NTASKS", "1") or 1) > 1
 
