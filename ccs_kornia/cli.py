@@ -333,11 +333,21 @@ def build_parser() -> argparse.ArgumentParser:
                    help="directories of images (one camera each), parents of such directories, or globs")
     p.add_argument("--board", required=True, type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6")
     p.add_argument("--square", default=1.0, type=_positive_float, help="square side in world units (default 1)")
-    p.add_argument("--output", required=True, metavar="JSONL", help="JSON Lines file: one calibration per set")
+    p.add_argument("--output", required=True, metavar="JSONL",
+                   help="JSON Lines file: one calibration per set (appended to; a JSON file of another kind is refused)")
     p.add_argument("--model", default="auto", choices=MODELS,
                    help="camera model (default auto: chosen per set by cross-validation; see calibrate --help)")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
     p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
+    p.add_argument("--accelerator", default=None, choices=("auto", "cpu", "gpu"),
+                   help="Lightning's accelerator for the processes (default: from --device)")
+    p.add_argument("--devices", default=None, type=_positive_int, metavar="N",
+                   help="processes per node, one per GPU with --accelerator gpu; each takes its own share of the sets "
+                        "(default 1; see docs/fleet.md)")
+    p.add_argument("--num-nodes", default=1, type=_positive_int, metavar="M",
+                   help="nodes, started by SLURM's srun or by torchrun (default 1)")
+    p.add_argument("--strategy", default="auto", choices=("auto", "ddp"),
+                   help="Lightning's strategy: auto (DDP when --devices x --num-nodes > 1) or ddp")
     p.add_argument("--no-ransac", dest="use_ransac", action="store_false", help="keep every detected view")
     p.add_argument("--seed", default=0, type=int, help="RANSAC seed (default 0)")
     p.add_argument("--unweighted", dest="weigh_corners", action="store_false",

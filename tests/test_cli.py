@@ -661,6 +661,68 @@ def test_calibrate_many_command(rendered, tmp_path, capsys):
     assert_one_line_error(err, "no image sets found")
 
 
+def _camera_folders(rendered, root):
+    import shutil
+
+    _, files, _ = rendered
+    for name, chosen in (("cam_a", files[:5]), ("cam_b", files[2:]), ("cam_c", files[:2])):
+        (root / name).mkdir(parents=True)
+        for f in chosen:
+            shutil.copy(f, root / name)
+    return [str(root / name) for name in ("cam_a", "cam_b", "cam_c")]
+
+
+def test_calibrate_many_exit_status_says_what_the_file_holds(rendered, tmp_path, capsys):
+    """Runs ending in the same file end with the same status: 0 while a set given is calibrated there, 3 (no result)
+    when none is; the line says what this run did and what the file holds."""
+    a, b, c = _camera_folders(rendered, tmp_path / "cams")
+    out, bad = tmp_path / "many.jsonl", tmp_path / "bad.jsonl"
+    fast = ("--board", "9x6", "--detector", "opencv", "--no-distortion-correction", "--model", "opencv5")
+    code, stdout, err = run(capsys, "calibrate-many", a, b, "--output", str(out), *fast)
+    assert code == 0 and "calibrated 2 of 2 sets" in stdout and "holds 2 of the 2 sets: 2 calibrated, 0 failed" in stdout
+    code, stdout, err = run(capsys, "calibrate-many", a, b, c, "--output", str(out), *fast)  # only c runs, and fails
+    assert code == 0, err
+    assert "calibrated 0 of 1 sets" in stdout and "1 failed" in stdout
+    assert "holds 3 of the 3 sets: 2 calibrated, 1 failed" in stdout and "2 set(s) already in" in err
+    code, stdout, err = run(capsys, "calibrate-many", a, b, c, "--output", str(out), *fast)
+    assert code == 0 and "nothing to do" in stdout and "2 calibrated, 1 failed" in stdout
+    for _ in range(2):  # a file of failed sets only: status 3 whether this run wrote them or found them
+        code, stdout, err = run(capsys, "calibrate-many", c, "--output", str(bad), *fast)
+        assert code == _common.EXIT_NO_RESULT and "holds 1 of the 1 sets: 0 calibrated, 1 failed" in stdout
+        assert_one_line_error(err, "no set could be calibrated")
+    assert len(bad.read_text().splitlines()) == 1
+
+
+def test_calibrate_many_refuses_a_json_file_that_is_not_json_lines(rendered, tmp_path, capsys):
+    _, _, c = _camera_folders(rendered, tmp_path / "cams")
+    out = tmp_path / "calibration.json"
+    assert run(capsys, "calibrate", *rendered[1][:5], "--board", "9x6", "--output", str(out), "--detector", "opencv",
+               "--no-distortion-correction", "--model", "opencv5")[0] == 0
+    before = out.read_text()
+    assert before.startswith("{\n")  # calibrate's pretty-printed JSON
+    code, stdout, err = run(capsys, "calibrate-many", c, "--board", "9x6", "--output", str(out))
+    assert code == 2 and stdout == ""
+    assert_one_line_error(err, "is not one JSON object with a \"set\" key")
+    assert "--overwrite" in err and out.read_text() == before
+    code, _, err = run(capsys, "calibrate-many", c, "--board", "9x6", "--output", str(out), "--overwrite",
+                       "--detector", "opencv", "--no-distortion-correction")
+    assert code == _common.EXIT_NO_RESULT and "no set could be calibrated" in err  # replaced by JSON Lines (c fails: 2 views)
+    assert [json.loads(line)["set"] for line in out.read_text().splitlines()] == [c]
+
+
+def test_calibrate_many_refuses_gpus_it_cannot_have(rendered, tmp_path, capsys):
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA: the refusals below are for machines without it")
+    out = tmp_path / "many.jsonl"
+    code, _, err = run(capsys, "calibrate-many", str(rendered[0]), "--board", "9x6", "--output", str(out),
+                       "--accelerator", "gpu", "--devices", "2")
+    assert code == 2 and not out.exists()
+    assert_one_line_error(err, "CUDA is not available")
+    code, _, err = run(capsys, "calibrate-many", str(rendered[0]), "--board", "9x6", "--output", str(out),
+                       "--devices", "0")
+    assert code == 2 and "--devices" in err
+
+
 def test_calibrate_records_the_distortion_correction(rendered, tmp_path, capsys):
     _, files, _ = rendered
     on, off = tmp_path / "on.json", tmp_path / "off.json"

@@ -213,11 +213,12 @@ ALLOWED: dict[str, set[str]] = {
     "report_figures": {"camera", "modules"},
     "report_quality": {"camera", "report_figures"},
     "training": {"camera", "modules", "losses", "data"},
-    "predict": {"pipeline", "modules", "io", "records", "sources"},
+    "predict_output": set(),
+    "predict": {"pipeline", "modules", "io", "records", "sources", "predict_output"},
     # the command line dispatches to everything below it; ``bench`` and ``training.cli`` are entry points it
     # forwards to (neither imports the command line)
-    "commands": {"commands", "pipeline", "modules", "io", "records", "report", "data", "metrics", "predict", "sources",
-                 "pipeline_rig", "records_rig", "report_rig", "rig_frames", "calibration_file"},
+    "commands": {"commands", "pipeline", "modules", "io", "records", "report", "data", "metrics", "predict",
+                 "predict_output", "sources", "pipeline_rig", "records_rig", "report_rig", "rig_frames", "calibration_file"},
     "cli": {"allocator", "commands", "io", "training", "bench", "package"},
     "__main__": {"cli"},
     "bench": {"allocator", "camera", "data", "modules", "pipeline", "pipeline_result", "sources", "batch_workers", "io",

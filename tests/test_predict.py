@@ -21,6 +21,7 @@ from ccs_kornia.predict import (
     calibrate_many,
     find_image_sets,
 )
+from ccs_kornia.predict_output import shard_files
 
 BOARD = (9, 6)
 K_TRUE = torch.tensor([[560.0, 0.0, 322.0], [0.0, 555.0, 236.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
@@ -97,7 +98,9 @@ def test_calibrate_many_writes_jsonl(camera_dirs, tmp_path):
     lines = [json.loads(line) for line in out.read_text().splitlines()]
     assert [os.path.basename(r["set"]) for r in lines] == ["a", "b", "c", "d"]
     first = lines[0]
-    assert set(first) >= {"set", "success", "image_size", "K", "distortion", "rms", "views", "std", "skipped"}
+    assert set(first) >= {"set", "success", "error", "image_size", "K", "distortion", "rms", "views", "std", "skipped"}
+    assert [r["error"] is None for r in lines] == [r["success"] for r in lines]  # every line has ``error``
+    assert all(list(r)[:3] == ["set", "success", "error"] for r in lines)
     assert first["image_size"] == [640, 480] and len(first["distortion"]["coeffs"]) == 5
     assert all(v["used"] for v in first["views"])
 
@@ -125,8 +128,10 @@ def test_calibrate_many_appends_resumes_and_overwrites(camera_dirs, tmp_path):
     assert names == ["a", "b", "c", "d"]
     nothing = calibrate_many(sets, BOARD, str(out), square=0.025, progress=False)
     assert nothing["skipped"] == 4 and nothing["succeeded"] == nothing["failed"] == 0
+    (tmp_path / "results.jsonl.rank3").write_text('{"set": "left by a stopped run"}\n')
     fresh = calibrate_many(sets[:1], BOARD, str(out), square=0.025, progress=False, overwrite=True)
     assert fresh["succeeded"] == 1 and len(out.read_text().splitlines()) == 1
+    assert shard_files(str(out)) == []  # --overwrite starts the shards again too
 
 
 def test_calibrate_many_ctrl_c_keeps_finished_lines(camera_dirs, tmp_path, monkeypatch, capsys):
@@ -180,3 +185,65 @@ def test_calibrate_many_keeps_partial_boards_of_one_camera_in_a_batch(tmp_path):
     for record in (clean, glare):
         assert record["num_views"]["used"] == 7
         assert float(e_ip(torch.tensor(record["K"]), K_TRUE)) < 2.0, record["K"]
+
+
+@pytest.mark.parametrize(("world", "per_batch"), [(1, 2), (2, 1), (3, 2), (5, 2)])
+def test_rank_shares_are_disjoint_whole_batches(world, per_batch):
+    """Each rank takes whole batches strided over the ranks: together every set once, no padding repeats, and each
+    batch is the one a single process forms; a rank beyond the batches gets none."""
+    from types import SimpleNamespace
+
+    sets = [(f"s{i}", []) for i in range(7)]
+    single = [[item["name"] for item in b] for b in ImageSetDataModule(sets, per_batch).predict_dataloader()]
+    seen = []
+    for rank in range(world):
+        data = ImageSetDataModule(sets, per_batch)
+        data.trainer = SimpleNamespace(global_rank=rank, world_size=world)
+        batches = [[item["name"] for item in b] for b in data.predict_dataloader()]
+        assert batches == single[rank::world]
+        seen += [n for b in batches for n in b]
+    assert sorted(seen) == sorted(n for n, _ in sets) and len(seen) == len(sets)
+
+
+def test_data_module_leaves_out_sets_written_in_the_output_or_a_shard(tmp_path):
+    out = tmp_path / "x.jsonl"
+    out.write_text(json.dumps({"set": "s1", "success": True}) + "\n")
+    (tmp_path / "x.jsonl.rank1").write_text(json.dumps({"set": "s3", "success": False}) + "\n")
+    sets = [(f"s{i}", []) for i in range(5)]
+    data = ImageSetDataModule(sets, 2, output=str(out))
+    data.setup("predict")
+    assert [n for n, _ in data.todo] == ["s0", "s2", "s4"]
+    data = ImageSetDataModule(sets, 2, output=str(out), overwrite=True)
+    data.setup("predict")
+    assert len(data.todo) == 5
+
+
+def test_calibrate_many_resumes_from_shards_and_merges_them(camera_dirs, tmp_path):
+    """A stopped distributed run left shards: their sets are skipped, their lines merged into the output once, in the
+    order of the sets, and the shards removed; with every set written, the shards are merged without a Trainer."""
+    sets, _ = find_image_sets([str(camera_dirs)])
+    a, b, c, d = (str(n) for n, _ in sets)
+    out = tmp_path / "x.jsonl"
+    (tmp_path / "x.jsonl.rank1").write_text(json.dumps({"set": a, "success": True, "error": None}) + "\n"
+                                            + '{"set": "cut sho')
+    pipe = CalibrationPipeline("opencv", distortion_correction=False)
+    summary = calibrate_many([s for s in sets if s[0] != b], BOARD, str(out), square=0.025, pipeline=pipe,
+                             progress=False)
+    assert (summary["skipped"], summary["succeeded"], summary["failed"], summary["missing"]) == (1, 0, 2, 0)
+    assert (summary["file_succeeded"], summary["file_failed"], summary["world_size"]) == (1, 2, 1)
+    assert [json.loads(line)["set"] for line in out.read_text().splitlines()] == [c, d, a]
+    assert shard_files(str(out)) == []
+    (tmp_path / "x.jsonl.rank0").write_text(json.dumps({"set": b, "success": False, "error": "x"}) + "\n")
+    again = calibrate_many(sets, BOARD, str(out), square=0.025, pipeline=pipe, progress=False)
+    assert again["skipped"] == 4 and again["succeeded"] == again["failed"] == 0 and shard_files(str(out)) == []
+    assert sorted(json.loads(line)["set"] for line in out.read_text().splitlines()) == [a, b, c, d]
+
+
+def test_calibrate_many_refuses_an_output_that_is_not_jsonl(camera_dirs, tmp_path):
+    sets, _ = find_image_sets([str(camera_dirs)])
+    out = tmp_path / "calibration.json"
+    out.write_text(json.dumps({"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}, indent=1) + "\n")
+    before = out.read_text()
+    with pytest.raises(ValueError, match="not calibrate-many's JSON Lines"):
+        calibrate_many(sets[2:3], BOARD, str(out), progress=False)
+    assert out.read_text() == before

@@ -9,7 +9,9 @@ On a machine with CUDA, in a few minutes:
    the same corners (``K`` and distortion within ``--calib-tol`` relative);
 3. host round-trips: the CUDA synchronisations of one detection call at two batch sizes and of one solver call
    (``torch.cuda.set_sync_debug_mode``): a count that grows with the batch would be a round-trip per image;
-4. throughput: detection images/s at batch 1/16/64 and calibrations/s at 1/64/256 cameras.
+4. throughput: detection images/s at batch 1/16/64 and calibrations/s at 1/64/256 cameras;
+5. with two GPUs or more: ``calibrate-many`` on two GPUs (Lightning DDP, one process per GPU) writes the lines it
+   writes on one GPU (each set once, ``K`` within ``--calib-tol`` relative), with both wall times.
 
 Without CUDA (or with ``--dry-run``) it says what it would check and runs the CPU half (the CPU side of the parity
 checks, the CPU throughput at the smaller sizes), so the script itself is exercised by the test suite. The exit
@@ -240,6 +242,59 @@ def _throughput(images: torch.Tensor, truth: torch.Tensor, device: str, batches:
     return out
 
 
+def _fleet(calib_tol: float, time_limit: float = 240.0, accelerator: str = "gpu") -> dict:
+    """``calibrate-many`` on one GPU and on two (DDP, the command line as a subprocess) over the same rendered sets.
+
+    Args:
+        calib_tol: largest allowed relative difference of ``K`` between the two runs.
+        time_limit: seconds for each run.
+        accelerator: ``gpu``, or ``cpu`` for one process against two on the CPU (the same code path, slower).
+
+    Returns:
+        ``ok``, ``sets``, the wall times ``one_device_s`` / ``two_devices_s``, ``K_max_rel_diff``, ``same_sets``
+        (each set once, in the same order); ``error`` with the tail of stderr where a run failed.
+    """
+    import tempfile
+
+    from ccs_kornia.io import write_image
+
+    images, _ = _render(8, seed=11)
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "cameras"
+        names = [f"cam_{k}" for k in range(4)]
+        for k, name in enumerate(names):  # four cameras of six views each, drawn from the eight renders
+            (root / name).mkdir(parents=True)
+            for v in range(6):
+                write_image(root / name / f"v{v}.png", images[(k + v) % 8, 0])
+        env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        base = [sys.executable, "-m", "ccs_kornia", "calibrate-many", str(root), "--board", f"{BOARD[0]}x{BOARD[1]}",
+                "--square", str(SQUARE), "--sets-per-batch", "1"]
+        out: dict = {"sets": len(names)}
+        runs = {"one_device": ["--device", "cuda" if accelerator == "gpu" else "cpu"],
+                "two_devices": ["--devices", "2", "--accelerator", accelerator, "--strategy", "ddp"]}
+        lines = {}
+        for key, extra in runs.items():
+            path = Path(tmp) / f"{key}.jsonl"
+            t = time.perf_counter()
+            try:
+                proc = subprocess.run([*base, "--output", str(path), *extra], capture_output=True, text=True,
+                                      timeout=time_limit, cwd=REPO, env=env, check=False)
+            except subprocess.TimeoutExpired:
+                return {**out, "ok": False, "error": f"{key}: over {time_limit:.0f} s"}
+            out[f"{key}_s"] = time.perf_counter() - t
+            _say(f"[gpu_check] calibrate-many on {key.replace('_', ' ')} ({accelerator}): {out[f'{key}_s']:.1f} s")
+            if proc.returncode != 0:
+                return {**out, "ok": False, "error": f"{key}: exit {proc.returncode}: {proc.stderr[-500:]}"}
+            lines[key] = [json.loads(line) for line in path.read_text().splitlines()]
+    one, two = lines["one_device"], lines["two_devices"]
+    out["same_sets"] = [r["set"] for r in one] == [r["set"] for r in two] and len({r["set"] for r in two}) == len(names)
+    diffs = [float((torch.tensor(b["K"]) - torch.tensor(a["K"])).abs().max() / torch.tensor(a["K"]).abs().max())
+             for a, b in zip(one, two) if a["success"] and b["success"]]
+    out["K_max_rel_diff"] = max(diffs) if diffs else float("nan")
+    out["ok"] = out["same_sets"] and len(diffs) == len(names) and out["K_max_rel_diff"] <= calib_tol
+    return out
+
+
 def would_check(corner_tol: float = 1e-3, calib_tol: float = 1e-6) -> list[str]:
     """What the script checks on a GPU machine, one line per check (printed by the dry run).
 
@@ -248,13 +303,15 @@ def would_check(corner_tol: float = 1e-3, calib_tol: float = 1e-6) -> list[str]:
         calib_tol: relative, CPU vs GPU calibration.
 
     Returns:
-        Four lines: the CUDA tests, the parity, the synchronisations, the throughput.
+        Five lines: the CUDA tests, the parity, the synchronisations, the throughput, calibrate-many on two GPUs.
     """
     return ["run the device-parametrised tests on CUDA: pytest -q -k cuda tests",
             (f"check CPU and GPU give the same corners (<= {corner_tol:g} px, same boards found) and the same "
              f"calibration from the same corners (K, distortion <= {calib_tol:g} relative) on a rendered set"),
             "count the CUDA synchronisations of a detection call at batch 4 and 16 and of a solver call",
-            "print detection images/s at batch 1/16/64 and calibrations/s at 1/64/256 cameras"]
+            "print detection images/s at batch 1/16/64 and calibrations/s at 1/64/256 cameras",
+            (f"with two GPUs: calibrate-many on 2 GPUs (DDP) writes the lines of 1 GPU (each set once, K <= "
+             f"{calib_tol:g} relative), with both wall times")]
 
 
 def run_checks(dry_run: bool = False, corner_tol: float = 1e-3, calib_tol: float = 1e-6, test_time_limit: float = 240.0,
@@ -270,8 +327,8 @@ def run_checks(dry_run: bool = False, corner_tol: float = 1e-3, calib_tol: float
 
     Returns:
         The report: ``cuda``, ``device``, ``torch``, ``threads``, ``tests`` (if run), ``parity``, ``syncs`` (CUDA),
-        ``throughput``, ``ok`` (every check that ran passed), ``dry_run``, ``would_check`` (the dry run's list) and
-        ``seconds``.
+        ``throughput``, ``fleet`` (CUDA; run with two GPUs), ``ok`` (every check that ran passed), ``dry_run``,
+        ``would_check`` (the dry run's list) and ``seconds``.
     """
     cuda = torch.cuda.is_available() and not dry_run
     t0 = time.perf_counter()
@@ -293,11 +350,17 @@ def run_checks(dry_run: bool = False, corner_tol: float = 1e-3, calib_tol: float
         report["syncs"] = _round_trips(images, truth.double())
         _say(f"[gpu_check] CUDA synchronisations per call: {report['syncs']}")
         report["throughput"] = _throughput(images, truth.double(), "cuda", (1, 16, 64), (1, 64, 256))
+        if torch.cuda.device_count() >= 2:
+            report["fleet"] = _fleet(calib_tol)
+        else:
+            report["fleet"] = {"skipped": f"needs two GPUs, found {torch.cuda.device_count()}"}
+        _say(f"[gpu_check] calibrate-many on two GPUs: {report['fleet']}")
     else:
         report["throughput"] = _throughput(images, truth.double(), "cpu", (1, 8), (1, 16))
     checks = [report.get("tests", {}).get("ok", True)]
     if cuda:
-        checks += [report["parity"].get("corners_ok", False), report["parity"].get("calibration_ok", False)]
+        checks += [report["parity"].get("corners_ok", False), report["parity"].get("calibration_ok", False),
+                   report["fleet"].get("ok", True)]
         syncs = report["syncs"]
         report["syncs_grow_with_batch"] = syncs["detect_batch16"] > syncs["detect_batch4"]
     else:
