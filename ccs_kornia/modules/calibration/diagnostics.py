@@ -21,7 +21,7 @@ module reports, per camera (batched like the solver):
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields, replace
 
 import torch
 from torch import nn
@@ -101,7 +101,8 @@ def cross_validation(
         dict of :math:`(C,)` tensors (NaN where a half or fold could not be calibrated): ``cv_rms_px`` and
         ``cv_max_px`` (difference of the two halves' projections over the grid, the best-aligning rotation
         fitted out), ``cv_expected_rms_px`` (the RMS difference their covariances predict), ``heldout_rms_px``,
-        ``heldout_views``; and per grid pixel :math:`(C, G)` ``cv_grid_px`` and ``cv_expected_grid_px`` (RMS
+        ``heldout_views``; per view :math:`(C, V)` ``heldout_view_mse_px2`` (mean squared held-out error of each
+        view's corners, NaN for views not held out); and per grid pixel :math:`(C, G)` ``cv_grid_px`` and ``cv_expected_grid_px`` (RMS
         predicted), with ``grid_pixels`` :math:`(G, 2)`.
     """
     C, V, N = valid.shape
@@ -174,20 +175,45 @@ def cross_validation(
         )
     npts = (rep(valid) & held[..., None]).sum(-1).to(K.dtype)
     sq = torch.where(held, pose.view_rms.nan_to_num(0.0) ** 2 * npts, torch.zeros_like(npts))
-    sq, npts = sq.reshape(C, k, V).sum((1, 2)), npts.reshape(C, k, V).sum((1, 2))
+    # each used view is held out in exactly one fold: its squared error summed over the folds is its own
+    view_sq, view_n = sq.reshape(C, k, V).sum(1), npts.reshape(C, k, V).sum(1)
+    sq, npts = view_sq.sum(-1), view_n.sum(-1)
     all_folds = okf.reshape(C, k).all(-1)
     heldout = torch.where(all_folds & (npts > 0), (sq / npts.clamp_min(1)).sqrt(), nan)
+    view_mse = torch.where(all_folds[:, None] & (view_n > 0), view_sq / view_n.clamp_min(1), nan[:, None])
     return {
         "cv_rms_px": cv_rms, "cv_max_px": cv_max, "cv_expected_rms_px": expected, "heldout_rms_px": heldout,
+        "heldout_view_mse_px2": view_mse,
         "heldout_views": torch.where(all_folds, fold.any(1).sum(-1), torch.zeros_like(all_folds, dtype=torch.long)),
         "cv_grid_px": torch.where(halves_ok[:, None], diff, torch.full_like(diff, float("nan"))), "grid_pixels": px,
         "cv_expected_grid_px": expected_grid,
     }
 
 
+#: the image diagonal (px) for which the verdict's pixel thresholds are written (640x480)
+REFERENCE_DIAGONAL_PX = 800.0
+
+
+def pixel_scale(image_size: tuple[int, int]) -> float:
+    """Factor on pixel thresholds for an image of ``image_size = (W, H)``: its diagonal over
+    :data:`REFERENCE_DIAGONAL_PX`, at least 1.
+
+    The errors the thresholds judge (a lens the model does not fit, poor coverage, a wrong corner) scale with the
+    image: the same camera photographed at twice the resolution shows them twice as large in px. The corner noise
+    floor (about 0.05-0.1 px) does not, so images smaller than 640x480 keep the thresholds as written.
+
+    Example:
+        >>> pixel_scale((640, 480)), pixel_scale((2560, 1920)), pixel_scale((320, 240))
+        (1.0, 4.0, 1.0)
+    """
+    W, H = image_size
+    return max(1.0, math.hypot(float(W), float(H)) / REFERENCE_DIAGONAL_PX)
+
+
 @dataclass
 class VerdictThresholds:
-    """Limits of the verdict, in px (measurements in ``docs/diagnostics.md``).
+    """Limits of the verdict, in px for a 640x480 image (measurements in ``docs/diagnostics.md``); :func:`diagnose`
+    scales them with the image (:meth:`scaled`, :func:`pixel_scale`), the ratios stay as they are.
 
     "Covered" is the part of the image inside some board: there the figures say how good the calibration is;
     outside it the distortion is extrapolated, which the verdict reports as a weakness, not a failure.
@@ -212,6 +238,10 @@ class VerdictThresholds:
     heldout_ratio: float = 1.5
     good_rms_px: float = 1.0
     usable_rms_px: float = 2.0
+
+    def scaled(self, factor: float) -> "VerdictThresholds":
+        """The same thresholds with every pixel limit multiplied by ``factor`` (ratios unchanged)."""
+        return replace(self, **{f.name: getattr(self, f.name) * factor for f in fields(self) if f.name.endswith("_px")})
 
 
 def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | None = None) -> tuple[str, list[str]]:
@@ -338,7 +368,8 @@ def diagnose(
         folds: folds of the held-out error.
         grid: ``(across, down)`` pixels of the uncertainty / cross-validation grids.
         weights: the per-corner weights the solver was given, if any (its cross-validation subsets get them too).
-        thresholds: :class:`VerdictThresholds`.
+        thresholds: :class:`VerdictThresholds` (pixel limits for a 640x480 image, scaled by
+            :func:`pixel_scale` of ``image_size``).
         solutions: the cross-validation's solved subsets kept by an earlier one (:func:`cross_validation`).
 
     Returns:
@@ -370,6 +401,7 @@ def diagnose(
 
         Figures that cannot be computed are None.
     """
+    limits = (thresholds or VerdictThresholds()).scaled(pixel_scale(image_size))
     unbatched = corners.dim() == 3
     if valid is None:
         valid = corners.isfinite().all(-1)
@@ -443,7 +475,7 @@ def diagnose(
             fig["cv_covered_expected_rms_px"] = _f(_nanrms(cv["cv_expected_grid_px"][c][covered[c]]))
         fig["heldout_views"] = int(cv["heldout_views"][c]) if cv is not None and good else 0
         fig["covered_fraction"] = _f(covered[c].double().mean())
-        fig["verdict"], fig["reasons"] = verdict(fig, issues[c], thresholds)
+        fig["verdict"], fig["reasons"] = verdict(fig, issues[c], limits)
         out.append(fig)
     return out
 

@@ -1,18 +1,32 @@
 """Automatic choice of the camera model by cross-validation (``--model auto``), batched over cameras.
 
-Every candidate model calibrates every camera; each calibration is then judged on views it did not see:
+Every candidate model calibrates every camera; each calibration is then judged on views it did not see, and the
+preferred model among those that predict them as well as the best one is kept:
 
 1. **held-out reprojection error** (k-fold: each fold's views reprojected with the camera fitted to the other
    views, their poses fitted with that camera held) — a model that over-fits the fitted views does worse here;
-2. among the models within ``tolerance`` (relative) of the best held-out error, the one whose calibrations from
-   two **disjoint halves** of the views agree best (RMS difference of their projections over the image, the
-   best-aligning rotation fitted out; mrcal's cross-validation diff). Equally good fits are told apart by how
-   stable they are where the boards were not: an over-parameterised model extrapolates differently from each
-   half.
+2. **which models the data cannot tell apart**: a model ties with the best when its held-out error is within
+   :data:`TIE_FLOOR` (relative) of the best, or when its per-view excess over the best (paired over the views both
+   held out) is not significant (Wilcoxon's signed-rank test, :data:`TIE_SIGMAS`) — the tolerance comes from the
+   held-out error's own spread across the views, not from a fixed percentage;
+3. among the tied models the first of :data:`PREFERENCE` (``opencv5``, ``k1k2``, ``fisheye``, ``rational``) whose
+   distortion maps the whole image one to one wins (an OpenCV model that folds inside the image, two rays onto one
+   pixel, has extrapolated where no pinhole lens does: ``opencv5``'s k3 on two real sets), unless another tied
+   model's two **disjoint halves** of the views agree clearly better (their projections over
+   the image differ by less than :data:`HALVES_CLEAR_RATIO` of the preferred model's difference, and by
+   :data:`HALVES_CLEAR_PX` px less; the best-aligning rotation fitted out; mrcal's cross-validation diff): a model
+   that fits as well but extrapolates differently from each half is not kept.
 
-Measured on the real sets (``docs/benchmarks.md``): held-out error alone picks ``opencv5`` for the 24-corner
-Sony board (fx 707 against the published 701) and cannot tell ``rational`` from ``fisheye`` on the ROS fisheye
-set (0.514 vs 0.513 px); with the halves' agreement (17 vs 2 px; 606 vs 8 px) both go right.
+Why this order. A richer model's held-out error comes out a hair lower by chance on noisy corners, and its extra
+coefficients then extrapolate wildly outside the boards (a normal 640x480 lens whose held-out errors were k1k2
+0.170, opencv5 0.167, rational 0.168 px got ``rational`` with k1 = -6.3, k5 = 7.5, and rendered OpenCV-model lenses
+got a non-OpenCV model 1-1.6 px off in focal length): ``rational`` comes last. Between ``opencv5`` and ``k1k2`` the
+risks are not symmetric: on rendered k1k2 lenses ``opencv5`` costs nothing measurable (E_IP 0.477 vs 0.475 px over
+five cameras), while on rendered OpenCV lenses whose held-out errors tie to 0.3 % ``k1k2`` doubled the error of
+one camera (0.59 vs 0.28 px); a ``k1k2`` lens is still told by the halves where ``opencv5`` over-fits (the 24-corner
+Sony board: halves 2.05 vs 17.3 px). ``fisheye`` comes before ``rational``: on the real fisheye sets the two tie
+on held-out views (0.513 vs 0.514 px) and the Kannala-Brandt model is the one that extrapolates (halves 8 vs 606
+px).
 """
 
 from __future__ import annotations
@@ -23,57 +37,169 @@ from typing import Any, Callable
 import torch
 from torch import nn
 
-from ccs_kornia.modules.calibration.diagnostics import cross_validation
+from ccs_kornia.modules.calibration.diagnostics import cross_validation, pixel_scale
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
+from ccs_kornia.modules.calibration.uncertainty import unprojectable_fraction
 
-__all__ = ["AUTO_MODELS", "HELDOUT_TOLERANCE", "ModelSelection", "SOLVE_COST_RANK", "choose_models", "rank_models"]
+__all__ = [
+    "AUTO_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
+    "TIE_SIGMAS", "choose_models", "rank_models", "tied_with_best",
+]
 
-#: the candidates of ``model="auto"``, simplest first (ties go to the earlier one)
+#: the candidates of ``model="auto"``
 AUTO_MODELS: tuple[str, ...] = ("k1k2", "opencv5", "rational", "fisheye")
-#: models whose held-out error is within this fraction of the best are compared by the halves' agreement
+#: among models the held-out views cannot tell apart, the earliest wins (see the module doc for the order's reasons)
+PREFERENCE: tuple[str, ...] = ("opencv5", "k1k2", "fisheye", "rational")
+#: held-out errors within this fraction of the best always tie (a difference of no practical meaning)
+TIE_FLOOR = 0.01
+#: a model ties with the best unless its per-view held-out errors exceed the best's by more than this many standard
+#: deviations of Wilcoxon's signed-rank statistic (one-sided, about 2 %; robust to one view with a large error)
+TIE_SIGMAS = 2.0
+#: fewer views held out by both models than this: the relative ``tolerance`` decides the tie
+MIN_PAIRED_VIEWS = 6
+#: a later tied model replaces an earlier one (in order of preference) only where its halves differ by less than
+#: this fraction of the earlier one's ...
+HALVES_CLEAR_RATIO = 0.25
+#: ... and by at least this many px less (scaled with the image as the verdict's thresholds)
+HALVES_CLEAR_PX = 1.0
+#: kept for callers of the former rule's keyword: models within this fraction of the best tie when the per-view
+#: errors are unknown (fewer than three views held out by both models)
 HELDOUT_TOLERANCE = 0.05
 
 
-def rank_models(heldout: list[float], halves: list[float], tolerance: float = HELDOUT_TOLERANCE) -> list[int]:
-    """Models of one camera from best to worst: those within ``tolerance`` of the best held-out error by the halves'
-    disagreement (then held-out error, then order), the rest by held-out error; models without a finite held-out
-    error are left out."""
+def _signed_rank_z(d: list[float]) -> float:
+    """Wilcoxon's signed-rank statistic of the differences ``d`` as a z-score (normal approximation; zeros dropped,
+    tied magnitudes share their mean rank): large and positive when the differences are mostly positive."""
+    d = [x for x in d if x != 0.0]
+    n = len(d)
+    if n == 0:
+        return 0.0
+    order = sorted(range(n), key=lambda i: abs(d[i]))
+    ranks = [0.0] * n
+    i = 0
+    while i < n:
+        j = i
+        while j + 1 < n and abs(d[order[j + 1]]) == abs(d[order[i]]):
+            j += 1
+        for k in range(i, j + 1):
+            ranks[order[k]] = (i + j) / 2.0 + 1.0
+        i = j + 1
+    w = sum(r for r, x in zip(ranks, d) if x > 0)
+    mean, var = n * (n + 1) / 4.0, n * (n + 1) * (2 * n + 1) / 24.0
+    return (w - mean) / math.sqrt(var)
+
+
+def tied_with_best(heldout: list[float], view_mse: list[list[float]] | None = None,
+                   tolerance: float = HELDOUT_TOLERANCE) -> list[bool]:
+    """Per model: does its held-out error tie with the best model's (see the module doc, step 2)?
+
+    Args:
+        heldout: held-out RMS per model (px; NaN: not judged).
+        view_mse: per model, the per-view held-out mean squared errors (px^2; NaN for views not held out), or
+            ``None``: the relative ``tolerance`` decides.
+        tolerance: relative band used where fewer than :data:`MIN_PAIRED_VIEWS` views were held out by both
+            models.
+
+    Example:
+        >>> tied_with_best([0.170, 0.167, 0.168], [[0.03, 0.025, 0.033, 0.02, 0.03, 0.028]] * 3)
+        [True, True, True]
+        >>> worse = [[0.10, 0.09, 0.08, 0.11, 0.07, 0.09], [0.04, 0.04, 0.04, 0.04, 0.05, 0.03]]
+        >>> tied_with_best([0.30, 0.20], worse)
+        [False, True]
+    """
+    finite = [k for k, h in enumerate(heldout) if math.isfinite(h)]
+    if not finite:
+        return [False] * len(heldout)
+    best = min(finite, key=lambda k: (heldout[k], k))
+    out = []
+    for k, h in enumerate(heldout):
+        if not math.isfinite(h):
+            out.append(False)
+        elif k == best or h <= heldout[best] * (1.0 + TIE_FLOOR):
+            out.append(True)
+        else:
+            pairs = [] if view_mse is None else [
+                (a, b) for a, b in zip(view_mse[k], view_mse[best]) if math.isfinite(a) and math.isfinite(b)]
+            if len(pairs) < MIN_PAIRED_VIEWS:
+                out.append(h <= heldout[best] * (1.0 + tolerance))
+            else:
+                out.append(_signed_rank_z([a - b for a, b in pairs]) <= TIE_SIGMAS)
+    return out
+
+
+def rank_models(heldout: list[float], halves: list[float], tolerance: float = HELDOUT_TOLERANCE,
+                view_mse: list[list[float]] | None = None, halves_clear_px: float = HALVES_CLEAR_PX,
+                folds: list[bool] | None = None) -> list[int]:
+    """Models of one camera from best to worst (indices into the lists, which are given in order of preference).
+
+    The models tied with the best held-out error (:func:`tied_with_best`) come first, in order of preference, except
+    that a later tied model whose halves agree clearly better (:data:`HALVES_CLEAR_RATIO`, ``halves_clear_px``) at a
+    held-out error within ``tolerance`` of the earlier one's is moved before it; tied models whose distortion folds
+    inside the image (``folds``: no inverse over part of it, see
+    :func:`~ccs_kornia.modules.calibration.uncertainty.unprojectable_fraction`) come after the tied ones that do not;
+    then the rest by held-out error. Models without a finite held-out error are left out.
+
+    Example:
+        >>> rank_models([0.187, 0.181, 0.181, 0.184], [17.3, 2.05, 22.7, 110.0])  # opencv5 k1k2 fisheye rational
+        [1, 0, 2, 3]
+        >>> rank_models([6.49, 2.28, 0.513, 0.514], [23.1, 28.9, 8.16, 606.0])
+        [2, 3, 1, 0]
+    """
     finite = [k for k, h in enumerate(heldout) if math.isfinite(h)]
     if not finite:
         return []
-    best = min(heldout[k] for k in finite)
-    inside = [k for k in finite if heldout[k] <= best * (1.0 + tolerance)]
-    outside = [k for k in finite if k not in inside]
+    tied = tied_with_best(heldout, view_mse, tolerance)
+    inside = [k for k in finite if tied[k]]
+    outside = sorted((k for k in finite if not tied[k]), key=lambda k: (heldout[k], k))
 
-    def agreement(k: int) -> tuple[float, float, int]:
-        return (halves[k] if math.isfinite(halves[k]) else math.inf, heldout[k], k)
+    def clearly_better(a: int, b: int) -> bool:  # do a's halves agree clearly better than b's?
+        ha = halves[a] if math.isfinite(halves[a]) else math.inf
+        hb = halves[b] if math.isfinite(halves[b]) else math.inf
+        if math.isinf(ha):
+            return False
+        return math.isinf(hb) or (ha < HALVES_CLEAR_RATIO * hb and hb - ha > halves_clear_px)
 
-    return sorted(inside, key=agreement) + sorted(outside, key=lambda k: (heldout[k], k))
+    ranked: list[int] = []
+    for group in (False, True):  # the tied models that map the whole image one to one first
+        rest = [k for k in sorted(inside) if bool(folds[k] if folds is not None else False) == group]
+        while rest:
+            pick = rest[0]
+            for k in rest[1:]:  # a later model takes the pick's place only by clearly better halves, at a held-out
+                if clearly_better(k, pick) and heldout[k] <= heldout[pick] * (1.0 + tolerance):  # error as good
+                    pick = k
+            ranked.append(pick)
+            rest.remove(pick)
+    return ranked + outside
 
 
-def choose_models(heldout: torch.Tensor, halves: torch.Tensor, tolerance: float = HELDOUT_TOLERANCE) -> torch.Tensor:
+def choose_models(heldout: torch.Tensor, halves: torch.Tensor, tolerance: float = HELDOUT_TOLERANCE,
+                  view_mse: torch.Tensor | None = None) -> torch.Tensor:
     r"""Index of the chosen model per camera from the cross-validation figures (see :func:`rank_models`).
 
     Args:
         heldout: :math:`(M, C)` held-out reprojection RMS (px; NaN: the model could not be judged / failed).
         halves: :math:`(M, C)` RMS difference of the two halves' calibrations (px; NaN: not computed, e.g. too few
             views for two halves: the held-out error alone decides).
-        tolerance: relative band above the best held-out error within which models compete on ``halves``.
+        tolerance: relative tie band where the per-view errors are unknown.
+        view_mse: optional :math:`(M, C, V)` per-view held-out mean squared errors (px^2, NaN: not held out).
 
     Returns:
         :math:`(C,)` long, ``-1`` where no model has a finite held-out error.
 
     Example:
-        >>> heldout = torch.tensor([[0.181], [0.187], [0.184], [0.181]])  # k1k2, opencv5, rational, fisheye
-        >>> halves = torch.tensor([[2.05], [17.3], [110.0], [22.7]])
+        >>> heldout = torch.tensor([[0.187], [0.181], [0.181], [0.184]])  # opencv5, k1k2, fisheye, rational
+        >>> halves = torch.tensor([[17.3], [2.05], [22.7], [110.0]])
         >>> choose_models(heldout, halves).tolist()
-        [0]
+        [1]
     """
     if heldout.shape != halves.shape or heldout.dim() != 2:
         raise ValueError(f"heldout and halves must both be (M, C), got {tuple(heldout.shape)} and {tuple(halves.shape)}.")
+    if view_mse is not None and (view_mse.dim() != 3 or view_mse.shape[:2] != heldout.shape):
+        raise ValueError(f"view_mse must be (M, C, V) with (M, C) = {tuple(heldout.shape)}, got {tuple(view_mse.shape)}.")
     H, S = heldout.double().cpu().T.tolist(), halves.double().cpu().T.tolist()
-    ranks = [rank_models(h, s, tolerance) for h, s in zip(H, S)]
+    E = None if view_mse is None else view_mse.double().cpu().permute(1, 0, 2).tolist()
+    ranks = [rank_models(h, s, tolerance, None if E is None else E[c]) for c, (h, s) in enumerate(zip(H, S))]
     return torch.tensor([r[0] if r else -1 for r in ranks], dtype=torch.long, device=heldout.device)
 
 
@@ -151,7 +277,7 @@ class ModelSelection(nn.Module):
         # costliest first, so worker processes finish together (the results do not depend on the order)
         order = sorted(names, key=lambda n: -SOLVE_COST_RANK.get(n, 0))
         solved = dict(zip(order, (map_models or (lambda fn, items: [fn(item) for item in items]))(solve, order)))
-        results, heldout, halves = {}, [], []
+        results, heldout, halves, view_mse = {}, [], [], []
         for name in names:
             res, cv, subsets = solved[name]
             if solutions is not None and subsets is not None:
@@ -163,27 +289,54 @@ class ModelSelection(nn.Module):
                 ok = res.success.to(nan.device)
                 heldout.append(torch.where(ok, cv["heldout_rms_px"].to(nan), nan))
                 halves.append(torch.where(ok, cv["cv_rms_px"].to(nan), nan))
+                view_mse.append(torch.where(ok[:, None], cv["heldout_view_mse_px2"].to(nan), nan[:, None]))
             else:
                 heldout.append(nan)
                 halves.append(nan)
-        H, S = torch.stack(heldout), torch.stack(halves)
+                view_mse.append(nan[:, None].expand(-1, corners.shape[1]))
+        H, S, E = torch.stack(heldout), torch.stack(halves), torch.stack(view_mse)
+        fold = torch.stack([self._folds(results[n], image_size) for n in names])  # (M, C)
+        # ranked in order of preference: the candidates in PREFERENCE order, any other after them in the order given
+        simple = sorted(range(len(names)), key=lambda i: (PREFERENCE.index(names[i]) if names[i] in PREFERENCE
+                                                          else len(PREFERENCE), i))
+        clear_px = HALVES_CLEAR_PX * pixel_scale(image_size)
         views = valid.any(-1).sum(-1).tolist()
         chosen: list[str | None] = []
         table = []
         for c in range(H.shape[1]):
-            ranking = [names[k] for k in rank_models(H[:, c].tolist(), S[:, c].tolist(), self.tolerance)]
+            h, hv, e = H[simple, c].tolist(), S[simple, c].tolist(), E[simple, c].tolist()
+            f = fold[simple, c].tolist()
+            ranking = [names[simple[k]] for k in rank_models(h, hv, self.tolerance, e, clear_px, f)]
+            tied = [names[simple[k]] for k, t in enumerate(tied_with_best(h, e, self.tolerance)) if t]
             # no model could be judged on held-out views (too few views for the folds): the first that calibrated
-            ranking = ranking or [n for n in names if bool(results[n].success[c])]
+            ranking = ranking or [names[i] for i in simple if bool(results[names[i]].success[c])]
             name = ranking[0] if ranking else None
             chosen.append(name)
             table.append({
                 "chosen": name, "runner_up": ranking[1] if len(ranking) > 1 else None, "views": int(views[c]),
                 "heldout_rms_px": {n: _num(H[i, c]) for i, n in enumerate(names)},
                 "halves_rms_px": {n: _num(S[i, c]) for i, n in enumerate(names)},
-                "rule": f"lowest disagreement of two halves among models within {100 * self.tolerance:g} % of the "
-                        "best held-out reprojection error",
+                "tied": tied, "folds_in_image": [n for i, n in enumerate(names) if bool(fold[i, c])],
+                "rule": f"the first of {', '.join(PREFERENCE)} whose held-out reprojection error the views cannot tell from the best "
+                        f"(within {100 * TIE_FLOOR:g} %, or a per-view excess below {TIE_SIGMAS:g} sigma of a signed-rank test) "
+                        "and whose distortion does not fold inside the image, unless another's two halves agree "
+                        "clearly better",
             })
         return results, chosen, table
+
+
+    @staticmethod
+    def _folds(result: CalibrationResult, image_size: tuple[int, int]) -> torch.Tensor:
+        """(C,) bool: the camera's polynomial (OpenCV) distortion has no inverse over part of the image (False where
+        it failed). A pinhole lens images the whole sensor, so an OpenCV model that folds inside it has
+        extrapolated wrongly; a fisheye lens's image circle may end inside the image, where the Kannala-Brandt
+        model legitimately has no inverse: it is never counted as folding."""
+        ok = result.success.bool()
+        if getattr(result, "model", None) == "fisheye" or result.dist.shape[-1] == 0:
+            return torch.zeros_like(ok)
+        K = torch.where(ok[:, None, None], result.K, torch.eye(3, dtype=result.K.dtype, device=result.K.device))
+        dist = torch.where(ok[:, None], result.dist, torch.zeros_like(result.dist)).nan_to_num(0.0)
+        return (unprojectable_fraction(K.double(), dist.double(), image_size) > 0) & ok
 
 
 def _num(x: torch.Tensor) -> float | None:

@@ -14,7 +14,7 @@ from ccs_kornia.camera import kb_unproject_points, undistort_pixels
 from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
 from ccs_kornia.modules.calibration.models.opencv import OpenCVModel
 
-__all__ = ["ROUNDTRIP_TOL_PX", "image_points", "projection_uncertainty", "projection_difference"]
+__all__ = ["ROUNDTRIP_TOL_PX", "image_points", "projection_uncertainty", "projection_difference", "unprojectable_fraction"]
 
 
 def image_points(image_size: tuple[int, int], grid: tuple[int, int] | None = None, dtype=torch.float64) -> torch.Tensor:
@@ -55,6 +55,34 @@ def _rays(K: torch.Tensor, dist: torch.Tensor, pixels: torch.Tensor, model: str 
     back = _project_rays(rays.nan_to_num(0.0), K, dist, model=model)
     ok = ((back - px).norm(dim=-1) <= ROUNDTRIP_TOL_PX) & rays.isfinite().all(-1)
     return torch.where(ok[..., None], rays, torch.full_like(rays, float("nan")))
+
+
+def unprojectable_fraction(K: torch.Tensor, dist: torch.Tensor, image_size: tuple[int, int],
+                           grid: tuple[int, int] = (16, 12), model: str = "opencv") -> torch.Tensor:
+    r"""Fraction of an image grid where the distortion model has no inverse: it folds before reaching those pixels
+    (two rays onto one pixel), which no lens does — the model's extrapolation has gone wrong there.
+
+    Args:
+        K: :math:`(C, 3, 3)`.
+        dist: :math:`(C, D)` (OpenCV order, or Kannala-Brandt ``k1..k4`` with ``model="fisheye"``).
+        image_size: ``(W, H)``.
+        grid: ``(across, down)`` pixels tested, corners included.
+        model: ``"opencv"`` or ``"fisheye"``.
+
+    Returns:
+        :math:`(C,)` in [0, 1].
+
+    Example:
+        >>> K = torch.tensor([[[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]], dtype=torch.float64)
+        >>> unprojectable_fraction(K, torch.tensor([[-0.1, 0.0, 0, 0, 0]], dtype=torch.float64), (640, 480)).tolist()
+        [0.0]
+        >>> unprojectable_fraction(K, torch.tensor([[-0.6, 0.0, 0, 0, 0]], dtype=torch.float64), (640, 480)).item() > 0
+        True
+    """
+    if K.dim() != 3 or K.shape[-2:] != (3, 3) or dist.dim() != 2 or dist.shape[0] != K.shape[0]:
+        raise ValueError(f"Expected K (C, 3, 3) and dist (C, D), got {tuple(K.shape)} and {tuple(dist.shape)}.")
+    px = image_points(image_size, grid, dtype=K.dtype).to(K.device)
+    return _rays(K, dist, px, model).isnan().any(-1).to(K.dtype).mean(-1)
 
 
 def _project_rays(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, jacobians: bool = False,

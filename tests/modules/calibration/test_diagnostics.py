@@ -436,3 +436,25 @@ def test_check_degeneracy_unbatched_matches_batched():
                          res.std_intrinsics[0])
     assert torch.equal(a.severity[0], b.severity) and torch.allclose(a.value[0], b.value, equal_nan=True)
     assert a.issues() == b.issues()
+
+
+@pytest.mark.parametrize("scale", [2.0, 4.0])
+def test_the_same_camera_at_a_higher_resolution_gets_the_same_verdict(scale):
+    """Every pixel figure of a set photographed at ``scale`` times the resolution is ``scale`` times larger; the
+    verdict's pixel limits scale with the image (``pixel_scale``), so the verdict is the same."""
+    d = views(C=4, V=12, noise=(0.9, 1.5), seed=23)
+    solver = CalibrationSolver()
+    big = (int(SIZE[0] * scale), int(SIZE[1] * scale))
+    levels = {}
+    for s, size in ((1.0, SIZE), (scale, big)):
+        uv = d["uv"] * s
+        res = solver(uv, d["valid"], d["obj"], size)
+        figs = diagnose(res, uv, d["valid"], d["obj"], size, solver)
+        levels[s] = [f["verdict"].split(":")[0] for f in figs]
+        rms = [f["rms_px"] for f in figs]
+        assert all(r > 0.8 * s for r in rms), rms  # the figures did grow with the image
+    assert levels[1.0] == levels[scale], levels
+    assert "good" not in levels[1.0]  # a set whose verdict depends on the pixel limits
+    assert diagnostics.pixel_scale((320, 240)) == 1.0 and diagnostics.pixel_scale(big) == scale
+    limits = diagnostics.VerdictThresholds().scaled(scale)
+    assert limits.good_rms_px == scale and limits.cv_ratio == diagnostics.VerdictThresholds().cv_ratio

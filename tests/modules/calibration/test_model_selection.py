@@ -8,7 +8,13 @@ import pytest
 import torch
 
 from ccs_kornia.camera import board_object_points, kb_project_points, project_points
-from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelSelection, choose_models, rank_models
+from ccs_kornia.modules.calibration.model_selection import (
+    AUTO_MODELS,
+    ModelSelection,
+    choose_models,
+    rank_models,
+    tied_with_best,
+)
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.pipeline_result import select_result
 
@@ -112,3 +118,69 @@ def test_pipeline_auto_mixed_models_in_one_batch():
     # the stage alone gives the same as the composition
     alone = pipe.calibrate(uv[1], torch.ones(12, dtype=torch.bool), (9, 6), 0.03, (640, 480))
     assert alone.model == two.model and torch.allclose(alone.K, two.K)
+
+
+def test_the_preferred_of_the_models_the_held_out_views_cannot_tell_apart():
+    # lists in order of preference: opencv5, k1k2, fisheye, rational
+    # a normal lens: every model within a hair (per-view errors mixed): opencv5, whatever the others' halves say short
+    # of "clearly better"
+    views = [[0.028, 0.030, 0.028, 0.029, 0.026, 0.030, 0.027], [0.029, 0.031, 0.027, 0.030, 0.026, 0.032, 0.028],
+             [0.029, 0.030, 0.028, 0.030, 0.026, 0.031, 0.027], [0.028, 0.031, 0.027, 0.029, 0.025, 0.031, 0.028]]
+    held = [math.sqrt(sum(v) / len(v)) for v in views]
+    assert rank_models(held, [1.9, 1.2, 1.5, 0.9], view_mse=views)[0] == 0
+    # opencv5 over-fits a small board (its halves disagree far more): k1k2
+    assert rank_models(held, [17.3, 2.05, 22.7, 110.0], view_mse=views)[0] == 1
+    # fisheye and rational tie on a fisheye lens, the pinhole models are worse in every view: fisheye
+    worse = [0.10, 0.12, 0.09, 0.11, 0.13, 0.10, 0.12]
+    tie_a = [0.020, 0.022, 0.019, 0.021, 0.023, 0.020, 0.022]
+    tie_b = [0.021, 0.021, 0.020, 0.020, 0.024, 0.019, 0.022]
+    views = [[x * 0.8 for x in worse], worse, tie_a, tie_b]
+    held = [math.sqrt(sum(v) / len(v)) for v in views]
+    assert rank_models(held, [25.0, 30.0, 8.0, 600.0], view_mse=views)[:2] == [2, 3]
+    # a later model wins the tie only with clearly better halves (under a quarter and a pixel less)
+    views = [tie_b, tie_a]
+    held = [math.sqrt(sum(v) / len(v)) for v in views]
+    assert rank_models(held, [12.0, 2.0], view_mse=views)[0] == 1
+    assert rank_models(held, [4.0, 2.0], view_mse=views)[0] == 0
+    assert rank_models(held, [1.0, 0.1], view_mse=views)[0] == 0  # a quarter, but not a pixel apart
+    assert rank_models(held, [12.0, 2.0], view_mse=views, halves_clear_px=20.0)[0] == 0  # the pixel floor scales
+
+
+def test_a_model_worse_in_every_held_out_view_does_not_tie():
+    good = [0.020, 0.022, 0.019, 0.021, 0.023, 0.020, 0.022, 0.021]
+    bad = [x * 1.15 for x in good]  # 7 % worse in RMS, consistently
+    held = [math.sqrt(sum(v) / len(v)) for v in (bad, good)]
+    assert tied_with_best(held, [bad, good]) == [False, True]
+    assert rank_models(held, [1.0, 5.0], view_mse=[bad, good]) == [1, 0]
+    # one view far off and the rest equal: a single view does not make a model worse
+    spike = good[:-1] + [0.2]
+    held = [math.sqrt(sum(v) / len(v)) for v in (good, spike)]
+    assert tied_with_best(held, [good, spike]) == [True, True]
+    # too few views held out by both: the relative tolerance decides
+    assert tied_with_best([0.204, 0.200], [[0.04] * 3, [0.04] * 3]) == [True, True]
+    assert tied_with_best([0.300, 0.200], [[0.09] * 3, [0.04] * 3]) == [False, True]
+
+
+def test_choose_models_with_per_view_errors():
+    views = torch.tensor([[[0.10, 0.12, 0.09, 0.11, 0.13, 0.10, 0.12]], [[0.020, 0.022, 0.019, 0.021, 0.023, 0.020,
+                                                                         0.022]]], dtype=F64)
+    held = views.mean(-1).sqrt()
+    assert choose_models(held, torch.ones_like(held), view_mse=views).tolist() == [1]
+    assert choose_models(held, torch.ones_like(held)).tolist() == [1]
+    with pytest.raises(ValueError, match="view_mse"):
+        choose_models(held, torch.ones_like(held), view_mse=views[0])
+
+
+def test_rendered_opencv_lenses_keep_an_opencv_model():
+    """Noisy corners (0.3 px) of an OpenCV five-coefficient lens: auto keeps the OpenCV model or one the halves show
+    to be clearly more stable, never ``rational`` by a hair."""
+    K = torch.tensor([[520.0, 0, 322], [0, 522, 241], [0, 0, 1]], dtype=F64)
+    dist = torch.tensor([-0.28, 0.12, 0.001, -0.001, -0.03], dtype=F64)
+    rv, tv, g = _views(V=15, seed=11)
+    tv = tv * torch.tensor([1.0, 1.0, 2.0], dtype=F64)
+    uv = project_points(OBJ.expand(15, -1, -1), K.expand(15, 3, 3), dist, rv, tv)
+    uv = (uv + 0.3 * torch.randn(uv.shape, generator=g, dtype=F64))[None]
+    select = ModelSelection({m: CalibrationSolver(model=m) for m in AUTO_MODELS})
+    results, chosen, table = select(uv, uv.isfinite().all(-1), OBJ, (640, 480))
+    assert chosen[0] == "opencv5", table[0]
+    assert table[0]["tied"][0] == "opencv5" and "rule" in table[0]
