@@ -1,21 +1,23 @@
 r"""Gradients of a Levenberg–Marquardt optimum by implicit differentiation (no unrolled iterations).
 
-At the optimum :math:`x^*` of :math:`F(x, c) = \sum_n w_n |r_n(x, c)|^2` with :math:`r_n = \pi_n(x) - c_n`
+At the optimum :math:`x^*` of :math:`F(x, c) = \frac12 \sum_n w_n |r_n(x, c)|^2` with :math:`r_n = \pi_n(x) - c_n`
 (:math:`x`: the free camera coordinates and every used view's pose, :math:`c`: the observed corners), the
 stationarity :math:`g(x^*, c) = J^T W r = 0` holds for every :math:`c`, so
 
 .. math::
-    \frac{d x^*}{d c} = -H^{-1} \frac{\partial g}{\partial c} = H^{-1} J^T W, \qquad H \approx J^T W J
+    \frac{d x^*}{d c} = -H^{-1} \frac{\partial g}{\partial c} = H^{-1} J^T W, \qquad
+    H = \frac{\partial g}{\partial x} = J^T W J + \sum_n w_n r_n \cdot \nabla^2 \pi_n .
 
-(Gauss-Newton: the second-order terms :math:`\sum w\, r\, \nabla^2 r` vanish with the residuals). A backward pass
-therefore solves one linear system :math:`H u = \bar x` with the normal equations of the LM core (camera block plus
-pose blocks eliminated by the Schur complement, batched over cameras: :func:`~.lm._normal_equations` and
-:func:`~.lm._schur_step` at zero damping) and maps :math:`u` back to the inputs through per-corner products:
+A backward pass solves one linear system :math:`H u = \bar x` with the arrow structure of the LM core (a camera
+block, one 6x6 block per view, eliminated by the Schur complement and batched over cameras:
+:func:`~ccs_kornia.modules.calibration.lm._schur_step` at zero damping), then gives every input
+:math:`-u^T \partial g / \partial (c, w, X)` in one vector-Jacobian product: corners :math:`w_n J_n u`, weights
+:math:`-(J_n u) \cdot r_n`, board points through the projection and its Jacobian.
 
-* corners: :math:`\bar c_n = w_n J_n u` (exact for the Gauss-Newton :math:`H`);
-* weights: :math:`\bar w_n = -(J_n u) \cdot r_n` (exact: :math:`\partial g / \partial w_n = J_n^T r_n`);
-* board points: :math:`\bar X_n = -\sum_v w_{vn} (J_{vn} u)^T (\partial \pi / \partial X_c) R_v` (Gauss-Newton: the
-  term of the Jacobian's own dependence on :math:`X`, weighted by the residual, is dropped).
+``H`` is the exact Hessian: ``g`` is built from the camera model's analytic Jacobian columns and differentiated once
+more by autograd (``F + 6`` vector-Jacobian products give every block). The Gauss-Newton :math:`J^T W J` alone,
+exact only for zero residuals, was 2-8 % off finite differences at 0.05-0.3 px corner noise on 6-view problems; the
+exact one agrees to 1e-4.
 
 Only the free coordinates carry gradient: a fixed parameter has zero gradient, tied ones (``basis``, e.g. a fixed
 aspect ratio) move together. Rotations are perturbed on the left, ``R <- exp(w) R`` as in the LM core; the
@@ -29,7 +31,7 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.modules.calibration.lm import _normal_equations, _schur_step
+from ccs_kornia.modules.calibration.lm import _schur_step
 from ccs_kornia.modules.calibration.models.base import CameraModel
 from ccs_kornia.modules.calibration.so3 import exp_so3
 
@@ -56,63 +58,91 @@ def so3_left_jacobian_inverse(w: torch.Tensor) -> torch.Tensor:
     return eye - 0.5 * K + coef * (K @ K)
 
 
+def _gradient(model, basis, params, R, tvec, obj, corners, weights, z_cam, z_pose):
+    """Gradient of the cost (halved) in the solver's coordinates at ``z``: free camera coordinates ``z_cam`` (C, F)
+    and left pose increments ``z_pose`` (C, V, 6), from the model's analytic columns (differentiable by autograd)."""
+    C, V, N = corners.shape[:3]
+    p = params + (basis @ z_cam.unsqueeze(-1)).squeeze(-1)
+    # exp(w) R to first order (all the derivative at z = 0 needs; exp's own derivative is undefined at 0 by autograd)
+    w = z_pose[..., :3]
+    zero = torch.zeros_like(w[..., 0])
+    Kw = torch.stack([zero, -w[..., 2], w[..., 1], w[..., 2], zero, -w[..., 0], -w[..., 1], w[..., 0], zero], -1)
+    Rz = R + Kw.view(*w.shape[:-1], 3, 3) @ R
+    q = torch.matmul(obj[:, None].expand(C, V, N, 3), Rz.transpose(-1, -2))  # R X
+    uv, dp, (dx, dy, dz) = model.columns(q + (tvec + z_pose[..., 3:])[:, :, None, :], p)
+    wr = weights[..., None] * (uv - corners)  # (C, V, N, 2)
+    g_par = torch.stack([(wr * col).sum((-1, -2)) for col in dp], -1)  # (C, V, P) per view
+    qx, qy, qz = q[..., 0:1], q[..., 1:2], q[..., 2:3]
+    cols = [qy * dz - qz * dy, qz * dx - qx * dz, qx * dy - qy * dx, dx, dy, dz]
+    g_pose = torch.stack([(wr * col).sum((-1, -2)) for col in cols], -1)  # (C, V, 6)
+    g_cam = (basis.transpose(-1, -2) @ g_par.sum(1).unsqueeze(-1)).squeeze(-1)  # (C, F)
+    return g_cam, g_pose
+
+
 def _backward(model, basis, params, rvec, tvec, corners, weights, obj, g_params, g_rvec, g_tvec, need):
     """Vector-Jacobian products of the optimum (see the module doc); ``need`` flags (corners, weights, obj)."""
     C, V, N = corners.shape[:3]
-    dtype = params.dtype
+    dtype, device = params.dtype, params.device
     on = weights > 0
     used = on.any(-1)
     ok = used.any(-1) & params.isfinite().all(-1)  # (C,) cameras with a solution
     p = torch.where(ok[:, None], params, 1.0)
     rv = torch.where(used[..., None] & rvec.isfinite(), rvec, 0.0)
-    park = torch.tensor([0.0, 0.0, 1.0 + 10.0 * float(obj.abs().amax())], dtype=dtype, device=corners.device)
+    park = torch.tensor([0.0, 0.0, 1.0 + 10.0 * float(obj.abs().amax())], dtype=dtype, device=device)
     tv = torch.where(used[..., None] & tvec.isfinite(), tvec, park)
     R = exp_so3(rv)
-    obs = torch.where(on[..., None], corners, 0.0)
-    sw = weights.sqrt()
-    eye6 = torch.eye(6, dtype=dtype, device=corners.device)
-    _, U, Wb, Vb, _, _, _ = _normal_equations(model, R, tv, p, obj, obs, sw, basis, used, eye6, {})
+    F = basis.shape[-1]
+    z_cam = torch.zeros(C, F, dtype=dtype, device=device, requires_grad=True)
+    z_pose = torch.zeros(C, V, 6, dtype=dtype, device=device, requires_grad=True)
+    c_in = torch.where(on[..., None], corners, 0.0).requires_grad_(need[0])
+    w_in = torch.where(on, weights, 0.0).requires_grad_(need[1])
+    o_in = obj.detach().clone().requires_grad_(need[2])
+    with torch.enable_grad():
+        g_cam, g_pose = _gradient(model, basis, p, R, tv, o_in, c_in, w_in, z_cam, z_pose)
+        # the exact Hessian in its arrow blocks: a camera row of every camera, a pose row of every view, per pass
+        Hcc, Hcp, Hpp = [], [], []
+        for k in range(F):
+            e = torch.zeros_like(g_cam)
+            e[:, k] = 1.0
+            a, b = torch.autograd.grad(g_cam, (z_cam, z_pose), e, retain_graph=True)
+            Hcc.append(a)
+            Hcp.append(b)
+        for k in range(6):
+            e = torch.zeros_like(g_pose)
+            e[..., k] = 1.0
+            Hpp.append(torch.autograd.grad(g_pose, z_pose, e, retain_graph=True)[0])
+        eye6 = torch.eye(6, dtype=dtype, device=device)
+        U = torch.stack(Hcc, -2) if F else g_cam.new_zeros(C, 0, 0)
+        Wb = torch.stack(Hcp, -2) if F else g_pose.new_zeros(C, V, 0, 6)  # (C, V, F, 6)
+        Vb = torch.where(used[..., None, None], torch.stack(Hpp, -2), eye6)
 
-    # right-hand side: the output gradients in the solver's coordinates (free camera coordinates, left pose increments)
-    zeros3 = torch.zeros(C, V, 3, dtype=dtype, device=corners.device)
-    g_params = torch.zeros_like(params) if g_params is None else g_params.nan_to_num(0.0)
-    g_rvec = zeros3 if g_rvec is None else g_rvec.nan_to_num(0.0)
-    g_tvec = zeros3 if g_tvec is None else g_tvec.nan_to_num(0.0)
-    v_cam = (basis.transpose(-1, -2) @ g_params.unsqueeze(-1)).squeeze(-1)
-    g_w = (so3_left_jacobian_inverse(rv).transpose(-1, -2) @ g_rvec.unsqueeze(-1)).squeeze(-1)
-    used_f = used.to(dtype)
-    v_pose = torch.cat([g_w, g_tvec], -1) * used_f[..., None]
-    eyeF = torch.eye(basis.shape[-1], dtype=dtype, device=corners.device)
-    lam = torch.zeros(C, dtype=dtype, device=corners.device)
-    # the undamped step of the LM core solves H u = -(eg, ep): with (eg, ep) = -(v_cam, v_pose) it gives H^-1 v
-    u_cam, u_pose = _schur_step(U, Wb, Vb, -v_cam, -v_pose, lam, used_f, eyeF)
-    u_par = (basis @ u_cam.unsqueeze(-1)).squeeze(-1)  # (C, P)
-
-    # J u per corner: parameter columns, then rotation q x (d uv / d Xc) and translation columns
-    q = torch.matmul(obj[:, None].expand(C, V, N, 3), R.transpose(-1, -2))
-    uv, dp, (dx, dy, dz) = model.columns(q + tv[:, :, None, :], p)
-    Ju = torch.zeros_like(uv)
-    for i, col in enumerate(dp):
-        Ju = Ju + col * u_par[:, i].view(C, *([1] * (uv.dim() - 1)))
-    uw, ut = u_pose[..., None, None, :3], u_pose[..., None, None, 3:]  # (C, V, 1, 1, 3)
-    qx, qy, qz = q[..., 0:1], q[..., 1:2], q[..., 2:3]
-    Ju = Ju + (qy * dz - qz * dy) * uw[..., 0] + (qz * dx - qx * dz) * uw[..., 1] + (qx * dy - qy * dx) * uw[..., 2]
-    Ju = Ju + dx * ut[..., 0] + dy * ut[..., 1] + dz * ut[..., 2]
+        # right-hand side: the output gradients in the solver's coordinates (free camera coordinates, left pose
+        # increments)
+        zeros3 = torch.zeros(C, V, 3, dtype=dtype, device=device)
+        g_params = torch.zeros_like(params) if g_params is None else g_params.nan_to_num(0.0)
+        g_rvec = zeros3 if g_rvec is None else g_rvec.nan_to_num(0.0)
+        g_tvec = zeros3 if g_tvec is None else g_tvec.nan_to_num(0.0)
+        v_cam = (basis.transpose(-1, -2) @ g_params.unsqueeze(-1)).squeeze(-1)
+        g_w = (so3_left_jacobian_inverse(rv).transpose(-1, -2) @ g_rvec.unsqueeze(-1)).squeeze(-1)
+        used_f = used.to(dtype)
+        v_pose = torch.cat([g_w, g_tvec], -1) * used_f[..., None]
+        eyeF = torch.eye(F, dtype=dtype, device=device)
+        lam = torch.zeros(C, dtype=dtype, device=device)
+        # the undamped step of the LM core solves H u = -(eg, ep): with (eg, ep) = -(v_cam, v_pose) it gives H^-1 v
+        u_cam, u_pose = _schur_step(U.detach(), Wb.detach(), Vb.detach(), -v_cam, -v_pose, lam, used_f, eyeF)
+        u_cam = torch.where(ok[:, None], u_cam, 0.0)
+        u_pose = torch.where(ok[:, None, None], u_pose, 0.0)
+        inputs = [t for t, n in zip((c_in, w_in, o_in), need) if n]
+        grads = iter(torch.autograd.grad((g_cam, g_pose), inputs, (-u_cam, -u_pose), allow_unused=True))
+    out = [next(grads) if n else None for n in need]
     keep = on & ok[:, None, None]
-    Ju = torch.where(keep[..., None], Ju, 0.0)
-    w0 = torch.where(keep, weights, 0.0)
-
-    g_corners = g_weights = g_obj = None
-    if need[0]:
-        g_corners = w0[..., None] * Ju
-    if need[1]:
-        g_weights = -torch.where(keep, (Ju * (uv - obs)).sum(-1), 0.0)
-    if need[2]:
-        # (w J u)^T (d uv / d Xc) R, summed over the views
-        wJu = w0[..., None] * Ju
-        dXc = torch.stack([(wJu * d.expand_as(wJu)).sum(-1) for d in (dx, dy, dz)], -1)  # (C, V, N, 3)
-        g_obj = -(dXc @ R).sum(1)
-    return g_corners, g_weights, g_obj
+    if out[0] is not None:
+        out[0] = torch.where(keep[..., None], out[0], 0.0)
+    if out[1] is not None:
+        out[1] = torch.where(keep, out[1], 0.0)
+    if out[2] is not None:
+        out[2] = torch.where(ok[:, None, None], out[2], 0.0)
+    return tuple(out)
 
 
 class ImplicitSolution(torch.autograd.Function):
