@@ -109,6 +109,13 @@ class CalibrationSolver(nn.Module):
             ``success = False``, and every result carries ``check_*`` tensors (see ``CalibrationResult.issues``).
         thresholds: :class:`~ccs_kornia.modules.calibration.degeneracy.DegeneracyThresholds` of those checks.
 
+    Gradients: when ``corners``, ``weights`` or ``object_points`` require grad, ``K``, ``dist``, ``rvec`` and ``tvec``
+    carry gradients by implicit differentiation at the final LM optimum
+    (:mod:`~ccs_kornia.modules.calibration.implicit`; no unrolled iterations, the values unchanged). The discrete
+    decisions (initialisation, RANSAC, duplicates, the outlier check, which views and corners are used) and the tie
+    of ``fix_aspect_ratio`` are constants of the backward pass; fixed parameters have zero gradient; ``rms``,
+    ``view_rms`` and the covariances carry none. See ``docs/gradients.md``.
+
     Shape:
         corners :math:`(C, V, N, 2)` px, valid :math:`(C, V, N)` bool, object_points :math:`(N, 3)` or
         :math:`(C, N, 3)`, image_size ``(W, H)`` -> :class:`CalibrationResult`. Unbatched :math:`(V, N, 2)`
@@ -223,7 +230,8 @@ class CalibrationSolver(nn.Module):
         if fix_intrinsics and initial is None:
             raise ValueError("fix_intrinsics needs an initial result to take the intrinsics from.")
         # no autograd through the solver (LM, closed forms): inference mode spares the dispatcher's autograd and
-        # version-counter work on every small op; the results are cloned out as ordinary tensors
+        # version-counter work on every small op; the results are cloned out as ordinary tensors, and gradients, where
+        # an input requires them, are attached at the optimum by implicit differentiation
         with torch.inference_mode(), small_problem_threads(corners.shape[:-1].numel(), corners.device):
             out = self._solve(corners, valid, object_points, image_size, init_corners, initial, bool(fix_intrinsics),
                               weights)
