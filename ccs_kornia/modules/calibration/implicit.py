@@ -15,7 +15,7 @@ block, one 6x6 block per view, eliminated by the Schur complement and batched ov
 :math:`-(J_n u) \cdot r_n`, board points through the projection and its Jacobian.
 
 ``H`` is the exact Hessian: ``g`` is built from the camera model's analytic Jacobian columns and differentiated once
-more by autograd (``F + 6`` vector-Jacobian products give every block); the Gauss-Newton :math:`J^T W J` alone is
+more by autograd (one vector-Jacobian product on ``F + 6`` copies of the problem gives every block); the Gauss-Newton :math:`J^T W J` alone is
 exact only where the residuals vanish, and noisy corners make the difference visible in the gradient.
 
 Only the free coordinates carry gradient: a fixed parameter has zero gradient, tied ones (``basis``, e.g. a fixed
@@ -34,7 +34,7 @@ from ccs_kornia.modules.calibration.lm import _schur_step
 from ccs_kornia.modules.calibration.models.base import CameraModel
 from ccs_kornia.modules.calibration.so3 import exp_so3
 
-__all__ = ["implicit_solution", "ImplicitSolution", "so3_left_jacobian_inverse"]
+__all__ = ["HESSIAN_CHUNK", "implicit_solution", "ImplicitSolution", "so3_left_jacobian_inverse"]
 
 
 def so3_left_jacobian_inverse(w: torch.Tensor) -> torch.Tensor:
@@ -78,6 +78,42 @@ def _gradient(model, basis, params, R, tvec, obj, corners, weights, z_cam, z_pos
     return g_cam, g_pose
 
 
+#: points (cameras x views x corners x seeds) per autograd pass of :func:`_hessian`
+HESSIAN_CHUNK = 1 << 21
+
+
+def _hessian(model, basis, params, R, tvec, obj, corners, weights):
+    """The exact Hessian of the cost in the arrow blocks ``U (C, F, F), W (C, V, F, 6), V (C, V, 6, 6)``: the gradient
+    of :func:`_gradient` on copies of the problem, one copy per seed (a camera coordinate, or a pose coordinate of
+    every view at once: the views' pose rows do not mix), differentiated in one vector-Jacobian product."""
+    C, V, N = corners.shape[:3]
+    F = basis.shape[-1]
+    S = F + 6
+    dtype, device = params.dtype, params.device
+    seeds = torch.eye(S, dtype=dtype, device=device)
+    rows_c, rows_p = [], []
+    step = max(1, HESSIAN_CHUNK // max(C * V * N, 1))
+    for a in range(0, S, step):
+        E = seeds[a : a + step]  # (s, S)
+        s = E.shape[0]
+
+        def rep(t):
+            return t.repeat(s, *([1] * (t.dim() - 1)))
+
+        z_cam = torch.zeros(s * C, F, dtype=dtype, device=device, requires_grad=True)
+        z_pose = torch.zeros(s * C, V, 6, dtype=dtype, device=device, requires_grad=True)
+        with torch.enable_grad():
+            g_cam, g_pose = _gradient(model, rep(basis), rep(params), rep(R), rep(tvec), rep(obj), rep(corners),
+                                      rep(weights), z_cam, z_pose)
+            e_cam = E[:, None, :F].expand(s, C, F).reshape(s * C, F)
+            e_pose = E[:, None, None, F:].expand(s, C, V, 6).reshape(s * C, V, 6)
+            gc, gp = torch.autograd.grad((g_cam, g_pose), (z_cam, z_pose), (e_cam, e_pose))
+        rows_c.append(gc.view(s, C, F))
+        rows_p.append(gp.view(s, C, V, 6))
+    rows_c, rows_p = torch.cat(rows_c), torch.cat(rows_p)
+    return rows_c[:F].permute(1, 0, 2), rows_p[:F].permute(1, 2, 0, 3), rows_p[F:].permute(1, 2, 0, 3)
+
+
 def _backward(model, basis, params, rvec, tvec, corners, weights, obj, g_params, g_rvec, g_tvec, need):
     """Vector-Jacobian products of the optimum (see the module doc); ``need`` flags (corners, weights, obj)."""
     C, V, N = corners.shape[:3]
@@ -91,29 +127,17 @@ def _backward(model, basis, params, rvec, tvec, corners, weights, obj, g_params,
     tv = torch.where(used[..., None] & tvec.isfinite(), tvec, park)
     R = exp_so3(rv)
     F = basis.shape[-1]
-    z_cam = torch.zeros(C, F, dtype=dtype, device=device, requires_grad=True)
-    z_pose = torch.zeros(C, V, 6, dtype=dtype, device=device, requires_grad=True)
-    c_in = torch.where(on[..., None], corners, 0.0).requires_grad_(need[0])
-    w_in = torch.where(on, weights, 0.0).requires_grad_(need[1])
+    c_in = torch.where(on[..., None], corners, 0.0)
+    w_in = torch.where(on, weights, 0.0)
+    U, Wb, Hpp = _hessian(model, basis, p, R, tv, obj, c_in, w_in)
+    c_in, w_in = c_in.requires_grad_(need[0]), w_in.requires_grad_(need[1])
     o_in = obj.detach().clone().requires_grad_(need[2])
+    z_cam = torch.zeros(C, F, dtype=dtype, device=device)
+    z_pose = torch.zeros(C, V, 6, dtype=dtype, device=device)
     with torch.enable_grad():
         g_cam, g_pose = _gradient(model, basis, p, R, tv, o_in, c_in, w_in, z_cam, z_pose)
-        # the exact Hessian in its arrow blocks: a camera row of every camera, a pose row of every view, per pass
-        Hcc, Hcp, Hpp = [], [], []
-        for k in range(F):
-            e = torch.zeros_like(g_cam)
-            e[:, k] = 1.0
-            a, b = torch.autograd.grad(g_cam, (z_cam, z_pose), e, retain_graph=True)
-            Hcc.append(a)
-            Hcp.append(b)
-        for k in range(6):
-            e = torch.zeros_like(g_pose)
-            e[..., k] = 1.0
-            Hpp.append(torch.autograd.grad(g_pose, z_pose, e, retain_graph=True)[0])
         eye6 = torch.eye(6, dtype=dtype, device=device)
-        U = torch.stack(Hcc, -2) if F else g_cam.new_zeros(C, 0, 0)
-        Wb = torch.stack(Hcp, -2) if F else g_pose.new_zeros(C, V, 0, 6)  # (C, V, F, 6)
-        Vb = torch.where(used[..., None, None], torch.stack(Hpp, -2), eye6)
+        Vb = torch.where(used[..., None, None], Hpp, eye6)
 
         # right-hand side: the output gradients in the solver's coordinates (free camera coordinates, left pose
         # increments)
