@@ -188,3 +188,25 @@ def test_implicit_solution_exceptions_and_passthrough():
     out = implicit_solution(m, torch.eye(6, dtype=F64)[None], params, res.rvec[None], res.tvec[None], uv,
                             torch.ones(uv.shape[:-1], dtype=F64), obj[None])
     assert torch.equal(out[0], params) and torch.equal(out[1], res.rvec[None]) and not out[0].requires_grad
+
+
+def test_fisheye_fixed_principal_point():
+    obj = board_object_points(6, 5, 0.03, dtype=F64)
+    uv = _corners("fisheye", obj)
+    picks = torch.randperm(uv.numel(), generator=torch.Generator().manual_seed(7))[:10]
+    an, fd = _fd_check(_solver("fisheye", fix_principal_point=True), uv, obj, picks)
+    assert an[1].abs().max() == 0 and fd[1].abs().max() == 0
+    keep = [0, 2, 3, 4]
+    assert _rel(an[keep], fd[keep]).max() < 0.05
+
+
+def test_fixed_intrinsics_warm_start():
+    obj = board_object_points(6, 5, 0.03, dtype=F64)
+    uv = _corners("k1k2", obj)
+    solver = CalibrationSolver(model="k1k2")
+    first = solver(uv, None, obj, SIZE)
+    c = uv.clone().requires_grad_()
+    res = solver(c, None, obj, SIZE, initial=first, fix_intrinsics=True)
+    g_k, = torch.autograd.grad(res.K.sum(), c, retain_graph=True)
+    g_d, = torch.autograd.grad(res.dist[0] + res.tvec[0, 2], c)
+    assert g_k.abs().max() == 0 and g_d.abs().max() > 0 and g_d.isfinite().all()
