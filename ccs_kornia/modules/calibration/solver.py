@@ -132,6 +132,10 @@ class CalibrationSolver(nn.Module):
         >>> res = CalibrationSolver(model="none")(uv, torch.ones(8, 30, dtype=torch.bool), obj, (640, 480))
         >>> bool((res.K - K).abs().max() < 1e-6), bool(res.success)
         (True, True)
+        >>> c = uv.clone().requires_grad_()  # gradients of the camera with respect to the corners
+        >>> CalibrationSolver(model="none")(c, None, obj, (640, 480)).K[0, 0].backward()
+        >>> c.grad.shape
+        torch.Size([8, 30, 2])
     """
 
     def __init__(
