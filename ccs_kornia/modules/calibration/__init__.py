@@ -40,6 +40,8 @@ _EXPORTS = {
     "levenberg_marquardt": "ccs_kornia.modules.calibration.lm",
     "LevenbergMarquardt": "ccs_kornia.modules.calibration.lm",
     "parameter_basis": "ccs_kornia.modules.calibration.lm",
+    "implicit_solution": "ccs_kornia.modules.calibration.implicit",
+    "ImplicitSolution": "ccs_kornia.modules.calibration.implicit",
     "CameraModel": "ccs_kornia.modules.calibration.models.base",
     "OpenCVModel": "ccs_kornia.modules.calibration.models.opencv",
     "OPENCV_VARIANTS": "ccs_kornia.modules.calibration.models.opencv",

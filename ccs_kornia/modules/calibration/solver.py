@@ -19,6 +19,10 @@ from ccs_kornia.modules.calibration.degeneracy import (
 )
 from ccs_kornia.modules.calibration.duplicates import duplicate_views, view_differences
 from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
+from ccs_kornia.modules.calibration.implicit import implicit_solution
+from ccs_kornia.modules.calibration.lm import parameter_basis
+from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
+from ccs_kornia.modules.calibration.models.opencv import OpenCVModel
 from ccs_kornia.modules.calibration.homography import (
     MIN_HOMOGRAPHY_POINTS,
     find_homographies,
@@ -27,6 +31,7 @@ from ccs_kornia.modules.calibration.ransac import ImageRansac
 from ccs_kornia.modules.calibration.refinement import (
     FREE_DISTORTION,
     RefinementResult,
+    _k_matrix,
     joint_refinement,
 )
 from ccs_kornia.modules.calibration.result import CalibrationResult
@@ -104,6 +109,13 @@ class CalibrationSolver(nn.Module):
             ``success = False``, and every result carries ``check_*`` tensors (see ``CalibrationResult.issues``).
         thresholds: :class:`~ccs_kornia.modules.calibration.degeneracy.DegeneracyThresholds` of those checks.
 
+    Gradients: when ``corners``, ``weights`` or ``object_points`` require grad, ``K``, ``dist``, ``rvec`` and ``tvec``
+    carry gradients by implicit differentiation at the final LM optimum
+    (:mod:`~ccs_kornia.modules.calibration.implicit`; no unrolled iterations, the values unchanged). The discrete
+    decisions (initialisation, RANSAC, duplicates, the outlier check, which views and corners are used) and the tie
+    of ``fix_aspect_ratio`` are constants of the backward pass; fixed parameters have zero gradient; ``rms``,
+    ``view_rms`` and the covariances carry none. See ``docs/gradients.md``.
+
     Shape:
         corners :math:`(C, V, N, 2)` px, valid :math:`(C, V, N)` bool, object_points :math:`(N, 3)` or
         :math:`(C, N, 3)`, image_size ``(W, H)`` -> :class:`CalibrationResult`. Unbatched :math:`(V, N, 2)`
@@ -120,6 +132,10 @@ class CalibrationSolver(nn.Module):
         >>> res = CalibrationSolver(model="none")(uv, torch.ones(8, 30, dtype=torch.bool), obj, (640, 480))
         >>> bool((res.K - K).abs().max() < 1e-6), bool(res.success)
         (True, True)
+        >>> c = uv.clone().requires_grad_()  # gradients of the camera with respect to the corners
+        >>> CalibrationSolver(model="none")(c, None, obj, (640, 480)).K[0, 0].backward()
+        >>> c.grad.shape
+        torch.Size([8, 30, 2])
     """
 
     def __init__(
@@ -218,13 +234,67 @@ class CalibrationSolver(nn.Module):
         if fix_intrinsics and initial is None:
             raise ValueError("fix_intrinsics needs an initial result to take the intrinsics from.")
         # no autograd through the solver (LM, closed forms): inference mode spares the dispatcher's autograd and
-        # version-counter work on every small op; the results are cloned out as ordinary tensors
+        # version-counter work on every small op; the results are cloned out as ordinary tensors, and gradients, where
+        # an input requires them, are attached at the optimum by implicit differentiation
         with torch.inference_mode(), small_problem_threads(corners.shape[:-1].numel(), corners.device):
             out = self._solve(corners, valid, object_points, image_size, init_corners, initial, bool(fix_intrinsics),
                               weights)
         if torch.is_inference_mode_enabled():
             return out
-        return CalibrationResult(**{k: (v.clone() if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()})
+        out = CalibrationResult(**{k: (v.clone() if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()})
+        if torch.is_grad_enabled() and any(
+            isinstance(t, torch.Tensor) and t.requires_grad for t in (corners, object_points, weights)
+        ):
+            out = self._attach_gradients(out, corners, valid, object_points, weights, bool(fix_intrinsics))
+        return out
+
+    def _attach_gradients(self, out, corners, valid, object_points, weights, fix_intrinsics) -> CalibrationResult:
+        """``out`` with ``K``, ``dist``, ``rvec`` and ``tvec`` (used views) differentiable with respect to ``corners``,
+        ``weights`` and ``object_points`` by implicit differentiation at the final LM optimum
+        (:mod:`~ccs_kornia.modules.calibration.implicit`): the same values, the views, corners and fixed or tied
+        parameters of that final solve held as they were decided."""
+        unbatched = corners.dim() == 3
+        res = out
+        if unbatched:
+            res = CalibrationResult(**{k: (v[None] if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()})
+            corners = corners[None]
+            valid = None if valid is None else valid[None]
+            weights = None if weights is None else weights[None]
+        C, V, N = corners.shape[:3]
+        dtype, device = self.dtype, corners.device
+        c = corners.to(dtype)
+        ok = c.detach().isfinite().all(-1) & res.used.to(device)[..., None]
+        ok = ok if valid is None else ok & valid.to(device).bool()
+        w = ok.to(dtype) if weights is None else torch.where(ok, weights.to(device=device, dtype=dtype), 0.0)
+        obj = object_points.to(device=device, dtype=dtype)
+        obj = obj.expand(C, N, 3) if obj.dim() == 2 or obj.shape[0] == 1 else obj
+        obj = obj.reshape(C, N, 3)
+        K0, d0 = res.K.to(dtype), res.dist.to(dtype)
+        if self.model == "fisheye":  # as calibrate_fisheye's final solve: no tied aspect ratio
+            cam = KannalaBrandtModel()
+            params = torch.cat([K0[:, 0, 0:1], K0[:, 1, 1:2], K0[:, 0, 2:3], K0[:, 1, 2:3], d0], -1)
+            free = [not (self.fix_principal_point and n in ("cx", "cy")) for n in cam.param_names]
+            tie = False
+        else:  # as joint_refinement's
+            cam = OpenCVModel(self.model)
+            params = cam.params_from(K0, d0)
+            free = [not fix_intrinsics] * 2 + [not (fix_intrinsics or self.fix_principal_point)] * 2
+            free += [True] * (cam.num_params - 4)
+            tie = self.fix_aspect_ratio and not fix_intrinsics
+        basis = parameter_basis(cam, params.nan_to_num(1.0), free, tie)
+        p, rv, tv = implicit_solution(cam, basis, params, res.rvec, res.tvec, c, w, obj)
+        dist = p[:, 4:] if self.model == "fisheye" else cam.dist8(p)[:, : res.dist.shape[-1]]
+        ok_cam = res.success.to(device)
+        used = res.used.to(device)[..., None]
+        grads = {
+            "K": torch.where(ok_cam[:, None, None], _k_matrix(p), res.K),
+            "dist": torch.where(ok_cam[:, None], dist, res.dist),
+            "rvec": torch.where(used, rv, res.rvec),
+            "tvec": torch.where(used, tv, res.tvec),
+        }
+        if unbatched:
+            grads = {k: v[0] for k, v in grads.items()}
+        return CalibrationResult(**{**out.__dict__, **grads})
 
     def _solve(self, corners, valid, object_points, image_size, init_corners, initial, fix_intrinsics,
                weights=None) -> CalibrationResult:
