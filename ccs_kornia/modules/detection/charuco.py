@@ -10,13 +10,16 @@ the lens distortion is largest, and where a plain chessboard cannot be identifie
    grown from every single marker in turn, keeps the largest consistent set (markers within :data:`LATTICE_TOLERANCE`
    squares); markers the global homography misses (strong distortion) join where a homography fitted to their
    consistent neighbours puts them within :data:`LOCAL_TOLERANCE` squares. The variant (plain, inverted, mirrored)
-   and, for boards of unknown layout, the legacy layout with the most consistent markers are kept;
+   with the most consistent markers is kept, and for a board of unknown layout (``legacy=None``) the layout with
+   the most; a view both layouts explain alike (a board with an even number of rows of squares differs between
+   them by a one-square shift of most markers) takes the layout most views of the batch fit, or none
+   (:func:`charuco_markers`);
 3. **initial corners**: each inner corner from the markers around it (:data:`NEIGHBOUR_RADIUS` squares, one of them
    touching it): a local homography, so the lens distortion matters little;
 4. **refinement**: this package's saddle fit and symmetry polish
    (:func:`~ccs_kornia.modules.detection.saddle_refine.refine_corners`, ``"symmetric"``) with a window that stays in
    the clear band between the corner and the markers (:func:`marked_radius_factor`);
-5. **check**: a corner the refinement did not confirm, or moved by more than :data:`MAX_MOVE` squares from where the
+5. **check**: a corner the refinement did not confirm, whose window leaves the image, or that it moved by more than :data:`MAX_MOVE` squares from where the
    markers put it, is dropped (a wrong corner is worse than a missing one).
 
 The result is the package's :class:`~ccs_kornia.modules.detection.base.DetectionResult` with one slot per corner id
@@ -28,7 +31,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -40,7 +43,7 @@ from ccs_kornia.modules.detection.saddle_refine import POLISH_WINDOW, refine_cor
 
 __all__ = [
     "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_MOVE", "NEIGHBOUR_RADIUS", "CharucoDetector", "CharucoMarkers",
-    "charuco_markers", "detect_charuco", "dictionary_hint", "marked_radius_factor",
+    "charuco_markers", "detect_charuco", "layout_fits", "dictionary_hint", "marked_radius_factor",
 ]
 
 #: a marker belongs to the board's lattice when its corners lie within this many squares of where the homography
@@ -53,6 +56,8 @@ LOCAL_TOLERANCE = 0.25
 NEIGHBOUR_RADIUS = 1.6
 #: a refined corner farther than this (squares) from where its markers put it is dropped
 MAX_MOVE = 0.25
+#: largest refinement window half-size (px)
+MAX_RADIUS = 12
 #: the order in which image variants are decoded (the first of equal counts is kept)
 VARIANTS = ("plain", "inverted", "mirrored", "mirrored inverted")
 
@@ -154,7 +159,9 @@ def _lattice(image_pts: np.ndarray, board_pts: np.ndarray) -> np.ndarray:
 @dataclass
 class CharucoMarkers:
     """The board's markers found on one image: corners ``(M, 4, 2)`` px, ids ``(M,)``, their board corners
-    ``(M, 4, 2)`` in squares, the image variant they were decoded on and the layout (legacy or not) they fit."""
+    ``(M, 4, 2)`` in squares, the image variant they were decoded on, the layout (legacy or not) they fit, how many
+    markers were decoded, and where the board's given layout is the worse fit the other one (``better_layout``) and
+    the markers it explains (``better_count``); ``ambiguous``: both layouts explain the view's markers alike."""
 
     corners: np.ndarray
     ids: np.ndarray
@@ -162,12 +169,47 @@ class CharucoMarkers:
     variant: str
     legacy: bool
     decoded: int
+    better_layout: bool | None = None
+    better_count: int = 0
+    ambiguous: bool = False
 
 
-def charuco_markers(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.ArucoDetector | None = None
-                    ) -> CharucoMarkers:
-    """The board's markers on a ``uint8`` grey image: decoded on every variant (:data:`VARIANTS`), checked against
-    the board's lattice in every layout to try, the variant and layout with the most consistent markers kept.
+def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.ArucoDetector | None = None
+                ) -> dict[bool, CharucoMarkers]:
+    """The board's markers on a ``uint8`` grey image, per layout (``{legacy: markers}``; one entry where both layouts
+    place every marker alike, as on boards with an odd ``squares_y``): decoded on every variant
+    (:data:`VARIANTS`), checked against the board's lattice, the variant with the most consistent markers kept."""
+    detector = _detector(board.dictionary) if detector is None else detector
+    new, old = _board_markers(board, False), _board_markers(board, True)
+    same = new.keys() == old.keys() and all(np.allclose(new[k], old[k]) for k in new)
+    layouts = {False: new} if same else {False: new, True: old}
+    best = {legacy: CharucoMarkers(np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64), np.zeros((0, 4, 2)), "plain",
+                                   legacy, 0) for legacy in layouts}
+    for variant in VARIANTS:
+        pts, ids = _decode(gray8, detector, variant)
+        for legacy, markers in layouts.items():
+            known = np.array([int(i) in markers for i in ids], dtype=bool)
+            _, first = np.unique(ids, return_index=True)  # an id decoded twice: the first only
+            known &= np.isin(np.arange(len(ids)), first)
+            if known.sum() <= len(best[legacy].ids):
+                continue  # cannot beat the best consistent set
+            p, i = pts[known], ids[known]
+            obj = np.stack([markers[int(k)] for k in i])
+            keep = _lattice(p, obj)
+            if keep.sum() > len(best[legacy].ids):
+                best[legacy] = CharucoMarkers(p[keep], i[keep], obj[keep], variant, legacy, len(ids))
+    return best
+
+
+def charuco_markers(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.ArucoDetector | None = None,
+                    fits: dict[bool, CharucoMarkers] | None = None, layout: bool | None = None) -> CharucoMarkers:
+    """The board's markers on a ``uint8`` grey image in the layout that fits (:func:`layout_fits`).
+
+    The two layouts of a board with an even ``squares_y`` differ by a one-square shift of most markers, so the wrong
+    one gives consistent-looking but shifted ids: a board given a layout (``legacy`` not ``None``) keeps it and, where
+    the other layout explains more markers, :attr:`CharucoMarkers.better_layout` says so; a board of unknown layout
+    takes the one explaining more markers, on a tie ``layout`` (e.g. the layout most views of a set fit) or else
+    none (no markers, :attr:`CharucoMarkers.ambiguous`).
 
     Example:
         >>> board = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250")
@@ -175,26 +217,30 @@ def charuco_markers(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.
         >>> len(m.ids), m.variant, m.legacy
         (17, 'plain', False)
     """
-    detector = _detector(board.dictionary) if detector is None else detector
-    layouts = {legacy: _board_markers(board, legacy) for legacy in board.layouts()}
-    best = CharucoMarkers(np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64), np.zeros((0, 4, 2)), "plain",
-                          bool(board.legacy), 0)
-    for variant in VARIANTS:
-        pts, ids = _decode(gray8, detector, variant)
-        if len(ids) <= len(best.ids):
-            continue  # cannot beat the best consistent set
-        for legacy, markers in layouts.items():
-            known = np.array([int(i) in markers for i in ids], dtype=bool)
-            _, first = np.unique(ids, return_index=True)  # an id decoded twice: the first only
-            known &= np.isin(np.arange(len(ids)), first)
-            if known.sum() <= len(best.ids):
-                continue
-            p, i = pts[known], ids[known]
-            obj = np.stack([markers[int(k)] for k in i])
-            keep = _lattice(p, obj)
-            if keep.sum() > len(best.ids):
-                best = CharucoMarkers(p[keep], i[keep], obj[keep], variant, legacy, len(ids))
-    return best
+    fits = layout_fits(gray8, board, detector) if fits is None else fits
+    if len(fits) == 1:
+        (only,) = fits.values()
+        return only if board.legacy is None else replace(only, legacy=bool(board.legacy))
+    if board.legacy is not None:
+        chosen, other = fits[bool(board.legacy)], fits[not board.legacy]
+        if len(other.ids) > len(chosen.ids):
+            chosen = replace(chosen, better_layout=not board.legacy, better_count=len(other.ids))
+        return chosen
+    if len(fits[True].ids) != len(fits[False].ids):
+        return fits[True] if len(fits[True].ids) > len(fits[False].ids) else fits[False]
+    if layout is not None or not len(fits[False].ids):
+        return fits[bool(layout)]
+    empty = fits[False]
+    return replace(empty, corners=empty.corners[:0], ids=empty.ids[:0], board_corners=empty.board_corners[:0],
+                   ambiguous=True)
+
+
+def _set_layout(fits: list[dict[bool, CharucoMarkers]]) -> bool | None:
+    """The layout most views that tell the two apart fit (``None``: no view does, or as many each way)."""
+    votes = [len(f[True].ids) > len(f[False].ids) for f in fits if len(f) == 2 and len(f[True].ids) != len(f[False].ids)]
+    if not votes or 2 * sum(votes) == len(votes):
+        return None
+    return 2 * sum(votes) > len(votes)
 
 
 def _initial_corners(markers: CharucoMarkers, board: CharucoBoard, image_size: tuple[int, int]
@@ -265,16 +311,17 @@ def detect_charuco(
     n = board.num_corners
     arrays = (images.detach()[:, 0].float().clamp(0, 1) * 255.0).round().to(torch.uint8).cpu().numpy()
 
-    def one(gray8: np.ndarray):
-        markers = charuco_markers(gray8, board, _detector(board.dictionary))
-        return markers, _initial_corners(markers, board, (w, h))
-
     workers = min(8, os.cpu_count() or 1) if num_workers is None else num_workers
     if workers > 1 and b > 1:
         with ThreadPoolExecutor(max_workers=min(workers, b)) as pool:
-            outputs = list(pool.map(one, arrays))
+            fits = list(pool.map(lambda a: layout_fits(a, board, _detector(board.dictionary)), arrays))
     else:
-        outputs = [one(a) for a in arrays]
+        fits = [layout_fits(a, board, _detector(board.dictionary)) for a in arrays]
+    layout = _set_layout(fits) if board.legacy is None else None
+    outputs = []
+    for gray8, fit in zip(arrays, fits):
+        markers = charuco_markers(gray8, board, fits=fit, layout=layout)
+        outputs.append((markers, _initial_corners(markers, board, (w, h))))
 
     initial = np.full((b, n, 2), np.nan)
     spacing = np.full((b, n), np.nan)
@@ -284,12 +331,17 @@ def detect_charuco(
     start = torch.from_numpy(np.nan_to_num(initial)).float()
     space = torch.from_numpy(np.nan_to_num(spacing, nan=1.0)).float()
     factor = marked_radius_factor(board) if radius_factor is None else float(radius_factor)
-    refined, ok = refine_corners(images.detach().float().cpu(), start, seen, factor * space, "symmetric",
-                                 return_ok=True)
+    radius = (factor * space).clamp(1.5, MAX_RADIUS)
+    refined, ok = refine_corners(images.detach().float().cpu(), start, seen, radius, "symmetric",
+                                 max_radius=MAX_RADIUS, return_ok=True)
     moved = (refined - start).norm(dim=-1)
-    accept = seen & ok & (moved <= MAX_MOVE * space) & refined.isfinite().all(-1)
+    # the window must lie on the image: at the frame the border's replicated pixels pull a corner off by px
+    inside = (refined >= radius[..., None]).all(-1)
+    inside &= (refined[..., 0] <= w - 1 - radius) & (refined[..., 1] <= h - 1 - radius)
+    accept = seen & ok & inside & (moved <= MAX_MOVE * space) & refined.isfinite().all(-1)
     count = accept.sum(-1)
-    found = count >= min_corners
+    wrong_layout = torch.tensor([m.better_layout is not None for m, _ in outputs], dtype=torch.bool)
+    found = (count >= min_corners) & ~wrong_layout
     corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
     corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
     reasons = []
@@ -297,7 +349,14 @@ def detect_charuco(
         what = f"{len(markers.ids)} {board.dictionary} markers"
         if markers.variant != "plain":
             what += f" ({markers.variant})"
-        if not len(markers.ids):
+        if markers.better_layout is not None:
+            name = "legacy" if markers.better_layout else "new (non-legacy)"
+            reasons.append(f"the markers fit the {name} layout better ({markers.better_count} against "
+                           f"{len(markers.ids)} markers): wrong layout?")
+        elif markers.ambiguous:
+            reasons.append("the markers fit the new and the legacy layout alike (a board with an even number of rows "
+                           "of squares, seen in part): give the layout")
+        elif not len(markers.ids):
             reasons.append(f"no {board.dictionary} marker of the board found")
         elif bool(found[k]):
             reasons.append(f"charuco: {what}, {int(count[k])} of {n} corners")
