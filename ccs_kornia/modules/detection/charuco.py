@@ -403,7 +403,7 @@ class CharucoDetector(ChessboardDetector):
 
 def dictionary_hint(images: list[np.ndarray], board: CharucoBoard, least: int = 3) -> str:
     """Why no marker was found, for ``uint8`` grey ``images`` where the board's dictionary finds none: the predefined
-    dictionaries that do find ``least`` markers (plain or inverted) and in how many images, e.g. ``"no DICT_4X4_250
+    dictionary that finds ``least`` markers (on any variant) in most of the first 8 images, and in how many, e.g. ``"no DICT_4X4_250
     marker in any image; DICT_6X6_250 markers in 4 of them: wrong --dictionary?"``.
 
     Example:
