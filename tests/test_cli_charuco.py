@@ -122,3 +122,10 @@ def test_real_caliscope_cameras_calibrate(tmp_path, capsys):
         ref = reference[str(camera)]["matrix"][0][0]
         print(f"\ncam_{camera}: fx {fx:.1f}, caliscope's {ref:.1f}")
         assert abs(fx - ref) < 0.03 * ref
+
+
+@pytest.mark.parametrize("command", ["detect", "calibrate-rig"])
+def test_every_board_command_takes_charuco(tmp_path, capsys, command):
+    code, _, err = run(capsys, command, str(tmp_path), "--charuco", "5x7", "--output", str(tmp_path / "c.json"))
+    assert code == _common.EXIT_USAGE
+    assert "--charuco needs --marker" in one_error_line(err)
