@@ -67,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
     partial = f" ({n_partial} partial: corners under glare or occluded are null)" if n_partial else ""
     what = (f"{args.charuco[0]}x{args.charuco[1]} ChArUco board ({args.board[0]}x{args.board[1]} inner corners)"
             if charuco_record(args) else f"{args.board[0]}x{args.board[1]} board")
-    partial = partial.replace("corners under glare or occluded", "corners not seen") if charuco_record(args) else partial
+    if charuco_record(args):
+        partial = partial.replace("corners under glare or occluded", "corners not seen")
     print(f"found the {what} in {n_found} of {len(files)} images{partial}; "
           f"wrote {args.output}")
     return 0

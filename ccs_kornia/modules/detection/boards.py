@@ -134,5 +134,6 @@ class CharucoBoard:
 
     def render(self, pixels_per_square: int = 40, margin: int = 0, legacy: bool | None = None):
         """The board as a ``uint8`` image (``cv2.aruco.CharucoBoard.generateImage``)."""
-        size = (int(self.squares_x) * pixels_per_square + 2 * margin, int(self.squares_y) * pixels_per_square + 2 * margin)
+        size = (int(self.squares_x) * pixels_per_square + 2 * margin,
+                int(self.squares_y) * pixels_per_square + 2 * margin)
         return self.cv2_board(legacy).generateImage(size, marginSize=margin, borderBits=1)

@@ -19,8 +19,9 @@ the lens distortion is largest, and where a plain chessboard cannot be identifie
 4. **refinement**: this package's saddle fit and symmetry polish
    (:func:`~ccs_kornia.modules.detection.saddle_refine.refine_corners`, ``"symmetric"``) with a window that stays in
    the clear band between the corner and the markers (:func:`marked_radius_factor`);
-5. **check**: a corner the refinement did not confirm, whose window leaves the image, or that it moved by more than :data:`MAX_MOVE` squares from where the
-   markers put it, is dropped (a wrong corner is worse than a missing one).
+5. **check**: a corner the refinement did not confirm, whose window leaves the image, or that it moved by more
+   than :data:`MAX_MOVE` squares from where the markers put it, is dropped (a wrong corner is worse than a missing
+   one).
 
 The result is the package's :class:`~ccs_kornia.modules.detection.base.DetectionResult` with one slot per corner id
 (``id = row * (squares_x - 1) + col``, OpenCV's), NaN where a corner is not seen; a view is found with at least
@@ -102,7 +103,8 @@ def _board_markers(board: CharucoBoard, legacy: bool) -> dict[int, np.ndarray]:
     """Marker id -> its corners ``(4, 2)`` on the board, in squares."""
     b = board.cv2_board(legacy)
     s = float(board.square)
-    return {int(i): np.asarray(p, dtype=np.float64)[:, :2] / s for i, p in zip(b.getIds().reshape(-1), b.getObjPoints())}
+    ids, corners = b.getIds().reshape(-1), b.getObjPoints()
+    return {int(i): np.asarray(p, dtype=np.float64)[:, :2] / s for i, p in zip(ids, corners)}
 
 
 def _map(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -237,7 +239,8 @@ def charuco_markers(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.
 
 def _set_layout(fits: list[dict[bool, CharucoMarkers]]) -> bool | None:
     """The layout most views that tell the two apart fit (``None``: no view does, or as many each way)."""
-    votes = [len(f[True].ids) > len(f[False].ids) for f in fits if len(f) == 2 and len(f[True].ids) != len(f[False].ids)]
+    votes = [len(f[True].ids) > len(f[False].ids) for f in fits
+             if len(f) == 2 and len(f[True].ids) != len(f[False].ids)]
     if not votes or 2 * sum(votes) == len(votes):
         return None
     return 2 * sum(votes) > len(votes)
@@ -403,8 +406,8 @@ class CharucoDetector(ChessboardDetector):
 
 def dictionary_hint(images: list[np.ndarray], board: CharucoBoard, least: int = 3) -> str:
     """Why no marker was found, for ``uint8`` grey ``images`` where the board's dictionary finds none: the predefined
-    dictionary that finds ``least`` markers (on any variant) in most of the first 8 images, and in how many, e.g. ``"no DICT_4X4_250
-    marker in any image; DICT_6X6_250 markers in 4 of them: wrong --dictionary?"``.
+    dictionary that finds ``least`` markers (on any variant) in most of the first 8 images, and in how many, e.g.
+    ``"no DICT_4X4_250 marker in any image; DICT_6X6_250 markers in 4 of them: wrong --dictionary?"``.
 
     Example:
         >>> board = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250")
