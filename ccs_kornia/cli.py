@@ -44,6 +44,7 @@ from ccs_kornia.commands._common import (
     EXIT_USAGE,
     PROG,
     UserError,
+    resolve_board,
 )
 
 __all__ = ["main", "run", "build_parser", "UserError", "LIGHTNING_COMMANDS", "EXIT_CODES"]
@@ -95,6 +96,9 @@ class _Parser(argparse.ArgumentParser):
         return out
 
     def error(self, message: str) -> None:  # type: ignore[override]
+        if message.startswith("one of the arguments --board --charuco is required"):
+            message = ("the following arguments are required: --board COLSxROWS (a chessboard's inner corners) or "
+                       "--charuco SXxSY (a ChArUco board's squares)")
         unknown = self._unknown_options() if message.startswith("the following arguments are required") else []
         if unknown:
             long_options = [o for o in self._option_string_actions if o.startswith("--")]
@@ -183,6 +187,38 @@ def _jobs_arg(text: str) -> int | str:
         raise argparse.ArgumentTypeError(f"invalid --jobs {text!r}: expected a positive integer or auto") from None
 
 
+def _squares_arg(text: str) -> tuple[int, int]:
+    from ccs_kornia.io import parse_board
+
+    try:
+        sx, sy = parse_board(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid ChArUco board {text!r}: expected SQUARES_XxSQUARES_Y, the squares "
+                                         "as OpenCV's CharucoBoard counts them, e.g. 5x7") from None
+    if min(sx, sy) < 3:
+        raise argparse.ArgumentTypeError(f"invalid ChArUco board {text!r}: at least 3x3 squares")
+    return sx, sy
+
+
+def charuco_options(p: argparse.ArgumentParser, which, square: bool = False) -> None:
+    """``--charuco SXxSY`` (in ``which``, the group of ``--board``) ``--dictionary D --marker M
+    [--legacy/--no-legacy]`` (and ``--square`` where the command has none)."""
+    g = p.add_argument_group("ChArUco boards (instead of --board)")
+    which.add_argument("--charuco", type=_squares_arg, metavar="SXxSY",
+                   help="a ChArUco board of SX x SY squares, as OpenCV's CharucoBoard((SX, SY), ...): its (SX-1) x "
+                        "(SY-1) inner corners are identified by the markers, so boards cut by the image's frame count")
+    g.add_argument("--dictionary", default="DICT_6X6_250", metavar="DICT",
+                   help="its ArUco dictionary, OpenCV's name (default DICT_6X6_250)")
+    g.add_argument("--marker", type=_positive_float, metavar="SIDE",
+                   help="its marker side, in the unit of --square (required with --charuco)")
+    g.add_argument("--legacy", action=argparse.BooleanOptionalAction, default=None,
+                   help="OpenCV's legacy layout (before 4.6) or not; default: found on each image (boards of an even "
+                        "number of rows of squares differ)")
+    if square:
+        g.add_argument("--square", default=1.0, type=_positive_float,
+                       help="its square side (only the ratio to --marker matters here; default 1)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argparse parser of every command except the Lightning ones (forwarded untouched)."""
     parser = _Parser(
@@ -196,13 +232,15 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
-    def common(p: argparse.ArgumentParser, board: bool = True) -> None:
+    def common(p: argparse.ArgumentParser, board: bool = True, square: bool = False) -> None:
         p.add_argument("images", nargs="+", metavar="IMAGES", help="image files, directories or globs")
         if board:
-            p.add_argument("--board", required=True, type=_board_arg, metavar="COLSxROWS",
-                           help="inner corners per row x rows of inner corners, e.g. 9x6")
+            which = p.add_mutually_exclusive_group(required=True)
+            which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
+                               help="inner corners per row x rows of inner corners, e.g. 9x6 (or --charuco)")
             p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"),
-                           help=f"corner detector (default: {DEFAULT_DETECTOR})")
+                           help=f"corner detector (default: {DEFAULT_DETECTOR}; a --charuco board has its own)")
+            charuco_options(p, which, square=square)
         p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
         if board:
             p.add_argument("--batch-size", default=8, type=_positive_int, metavar="N",
@@ -221,7 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("detect", help="detect chessboard corners, write them as JSON", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    common(p)
+    common(p, square=True)
     p.add_argument("--output", required=True, metavar="JSON", help="corners file to write")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="detect on the images as they are (by default a strongly distorted lens's images are "
@@ -267,9 +305,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("cameras", nargs="+", metavar="CAM_DIR",
                    help="one folder (or quoted glob) of images per camera; views match across cameras by the last number "
                         "in the file names (left07.jpg with right07.jpg), else by sorted order")
-    p.add_argument("--board", required=True, type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--board", type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6 (or --charuco)")
     p.add_argument("--square", default=1.0, type=_positive_float,
                    help="square side in world units: the unit of the baselines (metres for ROS and Kalibr; default 1)")
+    charuco_options(p, which)
     p.add_argument("--output", required=True, metavar="JSON", help="rig calibration file to write (rig.json)")
     p.add_argument("--model", default="auto", metavar="MODEL[,MODEL...]",
                    help=f"camera model, one for all cameras or one per camera ({', '.join(MODELS)}; default auto: "
@@ -426,6 +466,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(exit_.code or 0) if not isinstance(exit_.code, str) else EXIT_USAGE
     command = args.command
     try:
+        resolve_board(args)
         return int(args.func(args) or 0)
     except UserError as err:
         print(f"{PROG} {command}: error: {err}", file=sys.stderr)

@@ -24,7 +24,10 @@ __all__ = [
     "check_output_dir",
     "make_dir",
     "inputs",
+    "resolve_board",
     "make_detector_from",
+    "charuco_dictionary_check",
+    "charuco_record",
     "pipeline_options",
     "missing_weights",
     "make_pipeline",
@@ -146,10 +149,70 @@ def inputs(command: str, items: Sequence[str]) -> list[str]:
     return files
 
 
+def resolve_board(args: argparse.Namespace) -> None:
+    """The board of a command with ``--board`` or ``--charuco``: ``args.board`` becomes the inner-corner grid either
+    way, ``args.charuco_board`` the :class:`~ccs_kornia.modules.detection.boards.CharucoBoard` (or ``None``) and
+    ``args.detector`` ``"charuco"`` for a ChArUco board."""
+    if not hasattr(args, "charuco"):
+        return
+    args.charuco_board = None
+    if args.charuco is None:
+        if args.marker is not None or args.legacy is not None:
+            raise UserError(f"--{'marker' if args.marker is not None else 'legacy'} describes a ChArUco board: give "
+                            "--charuco SXxSY too")
+        return
+    if args.marker is None:
+        raise UserError("--charuco needs --marker: the marker side, in the unit of --square (e.g. --square 0.04 "
+                        "--marker 0.02)")
+    from ccs_kornia.modules.detection.boards import CharucoBoard
+
+    try:
+        board = CharucoBoard(args.charuco[0], args.charuco[1], args.square, args.marker, args.dictionary, args.legacy)
+    except ValueError as err:
+        raise UserError(f"--charuco: {err}") from None
+    args.charuco_board, args.board, args.detector = board, board.board_size, "charuco"
+
+
+def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present: Any) -> None:
+    """A ChArUco board found in no image because no marker of its dictionary was: which predefined dictionary finds
+    markers in the images instead, as a :class:`UserError` (a wrong ``--dictionary``: exit status
+    :data:`EXIT_USAGE`)."""
+    from ccs_kornia.modules.detection.charuco import CharucoDetector, dictionary_hint
+
+    detector = getattr(pipeline, "detector", None)
+    if not isinstance(detector, CharucoDetector) or bool(found.any()) or not bool(present.any()):
+        return
+    import cv2
+
+    images = [cv2.imread(f, cv2.IMREAD_GRAYSCALE) for f, ok in zip(files, present.tolist()) if ok][:8]
+    board = detector.board
+    from ccs_kornia.modules.detection.charuco import charuco_markers
+
+    if any(len(charuco_markers(img, board).ids) for img in images if img is not None):
+        return  # markers of the board were found: the views had too few corners, not a wrong dictionary
+    raise UserError(dictionary_hint([img for img in images if img is not None], board))
+
+
+def charuco_record(args: argparse.Namespace) -> dict[str, Any] | None:
+    """The ChArUco board of the command (``None`` for a chessboard) as the JSON files give it: OpenCV's squares,
+    sides, dictionary and layout (``legacy`` null: found on each image)."""
+    board = getattr(args, "charuco_board", None)
+    if board is None:
+        return None
+    return {"squares": [board.squares_x, board.squares_y], "square": board.square, "marker": board.marker,
+            "dictionary": board.dictionary, "legacy": board.legacy,
+            "corner_ids": "id = row * (squares_x - 1) + col, object point ((col + 1) * square, (row + 1) * square, 0)"}
+
+
 def make_detector_from(args: argparse.Namespace):
-    """The detector the command's ``--detector`` (and ``--network-precision``) name."""
+    """The detector the command's ``--detector`` (and ``--network-precision``) name, or the ChArUco board's
+    (:func:`resolve_board`)."""
     from ccs_kornia.modules.detection.factory import make_detector
 
+    if getattr(args, "charuco_board", None) is not None:
+        from ccs_kornia.modules.detection.charuco import CharucoDetector
+
+        return CharucoDetector(args.charuco_board)
     options = {}
     if args.detector == "learned" and getattr(args, "network_precision", None):
         options["precision"] = args.network_precision
@@ -213,6 +276,8 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
 
         out = pipeline.run(source, board, square, calibrate=calibrate, progress=advance)
     seconds = time.perf_counter() - start
+    for c, files in enumerate(cameras):
+        charuco_dictionary_check(pipeline, files, out.detections.found.reshape(out.present.shape)[c], out.present[c])
     v = out.present.shape[1]
     for c, files in enumerate(cameras):
         for k, path in enumerate(files):
