@@ -145,10 +145,19 @@ def test_detector_refuses_a_board_that_skips_every_other_corner(monkeypatch):
     monkeypatch.setattr(det, "_detect", detect)
     out = det(img, (4, 3))
     assert not bool(out.found[0]) and "skips" in out.reasons[0] and not bool(out.corners.any())
-    whole = corners.reshape(6, 8, 2)[:3, :4].reshape(-1, 2)  # a true 4x3 lattice of the same image passes
+    # the true 4x3 lattice of a 4x3 board passes (a 4x3 corner of the 8x6 board above does not: its pattern
+    # continues past two sides)
+    small, whole = _checker(square=16, cols=4, rows=3)
 
     def detect_whole(images, board_size):
         return DetectionResult(corners=whole[None].clone(), found=torch.tensor([True]), reasons=["learned"])
 
     monkeypatch.setattr(det, "_detect", detect_whole)
-    assert bool(det(img, (4, 3)).found[0])
+    assert bool(det(small, (4, 3)).found[0])
+    sub = corners.reshape(6, 8, 2)[:3, :4].reshape(-1, 2)
+
+    def detect_sub(images, board_size):
+        return DetectionResult(corners=sub[None].clone(), found=torch.tensor([True]), reasons=["learned"])
+
+    monkeypatch.setattr(det, "_detect", detect_sub)
+    assert not bool(det(img, (4, 3)).found[0])
