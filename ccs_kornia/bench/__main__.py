@@ -1,10 +1,10 @@
 """``python -m ccs_kornia.bench`` (and ``python -m ccs_kornia bench``): run the benchmarks.
 
     python -m ccs_kornia bench                     # full run (~45 min on 2 cores)
-    python -m ccs_kornia bench --quick             # a few images per condition (< 5 min)
+    python -m ccs_kornia bench --quick             # smoke run of every section (~130 s on 2 cores)
     python -m ccs_kornia bench --sections corners speed --out /tmp/bench
     python -m ccs_kornia bench --markdown docs/benchmarks.md
-    python -m ccs_kornia bench --quick --sections wild    # detection in the wild (~10 min on 2 cores)
+    python -m ccs_kornia bench --quick --sections wild    # detection in the wild (~40 s on 2 cores)
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ def build_parser(prog: str = "python -m ccs_kornia bench") -> argparse.ArgumentP
 
     p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     size = p.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="a few images and trials per condition (< 5 min)")
+    size.add_argument("--quick", action="store_true", help="smoke run of every section: one or two images, trials or sets each (~130 s on 2 cores)")
     size.add_argument("--tiny", action="store_true", help="the smallest run that touches every section (tests)")
     p.add_argument("--out", default="bench_results", help="output folder for results.json, report.md, box plot")
     p.add_argument("--markdown", default=None, help="also write the markdown report here (e.g. docs/benchmarks.md)")

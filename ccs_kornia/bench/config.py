@@ -163,15 +163,18 @@ class BenchConfig:
 
     @classmethod
     def quick(cls, **overrides) -> BenchConfig:
-        """A few images and trials per condition (target: under 5 minutes on 2 idle CPU cores)."""
+        """A smoke run of every section: one or two images, trials or sets per condition, short peer time limits
+        (target: under 150 s on 2 idle CPU cores)."""
         base = cls(
-            corner_images=8, corner_views_per_camera=4, calib_trials=3, calib_views=10, calib_pool_views=10, calib_trials_per_camera=1,
-            real_subsets=4, real_max_images=12, dc_trials=2, dc_views=10, wide_trials=1, wide_views=10, speed_images=4,
-            speed_solver_cameras=(1, 16), speed_repeats=1, supersample=2, preset="quick",
+            corner_images=4, corner_views_per_camera=4, calib_trials=2, calib_views=6, calib_pool_views=6,
+            calib_trials_per_camera=1, real_subsets=3, real_max_images=8, dc_trials=2, dc_views=6, wide_trials=1,
+            wide_views=6, speed_images=4, speed_solver_cameras=(1, 16), speed_repeats=1,
+            speed_real_set="boofcv_bumblebee2_left", supersample=2, preset="quick",
             real_sets=("opencv_left", "boofcv_bumblebee2_left"),
             calib_methods=("learned", "opencv_saddle", "opencv_subpix", "opencv_sb"),
-            wild_images=2, wild_big_images=1, wild_free_images=21, wild_real_images=1, wild_time_limit=20.0,
-            fisheye_trials=8, rig_trials=3,
+            wild_images=1, wild_big_images=1, wild_free_images=2, wild_real_sets=("opencv_left",),
+            wild_real_scales=(0.5, 2.0), wild_real_images=1, wild_time_limit=1.0,
+            fisheye_trials=2, fisheye_views=6, fisheye_real_sets=("ros_fisheye_mono",), rig_trials=2,
         )
         return replace(base, **overrides)
 

@@ -331,7 +331,7 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
         "Do not edit by hand (except the *Reading the figures* section); re-run the command instead.",
         "",
         "Reproduce: `python -m ccs_kornia bench --markdown docs/benchmarks.md` (full run, sized for about 45 min on "
-        "2 CPU cores; `--quick` takes a few minutes; `--sections`, `--methods` and the size options select parts). "
+        "2 CPU cores; `--quick`, a smoke run of every section, about 130 s; `--sections`, `--methods` and the size options select parts). "
         "Raw figures: `results.json` in the `--out` folder.",
         "",
         "## Run",
