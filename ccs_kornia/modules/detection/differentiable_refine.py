@@ -251,8 +251,10 @@ def differentiable_corners(
     base = torch.where(ok[..., None], corners.detach(), torch.zeros_like(corners))
     start = base if seeds is None else torch.where(ok[..., None], seeds, base.to(seeds.dtype))
     with torch.no_grad():
-        spacing = grid_spacing(base, ok, board_size) if board_size[0] * board_size[1] > 1 else None
-        radius = (radius_factor * spacing).nan_to_num(3.0) if spacing is not None else torch.full_like(base[..., 0], 3.0)
+        radius = torch.full_like(base[..., 0], 3.0)  # a corner without a grid neighbour: a 3 px window
+        if board_size[0] * board_size[1] > 1:
+            spacing = grid_spacing(base, ok, board_size)
+            radius = torch.where(spacing.isfinite(), radius_factor * spacing, radius)
     f = symmetry_refine(images, start, radius, steps, max_radius).to(corners.dtype)
     out = torch.where(ok[..., None], corners.detach() + (f - f.detach()), corners.detach())
     gap = torch.where(ok[..., None], f.detach() - corners.detach(), torch.full_like(base, float("nan")))
