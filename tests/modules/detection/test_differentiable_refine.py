@@ -143,3 +143,14 @@ def test_module_with_a_network_gives_image_and_parameter_gradients():
         out[0, 0, 0].backward()
         assert g.isfinite().all() and g.abs().sum() > 0
         assert sum(p.grad.abs().sum() for p in net.parameters() if p.grad is not None) > 0
+
+
+def test_a_corner_the_estimator_does_not_reproduce_carries_no_gradient():
+    img = _checker(40, centre=(19.37, 20.81), angle=0.5).requires_grad_()
+    corners = torch.tensor([[[21.9, 20.8]]])  # 2.5 px off the junction: the refinement lands elsewhere
+    out, gap = differentiable_corners(corners, torch.tensor([[True]]), img, (1, 1))
+    assert torch.equal(out.detach(), corners) and gap.norm() > 1.0
+    (g,) = torch.autograd.grad(out.sum(), img, allow_unused=True)
+    assert g is None or g.abs().sum() == 0
+    near, gap = differentiable_corners(torch.tensor([[[19.38, 20.8]]]), torch.tensor([[True]]), img, (1, 1))
+    assert gap.norm() < 0.1 and near.requires_grad
