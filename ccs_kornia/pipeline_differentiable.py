@@ -123,7 +123,8 @@ def differentiable_run(pipe: Any, images: torch.Tensor, board_size: tuple[int, i
     for size in dict.fromkeys(out.image_size):
         sel = torch.tensor([s == size for s in out.image_size], device=corners.device).nonzero().flatten()
         valid = measured_corners(det.corners[sel], usable[sel])
-        weights = corner_weights_of(None if det.sigma is None else det.sigma[sel], valid) if pipe.weigh_corners else None
+        sigma = None if det.sigma is None else det.sigma[sel]
+        weights = corner_weights_of(sigma, valid) if pipe.weigh_corners else None
         if pipe.model == "auto":
             chosen = [((out.model_selection or [None] * len(out.image_size))[ci] or {}).get("chosen")
                       for ci in sel.tolist()]
@@ -136,7 +137,8 @@ def differentiable_run(pipe: Any, images: torch.Tensor, board_size: tuple[int, i
         for k, (ci, n) in enumerate(zip(sel.tolist(), names)):
             # a camera whose corrected-frame calibration was kept: that one, without gradient
             kept = out.corrected is not None and bool(out.corrected[ci])
-            parts.append(select_result(out.calibration, torch.tensor([ci])) if kept else select_result(results[n], torch.tensor([k])))
+            source, row = (out.calibration, ci) if kept else (results[n], k)
+            parts.append(select_result(source, torch.tensor([row])))
             order.append(ci)
     det.corners, out.calibration = corners, _in_order(parts, order, len(out.image_size))
     if images.dim() == 4:

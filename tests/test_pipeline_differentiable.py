@@ -76,8 +76,8 @@ def test_gradcheck_small_refine_solve_pipeline(views, usual):
     ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij")
     basis = torch.stack([torch.sin(xs / 17.0), torch.cos(ys / 13.0), torch.sin((xs + ys) / 11.0)])  # (3, H, W)
     obj = board_object_points(*BOARD, SQUARE, dtype=torch.float64)
-    solver = CalibrationSolver(model="k1k2", use_ransac=False, reject_outliers=False, checks=False, ftol=1e-15, max_iters=300,
-                               stall_tol=0.0)
+    solver = CalibrationSolver(model="k1k2", use_ransac=False, reject_outliers=False, checks=False, ftol=1e-15,
+                               max_iters=300, stall_tol=0.0)
 
     def fn(a):
         x = images + 0.01 * (a[:, None, None] * basis).sum(0)

@@ -156,7 +156,8 @@ class EndToEndLitModule(L.LightningModule):
         """The shippable checkpoint (the detector's format: network config and weights)."""
         return {
             "kind": "CornerUNet",
-            "config": {"base_channels": self.hparams.base_channels, "depth": self.hparams.depth, "norm": self.hparams.norm},
+            "config": {"base_channels": self.hparams.base_channels, "depth": self.hparams.depth,
+                       "norm": self.hparams.norm},
             "sigma": self.hparams.sigma,
             "state_dict": {k: v.detach().cpu() for k, v in self.net.state_dict().items()},
         }

@@ -41,7 +41,8 @@ from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.patch_refine import level_size
 
-__all__ = ["MAX_GAP", "SYMMETRY_STEPS", "symmetry_refine", "network_seeds", "differentiable_corners", "DifferentiableCorners"]
+__all__ = ["MAX_GAP", "SYMMETRY_STEPS", "symmetry_refine", "network_seeds", "differentiable_corners",
+           "DifferentiableCorners"]
 
 #: Gauss-Newton steps of :func:`symmetry_refine` by default (the detector's polish runs 4 after its saddle fit)
 SYMMETRY_STEPS = 4
@@ -116,7 +117,8 @@ def symmetry_refine(
         img = gaussian_blur2d(img, (k, k), (smooth_sigma, smooth_sigma), border_type="reflect")
     # the image and its central differences sampled together (the Jacobian of a sample is the sampled gradient)
     p = F.pad(img, (1, 1, 1, 1), mode="replicate")
-    src = torch.cat([img, 0.5 * (p[..., 1:-1, 2:] - p[..., 1:-1, :-2]), 0.5 * (p[..., 2:, 1:-1] - p[..., :-2, 1:-1])], 1)
+    gx, gy = 0.5 * (p[..., 1:-1, 2:] - p[..., 1:-1, :-2]), 0.5 * (p[..., 2:, 1:-1] - p[..., :-2, 1:-1])
+    src = torch.cat([img, gx, gy], 1)
     r = torch.as_tensor(radius, dtype=dtype, device=c.device).detach()
     r = (r.expand(c.shape[:2]) if r.dim() == 0 else r).nan_to_num(3.0).clamp(1.5, float(max_radius))
     rmax = int(math.ceil(float(r.max())))
