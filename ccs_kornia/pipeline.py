@@ -25,6 +25,7 @@ pixels (only corners are kept between passes). No command line, no Lightning her
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 from typing import Callable
@@ -46,6 +47,7 @@ from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
+from ccs_kornia.pipeline_differentiable import differentiable_detect, differentiable_run
 from ccs_kornia.pipeline_result import PipelineResult, main_size, module_device, positive_size, same_size_views, select_result
 from ccs_kornia.pipeline_solve import diagnose_solved, look_again_with_camera, look_foreshortened, look_on_corrected
 from ccs_kornia.pipeline_solve import solve_detections, solve_group
@@ -93,6 +95,10 @@ class CalibrationPipeline(nn.Module):
             (:func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_uncertainty`, ``DetectionResult.sigma``)
             and weight the solver's refinements by it, so a view's soft or shaded corners count less
             (:func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_weights`).
+        differentiable: :meth:`forward`, :meth:`detect` and :meth:`calibrate` return corners and cameras with
+            gradients to the images and the heatmap network (:mod:`~ccs_kornia.pipeline_differentiable`: the usual
+            pipeline takes every decision and gives the values, in one process; the corners of found boards and the
+            solve are then differentiated; ``docs/gradients.md``). Off: no autograd anywhere, as before.
         solver_kwargs: further options of :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
 
     Example:
@@ -124,6 +130,7 @@ class CalibrationPipeline(nn.Module):
         diagnostics: bool = False,
         calibrated_look: bool = True,
         weigh_corners: bool = True,
+        differentiable: bool = False,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -159,6 +166,7 @@ class CalibrationPipeline(nn.Module):
         self.joint_iters = int(joint_iters)
         self.free_distortion_centre = bool(free_distortion_centre)
         self.weigh_corners = bool(weigh_corners)
+        self.differentiable = bool(differentiable)
 
     # ------------------------------------------------------------------------------------------
     # the composition
@@ -175,6 +183,8 @@ class CalibrationPipeline(nn.Module):
         Returns:
             :class:`~ccs_kornia.pipeline_result.PipelineResult` (no camera dimension for 4-D input).
         """
+        if self.differentiable:
+            return differentiable_run(self, images, board_size, square)
         out = self.run(TensorSource(images), board_size, square)
         return out.select(0) if images.dim() == 4 else out
 
@@ -364,6 +374,8 @@ class CalibrationPipeline(nn.Module):
         Returns:
             :class:`DetectionResult` with the leading dimensions of ``images``.
         """
+        if self.differentiable:
+            return differentiable_detect(self, images, board_size)
         out = self.run(TensorSource(images), board_size, calibrate=False)
         det = out.detections
         det.correction, det.correction_tried = out.correction, out.correction_tried
@@ -424,7 +436,7 @@ class CalibrationPipeline(nn.Module):
                                 None if correction_tried is None else batch(torch.as_tensor(correction_tried)))[0]
             return select_result(calib, 0) if single else calib
         object_points = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
-        with torch.inference_mode():
+        with contextlib.nullcontext() if self.differentiable else torch.inference_mode():
             return self.solver(
                 corners.to(torch.float64), valid.bool(), object_points, size,
                 init_corners=None if init_corners is None else init_corners.to(corners.device, torch.float64),

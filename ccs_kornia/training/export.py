@@ -14,10 +14,12 @@ __all__ = ["export_checkpoint"]
 
 
 def export_checkpoint(ckpt_path: str | Path, out_path: str | Path) -> dict:
-    """Load a detector or distortion checkpoint and write its network config and weights only."""
+    """Load a detector (also an end-to-end fine-tune) or distortion checkpoint and write its network config and weights only."""
     ckpt = torch.load(str(ckpt_path), map_location="cpu", weights_only=False)
     if any(k.startswith("net.encoder.") for k in ckpt.get("state_dict", {})):
         from ccs_kornia.training.distortion import DistortionLitModule as lit_class
+    elif "heatmap_views" in ckpt.get("hyper_parameters", {}):  # the end-to-end fine-tune of the detector
+        from ccs_kornia.training.end_to_end import EndToEndLitModule as lit_class
     else:
         from ccs_kornia.training.detector import DetectorLitModule as lit_class
     module = lit_class.load_from_checkpoint(str(ckpt_path), map_location="cpu")
