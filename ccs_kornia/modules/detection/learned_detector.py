@@ -12,7 +12,7 @@ import torch
 from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules._threads import full_threads, light_stages_single_thread
-from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, image_rows
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, Fallbacks, image_rows
 from ccs_kornia.modules.detection.board_checks import board_extends, skipped_line
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.foreshortening import detect_foreshortened
@@ -173,14 +173,12 @@ class LearnedChessboardDetector(ChessboardDetector):
             raise ValueError(f"max_upsampling must be >= 1, got {max_upsampling}.")
         self.scale_selector = ScaleSelector(target_square=target_square, max_pixels=max_pixels,
                                             min_factor=1.0 / max_upsampling)
-        self.scale_fallback = tuple(float(f) for f in scale_fallback)
-        self.scale_finest = bool(scale_finest)
-        self.scale_primary = True  # False: only the fallback levels (a second pass, detect_at_scale's ``primary``)
+        # the detector's own fallbacks; a caller passes others per call (``forward``'s ``fallbacks``)
+        self.fallbacks = Fallbacks(True, tuple(float(f) for f in scale_fallback), bool(scale_finest),
+                                   bool(opencv_retry), bool(foreshortened_retry))
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
         self.precision = precision
-        self.opencv_retry = bool(opencv_retry)
-        self.foreshortened_retry = bool(foreshortened_retry)
         self.partial_boards = bool(partial_boards)
 
     @property
@@ -213,21 +211,24 @@ class LearnedChessboardDetector(ChessboardDetector):
         return heat, mu, keep
 
     @torch.no_grad()
-    def forward(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
-        """Detect the board on every image of ``(B, 1, H, W)``; corners in grid order."""
+    def forward(self, images: torch.Tensor, board_size: tuple[int, int],
+                fallbacks: Fallbacks | None = None) -> DetectionResult:
+        """Detect the board on every image of ``(B, 1, H, W)``; corners in grid order. ``fallbacks``: what is tried
+        where the board is not found at first (default: the detector's own, :attr:`fallbacks`)."""
         board_size = self._check_inputs(images, board_size)
         if images.shape[0] == 0:  # an empty batch (e.g. a folder's last, empty chunk): nothing to look at
             return _empty_result(images, board_size)
         with light_stages_single_thread(images.device):
-            return self._grid_checks(images, self._detect(images.float(), board_size), board_size)
+            out = self._detect(images.float(), board_size, self.fallbacks if fallbacks is None else fallbacks)
+            return self._grid_checks(images, out, board_size)
 
     @torch.no_grad()
     def foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
-        """Only the last resort for boards seen at a grazing angle (``foreshortened_retry``), on ``(B, 1, H, W)``:
+        """Only the last resort for boards seen at a grazing angle (``Fallbacks.foreshortened``), on ``(B, 1, H, W)``:
         the finest level allowed compressed along a few directions in turn
         (:func:`~ccs_kornia.modules.detection.foreshortening.detect_foreshortened`), corners refined at full
         resolution and checked as in :meth:`forward`. For callers that first try the cheaper looks (the calibration
-        pipeline runs it on the views its other looks missed) with ``foreshortened_retry`` off."""
+        pipeline runs it on the views its other looks missed) with ``Fallbacks.foreshortened`` off."""
         board_size = self._check_inputs(images, board_size)
         if images.shape[0] == 0:
             return _empty_result(images, board_size)
@@ -291,7 +292,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         corners, found, reasons = detect_foreshortened(compressed, images, board_size, refine, floor)
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
 
-    def _detect(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+    def _detect(self, images: torch.Tensor, board_size: tuple[int, int], fallbacks: Fallbacks) -> DetectionResult:
         if self.scale == "off":
             return self.detect_level(images, board_size)
         # --- scale selection (modules/detection/scale.py): detect on each image's level, refine at full resolution ---
@@ -308,11 +309,11 @@ class LearnedChessboardDetector(ChessboardDetector):
         def refine(full: torch.Tensor, pts: torch.Tensor, factor: float, radius_factor: float | None = None):
             return self._refine_at_full_size(full, pts, board_size, factor, radius_factor)
 
-        corners, found, reasons = detect_at_scale(level, images, board_size, factor, self.scale_fallback,
-                                                  self.scale_selector.max_pixels, refine, finest=self.scale_finest,
-                                                  primary=self.scale_primary)
+        corners, found, reasons = detect_at_scale(level, images, board_size, factor, fallbacks.levels,
+                                                  self.scale_selector.max_pixels, refine, finest=fallbacks.finest,
+                                                  primary=fallbacks.primary)
         missed = (~found).nonzero().flatten()
-        if self.opencv_retry and missed.numel():
+        if fallbacks.opencv and missed.numel():
             # last resort: OpenCV's quads on one bounded level (they need no square-size estimate), refined with a
             # narrow window (these are mostly boards with marks)
             def opencv_level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
@@ -335,7 +336,7 @@ class LearnedChessboardDetector(ChessboardDetector):
                 elif r2[k].startswith("board refused"):
                     reasons[i] = r2[k]
         missed = (~found).nonzero().flatten()
-        if self.foreshortened_retry and missed.numel():
+        if fallbacks.foreshortened and missed.numel():
             # boards at a grazing angle: the finest level allowed, compressed along one direction at a time
             got = self._foreshortened(image_rows(images, missed), board_size)
             for k, i in enumerate(missed.tolist()):
