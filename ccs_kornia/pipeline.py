@@ -7,10 +7,10 @@ benchmarks all call it:
 1. **correct** (paper Sec. III-A): the :class:`~ccs_kornia.modules.correction.distortion_net.DistortionNet`
    predicts a radial correction per view; a camera's views share its lens, so the predictions are pooled into one
    correction per camera (:mod:`~ccs_kornia.modules.correction.pooling`);
-2. **detect** (Sec. III-B): the board is looked for on every image as it is; for a camera whose pooled correction
-   is large, the views missed there are looked for again on corrected copies
-   (:func:`~ccs_kornia.modules.correction.corrected_detection.detect_on_corrected`), corners mapped back to the
-   original images;
+2. **detect** (Sec. III-B): the board is looked for on every image as it is (the first look); then each look of
+   :data:`~ccs_kornia.pipeline_looks.LOOKS` on the views missed so far: for a camera whose pooled correction is
+   large, on corrected copies; for a camera calibrated with the fisheye model, on virtual pinhole views of the
+   calibrated lens; last, on the detector's foreshortened levels; corners mapped back to the original images;
 3. **solve** (Sec. III-C): per image size, one batched solver call over the cameras
    (:class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`: homographies, Zhang, image-level RANSAC,
    joint Levenberg-Marquardt). Where the pooled correction is large, the camera is also calibrated in the
@@ -46,7 +46,7 @@ from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
 from ccs_kornia.modules.detection.warped_detection import Downscale, detect_warped
-from ccs_kornia.pipeline_looks import FIRST_PASSES, LOOKS, Changes, Look, Tools
+from ccs_kornia.pipeline_looks import FIRST, LOOKS, Changes, Look, Tools
 from ccs_kornia.pipeline_result import PipelineResult, main_size, module_device, positive_size, same_size_views, select_result
 from ccs_kornia.pipeline_solve import Solving, diagnose_solved, solve_detections, solve_group
 from ccs_kornia.batch_workers import default_workers, map_batches, workers_on
@@ -186,7 +186,9 @@ class CalibrationPipeline(nn.Module):
         calibrate: bool = True,
         progress: Callable[[int], None] | None = None,
     ) -> PipelineResult:
-        """The stages in order, correct -> detect -> solve, on every camera of ``source``.
+        """The stages in order, correct -> detect -> solve, on every camera of ``source``: the first look at every
+        view (:meth:`detect_views`), then the loop over the other looks (:meth:`finish`: each look on the views still
+        missed, the cameras solved before a look that needs them and at the end, then the diagnostics).
 
         Args:
             source: the views (:class:`~ccs_kornia.sources.TensorSource` or :class:`~ccs_kornia.sources.FileSource`).
@@ -225,7 +227,8 @@ class CalibrationPipeline(nn.Module):
         if self.distortion_net is not None:
             per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
         # batches of views, in forked worker processes on CPU (batch_workers.py: the same batches for any number)
-        for batch in map_batches(functools.partial(self._detect_batch, board=board, device=device), source, None,
+        for batch in map_batches(functools.partial(self._detect_batch, board=board, device=device), source,
+                                 FIRST.select(None, self.detector, self.calibrated_look),
                                  self.detection_batch_size, self.max_batch_pixels,
                                  workers_on(device, self.workers)):
             for (ci, vi), why in batch.failed:
@@ -254,8 +257,8 @@ class CalibrationPipeline(nn.Module):
         """One batch of :meth:`detect_views`: the network's correction of each view (or ``None``) and the detection."""
         images = images.to(device)
         corrections = self.view_corrections(images) if self.distortion_net is not None else None
-        # the detector's costly last resort (boards at a grazing angle) waits for the views the other looks miss
-        return corrections, self.detect_images(images, board, *FIRST_PASSES)
+        # (the detector's costly last resort, boards at a grazing angle, waits for the views the other looks miss)
+        return corrections, FIRST.run(self.tools, None, images, keys, board)
 
     def finish(
         self,
@@ -278,12 +281,13 @@ class CalibrationPipeline(nn.Module):
             calibrate: run the solver (``False``: the looks that need no camera only).
         """
         board = (int(board_size[0]), int(board_size[1]))
-        if out.view_corrections is not None and self.distortion_net is not None:
+        pooled = out.view_corrections is not None and self.distortion_net is not None
+        if pooled:
             with stage("correction evidence"):
                 self._pool(out)
         solved, changed = False, False
         for look in LOOKS:
-            if look.needs_correction and out.correction_tried is None or look.needs_camera and not calibrate:
+            if look.needs_correction and not pooled or look.needs_camera and not calibrate:
                 continue
             if look.needs_camera and (changed or not solved):
                 out, solved, changed = self._solve(out, board, square, again=solved), True, False

@@ -34,8 +34,8 @@ from ccs_kornia.modules.correction.corrected_detection import detect_on_correcte
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.pipeline_result import PipelineResult, positive_size, same_size_views, select_result
 
-__all__ = ["Changes", "Tools", "Look", "FIRST_PASSES", "SECOND_LOOK", "CORRECTED", "CALIBRATED", "FORESHORTENED",
-           "LOOKS", "measure_straightening"]
+__all__ = ["Changes", "Tools", "Look", "FIRST_PASSES", "SECOND_LOOK", "FIRST", "CORRECTED", "CALIBRATED",
+           "FORESHORTENED", "LOOKS", "measure_straightening"]
 
 #: changes to a detector's own :class:`~ccs_kornia.modules.detection.base.Fallbacks` (``(field, value)`` pairs)
 Changes = tuple[tuple[str, Any], ...]
@@ -83,21 +83,23 @@ class Look:
     """One look at views a look before it missed.
 
     Attributes:
-        name: what the look is (the profile's stage).
-        select: ``select(out, detector, calibrated_look) -> [(camera, view), ...]``: the views it looks at.
+        name: what the look is.
+        select: ``select(out, detector, calibrated_look) -> [(camera, view), ...]``: the views it looks at (``None``:
+            every view of the source).
         detect: ``detect(tools, out, images, keys, board_size, changes) -> DetectionResult``: one batch of those views
             (``keys``), the warp -> detect -> map back -> refine -> precision of the look, corners in the images.
         passes: changes to the detector's own fallbacks, one detection per pass, each on the views the passes before
             missed (a pass that would try no level, or a detector without fallbacks after the first pass, is skipped).
         needs_camera: the cameras are solved (again, where a look found boards since) before this look.
         needs_correction: the network's pooled correction per camera (the look is skipped without one).
-        in_workers: its batches are shared out to the worker processes (``False``: here, one after the other; the
-            look shares its own work out, or its answers would change with the thread count).
+        in_workers: its batches are shared out to the pipeline's worker processes (``False``: here, one after the
+            other: the calibrated look shares out its own rounds of virtual views, and the foreshortened look's
+            answers are those of this process's threads).
         after: ``after(out, board_size)`` once the look has run (with or without views to look at).
     """
 
     name: str
-    select: Callable[[PipelineResult, ChessboardDetector, bool], list[tuple[int, int]]]
+    select: Callable[[PipelineResult | None, ChessboardDetector, bool], list[tuple[int, int]] | None]
     detect: Callable[..., DetectionResult]
     passes: tuple[Changes, ...] = ((),)
     needs_camera: bool = False
@@ -124,6 +126,17 @@ class Look:
             else:
                 got.fill(todo, again)
         return got
+
+
+def _every_view(out: PipelineResult | None, detector: Any, calibrated_look: bool) -> None:
+    """Every view of the source."""
+    return None
+
+
+def _as_is(tools: Tools, out: PipelineResult | None, images: torch.Tensor, keys: list, board_size: tuple[int, int],
+           changes: Changes) -> DetectionResult:
+    """The views as they are (through a downscaled copy where the pipeline detects large images so)."""
+    return tools.detect(images, board_size, changes)
 
 
 def _missed_with_large_correction(out: PipelineResult, detector: Any, calibrated_look: bool) -> list:
@@ -228,6 +241,10 @@ def measure_straightening(out: PipelineResult, board_size: tuple[int, int]) -> N
     out.straightness = straightness
 
 
+#: every view as it is: the look that makes the result (:meth:`~ccs_kornia.pipeline.CalibrationPipeline.detect_views`,
+#: with the network's correction of each view)
+FIRST = Look("first look", _every_view, _as_is, FIRST_PASSES)
+
 #: views missed on the originals of a strongly distorted camera, on copies corrected by the network's pooled
 #: correction: finer fallback levels only, in the pipeline's batches (one view at a time changed rendered fisheye
 #: cameras' E_IP in the 4th digit, bench section 7), by its worker processes on CPU
@@ -253,5 +270,5 @@ CALIBRATED = Look("calibrated look", _missed_on_fisheye_cameras, _on_virtual_vie
 #: (boofcv_fisheye_chessboard: 10 of its 26 views, +4.5 s when each paid it first)
 FORESHORTENED = Look("foreshortened look", _still_missed, _foreshortened, in_workers=False)
 
-#: the looks after the first, in order
+#: the looks after the first (:data:`FIRST`), in order
 LOOKS: tuple[Look, ...] = (CORRECTED, CALIBRATED, FORESHORTENED)

@@ -205,29 +205,26 @@ def detect_with_calibrated_lens(
     b, _, h, w = images.shape
     n = int(board_size[0]) * int(board_size[1])
     device = images.device
-    corners = torch.zeros(b, n, 2, dtype=torch.float32, device=device)
-    found = torch.zeros(b, dtype=torch.bool, device=device)
-    reasons = ["board not found on the virtual pinhole views of the calibrated lens"] * b
+    out = DetectionResult(torch.zeros(b, n, 2, dtype=torch.float32, device=device),
+                          torch.zeros(b, dtype=torch.bool, device=device),
+                          ["board not found on the virtual pinhole views of the calibrated lens"] * b)
     K64, d64 = K.to(device, torch.float64), dist.to(device, torch.float64)
     views = list(enumerate(view_directions(fisheye, fov_deg)))
     look = functools.partial(_look_at_view, detect, images, K64, d64, fisheye, board_size, side)
     with (view_pool or _in_order)(look) as run:
         for start in range(0, len(views), VIEWS_PER_ROUND):
-            todo = (~found).nonzero().flatten()
+            todo = (~out.found).nonzero().flatten()
             if todo.numel() == 0:
                 break
             batch = views[start:start + VIEWS_PER_ROUND]
             for (k, (yaw, pitch, fov)), got in zip(batch, run([(direction, todo) for _, direction in batch])):
                 # an image whose board an earlier view of the round found keeps that one
-                got.found = got.found.to(device) & ~found[todo]
+                got.found = got.found.to(device) & ~out.found[todo]
                 if not bool(got.found.any()):
                     continue
                 warp = VirtualView((yaw, pitch, fov), side, K64[todo], d64[todo], fisheye, (int(w), int(h)))
                 mapped = map_back(warp, got, refine, images[todo], board_size)
-                idx = todo[mapped.found]
-                corners[idx] = mapped.corners[mapped.found].to(corners)
-                found[idx] = True
-                for i in idx.tolist():
-                    reasons[i] = f"found on virtual pinhole view {k} of the calibrated lens (direction {yaw:.0f}, " \
-                                 f"{pitch:.0f} deg, {fov:.0f} deg wide)"
-    return DetectionResult(corners, found, reasons)
+                mapped.reasons = [f"found on virtual pinhole view {k} of the calibrated lens (direction {yaw:.0f}, "
+                                  f"{pitch:.0f} deg, {fov:.0f} deg wide)"] * todo.numel()
+                out.fill(todo, mapped)
+    return out

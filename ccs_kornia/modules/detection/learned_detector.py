@@ -117,6 +117,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         foreshortened_retry: where still no board was found, look on copies of the finest level allowed compressed
             2:1 along four directions in turn (:mod:`~ccs_kornia.modules.detection.foreshortening`: boards at a
             grazing angle, whose squares are foreshortened 2-4:1).
+        (``scale_fallback``, ``scale_finest``, ``opencv_retry`` and ``foreshortened_retry`` make the detector's own
+        :class:`~ccs_kornia.modules.detection.base.Fallbacks`, :attr:`fallbacks`; a caller passes others per call.)
         partial_boards: keep a found board whose unconfirmed corners the image does not show (saturating glare, an
             occluder: :mod:`~ccs_kornia.modules.detection.hidden_corners`), with those corners NaN (left out of
             ``DetectionResult.valid``); otherwise such a board is refused as incomplete.
@@ -312,13 +314,14 @@ class LearnedChessboardDetector(ChessboardDetector):
         corners, found, reasons = detect_at_scale(level, images, board_size, factor, fallbacks.levels,
                                                   self.scale_selector.max_pixels, refine, finest=fallbacks.finest,
                                                   primary=fallbacks.primary)
-        missed = (~found).nonzero().flatten()
+        out = DetectionResult(corners=corners, found=found, reasons=reasons)
+        missed = (~out.found).nonzero().flatten()
         if fallbacks.opencv and missed.numel():
             # last resort: OpenCV's quads on one bounded level (they need no square-size estimate), refined with a
             # narrow window (these are mostly boards with marks)
             def opencv_level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
-                out = self.detect_level(x, bs, full, scale, source="opencv")
-                return out.corners, out.found, out.reasons
+                got = self.detect_level(x, bs, full, scale, source="opencv")
+                return got.corners, got.found, got.reasons
 
             def narrow(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
                 return refine(full, pts, factor, MARKED_RADIUS_FACTOR)
@@ -330,19 +333,16 @@ class LearnedChessboardDetector(ChessboardDetector):
             # the lattice check again after the full-resolution refinement (which sees the marks in more detail)
             dev = lattice_deviation(c2.double(), board_size).amax(-1)
             f2 = f2.to(dev.device) & (dev <= MAX_LATTICE_DEVIATION)
-            for k, i in enumerate(missed.tolist()):
-                if bool(f2[k]):
-                    corners[i], found[i], reasons[i] = c2[k].to(corners), True, r2[k]
-                elif r2[k].startswith("board refused"):
-                    reasons[i] = r2[k]
-        missed = (~found).nonzero().flatten()
+            out.fill(missed, DetectionResult(c2, f2, r2))
+            for k, i in enumerate(missed.tolist()):  # why a board the candidates gave was refused
+                if not bool(f2[k]) and r2[k].startswith("board refused"):
+                    out.reasons[i] = r2[k]
+        missed = (~out.found).nonzero().flatten()
         if fallbacks.foreshortened and missed.numel():
             # boards at a grazing angle: the finest level allowed, compressed along one direction at a time
-            got = self._foreshortened(image_rows(images, missed), board_size)
-            for k, i in enumerate(missed.tolist()):
-                if bool(got.found[k]):
-                    corners[i], found[i], reasons[i] = got.corners[k].to(corners), True, got.reasons[k]
-        return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
+            out.fill(missed, self._foreshortened(image_rows(images, missed), board_size))
+        out.corners = out.corners.float()
+        return out
 
     def _opencv_board(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         """:meth:`detect_level` on :func:`~ccs_kornia.modules.detection.opencv_candidates.opencv_candidates` of
