@@ -7,10 +7,10 @@ benchmarks all call it:
 1. **correct** (paper Sec. III-A): the :class:`~ccs_kornia.modules.correction.distortion_net.DistortionNet`
    predicts a radial correction per view; a camera's views share its lens, so the predictions are pooled into one
    correction per camera (:mod:`~ccs_kornia.modules.correction.pooling`);
-2. **detect** (Sec. III-B): the board is looked for on every image as it is; for a camera whose pooled correction
-   is large, the views missed there are looked for again on corrected copies
-   (:func:`~ccs_kornia.modules.correction.corrected_detection.detect_on_corrected`), corners mapped back to the
-   original images;
+2. **detect** (Sec. III-B): the board is looked for on every image as it is (the first look); then each look of
+   :data:`~ccs_kornia.pipeline_looks.LOOKS` on the views missed so far: for a camera whose pooled correction is
+   large, on corrected copies; for a camera calibrated with the fisheye model, on virtual pinhole views of the
+   calibrated lens; last, on the detector's foreshortened levels; corners mapped back to the original images;
 3. **solve** (Sec. III-C): per image size, one batched solver call over the cameras
    (:class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`: homographies, Zhang, image-level RANSAC,
    joint Levenberg-Marquardt). Where the pooled correction is large, the camera is also calibrated in the
@@ -25,13 +25,12 @@ pixels (only corners are kept between passes). No command line, no Lightning her
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
+from contextlib import nullcontext
 from typing import Callable
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from ccs_kornia.camera import board_object_points
@@ -39,18 +38,18 @@ from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelSel
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.modules.correction.corrected_detection import straightening_evidence
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
 from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
-from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, detector_options, measured_corners
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, measured_corners
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
+from ccs_kornia.modules.detection.warped_detection import Downscale, detect_warped
 from ccs_kornia.pipeline_differentiable import differentiable_detect, differentiable_run
+from ccs_kornia.pipeline_looks import FIRST, LOOKS, Changes, Look, Tools
 from ccs_kornia.pipeline_result import PipelineResult, main_size, module_device, positive_size, same_size_views, select_result
-from ccs_kornia.pipeline_solve import diagnose_solved, look_again_with_camera, look_foreshortened, look_on_corrected
-from ccs_kornia.pipeline_solve import solve_detections, solve_group
+from ccs_kornia.pipeline_solve import Solving, diagnose_solved, solve_detections, solve_group
 from ccs_kornia.batch_workers import default_workers, map_batches, workers_on
 from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, TensorSource, ViewSource  # noqa: F401
 
@@ -157,6 +156,8 @@ class CalibrationPipeline(nn.Module):
         if workers != "auto" and not (isinstance(workers, int) and workers >= 1):
             raise ValueError(f"workers must be an int >= 1 or 'auto', got {workers!r}.")
         self.workers = default_workers("cpu") if workers == "auto" else workers
+        if differentiable:  # autograd's graph lives in this process: no worker processes
+            self.workers = 1
         self.max_batch_pixels = max_batch_pixels
         self.max_detection_side = int(max_detection_side) if max_detection_side else None
         self.refiner = CornerRefiner()
@@ -184,9 +185,18 @@ class CalibrationPipeline(nn.Module):
             :class:`~ccs_kornia.pipeline_result.PipelineResult` (no camera dimension for 4-D input).
         """
         if self.differentiable:
-            return differentiable_run(self, images, board_size, square)
+            usual = self._usual(images, board_size, square, calibrate=True)
+            return differentiable_run(usual, images, board_size, square, self.detector, self.solving)
         out = self.run(TensorSource(images), board_size, square)
         return out.select(0) if images.dim() == 4 else out
+
+    def _usual(self, images: torch.Tensor, board_size: tuple[int, int], square: float,
+               calibrate: bool) -> PipelineResult:
+        """:meth:`run` on ``images`` (V, 1, H, W) or (C, V, 1, H, W) without autograd: the decisions and values that
+        the differentiable path (:mod:`~ccs_kornia.pipeline_differentiable`) then differentiates."""
+        batched = images if images.dim() == 5 else images[None]
+        with torch.no_grad():
+            return self.run(TensorSource(batched.detach()), board_size, square, calibrate=calibrate)
 
     def run(
         self,
@@ -196,7 +206,9 @@ class CalibrationPipeline(nn.Module):
         calibrate: bool = True,
         progress: Callable[[int], None] | None = None,
     ) -> PipelineResult:
-        """The stages in order, correct -> detect -> solve, on every camera of ``source``.
+        """The stages in order, correct -> detect -> solve, on every camera of ``source``: the first look at every
+        view (:meth:`detect_views`), then the loop over the other looks (:meth:`finish`: each look on the views still
+        missed, the cameras solved before a look that needs them and at the end, then the diagnostics).
 
         Args:
             source: the views (:class:`~ccs_kornia.sources.TensorSource` or :class:`~ccs_kornia.sources.FileSource`).
@@ -235,7 +247,8 @@ class CalibrationPipeline(nn.Module):
         if self.distortion_net is not None:
             per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
         # batches of views, in forked worker processes on CPU (batch_workers.py: the same batches for any number)
-        for batch in map_batches(functools.partial(self._detect_batch, board=board, device=device), source, None,
+        for batch in map_batches(functools.partial(self._detect_batch, board=board, device=device), source,
+                                 FIRST.select(None, self.detector, self.calibrated_look),
                                  self.detection_batch_size, self.max_batch_pixels,
                                  workers_on(device, self.workers)):
             for (ci, vi), why in batch.failed:
@@ -264,9 +277,8 @@ class CalibrationPipeline(nn.Module):
         """One batch of :meth:`detect_views`: the network's correction of each view (or ``None``) and the detection."""
         images = images.to(device)
         corrections = self.view_corrections(images) if self.distortion_net is not None else None
-        # the detector's costly last resort (boards at a grazing angle) waits for the views the other looks miss
-        with detector_options(self.detector, foreshortened_retry=False):
-            return corrections, self.detect_images(images, board)
+        # (the detector's costly last resort, boards at a grazing angle, waits for the views the other looks miss)
+        return corrections, FIRST.run(self.tools, None, images, keys, board)
 
     def finish(
         self,
@@ -276,50 +288,83 @@ class CalibrationPipeline(nn.Module):
         source: ViewSource | None = None,
         calibrate: bool = True,
     ) -> PipelineResult:
-        """The rest of :meth:`run` after :meth:`detect_views`: the lens correction per camera (pooled; the views
-        missed on the originals looked for on corrected copies, read again from ``source``; the image evidence for
-        the corrected path), then the solver (:meth:`solve`).
+        """The rest of :meth:`run` after :meth:`detect_views`: the network's corrections pooled per camera, then the
+        looks of :data:`~ccs_kornia.pipeline_looks.LOOKS` in turn, each on the views missed so far (read again from
+        ``source``), the cameras solved before a look that needs them, and solved again at the end where a look found
+        boards since.
 
         Args:
             out: a batched result of :meth:`detect_views` (or views taken from one, see
                 :meth:`~ccs_kornia.pipeline_result.PipelineResult.take_views`).
             board_size, square: the board.
-            source: where the views can be read again (``None``: no second look at missed views).
-            calibrate: run the solver.
+            source: where the views can be read again (``None``: no look at missed views).
+            calibrate: run the solver (``False``: the looks that need no camera only).
         """
         board = (int(board_size[0]), int(board_size[1]))
-        if out.view_corrections is not None and self.distortion_net is not None:
+        pooled = out.view_corrections is not None and self.distortion_net is not None
+        if pooled:
             with stage("correction evidence"):
-                self._correct(source, out, out.view_corrections, same_size_views(out), board)
-        if not calibrate:
-            if source is not None:
-                look_foreshortened(self, source, out, board)
-            return out
-        look = self.calibrated_look and source is not None
-        with stage("solver"):
-            # with a second look to come, the diagnostics wait for the final solve
-            out = solve_detections(self, out, board, square, diagnostics=self.diagnostics and source is None)
-        # a fisheye lens, once calibrated, straightens the boards its rim hid from the detector: look again; then the
-        # last resort on what is still missed; solve again where either found a board
-        recovered = look and look_again_with_camera(self, source, out, board)
-        recovered = (source is not None and look_foreshortened(self, source, out, board)) or recovered
-        if recovered:
-            # with the models chosen above (the looks add a few views), unless a camera had none (too few views)
-            chosen = out.model_selection is None or all((m or {}).get("chosen") for m in out.model_selection)
+                self._pool(out)
+        solved, changed = False, False
+        for look in LOOKS:
+            if look.needs_correction and not pooled or look.needs_camera and not calibrate:
+                continue
+            if look.needs_camera and (changed or not solved):
+                out, solved, changed = self._solve(out, board, square, again=solved), True, False
+            changed = self._look(look, source, out, board) or changed
+        if calibrate and (changed or not solved):
+            out = self._solve(out, board, square, again=solved)
+        if calibrate and self.diagnostics:
             with stage("solver"):
-                out = solve_detections(self, out, board, square, keep_models=chosen)
-        elif source is not None and self.diagnostics:
-            with stage("solver"):
-                out = diagnose_solved(self, out, board, square)
+                out = diagnose_solved(self.solving, out, board, square, self.subset_solutions)
         return out
 
-    def _correct(self, source: ViewSource | None, out: PipelineResult, per_view: torch.Tensor, same: torch.Tensor,
-                 board: tuple[int, int]) -> None:
-        """Pool the corrections, detect the missed views of strongly distorted cameras on corrected copies, and
-        weigh the evidence for the corrected path (fills ``out``'s correction fields in place)."""
+    def _look(self, look: Look, source: ViewSource | None, out: PipelineResult, board: tuple[int, int]) -> bool:
+        """``look`` at the views it selects (none without a ``source``), in the pipeline's batches; writes the boards
+        found into ``out.detections`` and returns whether there were any."""
+        # (the corrected look is charged to the profile's correction stage; the others, to their own stages inside)
+        with stage("correction evidence") if look.needs_correction else nullcontext():
+            keys = [] if source is None else look.select(out, self.detector, self.calibrated_look)
+            det, found = out.detections, False
+            device = det.corners.device
+            tools = self.tools
+            for batch in map_batches(functools.partial(look.run, tools, out, board_size=board), source, keys,
+                                     self.detection_batch_size, self.max_batch_pixels,
+                                     workers_on(device, self.workers) if look.in_workers else 1) if keys else ():
+                if batch.size is None:
+                    continue
+                cam = torch.tensor([k[0] for k in batch.keys], device=device)
+                view = torch.tensor([k[1] for k in batch.keys], device=device)
+                found = bool(det.fill((cam, view), batch.value).any()) or found
+            if look.after is not None:
+                look.after(out, board)
+        return found
+
+    def _solve(self, out: PipelineResult, board: tuple[int, int], square: float, again: bool) -> PipelineResult:
+        """The solver on ``out``'s detections; ``again`` (a look found boards since the last solve): with the models
+        chosen then (the looks add a few views), unless a camera had none (too few views)."""
+        chosen = again and (out.model_selection is None or all((m or {}).get("chosen") for m in out.model_selection))
+        with stage("solver"):
+            out, self.subset_solutions = solve_detections(self.solving, out, board, square, keep_models=chosen)
+        return out
+
+    @property
+    def solving(self) -> Solving:
+        """The solver stage's settings (:class:`~ccs_kornia.pipeline_solve.Solving`)."""
+        return Solving(self.model, self.solvers, self.solver, self.selection, self.weigh_corners, self.workers,
+                       self.joint_iters, self.free_distortion_centre, self.max_rms_ratio)
+
+    @property
+    def tools(self) -> Tools:
+        """What the looks detect with (:class:`~ccs_kornia.pipeline_looks.Tools`)."""
+        return Tools(self.detect_images, self.refine_on_patches, self.corner_sigma if self.weigh_corners else None,
+                     self.detector, self.workers)
+
+    def _pool(self, out: PipelineResult) -> None:
+        """Pool the per-view corrections per camera (fills ``out.correction`` and ``out.correction_tried``)."""
+        per_view, same = out.view_corrections, same_size_views(out)
         c = per_view.shape[0]
         device = per_view.device
-        det = out.detections
         correction = torch.zeros(c, 5, dtype=torch.float64, device=device)
         correction[:, 0] = 1.0
         large = torch.zeros(c, dtype=torch.bool, device=device)
@@ -327,15 +372,7 @@ class CalibrationPipeline(nn.Module):
             sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
             mask = same[sel] & per_view[sel].isfinite().all(-1)
             correction[sel], large[sel] = self.pool_corrections(per_view[sel], positive_size(size), mask)
-        if source is not None:
-            look_on_corrected(self, source, out, correction, large, same, board)
-        straightness = torch.full((c, 2), float("nan"), dtype=torch.float64, device=device)
-        for size in set(out.image_size):
-            sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
-            before, after = straightening_evidence(det.corners[sel], det.found[sel] & same[sel], correction[sel], board,
-                                                   positive_size(size))
-            straightness[sel] = torch.stack([before, after], -1)
-        out.correction, out.straightness = correction, straightness
+        out.correction = correction
         # every camera with a large correction goes to the corrected frame, where the observed corners referee it
         # against the usual calibration; a gate on the network's correction straightening the boards (or on the
         # usual model's misfit) kept 5 of 50 held-out level-2 cameras from it (E_IP 1.4-19 px instead of <= 0.24)
@@ -354,7 +391,9 @@ class CalibrationPipeline(nn.Module):
             ``out`` with ``calibration``, ``corrected``, ``correction`` (re-fitted where kept), ``camera_reasons``,
             ``model_selection`` and ``diagnostics`` (when computed) filled.
         """
-        return solve_detections(self, out, (int(board_size[0]), int(board_size[1])), square)
+        board = (int(board_size[0]), int(board_size[1]))
+        out, self.subset_solutions = solve_detections(self.solving, out, board, square)
+        return diagnose_solved(self.solving, out, board, square, self.subset_solutions) if self.diagnostics else out
 
     # ------------------------------------------------------------------------------------------
     # the stages, each usable alone
@@ -375,7 +414,8 @@ class CalibrationPipeline(nn.Module):
             :class:`DetectionResult` with the leading dimensions of ``images``.
         """
         if self.differentiable:
-            return differentiable_detect(self, images, board_size)
+            usual = self._usual(images, board_size, 1.0, calibrate=False)
+            return differentiable_detect(usual, images, board_size, self.detector)
         out = self.run(TensorSource(images), board_size, calibrate=False)
         det = out.detections
         det.correction, det.correction_tried = out.correction, out.correction_tried
@@ -431,12 +471,12 @@ class CalibrationPipeline(nn.Module):
         if (correction is not None and correction_tried is not None) or self.model == "auto":
             single = corners.dim() == 3
             batch = (lambda x: None if x is None else x[None]) if single else (lambda x: x)
-            calib = solve_group(self, batch(corners).double(), batch(valid).any(-1), board_size, square, size,
+            calib = solve_group(self.solving, batch(corners).double(), batch(valid).any(-1), board_size, square, size,
                                 None if correction is None else batch(correction).double(),
                                 None if correction_tried is None else batch(torch.as_tensor(correction_tried)))[0]
             return select_result(calib, 0) if single else calib
         object_points = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
-        with contextlib.nullcontext() if self.differentiable else torch.inference_mode():
+        with nullcontext() if self.differentiable else torch.inference_mode():
             return self.solver(
                 corners.to(torch.float64), valid.bool(), object_points, size,
                 init_corners=None if init_corners is None else init_corners.to(corners.device, torch.float64),
@@ -465,35 +505,28 @@ class CalibrationPipeline(nn.Module):
         half_diagonal = 0.5 * math.hypot(image_size[0], image_size[1])
         return correction_displacement(correction, image_size) > self.min_correction * half_diagonal
 
-    def detect_images(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
-        """The detector on ``(B, 1, H, W)`` images of one size, through a downscaled copy when they are large."""
+    def detect_images(self, images: torch.Tensor, board_size: tuple[int, int], changes: Changes = ()) -> DetectionResult:
+        """The detector on ``(B, 1, H, W)`` images of one size, through a downscaled copy when they are large
+        (:class:`~ccs_kornia.modules.detection.warped_detection.Downscale`), with ``changes`` to the detector's own
+        fallbacks; the corners' precision measured where the pipeline weighs corners."""
         h, w = images.shape[-2:]
         limit = self.max_detection_side
+        measure = self.corner_sigma if self.weigh_corners else None
         with torch.inference_mode():
             # a detector that picks its own detection level and refines at full resolution (the learned one with
             # ``scale="auto"``, modules/detection/scale.py) bounds its memory itself
             if limit is None or max(h, w) <= limit or getattr(self.detector, "selects_scale", False):
-                det = self.detector(images.float(), board_size)
+                det = self.detector.detect(images.float(), board_size, changes)
                 sigma = None
-                if self.weigh_corners:
+                if measure is not None:
                     # the learned detector has measured them on these images (its asymmetry check)
                     sigma = det.sigma
                     if sigma is None:
                         sigma = self.corner_sigma(images, det.corners, board_size, det.found)
                 return DetectionResult(det.corners, det.found, det.reasons, sigma)
-            scale = max(h, w) / limit
-            small_size = (max(8, round(h / scale)), max(8, round(w / scale)))
-            # area averaging is the anti-aliased downscale (each small pixel is the mean of its footprint)
-            det = self.detector(F.interpolate(images.float(), size=small_size, mode="area"), board_size)
-            # pixel centres: x_full + 0.5 = (x_small + 0.5) * w / w_small
-            factor = torch.tensor([w / small_size[1], h / small_size[0]], dtype=det.corners.dtype,
-                                  device=det.corners.device)
-            corners = (det.corners + 0.5) * factor - 0.5
-            idx = det.found.nonzero().flatten()
-            if idx.numel():
-                corners[idx] = self.refine_on_patches(images[idx], corners[idx], board_size)
-            sigma = self.corner_sigma(images, corners, board_size, det.found) if self.weigh_corners else None
-        return DetectionResult(corners, det.found, det.reasons, sigma)
+            detect = functools.partial(self.detector.detect, changes=changes)
+            return detect_warped(Downscale.to_side((h, w), limit), detect, self.refine_on_patches, images, board_size,
+                                 measure)
 
     def corner_sigma(self, images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int],
                      found: torch.Tensor | None = None) -> torch.Tensor:

@@ -19,51 +19,36 @@ gradient (``docs/gradients.md``). Corner weights (``weigh_corners``) are measure
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 
 from ccs_kornia.camera import board_object_points
-from ccs_kornia.modules.detection.base import DetectionResult, measured_corners
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, measured_corners
 from ccs_kornia.modules.detection.differentiable_refine import SYMMETRY_STEPS, DifferentiableCorners
 from ccs_kornia.pipeline_result import (PipelineResult, concat_results, corner_weights_of, positive_size,
                                         same_size_views, select_result)
-from ccs_kornia.sources import TensorSource
+from ccs_kornia.pipeline_solve import Solving
 
 __all__ = ["differentiable_detect", "differentiable_run", "corner_module"]
 
 
-def corner_module(pipe: Any, net: torch.nn.Module | None = None) -> DifferentiableCorners:
-    """The :class:`DifferentiableCorners` of ``pipe``'s detector: the learned detector's heatmap network (or ``net``,
+def corner_module(det: ChessboardDetector, net: torch.nn.Module | None = None) -> DifferentiableCorners:
+    """The :class:`DifferentiableCorners` of the detector ``det``: the learned detector's heatmap network (or ``net``,
     e.g. one in training) seeds the refinement; no image refinement steps where the detector has none
     (``refine="none"``: its corners are the network's own)."""
-    det = pipe.detector
     net = getattr(det, "net", None) if net is None else net
     steps = 0 if getattr(det, "refine", "symmetric") == "none" else SYMMETRY_STEPS
     return DifferentiableCorners(net, steps, getattr(det, "fit_window", 7))
 
 
-def _detection_factor(pipe: Any, images: torch.Tensor) -> torch.Tensor | float:
+def _detection_factor(det: ChessboardDetector, images: torch.Tensor) -> torch.Tensor | float:
     """Full-resolution px per detection-level px of each image (the learned detector's primary level)."""
-    det = pipe.detector
     if getattr(det, "scale", "off") != "auto":
         return 1.0
     with torch.no_grad():
         return det.scale_selector(images.detach().float())[1]
 
 
-def _usual(pipe: Any, images: torch.Tensor, board: tuple[int, int], square: float, calibrate: bool) -> PipelineResult:
-    """The usual pipeline on ``images`` (C, V, 1, H, W), without autograd and in this process."""
-    workers = pipe.workers
-    try:
-        pipe.workers = 1
-        with torch.no_grad():
-            return pipe.run(TensorSource(images.detach()), board, square, calibrate=calibrate)
-    finally:
-        pipe.workers = workers
-
-
-def _corners(pipe: Any, images: torch.Tensor, det: DetectionResult, board: tuple[int, int],
+def _corners(det_module: ChessboardDetector, images: torch.Tensor, det: DetectionResult, board: tuple[int, int],
              net: torch.nn.Module | None) -> tuple[torch.Tensor, torch.Tensor]:
     """Differentiable corners ``(C, V, N, 2)`` float64 of the found boards of ``images`` (C, V, 1, H, W), and the gap
     of the differentiated estimator to the usual values (NaN where not found)."""
@@ -76,25 +61,32 @@ def _corners(pipe: Any, images: torch.Tensor, det: DetectionResult, board: tuple
     flat = images.flatten(0, 1)[idx.to(images.device)]
     pts = corners.flatten(0, 1)[idx]
     valid = measured_corners(pts, torch.ones(idx.numel(), dtype=torch.bool, device=pts.device))
-    module = corner_module(pipe, net)
-    out, g = module(flat, pts, valid, board, _detection_factor(pipe, flat))
+    module = corner_module(det_module, net)
+    out, g = module(flat, pts, valid, board, _detection_factor(det_module, flat))
     corners = corners.flatten(0, 1).index_put((idx,), out.to(torch.float64)).view(c, v, -1, 2)
     gap = gap.flatten(0, 1).index_put((idx,), g.to(torch.float64)).view(c, v, -1, 2)
     return corners, gap
 
 
-def differentiable_detect(pipe: Any, images: torch.Tensor, board_size: tuple[int, int],
-                          net: torch.nn.Module | None = None) -> DetectionResult:
+def differentiable_detect(out: PipelineResult, images: torch.Tensor, board_size: tuple[int, int],
+                          detector: ChessboardDetector, net: torch.nn.Module | None = None) -> DetectionResult:
     """:meth:`CalibrationPipeline.detect <ccs_kornia.pipeline.CalibrationPipeline.detect>` with the corners of found
-    boards differentiable with respect to ``images`` and the heatmap network (``net``: default, the detector's).
+    boards differentiable with respect to ``images`` and the heatmap network (``net``: default, ``detector``'s).
+
+    Args:
+        out: the usual pipeline's result on ``images`` (``run(..., calibrate=False)`` without autograd, batched with
+            a camera dimension): every decision and value.
+        images: :math:`(V, 1, H, W)` or :math:`(C, V, 1, H, W)`, the images ``out`` was computed from.
+        board_size: ``(cols, rows)`` inner corners.
+        detector: the detector that found the boards.
+        net: the heatmap network to differentiate (default: ``detector``'s).
 
     The result also carries ``gap`` (float64, the shape of ``corners``): how far the differentiated estimator's value
     is from the returned corner (NaN where not found)."""
     board = (int(board_size[0]), int(board_size[1]))
     batched = images if images.dim() == 5 else images[None]
-    out = _usual(pipe, batched, board, 1.0, calibrate=False)
     det = out.detections
-    det.corners, gap = _corners(pipe, batched, det, board, net)
+    det.corners, gap = _corners(detector, batched, det, board, net)
     det.correction, det.correction_tried = out.correction, out.correction_tried
     if images.dim() == 4:
         det, gap = select_result(det, 0), gap[0]
@@ -104,19 +96,28 @@ def differentiable_detect(pipe: Any, images: torch.Tensor, board_size: tuple[int
     return det
 
 
-def differentiable_run(pipe: Any, images: torch.Tensor, board_size: tuple[int, int], square: float = 1.0,
+def differentiable_run(out: PipelineResult, images: torch.Tensor, board_size: tuple[int, int], square: float,
+                       detector: ChessboardDetector, solving: Solving,
                        net: torch.nn.Module | None = None) -> PipelineResult:
     """:meth:`CalibrationPipeline.forward <ccs_kornia.pipeline.CalibrationPipeline.forward>` with ``K``, ``dist``,
     ``rvec`` and ``tvec`` differentiable with respect to ``images`` and the heatmap network (``net``: default, the
     detector's), through the differentiable corners and the solver's implicit gradient. Values: the usual ones;
     no camera dimension for 4-D ``images``.
 
+    Args:
+        out: the usual pipeline's result on ``images`` (``run`` without autograd, batched with a camera
+            dimension): every decision and value.
+        images: :math:`(V, 1, H, W)` or :math:`(C, V, 1, H, W)`, the images ``out`` was computed from.
+        board_size: ``(cols, rows)`` inner corners; square: the square side.
+        detector: the detector that found the boards.
+        solving: the pipeline's solver settings (:class:`~ccs_kornia.pipeline_solve.Solving`).
+        net: the heatmap network to differentiate (default: ``detector``'s).
+
     ``detections.gap`` says how far the differentiated corner estimator's value is from each corner."""
     board = (int(board_size[0]), int(board_size[1]))
     batched = images if images.dim() == 5 else images[None]
-    out = _usual(pipe, batched, board, square, calibrate=True)
     det = out.detections
-    corners, gap = _corners(pipe, batched, det, board, net)
+    corners, gap = _corners(detector, batched, det, board, net)
     usable = det.found & same_size_views(out)
     obj = board_object_points(board[0], board[1], float(square), device=corners.device, dtype=torch.float64)
     parts, order = [], []
@@ -124,15 +125,15 @@ def differentiable_run(pipe: Any, images: torch.Tensor, board_size: tuple[int, i
         sel = torch.tensor([s == size for s in out.image_size], device=corners.device).nonzero().flatten()
         valid = measured_corners(det.corners[sel], usable[sel])
         sigma = None if det.sigma is None else det.sigma[sel]
-        weights = corner_weights_of(sigma, valid) if pipe.weigh_corners else None
-        if pipe.model == "auto":
+        weights = corner_weights_of(sigma, valid) if solving.weigh_corners else None
+        if solving.model == "auto":
             chosen = [((out.model_selection or [None] * len(out.image_size))[ci] or {}).get("chosen")
                       for ci in sel.tolist()]
-            names = [n or next(iter(pipe.solvers)) for n in chosen]
+            names = [n or next(iter(solving.solvers)) for n in chosen]
         else:
-            names = [next(k for k, s in pipe.solvers.items() if s is pipe.solver)] * sel.numel()
+            names = [next(k for k, s in solving.solvers.items() if s is solving.solver)] * sel.numel()
         # the usual solve's call: each model over every camera of the group (the RANSAC draws depend on the batch)
-        results = {n: pipe.solvers[n](corners[sel], valid, obj, positive_size(size), weights=weights)
+        results = {n: solving.solvers[n](corners[sel], valid, obj, positive_size(size), weights=weights)
                    for n in dict.fromkeys(names)}
         for k, (ci, n) in enumerate(zip(sel.tolist(), names)):
             # a camera whose corrected-frame calibration was kept: that one, without gradient

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import torch
 
 __all__ = ["LoadedBatch", "ViewSource", "TensorSource", "FileSource", "prefetched", "DEFAULT_MAX_BATCH_PIXELS",
-           "load_batches", "SIZE_TOLERANCE_PX"]
+           "SIZE_TOLERANCE_PX"]
 
 #: pixels loaded at most in one batch (16 Mpx = 64 MB of float32 grey images): bounds the detector's
 #: activations too, which are a few times the input per image
@@ -90,14 +90,6 @@ def prefetched(items: Iterable, depth: int = 1) -> Iterator:
     finally:
         stop.set()
         thread.join()
-
-
-def load_batches(source: ViewSource, keys: Sequence[tuple[int, int]] | None = None, batch_size: int = 16,
-                 max_pixels: int | None = DEFAULT_MAX_BATCH_PIXELS) -> Iterator[LoadedBatch]:
-    """``source.batches(...)``, prefetched in a thread (:func:`prefetched`) when the source decodes files
-    (``decodes = True``, e.g. :class:`FileSource`), so decoding overlaps the work on the previous batch."""
-    batches = source.batches(keys, batch_size=batch_size, max_pixels=max_pixels)
-    return prefetched(batches) if getattr(source, "decodes", False) else iter(batches)
 
 
 def _ordered_map(fn: Callable, items: Sequence, workers: int) -> Iterator:

@@ -243,28 +243,32 @@ def test_diagnostics_after_the_second_look_equal_those_without_it(sets):
     torch.testing.assert_close(looked.calibration.K, plain.calibration.K, atol=0, rtol=0)
 
 
-def test_second_look_runs_without_the_opencv_retry_and_restores_it(sets, monkeypatch):
-    """The calibrated look's virtual views run the learned detector without its last resort (OpenCV's candidates) and with only
-    the finer fallback levels, without the octaves below them and the finest level (the rest would only add their
-    cost to every view without a board); the detector's settings are restored afterwards, also when the look fails."""
-    import ccs_kornia.pipeline_solve as pipeline_solve
-
+def test_each_look_asks_the_detector_for_its_own_fallbacks(sets, monkeypatch):
+    """The first look runs the learned detector without its costliest last resort (foreshortened levels); the
+    calibrated look's virtual views without OpenCV's candidates, the octaves below the fallbacks and the finest level
+    (they would only add their cost to every view without a board): first on the level each view picks, then on the
+    finer fallback levels only. The detector's own fallbacks are a value passed per call, never changed."""
     imgs = sets[1].images.clone()
     imgs[3] = 0.5  # a view without a board: the look runs for it
     pipe = CalibrationPipeline("learned", seed=0, distortion_correction=False, model="fisheye")
+    own = pipe.detector.fallbacks
     seen = []
+    forward = pipe.detector.forward
 
-    def look(pipe_, *args):
-        seen.append((pipe_.detector.opencv_retry, pipe_.detector.scale_fallback, pipe_.detector.scale_finest))
-        raise RuntimeError("look failed")
+    def spy(images, board, fallbacks=None):
+        seen.append(fallbacks)
+        if fallbacks is not None and not fallbacks.primary:
+            raise RuntimeError("second pass")
+        return forward(images, board, fallbacks)
 
-    fallback = pipe.detector.scale_fallback
-    monkeypatch.setattr(pipeline_solve, "_look", look)
-    with pytest.raises(RuntimeError, match="look failed"):
+    monkeypatch.setattr(pipe.detector, "forward", spy)
+    with pytest.raises(RuntimeError, match="second pass"):
         pipe(imgs[None], BOARD, SQUARE)
-    assert seen == [(False, (0.5, 0.25), False)]
-    assert pipe.detector.opencv_retry is True and pipe.detector.scale_fallback == fallback
-    assert pipe.detector.scale_finest is True
+    second = own.but(levels=(0.5, 0.25), finest=False, opencv=False, foreshortened=False)
+    assert seen[0] == own.but(foreshortened=False)
+    assert set(seen[1:-1]) == {second.but(levels=())} and len(seen[1:-1]) == 19  # the wide lens's virtual views
+    assert seen[-1] == second.but(primary=False)
+    assert pipe.detector.fallbacks == own
 
 
 def test_a_large_correction_is_tried_even_where_it_does_not_straighten():
@@ -302,6 +306,8 @@ def test_solve_after_the_second_look_keeps_the_chosen_model(sets, monkeypatch):
     """With ``model="auto"`` the models are compared once: the solve after a look that changed the views uses the
     model chosen before it (the table says on how many views), and calibrates on every view."""
     import ccs_kornia.pipeline as pipeline_module
+    from ccs_kornia.modules.detection.base import DetectionResult
+    from ccs_kornia.pipeline_looks import Look
 
     imgs = sets[1].images.clone()
     imgs[2] = 0.5  # missed by the detector; the (fake) look recovers it
@@ -311,12 +317,12 @@ def test_solve_after_the_second_look_keeps_the_chosen_model(sets, monkeypatch):
     select = pipe.selection.forward
     monkeypatch.setattr(pipe.selection, "forward", lambda *a, **k: calls.append(1) or select(*a, **k))
 
-    def look(pipe_, source, out, board):
-        out.detections.corners[0, 2] = sets[1].corners[2].to(out.detections.corners)
-        out.detections.found[0, 2] = True
-        return True
+    def recover(tools, out, images, keys, board, changes):
+        assert keys == [(0, 2)]
+        return DetectionResult(sets[1].corners[2][None].float(), torch.ones(1, dtype=torch.bool), ["fake look"])
 
-    monkeypatch.setattr(pipeline_module, "look_again_with_camera", look)
+    look = Look("fake look", lambda out, detector, calibrated: [(0, 2)], recover, needs_camera=True)
+    monkeypatch.setattr(pipeline_module, "LOOKS", (look,))
     out = pipe(imgs[None], BOARD, SQUARE)
     assert len(calls) == 1
     table = out.model_selection[0]
@@ -415,7 +421,7 @@ def test_boards_at_a_grazing_angle_are_looked_for_after_the_other_looks(monkeypa
     resort = pipe.detector.foreshortened
     monkeypatch.setattr(pipe.detector, "foreshortened", lambda im, b: calls.append(im.shape[0]) or resort(im, b))
     first = pipe.detect_views(TensorSource(img), board)
-    assert not bool(first.detections.found.any()) and pipe.detector.foreshortened_retry and calls == []
+    assert not bool(first.detections.found.any()) and pipe.detector.fallbacks.foreshortened and calls == []
     out = pipe.run(TensorSource(img), board, calibrate=False)
     assert bool(out.detections.found[0, 0]) and "compressed along" in out.detections.reasons[0] and calls == [1]
     err = (out.detections.corners[0, 0] - truth).norm(dim=-1)
@@ -426,29 +432,21 @@ def test_boards_at_a_grazing_angle_are_looked_for_after_the_other_looks(monkeypa
 
 def test_foreshortened_look_skips_strongly_distorted_cameras():
     """Cameras whose pooled correction is large are left to the corrected look (a grazing board's squares there are
-    no affine compression of a lattice): only the other camera's missed view is looked at."""
+    no affine compression of a lattice): only the other camera's missed view is looked at, and none where the
+    detector's own fallbacks leave the last resort out."""
     from types import SimpleNamespace
 
-    from ccs_kornia.modules.detection.base import DetectionResult
-    from ccs_kornia.pipeline_solve import look_foreshortened
-    from ccs_kornia.sources import TensorSource
+    from ccs_kornia.modules.detection.base import DetectionResult, Fallbacks
+    from ccs_kornia.pipeline_looks import FORESHORTENED
 
-    seen = []
-
-    def resort(images, board):
-        seen.append(images.shape[0])
-        b = images.shape[0]
-        return DetectionResult(torch.zeros(b, 12, 2), torch.zeros(b, dtype=torch.bool), ["board not found"] * b)
-
-    detector = SimpleNamespace(foreshortened=resort, foreshortened_retry=True)
-    pipe = SimpleNamespace(detector=detector, detection_batch_size=16, max_batch_pixels=1 << 24)
     det = DetectionResult(torch.zeros(2, 2, 12, 2), torch.tensor([[True, False], [True, False]]), [""] * 4)
     out = SimpleNamespace(detections=det, present=torch.ones(2, 2, dtype=torch.bool),
                           correction_tried=torch.tensor([True, False]))
-    assert not look_foreshortened(pipe, TensorSource(torch.rand(2, 2, 1, 32, 40)), out, (4, 3))
-    assert seen == [1]
-    detector.foreshortened_retry = False
-    assert not look_foreshortened(pipe, TensorSource(torch.rand(2, 2, 1, 32, 40)), out, (4, 3)) and seen == [1]
+    detector = SimpleNamespace(foreshortened=None, fallbacks=Fallbacks())
+    assert FORESHORTENED.select(out, detector, True) == [(1, 1)]
+    detector.fallbacks = Fallbacks(foreshortened=False)
+    assert FORESHORTENED.select(out, detector, True) == []
+    assert FORESHORTENED.select(out, SimpleNamespace(fallbacks=None), True) == []
 
 
 def test_partial_boards_are_calibrated_on_their_visible_corners(sets, tmp_path):
@@ -488,33 +486,40 @@ def test_partial_boards_are_calibrated_on_their_visible_corners(sets, tmp_path):
 
 def test_calibrated_look_tries_the_fallback_levels_in_a_second_pass_only():
     """The calibrated look: every virtual view on its first level, then the fallback levels for the images still
-    without a board (the detector's options set for each pass, and restored)."""
+    without a board (one pass per entry of ``CALIBRATED.passes``)."""
+    from dataclasses import dataclass
     from types import SimpleNamespace
 
-    from ccs_kornia.modules.detection.base import DetectionResult
-    from ccs_kornia.pipeline_solve import _calibrated_passes
+    from ccs_kornia.modules.detection.base import DetectionResult, Fallbacks
+    from ccs_kornia.pipeline_looks import CALIBRATED, Tools
 
-    detector = SimpleNamespace(scale_fallback=(0.5, 0.25), scale_primary=True)
     passes = []
 
-    def detect_images(views, board):
-        passes.append((detector.scale_fallback, detector.scale_primary, views.shape[0]))
+    def detect(views, board, changes):
+        fallbacks = Fallbacks().but(**dict(changes))
+        passes.append((fallbacks.levels, fallbacks.primary, views.shape[0]))
         # image 0 "shows" its board on the first level, image 1 only on a fallback level
-        hit = torch.tensor([bool(v.max() < 0.5) or not detector.scale_primary for v in views])
+        hit = torch.tensor([bool(v.max() < 0.5) or not fallbacks.primary for v in views])
         return DetectionResult(torch.full((views.shape[0], 6, 2), 239.5), hit, ["x"] * views.shape[0])
 
-    pipe = SimpleNamespace(detector=detector, detect_images=detect_images, refine_on_patches=lambda i, c, b: c,
-                           workers=1)
+    tools = Tools(detect, lambda i, c, b: c, None, SimpleNamespace(fallbacks=Fallbacks()), 1)
+    K = torch.tensor([[200.0, 0, 159.5], [0, 200, 119.5], [0, 0, 1]], dtype=torch.float64)
+    @dataclass
+    class Lens:  # the calibration's fields the look reads, one camera
+        K: torch.Tensor
+        dist: torch.Tensor
+
+    lens = Lens(K[None], torch.zeros(1, 4, dtype=torch.float64))
+    out = SimpleNamespace(detections=DetectionResult(torch.zeros(1, 2, 6, 2), torch.zeros(1, 2, dtype=torch.bool)),
+                          calibration=lens)
     images = torch.stack([torch.full((1, 240, 320), 0.25), torch.full((1, 240, 320), 0.75)])
-    K = torch.tensor([[200.0, 0, 159.5], [0, 200, 119.5], [0, 0, 1]], dtype=torch.float64).expand(2, 3, 3)
-    got = _calibrated_passes(pipe, images, K, torch.zeros(2, 4, dtype=torch.float64), (3, 2))
+    got = CALIBRATED.run(tools, out, images, [(0, 0), (0, 1)], (3, 2))
     assert got.found.tolist() == [True, True]
     assert "view 0 " in got.reasons[0] and "view 0 " in got.reasons[1]
     # pass one: every view of the wide lens (19) without fallbacks while image 1 has no board; pass two: image 1 alone,
     # on the views of the first round (VIEWS_PER_ROUND: the second one's board is not taken)
     assert passes[0] == ((), True, 2) and all(p[:2] == ((), True) for p in passes[:19])
     assert passes[19:] == [((0.5, 0.25), False, 1)] * 2
-    assert detector.scale_fallback == (0.5, 0.25) and detector.scale_primary is True
 
 
 def test_diagnostics_reuse_the_model_selections_cross_validation(images, monkeypatch):

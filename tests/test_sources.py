@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.sources import FileSource, _ordered_map, load_batches
+from ccs_kornia.sources import FileSource, _ordered_map, prefetched
 
 
 def test_ordered_map_keeps_the_order_and_runs_ahead_a_bounded_amount():
@@ -52,7 +52,7 @@ def test_file_source_decodes_in_order_and_reports_unreadable_files(tmp_path):
     paths.insert(3, str(tmp_path / "broken.png"))
     source = FileSource([paths])
     assert source.decode_workers == 2
-    batches = list(load_batches(source, batch_size=3))
+    batches = list(prefetched(source.batches(batch_size=3)))
     keys = [k for b in batches for k in b.keys]
     images = torch.cat([b.images for b in batches if b.images is not None])
     failed = [key for b in batches for key, _ in b.failed]

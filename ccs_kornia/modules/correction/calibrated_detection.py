@@ -19,6 +19,7 @@ import functools
 import math
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import AbstractContextManager, contextmanager
+from dataclasses import dataclass
 
 import torch
 from kornia.geometry.grid import create_meshgrid
@@ -30,8 +31,9 @@ from ccs_kornia.camera import (
     project_points,
 )
 from ccs_kornia.modules.detection.base import DetectionResult
+from ccs_kornia.modules.detection.warped_detection import Warp, map_back
 
-__all__ = ["VIEWS_PER_ROUND", "view_directions", "virtual_view_rays", "detect_with_calibrated_lens"]
+__all__ = ["VIEWS_PER_ROUND", "VirtualView", "view_directions", "virtual_view_rays", "detect_with_calibrated_lens"]
 
 
 def view_directions(wide: bool, fov_deg: float = 110.0) -> list[tuple[float, float, float]]:
@@ -100,18 +102,59 @@ def _in_order(fn: Callable) -> Iterator[Callable[[Iterable], Iterator]]:
     yield lambda items: (fn(item) for item in items)
 
 
+@dataclass(frozen=True)
+class VirtualView(Warp):
+    """The virtual pinhole view ``direction`` ``(yaw, pitch, fov)`` (degrees), ``side`` px square, of images under
+    their calibrated cameras ``K`` :math:`(B, 3, 3)`, ``dist`` :math:`(B, D)` (float64; Kannala-Brandt with
+    ``fisheye``) of ``size`` ``(W, H)``; pixels map back through rays and the calibrated projection.
+
+    Example:
+        >>> K = torch.tensor([[[200.0, 0, 160], [0, 200, 120], [0, 0, 1]]], dtype=torch.float64)
+        >>> warp = VirtualView((0.0, 0.0, 110.0), 96, K, torch.zeros(1, 4, dtype=torch.float64), True, (320, 240))
+        >>> warp.apply(torch.rand(1, 1, 240, 320)).shape, warp.back(torch.tensor([[[47.5, 47.5]]]))[0].tolist()
+        (torch.Size([1, 1, 96, 96]), [[[160.0, 120.0]]])
+    """
+
+    direction: tuple[float, float, float]
+    side: int
+    K: torch.Tensor
+    dist: torch.Tensor
+    fisheye: bool
+    size: tuple[int, int]
+
+    def apply(self, images: torch.Tensor) -> torch.Tensor:
+        yaw, pitch, fov = self.direction
+        b = images.shape[0]
+        rays = virtual_view_rays((yaw, pitch), fov, self.side, device=images.device)[0]
+        src = _project(rays.expand(b, -1, -1), self.K, self.dist, self.fisheye)
+        src = src.reshape(b, self.side, self.side, 2).float()
+        # rays the camera cannot see land outside the image: zeros there, as the border of any undistortion
+        src = torch.nan_to_num(src, nan=-10.0)
+        view = remap(images.float(), src[..., 0], src[..., 1], mode="bilinear", align_corners=True)
+        return view.clamp(0, 1)
+
+    def back(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        # virtual-view pixels -> rays -> the calibrated projection in the original image
+        yaw, pitch, fov = self.direction
+        pix = points.to(self.K.device, torch.float64)
+        f, R = _view_frame((yaw, pitch), fov, self.side, device=self.K.device)
+        c = (self.side - 1) / 2
+        local = torch.stack([(pix[..., 0] - c) / f, (pix[..., 1] - c) / f, torch.ones_like(pix[..., 0])], -1)
+        back = _project(local @ R.T, self.K, self.dist, self.fisheye)
+        w, h = self.size
+        inside = back.isfinite().all(-1).all(-1) & (back >= 0).all(-1).all(-1)
+        inside = inside & (back[..., 0] <= w - 1).all(-1) & (back[..., 1] <= h - 1).all(-1)
+        return back, inside
+
+
 def _look_at_view(detect: Callable, images: torch.Tensor, K64: torch.Tensor, d64: torch.Tensor, fisheye: bool,
                   board_size: tuple[int, int], side: int, item: tuple) -> DetectionResult:
     """The detection on virtual view ``item = ((yaw, pitch, fov), todo)`` of the images ``todo`` (virtual-view
     pixels)."""
-    (yaw, pitch, fov), todo = item
-    rays = virtual_view_rays((yaw, pitch), fov, side, device=images.device)[0]
-    src = _project(rays.expand(todo.numel(), -1, -1), K64[todo], d64[todo], fisheye)
-    src = src.reshape(todo.numel(), side, side, 2).float()
-    # rays the camera cannot see land outside the image: zeros there, as the border of any undistortion
-    src = torch.nan_to_num(src, nan=-10.0)
-    view = remap(images[todo].float(), src[..., 0], src[..., 1], mode="bilinear", align_corners=True)
-    return detect(view.clamp(0, 1), board_size)
+    direction, todo = item
+    h, w = images.shape[-2:]
+    warp = VirtualView(direction, side, K64[todo], d64[todo], fisheye, (int(w), int(h)))
+    return detect(warp.apply(images[todo]), board_size)
 
 
 def detect_with_calibrated_lens(
@@ -162,38 +205,26 @@ def detect_with_calibrated_lens(
     b, _, h, w = images.shape
     n = int(board_size[0]) * int(board_size[1])
     device = images.device
-    corners = torch.zeros(b, n, 2, dtype=torch.float32, device=device)
-    found = torch.zeros(b, dtype=torch.bool, device=device)
-    reasons = ["board not found on the virtual pinhole views of the calibrated lens"] * b
+    out = DetectionResult(torch.zeros(b, n, 2, dtype=torch.float32, device=device),
+                          torch.zeros(b, dtype=torch.bool, device=device),
+                          ["board not found on the virtual pinhole views of the calibrated lens"] * b)
     K64, d64 = K.to(device, torch.float64), dist.to(device, torch.float64)
     views = list(enumerate(view_directions(fisheye, fov_deg)))
     look = functools.partial(_look_at_view, detect, images, K64, d64, fisheye, board_size, side)
     with (view_pool or _in_order)(look) as run:
         for start in range(0, len(views), VIEWS_PER_ROUND):
-            todo = (~found).nonzero().flatten()
+            todo = (~out.found).nonzero().flatten()
             if todo.numel() == 0:
                 break
             batch = views[start:start + VIEWS_PER_ROUND]
             for (k, (yaw, pitch, fov)), got in zip(batch, run([(direction, todo) for _, direction in batch])):
                 # an image whose board an earlier view of the round found keeps that one
-                hit = got.found.to(device) & ~found[todo]
-                if not bool(hit.any()):
+                got.found = got.found.to(device) & ~out.found[todo]
+                if not bool(got.found.any()):
                     continue
-                idx = todo[hit]
-                # virtual-view pixels -> rays -> the calibrated projection in the original image
-                pix = got.corners[hit].to(device, torch.float64)
-                f, R = _view_frame((yaw, pitch), fov, side, device=device)
-                c = (side - 1) / 2
-                local = torch.stack([(pix[..., 0] - c) / f, (pix[..., 1] - c) / f, torch.ones_like(pix[..., 0])], -1)
-                back = _project(local @ R.T, K64[idx], d64[idx], fisheye)
-                inside = back.isfinite().all(-1).all(-1) & (back >= 0).all(-1).all(-1)
-                inside = inside & (back[..., 0] <= w - 1).all(-1) & (back[..., 1] <= h - 1).all(-1)
-                if not bool(inside.any()):
-                    continue
-                idx, back = idx[inside], back[inside]
-                corners[idx] = refine(images[idx], back.float(), board_size).to(corners)
-                found[idx] = True
-                for i in idx.tolist():
-                    reasons[i] = f"found on virtual pinhole view {k} of the calibrated lens (direction {yaw:.0f}, " \
-                                 f"{pitch:.0f} deg, {fov:.0f} deg wide)"
-    return DetectionResult(corners, found, reasons)
+                warp = VirtualView((yaw, pitch, fov), side, K64[todo], d64[todo], fisheye, (int(w), int(h)))
+                mapped = map_back(warp, got, refine, images[todo], board_size)
+                mapped.reasons = [f"found on virtual pinhole view {k} of the calibrated lens (direction {yaw:.0f}, "
+                                  f"{pitch:.0f} deg, {fov:.0f} deg wide)"] * todo.numel()
+                out.fill(todo, mapped)
+    return out

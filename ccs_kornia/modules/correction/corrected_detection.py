@@ -14,6 +14,7 @@ boards although the corrected frame was the only calibration that recovered them
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable
 
 import torch
@@ -22,8 +23,40 @@ from ccs_kornia.modules.correction.corrected_frame import correction_zoom
 from ccs_kornia.modules.correction.radial_warp import correct_points, distort_points_from_correction, radial_undistort_image
 from ccs_kornia.modules.correction.straightness import straightness_rms
 from ccs_kornia.modules.detection.base import DetectionResult
+from ccs_kornia.modules.detection.warped_detection import Warp, detect_warped
 
-__all__ = ["detect_on_corrected", "straightening_evidence"]
+__all__ = ["CorrectedCopy", "detect_on_corrected", "straightening_evidence"]
+
+
+@dataclass(frozen=True)
+class CorrectedCopy(Warp):
+    """The images radially corrected by ``correction`` :math:`(B, 5)` (paper coefficients) of images ``size``
+    ``(W, H)``, with the zoom that keeps the whole original frame in view; pixels map back through the correction.
+
+    Example:
+        >>> warp = CorrectedCopy.of(torch.tensor([[1.0, 0.0, 0.0, 0.0, 0.0]]), (64, 48))
+        >>> warp.apply(torch.rand(1, 1, 48, 64)).shape, warp.back(torch.tensor([[[10.0, 20.0]]]))[1].tolist()
+        (torch.Size([1, 1, 48, 64]), [True])
+    """
+
+    correction: torch.Tensor
+    size: tuple[int, int]
+    zoom: float
+
+    @staticmethod
+    def of(correction: torch.Tensor, size: tuple[int, int]) -> "CorrectedCopy":
+        """The copies corrected by ``correction`` :math:`(B, 5)` float64 of images ``size`` ``(W, H)``."""
+        corr = correction.to(torch.float64)
+        return CorrectedCopy(corr, size, float(correction_zoom(corr, size)))
+
+    def apply(self, images: torch.Tensor) -> torch.Tensor:
+        corr = self.correction.to(images.device).float()
+        return radial_undistort_image(images.float(), corr, zoom=self.zoom).clamp(0, 1)
+
+    def back(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        back, ok = distort_points_from_correction(points.double(), self.correction.to(points.device), self.size,
+                                                  zoom=self.zoom, return_valid=True)
+        return back, ok.all(-1) & back.isfinite().all(-1).all(-1)
 
 
 def detect_on_corrected(
@@ -32,11 +65,13 @@ def detect_on_corrected(
     images: torch.Tensor,
     correction: torch.Tensor,
     board_size: tuple[int, int],
+    measure: Callable[[torch.Tensor, torch.Tensor, tuple[int, int]], torch.Tensor] | None = None,
 ) -> DetectionResult:
     """Detect the board on radially corrected copies of ``images``; corners in the original images.
 
-    The copies are warped with the zoom that keeps the whole original frame in view, the corners found there are
-    mapped back through the correction, and then refined on the original images (the copies are interpolated).
+    The copies are warped with the zoom that keeps the whole original frame in view (:class:`CorrectedCopy`), the
+    corners found there are mapped back through the correction, and then refined on the original images (the copies
+    are interpolated): :func:`~ccs_kornia.modules.detection.warped_detection.detect_warped`.
 
     Args:
         detect: a detector call ``(images (B,1,H,W), board_size) -> DetectionResult``.
@@ -44,10 +79,11 @@ def detect_on_corrected(
         images: :math:`(B, 1, H, W)` float in ``[0, 1]``.
         correction: :math:`(5,)` or :math:`(B, 5)` paper correction coefficients.
         board_size: ``(cols, rows)``.
+        measure: ``(images, corners, board_size) -> sigma (b, N)``, the corners' precision on the originals.
 
     Returns:
-        :class:`DetectionResult`: corners :math:`(B, N, 2)` float64 in the original images, found :math:`(B,)`,
-        reasons prefixed with ``"corrected image: "``.
+        :class:`DetectionResult`: corners :math:`(B, N, 2)` in the original images, found :math:`(B,)`,
+        reasons prefixed with ``"corrected image: "``, ``sigma`` with ``measure``.
 
     Example:
         >>> from ccs_kornia.modules.detection.factory import make_detector
@@ -58,25 +94,14 @@ def detect_on_corrected(
         (torch.Size([1, 12, 2]), False)
     """
     b, _, h, w = images.shape
-    size = (int(w), int(h))
     corr = correction.to(device=images.device, dtype=torch.float64)
-    corr = corr.expand(b, 5) if corr.dim() == 1 else corr
-    zoom = float(correction_zoom(corr, size))
-    with torch.inference_mode():
-        warped = radial_undistort_image(images.float(), corr.float(), zoom=zoom).clamp(0, 1)
-    det = detect(warped, board_size)
-    back, ok = distort_points_from_correction(det.corners.double(), corr, size, zoom=zoom, return_valid=True)
-    found = det.found & ok.all(-1) & back.isfinite().all(-1).all(-1)
-    corners = torch.where(found[:, None, None], back, torch.zeros_like(back))
-    sel = found.nonzero().flatten()
-    if sel.numel():
-        with torch.inference_mode():
-            corners[sel] = refine(images[sel].float(), corners[sel].float(), board_size).double()
-    reasons = [
-        "corrected image: " + ((det.reasons[k] if det.reasons else "found") if f else "board not found")
-        for k, f in enumerate(found.tolist())
+    warp = CorrectedCopy.of(corr.expand(b, 5) if corr.dim() == 1 else corr, (int(w), int(h)))
+    out = detect_warped(warp, detect, refine, images, board_size, measure)
+    out.reasons = [
+        "corrected image: " + ((out.reasons[k] if out.reasons else "found") if f else "board not found")
+        for k, f in enumerate(out.found.tolist())
     ]
-    return DetectionResult(corners, found, reasons)
+    return out
 
 
 def straightening_evidence(

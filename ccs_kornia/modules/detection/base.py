@@ -7,16 +7,16 @@
 
 from __future__ import annotations
 
-from contextlib import contextmanager
+import dataclasses
 from dataclasses import dataclass
-from typing import Any, Iterator
+from typing import Any
 
 import torch
 from torch import nn
 
 from ccs_kornia.modules._checks import check_shape
 
-__all__ = ["DetectionResult", "ChessboardDetector", "detector_options", "image_rows", "measured_corners"]
+__all__ = ["DetectionResult", "ChessboardDetector", "Fallbacks", "image_rows", "measured_corners"]
 
 
 def image_rows(images: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
@@ -73,9 +73,92 @@ class DetectionResult:
         """:math:`(B, N)` bool mask of measured corners (those of a found board, less any hidden ones)."""
         return measured_corners(self.corners, self.found)
 
+    def fill(self, index: Any, other: "DetectionResult") -> torch.Tensor:
+        """Write the boards ``other`` found into this result at ``index`` (in place), where this one has none.
+
+        ``index`` selects ``other.found.shape[0]`` entries of this result's leading dimensions (an index tensor, or a
+        tuple of them for :math:`(C, V)` results). Where ``other`` found the board, its corners, ``found``, reason and
+        precision (NaN where ``other`` has none) replace this result's; elsewhere this result is left as it is.
+
+        Returns:
+            :math:`(B,)` bool: where ``other`` found the board.
+
+        Example:
+            >>> det = DetectionResult(torch.zeros(2, 3, 1, 2), torch.zeros(2, 3, dtype=torch.bool), ["no"] * 6)
+            >>> got = DetectionResult(torch.ones(2, 1, 2), torch.tensor([True, False]), ["yes", "no again"])
+            >>> det.fill((torch.tensor([0, 1]), torch.tensor([2, 0])), got).tolist(), det.found.tolist(), det.reasons[2]
+            ([True, False], [[False, False, True], [False, False, False]], 'yes')
+        """
+        hit = other.found.to(self.found.device).bool()
+        flat = torch.arange(self.found.numel(), device=self.found.device).reshape(self.found.shape)
+        flat = flat[tuple(i.to(flat.device) for i in index) if isinstance(index, tuple) else index.to(flat.device)]
+        if bool(hit.any()):
+            at = flat[hit]
+            self.corners.view(-1, *self.corners.shape[self.found.dim():])[at] = other.corners.to(self.corners.device)[
+                hit.to(other.corners.device)].to(self.corners.dtype)
+            self.found.view(-1)[at] = True
+            if self.sigma is not None:
+                sigma = self.sigma.view(-1, self.sigma.shape[-1])
+                if other.sigma is None:
+                    sigma[at] = float("nan")
+                else:
+                    sigma[at] = other.sigma.to(self.sigma.device)[hit.to(other.sigma.device)].to(self.sigma.dtype)
+        if self.reasons is not None and other.reasons is not None:
+            for k, i in enumerate(flat.tolist()):
+                if bool(hit[k]):
+                    self.reasons[i] = other.reasons[k]
+        return hit
+
+
+@dataclass(frozen=True)
+class Fallbacks:
+    """What a detector tries where the board is not found at first: a value passed per call, so that each look of
+    the calibration pipeline says which of the detector's fallbacks it pays for.
+
+    Attributes:
+        primary: the level the square-size estimate picks (``False``: only the other levels, for a second pass).
+        levels: relative factors of the levels tried in turn where the board was not found at that level.
+        finest: with ``levels``, then also the octaves below the finest of them and the finest level allowed.
+        opencv: then OpenCV's corner candidates on a bounded level (boards with marks in the white squares).
+        foreshortened: last, the level compressed along a few directions (boards at a grazing angle).
+
+    Example:
+        >>> own = Fallbacks(levels=(0.5, 2.0, 0.25))
+        >>> own.but(levels=(0.5,), opencv=False)
+        Fallbacks(primary=True, levels=(0.5,), finest=True, opencv=False, foreshortened=True)
+    """
+
+    primary: bool = True
+    levels: tuple[float, ...] = (0.5, 2.0, 0.25)
+    finest: bool = True
+    opencv: bool = True
+    foreshortened: bool = True
+
+    def but(self, **changes: Any) -> "Fallbacks":
+        """A copy with ``changes``."""
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def empty(self) -> bool:
+        """Nothing to try: neither the first level nor any fallback (``finest`` counts only with ``levels``)."""
+        return not (self.primary or self.levels or self.opencv or self.foreshortened)
+
 
 class ChessboardDetector(nn.Module):
-    """Interface: ``forward(images (B,1,H,W) in [0,1], board_size (cols, rows)) -> DetectionResult``."""
+    """Interface: ``forward(images (B,1,H,W) in [0,1], board_size (cols, rows)) -> DetectionResult``.
+
+    A detector with fallbacks to choose from sets :attr:`fallbacks` (its own) and takes ``fallbacks=`` in ``forward``
+    (:meth:`detect`)."""
+
+    #: the detector's own :class:`Fallbacks` (``None``: it has none to choose)
+    fallbacks: Fallbacks | None = None
+
+    def detect(self, images: torch.Tensor, board_size: tuple[int, int],
+               changes: tuple[tuple[str, Any], ...] = ()) -> DetectionResult:
+        """``forward`` with the detector's own :attr:`fallbacks` but ``changes`` (ignored by a detector without)."""
+        if self.fallbacks is None or not changes:
+            return self(images, board_size)
+        return self(images, board_size, fallbacks=self.fallbacks.but(**dict(changes)))
 
     def forward(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:  # pragma: no cover
         raise NotImplementedError
@@ -86,28 +169,3 @@ class ChessboardDetector(nn.Module):
         if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
             raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
         return int(board_size[0]), int(board_size[1])
-
-
-@contextmanager
-def detector_options(detector: Any, **options: Any) -> Iterator[Any]:
-    """Set the detector's attributes ``options`` for a ``with`` block, then restore them; options the detector does
-    not have are ignored (e.g. the learned detector's last resorts, switched off for second looks at many views).
-
-    Example:
-        >>> class Det:
-        ...     opencv_retry = True
-        >>> d = Det()
-        >>> with detector_options(d, opencv_retry=False, foreshortened_retry=False):
-        ...     d.opencv_retry, hasattr(d, "foreshortened_retry")
-        (False, False)
-        >>> d.opencv_retry
-        True
-    """
-    saved = {k: getattr(detector, k) for k in options if hasattr(detector, k)}
-    for k in saved:
-        setattr(detector, k, options[k])
-    try:
-        yield detector
-    finally:
-        for k, value in saved.items():
-            setattr(detector, k, value)

@@ -12,7 +12,7 @@ import torch
 from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules._threads import full_threads, light_stages_single_thread
-from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, image_rows
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, Fallbacks, image_rows
 from ccs_kornia.modules.detection.board_checks import board_extends, skipped_line
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.foreshortening import detect_foreshortened
@@ -117,6 +117,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         foreshortened_retry: where still no board was found, look on copies of the finest level allowed compressed
             2:1 along four directions in turn (:mod:`~ccs_kornia.modules.detection.foreshortening`: boards at a
             grazing angle, whose squares are foreshortened 2-4:1).
+        (``scale_fallback``, ``scale_finest``, ``opencv_retry`` and ``foreshortened_retry`` make the detector's own
+        :class:`~ccs_kornia.modules.detection.base.Fallbacks`, :attr:`fallbacks`; a caller passes others per call.)
         partial_boards: keep a found board whose unconfirmed corners the image does not show (saturating glare, an
             occluder: :mod:`~ccs_kornia.modules.detection.hidden_corners`), with those corners NaN (left out of
             ``DetectionResult.valid``); otherwise such a board is refused as incomplete.
@@ -173,14 +175,12 @@ class LearnedChessboardDetector(ChessboardDetector):
             raise ValueError(f"max_upsampling must be >= 1, got {max_upsampling}.")
         self.scale_selector = ScaleSelector(target_square=target_square, max_pixels=max_pixels,
                                             min_factor=1.0 / max_upsampling)
-        self.scale_fallback = tuple(float(f) for f in scale_fallback)
-        self.scale_finest = bool(scale_finest)
-        self.scale_primary = True  # False: only the fallback levels (a second pass, detect_at_scale's ``primary``)
+        # the detector's own fallbacks; a caller passes others per call (``forward``'s ``fallbacks``)
+        self.fallbacks = Fallbacks(True, tuple(float(f) for f in scale_fallback), bool(scale_finest),
+                                   bool(opencv_retry), bool(foreshortened_retry))
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
         self.precision = precision
-        self.opencv_retry = bool(opencv_retry)
-        self.foreshortened_retry = bool(foreshortened_retry)
         self.partial_boards = bool(partial_boards)
 
     @property
@@ -213,21 +213,24 @@ class LearnedChessboardDetector(ChessboardDetector):
         return heat, mu, keep
 
     @torch.no_grad()
-    def forward(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
-        """Detect the board on every image of ``(B, 1, H, W)``; corners in grid order."""
+    def forward(self, images: torch.Tensor, board_size: tuple[int, int],
+                fallbacks: Fallbacks | None = None) -> DetectionResult:
+        """Detect the board on every image of ``(B, 1, H, W)``; corners in grid order. ``fallbacks``: what is tried
+        where the board is not found at first (default: the detector's own, :attr:`fallbacks`)."""
         board_size = self._check_inputs(images, board_size)
         if images.shape[0] == 0:  # an empty batch (e.g. a folder's last, empty chunk): nothing to look at
             return _empty_result(images, board_size)
         with light_stages_single_thread(images.device):
-            return self._grid_checks(images, self._detect(images.float(), board_size), board_size)
+            out = self._detect(images.float(), board_size, self.fallbacks if fallbacks is None else fallbacks)
+            return self._grid_checks(images, out, board_size)
 
     @torch.no_grad()
     def foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
-        """Only the last resort for boards seen at a grazing angle (``foreshortened_retry``), on ``(B, 1, H, W)``:
+        """Only the last resort for boards seen at a grazing angle (``Fallbacks.foreshortened``), on ``(B, 1, H, W)``:
         the finest level allowed compressed along a few directions in turn
         (:func:`~ccs_kornia.modules.detection.foreshortening.detect_foreshortened`), corners refined at full
         resolution and checked as in :meth:`forward`. For callers that first try the cheaper looks (the calibration
-        pipeline runs it on the views its other looks missed) with ``foreshortened_retry`` off."""
+        pipeline runs it on the views its other looks missed) with ``Fallbacks.foreshortened`` off."""
         board_size = self._check_inputs(images, board_size)
         if images.shape[0] == 0:
             return _empty_result(images, board_size)
@@ -291,7 +294,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         corners, found, reasons = detect_foreshortened(compressed, images, board_size, refine, floor)
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
 
-    def _detect(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+    def _detect(self, images: torch.Tensor, board_size: tuple[int, int], fallbacks: Fallbacks) -> DetectionResult:
         if self.scale == "off":
             return self.detect_level(images, board_size)
         # --- scale selection (modules/detection/scale.py): detect on each image's level, refine at full resolution ---
@@ -308,16 +311,17 @@ class LearnedChessboardDetector(ChessboardDetector):
         def refine(full: torch.Tensor, pts: torch.Tensor, factor: float, radius_factor: float | None = None):
             return self._refine_at_full_size(full, pts, board_size, factor, radius_factor)
 
-        corners, found, reasons = detect_at_scale(level, images, board_size, factor, self.scale_fallback,
-                                                  self.scale_selector.max_pixels, refine, finest=self.scale_finest,
-                                                  primary=self.scale_primary)
-        missed = (~found).nonzero().flatten()
-        if self.opencv_retry and missed.numel():
+        corners, found, reasons = detect_at_scale(level, images, board_size, factor, fallbacks.levels,
+                                                  self.scale_selector.max_pixels, refine, finest=fallbacks.finest,
+                                                  primary=fallbacks.primary)
+        out = DetectionResult(corners=corners, found=found, reasons=reasons)
+        missed = (~out.found).nonzero().flatten()
+        if fallbacks.opencv and missed.numel():
             # last resort: OpenCV's quads on one bounded level (they need no square-size estimate), refined with a
             # narrow window (these are mostly boards with marks)
             def opencv_level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
-                out = self.detect_level(x, bs, full, scale, source="opencv")
-                return out.corners, out.found, out.reasons
+                got = self.detect_level(x, bs, full, scale, source="opencv")
+                return got.corners, got.found, got.reasons
 
             def narrow(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
                 return refine(full, pts, factor, MARKED_RADIUS_FACTOR)
@@ -329,19 +333,16 @@ class LearnedChessboardDetector(ChessboardDetector):
             # the lattice check again after the full-resolution refinement (which sees the marks in more detail)
             dev = lattice_deviation(c2.double(), board_size).amax(-1)
             f2 = f2.to(dev.device) & (dev <= MAX_LATTICE_DEVIATION)
-            for k, i in enumerate(missed.tolist()):
-                if bool(f2[k]):
-                    corners[i], found[i], reasons[i] = c2[k].to(corners), True, r2[k]
-                elif r2[k].startswith("board refused"):
-                    reasons[i] = r2[k]
-        missed = (~found).nonzero().flatten()
-        if self.foreshortened_retry and missed.numel():
+            out.fill(missed, DetectionResult(c2, f2, r2))
+            for k, i in enumerate(missed.tolist()):  # why a board the candidates gave was refused
+                if not bool(f2[k]) and r2[k].startswith("board refused"):
+                    out.reasons[i] = r2[k]
+        missed = (~out.found).nonzero().flatten()
+        if fallbacks.foreshortened and missed.numel():
             # boards at a grazing angle: the finest level allowed, compressed along one direction at a time
-            got = self._foreshortened(image_rows(images, missed), board_size)
-            for k, i in enumerate(missed.tolist()):
-                if bool(got.found[k]):
-                    corners[i], found[i], reasons[i] = got.corners[k].to(corners), True, got.reasons[k]
-        return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
+            out.fill(missed, self._foreshortened(image_rows(images, missed), board_size))
+        out.corners = out.corners.float()
+        return out
 
     def _opencv_board(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         """:meth:`detect_level` on :func:`~ccs_kornia.modules.detection.opencv_candidates.opencv_candidates` of

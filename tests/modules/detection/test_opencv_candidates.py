@@ -139,7 +139,7 @@ def test_detector_refuses_a_board_that_skips_every_other_corner(monkeypatch):
     every_other = corners.reshape(6, 8, 2)[::2, ::2].reshape(-1, 2)  # a 4x3 lattice, a corner between neighbours
     det = LearnedChessboardDetector()
 
-    def detect(images, board_size):
+    def detect(images, board_size, fallbacks):
         return DetectionResult(corners=every_other[None].clone(), found=torch.tensor([True]), reasons=["learned"])
 
     monkeypatch.setattr(det, "_detect", detect)
@@ -149,14 +149,14 @@ def test_detector_refuses_a_board_that_skips_every_other_corner(monkeypatch):
     # continues past two sides)
     small, whole = _checker(square=16, cols=4, rows=3)
 
-    def detect_whole(images, board_size):
+    def detect_whole(images, board_size, fallbacks):
         return DetectionResult(corners=whole[None].clone(), found=torch.tensor([True]), reasons=["learned"])
 
     monkeypatch.setattr(det, "_detect", detect_whole)
     assert bool(det(small, (4, 3)).found[0])
     sub = corners.reshape(6, 8, 2)[:3, :4].reshape(-1, 2)
 
-    def detect_sub(images, board_size):
+    def detect_sub(images, board_size, fallbacks):
         return DetectionResult(corners=sub[None].clone(), found=torch.tensor([True]), reasons=["learned"])
 
     monkeypatch.setattr(det, "_detect", detect_sub)
