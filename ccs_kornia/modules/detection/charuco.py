@@ -45,6 +45,7 @@ from ccs_kornia.modules.detection.saddle_refine import POLISH_WINDOW, refine_cor
 __all__ = [
     "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_MOVE", "NEIGHBOUR_RADIUS", "CharucoDetector", "CharucoMarkers",
     "charuco_markers", "detect_charuco", "layout_fits", "dictionary_hint", "marked_radius_factor",
+    "refine_marked_corners",
 ]
 
 #: a marker belongs to the board's lattice when its corners lie within this many squares of where the homography
@@ -246,6 +247,28 @@ def _set_layout(fits: list[dict[bool, CharucoMarkers]]) -> bool | None:
     return 2 * sum(votes) > len(votes)
 
 
+def refine_marked_corners(images: torch.Tensor, initial: np.ndarray, spacing: np.ndarray, factor: float
+                          ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Steps 4 and 5 for corners placed by markers: the refined corners :math:`(B, N, 2)` and which are accepted
+    :math:`(B, N)`, from ``initial`` :math:`(B, N, 2)` px (NaN: not placed) and the local grid ``spacing``
+    :math:`(B, N)` px; the window's half-size is ``factor`` spacings (at least 1.5 px, at most :data:`MAX_RADIUS`).
+    A corner is accepted where the refinement confirmed it, its window lies on the image and it moved by at most
+    :data:`MAX_MOVE` spacings."""
+    _, _, h, w = images.shape
+    seen = torch.from_numpy(np.isfinite(initial).all(-1))
+    start = torch.from_numpy(np.nan_to_num(initial)).float()
+    space = torch.from_numpy(np.nan_to_num(spacing, nan=1.0)).float()
+    radius = (float(factor) * space).clamp(1.5, MAX_RADIUS)
+    refined, ok = refine_corners(images.detach().float().cpu(), start, seen, radius, "symmetric",
+                                 max_radius=MAX_RADIUS, return_ok=True)
+    moved = (refined - start).norm(dim=-1)
+    # the window must lie on the image: at the frame the border's replicated pixels pull a corner off by px
+    inside = (refined >= radius[..., None]).all(-1)
+    inside &= (refined[..., 0] <= w - 1 - radius) & (refined[..., 1] <= h - 1 - radius)
+    accept = seen & ok & inside & (moved <= MAX_MOVE * space) & refined.isfinite().all(-1)
+    return refined, accept
+
+
 def _initial_corners(markers: CharucoMarkers, board: CharucoBoard, image_size: tuple[int, int]
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each inner corner from a local homography of the markers around it: ids ``(K,)``, points ``(K, 2)`` px, grid
@@ -330,18 +353,8 @@ def detect_charuco(
     spacing = np.full((b, n), np.nan)
     for k, (_, (ids, pts, sp)) in enumerate(outputs):
         initial[k, ids], spacing[k, ids] = pts, sp
-    seen = torch.from_numpy(np.isfinite(initial).all(-1))
-    start = torch.from_numpy(np.nan_to_num(initial)).float()
-    space = torch.from_numpy(np.nan_to_num(spacing, nan=1.0)).float()
     factor = marked_radius_factor(board) if radius_factor is None else float(radius_factor)
-    radius = (factor * space).clamp(1.5, MAX_RADIUS)
-    refined, ok = refine_corners(images.detach().float().cpu(), start, seen, radius, "symmetric",
-                                 max_radius=MAX_RADIUS, return_ok=True)
-    moved = (refined - start).norm(dim=-1)
-    # the window must lie on the image: at the frame the border's replicated pixels pull a corner off by px
-    inside = (refined >= radius[..., None]).all(-1)
-    inside &= (refined[..., 0] <= w - 1 - radius) & (refined[..., 1] <= h - 1 - radius)
-    accept = seen & ok & inside & (moved <= MAX_MOVE * space) & refined.isfinite().all(-1)
+    refined, accept = refine_marked_corners(images, initial, spacing, factor)
     count = accept.sum(-1)
     wrong_layout = torch.tensor([m.better_layout is not None for m, _ in outputs], dtype=torch.bool)
     found = (count >= min_corners) & ~wrong_layout
