@@ -96,9 +96,9 @@ class _Parser(argparse.ArgumentParser):
         return out
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        if message.startswith("one of the arguments --board --charuco is required"):
-            message = ("the following arguments are required: --board COLSxROWS (a chessboard's inner corners) or "
-                       "--charuco SXxSY (a ChArUco board's squares)")
+        if message.startswith("one of the arguments --board --charuco"):
+            message = ("the following arguments are required: --board COLSxROWS (a chessboard's inner corners), "
+                       "--charuco SXxSY (a ChArUco board's squares) or --aprilgrid TARGET_YAML (Kalibr's AprilGrid)")
         unknown = self._unknown_options() if message.startswith("the following arguments are required") else []
         if unknown:
             long_options = [o for o in self._option_string_actions if o.startswith("--")]
@@ -214,6 +214,10 @@ def charuco_options(p: argparse.ArgumentParser, which, square: bool = False) -> 
     g.add_argument("--legacy", action=argparse.BooleanOptionalAction, default=None,
                    help="OpenCV's legacy layout (before 4.6) or not; default: found on each image (boards of an even "
                         "number of rows of squares differ)")
+    which.add_argument("--aprilgrid", metavar="TARGET_YAML",
+                       help="Kalibr's AprilGrid, as its target YAML gives it (target_type: aprilgrid, tagCols, tagRows, "
+                            "tagSize, tagSpacing): corners numbered as Kalibr does, identified by the tags (boards cut "
+                            "by the frame count); world units are tagSize's")
     if square:
         g.add_argument("--square", default=1.0, type=_positive_float,
                        help="its square side (only the ratio to --marker matters here; default 1)")

@@ -33,7 +33,6 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules._timing import stage
@@ -41,6 +40,7 @@ from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction.corrected_detection import straightening_evidence
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
 from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
+from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, detector_options, measured_corners
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 from ccs_kornia.modules.detection.factory import make_detector
@@ -423,7 +423,8 @@ class CalibrationPipeline(nn.Module):
                                 None if correction is None else batch(correction).double(),
                                 None if correction_tried is None else batch(torch.as_tensor(correction_tried)))[0]
             return select_result(calib, 0) if single else calib
-        object_points = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
+        object_points = grid_object_points(getattr(self.detector, "board", None), (cols, rows), float(square),
+                                           device=corners.device, dtype=torch.float64)
         with torch.inference_mode():
             return self.solver(
                 corners.to(torch.float64), valid.bool(), object_points, size,

@@ -15,10 +15,10 @@ from typing import Any
 import torch
 
 from ccs_kornia.batch_workers import map_batches, worker_pool, workers_on
-from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.modules.correction import corrected_frame
+from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.base import DetectionResult, detector_options, measured_corners
 from ccs_kornia.pipeline_result import (
     PipelineResult,
@@ -107,7 +107,7 @@ def solve_detections(pipe: Any, out: PipelineResult, board_size: tuple[int, int]
                           for ci in range(c)]
     if pipe.diagnostics if diagnostics is None else diagnostics:
         out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, board_size, square, pipe.weigh_corners,
-                                           pipe.subset_solutions)
+                                           pipe.subset_solutions, board=getattr(pipe.detector, "board", None))
     return out
 
 
@@ -115,7 +115,8 @@ def diagnose_solved(pipe: Any, out: PipelineResult, board_size: tuple[int, int],
     """The diagnostics of a result :func:`solve_detections` solved without them (fills ``out.diagnostics``)."""
     usable = out.detections.found & same_size_views(out)
     out.diagnostics = diagnose_cameras(pipe.solvers, out, usable, (int(board_size[0]), int(board_size[1])), square,
-                                       pipe.weigh_corners, pipe.subset_solutions)
+                                       pipe.weigh_corners, pipe.subset_solutions,
+                                       board=getattr(pipe.detector, "board", None))
     return out
 
 
@@ -137,7 +138,8 @@ def solve_group(pipe: Any, corners: torch.Tensor, found: torch.Tensor, board_siz
     (``model="auto"`` only): a model name per camera to solve with instead of choosing (the table is then ``None``;
     a camera without a name gets the first candidate)."""
     cols, rows = int(board_size[0]), int(board_size[1])
-    obj = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
+    obj = grid_object_points(getattr(pipe.detector, "board", None), (cols, rows), float(square), device=corners.device,
+                             dtype=torch.float64)
     valid = measured_corners(corners, found)
     weights = corner_weights_of(sigma, valid) if pipe.weigh_corners else None
     if pipe.model != "auto":

@@ -28,6 +28,7 @@ __all__ = [
     "make_detector_from",
     "charuco_dictionary_check",
     "charuco_record",
+    "aprilgrid_record",
     "pipeline_options",
     "missing_weights",
     "make_pipeline",
@@ -156,6 +157,25 @@ def resolve_board(args: argparse.Namespace) -> None:
     if not hasattr(args, "charuco"):
         return
     args.charuco_board = None
+    args.aprilgrid_board = None
+    if getattr(args, "aprilgrid", None) is not None:
+        if args.marker is not None or args.legacy is not None:
+            raise UserError(f"--{'marker' if args.marker is not None else 'legacy'} describes a ChArUco board, not "
+                            "an --aprilgrid")
+        from ccs_kornia.modules.detection.boards import AprilGrid
+
+        try:
+            grid = AprilGrid.from_yaml(args.aprilgrid)
+        except OSError as err:
+            raise UserError(f"--aprilgrid: cannot read {args.aprilgrid}: {err.strerror or err}") from None
+        except ValueError as err:
+            raise UserError(f"--aprilgrid: {err}") from None
+        except Exception as err:  # a malformed YAML file
+            raise UserError(f"--aprilgrid: {args.aprilgrid} is not a readable YAML file "
+                            f"({str(err).splitlines()[0]})") from None
+        args.aprilgrid_board, args.board, args.detector = grid, grid.board_size, "aprilgrid"
+        args.square = grid.tag_size  # the world unit is tagSize's
+        return
     if args.charuco is None:
         if args.marker is not None or args.legacy is not None:
             raise UserError(f"--{'marker' if args.marker is not None else 'legacy'} describes a ChArUco board: give "
@@ -204,6 +224,19 @@ def charuco_record(args: argparse.Namespace) -> dict[str, Any] | None:
             "corner_ids": "id = row * (squares_x - 1) + col, object point ((col + 1) * square, (row + 1) * square, 0)"}
 
 
+def aprilgrid_record(args: argparse.Namespace) -> dict[str, Any] | None:
+    """The AprilGrid of the command (``None`` for other boards) as the JSON files give it: Kalibr's target keys and
+    its corner numbering."""
+    grid = getattr(args, "aprilgrid_board", None)
+    if grid is None:
+        return None
+    return {"target_type": "aprilgrid", "tagCols": grid.tag_cols, "tagRows": grid.tag_rows, "tagSize": grid.tag_size,
+            "tagSpacing": grid.tag_spacing, "dictionary": grid.dictionary,
+            "corner_ids": "Kalibr's: tag t has corners base, base + 1, base + cols + 1, base + cols (bottom left, "
+                          "bottom right, top right, top left; y up), cols = 2 * tagCols, "
+                          "base = (t // tagCols) * 2 * cols + (t % tagCols) * 2"}
+
+
 def make_detector_from(args: argparse.Namespace):
     """The detector the command's ``--detector`` (and ``--network-precision``) name, or the ChArUco board's
     (:func:`resolve_board`)."""
@@ -213,6 +246,10 @@ def make_detector_from(args: argparse.Namespace):
         from ccs_kornia.modules.detection.charuco import CharucoDetector
 
         return CharucoDetector(args.charuco_board)
+    if getattr(args, "aprilgrid_board", None) is not None:
+        from ccs_kornia.modules.detection.aprilgrid import AprilGridDetector
+
+        return AprilGridDetector(args.aprilgrid_board)
     options = {}
     if args.detector == "learned" and getattr(args, "network_precision", None):
         options["precision"] = args.network_precision

@@ -10,6 +10,7 @@ from typing import Any
 from ccs_kornia.commands._common import (
     NoResult,
     UserError,
+    aprilgrid_record,
     charuco_record,
     check_output_dir,
     check_output_file,
@@ -185,6 +186,8 @@ def run(args: argparse.Namespace) -> int:
     data["success"] = True
     if charuco_record(args):
         data["charuco"] = charuco_record(args)
+    if aprilgrid_record(args):
+        data["aprilgrid"] = aprilgrid_record(args)
     data["timings"]["total_s"] = time.perf_counter() - start
     write_json(args.output, data)
     if os.path.isfile(_failed_path(args.output)):  # an earlier failure's record would now be stale
