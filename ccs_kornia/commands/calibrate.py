@@ -222,7 +222,8 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         f"fx {K[0][0]:.3f}  fy {K[1][1]:.3f}  cx {K[0][2]:.3f}  cy {K[1][2]:.3f}  "
         f"{data['distortion']['model']} ({coeffs})"
     )
-    partial = f", {n['partial']} of them partial (corners under glare or occluded left out)" if n.get("partial") else ""
+    hidden = "corners not seen" if "charuco" in data or "aprilgrid" in data else "corners under glare or occluded"
+    partial = f", {n['partial']} of them partial ({hidden} left out)" if n.get("partial") else ""
     print(f"RMS {data['rms']:.4f} px over {n['used']} views (board found in {n['found']} of {n['files']} files{partial}); "
           f"wrote {output}")
     choice = data.get("model_selection")
