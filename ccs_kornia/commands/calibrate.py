@@ -70,7 +70,7 @@ def failure_message(data: dict[str, Any], board: tuple[int, int], readable: int)
     one line: board never found, too few usable views, the solver's refusals with the views they name."""
     files = data["num_views"]["files"]
     if data["num_views"]["found"] == 0:
-        return not_found_message(board, readable, files)
+        return not_found_message(board, readable, files, str(data.get("detector", "")))
     if data["num_views"]["usable"] < 3:
         return (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
                 f"{files} files (board found in {data['num_views']['found']}); at least 3 are needed")

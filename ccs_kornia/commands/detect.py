@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     if n_found == 0:
         readable = int(one.present.sum())
         raise (NoResult if readable else UserError)(
-            not_found_message(args.board, readable, len(files)) + f"; wrote {args.output}")
+            not_found_message(args.board, readable, len(files), args.detector) + f"; wrote {args.output}")
     partial = f" ({n_partial} partial: corners under glare or occluded are null)" if n_partial else ""
     what = (f"{args.charuco[0]}x{args.charuco[1]} ChArUco board ({args.board[0]}x{args.board[1]} inner corners)"
             if charuco_record(args) else f"{args.board[0]}x{args.board[1]} board")

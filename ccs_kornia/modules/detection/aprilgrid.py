@@ -8,12 +8,20 @@ same saddle the chessboard refinement measures. The steps are :mod:`~ccs_kornia.
    the tags on the image, its inverse (white-on-black prints) and both mirrored (a board seen from its back);
 2. **lattice**: the decoded tags must sit where the grid puts their ids (a homography grown from each tag, tags
    within :data:`~ccs_kornia.modules.detection.charuco.LATTICE_TOLERANCE` tag sides; at least two tags: a lone tag
-   cannot be checked); ids beyond the grid's tags are dropped; the variant with the most consistent tags is kept;
+   cannot be checked); ids beyond the grid's tags are dropped; the variant with the most consistent tags is kept; a
+   view with more of the grid's tags off its lattice than on it is refused (the tags of another grid: a wrong
+   ``tagCols``/``tagRows``);
 3. **initial corners**: each corner of a consistent tag from a homography of the tags around it
    (:data:`NEIGHBOUR_RADIUS` grid pitches);
 4. **refinement and check**: :func:`~ccs_kornia.modules.detection.charuco.refine_marked_corners` with a window inside
    the clear X-junction (:func:`aprilgrid_radius_factor`): a corner the refinement did not confirm, whose window
-   leaves the image or that moved too far is dropped.
+   leaves the image or that moved too far is dropped;
+5. **growth**: OpenCV's tag corners can be a px or two off, more than that small window forgives, and a tag that did
+   not decode (blur, low light) places none: a corner not accepted is placed by a homography of at least
+   :data:`GROWTH_SUPPORT` accepted corners around it (:data:`NEIGHBOUR_RADIUS` pitches) and refined and checked as
+   in step 4, for :data:`GROWTH_ROUNDS` rounds. Its id is its place in the lattice those corners fix; the saddle it
+   lands on must lie within a quarter of a tag side of that place (the nearest other corner is ``tag_spacing``
+   tag sides away).
 
 The result is the package's :class:`~ccs_kornia.modules.detection.base.DetectionResult` with one slot per corner id
 in Kalibr's numbering, NaN where a corner is not seen.
@@ -41,12 +49,16 @@ from ccs_kornia.modules.detection.charuco import (
 )
 from ccs_kornia.modules.detection.saddle_refine import POLISH_WINDOW
 
-__all__ = ["NEIGHBOUR_RADIUS", "AprilGridDetector", "aprilgrid_radius_factor", "aprilgrid_tags", "detect_aprilgrid",
+__all__ = ["GROWTH_ROUNDS", "GROWTH_SUPPORT", "NEIGHBOUR_RADIUS", "AprilGridDetector", "aprilgrid_radius_factor", "aprilgrid_tags", "detect_aprilgrid",
            "tag_detector"]
 
 #: tags whose centre lies within this many grid pitches (tag side plus gap) of a corner place it: its own tag and the
 #: three others around it
 NEIGHBOUR_RADIUS = 1.2
+#: a corner not placed by its tag (or placed too far off) is placed by at least this many accepted corners around it
+GROWTH_SUPPORT = 6
+#: rounds of that growth (each can place corners next to the ones the round before accepted)
+GROWTH_ROUNDS = 3
 
 
 def tag_detector(board: AprilGrid) -> cv2.aruco.ArucoDetector:
@@ -106,7 +118,7 @@ def aprilgrid_tags(gray8: np.ndarray, board: AprilGrid, detector: cv2.aruco.Aruc
         obj = np.stack([tags[int(k)] for k in i])
         keep = _lattice(p, obj)
         if keep.sum() > len(best.ids):
-            best = CharucoMarkers(p[keep], i[keep], obj[keep], variant, False, len(ids))
+            best = CharucoMarkers(p[keep], i[keep], obj[keep], variant, False, len(ids), known=int(known.sum()))
     return best
 
 
@@ -136,6 +148,31 @@ def _initial_corners(tags: CharucoMarkers, board: AprilGrid, image_size: tuple[i
             points.append(p[0])
             spacing.append(float(np.linalg.norm(p[1:] - p[0], axis=-1).min()))
     return np.array(ids, dtype=np.int64), np.array(points).reshape(-1, 2), np.array(spacing)
+
+
+def _reseed(refined: np.ndarray, skip: np.ndarray, accept: np.ndarray, board: AprilGrid
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Corners not accepted (nor in ``skip``) placed :math:`(B, N, 2)` (NaN elsewhere) by a homography of the accepted
+    refined corners within :data:`NEIGHBOUR_RADIUS` grid pitches (at least :data:`GROWTH_SUPPORT` of them), and one
+    tag side there in px :math:`(B, N)`."""
+    obj = board.object_points().numpy()[:, :2] / float(board.tag_size)
+    reach = NEIGHBOUR_RADIUS * (1.0 + float(board.tag_spacing))
+    near = np.linalg.norm(obj[:, None] - obj[None], axis=-1) < reach
+    steps = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    out = np.full(refined.shape, np.nan)
+    space = np.full(refined.shape[:2], np.nan)
+    for k in range(refined.shape[0]):
+        support = near[:, accept[k]].sum(-1)
+        for i in np.flatnonzero(~skip[k] & (support >= GROWTH_SUPPORT)):
+            use = near[i] & accept[k]
+            hom = _fit(obj[use], refined[k, use])
+            if hom is None:
+                continue
+            p = _map(hom, np.concatenate([obj[i][None], obj[i] + steps]))
+            if np.isfinite(p).all():
+                out[k, i] = p[0]
+                space[k, i] = float(np.linalg.norm(p[1:] - p[0], axis=-1).min())
+    return out, space
 
 
 def detect_aprilgrid(
@@ -189,14 +226,29 @@ def detect_aprilgrid(
         initial[k, ids], spacing[k, ids] = pts, sp
     factor = aprilgrid_radius_factor(board) if radius_factor is None else float(radius_factor)
     refined, accept = refine_marked_corners(images, initial, spacing, factor)
+    tried = np.zeros(accept.shape, dtype=bool)
+    for _ in range(GROWTH_ROUNDS):  # step 5: corners placed again (or first) by their refined neighbours
+        again, space = _reseed(refined.double().numpy(), accept.numpy() | tried, accept.numpy(), board)
+        if not np.isfinite(again).any():
+            break
+        placed = np.isfinite(again).all(-1)
+        tried |= placed
+        refined2, accept2 = refine_marked_corners(images, again, space, factor)
+        accept2 &= torch.from_numpy(placed)
+        refined = torch.where(accept2[..., None], refined2, refined)
+        accept = accept | accept2
     count = accept.sum(-1)
-    found = count >= min_corners
+    refused = torch.tensor([tags.off_lattice for tags in found_tags], dtype=torch.bool)
+    found = (count >= min_corners) & ~refused
     corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
     corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
     reasons = []
     for k, tags in enumerate(found_tags):
         what = f"{len(tags.ids)} tags" + (f" ({tags.variant})" if tags.variant != "plain" else "")
-        if not len(tags.ids):
+        if tags.off_lattice:
+            reasons.append(f"{tags.known - len(tags.ids)} of the grid's tags are not where a {board.tag_cols}x"
+                           f"{board.tag_rows} AprilGrid puts them ({len(tags.ids)} are): wrong tagCols or tagRows?")
+        elif not len(tags.ids):
             reasons.append(f"no two {board.dictionary} tags of the grid found where it puts them")
         elif bool(found[k]):
             reasons.append(f"aprilgrid: {what}, {int(count[k])} of {n} corners")
