@@ -35,12 +35,19 @@ CONDITIONS = ("clean", "partial", "low light", "blur", "inverted", "mirrored")
 
 @functools.lru_cache(maxsize=4)
 def _rays(k: bytes, dist: bytes, w: int, h: int, f: int) -> np.ndarray:
-    """The camera rays ``(x, y, 1)`` of the supersampled pixels (the same for every view of a camera)."""
+    """The camera rays ``(x, y)`` (``z = 1``) of the supersampled pixels, ``(N, 1, 2)`` float32 (the same for every
+    view of a camera)."""
     ys, xs = np.mgrid[0:h * f, 0:w * f].astype(np.float64)
     pix = np.stack([(xs + 0.5) / f - 0.5, (ys + 0.5) / f - 0.5], -1).reshape(-1, 1, 2)
     rays = cv2.undistortPoints(pix, np.frombuffer(k).reshape(3, 3), np.frombuffer(dist),
                                criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10))
-    return np.concatenate([rays.reshape(-1, 2), np.ones((rays.shape[0], 1))], -1)
+    return rays.astype(np.float32)
+
+
+@functools.lru_cache(maxsize=8)
+def _texture(board, resolution: int | None, legacy: bool | None) -> tuple[np.ndarray, np.ndarray]:
+    """The board's printed image and map (boards are frozen dataclasses: the same board prints the same)."""
+    return board.texture(legacy=legacy) if resolution is None else board.texture(resolution, legacy=legacy)
 
 
 def _extent(board) -> tuple[np.ndarray, np.ndarray]:
@@ -59,7 +66,7 @@ def random_board_pose(board, rng: np.random.Generator, partial: bool = False, k:
     span = float(max(hi - lo))
     # the printed face towards the camera: a board whose y axis points up on the print (an AprilGrid: its texture
     # map flips y) is turned half a turn about its x axis
-    face = np.diag([1.0, -1.0, -1.0]) if np.linalg.det(board.texture()[1][:, :2]) < 0 else np.eye(3)
+    face = np.diag([1.0, -1.0, -1.0]) if np.linalg.det(_texture(board, None, None)[1][:, :2]) < 0 else np.eye(3)
     for _ in range(200):
         axis = rng.normal(size=3)
         axis[2] *= 0.5
@@ -101,18 +108,17 @@ def render_marker_view(board, rvec: np.ndarray, tvec: np.ndarray, k: np.ndarray 
     default. ``legacy``: a ChArUco board's layout to print.
     """
     w, h = size
-    art, a = board.texture(legacy=legacy) if resolution is None else board.texture(resolution, legacy=legacy)
+    art, a = _texture(board, resolution, legacy)
     f = int(supersample)
     rays = _rays(np.asarray(k, dtype=np.float64).tobytes(), np.asarray(dist, dtype=np.float64).tobytes(), w, h, f)
     rot, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64))
-    origin = -rot.T @ np.asarray(tvec, dtype=np.float64)
-    dirs = rays @ rot  # R^T d for each ray
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = -origin[2] / dirs[:, 2]
-    plane = origin[None, :2] + s[:, None] * dirs[:, :2]
-    plane[~(s > 0)] = -1e6  # rays that miss the plane: background
-    uv = plane @ a[:, :2].T + a[:, 2]
-    map_xy = uv.astype(np.float32).reshape(h * f, w * f, 2)
+    # the plane z = 0 seen through the pinhole: (x, y, 1) ~ [r1 r2 t] (X, Y, 1); its inverse then the print's map
+    plane = np.linalg.inv(np.stack([rot[:, 0], rot[:, 1], np.asarray(tvec, dtype=np.float64)], -1))
+    total = np.vstack([a, [0.0, 0.0, 1.0]]) @ plane
+    map_xy = cv2.perspectiveTransform(rays, total).reshape(h * f, w * f, 2)
+    front = (rays.reshape(-1, 2) @ plane[2, :2].astype(np.float32) + np.float32(plane[2, 2])).reshape(h * f, w * f)
+    # (X, Y, 1) = plane (x, y, 1) / depth: rays that meet the plane behind the camera are background
+    map_xy[front <= 0] = -1e6
     big = cv2.remap(art, map_xy[..., 0], map_xy[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                     borderValue=background)
     image = cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA) if f > 1 else big
@@ -131,7 +137,7 @@ def render_condition(board, condition: str, rng: np.random.Generator, k: np.ndar
     image; mirrored views: the corners' positions on the flipped image).
 
     ``"low light"``: the print's black and white squeezed to about 10 and 55 grey levels with sensor noise (sigma
-    2.5); ``"blur"``: a Gaussian of sigma 1.2 to 2 px (defocus); ``"inverted"``: a white-on-black print;
+    2.5); ``"blur"``: a Gaussian of sigma 0.8 to 1.6 px (defocus); ``"inverted"``: a white-on-black print;
     ``"mirrored"``: the image flipped left-right (the board seen from its back through a transparent print).
     Every condition but ``"partial"`` shows the board whole.
     """
@@ -144,7 +150,7 @@ def render_condition(board, condition: str, rng: np.random.Generator, k: np.ndar
         lo, hi = rng.uniform(6, 14), rng.uniform(45, 65)
         img = lo + img / 255.0 * (hi - lo) + rng.normal(0.0, 2.5, img.shape)
     elif condition == "blur":
-        img = cv2.GaussianBlur(img, (0, 0), rng.uniform(1.2, 2.0))
+        img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.8, 1.6))
     elif condition == "inverted":
         img = 255.0 - img
     image = np.clip(np.round(img), 0, 255).astype(np.uint8)
