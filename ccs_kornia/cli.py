@@ -375,8 +375,11 @@ def build_parser() -> argparse.ArgumentParser:
                        "Lightning's Trainer.predict; one JSON line per camera")
     p.add_argument("sets", nargs="+", metavar="SETS",
                    help="directories of images (one camera each), parents of such directories, or globs")
-    p.add_argument("--board", required=True, type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
+                       help="inner corners, e.g. 9x6 (or --charuco, --aprilgrid)")
     p.add_argument("--square", default=1.0, type=_positive_float, help="square side in world units (default 1)")
+    charuco_options(p, which)
     p.add_argument("--output", required=True, metavar="JSONL",
                    help="JSON Lines file: one calibration per set (appended to; a JSON file of another kind is refused)")
     p.add_argument("--model", default="auto", choices=MODELS,

@@ -111,3 +111,20 @@ def test_one_board_only(target, tmp_path, capsys):
                        "--board", "9x6", "--output", str(tmp_path / "o.json"))
     assert code == _common.EXIT_USAGE
     assert "not allowed with argument" in one_error_line(err)
+
+
+def test_calibrate_many_takes_aprilgrid(target, tmp_path, capsys):
+    folder, _ = target
+    out = tmp_path / "many.jsonl"
+    code, stdout, _ = run(capsys, "calibrate-many", str(folder / "images"), "--aprilgrid", str(folder / "april.yaml"),
+                          "--model", "opencv5", "--output", str(out))
+    assert code == _common.EXIT_OK, stdout
+    (line,) = [json.loads(x) for x in out.read_text().splitlines()]
+    assert line["success"] and line["detector"] == "aprilgrid" and line["aprilgrid"]["tagRows"] == 6
+    assert abs(line["K"][0][0] - K[0, 0]) < 0.005 * K[0, 0]
+
+
+def test_calibrate_many_needs_a_board(tmp_path, capsys):
+    code, _, err = run(capsys, "calibrate-many", str(tmp_path), "--output", str(tmp_path / "m.jsonl"))
+    assert code == _common.EXIT_USAGE
+    assert "--board COLSxROWS" in one_error_line(err) and "--aprilgrid TARGET_YAML" in one_error_line(err)

@@ -124,7 +124,7 @@ def test_real_caliscope_cameras_calibrate(tmp_path, capsys):
         assert abs(fx - ref) < 0.03 * ref
 
 
-@pytest.mark.parametrize("command", ["detect", "calibrate-rig"])
+@pytest.mark.parametrize("command", ["detect", "calibrate-rig", "calibrate-many"])
 def test_every_board_command_takes_charuco(tmp_path, capsys, command):
     code, _, err = run(capsys, command, str(tmp_path), "--charuco", "5x7", "--output", str(tmp_path / "c.json"))
     assert code == _common.EXIT_USAGE
