@@ -128,3 +128,28 @@ def test_calibrate_many_needs_a_board(tmp_path, capsys):
     code, _, err = run(capsys, "calibrate-many", str(tmp_path), "--output", str(tmp_path / "m.jsonl"))
     assert code == _common.EXIT_USAGE
     assert "--board COLSxROWS" in one_error_line(err) and "--aprilgrid TARGET_YAML" in one_error_line(err)
+
+
+def test_calibrate_rig_takes_aprilgrid(tmp_path, capsys):
+    from ccs_kornia.data.marker_views import random_board_pose, render_marker_view
+
+    (tmp_path / "april.yaml").write_text(YAML)
+    rng = np.random.default_rng(9)
+    baseline = 0.12  # camera 1 sits 0.12 m right of camera 0, the same orientation
+    frame = 0
+    while frame < 8:
+        rvec, tvec = random_board_pose(GRID, rng, partial=bool(frame % 2))
+        views = [render_marker_view(GRID, rvec, tvec - np.array([b, 0.0, 0.0]), supersample=2) for b in (0, baseline)]
+        if np.isfinite(views[1][1]).all(-1).sum() < 30:
+            continue  # camera 1 sees too little of this pose
+        for cam, (image, _) in enumerate(views):
+            (tmp_path / f"cam{cam}").mkdir(exist_ok=True)
+            cv2.imwrite(str(tmp_path / f"cam{cam}" / f"f{frame:02d}.png"), image)
+        frame += 1
+    out = tmp_path / "rig.json"
+    code, _, err = run(capsys, "calibrate-rig", str(tmp_path / "cam0"), str(tmp_path / "cam1"), "--aprilgrid",
+                       str(tmp_path / "april.yaml"), "--model", "opencv5", "--output", str(out))
+    assert code == _common.EXIT_OK, err
+    data = json.loads(out.read_text())
+    t = np.array(data["extrinsics"][1]["T"], dtype=float)
+    assert abs(np.linalg.norm(t) - baseline) < 0.002 * baseline
