@@ -151,5 +151,6 @@ def test_calibrate_rig_takes_aprilgrid(tmp_path, capsys):
                        str(tmp_path / "april.yaml"), "--model", "opencv5", "--output", str(out))
     assert code == _common.EXIT_OK, err
     data = json.loads(out.read_text())
+    assert data["aprilgrid"]["tagCols"] == 6 and data["detector"] == "aprilgrid"
     t = np.array(data["extrinsics"][1]["T"], dtype=float)
     assert abs(np.linalg.norm(t) - baseline) < 0.002 * baseline
