@@ -96,9 +96,9 @@ class _Parser(argparse.ArgumentParser):
         return out
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        if message.startswith("one of the arguments --board --charuco is required"):
-            message = ("the following arguments are required: --board COLSxROWS (a chessboard's inner corners) or "
-                       "--charuco SXxSY (a ChArUco board's squares)")
+        if message.startswith("one of the arguments --board --charuco"):
+            message = ("the following arguments are required: --board COLSxROWS (a chessboard's inner corners), "
+                       "--charuco SXxSY (a ChArUco board's squares) or --aprilgrid TARGET_YAML (Kalibr's AprilGrid)")
         unknown = self._unknown_options() if message.startswith("the following arguments are required") else []
         if unknown:
             long_options = [o for o in self._option_string_actions if o.startswith("--")]
@@ -214,6 +214,10 @@ def charuco_options(p: argparse.ArgumentParser, which, square: bool = False) -> 
     g.add_argument("--legacy", action=argparse.BooleanOptionalAction, default=None,
                    help="OpenCV's legacy layout (before 4.6) or not; default: found on each image (boards of an even "
                         "number of rows of squares differ)")
+    which.add_argument("--aprilgrid", metavar="TARGET_YAML",
+                       help="Kalibr's AprilGrid, as its target YAML gives it (target_type: aprilgrid, tagCols, tagRows, "
+                            "tagSize, tagSpacing): corners numbered as Kalibr does, identified by the tags (boards cut "
+                            "by the frame count); world units are tagSize's")
     if square:
         g.add_argument("--square", default=1.0, type=_positive_float,
                        help="its square side (only the ratio to --marker matters here; default 1)")
@@ -371,8 +375,11 @@ def build_parser() -> argparse.ArgumentParser:
                        "Lightning's Trainer.predict; one JSON line per camera")
     p.add_argument("sets", nargs="+", metavar="SETS",
                    help="directories of images (one camera each), parents of such directories, or globs")
-    p.add_argument("--board", required=True, type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
+                       help="inner corners, e.g. 9x6 (or --charuco, --aprilgrid)")
     p.add_argument("--square", default=1.0, type=_positive_float, help="square side in world units (default 1)")
+    charuco_options(p, which)
     p.add_argument("--output", required=True, metavar="JSONL",
                    help="JSON Lines file: one calibration per set (appended to; a JSON file of another kind is refused)")
     p.add_argument("--model", default="auto", choices=MODELS,

@@ -33,7 +33,6 @@ from typing import Callable
 import torch
 from torch import nn
 
-from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules._timing import stage
@@ -41,6 +40,7 @@ from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
 from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, measured_corners
+from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.patch_refine import refine_on_patches
@@ -352,7 +352,8 @@ class CalibrationPipeline(nn.Module):
     def solving(self) -> Solving:
         """The solver stage's settings (:class:`~ccs_kornia.pipeline_solve.Solving`)."""
         return Solving(self.model, self.solvers, self.solver, self.selection, self.weigh_corners, self.workers,
-                       self.joint_iters, self.free_distortion_centre, self.max_rms_ratio)
+                       self.joint_iters, self.free_distortion_centre, self.max_rms_ratio,
+                       getattr(self.detector, "board", None))
 
     @property
     def tools(self) -> Tools:
@@ -475,7 +476,8 @@ class CalibrationPipeline(nn.Module):
                                 None if correction is None else batch(correction).double(),
                                 None if correction_tried is None else batch(torch.as_tensor(correction_tried)))[0]
             return select_result(calib, 0) if single else calib
-        object_points = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
+        object_points = grid_object_points(getattr(self.detector, "board", None), (cols, rows), float(square),
+                                           device=corners.device, dtype=torch.float64)
         with nullcontext() if self.differentiable else torch.inference_mode():
             return self.solver(
                 corners.to(torch.float64), valid.bool(), object_points, size,

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, measured_corners
+from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.differentiable_refine import SYMMETRY_STEPS, DifferentiableCorners
 from ccs_kornia.pipeline_result import (PipelineResult, concat_results, corner_weights_of, positive_size,
                                         same_size_views, select_result)
@@ -119,7 +119,7 @@ def differentiable_run(out: PipelineResult, images: torch.Tensor, board_size: tu
     det = out.detections
     corners, gap = _corners(detector, batched, det, board, net)
     usable = det.found & same_size_views(out)
-    obj = board_object_points(board[0], board[1], float(square), device=corners.device, dtype=torch.float64)
+    obj = grid_object_points(solving.board, board, float(square), device=corners.device, dtype=torch.float64)
     parts, order = [], []
     for size in dict.fromkeys(out.image_size):
         sel = torch.tensor([s == size for s in out.image_size], device=corners.device).nonzero().flatten()

@@ -396,20 +396,22 @@ def corner_weights_of(sigma: torch.Tensor | None, valid: torch.Tensor,
 
 
 def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, board_size: tuple[int, int],
-                     square: float, weigh: bool = True, solutions: Any = None) -> list[dict | None]:
+                     square: float, weigh: bool = True, solutions: Any = None, board: Any = None
+                     ) -> list[dict | None]:
     """Quality figures and verdict of each camera of a solved ``out`` (one
     :func:`~ccs_kornia.modules.calibration.diagnostics.diagnose` call per image size; ``None`` for a camera
     without a computed calibration). The halves and folds of the cross-validation are solved by ``solvers[model]``
     (the usual path: a camera calibrated in the corrected frame is cross-validated without it), with the per-corner
     weights the solve had (``weigh``); ``solutions``: the model selection's solved cross-validation subsets
-    (:class:`~ccs_kornia.modules.calibration.subset_solutions.SubsetSolutions`), used where the inputs are the same."""
-    from ccs_kornia.camera import board_object_points
+    (:class:`~ccs_kornia.modules.calibration.subset_solutions.SubsetSolutions`), used where the inputs are the same;
+    ``board``: the detector's board (its object points where they are not an even grid: an AprilGrid)."""
+    from ccs_kornia.modules.detection.boards import grid_object_points
     from ccs_kornia.modules.calibration.diagnostics import diagnose
 
     det, cal = out.detections, out.calibration
     found = usable & cal.success[:, None].to(usable.device)
     cols, rows = int(board_size[0]), int(board_size[1])
-    obj = board_object_points(cols, rows, float(square), device=det.corners.device, dtype=torch.float64)
+    obj = grid_object_points(board, (cols, rows), float(square), device=det.corners.device, dtype=torch.float64)
     diagnostics: list[dict | None] = [None] * found.shape[0]
     models = cal.model if isinstance(cal.model, tuple) else (cal.model,) * found.shape[0]
     for size, model in dict.fromkeys(zip(out.image_size, models)):

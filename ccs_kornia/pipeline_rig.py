@@ -18,7 +18,7 @@ from typing import Any, Callable
 import torch
 from torch import nn
 
-from ccs_kornia.camera import board_object_points
+from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.base import ChessboardDetector
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.pipeline import CalibrationPipeline
@@ -312,7 +312,8 @@ class RigPipeline(nn.Module):
         if out.reason:
             return out
         cols, rows = int(board_size[0]), int(board_size[1])
-        object_points = board_object_points(cols, rows, float(square), dtype=torch.float64)
+        object_points = grid_object_points(getattr(next(iter(self.pipelines.values())).detector, "board", None),
+                                           (cols, rows), float(square), dtype=torch.float64)
         solver = RigSolver(models=models, **self.solver_kwargs)
         sizes = [tuple(int(x) for x in r.image_size) for r in cameras]
         try:

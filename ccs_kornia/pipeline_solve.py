@@ -10,18 +10,18 @@ solver options as one value (:class:`Solving`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Any, Mapping
 
 import torch
 
 from ccs_kornia.batch_workers import worker_pool, workers_on
-from ccs_kornia.camera import board_object_points
 from ccs_kornia.modules.calibration.model_selection import ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.modules.correction import corrected_frame
 from ccs_kornia.modules.detection.base import measured_corners
+from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.pipeline_result import (
     PipelineResult,
     camera_reason,
@@ -51,6 +51,8 @@ class Solving:
         weigh_corners: weight the refinements by the corners' precision.
         workers: processes solving the candidate models at once on CPU.
         joint_iters, free_distortion_centre, max_rms_ratio: of the corrected-frame calibration.
+        board: the detector's board description (:mod:`~ccs_kornia.modules.detection.boards`; ``None``: a
+            chessboard), whose object points the solves take (an AprilGrid's corners are not evenly spaced).
     """
 
     model: str
@@ -62,6 +64,7 @@ class Solving:
     joint_iters: int
     free_distortion_centre: bool
     max_rms_ratio: float
+    board: Any = None
 
 
 def _merge(parts: list[CalibrationResult], order: list[torch.Tensor], count: int) -> CalibrationResult:
@@ -129,7 +132,7 @@ def diagnose_solved(solving: Solving, out: PipelineResult, board_size: tuple[int
     solve's cross-validations, reused where the inputs are the same)."""
     usable = out.detections.found & same_size_views(out)
     out.diagnostics = diagnose_cameras(solving.solvers, out, usable, (int(board_size[0]), int(board_size[1])), square,
-                                       solving.weigh_corners, subsets)
+                                       solving.weigh_corners, subsets, board=solving.board)
     return out
 
 
@@ -153,7 +156,8 @@ def solve_group(solving: Solving, corners: torch.Tensor, found: torch.Tensor, bo
     a camera without a name gets the first candidate). ``subsets``: where the model selection keeps its
     cross-validations."""
     cols, rows = int(board_size[0]), int(board_size[1])
-    obj = board_object_points(cols, rows, float(square), device=corners.device, dtype=torch.float64)
+    obj = grid_object_points(solving.board, (cols, rows), float(square), device=corners.device,
+                             dtype=torch.float64)
     valid = measured_corners(corners, found)
     weights = corner_weights_of(sigma, valid) if solving.weigh_corners else None
     if solving.model != "auto":

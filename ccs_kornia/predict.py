@@ -242,6 +242,7 @@ class CalibrationLitModule(pl.LightningModule):
         board_size: ``(cols, rows)`` inner corners.
         square: square side in world units.
         detector_name: recorded in the output.
+        board_record: recorded in every line too, e.g. ``{"charuco": {...}}`` for a marker board (``None``: nothing).
 
     ``predict_step`` runs the pipeline's one composition (:meth:`~ccs_kornia.pipeline.CalibrationPipeline.run`)
     on the sets of the batch (cameras of one image size are solved in one batched call) and returns one
@@ -249,9 +250,10 @@ class CalibrationLitModule(pl.LightningModule):
     """
 
     def __init__(self, pipeline: CalibrationPipeline, board_size: tuple[int, int], square: float = 1.0,
-                 detector_name: str = "learned") -> None:
+                 detector_name: str = "learned", board_record: dict[str, Any] | None = None) -> None:
         super().__init__()
         self.pipeline = pipeline
+        self.board_record = dict(board_record or {})
         self.board_size = (int(board_size[0]), int(board_size[1]))
         self.square = float(square)
         self.detector_name = detector_name
@@ -267,7 +269,7 @@ class CalibrationLitModule(pl.LightningModule):
                                    detector=self.detector_name, model=self.pipeline.model)
             # every line has the same keys: ``error`` is None for a calibrated set
             records.append({"set": item["name"], "success": record["success"], "error": None, **record,
-                            "timings": {"seconds_per_set": seconds}})
+                            **self.board_record, "timings": {"seconds_per_set": seconds}})
         return records
 
 
@@ -394,6 +396,7 @@ def calibrate_many(
     devices: int | list[int] | None = None,
     num_nodes: int = 1,
     strategy: str = "auto",
+    board_record: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Calibrate every image set with ``Trainer.predict``; append one JSON line per set to ``output``.
 
@@ -418,6 +421,7 @@ def calibrate_many(
         devices: processes per node (one per GPU), or a list of GPU indices (default: from ``device``).
         num_nodes: nodes.
         strategy: ``auto`` (DDP when there are several processes) or ``ddp``.
+        board_record: added to every line (a marker board's description, e.g. ``{"charuco": {...}}``).
 
     Returns:
         On rank 0: ``{"sets", "succeeded", "failed", "skipped", "missing", "seconds", "file_succeeded",
@@ -447,7 +451,7 @@ def calibrate_many(
         if all(str(name) in done for name, _ in sets):
             merge_shards(output, [str(n) for n, _ in sets])
             return _summary(output, sets, [], 0.0, 0, 1)
-    module = CalibrationLitModule(pipeline, board_size, square, detector_name)
+    module = CalibrationLitModule(pipeline, board_size, square, detector_name, board_record)
     data = ImageSetDataModule(sets, sets_per_batch=sets_per_batch, num_workers=num_workers, output=output,
                               overwrite=overwrite)
     writer = JsonlPredictionWriter(output, overwrite=overwrite)

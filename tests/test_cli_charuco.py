@@ -124,8 +124,36 @@ def test_real_caliscope_cameras_calibrate(tmp_path, capsys):
         assert abs(fx - ref) < 0.03 * ref
 
 
-@pytest.mark.parametrize("command", ["detect", "calibrate-rig"])
+@pytest.mark.parametrize("command", ["detect", "calibrate-rig", "calibrate-many"])
 def test_every_board_command_takes_charuco(tmp_path, capsys, command):
     code, _, err = run(capsys, command, str(tmp_path), "--charuco", "5x7", "--output", str(tmp_path / "c.json"))
     assert code == _common.EXIT_USAGE
     assert "--charuco needs --marker" in one_error_line(err)
+
+
+@pytest.mark.parametrize("squares", ["6x8", "7x5"])
+def test_wrong_square_count_is_named(views, tmp_path, capsys, squares):
+    folder, _ = views
+    args = [a if a != "5x7" else squares for a in CHARUCO]
+    out = tmp_path / "camera.json"
+    code, _, err = run(capsys, "calibrate", str(folder / "plain"), *args, "--output", str(out))
+    assert code == _common.EXIT_USAGE
+    assert "the DICT_6X6_250 markers fit a 5x7 board" in one_error_line(err)
+    assert f"not {squares}" in one_error_line(err) and "wrong --charuco?" in one_error_line(err)
+    assert not out.exists()
+
+
+def test_plain_chessboard_given_as_charuco(tmp_path, capsys):
+    # a printed chessboard (white squares without markers), seen twice
+    board = np.kron((np.indices((7, 10)).sum(0) % 2) * 255, np.ones((40, 40))).astype(np.uint8)
+    image = np.full((480, 640), 200, np.uint8)
+    image[40:320, 80:480] = board
+    for k in range(2):
+        cv2.imwrite(str(tmp_path / f"chess_{k}.png"), np.roll(image, 20 * k, axis=1))
+    out = tmp_path / "camera.json"
+    code, _, err = run(capsys, "calibrate", str(tmp_path), *CHARUCO, "--output", str(out))
+    assert code == _common.EXIT_USAGE
+    line = one_error_line(err)
+    assert "no DICT_6X6_250 marker in any image" in line and "is it a ChArUco board?" in line
+    assert "--board" not in line
+    assert not out.exists()

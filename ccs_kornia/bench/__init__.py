@@ -3,7 +3,8 @@
 ``python -m ccs_kornia bench [--quick] [--out DIR] [--sections ...] [--markdown docs/benchmarks.md]``
 (also ``python -m ccs_kornia.bench``) writes ``results.json``, ``report.md`` and the RMS box plot to
 ``--out``. Sections (paper tables in brackets): ``corners`` (III), ``calibration`` (I), ``real`` (II and the
-RPE box plot), ``distortion`` (IV), ``speed``, ``wild`` (detection in the wild), ``fisheye`` (fisheye lenses).
+RPE box plot), ``distortion`` (IV), ``speed``, ``wild`` (detection in the wild), ``fisheye`` (fisheye lenses),
+``rig`` (camera rigs), ``markers`` (ChArUco and AprilGrid boards).
 Synthetic scenes use seeds from :data:`ccs_kornia.data.datamodule.BENCH_SEED_BASE` upwards, which training never
 uses.
 

@@ -91,6 +91,10 @@ def run_bench(
                 from ccs_kornia.bench.rig import run_rig
 
                 sec = run_rig(cfg, log=log)
+            elif name == "markers":
+                from ccs_kornia.bench.markers import run_markers
+
+                sec = run_markers(cfg, log=log)
             else:
                 from ccs_kornia.bench.speed import run_speed
 

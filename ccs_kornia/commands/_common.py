@@ -28,6 +28,7 @@ __all__ = [
     "make_detector_from",
     "charuco_dictionary_check",
     "charuco_record",
+    "aprilgrid_record",
     "pipeline_options",
     "missing_weights",
     "make_pipeline",
@@ -156,6 +157,25 @@ def resolve_board(args: argparse.Namespace) -> None:
     if not hasattr(args, "charuco"):
         return
     args.charuco_board = None
+    args.aprilgrid_board = None
+    if getattr(args, "aprilgrid", None) is not None:
+        if args.marker is not None or args.legacy is not None:
+            raise UserError(f"--{'marker' if args.marker is not None else 'legacy'} describes a ChArUco board, not "
+                            "an --aprilgrid")
+        from ccs_kornia.modules.detection.boards import AprilGrid
+
+        try:
+            grid = AprilGrid.from_yaml(args.aprilgrid)
+        except OSError as err:
+            raise UserError(f"--aprilgrid: cannot read {args.aprilgrid}: {err.strerror or err}") from None
+        except ValueError as err:
+            raise UserError(f"--aprilgrid: {err}") from None
+        except Exception as err:  # a malformed YAML file
+            raise UserError(f"--aprilgrid: {args.aprilgrid} is not a readable YAML file "
+                            f"({str(err).splitlines()[0]})") from None
+        args.aprilgrid_board, args.board, args.detector = grid, grid.board_size, "aprilgrid"
+        args.square = grid.tag_size  # the world unit is tagSize's
+        return
     if args.charuco is None:
         if args.marker is not None or args.legacy is not None:
             raise UserError(f"--{'marker' if args.marker is not None else 'legacy'} describes a ChArUco board: give "
@@ -173,14 +193,19 @@ def resolve_board(args: argparse.Namespace) -> None:
     args.charuco_board, args.board, args.detector = board, board.board_size, "charuco"
 
 
-def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present: Any) -> None:
+def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present: Any,
+                             reasons: Sequence[str] = ()) -> None:
     """A ChArUco board found in no image because no marker of its dictionary was: which predefined dictionary finds
-    markers in the images instead, as a :class:`UserError` (a wrong ``--dictionary``: exit status
-    :data:`EXIT_USAGE`)."""
+    markers in the images instead; or found in no more views than were refused for markers off its lattice (a wrong
+    board size: a partial view of another board can fit by chance): the board size the markers fit. Either as a
+    :class:`UserError` (exit status :data:`EXIT_USAGE`)."""
     from ccs_kornia.modules.detection.charuco import CharucoDetector, dictionary_hint
 
     detector = getattr(pipeline, "detector", None)
-    if not isinstance(detector, CharucoDetector) or bool(found.any()) or not bool(present.any()):
+    if not isinstance(detector, CharucoDetector) or not bool(present.any()):
+        return
+    off = sum(1 for r in reasons if r and r.endswith("wrong board size?"))
+    if int(found.sum()) > off:
         return
     import cv2
 
@@ -188,9 +213,15 @@ def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present
     board = detector.board
     from ccs_kornia.modules.detection.charuco import charuco_markers
 
-    if any(len(charuco_markers(img, board).ids) for img in images if img is not None):
-        return  # markers of the board were found: the views had too few corners, not a wrong dictionary
-    raise UserError(dictionary_hint([img for img in images if img is not None], board))
+    images = [img for img in images if img is not None]
+    if any(len(charuco_markers(img, board).ids) for img in images):
+        from ccs_kornia.modules.detection.charuco import squares_hint
+
+        hint = squares_hint(images, board)  # markers of the board decoded, but not where its squares put them
+        if hint:
+            raise UserError(hint)
+        return  # the views had too few corners, not a wrong dictionary or board size
+    raise UserError(dictionary_hint(images, board))
 
 
 def charuco_record(args: argparse.Namespace) -> dict[str, Any] | None:
@@ -204,6 +235,19 @@ def charuco_record(args: argparse.Namespace) -> dict[str, Any] | None:
             "corner_ids": "id = row * (squares_x - 1) + col, object point ((col + 1) * square, (row + 1) * square, 0)"}
 
 
+def aprilgrid_record(args: argparse.Namespace) -> dict[str, Any] | None:
+    """The AprilGrid of the command (``None`` for other boards) as the JSON files give it: Kalibr's target keys and
+    its corner numbering."""
+    grid = getattr(args, "aprilgrid_board", None)
+    if grid is None:
+        return None
+    return {"target_type": "aprilgrid", "tagCols": grid.tag_cols, "tagRows": grid.tag_rows, "tagSize": grid.tag_size,
+            "tagSpacing": grid.tag_spacing, "dictionary": grid.dictionary,
+            "corner_ids": "Kalibr's: tag t has corners base, base + 1, base + cols + 1, base + cols (bottom left, "
+                          "bottom right, top right, top left; y up), cols = 2 * tagCols, "
+                          "base = (t // tagCols) * 2 * cols + (t % tagCols) * 2"}
+
+
 def make_detector_from(args: argparse.Namespace):
     """The detector the command's ``--detector`` (and ``--network-precision``) name, or the ChArUco board's
     (:func:`resolve_board`)."""
@@ -213,6 +257,10 @@ def make_detector_from(args: argparse.Namespace):
         from ccs_kornia.modules.detection.charuco import CharucoDetector
 
         return CharucoDetector(args.charuco_board)
+    if getattr(args, "aprilgrid_board", None) is not None:
+        from ccs_kornia.modules.detection.aprilgrid import AprilGridDetector
+
+        return AprilGridDetector(args.aprilgrid_board)
     options = {}
     if args.detector == "learned" and getattr(args, "network_precision", None):
         options["precision"] = args.network_precision
@@ -277,7 +325,10 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
         out = pipeline.run(source, board, square, calibrate=calibrate, progress=advance)
     seconds = time.perf_counter() - start
     for c, files in enumerate(cameras):
-        charuco_dictionary_check(pipeline, files, out.detections.found.reshape(out.present.shape)[c], out.present[c])
+        reasons = (out.detections.reasons or [""] * out.present.numel())[c * out.present.shape[1]:
+                                                                         (c + 1) * out.present.shape[1]]
+        charuco_dictionary_check(pipeline, files, out.detections.found.reshape(out.present.shape)[c], out.present[c],
+                                 reasons)
     v = out.present.shape[1]
     for c, files in enumerate(cameras):
         for k, path in enumerate(files):
@@ -304,10 +355,22 @@ def board_size_hint(board: tuple[int, int], reasons: Sequence[str]) -> str:
             f"(COLSxROWS counts inner corners, where four squares meet)")
 
 
-def not_found_message(board: tuple[int, int], readable: int, total: int) -> str:
+#: what to check when a board of each detector is found in no image
+_NOT_FOUND_CHECK = {
+    "charuco": "check --charuco SXxSY (the squares, as OpenCV's CharucoBoard counts them), --dictionary and --legacy",
+    "aprilgrid": "check the target YAML's tagCols and tagRows; the tags must be 36h11 with a two-bit black border, "
+                 "as Kalibr prints them",
+}
+
+
+def not_found_message(board: tuple[int, int], readable: int, total: int, detector: str = "") -> str:
+    """Why a board was found in no image, with what to check for the board's kind (``detector``).
+
+    Example:
+        >>> not_found_message((4, 6), 3, 3, "charuco")[:65]
+        'board 4x6 not found in any of 3 images (check --charuco SXxSY (th'
+    """
     if readable == 0:
         return f"none of the {total} input files could be read as an image"
-    return (
-        f"board {board[0]}x{board[1]} not found in any of {readable} images "
-        f"(check --board: COLSxROWS counts inner corners, where four squares meet)"
-    )
+    check = _NOT_FOUND_CHECK.get(detector, "check --board: COLSxROWS counts inner corners, where four squares meet")
+    return f"board {board[0]}x{board[1]} not found in any of {readable} images ({check})"

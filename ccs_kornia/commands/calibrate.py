@@ -10,6 +10,7 @@ from typing import Any
 from ccs_kornia.commands._common import (
     NoResult,
     UserError,
+    aprilgrid_record,
     charuco_record,
     check_output_dir,
     check_output_file,
@@ -69,7 +70,7 @@ def failure_message(data: dict[str, Any], board: tuple[int, int], readable: int)
     one line: board never found, too few usable views, the solver's refusals with the views they name."""
     files = data["num_views"]["files"]
     if data["num_views"]["found"] == 0:
-        return not_found_message(board, readable, files)
+        return not_found_message(board, readable, files, str(data.get("detector", "")))
     if data["num_views"]["usable"] < 3:
         return (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
                 f"{files} files (board found in {data['num_views']['found']}); at least 3 are needed")
@@ -185,6 +186,8 @@ def run(args: argparse.Namespace) -> int:
     data["success"] = True
     if charuco_record(args):
         data["charuco"] = charuco_record(args)
+    if aprilgrid_record(args):
+        data["aprilgrid"] = aprilgrid_record(args)
     data["timings"]["total_s"] = time.perf_counter() - start
     write_json(args.output, data)
     if os.path.isfile(_failed_path(args.output)):  # an earlier failure's record would now be stale
@@ -219,7 +222,8 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         f"fx {K[0][0]:.3f}  fy {K[1][1]:.3f}  cx {K[0][2]:.3f}  cy {K[1][2]:.3f}  "
         f"{data['distortion']['model']} ({coeffs})"
     )
-    partial = f", {n['partial']} of them partial (corners under glare or occluded left out)" if n.get("partial") else ""
+    hidden = "corners not seen" if "charuco" in data or "aprilgrid" in data else "corners under glare or occluded"
+    partial = f", {n['partial']} of them partial ({hidden} left out)" if n.get("partial") else ""
     print(f"RMS {data['rms']:.4f} px over {n['used']} views (board found in {n['found']} of {n['files']} files{partial}); "
           f"wrote {output}")
     choice = data.get("model_selection")

@@ -24,6 +24,8 @@ from ccs_kornia.commands._common import (
     PROG,
     NoResult,
     UserError,
+    aprilgrid_record,
+    charuco_record,
     check_output_file,
     info,
     make_pipeline,
@@ -84,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
         sets, args.board, args.output, square=args.square, pipeline=pipeline, detector_name=args.detector,
         device=str(device), sets_per_batch=args.sets_per_batch, num_workers=args.workers, overwrite=overwrite,
         accelerator=accelerator, devices=devices, num_nodes=args.num_nodes, strategy=args.strategy,
+        board_record={**({"charuco": charuco_record(args)} if charuco_record(args) else {}),
+                      **({"aprilgrid": aprilgrid_record(args)} if aprilgrid_record(args) else {})},
     )
     if summary["rank"] != 0:
         return 0  # rank 0 reports for the run

@@ -15,6 +15,8 @@ from typing import Any
 
 from ccs_kornia.commands._common import (
     UserError,
+    aprilgrid_record,
+    charuco_record,
     check_output_file,
     info,
     inputs,
@@ -177,6 +179,9 @@ def run(args: argparse.Namespace) -> int:
     if not out.success:
         raise UserError(out.reason)
     data = rig_record(out, files, board=args.board, square=args.square, detector=args.detector, models=models)
+    for key, record in (("charuco", charuco_record(args)), ("aprilgrid", aprilgrid_record(args))):
+        if record:
+            data[key] = record
     data["device"] = str(device)
     data["timings"] = {"total_s": time.perf_counter() - start}
     _write_outputs(args, data, names)

@@ -6,6 +6,7 @@ import argparse
 from ccs_kornia.commands._common import (
     NoResult,
     UserError,
+    aprilgrid_record,
     charuco_record,
     check_output_file,
     inputs,
@@ -51,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
         "board": list(args.board),
         "detector": args.detector,
         **({"charuco": charuco_record(args)} if charuco_record(args) else {}),
+        **({"aprilgrid": aprilgrid_record(args)} if aprilgrid_record(args) else {}),
         "images": images,
         "skipped": [{"path": r["path"], "reason": r["reason"]} for r in images if not r["found"] and "reason" in r
                     and r["reason"].startswith("unreadable")],
@@ -63,11 +65,14 @@ def run(args: argparse.Namespace) -> int:
     if n_found == 0:
         readable = int(one.present.sum())
         raise (NoResult if readable else UserError)(
-            not_found_message(args.board, readable, len(files)) + f"; wrote {args.output}")
+            not_found_message(args.board, readable, len(files), args.detector) + f"; wrote {args.output}")
     partial = f" ({n_partial} partial: corners under glare or occluded are null)" if n_partial else ""
     what = (f"{args.charuco[0]}x{args.charuco[1]} ChArUco board ({args.board[0]}x{args.board[1]} inner corners)"
             if charuco_record(args) else f"{args.board[0]}x{args.board[1]} board")
-    if charuco_record(args):
+    if aprilgrid_record(args):
+        grid = args.aprilgrid_board
+        what = f"{grid.tag_cols}x{grid.tag_rows} AprilGrid ({grid.num_corners} tag corners)"
+    if charuco_record(args) or aprilgrid_record(args):
         partial = partial.replace("corners under glare or occluded", "corners not seen")
     print(f"found the {what} in {n_found} of {len(files)} images{partial}; "
           f"wrote {args.output}")

@@ -1,9 +1,12 @@
-"""Calibration boards: a plain chessboard and a ChArUco board (chessboard with ArUco markers in its white squares).
+"""Calibration boards: a plain chessboard, a ChArUco board (chessboard with ArUco markers in its white squares) and
+Kalibr's AprilGrid (AprilTags with small black squares between their corners).
 
-Both describe the same thing to the rest of the package: an inner-corner grid ``(cols, rows)`` in grid order
+All describe the same thing to the rest of the package: a corner grid ``(cols, rows)`` in grid order
 (``n = row * cols + col``) and each corner's object point. A ChArUco board's corner ids are OpenCV's
 (``id = row * (squares_x - 1) + col``) and its object points are exactly
-``cv2.aruco.CharucoBoard.getChessboardCorners()``: ``((col + 1) * square, (row + 1) * square, 0)``.
+``cv2.aruco.CharucoBoard.getChessboardCorners()``: ``((col + 1) * square, (row + 1) * square, 0)``. An AprilGrid's
+are Kalibr's (``GridCalibrationTargetAprilgrid``): ``2 * tagCols x 2 * tagRows`` tag corners, not evenly spaced
+(:meth:`AprilGrid.object_points`); the pipeline takes them from :func:`grid_object_points`.
 """
 
 from __future__ import annotations
@@ -12,7 +15,8 @@ from dataclasses import dataclass
 
 import torch
 
-__all__ = ["ARUCO_DICTIONARIES", "Chessboard", "CharucoBoard", "aruco_dictionary"]
+__all__ = ["APRILGRID_BORDER_BITS", "ARUCO_DICTIONARIES", "AprilGrid", "Chessboard", "CharucoBoard", "aruco_dictionary",
+           "grid_object_points"]
 
 #: the predefined ArUco dictionaries, by OpenCV name (tried in this order when the named one finds nothing)
 ARUCO_DICTIONARIES: tuple[str, ...] = (
@@ -137,3 +141,185 @@ class CharucoBoard:
         size = (int(self.squares_x) * pixels_per_square + 2 * margin,
                 int(self.squares_y) * pixels_per_square + 2 * margin)
         return self.cv2_board(legacy).generateImage(size, marginSize=margin, borderBits=1)
+
+    def texture(self, pixels_per_square: int = 120, legacy: bool | None = None):
+        """``(image, A)``: the board printed with a one-square margin (:meth:`render`) and the :math:`(2, 3)` affine
+        map from object points ``(x, y)`` to its pixel coordinates (pixel centres at integers)."""
+        import numpy as np
+
+        scale = pixels_per_square / float(self.square)
+        m = float(pixels_per_square)
+        a = np.array([[scale, 0.0, m - 0.5], [0.0, scale, m - 0.5]])
+        return self.render(pixels_per_square, margin=pixels_per_square, legacy=legacy), a
+
+
+#: black border of an AprilGrid's tags, in bits (Kalibr prints its 36h11 tags with two: 10 x 10 bits a tag)
+APRILGRID_BORDER_BITS = 2
+
+
+@dataclass(frozen=True)
+class AprilGrid:
+    """Kalibr's AprilGrid target (``target_type: aprilgrid``): ``tag_cols x tag_rows`` AprilTags 36h11 of side
+    ``tag_size`` (edge to edge of the black border), ``tag_spacing * tag_size`` apart, a small black square of that
+    side beside each tag corner (each tag corner is then an X-junction).
+
+    Corners are numbered as Kalibr numbers them: tag ``t`` (``t = tag_row * tag_cols + tag_col``, tag 0 at the
+    board's bottom left, y up) has the corners ``base, base + 1, base + cols + 1, base + cols`` (bottom left, bottom
+    right, top right, top left) with ``cols = 2 * tag_cols`` and
+    ``base = (t // tag_cols) * 2 * cols + (t % tag_cols) * 2``; corner ``(r, c)`` (``id = r * cols + c``) lies at
+    ``((c // 2) * (1 + spacing) * size + (c % 2) * size, (r // 2) * (1 + spacing) * size + (r % 2) * size, 0)``.
+
+    Example:
+        >>> g = AprilGrid(6, 6, 0.088, 0.3)
+        >>> g.board_size, g.num_corners, g.tag_corner_ids(7)
+        ((12, 12), 144, (26, 27, 39, 38))
+        >>> [round(v, 4) for v in g.object_points()[27].tolist()]
+        [0.2024, 0.1144, 0.0]
+    """
+
+    tag_cols: int
+    tag_rows: int
+    tag_size: float
+    tag_spacing: float
+    dictionary: str = "DICT_APRILTAG_36h11"
+
+    def __post_init__(self) -> None:
+        if min(int(self.tag_cols), int(self.tag_rows)) < 1 or int(self.tag_cols) * int(self.tag_rows) < 2:
+            raise ValueError(f"an AprilGrid needs at least 2 tags, got {self.tag_cols}x{self.tag_rows}")
+        if not float(self.tag_size) > 0:
+            raise ValueError(f"tagSize must be positive, got {self.tag_size}")
+        if not 0 < float(self.tag_spacing) <= 1:
+            raise ValueError(f"tagSpacing must be in (0, 1] (the gap over the tag side), got {self.tag_spacing}")
+        if int(self.tag_cols) * int(self.tag_rows) > aruco_dictionary(self.dictionary).bytesList.shape[0]:
+            raise ValueError(f"{self.tag_cols}x{self.tag_rows} tags: more than {self.dictionary} has")
+
+    @classmethod
+    def from_yaml(cls, path: str) -> "AprilGrid":
+        """The grid of a Kalibr target YAML (``target_type: aprilgrid``, ``tagCols``, ``tagRows``, ``tagSize``,
+        ``tagSpacing``).
+
+        Raises:
+            ValueError: not an AprilGrid target, a missing or invalid key.
+        """
+        import yaml
+
+        with open(path, encoding="utf-8") as fh:
+            data = yaml.safe_load(fh)
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: not a Kalibr target YAML")
+        kind = str(data.get("target_type", "")).strip("'\"")
+        if kind != "aprilgrid":
+            raise ValueError(f"{path}: target_type is {kind or 'missing'!r}, expected 'aprilgrid'")
+        missing = [k for k in ("tagCols", "tagRows", "tagSize", "tagSpacing") if k not in data]
+        if missing:
+            raise ValueError(f"{path}: missing {', '.join(missing)}")
+        try:
+            cols, rows = int(data["tagCols"]), int(data["tagRows"])
+            size, spacing = float(data["tagSize"]), float(data["tagSpacing"])
+        except (TypeError, ValueError):
+            raise ValueError(f"{path}: tagCols and tagRows must be integers, tagSize and tagSpacing numbers") from None
+        return cls(cols, rows, size, spacing)
+
+    @property
+    def board_size(self) -> tuple[int, int]:
+        """``(cols, rows)`` of the corner grid: ``(2 * tag_cols, 2 * tag_rows)``."""
+        return 2 * int(self.tag_cols), 2 * int(self.tag_rows)
+
+    @property
+    def num_corners(self) -> int:
+        return 4 * int(self.tag_cols) * int(self.tag_rows)
+
+    @property
+    def num_tags(self) -> int:
+        return int(self.tag_cols) * int(self.tag_rows)
+
+    def tag_corner_ids(self, tag: int) -> tuple[int, int, int, int]:
+        """Corner ids of tag ``tag``: bottom left, bottom right, top right, top left (board frame, y up)."""
+        cols = 2 * int(self.tag_cols)
+        base = (int(tag) // int(self.tag_cols)) * 2 * cols + (int(tag) % int(self.tag_cols)) * 2
+        return base, base + 1, base + cols + 1, base + cols
+
+    def object_points(self, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+        """:math:`(N, 3)` corner ``id``'s object point, as Kalibr's ``createGridPoints``."""
+        cols, rows = self.board_size
+        r, c = torch.meshgrid(torch.arange(rows), torch.arange(cols), indexing="ij")
+        r, c = r.flatten(), c.flatten()
+        pitch = (1.0 + float(self.tag_spacing)) * float(self.tag_size)
+        x = (c // 2).to(dtype) * pitch + (c % 2).to(dtype) * float(self.tag_size)
+        y = (r // 2).to(dtype) * pitch + (r % 2).to(dtype) * float(self.tag_size)
+        return torch.stack([x, y, torch.zeros_like(x)], -1)
+
+    def pixels_per_bit(self, at_least: int = 8) -> int:
+        """The smallest whole number of pixels per tag bit, at least ``at_least``, that draws the gaps
+        (``tag_spacing`` tags) in whole pixels too (exact renders)."""
+        bits = 6 + 2 * APRILGRID_BORDER_BITS
+        for ppb in range(max(1, int(at_least)), int(at_least) + 200):
+            gap = float(self.tag_spacing) * bits * ppb
+            if abs(gap - round(gap)) < 1e-6:
+                return ppb
+        return int(at_least)
+
+    def render(self, pixels_per_bit: int = 10, margin: int | None = None):
+        """The target as Kalibr prints it, a ``uint8`` image (rows down; the board's y axis points up).
+
+        ``margin`` defaults to twice the corner squares' side; :meth:`texture` gives the map from object points to
+        its pixels.
+        """
+        import cv2
+        import numpy as np
+
+        bits = 6 + 2 * APRILGRID_BORDER_BITS
+        tag_px = bits * int(pixels_per_bit)
+        gap = int(round(float(self.tag_spacing) * tag_px))
+        margin = 2 * gap if margin is None else int(margin)
+        pitch = tag_px + gap
+        w = int(self.tag_cols) * pitch - gap + 2 * margin
+        h = int(self.tag_rows) * pitch - gap + 2 * margin
+        art = np.full((h, w), 255, dtype=np.uint8)
+        d = aruco_dictionary(self.dictionary)
+        for t in range(self.num_tags):
+            col, row = t % int(self.tag_cols), t // int(self.tag_cols)
+            x0 = margin + col * pitch
+            y0 = margin + (int(self.tag_rows) - 1 - row) * pitch  # tag row 0 at the bottom
+            # Kalibr draws OpenCV's 36h11 marker turned by 180 degrees
+            art[y0:y0 + tag_px, x0:x0 + tag_px] = np.rot90(
+                cv2.aruco.generateImageMarker(d, t, tag_px, borderBits=APRILGRID_BORDER_BITS), 2)
+            for cx, cy in ((x0 - gap, y0 - gap), (x0 + tag_px, y0 - gap), (x0 + tag_px, y0 + tag_px),
+                           (x0 - gap, y0 + tag_px)):
+                art[cy:cy + gap, cx:cx + gap] = 0
+        return art
+
+    def texture(self, pixels_per_bit: int = 12, legacy: bool | None = None):
+        """``(image, A)``: the target as printed (:meth:`render`, exact pixels: :meth:`pixels_per_bit`) and the
+        :math:`(2, 3)` affine map from object points ``(x, y)`` to its pixel coordinates (pixel centres at integers;
+        y up on the board, down in the image). ``legacy`` is ignored (ChArUco boards' layout)."""
+        import numpy as np
+
+        ppb = self.pixels_per_bit(pixels_per_bit)
+        art = self.render(ppb)
+        scale = (6 + 2 * APRILGRID_BORDER_BITS) * ppb / float(self.tag_size)
+        gap = round(float(self.tag_spacing) * (6 + 2 * APRILGRID_BORDER_BITS) * ppb)
+        top = (int(self.tag_rows) - 1) * (1.0 + float(self.tag_spacing)) * float(self.tag_size) + float(self.tag_size)
+        m = 2.0 * gap
+        return art, np.array([[scale, 0.0, m - 0.5], [0.0, -scale, m + top * scale - 0.5]])
+
+
+def grid_object_points(board, board_size: tuple[int, int], square: float, device: torch.device | str | None = None,
+                       dtype: torch.dtype = torch.float64) -> torch.Tensor:
+    """The object points by corner id that a calibration fits: the board's own where its corners are not an even grid
+    (an :class:`AprilGrid`), else :func:`~ccs_kornia.camera.board_object_points` of ``board_size`` and ``square``
+    (chessboards and ChArUco boards: the answers do not depend on the grid's origin).
+
+    Example:
+        >>> grid_object_points(None, (3, 2), 0.5)[1].tolist()
+        [0.5, 0.0, 0.0]
+        >>> grid_object_points(AprilGrid(2, 1, 1.0, 0.5), (4, 2), 1.0)[:4, 0].tolist()
+        [0.0, 1.0, 1.5, 2.5]
+    """
+    if isinstance(board, AprilGrid):
+        if tuple(int(v) for v in board_size) != board.board_size:
+            raise ValueError(f"board_size {tuple(board_size)} is not the AprilGrid's corner grid {board.board_size}")
+        return board.object_points(dtype).to(device)
+    from ccs_kornia.camera import board_object_points
+
+    return board_object_points(int(board_size[0]), int(board_size[1]), float(square), device=device, dtype=dtype)

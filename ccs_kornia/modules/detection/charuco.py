@@ -13,7 +13,8 @@ the lens distortion is largest, and where a plain chessboard cannot be identifie
    with the most consistent markers is kept, and for a board of unknown layout (``legacy=None``) the layout with
    the most; a view both layouts explain alike (a board with an even number of rows of squares differs between
    them by a one-square shift of most markers) takes the layout most views of the batch fit, or none
-   (:func:`charuco_markers`);
+   (:func:`charuco_markers`); a view with more of the board's marker ids off its lattice than on it is refused (the
+   markers of another board: a wrong board size, :attr:`CharucoMarkers.off_lattice`);
 3. **initial corners**: each inner corner from the markers around it (:data:`NEIGHBOUR_RADIUS` squares, one of them
    touching it): a local homography, so the lens distortion matters little;
 4. **refinement**: this package's saddle fit and symmetry polish
@@ -45,6 +46,7 @@ from ccs_kornia.modules.detection.saddle_refine import POLISH_WINDOW, refine_cor
 __all__ = [
     "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_MOVE", "NEIGHBOUR_RADIUS", "CharucoDetector", "CharucoMarkers",
     "charuco_markers", "detect_charuco", "layout_fits", "dictionary_hint", "marked_radius_factor",
+    "refine_marked_corners", "squares_hint",
 ]
 
 #: a marker belongs to the board's lattice when its corners lie within this many squares of where the homography
@@ -163,7 +165,8 @@ class CharucoMarkers:
     """The board's markers found on one image: corners ``(M, 4, 2)`` px, ids ``(M,)``, their board corners
     ``(M, 4, 2)`` in squares, the image variant they were decoded on, the layout (legacy or not) they fit, how many
     markers were decoded, and where the board's given layout is the worse fit the other one (``better_layout``) and
-    the markers it explains (``better_count``); ``ambiguous``: both layouts explain the view's markers alike."""
+    the markers it explains (``better_count``); ``ambiguous``: both layouts explain the view's markers alike;
+    ``known``: the decoded markers (on that variant) whose ids the board has, on its lattice or not."""
 
     corners: np.ndarray
     ids: np.ndarray
@@ -174,6 +177,13 @@ class CharucoMarkers:
     better_layout: bool | None = None
     better_count: int = 0
     ambiguous: bool = False
+    known: int = 0
+
+    @property
+    def off_lattice(self) -> bool:
+        """More of the board's marker ids decoded off its lattice than on it (at least 3): the markers belong to
+        another board (a wrong board size), so no id of this one can be trusted."""
+        return self.known - len(self.ids) >= max(3, len(self.ids) + 1)
 
 
 def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.ArucoDetector | None = None
@@ -199,7 +209,8 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
             obj = np.stack([markers[int(k)] for k in i])
             keep = _lattice(p, obj)
             if keep.sum() > len(best[legacy].ids):
-                best[legacy] = CharucoMarkers(p[keep], i[keep], obj[keep], variant, legacy, len(ids))
+                best[legacy] = CharucoMarkers(p[keep], i[keep], obj[keep], variant, legacy, len(ids),
+                                              known=int(known.sum()))
     return best
 
 
@@ -244,6 +255,28 @@ def _set_layout(fits: list[dict[bool, CharucoMarkers]]) -> bool | None:
     if not votes or 2 * sum(votes) == len(votes):
         return None
     return 2 * sum(votes) > len(votes)
+
+
+def refine_marked_corners(images: torch.Tensor, initial: np.ndarray, spacing: np.ndarray, factor: float
+                          ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Steps 4 and 5 for corners placed by markers: the refined corners :math:`(B, N, 2)` and which are accepted
+    :math:`(B, N)`, from ``initial`` :math:`(B, N, 2)` px (NaN: not placed) and the local grid ``spacing``
+    :math:`(B, N)` px; the window's half-size is ``factor`` spacings (at least 1.5 px, at most :data:`MAX_RADIUS`).
+    A corner is accepted where the refinement confirmed it, its window lies on the image and it moved by at most
+    :data:`MAX_MOVE` spacings."""
+    _, _, h, w = images.shape
+    seen = torch.from_numpy(np.isfinite(initial).all(-1))
+    start = torch.from_numpy(np.nan_to_num(initial)).float()
+    space = torch.from_numpy(np.nan_to_num(spacing, nan=1.0)).float()
+    radius = (float(factor) * space).clamp(1.5, MAX_RADIUS)
+    refined, ok = refine_corners(images.detach().float().cpu(), start, seen, radius, "symmetric",
+                                 max_radius=MAX_RADIUS, return_ok=True)
+    moved = (refined - start).norm(dim=-1)
+    # the window must lie on the image: at the frame the border's replicated pixels pull a corner off by px
+    inside = (refined >= radius[..., None]).all(-1)
+    inside &= (refined[..., 0] <= w - 1 - radius) & (refined[..., 1] <= h - 1 - radius)
+    accept = seen & ok & inside & (moved <= MAX_MOVE * space) & refined.isfinite().all(-1)
+    return refined, accept
 
 
 def _initial_corners(markers: CharucoMarkers, board: CharucoBoard, image_size: tuple[int, int]
@@ -330,21 +363,11 @@ def detect_charuco(
     spacing = np.full((b, n), np.nan)
     for k, (_, (ids, pts, sp)) in enumerate(outputs):
         initial[k, ids], spacing[k, ids] = pts, sp
-    seen = torch.from_numpy(np.isfinite(initial).all(-1))
-    start = torch.from_numpy(np.nan_to_num(initial)).float()
-    space = torch.from_numpy(np.nan_to_num(spacing, nan=1.0)).float()
     factor = marked_radius_factor(board) if radius_factor is None else float(radius_factor)
-    radius = (factor * space).clamp(1.5, MAX_RADIUS)
-    refined, ok = refine_corners(images.detach().float().cpu(), start, seen, radius, "symmetric",
-                                 max_radius=MAX_RADIUS, return_ok=True)
-    moved = (refined - start).norm(dim=-1)
-    # the window must lie on the image: at the frame the border's replicated pixels pull a corner off by px
-    inside = (refined >= radius[..., None]).all(-1)
-    inside &= (refined[..., 0] <= w - 1 - radius) & (refined[..., 1] <= h - 1 - radius)
-    accept = seen & ok & inside & (moved <= MAX_MOVE * space) & refined.isfinite().all(-1)
+    refined, accept = refine_marked_corners(images, initial, spacing, factor)
     count = accept.sum(-1)
-    wrong_layout = torch.tensor([m.better_layout is not None for m, _ in outputs], dtype=torch.bool)
-    found = (count >= min_corners) & ~wrong_layout
+    refused = torch.tensor([m.better_layout is not None or m.off_lattice for m, _ in outputs], dtype=torch.bool)
+    found = (count >= min_corners) & ~refused
     corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
     corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
     reasons = []
@@ -356,6 +379,10 @@ def detect_charuco(
             name = "legacy" if markers.better_layout else "new (non-legacy)"
             reasons.append(f"the markers fit the {name} layout better ({markers.better_count} against "
                            f"{len(markers.ids)} markers): wrong layout?")
+        elif markers.off_lattice:
+            reasons.append(f"{markers.known - len(markers.ids)} of the board's {board.dictionary} markers are not where "
+                           f"a {board.squares_x}x{board.squares_y} board puts them ({len(markers.ids)} are): wrong "
+                           "board size?")
         elif markers.ambiguous:
             reasons.append("the markers fit the new and the legacy layout alike (a board with an even number of rows "
                            "of squares, seen in part): give the layout")
@@ -434,3 +461,56 @@ def dictionary_hint(images: list[np.ndarray], board: CharucoBoard, least: int = 
     tied = [k for k, v in counts.items() if v == top]
     name = next((k for k in tied if k.endswith("_250")), tied[0])
     return f"{head}; {name} markers in {top} of them: wrong --dictionary?"
+
+
+def squares_hint(images: list[np.ndarray], board: CharucoBoard, largest: int = 16) -> str:
+    """Why a ChArUco board whose markers were decoded gave no view, for ``uint8`` grey ``images``: the board size
+    (squares ``3..largest`` each way, either layout) whose lattice explains more of the markers in the first 3 images
+    than the given one, e.g. ``"the DICT_6X6_250 markers fit a 5x7 board (34 markers), not 6x8 (4): wrong
+    --charuco?"``; ``""`` when the given board explains them best.
+
+    Example:
+        >>> board = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250")
+        >>> squares_hint([board.render(60, margin=30)], CharucoBoard(6, 8, 0.04, 0.02, "DICT_6X6_250"))[:55]
+        'the DICT_6X6_250 markers fit a 5x7 board (17 markers), '
+    """
+    detector = _detector(board.dictionary)
+    decoded = []
+    for img in images[:3]:
+        tries = [_decode(img, detector, v) for v in VARIANTS]
+        pts, ids = max(tries, key=lambda t: len(t[1]))
+        _, first = np.unique(ids, return_index=True)
+        decoded.append((pts[first], ids[first]))
+    if not any(len(ids) for _, ids in decoded):
+        return ""
+    top = max(int(ids.max()) for _, ids in decoded if len(ids))
+
+    def explained(candidate: CharucoBoard) -> tuple[int, bool]:
+        best = (0, False)
+        for legacy in candidate.layouts():
+            markers = _board_markers(candidate, legacy)
+            total = 0
+            for pts, ids in decoded:
+                known = np.array([int(i) in markers for i in ids], dtype=bool)
+                if known.sum() >= 2:
+                    obj = np.stack([markers[int(k)] for k in ids[known]])
+                    total += int(_lattice(pts[known], obj).sum())
+            if total > best[0]:  # the new layout on a tie
+                best = (total, legacy)
+        return best
+
+    given, _ = explained(board)
+    found = (given, board.squares_x, board.squares_y, False)
+    for sx in range(3, largest + 1):
+        for sy in range(3, largest + 1):
+            if (sx * sy) // 2 <= top or (sx, sy) == (board.squares_x, board.squares_y):
+                continue  # too few markers for the ids decoded
+            count, legacy = explained(replace(board, squares_x=sx, squares_y=sy, legacy=None))
+            if count > found[0]:
+                found = (count, sx, sy, legacy)
+    if found[0] <= max(given, 3):
+        return ""
+    count, sx, sy, legacy = found
+    layout = " (legacy layout)" if legacy else ""
+    return (f"the {board.dictionary} markers fit a {sx}x{sy} board{layout} ({count} markers), not "
+            f"{board.squares_x}x{board.squares_y} ({given}): wrong --charuco?")
