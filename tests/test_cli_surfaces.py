@@ -116,8 +116,8 @@ def test_board_larger_than_given_is_said_on_the_console(rendered, tmp_path, caps
 
     real = LearnedChessboardDetector.forward
 
-    def refused(self, images, board_size):
-        out = real(self, images, board_size)
+    def refused(self, images, board_size, *args, **kwargs):
+        out = real(self, images, board_size, *args, **kwargs)
         out.reasons = ["board refused: the checker pattern continues past its left side"] * len(out.reasons)
         return out
 
