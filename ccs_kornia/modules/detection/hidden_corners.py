@@ -11,7 +11,7 @@ consumer can take a guess for a measurement) and the others are kept.
 * :func:`settle_partial_boards`: on the boards with hidden corners, the full-resolution corners next to the glare
   whose point symmetry is far worse than the board's are left out too (the saddle fit confirms them, yet the glare's
   edge pulls them by pixels), on any board a corner whose symmetry is worse still (it converged onto an edge or into a
-  square: a confident wrong corner), and a board left with fewer than :data:`MIN_VISIBLE_FRACTION` of its corners is
+  square: a confident wrong corner), and a board left with fewer than :data:`PARTIAL_BOARD_FRACTION` of its corners is
   refused.
 
 A predicted corner whose saddle the refiner cannot confirm *and* whose contrast is still there (at least
@@ -31,7 +31,7 @@ from ccs_kornia.modules.detection.base import DetectionResult, image_rows
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 
 __all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MAX_ASYMMETRY_RATIO_WHOLE",
-           "MIN_VISIBLE_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "relative_contrast",
+           "PARTIAL_BOARD_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "relative_contrast",
            "settle_partial_boards", "spans_board"]
 
 #: a corner is hidden where its checker contrast is below this fraction of the median of the board's visible corners
@@ -48,8 +48,10 @@ MAX_ASYMMETRY_RATIO = 20.0
 #: ``findChessboardCornersSB``'s; held-out wild renders: 36-39x for corners 6-11 px off; good corners up to 21.5x at a
 #: fisheye's rim, where the lines curve within the window)
 MAX_ASYMMETRY_RATIO_WHOLE = 30.0
-#: a partial board keeps at least this fraction of its corners
-MIN_VISIBLE_FRACTION = 0.4
+#: a partial board has at least this fraction of its corners: the organiser asks for peaks at this fraction of the
+#: cells, and a board left with fewer visible corners after the checks is refused (one fraction for both, so a board the
+#: organiser accepts is not refused for its size alone)
+PARTIAL_BOARD_FRACTION = 0.4
 # the contrast is measured within this many squares of the corner along either grid axis: marks inside the white
 # squares (ChArUco, ECoCheck) keep a margin of about a quarter square clear
 CONTRAST_RADIUS = 0.25
@@ -228,7 +230,7 @@ def spans_board(valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tenso
 
 def settle_partial_boards(
     images: torch.Tensor, result: DetectionResult, board_size: tuple[int, int],
-    max_asymmetry: float = MAX_ASYMMETRY_RATIO, min_visible: float = MIN_VISIBLE_FRACTION,
+    max_asymmetry: float = MAX_ASYMMETRY_RATIO, min_visible: float = PARTIAL_BOARD_FRACTION,
     max_asymmetry_whole: float = MAX_ASYMMETRY_RATIO_WHOLE,
 ) -> DetectionResult:
     r"""Leave out the corners of the found boards whose point symmetry is far worse than the board's median (more than

@@ -13,13 +13,14 @@ from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules._threads import full_threads, light_stages_single_thread
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, image_rows
-from ccs_kornia.modules.detection.board_checks import board_extends, skipped_line
+from ccs_kornia.modules.detection.board_checks import whole_board_check
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.foreshortening import detect_foreshortened
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
-from ccs_kornia.modules.detection.hidden_corners import (HIDDEN_CONTRAST_FRACTION, UNCONFIRMED_CONTRAST_FRACTION,
+from ccs_kornia.modules.detection.hidden_corners import (HIDDEN_CONTRAST_FRACTION, PARTIAL_BOARD_FRACTION,
+                                                         UNCONFIRMED_CONTRAST_FRACTION,
                                                          glare_rim, relative_contrast, settle_partial_boards, spans_board)
 from ccs_kornia.modules.detection.missing_corners import lattice_deviation, predict_missing_corners
 from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, opencv_level_factor
@@ -248,13 +249,10 @@ class LearnedChessboardDetector(ChessboardDetector):
             # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
             # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners
             for b in out.found.nonzero().flatten().tolist():
-                image, corners = images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy()
-                reason = skipped_line(image, corners, board_size)
-                # a sub-board: the organiser looks for peaks past the sides, which a coarse level can lack on a whole
-                # line (opencv_left at 8x6: left14's ninth column, squares of 5 px there); the image shows the pattern
-                side = "" if reason else board_extends(image, corners, board_size)
-                if side:
-                    reason = f"the checker pattern continues past its {side} side"
+                # and a sub-board: the organiser looks for peaks past the sides, which a coarse level can lack on a
+                # whole line (opencv_left at 8x6: left14's ninth column, squares of 5 px there); the image shows it
+                reason = whole_board_check(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
+                                           board_size)
                 if reason:
                     out.found[b], out.reasons[b] = False, f"board refused: {reason}"
                     out.corners[b], out.sigma[b] = 0.0, float("nan")
@@ -362,18 +360,14 @@ class LearnedChessboardDetector(ChessboardDetector):
             refiner.radius_factor = MARKED_RADIUS_FACTOR
         out = self._complete(images, board_size, corners, valid, found, refiner)
         if bool(out.found.any()):
-            dev = lattice_deviation(out.corners.double(), board_size).amax(-1)
-            off = out.found & (dev > MAX_LATTICE_DEVIATION)
-            for b in off.nonzero().flatten().tolist():
-                out.reasons[b] = f"board refused: a corner {float(dev[b]):.2f} squares off its neighbours' lattice"
             # a sub-board of a larger board is a perfect lattice too: the image must show the board end at every
             # side (the organiser's own test looks for candidates beyond the sides, which this source lacks)
-            for b in (out.found & ~off).nonzero().flatten().tolist():
-                side = board_extends(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
-                                     board_size)
-                if side:
-                    off[b] = True
-                    out.reasons[b] = f"board refused: the checker pattern continues past its {side} side"
+            off = torch.zeros_like(out.found)
+            for b in out.found.nonzero().flatten().tolist():
+                reason = whole_board_check(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
+                                           board_size, MAX_LATTICE_DEVIATION, skipped=False)
+                if reason:
+                    off[b], out.reasons[b] = True, f"board refused: {reason}"
             out.found = out.found & ~off
             out.corners = torch.where(out.found[:, None, None], out.corners, torch.zeros_like(out.corners))
         out.reasons = [("learned (opencv candidates)" if f else r) for f, r in zip(out.found.tolist(), out.reasons)]
@@ -394,7 +388,7 @@ class LearnedChessboardDetector(ChessboardDetector):
             return self._opencv_board(images, board_size)
         _, points, keep = self.candidates(images, full, scale)
         corners, valid, found = _organize(points, keep, board_size, images,
-                                          PARTIAL_MIN_FRACTION if self.partial_boards else None)
+                                          PARTIAL_BOARD_FRACTION if self.partial_boards else None)
         refiner = self.refiner
         if resampled is None:
             resampled = full is not None
@@ -452,16 +446,13 @@ class LearnedChessboardDetector(ChessboardDetector):
             # other levels and looks their turn (forward's final check would refuse it with nothing else tried)
             for b in (found & hidden.any(1)).nonzero().flatten().tolist():
                 shown = corners[b].masked_fill(hidden[b, :, None], float("nan"))
-                reason = skipped_line(images[b, 0].float().cpu().numpy(), shown.double().cpu().numpy(), board_size)
+                reason = whole_board_check(images[b, 0].float().cpu().numpy(), shown.double().cpu().numpy(), board_size,
+                                           extends=False)
                 if reason:
                     found[b], reasons[b] = False, f"board refused: {reason}"
         corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
         corners = corners.masked_fill(hidden[..., None] & found[:, None, None], float("nan"))
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
-
-
-#: with partial boards, the organiser is asked again for a board of which only this fraction of the corners has a peak
-PARTIAL_MIN_FRACTION = 0.4
 
 
 def _empty_result(images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:

@@ -10,7 +10,7 @@ import torch
 
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.hidden_corners import (
-    MIN_VISIBLE_FRACTION,
+    PARTIAL_BOARD_FRACTION,
     checker_contrast,
     glare_rim,
     hidden_corners,
@@ -157,7 +157,7 @@ def test_a_wrong_corner_of_a_cut_board_is_left_out_not_reported():
 def test_settle_refuses_a_board_with_too_few_corners_left():
     img, pts = _board()
     hidden = pts.clone()
-    k = math.floor((1 - MIN_VISIBLE_FRACTION) * 20) + 1
+    k = math.floor((1 - PARTIAL_BOARD_FRACTION) * 20) + 1
     hidden[0, :k] = float("nan")
     out = settle_partial_boards(img, DetectionResult(hidden, torch.tensor([True]), ["learned"]), (5, 4))
     assert out.found.tolist() == [False] and out.reasons[0] == f"board incomplete: {k} of 20 corners hidden"
@@ -181,7 +181,7 @@ def test_a_glared_board_is_found_with_its_hidden_corners_left_out():
     out = LearnedChessboardDetector()(img, board)
     assert bool(out.found[0])
     measured = out.valid[0]
-    assert 3 <= int((~measured).sum()) <= n * (1 - MIN_VISIBLE_FRACTION)
+    assert 3 <= int((~measured).sum()) <= n * (1 - PARTIAL_BOARD_FRACTION)
     assert bool(out.corners[0][~measured].isnan().all())
     err = (out.corners[0].double() - truth).norm(dim=-1)[measured]
     assert float(err.mean()) < 0.08 and float(err.max()) < 0.3  # measured: 0.043, 0.17
@@ -236,8 +236,8 @@ def test_the_organiser_is_asked_for_part_of_a_board_only_with_partial_boards(mon
     ld._organize(points, keep, (5, 4), images)
     assert calls == [None, None]
     calls.clear()
-    ld._organize(points, keep, (5, 4), images, ld.PARTIAL_MIN_FRACTION)
-    assert calls == [None, None, ld.PARTIAL_MIN_FRACTION] == [None, None, MIN_VISIBLE_FRACTION]
+    ld._organize(points, keep, (5, 4), images, PARTIAL_BOARD_FRACTION)
+    assert calls == [None, None, PARTIAL_BOARD_FRACTION]
 
 
 @pytest.mark.parametrize("side", ["left", "right"])
@@ -370,7 +370,9 @@ def test_a_partial_board_refused_for_skipped_lines_at_its_level_leaves_the_other
         hidden_seen.append(int(np.isnan(corners).any(-1).sum()))
         return "the grid skips a row of corners (a corner lies between two detected neighbours)"
 
-    monkeypatch.setattr(ld, "skipped_line", refuse)
+    import ccs_kornia.modules.detection.board_checks as bc
+
+    monkeypatch.setattr(bc, "skipped_line", refuse)
     levels.clear()
     out = ld.LearnedChessboardDetector()(img, board)
     assert not bool(out.found[0]) and "skips a row" in out.reasons[0]
