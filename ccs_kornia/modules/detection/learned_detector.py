@@ -19,9 +19,8 @@ from ccs_kornia.modules.detection.foreshortening import detect_foreshortened
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
-from ccs_kornia.modules.detection.hidden_corners import (HIDDEN_CONTRAST_FRACTION, PARTIAL_BOARD_FRACTION,
-                                                         UNCONFIRMED_CONTRAST_FRACTION,
-                                                         glare_rim, relative_contrast, settle_partial_boards, spans_board)
+from ccs_kornia.modules.detection.corner_evidence import decide_corners, measure_corner_evidence
+from ccs_kornia.modules.detection.hidden_corners import PARTIAL_BOARD_FRACTION, settle_partial_boards
 from ccs_kornia.modules.detection.missing_corners import lattice_deviation, predict_missing_corners
 from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, opencv_level_factor
 from ccs_kornia.modules.detection.patch_refine import refine_from_level
@@ -419,27 +418,14 @@ class LearnedChessboardDetector(ChessboardDetector):
         if refiner is not None and bool(found.any()):
             with stage("saddle refinement"):
                 corners, ok = refiner(images, corners, cells, board_size, return_ok=True)
-            # a predicted cell is accepted only where the image shows a corner there; one wrong corner
-            # ruins a calibration, so the board is dropped instead, unless the checker has faded there (glare, an
-            # occluder): then the corner is left out, and so is any corner where the checker has all but faded
-            # (confirmed saddles at the rim of a glare are off by pixels: bench glare renders, up to 9 px)
-            unconfirmed = missing & ~ok
-            if self.partial_boards:
-                relative = relative_contrast(images, corners, cells & ~unconfirmed, board_size)
-                faded = (relative < UNCONFIRMED_CONTRAST_FRACTION).nan_to_num(False)
-                hidden = cells & ((relative < HIDDEN_CONTRAST_FRACTION).nan_to_num(False) | (unconfirmed & faded))
-                # at a glare's rim nothing is taken on trust: the saddle is lost while the checker still shows (60-90 %
-                # of the board's contrast), or the glare's edge pulls a confirmed saddle by pixels where the checker has
-                # faded (held-out glare render: 4.5 px off at 43 % of the contrast, 7.8x the median asymmetry). An
-                # unconfirmed corner is excused so only where the lattice spans the board: a shorter one was placed by
-                # the image, and its unconfirmed corners are what refuses a wrong placement (held-out ArUco render:
-                # four of them, and 45 px off once they were excused)
-                rim = glare_rim(cells, hidden, board_size)
-                hidden |= rim & ((unconfirmed & spans_board(valid, board_size)[:, None]) | faded)
-            unverified = (unconfirmed & ~hidden).any(1)
+            # a predicted cell is accepted only where the image shows a corner there (corner_evidence.py: the
+            # board is dropped, or the corner left out where the checker has faded: glare, an occluder)
+            evidence = measure_corner_evidence(images, corners, cells, missing, ok, valid, board_size,
+                                               contrast=self.partial_boards)
+            hidden, refusing = decide_corners(evidence, board_size)
+            unverified = refusing.any(1)
             for b in unverified.nonzero().flatten().tolist():
-                n_bad = int((unconfirmed[b] & ~hidden[b]).sum())
-                reasons[b] = f"board incomplete: {n_bad} corner(s) not confirmed in the image"
+                reasons[b] = f"board incomplete: {int(refusing[b].sum())} corner(s) not confirmed in the image"
             found = found & ~unverified
             # a partial board is checked for skipped lines here already, so that a refused lattice through every
             # other corner (a level where one parity of the corners lost its peaks: ChArUco renders) leaves the
