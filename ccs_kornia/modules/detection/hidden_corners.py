@@ -31,7 +31,7 @@ from ccs_kornia.modules.detection.base import DetectionResult, image_rows
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 
 __all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MAX_ASYMMETRY_RATIO_WHOLE",
-           "PARTIAL_BOARD_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "relative_contrast",
+           "PARTIAL_BOARD_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "intensity_range", "relative_contrast",
            "settle_partial_boards", "spans_board"]
 
 #: a corner is hidden where its checker contrast is below this fraction of the median of the board's visible corners
@@ -102,15 +102,50 @@ def checker_contrast(images: torch.Tensor, corners: torch.Tensor, board_size: tu
     steps = torch.linspace(-CONTRAST_RADIUS, CONTRAST_RADIUS, 5, dtype=g.dtype, device=g.device)
     su, sv = torch.meshgrid(steps, steps, indexing="ij")
     offsets = su.reshape(-1, 1, 1, 1, 1) * u + sv.reshape(-1, 1, 1, 1, 1) * v  # (K, B, rows, cols, 2)
-    pts = (g + offsets).permute(1, 0, 2, 3, 4).reshape(b, -1, 2)
+    pts = (g + offsets).permute(1, 2, 3, 0, 4).reshape(b, rows * cols, -1, 2)
+    contrast = intensity_range(images, pts).to(corners.device, corners.dtype)
+    finite = g.isfinite().all(-1) & u.isfinite().all(-1) & v.isfinite().all(-1)
+    return torch.where(finite.reshape(b, -1), contrast, torch.full_like(contrast, float("nan")))
+
+
+def intensity_range(images: torch.Tensor, points: torch.Tensor, outside: str = "border") -> torch.Tensor:
+    r"""Intensity range (largest minus smallest bilinear sample) over the ``K`` points of each of ``N`` sets.
+
+    The one contrast measure of the detector: :func:`checker_contrast` at a board's corners, and the organiser's
+    contrast at the empty cells of a partial lattice.
+
+    Args:
+        images: :math:`(B, 1, H, W)`.
+        points: :math:`(B, N, K, 2)` pixel coordinates (pixel centres at integers).
+        outside: ``"border"``: a sample off the image reads the nearest border pixel (and a NaN point reads the
+            image's corner); ``"nan"``: samples whose bilinear footprint leaves the image are not counted, and a set
+            without a sample reads NaN.
+
+    Returns:
+        :math:`(B, N)` (float32).
+
+    Example:
+        >>> img = torch.zeros(1, 1, 4, 4); img[..., 2:, :] = 1.0  # rows 2 and 3 light
+        >>> pts = torch.tensor([[[[1.0, 1.0], [1.0, 2.0]], [[1.0, 1.0], [1.0, 5.0]]]])  # the second set leaves the image
+        >>> intensity_range(img, pts).tolist(), intensity_range(img, pts, outside="nan").tolist()
+        ([[1.0, 1.0]], [[1.0, 0.0]])
+    """
+    if outside not in ("border", "nan"):
+        raise ValueError(f"outside must be 'border' or 'nan', got {outside!r}.")
+    b, n, k = points.shape[:3]
     h, w = images.shape[-2:]
+    pts = points.reshape(b, n * k, 2)
     grid = torch.stack([(pts[..., 0] + 0.5) * (2.0 / w) - 1.0, (pts[..., 1] + 0.5) * (2.0 / h) - 1.0], -1)
     vals = F.grid_sample(images.float(), grid[:, None].to(images.device, torch.float32).nan_to_num(-2.0),
                          mode="bilinear", padding_mode="border", align_corners=False)[:, 0, 0]
-    vals = vals.reshape(b, -1, rows * cols).to(corners.device)
-    contrast = (vals.amax(1) - vals.amin(1)).to(corners.dtype)
-    finite = g.isfinite().all(-1) & u.isfinite().all(-1) & v.isfinite().all(-1)
-    return torch.where(finite.reshape(b, -1), contrast, torch.full_like(contrast, float("nan")))
+    vals = vals.reshape(b, n, k)
+    if outside == "border":
+        return vals.amax(-1) - vals.amin(-1)
+    x, y = pts[..., 0].to(vals.device), pts[..., 1].to(vals.device)
+    inside = ((x >= 0) & (x < w - 1) & (y >= 0) & (y < h - 1)).reshape(b, n, k)
+    top = vals.masked_fill(~inside, float("-inf")).amax(-1)
+    low = vals.masked_fill(~inside, float("inf")).amin(-1)
+    return torch.where(inside.any(-1), top - low, torch.full_like(top, float("nan")))
 
 
 def hidden_corners(

@@ -14,6 +14,7 @@ from ccs_kornia.modules.detection.hidden_corners import (
     checker_contrast,
     glare_rim,
     hidden_corners,
+    intensity_range,
     settle_partial_boards,
     spans_board,
 )
@@ -378,3 +379,26 @@ def test_a_partial_board_refused_for_skipped_lines_at_its_level_leaves_the_other
     assert not bool(out.found[0]) and "skips a row" in out.reasons[0]
     assert hidden_seen and hidden_seen[0] >= 3, "the partial board was judged with its hidden corners left out"
     assert len(levels) > 1, "the other levels were looked at after the refusal"
+
+
+def test_intensity_range_matches_opencv_remap_and_leaves_out_samples_off_the_image():
+    cv2 = pytest.importorskip("cv2")
+    rng = np.random.default_rng(0)
+    img = cv2.GaussianBlur(rng.random((60, 80)).astype(np.float32), (7, 7), 2)
+    pts = rng.uniform(-6.0, 86.0, (2, 30, 9, 2)).astype(np.float32)  # some sets partly or wholly off the image
+    pts[1, :, :, 1] = rng.uniform(-20.0, -2.0, (30, 9))  # the second batch row entirely above the image
+    got = intensity_range(torch.from_numpy(img)[None, None].expand(2, -1, -1, -1), torch.from_numpy(pts), "nan")
+    assert got.shape == (2, 30)
+    flat = pts.reshape(-1, 2)
+    ref = cv2.remap(img, flat[:, :1], flat[:, 1:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                    borderValue=float("nan")).reshape(2, 30, 9)
+    seen = np.isfinite(ref).any(-1)
+    want = np.full((2, 30), np.nan)
+    want[seen] = np.nanmax(ref[seen], -1) - np.nanmin(ref[seen], -1)
+    assert seen[0].sum() >= 20 and not seen[1].any()
+    np.testing.assert_allclose(got.numpy(), want, atol=1e-3, equal_nan=True)
+    # with the border read instead, every set has a value
+    assert bool(intensity_range(torch.from_numpy(img)[None, None].expand(2, -1, -1, -1), torch.from_numpy(pts))
+                .isfinite().all())
+    with pytest.raises(ValueError):
+        intensity_range(torch.from_numpy(img)[None, None], torch.from_numpy(pts[:1]), "zero")
