@@ -349,7 +349,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         counts the colour changes around a point, and a mark inside a white square adds changes. In its place, a
         board whose refined corners leave the smooth lattice of their neighbours by more than
         :data:`MAX_LATTICE_DEVIATION` squares is refused (near a mark a corner can converge onto the mark's own
-        junctions), and so is a board whose checker pattern continues past a side (OpenCV returns sub-boards)."""
+        junctions). A sub-board (OpenCV returns them) is refused by the final checks like any board whose pattern
+        continues past a side."""
         with stage("opencv candidates"):
             points, keep = opencv_candidates(images, board_size)
         corners, valid, found = _organize(points, keep, board_size, images)
@@ -359,12 +360,10 @@ class LearnedChessboardDetector(ChessboardDetector):
             refiner.radius_factor = MARKED_RADIUS_FACTOR
         out = self._complete(images, board_size, corners, valid, found, refiner)
         if bool(out.found.any()):
-            # a sub-board of a larger board is a perfect lattice too: the image must show the board end at every
-            # side (the organiser's own test looks for candidates beyond the sides, which this source lacks)
             off = torch.zeros_like(out.found)
             for b in out.found.nonzero().flatten().tolist():
                 reason = whole_board_check(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
-                                           board_size, MAX_LATTICE_DEVIATION, skipped=False)
+                                           board_size, MAX_LATTICE_DEVIATION, skipped=False, extends=False)
                 if reason:
                     off[b], out.reasons[b] = True, f"board refused: {reason}"
             out.found = out.found & ~off
