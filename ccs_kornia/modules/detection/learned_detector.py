@@ -15,11 +15,11 @@ from ccs_kornia.modules._threads import full_threads, light_stages_single_thread
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, image_rows
 from ccs_kornia.modules.detection.board_checks import whole_board_check
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
+from ccs_kornia.modules.detection.corner_evidence import decide_corners, measure_corner_evidence
 from ccs_kornia.modules.detection.foreshortening import detect_foreshortened
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
-from ccs_kornia.modules.detection.corner_evidence import decide_corners, measure_corner_evidence
 from ccs_kornia.modules.detection.hidden_corners import PARTIAL_BOARD_FRACTION, settle_partial_boards
 from ccs_kornia.modules.detection.missing_corners import lattice_deviation, predict_missing_corners
 from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, opencv_level_factor
