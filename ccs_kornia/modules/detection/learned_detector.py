@@ -21,7 +21,7 @@ from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
 from ccs_kornia.modules.detection.hidden_corners import PARTIAL_BOARD_FRACTION, settle_partial_boards
-from ccs_kornia.modules.detection.missing_corners import lattice_deviation, predict_missing_corners
+from ccs_kornia.modules.detection.missing_corners import predict_missing_corners
 from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, opencv_level_factor
 from ccs_kornia.modules.detection.patch_refine import refine_from_level
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
@@ -323,9 +323,6 @@ class LearnedChessboardDetector(ChessboardDetector):
             levels = torch.full((missed.numel(),), opencv_level_factor((w, h)), dtype=factor.dtype)
             c2, f2, r2 = detect_at_scale(opencv_level, image_rows(images, missed), board_size, levels, (),
                                          self.scale_selector.max_pixels, narrow)
-            # the lattice check again after the full-resolution refinement (which sees the marks in more detail)
-            dev = lattice_deviation(c2.double(), board_size).amax(-1)
-            f2 = f2.to(dev.device) & (dev <= MAX_LATTICE_DEVIATION)
             for k, i in enumerate(missed.tolist()):
                 if bool(f2[k]):
                     corners[i], found[i], reasons[i] = c2[k].to(corners), True, r2[k]
