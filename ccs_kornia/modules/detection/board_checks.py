@@ -4,6 +4,8 @@
 * :func:`check_saddles`: every corner is an X-junction of the checker pattern;
 * :func:`skipped_line`: no row or column of corners was skipped (a saddle halfway between neighbours);
 * :func:`board_extends`: the checker pattern does not continue past a side (a sub-board of a larger board);
+* :func:`whole_board_check`: the one entry point of the learned detector's "is this one whole board?" question (the
+  lattice, skipped lines, the sides);
 * :func:`canonical_corner_order`: of the orderings that describe the same physical grid (reversed for
   180-degree-symmetric boards, also the 90-degree rotations for square ones) the one whose first corner is
   nearest the image's top-left corner, so every view of a set uses the same convention.
@@ -14,10 +16,12 @@ OpenCV hands us one board at a time anyway, so these run per board on the CPU.
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from ccs_kornia.modules.detection.lattice import _fit_homography
+from ccs_kornia.modules.detection.missing_corners import lattice_deviation
 
-__all__ = ["check_grid", "check_saddles", "skipped_line", "board_extends", "canonical_corner_order"]
+__all__ = ["check_grid", "check_saddles", "skipped_line", "board_extends", "whole_board_check", "canonical_corner_order"]
 
 #: where :func:`skipped_line` looks for a saddle around the midpoint of two neighbouring corners, in lattice steps
 MIDPOINT_OFFSETS = (0.25, 0.1)
@@ -299,6 +303,49 @@ def skipped_line(image: np.ndarray, corners: np.ndarray, board_size: tuple[int, 
     strength = np.abs(a + c - b - d) / 2
     reference = float(np.nanmedian(strength)) if np.isfinite(strength).any() else 0.0
     return _skipped(img, grid, u, v, radius, reference)
+
+
+def whole_board_check(
+    image: np.ndarray, corners: np.ndarray, board_size: tuple[int, int], max_deviation: float | None = None,
+    skipped: bool = True, extends: bool = True,
+) -> str:
+    """Return ``""``, or the reason why ``corners`` are not one whole ``cols x rows`` board of ``image``.
+
+    The checks, cheapest first, the first failure answers:
+
+    1. with ``max_deviation``: no corner farther than that (in squares) from where its row and column neighbours put
+       it (:func:`~ccs_kornia.modules.detection.missing_corners.lattice_deviation`): boards from OpenCV's candidates,
+       whose corners can converge onto a mark's own junctions;
+    2. ``skipped``: no saddle halfway between neighbouring corners (:func:`skipped_line`): a lattice through every
+       other crossing of a finer pattern;
+    3. ``extends``: the checker pattern does not continue past a side (:func:`board_extends`): a sub-board. Off for a
+       partial board judged on its own level (its sides are checked with the board's final corners).
+
+    Args:
+        image: grey ``H x W`` image.
+        corners: :math:`(N, 2)` corners in grid order (NaN at the hidden corners of a partial board).
+        board_size: ``(cols, rows)``.
+        max_deviation, skipped, extends: see above.
+
+    Example:
+        >>> yy, xx = np.mgrid[:96, :96]
+        >>> img = ((xx // 16 + yy // 16) % 2).astype(np.float32)  # squares of 16 px, corners at 15.5 + 16 k
+        >>> grid = np.stack(np.meshgrid(np.arange(5), np.arange(5), indexing="xy"), -1).reshape(-1, 2) * 16 + 15.5
+        >>> whole_board_check(img, grid, (5, 5))
+        ''
+        >>> whole_board_check(img, grid.reshape(5, 5, 2)[:, :4].reshape(-1, 2), (4, 5), max_deviation=0.08)
+        'the checker pattern continues past its right side'
+    """
+    if max_deviation is not None:
+        dev = float(lattice_deviation(torch.as_tensor(np.asarray(corners, dtype=np.float64))[None], board_size).max())
+        if dev > max_deviation:
+            return f"a corner {dev:.2f} squares off its neighbours' lattice"
+    reason = skipped_line(image, corners, board_size) if skipped else ""
+    if not reason and extends:
+        side = board_extends(image, corners, board_size)
+        if side:
+            reason = f"the checker pattern continues past its {side} side"
+    return reason
 
 
 def canonical_corner_order(corners: np.ndarray, board_size: tuple[int, int]) -> np.ndarray:

@@ -11,7 +11,7 @@ consumer can take a guess for a measurement) and the others are kept.
 * :func:`settle_partial_boards`: on the boards with hidden corners, the full-resolution corners next to the glare
   whose point symmetry is far worse than the board's are left out too (the saddle fit confirms them, yet the glare's
   edge pulls them by pixels), on any board a corner whose symmetry is worse still (it converged onto an edge or into a
-  square: a confident wrong corner), and a board left with fewer than :data:`MIN_VISIBLE_FRACTION` of its corners is
+  square: a confident wrong corner), and a board left with fewer than :data:`PARTIAL_BOARD_FRACTION` of its corners is
   refused.
 
 A predicted corner whose saddle the refiner cannot confirm *and* whose contrast is still there (at least
@@ -31,7 +31,7 @@ from ccs_kornia.modules.detection.base import DetectionResult, image_rows
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 
 __all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MAX_ASYMMETRY_RATIO_WHOLE",
-           "MIN_VISIBLE_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "relative_contrast",
+           "PARTIAL_BOARD_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "intensity_range", "relative_contrast",
            "settle_partial_boards", "spans_board"]
 
 #: a corner is hidden where its checker contrast is below this fraction of the median of the board's visible corners
@@ -48,8 +48,10 @@ MAX_ASYMMETRY_RATIO = 20.0
 #: ``findChessboardCornersSB``'s; held-out wild renders: 36-39x for corners 6-11 px off; good corners up to 21.5x at a
 #: fisheye's rim, where the lines curve within the window)
 MAX_ASYMMETRY_RATIO_WHOLE = 30.0
-#: a partial board keeps at least this fraction of its corners
-MIN_VISIBLE_FRACTION = 0.4
+#: a partial board has at least this fraction of its corners: the organiser asks for peaks at this fraction of the
+#: cells, and a board left with fewer visible corners after the checks is refused (one fraction for both, so a board the
+#: organiser accepts is not refused for its size alone)
+PARTIAL_BOARD_FRACTION = 0.4
 # the contrast is measured within this many squares of the corner along either grid axis: marks inside the white
 # squares (ChArUco, ECoCheck) keep a margin of about a quarter square clear
 CONTRAST_RADIUS = 0.25
@@ -100,15 +102,50 @@ def checker_contrast(images: torch.Tensor, corners: torch.Tensor, board_size: tu
     steps = torch.linspace(-CONTRAST_RADIUS, CONTRAST_RADIUS, 5, dtype=g.dtype, device=g.device)
     su, sv = torch.meshgrid(steps, steps, indexing="ij")
     offsets = su.reshape(-1, 1, 1, 1, 1) * u + sv.reshape(-1, 1, 1, 1, 1) * v  # (K, B, rows, cols, 2)
-    pts = (g + offsets).permute(1, 0, 2, 3, 4).reshape(b, -1, 2)
+    pts = (g + offsets).permute(1, 2, 3, 0, 4).reshape(b, rows * cols, -1, 2)
+    contrast = intensity_range(images, pts).to(corners.device, corners.dtype)
+    finite = g.isfinite().all(-1) & u.isfinite().all(-1) & v.isfinite().all(-1)
+    return torch.where(finite.reshape(b, -1), contrast, torch.full_like(contrast, float("nan")))
+
+
+def intensity_range(images: torch.Tensor, points: torch.Tensor, outside: str = "border") -> torch.Tensor:
+    r"""Intensity range (largest minus smallest bilinear sample) over the ``K`` points of each of ``N`` sets.
+
+    The one contrast measure of the detector: :func:`checker_contrast` at a board's corners, and the organiser's
+    contrast at the empty cells of a partial lattice.
+
+    Args:
+        images: :math:`(B, 1, H, W)`.
+        points: :math:`(B, N, K, 2)` pixel coordinates (pixel centres at integers).
+        outside: ``"border"``: a sample off the image reads the nearest border pixel (and a NaN point reads the
+            image's corner); ``"nan"``: samples whose bilinear footprint leaves the image are not counted, and a set
+            without a sample reads NaN.
+
+    Returns:
+        :math:`(B, N)` (float32).
+
+    Example:
+        >>> img = torch.zeros(1, 1, 4, 4); img[..., 2:, :] = 1.0  # rows 2 and 3 light
+        >>> pts = torch.tensor([[[[1.0, 1.0], [1.0, 2.0]], [[1.0, 1.0], [1.0, 5.0]]]])  # the second set leaves the image
+        >>> intensity_range(img, pts).tolist(), intensity_range(img, pts, outside="nan").tolist()
+        ([[1.0, 1.0]], [[1.0, 0.0]])
+    """
+    if outside not in ("border", "nan"):
+        raise ValueError(f"outside must be 'border' or 'nan', got {outside!r}.")
+    b, n, k = points.shape[:3]
     h, w = images.shape[-2:]
+    pts = points.reshape(b, n * k, 2)
     grid = torch.stack([(pts[..., 0] + 0.5) * (2.0 / w) - 1.0, (pts[..., 1] + 0.5) * (2.0 / h) - 1.0], -1)
     vals = F.grid_sample(images.float(), grid[:, None].to(images.device, torch.float32).nan_to_num(-2.0),
                          mode="bilinear", padding_mode="border", align_corners=False)[:, 0, 0]
-    vals = vals.reshape(b, -1, rows * cols).to(corners.device)
-    contrast = (vals.amax(1) - vals.amin(1)).to(corners.dtype)
-    finite = g.isfinite().all(-1) & u.isfinite().all(-1) & v.isfinite().all(-1)
-    return torch.where(finite.reshape(b, -1), contrast, torch.full_like(contrast, float("nan")))
+    vals = vals.reshape(b, n, k)
+    if outside == "border":
+        return vals.amax(-1) - vals.amin(-1)
+    x, y = pts[..., 0].to(vals.device), pts[..., 1].to(vals.device)
+    inside = ((x >= 0) & (x < w - 1) & (y >= 0) & (y < h - 1)).reshape(b, n, k)
+    top = vals.masked_fill(~inside, float("-inf")).amax(-1)
+    low = vals.masked_fill(~inside, float("inf")).amin(-1)
+    return torch.where(inside.any(-1), top - low, torch.full_like(top, float("nan")))
 
 
 def hidden_corners(
@@ -228,7 +265,7 @@ def spans_board(valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tenso
 
 def settle_partial_boards(
     images: torch.Tensor, result: DetectionResult, board_size: tuple[int, int],
-    max_asymmetry: float = MAX_ASYMMETRY_RATIO, min_visible: float = MIN_VISIBLE_FRACTION,
+    max_asymmetry: float = MAX_ASYMMETRY_RATIO, min_visible: float = PARTIAL_BOARD_FRACTION,
     max_asymmetry_whole: float = MAX_ASYMMETRY_RATIO_WHOLE,
 ) -> DetectionResult:
     r"""Leave out the corners of the found boards whose point symmetry is far worse than the board's median (more than

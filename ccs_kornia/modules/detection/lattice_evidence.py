@@ -1,4 +1,5 @@
-"""What the image says about a lattice of :mod:`~ccs_kornia.modules.detection.lattice` (numpy, float64).
+"""What the image says about a lattice of :mod:`~ccs_kornia.modules.detection.lattice` (numpy, float64; the contrast
+is :func:`~ccs_kornia.modules.detection.hidden_corners.intensity_range`, the detector's one contrast measure).
 
 * :func:`_cell_contrast`: the checker contrast at lattice cells (a quarter-square intensity range);
 * :func:`_empty_cell_contrast`, :func:`_placement_contrast`, :func:`_empty_cells_flat`: where a partial board's
@@ -12,9 +13,10 @@ See :mod:`~ccs_kornia.modules.detection.grid_organizer` for the method as a whol
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
+import torch
 
+from ccs_kornia.modules.detection.hidden_corners import intensity_range
 from ccs_kornia.modules.detection.lattice import _apply_h, _fit_homography
 
 __all__: list[str] = []  # helpers of grid_organizer.py only
@@ -29,13 +31,9 @@ def _cell_contrast(image: np.ndarray, cells: np.ndarray, pts: np.ndarray, query:
     s = np.linspace(-0.25, 0.25, 5)
     off = np.stack(np.meshgrid(s, s, indexing="ij"), -1).reshape(-1, 2)
     xy = _apply_h(_fit_homography(cells, pts), (query[:, None] + off[None]).reshape(-1, 2)).astype(np.float32)
-    # bilinear samples; NaN outside the image
-    values = cv2.remap(np.ascontiguousarray(image, dtype=np.float32), xy[:, :1], xy[:, 1:], cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan")).reshape(len(query), -1)
-    out = np.full(len(query), np.nan)
-    seen = np.isfinite(values).any(1)
-    out[seen] = np.nanmax(values[seen], 1) - np.nanmin(values[seen], 1)
-    return out
+    img = torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32))[None, None]
+    points = torch.from_numpy(xy).reshape(1, len(query), -1, 2)
+    return intensity_range(img, points, outside="nan")[0].double().numpy()
 
 
 def _empty_cells(cells: np.ndarray, window: tuple[int, int, bool, int], cols: int, rows: int) -> np.ndarray:

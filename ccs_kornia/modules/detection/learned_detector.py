@@ -13,15 +13,15 @@ from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
 from ccs_kornia.modules._timing import stage
 from ccs_kornia.modules._threads import full_threads, light_stages_single_thread
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, Fallbacks, image_rows
-from ccs_kornia.modules.detection.board_checks import board_extends, skipped_line
+from ccs_kornia.modules.detection.board_checks import whole_board_check
 from ccs_kornia.modules.detection.collinearity import collinearity_refine
+from ccs_kornia.modules.detection.corner_evidence import decide_corners, measure_corner_evidence
 from ccs_kornia.modules.detection.foreshortening import detect_foreshortened
 from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.grid_organizer import organize_grid
 from ccs_kornia.modules.detection.heatmap_unet import PRECISIONS, CornerUNet, run_heatmap
-from ccs_kornia.modules.detection.hidden_corners import (HIDDEN_CONTRAST_FRACTION, UNCONFIRMED_CONTRAST_FRACTION,
-                                                         glare_rim, relative_contrast, settle_partial_boards, spans_board)
-from ccs_kornia.modules.detection.missing_corners import lattice_deviation, predict_missing_corners
+from ccs_kornia.modules.detection.hidden_corners import PARTIAL_BOARD_FRACTION, settle_partial_boards
+from ccs_kornia.modules.detection.missing_corners import predict_missing_corners
 from ccs_kornia.modules.detection.opencv_candidates import opencv_candidates, opencv_level_factor
 from ccs_kornia.modules.detection.patch_refine import refine_from_level
 from ccs_kornia.modules.detection.peaks import heatmap_peaks
@@ -251,13 +251,10 @@ class LearnedChessboardDetector(ChessboardDetector):
             # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
             # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners
             for b in out.found.nonzero().flatten().tolist():
-                image, corners = images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy()
-                reason = skipped_line(image, corners, board_size)
-                # a sub-board: the organiser looks for peaks past the sides, which a coarse level can lack on a whole
-                # line (opencv_left at 8x6: left14's ninth column, squares of 5 px there); the image shows the pattern
-                side = "" if reason else board_extends(image, corners, board_size)
-                if side:
-                    reason = f"the checker pattern continues past its {side} side"
+                # and a sub-board: the organiser looks for peaks past the sides, which a coarse level can lack on a
+                # whole line (opencv_left at 8x6: left14's ninth column, squares of 5 px there); the image shows it
+                reason = whole_board_check(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
+                                           board_size)
                 if reason:
                     out.found[b], out.reasons[b] = False, f"board refused: {reason}"
                     out.corners[b], out.sigma[b] = 0.0, float("nan")
@@ -330,9 +327,6 @@ class LearnedChessboardDetector(ChessboardDetector):
             levels = torch.full((missed.numel(),), opencv_level_factor((w, h)), dtype=factor.dtype)
             c2, f2, r2 = detect_at_scale(opencv_level, image_rows(images, missed), board_size, levels, (),
                                          self.scale_selector.max_pixels, narrow)
-            # the lattice check again after the full-resolution refinement (which sees the marks in more detail)
-            dev = lattice_deviation(c2.double(), board_size).amax(-1)
-            f2 = f2.to(dev.device) & (dev <= MAX_LATTICE_DEVIATION)
             out.fill(missed, DetectionResult(c2, f2, r2))
             for k, i in enumerate(missed.tolist()):  # why a board the candidates gave was refused
                 if not bool(f2[k]) and r2[k].startswith("board refused"):
@@ -353,7 +347,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         counts the colour changes around a point, and a mark inside a white square adds changes. In its place, a
         board whose refined corners leave the smooth lattice of their neighbours by more than
         :data:`MAX_LATTICE_DEVIATION` squares is refused (near a mark a corner can converge onto the mark's own
-        junctions), and so is a board whose checker pattern continues past a side (OpenCV returns sub-boards)."""
+        junctions). A sub-board (OpenCV returns them) is refused by the final checks like any board whose pattern
+        continues past a side."""
         with stage("opencv candidates"):
             points, keep = opencv_candidates(images, board_size)
         corners, valid, found = _organize(points, keep, board_size, images)
@@ -363,18 +358,12 @@ class LearnedChessboardDetector(ChessboardDetector):
             refiner.radius_factor = MARKED_RADIUS_FACTOR
         out = self._complete(images, board_size, corners, valid, found, refiner)
         if bool(out.found.any()):
-            dev = lattice_deviation(out.corners.double(), board_size).amax(-1)
-            off = out.found & (dev > MAX_LATTICE_DEVIATION)
-            for b in off.nonzero().flatten().tolist():
-                out.reasons[b] = f"board refused: a corner {float(dev[b]):.2f} squares off its neighbours' lattice"
-            # a sub-board of a larger board is a perfect lattice too: the image must show the board end at every
-            # side (the organiser's own test looks for candidates beyond the sides, which this source lacks)
-            for b in (out.found & ~off).nonzero().flatten().tolist():
-                side = board_extends(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
-                                     board_size)
-                if side:
-                    off[b] = True
-                    out.reasons[b] = f"board refused: the checker pattern continues past its {side} side"
+            off = torch.zeros_like(out.found)
+            for b in out.found.nonzero().flatten().tolist():
+                reason = whole_board_check(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
+                                           board_size, MAX_LATTICE_DEVIATION, skipped=False, extends=False)
+                if reason:
+                    off[b], out.reasons[b] = True, f"board refused: {reason}"
             out.found = out.found & ~off
             out.corners = torch.where(out.found[:, None, None], out.corners, torch.zeros_like(out.corners))
         out.reasons = [("learned (opencv candidates)" if f else r) for f, r in zip(out.found.tolist(), out.reasons)]
@@ -395,7 +384,7 @@ class LearnedChessboardDetector(ChessboardDetector):
             return self._opencv_board(images, board_size)
         _, points, keep = self.candidates(images, full, scale)
         corners, valid, found = _organize(points, keep, board_size, images,
-                                          PARTIAL_MIN_FRACTION if self.partial_boards else None)
+                                          PARTIAL_BOARD_FRACTION if self.partial_boards else None)
         refiner = self.refiner
         if resampled is None:
             resampled = full is not None
@@ -426,43 +415,27 @@ class LearnedChessboardDetector(ChessboardDetector):
         if refiner is not None and bool(found.any()):
             with stage("saddle refinement"):
                 corners, ok = refiner(images, corners, cells, board_size, return_ok=True)
-            # a predicted cell is accepted only where the image shows a corner there; one wrong corner
-            # ruins a calibration, so the board is dropped instead, unless the checker has faded there (glare, an
-            # occluder): then the corner is left out, and so is any corner where the checker has all but faded
-            # (confirmed saddles at the rim of a glare are off by pixels: bench glare renders, up to 9 px)
-            unconfirmed = missing & ~ok
-            if self.partial_boards:
-                relative = relative_contrast(images, corners, cells & ~unconfirmed, board_size)
-                faded = (relative < UNCONFIRMED_CONTRAST_FRACTION).nan_to_num(False)
-                hidden = cells & ((relative < HIDDEN_CONTRAST_FRACTION).nan_to_num(False) | (unconfirmed & faded))
-                # at a glare's rim nothing is taken on trust: the saddle is lost while the checker still shows (60-90 %
-                # of the board's contrast), or the glare's edge pulls a confirmed saddle by pixels where the checker has
-                # faded (held-out glare render: 4.5 px off at 43 % of the contrast, 7.8x the median asymmetry). An
-                # unconfirmed corner is excused so only where the lattice spans the board: a shorter one was placed by
-                # the image, and its unconfirmed corners are what refuses a wrong placement (held-out ArUco render:
-                # four of them, and 45 px off once they were excused)
-                rim = glare_rim(cells, hidden, board_size)
-                hidden |= rim & ((unconfirmed & spans_board(valid, board_size)[:, None]) | faded)
-            unverified = (unconfirmed & ~hidden).any(1)
+            # a predicted cell is accepted only where the image shows a corner there (corner_evidence.py: the
+            # board is dropped, or the corner left out where the checker has faded: glare, an occluder)
+            evidence = measure_corner_evidence(images, corners, cells, missing, ok, valid, board_size,
+                                               contrast=self.partial_boards)
+            hidden, refusing = decide_corners(evidence, board_size)
+            unverified = refusing.any(1)
             for b in unverified.nonzero().flatten().tolist():
-                n_bad = int((unconfirmed[b] & ~hidden[b]).sum())
-                reasons[b] = f"board incomplete: {n_bad} corner(s) not confirmed in the image"
+                reasons[b] = f"board incomplete: {int(refusing[b].sum())} corner(s) not confirmed in the image"
             found = found & ~unverified
             # a partial board is checked for skipped lines here already, so that a refused lattice through every
             # other corner (a level where one parity of the corners lost its peaks: ChArUco renders) leaves the
             # other levels and looks their turn (forward's final check would refuse it with nothing else tried)
             for b in (found & hidden.any(1)).nonzero().flatten().tolist():
                 shown = corners[b].masked_fill(hidden[b, :, None], float("nan"))
-                reason = skipped_line(images[b, 0].float().cpu().numpy(), shown.double().cpu().numpy(), board_size)
+                reason = whole_board_check(images[b, 0].float().cpu().numpy(), shown.double().cpu().numpy(), board_size,
+                                           extends=False)
                 if reason:
                     found[b], reasons[b] = False, f"board refused: {reason}"
         corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
         corners = corners.masked_fill(hidden[..., None] & found[:, None, None], float("nan"))
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
-
-
-#: with partial boards, the organiser is asked again for a board of which only this fraction of the corners has a peak
-PARTIAL_MIN_FRACTION = 0.4
 
 
 def _empty_result(images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:

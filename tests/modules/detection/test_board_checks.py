@@ -11,6 +11,7 @@ from ccs_kornia.modules.detection.board_checks import (
     check_grid,
     check_saddles,
     skipped_line,
+    whole_board_check,
 )
 
 
@@ -122,3 +123,31 @@ def test_skipped_line_refuses_a_lattice_through_every_other_corner_of_a_marked_b
     true = _lattice(cols, rows, float(s), (s - 0.5, s - 0.5)).reshape(rows, cols, 2)
     true[~np.isfinite(board[..., 0])] = np.nan
     assert skipped_line(img, true.reshape(-1, 2), (cols, rows)) == ""
+
+
+def test_whole_board_check_runs_each_part_where_asked():
+    img = _checker_image(16, 160)  # corners at 15.5 + 16 k: 9 x 9 of them, the checker runs to the image's edge
+    board = _lattice(5, 4, 16.0, (31.5, 31.5))
+    assert "continues past" in whole_board_check(img, board, (5, 4)), "a sub-board of the image's checker"
+    assert whole_board_check(img, board, (5, 4), extends=False) == ""
+    every_other = _lattice(4, 3, 32.0, (15.5, 15.5))
+    assert "skips a row" in whole_board_check(img, every_other, (4, 3))
+    assert whole_board_check(img, every_other, (4, 3), skipped=False, extends=False) == ""
+    bent = board.copy()
+    bent[7] += (4.0, 0.0)  # a quarter square off its neighbours' lattice
+    assert "squares off its neighbours' lattice" in whole_board_check(img, bent, (5, 4), max_deviation=0.08)
+    assert "squares off" not in whole_board_check(img, board, (5, 4), max_deviation=0.08)
+
+
+def test_whole_board_check_spares_a_whole_board_and_answers_the_first_failure():
+    img = np.ones((200, 260), np.float32)  # a 6 x 5-square board on a white margin, corners at 79.5 + 20 i, 59.5 + 20 j
+    for r in range(5):
+        for c in range(6):
+            if (r + c) % 2 == 0:
+                img[40 + 20 * r : 60 + 20 * r, 60 + 20 * c : 80 + 20 * c] = 0.0
+    full = _lattice(5, 4, 20.0, (79.5, 59.5))
+    assert whole_board_check(img, full, (5, 4), max_deviation=0.08) == ""
+    sub = _lattice(4, 4, 20.0, (79.5, 59.5))
+    assert whole_board_check(img, sub, (4, 4)) == "the checker pattern continues past its right side"
+    sub[5] += (5.0, 0.0)
+    assert "squares off" in whole_board_check(img, sub, (4, 4), max_deviation=0.08), "the lattice is judged first"

@@ -10,10 +10,11 @@ import torch
 
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.hidden_corners import (
-    MIN_VISIBLE_FRACTION,
+    PARTIAL_BOARD_FRACTION,
     checker_contrast,
     glare_rim,
     hidden_corners,
+    intensity_range,
     settle_partial_boards,
     spans_board,
 )
@@ -157,7 +158,7 @@ def test_a_wrong_corner_of_a_cut_board_is_left_out_not_reported():
 def test_settle_refuses_a_board_with_too_few_corners_left():
     img, pts = _board()
     hidden = pts.clone()
-    k = math.floor((1 - MIN_VISIBLE_FRACTION) * 20) + 1
+    k = math.floor((1 - PARTIAL_BOARD_FRACTION) * 20) + 1
     hidden[0, :k] = float("nan")
     out = settle_partial_boards(img, DetectionResult(hidden, torch.tensor([True]), ["learned"]), (5, 4))
     assert out.found.tolist() == [False] and out.reasons[0] == f"board incomplete: {k} of 20 corners hidden"
@@ -181,7 +182,7 @@ def test_a_glared_board_is_found_with_its_hidden_corners_left_out():
     out = LearnedChessboardDetector()(img, board)
     assert bool(out.found[0])
     measured = out.valid[0]
-    assert 3 <= int((~measured).sum()) <= n * (1 - MIN_VISIBLE_FRACTION)
+    assert 3 <= int((~measured).sum()) <= n * (1 - PARTIAL_BOARD_FRACTION)
     assert bool(out.corners[0][~measured].isnan().all())
     err = (out.corners[0].double() - truth).norm(dim=-1)[measured]
     assert float(err.mean()) < 0.08 and float(err.max()) < 0.3  # measured: 0.043, 0.17
@@ -236,8 +237,8 @@ def test_the_organiser_is_asked_for_part_of_a_board_only_with_partial_boards(mon
     ld._organize(points, keep, (5, 4), images)
     assert calls == [None, None]
     calls.clear()
-    ld._organize(points, keep, (5, 4), images, ld.PARTIAL_MIN_FRACTION)
-    assert calls == [None, None, ld.PARTIAL_MIN_FRACTION] == [None, None, MIN_VISIBLE_FRACTION]
+    ld._organize(points, keep, (5, 4), images, PARTIAL_BOARD_FRACTION)
+    assert calls == [None, None, PARTIAL_BOARD_FRACTION]
 
 
 @pytest.mark.parametrize("side", ["left", "right"])
@@ -370,9 +371,34 @@ def test_a_partial_board_refused_for_skipped_lines_at_its_level_leaves_the_other
         hidden_seen.append(int(np.isnan(corners).any(-1).sum()))
         return "the grid skips a row of corners (a corner lies between two detected neighbours)"
 
-    monkeypatch.setattr(ld, "skipped_line", refuse)
+    import ccs_kornia.modules.detection.board_checks as bc
+
+    monkeypatch.setattr(bc, "skipped_line", refuse)
     levels.clear()
     out = ld.LearnedChessboardDetector()(img, board)
     assert not bool(out.found[0]) and "skips a row" in out.reasons[0]
     assert hidden_seen and hidden_seen[0] >= 3, "the partial board was judged with its hidden corners left out"
     assert len(levels) > 1, "the other levels were looked at after the refusal"
+
+
+def test_intensity_range_matches_opencv_remap_and_leaves_out_samples_off_the_image():
+    cv2 = pytest.importorskip("cv2")
+    rng = np.random.default_rng(0)
+    img = cv2.GaussianBlur(rng.random((60, 80)).astype(np.float32), (7, 7), 2)
+    pts = rng.uniform(-6.0, 86.0, (2, 30, 9, 2)).astype(np.float32)  # some sets partly or wholly off the image
+    pts[1, :, :, 1] = rng.uniform(-20.0, -2.0, (30, 9))  # the second batch row entirely above the image
+    got = intensity_range(torch.from_numpy(img)[None, None].expand(2, -1, -1, -1), torch.from_numpy(pts), "nan")
+    assert got.shape == (2, 30)
+    flat = pts.reshape(-1, 2)
+    ref = cv2.remap(img, flat[:, :1], flat[:, 1:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                    borderValue=float("nan")).reshape(2, 30, 9)
+    seen = np.isfinite(ref).any(-1)
+    want = np.full((2, 30), np.nan)
+    want[seen] = np.nanmax(ref[seen], -1) - np.nanmin(ref[seen], -1)
+    assert seen[0].sum() >= 20 and not seen[1].any()
+    np.testing.assert_allclose(got.numpy(), want, atol=1e-3, equal_nan=True)
+    # with the border read instead, every set has a value
+    assert bool(intensity_range(torch.from_numpy(img)[None, None].expand(2, -1, -1, -1), torch.from_numpy(pts))
+                .isfinite().all())
+    with pytest.raises(ValueError):
+        intensity_range(torch.from_numpy(img)[None, None], torch.from_numpy(pts[:1]), "zero")
