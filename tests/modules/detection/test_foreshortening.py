@@ -7,10 +7,12 @@ import torch
 
 from ccs_kornia.modules.detection.foreshortening import (
     FORESHORTENING_DIRECTIONS,
+    Compression,
     compress_along,
     detect_foreshortened,
     map_from_level,
 )
+from ccs_kornia.modules.detection.warped_detection import Level
 
 #: held-out wild renders (the bench's seeds start at BENCH_SEED_BASE + 400000)
 HELD_OUT_SEED = 7_777_000
@@ -35,6 +37,23 @@ def test_compressed_level_puts_the_image_where_its_map_says(angle, dtype, device
     vals = torch.nn.functional.grid_sample(level.float(), grid[None, None], align_corners=True)[0, 0, 0]
     assert float(vals.min()) > 0.6  # each 3x3 dot, halved along one direction, is where A maps it
     torch.testing.assert_close(map_from_level(q[None], A)[0], pts, atol=1e-9, rtol=0)
+
+
+@pytest.mark.parametrize("angle", [0.0, 90.0, 45.0, 135.0])
+@pytest.mark.parametrize("factor", [1.0, 2.0])
+def test_compression_maps_its_level_back_to_full_resolution(angle, factor):
+    """The warp is the level then compress_along; back inverts the whole map (full px -> level px -> compressed px)."""
+    images = torch.rand(2, 1, 64, 96)
+    level = Level(factor, (64, 96))
+    warp = Compression(angle, 2.0, level)
+    compressed, A = compress_along(level.apply(images), angle, 2.0)
+    assert torch.equal(warp.apply(images), compressed) and warp.coarseness == 2.0 * level.coarseness
+    full = torch.tensor([[[10.0, 20.0], [50.0, 33.0], [90.0, 60.0]]], dtype=torch.float64)
+    on_level = (full + 0.5) / level.scale() - 0.5
+    on_compressed = on_level @ A[:2, :2].T + A[:2, 2]
+    back, ok = warp.back(on_compressed)
+    torch.testing.assert_close(back, full, atol=1e-9, rtol=0)
+    assert ok.tolist() == [True]
 
 
 def test_axis_aligned_levels_need_no_rotation_and_are_area_averages():
