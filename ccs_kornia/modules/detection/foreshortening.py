@@ -147,14 +147,14 @@ class Compression(Warp):
 
 
 def detect_foreshortened(
-    detect: Callable[[torch.Tensor, tuple[int, int]], tuple[torch.Tensor, torch.Tensor, list[str]]],
+    detect: Callable[[torch.Tensor, tuple[int, int]], DetectionResult],
     images: torch.Tensor,
     board_size: tuple[int, int],
     refine: Callable[[torch.Tensor, torch.Tensor, float], torch.Tensor],
     factor: float = 1.0,
     directions: tuple[float, ...] = FORESHORTENING_DIRECTIONS,
     ratio: float = FORESHORTENING_RATIO,
-) -> tuple[torch.Tensor, torch.Tensor, list[str]]:
+) -> DetectionResult:
     r"""Look for the boards of ``images`` on levels compressed along each of ``directions`` in turn.
 
     The images are first brought to the level ``factor`` (:func:`~ccs_kornia.modules.detection.patch_refine.resize_to_level`),
@@ -163,7 +163,7 @@ def detect_foreshortened(
     (:func:`~ccs_kornia.modules.detection.warped_detection.map_back`).
 
     Args:
-        detect: ``detect(level (b, 1, h, w), board_size) -> corners (b, N, 2), found (b,), reasons`` on the level.
+        detect: ``detect(level (b, 1, h, w), board_size) -> DetectionResult`` on the level.
         images: :math:`(B, 1, H, W)` full-resolution images.
         board_size: ``(cols, rows)``.
         refine: ``refine(images (b, 1, H, W), corners (b, N, 2), factor) -> corners`` refines at full resolution
@@ -173,14 +173,15 @@ def detect_foreshortened(
         ratio: compression (:func:`compress_along`).
 
     Returns:
-        corners :math:`(B, N, 2)` at full resolution (zeros where not found), found :math:`(B,)`, a reason each.
+        :class:`~ccs_kornia.modules.detection.base.DetectionResult`: corners :math:`(B, N, 2)` at full resolution
+        (zeros where not found), found :math:`(B,)`, a reason each.
 
     Example:
         >>> def detect(x, board):  # a stand-in detector: finds nothing
-        ...     return torch.zeros(x.shape[0], board[0] * board[1], 2), torch.zeros(x.shape[0], dtype=torch.bool), \
-        ...         ["board not found"] * x.shape[0]
-        >>> c, f, r = detect_foreshortened(detect, torch.rand(2, 1, 64, 64), (4, 3), lambda im, p, s: p)
-        >>> c.shape, f.tolist(), r[0]
+        ...     return DetectionResult(torch.zeros(x.shape[0], board[0] * board[1], 2),
+        ...                            torch.zeros(x.shape[0], dtype=torch.bool), ["board not found"] * x.shape[0])
+        >>> out = detect_foreshortened(detect, torch.rand(2, 1, 64, 64), (4, 3), lambda im, p, s: p)
+        >>> out.corners.shape, out.found.tolist(), out.reasons[0]
         (torch.Size([2, 12, 2]), [False, False], 'board not found')
     """
     check_grey_images(images)
@@ -200,11 +201,12 @@ def detect_foreshortened(
         warp = Compression(angle, ratio, level)
         with stage("level resize"):
             compressed = warp.compress(base[todo])
-        c, f, r = detect(compressed, board_size)
-        if not bool(f.any()):
+        got = detect(compressed, board_size)
+        if not bool(got.found.any()):
             continue
-        got = map_back(warp, DetectionResult(c.to(images.device), f.to(images.device), list(r)),
+        got = map_back(warp, DetectionResult(got.corners.to(images.device), got.found.to(images.device), got.reasons),
                        lambda x, pts, bs: refine(x, pts, warp.coarseness), image_rows(images, todo), board_size)
-        got.reasons = [f"{why} (level compressed along {angle:g} degrees)" for why in got.reasons]
+        got.reasons = [f"{why or 'found'} (level compressed along {angle:g} degrees)"
+                       for why in (got.reasons or [""] * len(todo))]
         out.fill(todo, got)
-    return out.corners, out.found, out.reasons
+    return out

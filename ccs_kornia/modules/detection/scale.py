@@ -350,7 +350,7 @@ class ScaleSelector(nn.Module):
 
 
 def detect_at_scale(
-    detect: Callable[..., tuple[torch.Tensor, torch.Tensor, list[str] | None]],
+    detect: Callable[..., DetectionResult],
     images: torch.Tensor,
     board_size: tuple[int, int],
     factor: torch.Tensor,
@@ -360,7 +360,7 @@ def detect_at_scale(
     min_factor: float = 1.0,
     finest: bool = True,
     primary: bool = True,
-) -> tuple[torch.Tensor, torch.Tensor, list[str]]:
+) -> DetectionResult:
     r"""Run ``detect`` on each image's detection level; corners at full resolution.
 
     Images are grouped by factor (one batched call per level). Corners found on a downscaled level are mapped to the
@@ -372,7 +372,7 @@ def detect_at_scale(
 
     Args:
         detect: ``detect(level (b, 1, h, w), board_size, full (b, 1, H, W) or None, scale (2,) or None)
-            -> corners (b, N, 2), found (b,), reasons`` at the level's resolution; ``full`` (the full-resolution images,
+            -> DetectionResult`` at the level's resolution; ``full`` (the full-resolution images,
             ``None`` when the level is the image itself) and ``scale`` (``x_full + 0.5 = (x_level + 0.5) * scale``) let
             it verify candidates at full resolution.
         images: :math:`(B, 1, H, W)` full-resolution images.
@@ -391,14 +391,15 @@ def detect_at_scale(
             fallback levels that differ from them are tried).
 
     Returns:
-        corners :math:`(B, N, 2)` (zeros where not found), found :math:`(B,)` bool, and a reason per image.
+        :class:`~ccs_kornia.modules.detection.base.DetectionResult`: corners :math:`(B, N, 2)` (zeros where not
+        found), found :math:`(B,)` bool, and a reason per image.
 
     Example:
         >>> def detect(x, board, full, scale):  # a stand-in detector: finds nothing
-        ...     return torch.zeros(x.shape[0], board[0] * board[1], 2), torch.zeros(x.shape[0], dtype=torch.bool), \
-        ...         ["board not found"] * x.shape[0]
-        >>> c, f, r = detect_at_scale(detect, torch.rand(3, 1, 96, 128), (4, 3), torch.tensor([1.0, 2.0, 2.0]))
-        >>> c.shape, f.tolist()
+        ...     return DetectionResult(torch.zeros(x.shape[0], board[0] * board[1], 2),
+        ...                            torch.zeros(x.shape[0], dtype=torch.bool), ["board not found"] * x.shape[0])
+        >>> out = detect_at_scale(detect, torch.rand(3, 1, 96, 128), (4, 3), torch.tensor([1.0, 2.0, 2.0]))
+        >>> out.corners.shape, out.found.tolist()
         (torch.Size([3, 12, 2]), [False, False, False])
     """
     check_grey_images(images)
@@ -443,12 +444,11 @@ def detect_at_scale(
             with stage("level resize"):
                 level = warp.apply(full)
             if warp.resamples:
-                c, f, r = detect(level, board_size, full, warp.scale(images.device))
+                got = detect(level, board_size, full, warp.scale(images.device))
             else:
-                c, f, r = detect(level, board_size, None, None)
-            if r is None:
-                r = ["found" if bool(k) else "board not found" for k in f.tolist()]
-            got = DetectionResult(c.to(images.device), f.to(images.device), r)
+                got = detect(level, board_size, None, None)
+            r = got.reasons or ["found" if bool(k) else "board not found" for k in got.found.tolist()]
+            got = DetectionResult(got.corners.to(images.device), got.found.to(images.device), r)
             if warp.resamples:
                 got = map_back(warp, got, lambda x, pts, bs: refine(x, pts, warp.coarseness), full, board_size)
             hit = out.fill(idx, got)
@@ -456,5 +456,5 @@ def detect_at_scale(
                 for k, i in enumerate(idx.tolist()):
                     if not bool(hit[k]):
                         out.reasons[i] = r[k]
-    return out.corners, out.found, out.reasons
+    return out
 

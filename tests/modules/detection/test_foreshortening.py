@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.foreshortening import (
     FORESHORTENING_DIRECTIONS,
     Compression,
@@ -92,13 +93,14 @@ def test_directions_are_tried_in_turn_and_corners_mapped_back_to_full_resolution
         b = level.shape[0]
         found = torch.full((b,), level.shape[-2] == 16, dtype=torch.bool)  # 64 / 2 (factor) / 2 (compression)
         corners = torch.tensor([[[10.0, 5.0]]]).expand(b, 1, 2).clone()
-        return corners, found, ["learned"] * b
+        return DetectionResult(corners, found, ["learned"] * b)
 
     def refine(full, pts, factor):
         refined.append(factor)
         return pts
 
-    c, f, r = detect_foreshortened(detect, images, (1, 1), refine, factor=2.0)
+    out = detect_foreshortened(detect, images, (1, 1), refine, factor=2.0)
+    c, f, r = out.corners, out.found, out.reasons
     assert tried == [(32, 24), (16, 48)] and f.tolist() == [True, True] and refined == [4.0]
     # level (10, 5) -> the factor-2 level (10, (5 + 0.5) * 2 - 0.5) -> full resolution ((x + 0.5) * 2 - 0.5)
     torch.testing.assert_close(c[0, 0], torch.tensor([20.5, 21.5]))
