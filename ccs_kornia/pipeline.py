@@ -56,6 +56,13 @@ from ccs_kornia.sources import DEFAULT_MAX_BATCH_PIXELS, SIZE_TOLERANCE_PX, Tens
 __all__ = ["PipelineResult", "CalibrationPipeline"]
 
 
+def _board(board_size: tuple[int, int]) -> tuple[int, int]:
+    """``(cols, rows)`` as ints, at least 2 inner corners each."""
+    if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
+        raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
+    return int(board_size[0]), int(board_size[1])
+
+
 class CalibrationPipeline(nn.Module):
     """Detect chessboard corners and calibrate the camera(s): correct -> detect -> solve (:meth:`run`).
 
@@ -200,27 +207,55 @@ class CalibrationPipeline(nn.Module):
 
     def run(
         self,
-        source: ViewSource,
+        source: ViewSource | None,
         board_size: tuple[int, int],
         square: float = 1.0,
         calibrate: bool = True,
         progress: Callable[[int], None] | None = None,
+        *,
+        first: PipelineResult | None = None,
     ) -> PipelineResult:
-        """The stages in order, correct -> detect -> solve, on every camera of ``source``: the first look at every
-        view (:meth:`detect_views`), then the loop over the other looks (:meth:`finish`: each look on the views still
-        missed, the cameras solved before a look that needs them and at the end, then the diagnostics).
+        """The stages in order, correct -> detect -> solve, on every camera of ``source``: one loop over the looks.
+        The first look streams every view once (:meth:`detect_views`: the network's correction and the board on the
+        image as it is), the corrections are pooled per camera; each later look of
+        :data:`~ccs_kornia.pipeline_looks.LOOKS` runs on the views still missed, the cameras solved before a look that
+        needs them; a final solve where a look found boards since, then the diagnostics.
 
         Args:
-            source: the views (:class:`~ccs_kornia.sources.TensorSource` or :class:`~ccs_kornia.sources.FileSource`).
+            source: the views (:class:`~ccs_kornia.sources.TensorSource` or :class:`~ccs_kornia.sources.FileSource`;
+                ``None`` with ``first``: no look at missed views).
             board_size: ``(cols, rows)`` inner corners.
             square: square side in world units.
-            calibrate: ``False`` stops before the solver (``calibration`` is ``None``; :meth:`solve` completes it).
-            progress: called with the number of views handled after every batch.
+            calibrate: ``False`` stops before the solver (``calibration`` is ``None``; :meth:`solve` completes it);
+                the looks that need a camera are then skipped.
+            progress: called with the number of views handled after every batch of the first look.
+            first: the first look's result already at hand (:meth:`detect_views`, or views taken from one,
+                :meth:`~ccs_kornia.pipeline_result.PipelineResult.take_views`): the loop starts after it.
 
         Returns:
             A batched :class:`~ccs_kornia.pipeline_result.PipelineResult`.
         """
-        return self.finish(self.detect_views(source, board_size, progress), board_size, square, source, calibrate)
+        board = _board(board_size)
+        out, pooled, solved, changed = first, False, False, False
+        for look in (FIRST, *LOOKS):
+            if look is FIRST:
+                out = self.detect_views(source, board, progress) if out is None else out
+                pooled = out.view_corrections is not None and self.distortion_net is not None
+                if pooled:
+                    with stage("correction evidence"):
+                        self._pool(out)
+                continue
+            if look.needs_correction and not pooled or look.needs_camera and not calibrate:
+                continue
+            if look.needs_camera and (changed or not solved):
+                out, solved, changed = self._solve(out, board, square, again=solved), True, False
+            changed = self._look(look, source, out, board) or changed
+        if calibrate and (changed or not solved):
+            out = self._solve(out, board, square, again=solved)
+        if calibrate and self.diagnostics:
+            with stage("solver"):
+                out = diagnose_solved(self.solving, out, board, square, self.subset_solutions)
+        return out
 
     def detect_views(
         self, source: ViewSource, board_size: tuple[int, int], progress: Callable[[int], None] | None = None
@@ -232,9 +267,7 @@ class CalibrationPipeline(nn.Module):
             A batched :class:`~ccs_kornia.pipeline_result.PipelineResult` without calibration; ``view_corrections``
             holds the per-view network predictions (``None`` when the correction is off).
         """
-        if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
-            raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
-        board = (int(board_size[0]), int(board_size[1]))
+        board = _board(board_size)
         device = module_device(self)
         c, v, n = source.num_cameras, source.max_views, board[0] * board[1]
         corners = torch.zeros(c, v, n, 2, dtype=torch.float64, device=device)
@@ -288,10 +321,10 @@ class CalibrationPipeline(nn.Module):
         source: ViewSource | None = None,
         calibrate: bool = True,
     ) -> PipelineResult:
-        """The rest of :meth:`run` after :meth:`detect_views`: the network's corrections pooled per camera, then the
-        looks of :data:`~ccs_kornia.pipeline_looks.LOOKS` in turn, each on the views missed so far (read again from
-        ``source``), the cameras solved before a look that needs them, and solved again at the end where a look found
-        boards since.
+        """:meth:`run` from after its first look (:meth:`detect_views`, ``first=out``): the network's corrections
+        pooled per camera, then the looks of :data:`~ccs_kornia.pipeline_looks.LOOKS` in turn, each on the views missed
+        so far (read again from ``source``), the cameras solved before a look that needs them, and solved again at the
+        end where a look found boards since.
 
         Args:
             out: a batched result of :meth:`detect_views` (or views taken from one, see
@@ -300,24 +333,7 @@ class CalibrationPipeline(nn.Module):
             source: where the views can be read again (``None``: no look at missed views).
             calibrate: run the solver (``False``: the looks that need no camera only).
         """
-        board = (int(board_size[0]), int(board_size[1]))
-        pooled = out.view_corrections is not None and self.distortion_net is not None
-        if pooled:
-            with stage("correction evidence"):
-                self._pool(out)
-        solved, changed = False, False
-        for look in LOOKS:
-            if look.needs_correction and not pooled or look.needs_camera and not calibrate:
-                continue
-            if look.needs_camera and (changed or not solved):
-                out, solved, changed = self._solve(out, board, square, again=solved), True, False
-            changed = self._look(look, source, out, board) or changed
-        if calibrate and (changed or not solved):
-            out = self._solve(out, board, square, again=solved)
-        if calibrate and self.diagnostics:
-            with stage("solver"):
-                out = diagnose_solved(self.solving, out, board, square, self.subset_solutions)
-        return out
+        return self.run(source, board_size, square, calibrate, first=out)
 
     def _look(self, look: Look, source: ViewSource | None, out: PipelineResult, board: tuple[int, int]) -> bool:
         """``look`` at the views it selects (none without a ``source``), in the pipeline's batches; writes the boards

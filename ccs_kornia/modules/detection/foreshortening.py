@@ -5,13 +5,14 @@ trained on nearly square cells and misses many of such corners on every isotropi
 on the misses, 32-46 of 54 corners at the best level), so no pyramid level finds the board. Compressing the image by
 ``ratio`` along the squares' long side makes them nearly square again: on the levels of :func:`compress_along` the
 same network finds them. The direction is not known in advance; :func:`detect_foreshortened` tries a few in turn on
-the images still missed, maps the corners back exactly (an affine map) and lets the caller refine them at full
-resolution.
+the images still missed, maps the corners back exactly (a :class:`Compression` warp: one affine map) and lets the
+caller refine them at full resolution.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable
 
 import torch
@@ -21,10 +22,10 @@ from kornia.geometry.transform import warp_affine
 
 from ccs_kornia.modules._checks import check_grey_images
 from ccs_kornia.modules._timing import stage
-from ccs_kornia.modules.detection.base import image_rows
-from ccs_kornia.modules.detection.patch_refine import resize_to_level
+from ccs_kornia.modules.detection.base import DetectionResult, image_rows
+from ccs_kornia.modules.detection.warped_detection import Level, Warp, map_back
 
-__all__ = ["FORESHORTENING_DIRECTIONS", "FORESHORTENING_RATIO", "compress_along", "map_from_level",
+__all__ = ["FORESHORTENING_DIRECTIONS", "FORESHORTENING_RATIO", "compress_along", "map_from_level", "Compression",
            "detect_foreshortened"]
 
 #: directions (degrees, image x towards y) along which the image is compressed, tried in this order (the axis-aligned
@@ -32,6 +33,38 @@ __all__ = ["FORESHORTENING_DIRECTIONS", "FORESHORTENING_RATIO", "compress_along"
 FORESHORTENING_DIRECTIONS = (0.0, 90.0, 45.0, 135.0)
 #: compression of those levels (held-out 75-degree renders: 2 found every board that 3 found, and more)
 FORESHORTENING_RATIO = 2.0
+
+
+def _compression(size: tuple[int, int], angle: float, ratio: float) -> tuple[torch.Tensor | None, tuple[int, int],
+                                                                              tuple[int, int], torch.Tensor]:
+    """Of images ``size`` ``(H, W)``: the rotation :math:`(3, 3)` (``None`` for a multiple of 90 degrees), the rotated
+    canvas ``(height, width)``, the compressed level's ``(h, w)`` and the whole map ``A`` :math:`(3, 3)` float64."""
+    h, w = size
+    a = math.radians(float(angle) % 180.0)
+    quarter = round(a / (math.pi / 2))
+    eye = torch.eye(3, dtype=torch.float64)
+    if abs(a - quarter * math.pi / 2) < 1e-9:
+        # axis-aligned: compress x (0 degrees) or y (90 degrees) directly
+        vertical = quarter % 2 == 1
+        out = (max(8, round(h / ratio)), w) if vertical else (h, max(8, round(w / ratio)))
+        s = torch.tensor([w / out[1], h / out[0]], dtype=torch.float64)
+        A = eye.clone()
+        A[0, 0], A[1, 1] = 1 / s[0], 1 / s[1]
+        A[:2, 2] = 0.5 / s - 0.5  # pixel centres: (x + 0.5) / s - 0.5
+        return None, (h, w), out, A
+    c, s = math.cos(a), math.sin(a)
+    rot = torch.tensor([[c, s], [-s, c]], dtype=torch.float64)  # direction (c, s) -> x axis
+    cw, ch = abs(c) * w + abs(s) * h, abs(s) * w + abs(c) * h
+    width, height = int(math.ceil(cw)), int(math.ceil(ch))
+    R = eye.clone()
+    R[:2, :2] = rot
+    R[:2, 2] = torch.tensor([(width - 1) / 2, (height - 1) / 2], dtype=torch.float64) - rot @ torch.tensor(
+        [(w - 1) / 2, (h - 1) / 2], dtype=torch.float64)
+    out_w = max(8, round(width / ratio))
+    C = eye.clone()
+    C[0, 0] = out_w / width
+    C[0, 2] = 0.5 * out_w / width - 0.5
+    return R, (height, width), (height, out_w), C @ R
 
 
 def compress_along(images: torch.Tensor, angle: float, ratio: float = FORESHORTENING_RATIO) -> tuple[torch.Tensor, torch.Tensor]:
@@ -58,36 +91,12 @@ def compress_along(images: torch.Tensor, angle: float, ratio: float = FORESHORTE
     check_grey_images(images)
     if not ratio >= 1:
         raise ValueError(f"ratio must be >= 1, got {ratio}.")
-    h, w = images.shape[-2:]
-    a = math.radians(float(angle) % 180.0)
-    quarter = round(a / (math.pi / 2))
-    eye = torch.eye(3, dtype=torch.float64)
-    if abs(a - quarter * math.pi / 2) < 1e-9:
-        # axis-aligned: compress x (0 degrees) or y (90 degrees) directly
-        vertical = quarter % 2 == 1
-        size = (max(8, round(h / ratio)), w) if vertical else (h, max(8, round(w / ratio)))
-        level = F.interpolate(images.float(), size=size, mode="area")
-        s = torch.tensor([w / size[1], h / size[0]], dtype=torch.float64)
-        A = eye.clone()
-        A[0, 0], A[1, 1] = 1 / s[0], 1 / s[1]
-        A[:2, 2] = 0.5 / s - 0.5  # pixel centres: (x + 0.5) / s - 0.5
-        return level, A
-    c, s = math.cos(a), math.sin(a)
-    rot = torch.tensor([[c, s], [-s, c]], dtype=torch.float64)  # direction (c, s) -> x axis
-    cw, ch = abs(c) * w + abs(s) * h, abs(s) * w + abs(c) * h
-    width, height = int(math.ceil(cw)), int(math.ceil(ch))
-    R = eye.clone()
-    R[:2, :2] = rot
-    R[:2, 2] = torch.tensor([(width - 1) / 2, (height - 1) / 2], dtype=torch.float64) - rot @ torch.tensor(
-        [(w - 1) / 2, (h - 1) / 2], dtype=torch.float64)
+    R, canvas, size, A = _compression(tuple(images.shape[-2:]), angle, ratio)
+    if R is None:
+        return F.interpolate(images.float(), size=size, mode="area"), A
     rotated = warp_affine(images.float(), R[:2].to(images.device, torch.float32)[None].expand(images.shape[0], -1, -1),
-                          (height, width), align_corners=True)
-    out_w = max(8, round(width / ratio))
-    level = F.interpolate(rotated, size=(height, out_w), mode="area")
-    C = eye.clone()
-    C[0, 0] = out_w / width
-    C[0, 2] = 0.5 * out_w / width - 0.5
-    return level, C @ R
+                          canvas, align_corners=True)
+    return F.interpolate(rotated, size=size, mode="area"), A
 
 
 def map_from_level(points: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
@@ -97,23 +106,64 @@ def map_from_level(points: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
     return transform_points(inv, points.double()).to(points.dtype)
 
 
+@dataclass(frozen=True)
+class Compression(Warp):
+    """The pyramid level ``level`` compressed by ``ratio`` along the direction ``angle`` (degrees,
+    :func:`compress_along`); points map back to the full-resolution images exactly (one affine map, inverted once).
+
+    Example:
+        >>> warp = Compression(90.0, 2.0, Level(2.0, (64, 96)))
+        >>> warp.apply(torch.rand(1, 1, 64, 96)).shape, warp.coarseness
+        (torch.Size([1, 1, 16, 48]), 4.0)
+        >>> warp.back(torch.tensor([[[10.0, 5.0]]]))[0].tolist()
+        [[[20.5, 21.5]]]
+    """
+
+    angle: float
+    ratio: float
+    level: Level
+
+    @property
+    def coarseness(self) -> float:
+        """Full-resolution px per px of the compressed level along the compression (where a refinement starts)."""
+        return self.ratio * self.level.coarseness
+
+    def compress(self, level: torch.Tensor) -> torch.Tensor:
+        """The second step of :meth:`apply` alone, on images of the level :math:`(B, 1, h, w)`."""
+        return compress_along(level, self.angle, self.ratio)[0]
+
+    def apply(self, images: torch.Tensor) -> torch.Tensor:
+        return self.compress(self.level.apply(images))
+
+    def back(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        # full resolution -> level (pixel centres: (x + 0.5) / s - 0.5) -> compressed level, inverted at once
+        scale = self.level.scale()
+        to_level = torch.eye(3, dtype=torch.float64)
+        to_level[[0, 1], [0, 1]] = 1.0 / scale
+        to_level[:2, 2] = 0.5 / scale - 0.5
+        A = _compression(self.level.size, self.angle, self.ratio)[3]
+        ok = torch.ones(points.shape[0], dtype=torch.bool, device=points.device)
+        return map_from_level(points.double(), A @ to_level).to(points.dtype), ok
+
+
 def detect_foreshortened(
-    detect: Callable[[torch.Tensor, tuple[int, int]], tuple[torch.Tensor, torch.Tensor, list[str]]],
+    detect: Callable[[torch.Tensor, tuple[int, int]], DetectionResult],
     images: torch.Tensor,
     board_size: tuple[int, int],
     refine: Callable[[torch.Tensor, torch.Tensor, float], torch.Tensor],
     factor: float = 1.0,
     directions: tuple[float, ...] = FORESHORTENING_DIRECTIONS,
     ratio: float = FORESHORTENING_RATIO,
-) -> tuple[torch.Tensor, torch.Tensor, list[str]]:
+) -> DetectionResult:
     r"""Look for the boards of ``images`` on levels compressed along each of ``directions`` in turn.
 
     The images are first brought to the level ``factor`` (:func:`~ccs_kornia.modules.detection.patch_refine.resize_to_level`),
-    then compressed by ``ratio`` along one direction (:func:`compress_along`); corners found there are mapped back to
-    full resolution and refined there.
+    then compressed by ``ratio`` along one direction (:func:`compress_along`; together a :class:`Compression` warp);
+    corners found there are mapped back to full resolution and refined there
+    (:func:`~ccs_kornia.modules.detection.warped_detection.map_back`).
 
     Args:
-        detect: ``detect(level (b, 1, h, w), board_size) -> corners (b, N, 2), found (b,), reasons`` on the level.
+        detect: ``detect(level (b, 1, h, w), board_size) -> DetectionResult`` on the level.
         images: :math:`(B, 1, H, W)` full-resolution images.
         board_size: ``(cols, rows)``.
         refine: ``refine(images (b, 1, H, W), corners (b, N, 2), factor) -> corners`` refines at full resolution
@@ -123,14 +173,15 @@ def detect_foreshortened(
         ratio: compression (:func:`compress_along`).
 
     Returns:
-        corners :math:`(B, N, 2)` at full resolution (zeros where not found), found :math:`(B,)`, a reason each.
+        :class:`~ccs_kornia.modules.detection.base.DetectionResult`: corners :math:`(B, N, 2)` at full resolution
+        (zeros where not found), found :math:`(B,)`, a reason each.
 
     Example:
         >>> def detect(x, board):  # a stand-in detector: finds nothing
-        ...     return torch.zeros(x.shape[0], board[0] * board[1], 2), torch.zeros(x.shape[0], dtype=torch.bool), \
-        ...         ["board not found"] * x.shape[0]
-        >>> c, f, r = detect_foreshortened(detect, torch.rand(2, 1, 64, 64), (4, 3), lambda im, p, s: p)
-        >>> c.shape, f.tolist(), r[0]
+        ...     return DetectionResult(torch.zeros(x.shape[0], board[0] * board[1], 2),
+        ...                            torch.zeros(x.shape[0], dtype=torch.bool), ["board not found"] * x.shape[0])
+        >>> out = detect_foreshortened(detect, torch.rand(2, 1, 64, 64), (4, 3), lambda im, p, s: p)
+        >>> out.corners.shape, out.found.tolist(), out.reasons[0]
         (torch.Size([2, 12, 2]), [False, False], 'board not found')
     """
     check_grey_images(images)
@@ -138,29 +189,24 @@ def detect_foreshortened(
         raise ValueError(f"factor must be >= 1, got {factor}.")
     b = images.shape[0]
     n = int(board_size[0]) * int(board_size[1])
-    corners = torch.zeros(b, n, 2, dtype=torch.float32, device=images.device)
-    found = torch.zeros(b, dtype=torch.bool, device=images.device)
-    reasons = ["board not found"] * b
+    out = DetectionResult(torch.zeros(b, n, 2, dtype=torch.float32, device=images.device),
+                          torch.zeros(b, dtype=torch.bool, device=images.device), ["board not found"] * b)
+    level = Level(factor, tuple(images.shape[-2:]))
     with stage("level resize"):
-        base, scale = resize_to_level(images, factor)
+        base = level.apply(images)
     for angle in directions:
-        todo = (~found).nonzero().flatten()
+        todo = (~out.found).nonzero().flatten()
         if not todo.numel():
             break
+        warp = Compression(angle, ratio, level)
         with stage("level resize"):
-            level, A = compress_along(base[todo], angle, ratio)
-        c, f, r = detect(level, board_size)
-        hit = f.to(images.device).nonzero().flatten()
-        if not hit.numel():
+            compressed = warp.compress(base[todo])
+        got = detect(compressed, board_size)
+        if not bool(got.found.any()):
             continue
-        # full resolution -> base level (pixel centres: (x + 0.5) / s - 0.5) -> compressed level, inverted at once
-        to_base = torch.eye(3, dtype=torch.float64)
-        to_base[[0, 1], [0, 1]] = 1.0 / scale.double().cpu()
-        to_base[:2, 2] = 0.5 / scale.double().cpu() - 0.5
-        pts = map_from_level(c[hit].to(images.device).double(), A @ to_base)
-        sel = todo[hit]
-        corners[sel] = refine(image_rows(images, sel), pts.float(), ratio * float(scale.max())).to(corners.dtype)
-        found[sel] = True
-        for k in hit.tolist():
-            reasons[int(todo[k])] = f"{r[k]} (level compressed along {angle:g} degrees)"
-    return corners, found, reasons
+        got = map_back(warp, DetectionResult(got.corners.to(images.device), got.found.to(images.device), got.reasons),
+                       lambda x, pts, bs: refine(x, pts, warp.coarseness), image_rows(images, todo), board_size)
+        got.reasons = [f"{why or 'found'} (level compressed along {angle:g} degrees)"
+                       for why in (got.reasons or [""] * len(todo))]
+        out.fill(todo, got)
+    return out

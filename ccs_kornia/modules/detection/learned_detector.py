@@ -281,15 +281,13 @@ class LearnedChessboardDetector(ChessboardDetector):
         h, w = images.shape[-2:]
         floor = max(1.0, math.sqrt(w * h / self.scale_selector.max_pixels))
 
-        def compressed(x: torch.Tensor, bs: tuple[int, int]):
-            out = self.detect_level(x, bs, resampled=True)
-            return out.corners, out.found, out.reasons
+        def compressed(x: torch.Tensor, bs: tuple[int, int]) -> DetectionResult:
+            return self.detect_level(x, bs, resampled=True)
 
         def refine(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
             return self._refine_at_full_size(full, pts, board_size, factor)
 
-        corners, found, reasons = detect_foreshortened(compressed, images, board_size, refine, floor)
-        return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
+        return detect_foreshortened(compressed, images, board_size, refine, floor)
 
     def _detect(self, images: torch.Tensor, board_size: tuple[int, int], fallbacks: Fallbacks) -> DetectionResult:
         if self.scale == "off":
@@ -301,32 +299,27 @@ class LearnedChessboardDetector(ChessboardDetector):
         with stage("square-size estimate"), (full_threads() if big else nullcontext()):
             _, factor = self.scale_selector(images)
 
-        def level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
-            out = self.detect_level(x, bs, full, scale)
-            return out.corners, out.found, out.reasons
-
         def refine(full: torch.Tensor, pts: torch.Tensor, factor: float, radius_factor: float | None = None):
             return self._refine_at_full_size(full, pts, board_size, factor, radius_factor)
 
-        corners, found, reasons = detect_at_scale(level, images, board_size, factor, fallbacks.levels,
-                                                  self.scale_selector.max_pixels, refine, finest=fallbacks.finest,
-                                                  primary=fallbacks.primary)
-        out = DetectionResult(corners=corners, found=found, reasons=reasons)
+        out = detect_at_scale(self.detect_level, images, board_size, factor, fallbacks.levels,
+                              self.scale_selector.max_pixels, refine, finest=fallbacks.finest,
+                              primary=fallbacks.primary)
         missed = (~out.found).nonzero().flatten()
         if fallbacks.opencv and missed.numel():
             # last resort: OpenCV's quads on one bounded level (they need no square-size estimate), refined with a
             # narrow window (these are mostly boards with marks)
             def opencv_level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
-                got = self.detect_level(x, bs, full, scale, source="opencv")
-                return got.corners, got.found, got.reasons
+                return self.detect_level(x, bs, full, scale, source="opencv")
 
             def narrow(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
                 return refine(full, pts, factor, MARKED_RADIUS_FACTOR)
 
             h, w = images.shape[-2:]
             levels = torch.full((missed.numel(),), opencv_level_factor((w, h)), dtype=factor.dtype)
-            c2, f2, r2 = detect_at_scale(opencv_level, image_rows(images, missed), board_size, levels, (),
-                                         self.scale_selector.max_pixels, narrow)
+            got = detect_at_scale(opencv_level, image_rows(images, missed), board_size, levels, (),
+                                  self.scale_selector.max_pixels, narrow)
+            c2, f2, r2 = got.corners, got.found, got.reasons
             out.fill(missed, DetectionResult(c2, f2, r2))
             for k, i in enumerate(missed.tolist()):  # why a board the candidates gave was refused
                 if not bool(f2[k]) and r2[k].startswith("board refused"):

@@ -18,7 +18,9 @@ area-downscaled copy does (area downscaling shrinks the squares and the blur ali
    at most ``max_pixels`` pixels (bounded memory and time on 24 Mpx photographs); tiny squares may be upsampled.
 3. :func:`detect_at_scale`: run a detector on each level (images grouped by factor; the detector may verify its
    candidates on the full-resolution images), map the corners back to the full-resolution pixel grid and refine them
-   there (:func:`~ccs_kornia.modules.detection.patch_refine.refine_from_level`: coarse to fine, on one small patch per
+   there (each level a :class:`~ccs_kornia.modules.detection.warped_detection.Level` warp through
+   :func:`~ccs_kornia.modules.detection.warped_detection.map_back`;
+   :func:`~ccs_kornia.modules.detection.patch_refine.refine_from_level`: coarse to fine, on one small patch per
    corner, the saddle window widened to the measured edge blur). Boards missed at the chosen level are looked for at
    other levels (``fallback``).
 
@@ -39,8 +41,9 @@ from ccs_kornia.modules._checks import check_grey_images
 from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules._resize import area_resize, halve
 from ccs_kornia.modules._timing import stage
-from ccs_kornia.modules.detection.base import image_rows
-from ccs_kornia.modules.detection.patch_refine import refine_from_level, resize_to_level
+from ccs_kornia.modules.detection.base import DetectionResult, image_rows
+from ccs_kornia.modules.detection.patch_refine import refine_from_level
+from ccs_kornia.modules.detection.warped_detection import Level, map_back
 
 __all__ = ["PEAK_RATIO", "TARGET_SQUARE", "saddle_scale_response", "estimate_square_size", "detection_factor", "ScaleSelector",
            "detect_at_scale"]
@@ -347,7 +350,7 @@ class ScaleSelector(nn.Module):
 
 
 def detect_at_scale(
-    detect: Callable[..., tuple[torch.Tensor, torch.Tensor, list[str] | None]],
+    detect: Callable[..., DetectionResult],
     images: torch.Tensor,
     board_size: tuple[int, int],
     factor: torch.Tensor,
@@ -357,16 +360,19 @@ def detect_at_scale(
     min_factor: float = 1.0,
     finest: bool = True,
     primary: bool = True,
-) -> tuple[torch.Tensor, torch.Tensor, list[str]]:
+) -> DetectionResult:
     r"""Run ``detect`` on each image's detection level; corners at full resolution.
 
     Images are grouped by factor (one batched call per level). Corners found on a downscaled level are mapped to the
-    full-resolution pixel grid (pixel centres: ``x + 0.5`` scales) and refined there by ``refine``. Boards missed are
+    full-resolution pixel grid (pixel centres: ``x + 0.5`` scales) and refined there by ``refine`` (a
+    :class:`~ccs_kornia.modules.detection.warped_detection.Level` through
+    :func:`~ccs_kornia.modules.detection.warped_detection.map_back`); each level's boards are merged with
+    :meth:`~ccs_kornia.modules.detection.base.DetectionResult.fill`. Boards missed are
     looked for again at ``factor * f`` for each ``f`` of ``fallback`` in turn (levels above ``max_pixels`` skipped).
 
     Args:
         detect: ``detect(level (b, 1, h, w), board_size, full (b, 1, H, W) or None, scale (2,) or None)
-            -> corners (b, N, 2), found (b,), reasons`` at the level's resolution; ``full`` (the full-resolution images,
+            -> DetectionResult`` at the level's resolution; ``full`` (the full-resolution images,
             ``None`` when the level is the image itself) and ``scale`` (``x_full + 0.5 = (x_level + 0.5) * scale``) let
             it verify candidates at full resolution.
         images: :math:`(B, 1, H, W)` full-resolution images.
@@ -385,14 +391,15 @@ def detect_at_scale(
             fallback levels that differ from them are tried).
 
     Returns:
-        corners :math:`(B, N, 2)` (zeros where not found), found :math:`(B,)` bool, and a reason per image.
+        :class:`~ccs_kornia.modules.detection.base.DetectionResult`: corners :math:`(B, N, 2)` (zeros where not
+        found), found :math:`(B,)` bool, and a reason per image.
 
     Example:
         >>> def detect(x, board, full, scale):  # a stand-in detector: finds nothing
-        ...     return torch.zeros(x.shape[0], board[0] * board[1], 2), torch.zeros(x.shape[0], dtype=torch.bool), \
-        ...         ["board not found"] * x.shape[0]
-        >>> c, f, r = detect_at_scale(detect, torch.rand(3, 1, 96, 128), (4, 3), torch.tensor([1.0, 2.0, 2.0]))
-        >>> c.shape, f.tolist()
+        ...     return DetectionResult(torch.zeros(x.shape[0], board[0] * board[1], 2),
+        ...                            torch.zeros(x.shape[0], dtype=torch.bool), ["board not found"] * x.shape[0])
+        >>> out = detect_at_scale(detect, torch.rand(3, 1, 96, 128), (4, 3), torch.tensor([1.0, 2.0, 2.0]))
+        >>> out.corners.shape, out.found.tolist()
         (torch.Size([3, 12, 2]), [False, False, False])
     """
     check_grey_images(images)
@@ -406,9 +413,8 @@ def detect_at_scale(
     if refine is None:
         def refine(full, pts, factor):
             return refine_from_level(full, pts, board_size, factor)
-    corners = torch.zeros(b, n, 2, dtype=torch.float32, device=images.device)
-    found = torch.zeros(b, dtype=torch.bool, device=images.device)
-    reasons = ["board not found"] * b
+    out = DetectionResult(torch.zeros(b, n, 2, dtype=torch.float32, device=images.device),
+                          torch.zeros(b, dtype=torch.bool, device=images.device), ["board not found"] * b)
     # fallback levels are clamped to the finest level allowed (memory, no upsampling); each level is tried once
     floor = max(float(min_factor), math.sqrt(w * h / max_pixels))
     attempts = [factor] + [(factor * f).clamp_min(floor) for f in fallback]
@@ -426,7 +432,7 @@ def detect_at_scale(
     for a, fac in enumerate(attempts):
         if a == 0 and not primary:
             continue
-        todo = ~found.cpu()
+        todo = ~out.found.cpu()
         for previous in attempts[:a]:
             todo &= (fac - previous).abs() > 1e-6 * fac
         if not bool(todo.any()):
@@ -434,22 +440,21 @@ def detect_at_scale(
         for value in torch.unique(fac[todo]).tolist():
             idx = (todo & (fac == value)).nonzero().flatten()
             full = image_rows(images, idx)
+            warp = Level(value, (h, w))
             with stage("level resize"):
-                level, scale = resize_to_level(full, value)
-            resampled = level.shape[-2:] != images.shape[-2:]
-            c, f, r = detect(level, board_size, full if resampled else None, scale if resampled else None)
-            c = c.to(images.device)
-            if resampled:
-                c = ((c.double() + 0.5) * scale - 0.5).float()
-            hit = f.to(images.device).nonzero().flatten()
-            if resampled and hit.numel():
-                c[hit] = refine(image_rows(full, hit), c[hit], float(scale.max())).to(c.dtype)
-            found_now = f.to(found.device)
-            sel = idx.to(found.device)[found_now]
-            corners[sel.to(images.device)] = c[found_now.to(images.device)]
-            found[sel] = True
-            for k, i in enumerate(idx.tolist()):
-                if bool(found_now[k]) or a == 0:
-                    reasons[i] = r[k] if r is not None else ("found" if bool(found_now[k]) else "board not found")
-    return corners, found, reasons
+                level = warp.apply(full)
+            if warp.resamples:
+                got = detect(level, board_size, full, warp.scale(images.device))
+            else:
+                got = detect(level, board_size, None, None)
+            r = got.reasons or ["found" if bool(k) else "board not found" for k in got.found.tolist()]
+            got = DetectionResult(got.corners.to(images.device), got.found.to(images.device), r)
+            if warp.resamples:
+                got = map_back(warp, got, lambda x, pts, bs: refine(x, pts, warp.coarseness), full, board_size)
+            hit = out.fill(idx, got)
+            if a == 0:  # the reasons of the first level stand where no level finds the board
+                for k, i in enumerate(idx.tolist()):
+                    if not bool(hit[k]):
+                        out.reasons[i] = r[k]
+    return out
 

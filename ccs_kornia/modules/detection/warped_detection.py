@@ -17,9 +17,10 @@ from typing import Callable
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.modules.detection.base import DetectionResult
+from ccs_kornia.modules.detection.base import DetectionResult, image_rows
+from ccs_kornia.modules.detection.patch_refine import level_size, resize_to_level
 
-__all__ = ["Warp", "Downscale", "detect_warped", "map_back"]
+__all__ = ["Warp", "Downscale", "Level", "detect_warped", "map_back"]
 
 #: ``refine(images (B, 1, H, W), corners (B, N, 2), board_size) -> corners``: a refinement on the original images
 Refine = Callable[[torch.Tensor, torch.Tensor, tuple[int, int]], torch.Tensor]
@@ -69,6 +70,49 @@ class Downscale(Warp):
         return (points + 0.5) * factor - 0.5, ok
 
 
+@dataclass(frozen=True)
+class Level(Warp):
+    """The learned detector's pyramid level ``factor`` (full-resolution px per level px) of images ``full``
+    ``(H, W)``: :func:`~ccs_kornia.modules.detection.patch_refine.resize_to_level` (area-averaged down, bilinear up);
+    pixel centres map as ``x_full + 0.5 = (x_level + 0.5) * scale``.
+
+    Example:
+        >>> warp = Level(4.0, (48, 64))
+        >>> warp.apply(torch.rand(2, 1, 48, 64)).shape, warp.back(torch.tensor([[[0.0, 0.0]]]))[0].tolist()
+        (torch.Size([2, 1, 12, 16]), [[[1.5, 1.5]]])
+    """
+
+    factor: float
+    full: tuple[int, int]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(h, w)`` of the level."""
+        return level_size((self.full[1], self.full[0]), self.factor)
+
+    @property
+    def resamples(self) -> bool:
+        """Whether the level differs from the images themselves."""
+        return self.size != tuple(self.full)
+
+    def scale(self, device: torch.device | str | None = None) -> torch.Tensor:
+        """``(sx, sy)`` :math:`(2,)` float64: full-resolution px per level px along x and y."""
+        h, w = self.size
+        return torch.tensor([self.full[1] / w, self.full[0] / h], dtype=torch.float64, device=device)
+
+    @property
+    def coarseness(self) -> float:
+        """Full-resolution px per level px, the larger of x and y (where a refinement from the level starts)."""
+        return float(self.scale().max())
+
+    def apply(self, images: torch.Tensor) -> torch.Tensor:
+        return resize_to_level(images, self.factor)[0]
+
+    def back(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        ok = torch.ones(points.shape[0], dtype=torch.bool, device=points.device)
+        return ((points.double() + 0.5) * self.scale(points.device) - 0.5).to(points.dtype), ok
+
+
 def map_back(warp: Warp, det: DetectionResult, refine: Refine, images: torch.Tensor, board_size: tuple[int, int],
              measure: Refine | None = None) -> DetectionResult:
     """The boards ``det`` found on ``warp``'s copies of ``images`` :math:`(B, 1, H, W)`, in the images: mapped back
@@ -87,9 +131,10 @@ def map_back(warp: Warp, det: DetectionResult, refine: Refine, images: torch.Ten
     sel = found.nonzero().flatten().to(images.device)
     if sel.numel():
         with torch.inference_mode():
-            corners[sel] = refine(images[sel].float(), back[sel].float(), board_size).float()
+            rows = image_rows(images, sel)
+            corners[sel] = refine(rows.float(), back[sel].float(), board_size).float()
             if measure is not None:
-                sigma[sel] = measure(images[sel], corners[sel], board_size).to(sigma)
+                sigma[sel] = measure(rows, corners[sel], board_size).to(sigma)
     return DetectionResult(corners, found.to(images.device), det.reasons, sigma)
 
 

@@ -5,12 +5,15 @@ from __future__ import annotations
 import pytest
 import torch
 
+from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.foreshortening import (
     FORESHORTENING_DIRECTIONS,
+    Compression,
     compress_along,
     detect_foreshortened,
     map_from_level,
 )
+from ccs_kornia.modules.detection.warped_detection import Level
 
 #: held-out wild renders (the bench's seeds start at BENCH_SEED_BASE + 400000)
 HELD_OUT_SEED = 7_777_000
@@ -35,6 +38,23 @@ def test_compressed_level_puts_the_image_where_its_map_says(angle, dtype, device
     vals = torch.nn.functional.grid_sample(level.float(), grid[None, None], align_corners=True)[0, 0, 0]
     assert float(vals.min()) > 0.6  # each 3x3 dot, halved along one direction, is where A maps it
     torch.testing.assert_close(map_from_level(q[None], A)[0], pts, atol=1e-9, rtol=0)
+
+
+@pytest.mark.parametrize("angle", [0.0, 90.0, 45.0, 135.0])
+@pytest.mark.parametrize("factor", [1.0, 2.0])
+def test_compression_maps_its_level_back_to_full_resolution(angle, factor):
+    """The warp is the level then compress_along; back inverts the whole map (full px -> level px -> compressed px)."""
+    images = torch.rand(2, 1, 64, 96)
+    level = Level(factor, (64, 96))
+    warp = Compression(angle, 2.0, level)
+    compressed, A = compress_along(level.apply(images), angle, 2.0)
+    assert torch.equal(warp.apply(images), compressed) and warp.coarseness == 2.0 * level.coarseness
+    full = torch.tensor([[[10.0, 20.0], [50.0, 33.0], [90.0, 60.0]]], dtype=torch.float64)
+    on_level = (full + 0.5) / level.scale() - 0.5
+    on_compressed = on_level @ A[:2, :2].T + A[:2, 2]
+    back, ok = warp.back(on_compressed)
+    torch.testing.assert_close(back, full, atol=1e-9, rtol=0)
+    assert ok.tolist() == [True]
 
 
 def test_axis_aligned_levels_need_no_rotation_and_are_area_averages():
@@ -73,13 +93,14 @@ def test_directions_are_tried_in_turn_and_corners_mapped_back_to_full_resolution
         b = level.shape[0]
         found = torch.full((b,), level.shape[-2] == 16, dtype=torch.bool)  # 64 / 2 (factor) / 2 (compression)
         corners = torch.tensor([[[10.0, 5.0]]]).expand(b, 1, 2).clone()
-        return corners, found, ["learned"] * b
+        return DetectionResult(corners, found, ["learned"] * b)
 
     def refine(full, pts, factor):
         refined.append(factor)
         return pts
 
-    c, f, r = detect_foreshortened(detect, images, (1, 1), refine, factor=2.0)
+    out = detect_foreshortened(detect, images, (1, 1), refine, factor=2.0)
+    c, f, r = out.corners, out.found, out.reasons
     assert tried == [(32, 24), (16, 48)] and f.tolist() == [True, True] and refined == [4.0]
     # level (10, 5) -> the factor-2 level (10, (5 + 0.5) * 2 - 0.5) -> full resolution ((x + 0.5) * 2 - 0.5)
     torch.testing.assert_close(c[0, 0], torch.tensor([20.5, 21.5]))

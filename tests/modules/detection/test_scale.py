@@ -11,6 +11,7 @@ import torch.nn.functional as F
 from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.modules.detection import patch_refine as patch_refine_module
 from ccs_kornia.modules.detection import scale as scale_module
+from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.patch_refine import edge_blur, refine_from_level, refine_on_patches, resize_to_level
 from ccs_kornia.modules.detection.scale import (
     ScaleSelector,
@@ -138,11 +139,12 @@ def test_detect_at_scale_groups_levels_and_falls_back():
         calls.append((tuple(x.shape), None if full is None else tuple(full.shape)))
         found = torch.full((x.shape[0],), x.shape[-1] == 80)  # "finds" boards only on the 4x level
         corners = torch.full((x.shape[0], board[0] * board[1], 2), 10.0)
-        return corners, found, ["learned" if f else "board not found" for f in found.tolist()]
+        return DetectionResult(corners, found, ["learned" if f else "board not found" for f in found.tolist()])
 
     images = torch.rand(3, 1, 240, 320)
-    corners, found, reasons = detect_at_scale(detect, images, (3, 2), torch.tensor([4.0, 2.0, 2.0]),
-                                              fallback=(2.0,), refine=lambda full, pts, f: pts)
+    out = detect_at_scale(detect, images, (3, 2), torch.tensor([4.0, 2.0, 2.0]), fallback=(2.0,),
+                          refine=lambda full, pts, f: pts)
+    corners, found, reasons = out.corners, out.found, out.reasons
     assert found.tolist() == [True, True, True] and reasons == ["learned"] * 3
     # one batched call per level: 4x for image 0, 2x for images 1-2, then their fallback at 4x
     assert calls == [((2, 1, 120, 160), (2, 1, 240, 320)), ((1, 1, 60, 80), (1, 1, 240, 320)),
@@ -156,7 +158,7 @@ def test_detect_at_scale_skips_levels_over_the_pixel_budget():
 
     def detect(x, board, full, scale):
         calls.append(tuple(x.shape[-2:]))
-        return torch.zeros(x.shape[0], 6, 2), torch.zeros(x.shape[0], dtype=torch.bool), None
+        return DetectionResult(torch.zeros(x.shape[0], 6, 2), torch.zeros(x.shape[0], dtype=torch.bool))
 
     detect_at_scale(detect, torch.rand(1, 1, 200, 200), (3, 2), torch.tensor([2.0]), fallback=(0.5, 0.25, 2.0),
                     max_pixels=20_000)
@@ -217,10 +219,11 @@ def test_detect_at_scale_without_the_primary_levels():
 
     def detect(x, board, full, scale):
         calls.append(tuple(x.shape[-2:]))
-        return torch.zeros(x.shape[0], 6, 2), torch.zeros(x.shape[0], dtype=torch.bool), None
+        return DetectionResult(torch.zeros(x.shape[0], 6, 2), torch.zeros(x.shape[0], dtype=torch.bool))
 
-    c, f, r = detect_at_scale(detect, torch.rand(2, 1, 200, 200), (3, 2), torch.tensor([2.0, 1.0]), fallback=(0.5,),
-                              finest=False, primary=False)
+    out = detect_at_scale(detect, torch.rand(2, 1, 200, 200), (3, 2), torch.tensor([2.0, 1.0]), fallback=(0.5,),
+                          finest=False, primary=False)
+    f, r = out.found, out.reasons
     # image 0: its fallback (factor 1, the image itself); image 1's fallback clamps to its primary (1): skipped
     assert calls == [(200, 200)] and f.tolist() == [False, False] and r == ["board not found"] * 2
     calls.clear()
@@ -237,9 +240,10 @@ def test_detect_at_scale_tries_the_image_itself_last():
         tried.append(tuple(x.shape[-2:]))
         hit = x.shape[-1] == 128
         n = board[0] * board[1]
-        return torch.zeros(x.shape[0], n, 2), torch.full((x.shape[0],), hit), ["found" if hit else "no"] * x.shape[0]
+        return DetectionResult(torch.zeros(x.shape[0], n, 2), torch.full((x.shape[0],), hit),
+                               ["found" if hit else "no"] * x.shape[0])
 
-    c, f, r = detect_at_scale(detect, torch.rand(1, 1, 96, 128), (4, 3), torch.tensor([8.0]), (0.5, 2.0, 0.25))
+    f = detect_at_scale(detect, torch.rand(1, 1, 96, 128), (4, 3), torch.tensor([8.0]), (0.5, 2.0, 0.25)).found
     assert bool(f[0]) and tried[-1] == (96, 128)
 
 
@@ -267,14 +271,15 @@ def test_detect_at_scale_steps_down_by_octaves_before_the_image_itself():
         tried.append(x.shape[-1])
         hit = x.shape[-1] == 128  # only the 4x level shows the board
         n = board[0] * board[1]
-        return torch.zeros(x.shape[0], n, 2), torch.full((x.shape[0],), hit), ["found" if hit else "no"] * x.shape[0]
+        return DetectionResult(torch.zeros(x.shape[0], n, 2), torch.full((x.shape[0],), hit),
+                               ["found" if hit else "no"] * x.shape[0])
 
     images = torch.rand(1, 1, 384, 512)
-    c, f, r = detect_at_scale(detect, images, (4, 3), torch.tensor([32.0]), (0.5, 2.0, 0.25),
-                              refine=lambda full, pts, fac: pts)
+    f = detect_at_scale(detect, images, (4, 3), torch.tensor([32.0]), (0.5, 2.0, 0.25),
+                        refine=lambda full, pts, fac: pts).found
     assert bool(f[0]) and tried == [16, 32, 8, 64, 128]  # 32x, 16x, 64x, 8x, then 4x: full size never needed
     tried.clear()
-    c, f, r = detect_at_scale(detect, images, (4, 3), torch.tensor([32.0]), (0.5, 2.0, 0.25), finest=False)
+    f = detect_at_scale(detect, images, (4, 3), torch.tensor([32.0]), (0.5, 2.0, 0.25), finest=False).found
     assert not bool(f[0]) and tried == [16, 32, 8, 64]
     tried.clear()
     detect_at_scale(detect, images[..., :256, :320], (4, 3), torch.tensor([8.0]), (0.5, 2.0, 0.25))

@@ -4,8 +4,8 @@ import torch
 from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.factory import make_detector
-from ccs_kornia.modules.detection.patch_refine import refine_on_patches
-from ccs_kornia.modules.detection.warped_detection import Downscale, Warp, detect_warped, map_back
+from ccs_kornia.modules.detection.patch_refine import refine_on_patches, resize_to_level
+from ccs_kornia.modules.detection.warped_detection import Downscale, Level, Warp, detect_warped, map_back
 from ccs_kornia.modules.detection.corner_uncertainty import corner_uncertainty
 
 BOARD = (9, 6)
@@ -29,6 +29,20 @@ def test_downscale_maps_pixel_centres_back():
     back, ok = warp.back(torch.tensor([[[0.0, 0.0], [639.0, 479.0]]], dtype=torch.float64))
     assert back.tolist() == [[[0.5, 0.5], [1278.5, 958.5]]] and ok.tolist() == [True]
     assert warp.apply(torch.rand(2, 1, 960, 1280)).shape == (2, 1, 480, 640)
+
+
+@pytest.mark.parametrize("factor", [1.0, 2.0, 2.0 ** 1.25, 0.5])
+def test_level_is_the_detection_level_and_maps_pixel_centres_back(factor):
+    images = torch.rand(2, 1, 96, 130)
+    warp = Level(factor, (96, 130))
+    level, scale = resize_to_level(images, factor)
+    assert torch.equal(warp.apply(images), level) and warp.size == tuple(level.shape[-2:])
+    assert warp.resamples == (factor != 1.0) and torch.equal(warp.scale(), scale)
+    assert warp.coarseness == float(scale.max())
+    pts = torch.rand(2, 5, 2) * 40
+    back, ok = warp.back(pts)
+    assert back.dtype == pts.dtype and ok.tolist() == [True, True]
+    torch.testing.assert_close(back.double(), (pts.double() + 0.5) * scale - 0.5)
 
 
 def test_detect_warped_finds_the_boards_at_full_resolution(views):
