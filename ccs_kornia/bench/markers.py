@@ -36,8 +36,8 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.data.marker_views import CONDITIONS, DIST, K, random_board_pose, render_condition, render_marker_view
-from ccs_kornia.modules.detection.aprilgrid import aprilgrid_tags, detect_aprilgrid, tag_detector
+from ccs_kornia.data.marker_views import CONDITIONS, K, random_board_pose, render_condition, render_marker_view
+from ccs_kornia.modules.detection.aprilgrid import detect_aprilgrid, tag_detector
 from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard
 from ccs_kornia.modules.detection.charuco import detect_charuco
 
