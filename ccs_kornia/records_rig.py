@@ -113,7 +113,7 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
     return {
         "success": True,
         "convention": CONVENTION,
-        "units": "translations in the unit of --square (the board's)",
+        "units": "translations in the board's unit (--square, or an AprilGrid's tagSize)",
         "board": list(board), "square": square, "detector": detector,
         "cameras": cameras,
         "extrinsics": [{"name": out.names[c], "R": _matrix(rig.R[c]), "T": [_num(v) for v in rig.T[c].double().tolist()]}

@@ -96,7 +96,7 @@ def top_view_figure(data: dict[str, Any], size: int = 640) -> np.ndarray:
     zr = (float(points[:, 2].min()) - 0.08 * span, float(points[:, 2].min()) + 1.0 * span)
     img = np.full((size + 110, size + 100, 3), 255, np.uint8)
     box = (80, 40, size, size)
-    _plot_frame(img, box, xr, zr, "x (camera 0, unit of --square)", "z (forward)", grid=True,
+    _plot_frame(img, box, xr, zr, "x (camera 0, the board's unit)", "z (forward)", grid=True,
                 xticks=_ticks(*xr, 5))
 
     def px(p: np.ndarray) -> tuple[int, int]:

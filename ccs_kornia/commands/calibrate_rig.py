@@ -279,8 +279,8 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
         rot = f" ± {pair['rotation_std_deg']:.2g}" if pair.get("rotation_std_deg") is not None else ""
         held = f", held-out {fmt(pair['heldout_epipolar_rms'])} px" if pair.get("heldout_epipolar_rms") is not None \
             else ""
-        lines.append(f"pair {pair['names'][0]}-{pair['names'][1]}: baseline {pair['baseline']:.5g}{std} (unit of "
-                     f"--square), rotation {pair['rotation_deg']:.3f}{rot} deg, epipolar RMS "
+        lines.append(f"pair {pair['names'][0]}-{pair['names'][1]}: baseline {pair['baseline']:.5g}{std} (the "
+                     f"board's unit), rotation {pair['rotation_deg']:.3f}{rot} deg, epipolar RMS "
                      f"{fmt(pair['epipolar_rms'])} px{held}")
     lines.append(f"rig RMS {fmt(data['rms'])} px over {len(data['frame_labels'])} frames; wrote {output}")
     lines.append(f"verdict: {data['verdict']}")
