@@ -36,11 +36,12 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.boards import APRILGRID_BORDER_BITS, AprilGrid, aruco_dictionary
 from ccs_kornia.modules.detection.charuco import (
     VARIANTS,
     CharucoMarkers,
+    MarkerBoardDetector,
     _decode,
     _fit,
     _lattice,
@@ -257,7 +258,7 @@ def detect_aprilgrid(
     return DetectionResult(corners.to(images.device), found.to(images.device), reasons)
 
 
-class AprilGridDetector(ChessboardDetector):
+class AprilGridDetector(MarkerBoardDetector):
     """AprilGrid detector with the chessboard detectors' interface (:func:`detect_aprilgrid`): ``board_size`` is the
     corner grid ``(2 * tag_cols, 2 * tag_rows)``; unseen corner ids are NaN.
 
@@ -274,19 +275,10 @@ class AprilGridDetector(ChessboardDetector):
         (torch.Size([2, 144, 2]), [False, False])
     """
 
-    selects_scale = True
+    grid_name = "the AprilGrid's corner grid"
 
-    def __init__(self, board: AprilGrid, min_corners: int = 6, radius_factor: float | None = None,
-                 num_workers: int | None = None) -> None:
-        super().__init__()
-        self.board = board
-        self.min_corners = int(min_corners)
-        self.radius_factor = radius_factor
-        self.num_workers = num_workers
+    def layout(self) -> str:
+        return f"{self.board.tag_cols}x{self.board.tag_rows} tags"
 
-    def forward(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
-        board_size = self._check_inputs(images, board_size)
-        if board_size != self.board.board_size:
-            raise ValueError(f"board_size {board_size} is not the AprilGrid's corner grid {self.board.board_size} "
-                             f"({self.board.tag_cols}x{self.board.tag_rows} tags).")
+    def detect_board(self, images: torch.Tensor) -> DetectionResult:
         return detect_aprilgrid(images, self.board, self.min_corners, self.radius_factor, self.num_workers)

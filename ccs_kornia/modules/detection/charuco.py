@@ -45,6 +45,7 @@ from ccs_kornia.modules.detection.saddle_refine import POLISH_WINDOW, refine_cor
 
 __all__ = [
     "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_MOVE", "NEIGHBOUR_RADIUS", "CharucoDetector", "CharucoMarkers",
+    "MarkerBoardDetector",
     "charuco_markers", "detect_charuco", "layout_fits", "dictionary_hint", "marked_radius_factor",
     "refine_marked_corners", "squares_hint",
 ]
@@ -395,7 +396,48 @@ def detect_charuco(
     return DetectionResult(corners.to(images.device), found.to(images.device), reasons)
 
 
-class CharucoDetector(ChessboardDetector):
+class MarkerBoardDetector(ChessboardDetector):
+    """A board whose corners the decoded markers name, with the chessboard detectors' interface: ``board_size`` must
+    be the board's corner grid (``board.board_size``); unseen corner ids are NaN. Subclasses give the detection
+    (:meth:`detect_board`) and say what the grid is (:attr:`grid_name`, :meth:`layout`).
+
+    It decodes and refines at full resolution (``selects_scale``: the pipeline does not downscale its images).
+
+    Args:
+        board: the board description (:mod:`~ccs_kornia.modules.detection.boards`).
+        min_corners: corners a view needs to count as found.
+        radius_factor, num_workers: of the detection function.
+    """
+
+    selects_scale = True
+    #: the grid's name in the error for a wrong ``board_size``
+    grid_name = "the board's corner grid"
+
+    def __init__(self, board, min_corners: int = 6, radius_factor: float | None = None,
+                 num_workers: int | None = None) -> None:
+        super().__init__()
+        self.board = board
+        self.min_corners = int(min_corners)
+        self.radius_factor = radius_factor
+        self.num_workers = num_workers
+
+    def layout(self) -> str:
+        """The board in its own counts, for messages (e.g. ``5x7 squares``)."""
+        raise NotImplementedError
+
+    def detect_board(self, images: torch.Tensor) -> DetectionResult:
+        """The detection of ``images`` :math:`(B, 1, H, W)` with this detector's board and options."""
+        raise NotImplementedError
+
+    def forward(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        board_size = self._check_inputs(images, board_size)
+        if board_size != self.board.board_size:
+            raise ValueError(f"board_size {board_size} is not {self.grid_name} {self.board.board_size} "
+                             f"({self.layout()}).")
+        return self.detect_board(images)
+
+
+class CharucoDetector(MarkerBoardDetector):
     """ChArUco detector with the chessboard detectors' interface (:func:`detect_charuco`): ``board_size`` is the
     board's inner grid ``(squares_x - 1, squares_y - 1)``; unseen corner ids are NaN.
 
@@ -413,21 +455,12 @@ class CharucoDetector(ChessboardDetector):
         (torch.Size([2, 24, 2]), [False, False])
     """
 
-    selects_scale = True
+    grid_name = "the ChArUco board's inner grid"
 
-    def __init__(self, board: CharucoBoard, min_corners: int = 6, radius_factor: float | None = None,
-                 num_workers: int | None = None) -> None:
-        super().__init__()
-        self.board = board
-        self.min_corners = int(min_corners)
-        self.radius_factor = radius_factor
-        self.num_workers = num_workers
+    def layout(self) -> str:
+        return f"{self.board.squares_x}x{self.board.squares_y} squares"
 
-    def forward(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
-        board_size = self._check_inputs(images, board_size)
-        if board_size != self.board.board_size:
-            raise ValueError(f"board_size {board_size} is not the ChArUco board's inner grid {self.board.board_size} "
-                             f"({self.board.squares_x}x{self.board.squares_y} squares).")
+    def detect_board(self, images: torch.Tensor) -> DetectionResult:
         return detect_charuco(images, self.board, self.min_corners, self.radius_factor, self.num_workers)
 
 
