@@ -33,9 +33,16 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
-from ccs_kornia.allocator import keep_freed_memory
-from ccs_kornia.commands import calibrate, calibrate_many, calibrate_rig, demo, detect, rectify, undistort
 from ccs_kornia import __version__
+from ccs_kornia.commands import (
+    calibrate,
+    calibrate_many,
+    calibrate_rig,
+    demo,
+    detect,
+    rectify,
+    undistort,
+)
 from ccs_kornia.commands._common import (
     EXIT_INTERNAL,
     EXIT_INTERRUPTED,
@@ -46,6 +53,7 @@ from ccs_kornia.commands._common import (
     UserError,
     resolve_board,
 )
+from ccs_kornia.runtime.allocator import keep_freed_memory
 
 __all__ = ["main", "run", "build_parser", "UserError", "LIGHTNING_COMMANDS", "EXIT_CODES"]
 
@@ -114,8 +122,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _board_arg(text: str) -> tuple[int, int]:
-    from ccs_kornia.io import parse_board
-
+    from ccs_kornia.io.boards import parse_board
     try:
         return parse_board(text)
     except ValueError as err:
@@ -188,8 +195,7 @@ def _jobs_arg(text: str) -> int | str:
 
 
 def _squares_arg(text: str) -> tuple[int, int]:
-    from ccs_kornia.io import parse_board
-
+    from ccs_kornia.io.boards import parse_board
     try:
         sx, sy = parse_board(text)
     except ValueError:

@@ -13,10 +13,13 @@ from pathlib import Path
 
 import torch
 
-from ccs_kornia.camera import axis_angle_to_rotation_matrix, rotation_matrix_to_axis_angle
 from ccs_kornia.data.renderer import render_chessboard
 from ccs_kornia.data.scenes import make_calibration_set
-from ccs_kornia.io import write_image
+from ccs_kornia.geometry.camera import (
+    axis_angle_to_rotation_matrix,
+    rotation_matrix_to_axis_angle,
+)
+from ccs_kornia.io.images import write_image
 
 BOARD = (6, 4)
 SQUARE = 0.025

@@ -1,13 +1,15 @@
 """The package's layering (docs/architecture.md): what each layer loads, import cycles, dependency rules.
 
-Imports point down only: ``cli`` (and ``commands/``) -> ``pipeline`` -> ``modules/`` -> ``camera``;
-``training/`` -> ``modules/``, ``losses/``, ``data/``; ``data/`` -> ``camera``; nothing in ``modules/`` imports the
-command line, the pipeline, training, the benchmarks or Lightning. The import graph is read from the source with
+Imports point down only: ``cli`` -> ``commands/`` -> ``outputs/``, ``fleet/`` -> ``pipeline/`` -> ``modules/`` ->
+``geometry/`` -> ``runtime/``; ``pipeline/`` reads files through ``io/``; ``training/`` -> ``modules/``, ``losses/``,
+``data/``; ``data/`` -> ``geometry/``; nothing in ``modules/`` imports the command line, the pipeline, the outputs,
+training, the benchmarks or Lightning, and nothing but the face (``__init__``, ``__main__``, ``cli``) sits at the
+package root. The import graph is read from the source with
 ``ast``; imports inside functions (lazy imports) count as edges like module-level ones, and a lazy package export
 (``_EXPORTS`` of a PEP 562 ``__init__``) counts as an edge from the package to the module it names.
 
 Importing ``a.b.c`` also runs the ``__init__`` of ``a`` and ``a.b``; that is not an edge here, because every
-``__init__`` of ours imports nothing but :mod:`ccs_kornia._lazy` (checked below), so running it loads nothing.
+``__init__`` of ours imports nothing but :mod:`ccs_kornia.runtime.lazy` (checked below), so running it loads nothing.
 """
 
 from __future__ import annotations
@@ -103,7 +105,7 @@ def test_a_calibration_loads_no_sympy():
     # calibration (modules._checks.broadcast_shapes is used instead)
     loaded = _loaded_after(
         "import torch\n"
-        "from ccs_kornia.camera import board_object_points, kb_project_points, project_points\n"
+        "from ccs_kornia.geometry.camera import board_object_points, kb_project_points, project_points\n"
         "from ccs_kornia.modules.calibration.solver import CalibrationSolver\n"
         "obj = board_object_points(6, 4, 1.0).double()\n"
         "K = torch.tensor([[400.0, 0, 320], [0, 400, 240], [0, 0, 1]], dtype=torch.float64)\n"
@@ -119,10 +121,11 @@ def test_a_calibration_loads_no_sympy():
 
 
 def test_camera_alone_loads_no_opencv_and_no_stage():
-    loaded = _loaded_after("import ccs_kornia.camera")
+    loaded = _loaded_after("import ccs_kornia.geometry.camera")
     assert "cv2" not in loaded
     assert not _ours(loaded, "ccs_kornia.modules", "ccs_kornia.pipeline", "ccs_kornia.data", "lightning")
-    assert _ours(loaded, "ccs_kornia") == ["ccs_kornia", "ccs_kornia._lazy", "ccs_kornia.camera"]
+    assert _ours(loaded, "ccs_kornia") == ["ccs_kornia", "ccs_kornia.geometry", "ccs_kornia.geometry.camera",
+                                           "ccs_kornia.runtime", "ccs_kornia.runtime.lazy"]
 
 
 def test_modules_load_no_lightning_cli_pipeline_or_training():
@@ -130,15 +133,16 @@ def test_modules_load_no_lightning_cli_pipeline_or_training():
     loaded = _loaded_after("\n".join(f"import {n}" for n in names))
     assert not _ours(loaded, "lightning", "pytorch_lightning")
     assert not _ours(loaded, *(f"ccs_kornia.{x}" for x in (
-        "cli", "commands", "pipeline", "predict", "training", "bench", "data", "losses", "records", "report", "io",
+        "cli", "commands", "pipeline", "fleet", "outputs", "training", "bench", "data", "losses", "io",
     )))
 
 
 def test_pipeline_loads_no_lightning():
-    loaded = _loaded_after("import ccs_kornia.pipeline")
+    names = sorted(n for n in MODULES if n.startswith("ccs_kornia.pipeline"))
+    loaded = _loaded_after("\n".join(f"import {n}" for n in names))
     assert not _ours(loaded, "lightning", "pytorch_lightning")
     assert not _ours(loaded, "ccs_kornia.cli", "ccs_kornia.commands", "ccs_kornia.training", "ccs_kornia.bench",
-                     "ccs_kornia.predict", "ccs_kornia.data")
+                     "ccs_kornia.fleet", "ccs_kornia.outputs", "ccs_kornia.data")
 
 
 def test_renderer_does_not_depend_on_the_stages():
@@ -156,7 +160,7 @@ def test_package_inits_import_nothing_but_the_lazy_helper():
     for name, path in MODULES.items():
         if path.name == "__init__.py":
             direct = {t for t in _edges(name, path) if t not in _lazy_targets(path)}
-            assert direct <= {"ccs_kornia._lazy"}, (name, direct)
+            assert direct <= {"ccs_kornia.runtime.lazy"}, (name, direct)
 
 
 def _lazy_targets(path: Path) -> set[str]:
@@ -187,46 +191,35 @@ def test_no_import_cycle():
             visit(name)
 
 
-#: layer -> layers of ours it may import (besides itself and the lazy-export helper)
+#: layer -> layers of ours it may import (besides itself): the folders, bottom to top
 ALLOWED: dict[str, set[str]] = {
-    "camera": set(),
-    "metrics": set(),
-    "_lazy": set(),
-    "package": set(),
-    "io": set(),
-    "calibration_file": {"camera"},
-    "allocator": set(),
-    "sources": {"io"},
-    "batch_workers": {"modules", "sources"},
-    "pipeline_result": {"camera", "modules", "sources"},
-    "data": {"camera"},
-    "losses": {"camera"},
-    "modules": {"camera"},
-    "pipeline_solve": {"camera", "modules", "pipeline_result", "sources", "batch_workers"},
-    "pipeline_differentiable": {"camera", "modules", "pipeline_result", "pipeline_solve"},
-    "pipeline_looks": {"modules", "pipeline_result", "batch_workers"},
-    "pipeline": {"camera", "modules", "sources", "batch_workers", "pipeline_result", "pipeline_solve",
-                 "pipeline_looks", "pipeline_differentiable"},
-    "records": {"modules", "pipeline_result", "sources"},
-    "rig_frames": set(),
-    "pipeline_rig": {"camera", "modules", "sources", "pipeline", "pipeline_result", "rig_frames"},
-    "records_rig": {"modules", "records"},
-    "report_rig": {"camera", "io", "report_figures", "records_rig"},
-    "report": {"camera", "io", "report_figures", "report_quality"},
-    "report_figures": {"camera", "modules"},
-    "report_quality": {"camera", "report_figures"},
-    "training": {"camera", "modules", "losses", "data"},
-    "predict_output": set(),
-    "predict": {"pipeline", "modules", "io", "records", "sources", "predict_output"},
+    "runtime": set(),
+    "package": {"runtime"},
+    "geometry": {"runtime"},
+    "io": {"runtime"},
+    "data": {"geometry", "runtime"},
+    "losses": {"geometry", "runtime"},
+    "modules": {"geometry", "runtime"},
+    "pipeline": {"modules", "geometry", "io", "runtime"},
+    "outputs": {"pipeline", "modules", "geometry", "io", "runtime"},
+    "fleet": {"pipeline", "outputs", "modules", "geometry", "io", "runtime"},
+    "training": {"modules", "losses", "data", "geometry", "runtime"},
+    "commands": {"outputs", "fleet", "pipeline", "modules", "data", "geometry", "io", "runtime"},
     # the command line dispatches to everything below it; ``bench`` and ``training.cli`` are entry points it
     # forwards to (neither imports the command line)
-    "commands": {"commands", "pipeline", "modules", "io", "records", "report", "data", "metrics", "predict",
-                 "predict_output", "sources", "pipeline_rig", "records_rig", "report_rig", "rig_frames", "calibration_file"},
-    "cli": {"allocator", "commands", "io", "training", "bench", "package"},
+    "cli": {"commands", "training", "bench", "io", "runtime", "package"},
     "__main__": {"cli"},
-    "bench": {"allocator", "camera", "data", "modules", "pipeline", "pipeline_result", "sources", "batch_workers", "io",
-              "metrics", "losses"},
+    "bench": {"pipeline", "outputs", "modules", "data", "losses", "geometry", "io", "runtime"},
 }
+
+#: the only modules at the package root: its face
+ROOT_MODULES = {"ccs_kornia", "ccs_kornia.__main__", "ccs_kornia.cli"}
+
+
+def test_nothing_at_the_package_root_but_its_face():
+    root = {n for n in MODULES if n.count(".") == 1 or n == "ccs_kornia"}
+    packages = {n for n, p in MODULES.items() if p.name == "__init__.py"}
+    assert root - packages == ROOT_MODULES - {"ccs_kornia"}, sorted(root - packages)
 
 
 def test_dependency_rules():
@@ -236,7 +229,7 @@ def test_dependency_rules():
         assert layer in ALLOWED, f"{name}: no dependency rule for layer {layer!r}"
         for t in targets:
             other = _layer(t)
-            if other in (layer, "_lazy") or (layer == "package" and t in _lazy_targets(MODULES[name])):
+            if other == layer or (layer == "package" and t in _lazy_targets(MODULES[name])):
                 continue
             if other not in ALLOWED[layer]:
                 problems.append(f"{name} imports {t}")

@@ -15,7 +15,7 @@ Example:
 
 from __future__ import annotations
 
-from ccs_kornia._lazy import lazy_exports
+from ccs_kornia.runtime.lazy import lazy_exports
 
 _EXPORTS = {
     "BenchConfig": "ccs_kornia.bench.config",

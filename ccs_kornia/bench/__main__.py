@@ -66,11 +66,11 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
         return exit_.code if isinstance(exit_.code, int) else 2
     import torch
 
-    from ccs_kornia.allocator import keep_freed_memory
     from ccs_kornia.bench.config import BenchConfig
     from ccs_kornia.bench.runner import run_bench
+    from ccs_kornia.runtime.allocator import keep_freed_memory
 
-    keep_freed_memory()  # as the command line runs (ccs_kornia/allocator.py)
+    keep_freed_memory()  # as the command line runs (ccs_kornia/runtime/allocator.py)
     if args.threads:
         torch.set_num_threads(args.threads)
     overrides = {}

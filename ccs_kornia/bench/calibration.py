@@ -37,7 +37,7 @@ from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods import DetectionMethod
 from ccs_kornia.bench.scenes import render_scenes
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
-from ccs_kornia.sources import TensorSource
+from ccs_kornia.pipeline.sources import TensorSource
 
 __all__ = ["run_calibration"]
 
@@ -152,6 +152,6 @@ def _corrector(cfg: BenchConfig, device: str, model: str = "opencv5"):
     net, _ = distortion_available(cfg.distortion_weights)
     if net is None:
         return None
-    from ccs_kornia.pipeline import CalibrationPipeline
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
     return CalibrationPipeline("learned", model=model, distortion_correction=net.to(device)).to(device)

@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.camera import board_object_points
-from ccs_kornia.metrics import e_fl, e_ip, e_pp
+from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.metrics import e_fl, e_ip, e_pp
 from ccs_kornia.modules.correction.distortion_net import DEFAULT_DISTORTION_WEIGHTS
 from ccs_kornia.modules.detection.base import measured_corners
 
@@ -95,7 +95,7 @@ def ccs_calibrate(
 
 
 def e_ip_px(K, K_true) -> float:
-    """:func:`ccs_kornia.metrics.e_ip` of one camera (arrays or tensors, 3x3) as a float."""
+    """:func:`ccs_kornia.geometry.metrics.e_ip` of one camera (arrays or tensors, 3x3) as a float."""
     as64 = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float64)  # noqa: E731
     return float(e_ip(as64(K), as64(K_true)))
 

@@ -74,7 +74,7 @@ def render_wide_scenes(cfg: BenchConfig, cameras: int, views: int) -> Scenes:
 
 
 def _network_part(pipeline, scenes: Scenes, image_size: tuple[int, int], board: tuple[int, int]) -> dict:
-    from ccs_kornia.camera import fit_radial_correction
+    from ccs_kornia.geometry.camera import fit_radial_correction
     from ccs_kornia.losses.grid_loss import grid_loss, normalize_distortion_scale
     from ccs_kornia.modules.correction.radial_warp import correct_points
     from ccs_kornia.modules.correction.straightness import straightness_rms
@@ -159,7 +159,7 @@ def _calibrate_scenes(scenes: Scenes, cfg: BenchConfig, size: tuple[int, int], o
             cc = torch.as_tensor(c, dtype=torch.float64, device=device)[None]
             ff = torch.as_tensor(f, dtype=torch.bool, device=device)[None]
             if int(ff.sum()) >= 3:
-                from ccs_kornia.pipeline_result import PipelineResult
+                from ccs_kornia.pipeline.result import PipelineResult
 
                 given = PipelineResult.from_detections(cc, ff, size, on.view_corrections(imgs).reshape(1, V, 5))
                 cal = on.finish(given, cfg.board, cfg.square).calibration
@@ -190,7 +190,7 @@ def run_distortion(cfg: BenchConfig, methods: dict[str, DetectionMethod], device
         log(f"[distortion] skipped: {reason}")
         return {"skipped": reason}
     from ccs_kornia.modules.detection.factory import make_detector
-    from ccs_kornia.pipeline import CalibrationPipeline
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
     try:
         detector = make_detector("learned")

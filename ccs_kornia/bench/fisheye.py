@@ -28,8 +28,8 @@ from ccs_kornia.bench.common import Timer, e_ip_px, summary
 from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.fisheye_data import random_board_views, random_kb_cameras
 from ccs_kornia.bench.fisheye_opencv import opencv_fisheye
-from ccs_kornia.camera import board_object_points
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
+from ccs_kornia.geometry.camera import board_object_points
 
 __all__ = ["FISHEYE_SETS", "fisheye_md", "run_fisheye"]
 
@@ -99,8 +99,8 @@ def _camera(K: np.ndarray, D, rms, used: int, ref) -> dict:
 def _real(cfg: BenchConfig, log) -> dict:
     from ccs_kornia.bench.real import default_real_dir
     from ccs_kornia.modules.calibration.solver import CalibrationSolver
-    from ccs_kornia.pipeline import CalibrationPipeline
-    from ccs_kornia.sources import FileSource
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+    from ccs_kornia.pipeline.sources import FileSource
 
     sets = {}
     for name, (cols, rows, square, ref, guess) in FISHEYE_SETS.items():

@@ -14,9 +14,14 @@ import math
 import torch
 
 from ccs_kornia.bench.scenes import quantize
-from ccs_kornia.camera import board_object_points, kb_project_points, kb_unproject_points, rotation_matrix_to_axis_angle
 from ccs_kornia.data.optics import psf_and_gamma
 from ccs_kornia.data.renderer import render_chessboard
+from ccs_kornia.geometry.camera import (
+    board_object_points,
+    kb_project_points,
+    kb_unproject_points,
+    rotation_matrix_to_axis_angle,
+)
 
 __all__ = ["random_kb_cameras", "random_board_views", "render_kb_views"]
 

@@ -4,7 +4,7 @@
 x ``fisheye_views`` views rendered through the exact lens (:func:`~ccs_kornia.bench.fisheye_data.render_kb_views`:
 point spread, gamma, read noise, 8 bits). Methods:
 
-* **ccs_kornia**: the product path, :class:`~ccs_kornia.pipeline.CalibrationPipeline` with the learned detector,
+* **ccs_kornia**: the product path, :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` with the learned detector,
   once with ``model="fisheye"`` (a user who names the lens) and once with ``model="auto"`` (the default);
 * **cv2.fisheye.calibrate** on OpenCV's classic corners (``findChessboardCorners`` + ``cornerSubPix``, window
   0.45 spacing) and on SB's (``findChessboardCornersSB``), run as ROS users do
@@ -24,10 +24,14 @@ import torch
 
 from ccs_kornia.bench.common import Timer, e_ip_px, summary
 from ccs_kornia.bench.config import BenchConfig
-from ccs_kornia.bench.fisheye_data import random_board_views, random_kb_cameras, render_kb_views
+from ccs_kornia.bench.fisheye_data import (
+    random_board_views,
+    random_kb_cameras,
+    render_kb_views,
+)
 from ccs_kornia.bench.fisheye_opencv import opencv_fisheye
-from ccs_kornia.camera import board_object_points
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
+from ccs_kornia.geometry.camera import board_object_points
 
 __all__ = ["RENDERED_METHODS", "run_fisheye_rendered", "fisheye_rendered_md"]
 
@@ -44,8 +48,8 @@ RENDERED_METHODS = {
 
 
 def _ours(images: torch.Tensor, K_true: torch.Tensor, log) -> dict[str, dict]:
-    from ccs_kornia.pipeline import CalibrationPipeline
-    from ccs_kornia.sources import TensorSource
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+    from ccs_kornia.pipeline.sources import TensorSource
 
     source = TensorSource(images)
     out: dict[str, dict] = {}

@@ -8,9 +8,9 @@
 * :func:`compute_floors`: both networks' FLOPs per image (the heatmap UNet at the detection level that scale
   selection picks for the given images and at full resolution, the DistortionNet at its input size) and their
   floor times.
-* :func:`profile_default_path`: the wall time of the default :class:`~ccs_kornia.pipeline.CalibrationPipeline`
+* :func:`profile_default_path`: the wall time of the default :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline`
   (learned detector, distortion correction on) on image files as ``calibrate`` runs it (worker processes), and the
-  exclusive wall time per stage (:mod:`ccs_kornia.modules._timing`) of the same in one process.
+  exclusive wall time per stage (:mod:`ccs_kornia.runtime.timing`) of the same in one process.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ __all__ = ["network_flops", "conv_rate", "compute_floors", "profile_detector", "
 #: the command line's ``--batch-size`` default (cli.py): views per batch, and per chunk of a worker process
 CLI_BATCH_SIZE = 8
 
-#: the stages of the default path, in the order they run (names of :func:`ccs_kornia.modules._timing.stage`)
+#: the stages of the default path, in the order they run (names of :func:`ccs_kornia.runtime.timing.stage`)
 STAGE_ORDER: tuple[str, ...] = (
     "image loading", "distortion network", "square-size estimate", "level resize", "heatmap network",
     "peaks + Gaussian fit + sigma rejection", "X-junction check", "grid organiser", "missing corners",
@@ -93,14 +93,16 @@ def conv_rate(size: tuple[int, int] = (240, 320), batch: int = 4, repeats: int =
 def compute_floors(images: torch.Tensor, rates: dict[str, float]) -> dict:
     """FLOPs per image and floor times of the shipped networks for ``images`` :math:`(B, 1, H, W)`.
 
-    The heatmap UNet is counted at each image's detection level (:class:`~ccs_kornia.modules.detection.scale.
+    The heatmap UNet is counted at each image's detection level (:class:`~ccs_kornia.modules.detection.learned.scale.
     ScaleSelector` of the shipped detector) and at full resolution, the DistortionNet at its input size; each floor
     is ``FLOPs / rate`` for every measured rate of ``rates`` (``{"float32": GFLOP/s, "bfloat16": GFLOP/s}``).
     """
     from ccs_kornia.modules.correction.distortion_net import load_distortion_net
-    from ccs_kornia.modules.detection.heatmap_unet import effective_precision
-    from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
-    from ccs_kornia.modules.detection.patch_refine import level_size
+    from ccs_kornia.modules.detection.learned.heatmap_unet import effective_precision
+    from ccs_kornia.modules.detection.learned.learned_detector import (
+        LearnedChessboardDetector,
+    )
+    from ccs_kornia.modules.detection.refine.patch_refine import level_size
 
     det = LearnedChessboardDetector()
     h, w = images.shape[-2:]
@@ -132,10 +134,11 @@ def profile_detector(images: torch.Tensor, board: tuple[int, int], batch_sizes: 
                      repeats: int = 2) -> dict:
     """Per-stage exclusive time of the shipped learned detector on ``images`` at each batch size (best of
     ``repeats`` after a warm-up): ``{batch: {"images_per_s", "stages": {stage: ms per image}}}``."""
-    from ccs_kornia.modules._timing import StageProfile
-    from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
-
-    from ccs_kornia.modules.detection.heatmap_unet import effective_precision
+    from ccs_kornia.modules.detection.learned.heatmap_unet import effective_precision
+    from ccs_kornia.modules.detection.learned.learned_detector import (
+        LearnedChessboardDetector,
+    )
+    from ccs_kornia.runtime.timing import StageProfile
 
     det = LearnedChessboardDetector()
     n = images.shape[0]
@@ -203,10 +206,10 @@ def profile_default_path(images: torch.Tensor, board: tuple[int, int], square: f
         ``{"wall_s", "workers", "serial_wall_s", "views", "stages": [{"stage", "seconds", "share", "calls"}, ...]
         (one process), "found", "success"}``.
     """
-    from ccs_kornia.batch_workers import default_workers
-    from ccs_kornia.modules._timing import StageProfile
-    from ccs_kornia.pipeline import CalibrationPipeline
-    from ccs_kornia.sources import FileSource
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+    from ccs_kornia.pipeline.sources import FileSource
+    from ccs_kornia.pipeline.workers import default_workers
+    from ccs_kornia.runtime.timing import StageProfile
 
     workers = default_workers(device)
     best: dict = {}

@@ -1,4 +1,4 @@
-"""The GPU path proven in one call: ``benchmarks/gpu_check.sh`` / ``python -m ccs_kornia.bench.gpu_check``.
+"""The GPU path proven in one call: ``ccs_kornia/bench/gpu_check.sh`` / ``python -m ccs_kornia.bench.gpu_check``.
 
 On a machine with CUDA, in a few minutes:
 
@@ -135,8 +135,10 @@ def _parity(images: torch.Tensor, cuda: bool, corner_tol: float, calib_tol: floa
     Returns:
         ``cpu_found``, ``cpu_calibrated``; with CUDA also the differences and ``corners_ok`` / ``calibration_ok``.
     """
-    from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
-    from ccs_kornia.pipeline import CalibrationPipeline
+    from ccs_kornia.modules.detection.learned.learned_detector import (
+        LearnedChessboardDetector,
+    )
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
     out: dict = {}
     det = LearnedChessboardDetector(precision="float32")
@@ -178,7 +180,9 @@ def _round_trips(images: torch.Tensor, truth: torch.Tensor) -> dict:
         ``detect_batch4``, ``detect_batch16``, ``solver_4_cameras``: synchronisations counted in one call.
     """
     from ccs_kornia.bench.common import ccs_calibrate
-    from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
+    from ccs_kornia.modules.detection.learned.learned_detector import (
+        LearnedChessboardDetector,
+    )
 
     det = LearnedChessboardDetector(precision="float32").to("cuda")
 
@@ -220,7 +224,9 @@ def _throughput(images: torch.Tensor, truth: torch.Tensor, device: str, batches:
         ``detect_images_per_s`` and ``calibrations_per_s``, each keyed by the size as a string.
     """
     from ccs_kornia.bench.common import ccs_calibrate
-    from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
+    from ccs_kornia.modules.detection.learned.learned_detector import (
+        LearnedChessboardDetector,
+    )
 
     det = LearnedChessboardDetector().to(device)
     n = max(batches)
@@ -256,8 +262,7 @@ def _fleet(calib_tol: float, time_limit: float = 240.0, accelerator: str = "gpu"
     """
     import tempfile
 
-    from ccs_kornia.io import write_image
-
+    from ccs_kornia.io.images import write_image
     images, _ = _render(8, seed=11)
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "cameras"
@@ -373,7 +378,7 @@ def run_checks(dry_run: bool = False, corner_tol: float = 1e-3, calib_tol: float
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Command line: ``benchmarks/gpu_check.sh [--dry-run] [--no-tests] [--out report.json]``.
+    """Command line: ``ccs_kornia/bench/gpu_check.sh [--dry-run] [--no-tests] [--out report.json]``.
 
     Args:
         argv: the arguments (``sys.argv[1:]`` when ``None``).

@@ -5,10 +5,10 @@
   mirrored: seen from its back):
 
   - a ChArUco board of 6 x 8 squares (``DICT_6X6_250``; an even number of rows, so OpenCV's legacy layout differs:
-    each view is printed in one of the two layouts at random): ours (:func:`~ccs_kornia.modules.detection.charuco.
+    each view is printed in one of the two layouts at random): ours (:func:`~ccs_kornia.modules.detection.markers.charuco.
     detect_charuco`, layout found per view) against ``cv2.aruco.CharucoDetector`` with ``setLegacyPattern(False)``
     and ``(True)`` (default parameters, as its users run it) and the better of the two per view ("told the layout");
-  - Kalibr's AprilGrid 6 x 6 (``tagSpacing`` 0.3): ours (:func:`~ccs_kornia.modules.detection.aprilgrid.
+  - Kalibr's AprilGrid 6 x 6 (``tagSpacing`` 0.3): ours (:func:`~ccs_kornia.modules.detection.markers.aprilgrid.
     detect_aprilgrid`) against OpenCV's tag corners (``DICT_APRILTAG_36h11``, two border bits) refined by
     ``cv2.cornerSubPix`` (2, 2) as Kalibr refines its tag corners, ids as decoded (no lattice check: Kalibr has
     none).
@@ -17,7 +17,7 @@
   from its id's true position than half the distance to the nearest other true corner: it is another corner), and
   the corner error (mean and median px over the corners with a right id).
 * **calibration from partial views**: sets of views of the ChArUco board, every one cut by the frame; ours
-  (:class:`~ccs_kornia.pipeline.CalibrationPipeline` on our corners) against ``cv2.calibrateCamera`` on
+  (:class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` on our corners) against ``cv2.calibrateCamera`` on
   CharucoDetector's corners (told the layout), both with the rational model (k1..k6) on the wide-angle lens: the
   error of fx and the RMS.
 * **real**: ``charuco_opencv_tutorial`` (4 views and one occluded view) and ``caliscope_4cam_charuco`` (white-on-black,
@@ -36,10 +36,19 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.data.marker_views import CONDITIONS, K, random_board_pose, render_condition, render_marker_view
-from ccs_kornia.modules.detection.aprilgrid import detect_aprilgrid, tag_detector
+from ccs_kornia.data.marker_views import (
+    CONDITIONS,
+    K,
+    random_board_pose,
+    render_condition,
+    render_marker_view,
+)
 from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard
-from ccs_kornia.modules.detection.charuco import detect_charuco
+from ccs_kornia.modules.detection.markers.aprilgrid import (
+    detect_aprilgrid,
+    tag_detector,
+)
+from ccs_kornia.modules.detection.markers.charuco import detect_charuco
 
 __all__ = ["APRILGRID", "CHARUCO", "MIN_POSED", "REAL_SETS", "SEED", "markers_md", "run_markers"]
 
@@ -167,8 +176,8 @@ def _aprilgrid_condition(cfg, condition: str, n: int, seed: int, log) -> dict:
 
 def _calibration_trial(cfg, views: int, seed: int) -> dict:
     """One set of partial ChArUco views (new layout), calibrated by ours and by OpenCV (rational model)."""
-    from ccs_kornia.modules.detection.charuco import CharucoDetector
-    from ccs_kornia.pipeline import CalibrationPipeline
+    from ccs_kornia.modules.detection.markers.charuco import CharucoDetector
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
     rng = np.random.default_rng(seed)
     board = CharucoBoard(CHARUCO.squares_x, CHARUCO.squares_y, CHARUCO.square, CHARUCO.marker, CHARUCO.dictionary,

@@ -128,11 +128,11 @@ def _libcbdetect_method() -> tuple[Callable | None, str]:
 
 
 def _learned_method(batch: int, collinearity_last: bool = False, **options) -> tuple[Callable | None, str]:
-    from ccs_kornia.modules.detection.collinearity import collinearity_refine
     from ccs_kornia.modules.detection.factory import make_detector
+    from ccs_kornia.modules.detection.grid.collinearity import collinearity_refine
 
     try:
-        from ccs_kornia.modules.detection.learned_detector import (
+        from ccs_kornia.modules.detection.learned.learned_detector import (
             DEFAULT_DETECTOR_WEIGHTS,
         )
     except ImportError as err:
@@ -166,7 +166,7 @@ def _learned_method(batch: int, collinearity_last: bool = False, **options) -> t
 
 def _opencv_saddle_method() -> Callable:
     from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
-    from ccs_kornia.modules.detection.saddle_refine import CornerRefiner
+    from ccs_kornia.modules.detection.refine.saddle_refine import CornerRefiner
 
     det, refiner = OpenCVChessboardDetector(), CornerRefiner()
 

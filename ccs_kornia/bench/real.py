@@ -81,8 +81,7 @@ def load_reference(path: Path, section: str | None = None) -> dict | None:
 def load_real_set(folder: Path, max_images: int | None = None) -> tuple[torch.Tensor, list[str], tuple[int, int]]:
     """Grey images ``(B, 1, H, W)`` of one set, cropped to the most common size (two Udacity images are one
     pixel larger; cropping the last row/column keeps every pixel coordinate)."""
-    from ccs_kornia.io import load_image_gray, natural_key
-
+    from ccs_kornia.io.images import load_image_gray, natural_key
     # calibration2 before calibration10
     files = sorted((p for p in folder.iterdir() if p.suffix.lower() in _IMAGE_EXT), key=lambda p: natural_key(p.name))
     if max_images is not None:
@@ -182,8 +181,8 @@ def _pipeline_on_set(cfg, images, board, square, size, model, subsets, reference
     detector; detection on corrected images where the pooled correction applies; corrected solver stage)."""
     from ccs_kornia.bench.common import distortion_available
     from ccs_kornia.modules.detection.factory import make_detector
-    from ccs_kornia.pipeline import CalibrationPipeline
-    from ccs_kornia.sources import TensorSource
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+    from ccs_kornia.pipeline.sources import TensorSource
 
     net, _ = distortion_available(cfg.distortion_weights)
     if net is None:

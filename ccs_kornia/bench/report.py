@@ -30,7 +30,7 @@ _SHORT = {"learned": "learned", "opencv_saddle": "cv+saddle", "opencv_subpix": "
 
 def _cpu_vector() -> str:
     """The CPU's widest vector extension and whether bfloat16 is native, e.g. ``"AVX2, no native bfloat16"``."""
-    from ccs_kornia.modules.detection.heatmap_unet import cpu_has_native_bf16
+    from ccs_kornia.modules.detection.learned.heatmap_unet import cpu_has_native_bf16
 
     flags: set[str] = set()
     try:
@@ -305,7 +305,7 @@ def _speed_md(sec: dict) -> list[str]:
             lines += limit_markdown(res["limit"], res["detection"], res["calibration"])
     for device, why in sec.get("skipped_devices", {}).items():
         lines.append(f"- {device}: not run ({why})")
-    lines += ["", "GPU path: `benchmarks/gpu_check.sh` (on a CUDA machine, a few minutes) runs the device-parametrised "
+    lines += ["", "GPU path: `ccs_kornia/bench/gpu_check.sh` (on a CUDA machine, a few minutes) runs the device-parametrised "
               "tests on CUDA, checks CPU-vs-GPU corners (<= 1e-3 px) and calibrations (<= 1e-6 relative), counts the "
               "CUDA synchronisations per call and prints detection img/s at batch 1/16/64 and calibrations/s at "
               "1/64/256 cameras; without CUDA (or `--dry-run`) it says what it would check and runs the CPU half "

@@ -5,7 +5,7 @@ Each trial renders a random rig (:func:`~ccs_kornia.data.rig.render_rig`): 2-4 c
 that leave partial boards near the image edges, cameras missing 10 % of the frames, Gaussian pixel noise of 0.1-0.3
 px. Seeds start at :data:`SEED` (disjoint from the tests').
 
-* ours: :class:`~ccs_kornia.modules.calibration.rig.RigSolver` on every corner;
+* ours: :class:`~ccs_kornia.modules.rig.rig_solver.RigSolver` on every corner;
 * OpenCV, as its users run it (full boards only): each camera alone on the frames where it sees every corner
   (``cv2.calibrateCamera``, with ``CALIB_ZERO_TANGENT_DIST | CALIB_FIX_K3`` for ``k1k2``; ``cv2.fisheye.calibrate``
   through :func:`~ccs_kornia.bench.fisheye_opencv.opencv_fisheye`), then camera 0 with each other camera on the
@@ -29,10 +29,10 @@ import torch
 
 from ccs_kornia.bench.fisheye_opencv import opencv_fisheye
 from ccs_kornia.data.rig import render_rig
-from ccs_kornia.modules.calibration.rig import RigSolver
-from ccs_kornia.modules.calibration.rig_camera import RigCamera, normalized_points
-from ccs_kornia.modules.calibration.rig_diagnostics import epipolar_sums
-from ccs_kornia.modules.calibration.so3 import exp_so3, log_so3
+from ccs_kornia.geometry.so3 import exp_so3, log_so3
+from ccs_kornia.modules.rig.rig_camera import RigCamera, normalized_points
+from ccs_kornia.modules.rig.rig_diagnostics import epipolar_sums
+from ccs_kornia.modules.rig.rig_solver import RigSolver
 
 __all__ = ["SEED", "FAIL_DEG", "FAIL_PCT", "random_rig", "opencv_rig", "run_rig", "rig_md"]
 

@@ -34,8 +34,7 @@ def run_bench(
     Returns:
         The results dict (``meta`` and ``sections``), as written to ``results.json``.
     """
-    from ccs_kornia.io import write_json
-
+    from ccs_kornia.io.files import write_json
     for s in cfg.sections:
         if s not in SECTIONS:
             raise ValueError(f"Unknown section {s!r}; expected some of {SECTIONS}.")

@@ -14,7 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ccs_kornia.bench.config import _CONDITION_PARTS, _SECTION_SEED, OPTICS_CONDITIONS, BenchConfig
+from ccs_kornia.bench.config import (
+    _CONDITION_PARTS,
+    _SECTION_SEED,
+    OPTICS_CONDITIONS,
+    BenchConfig,
+)
 from ccs_kornia.data.datamodule import BENCH_SEED_BASE
 from ccs_kornia.data.sampling import sample_radial_distortion
 from ccs_kornia.data.scenes import make_calibration_set
@@ -148,10 +153,10 @@ def orient_grid(corners: np.ndarray, board: tuple[int, int]) -> np.ndarray:
 
     A board seen from its front keeps ``(step along i) x (step along j) > 0`` in image coordinates
     (y down); a detector that returns the mirrored order gets its columns flipped. Then
-    :func:`ccs_kornia.modules.detection.board_checks.canonical_corner_order` picks the orientation whose first
+    :func:`ccs_kornia.modules.detection.checks.board_checks.canonical_corner_order` picks the orientation whose first
     corner is nearest the image's top-left, so every method and view follows one convention.
     """
-    from ccs_kornia.modules.detection.board_checks import canonical_corner_order
+    from ccs_kornia.modules.detection.checks.board_checks import canonical_corner_order
 
     cols, rows = board
     g = np.asarray(corners, dtype=np.float64).reshape(rows, cols, 2)

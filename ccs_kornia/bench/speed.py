@@ -122,7 +122,7 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
         # the whole product path: CalibrationPipeline with the distortion correction (its default)
         net, why = distortion_available(cfg.distortion_weights)
         if net is not None and ccs_key == "learned":
-            from ccs_kornia.pipeline import CalibrationPipeline
+            from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
             pipe = CalibrationPipeline("learned", distortion_correction=net).to(device)
             sec = _best(lambda: pipe(views.to(device), cfg.board, cfg.square), cfg.speed_repeats, device)
@@ -158,9 +158,9 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
 def _detect_in_workers(m: DetectionMethod, images: torch.Tensor, cfg: BenchConfig, log) -> dict:
     """Images/s of the detector in the worker processes a folder gets (``calibrate --jobs auto``: one per core, batches
     of the command line's size), the processes' start included."""
-    from ccs_kornia.batch_workers import default_workers, map_batches
     from ccs_kornia.bench.floors import CLI_BATCH_SIZE
-    from ccs_kornia.sources import TensorSource
+    from ccs_kornia.pipeline.sources import TensorSource
+    from ccs_kornia.pipeline.workers import default_workers, map_batches
 
     # (fewer when the images make fewer batches)
     workers = min(default_workers("cpu"), -(-images.shape[0] // CLI_BATCH_SIZE))
@@ -177,8 +177,14 @@ def _detect_in_workers(m: DetectionMethod, images: torch.Tensor, cfg: BenchConfi
 
 def _limit(cfg: BenchConfig, det_images: torch.Tensor, views: torch.Tensor, log) -> dict:
     """Floors, the detector's and the default path's per-stage profiles, and the real set end to end."""
-    from ccs_kornia.bench.floors import compute_floors, conv_rate, end_to_end, profile_default_path, profile_detector
-    from ccs_kornia.modules.detection.heatmap_unet import cpu_has_native_bf16
+    from ccs_kornia.bench.floors import (
+        compute_floors,
+        conv_rate,
+        end_to_end,
+        profile_default_path,
+        profile_detector,
+    )
+    from ccs_kornia.modules.detection.learned.heatmap_unet import cpu_has_native_bf16
 
     rates = {"float32": conv_rate(repeats=cfg.speed_repeats + 1)["gflops"]}
     if cpu_has_native_bf16():

@@ -40,29 +40,15 @@ __all__ = [
 PROG = "ccs_kornia"
 
 
-#: exit statuses of the command line (``--help`` lists them, ``docs/command_line.md`` explains them)
-EXIT_OK = 0
-EXIT_INTERNAL = 1
-EXIT_USAGE = 2
-EXIT_NO_RESULT = 3
-EXIT_INTERRUPTED = 130
-
-
-class UserError(Exception):
-    """A mistake in the user's input that stops the command (exit status :data:`EXIT_USAGE`).
-
-    ``partial`` may hold what was computed before the job had to stop (written by the command).
-    """
-
-    partial: dict[str, Any] | None = None
-    exit_code: int = EXIT_USAGE
-
-
-class NoResult(UserError):
-    """The inputs were read but gave no result: the board was found in no image, or no calibration could be computed
-    from the views (exit status :data:`EXIT_NO_RESULT`)."""
-
-    exit_code = EXIT_NO_RESULT
+from ccs_kornia.runtime.errors import (  # noqa: F401  (the command line's errors and exit statuses)
+    EXIT_INTERNAL,
+    EXIT_INTERRUPTED,
+    EXIT_NO_RESULT,
+    EXIT_OK,
+    EXIT_USAGE,
+    NoResult,
+    UserError,
+)
 
 
 def warn(command: str, message: str) -> None:
@@ -139,8 +125,7 @@ def make_dir(option: str, path: str) -> None:
 
 
 def inputs(command: str, items: Sequence[str]) -> list[str]:
-    from ccs_kornia.io import expand_inputs
-
+    from ccs_kornia.io.images import expand_inputs
     files, problems = expand_inputs(items)
     if not files:
         detail = "; ".join(f"{item}: {reason}" for item, reason in problems) or "nothing given"
@@ -199,7 +184,10 @@ def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present
     markers in the images instead; or found in no more views than were refused for markers off its lattice (a wrong
     board size: a partial view of another board can fit by chance): the board size the markers fit. Either as a
     :class:`UserError` (exit status :data:`EXIT_USAGE`)."""
-    from ccs_kornia.modules.detection.charuco import CharucoDetector, dictionary_hint
+    from ccs_kornia.modules.detection.markers.charuco import (
+        CharucoDetector,
+        dictionary_hint,
+    )
 
     detector = getattr(pipeline, "detector", None)
     if not isinstance(detector, CharucoDetector) or not bool(present.any()):
@@ -211,11 +199,11 @@ def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present
 
     images = [cv2.imread(f, cv2.IMREAD_GRAYSCALE) for f, ok in zip(files, present.tolist()) if ok][:8]
     board = detector.board
-    from ccs_kornia.modules.detection.charuco import charuco_markers
+    from ccs_kornia.modules.detection.markers.charuco import charuco_markers
 
     images = [img for img in images if img is not None]
     if any(len(charuco_markers(img, board).ids) for img in images):
-        from ccs_kornia.modules.detection.charuco import squares_hint
+        from ccs_kornia.modules.detection.markers.charuco import squares_hint
 
         hint = squares_hint(images, board)  # markers of the board decoded, but not where its squares put them
         if hint:
@@ -254,11 +242,11 @@ def make_detector_from(args: argparse.Namespace):
     from ccs_kornia.modules.detection.factory import make_detector
 
     if getattr(args, "charuco_board", None) is not None:
-        from ccs_kornia.modules.detection.charuco import CharucoDetector
+        from ccs_kornia.modules.detection.markers.charuco import CharucoDetector
 
         return CharucoDetector(args.charuco_board)
     if getattr(args, "aprilgrid_board", None) is not None:
-        from ccs_kornia.modules.detection.aprilgrid import AprilGridDetector
+        from ccs_kornia.modules.detection.markers.aprilgrid import AprilGridDetector
 
         return AprilGridDetector(args.aprilgrid_board)
     options = {}
@@ -271,7 +259,7 @@ def make_detector_from(args: argparse.Namespace):
 
 
 def pipeline_options(args: argparse.Namespace, use_ransac: bool = True, seed: int = 0) -> dict:
-    """The :class:`~ccs_kornia.pipeline.CalibrationPipeline` options the command's arguments set."""
+    """The :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` options the command's arguments set."""
     return dict(
         use_ransac=use_ransac, seed=seed, detection_batch_size=args.batch_size,
         workers=getattr(args, "jobs", 1),
@@ -288,7 +276,7 @@ def missing_weights(err: FileNotFoundError) -> UserError:
 
 
 def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: bool = True, seed: int = 0):
-    from ccs_kornia.pipeline import CalibrationPipeline
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
     detector = make_detector_from(args)
     try:
@@ -299,17 +287,17 @@ def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: 
 
 def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int, int], square: float, device,
               calibrate: bool = True, names: list[str] | None = None):
-    """The pipeline's one composition (:meth:`~ccs_kornia.pipeline.CalibrationPipeline.run`) on image files, with a
+    """The pipeline's one composition (:meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.run`) on image files, with a
     progress bar; unreadable files are reported on stderr and skipped.
 
     Returns:
-        ``(result, seconds)``: the batched :class:`~ccs_kornia.pipeline_result.PipelineResult` and the wall time.
+        ``(result, seconds)``: the batched :class:`~ccs_kornia.pipeline.result.PipelineResult` and the wall time.
     """
     import time
 
     from tqdm import tqdm
 
-    from ccs_kornia.sources import FileSource
+    from ccs_kornia.pipeline.sources import FileSource
 
     source = FileSource(cameras, names)
     pipeline.to(device)

@@ -23,7 +23,7 @@ from ccs_kornia.commands._common import (
     warn,
 )
 
-__all__ = ["calibrate_files", "failure_message", "ros_camera_info", "run", "verdict_line"]
+__all__ = ["calibrate_files", "failure_message", "run", "verdict_line"]
 
 
 def calibrate_files(
@@ -41,7 +41,7 @@ def calibrate_files(
     Raises :class:`UserError` when no calibration can be computed: :class:`NoResult` when images were read, with
     ``partial``: the per-view record (detections and reasons) so the caller can keep it.
     """
-    from ccs_kornia.records import camera_record
+    from ccs_kornia.outputs.records import camera_record
 
     out, seconds = run_files(command, pipeline, [files], board, square, device)
     one = out.select(0)
@@ -66,7 +66,7 @@ def calibrate_files(
 
 
 def failure_message(data: dict[str, Any], board: tuple[int, int], readable: int) -> str:
-    """Why a camera's record (:func:`~ccs_kornia.records.camera_record`, ``success`` false) holds no calibration, in
+    """Why a camera's record (:func:`~ccs_kornia.outputs.records.camera_record`, ``success`` false) holds no calibration, in
     one line: board never found, too few usable views, the solver's refusals with the views they name."""
     files = data["num_views"]["files"]
     if data["num_views"]["found"] == 0:
@@ -97,63 +97,9 @@ def _failed_path(output: str) -> str:
     return f"{stem}.failed{ext or '.json'}"
 
 
-def _write_opencv_yaml(path: str, data: dict[str, Any]) -> None:
-    import cv2
-    import numpy as np
-
-    fs = cv2.FileStorage(path, cv2.FILE_STORAGE_WRITE)
-    if not fs.isOpened():
-        raise UserError(f"--opencv-yaml {path}: cannot open for writing")
-    try:
-        fs.write("calibration_time", time.strftime("%Y-%m-%d %H:%M:%S"))
-        fs.write("nr_of_frames", int(data["num_views"]["used"]))
-        fs.write("image_width", int(data["image_size"][0]))
-        fs.write("image_height", int(data["image_size"][1]))
-        fs.write("board_width", int(data["board"][0]))
-        fs.write("board_height", int(data["board"][1]))
-        fs.write("square_size", float(data["square"]))
-        fs.write("camera_matrix", np.array(data["K"], dtype=np.float64))
-        coeffs = data["distortion"]["coeffs"] or [0.0, 0.0, 0.0, 0.0, 0.0]
-        fs.write("distortion_coefficients", np.array(coeffs, dtype=np.float64).reshape(-1, 1))
-        # which projection the coefficients belong to: cv2.fisheye's k1..k4 or cv2's polynomial model
-        fs.write("distortion_model", "fisheye" if data["distortion"]["model"] == "fisheye" else "opencv")
-        fs.write("avg_reprojection_error", float(data["rms"]))
-    finally:
-        fs.release()
-
-
-#: ROS camera_info names of the models (image_pipeline's camera_calibration writes ``equidistant`` for fisheye)
-ROS_DISTORTION_MODELS = {"fisheye": "equidistant", "rational": "rational_polynomial"}
-
-
-def ros_camera_info(data: dict[str, Any], camera_name: str = "camera", rectification: Any = None,
-                    projection: Any = None) -> str:
-    """The calibration as a ROS ``camera_info`` YAML (``camera_calibration_parsers`` format). Monocular by default:
-    identity rectification, projection ``[K | 0]``; a stereo camera passes its ``rectification`` (3x3, ``R1``/``R2``
-    of the rectification) and ``projection`` (3x4, ``P1``/``P2``)."""
-    K = [float(v) for row in data["K"] for v in row]
-    coeffs = [float(c) for c in (data["distortion"]["coeffs"] or [0.0] * 5)]
-    model = ROS_DISTORTION_MODELS.get(data["distortion"]["model"], "plumb_bob")
-    P = [K[0], K[1], K[2], 0.0, K[3], K[4], K[5], 0.0, K[6], K[7], K[8], 0.0]
-    if projection is not None:
-        P = [float(v) for row in projection for v in row]
-    R = [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0]
-    if rectification is not None:
-        R = [float(v) for row in rectification for v in row]
-
-    def matrix(rows: int, cols: int, values: list[float]) -> str:
-        return f"  rows: {rows}\n  cols: {cols}\n  data: [{', '.join(f'{v:.9g}' for v in values)}]\n"
-
-    return (f"image_width: {int(data['image_size'][0])}\nimage_height: {int(data['image_size'][1])}\n"
-            f"camera_name: {camera_name}\ncamera_matrix:\n{matrix(3, 3, K)}distortion_model: {model}\n"
-            f"distortion_coefficients:\n{matrix(1, len(coeffs), coeffs)}"
-            f"rectification_matrix:\n{matrix(3, 3, R)}"
-            f"projection_matrix:\n{matrix(3, 4, P)}")
-
-
 def run(args: argparse.Namespace) -> int:
-    from ccs_kornia.io import write_json
-
+    from ccs_kornia.io.files import write_json, write_text_atomic
+    from ccs_kornia.outputs.camera_exports import ros_camera_info, write_opencv_yaml
     check_output_file("--output", args.output)
     if args.opencv_yaml:
         check_output_file("--opencv-yaml", args.opencv_yaml)
@@ -193,15 +139,11 @@ def run(args: argparse.Namespace) -> int:
     if os.path.isfile(_failed_path(args.output)):  # an earlier failure's record would now be stale
         os.unlink(_failed_path(args.output))
     if args.opencv_yaml:
-        _write_opencv_yaml(args.opencv_yaml, data)
+        write_opencv_yaml(args.opencv_yaml, data)
     if args.ros_yaml:
-        try:
-            with open(args.ros_yaml, "w", encoding="utf-8") as handle:
-                handle.write(ros_camera_info(data))
-        except OSError as err:
-            raise UserError(f"--ros-yaml {args.ros_yaml}: cannot write ({err.strerror})") from None
+        write_text_atomic("--ros-yaml", args.ros_yaml, ros_camera_info(data))
     if args.report:
-        from ccs_kornia.report import write_report
+        from ccs_kornia.outputs.report.calibration import write_report
 
         make_dir("--report", args.report)
         start = time.perf_counter()

@@ -63,8 +63,12 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--workers must be >= 0, got {args.workers}")
     accelerator, devices = _placement(args)
     try:
-        from ccs_kornia.predict import calibrate_many, find_image_sets, launched_as_rank_zero
-        from ccs_kornia.predict_output import not_jsonl_reason
+        from ccs_kornia.fleet.predict import (
+            calibrate_many,
+            find_image_sets,
+            launched_as_rank_zero,
+        )
+        from ccs_kornia.fleet.shards import not_jsonl_reason
     except ImportError as err:
         raise UserError(f"calibrate-many needs Lightning ({err})") from None
     overwrite = bool(getattr(args, "overwrite", False))

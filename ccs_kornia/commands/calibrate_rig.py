@@ -72,7 +72,7 @@ def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
     them; returns ``{index: (RigCamera, image_size, path)}``."""
     import torch
 
-    from ccs_kornia.modules.calibration import RigCamera
+    from ccs_kornia.modules.rig import RigCamera
 
     fixed: dict[int, Any] = {}
     for item in items or []:
@@ -124,11 +124,11 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ccs_kornia.commands.calibrate import failure_message
-    from ccs_kornia.pipeline_rig import RigPipeline
-    from ccs_kornia.records import camera_record
-    from ccs_kornia.records_rig import rig_record
-    from ccs_kornia.rig_frames import match_frames
-    from ccs_kornia.sources import FileSource
+    from ccs_kornia.outputs.records import camera_record
+    from ccs_kornia.outputs.rig_records import rig_record
+    from ccs_kornia.pipeline.frame_matching import match_frames
+    from ccs_kornia.pipeline.rig_pipeline import RigPipeline
+    from ccs_kornia.pipeline.sources import FileSource
 
     folders = args.cameras
     if len(folders) < 2:
@@ -216,16 +216,14 @@ def _check_cameras(cameras, files, folders, names, fixed, args, failure_message,
 def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[str]) -> None:
     """Every requested file, prepared first (a format that cannot hold the rig stops the run before any is
     written), then written through temporary files renamed into place."""
-    from ccs_kornia.commands.rig_exports import (
+    from ccs_kornia.io.files import write_json, write_text_atomic
+    from ccs_kornia.outputs.rig_exports import (
         kalibr_camchain,
         kalibr_problem,
         rectification,
         ros_stereo_files,
         write_opencv_stereo_yaml,
-        write_text_atomic,
     )
-    from ccs_kornia.io import write_json
-
     rect = rectification(data, 0, 1) if (args.opencv_yaml or args.ros_yaml_dir or args.report) else None
     ros = ros_stereo_files(data, rect, (names[0], names[1]) if args.names else ("left", "right")) \
         if args.ros_yaml_dir else {}
@@ -240,7 +238,7 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
     if len(data["cameras"]) > 2 and (args.opencv_yaml or args.ros_yaml_dir):
         info(f"--opencv-yaml / --ros-yaml-dir hold the pair {names[0]}-{names[1]} (cameras 0 and 1)")
     if args.report:
-        from ccs_kornia.report_rig import write_rig_report
+        from ccs_kornia.outputs.report.rig import write_rig_report
 
         start = time.perf_counter()
         os.makedirs(args.report, exist_ok=True)

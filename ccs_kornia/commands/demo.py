@@ -24,8 +24,9 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from ccs_kornia.data.scenes import make_calibration_set
-    from ccs_kornia.io import write_image, write_json
-    from ccs_kornia.metrics import e_fl, e_ip, e_pp
+    from ccs_kornia.geometry.metrics import e_fl, e_ip, e_pp
+    from ccs_kornia.io.files import write_json
+    from ccs_kornia.io.images import write_image
 
     device = resolve_device(args.device)
     make_dir("--out-dir", args.out_dir)
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     data["success"] = True
     data["timings"]["render_s"] = render_s
     write_json(output, data)
-    from ccs_kornia.report import write_report
+    from ccs_kornia.outputs.report.calibration import write_report
 
     report_dir = os.path.join(args.out_dir, "report")
     make_dir("--out-dir", report_dir)

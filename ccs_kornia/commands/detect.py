@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+
 from ccs_kornia.commands._common import (
     NoResult,
     UserError,
@@ -35,8 +36,8 @@ def _image_record(view: dict) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ccs_kornia.io import write_json
-    from ccs_kornia.records import correction_record, view_records
+    from ccs_kornia.io.files import write_json
+    from ccs_kornia.outputs.records import correction_record, view_records
 
     check_output_file("--output", args.output)
     device = resolve_device(args.device)

@@ -1,5 +1,5 @@
 """``ccs_kornia rectify``: stereo pairs rectified with a ``rig.json`` (``cv2.stereoRectify`` /
-``cv2.fisheye.stereoRectify`` through :func:`~ccs_kornia.modules.calibration.stereo.stereo_rectify`, then
+``cv2.fisheye.stereoRectify`` through :func:`~ccs_kornia.modules.rig.stereo.stereo_rectify`, then
 ``initUndistortRectifyMap`` and ``remap``): the rows of the two images of a pair are the same epipolar lines."""
 
 from __future__ import annotations
@@ -45,10 +45,10 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from ccs_kornia.commands.rig_exports import rectification
-    from ccs_kornia.io import read_image, write_image
-    from ccs_kornia.records_rig import rectify_maps
-    from ccs_kornia.rig_frames import match_frames
+    from ccs_kornia.io.images import read_image, write_image
+    from ccs_kornia.outputs.rig_exports import rectification
+    from ccs_kornia.outputs.rig_records import rectify_maps
+    from ccs_kornia.pipeline.frame_matching import match_frames
 
     data = read_rig(args.calibration)
     i, j = _pair(args.pair, len(data["cameras"]))

@@ -13,7 +13,14 @@ import os
 import sys
 from typing import Any
 
-from ccs_kornia.commands._common import UserError, info, inputs, make_dir, resolve_device, warn
+from ccs_kornia.commands._common import (
+    UserError,
+    info,
+    inputs,
+    make_dir,
+    resolve_device,
+    warn,
+)
 
 __all__ = ["run"]
 
@@ -21,7 +28,7 @@ __all__ = ["run"]
 def _read_calibration(path: str) -> tuple[Any, Any, tuple[int, int] | None, bool]:
     import torch
 
-    from ccs_kornia.calibration_file import read_calibration
+    from ccs_kornia.outputs.calibration_file import read_calibration
 
     try:
         calib = read_calibration(path)
@@ -59,9 +66,9 @@ def _view_camera(K: Any, dist: Any, fisheye: bool, size: tuple[int, int], field:
     ``--fov`` is clamped to the valid field and one line saying how the view is framed."""
     import math
 
-    from ccs_kornia.modules.correction.fisheye_warp import fisheye_view_camera_matrix
-    from ccs_kornia.modules.correction.opencv_warp import opencv_view_camera_matrix
-    from ccs_kornia.modules.correction.view_camera import horizontal_fov
+    from ccs_kornia.modules.undistort.fisheye_warp import fisheye_view_camera_matrix
+    from ccs_kornia.modules.undistort.opencv_warp import opencv_view_camera_matrix
+    from ccs_kornia.modules.undistort.view_camera import horizontal_fov
 
     make = fisheye_view_camera_matrix if fisheye else opencv_view_camera_matrix
     balance, fov_asked = getattr(args, "balance", 0.0), getattr(args, "fov", None)
@@ -84,9 +91,15 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from ccs_kornia.io import read_image, write_image
-    from ccs_kornia.modules.correction.fisheye_warp import fisheye_undistort_image, fisheye_valid_angle
-    from ccs_kornia.modules.correction.opencv_warp import opencv_undistort_image, opencv_valid_radius
+    from ccs_kornia.io.images import read_image, write_image
+    from ccs_kornia.modules.undistort.fisheye_warp import (
+        fisheye_undistort_image,
+        fisheye_valid_angle,
+    )
+    from ccs_kornia.modules.undistort.opencv_warp import (
+        opencv_undistort_image,
+        opencv_valid_radius,
+    )
 
     K, dist, calib_size, fisheye = _read_calibration(args.calibration)
     device = resolve_device(args.device)

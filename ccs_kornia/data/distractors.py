@@ -14,7 +14,6 @@ import math
 import torch
 from torch import Tensor
 
-from ccs_kornia import camera
 from ccs_kornia.data import augment
 from ccs_kornia.data.lens import (
     _board_homography_inverse,
@@ -22,6 +21,7 @@ from ccs_kornia.data.lens import (
     _to_normalized,
 )
 from ccs_kornia.data.optics import apply_optics
+from ccs_kornia.geometry import camera
 
 __all__ = ["DISTRACTOR_KINDS", "board_free_images"]
 

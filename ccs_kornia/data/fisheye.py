@@ -15,7 +15,7 @@ Inverse (rendering): pixel -> normalised ``(x_d, y_d)`` -> ``theta_d`` -> ``thet
 model, then Newton steps: error ~1e-7 rad in float32) -> unit ray -> intersection with the board plane.
 Rays that miss the board or meet its plane behind the camera show background.
 
-This private implementation stays here until :mod:`ccs_kornia.camera` grows its own Kannala-Brandt functions
+This private implementation stays here until :mod:`ccs_kornia.geometry.camera` grows its own Kannala-Brandt functions
 (the data package only imports ``camera``).
 """
 
@@ -26,7 +26,7 @@ import math
 import torch
 from torch import Tensor
 
-from ccs_kornia import camera
+from ccs_kornia.geometry import camera
 
 __all__ = [
     "kb_distort_theta",

@@ -4,7 +4,7 @@ The inverse distortion on the pixel grid is exact, not interpolated: the paper's
 through a fine 1-D table plus a Newton step, the OpenCV model from a coarse exact grid plus Newton
 steps (both agree with the per-point float64 inverse :func:`board_coordinates` to ~1e-5 squares).
 
-The OpenCV inverse here (:func:`_undistort_opencv`) is :func:`ccs_kornia.camera.undistort_pixels` plus a safe
+The OpenCV inverse here (:func:`_undistort_opencv`) is :func:`ccs_kornia.geometry.camera.undistort_pixels` plus a safe
 start where kornia's fixed point stalls (a bisection on the radial factor over its monotonic range) and more
 Newton steps; ``camera.undistort_pixels`` alone leaves errors of pixels near the image corners under strong
 barrel distortion, which the renderer's ground truth cannot afford.
@@ -20,8 +20,8 @@ import math
 import torch
 from torch import Tensor
 
-from ccs_kornia import camera
 from ccs_kornia.data.fisheye import is_fisheye, kb_project, kb_unproject
+from ccs_kornia.geometry import camera
 
 __all__ = ["project_board", "board_coordinates"]
 

@@ -1,8 +1,8 @@
 """Corner-level renderer of camera rigs: exact board corners seen by C cameras over F frames (no images).
 
 Each frame places one board in front of the rig (a pose board -> camera 0); each camera projects it through its own
-model (``"none" | "k1k2" | "opencv5" | "rational"`` with :func:`~ccs_kornia.camera.project_points`, ``"fisheye"``
-with :func:`~ccs_kornia.camera.kb_project_points`). A corner is invalid (NaN, ``valid = False``) where it falls
+model (``"none" | "k1k2" | "opencv5" | "rational"`` with :func:`~ccs_kornia.geometry.camera.project_points`, ``"fisheye"``
+with :func:`~ccs_kornia.geometry.camera.kb_project_points`). A corner is invalid (NaN, ``valid = False``) where it falls
 outside the camera's image, behind it or beyond ``max_angle_deg`` from its axis, or where the camera drops the frame
 (``drop``). Optional Gaussian pixel noise is added to
 the valid corners. The ground truth is exact; nothing here imports the solver.
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ccs_kornia.camera import (
+from ccs_kornia.geometry.camera import (
     axis_angle_to_rotation_matrix,
     board_object_points,
     kb_project_points,

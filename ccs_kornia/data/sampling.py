@@ -7,7 +7,6 @@ import math
 import torch
 from torch import Tensor
 
-from ccs_kornia import camera
 from ccs_kornia.data._util import (
     _batched,
     _board_tensors,
@@ -18,6 +17,7 @@ from ccs_kornia.data._util import (
     _uniform,
 )
 from ccs_kornia.data.lens import _undistort_opencv, project_board
+from ccs_kornia.geometry import camera
 
 __all__ = ["RADIAL_LEVELS", "sample_radial_distortion", "sample_opencv_distortion", "sample_poses"]
 

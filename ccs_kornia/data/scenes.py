@@ -7,7 +7,6 @@ from dataclasses import dataclass, fields
 import torch
 from torch import Tensor
 
-from ccs_kornia import camera
 from ccs_kornia.data import augment
 from ccs_kornia.data._util import (
     _batched,
@@ -26,6 +25,7 @@ from ccs_kornia.data.sampling import (
     sample_poses,
     sample_radial_distortion,
 )
+from ccs_kornia.geometry import camera
 
 __all__ = ["DISTORTION_MODES", "SyntheticBatch", "make_calibration_set", "SyntheticChessboards"]
 

@@ -18,7 +18,6 @@ from dataclasses import asdict, dataclass, replace
 
 import torch
 
-from ccs_kornia import camera
 from ccs_kornia.data import augment
 from ccs_kornia.data._util import _padded_object_points, _randint, _uniform
 from ccs_kornia.data.fisheye import (
@@ -36,6 +35,7 @@ from ccs_kornia.data.sampling import (
     sample_radial_distortion,
 )
 from ccs_kornia.data.scenes import SyntheticBatch, _corner_validity
+from ccs_kornia.geometry import camera
 
 __all__ = ["LENSES", "WildSpec", "WildChessboards"]
 

@@ -3,9 +3,9 @@ r"""Sampling-grid loss of the distortion CNN (paper Eq. 1, after Zhao et al.).
 The network sees a distorted image and predicts a *correction* with 5 coefficients, while the image was made
 with a 3-coefficient *distortion*; the two parameter sets are not comparable directly, so the loss compares
 what they do to points. A regular ``grid_size x grid_size`` grid of sampling points spans the distorted image;
-the predicted correction moves each point to :math:`p_{cor}` (:func:`ccs_kornia.camera.radial_correct_points`)
+the predicted correction moves each point to :math:`p_{cor}` (:func:`ccs_kornia.geometry.camera.radial_correct_points`)
 and the exact inverse of the true distortion moves it to :math:`p_{dst}`
-(:func:`ccs_kornia.camera.radial_undistort_points`). The loss is
+(:func:`ccs_kornia.geometry.camera.radial_undistort_points`). The loss is
 
 .. math::
     L_{grid} = \frac{1}{N} \sum_i^N \lVert p_{dst}^i - p_{cor}^i \rVert_1
@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia import camera
+from ccs_kornia.geometry import camera
 
 __all__ = ["sampling_grid", "normalize_distortion_scale", "grid_targets", "grid_loss", "GridLoss"]
 

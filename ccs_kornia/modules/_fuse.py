@@ -35,7 +35,7 @@ def fold_batchnorm(module: nn.Module) -> nn.Module:
     convolution are left as they are.
 
     Args:
-        module: a network (e.g. :class:`~ccs_kornia.modules.detection.heatmap_unet.CornerUNet`).
+        module: a network (e.g. :class:`~ccs_kornia.modules.detection.learned.heatmap_unet.CornerUNet`).
 
     Returns:
         ``module``, folded and in eval mode.

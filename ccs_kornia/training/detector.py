@@ -8,9 +8,9 @@ import lightning as L
 import torch
 
 from ccs_kornia.losses.heatmap_loss import HeatmapLoss
-from ccs_kornia.modules.detection.gaussian_fit import gaussian_fit
-from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
-from ccs_kornia.modules.detection.peaks import heatmap_peaks
+from ccs_kornia.modules.detection.learned.gaussian_fit import gaussian_fit
+from ccs_kornia.modules.detection.learned.heatmap_unet import CornerUNet
+from ccs_kornia.modules.detection.learned.peaks import heatmap_peaks
 from ccs_kornia.training.common import adamw_one_cycle, load_exported_weights
 
 __all__ = ["DetectorLitModule"]
@@ -80,7 +80,9 @@ class DetectorLitModule(L.LightningModule):
         if stage == "fit" and self.hparams.init_weights:
             self.load_weights(self.hparams.init_weights)
         if stage == "fit" and self.hparams.teacher_weights and self.teacher is None:
-            from ccs_kornia.modules.detection.learned_detector import load_corner_unet
+            from ccs_kornia.modules.detection.learned.learned_detector import (
+                load_corner_unet,
+            )
 
             teacher, _ = load_corner_unet(self.hparams.teacher_weights)
             object.__setattr__(self, "teacher", teacher.requires_grad_(False).eval())

@@ -11,7 +11,7 @@ from pathlib import Path
 import lightning as L
 import torch
 
-from ccs_kornia.camera import fit_radial_correction
+from ccs_kornia.geometry.camera import fit_radial_correction
 from ccs_kornia.losses.grid_loss import (
     GridLoss,
     grid_loss,

@@ -7,13 +7,18 @@ import copy
 import lightning as L
 import torch
 
-from ccs_kornia.camera import board_object_points
+from ccs_kornia.geometry.camera import board_object_points
 from ccs_kornia.losses.heatmap_loss import HeatmapLoss
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.detection.base import measured_corners
-from ccs_kornia.modules.detection.differentiable_refine import DifferentiableCorners
-from ccs_kornia.modules.detection.heatmap_unet import CornerUNet
-from ccs_kornia.modules.detection.learned_detector import DEFAULT_DETECTOR_WEIGHTS, LearnedChessboardDetector
+from ccs_kornia.modules.detection.learned.heatmap_unet import CornerUNet
+from ccs_kornia.modules.detection.learned.learned_detector import (
+    DEFAULT_DETECTOR_WEIGHTS,
+    LearnedChessboardDetector,
+)
+from ccs_kornia.modules.detection.refine.differentiable_refine import (
+    DifferentiableCorners,
+)
 from ccs_kornia.training.common import adamw_one_cycle, load_exported_weights
 
 __all__ = ["EndToEndLitModule", "intrinsic_error"]
@@ -40,7 +45,7 @@ class EndToEndLitModule(L.LightningModule):
     1. the learned detector, without image refinement (``refine="none"``: its corners are the network's own Gaussian
        fits) and with the current weights, finds the boards without autograd (every discrete decision);
     2. their corners are made differentiable functions of the network
-       (:class:`~ccs_kornia.modules.detection.differentiable_refine.DifferentiableCorners`, ``steps=0``: the values
+       (:class:`~ccs_kornia.modules.detection.refine.differentiable_refine.DifferentiableCorners`, ``steps=0``: the values
        stay the detector's, the gradient is the Gaussian fit's on the network's heatmap);
     3. the solver calibrates the camera from them; its implicit gradient carries the corners' gradient to ``K``;
     4. loss: E_IP of ``K`` against the truth (px), plus ``heatmap_weight`` times the heatmap loss against the

@@ -20,7 +20,7 @@ from ccs_kornia.bench.report import (
     write_markdown,
 )
 from ccs_kornia.bench.scenes import corner_errors, orient_grid, render_scenes
-from ccs_kornia.camera import board_object_points, project_points
+from ccs_kornia.geometry.camera import board_object_points, project_points
 
 REAL = REAL_DATA
 FAST_METHODS = ("opencv_saddle", "opencv_subpix")
@@ -119,7 +119,9 @@ def test_methods_detect_rendered_boards_precisely():
 
 
 def test_learned_method_reports_missing_weights_or_is_available():
-    from ccs_kornia.modules.detection.learned_detector import DEFAULT_DETECTOR_WEIGHTS
+    from ccs_kornia.modules.detection.learned.learned_detector import (
+        DEFAULT_DETECTOR_WEIGHTS,
+    )
 
     m = make_methods(("learned",))["learned"]
     if DEFAULT_DETECTOR_WEIGHTS.is_file():

@@ -1,4 +1,4 @@
-"""The GPU check (``benchmarks/gpu_check.sh``) as a dry run: what it says it would check and the CPU half it runs."""
+"""The GPU check (``ccs_kornia/bench/gpu_check.sh``) as a dry run: what it says it would check and the CPU half it runs."""
 
 from __future__ import annotations
 

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia import camera
 from ccs_kornia.data.fisheye import (
     kb_distort_theta,
     kb_project,
@@ -19,6 +18,7 @@ from ccs_kornia.data.fisheye import (
 )
 from ccs_kornia.data.lens import project_board
 from ccs_kornia.data.renderer import render_chessboard
+from ccs_kornia.geometry import camera
 
 
 def _cameras(n=6, size=(640, 480), seed=0):

@@ -8,7 +8,6 @@ import pytest
 import torch
 from _render_helpers import _K, _poses
 
-from ccs_kornia import camera
 from ccs_kornia.data.lens import board_coordinates, project_board
 from ccs_kornia.data.renderer import render_chessboard
 from ccs_kornia.data.sampling import (
@@ -16,6 +15,7 @@ from ccs_kornia.data.sampling import (
     sample_poses,
     sample_radial_distortion,
 )
+from ccs_kornia.geometry import camera
 
 W, H = 160, 120
 

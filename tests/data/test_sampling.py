@@ -8,13 +8,13 @@ import pytest
 import torch
 from _render_helpers import _K, _poses
 
-from ccs_kornia import camera
 from ccs_kornia.data.lens import _opencv_fold, _undistort_opencv, project_board
 from ccs_kornia.data.sampling import (
     sample_opencv_distortion,
     sample_poses,
     sample_radial_distortion,
 )
+from ccs_kornia.geometry import camera
 
 W, H = 160, 120
 

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia import camera
 from ccs_kornia.data import augment
 from ccs_kornia.data.scenes import (
     SyntheticBatch,
     SyntheticChessboards,
     make_calibration_set,
 )
+from ccs_kornia.geometry import camera
 
 
 def test_make_calibration_set():

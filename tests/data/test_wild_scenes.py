@@ -42,8 +42,7 @@ def test_square_size_in_pixels_follows_the_spec(lo, hi):
 
 def test_steep_views_and_cut_boards():
     steep = _sample(4, square_px=(12.0, 16.0), min_tilt_deg=60.0, max_tilt_deg=75.0)
-    from ccs_kornia import camera
-
+    from ccs_kornia.geometry import camera
     R = camera.axis_angle_to_rotation_matrix(steep.rvec.double())
     tilt = torch.rad2deg(torch.acos(R[:, 2, 2].abs()))
     assert bool((tilt > 55).all()) and bool((tilt < 80).all())

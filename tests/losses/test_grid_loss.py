@@ -5,9 +5,15 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia import camera
 from ccs_kornia.data.sampling import sample_radial_distortion
-from ccs_kornia.losses.grid_loss import GridLoss, grid_loss, grid_targets, normalize_distortion_scale, sampling_grid
+from ccs_kornia.geometry import camera
+from ccs_kornia.losses.grid_loss import (
+    GridLoss,
+    grid_loss,
+    grid_targets,
+    normalize_distortion_scale,
+    sampling_grid,
+)
 from ccs_kornia.modules.correction.distortion_net import correction_from_node_values
 
 SIZE = (640, 480)

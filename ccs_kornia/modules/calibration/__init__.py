@@ -1,5 +1,6 @@
-"""Calibration stage: homographies, Zhang, RANSAC, the one Levenberg-Marquardt core and its camera models, the solver
-composing them, fisheye initialisation and calibration, and the rig solver (stereo and multi-camera rigs).
+"""Calibration stage: homographies, Zhang, RANSAC, the one Levenberg-Marquardt core, the solver composing them,
+fisheye initialisation and calibration; the quality of a calibration in :mod:`.quality` (the camera models are in
+:mod:`ccs_kornia.geometry.models`, rigs in :mod:`ccs_kornia.modules.rig`).
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 
@@ -11,7 +12,7 @@ Example:
 
 from __future__ import annotations
 
-from ccs_kornia._lazy import lazy_exports
+from ccs_kornia.runtime.lazy import lazy_exports
 
 _EXPORTS = {
     "VIEW_REASONS": "ccs_kornia.modules.calibration.result",
@@ -42,41 +43,21 @@ _EXPORTS = {
     "parameter_basis": "ccs_kornia.modules.calibration.lm",
     "implicit_solution": "ccs_kornia.modules.calibration.implicit",
     "ImplicitSolution": "ccs_kornia.modules.calibration.implicit",
-    "CameraModel": "ccs_kornia.modules.calibration.models.base",
-    "OpenCVModel": "ccs_kornia.modules.calibration.models.opencv",
-    "OPENCV_VARIANTS": "ccs_kornia.modules.calibration.models.opencv",
-    "CentredRadialModel": "ccs_kornia.modules.calibration.models.centred_radial",
-    "KannalaBrandtModel": "ccs_kornia.modules.calibration.models.fisheye",
-    "camera_model": "ccs_kornia.modules.calibration.models.factory",
     "board_to_ray_poses": "ccs_kornia.modules.calibration.fisheye_init",
     "focal_hypotheses": "ccs_kornia.modules.calibration.fisheye_init",
     "init_fisheye": "ccs_kornia.modules.calibration.fisheye_init",
     "FisheyeCalibrationResult": "ccs_kornia.modules.calibration.fisheye_calibration",
     "calibrate_fisheye": "ccs_kornia.modules.calibration.fisheye_calibration",
     "FisheyeCalibrator": "ccs_kornia.modules.calibration.fisheye_calibration",
-    "DegeneracyThresholds": "ccs_kornia.modules.calibration.degeneracy",
-    "check_degeneracy": "ccs_kornia.modules.calibration.degeneracy",
+    "DegeneracyThresholds": "ccs_kornia.modules.calibration.quality.degeneracy",
+    "check_degeneracy": "ccs_kornia.modules.calibration.quality.degeneracy",
     "duplicate_views": "ccs_kornia.modules.calibration.duplicates",
     "view_differences": "ccs_kornia.modules.calibration.duplicates",
-    "exp_so3": "ccs_kornia.modules.calibration.so3",
-    "log_so3": "ccs_kornia.modules.calibration.so3",
-    "projection_uncertainty": "ccs_kornia.modules.calibration.uncertainty",
-    "cross_validation": "ccs_kornia.modules.calibration.diagnostics",
-    "verdict": "ccs_kornia.modules.calibration.diagnostics",
-    "diagnose": "ccs_kornia.modules.calibration.diagnostics",
-    "CalibrationDiagnostics": "ccs_kornia.modules.calibration.diagnostics",
-    "RigCamera": "ccs_kornia.modules.calibration.rig_camera",
-    "RigResult": "ccs_kornia.modules.calibration.rig",
-    "RigSolver": "ccs_kornia.modules.calibration.rig",
-    "calibrate_rig": "ccs_kornia.modules.calibration.rig",
-    "RigVerdictThresholds": "ccs_kornia.modules.calibration.rig_diagnostics",
-    "rig_verdict": "ccs_kornia.modules.calibration.rig_diagnostics",
-    "RigLMResult": "ccs_kornia.modules.calibration.rig_lm",
-    "rig_levenberg_marquardt": "ccs_kornia.modules.calibration.rig_lm",
-    "StereoPair": "ccs_kornia.modules.calibration.stereo",
-    "stereo_pair": "ccs_kornia.modules.calibration.stereo",
-    "stereo_rectify": "ccs_kornia.modules.calibration.stereo",
-    "epipolar_distances": "ccs_kornia.modules.calibration.stereo",
+    "projection_uncertainty": "ccs_kornia.modules.calibration.quality.uncertainty",
+    "cross_validation": "ccs_kornia.modules.calibration.quality.diagnostics",
+    "verdict": "ccs_kornia.modules.calibration.quality.diagnostics",
+    "diagnose": "ccs_kornia.modules.calibration.quality.diagnostics",
+    "CalibrationDiagnostics": "ccs_kornia.modules.calibration.quality.diagnostics",
 }
 
 __all__ = sorted(_EXPORTS)

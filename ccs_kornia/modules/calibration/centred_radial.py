@@ -2,7 +2,7 @@
 
 The paper models the lens with a radial distortion about the image centre ``c = ((W-1)/2, (H-1)/2)``:
 ``p_d = c + (p - c) (1 + k1 r^2 + k2 r^4 + k3 r^6)``, ``r = |p - c| / max(W, H)``, applied to the pinhole
-projection ``p`` (:func:`ccs_kornia.camera.radial_distort_points` with ``k0 = 1``, plus a ``k3`` term; a ``k0``
+projection ``p`` (:func:`ccs_kornia.geometry.camera.radial_distort_points` with ``k0 = 1``, plus a ``k3`` term; a ``k0``
 other than 1 is a zoom about the centre, which belongs to the focal length). Its distortion CNN predicts the
 inverse of this map; :func:`radial_from_correction` converts such a correction into these coefficients.
 
@@ -12,7 +12,7 @@ principal point instead; where the two centres differ, strong distortion makes O
 point and focal length against its distortion terms, which is what calibrating in the corrected frame avoids.
 
 All cameras are solved together by the one LM core (:func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`
-with :class:`~ccs_kornia.modules.calibration.models.centred_radial.CentredRadialModel`: analytic derivatives,
+with :class:`~ccs_kornia.geometry.models.centred_radial.CentredRadialModel`: analytic derivatives,
 poses eliminated by a Schur complement, no loop over cameras).
 """
 
@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import torch
 
+from ccs_kornia.geometry.models.centred_radial import CentredRadialModel
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
-from ccs_kornia.modules.calibration.models.centred_radial import CentredRadialModel
 from ccs_kornia.modules.correction.radial_warp import corrected_radius
 
 __all__ = ["centred_radial_distort", "radial_from_correction", "radial_from_points", "refine_centred_radial"]
@@ -163,7 +163,7 @@ def refine_centred_radial(
         the covariance last.
 
     Example:
-        >>> from ccs_kornia.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
         >>> obj = board_object_points(6, 5, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[[300., 0, 160], [0, 300, 120], [0, 0, 1]]], dtype=torch.float64)
         >>> g = torch.Generator().manual_seed(0)

@@ -20,10 +20,10 @@ from functools import partial
 import torch
 from torch import nn
 
-from ccs_kornia.camera import kb_unproject_points
+from ccs_kornia.geometry.camera import kb_unproject_points
+from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
 from ccs_kornia.modules.calibration.fisheye_init import board_to_ray_poses, init_fisheye
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
-from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
 
 __all__ = ["FisheyeCalibrationResult", "calibrate_fisheye", "FisheyeCalibrator"]
 
@@ -98,7 +98,7 @@ def calibrate_fisheye(
         :class:`FisheyeCalibrationResult` (no camera dim for unbatched input; failed cameras have NaN values).
 
     Example:
-        >>> from ccs_kornia.camera import board_object_points, kb_project_points
+        >>> from ccs_kornia.geometry.camera import board_object_points, kb_project_points
         >>> obj = board_object_points(6, 4, 0.05, dtype=torch.float64)
         >>> K = torch.tensor([[200., 0, 322], [0, 201, 237], [0, 0, 1]], dtype=torch.float64)
         >>> D = torch.tensor([0.02, -0.01, 0.002, 0.0], dtype=torch.float64)

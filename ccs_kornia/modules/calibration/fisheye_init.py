@@ -15,7 +15,11 @@ import math
 
 import torch
 
-from ccs_kornia.camera import kb_project_points, kb_unproject_points, rotation_matrix_to_axis_angle
+from ccs_kornia.geometry.camera import (
+    kb_project_points,
+    kb_unproject_points,
+    rotation_matrix_to_axis_angle,
+)
 from ccs_kornia.modules._checks import broadcast_shapes
 
 __all__ = ["board_to_ray_poses", "focal_hypotheses", "init_fisheye"]
@@ -36,7 +40,7 @@ def board_to_ray_poses(
         finite fit).
 
     Example:
-        >>> from ccs_kornia.camera import board_object_points, transform_points_rt
+        >>> from ccs_kornia.geometry.camera import board_object_points, transform_points_rt
         >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)
         >>> rvec, tvec = torch.tensor([0.1, 1.7, 0.2], dtype=torch.float64), torch.tensor([0.5, 0.0, 0.1], dtype=torch.float64)
         >>> rays = transform_points_rt(obj, rvec, tvec)  # the board is beside the camera: rays beyond 90 degrees
@@ -135,7 +139,7 @@ def init_fisheye(
         score :math:`(C, keep)` (mean of per-view squared RMS, capped; lower is better).
 
     Example:
-        >>> from ccs_kornia.camera import board_object_points, kb_project_points
+        >>> from ccs_kornia.geometry.camera import board_object_points, kb_project_points
         >>> obj = board_object_points(6, 4, 0.05, dtype=torch.float64)
         >>> K = torch.tensor([[200., 0, 319.5], [0, 200, 239.5], [0, 0, 1]], dtype=torch.float64)
         >>> rv = torch.tensor([[0.3, 0.2, 0.0], [-0.2, 0.9, 0.1], [0.1, -0.4, 0.3]], dtype=torch.float64)

@@ -31,9 +31,9 @@ from __future__ import annotations
 
 import torch
 
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.lm import _schur_step
-from ccs_kornia.modules.calibration.models.base import CameraModel
-from ccs_kornia.modules.calibration.so3 import exp_so3
 
 __all__ = ["HESSIAN_CHUNK", "implicit_solution", "ImplicitSolution", "so3_left_jacobian_inverse"]
 
@@ -219,9 +219,9 @@ def implicit_solution(
         ``(params, rvec, tvec)`` carrying gradients.
 
     Example:
-        >>> from ccs_kornia.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
         >>> from ccs_kornia.modules.calibration.lm import levenberg_marquardt
-        >>> from ccs_kornia.modules.calibration.models import OpenCVModel
+        >>> from ccs_kornia.geometry.models import OpenCVModel
         >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)[None]
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
         >>> rv = torch.tensor([[[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]]], dtype=torch.float64)

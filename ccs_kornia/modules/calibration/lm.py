@@ -1,6 +1,6 @@
 """The one Levenberg–Marquardt core: camera parameters and all board poses, batched over cameras.
 
-Unknowns per camera: the free camera parameters (a :class:`~ccs_kornia.modules.calibration.models.CameraModel`'s
+Unknowns per camera: the free camera parameters (a :class:`~ccs_kornia.geometry.models.CameraModel`'s
 intrinsics and distortion, possibly fixed or tied through a basis) and one 6-dof pose per view. The normal
 equations have the bundle-adjustment arrow structure (a small dense camera block, independent 6x6 pose
 blocks), so every step eliminates the pose blocks with a Schur complement: the cost is linear in the number of
@@ -29,11 +29,11 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from ccs_kornia.modules.calibration.models.base import CameraModel
-from ccs_kornia.modules.calibration.so3 import exp_so3 as _exp_so3
-from ccs_kornia.modules.calibration.so3 import log_so3 as _log_so3
-from ccs_kornia.modules.calibration.spd_inverse import pseudo_inverse as _pseudo_inverse
-from ccs_kornia.modules.calibration.spd_inverse import spd_inverse as _sym_inverse
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.so3 import exp_so3 as _exp_so3
+from ccs_kornia.geometry.so3 import log_so3 as _log_so3
+from ccs_kornia.geometry.spd_inverse import pseudo_inverse as _pseudo_inverse
+from ccs_kornia.geometry.spd_inverse import spd_inverse as _sym_inverse
 
 __all__ = ["LMResult", "parameter_basis", "levenberg_marquardt", "LevenbergMarquardt"]
 
@@ -94,7 +94,7 @@ def parameter_basis(
         The basis; the tied focal coordinate comes first, then the other free parameters in order.
 
     Example:
-        >>> from ccs_kornia.modules.calibration.models import OpenCVModel
+        >>> from ccs_kornia.geometry.models import OpenCVModel
         >>> m = OpenCVModel("k1k2")
         >>> p = torch.tensor([[600., 500., 320., 240., 0., 0.]])
         >>> B = parameter_basis(m, p, free=["fx", "fy", "k1", "k2"], fix_aspect_ratio=True)
@@ -305,8 +305,8 @@ def levenberg_marquardt(
         :class:`LMResult`.
 
     Example:
-        >>> from ccs_kornia.camera import board_object_points, project_points
-        >>> from ccs_kornia.modules.calibration.models import OpenCVModel
+        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.models import OpenCVModel
         >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
         >>> rvec = torch.tensor([[[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]]], dtype=torch.float64)
@@ -449,7 +449,7 @@ class LevenbergMarquardt(nn.Module):
         :math:`(C, V, N, 2)`, weights :math:`(C, V, N)` -> :class:`LMResult`.
 
     Example:
-        >>> from ccs_kornia.modules.calibration.models import KannalaBrandtModel
+        >>> from ccs_kornia.geometry.models import KannalaBrandtModel
         >>> lm = LevenbergMarquardt(KannalaBrandtModel(), free=["fx", "fy", "cx", "cy", "k1", "k2"])
         >>> lm.max_iters
         100

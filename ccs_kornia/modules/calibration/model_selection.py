@@ -37,10 +37,13 @@ from typing import Any, Callable
 import torch
 from torch import nn
 
-from ccs_kornia.modules.calibration.diagnostics import cross_validation, pixel_scale
+from ccs_kornia.modules.calibration.quality.diagnostics import (
+    cross_validation,
+    pixel_scale,
+)
+from ccs_kornia.modules.calibration.quality.uncertainty import unprojectable_fraction
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
-from ccs_kornia.modules.calibration.uncertainty import unprojectable_fraction
 
 __all__ = [
     "AUTO_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
@@ -137,7 +140,7 @@ def rank_models(heldout: list[float], halves: list[float], tolerance: float = HE
     that a later tied model whose halves agree clearly better (:data:`HALVES_CLEAR_RATIO`, ``halves_clear_px``) at a
     held-out error within ``tolerance`` of the earlier one's is moved before it; tied models whose distortion folds
     inside the image (``folds``: no inverse over part of it, see
-    :func:`~ccs_kornia.modules.calibration.uncertainty.unprojectable_fraction`) come after the tied ones that do not;
+    :func:`~ccs_kornia.modules.calibration.quality.uncertainty.unprojectable_fraction`) come after the tied ones that do not;
     then the rest by held-out error. Models without a finite held-out error are left out.
 
     Example:
@@ -226,7 +229,7 @@ class ModelSelection(nn.Module):
         "heldout_rms_px": {name: px}, "halves_rms_px": {name: px}, "rule"}``.
 
     Example:
-        >>> from ccs_kornia.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
         >>> from ccs_kornia.modules.calibration.solver import CalibrationSolver
         >>> obj = board_object_points(7, 5, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[600., 0, 330], [0, 610, 230], [0, 0, 1]], dtype=torch.float64)

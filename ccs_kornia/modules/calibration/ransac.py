@@ -216,7 +216,7 @@ class ImageRansac(nn.Module):
         :math:`(N, 3)` -> inliers :math:`(C, V)`, K :math:`(C, 3, 3)`.
 
     Example:
-        >>> from ccs_kornia.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
         >>> from ccs_kornia.modules.calibration.homography import find_homographies
         >>> obj = board_object_points(5, 4, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[600., 0, 320], [0, 600, 240], [0, 0, 1]], dtype=torch.float64)

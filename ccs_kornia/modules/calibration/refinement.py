@@ -3,7 +3,7 @@
 :func:`joint_refinement` takes and returns the camera in OpenCV's terms (``K``, coefficients in OpenCV order),
 with the options :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` needs (fixed aspect ratio,
 principal point, intrinsics or distortion); the core does the work with
-:class:`~ccs_kornia.modules.calibration.models.opencv.OpenCVModel`, batched over cameras, and gives the full
+:class:`~ccs_kornia.geometry.models.opencv.OpenCVModel`, batched over cameras, and gives the full
 covariance of the camera (``cov_camera``).
 """
 
@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from ccs_kornia.camera import num_distortion_coeffs
+from ccs_kornia.geometry.camera import num_distortion_coeffs
+from ccs_kornia.geometry.models.opencv import OPENCV_VARIANTS, OpenCVModel
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
-from ccs_kornia.modules.calibration.models.opencv import OPENCV_VARIANTS, OpenCVModel
 
 __all__ = ["FREE_DISTORTION", "RefinementResult", "joint_refinement", "JointRefinement", "camera_covariance"]
 
@@ -45,7 +45,7 @@ class RefinementResult:
 
 def camera_covariance(model: str, param_covariance: torch.Tensor) -> torch.Tensor:
     """Covariance :math:`(C, 4 + D, 4 + D)` of ``(fx, fy, cx, cy, dist[:D])`` in OpenCV's storage (``D`` of
-    :func:`~ccs_kornia.camera.num_distortion_coeffs`) from that of an :class:`OpenCVModel` variant's parameters
+    :func:`~ccs_kornia.geometry.camera.num_distortion_coeffs`) from that of an :class:`OpenCVModel` variant's parameters
     :math:`(C, P, P)`: a selection, zero rows and columns for stored coefficients outside the variant (``k1k2``
     stores ``p1 = p2 = k3 = 0``).
 
@@ -132,7 +132,7 @@ def joint_refinement(
         ``fx, fy, cx, cy`` and coefficients.
 
     Example:
-        >>> from ccs_kornia.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
         >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
         >>> rvec = torch.tensor([[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]], dtype=torch.float64)

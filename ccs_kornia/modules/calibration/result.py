@@ -37,7 +37,7 @@ class CalibrationResult:
     view_reason: torch.Tensor  #: (C, V) int64, keys of VIEW_REASONS
     converged: torch.Tensor  #: (C,) bool, LM met its tolerance
     candidate_rms: torch.Tensor  #: (C, V) px: every view with a homography under the final model (used or not)
-    # covariance and degeneracy checks; see modules/calibration/degeneracy.py
+    # covariance and degeneracy checks; see modules/calibration/quality/degeneracy.py
     cov_camera: torch.Tensor | None = None  #: (C, 4 + D, 4 + D) covariance of (fx, fy, cx, cy, dist)
     check_severity: torch.Tensor | None = None  #: (C, K) int64 per degeneracy.CHECKS: 0 ok, 1 warning, 2 error
     check_value: torch.Tensor | None = None  #: (C, K) float64 measured value of each check
@@ -48,7 +48,9 @@ class CalibrationResult:
         ``{"check", "severity", "message", "advice", "views"}`` (one list per camera, also for an unbatched result)."""
         if self.check_severity is None:
             return [[] for _ in range(1 if self.K.dim() == 2 else self.K.shape[0])]
-        from ccs_kornia.modules.calibration.degeneracy import issues_from_tensors
+        from ccs_kornia.modules.calibration.quality.degeneracy import (
+            issues_from_tensors,
+        )
 
         return issues_from_tensors(self.check_severity, self.check_value, self.check_views)
 

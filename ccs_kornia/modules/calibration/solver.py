@@ -11,21 +11,20 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia.camera import fit_opencv_distortion, project_points
-from ccs_kornia.modules._threads import small_problem_threads
-from ccs_kornia.modules.calibration.degeneracy import (
-    DegeneracyThresholds,
-    check_degeneracy,
-)
+from ccs_kornia.geometry.camera import fit_opencv_distortion, project_points
+from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
+from ccs_kornia.geometry.models.opencv import OpenCVModel
 from ccs_kornia.modules.calibration.duplicates import duplicate_views, view_differences
 from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
-from ccs_kornia.modules.calibration.implicit import implicit_solution
-from ccs_kornia.modules.calibration.lm import parameter_basis
-from ccs_kornia.modules.calibration.models.fisheye import KannalaBrandtModel
-from ccs_kornia.modules.calibration.models.opencv import OpenCVModel
 from ccs_kornia.modules.calibration.homography import (
     MIN_HOMOGRAPHY_POINTS,
     find_homographies,
+)
+from ccs_kornia.modules.calibration.implicit import implicit_solution
+from ccs_kornia.modules.calibration.lm import parameter_basis
+from ccs_kornia.modules.calibration.quality.degeneracy import (
+    DegeneracyThresholds,
+    check_degeneracy,
 )
 from ccs_kornia.modules.calibration.ransac import ImageRansac
 from ccs_kornia.modules.calibration.refinement import (
@@ -39,6 +38,7 @@ from ccs_kornia.modules.calibration.zhang import (
     extrinsics_from_homography,
     zhang_intrinsics,
 )
+from ccs_kornia.runtime.threads import small_problem_threads
 
 __all__ = ["CalibrationSolver", "calibrate"]
 
@@ -104,10 +104,10 @@ class CalibrationSolver(nn.Module):
             (ros_fisheye_mono 1.3 of 4.8 s, opencv_left 0.4 of 2.1 s) for RMS changes in the fifth digit. A weakly
             determined fit that is still converging (3 views, exact corners: 40 iterations) lowers its cost by more
             than 1x per 10 iterations.
-        checks: run the degeneracy checks of :mod:`~ccs_kornia.modules.calibration.degeneracy`: copies of a view
+        checks: run the degeneracy checks of :mod:`~ccs_kornia.modules.calibration.quality.degeneracy`: copies of a view
             are dropped before the solve (reason 5), a camera failing a check with severity ``error`` gets
             ``success = False``, and every result carries ``check_*`` tensors (see ``CalibrationResult.issues``).
-        thresholds: :class:`~ccs_kornia.modules.calibration.degeneracy.DegeneracyThresholds` of those checks.
+        thresholds: :class:`~ccs_kornia.modules.calibration.quality.degeneracy.DegeneracyThresholds` of those checks.
 
     Gradients: when ``corners``, ``weights`` or ``object_points`` require grad, ``K``, ``dist``, ``rvec`` and ``tvec``
     carry gradients by implicit differentiation at the final LM optimum
@@ -122,7 +122,7 @@ class CalibrationSolver(nn.Module):
         input gives results without the C dim.
 
     Example:
-        >>> from ccs_kornia.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
         >>> obj = board_object_points(6, 5, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[600., 0, 330], [0, 610, 230], [0, 0, 1]], dtype=torch.float64)
         >>> g = torch.Generator().manual_seed(0)
@@ -222,12 +222,12 @@ class CalibrationSolver(nn.Module):
                 the distortion CNN. Homographies, Zhang and RANSAC then run on them (the closed form assumes a
                 pinhole camera), a distortion-free refinement on them gives the initial camera and poses, and the
                 initial distortion is fitted in closed form from those ideal projections to ``corners``
-                (:func:`~ccs_kornia.camera.fit_opencv_distortion`). The final refinement always uses ``corners``.
+                (:func:`~ccs_kornia.geometry.camera.fit_opencv_distortion`). The final refinement always uses ``corners``.
             initial: a previous result for the same views (warm start: no RANSAC, its camera, distortion, poses
                 and used views), e.g. after the corners were refined again.
             fix_intrinsics: with ``initial``, keep its ``fx, fy, cx, cy`` and refine distortion and poses only.
             weights: optional per-corner inverse variances, shaped as ``valid`` (e.g.
-                :func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_weights`): the refinements minimise the
+                :func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_weights`): the refinements minimise the
                 weighted reprojection error (homographies, the closed form and RANSAC stay unweighted); the RMS figures
                 stay plain pixels.
         """

@@ -11,8 +11,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.modules._checks import broadcast_shapes
-from ccs_kornia.modules.calibration.so3 import log_so3
 
 __all__ = ["zhang_intrinsics", "extrinsics_from_homography", "rotation_translation_from_homography", "ZhangInit"]
 

@@ -1,4 +1,5 @@
-"""Distortion-correction stage (paper Sec. III-A): the network, the warps, pooling and the corrected-frame calibration.
+"""Distortion-correction stage (paper Sec. III-A): the network, the radial warp, pooling, the
+corrected-frame calibration (undistortion for output is :mod:`ccs_kornia.modules.undistort`).
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 
@@ -11,7 +12,7 @@ Example:
 
 from __future__ import annotations
 
-from ccs_kornia._lazy import lazy_exports
+from ccs_kornia.runtime.lazy import lazy_exports
 
 _EXPORTS = {
     "DistortionNet": "ccs_kornia.modules.correction.distortion_net",
@@ -29,16 +30,6 @@ _EXPORTS = {
     "aggregate_corrections": "ccs_kornia.modules.correction.pooling",
     "correction_displacement": "ccs_kornia.modules.correction.pooling",
     "fit_correction_to_points": "ccs_kornia.modules.correction.correction_fit",
-    "opencv_undistort_image": "ccs_kornia.modules.correction.opencv_warp",
-    "opencv_undistorted_frame": "ccs_kornia.modules.correction.opencv_warp",
-    "opencv_distorted_frame": "ccs_kornia.modules.correction.opencv_warp",
-    "opencv_valid_radius": "ccs_kornia.modules.correction.opencv_warp",
-    "opencv_view_camera_matrix": "ccs_kornia.modules.correction.opencv_warp",
-    "fisheye_undistort_image": "ccs_kornia.modules.correction.fisheye_warp",
-    "fisheye_valid_angle": "ccs_kornia.modules.correction.fisheye_warp",
-    "fisheye_view_camera_matrix": "ccs_kornia.modules.correction.fisheye_warp",
-    "view_camera_matrix": "ccs_kornia.modules.correction.view_camera",
-    "horizontal_fov": "ccs_kornia.modules.correction.view_camera",
     "straightness_rms": "ccs_kornia.modules.correction.straightness",
     "solve_with_correction": "ccs_kornia.modules.correction.corrected_frame",
     "calibrate_corrected": "ccs_kornia.modules.correction.corrected_frame",

@@ -1,6 +1,6 @@
 """Calibration in the radially corrected frame (paper Sec. III-A, and a joint refinement beyond it).
 
-Where the distortion network's pooled correction is applied (:class:`~ccs_kornia.pipeline.CalibrationPipeline`),
+Where the distortion network's pooled correction is applied (:class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline`),
 the camera is calibrated in the corrected frame (:func:`calibrate_corrected`): a pinhole calibration of the
 corrected corners, the correction re-fitted to it, and a joint refinement of intrinsics, correction and poses
 (:func:`~ccs_kornia.modules.calibration.centred_radial.refine_centred_radial`, on the one LM core) until they stop
@@ -17,10 +17,17 @@ import math
 
 import torch
 
-from ccs_kornia.camera import board_object_points, fit_opencv_distortion, project_points
-from ccs_kornia.modules.calibration.centred_radial import radial_from_points, refine_centred_radial
+from ccs_kornia.geometry.camera import (
+    board_object_points,
+    fit_opencv_distortion,
+    project_points,
+)
+from ccs_kornia.geometry.models.opencv import OpenCVModel
+from ccs_kornia.modules.calibration.centred_radial import (
+    radial_from_points,
+    refine_centred_radial,
+)
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
-from ccs_kornia.modules.calibration.models.opencv import OpenCVModel
 from ccs_kornia.modules.calibration.refinement import camera_covariance
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver

@@ -2,7 +2,7 @@
 
 The views of a camera share its lens, so the network's per-view corrections are pooled into one
 (:func:`aggregate_corrections`); :func:`correction_displacement` measures how far it moves the image, which decides
-whether the correction is applied (see :class:`~ccs_kornia.pipeline.CalibrationPipeline`).
+whether the correction is applied (see :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Differentiable removal of the paper's radial distortion from images and points (paper Sec. III-A).
 
 The distortion CNN predicts a *correction* ``r_c = r_d (k0' + k1' r_d + k2' r_d^2 + k3' r_d^3 + k4' r_d^4)``
-(:func:`ccs_kornia.camera.radial_correct_points`), radii measured from the image centre ``((W-1)/2, (H-1)/2)``
+(:func:`ccs_kornia.geometry.camera.radial_correct_points`), radii measured from the image centre ``((W-1)/2, (H-1)/2)``
 in units of ``max(W, H)``. It maps *distorted* pixels to *corrected* ones, which is exactly what points need.
 An image warp needs the opposite direction: for every pixel of the corrected output, the distorted source
 position to sample. That inverse has no closed form, so it is solved per pixel by Newton's method on the radius
@@ -24,7 +24,7 @@ from kornia.geometry.grid import create_meshgrid
 from kornia.geometry.transform import remap
 from torch import nn
 
-from ccs_kornia import camera
+from ccs_kornia.geometry import camera
 from ccs_kornia.modules._checks import check_correction, check_points
 
 __all__ = [
@@ -89,7 +89,7 @@ def invert_correction_radius(
 def correct_points(
     points: torch.Tensor, correction: torch.Tensor, image_size: tuple[int, int], zoom: float = 1.0
 ) -> torch.Tensor:
-    """Distorted pixels to corrected pixels (:func:`ccs_kornia.camera.radial_correct_points`, then ``zoom``).
+    """Distorted pixels to corrected pixels (:func:`ccs_kornia.geometry.camera.radial_correct_points`, then ``zoom``).
 
     Args:
         points: :math:`(B, N, 2)` distorted pixel coordinates.

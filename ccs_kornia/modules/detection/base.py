@@ -2,7 +2,7 @@
 
 :class:`ChessboardDetector` is the interface every detector implements (the OpenCV baseline in
 :mod:`~ccs_kornia.modules.detection.opencv_detector`, the learned heatmap detector in
-:mod:`~ccs_kornia.modules.detection.learned_detector`); :class:`DetectionResult` is what they return.
+:mod:`~ccs_kornia.modules.detection.learned.learned_detector`); :class:`DetectionResult` is what they return.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ class DetectionResult:
         reasons: optional per-image text: how the board was found (``"classic"``, ``"sb"``) or why it
             was not.
         sigma: optional :math:`(B, N)` per-corner precision (px, relative; NaN where unknown), e.g. from
-            :func:`~ccs_kornia.modules.detection.corner_uncertainty.corner_uncertainty`.
+            :func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_uncertainty`.
     """
 
     corners: torch.Tensor

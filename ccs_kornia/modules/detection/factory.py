@@ -26,12 +26,16 @@ def make_detector(name: str = "learned", **kwargs) -> ChessboardDetector:
         'OpenCVChessboardDetector'
     """
     if name == "opencv":
-        from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
+        from ccs_kornia.modules.detection.opencv_detector import (
+            OpenCVChessboardDetector,
+        )
 
         return OpenCVChessboardDetector(**kwargs)
     if name == "learned":
         try:
-            from ccs_kornia.modules.detection.learned_detector import LearnedChessboardDetector
+            from ccs_kornia.modules.detection.learned.learned_detector import (
+                LearnedChessboardDetector,
+            )
         except ImportError as err:
             raise ValueError(f"learned detector not available yet ({err}); use --detector opencv") from err
         try:

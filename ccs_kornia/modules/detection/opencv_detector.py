@@ -10,7 +10,7 @@
    spacing is a false positive, and a lattice whose pattern continues past one of its sides is a
    sub-board of a larger board (the classic detector happily returns 8x6 on a 9x6 board, and a
    view shifted by one square ruins a calibration);
-4. the corner order is made deterministic (:func:`~ccs_kornia.modules.detection.board_checks.canonical_corner_order`):
+4. the corner order is made deterministic (:func:`~ccs_kornia.modules.detection.checks.board_checks.canonical_corner_order`):
    of the orderings that describe the same physical grid (reversed for 180-degree-symmetric boards, also the
    90-degree rotations for square ones) the one whose first corner is nearest the image's top-left corner is
    returned, so every view of a set uses the same convention.
@@ -26,7 +26,12 @@ import numpy as np
 import torch
 
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
-from ccs_kornia.modules.detection.board_checks import board_extends, canonical_corner_order, check_grid, check_saddles
+from ccs_kornia.modules.detection.checks.board_checks import (
+    board_extends,
+    canonical_corner_order,
+    check_grid,
+    check_saddles,
+)
 
 __all__ = ["OpenCVChessboardDetector"]
 

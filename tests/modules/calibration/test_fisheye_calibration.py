@@ -12,9 +12,21 @@ import pytest
 import torch
 from _real_data import REAL_DATA
 
-from ccs_kornia.camera import board_object_points, kb_project_points, rotation_matrix_to_axis_angle, transform_points_rt
-from ccs_kornia.modules.calibration.fisheye_calibration import FisheyeCalibrator, calibrate_fisheye
-from ccs_kornia.modules.calibration.fisheye_init import board_to_ray_poses, focal_hypotheses, init_fisheye
+from ccs_kornia.geometry.camera import (
+    board_object_points,
+    kb_project_points,
+    rotation_matrix_to_axis_angle,
+    transform_points_rt,
+)
+from ccs_kornia.modules.calibration.fisheye_calibration import (
+    FisheyeCalibrator,
+    calibrate_fisheye,
+)
+from ccs_kornia.modules.calibration.fisheye_init import (
+    board_to_ray_poses,
+    focal_hypotheses,
+    init_fisheye,
+)
 
 F64 = torch.float64
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -265,9 +277,9 @@ def test_solver_fisheye_model_and_checks():
 
 def test_diagnostics_of_a_fisheye_calibration():
     """Quality figures with the Kannala-Brandt model: rays beyond 90 degrees, held-out poses on the LM core."""
-    from ccs_kornia.modules.calibration.diagnostics import diagnose
+    from ccs_kornia.modules.calibration.quality.diagnostics import diagnose
+    from ccs_kornia.modules.calibration.quality.uncertainty import projection_difference
     from ccs_kornia.modules.calibration.solver import CalibrationSolver
-    from ccs_kornia.modules.calibration.uncertainty import projection_difference
 
     K, D = _camera(190.0)
     _, _, uv = _views(K, D, V=12, seed=5)

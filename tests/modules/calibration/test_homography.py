@@ -6,8 +6,11 @@ import pytest
 import torch
 from _board_views import all_valid, synthetic
 
-from ccs_kornia.camera import board_object_points
-from ccs_kornia.modules.calibration.homography import BatchedHomography, find_homographies
+from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.modules.calibration.homography import (
+    BatchedHomography,
+    find_homographies,
+)
 
 F64 = torch.float64
 

@@ -5,9 +5,21 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.camera import axis_angle_to_rotation_matrix, board_object_points, kb_project_points, project_points
-from ccs_kornia.modules.calibration.lm import LevenbergMarquardt, levenberg_marquardt, parameter_basis
-from ccs_kornia.modules.calibration.models import CentredRadialModel, KannalaBrandtModel, OpenCVModel
+from ccs_kornia.geometry.camera import (
+    axis_angle_to_rotation_matrix,
+    board_object_points,
+    project_points,
+)
+from ccs_kornia.geometry.models import (
+    CentredRadialModel,
+    KannalaBrandtModel,
+    OpenCVModel,
+)
+from ccs_kornia.modules.calibration.lm import (
+    LevenbergMarquardt,
+    levenberg_marquardt,
+    parameter_basis,
+)
 
 F64 = torch.float64
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -322,7 +334,10 @@ def test_joint_refinement_matches_a_dense_reference(model, flags):
 
 def test_refine_centred_radial_matches_a_dense_reference():
     """The paper's radial model on the core against a dense LM over the same projection written with kornia."""
-    from ccs_kornia.modules.calibration.centred_radial import centred_radial_distort, refine_centred_radial
+    from ccs_kornia.modules.calibration.centred_radial import (
+        centred_radial_distort,
+        refine_centred_radial,
+    )
 
     K = torch.tensor([[430.0, 0.0, 329.0], [0.0, 433.0, 233.0], [0.0, 0.0, 1.0]], dtype=F64)
     rvec, tvec = _poses(2, 8, seed=5, depth=0.45)

@@ -7,7 +7,11 @@ import math
 import pytest
 import torch
 
-from ccs_kornia.camera import board_object_points, kb_project_points, project_points
+from ccs_kornia.geometry.camera import (
+    board_object_points,
+    kb_project_points,
+    project_points,
+)
 from ccs_kornia.modules.calibration.model_selection import (
     AUTO_MODELS,
     ModelSelection,
@@ -16,7 +20,7 @@ from ccs_kornia.modules.calibration.model_selection import (
     tied_with_best,
 )
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.pipeline_result import select_result
+from ccs_kornia.pipeline.result import select_result
 
 F64 = torch.float64
 OBJ = board_object_points(9, 6, 0.03, dtype=F64)
@@ -83,7 +87,7 @@ def test_module_picks_fisheye_for_a_fisheye_and_a_polynomial_model_for_a_pinhole
 def test_models_solved_elsewhere_give_the_same_choice():
     """``map_models`` (the pipeline's worker processes) only moves where each model's solve runs; it is handed the
     costliest model first (two processes then finish together)."""
-    from ccs_kornia.batch_workers import worker_pool
+    from ccs_kornia.pipeline.workers import worker_pool
 
     uv, _, _ = _two_cameras()
     valid = torch.ones(2, 12, 54, dtype=torch.bool) & uv.isfinite().all(-1)
@@ -105,8 +109,8 @@ def test_models_solved_elsewhere_give_the_same_choice():
 
 def test_pipeline_auto_mixed_models_in_one_batch():
     """Two cameras, two models: one batched result, each camera's own width of coefficients when selected."""
-    from ccs_kornia.pipeline import CalibrationPipeline
-    from ccs_kornia.pipeline_solve import solve_group
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+    from ccs_kornia.pipeline.solve import solve_group
 
     uv, K, K2 = _two_cameras()
     pipe = CalibrationPipeline("opencv", model="auto", distortion_correction=False)

@@ -14,7 +14,7 @@ import torch
 from _board_views import all_valid, synthetic
 from _real_data import REAL_DATA
 
-from ccs_kornia.camera import board_object_points
+from ccs_kornia.geometry.camera import board_object_points
 from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.ransac import ImageRansac
 from ccs_kornia.modules.calibration.result import VIEW_REASONS

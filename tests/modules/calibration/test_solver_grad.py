@@ -6,9 +6,16 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.camera import board_object_points, kb_project_points, project_points
-from ccs_kornia.modules.calibration.implicit import implicit_solution, so3_left_jacobian_inverse
-from ccs_kornia.modules.calibration.so3 import exp_so3, log_so3
+from ccs_kornia.geometry.camera import (
+    board_object_points,
+    kb_project_points,
+    project_points,
+)
+from ccs_kornia.geometry.so3 import exp_so3, log_so3
+from ccs_kornia.modules.calibration.implicit import (
+    implicit_solution,
+    so3_left_jacobian_inverse,
+)
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
 F64 = torch.float64
@@ -181,7 +188,7 @@ def test_implicit_solution_exceptions_and_passthrough():
     res = _solver("k1k2")(uv[0], None, obj, SIZE)
     with pytest.raises(ValueError, match="weights"):
         _solver("k1k2")(uv[0], None, obj, SIZE, weights=torch.ones(3))
-    from ccs_kornia.modules.calibration.models import OpenCVModel
+    from ccs_kornia.geometry.models import OpenCVModel
 
     m = OpenCVModel("k1k2")
     params = m.params_from(res.K[None], res.dist[None])

@@ -6,8 +6,8 @@ import pytest
 import torch
 from _board_views import all_valid, synthetic
 
-from ccs_kornia.modules.calibration.diagnostics import cross_validation
 from ccs_kornia.modules.calibration.model_selection import ModelSelection
+from ccs_kornia.modules.calibration.quality.diagnostics import cross_validation
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
 

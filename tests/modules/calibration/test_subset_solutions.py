@@ -6,11 +6,14 @@ import pytest
 import torch
 from test_model_selection import OBJ, _two_cameras
 
-from ccs_kornia.batch_workers import worker_pool
-from ccs_kornia.modules.calibration.diagnostics import cross_validation, diagnose
 from ccs_kornia.modules.calibration.model_selection import ModelSelection
+from ccs_kornia.modules.calibration.quality.diagnostics import (
+    cross_validation,
+    diagnose,
+)
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
+from ccs_kornia.pipeline.workers import worker_pool
 
 SIZE = (640, 480)
 

@@ -7,7 +7,11 @@ import torch
 from _board_views import all_valid, synthetic
 
 from ccs_kornia.modules.calibration.homography import find_homographies
-from ccs_kornia.modules.calibration.zhang import ZhangInit, extrinsics_from_homography, zhang_intrinsics
+from ccs_kornia.modules.calibration.zhang import (
+    ZhangInit,
+    extrinsics_from_homography,
+    zhang_intrinsics,
+)
 
 F64 = torch.float64
 IMAGE_SIZE = (640, 480)

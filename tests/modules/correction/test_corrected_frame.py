@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.camera import board_object_points, project_points
+from ccs_kornia.geometry.camera import board_object_points, project_points
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.modules.correction.corrected_frame import correction_zoom, select_cameras, with_fields
+from ccs_kornia.modules.correction.corrected_frame import (
+    correction_zoom,
+    select_cameras,
+    with_fields,
+)
 from ccs_kornia.modules.correction.radial_warp import corrected_radius
 
 

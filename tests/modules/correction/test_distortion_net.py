@@ -158,7 +158,7 @@ def test_export_round_trip(tmp_path):
 
 
 def test_default_size():
-    # its CPU speed is measured by benchmarks/bench_distortion_net.py
+    # its CPU speed is measured by ccs_kornia/bench/micro/bench_distortion_net.py
     net = DistortionNet().eval()
     n = net.num_parameters()
     assert 0.5e6 < n < 2e6, n

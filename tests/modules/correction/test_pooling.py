@@ -5,7 +5,10 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.modules.correction.pooling import aggregate_corrections, correction_displacement
+from ccs_kornia.modules.correction.pooling import (
+    aggregate_corrections,
+    correction_displacement,
+)
 from ccs_kornia.modules.correction.radial_warp import correct_points
 
 SIZE = (640, 480)

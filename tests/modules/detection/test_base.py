@@ -1,7 +1,11 @@
 import pytest
 import torch
 
-from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult, Fallbacks
+from ccs_kornia.modules.detection.base import (
+    ChessboardDetector,
+    DetectionResult,
+    Fallbacks,
+)
 
 
 def test_fill_writes_found_boards_only_one_dimension():

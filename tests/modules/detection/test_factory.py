@@ -14,6 +14,6 @@ def test_make_detector(monkeypatch):
     assert isinstance(make_detector("opencv"), OpenCVChessboardDetector)
     with pytest.raises(ValueError, match="unknown detector"):
         make_detector("magic")
-    monkeypatch.setitem(sys.modules, "ccs_kornia.modules.detection.learned_detector", None)  # import fails
+    monkeypatch.setitem(sys.modules, "ccs_kornia.modules.detection.learned.learned_detector", None)  # import fails
     with pytest.raises(ValueError, match="use --detector opencv"):
         make_detector("learned")

@@ -1,0 +1,515 @@
+"""Camera, board and distortion models shared by every stage.
+
+Conventions (see ``docs/architecture.md``):
+
+* pixels: the centre of the top-left pixel is ``(0, 0)``, x to the right, y down (OpenCV and
+  ``kornia.geometry.create_meshgrid(..., normalized_coordinates=False)``);
+* board: ``cols x rows`` inner corners; object point ``n = j * cols + i`` is ``(i * s, j * s, 0)``;
+* poses: OpenCV's ``rvec`` (axis-angle, world-to-camera) and ``tvec``;
+* OpenCV distortion: ``(k1, k2, p1, p2, k3)`` (``opencv5``) or ``(k1, k2, p1, p2, k3, k4, k5, k6)``
+  (``rational``), applied on the normalized plane through kornia's ``distort_points``;
+* Kannala-Brandt fisheye (``cv2.fisheye``): ``theta = atan2(r, z)``,
+  ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``, ``D = (k1, k2, k3, k4)``;
+* the paper's radial model (used for training data and the distortion CNN): radii are measured from
+  the image centre ``((W-1)/2, (H-1)/2)`` in units of ``max(W, H)``;
+  distortion ``r_d = r_c (k0 + k1 r_c^2 + k2 r_c^4)`` and correction
+  ``r_c = r_d (k0' + k1' r_d + k2' r_d^2 + k3' r_d^3 + k4' r_d^4)``.
+
+This module imports nothing else of ``ccs_kornia``.
+"""
+
+from __future__ import annotations
+
+import torch
+from kornia.geometry.calibration import distort_points, undistort_points
+from kornia.geometry.camera.distortion_kannala_brandt import (
+    distort_points_kannala_brandt,
+)
+from kornia.geometry.conversions import (
+    axis_angle_to_rotation_matrix,
+    rotation_matrix_to_axis_angle,
+)
+
+__all__ = [
+    "DISTORTION_MODELS",
+    "num_distortion_coeffs",
+    "board_object_points",
+    "intrinsics_matrix",
+    "intrinsics_params",
+    "transform_points_rt",
+    "project_points",
+    "distort_pixels",
+    "undistort_pixels",
+    "radial_distort_points",
+    "radial_undistort_points",
+    "radial_correct_points",
+    "fit_radial_correction",
+    "fit_opencv_distortion",
+    "kb_project_points",
+    "kb_distort_points",
+    "kb_unproject_points",
+    "kb_undistort_points",
+    "axis_angle_to_rotation_matrix",
+    "rotation_matrix_to_axis_angle",
+]
+
+#: output distortion models and their coefficient counts (OpenCV order)
+DISTORTION_MODELS: dict[str, int] = {"none": 0, "k1k2": 5, "opencv5": 5, "rational": 8}
+
+
+def num_distortion_coeffs(model: str) -> int:
+    """Number of OpenCV coefficients stored for ``model`` (``k1k2`` stores 5 with p1=p2=k3=0)."""
+    if model not in DISTORTION_MODELS:
+        raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(DISTORTION_MODELS)}.")
+    return DISTORTION_MODELS[model]
+
+
+def board_object_points(
+    cols: int, rows: int, square: float = 1.0, device: torch.device | str | None = None, dtype: torch.dtype = torch.float32
+) -> torch.Tensor:
+    """Object points of a ``cols x rows`` inner-corner board in grid order.
+
+    Args:
+        cols: inner corners per row.
+        rows: number of rows of inner corners.
+        square: side of a square in world units.
+
+    Returns:
+        Tensor of shape :math:`(cols*rows, 3)`, point ``n = j*cols + i`` is ``(i*s, j*s, 0)``.
+
+    Example:
+        >>> board_object_points(3, 2, 0.5)[:4]
+        tensor([[0.0000, 0.0000, 0.0000],
+                [0.5000, 0.0000, 0.0000],
+                [1.0000, 0.0000, 0.0000],
+                [0.0000, 0.5000, 0.0000]])
+    """
+    if cols < 2 or rows < 2:
+        raise ValueError(f"A board needs at least 2x2 inner corners, got {cols}x{rows}.")
+    j, i = torch.meshgrid(
+        torch.arange(rows, device=device, dtype=dtype), torch.arange(cols, device=device, dtype=dtype), indexing="ij"
+    )
+    return torch.stack([i.reshape(-1) * square, j.reshape(-1) * square, torch.zeros_like(i).reshape(-1)], -1)
+
+
+def intrinsics_matrix(params: torch.Tensor) -> torch.Tensor:
+    """Build ``K`` from ``(..., 4)`` parameters ``(fx, fy, cx, cy)``; returns ``(..., 3, 3)``.
+
+    Example:
+        >>> intrinsics_matrix(torch.tensor([500., 510., 320., 240.]))
+        tensor([[500.,   0., 320.],
+                [  0., 510., 240.],
+                [  0.,   0.,   1.]])
+    """
+    if params.shape[-1] != 4:
+        raise ValueError(f"Expected (..., 4) intrinsics (fx, fy, cx, cy), got {tuple(params.shape)}.")
+    fx, fy, cx, cy = params.unbind(-1)
+    z, o = torch.zeros_like(fx), torch.ones_like(fx)
+    return torch.stack([fx, z, cx, z, fy, cy, z, z, o], -1).reshape(*params.shape[:-1], 3, 3)
+
+
+def intrinsics_params(K: torch.Tensor) -> torch.Tensor:
+    """``(..., 3, 3)`` camera matrix to ``(..., 4)`` parameters ``(fx, fy, cx, cy)``."""
+    if K.shape[-2:] != (3, 3):
+        raise ValueError(f"Expected (..., 3, 3) camera matrix, got {tuple(K.shape)}.")
+    return torch.stack([K[..., 0, 0], K[..., 1, 1], K[..., 0, 2], K[..., 1, 2]], -1)
+
+
+def transform_points_rt(points: torch.Tensor, rvec: torch.Tensor, tvec: torch.Tensor) -> torch.Tensor:
+    """Apply ``X_cam = R(rvec) X + tvec``.
+
+    Args:
+        points: :math:`(*, N, 3)` world points.
+        rvec: :math:`(*, 3)` axis-angle rotation.
+        tvec: :math:`(*, 3)` translation.
+
+    Returns:
+        :math:`(*, N, 3)` camera-frame points.
+    """
+    R = axis_angle_to_rotation_matrix(rvec.reshape(-1, 3)).reshape(*rvec.shape[:-1], 3, 3)
+    return points @ R.transpose(-1, -2) + tvec.unsqueeze(-2)
+
+
+def _pad_opencv(dist: torch.Tensor) -> torch.Tensor:
+    n = dist.shape[-1]
+    if n in (4, 5, 8):
+        return dist
+    if n < 4:
+        return torch.nn.functional.pad(dist, [0, 4 - n])
+    raise ValueError(f"OpenCV distortion needs 0, 4, 5 or 8 coefficients, got {n}.")
+
+
+def project_points(
+    points: torch.Tensor,
+    K: torch.Tensor,
+    dist: torch.Tensor | None = None,
+    rvec: torch.Tensor | None = None,
+    tvec: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Project 3D points with a pinhole camera and OpenCV distortion (as ``cv2.projectPoints``).
+
+    Args:
+        points: :math:`(*, N, 3)` points (world frame if ``rvec``/``tvec`` given, else camera frame).
+        K: :math:`(*, 3, 3)` camera matrix.
+        dist: :math:`(*, D)` OpenCV coefficients, ``D`` in ``{0, 4, 5, 8}``; ``None`` for no distortion.
+        rvec: :math:`(*, 3)` axis-angle rotation world-to-camera.
+        tvec: :math:`(*, 3)` translation.
+
+    Returns:
+        :math:`(*, N, 2)` pixel coordinates.
+
+    Example:
+        >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]])
+        >>> project_points(torch.tensor([[0.1, 0.0, 1.0]]), K)
+        tensor([[370., 240.]])
+    """
+    if points.shape[-1] != 3:
+        raise ValueError(f"Expected (*, N, 3) points, got {tuple(points.shape)}.")
+    if rvec is not None:
+        if tvec is None:
+            raise ValueError("rvec given without tvec.")
+        points = transform_points_rt(points, rvec, tvec)
+    xy = points[..., :2] / points[..., 2:3]
+    # applied even when every coefficient is zero: a data-dependent branch would zero the distortion
+    # gradients at the usual zero start and break vmap / torch.compile
+    if dist is not None and dist.shape[-1] > 0:
+        eye = torch.eye(3, device=xy.device, dtype=xy.dtype).expand(*xy.shape[:-2], 3, 3)
+        d = _pad_opencv(dist).expand(*xy.shape[:-2], -1) if dist.dim() == 1 else _pad_opencv(dist)
+        xy = distort_points(xy, eye, d)
+    fx, fy = K[..., 0, 0, None], K[..., 1, 1, None]
+    cx, cy = K[..., 0, 2, None], K[..., 1, 2, None]
+    skew = K[..., 0, 1, None]
+    u = fx * xy[..., 0] + skew * xy[..., 1] + cx
+    v = fy * xy[..., 1] + cy
+    return torch.stack([u, v], -1)
+
+
+def distort_pixels(points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
+    """Ideal (undistorted) pixels to distorted pixels, OpenCV model; ``(*, N, 2)`` in and out."""
+    return distort_points(points, K, _pad_opencv(dist))
+
+
+def undistort_pixels(
+    points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, num_iters: int = 20, newton_iters: int = 4
+) -> torch.Tensor:
+    """Distorted pixels to ideal pixels, ``(*, N, 2)`` in and out.
+
+    kornia's fixed-point inverse followed by Newton steps on the normalized plane (5-coefficient models),
+    which fixes the last digits and most of the cases where the fixed point oscillates under strong
+    barrel distortion (kornia #4285). Outside the model's monotonic range no inverse exists; the
+    renderer (``data/lens.py``) adds a bisection start for that case.
+    """
+    d = _pad_opencv(dist)
+    ideal = undistort_points(points, K, d, num_iters=num_iters)
+    if d.shape[-1] != 5 or newton_iters <= 0:
+        return ideal
+    fx, fy = K[..., 0, 0, None], K[..., 1, 1, None]
+    cx, cy, skew = K[..., 0, 2, None], K[..., 1, 2, None], K[..., 0, 1, None]
+    yt = (points[..., 1] - cy) / fy
+    xt = (points[..., 0] - cx - skew * yt) / fx
+    yi = (ideal[..., 1] - cy) / fy
+    xi = (ideal[..., 0] - cx - skew * yi) / fx
+    k1, k2, p1, p2, k3 = (d[..., i, None] for i in range(5))
+    for _ in range(newton_iters):
+        r2 = xi * xi + yi * yi
+        g = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        gp = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+        xy = xi * yi
+        ex = xi * g + 2 * p1 * xy + p2 * (r2 + 2 * xi * xi) - xt
+        ey = yi * g + p1 * (r2 + 2 * yi * yi) + 2 * p2 * xy - yt
+        a = g + 2 * xi * xi * gp + 2 * p1 * yi + 6 * p2 * xi
+        c = 2 * xy * gp + 2 * p1 * xi + 2 * p2 * yi
+        e = g + 2 * yi * yi * gp + 6 * p1 * yi + 2 * p2 * xi
+        det = a * e - c * c
+        det = torch.where(det.abs() < 1e-12, torch.full_like(det, 1e-12), det)
+        xi = xi - ((e * ex - c * ey) / det).clamp(-1.0, 1.0)
+        yi = yi - ((a * ey - c * ex) / det).clamp(-1.0, 1.0)
+    return torch.stack([fx * xi + skew * yi + cx, fy * yi + cy], -1)
+
+
+# ----------------------------------------------------------------------------------------------
+# The paper's radial model (image-centred, radius in units of max(W, H))
+# ----------------------------------------------------------------------------------------------
+
+
+def _centre_scale(image_size: tuple[int, int], like: torch.Tensor) -> tuple[torch.Tensor, float]:
+    w, h = image_size
+    centre = torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], device=like.device, dtype=like.dtype)
+    return centre, float(max(w, h))
+
+
+def _apply_radial_factor(points: torch.Tensor, image_size: tuple[int, int], factor_fn) -> torch.Tensor:
+    centre, scale = _centre_scale(image_size, points)
+    q = (points - centre) / scale
+    r = q.norm(dim=-1, keepdim=True)
+    return q * factor_fn(r) * scale + centre
+
+
+def radial_distort_points(points: torch.Tensor, coeffs: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
+    """Paper distortion ``r_d = r_c (k0 + k1 r_c^2 + k2 r_c^4)`` on pixel points.
+
+    Args:
+        points: :math:`(B, N, 2)` ideal pixel coordinates.
+        coeffs: :math:`(B, 3)` ``(k0, k1, k2)``.
+        image_size: ``(W, H)``.
+
+    Returns:
+        :math:`(B, N, 2)` distorted pixel coordinates.
+
+    Example:
+        >>> p = torch.tensor([[[319.5, 239.5], [639., 479.]]])
+        >>> radial_distort_points(p, torch.tensor([[1.0, 0.0, 0.0]]), (640, 480))
+        tensor([[[319.5000, 239.5000],
+                 [639.0000, 479.0000]]])
+    """
+    if coeffs.shape[-1] != 3:
+        raise ValueError(f"Radial distortion needs (B, 3) coefficients (k0, k1, k2), got {tuple(coeffs.shape)}.")
+    k = coeffs.unsqueeze(-2)
+
+    def factor(r):
+        r2 = r * r
+        return k[..., 0:1] + k[..., 1:2] * r2 + k[..., 2:3] * r2 * r2
+
+    return _apply_radial_factor(points, image_size, factor)
+
+
+def radial_undistort_points(
+    points: torch.Tensor, coeffs: torch.Tensor, image_size: tuple[int, int], num_iters: int = 12
+) -> torch.Tensor:
+    """Exact inverse of :func:`radial_distort_points` by Newton's method on the radius.
+
+    Args:
+        points: :math:`(B, N, 2)` distorted pixel coordinates.
+        coeffs: :math:`(B, 3)` distortion ``(k0, k1, k2)``.
+        image_size: ``(W, H)``.
+        num_iters: Newton steps (converges quadratically; 12 reaches float64 rounding for the paper's ranges).
+
+    Returns:
+        :math:`(B, N, 2)` ideal pixel coordinates.
+    """
+    if coeffs.shape[-1] != 3:
+        raise ValueError(f"Radial distortion needs (B, 3) coefficients, got {tuple(coeffs.shape)}.")
+    centre, scale = _centre_scale(image_size, points)
+    q = (points - centre) / scale
+    rd = q.norm(dim=-1, keepdim=True)
+    k = coeffs.unsqueeze(-2)
+    k0, k1, k2 = k[..., 0:1], k[..., 1:2], k[..., 2:3]
+    rc = rd / k0
+    for _ in range(num_iters):
+        r2 = rc * rc
+        f = rc * (k0 + k1 * r2 + k2 * r2 * r2) - rd
+        df = k0 + 3 * k1 * r2 + 5 * k2 * r2 * r2
+        rc = rc - f / df.clamp_min(1e-6)
+    ratio = torch.where(rd > 0, rc / rd.clamp_min(1e-12), 1.0 / k0)
+    return q * ratio * scale + centre
+
+
+def radial_correct_points(points: torch.Tensor, correction: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
+    """Paper correction ``r_c = r_d (k0' + k1' r_d + k2' r_d^2 + k3' r_d^3 + k4' r_d^4)``.
+
+    Args:
+        points: :math:`(B, N, 2)` distorted pixel coordinates.
+        correction: :math:`(B, 5)` correction coefficients.
+        image_size: ``(W, H)``.
+
+    Returns:
+        :math:`(B, N, 2)` corrected pixel coordinates.
+    """
+    if correction.shape[-1] != 5:
+        raise ValueError(f"Radial correction needs (B, 5) coefficients, got {tuple(correction.shape)}.")
+    c = correction.unsqueeze(-2)
+
+    def factor(r):
+        return c[..., 0:1] + r * (c[..., 1:2] + r * (c[..., 2:3] + r * (c[..., 3:4] + r * c[..., 4:5])))
+
+    return _apply_radial_factor(points, image_size, factor)
+
+
+def fit_radial_correction(coeffs: torch.Tensor, image_size: tuple[int, int], num_samples: int = 64) -> torch.Tensor:
+    """Least-squares correction coefficients (B, 5) that best invert distortion ``coeffs`` (B, 3).
+
+    Samples ideal radii up to the image corner, distorts them, and fits
+    ``r_c = r_d * poly4(r_d)`` in closed form. Used as the regression target/oracle of the CNN.
+    """
+    w, h = image_size
+    r_max = 0.5 * (w * w + h * h) ** 0.5 / max(w, h) * 1.02
+    rc = torch.linspace(0.0, r_max, num_samples, device=coeffs.device, dtype=coeffs.dtype)
+    k0, k1, k2 = coeffs[:, 0:1], coeffs[:, 1:2], coeffs[:, 2:3]
+    rd = rc * (k0 + k1 * rc**2 + k2 * rc**4)  # (B, S)
+    A = torch.stack([rd**p for p in range(1, 6)], -1)  # (B, S, 5): r_d * r_d^p
+    sol = torch.linalg.lstsq(A, rc.expand_as(rd).unsqueeze(-1)).solution
+    return sol.squeeze(-1)
+
+
+def fit_opencv_distortion(
+    ideal: torch.Tensor, distorted: torch.Tensor, K: torch.Tensor, model: str = "opencv5", mask: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Closed-form OpenCV coefficients mapping ``ideal`` pixels onto ``distorted`` pixels for a fixed ``K``.
+
+    The OpenCV model is linear in its coefficients once the ideal normalized points are known (the
+    rational model is linearised by multiplying through by its denominator), so this is one batched
+    least-squares solve. It converts the paper's radial model (or any measured displacement field) to
+    the output model, e.g. to initialise the joint refinement.
+
+    Args:
+        ideal: :math:`(B, N, 2)` undistorted pixels.
+        distorted: :math:`(B, N, 2)` distorted pixels.
+        K: :math:`(B, 3, 3)`.
+        model: ``opencv5`` (k1,k2,p1,p2,k3), ``k1k2`` (k1,k2; others zero) or ``rational``.
+        mask: optional :math:`(B, N)` weights (non-finite points are never used).
+
+    Returns:
+        :math:`(B, D)` coefficients in OpenCV order (D = 5, or 8 for ``rational``).
+    """
+    fx, fy = K[:, 0, 0, None], K[:, 1, 1, None]
+    cx, cy = K[:, 0, 2, None], K[:, 1, 2, None]
+    x = (ideal[..., 0] - cx) / fx
+    y = (ideal[..., 1] - cy) / fy
+    xd = (distorted[..., 0] - cx) / fx
+    yd = (distorted[..., 1] - cy) / fy
+    r2 = x * x + y * y
+    # residual rows: xd - x = x*(k1 r2 + k2 r4 + k3 r6) + 2 p1 x y + p2 (r2 + 2x^2)   (rational: times denominator)
+    cols_x = [x * r2, x * r2**2, 2 * x * y, r2 + 2 * x * x, x * r2**3]
+    cols_y = [y * r2, y * r2**2, r2 + 2 * y * y, 2 * x * y, y * r2**3]
+    bx, by = xd - x, yd - y
+    if model == "rational":
+        cols_x += [-xd * r2, -xd * r2**2, -xd * r2**3]
+        cols_y += [-yd * r2, -yd * r2**2, -yd * r2**3]
+    elif model == "k1k2":
+        cols_x, cols_y = cols_x[:2], cols_y[:2]
+    elif model != "opencv5":
+        raise ValueError(f"Unknown model {model!r}.")
+    A = torch.cat([torch.stack(cols_x, -1), torch.stack(cols_y, -1)], -2)  # (B, 2N, P)
+    b = torch.cat([bx, by], -1).unsqueeze(-1)
+    # points that are not finite (the hidden corners of a partial board) never count
+    use = (ideal.isfinite().all(-1) & distorted.isfinite().all(-1)).to(A.dtype)
+    wgt = use if mask is None else use * mask.to(A.dtype)
+    wgt = torch.cat([wgt, wgt], -1).unsqueeze(-1)  # one weight per x row and per y row of A
+    A, b = (A * wgt).nan_to_num(0.0), (b * wgt).nan_to_num(0.0)
+    sol = torch.linalg.lstsq(A, b).solution.squeeze(-1)
+    if model == "k1k2":
+        sol = torch.cat([sol, torch.zeros_like(sol[:, :1]).expand(-1, 3)], -1)
+    return sol
+
+
+# ----------------------------------------------------------------------------------------------
+# Kannala-Brandt fisheye (cv2.fisheye's model), valid beyond 90 degrees
+# ----------------------------------------------------------------------------------------------
+
+
+def _kb_params(K: torch.Tensor, D: torch.Tensor) -> torch.Tensor:
+    if K.shape[-2:] != (3, 3) or D.shape[-1] != 4:
+        raise ValueError(f"Kannala-Brandt needs K (*, 3, 3) and D (*, 4), got {tuple(K.shape)} and {tuple(D.shape)}.")
+    intr, D = intrinsics_params(K), D.to(K.dtype)
+    # broadcast_tensors, not torch.broadcast_shapes: the latter imports sympy on first use (0.4 s per process)
+    return torch.cat(torch.broadcast_tensors(intr, D), -1)
+
+
+def kb_project_points(
+    points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, rvec: torch.Tensor | None = None, tvec: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Project 3D points with the Kannala-Brandt model (as ``cv2.fisheye.projectPoints``, zero skew).
+
+    ``theta = atan2(r, z)``, so points at or beyond 90 degrees from the axis project too (``cv2.fisheye`` uses
+    ``atan(r / z)``, which agrees for ``z > 0``).
+
+    Args:
+        points: :math:`(*, N, 3)` points (world frame with ``rvec``/``tvec``, else camera frame).
+        K: :math:`(*, 3, 3)`; D: :math:`(*, 4)` ``k1..k4``; rvec, tvec: :math:`(*, 3)` optional pose.
+
+    Returns:
+        :math:`(*, N, 2)` pixels.
+
+    Example:
+        >>> K = torch.tensor([[300., 0, 320], [0, 300, 240], [0, 0, 1]])
+        >>> kb_project_points(torch.tensor([[1.0, 0.0, 0.0]]), K, torch.zeros(4))  # 90 degrees: r = f pi / 2
+        tensor([[791.2389, 240.0000]])
+    """
+    if points.shape[-1] != 3:
+        raise ValueError(f"Expected (*, N, 3) points, got {tuple(points.shape)}.")
+    if rvec is not None:
+        if tvec is None:
+            raise ValueError("rvec given without tvec.")
+        points = transform_points_rt(points, rvec, tvec)
+    p = _kb_params(K, D).unsqueeze(-2)
+    r = points[..., :2].norm(dim=-1)
+    theta = torch.atan2(r, points[..., 2])
+    t2 = theta * theta
+    theta_d = theta * (1 + t2 * (p[..., 4] + t2 * (p[..., 5] + t2 * (p[..., 6] + t2 * p[..., 7]))))
+    scale = torch.where(r > 0, theta_d / torch.where(r > 0, r, torch.ones_like(r)), 1.0 / points[..., 2])
+    u = p[..., 0] * scale * points[..., 0] + p[..., 2]
+    v = p[..., 1] * scale * points[..., 1] + p[..., 3]
+    return torch.stack([u, v], -1)
+
+
+def kb_distort_points(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor) -> torch.Tensor:
+    """Normalized points on the ``z = 1`` plane to pixels (``cv2.fisheye.distortPoints`` of normalized points).
+
+    Kornia's ``distort_points_kannala_brandt`` (its ``k0..k3`` are ``cv2.fisheye``'s ``k1..k4``); points
+    :math:`(*, N, 2)`, K :math:`(*, 3, 3)`, D :math:`(*, 4)` -> :math:`(*, N, 2)` pixels.
+    """
+    return distort_points_kannala_brandt(points, _kb_params(K, D).unsqueeze(-2).expand(*points.shape[:-1], 8))
+
+
+def _kb_angles(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, num_iters: int):
+    """Pixels to (theta, unit direction in the image plane) by Newton on theta (start: theta_d)."""
+    p = _kb_params(K, D).unsqueeze(-2)
+    fx, fy, cx, cy = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    skew = K[..., 0, 1, None]
+    b = (points[..., 1] - cy) / fy
+    a = (points[..., 0] - cx - skew * b) / fx
+    theta_d = (a * a + b * b).sqrt()
+    k1, k2, k3, k4 = p[..., 4], p[..., 5], p[..., 6], p[..., 7]
+    theta = theta_d
+    for _ in range(num_iters):
+        t2 = theta * theta
+        f = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - theta_d
+        df = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+        theta = theta - f / torch.where(df.abs() > 1e-12, df, torch.full_like(df, 1e-12))
+    # the direction of the centre pixel itself is arbitrary: (1, 0)
+    off_centre = theta_d > 0
+    safe = torch.where(off_centre, theta_d, torch.ones_like(theta_d))
+    cos_phi = torch.where(off_centre, a / safe, torch.ones_like(a))
+    sin_phi = torch.where(off_centre, b / safe, torch.zeros_like(b))
+    return theta, cos_phi, sin_phi
+
+
+def kb_unproject_points(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, num_iters: int = 20) -> torch.Tensor:
+    """Pixels to unit viewing rays, the inverse of :func:`kb_project_points` (valid beyond 90 degrees).
+
+    Args:
+        points: :math:`(*, N, 2)` pixels; K :math:`(*, 3, 3)`; D :math:`(*, 4)`; num_iters: Newton steps on theta.
+
+    Returns:
+        :math:`(*, N, 3)` unit rays ``(sin(theta) cos(phi), sin(theta) sin(phi), cos(theta))``.
+
+    Example:
+        >>> K = torch.tensor([[300., 0, 320], [0, 300, 240], [0, 0, 1]], dtype=torch.float64)
+        >>> ray = kb_unproject_points(torch.tensor([[791.2389, 240.0]], dtype=torch.float64), K, torch.zeros(4))
+        >>> bool((ray - torch.tensor([1.0, 0.0, 0.0])).abs().max() < 1e-6)  # 90 degrees
+        True
+    """
+    theta, ca, sa = _kb_angles(points, K, D, num_iters)
+    return torch.stack([theta.sin() * ca, theta.sin() * sa, theta.cos()], -1)
+
+
+def kb_undistort_points(
+    points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, P: torch.Tensor | None = None, num_iters: int = 20
+) -> torch.Tensor:
+    """Pixels to normalized points ``tan(theta) (cos phi, sin phi)`` (``cv2.fisheye.undistortPoints``).
+
+    Args:
+        points: :math:`(*, N, 2)` pixels; K :math:`(*, 3, 3)`; D :math:`(*, 4)`; P: optional new camera matrix.
+
+    Returns:
+        :math:`(*, N, 2)`; only meaningful below 90 degrees (use :func:`kb_unproject_points` beyond).
+    """
+    theta, ca, sa = _kb_angles(points, K, D, num_iters)
+    t = theta.tan()
+    xy = torch.stack([t * ca, t * sa], -1)
+    if P is None:
+        return xy
+    x, y = xy.unbind(-1)
+    u = P[..., 0, 0, None] * x + P[..., 0, 1, None] * y + P[..., 0, 2, None]
+    v = P[..., 1, 1, None] * y + P[..., 1, 2, None]
+    return torch.stack([u, v], -1)

@@ -1,0 +1,150 @@
+"""OpenCV's pinhole camera with its polynomial distortion (``cv2.projectPoints``), analytic derivatives.
+
+Variants (OpenCV coefficient order ``k1, k2, p1, p2, k3, k4, k5, k6``):
+
+* ``none``: pinhole only;
+* ``k1k2``: two radial terms;
+* ``opencv5``: ``k1, k2, p1, p2, k3`` (OpenCV's default);
+* ``rational``: ``k1 .. k6`` with the rational radial factor (``CALIB_RATIONAL_MODEL``).
+
+Parameters are ``fx, fy, cx, cy`` followed by the variant's coefficients (zero skew). The distortion is applied
+even when every coefficient is zero, so the derivatives are right at the usual zero start.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ccs_kornia.geometry.models.base import (
+    CameraModel,
+    broadcast_params,
+    check_projection_inputs,
+    unit_columns,
+)
+
+__all__ = ["OPENCV_VARIANTS", "OpenCVModel"]
+
+#: indices (in OpenCV's 8-coefficient order) estimated by each variant
+OPENCV_VARIANTS: dict[str, tuple[int, ...]] = {
+    "none": (),
+    "k1k2": (0, 1),
+    "opencv5": (0, 1, 2, 3, 4),
+    "rational": (0, 1, 2, 3, 4, 5, 6, 7),
+}
+_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
+
+
+class OpenCVModel(CameraModel):
+    r"""Pinhole + OpenCV polynomial distortion, as ``cv2.projectPoints`` (zero skew).
+
+    Args:
+        variant: ``none`` | ``k1k2`` | ``opencv5`` | ``rational``.
+
+    Example:
+        >>> m = OpenCVModel("opencv5")
+        >>> params = torch.tensor([[500., 500., 320., 240., -0.2, 0.05, 0., 0., 0.]], dtype=torch.float64)
+        >>> uv, J, Jx = m.project(torch.tensor([[[0.1, 0.0, 1.0]]], dtype=torch.float64), params)
+        >>> uv.shape, J.shape, Jx.shape
+        (torch.Size([1, 1, 2]), torch.Size([1, 1, 2, 9]), torch.Size([1, 1, 2, 3]))
+        >>> round(float(uv[0, 0, 0]), 5)  # 320 + 500 * 0.1 * (1 - 0.2 * 0.01 + 0.05 * 1e-4)
+        369.90025
+    """
+
+    def __init__(self, variant: str = "opencv5") -> None:
+        if variant not in OPENCV_VARIANTS:
+            raise ValueError(f"Unknown OpenCV variant {variant!r}; expected one of {sorted(OPENCV_VARIANTS)}.")
+        self.name = variant
+        self.coeff_index = OPENCV_VARIANTS[variant]
+        self.param_names = ("fx", "fy", "cx", "cy", *(_NAMES[i] for i in self.coeff_index))
+
+    def dist8(self, params: torch.Tensor) -> torch.Tensor:
+        """The 8 OpenCV coefficients :math:`(C, 8)` from params :math:`(C, P)` (zeros outside the variant)."""
+        d = params.new_zeros(params.shape[0], 8)
+        if self.coeff_index:
+            d[:, list(self.coeff_index)] = params[:, 4:]
+        return d
+
+    def params_from(self, K: torch.Tensor, dist: torch.Tensor | None = None) -> torch.Tensor:
+        """Params :math:`(C, P)` from ``K`` :math:`(C, 3, 3)` and OpenCV coefficients :math:`(C, D)` (any D <= 8)."""
+        intr = torch.stack([K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]], -1)
+        d8 = K.new_zeros(K.shape[0], 8)
+        if dist is not None and dist.shape[-1] > 0:
+            d = dist.to(K.dtype).expand(K.shape[0], -1)[:, :8]
+            d8[:, : d.shape[-1]] = d
+        return torch.cat([intr, d8[:, list(self.coeff_index)]], -1)
+
+    def columns(self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True) -> tuple:
+        """See :meth:`CameraModel.columns` (terms of coefficients outside the variant are skipped, not zeroed).
+
+        (Written with in-place ops on fresh tensors: the LM core calls it once per iteration, and on small
+        problems the cost is the number of tensor ops. No fused multiply-adds: their vectorised and scalar paths
+        round differently, which would make a camera's result depend on its place in the batch.)
+        """
+        check_projection_inputs(points, params, self.num_params)
+        p = broadcast_params(params, points)
+        inv_z = points[..., 2:3].reciprocal()
+        xy = points[..., :2] * inv_z  # (C, *, 2) normalised coordinates
+        f, c = p[..., 0:2], p[..., 2:4]
+        k = {i: p[..., 4 + j : 5 + j] for j, i in enumerate(self.coeff_index)}  # (C, 1.., 1) each
+        radial, tangential, k3on, rational = 0 in k, 2 in k, 4 in k, 5 in k
+        x, y = xy[..., 0:1], xy[..., 1:2]
+        sq = xy * xy
+        r2 = sq.sum(-1, keepdim=True)
+        drad = inv_b = None
+        if radial:
+            if k3on:
+                rad = (r2 * k[4]).add_(k[1]).mul_(r2).add_(k[0]).mul_(r2).add_(1.0)
+                drad = (r2 * (3 * k[4])).add_(2 * k[1]).mul_(r2).add_(k[0])
+            else:
+                rad = (r2 * k[1]).add_(k[0]).mul_(r2).add_(1.0)
+                drad = (r2 * (2 * k[1])).add_(k[0])
+            if rational:
+                inv_b = (r2 * k[7]).add_(k[6]).mul_(r2).add_(k[5]).mul_(r2).add_(1.0).reciprocal_()
+                rad = rad.mul_(inv_b)
+                dden = (r2 * (3 * k[7])).add_(2 * k[6]).mul_(r2).add_(k[5])
+                drad = drad.sub_(dden.mul_(rad)).mul_(inv_b)
+            pd = xy * rad
+        else:
+            pd = xy.clone()
+        if tangential:
+            xy2 = (x * y).mul_(2.0)
+            r2p = (sq * 2.0).add_(r2)
+            t1 = torch.cat([xy2, r2p[..., 1:2]], -1)  # d (xd, yd) / d p1
+            t2 = torch.cat([r2p[..., 0:1], xy2], -1)  # d (xd, yd) / d p2
+            pd.add_(k[2] * t1).add_(k[3] * t2)
+        uv = (pd * f).add_(c)
+        if not jacobians:
+            return uv, None, None
+
+        ex, ey = unit_columns(uv)
+        cols = {}
+        if radial:
+            cols[0] = (f * (xy if inv_b is None else xy * inv_b)).mul_(r2)
+            cols[1] = cols[0] * r2
+            if k3on:
+                cols[4] = cols[1] * r2
+            if rational:
+                cols[5] = (cols[0] * rad).neg_()
+                cols[6] = cols[5] * r2
+                cols[7] = cols[6] * r2
+        if tangential:
+            cols[2], cols[3] = f * t1, f * t2
+        dp = [pd * ex, pd * ey, ex, ey, *(cols[i] for i in self.coeff_index)]
+
+        # d uv / d Xc = diag(fx, fy) d(xd, yd)/d(x, y) d(x, y)/d Xc, with d(xd, yd)/d(x, y) = [[a00, a01], [a01, a11]]
+        fz = f * inv_z
+        if not (radial or tangential):
+            dx, dy = fz * ex, fz * ey
+            return uv, dp, [dx, dy, (dx * x).add_(dy * y).neg_()]
+        if radial:
+            diag = (sq * drad).mul_(2.0).add_(rad)
+            off = (xy2 if tangential else (x * y).mul_(2.0)) * drad
+        else:
+            diag, off = torch.ones_like(xy), torch.zeros_like(x)
+        if tangential:
+            p1y, p2x = k[2] * y, k[3] * x
+            diag.add_(torch.cat([(p2x * 3.0).add_(p1y), (p1y * 3.0).add_(p2x)], -1).mul_(2.0))
+            off.add_((k[2] * x).add_(k[3] * y).mul_(2.0))
+        dx = fz * torch.cat([diag[..., 0:1], off], -1)
+        dy = fz * torch.cat([off, diag[..., 1:2]], -1)
+        return uv, dp, [dx, dy, (dx * x).add_(dy * y).neg_()]

@@ -1,0 +1,5 @@
+"""Files at the boundary of the library: image files in (decoded, grey, streamed) and out, JSON and text written
+atomically, board sizes as users write them.
+
+Below the pipeline (which reads images through it) and free of the stages.
+"""

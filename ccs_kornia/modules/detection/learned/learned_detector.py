@@ -1,0 +1,492 @@
+"""The learned chessboard detector: heatmap UNet → peaks → Gaussian fit → sigma rejection → grid → refinement."""
+
+from __future__ import annotations
+
+import copy
+import math
+from contextlib import nullcontext
+from pathlib import Path
+
+import torch
+
+from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
+from ccs_kornia.modules.detection.base import (
+    ChessboardDetector,
+    DetectionResult,
+    Fallbacks,
+    image_rows,
+)
+from ccs_kornia.modules.detection.checks.board_checks import whole_board_check
+from ccs_kornia.modules.detection.checks.corner_evidence import (
+    decide_corners,
+    measure_corner_evidence,
+)
+from ccs_kornia.modules.detection.checks.hidden_corners import (
+    PARTIAL_BOARD_FRACTION,
+    settle_partial_boards,
+)
+from ccs_kornia.modules.detection.grid.collinearity import collinearity_refine
+from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
+from ccs_kornia.modules.detection.grid.grid_organizer import organize_grid
+from ccs_kornia.modules.detection.grid.missing_corners import predict_missing_corners
+from ccs_kornia.modules.detection.learned.foreshortening import detect_foreshortened
+from ccs_kornia.modules.detection.learned.gaussian_fit import gaussian_fit
+from ccs_kornia.modules.detection.learned.heatmap_unet import (
+    PRECISIONS,
+    CornerUNet,
+    run_heatmap,
+)
+from ccs_kornia.modules.detection.learned.opencv_candidates import (
+    opencv_candidates,
+    opencv_level_factor,
+)
+from ccs_kornia.modules.detection.learned.peaks import heatmap_peaks
+from ccs_kornia.modules.detection.learned.scale import (
+    TARGET_SQUARE,
+    ScaleSelector,
+    detect_at_scale,
+)
+from ccs_kornia.modules.detection.learned.sigma_rejection import sigma_outlier_rejection
+from ccs_kornia.modules.detection.learned.x_junction import x_junction_mask
+from ccs_kornia.modules.detection.refine.patch_refine import refine_from_level
+from ccs_kornia.modules.detection.refine.saddle_refine import (
+    CornerRefiner,
+    refine_corners,
+)
+from ccs_kornia.runtime.threads import full_threads, light_stages_single_thread
+from ccs_kornia.runtime.timing import stage
+
+__all__ = ["DEFAULT_DETECTOR_WEIGHTS", "load_corner_unet", "LearnedChessboardDetector"]
+
+#: weights shipped inside the package (see docs/training.md for how they were made)
+DEFAULT_DETECTOR_WEIGHTS = Path(__file__).resolve().parents[3] / "weights" / "corner_unet.pt"
+
+
+def load_corner_unet(path: str | Path | None = None, map_location: str | torch.device = "cpu") -> tuple[CornerUNet, float]:
+    """Load an exported detector checkpoint; returns ``(network in eval mode, training sigma)``.
+
+    Raises:
+        FileNotFoundError: no weights at ``path`` (default: the shipped ones).
+    """
+    path = Path(path) if path is not None else DEFAULT_DETECTOR_WEIGHTS
+    if not path.is_file():
+        raise FileNotFoundError(f"Detector weights not found at {path}.")
+    ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    net = CornerUNet(**ckpt["config"])
+    net.load_state_dict(ckpt["state_dict"])
+    return net.eval(), float(ckpt.get("sigma", 1.5))
+
+
+#: a board found from OpenCV's candidates is refused where a refined corner lies farther than this (in squares) from
+#: where its row and column neighbours put it (exact lattices, 75-degree tilt included: at most 0.04)
+MAX_LATTICE_DEVIATION = 0.08
+#: refinement window of boards from OpenCV's candidates, in grid spacings: such boards are mostly ones with marks in
+#: their white squares, and the usual 0.2 reaches the marks' frames (held-out ChArUco renders: from OpenCV's corners,
+#: 12/12 boards within 0.043 px mean with 0.1 or 0.12, one corner 3 px off with 0.15, five boards lost with 0.2)
+MARKED_RADIUS_FACTOR = 0.1
+
+
+class LearnedChessboardDetector(ChessboardDetector):
+    """Heatmap-learning chessboard detector (paper §III-B) with an image-based final refinement.
+
+    Steps, each switchable so its effect can be measured:
+
+    1. :class:`CornerUNet` heatmap;
+    2. peaks (kornia ``nms2d`` + threshold + top-k, soft-argmax seeds) and Gaussian surface fitting
+       (batched least squares in log space) giving ``mu`` and ``sigma`` per peak;
+    3. peaks whose ``sigma`` differs from the training sigma are rejected, and so are peaks where the
+       image shows no X-junction;
+    4. grid organisation into a ``cols x rows`` board (missing corners predicted, wrong boards rejected);
+    5. optional collinearity refinement (only meaningful on undistorted images);
+    6. optional saddle-point refinement on the image (window adapted to the grid spacing).
+
+    Its :class:`DetectionResult` carries each corner's point-symmetry residual (``sigma``,
+    :func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_uncertainty`), measured for the asymmetry check
+    (:func:`~ccs_kornia.modules.detection.checks.hidden_corners.settle_partial_boards`) and reused by solvers that weigh
+    corners by it.
+
+    Args:
+        net: a trained :class:`CornerUNet` (a copy with its batch normalisation folded is used); ``None`` loads
+            ``weights``.
+        weights: path of an exported checkpoint (default: the shipped weights).
+        sigma: training sigma of the heatmaps (read from the checkpoint when loading).
+        peak_threshold: heatmap threshold of a peak.
+        nms_kernel: non-maximum suppression window.
+        max_peaks: peak slots per image.
+        fit_window: Gaussian-fit window (odd).
+        sigma_tolerance: relative sigma tolerance of the outlier rejection.
+        collinearity: run the collinearity refinement.
+        refine: ``"symmetric"`` (saddle fit + point-symmetry polish), ``"saddle"``, ``"gradient"`` or ``"none"``
+            image refinement.
+        x_junction_check: drop peaks where the image shows no X-junction (clutter, board edges).
+        scale: ``"auto"``: detect on the pyramid level where the squares have about ``target_square`` px (chosen per
+            image from the image, :mod:`ccs_kornia.modules.detection.learned.scale`) and refine at full resolution;
+            ``"off"``: detect at the input resolution.
+        target_square: square size in px the network sees with ``scale="auto"``.
+        max_pixels: most pixels of a detection level with ``scale="auto"`` (bounds memory and time).
+        scale_fallback: with ``scale="auto"``, relative factors of the levels tried in turn where the board was not
+            found at the chosen one, clamped to the image itself (never upsampled). A finer level resolves thin board
+            margins that a coarse one blurs into an extra row of corners; a coarser one drops clutter.
+        scale_finest: with a fallback, then also the octaves below the finest fallback and the finest level allowed
+            (a wrong square-size estimate; :func:`~ccs_kornia.modules.detection.learned.scale.detect_at_scale`).
+        max_upsampling: with ``scale="auto"``, images whose squares are smaller than ``target_square`` are upsampled
+            by at most this factor (1: never).
+        precision: of the heatmap network (:func:`~ccs_kornia.modules.detection.learned.heatmap_unet.run_heatmap`):
+            ``"float32"`` (default), ``"bfloat16"`` or ``"auto"`` (bfloat16 where the CPU computes it natively). Opt-in:
+            with AVX512-BF16 the network ran 1.7x faster (18.0 -> 10.6 ms per 640x480 image) but lost boards (24 held-out
+            75-degree renders: 23 found in float32, 22), and docs/benchmarks.md is float32: one answer on every machine.
+        opencv_retry: where no level gave a board from the network's peaks, look again on the corners of OpenCV's
+            classic detector on a bounded level (:mod:`~ccs_kornia.modules.detection.learned.opencv_candidates`: above all
+            boards with marks inside the white squares, whose corners the network misses), organised, refined and
+            checked as the network's, plus a lattice check.
+        foreshortened_retry: where still no board was found, look on copies of the finest level allowed compressed
+            2:1 along four directions in turn (:mod:`~ccs_kornia.modules.detection.learned.foreshortening`: boards at a
+            grazing angle, whose squares are foreshortened 2-4:1).
+        (``scale_fallback``, ``scale_finest``, ``opencv_retry`` and ``foreshortened_retry`` make the detector's own
+        :class:`~ccs_kornia.modules.detection.base.Fallbacks`, :attr:`fallbacks`; a caller passes others per call.)
+        partial_boards: keep a found board whose unconfirmed corners the image does not show (saturating glare, an
+            occluder: :mod:`~ccs_kornia.modules.detection.checks.hidden_corners`), with those corners NaN (left out of
+            ``DetectionResult.valid``); otherwise such a board is refused as incomplete.
+    """
+
+    def __init__(
+        self,
+        net: CornerUNet | None = None,
+        weights: str | Path | None = None,
+        sigma: float = 1.5,
+        peak_threshold: float = 0.25,
+        nms_kernel: int = 5,
+        max_peaks: int = 512,
+        fit_window: int = 7,
+        sigma_tolerance: float = 0.6,
+        collinearity: bool = False,
+        refine: str = "symmetric",
+        x_junction_check: bool = True,
+        scale: str = "auto",
+        target_square: float = TARGET_SQUARE,
+        max_pixels: float = 3.2e6,
+        scale_fallback: tuple[float, ...] = (0.5, 2.0, 0.25),
+        scale_finest: bool = True,
+        max_upsampling: float = 2.0,
+        precision: str = "float32",
+        opencv_retry: bool = True,
+        foreshortened_retry: bool = True,
+        partial_boards: bool = True,
+    ) -> None:
+        super().__init__()
+        if net is None:
+            net, sigma = load_corner_unet(weights)
+        elif has_batchnorm(net):
+            net = copy.deepcopy(net)  # the caller's network (e.g. one in training) is left as it is
+        # inference only: batch normalisation folded into the convolutions (same heatmap, ~15 % less CPU time)
+        self.net = fold_batchnorm(net)
+        self.sigma = sigma
+        self.peak_threshold = peak_threshold
+        self.nms_kernel = nms_kernel
+        self.max_peaks = max_peaks
+        self.fit_window = fit_window
+        self.sigma_tolerance = sigma_tolerance
+        self.collinearity = collinearity
+        self.x_junction_check = x_junction_check
+        if refine not in ("saddle", "symmetric", "gradient", "none"):
+            raise ValueError(f"refine must be 'symmetric', 'saddle', 'gradient' or 'none', got {refine!r}.")
+        self.refine = refine
+        self.refiner = CornerRefiner(method=refine) if refine != "none" else None
+        # --- scale selection (modules/detection/learned/scale.py) ---
+        if scale not in ("auto", "off"):
+            raise ValueError(f"scale must be 'auto' or 'off', got {scale!r}.")
+        self.scale = scale
+        if not max_upsampling >= 1:
+            raise ValueError(f"max_upsampling must be >= 1, got {max_upsampling}.")
+        self.scale_selector = ScaleSelector(target_square=target_square, max_pixels=max_pixels,
+                                            min_factor=1.0 / max_upsampling)
+        # the detector's own fallbacks; a caller passes others per call (``forward``'s ``fallbacks``)
+        self.fallbacks = Fallbacks(True, tuple(float(f) for f in scale_fallback), bool(scale_finest),
+                                   bool(opencv_retry), bool(foreshortened_retry))
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
+        self.precision = precision
+        self.partial_boards = bool(partial_boards)
+
+    @property
+    def selects_scale(self) -> bool:
+        """Whether the detector picks its own detection level (callers need not downscale large images)."""
+        return self.scale == "auto"
+
+    @torch.no_grad()
+    def candidates(
+        self, images: torch.Tensor, full: torch.Tensor | None = None, scale: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Heatmap and sigma-filtered sub-pixel peaks: ``heatmap (B,1,H,W), points (B,M,2), mask (B,M)``.
+
+        With ``full`` (the full-resolution images of a downscaled level ``images``, ``x_full + 0.5 = (x + 0.5) * scale``)
+        the X-junction test runs on ``full``, where thin board margins are still resolved.
+        """
+        with stage("heatmap network"), full_threads():
+            heat = run_heatmap(self.net, images, self.precision)
+        with stage("peaks + Gaussian fit + sigma rejection"):
+            seeds, _, mask = heatmap_peaks(heat, self.peak_threshold, self.max_peaks, self.nms_kernel)
+            mu, sig, ok = gaussian_fit(heat, seeds, mask, self.fit_window)
+            keep = sigma_outlier_rejection(sig, mask & ok, self.sigma, self.sigma_tolerance)
+        with stage("X-junction check"):
+            if self.x_junction_check and full is not None and scale is not None:
+                # --- scale selection: same circle geometry as on the level, sampled at full resolution ---
+                f = float(scale.max())
+                keep = x_junction_mask(full, (mu + 0.5) * scale.to(mu) - 0.5, keep, max_radius=15.0 * f)
+            elif self.x_junction_check:
+                keep = x_junction_mask(images, mu, keep)
+        return heat, mu, keep
+
+    @torch.no_grad()
+    def forward(self, images: torch.Tensor, board_size: tuple[int, int],
+                fallbacks: Fallbacks | None = None) -> DetectionResult:
+        """Detect the board on every image of ``(B, 1, H, W)``; corners in grid order. ``fallbacks``: what is tried
+        where the board is not found at first (default: the detector's own, :attr:`fallbacks`)."""
+        board_size = self._check_inputs(images, board_size)
+        if images.shape[0] == 0:  # an empty batch (e.g. a folder's last, empty chunk): nothing to look at
+            return _empty_result(images, board_size)
+        with light_stages_single_thread(images.device):
+            out = self._detect(images.float(), board_size, self.fallbacks if fallbacks is None else fallbacks)
+            return self._grid_checks(images, out, board_size)
+
+    @torch.no_grad()
+    def foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        """Only the last resort for boards seen at a grazing angle (``Fallbacks.foreshortened``), on ``(B, 1, H, W)``:
+        the finest level allowed compressed along a few directions in turn
+        (:func:`~ccs_kornia.modules.detection.learned.foreshortening.detect_foreshortened`), corners refined at full
+        resolution and checked as in :meth:`forward`. For callers that first try the cheaper looks (the calibration
+        pipeline runs it on the views its other looks missed) with ``Fallbacks.foreshortened`` off."""
+        board_size = self._check_inputs(images, board_size)
+        if images.shape[0] == 0:
+            return _empty_result(images, board_size)
+        with light_stages_single_thread(images.device):
+            return self._grid_checks(images, self._foreshortened(images.float(), board_size), board_size)
+
+    def _grid_checks(self, images: torch.Tensor, out: DetectionResult, board_size: tuple[int, int]) -> DetectionResult:
+        with stage("partial boards"):
+            # corners far less point-symmetric than their board's lie on an edge or in a square: left out (partial
+            # boards) or, without partial boards, the board is refused (whole boards or nothing)
+            out = settle_partial_boards(images, out, board_size)
+            if not self.partial_boards:
+                left_out = (out.found[:, None] & ~out.valid).sum(-1)
+                for b in left_out.nonzero().flatten().tolist():
+                    out.found[b], out.reasons[b] = False, f"board refused: {int(left_out[b])} corner(s) not on a junction"
+                    out.corners[b], out.sigma[b] = 0.0, float("nan")
+        with stage("grid checks"):
+            # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
+            # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners
+            for b in out.found.nonzero().flatten().tolist():
+                # and a sub-board: the organiser looks for peaks past the sides, which a coarse level can lack on a
+                # whole line (opencv_left at 8x6: left14's ninth column, squares of 5 px there); the image shows it
+                reason = whole_board_check(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
+                                           board_size)
+                if reason:
+                    out.found[b], out.reasons[b] = False, f"board refused: {reason}"
+                    out.corners[b], out.sigma[b] = 0.0, float("nan")
+        return out
+
+    def _refine_at_full_size(self, full: torch.Tensor, pts: torch.Tensor, board_size: tuple[int, int], factor: float,
+                             radius_factor: float | None = None) -> torch.Tensor:
+        """Corners found on a level ``factor`` times coarser, refined on the full-resolution images (coarse to fine)."""
+        r = self.refiner
+        if r is None:
+            return pts
+        # the full-resolution fit's regions are large enough for both threads (passive waits, 2 cores: bench speed
+        # scene's 15 views 0.259 -> 0.203 s, udacity_gopro_wide's 36 photos 2.25 -> 1.71 s, one board of 20 Mpx
+        # 156 -> 135 ms); the level's refinement gains nothing from the second
+        with stage("saddle refinement"), full_threads():
+            out, ok = refine_from_level(full, pts, board_size, factor, radius_factor or r.radius_factor, r.max_radius,
+                                        r.method, r.iterations, r.smooth_sigma, r.normalize_sigma, return_ok=True)
+        # a corner that found no saddle within its window at full resolution kept its position from the level, which
+        # can be px off (held-out glare renders: a corner at the spot's rim 2.2-2.7 px off): left out like a hidden
+        # one (real sets: 6 of 5,196 corners)
+        return out.masked_fill((~ok.to(out.device) & out.isfinite().all(-1))[..., None], float("nan"))
+
+    def _foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        h, w = images.shape[-2:]
+        floor = max(1.0, math.sqrt(w * h / self.scale_selector.max_pixels))
+
+        def compressed(x: torch.Tensor, bs: tuple[int, int]) -> DetectionResult:
+            return self.detect_level(x, bs, resampled=True)
+
+        def refine(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
+            return self._refine_at_full_size(full, pts, board_size, factor)
+
+        return detect_foreshortened(compressed, images, board_size, refine, floor)
+
+    def _detect(self, images: torch.Tensor, board_size: tuple[int, int], fallbacks: Fallbacks) -> DetectionResult:
+        if self.scale == "off":
+            return self.detect_level(images, board_size)
+        # --- scale selection (modules/detection/learned/scale.py): detect on each image's level, refine at full resolution ---
+        # the square-size estimate is a few whole-image filters: on a batch of a megapixel or more both threads pay
+        # off (16 images of 640x480: 6.3 -> 3.8 ms per image), on one small image waking the second does not
+        big = images.numel() >= 1e6
+        with stage("square-size estimate"), (full_threads() if big else nullcontext()):
+            _, factor = self.scale_selector(images)
+
+        def refine(full: torch.Tensor, pts: torch.Tensor, factor: float, radius_factor: float | None = None):
+            return self._refine_at_full_size(full, pts, board_size, factor, radius_factor)
+
+        out = detect_at_scale(self.detect_level, images, board_size, factor, fallbacks.levels,
+                              self.scale_selector.max_pixels, refine, finest=fallbacks.finest,
+                              primary=fallbacks.primary)
+        missed = (~out.found).nonzero().flatten()
+        if fallbacks.opencv and missed.numel():
+            # last resort: OpenCV's quads on one bounded level (they need no square-size estimate), refined with a
+            # narrow window (these are mostly boards with marks)
+            def opencv_level(x: torch.Tensor, bs: tuple[int, int], full: torch.Tensor, scale: torch.Tensor):
+                return self.detect_level(x, bs, full, scale, source="opencv")
+
+            def narrow(full: torch.Tensor, pts: torch.Tensor, factor: float) -> torch.Tensor:
+                return refine(full, pts, factor, MARKED_RADIUS_FACTOR)
+
+            h, w = images.shape[-2:]
+            levels = torch.full((missed.numel(),), opencv_level_factor((w, h)), dtype=factor.dtype)
+            got = detect_at_scale(opencv_level, image_rows(images, missed), board_size, levels, (),
+                                  self.scale_selector.max_pixels, narrow)
+            c2, f2, r2 = got.corners, got.found, got.reasons
+            out.fill(missed, DetectionResult(c2, f2, r2))
+            for k, i in enumerate(missed.tolist()):  # why a board the candidates gave was refused
+                if not bool(f2[k]) and r2[k].startswith("board refused"):
+                    out.reasons[i] = r2[k]
+        missed = (~out.found).nonzero().flatten()
+        if fallbacks.foreshortened and missed.numel():
+            # boards at a grazing angle: the finest level allowed, compressed along one direction at a time
+            out.fill(missed, self._foreshortened(image_rows(images, missed), board_size))
+        out.corners = out.corners.float()
+        return out
+
+    def _opencv_board(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        """:meth:`detect_level` on :func:`~ccs_kornia.modules.detection.learned.opencv_candidates.opencv_candidates` of
+        ``images`` instead of the network's peaks.
+
+        OpenCV's corners are within a px: no coarse search (the marks pull it: 0.3 -> 0.9 px on held-out ChArUco
+        renders) and a narrow refinement window (:data:`MARKED_RADIUS_FACTOR`). No X-junction check: its circle test
+        counts the colour changes around a point, and a mark inside a white square adds changes. In its place, a
+        board whose refined corners leave the smooth lattice of their neighbours by more than
+        :data:`MAX_LATTICE_DEVIATION` squares is refused (near a mark a corner can converge onto the mark's own
+        junctions). A sub-board (OpenCV returns them) is refused by the final checks like any board whose pattern
+        continues past a side."""
+        with stage("opencv candidates"):
+            points, keep = opencv_candidates(images, board_size)
+        corners, valid, found = _organize(points, keep, board_size, images)
+        refiner = self.refiner
+        if refiner is not None:
+            refiner = copy.copy(refiner)
+            refiner.radius_factor = MARKED_RADIUS_FACTOR
+        out = self._complete(images, board_size, corners, valid, found, refiner)
+        if bool(out.found.any()):
+            off = torch.zeros_like(out.found)
+            for b in out.found.nonzero().flatten().tolist():
+                reason = whole_board_check(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
+                                           board_size, MAX_LATTICE_DEVIATION, skipped=False, extends=False)
+                if reason:
+                    off[b], out.reasons[b] = True, f"board refused: {reason}"
+            out.found = out.found & ~off
+            out.corners = torch.where(out.found[:, None, None], out.corners, torch.zeros_like(out.corners))
+        out.reasons = [("learned (opencv candidates)" if f else r) for f, r in zip(out.found.tolist(), out.reasons)]
+        return out
+
+    @torch.no_grad()
+    def detect_level(
+        self, images: torch.Tensor, board_size: tuple[int, int], full: torch.Tensor | None = None,
+        scale: torch.Tensor | None = None, source: str = "network", resampled: bool | None = None,
+    ) -> DetectionResult:
+        """Detect the board at the resolution of ``images`` :math:`(B, 1, H, W)` (float); corners in grid order.
+
+        ``full`` and ``scale``: see :meth:`candidates`. ``source``: the corner candidates, ``"network"`` (the heatmap's
+        peaks) or ``"opencv"`` (OpenCV's classic detector, :meth:`_opencv_board`). ``resampled``: the level is a
+        resampled copy whose corners are refined again at full size (no wide polish here; default: ``full`` given).
+        """
+        if source == "opencv":
+            return self._opencv_board(images, board_size)
+        _, points, keep = self.candidates(images, full, scale)
+        corners, valid, found = _organize(points, keep, board_size, images,
+                                          PARTIAL_BOARD_FRACTION if self.partial_boards else None)
+        refiner = self.refiner
+        if resampled is None:
+            resampled = full is not None
+        if refiner is not None and resampled:  # a resampled level: its corners are refined again at full size
+            refiner = copy.copy(refiner)
+            refiner.wide = False
+        return self._complete(images, board_size, corners, valid, found, refiner)
+
+    def _complete(self, images: torch.Tensor, board_size: tuple[int, int], corners: torch.Tensor, valid: torch.Tensor,
+                  found: torch.Tensor, refiner: CornerRefiner | None = None) -> DetectionResult:
+        """Organised boards -> complete, refined boards: missing cells predicted and confirmed on the image
+        (``refiner``: default, the detector's)."""
+        refiner = self.refiner if refiner is None else refiner
+        reasons = ["learned" if f else "board not found" for f in found.tolist()]
+        if self.collinearity:
+            corners, valid = collinearity_refine(corners, valid & found[:, None], board_size)
+        # cells the network missed: predict them from their grid neighbours (local, follows distortion)
+        # instead of keeping the organiser's global-homography guess
+        missing = found[:, None] & ~valid
+        if bool(missing.any()):
+            with stage("missing corners"):
+                corners, _ = predict_missing_corners(corners, valid, board_size)
+                # extrapolated cells can be off by a good part of a square under strong distortion: a coarse
+                # search first, then the regular saddle refinement below polishes
+                corners = _coarse_search(images, corners, missing, found[:, None].expand_as(valid), board_size)
+        cells = found[:, None].expand_as(valid)  # every cell of a found board
+        hidden = torch.zeros_like(valid)
+        if refiner is not None and bool(found.any()):
+            with stage("saddle refinement"):
+                corners, ok = refiner(images, corners, cells, board_size, return_ok=True)
+            # a predicted cell is accepted only where the image shows a corner there (corner_evidence.py: the
+            # board is dropped, or the corner left out where the checker has faded: glare, an occluder)
+            evidence = measure_corner_evidence(images, corners, cells, missing, ok, valid, board_size,
+                                               contrast=self.partial_boards)
+            hidden, refusing = decide_corners(evidence, board_size)
+            unverified = refusing.any(1)
+            for b in unverified.nonzero().flatten().tolist():
+                reasons[b] = f"board incomplete: {int(refusing[b].sum())} corner(s) not confirmed in the image"
+            found = found & ~unverified
+            # a partial board is checked for skipped lines here already, so that a refused lattice through every
+            # other corner (a level where one parity of the corners lost its peaks: ChArUco renders) leaves the
+            # other levels and looks their turn (forward's final check would refuse it with nothing else tried)
+            for b in (found & hidden.any(1)).nonzero().flatten().tolist():
+                shown = corners[b].masked_fill(hidden[b, :, None], float("nan"))
+                reason = whole_board_check(images[b, 0].float().cpu().numpy(), shown.double().cpu().numpy(), board_size,
+                                           extends=False)
+                if reason:
+                    found[b], reasons[b] = False, f"board refused: {reason}"
+        corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
+        corners = corners.masked_fill(hidden[..., None] & found[:, None, None], float("nan"))
+        return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
+
+
+def _empty_result(images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+    n = board_size[0] * board_size[1]
+    return DetectionResult(corners=images.new_zeros(0, n, 2, dtype=torch.float32),
+                           found=torch.zeros(0, dtype=torch.bool, device=images.device), reasons=[])
+
+
+def _organize(points: torch.Tensor, keep: torch.Tensor, board_size: tuple[int, int], images: torch.Tensor,
+              partial_fraction: float | None = None):
+    """:func:`organize_grid`, then again with the wide-lens tolerance where no board was found: strongly distorted
+    close-ups bend the lattice more than the strict neighbour check allows (every corner is still verified on the
+    image afterwards); then, with ``partial_fraction``, again accepting a board of which only that fraction of the
+    corners has a peak (a glare over the board's middle: the missing cells must then show no checker, see
+    :meth:`LearnedChessboardDetector._complete`)."""
+    with stage("grid organiser"):
+        corners, valid, found = organize_grid(points, keep, board_size, images)
+        retry = (~found).nonzero().flatten()
+        if retry.numel():
+            c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry], check_tolerance=0.25)
+            corners[retry], valid[retry], found[retry] = c2, v2, f2
+        retry = (~found).nonzero().flatten()
+        if partial_fraction is not None and retry.numel():
+            c2, v2, f2 = organize_grid(points[retry], keep[retry], board_size, images[retry],
+                                       min_fraction=partial_fraction, partial=True)
+            corners[retry], valid[retry], found[retry] = c2, v2, f2
+    return corners, valid, found
+
+
+def _coarse_search(images: torch.Tensor, corners: torch.Tensor, cells: torch.Tensor, spaced: torch.Tensor,
+                   board_size: tuple[int, int]) -> torch.Tensor:
+    """``corners`` with ``cells`` moved by the gradient-orthogonality fixed point, whose basin is the whole window
+    (0.45 x the grid spacing measured over the ``spaced`` cells)."""
+    spacing = grid_spacing(corners, spaced, board_size)
+    coarse = refine_corners(images, corners, cells, 0.45 * spacing, method="gradient", iterations=10, max_radius=40)
+    return torch.where(cells[..., None], coarse, corners)

@@ -1,0 +1,288 @@
+r"""AprilGrid corners with partial views: OpenCV's tag ids, this package's corners.
+
+Kalibr's AprilGrid (:class:`~ccs_kornia.modules.detection.boards.AprilGrid`) puts a small black square beside every
+corner of its AprilTags, so each tag corner is an X-junction between the tag's black border and that square: the
+same saddle the chessboard refinement measures. The steps are :mod:`~ccs_kornia.modules.detection.markers.charuco`'s:
+
+1. **tags**: ``cv2.aruco.ArucoDetector`` (``DICT_APRILTAG_36h11``, two border bits as Kalibr prints them) decodes
+   the tags on the image, its inverse (white-on-black prints) and both mirrored (a board seen from its back);
+2. **lattice**: the decoded tags must sit where the grid puts their ids (a homography grown from each tag, tags
+   within :data:`~ccs_kornia.modules.detection.markers.charuco.LATTICE_TOLERANCE` tag sides; at least two tags: a lone tag
+   cannot be checked); ids beyond the grid's tags are dropped; the variant with the most consistent tags is kept; a
+   view with more of the grid's tags off its lattice than on it is refused (the tags of another grid: a wrong
+   ``tagCols``/``tagRows``);
+3. **initial corners**: each corner of a consistent tag from a homography of the tags around it
+   (:data:`NEIGHBOUR_RADIUS` grid pitches);
+4. **refinement and check**: :func:`~ccs_kornia.modules.detection.markers.charuco.refine_marked_corners` with a window inside
+   the clear X-junction (:func:`aprilgrid_radius_factor`): a corner the refinement did not confirm, whose window
+   leaves the image or that moved too far is dropped;
+5. **growth**: OpenCV's tag corners can be a px or two off, more than that small window forgives, and a tag that did
+   not decode (blur, low light) places none: a corner not accepted is placed by a homography of at least
+   :data:`GROWTH_SUPPORT` accepted corners around it (:data:`NEIGHBOUR_RADIUS` pitches) and refined and checked as
+   in step 4, for :data:`GROWTH_ROUNDS` rounds. Its id is its place in the lattice those corners fix; the saddle it
+   lands on must lie within a quarter of a tag side of that place (the nearest other corner is ``tag_spacing``
+   tag sides away).
+
+The result is the package's :class:`~ccs_kornia.modules.detection.base.DetectionResult` with one slot per corner id
+in Kalibr's numbering, NaN where a corner is not seen.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import cv2
+import numpy as np
+import torch
+
+from ccs_kornia.modules.detection.base import DetectionResult
+from ccs_kornia.modules.detection.boards import (
+    APRILGRID_BORDER_BITS,
+    AprilGrid,
+    aruco_dictionary,
+)
+from ccs_kornia.modules.detection.markers.charuco import (
+    VARIANTS,
+    CharucoMarkers,
+    MarkerBoardDetector,
+    _decode,
+    _fit,
+    _lattice,
+    _map,
+    refine_marked_corners,
+)
+from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
+
+__all__ = ["GROWTH_ROUNDS", "GROWTH_SUPPORT", "NEIGHBOUR_RADIUS", "AprilGridDetector", "aprilgrid_radius_factor", "aprilgrid_tags", "detect_aprilgrid",
+           "tag_detector"]
+
+#: tags whose centre lies within this many grid pitches (tag side plus gap) of a corner place it: its own tag and the
+#: three others around it
+NEIGHBOUR_RADIUS = 1.2
+#: a corner not placed by its tag (or placed too far off) is placed by at least this many accepted corners around it
+GROWTH_SUPPORT = 6
+#: rounds of that growth (each can place corners next to the ones the round before accepted)
+GROWTH_ROUNDS = 3
+
+
+def tag_detector(board: AprilGrid) -> cv2.aruco.ArucoDetector:
+    """OpenCV's marker detector for the grid's tags (its dictionary, :data:`APRILGRID_BORDER_BITS` border bits)."""
+    params = cv2.aruco.DetectorParameters()
+    params.markerBorderBits = APRILGRID_BORDER_BITS
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    return cv2.aruco.ArucoDetector(aruco_dictionary(board.dictionary), params)
+
+
+def aprilgrid_radius_factor(board: AprilGrid) -> float:
+    """The refinement window's half-size in tag sides: the saddle fit's window and the symmetry polish's
+    (:data:`~ccs_kornia.modules.detection.refine.saddle_refine.POLISH_WINDOW` times larger) stay inside the X-junction, whose
+    arms are the tag's border (two of its ten bits) and the corner square (``tag_spacing``).
+
+    Example:
+        >>> round(aprilgrid_radius_factor(AprilGrid(6, 6, 0.088, 0.3)), 3)
+        0.107
+    """
+    border = APRILGRID_BORDER_BITS / (6.0 + 2 * APRILGRID_BORDER_BITS)
+    return float(0.8 * min(border, float(board.tag_spacing)) / POLISH_WINDOW)
+
+
+def _board_tags(board: AprilGrid) -> dict[int, np.ndarray]:
+    """Tag id -> its corners ``(4, 2)`` on the board in tag sides, in OpenCV's corner order for the tag as Kalibr
+    prints it (OpenCV's marker turned by 180 degrees: bottom right, bottom left, top left, top right)."""
+    obj = board.object_points().numpy()[:, :2] / float(board.tag_size)
+    out = {}
+    for t in range(board.num_tags):
+        bl, br, tr, tl = board.tag_corner_ids(t)
+        out[t] = obj[[br, bl, tl, tr]]
+    return out
+
+
+def aprilgrid_tags(gray8: np.ndarray, board: AprilGrid, detector: cv2.aruco.ArucoDetector | None = None
+                   ) -> CharucoMarkers:
+    """The grid's tags on a ``uint8`` grey image (steps 1 and 2): corners ``(M, 4, 2)`` px, ids, their board corners
+    in tag sides, the image variant they were decoded on.
+
+    Example:
+        >>> g = AprilGrid(4, 3, 0.05, 0.3)
+        >>> tags = aprilgrid_tags(g.render(6), g)
+        >>> len(tags.ids), tags.variant
+        (12, 'plain')
+    """
+    detector = tag_detector(board) if detector is None else detector
+    tags = _board_tags(board)
+    best = CharucoMarkers(np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64), np.zeros((0, 4, 2)), "plain", False, 0)
+    for variant in VARIANTS:
+        pts, ids = _decode(gray8, detector, variant)
+        known = np.array([int(i) in tags for i in ids], dtype=bool)
+        _, first = np.unique(ids, return_index=True)  # a tag decoded twice: the first only
+        known &= np.isin(np.arange(len(ids)), first)
+        if known.sum() <= len(best.ids):
+            continue
+        p, i = pts[known], ids[known]
+        obj = np.stack([tags[int(k)] for k in i])
+        keep = _lattice(p, obj)
+        if keep.sum() > len(best.ids):
+            best = CharucoMarkers(p[keep], i[keep], obj[keep], variant, False, len(ids), known=int(known.sum()))
+    return best
+
+
+def _initial_corners(tags: CharucoMarkers, board: AprilGrid, image_size: tuple[int, int]
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each corner of a consistent tag from a homography of the tags around it: ids ``(K,)``, points ``(K, 2)`` px,
+    one tag side ``(K,)`` px there (the nearest of the four points a tag side away that the homography places)."""
+    if len(tags.ids) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 2)), np.zeros(0)
+    obj = board.object_points().numpy()[:, :2] / float(board.tag_size)
+    centres = tags.board_corners.mean(1)
+    reach = NEIGHBOUR_RADIUS * (1.0 + float(board.tag_spacing))
+    steps = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    w, h = image_size
+    ids, points, spacing = [], [], []
+    for tag in tags.ids:
+        for cid in board.tag_corner_ids(int(tag)):
+            c = obj[cid]
+            near = np.linalg.norm(centres - c, axis=-1) < reach
+            hom = _fit(tags.board_corners[near], tags.corners[near])
+            if hom is None:
+                continue
+            p = _map(hom, np.concatenate([c[None], c + steps]))
+            if not (np.isfinite(p).all() and 0 <= p[0, 0] <= w - 1 and 0 <= p[0, 1] <= h - 1):
+                continue
+            ids.append(cid)
+            points.append(p[0])
+            spacing.append(float(np.linalg.norm(p[1:] - p[0], axis=-1).min()))
+    return np.array(ids, dtype=np.int64), np.array(points).reshape(-1, 2), np.array(spacing)
+
+
+def _reseed(refined: np.ndarray, skip: np.ndarray, accept: np.ndarray, board: AprilGrid
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Corners not accepted (nor in ``skip``) placed :math:`(B, N, 2)` (NaN elsewhere) by a homography of the accepted
+    refined corners within :data:`NEIGHBOUR_RADIUS` grid pitches (at least :data:`GROWTH_SUPPORT` of them), and one
+    tag side there in px :math:`(B, N)`."""
+    obj = board.object_points().numpy()[:, :2] / float(board.tag_size)
+    reach = NEIGHBOUR_RADIUS * (1.0 + float(board.tag_spacing))
+    near = np.linalg.norm(obj[:, None] - obj[None], axis=-1) < reach
+    steps = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    out = np.full(refined.shape, np.nan)
+    space = np.full(refined.shape[:2], np.nan)
+    for k in range(refined.shape[0]):
+        support = near[:, accept[k]].sum(-1)
+        for i in np.flatnonzero(~skip[k] & (support >= GROWTH_SUPPORT)):
+            use = near[i] & accept[k]
+            hom = _fit(obj[use], refined[k, use])
+            if hom is None:
+                continue
+            p = _map(hom, np.concatenate([obj[i][None], obj[i] + steps]))
+            if np.isfinite(p).all():
+                out[k, i] = p[0]
+                space[k, i] = float(np.linalg.norm(p[1:] - p[0], axis=-1).min())
+    return out, space
+
+
+def detect_aprilgrid(
+    images: torch.Tensor,
+    board: AprilGrid,
+    min_corners: int = 6,
+    radius_factor: float | None = None,
+    num_workers: int | None = None,
+) -> DetectionResult:
+    r"""AprilGrid corners with their ids on a batch of images (the module docstring gives the steps).
+
+    Args:
+        images: :math:`(B, 1, H, W)` grey images in ``[0, 1]``.
+        board: the :class:`~ccs_kornia.modules.detection.boards.AprilGrid`.
+        min_corners: a view with fewer accepted corners is not found.
+        radius_factor: refinement window in tag sides; ``None``: :func:`aprilgrid_radius_factor`.
+        num_workers: threads over the images for the tag decoding; ``None``: ``min(8, cpu count)``.
+
+    Returns:
+        :class:`DetectionResult`: corners :math:`(B, N, 2)`, ``N = 4 * tags`` in Kalibr's corner order (NaN where
+        a corner is not seen; zeros on views not found), found :math:`(B,)`, reasons.
+
+    Example:
+        >>> g = AprilGrid(4, 3, 0.05, 0.3)
+        >>> art, a = g.texture(6)
+        >>> out = detect_aprilgrid(torch.from_numpy(art).float()[None, None] / 255, g)
+        >>> out.corners.shape, out.found.tolist(), int(out.valid.sum())
+        (torch.Size([1, 48, 2]), [True], 48)
+        >>> truth = torch.from_numpy(g.object_points().numpy()[:, :2] @ a[:, :2].T + a[:, 2]).float()
+        >>> bool(((out.corners[0] - truth).abs() < 0.05).all())
+        True
+    """
+    if images.dim() != 4 or images.shape[1] != 1:
+        raise ValueError(f"Expected grey images of shape (B, 1, H, W), got {tuple(images.shape)}.")
+    if min_corners < 1:
+        raise ValueError(f"min_corners must be >= 1, got {min_corners}.")
+    b, _, h, w = images.shape
+    n = board.num_corners
+    arrays = (images.detach()[:, 0].float().clamp(0, 1) * 255.0).round().to(torch.uint8).cpu().numpy()
+    workers = min(8, os.cpu_count() or 1) if num_workers is None else num_workers
+    if workers > 1 and b > 1:
+        with ThreadPoolExecutor(max_workers=min(workers, b)) as pool:
+            found_tags = list(pool.map(lambda a: aprilgrid_tags(a, board, tag_detector(board)), arrays))
+    else:
+        found_tags = [aprilgrid_tags(a, board, tag_detector(board)) for a in arrays]
+
+    initial = np.full((b, n, 2), np.nan)
+    spacing = np.full((b, n), np.nan)
+    for k, tags in enumerate(found_tags):
+        ids, pts, sp = _initial_corners(tags, board, (w, h))
+        initial[k, ids], spacing[k, ids] = pts, sp
+    factor = aprilgrid_radius_factor(board) if radius_factor is None else float(radius_factor)
+    refined, accept = refine_marked_corners(images, initial, spacing, factor)
+    tried = np.zeros(accept.shape, dtype=bool)
+    for _ in range(GROWTH_ROUNDS):  # step 5: corners placed again (or first) by their refined neighbours
+        again, space = _reseed(refined.double().numpy(), accept.numpy() | tried, accept.numpy(), board)
+        if not np.isfinite(again).any():
+            break
+        placed = np.isfinite(again).all(-1)
+        tried |= placed
+        refined2, accept2 = refine_marked_corners(images, again, space, factor)
+        accept2 &= torch.from_numpy(placed)
+        refined = torch.where(accept2[..., None], refined2, refined)
+        accept = accept | accept2
+    count = accept.sum(-1)
+    refused = torch.tensor([tags.off_lattice for tags in found_tags], dtype=torch.bool)
+    found = (count >= min_corners) & ~refused
+    corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
+    corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
+    reasons = []
+    for k, tags in enumerate(found_tags):
+        what = f"{len(tags.ids)} tags" + (f" ({tags.variant})" if tags.variant != "plain" else "")
+        if tags.off_lattice:
+            reasons.append(f"{tags.known - len(tags.ids)} of the grid's tags are not where a {board.tag_cols}x"
+                           f"{board.tag_rows} AprilGrid puts them ({len(tags.ids)} are): wrong tagCols or tagRows?")
+        elif not len(tags.ids):
+            reasons.append(f"no two {board.dictionary} tags of the grid found where it puts them")
+        elif bool(found[k]):
+            reasons.append(f"aprilgrid: {what}, {int(count[k])} of {n} corners")
+        else:
+            reasons.append(f"only {int(count[k])} corners from {what} (at least {min_corners} needed)")
+    return DetectionResult(corners.to(images.device), found.to(images.device), reasons)
+
+
+class AprilGridDetector(MarkerBoardDetector):
+    """AprilGrid detector with the chessboard detectors' interface (:func:`detect_aprilgrid`): ``board_size`` is the
+    corner grid ``(2 * tag_cols, 2 * tag_rows)``; unseen corner ids are NaN.
+
+    It decodes and refines at full resolution (``selects_scale``: the pipeline does not downscale its images).
+
+    Args:
+        board: the :class:`~ccs_kornia.modules.detection.boards.AprilGrid`.
+        min_corners, radius_factor, num_workers: as :func:`detect_aprilgrid`.
+
+    Example:
+        >>> g = AprilGrid(6, 6, 0.088, 0.3)
+        >>> out = AprilGridDetector(g)(torch.zeros(2, 1, 64, 64), g.board_size)
+        >>> out.corners.shape, out.found.tolist()
+        (torch.Size([2, 144, 2]), [False, False])
+    """
+
+    grid_name = "the AprilGrid's corner grid"
+
+    def layout(self) -> str:
+        return f"{self.board.tag_cols}x{self.board.tag_rows} tags"
+
+    def detect_board(self, images: torch.Tensor) -> DetectionResult:
+        return detect_aprilgrid(images, self.board, self.min_corners, self.radius_factor, self.num_workers)

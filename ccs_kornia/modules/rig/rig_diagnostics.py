@@ -1,0 +1,146 @@
+"""How good a rig calibration is: epipolar RMS (fit and held-out frames), uncertainties and the verdict.
+
+The thresholds of the verdict scale with the image size: they are given per 1000 px of image diagonal
+(``sqrt(W^2 + H^2)``), so a 640x480 camera (diagonal 800 px) is held to 0.8 times and a 1920x1080 one (2203 px) to
+2.2 times the figures below. The single-camera verdict's 1 px / 2 px reprojection limits
+(:class:`~ccs_kornia.modules.calibration.quality.diagnostics.VerdictThresholds`) are the values at a diagonal of 1000 px.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+
+from ccs_kornia.modules.rig.rig_camera import RigCamera
+from ccs_kornia.modules.rig.stereo import epipolar_distances
+
+__all__ = ["RigVerdictThresholds", "pair_pose", "epipolar_sums", "rig_verdict"]
+
+
+@dataclass
+class RigVerdictThresholds:
+    """Limits of the rig verdict (pixel figures per 1000 px of image diagonal; see the module doc).
+
+    Attributes:
+        good_rms / usable_rms: reprojection RMS of a camera.
+        good_epipolar / usable_epipolar: held-out epipolar RMS of a pair (the fit's when no frame could be held out).
+        good_baseline_rel / usable_baseline_rel: 1-sigma of ``|T|`` over ``|T|``.
+        good_rotation_deg / usable_rotation_deg: 1-sigma of the relative rotation (degrees).
+    """
+
+    good_rms: float = 1.0
+    usable_rms: float = 2.0
+    good_epipolar: float = 1.0
+    usable_epipolar: float = 2.0
+    good_baseline_rel: float = 0.005
+    usable_baseline_rel: float = 0.02
+    good_rotation_deg: float = 0.1
+    usable_rotation_deg: float = 0.5
+
+
+def pair_pose(R: torch.Tensor, T: torch.Tensor, i: int, j: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``x_j = R_ij x_i + T_ij`` from rig extrinsics :math:`(C, 3, 3)`, :math:`(C, 3)` (``x_c = R_c x_0 + T_c``)."""
+    Rij = R[j] @ R[i].T
+    return Rij, T[j] - Rij @ T[i]
+
+
+def epipolar_sums(
+    cameras: Sequence[RigCamera], R: torch.Tensor, T: torch.Tensor, corners: torch.Tensor, valid: torch.Tensor,
+    frames: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sum of squared symmetric epipolar distances and their count per camera pair, :math:`(C, C)` each (symmetric),
+    over the corners both cameras see in the same frame, on the frames where ``frames`` :math:`(C, F)` is True for
+    both (corners :math:`(C, F, N, 2)`, valid :math:`(C, F, N)`)."""
+    C = len(cameras)
+    sums = torch.zeros(C, C, dtype=R.dtype, device=R.device)
+    counts = torch.zeros(C, C, dtype=torch.long, device=R.device)
+    for i in range(C):
+        for j in range(i + 1, C):
+            m = valid[i] & valid[j] & (frames[i] & frames[j])[:, None]
+            if not bool(m.any()):
+                continue
+            Rij, Tij = pair_pose(R, T, i, j)
+            d = epipolar_distances(cameras[i], cameras[j], Rij, Tij, corners[i][m], corners[j][m])
+            d = d[d.isfinite()]
+            sums[i, j] = sums[j, i] = float((d * d).sum())
+            counts[i, j] = counts[j, i] = int(d.numel())
+    return sums, counts
+
+
+def rig_verdict(
+    names: Sequence[str],
+    image_sizes: Sequence[tuple[int, int]],
+    camera_rms: torch.Tensor,
+    epipolar_rms: torch.Tensor,
+    heldout_epipolar_rms: torch.Tensor,
+    baseline: torch.Tensor,
+    baseline_std: torch.Tensor,
+    rotation_std_deg: torch.Tensor,
+    thresholds: RigVerdictThresholds | None = None,
+) -> tuple[str, list[str]]:
+    """``("good" | "usable" | "not reliable: <advice>", reasons)`` of one rig.
+
+    Args:
+        names, image_sizes: per camera.
+        camera_rms: :math:`(C,)` px; epipolar_rms, heldout_epipolar_rms: :math:`(C, C)` px.
+        baseline: :math:`(C,)` ``|T_c|``; baseline_std, rotation_std_deg: :math:`(C,)` (camera 0: 0).
+        thresholds: :class:`RigVerdictThresholds`.
+
+    Example:
+        >>> z = torch.zeros(2, 2)
+        >>> rig_verdict(["a", "b"], [(640, 480)] * 2, torch.tensor([0.2, 0.3]), z, z + 0.2,
+        ...             torch.tensor([0.0, 0.1]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))
+        ('good', [])
+        >>> rig_verdict(["a", "b"], [(640, 480)] * 2, torch.tensor([0.2, 3.0]), z, z + 0.2,
+        ...             torch.tensor([0.0, 0.1]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))[0]
+        'not reliable: check the corner detections of b, or choose a distortion model that fits its lens'
+    """
+    t = thresholds or RigVerdictThresholds()
+    C = len(names)
+    scale = [math.hypot(*image_sizes[c]) / 1000.0 for c in range(C)]
+    bad: list[str] = []
+    weak: list[str] = []
+    advice: list[str] = []
+    for c in range(C):
+        r = float(camera_rms[c])
+        if not math.isfinite(r):
+            bad.append(f"{names[c]}: no reprojection error (not calibrated)")
+            advice.append(f"add frames where {names[c]} sees the board")
+        elif r > t.usable_rms * scale[c]:
+            bad.append(f"{names[c]}: reprojection RMS {r:.2f} px")
+            advice.append(f"check the corner detections of {names[c]}, or choose a distortion model that fits its lens")
+        elif r > t.good_rms * scale[c]:
+            weak.append(f"{names[c]}: reprojection RMS {r:.2f} px is high")
+    for c in range(1, C):
+        b, sb, sr = float(baseline[c]), float(baseline_std[c]), float(rotation_std_deg[c])
+        rel = sb / b if b > 0 else float("inf")
+        if not (math.isfinite(rel) and math.isfinite(sr)) or rel > t.usable_baseline_rel or sr > t.usable_rotation_deg:
+            bad.append(f"{names[c]}: baseline 1-sigma {100 * rel:.2f} %, rotation 1-sigma {sr:.3f} deg")
+            advice.append(f"add frames that {names[0]} (or a camera linked to it) and {names[c]} both see, at varied "
+                          "distances and tilts")
+        elif rel > t.good_baseline_rel or sr > t.good_rotation_deg:
+            weak.append(f"{names[c]}: baseline 1-sigma {100 * rel:.2f} %, rotation 1-sigma {sr:.3f} deg")
+    for i in range(C):
+        for j in range(i + 1, C):
+            held, fit = float(heldout_epipolar_rms[i, j]), float(epipolar_rms[i, j])
+            s = 0.5 * (scale[i] + scale[j])
+            pair = f"{names[i]}-{names[j]}"
+            if not math.isfinite(held):
+                if math.isfinite(fit):
+                    weak.append(f"{pair}: too few shared frames to hold some out (fit epipolar RMS {fit:.2f} px)")
+                    held = fit
+                else:
+                    continue
+            label = "held-out epipolar RMS" if held != fit else "epipolar RMS"
+            if held > t.usable_epipolar * s:
+                bad.append(f"{pair}: {label} {held:.2f} px")
+                advice.append(f"add frames both {names[i]} and {names[j]} see, spread over the image and in depth "
+                              "(and check that the cameras did not move during the capture)")
+            elif held > t.good_epipolar * s:
+                weak.append(f"{pair}: {label} {held:.2f} px")
+    if bad:
+        return "not reliable: " + "; ".join(dict.fromkeys(advice)), bad + weak
+    return ("usable" if weak else "good"), weak

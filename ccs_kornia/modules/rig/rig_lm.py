@@ -1,0 +1,291 @@
+r"""Joint Levenberg–Marquardt of a camera rig, batched over rigs: intrinsics, extrinsics and one board pose per frame.
+
+Unknowns per rig: every camera's parameters (its own :class:`~ccs_kornia.geometry.models.CameraModel`,
+so pinhole and fisheye cameras mix), the extrinsics ``(R_c, T_c)`` of cameras ``1..C-1`` (``x_c = R_c x_0 + T_c``;
+camera 0 is the reference, ``R_0 = I``, ``T_0 = 0``) and one board pose ``(R_f, t_f)`` per frame, board to camera 0,
+shared by all the cameras of that frame. A board corner ``X`` seen by camera ``c`` in frame ``f`` projects as
+``model_c(R_c (R_f X + t_f) + T_c)``.
+
+The normal equations have the arrow structure of :mod:`~ccs_kornia.modules.calibration.lm` with the "camera block"
+made of all the intrinsics and extrinsics of the rig (a few dozen unknowns) and the 6x6 frame-pose blocks: each step
+eliminates the frame poses with the same Schur complement (:func:`~ccs_kornia.modules.calibration.lm._schur_step`),
+so the cost is linear in the number of frames. Rotations are updated multiplicatively (``R <- exp(w) R``):
+
+* ``d uv / d w_f = (R_f X) x (d uv / d q)`` with ``q = R_f X + t_f`` and ``d uv / d q = (d uv / d X_c) R_c``;
+* ``d uv / d w_c = (R_c q) x (d uv / d X_c)``, ``d uv / d T_c = d uv / d X_c``.
+
+The covariance of the free rig parameters (frame poses marginalised) is ``sigma^2 S^{-1}`` with ``S`` the Schur
+complement at the solution and ``sigma^2 = cost / dof`` (1 with absolute weights), a pseudo-inverse where ``S`` is
+numerically singular.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.so3 import exp_so3
+from ccs_kornia.geometry.spd_inverse import pseudo_inverse, spd_inverse
+from ccs_kornia.modules.calibration.lm import _schur_step
+
+__all__ = ["RigLMResult", "rig_layout", "rig_levenberg_marquardt"]
+
+
+@dataclass
+class RigLMResult:
+    """Output of :func:`rig_levenberg_marquardt` (B rigs, C cameras, F frames, G rig parameters, Gf of them free)."""
+
+    params: list[torch.Tensor]  #: per camera (B, P_c)
+    R: torch.Tensor  #: (B, C, 3, 3) extrinsic rotations (R[:, 0] = I)
+    T: torch.Tensor  #: (B, C, 3)
+    frame_R: torch.Tensor  #: (B, F, 3, 3) board -> camera 0
+    frame_t: torch.Tensor  #: (B, F, 3)
+    cost: torch.Tensor  #: (B,) weighted sum of squared residuals
+    sq_error: torch.Tensor  #: (B, C, F) unweighted sum of squared pixel errors of the used corners
+    count: torch.Tensor  #: (B, C, F) used corners
+    covariance: torch.Tensor  #: (B, G, G) covariance of all rig parameters (zero rows/columns where fixed)
+    sigma2: torch.Tensor  #: (B,)
+    iterations: torch.Tensor  #: (B,) int64
+    converged: torch.Tensor  #: (B,) bool
+    frame_used: torch.Tensor  #: (B, F) bool
+
+
+def rig_layout(models: Sequence[CameraModel]) -> tuple[list[slice], list[slice], int]:
+    """Where each camera's parameters and extrinsics sit in the rig vector: ``[p_0, .., p_{C-1}, e_1, .., e_{C-1}]``
+    with ``e_c = (w_c, T_c)`` (rotation increment, translation).
+
+    Returns:
+        ``(intrinsic slices, extrinsic slices (None for camera 0), G)``.
+
+    Example:
+        >>> from ccs_kornia.geometry.models import camera_model
+        >>> intr, ext, G = rig_layout([camera_model("k1k2"), camera_model("fisheye")])
+        >>> intr, ext, G
+        ([slice(0, 6, None), slice(6, 14, None)], [None, slice(14, 20, None)], 20)
+    """
+    intr, ext, o = [], [], 0
+    for m in models:
+        intr.append(slice(o, o + m.num_params))
+        o += m.num_params
+    ext.append(None)
+    for _ in models[1:]:
+        ext.append(slice(o, o + 6))
+        o += 6
+    return intr, ext, o
+
+
+def _cross_cols(q: torch.Tensor, d: Sequence[torch.Tensor]) -> list[torch.Tensor]:
+    """Columns ``q x d`` of ``d uv / d w`` for a left rotation increment (``d``: the 3 columns ``d uv / d q``)."""
+    qx, qy, qz = q[..., 0:1], q[..., 1:2], q[..., 2:3]
+    dx, dy, dz = d
+    return [qy * dz - qz * dy, qz * dx - qx * dz, qx * dy - qy * dx]
+
+
+def _equations(models, params, R, T, Rf, tf, obj, obs, sw, on, layout, frame_used, eye6, jacobians=True):
+    """Normal equations of all rigs: cost (B,), U (B,G,G), W (B,F,G,6), V (B,F,6,6), eg (B,G), ep (B,F,6), plus the
+    unweighted squared error and count per camera and frame."""
+    B, C, F, N = obs.shape[:4]
+    intr, ext, G = layout
+    dtype, device = obs.dtype, obs.device
+    q_rot = torch.matmul(obj.expand(B, F, N, 3), Rf.transpose(-1, -2))  # (B, F, N, 3) R_f X
+    q = q_rot + tf[:, :, None, :]
+    U = torch.zeros(B, G, G, dtype=dtype, device=device)
+    W = torch.zeros(B, F, G, 6, dtype=dtype, device=device)
+    V = torch.zeros(B, F, 6, 6, dtype=dtype, device=device)
+    eg = torch.zeros(B, G, dtype=dtype, device=device)
+    ep = torch.zeros(B, F, 6, dtype=dtype, device=device)
+    cost = torch.zeros(B, dtype=dtype, device=device)
+    sq = torch.zeros(B, C, F, dtype=dtype, device=device)
+    for c, model in enumerate(models):
+        Rc = R[:, c].reshape(B, 1, 1, 3, 3)
+        rq = (Rc @ q.unsqueeze(-1)).squeeze(-1)  # (B, F, N, 3)
+        Xc = rq + T[:, c].reshape(B, 1, 1, 3)
+        uv, dp, dX = model.columns(Xc, params[c], jacobians)
+        res = torch.where(on[:, c, ..., None], uv - obs[:, c], 0.0)
+        sq[:, c] = (res * res).sum((-1, -2))
+        if not jacobians:
+            cost = cost + (sw[:, c, ..., None] ** 2 * res * res).sum((1, 2, 3))
+            continue
+        shape = uv.shape
+        # d uv / d q = (d uv / d X_c) R_c: column j is sum_k dX_k R_c[k, j]
+        r = R[:, c].reshape(B, 1, 1, 3, 3)
+        dq = [sum(dX[k].expand(shape) * r[..., k, j : j + 1] for k in range(3)) for j in range(3)]
+        cols = [*(d.expand(shape) for d in dp)]
+        gi = list(range(intr[c].start, intr[c].stop))
+        if ext[c] is not None:
+            cols += [*_cross_cols(rq, [d.expand(shape) for d in dX]), *(d.expand(shape) for d in dX)]
+            gi += list(range(ext[c].start, ext[c].stop))
+        cols += [*_cross_cols(q_rot, dq), *dq, res]
+        A = torch.stack([col.expand(shape) for col in cols], 3)  # (B, F, N, K, 2)
+        A = torch.where(on[:, c, :, :, None, None], A * sw[:, c, :, :, None, None], 0.0)
+        A = A.permute(0, 1, 3, 2, 4).reshape(B, F, len(cols), N * 2)
+        Gm = A @ A.transpose(-1, -2)  # (B, F, K, K)
+        k = len(gi)
+        gi_t = torch.tensor(gi, device=device)
+        U[:, gi_t[:, None], gi_t[None, :]] += Gm[:, :, :k, :k].sum(1)
+        W[:, :, gi_t, :] += Gm[:, :, :k, k : k + 6]
+        V += Gm[:, :, k : k + 6, k : k + 6]
+        eg[:, gi_t] += Gm[:, :, :k, k + 6].sum(1)
+        ep += Gm[:, :, k : k + 6, k + 6]
+        cost = cost + Gm[:, :, k + 6, k + 6].sum(1)
+    cost = torch.where(cost.isfinite(), cost, torch.full_like(cost, float("inf")))
+    if not jacobians:
+        return cost, sq
+    V = torch.where(frame_used[..., None, None], V, eye6)
+    return cost, U, W, V, eg, ep, sq
+
+
+def rig_levenberg_marquardt(
+    models: Sequence[CameraModel],
+    params: Sequence[torch.Tensor],
+    R: torch.Tensor,
+    T: torch.Tensor,
+    frame_R: torch.Tensor,
+    frame_t: torch.Tensor,
+    object_points: torch.Tensor,
+    corners: torch.Tensor,
+    weights: torch.Tensor,
+    free: torch.Tensor | None = None,
+    max_iters: int = 100,
+    ftol: float = 1e-12,
+    xtol: float = 1e-12,
+    lambda_init: float = 1e-3,
+    absolute_weights: bool = False,
+) -> RigLMResult:
+    r"""Refine B rigs jointly (see the module doc); no Python loop over rigs or frames, one over cameras.
+
+    Args:
+        models: C camera models.
+        params: per camera :math:`(B, P_c)` initial parameters.
+        R: :math:`(B, C, 3, 3)` initial extrinsic rotations (``R[:, 0]`` is kept at its value, normally ``I``).
+        T: :math:`(B, C, 3)` initial extrinsic translations.
+        frame_R: :math:`(B, F, 3, 3)` initial board rotations (board to camera 0).
+        frame_t: :math:`(B, F, 3)` initial board translations.
+        object_points: :math:`(N, 3)` board points.
+        corners: :math:`(B, C, F, N, 2)` observed pixels (anything where the weight is 0).
+        weights: :math:`(B, C, F, N)` per-corner inverse variances (0: not used).
+        free: :math:`(G,)` bool, which rig parameters move (:func:`rig_layout` order; default all).
+        max_iters, ftol, xtol, lambda_init: as :func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`.
+        absolute_weights: the weights are absolute inverse variances (covariance without ``sigma^2``).
+
+    Returns:
+        :class:`RigLMResult`.
+
+    Example:
+        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.models import camera_model
+        >>> obj = board_object_points(5, 4, 0.1, dtype=torch.float64)
+        >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
+        >>> rv = torch.tensor([[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]], dtype=torch.float64)
+        >>> tv = torch.tensor([-0.2, -0.15, 1.0], dtype=torch.float64).expand(3, 3)
+        >>> x0 = project_points(obj.expand(3, -1, -1), K.expand(3, 3, 3), None, rv, tv)
+        >>> x1 = project_points(obj.expand(3, -1, -1), K.expand(3, 3, 3), None, rv, tv + torch.tensor([-0.1, 0, 0.]))
+        >>> corners = torch.stack([x0, x1])[None]
+        >>> R = torch.eye(3, dtype=torch.float64).expand(1, 2, 3, 3)
+        >>> T = torch.tensor([[[0.0, 0, 0], [-0.09, 0.01, 0]]], dtype=torch.float64)
+        >>> p = [torch.tensor([[505., 495., 322., 238.]], dtype=torch.float64)] * 2
+        >>> m = [camera_model("none")] * 2
+        >>> Rf = exp_so3(rv)[None]
+        >>> res = rig_levenberg_marquardt(m, p, R, T, Rf, tv[None], obj, corners, torch.ones(1, 2, 3, 20))
+        >>> res.T[0, 1].round(decimals=6).tolist(), bool(res.converged)
+        ([-0.1, 0.0, 0.0], True)
+    """
+    models = list(models)
+    B, C, F, N = corners.shape[:4]
+    if len(models) != C or len(params) != C:
+        raise ValueError(f"models and params need one entry per camera ({C}), got {len(models)} and {len(params)}.")
+    dtype, device = corners.dtype if corners.is_floating_point() else torch.float64, corners.device
+    layout = rig_layout(models)
+    intr, ext, G = layout
+    free = torch.ones(G, dtype=torch.bool) if free is None else free.bool().cpu()
+    if free.shape != (G,):
+        raise ValueError(f"free must be ({G},), got {tuple(free.shape)}.")
+    fi = torch.nonzero(free).flatten().to(device)
+    Gf = int(fi.numel())
+    w = torch.where(corners.isfinite().all(-1), weights.to(dtype), 0.0).clamp_min(0)
+    on = w > 0
+    sw = w.sqrt()
+    obs = torch.where(on[..., None], corners.to(dtype), 0.0)
+    obj = object_points.to(device=device, dtype=dtype)
+    frame_used = on.any(-1).any(1)  # (B, F)
+    park = torch.tensor([0.0, 0.0, 1.0 + 10.0 * float(obj.abs().amax())], dtype=dtype, device=device)
+    Rf = torch.where(frame_used[..., None, None], frame_R.to(dtype), torch.eye(3, dtype=dtype, device=device))
+    tf = torch.where(frame_used[..., None], frame_t.to(dtype), park)
+    x = [p.to(device=device, dtype=dtype).clone() for p in params]
+    Rx, Tx = R.to(dtype).clone(), T.to(dtype).clone()
+    eye6 = torch.eye(6, dtype=dtype, device=device)
+    eyeF = torch.eye(Gf, dtype=dtype, device=device)
+    used_f = frame_used.to(dtype)
+
+    def equations(x, Rx, Tx, Rf, tf):
+        return _equations(models, x, Rx, Tx, Rf, tf, obj, obs, sw, on, layout, frame_used, eye6)
+
+    def restrict(eq):
+        cost, U, W, V, eg, ep, sq = eq
+        return cost, U[:, fi][:, :, fi], W[:, :, fi], V, eg[:, fi], ep, sq
+
+    def apply(x, Rx, Tx, Rf, tf, dg, dp):
+        full = torch.zeros(B, G, dtype=dtype, device=device)
+        full[:, fi] = dg
+        x_n = [x[c] + full[:, intr[c]] for c in range(C)]
+        R_n, T_n = Rx.clone(), Tx.clone()
+        for c in range(1, C):
+            e = full[:, ext[c]]
+            R_n[:, c] = exp_so3(e[:, :3]) @ Rx[:, c]
+            T_n[:, c] = Tx[:, c] + e[:, 3:]
+        return x_n, R_n, T_n, exp_so3(dp[..., :3]) @ Rf, tf + dp[..., 3:]
+
+    state = restrict(equations(x, Rx, Tx, Rf, tf))
+    lam = torch.full((B,), lambda_init, dtype=dtype, device=device)
+    done = ~frame_used.any(-1)
+    converged = done.clone()
+    iters = torch.zeros(B, dtype=torch.long, device=device)
+    floor = (w.sum((1, 2, 3)) * 1e-20).clamp_min(1e-300)
+    for _ in range(max_iters):
+        if bool(done.all()):
+            break
+        active = ~done
+        cost, U, W, V, eg, ep, _ = state
+        dg, dp = _schur_step(U, W, V, eg, ep, lam, used_f, eyeF)
+        cand = apply(x, Rx, Tx, Rf, tf, dg, dp)
+        new = restrict(equations(*cand))
+        cost_n = new[0]
+        accept = (cost_n < cost) & active
+        scale = torch.cat([torch.cat(x, -1).abs(), tf.abs().flatten(1), torch.ones_like(cost[:, None])], -1).amax(-1)
+        step = torch.cat([dg.abs(), dp.abs().flatten(1), torch.zeros_like(cost[:, None])], -1).amax(-1)
+        finished = (accept & ((cost - cost_n).abs() <= ftol * cost)) | (step <= xtol * scale) | (lam > 1e16)
+        finished = active & (finished | (torch.where(accept, cost_n, cost) <= floor))
+
+        def pick(a, b):
+            return torch.where(accept.view(-1, *([1] * (a.dim() - 1))), a, b)
+
+        x = [pick(a, b) for a, b in zip(cand[0], x)]
+        Rx, Tx, Rf, tf = (pick(a, b) for a, b in zip(cand[1:], (Rx, Tx, Rf, tf)))
+        state = tuple(pick(a, b) for a, b in zip(new, state))
+        lam = torch.where(active, torch.where(accept, (lam / 10).clamp_min(1e-15), lam * 10), lam)
+        iters = iters + active.long()
+        done = done | finished
+        converged = converged | finished
+
+    # statistics and covariance at the solution (no damping)
+    cost_w, sq = _equations(models, x, Rx, Tx, Rf, tf, obj, obs, sw, on, layout, frame_used, eye6, jacobians=False)
+    cost, U, W, V, _, _, _ = state
+    Vinv = spd_inverse(V)
+    Vinv = torch.where(frame_used[..., None, None] & Vinv.isfinite(), Vinv, torch.zeros_like(Vinv))
+    S = U - ((W @ Vinv) @ W.transpose(-1, -2)).sum(1)
+    count = on.sum(-1)
+    dof = (2 * count.sum((1, 2)) - Gf - 6 * frame_used.sum(-1)).clamp_min(1).to(dtype)
+    sigma2 = torch.ones_like(cost) if absolute_weights else cost / dof
+    cov_f = spd_inverse(S) if Gf else S
+    singular = ~cov_f.flatten(1).isfinite().all(-1) & S.flatten(1).isfinite().all(-1)
+    if Gf and bool(singular.any()):
+        cov_f[singular] = pseudo_inverse(S[singular])
+    cov = torch.zeros(B, G, G, dtype=dtype, device=device)
+    cov[:, fi[:, None], fi[None, :]] = cov_f * sigma2[:, None, None]
+    return RigLMResult(
+        params=x, R=Rx, T=Tx, frame_R=Rf, frame_t=tf, cost=cost, sq_error=sq, count=count, covariance=cov,
+        sigma2=sigma2, iterations=iters, converged=converged & frame_used.any(-1), frame_used=frame_used,
+    )

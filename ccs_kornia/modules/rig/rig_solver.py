@@ -1,0 +1,426 @@
+r"""Rig calibration: stereo heads and multi-camera rigs from board corners, batched over rigs.
+
+Pipeline of :class:`RigSolver` (each step a module of its own):
+
+1. each camera alone (:mod:`~ccs_kornia.modules.rig.rig_init`): its own calibration with its model (or the
+   given ``initial`` camera), its board pose in every frame with enough corners;
+2. every camera's pose relative to camera 0: robust means over shared frames, chained over the maximum spanning tree
+   of the co-visibility graph (cameras not connected to camera 0: ``ValueError`` naming them and their shared frames);
+3. one joint Levenberg-Marquardt (:mod:`~ccs_kornia.modules.rig.rig_lm`) over all intrinsics, the extrinsics
+   of cameras ``1..C-1`` and one board pose per frame (frame poses eliminated by a Schur complement), then an outlier
+   check of every camera x frame observation (RMS above ``max(abs, rel * median)``) and a second fit without them;
+4. figures (:mod:`~ccs_kornia.modules.rig.rig_diagnostics`): covariance -> baseline, rotation and intrinsics
+   standard deviations; epipolar RMS on the fit frames and on frames held out (k-fold over frames); the verdict.
+
+Nothing requires a camera to see the whole board or every frame: partial boards and missing frames only change the
+weights. Cameras of different models (pinhole and fisheye) mix in one rig.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.so3 import exp_so3, log_so3
+from ccs_kornia.modules.rig.board_symmetry import (
+    align_frame_orders,
+    board_symmetries,
+    undo_symmetry,
+)
+from ccs_kornia.modules.rig.rig_camera import RIG_MODELS, RigCamera, camera_from_params
+from ccs_kornia.modules.rig.rig_diagnostics import (
+    RigVerdictThresholds,
+    epipolar_sums,
+    pair_pose,
+    rig_verdict,
+)
+from ccs_kornia.modules.rig.rig_init import initial_rig_cameras, rig_extrinsics
+from ccs_kornia.modules.rig.rig_lm import rig_layout, rig_levenberg_marquardt
+from ccs_kornia.modules.rig.stereo import StereoPair, stereo_pair
+from ccs_kornia.runtime.threads import small_problem_threads
+
+__all__ = ["RigCamera", "RigResult", "RigSolver", "calibrate_rig"]
+
+
+@dataclass
+class RigResult:
+    """Calibration of one rig of C cameras over F frames (see ``docs/rig.md``)."""
+
+    success: bool
+    reason: str  #: "" when success; else one line naming cameras / frames
+    names: list[str]
+    image_sizes: list[tuple[int, int]]  #: (W, H) per camera
+    cameras: list[RigCamera]  #: solved intrinsics per camera
+    R: torch.Tensor  #: (C, 3, 3) x_c = R_c x_0 + T_c; R_0 = I
+    T: torch.Tensor  #: (C, 3) board unit; T_0 = 0
+    board_rvec: torch.Tensor  #: (F, 3) board -> camera 0, NaN for frames no camera used
+    board_tvec: torch.Tensor  #: (F, 3)
+    used: torch.Tensor  #: (C, F) bool
+    rms_matrix: torch.Tensor  #: (C, F) px, NaN where unused
+    camera_rms: torch.Tensor  #: (C,)
+    rms: float
+    baseline_std: torch.Tensor  #: (C,) 1-sigma of |T_c|; 0 for camera 0
+    rotation_std_deg: torch.Tensor  #: (C,) 1-sigma rotation error of R_c (sqrt of the trace of its covariance), deg
+    intrinsics_std: list[torch.Tensor]  #: per camera std of (fx, fy, cx, cy, coeffs...), 0 where fixed
+    epipolar_rms: torch.Tensor  #: (C, C) px, symmetric, NaN where no shared corner, 0 on the diagonal
+    heldout_epipolar_rms: torch.Tensor  #: (C, C) px on held-out frames (k-fold), NaN if too few frames
+    verdict: str  #: "good" | "usable" | "not reliable: <what to do>"
+    reasons: list[str] = field(default_factory=list)  #: what made the verdict less than good
+    converged: bool = False  #: the joint LM met its tolerance
+    iterations: int = 0  #: joint LM iterations
+    #: (C, F) int64: 0 where a camera's corners were used in the detector's numbering, k > 0 where they were
+    #: renumbered by the board's k-th symmetry (1: the 180-degree turn, i.e. reversed) to agree with the frame
+    corner_order: torch.Tensor | None = None
+
+    def pair(self, i: int, j: int) -> StereoPair:
+        """Pose of camera ``j`` relative to camera ``i`` (``x_j = R x_i + T``) with ``E`` and ``F``."""
+        R, T = pair_pose(self.R, self.T, i, j)
+        return stereo_pair(self.cameras[i], self.cameras[j], R, T)
+
+    @property
+    def baseline(self) -> torch.Tensor:
+        """(C,) ``|T_c|`` in the board's unit."""
+        return self.T.norm(dim=-1)
+
+
+def _check(corners, valid, object_points, image_sizes, weights):
+    if not isinstance(corners, torch.Tensor) or corners.dim() not in (4, 5) or corners.shape[-1] != 2:
+        raise ValueError(f"corners must be (C, F, N, 2) or (B, C, F, N, 2), got {tuple(getattr(corners, 'shape', ()))}.")
+    if valid is None:
+        valid = corners.isfinite().all(-1)
+    if not isinstance(valid, torch.Tensor) or valid.shape != corners.shape[:-1]:
+        raise ValueError(f"valid must be {tuple(corners.shape[:-1])}, got {tuple(getattr(valid, 'shape', ()))}.")
+    N = corners.shape[-2]
+    if not isinstance(object_points, torch.Tensor) or object_points.shape != (N, 3):
+        raise ValueError(f"object_points must be ({N}, 3), got {tuple(getattr(object_points, 'shape', ()))}.")
+    C = corners.shape[-4]
+    if C < 2:
+        raise ValueError(f"A rig needs at least 2 cameras, got C={C}.")
+    if len(image_sizes) != C or any(len(s) != 2 or min(int(s[0]), int(s[1])) <= 0 for s in image_sizes):
+        raise ValueError(f"image_sizes must be {C} pairs (W, H) with positive entries, got {image_sizes!r}.")
+    if weights is not None and (not isinstance(weights, torch.Tensor) or weights.shape != corners.shape[:-1]):
+        raise ValueError(f"weights must be {tuple(corners.shape[:-1])}, got {tuple(getattr(weights, 'shape', ()))}.")
+    return valid
+
+
+def _per_camera(value, C: int, what: str) -> list:
+    if value is None or isinstance(value, (str, bool)):
+        return [value] * C
+    value = list(value)
+    if len(value) != C:
+        raise ValueError(f"{what} needs one entry per camera ({C}), got {len(value)}.")
+    return value
+
+
+class RigSolver(nn.Module):
+    r"""Calibrate camera rigs (intrinsics and extrinsics) from board corners; batched over rigs.
+
+    Args:
+        models: one model name for every camera or one per camera (``none``, ``k1k2``, ``opencv5``, ``rational``,
+            ``fisheye``).
+        dtype: solve precision.
+        max_iters: joint LM iterations at most.
+        min_corners: a camera x frame observation with fewer valid corners is not used.
+        ftol: the joint LM stops when an accepted step lowers the cost by less than this fraction.
+        outlier_abs_threshold, outlier_rel_threshold: an observation whose RMS exceeds ``max(abs, rel * median)`` is
+            left out of the second fit.
+        folds: frames are split into this many folds for the held-out epipolar RMS (0: none); needs at least
+            ``min_heldout_frames`` used frames.
+        min_heldout_frames: fewer used frames give NaN held-out figures.
+        thresholds: :class:`~ccs_kornia.modules.rig.rig_diagnostics.RigVerdictThresholds`.
+        symmetric_board: the detector may number a symmetric board's corners in any of its symmetric orders (a
+            180-degree turn; also 90 degrees for square grids), differently per camera and frame: each observation
+            is renumbered to agree with the frame's reference camera
+            (:mod:`~ccs_kornia.modules.rig.board_symmetry`; ``RigResult.corner_order`` says where).
+
+    Shape:
+        corners :math:`(C, F, N, 2)` or :math:`(B, C, F, N, 2)` px (NaN where not seen), valid :math:`(C, F, N)` /
+        :math:`(B, C, F, N)` bool, object_points :math:`(N, 3)`, image_sizes C pairs ``(W, H)``, weights as valid ->
+        :class:`RigResult` (a list of B of them for batched input).
+
+    Example:
+        >>> from ccs_kornia.data.rig import render_rig
+        >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
+        >>> R = torch.eye(3, dtype=torch.float64).expand(2, 3, 3)
+        >>> T = torch.tensor([[0.0, 0, 0], [-0.1, 0, 0]], dtype=torch.float64)
+        >>> s = render_rig([("k1k2", K, torch.tensor([-0.1, 0.01]))] * 2, [(640, 480)] * 2, R, T, num_frames=8)
+        >>> res = RigSolver("k1k2", folds=0)(s.corners, s.valid, s.object_points, s.image_sizes)
+        >>> res.success, round(float(res.T[1, 0]), 6)
+        (True, -0.1)
+    """
+
+    def __init__(
+        self,
+        models: str | Sequence[str] = "opencv5",
+        dtype: torch.dtype = torch.float64,
+        max_iters: int = 100,
+        min_corners: int = 6,
+        ftol: float = 1e-10,
+        outlier_abs_threshold: float = 2.0,
+        outlier_rel_threshold: float = 5.0,
+        folds: int = 5,
+        min_heldout_frames: int = 4,
+        thresholds: RigVerdictThresholds | None = None,
+        symmetric_board: bool = True,
+    ) -> None:
+        super().__init__()
+        for m in [models] if isinstance(models, str) else models:
+            if m not in RIG_MODELS:
+                raise ValueError(f"Unknown camera model {m!r}; expected one of {sorted(RIG_MODELS)}.")
+        self.models = models if isinstance(models, str) else list(models)
+        self.dtype = dtype
+        self.max_iters = max_iters
+        self.min_corners = max(int(min_corners), 4)
+        self.ftol = ftol
+        self.outlier_abs_threshold = outlier_abs_threshold
+        self.outlier_rel_threshold = outlier_rel_threshold
+        self.folds = int(folds)
+        self.min_heldout_frames = max(int(min_heldout_frames), 2)
+        self.thresholds = thresholds or RigVerdictThresholds()
+        self.symmetric_board = bool(symmetric_board)
+
+    def forward(
+        self,
+        corners: torch.Tensor,
+        valid: torch.Tensor | None,
+        object_points: torch.Tensor,
+        image_sizes: Sequence[tuple[int, int]],
+        initial: Sequence[RigCamera | None] | None = None,
+        fixed: Sequence[bool] | None = None,
+        names: Sequence[str] | None = None,
+        weights: torch.Tensor | None = None,
+    ) -> RigResult | list[RigResult]:
+        """Calibrate (see the class doc).
+
+        Args:
+            corners: :math:`(C, F, N, 2)` / :math:`(B, C, F, N, 2)` observed pixels.
+            valid: matching bool mask (``None``: the finite corners).
+            object_points: :math:`(N, 3)` board points (their unit is the unit of ``T``).
+            image_sizes: ``(W, H)`` per camera.
+            initial: per camera a :class:`RigCamera` to start from (its model must be the camera's) or ``None``.
+            fixed: per camera: keep its intrinsics at ``initial`` exactly.
+            names: camera names (default ``cam0, cam1, ...``).
+            weights: per-corner inverse variances, shaped as ``valid``.
+
+        Raises:
+            ValueError: bad shapes or options; cameras not connected to camera 0 through shared frames.
+        """
+        valid = _check(corners, valid, object_points, image_sizes, weights)
+        batched = corners.dim() == 5
+        if not batched:
+            corners, valid = corners[None], valid[None]
+            weights = None if weights is None else weights[None]
+        C = corners.shape[1]
+        models = _per_camera(self.models, C, "models")
+        initial = _per_camera(initial, C, "initial")
+        fixed = [bool(f) for f in _per_camera(fixed if fixed is not None else False, C, "fixed")]
+        names = [f"cam{c}" for c in range(C)] if names is None else [str(n) for n in _per_camera(names, C, "names")]
+        for c in range(C):
+            if fixed[c] and initial[c] is None:
+                raise ValueError(f"{names[c]} is fixed but has no initial camera to keep.")
+            if initial[c] is not None and initial[c].model != models[c]:
+                raise ValueError(f"{names[c]}: initial camera model {initial[c].model!r} differs from {models[c]!r}.")
+        with torch.inference_mode(), small_problem_threads(corners.shape[:-1].numel(), corners.device):
+            out = self._solve(corners, valid, object_points, [tuple(map(int, s)) for s in image_sizes], models,
+                              initial, fixed, names, weights, batched)
+        if not torch.is_inference_mode_enabled():  # ordinary tensors out (inference tensors refuse in-place edits)
+            out = [_clone(r) for r in out]
+        return out if batched else out[0]
+
+    def _solve(self, corners, valid, obj, sizes, models, initial, fixed, names, weights, batched):
+        B, C, F, N = corners.shape[:4]
+        dtype, device = self.dtype, corners.device
+        corners = corners.to(dtype)
+        obj = obj.to(device=device, dtype=dtype)
+        valid = valid.to(device).bool() & corners.isfinite().all(-1)
+        weights = valid.to(dtype) if weights is None else weights.to(device, dtype)
+        syms = board_symmetries(obj) if self.symmetric_board else board_symmetries(obj)[:1]
+
+        params, rvec, tvec, ok_pose, ok_cam = initial_rig_cameras(corners, valid, obj, sizes, models, initial,
+                                                                   self.min_corners)
+        order = torch.zeros(B, C, F, dtype=torch.long, device=device)
+        R0 = torch.eye(3, dtype=dtype, device=device).repeat(B, C, 1, 1)
+        T0 = torch.zeros(B, C, 3, dtype=dtype, device=device)
+        failed = [""] * B
+        for b in range(B):
+            bad = [names[c] for c in range(C) if not bool(ok_cam[b, c])]
+            if bad:
+                failed[b] = (f"{', '.join(bad)}: the camera alone could not be calibrated (frames with at least "
+                             f"{self.min_corners} corners: {[int(ok_pose[b, c].sum()) for c in range(C)]}); give its "
+                             f"intrinsics as initial or add frames")
+                continue
+            try:
+                R0[b], T0[b] = rig_extrinsics(rvec[b], tvec[b], ok_pose[b], valid[b], names, syms)
+            except ValueError as e:
+                raise ValueError(f"rig {b}: {e}" if batched else str(e)) from None
+            order[b] = align_frame_orders(exp_so3(rvec[b]), tvec[b], ok_pose[b], valid[b].sum(-1), R0[b], T0[b], syms)
+        if bool(order.any()):  # renumber the corners of observations numbered by another symmetry of the board
+            corners, valid, weights = corners.clone(), valid.clone(), weights.clone()
+            for k in range(1, len(syms)):
+                m = order == k
+                inv = torch.argsort(syms[k].perm)
+                corners[m], valid[m], weights[m] = corners[m][:, inv], valid[m][:, inv], weights[m][:, inv]
+                r, t = undo_symmetry(exp_so3(rvec[m]), tvec[m], syms[k])
+                rvec[m], tvec[m] = log_so3(r), t
+        base_w = torch.where(valid, weights, 0.0)
+        alive = torch.tensor([not f for f in failed], device=device)
+        used = ok_pose & alive[:, None, None]
+        frame_R, frame_t = _frame_poses(rvec, tvec, used, valid, R0, T0)
+
+        lm_models = [camera_model(m) for m in models]
+        intr, ext, G = rig_layout(lm_models)
+        free = torch.ones(G, dtype=torch.bool)
+        for c in range(C):
+            if fixed[c]:
+                free[intr[c]] = False
+
+        def fit(use, p, R, T, fR, ft, iters=self.max_iters):
+            k = use.shape[0] // B  # the held-out folds stack k copies of the rigs
+            w = base_w.repeat(k, 1, 1, 1) * use[..., None].to(dtype)
+            return rig_levenberg_marquardt(lm_models, p, R, T, fR, ft, obj, corners.repeat(k, 1, 1, 1, 1), w, free,
+                                           max_iters=iters, ftol=self.ftol)
+
+        res = fit(used, params, R0, T0, frame_R, frame_t)
+        for _ in range(2):  # outlier observations (camera x frame), then fit again without them
+            rms = (res.sq_error / res.count.clamp_min(1)).sqrt().masked_fill(~used, float("nan"))
+            med = rms.flatten(1).nanmedian(-1).values
+            thr = torch.clamp(self.outlier_rel_threshold * med, min=self.outlier_abs_threshold)
+            keep = used & (rms <= thr[:, None, None])
+            keep = torch.where((keep.sum(-1) >= 2).all(-1, keepdim=True)[..., None], keep, used)
+            if bool((keep == used).all()):
+                break
+            used = keep
+            res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
+
+        held = self._heldout(fit, res, used, corners, valid, models, B, C, F)
+        return [self._result(b, res, used, corners, valid, models, names, sizes, failed[b], ext, intr, held[b],
+                             order[b]) for b in range(B)]
+
+    def _heldout(self, fit, res, used, corners, valid, models, B, C, F):
+        """Per rig (C, C) epipolar RMS on held-out frames: k folds over the used frames, all refitted at once."""
+        nan = torch.full((C, C), float("nan"), dtype=corners.dtype, device=corners.device)
+        frames = used.any(1)  # (B, F)
+        k = self.folds
+        enough = frames.sum(-1) >= self.min_heldout_frames  # (B,) rigs with frames to hold out
+        if k < 2 or not bool(enough.any()):
+            return [nan.clone() for _ in range(B)]
+        fold = torch.full((B, F), -1, dtype=torch.long, device=used.device)
+        for b in range(B):
+            idx = torch.nonzero(frames[b]).flatten()
+            fold[b, idx] = torch.arange(idx.numel(), device=used.device) % max(min(k, idx.numel()), 1)
+        folds = [fold == i for i in range(k)]  # (B, F) each
+        use = torch.cat([used & ~f[:, None, :] for f in folds])  # (k B, C, F)
+
+        def rep(x):
+            return x.repeat(k, *([1] * (x.dim() - 1)))
+
+        out = fit(use, [rep(p) for p in res.params], rep(res.R), rep(res.T), rep(res.frame_R), rep(res.frame_t),
+                  iters=max(self.max_iters // 2, 10))
+        held = []
+        for b in range(B):
+            if not bool(enough[b]):
+                held.append(nan.clone())
+                continue
+            sums = torch.zeros(C, C, dtype=corners.dtype, device=corners.device)
+            counts = torch.zeros(C, C, dtype=torch.long, device=corners.device)
+            for i in range(k):
+                r = i * B + b
+                cams = [camera_from_params(models[c], out.params[c][r]) for c in range(C)]
+                trained = use[r].any(-1)  # cameras with frames in this fold's fit (the others were not refitted)
+                s, n = epipolar_sums(cams, out.R[r], out.T[r], corners[b], valid[b],
+                                     used[b] & folds[i][b][None] & trained[:, None])
+                sums, counts = sums + s, counts + n
+            h = (sums / counts.clamp_min(1)).sqrt().masked_fill(counts == 0, float("nan"))
+            h.fill_diagonal_(0.0)
+            held.append(h)
+        return held
+
+    def _result(self, b, res, used, corners, valid, models, names, sizes, failed, ext, intr, held, order) -> RigResult:
+        C, F = used.shape[1:]
+        dtype = res.R.dtype
+        nan = float("nan")
+        cams = [camera_from_params(models[c], res.params[c][b].clone()) for c in range(C)]
+        u = used[b]
+        rms_m = (res.sq_error[b] / res.count[b].clamp_min(1)).sqrt().masked_fill(~u, nan)
+        cnt = torch.where(u, res.count[b], 0).sum(-1)
+        cam_rms = (torch.where(u, res.sq_error[b], 0.0).sum(-1) / cnt.clamp_min(1)).sqrt().masked_fill(cnt == 0, nan)
+        total = float((torch.where(u, res.sq_error[b], 0.0).sum() / cnt.sum().clamp_min(1)).sqrt())
+        cov = res.covariance[b]
+        T = res.T[b].clone()
+        bstd = torch.zeros(C, dtype=dtype, device=T.device)
+        rstd = torch.zeros(C, dtype=dtype, device=T.device)
+        for c in range(1, C):
+            e = ext[c]
+            n = T[c] / T[c].norm().clamp_min(1e-300)
+            bstd[c] = (n @ cov[e.start + 3 : e.stop, e.start + 3 : e.stop] @ n).clamp_min(0).sqrt()
+            rstd[c] = torch.rad2deg(cov[e.start : e.start + 3, e.start : e.start + 3].trace().clamp_min(0).sqrt())
+        istd = [cov[intr[c], intr[c]].diagonal().clamp_min(0).sqrt().clone() for c in range(C)]
+        frames = u.any(0)
+        rvec = torch.where(frames[:, None], log_so3(res.frame_R[b]), nan)
+        tvec = torch.where(frames[:, None], res.frame_t[b], nan)
+        s, n = epipolar_sums(cams, res.R[b], T, corners[b], valid[b], u)
+        epi = (s / n.clamp_min(1)).sqrt().masked_fill(n == 0, nan)
+        epi.fill_diagonal_(0.0)
+        success = not failed and bool(res.frame_used[b].any()) and bool(torch.isfinite(cam_rms).all())
+        reason = failed or ("" if success else "the joint fit failed (no finite solution)")
+        if success:
+            verdict, reasons = rig_verdict(names, sizes, cam_rms, epi, held, T.norm(dim=-1), bstd, rstd,
+                                           self.thresholds)
+        else:
+            verdict, reasons = f"not reliable: {reason}", [reason]
+        return RigResult(
+            success=success, reason=reason, names=list(names), image_sizes=list(sizes), cameras=cams,
+            R=res.R[b].clone(), T=T, board_rvec=rvec, board_tvec=tvec, used=u.clone(), rms_matrix=rms_m,
+            camera_rms=cam_rms, rms=total, baseline_std=bstd, rotation_std_deg=rstd, intrinsics_std=istd,
+            epipolar_rms=epi, heldout_epipolar_rms=held, verdict=verdict, reasons=reasons,
+            converged=bool(res.converged[b]), iterations=int(res.iterations[b]), corner_order=order.clone(),
+        )
+
+
+def _clone(x):
+    """A copy of a result made of ordinary tensors (of tensors made under inference mode)."""
+    if isinstance(x, torch.Tensor):
+        return x.clone()
+    if isinstance(x, list):
+        return [_clone(v) for v in x]
+    if isinstance(x, (RigResult, RigCamera)):
+        return type(x)(**{k: _clone(v) for k, v in x.__dict__.items()})
+    return x
+
+
+def _frame_poses(rvec, tvec, used, valid, R, T):
+    """Board -> camera 0 per frame (B, F): from the camera with the most corners in that frame, through its
+    extrinsics (``x_0 = R_c^T (x_c - T_c)``)."""
+    n = torch.where(used, (valid & used[..., None]).sum(-1), -1)  # (B, C, F)
+    best = n.argmax(1)  # (B, F)
+    B, C, F = used.shape
+    idx = best[:, None, :, None]
+    rv = rvec.gather(1, idx.expand(B, 1, F, 3))[:, 0]
+    tv = tvec.gather(1, idx.expand(B, 1, F, 3))[:, 0]
+    Rc = R.gather(1, best[..., None, None].expand(B, F, 3, 3))  # (B, F, 3, 3)
+    Tc = T.gather(1, best[..., None].expand(B, F, 3))
+    Rt = Rc.transpose(-1, -2)
+    frame_R = Rt @ exp_so3(rv)
+    frame_t = (Rt @ (tv - Tc)[..., None])[..., 0]
+    return frame_R, frame_t
+
+
+def calibrate_rig(
+    corners: torch.Tensor,
+    valid: torch.Tensor | None,
+    object_points: torch.Tensor,
+    image_sizes: Sequence[tuple[int, int]],
+    models: str | Sequence[str] = "opencv5",
+    initial: Sequence[RigCamera | None] | None = None,
+    fixed: Sequence[bool] | None = None,
+    names: Sequence[str] | None = None,
+    weights: torch.Tensor | None = None,
+    **kwargs,
+) -> RigResult | list[RigResult]:
+    """Functional form of :class:`RigSolver` (``kwargs`` go to its constructor)."""
+    return RigSolver(models, **kwargs)(corners, valid, object_points, image_sizes, initial, fixed, names, weights)
+

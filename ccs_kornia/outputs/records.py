@@ -1,0 +1,172 @@
+"""The JSON records of ``detect``, ``calibrate`` and ``calibrate-many`` (DESIGN section 4), made from one camera
+of a :class:`~ccs_kornia.pipeline.result.PipelineResult`: which views entered the calibration, why the others did
+not, the camera, its uncertainty and what the distortion correction did.
+
+Above :mod:`ccs_kornia.io` (files) and :mod:`ccs_kornia.pipeline`: ``io/`` stays free of the solver.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ccs_kornia.modules.calibration.result import VIEW_REASONS
+from ccs_kornia.pipeline.result import PipelineResult
+from ccs_kornia.pipeline.sources import SIZE_TOLERANCE_PX
+
+__all__ = ["view_records", "camera_record", "correction_record"]
+
+
+def _num(x: float) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def view_records(result: PipelineResult, paths: list[str]) -> list[dict[str, Any]]:
+    """One dict per view of one camera: ``path``, ``found``, ``corners`` (when found; ``[None, None]`` at the corners of a
+    partial board that the image does not show), ``hidden_corners`` (their count, where any), ``image_size``, and
+    ``reason`` where the view cannot be used (unreadable, board not found, another image size).
+
+    Args:
+        result: one camera of a pipeline run (``result.select(c)``).
+        paths: the view names in order (file paths).
+    """
+    det = result.detections
+    main = tuple(int(x) for x in result.image_size)
+    out = []
+    for v, path in enumerate(paths):
+        found = bool(det.found[v])
+        view: dict[str, Any] = {"path": path, "used": False, "rms": None, "found": found}
+        size = tuple(int(x) for x in result.view_sizes[v].tolist()) if result.view_sizes is not None else main
+        if bool(result.present[v]):
+            view["image_size"] = list(size)
+        if found:
+            view["corners"] = det.corners[v].double().cpu().tolist()  # null at the hidden corners of a partial board
+            hidden = int((~det.corners[v].isfinite().all(-1)).sum())
+            if hidden:
+                view["hidden_corners"] = hidden
+            how = det.reasons[v] if det.reasons else ""
+            if how:
+                view["method"] = how
+        if not bool(result.present[v]):
+            view["reason"] = (det.reasons[v] if det.reasons else "") or "unreadable"
+        elif not found:
+            view["reason"] = (det.reasons[v] if det.reasons else "") or "board not found"
+        elif size != main:
+            if max(abs(size[0] - main[0]), abs(size[1] - main[1])) > SIZE_TOLERANCE_PX:
+                view["reason"] = f"image size {size[0]}x{size[1]} differs from the camera's {main[0]}x{main[1]}"
+            else:
+                view["note"] = (f"image size {size[0]}x{size[1]} used as {main[0]}x{main[1]} (within "
+                                f"{SIZE_TOLERANCE_PX} px: same pixel grid from the top-left corner)")
+        out.append(view)
+    return out
+
+
+def correction_record(result: PipelineResult) -> dict[str, Any]:
+    """What the distortion correction did for one camera (``{"enabled": False}`` when it is off)."""
+    if result.correction is None:
+        return {"enabled": False}
+    det = result.detections
+    on_corrected = sum(1 for r in (det.reasons or []) if r.startswith("corrected image"))
+    before, after = (None, None) if result.straightness is None else (_num(result.straightness[0]),
+                                                                      _num(result.straightness[1]))
+    from ccs_kornia.modules.correction.pooling import correction_displacement
+
+    size = (max(1, int(result.image_size[0])), max(1, int(result.image_size[1])))
+    displacement = float(correction_displacement(result.correction[None].double(), size)[0])
+    tried, applied = bool(result.correction_tried), bool(result.corrected)
+    if applied:
+        decision = "calibrated in the corrected frame (radial model about a free centre), kept: it fits clearly better"
+    elif tried:
+        decision = "corrected-frame calibration tried, not kept: it did not fit the corners clearly better"
+    else:
+        decision = "not tried: the lens is close enough to a pinhole for the usual calibration"
+    return {
+        "enabled": True,
+        "tried": tried,
+        "applied": applied,
+        "views_detected_on_corrected_images": on_corrected,
+        "network_displacement_px": displacement,
+        "straightness_before_px": before,
+        "straightness_after_px": after,
+        "correction": [float(x) for x in result.correction.tolist()],
+        "decision": decision,
+        "note": "paper radial correction r_c = r_d (k0' + k1' r_d + ... + k4' r_d^4), radii from the image centre "
+                "in units of max(W, H); straightness = median RMS distance of the detected corners from lines fitted "
+                "to each board row and column, before and after the correction",
+    }
+
+
+def camera_record(
+    result: PipelineResult, paths: list[str], *, board: tuple[int, int], square: float, detector: str, model: str
+) -> dict[str, Any]:
+    """The calibration JSON of one camera (DESIGN section 4) plus what helps users judge it.
+
+    Args:
+        result: one camera of a calibrated pipeline run (``result.select(c)``).
+        paths: the view names in order.
+        board, square, detector, model: recorded as given.
+
+    Returns:
+        JSON-ready dict: ``success``, ``error`` (failed cameras), ``image_size``, ``K``, ``distortion``, ``rms``,
+        ``views``, ``std``, ``num_views``, ``skipped``, ``distortion_correction``, ``diagnostics``,
+        ``model_selection`` (``model="auto"``).
+    """
+    views = view_records(result, paths)
+    cal = result.calibration
+    success = cal is not None and bool(cal.success)
+    n_found = sum(1 for v in views if v["found"])
+    usable = [v for v in views if v["found"] and "reason" not in v]
+    data: dict[str, Any] = {
+        "success": success,
+        "image_size": [int(result.image_size[0]), int(result.image_size[1])],
+        "K": None, "distortion": None, "rms": None,
+        "rms_kind": "RMS reprojection error over all corners of the used views, px",
+        "views": views,
+        "board": list(board), "square": square, "detector": detector, "model": model,
+        # the fit weights each corner by the precision measured on its image (plain least squares with --unweighted)
+        "corner_weights": result.detections.sigma is not None,
+    }
+    if cal is not None:
+        codes = cal.view_reason.cpu().tolist()
+        cand = cal.candidate_rms.double().cpu().tolist() if getattr(cal, "candidate_rms", None) is not None else None
+        rms = cal.view_rms.double().cpu().tolist()
+        for v, view in enumerate(views):
+            if "reason" in view or not view["found"]:
+                continue
+            view["used"] = bool(cal.used[v])
+            view["rms"] = _num(rms[v]) if view["used"] else None
+            view["rvec"], view["tvec"] = cal.rvec[v].double().tolist(), cal.tvec[v].double().tolist()
+            if not view["used"]:
+                code = int(codes[v])
+                view["reason"] = VIEW_REASONS.get(code, "not used by the solver") if success or code else \
+                    "in the failed calibration (no consistent camera)"
+                if cand is not None and _num(cand[v]) is not None:
+                    view["rms_if_used"] = float(cand[v])
+    if success:
+        std_i = cal.std_intrinsics.double().cpu().tolist()
+        data.update({
+            "K": cal.K.double().cpu().tolist(),
+            "distortion": {"model": cal.model, "coeffs": cal.dist.double().cpu().tolist()},
+            "rms": float(cal.rms),
+            "std": {"fx": std_i[0], "fy": std_i[1], "cx": std_i[2], "cy": std_i[3],
+                    "distortion": cal.std_dist.double().cpu().tolist()},
+        })
+    else:
+        data["error"] = result.camera_reasons or "calibration failed"
+    if cal is not None and hasattr(cal, "issues"):
+        issues = cal.issues()[0] if cal.K.dim() == 2 else []
+        for issue in issues:  # the views a check names, as the user's files
+            issue["files"] = [paths[v] for v in issue.get("views", []) if 0 <= v < len(paths)]
+        data["warnings"] = [i for i in issues if i.get("severity") == "warning"]
+        data["errors"] = [i for i in issues if i.get("severity") == "error"]
+    data["num_views"] = {"files": len(views), "found": n_found, "usable": len(usable),
+                         "used": sum(1 for v in views if v["used"]),
+                         "partial": sum(1 for v in views if v["used"] and v.get("hidden_corners"))}
+    data["skipped"] = [{"path": v["path"], "reason": v["reason"]} for v in views if not v["used"] and "reason" in v]
+    data["distortion_correction"] = correction_record(result)
+    if result.diagnostics is not None:
+        data["diagnostics"] = result.diagnostics
+    if getattr(result, "model_selection", None) is not None:
+        data["model_selection"] = result.model_selection  # --model auto: the choice, the runner-up, the figures
+    return data

@@ -1,0 +1,129 @@
+"""The report's answer to "is my calibration good?": verdict, quality figures, the distortion field and the
+projection-uncertainty map (figures as BGR uint8 arrays; see :mod:`ccs_kornia.outputs.report.calibration`)."""
+
+from __future__ import annotations
+
+import html
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from ccs_kornia.outputs.report.figures import (
+    _AA,
+    _BLACK,
+    _colour_bar,
+    _fmt,
+    _image_canvas,
+    _plot_frame,
+    _pt,
+    _text,
+)
+
+__all__ = ["QUALITY_ROWS", "distortion_field_plot", "quality_html", "quality_markdown", "uncertainty_plot"]
+
+#: (label, key of the diagnostics dict, what it means)
+QUALITY_ROWS = (
+    ("held-out reprojection RMS", "heldout_rms_px", "views left out of the fit, reprojected with the camera of the rest"),
+    ("two halves differ by (RMS)", "cv_rms_px", "two calibrations from disjoint halves of the views, over the image"),
+    ("... where boards were", "cv_covered_rms_px", "the same, only where some board was seen"),
+    ("... expected from noise", "cv_expected_rms_px", "what the corner noise alone would give"),
+    ("projection uncertainty, centre", "uncertainty_centre_px", "1-sigma, from the parameter covariance"),
+    ("projection uncertainty, where boards were", "uncertainty_covered_px", "worst over the covered part of the image"),
+    ("projection uncertainty, worst", "uncertainty_max_px", "worst over the image (extrapolated where no board was)"),
+)
+
+
+def quality_html(quality: dict[str, Any] | None) -> list[str]:
+    """HTML lines of the quality section (empty without diagnostics)."""
+    if not quality:
+        return []
+    esc = html.escape
+    parts = ["<h2>Is this calibration good?</h2>", f"<p>Verdict: <b>{esc(str(quality.get('verdict')))}</b></p>"]
+    if quality.get("reasons"):
+        parts.append("<ul>" + "".join(f"<li>{esc(r)}</li>" for r in quality["reasons"]) + "</ul>")
+    for issue in quality.get("errors", []) + quality.get("warnings", []):
+        parts.append(f"<p class='l'>{esc(issue['severity'])}: {esc(issue['message'])}</p>")
+    parts.append("<table><tr><th>figure</th><th>px</th><th class='l'>meaning</th></tr>")
+    for label, key, meaning in QUALITY_ROWS:
+        parts.append(f"<tr><td class='l'>{esc(label)}</td><td>{_fmt(quality.get(key), 3)}</td>"
+                     f"<td class='l'>{esc(meaning)}</td></tr>")
+    parts.append("</table><p>See docs/diagnostics.md for how each figure is computed and the verdict's thresholds.</p>")
+    return parts
+
+
+def quality_markdown(quality: dict[str, Any] | None) -> list[str]:
+    """Markdown lines of the quality section (empty without diagnostics)."""
+    if not quality:
+        return []
+    lines = ["", "## Is this calibration good?", "", f"Verdict: **{quality.get('verdict')}**", ""]
+    lines += [f"- {r}" for r in quality.get("reasons", [])]
+    lines += ["", "| figure | px |", "|---|---|"]
+    lines += [f"| {label} | {_fmt(quality.get(key), 3)} |" for label, key, _ in QUALITY_ROWS]
+    return lines
+
+
+def _field_canvas(size: tuple[int, int], title: str):
+    fig, box, scale = _image_canvas(size, title, 150)
+    x0, y0, w, h = box
+    cv2.rectangle(fig, (x0, y0), (x0 + w, y0 + h), (245, 245, 245), -1)
+    return fig, box, scale
+
+
+def distortion_field_plot(size: tuple[int, int], K: np.ndarray, dist: np.ndarray, fisheye: bool = False,
+                          cells: int = 16) -> np.ndarray:
+    """Arrows from where a pinhole camera with the same ``K`` would image each ray to where the lens images it
+    (the displacement the distortion model applies), coloured by length, over a grid of the image."""
+    from ccs_kornia.geometry.camera import distort_pixels, kb_distort_points
+
+    w_img, h_img = size
+    fig, box, scale = _field_canvas(size, "Distortion field: where the lens moves each pinhole pixel")
+    x0, y0, w, h = box
+    nx, ny = cells, max(2, int(round(cells * h_img / w_img)))
+    xs, ys = np.linspace(0, w_img - 1, nx), np.linspace(0, h_img - 1, ny)
+    ideal = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2)
+    Kt, Dt = torch.tensor(K, dtype=torch.float64)[None], torch.tensor(dist, dtype=torch.float64)[None]
+    pts = torch.tensor(ideal, dtype=torch.float64)[None]
+    if fisheye:
+        norm = (pts - Kt[:, None, :2, 2]) / torch.stack([Kt[:, 0, 0], Kt[:, 1, 1]], -1)[:, None]
+        moved = kb_distort_points(norm, Kt, Dt)[0].numpy()
+    else:
+        moved = distort_pixels(pts, Kt, Dt)[0].numpy()
+    d = moved - ideal
+    length = np.linalg.norm(d, axis=-1)
+    finite = np.isfinite(length)
+    vmax = max(float(np.nanmax(np.where(finite, length, np.nan))) if finite.any() else 0.0, 1e-6)
+    spacing = min(w / nx, h / ny)
+    gain = 0.9 * spacing / (vmax * scale)
+    colours = cv2.applyColorMap(np.clip(np.nan_to_num(length) / vmax * 255, 0, 255).astype(np.uint8)[:, None],
+                                cv2.COLORMAP_VIRIDIS)[:, 0]
+    for k in np.nonzero(finite)[0]:
+        start = np.array([x0, y0]) + (ideal[k] + 0.5) * scale
+        end = start + gain * d[k] * scale
+        colour = tuple(int(c) for c in colours[k])
+        if np.linalg.norm(end - start) >= 2:
+            cv2.arrowedLine(fig, _pt(start), _pt(end), colour, 1, _AA, tipLength=0.25)
+        else:
+            cv2.circle(fig, _pt(start), 1, colour, -1)
+    _plot_frame(fig, box, (0.0, float(w_img)), (0.0, float(h_img)), "x (px)", "y (px)", y_down=True, grid=False)
+    _text(fig, f"arrows x{gain:.3g}", (x0 + 8, y0 + h - 10), 0.45, _BLACK)
+    _colour_bar(fig, (x0 + w + 20, y0, 18, h), vmax, "displacement (px)")
+    return fig
+
+
+def uncertainty_plot(size: tuple[int, int], grid_px: list[list[float | None]]) -> np.ndarray:
+    """The 1-sigma projection uncertainty over the image (``diagnostics["uncertainty_grid_px"]``), as a colour
+    map; grey where the model has no inverse."""
+    fig, box, _ = _field_canvas(size, "Projection uncertainty (1 sigma, px) over the image")
+    x0, y0, w, h = box
+    values = np.array([[np.nan if v is None else v for v in row] for row in grid_px], np.float64)
+    finite = np.isfinite(values)
+    vmax = max(float(np.nanpercentile(values, 95)) if finite.any() else 0.0, 1e-6)
+    colour = cv2.applyColorMap(np.clip(np.nan_to_num(values) / vmax * 255, 0, 255).astype(np.uint8),
+                               cv2.COLORMAP_VIRIDIS)
+    colour[~finite] = (200, 200, 200)
+    fig[y0:y0 + h, x0:x0 + w] = cv2.resize(colour, (w, h), interpolation=cv2.INTER_LINEAR)
+    _plot_frame(fig, box, (0.0, float(size[0])), (0.0, float(size[1])), "x (px)", "y (px)", y_down=True, grid=False)
+    _colour_bar(fig, (x0 + w + 20, y0, 18, h), vmax, "uncertainty (px)")
+    return fig

@@ -1,0 +1,160 @@
+"""A ``rig.json`` in the formats other tools load: OpenCV's stereo FileStorage YAML, ROS stereo ``camera_info``
+files, Kalibr's camchain; and the rectification of one pair they share.
+
+Every function here builds text (or checks) from the record; the command writes the files, all at the end, so a
+run that fails writes none. Translations stay in the unit of ``--square`` (give it in metres for ROS and Kalibr).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ccs_kornia.io.files import atomic_path
+from ccs_kornia.outputs.camera_exports import ros_camera_info
+from ccs_kornia.outputs.rig_records import pair_pose, rig_cameras
+from ccs_kornia.runtime.errors import UserError
+
+__all__ = [
+    "rectification",
+    "opencv_coeffs",
+    "write_opencv_stereo_yaml",
+    "ros_stereo_files",
+    "kalibr_problem",
+    "kalibr_camchain",
+]
+
+
+def opencv_coeffs(model: str, coeffs: list[float]) -> np.ndarray:
+    """A camera's coefficients as OpenCV's functions take them: ``cv2.fisheye``'s four, else at least five
+    (``k1k2`` and ``none`` padded with zeros: OpenCV takes 4, 5, 8, 12 or 14).
+
+    Example:
+        >>> opencv_coeffs("k1k2", [-0.3, 0.1]).tolist(), opencv_coeffs("fisheye", [0.1, 0, 0, 0]).shape
+        ([-0.3, 0.1, 0.0, 0.0, 0.0], (4,))
+    """
+    values = np.asarray(coeffs or [], dtype=np.float64).reshape(-1)
+    if model == "fisheye":
+        return values
+    return np.concatenate([values, np.zeros(max(0, 5 - values.size))])
+
+
+def rectification(data: dict[str, Any], i: int = 0, j: int = 1, alpha: float = 0.0) -> dict[str, Any]:
+    """The stereo rectification of cameras ``i``, ``j`` of a ``rig.json``
+    (:func:`~ccs_kornia.modules.rig.stereo.stereo_rectify` at camera ``i``'s image size) plus ``R``, ``T``
+    (``x_j = R x_i + T``), ``image_size``."""
+    from ccs_kornia.modules.rig import stereo_rectify
+
+    cams = rig_cameras(data)
+    R, T = pair_pose(data["extrinsics"], i, j)
+    size = tuple(int(v) for v in data["cameras"][i]["image_size"])
+    rect = dict(stereo_rectify(cams[i], cams[j], size, R, T, alpha=alpha))
+    rect.update(R=R.numpy(), T=T.numpy(), image_size=size)
+    return rect
+
+
+def _pair(data: dict[str, Any], i: int, j: int) -> dict[str, Any]:
+    for pair in data["pairs"]:
+        if pair["cameras"] == [i, j]:
+            return pair
+    raise KeyError((i, j))
+
+
+def write_opencv_stereo_yaml(path: str, data: dict[str, Any], rect: dict[str, Any], i: int = 0, j: int = 1) -> None:
+    """The pair ``i``, ``j`` as an OpenCV FileStorage YAML: ``K1 D1 K2 D2 R T E F R1 R2 P1 P2 Q`` (the names of
+    ``cv2.stereoCalibrate`` / ``cv2.stereoRectify``), image sizes, models, RMS; written to a temporary file renamed
+    over ``path``."""
+    import cv2
+
+    cams = data["cameras"]
+    pair = _pair(data, i, j)
+    with atomic_path(path, mode=0o644) as tmp:
+        fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
+        if not fs.isOpened():
+            raise UserError(f"--opencv-yaml {path}: cannot open for writing")
+        try:
+            for k, c in (("1", i), ("2", j)):
+                fs.write(f"image_width{k}", int(cams[c]["image_size"][0]))
+                fs.write(f"image_height{k}", int(cams[c]["image_size"][1]))
+            for k, c in (("1", i), ("2", j)):
+                model = cams[c]["distortion"]["model"]
+                fs.write(f"K{k}", np.array(cams[c]["K"], dtype=np.float64))
+                fs.write(f"D{k}", opencv_coeffs(model, cams[c]["distortion"]["coeffs"]).reshape(1, -1))
+                fs.write(f"distortion_model{k}", "fisheye" if model == "fisheye" else "opencv")
+            fs.write("R", np.asarray(rect["R"], dtype=np.float64))
+            fs.write("T", np.asarray(rect["T"], dtype=np.float64).reshape(3, 1))
+            fs.write("E", np.array(pair["E"], dtype=np.float64))
+            fs.write("F", np.array(pair["F"], dtype=np.float64))
+            for key in ("R1", "R2", "P1", "P2", "Q"):
+                fs.write(key, np.asarray(rect[key], dtype=np.float64))
+            fs.write("rectified_width", int(rect["image_size"][0]))
+            fs.write("rectified_height", int(rect["image_size"][1]))
+            fs.write("rms", float(data["rms"]))
+            fs.write("convention", "x2 = R x1 + T (camera 1 to camera 2), as cv2.stereoCalibrate")
+        finally:
+            fs.release()
+
+
+def ros_stereo_files(data: dict[str, Any], rect: dict[str, Any], names: tuple[str, str] = ("left", "right"),
+                     i: int = 0, j: int = 1) -> dict[str, str]:
+    """``{file name: text}`` of the pair's two ROS ``camera_info`` YAML files (``stereo_image_proc``): each camera's
+    matrix and coefficients, its rectification (``R1``/``R2``) and projection (``P1``/``P2``; the second has
+    ``P[0,3] = -fx' * baseline`` for a horizontal pair)."""
+    out = {}
+    for name, c, R, P in ((names[0], i, rect["R1"], rect["P1"]), (names[1], j, rect["R2"], rect["P2"])):
+        cam = dict(data["cameras"][c])
+        model = cam["distortion"]["model"]
+        cam["distortion"] = {"model": model, "coeffs": opencv_coeffs(model, cam["distortion"]["coeffs"]).tolist()}
+        out[f"{name}.yaml"] = ros_camera_info(cam, name, rectification=np.asarray(R).tolist(),
+                                              projection=np.asarray(P).tolist())
+    return out
+
+
+def kalibr_problem(data: dict[str, Any]) -> str:
+    """Why the rig cannot be written as a Kalibr camchain (``""`` when it can): Kalibr's pinhole cameras take radtan
+    (k1, k2, p1, p2) or equidistant (fisheye k1..k4) distortion only."""
+    bad = [f"{cam['name']} ({cam['distortion']['model']})" for cam in data["cameras"]
+           if cam["distortion"]["model"] == "rational"]
+    if bad:
+        return (f"--kalibr-yaml: Kalibr has no rational (k1..k6) model, used by camera {', '.join(bad)}; "
+                "calibrate with --model opencv5, k1k2 or fisheye for a Kalibr camchain")
+    return ""
+
+
+def kalibr_camchain(data: dict[str, Any]) -> tuple[str, list[str]]:
+    """The rig as a Kalibr camchain YAML, and notes on what the format could not hold (opencv5's k3).
+
+    ``T_cn_cnm1`` of camera ``n`` maps camera ``n-1``'s frame to camera ``n``'s (4x4).
+    """
+
+    def row(values) -> str:
+        return "[" + ", ".join(f"{float(v):.12g}" for v in values) + "]"
+
+    text, notes = [], []
+    for c, cam in enumerate(data["cameras"]):
+        K = cam["K"]
+        model = cam["distortion"]["model"]
+        coeffs = list(cam["distortion"]["coeffs"] or [])
+        if model == "fisheye":
+            kind, values = "equidistant", coeffs[:4]
+        else:
+            values = (coeffs + [0.0] * 4)[:4]
+            kind = "radtan"
+            if model == "opencv5" and len(coeffs) > 4 and coeffs[4] != 0.0:
+                notes.append(f"camera {cam['name']}: Kalibr's radtan has no k3; k3 = {coeffs[4]:.6g} left out of the "
+                             "camchain")
+        lines = [f"cam{c}:", "  camera_model: pinhole", f"  intrinsics: {row([K[0][0], K[1][1], K[0][2], K[1][2]])}",
+                 f"  distortion_model: {kind}", f"  distortion_coeffs: {row(values)}",
+                 f"  resolution: [{int(cam['image_size'][0])}, {int(cam['image_size'][1])}]",
+                 f"  rostopic: /{cam['name']}/image_raw"]
+        overlaps = [k for k in range(len(data["cameras"])) if k != c]
+        lines.append(f"  cam_overlaps: [{', '.join(str(k) for k in overlaps)}]")
+        if c > 0:
+            R, T = pair_pose(data["extrinsics"], c - 1, c)
+            lines.append("  T_cn_cnm1:")
+            for r in range(3):
+                lines.append(f"  - {row([*R[r].tolist(), float(T[r])])}")
+            lines.append("  - [0.0, 0.0, 0.0, 1.0]")
+        text.extend(lines)
+    return "\n".join(text) + "\n", notes

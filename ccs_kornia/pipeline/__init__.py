@@ -1,0 +1,29 @@
+"""The composition: images to calibrated cameras through the stages, as one loop over *looks*.
+
+:class:`CalibrationPipeline` (:mod:`.calibration_pipeline`) runs the loop; its looks are values of :mod:`.looks`;
+:mod:`.solve` is the solver stage, :mod:`.result` the typed result, :mod:`.sources` the views (tensors, files),
+:mod:`.workers` the worker processes, :mod:`.rig_pipeline` a rig's cameras and :mod:`.frame_matching` which views of
+a rig's cameras were taken together. No command line and no Lightning here.
+
+Names are imported lazily (PEP 562): importing this package loads none of its modules.
+
+Example:
+    >>> from ccs_kornia.pipeline import CalibrationPipeline
+    >>> CalibrationPipeline.__module__
+    'ccs_kornia.pipeline.calibration_pipeline'
+"""
+
+from __future__ import annotations
+
+from ccs_kornia.runtime.lazy import lazy_exports
+
+_EXPORTS = {
+    "CalibrationPipeline": "ccs_kornia.pipeline.calibration_pipeline",
+    "PipelineResult": "ccs_kornia.pipeline.result",
+    "FileSource": "ccs_kornia.pipeline.sources",
+    "TensorSource": "ccs_kornia.pipeline.sources",
+    "RigPipeline": "ccs_kornia.pipeline.rig_pipeline",
+}
+
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -1,0 +1,285 @@
+"""The looks of :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` at its views, each a value the pipeline's loop runs.
+
+The first look (:meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.detect_views`) detects every view as it is; the
+looks of :data:`LOOKS` come after it, in order, each on the views the looks before it missed:
+
+========================  ====================================  ==================================  ===========
+look                      views (``select``)                    warp (``detect``)                   needs
+========================  ====================================  ==================================  ===========
+:data:`CORRECTED`         missed, of cameras whose pooled       the network's pooled correction     correction
+                          correction is large                   (:class:`CorrectedCopy`)
+:data:`CALIBRATED`        missed or outliers, of cameras        virtual pinhole views of the        camera
+                          calibrated with the fisheye model     calibrated lens (:class:`VirtualView`)
+:data:`FORESHORTENED`     still missed (no large correction)    the detector's compressed levels    --
+========================  ====================================  ==================================  ===========
+
+A look says which of the detector's fallbacks it pays for (``passes``: changes to the detector's own
+:class:`~ccs_kornia.modules.detection.base.Fallbacks`, one detection per pass, each pass on the views the passes
+before it missed) and whether it needs the camera (the loop solves first). The pipeline's detection tools reach a
+look as one value (:class:`Tools`); a look's boards are written back with
+:meth:`~ccs_kornia.modules.detection.base.DetectionResult.fill`.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import torch
+
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.detection.warps.corrected_copy import (
+    detect_on_corrected,
+    straightening_evidence,
+)
+from ccs_kornia.modules.detection.warps.virtual_view import (
+    VIEWS_PER_ROUND,
+    detect_with_calibrated_lens,
+)
+from ccs_kornia.pipeline.result import (
+    PipelineResult,
+    positive_size,
+    same_size_views,
+    select_result,
+)
+from ccs_kornia.pipeline.workers import worker_pool
+
+__all__ = ["Changes", "Tools", "Look", "FIRST_PASSES", "SECOND_LOOK", "FIRST", "CORRECTED", "CALIBRATED",
+           "FORESHORTENED", "LOOKS", "measure_straightening"]
+
+#: changes to a detector's own :class:`~ccs_kornia.modules.detection.base.Fallbacks` (``(field, value)`` pairs)
+Changes = tuple[tuple[str, Any], ...]
+
+#: the first look's: every fallback but the costly last resort for boards at a grazing angle, which waits for the
+#: views the other looks miss (:data:`FORESHORTENED`)
+FIRST_PASSES: tuple[Changes, ...] = ((("foreshortened", False),),)
+
+#: the learned detector's fallbacks on the second looks at missed views (the calibrated lens's virtual views, the
+#: corrected copies): only the finer fallback levels pay (without any: ros_fisheye_mono at 0.5x 24 -> 23 boards,
+#: boofcv_fisheye_chessboard at 0.5x 26 -> 25; without the 0.25: ros_fisheye_mono at 0.5x 24 -> 23 again); the coarser
+#: one, the octaves below and the finest level (detect_at_scale's last tries for a wrong square-size estimate) and
+#: OpenCV's candidates (boards with marks) only add their cost to every view without a board (the foreshortened levels
+#: wait for :data:`FORESHORTENED`, after every cheaper look): boofcv_fisheye_chessboard's
+#: calibrated look 7.5 -> 4.6 s with the same boards and RMS on the fisheye sets and GoPro at 0.5x, 1x and 2x;
+#: on the corrected copies: the same boards and RMS on the eight real sets (boofcv_fisheye_chessboard's 3 of 10 found
+#: there, 3.4 -> 2.4 s; udacity_gopro_wide's and udacity_camera_cal's missed photo 1.13 -> 0.41 and 0.96 -> 0.28 s) and
+#: every figure of bench sections 2 and 4 unchanged
+SECOND_LOOK: Changes = (("levels", (0.5, 0.25)), ("finest", False), ("opencv", False), ("foreshortened", False))
+
+
+@dataclass(frozen=True)
+class Tools:
+    """What a look detects with: the pipeline's detection tools.
+
+    Attributes:
+        detect: ``(images (B,1,H,W), board_size, changes) -> DetectionResult``, the detector (through a downscaled
+            copy of large images) with ``changes`` to its fallbacks, corners' precision measured where weighed.
+        refine: ``(images, corners (B,N,2), board_size) -> corners``: the saddle refinement at full resolution.
+        measure: ``(images, corners (B,N,2), board_size) -> sigma (B,N)``: the corners' precision (``None``: corners
+            are not weighed).
+        detector: the detector itself (its own fallbacks, its last resort).
+        workers: processes that may work at once on CPU.
+    """
+
+    detect: Callable[[torch.Tensor, tuple[int, int], Changes], DetectionResult]
+    refine: Callable[[torch.Tensor, torch.Tensor, tuple[int, int]], torch.Tensor]
+    measure: Callable[[torch.Tensor, torch.Tensor, tuple[int, int]], torch.Tensor] | None
+    detector: ChessboardDetector
+    workers: int
+
+
+@dataclass(frozen=True)
+class Look:
+    """One look at views a look before it missed.
+
+    Attributes:
+        name: what the look is.
+        select: ``select(out, detector, calibrated_look) -> [(camera, view), ...]``: the views it looks at (``None``:
+            every view of the source).
+        detect: ``detect(tools, out, images, keys, board_size, changes) -> DetectionResult``: one batch of those views
+            (``keys``), the warp -> detect -> map back -> refine -> precision of the look, corners in the images.
+        passes: changes to the detector's own fallbacks, one detection per pass, each on the views the passes before
+            missed (a pass that would try no level, or a detector without fallbacks after the first pass, is skipped).
+        needs_camera: the cameras are solved (again, where a look found boards since) before this look.
+        needs_correction: the network's pooled correction per camera (the look is skipped without one).
+        in_workers: its batches are shared out to the pipeline's worker processes (``False``: here, one after the
+            other: the calibrated look shares out its own rounds of virtual views, and the foreshortened look's
+            answers are those of this process's threads).
+        after: ``after(out, board_size)`` once the look has run (with or without views to look at).
+    """
+
+    name: str
+    select: Callable[[PipelineResult | None, ChessboardDetector, bool], list[tuple[int, int]] | None]
+    detect: Callable[..., DetectionResult]
+    passes: tuple[Changes, ...] = ((),)
+    needs_camera: bool = False
+    needs_correction: bool = False
+    in_workers: bool = True
+    after: Callable[[PipelineResult, tuple[int, int]], None] | None = None
+
+    def run(self, tools: Tools, out: PipelineResult, images: torch.Tensor, keys: list,
+            board_size: tuple[int, int]) -> DetectionResult:
+        """The look on one batch ``images`` :math:`(B, 1, H, W)` of views ``keys``: its :attr:`passes` in turn."""
+        own = tools.detector.fallbacks
+        got = None
+        for k, changes in enumerate(self.passes):
+            if k and (own is None or own.but(**dict(changes)).empty):
+                break
+            every = torch.arange(images.shape[0], device=images.device)
+            todo = every if got is None else (~got.found).nonzero().flatten()
+            if not todo.numel():
+                break
+            part = [keys[i] for i in todo.tolist()]
+            again = self.detect(tools, out, images if got is None else images[todo], part, board_size, changes)
+            if got is None:
+                got = again
+            else:
+                got.fill(todo, again)
+        return got
+
+
+def _every_view(out: PipelineResult | None, detector: Any, calibrated_look: bool) -> None:
+    """Every view of the source."""
+    return None
+
+
+def _as_is(tools: Tools, out: PipelineResult | None, images: torch.Tensor, keys: list, board_size: tuple[int, int],
+           changes: Changes) -> DetectionResult:
+    """The views as they are (through a downscaled copy where the pipeline detects large images so)."""
+    return tools.detect(images, board_size, changes)
+
+
+def _missed_with_large_correction(out: PipelineResult, detector: Any, calibrated_look: bool) -> list:
+    """Views missed on the originals of cameras whose pooled correction is large."""
+    same, det = same_size_views(out), out.detections
+    return [(ci, vi) for ci in out.correction_tried.nonzero().flatten().tolist()
+            for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()]
+
+
+def _on_corrected_copies(tools: Tools, out: PipelineResult, images: torch.Tensor, keys: list,
+                         board_size: tuple[int, int], changes: Changes) -> DetectionResult:
+    """The views on copies corrected by their camera's pooled correction, corners refined and measured on the
+    originals (:func:`~ccs_kornia.modules.detection.warps.corrected_copy.detect_on_corrected`)."""
+    device = out.detections.corners.device
+    images = images.to(device)
+    correction = out.correction[torch.tensor([k[0] for k in keys], device=device)]
+    detect = functools.partial(_with_changes, tools.detect, changes)
+    return detect_on_corrected(detect, tools.refine, images, correction, board_size, tools.measure)
+
+
+def _missed_on_fisheye_cameras(out: PipelineResult, detector: Any, calibrated_look: bool) -> list:
+    """Views missed on the originals, or rejected as outliers, of cameras calibrated with the fisheye model.
+
+    Only fisheye cameras: there the boards near the rim are too curved for the detector, and the calibrated model is
+    what straightens them (measured: 3 of 3 missed ROS views, 6 of 6 missed BoofCV views found); a pinhole lens's
+    missed views are missed for other reasons (blur, cut boards) that a reprojection does not cure."""
+    if not calibrated_look:
+        return []
+    cal, det = out.calibration, out.detections
+    models = cal.model if isinstance(cal.model, tuple) else (cal.model,) * det.found.shape[0]
+    same = same_size_views(out)
+    ok = cal.success.to(same.device)
+    cams = [ci for ci in ok.nonzero().flatten().tolist() if models[ci] == "fisheye"]
+    # views without a board, and views whose corners the solver rejected as an outlier (wrong corners on the
+    # original image: a board near the rim found, but mislabelled)
+    outlier = cal.view_reason.to(same.device) == 4
+    retry = same & (~det.found | outlier)
+    return [(ci, vi) for ci in cams for vi in retry[ci].nonzero().flatten().tolist()]
+
+
+def _on_virtual_views(tools: Tools, out: PipelineResult, images: torch.Tensor, keys: list,
+                      board_size: tuple[int, int], changes: Changes) -> DetectionResult:
+    """The views on virtual pinhole views of their camera's calibrated lens
+    (:func:`~ccs_kornia.modules.detection.warps.virtual_view.detect_with_calibrated_lens`), the rounds of virtual
+    views by the worker processes (a whole image per process measured no faster: udacity_gopro_wide misses one view,
+    GOPR0055). Found on a virtual view, a corner's precision is unknown (the median weight)."""
+    device = out.detections.corners.device
+    lens = {ci: select_result(out.calibration, ci) for ci in dict.fromkeys(k[0] for k in keys)}
+    K = torch.stack([lens[ci].K for ci, _ in keys]).to(device)
+    dist = torch.stack([lens[ci].dist for ci, _ in keys]).to(device)
+    workers = tools.workers if device.type == "cpu" else 1
+    pool = functools.partial(worker_pool, workers=min(workers, VIEWS_PER_ROUND)) if workers > 1 else None
+    detect = functools.partial(_with_changes, tools.detect, changes)
+    return detect_with_calibrated_lens(detect, tools.refine, images.to(device), K, dist, True, board_size,
+                                       view_pool=pool)
+
+
+def _still_missed(out: PipelineResult, detector: Any, calibrated_look: bool) -> list:
+    """Views still without a board, where the detector has the last resort for boards at a grazing angle among its
+    own fallbacks; not those of a strongly distorted lens (its pooled correction large), which bends a board's squares
+    beyond an affine compression: the corrected look is its resort (bench section 4's wide lens: looking here found
+    one rim board of 300 views, and the mean E_IP rose 0.041 -> 0.045 px)."""
+    own = getattr(detector, "fallbacks", None)
+    if own is None or not own.foreshortened or not hasattr(detector, "foreshortened"):
+        return []
+    retry = out.present & ~out.detections.found
+    if out.correction_tried is not None:
+        retry &= ~out.correction_tried.to(retry.device)[:, None]
+    return [tuple(k) for k in retry.nonzero().tolist()]
+
+
+def _foreshortened(tools: Tools, out: PipelineResult, images: torch.Tensor, keys: list,
+                   board_size: tuple[int, int], changes: Changes) -> DetectionResult:
+    """The detector's last resort for boards at a grazing angle (``detector.foreshortened``: the image compressed
+    along a few directions, corners mapped back and refined by the detector), precision measured on the images."""
+    images = images.to(out.detections.corners.device)
+    with torch.inference_mode():
+        got = tools.detector.foreshortened(images.float(), board_size)
+    hit = got.found.nonzero().flatten()
+    got.sigma = None
+    if tools.measure is not None and hit.numel():
+        got.sigma = torch.full(got.corners.shape[:2], float("nan"), dtype=torch.float32, device=images.device)
+        got.sigma[hit] = tools.measure(images[hit], got.corners[hit], board_size).to(got.sigma)
+    return got
+
+
+def _with_changes(detect: Callable, changes: Changes, images: torch.Tensor, board_size: tuple[int, int]):
+    return detect(images, board_size, changes)
+
+
+def measure_straightening(out: PipelineResult, board_size: tuple[int, int]) -> None:
+    """How straight the found boards' rows and columns are before and after each camera's pooled correction
+    (``out.straightness``, :func:`~ccs_kornia.modules.detection.warps.corrected_copy.straightening_evidence`)."""
+    det, same = out.detections, same_size_views(out)
+    device = det.corners.device
+    straightness = torch.full((det.found.shape[0], 2), float("nan"), dtype=torch.float64, device=device)
+    for size in set(out.image_size):
+        sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
+        before, after = straightening_evidence(det.corners[sel], det.found[sel] & same[sel], out.correction[sel],
+                                               board_size, positive_size(size))
+        straightness[sel] = torch.stack([before, after], -1)
+    out.straightness = straightness
+
+
+#: every view as it is: the look that makes the result (:meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.detect_views`,
+#: with the network's correction of each view)
+FIRST = Look("first look", _every_view, _as_is, FIRST_PASSES)
+
+#: views missed on the originals of a strongly distorted camera, on copies corrected by the network's pooled
+#: correction: finer fallback levels only, in the pipeline's batches (one view at a time changed rendered fisheye
+#: cameras' E_IP in the 4th digit, bench section 7), by its worker processes on CPU
+CORRECTED = Look("corrected look", _missed_with_large_correction, _on_corrected_copies, (SECOND_LOOK,),
+                 needs_correction=True, after=measure_straightening)
+
+#: a fisheye lens, once calibrated, straightens the boards its rim hid from the detector: two passes over the
+#: virtual views, each on the level its square-size estimate picks, then, for the images still without a board, on
+#: the fallback levels only. A board near a fisheye's rim is found on the first level of some view (the real fisheye
+#: sets: 9 of 9 boards, and 8 of 8 at half size, on the same views as with the fallbacks); the fallbacks, finer
+#: levels of up to 16x the pixels, find the others (bench section 7's renders: 733 boards of 750, 723 with the
+#: second pass left out where the lens's focal length exceeds the axis view's; ros_fisheye_mono at half size: 2 of
+#: its 5 missed views). One pass with the fallbacks paid them on every view before the one that had the board:
+#: boofcv_fisheye_chessboard's look 6.2 -> 2.2-2.5 s, ros_fisheye_mono's 0.79 -> 0.42 s; a view with no board in
+#: reach pays both passes, the first one on top of the old cost (udacity_gopro_wide's GOPR0055, a board larger than
+#: the frame: 2.2-2.5 -> 2.8-3.2 s). The same boards on bench section 7 (733 and 732 of 750).
+CALIBRATED = Look("calibrated look", _missed_on_fisheye_cameras, _on_virtual_views,
+                  (SECOND_LOOK + (("levels", ()),), SECOND_LOOK + (("primary", False),)), needs_camera=True,
+                  in_workers=False)
+
+#: the last resort on the views every other look missed: it costs four detections at the finest level on every view
+#: without a board, and most such views of a fisheye lens are found by the calibrated look anyway
+#: (boofcv_fisheye_chessboard: 10 of its 26 views, +4.5 s when each paid it first)
+FORESHORTENED = Look("foreshortened look", _still_missed, _foreshortened, in_workers=False)
+
+#: the looks after the first (:data:`FIRST`), in order
+LOOKS: tuple[Look, ...] = (CORRECTED, CALIBRATED, FORESHORTENED)

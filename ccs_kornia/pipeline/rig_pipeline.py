@@ -1,0 +1,331 @@
+"""Board images of a rig's cameras in, the rig out: each camera as the single-camera pipeline calibrates it, then
+one joint fit of every camera and their relative poses.
+
+:class:`RigPipeline` runs :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` on every camera's views (detection,
+lens correction, the model choice of ``model="auto"`` per camera, each camera's calibration), matches the views into
+frames (:func:`~ccs_kornia.pipeline.frame_matching.match_frames` for files; the same position for tensors), gathers the corners
+per camera and frame (the hidden corners of partial boards and the views the camera's own calibration rejected are
+left out) and hands them to :class:`~ccs_kornia.modules.rig.rig_solver.RigSolver`, started from the single-camera
+calibrations. No command line, no Lightning here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import torch
+from torch import nn
+
+from ccs_kornia.modules.detection.base import ChessboardDetector
+from ccs_kornia.modules.detection.boards import grid_object_points
+from ccs_kornia.modules.detection.factory import make_detector
+from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+from ccs_kornia.pipeline.frame_matching import FrameTable, match_frames
+from ccs_kornia.pipeline.result import (
+    PipelineResult,
+    corner_weights_of,
+    same_size_views,
+)
+from ccs_kornia.pipeline.sources import FileSource, TensorSource, ViewSource
+
+__all__ = ["RigPipeline", "RigPipelineResult", "rig_observations", "unconnected_cameras"]
+
+
+@dataclass
+class RigPipelineResult:
+    """What :meth:`RigPipeline.run` returns for one rig.
+
+    Attributes:
+        names: camera names.
+        cameras: per camera its single-camera :class:`~ccs_kornia.pipeline.result.PipelineResult` (no camera
+            dimension; views in the camera's own order).
+        frames: the views of each frame (:class:`~ccs_kornia.pipeline.frame_matching.FrameTable`).
+        corners: :math:`(C, F, N, 2)` float64 pixels, NaN where not observed.
+        valid: :math:`(C, F, N)` bool, the corners handed to the rig solver.
+        weights: :math:`(C, F, N)` per-corner weights (``None`` without corner precisions).
+        models: the model of each camera (the single-camera choice with ``model="auto"``).
+        initial: per camera the starting intrinsics (``RigCamera``; the fixed ones where given), ``None`` for a
+            camera without calibration.
+        rig: the solver's ``RigResult`` (``None`` when the rig could not be solved: see ``reason``).
+        reason: ``""`` when solved, else one line naming the cameras (and frames) at fault.
+        fixed: per camera, its intrinsics were kept as given.
+    """
+
+    names: list[str]
+    cameras: list[PipelineResult]
+    frames: FrameTable
+    corners: torch.Tensor
+    valid: torch.Tensor
+    weights: torch.Tensor | None
+    models: list[str]
+    initial: list[Any]
+    rig: Any = None
+    reason: str = ""
+    fixed: list[bool] | None = None
+
+    @property
+    def success(self) -> bool:
+        return self.rig is not None and bool(self.rig.success)
+
+
+class _Cameras(ViewSource):
+    """Some cameras of another source (the cameras of one model when models differ per camera)."""
+
+    def __init__(self, source: ViewSource, cameras: Sequence[int]) -> None:
+        self.source, self.cameras = source, list(cameras)
+        self.decodes = getattr(source, "decodes", False)
+        self.decode_workers = source.decode_workers
+        super().__init__([source.counts[c] for c in self.cameras], [source.names[c] for c in self.cameras])
+
+    def describe(self, camera: int, view: int) -> str:
+        return self.source.describe(self.cameras[camera], view)
+
+    def pixels(self, camera: int, view: int) -> int | None:
+        return self.source.pixels(self.cameras[camera], view)
+
+    def _load(self, camera: int, view: int):
+        return self.source._load(self.cameras[camera], view)
+
+
+def rig_observations(
+    cameras: Sequence[PipelineResult], frames: FrameTable
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Corners per camera and frame from the cameras' single-camera results.
+
+    A view counts where the board was found on an image of the camera's size and, when the camera was calibrated,
+    its calibration used the view (views it rejected as inconsistent stay out of the joint fit too); of such a view,
+    the corners the image shows (a partial board's hidden corners are NaN) are valid.
+
+    Args:
+        cameras: one-camera results (``result.select(c)``).
+        frames: which view of each camera belongs to each frame.
+
+    Returns:
+        ``corners`` :math:`(C, F, N, 2)` float64 (NaN where not valid), ``valid`` :math:`(C, F, N)` bool, ``weights``
+        :math:`(C, F, N)` (``None`` when the detections carry no corner precision).
+    """
+    c, f = len(cameras), frames.num_frames
+    n = cameras[0].detections.corners.shape[-2]
+    corners = torch.full((c, f, n, 2), float("nan"), dtype=torch.float64)
+    valid = torch.zeros(c, f, n, dtype=torch.bool)
+    with_sigma = all(r.detections.sigma is not None for r in cameras)
+    weights = torch.zeros(c, f, n, dtype=torch.float64) if with_sigma else None
+    for ci, result in enumerate(cameras):
+        det, cal = result.detections, result.calibration
+        batched = PipelineResult(det, None, [result.image_size], result.present[None], result.view_sizes[None])
+        usable = det.found.cpu() & same_size_views(batched)[0].cpu()
+        if cal is not None and bool(cal.success):
+            usable &= cal.used.cpu()
+        cam_valid = usable[:, None] & det.corners.cpu().isfinite().all(-1)
+        cam_weights = corner_weights_of(det.sigma[None], cam_valid[None])[0] if with_sigma else None
+        for fi, k in enumerate(frames.index[ci]):
+            if k is None or not bool(cam_valid[k].any()):
+                continue
+            valid[ci, fi] = cam_valid[k]
+            corners[ci, fi] = torch.where(cam_valid[k, :, None], det.corners[k].cpu().double(), float("nan"))
+            if weights is not None:
+                weights[ci, fi] = cam_weights[k].cpu().double()
+    return corners, valid, weights
+
+
+def unconnected_cameras(valid: torch.Tensor, names: Sequence[str], labels: Sequence[str], min_shared: int = 1) -> str:
+    """``""`` when every camera is linked to camera 0 through frames both cameras see, else one line naming the
+    cameras cut off and the frames each camera saw.
+
+    Args:
+        valid: :math:`(C, F, N)` or :math:`(C, F)` bool observations.
+        names: camera names; labels: frame names.
+        min_shared: frames two cameras must share to be linked.
+
+    Example:
+        >>> v = torch.tensor([[True, True, False], [True, False, False], [False, False, True]])
+        >>> unconnected_cameras(v, ["a", "b", "c"], ["01", "02", "03"])
+        'camera c shares no frame with camera a or the cameras linked to it (a sees frames 01, 02; b: 01; c: 03)'
+    """
+    seen = valid.any(-1) if valid.dim() == 3 else valid
+    shared = (seen[:, None, :] & seen[None, :, :]).sum(-1) >= min_shared
+    linked, frontier = {0}, [0]
+    while frontier:
+        i = frontier.pop()
+        for j in shared[i].nonzero().flatten().tolist():
+            if j not in linked:
+                linked.add(j)
+                frontier.append(j)
+    cut = [j for j in range(seen.shape[0]) if j not in linked]
+    if not cut:
+        return ""
+
+    def frames_of(c: int) -> str:
+        picks = [labels[k] for k in seen[c].nonzero().flatten().tolist()]
+        return ", ".join(picks) if picks else "none"
+
+    who = ", ".join(names[j] for j in cut)
+    plural = "s" if len(cut) > 1 else ""
+    views = "; ".join(f"{names[c]}: {frames_of(c)}" for c in range(1, seen.shape[0]))
+    return (f"camera{plural} {who} share{'' if plural else 's'} no frame with camera {names[0]} or the cameras linked "
+            f"to it ({names[0]} sees frames {frames_of(0)}; {views})")
+
+
+def _same_position(counts: Sequence[int]) -> FrameTable:
+    """Frames of in-memory views: frame ``f`` is view ``f`` of every camera that has one."""
+    frames = max(counts)
+    return FrameTable([str(f) for f in range(frames)], [[f if f < n else None for f in range(frames)] for n in counts],
+                      "order")
+
+
+class RigPipeline(nn.Module):
+    """Calibrate a rig of ``C`` cameras from board images: each camera alone, then jointly with its pose.
+
+    Args:
+        detector: a detector name (``"learned"``, ``"opencv"``) or a :class:`ChessboardDetector` (shared by every
+            camera).
+        models: one model for every camera or one per camera (``auto``: each camera's model chosen by the
+            single-camera pipeline's cross-validation).
+        fixed: per camera index, a ``RigCamera`` whose intrinsics are kept as they are (e.g. from an earlier
+            single-camera calibration).
+        solver_kwargs: options of :class:`~ccs_kornia.modules.rig.rig_solver.RigSolver` (``max_iters``, ...).
+        pipeline_kwargs: options of :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` (``use_ransac``, ``workers``,
+            ``distortion_correction``, ...).
+
+    Example:
+        >>> pipe = RigPipeline("opencv", models="k1k2", distortion_correction=False)
+        >>> sorted(pipe.pipelines)
+        ['k1k2']
+    """
+
+    def __init__(
+        self,
+        detector: str | ChessboardDetector = "learned",
+        models: str | Sequence[str] = "auto",
+        fixed: dict[int, Any] | None = None,
+        solver_kwargs: dict[str, Any] | None = None,
+        **pipeline_kwargs,
+    ) -> None:
+        super().__init__()
+        shared = make_detector(detector) if isinstance(detector, str) else detector
+        self.models = models if isinstance(models, str) else list(models)
+        wanted = {self.models} if isinstance(self.models, str) else set(self.models)
+        self.pipelines = nn.ModuleDict({m: CalibrationPipeline(shared, model=m, **pipeline_kwargs) for m in sorted(wanted)})
+        self.fixed = dict(fixed or {})
+        self.solver_kwargs = dict(solver_kwargs or {})
+
+    def forward(self, images: torch.Tensor | Sequence[torch.Tensor], board_size: tuple[int, int], square: float = 1.0,
+                names: Sequence[str] | None = None) -> RigPipelineResult | list[RigPipelineResult]:
+        """:meth:`run` on images in memory, frame ``f`` being view ``f`` of every camera.
+
+        Args:
+            images: :math:`(C, F, 1, H, W)`, one :math:`(F_c, 1, H_c, W_c)` per camera (sizes may differ), or
+                :math:`(B, C, F, 1, H, W)` for ``B`` rigs: their cameras are detected and calibrated in one batched
+                pipeline run, then each rig is solved (the rig solver starts every rig from its own cameras).
+            board_size: ``(cols, rows)`` inner corners; square: square side in world units.
+            names: camera names (default ``cam0``, ``cam1``, ...).
+
+        Returns:
+            :class:`RigPipelineResult`, or a list of ``B`` for 6-D input.
+        """
+        if isinstance(images, torch.Tensor) and images.dim() == 6:
+            b, c = images.shape[:2]
+            source = TensorSource(images.flatten(0, 1))
+            models = [self.models] * c if isinstance(self.models, str) else list(self.models)
+            cameras = self.detect_and_calibrate(source, board_size, square, models=models * b)
+            table = _same_position([images.shape[2]] * c)
+            return [self.run(_Cameras(source, range(k * c, (k + 1) * c)), board_size, square, table, names,
+                             cameras=cameras[k * c:(k + 1) * c]) for k in range(b)]
+        source = TensorSource(images)
+        return self.run(source, board_size, square, _same_position(source.counts), names)
+
+    def run_files(self, paths: Sequence[Sequence[str]], board_size: tuple[int, int], square: float,
+                  names: Sequence[str] | None = None, progress: Callable[[int], None] | None = None) -> RigPipelineResult:
+        """:meth:`run` on image files, one list per camera, matched into frames by
+        :func:`~ccs_kornia.pipeline.frame_matching.match_frames` (the last number in the names, else natural order)."""
+        return self.run(FileSource(paths, names), board_size, square, match_frames(paths), names, progress)
+
+    def detect_and_calibrate(self, source: ViewSource, board_size: tuple[int, int], square: float,
+                             progress: Callable[[int], None] | None = None,
+                             models: Sequence[str] | None = None) -> list[PipelineResult]:
+        """Every camera through the single-camera pipeline of its model (``models``: per camera of ``source``,
+        default this pipeline's); one result per camera. The cameras of one model go through one batched run."""
+        c = source.num_cameras
+        if models is None:
+            models = [self.models] * c if isinstance(self.models, str) else self.models
+        if len(models) != c:
+            raise ValueError(f"{len(models)} models for {c} cameras.")
+        out: list[PipelineResult | None] = [None] * c
+        for model, pipeline in self.pipelines.items():
+            cams = [i for i in range(c) if models[i] == model]
+            part = source if len(cams) == c else _Cameras(source, cams)
+            result = pipeline.run(part, board_size, square, progress=progress)
+            for k, i in enumerate(cams):
+                out[i] = result.select(k)
+        return out  # type: ignore[return-value]
+
+    def run(
+        self,
+        source: ViewSource,
+        board_size: tuple[int, int],
+        square: float,
+        frames: FrameTable,
+        names: Sequence[str] | None = None,
+        progress: Callable[[int], None] | None = None,
+        cameras: list[PipelineResult] | None = None,
+    ) -> RigPipelineResult:
+        """Detect and calibrate each camera, gather the frames, solve the rig.
+
+        Args:
+            source: the cameras' views (:class:`~ccs_kornia.pipeline.sources.FileSource`, :class:`TensorSource`).
+            board_size: ``(cols, rows)``; square: square side in world units (the unit of the rig's translations).
+            frames: which view of each camera belongs to each frame.
+            names: camera names (default ``cam0``, ...).
+            progress: called with the number of views handled after every detection batch.
+            cameras: single-camera results already computed (skips the detection and the cameras' calibrations).
+
+        Returns:
+            :class:`RigPipelineResult`.
+        """
+        c = source.num_cameras
+        names = list(names) if names is not None else [f"cam{i}" for i in range(c)]
+        if c < 2:
+            raise ValueError(f"a rig needs at least two cameras, got {c}.")
+        if len(frames.index) != c or len(names) != c:
+            raise ValueError(f"{len(frames.index)} frame lists and {len(names)} names for {c} cameras.")
+        from ccs_kornia.modules.rig import RigCamera, RigSolver
+        cameras = cameras if cameras is not None else self.detect_and_calibrate(source, board_size, square, progress)
+        corners, valid, weights = rig_observations(cameras, frames)
+        models, initial, reason = [], [], ""
+        for i, result in enumerate(cameras):
+            cal = result.calibration
+            if i in self.fixed:
+                cam = self.fixed[i]
+                models.append(cam.model)
+                initial.append(RigCamera(cam.model, cam.K.double().cpu(), cam.dist.double().cpu()))
+            elif cal is not None and bool(cal.success):
+                models.append(cal.model)
+                initial.append(RigCamera(cal.model, cal.K.double().cpu(), cal.dist.double().cpu()))
+            else:
+                models.append(cal.model if cal is not None and isinstance(cal.model, str) else "")
+                initial.append(None)
+                reason = reason or f"camera {names[i]}: {result.camera_reasons or 'not calibrated'}"
+        fixed = [i in self.fixed for i in range(c)]
+        out = RigPipelineResult(names, cameras, frames, corners, valid, weights, models, initial, reason=reason,
+                                fixed=fixed)
+        if reason:
+            return out
+        out.reason = unconnected_cameras(valid, names, frames.labels)
+        if out.reason:
+            return out
+        cols, rows = int(board_size[0]), int(board_size[1])
+        object_points = grid_object_points(getattr(next(iter(self.pipelines.values())).detector, "board", None),
+                                           (cols, rows), float(square), dtype=torch.float64)
+        solver = RigSolver(models=models, **self.solver_kwargs)
+        sizes = [tuple(int(x) for x in r.image_size) for r in cameras]
+        try:
+            out.rig = solver(corners, valid, object_points, sizes, initial=initial,
+                             fixed=fixed if any(fixed) else None, names=names, weights=weights)
+        except ValueError as err:  # the solver's refusal (e.g. cameras linked by too few corners), one line
+            out.reason = str(err)
+            return out
+        if not out.rig.success:
+            out.reason = out.rig.reason or "the joint fit of the rig failed"
+        return out

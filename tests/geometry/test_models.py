@@ -1,0 +1,228 @@
+"""Camera models of the LM core: projection against OpenCV, analytic derivatives against autograd."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from ccs_kornia.geometry.camera import (
+    kb_distort_points,
+    kb_project_points,
+    kb_undistort_points,
+    kb_unproject_points,
+)
+from ccs_kornia.geometry.models import (
+    CameraModel,
+    CentredRadialModel,
+    KannalaBrandtModel,
+    OpenCVModel,
+    camera_model,
+)
+from ccs_kornia.modules.calibration.centred_radial import centred_radial_distort
+
+F64 = torch.float64
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+OPENCV_PARAMS = {
+    "none": [510.0, 505.0, 322.0, 241.0],
+    "k1k2": [510.0, 505.0, 322.0, 241.0, -0.25, 0.08],
+    "opencv5": [510.0, 505.0, 322.0, 241.0, -0.25, 0.08, 1e-3, -8e-4, -0.02],
+    "rational": [510.0, 505.0, 322.0, 241.0, -0.25, 0.08, 1e-3, -8e-4, -0.02, 0.1, 0.01, 0.002],
+}
+KB_PARAMS = [300.0, 302.0, 321.0, 238.0, 0.02, -0.01, 0.002, -0.0005]
+CR_PARAMS = [400.0, 405.0, 330.0, 232.0, -0.3, 0.08, 0.01, 6.0, -4.0]
+
+
+def _points(C=2, V=3, N=7, seed=0, wide=False, dtype=F64, device="cpu"):
+    g = torch.Generator().manual_seed(seed)
+    if wide:  # any direction up to 115 degrees from the axis (beyond 90 included)
+        X = torch.randn(8 * C * V * N, 3, generator=g, dtype=F64)
+        X = X[torch.atan2(X[:, :2].norm(dim=-1), X[:, 2]) < 2.0][: C * V * N].reshape(C, V, N, 3)
+        assert bool((X[..., 2] < 0).any())
+    else:
+        X = torch.randn(C, V, N, 3, generator=g, dtype=F64)
+        X[..., :2] *= 0.4
+        X[..., 2] = X[..., 2].abs() + 1.0
+    return X.to(device=device, dtype=dtype)
+
+
+def _models():
+    out = [(OpenCVModel(v), p) for v, p in OPENCV_PARAMS.items()]
+    return out + [(KannalaBrandtModel(), KB_PARAMS), (CentredRadialModel((640, 480)), CR_PARAMS)]
+
+
+def _autograd_jacobians(model, X, params):
+    C = params.shape[0]
+    Jp = torch.autograd.functional.jacobian(lambda p: model.project(X, p, False)[0], params)
+    Jp = torch.stack([Jp[c, ..., c, :] for c in range(C)])  # (C, *, 2, P)
+    flat = X.reshape(C, -1, 3)
+    Jx = torch.autograd.functional.jacobian(lambda q: model.project(q, params, False)[0].sum(1), flat)  # (C,2,C,M,3)
+    Jx = torch.stack([Jx[c, :, c] for c in range(C)]).permute(0, 2, 1, 3).reshape(*X.shape[:-1], 2, 3)
+    return Jp, Jx
+
+
+@pytest.mark.parametrize("model,p", _models(), ids=lambda x: getattr(x, "name", ""))
+def test_shapes_and_jacobians_match_autograd(model, p):
+    X = _points(wide=isinstance(model, KannalaBrandtModel))
+    params = torch.tensor([p, p], dtype=F64)
+    params[1, :2] *= 1.05
+    uv, J, Jx = model.project(X, params)
+    P = model.num_params
+    assert uv.shape == (*X.shape[:-1], 2) and J.shape == (*X.shape[:-1], 2, P) and Jx.shape == (*X.shape[:-1], 2, 3)
+    Jp_ref, Jx_ref = _autograd_jacobians(model, X, params)
+    torch.testing.assert_close(J, Jp_ref, rtol=1e-8, atol=1e-8)
+    torch.testing.assert_close(Jx, Jx_ref, rtol=1e-8, atol=1e-8)
+    uv2, none1, none2 = model.project(X, params, jacobians=False)
+    assert none1 is None and none2 is None and torch.equal(uv, uv2)
+
+
+@pytest.mark.parametrize("model,p", _models(), ids=lambda x: getattr(x, "name", ""))
+def test_gradcheck(model, p):
+    X = _points(C=1, V=1, N=3, wide=isinstance(model, KannalaBrandtModel)).requires_grad_(True)
+    params = torch.tensor([p], dtype=F64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a, b: model.project(a, b, False)[0], (X, params))
+
+
+@pytest.mark.parametrize("variant", list(OPENCV_PARAMS))
+def test_opencv_matches_cv2_project_points(variant):
+    X = _points(C=1, V=1, N=50)
+    p = torch.tensor([OPENCV_PARAMS[variant]], dtype=F64)
+    uv = OpenCVModel(variant).project(X, p, False)[0].reshape(-1, 2).numpy()
+    q = p[0].numpy()
+    K = np.array([[q[0], 0, q[2]], [0, q[1], q[3]], [0, 0, 1]])
+    dist = OpenCVModel(variant).dist8(p)[0].numpy()
+    ref = cv2.projectPoints(X.reshape(-1, 3).numpy(), np.zeros(3), np.zeros(3), K, dist)[0].reshape(-1, 2)
+    np.testing.assert_allclose(uv, ref, atol=1e-9, rtol=0)
+
+
+def test_opencv_params_round_trip_and_jacobians_match_cv2_project_points():
+    m = OpenCVModel("rational")
+    p = torch.tensor([OPENCV_PARAMS["rational"]], dtype=F64)
+    K = torch.tensor([[[510.0, 0, 322.0], [0, 505.0, 241.0], [0, 0, 1]]], dtype=F64)
+    torch.testing.assert_close(m.params_from(K, m.dist8(p)), p)
+    X = _points(C=1)
+    uv, J, Jx = m.project(X, p)
+    # OpenCV's own derivatives: columns rvec (3), tvec (3), fx fy, cx cy, k1 k2 p1 p2 k3 k4 k5 k6
+    ref, jac = cv2.projectPoints(X.reshape(-1, 3).numpy(), np.zeros(3), np.zeros(3), K[0].numpy(), m.dist8(p)[0].numpy())
+    jac = torch.from_numpy(jac).reshape(-1, 2, jac.shape[-1])
+    torch.testing.assert_close(uv.reshape(-1, 2), torch.from_numpy(ref.reshape(-1, 2)), atol=1e-9, rtol=0)
+    torch.testing.assert_close(J.reshape(-1, 2, 12), jac[..., 6:18], atol=1e-7, rtol=1e-9)
+    torch.testing.assert_close(Jx.reshape(-1, 2, 3), jac[..., 3:6], atol=1e-7, rtol=1e-9)
+
+
+def test_fisheye_matches_cv2_fisheye_in_front_and_is_continuous_beyond_90_degrees():
+    m = KannalaBrandtModel()
+    p = torch.tensor([KB_PARAMS], dtype=F64)
+    X = _points(C=1, V=1, N=60)
+    X[..., :2] *= 4  # up to ~80 degrees
+    X[0, 0, 0] = torch.tensor([0.0, 0.0, 2.0], dtype=F64)  # on the optical axis
+    X[0, 0, 1] = torch.tensor([1e-9, -2e-9, 1.0], dtype=F64)
+    uv = m.project(X, p, False)[0].reshape(-1, 2).numpy()
+    q = p[0].numpy()
+    K = np.array([[q[0], 0, q[2]], [0, q[1], q[3]], [0, 0, 1]])
+    ref = cv2.fisheye.projectPoints(X.reshape(1, -1, 3).numpy(), np.zeros(3), np.zeros(3), K, q[4:])[0].reshape(-1, 2)
+    np.testing.assert_allclose(uv, ref, atol=1e-9, rtol=0)
+    # at and beyond 90 degrees: theta = atan2(r, z), continuous through z = 0
+    z = torch.tensor([1e-6, 0.0, -1e-6], dtype=F64)
+    Xz = torch.stack([torch.ones(3, dtype=F64), 0.3 * torch.ones(3, dtype=F64), z], -1)[None]
+    u = m.project(Xz, p, False)[0][0]
+    assert (u[0] - u[2]).abs().max() < 1e-3 and u[1, 0] > p[0, 2] + p[0, 0] * math.pi / 2 * 0.9
+    # the Jacobian on the optical axis (series branch) matches finite differences
+    Xa = torch.tensor([[[0.0, 0.0, 1.5], [2e-5, -1e-5, 0.8]]], dtype=F64)
+    _, _, Jx = m.project(Xa, p)
+    h = 1e-6
+    fd = torch.stack([(m.project(Xa + h * e, p, False)[0] - m.project(Xa - h * e, p, False)[0]) / (2 * h)
+                      for e in torch.eye(3, dtype=F64)], -1)
+    torch.testing.assert_close(Jx, fd, atol=1e-5, rtol=1e-7)
+
+
+def test_centred_radial_matches_the_former_function():
+    m = CentredRadialModel((640, 480))
+    p = torch.tensor([CR_PARAMS], dtype=F64)
+    X = _points(C=1, V=1, N=40)
+    uv = m.project(X, p, False)[0].reshape(1, -1, 2)
+    pin = torch.stack([p[0, 0] * X[..., 0] / X[..., 2] + p[0, 2], p[0, 1] * X[..., 1] / X[..., 2] + p[0, 3]], -1)
+    ref = centred_radial_distort(pin.reshape(1, -1, 2), p[:, 4:7], (640, 480), p[:, 7:9])
+    torch.testing.assert_close(uv, ref, atol=1e-9, rtol=0)
+    assert m.default_free() == [True] * 7 + [False] * 2
+    assert CentredRadialModel((640, 480), free_centre=True).default_free() == [True] * 9
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_device_and_dtype(device, dtype):
+    for model, p in _models():
+        X = _points(device=device, dtype=dtype, wide=isinstance(model, KannalaBrandtModel))
+        params = torch.tensor([p, p], dtype=dtype, device=device)
+        uv, J, Jx = model.project(X, params)
+        assert uv.dtype == dtype and uv.device.type == device and J.dtype == dtype and Jx.device.type == device
+        ref = model.project(X.double().cpu(), params.double().cpu(), False)[0]
+        tol = 1e-9 if dtype == F64 else 1e-2
+        torch.testing.assert_close(uv.double().cpu(), ref, atol=tol, rtol=1e-5 if dtype == torch.float32 else 0)
+
+
+def test_bad_shapes_and_names():
+    m = OpenCVModel("opencv5")
+    with pytest.raises(ValueError, match="points"):
+        m.project(torch.zeros(2, 3, 2, dtype=F64), torch.zeros(2, 9, dtype=F64))
+    with pytest.raises(ValueError, match="params"):
+        m.project(torch.zeros(2, 3, 3, dtype=F64), torch.zeros(2, 5, dtype=F64))
+    with pytest.raises(ValueError, match="cameras"):
+        m.project(torch.zeros(2, 3, 3, dtype=F64), torch.zeros(3, 9, dtype=F64))
+    with pytest.raises(ValueError, match="variant"):
+        OpenCVModel("fisheye5")
+    with pytest.raises(ValueError, match="image_size"):
+        CentredRadialModel((0, 480))
+    with pytest.raises(ValueError, match="image_size"):
+        camera_model("centred_radial")
+    with pytest.raises(ValueError, match="Unknown camera model"):
+        camera_model("mei")
+    assert isinstance(camera_model("fisheye"), CameraModel) and camera_model("k1k2").num_params == 6
+    with pytest.raises(NotImplementedError):
+        CameraModel().project(torch.zeros(1, 1, 3), torch.zeros(1, 0))
+
+
+# ---------------------------------------------------------------------------------------- geometry/camera.py (KB functions)
+def _kb():
+    K = torch.tensor([[300.0, 0, 400.0], [0, 310.0, 250.0], [0, 0, 1]], dtype=F64)
+    return K, torch.tensor([0.01, -0.002, 3e-4, -1e-4], dtype=F64)  # monotonic up to about 150 degrees
+
+
+def test_camera_kb_projection_matches_cv2_and_kornia():
+    K, D = _kb()
+    X = _points(C=1, V=1, N=50)[0, 0]
+    X[:, :2] *= 3
+    uv = kb_project_points(X, K, D)
+    ref = cv2.fisheye.projectPoints(X.numpy()[None], np.zeros(3), np.zeros(3), K.numpy(), D.numpy())[0][0]
+    np.testing.assert_allclose(uv.numpy(), ref, atol=1e-9, rtol=0)
+    torch.testing.assert_close(kb_distort_points(X[:, :2] / X[:, 2:], K, D), uv, atol=1e-9, rtol=0)
+    rv, tv = torch.tensor([0.1, -0.2, 0.3], dtype=F64), torch.tensor([0.05, 0.0, 0.2], dtype=F64)
+    ref = cv2.fisheye.projectPoints(X.numpy()[None], rv.numpy(), tv.numpy(), K.numpy(), D.numpy())[0][0]
+    np.testing.assert_allclose(kb_project_points(X, K, D, rv, tv).numpy(), ref, atol=1e-9, rtol=0)
+    with pytest.raises(ValueError, match="tvec"):
+        kb_project_points(X, K, D, rv)
+    with pytest.raises(ValueError, match="Kannala"):
+        kb_project_points(X, K, D[:3])
+
+
+def test_camera_kb_unprojection_matches_cv2_and_inverts_beyond_90_degrees():
+    K, D = _kb()
+    X = _points(C=1, V=1, N=50)[0, 0]
+    X[:, :2] *= 3
+    uv = kb_project_points(X, K, D)
+    ref = cv2.fisheye.undistortPoints(uv.numpy()[None], K.numpy(), D.numpy())[0]
+    np.testing.assert_allclose(kb_undistort_points(uv, K, D).numpy(), ref, atol=1e-9, rtol=0)
+    P = torch.tensor([[200.0, 0, 300.0], [0, 210.0, 200.0], [0, 0, 1]], dtype=F64)
+    ref = cv2.fisheye.undistortPoints(uv.numpy()[None], K.numpy(), D.numpy(), P=P.numpy())[0]
+    np.testing.assert_allclose(kb_undistort_points(uv, K, D, P).numpy(), ref, atol=1e-7, rtol=0)
+    # rays over the whole monotonic range of the lens, beyond 90 degrees
+    g = torch.Generator().manual_seed(3)
+    Y = torch.randn(400, 3, generator=g, dtype=F64)
+    Y = Y[torch.atan2(Y[:, :2].norm(dim=-1), Y[:, 2]) < 2.0]
+    rays = kb_unproject_points(kb_project_points(Y, K, D), K, D)
+    torch.testing.assert_close(rays, Y / Y.norm(dim=-1, keepdim=True), atol=1e-10, rtol=0)
+    assert bool((Y[:, 2] < 0).any())

@@ -1,0 +1,120 @@
+"""Tests of the calibration report (ccs_kornia.outputs.report.calibration): files, content, scaling, robustness."""
+
+from __future__ import annotations
+
+import re
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from ccs_kornia.geometry.camera import board_object_points, project_points
+from ccs_kornia.outputs.report.calibration import DISPLAY_MAX_SIDE, write_report
+
+BOARD = (6, 4)
+K = [[300.0, 0.0, 161.0], [0.0, 298.0, 119.0], [0.0, 0.0, 1.0]]
+DIST = [-0.1, 0.01, 0.0, 0.0, 0.0]
+
+
+def _calibration(tmp_path, size=(320, 240), views=5, unreadable=False):
+    """A calibration dict as ``calibrate`` writes it, from projected corners (no detection needed)."""
+    obj = board_object_points(*BOARD, 0.03, dtype=torch.float64)
+    g = torch.Generator().manual_seed(3)
+    scale = size[0] / 320
+    Kt = torch.tensor(K, dtype=torch.float64) * torch.tensor([[scale], [scale], [1.0]], dtype=torch.float64)
+    out_views = []
+    for k in range(views):
+        rvec = 0.5 * (torch.rand(3, generator=g, dtype=torch.float64) - 0.5)
+        tvec = torch.tensor([-0.08 + 0.01 * k, -0.05, 0.35], dtype=torch.float64)
+        uv = project_points(obj, Kt, torch.tensor(DIST, dtype=torch.float64), rvec, tvec)
+        noisy = uv + 0.05 * torch.randn(uv.shape, generator=g, dtype=torch.float64)
+        image = np.full((size[1], size[0]), 90, np.uint8)
+        cv2.fillConvexPoly(image, np.round(uv[[0, BOARD[0] - 1, -1, -BOARD[0]]].numpy()).astype(np.int32), 220)
+        path = tmp_path / f"img_{k}.png"
+        cv2.imwrite(str(path), image)
+        used = k != views - 1  # the last view plays an excluded one
+        out_views.append({
+            "path": str(path), "found": True, "corners": noisy.tolist(), "used": used,
+            "rms": 0.07 if used else None, "rvec": rvec.tolist(), "tvec": tvec.tolist(),
+            **({} if used else {"reason": "rejected by image RANSAC", "rms_if_used": 0.9}),
+        })
+    out_views.append({"path": str(tmp_path / "nothing.png"), "found": False, "used": False, "rms": None,
+                      "reason": "board not found"})
+    if unreadable:  # a view whose file disappeared after calibration
+        out_views[0]["path"] = str(tmp_path / "gone.png")
+    return {
+        "image_size": list(size), "K": Kt.tolist(), "distortion": {"model": "opencv5", "coeffs": DIST}, "rms": 0.07,
+        "rms_kind": "RMS, px", "views": out_views, "board": list(BOARD), "square": 0.03, "detector": "opencv",
+        "model": "opencv5", "std": {"fx": 0.5, "fy": 0.4, "cx": 0.3, "cy": 0.2, "distortion": [1e-3] * 5},
+        "num_views": {"files": views + 1, "found": views, "usable": views, "used": views - 1},
+    }
+
+
+def test_files_and_html(tmp_path):
+    data = _calibration(tmp_path)
+    report = tmp_path / "report"
+    report.mkdir()
+    written = write_report(str(report), data, progress=False)
+    for name in ("index.html", "summary.md", "rms_per_view.png", "residuals.png", "coverage.png", "undistorted.png"):
+        assert (report / name).is_file() and str(report / name) in written
+    overlays = sorted((report / "views").glob("view_*.png"))
+    assert len(overlays) == 5  # every found view, used or not; none for the view without a board
+    text = (report / "index.html").read_text()
+    for needle in ("fx", "&plusmn; 0.500", "k1", "rejected by image RANSAC", "board not found", "0.0700 px"):
+        assert needle in text, needle
+    # every image the page refers to exists
+    for ref in re.findall(r"(?:src|href)='([^']+)'", text):
+        assert (report / ref).is_file(), ref
+
+
+def test_figures_are_readable_images(tmp_path):
+    data = _calibration(tmp_path)
+    write_report(str(tmp_path), data, progress=False)
+    chart = cv2.imread(str(tmp_path / "rms_per_view.png"))
+    assert chart is not None and chart.shape[0] >= 400 and chart.shape[1] >= 640
+    # used bars are green, the excluded view's bar orange
+    assert ((chart[..., 1] == 170) & (chart[..., 0] == 0) & (chart[..., 2] == 0)).sum() > 500
+    assert ((chart[..., 2] == 255) & (chart[..., 1] == 140) & (chart[..., 0] == 0)).sum() > 100
+    overlay = cv2.imread(str(sorted((tmp_path / "views").glob("*.png"))[0]))
+    assert overlay.shape[1] == 320 and overlay.shape[0] == 240 + 30  # image plus a title strip
+    # green circles of the detected corners are drawn
+    assert ((overlay[..., 1] > 150) & (overlay[..., 0] < 60) & (overlay[..., 2] < 60)).sum() > 50
+    for name in ("residuals.png", "coverage.png", "undistorted.png"):
+        image = cv2.imread(str(tmp_path / name))
+        assert image is not None and image.std() > 10, name
+
+
+def test_large_images_are_downscaled_and_missing_files_skipped(tmp_path):
+    data = _calibration(tmp_path, size=(2560, 1920), views=3, unreadable=True)
+    written = write_report(str(tmp_path), data, progress=False)
+    overlays = sorted((tmp_path / "views").glob("*.png"))
+    assert len(overlays) == 2  # the vanished file is skipped, not fatal
+    for path in overlays:
+        assert max(cv2.imread(str(path)).shape[:2]) <= DISPLAY_MAX_SIDE + 30
+    assert any(p.endswith("index.html") for p in written)
+
+
+@pytest.mark.parametrize("coeffs", [[], [-0.1, 0.01, 0.0, 0.0, 0.0, 0.001, 0.0, 0.0]])
+def test_other_distortion_models(tmp_path, coeffs):
+    data = _calibration(tmp_path, views=4)
+    data["distortion"] = {"model": "none" if not coeffs else "rational", "coeffs": coeffs}
+    data["std"]["distortion"] = [1e-3] * len(coeffs)
+    write_report(str(tmp_path), data, progress=False)
+    text = (tmp_path / "index.html").read_text()
+    assert ("k6" in text) == bool(coeffs)
+
+
+def test_partial_boards_are_drawn_without_their_hidden_corners(tmp_path):
+    """A view with hidden corners (null in the JSON, NaN here) is drawn and plotted on its measured corners, the hidden
+    ones marked where the camera puts them."""
+    data = _calibration(tmp_path)
+    data["views"][1]["corners"][0] = [float("nan"), float("nan")]  # the first grid corner: an outer one
+    data["views"][1]["corners"][8] = [None, None]
+    data["views"][1]["hidden_corners"] = 2
+    write_report(tmp_path / "rep", data)
+    assert (tmp_path / "rep" / "index.html").exists()
+    for name in ("residuals.png", "coverage.png"):
+        assert cv2.imread(str(tmp_path / "rep" / name)) is not None
+    view = cv2.imread(str(next((tmp_path / "rep" / "views").glob("view_0001_*.png"))))
+    assert view is not None and (np.abs(view.astype(int) - (200, 0, 200)).sum(-1) < 30).sum() > 20  # magenta marks
