@@ -11,12 +11,13 @@ what the calibration does on a pose it has not seen, with the robot's and the de
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 
 from ccs_kornia.geometry.so3 import log_so3
-from ccs_kornia.modules.hand_eye.fit import fit_problem
+from ccs_kornia.modules.hand_eye.fit import FitResult, fit_problem
 from ccs_kornia.modules.hand_eye.problem import HandEyeProblem, HandEyeState
 from ccs_kornia.modules.rig.rig_camera import camera_from_params, normalized_points
 
@@ -59,7 +60,8 @@ def _pose(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
 
 
 def leave_one_pose_out(problem: HandEyeProblem, solution: HandEyeState, model_name: str, used: torch.Tensor,
-                       min_views: int = 3, max_iters: int = 100) -> HeldOut:
+                       min_views: int = 3, max_iters: int = 100,
+                       refit: Callable[[HandEyeProblem, HandEyeState], FitResult] | None = None) -> HeldOut:
     """Hold out each used view of each problem in turn (module doc).
 
     Args:
@@ -69,6 +71,9 @@ def leave_one_pose_out(problem: HandEyeProblem, solution: HandEyeState, model_na
         used: :math:`(B, V)` the views the fit used; a view is held out where at least ``min_views`` others remain.
         min_views: views a held-out fit needs.
         max_iters: iterations of each held-out fit.
+        refit: how a held-out problem is fitted (default :func:`~ccs_kornia.modules.hand_eye.fit.fit_problem`): the
+            same procedure as the full fit (e.g. with its noise estimate), so that nothing of the held-out view
+            enters its prediction.
 
     Returns:
         :class:`HeldOut`.
@@ -96,7 +101,8 @@ def leave_one_pose_out(problem: HandEyeProblem, solution: HandEyeState, model_na
         RE, tE = start.RE.clone(), start.tE.clone()
         RE[torch.arange(K, device=device), v] = eye
         tE[torch.arange(K, device=device), v] = 0.0
-        fit = fit_problem(sub, start._replace(RE=RE, tE=tE), max_iters=max_iters)
+        start = start._replace(RE=RE, tE=tE)
+        fit = fit_problem(sub, start, max_iters=max_iters) if refit is None else refit(sub, start)
         s = fit.state
         # the held-out view predicted from its reported robot pose: no correction
         RE0 = s.RE.clone()

@@ -90,7 +90,7 @@ class HandEyeProblem:
         weights: :math:`(B, V, N)` inverse variances of the corners (0: unused).
         basis: :math:`(B, P, F)` the free intrinsics' basis (``None`` or ``F = 0``: intrinsics held).
         robot_noise: ``(sigma_rot, sigma_trans)`` of the robot's poses (radians, the poses' unit) for the noise
-            term, or ``None`` (poses taken as exact).
+            term, one pair for all problems or :math:`(B, 2)`, or ``None`` (poses taken as exact).
 
     Example:
         >>> from ccs_kornia.geometry.models import camera_model
@@ -117,7 +117,7 @@ class HandEyeProblem:
         corners: torch.Tensor,
         weights: torch.Tensor,
         basis: torch.Tensor | None = None,
-        robot_noise: tuple[float, float] | None = None,
+        robot_noise: tuple[float, float] | torch.Tensor | None = None,
     ) -> None:
         self.setup = HandEyeSetup.parse(setup)
         self.model = model
@@ -135,7 +135,8 @@ class HandEyeProblem:
         self.w = w
         self.obs = torch.where(w[..., None] > 0, corners.to(dtype), 0.0)
         self.basis = basis if basis is not None and basis.shape[-1] > 0 else None
-        self.noise = None if robot_noise is None else (float(robot_noise[0]), float(robot_noise[1]))
+        self.noise = None if robot_noise is None else \
+            torch.as_tensor(robot_noise, dtype=dtype, device=corners.device).reshape(-1, 2).expand(B, 2)
         self.shape = (B, V, N)
 
     def subset(self, index: torch.Tensor, weights: torch.Tensor | None = None) -> "HandEyeProblem":
@@ -143,7 +144,14 @@ class HandEyeProblem:
         :math:`(K, V, N)` if given (e.g. a view's zeroed to hold it out)."""
         w = self.w[index] if weights is None else weights
         return HandEyeProblem(self.setup, self.model, self.robot_poses[index], self.obj[index], self.obs[index], w,
-                              None if self.basis is None else self.basis[index], self.noise)
+                              None if self.basis is None else self.basis[index],
+                              None if self.noise is None else self.noise[index])
+
+    def reweighted(self, pixel_variance: torch.Tensor, robot_noise: torch.Tensor | None) -> "HandEyeProblem":
+        """The same problems with every corner's variance times ``pixel_variance`` :math:`(B,)` and the noise term's
+        sigmas ``robot_noise`` :math:`(B, 2)` (``None``: none)."""
+        return HandEyeProblem(self.setup, self.model, self.robot_poses, self.obj, self.obs,
+                              self.w / pixel_variance[:, None, None], self.basis, robot_noise)
 
     # -- sizes ---------------------------------------------------------------------------------------------------
     @property
@@ -201,8 +209,14 @@ class HandEyeProblem:
         return uv.reshape(B, V, N, 2) - self.obs
 
     def _prior(self, s: HandEyeState) -> torch.Tensor:
-        sr, st = self.noise
-        return torch.cat([log_so3(s.RE) / sr, s.tE / st], -1)  # (B, V, 6)
+        inv = self.prior_scale
+        return torch.cat([log_so3(s.RE), s.tE], -1) * inv[:, None]  # (B, V, 6)
+
+    @property
+    def prior_scale(self) -> torch.Tensor:
+        """:math:`(B, 6)` the noise term's ``1 / sigma`` per correction coordinate (rotation, translation)."""
+        sr, st = self.noise[:, 0:1], self.noise[:, 1:2]
+        return torch.cat([(1 / sr).expand(-1, 3), (1 / st).expand(-1, 3)], -1)
 
     def cost(self, s: HandEyeState) -> torch.Tensor:
         """:math:`(B,)` weighted sum of squared residuals (non-finite: infinity)."""
@@ -252,8 +266,7 @@ class HandEyeProblem:
             W = torch.einsum("bvnkg,bvnkh->bvgh", Jw, JE)
             Vb = torch.einsum("bvnkg,bvnkh->bvgh", JE * w, JE)
             gv = torch.einsum("bvnkg,bvnk->bvg", JE * w, r)
-            sr, st = self.noise
-            inv = torch.tensor([1 / sr] * 3 + [1 / st] * 3, dtype=U.dtype, device=U.device)
+            inv = self.prior_scale[:, None]  # (B, 1, 6)
             prior = self._prior(s)
             Vb = Vb + torch.diag_embed(inv * inv).expand_as(Vb)
             gv = gv + prior * inv

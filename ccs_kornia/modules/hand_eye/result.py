@@ -114,6 +114,8 @@ class HandEyeResult:
     verdict_reasons: list[list[str]] = field(default_factory=list)
     iterations: torch.Tensor | None = None  #: (B,)
     converged: torch.Tensor | None = None  #: (B,)
+    robot_noise: torch.Tensor | None = None  #: (B, 2) the robot poses' sigma of the fit: radians, the poses' unit
+    pixel_sigma: torch.Tensor | None = None  #: (B,) the corners' sigma estimated with it (px, for unit weights)
 
     @property
     def X_rotation_std_deg(self) -> torch.Tensor:

@@ -36,6 +36,7 @@ from ccs_kornia.modules.hand_eye.closed_forms import closed_form_candidates
 from ccs_kornia.modules.hand_eye.degeneracy import MIN_POSES, hand_eye_issues
 from ccs_kornia.modules.hand_eye.fit import fit_problem
 from ccs_kornia.modules.hand_eye.heldout import jackknife_covariance, leave_one_pose_out
+from ccs_kornia.modules.hand_eye.noise import fit_with_noise_estimate
 from ccs_kornia.modules.hand_eye.problem import GLOBAL_POSE_PARAMS, HandEyeProblem, HandEyeState
 from ccs_kornia.modules.hand_eye.result import HandEyeResult, hand_eye_verdict
 from ccs_kornia.modules.hand_eye.setup import HandEyeSetup, invert_transforms
@@ -46,6 +47,8 @@ __all__ = ["DISAGREE_PX", "JACKKNIFE_MIN_POSES", "HandEyeSolver", "calibrate_han
 
 #: a fit whose RMS exceeds this (px per 1000 px of image diagonal) is refused: robot and camera disagree
 DISAGREE_PX = 10.0
+#: where the robot-pose noise is estimated, its start: (radians, metres)
+START_NOISE = (1e-3, 1e-3)
 #: the 1-sigma comes from the leave-one-pose-out refits' spread (jackknife) where at least this many poses were held
 #: out, else from the fit's covariance (which sees the corners' noise only, not a robot pose's error)
 JACKKNIFE_MIN_POSES = 5
@@ -93,10 +96,32 @@ def _start(problem: HandEyeProblem, A, M, usable, params) -> tuple[HandEyeState,
     return state, rms, best, names
 
 
-def _solve(problem, A, M, usable, params, max_iters):
+def _fitter(robot_noise, metres_per_unit: float, max_iters: int):
+    """How a problem is fitted: plainly, with given robot-pose sigmas, or with them estimated (``"auto"``); returns
+    ``fit(problem, state) -> (FitResult, the problem as fitted, NoiseEstimate or None)``."""
+    if isinstance(robot_noise, str):
+        if robot_noise != "auto":
+            raise ValueError(f"robot_noise must be None, (rotation, translation) or 'auto', got {robot_noise!r}.")
+
+        def fit(problem, state):
+            B = problem.shape[0]
+            start = torch.tensor([START_NOISE[0], START_NOISE[1] / metres_per_unit], dtype=problem.w.dtype,
+                                 device=problem.w.device).expand(B, 2)
+            est = fit_with_noise_estimate(problem.reweighted(torch.ones(B, dtype=problem.w.dtype,
+                                                                        device=problem.w.device), start),
+                                          state, start, max_iters=max_iters)
+            return est.fit, est.problem, est
+        return fit
+
+    def plain(problem, state):
+        return fit_problem(problem, state, max_iters=max_iters), problem, None
+    return plain
+
+
+def _solve(problem, A, M, usable, params, fitter):
     state, start_rms, best, names = _start(problem, A, M, usable, params)
-    fit = fit_problem(problem, state, max_iters=max_iters)
-    return fit, start_rms, best, names
+    fit, fitted, est = fitter(problem, state)
+    return fit, fitted, est, start_rms, best, names
 
 
 def calibrate_hand_eye(
@@ -108,7 +133,7 @@ def calibrate_hand_eye(
     setup: HandEyeSetup | str = HandEyeSetup.EYE_IN_HAND,
     weights: torch.Tensor | None = None,
     free_intrinsics: bool | Sequence[str] = False,
-    robot_noise: tuple[float, float] | None = None,
+    robot_noise: tuple[float, float] | str | None = "auto",
     heldout: bool = True,
     image_size: tuple[int, int] = (640, 480),
     metres_per_unit: float = 1.0,
@@ -129,8 +154,9 @@ def calibrate_hand_eye(
         setup: eye-in-hand or eye-to-hand (:class:`~ccs_kornia.modules.hand_eye.setup.HandEyeSetup`).
         weights: :math:`(B, V, N)` inverse variances of the corners (default 1).
         free_intrinsics: fit the camera's parameters too: ``True`` (all of its model's), or their names.
-        robot_noise: ``(rotation in radians, translation in the poses' unit)``: the robot poses' 1-sigma, fitted as
-            a correction per pose (``None``: the poses are exact).
+        robot_noise: the robot poses' 1-sigma, fitted as a correction per pose: ``"auto"`` (default: estimated with
+            the corners' from the data, :mod:`~ccs_kornia.modules.hand_eye.noise`), ``(rotation in radians,
+            translation in the poses' unit)``, or ``None`` (the poses taken as exact).
         heldout: compute the leave-one-pose-out figures.
         image_size: ``(W, H)``, for the verdict's and the refusal's pixel scales.
         metres_per_unit: the poses' unit in metres (for the verdict's translation limits).
@@ -183,11 +209,12 @@ def calibrate_hand_eye(
     if free_intrinsics:
         free = None if free_intrinsics is True else list(free_intrinsics)
         basis = parameter_basis(model, params, free)
-    problem = HandEyeProblem(setup, model, safe_poses, obj, corners, wts, basis, robot_noise)
+    fitter = _fitter(robot_noise, metres_per_unit, max_iters)
+    fixed_noise = None if isinstance(robot_noise, str) else robot_noise
+    problem = HandEyeProblem(setup, model, safe_poses, obj, corners, wts, basis, fixed_noise)
     # 3.-4. the closed forms, the best one, the fit
-    fit, start_rms, best, start_names = _solve(problem, A, torch.where(usable[..., None, None], M,
-                                                                      torch.eye(4, dtype=dtype, device=device)),
-                                               usable, params, max_iters)
+    M_safe = torch.where(usable[..., None, None], M, torch.eye(4, dtype=dtype, device=device))
+    fit, problem, est, start_rms, best, start_names = _solve(problem, A, M_safe, usable, params, fitter)
     s = fit.state
     rms, view_rms, residuals = _view_rms(problem, s)
     scale = math.hypot(*image_size) / 1000.0
@@ -198,10 +225,8 @@ def calibrate_hand_eye(
         idx = torch.tensor([b for b in range(B) if far[b]], device=device)
         inv = invert_transforms(safe_poses[idx])
         alt = HandEyeProblem(setup, model, inv, obj, corners[idx], wts[idx], None if basis is None else basis[idx],
-                             robot_noise)
-        alt_fit = _solve(alt, setup.chain(inv), torch.where(usable[idx][..., None, None], M[idx],
-                                                            torch.eye(4, dtype=dtype, device=device)),
-                         usable[idx], params[idx], max_iters)[0]
+                             fixed_noise)
+        alt_fit = _solve(alt, setup.chain(inv), M_safe[idx], usable[idx], params[idx], fitter)[0]
         alt_rms = _view_rms(alt, alt_fit.state)[0]
         for k, b in enumerate(idx.tolist()):
             worst = torch.nan_to_num(view_rms[b], nan=-1.0).argsort(descending=True)[:3].tolist()
@@ -227,7 +252,8 @@ def calibrate_hand_eye(
         intr_std = pc.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
     nan = float("nan")
     if heldout:
-        held = leave_one_pose_out(problem, s, model_name, usable, min_views=MIN_POSES, max_iters=max_iters)
+        held = leave_one_pose_out(problem, s, model_name, usable, min_views=MIN_POSES, max_iters=max_iters,
+                                  refit=lambda p, st: fitter(p, st)[0])
         h_px, h_d, h_pred = held.rms_px, held.rms_distance, held.predicted
         jx, n_out = jackknife_covariance(X, held.X)
         jz, _ = jackknife_covariance(Z, held.Z)
@@ -258,6 +284,8 @@ def calibrate_hand_eye(
         used=usable, board_poses=M, start=[start_names[int(k)] for k in best], start_rms=start_rms,
         start_names=start_names, heldout_rms_px=h_px, heldout_rms_distance=h_d, heldout_predicted=h_pred,
         verdict=[], verdict_reasons=[], iterations=fit.iterations, converged=fit.converged,
+        robot_noise=None if problem.noise is None else problem.noise,
+        pixel_sigma=None if est is None else est.pixel_sigma,
     )
     held_all = result.heldout_rms
     for b in range(B):
@@ -297,7 +325,7 @@ class HandEyeSolver(nn.Module):
     """
 
     def __init__(self, setup: HandEyeSetup | str = HandEyeSetup.EYE_IN_HAND, free_intrinsics: bool | Sequence[str] = False,
-                 robot_noise: tuple[float, float] | None = None, heldout: bool = True, min_corners: int = 4,
+                 robot_noise: tuple[float, float] | str | None = "auto", heldout: bool = True, min_corners: int = 4,
                  max_iters: int = 100) -> None:
         super().__init__()
         self.setup = HandEyeSetup.parse(setup)
