@@ -94,6 +94,10 @@ def run_bench(
                 from ccs_kornia.bench.markers import run_markers
 
                 sec = run_markers(cfg, log=log)
+            elif name == "hand_eye":
+                from ccs_kornia.bench.hand_eye import run_hand_eye
+
+                sec = run_hand_eye(cfg, log=log)
             else:
                 from ccs_kornia.bench.speed import run_speed
 

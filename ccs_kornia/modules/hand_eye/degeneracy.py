@@ -14,7 +14,8 @@ Checked on the robot's chain ``A_v`` and the board's pose ``M_v`` seen in each v
   of them when most disagree;
 * **robot and camera scales disagree**: with ``X``'s rotation known, ``(R_A - I) t_X = s R_X t_B - t_A`` over the
   pairs gives the ratio ``s`` of the robot's translations to the camera's; outside :data:`SCALE_RANGE` the poses'
-  unit (m or mm) or the board's square size is wrong, and the message says which ratio was found.
+  unit (m or mm), the board's square size, or the poses' convention is wrong (inverted poses, or the other set-up,
+  give a ratio in range once inverted), and the message says which.
 
 Each problem gets a list of issues ``{"severity": "error" | "warning", "check": str, "message": str,
 "poses": [view indices]}``; an error refuses the problem.
@@ -28,6 +29,7 @@ import torch
 
 from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.modules.hand_eye.closed_forms import motion_pairs, park_martin, project_rotation
+from ccs_kornia.modules.hand_eye.setup import invert_transforms
 
 __all__ = ["AGREE_DEG", "MIN_POSES", "ONE_AXIS_DEG", "SCALE_RANGE", "TINY_ROTATION_DEG", "WEAK_AXIS_DEG",
            "hand_eye_issues", "rotation_spread", "translation_scale"]
@@ -121,7 +123,7 @@ def hand_eye_issues(A: torch.Tensor, M: torch.Tensor, valid: torch.Tensor,
     spread, axes = rotation_spread(A[..., :3, :3], valid)
     motion_a, motion_b, ok, pi, pj = motion_pairs(A, M, valid)
     mismatch = (_angles(motion_a) - _angles(motion_b)).abs() * deg  # (B, Q)
-    scale = None
+    scale = inverted = None
     for b in range(B):
         issues: list[dict] = []
         labels = names[b] if names else None
@@ -181,10 +183,20 @@ def hand_eye_issues(A: torch.Tensor, M: torch.Tensor, valid: torch.Tensor,
             scale = translation_scale(A, M, valid)
         s = float(scale[b])
         if math.isfinite(s) and not (SCALE_RANGE[0] <= s <= SCALE_RANGE[1]):
-            hint = ("the robot's translations look like millimetres read as metres: --pose-units mm"
-                    if s > 100 else "the robot's translations look like metres read as millimetres: --pose-units m"
-                    if s < 0.01 else "check --square (the board's unit must be the robot's: metres) and "
-                                     "--pose-units")
+            if inverted is None:
+                inverted = translation_scale(invert_transforms(A), M, valid)
+            s_inv = float(inverted[b])
+            if SCALE_RANGE[0] <= s_inv <= SCALE_RANGE[1]:
+                hint = (f"with the poses inverted they agree ({s_inv:.3g}): the poses look like the base in the flange "
+                        "frame (give the flange in the base frame, x_base = T x_flange), or the set-up is the other "
+                        "one (--eye-in-hand / --eye-to-hand)")
+            elif s > 100:
+                hint = "the robot's translations look like millimetres read as metres: --pose-units mm"
+            elif s < 0.01:
+                hint = ("the robot's translations look like metres read as millimetres (--pose-units m), or the "
+                        "board's size is in millimetres (--square and --tag-size are in metres)")
+            else:
+                hint = "check --square (the board's unit must be the robot's: metres) and --pose-units"
             issues.append({"severity": "error", "check": "scale", "poses": used,
                            "message": f"the robot's translations are {s:.4g} times the camera's: {hint}"})
     return out

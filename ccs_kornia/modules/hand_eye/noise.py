@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import torch
 
 from ccs_kornia.geometry.so3 import log_so3
-from ccs_kornia.geometry.spd_inverse import pseudo_inverse
+from ccs_kornia.geometry.spd_inverse import pseudo_inverse, spd_inverse
 from ccs_kornia.modules.hand_eye.fit import FitResult, fit_problem
 from ccs_kornia.modules.hand_eye.problem import HandEyeProblem, HandEyeState
 
@@ -50,15 +50,17 @@ def variance_factors(problem: HandEyeProblem, state: HandEyeState) -> torch.Tens
     eq = problem.normal_equations(state)
     B, V, _ = problem.shape
     G = eq.U.shape[-1]
-    Wc = eq.W.permute(0, 2, 1, 3).reshape(B, G, 6 * V)
-    N = torch.zeros(B, G + 6 * V, G + 6 * V, dtype=eq.U.dtype, device=eq.U.device)
-    N[:, :G, :G] = eq.U
-    N[:, :G, G:] = Wc
-    N[:, G:, :G] = Wc.transpose(-1, -2)
-    for v in range(V):
-        N[:, G + 6 * v:G + 6 * v + 6, G + 6 * v:G + 6 * v + 6] = eq.Vb[:, v]
-    Ninv = pseudo_inverse(N)
-    d = Ninv.diagonal(dim1=-2, dim2=-1)[:, G:].reshape(B, V, 6)
+    # the item blocks of N^-1 from the arrow structure: V_v^-1 + V_v^-1 W_v^T S^-1 W_v V_v^-1, S = U - sum W V^-1 W^T
+    Vinv = spd_inverse(eq.Vb)
+    Vinv = torch.where(Vinv.isfinite(), Vinv, torch.zeros_like(Vinv))
+    Y = eq.W @ Vinv  # (B, V, G, 6)
+    S = eq.U - (Y @ eq.W.transpose(-1, -2)).sum(1)
+    Sinv = spd_inverse(S)
+    bad = ~Sinv.flatten(1).isfinite().all(-1)
+    if bool(bad.any()):
+        Sinv[bad] = pseudo_inverse(S[bad])
+    blocks = Vinv + Y.transpose(-1, -2) @ Sinv[:, None] @ Y  # (B, V, 6, 6)
+    d = blocks.diagonal(dim1=-2, dim2=-1)
     inv2 = problem.prior_scale ** 2  # (B, 6)
     tr = (d * inv2[:, None]).sum(1)  # (B, 6)
     tr_r, tr_t = tr[:, :3].sum(-1), tr[:, 3:].sum(-1)
@@ -66,7 +68,7 @@ def variance_factors(problem: HandEyeProblem, state: HandEyeState) -> torch.Tens
     omega_px = (problem.w[..., None] * r * r).sum((1, 2, 3))
     prior = torch.cat([log_so3(state.RE), state.tE], -1) * problem.prior_scale[:, None]
     omega_r, omega_t = (prior[..., :3] ** 2).sum((1, 2)), (prior[..., 3:] ** 2).sum((1, 2))
-    n_px = 2 * (problem.w > 0).sum((1, 2)).to(N.dtype)
+    n_px = 2 * (problem.w > 0).sum((1, 2)).to(S.dtype)
     red_px = n_px - (G + 6 * V - tr_r - tr_t)
     red_r, red_t = 3 * V - tr_r, 3 * V - tr_t
     floor = 1e-3 * 3 * V
@@ -75,7 +77,8 @@ def variance_factors(problem: HandEyeProblem, state: HandEyeState) -> torch.Tens
 
 
 def fit_with_noise_estimate(problem: HandEyeProblem, state: HandEyeState, start_noise: torch.Tensor,
-                            rounds: int = 12, tol: float = 0.02, max_iters: int = 100) -> NoiseEstimate:
+                            rounds: int = 12, tol: float = 0.05, max_iters: int = 100,
+                            round_iters: int = 10) -> NoiseEstimate:
     """Fit with the noise term, re-estimating the corners' and the poses' variances between fits (module doc).
 
     Args:
@@ -84,7 +87,8 @@ def fit_with_noise_estimate(problem: HandEyeProblem, state: HandEyeState, start_
         start_noise: :math:`(B, 2)` the poses' sigmas to start from (radians, the poses' unit).
         rounds: fits at most.
         tol: stop when every variance changed by less than this (relative).
-        max_iters: iterations per fit.
+        max_iters: iterations of the first and the last fit.
+        round_iters: iterations of the fits between (each starts where the last one ended).
 
     Returns:
         :class:`NoiseEstimate`.
@@ -108,7 +112,8 @@ def fit_with_noise_estimate(problem: HandEyeProblem, state: HandEyeState, start_
                                                      (new <= floor) & (f[:, 1:] < 1)], -1)
         noise = new
         current = base.reweighted(pix, noise)
-        fit = fit_problem(current, fit.state, max_iters=max_iters)
-        if bool(settled.all()):
+        last = bool(settled.all()) or k == rounds - 1
+        fit = fit_problem(current, fit.state, max_iters=max_iters if last else round_iters)
+        if last:
             break
     return NoiseEstimate(fit, current, pix.sqrt(), noise, k + 1)

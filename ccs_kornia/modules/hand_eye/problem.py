@@ -78,6 +78,18 @@ def _skew(v: torch.Tensor) -> torch.Tensor:
                        -1).view(*v.shape[:-1], 3, 3)
 
 
+def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Cross products of broadcast (..., 3) vectors (elementwise: no small batched matrix products)."""
+    a1, a2, a3 = a.unbind(-1)
+    b1, b2, b3 = b.unbind(-1)
+    return torch.stack([a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1], -1)
+
+
+def _times(rows: torch.Tensor, M: torch.Tensor) -> torch.Tensor:
+    """Row vectors (..., K, 3) times broadcast 3x3 matrices (..., 3, 3), elementwise."""
+    return sum(rows[..., k:k + 1] * M[..., k:k + 1, :] for k in range(3))
+
+
 class HandEyeProblem:
     r"""The joint reprojection fit of ``B`` hand-eye problems (see the module doc).
 
@@ -236,36 +248,35 @@ class HandEyeProblem:
         r = uv.reshape(B, V, N, 2) - self.obs
         on = self.w > 0
         r = torch.where(on[..., None], r, 0.0)
-        # d uv / d s (robot frame) = (d uv / d x_c) R_X^T: (B, V, N, 2, 3)
+        # d uv / d s (robot frame) = (d uv / d x_c) R_X^T: (B, V, N, 2, 3); a row d times [v]_x is d x v
         Jx = torch.stack([d.expand(B, V * N, 2) for d in dX], -1).reshape(B, V, N, 2, 3)
-        D = Jx @ s.RX.transpose(-1, -2)[:, None, None]
-        cols = [D @ _skew(u), -D]
-        DR = D @ R_chain[:, :, None]  # d uv / d q
-        qz = (q - s.tZ[:, None])[:, None]  # R_Z p
-        cols += [-(DR @ _skew(qz)), DR]
+        D = _times(Jx, s.RX.transpose(-1, -2)[:, None, None])
+        cols = [_cross(D, u[..., None, :]), -D]
+        DR = _times(D, R_chain[:, :, None])  # d uv / d q
+        qz = (q - s.tZ[:, None])[:, None, :, None]  # R_Z p
+        cols += [-_cross(DR, qz), DR]
         if self.basis is not None:
             Jp = torch.stack([d.expand(B, V * N, 2) for d in dp], -1).reshape(B, V, N, 2, -1)
             cols.append(Jp @ self.basis[:, None, None])
-        J = torch.cat(cols, -1)  # (B, V, N, 2, G)
-        w = self.w[..., None, None]
-        Jw = J * w
-        U = torch.einsum("bvnkg,bvnkh->bgh", Jw, J)
-        g = torch.einsum("bvnkg,bvnk->bg", Jw, r)
-        cost = (self.w[..., None] * r * r).sum((1, 2, 3))
-        G = J.shape[-1]
+        G = sum(c.shape[-1] for c in cols)
+        if self.noise is not None:
+            if self.setup is HandEyeSetup.EYE_IN_HAND:
+                cols += [-_cross(D, aux[..., None, :]), D]
+            else:
+                DA = _times(D, self.A[..., :3, :3][:, :, None])
+                cols += [-_cross(DA, aux[..., None, :]), DA]
+        # one product per view gives every block: [J_g, J_v, r]^T W [J_g, J_v, r] (as the single-camera core does)
+        A = torch.cat([*cols, r[..., None]], -1) * self.w.sqrt()[..., None, None]  # (B, V, N, 2, K)
+        A = A.reshape(B, V, 2 * N, A.shape[-1])
+        Gm = A.transpose(-1, -2) @ A  # (B, V, K, K)
+        U, g = Gm[..., :G, :G].sum(1), Gm[..., :G, -1].sum(1)
+        cost = Gm[..., -1, -1].sum(1)
         if self.noise is None:
             W = U.new_zeros(B, 0, G, 6)
             Vb = U.new_zeros(B, 0, 6, 6)
             gv = U.new_zeros(B, 0, 6)
         else:
-            if self.setup is HandEyeSetup.EYE_IN_HAND:
-                JE = torch.cat([-(D @ _skew(aux)), D], -1)
-            else:
-                DA = D @ self.A[..., :3, :3][:, :, None]
-                JE = torch.cat([-(DA @ _skew(aux)), DA], -1)
-            W = torch.einsum("bvnkg,bvnkh->bvgh", Jw, JE)
-            Vb = torch.einsum("bvnkg,bvnkh->bvgh", JE * w, JE)
-            gv = torch.einsum("bvnkg,bvnk->bvg", JE * w, r)
+            W, Vb, gv = Gm[..., :G, G:G + 6], Gm[..., G:G + 6, G:G + 6], Gm[..., G:G + 6, -1]
             inv = self.prior_scale[:, None]  # (B, 1, 6)
             prior = self._prior(s)
             Vb = Vb + torch.diag_embed(inv * inv).expand_as(Vb)

@@ -116,6 +116,7 @@ class HandEyeResult:
     converged: torch.Tensor | None = None  #: (B,)
     robot_noise: torch.Tensor | None = None  #: (B, 2) the robot poses' sigma of the fit: radians, the poses' unit
     pixel_sigma: torch.Tensor | None = None  #: (B,) the corners' sigma estimated with it (px, for unit weights)
+    corrections: tuple[torch.Tensor, torch.Tensor] | None = None  #: the noise term's pose corrections (R (B, V, 3, 3), t)
 
     @property
     def X_rotation_std_deg(self) -> torch.Tensor:

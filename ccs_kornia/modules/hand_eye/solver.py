@@ -49,6 +49,8 @@ __all__ = ["DISAGREE_PX", "JACKKNIFE_MIN_POSES", "HandEyeSolver", "calibrate_han
 DISAGREE_PX = 10.0
 #: where the robot-pose noise is estimated, its start: (radians, metres)
 START_NOISE = (1e-3, 1e-3)
+#: a held-out refit re-estimates the noise in at most this many rounds, from the full fit's estimate
+HELDOUT_NOISE_ROUNDS = 4
 #: the 1-sigma comes from the leave-one-pose-out refits' spread (jackknife) where at least this many poses were held
 #: out, else from the fit's covariance (which sees the corners' noise only, not a robot pose's error)
 JACKKNIFE_MIN_POSES = 5
@@ -103,17 +105,19 @@ def _fitter(robot_noise, metres_per_unit: float, max_iters: int):
         if robot_noise != "auto":
             raise ValueError(f"robot_noise must be None, (rotation, translation) or 'auto', got {robot_noise!r}.")
 
-        def fit(problem, state):
+        def fit(problem, state, rounds: int = 12):
             B = problem.shape[0]
-            start = torch.tensor([START_NOISE[0], START_NOISE[1] / metres_per_unit], dtype=problem.w.dtype,
-                                 device=problem.w.device).expand(B, 2)
+            # from the problem's own sigmas where it has some (a held-out refit starts from the full fit's)
+            start = problem.noise if problem.noise is not None else torch.tensor(
+                [START_NOISE[0], START_NOISE[1] / metres_per_unit], dtype=problem.w.dtype,
+                device=problem.w.device).expand(B, 2)
             est = fit_with_noise_estimate(problem.reweighted(torch.ones(B, dtype=problem.w.dtype,
                                                                         device=problem.w.device), start),
-                                          state, start, max_iters=max_iters)
+                                          state, start, rounds=rounds, max_iters=max_iters)
             return est.fit, est.problem, est
         return fit
 
-    def plain(problem, state):
+    def plain(problem, state, rounds: int = 0):
         return fit_problem(problem, state, max_iters=max_iters), problem, None
     return plain
 
@@ -253,7 +257,7 @@ def calibrate_hand_eye(
     nan = float("nan")
     if heldout:
         held = leave_one_pose_out(problem, s, model_name, usable, min_views=MIN_POSES, max_iters=max_iters,
-                                  refit=lambda p, st: fitter(p, st)[0])
+                                  refit=lambda p, st: fitter(p, st, HELDOUT_NOISE_ROUNDS)[0])
         h_px, h_d, h_pred = held.rms_px, held.rms_distance, held.predicted
         jx, n_out = jackknife_covariance(X, held.X)
         jz, _ = jackknife_covariance(Z, held.Z)
@@ -286,6 +290,7 @@ def calibrate_hand_eye(
         verdict=[], verdict_reasons=[], iterations=fit.iterations, converged=fit.converged,
         robot_noise=None if problem.noise is None else problem.noise,
         pixel_sigma=None if est is None else est.pixel_sigma,
+        corrections=None if problem.noise is None else (s.RE, s.tE),
     )
     held_all = result.heldout_rms
     for b in range(B):
