@@ -283,7 +283,7 @@ def run(args: argparse.Namespace) -> int:
         torch.nan_to_num(corners, nan=0.0)[None], valid[None], obj, torch.where(ok[:, None, None], robot,
                                                                                  torch.full_like(robot, float("nan")))[None],
         camera, setup, free_intrinsics=bool(args.refine_intrinsics), robot_noise=noise, image_size=size,
-        names=[names])
+        names=[names], align_orders=tag is None and board_info.get("kind") in ("learned", "opencv"))
     if not bool(result.success[0]):
         raise UserError(f"hand-eye calibration refused: {result.reasons[0]}")
     from ccs_kornia.outputs.hand_eye_records import hand_eye_record

@@ -58,7 +58,8 @@ def hand_eye_record(result: HandEyeResult, paths: list[str], b: int = 0, *, came
         b: the problem.
         camera: the camera's record (``calibrate``'s JSON, or what ``--calibration`` gave).
         robot_poses: :math:`(V, 4, 4)` the poses as read (metres; NaN where an image had none).
-        corners: :math:`(V, N, 2)` the observed corners (NaN where not seen).
+        corners: :math:`(V, N, 2)` the observed corners (NaN where not seen; the result's, in the board's numbering,
+            where it has them).
         skipped: images left out before the solve and why (no pose, no board, unreadable).
         board: the target's description.
     """
@@ -71,7 +72,10 @@ def hand_eye_record(result: HandEyeResult, paths: list[str], b: int = 0, *, came
         view: dict[str, Any] = {"path": path, "used": bool(used[v]),
                                 "robot_pose": T.tolist() if bool(T.isfinite().all()) else None}
         if bool(used[v]):
-            view["corners"] = [[_num(x), _num(y)] for x, y in corners[v].tolist()]
+            seen = corners[v] if result.corners is None else result.corners[b, v]
+            view["corners"] = [[_num(x), _num(y)] for x, y in seen.tolist()]
+            if result.board_order is not None and int(result.board_order[b, v]):
+                view["corner_order"] = int(result.board_order[b, v])
             view["rms_px"] = _num(result.view_rms[b, v])
             view["residuals_px"] = result.residuals[b, v].tolist()
             view["heldout_px"] = _num(result.heldout_rms_px[b, v])

@@ -117,6 +117,10 @@ class HandEyeResult:
     robot_noise: torch.Tensor | None = None  #: (B, 2) the robot poses' sigma of the fit: radians, the poses' unit
     pixel_sigma: torch.Tensor | None = None  #: (B,) the corners' sigma estimated with it (px, for unit weights)
     corrections: tuple[torch.Tensor, torch.Tensor] | None = None  #: the noise term's pose corrections (R (B, V, 3, 3), t)
+    #: (B, V) int64: 0 where a view's corners were used as numbered, k > 0 where renumbered by the board's k-th symmetry
+    #: (1: the 180-degree turn) to agree with the other views (``residuals`` are in the board's numbering)
+    board_order: torch.Tensor | None = None
+    corners: torch.Tensor | None = None  #: (B, V, N, 2) the corners fitted, in the board's numbering (NaN: not seen)
 
     @property
     def X_rotation_std_deg(self) -> torch.Tensor:

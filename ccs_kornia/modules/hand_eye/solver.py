@@ -32,6 +32,7 @@ from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules._checks import check_shape
 from ccs_kornia.modules.calibration.lm import parameter_basis
+from ccs_kornia.modules.hand_eye.board_order import align_board_orders, renumber_corners
 from ccs_kornia.modules.hand_eye.closed_forms import closed_form_candidates
 from ccs_kornia.modules.hand_eye.degeneracy import MIN_POSES, hand_eye_issues
 from ccs_kornia.modules.hand_eye.fit import fit_problem
@@ -40,6 +41,7 @@ from ccs_kornia.modules.hand_eye.noise import fit_with_noise_estimate
 from ccs_kornia.modules.hand_eye.problem import GLOBAL_POSE_PARAMS, HandEyeProblem, HandEyeState
 from ccs_kornia.modules.hand_eye.result import HandEyeResult, hand_eye_verdict
 from ccs_kornia.modules.hand_eye.setup import HandEyeSetup, invert_transforms
+from ccs_kornia.modules.rig.board_symmetry import board_symmetries, undo_symmetry
 from ccs_kornia.modules.rig.rig_camera import RigCamera, camera_params
 from ccs_kornia.modules.rig.rig_init import camera_poses
 
@@ -144,6 +146,7 @@ def calibrate_hand_eye(
     names: list[list[str]] | None = None,
     min_corners: int = 4,
     max_iters: int = 100,
+    align_orders: bool = False,
 ) -> HandEyeResult:
     r"""Hand-eye calibration of ``B`` problems (module doc).
 
@@ -167,6 +170,9 @@ def calibrate_hand_eye(
         names: per problem, per view labels for the messages.
         min_corners: a view with fewer corners is not used.
         max_iters: iterations of the fit.
+        align_orders: the detector may number a symmetric board's corners differently from view to view (a plain
+            chessboard's 180-degree turn): give every view one numbering, agreed through the robot
+            (:mod:`~ccs_kornia.modules.hand_eye.board_order`); ``False`` where the corners carry ids (markers, tags).
 
     Returns:
         :class:`~ccs_kornia.modules.hand_eye.result.HandEyeResult`.
@@ -205,6 +211,17 @@ def calibrate_hand_eye(
     M = torch.where(usable[..., None, None], M, torch.full_like(M, float("nan")))
     safe_poses = torch.where(pose_ok[..., None, None], poses, torch.eye(4, dtype=dtype, device=device))
     A = setup.chain(safe_poses)
+    order = torch.zeros(B, V, dtype=torch.long, device=device)
+    if align_orders:
+        syms = board_symmetries(obj)
+        order = align_board_orders(A, torch.where(usable[..., None, None], M, torch.eye(4, dtype=dtype, device=device)),
+                                   usable, syms)
+        if bool(order.any()):
+            corners, w = renumber_corners(corners, w, order, syms)
+            for k in range(1, len(syms)):
+                sel = order == k
+                R, t = undo_symmetry(M[..., :3, :3], M[..., :3, 3], syms[k])
+                M = torch.where(sel[..., None, None], _pose(R, t), M)
     # 2. the checks
     issues = hand_eye_issues(A, torch.where(usable[..., None, None], M, torch.eye(4, dtype=dtype, device=device)),
                              usable, names)
@@ -291,6 +308,7 @@ def calibrate_hand_eye(
         robot_noise=None if problem.noise is None else problem.noise,
         pixel_sigma=None if est is None else est.pixel_sigma,
         corrections=None if problem.noise is None else (s.RE, s.tE),
+        board_order=order, corners=torch.where(w[..., None], corners, float("nan")),
     )
     held_all = result.heldout_rms
     for b in range(B):
@@ -314,7 +332,7 @@ class HandEyeSolver(nn.Module):
 
     Args:
         setup: eye-in-hand or eye-to-hand.
-        free_intrinsics, robot_noise, heldout, min_corners, max_iters: see :func:`calibrate_hand_eye`.
+        free_intrinsics, robot_noise, heldout, min_corners, max_iters, align_orders: see :func:`calibrate_hand_eye`.
 
     Shape:
         corners :math:`(B, V, N, 2)`, valid :math:`(B, V, N)`, object_points :math:`(N, 3)`, robot_poses
@@ -331,7 +349,7 @@ class HandEyeSolver(nn.Module):
 
     def __init__(self, setup: HandEyeSetup | str = HandEyeSetup.EYE_IN_HAND, free_intrinsics: bool | Sequence[str] = False,
                  robot_noise: tuple[float, float] | str | None = "auto", heldout: bool = True, min_corners: int = 4,
-                 max_iters: int = 100) -> None:
+                 max_iters: int = 100, align_orders: bool = False) -> None:
         super().__init__()
         self.setup = HandEyeSetup.parse(setup)
         self.free_intrinsics = free_intrinsics
@@ -339,6 +357,7 @@ class HandEyeSolver(nn.Module):
         self.heldout = heldout
         self.min_corners = min_corners
         self.max_iters = max_iters
+        self.align_orders = align_orders
 
     def forward(self, corners: torch.Tensor, valid: torch.Tensor, object_points: torch.Tensor,
                 robot_poses: torch.Tensor, camera: RigCamera | Sequence[RigCamera],
@@ -346,7 +365,7 @@ class HandEyeSolver(nn.Module):
                 metres_per_unit: float = 1.0, names: list[list[str]] | None = None) -> HandEyeResult:
         out = calibrate_hand_eye(corners, valid, object_points, robot_poses, camera, self.setup, weights,
                                  self.free_intrinsics, self.robot_noise, self.heldout, image_size, metres_per_unit,
-                                 names, self.min_corners, self.max_iters)
+                                 names, self.min_corners, self.max_iters, self.align_orders)
         if torch.is_grad_enabled() and (corners.requires_grad or robot_poses.requires_grad):
             from ccs_kornia.modules.hand_eye.implicit import attach_gradients
 

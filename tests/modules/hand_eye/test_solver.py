@@ -112,3 +112,17 @@ def test_bad_arguments():
         calibrate_hand_eye(c, v, o, T, camera(s), "eye_on_table")
     with pytest.raises(ValueError, match="robot_noise"):
         calibrate_hand_eye(c, v, o, T, camera(s), robot_noise="sometimes")
+
+
+def test_a_symmetric_board_numbered_both_ways_is_agreed_through_the_robot():
+    s = scene("eye_in_hand", views=10, seed=10, noise_px=0.1)
+    corners = s.corners.clone()
+    flipped = [2, 5, 6]
+    corners[flipped] = corners[flipped].flip(1)  # a 9x6 grid turned by 180 degrees: the order reversed
+    args = (corners[None], s.valid[None], s.object_points, s.robot_poses[None], camera(s), "eye_in_hand")
+    out = calibrate_hand_eye(*args, robot_noise=None, heldout=False, align_orders=True)
+    assert out.board_order[0].tolist() == [int(k in flipped) for k in range(10)]
+    assert bool(out.success[0]) and _err(out.X[0], s.X)[0] < 0.5
+    torch.testing.assert_close(out.corners[0, 2], s.corners[2])
+    refused = calibrate_hand_eye(*args, robot_noise=None, heldout=False)  # without the agreement: views disagree
+    assert not bool(refused.success[0]) and "disagree" in [i["check"] for i in refused.issues[0]]
