@@ -102,7 +102,7 @@ class BenchConfig:
             section (:mod:`~ccs_kornia.bench.markers`); markers_calib_trials, markers_calib_views: its calibrations
             from partial views; markers_real_sets: its real ChArUco sets.
         hand_eye_trials: rendered robots per set-up of the ``hand_eye`` section (:mod:`~ccs_kornia.bench.hand_eye`);
-            hand_eye_real: also its real robot (where the data is found).
+            hand_eye_views: the range of their poses; hand_eye_real: also its real robot (where the data is found).
     """
 
     sections: tuple[str, ...] = SECTIONS
@@ -165,6 +165,7 @@ class BenchConfig:
     markers_calib_views: int = 12
     markers_real_sets: tuple[str, ...] = ("charuco_opencv_tutorial", "caliscope_4cam_charuco")
     hand_eye_trials: int = 20
+    hand_eye_views: tuple[int, int] = (8, 30)
     hand_eye_real: bool = True
     preset: str = "full"
     extra: dict = field(default_factory=dict)
@@ -207,7 +208,7 @@ class BenchConfig:
             wild_real_sets=("boofcv_bumblebee2_left",), wild_real_scales=(0.5,), wild_real_images=1,
             fisheye_trials=2, fisheye_views=6, fisheye_real_sets=(), rig_trials=1, rig_frames=10, preset="tiny",
             markers_views=1, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
-            markers_real_sets=(), hand_eye_trials=1, hand_eye_real=False,
+            markers_real_sets=(), hand_eye_trials=1, hand_eye_views=(8, 8), hand_eye_real=False,
         )
         return replace(base, **overrides)
 

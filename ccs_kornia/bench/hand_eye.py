@@ -148,9 +148,9 @@ def _opencv_row(setup, T, M, obj, corners, K, dist, X_true, name, V) -> dict:
     return row
 
 
-def _trial(seed: int, setup: str) -> dict:
+def _trial(seed: int, setup: str, views_range: tuple[int, int] = (8, 30)) -> dict:
     g = np.random.default_rng(seed)
-    views = int(g.integers(8, 31))
+    views = int(g.integers(views_range[0], views_range[1] + 1))
     small = g.random() < 1 / 3
     noise_px, joint_deg = float(g.uniform(0.1, 0.3)), float(g.uniform(0.0, 0.02))
     scene = render_hand_eye(setup, views=views, seed=seed, noise_px=noise_px, joint_noise_deg=joint_deg,
@@ -269,10 +269,11 @@ def run_hand_eye(cfg=None, trials: int | None = None, seed: int = SEED, log=prin
     """Run the benchmark: ``trials`` rendered scenes per set-up (default ``cfg.hand_eye_trials``, else 20), and the
     real robot where its data is found. Returns a JSON-able dict."""
     trials = trials if trials is not None else int(getattr(cfg, "hand_eye_trials", 20))
+    views = tuple(getattr(cfg, "hand_eye_views", (8, 30)))
     rows = []
     for k, setup in enumerate(("eye_in_hand", "eye_to_hand")):
         for t in range(trials):
-            rows.append(_trial(seed + 1000 * k + t, setup))
+            rows.append(_trial(seed + 1000 * k + t, setup, views))
             r = rows[-1]
             ours = r["ours"]
             log(f"[hand_eye] {setup} trial {t + 1}/{trials}: {r['views']} poses"
@@ -284,11 +285,13 @@ def run_hand_eye(cfg=None, trials: int | None = None, seed: int = SEED, log=prin
 
     root = Path(cfg.real_dir) if cfg is not None and getattr(cfg, "real_dir", None) else default_real_dir()
     folder = root / "visp_franka_eye_to_hand"
-    if getattr(cfg, "hand_eye_real", True) and folder.is_dir():
+    if not getattr(cfg, "hand_eye_real", True):
+        out["real_skipped"] = "not asked"
+    elif not folder.is_dir():
+        out["real_skipped"] = f"{folder} not found"
+    else:
         out["real"] = {"visp_franka_eye_to_hand": visp_franka(folder)}
         log("[hand_eye] real robot: visp_franka_eye_to_hand done")
-    else:
-        out["real_skipped"] = f"{folder} not found" if not folder.is_dir() else "not asked"
     return out
 
 

@@ -51,8 +51,9 @@ __all__ = ["DISAGREE_PX", "JACKKNIFE_MIN_POSES", "HandEyeSolver", "calibrate_han
 DISAGREE_PX = 10.0
 #: where the robot-pose noise is estimated, its start: (radians, metres)
 START_NOISE = (1e-3, 1e-3)
-#: a held-out refit re-estimates the noise in at most this many rounds, from the full fit's estimate
-HELDOUT_NOISE_ROUNDS = 4
+#: a held-out refit re-estimates the noise in this many rounds, from the full fit's estimate (more rounds change the
+#: held-out figures by little: docs/hand_eye.md)
+HELDOUT_NOISE_ROUNDS = 2
 #: the 1-sigma comes from the leave-one-pose-out refits' spread (jackknife) where at least this many poses were held
 #: out, else from the fit's covariance (which sees the corners' noise only, not a robot pose's error)
 JACKKNIFE_MIN_POSES = 5
