@@ -65,7 +65,7 @@ LABELS = {"ours": "ccs_kornia joint fit", "tsai": "OpenCV Tsai", "park": "OpenCV
 def _pnp(obj: np.ndarray, corners: np.ndarray, K: np.ndarray, dist: np.ndarray, square_tag: bool = False) -> np.ndarray:
     """The board's pose in the camera (4x4) from one view's corners, OpenCV's way."""
     flags = cv2.SOLVEPNP_IPPE if square_tag else cv2.SOLVEPNP_ITERATIVE
-    ok, rv, tv = cv2.solvePnP(obj, corners, K, dist, flags=flags)
+    _, rv, tv = cv2.solvePnP(obj, corners, K, dist, flags=flags)
     M = np.eye(4)
     M[:3, :3], M[:3, 3] = cv2.Rodrigues(rv)[0], tv.ravel()
     return M
@@ -131,7 +131,7 @@ def _opencv_rows(setup, T, M, obj, corners, K, dist, X_true=None) -> dict:
 def _opencv_row(setup, T, M, obj, corners, K, dist, X_true, name, V) -> dict:
     """One OpenCV method on a data set: its X (error against the truth where given) and its held-out figure."""
     try:
-        X, Z = opencv_hand_eye(setup, T, M, name)
+        X, _ = opencv_hand_eye(setup, T, M, name)
         held = []
         for v in range(V):
             keep = [k for k in range(V) if k != v]
@@ -191,7 +191,7 @@ def _summary(rows: list[dict]) -> dict:
         fails = sum(1 for r in rows if r[name].get("failed"))
         held = [r[name]["heldout_px"] for r in rows if "heldout_px" in r[name]]
 
-        def stat(key, fn):
+        def stat(key, fn, ok=ok):
             vals = [o[key] for o in ok]
             return float(fn(vals)) if vals else float("nan")
 

@@ -161,8 +161,6 @@ def _detect_tag(files: list[str], args, camera):
 
 def _detect_board(files: list[str], args, device, camera_given: bool):
     """A board's corners through the pipeline (and the camera calibrated from the same images when none is given)."""
-    import torch
-
     from ccs_kornia.commands.calibrate import calibrate_files
 
     pipeline = make_pipeline(args, model=args.model)
@@ -182,7 +180,7 @@ def _detect_board(files: list[str], args, device, camera_given: bool):
     reasons = [(det.reasons[v] if det.reasons else "") or ("board found" if bool(found[v]) else "board not found")
                for v in range(len(files))]
     size = tuple(int(x) for x in one.image_size)
-    return det.corners.double(), found, reasons, size, camera_record, one
+    return det.corners.double(), found, reasons, size, camera_record
 
 
 def run(args: argparse.Namespace) -> int:
@@ -241,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         from ccs_kornia.modules.detection.boards import grid_object_points
 
-        corners, found, reasons, size, camera_record, one = _detect_board(files, args, device, given is not None)
+        corners, found, reasons, size, camera_record = _detect_board(files, args, device, given is not None)
         obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square)
         board_info = {"kind": getattr(args, "detector", "chessboard"), "board": list(args.board),
                       "square": args.square, "corners": "grid order n = row * cols + col; origin at corner 0"}

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 
 import numpy as np
 import pytest
@@ -89,7 +88,8 @@ def test_every_pose_form_and_millimetres(tags, tmp_path, capsys, form):
 def test_a_missing_and_an_extra_pose_are_reported_never_shifted(tags, tmp_path, capsys):
     files = tags["files"]
     rows = write_poses(str(tmp_path / "poses.csv"), files, tags["scene"].robot_poses)
-    text = open(rows).read().splitlines()
+    with open(rows, encoding="utf-8") as handle:
+        text = handle.read().splitlines()
     del text[4]  # view_03 has no pose
     text.append("not_an_image.png," + text[1].split(",", 1)[1])
     (tmp_path / "poses.csv").write_text("\n".join(text) + "\n")
@@ -131,7 +131,7 @@ def test_a_chessboard_and_the_camera_calibrated_from_the_same_images(tmp_path, c
     boards = board_scene("eye_in_hand", 12, 22, str(tmp_path / "images"))
     poses = write_poses(str(tmp_path / "poses.csv"), boards["files"], boards["scene"].robot_poses, "quat")
     out = tmp_path / "handeye.json"
-    code, stdout, err = run(capsys, "calibrate-hand-eye", *boards["files"], "--robot-poses", poses, "--eye-in-hand",
+    code, _, err = run(capsys, "calibrate-hand-eye", *boards["files"], "--robot-poses", poses, "--eye-in-hand",
                             "--board", "9x6", "--square", "0.025", "--detector", "opencv", "--jobs", "1",
                             "--no-distortion-correction", "--model", "k1k2", "--output", out)
     assert code == 0, err

@@ -21,7 +21,7 @@ from ccs_kornia.modules.hand_eye.fit import FitResult, fit_problem
 from ccs_kornia.modules.hand_eye.problem import HandEyeProblem, HandEyeState
 from ccs_kornia.modules.rig.rig_camera import camera_from_params, normalized_points
 
-__all__ = ["HeldOut", "MAX_HELDOUT_CORNERS", "jackknife_covariance", "leave_one_pose_out", "ray_distances"]
+__all__ = ["MAX_HELDOUT_CORNERS", "HeldOut", "jackknife_covariance", "leave_one_pose_out", "ray_distances"]
 
 #: held-out problems are solved in chunks of at most this many corners (problems x views x corners)
 MAX_HELDOUT_CORNERS = 1 << 20

@@ -26,7 +26,7 @@ def _pose(w, t):
 
 def _data(B=3, V=7, seed=0, device="cpu", dtype=torch.float64):
     g = torch.Generator().manual_seed(seed)
-    r = lambda *s: torch.randn(*s, generator=g, dtype=torch.float64)  # noqa: E731
+    r = lambda *s: torch.randn(*s, generator=g, dtype=torch.float64)
     X, Z = _pose(0.5 * r(B, 3), 0.2 * r(B, 3)), _pose(2.0 * r(B, 3), r(B, 3))
     A = _pose(r(B, V, 3), 0.5 * r(B, V, 3))
     M = invert_transforms(X)[:, None] @ A @ Z[:, None]
@@ -35,7 +35,7 @@ def _data(B=3, V=7, seed=0, device="cpu", dtype=torch.float64):
 
 @pytest.mark.parametrize("fn", [park_martin, andreff, lambda A, M, v: robot_world(A, M, v)[0]])
 def test_exact_data_exact_answer(fn, device):
-    X, Z, A, M = _data(device=device)
+    X, _, A, M = _data(device=device)
     valid = torch.ones(A.shape[:2], dtype=torch.bool, device=device)
     valid[1, 2] = False
     M[1, 2] = float("nan")  # a view without a board: masked, its NaN never read
@@ -49,13 +49,13 @@ def test_board_pose_and_candidates(device):
     valid = torch.ones(A.shape[:2], dtype=torch.bool, device=device)
     torch.testing.assert_close(board_in_robot(A, M, valid, X), Z, atol=1e-9, rtol=0)
     torch.testing.assert_close(robot_world(A, M, valid)[1], Z, atol=1e-9, rtol=0)
-    names, Xs, Zs = closed_form_candidates(A, M, valid)
+    names, Xs, _ = closed_form_candidates(A, M, valid)
     assert names == ["park_martin", "andreff", "robot_world"] and Xs.shape == (3, 3, 4, 4)
     torch.testing.assert_close(Xs, X[:, None].expand_as(Xs), atol=1e-9, rtol=0)
 
 
 def test_float32(dtype):
-    X, Z, A, M = _data(dtype=dtype)
+    X, _, A, M = _data(dtype=dtype)
     out = park_martin(A, M, torch.ones(A.shape[:2], dtype=torch.bool))
     assert out.dtype == dtype
     torch.testing.assert_close(out, X, atol=1e-3 if dtype == torch.float32 else 1e-9, rtol=0)
@@ -63,7 +63,7 @@ def test_float32(dtype):
 
 @pytest.mark.parametrize("ours,flag", [(park_martin, cv2.CALIB_HAND_EYE_PARK), (andreff, cv2.CALIB_HAND_EYE_ANDREFF)])
 def test_agrees_with_opencv_on_noisy_motions(ours, flag):
-    X, Z, A, M = _data(B=1, V=12, seed=4)
+    _, _, A, M = _data(B=1, V=12, seed=4)
     g = torch.Generator().manual_seed(5)
     M = M @ _pose(0.002 * torch.randn(1, 12, 3, generator=g, dtype=torch.float64),
                   0.002 * torch.randn(1, 12, 3, generator=g, dtype=torch.float64))

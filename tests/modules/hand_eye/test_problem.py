@@ -16,7 +16,7 @@ from ccs_kornia.modules.hand_eye.problem import HandEyeProblem, HandEyeState
 
 def _problem(setup, model_name="k1k2", noise=(0.01, 0.002), B=2, V=4, seed=0, free=True):
     g = torch.Generator().manual_seed(seed)
-    r = lambda *s: torch.randn(*s, generator=g, dtype=torch.float64)  # noqa: E731
+    r = lambda *s: torch.randn(*s, generator=g, dtype=torch.float64)
     m = camera_model(model_name)
     T = torch.eye(4, dtype=torch.float64).repeat(B, V, 1, 1)
     T[..., :3, :3], T[..., :3, 3] = exp_so3(0.3 * r(B, V, 3)), 0.2 * r(B, V, 3)
