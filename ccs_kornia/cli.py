@@ -106,8 +106,10 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> None:  # type: ignore[override]
         if message.startswith("one of the arguments --board --charuco"):
+            tag = ", --apriltag FAMILY (a single AprilTag)" if "--apriltag" in message else ""
             message = ("the following arguments are required: --board COLSxROWS (a chessboard's inner corners), "
-                       "--charuco SXxSY (a ChArUco board's squares) or --aprilgrid TARGET_YAML (Kalibr's AprilGrid)")
+                       f"--charuco SXxSY (a ChArUco board's squares){tag} or --aprilgrid TARGET_YAML (Kalibr's "
+                       "AprilGrid)")
         unknown = self._unknown_options() if message.startswith("the following arguments are required") else []
         if unknown:
             long_options = [o for o in self._option_string_actions if o.startswith("--")]

@@ -12,6 +12,9 @@ _EXPORTS = {
     "detect_charuco": "ccs_kornia.modules.detection.markers.charuco",
     "AprilGridDetector": "ccs_kornia.modules.detection.markers.aprilgrid",
     "detect_aprilgrid": "ccs_kornia.modules.detection.markers.aprilgrid",
+    "AprilTagDetector": "ccs_kornia.modules.detection.markers.apriltag",
+    "AprilTagTarget": "ccs_kornia.modules.detection.markers.apriltag",
+    "detect_apriltag": "ccs_kornia.modules.detection.markers.apriltag",
 }
 
 __all__ = sorted(_EXPORTS)
