@@ -181,7 +181,7 @@ class CalibrationPipeline(nn.Module):
                                       for m in names})
         self.solver = self.solvers[names[1] if model == "auto" else model]  # the stage alone's (auto: opencv5)
         self.selection = ModelSelection(dict(self.solvers)) if model == "auto" else None
-        self.subset_solutions = None  # the last solve's cross-validation subsets (pipeline_solve.solve_detections)
+        self.subset_solutions = None  # the last solve's cross-validation subsets (pipeline.solve.solve_detections)
         self.model, self.diagnostics, self.calibrated_look = model, bool(diagnostics), bool(calibrated_look)
         self.detection_batch_size = int(detection_batch_size)
         if workers != "auto" and not (isinstance(workers, int) and workers >= 1):

@@ -1,4 +1,4 @@
-"""The rig export formats (ccs_kornia.outputs.rig_exports, records_rig) on a hand-made rig record: a fisheye and a
+"""The rig export formats (ccs_kornia.outputs.rig_exports, rig_records) on a hand-made rig record: a fisheye and a
 pinhole camera (the mixed pair), a third camera for the Kalibr chain."""
 
 from __future__ import annotations

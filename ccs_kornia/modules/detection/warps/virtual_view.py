@@ -183,7 +183,7 @@ def detect_with_calibrated_lens(
         board_size: ``(cols, rows)``.
         fov_deg, side: field of view of the axis view (and the first rings), size of each virtual view.
         view_pool: ``view_pool(fn)``, a context manager giving ``run(items)`` that yields ``fn(item)`` for each item
-            in order, e.g. ``functools.partial(batch_workers.worker_pool, workers=2)`` to look at a round's views
+            in order, e.g. ``functools.partial(workers.worker_pool, workers=2)`` to look at a round's views
             in forked processes (``fn`` is made before the block and inherited by them); default: here, in order.
             The boards are the same either way.
 
