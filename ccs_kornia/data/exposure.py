@@ -48,7 +48,7 @@ from ccs_kornia.data.patterns import BoardPattern
 from ccs_kornia.data.recording_camera import PixelRays, RecordingCamera
 from ccs_kornia.geometry.so3 import log_so3
 
-__all__ = ["ExposureTruth", "exposure_truth", "exposure_subframes", "render_exposure", "MAX_SUBFRAME_PIXELS"]
+__all__ = ["MAX_SUBFRAME_PIXELS", "ExposureTruth", "exposure_subframes", "exposure_truth", "render_exposure"]
 
 #: pixels (sub-exposures times the box's pixels) rendered at once: bounds the memory whatever the blur
 MAX_SUBFRAME_PIXELS = 1 << 20
@@ -94,18 +94,19 @@ def _board_points(pattern: BoardPattern, points: Tensor | None = None) -> Tensor
     return torch.cat([pts[:, :2], torch.zeros(pts.shape[0], 1, dtype=torch.float64)], -1)
 
 
-def _project_at(camera: RecordingCamera, trajectory: BoardTrajectory, points: Tensor, t: Tensor):
+def _project_at(camera: RecordingCamera, trajectory: BoardTrajectory, pattern: BoardPattern, points: Tensor,
+                t: Tensor):
     """Board points :math:`(N, 3)` imaged at times ``t`` :math:`(F, N)` (each point its own time), or at ``t``
-    :math:`(F,)` (all points at once): pixels, ``ok``, the board's side seen."""
+    :math:`(F,)` (all points at once): pixels, ``ok``, whether the printed side is seen."""
     R, tt = camera.to_camera(*trajectory.pose_at(t))
     if t.dim() == 1:
         pc = points[None] @ R.transpose(-1, -2) + tt[:, None]
-        facing = (R[..., :, 2] * tt).sum(-1)[:, None].expand(pc.shape[:2])
+        facing = pattern.facing(R, tt)[:, None].expand(pc.shape[:2])
     else:
         pc = (R @ points[None, :, :, None]).squeeze(-1) + tt
-        facing = (R[..., :, 2] * tt).sum(-1)
+        facing = pattern.facing(R, tt)
     pix, ok = camera.project(pc)
-    return pix, ok, facing > 0
+    return pix, ok, facing
 
 
 def exposure_subframes(camera: RecordingCamera, pattern: BoardPattern, trajectory: BoardTrajectory,
@@ -124,8 +125,8 @@ def exposure_subframes(camera: RecordingCamera, pattern: BoardPattern, trajector
     disp = torch.zeros(f, dtype=torch.float64)
     for row_start in (0.0, camera.readout):
         a = frame_starts + row_start
-        pa, oka, _ = _project_at(camera, trajectory, pts, a)
-        pb, okb, _ = _project_at(camera, trajectory, pts, a + camera.exposure)
+        pa, oka, _ = _project_at(camera, trajectory, pattern, pts, a)
+        pb, okb, _ = _project_at(camera, trajectory, pattern, pts, a + camera.exposure)
         near = oka & okb & (pa[..., 0] > -w) & (pa[..., 0] < 2 * w) & (pa[..., 1] > -h) & (pa[..., 1] < 2 * h)
         d = torch.where(near, (pb - pa).norm(dim=-1), torch.zeros_like(pa[..., 0])).nan_to_num(0.0)
         disp = torch.maximum(disp, d.amax(-1))
@@ -153,20 +154,20 @@ def exposure_truth(camera: RecordingCamera, pattern: BoardPattern, trajectory: B
     half = 0.5 * camera.exposure
     frame_time = camera.frame_times(frame_starts)
     t = frame_time[:, None].expand(f, n).clone()
-    pix, ok, facing = _project_at(camera, trajectory, obj, t)
+    pix, ok, facing = _project_at(camera, trajectory, pattern, obj, t)
     if camera.line_time > 0:
         for _ in range(int(iterations)):
             y = pix[..., 1].nan_to_num(0.5 * (h - 1)).clamp(-float(h), 2.0 * h)
             t = frame_starts[:, None] + y * camera.line_time + half
-            new, ok, facing = _project_at(camera, trajectory, obj, t)
+            new, ok, facing = _project_at(camera, trajectory, pattern, obj, t)
             step = (new - pix).nan_to_num(0.0).abs().max()
             pix = new
             if float(step) < 1e-9:
                 break
     inside = (pix[..., 0] >= 0) & (pix[..., 0] <= w - 1) & (pix[..., 1] >= 0) & (pix[..., 1] <= h - 1)
     visible = ok & facing & inside & pix.isfinite().all(-1)
-    before, _, _ = _project_at(camera, trajectory, obj, t - half)
-    after, _, _ = _project_at(camera, trajectory, obj, t + half)
+    before, _, _ = _project_at(camera, trajectory, pattern, obj, t - half)
+    after, _, _ = _project_at(camera, trajectory, pattern, obj, t + half)
     motion = torch.where(ok[..., None], after - before, torch.full_like(pix, math.nan))
     R, tt = camera.to_camera(*trajectory.pose_at(frame_time))
     return ExposureTruth(
@@ -181,7 +182,7 @@ def _board_box(camera: RecordingCamera, pattern: BoardPattern, trajectory: Board
     """Rows ``y0:y1`` and columns ``x0:x1`` the board can cover during the frame (``None``: none)."""
     w, h = camera.image_size
     ts = frame_start + torch.linspace(0.0, camera.readout + camera.exposure, 9, dtype=torch.float64)
-    pix, ok, _ = _project_at(camera, trajectory, _board_points(pattern), ts)
+    pix, ok, _ = _project_at(camera, trajectory, pattern, _board_points(pattern), ts)
     if not bool(ok.all()):
         # part of the outline is behind the camera or beyond the lens' reach: its image is not bounded by the
         # projected points; render everything unless the whole board is behind the camera
@@ -196,25 +197,48 @@ def _board_box(camera: RecordingCamera, pattern: BoardPattern, trajectory: Board
     return (y0, y1, x0, x1) if x0 < x1 and y0 < y1 else None
 
 
+def _mul(a: Tensor, field: Tensor) -> Tensor | None:
+    """``a * field``, or ``None`` where ``field`` is a constant zero (a pinhole's derivatives)."""
+    if field.dim() == 0 and float(field) == 0.0:
+        return None
+    return a * field
+
+
+def _sum(*terms: Tensor | None) -> Tensor:
+    out = None
+    for t in terms:
+        if t is not None:
+            out = t if out is None else out + t
+    return out
+
+
 def _plane_coordinates(G: Tensor, rays: PixelRays):
     """Board-plane coordinates ``X, Y`` :math:`(B, h, w)` of the rays through per-row inverse homographies ``G``
-    :math:`(B, h, 3, 3)`, their derivatives per pixel and where the plane is hit in front of the camera."""
-
-    def g(i: int, k: int) -> Tensor:
-        return G[..., i, k].unsqueeze(-1)
-
-    q = [g(i, 0) * rays.x + g(i, 1) * rays.y + g(i, 2) * rays.z for i in range(3)]
-    qx = [g(i, 0) * rays.x_px + g(i, 1) * rays.y_px + g(i, 2) * rays.z_px for i in range(3)]
-    qy = [g(i, 0) * rays.x_py + g(i, 1) * rays.y_py + g(i, 2) * rays.z_py for i in range(3)]
+    :math:`(B, h, 3, 3)`, their derivatives per pixel (the homography's derivative along the ray, chained with the
+    ray's along the image) and where the plane is hit in front of the camera."""
+    g = G.unsqueeze(-3)  # (B, h, 1, 3, 3): broadcasts over the columns
+    q = [g[..., i, 0] * rays.x + g[..., i, 1] * rays.y + g[..., i, 2] * rays.z for i in range(3)]
     # the third component is 1 / depth along the ray: positive where the plane is hit in front of the camera
     valid = (q[2] > 1e-12) & rays.reach
-    inv = 1.0 / torch.where(valid, q[2], torch.ones_like(q[2]))
+    every = bool(valid.all())
+    inv = 1.0 / (q[2] if every else torch.where(valid, q[2], torch.ones_like(q[2])))
     X, Y = q[0] * inv, q[1] * inv
-    jac = ((qx[0] - X * qx[2]) * inv, (qy[0] - X * qy[2]) * inv, (qx[1] - Y * qx[2]) * inv, (qy[1] - Y * qy[2]) * inv)
-    far = torch.full_like(X, _FAR)
-    zero = torch.zeros_like(X)
-    jac = tuple(torch.where(valid, j, zero) for j in jac)
-    return torch.where(valid, X, far), torch.where(valid, Y, far), jac, valid
+    # d(X, Y) / d(ray): rows of (G[:2] - (X, Y) G[2]) / q2
+    dX = [(g[..., 0, k] - X * g[..., 2, k]) * inv for k in range(3)]
+    dY = [(g[..., 1, k] - Y * g[..., 2, k]) * inv for k in range(3)]
+    pinhole = rays.z_px.dim() == 0 and float(rays.z_px) == 0.0 and rays.z_py.dim() == 0 and float(rays.z_py) == 0.0
+    if pinhole:
+        dX, dY = dX[:2], dY[:2]
+    ray_px = (rays.x_px, rays.y_px, rays.z_px)
+    ray_py = (rays.x_py, rays.y_py, rays.z_py)
+    jac = tuple(_sum(*(_mul(d[k], r[k]) for k in range(len(d)))) for d in (dX, dY) for r in (ray_px, ray_py))
+    jac = (jac[0], jac[1], jac[2], jac[3])  # dX/dx, dX/dy, dY/dx, dY/dy
+    jac = tuple(j.expand_as(X) for j in jac)
+    if not every:
+        far, zero = torch.full_like(X, _FAR), torch.zeros_like(X)
+        X, Y = torch.where(valid, X, far), torch.where(valid, Y, far)
+        jac = tuple(torch.where(valid, j, zero) for j in jac)
+    return X, Y, jac, valid
 
 
 def render_exposure(camera: RecordingCamera, pattern: BoardPattern, trajectory: BoardTrajectory, frame_start: float,
@@ -255,7 +279,7 @@ def render_exposure(camera: RecordingCamera, pattern: BoardPattern, trajectory: 
         M = torch.stack([R[..., :, 0], R[..., :, 1], t], -1)
         G, info = torch.linalg.inv_ex(M)
         G = torch.where((info == 0)[..., None, None], G, torch.zeros_like(G)).to(torch.float32)
-        front = (R[..., :, 2] * t).sum(-1)[:, (y1 - y0) // 2] > 0
+        front = pattern.facing(R, t)[:, (y1 - y0) // 2]
         X, Y, jac, valid = _plane_coordinates(G, rays)
         acc += pattern.shade(X, Y, jac, valid, bg, supersample, front).sum(0)
     img = torch.where(rays.reach, acc / n, torch.zeros_like(acc))

@@ -165,7 +165,7 @@ def _waypoint(cam: RecordingCamera, pattern: BoardPattern, g: torch.Generator, f
         azim = float(_uniform(g, 0.0, 2 * math.pi))
         r_roll = exp_so3(torch.tensor([0.0, 0.0, roll], dtype=torch.float64))
         r_tilt = exp_so3(torch.tensor([math.cos(azim), math.sin(azim), 0.0], dtype=torch.float64) * tilt)
-        R_cam = r_tilt @ r_roll
+        R_cam = r_tilt @ r_roll @ pattern.upright
         t_cam = z * ray - R_cam @ centre
         pix, ok = cam.project((obj @ R_cam.T + t_cam)[None])
         inside = ok[0] & (pix[0, :, 0] >= 0) & (pix[0, :, 0] <= w - 1) & (pix[0, :, 1] >= 0) & (pix[0, :, 1] <= h - 1)

@@ -106,6 +106,24 @@ class BoardPattern:
         raise NotImplementedError
 
     @property
+    def side(self) -> float:
+        """Which side of the board the print is on: ``1`` where a camera at the board's pose ``R = I`` (the board's
+        ``z`` axis along the camera's) sees it, ``-1`` for the other side (an AprilGrid: its ``y`` axis points up on
+        the print)."""
+        return 1.0
+
+    @property
+    def upright(self) -> Tensor:
+        """:math:`(3, 3)` the board's orientation in which a camera looking along its ``z`` axis sees the print
+        upright: the identity, or half a turn about ``x`` when the print is on the other side."""
+        return torch.diag(torch.tensor([1.0, self.side, self.side], dtype=torch.float64))
+
+    def facing(self, R: Tensor, t: Tensor) -> Tensor:
+        """Whether cameras see the printed side of boards at poses ``R`` :math:`(..., 3, 3)`, ``t`` :math:`(..., 3)`
+        (board to camera)."""
+        return self.side * (R[..., :, 2] * t).sum(-1) > 0
+
+    @property
     def size(self) -> float:
         """The printed area's largest side (world units)."""
         o = self.outline()
@@ -200,6 +218,10 @@ class TexturePattern(BoardPattern):
 
     def object_points(self) -> Tensor:
         return self.board.object_points().to(torch.float64)
+
+    @property
+    def side(self) -> float:
+        return 1.0 if float(torch.linalg.det(self.A[:, :2])) > 0 else -1.0
 
     def outline(self) -> Tensor:
         h, w = self.levels[0].shape[-2:]

@@ -1,9 +1,10 @@
 """A camera that records video: intrinsics and lens, where it sits in a rig, and when each of its rows is exposed.
 
 The lens is a type (:class:`PinholeLens`, :class:`OpenCVLens`, :class:`FisheyeLens`): each projects camera-frame
-points (the ground truth, through :func:`ccs_kornia.data.lens.project_board`) and gives the ray of every pixel
-centre with its derivatives along the image axes (rendering: the renderer's exact inverses, computed once per camera
-and cached).
+points (the ground truth: :func:`~ccs_kornia.geometry.camera.project_points`, or the Kannala-Brandt model of
+:mod:`ccs_kornia.data.fisheye`, valid where :func:`~ccs_kornia.data.lens.project_board` says so) and gives the ray of
+every pixel centre with its derivatives along the image axes (rendering: the renderer's exact inverses, computed once
+per camera and cached).
 
 Timing of frame ``k`` (seconds): it starts at ``start + k / fps``; row ``y`` is exposed from
 ``frame_start + y * line_time`` for ``exposure`` seconds (a rolling shutter reads one row every ``line_time``; a
@@ -34,10 +35,16 @@ from functools import cached_property
 import torch
 from torch import Tensor
 
-from ccs_kornia.data.fisheye import kb_unproject
-from ccs_kornia.data.lens import _opencv_inverse_grid, _to_normalized, _undistort_opencv, project_board
+from ccs_kornia.data.fisheye import kb_distort_theta, kb_fold, kb_unproject
+from ccs_kornia.data.lens import (
+    _opencv_fold,
+    _opencv_inverse_grid,
+    _to_normalized,
+    _undistort_opencv,
+)
+from ccs_kornia.geometry.camera import project_points
 
-__all__ = ["Lens", "PinholeLens", "OpenCVLens", "FisheyeLens", "PixelRays", "RecordingCamera", "lens_from_json"]
+__all__ = ["FisheyeLens", "Lens", "OpenCVLens", "PinholeLens", "PixelRays", "RecordingCamera", "lens_from_json"]
 
 
 @dataclass
@@ -85,14 +92,18 @@ class Lens:
     (:meth:`rays`, :meth:`unproject`)."""
 
     def project(self, points: Tensor, K: Tensor, image_size: tuple[int, int]) -> tuple[Tensor, Tensor]:
-        """Camera-frame points :math:`(B, N, 3)` to pixels :math:`(B, N, 2)` and ``ok`` :math:`(B, N)` (in front
-        of the camera and where the lens can image them), float64."""
-        b = points.shape[0]
-        zeros = torch.zeros(b, 3, dtype=torch.float64, device=points.device)
-        fe = self._fisheye_row(b, points.device)
-        dist = self._dist(b, points.device)
-        return project_board(points.to(torch.float64), K.to(torch.float64).expand(b, 3, 3), zeros, zeros, image_size,
-                             dist, None, fe)
+        """Camera-frame points :math:`(..., 3)` to pixels :math:`(..., 2)` and ``ok`` :math:`(...)` (in front of the
+        camera and where the lens images them without folding over: the points
+        :func:`~ccs_kornia.data.lens.project_board` accepts), float64."""
+        pts = points.to(torch.float64)
+        z = pts[..., 2]
+        ok = z > 1e-9
+        safe = torch.cat([pts[..., :2], torch.where(ok, z, torch.ones_like(z)).unsqueeze(-1)], -1)
+        dist = self._dist(1, pts.device)
+        if dist is not None:
+            ok = ok & ((safe[..., :2] / safe[..., 2:]).norm(dim=-1) < self._fold)
+        pix = project_points(safe, K.to(pts), None if dist is None else dist[0])
+        return pix, ok
 
     def rays(self, K: Tensor, image_size: tuple[int, int]) -> PixelRays:
         """The rays of every pixel centre of an image of ``image_size`` ``(W, H)``."""
@@ -109,9 +120,6 @@ class Lens:
     def _dist(self, b: int, device) -> Tensor | None:
         return None
 
-    def _fisheye_row(self, b: int, device) -> Tensor | None:
-        return None
-
 
 class PinholeLens(Lens):
     """An ideal pinhole: straight lines stay straight."""
@@ -121,7 +129,7 @@ class PinholeLens(Lens):
         xs, ys = _pixel_grid(image_size)
         x, y = _to_normalized(xs[None], ys[None], K[None])
         fx, fy, skew = float(K[0, 0]), float(K[1, 1]), float(K[0, 1])
-        c = lambda v: torch.tensor(v, dtype=torch.float32)  # noqa: E731
+        c = lambda v: torch.tensor(v, dtype=torch.float32)
         return PixelRays(x[0].float(), y[0].float(), c(1.0), c(1.0 / fx), c(-skew / (fx * fy)), c(0.0), c(1.0 / fy),
                          c(0.0), c(0.0), torch.ones(image_size[1], image_size[0], dtype=torch.bool))
 
@@ -147,6 +155,7 @@ class OpenCVLens(Lens):
         if d.numel() != 5:
             raise ValueError(f"OpenCVLens takes (k1, k2, p1, p2, k3), got {d.numel()} coefficients.")
         self.dist = d
+        self._fold = float(_opencv_fold(d[None])[0][0])  # normalised radius where the model folds over (inf: never)
 
     def _dist(self, b: int, device) -> Tensor | None:
         return self.dist.to(device).expand(b, 5)
@@ -189,6 +198,20 @@ class FisheyeLens(Lens):
         if not 0.0 < float(fov_deg) <= 360.0:
             raise ValueError(f"fov_deg must be in (0, 360], got {fov_deg}.")
         self.k, self.fov_deg = kk, float(fov_deg)
+        #: the largest angle from the axis the lens images: its image circle, or where the model folds over
+        self.theta_max = min(math.radians(self.fov_deg) / 2, float(kb_fold(kk[None])[0]))
+
+    def project(self, points: Tensor, K: Tensor, image_size: tuple[int, int]) -> tuple[Tensor, Tensor]:
+        pts = points.to(torch.float64)
+        x, y, z = pts.unbind(-1)
+        rho = (x * x + y * y).sqrt()
+        theta = torch.atan2(rho, z)
+        theta_d, _ = kb_distort_theta(theta, self.k.to(pts))
+        scale = torch.where(rho > 1e-12, theta_d / rho.clamp_min(1e-300), torch.ones_like(rho) / z.abs().clamp_min(1e-300))
+        xd, yd = x * scale, y * scale
+        Kd = K.to(pts)
+        pix = torch.stack([Kd[0, 0] * xd + Kd[0, 1] * yd + Kd[0, 2], Kd[1, 1] * yd + Kd[1, 2]], -1)
+        return pix, (theta < self.theta_max) & (rho + z.abs() > 0)
 
     def _fisheye_row(self, b: int, device) -> Tensor | None:
         row = torch.cat([self.k, torch.tensor([math.radians(self.fov_deg) / 2], dtype=torch.float64)])
@@ -335,5 +358,7 @@ class RecordingCamera:
     def from_json(cls, data: dict) -> RecordingCamera:
         """The camera written by :meth:`to_json`."""
         keys = ("fps", "exposure", "line_time", "start", "latency", "jitter", "noise", "gamma")
-        return cls(torch.tensor(data["K"]), tuple(data["image_size"]), lens_from_json(data["lens"]),
-                   **{k: float(data[k]) for k in keys}, R=torch.tensor(data["R"]), T=torch.tensor(data["T"]))
+        f64 = torch.float64
+        return cls(torch.tensor(data["K"], dtype=f64), tuple(data["image_size"]), lens_from_json(data["lens"]),
+                   **{k: float(data[k]) for k in keys}, R=torch.tensor(data["R"], dtype=f64),
+                   T=torch.tensor(data["T"], dtype=f64))
