@@ -179,6 +179,26 @@ def _complete(eq: dict[str, torch.Tensor], V: int) -> dict[str, torch.Tensor]:
     return {**eq, "W": U.new_zeros(B, V, G, 6), "V": U.new_zeros(B, V, 6, 6), "ep": U.new_zeros(B, V, 6)}
 
 
+def _check(problem, eq: dict[str, torch.Tensor]) -> None:
+    """The problem's masks and its first normal equations have the shapes of the protocol."""
+    used = problem.used
+    if not isinstance(used, torch.Tensor) or used.dim() != 2 or used.dtype != torch.bool:
+        raise ValueError(f"problem.used must be (B, V) bool, got {tuple(getattr(used, 'shape', ()))}.")
+    B, V = used.shape
+    for name in ("num_residuals", "floor"):
+        value = getattr(problem, name)
+        if not isinstance(value, torch.Tensor) or value.shape != (B,):
+            raise ValueError(f"problem.{name} must be ({B},), got {tuple(getattr(value, 'shape', ()))}.")
+    missing = [k for k in EQUATIONS if k not in eq]
+    if missing:
+        raise ValueError(f"problem.linearize must return {list(EQUATIONS)}, missing {missing}.")
+    G = eq["U"].shape[-1] if eq["U"].dim() == 3 else -1
+    shapes = {"cost": (B,), "U": (B, G, G), "W": (B, V, G, 6), "V": (B, V, 6, 6), "eg": (B, G), "ep": (B, V, 6)}
+    for k, shape in shapes.items():
+        if tuple(eq[k].shape) != shape:
+            raise ValueError(f"{k} must be {shape} (B={B} problems, V={V} items, G={G}), got {tuple(eq[k].shape)}.")
+
+
 def _iterate(problem, eq, state, ctl, ftol, xtol, eyeG, used_f):
     """One LM iteration of every problem of the working set (``eq``, ``state``, ``ctl`` updated in place); problems
     that are done keep their values."""
@@ -271,9 +291,11 @@ def schur_lm(
         ([[2.0, 3.0]], True, torch.Size([1, 2, 2]))
     """
     used = problem.used
-    B, V = used.shape
-    has_data = problem.num_residuals > 0
+    V = used.shape[-1] if isinstance(used, torch.Tensor) and used.dim() == 2 else 0
     eq = _complete(problem.linearize(state), V)
+    _check(problem, eq)
+    B = used.shape[0]
+    has_data = problem.num_residuals > 0
     cost = eq["cost"]
     dtype, device = cost.dtype, cost.device
     eyeG = torch.eye(eq["U"].shape[-1], dtype=dtype, device=device)
