@@ -25,7 +25,10 @@ import torch
 from torch import nn
 
 from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
+from ccs_kornia.modules.calibration.outliers import drop_outliers
+from ccs_kornia.modules.calibration.quality.diagnostics import split_views
 from ccs_kornia.modules.rig.board_symmetry import (
     align_frame_orders,
     board_symmetries,
@@ -35,7 +38,6 @@ from ccs_kornia.modules.rig.rig_camera import RIG_MODELS, RigCamera, camera_from
 from ccs_kornia.modules.rig.rig_diagnostics import (
     RigVerdictThresholds,
     epipolar_sums,
-    pair_pose,
     rig_verdict,
 )
 from ccs_kornia.modules.rig.rig_init import initial_rig_cameras, rig_extrinsics
@@ -286,11 +288,8 @@ class RigSolver(nn.Module):
 
         res = fit(used, params, R0, T0, frame_R, frame_t)
         for _ in range(2):  # outlier observations (camera x frame), then fit again without them
-            rms = (res.sq_error / res.count.clamp_min(1)).sqrt().masked_fill(~used, float("nan"))
-            med = rms.flatten(1).nanmedian(-1).values
-            thr = torch.clamp(self.outlier_rel_threshold * med, min=self.outlier_abs_threshold)
-            keep = used & (rms <= thr[:, None, None])
-            keep = torch.where((keep.sum(-1) >= 2).all(-1, keepdim=True)[..., None], keep, used)
+            rms = (res.sq_error / res.count.clamp_min(1)).sqrt()
+            keep = drop_outliers(rms, used, used, self.outlier_abs_threshold, self.outlier_rel_threshold, 2)
             if bool((keep == used).all()):
                 break
             used = keep
@@ -308,11 +307,7 @@ class RigSolver(nn.Module):
         enough = frames.sum(-1) >= self.min_heldout_frames  # (B,) rigs with frames to hold out
         if k < 2 or not bool(enough.any()):
             return [nan.clone() for _ in range(B)]
-        fold = torch.full((B, F), -1, dtype=torch.long, device=used.device)
-        for b in range(B):
-            idx = torch.nonzero(frames[b]).flatten()
-            fold[b, idx] = torch.arange(idx.numel(), device=used.device) % max(min(k, idx.numel()), 1)
-        folds = [fold == i for i in range(k)]  # (B, F) each
+        folds = split_views(frames, k).unbind(1)  # (B, F) each
         use = torch.cat([used & ~f[:, None, :] for f in folds])  # (k B, C, F)
 
         def rep(x):
