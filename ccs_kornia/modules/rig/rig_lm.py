@@ -195,6 +195,7 @@ def rig_levenberg_marquardt(
     lambda_init: float = 1e-3,
     absolute_weights: bool = False,
     check_every: int | None = None,
+    stall_tol: float = 0.0,
 ) -> RigLMResult:
     r"""Refine B rigs jointly (see the module doc); no Python loop over rigs or frames, one over cameras.
 
@@ -209,7 +210,7 @@ def rig_levenberg_marquardt(
         corners: :math:`(B, C, F, N, 2)` observed pixels (anything where the weight is 0).
         weights: :math:`(B, C, F, N)` per-corner inverse variances (0: not used).
         free: :math:`(G,)` bool, which rig parameters move (:func:`rig_layout` order; default all).
-        max_iters, ftol, xtol, lambda_init, check_every: as
+        max_iters, ftol, xtol, lambda_init, check_every, stall_tol: as
             :func:`~ccs_kornia.modules.calibration.schur_lm.schur_lm`.
         absolute_weights: the weights are absolute inverse variances (covariance without ``sigma^2``).
 
@@ -262,7 +263,7 @@ def rig_levenberg_marquardt(
     problem = _RigProblem(models, layout, fi, obj, obs, sw, on, frame_used, 2 * count.sum((1, 2)), floor, eye6)
     state = {**{f"p{c}": x[c] for c in range(C)}, "R": R.to(dtype).clone(), "T": T.to(dtype).clone(), "Rf": Rf, "tf": tf}
     sol = schur_lm(problem, state, max_iters=max_iters, ftol=ftol, xtol=xtol, lambda_init=lambda_init,
-                   check_every=check_every, absolute_weights=absolute_weights)
+                   check_every=check_every, stall_tol=stall_tol, absolute_weights=absolute_weights)
     x, Rx, Tx, Rf, tf = problem.params(sol.state), sol.state["R"], sol.state["T"], sol.state["Rf"], sol.state["tf"]
 
     # the unweighted squared errors at the solution

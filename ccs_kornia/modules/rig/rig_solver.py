@@ -128,6 +128,8 @@ class RigSolver(nn.Module):
         max_iters: joint LM iterations at most.
         min_corners: a camera x frame observation with fewer valid corners is not used.
         ftol: the joint LM stops when an accepted step lowers the cost by less than this fraction.
+        stall_tol: the joint LM also stops where 10 iterations lowered the cost by at most this fraction (0: never;
+            :func:`~ccs_kornia.modules.calibration.schur_lm.schur_lm`).
         outlier_abs_threshold, outlier_rel_threshold: an observation whose RMS exceeds ``max(abs, rel * median)`` is
             left out of the second fit.
         folds: frames are split into this many folds for the held-out epipolar RMS (0: none); needs at least
@@ -162,6 +164,7 @@ class RigSolver(nn.Module):
         max_iters: int = 100,
         min_corners: int = 6,
         ftol: float = 1e-10,
+        stall_tol: float = 0.0,
         outlier_abs_threshold: float = 2.0,
         outlier_rel_threshold: float = 5.0,
         folds: int = 5,
@@ -178,6 +181,7 @@ class RigSolver(nn.Module):
         self.max_iters = max_iters
         self.min_corners = max(int(min_corners), 4)
         self.ftol = ftol
+        self.stall_tol = stall_tol
         self.outlier_abs_threshold = outlier_abs_threshold
         self.outlier_rel_threshold = outlier_rel_threshold
         self.folds = int(folds)
@@ -284,7 +288,7 @@ class RigSolver(nn.Module):
             k = use.shape[0] // B  # the held-out folds stack k copies of the rigs
             w = base_w.repeat(k, 1, 1, 1) * use[..., None].to(dtype)
             return rig_levenberg_marquardt(lm_models, p, R, T, fR, ft, obj, corners.repeat(k, 1, 1, 1, 1), w, free,
-                                           max_iters=iters, ftol=self.ftol)
+                                           max_iters=iters, ftol=self.ftol, stall_tol=self.stall_tol)
 
         res = fit(used, params, R0, T0, frame_R, frame_t)
         for _ in range(2):  # outlier observations (camera x frame), then fit again without them
