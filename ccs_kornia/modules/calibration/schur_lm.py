@@ -99,7 +99,9 @@ class SchurLMResult:
     information: torch.Tensor  #: (B, G, G) ``S``, the Schur complement of the item blocks
     sigma2: torch.Tensor  #: (B,) variance factor applied to the covariance
     iterations: torch.Tensor  #: (B,) int64 iterations run while the problem was active
-    converged: torch.Tensor  #: (B,) bool, a stopping rule other than ``max_iters`` held (False without data)
+    #: (B,) bool, a tolerance, the floor or the stall rule stopped the problem (not ``max_iters``, not a dominated
+    #: start, not a problem without data)
+    converged: torch.Tensor
 
 
 def _solve_spd(A: torch.Tensor, b: torch.Tensor, eye: torch.Tensor) -> torch.Tensor:

@@ -299,11 +299,11 @@ class RigSolver(nn.Module):
             used = keep
             res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
 
-        held = self._heldout(fit, res, used, corners, valid, models, B, C, F)
+        held = self._heldout(fit, res, used, corners, valid, models, B, C)
         return [self._result(b, res, used, corners, valid, models, names, sizes, failed[b], ext, intr, held[b],
                              order[b]) for b in range(B)]
 
-    def _heldout(self, fit, res, used, corners, valid, models, B, C, F):
+    def _heldout(self, fit, res, used, corners, valid, models, B, C):
         """Per rig (C, C) epipolar RMS on held-out frames: k folds over the used frames, all refitted at once."""
         nan = torch.full((C, C), float("nan"), dtype=corners.dtype, device=corners.device)
         frames = used.any(1)  # (B, F)
