@@ -11,9 +11,10 @@ from typing import Any
 
 import numpy as np
 
+from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.io.files import atomic_path
 from ccs_kornia.outputs.camera_exports import ros_camera_info
-from ccs_kornia.outputs.rig_records import pair_pose, rig_cameras
+from ccs_kornia.outputs.rig_records import record_extrinsics, rig_cameras
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = [
@@ -47,7 +48,7 @@ def rectification(data: dict[str, Any], i: int = 0, j: int = 1, alpha: float = 0
     from ccs_kornia.modules.rig import stereo_rectify
 
     cams = rig_cameras(data)
-    R, T = pair_pose(data["extrinsics"], i, j)
+    R, T = pair_pose(*record_extrinsics(data["extrinsics"]), i, j)
     size = tuple(int(v) for v in data["cameras"][i]["image_size"])
     rect = dict(stereo_rectify(cams[i], cams[j], size, R, T, alpha=alpha))
     rect.update(R=R.numpy(), T=T.numpy(), image_size=size)
@@ -151,7 +152,7 @@ def kalibr_camchain(data: dict[str, Any]) -> tuple[str, list[str]]:
         overlaps = [k for k in range(len(data["cameras"])) if k != c]
         lines.append(f"  cam_overlaps: [{', '.join(str(k) for k in overlaps)}]")
         if c > 0:
-            R, T = pair_pose(data["extrinsics"], c - 1, c)
+            R, T = pair_pose(*record_extrinsics(data["extrinsics"]), c - 1, c)
             lines.append("  T_cn_cnm1:")
             for r in range(3):
                 lines.append(f"  - {row([*R[r].tolist(), float(T[r])])}")

@@ -2,7 +2,7 @@
 (``x_i = R_i x_0 + T_i``), the error per camera and frame, and every pair's relative pose with its figures.
 
 Made from a :class:`~ccs_kornia.pipeline.rig_pipeline.RigPipelineResult`; read back by :func:`rig_cameras` and
-:func:`pair_pose` (the ``rectify`` command and the export formats).
+:func:`record_extrinsics` (the ``rectify`` command and the export formats).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import torch
 
 from ccs_kornia.outputs.records import camera_record
 
-__all__ = ["CONVENTION", "rig_record", "pair_record", "pair_pose", "rotation_angle_deg", "rig_cameras", "rectify_maps"]
+__all__ = ["CONVENTION", "rig_record", "pair_record", "record_extrinsics", "rotation_angle_deg", "rig_cameras", "rectify_maps"]
 
 #: how the extrinsics map points: camera 0's frame to camera ``i``'s (OpenCV's ``stereoCalibrate`` convention)
 CONVENTION = "x_i = R x_0 + T"
@@ -41,18 +41,18 @@ def rotation_angle_deg(R: Any) -> float:
     return math.degrees(math.acos(float(cos)))
 
 
-def pair_pose(extrinsics: list[dict[str, Any]], i: int, j: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``R, T`` from camera ``i`` to camera ``j`` (``x_j = R x_i + T``) from the record's per-camera extrinsics.
+def record_extrinsics(extrinsics: list[dict[str, Any]]) -> tuple[torch.Tensor, torch.Tensor]:
+    """The record's per-camera extrinsics as tensors ``R`` :math:`(C, 3, 3)`, ``T`` :math:`(C, 3)` (float64), e.g. for
+    :func:`~ccs_kornia.geometry.poses.pair_pose`.
 
     Example:
+        >>> from ccs_kornia.geometry.poses import pair_pose
         >>> ext = [{"R": torch.eye(3).tolist(), "T": [0.0, 0.0, 0.0]}, {"R": torch.eye(3).tolist(), "T": [-0.1, 0, 0]}]
-        >>> pair_pose(ext, 1, 0)[1].tolist()
+        >>> pair_pose(*record_extrinsics(ext), 1, 0)[1].tolist()
         [0.1, 0.0, 0.0]
     """
-    Ri, Ti = torch.tensor(extrinsics[i]["R"], dtype=torch.float64), torch.tensor(extrinsics[i]["T"], dtype=torch.float64)
-    Rj, Tj = torch.tensor(extrinsics[j]["R"], dtype=torch.float64), torch.tensor(extrinsics[j]["T"], dtype=torch.float64)
-    R = Rj @ Ri.T
-    return R, Tj - R @ Ti
+    R = torch.tensor([e["R"] for e in extrinsics], dtype=torch.float64)
+    return R, torch.tensor([e["T"] for e in extrinsics], dtype=torch.float64)
 
 
 def pair_record(rig: Any, i: int, j: int) -> dict[str, Any]:

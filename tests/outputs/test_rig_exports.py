@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
+from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.outputs.rig_exports import (
     kalibr_camchain,
     kalibr_problem,
@@ -16,7 +17,11 @@ from ccs_kornia.outputs.rig_exports import (
     ros_stereo_files,
     write_opencv_stereo_yaml,
 )
-from ccs_kornia.outputs.rig_records import pair_pose, rectify_maps, rotation_angle_deg
+from ccs_kornia.outputs.rig_records import (
+    record_extrinsics,
+    rectify_maps,
+    rotation_angle_deg,
+)
 
 K_A = [[300.0, 0.0, 321.0], [0.0, 301.0, 239.0], [0.0, 0.0, 1.0]]
 K_B = [[520.0, 0.0, 318.0], [0.0, 519.0, 242.0], [0.0, 0.0, 1.0]]
@@ -40,7 +45,7 @@ def _record(third: str = "k1k2") -> dict:
                        {"R": R2.tolist(), "T": T2.tolist()}],
         "rms": 0.1,
     }
-    R, T = (x.numpy() for x in pair_pose(data["extrinsics"], 0, 1))
+    R, T = (x.numpy() for x in pair_pose(*record_extrinsics(data["extrinsics"]), 0, 1))
     E = np.array([[0, -T[2], T[1]], [T[2], 0, -T[0]], [-T[1], T[0], 0]]) @ R
     F = np.linalg.inv(np.array(K_B)).T @ E @ np.linalg.inv(np.array(K_A))
     data["pairs"] = [{"cameras": [0, 1], "E": E.tolist(), "F": F.tolist()}]
@@ -49,7 +54,7 @@ def _record(third: str = "k1k2") -> dict:
 
 def test_pair_pose_and_rotation_angle():
     data = _record()
-    R, T = pair_pose(data["extrinsics"], 1, 2)
+    R, T = pair_pose(*record_extrinsics(data["extrinsics"]), 1, 2)
     R1, T1 = np.array(data["extrinsics"][1]["R"]), np.array(data["extrinsics"][1]["T"])
     R2, T2 = np.array(data["extrinsics"][2]["R"]), np.array(data["extrinsics"][2]["T"])
     x0 = np.array([0.3, -0.2, 2.0])
@@ -66,7 +71,7 @@ def test_mixed_pair_rectifies_to_common_rows():
     # points in front of both cameras, projected by each camera's own model, meet on the same rectified row
     rng = np.random.default_rng(0)
     pts = np.c_[rng.uniform(-0.4, 0.4, 30), rng.uniform(-0.3, 0.3, 30), rng.uniform(1.5, 3.0, 30)]
-    R, T = (x.numpy() for x in pair_pose(data["extrinsics"], 0, 1))
+    R, T = (x.numpy() for x in pair_pose(*record_extrinsics(data["extrinsics"]), 0, 1))
     a, _ = cv2.fisheye.projectPoints(pts[:, None], np.zeros(3), np.zeros(3), np.array(K_A), np.array(FISHEYE))
     b, _ = cv2.projectPoints(pts, cv2.Rodrigues(R)[0], T, np.array(K_B), np.array(OPENCV5))
     ra = cv2.fisheye.undistortPoints(a, np.array(K_A), np.array(FISHEYE), R=rect["R1"], P=rect["P1"])[:, 0]

@@ -22,6 +22,7 @@ from ccs_kornia.modules.calibration.homography import (
 )
 from ccs_kornia.modules.calibration.implicit import implicit_solution
 from ccs_kornia.modules.calibration.lm import parameter_basis
+from ccs_kornia.modules.calibration.outliers import drop_outliers
 from ccs_kornia.modules.calibration.quality.degeneracy import (
     DegeneracyThresholds,
     check_degeneracy,
@@ -395,11 +396,8 @@ class CalibrationSolver(nn.Module):
         if self.reject_outliers:
             for _ in range(self.max_outlier_rounds):
                 cand_rms, rvec_all, tvec_all = self._evaluate_all(res, corners, valid, obj, H, candidates, used)
-                med = torch.where(used, cand_rms, torch.full_like(cand_rms, float("nan"))).nanmedian(-1).values
-                thr = torch.clamp(self.outlier_rel_threshold * med, min=self.outlier_abs_threshold)
-                new_used = candidates & (cand_rms <= thr[:, None])
-                keep_old = (new_used.sum(-1) < self.min_views) | ~med.isfinite()
-                new_used = torch.where(keep_old[:, None], used, new_used)
+                new_used = drop_outliers(cand_rms, used, candidates, self.outlier_abs_threshold,
+                                         self.outlier_rel_threshold, self.min_views)
                 if bool((new_used == used).all()):
                     break
                 res = self._refine(corners, valid, obj, res.K, rvec_all, tvec_all, res.dist, new_used, fix_intrinsics,
