@@ -1,7 +1,8 @@
 """The looks of :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` at its views, each a value the pipeline's loop runs.
 
 The first look (:meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.detect_views`) detects every view as it is; the
-looks of :data:`LOOKS` come after it, in order, each on the views the looks before it missed:
+pipeline's looks (by default those of :data:`LOOKS`) come after it, in order, each on the views the looks before it
+missed:
 
 ========================  ====================================  ==================================  ===========
 look                      views (``select``)                    warp (``detect``)                   needs
@@ -18,7 +19,7 @@ A look says which of the detector's fallbacks it pays for (``passes``: functions
 before it missed) and whether it needs the camera (the loop solves first). The pipeline's detection tools reach a
 look as one value (:class:`Tools`); a look's boards are written back with
 :meth:`~ccs_kornia.modules.detection.base.DetectionResult.fill`. Why each look asks what it does, with the figures:
-``docs/detection.md`` (the looks at missed views).
+``docs/measurements.md`` (the looks at missed views).
 """
 
 from __future__ import annotations
@@ -73,7 +74,7 @@ def first_look_fallbacks(own: Fallbacks) -> Fallbacks:
 def second_look_fallbacks(own: Fallbacks) -> Fallbacks:
     """A second look at missed views (corrected copies, virtual views of the calibrated lens): the finer fallback
     levels only, which find boards there; the coarser level, the octaves below, the finest level and OpenCV's
-    candidates found none and cost time on every view without a board (``docs/detection.md``)."""
+    candidates found none and cost time on every view without a board (``docs/measurements.md``)."""
     return own.but(levels=(0.5, 0.25), finest=False, opencv=False, foreshortened=False)
 
 
@@ -199,7 +200,7 @@ def _missed_on_fisheye_cameras(out: PipelineResult, detector: ChessboardDetector
     """Views missed on the originals, or rejected as outliers, of cameras calibrated with a fisheye model.
 
     Only fisheye cameras: there the boards near the rim are too curved for the detector, and the calibrated model is
-    what straightens them (it found every missed view of the real fisheye sets, ``docs/detection.md``); a pinhole
+    what straightens them (it found every missed view of the real fisheye sets, ``docs/measurements.md``); a pinhole
     lens's missed views are missed for other reasons (blur, cut boards) that a reprojection does not cure."""
     cal, det = out.calibration, out.detections
     models = cal.model if isinstance(cal.model, tuple) else (cal.model,) * det.found.shape[0]
@@ -235,7 +236,7 @@ def _still_missed(out: PipelineResult, detector: ChessboardDetector) -> list:
     own fallbacks (:meth:`~ccs_kornia.modules.detection.base.ChessboardDetector.foreshortened`); not those of a
     strongly distorted lens (its pooled correction large), which bends a board's squares beyond an affine compression:
     the corrected look is its resort (looking there too cost accuracy on bench section 4's wide lens,
-    ``docs/detection.md``)."""
+    ``docs/measurements.md``)."""
     own = detector.fallbacks
     if own is None or not own.foreshortened:
         return []
@@ -284,20 +285,20 @@ FIRST = Look("first look", _every_view, _as_is, FIRST_PASSES)
 
 #: views missed on the originals of a strongly distorted camera, on copies corrected by the network's pooled
 #: correction: finer fallback levels only, in the pipeline's batches (one view at a time changed results in the
-#: fourth digit, ``docs/detection.md``), by its worker processes on CPU
+#: fourth digit, ``docs/measurements.md``), by its worker processes on CPU
 CORRECTED = Look("corrected look", _missed_with_large_correction, _on_corrected_copies, (second_look_fallbacks,),
                  needs_correction=True, after=measure_straightening)
 
 #: a fisheye lens, once calibrated, straightens the boards its rim hid from the detector: two passes over the
 #: virtual views, each on the level its square-size estimate picks, then, for the images still without a board, on
 #: the fallback levels only; most rim boards are found on the first level, and one pass with the fallbacks paid them
-#: on every view before the one that had the board (``docs/detection.md``)
+#: on every view before the one that had the board (``docs/measurements.md``)
 CALIBRATED = Look("calibrated look", _missed_on_fisheye_cameras, _on_virtual_views,
                   (_virtual_view_first_level, _virtual_view_fallback_levels), needs_camera=True, in_workers=False)
 
 #: the last resort on the views every other look missed: it costs four detections at the finest level on every view
 #: without a board, and most such views of a fisheye lens are found by the calibrated look anyway
-#: (``docs/detection.md``)
+#: (``docs/measurements.md``)
 FORESHORTENED = Look("foreshortened look", _still_missed, _foreshortened, in_workers=False)
 
 #: the looks after the first (:data:`FIRST`), in order: the default of the pipeline's ``looks``
