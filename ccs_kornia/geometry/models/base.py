@@ -84,8 +84,10 @@ class CameraModel:
 
         Example:
             >>> from ccs_kornia.geometry.models import camera_model
-            >>> camera_model("k1k2").opencv_coeffs([-0.3, 0.1]).tolist(), camera_model("fisheye").opencv_coeffs([]).shape
-            ([-0.3, 0.1, 0.0, 0.0, 0.0], (4,))
+            >>> camera_model("k1k2").opencv_coeffs([-0.3, 0.1]).tolist()
+            [-0.3, 0.1, 0.0, 0.0, 0.0]
+            >>> camera_model("fisheye").opencv_coeffs([]).shape
+            (4,)
         """
         if isinstance(coeffs, torch.Tensor):
             n = coeffs.shape[-1]

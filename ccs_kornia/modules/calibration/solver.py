@@ -106,8 +106,9 @@ class CalibrationSolver(nn.Module):
             determined fit that is still converging (3 views, exact corners: 40 iterations) lowers its cost by more
             than 1x per 10 iterations.
         checks: run the degeneracy checks of :mod:`~ccs_kornia.modules.calibration.quality.degeneracy`: copies of a view
-            are dropped before the solve (:attr:`ViewReason.DUPLICATE`), a camera failing a check with severity ``error`` gets
-            ``success = False``, and every result carries ``check_*`` tensors (see ``CalibrationResult.issues``).
+            are dropped before the solve (:attr:`ViewReason.DUPLICATE`), a camera failing a check with severity
+            ``error`` gets ``success = False``, and every result carries ``check_*`` tensors (see
+            ``CalibrationResult.issues``).
         thresholds: :class:`~ccs_kornia.modules.calibration.quality.degeneracy.DegeneracyThresholds` of those checks.
 
     Gradients: when ``corners``, ``weights`` or ``object_points`` require grad, ``K``, ``dist``, ``rvec`` and ``tvec``
@@ -167,10 +168,9 @@ class CalibrationSolver(nn.Module):
         super().__init__()
         self.checks = checks
         self.thresholds = thresholds or DegeneracyThresholds(min_views=max(int(min_views), 1))
-        if model not in (*FREE_DISTORTION, KannalaBrandtModel.name):
-            raise ValueError(
-                f"Unknown distortion model {model!r}; expected one of {sorted([*FREE_DISTORTION, KannalaBrandtModel.name])}."
-            )
+        names = (*FREE_DISTORTION, KannalaBrandtModel.name)
+        if model not in names:
+            raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(names)}.")
         self.model = model
         #: the model named ``model``
         self.camera = camera_model(model)

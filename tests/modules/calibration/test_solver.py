@@ -48,7 +48,8 @@ class TestRansacAndSolver:
         assert torch.equal(inliers, inliers2) and torch.equal(K0, K02)  # seeded
         res = CalibrationSolver()(bad, valid, obj, IMAGE_SIZE)
         assert res.success.all() and (res.K - K).abs().max() < 1e-6 and res.rms.max() < 1e-6
-        assert res.view_reason[0, 3] == ViewReason.RANSAC_REJECTED and res.view_reason[1, 7] == ViewReason.RANSAC_REJECTED and res.used.sum() == 28
+        rejected = ViewReason.RANSAC_REJECTED
+        assert res.view_reason[0, 3] == rejected and res.view_reason[1, 7] == rejected and res.used.sum() == 28
         assert VIEW_REASONS[ViewReason.RANSAC_REJECTED].startswith("rejected")
         # without RANSAC the post-refinement check still finds them (but the corrupted LM start is worse)
         res_nr = CalibrationSolver(use_ransac=False)(bad, valid, obj, IMAGE_SIZE)
@@ -135,7 +136,8 @@ class TestRansacAndSolver:
         assert res.success.tolist() == [True, False, True, False]
         assert res.K[[1, 3]].isnan().all() and res.K[[0, 2]].isfinite().all()
         assert (res.K[0] - K[0]).abs().max() < 1e-6 and not res.used[3].any()
-        assert res.view_reason[1, 2:].eq(ViewReason.TOO_FEW_CORNERS).all() and res.view_reason[2, 0] == ViewReason.TOO_FEW_CORNERS and res.used[2].sum() == 3
+        few = ViewReason.TOO_FEW_CORNERS
+        assert res.view_reason[1, 2:].eq(few).all() and res.view_reason[2, 0] == few and res.used[2].sum() == 3
         assert res.view_rms[2, 4:].isnan().all() and res.rms[2] < 1e-6
 
     def test_malformed_shapes(self):
