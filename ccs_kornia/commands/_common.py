@@ -189,7 +189,7 @@ def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present
         dictionary_hint,
     )
 
-    detector = getattr(pipeline, "detector", None)
+    detector = pipeline.detector
     if not isinstance(detector, CharucoDetector) or not bool(present.any()):
         return
     off = sum(1 for r in reasons if r and r.endswith("wrong board size?"))

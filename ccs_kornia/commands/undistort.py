@@ -28,6 +28,7 @@ __all__ = ["run"]
 def _read_calibration(path: str) -> tuple[Any, Any, tuple[int, int] | None, bool]:
     import torch
 
+    from ccs_kornia.geometry.models.factory import camera_model
     from ccs_kornia.outputs.calibration_file import read_calibration
 
     try:
@@ -36,7 +37,7 @@ def _read_calibration(path: str) -> tuple[Any, Any, tuple[int, int] | None, bool
         raise UserError(f"--calibration {path}: {err}") from None
     K = torch.from_numpy(calib["K"])
     dist = torch.from_numpy(calib["coeffs"])
-    return K, dist, calib["image_size"], calib["model"] == "fisheye"
+    return K, dist, calib["image_size"], camera_model(calib["model"]).is_fisheye
 
 
 def _calibrated_corners(path: str) -> Any:

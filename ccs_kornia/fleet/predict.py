@@ -53,6 +53,7 @@ from ccs_kornia.fleet.shards import (
 )
 from ccs_kornia.io.files import json_line
 from ccs_kornia.io.images import IMAGE_EXTENSIONS, load_image_gray
+from ccs_kornia.modules._checks import check_board_size
 from ccs_kornia.outputs.records import camera_record
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 from ccs_kornia.pipeline.sources import ViewSource
@@ -255,7 +256,7 @@ class CalibrationLitModule(pl.LightningModule):
         super().__init__()
         self.pipeline = pipeline
         self.board_record = dict(board_record or {})
-        self.board_size = (int(board_size[0]), int(board_size[1]))
+        self.board_size = check_board_size(board_size)
         self.square = float(square)
         self.detector_name = detector_name
 

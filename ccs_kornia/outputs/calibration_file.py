@@ -13,16 +13,17 @@ from typing import Any
 
 import numpy as np
 
-from ccs_kornia.geometry.camera import DISTORTION_MODELS
+from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
+from ccs_kornia.geometry.models.opencv import OPENCV_VARIANTS
 
 __all__ = ["CALIBRATION_COEFFS", "read_calibration"]
 
 
 def _coefficient_counts() -> dict[str, tuple[int, ...]]:
-    # the polynomial models as the solver writes them (``none``: five zeros, or no coefficients at all), and
-    # cv2.fisheye's k1..k4
-    counts = {model: (n,) if n else (0, 5) for model, n in DISTORTION_MODELS.items()}
-    return {**counts, "fisheye": (4,)}
+    # the models as the solver writes them (``none``: five zeros, or no coefficients at all)
+    counts = {name: camera_model(name).num_coeffs for name in (*OPENCV_VARIANTS, KannalaBrandtModel.name)}
+    return {name: (n,) if n else (0, 5) for name, n in counts.items()}
 
 
 #: distortion coefficient counts a calibration file may hold, per model
@@ -93,4 +94,4 @@ def read_calibration(path: str | os.PathLike) -> dict[str, Any]:
     size = data["image_size"]
     if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
         raise ValueError(f"not a calibration: image_size must be [width, height] in pixels, got {size!r}")
-    return {"K": K, "coeffs": coeffs if coeffs.size else np.zeros(5), "model": model, "image_size": tuple(size)}
+    return {"K": K, "coeffs": camera_model(model).opencv_coeffs(coeffs), "model": model, "image_size": tuple(size)}

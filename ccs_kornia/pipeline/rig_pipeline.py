@@ -315,9 +315,8 @@ class RigPipeline(nn.Module):
         out.reason = unconnected_cameras(valid, names, frames.labels)
         if out.reason:
             return out
-        cols, rows = int(board_size[0]), int(board_size[1])
-        object_points = grid_object_points(getattr(next(iter(self.pipelines.values())).detector, "board", None),
-                                           (cols, rows), float(square), dtype=torch.float64)
+        object_points = grid_object_points(next(iter(self.pipelines.values())).detector.board, board_size,
+                                           float(square), dtype=torch.float64)
         solver = RigSolver(models=models, **self.solver_kwargs)
         sizes = [tuple(int(x) for x in r.image_size) for r in cameras]
         try:

@@ -1,13 +1,12 @@
 """Work on a source's views in batches, in this process or in forked worker processes (one CPU core each).
 
-Most of a view's detection is small tensor and numpy operations, which one process cannot spread over two cores
-(only the networks' convolutions use both threads well): two processes with one thread each detect a folder about
-1.5x faster on 2 cores than one process with two threads (udacity_gopro_wide's 36 photos 7.4 -> 4.1 s; opencv_left's
-13, 1.72 -> 1.14 s). :func:`map_batches` splits the views into the same batches whatever the number of workers
-(:func:`chunks` of ``batch_size`` views, then the source's own batches of one image size within each), so a set gives
-the same corners with any number of workers (the distortion network's per-view predictions agree to 4e-6: float
-rounding of one thread against two). :func:`worker_pool` maps any function over items the same way (the pipeline's
-model selection solves its four models at once).
+Most of a view's detection is small tensor and numpy operations, which one process cannot spread over two cores (only
+the networks' convolutions use both threads well): two processes with one thread each detect a folder about 1.5x
+faster on 2 cores than one process with two threads (``docs/measurements.md``). :func:`map_batches` splits the views
+into the same batches whatever the number of workers (:func:`chunks` of ``batch_size`` views, then the source's own
+batches of one image size within each), so a set gives the same corners with any number of workers (the distortion
+network's per-view predictions agree to 4e-6: float rounding of one thread against two). :func:`worker_pool` maps any
+function over items the same way (the pipeline's model selection solves its four models at once).
 
 Workers are forked (Linux; the model is shared, not copied or pickled) and only for CPU work; each runs one intra-op
 thread. Where fork is not available, or on other devices, the work runs here, in order.

@@ -42,6 +42,7 @@ from ccs_kornia.modules.calibration.quality.uncertainty import (
     image_points,
     projection_uncertainty,
 )
+from ccs_kornia.modules.calibration.result import ViewReason
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
 F64 = torch.float64
@@ -123,7 +124,7 @@ def test_three_copies_of_one_synthetic_view_are_refused():
     uv = d["uv"][0, 0].expand(3, -1, -1)
     res = CalibrationSolver()(uv, None, d["obj"], SIZE)
     assert not bool(res.success) and res.K.isnan().all()
-    assert res.view_reason.tolist() == [0, 5, 5]
+    assert res.view_reason.tolist() == [ViewReason.USED, ViewReason.DUPLICATE, ViewReason.DUPLICATE]
     issue = next(i for i in res.issues()[0] if i["check"] == "duplicate_views")
     assert issue["severity"] == "error" and issue["views"] == [1, 2] and "copies" in issue["message"]
 
@@ -174,7 +175,7 @@ def test_copies_are_dropped_before_the_covariance():
     dup = torch.cat([uv, uv[[2, 5]]]), torch.cat([valid, valid[[2, 5]]])
     solver = CalibrationSolver()
     ref, res = solver(uv, valid, d["obj"], SIZE), solver(*dup, d["obj"], SIZE)
-    assert bool(res.success) and res.view_reason[8:].tolist() == [5, 5]
+    assert bool(res.success) and res.view_reason[8:].tolist() == [ViewReason.DUPLICATE] * 2
     torch.testing.assert_close(res.K, ref.K)
     torch.testing.assert_close(res.std_intrinsics, ref.std_intrinsics)
     issue = next(i for i in res.issues()[0] if i["check"] == "duplicate_views")
@@ -188,7 +189,7 @@ def test_near_identical_views_warn():
     uv, valid = d["uv"][0], d["valid"][0]
     near = uv[[1]] + torch.tensor([1.5, -1.0], dtype=F64)  # the board moved by ~2 px: not a copy, no new pose
     res = CalibrationSolver()(torch.cat([uv, near]), torch.cat([valid, valid[[1]]]), d["obj"], SIZE)
-    assert bool(res.success) and res.view_reason[6] == 0
+    assert bool(res.success) and res.view_reason[6] == ViewReason.USED
     issue = next(i for i in res.issues()[0] if i["check"] == "near_identical_views")
     assert issue["severity"] == "warning" and issue["views"] == [1, 6]
 
