@@ -56,6 +56,7 @@ from ccs_kornia.pipeline.differentiable import differentiable_detect, differenti
 from ccs_kornia.pipeline.looks import FIRST, LOOKS, Changes, Look, Tools
 from ccs_kornia.pipeline.result import (
     PipelineResult,
+    corner_weights_of,
     main_size,
     module_device,
     positive_size,
@@ -477,11 +478,13 @@ class CalibrationPipeline(nn.Module):
         correction_tried: torch.Tensor | None = None,
         init_corners: torch.Tensor | None = None,
         initial: CalibrationResult | None = None,
+        sigma: torch.Tensor | None = None,
     ) -> CalibrationResult:
         """Stage 3 of :meth:`run`: calibrate from corners.
 
         Without ``correction`` this is the solver alone; with the ``correction`` and ``correction_tried`` that
-        :meth:`detect` returns, the corrected-frame calibration competes as in :meth:`run`.
+        :meth:`detect` returns, the corrected-frame calibration competes as in :meth:`run`; with its ``sigma`` too, the
+        corners are weighted as :meth:`run` weighs them, so the result is the whole call's.
 
         Args:
             corners: :math:`(V, N, 2)` or :math:`(C, V, N, 2)` pixels in grid order.
@@ -492,6 +495,9 @@ class CalibrationPipeline(nn.Module):
             correction, correction_tried: :math:`(5,)` / :math:`(C, 5)` and bool scalar / :math:`(C,)`.
             init_corners, initial: optional start of the solver, see
                 :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
+            sigma: :math:`(V, N)` / :math:`(C, V, N)` each corner's measured precision (``DetectionResult.sigma``):
+                the corners are weighted by it where the pipeline weighs corners (``weigh_corners``); ``None``: all
+                corners count alike.
 
         Returns:
             :class:`~ccs_kornia.modules.calibration.result.CalibrationResult`.
@@ -509,20 +515,24 @@ class CalibrationPipeline(nn.Module):
         if not square > 0:
             raise ValueError(f"square must be positive, got {square}.")
         size = (int(image_size[0]), int(image_size[1]))
+        if sigma is not None and sigma.shape != corners.shape[:-1]:
+            raise ValueError(f"sigma must have shape {tuple(corners.shape[:-1])}, got {tuple(sigma.shape)}.")
         if (correction is not None and correction_tried is not None) or self.model == "auto":
             single = corners.dim() == 3
             batch = (lambda x: None if x is None else x[None]) if single else (lambda x: x)
             calib = solve_group(self.solving, batch(corners).double(), batch(valid).any(-1), board_size, square, size,
                                 None if correction is None else batch(correction).double(),
-                                None if correction_tried is None else batch(torch.as_tensor(correction_tried)))[0]
+                                None if correction_tried is None else batch(torch.as_tensor(correction_tried)),
+                                batch(sigma))[0]
             return select_result(calib, 0) if single else calib
         object_points = grid_object_points(getattr(self.detector, "board", None), (cols, rows), float(square),
                                            device=corners.device, dtype=torch.float64)
+        weights = corner_weights_of(sigma, valid.bool()) if self.weigh_corners else None
         with nullcontext() if self.differentiable else torch.inference_mode():
             return self.solver(
                 corners.to(torch.float64), valid.bool(), object_points, size,
                 init_corners=None if init_corners is None else init_corners.to(corners.device, torch.float64),
-                initial=initial,
+                initial=initial, weights=weights,
             )
 
     def view_corrections(self, images: torch.Tensor) -> torch.Tensor:
