@@ -17,17 +17,19 @@ from ccs_kornia.commands._common import (
     UserError,
     aprilgrid_record,
     charuco_record,
+    check_output_dir,
     check_output_file,
     info,
     inputs,
     make_detector_from,
+    make_dir,
     missing_weights,
     pipeline_options,
     resolve_device,
     warn,
 )
 
-__all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "check_output_dir", "run", "summary_lines"]
+__all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "run", "summary_lines"]
 
 COMMAND = "calibrate-rig"
 
@@ -100,19 +102,6 @@ def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
     return fixed
 
 
-def check_output_dir(option: str, path: str) -> None:
-    """An output directory that exists, or can be created later (its parent exists and is writable)."""
-    if os.path.exists(path):
-        if not os.path.isdir(path):
-            raise UserError(f"{option} {path} exists and is not a directory")
-        if not os.access(path, os.W_OK):
-            raise UserError(f"{option} {path}: directory is not writable")
-        return
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent) or not os.access(parent, os.W_OK):
-        raise UserError(f"{option} {path}: parent directory {parent} does not exist or is not writable")
-
-
 def _camera_files(name: str, item: str) -> list[str]:
     try:
         return inputs(COMMAND, [item])
@@ -148,6 +137,15 @@ def run(args: argparse.Namespace) -> int:
     if args.kalibr_yaml and "rational" in models:
         raise UserError(f"--kalibr-yaml: Kalibr has no rational (k1..k6) model, asked for camera "
                         f"{names[models.index('rational')]}; use --model opencv5, k1k2 or fisheye")
+    options = pipeline_options(args, args.use_ransac, args.seed)
+    if args.kalibr_yaml and "auto" in models:
+        # a camera that auto gave rational would stop the run at the end, after all the work, with no camchain:
+        # this run chooses among the models Kalibr holds instead
+        from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS
+
+        options["auto_models"] = tuple(m for m in AUTO_MODELS if m != "rational")
+        info(f"--kalibr-yaml: Kalibr has no rational model, so --model auto chooses among "
+             f"{', '.join(options['auto_models'])} in this run")
     device = resolve_device(args.device)
     files = [_camera_files(names[k], folder) for k, folder in enumerate(folders)]
     frames = match_frames(files)
@@ -158,8 +156,7 @@ def run(args: argparse.Namespace) -> int:
                  f"({frames.num_frames - len(missing)} of {frames.num_frames} frames)")
     detector = make_detector_from(args)
     try:
-        pipeline = RigPipeline(detector, models=models, fixed={k: v[0] for k, v in fixed.items()},
-                               **pipeline_options(args, args.use_ransac, args.seed))
+        pipeline = RigPipeline(detector, models=models, fixed={k: v[0] for k, v in fixed.items()}, **options)
     except FileNotFoundError as err:
         raise missing_weights(err) from None
     pipeline.to(device)
@@ -237,11 +234,13 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
             warn(COMMAND, f"--kalibr-yaml: {note}")
     if len(data["cameras"]) > 2 and (args.opencv_yaml or args.ros_yaml_dir):
         info(f"--opencv-yaml / --ros-yaml-dir hold the pair {names[0]}-{names[1]} (cameras 0 and 1)")
+    for option, path in (("--report", args.report), ("--ros-yaml-dir", args.ros_yaml_dir if ros else None)):
+        if path:  # the folders first: a folder that cannot be made stops the run before any file is written
+            make_dir(option, path)
     if args.report:
         from ccs_kornia.outputs.report.rig import write_rig_report
 
         start = time.perf_counter()
-        os.makedirs(args.report, exist_ok=True)
         write_rig_report(args.report, data, rect)
         data["timings"]["report_s"] = time.perf_counter() - start
     try:
@@ -251,7 +250,6 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
     if args.opencv_yaml:
         write_opencv_stereo_yaml(args.opencv_yaml, data, rect)
     if ros:
-        os.makedirs(args.ros_yaml_dir, exist_ok=True)
         for name, text in ros.items():
             write_text_atomic("--ros-yaml-dir", os.path.join(args.ros_yaml_dir, name), text)
     if camchain is not None:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import functools
 import math
 from contextlib import nullcontext
-from typing import Callable
+from typing import Callable, Sequence
 
 import torch
 from torch import nn
@@ -97,6 +97,8 @@ class CalibrationPipeline(nn.Module):
         model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational``, ``none``, ``fisheye`` (cv2.fisheye's) or
             ``auto`` (one of :data:`~ccs_kornia.modules.calibration.model_selection.AUTO_MODELS` per camera, by
             cross-validation; ``PipelineResult.model_selection`` says which and why).
+        auto_models: the candidates of ``model="auto"`` (default all of ``AUTO_MODELS``), e.g. without ``rational``
+            for a camera whose calibration goes to a format that cannot hold it (Kalibr's camchain).
         use_ransac: reject inconsistent views with image-level RANSAC before the refinement.
         seed: seed of the RANSAC sampling (results are deterministic for a given seed).
         detection_batch_size: most images handed to the detector at once.
@@ -162,6 +164,7 @@ class CalibrationPipeline(nn.Module):
         calibrated_look: bool = True,
         weigh_corners: bool = True,
         differentiable: bool = False,
+        auto_models: Sequence[str] = AUTO_MODELS,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -177,10 +180,14 @@ class CalibrationPipeline(nn.Module):
         for name, value in (("min_correction", min_correction), ("max_rms_ratio", max_rms_ratio)):
             if not value >= 0:
                 raise ValueError(f"{name} must be >= 0, got {value}.")
-        names = AUTO_MODELS if model == "auto" else (model,)
+        candidates = tuple(dict.fromkeys(auto_models))
+        if not candidates or any(m not in AUTO_MODELS for m in candidates):
+            raise ValueError(f"auto_models must be some of {', '.join(AUTO_MODELS)}, got {list(auto_models)}.")
+        names = candidates if model == "auto" else (model,)
         self.solvers = nn.ModuleDict({m: CalibrationSolver(model=m, use_ransac=use_ransac, seed=seed, **solver_kwargs)
                                       for m in names})
-        self.solver = self.solvers[names[1] if model == "auto" else model]  # the stage alone's (auto: opencv5)
+        # the stage alone's (auto: opencv5 where it is a candidate)
+        self.solver = self.solvers[("opencv5" if "opencv5" in names else names[0]) if model == "auto" else model]
         self.selection = ModelSelection(dict(self.solvers)) if model == "auto" else None
         self.subset_solutions = None  # the last solve's cross-validation subsets (pipeline_solve.solve_detections)
         self.model, self.diagnostics, self.calibrated_look = model, bool(diagnostics), bool(calibrated_look)

@@ -17,6 +17,7 @@ from _real_data import REAL_DATA
 from _rig_images import ANGLE_DEG, T_REL, render_stereo, write_stereo
 
 from ccs_kornia import cli
+from ccs_kornia.runtime.errors import UserError
 from ccs_kornia.io.images import write_image
 
 FAST = ["--board", "6x4", "--square", "0.025", "--detector", "opencv", "--no-distortion-correction", "--model", "k1k2",
@@ -237,7 +238,8 @@ def test_camera_of_copied_views(stereo, tmp_path, capsys):
     (["--fix-intrinsics", "5=x.json"], "camera index 5 out of range"),
     (["--fix-intrinsics", "0=/nonexistent/x.json"], "cannot read"),
     (["--opencv-yaml", "/nonexistent/dir/s.yml"], "does not exist"),
-    (["--ros-yaml-dir", "/nonexistent/dir/ros"], "does not exist"),
+    (["--ros-yaml-dir", "/proc/ros"], "cannot write in /proc"),
+    (["--report", "/proc/report"], "cannot write in /proc"),
     (["--model", "rational", "--kalibr-yaml", "camchain.yaml"], "Kalibr has no rational"),
 ])
 def test_bad_options_stop_before_any_work(tmp_path, capsys, extra, phrase):
@@ -247,6 +249,33 @@ def test_bad_options_stop_before_any_work(tmp_path, capsys, extra, phrase):
     code, _, err = run(capsys, *argv, *extra)
     assert_one_line_error(code, err, phrase)
     assert not (tmp_path / "rig.json").exists()
+
+
+def test_kalibr_with_auto_leaves_rational_out_of_the_candidates(tmp_path, capsys, monkeypatch):
+    """Kalibr has no rational model: with --model auto the run chooses among the others (and says so) instead of
+    stopping after all the work."""
+    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
+
+    seen = {}
+
+    def fake(detector, models, fixed, **options):
+        seen.update(options, models=models)
+        raise UserError("stopped before the work")
+
+    monkeypatch.setattr(rig_pipeline, "RigPipeline", fake)
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        assert write_image(tmp_path / name / f"{name}01.png", np.full((48, 64), 0.5, np.float32))
+    argv = ["calibrate-rig", tmp_path / "a", tmp_path / "b", "--board", "6x4", "--detector", "opencv",
+            "--no-distortion-correction", "--jobs", "1", "--output", tmp_path / "rig.json", "--kalibr-yaml",
+            tmp_path / "chain.yaml"]
+    assert cli.main([str(a) for a in [*argv, "--model", "auto,k1k2"]]) == 2
+    assert seen["models"] == ["auto", "k1k2"] and "rational" not in seen["auto_models"]
+    assert "Kalibr has no rational model, so --model auto chooses among k1k2, opencv5, fisheye" in \
+        capsys.readouterr().err
+    seen.clear()
+    assert cli.main([str(a) for a in argv[:-2] + ["--model", "auto"]]) == 2
+    assert "auto_models" not in seen and seen["models"] == ["auto", "auto"]  # without a camchain: every candidate
 
 
 def test_fixed_intrinsics_from_a_calibrate_json(stereo, tmp_path, capsys):

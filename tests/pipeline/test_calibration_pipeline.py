@@ -96,6 +96,19 @@ def test_stages_alone_reproduce_the_whole_call_with_the_corner_precision(sets, m
         pipe.calibrate(det.corners, det.found, BOARD, SQUARE, (640, 480), sigma=det.sigma[:, :5])
 
 
+def test_auto_models_are_the_candidates_of_auto():
+    pipe = CalibrationPipeline("opencv", model="auto", auto_models=("k1k2", "opencv5", "fisheye"),
+                               distortion_correction=False)
+    assert sorted(pipe.solvers) == ["fisheye", "k1k2", "opencv5"] and pipe.solver.model == "opencv5"
+    assert sorted(CalibrationPipeline("opencv", model="auto", distortion_correction=False).solvers) == [
+        "fisheye", "k1k2", "opencv5", "rational"]
+    assert list(CalibrationPipeline("opencv", model="k1k2", auto_models=("fisheye",),
+                                    distortion_correction=False).solvers) == ["k1k2"]
+    for bad in ((), ("pinhole",)):
+        with pytest.raises(ValueError, match="auto_models"):
+            CalibrationPipeline("opencv", model="auto", auto_models=bad, distortion_correction=False)
+
+
 def test_ground_truth_corners_through_solver_stage(sets):
     # the solver stage alone on exact corners: the pipeline's plumbing adds no error
     pipe = CalibrationPipeline("opencv")
