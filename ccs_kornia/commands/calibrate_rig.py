@@ -109,6 +109,30 @@ def _camera_files(name: str, item: str) -> list[str]:
         raise UserError(f"camera {name} ({item}): {err}") from None
 
 
+def _file_digest(path: str) -> str:
+    import hashlib
+
+    with open(path, "rb") as handle:
+        return hashlib.sha1(handle.read()).hexdigest()
+
+
+def _check_distinct(files: list[list[str]], names: list[str], folders: list[str]) -> None:
+    """Refuse two cameras given the same images (the same folder twice, or a copy of it): the rig would be solved
+    with a baseline of zero and a verdict that says nothing of it."""
+
+    def sizes(paths: list[str]) -> list[int]:
+        return sorted(os.path.getsize(p) for p in paths)
+
+    for a in range(len(files)):
+        for b in range(a + 1, len(files)):
+            same = {os.path.realpath(p) for p in files[a]} == {os.path.realpath(p) for p in files[b]}
+            if not same and sizes(files[a]) == sizes(files[b]):  # the same sizes: compare the contents
+                same = sorted(map(_file_digest, files[a])) == sorted(map(_file_digest, files[b]))
+            if same:
+                raise UserError(f"cameras {names[a]} and {names[b]} ({folders[a]}, {folders[b]}) hold the same images: "
+                                "a rig needs one folder of images per camera")
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -148,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
              f"{', '.join(options['auto_models'])} in this run")
     device = resolve_device(args.device)
     files = [_camera_files(names[k], folder) for k, folder in enumerate(folders)]
+    _check_distinct(files, names, folders)
     frames = match_frames(files)
     for k in range(c):
         missing = frames.missing(k)

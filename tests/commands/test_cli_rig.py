@@ -24,6 +24,10 @@ FAST = ["--board", "6x4", "--square", "0.025", "--detector", "opencv", "--no-dis
         "--jobs", "1", "--no-ransac"]
 
 
+def _no_work(*args, **kwargs):
+    raise AssertionError("the command started its work before checking its input")
+
+
 def run(capsys, *argv: str) -> tuple[int, str, str]:
     code = cli.main([str(a) for a in argv])
     out, err = capsys.readouterr()
@@ -167,6 +171,37 @@ def test_rectify_command(rig_run, capsys):
     code, _, err = run(capsys, "rectify", root / "left", root / "right", "--calibration", root / "left" / "left01.png",
                        "--out-dir", out / "rect2")
     assert_one_line_error(code, err, "not a readable JSON file")
+
+
+def test_rectify_refuses_swapped_folders(rig_run, tmp_path, capsys):
+    """The folders in the wrong order rectify each image with the other camera's model: refused, whether the folders
+    are the calibration's own or copies elsewhere (the file names say which camera)."""
+    _, root, out = rig_run
+    code, _, err = run(capsys, "rectify", root / "right", root / "left", "--calibration", out / "rig.json",
+                       "--out-dir", tmp_path / "rect")
+    assert_one_line_error(code, err, "camera right's images", "camera left's", "swap")
+    assert not (tmp_path / "rect").exists()
+    for name, source in (("first", "right"), ("second", "left")):  # copies, swapped again
+        shutil.copytree(root / source, tmp_path / name)
+    code, _, err = run(capsys, "rectify", tmp_path / "first", tmp_path / "second", "--calibration", out / "rig.json",
+                       "--out-dir", tmp_path / "rect")
+    assert_one_line_error(code, err, "camera right's images", "swap")
+    code, _, err = run(capsys, "rectify", tmp_path / "first", tmp_path / "second", "--calibration", out / "rig.json",
+                       "--out-dir", tmp_path / "rect", "--pair", "1,0")
+    assert code == 0, err  # in the order of the pair asked for
+
+
+def test_the_same_camera_twice_is_refused(stereo, tmp_path, capsys, monkeypatch):
+    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
+
+    monkeypatch.setattr(rig_pipeline, "RigPipeline", _no_work)
+    left, _ = write_stereo(stereo, tmp_path)
+    code, _, err = run(capsys, "calibrate-rig", left, left, *FAST, "--output", tmp_path / "rig.json")
+    assert_one_line_error(code, err, "cameras cam0 and cam1", "the same images")
+    shutil.copytree(left, tmp_path / "copy")
+    code, _, err = run(capsys, "calibrate-rig", left, tmp_path / "copy", *FAST, "--output", tmp_path / "rig.json")
+    assert_one_line_error(code, err, "cameras cam0 and cam1", "the same images")
+    assert not (tmp_path / "rig.json").exists()
 
 
 def test_three_cameras(tmp_path, capsys):
