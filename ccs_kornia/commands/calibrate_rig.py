@@ -282,8 +282,8 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
 
 
 def summary_lines(data: dict[str, Any], output: str) -> list[str]:
-    """The command's short summary: per camera its model and RMS, per pair baseline, rotation and epipolar error,
-    the verdict."""
+    """The command's short summary: per camera its model and RMS, per pair baseline, rotation and epipolar error, a
+    joint fit that did not converge, the verdict."""
 
     def fmt(value: float | None, digits: int = 3) -> str:
         return "n/a" if value is None else f"{value:.{digits}f}"
@@ -304,5 +304,9 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
                      f"board's unit), rotation {pair['rotation_deg']:.3f}{rot} deg, epipolar RMS "
                      f"{fmt(pair['epipolar_rms'])} px{held}")
     lines.append(f"rig RMS {fmt(data['rms'])} px over {len(data['frame_labels'])} frames; wrote {output}")
+    fit = data.get("fit") or {}
+    if fit.get("converged") is False:
+        lines.append(f"warning: the joint fit did not converge in {fit.get('iterations')} iterations (it stopped at "
+                     "its limit before its tolerance was met): the figures above are those of where it stopped")
     lines.append(f"verdict: {data['verdict']}")
     return lines

@@ -160,6 +160,17 @@ def test_summary_and_missing_frames_info(stereo, tmp_path, capsys):
     assert "camera cam0: k1k2, RMS" in out and "pair cam0-cam1: baseline 0.04" in out and "verdict:" in out
 
 
+def test_console_says_the_joint_fit_did_not_converge(rig_run):
+    from ccs_kornia.commands.calibrate_rig import summary_lines
+
+    _, _, out = rig_run
+    data = json.loads((out / "rig.json").read_text())
+    assert not any("did not converge" in line for line in summary_lines(data, "rig.json"))
+    data["fit"].update(converged=False, iterations=100)
+    lines = summary_lines(data, "rig.json")
+    assert "the joint fit did not converge in 100 iterations" in lines[-2] and lines[-1].startswith("verdict:")
+
+
 def test_rectify_command(rig_run, capsys):
     _, root, out = rig_run
     code, stdout, err = run(capsys, "rectify", root / "left", root / "right", "--calibration", out / "rig.json",

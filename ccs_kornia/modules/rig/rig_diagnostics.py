@@ -95,8 +95,8 @@ def rig_verdict(
         ...             torch.tensor([0.0, 0.1]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))
         ('good', [])
         >>> rig_verdict(["a", "b"], [(640, 480)] * 2, torch.tensor([0.2, 3.0]), z, z + 0.2,
-        ...             torch.tensor([0.0, 0.1]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))[0]
-        'not reliable: check the corner detections of b, or choose a distortion model that fits its lens'
+        ...             torch.tensor([0.0, 0.1]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))[0][:73]
+        "not reliable: b's reprojection RMS 3.00 px is over 1.60 px: check the cor"
     """
     t = thresholds or RigVerdictThresholds()
     C = len(names)
@@ -104,14 +104,18 @@ def rig_verdict(
     bad: list[str] = []
     weak: list[str] = []
     advice: list[str] = []
+    # every piece of advice starts with the figure that failed and its limit, so that the verdict line says what is
+    # wrong before what to do about it (the advice alone read as "add shared frames" where 45 were shared)
     for c in range(C):
         r = float(camera_rms[c])
         if not math.isfinite(r):
             bad.append(f"{names[c]}: no reprojection error (not calibrated)")
-            advice.append(f"add frames where {names[c]} sees the board")
+            advice.append(f"{names[c]} has no reprojection error (not calibrated): add frames where {names[c]} sees "
+                          "the board")
         elif r > t.usable_rms * scale[c]:
             bad.append(f"{names[c]}: reprojection RMS {r:.2f} px")
-            advice.append(f"check the corner detections of {names[c]}, or choose a distortion model that fits its lens")
+            advice.append(f"{names[c]}'s reprojection RMS {r:.2f} px is over {t.usable_rms * scale[c]:.2f} px: check "
+                          f"the corner detections of {names[c]}, or choose a distortion model that fits its lens")
         elif r > t.good_rms * scale[c]:
             weak.append(f"{names[c]}: reprojection RMS {r:.2f} px is high")
     for c in range(1, C):
@@ -119,8 +123,13 @@ def rig_verdict(
         rel = sb / b if b > 0 else float("inf")
         if not (math.isfinite(rel) and math.isfinite(sr)) or rel > t.usable_baseline_rel or sr > t.usable_rotation_deg:
             bad.append(f"{names[c]}: baseline 1-sigma {100 * rel:.2f} %, rotation 1-sigma {sr:.3f} deg")
-            advice.append(f"add frames that {names[0]} (or a camera linked to it) and {names[c]} both see, at varied "
-                          "distances and tilts")
+            failed = []
+            if not math.isfinite(sr) or sr > t.usable_rotation_deg:
+                failed.append(f"rotation 1-sigma {sr:.2f} deg is over {t.usable_rotation_deg:g} deg")
+            if not math.isfinite(rel) or rel > t.usable_baseline_rel:
+                failed.append(f"baseline 1-sigma {100 * rel:.2f} % is over {100 * t.usable_baseline_rel:g} %")
+            advice.append(f"{names[c]}'s {' and its '.join(failed)}: add frames that {names[0]} (or a camera linked "
+                          f"to it) and {names[c]} both see, nearer and at varied distances and tilts")
         elif rel > t.good_baseline_rel or sr > t.good_rotation_deg:
             weak.append(f"{names[c]}: baseline 1-sigma {100 * rel:.2f} %, rotation 1-sigma {sr:.3f} deg")
     for i in range(C):
@@ -137,8 +146,9 @@ def rig_verdict(
             label = "held-out epipolar RMS" if held != fit else "epipolar RMS"
             if held > t.usable_epipolar * s:
                 bad.append(f"{pair}: {label} {held:.2f} px")
-                advice.append(f"add frames both {names[i]} and {names[j]} see, spread over the image and in depth "
-                              "(and check that the cameras did not move during the capture)")
+                advice.append(f"{pair}'s {label} {held:.2f} px is over {t.usable_epipolar * s:.2f} px: add frames both "
+                              f"{names[i]} and {names[j]} see, spread over the image and in depth (and check that the "
+                              "cameras did not move during the capture)")
             elif held > t.good_epipolar * s:
                 weak.append(f"{pair}: {label} {held:.2f} px")
     if bad:
