@@ -327,10 +327,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--names", metavar="NAME,NAME...", help="camera names (default cam0,cam1,...; ROS file names)")
     p.add_argument("--fix-intrinsics", action="append", metavar="CAM_INDEX=JSON",
                    help="keep camera CAM_INDEX's intrinsics as a calibrate JSON gives them (repeatable)")
-    p.add_argument("--opencv-yaml", metavar="FILE", help="also write the pair 0-1 as an OpenCV FileStorage YAML "
+    p.add_argument("--opencv-yaml", metavar="FILE", help="also write the pair of --pair as an OpenCV FileStorage YAML "
                    "(K1 D1 K2 D2 R T E F R1 R2 P1 P2 Q)")
-    p.add_argument("--ros-yaml-dir", metavar="DIR", help="also write the pair 0-1 as ROS stereo camera_info files "
-                   "(left.yaml, right.yaml, or the --names)")
+    p.add_argument("--ros-yaml-dir", metavar="DIR", help="also write the pair of --pair as ROS stereo camera_info "
+                   "files, named after the cameras (cam0.yaml, cam1.yaml, or the --names)")
+    p.add_argument("--pair", metavar="I,J", help="the cameras of the stereo files and of the report's rectified pair "
+                   "(default 0,1; required for --opencv-yaml and --ros-yaml-dir with more than two cameras)")
     p.add_argument("--kalibr-yaml", metavar="FILE", help="also write a Kalibr camchain YAML")
     p.add_argument("--report", metavar="DIR", help="also write figures (error per camera and frame, a rectified "
                    "pair, the rig from above) to DIR (created)")

@@ -35,6 +35,7 @@ __all__ = [
     "run_files",
     "board_size_hint",
     "not_found_message",
+    "parse_pair",
 ]
 
 PROG = "ccs_kornia"
@@ -362,3 +363,19 @@ def not_found_message(board: tuple[int, int], readable: int, total: int, detecto
         return f"none of the {total} input files could be read as an image"
     check = _NOT_FOUND_CHECK.get(detector, "check --board: COLSxROWS counts inner corners, where four squares meet")
     return f"board {board[0]}x{board[1]} not found in any of {readable} images ({check})"
+
+
+def parse_pair(text: str, cameras: int) -> tuple[int, int]:
+    """``--pair I,J``: two different cameras of a rig of ``cameras``.
+
+    Example:
+        >>> parse_pair("2,0", 4)
+        (2, 0)
+    """
+    parts = text.split(",")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        raise UserError(f"--pair {text}: expected two camera indices, e.g. 0,1")
+    i, j = int(parts[0]), int(parts[1])
+    if i == j or max(i, j) >= cameras:
+        raise UserError(f"--pair {text}: two different cameras of the {cameras} in the calibration (0..{cameras - 1})")
+    return i, j

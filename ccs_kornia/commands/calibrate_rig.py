@@ -24,6 +24,7 @@ from ccs_kornia.commands._common import (
     make_detector_from,
     make_dir,
     missing_weights,
+    parse_pair,
     pipeline_options,
     resolve_device,
     warn,
@@ -158,6 +159,7 @@ def run(args: argparse.Namespace) -> int:
     names = parse_names(args.names, c)
     models = parse_models(args.model, c, args.model_choices)
     fixed = parse_fixed(args.fix_intrinsics, c)
+    pair = _stereo_pair(args, c)
     if args.kalibr_yaml and "rational" in models:
         raise UserError(f"--kalibr-yaml: Kalibr has no rational (k1..k6) model, asked for camera "
                         f"{names[models.index('rational')]}; use --model opencv5, k1k2 or fisheye")
@@ -206,7 +208,7 @@ def run(args: argparse.Namespace) -> int:
             data[key] = record
     data["device"] = str(device)
     data["timings"] = {"total_s": time.perf_counter() - start}
-    _write_outputs(args, data, names)
+    _write_outputs(args, data, names, pair)
     for line in summary_lines(data, args.output):
         print(line)
     return 0
@@ -235,9 +237,22 @@ def _check_cameras(cameras, files, folders, names, fixed, args, failure_message,
             raise UserError(f"camera {names[k]} ({folders[k]}): {failure_message(record, args.board, readable)}")
 
 
-def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[str]) -> None:
+def _stereo_pair(args: argparse.Namespace, cameras: int) -> tuple[int, int]:
+    """The pair of ``--pair`` (default 0, 1), which a rig of more than two cameras must name for the stereo files:
+    cameras 0 and 1 need not see one scene side by side."""
+    if args.pair is None:
+        stereo = [o for o, v in (("--opencv-yaml", args.opencv_yaml), ("--ros-yaml-dir", args.ros_yaml_dir)) if v]
+        if cameras > 2 and stereo:
+            raise UserError(f"{stereo[0]} holds one pair of the {cameras} cameras: give --pair I,J (the cameras of "
+                            "the stereo pair, e.g. 0,1)")
+        return 0, 1
+    return parse_pair(args.pair, cameras)
+
+
+def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[str], pair: tuple[int, int]) -> None:
     """Every requested file, prepared first (a format that cannot hold the rig stops the run before any is
-    written), then written through temporary files renamed into place."""
+    written), then written through temporary files renamed into place; the stereo files and the report's rectified
+    pair hold the cameras ``pair``."""
     from ccs_kornia.io.files import write_json, write_text_atomic
     from ccs_kornia.outputs.rig_exports import (
         kalibr_camchain,
@@ -246,9 +261,16 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
         ros_stereo_files,
         write_opencv_stereo_yaml,
     )
-    rect = rectification(data, 0, 1) if (args.opencv_yaml or args.ros_yaml_dir or args.report) else None
-    ros = ros_stereo_files(data, rect, (names[0], names[1]) if args.names else ("left", "right")) \
-        if args.ros_yaml_dir else {}
+    i, j = pair
+    stereo = args.opencv_yaml or args.ros_yaml_dir
+    if stereo or args.report:
+        angle = next(p["rotation_deg"] for p in data["pairs"] if p["cameras"] == sorted(pair))
+        if angle > 90.0:
+            warn(COMMAND, f"cameras {names[i]} and {names[j]} are turned {angle:.0f} degrees from each other: they do "
+                          "not see one scene side by side, and their rectified pair is no stereo pair (--pair chooses "
+                          "another)")
+    rect = rectification(data, i, j) if (stereo or args.report) else None
+    ros = ros_stereo_files(data, rect, (names[i], names[j]), i, j) if args.ros_yaml_dir else {}
     camchain = None
     if args.kalibr_yaml:
         problem = kalibr_problem(data)
@@ -257,8 +279,8 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
         camchain, notes = kalibr_camchain(data)
         for note in notes:
             warn(COMMAND, f"--kalibr-yaml: {note}")
-    if len(data["cameras"]) > 2 and (args.opencv_yaml or args.ros_yaml_dir):
-        info(f"--opencv-yaml / --ros-yaml-dir hold the pair {names[0]}-{names[1]} (cameras 0 and 1)")
+    if len(data["cameras"]) > 2 and stereo:
+        info(f"--opencv-yaml / --ros-yaml-dir hold the pair {names[i]}-{names[j]} (cameras {i} and {j})")
     for option, path in (("--report", args.report), ("--ros-yaml-dir", args.ros_yaml_dir if ros else None)):
         if path:  # the folders first: a folder that cannot be made stops the run before any file is written
             make_dir(option, path)
@@ -266,14 +288,14 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
         from ccs_kornia.outputs.report.rig import write_rig_report
 
         start = time.perf_counter()
-        write_rig_report(args.report, data, rect)
+        write_rig_report(args.report, data, rect, pair)
         data["timings"]["report_s"] = time.perf_counter() - start
     try:
         write_json(args.output, data, mode=0o644)
     except OSError as err:
         raise UserError(f"--output {args.output}: cannot write ({err.strerror or err})") from None
     if args.opencv_yaml:
-        write_opencv_stereo_yaml(args.opencv_yaml, data, rect)
+        write_opencv_stereo_yaml(args.opencv_yaml, data, rect, i, j)
     if ros:
         for name, text in ros.items():
             write_text_atomic("--ros-yaml-dir", os.path.join(args.ros_yaml_dir, name), text)

@@ -11,7 +11,7 @@ import re
 import sys
 from typing import Any
 
-from ccs_kornia.commands._common import UserError, inputs, make_dir, warn
+from ccs_kornia.commands._common import UserError, inputs, make_dir, parse_pair, warn
 
 __all__ = ["read_rig", "run"]
 
@@ -29,16 +29,6 @@ def read_rig(path: str) -> dict[str, Any]:
         raise UserError(f"--calibration {path}: not a rig calibration written by calibrate-rig (no cameras and "
                         "extrinsics; a single camera's calibration is undistorted with 'undistort')")
     return data
-
-
-def _pair(text: str, cameras: int) -> tuple[int, int]:
-    parts = text.split(",")
-    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
-        raise UserError(f"--pair {text}: expected two camera indices, e.g. 0,1")
-    i, j = int(parts[0]), int(parts[1])
-    if i == j or max(i, j) >= cameras:
-        raise UserError(f"--pair {text}: two different cameras of the {cameras} in the calibration (0..{cameras - 1})")
-    return i, j
 
 
 def _stem(path: str) -> str:
@@ -94,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     from ccs_kornia.pipeline.frame_matching import match_frames
 
     data = read_rig(args.calibration)
-    i, j = _pair(args.pair, len(data["cameras"]))
+    i, j = parse_pair(args.pair, len(data["cameras"]))
     files = [inputs("rectify", [args.left]), inputs("rectify", [args.right])]
     _check_order(files, (args.left, args.right), (i, j), data)
     frames = match_frames(files)

@@ -221,9 +221,10 @@ def test_three_cameras(tmp_path, capsys):
     rig = render_stereo(frames=8, seed=4, third=True)
     dirs = write_stereo(rig, tmp_path, names=("a", "b", "c"), pattern="frame_{k:04d}.png")
     code, out, err = run(capsys, "calibrate-rig", *dirs, *FAST, "--output", tmp_path / "rig.json", "--kalibr-yaml",
-                         tmp_path / "chain.yaml", "--opencv-yaml", tmp_path / "s.yml")
+                         tmp_path / "chain.yaml", "--opencv-yaml", tmp_path / "s.yml", "--ros-yaml-dir",
+                         tmp_path / "ros", "--report", tmp_path / "report", "--pair", "0,2")
     assert code == 0, err
-    assert "hold the pair cam0-cam1" in err
+    assert "hold the pair cam0-cam2" in err
     data = json.loads((tmp_path / "rig.json").read_text())
     assert [p["cameras"] for p in data["pairs"]] == [[0, 1], [0, 2], [1, 2]]
     assert data["pairs"][2]["baseline_std"] is None and data["pairs"][1]["baseline_std"] is not None
@@ -232,6 +233,30 @@ def test_three_cameras(tmp_path, capsys):
     chain = yaml.safe_load((tmp_path / "chain.yaml").read_text())
     assert sorted(chain) == ["cam0", "cam1", "cam2"] and "T_cn_cnm1" in chain["cam2"]
     assert out.count("pair ") == 3
+    # the stereo files and the report hold the pair asked for; the ROS files are named after its cameras
+    fs = cv2.FileStorage(str(tmp_path / "s.yml"), cv2.FILE_STORAGE_READ)
+    K2, T = fs.getNode("K2").mat(), fs.getNode("T").mat()
+    fs.release()
+    assert np.allclose(K2, data["cameras"][2]["K"]) and np.allclose(T.ravel(), data["pairs"][1]["T"])
+    assert sorted(os.listdir(tmp_path / "ros")) == ["cam0.yaml", "cam2.yaml"]
+    assert yaml.safe_load((tmp_path / "ros" / "cam2.yaml").read_text())["camera_name"] == "cam2"
+    assert "a rectified pair (cam0, cam2)" in (tmp_path / "report" / "index.html").read_text()
+
+
+def test_stereo_files_of_a_larger_rig_need_the_pair(tmp_path, capsys, monkeypatch):
+    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
+
+    monkeypatch.setattr(rig_pipeline, "RigPipeline", _no_work)
+    for name in ("a", "b", "c"):
+        (tmp_path / name).mkdir()
+        assert write_image(tmp_path / name / f"{name}01.png", np.full((48, 64), float(ord(name)) / 255, np.float32))
+    dirs = [tmp_path / name for name in ("a", "b", "c")]
+    for option in ("--opencv-yaml", "--ros-yaml-dir"):
+        code, _, err = run(capsys, "calibrate-rig", *dirs, *FAST, "--output", tmp_path / "rig.json", option,
+                           tmp_path / "stereo")
+        assert_one_line_error(code, err, f"{option} holds one pair of the 3 cameras", "--pair I,J")
+    code, _, err = run(capsys, "calibrate-rig", *dirs, *FAST, "--output", tmp_path / "rig.json", "--pair", "0,3")
+    assert_one_line_error(code, err, "--pair 0,3")
 
 
 # ----------------------------------------------------------------------------------------------
