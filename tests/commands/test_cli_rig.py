@@ -336,7 +336,7 @@ def test_kalibr_with_auto_leaves_rational_out_of_the_candidates(tmp_path, capsys
     monkeypatch.setattr(rig_pipeline, "RigPipeline", fake)
     for name in ("a", "b"):
         (tmp_path / name).mkdir()
-        assert write_image(tmp_path / name / f"{name}01.png", np.full((48, 64), 0.5, np.float32))
+        assert write_image(tmp_path / name / f"{name}01.png", np.full((48, 64), float(ord(name)) / 255, np.float32))
     argv = ["calibrate-rig", tmp_path / "a", tmp_path / "b", "--board", "6x4", "--detector", "opencv",
             "--no-distortion-correction", "--jobs", "1", "--output", tmp_path / "rig.json", "--kalibr-yaml",
             tmp_path / "chain.yaml"]
