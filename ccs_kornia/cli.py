@@ -367,7 +367,10 @@ def build_parser() -> argparse.ArgumentParser:
                        "axis, framed within the lens's valid field (every model, fisheye included)",
                        epilog=_EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     common(p, board=False)
-    p.add_argument("--calibration", required=True, metavar="JSON", help="calib.json written by calibrate")
+    p.add_argument("--calibration", required=True, metavar="JSON", help="calib.json written by calibrate (or a "
+                   "rig.json with --camera)")
+    p.add_argument("--camera", metavar="NAME", help="the camera of a rig.json written by calibrate-rig (its name or "
+                   "index) whose calibration undistorts the images")
     p.add_argument("--out-dir", required=True, metavar="DIR", help="where to write the images (created)")
     framing = p.add_mutually_exclusive_group()
     framing.add_argument("--balance", default=0.0, type=_unit_float, metavar="B",

@@ -36,6 +36,7 @@ __all__ = [
     "board_size_hint",
     "not_found_message",
     "parse_pair",
+    "WrongBoardWatch",
 ]
 
 PROG = "ccs_kornia"
@@ -286,6 +287,55 @@ def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: 
         raise missing_weights(err) from None
 
 
+class WrongBoardWatch:
+    """Stops a run whose first views of a camera all miss the board given but show a board of another size: a wrong
+    ``--board`` is then named after those views (:class:`UserError`) instead of after every view and every second
+    look (23-30 s on 11 images). Called with each detection batch's ``(camera, view)`` keys and found flags
+    (``on_batch`` of :meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.run`).
+
+    Args:
+        cameras: per camera its image files (the run's views).
+        board: the board size given.
+        names: camera names for the message (``None``: one camera, not named).
+        first: views of a camera that must all miss the board before its images are searched for another size.
+    """
+
+    def __init__(self, cameras: list[list[str]], board: tuple[int, int], names: list[str] | None = None,
+                 first: int = 6) -> None:
+        self.cameras, self.board, self.names, self.first = cameras, board, names, first
+        self.seen: list[dict[int, bool]] = [{} for _ in cameras]
+        self.checked = [False] * len(cameras)
+
+    def __call__(self, keys: list[tuple[int, int]], found) -> None:
+        for (c, v), hit in zip(keys, found.tolist()):
+            self.seen[c][v] = bool(hit)
+        for c, seen in enumerate(self.seen):
+            if self.checked[c] or len(seen) < min(self.first, len(self.cameras[c])):
+                continue
+            self.checked[c] = True
+            if not any(seen.values()):
+                self._search(c, sorted(seen)[:self.first])
+
+    def _search(self, c: int, views: list[int]) -> None:
+        from ccs_kornia.io.images import load_image_gray
+        from ccs_kornia.modules.detection.checks.board_size import board_size_in, other_board_size
+
+        sizes = []
+        for v in views:
+            image, _ = load_image_gray(self.cameras[c][v])
+            sizes.append(None if image is None else board_size_in(image))
+        other = other_board_size(sizes, self.board)
+        if other is None:
+            return
+        shown = sum(1 for s in sizes if s == other)
+        if self.board[0] < self.board[1]:  # said the way round the board was given
+            other = (other[1], other[0])
+        camera = f"camera {self.names[c]}: " if self.names else ""
+        raise UserError(f"{camera}board {self.board[0]}x{self.board[1]} not found in the first {len(views)} images, "
+                        f"but a {other[0]}x{other[1]} board is in {shown} of them: check --board (COLSxROWS counts "
+                        "inner corners, where four squares meet); stopped before the other images")
+
+
 def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int, int], square: float, device,
               calibrate: bool = True, names: list[str] | None = None):
     """The pipeline's one composition (:meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.run`) on image files, with a
@@ -311,7 +361,9 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
                 waiting = f"{'solving; ' if calibrate else ''}second looks at any missed views"
                 bar.set_description_str(f"{command}: {waiting}")
 
-        out = pipeline.run(source, board, square, calibrate=calibrate, progress=advance)
+        # a plain chessboard's wrong size is named early (a marker board's detector names it itself)
+        watch = WrongBoardWatch(cameras, board, names) if getattr(pipeline.detector, "board", None) is None else None
+        out = pipeline.run(source, board, square, calibrate=calibrate, progress=advance, on_batch=watch)
     seconds = time.perf_counter() - start
     for c, files in enumerate(cameras):
         reasons = (out.detections.reasons or [""] * out.present.numel())[c * out.present.shape[1]:

@@ -7,7 +7,6 @@ Every output is written at the end, once the rig is solved: a run that stops on 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -15,6 +14,7 @@ from typing import Any
 
 from ccs_kornia.commands._common import (
     UserError,
+    WrongBoardWatch,
     aprilgrid_record,
     charuco_record,
     check_output_dir,
@@ -64,7 +64,8 @@ def parse_names(text: str | None, cameras: int) -> list[str]:
         return [f"cam{c}" for c in range(cameras)]
     names = [n.strip() for n in text.split(",")]
     if len(names) != cameras:
-        raise UserError(f"--names {text}: {len(names)} names for {cameras} camera folders")
+        raise UserError(f"--names {text}: {len(names)} name{'s' if len(names) != 1 else ''} for {cameras} camera "
+                        "folders")
     if any(not n or "/" in n or os.sep in n or n in (".", "..") for n in names) or len(set(names)) != len(names):
         raise UserError(f"--names {text}: names must be distinct, non-empty and without '/'")
     return names
@@ -76,6 +77,7 @@ def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
     import torch
 
     from ccs_kornia.modules.rig import RigCamera
+    from ccs_kornia.outputs.calibration_file import read_calibration
 
     fixed: dict[int, Any] = {}
     for item in items or []:
@@ -85,29 +87,31 @@ def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
         c = int(index)
         if c >= cameras:
             raise UserError(f"--fix-intrinsics {item}: camera index {c} out of range (0..{cameras - 1})")
-        try:
-            with open(path, encoding="utf-8") as handle:
-                data = json.load(handle)
-            K = torch.tensor(data["K"], dtype=torch.float64)
-            model = data["distortion"]["model"]
-            dist = torch.tensor(data["distortion"]["coeffs"] or [], dtype=torch.float64)
-            size = (int(data["image_size"][0]), int(data["image_size"][1]))
-        except OSError as err:
-            raise UserError(f"--fix-intrinsics {item}: cannot read {path} ({err.strerror or err})") from None
-        except (ValueError, KeyError, TypeError, IndexError):
-            raise UserError(f"--fix-intrinsics {item}: {path} is not a calibration written by calibrate "
-                            "(needs K, distortion and image_size)") from None
-        if K.shape != (3, 3):
-            raise UserError(f"--fix-intrinsics {item}: K in {path} is not 3x3")
-        fixed[c] = (RigCamera(model, K, dist), size, path)
+        try:  # a failed calibration, a rig file, a file that is no calibration: each said as such
+            calib = read_calibration(path)
+        except ValueError as err:
+            why = f"cannot read {path} (no such file)" if str(err) == "no such file" else f"{path}: {err}"
+            raise UserError(f"--fix-intrinsics {item}: {why}") from None
+        K = torch.from_numpy(calib["K"])
+        fixed[c] = (RigCamera(calib["model"], K, torch.from_numpy(calib["coeffs"])), calib["image_size"], path)
     return fixed
 
 
 def _camera_files(name: str, item: str) -> list[str]:
+    """The camera's image files, refused at once (before any frame is matched or any image detected) when none of
+    them is an image: their headers tell, without decoding them."""
+    import cv2
+
+    from ccs_kornia.io.images import image_pixels
+
     try:
-        return inputs(COMMAND, [item])
+        files = inputs(COMMAND, [item])
     except UserError as err:
         raise UserError(f"camera {name} ({item}): {err}") from None
+    if not any(image_pixels(f) is not None or (os.access(f, os.R_OK) and cv2.haveImageReader(f)) for f in files):
+        raise UserError(f"camera {name} ({item}): none of the {len(files)} files is an image (unknown format or "
+                        f"corrupt, e.g. {os.path.basename(files[0])})")
+    return files
 
 
 def _file_digest(path: str) -> str:
@@ -196,7 +200,8 @@ def run(args: argparse.Namespace) -> int:
             if bar.n >= total:
                 bar.set_description_str(f"{COMMAND}: calibrating each camera")
 
-        cameras = pipeline.detect_and_calibrate(source, args.board, args.square, progress=advance)
+        watch = WrongBoardWatch(files, args.board, names) if args.detector in ("learned", "opencv") else None
+        cameras = pipeline.detect_and_calibrate(source, args.board, args.square, progress=advance, on_batch=watch)
         _check_cameras(cameras, files, folders, names, fixed, args, failure_message, camera_record)
         bar.set_description_str(f"{COMMAND}: solving the rig")
         out = pipeline.run(source, args.board, args.square, frames, names, cameras=cameras)

@@ -246,6 +246,7 @@ class CalibrationPipeline(nn.Module):
         progress: Callable[[int], None] | None = None,
         *,
         first: PipelineResult | None = None,
+        on_batch: Callable[[list[tuple[int, int]], torch.Tensor], None] | None = None,
     ) -> PipelineResult:
         """The stages in order, correct -> detect -> solve, on every camera of ``source``: one loop over the looks.
         The first look streams every view once (:meth:`detect_views`: the network's correction and the board on the
@@ -263,6 +264,7 @@ class CalibrationPipeline(nn.Module):
             progress: called with the number of views handled after every batch of the first look.
             first: the first look's result already at hand (:meth:`detect_views`, or views taken from one,
                 :meth:`~ccs_kornia.pipeline.result.PipelineResult.take_views`): the loop starts after it.
+            on_batch: see :meth:`detect_views`.
 
         Returns:
             A batched :class:`~ccs_kornia.pipeline.result.PipelineResult`.
@@ -271,7 +273,7 @@ class CalibrationPipeline(nn.Module):
         out, pooled, solved, changed = first, False, False, False
         for look in (FIRST, *LOOKS):
             if look is FIRST:
-                out = self.detect_views(source, board, progress) if out is None else out
+                out = self.detect_views(source, board, progress, on_batch=on_batch) if out is None else out
                 pooled = out.view_corrections is not None and self.distortion_net is not None
                 if pooled:
                     with stage("correction evidence"):
@@ -290,10 +292,15 @@ class CalibrationPipeline(nn.Module):
         return out
 
     def detect_views(
-        self, source: ViewSource, board_size: tuple[int, int], progress: Callable[[int], None] | None = None
+        self, source: ViewSource, board_size: tuple[int, int], progress: Callable[[int], None] | None = None,
+        *, on_batch: Callable[[list[tuple[int, int]], torch.Tensor], None] | None = None,
     ) -> PipelineResult:
         """One streamed pass over the views: the network's lens correction of each view (stage 1) and the board on
         each image as it is (stage 2); :meth:`finish` does the rest.
+
+        ``progress`` is called with the number of views handled after every batch; ``on_batch`` with the batch's
+        ``(camera, view)`` keys and whether the board was found on each, :math:`(B,)` bool: it may raise to stop the
+        run (a caller that sees the first views miss the board it was given).
 
         Returns:
             A batched :class:`~ccs_kornia.pipeline.result.PipelineResult` without calibration; ``view_corrections``
@@ -334,6 +341,8 @@ class CalibrationPipeline(nn.Module):
                 reasons[ci][vi] = (det.reasons[k] if det.reasons else "") or ("" if det.found[k] else "board not found")
             if progress is not None:
                 progress(len(batch.keys) + len(batch.failed))
+            if on_batch is not None:
+                on_batch(list(batch.keys), det.found.cpu())
         image_size = [main_size(sizes[ci], found[ci].cpu(), present[ci].cpu()) for ci in range(c)]
         return PipelineResult(DetectionResult(corners, found, [r for rs in reasons for r in rs], sigma), None, image_size,
                               present, sizes.to(device), camera_reasons=[""] * c, view_corrections=per_view)

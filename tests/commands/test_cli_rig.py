@@ -171,6 +171,46 @@ def test_console_says_the_joint_fit_did_not_converge(rig_run):
     assert "the joint fit did not converge in 100 iterations" in lines[-2] and lines[-1].startswith("verdict:")
 
 
+def test_undistort_names_a_rig_file_and_takes_one_of_its_cameras(rig_run, tmp_path, capsys):
+    _, root, out = rig_run
+    code, _, err = run(capsys, "undistort", root / "right", "--calibration", out / "rig.json", "--out-dir",
+                       tmp_path / "und")
+    assert_one_line_error(code, err, "a rig calibration written by calibrate-rig (cameras left, right)", "rectify",
+                          "--camera NAME")
+    assert not (tmp_path / "und").exists()
+    code, stdout, err = run(capsys, "undistort", root / "right", "--calibration", out / "rig.json", "--camera",
+                            "right", "--out-dir", tmp_path / "und")
+    assert code == 0 and "undistorted 7 of 7 images" in stdout, err
+    assert cv2.imread(str(tmp_path / "und" / "right01.png")).shape[:2] == (264, 352)
+    code, _, err = run(capsys, "undistort", root / "right", "--calibration", out / "rig.json", "--camera", "2",
+                       "--out-dir", tmp_path / "und")
+    assert_one_line_error(code, err, "--camera 2", "left, right")
+
+
+def test_fix_intrinsics_names_a_failed_calibration(stereo, tmp_path, capsys):
+    left, right = write_stereo(stereo, tmp_path)
+    failed = tmp_path / "calib.failed.json"
+    failed.write_text(json.dumps({"success": False, "error": "board 6x4 not found in any of 8 images"}))
+    code, _, err = run(capsys, "calibrate-rig", left, right, *FAST, "--output", tmp_path / "rig.json",
+                       "--fix-intrinsics", f"1={failed}")
+    assert_one_line_error(code, err, "is a failed calibration", "board 6x4 not found in any of 8 images")
+    assert "not a calibration written by calibrate" not in err
+
+
+def test_a_folder_of_non_images_is_said_first(stereo, tmp_path, capsys, monkeypatch):
+    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
+
+    monkeypatch.setattr(rig_pipeline, "RigPipeline", _no_work)
+    left, _ = write_stereo(stereo, tmp_path)
+    junk = tmp_path / "junk"
+    junk.mkdir()
+    for k in range(3):
+        (junk / f"junk{k + 1:02d}.png").write_text("not an image")
+    code, _, err = run(capsys, "calibrate-rig", left, junk, *FAST, "--output", tmp_path / "rig.json")
+    assert_one_line_error(code, err, "camera cam1", "none of the 3 files")
+    assert err.splitlines()[0].startswith("ccs_kornia calibrate-rig: error:"), err  # no frame-matching lines first
+
+
 def test_rectify_command(rig_run, capsys):
     _, root, out = rig_run
     code, stdout, err = run(capsys, "rectify", root / "left", root / "right", "--calibration", out / "rig.json",
@@ -304,7 +344,7 @@ def test_camera_of_copied_views(stereo, tmp_path, capsys):
 @pytest.mark.parametrize("extra, phrase", [
     (["--model", "k1k2,k1k2,k1k2"], "3 models for 2 cameras"),
     (["--model", "pinhole"], "unknown model 'pinhole'"),
-    (["--names", "a"], "1 names for 2 camera folders"),
+    (["--names", "a"], "1 name for 2 camera folders"),
     (["--names", "a,a"], "names must be distinct"),
     (["--fix-intrinsics", "5=x.json"], "camera index 5 out of range"),
     (["--fix-intrinsics", "0=/nonexistent/x.json"], "cannot read"),

@@ -19,7 +19,8 @@ from ccs_kornia import cli
 from ccs_kornia.commands import _common
 from ccs_kornia.commands import calibrate as calibrate_command
 from ccs_kornia.io.files import write_json
-from ccs_kornia.io.images import expand_inputs, natural_key
+from ccs_kornia.io.images import expand_inputs, natural_key, write_image
+from ccs_kornia.modules.detection.checks import board_size
 from ccs_kornia.outputs.calibration_file import read_calibration
 
 
@@ -125,6 +126,7 @@ def test_board_larger_than_given_is_said_on_the_console(rendered, tmp_path, caps
         return out
 
     monkeypatch.setattr(LearnedChessboardDetector, "forward", refused)
+    monkeypatch.setattr(board_size, "board_size_in", lambda image: None)  # no early stop: the whole run's hint
     _, files, _ = rendered
     code, _, err = run(capsys, "calibrate", *files[:3], "--board", "8x6", "--output", str(tmp_path / "c.json"),
                        *_fast())
@@ -135,10 +137,11 @@ def test_board_larger_than_given_is_said_on_the_console(rendered, tmp_path, caps
     assert "cover" not in err  # no quality warning about a camera that was not computed
 
 
-def test_board_larger_on_a_real_set(tmp_path, capsys):
+def test_board_larger_on_a_real_set(tmp_path, capsys, monkeypatch):
     folder = REAL_DATA / "opencv_left"
     if not folder.is_dir():
         pytest.skip(f"real data set not present at {folder}")
+    monkeypatch.setattr(board_size, "board_size_in", lambda image: None)  # every view looked at (no early stop)
     code, _, err = run(capsys, "calibrate", str(folder), "--board", "8x6", "--output", str(tmp_path / "c.json"),
                        "--jobs", "1", "--no-diagnostics")
     assert code == _common.EXIT_NO_RESULT
@@ -147,6 +150,58 @@ def test_board_larger_on_a_real_set(tmp_path, capsys):
     # a 9x6 board: no view is taken for 8x6 (left14's sub-board was once, the network missing its ninth column)
     assert failed["num_views"]["found"] == 0
     assert_one_line_error(err, "board 8x6 not found in any of 13 images")
+
+
+def _counting_detection(monkeypatch) -> list[int]:
+    """The views the pipeline's first look detects (in this process: ``--jobs 1``)."""
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+
+    seen: list[int] = []
+    real = CalibrationPipeline._detect_batch
+
+    def counting(self, images, keys, *args, **kwargs):
+        seen.extend(v for _, v in keys)
+        return real(self, images, keys, *args, **kwargs)
+
+    monkeypatch.setattr(CalibrationPipeline, "_detect_batch", counting)
+    return seen
+
+
+def test_wrong_board_is_named_after_the_first_views(rendered, tmp_path, capsys, monkeypatch):
+    _, files, _ = rendered
+    folder = tmp_path / "views"
+    folder.mkdir()
+    for k in range(12):
+        shutil.copy(files[k % len(files)], folder / f"view_{k:02d}.png")
+    seen = _counting_detection(monkeypatch)
+    out = tmp_path / "c.json"
+    code, _, err = run(capsys, "calibrate", str(folder), "--board", "10x7", "--output", str(out), "--batch-size", "2",
+                       *_fast("--detector", "opencv"))
+    assert code == _common.EXIT_USAGE
+    assert_one_line_error(err, "board 10x7 not found in the first 6 images, but a 9x6 board is in 6 of them: check "
+                               "--board")
+    assert sorted(seen) == list(range(6))  # the other six views were never detected
+    assert not out.exists() and not (tmp_path / "c.failed.json").exists()
+    code, _, err = run(capsys, "detect", str(folder), "--board", "7x10", "--output", str(out), "--batch-size", "4",
+                       "--jobs", "1", "--detector", "opencv", "--no-distortion-correction")
+    assert code == _common.EXIT_USAGE  # said the way round the board was given
+    assert_one_line_error(err, "board 7x10 not found in the first 6 images, but a 6x9 board is in 6 of them")
+    assert not out.exists()
+
+
+def test_views_without_a_board_first_do_not_stop_the_run(rendered, tmp_path, capsys, monkeypatch):
+    _, files, _ = rendered
+    folder = tmp_path / "views"
+    folder.mkdir()
+    for k in range(6):  # six views of a blank wall before the board's
+        assert write_image(folder / f"view_{k:02d}.png", np.full((480, 640), 0.6, np.float32))
+    for k, path in enumerate(files):
+        shutil.copy(path, folder / f"view_{k + 6:02d}.png")
+    seen = _counting_detection(monkeypatch)
+    code, _, err = run(capsys, "calibrate", str(folder), "--board", "9x6", "--output", str(tmp_path / "c.json"),
+                       "--batch-size", "2", *_fast("--detector", "opencv"))
+    assert code == 0, err
+    assert sorted(seen) == list(range(6 + len(files)))
 
 
 def test_version(capsys):
