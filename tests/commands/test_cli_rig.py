@@ -197,6 +197,15 @@ def test_fix_intrinsics_names_a_failed_calibration(stereo, tmp_path, capsys):
     assert "not a calibration written by calibrate" not in err
 
 
+def test_wrong_board_is_named_early(stereo, tmp_path, capsys):
+    left, right = write_stereo(stereo, tmp_path)
+    argv = [a if a != "6x4" else "7x5" for a in FAST]
+    code, _, err = run(capsys, "calibrate-rig", left, right, *argv, "--batch-size", "6", "--output",
+                       tmp_path / "rig.json")
+    assert_one_line_error(code, err, "camera cam0: board 7x5 not found in the first 6 images, but a 6x4 board")
+    assert not (tmp_path / "rig.json").exists()
+
+
 def test_a_folder_of_non_images_is_said_first(stereo, tmp_path, capsys, monkeypatch):
     import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
 
