@@ -60,6 +60,9 @@ __all__ = ["main", "run", "build_parser", "UserError", "LIGHTNING_COMMANDS", "EX
 LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
 MODELS = ("auto", "opencv5", "rational", "k1k2", "none", "fisheye")
 DEFAULT_DETECTOR = "learned"
+ALLOW_WEAK_HELP = ("calibrate a camera the views determine only weakly (boards nearly parallel, few corners per "
+                   "unknown, a large focal uncertainty) instead of refusing it: the verdict says not reliable, with "
+                   "the 1-sigma of the intrinsics that shows why; copies of one view are still refused")
 
 
 #: the exit statuses, as ``--help`` lists them
@@ -307,6 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-diagnostics", dest="diagnostics", action="store_false",
                    help="skip the quality figures (cross-validation of two halves of the views, held-out views, "
                         "projection uncertainty) and the verdict; they cost a few more solves")
+    p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     p.set_defaults(func=calibrate.run)
 
     p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
@@ -351,6 +355,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="count every corner equally (by default corners are weighted by their measured precision)")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="do not run the distortion-correction network")
+    p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     p.set_defaults(func=calibrate_rig.run, model_choices=MODELS)
 
     p = sub.add_parser("rectify", help="rectify stereo image pairs with a rig calibration")

@@ -37,6 +37,7 @@ __all__ = [
     "not_found_message",
     "parse_pair",
     "WrongBoardWatch",
+    "weak_lines",
 ]
 
 PROG = "ccs_kornia"
@@ -261,8 +262,9 @@ def make_detector_from(args: argparse.Namespace):
 
 
 def pipeline_options(args: argparse.Namespace, use_ransac: bool = True, seed: int = 0) -> dict:
-    """The :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` options the command's arguments set."""
-    return dict(
+    """The :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` options the command's arguments set
+    (``--allow-weak``: the solvers keep cameras the views determine only weakly)."""
+    options = dict(
         use_ransac=use_ransac, seed=seed, detection_batch_size=args.batch_size,
         workers=getattr(args, "jobs", 1),
         max_detection_side=getattr(args, "max_detection_side", 2048) or None,
@@ -270,6 +272,25 @@ def pipeline_options(args: argparse.Namespace, use_ransac: bool = True, seed: in
         diagnostics=bool(getattr(args, "diagnostics", False)),
         weigh_corners=bool(getattr(args, "weigh_corners", True)),
     )
+    if getattr(args, "allow_weak", False):
+        from ccs_kornia.modules.calibration.quality.degeneracy import DegeneracyThresholds
+
+        options["thresholds"] = DegeneracyThresholds(refuse_weak=False)
+    return options
+
+
+def weak_lines(data: dict[str, Any]) -> list[str]:
+    """What ``--allow-weak`` let through in a camera's record: the checks that would have refused it, and the
+    1-sigma of its intrinsics that shows why (empty when nothing was let through)."""
+    errors = data.get("errors") or []
+    if not data.get("success") or not errors:
+        return []
+    std = data.get("std") or {}
+    K = data["K"]
+    sigma = ", ".join(f"{k} {v:.1f} ± {std[k]:.1f}" for k, v in (("fx", K[0][0]), ("fy", K[1][1]), ("cx", K[0][2]),
+                                                                   ("cy", K[1][2])) if std.get(k) is not None)
+    return [f"calibrated with --allow-weak although {e['message']}" for e in errors] + \
+        [f"1-sigma of the intrinsics (px): {sigma}"]
 
 
 def missing_weights(err: FileNotFoundError) -> UserError:
@@ -289,20 +310,22 @@ def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: 
 
 class WrongBoardWatch:
     """Stops a run whose first views of a camera all miss the board given but show a board of another size: a wrong
-    ``--board`` is then named after those views (:class:`UserError`) instead of after every view and every second
-    look (23-30 s on 11 images). Called with each detection batch's ``(camera, view)`` keys and found flags
-    (``on_batch`` of :meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.run`).
+    ``--board`` is then named after those views instead of after every view and every second look (23-30 s on 11
+    images). Called with each detection batch's ``(camera, view)`` keys and found flags (``on_batch`` of
+    :meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.run`).
 
     Args:
         cameras: per camera its image files (the run's views).
         board: the board size given.
         names: camera names for the message (``None``: one camera, not named).
         first: views of a camera that must all miss the board before its images are searched for another size.
+        error: what is raised: the command's error for a board found in no image (:class:`NoResult`, exit status 3,
+            as the whole run would end; ``calibrate-rig``: :class:`UserError`).
     """
 
     def __init__(self, cameras: list[list[str]], board: tuple[int, int], names: list[str] | None = None,
-                 first: int = 6) -> None:
-        self.cameras, self.board, self.names, self.first = cameras, board, names, first
+                 first: int = 6, error: type[UserError] = NoResult) -> None:
+        self.cameras, self.board, self.names, self.first, self.error = cameras, board, names, first, error
         self.seen: list[dict[int, bool]] = [{} for _ in cameras]
         self.checked = [False] * len(cameras)
 
@@ -331,7 +354,7 @@ class WrongBoardWatch:
         if self.board[0] < self.board[1]:  # said the way round the board was given
             other = (other[1], other[0])
         camera = f"camera {self.names[c]}: " if self.names else ""
-        raise UserError(f"{camera}board {self.board[0]}x{self.board[1]} not found in the first {len(views)} images, "
+        raise self.error(f"{camera}board {self.board[0]}x{self.board[1]} not found in the first {len(views)} images, "
                         f"but a {other[0]}x{other[1]} board is in {shown} of them: check --board (COLSxROWS counts "
                         "inner corners, where four squares meet); stopped before the other images")
 

@@ -28,6 +28,7 @@ from ccs_kornia.commands._common import (
     pipeline_options,
     resolve_device,
     warn,
+    weak_lines,
 )
 
 __all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "run", "summary_lines"]
@@ -200,7 +201,9 @@ def run(args: argparse.Namespace) -> int:
             if bar.n >= total:
                 bar.set_description_str(f"{COMMAND}: calibrating each camera")
 
-        watch = WrongBoardWatch(files, args.board, names) if args.detector in ("learned", "opencv") else None
+        # a camera without the board is bad input here (exit status 2), as when the whole run finds none
+        watch = WrongBoardWatch(files, args.board, names, error=UserError) if args.detector in ("learned", "opencv") \
+            else None
         cameras = pipeline.detect_and_calibrate(source, args.board, args.square, progress=advance, on_batch=watch)
         _check_cameras(cameras, files, folders, names, fixed, args, failure_message, camera_record)
         bar.set_description_str(f"{COMMAND}: solving the rig")
@@ -213,10 +216,31 @@ def run(args: argparse.Namespace) -> int:
             data[key] = record
     data["device"] = str(device)
     data["timings"] = {"total_s": time.perf_counter() - start}
+    weak = _weak_cameras(data) if args.allow_weak else []
     _write_outputs(args, data, names, pair)
     for line in summary_lines(data, args.output):
+        if line.startswith("verdict:"):
+            for name, lines in weak:  # what --allow-weak let through, before the verdict it makes
+                print(f"camera {name}: {lines[-1]}")
         print(line)
+    for name, lines in weak:
+        for text in lines[:-1]:
+            warn(COMMAND, f"camera {name}: {text}")
     return 0
+
+
+def _weak_cameras(data: dict[str, Any]) -> list[tuple[str, list[str]]]:
+    """``--allow-weak``: the cameras kept although their own checks would have refused them, each with
+    :func:`weak_lines`; the rig's verdict then says ``not reliable`` and why (the joint fit's figures, which alone
+    make the rig verdict, do not see a camera its own views determine weakly)."""
+    weak = [(cam["name"], cam["errors"]) for cam in data["cameras"] if cam.get("errors")]
+    if weak:
+        data["allow_weak"] = True
+        data["verdict"] = "not reliable: " + "; ".join(dict.fromkeys(f"{name}: {e['advice']}" for name, errors in weak
+                                                                     for e in errors))
+        data["verdict_reasons"] = [f"{name}: {e['message']}" for name, errors in weak for e in errors] + \
+            list(data.get("verdict_reasons") or [])
+    return [(cam["name"], weak_lines(cam)) for cam in data["cameras"] if cam.get("errors")]
 
 
 def _check_cameras(cameras, files, folders, names, fixed, args, failure_message, camera_record) -> None:

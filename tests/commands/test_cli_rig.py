@@ -398,6 +398,23 @@ def test_kalibr_with_auto_leaves_rational_out_of_the_candidates(tmp_path, capsys
     assert "auto_models" not in seen and seen["models"] == ["auto", "auto"]  # without a camchain: every candidate
 
 
+def test_allow_weak_calibrates_a_weak_rig_as_not_reliable(tmp_path, capsys):
+    """Boards nearly parallel to camera 0: refused (saying --allow-weak would calibrate it); with --allow-weak the
+    rig is solved and its verdict is not reliable, naming the camera and the check."""
+    weak = render_stereo(frames=6, seed=5, max_tilt_deg=2.0)
+    left, right = write_stereo(weak, tmp_path)
+    code, _, err = run(capsys, "calibrate-rig", left, right, *FAST, "--output", tmp_path / "rig.json")
+    assert_one_line_error(code, err, "camera cam0", "nearly parallel", "--allow-weak calibrates anyway")
+    code, out, err = run(capsys, "calibrate-rig", left, right, *FAST, "--output", tmp_path / "rig.json",
+                         "--allow-weak")
+    assert code == 0, err
+    data = json.loads((tmp_path / "rig.json").read_text())
+    assert data["allow_weak"] and data["verdict"].startswith("not reliable: cam0: tilt the board more")
+    assert any(r.startswith("cam0: the board planes of all views are nearly parallel") for r in data["verdict_reasons"])
+    assert "camera cam0: calibrated with --allow-weak although the board planes" in err
+    assert "verdict: not reliable: cam0: tilt the board more" in out and "camera cam0: 1-sigma of the intrinsics" in out
+
+
 def test_fixed_intrinsics_from_a_calibrate_json(stereo, tmp_path, capsys):
     left, right = write_stereo(stereo, tmp_path)
     code, _, err = run(capsys, "calibrate", left, *FAST, "--output", tmp_path / "left.json")

@@ -11,6 +11,7 @@ import shutil
 
 import numpy as np
 import pytest
+import torch
 from _real_data import REAL_DATA
 from test_cli import assert_one_line_error, rendered, run  # noqa: F401 (``rendered``: the shared fixture)
 
@@ -177,14 +178,14 @@ def test_wrong_board_is_named_after_the_first_views(rendered, tmp_path, capsys, 
     out = tmp_path / "c.json"
     code, _, err = run(capsys, "calibrate", str(folder), "--board", "10x7", "--output", str(out), "--batch-size", "2",
                        *_fast("--detector", "opencv"))
-    assert code == _common.EXIT_USAGE
+    assert code == _common.EXIT_NO_RESULT  # as when the whole run finds no board
     assert_one_line_error(err, "board 10x7 not found in the first 6 images, but a 9x6 board is in 6 of them: check "
                                "--board")
     assert sorted(seen) == list(range(6))  # the other six views were never detected
     assert not out.exists() and not (tmp_path / "c.failed.json").exists()
     code, _, err = run(capsys, "detect", str(folder), "--board", "7x10", "--output", str(out), "--batch-size", "4",
                        "--jobs", "1", "--detector", "opencv", "--no-distortion-correction")
-    assert code == _common.EXIT_USAGE  # said the way round the board was given
+    assert code == _common.EXIT_NO_RESULT  # said the way round the board was given
     assert_one_line_error(err, "board 7x10 not found in the first 6 images, but a 6x9 board is in 6 of them")
     assert not out.exists()
 
@@ -202,6 +203,47 @@ def test_views_without_a_board_first_do_not_stop_the_run(rendered, tmp_path, cap
                        "--batch-size", "2", *_fast("--detector", "opencv"))
     assert code == 0, err
     assert sorted(seen) == list(range(6 + len(files)))
+
+
+CHARUCO_TUTORIAL = REAL_DATA / "charuco_opencv_tutorial"
+
+
+@pytest.mark.skipif(not CHARUCO_TUTORIAL.is_dir(), reason=f"real data set not present at {CHARUCO_TUTORIAL}")
+def test_allow_weak_calibrates_near_parallel_views_as_not_reliable(tmp_path, capsys):
+    """OpenCV's ChArUco tutorial: four views within 6 degrees of each other. Refused (saying --allow-weak would
+    calibrate them); with --allow-weak calibrated, the verdict not reliable and the 1-sigma that shows why."""
+    views = sorted(str(p) for p in CHARUCO_TUTORIAL.glob("img_0*.jpg"))
+    board = ("--charuco", "5x7", "--square", "0.04", "--marker", "0.02", "--jobs", "1")
+    out = tmp_path / "c.json"
+    code, _, err = run(capsys, "calibrate", *views, *board, "--output", str(out))
+    assert code == _common.EXIT_NO_RESULT
+    assert_one_line_error(err, "nearly parallel")
+    assert "--allow-weak calibrates anyway (verdict not reliable)" in err
+    code, stdout, err = run(capsys, "calibrate", *views, *board, "--output", str(out), "--allow-weak")
+    assert code == 0, err
+    data = json.loads(out.read_text())
+    assert data["success"] and data["allow_weak"] and "pose_diversity" in {e["check"] for e in data["errors"]}
+    assert data["diagnostics"]["verdict"].startswith("not reliable: ")
+    assert "verdict: not reliable: " in stdout and "warning: calibrated with --allow-weak although the board planes" \
+        in err
+    sigma = next(line for line in stdout.splitlines() if line.startswith("1-sigma of the intrinsics (px): fx "))
+    assert f"± {data['std']['fx']:.1f}" in sigma and data["std"]["fx"] > 0.02 * data["K"][0][0]  # why: fx is weak
+
+
+def test_allow_weak_without_diagnostics_still_says_not_reliable(tmp_path, capsys):
+    from ccs_kornia.data.scenes import make_calibration_set
+
+    K = torch.tensor([[400.0, 0.0, 160.0], [0.0, 400.0, 120.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    views = make_calibration_set(K, (7, 5), 0.025, (320, 240), num_views=5, seed=3, supersample=1, max_tilt_deg=2.0)
+    for k in range(5):
+        assert write_image(tmp_path / f"v{k}.png", views.images[k, 0])
+    argv = ("calibrate", str(tmp_path), "--board", "7x5", "--output", str(tmp_path / "c.json"), "--jobs", "1",
+            "--detector", "opencv", "--no-distortion-correction", "--model", "k1k2", "--no-diagnostics")
+    code, _, err = run(capsys, *argv)
+    assert code == _common.EXIT_NO_RESULT and "--allow-weak calibrates anyway" in err
+    code, stdout, err = run(capsys, *argv, "--allow-weak")
+    assert code == 0, err
+    assert "verdict: not reliable: " in stdout and "1-sigma of the intrinsics (px): fx" in stdout
 
 
 def test_version(capsys):
