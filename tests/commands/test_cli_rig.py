@@ -6,8 +6,10 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
 import stat
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -455,3 +457,9 @@ def test_bumblebee2_baseline_against_boofcv(tmp_path, capsys):
     # same corners lands between the two
     assert difference < 0.6
     assert pair["epipolar_rms"] < 0.5
+    # docs/rig.md's table says which model --model auto gives each camera of this run
+    table = (Path(__file__).resolve().parents[2] / "docs" / "rig.md").read_text(encoding="utf-8")
+    said = re.search(r"calibrate-rig, `--model auto` \(([^)]*)\)", table).group(1)
+    models = [cam["distortion"]["model"] for cam in data["cameras"]]
+    assert said == (f"{models[0]} for both cameras" if models[0] == models[1] else
+                    f"left {models[0]}, right {models[1]}"), said
