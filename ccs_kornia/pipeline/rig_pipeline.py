@@ -249,8 +249,8 @@ class RigPipeline(nn.Module):
                              ) -> list[PipelineResult]:
         """Every camera through the single-camera pipeline of its model (``models``: per camera of ``source``,
         default this pipeline's); one result per camera. The cameras of one model go through one batched run.
-        ``on_batch``: as :meth:`CalibrationPipeline.detect_views <ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.detect_views>`'s,
-        with the cameras of ``source``."""
+        ``on_batch``: as :meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.detect_views`'s, with
+        the cameras of ``source``."""
         c = source.num_cameras
         if models is None:
             models = [self.models] * c if isinstance(self.models, str) else self.models

@@ -47,7 +47,8 @@ def board_size_in(image: np.ndarray) -> tuple[int, int] | None:
     return (max(rows, cols), min(rows, cols))
 
 
-def other_board_size(sizes: list[tuple[int, int] | None], board: tuple[int, int], least: int = 2) -> tuple[int, int] | None:
+def other_board_size(sizes: list[tuple[int, int] | None], board: tuple[int, int],
+                     least: int = 2) -> tuple[int, int] | None:
     """The board size that views show instead of ``board``: the most frequent size of ``sizes`` (one per view,
     :func:`board_size_in`), when it is not ``board`` (either way round), at least ``least`` views and half of them
     show it, and none shows ``board``; else ``None``.

@@ -19,7 +19,8 @@ def test_rendered_boards_of_every_size(board):
     images = views.images[:, 0].numpy()
     # a view may take the white card's edge for one more row of corners, or stop short: what most views show is the
     # board, float or 8-bit
-    for sizes in ([board_size_in(image) for image in images], [board_size_in(np.uint8(image * 255)) for image in images]):
+    for sizes in ([board_size_in(image) for image in images],
+                  [board_size_in(np.uint8(image * 255)) for image in images]):
         assert sizes.count((max(board), min(board))) >= 4 and None not in sizes
         assert other_board_size(sizes, (3, 4)) == (max(board), min(board))
 
