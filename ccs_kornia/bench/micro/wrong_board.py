@@ -5,7 +5,7 @@ Runs the command line on a real set with a wrong board size, alternating the two
 medians. The early stop is switched off by a ``board_size_in`` that finds nothing (the whole run's path, as before it
 existed). Run it on an idle machine: on shared cores the figures are inflated.
 
-    python -m ccs_kornia.bench.micro.wrong_board
+    python -m ccs_kornia.bench.micro.wrong_board        # BoofCV's Bumblebee2 left camera ($CCS_REAL_DATA or ../shared)
     python -m ccs_kornia.bench.micro.wrong_board --images ../shared/data/real/opencv_left --board 8x6 --repeats 3
 """
 
@@ -18,6 +18,8 @@ import subprocess
 import sys
 import tempfile
 import time
+
+from ccs_kornia.bench.real import default_real_dir
 
 #: the second interpreter's switch: the early stop never finds another board
 _WHOLE_RUN = ("import ccs_kornia.modules.detection.checks.board_size as b; b.board_size_in = lambda image: None; "
@@ -36,7 +38,7 @@ def _time(images: str, board: str, early: bool, output: str) -> tuple[float, int
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--images", default="../shared/data/real/boofcv_bumblebee2_left")
+    parser.add_argument("--images", default=str(default_real_dir() / "boofcv_bumblebee2_left"))
     parser.add_argument("--board", default="5x7", help="a wrong board size for the set (the set's is 4x6)")
     parser.add_argument("--repeats", type=int, default=2)
     args = parser.parse_args()
