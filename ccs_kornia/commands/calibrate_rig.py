@@ -78,7 +78,7 @@ def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
     import torch
 
     from ccs_kornia.modules.rig import RigCamera
-    from ccs_kornia.outputs.calibration_file import read_calibration
+    from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
 
     fixed: dict[int, Any] = {}
     for item in items or []:
@@ -90,8 +90,11 @@ def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
             raise UserError(f"--fix-intrinsics {item}: camera index {c} out of range (0..{cameras - 1})")
         try:  # a failed calibration, a rig file, a file that is no calibration: each said as such
             calib = read_calibration(path)
+        except RigFileError as err:  # (a camera of an earlier rig: its own calibration is in the rig's "cameras")
+            raise UserError(f"--fix-intrinsics {item}: {path}: {err}; give a calibration written by calibrate") \
+                from None
         except ValueError as err:
-            why = f"cannot read {path} (no such file)" if str(err) == "no such file" else f"{path}: {err}"
+            why = f"{path}: {err}" if os.path.exists(path) else f"cannot read {path} (no such file)"
             raise UserError(f"--fix-intrinsics {item}: {why}") from None
         K = torch.from_numpy(calib["K"])
         fixed[c] = (RigCamera(calib["model"], K, torch.from_numpy(calib["coeffs"])), calib["image_size"], path)

@@ -28,10 +28,13 @@ __all__ = ["run"]
 def _read_calibration(path: str, camera: str | None = None) -> tuple[Any, Any, tuple[int, int] | None, bool, list]:
     import torch
 
-    from ccs_kornia.outputs.calibration_file import read_calibration
+    from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
 
     try:
         calib = read_calibration(path, camera)
+    except RigFileError as err:
+        raise UserError(f"--calibration {path}: {err}: rectify its stereo pairs with 'rectify', or give one of its "
+                        "cameras with --camera NAME") from None
     except ValueError as err:
         raise UserError(f"--calibration {path}: {err}") from None
     K = torch.from_numpy(calib["K"])

@@ -16,7 +16,11 @@ import numpy as np
 
 from ccs_kornia.geometry.camera import DISTORTION_MODELS
 
-__all__ = ["CALIBRATION_COEFFS", "read_calibration"]
+__all__ = ["CALIBRATION_COEFFS", "RigFileError", "read_calibration"]
+
+
+class RigFileError(ValueError):
+    """A ``rig.json`` given where one camera's calibration is read, without saying which of its cameras."""
 
 
 def _coefficient_counts() -> dict[str, tuple[int, ...]]:
@@ -57,7 +61,8 @@ def read_calibration(path: str | os.PathLike, camera: str | None = None) -> dict
         file records them (empty when it has none).
 
     Raises:
-        ValueError: one line saying what is wrong (a file of a failed calibration says so, a rig file too).
+        ValueError: one line saying what is wrong (a file of a failed calibration says so); :class:`RigFileError`
+            for a rig file without ``camera``.
 
     Example:
         >>> import tempfile, os
@@ -81,8 +86,7 @@ def read_calibration(path: str | os.PathLike, camera: str | None = None) -> dict
     if isinstance(data.get("cameras"), list) and "extrinsics" in data:
         if camera is None:
             names = ", ".join(str(c.get("name")) for c in data["cameras"] if isinstance(c, dict))
-            raise ValueError(f"a rig calibration written by calibrate-rig (cameras {names}), not one camera's: "
-                             "rectify its stereo pairs with 'rectify', or give one of its cameras with --camera NAME")
+            raise RigFileError(f"a rig calibration written by calibrate-rig (cameras {names}), not one camera's")
         data = _rig_camera(data, camera)
     elif camera is not None:
         raise ValueError(f"--camera {camera}: the file is one camera's calibration, not a rig's (drop --camera)")

@@ -197,6 +197,12 @@ def test_fix_intrinsics_names_a_failed_calibration(stereo, tmp_path, capsys):
                        "--fix-intrinsics", f"1={failed}")
     assert_one_line_error(code, err, "is a failed calibration", "board 6x4 not found in any of 8 images")
     assert "not a calibration written by calibrate" not in err
+    rig = tmp_path / "rig.json"
+    rig.write_text(json.dumps({"cameras": [{"name": "left"}, {"name": "right"}], "extrinsics": []}))
+    code, _, err = run(capsys, "calibrate-rig", left, right, *FAST, "--output", tmp_path / "out.json",
+                       "--fix-intrinsics", f"1={rig}")
+    assert_one_line_error(code, err, "a rig calibration written by calibrate-rig (cameras left, right)",
+                          "give a calibration written by calibrate")
 
 
 def test_wrong_board_is_named_early(stereo, tmp_path, capsys):
