@@ -60,6 +60,9 @@ __all__ = ["main", "run", "build_parser", "UserError", "LIGHTNING_COMMANDS", "EX
 LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
 MODELS = ("auto", "opencv5", "rational", "k1k2", "none", "fisheye")
 DEFAULT_DETECTOR = "learned"
+ALLOW_WEAK_HELP = ("calibrate a camera the views determine only weakly (boards nearly parallel, few corners per "
+                   "unknown, a large focal uncertainty) instead of refusing it: the verdict says not reliable, with "
+                   "the 1-sigma of the intrinsics that shows why; copies of one view are still refused")
 
 
 #: the exit statuses, as ``--help`` lists them
@@ -307,6 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-diagnostics", dest="diagnostics", action="store_false",
                    help="skip the quality figures (cross-validation of two halves of the views, held-out views, "
                         "projection uncertainty) and the verdict; they cost a few more solves")
+    p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     p.set_defaults(func=calibrate.run)
 
     p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
@@ -327,10 +331,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--names", metavar="NAME,NAME...", help="camera names (default cam0,cam1,...; ROS file names)")
     p.add_argument("--fix-intrinsics", action="append", metavar="CAM_INDEX=JSON",
                    help="keep camera CAM_INDEX's intrinsics as a calibrate JSON gives them (repeatable)")
-    p.add_argument("--opencv-yaml", metavar="FILE", help="also write the pair 0-1 as an OpenCV FileStorage YAML "
+    p.add_argument("--opencv-yaml", metavar="FILE", help="also write the pair of --pair as an OpenCV FileStorage YAML "
                    "(K1 D1 K2 D2 R T E F R1 R2 P1 P2 Q)")
-    p.add_argument("--ros-yaml-dir", metavar="DIR", help="also write the pair 0-1 as ROS stereo camera_info files "
-                   "(left.yaml, right.yaml, or the --names)")
+    p.add_argument("--ros-yaml-dir", metavar="DIR", help="also write the pair of --pair as ROS stereo camera_info "
+                   "files, named after the cameras (cam0.yaml, cam1.yaml, or the --names)")
+    p.add_argument("--pair", metavar="I,J", help="the cameras of the stereo files and of the report's rectified pair "
+                   "(default 0,1; required for --opencv-yaml and --ros-yaml-dir with more than two cameras)")
     p.add_argument("--kalibr-yaml", metavar="FILE", help="also write a Kalibr camchain YAML")
     p.add_argument("--report", metavar="DIR", help="also write figures (error per camera and frame, a rectified "
                    "pair, the rig from above) to DIR (created)")
@@ -349,6 +355,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="count every corner equally (by default corners are weighted by their measured precision)")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="do not run the distortion-correction network")
+    p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     p.set_defaults(func=calibrate_rig.run, model_choices=MODELS)
 
     p = sub.add_parser("rectify", help="rectify stereo image pairs with a rig calibration")
@@ -365,7 +372,10 @@ def build_parser() -> argparse.ArgumentParser:
                        "axis, framed within the lens's valid field (every model, fisheye included)",
                        epilog=_EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     common(p, board=False)
-    p.add_argument("--calibration", required=True, metavar="JSON", help="calib.json written by calibrate")
+    p.add_argument("--calibration", required=True, metavar="JSON", help="calib.json written by calibrate (or a "
+                   "rig.json with --camera)")
+    p.add_argument("--camera", metavar="NAME", help="the camera of a rig.json written by calibrate-rig (its name or "
+                   "index) whose calibration undistorts the images")
     p.add_argument("--out-dir", required=True, metavar="DIR", help="where to write the images (created)")
     framing = p.add_mutually_exclusive_group()
     framing.add_argument("--balance", default=0.0, type=_unit_float, metavar="B",

@@ -21,6 +21,7 @@ from ccs_kornia.commands._common import (
     resolve_device,
     run_files,
     warn,
+    weak_lines,
 )
 
 __all__ = ["calibrate_files", "failure_message", "run", "verdict_line"]
@@ -75,8 +76,12 @@ def failure_message(data: dict[str, Any], board: tuple[int, int], readable: int)
         return (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
                 f"{files} files (board found in {data['num_views']['found']}); at least 3 are needed")
     if data.get("errors"):  # the solver's refusals (degeneracy checks) name the problem and the views
+        from ccs_kornia.modules.calibration.quality.degeneracy import WEAK_CHECKS
+
+        weak = all(i.get("check") in WEAK_CHECKS and i.get("value") is not None for i in data["errors"])
         return (f"calibration refused on {data['num_views']['usable']} views: "
-                + "; ".join(i["message"] + _files_note(i) for i in data["errors"]))
+                + "; ".join(i["message"] + _files_note(i) for i in data["errors"])
+                + ("; --allow-weak calibrates anyway (verdict not reliable)" if weak else ""))
     why = data["error"] if data["error"].startswith("calibration failed") else \
         f"calibration failed on {data['num_views']['usable']} views: {data['error']}"
     return (f"{why}; the views may be degenerate (e.g. all fronto-parallel, or copies of one view) or "
@@ -130,6 +135,8 @@ def run(args: argparse.Namespace) -> int:
         raise
     data["device"] = str(device)
     data["success"] = True
+    if getattr(args, "allow_weak", False):
+        data["allow_weak"] = True  # the checks in "errors" did not refuse the camera
     if charuco_record(args):
         data["charuco"] = charuco_record(args)
     if aprilgrid_record(args):
@@ -174,7 +181,14 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         figures = ", ".join(f"{m} {v:.3f}" for m, v in held.items() if v is not None)
         print(f"model: {choice['chosen']} chosen by cross-validation (runner-up {choice['runner_up']}; "
               f"held-out RMS px: {figures})")
+    weak = weak_lines(data)
+    for text in weak[:-1]:
+        warn("calibrate", text)
+    if weak:
+        print(weak[-1])
     line = verdict_line(data.get("diagnostics"))
+    if not line and weak:  # no figures (--no-diagnostics), but the checks' errors say it all the same
+        line = "verdict: not reliable: " + "; ".join(dict.fromkeys(e["advice"] for e in data["errors"]))
     if line:
         print(line)
 

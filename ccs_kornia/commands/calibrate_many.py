@@ -86,6 +86,9 @@ def run(args: argparse.Namespace) -> int:
     where = f"{processes} processes ({accelerator or device.type})" if processes > 1 else str(device)
     if first:
         info(f"calibrating {len(sets)} image sets ({sum(len(f) for _, f in sets)} files) on {where} ...")
+        idle = _idle_processes(sets, args.output, overwrite, args.sets_per_batch, processes)
+        if idle:
+            info(idle)
     summary = calibrate_many(
         sets, args.board, args.output, square=args.square, pipeline=pipeline, detector_name=args.detector,
         device=str(device), sets_per_batch=args.sets_per_batch, num_workers=args.workers, overwrite=overwrite,
@@ -96,6 +99,26 @@ def run(args: argparse.Namespace) -> int:
     if summary["rank"] != 0:
         return 0  # rank 0 reports for the run
     return _report(summary, args.output)
+
+
+def _idle_processes(sets: list, output: str, overwrite: bool, per_batch: int, processes: int) -> str:
+    """Why some processes will have nothing to do, and the ``--sets-per-batch`` that gives each a batch (``""`` when
+    every process gets one). Each process takes whole batches of the sets left to do, the batches one process would
+    form (:class:`~ccs_kornia.fleet.predict.ImageSetDataModule`): splitting them otherwise would change the lines."""
+    if processes < 2:
+        return ""
+    from ccs_kornia.fleet.shards import finished_sets
+
+    done = set() if overwrite else finished_sets(output)
+    todo = sum(1 for name, _ in sets if str(name) not in done)
+    batches = -(-todo // per_batch)
+    if todo == 0 or batches >= processes:
+        return ""
+    idle = processes - batches
+    return (f"{todo} set{'s' if todo != 1 else ''} left to do make {batches} batch{'es' if batches != 1 else ''} "
+            f"(--sets-per-batch {per_batch}) for {processes} processes: {idle} process{'es' if idle != 1 else ''} "
+            f"will have nothing to do (each process takes whole batches, so the lines are those one process writes)"
+            + (f"; --sets-per-batch {-(-todo // processes)} gives every process a batch" if todo >= processes else ""))
 
 
 def _report(summary: dict, output: str) -> int:

@@ -55,9 +55,13 @@ def rectification(data: dict[str, Any], i: int = 0, j: int = 1, alpha: float = 0
 
 
 def _pair(data: dict[str, Any], i: int, j: int) -> dict[str, Any]:
+    """The record's pair ``(i, j)``; the record holds ``i < j``, the other order has ``E`` and ``F`` transposed
+    (``x_i^T E_ji x_j = 0``)."""
     for pair in data["pairs"]:
         if pair["cameras"] == [i, j]:
             return pair
+        if pair["cameras"] == [j, i]:
+            return {**pair, "E": np.asarray(pair["E"]).T.tolist(), "F": np.asarray(pair["F"]).T.tolist()}
     raise KeyError((i, j))
 
 

@@ -30,6 +30,7 @@ import functools
 import math
 from collections.abc import Sequence
 from contextlib import nullcontext
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import Callable
 
@@ -62,6 +63,7 @@ from ccs_kornia.pipeline.differentiable import differentiable_detect, differenti
 from ccs_kornia.pipeline.looks import CALIBRATED, FIRST, LOOKS, Look, Tools
 from ccs_kornia.pipeline.result import (
     PipelineResult,
+    corner_weights_of,
     main_size,
     module_device,
     positive_size,
@@ -95,6 +97,8 @@ class CalibrationPipeline(nn.Module):
         model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational``, ``none``, ``fisheye`` (cv2.fisheye's) or
             ``auto`` (one of :data:`~ccs_kornia.modules.calibration.model_selection.AUTO_MODELS` per camera, by
             cross-validation; ``PipelineResult.model_selection`` says which and why).
+        auto_models: the candidates of ``model="auto"`` (default all of ``AUTO_MODELS``), e.g. without ``rational``
+            for a camera whose calibration goes to a format that cannot hold it (Kalibr's camchain).
         use_ransac: reject inconsistent views with image-level RANSAC before the refinement.
         seed: seed of the RANSAC sampling (results are deterministic for a given seed).
         detection_batch_size: most images handed to the detector at once.
@@ -165,6 +169,7 @@ class CalibrationPipeline(nn.Module):
         calibrated_look: bool = True,
         weigh_corners: bool = True,
         differentiable: bool = False,
+        auto_models: Sequence[str] = AUTO_MODELS,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -180,10 +185,14 @@ class CalibrationPipeline(nn.Module):
         for name, value in (("min_correction", min_correction), ("max_rms_ratio", max_rms_ratio)):
             if not value >= 0:
                 raise ValueError(f"{name} must be >= 0, got {value}.")
-        names = AUTO_MODELS if model == "auto" else (model,)
+        candidates = tuple(dict.fromkeys(auto_models))
+        if not candidates or any(m not in AUTO_MODELS for m in candidates):
+            raise ValueError(f"auto_models must be some of {', '.join(AUTO_MODELS)}, got {list(auto_models)}.")
+        names = candidates if model == "auto" else (model,)
         self.solvers = nn.ModuleDict({m: CalibrationSolver(model=m, use_ransac=use_ransac, seed=seed, **solver_kwargs)
                                       for m in names})
-        self.solver = self.solvers[names[1] if model == "auto" else model]  # the stage alone's (auto: opencv5)
+        # the stage alone's (auto: opencv5 where it is a candidate)
+        self.solver = self.solvers[("opencv5" if "opencv5" in names else names[0]) if model == "auto" else model]
         self.selection = ModelSelection(dict(self.solvers)) if model == "auto" else None
         self.model, self.diagnostics = model, bool(diagnostics)
         #: the looks after the first, in order
@@ -244,6 +253,7 @@ class CalibrationPipeline(nn.Module):
         progress: Callable[[int], None] | None = None,
         *,
         first: PipelineResult | None = None,
+        on_batch: Callable[[list[tuple[int, int]], torch.Tensor], None] | None = None,
     ) -> PipelineResult:
         """The stages in order, correct -> detect -> solve, on every camera of ``source``: one loop over the looks.
         The first look streams every view once (:meth:`detect_views`: the network's correction and the board on the
@@ -261,6 +271,7 @@ class CalibrationPipeline(nn.Module):
             progress: called with the number of views handled after every batch of the first look.
             first: the first look's result already at hand (:meth:`detect_views`, or views taken from one,
                 :meth:`~ccs_kornia.pipeline.result.PipelineResult.take_views`): the loop starts after it.
+            on_batch: see :meth:`detect_views`.
 
         Returns:
             A batched :class:`~ccs_kornia.pipeline.result.PipelineResult`.
@@ -269,7 +280,7 @@ class CalibrationPipeline(nn.Module):
         out, pooled, solved, changed, subsets = first, False, False, False, None
         for look in (FIRST, *self.looks):
             if look is FIRST:
-                out = self.detect_views(source, board, progress) if out is None else out
+                out = self.detect_views(source, board, progress, on_batch=on_batch) if out is None else out
                 pooled = out.view_corrections is not None and self.distortion_net is not None
                 if pooled:
                     with stage("correction evidence"):
@@ -289,10 +300,15 @@ class CalibrationPipeline(nn.Module):
         return out
 
     def detect_views(
-        self, source: ViewSource, board_size: tuple[int, int], progress: Callable[[int], None] | None = None
+        self, source: ViewSource, board_size: tuple[int, int], progress: Callable[[int], None] | None = None,
+        *, on_batch: Callable[[list[tuple[int, int]], torch.Tensor], None] | None = None,
     ) -> PipelineResult:
         """One streamed pass over the views: the network's lens correction of each view (stage 1) and the board on
         each image as it is (stage 2); :meth:`finish` does the rest.
+
+        ``progress`` is called with the number of views handled after every batch; ``on_batch`` with the batch's
+        ``(camera, view)`` keys and whether the board was found on each, :math:`(B,)` bool: it may raise to stop the
+        run (a caller that sees the first views miss the board it was given).
 
         Returns:
             A batched :class:`~ccs_kornia.pipeline.result.PipelineResult` without calibration; ``view_corrections``
@@ -333,6 +349,8 @@ class CalibrationPipeline(nn.Module):
                 reasons[ci][vi] = (det.reasons[k] if det.reasons else "") or ("" if det.found[k] else "board not found")
             if progress is not None:
                 progress(len(batch.keys) + len(batch.failed))
+            if on_batch is not None:
+                on_batch(list(batch.keys), det.found.cpu())
         image_size = [main_size(sizes[ci], found[ci].cpu(), present[ci].cpu()) for ci in range(c)]
         return PipelineResult(DetectionResult(corners, found, [r for rs in reasons for r in rs], sigma), None, image_size,
                               present, sizes.to(device), camera_reasons=[""] * c, view_corrections=per_view)
@@ -480,11 +498,13 @@ class CalibrationPipeline(nn.Module):
         correction_tried: torch.Tensor | None = None,
         init_corners: torch.Tensor | None = None,
         initial: CalibrationResult | None = None,
+        sigma: torch.Tensor | None = None,
     ) -> CalibrationResult:
         """Stage 3 of :meth:`run`: calibrate from corners.
 
         Without ``correction`` this is the solver alone; with the ``correction`` and ``correction_tried`` that
-        :meth:`detect` returns, the corrected-frame calibration competes as in :meth:`run`.
+        :meth:`detect` returns, the corrected-frame calibration competes as in :meth:`run`; with its ``sigma`` too, the
+        corners are weighted as :meth:`run` weighs them, so the result is the whole call's.
 
         Args:
             corners: :math:`(V, N, 2)` or :math:`(C, V, N, 2)` pixels in grid order.
@@ -495,6 +515,9 @@ class CalibrationPipeline(nn.Module):
             correction, correction_tried: :math:`(5,)` / :math:`(C, 5)` and bool scalar / :math:`(C,)`.
             init_corners, initial: optional start of the solver, see
                 :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
+            sigma: :math:`(V, N)` / :math:`(C, V, N)` each corner's measured precision (``DetectionResult.sigma``):
+                the corners are weighted by it where the pipeline weighs corners (``weigh_corners``); ``None``: all
+                corners count alike.
 
         Returns:
             :class:`~ccs_kornia.modules.calibration.result.CalibrationResult`.
@@ -512,20 +535,24 @@ class CalibrationPipeline(nn.Module):
         if not square > 0:
             raise ValueError(f"square must be positive, got {square}.")
         size = (int(image_size[0]), int(image_size[1]))
+        if sigma is not None and sigma.shape != corners.shape[:-1]:
+            raise ValueError(f"sigma must have shape {tuple(corners.shape[:-1])}, got {tuple(sigma.shape)}.")
         if (correction is not None and correction_tried is not None) or self.model == "auto":
             single = corners.dim() == 3
             batch = (lambda x: None if x is None else x[None]) if single else (lambda x: x)
             calib = solve_group(self.solving, batch(corners).double(), batch(valid).any(-1), board, square, size,
                                 None if correction is None else batch(correction).double(),
-                                None if correction_tried is None else batch(torch.as_tensor(correction_tried)))[0]
+                                None if correction_tried is None else batch(torch.as_tensor(correction_tried)),
+                                batch(sigma))[0]
             return select_result(calib, 0) if single else calib
         object_points = grid_object_points(self.detector.board, board, float(square),
                                            device=corners.device, dtype=torch.float64)
+        weights = corner_weights_of(sigma, valid.bool()) if self.weigh_corners else None
         with nullcontext() if self.differentiable else torch.inference_mode():
             return self.solver(
                 corners.to(torch.float64), valid.bool(), object_points, size,
                 init_corners=None if init_corners is None else init_corners.to(corners.device, torch.float64),
-                initial=initial,
+                initial=initial, weights=weights,
             )
 
     def view_corrections(self, images: torch.Tensor) -> torch.Tensor:

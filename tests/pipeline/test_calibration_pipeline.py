@@ -78,6 +78,37 @@ def test_stages_alone(images, batched_result):
     assert abs(float(cal.K[0, 0]) - 620.0) < 5.0
 
 
+@pytest.mark.parametrize("model", ["opencv5", "auto"])
+def test_stages_alone_reproduce_the_whole_call_with_the_corner_precision(sets, model):
+    """``detect`` then ``calibrate`` with the detection's ``sigma`` weighs the corners as the whole call does."""
+    pipe = CalibrationPipeline("opencv", model=model, seed=0, distortion_correction=False)
+    imgs = sets[0].images[:6]
+    whole = pipe(imgs, BOARD, SQUARE)
+    det = pipe.detect(imgs, BOARD)
+    assert det.sigma is not None and det.sigma.shape == det.corners.shape[:-1]
+    cal = pipe.calibrate(det.corners, det.found, BOARD, SQUARE, (640, 480), det.correction, det.correction_tried,
+                         sigma=det.sigma)
+    torch.testing.assert_close(cal.K, whole.K)
+    unweighted = pipe.calibrate(det.corners, det.found, BOARD, SQUARE, (640, 480), det.correction,
+                                det.correction_tried)
+    assert not torch.equal(unweighted.K, whole.K)
+    with pytest.raises(ValueError, match="sigma"):
+        pipe.calibrate(det.corners, det.found, BOARD, SQUARE, (640, 480), sigma=det.sigma[:, :5])
+
+
+def test_auto_models_are_the_candidates_of_auto():
+    pipe = CalibrationPipeline("opencv", model="auto", auto_models=("k1k2", "opencv5", "fisheye"),
+                               distortion_correction=False)
+    assert sorted(pipe.solvers) == ["fisheye", "k1k2", "opencv5"] and pipe.solver.model == "opencv5"
+    assert sorted(CalibrationPipeline("opencv", model="auto", distortion_correction=False).solvers) == [
+        "fisheye", "k1k2", "opencv5", "rational"]
+    assert list(CalibrationPipeline("opencv", model="k1k2", auto_models=("fisheye",),
+                                    distortion_correction=False).solvers) == ["k1k2"]
+    for bad in ((), ("pinhole",)):
+        with pytest.raises(ValueError, match="auto_models"):
+            CalibrationPipeline("opencv", model="auto", auto_models=bad, distortion_correction=False)
+
+
 def test_ground_truth_corners_through_solver_stage(sets):
     # the solver stage alone on exact corners: the pipeline's plumbing adds no error
     pipe = CalibrationPipeline("opencv")

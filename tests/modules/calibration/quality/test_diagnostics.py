@@ -204,6 +204,22 @@ def test_fronto_parallel_views_are_refused(max_tilt):
         assert {"pose_diversity", "focal_uncertainty"} & set(checks_of(res, c, degeneracy.ERROR))
 
 
+def test_weak_cameras_are_kept_with_refuse_weak_off():
+    """``refuse_weak=False``: the nearly parallel cameras are calibrated, their checks stay errors (the verdict says
+    not reliable and why), the uncertainty that says it is there; copies of one view are refused all the same."""
+    d = views(C=20, V=10, tilt=(0.0, 2.0), seed=6)
+    weak = degeneracy.DegeneracyThresholds(refuse_weak=False)
+    res = CalibrationSolver(thresholds=weak)(d["uv"], d["valid"], d["obj"], SIZE)
+    assert bool(res.success.all()) and bool(res.K.isfinite().all())
+    for c in range(20):
+        assert {"pose_diversity", "focal_uncertainty"} & set(checks_of(res, c, degeneracy.ERROR))
+    assert (res.std_intrinsics[:, 0] / res.K[:, 0, 0] > weak.focal_std_error).any()  # why: fx barely determined
+    fig = diagnose(res, d["uv"], d["valid"], d["obj"], SIZE)[0]
+    assert fig["verdict"].startswith("not reliable: ")
+    copies = d["uv"][0, :1].expand(4, -1, -1)
+    assert not bool(CalibrationSolver(thresholds=weak)(copies, None, d["obj"], SIZE).success)
+
+
 def test_fronto_parallel_without_noise_is_refused_by_geometry():
     """Noise-free data leave the covariance at 0: the pose check must refuse on its own."""
     d = views(C=5, V=8, tilt=(0.0, 1.0), noise=(0.0, 0.0), seed=7)
