@@ -100,7 +100,7 @@ def test_opencv_yaml_of_the_pair_in_the_other_order(tmp_path):
     write_opencv_stereo_yaml(str(path), data, rect, 1, 0)
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     assert np.allclose(fs.getNode("K1").mat(), K_B) and np.allclose(fs.getNode("K2").mat(), K_A)
-    R, T = (x.numpy() for x in pair_pose(data["extrinsics"], 1, 0))
+    R, T = (x.numpy() for x in pair_pose(*record_extrinsics(data["extrinsics"]), 1, 0))
     assert np.allclose(fs.getNode("R").mat(), R) and np.allclose(fs.getNode("T").mat().ravel(), T)
     E = np.array([[0, -T[2], T[1]], [T[2], 0, -T[0]], [-T[1], T[0], 0]]) @ R
     assert np.allclose(fs.getNode("E").mat(), E)
