@@ -26,6 +26,7 @@ from ccs_kornia.commands._common import (
     resolve_device,
     warn,
 )
+from ccs_kornia.commands._video import add_timestamps, rig_videos
 
 __all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "check_output_dir", "run", "summary_lines"]
 
@@ -132,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
 
     folders = args.cameras
     if len(folders) < 2:
-        raise UserError(f"a rig needs at least two camera folders (one folder of images per camera), got "
+        raise UserError(f"a rig needs at least two cameras (one folder of images, or one video, per camera), got "
                         f"{len(folders)}: {' '.join(folders)}")
     check_output_file("--output", args.output)
     for option, path in (("--opencv-yaml", args.opencv_yaml), ("--kalibr-yaml", args.kalibr_yaml)):
@@ -149,13 +150,18 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--kalibr-yaml: Kalibr has no rational (k1..k6) model, asked for camera "
                         f"{names[models.index('rational')]}; use --model opencv5, k1k2 or fisheye")
     device = resolve_device(args.device)
-    files = [_camera_files(names[k], folder) for k, folder in enumerate(folders)]
-    frames = match_frames(files)
-    for k in range(c):
-        missing = frames.missing(k)
-        if missing:
-            info(f"camera {names[k]} has no view of frame{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
-                 f"({frames.num_frames - len(missing)} of {frames.num_frames} frames)")
+    start = time.perf_counter()
+    video = rig_videos(COMMAND, args, names)
+    if video is None:
+        files = [_camera_files(names[k], folder) for k, folder in enumerate(folders)]
+        frames = match_frames(files)
+        for k in range(c):
+            missing = frames.missing(k)
+            if missing:
+                info(f"camera {names[k]} has no view of frame{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
+                     f"({frames.num_frames - len(missing)} of {frames.num_frames} frames)")
+    else:
+        files, frames = video.names(), video.table
     detector = make_detector_from(args)
     try:
         pipeline = RigPipeline(detector, models=models, fixed={k: v[0] for k, v in fixed.items()},
@@ -163,8 +169,7 @@ def run(args: argparse.Namespace) -> int:
     except FileNotFoundError as err:
         raise missing_weights(err) from None
     pipeline.to(device)
-    source = FileSource(files, names)
-    start = time.perf_counter()
+    source = FileSource(files, names) if video is None else video.source(names)
     total = sum(source.counts)
     with tqdm(total=total, unit="img", desc=COMMAND, file=sys.stderr, disable=None, leave=False) as bar:
         def advance(views: int) -> None:
@@ -182,6 +187,12 @@ def run(args: argparse.Namespace) -> int:
     for key, record in (("charuco", charuco_record(args)), ("aprilgrid", aprilgrid_record(args))):
         if record:
             data[key] = record
+    if video is not None:
+        for c_, cam in enumerate(data["cameras"]):
+            add_timestamps(cam["views"], video.timestamps())
+            cam["video"] = video.records(c_)
+        data["frame_times"] = frames.times
+        data["frame_spread_s"] = frames.spread()
     data["device"] = str(device)
     data["timings"] = {"total_s": time.perf_counter() - start}
     _write_outputs(args, data, names)

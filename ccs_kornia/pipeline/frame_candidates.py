@@ -15,7 +15,8 @@ frames a second. :func:`choose_frames` keeps a bounded set:
 A rig is chosen by *instants* (its cameras' frames paired by :mod:`~ccs_kornia.pipeline.frame_matching`): the distance
 of two instants is the largest over the cameras, and an instant seen by more cameras weighs more, so the frames that
 tie the cameras together come first. A recording of at most ``max_frames`` instants keeps them all (the full detector
-decides, and no frame the screen missed is lost).
+decides, and no frame the screen missed is lost); where the screen saw no board at all, ``max_frames`` instants
+spread evenly over the recording go to the full detector (a board the quick look misses may still be found).
 
 The choice records, per camera and instant, why a frame was left out; a later frame choice (the corners' own
 precision, the projection uncertainty) can start from :attr:`FrameChoice.chosen` and these records.
@@ -88,8 +89,7 @@ class FrameChoice:
 
     Attributes:
         chosen: the instants (frames of one camera) kept, ascending.
-        reasons: per camera, per instant, ``""`` for a kept frame with a board, else why it stays out: ``no board at
-            screening``, ``moving (9.3 px/frame)``, ``near copy of frame 412``, ``over --max-frames``.
+        reasons: per camera, per instant, ``""`` for a kept frame, else why it stays out: ``no board at screening``, ``moving (9.3 px/frame)``, ``near copy of frame 412``, ``over --max-frames``.
         motion: per camera, per instant, the board's motion in px per frame period (``None``: unknown).
     """
 
@@ -140,11 +140,17 @@ def choose_frames(
     reasons = [["" if seen[k, i] else ("no board at screening" if sightings[k][i] is not None else "")
                 for i in range(f)] for k in range(c)]
     if f <= max_frames:  # every instant goes: the full detector decides
-        return FrameChoice(list(range(f)), reasons, [list(m) for m in motion])
+        return FrameChoice(list(range(f)), [[""] * f for _ in range(c)], [list(m) for m in motion])
     cameras_seeing = seen.sum(0)
     worst = np.where(seen, moves, np.nan)
     worst = np.array([np.nanmax(col) if np.isfinite(col).any() else np.nan for col in worst.T])
     pool = np.flatnonzero(cameras_seeing > 0)
+    if not len(pool):  # the screen saw no board: the full detector looks at frames spread over the recording
+        spread = sorted({int(round(x)) for x in np.linspace(0, f - 1, max_frames)})
+        for k in range(c):
+            for i in spread:
+                reasons[k][i] = ""
+        return FrameChoice(spread, reasons, [list(m) for m in motion])
     still = pool[~(worst[pool] > max_motion)]  # unknown motion counts as still
     if len(still) < MIN_STILL:
         moving = pool[worst[pool] > max_motion]
