@@ -18,14 +18,17 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from ccs_kornia.io.timestamps import TimestampRow
+from ccs_kornia.io.video import FrameSpan
 from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES, FrameChoice, board_motion, choose_frames
 from ccs_kornia.pipeline.frame_matching import FrameTable, match_by_index, match_by_table, match_by_time
 from ccs_kornia.pipeline.screening import ScreenedVideo
 from ccs_kornia.pipeline.sources import VideoFrameRef, VideoSource
 
-__all__ = ["VideoFrames", "camera_frames", "default_tolerance", "pair_videos", "rig_frames"]
+__all__ = ["VideoFrames", "VideoOptions", "camera_frames", "default_tolerance", "load_video_set", "pair_videos",
+           "rig_frames"]
 
 #: frame rates within this fraction of each other count as one rate
 SAME_RATE = 0.01
@@ -236,3 +239,40 @@ def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
             times_out[cam].append(pairing.times[cam][f] if pairing.times is not None else frame.timestamp)
     table = FrameTable(labels_out, index, pairing.by, times_out)
     return VideoFrames(list(videos), refs, table, pairing, choice, chosen, reasons, motions)
+
+
+@dataclass(frozen=True)
+class VideoOptions:
+    """How a camera's recording becomes views: the screen (:class:`~ccs_kornia.modules.detection.screening.BoardScreen`),
+    the frames read (:class:`~ccs_kornia.io.video.FrameSpan`) and the frames kept at most."""
+
+    screen: Any
+    span: FrameSpan = FrameSpan()
+    max_frames: int = DEFAULT_MAX_FRAMES
+
+
+def load_video_set(path: str, options: VideoOptions) -> dict[str, Any]:
+    """One recording as an in-memory set of views (``calibrate-many``'s sets): screened in this process, its frames
+    chosen and decoded.
+
+    Returns:
+        ``{"files": names, "images": [(1, H, W) uint8 tensor or reason], "timestamps": {name: s}, "video": records}``;
+        an unreadable video gives no view and ``"error"``: why.
+    """
+    import torch
+
+    from ccs_kornia.pipeline.screening import screen_video
+
+    try:
+        screened = screen_video(path, options.screen, options.span)
+    except ValueError as err:
+        return {"files": [], "images": [], "timestamps": {}, "video": [], "error": str(err)}
+    frames = camera_frames([screened], options.max_frames)
+    source = frames.source()
+    images: list[Any] = []
+    for k, ref in enumerate(frames.refs[0]):
+        image, reason = source._load(0, k)
+        images.append(reason if image is None else (image * 255).round().to(torch.uint8))
+    source.close()
+    return {"files": frames.names()[0], "images": images, "timestamps": frames.timestamps(),
+            "video": frames.records(0)}
