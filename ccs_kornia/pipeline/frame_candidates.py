@@ -9,12 +9,13 @@ frames a second. :func:`choose_frames` keeps a bounded set:
    (the larger of the two sides); a frame moving more than ``max_motion`` is left out (``moving``), unless fewer than
    :data:`MIN_STILL` still frames remain (then the stillest moving ones are admitted);
 2. **new and spread out**: the frames are taken greedily, each time the one farthest (in outline distance,
-   :func:`outline_distance`) from those taken already, weighted by its stillness and, for a rig, by the cameras that
-   see it; a frame within ``min_change`` of a taken one is a ``near copy`` and stays out; at most ``max_frames``.
+   :func:`outline_distance`, a fraction of the image diagonal) from those taken already, weighted by its stillness
+   and, for a rig, by the cameras that see it; a frame within ``min_change`` of a taken one is a ``near copy`` and stays out; at most ``max_frames``.
 
-A rig is chosen by *instants* (its cameras' frames paired by :mod:`~ccs_kornia.pipeline.frame_matching`): the distance
-of two instants is the largest over the cameras, and an instant seen by more cameras weighs more, so the frames that
-tie the cameras together come first. A recording of at most ``max_frames`` instants keeps them all (the full detector
+A rig is chosen by *instants* (its cameras' frames paired by :mod:`~ccs_kornia.pipeline.frame_matching`): an instant
+is as new as the newest pose it shows one of the cameras that see it (its distance to the nearest chosen instant
+that camera sees), and an instant seen by more cameras weighs more, so the frames that tie the cameras together come
+first. A recording of at most ``max_frames`` instants keeps them all (the full detector
 decides, and no frame the screen missed is lost); where the screen saw no board at all, ``max_frames`` instants
 spread evenly over the recording go to the full detector (a board the quick look misses may still be found).
 
@@ -161,20 +162,24 @@ def choose_frames(
                 reasons[k][i] = f"moving ({moves[k, i] * diag[k]:.1f} px/frame)"
     outlines = _Outlines(sightings, seen, diag)
     chosen = _spread(still, outlines, cameras_seeing, np.nan_to_num(worst[still] / max_motion), max_frames, min_change)
-    nearest = _nearest(still, chosen, outlines)
-    for i, (near, distance) in nearest.items():
+    near, distance = _nearest(still, chosen, outlines)
+    novelty = np.where(seen[:, still], distance, -np.inf).max(0)
+    for n, i in enumerate(still):
         if i in chosen:
             continue
         for k in range(c):
-            if seen[k, i]:
-                reasons[k][i] = (f"near copy of frame {labels[k][near] if labels[k][near] is not None else near}"
-                                 if distance < min_change else "over --max-frames")
+            if not seen[k, i]:
+                continue
+            j = int(near[k, n])
+            label = labels[k][j] if j >= 0 and labels[k][j] is not None else j
+            reasons[k][i] = f"near copy of frame {label}" if novelty[n] < min_change and j >= 0 else \
+                "over --max-frames"
     return FrameChoice(sorted(chosen), reasons, [list(m) for m in motion])
 
 
 class _Outlines:
-    """Every camera's outlines :math:`(C, F, 4, 2)` in fractions of its diagonal (NaN where not seen), and the
-    distance of instants to one instant: the largest over the cameras, 1 where only one of the two shows the board."""
+    """Every camera's outlines :math:`(C, F, 4, 2)` in fractions of its diagonal (NaN where not seen), and per camera
+    the distance of instants to one instant (infinite where the camera does not see both)."""
 
     def __init__(self, sightings, seen: np.ndarray, diag: Sequence[float]) -> None:
         c, f = seen.shape
@@ -185,41 +190,45 @@ class _Outlines:
                 self.points[k, i] = sightings[k][i].outline / diag[k]
 
     def to(self, j: int, among: np.ndarray) -> np.ndarray:
-        """Distances :math:`(len(among),)` of the instants ``among`` to instant ``j``."""
+        """Distances :math:`(C, len(among))` of the instants ``among`` to instant ``j``, per camera."""
         pts, ref = self.points[:, among], self.points[:, j][:, None]
         d = np.min([np.linalg.norm(pts - np.roll(ref, r, axis=2), axis=-1).mean(-1) for r in range(4)], axis=0)
-        both = self.seen[:, among] & self.seen[:, j][:, None]
-        one = self.seen[:, among] != self.seen[:, j][:, None]
-        d = np.where(both, d, 0.0)
-        d = np.where(one, 1.0, d)
-        return d.max(0)
+        return np.where(self.seen[:, among] & self.seen[:, j][:, None], d, np.inf)
 
 
 def _spread(pool: np.ndarray, outlines: _Outlines, cameras_seeing: np.ndarray, slowness: np.ndarray,
             max_frames: int, min_change: float) -> list[int]:
-    """Farthest-point choice over ``pool``, each instant weighted by its cameras and its stillness."""
+    """Farthest-point choice over ``pool``: an instant's novelty is the largest, over the cameras that see it, of its
+    distance to the nearest chosen instant that camera sees (1 where it sees none yet); weighted by the cameras that
+    see it and its stillness."""
     if not len(pool):
         return []
+    seen = outlines.seen[:, pool]
     weight = cameras_seeing[pool] / (1.0 + slowness)
+    nearest = np.ones(seen.shape)
     first = int(np.lexsort((slowness, -weight))[0])
     chosen = [int(pool[first])]
-    gap = outlines.to(chosen[0], pool)
-    gap[first] = -1.0
+    taken = np.zeros(len(pool), dtype=bool)
+    taken[first] = True
+    nearest = np.minimum(nearest, outlines.to(chosen[0], pool))
     while len(chosen) < max_frames:
-        score = np.where(gap >= min_change, gap * weight, -1.0)
+        gap = np.where(seen, nearest, -np.inf).max(0)
+        score = np.where((gap >= min_change) & ~taken, gap * weight, -1.0)
         k = int(np.argmax(score))
         if score[k] < 0:
             break
         chosen.append(int(pool[k]))
-        gap = np.minimum(gap, outlines.to(chosen[-1], pool))
-        gap[k] = -1.0
+        taken[k] = True
+        nearest = np.minimum(nearest, outlines.to(chosen[-1], pool))
     return chosen
 
 
-def _nearest(pool: np.ndarray, chosen: list[int], outlines: _Outlines) -> dict[int, tuple[int, float]]:
-    """Per instant of ``pool``, the nearest chosen instant and its distance."""
+def _nearest(pool: np.ndarray, chosen: list[int], outlines: _Outlines) -> tuple[np.ndarray, np.ndarray]:
+    """Per camera and instant of ``pool``, the nearest chosen instant that camera sees (-1: none) and its distance
+    (infinite: none), both :math:`(C, len(pool))`."""
+    c = outlines.seen.shape[0]
     if not chosen or not len(pool):
-        return {}
-    d = np.stack([outlines.to(j, pool) for j in chosen])  # (chosen, pool)
+        return np.full((c, len(pool)), -1), np.full((c, len(pool)), np.inf)
+    d = np.stack([outlines.to(j, pool) for j in chosen])  # (chosen, C, pool)
     best = d.argmin(0)
-    return {int(i): (chosen[int(b)], float(d[b, n])) for n, (i, b) in enumerate(zip(pool, best))}
+    return np.where(np.isfinite(d.min(0)), np.asarray(chosen)[best], -1), d.min(0)

@@ -258,6 +258,10 @@ class FileSource(ViewSource):
         return torch.from_numpy(image)[None], ""
 
 
+#: the decoders a forked worker inherited from its parent, kept (a worker ends without freeing them)
+_INHERITED_DECODERS: list = []
+
+
 @dataclass(frozen=True)
 class VideoFrameRef:
     """One frame of a video as a view: the video's path, the frame's index and its timestamp (s) as the first pass
@@ -312,7 +316,8 @@ class VideoSource(ViewSource):
     def _reader(self, video: str):
         from ccs_kornia.io.video import VideoReader
 
-        if self._pid != os.getpid():  # a forked worker: the parent's decoders are the parent's
+        if self._pid != os.getpid():  # a forked worker: the parent's decoders are the parent's, never touched here
+            _INHERITED_DECODERS.append(self._readers)  # (freeing one waits for decoding threads only the parent has)
             self._readers, self._pid = {}, os.getpid()
         if video not in self._readers:
             self._readers[video] = VideoReader(video)
