@@ -49,9 +49,9 @@ def pose(k: int, num: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     return R, target - R @ centre
 
 
-def board_frames(num: int, seed: int = 0, blank: tuple[int, ...] = ()) -> np.ndarray:
+def board_frames(num: int, seed: int = 0, blank: tuple[int, ...] = (), shift=(0.0, 0.0, 0.0)) -> np.ndarray:
     """``num`` grey ``uint8`` frames ``(V, H, W)`` of the board along :func:`pose`; frames in ``blank`` show only
-    the background."""
+    the background; ``shift``: the camera's frame moved by ``x_cam = x + shift`` (a rig's second camera)."""
     texture, to_texture = _texture()
     rng = np.random.default_rng(1000 + seed)
     w, h = SIZE
@@ -63,6 +63,7 @@ def board_frames(num: int, seed: int = 0, blank: tuple[int, ...] = ()) -> np.nda
             frames[k] = cv2.resize(background, (w, h), interpolation=cv2.INTER_AREA).astype(np.uint8)
             continue
         R, t = pose(k, num, seed)
+        t = t + np.asarray(shift, dtype=float)
         H = up @ K_VIDEO @ np.column_stack([R[:, 0], R[:, 1], t]) @ np.linalg.inv(to_texture)
         warped = cv2.warpPerspective(texture.astype(np.float32), H, (2 * w, 2 * h), flags=cv2.INTER_LINEAR,
                                      borderValue=-1.0)
@@ -83,9 +84,9 @@ def write_video(path: str, frames: np.ndarray, fps: float = 10.0, fourcc: str = 
 
 
 def board_video(path: str, num: int = 16, seed: int = 0, fps: float = 10.0, fourcc: str = "MJPG",
-                blank: tuple[int, ...] = ()) -> str:
+                blank: tuple[int, ...] = (), shift=(0.0, 0.0, 0.0)) -> str:
     """A recording of ``num`` frames of the board (:func:`board_frames`)."""
-    return write_video(path, board_frames(num, seed, blank), fps, fourcc)
+    return write_video(path, board_frames(num, seed, blank, shift), fps, fourcc)
 
 
 def truncated(path: str, out: str, keep: float = 0.5) -> str:

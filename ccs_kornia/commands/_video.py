@@ -262,5 +262,5 @@ def pairing_lines(pairing, names: Sequence[str]) -> list[str]:
     each = ", ".join(f"{name} {pairing.contributed(c)}" for c, name in enumerate(names))
     spread = pairing.largest_spread()
     where = "" if spread is None else f"; largest time spread of a paired frame {spread * 1000:.1f} ms"
-    return [f"frames paired {by}: {pairing.num_frames} instants, {shared} seen by two cameras or more (frames per "
-            f"camera: {each}){where}"]
+    return [f"frames paired {by}: {pairing.num_frames} instants, {shared} of them with frames of two cameras or more "
+            f"(frames per camera: {each}){where}"]
