@@ -164,9 +164,11 @@ def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX
         >>> box = np.array([[0.0, 0.0], [40.0, 0.0], [40.0, 30.0], [0.0, 30.0]])
         >>> frames = [ScreenedFrame(k, k / 10, Sighting(k != 1, None if k == 1 else box)) for k in range(3)]
         >>> v = ScreenedVideo(VideoInfo("a.mp4", 640, 480, 10.0, 3), FrameSpan(), frames, length=3)
-        >>> out = camera_frames([v])
-        >>> out.names(), [r["reason"] for r in out.records(0)[0]["frames"] if "reason" in r]
-        ([['a.mp4#0', 'a.mp4#1', 'a.mp4#2']], ['no board at screening'])
+        >>> out = camera_frames([v])  # no more frames than max_frames: every frame goes to the detector
+        >>> out.names(), [(f["board"], f["chosen"]) for f in out.records(0)[0]["frames"]]
+        ([['a.mp4#0', 'a.mp4#1', 'a.mp4#2']], [(True, True), (False, True), (True, True)])
+        >>> [f.get("reason") for f in camera_frames([v], max_frames=2).records(0)[0]["frames"]]
+        [None, 'no board at screening', 'near copy of frame 0']
     """
     sightings, labels, motion, owner = [], [], [], []
     several = len({v.path for v in videos}) > 1

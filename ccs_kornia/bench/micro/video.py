@@ -180,10 +180,14 @@ def main(argv: list[str] | None = None) -> None:
     for line in text.splitlines():
         if "\r" not in line and line.strip():
             print("  | " + line)
-    if code == 0 and a.video is None:
+    if code == 0:
         import json
 
         data = json.load(open(out))
+        screening = sum(v["screening_s"] for v in data["video"])
+        print(f"  of which: screening {screening:.1f} s, detection and solve {data['timings']['load_detect_solve_s']:.1f} "
+              f"s, the command's own total {data['timings']['total_s']:.1f} s (the rest: starting Python and torch)")
+    if code == 0 and a.video is None:
         K = np.array(data["K"])
         e_fl = abs(K[0, 0] - K_TRUE[0, 0]) + abs(K[1, 1] - K_TRUE[1, 1])
         e_pp = abs(K[0, 2] - K_TRUE[0, 2]) + abs(K[1, 2] - K_TRUE[1, 2])
