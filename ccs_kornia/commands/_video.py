@@ -121,18 +121,16 @@ def screen_videos(command: str, paths: Sequence[str], screen, span, workers: int
     from ccs_kornia.io.video import open_video
     from ccs_kornia.pipeline.screening import screen_video
 
-    infos = []
+    infos, bad = [], []
     for path in paths:
         video, reason = open_video(path)
-        if video is None:
-            if not skip_unreadable:
-                raise UserError(f"{path}: {reason}")
-            warn(command, f"skipped {path}: {reason}")
-            continue
-        infos.append(video)
-    if not infos:
-        raise UserError(f"none of the {len(paths)} videos could be read ({paths[0]}: "
-                        f"{open_video(paths[0])[1]})" if len(paths) > 1 else f"{paths[0]}: {open_video(paths[0])[1]}")
+        (infos.append(video) if video is not None else bad.append((path, reason)))
+    if bad and (not skip_unreadable or not infos):
+        path, reason = bad[0]
+        more = f" (and {len(bad) - 1} more of the {len(paths)} videos)" if len(bad) > 1 else ""
+        raise UserError(f"{path}: {reason}{more}")
+    for path, reason in bad:
+        warn(command, f"skipped {path}: {reason}")
     total = sum(_estimate(v, span) for v in infos)
     out = []
     with tqdm(total=total or None, unit="frame", desc=f"{command}: screening", file=sys.stderr, disable=None,
@@ -152,14 +150,16 @@ def screen_videos(command: str, paths: Sequence[str], screen, span, workers: int
                 if not skip_unreadable:
                     raise UserError(str(err)) from None
                 warn(command, f"skipped {video.path}: {err}")
+    where = "" if span == type(span)() else " between --start and --end"
+    empty = [v for v in out if not v.frames]
+    if empty and (not skip_unreadable or len(empty) == len(out)):
+        raise UserError(f"{empty[0].path}: no frame{where} could be read")
     for video in out:
         if video.stopped:
             warn(command, f"{video.path}: {video.stopped}")
         if not video.frames:
-            where = "" if span == type(span)() else " between --start and --end"
-            if not skip_unreadable or len(out) == 1:
-                raise UserError(f"{video.path}: no frame{where} could be read")
-    return out
+            warn(command, f"skipped {video.path}: no frame{where} could be read")
+    return [v for v in out if v.frames]
 
 
 def video_summary(frames, names: Sequence[str] | None = None) -> list[str]:

@@ -133,8 +133,8 @@ def run(args: argparse.Namespace) -> int:
 
     folders = args.cameras
     if len(folders) < 2:
-        raise UserError(f"a rig needs at least two cameras (one folder of images, or one video, per camera), got "
-                        f"{len(folders)}: {' '.join(folders)}")
+        raise UserError(f"a rig needs at least two camera folders or videos (one folder of images, or one video, per "
+                        f"camera), got {len(folders)}: {' '.join(folders)}")
     check_output_file("--output", args.output)
     for option, path in (("--opencv-yaml", args.opencv_yaml), ("--kalibr-yaml", args.kalibr_yaml)):
         if path:

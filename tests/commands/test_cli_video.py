@@ -172,7 +172,16 @@ def test_damaged_video_uses_the_frames_before(videos, tmp_path, capsys):
 def test_unreadable_video(videos, tmp_path, capsys, command):
     code, out, err = run(capsys, command, videos["broken"], *FAST, "--output", tmp_path / "o.json")
     assert "not a readable video" in one_error_line(code, err)
+    assert len(err.strip().splitlines()) == 1 and out == ""
     assert os.listdir(tmp_path) == []
+
+
+def test_unreadable_video_among_several_is_skipped(videos, tmp_path, capsys):
+    code, out, err = run(capsys, "detect", videos["broken"], videos["avi"], *FAST, "--output", tmp_path / "d.json")
+    assert code == 0, err
+    assert f"warning: skipped {videos['broken']}: not a readable video" in err
+    data = json.loads((tmp_path / "d.json").read_text())
+    assert {i["path"].rsplit("#")[0] for i in data["images"]} == {videos["avi"]}
 
 
 def test_video_without_a_board(videos, tmp_path, capsys):
@@ -274,3 +283,10 @@ def test_caliscope_videos_give_the_rig_of_the_frame_folders(tmp_path, capsys):
     assert abs(pb["baseline"] - pa["baseline"]) < 0.01 * pa["baseline"]
     assert abs(pb["rotation_deg"] - pa["rotation_deg"]) < 1.0
     assert pb["heldout_epipolar_rms"] < 1.1 * pa["heldout_epipolar_rms"]
+
+
+def test_help_states_the_frame_cap(capsys):
+    from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES
+
+    code, out, err = run(capsys, "calibrate", "--help")
+    assert code == 0 and f"at most (default {DEFAULT_MAX_FRAMES})" in " ".join(out.split())
