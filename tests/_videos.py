@@ -91,7 +91,8 @@ def board_video(path: str, num: int = 16, seed: int = 0, fps: float = 10.0, four
 
 def truncated(path: str, out: str, keep: float = 0.5) -> str:
     """A copy of ``path`` cut after ``keep`` of its bytes."""
-    data = open(path, "rb").read()
+    with open(path, "rb") as handle:
+        data = handle.read()
     with open(out, "wb") as handle:
         handle.write(data[: int(len(data) * keep)])
     return out

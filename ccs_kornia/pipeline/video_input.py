@@ -22,8 +22,18 @@ from typing import Any
 
 from ccs_kornia.io.timestamps import TimestampRow
 from ccs_kornia.io.video import FrameSpan
-from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES, FrameChoice, board_motion, choose_frames
-from ccs_kornia.pipeline.frame_matching import FrameTable, match_by_index, match_by_table, match_by_time
+from ccs_kornia.pipeline.frame_candidates import (
+    DEFAULT_MAX_FRAMES,
+    FrameChoice,
+    board_motion,
+    choose_frames,
+)
+from ccs_kornia.pipeline.frame_matching import (
+    FrameTable,
+    match_by_index,
+    match_by_table,
+    match_by_time,
+)
 from ccs_kornia.pipeline.screening import ScreenedVideo
 from ccs_kornia.pipeline.sources import VideoFrameRef, VideoSource
 

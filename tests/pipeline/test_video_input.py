@@ -11,11 +11,25 @@ from _videos import BOARD, board_frames, write_video
 from ccs_kornia.io.timestamps import TimestampRow
 from ccs_kornia.io.video import FrameSpan, VideoInfo, VideoReader
 from ccs_kornia.modules.detection.screening import BoardScreen, Sighting
-from ccs_kornia.pipeline.frame_candidates import MIN_STILL, board_motion, choose_frames, outline_distance
-from ccs_kornia.pipeline.frame_matching import match_by_index, match_by_table, match_by_time
+from ccs_kornia.pipeline.frame_candidates import (
+    MIN_STILL,
+    board_motion,
+    choose_frames,
+    outline_distance,
+)
+from ccs_kornia.pipeline.frame_matching import (
+    match_by_index,
+    match_by_table,
+    match_by_time,
+)
 from ccs_kornia.pipeline.screening import ScreenedFrame, ScreenedVideo, screen_video
 from ccs_kornia.pipeline.sources import VideoFrameRef, VideoSource
-from ccs_kornia.pipeline.video_input import camera_frames, default_tolerance, pair_videos, rig_frames
+from ccs_kornia.pipeline.video_input import (
+    camera_frames,
+    default_tolerance,
+    pair_videos,
+    rig_frames,
+)
 from ccs_kornia.pipeline.workers import map_batches
 
 
