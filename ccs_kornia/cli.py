@@ -232,6 +232,37 @@ def charuco_options(p: argparse.ArgumentParser, which, square: bool = False) -> 
                        help="its square side (only the ratio to --marker matters here; default 1)")
 
 
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds (a number >= 0), got {text!r}") from None
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected seconds (a number >= 0), got {text}")
+    return value
+
+
+def video_options(p: argparse.ArgumentParser, rig: bool = False) -> None:
+    """``--every N --start S --end S --max-frames N`` for recordings given instead of images (and, for a rig,
+    ``--sync-tolerance S --timestamps CSV``)."""
+    g = p.add_argument_group("videos (mp4, mkv, avi, mov, mjpeg, ... instead of images)")
+    g.add_argument("--every", default=1, type=_positive_int, metavar="N",
+                   help="screen every N-th frame only (default 1: every frame)")
+    g.add_argument("--start", type=_seconds, metavar="S", help="first frame at S seconds (default: the start)")
+    g.add_argument("--end", type=_seconds, metavar="S", help="last frame at S seconds (default: the end)")
+    g.add_argument("--max-frames", default=None, type=_positive_int, metavar="N",
+                   help="frames of a recording (instants of a rig) the detector looks at, at most (default 60): still "
+                        "boards in poses not seen yet, chosen after a quick screening of every frame")
+    if rig:
+        g.add_argument("--sync-tolerance", type=_positive_float, metavar="S",
+                       help="frames of two cameras pair when their timestamps differ by at most S seconds (default: "
+                            "half the shortest frame period)")
+        g.add_argument("--timestamps", metavar="CSV",
+                       help="pair the frames as this table says: sync_index,cam_id,frame_index,frame_time per row "
+                            "(caliscope's layout; cam_id = the video's position on the command line; without "
+                            "frame_index a camera's rows are its frames in order)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argparse parser of every command except the Lightning ones (forwarded untouched)."""
     parser = _Parser(
@@ -246,7 +277,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
 
     def common(p: argparse.ArgumentParser, board: bool = True, square: bool = False) -> None:
-        p.add_argument("images", nargs="+", metavar="IMAGES", help="image files, directories or globs")
+        p.add_argument("images", nargs="+", metavar="IMAGES",
+                       help="image files, directories or globs" + (", or videos (one camera's recordings)" if board
+                                                                    else ""))
         if board:
             which = p.add_mutually_exclusive_group(required=True)
             which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
@@ -269,6 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
                            help="the learned detector's heatmap network: float32 (default: the same corners on every "
                                 "machine), bfloat16 (about 1.7x faster on CPUs with native bfloat16, AVX512-BF16 or "
                                 "AMX, slower elsewhere; can find other boards), auto (bfloat16 where native)")
+            video_options(p)
 
     p = sub.add_parser("detect", help="detect chessboard corners, write them as JSON", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -318,7 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("cameras", nargs="+", metavar="CAM_DIR",
                    help="one folder (or quoted glob) of images per camera; views match across cameras by the last number "
-                        "in the file names (left07.jpg with right07.jpg), else by sorted order")
+                        "in the file names (left07.jpg with right07.jpg), else by sorted order; or one video per "
+                        "camera, frames paired by timestamp (--sync-tolerance), by --timestamps, else by index")
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--board", type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6 (or --charuco)")
     p.add_argument("--square", default=1.0, type=_positive_float,
@@ -356,6 +391,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="do not run the distortion-correction network")
     p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
+    video_options(p, rig=True)
     p.set_defaults(func=calibrate_rig.run, model_choices=MODELS)
 
     p = sub.add_parser("rectify", help="rectify stereo image pairs with a rig calibration")
@@ -390,7 +426,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate-many", help="calibrate many cameras (one directory of images each) with "
                        "Lightning's Trainer.predict; one JSON line per camera")
     p.add_argument("sets", nargs="+", metavar="SETS",
-                   help="directories of images (one camera each), parents of such directories, or globs")
+                   help="directories of images (one camera each), parents of such directories, videos (one camera "
+                        "each), or globs")
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
                        help="inner corners, e.g. 9x6 (or --charuco, --aprilgrid)")
@@ -430,6 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="do not run the distortion-correction network")
     p.add_argument("--overwrite", action="store_true",
                    help="start the output file again (default: append, skipping sets already in it)")
+    video_options(p)
     p.set_defaults(func=calibrate_many.run)
 
     p = sub.add_parser("demo", help="render a synthetic set with a known camera, calibrate it, compare")

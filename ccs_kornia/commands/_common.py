@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 from collections.abc import Sequence
@@ -182,11 +183,12 @@ def resolve_board(args: argparse.Namespace) -> None:
 
 
 def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present: Any,
-                             reasons: Sequence[str] = ()) -> None:
+                             reasons: Sequence[str] = (), load: Any = None) -> None:
     """A ChArUco board found in no image because no marker of its dictionary was: which predefined dictionary finds
     markers in the images instead; or found in no more views than were refused for markers off its lattice (a wrong
     board size: a partial view of another board can fit by chance): the board size the markers fit. Either as a
-    :class:`UserError` (exit status :data:`EXIT_USAGE`)."""
+    :class:`UserError` (exit status :data:`EXIT_USAGE`). ``load(k)``: view ``k`` as a grey ``uint8`` array (default:
+    the file ``files[k]``)."""
     from ccs_kornia.modules.detection.markers.charuco import (
         CharucoDetector,
         dictionary_hint,
@@ -200,7 +202,8 @@ def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present
         return
     import cv2
 
-    images = [cv2.imread(f, cv2.IMREAD_GRAYSCALE) for f, ok in zip(files, present.tolist()) if ok][:8]
+    read = load if load is not None else (lambda k: cv2.imread(files[k], cv2.IMREAD_GRAYSCALE))
+    images = [read(k) for k, ok in enumerate(present.tolist()) if ok][:8]
     board = detector.board
     from ccs_kornia.modules.detection.markers.charuco import charuco_markers
 
@@ -360,9 +363,10 @@ class WrongBoardWatch:
 
 
 def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int, int], square: float, device,
-              calibrate: bool = True, names: list[str] | None = None):
+              calibrate: bool = True, names: list[str] | None = None, source=None):
     """The pipeline's one composition (:meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.run`) on image files, with a
-    progress bar; unreadable files are reported on stderr and skipped.
+    progress bar; unreadable files are reported on stderr and skipped. ``source``: the views named ``cameras``
+    (video frames, :class:`~ccs_kornia.pipeline.sources.VideoSource`) instead of the files.
 
     Returns:
         ``(result, seconds)``: the batched :class:`~ccs_kornia.pipeline.result.PipelineResult` and the wall time.
@@ -373,7 +377,7 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
 
     from ccs_kornia.pipeline.sources import FileSource
 
-    source = FileSource(cameras, names)
+    source = FileSource(cameras, names) if source is None else source
     pipeline.to(device)
     start = time.perf_counter()
     total = sum(source.counts)
@@ -391,8 +395,9 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
     for c, files in enumerate(cameras):
         reasons = (out.detections.reasons or [""] * out.present.numel())[c * out.present.shape[1]:
                                                                          (c + 1) * out.present.shape[1]]
+        load = None if isinstance(source, FileSource) else functools.partial(_grey8, source, c)
         charuco_dictionary_check(pipeline, files, out.detections.found.reshape(out.present.shape)[c], out.present[c],
-                                 reasons)
+                                 reasons, load)
     v = out.present.shape[1]
     for c, files in enumerate(cameras):
         for k, path in enumerate(files):
@@ -402,6 +407,12 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
     if hint:
         warn(command, hint)
     return out, seconds
+
+
+def _grey8(source, camera: int, view: int):
+    """View ``view`` of ``camera`` as a grey ``uint8`` array (``None`` where it cannot be read)."""
+    image, _ = source._load(camera, view)
+    return None if image is None else (image[0].clamp(0, 1) * 255).round().byte().numpy()
 
 
 def board_size_hint(board: tuple[int, int], reasons: Sequence[str]) -> str:

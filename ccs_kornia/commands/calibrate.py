@@ -23,6 +23,7 @@ from ccs_kornia.commands._common import (
     warn,
     weak_lines,
 )
+from ccs_kornia.commands._video import add_timestamps, camera_videos, screening_note
 
 __all__ = ["calibrate_files", "failure_message", "run", "verdict_line"]
 
@@ -36,17 +37,26 @@ def calibrate_files(
     device,
     model: str,
     detector_name: str,
+    video=None,
 ) -> tuple[dict[str, Any], Any]:
     """The pipeline's one composition on ``files`` (one camera); returns (JSON-ready dict, PipelineResult of it).
+
+    ``video``: the chosen frames of the camera's recordings (:class:`~ccs_kornia.pipeline.video_input.VideoFrames`,
+    ``files`` their names): the views are read from the videos, each view gets its ``timestamp`` and the record a
+    ``video`` entry per recording (what the screening saw of every frame, and why a frame was not chosen).
 
     Raises :class:`UserError` when no calibration can be computed: :class:`NoResult` when images were read, with
     ``partial``: the per-view record (detections and reasons) so the caller can keep it.
     """
     from ccs_kornia.outputs.records import camera_record
 
-    out, seconds = run_files(command, pipeline, [files], board, square, device)
+    source = None if video is None else video.source()
+    out, seconds = run_files(command, pipeline, [files], board, square, device, source=source)
     one = out.select(0)
     data = camera_record(one, files, board=board, square=square, detector=detector_name, model=model)
+    if video is not None:
+        add_timestamps(data["views"], video.timestamps())
+        data["video"] = video.records(0)
     data["timings"] = {"load_detect_solve_s": seconds, "images_per_s": len(files) / max(seconds, 1e-9)}
     for view in data["views"]:
         if view["found"] and "reason" in view and view["reason"].startswith("image size"):
@@ -113,14 +123,17 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         check_output_dir("--report", args.report)  # created once there is a calibration to report
     device = resolve_device(args.device)
-    files = inputs("calibrate", args.images)
-    pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
     start = time.perf_counter()
+    video = camera_videos("calibrate", args)
+    files = inputs("calibrate", args.images) if video is None else video.names()[0]
+    pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
     try:
         data, result = calibrate_files(
-            "calibrate", files, args.board, args.square, pipeline, device, args.model, args.detector
+            "calibrate", files, args.board, args.square, pipeline, device, args.model, args.detector, video
         )
     except UserError as err:
+        if video is not None:
+            err.args = (f"{err}{screening_note(video)}",)
         # nothing lost: the per-image detections and reasons go next to the requested output, which
         # itself is only ever written for a computed calibration
         kept = (f"; the existing {os.path.basename(args.output)} was left as it was (not from this run)"

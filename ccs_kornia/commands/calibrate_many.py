@@ -1,4 +1,4 @@
-"""``ccs_kornia calibrate-many``: many cameras (one directory each) through Lightning's ``Trainer.predict``, on one
+"""``ccs_kornia calibrate-many``: many cameras (one directory of images or one video each) through Lightning's ``Trainer.predict``, on one
 process or on several (DDP over processes, GPUs and nodes; ``docs/fleet.md``).
 
 The exit status says what the output file holds for the sets given, once this run is done, so runs that end in the
@@ -32,6 +32,7 @@ from ccs_kornia.commands._common import (
     resolve_device,
     warn,
 )
+from ccs_kornia.commands._video import frame_span, make_screen, max_frames
 
 __all__ = ["run"]
 
@@ -74,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
     overwrite = bool(getattr(args, "overwrite", False))
     if not overwrite and (reason := not_jsonl_reason(args.output)) is not None:
         raise UserError(f"--output {args.output}: {reason}; give another file name (or --overwrite to replace it)")
+    from ccs_kornia.io.video import is_video
+
     sets, problems = find_image_sets(args.sets)
     if not sets:
         detail = "; ".join(f"{item}: {reason}" for item, reason in problems)
@@ -82,6 +85,11 @@ def run(args: argparse.Namespace) -> int:
     for item, reason in problems if first else ():
         warn("calibrate-many", f"{item}: {reason}")
     pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
+    video = None
+    if any(len(files) == 1 and is_video(files[0]) for _, files in sets):
+        from ccs_kornia.pipeline.video_input import VideoOptions
+
+        video = VideoOptions(make_screen(args), frame_span(args), max_frames(args))
     processes = (devices or 1) * args.num_nodes
     where = f"{processes} processes ({accelerator or device.type})" if processes > 1 else str(device)
     if first:
@@ -95,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
         accelerator=accelerator, devices=devices, num_nodes=args.num_nodes, strategy=args.strategy,
         board_record={**({"charuco": charuco_record(args)} if charuco_record(args) else {}),
                       **({"aprilgrid": aprilgrid_record(args)} if aprilgrid_record(args) else {})},
+        video=video,
     )
     if summary["rank"] != 0:
         return 0  # rank 0 reports for the run

@@ -30,6 +30,7 @@ from ccs_kornia.commands._common import (
     warn,
     weak_lines,
 )
+from ccs_kornia.commands._video import add_timestamps, rig_videos
 
 __all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "run", "summary_lines"]
 
@@ -142,6 +143,17 @@ def _check_distinct(files: list[list[str]], names: list[str], folders: list[str]
                                 "a rig needs one folder of images per camera")
 
 
+def _check_distinct_videos(names: list[str], videos: list[str]) -> None:
+    """Refuse two cameras given the same video file."""
+    seen: dict[str, int] = {}
+    for k, path in enumerate(videos):
+        real = os.path.realpath(path)
+        if real in seen:
+            raise UserError(f"cameras {names[seen[real]]} and {names[k]} are the same video ({path}): a rig needs one "
+                            "video per camera")
+        seen[real] = k
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -154,8 +166,8 @@ def run(args: argparse.Namespace) -> int:
 
     folders = args.cameras
     if len(folders) < 2:
-        raise UserError(f"a rig needs at least two camera folders (one folder of images per camera), got "
-                        f"{len(folders)}: {' '.join(folders)}")
+        raise UserError(f"a rig needs at least two camera folders or videos (one folder of images, or one video, per "
+                        f"camera), got {len(folders)}: {' '.join(folders)}")
     check_output_file("--output", args.output)
     for option, path in (("--opencv-yaml", args.opencv_yaml), ("--kalibr-yaml", args.kalibr_yaml)):
         if path:
@@ -181,22 +193,27 @@ def run(args: argparse.Namespace) -> int:
         info(f"--kalibr-yaml: Kalibr has no rational model, so --model auto chooses among "
              f"{', '.join(options['auto_models'])} in this run")
     device = resolve_device(args.device)
-    files = [_camera_files(names[k], folder) for k, folder in enumerate(folders)]
-    _check_distinct(files, names, folders)
-    frames = match_frames(files)
-    for k in range(c):
-        missing = frames.missing(k)
-        if missing:
-            info(f"camera {names[k]} has no view of frame{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
-                 f"({frames.num_frames - len(missing)} of {frames.num_frames} frames)")
+    start = time.perf_counter()
+    video = rig_videos(COMMAND, args, names)
+    if video is None:
+        files = [_camera_files(names[k], folder) for k, folder in enumerate(folders)]
+        frames = match_frames(files)
+        for k in range(c):
+            missing = frames.missing(k)
+            if missing:
+                info(f"camera {names[k]} has no view of frame{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
+                     f"({frames.num_frames - len(missing)} of {frames.num_frames} frames)")
+        _check_distinct(files, names, folders)
+    else:
+        files, frames = video.names(), video.table
+        _check_distinct_videos(names, folders)
     detector = make_detector_from(args)
     try:
         pipeline = RigPipeline(detector, models=models, fixed={k: v[0] for k, v in fixed.items()}, **options)
     except FileNotFoundError as err:
         raise missing_weights(err) from None
     pipeline.to(device)
-    source = FileSource(files, names)
-    start = time.perf_counter()
+    source = FileSource(files, names) if video is None else video.source(names)
     total = sum(source.counts)
     with tqdm(total=total, unit="img", desc=COMMAND, file=sys.stderr, disable=None, leave=False) as bar:
         def advance(views: int) -> None:
@@ -217,6 +234,12 @@ def run(args: argparse.Namespace) -> int:
     for key, record in (("charuco", charuco_record(args)), ("aprilgrid", aprilgrid_record(args))):
         if record:
             data[key] = record
+    if video is not None:
+        for c_, cam in enumerate(data["cameras"]):
+            add_timestamps(cam["views"], video.timestamps())
+            cam["video"] = video.records(c_)
+        data["frame_times"] = frames.times
+        data["frame_spread_s"] = frames.spread()
     data["device"] = str(device)
     data["timings"] = {"total_s": time.perf_counter() - start}
     weak = _weak_cameras(data) if args.allow_weak else []
