@@ -30,7 +30,6 @@ import functools
 import math
 from collections.abc import Sequence
 from contextlib import nullcontext
-from collections.abc import Sequence
 from dataclasses import replace
 from typing import Callable
 
