@@ -12,7 +12,8 @@ term, one small 6-dof correction ``E_v`` of each view's robot pose. A board poin
 corner, weighted by the corner's inverse variance. The robot-pose noise term adds the prior residuals
 ``(log R_E / sigma_rot, t_E / sigma_trans)`` of every correction.
 
-The normal equations have the arrow structure of the package's LM core: a *global* block
+The normal equations have the arrow structure of the package's LM core
+(:func:`~ccs_kornia.modules.calibration.schur_lm.schur_lm`): a *global* block
 ``G = 12 + F`` (``X``: rotation, translation; ``Z``: rotation, translation; the free intrinsics) and, with the noise
 term, one 6x6 block per view (``V = 0`` blocks without it), coupled to the global block only:
 ``(cost, U, g, W, Vb, gv)`` with ``U = J_g^T W J_g``, ``g = J_g^T W r``, ``W = J_g^T W J_v``, ``Vb = J_v^T W J_v``
@@ -178,9 +179,10 @@ class HandEyeProblem:
 
     @property
     def num_residuals(self) -> torch.Tensor:
-        """:math:`(B,)` scalar residuals: two per weighted corner, six per correction with the noise term."""
+        """:math:`(B,)` scalar residuals: two per weighted corner, six per correction of a view with data with the
+        noise term."""
         n = 2 * (self.w > 0).sum((1, 2))
-        return n + (6 * self.num_items if self.noise is not None else 0)
+        return n + (6 * (self.w > 0).any(-1).sum(-1) if self.noise is not None else 0)
 
     @staticmethod
     def initial_state(X: torch.Tensor, Z: torch.Tensor, params: torch.Tensor, views: int) -> HandEyeState:
