@@ -4,6 +4,7 @@ number of workers, failures and errors reported, the pipeline's detections uncha
 from __future__ import annotations
 
 import os
+import time
 import sys
 
 import cv2
@@ -24,6 +25,8 @@ linux = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="worker 
 
 def _sum_and_pid(images: torch.Tensor, keys: list):
     assert len(keys) == images.shape[0]
+    # a batch takes long enough that, on a loaded machine too, the other worker takes the next one meanwhile
+    time.sleep(0.2)
     return images.sum((1, 2, 3)), os.getpid(), torch.get_num_threads()
 
 
