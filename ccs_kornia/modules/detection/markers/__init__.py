@@ -1,5 +1,7 @@
 """Marker boards: ChArUco and Kalibr's AprilGrid, markers decoded by OpenCV, corners by this package's refinement.
 
+``marker_board`` is the skeleton both boards share; ``charuco`` and ``aprilgrid`` are its two specialisations.
+
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 """
 
@@ -12,6 +14,8 @@ _EXPORTS = {
     "detect_charuco": "ccs_kornia.modules.detection.markers.charuco",
     "AprilGridDetector": "ccs_kornia.modules.detection.markers.aprilgrid",
     "detect_aprilgrid": "ccs_kornia.modules.detection.markers.aprilgrid",
+    "BoardMarkers": "ccs_kornia.modules.detection.markers.marker_board",
+    "MarkerBoardDetector": "ccs_kornia.modules.detection.markers.marker_board",
 }
 
 __all__ = sorted(_EXPORTS)

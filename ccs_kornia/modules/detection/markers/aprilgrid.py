@@ -2,22 +2,24 @@ r"""AprilGrid corners with partial views: OpenCV's tag ids, this package's corne
 
 Kalibr's AprilGrid (:class:`~ccs_kornia.modules.detection.boards.AprilGrid`) puts a small black square beside every
 corner of its AprilTags, so each tag corner is an X-junction between the tag's black border and that square: the
-same saddle the chessboard refinement measures. The steps are :mod:`~ccs_kornia.modules.detection.markers.charuco`'s:
+same saddle the chessboard refinement measures. The steps are the shared ones of
+:mod:`~ccs_kornia.modules.detection.markers.marker_board`, with the grid's own geometry:
 
 1. **tags**: ``cv2.aruco.ArucoDetector`` (``DICT_APRILTAG_36h11``, two border bits as Kalibr prints them) decodes
    the tags on the image, its inverse (white-on-black prints) and both mirrored (a board seen from its back);
 2. **lattice**: the decoded tags must sit where the grid puts their ids (a homography grown from each tag, tags
-   within :data:`~ccs_kornia.modules.detection.markers.charuco.LATTICE_TOLERANCE` tag sides; at least two tags: a lone tag
+   within :data:`~ccs_kornia.modules.detection.markers.marker_board.LATTICE_TOLERANCE` tag sides; at least two tags: a lone tag
    cannot be checked); ids beyond the grid's tags are dropped; the variant with the most consistent tags is kept; a
    view with more of the grid's tags off its lattice than on it is refused (the tags of another grid: a wrong
    ``tagCols``/``tagRows``);
 3. **initial corners**: each corner of a consistent tag from a homography of the tags around it
    (:data:`NEIGHBOUR_RADIUS` grid pitches);
-4. **refinement and check**: :func:`~ccs_kornia.modules.detection.markers.charuco.refine_marked_corners` with a window inside
+4. **refinement and check**: :func:`~ccs_kornia.modules.detection.markers.marker_board.refine_marked_corners` with a window inside
    the clear X-junction (:func:`aprilgrid_radius_factor`): a corner the refinement did not confirm, whose window
    leaves the image or that moved too far is dropped;
 5. **growth**: OpenCV's tag corners can be a px or two off, more than that small window forgives, and a tag that did
-   not decode (blur, low light) places none: a corner not accepted is placed by a homography of at least
+   not decode (blur, low light) places none: a corner not accepted is placed
+   (:func:`~ccs_kornia.modules.detection.markers.marker_board.grow_corners`) by a homography of at least
    :data:`GROWTH_SUPPORT` accepted corners around it (:data:`NEIGHBOUR_RADIUS` pitches) and refined and checked as
    in step 4, for :data:`GROWTH_ROUNDS` rounds. Its id is its place in the lattice those corners fix; the saddle it
    lands on must lie within a quarter of a tag side of that place (the nearest other corner is ``tag_spacing``
@@ -42,20 +44,21 @@ from ccs_kornia.modules.detection.boards import (
     AprilGrid,
     aruco_dictionary,
 )
-from ccs_kornia.modules.detection.markers.charuco import (
+from ccs_kornia.modules.detection.markers.marker_board import (
     VARIANTS,
-    CharucoMarkers,
+    BoardMarkers,
     MarkerBoardDetector,
-    _decode,
-    _fit,
-    _lattice,
-    _map,
+    decode_markers,
+    fit_homography,
+    grow_corners,
+    markers_on_board,
+    place_from,
     refine_marked_corners,
 )
 from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
 
-__all__ = ["GROWTH_ROUNDS", "GROWTH_SUPPORT", "NEIGHBOUR_RADIUS", "AprilGridDetector", "aprilgrid_radius_factor", "aprilgrid_tags", "detect_aprilgrid",
-           "tag_detector"]
+__all__ = ["GROWTH_ROUNDS", "GROWTH_SUPPORT", "NEIGHBOUR_RADIUS", "AprilGridDetector", "aprilgrid_radius_factor",
+           "aprilgrid_tags", "board_tags", "detect_aprilgrid", "tag_detector"]
 
 #: tags whose centre lies within this many grid pitches (tag side plus gap) of a corner place it: its own tag and the
 #: three others around it
@@ -87,9 +90,14 @@ def aprilgrid_radius_factor(board: AprilGrid) -> float:
     return float(0.8 * min(border, float(board.tag_spacing)) / POLISH_WINDOW)
 
 
-def _board_tags(board: AprilGrid) -> dict[int, np.ndarray]:
+def board_tags(board: AprilGrid) -> dict[int, np.ndarray]:
     """Tag id -> its corners ``(4, 2)`` on the board in tag sides, in OpenCV's corner order for the tag as Kalibr
-    prints it (OpenCV's marker turned by 180 degrees: bottom right, bottom left, top left, top right)."""
+    prints it (OpenCV's marker turned by 180 degrees: bottom right, bottom left, top left, top right).
+
+    Example:
+        >>> board_tags(AprilGrid(4, 3, 0.05, 0.3))[0].tolist()
+        [[1.0, 0.0], [0.0, 0.0], [0.0, 1.0], [1.0, 1.0]]
+    """
     obj = board.object_points().numpy()[:, :2] / float(board.tag_size)
     out = {}
     for t in range(board.num_tags):
@@ -99,7 +107,7 @@ def _board_tags(board: AprilGrid) -> dict[int, np.ndarray]:
 
 
 def aprilgrid_tags(gray8: np.ndarray, board: AprilGrid, detector: cv2.aruco.ArucoDetector | None = None
-                   ) -> CharucoMarkers:
+                   ) -> BoardMarkers:
     """The grid's tags on a ``uint8`` grey image (steps 1 and 2): corners ``(M, 4, 2)`` px, ids, their board corners
     in tag sides, the image variant they were decoded on.
 
@@ -110,24 +118,16 @@ def aprilgrid_tags(gray8: np.ndarray, board: AprilGrid, detector: cv2.aruco.Aruc
         (12, 'plain')
     """
     detector = tag_detector(board) if detector is None else detector
-    tags = _board_tags(board)
-    best = CharucoMarkers(np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64), np.zeros((0, 4, 2)), "plain", False, 0)
+    tags = board_tags(board)
+    best = BoardMarkers.none()
     for variant in VARIANTS:
-        pts, ids = _decode(gray8, detector, variant)
-        known = np.array([int(i) in tags for i in ids], dtype=bool)
-        _, first = np.unique(ids, return_index=True)  # a tag decoded twice: the first only
-        known &= np.isin(np.arange(len(ids)), first)
-        if known.sum() <= len(best.ids):
-            continue
-        p, i = pts[known], ids[known]
-        obj = np.stack([tags[int(k)] for k in i])
-        keep = _lattice(p, obj)
-        if keep.sum() > len(best.ids):
-            best = CharucoMarkers(p[keep], i[keep], obj[keep], variant, False, len(ids), known=int(known.sum()))
+        pts, ids = decode_markers(gray8, detector, variant)
+        got = markers_on_board(pts, ids, tags, variant, len(best.ids))
+        best = best if got is None else got
     return best
 
 
-def _initial_corners(tags: CharucoMarkers, board: AprilGrid, image_size: tuple[int, int]
+def _initial_corners(tags: BoardMarkers, board: AprilGrid, image_size: tuple[int, int]
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each corner of a consistent tag from a homography of the tags around it: ids ``(K,)``, points ``(K, 2)`` px,
     one tag side ``(K,)`` px there (the nearest of the four points a tag side away that the homography places)."""
@@ -136,48 +136,22 @@ def _initial_corners(tags: CharucoMarkers, board: AprilGrid, image_size: tuple[i
     obj = board.object_points().numpy()[:, :2] / float(board.tag_size)
     centres = tags.board_corners.mean(1)
     reach = NEIGHBOUR_RADIUS * (1.0 + float(board.tag_spacing))
-    steps = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
     w, h = image_size
     ids, points, spacing = [], [], []
     for tag in tags.ids:
         for cid in board.tag_corner_ids(int(tag)):
             c = obj[cid]
             near = np.linalg.norm(centres - c, axis=-1) < reach
-            hom = _fit(tags.board_corners[near], tags.corners[near])
+            hom = fit_homography(tags.board_corners[near], tags.corners[near])
             if hom is None:
                 continue
-            p = _map(hom, np.concatenate([c[None], c + steps]))
-            if not (np.isfinite(p).all() and 0 <= p[0, 0] <= w - 1 and 0 <= p[0, 1] <= h - 1):
+            p, space = place_from(hom, c)
+            if not (np.isfinite(p).all() and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):
                 continue
             ids.append(cid)
-            points.append(p[0])
-            spacing.append(float(np.linalg.norm(p[1:] - p[0], axis=-1).min()))
+            points.append(p)
+            spacing.append(space)
     return np.array(ids, dtype=np.int64), np.array(points).reshape(-1, 2), np.array(spacing)
-
-
-def _reseed(refined: np.ndarray, skip: np.ndarray, accept: np.ndarray, board: AprilGrid
-            ) -> tuple[np.ndarray, np.ndarray]:
-    """Corners not accepted (nor in ``skip``) placed :math:`(B, N, 2)` (NaN elsewhere) by a homography of the accepted
-    refined corners within :data:`NEIGHBOUR_RADIUS` grid pitches (at least :data:`GROWTH_SUPPORT` of them), and one
-    tag side there in px :math:`(B, N)`."""
-    obj = board.object_points().numpy()[:, :2] / float(board.tag_size)
-    reach = NEIGHBOUR_RADIUS * (1.0 + float(board.tag_spacing))
-    near = np.linalg.norm(obj[:, None] - obj[None], axis=-1) < reach
-    steps = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
-    out = np.full(refined.shape, np.nan)
-    space = np.full(refined.shape[:2], np.nan)
-    for k in range(refined.shape[0]):
-        support = near[:, accept[k]].sum(-1)
-        for i in np.flatnonzero(~skip[k] & (support >= GROWTH_SUPPORT)):
-            use = near[i] & accept[k]
-            hom = _fit(obj[use], refined[k, use])
-            if hom is None:
-                continue
-            p = _map(hom, np.concatenate([obj[i][None], obj[i] + steps]))
-            if np.isfinite(p).all():
-                out[k, i] = p[0]
-                space[k, i] = float(np.linalg.norm(p[1:] - p[0], axis=-1).min())
-    return out, space
 
 
 def detect_aprilgrid(
@@ -232,8 +206,11 @@ def detect_aprilgrid(
     factor = aprilgrid_radius_factor(board) if radius_factor is None else float(radius_factor)
     refined, accept = refine_marked_corners(images, initial, spacing, factor)
     tried = np.zeros(accept.shape, dtype=bool)
+    obj = board.object_points().numpy()[:, :2] / float(board.tag_size)
+    reach = NEIGHBOUR_RADIUS * (1.0 + float(board.tag_spacing))
     for _ in range(GROWTH_ROUNDS):  # step 5: corners placed again (or first) by their refined neighbours
-        again, space = _reseed(refined.double().numpy(), accept.numpy() | tried, accept.numpy(), board)
+        again, space = grow_corners(refined.double().numpy(), accept.numpy() | tried, accept.numpy(), obj, reach,
+                                    GROWTH_SUPPORT)
         if not np.isfinite(again).any():
             break
         placed = np.isfinite(again).all(-1)
