@@ -28,6 +28,7 @@ The result is the package's :class:`~ccs_kornia.modules.detection.base.Detection
 
 from __future__ import annotations
 
+import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
@@ -42,6 +43,10 @@ from ccs_kornia.modules.detection.boards import (
     CharucoBoard,
     aruco_dictionary,
 )
+from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths, merge_corners
+from ccs_kornia.modules.detection.markers.lattice_names import BoardLattice
+from ccs_kornia.modules.detection.markers.lattice_path import LatticeBoard, lattice_corners
+from ccs_kornia.modules.detection.markers.marker_bits import CodeTemplates, MarkerCodes
 from ccs_kornia.modules.detection.markers.marker_board import (
     VARIANTS,
     BoardMarkers,
@@ -57,8 +62,8 @@ from ccs_kornia.modules.detection.markers.marker_board import (
 from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
 
 __all__ = [
-    "NEIGHBOUR_RADIUS", "CharucoDetector", "CharucoMarkers", "board_markers", "charuco_detector", "charuco_markers",
-    "detect_charuco", "dictionary_hint", "layout_fits", "marked_radius_factor", "squares_hint",
+    "NEIGHBOUR_RADIUS", "CharucoDetector", "CharucoMarkers", "board_markers", "charuco_detector", "charuco_lattice",
+    "charuco_lattice_board", "charuco_markers", "detect_charuco", "dictionary_hint", "layout_fits", "marked_radius_factor", "squares_hint",
 ]
 
 #: markers whose centre lies within this many squares of a corner place it (the two touching ones at 0.71, the next
@@ -206,12 +211,56 @@ def _initial_corners(markers: CharucoMarkers, board: CharucoBoard, image_size: t
     return np.array(ids, dtype=np.int64), np.array(points).reshape(-1, 2), np.array(spacing)
 
 
+@functools.lru_cache(maxsize=8)
+def charuco_lattice(board: CharucoBoard, layout: bool | None = None) -> BoardLattice:
+    """The board's corner lattice for naming (:mod:`~ccs_kornia.modules.detection.markers.lattice_names`): inner
+    corner ``(col, row)`` at ``(col + 1, row + 1)`` squares, its markers in the layout ``layout`` (``None``: the
+    board's own, or both where it has none and they differ).
+
+    Example:
+        >>> lat = charuco_lattice(CharucoBoard(5, 7, 0.04, 0.02))
+        >>> lat.size, sorted(lat.layouts), len(lat.templates.codes.ids)
+        ((4, 6), [False], 17)
+    """
+    new, old = board_markers(board, False), board_markers(board, True)
+    same = new.keys() == old.keys() and all(np.allclose(new[k], old[k]) for k in new)
+    legacy = board.legacy if layout is None else layout
+    if same:
+        layouts = {False if legacy is None else bool(legacy): new}
+    elif legacy is None:
+        layouts = {False: new, True: old}
+    else:
+        layouts = {bool(legacy): old if legacy else new}
+    ids = sorted({i for where in layouts.values() for i in where})
+    return BoardLattice(board.board_size, (1.0, 1.0), 1.0, layouts,
+                        CodeTemplates(MarkerCodes.of(board.dictionary, ids, 1)))
+
+
+def charuco_lattice_board(board: CharucoBoard, layout: bool | None = None,
+                          radius_factor: float | None = None) -> LatticeBoard:
+    """The board as the lattice path sees it (:class:`~ccs_kornia.modules.detection.markers.lattice_path.
+    LatticeBoard`): its corners are its lattice points, a marker takes ``marker / square`` of its square, the
+    refinement window is :func:`marked_radius_factor`'s, and a corner grows from four accepted corners within
+    :data:`NEIGHBOUR_RADIUS` squares.
+
+    Example:
+        >>> charuco_lattice_board(CharucoBoard(5, 7, 0.04, 0.02)).corners[:2].tolist()
+        [[1.0, 1.0], [2.0, 1.0]]
+    """
+    lattice = charuco_lattice(board, layout)
+    corners = board.object_points().numpy()[:, :2] / float(board.square)
+    factor = marked_radius_factor(board) if radius_factor is None else float(radius_factor)
+    return LatticeBoard(lattice, corners.astype(np.float64), float(board.marker) / float(board.square), factor,
+                        NEIGHBOUR_RADIUS, 4)
+
+
 def detect_charuco(
     images: torch.Tensor,
     board: CharucoBoard,
     min_corners: int = 6,
     radius_factor: float | None = None,
     num_workers: int | None = None,
+    paths: MarkerPaths = MarkerPaths.BOTH,
 ) -> DetectionResult:
     r"""ChArUco corners with their ids on a batch of images (the module docstring gives the steps).
 
@@ -221,6 +270,8 @@ def detect_charuco(
         min_corners: a view with fewer accepted corners is not found.
         radius_factor: refinement window in grid spacings; ``None``: :func:`marked_radius_factor`.
         num_workers: threads over the images for the marker decoding; ``None``: ``min(8, cpu count)``.
+        paths: the marker path, the lattice path or both merged
+            (:class:`~ccs_kornia.modules.detection.markers.corner_merge.MarkerPaths`).
 
     Returns:
         :class:`DetectionResult`: corners :math:`(B, N, 2)` with ``N`` the board's inner corners in id order (NaN
@@ -240,6 +291,7 @@ def detect_charuco(
         raise ValueError(f"Expected grey images of shape (B, 1, H, W), got {tuple(images.shape)}.")
     if min_corners < 1:
         raise ValueError(f"min_corners must be >= 1, got {min_corners}.")
+    paths = MarkerPaths(paths)
     b, _, h, w = images.shape
     n = board.num_corners
     arrays = (images.detach()[:, 0].float().clamp(0, 1) * 255.0).round().to(torch.uint8).cpu().numpy()
@@ -258,20 +310,25 @@ def detect_charuco(
 
     initial = np.full((b, n, 2), np.nan)
     spacing = np.full((b, n), np.nan)
-    for k, (_, (ids, pts, sp)) in enumerate(outputs):
-        initial[k, ids], spacing[k, ids] = pts, sp
+    if paths.markers:
+        for k, (_, (ids, pts, sp)) in enumerate(outputs):
+            initial[k, ids], spacing[k, ids] = pts, sp
     factor = marked_radius_factor(board) if radius_factor is None else float(radius_factor)
     refined, accept = refine_marked_corners(images, initial, spacing, factor)
-    count = accept.sum(-1)
-    refused = torch.tensor([m.better_layout is not None or m.off_lattice for m, _ in outputs], dtype=torch.bool)
-    found = (count >= min_corners) & ~refused
     corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
+    refused = torch.tensor([m.better_layout is not None or m.off_lattice for m, _ in outputs], dtype=torch.bool)
+    lattice_notes = [""] * b
+    if paths.lattice:
+        corners, lattice_notes = _with_lattice(images, board, outputs, layout, factor, corners, paths, refused)
+    count = corners.isfinite().all(-1).sum(-1)
+    found = (count >= min_corners) & ~refused
     corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
     reasons = []
     for k, (markers, _) in enumerate(outputs):
         what = f"{len(markers.ids)} {board.dictionary} markers"
         if markers.variant != "plain":
             what += f" ({markers.variant})"
+        what += lattice_notes[k]
         if markers.better_layout is not None:
             name = "legacy" if markers.better_layout else "new (non-legacy)"
             reasons.append(f"the markers fit the {name} layout better ({markers.better_count} against "
@@ -280,16 +337,46 @@ def detect_charuco(
             reasons.append(f"{markers.known - len(markers.ids)} of the board's {board.dictionary} markers are not where "
                            f"a {board.squares_x}x{board.squares_y} board puts them ({len(markers.ids)} are): wrong "
                            "board size?")
+        elif bool(found[k]):
+            reasons.append(f"charuco: {what}, {int(count[k])} of {n} corners")
         elif markers.ambiguous:
             reasons.append("the markers fit the new and the legacy layout alike (a board with an even number of rows "
                            "of squares, seen in part): give the layout")
-        elif not len(markers.ids):
+        elif not len(markers.ids) and not lattice_notes[k]:
             reasons.append(f"no {board.dictionary} marker of the board found")
-        elif bool(found[k]):
-            reasons.append(f"charuco: {what}, {int(count[k])} of {n} corners")
         else:
             reasons.append(f"only {int(count[k])} corners from {what} (at least {min_corners} needed)")
     return DetectionResult(corners.to(images.device), found.to(images.device), reasons)
+
+
+def _with_lattice(images: torch.Tensor, board: CharucoBoard, outputs: list, layout: bool | None, factor: float,
+                  corners: torch.Tensor, paths: MarkerPaths, refused: torch.Tensor) -> tuple[torch.Tensor, list[str]]:
+    """The lattice path's corners (:mod:`~ccs_kornia.modules.detection.markers.lattice_path`) on the views not
+    refused, merged with the marker path's ``corners`` (:func:`~ccs_kornia.modules.detection.markers.corner_merge.
+    merge_corners`) or in their place; and a note per view. Each view's lattice is named in the layout its markers
+    fit, else the batch's (``layout``), else either."""
+    todo = (~refused).nonzero().flatten().tolist()
+    notes = [""] * images.shape[0]
+    if not todo:
+        return corners, notes
+    groups: dict = {}
+    for k in todo:
+        markers = outputs[k][0]
+        view_layout = bool(markers.legacy) if len(markers.ids) else layout
+        groups.setdefault(view_layout, []).append(k)
+    lattice = torch.full_like(corners, float("nan"))
+    for view_layout, idx in groups.items():
+        spec = charuco_lattice_board(board, view_layout, factor)
+        seen = [[(c, int(i), outputs[k][0].variant.endswith("inverted")) for c, i in
+                 zip(outputs[k][0].corners, outputs[k][0].ids)] for k in idx]
+        got = lattice_corners(images[idx], spec, seen)
+        lattice[idx] = got.corners
+        for j, k in enumerate(idx):
+            notes[k] = f"; {got.reasons[j]}"
+    if paths.markers:
+        merged, _ = merge_corners(corners, lattice)
+        return merged, notes
+    return lattice, notes
 
 
 class CharucoDetector(MarkerBoardDetector):

@@ -1,0 +1,198 @@
+r"""The lattice path of a marker board: every corner of the chessboard lattice the heatmap network sees, named by the
+few markers that can be read.
+
+The marker path (:mod:`~ccs_kornia.modules.detection.markers.marker_board`) finds a corner only where OpenCV decodes
+a marker beside it; blur, low light and small markers leave most of a board's corners without one. Here the corners
+come first:
+
+1. **lattice**: the network's corner peaks (:func:`~ccs_kornia.modules.detection.learned.corner_peaks.corner_peaks`),
+   organised into the largest consistent point lattice
+   (:func:`~ccs_kornia.modules.detection.grid.point_lattice.organize_lattice`; the board's lattice points: its corners,
+   or for an AprilGrid the small squares between its tags, :attr:`LatticeBoard.group`);
+2. **names**: the lattice named by the markers that agree
+   (:func:`~ccs_kornia.modules.detection.markers.lattice_names.name_lattice`): those OpenCV decoded on the image, and
+   those read on the rectified patch of each lattice square; a corner whose name is disputed is dropped;
+3. **corners**: every corner of the board the named lattice reaches (at most one lattice step beyond it) is placed
+   there (the nearest peak, or the lattice's local prediction), then refined and checked like the marker path's
+   (:func:`~ccs_kornia.modules.detection.markers.marker_board.refine_marked_corners`) and grown from its accepted
+   neighbours (:func:`~ccs_kornia.modules.detection.markers.marker_board.grow_corners`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ccs_kornia.modules.detection.grid.point_lattice import organize_lattice, predict_cells
+from ccs_kornia.modules.detection.learned.corner_peaks import corner_peaks
+from ccs_kornia.modules.detection.markers.lattice_names import (
+    BoardLattice,
+    NamedLattice,
+    name_lattice,
+)
+from ccs_kornia.modules.detection.markers.marker_board import grow_corners, refine_marked_corners
+
+__all__ = ["GROWTH_ROUNDS", "REACH", "LatticeBoard", "LatticeCorners", "group_peaks", "lattice_corners"]
+
+#: corners are placed at most this many lattice steps from the nearest named lattice point
+REACH = 1.0
+#: rounds of growth after the named corners are refined
+GROWTH_ROUNDS = 3
+
+
+@dataclass(frozen=True)
+class LatticeBoard:
+    """A marker board as the lattice path sees it: its lattice (:class:`~ccs_kornia.modules.detection.markers.
+    lattice_names.BoardLattice`), its corners :math:`(N, 2)` in board units (corner id order), a marker's side in
+    lattice steps (``fraction``: the marker centred in each lattice square), the refinement window in board units
+    (``radius_factor``), the growth's reach (board units) and support (accepted corners), and ``group``: where the
+    lattice points are not corners but the centres of groups of corners (an AprilGrid's small squares), the most
+    distance between two corners of a group, relative to the median distance of each peak to its nearest peak
+    (``None``: the peaks are the lattice points)."""
+
+    lattice: BoardLattice
+    corners: np.ndarray
+    fraction: float
+    radius_factor: float
+    reach: float
+    support: int
+    group: float | None = None
+
+
+@dataclass
+class LatticeCorners:
+    """The lattice path's corners :math:`(B, N, 2)` (NaN where none), which are accepted :math:`(B, N)`, the naming of
+    each view and a short reason per view."""
+
+    corners: torch.Tensor
+    accept: torch.Tensor
+    named: list
+    reasons: list
+
+
+def group_peaks(peaks: np.ndarray, scale: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Peaks :math:`(M, 2)` grouped where they lie within ``scale`` times the median nearest-peak distance of each
+    other (single linkage), groups of at most four: their centres :math:`(G, 2)` and members.
+
+    Example:
+        >>> small = np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 3.0], [3.0, 3.0]])
+        >>> centres, members = group_peaks(np.concatenate([small, small + 10]), 1.6)
+        >>> centres.tolist(), [len(m) for m in members]
+        ([[1.5, 1.5], [11.5, 11.5]], [4, 4])
+    """
+    m = len(peaks)
+    if m < 2:
+        return np.zeros((0, 2)), []
+    d = np.linalg.norm(peaks[:, None] - peaks[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    link = d < scale * float(np.median(d.min(1)))
+    label = np.arange(m)
+    for _ in range(m):  # connected components by label propagation
+        new = np.minimum(label, np.where(link, label[None, :], m).min(1))
+        if (new == label).all():
+            break
+        label = new
+    centres, members = [], []
+    for lab in np.unique(label):
+        idx = np.flatnonzero(label == lab)
+        if 2 <= len(idx) <= 4:
+            centres.append(peaks[idx].mean(0))
+            members.append(idx)
+    return np.array(centres).reshape(-1, 2), members
+
+
+def _place(named: NamedLattice, cells: np.ndarray, points: np.ndarray, peaks: np.ndarray, board: LatticeBoard
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Where the named lattice puts each corner of the board: initial points :math:`(N, 2)` (NaN: not reached) and the
+    spacing there (px per board unit)."""
+    lat = board.lattice
+    n = len(board.corners)
+    initial, spacing = np.full((n, 2), np.nan), np.full(n, np.nan)
+    naming = named.naming
+    use = named.named
+    if naming is None or use.sum() < 4:
+        return initial, spacing
+    c = naming.cells(lat.index_of(board.corners))  # (N, 2) lattice coordinates of every corner
+    reach = np.abs(c[:, None] - cells[use][None]).max(-1).min(1)
+    nearest = np.rint(c).astype(np.int64)
+    disputed = np.array([(int(a), int(b)) in named.disputed_cells for a, b in nearest], dtype=bool)
+    todo = np.flatnonzero((reach <= REACH + 1e-9) & ~disputed)
+    if not len(todo):
+        return initial, spacing
+    pred, step = predict_cells(cells[use], points[use], c[todo])
+    per_unit = step / float(lat.pitch)
+    if len(peaks):
+        d = np.linalg.norm(pred[:, None] - peaks[None], axis=-1)
+        k = d.argmin(1)
+        close = d[np.arange(len(todo)), k] < 0.2 * per_unit * min(1.0, float(lat.pitch))
+        pred = np.where(close[:, None], peaks[k], pred)
+    initial[todo], spacing[todo] = pred, per_unit
+    return initial, spacing
+
+
+def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[list[tuple[np.ndarray, int, bool]]],
+                    peaks: list[np.ndarray] | None = None, min_agree: int = 1) -> LatticeCorners:
+    r"""The lattice path (module docstring) on a batch of images.
+
+    Args:
+        images: :math:`(B, 1, H, W)` grey images in ``[0, 1]``.
+        board: the board as the lattice path sees it (:class:`LatticeBoard`).
+        markers: per image, the markers OpenCV decoded: corners :math:`(4, 2)` px, id, decoded on the inverted image.
+        peaks: per image, the corner peaks :math:`(M, 2)` px (default:
+            :func:`~ccs_kornia.modules.detection.learned.corner_peaks.corner_peaks`).
+        min_agree: a naming needs this many agreeing markers.
+
+    Returns:
+        :class:`LatticeCorners`.
+
+    Example:
+        >>> from ccs_kornia.modules.detection.boards import CharucoBoard
+        >>> from ccs_kornia.modules.detection.markers.charuco import charuco_lattice_board
+        >>> b = CharucoBoard(5, 7, 0.04, 0.02)
+        >>> img = torch.from_numpy(b.render(40, margin=20)).float()[None, None] / 255
+        >>> out = lattice_corners(img, charuco_lattice_board(b), [[]])
+        >>> int(out.accept.sum()), out.reasons[0][:19]
+        (24, 'lattice: 24 points,')
+    """
+    b = images.shape[0]
+    n = len(board.corners)
+    peaks = corner_peaks(images) if peaks is None else peaks
+    gray = (images.detach()[:, 0].float().clamp(0, 1) * 255.0).cpu().numpy()
+    initial, spacing = np.full((b, n, 2), np.nan), np.full((b, n), np.nan)
+    named_all, reasons = [], []
+    lat = board.lattice
+    for k in range(b):
+        p = np.asarray(peaks[k], dtype=np.float64).reshape(-1, 2)
+        points = group_peaks(p, board.group)[0] if board.group is not None else p
+        cells, member = organize_lattice(torch.from_numpy(points)[None], torch.ones(1, len(points), dtype=torch.bool),
+                                         max(3, max(lat.size) + 1))
+        cells, member = cells[0].numpy(), member[0].numpy()
+        if member.sum() < 4:
+            named_all.append(None)
+            reasons.append(f"no lattice ({len(p)} peaks)")
+            continue
+        c, pts = cells[member], points[member]
+        named = name_lattice(gray[k], c, pts, lat, markers[k], board.fraction, min_agree)
+        named_all.append(named)
+        if named.naming is None:
+            reasons.append(f"lattice of {len(c)} points not named: {named.reason}")
+            continue
+        initial[k], spacing[k] = _place(named, c, pts, p, board)
+        reasons.append(f"lattice: {len(c)} points, {named.agree} markers agree")
+    refined, accept = refine_marked_corners(images, initial, spacing, board.radius_factor)
+    tried = np.isfinite(initial).all(-1)
+    for _ in range(GROWTH_ROUNDS):
+        again, space = grow_corners(refined.double().numpy(), accept.numpy() | tried, accept.numpy(), board.corners,
+                                    board.reach, board.support)
+        placed = np.isfinite(again).all(-1)
+        if not placed.any():
+            break
+        tried |= placed
+        refined2, accept2 = refine_marked_corners(images, again, space, board.radius_factor)
+        accept2 &= torch.from_numpy(placed)
+        refined = torch.where(accept2[..., None], refined2, refined)
+        accept = accept | accept2
+    corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
+    return LatticeCorners(corners, accept, named_all, reasons)
