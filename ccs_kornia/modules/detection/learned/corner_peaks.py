@@ -17,7 +17,7 @@ from ccs_kornia.modules._checks import check_grey_images
 from ccs_kornia.modules.detection.learned.learned_detector import LearnedChessboardDetector
 from ccs_kornia.modules.detection.refine.patch_refine import resize_to_level
 
-__all__ = ["corner_peaks", "shipped_detector"]
+__all__ = ["RETRY", "corner_peaks", "shipped_detector"]
 
 
 @functools.lru_cache(maxsize=1)
@@ -26,16 +26,40 @@ def shipped_detector() -> LearnedChessboardDetector:
     return LearnedChessboardDetector()
 
 
+#: levels tried in turn (relative to the chosen one) on an image with fewer than ``min_peaks`` peaks
+RETRY = (0.5, 2.0)
+
+
+def _level_peaks(det: LearnedChessboardDetector, x: torch.Tensor, factor: torch.Tensor) -> list[np.ndarray]:
+    out: list[np.ndarray] = [np.zeros((0, 2))] * x.shape[0]
+    for value in torch.unique(factor).tolist():
+        idx = (factor == value).nonzero().flatten()
+        full = x[idx.to(x.device)]
+        level, scale = resize_to_level(full, float(value))
+        resampled = tuple(level.shape[-2:]) != tuple(full.shape[-2:])
+        _, mu, keep = det.candidates(level, full if resampled else None, scale if resampled else None)
+        pts = (mu.double() + 0.5) * scale.to(mu.device) - 0.5 if resampled else mu.double()
+        for k, i in enumerate(idx.tolist()):
+            out[i] = pts[k][keep[k]].cpu().numpy()
+    return out
+
+
 @torch.no_grad()
-def corner_peaks(images: torch.Tensor, detector: LearnedChessboardDetector | None = None) -> list[np.ndarray]:
+def corner_peaks(images: torch.Tensor, detector: LearnedChessboardDetector | None = None, min_peaks: int = 24,
+                 retry: tuple[float, ...] = RETRY) -> list[np.ndarray]:
     r"""The corner peaks of each image: a list of :math:`(M_b, 2)` float64 arrays of full-resolution px.
+
+    An image with fewer than ``min_peaks`` peaks on its level (a wrong square-size estimate: small boards of small
+    squares) is looked at again on the levels ``retry`` times finer or coarser (at most the detector's upsampling),
+    keeping the level with the most peaks.
 
     Args:
         images: :math:`(B, 1, H, W)` grey images in ``[0, 1]``.
         detector: whose network, scale selection and peak filters are used (default: :func:`shipped_detector`).
+        min_peaks: fewer peaks try the other levels.
+        retry: relative factors of those levels.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points
         >>> img = torch.zeros(1, 1, 120, 160)
         >>> for i in range(8):
         ...     for j in range(6):
@@ -49,14 +73,16 @@ def corner_peaks(images: torch.Tensor, detector: LearnedChessboardDetector | Non
     det = shipped_detector() if detector is None else detector
     x = images.float()
     _, factor = det.scale_selector(x)
-    out: list[np.ndarray] = [np.zeros((0, 2))] * x.shape[0]
-    for value in torch.unique(factor).tolist():
-        idx = (factor == value).nonzero().flatten()
-        full = x[idx.to(x.device)]
-        level, scale = resize_to_level(full, float(value))
-        resampled = tuple(level.shape[-2:]) != tuple(full.shape[-2:])
-        _, mu, keep = det.candidates(level, full if resampled else None, scale if resampled else None)
-        pts = (mu.double() + 0.5) * scale.to(mu.device) - 0.5 if resampled else mu.double()
+    out = _level_peaks(det, x, factor)
+    floor = det.scale_selector.min_factor
+    for rel in retry:
+        few = torch.tensor([len(p) < min_peaks for p in out], dtype=torch.bool)
+        if not bool(few.any()):
+            break
+        idx = few.nonzero().flatten()
+        again = (factor[idx] * rel).clamp_min(floor)
+        fresh = _level_peaks(det, x[idx.to(x.device)], again)
         for k, i in enumerate(idx.tolist()):
-            out[i] = pts[k][keep[k]].cpu().numpy()
+            if len(fresh[k]) > len(out[i]):
+                out[i] = fresh[k]
     return out

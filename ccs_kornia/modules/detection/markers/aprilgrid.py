@@ -31,6 +31,7 @@ in Kalibr's numbering, NaN where a corner is not seen.
 
 from __future__ import annotations
 
+import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
 
@@ -44,21 +45,25 @@ from ccs_kornia.modules.detection.boards import (
     AprilGrid,
     aruco_dictionary,
 )
+from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths, merge_corners
+from ccs_kornia.modules.detection.markers.lattice_names import BoardLattice
+from ccs_kornia.modules.detection.markers.lattice_path import LatticeBoard, lattice_corners
+from ccs_kornia.modules.detection.markers.marker_bits import CodeTemplates, MarkerCodes
 from ccs_kornia.modules.detection.markers.marker_board import (
     VARIANTS,
     BoardMarkers,
     MarkerBoardDetector,
     decode_markers,
     fit_homography,
-    grow_corners,
     markers_on_board,
     place_from,
-    refine_marked_corners,
+    refine_and_grow,
 )
 from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
 
-__all__ = ["GROWTH_ROUNDS", "GROWTH_SUPPORT", "NEIGHBOUR_RADIUS", "AprilGridDetector", "aprilgrid_radius_factor",
-           "aprilgrid_tags", "board_tags", "detect_aprilgrid", "tag_detector"]
+__all__ = ["GROUP", "GROWTH_ROUNDS", "GROWTH_SUPPORT", "NEIGHBOUR_RADIUS", "AprilGridDetector",
+           "aprilgrid_lattice", "aprilgrid_lattice_board", "aprilgrid_radius_factor", "aprilgrid_tags", "board_tags",
+           "detect_aprilgrid", "tag_detector"]
 
 #: tags whose centre lies within this many grid pitches (tag side plus gap) of a corner place it: its own tag and the
 #: three others around it
@@ -67,6 +72,9 @@ NEIGHBOUR_RADIUS = 1.2
 GROWTH_SUPPORT = 6
 #: rounds of that growth (each can place corners next to the ones the round before accepted)
 GROWTH_ROUNDS = 3
+#: the lattice path groups corner peaks closer than this many times the median nearest-peak distance into one small
+#: square (its corners are ``tag_spacing`` apart, the next corners a tag side)
+GROUP = 1.3
 
 
 def tag_detector(board: AprilGrid) -> cv2.aruco.ArucoDetector:
@@ -154,12 +162,48 @@ def _initial_corners(tags: BoardMarkers, board: AprilGrid, image_size: tuple[int
     return np.array(ids, dtype=np.int64), np.array(points).reshape(-1, 2), np.array(spacing)
 
 
+@functools.lru_cache(maxsize=8)
+def aprilgrid_lattice(board: AprilGrid) -> BoardLattice:
+    """The grid's lattice for naming (:mod:`~ccs_kornia.modules.detection.markers.lattice_names`): the small black
+    squares between its tags, ``(tag_cols + 1) x (tag_rows + 1)`` of them, square ``(i, j)`` centred at
+    ``(i, j) * (1 + tag_spacing) - tag_spacing / 2`` tag sides; its tags (:func:`board_tags`).
+
+    Example:
+        >>> lat = aprilgrid_lattice(AprilGrid(4, 3, 0.05, 0.3))
+        >>> lat.size, lat.origin, round(lat.pitch, 2)
+        ((5, 4), (-0.15, -0.15), 1.3)
+    """
+    s = float(board.tag_spacing)
+    tags = board_tags(board)
+    codes = MarkerCodes.of(board.dictionary, sorted(tags), APRILGRID_BORDER_BITS)
+    return BoardLattice((board.tag_cols + 1, board.tag_rows + 1), (-0.5 * s, -0.5 * s), 1.0 + s, {False: tags},
+                        CodeTemplates(codes))
+
+
+def aprilgrid_lattice_board(board: AprilGrid, radius_factor: float | None = None) -> LatticeBoard:
+    """The grid as the lattice path sees it (:class:`~ccs_kornia.modules.detection.markers.lattice_path.
+    LatticeBoard`): its lattice points are the small squares, each the centre of the (up to four) corner peaks around
+    it (:data:`GROUP`); a tag takes ``1 / (1 + tag_spacing)`` of a lattice square; the refinement window is
+    :func:`aprilgrid_radius_factor`'s and the growth the marker path's.
+
+    Example:
+        >>> aprilgrid_lattice_board(AprilGrid(4, 3, 0.05, 0.3)).corners[:3].tolist()
+        [[0.0, 0.0], [1.0, 0.0], [1.3, 0.0]]
+    """
+    obj = board.object_points().numpy()[:, :2].astype(np.float64) / float(board.tag_size)
+    factor = aprilgrid_radius_factor(board) if radius_factor is None else float(radius_factor)
+    s = float(board.tag_spacing)
+    return LatticeBoard(aprilgrid_lattice(board), obj, 1.0 / (1.0 + s), factor, NEIGHBOUR_RADIUS * (1.0 + s),
+                        GROWTH_SUPPORT, GROUP)
+
+
 def detect_aprilgrid(
     images: torch.Tensor,
     board: AprilGrid,
     min_corners: int = 6,
     radius_factor: float | None = None,
     num_workers: int | None = None,
+    paths: MarkerPaths = MarkerPaths.BOTH,
 ) -> DetectionResult:
     r"""AprilGrid corners with their ids on a batch of images (the module docstring gives the steps).
 
@@ -169,6 +213,8 @@ def detect_aprilgrid(
         min_corners: a view with fewer accepted corners is not found.
         radius_factor: refinement window in tag sides; ``None``: :func:`aprilgrid_radius_factor`.
         num_workers: threads over the images for the tag decoding; ``None``: ``min(8, cpu count)``.
+        paths: the marker path (the steps above), the lattice path or both merged
+            (:class:`~ccs_kornia.modules.detection.markers.corner_merge.MarkerPaths`).
 
     Returns:
         :class:`DetectionResult`: corners :math:`(B, N, 2)`, ``N = 4 * tags`` in Kalibr's corner order (NaN where
@@ -188,6 +234,7 @@ def detect_aprilgrid(
         raise ValueError(f"Expected grey images of shape (B, 1, H, W), got {tuple(images.shape)}.")
     if min_corners < 1:
         raise ValueError(f"min_corners must be >= 1, got {min_corners}.")
+    paths = MarkerPaths(paths)
     b, _, h, w = images.shape
     n = board.num_corners
     arrays = (images.detach()[:, 0].float().clamp(0, 1) * 255.0).round().to(torch.uint8).cpu().numpy()
@@ -201,39 +248,40 @@ def detect_aprilgrid(
     initial = np.full((b, n, 2), np.nan)
     spacing = np.full((b, n), np.nan)
     for k, tags in enumerate(found_tags):
-        ids, pts, sp = _initial_corners(tags, board, (w, h))
-        initial[k, ids], spacing[k, ids] = pts, sp
+        if paths.markers:
+            ids, pts, sp = _initial_corners(tags, board, (w, h))
+            initial[k, ids], spacing[k, ids] = pts, sp
     factor = aprilgrid_radius_factor(board) if radius_factor is None else float(radius_factor)
-    refined, accept = refine_marked_corners(images, initial, spacing, factor)
-    tried = np.zeros(accept.shape, dtype=bool)
     obj = board.object_points().numpy()[:, :2] / float(board.tag_size)
     reach = NEIGHBOUR_RADIUS * (1.0 + float(board.tag_spacing))
-    for _ in range(GROWTH_ROUNDS):  # step 5: corners placed again (or first) by their refined neighbours
-        again, space = grow_corners(refined.double().numpy(), accept.numpy() | tried, accept.numpy(), obj, reach,
-                                    GROWTH_SUPPORT)
-        if not np.isfinite(again).any():
-            break
-        placed = np.isfinite(again).all(-1)
-        tried |= placed
-        refined2, accept2 = refine_marked_corners(images, again, space, factor)
-        accept2 &= torch.from_numpy(placed)
-        refined = torch.where(accept2[..., None], refined2, refined)
-        accept = accept | accept2
-    count = accept.sum(-1)
-    refused = torch.tensor([tags.off_lattice for tags in found_tags], dtype=torch.bool)
-    found = (count >= min_corners) & ~refused
+    refined, accept = refine_and_grow(images, initial, spacing, factor, obj, reach, GROWTH_SUPPORT, GROWTH_ROUNDS)
     corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
+    refused = torch.tensor([tags.off_lattice for tags in found_tags], dtype=torch.bool)
+    notes = [""] * b
+    todo = (~refused).nonzero().flatten().tolist()
+    if paths.lattice and todo:
+        seen = [[(c, int(i), found_tags[k].variant.endswith("inverted")) for c, i in
+                 zip(found_tags[k].corners, found_tags[k].ids)] for k in todo]
+        got = lattice_corners(images[todo], aprilgrid_lattice_board(board, factor), seen)
+        lattice = torch.full_like(corners, float("nan"))
+        lattice[todo] = got.corners
+        corners = merge_corners(corners, lattice)[0] if paths.markers else lattice
+        for j, k in enumerate(todo):
+            if got.named[j] is not None and got.named[j].naming is not None:
+                notes[k] = f"; {got.reasons[j]}"
+    count = corners.isfinite().all(-1).sum(-1)
+    found = (count >= min_corners) & ~refused
     corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
     reasons = []
     for k, tags in enumerate(found_tags):
-        what = f"{len(tags.ids)} tags" + (f" ({tags.variant})" if tags.variant != "plain" else "")
+        what = f"{len(tags.ids)} tags" + (f" ({tags.variant})" if tags.variant != "plain" else "") + notes[k]
         if tags.off_lattice:
             reasons.append(f"{tags.known - len(tags.ids)} of the grid's tags are not where a {board.tag_cols}x"
                            f"{board.tag_rows} AprilGrid puts them ({len(tags.ids)} are): wrong tagCols or tagRows?")
-        elif not len(tags.ids):
-            reasons.append(f"no two {board.dictionary} tags of the grid found where it puts them")
         elif bool(found[k]):
             reasons.append(f"aprilgrid: {what}, {int(count[k])} of {n} corners")
+        elif not len(tags.ids) and not notes[k]:
+            reasons.append(f"no two {board.dictionary} tags of the grid found where it puts them")
         else:
             reasons.append(f"only {int(count[k])} corners from {what} (at least {min_corners} needed)")
     return DetectionResult(corners.to(images.device), found.to(images.device), reasons)

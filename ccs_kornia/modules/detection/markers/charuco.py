@@ -353,7 +353,7 @@ def _with_lattice(images: torch.Tensor, board: CharucoBoard, outputs: list, layo
                   corners: torch.Tensor, paths: MarkerPaths, refused: torch.Tensor) -> tuple[torch.Tensor, list[str]]:
     """The lattice path's corners (:mod:`~ccs_kornia.modules.detection.markers.lattice_path`) on the views not
     refused, merged with the marker path's ``corners`` (:func:`~ccs_kornia.modules.detection.markers.corner_merge.
-    merge_corners`) or in their place; and a note per view. Each view's lattice is named in the layout its markers
+    merge_corners`) or in their place; and a note per view whose lattice was named. Each view's lattice is named in the layout its markers
     fit, else the batch's (``layout``), else either."""
     todo = (~refused).nonzero().flatten().tolist()
     notes = [""] * images.shape[0]
@@ -372,7 +372,8 @@ def _with_lattice(images: torch.Tensor, board: CharucoBoard, outputs: list, layo
         got = lattice_corners(images[idx], spec, seen)
         lattice[idx] = got.corners
         for j, k in enumerate(idx):
-            notes[k] = f"; {got.reasons[j]}"
+            if got.named[j] is not None and got.named[j].naming is not None:
+                notes[k] = f"; {got.reasons[j]}"
     if paths.markers:
         merged, _ = merge_corners(corners, lattice)
         return merged, notes

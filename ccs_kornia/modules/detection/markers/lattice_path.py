@@ -32,14 +32,16 @@ from ccs_kornia.modules.detection.markers.lattice_names import (
     NamedLattice,
     name_lattice,
 )
-from ccs_kornia.modules.detection.markers.marker_board import grow_corners, refine_marked_corners
+from ccs_kornia.modules.detection.markers.marker_board import refine_and_grow
 
-__all__ = ["GROWTH_ROUNDS", "REACH", "LatticeBoard", "LatticeCorners", "group_peaks", "lattice_corners"]
+__all__ = ["GROWTH_ROUNDS", "REACH", "SNAP", "LatticeBoard", "LatticeCorners", "group_peaks", "lattice_corners"]
 
 #: corners are placed at most this many lattice steps from the nearest named lattice point
 REACH = 1.0
 #: rounds of growth after the named corners are refined
 GROWTH_ROUNDS = 3
+#: a corner starts from the nearest peak within this fraction of the distance between the board's closest corners
+SNAP = 0.35
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,13 @@ class LatticeBoard:
     support: int
     group: float | None = None
 
+    @property
+    def separation(self) -> float:
+        """The distance between the board's two closest corners (board units)."""
+        d = np.linalg.norm(self.corners[:, None] - self.corners[None], axis=-1)
+        np.fill_diagonal(d, np.inf)
+        return float(d.min())
+
 
 @dataclass
 class LatticeCorners:
@@ -72,9 +81,15 @@ class LatticeCorners:
     reasons: list
 
 
-def group_peaks(peaks: np.ndarray, scale: float) -> tuple[np.ndarray, list[np.ndarray]]:
+def group_peaks(peaks: np.ndarray, scale: float, image: np.ndarray | None = None
+                ) -> tuple[np.ndarray, list[np.ndarray]]:
     """Peaks :math:`(M, 2)` grouped where they lie within ``scale`` times the median nearest-peak distance of each
-    other (single linkage), groups of at most four: their centres :math:`(G, 2)` and members.
+    other (single linkage), groups of three or four (a square's corners; fewer cannot place its centre, more are
+    clutter): their centres :math:`(G, 2)` (the midpoint of the two farthest peaks) and members.
+
+    With the grey ``image``, a group must look like a small black square between four markers (or its inverse): its
+    centre and the four points beyond its corners on one side of the grey level, the four points beyond its sides
+    (the gaps between the markers) on the other. Junctions inside a marker's bits group alike but fail it.
 
     Example:
         >>> small = np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 3.0], [3.0, 3.0]])
@@ -83,7 +98,7 @@ def group_peaks(peaks: np.ndarray, scale: float) -> tuple[np.ndarray, list[np.nd
         ([[1.5, 1.5], [11.5, 11.5]], [4, 4])
     """
     m = len(peaks)
-    if m < 2:
+    if m < 3:
         return np.zeros((0, 2)), []
     d = np.linalg.norm(peaks[:, None] - peaks[None], axis=-1)
     np.fill_diagonal(d, np.inf)
@@ -97,10 +112,43 @@ def group_peaks(peaks: np.ndarray, scale: float) -> tuple[np.ndarray, list[np.nd
     centres, members = [], []
     for lab in np.unique(label):
         idx = np.flatnonzero(label == lab)
-        if 2 <= len(idx) <= 4:
-            centres.append(peaks[idx].mean(0))
-            members.append(idx)
+        if not 3 <= len(idx) <= 4:
+            continue
+        sub = np.where(np.isfinite(d[np.ix_(idx, idx)]), d[np.ix_(idx, idx)], 0.0)
+        i, j = np.unravel_index(int(np.argmax(sub)), sub.shape)
+        centre = 0.5 * (peaks[idx[i]] + peaks[idx[j]])
+        if image is not None and not _small_square(image, peaks[idx], centre, idx[[i, j]] - idx.min(), idx):
+            continue
+        centres.append(centre)
+        members.append(idx)
     return np.array(centres).reshape(-1, 2), members
+
+
+def _small_square(image: np.ndarray, pts: np.ndarray, centre: np.ndarray, diagonal: np.ndarray, idx: np.ndarray
+                  ) -> bool:
+    """Whether the square with corners ``pts`` (three or four; ``centre`` the midpoint of a diagonal) is a small
+    square between four markers: its centre and the points beyond its corners one grey level, the points beyond
+    its sides (the gaps between the markers) the other."""
+    corners = pts - centre
+    if len(corners) == 3:  # the missing corner mirrors the one off the diagonal
+        off = [k for k in range(3) if idx[k] - idx.min() not in diagonal][0]
+        corners = np.concatenate([corners, -corners[off][None]])
+    angle = np.arctan2(corners[:, 1], corners[:, 0])
+    corners = corners[np.argsort(angle)]
+    sides = 0.5 * (corners + np.roll(corners, -1, axis=0))
+    dark_pts = np.concatenate([centre[None], centre + 2.0 * corners])
+    light_pts = centre + 2.0 * sides
+    h, w = image.shape
+    allpts = np.concatenate([dark_pts, light_pts])
+    if (allpts < 0).any() or (allpts[:, 0] > w - 1).any() or (allpts[:, 1] > h - 1).any():
+        return False
+    x, y = allpts[:, 0], allpts[:, 1]
+    x0, y0 = np.floor(x).astype(int).clip(0, w - 2), np.floor(y).astype(int).clip(0, h - 2)
+    fx, fy = x - x0, y - y0
+    v = (image[y0, x0] * (1 - fx) * (1 - fy) + image[y0, x0 + 1] * fx * (1 - fy) + image[y0 + 1, x0] * (1 - fx) * fy
+         + image[y0 + 1, x0 + 1] * fx * fy)
+    dark, light = v[:5], v[5:]
+    return bool(light.min() > dark.max() or light.max() < dark.min())
 
 
 def _place(named: NamedLattice, cells: np.ndarray, points: np.ndarray, peaks: np.ndarray, board: LatticeBoard
@@ -123,10 +171,10 @@ def _place(named: NamedLattice, cells: np.ndarray, points: np.ndarray, peaks: np
         return initial, spacing
     pred, step = predict_cells(cells[use], points[use], c[todo])
     per_unit = step / float(lat.pitch)
-    if len(peaks):
+    if len(peaks):  # the nearest peak, well within half the way to the next corner
         d = np.linalg.norm(pred[:, None] - peaks[None], axis=-1)
         k = d.argmin(1)
-        close = d[np.arange(len(todo)), k] < 0.2 * per_unit * min(1.0, float(lat.pitch))
+        close = d[np.arange(len(todo)), k] < SNAP * board.separation * per_unit
         pred = np.where(close[:, None], peaks[k], pred)
     initial[todo], spacing[todo] = pred, per_unit
     return initial, spacing
@@ -165,7 +213,7 @@ def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[lis
     lat = board.lattice
     for k in range(b):
         p = np.asarray(peaks[k], dtype=np.float64).reshape(-1, 2)
-        points = group_peaks(p, board.group)[0] if board.group is not None else p
+        points = group_peaks(p, board.group, gray[k])[0] if board.group is not None else p
         cells, member = organize_lattice(torch.from_numpy(points)[None], torch.ones(1, len(points), dtype=torch.bool),
                                          max(3, max(lat.size) + 1))
         cells, member = cells[0].numpy(), member[0].numpy()
@@ -181,18 +229,7 @@ def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[lis
             continue
         initial[k], spacing[k] = _place(named, c, pts, p, board)
         reasons.append(f"lattice: {len(c)} points, {named.agree} markers agree")
-    refined, accept = refine_marked_corners(images, initial, spacing, board.radius_factor)
-    tried = np.isfinite(initial).all(-1)
-    for _ in range(GROWTH_ROUNDS):
-        again, space = grow_corners(refined.double().numpy(), accept.numpy() | tried, accept.numpy(), board.corners,
-                                    board.reach, board.support)
-        placed = np.isfinite(again).all(-1)
-        if not placed.any():
-            break
-        tried |= placed
-        refined2, accept2 = refine_marked_corners(images, again, space, board.radius_factor)
-        accept2 &= torch.from_numpy(placed)
-        refined = torch.where(accept2[..., None], refined2, refined)
-        accept = accept | accept2
+    refined, accept = refine_and_grow(images, initial, spacing, board.radius_factor, board.corners, board.reach,
+                                      board.support, GROWTH_ROUNDS)
     corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
     return LatticeCorners(corners, accept, named_all, reasons)

@@ -15,8 +15,8 @@ its two specialisations: they say where each marker and each corner lies on thei
 * **refinement and check** (:func:`refine_marked_corners`): this package's saddle fit and symmetry polish; a corner the
   refinement did not confirm, whose window leaves the image, or that moved by more than :data:`MAX_MOVE` grid spacings
   from where its markers put it, is dropped (a wrong corner is worse than a missing one);
-* **growth** (:func:`grow_corners`): a corner not accepted is placed again by a homography of the accepted corners
-  around it, refined and checked the same way;
+* **growth** (:func:`grow_corners`, :func:`refine_and_grow`): a corner not accepted is placed again by a homography
+  of the accepted corners around it, refined and checked the same way;
 * :class:`MarkerBoardDetector`: the chessboard detectors' interface for a board whose corners its markers name.
 """
 
@@ -34,7 +34,7 @@ from ccs_kornia.modules.detection.refine.saddle_refine import refine_corners
 __all__ = [
     "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_MOVE", "MAX_RADIUS", "VARIANTS", "BoardMarkers",
     "MarkerBoardDetector", "consistent_markers", "decode_markers", "fit_homography", "grow_corners", "map_points",
-    "markers_on_board", "place_from", "refine_marked_corners",
+    "markers_on_board", "place_from", "refine_and_grow", "refine_marked_corners",
 ]
 
 #: a marker belongs to the board's lattice when its corners lie within this many board units (squares, tag sides) of
@@ -278,6 +278,41 @@ def grow_corners(refined: np.ndarray, skip: np.ndarray, accept: np.ndarray, boar
             if np.isfinite(p).all():
                 out[k, i], space[k, i] = p, s
     return out, space
+
+
+def refine_and_grow(images: torch.Tensor, initial: np.ndarray, spacing: np.ndarray, factor: float,
+                    board_points: np.ndarray, reach: float, support: int, rounds: int
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`refine_marked_corners`, then ``rounds`` of :func:`grow_corners` (each corner not accepted placed by its
+    accepted neighbours once at most), each refined and checked the same way: the corners :math:`(B, N, 2)` and which are accepted :math:`(B, N)`.
+
+    Example:
+        >>> img = torch.zeros(1, 1, 60, 80)
+        >>> for i in range(4):
+        ...     for j in range(3):
+        ...         if (i + j) % 2 == 0:
+        ...             img[..., 10 + 15 * j:25 + 15 * j, 10 + 15 * i:25 + 15 * i] = 1.0
+        >>> board = np.stack(np.meshgrid(np.arange(3.0), np.arange(2.0)), -1).reshape(-1, 2)
+        >>> initial = np.full((1, 6, 2), np.nan)
+        >>> initial[0, :4] = board[:4] * 15 + 24.5  # two corners left for the growth
+        >>> out, ok = refine_and_grow(img, initial, np.full((1, 6), 15.0), 0.2, board, 1.5, 3, 2)
+        >>> ok.tolist()
+        [[True, True, True, True, True, True]]
+    """
+    refined, accept = refine_marked_corners(images, initial, spacing, factor)
+    tried = np.zeros(accept.shape, dtype=bool)  # a corner placed first but not accepted may be placed again
+    for _ in range(rounds):
+        again, space = grow_corners(refined.double().numpy(), tried | accept.numpy(), accept.numpy(), board_points,
+                                    reach, support)
+        placed = np.isfinite(again).all(-1)
+        if not placed.any():
+            break
+        tried |= placed
+        refined2, accept2 = refine_marked_corners(images, again, space, factor)
+        accept2 &= torch.from_numpy(placed)
+        refined = torch.where(accept2[..., None], refined2, refined)
+        accept = accept | accept2
+    return refined, accept
 
 
 class MarkerBoardDetector(ChessboardDetector):
