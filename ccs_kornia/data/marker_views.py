@@ -25,8 +25,8 @@ import functools
 import cv2
 import numpy as np
 
-__all__ = ["CONDITIONS", "DIST", "FAR_SPAN", "K", "NEAR_SPAN", "random_board_pose", "render_condition",
-           "render_marker_view"]
+__all__ = ["CONDITIONS", "DIST", "FAR_CENTRE", "FAR_SPAN", "K", "NEAR_CENTRE", "NEAR_SPAN", "random_board_pose",
+           "render_condition", "render_marker_view"]
 
 #: the camera of the views (640 x 480 px) and its lens (strong barrel distortion, as a wide-angle lens)
 K = np.array([[520.0, 0.0, 318.0], [0.0, 520.0, 242.0], [0.0, 0.0, 1.0]])
@@ -36,6 +36,9 @@ CONDITIONS = ("clean", "partial", "low light", "blur", "inverted", "mirrored", "
 #: the board's width in the image (fraction of the image width): near (every condition but ``"small"``) and far
 NEAR_SPAN = (0.45, 0.85)
 FAR_SPAN = (0.2, 0.3)
+#: where a whole board's centre lies (fraction of the image's width and height): near, and far (all over the image)
+NEAR_CENTRE = (0.35, 0.65)
+FAR_CENTRE = (0.2, 0.8)
 
 
 @functools.lru_cache(maxsize=4)
@@ -62,9 +65,11 @@ def _extent(board) -> tuple[np.ndarray, np.ndarray]:
 
 def random_board_pose(board, rng: np.random.Generator, partial: bool = False, k: np.ndarray = K,
                       size: tuple[int, int] = (640, 480), tilt_deg: float = 40.0,
-                      span: tuple[float, float] = NEAR_SPAN) -> tuple[np.ndarray, np.ndarray]:
+                      span: tuple[float, float] = NEAR_SPAN, centre_range: tuple[float, float] = NEAR_CENTRE
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """A random ``(rvec, tvec)`` showing ``board`` to the camera ``k``: its corners' bounding box spans a fraction
-    ``span`` of the image width (45 to 85 % by default), tilted up to ``tilt_deg``; whole in the frame, or
+    ``span`` of the image width (45 to 85 % by default), tilted up to ``tilt_deg``; whole in the frame (its centre
+    within ``centre_range`` of the image's width and height), or
     (``partial``) with its centre near a side or corner of the frame so that the frame cuts it (about a fifth to a
     half of it outside)."""
     w, h = size
@@ -87,7 +92,7 @@ def random_board_pose(board, rng: np.random.Generator, partial: bool = False, k:
             v = [rng.uniform(0.2, 0.8) * h, rng.uniform(0.2, 0.8) * h, rng.uniform(0.0, 0.12) * h,
                  h - rng.uniform(0.0, 0.12) * h][side]
         else:
-            u, v = rng.uniform(0.35, 0.65) * w, rng.uniform(0.35, 0.65) * h
+            u, v = rng.uniform(*centre_range) * w, rng.uniform(*centre_range) * h
         rot = cv2.Rodrigues(rvec)[0] @ face
         rvec = cv2.Rodrigues(rot)[0].reshape(3)
         ray = np.linalg.solve(k, np.array([u, v, 1.0]))
@@ -147,7 +152,8 @@ def render_condition(board, condition: str, rng: np.random.Generator, k: np.ndar
     2.5); ``"blur"``: a Gaussian of sigma 0.8 to 1.6 px (defocus); ``"inverted"``: a white-on-black print;
     ``"mirrored"``: the image flipped left-right (the board seen from its back through a transparent print);
     ``"strong blur"``: a Gaussian of sigma 1.8 to 3 px; ``"small"``: the board spans :data:`FAR_SPAN` of the image
-    width (far away: its markers' bits are about a pixel); ``"noise"``: sensor noise of sigma 10 to 16 grey levels.
+    width (far away: its markers' bits are one to two pixels), anywhere in the image (:data:`FAR_CENTRE`);
+    ``"noise"``: sensor noise of sigma 10 to 16 grey levels.
     Every condition but ``"partial"`` shows the board whole.
 
     Example:
@@ -159,8 +165,9 @@ def render_condition(board, condition: str, rng: np.random.Generator, k: np.ndar
     """
     if condition not in CONDITIONS:
         raise ValueError(f"unknown condition {condition!r}; expected one of {', '.join(CONDITIONS)}")
-    span = FAR_SPAN if condition == "small" else NEAR_SPAN
-    rvec, tvec = random_board_pose(board, rng, partial=condition == "partial", k=k, size=size, span=span)
+    far = condition == "small"
+    rvec, tvec = random_board_pose(board, rng, partial=condition == "partial", k=k, size=size,
+                                   span=FAR_SPAN if far else NEAR_SPAN, centre_range=FAR_CENTRE if far else NEAR_CENTRE)
     image, truth = render_marker_view(board, rvec, tvec, k, dist, size, supersample, legacy=legacy)
     img = image.astype(np.float64)
     if condition == "low light":

@@ -62,7 +62,8 @@ from ccs_kornia.modules.detection.markers.marker_board import (
 from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
 
 __all__ = ["GROUP", "GROWTH_ROUNDS", "GROWTH_SUPPORT", "NEIGHBOUR_RADIUS", "AprilGridDetector",
-           "aprilgrid_lattice", "aprilgrid_lattice_board", "aprilgrid_radius_factor", "aprilgrid_tags", "board_tags",
+           "aprilgrid_lattice", "aprilgrid_lattice_board", "aprilgrid_paths", "aprilgrid_radius_factor", "aprilgrid_tags",
+           "board_tags",
            "detect_aprilgrid", "tag_detector"]
 
 #: tags whose centre lies within this many grid pitches (tag side plus gap) of a corner place it: its own tag and the
@@ -230,11 +231,32 @@ def detect_aprilgrid(
         >>> bool(((out.corners[0] - truth).abs() < 0.05).all())
         True
     """
+    paths = MarkerPaths(paths)
+    return aprilgrid_paths(images, board, min_corners, radius_factor, num_workers, (paths,))[paths]
+
+
+def aprilgrid_paths(
+    images: torch.Tensor,
+    board: AprilGrid,
+    min_corners: int = 6,
+    radius_factor: float | None = None,
+    num_workers: int | None = None,
+    paths: tuple[MarkerPaths, ...] = tuple(MarkerPaths),
+) -> dict[MarkerPaths, DetectionResult]:
+    r""":func:`detect_aprilgrid` for each of ``paths`` from one run (each path computed once): ``{path: result}``.
+
+    Example:
+        >>> g = AprilGrid(4, 4, 0.05, 0.3)  # the lattice path needs 3 x 3 small squares between the tags
+        >>> art, _ = g.texture(6)
+        >>> out = aprilgrid_paths(torch.from_numpy(art).float()[None, None] / 255, g)
+        >>> [int(out[p].valid.sum()) for p in MarkerPaths]
+        [64, 64, 64]
+    """
     if images.dim() != 4 or images.shape[1] != 1:
         raise ValueError(f"Expected grey images of shape (B, 1, H, W), got {tuple(images.shape)}.")
     if min_corners < 1:
         raise ValueError(f"min_corners must be >= 1, got {min_corners}.")
-    paths = MarkerPaths(paths)
+    paths = tuple(MarkerPaths(p) for p in paths)
     b, _, h, w = images.shape
     n = board.num_corners
     arrays = (images.detach()[:, 0].float().clamp(0, 1) * 255.0).round().to(torch.uint8).cpu().numpy()
@@ -244,31 +266,45 @@ def detect_aprilgrid(
             found_tags = list(pool.map(lambda a: aprilgrid_tags(a, board, tag_detector(board)), arrays))
     else:
         found_tags = [aprilgrid_tags(a, board, tag_detector(board)) for a in arrays]
+    refused = torch.tensor([tags.off_lattice for tags in found_tags], dtype=torch.bool)
+    factor = aprilgrid_radius_factor(board) if radius_factor is None else float(radius_factor)
 
-    initial = np.full((b, n, 2), np.nan)
-    spacing = np.full((b, n), np.nan)
-    for k, tags in enumerate(found_tags):
-        if paths.markers:
+    nan = torch.full((b, n, 2), float("nan"))
+    marked, lattice, notes = nan, nan.clone(), [""] * b
+    if any(p.markers for p in paths):
+        initial = np.full((b, n, 2), np.nan)
+        spacing = np.full((b, n), np.nan)
+        for k, tags in enumerate(found_tags):
             ids, pts, sp = _initial_corners(tags, board, (w, h))
             initial[k, ids], spacing[k, ids] = pts, sp
-    factor = aprilgrid_radius_factor(board) if radius_factor is None else float(radius_factor)
-    obj = board.object_points().numpy()[:, :2] / float(board.tag_size)
-    reach = NEIGHBOUR_RADIUS * (1.0 + float(board.tag_spacing))
-    refined, accept = refine_and_grow(images, initial, spacing, factor, obj, reach, GROWTH_SUPPORT, GROWTH_ROUNDS)
-    corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
-    refused = torch.tensor([tags.off_lattice for tags in found_tags], dtype=torch.bool)
-    notes = [""] * b
+        obj = board.object_points().numpy()[:, :2] / float(board.tag_size)
+        reach = NEIGHBOUR_RADIUS * (1.0 + float(board.tag_spacing))
+        refined, accept = refine_and_grow(images, initial, spacing, factor, obj, reach, GROWTH_SUPPORT, GROWTH_ROUNDS)
+        marked = torch.where(accept[..., None], refined, nan)
     todo = (~refused).nonzero().flatten().tolist()
-    if paths.lattice and todo:
+    if any(p.lattice for p in paths) and todo:
         seen = [[(c, int(i), found_tags[k].variant.endswith("inverted")) for c, i in
                  zip(found_tags[k].corners, found_tags[k].ids)] for k in todo]
         got = lattice_corners(images[todo], aprilgrid_lattice_board(board, factor), seen)
-        lattice = torch.full_like(corners, float("nan"))
         lattice[todo] = got.corners
-        corners = merge_corners(corners, lattice)[0] if paths.markers else lattice
         for j, k in enumerate(todo):
             if got.named[j] is not None and got.named[j].naming is not None:
                 notes[k] = f"; {got.reasons[j]}"
+    out = {}
+    for path in paths:
+        if path is MarkerPaths.BOTH:
+            corners = merge_corners(marked, lattice)[0]
+        else:
+            corners = marked if path is MarkerPaths.MARKERS else lattice
+        out[path] = _aprilgrid_result(images, board, corners, found_tags, notes if path.lattice else [""] * b,
+                                      refused, min_corners)
+    return out
+
+
+def _aprilgrid_result(images: torch.Tensor, board: AprilGrid, corners: torch.Tensor, found_tags: list,
+                      notes: list[str], refused: torch.Tensor, min_corners: int) -> DetectionResult:
+    """The views found (enough corners, not refused) and the reason for each."""
+    n = board.num_corners
     count = corners.isfinite().all(-1).sum(-1)
     found = (count >= min_corners) & ~refused
     corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))

@@ -63,7 +63,7 @@ from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
 
 __all__ = [
     "NEIGHBOUR_RADIUS", "CharucoDetector", "CharucoMarkers", "board_markers", "charuco_detector", "charuco_lattice",
-    "charuco_lattice_board", "charuco_markers", "detect_charuco", "dictionary_hint", "layout_fits", "marked_radius_factor", "squares_hint",
+    "charuco_lattice_board", "charuco_markers", "charuco_paths", "detect_charuco", "dictionary_hint", "layout_fits", "marked_radius_factor", "squares_hint",
 ]
 
 #: markers whose centre lies within this many squares of a corner place it (the two touching ones at 0.71, the next
@@ -270,7 +270,7 @@ def detect_charuco(
         min_corners: a view with fewer accepted corners is not found.
         radius_factor: refinement window in grid spacings; ``None``: :func:`marked_radius_factor`.
         num_workers: threads over the images for the marker decoding; ``None``: ``min(8, cpu count)``.
-        paths: the marker path, the lattice path or both merged
+        paths: the marker path (the steps above), the lattice path or both merged
             (:class:`~ccs_kornia.modules.detection.markers.corner_merge.MarkerPaths`).
 
     Returns:
@@ -287,11 +287,32 @@ def detect_charuco(
         >>> bool(((out.corners[0, 0] - torch.tensor([89.5, 89.5])).abs() < 0.05).all())
         True
     """
+    paths = MarkerPaths(paths)
+    return charuco_paths(images, board, min_corners, radius_factor, num_workers, (paths,))[paths]
+
+
+def charuco_paths(
+    images: torch.Tensor,
+    board: CharucoBoard,
+    min_corners: int = 6,
+    radius_factor: float | None = None,
+    num_workers: int | None = None,
+    paths: tuple[MarkerPaths, ...] = tuple(MarkerPaths),
+) -> dict[MarkerPaths, DetectionResult]:
+    r""":func:`detect_charuco` for each of ``paths`` from one run (each path computed once): ``{path: result}``.
+
+    Example:
+        >>> board = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250")
+        >>> img = torch.from_numpy(board.render(60, margin=30)).float()[None, None] / 255
+        >>> out = charuco_paths(img, board)
+        >>> [int(out[p].valid.sum()) for p in MarkerPaths]
+        [24, 24, 24]
+    """
     if images.dim() != 4 or images.shape[1] != 1:
         raise ValueError(f"Expected grey images of shape (B, 1, H, W), got {tuple(images.shape)}.")
     if min_corners < 1:
         raise ValueError(f"min_corners must be >= 1, got {min_corners}.")
-    paths = MarkerPaths(paths)
+    paths = tuple(MarkerPaths(p) for p in paths)
     b, _, h, w = images.shape
     n = board.num_corners
     arrays = (images.detach()[:, 0].float().clamp(0, 1) * 255.0).round().to(torch.uint8).cpu().numpy()
@@ -307,19 +328,35 @@ def detect_charuco(
     for gray8, fit in zip(arrays, fits):
         markers = charuco_markers(gray8, board, fits=fit, layout=layout)
         outputs.append((markers, _initial_corners(markers, board, (w, h))))
+    refused = torch.tensor([m.better_layout is not None or m.off_lattice for m, _ in outputs], dtype=torch.bool)
+    factor = marked_radius_factor(board) if radius_factor is None else float(radius_factor)
 
-    initial = np.full((b, n, 2), np.nan)
-    spacing = np.full((b, n), np.nan)
-    if paths.markers:
+    nan = torch.full((b, n, 2), float("nan"))
+    marked, lattice, notes = nan, nan, [""] * b
+    if any(p.markers for p in paths):
+        initial = np.full((b, n, 2), np.nan)
+        spacing = np.full((b, n), np.nan)
         for k, (_, (ids, pts, sp)) in enumerate(outputs):
             initial[k, ids], spacing[k, ids] = pts, sp
-    factor = marked_radius_factor(board) if radius_factor is None else float(radius_factor)
-    refined, accept = refine_marked_corners(images, initial, spacing, factor)
-    corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
-    refused = torch.tensor([m.better_layout is not None or m.off_lattice for m, _ in outputs], dtype=torch.bool)
-    lattice_notes = [""] * b
-    if paths.lattice:
-        corners, lattice_notes = _with_lattice(images, board, outputs, layout, factor, corners, paths, refused)
+        refined, accept = refine_marked_corners(images, initial, spacing, factor)
+        marked = torch.where(accept[..., None], refined, nan)
+    if any(p.lattice for p in paths):
+        lattice, notes = _lattice_path(images, board, outputs, layout, factor, refused)
+    out = {}
+    for path in paths:
+        if path is MarkerPaths.BOTH:
+            corners = merge_corners(marked, lattice)[0]
+        else:
+            corners = marked if path is MarkerPaths.MARKERS else lattice
+        out[path] = _charuco_result(images, board, corners, outputs, notes if path.lattice else [""] * b, refused,
+                                    min_corners)
+    return out
+
+
+def _charuco_result(images: torch.Tensor, board: CharucoBoard, corners: torch.Tensor, outputs: list, notes: list[str],
+                    refused: torch.Tensor, min_corners: int) -> DetectionResult:
+    """The views found (enough corners, not refused) and the reason for each."""
+    n = board.num_corners
     count = corners.isfinite().all(-1).sum(-1)
     found = (count >= min_corners) & ~refused
     corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
@@ -328,7 +365,7 @@ def detect_charuco(
         what = f"{len(markers.ids)} {board.dictionary} markers"
         if markers.variant != "plain":
             what += f" ({markers.variant})"
-        what += lattice_notes[k]
+        what += notes[k]
         if markers.better_layout is not None:
             name = "legacy" if markers.better_layout else "new (non-legacy)"
             reasons.append(f"the markers fit the {name} layout better ({markers.better_count} against "
@@ -342,29 +379,24 @@ def detect_charuco(
         elif markers.ambiguous:
             reasons.append("the markers fit the new and the legacy layout alike (a board with an even number of rows "
                            "of squares, seen in part): give the layout")
-        elif not len(markers.ids) and not lattice_notes[k]:
+        elif not len(markers.ids) and not notes[k]:
             reasons.append(f"no {board.dictionary} marker of the board found")
         else:
             reasons.append(f"only {int(count[k])} corners from {what} (at least {min_corners} needed)")
     return DetectionResult(corners.to(images.device), found.to(images.device), reasons)
 
 
-def _with_lattice(images: torch.Tensor, board: CharucoBoard, outputs: list, layout: bool | None, factor: float,
-                  corners: torch.Tensor, paths: MarkerPaths, refused: torch.Tensor) -> tuple[torch.Tensor, list[str]]:
-    """The lattice path's corners (:mod:`~ccs_kornia.modules.detection.markers.lattice_path`) on the views not
-    refused, merged with the marker path's ``corners`` (:func:`~ccs_kornia.modules.detection.markers.corner_merge.
-    merge_corners`) or in their place; and a note per view whose lattice was named. Each view's lattice is named in the layout its markers
-    fit, else the batch's (``layout``), else either."""
-    todo = (~refused).nonzero().flatten().tolist()
+def _lattice_path(images: torch.Tensor, board: CharucoBoard, outputs: list, layout: bool | None, factor: float,
+                  refused: torch.Tensor) -> tuple[torch.Tensor, list[str]]:
+    """The lattice path's corners :math:`(B, N, 2)` (:mod:`~ccs_kornia.modules.detection.markers.lattice_path`; NaN
+    on the views refused) and a note per view whose lattice was named. Each view's lattice is named in the layout its
+    markers fit, else the batch's (``layout``), else either."""
+    lattice = torch.full((images.shape[0], board.num_corners, 2), float("nan"))
     notes = [""] * images.shape[0]
-    if not todo:
-        return corners, notes
     groups: dict = {}
-    for k in todo:
+    for k in (~refused).nonzero().flatten().tolist():
         markers = outputs[k][0]
-        view_layout = bool(markers.legacy) if len(markers.ids) else layout
-        groups.setdefault(view_layout, []).append(k)
-    lattice = torch.full_like(corners, float("nan"))
+        groups.setdefault(bool(markers.legacy) if len(markers.ids) else layout, []).append(k)
     for view_layout, idx in groups.items():
         spec = charuco_lattice_board(board, view_layout, factor)
         seen = [[(c, int(i), outputs[k][0].variant.endswith("inverted")) for c, i in
@@ -374,9 +406,6 @@ def _with_lattice(images: torch.Tensor, board: CharucoBoard, outputs: list, layo
         for j, k in enumerate(idx):
             if got.named[j] is not None and got.named[j].naming is not None:
                 notes[k] = f"; {got.reasons[j]}"
-    if paths.markers:
-        merged, _ = merge_corners(corners, lattice)
-        return merged, notes
     return lattice, notes
 
 

@@ -287,17 +287,17 @@ def refine_and_grow(images: torch.Tensor, initial: np.ndarray, spacing: np.ndarr
     accepted neighbours once at most), each refined and checked the same way: the corners :math:`(B, N, 2)` and which are accepted :math:`(B, N)`.
 
     Example:
-        >>> img = torch.zeros(1, 1, 60, 80)
-        >>> for i in range(4):
-        ...     for j in range(3):
+        >>> img = torch.zeros(1, 1, 80, 100)
+        >>> for i in range(5):
+        ...     for j in range(4):
         ...         if (i + j) % 2 == 0:
         ...             img[..., 10 + 15 * j:25 + 15 * j, 10 + 15 * i:25 + 15 * i] = 1.0
-        >>> board = np.stack(np.meshgrid(np.arange(3.0), np.arange(2.0)), -1).reshape(-1, 2)
-        >>> initial = np.full((1, 6, 2), np.nan)
-        >>> initial[0, :4] = board[:4] * 15 + 24.5  # two corners left for the growth
-        >>> out, ok = refine_and_grow(img, initial, np.full((1, 6), 15.0), 0.2, board, 1.5, 3, 2)
-        >>> ok.tolist()
-        [[True, True, True, True, True, True]]
+        >>> board = np.stack(np.meshgrid(np.arange(4.0), np.arange(3.0)), -1).reshape(-1, 2)
+        >>> initial = board[None] * 15 + 24.5
+        >>> initial[0, [5, 6]] = np.nan  # two corners left for the growth
+        >>> out, ok = refine_and_grow(img, initial, np.full((1, 12), 15.0), 0.2, board, 1.5, 6, 2)
+        >>> bool(ok.all()), [round(v, 2) for v in out[0, 5].tolist()]
+        (True, [39.5, 39.5])
     """
     refined, accept = refine_marked_corners(images, initial, spacing, factor)
     tried = np.zeros(accept.shape, dtype=bool)  # a corner placed first but not accepted may be placed again
