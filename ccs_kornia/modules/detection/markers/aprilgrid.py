@@ -285,7 +285,8 @@ def aprilgrid_paths(
     if any(p.lattice for p in paths) and todo:
         seen = [[(c, int(i), found_tags[k].variant.endswith("inverted")) for c, i in
                  zip(found_tags[k].corners, found_tags[k].ids)] for k in todo]
-        got = lattice_corners(images[todo], aprilgrid_lattice_board(board, factor), seen)
+        known = None if MarkerPaths.LATTICE in paths else marked[todo]  # the lattice path's own corners not asked for
+        got = lattice_corners(images[todo], aprilgrid_lattice_board(board, factor), seen, known=known)
         lattice[todo] = got.corners
         for j, k in enumerate(todo):
             if got.named[j] is not None and got.named[j].naming is not None:

@@ -341,7 +341,8 @@ def charuco_paths(
         refined, accept = refine_marked_corners(images, initial, spacing, factor)
         marked = torch.where(accept[..., None], refined, nan)
     if any(p.lattice for p in paths):
-        lattice, notes = _lattice_path(images, board, outputs, layout, factor, refused)
+        lattice, notes = _lattice_path(images, board, outputs, layout, factor, refused,
+                                       None if MarkerPaths.LATTICE in paths else marked)
     out = {}
     for path in paths:
         if path is MarkerPaths.BOTH:
@@ -387,10 +388,11 @@ def _charuco_result(images: torch.Tensor, board: CharucoBoard, corners: torch.Te
 
 
 def _lattice_path(images: torch.Tensor, board: CharucoBoard, outputs: list, layout: bool | None, factor: float,
-                  refused: torch.Tensor) -> tuple[torch.Tensor, list[str]]:
+                  refused: torch.Tensor, known: torch.Tensor | None) -> tuple[torch.Tensor, list[str]]:
     """The lattice path's corners :math:`(B, N, 2)` (:mod:`~ccs_kornia.modules.detection.markers.lattice_path`; NaN
     on the views refused) and a note per view whose lattice was named. Each view's lattice is named in the layout its
-    markers fit, else the batch's (``layout``), else either."""
+    markers fit, else the batch's (``layout``), else either; ``known``: the marker path's corners, where the lattice
+    path's own are not asked for (:func:`~ccs_kornia.modules.detection.markers.lattice_path.lattice_corners`)."""
     lattice = torch.full((images.shape[0], board.num_corners, 2), float("nan"))
     notes = [""] * images.shape[0]
     groups: dict = {}
@@ -401,7 +403,7 @@ def _lattice_path(images: torch.Tensor, board: CharucoBoard, outputs: list, layo
         spec = charuco_lattice_board(board, view_layout, factor)
         seen = [[(c, int(i), outputs[k][0].variant.endswith("inverted")) for c, i in
                  zip(outputs[k][0].corners, outputs[k][0].ids)] for k in idx]
-        got = lattice_corners(images[idx], spec, seen)
+        got = lattice_corners(images[idx], spec, seen, known=None if known is None else known[idx])
         lattice[idx] = got.corners
         for j, k in enumerate(idx):
             if got.named[j] is not None and got.named[j].naming is not None:

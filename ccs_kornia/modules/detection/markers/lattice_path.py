@@ -32,7 +32,7 @@ from ccs_kornia.modules.detection.markers.lattice_names import (
     NamedLattice,
     name_lattice,
 )
-from ccs_kornia.modules.detection.markers.marker_board import refine_and_grow
+from ccs_kornia.modules.detection.markers.marker_board import MAX_MOVE, refine_and_grow
 
 __all__ = ["GROWTH_ROUNDS", "REACH", "SNAP", "LatticeBoard", "LatticeCorners", "group_peaks", "lattice_corners"]
 
@@ -181,7 +181,8 @@ def _place(named: NamedLattice, cells: np.ndarray, points: np.ndarray, peaks: np
 
 
 def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[list[tuple[np.ndarray, int, bool]]],
-                    peaks: list[np.ndarray] | None = None, min_agree: int = 1) -> LatticeCorners:
+                    peaks: list[np.ndarray] | None = None, min_agree: int = 1, known: torch.Tensor | None = None
+                    ) -> LatticeCorners:
     r"""The lattice path (module docstring) on a batch of images.
 
     Args:
@@ -191,6 +192,10 @@ def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[lis
         peaks: per image, the corner peaks :math:`(M, 2)` px (default:
             :func:`~ccs_kornia.modules.detection.learned.corner_peaks.corner_peaks`).
         min_agree: a naming needs this many agreeing markers.
+        known: :math:`(B, N, 2)` corners another path refined (NaN where none): a corner the named lattice places
+            within :data:`~ccs_kornia.modules.detection.markers.marker_board.MAX_MOVE` spacings of its own id's known
+            corner is that corner (the same saddle fit would find it again); elsewhere it is refined here, so two
+            paths that disagree still do.
 
     Returns:
         :class:`LatticeCorners`.
@@ -229,7 +234,12 @@ def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[lis
             continue
         initial[k], spacing[k] = _place(named, c, pts, p, board)
         reasons.append(f"lattice: {len(c)} points, {named.agree} markers agree")
+    fixed = None
+    if known is not None:
+        k = known.detach().double().cpu().numpy()
+        close = np.linalg.norm(initial - k, axis=-1) <= MAX_MOVE * spacing
+        fixed = np.where(close[..., None], k, np.nan)
     refined, accept = refine_and_grow(images, initial, spacing, board.radius_factor, board.corners, board.reach,
-                                      board.support, GROWTH_ROUNDS)
+                                      board.support, GROWTH_ROUNDS, fixed)
     corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
     return LatticeCorners(corners, accept, named_all, reasons)

@@ -281,10 +281,12 @@ def grow_corners(refined: np.ndarray, skip: np.ndarray, accept: np.ndarray, boar
 
 
 def refine_and_grow(images: torch.Tensor, initial: np.ndarray, spacing: np.ndarray, factor: float,
-                    board_points: np.ndarray, reach: float, support: int, rounds: int
-                    ) -> tuple[torch.Tensor, torch.Tensor]:
+                    board_points: np.ndarray, reach: float, support: int, rounds: int,
+                    fixed: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`refine_marked_corners`, then ``rounds`` of :func:`grow_corners` (each corner not accepted placed by its
-    accepted neighbours once at most), each refined and checked the same way: the corners :math:`(B, N, 2)` and which are accepted :math:`(B, N)`.
+    accepted neighbours once at most), each refined and checked the same way: the corners :math:`(B, N, 2)` and which
+    are accepted :math:`(B, N)`. ``fixed`` :math:`(B, N, 2)`: corners accepted as they are (refined already; NaN
+    elsewhere), in place of ``initial``.
 
     Example:
         >>> img = torch.zeros(1, 1, 80, 100)
@@ -299,7 +301,13 @@ def refine_and_grow(images: torch.Tensor, initial: np.ndarray, spacing: np.ndarr
         >>> bool(ok.all()), [round(v, 2) for v in out[0, 5].tolist()]
         (True, [39.5, 39.5])
     """
+    if fixed is not None:
+        have = np.isfinite(fixed).all(-1)
+        initial = np.where(have[..., None], np.nan, initial)
     refined, accept = refine_marked_corners(images, initial, spacing, factor)
+    if fixed is not None:
+        refined = torch.where(torch.from_numpy(have)[..., None], torch.from_numpy(fixed).to(refined), refined)
+        accept = accept | torch.from_numpy(have)
     tried = np.zeros(accept.shape, dtype=bool)  # a corner placed first but not accepted may be placed again
     for _ in range(rounds):
         again, space = grow_corners(refined.double().numpy(), tried | accept.numpy(), accept.numpy(), board_points,
