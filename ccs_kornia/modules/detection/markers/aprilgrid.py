@@ -271,6 +271,7 @@ def aprilgrid_paths(
 
     nan = torch.full((b, n, 2), float("nan"))
     marked, lattice, notes = nan, nan.clone(), [""] * b
+    veto = torch.zeros(b, n, dtype=torch.bool)
     if any(p.markers for p in paths):
         initial = np.full((b, n, 2), np.nan)
         spacing = np.full((b, n), np.nan)
@@ -287,14 +288,14 @@ def aprilgrid_paths(
                  zip(found_tags[k].corners, found_tags[k].ids)] for k in todo]
         known = None if MarkerPaths.LATTICE in paths else marked[todo]  # the lattice path's own corners not asked for
         got = lattice_corners(images[todo], aprilgrid_lattice_board(board, factor), seen, known=known)
-        lattice[todo] = got.corners
+        lattice[todo], veto[todo] = got.corners, got.disputed
         for j, k in enumerate(todo):
             if got.named[j] is not None and got.named[j].naming is not None:
                 notes[k] = f"; {got.reasons[j]}"
     out = {}
     for path in paths:
         if path is MarkerPaths.BOTH:
-            corners = merge_corners(marked, lattice)[0]
+            corners = merge_corners(marked, lattice, veto)[0]
         else:
             corners = marked if path is MarkerPaths.MARKERS else lattice
         out[path] = _aprilgrid_result(images, board, corners, found_tags, notes if path.lattice else [""] * b,

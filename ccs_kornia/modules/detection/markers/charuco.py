@@ -333,6 +333,7 @@ def charuco_paths(
 
     nan = torch.full((b, n, 2), float("nan"))
     marked, lattice, notes = nan, nan, [""] * b
+    veto = torch.zeros(b, n, dtype=torch.bool)
     if any(p.markers for p in paths):
         initial = np.full((b, n, 2), np.nan)
         spacing = np.full((b, n), np.nan)
@@ -341,12 +342,12 @@ def charuco_paths(
         refined, accept = refine_marked_corners(images, initial, spacing, factor)
         marked = torch.where(accept[..., None], refined, nan)
     if any(p.lattice for p in paths):
-        lattice, notes = _lattice_path(images, board, outputs, layout, factor, refused,
+        lattice, notes, veto = _lattice_path(images, board, outputs, layout, factor, refused,
                                        None if MarkerPaths.LATTICE in paths else marked)
     out = {}
     for path in paths:
         if path is MarkerPaths.BOTH:
-            corners = merge_corners(marked, lattice)[0]
+            corners = merge_corners(marked, lattice, veto)[0]
         else:
             corners = marked if path is MarkerPaths.MARKERS else lattice
         out[path] = _charuco_result(images, board, corners, outputs, notes if path.lattice else [""] * b, refused,
@@ -388,12 +389,14 @@ def _charuco_result(images: torch.Tensor, board: CharucoBoard, corners: torch.Te
 
 
 def _lattice_path(images: torch.Tensor, board: CharucoBoard, outputs: list, layout: bool | None, factor: float,
-                  refused: torch.Tensor, known: torch.Tensor | None) -> tuple[torch.Tensor, list[str]]:
+                  refused: torch.Tensor, known: torch.Tensor | None
+                  ) -> tuple[torch.Tensor, list[str], torch.Tensor]:
     """The lattice path's corners :math:`(B, N, 2)` (:mod:`~ccs_kornia.modules.detection.markers.lattice_path`; NaN
-    on the views refused) and a note per view whose lattice was named. Each view's lattice is named in the layout its
+    on the views refused), a note per view whose lattice was named, and the corners it found disputed. Each view's lattice is named in the layout its
     markers fit, else the batch's (``layout``), else either; ``known``: the marker path's corners, where the lattice
     path's own are not asked for (:func:`~ccs_kornia.modules.detection.markers.lattice_path.lattice_corners`)."""
     lattice = torch.full((images.shape[0], board.num_corners, 2), float("nan"))
+    disputed = torch.zeros(images.shape[0], board.num_corners, dtype=torch.bool)
     notes = [""] * images.shape[0]
     groups: dict = {}
     for k in (~refused).nonzero().flatten().tolist():
@@ -404,11 +407,11 @@ def _lattice_path(images: torch.Tensor, board: CharucoBoard, outputs: list, layo
         seen = [[(c, int(i), outputs[k][0].variant.endswith("inverted")) for c, i in
                  zip(outputs[k][0].corners, outputs[k][0].ids)] for k in idx]
         got = lattice_corners(images[idx], spec, seen, known=None if known is None else known[idx])
-        lattice[idx] = got.corners
+        lattice[idx], disputed[idx] = got.corners, got.disputed
         for j, k in enumerate(idx):
             if got.named[j] is not None and got.named[j].naming is not None:
                 notes[k] = f"; {got.reasons[j]}"
-    return lattice, notes
+    return lattice, notes, disputed
 
 
 class CharucoDetector(MarkerBoardDetector):

@@ -4,7 +4,8 @@ r"""One policy for a marker board's two paths: the marker path's corners and the
 * a corner both give at different places is dropped: one of the two ids is wrong, and which cannot be told;
 * a corner only one path gives is kept;
 * two corner ids at one place (closer than :data:`COLLISION` times the view's median distance between neighbouring
-  corners) are both dropped.
+  corners) are both dropped;
+* a corner id that one path found disputed (a marker beside it reads as another marker) is dropped from both.
 
 A wrong id is worse than a missing corner, so every disagreement loses the corner.
 """
@@ -43,9 +44,11 @@ class MarkerPaths(Enum):
         return self is not MarkerPaths.MARKERS
 
 
-def merge_corners(first: torch.Tensor, second: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def merge_corners(first: torch.Tensor, second: torch.Tensor, veto: torch.Tensor | None = None
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
     r"""The corners of two paths :math:`(B, N, 2)` (NaN where a path has none) merged per id (module docstring):
-    the merged corners :math:`(B, N, 2)` and the ids dropped as disputed :math:`(B, N)`.
+    the merged corners :math:`(B, N, 2)` and the ids dropped as disputed :math:`(B, N)`. ``veto`` :math:`(B, N)`:
+    ids a path found disputed (a marker there reads as another one), dropped from both.
 
     Example:
         >>> nan = float("nan")
@@ -61,6 +64,8 @@ def merge_corners(first: torch.Tensor, second: torch.Tensor) -> tuple[torch.Tens
     both = has1 & has2
     apart = (first - second).norm(dim=-1) > AGREE_PX
     disputed = both & apart
+    if veto is not None:
+        disputed = disputed | (veto.to(disputed.device).bool() & (has1 | has2))
     merged = torch.where(has1[..., None], first, second)
     keep = (has1 | has2) & ~disputed
     # two ids at one place: both dropped

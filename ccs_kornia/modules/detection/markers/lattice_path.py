@@ -73,12 +73,14 @@ class LatticeBoard:
 @dataclass
 class LatticeCorners:
     """The lattice path's corners :math:`(B, N, 2)` (NaN where none), which are accepted :math:`(B, N)`, the naming of
-    each view and a short reason per view."""
+    each view, a short reason per view, and the corners whose name a marker disputes :math:`(B, N)` (dropped here, and
+    by :func:`~ccs_kornia.modules.detection.markers.corner_merge.merge_corners` from the other path too)."""
 
     corners: torch.Tensor
     accept: torch.Tensor
     named: list
     reasons: list
+    disputed: torch.Tensor
 
 
 def group_peaks(peaks: np.ndarray, scale: float, image: np.ndarray | None = None
@@ -152,23 +154,23 @@ def _small_square(image: np.ndarray, pts: np.ndarray, centre: np.ndarray, diagon
 
 
 def _place(named: NamedLattice, cells: np.ndarray, points: np.ndarray, peaks: np.ndarray, board: LatticeBoard
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """Where the named lattice puts each corner of the board: initial points :math:`(N, 2)` (NaN: not reached) and the
-    spacing there (px per board unit)."""
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the named lattice puts each corner of the board: initial points :math:`(N, 2)` (NaN: not reached), the
+    spacing there (px per board unit), and the corners at a disputed square :math:`(N,)`."""
     lat = board.lattice
     n = len(board.corners)
     initial, spacing = np.full((n, 2), np.nan), np.full(n, np.nan)
     naming = named.naming
     use = named.named
     if naming is None or use.sum() < 4:
-        return initial, spacing
+        return initial, spacing, np.zeros(n, dtype=bool)
     c = naming.cells(lat.index_of(board.corners))  # (N, 2) lattice coordinates of every corner
     reach = np.abs(c[:, None] - cells[use][None]).max(-1).min(1)
     nearest = np.rint(c).astype(np.int64)
     disputed = np.array([(int(a), int(b)) in named.disputed_cells for a, b in nearest], dtype=bool)
     todo = np.flatnonzero((reach <= REACH + 1e-9) & ~disputed)
     if not len(todo):
-        return initial, spacing
+        return initial, spacing, disputed
     pred, step = predict_cells(cells[use], points[use], c[todo])
     per_unit = step / float(lat.pitch)
     if len(peaks):  # the nearest peak, well within half the way to the next corner
@@ -177,7 +179,7 @@ def _place(named: NamedLattice, cells: np.ndarray, points: np.ndarray, peaks: np
         close = d[np.arange(len(todo)), k] < SNAP * board.separation * per_unit
         pred = np.where(close[:, None], peaks[k], pred)
     initial[todo], spacing[todo] = pred, per_unit
-    return initial, spacing
+    return initial, spacing, disputed
 
 
 def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[list[tuple[np.ndarray, int, bool]]],
@@ -214,6 +216,7 @@ def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[lis
     peaks = corner_peaks(images) if peaks is None else peaks
     gray = (images.detach()[:, 0].float().clamp(0, 1) * 255.0).cpu().numpy()
     initial, spacing = np.full((b, n, 2), np.nan), np.full((b, n), np.nan)
+    disputed = np.zeros((b, n), dtype=bool)
     named_all, reasons = [], []
     lat = board.lattice
     for k in range(b):
@@ -232,7 +235,7 @@ def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[lis
         if named.naming is None:
             reasons.append(f"lattice of {len(c)} points not named: {named.reason}")
             continue
-        initial[k], spacing[k] = _place(named, c, pts, p, board)
+        initial[k], spacing[k], disputed[k] = _place(named, c, pts, p, board)
         reasons.append(f"lattice: {len(c)} points, {named.agree} markers agree")
     fixed = None
     if known is not None:
@@ -240,6 +243,7 @@ def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[lis
         close = np.linalg.norm(initial - k, axis=-1) <= MAX_MOVE * spacing
         fixed = np.where(close[..., None], k, np.nan)
     refined, accept = refine_and_grow(images, initial, spacing, board.radius_factor, board.corners, board.reach,
-                                      board.support, GROWTH_ROUNDS, fixed)
+                                      board.support, GROWTH_ROUNDS, fixed, blocked=disputed)
+    accept = accept & ~torch.from_numpy(disputed)
     corners = torch.where(accept[..., None], refined, torch.full_like(refined, float("nan")))
-    return LatticeCorners(corners, accept, named_all, reasons)
+    return LatticeCorners(corners, accept, named_all, reasons, torch.from_numpy(disputed))

@@ -282,11 +282,12 @@ def grow_corners(refined: np.ndarray, skip: np.ndarray, accept: np.ndarray, boar
 
 def refine_and_grow(images: torch.Tensor, initial: np.ndarray, spacing: np.ndarray, factor: float,
                     board_points: np.ndarray, reach: float, support: int, rounds: int,
-                    fixed: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                    fixed: np.ndarray | None = None, blocked: np.ndarray | None = None
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`refine_marked_corners`, then ``rounds`` of :func:`grow_corners` (each corner not accepted placed by its
     accepted neighbours once at most), each refined and checked the same way: the corners :math:`(B, N, 2)` and which
     are accepted :math:`(B, N)`. ``fixed`` :math:`(B, N, 2)`: corners accepted as they are (refined already; NaN
-    elsewhere), in place of ``initial``.
+    elsewhere), in place of ``initial``; ``blocked`` :math:`(B, N)`: corners the growth never places.
 
     Example:
         >>> img = torch.zeros(1, 1, 80, 100)
@@ -308,7 +309,8 @@ def refine_and_grow(images: torch.Tensor, initial: np.ndarray, spacing: np.ndarr
     if fixed is not None:
         refined = torch.where(torch.from_numpy(have)[..., None], torch.from_numpy(fixed).to(refined), refined)
         accept = accept | torch.from_numpy(have)
-    tried = np.zeros(accept.shape, dtype=bool)  # a corner placed first but not accepted may be placed again
+    # a corner placed first but not accepted may be placed again
+    tried = np.zeros(accept.shape, dtype=bool) if blocked is None else np.asarray(blocked, dtype=bool).copy()
     for _ in range(rounds):
         again, space = grow_corners(refined.double().numpy(), tried | accept.numpy(), accept.numpy(), board_points,
                                     reach, support)
