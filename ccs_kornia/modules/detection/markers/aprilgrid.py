@@ -73,9 +73,10 @@ NEIGHBOUR_RADIUS = 1.2
 GROWTH_SUPPORT = 6
 #: rounds of that growth (each can place corners next to the ones the round before accepted)
 GROWTH_ROUNDS = 3
-#: the lattice path groups corner peaks closer than this many times the median nearest-peak distance into one small
-#: square (its corners are ``tag_spacing`` apart, the next corners a tag side)
-GROUP = 1.3
+#: the lattice path groups corner peaks closer than these many times the median nearest-peak distance into one small
+#: square (its corners are ``tag_spacing`` apart, the next corners a tag side; :func:`~ccs_kornia.modules.detection.
+#: markers.lattice_path.group_peaks`)
+GROUP = (1.3, 1.6)
 
 
 def tag_detector(board: AprilGrid) -> cv2.aruco.ArucoDetector:

@@ -12,10 +12,11 @@ inverted. :func:`name_lattice`:
 2. **votes**: each candidate naming is checked on every square where it expects a marker: the square's bits
    (rectified with the naming's own orientation) match the expected code (``agree``), or read clearly as another
    marker or another orientation (``dispute``); a marker OpenCV decoded agrees or disputes the same way;
-3. **choice**: the naming with the most agreeing squares, kept only where no other naming comes close (it must have
-   more than twice the runner-up's agreeing squares) and where disputes are few (at most a quarter of its
-   agreements). The lattice points of a disputed square are dropped, never guessed; so are cells the naming puts off
-   the board.
+3. **choice**: the naming with the most agreeing squares net of its disputed ones, kept only where no other naming
+   comes close (more than twice the runner-up's net count: a board of OpenCV's two layouts seen under the wrong one,
+   shifted by a square, agrees on about half its markers, and the other half dispute it) and where disputes are few
+   (at most a quarter of its agreements). The lattice points of a disputed square are dropped, never guessed; so are
+   cells the naming puts off the board.
 """
 
 from __future__ import annotations
@@ -90,8 +91,8 @@ class LatticeNaming:
 @dataclass
 class NamedLattice:
     """The outcome of :func:`name_lattice`: the naming (``None``: none trusted), the board's lattice point of every
-    cell (``index`` :math:`(P, 2)`, valid where ``named``), the squares that agreed and disputed, and why no naming
-    was kept."""
+    cell (``index`` :math:`(P, 2)`, valid where ``named``), the squares that agreed and disputed, the runner-up
+    naming's agreeing squares net of its disputed ones, and why no naming was kept."""
 
     naming: LatticeNaming | None
     index: np.ndarray
@@ -292,21 +293,22 @@ def name_lattice(image: np.ndarray, cells: np.ndarray, points: np.ndarray, board
                 dispute += 1
                 disputed |= _square_cells(q.mean(0))
         scored.append((len(agreed), dispute, naming, disputed))
-    scored.sort(key=lambda s: (-s[0], s[1]))
+    # 3. the naming with the most agreeing squares net of its disputed ones
+    scored.sort(key=lambda s: (-(s[0] - s[1]), s[1]))
     agree, dispute, naming, disputed = scored[0]
-    runner_up = max((s[0] for s in scored[1:] if s[2] != naming), default=0)
+    runner_up = max((s[0] - s[1] for s in scored[1:]), default=0)
     out = NamedLattice(None, none.index, none.named, agree, dispute, runner_up, disputed_cells=disputed)
     if agree < min_agree:
         out.reason = f"{agree} marker(s) agree on the lattice (at least {min_agree} needed)"
         return out
-    if agree <= 2 * runner_up:
-        out.reason = f"two namings of the lattice: {agree} and {runner_up} markers agree"
+    if agree - dispute <= 2 * max(runner_up, 0):
+        out.reason = f"two namings of the lattice: {agree - dispute} and {runner_up} markers agree (net of disputes)"
         return out
     if 4 * dispute > agree:
         out.reason = f"{dispute} marker(s) dispute the lattice's naming ({agree} agree)"
         return out
 
-    # 3. names: every cell the board has, less the disputed ones
+    # names: every cell the board has, less the disputed ones
     index = naming.index(cells)
     named = board.inside(index) & np.array([(int(a), int(b)) not in disputed for a, b in cells], dtype=bool)
     return NamedLattice(naming, index, named, agree, dispute, runner_up, disputed_cells=disputed)

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import itertools
+
 import numpy as np
 import torch
 
@@ -34,7 +36,7 @@ from ccs_kornia.modules.detection.markers.lattice_names import (
 )
 from ccs_kornia.modules.detection.markers.marker_board import MAX_MOVE, refine_and_grow
 
-__all__ = ["GROWTH_ROUNDS", "REACH", "SNAP", "LatticeBoard", "LatticeCorners", "group_peaks", "lattice_corners"]
+__all__ = ["GROWTH_ROUNDS", "MAX_GROUP", "REACH", "SNAP", "LatticeBoard", "LatticeCorners", "group_peaks", "lattice_corners"]
 
 #: corners are placed at most this many lattice steps from the nearest named lattice point
 REACH = 1.0
@@ -42,6 +44,8 @@ REACH = 1.0
 GROWTH_ROUNDS = 3
 #: a corner starts from the nearest peak within this fraction of the distance between the board's closest corners
 SNAP = 0.35
+#: most peaks in one group of :func:`group_peaks` (a small square and the markers' junctions beside it)
+MAX_GROUP = 8
 
 
 @dataclass(frozen=True)
@@ -51,8 +55,8 @@ class LatticeBoard:
     lattice steps (``fraction``: the marker centred in each lattice square), the refinement window in board units
     (``radius_factor``), the growth's reach (board units) and support (accepted corners), and ``group``: where the
     lattice points are not corners but the centres of groups of corners (an AprilGrid's small squares), the most
-    distance between two corners of a group, relative to the median distance of each peak to its nearest peak
-    (``None``: the peaks are the lattice points)."""
+    distance between two corners of a group, relative to the median distance of each peak to its nearest peak, one or
+    more (:func:`group_peaks`; ``None``: the peaks are the lattice points)."""
 
     lattice: BoardLattice
     corners: np.ndarray
@@ -60,7 +64,7 @@ class LatticeBoard:
     radius_factor: float
     reach: float
     support: int
-    group: float | None = None
+    group: tuple[float, ...] | None = None
 
     @property
     def separation(self) -> float:
@@ -83,19 +87,23 @@ class LatticeCorners:
     disputed: torch.Tensor
 
 
-def group_peaks(peaks: np.ndarray, scale: float, image: np.ndarray | None = None
+def group_peaks(peaks: np.ndarray, scales: float | tuple[float, ...], image: np.ndarray | None = None
                 ) -> tuple[np.ndarray, list[np.ndarray]]:
     """Peaks :math:`(M, 2)` grouped where they lie within ``scale`` times the median nearest-peak distance of each
-    other (single linkage), groups of three or four (a square's corners; fewer cannot place its centre, more are
-    clutter): their centres :math:`(G, 2)` (the midpoint of the two farthest peaks) and members.
+    other (single linkage), groups of three or four (a square's corners; fewer cannot place its centre): their centres
+    :math:`(G, 2)` (the midpoint of the two farthest peaks) and members. With several ``scales``, the groups of each
+    in turn, less those whose centre another scale's group already has (within half the median nearest-peak
+    distance): a tight scale splits a foreshortened square, a loose one joins clutter to it.
 
     With the grey ``image``, a group must look like a small black square between four markers (or its inverse): its
     centre and the four points beyond its corners on one side of the grey level, the four points beyond its sides
-    (the gaps between the markers) on the other. Junctions inside a marker's bits group alike but fail it.
+    (the gaps between the markers) on the other. Junctions inside a marker's bits group alike but fail it; a group of
+    up to :data:`MAX_GROUP` peaks (a square and such junctions beside it) keeps the four that make the most regular
+    small square.
 
     Example:
         >>> small = np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 3.0], [3.0, 3.0]])
-        >>> centres, members = group_peaks(np.concatenate([small, small + 10]), 1.6)
+        >>> centres, members = group_peaks(np.concatenate([small, small + 10]), (1.3, 1.6))
         >>> centres.tolist(), [len(m) for m in members]
         ([[1.5, 1.5], [11.5, 11.5]], [4, 4])
     """
@@ -104,7 +112,20 @@ def group_peaks(peaks: np.ndarray, scale: float, image: np.ndarray | None = None
         return np.zeros((0, 2)), []
     d = np.linalg.norm(peaks[:, None] - peaks[None], axis=-1)
     np.fill_diagonal(d, np.inf)
-    link = d < scale * float(np.median(d.min(1)))
+    nearest = float(np.median(d.min(1)))
+    centres: list[np.ndarray] = []
+    members: list[np.ndarray] = []
+    for scale in np.atleast_1d(np.asarray(scales, dtype=np.float64)).tolist():
+        for centre, idx in zip(*_groups(peaks, d < scale * nearest, image)):
+            if not centres or np.linalg.norm(np.array(centres) - centre, axis=-1).min() > 0.5 * nearest:
+                centres.append(centre)
+                members.append(idx)
+    return np.array(centres).reshape(-1, 2), members
+
+
+def _groups(peaks: np.ndarray, link: np.ndarray, image: np.ndarray | None) -> tuple[list, list]:
+    """The groups of :func:`group_peaks` for one linking of the peaks."""
+    m = len(peaks)
     label = np.arange(m)
     for _ in range(m):  # connected components by label propagation
         new = np.minimum(label, np.where(link, label[None, :], m).min(1))
@@ -114,26 +135,52 @@ def group_peaks(peaks: np.ndarray, scale: float, image: np.ndarray | None = None
     centres, members = [], []
     for lab in np.unique(label):
         idx = np.flatnonzero(label == lab)
-        if not 3 <= len(idx) <= 4:
+        if len(idx) < 3 or len(idx) > MAX_GROUP:
             continue
-        sub = np.where(np.isfinite(d[np.ix_(idx, idx)]), d[np.ix_(idx, idx)], 0.0)
-        i, j = np.unravel_index(int(np.argmax(sub)), sub.shape)
-        centre = 0.5 * (peaks[idx[i]] + peaks[idx[j]])
-        if image is not None and not _small_square(image, peaks[idx], centre, idx[[i, j]] - idx.min(), idx):
+        if len(idx) > 4:  # a small square and junctions of the markers' bits beside it: the four that make it
+            if image is None:
+                continue
+            idx = _best_square(peaks, idx, image)
+            if idx is None:
+                continue
+        centre, diagonal = _centre(peaks[idx])
+        if image is not None and not _small_square(image, peaks[idx], centre, diagonal):
             continue
         centres.append(centre)
         members.append(idx)
-    return np.array(centres).reshape(-1, 2), members
+    return centres, members
 
 
-def _small_square(image: np.ndarray, pts: np.ndarray, centre: np.ndarray, diagonal: np.ndarray, idx: np.ndarray
-                  ) -> bool:
-    """Whether the square with corners ``pts`` (three or four; ``centre`` the midpoint of a diagonal) is a small
-    square between four markers: its centre and the points beyond its corners one grey level, the points beyond
-    its sides (the gaps between the markers) the other."""
+def _centre(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The midpoint of the two farthest of a square's corners ``pts`` (three or four) and their indices."""
+    d = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    i, j = np.unravel_index(int(np.argmax(d)), d.shape)
+    return 0.5 * (pts[i] + pts[j]), np.array([i, j])
+
+
+def _best_square(peaks: np.ndarray, idx: np.ndarray, image: np.ndarray) -> np.ndarray | None:
+    """The four of the peaks ``idx`` that make the most regular small square on the ``image`` (its diagonals'
+    midpoints closest), or ``None``."""
+    best, err = None, np.inf
+    for sub in itertools.combinations(idx.tolist(), 4):
+        sub = np.array(sub)
+        pts = peaks[sub]
+        centre, diagonal = _centre(pts)
+        rest = [k for k in range(4) if k not in diagonal]
+        side = np.linalg.norm(pts[rest[0]] - pts[diagonal[0]])
+        e = float(np.linalg.norm(0.5 * (pts[rest[0]] + pts[rest[1]]) - centre)) / max(side, 1e-9)
+        if e < min(err, 0.2) and _small_square(image, pts, centre, diagonal):
+            best, err = sub, e
+    return best
+
+
+def _small_square(image: np.ndarray, pts: np.ndarray, centre: np.ndarray, diagonal: np.ndarray) -> bool:
+    """Whether the square with corners ``pts`` (three or four; ``centre`` the midpoint of the diagonal ``pts[diagonal]``)
+    is a small square between four markers: its centre and the points beyond its corners one grey level, the points
+    beyond its sides (the gaps between the markers) the other."""
     corners = pts - centre
     if len(corners) == 3:  # the missing corner mirrors the one off the diagonal
-        off = [k for k in range(3) if idx[k] - idx.min() not in diagonal][0]
+        off = [k for k in range(3) if k not in diagonal][0]
         corners = np.concatenate([corners, -corners[off][None]])
     angle = np.arctan2(corners[:, 1], corners[:, 0])
     corners = corners[np.argsort(angle)]
