@@ -25,6 +25,12 @@ same saddle the chessboard refinement measures. The steps are the shared ones of
    lands on must lie within a quarter of a tag side of that place (the nearest other corner is ``tag_spacing``
    tag sides away).
 
+These steps are the **marker path**. The **lattice path** (:mod:`~ccs_kornia.modules.detection.markers.lattice_path`)
+groups the heatmap network's corner peaks into the small squares between the tags, organises those into a lattice
+and names it from the tags that agree, those OpenCV decodes and those read on the lattice's squares
+(:func:`aprilgrid_lattice_board`; a grid needs at least 4 x 4 tags: 3 x 3 small squares between them). Both paths
+run by default and are merged per corner (:func:`~ccs_kornia.modules.detection.markers.corner_merge.merge_corners`).
+
 The result is the package's :class:`~ccs_kornia.modules.detection.base.DetectionResult` with one slot per corner id
 in Kalibr's numbering, NaN where a corner is not seen.
 """
@@ -334,7 +340,7 @@ class AprilGridDetector(MarkerBoardDetector):
 
     Args:
         board: the :class:`~ccs_kornia.modules.detection.boards.AprilGrid`.
-        min_corners, radius_factor, num_workers: as :func:`detect_aprilgrid`.
+        min_corners, radius_factor, num_workers, paths: as :func:`detect_aprilgrid`.
 
     Example:
         >>> g = AprilGrid(6, 6, 0.088, 0.3)
@@ -349,4 +355,4 @@ class AprilGridDetector(MarkerBoardDetector):
         return f"{self.board.tag_cols}x{self.board.tag_rows} tags"
 
     def detect_board(self, images: torch.Tensor) -> DetectionResult:
-        return detect_aprilgrid(images, self.board, self.min_corners, self.radius_factor, self.num_workers)
+        return detect_aprilgrid(images, self.board, self.min_corners, self.radius_factor, self.num_workers, self.paths)

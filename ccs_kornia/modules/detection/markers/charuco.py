@@ -21,6 +21,13 @@ The shared steps (decoding, lattice check, refinement) are :mod:`~ccs_kornia.mod
    the refinement did not confirm, whose window leaves the image, or that moved by more than a quarter square from
    where the markers put it, is dropped (a wrong corner is worse than a missing one).
 
+These steps are the **marker path**: a corner exists only where OpenCV decodes a marker beside it. The **lattice
+path** (:mod:`~ccs_kornia.modules.detection.markers.lattice_path`) finds every corner of the chessboard lattice the
+heatmap network sees and names it from the markers that agree, those OpenCV decodes and those read on the lattice's
+own squares (:func:`charuco_lattice_board`); blur, low light and small markers that OpenCV cannot read still name
+their squares. Both paths run by default and are merged per corner
+(:func:`~ccs_kornia.modules.detection.markers.corner_merge.merge_corners`: a corner they dispute is dropped).
+
 The result is the package's :class:`~ccs_kornia.modules.detection.base.DetectionResult` with one slot per corner id
 (``id = row * (squares_x - 1) + col``, OpenCV's), NaN where a corner is not seen; a view is found with at least
 ``min_corners`` corners.
@@ -422,7 +429,7 @@ class CharucoDetector(MarkerBoardDetector):
 
     Args:
         board: the :class:`~ccs_kornia.modules.detection.boards.CharucoBoard`.
-        min_corners, radius_factor, num_workers: as :func:`detect_charuco`.
+        min_corners, radius_factor, num_workers, paths: as :func:`detect_charuco`.
 
     Example:
         >>> board = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250")
@@ -438,7 +445,7 @@ class CharucoDetector(MarkerBoardDetector):
         return f"{self.board.squares_x}x{self.board.squares_y} squares"
 
     def detect_board(self, images: torch.Tensor) -> DetectionResult:
-        return detect_charuco(images, self.board, self.min_corners, self.radius_factor, self.num_workers)
+        return detect_charuco(images, self.board, self.min_corners, self.radius_factor, self.num_workers, self.paths)
 
 
 def dictionary_hint(images: list[np.ndarray], board: CharucoBoard, least: int = 3) -> str:

@@ -7,11 +7,12 @@ lattice point ``D c + t`` (``D`` one of the eight orientations, ``t`` a shift) a
 inverted. :func:`name_lattice`:
 
 1. **candidates**: every marker OpenCV decoded, placed in the lattice (a homography of the lattice points around it),
-   and every lattice square whose rectified bits read as one of the board's markers
-   (:mod:`~ccs_kornia.modules.detection.markers.marker_bits`) proposes the naming that puts that marker there;
-2. **votes**: each candidate naming is checked on every square where it expects a marker: the square's bits
-   (rectified with the naming's own orientation) match the expected code (``agree``), or read clearly as another
-   marker or another orientation (``dispute``); a marker OpenCV decoded agrees or disputes the same way;
+   and every lattice square whose rectified patch reads as one of the board's markers in one of eight orientations
+   (:class:`~ccs_kornia.modules.detection.markers.marker_bits.CodeTemplates`: blurred code templates, read once per
+   square and print polarity) proposes the naming that puts that marker there;
+2. **votes**: each candidate naming is checked on every square where it expects a marker: the square's read names
+   the expected code in the expected orientation (``agree``), or clearly another marker or another orientation
+   (``dispute``); a marker OpenCV decoded agrees where the naming puts its id, and disputes elsewhere;
 3. **choice**: the naming with the most agreeing squares net of its disputed ones, kept only where no other naming
    comes close (more than twice the runner-up's net count: a board of OpenCV's two layouts seen under the wrong one,
    shifted by a square, agrees on about half its markers, and the other half dispute it) and where disputes are few

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 from ccs_kornia.modules.detection.refine.saddle_refine import refine_corners
 
 __all__ = [
@@ -336,6 +337,8 @@ class MarkerBoardDetector(ChessboardDetector):
         board: the board description (:mod:`~ccs_kornia.modules.detection.boards`).
         min_corners: corners a view needs to count as found.
         radius_factor, num_workers: of the detection function.
+        paths: the marker path, the lattice path or both merged (the default;
+            :class:`~ccs_kornia.modules.detection.markers.corner_merge.MarkerPaths`).
     """
 
     selects_scale = True
@@ -343,12 +346,13 @@ class MarkerBoardDetector(ChessboardDetector):
     grid_name = "the board's corner grid"
 
     def __init__(self, board, min_corners: int = 6, radius_factor: float | None = None,
-                 num_workers: int | None = None) -> None:
+                 num_workers: int | None = None, paths: MarkerPaths = MarkerPaths.BOTH) -> None:
         super().__init__()
         self.board = board
         self.min_corners = int(min_corners)
         self.radius_factor = radius_factor
         self.num_workers = num_workers
+        self.paths = MarkerPaths(paths)
 
     def layout(self) -> str:
         """The board in its own counts, for messages (e.g. ``5x7 squares``)."""
