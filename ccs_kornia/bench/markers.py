@@ -24,6 +24,7 @@
   (:class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` on our corners) against ``cv2.calibrateCamera`` on
   CharucoDetector's corners (told the layout), both with the rational model (k1..k6) on the wide-angle lens: the
   error of fx and the RMS.
+* **timing**: seconds per view of the marker path alone and of both paths (the default) on clean renders.
 * **real**: ``charuco_opencv_tutorial`` (4 views and one occluded view) and ``caliscope_4cam_charuco`` (white-on-black,
   cam_1 sees the mirrored back): corners per camera, ours (both paths) and the marker path alone against
   CharucoDetector (default, and told the print's variant); where both find an id, how far apart (mean px, and how
@@ -54,8 +55,8 @@ from ccs_kornia.modules.detection.markers.aprilgrid import aprilgrid_paths, tag_
 from ccs_kornia.modules.detection.markers.charuco import charuco_paths, detect_charuco
 from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 
-__all__ = ["APRILGRID", "CHARUCO", "CONDITION_CALIB_VIEWS", "MIN_POSED", "REAL_SETS", "SEED", "WRONG_PX", "markers_md",
-           "run_markers"]
+__all__ = ["APRILGRID", "CHARUCO", "CONDITION_CALIB_VIEWS", "MIN_POSED", "REAL_SETS", "SEED", "TIMING_VIEWS", "WRONG_PX",
+           "markers_md", "run_markers"]
 
 #: first seed of the renders (the tests use seeds below 1000)
 SEED = 700_000
@@ -68,6 +69,8 @@ MIN_POSED = 6
 WRONG_PX = 3.0
 #: views of each condition the camera is calibrated from (fewer views: no calibration)
 CONDITION_CALIB_VIEWS = 12
+#: clean views timed per board (one batch)
+TIMING_VIEWS = 8
 #: our paths: key in the results -> the path
 OUR_PATHS = {"ours": MarkerPaths.BOTH, "marker_path": MarkerPaths.MARKERS, "lattice_path": MarkerPaths.LATTICE}
 #: the real sets: board, files per camera (glob patterns), OpenCV's variants to try when told (inverted, mirrored)
@@ -356,10 +359,30 @@ def run_markers(cfg, log=print) -> dict:
         got = _real_set(root, name)
         sec["real"][name] = got if got is not None else {"skipped": f"not present under {root}"}
         log(f"[bench] markers: real {name}")
+    sec["timing"] = _timing(cfg)
+    log("[bench] markers: timing")
     sec["views_rendered"] = len(CONDITIONS) * (cfg.markers_views + cfg.markers_aprilgrid_views) + \
-        cfg.markers_calib_trials * cfg.markers_calib_views
+        cfg.markers_calib_trials * cfg.markers_calib_views + 2 * sec["timing"]["views"]
     sec["run_seconds"] = time.perf_counter() - t0
     return sec
+
+
+def _timing(cfg) -> dict:
+    """Seconds per view of each board's detection by the marker path alone and by both paths (the default), on
+    :data:`TIMING_VIEWS` clean renders in one batch (fewer in small configurations), after one warm-up call."""
+    from ccs_kornia.modules.detection.markers.aprilgrid import detect_aprilgrid
+
+    rng = np.random.default_rng(SEED + 95_000)
+    views = max(1, min(TIMING_VIEWS, 4 * cfg.markers_views))
+    out = {"views": views}
+    for name, board, detect in (("charuco", CHARUCO, detect_charuco), ("aprilgrid", APRILGRID, detect_aprilgrid)):
+        x = _tensor([render_condition(board, "clean", rng, supersample=cfg.supersample)[0] for _ in range(views)])
+        detect(x[:1], board, num_workers=1)
+        for path in (MarkerPaths.MARKERS, MarkerPaths.BOTH):
+            t = time.perf_counter()
+            detect(x, board, num_workers=1, paths=path)
+            out[f"{name}_{path.value}_s_per_view"] = (time.perf_counter() - t) / views
+    return out
 
 
 _LABELS = {"ours": "ours", "marker_path": "ours, marker path", "lattice_path": "ours, lattice path",
@@ -414,6 +437,13 @@ def markers_md(sec: dict) -> list[str]:
             lines.append(f"| {label} | {len(trials)} | {_fmt(float(np.nanmedian(errs)))} % | {worst} | "
                          f"{_fmt(float(np.nanmedian(rms)))} | {used:.1f} |")
         lines.append("")
+    timing = sec.get("timing") or {}
+    if timing:
+        lines += [f"Time per view ({timing['views']} clean 640x480 renders in one batch): ChArUco "
+                  f"{_fmt(timing['charuco_markers_s_per_view'])} s by the marker path alone, "
+                  f"{_fmt(timing['charuco_both_s_per_view'])} s by both paths; AprilGrid "
+                  f"{_fmt(timing['aprilgrid_markers_s_per_view'])} s and {_fmt(timing['aprilgrid_both_s_per_view'])} s.",
+                  ""]
     for name, cams in (sec.get("real") or {}).items():
         if "skipped" in cams:
             lines += [f"Real `{name}`: skipped ({cams['skipped']}).", ""]

@@ -30,6 +30,7 @@ def test_markers_section_runs_and_reports():
     assert "| clean | ours | 1 | 1 |" in md and "CharucoDetector (told the layout)" in md
     assert "| strong blur | ours, lattice path | 1 |" in md
     assert "Calibration from partial views" in md
+    assert sec["timing"]["charuco_both_s_per_view"] > 0 and "Time per view" in md
 
 
 def test_score_counts_wrong_ids():

@@ -399,25 +399,39 @@ def _lattice_path(images: torch.Tensor, board: CharucoBoard, outputs: list, layo
                   refused: torch.Tensor, known: torch.Tensor | None
                   ) -> tuple[torch.Tensor, list[str], torch.Tensor]:
     """The lattice path's corners :math:`(B, N, 2)` (:mod:`~ccs_kornia.modules.detection.markers.lattice_path`; NaN
-    on the views refused), a note per view whose lattice was named, and the corners it found disputed. Each view's lattice is named in the layout its
-    markers fit, else the batch's (``layout``), else either; ``known``: the marker path's corners, where the lattice
-    path's own are not asked for (:func:`~ccs_kornia.modules.detection.markers.lattice_path.lattice_corners`)."""
+    on the views refused), a note per view whose lattice was named, and the corners it found disputed.
+
+    Each view's lattice is named in the layout its markers fit; a view whose markers do not tell (none decoded) is
+    named in either layout (the wrong one, shifted by a square, is disputed by half the markers), and where both
+    explain it alike, in the batch's (``layout``), as the marker path does. ``known``: the marker path's corners,
+    where the lattice path's own are not asked for
+    (:func:`~ccs_kornia.modules.detection.markers.lattice_path.lattice_corners`)."""
     lattice = torch.full((images.shape[0], board.num_corners, 2), float("nan"))
     disputed = torch.zeros(images.shape[0], board.num_corners, dtype=torch.bool)
     notes = [""] * images.shape[0]
     groups: dict = {}
     for k in (~refused).nonzero().flatten().tolist():
         markers = outputs[k][0]
-        groups.setdefault(bool(markers.legacy) if len(markers.ids) else layout, []).append(k)
-    for view_layout, idx in groups.items():
+        groups.setdefault(bool(markers.legacy) if len(markers.ids) else None, []).append(k)
+
+    def run(view_layout: bool | None, idx: list[int]) -> list[int]:
         spec = charuco_lattice_board(board, view_layout, factor)
         seen = [[(c, int(i), outputs[k][0].variant.endswith("inverted")) for c, i in
                  zip(outputs[k][0].corners, outputs[k][0].ids)] for k in idx]
         got = lattice_corners(images[idx], spec, seen, known=None if known is None else known[idx])
         lattice[idx], disputed[idx] = got.corners, got.disputed
+        unnamed = []
         for j, k in enumerate(idx):
             if got.named[j] is not None and got.named[j].naming is not None:
                 notes[k] = f"; {got.reasons[j]}"
+            elif got.named[j] is not None and got.named[j].runner_up > 0:
+                unnamed.append(k)  # two namings alike
+        return unnamed
+
+    for view_layout, idx in groups.items():
+        alike = run(view_layout, idx)
+        if view_layout is None and layout is not None and alike and len(charuco_lattice(board).layouts) > 1:
+            run(layout, alike)
     return lattice, notes, disputed
 
 
