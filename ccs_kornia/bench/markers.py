@@ -55,8 +55,8 @@ from ccs_kornia.modules.detection.markers.aprilgrid import aprilgrid_paths, tag_
 from ccs_kornia.modules.detection.markers.charuco import charuco_paths, detect_charuco
 from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 
-__all__ = ["APRILGRID", "CHARUCO", "CONDITION_CALIB_VIEWS", "MIN_POSED", "REAL_SETS", "SEED", "TIMING_VIEWS", "WRONG_PX",
-           "markers_md", "run_markers"]
+__all__ = ["APRILGRID", "CHARUCO", "CONDITION_CALIB_VIEWS", "MIN_POSED", "REAL_SETS", "SEED", "TIMING_VIEWS",
+           "WRONG_PX", "markers_md", "run_markers"]
 
 #: first seed of the renders (the tests use seeds below 1000)
 SEED = 700_000
@@ -442,7 +442,8 @@ def markers_md(sec: dict) -> list[str]:
         lines += [f"Time per view ({timing['views']} clean 640x480 renders in one batch): ChArUco "
                   f"{_fmt(timing['charuco_markers_s_per_view'])} s by the marker path alone, "
                   f"{_fmt(timing['charuco_both_s_per_view'])} s by both paths; AprilGrid "
-                  f"{_fmt(timing['aprilgrid_markers_s_per_view'])} s and {_fmt(timing['aprilgrid_both_s_per_view'])} s.",
+                  f"{_fmt(timing['aprilgrid_markers_s_per_view'])} s and "
+                  f"{_fmt(timing['aprilgrid_both_s_per_view'])} s.",
                   ""]
     for name, cams in (sec.get("real") or {}).items():
         if "skipped" in cams:

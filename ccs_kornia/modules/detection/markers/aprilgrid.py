@@ -8,15 +8,15 @@ same saddle the chessboard refinement measures. The steps are the shared ones of
 1. **tags**: ``cv2.aruco.ArucoDetector`` (``DICT_APRILTAG_36h11``, two border bits as Kalibr prints them) decodes
    the tags on the image, its inverse (white-on-black prints) and both mirrored (a board seen from its back);
 2. **lattice**: the decoded tags must sit where the grid puts their ids (a homography grown from each tag, tags
-   within :data:`~ccs_kornia.modules.detection.markers.marker_board.LATTICE_TOLERANCE` tag sides; at least two tags: a lone tag
-   cannot be checked); ids beyond the grid's tags are dropped; the variant with the most consistent tags is kept; a
-   view with more of the grid's tags off its lattice than on it is refused (the tags of another grid: a wrong
+   within :data:`~ccs_kornia.modules.detection.markers.marker_board.LATTICE_TOLERANCE` tag sides; at least two tags: a
+   lone tag cannot be checked); ids beyond the grid's tags are dropped; the variant with the most consistent tags is
+   kept; a view with more of the grid's tags off its lattice than on it is refused (the tags of another grid: a wrong
    ``tagCols``/``tagRows``);
 3. **initial corners**: each corner of a consistent tag from a homography of the tags around it
    (:data:`NEIGHBOUR_RADIUS` grid pitches);
-4. **refinement and check**: :func:`~ccs_kornia.modules.detection.markers.marker_board.refine_marked_corners` with a window inside
-   the clear X-junction (:func:`aprilgrid_radius_factor`): a corner the refinement did not confirm, whose window
-   leaves the image or that moved too far is dropped;
+4. **refinement and check**: :func:`~ccs_kornia.modules.detection.markers.marker_board.refine_marked_corners` with a
+   window inside the clear X-junction (:func:`aprilgrid_radius_factor`): a corner the refinement did not confirm,
+   whose window leaves the image or that moved too far is dropped;
 5. **growth**: OpenCV's tag corners can be a px or two off, more than that small window forgives, and a tag that did
    not decode (blur, low light) places none: a corner not accepted is placed
    (:func:`~ccs_kornia.modules.detection.markers.marker_board.grow_corners`) by a homography of at least
@@ -68,8 +68,8 @@ from ccs_kornia.modules.detection.markers.marker_board import (
 from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
 
 __all__ = ["GROUP", "GROWTH_ROUNDS", "GROWTH_SUPPORT", "NEIGHBOUR_RADIUS", "AprilGridDetector",
-           "aprilgrid_lattice", "aprilgrid_lattice_board", "aprilgrid_paths", "aprilgrid_radius_factor", "aprilgrid_tags",
-           "board_tags",
+           "aprilgrid_lattice", "aprilgrid_lattice_board", "aprilgrid_paths", "aprilgrid_radius_factor",
+           "aprilgrid_tags", "board_tags",
            "detect_aprilgrid", "tag_detector"]
 
 #: tags whose centre lies within this many grid pitches (tag side plus gap) of a corner place it: its own tag and the

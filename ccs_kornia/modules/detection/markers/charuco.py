@@ -9,9 +9,9 @@ The shared steps (decoding, lattice check, refinement) are :mod:`~ccs_kornia.mod
    and on both mirrored (a two-sided board seen from its back);
 2. **lattice**: the decoded markers must sit where the board puts their ids
    (:func:`~ccs_kornia.modules.detection.markers.marker_board.consistent_markers`, in squares). The variant (plain,
-   inverted, mirrored) with the most consistent markers is kept, and for a board of unknown layout (``legacy=None``) the layout with
-   the most; a view both layouts explain alike (a board with an even number of rows of squares differs between
-   them by a one-square shift of most markers) takes the layout most views of the batch fit, or none
+   inverted, mirrored) with the most consistent markers is kept, and for a board of unknown layout (``legacy=None``)
+   the layout with the most; a view both layouts explain alike (a board with an even number of rows of squares
+   differs between them by a one-square shift of most markers) takes the layout most views of the batch fit, or none
    (:func:`charuco_markers`); a view with more of the board's marker ids off its lattice than on it is refused (the
    markers of another board: a wrong board size, :attr:`CharucoMarkers.off_lattice`);
 3. **initial corners**: each inner corner from the markers around it (:data:`NEIGHBOUR_RADIUS` squares, one of them
@@ -61,7 +61,6 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     consistent_markers,
     decode_markers,
     fit_homography,
-    map_points,
     markers_on_board,
     place_from,
     refine_marked_corners,
@@ -70,7 +69,8 @@ from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
 
 __all__ = [
     "NEIGHBOUR_RADIUS", "CharucoDetector", "CharucoMarkers", "board_markers", "charuco_detector", "charuco_lattice",
-    "charuco_lattice_board", "charuco_markers", "charuco_paths", "detect_charuco", "dictionary_hint", "layout_fits", "marked_radius_factor", "squares_hint",
+    "charuco_lattice_board", "charuco_markers", "charuco_paths", "detect_charuco", "dictionary_hint", "layout_fits",
+    "marked_radius_factor", "squares_hint",
 ]
 
 #: markers whose centre lies within this many squares of a corner place it (the two touching ones at 0.71, the next

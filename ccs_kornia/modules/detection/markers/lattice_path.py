@@ -20,9 +20,8 @@ come first:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import itertools
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -36,7 +35,8 @@ from ccs_kornia.modules.detection.markers.lattice_names import (
 )
 from ccs_kornia.modules.detection.markers.marker_board import MAX_MOVE, refine_and_grow
 
-__all__ = ["GROWTH_ROUNDS", "MAX_GROUP", "REACH", "SNAP", "LatticeBoard", "LatticeCorners", "group_peaks", "lattice_corners"]
+__all__ = ["GROWTH_ROUNDS", "MAX_GROUP", "REACH", "SNAP", "LatticeBoard", "LatticeCorners", "group_peaks",
+           "lattice_corners"]
 
 #: corners are placed at most this many lattice steps from the nearest named lattice point
 REACH = 1.0
@@ -175,9 +175,9 @@ def _best_square(peaks: np.ndarray, idx: np.ndarray, image: np.ndarray) -> np.nd
 
 
 def _small_square(image: np.ndarray, pts: np.ndarray, centre: np.ndarray, diagonal: np.ndarray) -> bool:
-    """Whether the square with corners ``pts`` (three or four; ``centre`` the midpoint of the diagonal ``pts[diagonal]``)
-    is a small square between four markers: its centre and the points beyond its corners one grey level, the points
-    beyond its sides (the gaps between the markers) the other."""
+    """Whether the square with corners ``pts`` (three or four; ``centre`` the midpoint of their diagonal
+    ``pts[diagonal]``) is a small square between four markers: its centre and the points beyond its corners one grey
+    level, the points beyond its sides (the gaps between the markers) the other."""
     corners = pts - centre
     if len(corners) == 3:  # the missing corner mirrors the one off the diagonal
         off = [k for k in range(3) if k not in diagonal][0]
