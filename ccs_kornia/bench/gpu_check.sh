@@ -6,7 +6,7 @@
 # Without CUDA it is a dry run: it says what it would check and runs the CPU half.
 #   ccs_kornia/bench/gpu_check.sh [--dry-run] [--no-tests] [--out report.json]
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 export OMP_WAIT_POLICY="${OMP_WAIT_POLICY:-PASSIVE}"
 export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 exec python -m ccs_kornia.bench.gpu_check "$@"

@@ -167,52 +167,17 @@ def _render(
     return out
 
 
-def _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, supersample, background, border,
-                 dark, light, fisheye, marks, y0, y1) -> Tensor:
-    b = K.shape[0]
-    w, h_img = image_size
-    h = y1 - y0
-    dev, dt = K.device, torch.float32
-    u, v, reach, front, ideal_x, ideal_y = _grid_board_coordinates(
-        K, rvec, tvec, square, image_size, dist, radial, fisheye, rows=(y0, y1)
-    )
-    valid = reach & front
-    u = torch.where(valid, u, torch.full_like(u, _FAR))
-    v = torch.where(valid, v, torch.full_like(v, _FAR))
-    # local Jacobian of pixel -> board coordinates (squares per pixel)
-    ux, uy = _masked_gradient(u, valid, 2), _masked_gradient(u, valid, 1)
-    vx, vy = _masked_gradient(v, valid, 2), _masked_gradient(v, valid, 1)
+def _shade_footprints(u, v, ux, uy, vx, vy, valid, cols_f, rows_f, border, bg, light, contrast, supersample,
+                      marks=None) -> Tensor:
+    """Box-filtered grey levels ``(b, h, w)`` of pixels that see the board at ``u, v`` (squares) with the footprint
+    Jacobian ``ux = du/dx, uy = du/dy, vx, vy`` (squares per pixel); pixels whose footprint straddles a board line
+    (and are ``valid``) are split into ``supersample x supersample`` sub-cells. ``cols_f``, ``rows_f``, ``light``,
+    ``contrast``: ``(b, 1, 1)``; ``bg``: ``(b, 1, 1)`` or ``(b or 1, h, w)``; ``border``: a number or ``(b, 1, 1)``."""
+    b, h, w = u.shape
     # box width per axis with the variance of the (rotated) footprint along that axis
     wu = (ux * ux + uy * uy).sqrt().clamp(1e-4, 4.0)
     wv = (vx * vx + vy * vy).sqrt().clamp(1e-4, 4.0)
-    cols_f = cols.to(dt).view(b, 1, 1)
-    rows_f = rows.to(dt).view(b, 1, 1)
-    if isinstance(border, Tensor):
-        border = border.to(device=dev, dtype=dt).reshape(-1, 1, 1).expand(b, 1, 1)
-    light = light.to(dt).view(b, 1, 1)
-    contrast = 0.5 * (light - dark.to(dt).view(b, 1, 1))
-    if isinstance(background, Tensor):
-        bg_full = background.to(device=dev, dtype=dt).reshape(-1, h_img, w).expand(b, h_img, w)
-        bg = bg_full[:, y0:y1]
-        # the background is a scene seen through the same lens: warp it by the view's distortion, so that its
-        # straight edges bend like the board's (the distortion CNN learns from every line in the image)
-        distorted = torch.zeros(b, dtype=torch.bool, device=dev)
-        if radial is not None:
-            distorted |= ~_radial_is_trivial(radial).to(dev)
-        if dist is not None:
-            distorted |= (dist.abs().amax(-1) > 0).to(dev)
-        if fisheye is not None:
-            distorted |= (fisheye[:, 4] > 0).to(dev)
-        idx = distorted.nonzero().squeeze(1)
-        if idx.numel() > 0:
-            grid = torch.stack([ideal_x[idx] / max(w - 1, 1) * 2 - 1, ideal_y[idx] / max(h_img - 1, 1) * 2 - 1], -1)
-            warped = torch.nn.functional.grid_sample(
-                bg_full[idx].unsqueeze(1), grid.to(dt), mode="bilinear", padding_mode="reflection", align_corners=True
-            )
-            bg = bg.contiguous().index_copy(0, idx, warped[:, 0])
-    else:
-        bg = torch.full((b, 1, 1), float(background), device=dev, dtype=dt)
-    img, pu, pv = _shade(u, v, wu, wv, cols_f, rows_f, border, bg, light, contrast, marks)
+    img, _, _ = _shade(u, v, wu, wv, cols_f, rows_f, border, bg, light, contrast, marks)
     s = int(supersample)
     if s > 1:
         # only pixels whose footprint straddles an edge need sub-cells; elsewhere one box is exact
@@ -244,6 +209,53 @@ def _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, su
                     )
                     acc += val
             img = img.reshape(-1).index_copy(0, idx, acc / float(s * s)).view(b, h, w)
+    return img
+
+
+def _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, supersample, background, border,
+                 dark, light, fisheye, marks, y0, y1) -> Tensor:
+    b = K.shape[0]
+    w, h_img = image_size
+    h = y1 - y0
+    dev, dt = K.device, torch.float32
+    u, v, reach, front, ideal_x, ideal_y = _grid_board_coordinates(
+        K, rvec, tvec, square, image_size, dist, radial, fisheye, rows=(y0, y1)
+    )
+    valid = reach & front
+    u = torch.where(valid, u, torch.full_like(u, _FAR))
+    v = torch.where(valid, v, torch.full_like(v, _FAR))
+    # local Jacobian of pixel -> board coordinates (squares per pixel)
+    ux, uy = _masked_gradient(u, valid, 2), _masked_gradient(u, valid, 1)
+    vx, vy = _masked_gradient(v, valid, 2), _masked_gradient(v, valid, 1)
+    cols_f = cols.to(dt).view(b, 1, 1)
+    rows_f = rows.to(dt).view(b, 1, 1)
+    if isinstance(border, Tensor):
+        border = border.to(device=dev, dtype=dt).reshape(-1, 1, 1).expand(b, 1, 1)
+    light = light.to(dt).view(b, 1, 1)
+    contrast = 0.5 * (light - dark.to(dt).view(b, 1, 1))
+    if isinstance(background, Tensor):
+        bg_full = background.to(device=dev, dtype=dt).reshape(-1, h_img, w).expand(b, h_img, w)
+        bg = bg_full[:, y0:y1]
+        # the background is a scene seen through the same lens: warp it by the view's distortion, so that its
+        # straight edges bend like the board's (the distortion CNN learns from every line in the image)
+        distorted = torch.zeros(b, dtype=torch.bool, device=dev)
+        if radial is not None:
+            distorted |= ~_radial_is_trivial(radial).to(dev)
+        if dist is not None:
+            distorted |= (dist.abs().amax(-1) > 0).to(dev)
+        if fisheye is not None:
+            distorted |= (fisheye[:, 4] > 0).to(dev)
+        idx = distorted.nonzero().squeeze(1)
+        if idx.numel() > 0:
+            grid = torch.stack([ideal_x[idx] / max(w - 1, 1) * 2 - 1, ideal_y[idx] / max(h_img - 1, 1) * 2 - 1], -1)
+            warped = torch.nn.functional.grid_sample(
+                bg_full[idx].unsqueeze(1), grid.to(dt), mode="bilinear", padding_mode="reflection", align_corners=True
+            )
+            bg = bg.contiguous().index_copy(0, idx, warped[:, 0])
+    else:
+        bg = torch.full((b, 1, 1), float(background), device=dev, dtype=dt)
+    img = _shade_footprints(u, v, ux, uy, vx, vy, valid, cols_f, rows_f, border, bg, light, contrast, supersample,
+                            marks)
     img = torch.where(reach, img, torch.zeros_like(img))
     return img.clamp(0.0, 1.0).unsqueeze(1)
 

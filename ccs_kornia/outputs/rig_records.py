@@ -2,7 +2,7 @@
 (``x_i = R_i x_0 + T_i``), the error per camera and frame, and every pair's relative pose with its figures.
 
 Made from a :class:`~ccs_kornia.pipeline.rig_pipeline.RigPipelineResult`; read back by :func:`rig_cameras` and
-:func:`pair_pose` (the ``rectify`` command and the export formats).
+:func:`record_extrinsics` (the ``rectify`` command and the export formats).
 """
 
 from __future__ import annotations
@@ -12,9 +12,10 @@ from typing import Any
 
 import torch
 
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.outputs.records import camera_record
 
-__all__ = ["CONVENTION", "rig_record", "pair_record", "pair_pose", "rotation_angle_deg", "rig_cameras", "rectify_maps"]
+__all__ = ["CONVENTION", "rig_record", "pair_record", "record_extrinsics", "rotation_angle_deg", "rig_cameras", "rectify_maps"]
 
 #: how the extrinsics map points: camera 0's frame to camera ``i``'s (OpenCV's ``stereoCalibrate`` convention)
 CONVENTION = "x_i = R x_0 + T"
@@ -41,18 +42,18 @@ def rotation_angle_deg(R: Any) -> float:
     return math.degrees(math.acos(float(cos)))
 
 
-def pair_pose(extrinsics: list[dict[str, Any]], i: int, j: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``R, T`` from camera ``i`` to camera ``j`` (``x_j = R x_i + T``) from the record's per-camera extrinsics.
+def record_extrinsics(extrinsics: list[dict[str, Any]]) -> tuple[torch.Tensor, torch.Tensor]:
+    """The record's per-camera extrinsics as tensors ``R`` :math:`(C, 3, 3)`, ``T`` :math:`(C, 3)` (float64), e.g. for
+    :func:`~ccs_kornia.geometry.poses.pair_pose`.
 
     Example:
+        >>> from ccs_kornia.geometry.poses import pair_pose
         >>> ext = [{"R": torch.eye(3).tolist(), "T": [0.0, 0.0, 0.0]}, {"R": torch.eye(3).tolist(), "T": [-0.1, 0, 0]}]
-        >>> pair_pose(ext, 1, 0)[1].tolist()
+        >>> pair_pose(*record_extrinsics(ext), 1, 0)[1].tolist()
         [0.1, 0.0, 0.0]
     """
-    Ri, Ti = torch.tensor(extrinsics[i]["R"], dtype=torch.float64), torch.tensor(extrinsics[i]["T"], dtype=torch.float64)
-    Rj, Tj = torch.tensor(extrinsics[j]["R"], dtype=torch.float64), torch.tensor(extrinsics[j]["T"], dtype=torch.float64)
-    R = Rj @ Ri.T
-    return R, Tj - R @ Ti
+    R = torch.tensor([e["R"] for e in extrinsics], dtype=torch.float64)
+    return R, torch.tensor([e["T"] for e in extrinsics], dtype=torch.float64)
 
 
 def pair_record(rig: Any, i: int, j: int) -> dict[str, Any]:
@@ -156,11 +157,11 @@ def rectify_maps(data: dict[str, Any], rect: dict[str, Any], i: int = 0, j: int 
     for c, R, P in ((i, rect["R1"], rect["P1"]), (j, rect["R2"], rect["P2"])):
         cam = data["cameras"][c]
         K = np.array(cam["K"], dtype=np.float64)
-        coeffs = np.array(cam["distortion"]["coeffs"] or [], dtype=np.float64)
+        lens = camera_model(cam["distortion"]["model"])
+        coeffs = lens.opencv_coeffs(cam["distortion"]["coeffs"])
         R, P = np.asarray(R, dtype=np.float64), np.asarray(P, dtype=np.float64)
-        if cam["distortion"]["model"] == "fisheye":
+        if lens.is_fisheye:
             maps.append(cv2.fisheye.initUndistortRectifyMap(K, coeffs.reshape(4, 1), R, P, size, cv2.CV_32FC1))
         else:
-            coeffs = np.concatenate([coeffs, np.zeros(max(0, 5 - coeffs.size))])
             maps.append(cv2.initUndistortRectifyMap(K, coeffs, R, P, size, cv2.CV_32FC1))
     return maps

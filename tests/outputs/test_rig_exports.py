@@ -1,4 +1,4 @@
-"""The rig export formats (ccs_kornia.outputs.rig_exports, records_rig) on a hand-made rig record: a fisheye and a
+"""The rig export formats (ccs_kornia.outputs.rig_exports, rig_records) on a hand-made rig record: a fisheye and a
 pinhole camera (the mixed pair), a third camera for the Kalibr chain."""
 
 from __future__ import annotations
@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
+from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.outputs.rig_exports import (
     kalibr_camchain,
     kalibr_problem,
@@ -16,7 +17,11 @@ from ccs_kornia.outputs.rig_exports import (
     ros_stereo_files,
     write_opencv_stereo_yaml,
 )
-from ccs_kornia.outputs.rig_records import pair_pose, rectify_maps, rotation_angle_deg
+from ccs_kornia.outputs.rig_records import (
+    record_extrinsics,
+    rectify_maps,
+    rotation_angle_deg,
+)
 
 K_A = [[300.0, 0.0, 321.0], [0.0, 301.0, 239.0], [0.0, 0.0, 1.0]]
 K_B = [[520.0, 0.0, 318.0], [0.0, 519.0, 242.0], [0.0, 0.0, 1.0]]
@@ -40,7 +45,7 @@ def _record(third: str = "k1k2") -> dict:
                        {"R": R2.tolist(), "T": T2.tolist()}],
         "rms": 0.1,
     }
-    R, T = (x.numpy() for x in pair_pose(data["extrinsics"], 0, 1))
+    R, T = (x.numpy() for x in pair_pose(*record_extrinsics(data["extrinsics"]), 0, 1))
     E = np.array([[0, -T[2], T[1]], [T[2], 0, -T[0]], [-T[1], T[0], 0]]) @ R
     F = np.linalg.inv(np.array(K_B)).T @ E @ np.linalg.inv(np.array(K_A))
     data["pairs"] = [{"cameras": [0, 1], "E": E.tolist(), "F": F.tolist()}]
@@ -49,7 +54,7 @@ def _record(third: str = "k1k2") -> dict:
 
 def test_pair_pose_and_rotation_angle():
     data = _record()
-    R, T = pair_pose(data["extrinsics"], 1, 2)
+    R, T = pair_pose(*record_extrinsics(data["extrinsics"]), 1, 2)
     R1, T1 = np.array(data["extrinsics"][1]["R"]), np.array(data["extrinsics"][1]["T"])
     R2, T2 = np.array(data["extrinsics"][2]["R"]), np.array(data["extrinsics"][2]["T"])
     x0 = np.array([0.3, -0.2, 2.0])
@@ -66,7 +71,7 @@ def test_mixed_pair_rectifies_to_common_rows():
     # points in front of both cameras, projected by each camera's own model, meet on the same rectified row
     rng = np.random.default_rng(0)
     pts = np.c_[rng.uniform(-0.4, 0.4, 30), rng.uniform(-0.3, 0.3, 30), rng.uniform(1.5, 3.0, 30)]
-    R, T = (x.numpy() for x in pair_pose(data["extrinsics"], 0, 1))
+    R, T = (x.numpy() for x in pair_pose(*record_extrinsics(data["extrinsics"]), 0, 1))
     a, _ = cv2.fisheye.projectPoints(pts[:, None], np.zeros(3), np.zeros(3), np.array(K_A), np.array(FISHEYE))
     b, _ = cv2.projectPoints(pts, cv2.Rodrigues(R)[0], T, np.array(K_B), np.array(OPENCV5))
     ra = cv2.fisheye.undistortPoints(a, np.array(K_A), np.array(FISHEYE), R=rect["R1"], P=rect["P1"])[:, 0]
@@ -85,6 +90,22 @@ def test_opencv_yaml_of_a_fisheye_camera(tmp_path):
     assert np.allclose(fs.getNode("P2").mat(), rect["P2"]) and np.allclose(fs.getNode("F").mat(), data["pairs"][0]["F"])
     fs.release()
     assert [p.name for p in tmp_path.iterdir()] == ["stereo.yml"]  # the temporary file was renamed
+
+
+def test_opencv_yaml_of_the_pair_in_the_other_order(tmp_path):
+    """The pair 1, 0 (camera 1 first): its E and F are the record's transposed, x1^T F x0 = 0 becomes x0^T F' x1."""
+    data = _record()
+    rect = rectification(data, 1, 0)
+    path = tmp_path / "stereo.yml"
+    write_opencv_stereo_yaml(str(path), data, rect, 1, 0)
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    assert np.allclose(fs.getNode("K1").mat(), K_B) and np.allclose(fs.getNode("K2").mat(), K_A)
+    R, T = (x.numpy() for x in pair_pose(*record_extrinsics(data["extrinsics"]), 1, 0))
+    assert np.allclose(fs.getNode("R").mat(), R) and np.allclose(fs.getNode("T").mat().ravel(), T)
+    E = np.array([[0, -T[2], T[1]], [T[2], 0, -T[0]], [-T[1], T[0], 0]]) @ R
+    assert np.allclose(fs.getNode("E").mat(), E)
+    assert np.allclose(fs.getNode("F").mat(), np.array(data["pairs"][0]["F"]).T)
+    fs.release()
 
 
 def test_ros_files_of_a_fisheye_camera():

@@ -42,7 +42,7 @@ def _classic(setdir, size):
 
 
 def capture(path, real_dir):
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests", "modules", "calibration"))
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "..", "tests", "modules", "calibration"))
     from _board_views import synthetic
 
     from ccs_kornia.data.scenes import make_calibration_set
@@ -63,16 +63,19 @@ def capture(path, real_dir):
             real[name] = {"corners": uv, "obj": board_object_points(board[0], board[1], square, dtype=F64), "size": size}
     # inputs of the corrected-frame stage: the pipeline tests' synthetic lenses and opencv_left
     corrected = {}
+    from ccs_kornia.modules.correction import corrected_frame
+
     pipe = CalibrationPipeline("opencv", seed=0)
     grab = {}
+    solve_with_correction = corrected_frame.solve_with_correction
 
-    def record(corners, found, correction, apply, board_size, square, image_size):
+    def record(solver, usual, corners, found, correction, apply, board_size, square, image_size, **kwargs):
         grab.update(corners=corners.clone(), found=found.clone(), correction=correction.clone(), apply=apply.clone(),
                     board=tuple(board_size), square=float(square), size=tuple(image_size))
-        return CalibrationPipeline.solve_with_correction(pipe, corners, found, correction, apply, board_size, square,
-                                                         image_size)
+        return solve_with_correction(solver, usual, corners, found, correction, apply, board_size, square, image_size,
+                                     **kwargs)
 
-    pipe.solve_with_correction = record
+    corrected_frame.solve_with_correction = record
     cams = [(torch.tensor([[620.0, 0.0, 322.0], [0.0, 610.0, 236.0], [0.0, 0.0, 1.0]], dtype=F64),
              torch.tensor([-0.28, 0.09, 0.0005, -0.0008, 0.0], dtype=F64)),
             (torch.tensor([[540.0, 0.0, 310.0], [0.0, 545.0, 250.0], [0.0, 0.0, 1.0]], dtype=F64),
@@ -81,16 +84,20 @@ def capture(path, real_dir):
                         for c, (K, d) in enumerate(cams)])
     pipe(imgs, (9, 6), 0.025)
     corrected["pipeline_test_lenses"] = dict(grab)
+    grab.clear()
     K = torch.tensor([[420.0, 0.0, 326.0], [0.0, 425.0, 236.0], [0.0, 0.0, 1.0]], dtype=F64)
     s = make_calibration_set(K, (9, 6), 0.025, SIZE, num_views=12, radial=torch.tensor([1.0, -0.45, 0.05]), seed=5, supersample=2)
     pipe(s.images[None], (9, 6), 0.025)
     corrected["severe_radial"] = dict(grab)
+    grab.clear()
     from ccs_kornia.io.images import load_image_gray
     d = os.path.join(real_dir, "opencv_left")
     if os.path.isdir(d):
         ims = torch.stack([torch.from_numpy(load_image_gray(f)[0])[None] for f in sorted(glob.glob(os.path.join(d, "*.jpg")))])
         pipe(ims[None], (9, 6), 25.0)
         corrected["opencv_left"] = dict(grab)
+    corrected_frame.solve_with_correction = solve_with_correction
+    corrected = {k: v for k, v in corrected.items() if v}  # (a set whose cameras never went the corrected way)
     torch.save({"cases": cases, "real": real, "corrected": corrected}, path)
     print("captured", {k: list(v) for k, v in {"cases": cases, "real": real, "corrected": corrected}.items()})
 
@@ -167,7 +174,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--capture")
     ap.add_argument("--real-dir", default=os.environ.get("CCS_REAL_DATA") or os.path.join(
-        os.path.dirname(__file__), "..", "..", "shared", "data", "real"))
+        os.path.dirname(__file__), "..", "..", "..", "..", "shared", "data", "real"))
     ap.add_argument("--inputs")
     ap.add_argument("--out")
     ap.add_argument("--compare")

@@ -1,6 +1,7 @@
-"""Calibration stage: homographies, Zhang, RANSAC, the one Levenberg-Marquardt core, the solver composing them,
-fisheye initialisation and calibration; the quality of a calibration in :mod:`.quality` (the camera models are in
-:mod:`ccs_kornia.geometry.models`, rigs in :mod:`ccs_kornia.modules.rig`).
+"""Calibration stage: homographies, Zhang, RANSAC, the one Levenberg-Marquardt core (:mod:`.schur_lm`) and the camera
+on it (:mod:`.lm`), the outlier rule, the solver composing them, fisheye initialisation and calibration; the quality of
+a calibration in :mod:`.quality` (the camera models are in :mod:`ccs_kornia.geometry.models`, rigs in
+:mod:`ccs_kornia.modules.rig`).
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 
@@ -16,6 +17,7 @@ from ccs_kornia.runtime.lazy import lazy_exports
 
 _EXPORTS = {
     "VIEW_REASONS": "ccs_kornia.modules.calibration.result",
+    "ViewReason": "ccs_kornia.modules.calibration.result",
     "CalibrationResult": "ccs_kornia.modules.calibration.result",
     "CalibrationSolver": "ccs_kornia.modules.calibration.solver",
     "calibrate": "ccs_kornia.modules.calibration.solver",
@@ -37,6 +39,11 @@ _EXPORTS = {
     "radial_from_correction": "ccs_kornia.modules.calibration.centred_radial",
     "radial_from_points": "ccs_kornia.modules.calibration.centred_radial",
     "refine_centred_radial": "ccs_kornia.modules.calibration.centred_radial",
+    "SchurProblem": "ccs_kornia.modules.calibration.schur_lm",
+    "SchurLMResult": "ccs_kornia.modules.calibration.schur_lm",
+    "schur_lm": "ccs_kornia.modules.calibration.schur_lm",
+    "schur_step": "ccs_kornia.modules.calibration.schur_lm",
+    "drop_outliers": "ccs_kornia.modules.calibration.outliers",
     "LMResult": "ccs_kornia.modules.calibration.lm",
     "levenberg_marquardt": "ccs_kornia.modules.calibration.lm",
     "LevenbergMarquardt": "ccs_kornia.modules.calibration.lm",

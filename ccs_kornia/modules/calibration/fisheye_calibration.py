@@ -24,6 +24,7 @@ from ccs_kornia.geometry.camera import kb_unproject_points
 from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
 from ccs_kornia.modules.calibration.fisheye_init import board_to_ray_poses, init_fisheye
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
+from ccs_kornia.modules.calibration.outliers import drop_outliers
 
 __all__ = ["FisheyeCalibrationResult", "calibrate_fisheye", "FisheyeCalibrator"]
 
@@ -220,10 +221,7 @@ def _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_thr
     wc = w * (used0 | ok_d)[..., None]
     poses = lm(model, params, rv_c, tv_c, obj, corners, wc, free=[False] * 8)
     cand_rms = poses.view_rms
-    med = torch.where(used0, cand_rms, float("nan")).nanmedian(-1).values
-    thr = torch.clamp(outlier_rel_threshold * med, min=outlier_abs_threshold)
-    used = candidates & (cand_rms <= thr[:, None])
-    used = torch.where((used.sum(-1) >= min_views)[:, None], used, used0)
+    used = drop_outliers(cand_rms, used0, candidates, outlier_abs_threshold, outlier_rel_threshold, min_views)
     final = lm(model, params, poses.rvec, poses.tvec, obj, corners, w * used[..., None], free=free)
     used = final.view_used
 

@@ -10,7 +10,7 @@ stationarity :math:`g(x^*, c) = J^T W r = 0` holds for every :math:`c`, so
 
 A backward pass solves one linear system :math:`H u = \bar x` with the arrow structure of the LM core (a camera
 block, one 6x6 block per view, eliminated by the Schur complement and batched over cameras:
-:func:`~ccs_kornia.modules.calibration.lm._schur_step` at zero damping), then gives every input
+:func:`~ccs_kornia.modules.calibration.schur_lm.schur_step` at zero damping), then gives every input
 :math:`-u^T \partial g / \partial (c, w, X)` in one vector-Jacobian product: corners :math:`w_n J_n u`, weights
 :math:`-(J_n u) \cdot r_n`, board points through the projection and its Jacobian.
 
@@ -33,7 +33,7 @@ import torch
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3
-from ccs_kornia.modules.calibration.lm import _schur_step
+from ccs_kornia.modules.calibration.schur_lm import schur_step
 
 __all__ = ["HESSIAN_CHUNK", "implicit_solution", "ImplicitSolution", "so3_left_jacobian_inverse"]
 
@@ -150,10 +150,8 @@ def _backward(model, basis, params, rvec, tvec, corners, weights, obj, g_params,
         g_w = (so3_left_jacobian_inverse(rv).transpose(-1, -2) @ g_rvec.unsqueeze(-1)).squeeze(-1)
         used_f = used.to(dtype)
         v_pose = torch.cat([g_w, g_tvec], -1) * used_f[..., None]
-        eyeF = torch.eye(F, dtype=dtype, device=device)
-        lam = torch.zeros(C, dtype=dtype, device=device)
         # the undamped step of the LM core solves H u = -(eg, ep): with (eg, ep) = -(v_cam, v_pose) it gives H^-1 v
-        u_cam, u_pose = _schur_step(U.detach(), Wb.detach(), Vb.detach(), -v_cam, -v_pose, lam, used_f, eyeF)
+        u_cam, u_pose = schur_step(U.detach(), Wb.detach(), Vb.detach(), -v_cam, -v_pose, used)
         u_cam = torch.where(ok[:, None], u_cam, 0.0)
         u_pose = torch.where(ok[:, None, None], u_pose, 0.0)
         inputs = [t for t, n in zip((c_in, w_in, o_in), need) if n]

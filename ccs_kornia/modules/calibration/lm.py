@@ -1,24 +1,19 @@
-"""The one Levenberg–Marquardt core: camera parameters and all board poses, batched over cameras.
+"""Levenberg–Marquardt of cameras: camera parameters and all board poses, batched over cameras.
 
 Unknowns per camera: the free camera parameters (a :class:`~ccs_kornia.geometry.models.CameraModel`'s
 intrinsics and distortion, possibly fixed or tied through a basis) and one 6-dof pose per view. The normal
 equations have the bundle-adjustment arrow structure (a small dense camera block, independent 6x6 pose
-blocks), so every step eliminates the pose blocks with a Schur complement: the cost is linear in the number of
-views and all cameras are solved by the same tensor ops.
+blocks): this module builds them, the LM core (:func:`~ccs_kornia.modules.calibration.schur_lm.schur_lm`: damping,
+stopping rules, batching, covariance) solves them, eliminating the pose blocks with a Schur complement, so the cost
+is linear in the number of views and all cameras are solved by the same tensor ops.
 
 * Rotations are updated multiplicatively, ``R <- exp(w) R``, so the pose derivatives are
   ``d uv / d w = (d uv / d Xc) (-[R X]_x)`` and ``d uv / d t = d uv / d Xc``, built from the model's
   derivative with respect to the camera-frame point.
 * Per-corner weights :math:`(C, V, N)` are inverse variances (0: corner unused); the cost is
   ``sum w |uv - observed|^2``.
-* Every iteration runs on the whole batch: a camera that has converged keeps its values through per-camera
-  masks, so there is no Python loop over cameras and no host synchronisation inside an iteration; "all done"
-  is checked every ``check_every`` iterations (every iteration on CPU, where it costs nothing; every 10 on
-  other devices).
-* The covariance of the free camera parameters is marginalised over the poses (inverse of the Schur
-  complement at the solution), scaled by ``sigma^2 = cost / dof`` (or 1 when the weights are absolute inverse
-  variances); where that complement is numerically singular, a pseudo-inverse (huge, not NaN, variances along
-  the undetermined directions).
+* The covariance of the free camera parameters is marginalised over the poses and scaled by
+  ``sigma^2 = cost / dof`` (or 1 when the weights are absolute inverse variances).
 """
 
 from __future__ import annotations
@@ -32,16 +27,9 @@ from torch import nn
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3 as _exp_so3
 from ccs_kornia.geometry.so3 import log_so3 as _log_so3
-from ccs_kornia.geometry.spd_inverse import pseudo_inverse as _pseudo_inverse
-from ccs_kornia.geometry.spd_inverse import spd_inverse as _sym_inverse
+from ccs_kornia.modules.calibration.schur_lm import schur_lm
 
 __all__ = ["LMResult", "parameter_basis", "levenberg_marquardt", "LevenbergMarquardt"]
-
-#: iterations over which ``stall_tol`` compares the cost
-STALL_WINDOW = 10
-#: with ``groups``, a camera still iterating stops once its cost exceeds this many times a converged camera's of its
-#: group (RMS 10x): one start of a problem crawling far above another start's optimum
-DOMINATED_RATIO = 100.0
 
 
 @dataclass
@@ -134,19 +122,6 @@ def parameter_basis(
     return torch.stack(cols, -1)
 
 
-def _sym_solve(A: torch.Tensor, b: torch.Tensor, eye: torch.Tensor | None = None) -> torch.Tensor:
-    """Solve SPD systems (..., F, F) x = b with Jacobi scaling; systems that fail give 0 (``eye``: I_F)."""
-    d = A.diagonal(dim1=-2, dim2=-1).clamp_min(1e-300).rsqrt()
-    L, info = torch.linalg.cholesky_ex(A * (d[..., :, None] * d[..., None, :]))
-    bad = info != 0
-    # a failed factor is replaced by the identity (its solution is then zeroed)
-    eye = torch.eye(A.shape[-1], dtype=A.dtype, device=A.device) if eye is None else eye
-    L = torch.where(bad[..., None, None], eye, L)
-    # (the inverse, not cholesky_solve: a camera's result does not depend on the other cameras of the batch)
-    x = (torch.cholesky_inverse(L) @ (b * d).unsqueeze(-1)).squeeze(-1) * d
-    return x.masked_fill(bad[..., None] | ~x.isfinite(), 0.0)
-
-
 def _check(model, params, rvec, tvec, object_points, corners, weights):
     if not isinstance(model, CameraModel):
         raise TypeError(f"model must be a CameraModel, got {type(model).__name__}.")
@@ -197,57 +172,33 @@ def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expa
     return cost, Gpp, Gpk, Gkk, gp, gk, view_cost
 
 
-def _schur_step(U, W, Vb, eg, ep, lam, used_f, eyeF):
-    """Damped Gauss-Newton step: eliminate the pose blocks, solve the camera block, back-substitute."""
-    dU = U.diagonal(dim1=-2, dim2=-1)
-    # a floor keeps the damped system definite where a column vanishes (e.g. a distortion centre at k = 0)
-    if dU.shape[-1]:
-        dU = torch.maximum(dU, 1e-12 * dU.amax(-1, keepdim=True).clamp_min(1e-300))
-    Ud = U.clone()
-    Ud.diagonal(dim1=-2, dim2=-1).add_(dU * lam[:, None])
-    Vd = Vb.clone()
-    Vd.diagonal(dim1=-2, dim2=-1).mul_((1 + lam)[:, None, None])
-    # the damped 6x6 pose blocks are definite (unused views: the identity); a failed inverse is zeroed
-    Vinv = torch.linalg.inv_ex(Vd)[0].nan_to_num_(0.0, 0.0, 0.0)
-    Y = W @ Vinv  # (C, V, F, 6)
-    S = Ud - (Y @ W.transpose(-1, -2)).sum(1)
-    dg = _sym_solve(S, (Y @ ep.unsqueeze(-1)).sum(1).squeeze(-1) - eg, eyeF)
-    dp = (Vinv @ (ep.unsqueeze(-1) + W.transpose(-1, -2) @ dg[:, None, :, None])).squeeze(-1)
-    return dg, dp * (-used_f)[..., None]
+class _CameraProblem:
+    """The cameras of :func:`levenberg_marquardt` as a :class:`~ccs_kornia.modules.calibration.schur_lm.SchurProblem`:
+    global unknowns the free camera coordinates, items the views' poses; the state ``{"x": (C, P) parameters,
+    "R": (C, V, 3, 3), "t": (C, V, 3)}``, the normal equations with the weighted squared residuals per view."""
 
+    def __init__(self, model, obj, obs, sw, basis, tied, used, num_residuals, floor, eye6, expanded):
+        self.model, self.obj, self.obs, self.sw, self.basis, self.tied = model, obj, obs, sw, basis, tied
+        self.used, self.num_residuals, self.floor = used, num_residuals, floor
+        self.eye6, self.expanded = eye6, expanded
 
-def _lm_iteration(model, s, c, eyes, ftol, xtol, expanded):
-    """One LM iteration of every camera in the state ``s`` (updated in place); done cameras keep their values."""
-    x, R, tv, lam, cost = s["x"], s["R"], s["tv"], s["lam"], s["cost"]
-    active = ~s["done"]
-    dg, dp = _schur_step(s["U"], s["W"], s["Vb"], s["eg"], s["ep"], lam, c["used_f"], eyes[1])
-    x_n = x + (dg if c["Bn"] is None else (c["B"] @ dg.unsqueeze(-1)).squeeze(-1))
-    R_n, t_n = _exp_so3(dp[..., :3]) @ R, tv + dp[..., 3:]
-    new = _normal_equations(model, R_n, t_n, x_n, c["obj"], c["obs"], c["sw"], c["Bn"], c["used"], eyes[0], expanded)
-    cost_n = new[0]
+    def linearize(self, s):
+        eq = _normal_equations(self.model, s["R"], s["t"], s["x"], self.obj, self.obs, self.sw, self.tied, self.used,
+                               self.eye6, self.expanded)
+        return dict(zip(("cost", "U", "W", "V", "eg", "ep", "view_cost"), eq))
 
-    accept = (cost_n < cost) & active
-    scale = torch.cat([x.abs(), tv.abs().flatten(1), torch.ones_like(x[:, :1])], -1).amax(-1)
-    step = torch.cat([dg.abs(), dp.abs().flatten(1), torch.zeros_like(x[:, :1])], -1).amax(-1)
-    small_step = step <= xtol * scale
-    small_decrease = (cost - cost_n).abs() <= ftol * cost
-    finished = (accept & small_decrease) | small_step | (lam > 1e16)
-    finished = active & (finished | (torch.where(accept, cost_n, cost) <= c["floor"]))
+    def retract(self, s, dg, dp):
+        x = s["x"] + (dg if self.tied is None else (self.basis @ dg.unsqueeze(-1)).squeeze(-1))
+        return {"x": x, "R": _exp_so3(dp[..., :3]) @ s["R"], "t": s["t"] + dp[..., 3:]}
 
-    names, values = ("cost", "U", "W", "Vb", "eg", "ep", "vc", "x", "R", "tv"), (*new, x_n, R_n, t_n)
-    mode = "mask"
-    if x.device.type == "cpu":  # reading a flag costs nothing on the host: skip the selects when all agree
-        mode = "all" if bool(accept.all()) else ("none" if not bool(accept.any()) else "mask")
-    if mode == "all":
-        s.update(zip(names, values))
-    elif mode == "mask":
-        a = [accept.view(-1, *([1] * d)) for d in range(4)]
-        for k, v in zip(names, values):
-            s[k] = torch.where(a[v.dim() - 1], v, s[k])
-    s["lam"] = torch.where(active, torch.where(accept, (lam / 10).clamp_min(1e-15), lam * 10), lam)
-    s["iters"] = s["iters"] + active.long()
-    s["done"] = s["done"] | finished
-    s["converged"] = s["converged"] | finished
+    def scale(self, s):
+        x = s["x"]
+        return torch.cat([x.abs(), s["t"].abs().flatten(1), torch.ones_like(x[:, :1])], -1).amax(-1)
+
+    def take(self, keep):
+        sub = [None if v is None else v[keep] for v in (self.obj, self.obs, self.sw, self.basis, self.tied, self.used,
+                                                         self.num_residuals, self.floor)]
+        return _CameraProblem(self.model, *sub, self.eye6, self.expanded)
 
 
 def levenberg_marquardt(
@@ -293,12 +244,13 @@ def levenberg_marquardt(
         check_every: iterations between "all cameras done?" checks (a host sync); default 1 on CPU, 10 else.
         absolute_weights: the weights are absolute inverse variances: covariance without the ``sigma^2`` factor.
         dtype: solve precision.
-        stall_tol: a camera also stops (converged) when :data:`STALL_WINDOW` iterations together lowered its cost by
+        stall_tol: a camera also stops (converged) when
+            :data:`~ccs_kornia.modules.calibration.schur_lm.STALL_WINDOW` iterations together lowered its cost by
             at most ``stall_tol`` relative (0: never): a crawl along a direction the data barely determine, where
             every step still passes ``ftol`` but the fit no longer changes for any practical purpose.
         groups: :math:`(C,)` integers: cameras that are other starts of one problem (the same data). At each "all
             done?" check a camera still iterating stops, not converged, where its cost exceeds
-            :data:`DOMINATED_RATIO` times a converged camera's of its group with as many used views (it cannot be
+            :data:`~ccs_kornia.modules.calibration.schur_lm.DOMINATED_RATIO` times a converged camera's of its group with as many used views (it cannot be
             the group's best; fisheye hypotheses crawled 70-100 iterations at 3-44 px RMS beside a 0.17 px optimum).
 
     Returns:
@@ -339,98 +291,40 @@ def levenberg_marquardt(
             raise ValueError(f"basis must be ({C}, {x.shape[-1]}, F), got {tuple(basis.shape)}.")
         B, identity = basis.to(device=device, dtype=dtype), False
     Bn = None if identity else B
-    eye6 = torch.eye(6, dtype=dtype, device=device)
-    eyeF = torch.eye(B.shape[-1], dtype=dtype, device=device)
-    used_f = used.to(dtype)
 
     # unused views are parked in front of the camera so their (zero-weighted) projections stay finite
     rv = torch.where(used[..., None] & rvec.isfinite(), rvec.to(dtype), 0.0)
     park = torch.zeros(3, dtype=dtype, device=device)
     park[2] = 1.0 + 10.0 * float(obj.abs().amax()) if obj.numel() else 1.0
     tv = torch.where(used[..., None] & tvec.isfinite(), tvec.to(dtype), park)
-    R = _exp_so3(rv)
 
-    if check_every is None:
-        check_every = 1 if device.type == "cpu" else 10
-    const = {"obj": obj, "obs": obs, "sw": sw, "B": B, "Bn": Bn, "used": used, "used_f": used_f,
-             "floor": (w.sum((1, 2)) * 1e-20).clamp_min(1e-300)}  # floor: an RMS of 1e-10 px, a perfect fit
-    expanded: dict = {}
-    eq = _normal_equations(model, R, tv, x, obj, obs, sw, Bn, used, eye6, expanded)
-    done = ~used.any(-1)
-    full = dict(zip(("cost", "U", "W", "Vb", "eg", "ep", "vc"), eq))
-    full.update(x=x, R=R, tv=tv, lam=torch.full((C,), lambda_init, dtype=dtype, device=device), done=done,
-                converged=done.clone(), iters=torch.zeros(C, dtype=torch.long, device=device))
-    full["stall_ref"] = full["cost"].clone()
-    # the working set: every camera still iterating; it shrinks (a gather) only at the "all done?" checks
-    idx = torch.arange(C, device=device)
-    work, wc = dict(full), const
-    if groups is not None:  # a group per problem and number of used views; its best converged cost so far
-        key, has_views = groups.to(device).long() * (V + 1) + used.sum(-1), used.any(-1)
-        best = torch.full((int(key.max()) + 1 if C else 0,), float("inf"), dtype=dtype, device=device)
-    for it in range(max_iters):
-        _lm_iteration(model, work, wc, (eye6, eyeF), ftol, xtol, expanded)
-        if stall_tol > 0 and (it + 1) % STALL_WINDOW == 0:
-            stalled = ~work["done"] & (work["stall_ref"] - work["cost"] <= stall_tol * work["cost"])
-            work["done"] = work["done"] | stalled
-            work["converged"] = work["converged"] | stalled
-            work["stall_ref"] = work["cost"].clone()
-        if (it + 1) % check_every == 0:
-            if groups is not None:
-                fit = work["converged"] & work["cost"].isfinite() & has_views[idx]
-                best.scatter_reduce_(0, key[idx], torch.where(fit, work["cost"], float("inf")), "amin")
-                work["done"] = work["done"] | (work["cost"] > DOMINATED_RATIO * best[key[idx]])
-            alive = ~work["done"]
-            if not bool(alive.any()):
-                break
-            if not bool(alive.all()):
-                leaving = ~alive
-                for k, v in work.items():
-                    if v is not full[k]:  # (an entry never updated is still the full tensor itself)
-                        full[k][idx[leaving]] = v[leaving]
-                idx = idx[alive]
-                work = {k: v[alive] for k, v in work.items()}
-                wc = {k: (None if v is None else v[alive]) for k, v in wc.items()}
-    if idx.numel() == C:  # no camera left early: the working set is the whole batch
-        full = work
-    else:
-        for k, v in work.items():
-            if v is not full[k]:
-                full[k][idx] = v
-    x, R, tv, cost, U, W, Vb, vc = (full[k] for k in ("x", "R", "tv", "cost", "U", "W", "Vb", "vc"))
-    iters, converged = full["iters"], full["converged"]
+    n_view = on.sum(-1)
+    n_pts = n_view.sum(-1)
+    floor = (w.sum((1, 2)) * 1e-20).clamp_min(1e-300)  # an RMS of 1e-10 px: a perfect fit
+    problem = _CameraProblem(model, obj, obs, sw, B, Bn, used, 2 * n_pts, floor,
+                             torch.eye(6, dtype=dtype, device=device), {})
+    sol = schur_lm(problem, {"x": x, "R": _exp_so3(rv), "t": tv}, max_iters=max_iters, ftol=ftol, xtol=xtol,
+                   lambda_init=lambda_init, check_every=check_every, stall_tol=stall_tol, groups=groups,
+                   absolute_weights=absolute_weights)
+    x, R, tv = sol.state["x"], sol.state["R"], sol.state["t"]
 
     # statistics at the solution (unit weights: the squared residuals per view are in the normal equations)
     if sw is None:
-        sq_view = vc
+        sq_view = sol.equations["view_cost"]
     else:
         q = torch.matmul(obj[:, None].expand(C, V, N, 3), R.transpose(-1, -2))
         uv = model.columns(q + tv[:, :, None, :], x, jacobians=False)[0]
         sq_view = torch.where(on, ((uv - obs) ** 2).sum(-1), 0.0).sum(-1)
-    n_view = on.sum(-1)
     view_rms = (sq_view / n_view.clamp_min(1)).sqrt().masked_fill(~used, float("nan"))
-    n_pts = n_view.sum(-1)
     rms = (sq_view.sum(-1) / n_pts.clamp_min(1)).sqrt().masked_fill(n_pts == 0, float("nan"))
-
-    Vinv = _sym_inverse(Vb)
-    Vinv = torch.where(used[..., None, None] & Vinv.isfinite(), Vinv, torch.zeros_like(Vinv))
-    S = U - ((W @ Vinv) @ W.transpose(-1, -2)).sum(1)
-    F = B.shape[-1]
-    dof = (2 * n_pts - F - 6 * used.sum(-1)).clamp_min(1).to(dtype)
-    sigma2 = torch.ones_like(cost) if absolute_weights else cost / dof
-    cov = _sym_inverse(S)
-    # a (numerically) singular information matrix gives a huge, not a NaN, variance along the undetermined
-    # directions, so the degeneracy checks can tell which parameters the views do not constrain
-    singular = ~cov.flatten(1).isfinite().all(-1) & S.flatten(1).isfinite().all(-1) & used.any(-1)
-    if F and bool(singular.any()):
-        cov[singular] = _pseudo_inverse(S[singular])
-    cov = cov * sigma2[:, None, None]
 
     rvec_out = _log_so3(R)
     rvec_out = torch.where(used[..., None], rvec_out, rvec.to(dtype))
     tvec_out = torch.where(used[..., None], tv, tvec.to(dtype))
     return LMResult(
-        params=x, rvec=rvec_out, tvec=tvec_out, cost=cost, view_rms=view_rms, rms=rms, covariance=cov, information=S, basis=B,
-        sigma2=sigma2, iterations=iters, converged=converged & used.any(-1), num_points=n_pts, view_used=used,
+        params=x, rvec=rvec_out, tvec=tvec_out, cost=sol.cost, view_rms=view_rms, rms=rms, covariance=sol.covariance,
+        information=sol.information, basis=B, sigma2=sol.sigma2, iterations=sol.iterations, converged=sol.converged,
+        num_points=n_pts, view_used=used,
     )
 
 

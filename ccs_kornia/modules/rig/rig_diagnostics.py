@@ -14,10 +14,12 @@ from dataclasses import dataclass
 
 import torch
 
+from ccs_kornia.geometry.poses import pair_pose
+from ccs_kornia.modules.calibration.quality.verdict import Findings
 from ccs_kornia.modules.rig.rig_camera import RigCamera
 from ccs_kornia.modules.rig.stereo import epipolar_distances
 
-__all__ = ["RigVerdictThresholds", "pair_pose", "epipolar_sums", "rig_verdict"]
+__all__ = ["RigVerdictThresholds", "epipolar_sums", "rig_verdict"]
 
 
 @dataclass
@@ -39,12 +41,6 @@ class RigVerdictThresholds:
     usable_baseline_rel: float = 0.02
     good_rotation_deg: float = 0.1
     usable_rotation_deg: float = 0.5
-
-
-def pair_pose(R: torch.Tensor, T: torch.Tensor, i: int, j: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``x_j = R_ij x_i + T_ij`` from rig extrinsics :math:`(C, 3, 3)`, :math:`(C, 3)` (``x_c = R_c x_0 + T_c``)."""
-    Rij = R[j] @ R[i].T
-    return Rij, T[j] - Rij @ T[i]
 
 
 def epipolar_sums(
@@ -95,34 +91,40 @@ def rig_verdict(
         ...             torch.tensor([0.0, 0.1]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))
         ('good', [])
         >>> rig_verdict(["a", "b"], [(640, 480)] * 2, torch.tensor([0.2, 3.0]), z, z + 0.2,
-        ...             torch.tensor([0.0, 0.1]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))[0]
-        'not reliable: check the corner detections of b, or choose a distortion model that fits its lens'
+        ...             torch.tensor([0.0, 0.1]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))[0][:73]
+        "not reliable: b's reprojection RMS 3.00 px is over 1.60 px: check the cor"
     """
     t = thresholds or RigVerdictThresholds()
     C = len(names)
     scale = [math.hypot(*image_sizes[c]) / 1000.0 for c in range(C)]
-    bad: list[str] = []
-    weak: list[str] = []
-    advice: list[str] = []
+    found = Findings()
+    # every piece of advice starts with the figure that failed and its limit, so that the verdict line says what is
+    # wrong before what to do about it
     for c in range(C):
-        r = float(camera_rms[c])
+        r, limit = float(camera_rms[c]), t.usable_rms * scale[c]
         if not math.isfinite(r):
-            bad.append(f"{names[c]}: no reprojection error (not calibrated)")
-            advice.append(f"add frames where {names[c]} sees the board")
-        elif r > t.usable_rms * scale[c]:
-            bad.append(f"{names[c]}: reprojection RMS {r:.2f} px")
-            advice.append(f"check the corner detections of {names[c]}, or choose a distortion model that fits its lens")
-        elif r > t.good_rms * scale[c]:
-            weak.append(f"{names[c]}: reprojection RMS {r:.2f} px is high")
+            found.fail(f"{names[c]}: no reprojection error (not calibrated)",
+                       f"{names[c]} has no reprojection error (not calibrated): add frames where {names[c]} sees the "
+                       "board")
+        else:
+            found.grade(r, t.good_rms * scale[c], limit, f"{names[c]}: reprojection RMS {r:.2f} px",
+                        f"{names[c]}'s reprojection RMS {r:.2f} px is over {limit:.2f} px: check the corner detections "
+                        f"of {names[c]}, or choose a distortion model that fits its lens",
+                        f"{names[c]}: reprojection RMS {r:.2f} px is high")
     for c in range(1, C):
         b, sb, sr = float(baseline[c]), float(baseline_std[c]), float(rotation_std_deg[c])
         rel = sb / b if b > 0 else float("inf")
+        text = f"{names[c]}: baseline 1-sigma {100 * rel:.2f} %, rotation 1-sigma {sr:.3f} deg"
         if not (math.isfinite(rel) and math.isfinite(sr)) or rel > t.usable_baseline_rel or sr > t.usable_rotation_deg:
-            bad.append(f"{names[c]}: baseline 1-sigma {100 * rel:.2f} %, rotation 1-sigma {sr:.3f} deg")
-            advice.append(f"add frames that {names[0]} (or a camera linked to it) and {names[c]} both see, at varied "
-                          "distances and tilts")
+            failed = []
+            if not math.isfinite(sr) or sr > t.usable_rotation_deg:
+                failed.append(f"rotation 1-sigma {sr:.2f} deg is over {t.usable_rotation_deg:g} deg")
+            if not math.isfinite(rel) or rel > t.usable_baseline_rel:
+                failed.append(f"baseline 1-sigma {100 * rel:.2f} % is over {100 * t.usable_baseline_rel:g} %")
+            found.fail(text, f"{names[c]}'s {' and its '.join(failed)}: add frames that {names[0]} (or a camera "
+                             f"linked to it) and {names[c]} both see, nearer and at varied distances and tilts")
         elif rel > t.good_baseline_rel or sr > t.good_rotation_deg:
-            weak.append(f"{names[c]}: baseline 1-sigma {100 * rel:.2f} %, rotation 1-sigma {sr:.3f} deg")
+            found.warn(text)
     for i in range(C):
         for j in range(i + 1, C):
             held, fit = float(heldout_epipolar_rms[i, j]), float(epipolar_rms[i, j])
@@ -130,17 +132,13 @@ def rig_verdict(
             pair = f"{names[i]}-{names[j]}"
             if not math.isfinite(held):
                 if math.isfinite(fit):
-                    weak.append(f"{pair}: too few shared frames to hold some out (fit epipolar RMS {fit:.2f} px)")
+                    found.warn(f"{pair}: too few shared frames to hold some out (fit epipolar RMS {fit:.2f} px)")
                     held = fit
                 else:
                     continue
             label = "held-out epipolar RMS" if held != fit else "epipolar RMS"
-            if held > t.usable_epipolar * s:
-                bad.append(f"{pair}: {label} {held:.2f} px")
-                advice.append(f"add frames both {names[i]} and {names[j]} see, spread over the image and in depth "
-                              "(and check that the cameras did not move during the capture)")
-            elif held > t.good_epipolar * s:
-                weak.append(f"{pair}: {label} {held:.2f} px")
-    if bad:
-        return "not reliable: " + "; ".join(dict.fromkeys(advice)), bad + weak
-    return ("usable" if weak else "good"), weak
+            found.grade(held, t.good_epipolar * s, t.usable_epipolar * s, f"{pair}: {label} {held:.2f} px",
+                        f"{pair}'s {label} {held:.2f} px is over {t.usable_epipolar * s:.2f} px: add frames both "
+                        f"{names[i]} and {names[j]} see, spread over the image and in depth (and check that the "
+                        "cameras did not move during the capture)")
+    return found.outcome()

@@ -6,10 +6,11 @@ camera 0 is the reference, ``R_0 = I``, ``T_0 = 0``) and one board pose ``(R_f, 
 shared by all the cameras of that frame. A board corner ``X`` seen by camera ``c`` in frame ``f`` projects as
 ``model_c(R_c (R_f X + t_f) + T_c)``.
 
-The normal equations have the arrow structure of :mod:`~ccs_kornia.modules.calibration.lm` with the "camera block"
-made of all the intrinsics and extrinsics of the rig (a few dozen unknowns) and the 6x6 frame-pose blocks: each step
-eliminates the frame poses with the same Schur complement (:func:`~ccs_kornia.modules.calibration.lm._schur_step`),
-so the cost is linear in the number of frames. Rotations are updated multiplicatively (``R <- exp(w) R``):
+The normal equations have the arrow structure of :mod:`~ccs_kornia.modules.calibration.lm` with the global block
+made of all the intrinsics and extrinsics of the rig (a few dozen unknowns) and the 6x6 frame-pose blocks; this
+module builds them and the LM core (:func:`~ccs_kornia.modules.calibration.schur_lm.schur_lm`) solves them, each step
+eliminating the frame poses by the Schur complement, so the cost is linear in the number of frames. Rotations are
+updated multiplicatively (``R <- exp(w) R``):
 
 * ``d uv / d w_f = (R_f X) x (d uv / d q)`` with ``q = R_f X + t_f`` and ``d uv / d q = (d uv / d X_c) R_c``;
 * ``d uv / d w_c = (R_c q) x (d uv / d X_c)``, ``d uv / d T_c = d uv / d X_c``.
@@ -28,8 +29,7 @@ import torch
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3
-from ccs_kornia.geometry.spd_inverse import pseudo_inverse, spd_inverse
-from ccs_kornia.modules.calibration.lm import _schur_step
+from ccs_kornia.modules.calibration.schur_lm import schur_lm
 
 __all__ = ["RigLMResult", "rig_layout", "rig_levenberg_marquardt"]
 
@@ -138,6 +138,46 @@ def _equations(models, params, R, T, Rf, tf, obj, obs, sw, on, layout, frame_use
     return cost, U, W, V, eg, ep, sq
 
 
+class _RigProblem:
+    """The rigs of :func:`rig_levenberg_marquardt` as a :class:`~ccs_kornia.modules.calibration.schur_lm.SchurProblem`:
+    global unknowns the free rig parameters (:func:`rig_layout` order), items the frames' board poses; the state
+    ``{"p0", .., "p{C-1}": (B, P_c) parameters, "R": (B, C, 3, 3), "T": (B, C, 3), "Rf": (B, F, 3, 3), "tf": (B, F,
+    3)}``, the normal equations with the unweighted squared error per camera and frame (``sq``)."""
+
+    def __init__(self, models, layout, fi, obj, obs, sw, on, used, num_residuals, floor, eye6):
+        self.models, self.layout, self.fi, self.obj, self.obs, self.sw, self.on = models, layout, fi, obj, obs, sw, on
+        self.used, self.num_residuals, self.floor, self.eye6 = used, num_residuals, floor, eye6
+
+    def params(self, s):
+        return [s[f"p{c}"] for c in range(len(self.models))]
+
+    def linearize(self, s):
+        fi = self.fi
+        cost, U, W, V, eg, ep, sq = _equations(self.models, self.params(s), s["R"], s["T"], s["Rf"], s["tf"], self.obj,
+                                               self.obs, self.sw, self.on, self.layout, self.used, self.eye6)
+        return {"cost": cost, "U": U[:, fi][:, :, fi], "W": W[:, :, fi], "V": V, "eg": eg[:, fi], "ep": ep, "sq": sq}
+
+    def retract(self, s, dg, dp):
+        intr, ext, G = self.layout
+        full = dg.new_zeros(dg.shape[0], G)
+        full[:, self.fi] = dg
+        out = {f"p{c}": s[f"p{c}"] + full[:, intr[c]] for c in range(len(self.models))}
+        R, T = s["R"].clone(), s["T"].clone()
+        for c in range(1, len(self.models)):
+            e = full[:, ext[c]]
+            R[:, c] = exp_so3(e[:, :3]) @ s["R"][:, c]
+            T[:, c] = s["T"][:, c] + e[:, 3:]
+        return {**out, "R": R, "T": T, "Rf": exp_so3(dp[..., :3]) @ s["Rf"], "tf": s["tf"] + dp[..., 3:]}
+
+    def scale(self, s):
+        x = torch.cat(self.params(s), -1)
+        return torch.cat([x.abs(), s["tf"].abs().flatten(1), torch.ones_like(x[:, :1])], -1).amax(-1)
+
+    def take(self, keep):
+        return _RigProblem(self.models, self.layout, self.fi, self.obj, self.obs[keep], self.sw[keep], self.on[keep],
+                           self.used[keep], self.num_residuals[keep], self.floor[keep], self.eye6)
+
+
 def rig_levenberg_marquardt(
     models: Sequence[CameraModel],
     params: Sequence[torch.Tensor],
@@ -154,6 +194,8 @@ def rig_levenberg_marquardt(
     xtol: float = 1e-12,
     lambda_init: float = 1e-3,
     absolute_weights: bool = False,
+    check_every: int | None = None,
+    stall_tol: float = 0.0,
 ) -> RigLMResult:
     r"""Refine B rigs jointly (see the module doc); no Python loop over rigs or frames, one over cameras.
 
@@ -168,7 +210,8 @@ def rig_levenberg_marquardt(
         corners: :math:`(B, C, F, N, 2)` observed pixels (anything where the weight is 0).
         weights: :math:`(B, C, F, N)` per-corner inverse variances (0: not used).
         free: :math:`(G,)` bool, which rig parameters move (:func:`rig_layout` order; default all).
-        max_iters, ftol, xtol, lambda_init: as :func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`.
+        max_iters, ftol, xtol, lambda_init, check_every, stall_tol: as
+            :func:`~ccs_kornia.modules.calibration.schur_lm.schur_lm`.
         absolute_weights: the weights are absolute inverse variances (covariance without ``sigma^2``).
 
     Returns:
@@ -194,17 +237,16 @@ def rig_levenberg_marquardt(
         ([-0.1, 0.0, 0.0], True)
     """
     models = list(models)
-    B, C, F, N = corners.shape[:4]
+    B, C = corners.shape[:2]
     if len(models) != C or len(params) != C:
         raise ValueError(f"models and params need one entry per camera ({C}), got {len(models)} and {len(params)}.")
     dtype, device = corners.dtype if corners.is_floating_point() else torch.float64, corners.device
     layout = rig_layout(models)
-    intr, ext, G = layout
+    G = layout[2]
     free = torch.ones(G, dtype=torch.bool) if free is None else free.bool().cpu()
     if free.shape != (G,):
         raise ValueError(f"free must be ({G},), got {tuple(free.shape)}.")
     fi = torch.nonzero(free).flatten().to(device)
-    Gf = int(fi.numel())
     w = torch.where(corners.isfinite().all(-1), weights.to(dtype), 0.0).clamp_min(0)
     on = w > 0
     sw = w.sqrt()
@@ -215,77 +257,20 @@ def rig_levenberg_marquardt(
     Rf = torch.where(frame_used[..., None, None], frame_R.to(dtype), torch.eye(3, dtype=dtype, device=device))
     tf = torch.where(frame_used[..., None], frame_t.to(dtype), park)
     x = [p.to(device=device, dtype=dtype).clone() for p in params]
-    Rx, Tx = R.to(dtype).clone(), T.to(dtype).clone()
     eye6 = torch.eye(6, dtype=dtype, device=device)
-    eyeF = torch.eye(Gf, dtype=dtype, device=device)
-    used_f = frame_used.to(dtype)
-
-    def equations(x, Rx, Tx, Rf, tf):
-        return _equations(models, x, Rx, Tx, Rf, tf, obj, obs, sw, on, layout, frame_used, eye6)
-
-    def restrict(eq):
-        cost, U, W, V, eg, ep, sq = eq
-        return cost, U[:, fi][:, :, fi], W[:, :, fi], V, eg[:, fi], ep, sq
-
-    def apply(x, Rx, Tx, Rf, tf, dg, dp):
-        full = torch.zeros(B, G, dtype=dtype, device=device)
-        full[:, fi] = dg
-        x_n = [x[c] + full[:, intr[c]] for c in range(C)]
-        R_n, T_n = Rx.clone(), Tx.clone()
-        for c in range(1, C):
-            e = full[:, ext[c]]
-            R_n[:, c] = exp_so3(e[:, :3]) @ Rx[:, c]
-            T_n[:, c] = Tx[:, c] + e[:, 3:]
-        return x_n, R_n, T_n, exp_so3(dp[..., :3]) @ Rf, tf + dp[..., 3:]
-
-    state = restrict(equations(x, Rx, Tx, Rf, tf))
-    lam = torch.full((B,), lambda_init, dtype=dtype, device=device)
-    done = ~frame_used.any(-1)
-    converged = done.clone()
-    iters = torch.zeros(B, dtype=torch.long, device=device)
-    floor = (w.sum((1, 2, 3)) * 1e-20).clamp_min(1e-300)
-    for _ in range(max_iters):
-        if bool(done.all()):
-            break
-        active = ~done
-        cost, U, W, V, eg, ep, _ = state
-        dg, dp = _schur_step(U, W, V, eg, ep, lam, used_f, eyeF)
-        cand = apply(x, Rx, Tx, Rf, tf, dg, dp)
-        new = restrict(equations(*cand))
-        cost_n = new[0]
-        accept = (cost_n < cost) & active
-        scale = torch.cat([torch.cat(x, -1).abs(), tf.abs().flatten(1), torch.ones_like(cost[:, None])], -1).amax(-1)
-        step = torch.cat([dg.abs(), dp.abs().flatten(1), torch.zeros_like(cost[:, None])], -1).amax(-1)
-        finished = (accept & ((cost - cost_n).abs() <= ftol * cost)) | (step <= xtol * scale) | (lam > 1e16)
-        finished = active & (finished | (torch.where(accept, cost_n, cost) <= floor))
-
-        def pick(a, b):
-            return torch.where(accept.view(-1, *([1] * (a.dim() - 1))), a, b)
-
-        x = [pick(a, b) for a, b in zip(cand[0], x)]
-        Rx, Tx, Rf, tf = (pick(a, b) for a, b in zip(cand[1:], (Rx, Tx, Rf, tf)))
-        state = tuple(pick(a, b) for a, b in zip(new, state))
-        lam = torch.where(active, torch.where(accept, (lam / 10).clamp_min(1e-15), lam * 10), lam)
-        iters = iters + active.long()
-        done = done | finished
-        converged = converged | finished
-
-    # statistics and covariance at the solution (no damping)
-    cost_w, sq = _equations(models, x, Rx, Tx, Rf, tf, obj, obs, sw, on, layout, frame_used, eye6, jacobians=False)
-    cost, U, W, V, _, _, _ = state
-    Vinv = spd_inverse(V)
-    Vinv = torch.where(frame_used[..., None, None] & Vinv.isfinite(), Vinv, torch.zeros_like(Vinv))
-    S = U - ((W @ Vinv) @ W.transpose(-1, -2)).sum(1)
     count = on.sum(-1)
-    dof = (2 * count.sum((1, 2)) - Gf - 6 * frame_used.sum(-1)).clamp_min(1).to(dtype)
-    sigma2 = torch.ones_like(cost) if absolute_weights else cost / dof
-    cov_f = spd_inverse(S) if Gf else S
-    singular = ~cov_f.flatten(1).isfinite().all(-1) & S.flatten(1).isfinite().all(-1)
-    if Gf and bool(singular.any()):
-        cov_f[singular] = pseudo_inverse(S[singular])
+    floor = (w.sum((1, 2, 3)) * 1e-20).clamp_min(1e-300)  # an RMS of 1e-10 px: a perfect fit
+    problem = _RigProblem(models, layout, fi, obj, obs, sw, on, frame_used, 2 * count.sum((1, 2)), floor, eye6)
+    state = {**{f"p{c}": x[c] for c in range(C)}, "R": R.to(dtype).clone(), "T": T.to(dtype).clone(), "Rf": Rf, "tf": tf}
+    sol = schur_lm(problem, state, max_iters=max_iters, ftol=ftol, xtol=xtol, lambda_init=lambda_init,
+                   check_every=check_every, stall_tol=stall_tol, absolute_weights=absolute_weights)
+    x, Rx, Tx, Rf, tf = problem.params(sol.state), sol.state["R"], sol.state["T"], sol.state["Rf"], sol.state["tf"]
+
+    # the unweighted squared errors at the solution
+    _, sq = _equations(models, x, Rx, Tx, Rf, tf, obj, obs, sw, on, layout, frame_used, eye6, jacobians=False)
     cov = torch.zeros(B, G, G, dtype=dtype, device=device)
-    cov[:, fi[:, None], fi[None, :]] = cov_f * sigma2[:, None, None]
+    cov[:, fi[:, None], fi[None, :]] = sol.covariance
     return RigLMResult(
-        params=x, R=Rx, T=Tx, frame_R=Rf, frame_t=tf, cost=cost, sq_error=sq, count=count, covariance=cov,
-        sigma2=sigma2, iterations=iters, converged=converged & frame_used.any(-1), frame_used=frame_used,
+        params=x, R=Rx, T=Tx, frame_R=Rf, frame_t=tf, cost=sol.cost, sq_error=sq, count=count, covariance=cov,
+        sigma2=sol.sigma2, iterations=sol.iterations, converged=sol.converged, frame_used=frame_used,
     )

@@ -25,7 +25,10 @@ import torch
 from torch import nn
 
 from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
+from ccs_kornia.modules.calibration.outliers import drop_outliers
+from ccs_kornia.modules.calibration.quality.diagnostics import split_views
 from ccs_kornia.modules.rig.board_symmetry import (
     align_frame_orders,
     board_symmetries,
@@ -35,7 +38,6 @@ from ccs_kornia.modules.rig.rig_camera import RIG_MODELS, RigCamera, camera_from
 from ccs_kornia.modules.rig.rig_diagnostics import (
     RigVerdictThresholds,
     epipolar_sums,
-    pair_pose,
     rig_verdict,
 )
 from ccs_kornia.modules.rig.rig_init import initial_rig_cameras, rig_extrinsics
@@ -126,6 +128,8 @@ class RigSolver(nn.Module):
         max_iters: joint LM iterations at most.
         min_corners: a camera x frame observation with fewer valid corners is not used.
         ftol: the joint LM stops when an accepted step lowers the cost by less than this fraction.
+        stall_tol: the joint LM also stops where 10 iterations lowered the cost by at most this fraction (0: never;
+            :func:`~ccs_kornia.modules.calibration.schur_lm.schur_lm`).
         outlier_abs_threshold, outlier_rel_threshold: an observation whose RMS exceeds ``max(abs, rel * median)`` is
             left out of the second fit.
         folds: frames are split into this many folds for the held-out epipolar RMS (0: none); needs at least
@@ -160,6 +164,7 @@ class RigSolver(nn.Module):
         max_iters: int = 100,
         min_corners: int = 6,
         ftol: float = 1e-10,
+        stall_tol: float = 0.0,
         outlier_abs_threshold: float = 2.0,
         outlier_rel_threshold: float = 5.0,
         folds: int = 5,
@@ -176,6 +181,7 @@ class RigSolver(nn.Module):
         self.max_iters = max_iters
         self.min_corners = max(int(min_corners), 4)
         self.ftol = ftol
+        self.stall_tol = stall_tol
         self.outlier_abs_threshold = outlier_abs_threshold
         self.outlier_rel_threshold = outlier_rel_threshold
         self.folds = int(folds)
@@ -282,25 +288,22 @@ class RigSolver(nn.Module):
             k = use.shape[0] // B  # the held-out folds stack k copies of the rigs
             w = base_w.repeat(k, 1, 1, 1) * use[..., None].to(dtype)
             return rig_levenberg_marquardt(lm_models, p, R, T, fR, ft, obj, corners.repeat(k, 1, 1, 1, 1), w, free,
-                                           max_iters=iters, ftol=self.ftol)
+                                           max_iters=iters, ftol=self.ftol, stall_tol=self.stall_tol)
 
         res = fit(used, params, R0, T0, frame_R, frame_t)
         for _ in range(2):  # outlier observations (camera x frame), then fit again without them
-            rms = (res.sq_error / res.count.clamp_min(1)).sqrt().masked_fill(~used, float("nan"))
-            med = rms.flatten(1).nanmedian(-1).values
-            thr = torch.clamp(self.outlier_rel_threshold * med, min=self.outlier_abs_threshold)
-            keep = used & (rms <= thr[:, None, None])
-            keep = torch.where((keep.sum(-1) >= 2).all(-1, keepdim=True)[..., None], keep, used)
+            rms = (res.sq_error / res.count.clamp_min(1)).sqrt()
+            keep = drop_outliers(rms, used, used, self.outlier_abs_threshold, self.outlier_rel_threshold, 2)
             if bool((keep == used).all()):
                 break
             used = keep
             res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
 
-        held = self._heldout(fit, res, used, corners, valid, models, B, C, F)
+        held = self._heldout(fit, res, used, corners, valid, models, B, C)
         return [self._result(b, res, used, corners, valid, models, names, sizes, failed[b], ext, intr, held[b],
                              order[b]) for b in range(B)]
 
-    def _heldout(self, fit, res, used, corners, valid, models, B, C, F):
+    def _heldout(self, fit, res, used, corners, valid, models, B, C):
         """Per rig (C, C) epipolar RMS on held-out frames: k folds over the used frames, all refitted at once."""
         nan = torch.full((C, C), float("nan"), dtype=corners.dtype, device=corners.device)
         frames = used.any(1)  # (B, F)
@@ -308,11 +311,7 @@ class RigSolver(nn.Module):
         enough = frames.sum(-1) >= self.min_heldout_frames  # (B,) rigs with frames to hold out
         if k < 2 or not bool(enough.any()):
             return [nan.clone() for _ in range(B)]
-        fold = torch.full((B, F), -1, dtype=torch.long, device=used.device)
-        for b in range(B):
-            idx = torch.nonzero(frames[b]).flatten()
-            fold[b, idx] = torch.arange(idx.numel(), device=used.device) % max(min(k, idx.numel()), 1)
-        folds = [fold == i for i in range(k)]  # (B, F) each
+        folds = split_views(frames, k).unbind(1)  # (B, F) each
         use = torch.cat([used & ~f[:, None, :] for f in folds])  # (k B, C, F)
 
         def rep(x):

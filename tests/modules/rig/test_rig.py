@@ -414,8 +414,24 @@ def test_verdict_thresholds_scale_with_image_diagonal():
     assert small[0] == "usable" and "a: reprojection RMS 1.50 px is high" in small[1]
     assert large == ("good", [])
     held = z + 2.0  # held-out epipolar RMS 2 px: above 2 px per 1000 px at 640x480 (1.6 px)
-    assert rig_verdict(["a", "b"], [(640, 480)] * 2, rms * 0.1, z, held, *base)[0].startswith("not reliable: add frames")
+    assert rig_verdict(["a", "b"], [(640, 480)] * 2, rms * 0.1, z, held, *base)[0].startswith(
+        "not reliable: a-b's held-out epipolar RMS 2.00 px is over 1.60 px: add frames")
     assert rig_verdict(["a", "b"], [(1920, 1080)] * 2, rms * 0.1, z, held, *base)[0] == "good"
+
+
+def test_verdict_advice_names_the_figure_that_failed():
+    from ccs_kornia.modules.rig import rig_verdict
+
+    z, rms, sizes = torch.zeros(2, 2), torch.tensor([0.2, 0.2]), [(1280, 720)] * 2
+    baseline = torch.tensor([0.0, 0.5])
+    # the rotation's 1-sigma fails, the baseline's does not: the advice says which
+    verdict, reasons = rig_verdict(["cam0", "cam1"], sizes, rms, z, z + 0.2, baseline, torch.tensor([0.0, 1e-3]),
+                                   torch.tensor([0.0, 0.70]))
+    assert verdict.startswith("not reliable: cam1's rotation 1-sigma 0.70 deg is over 0.5 deg: add frames")
+    assert "baseline" not in verdict and "cam1: baseline 1-sigma 0.20 %, rotation 1-sigma 0.700 deg" in reasons
+    verdict, _ = rig_verdict(["cam0", "cam1"], sizes, rms, z, z + 0.2, baseline, torch.tensor([0.0, 0.05]),
+                             torch.tensor([0.0, 0.01]))
+    assert verdict.startswith("not reliable: cam1's baseline 1-sigma 10.00 % is over 2 %: add frames")
 
 
 def test_batch_heldout_per_rig():
@@ -463,3 +479,29 @@ def test_camera_that_sees_no_board_fails_naming_it():
     res = RigSolver("k1k2")(corners, valid, s.object_points, s.image_sizes, names=["a", "b", "top"])
     assert not res.success and res.reason.startswith("top: the camera alone could not be calibrated")
     assert res.verdict.startswith("not reliable: ")
+
+
+def test_joint_fit_options_of_the_lm_core():
+    from ccs_kornia.geometry.camera import project_points
+    from ccs_kornia.geometry.models import camera_model
+    from ccs_kornia.modules.rig.rig_lm import rig_levenberg_marquardt
+
+    s = scene(2, models=["none", "none"], frames=6, seed=2)
+    obj = s.object_points
+    g = torch.Generator().manual_seed(0)
+    rv = 0.3 * torch.randn(2, 6, 3, generator=g, dtype=D)
+    tv = torch.tensor([-0.1, -0.1, 1.2], dtype=D) + 0.05 * torch.randn(2, 6, 3, generator=g, dtype=D)
+    T1 = torch.tensor([-0.12, 0.0, 0.0], dtype=D)
+    corners = torch.stack([project_points(obj.expand(6, -1, -1), K_WIDE.expand(6, 3, 3), None, rv[b], tv[b] + t)
+                           for b in range(2) for t in (torch.zeros(3, dtype=D), T1)]).view(2, 2, 6, -1, 2)
+    p0 = torch.tensor([[560.0, 640.0, 310.0, 260.0]], dtype=D).expand(2, 4)
+    args = ([camera_model("none")] * 2, [p0, p0], torch.eye(3, dtype=D).expand(2, 2, 3, 3),
+            torch.stack([torch.zeros(2, 3, dtype=D), torch.stack([T1 * 0.8] * 2)], 1), exp_so3(rv), tv, obj, corners,
+            torch.ones(corners.shape[:-1], dtype=D))
+    ref = rig_levenberg_marquardt(*args, lambda_init=1e4)  # heavy damping: many short steps
+    assert (ref.iterations > 10).all() and ref.converged.all() and torch.allclose(ref.T[:, 1], T1.expand(2, 3), atol=1e-8)
+    sparse = rig_levenberg_marquardt(*args, lambda_init=1e4, check_every=4)  # fewer host checks: the same answer
+    assert torch.equal(sparse.iterations, ref.iterations) and torch.allclose(sparse.T, ref.T, rtol=0, atol=1e-15)
+    stalled = rig_levenberg_marquardt(*args, lambda_init=1e4, stall_tol=1e300)  # every window of 10 "stalls"
+    assert (stalled.iterations == 10).all() and stalled.converged.all()
+    assert RigSolver("k1k2").stall_tol == 0.0  # the rig's default: no stall stop

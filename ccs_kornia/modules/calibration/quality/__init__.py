@@ -14,6 +14,7 @@ _EXPORTS = {
     "projection_uncertainty": "ccs_kornia.modules.calibration.quality.uncertainty",
     "cross_validation": "ccs_kornia.modules.calibration.quality.diagnostics",
     "verdict": "ccs_kornia.modules.calibration.quality.diagnostics",
+    "Findings": "ccs_kornia.modules.calibration.quality.verdict",
     "diagnose": "ccs_kornia.modules.calibration.quality.diagnostics",
     "CalibrationDiagnostics": "ccs_kornia.modules.calibration.quality.diagnostics",
 }

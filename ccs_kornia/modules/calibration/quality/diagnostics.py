@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass, fields, replace
 import torch
 from torch import nn
 
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.quality.coverage import covered_pixels
@@ -38,6 +39,7 @@ from ccs_kornia.modules.calibration.quality.uncertainty import (
     projection_difference,
     projection_uncertainty,
 )
+from ccs_kornia.modules.calibration.quality.verdict import Findings
 from ccs_kornia.modules.calibration.refinement import joint_refinement
 from ccs_kornia.modules.calibration.subset_solutions import (
     SubsetSolutions,
@@ -55,6 +57,12 @@ def _nanrms(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
 def _nanmax(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
     m = x.nan_to_num(float("-inf")).amax(dim)
     return torch.where(m == float("-inf"), torch.full_like(m, float("nan")), m)
+
+
+def _model_name(result) -> str:
+    """The camera model's name of a one-model result (``"opencv"``, any OpenCV variant, where it names none)."""
+    model = getattr(result, "model", None)
+    return model if isinstance(model, str) and model else "opencv"
 
 
 def split_views(used: torch.Tensor, parts: int) -> torch.Tensor:
@@ -142,7 +150,7 @@ def cross_validation(
     Ka, Kb = K[:, 0].nan_to_num(1.0), K[:, 1].nan_to_num(1.0)
     da, db = dist[:, 0].nan_to_num(0.0), dist[:, 1].nan_to_num(0.0)
     fit = torch.ones(px.shape[0], dtype=torch.bool, device=px.device) if fit is None else fit.to(px.device)
-    lens = "fisheye" if getattr(result, "model", None) == "fisheye" else "opencv"
+    lens = _model_name(result)
     diff = projection_difference(Ka, da, Kb, db, px, compensate_rotation=fit, model=lens)
     halves_ok = ok[:, 0] & ok[:, 1]
     nan = torch.full_like(diff[:, 0], float("nan"))
@@ -169,7 +177,7 @@ def cross_validation(
 
     obj = object_points if object_points.dim() == 2 else rep(object_points)
     model = getattr(solver, "model", "opencv5")
-    if model == "fisheye":  # the LM core with the Kannala-Brandt model, every camera parameter held
+    if camera_model(model).is_fisheye:  # the LM core with the Kannala-Brandt model, every camera parameter held
         kb = KannalaBrandtModel()
         obj_k = obj if obj.dim() == 2 else obj[0]
         pose = levenberg_marquardt(
@@ -272,13 +280,12 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
         'not reliable: add views tilted in different directions (20-45 deg) and filling more of the image'
     """
     t = thresholds or VerdictThresholds()
-    bad: list[str] = []
-    weak: list[str] = []
-    advice: list[str] = []
+    found = Findings()
     for i in issues:
-        (bad if i["severity"] == "error" else weak).append(i["message"])
         if i["severity"] == "error":
-            advice.append(i.get("advice") or i["message"])
+            found.fail(i["message"], i.get("advice") or i["message"])
+        else:
+            found.warn(i["message"])
 
     def num(key):
         v = figures.get(key)
@@ -289,39 +296,36 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
     cv, cv_cov, cv_exp = num("cv_rms_px"), num("cv_covered_rms_px"), num("cv_expected_rms_px")
     cv_cov_exp = num("cv_covered_expected_rms_px")
     if rms is None:
-        reasons = "; ".join(dict.fromkeys(advice)) or "the calibration failed"
-        return "not reliable: " + reasons, bad or ["no calibration"]
-    if rms > t.usable_rms_px:
-        bad.append(f"reprojection RMS {rms:.2f} px: the corners or the lens model are off")
-        advice.append("check the corner detections in the report, or choose a distortion model that fits the lens")
-    elif rms > t.good_rms_px:
-        weak.append(f"reprojection RMS {rms:.2f} px is high: check the corners or try another distortion model")
+        reasons = "; ".join(dict.fromkeys(found.advice)) or "the calibration failed"
+        return "not reliable: " + reasons, found.bad or ["no calibration"]
+    found.grade(rms, t.good_rms_px, t.usable_rms_px,
+                f"reprojection RMS {rms:.2f} px: the corners or the lens model are off",
+                "check the corner detections in the report, or choose a distortion model that fits the lens",
+                f"reprojection RMS {rms:.2f} px is high: check the corners or try another distortion model")
     if unc_cov is None:
-        weak.append("projection uncertainty unavailable")
-    elif unc_cov > t.usable_uncertainty_px:
-        bad.append(f"projection uncertainty up to {unc_cov:.2f} px where the boards were")
-        advice.append("add views tilted in different directions (20-45 deg) and filling more of the image")
-    elif unc_cov > t.good_uncertainty_px:
-        weak.append(f"projection uncertainty up to {unc_cov:.2f} px where the boards were")
+        found.warn("projection uncertainty unavailable")
+    else:
+        found.grade(unc_cov, t.good_uncertainty_px, t.usable_uncertainty_px,
+                    f"projection uncertainty up to {unc_cov:.2f} px where the boards were",
+                    "add views tilted in different directions (20-45 deg) and filling more of the image")
     fold = num("unprojectable_fraction")
     if fold:
         text = (f"the distortion model has no inverse over {100 * fold:.0f} % of the image (it folds before reaching "
                 "those pixels)")
         if figures.get("unprojectable_covered"):
-            bad.append(text + ", also where the boards were")
-            advice.append("use a distortion model that fits the lens (wide or fisheye lenses need a richer one)")
+            found.fail(text + ", also where the boards were",
+                       "use a distortion model that fits the lens (wide or fisheye lenses need a richer one)")
         else:
-            weak.append(text + ": use a distortion model that fits the lens there")
+            found.warn(text + ": use a distortion model that fits the lens there")
     if unc_max is not None and unc_max > t.extrapolation_px:
         text = (f"projection uncertainty up to {unc_max:.1f} px outside the boards (distortion extrapolated): "
                 "add views with the board near the image corners")
         if any(i["check"] == "image_coverage" for i in issues):  # small coverage and a wild extrapolation
-            bad.append(text)
-            advice.append("add views with the board near the image corners and edges")
+            found.fail(text, "add views with the board near the image corners and edges")
         else:
-            weak.append(text)
+            found.warn(text)
     if cv is None:
-        weak.append("no cross-validation (too few views for two independent halves)")
+        found.warn("no cross-validation (too few views for two independent halves)")
     elif cv_exp:
         ratio = cv / cv_exp
         if cv_cov is not None and cv_cov_exp:  # where the boards were, if that is the worse
@@ -329,23 +333,15 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
         text = (f"two halves of the views disagree by {cv:.2f} px RMS over the image ({cv_cov or 0:.2f} px where "
                 f"the boards were), {ratio:.1f}x what the corner noise explains")
         if ratio > t.cv_ratio and (cv_cov or 0.0) > t.cv_min_px:
-            bad.append(text)
-            advice.append("the lens does not fit the distortion model or some corners are wrong: try another model "
-                          "and check the views with the largest error")
+            found.fail(text, "the lens does not fit the distortion model or some corners are wrong: try another "
+                             "model and check the views with the largest error")
         elif ratio > t.cv_ratio:
-            weak.append(text)
-    if held is not None and rms > 0 and held / rms > t.heldout_ratio:
-        text = f"held-out views reproject at {held:.2f} px RMS vs {rms:.2f} px on the fitted views"
-        if held / rms > 2 * t.heldout_ratio:
-            bad.append(text)
-            advice.append("add views (the model overfits), or use a distortion model with fewer coefficients")
-        else:
-            weak.append(text)
-    if bad:
-        return "not reliable: " + "; ".join(dict.fromkeys(a for a in advice if a)), bad + weak
-    if weak:
-        return "usable", weak
-    return "good", []
+            found.warn(text)
+    if held is not None and rms > 0:
+        found.grade(held / rms, t.heldout_ratio, 2 * t.heldout_ratio,
+                    f"held-out views reproject at {held:.2f} px RMS vs {rms:.2f} px on the fitted views",
+                    "add views (the model overfits), or use a distortion model with fewer coefficients")
+    return found.outcome()
 
 
 def _f(x) -> float | None:
@@ -424,7 +420,7 @@ def diagnose(
     corners = corners.to(dtype)
     valid = valid.bool() & corners.isfinite().all(-1)
     K, dist = result.K, result.dist
-    lens = "fisheye" if getattr(result, "model", None) == "fisheye" else "opencv"
+    lens = _model_name(result)
     ok = result.success.bool()
     Kc, dc = K.nan_to_num(1.0), dist.nan_to_num(0.0)
     gpx = image_points(image_size, grid).to(corners.device)
