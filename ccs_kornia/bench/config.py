@@ -157,7 +157,7 @@ class BenchConfig:
     fisheye_real_sets: tuple[str, ...] = FISHEYE_REAL_SETS
     rig_trials: int = 30
     rig_frames: int = 20
-    markers_views: int = 340
+    markers_views: int = 120
     markers_aprilgrid_views: int = 40
     markers_calib_trials: int = 5
     markers_calib_views: int = 12
