@@ -7,10 +7,16 @@ Pipeline of :class:`RigSolver` (each step a module of its own):
 2. every camera's pose relative to camera 0: robust means over shared frames, chained over the maximum spanning tree
    of the co-visibility graph (cameras not connected to camera 0: ``ValueError`` naming them and their shared frames);
 3. one joint Levenberg-Marquardt (:mod:`~ccs_kornia.modules.rig.rig_lm`) over all intrinsics, the extrinsics
-   of cameras ``1..C-1`` and one board pose per frame (frame poses eliminated by a Schur complement), then an outlier
-   check of every camera x frame observation (RMS above ``max(abs, rel * median)``) and a second fit without them;
-4. figures (:mod:`~ccs_kornia.modules.rig.rig_diagnostics`): covariance -> baseline, rotation and intrinsics
-   standard deviations; epipolar RMS on the fit frames and on frames held out (k-fold over frames); the verdict.
+   of cameras ``1..C-1`` and one board pose per frame (frame poses eliminated by a Schur complement); each camera's
+   intrinsics carry a prior, the information its own views give it alone (``intrinsics_prior``), so the rig cannot
+   drag them beyond what those views allow;
+4. frames that one board pose does not explain (a board that moved between the cameras' exposures, a mis-paired
+   frame: :mod:`~ccs_kornia.modules.rig.frame_consistency`) are down-weighted by a robust kernel of their
+   disagreement and the rig fitted again (``frame_kernel``, ``frame_passes``); then an outlier check of every
+   camera x frame observation (RMS above ``max(abs, rel * median)``) and a fit without them;
+5. figures (:mod:`~ccs_kornia.modules.rig.rig_diagnostics`): covariance -> baseline, rotation and intrinsics
+   standard deviations; how far each intrinsic moved in units of its single-camera 1-sigma; epipolar RMS on the fit
+   frames and on frames held out (k-fold over frames); the links between cameras, the session's advice; the verdict.
 
 Nothing requires a camera to see the whole board or every frame: partial boards and missing frames only change the
 weights. Cameras of different models (pinhole and fisheye) mix in one rig.
@@ -27,6 +33,7 @@ from torch import nn
 from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
+from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.outliers import drop_outliers
 from ccs_kornia.modules.calibration.quality.diagnostics import split_views
 from ccs_kornia.modules.rig.board_symmetry import (
@@ -34,18 +41,34 @@ from ccs_kornia.modules.rig.board_symmetry import (
     board_symmetries,
     undo_symmetry,
 )
+from ccs_kornia.modules.rig.frame_consistency import (
+    FrameKernel,
+    board_motion,
+    frame_disagreement,
+    own_view_errors,
+)
 from ccs_kornia.modules.rig.rig_camera import RIG_MODELS, RigCamera, camera_from_params
 from ccs_kornia.modules.rig.rig_diagnostics import (
     RigVerdictThresholds,
     epipolar_sums,
     rig_verdict,
 )
+from ccs_kornia.modules.rig.session_advice import session_advice, shared_frames
 from ccs_kornia.modules.rig.rig_init import initial_rig_cameras, rig_extrinsics
 from ccs_kornia.modules.rig.rig_lm import rig_layout, rig_levenberg_marquardt
 from ccs_kornia.modules.rig.stereo import StereoPair, stereo_pair
 from ccs_kornia.runtime.threads import small_problem_threads
 
-__all__ = ["RigCamera", "RigResult", "RigSolver", "calibrate_rig"]
+__all__ = ["FRAME_SCALE", "FRAME_SCALE_MIN_PX", "PRIOR_INFLATION", "RigCamera", "RigResult", "RigSolver",
+           "calibrate_rig"]
+
+#: default ``intrinsics_prior``: the single-camera covariance is inflated by this factor before it becomes the prior
+#: (its information divided by it); see ``docs/rig.md`` for the measurement behind it
+PRIOR_INFLATION = 1.0
+#: a frame's disagreement is weighed against this many times the median per-view RMS of the cameras' own poses ...
+FRAME_SCALE = 3.0
+#: ... and never against less than this (px)
+FRAME_SCALE_MIN_PX = 0.1
 
 
 @dataclass
@@ -77,6 +100,23 @@ class RigResult:
     #: (C, F) int64: 0 where a camera's corners were used in the detector's numbering, k > 0 where they were
     #: renumbered by the board's k-th symmetry (1: the 180-degree turn, i.e. reversed) to agree with the frame
     corner_order: torch.Tensor | None = None
+    #: per camera the intrinsics the joint fit started from (its own calibration, or the given ``initial``)
+    single_cameras: list[RigCamera] | None = None
+    #: per camera the 1-sigma of (fx, fy, cx, cy, coeffs...) from its own views alone (zeros where fixed)
+    single_std: list[torch.Tensor] | None = None
+    #: per camera (joint - single) / single 1-sigma of every intrinsic (0 where fixed)
+    intrinsics_moved_sigma: list[torch.Tensor] | None = None
+    #: (F,) px: how much worse one board pose explains the frame's cameras than each camera's own pose (NaN for
+    #: frames with fewer than two cameras; :mod:`~ccs_kornia.modules.rig.frame_consistency`)
+    frame_disagreement: torch.Tensor | None = None
+    #: (F,) the robust weight each frame had in the final fit (1: fully counted)
+    frame_weight: torch.Tensor | None = None
+    #: (F,) px per frame period the board moved in the image around the frame (NaN without frame times/neighbours)
+    frame_motion: torch.Tensor | None = None
+    frame_scale: float = float("nan")  #: px, the scale of the frame kernel
+    #: (C, C) effective shared frames of each pair (the frame weights of the frames both cameras use)
+    shared_frames: torch.Tensor | None = None
+    advice: list[str] = field(default_factory=list)  #: what the next session should record differently
 
     def pair(self, i: int, j: int) -> StereoPair:
         """Pose of camera ``j`` relative to camera ``i`` (``x_j = R x_i + T``) with ``E`` and ``F``."""
@@ -140,6 +180,14 @@ class RigSolver(nn.Module):
             180-degree turn; also 90 degrees for square grids), differently per camera and frame: each observation
             is renumbered to agree with the frame's reference camera
             (:mod:`~ccs_kornia.modules.rig.board_symmetry`; ``RigResult.corner_order`` says where).
+        intrinsics_prior: each free camera's intrinsics carry a Gaussian prior at its own calibration whose
+            covariance is its single-camera covariance times this factor (the information of its own views divided
+            by it); ``None``: no prior (the intrinsics move wherever the joint fit takes them).
+        frame_kernel: :class:`~ccs_kornia.modules.rig.frame_consistency.FrameKernel` (or its name) weighting each
+            frame by its disagreement; ``none``: every frame counts fully.
+        frame_scale: px, the kernel's scale; default ``max(FRAME_SCALE * median own-pose view RMS,
+            FRAME_SCALE_MIN_PX)``.
+        frame_passes: reweighting passes (each a joint fit).
 
     Shape:
         corners :math:`(C, F, N, 2)` or :math:`(B, C, F, N, 2)` px (NaN where not seen), valid :math:`(C, F, N)` /
@@ -171,6 +219,10 @@ class RigSolver(nn.Module):
         min_heldout_frames: int = 4,
         thresholds: RigVerdictThresholds | None = None,
         symmetric_board: bool = True,
+        intrinsics_prior: float | None = PRIOR_INFLATION,
+        frame_kernel: FrameKernel | str = FrameKernel.CAUCHY,
+        frame_scale: float | None = None,
+        frame_passes: int = 2,
     ) -> None:
         super().__init__()
         for m in [models] if isinstance(models, str) else models:
@@ -188,6 +240,14 @@ class RigSolver(nn.Module):
         self.min_heldout_frames = max(int(min_heldout_frames), 2)
         self.thresholds = thresholds or RigVerdictThresholds()
         self.symmetric_board = bool(symmetric_board)
+        if intrinsics_prior is not None and not intrinsics_prior > 0:
+            raise ValueError(f"intrinsics_prior must be positive or None, got {intrinsics_prior}.")
+        self.intrinsics_prior = None if intrinsics_prior is None else float(intrinsics_prior)
+        self.frame_kernel = FrameKernel(frame_kernel)
+        if frame_scale is not None and not frame_scale > 0:
+            raise ValueError(f"frame_scale must be positive or None, got {frame_scale}.")
+        self.frame_scale = None if frame_scale is None else float(frame_scale)
+        self.frame_passes = max(int(frame_passes), 0)
 
     def forward(
         self,
@@ -199,6 +259,7 @@ class RigSolver(nn.Module):
         fixed: Sequence[bool] | None = None,
         names: Sequence[str] | None = None,
         weights: torch.Tensor | None = None,
+        frame_times: torch.Tensor | None = None,
     ) -> RigResult | list[RigResult]:
         """Calibrate (see the class doc).
 
@@ -211,6 +272,8 @@ class RigSolver(nn.Module):
             fixed: per camera: keep its intrinsics at ``initial`` exactly.
             names: camera names (default ``cam0, cam1, ...``).
             weights: per-corner inverse variances, shaped as ``valid``.
+            frame_times: :math:`(F,)` the frames' times (seconds, or frame numbers; NaN where unknown): the board's
+                motion around each frame is measured from its neighbours in time (``RigResult.frame_motion``).
 
         Raises:
             ValueError: bad shapes or options; cameras not connected to camera 0 through shared frames.
@@ -230,14 +293,18 @@ class RigSolver(nn.Module):
                 raise ValueError(f"{names[c]} is fixed but has no initial camera to keep.")
             if initial[c] is not None and initial[c].model != models[c]:
                 raise ValueError(f"{names[c]}: initial camera model {initial[c].model!r} differs from {models[c]!r}.")
+        if frame_times is not None and (not isinstance(frame_times, torch.Tensor) or
+                                        frame_times.shape != (corners.shape[-3],)):
+            raise ValueError(f"frame_times must be ({corners.shape[-3]},), got "
+                             f"{tuple(getattr(frame_times, 'shape', ()))}.")
         with torch.inference_mode(), small_problem_threads(corners.shape[:-1].numel(), corners.device):
             out = self._solve(corners, valid, object_points, [tuple(map(int, s)) for s in image_sizes], models,
-                              initial, fixed, names, weights, batched)
+                              initial, fixed, names, weights, batched, frame_times)
         if not torch.is_inference_mode_enabled():  # ordinary tensors out (inference tensors refuse in-place edits)
             out = [_clone(r) for r in out]
         return out if batched else out[0]
 
-    def _solve(self, corners, valid, obj, sizes, models, initial, fixed, names, weights, batched):
+    def _solve(self, corners, valid, obj, sizes, models, initial, fixed, names, weights, batched, frame_times=None):
         B, C, F, N = corners.shape[:4]
         dtype, device = self.dtype, corners.device
         corners = corners.to(dtype)
@@ -284,13 +351,32 @@ class RigSolver(nn.Module):
             if fixed[c]:
                 free[intr[c]] = False
 
+        priors, single_std = self._priors(lm_models, params, rvec, tvec, obj, corners, base_w, used, fixed)
+        frame_w = torch.ones(B, F, dtype=dtype, device=device)
+
         def fit(use, p, R, T, fR, ft, iters=self.max_iters):
             k = use.shape[0] // B  # the held-out folds stack k copies of the rigs
-            w = base_w.repeat(k, 1, 1, 1) * use[..., None].to(dtype)
+            w = (base_w * frame_w[:, None, :, None]).repeat(k, 1, 1, 1) * use[..., None].to(dtype)
+            prior = None if priors is None else [None if q is None else (q[0].repeat(k, 1), q[1].repeat(k, 1, 1))
+                                                 for q in priors]
             return rig_levenberg_marquardt(lm_models, p, R, T, fR, ft, obj, corners.repeat(k, 1, 1, 1, 1), w, free,
-                                           max_iters=iters, ftol=self.ftol, stall_tol=self.stall_tol)
+                                           max_iters=iters, ftol=self.ftol, stall_tol=self.stall_tol, prior=prior)
+
+        def disagreement(res, use):
+            w = base_w * use[..., None].to(dtype)
+            own = own_view_errors(lm_models, res.params, res.R, res.T, res.frame_R, res.frame_t, obj, corners, w)
+            per_cam, per_frame = frame_disagreement(res.sq_error, own, res.count, use)
+            own_rms = (own / res.count.clamp_min(1)).sqrt()[use]
+            return per_frame, (float(own_rms.median()) if own_rms.numel() else float("nan"))
 
         res = fit(used, params, R0, T0, frame_R, frame_t)
+        scale = torch.full((B,), float("nan"), dtype=dtype, device=device)
+        passes = self.frame_passes if self.frame_kernel.reweights else 0
+        for _ in range(passes):  # frames one board pose does not explain count less (iteratively reweighted)
+            d, own_rms = disagreement(res, used)
+            scale = self._scale(own_rms, B, dtype, device)
+            frame_w = self.frame_kernel.weights(d, scale[:, None])
+            res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
         for _ in range(2):  # outlier observations (camera x frame), then fit again without them
             rms = (res.sq_error / res.count.clamp_min(1)).sqrt()
             keep = drop_outliers(rms, used, used, self.outlier_abs_threshold, self.outlier_rel_threshold, 2)
@@ -298,10 +384,47 @@ class RigSolver(nn.Module):
                 break
             used = keep
             res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
+        d_final, own_rms = disagreement(res, used)
+        if not bool(scale.isfinite().any()):
+            scale = self._scale(own_rms, B, dtype, device)
+        motion = torch.full((B, F), float("nan"), dtype=dtype, device=device)
+        if frame_times is not None:
+            motion = board_motion(lm_models, res.params, res.R, res.T, res.frame_R, res.frame_t, obj, used,
+                                  frame_times)
+        fc = {"disagreement": d_final, "weight": frame_w, "motion": motion, "scale": scale}
+        single = {"params": params, "std": single_std}
 
         held = self._heldout(fit, res, used, corners, valid, models, B, C)
         return [self._result(b, res, used, corners, valid, models, names, sizes, failed[b], ext, intr, held[b],
-                             order[b]) for b in range(B)]
+                             order[b], fc, single, fixed, obj) for b in range(B)]
+
+    def _scale(self, own_rms: float, B: int, dtype, device) -> torch.Tensor:
+        """(B,) px: the frame kernel's scale (the given one, else from the cameras' own-pose RMS)."""
+        if self.frame_scale is not None:
+            value = self.frame_scale
+        else:
+            value = max(FRAME_SCALE * own_rms, FRAME_SCALE_MIN_PX) if own_rms == own_rms else FRAME_SCALE_MIN_PX
+        return torch.full((B,), value, dtype=dtype, device=device)
+
+    def _priors(self, lm_models, params, rvec, tvec, obj, corners, weights, used, fixed):
+        """Per camera ``(p0, information / intrinsics_prior)`` (``None`` where fixed or without a prior: all
+        ``None`` gives ``None``) and per camera the 1-sigma of its intrinsics from its own views alone (B, P): the
+        camera's own views' normal equations at its starting intrinsics, the board poses eliminated
+        (:func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt` with no iteration)."""
+        priors, std = [], []
+        for c, model in enumerate(lm_models):
+            w = weights[:, c] * used[:, c, :, None].to(weights.dtype)
+            if fixed[c] or not bool((w > 0).any()):
+                priors.append(None)
+                std.append(torch.zeros_like(params[c]))
+                continue
+            own = levenberg_marquardt(model, params[c], rvec[:, c], tvec[:, c], obj, corners[:, c], w, max_iters=0)
+            info = own.basis @ own.information @ own.basis.transpose(-1, -2)
+            has = (w > 0).flatten(1).any(-1)
+            std.append(torch.where(has[:, None], own.param_std, 0.0))
+            priors.append(None if self.intrinsics_prior is None else
+                          (params[c], torch.where(has[:, None, None], info / self.intrinsics_prior, 0.0)))
+        return (priors if any(p is not None for p in priors) else None), std
 
     def _heldout(self, fit, res, used, corners, valid, models, B, C):
         """Per rig (C, C) epipolar RMS on held-out frames: k folds over the used frames, all refitted at once."""
@@ -338,7 +461,8 @@ class RigSolver(nn.Module):
             held.append(h)
         return held
 
-    def _result(self, b, res, used, corners, valid, models, names, sizes, failed, ext, intr, held, order) -> RigResult:
+    def _result(self, b, res, used, corners, valid, models, names, sizes, failed, ext, intr, held, order, fc,
+                single, fixed, obj) -> RigResult:
         C, F = used.shape[1:]
         dtype = res.R.dtype
         nan = float("nan")
@@ -366,9 +490,20 @@ class RigSolver(nn.Module):
         epi.fill_diagonal_(0.0)
         success = not failed and bool(res.frame_used[b].any()) and bool(torch.isfinite(cam_rms).all())
         reason = failed or ("" if success else "the joint fit failed (no finite solution)")
+        singles = [camera_from_params(models[c], single["params"][c][b].clone()) for c in range(C)]
+        sstd = [single["std"][c][b].clone() for c in range(C)]
+        moved = [torch.where(sstd[c] > 0, (res.params[c][b] - single["params"][c][b]) / sstd[c].clamp_min(1e-300),
+                             0.0) for c in range(C)]
+        fw = fc["weight"][b].masked_fill(~u.any(0), float("nan"))
+        shared = shared_frames(u, fc["weight"][b])
+        advice = session_advice(names, sizes, [camera_model(m) for m in models], [p[b] for p in res.params], res.R[b],
+                                T, res.frame_R[b], res.frame_t[b], obj, corners[b], valid[b], u,
+                                fc["disagreement"][b], fw, fc["motion"][b], shared, moved, fixed) if success else []
         if success:
             verdict, reasons = rig_verdict(names, sizes, cam_rms, epi, held, T.norm(dim=-1), bstd, rstd,
-                                           self.thresholds)
+                                           self.thresholds, converged=bool(res.converged[b]),
+                                           iterations=int(res.iterations[b]),
+                                           moved_sigma=[float(m.abs().max()) if m.numel() else 0.0 for m in moved])
         else:
             verdict, reasons = f"not reliable: {reason}", [reason]
         return RigResult(
@@ -377,6 +512,9 @@ class RigSolver(nn.Module):
             camera_rms=cam_rms, rms=total, baseline_std=bstd, rotation_std_deg=rstd, intrinsics_std=istd,
             epipolar_rms=epi, heldout_epipolar_rms=held, verdict=verdict, reasons=reasons,
             converged=bool(res.converged[b]), iterations=int(res.iterations[b]), corner_order=order.clone(),
+            single_cameras=singles, single_std=sstd, intrinsics_moved_sigma=moved,
+            frame_disagreement=fc["disagreement"][b].clone(), frame_weight=fw, frame_motion=fc["motion"][b].clone(),
+            frame_scale=float(fc["scale"][b]), shared_frames=shared, advice=advice,
         )
 
 
@@ -418,8 +556,10 @@ def calibrate_rig(
     fixed: Sequence[bool] | None = None,
     names: Sequence[str] | None = None,
     weights: torch.Tensor | None = None,
+    frame_times: torch.Tensor | None = None,
     **kwargs,
 ) -> RigResult | list[RigResult]:
     """Functional form of :class:`RigSolver` (``kwargs`` go to its constructor)."""
-    return RigSolver(models, **kwargs)(corners, valid, object_points, image_sizes, initial, fixed, names, weights)
+    return RigSolver(models, **kwargs)(corners, valid, object_points, image_sizes, initial, fixed, names, weights,
+                                       frame_times)
 
