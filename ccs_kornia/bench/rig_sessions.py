@@ -9,18 +9,23 @@ sweeps of 0.05-1 m/s) for :data:`DURATION` s; the frames are paired by the logge
 corners are rendered at corner level: each camera's exact corners (its own exposure, its rolling shutter's row
 times: :func:`~ccs_kornia.data.exposure.exposure_truth`) plus Gaussian noise of ``0.1 px`` and a fifth of the corner's
 motion blur; a view blurred by more than :data:`MAX_BLUR_PX` or with fewer than 6 corners is not detected.
-Three conditions of the same sessions:
+Four conditions of the same sessions:
 
 * ``handheld``: as recorded (rolling shutter, motion between the cameras' exposures);
 * ``global``: the same cameras with a global shutter (the motion between exposures stays);
+* ``timestamps``: what a perfect model of the board's motion (a constant-velocity board per frame with its exact
+  velocity, and the readout) would give when fed the logged timestamps: each camera sees the board at the reference
+  camera's instant moved by the error of its logged time offset (its jitter and latency against the reference's);
 * ``frozen``: every camera of a frame sees the board at the same instant, global shutter, no blur: what a perfect
-  model of the board's motion would give, the bound of what modelling it could gain.
+  model of the board's motion with the true exposure times would give, the bound of what modelling it could gain.
 
 Methods, all on the same corners and the same single-camera calibrations (``opencv5``,
 :func:`~ccs_kornia.modules.rig.rig_init.calibrate_cameras`): ``fixed`` (each camera's own calibration held, one joint
 fit of the extrinsics: ``--fix-intrinsics``), ``joint`` (free intrinsics, no prior, no frame weighting: the joint fit
-before this benchmark), ``ours`` (:class:`~ccs_kornia.modules.rig.rig_solver.RigSolver`'s defaults: the intrinsics
-prior and the frame weighting) and ``opencv`` (``cv2.calibrateMultiview``, partial boards as ``(-1, -1)``).
+as it was), ``prior`` (the intrinsics prior without the frame weighting), ``ours``
+(:class:`~ccs_kornia.modules.rig.rig_solver.RigSolver`'s defaults: the intrinsics prior and the frame weighting) and
+``opencv`` (``cv2.calibrateMultiview`` on the whole-board observations, OpenCV calibrating each camera first; run in
+the ``handheld`` condition only, where it takes 40-120 s a session).
 Figures per camera ``c >= 1`` (against camera 0): rotation error (deg) and translation error (% of the baseline);
 per camera: ``fx`` error (%) and principal point error (px); per session: the **transfer error** on held-out frames
 (:func:`transfer_error`: a board posed in one camera alone, carried into another through the rig, against where that
@@ -60,8 +65,8 @@ DURATION = 40.0
 FRAME_STEP = 8
 #: views blurred by more than this (px) are not detected
 MAX_BLUR_PX = 15.0
-METHODS = ("fixed", "joint", "ours", "opencv")
-CONDITIONS = ("handheld", "global", "frozen")
+METHODS = ("fixed", "joint", "prior", "ours", "opencv")
+CONDITIONS = ("handheld", "global", "timestamps", "frozen")
 
 
 @dataclasses.dataclass
@@ -107,6 +112,7 @@ def rendered_session(seed: int, condition: str = "handheld", cameras: int | None
     cams = webcam_rig(C, (1280, 720), seed=seed)
     if condition != "handheld":
         cams = [dataclasses.replace(c, line_time=0.0) for c in cams]
+    still = condition in ("timestamps", "frozen")
     pattern = ChessPattern(4, 3, 0.054)
     obj = pattern.object_points()
     traj = sample_handheld_trajectory(cams, pattern, duration, seed, fill=(0.12, 0.3))
@@ -127,11 +133,17 @@ def rendered_session(seed: int, condition: str = "handheld", cameras: int | None
         ks = torch.tensor([k for k, _ in picks])
         starts = rec[c].frame_start[[j for _, j in picks]]
         times[c, ks] = cams[c].frame_times(starts)
-        if condition == "frozen":  # every camera at the reference camera's instant, no blur
-            at = torch.tensor([float(cams[ref].frame_times(rec[ref].frame_start[table[train[k]][ref]]))
-                               if ref in table[train[k]] else float(times[c, k]) for k in ks.tolist()],
-                              dtype=torch.float64)
-            px = _pixels(cams[c], traj, pattern, obj, at)
+        if still:  # every camera at the reference camera's instant (moved by its time error), no blur
+            at = []
+            for k, j in zip(ks.tolist(), [j for _, j in picks]):
+                r = ref if ref in table[train[k]] else c
+                t_ref = float(cams[r].frame_times(rec[r].frame_start[table[train[k]][r]]))
+                error = 0.0
+                if condition == "timestamps":  # the logged offset's error: (true - logged) of c less the reference's
+                    t_c = float(cams[c].frame_times(rec[c].frame_start[j]))
+                    error = (t_c - float(rec[c].timestamp[j])) - (t_ref - float(rec[r].timestamp[table[train[k]][r]]))
+                at.append(t_ref + error)
+            px = _pixels(cams[c], traj, pattern, obj, torch.tensor(at, dtype=torch.float64))
             blur = torch.zeros(px.shape[:2], dtype=torch.float64)
         else:
             truth = exposure_truth(cams[c], pattern, traj, starts)
@@ -259,7 +271,8 @@ def _solve_all(s: Session, methods=METHODS) -> dict:
         p, ok, *_ = calibrate_cameras(s.corners[c][None], valid[c][None], s.object_points, s.image_sizes[c], "opencv5")
         initial.append(camera_from_params("opencv5", p[0]) if bool(ok[0]) else None)
     out = {}
-    opts = {"fixed": {"frame_kernel": "none"}, "joint": {"intrinsics_prior": None, "frame_kernel": "none"}, "ours": {}}
+    opts = {"fixed": {"frame_kernel": "none"}, "joint": {"intrinsics_prior": None, "frame_kernel": "none"},
+            "prior": {"frame_kernel": "none"}, "ours": {}}
     for name in methods:
         t0 = time.perf_counter()
         try:
@@ -295,18 +308,23 @@ def _mean(values):
     return float(np.mean(v)) if v else float("nan")
 
 
-def run_rig_sessions(cfg=None, trials: int | None = None, conditions=CONDITIONS, methods=METHODS, seed: int = SEED,
-                     log=print) -> dict:
-    """Run the rendered sessions (``trials``, default ``cfg.rig_session_trials`` else 8) under ``conditions`` and
-    the caliscope session when present (``cfg.real_dir``). Returns a JSON-able dict."""
+def run_rig_sessions(cfg=None, trials: int | None = None, conditions=None, methods=METHODS, seed: int = SEED,
+                     log=print, caliscope: bool | None = None, duration: float | None = None) -> dict:
+    """Run the rendered sessions (``trials``, default ``cfg.rig_session_trials`` else 8, of ``duration`` s) under
+    ``conditions`` (default the config's, else :data:`CONDITIONS`) and the caliscope session when present
+    (``cfg.real_dir``; ``caliscope`` default ``cfg.rig_session_caliscope``). Returns a JSON-able dict."""
     trials = trials if trials is not None else int(getattr(cfg, "rig_session_trials", 8))
+    conditions = tuple(conditions or getattr(cfg, "rig_session_conditions", CONDITIONS))
+    duration = float(duration or getattr(cfg, "rig_session_duration", DURATION))
+    caliscope = bool(getattr(cfg, "rig_session_caliscope", True)) if caliscope is None else caliscope
     rows = []
     for t in range(trials):
         for cond in conditions:
             t0 = time.perf_counter()
-            s = rendered_session(seed + t, cond)
+            s = rendered_session(seed + t, cond, duration=duration)
+            run = [m for m in methods if m != "opencv" or cond == "handheld"]
             row = {"trial": t, "condition": cond, "cameras": s.corners.shape[0], "frames": s.corners.shape[1],
-                   "spread_ms_median": float(s.spread_ms.nanmedian()), "methods": _solve_all(s, methods)}
+                   "spread_ms_median": float(s.spread_ms.nanmedian()), "methods": _solve_all(s, run)}
             rows.append(row)
             log(f"[rig_sessions] trial {t + 1}/{trials} {cond}: {row['cameras']} cameras, {row['frames']} frames "
                 f"({time.perf_counter() - t0:.0f} s): " + ", ".join(
@@ -315,10 +333,12 @@ def run_rig_sessions(cfg=None, trials: int | None = None, conditions=CONDITIONS,
     for cond in conditions:
         summary[cond] = {}
         for m in methods:
+            if not any(m in r["methods"] for r in rows if r["condition"] == cond):
+                continue
             got = [r["methods"][m] for r in rows if r["condition"] == cond and "failed" not in r["methods"][m]]
             summary[cond][m] = {
                 "sessions": sum(r["condition"] == cond for r in rows), "failures":
-                    sum(r["condition"] == cond and "failed" in r["methods"][m] for r in rows),
+                    sum(r["condition"] == cond and "failed" in r["methods"][m] for r in rows if m in r["methods"]),
                 "rot_deg": _mean([x for g in got for x in g["rot_deg"]]),
                 "trans_pct": _mean([x for g in got for x in g["trans_pct"]]),
                 "fx_pct": _mean([x for g in got for x in g["fx_pct"]]),
@@ -332,9 +352,12 @@ def run_rig_sessions(cfg=None, trials: int | None = None, conditions=CONDITIONS,
                  and "failed" not in r["methods"].get("fixed", {"failed": 1})]
         worse[cond] = {k: sum(_mean(o[k]) > _mean(f[k]) if isinstance(o[k], list) else o[k] > f[k] for o, f in pairs)
                        for k in ("rot_deg", "trans_pct", "fx_pct", "pp_px", "transfer_px")}
-    out = {"trials": trials, "seed": seed, "rows": rows, "summary": summary, "ours_worse_than_fixed": worse}
-    real = Path(getattr(cfg, "real_dir", "") or "../shared/data/real") / "caliscope_4cam_charuco"
-    if real.is_dir():
+    out = {"trials": trials, "seed": seed, "duration_s": duration, "rows": rows, "summary": summary,
+           "ours_worse_than_fixed": worse}
+    from ccs_kornia.bench.real import default_real_dir
+
+    real = Path(getattr(cfg, "real_dir", None) or default_real_dir()) / "caliscope_4cam_charuco"
+    if caliscope and real.is_dir():
         try:
             out["caliscope"] = run_caliscope(real, log=log)
         except Exception as err:  # the rendered figures stand without it

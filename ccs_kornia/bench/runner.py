@@ -90,6 +90,10 @@ def run_bench(
                 from ccs_kornia.bench.rig import run_rig
 
                 sec = run_rig(cfg, log=log)
+            elif name == "rig_sessions":
+                from ccs_kornia.bench.rig_sessions import run_rig_sessions
+
+                sec = run_rig_sessions(cfg, log=log)
             elif name == "markers":
                 from ccs_kornia.bench.markers import run_markers
 

@@ -9,7 +9,8 @@ Pipeline of :class:`RigSolver` (each step a module of its own):
 3. one joint Levenberg-Marquardt (:mod:`~ccs_kornia.modules.rig.rig_lm`) over all intrinsics, the extrinsics
    of cameras ``1..C-1`` and one board pose per frame (frame poses eliminated by a Schur complement); each camera's
    intrinsics carry a prior, the information its own views give it alone (``intrinsics_prior``), so the rig cannot
-   drag them beyond what those views allow;
+   drag them beyond what those views allow (the prior is held in the units of the rig's own residuals: a camera the
+   one-pose-per-frame fit leaves with k times its own-pose squared error is held k times as firmly);
 4. frames that one board pose does not explain (a board that moved between the cameras' exposures, a mis-paired
    frame: :mod:`~ccs_kornia.modules.rig.frame_consistency`) are down-weighted by a robust kernel of their
    disagreement and the rig fitted again (``frame_kernel``, ``frame_passes``); then an outlier check of every
@@ -117,6 +118,9 @@ class RigResult:
     #: (C, C) effective shared frames of each pair (the frame weights of the frames both cameras use)
     shared_frames: torch.Tensor | None = None
     advice: list[str] = field(default_factory=list)  #: what the next session should record differently
+    #: (C,) how firmly each camera's intrinsics were held: its prior's information over its own views' (the rig's
+    #: squared error of the camera over its own-pose one, at least 1, over ``intrinsics_prior``); 0 without prior
+    prior_weight: torch.Tensor | None = None
 
     def pair(self, i: int, j: int) -> StereoPair:
         """Pose of camera ``j`` relative to camera ``i`` (``x_j = R x_i + T``) with ``E`` and ``F``."""
@@ -351,31 +355,41 @@ class RigSolver(nn.Module):
             if fixed[c]:
                 free[intr[c]] = False
 
-        priors, single_std = self._priors(lm_models, params, rvec, tvec, obj, corners, base_w, used, fixed)
+        priors, single_std, single_params = self._priors(lm_models, params, rvec, tvec, obj, corners, base_w, used,
+                                                         fixed)
         frame_w = torch.ones(B, F, dtype=dtype, device=device)
+        prior_scale = torch.ones(B, C, dtype=dtype, device=device)
 
         def fit(use, p, R, T, fR, ft, iters=self.max_iters):
             k = use.shape[0] // B  # the held-out folds stack k copies of the rigs
             w = (base_w * frame_w[:, None, :, None]).repeat(k, 1, 1, 1) * use[..., None].to(dtype)
-            prior = None if priors is None else [None if q is None else (q[0].repeat(k, 1), q[1].repeat(k, 1, 1))
-                                                 for q in priors]
+            prior = None if priors is None else [
+                None if q is None else (q[0].repeat(k, 1), (q[1] * prior_scale[:, c, None, None]).repeat(k, 1, 1))
+                for c, q in enumerate(priors)]
             return rig_levenberg_marquardt(lm_models, p, R, T, fR, ft, obj, corners.repeat(k, 1, 1, 1, 1), w, free,
                                            max_iters=iters, ftol=self.ftol, stall_tol=self.stall_tol, prior=prior)
 
-        def disagreement(res, use):
+        def consistency(res, use):
+            """(B, F) frame disagreements, (B,) the median own-pose view RMS of each rig and (B, C) each camera's
+            squared error under the rig over that under its own poses (frames weighted as in the fit)."""
             w = base_w * use[..., None].to(dtype)
             own = own_view_errors(lm_models, res.params, res.R, res.T, res.frame_R, res.frame_t, obj, corners, w)
-            per_cam, per_frame = frame_disagreement(res.sq_error, own, res.count, use)
-            own_rms = (own / res.count.clamp_min(1)).sqrt()[use]
-            return per_frame, (float(own_rms.median()) if own_rms.numel() else float("nan"))
+            _, per_frame = frame_disagreement(res.sq_error, own, res.count, use)
+            own_rms = (own / res.count.clamp_min(1)).sqrt().masked_fill(~use, float("nan")).flatten(1)
+            fw = frame_w[:, None] * use.to(dtype)
+            ratio = (fw * res.sq_error).sum(-1) / (fw * own).sum(-1).clamp_min(1e-300)
+            return per_frame, own_rms.nanmedian(-1).values, ratio.nan_to_num(1.0).clamp_min(1.0)
 
         res = fit(used, params, R0, T0, frame_R, frame_t)
         scale = torch.full((B,), float("nan"), dtype=dtype, device=device)
-        passes = self.frame_passes if self.frame_kernel.reweights else 0
+        passes = self.frame_passes if (self.frame_kernel.reweights or priors is not None) else 0
         for _ in range(passes):  # frames one board pose does not explain count less (iteratively reweighted)
-            d, own_rms = disagreement(res, used)
-            scale = self._scale(own_rms, B, dtype, device)
+            d, own_rms, ratio = consistency(res, used)
+            scale = self._scale(own_rms)
             frame_w = self.frame_kernel.weights(d, scale[:, None])
+            # the priors in the units of the rig's own residuals: a rig whose one-pose-per-frame fit leaves a camera
+            # k times its own-pose squared error holds that camera's intrinsics k times as firmly
+            prior_scale = ratio
             res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
         for _ in range(2):  # outlier observations (camera x frame), then fit again without them
             rms = (res.sq_error / res.count.clamp_min(1)).sqrt()
@@ -384,47 +398,54 @@ class RigSolver(nn.Module):
                 break
             used = keep
             res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
-        d_final, own_rms = disagreement(res, used)
+        d_final, own_rms, _ = consistency(res, used)
         if not bool(scale.isfinite().any()):
-            scale = self._scale(own_rms, B, dtype, device)
+            scale = self._scale(own_rms)
         motion = torch.full((B, F), float("nan"), dtype=dtype, device=device)
         if frame_times is not None:
             motion = board_motion(lm_models, res.params, res.R, res.T, res.frame_R, res.frame_t, obj, used,
                                   frame_times)
         fc = {"disagreement": d_final, "weight": frame_w, "motion": motion, "scale": scale}
-        single = {"params": params, "std": single_std}
+        single = {"params": single_params, "std": single_std,
+                  "prior_scale": prior_scale if priors is not None else torch.zeros_like(prior_scale)}
 
         held = self._heldout(fit, res, used, corners, valid, models, B, C)
         return [self._result(b, res, used, corners, valid, models, names, sizes, failed[b], ext, intr, held[b],
                              order[b], fc, single, fixed, obj) for b in range(B)]
 
-    def _scale(self, own_rms: float, B: int, dtype, device) -> torch.Tensor:
-        """(B,) px: the frame kernel's scale (the given one, else from the cameras' own-pose RMS)."""
+    def _scale(self, own_rms: torch.Tensor) -> torch.Tensor:
+        """(B,) px: the frame kernel's scale (the given one, else from each rig's median own-pose view RMS)."""
         if self.frame_scale is not None:
-            value = self.frame_scale
-        else:
-            value = max(FRAME_SCALE * own_rms, FRAME_SCALE_MIN_PX) if own_rms == own_rms else FRAME_SCALE_MIN_PX
-        return torch.full((B,), value, dtype=dtype, device=device)
+            return torch.full_like(own_rms, self.frame_scale)
+        return (FRAME_SCALE * own_rms).nan_to_num(FRAME_SCALE_MIN_PX).clamp_min(FRAME_SCALE_MIN_PX)
 
     def _priors(self, lm_models, params, rvec, tvec, obj, corners, weights, used, fixed):
         """Per camera ``(p0, information / intrinsics_prior)`` (``None`` where fixed or without a prior: all
-        ``None`` gives ``None``) and per camera the 1-sigma of its intrinsics from its own views alone (B, P): the
-        camera's own views' normal equations at its starting intrinsics, the board poses eliminated
-        (:func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt` with no iteration)."""
-        priors, std = [], []
+        ``None`` gives ``None``), per camera the 1-sigma of its intrinsics from its own views alone (B, P) and
+        ``p0`` (B, P) (the start where fixed).
+
+        ``p0`` is the camera's calibration on its own views of the rig (its corners and weights), refined from its
+        start (its own calibration, or the given ``initial``, which is then a start and not the prior's centre);
+        the information is its own views' normal equations there, the board poses eliminated; directions its views
+        do not determine carry no information, hence no pull."""
+        priors, std, centres = [], [], []
         for c, model in enumerate(lm_models):
             w = weights[:, c] * used[:, c, :, None].to(weights.dtype)
             if fixed[c] or not bool((w > 0).any()):
                 priors.append(None)
                 std.append(torch.zeros_like(params[c]))
+                centres.append(params[c])
                 continue
-            own = levenberg_marquardt(model, params[c], rvec[:, c], tvec[:, c], obj, corners[:, c], w, max_iters=0)
+            own = levenberg_marquardt(model, params[c], rvec[:, c], tvec[:, c], obj, corners[:, c], w,
+                                      max_iters=self.max_iters, ftol=self.ftol)
+            has = (w > 0).flatten(1).any(-1) & own.params.isfinite().all(-1) & own.cost.isfinite()
             info = own.basis @ own.information @ own.basis.transpose(-1, -2)
-            has = (w > 0).flatten(1).any(-1)
+            p0 = torch.where(has[:, None], own.params, params[c])
             std.append(torch.where(has[:, None], own.param_std, 0.0))
+            centres.append(p0)
             priors.append(None if self.intrinsics_prior is None else
-                          (params[c], torch.where(has[:, None, None], info / self.intrinsics_prior, 0.0)))
-        return (priors if any(p is not None for p in priors) else None), std
+                          (p0, torch.where(has[:, None, None], info / self.intrinsics_prior, 0.0)))
+        return (priors if any(p is not None for p in priors) else None), std, centres
 
     def _heldout(self, fit, res, used, corners, valid, models, B, C):
         """Per rig (C, C) epipolar RMS on held-out frames: k folds over the used frames, all refitted at once."""
@@ -515,6 +536,9 @@ class RigSolver(nn.Module):
             single_cameras=singles, single_std=sstd, intrinsics_moved_sigma=moved,
             frame_disagreement=fc["disagreement"][b].clone(), frame_weight=fw, frame_motion=fc["motion"][b].clone(),
             frame_scale=float(fc["scale"][b]), shared_frames=shared, advice=advice,
+            prior_weight=torch.tensor([0.0 if fixed[c] or self.intrinsics_prior is None else
+                                       float(single["prior_scale"][b, c]) / self.intrinsics_prior for c in range(C)],
+                                      dtype=dtype),
         )
 
 
