@@ -53,7 +53,7 @@ from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 
 __all__ = [
-    "AUTO_MODELS", "FLEXIBLE_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
+    "AUTO_MODELS", "FLEXIBLE_MODELS", "HALVES_CLEAR_PX", "narrow_ranking", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
     "TIE_SIGMAS", "choose_models", "rank_models", "tied_with_best",
 ]
 
@@ -183,6 +183,23 @@ def rank_models(heldout: list[float], halves: list[float], tolerance: float = HE
             ranked.append(pick)
             rest.remove(pick)
     return ranked + outside
+
+
+def narrow_ranking(ranking: list[str], tied: list[str]) -> list[str]:
+    """The ranking of a camera whose boards cover too little of the image for :data:`FLEXIBLE_MODELS`: the first
+    tied model that is not one of them goes first (the ranking as it is when the first is not flexible, or when no
+    other model ties).
+
+    Example:
+        >>> narrow_ranking(["fisheye", "k1k2", "opencv5", "rational"], ["opencv5", "k1k2", "fisheye"])
+        ['k1k2', 'fisheye', 'opencv5', 'rational']
+        >>> narrow_ranking(["fisheye", "k1k2"], ["fisheye"])  # a fisheye lens: nothing else predicts as well
+        ['fisheye', 'k1k2']
+    """
+    supported = [n for n in ranking if n in tied and n not in FLEXIBLE_MODELS]
+    if not ranking or ranking[0] not in FLEXIBLE_MODELS or not supported:
+        return list(ranking)
+    return [supported[0]] + [n for n in ranking if n != supported[0]]
 
 
 def choose_models(heldout: torch.Tensor, halves: torch.Tensor, tolerance: float = HELDOUT_TOLERANCE,
@@ -327,11 +344,8 @@ class ModelSelection(nn.Module):
             tied = [names[simple[k]] for k, t in enumerate(tied_with_best(h, e, self.tolerance)) if t]
             # no model could be judged on held-out views (too few views for the folds): the first that calibrated
             ranking = ranking or [names[i] for i in simple if bool(results[names[i]].success[c])]
-            # boards too narrow for a flexible model: the first tied model the coverage supports goes first
-            supported = [n for n in ranking if n in tied and n not in FLEXIBLE_MODELS]
-            narrow = coverage is not None and float(coverage[c]) < self.flexible_coverage
-            if narrow and supported and ranking[0] in FLEXIBLE_MODELS:
-                ranking = [supported[0]] + [n for n in ranking if n != supported[0]]
+            if coverage is not None and float(coverage[c]) < self.flexible_coverage:
+                ranking = narrow_ranking(ranking, tied)
             name = ranking[0] if ranking else None
             chosen.append(name)
             table.append({

@@ -128,12 +128,11 @@ def session_advice(
     lines: list[str] = []
     Rc, tc = camera_board_poses(R[None], T[None], frame_R[None], frame_t[None])
     obj = object_points.to(tc)
-    for i in range(C):
-        for j in range(i + 1, C):
-            s = float(shared[i, j])
-            if 0 < s < WEAK_LINK_FRAMES:
-                lines.append(f"show the board to {names[i]} and {names[j]} together: their link rests on {s:.1f} "
-                             f"frames that one board pose explains")
+    weak = [(names[i], names[j], float(shared[i, j])) for i in range(C) for j in range(i + 1, C)
+            if 0 < float(shared[i, j]) < WEAK_LINK_FRAMES]
+    if weak:
+        lines.append("show the board to these cameras together: " + ", ".join(
+            f"{a} and {b} ({s:.1f} frames that one board pose explains)" for a, b, s in weak))
     shared_any = used.sum(0) >= 2
     w = weight.nan_to_num(1.0)
     low = shared_any & (w < 0.5)
@@ -147,6 +146,7 @@ def session_advice(
                 "check the cameras' synchronisation and how their frames were paired")
         lines.append(f"{what}: {n_low} of the {n_shared} frames two cameras see disagree between the cameras (median "
                      f"{d:.1f} px)" + (", the board moving between their exposures" if moving else ""))
+    small, ring, moved = [], [], []
     for c in range(C):
         views = used[c]
         if not bool(views.any()):
@@ -154,14 +154,28 @@ def session_advice(
         frac = board_fraction(models[c], params[c], Rc[0, c][views], tc[0, c][views], obj, image_sizes[c])
         median = float(frac.median())
         if median < SMALL_BOARD:
-            lines.append(f"bring the board closer to {names[c]} (or use a larger board): it covers a median "
-                         f"{_pct(median)} of its image")
-        cov = image_coverage(corners[c][None], valid[c][None], obj, views[None], image_sizes[c])[0]
+            small.append((names[c], median))
+        cov = image_coverage(corners[c][None].nan_to_num(0.0), valid[c][None], obj, views[None], image_sizes[c])[0]
         if float(cov[1]) < OUTER_RING:
-            lines.append(f"show the board nearer the corners and edges of {names[c]}'s image: the boards cover "
-                         f"{_pct(float(cov[1]))} of its outer ring")
+            ring.append((names[c], float(cov[1])))
         m = float(moved_sigma[c].abs().max()) if moved_sigma[c].numel() and not fixed[c] else 0.0
         if m > MOVED_SIGMA:
-            lines.append(f"record views of {names[c]} alone, spread over its image: the joint fit moved its "
-                         f"intrinsics up to {m:.1f} sigma from its own calibration")
+            moved.append((names[c], m))
+    if small:
+        lines.append(f"bring the board closer to {_names(small)} (or use a larger board): it covers a median "
+                     f"{', '.join(_pct(v) for _, v in small)} of {'its image' if len(small) == 1 else 'their images'}")
+    if ring:
+        lines.append(f"show the board nearer the corners and edges of the image of {_names(ring)}: the boards cover "
+                     f"{', '.join(_pct(v) for _, v in ring)} of {'its' if len(ring) == 1 else 'their'} outer ring"
+                     f"{'' if len(ring) == 1 else 's'}")
+    if moved:
+        lines.append(f"record views of {_names(moved)} alone, spread over the image: the joint fit moved "
+                     f"{'its' if len(moved) == 1 else 'their'} intrinsics up to "
+                     f"{', '.join(f'{v:.1f}' for _, v in moved)} sigma from "
+                     f"{'its own calibration' if len(moved) == 1 else 'their own calibrations'}")
     return lines
+
+
+def _names(items: list[tuple[str, float]]) -> str:
+    names = [n for n, _ in items]
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
