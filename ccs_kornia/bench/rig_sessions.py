@@ -21,8 +21,8 @@ Four conditions of the same sessions:
 
 Methods, all on the same corners and the same single-camera calibrations (``opencv5``,
 :func:`~ccs_kornia.modules.rig.rig_init.calibrate_cameras`): ``fixed`` (each camera's own calibration held, one joint
-fit of the extrinsics: ``--fix-intrinsics``), ``joint`` (free intrinsics, no prior, no frame weighting: the joint fit
-as it was), ``prior`` (the intrinsics prior without the frame weighting), ``ours``
+fit of the extrinsics: ``--fix-intrinsics``), ``joint`` (free intrinsics, no prior, no frame weighting:
+``intrinsics_prior=None, frame_kernel="none"``), ``prior`` (the intrinsics prior without the frame weighting), ``ours``
 (:class:`~ccs_kornia.modules.rig.rig_solver.RigSolver`'s defaults: the intrinsics prior and the frame weighting) and
 ``opencv`` (``cv2.calibrateMultiview`` on the whole-board observations, OpenCV calibrating each camera first; run in
 the ``handheld`` condition only, where it takes 40-120 s a session).
@@ -33,7 +33,7 @@ camera sees it; on static test frames at other instants, 0.1 px of noise), media
 
 **caliscope_4cam_charuco** (:func:`run_caliscope`): the shared session (4 webcams, 48 frames, ChArUco 4x5, the
 published calibration in ``reference/camera_array.toml``): each camera through the single-camera pipeline, then the
-rig with fixed intrinsics, the former joint fit and ours; transfer error on held-out frames (5 folds of the frames,
+rig with fixed intrinsics, the joint fit without prior or weighting, and ours; transfer error on held-out frames (5 folds of the frames,
 each fitted on the others), intrinsics against the published ones and moved in single-camera sigmas, rotation from
 the published rig, the frames named as inconsistent.
 """

@@ -10,7 +10,8 @@ Pipeline of :class:`RigSolver` (each step a module of its own):
    of cameras ``1..C-1`` and one board pose per frame (frame poses eliminated by a Schur complement); each camera's
    intrinsics carry a prior, the information its own views give it alone (``intrinsics_prior``), so the rig cannot
    drag them beyond what those views allow (the prior is held in the units of the rig's own residuals: a camera the
-   one-pose-per-frame fit leaves with k times its own-pose squared error is held k times as firmly);
+   one-pose-per-frame fit leaves with k times the squared error its noise explains is held by k - 1 times its own
+   views' information, so a consistent rig is not held and an inconsistent one firmly);
 4. frames that one board pose does not explain (a board that moved between the cameras' exposures, a mis-paired
    frame: :mod:`~ccs_kornia.modules.rig.frame_consistency`) are down-weighted by a robust kernel of their
    disagreement and the rig fitted again (``frame_kernel``, ``frame_passes``); then an outlier check of every
@@ -63,8 +64,8 @@ from ccs_kornia.runtime.threads import small_problem_threads
 __all__ = ["FRAME_SCALE", "FRAME_SCALE_MIN_PX", "PRIOR_INFLATION", "RigCamera", "RigResult", "RigSolver",
            "calibrate_rig"]
 
-#: default ``intrinsics_prior``: the single-camera covariance is inflated by this factor before it becomes the prior
-#: (its information divided by it); see ``docs/rig.md`` for the measurement behind it
+#: default ``intrinsics_prior``: the prior's information is divided by this factor; see ``docs/rig.md`` for the
+#: measurement behind it
 PRIOR_INFLATION = 1.0
 #: a frame's disagreement is weighed against this many times the median per-view RMS of the cameras' own poses ...
 FRAME_SCALE = 3.0
@@ -119,7 +120,7 @@ class RigResult:
     shared_frames: torch.Tensor | None = None
     advice: list[str] = field(default_factory=list)  #: what the next session should record differently
     #: (C,) how firmly each camera's intrinsics were held: its prior's information over its own views' (the rig's
-    #: squared error of the camera over its own-pose one, at least 1, over ``intrinsics_prior``); 0 without prior
+    #: squared error of the camera over what its noise explains, less 1, over ``intrinsics_prior``); 0 without prior
     prior_weight: torch.Tensor | None = None
 
     def pair(self, i: int, j: int) -> StereoPair:
@@ -184,9 +185,10 @@ class RigSolver(nn.Module):
             180-degree turn; also 90 degrees for square grids), differently per camera and frame: each observation
             is renumbered to agree with the frame's reference camera
             (:mod:`~ccs_kornia.modules.rig.board_symmetry`; ``RigResult.corner_order`` says where).
-        intrinsics_prior: each free camera's intrinsics carry a Gaussian prior at its own calibration whose
-            covariance is its single-camera covariance times this factor (the information of its own views divided
-            by it); ``None``: no prior (the intrinsics move wherever the joint fit takes them).
+        intrinsics_prior: each free camera's intrinsics carry a Gaussian prior at its own calibration: the
+            information of its own views times ``k - 1`` (``k``: the camera's squared error under the rig over what
+            its noise explains; the first fit takes 1) divided by this factor; ``None``: no prior (the intrinsics
+            move wherever the joint fit takes them).
         frame_kernel: :class:`~ccs_kornia.modules.rig.frame_consistency.FrameKernel` (or its name) weighting each
             frame by its disagreement; ``none``: every frame counts fully.
         frame_scale: px, the kernel's scale; default ``max(FRAME_SCALE * median own-pose view RMS,
@@ -370,15 +372,23 @@ class RigSolver(nn.Module):
                                            max_iters=iters, ftol=self.ftol, stall_tol=self.stall_tol, prior=prior)
 
         def consistency(res, use):
-            """(B, F) frame disagreements, (B,) the median own-pose view RMS of each rig and (B, C) each camera's
-            squared error under the rig over that under its own poses (frames weighted as in the fit)."""
+            """(B, F) frame disagreements, (B,) the median own-pose view RMS of each rig and (B, C) how much more
+            than its own poses the rig's one pose per frame leaves of each camera's squared error, beyond what the
+            noise alone leaves (frames weighted as in the fit; 0 for a consistent rig)."""
             w = base_w * use[..., None].to(dtype)
             own = own_view_errors(lm_models, res.params, res.R, res.T, res.frame_R, res.frame_t, obj, corners, w)
             _, per_frame = frame_disagreement(res.sq_error, own, res.count, use)
             own_rms = (own / res.count.clamp_min(1)).sqrt().masked_fill(~use, float("nan")).flatten(1)
             fw = frame_w[:, None] * use.to(dtype)
+            n = torch.where(use, res.count, 0).to(dtype)
+            # the noise's share: a camera's 2n residuals less its share of the frame's 6 pose unknowns (n / N_f of
+            # them under the rig, all 6 under its own pose)
+            rig_dof = (2 * n - 6 * n / n.sum(1, keepdim=True).clamp_min(1)).clamp_min(0)
+            own_dof = (2 * n - 6).clamp_min(0)
+            expected = (fw * rig_dof).sum(-1) / (fw * own_dof).sum(-1).clamp_min(1e-300)
             ratio = (fw * res.sq_error).sum(-1) / (fw * own).sum(-1).clamp_min(1e-300)
-            return per_frame, own_rms.nanmedian(-1).values, ratio.nan_to_num(1.0).clamp_min(1.0)
+            excess = (ratio / expected.clamp_min(1e-300) - 1.0).nan_to_num(0.0).clamp_min(0.0)
+            return per_frame, own_rms.nanmedian(-1).values, excess
 
         res = fit(used, params, R0, T0, frame_R, frame_t)
         scale = torch.full((B,), float("nan"), dtype=dtype, device=device)
@@ -387,8 +397,9 @@ class RigSolver(nn.Module):
             d, own_rms, ratio = consistency(res, used)
             scale = self._scale(own_rms)
             frame_w = self.frame_kernel.weights(d, scale[:, None])
-            # the priors in the units of the rig's own residuals: a rig whose one-pose-per-frame fit leaves a camera
-            # k times its own-pose squared error holds that camera's intrinsics k times as firmly
+            # the priors in the units of the rig's own residuals, less the camera's own views the rig's data already
+            # hold: a camera the one-pose-per-frame fit leaves with k times the squared error the noise explains is
+            # held by k - 1 times its own views' information (none in a consistent rig)
             prior_scale = ratio
             res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
         for _ in range(2):  # outlier observations (camera x frame), then fit again without them
