@@ -60,6 +60,9 @@ __all__ = ["main", "run", "build_parser", "UserError", "LIGHTNING_COMMANDS", "EX
 LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
 MODELS = ("auto", "opencv5", "rational", "k1k2", "none", "fisheye")
 DEFAULT_DETECTOR = "learned"
+ALLOW_WEAK_HELP = ("calibrate a camera the views determine only weakly (boards nearly parallel, few corners per "
+                   "unknown, a large focal uncertainty) instead of refusing it: the verdict says not reliable, with "
+                   "the 1-sigma of the intrinsics that shows why; copies of one view are still refused")
 
 
 #: the exit statuses, as ``--help`` lists them
@@ -229,6 +232,37 @@ def charuco_options(p: argparse.ArgumentParser, which, square: bool = False) -> 
                        help="its square side (only the ratio to --marker matters here; default 1)")
 
 
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds (a number >= 0), got {text!r}") from None
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected seconds (a number >= 0), got {text}")
+    return value
+
+
+def video_options(p: argparse.ArgumentParser, rig: bool = False) -> None:
+    """``--every N --start S --end S --max-frames N`` for recordings given instead of images (and, for a rig,
+    ``--sync-tolerance S --timestamps CSV``)."""
+    g = p.add_argument_group("videos (mp4, mkv, avi, mov, mjpeg, ... instead of images)")
+    g.add_argument("--every", default=1, type=_positive_int, metavar="N",
+                   help="screen every N-th frame only (default 1: every frame)")
+    g.add_argument("--start", type=_seconds, metavar="S", help="first frame at S seconds (default: the start)")
+    g.add_argument("--end", type=_seconds, metavar="S", help="last frame at S seconds (default: the end)")
+    g.add_argument("--max-frames", default=None, type=_positive_int, metavar="N",
+                   help="frames of a recording (instants of a rig) the detector looks at, at most (default 60): still "
+                        "boards in poses not seen yet, chosen after a quick screening of every frame")
+    if rig:
+        g.add_argument("--sync-tolerance", type=_positive_float, metavar="S",
+                       help="frames of two cameras pair when their timestamps differ by at most S seconds (default: "
+                            "half the shortest frame period)")
+        g.add_argument("--timestamps", metavar="CSV",
+                       help="pair the frames as this table says: sync_index,cam_id,frame_index,frame_time per row "
+                            "(caliscope's layout; cam_id = the video's position on the command line; without "
+                            "frame_index a camera's rows are its frames in order)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argparse parser of every command except the Lightning ones (forwarded untouched)."""
     parser = _Parser(
@@ -243,7 +277,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
 
     def common(p: argparse.ArgumentParser, board: bool = True, square: bool = False) -> None:
-        p.add_argument("images", nargs="+", metavar="IMAGES", help="image files, directories or globs")
+        p.add_argument("images", nargs="+", metavar="IMAGES",
+                       help="image files, directories or globs" + (", or videos (one camera's recordings)" if board
+                                                                    else ""))
         if board:
             which = p.add_mutually_exclusive_group(required=True)
             which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
@@ -266,6 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
                            help="the learned detector's heatmap network: float32 (default: the same corners on every "
                                 "machine), bfloat16 (about 1.7x faster on CPUs with native bfloat16, AVX512-BF16 or "
                                 "AMX, slower elsewhere; can find other boards), auto (bfloat16 where native)")
+            video_options(p)
 
     p = sub.add_parser("detect", help="detect chessboard corners, write them as JSON", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -307,6 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-diagnostics", dest="diagnostics", action="store_false",
                    help="skip the quality figures (cross-validation of two halves of the views, held-out views, "
                         "projection uncertainty) and the verdict; they cost a few more solves")
+    p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     p.set_defaults(func=calibrate.run)
 
     p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
@@ -314,7 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("cameras", nargs="+", metavar="CAM_DIR",
                    help="one folder (or quoted glob) of images per camera; views match across cameras by the last number "
-                        "in the file names (left07.jpg with right07.jpg), else by sorted order")
+                        "in the file names (left07.jpg with right07.jpg), else by sorted order; or one video per "
+                        "camera, frames paired by timestamp (--sync-tolerance), by --timestamps, else by index")
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--board", type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6 (or --charuco)")
     p.add_argument("--square", default=1.0, type=_positive_float,
@@ -327,10 +366,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--names", metavar="NAME,NAME...", help="camera names (default cam0,cam1,...; ROS file names)")
     p.add_argument("--fix-intrinsics", action="append", metavar="CAM_INDEX=JSON",
                    help="keep camera CAM_INDEX's intrinsics as a calibrate JSON gives them (repeatable)")
-    p.add_argument("--opencv-yaml", metavar="FILE", help="also write the pair 0-1 as an OpenCV FileStorage YAML "
+    p.add_argument("--opencv-yaml", metavar="FILE", help="also write the pair of --pair as an OpenCV FileStorage YAML "
                    "(K1 D1 K2 D2 R T E F R1 R2 P1 P2 Q)")
-    p.add_argument("--ros-yaml-dir", metavar="DIR", help="also write the pair 0-1 as ROS stereo camera_info files "
-                   "(left.yaml, right.yaml, or the --names)")
+    p.add_argument("--ros-yaml-dir", metavar="DIR", help="also write the pair of --pair as ROS stereo camera_info "
+                   "files, named after the cameras (cam0.yaml, cam1.yaml, or the --names)")
+    p.add_argument("--pair", metavar="I,J", help="the cameras of the stereo files and of the report's rectified pair "
+                   "(default 0,1; required for --opencv-yaml and --ros-yaml-dir with more than two cameras)")
     p.add_argument("--kalibr-yaml", metavar="FILE", help="also write a Kalibr camchain YAML")
     p.add_argument("--report", metavar="DIR", help="also write figures (error per camera and frame, a rectified "
                    "pair, the rig from above) to DIR (created)")
@@ -349,6 +390,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="count every corner equally (by default corners are weighted by their measured precision)")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="do not run the distortion-correction network")
+    p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
+    video_options(p, rig=True)
     p.set_defaults(func=calibrate_rig.run, model_choices=MODELS)
 
     p = sub.add_parser("rectify", help="rectify stereo image pairs with a rig calibration")
@@ -365,7 +408,10 @@ def build_parser() -> argparse.ArgumentParser:
                        "axis, framed within the lens's valid field (every model, fisheye included)",
                        epilog=_EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     common(p, board=False)
-    p.add_argument("--calibration", required=True, metavar="JSON", help="calib.json written by calibrate")
+    p.add_argument("--calibration", required=True, metavar="JSON", help="calib.json written by calibrate (or a "
+                   "rig.json with --camera)")
+    p.add_argument("--camera", metavar="NAME", help="the camera of a rig.json written by calibrate-rig (its name or "
+                   "index) whose calibration undistorts the images")
     p.add_argument("--out-dir", required=True, metavar="DIR", help="where to write the images (created)")
     framing = p.add_mutually_exclusive_group()
     framing.add_argument("--balance", default=0.0, type=_unit_float, metavar="B",
@@ -380,7 +426,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate-many", help="calibrate many cameras (one directory of images each) with "
                        "Lightning's Trainer.predict; one JSON line per camera")
     p.add_argument("sets", nargs="+", metavar="SETS",
-                   help="directories of images (one camera each), parents of such directories, or globs")
+                   help="directories of images (one camera each), parents of such directories, videos (one camera "
+                        "each), or globs")
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
                        help="inner corners, e.g. 9x6 (or --charuco, --aprilgrid)")
@@ -420,6 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="do not run the distortion-correction network")
     p.add_argument("--overwrite", action="store_true",
                    help="start the output file again (default: append, skipping sets already in it)")
+    video_options(p)
     p.set_defaults(func=calibrate_many.run)
 
     p = sub.add_parser("demo", help="render a synthetic set with a known camera, calibrate it, compare")
@@ -505,9 +553,8 @@ def run() -> NoReturn:
 
     Once the command is done, threads that are not daemons are waited for, the exit handlers run (``atexit``: worker
     processes, temporary folders, logging) and the standard streams are flushed; what is skipped is the interpreter's
-    own teardown, whose garbage collections walk torch's whole object graph: 0.5-0.8 s after every command, measured
-    after ``import torch`` alone and after ``calibrate`` (opencv_left, medians of four alternating runs: 4.26 s ->
-    3.21 s). Every file the package writes is closed by then.
+    own teardown, whose garbage collections walk torch's whole object graph: 0.5-0.8 s after every command
+    (``docs/measurements.md``). Every file the package writes is closed by then.
     """
     import atexit
     import threading

@@ -44,11 +44,13 @@ R_THIRD = axis_angle_to_rotation_matrix(torch.tensor([[math.radians(3.0), 0.0, 0
 T_THIRD = torch.tensor([0.0, -0.03, 0.0])
 
 
-def render_stereo(frames: int = 8, seed: int = 3, size1: tuple[int, int] = SIZES[1], third: bool = False) -> StereoImages:
+def render_stereo(frames: int = 8, seed: int = 3, size1: tuple[int, int] = SIZES[1], third: bool = False,
+                  max_tilt_deg: float = 35.0) -> StereoImages:
     """Two cameras (three with ``third``: camera 0's matrix and size at ``R_THIRD``, ``T_THIRD``), ``frames`` frames
-    of the same board poses (every camera sees every board whole); camera 1's images are ``size1``."""
+    of the same board poses (every camera sees every board whole); camera 1's images are ``size1``; the boards are
+    tilted by at most ``max_tilt_deg`` to camera 0."""
     first = make_calibration_set(K0, BOARD, SQUARE, SIZES[0], num_views=4 * frames, seed=seed, supersample=1,
-                                 fill_range=(0.3, 0.5), max_tilt_deg=35.0)
+                                 fill_range=(0.3, 0.5), max_tilt_deg=max_tilt_deg)
     R0 = axis_angle_to_rotation_matrix(first.rvec.float())
     others = [(K1, size1, R_REL, T_REL)] + ([(K0, SIZES[0], R_THIRD, T_THIRD)] if third else [])
     images, inside = [first.images], torch.ones(len(R0), dtype=torch.bool)

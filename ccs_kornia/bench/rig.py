@@ -29,6 +29,7 @@ import torch
 
 from ccs_kornia.bench.fisheye_opencv import opencv_fisheye
 from ccs_kornia.data.rig import render_rig
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.rig.rig_camera import RigCamera, normalized_points
 from ccs_kornia.modules.rig.rig_diagnostics import epipolar_sums
@@ -53,7 +54,7 @@ def random_rig(seed: int, frames: int = 20, board: tuple[int, int] = (9, 6), squ
     cams = []
     for c in range(C):
         kind = "fisheye" if g.random() < 0.4 else ("opencv5" if g.random() < 0.5 else "k1k2")
-        if kind == "fisheye":
+        if camera_model(kind).is_fisheye:
             f = g.uniform(220, 320)
             dist = torch.tensor([g.uniform(-0.05, 0.05), g.uniform(-0.02, 0.02), 0.0, 0.0], dtype=torch.float64)
         else:
@@ -78,7 +79,7 @@ def random_rig(seed: int, frames: int = 20, board: tuple[int, int] = (9, 6), squ
 
 def _calibrate_one(model, obj, pts, size):
     """One camera alone, OpenCV: (K, dist) or None."""
-    if model == "fisheye":
+    if camera_model(model).is_fisheye:
         out = opencv_fisheye(obj, pts, size)
         return (out["K"], out["D"]) if out["ok"] else None
     flags = cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3 if model == "k1k2" else 0
@@ -115,11 +116,11 @@ def opencv_rig(scene, min_frames: int = 3) -> dict:
         if len(frames) < min_frames:
             poses[c] = f"{len(frames)} frames where both see the whole board"
             continue
-        m0, mc = scene.cameras[0][0], scene.cameras[c][0]
+        fish0, fishc = (camera_model(scene.cameras[k][0]).is_fisheye for k in (0, c))
         pts0 = [scene.corners[0, f].numpy().reshape(-1, 1, 2) for f in frames]
         ptsc = [scene.corners[c, f].numpy().reshape(-1, 1, 2) for f in frames]
         try:
-            if m0 == "fisheye" and mc == "fisheye":
+            if fish0 and fishc:
                 o = [obj.reshape(1, -1, 3).astype(np.float64)] * len(frames)
                 out = cv2.fisheye.stereoCalibrate(
                     o, [p.reshape(1, -1, 2) for p in pts0], [p.reshape(1, -1, 2) for p in ptsc], cams[0][0],
@@ -128,7 +129,7 @@ def opencv_rig(scene, min_frames: int = 3) -> dict:
                 R, T = out[5], out[6]
             else:
                 o = [obj.reshape(-1, 1, 3).astype(np.float32)] * len(frames)
-                if (m0 == "fisheye") != (mc == "fisheye"):  # no mixed stereo in OpenCV: undistort both first
+                if fish0 != fishc:  # no mixed stereo in OpenCV: undistort both first
                     rc = [RigCamera(scene.cameras[k][0], torch.from_numpy(cams[k][0]), torch.from_numpy(cams[k][1]))
                           for k in (0, c)]
                     pts0 = [normalized_points(rc[0], torch.from_numpy(p)).numpy() for p in pts0]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import time
 import traceback
 from datetime import datetime, timezone
@@ -62,46 +63,7 @@ def run_bench(
         log(f"[bench] section {name}")
         ts = time.perf_counter()
         try:
-            if name == "corners":
-                from ccs_kornia.bench.corners import run_corners
-
-                sec = run_corners(cfg, methods, log=log)
-            elif name == "calibration":
-                from ccs_kornia.bench.calibration import run_calibration
-
-                sec = run_calibration(cfg, methods, device, log=log)
-            elif name == "real":
-                from ccs_kornia.bench.real import run_real
-
-                sec = run_real(cfg, methods, device, log=log)
-            elif name == "distortion":
-                from ccs_kornia.bench.distortion import run_distortion
-
-                sec = run_distortion(cfg, methods, device, log=log)
-            elif name == "wild":
-                from ccs_kornia.bench.wild import run_wild
-
-                sec = run_wild(cfg, methods, log=log)
-            elif name == "fisheye":
-                from ccs_kornia.bench.fisheye import run_fisheye
-
-                sec = run_fisheye(cfg, log=log)
-            elif name == "rig":
-                from ccs_kornia.bench.rig import run_rig
-
-                sec = run_rig(cfg, log=log)
-            elif name == "rig_sessions":
-                from ccs_kornia.bench.rig_sessions import run_rig_sessions
-
-                sec = run_rig_sessions(cfg, log=log)
-            elif name == "markers":
-                from ccs_kornia.bench.markers import run_markers
-
-                sec = run_markers(cfg, log=log)
-            else:
-                from ccs_kornia.bench.speed import run_speed
-
-                sec = run_speed(cfg, methods, log=log)
+            sec = _run_section(name, cfg, methods, device, log)
         except Exception as err:  # keep the other sections; the error is reported in JSON and markdown
             log(traceback.format_exc())
             sec = {"error": f"{type(err).__name__}: {err}"}
@@ -119,6 +81,29 @@ def run_bench(
         write_markdown(results, markdown, boxplot)
     log(f"[bench] done in {meta['seconds'] / 60:.1f} min; results in {out}")
     return results
+
+
+#: section -> (module, function, what it takes besides ``cfg`` and ``log``: the methods, the device)
+SECTION_RUNNERS: dict[str, tuple[str, str, bool, bool]] = {
+    "corners": ("ccs_kornia.bench.corners", "run_corners", True, False),
+    "calibration": ("ccs_kornia.bench.calibration", "run_calibration", True, True),
+    "real": ("ccs_kornia.bench.real", "run_real", True, True),
+    "distortion": ("ccs_kornia.bench.distortion", "run_distortion", True, True),
+    "wild": ("ccs_kornia.bench.wild", "run_wild", True, False),
+    "fisheye": ("ccs_kornia.bench.fisheye", "run_fisheye", False, False),
+    "rig": ("ccs_kornia.bench.rig", "run_rig", False, False),
+    "markers": ("ccs_kornia.bench.markers", "run_markers", False, False),
+    "rig_sessions": ("ccs_kornia.bench.rig_sessions", "run_rig_sessions", False, False),
+    "speed": ("ccs_kornia.bench.speed", "run_speed", True, False),
+}
+
+
+def _run_section(name: str, cfg, methods: dict, device: str, log) -> dict:
+    """One section's figures: its module imported on demand (a section's dependencies load only when it runs)."""
+    module, function, takes_methods, takes_device = SECTION_RUNNERS[name]
+    run = getattr(importlib.import_module(module), function)
+    args = [cfg] + ([methods] if takes_methods else []) + ([device] if takes_device else [])
+    return run(*args, log=log)
 
 
 def _skipped(meta: dict, sections: dict) -> list[str]:

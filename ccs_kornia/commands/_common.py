@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 from collections.abc import Sequence
@@ -35,6 +36,9 @@ __all__ = [
     "run_files",
     "board_size_hint",
     "not_found_message",
+    "parse_pair",
+    "WrongBoardWatch",
+    "weak_lines",
 ]
 
 PROG = "ccs_kornia"
@@ -179,17 +183,18 @@ def resolve_board(args: argparse.Namespace) -> None:
 
 
 def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present: Any,
-                             reasons: Sequence[str] = ()) -> None:
+                             reasons: Sequence[str] = (), load: Any = None) -> None:
     """A ChArUco board found in no image because no marker of its dictionary was: which predefined dictionary finds
     markers in the images instead; or found in no more views than were refused for markers off its lattice (a wrong
     board size: a partial view of another board can fit by chance): the board size the markers fit. Either as a
-    :class:`UserError` (exit status :data:`EXIT_USAGE`)."""
+    :class:`UserError` (exit status :data:`EXIT_USAGE`). ``load(k)``: view ``k`` as a grey ``uint8`` array (default:
+    the file ``files[k]``)."""
     from ccs_kornia.modules.detection.markers.charuco import (
         CharucoDetector,
         dictionary_hint,
     )
 
-    detector = getattr(pipeline, "detector", None)
+    detector = pipeline.detector
     if not isinstance(detector, CharucoDetector) or not bool(present.any()):
         return
     off = sum(1 for r in reasons if r and r.endswith("wrong board size?"))
@@ -197,7 +202,8 @@ def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present
         return
     import cv2
 
-    images = [cv2.imread(f, cv2.IMREAD_GRAYSCALE) for f, ok in zip(files, present.tolist()) if ok][:8]
+    read = load if load is not None else (lambda k: cv2.imread(files[k], cv2.IMREAD_GRAYSCALE))
+    images = [read(k) for k, ok in enumerate(present.tolist()) if ok][:8]
     board = detector.board
     from ccs_kornia.modules.detection.markers.charuco import charuco_markers
 
@@ -259,8 +265,9 @@ def make_detector_from(args: argparse.Namespace):
 
 
 def pipeline_options(args: argparse.Namespace, use_ransac: bool = True, seed: int = 0) -> dict:
-    """The :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` options the command's arguments set."""
-    return dict(
+    """The :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` options the command's arguments set
+    (``--allow-weak``: the solvers keep cameras the views determine only weakly)."""
+    options = dict(
         use_ransac=use_ransac, seed=seed, detection_batch_size=args.batch_size,
         workers=getattr(args, "jobs", 1),
         max_detection_side=getattr(args, "max_detection_side", 2048) or None,
@@ -268,6 +275,25 @@ def pipeline_options(args: argparse.Namespace, use_ransac: bool = True, seed: in
         diagnostics=bool(getattr(args, "diagnostics", False)),
         weigh_corners=bool(getattr(args, "weigh_corners", True)),
     )
+    if getattr(args, "allow_weak", False):
+        from ccs_kornia.modules.calibration.quality.degeneracy import DegeneracyThresholds
+
+        options["thresholds"] = DegeneracyThresholds(refuse_weak=False)
+    return options
+
+
+def weak_lines(data: dict[str, Any]) -> list[str]:
+    """What ``--allow-weak`` let through in a camera's record: the checks that would have refused it, and the
+    1-sigma of its intrinsics that shows why (empty when nothing was let through)."""
+    errors = data.get("errors") or []
+    if not data.get("success") or not errors:
+        return []
+    std = data.get("std") or {}
+    K = data["K"]
+    sigma = ", ".join(f"{k} {v:.1f} ± {std[k]:.1f}" for k, v in (("fx", K[0][0]), ("fy", K[1][1]), ("cx", K[0][2]),
+                                                                   ("cy", K[1][2])) if std.get(k) is not None)
+    return [f"calibrated with --allow-weak although {e['message']}" for e in errors] + \
+        [f"1-sigma of the intrinsics (px): {sigma}"]
 
 
 def missing_weights(err: FileNotFoundError) -> UserError:
@@ -285,10 +311,62 @@ def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: 
         raise missing_weights(err) from None
 
 
+class WrongBoardWatch:
+    """Stops a run whose first views of a camera all miss the board given but show a board of another size: a wrong
+    ``--board`` is then named after those views instead of after every view and every second look (23-30 s on 11
+    images). Called with each detection batch's ``(camera, view)`` keys and found flags (``on_batch`` of
+    :meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.run`).
+
+    Args:
+        cameras: per camera its image files (the run's views).
+        board: the board size given.
+        names: camera names for the message (``None``: one camera, not named).
+        first: views of a camera that must all miss the board before its images are searched for another size.
+        error: what is raised: the command's error for a board found in no image (:class:`NoResult`, exit status 3,
+            as the whole run would end; ``calibrate-rig``: :class:`UserError`).
+    """
+
+    def __init__(self, cameras: list[list[str]], board: tuple[int, int], names: list[str] | None = None,
+                 first: int = 6, error: type[UserError] = NoResult) -> None:
+        self.cameras, self.board, self.names, self.first, self.error = cameras, board, names, first, error
+        self.seen: list[dict[int, bool]] = [{} for _ in cameras]
+        self.checked = [False] * len(cameras)
+
+    def __call__(self, keys: list[tuple[int, int]], found) -> None:
+        for (c, v), hit in zip(keys, found.tolist()):
+            self.seen[c][v] = bool(hit)
+        for c, seen in enumerate(self.seen):
+            if self.checked[c] or len(seen) < min(self.first, len(self.cameras[c])):
+                continue
+            self.checked[c] = True
+            if not any(seen.values()):
+                self._search(c, sorted(seen)[:self.first])
+
+    def _search(self, c: int, views: list[int]) -> None:
+        from ccs_kornia.io.images import load_image_gray
+        from ccs_kornia.modules.detection.checks.board_size import board_size_in, other_board_size
+
+        sizes = []
+        for v in views:
+            image, _ = load_image_gray(self.cameras[c][v])
+            sizes.append(None if image is None else board_size_in(image))
+        other = other_board_size(sizes, self.board)
+        if other is None:
+            return
+        shown = sum(1 for s in sizes if s == other)
+        if self.board[0] < self.board[1]:  # said the way round the board was given
+            other = (other[1], other[0])
+        camera = f"camera {self.names[c]}: " if self.names else ""
+        raise self.error(f"{camera}board {self.board[0]}x{self.board[1]} not found in the first {len(views)} images, "
+                        f"but a {other[0]}x{other[1]} board is in {shown} of them: check --board (COLSxROWS counts "
+                        "inner corners, where four squares meet); stopped before the other images")
+
+
 def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int, int], square: float, device,
-              calibrate: bool = True, names: list[str] | None = None):
+              calibrate: bool = True, names: list[str] | None = None, source=None):
     """The pipeline's one composition (:meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.run`) on image files, with a
-    progress bar; unreadable files are reported on stderr and skipped.
+    progress bar; unreadable files are reported on stderr and skipped. ``source``: the views named ``cameras``
+    (video frames, :class:`~ccs_kornia.pipeline.sources.VideoSource`) instead of the files.
 
     Returns:
         ``(result, seconds)``: the batched :class:`~ccs_kornia.pipeline.result.PipelineResult` and the wall time.
@@ -299,7 +377,7 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
 
     from ccs_kornia.pipeline.sources import FileSource
 
-    source = FileSource(cameras, names)
+    source = FileSource(cameras, names) if source is None else source
     pipeline.to(device)
     start = time.perf_counter()
     total = sum(source.counts)
@@ -310,13 +388,16 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
                 waiting = f"{'solving; ' if calibrate else ''}second looks at any missed views"
                 bar.set_description_str(f"{command}: {waiting}")
 
-        out = pipeline.run(source, board, square, calibrate=calibrate, progress=advance)
+        # a plain chessboard's wrong size is named early (a marker board's detector names it itself)
+        watch = WrongBoardWatch(cameras, board, names) if getattr(pipeline.detector, "board", None) is None else None
+        out = pipeline.run(source, board, square, calibrate=calibrate, progress=advance, on_batch=watch)
     seconds = time.perf_counter() - start
     for c, files in enumerate(cameras):
         reasons = (out.detections.reasons or [""] * out.present.numel())[c * out.present.shape[1]:
                                                                          (c + 1) * out.present.shape[1]]
+        load = None if isinstance(source, FileSource) else functools.partial(_grey8, source, c)
         charuco_dictionary_check(pipeline, files, out.detections.found.reshape(out.present.shape)[c], out.present[c],
-                                 reasons)
+                                 reasons, load)
     v = out.present.shape[1]
     for c, files in enumerate(cameras):
         for k, path in enumerate(files):
@@ -326,6 +407,12 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
     if hint:
         warn(command, hint)
     return out, seconds
+
+
+def _grey8(source, camera: int, view: int):
+    """View ``view`` of ``camera`` as a grey ``uint8`` array (``None`` where it cannot be read)."""
+    image, _ = source._load(camera, view)
+    return None if image is None else (image[0].clamp(0, 1) * 255).round().byte().numpy()
 
 
 def board_size_hint(board: tuple[int, int], reasons: Sequence[str]) -> str:
@@ -362,3 +449,19 @@ def not_found_message(board: tuple[int, int], readable: int, total: int, detecto
         return f"none of the {total} input files could be read as an image"
     check = _NOT_FOUND_CHECK.get(detector, "check --board: COLSxROWS counts inner corners, where four squares meet")
     return f"board {board[0]}x{board[1]} not found in any of {readable} images ({check})"
+
+
+def parse_pair(text: str, cameras: int) -> tuple[int, int]:
+    """``--pair I,J``: two different cameras of a rig of ``cameras``.
+
+    Example:
+        >>> parse_pair("2,0", 4)
+        (2, 0)
+    """
+    parts = text.split(",")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        raise UserError(f"--pair {text}: expected two camera indices, e.g. 0,1")
+    i, j = int(parts[0]), int(parts[1])
+    if i == j or max(i, j) >= cameras:
+        raise UserError(f"--pair {text}: two different cameras of the {cameras} in the calibration (0..{cameras - 1})")
+    return i, j

@@ -21,7 +21,9 @@ from ccs_kornia.commands._common import (
     resolve_device,
     run_files,
     warn,
+    weak_lines,
 )
+from ccs_kornia.commands._video import add_timestamps, camera_videos, screening_note
 
 __all__ = ["calibrate_files", "failure_message", "run", "verdict_line"]
 
@@ -35,17 +37,26 @@ def calibrate_files(
     device,
     model: str,
     detector_name: str,
+    video=None,
 ) -> tuple[dict[str, Any], Any]:
     """The pipeline's one composition on ``files`` (one camera); returns (JSON-ready dict, PipelineResult of it).
+
+    ``video``: the chosen frames of the camera's recordings (:class:`~ccs_kornia.pipeline.video_input.VideoFrames`,
+    ``files`` their names): the views are read from the videos, each view gets its ``timestamp`` and the record a
+    ``video`` entry per recording (what the screening saw of every frame, and why a frame was not chosen).
 
     Raises :class:`UserError` when no calibration can be computed: :class:`NoResult` when images were read, with
     ``partial``: the per-view record (detections and reasons) so the caller can keep it.
     """
     from ccs_kornia.outputs.records import camera_record
 
-    out, seconds = run_files(command, pipeline, [files], board, square, device)
+    source = None if video is None else video.source()
+    out, seconds = run_files(command, pipeline, [files], board, square, device, source=source)
     one = out.select(0)
     data = camera_record(one, files, board=board, square=square, detector=detector_name, model=model)
+    if video is not None:
+        add_timestamps(data["views"], video.timestamps())
+        data["video"] = video.records(0)
     data["timings"] = {"load_detect_solve_s": seconds, "images_per_s": len(files) / max(seconds, 1e-9)}
     for view in data["views"]:
         if view["found"] and "reason" in view and view["reason"].startswith("image size"):
@@ -75,8 +86,12 @@ def failure_message(data: dict[str, Any], board: tuple[int, int], readable: int)
         return (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
                 f"{files} files (board found in {data['num_views']['found']}); at least 3 are needed")
     if data.get("errors"):  # the solver's refusals (degeneracy checks) name the problem and the views
+        from ccs_kornia.modules.calibration.quality.degeneracy import WEAK_CHECKS
+
+        weak = all(i.get("check") in WEAK_CHECKS and i.get("value") is not None for i in data["errors"])
         return (f"calibration refused on {data['num_views']['usable']} views: "
-                + "; ".join(i["message"] + _files_note(i) for i in data["errors"]))
+                + "; ".join(i["message"] + _files_note(i) for i in data["errors"])
+                + ("; --allow-weak calibrates anyway (verdict not reliable)" if weak else ""))
     why = data["error"] if data["error"].startswith("calibration failed") else \
         f"calibration failed on {data['num_views']['usable']} views: {data['error']}"
     return (f"{why}; the views may be degenerate (e.g. all fronto-parallel, or copies of one view) or "
@@ -108,14 +123,17 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         check_output_dir("--report", args.report)  # created once there is a calibration to report
     device = resolve_device(args.device)
-    files = inputs("calibrate", args.images)
-    pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
     start = time.perf_counter()
+    video = camera_videos("calibrate", args)
+    files = inputs("calibrate", args.images) if video is None else video.names()[0]
+    pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
     try:
         data, result = calibrate_files(
-            "calibrate", files, args.board, args.square, pipeline, device, args.model, args.detector
+            "calibrate", files, args.board, args.square, pipeline, device, args.model, args.detector, video
         )
     except UserError as err:
+        if video is not None:
+            err.args = (f"{err}{screening_note(video)}",)
         # nothing lost: the per-image detections and reasons go next to the requested output, which
         # itself is only ever written for a computed calibration
         kept = (f"; the existing {os.path.basename(args.output)} was left as it was (not from this run)"
@@ -130,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
         raise
     data["device"] = str(device)
     data["success"] = True
+    if getattr(args, "allow_weak", False):
+        data["allow_weak"] = True  # the checks in "errors" did not refuse the camera
     if charuco_record(args):
         data["charuco"] = charuco_record(args)
     if aprilgrid_record(args):
@@ -174,7 +194,14 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         figures = ", ".join(f"{m} {v:.3f}" for m, v in held.items() if v is not None)
         print(f"model: {choice['chosen']} chosen by cross-validation (runner-up {choice['runner_up']}; "
               f"held-out RMS px: {figures})")
+    weak = weak_lines(data)
+    for text in weak[:-1]:
+        warn("calibrate", text)
+    if weak:
+        print(weak[-1])
     line = verdict_line(data.get("diagnostics"))
+    if not line and weak:  # no figures (--no-diagnostics), but the checks' errors say it all the same
+        line = "verdict: not reliable: " + "; ".join(dict.fromkeys(e["advice"] for e in data["errors"]))
     if line:
         print(line)
 

@@ -1,4 +1,4 @@
-"""``ccs_kornia calibrate-many``: many cameras (one directory each) through Lightning's ``Trainer.predict``, on one
+"""``ccs_kornia calibrate-many``: many cameras (one directory of images or one video each) through Lightning's ``Trainer.predict``, on one
 process or on several (DDP over processes, GPUs and nodes; ``docs/fleet.md``).
 
 The exit status says what the output file holds for the sets given, once this run is done, so runs that end in the
@@ -32,6 +32,7 @@ from ccs_kornia.commands._common import (
     resolve_device,
     warn,
 )
+from ccs_kornia.commands._video import frame_span, make_screen, max_frames
 
 __all__ = ["run"]
 
@@ -74,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
     overwrite = bool(getattr(args, "overwrite", False))
     if not overwrite and (reason := not_jsonl_reason(args.output)) is not None:
         raise UserError(f"--output {args.output}: {reason}; give another file name (or --overwrite to replace it)")
+    from ccs_kornia.io.video import is_video
+
     sets, problems = find_image_sets(args.sets)
     if not sets:
         detail = "; ".join(f"{item}: {reason}" for item, reason in problems)
@@ -82,20 +85,49 @@ def run(args: argparse.Namespace) -> int:
     for item, reason in problems if first else ():
         warn("calibrate-many", f"{item}: {reason}")
     pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
+    video = None
+    if any(len(files) == 1 and is_video(files[0]) for _, files in sets):
+        from ccs_kornia.pipeline.video_input import VideoOptions
+
+        video = VideoOptions(make_screen(args), frame_span(args), max_frames(args))
     processes = (devices or 1) * args.num_nodes
     where = f"{processes} processes ({accelerator or device.type})" if processes > 1 else str(device)
     if first:
         info(f"calibrating {len(sets)} image sets ({sum(len(f) for _, f in sets)} files) on {where} ...")
+        idle = _idle_processes(sets, args.output, overwrite, args.sets_per_batch, processes)
+        if idle:
+            info(idle)
     summary = calibrate_many(
         sets, args.board, args.output, square=args.square, pipeline=pipeline, detector_name=args.detector,
         device=str(device), sets_per_batch=args.sets_per_batch, num_workers=args.workers, overwrite=overwrite,
         accelerator=accelerator, devices=devices, num_nodes=args.num_nodes, strategy=args.strategy,
         board_record={**({"charuco": charuco_record(args)} if charuco_record(args) else {}),
                       **({"aprilgrid": aprilgrid_record(args)} if aprilgrid_record(args) else {})},
+        video=video,
     )
     if summary["rank"] != 0:
         return 0  # rank 0 reports for the run
     return _report(summary, args.output)
+
+
+def _idle_processes(sets: list, output: str, overwrite: bool, per_batch: int, processes: int) -> str:
+    """Why some processes will have nothing to do, and the ``--sets-per-batch`` that gives each a batch (``""`` when
+    every process gets one). Each process takes whole batches of the sets left to do, the batches one process would
+    form (:class:`~ccs_kornia.fleet.predict.ImageSetDataModule`): splitting them otherwise would change the lines."""
+    if processes < 2:
+        return ""
+    from ccs_kornia.fleet.shards import finished_sets
+
+    done = set() if overwrite else finished_sets(output)
+    todo = sum(1 for name, _ in sets if str(name) not in done)
+    batches = -(-todo // per_batch)
+    if todo == 0 or batches >= processes:
+        return ""
+    idle = processes - batches
+    return (f"{todo} set{'s' if todo != 1 else ''} left to do make {batches} batch{'es' if batches != 1 else ''} "
+            f"(--sets-per-batch {per_batch}) for {processes} processes: {idle} process{'es' if idle != 1 else ''} "
+            f"will have nothing to do (each process takes whole batches, so the lines are those one process writes)"
+            + (f"; --sets-per-batch {-(-todo // processes)} gives every process a batch" if todo >= processes else ""))
 
 
 def _report(summary: dict, output: str) -> int:

@@ -7,7 +7,6 @@ Every output is written at the end, once the rig is solved: a run that stops on 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -15,19 +14,25 @@ from typing import Any
 
 from ccs_kornia.commands._common import (
     UserError,
+    WrongBoardWatch,
     aprilgrid_record,
     charuco_record,
+    check_output_dir,
     check_output_file,
     info,
     inputs,
     make_detector_from,
+    make_dir,
     missing_weights,
+    parse_pair,
     pipeline_options,
     resolve_device,
     warn,
+    weak_lines,
 )
+from ccs_kornia.commands._video import add_timestamps, rig_videos
 
-__all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "check_output_dir", "run", "summary_lines"]
+__all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "run", "summary_lines"]
 
 COMMAND = "calibrate-rig"
 
@@ -61,7 +66,8 @@ def parse_names(text: str | None, cameras: int) -> list[str]:
         return [f"cam{c}" for c in range(cameras)]
     names = [n.strip() for n in text.split(",")]
     if len(names) != cameras:
-        raise UserError(f"--names {text}: {len(names)} names for {cameras} camera folders")
+        raise UserError(f"--names {text}: {len(names)} name{'s' if len(names) != 1 else ''} for {cameras} camera "
+                        "folders")
     if any(not n or "/" in n or os.sep in n or n in (".", "..") for n in names) or len(set(names)) != len(names):
         raise UserError(f"--names {text}: names must be distinct, non-empty and without '/'")
     return names
@@ -73,6 +79,7 @@ def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
     import torch
 
     from ccs_kornia.modules.rig import RigCamera
+    from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
 
     fixed: dict[int, Any] = {}
     for item in items or []:
@@ -82,42 +89,69 @@ def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
         c = int(index)
         if c >= cameras:
             raise UserError(f"--fix-intrinsics {item}: camera index {c} out of range (0..{cameras - 1})")
-        try:
-            with open(path, encoding="utf-8") as handle:
-                data = json.load(handle)
-            K = torch.tensor(data["K"], dtype=torch.float64)
-            model = data["distortion"]["model"]
-            dist = torch.tensor(data["distortion"]["coeffs"] or [], dtype=torch.float64)
-            size = (int(data["image_size"][0]), int(data["image_size"][1]))
-        except OSError as err:
-            raise UserError(f"--fix-intrinsics {item}: cannot read {path} ({err.strerror or err})") from None
-        except (ValueError, KeyError, TypeError, IndexError):
-            raise UserError(f"--fix-intrinsics {item}: {path} is not a calibration written by calibrate "
-                            "(needs K, distortion and image_size)") from None
-        if K.shape != (3, 3):
-            raise UserError(f"--fix-intrinsics {item}: K in {path} is not 3x3")
-        fixed[c] = (RigCamera(model, K, dist), size, path)
+        try:  # a failed calibration, a rig file, a file that is no calibration: each said as such
+            calib = read_calibration(path)
+        except RigFileError as err:  # (a camera of an earlier rig: its own calibration is in the rig's "cameras")
+            raise UserError(f"--fix-intrinsics {item}: {path}: {err}; give a calibration written by calibrate") \
+                from None
+        except ValueError as err:
+            why = f"{path}: {err}" if os.path.exists(path) else f"cannot read {path} (no such file)"
+            raise UserError(f"--fix-intrinsics {item}: {why}") from None
+        K = torch.from_numpy(calib["K"])
+        fixed[c] = (RigCamera(calib["model"], K, torch.from_numpy(calib["coeffs"])), calib["image_size"], path)
     return fixed
 
 
-def check_output_dir(option: str, path: str) -> None:
-    """An output directory that exists, or can be created later (its parent exists and is writable)."""
-    if os.path.exists(path):
-        if not os.path.isdir(path):
-            raise UserError(f"{option} {path} exists and is not a directory")
-        if not os.access(path, os.W_OK):
-            raise UserError(f"{option} {path}: directory is not writable")
-        return
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent) or not os.access(parent, os.W_OK):
-        raise UserError(f"{option} {path}: parent directory {parent} does not exist or is not writable")
-
-
 def _camera_files(name: str, item: str) -> list[str]:
+    """The camera's image files, refused at once (before any frame is matched or any image detected) when none of
+    them is an image: their headers tell, without decoding them."""
+    import cv2
+
+    from ccs_kornia.io.images import image_pixels
+
     try:
-        return inputs(COMMAND, [item])
+        files = inputs(COMMAND, [item])
     except UserError as err:
         raise UserError(f"camera {name} ({item}): {err}") from None
+    if not any(image_pixels(f) is not None or (os.access(f, os.R_OK) and cv2.haveImageReader(f)) for f in files):
+        raise UserError(f"camera {name} ({item}): none of the {len(files)} files is an image (unknown format or "
+                        f"corrupt, e.g. {os.path.basename(files[0])})")
+    return files
+
+
+def _file_digest(path: str) -> str:
+    import hashlib
+
+    with open(path, "rb") as handle:
+        return hashlib.sha1(handle.read()).hexdigest()
+
+
+def _check_distinct(files: list[list[str]], names: list[str], folders: list[str]) -> None:
+    """Refuse two cameras given the same images (the same folder twice, or a copy of it): the rig would be solved
+    with a baseline of zero and a verdict that says nothing of it."""
+
+    def sizes(paths: list[str]) -> list[int]:
+        return sorted(os.path.getsize(p) for p in paths)
+
+    for a in range(len(files)):
+        for b in range(a + 1, len(files)):
+            same = {os.path.realpath(p) for p in files[a]} == {os.path.realpath(p) for p in files[b]}
+            if not same and sizes(files[a]) == sizes(files[b]):  # the same sizes: compare the contents
+                same = sorted(map(_file_digest, files[a])) == sorted(map(_file_digest, files[b]))
+            if same:
+                raise UserError(f"cameras {names[a]} and {names[b]} ({folders[a]}, {folders[b]}) hold the same images: "
+                                "a rig needs one folder of images per camera")
+
+
+def _check_distinct_videos(names: list[str], videos: list[str]) -> None:
+    """Refuse two cameras given the same video file."""
+    seen: dict[str, int] = {}
+    for k, path in enumerate(videos):
+        real = os.path.realpath(path)
+        if real in seen:
+            raise UserError(f"cameras {names[seen[real]]} and {names[k]} are the same video ({path}): a rig needs one "
+                            "video per camera")
+        seen[real] = k
 
 
 def run(args: argparse.Namespace) -> int:
@@ -132,8 +166,8 @@ def run(args: argparse.Namespace) -> int:
 
     folders = args.cameras
     if len(folders) < 2:
-        raise UserError(f"a rig needs at least two camera folders (one folder of images per camera), got "
-                        f"{len(folders)}: {' '.join(folders)}")
+        raise UserError(f"a rig needs at least two camera folders or videos (one folder of images, or one video, per "
+                        f"camera), got {len(folders)}: {' '.join(folders)}")
     check_output_file("--output", args.output)
     for option, path in (("--opencv-yaml", args.opencv_yaml), ("--kalibr-yaml", args.kalibr_yaml)):
         if path:
@@ -145,26 +179,41 @@ def run(args: argparse.Namespace) -> int:
     names = parse_names(args.names, c)
     models = parse_models(args.model, c, args.model_choices)
     fixed = parse_fixed(args.fix_intrinsics, c)
+    pair = _stereo_pair(args, c)
     if args.kalibr_yaml and "rational" in models:
         raise UserError(f"--kalibr-yaml: Kalibr has no rational (k1..k6) model, asked for camera "
                         f"{names[models.index('rational')]}; use --model opencv5, k1k2 or fisheye")
+    options = pipeline_options(args, args.use_ransac, args.seed)
+    if args.kalibr_yaml and "auto" in models:
+        # a camera that auto gave rational would stop the run at the end, after all the work, with no camchain:
+        # this run chooses among the models Kalibr holds instead
+        from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS
+
+        options["auto_models"] = tuple(m for m in AUTO_MODELS if m != "rational")
+        info(f"--kalibr-yaml: Kalibr has no rational model, so --model auto chooses among "
+             f"{', '.join(options['auto_models'])} in this run")
     device = resolve_device(args.device)
-    files = [_camera_files(names[k], folder) for k, folder in enumerate(folders)]
-    frames = match_frames(files)
-    for k in range(c):
-        missing = frames.missing(k)
-        if missing:
-            info(f"camera {names[k]} has no view of frame{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
-                 f"({frames.num_frames - len(missing)} of {frames.num_frames} frames)")
+    start = time.perf_counter()
+    video = rig_videos(COMMAND, args, names)
+    if video is None:
+        files = [_camera_files(names[k], folder) for k, folder in enumerate(folders)]
+        frames = match_frames(files)
+        for k in range(c):
+            missing = frames.missing(k)
+            if missing:
+                info(f"camera {names[k]} has no view of frame{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
+                     f"({frames.num_frames - len(missing)} of {frames.num_frames} frames)")
+        _check_distinct(files, names, folders)
+    else:
+        files, frames = video.names(), video.table
+        _check_distinct_videos(names, folders)
     detector = make_detector_from(args)
     try:
-        pipeline = RigPipeline(detector, models=models, fixed={k: v[0] for k, v in fixed.items()},
-                               **pipeline_options(args, args.use_ransac, args.seed))
+        pipeline = RigPipeline(detector, models=models, fixed={k: v[0] for k, v in fixed.items()}, **options)
     except FileNotFoundError as err:
         raise missing_weights(err) from None
     pipeline.to(device)
-    source = FileSource(files, names)
-    start = time.perf_counter()
+    source = FileSource(files, names) if video is None else video.source(names)
     total = sum(source.counts)
     with tqdm(total=total, unit="img", desc=COMMAND, file=sys.stderr, disable=None, leave=False) as bar:
         def advance(views: int) -> None:
@@ -172,7 +221,10 @@ def run(args: argparse.Namespace) -> int:
             if bar.n >= total:
                 bar.set_description_str(f"{COMMAND}: calibrating each camera")
 
-        cameras = pipeline.detect_and_calibrate(source, args.board, args.square, progress=advance)
+        # a camera without the board is bad input here (exit status 2), as when the whole run finds none
+        watch = WrongBoardWatch(files, args.board, names, error=UserError) if args.detector in ("learned", "opencv") \
+            else None
+        cameras = pipeline.detect_and_calibrate(source, args.board, args.square, progress=advance, on_batch=watch)
         _check_cameras(cameras, files, folders, names, fixed, args, failure_message, camera_record)
         bar.set_description_str(f"{COMMAND}: solving the rig")
         out = pipeline.run(source, args.board, args.square, frames, names, cameras=cameras)
@@ -182,12 +234,39 @@ def run(args: argparse.Namespace) -> int:
     for key, record in (("charuco", charuco_record(args)), ("aprilgrid", aprilgrid_record(args))):
         if record:
             data[key] = record
+    if video is not None:
+        for c_, cam in enumerate(data["cameras"]):
+            add_timestamps(cam["views"], video.timestamps())
+            cam["video"] = video.records(c_)
+        data["frame_times"] = frames.times
+        data["frame_spread_s"] = frames.spread()
     data["device"] = str(device)
     data["timings"] = {"total_s": time.perf_counter() - start}
-    _write_outputs(args, data, names)
+    weak = _weak_cameras(data) if args.allow_weak else []
+    _write_outputs(args, data, names, pair)
     for line in summary_lines(data, args.output):
+        if line.startswith("verdict:"):
+            for name, lines in weak:  # what --allow-weak let through, before the verdict it makes
+                print(f"camera {name}: {lines[-1]}")
         print(line)
+    for name, lines in weak:
+        for text in lines[:-1]:
+            warn(COMMAND, f"camera {name}: {text}")
     return 0
+
+
+def _weak_cameras(data: dict[str, Any]) -> list[tuple[str, list[str]]]:
+    """``--allow-weak``: the cameras kept although their own checks would have refused them, each with
+    :func:`weak_lines`; the rig's verdict then says ``not reliable`` and why (the joint fit's figures, which alone
+    make the rig verdict, do not see a camera its own views determine weakly)."""
+    weak = [(cam["name"], cam["errors"]) for cam in data["cameras"] if cam.get("errors")]
+    if weak:
+        data["allow_weak"] = True
+        data["verdict"] = "not reliable: " + "; ".join(dict.fromkeys(f"{name}: {e['advice']}" for name, errors in weak
+                                                                     for e in errors))
+        data["verdict_reasons"] = [f"{name}: {e['message']}" for name, errors in weak for e in errors] + \
+            list(data.get("verdict_reasons") or [])
+    return [(cam["name"], weak_lines(cam)) for cam in data["cameras"] if cam.get("errors")]
 
 
 def _check_cameras(cameras, files, folders, names, fixed, args, failure_message, camera_record) -> None:
@@ -213,9 +292,22 @@ def _check_cameras(cameras, files, folders, names, fixed, args, failure_message,
             raise UserError(f"camera {names[k]} ({folders[k]}): {failure_message(record, args.board, readable)}")
 
 
-def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[str]) -> None:
+def _stereo_pair(args: argparse.Namespace, cameras: int) -> tuple[int, int]:
+    """The pair of ``--pair`` (default 0, 1), which a rig of more than two cameras must name for the stereo files:
+    cameras 0 and 1 need not see one scene side by side."""
+    if args.pair is None:
+        stereo = [o for o, v in (("--opencv-yaml", args.opencv_yaml), ("--ros-yaml-dir", args.ros_yaml_dir)) if v]
+        if cameras > 2 and stereo:
+            raise UserError(f"{stereo[0]} holds one pair of the {cameras} cameras: give --pair I,J (the cameras of "
+                            "the stereo pair, e.g. 0,1)")
+        return 0, 1
+    return parse_pair(args.pair, cameras)
+
+
+def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[str], pair: tuple[int, int]) -> None:
     """Every requested file, prepared first (a format that cannot hold the rig stops the run before any is
-    written), then written through temporary files renamed into place."""
+    written), then written through temporary files renamed into place; the stereo files and the report's rectified
+    pair hold the cameras ``pair``."""
     from ccs_kornia.io.files import write_json, write_text_atomic
     from ccs_kornia.outputs.rig_exports import (
         kalibr_camchain,
@@ -224,9 +316,16 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
         ros_stereo_files,
         write_opencv_stereo_yaml,
     )
-    rect = rectification(data, 0, 1) if (args.opencv_yaml or args.ros_yaml_dir or args.report) else None
-    ros = ros_stereo_files(data, rect, (names[0], names[1]) if args.names else ("left", "right")) \
-        if args.ros_yaml_dir else {}
+    i, j = pair
+    stereo = args.opencv_yaml or args.ros_yaml_dir
+    if stereo or args.report:
+        angle = next(p["rotation_deg"] for p in data["pairs"] if p["cameras"] == sorted(pair))
+        if angle > 90.0:
+            warn(COMMAND, f"cameras {names[i]} and {names[j]} are turned {angle:.0f} degrees from each other: they do "
+                          "not see one scene side by side, and their rectified pair is no stereo pair (--pair chooses "
+                          "another)")
+    rect = rectification(data, i, j) if (stereo or args.report) else None
+    ros = ros_stereo_files(data, rect, (names[i], names[j]), i, j) if args.ros_yaml_dir else {}
     camchain = None
     if args.kalibr_yaml:
         problem = kalibr_problem(data)
@@ -235,23 +334,24 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
         camchain, notes = kalibr_camchain(data)
         for note in notes:
             warn(COMMAND, f"--kalibr-yaml: {note}")
-    if len(data["cameras"]) > 2 and (args.opencv_yaml or args.ros_yaml_dir):
-        info(f"--opencv-yaml / --ros-yaml-dir hold the pair {names[0]}-{names[1]} (cameras 0 and 1)")
+    if len(data["cameras"]) > 2 and stereo:
+        info(f"--opencv-yaml / --ros-yaml-dir hold the pair {names[i]}-{names[j]} (cameras {i} and {j})")
+    for option, path in (("--report", args.report), ("--ros-yaml-dir", args.ros_yaml_dir if ros else None)):
+        if path:  # the folders first: a folder that cannot be made stops the run before any file is written
+            make_dir(option, path)
     if args.report:
         from ccs_kornia.outputs.report.rig import write_rig_report
 
         start = time.perf_counter()
-        os.makedirs(args.report, exist_ok=True)
-        write_rig_report(args.report, data, rect)
+        write_rig_report(args.report, data, rect, pair)
         data["timings"]["report_s"] = time.perf_counter() - start
     try:
         write_json(args.output, data, mode=0o644)
     except OSError as err:
         raise UserError(f"--output {args.output}: cannot write ({err.strerror or err})") from None
     if args.opencv_yaml:
-        write_opencv_stereo_yaml(args.opencv_yaml, data, rect)
+        write_opencv_stereo_yaml(args.opencv_yaml, data, rect, i, j)
     if ros:
-        os.makedirs(args.ros_yaml_dir, exist_ok=True)
         for name, text in ros.items():
             write_text_atomic("--ros-yaml-dir", os.path.join(args.ros_yaml_dir, name), text)
     if camchain is not None:
@@ -263,15 +363,18 @@ def _moved(cam: dict[str, Any]) -> str:
     moved = cam.get("intrinsics_moved_sigma")
     if not moved:
         return ""
-    items = [(k, moved[k]) for k in ("fx", "fy", "cx", "cy")] + [(f"d{i}", v) for i, v in enumerate(moved["distortion"])]
+    from ccs_kornia.geometry.models.factory import camera_model
+
+    coeffs = camera_model(cam["distortion"]["model"]).param_names[4:]
+    items = [(k, moved[k]) for k in ("fx", "fy", "cx", "cy")] + list(zip(coeffs, moved["distortion"]))
     name, value = max(((k, abs(v)) for k, v in items if v is not None), key=lambda kv: kv[1], default=(None, 0.0))
     return f", moved up to {value:.1f} sigma ({name}) from its own calibration" if name else ""
 
 
 def summary_lines(data: dict[str, Any], output: str) -> list[str]:
     """The command's short summary: per camera its model, RMS and how far the joint fit moved its intrinsics, the
-    frames whose cameras disagree, what to record next, per pair baseline, rotation and epipolar error, the
-    verdict."""
+    frames whose cameras disagree, what to record next, per pair baseline, rotation and epipolar error, a joint fit
+    that did not converge, the verdict."""
 
     from ccs_kornia.outputs.rig_records import frame_lines
 
@@ -296,5 +399,9 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
                      f"board's unit), rotation {pair['rotation_deg']:.3f}{rot} deg, epipolar RMS "
                      f"{fmt(pair['epipolar_rms'])} px{held}")
     lines.append(f"rig RMS {fmt(data['rms'])} px over {len(data['frame_labels'])} frames; wrote {output}")
+    fit = data.get("fit") or {}
+    if fit.get("converged") is False:
+        lines.append(f"warning: the joint fit did not converge in {fit.get('iterations')} iterations (it stopped at "
+                     "its limit before its tolerance was met): the figures above are those of where it stopped")
     lines.append(f"verdict: {data['verdict']}")
     return lines

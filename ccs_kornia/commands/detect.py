@@ -16,6 +16,7 @@ from ccs_kornia.commands._common import (
     resolve_device,
     run_files,
 )
+from ccs_kornia.commands._video import add_timestamps, camera_videos, screening_note
 
 __all__ = ["CORNER_DECIMALS", "run"]
 
@@ -41,11 +42,15 @@ def run(args: argparse.Namespace) -> int:
 
     check_output_file("--output", args.output)
     device = resolve_device(args.device)
-    files = inputs("detect", args.images)
+    video = camera_videos("detect", args)
+    files = inputs("detect", args.images) if video is None else video.names()[0]
     pipeline = make_pipeline(args)
-    out, elapsed = run_files("detect", pipeline, [files], args.board, 1.0, device, calibrate=False)
+    source = None if video is None else video.source()
+    out, elapsed = run_files("detect", pipeline, [files], args.board, 1.0, device, calibrate=False, source=source)
     one = out.select(0)
     images = [_image_record(view) for view in view_records(one, files)]
+    if video is not None:
+        add_timestamps(images, video.timestamps())
     correction = {k: v for k, v in correction_record(one).items() if k not in _CALIBRATION_ONLY["correction"]}
     n_found = sum(r["found"] for r in images)
     n_partial = sum(1 for r in images if r.get("hidden_corners"))
@@ -62,11 +67,14 @@ def run(args: argparse.Namespace) -> int:
         "distortion_correction": correction,
         "timings": {"load_and_detect_s": elapsed, "images_per_s": len(files) / max(elapsed, 1e-9)},
     }
+    if video is not None:
+        data["video"] = video.records(0)
     write_json(args.output, data)
     if n_found == 0:
         readable = int(one.present.sum())
+        note = "" if video is None else screening_note(video)
         raise (NoResult if readable else UserError)(
-            not_found_message(args.board, readable, len(files), args.detector) + f"; wrote {args.output}")
+            not_found_message(args.board, readable, len(files), args.detector) + f"{note}; wrote {args.output}")
     partial = f" ({n_partial} partial: corners under glare or occluded are null)" if n_partial else ""
     what = (f"{args.charuco[0]}x{args.charuco[1]} ChArUco board ({args.board[0]}x{args.board[1]} inner corners)"
             if charuco_record(args) else f"{args.board[0]}x{args.board[1]} board")

@@ -7,10 +7,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 from typing import Any
 
-from ccs_kornia.commands._common import UserError, inputs, make_dir, warn
+from ccs_kornia.commands._common import UserError, inputs, make_dir, parse_pair, warn
 
 __all__ = ["read_rig", "run"]
 
@@ -30,14 +31,46 @@ def read_rig(path: str) -> dict[str, Any]:
     return data
 
 
-def _pair(text: str, cameras: int) -> tuple[int, int]:
-    parts = text.split(",")
-    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
-        raise UserError(f"--pair {text}: expected two camera indices, e.g. 0,1")
-    i, j = int(parts[0]), int(parts[1])
-    if i == j or max(i, j) >= cameras:
-        raise UserError(f"--pair {text}: two different cameras of the {cameras} in the calibration (0..{cameras - 1})")
-    return i, j
+def _stem(path: str) -> str:
+    """A file's name without its numbers (``left07.jpg`` -> ``left.jpg``): what a camera's files share."""
+    return re.sub(r"\d+", "", os.path.basename(path)).lower()
+
+
+def _camera_of(files: list[str], data: dict[str, Any]) -> tuple[int | None, str]:
+    """Which camera of the rig ``files`` belong to, as far as ``rig.json``'s record of each camera's files tells, and
+    how that is known (``(None, "")`` when it does not tell): the same files, else files of the same names (a copy),
+    else names alike but for their numbers (``left``, ``right``)."""
+    recorded = [[v["path"] for v in cam.get("views") or [] if isinstance(v, dict) and v.get("path")]
+                for cam in data["cameras"]]
+    for how, key in (("the calibration's own files", os.path.realpath), ("files of the calibration's names",
+                                                                          os.path.basename),
+                     ("file names like the calibration's", _stem)):
+        given = {key(f) for f in files}
+        scores = [len(given & {key(f) for f in cam}) for cam in recorded]
+        best = max(scores, default=0)
+        if best and scores.count(best) == 1:
+            return scores.index(best), how
+        if best:  # these names are shared by several cameras: a weaker clue cannot separate them either
+            return None, ""
+    return None, ""
+
+
+def _check_order(files: list[list[str]], folders: tuple[str, str], pair: tuple[int, int], data: dict[str, Any]) -> None:
+    """Refuse folders that hold the other camera's images than ``--pair`` puts there (each image would be rectified
+    with the other camera's model: the rows land pixels apart, worse than no rectification)."""
+    names = [cam.get("name") or f"cam{c}" for c, cam in enumerate(data["cameras"])]
+    seen = [_camera_of(f, data) for f in files]
+    if all(c == p or c is None for (c, _), p in zip(seen, pair)):
+        return
+    (first, how), (second, _) = seen
+    if (first, second) == (pair[1], pair[0]):
+        raise UserError(f"{folders[0]} holds camera {names[first]}'s images and {folders[1]} camera "
+                        f"{names[second]}'s ({how}), but --pair {pair[0]},{pair[1]} puts camera {names[pair[0]]} "
+                        f"first: swap the two folders")
+    k = 0 if first not in (None, pair[0]) else 1
+    c, why = seen[k]
+    raise UserError(f"{folders[k]} holds camera {names[c]}'s images ({why}), but --pair {pair[0]},{pair[1]} puts "
+                    f"camera {names[pair[k]]} there: give the folders in the order of --pair, or another --pair")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -51,8 +84,9 @@ def run(args: argparse.Namespace) -> int:
     from ccs_kornia.pipeline.frame_matching import match_frames
 
     data = read_rig(args.calibration)
-    i, j = _pair(args.pair, len(data["cameras"]))
+    i, j = parse_pair(args.pair, len(data["cameras"]))
     files = [inputs("rectify", [args.left]), inputs("rectify", [args.right])]
+    _check_order(files, (args.left, args.right), (i, j), data)
     frames = match_frames(files)
     pairs = [(files[0][a], files[1][b]) for a, b in zip(*frames.index) if a is not None and b is not None]
     if not pairs:

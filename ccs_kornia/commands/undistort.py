@@ -25,38 +25,38 @@ from ccs_kornia.commands._common import (
 __all__ = ["run"]
 
 
-def _read_calibration(path: str) -> tuple[Any, Any, tuple[int, int] | None, bool]:
+def _read_calibration(path: str, camera: str | None = None) -> tuple[Any, Any, tuple[int, int] | None, bool, list]:
     import torch
 
-    from ccs_kornia.outputs.calibration_file import read_calibration
+    from ccs_kornia.geometry.models.factory import camera_model
+    from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
 
     try:
-        calib = read_calibration(path)
+        calib = read_calibration(path, camera)
+    except RigFileError as err:
+        raise UserError(f"--calibration {path}: {err}: rectify its stereo pairs with 'rectify', or give one of its "
+                        "cameras with --camera NAME") from None
     except ValueError as err:
         raise UserError(f"--calibration {path}: {err}") from None
     K = torch.from_numpy(calib["K"])
     dist = torch.from_numpy(calib["coeffs"])
-    return K, dist, calib["image_size"], calib["model"] == "fisheye"
+    return K, dist, calib["image_size"], camera_model(calib["model"]).is_fisheye, calib["views"]
 
 
-def _calibrated_corners(path: str) -> Any:
+def _calibrated_corners(views: list) -> Any:
     """The corners of the calibration's used views, :math:`(1, N, 2)` (hidden ones NaN), or ``None`` without any.
 
     They bound the valid field (beyond them the model is extrapolated); a calibration without views is framed by
     the monotonic range of its model within the image alone.
     """
-    import json
-
     import torch
 
     try:
-        with open(path, encoding="utf-8") as handle:
-            views = json.load(handle).get("views") or []
         rows = [[float("nan") if c is None else float(c) for c in corner[:2]]
                 for view in views if isinstance(view, dict) and view.get("used") and view.get("corners")
                 for corner in view["corners"]]
         points = torch.tensor(rows, dtype=torch.float64).reshape(1, -1, 2)
-    except (OSError, ValueError, TypeError, AttributeError, IndexError, RuntimeError):
+    except (ValueError, TypeError, AttributeError, IndexError, RuntimeError):
         return None
     return points if bool(points.isfinite().all(-1).any()) else None
 
@@ -101,12 +101,12 @@ def run(args: argparse.Namespace) -> int:
         opencv_valid_radius,
     )
 
-    K, dist, calib_size, fisheye = _read_calibration(args.calibration)
+    K, dist, calib_size, fisheye, views = _read_calibration(args.calibration, getattr(args, "camera", None))
     device = resolve_device(args.device)
     files = inputs("undistort", args.images)
     make_dir("--out-dir", args.out_dir)
     K, dist = K.to(device), dist.to(device)
-    corners = _calibrated_corners(args.calibration)
+    corners = _calibrated_corners(views)
     corners = None if corners is None else corners.to(device)
     valid_field = fisheye_valid_angle if fisheye else opencv_valid_radius
     field = valid_field(K[None], dist[None], corners)  # radians (fisheye) or tan of the angle

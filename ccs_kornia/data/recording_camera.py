@@ -243,14 +243,15 @@ def lens_from_json(data: dict) -> Lens:
         >>> lens_from_json(OpenCVLens([-0.2, 0.05, 0, 0, 0]).to_json()).dist.tolist()
         [-0.2, 0.05, 0.0, 0.0, 0.0]
     """
+    readers = {
+        "pinhole": lambda d: PinholeLens(),
+        "opencv": lambda d: OpenCVLens(d["dist"]),
+        "fisheye": lambda d: FisheyeLens(d["k"], d["fov_deg"]),
+    }
     kind = data.get("kind")
-    if kind == "pinhole":
-        return PinholeLens()
-    if kind == "opencv":
-        return OpenCVLens(data["dist"])
-    if kind == "fisheye":
-        return FisheyeLens(data["k"], data["fov_deg"])
-    raise ValueError(f"unknown lens {kind!r}; expected pinhole, opencv or fisheye")
+    if kind not in readers:
+        raise ValueError(f"unknown lens {kind!r}; expected pinhole, opencv or fisheye")
+    return readers[kind](data)
 
 
 @dataclass(eq=False)

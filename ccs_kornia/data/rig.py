@@ -32,6 +32,7 @@ from ccs_kornia.geometry.camera import (
     project_points,
     rotation_matrix_to_axis_angle,
 )
+from ccs_kornia.geometry.models.factory import camera_model
 
 __all__ = ["RigScene", "random_board_poses", "render_rig"]
 
@@ -162,18 +163,18 @@ def render_rig(
         out_cams.append((model, K, dist))
         Rc, Tc = R[c].to(dtype), T[c].to(dtype)
         xc = x0 @ Rc.T + Tc
-        if model == "fisheye":
-            D = torch.zeros(4, dtype=dtype)
-            D[: dist.shape[0]] = dist
+        lens = camera_model(model)
+        if lens.is_fisheye:
+            D = lens.opencv_coeffs(dist)
             uv = kb_project_points(xc, K.expand(F, 3, 3), D.expand(F, 4))
         else:
-            d = dist if dist.shape[0] in (0, 4, 5, 8) else torch.nn.functional.pad(dist, [0, 5 - dist.shape[0]])
+            d = dist if dist.shape[0] in (0, 4, 5, 8) else lens.opencv_coeffs(dist)
             uv = project_points(xc, K.expand(F, 3, 3), d.expand(F, -1) if d.numel() else None)
         W, H = image_sizes[c]
         angle = torch.atan2(xc[..., :2].norm(dim=-1), xc[..., 2])
         inside = (uv[..., 0] >= 0) & (uv[..., 0] <= W - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= H - 1)
         seen = inside & (angle < math.radians(max_angle_deg)) & uv.isfinite().all(-1)
-        if model != "fisheye":
+        if not lens.is_fisheye:
             seen = seen & (xc[..., 2] > 0)
         if drop > 0:
             seen = seen & (torch.rand(F, generator=g, dtype=dtype) >= drop)[:, None]

@@ -170,7 +170,9 @@ class WildChessboards:
         cols = _randint(g, *sp.board_cols, (b,), "cpu")
         rows = _randint(g, *sp.board_rows, (b,), "cpu")
         lens = _pick(g, sp.lenses, b)
-        fe_mask = torch.tensor([name == "fisheye" for name in lens])
+        views_of = {kind: [k for k, n in enumerate(lens) if n == kind] for kind in LENSES}  # per lens kind
+        fe_mask = torch.zeros(b, dtype=torch.bool)
+        fe_mask[views_of["fisheye"]] = True
         # pinhole cameras (every view; fisheye views replace theirs)
         fx = w * _uniform(g, (b,), *sp.fx_over_w, "cpu")
         fy = fx * _uniform(g, (b,), 0.97, 1.03, "cpu")
@@ -186,7 +188,7 @@ class WildChessboards:
         dist = torch.zeros(b, 5, dtype=torch.float64)
         radial = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64).repeat(b, 1)
         for name in ("opencv", "radial"):
-            idx = torch.tensor([k for k, n in enumerate(lens) if n == name], dtype=torch.long)
+            idx = torch.tensor(views_of[name], dtype=torch.long)
             if idx.numel() and name == "opencv":
                 dist[idx] = sample_opencv_distortion(K[idx], (w, h), idx.numel(), g).double()
             elif idx.numel():

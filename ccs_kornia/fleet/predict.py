@@ -53,6 +53,8 @@ from ccs_kornia.fleet.shards import (
 )
 from ccs_kornia.io.files import json_line
 from ccs_kornia.io.images import IMAGE_EXTENSIONS, load_image_gray
+from ccs_kornia.io.video import is_video
+from ccs_kornia.modules._checks import check_board_size
 from ccs_kornia.outputs.records import camera_record
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 from ccs_kornia.pipeline.sources import ViewSource
@@ -79,15 +81,21 @@ def _images_in(directory: str) -> list[str]:
     )
 
 
+def _videos_in(directory: str) -> list[str]:
+    return sorted(os.path.join(directory, name) for name in os.listdir(directory)
+                  if is_video(name) and os.path.isfile(os.path.join(directory, name)))
+
+
 def find_image_sets(items: Iterable[str]) -> tuple[list[tuple[str, list[str]]], list[tuple[str, str]]]:
     """Turn command-line items into image sets (one camera each).
 
     A directory holding image files is one set. A directory holding no image file but
     sub-directories that do (``cameras/cam_000/*.png``, ...) gives one set per such sub-directory.
-    A glob gives every directory it matches, by the same rules.
+    A glob gives every directory it matches, by the same rules. A video is one set (its files: the video alone; its
+    frames are chosen when the set is loaded), and so is each video of a directory holding videos and no image.
 
     Args:
-        items: directories or globs.
+        items: directories, videos or globs.
 
     Returns:
         ``(sets, problems)``: ``(name, files)`` per set in a stable order, and ``(item, reason)`` for
@@ -101,6 +109,12 @@ def find_image_sets(items: Iterable[str]) -> tuple[list[tuple[str, list[str]]], 
     problems: list[tuple[str, str]] = []
     seen: set[str] = set()
 
+    def add_video(path: str) -> None:
+        key = os.path.normpath(os.path.abspath(path))
+        if key not in seen:
+            seen.add(key)
+            sets.append((path, [path]))
+
     def add_directory(directory: str, item: str) -> bool:
         files = _images_in(directory)
         if files:
@@ -109,7 +123,10 @@ def find_image_sets(items: Iterable[str]) -> tuple[list[tuple[str, list[str]]], 
                 seen.add(key)
                 sets.append((directory, files))
             return True
-        found = False
+        videos = _videos_in(directory)
+        for path in videos:
+            add_video(path)
+        found = bool(videos)
         for name in sorted(os.listdir(directory)):
             sub = os.path.join(directory, name)
             if os.path.isdir(sub) and _images_in(sub):
@@ -120,13 +137,20 @@ def find_image_sets(items: Iterable[str]) -> tuple[list[tuple[str, list[str]]], 
         if os.path.isdir(item):
             if not add_directory(item, item):
                 problems.append((item, "no image files in it or in its sub-directories"))
+        elif os.path.isfile(item) and is_video(item):
+            add_video(item)
         elif os.path.isfile(item):
-            problems.append((item, "is a file; an image set is a directory of images (use calibrate for one set)"))
+            problems.append((item, "is a file; an image set is a directory of images or a video (use calibrate for "
+                                   "one set)"))
         elif set("*?[") & set(item):
-            dirs = sorted(p for p in glob.glob(item, recursive=True) if os.path.isdir(p))
-            if not dirs:
+            matches = sorted(glob.glob(item, recursive=True))
+            videos = [p for p in matches if os.path.isfile(p) and is_video(p)]
+            dirs = [p for p in matches if os.path.isdir(p)]
+            for path in videos:
+                add_video(path)
+            if not dirs and not videos:
                 problems.append((item, "glob matched no directory"))
-            elif not any([add_directory(d, item) for d in dirs]):
+            elif not any([add_directory(d, item) for d in dirs]) and not videos:
                 problems.append((item, "the directories it matched hold no image files"))
         else:
             problems.append((item, "no such directory"))
@@ -138,21 +162,31 @@ class ImageSetDataset(Dataset):
 
     Args:
         sets: ``(name, files)`` pairs (see :func:`find_image_sets`).
+        video: how a video set becomes views (:class:`~ccs_kornia.pipeline.video_input.VideoOptions`; ``None``:
+            no video set is expected).
 
     Item:
         dict with ``name``, ``files`` (all inputs, in order) and ``images``: one :math:`(1, H, W)` float tensor in
         ``[0, 1]`` per file, or the reason string where the file could not be read (sizes may differ: the pipeline
-        decides which views fit the camera).
+        decides which views fit the camera). A video set's ``files`` are its chosen frames (``VIDEO#INDEX``), its
+        images ``uint8``, with ``timestamps`` and ``video`` (what the screening saw).
     """
 
-    def __init__(self, sets: Sequence[tuple[str, list[str]]]) -> None:
+    def __init__(self, sets: Sequence[tuple[str, list[str]]], video: Any = None) -> None:
         self.sets = list(sets)
+        self.video = video
 
     def __len__(self) -> int:
         return len(self.sets)
 
     def __getitem__(self, index: int) -> dict[str, Any]:
         name, files = self.sets[index]
+        if len(files) == 1 and is_video(files[0]):
+            from ccs_kornia.pipeline.video_input import VideoOptions, load_video_set
+
+            if not isinstance(self.video, VideoOptions):
+                raise ValueError(f"{files[0]} is a video: the dataset needs VideoOptions (the board's screen)")
+            return {"name": name, **load_video_set(files[0], self.video)}
         images: list[Any] = []
         for path in files:
             image, reason = load_image_gray(path)
@@ -172,7 +206,9 @@ class _DecodedSource(ViewSource):
 
     def _load(self, camera: int, view: int) -> tuple[torch.Tensor | None, str]:
         image = self.items[camera]["images"][view]
-        return (None, image) if isinstance(image, str) else (image, "")
+        if isinstance(image, str):
+            return None, image
+        return (image if image.is_floating_point() else image.float() / 255.0), ""
 
 
 def _collate_sets(items: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -190,6 +226,7 @@ class ImageSetDataModule(pl.LightningDataModule):
         num_workers: DataLoader worker processes loading sets ahead of the model.
         output: the output file; the sets with a line in it or in one of its shards are left out (``None``: none).
         overwrite: leave nothing out (the output is started again).
+        video: how video sets become views (:class:`~ccs_kornia.pipeline.video_input.VideoOptions`).
 
     The sets left to do are cut into batches of ``sets_per_batch`` in order, and rank ``r`` of ``W`` takes batches
     ``r, r + W, r + 2W, ...``: the shares are disjoint, together they hold every set once, and each batch is the one a
@@ -197,7 +234,7 @@ class ImageSetDataModule(pl.LightningDataModule):
     """
 
     def __init__(self, sets: Sequence[tuple[str, list[str]]], sets_per_batch: int = 4, num_workers: int = 0,
-                 output: str | None = None, overwrite: bool = False) -> None:
+                 output: str | None = None, overwrite: bool = False, video: Any = None) -> None:
         super().__init__()
         if sets_per_batch < 1:
             raise ValueError(f"sets_per_batch must be >= 1, got {sets_per_batch}.")
@@ -209,6 +246,7 @@ class ImageSetDataModule(pl.LightningDataModule):
         self.num_workers = num_workers
         self.output = output
         self.overwrite = overwrite
+        self.video = video
 
     def setup(self, stage: str) -> None:
         # every rank reads the same files here: no rank writes before Lightning's barrier that follows the setup hooks
@@ -230,7 +268,7 @@ class ImageSetDataModule(pl.LightningDataModule):
     def predict_dataloader(self) -> DataLoader:
         # consecutive batches of the share are the rank's batches: all full but the last of all
         return DataLoader(
-            ImageSetDataset(self.rank_share()), batch_size=self.sets_per_batch, shuffle=False,
+            ImageSetDataset(self.rank_share(), self.video), batch_size=self.sets_per_batch, shuffle=False,
             num_workers=self.num_workers, collate_fn=_collate_sets, persistent_workers=False,
         )
 
@@ -255,7 +293,7 @@ class CalibrationLitModule(pl.LightningModule):
         super().__init__()
         self.pipeline = pipeline
         self.board_record = dict(board_record or {})
-        self.board_size = (int(board_size[0]), int(board_size[1]))
+        self.board_size = check_board_size(board_size)
         self.square = float(square)
         self.detector_name = detector_name
 
@@ -268,6 +306,13 @@ class CalibrationLitModule(pl.LightningModule):
             one = out.select(c)
             record = camera_record(one, item["files"], board=self.board_size, square=self.square,
                                    detector=self.detector_name, model=self.pipeline.model)
+            if "video" in item:  # a recording: each view's timestamp, and what the screening saw of every frame
+                for view in record["views"]:
+                    if view["path"] in item["timestamps"]:
+                        view["timestamp"] = item["timestamps"][view["path"]]
+                record["video"] = item["video"]
+                if item.get("error"):
+                    record["success"], record["error"] = False, item["error"]
             # every line has the same keys: ``error`` is None for a calibrated set
             records.append({"set": item["name"], "success": record["success"], "error": None, **record,
                             **self.board_record, "timings": {"seconds_per_set": seconds}})
@@ -398,6 +443,7 @@ def calibrate_many(
     num_nodes: int = 1,
     strategy: str = "auto",
     board_record: dict[str, Any] | None = None,
+    video: Any = None,
 ) -> dict[str, Any]:
     """Calibrate every image set with ``Trainer.predict``; append one JSON line per set to ``output``.
 
@@ -423,6 +469,7 @@ def calibrate_many(
         num_nodes: nodes.
         strategy: ``auto`` (DDP when there are several processes) or ``ddp``.
         board_record: added to every line (a marker board's description, e.g. ``{"charuco": {...}}``).
+        video: how video sets become views (:class:`~ccs_kornia.pipeline.video_input.VideoOptions`).
 
     Returns:
         On rank 0: ``{"sets", "succeeded", "failed", "skipped", "missing", "seconds", "file_succeeded",
@@ -454,7 +501,7 @@ def calibrate_many(
             return _summary(output, sets, [], 0.0, 0, 1)
     module = CalibrationLitModule(pipeline, board_size, square, detector_name, board_record)
     data = ImageSetDataModule(sets, sets_per_batch=sets_per_batch, num_workers=num_workers, output=output,
-                              overwrite=overwrite)
+                              overwrite=overwrite, video=video)
     writer = JsonlPredictionWriter(output, overwrite=overwrite)
     sigint = signal.getsignal(signal.SIGINT)
     quiet = [logging.getLogger(name) for name in ("lightning.pytorch", "lightning.fabric", "lightning")]

@@ -176,8 +176,7 @@ def _decode(path: str, flags: int) -> tuple[np.ndarray | None, str]:
 
 
 #: colour images of more pixels are converted to float by :func:`read_image` ``_STRIPE_ROWS`` rows at a time (smaller
-#: ones at once: on udacity_gopro_wide's 1.2 Mpx photos the stripes' many mid-size buffers raised the peak RSS by
-#: 20-70 MB)
+#: ones at once: on megapixel photos the stripes' many mid-size buffers raised the peak memory, docs/measurements.md)
 _STRIPED_PIXELS = 4_000_000
 _STRIPE_ROWS = 256
 

@@ -56,13 +56,18 @@ def broadcast_shapes(*shapes: tuple[int, ...]) -> torch.Size:
     return torch.Size(out)
 
 
-def check_board_size(board_size: tuple[int, int]) -> tuple[int, int]:
-    """``(cols, rows)`` as ints, at least 2x2 inner corners; raises ``ValueError`` otherwise."""
+def check_board_size(board_size: tuple[int, int], min_side: int = 2) -> tuple[int, int]:
+    """``(cols, rows)`` as ints, at least ``min_side`` inner corners a side (a board: 2x2); raises ``ValueError``
+    otherwise.
+
+    The one check of a board size, where it enters a stage; code behind that edge unpacks the checked pair.
+    """
     if len(board_size) != 2:
         raise ValueError(f"board_size must be (cols, rows), got {board_size}.")
     cols, rows = int(board_size[0]), int(board_size[1])
-    if cols < 2 or rows < 2:
-        raise ValueError(f"A board needs at least 2x2 inner corners, got {cols}x{rows}.")
+    if cols < min_side or rows < min_side:
+        raise ValueError(f"board_size must be (cols, rows) with at least {min_side}x{min_side} inner corners, got "
+                         f"{board_size}.")
     return cols, rows
 
 

@@ -110,9 +110,8 @@ def area_resize(images: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 
 def halve(images: torch.Tensor) -> torch.Tensor:
     """``F.avg_pool2d(images, 2)`` of :math:`(..., H, W)` images (the last odd row or column dropped), the same values
-    (the four pixels summed in the kernel's order, times 0.25): on CPU 2-4x faster than the pooling kernel from about
-    160x120 px up (sixteen 640x480 images: 9.1 -> 5.4 ms, twelve of 1155x866: 21.6 -> 10.0 ms), slower below, where
-    the kernel is kept.
+    (the four pixels summed in the kernel's order, times 0.25): on CPU faster than the pooling kernel from about
+    160x120 px up (``docs/measurements.md``), slower below, where the kernel is kept.
 
     Example:
         >>> x = torch.rand(2, 1, 480, 640)

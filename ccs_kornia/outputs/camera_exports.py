@@ -8,6 +8,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.io.files import atomic_path
 from ccs_kornia.runtime.errors import UserError
 
@@ -29,10 +30,10 @@ def write_opencv_yaml(path: str, data: dict[str, Any]) -> None:
             fs.write("board_height", int(data["board"][1]))
             fs.write("square_size", float(data["square"]))
             fs.write("camera_matrix", np.array(data["K"], dtype=np.float64))
-            coeffs = data["distortion"]["coeffs"] or [0.0, 0.0, 0.0, 0.0, 0.0]
-            fs.write("distortion_coefficients", np.array(coeffs, dtype=np.float64).reshape(-1, 1))
+            lens = camera_model(data["distortion"]["model"])
+            fs.write("distortion_coefficients", lens.opencv_coeffs(data["distortion"]["coeffs"]).reshape(-1, 1))
             # which projection the coefficients belong to: cv2.fisheye's k1..k4 or cv2's polynomial model
-            fs.write("distortion_model", "fisheye" if data["distortion"]["model"] == "fisheye" else "opencv")
+            fs.write("distortion_model", lens.opencv_family)
             fs.write("avg_reprojection_error", float(data["rms"]))
         finally:
             fs.release()
@@ -48,7 +49,7 @@ def ros_camera_info(data: dict[str, Any], camera_name: str = "camera", rectifica
     identity rectification, projection ``[K | 0]``; a stereo camera passes its ``rectification`` (3x3, ``R1``/``R2``
     of the rectification) and ``projection`` (3x4, ``P1``/``P2``)."""
     K = [float(v) for row in data["K"] for v in row]
-    coeffs = [float(c) for c in (data["distortion"]["coeffs"] or [0.0] * 5)]
+    coeffs = camera_model(data["distortion"]["model"]).opencv_coeffs(data["distortion"]["coeffs"]).tolist()
     model = ROS_DISTORTION_MODELS.get(data["distortion"]["model"], "plumb_bob")
     P = [K[0], K[1], K[2], 0.0, K[3], K[4], K[5], 0.0, K[6], K[7], K[8], 0.0]
     if projection is not None:

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.io.files import atomic_path
 from ccs_kornia.outputs.camera_exports import ros_camera_info
@@ -29,16 +30,14 @@ __all__ = [
 
 def opencv_coeffs(model: str, coeffs: list[float]) -> np.ndarray:
     """A camera's coefficients as OpenCV's functions take them: ``cv2.fisheye``'s four, else at least five
-    (``k1k2`` and ``none`` padded with zeros: OpenCV takes 4, 5, 8, 12 or 14).
+    (``k1k2`` and ``none`` padded with zeros: OpenCV takes 4, 5, 8, 12 or 14;
+    :meth:`~ccs_kornia.geometry.models.base.CameraModel.opencv_coeffs` of the model named ``model``).
 
     Example:
         >>> opencv_coeffs("k1k2", [-0.3, 0.1]).tolist(), opencv_coeffs("fisheye", [0.1, 0, 0, 0]).shape
         ([-0.3, 0.1, 0.0, 0.0, 0.0], (4,))
     """
-    values = np.asarray(coeffs or [], dtype=np.float64).reshape(-1)
-    if model == "fisheye":
-        return values
-    return np.concatenate([values, np.zeros(max(0, 5 - values.size))])
+    return camera_model(model).opencv_coeffs(coeffs)
 
 
 def rectification(data: dict[str, Any], i: int = 0, j: int = 1, alpha: float = 0.0) -> dict[str, Any]:
@@ -56,9 +55,13 @@ def rectification(data: dict[str, Any], i: int = 0, j: int = 1, alpha: float = 0
 
 
 def _pair(data: dict[str, Any], i: int, j: int) -> dict[str, Any]:
+    """The record's pair ``(i, j)``; the record holds ``i < j``, the other order has ``E`` and ``F`` transposed
+    (``x_i^T E_ji x_j = 0``)."""
     for pair in data["pairs"]:
         if pair["cameras"] == [i, j]:
             return pair
+        if pair["cameras"] == [j, i]:
+            return {**pair, "E": np.asarray(pair["E"]).T.tolist(), "F": np.asarray(pair["F"]).T.tolist()}
     raise KeyError((i, j))
 
 
@@ -82,7 +85,7 @@ def write_opencv_stereo_yaml(path: str, data: dict[str, Any], rect: dict[str, An
                 model = cams[c]["distortion"]["model"]
                 fs.write(f"K{k}", np.array(cams[c]["K"], dtype=np.float64))
                 fs.write(f"D{k}", opencv_coeffs(model, cams[c]["distortion"]["coeffs"]).reshape(1, -1))
-                fs.write(f"distortion_model{k}", "fisheye" if model == "fisheye" else "opencv")
+                fs.write(f"distortion_model{k}", camera_model(model).opencv_family)
             fs.write("R", np.asarray(rect["R"], dtype=np.float64))
             fs.write("T", np.asarray(rect["T"], dtype=np.float64).reshape(3, 1))
             fs.write("E", np.array(pair["E"], dtype=np.float64))
@@ -137,7 +140,7 @@ def kalibr_camchain(data: dict[str, Any]) -> tuple[str, list[str]]:
         K = cam["K"]
         model = cam["distortion"]["model"]
         coeffs = list(cam["distortion"]["coeffs"] or [])
-        if model == "fisheye":
+        if camera_model(model).is_fisheye:
             kind, values = "equidistant", coeffs[:4]
         else:
             values = (coeffs + [0.0] * 4)[:4]

@@ -12,6 +12,7 @@ from typing import Any
 
 import torch
 
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.outputs.records import camera_record
 
 __all__ = ["CONVENTION", "INCONSISTENT_WEIGHT", "frame_lines", "frame_records", "rig_record", "pair_record", "record_extrinsics", "rotation_angle_deg", "rig_cameras", "rectify_maps"]
@@ -212,11 +213,11 @@ def rectify_maps(data: dict[str, Any], rect: dict[str, Any], i: int = 0, j: int 
     for c, R, P in ((i, rect["R1"], rect["P1"]), (j, rect["R2"], rect["P2"])):
         cam = data["cameras"][c]
         K = np.array(cam["K"], dtype=np.float64)
-        coeffs = np.array(cam["distortion"]["coeffs"] or [], dtype=np.float64)
+        lens = camera_model(cam["distortion"]["model"])
+        coeffs = lens.opencv_coeffs(cam["distortion"]["coeffs"])
         R, P = np.asarray(R, dtype=np.float64), np.asarray(P, dtype=np.float64)
-        if cam["distortion"]["model"] == "fisheye":
+        if lens.is_fisheye:
             maps.append(cv2.fisheye.initUndistortRectifyMap(K, coeffs.reshape(4, 1), R, P, size, cv2.CV_32FC1))
         else:
-            coeffs = np.concatenate([coeffs, np.zeros(max(0, 5 - coeffs.size))])
             maps.append(cv2.initUndistortRectifyMap(K, coeffs, R, P, size, cv2.CV_32FC1))
     return maps

@@ -7,8 +7,9 @@ benchmarks all call it:
 1. **correct** (paper Sec. III-A): the :class:`~ccs_kornia.modules.correction.distortion_net.DistortionNet`
    predicts a radial correction per view; a camera's views share its lens, so the predictions are pooled into one
    correction per camera (:mod:`~ccs_kornia.modules.correction.pooling`);
-2. **detect** (Sec. III-B): the board is looked for on every image as it is (the first look); then each look of
-   :data:`~ccs_kornia.pipeline.looks.LOOKS` on the views missed so far: for a camera whose pooled correction is
+2. **detect** (Sec. III-B): the board is looked for on every image as it is (the first look); then each of the
+   pipeline's ``looks`` (by default :data:`~ccs_kornia.pipeline.looks.LOOKS`) on the views missed so far: for a
+   camera whose pooled correction is
    large, on corrected copies; for a camera calibrated with the fisheye model, on virtual pinhole views of the
    calibrated lens; last, on the detector's foreshortened levels; corners mapped back to the original images;
 3. **solve** (Sec. III-C): per image size, one batched solver call over the cameras
@@ -27,15 +28,19 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from contextlib import nullcontext
+from dataclasses import replace
 from typing import Callable
 
 import torch
 from torch import nn
 
+from ccs_kornia.modules._checks import check_board_size
 from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
 from ccs_kornia.modules.correction.pooling import (
     aggregate_corrections,
@@ -44,6 +49,7 @@ from ccs_kornia.modules.correction.pooling import (
 from ccs_kornia.modules.detection.base import (
     ChessboardDetector,
     DetectionResult,
+    Fallbacks,
     measured_corners,
 )
 from ccs_kornia.modules.detection.boards import grid_object_points
@@ -53,9 +59,10 @@ from ccs_kornia.modules.detection.refine.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.refine.saddle_refine import CornerRefiner
 from ccs_kornia.modules.detection.warps.warped_detection import Downscale, detect_warped
 from ccs_kornia.pipeline.differentiable import differentiable_detect, differentiable_run
-from ccs_kornia.pipeline.looks import FIRST, LOOKS, Changes, Look, Tools
+from ccs_kornia.pipeline.looks import CALIBRATED, FIRST, LOOKS, Look, Tools
 from ccs_kornia.pipeline.result import (
     PipelineResult,
+    corner_weights_of,
     main_size,
     module_device,
     positive_size,
@@ -80,13 +87,6 @@ from ccs_kornia.runtime.timing import stage
 __all__ = ["PipelineResult", "CalibrationPipeline"]
 
 
-def _board(board_size: tuple[int, int]) -> tuple[int, int]:
-    """``(cols, rows)`` as ints, at least 2 inner corners each."""
-    if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
-        raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
-    return int(board_size[0]), int(board_size[1])
-
-
 class CalibrationPipeline(nn.Module):
     """Detect chessboard corners and calibrate the camera(s): correct -> detect -> solve (:meth:`run`).
 
@@ -96,6 +96,8 @@ class CalibrationPipeline(nn.Module):
         model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational``, ``none``, ``fisheye`` (cv2.fisheye's) or
             ``auto`` (one of :data:`~ccs_kornia.modules.calibration.model_selection.AUTO_MODELS` per camera, by
             cross-validation; ``PipelineResult.model_selection`` says which and why).
+        auto_models: the candidates of ``model="auto"`` (default all of ``AUTO_MODELS``), e.g. without ``rational``
+            for a camera whose calibration goes to a format that cannot hold it (Kalibr's camchain).
         use_ransac: reject inconsistent views with image-level RANSAC before the refinement.
         seed: seed of the RANSAC sampling (results are deterministic for a given seed).
         detection_batch_size: most images handed to the detector at once.
@@ -117,8 +119,12 @@ class CalibrationPipeline(nn.Module):
             distortion centre is unobservable, it crawls for 30-500 (up to 0.5 s per camera) to gain a fraction of a
             percent of RMS, and such a camera keeps the usual calibration anyway.
         free_distortion_centre: the corrected-frame refinement also estimates the distortion centre.
-        calibrated_look: views missed on the originals of a camera calibrated with the fisheye model are looked for
-            again on virtual pinhole views of the calibrated lens, and the camera is solved again with them.
+        looks: the looks after the first, in order (:class:`~ccs_kornia.pipeline.looks.Look` values; default
+            :data:`~ccs_kornia.pipeline.looks.LOOKS`).
+        calibrated_look: keep the calibrated look among ``looks``
+            (:data:`~ccs_kornia.pipeline.looks.CALIBRATED`: views missed on the originals of a camera calibrated with
+            a fisheye model looked for again on virtual pinhole views of the calibrated lens, and the camera solved
+            again with them).
         diagnostics: also compute each camera's quality figures and verdict (``PipelineResult.diagnostics``; see
             :func:`~ccs_kornia.modules.calibration.quality.diagnostics.diagnose`: several more solves per camera).
         weigh_corners: measure each detected corner's precision on its image
@@ -158,9 +164,11 @@ class CalibrationPipeline(nn.Module):
         joint_iters: int = 4,
         free_distortion_centre: bool = True,
         diagnostics: bool = False,
+        looks: Sequence[Look] | None = None,
         calibrated_look: bool = True,
         weigh_corners: bool = True,
         differentiable: bool = False,
+        auto_models: Sequence[str] = AUTO_MODELS,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -176,13 +184,19 @@ class CalibrationPipeline(nn.Module):
         for name, value in (("min_correction", min_correction), ("max_rms_ratio", max_rms_ratio)):
             if not value >= 0:
                 raise ValueError(f"{name} must be >= 0, got {value}.")
-        names = AUTO_MODELS if model == "auto" else (model,)
+        candidates = tuple(dict.fromkeys(auto_models))
+        if not candidates or any(m not in AUTO_MODELS for m in candidates):
+            raise ValueError(f"auto_models must be some of {', '.join(AUTO_MODELS)}, got {list(auto_models)}.")
+        names = candidates if model == "auto" else (model,)
         self.solvers = nn.ModuleDict({m: CalibrationSolver(model=m, use_ransac=use_ransac, seed=seed, **solver_kwargs)
                                       for m in names})
-        self.solver = self.solvers[names[1] if model == "auto" else model]  # the stage alone's (auto: opencv5)
+        # the stage alone's (auto: opencv5 where it is a candidate)
+        self.solver = self.solvers[("opencv5" if "opencv5" in names else names[0]) if model == "auto" else model]
         self.selection = ModelSelection(dict(self.solvers)) if model == "auto" else None
-        self.subset_solutions = None  # the last solve's cross-validation subsets (pipeline.solve.solve_detections)
-        self.model, self.diagnostics, self.calibrated_look = model, bool(diagnostics), bool(calibrated_look)
+        self.model, self.diagnostics = model, bool(diagnostics)
+        #: the looks after the first, in order
+        self.looks: tuple[Look, ...] = tuple(look for look in (LOOKS if looks is None else looks)
+                                             if calibrated_look or look is not CALIBRATED)
         self.detection_batch_size = int(detection_batch_size)
         if workers != "auto" and not (isinstance(workers, int) and workers >= 1):
             raise ValueError(f"workers must be an int >= 1 or 'auto', got {workers!r}.")
@@ -238,12 +252,13 @@ class CalibrationPipeline(nn.Module):
         progress: Callable[[int], None] | None = None,
         *,
         first: PipelineResult | None = None,
+        on_batch: Callable[[list[tuple[int, int]], torch.Tensor], None] | None = None,
     ) -> PipelineResult:
         """The stages in order, correct -> detect -> solve, on every camera of ``source``: one loop over the looks.
         The first look streams every view once (:meth:`detect_views`: the network's correction and the board on the
-        image as it is), the corrections are pooled per camera; each later look of
-        :data:`~ccs_kornia.pipeline.looks.LOOKS` runs on the views still missed, the cameras solved before a look that
-        needs them; a final solve where a look found boards since, then the diagnostics.
+        image as it is), the corrections are pooled per camera; each of :attr:`looks` runs on the views still missed,
+        the cameras solved before a look that needs them; a final solve where a look found boards since, then the
+        diagnostics.
 
         Args:
             source: the views (:class:`~ccs_kornia.pipeline.sources.TensorSource` or :class:`~ccs_kornia.pipeline.sources.FileSource`;
@@ -255,45 +270,52 @@ class CalibrationPipeline(nn.Module):
             progress: called with the number of views handled after every batch of the first look.
             first: the first look's result already at hand (:meth:`detect_views`, or views taken from one,
                 :meth:`~ccs_kornia.pipeline.result.PipelineResult.take_views`): the loop starts after it.
+            on_batch: see :meth:`detect_views`.
 
         Returns:
             A batched :class:`~ccs_kornia.pipeline.result.PipelineResult`.
         """
-        board = _board(board_size)
-        out, pooled, solved, changed = first, False, False, False
-        for look in (FIRST, *LOOKS):
+        board = check_board_size(board_size)
+        out, pooled, solved, changed, subsets = first, False, False, False, None
+        for look in (FIRST, *self.looks):
             if look is FIRST:
-                out = self.detect_views(source, board, progress) if out is None else out
+                out = self.detect_views(source, board, progress, on_batch=on_batch) if out is None else out
                 pooled = out.view_corrections is not None and self.distortion_net is not None
                 if pooled:
                     with stage("correction evidence"):
-                        self._pool(out)
+                        out = self._pool(out)
                 continue
             if look.needs_correction and not pooled or look.needs_camera and not calibrate:
                 continue
             if look.needs_camera and (changed or not solved):
-                out, solved, changed = self._solve(out, board, square, again=solved), True, False
-            changed = self._look(look, source, out, board) or changed
+                (out, subsets), solved, changed = self._solve(out, board, square, again=solved), True, False
+            out, found = self._look(look, source, out, board)
+            changed = found or changed
         if calibrate and (changed or not solved):
-            out = self._solve(out, board, square, again=solved)
+            out, subsets = self._solve(out, board, square, again=solved)
         if calibrate and self.diagnostics:
             with stage("solver"):
-                out = diagnose_solved(self.solving, out, board, square, self.subset_solutions)
+                out = diagnose_solved(self.solving, out, board, square, subsets)
         return out
 
     def detect_views(
-        self, source: ViewSource, board_size: tuple[int, int], progress: Callable[[int], None] | None = None
+        self, source: ViewSource, board_size: tuple[int, int], progress: Callable[[int], None] | None = None,
+        *, on_batch: Callable[[list[tuple[int, int]], torch.Tensor], None] | None = None,
     ) -> PipelineResult:
         """One streamed pass over the views: the network's lens correction of each view (stage 1) and the board on
         each image as it is (stage 2); :meth:`finish` does the rest.
+
+        ``progress`` is called with the number of views handled after every batch; ``on_batch`` with the batch's
+        ``(camera, view)`` keys and whether the board was found on each, :math:`(B,)` bool: it may raise to stop the
+        run (a caller that sees the first views miss the board it was given).
 
         Returns:
             A batched :class:`~ccs_kornia.pipeline.result.PipelineResult` without calibration; ``view_corrections``
             holds the per-view network predictions (``None`` when the correction is off).
         """
-        board = _board(board_size)
+        cols, rows = board = check_board_size(board_size)
         device = module_device(self)
-        c, v, n = source.num_cameras, source.max_views, board[0] * board[1]
+        c, v, n = source.num_cameras, source.max_views, cols * rows
         corners = torch.zeros(c, v, n, 2, dtype=torch.float64, device=device)
         sigma = torch.full((c, v, n), float("nan"), dtype=torch.float32, device=device) if self.weigh_corners else None
         found = torch.zeros(c, v, dtype=torch.bool, device=device)
@@ -305,7 +327,7 @@ class CalibrationPipeline(nn.Module):
             per_view = torch.full((c, v, 5), float("nan"), dtype=torch.float64, device=device)
         # batches of views, in forked worker processes on CPU (pipeline/workers.py: the same batches for any number)
         for batch in map_batches(functools.partial(self._detect_batch, board=board, device=device), source,
-                                 FIRST.select(None, self.detector, self.calibrated_look),
+                                 FIRST.select(None, self.detector),
                                  self.detection_batch_size, self.max_batch_pixels,
                                  workers_on(device, self.workers)):
             for (ci, vi), why in batch.failed:
@@ -326,6 +348,8 @@ class CalibrationPipeline(nn.Module):
                 reasons[ci][vi] = (det.reasons[k] if det.reasons else "") or ("" if det.found[k] else "board not found")
             if progress is not None:
                 progress(len(batch.keys) + len(batch.failed))
+            if on_batch is not None:
+                on_batch(list(batch.keys), det.found.cpu())
         image_size = [main_size(sizes[ci], found[ci].cpu(), present[ci].cpu()) for ci in range(c)]
         return PipelineResult(DetectionResult(corners, found, [r for rs in reasons for r in rs], sigma), None, image_size,
                               present, sizes.to(device), camera_reasons=[""] * c, view_corrections=per_view)
@@ -346,7 +370,7 @@ class CalibrationPipeline(nn.Module):
         calibrate: bool = True,
     ) -> PipelineResult:
         """:meth:`run` from after its first look (:meth:`detect_views`, ``first=out``): the network's corrections
-        pooled per camera, then the looks of :data:`~ccs_kornia.pipeline.looks.LOOKS` in turn, each on the views missed
+        pooled per camera, then the pipeline's :attr:`looks` in turn, each on the views missed
         so far (read again from ``source``), the cameras solved before a look that needs them, and solved again at the
         end where a look found boards since.
 
@@ -359,12 +383,14 @@ class CalibrationPipeline(nn.Module):
         """
         return self.run(source, board_size, square, calibrate, first=out)
 
-    def _look(self, look: Look, source: ViewSource | None, out: PipelineResult, board: tuple[int, int]) -> bool:
-        """``look`` at the views it selects (none without a ``source``), in the pipeline's batches; writes the boards
-        found into ``out.detections`` and returns whether there were any."""
+    def _look(self, look: Look, source: ViewSource | None, out: PipelineResult,
+              board: tuple[int, int]) -> tuple[PipelineResult, bool]:
+        """``look`` at the views it selects (none without a ``source``), in the pipeline's batches: ``out`` with the
+        boards found written into its detections (and what the look measures after, ``Look.after``), and whether
+        there were any."""
         # (the corrected look is charged to the profile's correction stage; the others, to their own stages inside)
         with stage("correction evidence") if look.needs_correction else nullcontext():
-            keys = [] if source is None else look.select(out, self.detector, self.calibrated_look)
+            keys = [] if source is None else look.select(out, self.detector)
             det, found = out.detections, False
             device = det.corners.device
             tools = self.tools
@@ -377,23 +403,23 @@ class CalibrationPipeline(nn.Module):
                 view = torch.tensor([k[1] for k in batch.keys], device=device)
                 found = bool(det.fill((cam, view), batch.value).any()) or found
             if look.after is not None:
-                look.after(out, board)
-        return found
+                out = look.after(out, board)
+        return out, found
 
-    def _solve(self, out: PipelineResult, board: tuple[int, int], square: float, again: bool) -> PipelineResult:
+    def _solve(self, out: PipelineResult, board: tuple[int, int], square: float,
+               again: bool) -> tuple[PipelineResult, SubsetSolutions]:
         """The solver on ``out``'s detections; ``again`` (a look found boards since the last solve): with the models
-        chosen then (the looks add a few views), unless a camera had none (too few views)."""
+        chosen then (the looks add a few views), unless a camera had none (too few views). Returns the solved result
+        and the solve's cross-validation subsets (for the diagnostics)."""
         chosen = again and (out.model_selection is None or all((m or {}).get("chosen") for m in out.model_selection))
         with stage("solver"):
-            out, self.subset_solutions = solve_detections(self.solving, out, board, square, keep_models=chosen)
-        return out
+            return solve_detections(self.solving, out, board, square, keep_models=chosen)
 
     @property
     def solving(self) -> Solving:
         """The solver stage's settings (:class:`~ccs_kornia.pipeline.solve.Solving`)."""
         return Solving(self.model, self.solvers, self.solver, self.selection, self.weigh_corners, self.workers,
-                       self.joint_iters, self.free_distortion_centre, self.max_rms_ratio,
-                       getattr(self.detector, "board", None))
+                       self.joint_iters, self.free_distortion_centre, self.max_rms_ratio, self.detector.board)
 
     @property
     def tools(self) -> Tools:
@@ -401,8 +427,8 @@ class CalibrationPipeline(nn.Module):
         return Tools(self.detect_images, self.refine_on_patches, self.corner_sigma if self.weigh_corners else None,
                      self.detector, self.workers)
 
-    def _pool(self, out: PipelineResult) -> None:
-        """Pool the per-view corrections per camera (fills ``out.correction`` and ``out.correction_tried``)."""
+    def _pool(self, out: PipelineResult) -> PipelineResult:
+        """``out`` with the per-view corrections pooled per camera (``correction`` and ``correction_tried``)."""
         per_view, same = out.view_corrections, same_size_views(out)
         c = per_view.shape[0]
         device = per_view.device
@@ -413,11 +439,10 @@ class CalibrationPipeline(nn.Module):
             sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
             mask = same[sel] & per_view[sel].isfinite().all(-1)
             correction[sel], large[sel] = self.pool_corrections(per_view[sel], positive_size(size), mask)
-        out.correction = correction
         # every camera with a large correction goes to the corrected frame, where the observed corners referee it
         # against the usual calibration; a gate on the network's correction straightening the boards (or on the
-        # usual model's misfit) kept 5 of 50 held-out level-2 cameras from it (E_IP 1.4-19 px instead of <= 0.24)
-        out.correction_tried = large
+        # usual model's misfit) kept held-out cameras from it that needed it (docs/benchmarks.md, section 4)
+        return replace(out, correction=correction, correction_tried=large)
 
     def solve(self, out: PipelineResult, board_size: tuple[int, int], square: float = 1.0) -> PipelineResult:
         """The solver stage of :meth:`run` on its detections (:func:`~ccs_kornia.pipeline.solve.solve_detections`):
@@ -432,9 +457,9 @@ class CalibrationPipeline(nn.Module):
             ``out`` with ``calibration``, ``corrected``, ``correction`` (re-fitted where kept), ``camera_reasons``,
             ``model_selection`` and ``diagnostics`` (when computed) filled.
         """
-        board = (int(board_size[0]), int(board_size[1]))
-        out, self.subset_solutions = solve_detections(self.solving, out, board, square)
-        return diagnose_solved(self.solving, out, board, square, self.subset_solutions) if self.diagnostics else out
+        board = check_board_size(board_size)
+        out, subsets = solve_detections(self.solving, out, board, square)
+        return diagnose_solved(self.solving, out, board, square, subsets) if self.diagnostics else out
 
     # ------------------------------------------------------------------------------------------
     # the stages, each usable alone
@@ -458,13 +483,8 @@ class CalibrationPipeline(nn.Module):
             usual = self._usual(images, board_size, 1.0, calibrate=False)
             return differentiable_detect(usual, images, board_size, self.detector)
         out = self.run(TensorSource(images), board_size, calibrate=False)
-        det = out.detections
-        det.correction, det.correction_tried = out.correction, out.correction_tried
-        if images.dim() == 4:
-            det = select_result(det, 0)
-            det.correction = None if out.correction is None else out.correction[0]
-            det.correction_tried = None if out.correction_tried is None else out.correction_tried[0]
-        return det
+        det = replace(out.detections, correction=out.correction, correction_tried=out.correction_tried)
+        return select_result(det, 0) if images.dim() == 4 else det
 
     def calibrate(
         self,
@@ -477,11 +497,13 @@ class CalibrationPipeline(nn.Module):
         correction_tried: torch.Tensor | None = None,
         init_corners: torch.Tensor | None = None,
         initial: CalibrationResult | None = None,
+        sigma: torch.Tensor | None = None,
     ) -> CalibrationResult:
         """Stage 3 of :meth:`run`: calibrate from corners.
 
         Without ``correction`` this is the solver alone; with the ``correction`` and ``correction_tried`` that
-        :meth:`detect` returns, the corrected-frame calibration competes as in :meth:`run`.
+        :meth:`detect` returns, the corrected-frame calibration competes as in :meth:`run`; with its ``sigma`` too, the
+        corners are weighted as :meth:`run` weighs them, so the result is the whole call's.
 
         Args:
             corners: :math:`(V, N, 2)` or :math:`(C, V, N, 2)` pixels in grid order.
@@ -492,11 +514,14 @@ class CalibrationPipeline(nn.Module):
             correction, correction_tried: :math:`(5,)` / :math:`(C, 5)` and bool scalar / :math:`(C,)`.
             init_corners, initial: optional start of the solver, see
                 :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
+            sigma: :math:`(V, N)` / :math:`(C, V, N)` each corner's measured precision (``DetectionResult.sigma``):
+                the corners are weighted by it where the pipeline weighs corners (``weigh_corners``); ``None``: all
+                corners count alike.
 
         Returns:
             :class:`~ccs_kornia.modules.calibration.result.CalibrationResult`.
         """
-        cols, rows = int(board_size[0]), int(board_size[1])
+        cols, rows = board = check_board_size(board_size)
         if corners.dim() not in (3, 4) or corners.shape[-1] != 2 or corners.shape[-2] != cols * rows:
             raise ValueError(
                 f"Expected corners (V, {cols * rows}, 2) or (C, V, {cols * rows}, 2) for a {cols}x{rows} board, "
@@ -509,20 +534,24 @@ class CalibrationPipeline(nn.Module):
         if not square > 0:
             raise ValueError(f"square must be positive, got {square}.")
         size = (int(image_size[0]), int(image_size[1]))
+        if sigma is not None and sigma.shape != corners.shape[:-1]:
+            raise ValueError(f"sigma must have shape {tuple(corners.shape[:-1])}, got {tuple(sigma.shape)}.")
         if (correction is not None and correction_tried is not None) or self.model == "auto":
             single = corners.dim() == 3
             batch = (lambda x: None if x is None else x[None]) if single else (lambda x: x)
-            calib = solve_group(self.solving, batch(corners).double(), batch(valid).any(-1), board_size, square, size,
+            calib = solve_group(self.solving, batch(corners).double(), batch(valid).any(-1), board, square, size,
                                 None if correction is None else batch(correction).double(),
-                                None if correction_tried is None else batch(torch.as_tensor(correction_tried)))[0]
+                                None if correction_tried is None else batch(torch.as_tensor(correction_tried)),
+                                batch(sigma))[0]
             return select_result(calib, 0) if single else calib
-        object_points = grid_object_points(getattr(self.detector, "board", None), (cols, rows), float(square),
+        object_points = grid_object_points(self.detector.board, board, float(square),
                                            device=corners.device, dtype=torch.float64)
+        weights = corner_weights_of(sigma, valid.bool()) if self.weigh_corners else None
         with nullcontext() if self.differentiable else torch.inference_mode():
             return self.solver(
                 corners.to(torch.float64), valid.bool(), object_points, size,
                 init_corners=None if init_corners is None else init_corners.to(corners.device, torch.float64),
-                initial=initial,
+                initial=initial, weights=weights,
             )
 
     def view_corrections(self, images: torch.Tensor) -> torch.Tensor:
@@ -547,18 +576,19 @@ class CalibrationPipeline(nn.Module):
         half_diagonal = 0.5 * math.hypot(image_size[0], image_size[1])
         return correction_displacement(correction, image_size) > self.min_correction * half_diagonal
 
-    def detect_images(self, images: torch.Tensor, board_size: tuple[int, int], changes: Changes = ()) -> DetectionResult:
+    def detect_images(self, images: torch.Tensor, board_size: tuple[int, int],
+                      fallbacks: Fallbacks | None = None) -> DetectionResult:
         """The detector on ``(B, 1, H, W)`` images of one size, through a downscaled copy when they are large
-        (:class:`~ccs_kornia.modules.detection.warps.warped_detection.Downscale`), with ``changes`` to the detector's own
-        fallbacks; the corners' precision measured where the pipeline weighs corners."""
+        (:class:`~ccs_kornia.modules.detection.warps.warped_detection.Downscale`), with ``fallbacks`` (``None``: the
+        detector's own); the corners' precision measured where the pipeline weighs corners."""
         h, w = images.shape[-2:]
         limit = self.max_detection_side
         measure = self.corner_sigma if self.weigh_corners else None
         with torch.inference_mode():
             # a detector that picks its own detection level and refines at full resolution (the learned one with
             # ``scale="auto"``, modules/detection/learned/scale.py) bounds its memory itself
-            if limit is None or max(h, w) <= limit or getattr(self.detector, "selects_scale", False):
-                det = self.detector.detect(images.float(), board_size, changes)
+            if limit is None or max(h, w) <= limit or self.detector.selects_scale:
+                det = self.detector.detect(images.float(), board_size, fallbacks)
                 sigma = None
                 if measure is not None:
                     # the learned detector has measured them on these images (its asymmetry check)
@@ -566,7 +596,7 @@ class CalibrationPipeline(nn.Module):
                     if sigma is None:
                         sigma = self.corner_sigma(images, det.corners, board_size, det.found)
                 return DetectionResult(det.corners, det.found, det.reasons, sigma)
-            detect = functools.partial(self.detector.detect, changes=changes)
+            detect = functools.partial(self.detector.detect, fallbacks=fallbacks)
             return detect_warped(Downscale.to_side((h, w), limit), detect, self.refine_on_patches, images, board_size,
                                  measure)
 

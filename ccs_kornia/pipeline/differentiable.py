@@ -19,8 +19,11 @@ gradient (``docs/gradients.md``). Corner weights (``weigh_corners``) are measure
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 
+from ccs_kornia.modules._checks import check_board_size
 from ccs_kornia.modules.detection.base import (
     ChessboardDetector,
     DetectionResult,
@@ -45,20 +48,18 @@ __all__ = ["differentiable_detect", "differentiable_run", "corner_module"]
 
 
 def corner_module(det: ChessboardDetector, net: torch.nn.Module | None = None) -> DifferentiableCorners:
-    """The :class:`DifferentiableCorners` of the detector ``det``: the learned detector's heatmap network (or ``net``,
-    e.g. one in training) seeds the refinement; no image refinement steps where the detector has none
-    (``refine="none"``: its corners are the network's own)."""
-    net = getattr(det, "net", None) if net is None else net
-    steps = 0 if getattr(det, "refine", "symmetric") == "none" else SYMMETRY_STEPS
-    return DifferentiableCorners(net, steps, getattr(det, "fit_window", 7))
+    """The :class:`DifferentiableCorners` of the detector ``det``: its heatmap network (or ``net``, e.g. one in
+    training) seeds the refinement; no image refinement steps where the detector has none (its corners are the
+    network's own)."""
+    net = det.heatmap_net if net is None else net
+    steps = SYMMETRY_STEPS if det.refines_on_image else 0
+    return DifferentiableCorners(net, steps, det.fit_window)
 
 
 def _detection_factor(det: ChessboardDetector, images: torch.Tensor) -> torch.Tensor | float:
     """Full-resolution px per detection-level px of each image (the learned detector's primary level)."""
-    if getattr(det, "scale", "off") != "auto":
-        return 1.0
     with torch.no_grad():
-        return det.scale_selector(images.detach().float())[1]
+        return det.detection_factor(images.detach().float())
 
 
 def _corners(det_module: ChessboardDetector, images: torch.Tensor, det: DetectionResult, board: tuple[int, int],
@@ -96,17 +97,12 @@ def differentiable_detect(out: PipelineResult, images: torch.Tensor, board_size:
 
     The result also carries ``gap`` (float64, the shape of ``corners``): how far the differentiated estimator's value
     is from the returned corner (NaN where not found)."""
-    board = (int(board_size[0]), int(board_size[1]))
+    board = check_board_size(board_size)
     batched = images if images.dim() == 5 else images[None]
-    det = out.detections
-    det.corners, gap = _corners(detector, batched, det, board, net)
-    det.correction, det.correction_tried = out.correction, out.correction_tried
-    if images.dim() == 4:
-        det, gap = select_result(det, 0), gap[0]
-        det.correction = None if out.correction is None else out.correction[0]
-        det.correction_tried = None if out.correction_tried is None else out.correction_tried[0]
-    det.gap = gap
-    return det
+    corners, gap = _corners(detector, batched, out.detections, board, net)
+    det = replace(out.detections, corners=corners, correction=out.correction, correction_tried=out.correction_tried,
+                  gap=gap)
+    return select_result(det, 0) if images.dim() == 4 else det
 
 
 def differentiable_run(out: PipelineResult, images: torch.Tensor, board_size: tuple[int, int], square: float,
@@ -127,7 +123,7 @@ def differentiable_run(out: PipelineResult, images: torch.Tensor, board_size: tu
         net: the heatmap network to differentiate (default: ``detector``'s).
 
     ``detections.gap`` says how far the differentiated corner estimator's value is from each corner."""
-    board = (int(board_size[0]), int(board_size[1]))
+    board = check_board_size(board_size)
     batched = images if images.dim() == 5 else images[None]
     det = out.detections
     corners, gap = _corners(detector, batched, det, board, net)
@@ -154,11 +150,9 @@ def differentiable_run(out: PipelineResult, images: torch.Tensor, board_size: tu
             source, row = (out.calibration, ci) if kept else (results[n], k)
             parts.append(select_result(source, torch.tensor([row])))
             order.append(ci)
-    det.corners, out.calibration = corners, _in_order(parts, order, len(out.image_size))
-    if images.dim() == 4:
-        out, gap = out.select(0), gap[0]
-    out.detections.gap = gap
-    return out
+    out = replace(out, detections=replace(det, corners=corners, gap=gap),
+                  calibration=_in_order(parts, order, len(out.image_size)))
+    return out.select(0) if images.dim() == 4 else out
 
 
 def _in_order(parts: list, order: list[int], count: int):

@@ -1,7 +1,8 @@
 """The looks of :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` at its views, each a value the pipeline's loop runs.
 
 The first look (:meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.detect_views`) detects every view as it is; the
-looks of :data:`LOOKS` come after it, in order, each on the views the looks before it missed:
+pipeline's looks (by default those of :data:`LOOKS`) come after it, in order, each on the views the looks before it
+missed:
 
 ========================  ====================================  ==================================  ===========
 look                      views (``select``)                    warp (``detect``)                   needs
@@ -13,22 +14,29 @@ look                      views (``select``)                    warp (``detect``
 :data:`FORESHORTENED`     still missed (no large correction)    the detector's compressed levels    --
 ========================  ====================================  ==================================  ===========
 
-A look says which of the detector's fallbacks it pays for (``passes``: changes to the detector's own
+A look says which of the detector's fallbacks it pays for (``passes``: functions of the detector's own
 :class:`~ccs_kornia.modules.detection.base.Fallbacks`, one detection per pass, each pass on the views the passes
 before it missed) and whether it needs the camera (the loop solves first). The pipeline's detection tools reach a
 look as one value (:class:`Tools`); a look's boards are written back with
-:meth:`~ccs_kornia.modules.detection.base.DetectionResult.fill`.
+:meth:`~ccs_kornia.modules.detection.base.DetectionResult.fill`. Why each look asks what it does, with the figures:
+``docs/measurements.md`` (the looks at missed views).
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
-from typing import Any, Callable
+from dataclasses import dataclass, replace
+from typing import Callable
 
 import torch
 
-from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.modules.calibration.result import ViewReason
+from ccs_kornia.modules.detection.base import (
+    ChessboardDetector,
+    DetectionResult,
+    Fallbacks,
+)
 from ccs_kornia.modules.detection.warps.corrected_copy import (
     detect_on_corrected,
     straightening_evidence,
@@ -45,27 +53,43 @@ from ccs_kornia.pipeline.result import (
 )
 from ccs_kornia.pipeline.workers import worker_pool
 
-__all__ = ["Changes", "Tools", "Look", "FIRST_PASSES", "SECOND_LOOK", "FIRST", "CORRECTED", "CALIBRATED",
-           "FORESHORTENED", "LOOKS", "measure_straightening"]
+__all__ = ["Pass", "Tools", "Look", "own_fallbacks", "first_look_fallbacks", "second_look_fallbacks",
+           "FIRST_PASSES", "FIRST", "CORRECTED", "CALIBRATED", "FORESHORTENED", "LOOKS", "measure_straightening"]
 
-#: changes to a detector's own :class:`~ccs_kornia.modules.detection.base.Fallbacks` (``(field, value)`` pairs)
-Changes = tuple[tuple[str, Any], ...]
+#: what one pass of a look asks of the detector: its own fallbacks in, the ones to pay for out
+Pass = Callable[[Fallbacks], Fallbacks]
 
-#: the first look's: every fallback but the costly last resort for boards at a grazing angle, which waits for the
-#: views the other looks miss (:data:`FORESHORTENED`)
-FIRST_PASSES: tuple[Changes, ...] = ((("foreshortened", False),),)
 
-#: the learned detector's fallbacks on the second looks at missed views (the calibrated lens's virtual views, the
-#: corrected copies): only the finer fallback levels pay (without any: ros_fisheye_mono at 0.5x 24 -> 23 boards,
-#: boofcv_fisheye_chessboard at 0.5x 26 -> 25; without the 0.25: ros_fisheye_mono at 0.5x 24 -> 23 again); the coarser
-#: one, the octaves below and the finest level (detect_at_scale's last tries for a wrong square-size estimate) and
-#: OpenCV's candidates (boards with marks) only add their cost to every view without a board (the foreshortened levels
-#: wait for :data:`FORESHORTENED`, after every cheaper look): boofcv_fisheye_chessboard's
-#: calibrated look 7.5 -> 4.6 s with the same boards and RMS on the fisheye sets and GoPro at 0.5x, 1x and 2x;
-#: on the corrected copies: the same boards and RMS on the eight real sets (boofcv_fisheye_chessboard's 3 of 10 found
-#: there, 3.4 -> 2.4 s; udacity_gopro_wide's and udacity_camera_cal's missed photo 1.13 -> 0.41 and 0.96 -> 0.28 s) and
-#: every figure of bench sections 2 and 4 unchanged
-SECOND_LOOK: Changes = (("levels", (0.5, 0.25)), ("finest", False), ("opencv", False), ("foreshortened", False))
+def own_fallbacks(own: Fallbacks) -> Fallbacks:
+    """The detector's own fallbacks, unchanged."""
+    return own
+
+
+def first_look_fallbacks(own: Fallbacks) -> Fallbacks:
+    """The first look's: every fallback but the costly last resort for boards at a grazing angle, which waits for the
+    views the other looks miss (:data:`FORESHORTENED`)."""
+    return own.but(foreshortened=False)
+
+
+def second_look_fallbacks(own: Fallbacks) -> Fallbacks:
+    """A second look at missed views (corrected copies, virtual views of the calibrated lens): the finer fallback
+    levels only, which find boards there; the coarser level, the octaves below, the finest level and OpenCV's
+    candidates found none and cost time on every view without a board (``docs/measurements.md``)."""
+    return own.but(levels=(0.5, 0.25), finest=False, opencv=False, foreshortened=False)
+
+
+def _virtual_view_first_level(own: Fallbacks) -> Fallbacks:
+    """The calibrated look's first pass: the level the square-size estimate picks, no fallback level."""
+    return second_look_fallbacks(own).but(levels=())
+
+
+def _virtual_view_fallback_levels(own: Fallbacks) -> Fallbacks:
+    """The calibrated look's second pass: the second look's fallback levels only."""
+    return second_look_fallbacks(own).but(primary=False)
+
+
+#: the first look's passes
+FIRST_PASSES: tuple[Pass, ...] = (first_look_fallbacks,)
 
 
 @dataclass(frozen=True)
@@ -73,8 +97,8 @@ class Tools:
     """What a look detects with: the pipeline's detection tools.
 
     Attributes:
-        detect: ``(images (B,1,H,W), board_size, changes) -> DetectionResult``, the detector (through a downscaled
-            copy of large images) with ``changes`` to its fallbacks, corners' precision measured where weighed.
+        detect: ``(images (B,1,H,W), board_size, fallbacks) -> DetectionResult``, the detector (through a downscaled
+            copy of large images) with ``fallbacks`` (``None``: its own), corners' precision measured where weighed.
         refine: ``(images, corners (B,N,2), board_size) -> corners``: the saddle refinement at full resolution.
         measure: ``(images, corners (B,N,2), board_size) -> sigma (B,N)``: the corners' precision (``None``: corners
             are not weighed).
@@ -82,7 +106,7 @@ class Tools:
         workers: processes that may work at once on CPU.
     """
 
-    detect: Callable[[torch.Tensor, tuple[int, int], Changes], DetectionResult]
+    detect: Callable[[torch.Tensor, tuple[int, int], Fallbacks | None], DetectionResult]
     refine: Callable[[torch.Tensor, torch.Tensor, tuple[int, int]], torch.Tensor]
     measure: Callable[[torch.Tensor, torch.Tensor, tuple[int, int]], torch.Tensor] | None
     detector: ChessboardDetector
@@ -95,43 +119,47 @@ class Look:
 
     Attributes:
         name: what the look is.
-        select: ``select(out, detector, calibrated_look) -> [(camera, view), ...]``: the views it looks at (``None``:
-            every view of the source).
-        detect: ``detect(tools, out, images, keys, board_size, changes) -> DetectionResult``: one batch of those views
-            (``keys``), the warp -> detect -> map back -> refine -> precision of the look, corners in the images.
-        passes: changes to the detector's own fallbacks, one detection per pass, each on the views the passes before
-            missed (a pass that would try no level, or a detector without fallbacks after the first pass, is skipped).
+        select: ``select(out, detector) -> [(camera, view), ...]``: the views it looks at (``None``: every view of the
+            source).
+        detect: ``detect(tools, out, images, keys, board_size, fallbacks) -> DetectionResult``: one batch of those
+            views (``keys``), the warp -> detect -> map back -> refine -> precision of the look, corners in the images;
+            ``fallbacks``: the pass's (``None`` for a detector without fallbacks).
+        passes: what each pass asks of the detector's own fallbacks (:data:`Pass`), one detection per pass, each on
+            the views the passes before missed (a pass that would try no level, or a detector without fallbacks after
+            the first pass, is skipped).
         needs_camera: the cameras are solved (again, where a look found boards since) before this look.
         needs_correction: the network's pooled correction per camera (the look is skipped without one).
         in_workers: its batches are shared out to the pipeline's worker processes (``False``: here, one after the
             other: the calibrated look shares out its own rounds of virtual views, and the foreshortened look's
             answers are those of this process's threads).
-        after: ``after(out, board_size)`` once the look has run (with or without views to look at).
+        after: ``after(out, board_size) -> out``: the result with what the look measures once it has run (with or
+            without views to look at).
     """
 
     name: str
-    select: Callable[[PipelineResult | None, ChessboardDetector, bool], list[tuple[int, int]] | None]
+    select: Callable[[PipelineResult | None, ChessboardDetector], list[tuple[int, int]] | None]
     detect: Callable[..., DetectionResult]
-    passes: tuple[Changes, ...] = ((),)
+    passes: tuple[Pass, ...] = (own_fallbacks,)
     needs_camera: bool = False
     needs_correction: bool = False
     in_workers: bool = True
-    after: Callable[[PipelineResult, tuple[int, int]], None] | None = None
+    after: Callable[[PipelineResult, tuple[int, int]], PipelineResult] | None = None
 
     def run(self, tools: Tools, out: PipelineResult, images: torch.Tensor, keys: list,
             board_size: tuple[int, int]) -> DetectionResult:
         """The look on one batch ``images`` :math:`(B, 1, H, W)` of views ``keys``: its :attr:`passes` in turn."""
         own = tools.detector.fallbacks
         got = None
-        for k, changes in enumerate(self.passes):
-            if k and (own is None or own.but(**dict(changes)).empty):
+        for k, ask in enumerate(self.passes):
+            fallbacks = None if own is None else ask(own)
+            if k and (fallbacks is None or fallbacks.empty):
                 break
             every = torch.arange(images.shape[0], device=images.device)
             todo = every if got is None else (~got.found).nonzero().flatten()
             if not todo.numel():
                 break
             part = [keys[i] for i in todo.tolist()]
-            again = self.detect(tools, out, images if got is None else images[todo], part, board_size, changes)
+            again = self.detect(tools, out, images if got is None else images[todo], part, board_size, fallbacks)
             if got is None:
                 got = again
             else:
@@ -139,18 +167,18 @@ class Look:
         return got
 
 
-def _every_view(out: PipelineResult | None, detector: Any, calibrated_look: bool) -> None:
+def _every_view(out: PipelineResult | None, detector: ChessboardDetector) -> None:
     """Every view of the source."""
     return None
 
 
 def _as_is(tools: Tools, out: PipelineResult | None, images: torch.Tensor, keys: list, board_size: tuple[int, int],
-           changes: Changes) -> DetectionResult:
+           fallbacks: Fallbacks | None) -> DetectionResult:
     """The views as they are (through a downscaled copy where the pipeline detects large images so)."""
-    return tools.detect(images, board_size, changes)
+    return tools.detect(images, board_size, fallbacks)
 
 
-def _missed_with_large_correction(out: PipelineResult, detector: Any, calibrated_look: bool) -> list:
+def _missed_with_large_correction(out: PipelineResult, detector: ChessboardDetector) -> list:
     """Views missed on the originals of cameras whose pooled correction is large."""
     same, det = same_size_views(out), out.detections
     return [(ci, vi) for ci in out.correction_tried.nonzero().flatten().tolist()
@@ -158,60 +186,59 @@ def _missed_with_large_correction(out: PipelineResult, detector: Any, calibrated
 
 
 def _on_corrected_copies(tools: Tools, out: PipelineResult, images: torch.Tensor, keys: list,
-                         board_size: tuple[int, int], changes: Changes) -> DetectionResult:
+                         board_size: tuple[int, int], fallbacks: Fallbacks | None) -> DetectionResult:
     """The views on copies corrected by their camera's pooled correction, corners refined and measured on the
     originals (:func:`~ccs_kornia.modules.detection.warps.corrected_copy.detect_on_corrected`)."""
     device = out.detections.corners.device
     images = images.to(device)
     correction = out.correction[torch.tensor([k[0] for k in keys], device=device)]
-    detect = functools.partial(_with_changes, tools.detect, changes)
+    detect = functools.partial(_with_fallbacks, tools.detect, fallbacks)
     return detect_on_corrected(detect, tools.refine, images, correction, board_size, tools.measure)
 
 
-def _missed_on_fisheye_cameras(out: PipelineResult, detector: Any, calibrated_look: bool) -> list:
-    """Views missed on the originals, or rejected as outliers, of cameras calibrated with the fisheye model.
+def _missed_on_fisheye_cameras(out: PipelineResult, detector: ChessboardDetector) -> list:
+    """Views missed on the originals, or rejected as outliers, of cameras calibrated with a fisheye model.
 
     Only fisheye cameras: there the boards near the rim are too curved for the detector, and the calibrated model is
-    what straightens them (measured: 3 of 3 missed ROS views, 6 of 6 missed BoofCV views found); a pinhole lens's
-    missed views are missed for other reasons (blur, cut boards) that a reprojection does not cure."""
-    if not calibrated_look:
-        return []
+    what straightens them (it found every missed view of the real fisheye sets, ``docs/measurements.md``); a pinhole
+    lens's missed views are missed for other reasons (blur, cut boards) that a reprojection does not cure."""
     cal, det = out.calibration, out.detections
     models = cal.model if isinstance(cal.model, tuple) else (cal.model,) * det.found.shape[0]
     same = same_size_views(out)
     ok = cal.success.to(same.device)
-    cams = [ci for ci in ok.nonzero().flatten().tolist() if models[ci] == "fisheye"]
+    cams = [ci for ci in ok.nonzero().flatten().tolist() if camera_model(models[ci]).is_fisheye]
     # views without a board, and views whose corners the solver rejected as an outlier (wrong corners on the
     # original image: a board near the rim found, but mislabelled)
-    outlier = cal.view_reason.to(same.device) == 4
+    outlier = cal.view_reason.to(same.device) == ViewReason.OUTLIER
     retry = same & (~det.found | outlier)
     return [(ci, vi) for ci in cams for vi in retry[ci].nonzero().flatten().tolist()]
 
 
 def _on_virtual_views(tools: Tools, out: PipelineResult, images: torch.Tensor, keys: list,
-                      board_size: tuple[int, int], changes: Changes) -> DetectionResult:
+                      board_size: tuple[int, int], fallbacks: Fallbacks | None) -> DetectionResult:
     """The views on virtual pinhole views of their camera's calibrated lens
     (:func:`~ccs_kornia.modules.detection.warps.virtual_view.detect_with_calibrated_lens`), the rounds of virtual
-    views by the worker processes (a whole image per process measured no faster: udacity_gopro_wide misses one view,
-    GOPR0055). Found on a virtual view, a corner's precision is unknown (the median weight)."""
+    views by the worker processes (a whole image per process measured no faster). Found on a virtual view, a
+    corner's precision is unknown (the median weight)."""
     device = out.detections.corners.device
     lens = {ci: select_result(out.calibration, ci) for ci in dict.fromkeys(k[0] for k in keys)}
     K = torch.stack([lens[ci].K for ci, _ in keys]).to(device)
     dist = torch.stack([lens[ci].dist for ci, _ in keys]).to(device)
     workers = tools.workers if device.type == "cpu" else 1
     pool = functools.partial(worker_pool, workers=min(workers, VIEWS_PER_ROUND)) if workers > 1 else None
-    detect = functools.partial(_with_changes, tools.detect, changes)
+    detect = functools.partial(_with_fallbacks, tools.detect, fallbacks)
     return detect_with_calibrated_lens(detect, tools.refine, images.to(device), K, dist, True, board_size,
                                        view_pool=pool)
 
 
-def _still_missed(out: PipelineResult, detector: Any, calibrated_look: bool) -> list:
+def _still_missed(out: PipelineResult, detector: ChessboardDetector) -> list:
     """Views still without a board, where the detector has the last resort for boards at a grazing angle among its
-    own fallbacks; not those of a strongly distorted lens (its pooled correction large), which bends a board's squares
-    beyond an affine compression: the corrected look is its resort (bench section 4's wide lens: looking here found
-    one rim board of 300 views, and the mean E_IP rose 0.041 -> 0.045 px)."""
-    own = getattr(detector, "fallbacks", None)
-    if own is None or not own.foreshortened or not hasattr(detector, "foreshortened"):
+    own fallbacks (:meth:`~ccs_kornia.modules.detection.base.ChessboardDetector.foreshortened`); not those of a
+    strongly distorted lens (its pooled correction large), which bends a board's squares beyond an affine compression:
+    the corrected look is its resort (looking there too cost accuracy on bench section 4's wide lens,
+    ``docs/measurements.md``)."""
+    own = detector.fallbacks
+    if own is None or not own.foreshortened:
         return []
     retry = out.present & ~out.detections.found
     if out.correction_tried is not None:
@@ -220,7 +247,7 @@ def _still_missed(out: PipelineResult, detector: Any, calibrated_look: bool) -> 
 
 
 def _foreshortened(tools: Tools, out: PipelineResult, images: torch.Tensor, keys: list,
-                   board_size: tuple[int, int], changes: Changes) -> DetectionResult:
+                   board_size: tuple[int, int], fallbacks: Fallbacks | None) -> DetectionResult:
     """The detector's last resort for boards at a grazing angle (``detector.foreshortened``: the image compressed
     along a few directions, corners mapped back and refined by the detector), precision measured on the images."""
     images = images.to(out.detections.corners.device)
@@ -234,13 +261,13 @@ def _foreshortened(tools: Tools, out: PipelineResult, images: torch.Tensor, keys
     return got
 
 
-def _with_changes(detect: Callable, changes: Changes, images: torch.Tensor, board_size: tuple[int, int]):
-    return detect(images, board_size, changes)
+def _with_fallbacks(detect: Callable, fallbacks: Fallbacks | None, images: torch.Tensor, board_size: tuple[int, int]):
+    return detect(images, board_size, fallbacks)
 
 
-def measure_straightening(out: PipelineResult, board_size: tuple[int, int]) -> None:
-    """How straight the found boards' rows and columns are before and after each camera's pooled correction
-    (``out.straightness``, :func:`~ccs_kornia.modules.detection.warps.corrected_copy.straightening_evidence`)."""
+def measure_straightening(out: PipelineResult, board_size: tuple[int, int]) -> PipelineResult:
+    """``out`` with ``straightness``: how straight the found boards' rows and columns are before and after each
+    camera's pooled correction (:func:`~ccs_kornia.modules.detection.warps.corrected_copy.straightening_evidence`)."""
     det, same = out.detections, same_size_views(out)
     device = det.corners.device
     straightness = torch.full((det.found.shape[0], 2), float("nan"), dtype=torch.float64, device=device)
@@ -249,7 +276,7 @@ def measure_straightening(out: PipelineResult, board_size: tuple[int, int]) -> N
         before, after = straightening_evidence(det.corners[sel], det.found[sel] & same[sel], out.correction[sel],
                                                board_size, positive_size(size))
         straightness[sel] = torch.stack([before, after], -1)
-    out.straightness = straightness
+    return replace(out, straightness=straightness)
 
 
 #: every view as it is: the look that makes the result (:meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.detect_views`,
@@ -257,29 +284,22 @@ def measure_straightening(out: PipelineResult, board_size: tuple[int, int]) -> N
 FIRST = Look("first look", _every_view, _as_is, FIRST_PASSES)
 
 #: views missed on the originals of a strongly distorted camera, on copies corrected by the network's pooled
-#: correction: finer fallback levels only, in the pipeline's batches (one view at a time changed rendered fisheye
-#: cameras' E_IP in the 4th digit, bench section 7), by its worker processes on CPU
-CORRECTED = Look("corrected look", _missed_with_large_correction, _on_corrected_copies, (SECOND_LOOK,),
+#: correction: finer fallback levels only, in the pipeline's batches (one view at a time changed results in the
+#: fourth digit, ``docs/measurements.md``), by its worker processes on CPU
+CORRECTED = Look("corrected look", _missed_with_large_correction, _on_corrected_copies, (second_look_fallbacks,),
                  needs_correction=True, after=measure_straightening)
 
 #: a fisheye lens, once calibrated, straightens the boards its rim hid from the detector: two passes over the
 #: virtual views, each on the level its square-size estimate picks, then, for the images still without a board, on
-#: the fallback levels only. A board near a fisheye's rim is found on the first level of some view (the real fisheye
-#: sets: 9 of 9 boards, and 8 of 8 at half size, on the same views as with the fallbacks); the fallbacks, finer
-#: levels of up to 16x the pixels, find the others (bench section 7's renders: 733 boards of 750, 723 with the
-#: second pass left out where the lens's focal length exceeds the axis view's; ros_fisheye_mono at half size: 2 of
-#: its 5 missed views). One pass with the fallbacks paid them on every view before the one that had the board:
-#: boofcv_fisheye_chessboard's look 6.2 -> 2.2-2.5 s, ros_fisheye_mono's 0.79 -> 0.42 s; a view with no board in
-#: reach pays both passes, the first one on top of the old cost (udacity_gopro_wide's GOPR0055, a board larger than
-#: the frame: 2.2-2.5 -> 2.8-3.2 s). The same boards on bench section 7 (733 and 732 of 750).
+#: the fallback levels only; most rim boards are found on the first level, and one pass with the fallbacks paid them
+#: on every view before the one that had the board (``docs/measurements.md``)
 CALIBRATED = Look("calibrated look", _missed_on_fisheye_cameras, _on_virtual_views,
-                  (SECOND_LOOK + (("levels", ()),), SECOND_LOOK + (("primary", False),)), needs_camera=True,
-                  in_workers=False)
+                  (_virtual_view_first_level, _virtual_view_fallback_levels), needs_camera=True, in_workers=False)
 
 #: the last resort on the views every other look missed: it costs four detections at the finest level on every view
 #: without a board, and most such views of a fisheye lens are found by the calibrated look anyway
-#: (boofcv_fisheye_chessboard: 10 of its 26 views, +4.5 s when each paid it first)
+#: (``docs/measurements.md``)
 FORESHORTENED = Look("foreshortened look", _still_missed, _foreshortened, in_workers=False)
 
-#: the looks after the first (:data:`FIRST`), in order
+#: the looks after the first (:data:`FIRST`), in order: the default of the pipeline's ``looks``
 LOOKS: tuple[Look, ...] = (CORRECTED, CALIBRATED, FORESHORTENED)

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import torch
 
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.modules.calibration.result import VIEW_REASONS, CalibrationResult
+from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.modules.detection.base import DetectionResult, measured_corners
 from ccs_kornia.pipeline.sources import SIZE_TOLERANCE_PX
 
@@ -62,9 +64,7 @@ def select_result(result: Any, idx: torch.Tensor | int) -> Any:
 
 def dist_width(model: str) -> int:
     """Distortion coefficients a calibration of ``model`` stores (``fisheye``: k1..k4; OpenCV variants: 0, 5 or 8)."""
-    from ccs_kornia.geometry.camera import num_distortion_coeffs
-
-    return 4 if model == "fisheye" else num_distortion_coeffs(model)
+    return camera_model(model).num_coeffs
 
 
 def _trim(values: dict[str, Any], width: int) -> dict[str, Any]:
@@ -122,7 +122,12 @@ def concat_results(parts: Sequence[Any]) -> Any:
 
 @dataclass
 class PipelineResult:
-    """Detections and calibration of ``C`` cameras (the camera dimension is absent for one camera's views).
+    """Detections and calibration of ``C`` cameras (the camera dimension is absent for one camera's views: then
+    the per-camera lists below hold that camera's entry).
+
+    The pipeline's stages and looks do not change a result in place: each returns a new one with its fields set
+    (``dataclasses.replace``), but for the boards a look finds, written into ``detections``
+    (:meth:`~ccs_kornia.modules.detection.base.DetectionResult.fill`).
 
     Attributes:
         detections: corners :math:`(C, V, N, 2)` in the original images (zeros where not found), found
@@ -149,7 +154,7 @@ class PipelineResult:
 
     detections: DetectionResult
     calibration: CalibrationResult | None
-    image_size: Any
+    image_size: list[tuple[int, int]] | tuple[int, int]
     present: torch.Tensor
     view_sizes: torch.Tensor | None = None
     correction: torch.Tensor | None = None
@@ -157,9 +162,9 @@ class PipelineResult:
     corrected: torch.Tensor | None = None
     straightness: torch.Tensor | None = None
     view_corrections: torch.Tensor | None = None
-    camera_reasons: Any = field(default_factory=list)
-    diagnostics: Any = None
-    model_selection: Any = None
+    camera_reasons: list[str] | str = field(default_factory=list)
+    diagnostics: list[dict | None] | dict | None = None
+    model_selection: list[dict | None] | dict | None = None
 
     @property
     def batched(self) -> bool:
@@ -395,9 +400,9 @@ def corner_weights_of(sigma: torch.Tensor | None, valid: torch.Tensor,
     return corner_weights(sigma.to(valid.device), valid)
 
 
-def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, board_size: tuple[int, int],
-                     square: float, weigh: bool = True, solutions: Any = None, board: Any = None
-                     ) -> list[dict | None]:
+def diagnose_cameras(solvers: Mapping[str, torch.nn.Module], out: PipelineResult, usable: torch.Tensor,
+                     board_size: tuple[int, int], square: float, weigh: bool = True,
+                     solutions: SubsetSolutions | None = None, board: Any = None) -> list[dict | None]:
     """Quality figures and verdict of each camera of a solved ``out`` (one
     :func:`~ccs_kornia.modules.calibration.quality.diagnostics.diagnose` call per image size; ``None`` for a camera
     without a computed calibration). The halves and folds of the cross-validation are solved by ``solvers[model]``
@@ -410,8 +415,7 @@ def diagnose_cameras(solvers: Any, out: PipelineResult, usable: torch.Tensor, bo
 
     det, cal = out.detections, out.calibration
     found = usable & cal.success[:, None].to(usable.device)
-    cols, rows = int(board_size[0]), int(board_size[1])
-    obj = grid_object_points(board, (cols, rows), float(square), device=det.corners.device, dtype=torch.float64)
+    obj = grid_object_points(board, board_size, float(square), device=det.corners.device, dtype=torch.float64)
     diagnostics: list[dict | None] = [None] * found.shape[0]
     models = cal.model if isinstance(cal.model, tuple) else (cal.model,) * found.shape[0]
     for size, model in dict.fromkeys(zip(out.image_size, models)):

@@ -174,15 +174,21 @@ def unconnected_cameras(valid: torch.Tensor, names: Sequence[str], labels: Seque
 
 
 def frame_times_of(frames: FrameTable) -> torch.Tensor | None:
-    """The frames' times for the rig solver's board motion: their numbers where every frame label is one (frames
-    matched by the numbers in the file names, e.g. a recording's frame or sync index), else ``None``.
+    """The frames' times for the rig solver's board motion: the mean of the cameras' times where the frames were
+    paired by time (videos, a timestamps table; NaN for a frame without one), else their numbers where every frame
+    label is one (frames matched by the numbers in the file names), else ``None``.
 
     Example:
         >>> frame_times_of(FrameTable(["0416", "0417"], [[0, 1], [0, 1]], "number")).tolist()
         [416.0, 417.0]
+        >>> frame_times_of(FrameTable(["0", "1"], [[0, 1], [0, 1]], "time", [[0.0, 0.1], [0.02, None]])).tolist()
+        [0.01, 0.1]
     """
+    if frames.times is not None:
+        per_frame = [[row[f] for row in frames.times if row[f] is not None] for f in range(frames.num_frames)]
+        return torch.tensor([sum(t) / len(t) if t else float("nan") for t in per_frame], dtype=torch.float64)
     try:
-        return torch.tensor([float(int(label)) for label in frames.labels], dtype=torch.float64)
+        return torch.tensor([float(label) for label in frames.labels], dtype=torch.float64)
     except ValueError:
         return None
 
@@ -269,9 +275,13 @@ class RigPipeline(nn.Module):
 
     def detect_and_calibrate(self, source: ViewSource, board_size: tuple[int, int], square: float,
                              progress: Callable[[int], None] | None = None,
-                             models: Sequence[str] | None = None) -> list[PipelineResult]:
+                             models: Sequence[str] | None = None, *,
+                             on_batch: Callable[[list[tuple[int, int]], torch.Tensor], None] | None = None,
+                             ) -> list[PipelineResult]:
         """Every camera through the single-camera pipeline of its model (``models``: per camera of ``source``,
-        default this pipeline's); one result per camera. The cameras of one model go through one batched run."""
+        default this pipeline's); one result per camera. The cameras of one model go through one batched run.
+        ``on_batch``: as :meth:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.detect_views`'s, with
+        the cameras of ``source``."""
         c = source.num_cameras
         if models is None:
             models = [self.models] * c if isinstance(self.models, str) else self.models
@@ -281,7 +291,9 @@ class RigPipeline(nn.Module):
         for model, pipeline in self.pipelines.items():
             cams = [i for i in range(c) if models[i] == model]
             part = source if len(cams) == c else _Cameras(source, cams)
-            result = pipeline.run(part, board_size, square, progress=progress)
+            watch = None if on_batch is None else \
+                (lambda keys, found, cams=cams: on_batch([(cams[c], v) for c, v in keys], found))
+            result = pipeline.run(part, board_size, square, progress=progress, on_batch=watch)
             for k, i in enumerate(cams):
                 out[i] = result.select(k)
         return out  # type: ignore[return-value]
@@ -340,9 +352,8 @@ class RigPipeline(nn.Module):
         out.reason = unconnected_cameras(valid, names, frames.labels)
         if out.reason:
             return out
-        cols, rows = int(board_size[0]), int(board_size[1])
-        object_points = grid_object_points(getattr(next(iter(self.pipelines.values())).detector, "board", None),
-                                           (cols, rows), float(square), dtype=torch.float64)
+        object_points = grid_object_points(next(iter(self.pipelines.values())).detector.board, board_size,
+                                           float(square), dtype=torch.float64)
         solver = RigSolver(models=models, **self.solver_kwargs)
         sizes = [tuple(int(x) for x in r.image_size) for r in cameras]
         try:

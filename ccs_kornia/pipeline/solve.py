@@ -9,7 +9,7 @@ solver options as one value (:class:`Solving`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
 import torch
@@ -77,14 +77,14 @@ def _merge(parts: list[CalibrationResult], order: list[torch.Tensor], count: int
 
 def solve_detections(solving: Solving, out: PipelineResult, board_size: tuple[int, int], square: float,
                      keep_models: bool = False) -> tuple[PipelineResult, SubsetSolutions]:
-    """:meth:`CalibrationPipeline.solve <ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.solve>`: fills ``out``'s
-    ``calibration``, ``corrected``, ``correction``, ``camera_reasons`` and ``model_selection``; returns ``out`` and
-    the model selection's cross-validations (for :func:`diagnose_solved`).
+    """:meth:`CalibrationPipeline.solve <ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.solve>`:
+    ``out`` with ``calibration``, ``corrected``, ``correction``, ``camera_reasons`` and ``model_selection``, and the
+    model selection's cross-validations (for :func:`diagnose_solved`).
 
     With ``keep_models`` (``model="auto"``, after a first solve), each camera is solved again with the model chosen
     in ``out.model_selection`` instead of choosing again: the solve after the second look, whose few recovered views
-    would cost a whole cross-validation of every model (1.5 s of udacity_gopro_wide's 13 s) to confirm the choice
-    that sent the camera to the look. The tables say on how many views the choice was made."""
+    would cost a whole cross-validation of every model (a tenth of a run, ``docs/benchmarks.md``, section 5) to
+    confirm the choice that sent the camera to the look. The tables say on how many views the choice was made."""
     if not square > 0:
         raise ValueError(f"square must be positive, got {square}.")
     det = out.detections
@@ -117,23 +117,20 @@ def solve_detections(solving: Solving, out: PipelineResult, board_size: tuple[in
             selection[ci] = None if table is None else table[k]
         parts.append(calib)
         order.append(sel)
-    out.calibration = _merge(parts, order, c)
-    out.correction = correction
-    out.corrected = corrected if correction is not None else None
-    out.model_selection = selection if solving.model == "auto" else None
-    out.camera_reasons = [camera_reason(out.calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum()))
-                          for ci in range(c)]
-    return out, subsets
+    calibration = _merge(parts, order, c)
+    reasons = [camera_reason(calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum())) for ci in range(c)]
+    return replace(out, calibration=calibration, correction=correction,
+                   corrected=corrected if correction is not None else None,
+                   model_selection=selection if solving.model == "auto" else None, camera_reasons=reasons), subsets
 
 
 def diagnose_solved(solving: Solving, out: PipelineResult, board_size: tuple[int, int], square: float,
                     subsets: SubsetSolutions | None = None) -> PipelineResult:
-    """The diagnostics of a result :func:`solve_detections` solved (fills ``out.diagnostics``; ``subsets``: that
-    solve's cross-validations, reused where the inputs are the same)."""
+    """``out``, a result :func:`solve_detections` solved, with its ``diagnostics`` (``subsets``: that solve's
+    cross-validations, reused where the inputs are the same)."""
     usable = out.detections.found & same_size_views(out)
-    out.diagnostics = diagnose_cameras(solving.solvers, out, usable, (int(board_size[0]), int(board_size[1])), square,
-                                       solving.weigh_corners, subsets, board=solving.board)
-    return out
+    return replace(out, diagnostics=diagnose_cameras(solving.solvers, out, usable, board_size, square,
+                                                     solving.weigh_corners, subsets, board=solving.board))
 
 
 def _chosen_before(table: dict | None, views: int) -> dict | None:
@@ -154,10 +151,8 @@ def solve_group(solving: Solving, corners: torch.Tensor, found: torch.Tensor, bo
     :math:`(C, V, N)` precision, weighting the solves where the pipeline weighs corners. ``models``
     (``model="auto"`` only): a model name per camera to solve with instead of choosing (the table is then ``None``;
     a camera without a name gets the first candidate). ``subsets``: where the model selection keeps its
-    cross-validations."""
-    cols, rows = int(board_size[0]), int(board_size[1])
-    obj = grid_object_points(solving.board, (cols, rows), float(square), device=corners.device,
-                             dtype=torch.float64)
+    cross-validations. ``board_size``: checked ``(cols, rows)`` (the pipeline's edge)."""
+    obj = grid_object_points(solving.board, board_size, float(square), device=corners.device, dtype=torch.float64)
     valid = measured_corners(corners, found)
     weights = corner_weights_of(sigma, valid) if solving.weigh_corners else None
     if solving.model != "auto":
@@ -175,8 +170,7 @@ def solve_group(solving: Solving, corners: torch.Tensor, found: torch.Tensor, bo
     else:
         names, table = [n or next(iter(solving.solvers)) for n in models], None
         # each chosen model solves every camera of the group, as in the selection: the solver's RANSAC draws depend on
-        # the batch, and a camera must get the calibration its choice was made on (one rendered fisheye camera of
-        # bench section 7 went 0.078 -> 0.754 px E_IP when its model's cameras were solved alone)
+        # the batch, and a camera must get the calibration its choice was made on (docs/measurements.md)
         with torch.inference_mode():
             results = {name: solving.solvers[name](corners.to(torch.float64), valid, obj, image_size, weights=weights)
                        for name in dict.fromkeys(names)}
@@ -202,7 +196,7 @@ def _compete(solving: Solving, solver: CalibrationSolver, usual: CalibrationResu
     """Where the evidence asked for it, the corrected-frame calibration against the usual one (kept where it fits
     the observed corners clearly better); returns ``(calibration, correction, applied)``."""
     # (the corrected frame's radial model is a pinhole lens's: not for fisheye cameras)
-    if correction is None or tried is None or not bool(tried.any()) or solver.model == "fisheye":
+    if correction is None or tried is None or not bool(tried.any()) or solver.camera.is_fisheye:
         return usual, correction, None if correction is None or tried is None else torch.zeros_like(tried)
     # only the cameras the evidence points to, and only those the usual solve could calibrate, go the corrected
     # way (a camera refused as degenerate stays refused)

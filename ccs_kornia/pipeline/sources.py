@@ -1,14 +1,16 @@
-"""Where a pipeline run reads its views from: tensors already in memory, or image files streamed from disk.
+"""Where a pipeline run reads its views from: tensors already in memory, image files or video frames streamed from
+disk.
 
 A :class:`ViewSource` holds ``C`` cameras, each with its own list of views (ragged: cameras may have
 different numbers of views and image sizes). :meth:`ViewSource.batches` loads the views asked for in batches of
 one image size, bounded in number and in pixels, so that a folder of 24 Mpx photographs never sits in memory at
 once; :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` reads every view through it, whether the caller handed it
-a tensor (:class:`TensorSource`) or file names (:class:`FileSource`).
+a tensor (:class:`TensorSource`), file names (:class:`FileSource`) or frames of videos (:class:`VideoSource`).
 """
 
 from __future__ import annotations
 
+import os
 import queue
 import threading
 from collections import deque
@@ -18,8 +20,8 @@ from dataclasses import dataclass, field
 
 import torch
 
-__all__ = ["LoadedBatch", "ViewSource", "TensorSource", "FileSource", "prefetched", "DEFAULT_MAX_BATCH_PIXELS",
-           "SIZE_TOLERANCE_PX"]
+__all__ = ["LoadedBatch", "ViewSource", "TensorSource", "FileSource", "VideoFrameRef", "VideoSource", "prefetched",
+           "DEFAULT_MAX_BATCH_PIXELS", "SIZE_TOLERANCE_PX"]
 
 #: pixels loaded at most in one batch (16 Mpx = 64 MB of float32 grey images): bounds the detector's
 #: activations too, which are a few times the input per image
@@ -254,3 +256,85 @@ class FileSource(ViewSource):
         if image is None:
             return None, reason
         return torch.from_numpy(image)[None], ""
+
+
+#: the decoders a forked worker inherited from its parent, kept (a worker ends without freeing them)
+_INHERITED_DECODERS: list = []
+
+
+@dataclass(frozen=True)
+class VideoFrameRef:
+    """One frame of a video as a view: the video's path, the frame's index and its timestamp (s) as the first pass
+    over the video saw it (``None``: not known)."""
+
+    video: str
+    index: int
+    timestamp: float | None = None
+
+    @property
+    def name(self) -> str:
+        """``VIDEO#INDEX``, the frame's name in every output."""
+        from ccs_kornia.io.video import frame_name
+        return frame_name(self.video, self.index)
+
+
+class VideoSource(ViewSource):
+    """Frames of videos, one list per camera (a camera's frames may come from several videos), decoded when their
+    batch is loaded.
+
+    Each process (the pipeline's forked workers included) opens its own decoder per video and reads a chunk's frames
+    forward (:class:`~ccs_kornia.io.video.VideoReader`: decoding on to a frame not far ahead, else a seek checked
+    against the frame's timestamp), so the same batches come out of any number of workers. ``decodes = True``: the
+    pipeline decodes the next batch in a thread while the current one is detected.
+
+    Example:
+        >>> src = VideoSource([[VideoFrameRef("cam0.mp4", 3, 0.1), VideoFrameRef("cam0.mp4", 9, 0.3)]])
+        >>> src.counts, src.describe(0, 1)
+        ([2], 'cam0.mp4#9')
+    """
+
+    decodes = True
+
+    def __init__(self, frames: Sequence[Sequence[VideoFrameRef]], names: Sequence[str] | None = None,
+                 sizes: dict[str, tuple[int, int]] | None = None) -> None:
+        self.frames = [list(f) for f in frames]
+        self.sizes = dict(sizes or {})
+        self._readers: dict[str, object] = {}
+        self._pid = os.getpid()
+        super().__init__([len(f) for f in self.frames], names)
+
+    def describe(self, camera: int, view: int) -> str:
+        return self.frames[camera][view].name
+
+    def timestamp(self, camera: int, view: int) -> float | None:
+        return self.frames[camera][view].timestamp
+
+    def pixels(self, camera: int, view: int) -> int | None:
+        size = self.sizes.get(self.frames[camera][view].video)
+        return None if size is None else int(size[0] * size[1])
+
+    def _reader(self, video: str):
+        from ccs_kornia.io.video import VideoReader
+
+        if self._pid != os.getpid():  # a forked worker: the parent's decoders are the parent's, never touched here
+            _INHERITED_DECODERS.append(self._readers)  # (freeing one waits for decoding threads only the parent has)
+            self._readers, self._pid = {}, os.getpid()
+        if video not in self._readers:
+            self._readers[video] = VideoReader(video)
+        return self._readers[video]
+
+    def _load(self, camera: int, view: int) -> tuple[torch.Tensor | None, str]:
+        ref = self.frames[camera][view]
+        try:
+            frame = self._reader(ref.video).read(ref.index, ref.timestamp)
+        except ValueError as err:
+            return None, str(err)
+        if frame is None:
+            return None, f"frame {ref.index} could not be decoded"
+        return torch.from_numpy(frame.image).float().div_(255.0)[None], ""
+
+    def close(self) -> None:
+        """Release this process's decoders."""
+        for reader in self._readers.values():
+            reader.close()
+        self._readers = {}

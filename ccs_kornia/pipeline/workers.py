@@ -1,13 +1,12 @@
 """Work on a source's views in batches, in this process or in forked worker processes (one CPU core each).
 
-Most of a view's detection is small tensor and numpy operations, which one process cannot spread over two cores
-(only the networks' convolutions use both threads well): two processes with one thread each detect a folder about
-1.5x faster on 2 cores than one process with two threads (udacity_gopro_wide's 36 photos 7.4 -> 4.1 s; opencv_left's
-13, 1.72 -> 1.14 s). :func:`map_batches` splits the views into the same batches whatever the number of workers
-(:func:`chunks` of ``batch_size`` views, then the source's own batches of one image size within each), so a set gives
-the same corners with any number of workers (the distortion network's per-view predictions agree to 4e-6: float
-rounding of one thread against two). :func:`worker_pool` maps any function over items the same way (the pipeline's
-model selection solves its four models at once).
+Most of a view's detection is small tensor and numpy operations, which one process cannot spread over two cores (only
+the networks' convolutions use both threads well): two processes with one thread each detect a folder about 1.5x
+faster on 2 cores than one process with two threads (``docs/measurements.md``). :func:`map_batches` splits the views
+into the same batches whatever the number of workers (:func:`chunks` of ``batch_size`` views, then the source's own
+batches of one image size within each), so a set gives the same corners with any number of workers (the distortion
+network's per-view predictions agree to 4e-6: float rounding of one thread against two). :func:`worker_pool` maps any
+function over items the same way (the pipeline's model selection solves its four models at once).
 
 Workers are forked (Linux; the model is shared, not copied or pickled) and only for CPU work; each runs one intra-op
 thread. Where fork is not available, or on other devices, the work runs here, in order.
@@ -21,6 +20,7 @@ import os
 import pickle
 import signal
 import sys
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -153,18 +153,20 @@ def worker_pool(fn: Callable[[Any], Any], workers: int = 1) -> Iterator[Callable
 
     ``fn`` and everything it uses are inherited by the fork (a bound method or a closure will do, nothing of it is
     pickled); the items and the results are pickled (by value: tensors are copied). The processes live as long as
-    the ``with`` block.
+    the ``with`` block. ``run(items, ahead=k)`` takes ``items`` as a stream: at most ``k`` of them are handed out and
+    not yet yielded (a video's frames, decoded here while the workers look at the ones before; without ``ahead`` all
+    items are taken at once).
 
     Example:
         >>> with worker_pool(lambda x: x * x, workers=2) as run:
-        ...     list(run([1, 2, 3]))
-        [1, 4, 9]
+        ...     list(run([1, 2, 3])), list(run(iter(range(5)), ahead=2))
+        ([1, 4, 9], [0, 1, 4, 9, 16])
     """
     global _TASK
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}.")
     if workers == 1 or not _can_fork():
-        yield lambda items: (fn(item) for item in items)
+        yield lambda items, ahead=None: (fn(item) for item in items)
         return
     if _TASK is not None:
         raise RuntimeError("worker pools cannot be nested.")
@@ -173,8 +175,11 @@ def worker_pool(fn: Callable[[Any], Any], workers: int = 1) -> Iterator[Callable
     # fork every worker now, before the caller's block starts threads of its own (e.g. a file prefetcher)
     pool.submit(int).result()
 
-    def run(items: Iterable) -> Iterator:
-        results = pool.map(_call, [pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL) for item in items])
+    def run(items: Iterable, ahead: int | None = None) -> Iterator:
+        if ahead is None:
+            results = pool.map(_call, [pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL) for item in items])
+        else:  # a stream (e.g. a video's frames): at most ``ahead`` items handed out and not yet yielded
+            results = _streamed(pool, items, max(1, int(ahead)))
         while True:
             try:
                 with stage(WORKER_STAGE):  # the workers' own stages are not seen here
@@ -196,6 +201,18 @@ def worker_pool(fn: Callable[[Any], Any], workers: int = 1) -> Iterator[Callable
             for process in list((getattr(pool, "_processes", None) or {}).values()):
                 process.terminate()
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _streamed(pool: ProcessPoolExecutor, items: Iterable, ahead: int) -> Iterator[bytes]:
+    """The pickled results of ``items`` in order, with at most ``ahead`` items submitted and not yet taken."""
+    pending: deque = deque()
+    items = iter(items)
+    for item in items:
+        pending.append(pool.submit(_call, pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL)))
+        if len(pending) >= ahead:
+            yield pending.popleft().result()
+    while pending:
+        yield pending.popleft().result()
 
 
 def _call(data: bytes) -> bytes:

@@ -3,11 +3,10 @@
 glibc serves allocations above a threshold (128 KiB at first, then raised to the largest size freed) by mapping fresh
 pages and unmaps them when freed, and hands the heap's free top back once it exceeds twice that threshold: such a
 tensor pays a page fault per 4 KiB page, the kernel zeroing each page, on its first write. The detector and
-the refiners allocate thousands of short-lived tensors of a few MB (one batch's regions, windows, index arrays):
-measured on udacity_gopro_wide's refinement calls, 24,000-40,000 page faults and 0.05-0.12 s of system time per
-0.5-0.7 s pass, none with these settings. The learned detector on the bench's speed scene, eight alternating pairs of
-runs (median of each run's best of four): batch 16 20.1 -> 22.1 img/s (faster in 6 of 8 pairs), batch 1 13.8 -> 14.5
-(5 of 8); the same corners (a float64 solve can differ in its 15th digit, as between any two runs). The command line
+the refiners allocate thousands of short-lived tensors of a few MB (one batch's regions, windows, index arrays): on
+real photographs tens of thousands of page faults per refinement pass, none with these settings, and the learned
+detector 5-10 % faster with the same corners (``docs/measurements.md``; a float64 solve can differ in its 15th digit,
+as between any two runs). The command line
 applies them at start (the process is ours); library users may call :func:`keep_freed_memory` in their own program,
 or not.
 """

@@ -3,17 +3,13 @@
 Two rules. :func:`small_problem_threads`: the solver's small problems run on one thread whatever the wait policy.
 :func:`light_stages_single_thread`: under passive waits the detector's light stages (scale estimate, peaks,
 organiser, the level's refinement: many small ops) run on one thread and only the network's convolutions and the
-full-resolution refinement (:func:`full_threads`) on all; measured on 2 idle cores at 640x480 with
-``OMP_WAIT_POLICY=PASSIVE``: 12.5 -> 14.1 img/s at batch 1, 19.6 -> 20.9 at batch 16 (with the full-resolution
-refinement's larger regions on both threads: 12.9 -> 13.4 and 18.7 -> 20.8); with spinning waits two
-threads stay faster (refinement of 16 images 76 ms on two threads, 125 on one), so nothing changes there.
+full-resolution refinement (:func:`full_threads`) on all, 6-13 % faster on 2 idle cores with
+``OMP_WAIT_POLICY=PASSIVE``; with spinning waits two threads stay faster, so nothing changes there.
 
 The solver's tensors are small (a camera is 15 views x 54 corners): every op is a few microseconds of work, and on
 2 cores a second intra-op thread mostly adds the cost of waking it, the more so under ``OMP_WAIT_POLICY=PASSIVE``
-(which the command line sets so idle threads do not spin). Measured with ``CalibrationSolver``, 15 views of a 9x6
-board, 2 cores, passive waits: 1 camera 94 (1 thread) vs 65 (2 threads) calibrations/s, 16 cameras 396 vs 335,
-64 cameras 407 vs 337, 256 cameras 313 vs 479; with the default (spinning) waits 1 camera 105 vs 98, 16 cameras
-400 vs 362, 64 cameras 379 vs 655.
+(which the command line sets so idle threads do not spin): one thread is faster up to some 64 cameras of a
+15-view set. The figures of both rules: ``docs/measurements.md``.
 
 Example:
     >>> with small_problem_threads(1000, torch.device("cpu")):

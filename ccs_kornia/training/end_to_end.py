@@ -120,7 +120,7 @@ class EndToEndLitModule(L.LightningModule):
         detector = self.detector()
         with torch.no_grad():
             det = detector(images, board)
-            factor = detector.scale_selector(images)[1] if detector.scale == "auto" else 1.0
+            factor = detector.detection_factor(images)
         valid = measured_corners(det.corners, det.found)
         corners, _ = DifferentiableCorners(self.net, steps=0, fit_window=detector.fit_window)(
             images, det.corners, valid, board, factor)

@@ -6,8 +6,10 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
 import stat
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -17,10 +19,15 @@ from _real_data import REAL_DATA
 from _rig_images import ANGLE_DEG, T_REL, render_stereo, write_stereo
 
 from ccs_kornia import cli
+from ccs_kornia.runtime.errors import UserError
 from ccs_kornia.io.images import write_image
 
 FAST = ["--board", "6x4", "--square", "0.025", "--detector", "opencv", "--no-distortion-correction", "--model", "k1k2",
         "--jobs", "1", "--no-ransac"]
+
+
+def _no_work(*args, **kwargs):
+    raise AssertionError("the command started its work before checking its input")
 
 
 def run(capsys, *argv: str) -> tuple[int, str, str]:
@@ -155,6 +162,72 @@ def test_summary_and_missing_frames_info(stereo, tmp_path, capsys):
     assert "camera cam0: k1k2, RMS" in out and "pair cam0-cam1: baseline 0.04" in out and "verdict:" in out
 
 
+def test_console_says_the_joint_fit_did_not_converge(rig_run):
+    from ccs_kornia.commands.calibrate_rig import summary_lines
+
+    _, _, out = rig_run
+    data = json.loads((out / "rig.json").read_text())
+    assert not any("did not converge" in line for line in summary_lines(data, "rig.json"))
+    data["fit"].update(converged=False, iterations=100)
+    lines = summary_lines(data, "rig.json")
+    assert "the joint fit did not converge in 100 iterations" in lines[-2] and lines[-1].startswith("verdict:")
+
+
+def test_undistort_names_a_rig_file_and_takes_one_of_its_cameras(rig_run, tmp_path, capsys):
+    _, root, out = rig_run
+    code, _, err = run(capsys, "undistort", root / "right", "--calibration", out / "rig.json", "--out-dir",
+                       tmp_path / "und")
+    assert_one_line_error(code, err, "a rig calibration written by calibrate-rig (cameras left, right)", "rectify",
+                          "--camera NAME")
+    assert not (tmp_path / "und").exists()
+    code, stdout, err = run(capsys, "undistort", root / "right", "--calibration", out / "rig.json", "--camera",
+                            "right", "--out-dir", tmp_path / "und")
+    assert code == 0 and "undistorted 7 of 7 images" in stdout, err
+    assert cv2.imread(str(tmp_path / "und" / "right01.png")).shape[:2] == (264, 352)
+    code, _, err = run(capsys, "undistort", root / "right", "--calibration", out / "rig.json", "--camera", "2",
+                       "--out-dir", tmp_path / "und")
+    assert_one_line_error(code, err, "--camera 2", "left, right")
+
+
+def test_fix_intrinsics_names_a_failed_calibration(stereo, tmp_path, capsys):
+    left, right = write_stereo(stereo, tmp_path)
+    failed = tmp_path / "calib.failed.json"
+    failed.write_text(json.dumps({"success": False, "error": "board 6x4 not found in any of 8 images"}))
+    code, _, err = run(capsys, "calibrate-rig", left, right, *FAST, "--output", tmp_path / "rig.json",
+                       "--fix-intrinsics", f"1={failed}")
+    assert_one_line_error(code, err, "is a failed calibration", "board 6x4 not found in any of 8 images")
+    assert "not a calibration written by calibrate" not in err
+    rig = tmp_path / "rig.json"
+    rig.write_text(json.dumps({"cameras": [{"name": "left"}, {"name": "right"}], "extrinsics": []}))
+    code, _, err = run(capsys, "calibrate-rig", left, right, *FAST, "--output", tmp_path / "out.json",
+                       "--fix-intrinsics", f"1={rig}")
+    assert_one_line_error(code, err, "a rig calibration written by calibrate-rig (cameras left, right)",
+                          "give a calibration written by calibrate")
+
+
+def test_wrong_board_is_named_early(stereo, tmp_path, capsys):
+    left, right = write_stereo(stereo, tmp_path)
+    argv = [a if a != "6x4" else "7x5" for a in FAST]
+    code, _, err = run(capsys, "calibrate-rig", left, right, *argv, "--batch-size", "6", "--output",
+                       tmp_path / "rig.json")
+    assert_one_line_error(code, err, "camera cam0: board 7x5 not found in the first 6 images, but a 6x4 board")
+    assert not (tmp_path / "rig.json").exists()
+
+
+def test_a_folder_of_non_images_is_said_first(stereo, tmp_path, capsys, monkeypatch):
+    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
+
+    monkeypatch.setattr(rig_pipeline, "RigPipeline", _no_work)
+    left, _ = write_stereo(stereo, tmp_path)
+    junk = tmp_path / "junk"
+    junk.mkdir()
+    for k in range(3):
+        (junk / f"junk{k + 1:02d}.png").write_text("not an image")
+    code, _, err = run(capsys, "calibrate-rig", left, junk, *FAST, "--output", tmp_path / "rig.json")
+    assert_one_line_error(code, err, "camera cam1", "none of the 3 files")
+    assert err.splitlines()[0].startswith("ccs_kornia calibrate-rig: error:"), err  # no frame-matching lines first
+
+
 def test_rectify_command(rig_run, capsys):
     _, root, out = rig_run
     code, stdout, err = run(capsys, "rectify", root / "left", root / "right", "--calibration", out / "rig.json",
@@ -168,15 +241,47 @@ def test_rectify_command(rig_run, capsys):
     assert_one_line_error(code, err, "not a readable JSON file")
 
 
+def test_rectify_refuses_swapped_folders(rig_run, tmp_path, capsys):
+    """The folders in the wrong order rectify each image with the other camera's model: refused, whether the folders
+    are the calibration's own or copies elsewhere (the file names say which camera)."""
+    _, root, out = rig_run
+    code, _, err = run(capsys, "rectify", root / "right", root / "left", "--calibration", out / "rig.json",
+                       "--out-dir", tmp_path / "rect")
+    assert_one_line_error(code, err, "camera right's images", "camera left's", "swap")
+    assert not (tmp_path / "rect").exists()
+    for name, source in (("first", "right"), ("second", "left")):  # copies, swapped again
+        shutil.copytree(root / source, tmp_path / name)
+    code, _, err = run(capsys, "rectify", tmp_path / "first", tmp_path / "second", "--calibration", out / "rig.json",
+                       "--out-dir", tmp_path / "rect")
+    assert_one_line_error(code, err, "camera right's images", "swap")
+    code, _, err = run(capsys, "rectify", tmp_path / "first", tmp_path / "second", "--calibration", out / "rig.json",
+                       "--out-dir", tmp_path / "rect", "--pair", "1,0")
+    assert code == 0, err  # in the order of the pair asked for
+
+
+def test_the_same_camera_twice_is_refused(stereo, tmp_path, capsys, monkeypatch):
+    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
+
+    monkeypatch.setattr(rig_pipeline, "RigPipeline", _no_work)
+    left, _ = write_stereo(stereo, tmp_path)
+    code, _, err = run(capsys, "calibrate-rig", left, left, *FAST, "--output", tmp_path / "rig.json")
+    assert_one_line_error(code, err, "cameras cam0 and cam1", "the same images")
+    shutil.copytree(left, tmp_path / "copy")
+    code, _, err = run(capsys, "calibrate-rig", left, tmp_path / "copy", *FAST, "--output", tmp_path / "rig.json")
+    assert_one_line_error(code, err, "cameras cam0 and cam1", "the same images")
+    assert not (tmp_path / "rig.json").exists()
+
+
 def test_three_cameras(tmp_path, capsys):
     from _rig_images import R_THIRD, T_THIRD
 
     rig = render_stereo(frames=8, seed=4, third=True)
     dirs = write_stereo(rig, tmp_path, names=("a", "b", "c"), pattern="frame_{k:04d}.png")
     code, out, err = run(capsys, "calibrate-rig", *dirs, *FAST, "--output", tmp_path / "rig.json", "--kalibr-yaml",
-                         tmp_path / "chain.yaml", "--opencv-yaml", tmp_path / "s.yml")
+                         tmp_path / "chain.yaml", "--opencv-yaml", tmp_path / "s.yml", "--ros-yaml-dir",
+                         tmp_path / "ros", "--report", tmp_path / "report", "--pair", "0,2")
     assert code == 0, err
-    assert "hold the pair cam0-cam1" in err
+    assert "hold the pair cam0-cam2" in err
     data = json.loads((tmp_path / "rig.json").read_text())
     assert [p["cameras"] for p in data["pairs"]] == [[0, 1], [0, 2], [1, 2]]
     assert data["pairs"][2]["baseline_std"] is None and data["pairs"][1]["baseline_std"] is not None
@@ -185,6 +290,30 @@ def test_three_cameras(tmp_path, capsys):
     chain = yaml.safe_load((tmp_path / "chain.yaml").read_text())
     assert sorted(chain) == ["cam0", "cam1", "cam2"] and "T_cn_cnm1" in chain["cam2"]
     assert out.count("pair ") == 3
+    # the stereo files and the report hold the pair asked for; the ROS files are named after its cameras
+    fs = cv2.FileStorage(str(tmp_path / "s.yml"), cv2.FILE_STORAGE_READ)
+    K2, T = fs.getNode("K2").mat(), fs.getNode("T").mat()
+    fs.release()
+    assert np.allclose(K2, data["cameras"][2]["K"]) and np.allclose(T.ravel(), data["pairs"][1]["T"])
+    assert sorted(os.listdir(tmp_path / "ros")) == ["cam0.yaml", "cam2.yaml"]
+    assert yaml.safe_load((tmp_path / "ros" / "cam2.yaml").read_text())["camera_name"] == "cam2"
+    assert "a rectified pair (cam0, cam2)" in (tmp_path / "report" / "index.html").read_text()
+
+
+def test_stereo_files_of_a_larger_rig_need_the_pair(tmp_path, capsys, monkeypatch):
+    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
+
+    monkeypatch.setattr(rig_pipeline, "RigPipeline", _no_work)
+    for name in ("a", "b", "c"):
+        (tmp_path / name).mkdir()
+        assert write_image(tmp_path / name / f"{name}01.png", np.full((48, 64), float(ord(name)) / 255, np.float32))
+    dirs = [tmp_path / name for name in ("a", "b", "c")]
+    for option in ("--opencv-yaml", "--ros-yaml-dir"):
+        code, _, err = run(capsys, "calibrate-rig", *dirs, *FAST, "--output", tmp_path / "rig.json", option,
+                           tmp_path / "stereo")
+        assert_one_line_error(code, err, f"{option} holds one pair of the 3 cameras", "--pair I,J")
+    code, _, err = run(capsys, "calibrate-rig", *dirs, *FAST, "--output", tmp_path / "rig.json", "--pair", "0,3")
+    assert_one_line_error(code, err, "--pair 0,3")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -232,12 +361,13 @@ def test_camera_of_copied_views(stereo, tmp_path, capsys):
 @pytest.mark.parametrize("extra, phrase", [
     (["--model", "k1k2,k1k2,k1k2"], "3 models for 2 cameras"),
     (["--model", "pinhole"], "unknown model 'pinhole'"),
-    (["--names", "a"], "1 names for 2 camera folders"),
+    (["--names", "a"], "1 name for 2 camera folders"),
     (["--names", "a,a"], "names must be distinct"),
     (["--fix-intrinsics", "5=x.json"], "camera index 5 out of range"),
     (["--fix-intrinsics", "0=/nonexistent/x.json"], "cannot read"),
     (["--opencv-yaml", "/nonexistent/dir/s.yml"], "does not exist"),
-    (["--ros-yaml-dir", "/nonexistent/dir/ros"], "does not exist"),
+    (["--ros-yaml-dir", "/proc/ros"], "cannot write in /proc"),
+    (["--report", "/proc/report"], "cannot write in /proc"),
     (["--model", "rational", "--kalibr-yaml", "camchain.yaml"], "Kalibr has no rational"),
 ])
 def test_bad_options_stop_before_any_work(tmp_path, capsys, extra, phrase):
@@ -247,6 +377,50 @@ def test_bad_options_stop_before_any_work(tmp_path, capsys, extra, phrase):
     code, _, err = run(capsys, *argv, *extra)
     assert_one_line_error(code, err, phrase)
     assert not (tmp_path / "rig.json").exists()
+
+
+def test_kalibr_with_auto_leaves_rational_out_of_the_candidates(tmp_path, capsys, monkeypatch):
+    """Kalibr has no rational model: with --model auto the run chooses among the others (and says so) instead of
+    stopping after all the work."""
+    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
+
+    seen = {}
+
+    def fake(detector, models, fixed, **options):
+        seen.update(options, models=models)
+        raise UserError("stopped before the work")
+
+    monkeypatch.setattr(rig_pipeline, "RigPipeline", fake)
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        assert write_image(tmp_path / name / f"{name}01.png", np.full((48, 64), float(ord(name)) / 255, np.float32))
+    argv = ["calibrate-rig", tmp_path / "a", tmp_path / "b", "--board", "6x4", "--detector", "opencv",
+            "--no-distortion-correction", "--jobs", "1", "--output", tmp_path / "rig.json", "--kalibr-yaml",
+            tmp_path / "chain.yaml"]
+    assert cli.main([str(a) for a in [*argv, "--model", "auto,k1k2"]]) == 2
+    assert seen["models"] == ["auto", "k1k2"] and "rational" not in seen["auto_models"]
+    assert "Kalibr has no rational model, so --model auto chooses among k1k2, opencv5, fisheye" in \
+        capsys.readouterr().err
+    seen.clear()
+    assert cli.main([str(a) for a in argv[:-2] + ["--model", "auto"]]) == 2
+    assert "auto_models" not in seen and seen["models"] == ["auto", "auto"]  # without a camchain: every candidate
+
+
+def test_allow_weak_calibrates_a_weak_rig_as_not_reliable(tmp_path, capsys):
+    """Boards nearly parallel to camera 0: refused (saying --allow-weak would calibrate it); with --allow-weak the
+    rig is solved and its verdict is not reliable, naming the camera and the check."""
+    weak = render_stereo(frames=6, seed=5, max_tilt_deg=2.0)
+    left, right = write_stereo(weak, tmp_path)
+    code, _, err = run(capsys, "calibrate-rig", left, right, *FAST, "--output", tmp_path / "rig.json")
+    assert_one_line_error(code, err, "camera cam0", "nearly parallel", "--allow-weak calibrates anyway")
+    code, out, err = run(capsys, "calibrate-rig", left, right, *FAST, "--output", tmp_path / "rig.json",
+                         "--allow-weak")
+    assert code == 0, err
+    data = json.loads((tmp_path / "rig.json").read_text())
+    assert data["allow_weak"] and data["verdict"].startswith("not reliable: cam0: tilt the board more")
+    assert any(r.startswith("cam0: the board planes of all views are nearly parallel") for r in data["verdict_reasons"])
+    assert "camera cam0: calibrated with --allow-weak although the board planes" in err
+    assert "verdict: not reliable: cam0: tilt the board more" in out and "camera cam0: 1-sigma of the intrinsics" in out
 
 
 def test_fixed_intrinsics_from_a_calibrate_json(stereo, tmp_path, capsys):
@@ -289,3 +463,9 @@ def test_bumblebee2_baseline_against_boofcv(tmp_path, capsys):
     # same corners lands between the two
     assert difference < 0.6
     assert pair["epipolar_rms"] < 0.5
+    # docs/rig.md's table says which model --model auto gives each camera of this run
+    table = (Path(__file__).resolve().parents[2] / "docs" / "rig.md").read_text(encoding="utf-8")
+    said = re.search(r"calibrate-rig, `--model auto` \(([^)]*)\)", table).group(1)
+    models = [cam["distortion"]["model"] for cam in data["cameras"]]
+    assert said == (f"{models[0]} for both cameras" if models[0] == models[1] else
+                    f"left {models[0]}, right {models[1]}"), said

@@ -11,6 +11,7 @@ import shutil
 
 import numpy as np
 import pytest
+import torch
 from _real_data import REAL_DATA
 from test_cli import assert_one_line_error, rendered, run  # noqa: F401 (``rendered``: the shared fixture)
 
@@ -19,7 +20,8 @@ from ccs_kornia import cli
 from ccs_kornia.commands import _common
 from ccs_kornia.commands import calibrate as calibrate_command
 from ccs_kornia.io.files import write_json
-from ccs_kornia.io.images import expand_inputs, natural_key
+from ccs_kornia.io.images import expand_inputs, natural_key, write_image
+from ccs_kornia.modules.detection.checks import board_size
 from ccs_kornia.outputs.calibration_file import read_calibration
 
 
@@ -125,6 +127,7 @@ def test_board_larger_than_given_is_said_on_the_console(rendered, tmp_path, caps
         return out
 
     monkeypatch.setattr(LearnedChessboardDetector, "forward", refused)
+    monkeypatch.setattr(board_size, "board_size_in", lambda image: None)  # no early stop: the whole run's hint
     _, files, _ = rendered
     code, _, err = run(capsys, "calibrate", *files[:3], "--board", "8x6", "--output", str(tmp_path / "c.json"),
                        *_fast())
@@ -135,10 +138,11 @@ def test_board_larger_than_given_is_said_on_the_console(rendered, tmp_path, caps
     assert "cover" not in err  # no quality warning about a camera that was not computed
 
 
-def test_board_larger_on_a_real_set(tmp_path, capsys):
+def test_board_larger_on_a_real_set(tmp_path, capsys, monkeypatch):
     folder = REAL_DATA / "opencv_left"
     if not folder.is_dir():
         pytest.skip(f"real data set not present at {folder}")
+    monkeypatch.setattr(board_size, "board_size_in", lambda image: None)  # every view looked at (no early stop)
     code, _, err = run(capsys, "calibrate", str(folder), "--board", "8x6", "--output", str(tmp_path / "c.json"),
                        "--jobs", "1", "--no-diagnostics")
     assert code == _common.EXIT_NO_RESULT
@@ -147,6 +151,99 @@ def test_board_larger_on_a_real_set(tmp_path, capsys):
     # a 9x6 board: no view is taken for 8x6 (left14's sub-board was once, the network missing its ninth column)
     assert failed["num_views"]["found"] == 0
     assert_one_line_error(err, "board 8x6 not found in any of 13 images")
+
+
+def _counting_detection(monkeypatch) -> list[int]:
+    """The views the pipeline's first look detects (in this process: ``--jobs 1``)."""
+    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+
+    seen: list[int] = []
+    real = CalibrationPipeline._detect_batch
+
+    def counting(self, images, keys, *args, **kwargs):
+        seen.extend(v for _, v in keys)
+        return real(self, images, keys, *args, **kwargs)
+
+    monkeypatch.setattr(CalibrationPipeline, "_detect_batch", counting)
+    return seen
+
+
+def test_wrong_board_is_named_after_the_first_views(rendered, tmp_path, capsys, monkeypatch):
+    _, files, _ = rendered
+    folder = tmp_path / "views"
+    folder.mkdir()
+    for k in range(12):
+        shutil.copy(files[k % len(files)], folder / f"view_{k:02d}.png")
+    seen = _counting_detection(monkeypatch)
+    out = tmp_path / "c.json"
+    code, _, err = run(capsys, "calibrate", str(folder), "--board", "10x7", "--output", str(out), "--batch-size", "2",
+                       *_fast("--detector", "opencv"))
+    assert code == _common.EXIT_NO_RESULT  # as when the whole run finds no board
+    assert_one_line_error(err, "board 10x7 not found in the first 6 images, but a 9x6 board is in 6 of them: check "
+                               "--board")
+    assert sorted(seen) == list(range(6))  # the other six views were never detected
+    assert not out.exists() and not (tmp_path / "c.failed.json").exists()
+    code, _, err = run(capsys, "detect", str(folder), "--board", "7x10", "--output", str(out), "--batch-size", "4",
+                       "--jobs", "1", "--detector", "opencv", "--no-distortion-correction")
+    assert code == _common.EXIT_NO_RESULT  # said the way round the board was given
+    assert_one_line_error(err, "board 7x10 not found in the first 6 images, but a 6x9 board is in 6 of them")
+    assert not out.exists()
+
+
+def test_views_without_a_board_first_do_not_stop_the_run(rendered, tmp_path, capsys, monkeypatch):
+    _, files, _ = rendered
+    folder = tmp_path / "views"
+    folder.mkdir()
+    for k in range(6):  # six views of a blank wall before the board's
+        assert write_image(folder / f"view_{k:02d}.png", np.full((480, 640), 0.6, np.float32))
+    for k, path in enumerate(files):
+        shutil.copy(path, folder / f"view_{k + 6:02d}.png")
+    seen = _counting_detection(monkeypatch)
+    code, _, err = run(capsys, "calibrate", str(folder), "--board", "9x6", "--output", str(tmp_path / "c.json"),
+                       "--batch-size", "2", *_fast("--detector", "opencv"))
+    assert code == 0, err
+    assert sorted(seen) == list(range(6 + len(files)))
+
+
+CHARUCO_TUTORIAL = REAL_DATA / "charuco_opencv_tutorial"
+
+
+@pytest.mark.skipif(not CHARUCO_TUTORIAL.is_dir(), reason=f"real data set not present at {CHARUCO_TUTORIAL}")
+def test_allow_weak_calibrates_near_parallel_views_as_not_reliable(tmp_path, capsys):
+    """OpenCV's ChArUco tutorial: four views within 6 degrees of each other. Refused (saying --allow-weak would
+    calibrate them); with --allow-weak calibrated, the verdict not reliable and the 1-sigma that shows why."""
+    views = sorted(str(p) for p in CHARUCO_TUTORIAL.glob("img_0*.jpg"))
+    board = ("--charuco", "5x7", "--square", "0.04", "--marker", "0.02", "--jobs", "1")
+    out = tmp_path / "c.json"
+    code, _, err = run(capsys, "calibrate", *views, *board, "--output", str(out))
+    assert code == _common.EXIT_NO_RESULT
+    assert_one_line_error(err, "nearly parallel")
+    assert "--allow-weak calibrates anyway (verdict not reliable)" in err
+    code, stdout, err = run(capsys, "calibrate", *views, *board, "--output", str(out), "--allow-weak")
+    assert code == 0, err
+    data = json.loads(out.read_text())
+    assert data["success"] and data["allow_weak"] and "pose_diversity" in {e["check"] for e in data["errors"]}
+    assert data["diagnostics"]["verdict"].startswith("not reliable: ")
+    assert "verdict: not reliable: " in stdout and "warning: calibrated with --allow-weak although the board planes" \
+        in err
+    sigma = next(line for line in stdout.splitlines() if line.startswith("1-sigma of the intrinsics (px): fx "))
+    assert f"± {data['std']['fx']:.1f}" in sigma and data["std"]["fx"] > 0.02 * data["K"][0][0]  # why: fx is weak
+
+
+def test_allow_weak_without_diagnostics_still_says_not_reliable(tmp_path, capsys):
+    from ccs_kornia.data.scenes import make_calibration_set
+
+    K = torch.tensor([[400.0, 0.0, 160.0], [0.0, 400.0, 120.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    views = make_calibration_set(K, (7, 5), 0.025, (320, 240), num_views=5, seed=3, supersample=1, max_tilt_deg=2.0)
+    for k in range(5):
+        assert write_image(tmp_path / f"v{k}.png", views.images[k, 0])
+    argv = ("calibrate", str(tmp_path), "--board", "7x5", "--output", str(tmp_path / "c.json"), "--jobs", "1",
+            "--detector", "opencv", "--no-distortion-correction", "--model", "k1k2", "--no-diagnostics")
+    code, _, err = run(capsys, *argv)
+    assert code == _common.EXIT_NO_RESULT and "--allow-weak calibrates anyway" in err
+    code, stdout, err = run(capsys, *argv, "--allow-weak")
+    assert code == 0, err
+    assert "verdict: not reliable: " in stdout and "1-sigma of the intrinsics (px): fx" in stdout
 
 
 def test_version(capsys):

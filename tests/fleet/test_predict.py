@@ -205,6 +205,31 @@ def test_rank_shares_are_disjoint_whole_batches(world, per_batch):
     assert sorted(seen) == sorted(n for n, _ in sets) and len(seen) == len(sets)
 
 
+def test_fewer_batches_than_processes_are_said_with_the_remedy(tmp_path, capsys, monkeypatch):
+    """Two processes, one batch of two sets: one process has nothing to do; the command says so and which
+    --sets-per-batch gives every process a batch (the batches stay those of one process: the same lines)."""
+    import ccs_kornia.fleet.predict as predict
+    from ccs_kornia import cli
+
+    for name in ("a", "b", "c"):
+        (tmp_path / "sets" / name).mkdir(parents=True)
+        assert write_image(tmp_path / "sets" / name / "v0.png", np.full((48, 64), 0.5, np.float32))
+    out = tmp_path / "out.jsonl"
+    out.write_text(json.dumps({"set": str(tmp_path / "sets" / "c"), "success": True}) + "\n")  # done before
+    monkeypatch.setattr(predict, "calibrate_many", lambda *args, **kwargs: {"rank": 1})
+    argv = ["calibrate-many", str(tmp_path / "sets"), "--board", "7x5", "--output", str(out), "--detector", "opencv",
+            "--no-distortion-correction", "--devices", "2", "--accelerator", "cpu"]
+    assert cli.main(argv) == 0
+    err = capsys.readouterr().err
+    assert ("2 sets left to do make 1 batch (--sets-per-batch 4) for 2 processes: 1 process will have nothing to do "
+            "(each process takes whole batches, so the lines are those one process writes); --sets-per-batch 1 gives "
+            "every process a batch") in err
+    assert cli.main(argv + ["--sets-per-batch", "1"]) == 0
+    assert "nothing to do" not in capsys.readouterr().err
+    assert cli.main(argv[:-4]) == 0  # one process: nothing to say
+    assert "nothing to do" not in capsys.readouterr().err
+
+
 def test_data_module_leaves_out_sets_written_in_the_output_or_a_shard(tmp_path):
     out = tmp_path / "x.jsonl"
     out.write_text(json.dumps({"set": "s1", "success": True}) + "\n")

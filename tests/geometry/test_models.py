@@ -186,6 +186,55 @@ def test_bad_shapes_and_names():
         CameraModel().project(torch.zeros(1, 1, 3), torch.zeros(1, 0))
 
 
+# ---------------------------------------------------------------------------------------- capabilities and layout
+def test_models_say_what_they_are():
+    assert camera_model("fisheye").is_fisheye and camera_model("fisheye").opencv_family == "fisheye"
+    for name in OPENCV_PARAMS:
+        assert not camera_model(name).is_fisheye and camera_model(name).opencv_family == "opencv"
+    assert not CentredRadialModel((640, 480)).is_fisheye
+    with pytest.raises(NotImplementedError, match="layout"):
+        CentredRadialModel((640, 480)).num_coeffs
+    assert camera_model("k1k2") is camera_model("k1k2")  # stateless: one shared instance per name
+
+
+def test_coefficient_layout_is_what_results_store():
+    from ccs_kornia.geometry.camera import DISTORTION_MODELS
+
+    for name, n in DISTORTION_MODELS.items():
+        assert camera_model(name).num_coeffs == n and camera_model(name).max_coeffs == 8
+    assert camera_model("fisheye").num_coeffs == camera_model("fisheye").max_coeffs == 4
+
+
+@pytest.mark.parametrize("name", [*OPENCV_PARAMS, "fisheye"])
+def test_coeffs_from_params_round_trip(name, device, dtype):
+    m = camera_model(name)
+    p = torch.tensor(KB_PARAMS if name == "fisheye" else OPENCV_PARAMS[name], device=device, dtype=dtype)[None]
+    dist = m.coeffs_from(p.expand(3, -1))
+    assert dist.shape == (3, m.num_coeffs) and dist.dtype == dtype and dist.device == p.device
+    K = torch.tensor([[p[0, 0], 0, p[0, 2]], [0, p[0, 1], p[0, 3]], [0, 0, 1]], device=device, dtype=dtype)
+    torch.testing.assert_close(m.params_from(K.expand(3, 3, 3), dist), p.expand(3, -1))
+
+
+def test_opencv_coeffs_pads_to_what_opencv_takes():
+    assert camera_model("k1k2").opencv_coeffs([-0.3, 0.1]).tolist() == [-0.3, 0.1, 0.0, 0.0, 0.0]
+    assert camera_model("none").opencv_coeffs(None).tolist() == [0.0] * 5
+    assert camera_model("rational").opencv_coeffs([0.1] * 6).shape == (8,)
+    assert camera_model("fisheye").opencv_coeffs(np.array([0.1, 0.2])).tolist() == [0.1, 0.2, 0.0, 0.0]
+    d = camera_model("opencv5").opencv_coeffs(torch.ones(2, 3, dtype=F64))  # a tensor stays one, batched
+    assert isinstance(d, torch.Tensor) and d.shape == (2, 5) and d[:, 3:].eq(0).all()
+    with pytest.raises(ValueError, match="4 coefficients"):
+        camera_model("fisheye").opencv_coeffs([0.0] * 5)
+    with pytest.raises(ValueError, match="at most 8"):
+        camera_model("rational").opencv_coeffs([0.0] * 9)
+    # what OpenCV's functions take: the padded coefficients project as the short ones mean
+    K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+    X = np.array([[[0.2, -0.1, 1.0]]])
+    uv = cv2.projectPoints(X, np.zeros(3), np.zeros(3), K, camera_model("k1k2").opencv_coeffs([-0.3, 0.1]))[0]
+    x2 = 0.2**2 + 0.1**2
+    np.testing.assert_allclose(uv[0, 0], [320 + 500 * 0.2 * (1 - 0.3 * x2 + 0.1 * x2**2),
+                                          240 - 500 * 0.1 * (1 - 0.3 * x2 + 0.1 * x2**2)])
+
+
 # ---------------------------------------------------------------------------------------- geometry/camera.py (KB functions)
 def _kb():
     K = torch.tensor([[300.0, 0, 400.0], [0, 310.0, 250.0], [0, 0, 1]], dtype=F64)

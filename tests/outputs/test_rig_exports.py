@@ -92,6 +92,22 @@ def test_opencv_yaml_of_a_fisheye_camera(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["stereo.yml"]  # the temporary file was renamed
 
 
+def test_opencv_yaml_of_the_pair_in_the_other_order(tmp_path):
+    """The pair 1, 0 (camera 1 first): its E and F are the record's transposed, x1^T F x0 = 0 becomes x0^T F' x1."""
+    data = _record()
+    rect = rectification(data, 1, 0)
+    path = tmp_path / "stereo.yml"
+    write_opencv_stereo_yaml(str(path), data, rect, 1, 0)
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    assert np.allclose(fs.getNode("K1").mat(), K_B) and np.allclose(fs.getNode("K2").mat(), K_A)
+    R, T = (x.numpy() for x in pair_pose(*record_extrinsics(data["extrinsics"]), 1, 0))
+    assert np.allclose(fs.getNode("R").mat(), R) and np.allclose(fs.getNode("T").mat().ravel(), T)
+    E = np.array([[0, -T[2], T[1]], [T[2], 0, -T[0]], [-T[1], T[0], 0]]) @ R
+    assert np.allclose(fs.getNode("E").mat(), E)
+    assert np.allclose(fs.getNode("F").mat(), np.array(data["pairs"][0]["F"]).T)
+    fs.release()
+
+
 def test_ros_files_of_a_fisheye_camera():
     data = _record()
     files = ros_stereo_files(data, rectification(data, 0, 1), ("front", "side"))

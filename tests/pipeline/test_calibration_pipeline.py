@@ -78,6 +78,37 @@ def test_stages_alone(images, batched_result):
     assert abs(float(cal.K[0, 0]) - 620.0) < 5.0
 
 
+@pytest.mark.parametrize("model", ["opencv5", "auto"])
+def test_stages_alone_reproduce_the_whole_call_with_the_corner_precision(sets, model):
+    """``detect`` then ``calibrate`` with the detection's ``sigma`` weighs the corners as the whole call does."""
+    pipe = CalibrationPipeline("opencv", model=model, seed=0, distortion_correction=False)
+    imgs = sets[0].images[:6]
+    whole = pipe(imgs, BOARD, SQUARE)
+    det = pipe.detect(imgs, BOARD)
+    assert det.sigma is not None and det.sigma.shape == det.corners.shape[:-1]
+    cal = pipe.calibrate(det.corners, det.found, BOARD, SQUARE, (640, 480), det.correction, det.correction_tried,
+                         sigma=det.sigma)
+    torch.testing.assert_close(cal.K, whole.K)
+    unweighted = pipe.calibrate(det.corners, det.found, BOARD, SQUARE, (640, 480), det.correction,
+                                det.correction_tried)
+    assert not torch.equal(unweighted.K, whole.K)
+    with pytest.raises(ValueError, match="sigma"):
+        pipe.calibrate(det.corners, det.found, BOARD, SQUARE, (640, 480), sigma=det.sigma[:, :5])
+
+
+def test_auto_models_are_the_candidates_of_auto():
+    pipe = CalibrationPipeline("opencv", model="auto", auto_models=("k1k2", "opencv5", "fisheye"),
+                               distortion_correction=False)
+    assert sorted(pipe.solvers) == ["fisheye", "k1k2", "opencv5"] and pipe.solver.model == "opencv5"
+    assert sorted(CalibrationPipeline("opencv", model="auto", distortion_correction=False).solvers) == [
+        "fisheye", "k1k2", "opencv5", "rational"]
+    assert list(CalibrationPipeline("opencv", model="k1k2", auto_models=("fisheye",),
+                                    distortion_correction=False).solvers) == ["k1k2"]
+    for bad in ((), ("pinhole",)):
+        with pytest.raises(ValueError, match="auto_models"):
+            CalibrationPipeline("opencv", model="auto", auto_models=bad, distortion_correction=False)
+
+
 def test_ground_truth_corners_through_solver_stage(sets):
     # the solver stage alone on exact corners: the pipeline's plumbing adds no error
     pipe = CalibrationPipeline("opencv")
@@ -309,24 +340,23 @@ def test_a_large_correction_is_tried_even_where_it_does_not_straighten():
 def test_solve_after_the_second_look_keeps_the_chosen_model(sets, monkeypatch):
     """With ``model="auto"`` the models are compared once: the solve after a look that changed the views uses the
     model chosen before it (the table says on how many views), and calibrates on every view."""
-    import ccs_kornia.pipeline.calibration_pipeline as pipeline_module
     from ccs_kornia.modules.detection.base import DetectionResult
     from ccs_kornia.pipeline.looks import Look
 
     imgs = sets[1].images.clone()
     imgs[2] = 0.5  # missed by the detector; the (fake) look recovers it
     kw = dict(seed=0, distortion_correction=False, weigh_corners=False)  # (the fake look's corners have no precision)
-    pipe = CalibrationPipeline("opencv", model="auto", **kw)
-    calls = []
-    select = pipe.selection.forward
-    monkeypatch.setattr(pipe.selection, "forward", lambda *a, **k: calls.append(1) or select(*a, **k))
 
-    def recover(tools, out, images, keys, board, changes):
+    def recover(tools, out, images, keys, board, fallbacks):
         assert keys == [(0, 2)]
         return DetectionResult(sets[1].corners[2][None].float(), torch.ones(1, dtype=torch.bool), ["fake look"])
 
-    look = Look("fake look", lambda out, detector, calibrated: [(0, 2)], recover, needs_camera=True)
-    monkeypatch.setattr(pipeline_module, "LOOKS", (look,))
+    look = Look("fake look", lambda out, detector: [(0, 2)], recover, needs_camera=True)
+    pipe = CalibrationPipeline("opencv", model="auto", looks=(look,), **kw)
+    assert pipe.looks == (look,)
+    calls = []
+    select = pipe.selection.forward
+    monkeypatch.setattr(pipe.selection, "forward", lambda *a, **k: calls.append(1) or select(*a, **k))
     out = pipe(imgs[None], BOARD, SQUARE)
     assert len(calls) == 1
     table = out.model_selection[0]
@@ -446,11 +476,11 @@ def test_foreshortened_look_skips_strongly_distorted_cameras():
     det = DetectionResult(torch.zeros(2, 2, 12, 2), torch.tensor([[True, False], [True, False]]), [""] * 4)
     out = SimpleNamespace(detections=det, present=torch.ones(2, 2, dtype=torch.bool),
                           correction_tried=torch.tensor([True, False]))
-    detector = SimpleNamespace(foreshortened=None, fallbacks=Fallbacks())
-    assert FORESHORTENED.select(out, detector, True) == [(1, 1)]
+    detector = SimpleNamespace(fallbacks=Fallbacks())
+    assert FORESHORTENED.select(out, detector) == [(1, 1)]
     detector.fallbacks = Fallbacks(foreshortened=False)
-    assert FORESHORTENED.select(out, detector, True) == []
-    assert FORESHORTENED.select(out, SimpleNamespace(fallbacks=None), True) == []
+    assert FORESHORTENED.select(out, detector) == []
+    assert FORESHORTENED.select(out, SimpleNamespace(fallbacks=None)) == []
 
 
 def test_partial_boards_are_calibrated_on_their_visible_corners(sets, tmp_path):
@@ -499,8 +529,7 @@ def test_calibrated_look_tries_the_fallback_levels_in_a_second_pass_only():
 
     passes = []
 
-    def detect(views, board, changes):
-        fallbacks = Fallbacks().but(**dict(changes))
+    def detect(views, board, fallbacks):
         passes.append((fallbacks.levels, fallbacks.primary, views.shape[0]))
         # image 0 "shows" its board on the first level, image 1 only on a fallback level
         hit = torch.tensor([bool(v.max() < 0.5) or not fallbacks.primary for v in views])

@@ -5,10 +5,17 @@ paper's radial model) is fixed at construction and nothing is stored per call, s
 concurrent calls. It projects camera-frame points with a per-camera parameter vector and returns the
 analytic derivatives the core needs: with respect to the parameters and to the camera-frame point (the
 core builds the pose derivatives from the latter).
+
+A model also says what it is beyond the projection (:attr:`CameraModel.is_fisheye`) and how its coefficients sit in
+OpenCV's layout, the one results and files store (:attr:`CameraModel.num_coeffs`, :meth:`CameraModel.opencv_coeffs`),
+so that callers ask the model instead of testing its name.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
+import numpy as np
 import torch
 
 __all__ = ["CameraModel", "check_projection_inputs", "broadcast_params", "unit_columns"]
@@ -39,6 +46,61 @@ class CameraModel:
     def num_params(self) -> int:
         """Number of parameters ``P``."""
         return len(self.param_names)
+
+    @property
+    def is_fisheye(self) -> bool:
+        """A fisheye model (``cv2.fisheye``'s functions; angles at and beyond 90 degrees project)."""
+        return False
+
+    @property
+    def opencv_family(self) -> str:
+        """Which OpenCV functions take the coefficients: ``"fisheye"`` (``cv2.fisheye``) or ``"opencv"`` (``cv2``), as
+        OpenCV's calibration files name them (``distortion_model``)."""
+        return "fisheye" if self.is_fisheye else "opencv"
+
+    @property
+    def coeff_index(self) -> tuple[int, ...]:
+        """Where the model's coefficients (the parameters after ``fx, fy, cx, cy``) sit in OpenCV's layout."""
+        raise NotImplementedError(f"{type(self).__name__} has no OpenCV coefficient layout.")
+
+    @property
+    def num_coeffs(self) -> int:
+        """Coefficients a calibration with this model stores, in OpenCV's layout."""
+        raise NotImplementedError(f"{type(self).__name__} has no OpenCV coefficient layout.")
+
+    @property
+    def max_coeffs(self) -> int:
+        """Most coefficients of OpenCV's layout for this kind of model (shorter vectors mean trailing zeros)."""
+        raise NotImplementedError(f"{type(self).__name__} has no OpenCV coefficient layout.")
+
+    def opencv_length(self, n: int) -> int:
+        """How many coefficients OpenCV's functions take for ``n`` given (``n`` padded with zeros)."""
+        raise NotImplementedError(f"{type(self).__name__} has no OpenCV coefficient layout.")
+
+    def opencv_coeffs(self, coeffs: Any) -> Any:
+        """Coefficients in this model's OpenCV layout padded with zeros to a length OpenCV's functions take
+        (:meth:`opencv_length`): a tensor :math:`(*, D)` stays a tensor, anything else (a list, an array) becomes a
+        float64 array :math:`(D',)`.
+
+        Example:
+            >>> from ccs_kornia.geometry.models import camera_model
+            >>> camera_model("k1k2").opencv_coeffs([-0.3, 0.1]).tolist()
+            [-0.3, 0.1, 0.0, 0.0, 0.0]
+            >>> camera_model("fisheye").opencv_coeffs([]).shape
+            (4,)
+        """
+        if isinstance(coeffs, torch.Tensor):
+            n = coeffs.shape[-1]
+            return torch.nn.functional.pad(coeffs, [0, self.opencv_length(n) - n])
+        values = np.asarray(coeffs if coeffs is not None else [], dtype=np.float64).reshape(-1)
+        return np.concatenate([values, np.zeros(self.opencv_length(values.size))[values.size:]])
+
+    def coeffs_from(self, params: torch.Tensor) -> torch.Tensor:
+        """The stored coefficients :math:`(C, D)` (OpenCV layout, :attr:`num_coeffs`) of params :math:`(C, P)`."""
+        d = params.new_zeros(params.shape[0], self.num_coeffs)
+        if self.coeff_index:
+            d[:, list(self.coeff_index)] = params[:, 4:]
+        return d
 
     def default_free(self) -> list[bool]:
         """Which parameters are estimated by default (all of them unless a model says otherwise)."""

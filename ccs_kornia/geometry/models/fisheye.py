@@ -41,10 +41,37 @@ class KannalaBrandtModel(CameraModel):
     name = "fisheye"
     param_names = ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")
 
+    @property
+    def is_fisheye(self) -> bool:
+        """Yes: ``cv2.fisheye``'s model."""
+        return True
+
+    @property
+    def coeff_index(self) -> tuple[int, ...]:
+        """``k1 .. k4`` in ``cv2.fisheye``'s order."""
+        return (0, 1, 2, 3)
+
+    @property
+    def num_coeffs(self) -> int:
+        """Four (``k1 .. k4``)."""
+        return 4
+
+    @property
+    def max_coeffs(self) -> int:
+        """Four (``k1 .. k4``)."""
+        return 4
+
+    def opencv_length(self, n: int) -> int:
+        """Four: ``cv2.fisheye`` takes ``k1 .. k4``."""
+        if n > 4:
+            raise ValueError(f"cv2.fisheye's model takes 4 coefficients, got {n}.")
+        return 4
+
     def params_from(self, K: torch.Tensor, D: torch.Tensor | None = None) -> torch.Tensor:
-        """Params :math:`(C, 8)` from ``K`` :math:`(C, 3, 3)` and ``D`` :math:`(C, 4)` (default zeros)."""
+        """Params :math:`(C, 8)` from ``K`` :math:`(C, 3, 3)` and ``D`` :math:`(C, 4)` (default zeros; fewer columns:
+        the missing ones zero)."""
         intr = torch.stack([K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]], -1)
-        D = K.new_zeros(K.shape[0], 4) if D is None else D.to(K.dtype).expand(K.shape[0], 4)
+        D = K.new_zeros(K.shape[0], 4) if D is None else self.opencv_coeffs(D.to(K.dtype)).expand(K.shape[0], 4)
         return torch.cat([intr, D], -1)
 
     def columns(self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True) -> tuple:

@@ -54,8 +54,30 @@ class OpenCVModel(CameraModel):
         if variant not in OPENCV_VARIANTS:
             raise ValueError(f"Unknown OpenCV variant {variant!r}; expected one of {sorted(OPENCV_VARIANTS)}.")
         self.name = variant
-        self.coeff_index = OPENCV_VARIANTS[variant]
+        self._coeff_index = OPENCV_VARIANTS[variant]
         self.param_names = ("fx", "fy", "cx", "cy", *(_NAMES[i] for i in self.coeff_index))
+
+    @property
+    def coeff_index(self) -> tuple[int, ...]:
+        """Indices (in OpenCV's 8-coefficient order) the variant estimates."""
+        return self._coeff_index
+
+    @property
+    def num_coeffs(self) -> int:
+        """Coefficients a calibration stores: none for ``none``, five for ``k1k2`` (``p1 = p2 = k3 = 0``) and
+        ``opencv5``, eight for ``rational``."""
+        return 0 if not self._coeff_index else (5 if max(self._coeff_index) < 5 else 8)
+
+    @property
+    def max_coeffs(self) -> int:
+        """Eight (``k1 .. k6`` with the tangential terms)."""
+        return 8
+
+    def opencv_length(self, n: int) -> int:
+        """Five (OpenCV's default layout) up to five coefficients, eight above (the rational model)."""
+        if n > 8:
+            raise ValueError(f"OpenCV's polynomial model takes at most 8 coefficients here, got {n}.")
+        return 5 if n <= 5 else 8
 
     def dist8(self, params: torch.Tensor) -> torch.Tensor:
         """The 8 OpenCV coefficients :math:`(C, 8)` from params :math:`(C, P)` (zeros outside the variant)."""

@@ -17,6 +17,7 @@ from ccs_kornia.runtime.lazy import lazy_exports
 
 _EXPORTS = {
     "VIEW_REASONS": "ccs_kornia.modules.calibration.result",
+    "ViewReason": "ccs_kornia.modules.calibration.result",
     "CalibrationResult": "ccs_kornia.modules.calibration.result",
     "CalibrationSolver": "ccs_kornia.modules.calibration.solver",
     "calibrate": "ccs_kornia.modules.calibration.solver",

@@ -23,16 +23,11 @@ With ``flexible_coverage`` (rig cameras: :class:`~ccs_kornia.pipeline.rig_pipeli
 where the boards cover a few percent of an ordinary webcam's image, every model predicts the held-out views alike and
 the fold and halves rules judge the extrapolation, where the richer models' extra freedom is unconstrained.
 
-Why this order. A richer model's held-out error comes out a hair lower by chance on noisy corners, and its extra
-coefficients then extrapolate wildly outside the boards (a normal 640x480 lens whose held-out errors were k1k2
-0.170, opencv5 0.167, rational 0.168 px got ``rational`` with k1 = -6.3, k5 = 7.5, and rendered OpenCV-model lenses
-got a non-OpenCV model 1-1.6 px off in focal length): ``rational`` comes last. Between ``opencv5`` and ``k1k2`` the
-risks are not symmetric: on rendered k1k2 lenses ``opencv5`` costs nothing measurable (E_IP 0.477 vs 0.475 px over
-five cameras), while on rendered OpenCV lenses whose held-out errors tie to 0.3 % ``k1k2`` doubled the error of
-one camera (0.59 vs 0.28 px); a ``k1k2`` lens is still told by the halves where ``opencv5`` over-fits (the 24-corner
-Sony board: halves 2.05 vs 17.3 px). ``fisheye`` comes before ``rational``: on the real fisheye sets the two tie
-on held-out views (0.513 vs 0.514 px) and the Kannala-Brandt model is the one that extrapolates (halves 8 vs 606
-px).
+Why this order: a richer model's held-out error comes out a hair lower by chance on noisy corners while its extra
+coefficients extrapolate wildly outside the boards, so ``rational`` comes last; ``opencv5`` costs nothing measurable
+on a ``k1k2`` lens while ``k1k2`` can double the error of an OpenCV lens, so ``opencv5`` comes first; on fisheye lenses
+``fisheye`` and ``rational`` tie on held-out views and only the Kannala-Brandt model extrapolates. The figures:
+``docs/measurements.md``.
 """
 
 from __future__ import annotations
@@ -43,6 +38,7 @@ from typing import Any, Callable
 import torch
 from torch import nn
 
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.modules.calibration.quality.coverage import image_coverage
 from ccs_kornia.modules.calibration.quality.diagnostics import (
     cross_validation,
@@ -53,8 +49,8 @@ from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 
 __all__ = [
-    "AUTO_MODELS", "FLEXIBLE_MODELS", "HALVES_CLEAR_PX", "narrow_ranking", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
-    "TIE_SIGMAS", "choose_models", "rank_models", "tied_with_best",
+    "AUTO_MODELS", "FLEXIBLE_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
+    "TIE_SIGMAS", "choose_models", "narrow_ranking", "rank_models", "tied_with_best",
 ]
 
 #: the candidates of ``model="auto"``
@@ -73,8 +69,10 @@ MIN_PAIRED_VIEWS = 6
 HALVES_CLEAR_RATIO = 0.25
 #: ... and by at least this many px less (scaled with the image as the verdict's thresholds)
 HALVES_CLEAR_PX = 1.0
-#: models whose freedom beyond the boards only a wide coverage of the image constrains (``flexible_coverage``)
-FLEXIBLE_MODELS: tuple[str, ...] = ("rational", "fisheye")
+#: models whose freedom beyond the boards only a wide coverage of the image constrains (``flexible_coverage``): the
+#: fisheye model and the OpenCV models of more than five coefficients (``rational``)
+FLEXIBLE_MODELS: tuple[str, ...] = tuple(m for m in AUTO_MODELS
+                                         if camera_model(m).is_fisheye or camera_model(m).num_coeffs > 5)
 #: kept for callers of the former rule's keyword: models within this fraction of the best tie when the per-view
 #: errors are unknown (fewer than three views held out by both models)
 HELDOUT_TOLERANCE = 0.05
@@ -232,10 +230,9 @@ def choose_models(heldout: torch.Tensor, halves: torch.Tensor, tolerance: float 
     return torch.tensor([r[0] if r else -1 for r in ranks], dtype=torch.long, device=heldout.device)
 
 
-#: the models' usual cost (solve and cross-validation) in ascending order; :class:`ModelSelection` hands them to
-#: ``map_models`` costliest first. Measured on five real sets (s, one process each): fisheye 0.18-0.53, rational
-#: 0.16-0.46, opencv5 0.10-0.31, k1k2 0.07-0.22; in two worker processes the longest first ends the selection
-#: sooner (udacity_camera_cal 0.62 -> 0.42 s, udacity_gopro_wide 0.82 -> 0.66 s)
+#: the models' usual cost (solve and cross-validation) in ascending order, as measured on the real sets;
+#: :class:`ModelSelection` hands them to ``map_models`` costliest first: in two worker processes the longest first ends
+#: the selection sooner (``docs/measurements.md``)
 SOLVE_COST_RANK = {"k1k2": 0, "opencv5": 1, "rational": 2, "fisheye": 3}
 
 
@@ -381,7 +378,7 @@ class ModelSelection(nn.Module):
         extrapolated wrongly; a fisheye lens's image circle may end inside the image, where the Kannala-Brandt
         model legitimately has no inverse: it is never counted as folding."""
         ok = result.success.bool()
-        if getattr(result, "model", None) == "fisheye" or result.dist.shape[-1] == 0:
+        if camera_model(result.model).is_fisheye or result.dist.shape[-1] == 0:
             return torch.zeros_like(ok)
         K = torch.where(ok[:, None, None], result.K, torch.eye(3, dtype=result.K.dtype, device=result.K.device))
         dist = torch.where(ok[:, None], result.dist, torch.zeros_like(result.dist)).nan_to_num(0.0)

@@ -1,21 +1,45 @@
-"""What the calibration solver returns: :class:`CalibrationResult` and the codes of why a view was not used."""
+"""What the calibration solver returns: :class:`CalibrationResult` and why a view was not used (:class:`ViewReason`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from enum import IntEnum
 
 import torch
 
-__all__ = ["VIEW_REASONS", "CalibrationResult"]
+__all__ = ["VIEW_REASONS", "ViewReason", "CalibrationResult"]
 
-#: codes of ``CalibrationResult.view_reason``
+
+class ViewReason(IntEnum):
+    """Why the solver did not use a view: the values of ``CalibrationResult.view_reason`` (an int64 tensor, so a
+    member compares with its entries: ``result.view_reason == ViewReason.OUTLIER``).
+
+    Example:
+        >>> ViewReason(4), ViewReason.OUTLIER.message
+        (<ViewReason.OUTLIER: 4>, 'reprojection error outlier after refinement')
+    """
+
+    USED = 0
+    TOO_FEW_CORNERS = 1
+    NO_HOMOGRAPHY = 2
+    RANSAC_REJECTED = 3
+    OUTLIER = 4
+    DUPLICATE = 5
+
+    @property
+    def message(self) -> str:
+        """The reason in words (the records' ``reason`` of a view)."""
+        return VIEW_REASONS[self]
+
+
+#: each :class:`ViewReason` in words
 VIEW_REASONS: dict[int, str] = {
-    0: "used",
-    1: "too few corners",
-    2: "homography failed (degenerate corners)",
-    3: "rejected by image RANSAC",
-    4: "reprojection error outlier after refinement",
-    5: "copy of an earlier view (not an independent observation)",
+    ViewReason.USED: "used",
+    ViewReason.TOO_FEW_CORNERS: "too few corners",
+    ViewReason.NO_HOMOGRAPHY: "homography failed (degenerate corners)",
+    ViewReason.RANSAC_REJECTED: "rejected by image RANSAC",
+    ViewReason.OUTLIER: "reprojection error outlier after refinement",
+    ViewReason.DUPLICATE: "copy of an earlier view (not an independent observation)",
 }
 
 
@@ -34,7 +58,7 @@ class CalibrationResult:
     std_dist: torch.Tensor  #: (C, D)
     success: torch.Tensor  #: (C,) bool
     model: str
-    view_reason: torch.Tensor  #: (C, V) int64, keys of VIEW_REASONS
+    view_reason: torch.Tensor  #: (C, V) int64, :class:`ViewReason` values
     converged: torch.Tensor  #: (C,) bool, LM met its tolerance
     candidate_rms: torch.Tensor  #: (C, V) px: every view with a homography under the final model (used or not)
     # covariance and degeneracy checks; see modules/calibration/quality/degeneracy.py

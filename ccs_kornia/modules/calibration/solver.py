@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from ccs_kornia.geometry.camera import fit_opencv_distortion, project_points
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
 from ccs_kornia.geometry.models.opencv import OpenCVModel
 from ccs_kornia.modules.calibration.duplicates import duplicate_views, view_differences
@@ -34,7 +35,7 @@ from ccs_kornia.modules.calibration.refinement import (
     _k_matrix,
     joint_refinement,
 )
-from ccs_kornia.modules.calibration.result import CalibrationResult
+from ccs_kornia.modules.calibration.result import CalibrationResult, ViewReason
 from ccs_kornia.modules.calibration.zhang import (
     extrinsics_from_homography,
     zhang_intrinsics,
@@ -101,13 +102,14 @@ class CalibrationSolver(nn.Module):
         stall_tol: the LM also stops where 10 iterations lowered the cost by at most this fraction (RMS by half of
             it). A model that fits converges in 4-12 iterations; the rational model on a narrow lens and an OpenCV
             model on a fisheye crawl along directions the views do not determine, each step still passing ``ftol``:
-            on the real sets such crawls ran to the 100-iteration cap and took up to a quarter of a calibration
-            (ros_fisheye_mono 1.3 of 4.8 s, opencv_left 0.4 of 2.1 s) for RMS changes in the fifth digit. A weakly
+            on the real sets such crawls ran to the 100-iteration cap and took up to a quarter of a calibration for
+            RMS changes in the fifth digit (``docs/measurements.md``). A weakly
             determined fit that is still converging (3 views, exact corners: 40 iterations) lowers its cost by more
             than 1x per 10 iterations.
         checks: run the degeneracy checks of :mod:`~ccs_kornia.modules.calibration.quality.degeneracy`: copies of a view
-            are dropped before the solve (reason 5), a camera failing a check with severity ``error`` gets
-            ``success = False``, and every result carries ``check_*`` tensors (see ``CalibrationResult.issues``).
+            are dropped before the solve (:attr:`ViewReason.DUPLICATE`), a camera failing a check with severity
+            ``error`` gets ``success = False``, and every result carries ``check_*`` tensors (see
+            ``CalibrationResult.issues``).
         thresholds: :class:`~ccs_kornia.modules.calibration.quality.degeneracy.DegeneracyThresholds` of those checks.
 
     Gradients: when ``corners``, ``weights`` or ``object_points`` require grad, ``K``, ``dist``, ``rvec`` and ``tvec``
@@ -167,11 +169,12 @@ class CalibrationSolver(nn.Module):
         super().__init__()
         self.checks = checks
         self.thresholds = thresholds or DegeneracyThresholds(min_views=max(int(min_views), 1))
-        if model not in FREE_DISTORTION and model != "fisheye":
-            raise ValueError(
-                f"Unknown distortion model {model!r}; expected one of {sorted([*FREE_DISTORTION, 'fisheye'])}."
-            )
+        names = (*FREE_DISTORTION, KannalaBrandtModel.name)
+        if model not in names:
+            raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(names)}.")
         self.model = model
+        #: the model named ``model``
+        self.camera = camera_model(model)
         self.use_ransac = use_ransac
         self.fix_aspect_ratio = fix_aspect_ratio
         self.fix_principal_point = fix_principal_point
@@ -271,7 +274,7 @@ class CalibrationSolver(nn.Module):
         obj = obj.expand(C, N, 3) if obj.dim() == 2 or obj.shape[0] == 1 else obj
         obj = obj.reshape(C, N, 3)
         K0, d0 = res.K.to(dtype), res.dist.to(dtype)
-        if self.model == "fisheye":  # as calibrate_fisheye's final solve: no tied aspect ratio
+        if self.camera.is_fisheye:  # as calibrate_fisheye's final solve: no tied aspect ratio
             cam = KannalaBrandtModel()
             params = torch.cat([K0[:, 0, 0:1], K0[:, 1, 1:2], K0[:, 0, 2:3], K0[:, 1, 2:3], d0], -1)
             free = [not (self.fix_principal_point and n in ("cx", "cy")) for n in cam.param_names]
@@ -284,7 +287,7 @@ class CalibrationSolver(nn.Module):
             tie = self.fix_aspect_ratio and not fix_intrinsics
         basis = parameter_basis(cam, params.nan_to_num(1.0), free, tie)
         p, rv, tv = implicit_solution(cam, basis, params, res.rvec, res.tvec, c, w, obj)
-        dist = p[:, 4:] if self.model == "fisheye" else cam.dist8(p)[:, : res.dist.shape[-1]]
+        dist = p[:, 4:] if self.camera.is_fisheye else cam.dist8(p)[:, : res.dist.shape[-1]]
         ok_cam = res.success.to(device)
         used = res.used.to(device)[..., None]
         grads = {
@@ -326,17 +329,17 @@ class CalibrationSolver(nn.Module):
         enough = valid.sum(-1) >= self.min_corners
         H, ok_h = find_homographies(obj[:, None, :, :2], corners, valid & enough[..., None], return_ok=True)
         candidates = enough & ok_h
-        reason = torch.zeros(C, V, dtype=torch.long, device=device)
-        reason = torch.where(~enough, 1, torch.where(~ok_h, 2, reason))
+        reason = torch.full((C, V), ViewReason.USED, dtype=torch.long, device=device)
+        reason = torch.where(~enough, ViewReason.TOO_FEW_CORNERS, torch.where(~ok_h, ViewReason.NO_HOMOGRAPHY, reason))
         duplicate_of = torch.full((C, V), -1, dtype=torch.long, device=device)
         differences = None
         if self.checks:  # copies of a view are not independent observations: drop them before anything else
             differences = view_differences(corners, valid)
             duplicate_of = duplicate_views(corners, valid, candidates, self.thresholds.duplicate_px, differences)
             candidates = candidates & (duplicate_of < 0)
-            reason = torch.where(duplicate_of >= 0, 5, reason)
+            reason = torch.where(duplicate_of >= 0, ViewReason.DUPLICATE, reason)
 
-        if self.model == "fisheye":
+        if self.camera.is_fisheye:
             return self._solve_fisheye(corners, valid, obj, image_size, candidates, reason, duplicate_of,
                                        differences, H, unbatched, initial, weights)
 
@@ -385,7 +388,7 @@ class CalibrationSolver(nn.Module):
                         fit_model, mask=w_fit,
                     )
                     dist0 = torch.where(dist0.isfinite().all(-1, keepdim=True), dist0, torch.zeros_like(dist0))
-        reason = torch.where(candidates & ~inliers, 3, reason)
+        reason = torch.where(candidates & ~inliers, ViewReason.RANSAC_REJECTED, reason)
 
         # 3. joint LM from the closed form
         res = self._refine(corners, valid, obj, K0, rvec0, tvec0, dist0, inliers, fix_intrinsics, weights=weights)
@@ -404,8 +407,9 @@ class CalibrationSolver(nn.Module):
                                    weights=weights)
                 used = new_used & res.view_rms.isfinite()
             cand_rms = torch.where(used, res.view_rms, cand_rms)
-            reason = torch.where(candidates & ~used & inliers, 4, reason)
-        reason = torch.where(used, 0, torch.where((reason == 0) & ~used, 3, reason))
+            reason = torch.where(candidates & ~used & inliers, ViewReason.OUTLIER, reason)
+        reason = torch.where(used, ViewReason.USED,
+                             torch.where((reason == ViewReason.USED) & ~used, ViewReason.RANSAC_REJECTED, reason))
 
         success = (used.sum(-1) >= self.min_views) & res.rms.isfinite() & res.K.flatten(1).isfinite().all(-1)
         success = success & (res.K[:, 0, 0] > 0) & (res.K[:, 1, 1] > 0)
@@ -457,7 +461,7 @@ class CalibrationSolver(nn.Module):
             raise ValueError("model='fisheye' needs one board for every camera of the batch.")
         warm = None
         if initial is not None:
-            if getattr(initial, "model", None) != "fisheye" or initial.dist.shape[-1] != 4:
+            if initial.model != self.model or initial.dist.shape[-1] != 4:
                 raise ValueError(f"A fisheye solver's initial result must be a fisheye calibration, got model "
                                  f"{getattr(initial, 'model', None)!r}.")
             device = corners.device
@@ -471,13 +475,13 @@ class CalibrationSolver(nn.Module):
             stall_tol=self.stall_tol,
         )
         used = fish.used & candidates
-        reason = torch.where(used, 0, torch.where(reason == 0, 4, reason))
+        reason = torch.where(used, ViewReason.USED, torch.where(reason == ViewReason.USED, ViewReason.OUTLIER, reason))
         success = fish.success
         report = None
         if self.checks:
             report = check_degeneracy(
                 corners, valid, obj, image_size, used, fish.rvec, fish.K.nan_to_num(1.0), fish.std_intrinsics,
-                "fisheye", self.fix_aspect_ratio, self.fix_principal_point, duplicate_of, self.thresholds,
+                self.model, self.fix_aspect_ratio, self.fix_principal_point, duplicate_of, self.thresholds,
                 differences, H,
             )
             success = success & ~report.errors
@@ -488,7 +492,7 @@ class CalibrationSolver(nn.Module):
         out = CalibrationResult(
             K=fail_nan(fish.K), dist=fail_nan(fish.D), rvec=fish.rvec, tvec=fish.tvec,
             view_rms=fish.view_rms, used=used, rms=fail_nan(fish.rms), std_intrinsics=fail_nan(fish.std_intrinsics),
-            std_dist=fail_nan(fish.std_dist), success=success, model="fisheye", view_reason=reason,
+            std_dist=fail_nan(fish.std_dist), success=success, model=self.model, view_reason=reason,
             converged=fish.converged & success, candidate_rms=fish.candidate_rms, cov_camera=fail_nan(fish.covariance),
             check_severity=None if report is None else report.severity,
             check_value=None if report is None else report.value,

@@ -5,8 +5,8 @@ its model, then :func:`~.diagnostics.diagnose` for the verdict. The costly part 
 :func:`~.diagnostics.cross_validation`, one solver call on the halves and the k-fold training sets of the views,
 depends only on the solver, the corners (their mask, weights and object points), the image size, the number of folds
 and the calibration it starts from; :class:`SubsetSolutions` keeps it from the first and gives it back to the second
-when all of these are the same (the same solver object; tensors compared exactly, NaN equal to NaN). Measured:
-udacity_gopro_wide's diagnostics 0.45 s, of which the subsets' solve 0.39 s.
+when all of these are the same (the same solver object; tensors compared exactly, NaN equal to NaN). The subsets'
+solve is most of the diagnostics' time (``docs/measurements.md``).
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ from typing import Any
 
 import torch
 from torch import nn
+
+from ccs_kornia.geometry.models.factory import camera_model
 
 __all__ = ["SubsetSolutions", "solve_subsets"]
 
@@ -78,6 +80,11 @@ class SubsetSolutions:
         self._entries = [*self._entries, ((key[0], *copy, fields), solution)][-self.size:]
 
 
+def _is_fisheye(model: Any) -> bool:
+    """A camera model's name (a solver's, a result's) names a fisheye model."""
+    return isinstance(model, str) and camera_model(model).is_fisheye
+
+
 def solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, result=None, warm=None, weights=None):
     """One solver call for every (camera, subset): cameras (C * S) with the other views masked out.
 
@@ -85,7 +92,7 @@ def solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, r
     its focal-length hypotheses cost more than the rest of the solve. Only for the k-fold training sets: their
     optima lie next to the full one (the same held-out errors to 4 digits on every real set); the two halves start
     cold, since where a model is barely constrained (k1..k4 of a fisheye model on a narrow lens) where its LM ends
-    depends on where it starts (boofcv_sony_hx5v: halves differing by 62 px warm, 5 px cold)."""
+    depends on where it starts (``docs/measurements.md``)."""
     C, S, V = subsets.shape
     N = corners.shape[2]
 
@@ -96,7 +103,7 @@ def solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, r
     c, v = rep(corners), (valid[:, None] & subsets[..., None]).reshape(C * S, V, N)
     o = obj if obj.dim() == 2 else rep(obj)
     kw = {} if weights is None else {"weights": rep(weights) * v}
-    fisheye = getattr(solver, "model", None) == "fisheye" and getattr(result, "model", None) == "fisheye"
+    fisheye = _is_fisheye(getattr(solver, "model", None)) and _is_fisheye(getattr(result, "model", None))
     if warm is None or not fisheye or not bool(warm.any()):
         return solver(c, v, o, image_size, **kw)
     initial = type(result)(**{k: (rep(x) if isinstance(x, torch.Tensor) and x.dim() and x.shape[0] == C else x)

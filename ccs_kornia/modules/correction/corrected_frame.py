@@ -23,6 +23,7 @@ from ccs_kornia.geometry.camera import (
     project_points,
 )
 from ccs_kornia.geometry.models.opencv import OpenCVModel
+from ccs_kornia.modules._checks import check_board_size
 from ccs_kornia.modules.calibration.centred_radial import (
     radial_from_points,
     refine_centred_radial,
@@ -131,7 +132,7 @@ def calibrate_corrected(
     dev = corners.device
     corners = corners.to(torch.float64)
     valid = measured_corners(corners, found.to(dev))
-    obj = board_object_points(int(board_size[0]), int(board_size[1]), float(square), device=dev, dtype=torch.float64)
+    obj = board_object_points(*check_board_size(board_size), float(square), device=dev, dtype=torch.float64)
     frame_solver = CalibrationSolver(
         model="k1k2", use_ransac=solver.use_ransac, seed=0, fix_aspect_ratio=solver.fix_aspect_ratio,
         fix_principal_point=solver.fix_principal_point,

@@ -243,8 +243,8 @@ class DistortionNet(nn.Module):
         # linear, so it is applied to the small letterboxed image: letterbox((x - m) / s) = (letterbox(x) - m mask) / s
         if x.shape[-1] * x.shape[-2] > 1:
             # from the sum and the sum of squares (one fast reduction each): std_mean's result within 5e-7 relative at
-            # a fifth of its time (15 images of 640x480: 14 -> 3 ms; where the image is nearly flat and the difference
-            # cancels, the 1e-3 below dominates anyway)
+            # a fifth of its time (docs/measurements.md; where the image is nearly flat and the difference cancels,
+            # the 1e-3 below dominates anyway)
             flat = x.flatten(-2)
             n = flat.shape[-1]
             total = flat.sum(-1)

@@ -170,7 +170,7 @@ def _pixel_sources(h: int, w: int, correction: torch.Tensor, zoom: float, num_it
     """:func:`distort_points_from_correction` of every pixel of an ``h x w`` image, :math:`(B, h w, 2)` and the
     valid mask :math:`(B, h w)`, with Newton on a quarter of them: the four pixels mirrored about the centre have the
     same radius to the bit (their offsets from the centre differ in sign only), so the top-left quadrant's inverse
-    radii serve all four (the same values; udacity_gopro_wide's 1280x960 warp 265 -> 108 ms on one core)."""
+    radii serve all four (the same values, in less than half the time: ``docs/measurements.md``)."""
     pts = create_meshgrid(h, w, normalized_coordinates=False, device=device, dtype=dtype).reshape(1, h * w, 2)
     centre, scale = _centre_scale((w, h), pts)
     q = (pts - centre) / (scale * zoom)

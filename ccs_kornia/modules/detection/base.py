@@ -14,7 +14,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from ccs_kornia.modules._checks import check_shape
+from ccs_kornia.modules._checks import check_board_size, check_shape
 
 __all__ = ["DetectionResult", "ChessboardDetector", "Fallbacks", "image_rows", "measured_corners"]
 
@@ -61,12 +61,20 @@ class DetectionResult:
             was not.
         sigma: optional :math:`(B, N)` per-corner precision (px, relative; NaN where unknown), e.g. from
             :func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_uncertainty`.
+        correction: optional :math:`(C, 5)` lens correction per camera of a :math:`(C, V)` result (the calibration
+            pipeline's ``detect``: the network's pooled correction, for its ``calibrate``).
+        correction_tried: optional :math:`(C,)` bool with ``correction``: the correction is large enough to be tried.
+        gap: optional, the shape of ``corners``: how far a differentiable corner estimator's value is from each corner
+            (px; NaN where not found; the pipeline's differentiable ``detect``).
     """
 
     corners: torch.Tensor
     found: torch.Tensor
     reasons: list[str] | None = None
     sigma: torch.Tensor | None = None
+    correction: torch.Tensor | None = None
+    correction_tried: torch.Tensor | None = None
+    gap: torch.Tensor | None = None
 
     @property
     def valid(self) -> torch.Tensor:
@@ -147,25 +155,58 @@ class Fallbacks:
 class ChessboardDetector(nn.Module):
     """Interface: ``forward(images (B,1,H,W) in [0,1], board_size (cols, rows)) -> DetectionResult``.
 
-    A detector with fallbacks to choose from sets :attr:`fallbacks` (its own) and takes ``fallbacks=`` in ``forward``
-    (:meth:`detect`)."""
+    What a detector can do is declared here, with the answer of a plain detector, and overridden by a detector that
+    does more; callers read these and never probe for attributes:
+
+    * :attr:`fallbacks`: a detector with fallbacks to choose from sets its own and takes ``fallbacks=`` in
+      ``forward`` (:meth:`detect`); one whose own include ``foreshortened`` implements :meth:`foreshortened`;
+    * :attr:`selects_scale`: it picks its own detection level (callers need not downscale large images);
+    * :attr:`board`: the board whose object points the solver takes;
+    * for the differentiable corners (:mod:`~ccs_kornia.modules.detection.refine.differentiable_refine`):
+      :attr:`heatmap_net`, :attr:`fit_window`, :attr:`refines_on_image` and :meth:`detection_factor`.
+    """
 
     #: the detector's own :class:`Fallbacks` (``None``: it has none to choose)
     fallbacks: Fallbacks | None = None
+    #: it picks its own detection level and refines at full resolution: callers need not downscale large images
+    selects_scale: bool = False
+    #: the board description whose object points the solver takes (:mod:`~ccs_kornia.modules.detection.boards`, e.g.
+    #: an AprilGrid, whose corners are not evenly spaced); ``None``: a chessboard of unit squares
+    board: Any = None
+    #: odd window of the Gaussian fit that seeds a corner from the heatmap (with a :attr:`heatmap_net`)
+    fit_window: int = 7
+
+    @property
+    def heatmap_net(self) -> nn.Module | None:
+        """The network whose corner heatmap seeds the differentiable corners (``None``: none)."""
+        return None
+
+    @property
+    def refines_on_image(self) -> bool:
+        """Its corners are refined on the image (the differentiable corners then run the refinement steps too)."""
+        return True
+
+    def detection_factor(self, images: torch.Tensor) -> torch.Tensor | float:
+        """Full-resolution px per detection-level px of each image :math:`(B, 1, H, W)`: :math:`(B,)` or a number (1:
+        the detector sees the images as they are)."""
+        return 1.0
 
     def detect(self, images: torch.Tensor, board_size: tuple[int, int],
-               changes: tuple[tuple[str, Any], ...] = ()) -> DetectionResult:
-        """``forward`` with the detector's own :attr:`fallbacks` but ``changes`` (ignored by a detector without)."""
-        if self.fallbacks is None or not changes:
+               fallbacks: Fallbacks | None = None) -> DetectionResult:
+        """``forward`` with ``fallbacks`` (``None``, or a detector without its own: what ``forward`` does alone)."""
+        if self.fallbacks is None or fallbacks is None:
             return self(images, board_size)
-        return self(images, board_size, fallbacks=self.fallbacks.but(**dict(changes)))
+        return self(images, board_size, fallbacks=fallbacks)
 
     def forward(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:  # pragma: no cover
         raise NotImplementedError
 
+    def foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
+        """Only the last resort for boards at a grazing angle (``Fallbacks.foreshortened``), for a detector whose own
+        :attr:`fallbacks` include it."""
+        raise NotImplementedError(f"{type(self).__name__} has no last resort for boards at a grazing angle.")
+
     @staticmethod
     def _check_inputs(images: torch.Tensor, board_size: tuple[int, int]) -> tuple[int, int]:
         check_shape(images, ["B", "1", "H", "W"], "Expected grey images of shape (B, 1, H, W)")
-        if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
-            raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
-        return int(board_size[0]), int(board_size[1])
+        return check_board_size(board_size)

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import torch
 
+from ccs_kornia.modules._checks import check_board_size
+
 __all__ = ["APRILGRID_BORDER_BITS", "ARUCO_DICTIONARIES", "AprilGrid", "Chessboard", "CharucoBoard", "aruco_dictionary",
            "grid_object_points"]
 
@@ -317,9 +319,9 @@ def grid_object_points(board, board_size: tuple[int, int], square: float, device
         [0.0, 1.0, 1.5, 2.5]
     """
     if isinstance(board, AprilGrid):
-        if tuple(int(v) for v in board_size) != board.board_size:
+        if check_board_size(board_size) != board.board_size:
             raise ValueError(f"board_size {tuple(board_size)} is not the AprilGrid's corner grid {board.board_size}")
         return board.object_points(dtype).to(device)
     from ccs_kornia.geometry.camera import board_object_points
 
-    return board_object_points(int(board_size[0]), int(board_size[1]), float(square), device=device, dtype=dtype)
+    return board_object_points(*check_board_size(board_size), float(square), device=device, dtype=dtype)

@@ -19,12 +19,14 @@ from ccs_kornia.geometry.camera import (
     kb_undistort_points,
     undistort_pixels,
 )
+from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
 
 __all__ = ["RIG_MODELS", "RigCamera", "camera_params", "camera_from_params", "normalized_points"]
 
 #: camera model names a rig accepts (the single-camera solver's names)
-RIG_MODELS: tuple[str, ...] = (*DISTORTION_MODELS, "fisheye")
+RIG_MODELS: tuple[str, ...] = (*DISTORTION_MODELS, KannalaBrandtModel.name)
 
 
 @dataclass
@@ -46,6 +48,11 @@ class RigCamera:
     K: torch.Tensor
     dist: torch.Tensor
 
+    @property
+    def camera(self) -> CameraModel:
+        """The camera model named :attr:`model`."""
+        return camera_model(self.model)
+
     def __post_init__(self) -> None:
         if self.model not in RIG_MODELS:
             raise ValueError(f"Unknown camera model {self.model!r}; expected one of {sorted(RIG_MODELS)}.")
@@ -53,7 +60,7 @@ class RigCamera:
             raise ValueError(f"RigCamera.K must be a (3, 3) tensor, got {tuple(getattr(self.K, 'shape', ()))}.")
         if self.dist is None:
             self.dist = self.K.new_zeros(0)
-        limit = 4 if self.model == "fisheye" else 8
+        limit = self.camera.max_coeffs
         if not isinstance(self.dist, torch.Tensor) or self.dist.dim() != 1 or self.dist.shape[0] > limit:
             raise ValueError(f"RigCamera.dist must be (D,) with D <= {limit} for {self.model!r}, got "
                              f"{tuple(getattr(self.dist, 'shape', ()))}.")
@@ -62,25 +69,13 @@ class RigCamera:
 def camera_params(cam: RigCamera, dtype: torch.dtype | None = None) -> torch.Tensor:
     """The LM model's parameter vector :math:`(P,)` (``fx, fy, cx, cy`` and the model's coefficients)."""
     dtype = dtype or cam.K.dtype
-    K = cam.K.to(dtype)[None]
-    model = camera_model(cam.model)
-    if cam.model == "fisheye":
-        D = torch.zeros(1, 4, dtype=dtype, device=K.device)
-        D[0, : cam.dist.shape[0]] = cam.dist.to(dtype)
-        return model.params_from(K, D)[0]
-    return model.params_from(K, cam.dist.to(dtype)[None])[0]
+    return cam.camera.params_from(cam.K.to(dtype)[None], cam.dist.to(dtype)[None])[0]
 
 
 def camera_from_params(model_name: str, params: torch.Tensor) -> RigCamera:
     """A :class:`RigCamera` from the LM parameter vector :math:`(P,)` of ``model_name``."""
     K = intrinsics_matrix(params[:4])
-    if model_name == "fisheye":
-        return RigCamera(model_name, K, params[4:8].clone())
-    dist = params.new_zeros(DISTORTION_MODELS[model_name])
-    model = camera_model(model_name)
-    for j, i in enumerate(model.coeff_index):
-        dist[i] = params[4 + j]
-    return RigCamera(model_name, K, dist)
+    return RigCamera(model_name, K, camera_model(model_name).coeffs_from(params[None])[0])
 
 
 def normalized_points(cam: RigCamera, pixels: torch.Tensor) -> torch.Tensor:
@@ -92,15 +87,14 @@ def normalized_points(cam: RigCamera, pixels: torch.Tensor) -> torch.Tensor:
     shape = pixels.shape
     pixels = pixels.reshape(1, -1, 2)
     K = cam.K.to(device=pixels.device, dtype=pixels.dtype)
-    if cam.model == "fisheye":
-        D = torch.zeros(4, dtype=pixels.dtype, device=pixels.device)
-        D[: cam.dist.shape[0]] = cam.dist.to(pixels.dtype)
+    lens = cam.camera
+    if lens.is_fisheye:
+        D = lens.opencv_coeffs(cam.dist.to(device=pixels.device, dtype=pixels.dtype))
         return kb_undistort_points(pixels, K[None], D[None]).reshape(shape)
-    if cam.model == "none" or cam.dist.numel() == 0:
+    if lens.num_coeffs == 0 or cam.dist.numel() == 0:
         ideal = pixels
     else:
-        d = cam.dist.to(pixels.dtype)
-        d = torch.nn.functional.pad(d, [0, (5 if d.shape[0] <= 5 else 8) - d.shape[0]])
+        d = lens.opencv_coeffs(cam.dist.to(pixels.dtype))
         ideal = undistort_pixels(pixels, K[None], d[None])
     x = (ideal[..., 0] - K[0, 2]) / K[0, 0]
     y = (ideal[..., 1] - K[1, 2]) / K[1, 1]

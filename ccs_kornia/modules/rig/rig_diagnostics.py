@@ -101,28 +101,38 @@ def rig_verdict(
         ...             torch.tensor([0.0, 0.1]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))
         ('good', [])
         >>> rig_verdict(["a", "b"], [(640, 480)] * 2, torch.tensor([0.2, 3.0]), z, z + 0.2,
-        ...             torch.tensor([0.0, 0.1]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))[0]
-        'not reliable: check the corner detections of b, or choose a distortion model that fits its lens'
+        ...             torch.tensor([0.0, 0.1]), torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))[0][:73]
+        "not reliable: b's reprojection RMS 3.00 px is over 1.60 px: check the cor"
     """
     t = thresholds or RigVerdictThresholds()
     C = len(names)
     scale = [math.hypot(*image_sizes[c]) / 1000.0 for c in range(C)]
     found = Findings()
+    # every piece of advice starts with the figure that failed and its limit, so that the verdict line says what is
+    # wrong before what to do about it
     for c in range(C):
-        r = float(camera_rms[c])
+        r, limit = float(camera_rms[c]), t.usable_rms * scale[c]
         if not math.isfinite(r):
-            found.fail(f"{names[c]}: no reprojection error (not calibrated)", f"add frames where {names[c]} sees the board")
+            found.fail(f"{names[c]}: no reprojection error (not calibrated)",
+                       f"{names[c]} has no reprojection error (not calibrated): add frames where {names[c]} sees the "
+                       "board")
         else:
-            found.grade(r, t.good_rms * scale[c], t.usable_rms * scale[c], f"{names[c]}: reprojection RMS {r:.2f} px",
-                        f"check the corner detections of {names[c]}, or choose a distortion model that fits its lens",
+            found.grade(r, t.good_rms * scale[c], limit, f"{names[c]}: reprojection RMS {r:.2f} px",
+                        f"{names[c]}'s reprojection RMS {r:.2f} px is over {limit:.2f} px: check the corner detections "
+                        f"of {names[c]}, or choose a distortion model that fits its lens",
                         f"{names[c]}: reprojection RMS {r:.2f} px is high")
     for c in range(1, C):
         b, sb, sr = float(baseline[c]), float(baseline_std[c]), float(rotation_std_deg[c])
         rel = sb / b if b > 0 else float("inf")
         text = f"{names[c]}: baseline 1-sigma {100 * rel:.2f} %, rotation 1-sigma {sr:.3f} deg"
         if not (math.isfinite(rel) and math.isfinite(sr)) or rel > t.usable_baseline_rel or sr > t.usable_rotation_deg:
-            found.fail(text, f"add frames that {names[0]} (or a camera linked to it) and {names[c]} both see, at "
-                             "varied distances and tilts")
+            failed = []
+            if not math.isfinite(sr) or sr > t.usable_rotation_deg:
+                failed.append(f"rotation 1-sigma {sr:.2f} deg is over {t.usable_rotation_deg:g} deg")
+            if not math.isfinite(rel) or rel > t.usable_baseline_rel:
+                failed.append(f"baseline 1-sigma {100 * rel:.2f} % is over {100 * t.usable_baseline_rel:g} %")
+            found.fail(text, f"{names[c]}'s {' and its '.join(failed)}: add frames that {names[0]} (or a camera "
+                             f"linked to it) and {names[c]} both see, nearer and at varied distances and tilts")
         elif rel > t.good_baseline_rel or sr > t.good_rotation_deg:
             found.warn(text)
     for i in range(C):
@@ -138,13 +148,14 @@ def rig_verdict(
                     continue
             label = "held-out epipolar RMS" if held != fit else "epipolar RMS"
             found.grade(held, t.good_epipolar * s, t.usable_epipolar * s, f"{pair}: {label} {held:.2f} px",
-                        f"add frames both {names[i]} and {names[j]} see, spread over the image and in depth (and "
-                        "check that the cameras did not move during the capture)")
+                        f"{pair}'s {label} {held:.2f} px is over {t.usable_epipolar * s:.2f} px: add frames both "
+                        f"{names[i]} and {names[j]} see, spread over the image and in depth (and check that the "
+                        "cameras did not move during the capture)")
     for c, m in enumerate(moved_sigma or []):
         if m > t.moved_sigma:
             found.warn(f"{names[c]}: the joint fit moved its intrinsics up to {m:.1f} sigma from its own calibration")
     if not converged:
         found.fail(f"the joint fit stopped unconverged after {iterations} iterations",
-                   "the joint fit did not converge: check the frames named as disagreeing, or hold each camera's own "
-                   "intrinsics fixed")
+                   f"the joint fit stopped unconverged after {iterations} iterations (its figures are those of where "
+                   "it stopped): check the frames named as disagreeing, or hold each camera's own intrinsics fixed")
     return found.outcome()

@@ -54,8 +54,9 @@ def calibrate_cameras(
     params = _params(model, res)
     ok = res.success & params.isfinite().all(-1)
     if not bool(ok.all()):  # few frames: the principal point at the centre and fx = fy from one frame up
-        fb = CalibrationSolver(model=model, min_views=1, fix_principal_point=True, fix_aspect_ratio=model != "fisheye",
-                               use_ransac=False, **kw)(corners, valid, obj, image_size)
+        fb = CalibrationSolver(model=model, min_views=1, fix_principal_point=True,
+                               fix_aspect_ratio=not camera_model(model).is_fisheye, use_ransac=False,
+                               **kw)(corners, valid, obj, image_size)
         p_fb = _params(model, fb)
         ok_fb = fb.success & p_fb.isfinite().all(-1) & ~ok
         params = torch.where(ok_fb[:, None], p_fb, params)

@@ -61,12 +61,15 @@ from ccs_kornia.modules.rig.rig_lm import rig_layout, rig_levenberg_marquardt
 from ccs_kornia.modules.rig.stereo import StereoPair, stereo_pair
 from ccs_kornia.runtime.threads import small_problem_threads
 
-__all__ = ["FRAME_SCALE", "FRAME_SCALE_MIN_PX", "PRIOR_INFLATION", "RigCamera", "RigResult", "RigSolver",
+__all__ = ["DRAGGED_EXCESS", "FRAME_SCALE", "FRAME_SCALE_MIN_PX", "PRIOR_INFLATION", "RigCamera", "RigResult", "RigSolver",
            "calibrate_rig"]
 
 #: default ``intrinsics_prior``: the prior's information is divided by this factor; see ``docs/rig.md`` for the
 #: measurement behind it
 PRIOR_INFLATION = 1.0
+#: a camera whose squared error under the rig exceeds what its noise explains by this factor (1: twice) has been
+#: dragged by the rig's frames: its intrinsics' move counts in the verdict and the advice
+DRAGGED_EXCESS = 1.0
 #: a frame's disagreement is weighed against this many times the median per-view RMS of the cameras' own poses ...
 FRAME_SCALE = 3.0
 #: ... and never against less than this (px)
@@ -409,7 +412,7 @@ class RigSolver(nn.Module):
                 break
             used = keep
             res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
-        d_final, own_rms, _ = consistency(res, used)
+        d_final, own_rms, final_excess = consistency(res, used)
         if not bool(scale.isfinite().any()):
             scale = self._scale(own_rms)
         motion = torch.full((B, F), float("nan"), dtype=dtype, device=device)
@@ -417,7 +420,7 @@ class RigSolver(nn.Module):
             motion = board_motion(lm_models, res.params, res.R, res.T, res.frame_R, res.frame_t, obj, used,
                                   frame_times)
         fc = {"disagreement": d_final, "weight": frame_w, "motion": motion, "scale": scale}
-        single = {"params": single_params, "std": single_std,
+        single = {"params": single_params, "std": single_std, "excess": final_excess,
                   "prior_scale": prior_scale if priors is not None else torch.zeros_like(prior_scale)}
 
         held = self._heldout(fit, res, used, corners, valid, models, B, C)
@@ -526,16 +529,20 @@ class RigSolver(nn.Module):
         sstd = [single["std"][c][b].clone() for c in range(C)]
         moved = [torch.where(sstd[c] > 0, (res.params[c][b] - single["params"][c][b]) / sstd[c].clamp_min(1e-300),
                              0.0) for c in range(C)]
+        # moves of the cameras the rig explains worse than their noise (in a consistent rig a move is what the shared
+        # frames know better, not a drag): those the verdict and the advice speak of
+        excess = single["excess"][b]
+        dragged = [m if float(excess[c]) >= DRAGGED_EXCESS else torch.zeros_like(m) for c, m in enumerate(moved)]
         fw = fc["weight"][b].masked_fill(~u.any(0), float("nan"))
         shared = shared_frames(u, fc["weight"][b])
         advice = session_advice(names, sizes, [camera_model(m) for m in models], [p[b] for p in res.params], res.R[b],
                                 T, res.frame_R[b], res.frame_t[b], obj, corners[b], valid[b], u,
-                                fc["disagreement"][b], fw, fc["motion"][b], shared, moved, fixed) if success else []
+                                fc["disagreement"][b], fw, fc["motion"][b], shared, dragged, fixed) if success else []
         if success:
             verdict, reasons = rig_verdict(names, sizes, cam_rms, epi, held, T.norm(dim=-1), bstd, rstd,
                                            self.thresholds, converged=bool(res.converged[b]),
                                            iterations=int(res.iterations[b]),
-                                           moved_sigma=[float(m.abs().max()) if m.numel() else 0.0 for m in moved])
+                                           moved_sigma=[float(m.abs().max()) if m.numel() else 0.0 for m in dragged])
         else:
             verdict, reasons = f"not reliable: {reason}", [reason]
         return RigResult(

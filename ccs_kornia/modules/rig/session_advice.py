@@ -11,7 +11,7 @@ each is measured on the solved rig and turned into one line of advice:
 * **a board moving between exposures**: more than :data:`DISAGREEING_SHARE` of the frames two cameras see weighed
   below one half for their disagreement (:mod:`~ccs_kornia.modules.rig.frame_consistency`);
 * **intrinsics the rig moved**: a camera whose joint-fit intrinsics left its own calibration by more than
-  :data:`MOVED_SIGMA` of its single-camera 1-sigma.
+  :data:`MOVED_SIGMA` of its single-camera 1-sigma (the solver passes the moves of the cameras its frames dragged).
 """
 
 from __future__ import annotations

@@ -82,8 +82,8 @@ def epipolar_distances(
     d = ((dj * dj + di * di) / 2).sqrt()
     limit = math.cos(math.radians(max_angle_deg))
     for cam, uv in ((cam_i, uv_i), (cam_j, uv_j)):
-        if cam.model == "fisheye":
-            D = torch.nn.functional.pad(cam.dist.to(dtype), [0, 4 - cam.dist.shape[0]])
+        if cam.camera.is_fisheye:
+            D = cam.camera.opencv_coeffs(cam.dist.to(dtype))
             z = kb_unproject_points(uv.to(dtype)[None], cam.K.to(dtype)[None], D[None])[0, :, 2]
             d = torch.where(z > limit, d, float("nan"))
     return d
@@ -128,9 +128,9 @@ def stereo_rectify(
 
     size = (int(image_size[0]), int(image_size[1]))
     K1, K2, Rn, Tn = _np(cam1.K), _np(cam2.K), _np(R), _np(T).reshape(3, 1)
-    fish = (cam1.model == "fisheye", cam2.model == "fisheye")
+    fish = (cam1.camera.is_fisheye, cam2.camera.is_fisheye)
     if all(fish):
-        D1, D2 = (np.pad(_np(c.dist), (0, 4 - c.dist.shape[0])).reshape(4, 1) for c in (cam1, cam2))
+        D1, D2 = (c.camera.opencv_coeffs(_np(c.dist)).reshape(4, 1) for c in (cam1, cam2))
         R1, R2, P1, P2, Q = cv2.fisheye.stereoRectify(K1, D1, K2, D2, size, Rn, Tn, cv2.CALIB_ZERO_DISPARITY,
                                                       balance=float(alpha))
         roi1 = roi2 = (0, 0, size[0], size[1])
@@ -138,7 +138,7 @@ def stereo_rectify(
         if any(fish):
             d1 = d2 = np.zeros(5)
         else:
-            d1, d2 = (_np(c.dist) if c.dist.numel() else np.zeros(5) for c in (cam1, cam2))
+            d1, d2 = (c.camera.opencv_coeffs(_np(c.dist)) for c in (cam1, cam2))
         R1, R2, P1, P2, Q, roi1, roi2 = cv2.stereoRectify(K1, d1, K2, d2, size, Rn, Tn, flags=cv2.CALIB_ZERO_DISPARITY,
                                                           alpha=float(alpha))
     return {"R1": R1, "R2": R2, "P1": P1, "P2": P2, "Q": Q, "roi1": tuple(int(v) for v in roi1),

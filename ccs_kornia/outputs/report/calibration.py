@@ -40,6 +40,7 @@ from ccs_kornia.geometry.camera import (
     kb_project_points,
     project_points,
 )
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.io.images import load_image_gray
 from ccs_kornia.outputs.report.figures import (
     DISPLAY_MAX_SIDE,
@@ -144,9 +145,9 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
 
     written: list[str] = []
     K = torch.tensor(data["K"], dtype=torch.float64)
-    coeffs = data["distortion"]["coeffs"] or [0.0] * 5
-    dist = torch.tensor(coeffs, dtype=torch.float64)
-    fisheye = data["distortion"]["model"] == "fisheye"
+    lens = camera_model(data["distortion"]["model"])
+    dist = torch.tensor(lens.opencv_coeffs(data["distortion"]["coeffs"]), dtype=torch.float64)
+    fisheye = lens.is_fisheye
     cols, rows = (int(v) for v in data["board"])
     size = (int(data["image_size"][0]), int(data["image_size"][1]))
     obj = board_object_points(cols, rows, float(data["square"]), dtype=torch.float64)

@@ -124,8 +124,10 @@ def top_view_figure(data: dict[str, Any], size: int = 640) -> np.ndarray:
     return img
 
 
-def write_rig_report(directory: str, data: dict[str, Any], rect: dict[str, Any] | None = None) -> list[str]:
-    """Write the figures and an ``index.html`` into ``directory`` (which must exist); returns the files written."""
+def write_rig_report(directory: str, data: dict[str, Any], rect: dict[str, Any] | None = None,
+                     pair: tuple[int, int] = (0, 1)) -> list[str]:
+    """Write the figures and an ``index.html`` into ``directory`` (which must exist); returns the files written.
+    ``rect``: the rectification of the cameras ``pair``, shown as a rectified pair (the one the stereo files hold)."""
     written: list[str] = []
 
     def save(name: str, image: np.ndarray | None) -> str | None:
@@ -143,8 +145,8 @@ def write_rig_report(directory: str, data: dict[str, Any], rect: dict[str, Any] 
     figures = [
         (save("error_matrix.png", error_matrix_figure(data["rms_matrix"], names, data["frame_labels"])),
          "RMS reprojection error per camera and frame"),
-        (save("rectified_pair.png", rectified_pair_figure(data, rect) if rect is not None else None),
-         f"a rectified pair ({names[0]}, {names[1]}): matching points lie on the same row"),
+        (save("rectified_pair.png", rectified_pair_figure(data, rect, *pair) if rect is not None else None),
+         f"a rectified pair ({names[pair[0]]}, {names[pair[1]]}): matching points lie on the same row"),
         (save("rig_top_view.png", top_view_figure(data)), "the rig and the board poses from above"),
     ]
     def cell(value: float | None, digits: str) -> str:

@@ -27,6 +27,7 @@ from ccs_kornia.modules.calibration.fisheye_init import (
     focal_hypotheses,
     init_fisheye,
 )
+from ccs_kornia.modules.calibration.result import ViewReason
 
 F64 = torch.float64
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -257,11 +258,11 @@ def test_solver_fisheye_model_and_checks():
     assert res.model == "fisheye" and bool(res.success) and res.dist.shape == (4,)
     torch.testing.assert_close(res.K, K, atol=1e-6, rtol=0)
     torch.testing.assert_close(res.dist, D, atol=1e-7, rtol=0)
-    assert res.cov_camera.shape == (8, 8) and bool((res.view_reason == 0).all())
+    assert res.cov_camera.shape == (8, 8) and bool((res.view_reason == ViewReason.USED).all())
     # copies of one view are refused before the fisheye solve, as for the pinhole models
     copies = uv[:1].expand(4, -1, -1)
     refused = CalibrationSolver(model="fisheye")(copies, None, OBJ, SIZE)
-    assert not bool(refused.success) and bool((refused.view_reason[1:] == 5).all())
+    assert not bool(refused.success) and bool((refused.view_reason[1:] == ViewReason.DUPLICATE).all())
     assert any(i["check"] == "duplicate_views" for i in refused.issues()[0])
     # batched over cameras, a failed camera beside a good one
     batch = torch.stack([uv, uv.clone().fill_(float("nan"))])

@@ -17,7 +17,7 @@ from _real_data import REAL_DATA
 from ccs_kornia.geometry.camera import board_object_points
 from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.ransac import ImageRansac
-from ccs_kornia.modules.calibration.result import VIEW_REASONS
+from ccs_kornia.modules.calibration.result import VIEW_REASONS, ViewReason
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
 F64 = torch.float64
@@ -48,8 +48,9 @@ class TestRansacAndSolver:
         assert torch.equal(inliers, inliers2) and torch.equal(K0, K02)  # seeded
         res = CalibrationSolver()(bad, valid, obj, IMAGE_SIZE)
         assert res.success.all() and (res.K - K).abs().max() < 1e-6 and res.rms.max() < 1e-6
-        assert res.view_reason[0, 3] == 3 and res.view_reason[1, 7] == 3 and res.used.sum() == 28
-        assert VIEW_REASONS[3].startswith("rejected")
+        rejected = ViewReason.RANSAC_REJECTED
+        assert res.view_reason[0, 3] == rejected and res.view_reason[1, 7] == rejected and res.used.sum() == 28
+        assert VIEW_REASONS[ViewReason.RANSAC_REJECTED].startswith("rejected")
         # without RANSAC the post-refinement check still finds them (but the corrupted LM start is worse)
         res_nr = CalibrationSolver(use_ransac=False)(bad, valid, obj, IMAGE_SIZE)
         assert not res_nr.used[0, 3] and not res_nr.used[1, 7] and (res_nr.K - K).abs().max() < 1e-6
@@ -135,7 +136,8 @@ class TestRansacAndSolver:
         assert res.success.tolist() == [True, False, True, False]
         assert res.K[[1, 3]].isnan().all() and res.K[[0, 2]].isfinite().all()
         assert (res.K[0] - K[0]).abs().max() < 1e-6 and not res.used[3].any()
-        assert res.view_reason[1, 2:].eq(1).all() and res.view_reason[2, 0] == 1 and res.used[2].sum() == 3
+        few = ViewReason.TOO_FEW_CORNERS
+        assert res.view_reason[1, 2:].eq(few).all() and res.view_reason[2, 0] == few and res.used[2].sum() == 3
         assert res.view_rms[2, 4:].isnan().all() and res.rms[2] < 1e-6
 
     def test_malformed_shapes(self):

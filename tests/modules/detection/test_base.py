@@ -51,12 +51,22 @@ class _Recorder(ChessboardDetector):
         return DetectionResult(torch.zeros(b, 6, 2), torch.zeros(b, dtype=torch.bool))
 
 
-def test_detect_passes_changed_fallbacks_only_to_a_detector_with_its_own():
+def test_detect_passes_fallbacks_only_to_a_detector_with_its_own():
     images = torch.rand(1, 1, 8, 8)
     det = _Recorder(Fallbacks())
     det.detect(images, (3, 2))
-    det.detect(images, (3, 2), (("opencv", False),))
+    det.detect(images, (3, 2), Fallbacks(opencv=False))
     assert det.seen == [None, Fallbacks(opencv=False)] and det.fallbacks == Fallbacks()
     plain = _Recorder(None)
-    plain.detect(images, (3, 2), (("opencv", False),))
+    plain.detect(images, (3, 2), Fallbacks(opencv=False))
     assert plain.seen == [None]
+
+
+def test_a_plain_detector_declares_what_it_cannot_do():
+    plain = _Recorder(None)
+    assert plain.fallbacks is None and not plain.selects_scale and plain.board is None
+    assert plain.heatmap_net is None and plain.refines_on_image and plain.fit_window == 7
+    assert plain.detection_factor(torch.rand(2, 1, 8, 8)) == 1.0
+    with pytest.raises(NotImplementedError, match="grazing"):
+        plain.foreshortened(torch.rand(1, 1, 8, 8), (3, 2))
+

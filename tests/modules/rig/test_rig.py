@@ -414,8 +414,24 @@ def test_verdict_thresholds_scale_with_image_diagonal():
     assert small[0] == "usable" and "a: reprojection RMS 1.50 px is high" in small[1]
     assert large == ("good", [])
     held = z + 2.0  # held-out epipolar RMS 2 px: above 2 px per 1000 px at 640x480 (1.6 px)
-    assert rig_verdict(["a", "b"], [(640, 480)] * 2, rms * 0.1, z, held, *base)[0].startswith("not reliable: add frames")
+    assert rig_verdict(["a", "b"], [(640, 480)] * 2, rms * 0.1, z, held, *base)[0].startswith(
+        "not reliable: a-b's held-out epipolar RMS 2.00 px is over 1.60 px: add frames")
     assert rig_verdict(["a", "b"], [(1920, 1080)] * 2, rms * 0.1, z, held, *base)[0] == "good"
+
+
+def test_verdict_advice_names_the_figure_that_failed():
+    from ccs_kornia.modules.rig import rig_verdict
+
+    z, rms, sizes = torch.zeros(2, 2), torch.tensor([0.2, 0.2]), [(1280, 720)] * 2
+    baseline = torch.tensor([0.0, 0.5])
+    # the rotation's 1-sigma fails, the baseline's does not: the advice says which
+    verdict, reasons = rig_verdict(["cam0", "cam1"], sizes, rms, z, z + 0.2, baseline, torch.tensor([0.0, 1e-3]),
+                                   torch.tensor([0.0, 0.70]))
+    assert verdict.startswith("not reliable: cam1's rotation 1-sigma 0.70 deg is over 0.5 deg: add frames")
+    assert "baseline" not in verdict and "cam1: baseline 1-sigma 0.20 %, rotation 1-sigma 0.700 deg" in reasons
+    verdict, _ = rig_verdict(["cam0", "cam1"], sizes, rms, z, z + 0.2, baseline, torch.tensor([0.0, 0.05]),
+                             torch.tensor([0.0, 0.01]))
+    assert verdict.startswith("not reliable: cam1's baseline 1-sigma 10.00 % is over 2 %: add frames")
 
 
 def test_batch_heldout_per_rig():

@@ -104,7 +104,7 @@ def test_verdict_of_an_unconverged_fit():
             torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))
     assert rig_verdict(*args)[0] == "good"
     verdict, reasons = rig_verdict(*args, converged=False, iterations=100)
-    assert verdict.startswith("not reliable: the joint fit did not converge")
+    assert verdict.startswith("not reliable: the joint fit stopped unconverged after 100 iterations")
     assert "the joint fit stopped unconverged after 100 iterations" in reasons
 
 

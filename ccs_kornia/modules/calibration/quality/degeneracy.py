@@ -34,6 +34,7 @@ from ccs_kornia.modules.calibration.quality.coverage import (
 
 __all__ = [
     "CHECKS",
+    "WEAK_CHECKS",
     "OK",
     "WARNING",
     "ERROR",
@@ -66,6 +67,10 @@ CHECKS: tuple[str, ...] = (
 
 _FREE_DIST = {"none": 0, "k1k2": 2, "opencv5": 5, "rational": 8, "fisheye": 4}
 
+#: the checks that say the views determine the camera weakly, not that it cannot be computed: an error of theirs is
+#: kept when ``DegeneracyThresholds.refuse_weak`` is off (a focal uncertainty that could not be computed never is)
+WEAK_CHECKS: tuple[str, ...] = ("pose_diversity", "corners_per_unknown", "focal_uncertainty")
+
 
 @dataclass
 class DegeneracyThresholds:
@@ -84,6 +89,9 @@ class DegeneracyThresholds:
         coverage_warning: fraction of the image inside some board below which the set is flagged.
         focal_std_warning / focal_std_error: relative focal standard deviation above which the result is
             flagged / refused.
+        refuse_weak: refuse a camera the views determine only weakly (:data:`WEAK_CHECKS` in error: nearly parallel
+            boards, few observations per unknown, a large but computed uncertainty). ``False`` keeps it: the checks
+            stay errors (the verdict says ``not reliable`` and why), the camera is calibrated anyway.
     """
 
     duplicate_px: float = 0.5
@@ -97,6 +105,7 @@ class DegeneracyThresholds:
     coverage_warning: float = 0.20
     focal_std_warning: float = 0.02
     focal_std_error: float = 0.05
+    refuse_weak: bool = True
 
 
 def num_camera_unknowns(model: str, fix_aspect_ratio: bool = False, fix_principal_point: bool = False) -> int:
@@ -203,11 +212,17 @@ class DegeneracyReport:
 
     @property
     def errors(self) -> torch.Tensor:
-        """:math:`(C,)` bool: some check refuses the camera."""
-        return (self.severity == ERROR).any(-1)
+        """:math:`(C,)` bool: some check refuses the camera (not the weak ones where ``thresholds.refuse_weak`` is
+        off, unless their value could not be computed)."""
+        refusing = self.severity == ERROR
+        if not self.thresholds.refuse_weak:
+            weak = torch.tensor([name in WEAK_CHECKS for name in CHECKS], device=refusing.device)
+            refusing = refusing & ~(weak & self.value.isfinite())
+        return refusing.any(-1)
 
     def issues(self) -> list[list[dict]]:
-        """Per camera, the failed checks as JSON-able dicts ``{"check", "severity", "message", "advice", "views"}``."""
+        """Per camera, the failed checks as JSON-able dicts ``{"check", "severity", "message", "advice", "views",
+        "value"}`` (``value``: the check's measure, ``None`` where it could not be computed)."""
         return issues_from_tensors(self.severity, self.value, self.views, self.duplicate_of, self.thresholds)
 
 
@@ -231,7 +246,7 @@ def issues_from_tensors(severity, value, views, duplicate_of=None, thresholds=No
             idx = views[c, k].nonzero().flatten().tolist()
             problem, advice = _message(name, s, v, idx, c, duplicate_of, t)
             items.append({"check": name, "severity": _SEVERITY[s], "message": f"{problem}: {advice}", "advice": advice,
-                          "views": idx})
+                          "views": idx, "value": v if math.isfinite(v) else None})
         out.append(items)
     return out
 

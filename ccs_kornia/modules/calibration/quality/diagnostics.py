@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass, fields, replace
 import torch
 from torch import nn
 
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.quality.coverage import covered_pixels
@@ -56,6 +57,12 @@ def _nanrms(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
 def _nanmax(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
     m = x.nan_to_num(float("-inf")).amax(dim)
     return torch.where(m == float("-inf"), torch.full_like(m, float("nan")), m)
+
+
+def _model_name(result) -> str:
+    """The camera model's name of a one-model result (``"opencv"``, any OpenCV variant, where it names none)."""
+    model = getattr(result, "model", None)
+    return model if isinstance(model, str) and model else "opencv"
 
 
 def split_views(used: torch.Tensor, parts: int) -> torch.Tensor:
@@ -143,7 +150,7 @@ def cross_validation(
     Ka, Kb = K[:, 0].nan_to_num(1.0), K[:, 1].nan_to_num(1.0)
     da, db = dist[:, 0].nan_to_num(0.0), dist[:, 1].nan_to_num(0.0)
     fit = torch.ones(px.shape[0], dtype=torch.bool, device=px.device) if fit is None else fit.to(px.device)
-    lens = "fisheye" if getattr(result, "model", None) == "fisheye" else "opencv"
+    lens = _model_name(result)
     diff = projection_difference(Ka, da, Kb, db, px, compensate_rotation=fit, model=lens)
     halves_ok = ok[:, 0] & ok[:, 1]
     nan = torch.full_like(diff[:, 0], float("nan"))
@@ -170,7 +177,7 @@ def cross_validation(
 
     obj = object_points if object_points.dim() == 2 else rep(object_points)
     model = getattr(solver, "model", "opencv5")
-    if model == "fisheye":  # the LM core with the Kannala-Brandt model, every camera parameter held
+    if camera_model(model).is_fisheye:  # the LM core with the Kannala-Brandt model, every camera parameter held
         kb = KannalaBrandtModel()
         obj_k = obj if obj.dim() == 2 else obj[0]
         pose = levenberg_marquardt(
@@ -413,7 +420,7 @@ def diagnose(
     corners = corners.to(dtype)
     valid = valid.bool() & corners.isfinite().all(-1)
     K, dist = result.K, result.dist
-    lens = "fisheye" if getattr(result, "model", None) == "fisheye" else "opencv"
+    lens = _model_name(result)
     ok = result.success.bool()
     Kc, dc = K.nan_to_num(1.0), dist.nan_to_num(0.0)
     gpx = image_points(image_size, grid).to(corners.device)

@@ -11,8 +11,8 @@ from __future__ import annotations
 import torch
 
 from ccs_kornia.geometry.camera import kb_unproject_points, undistort_pixels
-from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
-from ccs_kornia.geometry.models.opencv import OpenCVModel
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import camera_model
 
 __all__ = ["ROUNDTRIP_TOL_PX", "image_points", "projection_uncertainty", "projection_difference", "unprojectable_fraction"]
 
@@ -38,27 +38,40 @@ def image_points(image_size: tuple[int, int], grid: tuple[int, int] | None = Non
 #: a pixel whose unprojected ray does not project back within this (px) has no inverse under the model
 ROUNDTRIP_TOL_PX = 0.01
 
+#: projects the coefficients of any OpenCV variant (in OpenCV order, every one present)
+_OPENCV_ALL = camera_model("rational")
 
-def _rays(K: torch.Tensor, dist: torch.Tensor, pixels: torch.Tensor, model: str = "opencv") -> torch.Tensor:
-    """(C, G, 3) camera-frame rays (z = 1; unit rays for ``fisheye``, which sees beyond 90 degrees) of pixels
+
+def _lens(model: str | CameraModel) -> CameraModel:
+    """The model projecting ``dist`` as the functions here get it: a fisheye model's own, else OpenCV's with every
+    coefficient. ``model``: a model, a model name, or ``"opencv"`` (any OpenCV variant)."""
+    if isinstance(model, str):
+        model = _OPENCV_ALL if model == _OPENCV_ALL.opencv_family else camera_model(model)
+    return model if model.is_fisheye else _OPENCV_ALL
+
+
+def _rays(K: torch.Tensor, dist: torch.Tensor, pixels: torch.Tensor,
+          model: str | CameraModel = "opencv") -> torch.Tensor:
+    """(C, G, 3) camera-frame rays (z = 1; unit rays for a fisheye model, which sees beyond 90 degrees) of pixels
     (G, 2) under each camera; NaN where the distortion model has no inverse (it folds before reaching that pixel:
     the ray does not project back onto it)."""
+    lens = _lens(model)
     C, G = K.shape[0], pixels.shape[0]
     px = pixels.to(K).expand(C, G, 2)
-    if model == "fisheye":
+    if lens.is_fisheye:
         rays = kb_unproject_points(px, K, dist)
     else:
         ideal = undistort_pixels(px, K, dist) if dist.shape[-1] else px
         x = (ideal[..., 0] - K[:, None, 0, 2]) / K[:, None, 0, 0]
         y = (ideal[..., 1] - K[:, None, 1, 2]) / K[:, None, 1, 1]
         rays = torch.stack([x, y, torch.ones_like(x)], -1)
-    back = _project_rays(rays.nan_to_num(0.0), K, dist, model=model)
+    back = _project_rays(rays.nan_to_num(0.0), K, dist, model=lens)
     ok = ((back - px).norm(dim=-1) <= ROUNDTRIP_TOL_PX) & rays.isfinite().all(-1)
     return torch.where(ok[..., None], rays, torch.full_like(rays, float("nan")))
 
 
 def unprojectable_fraction(K: torch.Tensor, dist: torch.Tensor, image_size: tuple[int, int],
-                           grid: tuple[int, int] = (16, 12), model: str = "opencv") -> torch.Tensor:
+                           grid: tuple[int, int] = (16, 12), model: str | CameraModel = "opencv") -> torch.Tensor:
     r"""Fraction of an image grid where the distortion model has no inverse: it folds before reaching those pixels
     (two rays onto one pixel), which no lens does — the model's extrapolation has gone wrong there.
 
@@ -67,7 +80,7 @@ def unprojectable_fraction(K: torch.Tensor, dist: torch.Tensor, image_size: tupl
         dist: :math:`(C, D)` (OpenCV order, or Kannala-Brandt ``k1..k4`` with ``model="fisheye"``).
         image_size: ``(W, H)``.
         grid: ``(across, down)`` pixels tested, corners included.
-        model: ``"opencv"`` or ``"fisheye"``.
+        model: the cameras' model or its name (``"opencv"``: any OpenCV variant).
 
     Returns:
         :math:`(C,)` in [0, 1].
@@ -86,12 +99,12 @@ def unprojectable_fraction(K: torch.Tensor, dist: torch.Tensor, image_size: tupl
 
 
 def _project_rays(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, jacobians: bool = False,
-                  model: str = "opencv"):
+                  model: str | CameraModel = "opencv"):
     """Pixels (C, G, 2) of rays (C, G, 3); with ``jacobians`` also d pixel / d (fx, fy, cx, cy, dist)
     (C, G, 2, 4+D) and d pixel / d camera rotation (C, G, 2, 3)."""
+    lens = _lens(model)
     D = dist.shape[-1]
     # OpenCV: every coefficient present, in OpenCV order: the first 4 + D columns
-    lens = KannalaBrandtModel() if model == "fisheye" else OpenCVModel("rational")
     uv, J, Jx = lens.project(rays, lens.params_from(K, dist), jacobians)
     if not jacobians:
         return uv
@@ -120,7 +133,7 @@ def projection_uncertainty(
     pixels: torch.Tensor,
     worst: bool = True,
     compensate_rotation: torch.Tensor | None = None,
-    model: str = "opencv",
+    model: str | CameraModel = "opencv",
 ) -> torch.Tensor:
     r"""Standard deviation (px) of the projection of the rays seen at ``pixels``, from the camera covariance.
 
@@ -142,7 +155,8 @@ def projection_uncertainty(
             :math:`\Sigma_q`, as mrcal); else the RMS over both directions (:math:`\sqrt{tr \Sigma_q / 2}`).
         compensate_rotation: :math:`(G,)` or per camera :math:`(C, G)` bool, pixels over which a camera rotation is
             fitted out (None: no).
-        model: ``opencv`` (any OpenCV variant: ``dist`` in OpenCV order) or ``fisheye`` (``dist`` = k1..k4).
+        model: the cameras' model or its name: ``dist`` in OpenCV order (``"opencv"``: any OpenCV variant), or
+            k1..k4 for a fisheye model.
 
     Returns:
         :math:`(C, G)` px; NaN where the distortion model has no inverse (see :data:`ROUNDTRIP_TOL_PX`).
@@ -153,8 +167,9 @@ def projection_uncertainty(
         >>> projection_uncertainty(K, torch.zeros(1, 0, dtype=torch.float64), cov, torch.tensor([[320., 240.]]))
         tensor([[1.]], dtype=torch.float64)
     """
-    rays = _rays(K, dist, pixels, model)
-    _, J, A = _project_rays(rays, K, dist, jacobians=True, model=model)
+    lens = _lens(model)
+    rays = _rays(K, dist, pixels, lens)
+    _, J, A = _project_rays(rays, K, dist, jacobians=True, model=lens)
     if compensate_rotation is not None:
         J = _remove_rotation(J, A, compensate_rotation.to(J.device))
     S = J @ cov_camera[:, None] @ J.transpose(-1, -2)  # (C, G, 2, 2)
@@ -172,7 +187,7 @@ def projection_difference(
     dist_b: torch.Tensor,
     pixels: torch.Tensor,
     compensate_rotation: torch.Tensor | None = None,
-    model: str = "opencv",
+    model: str | CameraModel = "opencv",
 ) -> torch.Tensor:
     r"""Distance (px) between where two calibrations of one camera project the same ray.
 
@@ -186,7 +201,7 @@ def projection_difference(
         dist_a, dist_b: :math:`(C, D)`.
         pixels: :math:`(G, 2)`.
         compensate_rotation: :math:`(G,)` bool, pixels over which the rotation is fitted (None: no).
-        model: ``opencv`` or ``fisheye`` (both calibrations).
+        model: both calibrations' model or its name (``"opencv"``: any OpenCV variant).
 
     Returns:
         :math:`(C, G)` px; NaN where camera ``a``'s distortion model has no inverse.
@@ -198,10 +213,11 @@ def projection_difference(
         >>> projection_difference(K, d0, K2, d0, torch.tensor([[0., 0.], [320., 240.]]))
         tensor([[0.5000, 0.5000]], dtype=torch.float64)
     """
-    rays = _rays(K_a, dist_a, pixels, model)
+    lens = _lens(model)
+    rays = _rays(K_a, dist_a, pixels, lens)
     if compensate_rotation is None:
-        q = _project_rays(rays, K_b, dist_b, model=model)
+        q = _project_rays(rays, K_b, dist_b, model=lens)
         return (q - pixels.to(q)).norm(dim=-1)
-    q, _, A = _project_rays(rays, K_b, dist_b, jacobians=True, model=model)
+    q, _, A = _project_rays(rays, K_b, dist_b, jacobians=True, model=lens)
     d = _remove_rotation((q - pixels.to(q))[..., None], A, compensate_rotation.to(q.device))
     return d[..., 0].norm(dim=-1)

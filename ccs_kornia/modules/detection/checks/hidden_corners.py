@@ -27,6 +27,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from ccs_kornia.modules._checks import check_board_size
 from ccs_kornia.modules.detection.base import DetectionResult, image_rows
 from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_uncertainty
 
@@ -40,8 +41,8 @@ HIDDEN_CONTRAST_FRACTION = 0.25
 #: the contrast has faded to 30-60 % of the board's where the saddles are lost)
 UNCONFIRMED_CONTRAST_FRACTION = 0.6
 #: on a partial board, a corner whose point-symmetry residual (:func:`corner_uncertainty`) exceeds this multiple of the
-#: board's median is left out (at the rim of a glare, on bench glare renders and on opencv_left photos with a spot added:
-#: 26-65x for corners 4-6 px off, at most 15x for good ones)
+#: board's median is left out (at the rim of a glare, on renders and real photographs with a spot added: 26-65x for
+#: corners 4-6 px off, at most 15x for good ones; ``docs/measurements.md``)
 MAX_ASYMMETRY_RATIO = 20.0
 #: on any board, a corner whose point-symmetry residual exceeds this multiple of the board's median is left out: it lies
 #: on an edge or inside a square, not on a junction (real sets: 46-178x for corners 2.7-23 px from
@@ -60,9 +61,7 @@ CONTRAST_RADIUS = 0.25
 def _check(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int]) -> tuple[int, int]:
     if not isinstance(images, torch.Tensor) or images.dim() != 4 or images.shape[1] != 1:
         raise ValueError(f"images must be (B, 1, H, W), got {tuple(getattr(images, 'shape', ()))}.")
-    cols, rows = int(board_size[0]), int(board_size[1])
-    if min(cols, rows) < 2:
-        raise ValueError(f"board_size must have at least 2 corners a side, got {board_size}.")
+    cols, rows = check_board_size(board_size)
     if corners.dim() != 3 or corners.shape[0] != images.shape[0] or corners.shape[1:] != (cols * rows, 2):
         raise ValueError(f"corners must be ({images.shape[0]}, {cols * rows}, 2), got {tuple(corners.shape)}.")
     return cols, rows
@@ -228,7 +227,7 @@ def glare_rim(candidates: torch.Tensor, hidden: torch.Tensor, board_size: tuple[
         >>> glare_rim(torch.ones(1, 6, dtype=torch.bool), hidden, (3, 2)).tolist()
         [[True, False, True, False, True, False]]
     """
-    cols, rows = int(board_size[0]), int(board_size[1])
+    cols, rows = check_board_size(board_size)
     if candidates.shape != hidden.shape or candidates.dim() != 2 or candidates.shape[1] != cols * rows:
         raise ValueError(f"candidates and hidden must both be (B, {cols * rows}), got {tuple(candidates.shape)} and "
                          f"{tuple(hidden.shape)}.")
@@ -256,7 +255,7 @@ def spans_board(valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tenso
         >>> spans_board(valid, (3, 2)).tolist()
         [True, False]
     """
-    cols, rows = int(board_size[0]), int(board_size[1])
+    cols, rows = check_board_size(board_size)
     if valid.dim() != 2 or valid.shape[1] != cols * rows:
         raise ValueError(f"valid must be (B, {cols * rows}), got {tuple(valid.shape)}.")
     g = valid.reshape(-1, rows, cols)

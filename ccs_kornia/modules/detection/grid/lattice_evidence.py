@@ -64,9 +64,8 @@ def _empty_cells_flat(image: np.ndarray, cells: np.ndarray, pts: np.ndarray, emp
                       fraction: float = 0.5) -> bool:
     """Whether most empty cells of a placement show no checker (median of their :func:`_empty_cell_contrast`
     ``empty`` below ``fraction`` of the lattice's own contrast): a lattice short of the board because something hides
-    the rest, not because the network missed corners that the image shows (a coarse level of
-    ``ros_fisheye_mono/left-0016``: 0.81 of the board's contrast at the best placement's empty cells, against at most
-    0.19 under the glares of bench and held-out renders)."""
+    the rest, not because the network missed corners that the image shows (a real fisheye photograph's coarse level
+    showed most of the board's contrast there, glares at most a fifth: ``docs/measurements.md``)."""
     own = np.nanmedian(_cell_contrast(image, cells, pts, cells))
     return not np.isfinite(empty).any() or bool(np.nanmedian(empty) < fraction * own)
 

@@ -20,7 +20,7 @@ import torch.nn.functional as F
 from kornia.geometry.linalg import transform_points
 from kornia.geometry.transform import warp_affine
 
-from ccs_kornia.modules._checks import check_grey_images
+from ccs_kornia.modules._checks import check_board_size, check_grey_images
 from ccs_kornia.modules.detection.base import DetectionResult, image_rows
 from ccs_kornia.modules.detection.warps.warped_detection import Level, Warp, map_back
 from ccs_kornia.runtime.timing import stage
@@ -188,7 +188,8 @@ def detect_foreshortened(
     if not factor >= 1:
         raise ValueError(f"factor must be >= 1, got {factor}.")
     b = images.shape[0]
-    n = int(board_size[0]) * int(board_size[1])
+    cols, rows = check_board_size(board_size, min_side=1)
+    n = cols * rows
     out = DetectionResult(torch.zeros(b, n, 2, dtype=torch.float32, device=images.device),
                           torch.zeros(b, dtype=torch.bool, device=images.device), ["board not found"] * b)
     level = Level(factor, tuple(images.shape[-2:]))

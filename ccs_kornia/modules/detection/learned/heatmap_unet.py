@@ -90,9 +90,9 @@ class _Up(nn.Module):
         if self.training or torch.is_grad_enabled() or up.device.type != "cpu":
             return self.conv(torch.cat([skip, up], dim=1))
         # the first convolution of the concatenation is the sum of one convolution per part: on CPU the channels-last
-        # concatenation costs as much as the convolution after it (7 levels of 285x381: 141 -> 116 ms for the four)
+        # concatenation costs as much as the convolution after it (docs/measurements.md)
         c = skip.shape[1]
-        # summed in place: a new tensor for the sum cost more than the addition (7 levels of 288x384: 50 -> 29 ms)
+        # summed in place: a new tensor for the sum cost more than the addition
         y = F.conv2d(up, first.weight[:, c:], first.bias, padding=1)
         y.add_(F.conv2d(skip, first.weight[:, :c], None, padding=1))
         for layer in list(self.conv)[1:]:
@@ -237,9 +237,8 @@ def effective_precision(precision: str, device: torch.device | str = "cpu") -> s
 #: detection level (a 24 Mpx photograph's) adds 400 MB to the peak memory, a quarter of the 1.5 GB budget
 TILE_PIXELS = 2_000_000
 #: on CPU, batches above this many pixels run through the network a few whole images at a time (:func:`run_heatmap`):
-#: its activations then stay in the processor's cache between layers (2 cores, AVX-512, 32 MB L3: sixteen 640x480 images
-#: 69 -> 58-62 ms per image, eight 720x960 155 -> 131-135, sixteen 285x381 26 -> 22; chunks of 0.4-0.8 Mpx alike; the
-#: same heatmaps: each image's convolutions do not depend on the others in the batch)
+#: its activations then stay in the processor's cache between layers, about 15 % faster (``docs/measurements.md``); the
+#: same heatmaps: each image's convolutions do not depend on the others in the batch
 BATCH_PIXELS = 600_000
 #: core side of a tile (px, a multiple of every network depth's ``2 ** depth`` up to 6)
 TILE_SIDE = 1024

@@ -133,8 +133,8 @@ class LearnedChessboardDetector(ChessboardDetector):
             by at most this factor (1: never).
         precision: of the heatmap network (:func:`~ccs_kornia.modules.detection.learned.heatmap_unet.run_heatmap`):
             ``"float32"`` (default), ``"bfloat16"`` or ``"auto"`` (bfloat16 where the CPU computes it natively). Opt-in:
-            with AVX512-BF16 the network ran 1.7x faster (18.0 -> 10.6 ms per 640x480 image) but lost boards (24 held-out
-            75-degree renders: 23 found in float32, 22), and docs/benchmarks.md is float32: one answer on every machine.
+            bfloat16 ran 1.7x faster with AVX512-BF16 but lost boards (``docs/measurements.md``), and
+            docs/benchmarks.md is float32: one answer on every machine.
         opencv_retry: where no level gave a board from the network's peaks, look again on the corners of OpenCV's
             classic detector on a bounded level (:mod:`~ccs_kornia.modules.detection.learned.opencv_candidates`: above all
             boards with marks inside the white squares, whose corners the network misses), organised, refined and
@@ -213,6 +213,20 @@ class LearnedChessboardDetector(ChessboardDetector):
         """Whether the detector picks its own detection level (callers need not downscale large images)."""
         return self.scale == "auto"
 
+    @property
+    def heatmap_net(self) -> torch.nn.Module:
+        """The heatmap network (:class:`CornerUNet`)."""
+        return self.net
+
+    @property
+    def refines_on_image(self) -> bool:
+        """Unless ``refine="none"`` (the corners are the network's own)."""
+        return self.refine != "none"
+
+    def detection_factor(self, images: torch.Tensor) -> torch.Tensor | float:
+        """Full-resolution px per px of each image's primary detection level (``scale="auto"``), else 1."""
+        return self.scale_selector(images)[1] if self.scale == "auto" else 1.0
+
     @torch.no_grad()
     def candidates(
         self, images: torch.Tensor, full: torch.Tensor | None = None, scale: torch.Tensor | None = None
@@ -277,7 +291,7 @@ class LearnedChessboardDetector(ChessboardDetector):
             # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners
             for b in out.found.nonzero().flatten().tolist():
                 # and a sub-board: the organiser looks for peaks past the sides, which a coarse level can lack on a
-                # whole line (opencv_left at 8x6: left14's ninth column, squares of 5 px there); the image shows it
+                # whole line (squares of 5 px there, docs/measurements.md); the image shows it
                 reason = whole_board_check(images[b, 0].float().cpu().numpy(), out.corners[b].double().cpu().numpy(),
                                            board_size)
                 if reason:
@@ -291,9 +305,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         r = self.refiner
         if r is None:
             return pts
-        # the full-resolution fit's regions are large enough for both threads (passive waits, 2 cores: bench speed
-        # scene's 15 views 0.259 -> 0.203 s, udacity_gopro_wide's 36 photos 2.25 -> 1.71 s, one board of 20 Mpx
-        # 156 -> 135 ms); the level's refinement gains nothing from the second
+        # the full-resolution fit's regions are large enough for both threads (docs/measurements.md); the level's
+        # refinement gains nothing from the second
         with stage("saddle refinement"), full_threads():
             out, ok = refine_from_level(full, pts, board_size, factor, radius_factor or r.radius_factor, r.max_radius,
                                         r.method, r.iterations, r.smooth_sigma, r.normalize_sigma, return_ok=True)
@@ -319,7 +332,7 @@ class LearnedChessboardDetector(ChessboardDetector):
             return self.detect_level(images, board_size)
         # --- scale selection (modules/detection/learned/scale.py): detect on each image's level, refine at full resolution ---
         # the square-size estimate is a few whole-image filters: on a batch of a megapixel or more both threads pay
-        # off (16 images of 640x480: 6.3 -> 3.8 ms per image), on one small image waking the second does not
+        # off, on one small image waking the second does not (docs/measurements.md)
         big = images.numel() >= 1e6
         with stage("square-size estimate"), (full_threads() if big else nullcontext()):
             _, factor = self.scale_selector(images)
@@ -360,8 +373,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         """:meth:`detect_level` on :func:`~ccs_kornia.modules.detection.learned.opencv_candidates.opencv_candidates` of
         ``images`` instead of the network's peaks.
 
-        OpenCV's corners are within a px: no coarse search (the marks pull it: 0.3 -> 0.9 px on held-out ChArUco
-        renders) and a narrow refinement window (:data:`MARKED_RADIUS_FACTOR`). No X-junction check: its circle test
+        OpenCV's corners are within a px: no coarse search (the marks pull it, ``docs/measurements.md``) and a narrow
+        refinement window (:data:`MARKED_RADIUS_FACTOR`). No X-junction check: its circle test
         counts the colour changes around a point, and a mark inside a white square adds changes. In its place, a
         board whose refined corners leave the smooth lattice of their neighbours by more than
         :data:`MAX_LATTICE_DEVIATION` squares is refused (near a mark a corner can converge onto the mark's own

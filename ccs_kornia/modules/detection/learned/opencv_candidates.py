@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 import torch
 
+from ccs_kornia.modules._checks import check_board_size
 from ccs_kornia.modules.detection.opencv_detector import _CLASSIC_FLAGS
 
 __all__ = ["OPENCV_MAX_PIXELS", "opencv_level_factor", "opencv_candidates"]
@@ -67,9 +68,7 @@ def opencv_candidates(
     """
     if images.dim() != 4 or images.shape[1] != 1:
         raise ValueError(f"Expected grey images (B, 1, H, W), got {tuple(images.shape)}.")
-    cols, rows = int(board_size[0]), int(board_size[1])
-    if cols < 2 or rows < 2:
-        raise ValueError(f"board_size must be at least (2, 2), got {board_size}.")
+    cols, rows = check_board_size(board_size)
     n = cols * rows
     arrays = (images.detach()[:, 0].float().clamp(0, 1) * 255.0).round().to(torch.uint8).cpu().numpy()
 

@@ -37,7 +37,7 @@ import torch.nn.functional as F
 from kornia.filters import gaussian_blur2d
 from torch import nn
 
-from ccs_kornia.modules._checks import check_grey_images
+from ccs_kornia.modules._checks import check_board_size, check_grey_images
 from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules._resize import area_resize, halve
 from ccs_kornia.modules.detection.base import DetectionResult, image_rows
@@ -409,7 +409,8 @@ def detect_at_scale(
         raise ValueError(f"factor must have one value per image ({b}), got {tuple(factor.shape)}.")
     if not bool((factor > 0).all()):
         raise ValueError("factors must be positive.")
-    n = int(board_size[0]) * int(board_size[1])
+    cols, rows = check_board_size(board_size, min_side=1)
+    n = cols * rows
     if refine is None:
         def refine(full, pts, factor):
             return refine_from_level(full, pts, board_size, factor)
@@ -420,10 +421,9 @@ def detect_at_scale(
     attempts = [factor] + [(factor * f).clamp_min(floor) for f in fallback]
     if fallback and finest:
         # then octaves down from the finest relative fallback and last, the finest level allowed (the image itself
-        # when it fits): a wrong square-size estimate (measured on GoPro photos whose scene has strong saddles at 10x
-        # the board's scale) must not hide a board the relative fallbacks never reach, and the octave that finds it
-        # costs a quarter of the next finer one (udacity_gopro_wide: three boards at 2x instead of 1x, 0.11 against
-        # 0.43 s each)
+        # when it fits): a wrong square-size estimate (a scene with strong saddles at 10x the board's scale) must not
+        # hide a board the relative fallbacks never reach, and the octave that finds it costs a quarter of the next
+        # finer one (docs/measurements.md)
         step = factor * min(fallback) / 2
         while bool((step > 1.5 * floor).any()):
             attempts.append(step.clamp_min(floor))

@@ -16,7 +16,7 @@ import math
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.modules._checks import check_grey_images
+from ccs_kornia.modules._checks import check_board_size, check_grey_images
 from ccs_kornia.modules._resize import area_resize
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.grid.missing_corners import predict_missing_corners
@@ -90,7 +90,7 @@ def edge_blur(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int
         3.0
     """
     check_grey_images(images)
-    cols, rows = int(board_size[0]), int(board_size[1])
+    cols, rows = check_board_size(board_size, min_side=1)
     b = corners.shape[0]
     g = corners.float().reshape(b, rows, cols, 2)
     pairs = [(g[:, :, :-1], g[:, :, 1:])] if cols > 1 else []

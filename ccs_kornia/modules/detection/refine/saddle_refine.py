@@ -408,12 +408,9 @@ def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smoot
     if dual:
         # three estimates vote: the incoming point, the fit on the normalised source and the fit on the plain one.
         # Where the normalised fit leaves the incoming point while the plain fit stays with it, the division has
-        # reshaped the junction (strong motion blur: bench section 6 moved 30 of 54 corners of one image 1.6-10 px)
-        # and the plain fit is kept. The two fits also differ by 0.5-2 px on strongly curved fisheye squares
-        # (boofcv_fisheye_chessboard), with both near the incoming point: there the normalised fit stays (RMS 0.182
-        # against 0.209 when the plain fit nearer the incoming point was taken); and a lone corner can be a few px
-        # off at the coarse level (udacity_gopro_wide: one such vote raised the fisheye RMS 0.417 -> 0.450), hence
-        # the board-wide quorum.
+        # reshaped the junction (strong motion blur) and the plain fit is kept. The two fits also differ on strongly
+        # curved fisheye squares, with both near the incoming point: there the normalised fit stays; and a lone
+        # corner can be a few px off at the coarse level, hence the board-wide quorum (docs/measurements.md).
         cn, cp, okn, okp = c[:m], c[m:], ok[:m], ok[m:]
         dn, dp = (cn - c0[:m]).norm(dim=-1), (cp - c0[m:]).norm(dim=-1)
         plain_chosen = okp & (dn > DUAL_VOTE_RATIO * dp + DUAL_VOTE_MARGIN)
@@ -425,9 +422,9 @@ def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smoot
     if polish is not None:
         pr, polish_max, wr, wide_max = polish
         reach = pr.clamp_max(POLISH_MAX_MOVE)
-        # two sources per corner: the normalised one cancels shading (bench section 1, bad light: 0.025 px with the
-        # saddle fit, 0.043 after a plain polish), the plain one keeps small squares, board borders and real lenses
-        # exact (the local mean sees the next square or the background there)
+        # two sources per corner: the normalised one cancels shading (docs/measurements.md), the plain one keeps
+        # small squares, board borders and real lenses exact (the local mean sees the next square or the background
+        # there)
         w, local = _window(pr, polish_max)[1], c - top_left.to(dt)
         k = 1 if plain is None else 2  # both sources in one call (half the small operations; the same values)
         pb, mb, ab = symmetry_polish(src if k == 1 else both, local.repeat(k, 1), reach.repeat(k), polish_max,
@@ -435,9 +432,7 @@ def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smoot
         polished, moved, asym, p2, m2, a2 = pb[:m], mb[:m], ab[:m], pb[m:], mb[m:], ab[m:]
         if plain is not None:
             # the normalised source must be clearly more symmetric to win: where the two are close, the division's
-            # own reshaping of the junction outweighs the shading it removes (udacity_gopro_wide, fisheye model: RMS
-            # 0.414 plain only, 0.467 with the plain result needing only to tie, 0.417 with this margin; bench
-            # section 1, bad light: 0.043 px plain only, 0.016 tie, 0.019 margin)
+            # own reshaping of the junction outweighs the shading it removes (docs/measurements.md)
             better = m2 & (~moved | (a2 < POLISH_PLAIN_MARGIN * asym) | plain_chosen)
             polished, asym = torch.where(better[:, None], p2, polished), torch.where(better, a2, asym)
             src = torch.where(better[:, None, None, None], plain, src)
@@ -453,9 +448,9 @@ def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smoot
 class CornerRefiner(torch.nn.Module):
     """Module wrapper of :func:`refine_corners` with the window set from the grid spacing.
 
-    The default window (0.2 x the distance to the nearest grid neighbour) was chosen on the real sets:
-    larger windows see the curvature of strongly distorted lines and, on ``boofcv_bumblebee2_left``
-    (k1 = -0.36), raise the calibration RMS from 0.087 to 0.105 px; on renders 0.2-0.3 are equivalent.
+    The default window (0.2 x the distance to the nearest grid neighbour) was chosen on the real sets: larger windows
+    see the curvature of strongly distorted lines and raise the calibration RMS of a strongly distorted lens; on
+    renders 0.2-0.3 are equivalent (``docs/measurements.md``).
 
     Args:
         method: ``"symmetric"`` (default: saddle fit + point-symmetry polish), ``"saddle"`` or ``"gradient"``.

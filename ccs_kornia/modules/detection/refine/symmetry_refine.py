@@ -7,11 +7,9 @@ Gauss-Newton problem per corner whose Jacobian is ``grad I(c + d) - grad I(c - d
 
 Unlike a quadratic surface fit, this model is exact for any edge profile: it needs no heavy smoothing to make the
 junction look quadratic, and no division by a local mean (which bends the geometry wherever the mean's window sees
-the next square or the background), so it uses every pixel of a wider window at full precision. Measured on wild
-renders held out from the benchmark's seeds (mean corner error, px, 4 images each; window 0.3 x spacing, at most
-18 px): squares 8-10 px 0.069 -> 0.033, 20-30 px 0.041 -> 0.022, 60-100 px 0.049 -> 0.017, 60-75 degree tilt
-0.042 -> 0.027, soft shadows 0.050 -> 0.048, strong noise 0.103 -> 0.067, JPEG 10-35 0.059 -> 0.038 (before: the
-saddle fit alone).
+the next square or the background), so it uses every pixel of a wider window at full precision: on held-out wild
+renders it lowers the mean corner error of the saddle fit alone in every condition, by up to two thirds on large
+squares (``docs/measurements.md``).
 
 It works on the regions that :mod:`~ccs_kornia.modules.detection.refine.saddle_refine` already gathers and smooths per
 corner, so it adds three window samples per iteration and nothing per image.
@@ -37,9 +35,8 @@ WIDE_MAX_MOVE = 0.5
 #: as by the usual polish
 WIDE_MARGIN = 1.15
 #: the wide polish only where the board's rows and columns bend by at most this much (px; the sagitta of
-#: :func:`~ccs_kornia.modules.detection.grid.grid_geometry.line_sagitta`): on bench section 4's severely distorted renders
-#: (mean corner error, px, binned by the true sagitta) it gains below 0.05 px (0.0059 -> 0.0055), is neutral up to 0.1
-#: and loses beyond (0.1-0.2 px: 0.0069 -> 0.0081, 0.2-0.4: 0.0093 -> 0.0132, 0.4-0.8: 0.0146 -> 0.0238)
+#: :func:`~ccs_kornia.modules.detection.grid.grid_geometry.line_sagitta`): on severely distorted renders it gains below
+#: 0.05 px, is neutral up to 0.1 and loses beyond (``docs/measurements.md``)
 WIDE_MAX_SAGITTA = 0.05
 #: Gauss-Newton steps of the wide polish (it starts from the usual polish's point)
 WIDE_ITERATIONS = 2
@@ -160,17 +157,12 @@ def wide_polish(
     r"""The polished points again, in a wider window: :math:`(M, 2)` points, and :math:`(M,)` where the wider window
     sees the corner as point-symmetric as the usual one did (the per-board vote of :func:`wide_vote`).
 
-    A wider window averages more pixels. On wild renders held out from the benchmark's seeds (realistic optics; seeds
-    7,777,500+, 10 images per condition; window 0.4 instead of 0.3 x the grid spacing) the mean corner error drops
-    under strong noise 0.063 -> 0.057 px, box / Gaussian / motion blur 0.039 / 0.039 / 0.032 -> 0.032 / 0.032 / 0.027,
-    20-30 px squares 0.024 -> 0.021, JPEG 0.049 -> 0.044, 60-75 degrees of tilt 0.030 -> 0.026. It also reaches what
-    breaks the symmetry: marks inside the white squares and the curvature of distorted lines. Marks raise the
-    asymmetry it leaves, relative to the usual window's (per-board median ratio 1.0-1.1 under noise or JPEG, 2.4 with
-    ArUco marks, 6.5 with dots), hence the vote: a board keeps the wide result only where at least half of its corners
-    have a ratio of at most :data:`WIDE_MARGIN` (ArUco 0.018 -> 0.017, dots 0.028 -> 0.027). Curvature does not
-    (bench section 4's severe distortion, mean corner error, binned by the line's true sagitta: 0.0069 -> 0.0081 px at
-    0.1-0.2 px, 0.0146 -> 0.0238 at 0.4-0.8), hence the straightness gate of
-    :func:`wide_allowed` (:data:`WIDE_MAX_SAGITTA`).
+    A wider window averages more pixels: on held-out wild renders (window 0.4 instead of 0.3 x the grid spacing) the
+    mean corner error drops under noise, blur, JPEG and tilt. It also reaches what breaks the symmetry: marks inside
+    the white squares and the curvature of distorted lines. Marks raise the asymmetry it leaves, relative to the usual
+    window's, hence the vote: a board keeps the wide result only where at least half of its corners have a ratio of at
+    most :data:`WIDE_MARGIN`. Curvature does not, and the wide window loses on strongly bent lines, hence the
+    straightness gate of :func:`wide_allowed` (:data:`WIDE_MAX_SAGITTA`). Figures: ``docs/measurements.md``.
 
     Args:
         src: :math:`(M, 1, q, q)` regions (each corner's chosen source); polished: :math:`(M, 2)` points of the usual

@@ -9,8 +9,8 @@ Corners found in a virtual view are mapped back exactly (pixel -> ray -> the cal
 on the original image at full resolution, so they are measurements of the original image like any other.
 
 This is the paper's idea of correcting before detecting, with the calibration's own lens model instead of the
-network's estimate: the network's radial model cannot describe a fisheye (it straightens the ROS fisheye set's
-rows by 3 %, 1.06 -> 1.02 px), the calibrated Kannala-Brandt model does.
+network's estimate: the network's radial model cannot describe a fisheye (it straightens a real fisheye set's rows by
+3 %, ``docs/measurements.md``), the calibrated Kannala-Brandt model does.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from ccs_kornia.geometry.camera import (
     kb_project_points,
     project_points,
 )
+from ccs_kornia.modules._checks import check_board_size
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.warps.warped_detection import Warp, map_back
 
@@ -41,8 +42,7 @@ def view_directions(wide: bool, fov_deg: float = 110.0) -> list[tuple[float, flo
 
     The axis; for a wide lens also a ring of six directions 55 degrees off it, the same six directions 35 degrees
     off it, and the 55-degree ring again with a 130-degree view (a board near a fisheye's rim can be too large for
-    110 degrees). Measured on boofcv_fisheye_chessboard: each ring finds boards the others miss (26 of 26 boards
-    with all three, 25 with the first two).
+    110 degrees). On a real fisheye set each ring finds boards the others miss (``docs/measurements.md``).
 
     Example:
         >>> len(view_directions(False)), len(view_directions(True))
@@ -203,7 +203,8 @@ def detect_with_calibrated_lens(
         raise ValueError(f"Expected images (B, 1, H, W), K (B, 3, 3), dist (B, D); got {tuple(images.shape)}, "
                          f"{tuple(K.shape)}, {tuple(dist.shape)}.")
     b, _, h, w = images.shape
-    n = int(board_size[0]) * int(board_size[1])
+    cols, rows = check_board_size(board_size, min_side=1)
+    n = cols * rows
     device = images.device
     out = DetectionResult(torch.zeros(b, n, 2, dtype=torch.float32, device=device),
                           torch.zeros(b, dtype=torch.bool, device=device),

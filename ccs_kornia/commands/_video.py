@@ -1,0 +1,266 @@
+"""What the commands do with recordings: videos told apart from images, screened with a progress bar, frames chosen,
+and the frames' names and timestamps put in the outputs.
+
+A command that takes image folders takes videos in their place (``calibrate cam.mp4``, ``calibrate-rig cam0.mp4
+cam1.mp4``): every frame is screened (:mod:`~ccs_kornia.pipeline.screening`), a bounded set of frames is chosen
+(:mod:`~ccs_kornia.pipeline.frame_candidates`) and the pipeline runs on those (:class:`~ccs_kornia.pipeline.sources.
+VideoSource`), each named ``VIDEO#INDEX`` with its ``timestamp`` beside it in the JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from ccs_kornia.commands._common import UserError, info, warn
+
+__all__ = ["add_timestamps", "camera_videos", "frame_span", "make_screen", "max_frames", "pairing_lines", "rig_videos",
+           "screen_videos", "screen_workers", "screening_note", "video_inputs", "video_summary"]
+
+
+def _videos_in(directory: str) -> list[str]:
+    from ccs_kornia.io.images import natural_key
+    from ccs_kornia.io.video import is_video
+
+    return sorted((os.path.join(directory, n) for n in os.listdir(directory)
+                   if is_video(n) and os.path.isfile(os.path.join(directory, n))), key=natural_key)
+
+
+def _images_in(directory: str) -> bool:
+    from ccs_kornia.io.images import IMAGE_EXTENSIONS
+
+    return any(n.lower().endswith(IMAGE_EXTENSIONS) for n in os.listdir(directory))
+
+
+def video_inputs(command: str, items: Sequence[str]) -> list[str]:
+    """The videos the command-line ``items`` name: video files, folders holding videos (and no images), globs
+    matching videos; ``[]`` when no item is a video (the images' path then reads them). Images and videos together
+    are refused (:class:`UserError`): a camera's views come from one or the other."""
+    from ccs_kornia.io.video import is_video
+
+    videos: list[str] = []
+    others: list[str] = []
+    for item in items:
+        if os.path.isdir(item):
+            found = [] if _images_in(item) else _videos_in(item)
+            (videos.extend(found) if found else others.append(item))
+        elif os.path.isfile(item):
+            (videos if is_video(item) else others).append(item)
+        elif set("*?[") & set(item):
+            matches = [p for p in glob.glob(item, recursive=True) if os.path.isfile(p)]
+            found = [p for p in matches if is_video(p)]
+            videos.extend(found)
+            if len(found) < len(matches) or not matches:
+                others.append(item)
+        else:
+            others.append(item)
+    if videos and others:
+        raise UserError(f"give either videos or images, not both: {videos[0]} is a video, {others[0]} is not")
+    seen: set[str] = set()
+    return [v for v in videos if not (os.path.abspath(v) in seen or seen.add(os.path.abspath(v)))]
+
+
+def max_frames(args: argparse.Namespace) -> int:
+    """``--max-frames`` (default :data:`~ccs_kornia.pipeline.frame_candidates.DEFAULT_MAX_FRAMES`)."""
+    from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES
+
+    value = getattr(args, "max_frames", None)
+    return DEFAULT_MAX_FRAMES if value is None else int(value)
+
+
+def frame_span(args: argparse.Namespace):
+    """``--every``, ``--start``, ``--end`` as a :class:`~ccs_kornia.io.video.FrameSpan`."""
+    from ccs_kornia.io.video import FrameSpan
+
+    try:
+        return FrameSpan(getattr(args, "every", 1) or 1, getattr(args, "start", None), getattr(args, "end", None))
+    except ValueError as err:
+        raise UserError(f"--every/--start/--end: {err}") from None
+
+
+def make_screen(args: argparse.Namespace):
+    """The screening pass's quick look for the command's board (:class:`~ccs_kornia.modules.detection.screening.
+    BoardScreen`)."""
+    from ccs_kornia.modules.detection.screening import BoardScreen
+
+    board = getattr(args, "charuco_board", None) or getattr(args, "aprilgrid_board", None)
+    return BoardScreen(tuple(args.board), board)
+
+
+def screen_workers(args: argparse.Namespace) -> int:
+    """Processes of the screening pass: ``--jobs`` (``auto``: one per core, at most 4)."""
+    from ccs_kornia.pipeline.workers import default_workers
+
+    jobs = getattr(args, "jobs", "auto")
+    return default_workers("cpu") if jobs == "auto" else int(jobs)
+
+
+def _estimate(info, span) -> int:
+    """Frames the pass will screen, from the container's figures (for the progress bar)."""
+    total = info.frame_count or 0
+    if info.fps > 0 and total:
+        first = int((span.start or 0.0) * info.fps)
+        last = total if span.end is None else min(total, int(span.end * info.fps) + 1)
+        total = max(0, last - first)
+    return max(1, -(-total // max(1, span.every))) if total else 0
+
+
+def screen_videos(command: str, paths: Sequence[str], screen, span, workers: int, skip_unreadable: bool) -> list:
+    """Screen every video with a progress bar (frames/s and the boards seen so far); a damaged video's lost frames are
+    reported; an unreadable video is skipped with a warning (``skip_unreadable``) or stops the command.
+
+    Returns:
+        The :class:`~ccs_kornia.pipeline.screening.ScreenedVideo` of each video read.
+    """
+    from tqdm import tqdm
+
+    from ccs_kornia.io.video import open_video
+    from ccs_kornia.pipeline.screening import screen_video
+
+    infos, bad = [], []
+    for path in paths:
+        video, reason = open_video(path)
+        (infos.append(video) if video is not None else bad.append((path, reason)))
+    if bad and (not skip_unreadable or not infos):
+        path, reason = bad[0]
+        more = f" (and {len(bad) - 1} more of the {len(paths)} videos)" if len(bad) > 1 else ""
+        raise UserError(f"{path}: {reason}{more}")
+    for path, reason in bad:
+        warn(command, f"skipped {path}: {reason}")
+    total = sum(_estimate(v, span) for v in infos)
+    out = []
+    with tqdm(total=total or None, unit="frame", desc=f"{command}: screening", file=sys.stderr, disable=None,
+              leave=False) as bar:
+        seen = 0
+
+        def advance(frames: int, boards: int) -> None:
+            nonlocal seen
+            seen += boards
+            bar.update(frames)
+            bar.set_postfix_str(f"board in {seen}", refresh=False)
+
+        for video in infos:
+            try:
+                out.append(screen_video(video, screen, span, workers, advance))
+            except ValueError as err:
+                if not skip_unreadable:
+                    raise UserError(str(err)) from None
+                warn(command, f"skipped {video.path}: {err}")
+    where = "" if span == type(span)() else " between --start and --end"
+    empty = [v for v in out if not v.frames]
+    if empty and (not skip_unreadable or len(empty) == len(out)):
+        raise UserError(f"{empty[0].path}: no frame{where} could be read")
+    for video in out:
+        if video.stopped:
+            warn(command, f"{video.path}: {video.stopped}")
+        if not video.frames:
+            warn(command, f"skipped {video.path}: no frame{where} could be read")
+    return [v for v in out if v.frames]
+
+
+def video_summary(frames, names: Sequence[str] | None = None) -> list[str]:
+    """One line per video: frames screened and at what rate, the board seen in how many, chosen how many."""
+    lines = []
+    for c, refs in enumerate(frames.refs):
+        videos = frames.videos if frames.table is None else [frames.videos[c]]
+        for v, video in enumerate(videos):
+            rate = len(video.frames) / max(video.seconds, 1e-9)
+            chosen = sum(frames.chosen[c][v])
+            who = f"camera {names[c]} " if names is not None else ""
+            lines.append(f"{who}{video.path}: {len(video.frames)} frames screened ({rate:.0f} frames/s), board seen in "
+                         f"{video.found}, {chosen} chosen for the detector")
+    return lines
+
+
+def add_timestamps(views: list[dict[str, Any]], times: dict[str, float | None]) -> None:
+    """Each view record whose ``path`` is a video frame gets its ``timestamp`` (s) beside it."""
+    for view in views:
+        if view.get("path") in times:
+            t = times[view["path"]]
+            view["timestamp"] = None if t is None else round(float(t), 6)
+
+
+def report_screening(command: str, frames, names: Sequence[str] | None = None) -> None:
+    """The screening's lines on stderr."""
+    for line in video_summary(frames, names):
+        info(line)
+
+
+def camera_videos(command: str, args: argparse.Namespace):
+    """One camera's recordings (``args.images`` naming videos) screened and their frames chosen
+    (:class:`~ccs_kornia.pipeline.video_input.VideoFrames`); ``None`` when the inputs are images."""
+    from ccs_kornia.pipeline.video_input import camera_frames
+
+    paths = video_inputs(command, args.images)
+    if not paths:
+        return None
+    span = frame_span(args)
+    screened = screen_videos(command, paths, make_screen(args), span, screen_workers(args), skip_unreadable=True)
+    frames = camera_frames(screened, max_frames(args))
+    report_screening(command, frames)
+    return frames
+
+
+def screening_note(frames) -> str:
+    """``; 1800 frames of cam.mp4 screened, the board seen in none`` for a failure's message."""
+    screened = sum(len(v.frames) for v in frames.videos)
+    seen = sum(v.found for v in frames.videos)
+    what = frames.videos[0].path if len(frames.videos) == 1 else f"{len(frames.videos)} videos"
+    return f"; {screened} frames of {what} screened, the board seen in {seen or 'none'}"
+
+
+def rig_videos(command: str, args: argparse.Namespace, names: Sequence[str]):
+    """A rig's recordings (``args.cameras`` naming one video per camera) screened, paired into instants and chosen
+    (:class:`~ccs_kornia.pipeline.video_input.VideoFrames`); ``None`` when the cameras are image folders. Says on
+    stderr how many frames each camera contributed and the largest time spread of a paired frame."""
+    from ccs_kornia.pipeline.video_input import pair_videos, rig_frames
+
+    found = [video_inputs(command, [item]) for item in args.cameras]
+    if not any(found):
+        for option in ("timestamps", "sync_tolerance"):
+            if getattr(args, option, None) is not None:
+                raise UserError(f"--{option.replace('_', '-')} pairs the frames of videos; the cameras given are image "
+                                "folders (their views pair by the numbers in the file names)")
+        return None
+    for name, item, videos in zip(names, args.cameras, found):
+        if len(videos) != 1:
+            what = "images" if not videos else f"{len(videos)} videos"
+            raise UserError(f"camera {name} ({item}): a rig of recordings takes one video per camera, got {what}")
+    paths = [videos[0] for videos in found]
+    table = None
+    if args.timestamps is not None:
+        from ccs_kornia.io.timestamps import read_timestamps
+
+        try:
+            table = read_timestamps(args.timestamps)
+        except ValueError as err:
+            raise UserError(f"--timestamps: {err}") from None
+        if args.sync_tolerance is not None:
+            warn(command, "--sync-tolerance is not used: --timestamps says which frames pair")
+    screened = screen_videos(command, paths, make_screen(args), frame_span(args), screen_workers(args),
+                             skip_unreadable=False)
+    try:
+        pairing = pair_videos(screened, args.sync_tolerance, table, f"--timestamps {args.timestamps}")
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    frames = rig_frames(screened, pairing, max_frames(args))
+    for line in pairing_lines(pairing, names):
+        info(line)
+    report_screening(command, frames, names)
+    return frames
+
+
+def pairing_lines(pairing, names: Sequence[str]) -> list[str]:
+    """How the rig's frames were paired: by what, each camera's frames, the largest time spread of a paired frame."""
+    by = {"time": "by timestamp", "index": "by frame index (the videos carry no usable timestamps)",
+          "table": "by the timestamps table"}.get(pairing.by, f"by {pairing.by}")
+    shared = sum(1 for f in range(pairing.num_frames) if sum(row[f] is not None for row in pairing.index) > 1)
+    each = ", ".join(f"{name} {pairing.contributed(c)}" for c, name in enumerate(names))
+    spread = pairing.largest_spread()
+    where = "" if spread is None else f"; largest time spread of a paired frame {spread * 1000:.1f} ms"
+    return [f"frames paired {by}: {pairing.num_frames} instants, {shared} of them with frames of two cameras or more "
+            f"(frames per camera: {each}){where}"]

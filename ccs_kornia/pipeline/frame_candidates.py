@@ -1,0 +1,234 @@
+"""Which screened frames go to the full detector: still boards in poses not seen yet, at most ``max_frames``.
+
+The screening pass (:mod:`~ccs_kornia.pipeline.screening`) says, for every frame of a recording, whether the board is
+there and its rough outline. A minute at 30 frames/s holds hundreds of sightings, most of them near copies of one
+another, some of them of a board in motion (blurred, and bent by a rolling shutter); the full detector costs a few
+frames a second. :func:`choose_frames` keeps a bounded set:
+
+1. **still**: a board's *motion* is how far its outline moves per frame period between neighbouring screened frames
+   (the larger of the two sides); a frame moving more than ``max_motion`` is left out (``moving``), unless fewer than
+   :data:`MIN_STILL` still frames remain (then the stillest moving ones are admitted);
+2. **new and spread out**: the frames are taken greedily, each time the one farthest (in outline distance,
+   :func:`outline_distance`, a fraction of the image diagonal) from those taken already, weighted by its stillness
+   and, for a rig, by the cameras that see it; a frame within ``min_change`` of a taken one is a ``near copy`` and stays out; at most ``max_frames``.
+
+A rig is chosen by *instants* (its cameras' frames paired by :mod:`~ccs_kornia.pipeline.frame_matching`): an instant
+is as new as the newest pose it shows one of the cameras that see it (its distance to the nearest chosen instant
+that camera sees), and an instant seen by more cameras weighs more, so the frames that tie the cameras together come
+first. A recording of at most ``max_frames`` instants keeps them all (the full detector
+decides, and no frame the screen missed is lost); where the screen saw no board at all, ``max_frames`` instants
+spread evenly over the recording go to the full detector (a board the quick look misses may still be found).
+
+The choice records, per camera and instant, why a frame was left out; a later frame choice (the corners' own
+precision, the projection uncertainty) can start from :attr:`FrameChoice.chosen` and these records.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ccs_kornia.modules.detection.screening import Sighting
+
+__all__ = ["DEFAULT_MAX_FRAMES", "FrameChoice", "MIN_STILL", "board_motion", "choose_frames", "outline_distance"]
+
+#: frames of a recording (instants of a rig) sent to the full detector at most, by default
+DEFAULT_MAX_FRAMES = 60
+#: largest board motion of a still frame, as a fraction of the image diagonal per frame period (4.4 px at 1280x720)
+MAX_MOTION = 0.003
+#: two frames whose outlines differ by less than this fraction of the image diagonal (mean corner distance) are copies
+MIN_CHANGE = 0.02
+#: still frames needed before moving ones are left out
+MIN_STILL = 12
+
+
+def outline_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean distance between the corners of two outlines :math:`(4, 2)`, the better of their four cyclic orders (a
+    symmetric board's corners can come numbered from another end).
+
+    Example:
+        >>> a = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0], [0.0, 3.0]])
+        >>> outline_distance(a, np.roll(a, 2, axis=0)), outline_distance(a, a + [1.0, 0.0])
+        (0.0, 1.0)
+    """
+    return float(min(np.linalg.norm(a - np.roll(b, r, axis=0), axis=-1).mean() for r in range(4)))
+
+
+def board_motion(indices: Sequence[int], sightings: Sequence[Sighting]) -> list[float | None]:
+    """Per frame, how far the board's outline moves per frame period: the larger of its moves to the previous and the
+    next screened frame that show the board, each divided by the frames between (``None``: no neighbour shows it).
+
+    Args:
+        indices: the frames' indices in the video, ascending (``--every`` leaves gaps).
+        sightings: the screen's sighting of each.
+
+    Example:
+        >>> box = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0], [0.0, 3.0]])
+        >>> seen = [Sighting(True, box), Sighting(True, box + [2.0, 0.0]), Sighting(False), Sighting(True, box)]
+        >>> board_motion([0, 1, 2, 3], seen)
+        [2.0, 2.0, None, None]
+    """
+    out: list[float | None] = [None] * len(sightings)
+    for k, seen in enumerate(sightings):
+        if not seen.found:
+            continue
+        moves = []
+        for j in (k - 1, k + 1):
+            if 0 <= j < len(sightings) and sightings[j].found:
+                gap = max(1, abs(int(indices[j]) - int(indices[k])))
+                moves.append(outline_distance(seen.outline, sightings[j].outline) / gap)
+        out[k] = max(moves) if moves else None
+    return out
+
+
+@dataclass
+class FrameChoice:
+    """The frames chosen for the full detector.
+
+    Attributes:
+        chosen: the instants (frames of one camera) kept, ascending.
+        reasons: per camera, per instant, ``""`` for a kept frame, else why it stays out: ``no board at screening``, ``moving (9.3 px/frame)``, ``near copy of frame 412``, ``over --max-frames``.
+        motion: per camera, per instant, the board's motion in px per frame period (``None``: unknown).
+    """
+
+    chosen: list[int]
+    reasons: list[list[str]]
+    motion: list[list[float | None]]
+
+
+def choose_frames(
+    sightings: Sequence[Sequence[Sighting | None]],
+    labels: Sequence[Sequence[str | None]],
+    motion: Sequence[Sequence[float | None]],
+    image_sizes: Sequence[tuple[int, int]],
+    max_frames: int = 60,
+    max_motion: float = MAX_MOTION,
+    min_change: float = MIN_CHANGE,
+) -> FrameChoice:
+    """Choose the instants whose frames go to the full detector.
+
+    Args:
+        sightings: per camera, per instant, the screen's sighting (``None``: the camera has no frame there).
+        labels: per camera, per instant, the frame's name in messages (its index in the video).
+        motion: per camera, per instant, :func:`board_motion` of the frame.
+        image_sizes: per camera ``(W, H)``.
+        max_frames: instants kept at most (>= 1).
+        max_motion, min_change: fractions of each camera's image diagonal (per frame period; mean corner distance).
+
+    Returns:
+        :class:`FrameChoice`.
+
+    Example:
+        >>> box = np.array([[0.0, 0.0], [40.0, 0.0], [40.0, 30.0], [0.0, 30.0]])
+        >>> seen = [[Sighting(True, box + [dx, 0.0]) for dx in (0, 20, 40, 60, 80, 100, 5)]]
+        >>> c = choose_frames(seen, [[str(k) for k in range(7)]], [[0.0] * 7], [(640, 480)], max_frames=3)
+        >>> c.chosen, c.reasons[0][1], c.reasons[0][6]
+        ([0, 2, 5], 'over --max-frames', 'near copy of frame 0')
+    """
+    if max_frames < 1:
+        raise ValueError(f"max_frames must be >= 1, got {max_frames}.")
+    c = len(sightings)
+    f = len(sightings[0]) if c else 0
+    if any(len(s) != f for s in sightings):
+        raise ValueError("every camera needs one entry per instant.")
+    diag = [math.hypot(*size) for size in image_sizes]
+    seen = np.array([[s is not None and s.found for s in cam] for cam in sightings], dtype=bool).reshape(c, f)
+    moves = np.array([[np.nan if m is None else m / diag[k] for m in cam] for k, cam in enumerate(motion)],
+                     dtype=np.float64).reshape(c, f)
+    reasons = [["" if seen[k, i] else ("no board at screening" if sightings[k][i] is not None else "")
+                for i in range(f)] for k in range(c)]
+    if f <= max_frames:  # every instant goes: the full detector decides
+        return FrameChoice(list(range(f)), [[""] * f for _ in range(c)], [list(m) for m in motion])
+    cameras_seeing = seen.sum(0)
+    worst = np.where(seen, moves, np.nan)
+    worst = np.array([np.nanmax(col) if np.isfinite(col).any() else np.nan for col in worst.T])
+    pool = np.flatnonzero(cameras_seeing > 0)
+    if not len(pool):  # the screen saw no board: the full detector looks at frames spread over the recording
+        spread = sorted({int(round(x)) for x in np.linspace(0, f - 1, max_frames)})
+        for k in range(c):
+            for i in spread:
+                reasons[k][i] = ""
+        return FrameChoice(spread, reasons, [list(m) for m in motion])
+    still = pool[~(worst[pool] > max_motion)]  # unknown motion counts as still
+    if len(still) < MIN_STILL:
+        moving = pool[worst[pool] > max_motion]
+        still = np.concatenate([still, moving[np.argsort(worst[moving])][:MIN_STILL - len(still)]])
+    for i in np.setdiff1d(pool, still):
+        for k in range(c):
+            if seen[k, i]:
+                reasons[k][i] = f"moving ({moves[k, i] * diag[k]:.1f} px/frame)"
+    outlines = _Outlines(sightings, seen, diag)
+    chosen = _spread(still, outlines, cameras_seeing, np.nan_to_num(worst[still] / max_motion), max_frames, min_change)
+    near, distance = _nearest(still, chosen, outlines)
+    novelty = np.where(seen[:, still], distance, -np.inf).max(0)
+    for n, i in enumerate(still):
+        if i in chosen:
+            continue
+        for k in range(c):
+            if not seen[k, i]:
+                continue
+            j = int(near[k, n])
+            label = labels[k][j] if j >= 0 and labels[k][j] is not None else j
+            reasons[k][i] = f"near copy of frame {label}" if novelty[n] < min_change and j >= 0 else \
+                "over --max-frames"
+    return FrameChoice(sorted(chosen), reasons, [list(m) for m in motion])
+
+
+class _Outlines:
+    """Every camera's outlines :math:`(C, F, 4, 2)` in fractions of its diagonal (NaN where not seen), and per camera
+    the distance of instants to one instant (infinite where the camera does not see both)."""
+
+    def __init__(self, sightings, seen: np.ndarray, diag: Sequence[float]) -> None:
+        c, f = seen.shape
+        self.seen = seen
+        self.points = np.full((c, f, 4, 2), np.nan)
+        for k in range(c):
+            for i in np.flatnonzero(seen[k]):
+                self.points[k, i] = sightings[k][i].outline / diag[k]
+
+    def to(self, j: int, among: np.ndarray) -> np.ndarray:
+        """Distances :math:`(C, len(among))` of the instants ``among`` to instant ``j``, per camera."""
+        pts, ref = self.points[:, among], self.points[:, j][:, None]
+        d = np.min([np.linalg.norm(pts - np.roll(ref, r, axis=2), axis=-1).mean(-1) for r in range(4)], axis=0)
+        return np.where(self.seen[:, among] & self.seen[:, j][:, None], d, np.inf)
+
+
+def _spread(pool: np.ndarray, outlines: _Outlines, cameras_seeing: np.ndarray, slowness: np.ndarray,
+            max_frames: int, min_change: float) -> list[int]:
+    """Farthest-point choice over ``pool``: an instant's novelty is the largest, over the cameras that see it, of its
+    distance to the nearest chosen instant that camera sees (1 where it sees none yet); weighted by the cameras that
+    see it and its stillness."""
+    if not len(pool):
+        return []
+    seen = outlines.seen[:, pool]
+    weight = cameras_seeing[pool] / (1.0 + slowness)
+    nearest = np.ones(seen.shape)
+    first = int(np.lexsort((slowness, -weight))[0])
+    chosen = [int(pool[first])]
+    taken = np.zeros(len(pool), dtype=bool)
+    taken[first] = True
+    nearest = np.minimum(nearest, outlines.to(chosen[0], pool))
+    while len(chosen) < max_frames:
+        gap = np.where(seen, nearest, -np.inf).max(0)
+        score = np.where((gap >= min_change) & ~taken, gap * weight, -1.0)
+        k = int(np.argmax(score))
+        if score[k] < 0:
+            break
+        chosen.append(int(pool[k]))
+        taken[k] = True
+        nearest = np.minimum(nearest, outlines.to(chosen[-1], pool))
+    return chosen
+
+
+def _nearest(pool: np.ndarray, chosen: list[int], outlines: _Outlines) -> tuple[np.ndarray, np.ndarray]:
+    """Per camera and instant of ``pool``, the nearest chosen instant that camera sees (-1: none) and its distance
+    (infinite: none), both :math:`(C, len(pool))`."""
+    c = outlines.seen.shape[0]
+    if not chosen or not len(pool):
+        return np.full((c, len(pool)), -1), np.full((c, len(pool)), np.inf)
+    d = np.stack([outlines.to(j, pool) for j in chosen])  # (chosen, C, pool)
+    best = d.argmin(0)
+    return np.where(np.isfinite(d.min(0)), np.asarray(chosen)[best], -1), d.min(0)

@@ -1,0 +1,79 @@
+"""Every output of every command is checked before any work: a file or folder that could not be written stops the
+command at once with one line naming the option (exit status 2), nothing written, no internal error after the run."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import ccs_kornia.data.scenes
+import ccs_kornia.io.images
+from ccs_kornia import cli
+from ccs_kornia.commands import _common
+from ccs_kornia.io.images import write_image
+from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+
+#: a folder where no file can be created although it exists (root may "access" /proc for writing)
+NOWHERE = "/proc"
+
+
+def _no_work(*args, **kwargs):
+    raise AssertionError("the command started its work before checking its outputs")
+
+
+@pytest.fixture()
+def folders(tmp_path):
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        assert write_image(tmp_path / name / f"{name}01.png", np.full((48, 64), 0.5, np.float32))
+    rig = tmp_path / "rig.json"
+    rig.write_text(json.dumps({"cameras": [{}, {}], "extrinsics": [{}, {}]}))
+    return tmp_path
+
+
+def _commands(root) -> list[tuple[list[str], str]]:
+    a, b = str(root / "a"), str(root / "b")
+    out = str(root / "out.json")
+    board = ["--board", "9x6"]
+    cases = [(["detect", a, *board, "--output", f"{NOWHERE}/c.json"], "--output")]
+    for option, path in (("--output", f"{NOWHERE}/c.json"), ("--opencv-yaml", f"{NOWHERE}/c.yml"),
+                         ("--ros-yaml", f"{NOWHERE}/c.yaml"), ("--report", f"{NOWHERE}/report")):
+        extra = [] if option == "--output" else ["--output", out]
+        cases.append((["calibrate", a, *board, *extra, option, path], option))
+    for option, path in (("--output", f"{NOWHERE}/rig.json"), ("--opencv-yaml", f"{NOWHERE}/s.yml"),
+                         ("--kalibr-yaml", f"{NOWHERE}/chain.yaml"), ("--ros-yaml-dir", f"{NOWHERE}/ros"),
+                         ("--report", f"{NOWHERE}/report")):
+        extra = [] if option == "--output" else ["--output", out]
+        cases.append((["calibrate-rig", a, b, *board, "--model", "k1k2", *extra, option, path], option))
+    cases += [
+        (["undistort", a, "--calibration", str(root / "calib.json"), "--out-dir", f"{NOWHERE}/und"], "--out-dir"),
+        (["rectify", a, b, "--calibration", str(root / "rig.json"), "--out-dir", f"{NOWHERE}/rect"], "--out-dir"),
+        (["calibrate-many", str(root), *board, "--output", f"{NOWHERE}/m.jsonl"], "--output"),
+        (["demo", "--out-dir", f"{NOWHERE}/demo"], "--out-dir"),
+    ]
+    return cases
+
+
+@pytest.mark.parametrize("case", range(14))
+def test_every_output_is_checked_before_any_work(folders, capsys, monkeypatch, case):
+    argv, option = _commands(folders)[case]
+    monkeypatch.setattr(CalibrationPipeline, "run", _no_work)
+    monkeypatch.setattr(ccs_kornia.data.scenes, "make_calibration_set", _no_work)
+    monkeypatch.setattr(ccs_kornia.io.images, "read_image", _no_work)
+    calib = {"K": [[100.0, 0, 32], [0, 100, 24], [0, 0, 1]], "distortion": {"model": "k1k2", "coeffs": [0.0] * 5},
+             "image_size": [64, 48]}
+    (folders / "calib.json").write_text(json.dumps(calib))
+    code = cli.main(argv)
+    err = capsys.readouterr().err
+    errors = [line for line in err.splitlines() if "error" in line]
+    assert code == _common.EXIT_USAGE, err
+    assert len(errors) == 1 and option in errors[0] and "internal error" not in err, err
+    assert not (folders / "out.json").exists()
+
+
+def test_the_cases_cover_every_command(folders):
+    commands = {argv[0] for argv, _ in _commands(folders)}
+    assert commands == {"detect", "calibrate", "calibrate-rig", "undistort", "rectify", "calibrate-many", "demo"}
+    assert len(_commands(folders)) == 14
