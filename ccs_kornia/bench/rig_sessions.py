@@ -33,8 +33,8 @@ camera sees it; on static test frames at other instants, 0.1 px of noise), media
 
 **caliscope_4cam_charuco** (:func:`run_caliscope`): the shared session (4 webcams, 48 frames, ChArUco 4x5, the
 published calibration in ``reference/camera_array.toml``): each camera through the single-camera pipeline, then the
-rig with fixed intrinsics, the joint fit without prior or weighting, and ours; transfer error on held-out frames (5 folds of the frames,
-each fitted on the others), intrinsics against the published ones and moved in single-camera sigmas, rotation from
+rig with fixed intrinsics, the joint fit without prior or weighting, and ours; transfer error on held-out frames
+(5 folds of the frames, each fitted on the others), intrinsics against the published ones and moved in single-camera sigmas, rotation from
 the published rig, the frames named as inconsistent.
 """
 
@@ -51,11 +51,27 @@ import torch
 from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
-from ccs_kornia.modules.rig.rig_camera import RigCamera, camera_from_params, camera_params
+from ccs_kornia.modules.rig.rig_camera import (
+    RigCamera,
+    camera_from_params,
+    camera_params,
+)
 from ccs_kornia.modules.rig.rig_init import calibrate_cameras, camera_poses
 
-__all__ = ["DURATION", "FRAME_STEP", "MAX_BLUR_PX", "SEED", "METHODS", "CONDITIONS", "rendered_session",
-           "transfer_error", "opencv_multiview", "run_rig_sessions", "run_caliscope", "rig_sessions_md"]
+__all__ = [
+    "CONDITIONS",
+    "DURATION",
+    "FRAME_STEP",
+    "MAX_BLUR_PX",
+    "METHODS",
+    "SEED",
+    "opencv_multiview",
+    "rendered_session",
+    "rig_sessions_md",
+    "run_caliscope",
+    "run_rig_sessions",
+    "transfer_error",
+]
 
 #: first seed of the rendered sessions (the tests use seeds below 1000)
 SEED = 700_000
@@ -212,8 +228,10 @@ def transfer_error(cameras: list[RigCamera], R: torch.Tensor, T: torch.Tensor, c
     return torch.cat(out) if out else torch.zeros(0, dtype=torch.float64)
 
 
-def opencv_multiview(corners: torch.Tensor, object_points: torch.Tensor, image_sizes: list[tuple[int, int]],
-                     initial: list[RigCamera] | None = None) -> tuple[list[RigCamera], torch.Tensor, torch.Tensor] | str:
+def opencv_multiview(
+    corners: torch.Tensor, object_points: torch.Tensor, image_sizes: list[tuple[int, int]],
+    initial: list[RigCamera] | None = None,
+) -> tuple[list[RigCamera], torch.Tensor, torch.Tensor] | str:
     """``cv2.calibrateMultiview`` on the observations of the whole board, every camera ``CALIB_MODEL_PINHOLE`` (5
     coefficients); with ``initial`` cameras, their intrinsics as the guess (``CALIB_USE_INTRINSIC_GUESS``, as the
     tutorial's ``find_intrinsics_in_advance``), else OpenCV calibrates each camera first. (Partial boards, given as
@@ -221,7 +239,7 @@ def opencv_multiview(corners: torch.Tensor, object_points: torch.Tensor, image_s
     Returns ``(cameras, R, T)`` or an error."""
     import cv2
 
-    C, F, N = corners.shape[:3]
+    C, F = corners.shape[:2]
     seen = corners.isfinite().all(-1)
     mask = seen.all(-1).numpy().astype(np.uint8)
     pts = np.where(seen[..., None].numpy(), corners.numpy(), -1.0).astype(np.float32)
@@ -304,7 +322,7 @@ def _solve_all(s: Session, methods=METHODS) -> dict:
 
 
 def _mean(values):
-    v = [x for x in values if x == x]
+    v = [x for x in values if not math.isnan(x)]
     return float(np.mean(v)) if v else float("nan")
 
 
@@ -382,10 +400,10 @@ def _reference(folder: Path):
 
 def run_caliscope(folder: Path, models: str = "auto", folds: int = 5, log=print) -> dict:
     """The shared caliscope session (see the module doc)."""
+    from ccs_kornia.modules.calibration.quality.diagnostics import split_views
     from ccs_kornia.modules.detection.boards import CharucoBoard, grid_object_points
     from ccs_kornia.modules.detection.markers.charuco import CharucoDetector
     from ccs_kornia.modules.rig.rig_solver import RigSolver
-    from ccs_kornia.modules.calibration.quality.diagnostics import split_views
     from ccs_kornia.pipeline.frame_matching import match_frames
     from ccs_kornia.pipeline.rig_pipeline import RigPipeline
     from ccs_kornia.pipeline.sources import FileSource
@@ -402,8 +420,8 @@ def run_caliscope(folder: Path, models: str = "auto", folds: int = 5, log=print)
     ref_cams, ref_R, ref_T = _reference(folder)
     obj = grid_object_points(board, board.board_size, board.square, dtype=torch.float64)
     out = {"models": models, "methods": {}}
-    variants = {"fixed": ({"frame_kernel": "none"}, True), "joint": ({"intrinsics_prior": None, "frame_kernel": "none"}, False),
-                "ours": ({}, False)}
+    variants = {"fixed": ({"frame_kernel": "none"}, True),
+                "joint": ({"intrinsics_prior": None, "frame_kernel": "none"}, False), "ours": ({}, False)}
     for name, (opts, fix) in variants.items():
         pipe.solver_kwargs = dict(opts)
         pipe.fixed = {}
@@ -453,9 +471,11 @@ def rig_sessions_md(sec: dict) -> list[str]:
     """Markdown of :func:`run_rig_sessions`'s result."""
     if "summary" not in sec:
         return [f"Not run: {sec.get('error') or sec.get('skipped', '')}"]
-    lines = [f"{sec['trials']} rendered hand-held sessions of 3-4 webcams (module doc of `bench/rig_sessions.py`); "
-             "means over the cameras and sessions that did not fail. Transfer: held-out static frames, median px.", "",
-             "| condition | method | failures | rotation deg | translation % | fx % | principal point px | transfer px |",
+    lines = [(f"{sec['trials']} rendered hand-held sessions of 3-4 webcams (module doc of `bench/rig_sessions.py`); "
+              "means over the cameras and sessions that did not fail. Transfer: held-out static frames, median px."),
+             "",
+             ("| condition | method | failures | rotation deg | translation % | fx % | principal point px | "
+              "transfer px |"),
              "|---|---|---|---|---|---|---|---|"]
     for cond, methods in sec["summary"].items():
         for m, s in methods.items():
@@ -467,8 +487,9 @@ def rig_sessions_md(sec: dict) -> list[str]:
             f"{c}: " + ", ".join(f"{k} {v}" for k, v in w.items()) for c, w in worse.items())]
     cal = sec.get("caliscope")
     if cal and "methods" in cal:
-        lines += ["", "caliscope_4cam_charuco (`--model auto`): held-out transfer (5 folds of frames), fit transfer, "
-                  "fx per camera, largest intrinsic move in single-camera sigmas, frames weighing below one half:", "",
+        lines += ["", ("caliscope_4cam_charuco (`--model auto`): held-out transfer (5 folds of frames), fit transfer, "
+                       "fx per camera, largest intrinsic move in single-camera sigmas, frames weighing below one half:"),
+                  "",
                   "| method | held-out transfer px | transfer px | converged | fx | moved sigma | low-weight frames |",
                   "|---|---|---|---|---|---|---|"]
         for m, r in cal["methods"].items():

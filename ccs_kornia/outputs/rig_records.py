@@ -15,7 +15,8 @@ import torch
 from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.outputs.records import camera_record
 
-__all__ = ["CONVENTION", "INCONSISTENT_WEIGHT", "frame_lines", "frame_records", "rig_record", "pair_record", "record_extrinsics", "rotation_angle_deg", "rig_cameras", "rectify_maps"]
+__all__ = ["CONVENTION", "INCONSISTENT_WEIGHT", "frame_lines", "frame_records", "rig_record", "pair_record",
+           "record_extrinsics", "rotation_angle_deg", "rig_cameras", "rectify_maps"]
 
 #: how the extrinsics map points: camera 0's frame to camera ``i``'s (OpenCV's ``stereoCalibrate`` convention)
 CONVENTION = "x_i = R x_0 + T"

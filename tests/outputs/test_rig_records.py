@@ -9,7 +9,11 @@ from ccs_kornia.commands.calibrate_rig import summary_lines
 from ccs_kornia.data.rig import render_rig
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.rig import RigSolver
-from ccs_kornia.outputs.rig_records import INCONSISTENT_WEIGHT, frame_lines, frame_records
+from ccs_kornia.outputs.rig_records import (
+    INCONSISTENT_WEIGHT,
+    frame_lines,
+    frame_records,
+)
 
 D = torch.float64
 K = torch.tensor([[600.0, 0, 330], [0, 605, 245], [0, 0, 1]], dtype=D)

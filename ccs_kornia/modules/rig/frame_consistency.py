@@ -24,6 +24,7 @@ instant cannot be explained by one pose, and averaging it in drags the extrinsic
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Sequence
 
 import torch
@@ -62,7 +63,8 @@ class FrameKernel(enum.Enum):
     def weights(self, disagreement: torch.Tensor, scale: float | torch.Tensor) -> torch.Tensor:
         """Weights in ``[0, 1]`` of disagreements ``(*)`` px at ``scale`` px (a scalar or broadcastable); NaN (frames
         of one camera) weigh 1."""
-        x = (disagreement / torch.as_tensor(scale, dtype=disagreement.dtype, device=disagreement.device)).nan_to_num(0.0)
+        scale = torch.as_tensor(scale, dtype=disagreement.dtype, device=disagreement.device)
+        x = (disagreement / scale).nan_to_num(0.0)
         if self is FrameKernel.CAUCHY:
             w = 1.0 / (1.0 + x * x)
         elif self is FrameKernel.HUBER:
@@ -129,7 +131,7 @@ def own_view_errors(
         :math:`(B, C, F)` unweighted sum of squared pixel errors of the used corners (0 where unused).
     """
     Rc, tc = camera_board_poses(R, T, frame_R, frame_t)
-    B, C, F, N = weights.shape
+    B, C, F = weights.shape[:3]
     out = corners.new_zeros(B, C, F)
     for c, model in enumerate(models):
         w = weights[:, c]
@@ -197,7 +199,7 @@ def board_motion(
     Returns:
         :math:`(B, F)` px per frame period (NaN without a neighbour).
     """
-    B, C, F = used.shape
+    B, F = used.shape[0], used.shape[2]
     out = torch.full((B, F), float("nan"), dtype=frame_t.dtype, device=frame_t.device)
     times = times.to(device=frame_t.device, dtype=frame_t.dtype)
     if F < 2:
@@ -235,6 +237,6 @@ def disagreement_cause(disagreement: float, motion: float) -> str:
         >>> disagreement_cause(6.3, 25.0), disagreement_cause(6.3, 1.0)[:9], disagreement_cause(6.3, float("nan"))
         ('board moving', 'more than', '')
     """
-    if not (disagreement == disagreement and motion == motion):
+    if math.isnan(disagreement) or math.isnan(motion):
         return ""
     return BOARD_MOVING if motion >= disagreement else NOT_MOTION

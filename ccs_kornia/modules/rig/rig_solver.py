@@ -55,9 +55,9 @@ from ccs_kornia.modules.rig.rig_diagnostics import (
     epipolar_sums,
     rig_verdict,
 )
-from ccs_kornia.modules.rig.session_advice import session_advice, shared_frames
 from ccs_kornia.modules.rig.rig_init import initial_rig_cameras, rig_extrinsics
 from ccs_kornia.modules.rig.rig_lm import rig_layout, rig_levenberg_marquardt
+from ccs_kornia.modules.rig.session_advice import session_advice, shared_frames
 from ccs_kornia.modules.rig.stereo import StereoPair, stereo_pair
 from ccs_kornia.runtime.threads import small_problem_threads
 

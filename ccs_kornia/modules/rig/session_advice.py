@@ -22,7 +22,11 @@ import torch
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.modules.calibration.quality.coverage import image_coverage
-from ccs_kornia.modules.rig.frame_consistency import BOARD_MOVING, camera_board_poses, disagreement_cause
+from ccs_kornia.modules.rig.frame_consistency import (
+    BOARD_MOVING,
+    camera_board_poses,
+    disagreement_cause,
+)
 
 __all__ = ["DISAGREEING_SHARE", "MOVED_SIGMA", "OUTER_RING", "SMALL_BOARD", "WEAK_LINK_FRAMES", "board_fraction",
            "session_advice", "shared_frames"]

@@ -113,8 +113,8 @@ def test_verdict_of_moved_intrinsics():
     args = (["a", "b"], [(640, 480)] * 2, torch.tensor([0.2, 0.3]), z, z + 0.2, torch.tensor([0.0, 0.1]),
             torch.tensor([0.0, 1e-4]), torch.tensor([0.0, 0.01]))
     verdict, reasons = rig_verdict(*args, moved_sigma=[1.0, 5.0])
-    assert verdict == "usable" and reasons == ["b: the joint fit moved its intrinsics up to 5.0 sigma from its own "
-                                               "calibration"]
+    assert verdict == "usable"
+    assert reasons == ["b: the joint fit moved its intrinsics up to 5.0 sigma from its own calibration"]
     assert rig_verdict(*args, moved_sigma=[1.0, 2.9])[0] == "good"
 
 
