@@ -135,8 +135,9 @@ def session_advice(
     weak = [(names[i], names[j], float(shared[i, j])) for i in range(C) for j in range(i + 1, C)
             if 0 < float(shared[i, j]) < WEAK_LINK_FRAMES]
     if weak:
-        lines.append("show the board to these cameras together: " + ", ".join(
-            f"{a} and {b} ({s:.1f} frames that one board pose explains)" for a, b, s in weak))
+        lines.append(f"show the board to {'; '.join(f'{a} and {b}' for a, b, _ in weak)} together: "
+                     f"{'their links rest' if len(weak) > 1 else 'their link rests'} on "
+                     f"{', '.join(f'{s:.1f}' for _, _, s in weak)} frames that one board pose explains")
     shared_any = used.sum(0) >= 2
     w = weight.nan_to_num(1.0)
     low = shared_any & (w < 0.5)

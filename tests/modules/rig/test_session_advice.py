@@ -77,7 +77,7 @@ def test_advice_for_weak_links_and_moving_boards():
     w[:9] = 0.05  # three frames carry the pair
     d = torch.where(w < 0.5, 2.0, 0.1).to(D)
     lines = advice_of(s, weight=w, disagreement=d, motion=torch.full((12,), 20.0, dtype=D))
-    assert any(line.startswith("show the board to these cameras together: a and b (3.5 frames") for line in lines)
+    assert "show the board to a and b together: their link rests on 3.5 frames that one board pose explains" in lines
     slow = [line for line in lines if line.startswith("move the board slowly")]
     assert slow and "9 of the 12 frames" in slow[0] and "board moving" in slow[0]
     sync = advice_of(s, weight=w, disagreement=d, motion=torch.full((12,), 0.5, dtype=D))
