@@ -556,7 +556,7 @@ class RigSolver(nn.Module):
             frame_scale=float(fc["scale"][b]), shared_frames=shared, advice=advice,
             prior_weight=torch.tensor([0.0 if fixed[c] or self.intrinsics_prior is None else
                                        float(single["prior_scale"][b, c]) / self.intrinsics_prior for c in range(C)],
-                                      dtype=dtype),
+                                      dtype=dtype, device=T.device),
         )
 
 
