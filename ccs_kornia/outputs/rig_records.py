@@ -61,9 +61,11 @@ def record_extrinsics(extrinsics: list[dict[str, Any]]) -> tuple[torch.Tensor, t
     return R, torch.tensor([e["T"] for e in extrinsics], dtype=torch.float64)
 
 
-def pair_record(rig: Any, i: int, j: int) -> dict[str, Any]:
+def pair_record(rig: Any, i: int, j: int, labels: list[str] | None = None) -> dict[str, Any]:
     """One pair of a solved ``RigResult``: its relative pose, essential and fundamental matrices, baseline with its
-    1-sigma (known for pairs with camera 0, whose poses the fit estimates directly), epipolar errors."""
+    1-sigma (known for pairs with camera 0, whose poses the fit estimates directly), epipolar errors, the frames that
+    carried it (both cameras use them and they weigh at least :data:`INCONSISTENT_WEIGHT`; ``labels``: the frames'
+    names, else their positions)."""
     pair = rig.pair(i, j)
     baseline = float(torch.linalg.vector_norm(pair.T.double()))
     with_first = i == 0 or j == 0
@@ -81,7 +83,16 @@ def pair_record(rig: Any, i: int, j: int) -> dict[str, Any]:
         "heldout_epipolar_rms": _num(rig.heldout_epipolar_rms[i, j]),
         # frames both cameras use, each counted with its weight in the fit: how much of the session links the pair
         "shared_frames": None if getattr(rig, "shared_frames", None) is None else _num(rig.shared_frames[i, j]),
+        "frames_carried": _carried(rig, i, j, labels),
     }
+
+
+def _carried(rig: Any, i: int, j: int, labels: list[str] | None) -> list[str] | None:
+    if getattr(rig, "frame_weight", None) is None:
+        return None
+    both = rig.used[i] & rig.used[j] & (rig.frame_weight.nan_to_num(0.0) >= INCONSISTENT_WEIGHT)
+    frames = torch.nonzero(both).flatten().tolist()
+    return [labels[f] if labels is not None else str(f) for f in frames]
 
 
 def _per_param(values: torch.Tensor) -> dict[str, Any]:
@@ -164,7 +175,8 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
             # how far the joint fit moved each intrinsic from the camera's own calibration, in its own 1-sigma
             record["intrinsics_moved_sigma"] = _per_param(rig.intrinsics_moved_sigma[c])
         cameras.append({"name": out.names[c], **record})
-    pairs = [pair_record(rig, i, j) for i in range(len(cameras)) for j in range(i + 1, len(cameras))]
+    labels = list(out.frames.labels)
+    pairs = [pair_record(rig, i, j, labels) for i in range(len(cameras)) for j in range(i + 1, len(cameras))]
     return {
         "success": True,
         "convention": CONVENTION,

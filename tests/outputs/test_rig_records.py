@@ -13,6 +13,7 @@ from ccs_kornia.outputs.rig_records import (
     INCONSISTENT_WEIGHT,
     frame_lines,
     frame_records,
+    pair_record,
 )
 
 D = torch.float64
@@ -44,6 +45,9 @@ def test_frame_records_and_lines():
     lines = frame_lines(frames)
     assert len(lines) == 2 and all(line.startswith("frame 040") and "cameras disagree by" in line for line in lines)
     assert frame_lines(frames, most=1)[-1].startswith("... and 1 more frames")
+    pair = pair_record(rig, 0, 1, labels)
+    assert "0402" not in pair["frames_carried"] and "0407" not in pair["frames_carried"]
+    assert len(pair["frames_carried"]) >= 8 and 8 <= pair["shared_frames"] < 12
 
 
 def test_summary_lines_name_frames_moves_and_advice():
