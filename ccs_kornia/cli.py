@@ -1,4 +1,4 @@
-"""Command line: ``python -m ccs_kornia detect|calibrate|calibrate-rig|rectify|calibrate-many|undistort|demo|fit|...``.
+"""Command line: ``python -m ccs_kornia detect|calibrate|calibrate-rig|calibrate-hand-eye|rectify|calibrate-many|undistort|demo|fit|...``.
 
 The contract (arguments and JSON layout) is fixed by ``DESIGN.md`` section 4; benchmarks rely on
 it. Behaviour on bad input:
@@ -36,6 +36,7 @@ from typing import NoReturn
 from ccs_kornia import __version__
 from ccs_kornia.commands import (
     calibrate,
+    calibrate_hand_eye,
     calibrate_many,
     calibrate_rig,
     demo,
@@ -108,8 +109,10 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> None:  # type: ignore[override]
         if message.startswith("one of the arguments --board --charuco"):
+            tag = ", --apriltag FAMILY (a single AprilTag)" if "--apriltag" in message else ""
             message = ("the following arguments are required: --board COLSxROWS (a chessboard's inner corners), "
-                       "--charuco SXxSY (a ChArUco board's squares) or --aprilgrid TARGET_YAML (Kalibr's AprilGrid)")
+                       f"--charuco SXxSY (a ChArUco board's squares){tag} or --aprilgrid TARGET_YAML (Kalibr's "
+                       "AprilGrid)")
         unknown = self._unknown_options() if message.startswith("the following arguments are required") else []
         if unknown:
             long_options = [o for o in self._option_string_actions if o.startswith("--")]
@@ -393,6 +396,58 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     video_options(p, rig=True)
     p.set_defaults(func=calibrate_rig.run, model_choices=MODELS)
+
+    p = sub.add_parser("calibrate-hand-eye", help="where a camera sits on a robot (eye-in-hand or eye-to-hand), "
+                       "from board images and the robot's pose of each image", epilog=_EXIT_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("images", nargs="+", metavar="IMAGES", help="image files, directories or globs")
+    p.add_argument("--robot-poses", required=True, metavar="CSV",
+                   help="one row per image: its file name, then the flange's pose in the base frame (x_base = T "
+                        "x_flange): x,y,z,qx,qy,qz,qw or x,y,z,rx,ry,rz (radians) or a 4x4 matrix row by row")
+    mount = p.add_mutually_exclusive_group(required=True)
+    mount.add_argument("--eye-in-hand", action="store_true", help="the camera rides on the flange (X: flange -> camera)")
+    mount.add_argument("--eye-to-hand", action="store_true", help="the camera stands still, the board rides on the "
+                       "flange (X: base -> camera)")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--board", type=_board_arg, metavar="COLSxROWS", help="a chessboard's inner corners, e.g. 9x6")
+    p.add_argument("--square", default=1.0, type=_positive_float,
+                   help="the board's square side in metres (the robot poses' unit once read)")
+    charuco_options(p, which)
+    which.add_argument("--apriltag", choices=("36h11", "36h10", "25h9", "16h5"), metavar="FAMILY",
+                       help="a single AprilTag of this family (36h11, ...) as the target; needs --tag-size and "
+                            "--calibration")
+    p.add_argument("--tag-size", type=_positive_float, metavar="M", help="the tag's black square side in metres")
+    p.add_argument("--tag-id", type=int, metavar="ID", help="the tag's id (default: the one found in most images)")
+    p.add_argument("--pose-format", default="auto", choices=("auto", "quat", "rotvec", "matrix"),
+                   help="the poses' form (default auto: by the count of numbers per row)")
+    p.add_argument("--pose-units", default="m", choices=("m", "mm"), help="the poses' translations (default m)")
+    p.add_argument("--calibration", metavar="JSON",
+                   help="the camera (a calibrate JSON); default: calibrated from the same images")
+    p.add_argument("--model", default="auto", choices=MODELS,
+                   help="camera model when the camera is calibrated from the images (default auto)")
+    p.add_argument("--refine-intrinsics", action="store_true",
+                   help="fit the camera's intrinsics in the hand-eye fit too (default: held)")
+    p.add_argument("--robot-noise", default="auto", metavar="auto|none|DEG,MM",
+                   help="the robot poses' 1-sigma: auto (default: estimated from the data), none (exact poses) or "
+                        "DEG,MM")
+    p.add_argument("--output", required=True, metavar="JSON", help="hand-eye calibration file to write (handeye.json)")
+    p.add_argument("--ros-tf", metavar="FILE", help="also write a ROS launch file with the static transform")
+    p.add_argument("--moveit-yaml", metavar="FILE", help="also write the calibration YAML easy_handeye and MoveIt set-ups "
+                   "load")
+    p.add_argument("--ros-frames", default="base_link,tool0,camera_optical_frame", metavar="BASE,FLANGE,CAMERA",
+                   help="frame names of --ros-tf and --moveit-yaml (default base_link,tool0,camera_optical_frame)")
+    p.add_argument("--report", metavar="DIR", help="also write figures (each pose's board predicted from the robot "
+                   "alone, residuals by pose, the camera and board in the robot's frame) to DIR (created)")
+    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
+    p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
+    p.add_argument("--jobs", default="auto", type=_jobs_arg, metavar="N",
+                   help="processes detecting on the CPU (default: auto; 1 = this process only)")
+    p.add_argument("--batch-size", default=8, type=_positive_int, metavar="N", help="images detected at once (default 8)")
+    p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
+                   help="detect larger images on a downscaled copy (default 2048; 0 = off)")
+    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
+                   help="do not run the distortion-correction network")
+    p.set_defaults(func=calibrate_hand_eye.run)
 
     p = sub.add_parser("rectify", help="rectify stereo image pairs with a rig calibration")
     p.add_argument("left", metavar="LEFT_IMAGES", help="folder or glob of the first camera's images")

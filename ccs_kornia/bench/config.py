@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass, field, replace
 __all__ = ["SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "BenchConfig"]
 
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye", "rig",
-                             "markers", "rig_sessions")
+                             "markers", "rig_sessions", "hand_eye")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
 #: conditions of the synthetic calibration section (paper Table I, then realistic optics)
@@ -104,6 +104,8 @@ class BenchConfig:
         markers_views, markers_aprilgrid_views: rendered ChArUco / AprilGrid views per condition of the ``markers``
             section (:mod:`~ccs_kornia.bench.markers`); markers_calib_trials, markers_calib_views: its calibrations
             from partial views; markers_real_sets: its real ChArUco sets.
+        hand_eye_trials: rendered robots per set-up of the ``hand_eye`` section (:mod:`~ccs_kornia.bench.hand_eye`);
+            hand_eye_views: the range of their poses; hand_eye_real: also its real robot (where the data is found).
     """
 
     sections: tuple[str, ...] = SECTIONS
@@ -169,6 +171,9 @@ class BenchConfig:
     markers_calib_trials: int = 5
     markers_calib_views: int = 12
     markers_real_sets: tuple[str, ...] = ("charuco_opencv_tutorial", "caliscope_4cam_charuco")
+    hand_eye_trials: int = 20
+    hand_eye_views: tuple[int, int] = (8, 30)
+    hand_eye_real: bool = True
     preset: str = "full"
     extra: dict = field(default_factory=dict)
 
@@ -193,7 +198,7 @@ class BenchConfig:
             fisheye_trials=2, fisheye_views=6, fisheye_real_sets=("ros_fisheye_mono",), rig_trials=2,
             rig_session_trials=1, rig_session_conditions=("handheld",), rig_session_caliscope=False,
             markers_views=2, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
-            markers_real_sets=("charuco_opencv_tutorial",),
+            markers_real_sets=("charuco_opencv_tutorial",), hand_eye_trials=1,
         )
         return replace(base, **overrides)
 
@@ -213,7 +218,7 @@ class BenchConfig:
             rig_session_trials=1, rig_session_duration=8.0, rig_session_conditions=("handheld",),
             rig_session_caliscope=False,
             markers_views=1, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
-            markers_real_sets=(),
+            markers_real_sets=(), hand_eye_trials=1, hand_eye_views=(8, 8), hand_eye_real=False,
         )
         return replace(base, **overrides)
 

@@ -94,6 +94,7 @@ SECTION_RUNNERS: dict[str, tuple[str, str, bool, bool]] = {
     "rig": ("ccs_kornia.bench.rig", "run_rig", False, False),
     "markers": ("ccs_kornia.bench.markers", "run_markers", False, False),
     "rig_sessions": ("ccs_kornia.bench.rig_sessions", "run_rig_sessions", False, False),
+    "hand_eye": ("ccs_kornia.bench.hand_eye", "run_hand_eye", False, False),
     "speed": ("ccs_kornia.bench.speed", "run_speed", True, False),
 }
 

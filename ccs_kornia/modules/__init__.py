@@ -1,7 +1,7 @@
 """The stages, each an ``nn.Module`` on batched tensors, one sub-package per stage of the paper (see docs/architecture.md).
 
 ``correction/`` (distortion correction), ``detection/`` (corners in grid order), ``calibration/`` (the solver),
-``rig/`` (stereo heads and multi-camera rigs), ``undistort/`` (undistorted images for output). The helpers the
+``rig/`` (stereo heads and multi-camera rigs), ``hand_eye/`` (a camera on a robot), ``undistort/`` (undistorted images for output). The helpers the
 stages share (shape checks, kernels, resizes, folded batch norms) are the private modules beside them.
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
@@ -28,6 +28,7 @@ _EXPORTS = {
     "DistortionNet": "ccs_kornia.modules.correction.distortion_net",
     "GaussianFit": "ccs_kornia.modules.detection.learned.gaussian_fit",
     "GridOrganizer": "ccs_kornia.modules.detection.grid.grid_organizer",
+    "HandEyeSolver": "ccs_kornia.modules.hand_eye.solver",
     "HeatmapPeaks": "ccs_kornia.modules.detection.learned.peaks",
     "ImageRansac": "ccs_kornia.modules.calibration.ransac",
     "JointRefinement": "ccs_kornia.modules.calibration.refinement",

@@ -26,7 +26,9 @@ are solved by eliminating the item blocks (:func:`schur_step`), so a step costs 
 
 The problems written on it: the camera of :mod:`~ccs_kornia.modules.calibration.lm` (global: the free camera
 coordinates; items: the views' poses) and the rig of :mod:`~ccs_kornia.modules.rig.rig_lm` (global: every camera's
-intrinsics and extrinsics; items: the frames' board poses). The implicit gradients
+intrinsics and extrinsics; items: the frames' board poses) and the hand-eye fit of
+:mod:`~ccs_kornia.modules.hand_eye.fit` (global: the hand-eye and robot-world transforms, free intrinsics; items: the
+robot poses' corrections). The implicit gradients
 (:mod:`~ccs_kornia.modules.calibration.implicit`) solve their linear system with :func:`schur_step`.
 """
 

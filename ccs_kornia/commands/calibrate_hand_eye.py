@@ -1,0 +1,361 @@
+"""``ccs_kornia calibrate-hand-eye``: where the camera sits on a robot, from board images and the robot's pose of
+each image (docs/hand_eye.md); writes ``handeye.json`` and, on request, a ROS static transform, easy_handeye's YAML
+and a report.
+
+Images and poses are paired by file name, never by order: an image without a pose, a pose without an image and an
+image without a board are each reported and left out. Degenerate or disagreeing data (too few poses, tiny rotations,
+one axis, the robot and the camera disagreeing) is refused with one line naming the poses (exit status 2). Every
+output is written at the end, once the calibration is computed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from typing import Any
+
+from ccs_kornia.commands._common import (
+    UserError,
+    aprilgrid_record,
+    charuco_record,
+    check_output_dir,
+    check_output_file,
+    info,
+    inputs,
+    make_dir,
+    make_pipeline,
+    not_found_message,
+    resolve_device,
+    run_files,
+    warn,
+)
+
+__all__ = ["COMMAND", "parse_frames", "parse_robot_noise", "run", "summary_lines"]
+
+COMMAND = "calibrate-hand-eye"
+
+
+def parse_robot_noise(text: str) -> tuple[float, float] | str | None:
+    """``--robot-noise``: ``auto`` (estimated), ``none`` (poses exact) or ``DEG,MM`` (the poses' 1-sigma), as the solver
+    takes it (radians, metres).
+
+    Example:
+        >>> parse_robot_noise("auto"), parse_robot_noise("none"), [round(v, 6) for v in parse_robot_noise("0.1,0.5")]
+        ('auto', None, [0.001745, 0.0005])
+    """
+    if text in ("auto", "none"):
+        return None if text == "none" else text
+    try:
+        deg, mm = (float(v) for v in text.split(","))
+    except ValueError:
+        raise UserError(f"--robot-noise {text}: expected auto, none or DEG,MM (e.g. 0.05,0.2)") from None
+    if not (deg > 0 and mm > 0):
+        raise UserError(f"--robot-noise {text}: both sigmas must be positive")
+    import math
+
+    return math.radians(deg), mm / 1000.0
+
+
+def parse_frames(text: str) -> tuple[str, str, str]:
+    """``--ros-frames BASE,FLANGE,CAMERA``.
+
+    Example:
+        >>> parse_frames("panda_link0,panda_link8,camera_color_optical_frame")[1]
+        'panda_link8'
+    """
+    names = [n.strip() for n in text.split(",")]
+    if len(names) != 3 or not all(names) or any(" " in n for n in names):
+        raise UserError(f"--ros-frames {text}: expected three frame names BASE,FLANGE,CAMERA")
+    return names[0], names[1], names[2]
+
+
+def _camera(args, image_size_hint=None) -> tuple[Any, dict[str, Any]] | None:
+    """The camera of ``--calibration`` as a RigCamera and its record, or None."""
+    if not args.calibration:
+        return None
+    import torch
+
+    from ccs_kornia.modules.rig.rig_camera import RigCamera
+    from ccs_kornia.outputs.calibration_file import read_calibration
+
+    try:
+        cal = read_calibration(args.calibration)
+    except ValueError as err:
+        raise UserError(f"--calibration {args.calibration}: {err}") from None
+    coeffs = torch.from_numpy(cal["coeffs"])
+    if cal["model"] == "none":
+        coeffs = coeffs[:0]
+    camera = RigCamera(cal["model"], torch.from_numpy(cal["K"]), coeffs)
+    record = {"source": args.calibration, "image_size": list(cal["image_size"]), "K": cal["K"].tolist(),
+              "distortion": {"model": cal["model"], "coeffs": cal["coeffs"].tolist()}}
+    with open(args.calibration, encoding="utf-8") as handle:
+        full = json.load(handle)
+    for key in ("rms", "std"):
+        if key in full:
+            record[key] = full[key]
+    return camera, record
+
+
+def _lens_maps(camera):
+    """Pixel maps of the camera's lens (distorted -> ideal pixels and back) for the tag's straight sides."""
+    import numpy as np
+    import torch
+
+    from ccs_kornia.geometry.camera import distort_pixels, kb_distort_points
+    from ccs_kornia.modules.rig.rig_camera import normalized_points
+
+    K = camera.K.double()
+    if camera.model == "none" or (camera.model != "fisheye" and not bool(camera.dist.abs().gt(0).any())):
+        return None, None
+
+    def undistort(pts: np.ndarray) -> np.ndarray:
+        n = normalized_points(camera, torch.from_numpy(np.asarray(pts, dtype=np.float64)))
+        return (torch.cat([n, torch.ones_like(n[..., :1])], -1) @ K.T)[..., :2].numpy()
+
+    def distort(pts: np.ndarray) -> np.ndarray:
+        p = torch.from_numpy(np.asarray(pts, dtype=np.float64))[None]
+        if camera.model == "fisheye":
+            D = torch.zeros(4, dtype=torch.float64)
+            D[: camera.dist.shape[0]] = camera.dist.double()
+            return kb_distort_points(p, K[None], D[None])[0].numpy()
+        return distort_pixels(p, K[None], camera.dist.double()[None])[0].numpy()
+
+    return undistort, distort
+
+
+def _detect_tag(files: list[str], args, camera):
+    """The tag's corners on every image (a progress bar): corners (V, 4, 2), found (V,), reasons, image size."""
+    import numpy as np
+    import torch
+    from tqdm import tqdm
+
+    from ccs_kornia.io.images import load_image_gray
+    from ccs_kornia.modules.detection.markers.apriltag import detect_apriltag
+
+    undistort, distort = _lens_maps(camera)
+    corners = torch.full((len(files), 4, 2), float("nan"), dtype=torch.float64)
+    found = torch.zeros(len(files), dtype=torch.bool)
+    reasons: list[str] = []
+    size = None
+    for v, path in enumerate(tqdm(files, unit="img", desc=COMMAND, file=sys.stderr, disable=None, leave=False)):
+        gray, why = load_image_gray(path)
+        if gray is None:
+            reasons.append(why or "unreadable")
+            continue
+        h, w = gray.shape[:2]
+        if size is None:
+            size = (w, h)
+        if (w, h) != size:
+            reasons.append(f"image size {w}x{h} differs from the first image's {size[0]}x{size[1]}")
+            continue
+        det = detect_apriltag(torch.from_numpy(np.asarray(gray, dtype=np.float32))[None, None], args.tag_target,
+                              undistort, distort)
+        reasons.append(det.reasons[0])
+        if bool(det.found[0]):
+            corners[v], found[v] = det.corners[0], True
+    return corners, found, reasons, size
+
+
+def _detect_board(files: list[str], args, device, camera_given: bool):
+    """A board's corners through the pipeline (and the camera calibrated from the same images when none is given)."""
+    from ccs_kornia.commands.calibrate import calibrate_files
+
+    pipeline = make_pipeline(args, model=args.model)
+    camera_record = None
+    if camera_given:
+        out, _ = run_files(COMMAND, pipeline, [files], args.board, args.square, device, calibrate=False)
+        one = out.select(0)
+    else:
+        try:
+            camera_record, one = calibrate_files(COMMAND, files, args.board, args.square, pipeline, device, args.model,
+                                                 args.detector)
+        except UserError as err:
+            raise type(err)(f"the camera could not be calibrated from the images ({err}); give --calibration") \
+                from None
+    det = one.detections
+    found = det.found.bool() & one.present.bool()
+    reasons = [(det.reasons[v] if det.reasons else "") or ("board found" if bool(found[v]) else "board not found")
+               for v in range(len(files))]
+    size = tuple(int(x) for x in one.image_size)
+    return det.corners.double(), found, reasons, size, camera_record
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+    import torch
+
+    from ccs_kornia.io.robot_poses import match_poses, read_robot_poses
+    from ccs_kornia.modules.hand_eye import HandEyeSetup
+    from ccs_kornia.modules.rig.rig_camera import RigCamera, camera_from_params
+
+    setup = HandEyeSetup.EYE_IN_HAND if args.eye_in_hand else HandEyeSetup.EYE_TO_HAND
+    check_output_file("--output", args.output)
+    for option, path in (("--ros-tf", args.ros_tf), ("--moveit-yaml", args.moveit_yaml)):
+        if path:
+            check_output_file(option, path)
+    if args.report:
+        check_output_dir("--report", args.report)
+    frames = parse_frames(args.ros_frames)
+    noise = parse_robot_noise(args.robot_noise)
+    tag = getattr(args, "apriltag", None)
+    if tag is not None:
+        from ccs_kornia.modules.detection.markers.apriltag import AprilTagTarget
+
+        if args.tag_size is None:
+            raise UserError("--apriltag needs --tag-size: the black square's side in metres (e.g. 0.048)")
+        args.tag_target = AprilTagTarget(tag, args.tag_size, args.tag_id)
+    elif args.tag_size is not None or args.tag_id is not None:
+        raise UserError("--tag-size and --tag-id describe an --apriltag target")
+    device = resolve_device(args.device)
+    files = inputs(COMMAND, args.images)
+    poses = read_robot_poses(args.robot_poses, args.pose_format, args.pose_units)
+    T, missing, unused = match_poses(files, poses)
+    source = os.path.basename(args.robot_poses)
+    if len(missing) == len(files):
+        raise UserError(f"no image has a pose in {args.robot_poses}: its rows name {', '.join(poses.names[:3])}"
+                        f"{', ...' if len(poses.names) > 3 else ''}; the images are {os.path.basename(files[0])}, ... "
+                        "(each row starts with its image's file name)")
+    skipped: dict[str, str] = {}
+    for path in missing:
+        skipped[path] = f"no robot pose in {source}"
+        warn(COMMAND, f"skipped {path}: no robot pose for it in {source}")
+    for name in unused:
+        warn(COMMAND, f"{source}: the pose of {name} matches no image (not used)")
+    given = _camera(args)
+    if tag is not None and given is None:
+        raise UserError("--apriltag: a single tag cannot calibrate the camera; give --calibration calib.json (a "
+                        "calibrate JSON; docs/hand_eye.md shows how to write one from ViSP or ROS intrinsics)")
+    start = time.perf_counter()
+    camera_record = None
+    if tag is not None:
+        corners, found, reasons, size = _detect_tag(files, args, given[0])
+        obj = args.tag_target.object_points()
+        board_info = {"kind": "apriltag", "family": tag, "tag_size": args.tag_size, "tag_id": args.tag_id,
+                      "corners": "top left, top right, bottom left, bottom right of the black square as printed; "
+                                 "origin at the tag's centre, x right, y down, z into the print"}
+    else:
+        from ccs_kornia.modules.detection.boards import grid_object_points
+
+        corners, found, reasons, size, camera_record = _detect_board(files, args, device, given is not None)
+        obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square)
+        board_info = {"kind": getattr(args, "detector", "chessboard"), "board": list(args.board),
+                      "square": args.square, "corners": "grid order n = row * cols + col; origin at corner 0"}
+        for key, record in (("charuco", charuco_record(args)), ("aprilgrid", aprilgrid_record(args))):
+            if record:
+                board_info[key] = record
+    if size is None:
+        raise UserError(f"none of the {len(files)} input files could be read as an image")
+    if given is not None:
+        camera, camera_record = given
+        if tuple(camera_record["image_size"]) != tuple(size):
+            raise UserError(f"--calibration {args.calibration}: a calibration of {camera_record['image_size'][0]}x"
+                            f"{camera_record['image_size'][1]} images, these are {size[0]}x{size[1]}")
+    else:
+        K = torch.tensor(camera_record["K"], dtype=torch.float64)
+        model = camera_record["distortion"]["model"]
+        camera = RigCamera(model, K, torch.tensor(camera_record["distortion"]["coeffs"] or [], dtype=torch.float64)
+                           if model != "none" else torch.zeros(0, dtype=torch.float64))
+        camera_record = {k: camera_record[k] for k in ("image_size", "K", "distortion", "rms", "std") if k in
+                         camera_record} | {"source": "calibrated from these images"}
+    if not bool(found.any()):
+        kind = "apriltag" if tag is not None else str(getattr(args, "detector", ""))
+        what = (f"AprilTag {tag}" if tag is not None else None)
+        message = (f"{what} not found in any of {len(files)} images" if what else
+                   not_found_message(tuple(args.board), len(files), len(files), kind))
+        raise UserError(message)
+    for v, path in enumerate(files):
+        if path not in skipped and not bool(found[v]):
+            skipped[path] = reasons[v]
+            warn(COMMAND, f"skipped {path}: {reasons[v]}")
+    ok = found & torch.from_numpy(np.isfinite(T).all((-1, -2)))
+    info(f"{int(ok.sum())} of {len(files)} images have both a board and a robot pose")
+    valid = corners.isfinite().all(-1) & ok[:, None]
+    from ccs_kornia.modules.hand_eye import calibrate_hand_eye
+
+    robot = torch.from_numpy(T)
+    names = [os.path.basename(f) for f in files]
+    result = calibrate_hand_eye(
+        torch.nan_to_num(corners, nan=0.0)[None], valid[None], obj, torch.where(ok[:, None, None], robot,
+                                                                                 torch.full_like(robot, float("nan")))[None],
+        camera, setup, free_intrinsics=bool(args.refine_intrinsics), robot_noise=noise, image_size=size,
+        names=[names], align_orders=tag is None and board_info.get("kind") in ("learned", "opencv"))
+    if not bool(result.success[0]):
+        raise UserError(f"hand-eye calibration refused: {result.reasons[0]}")
+    from ccs_kornia.outputs.hand_eye_records import hand_eye_record
+
+    if args.refine_intrinsics:
+        refined = camera_from_params(camera.model, result.params[0])
+        camera_record = dict(camera_record, K=refined.K.tolist(),
+                             distortion={"model": camera.model, "coeffs": refined.dist.tolist()},
+                             refined_in_hand_eye_fit=True)
+    board_info["outline"] = _outline(obj)
+    data = hand_eye_record(result, files, 0, camera=camera_record, robot_poses=robot, corners=corners,
+                           skipped=skipped, board=board_info)
+    data["pose_file"] = {"path": args.robot_poses, "format": poses.format, "units": args.pose_units}
+    data["device"] = str(device)
+    data["timings"] = {"total_s": time.perf_counter() - start}
+    _write_outputs(args, data, frames)
+    for line in summary_lines(data, args.output):
+        print(line)
+    if args.report:
+        print(f"report: {os.path.join(args.report, 'index.html')}")
+    return 0
+
+
+def _outline(obj) -> list[list[float]]:
+    """The board's outline (its extreme corners, in order around it) in board coordinates."""
+    import torch
+
+    xy = obj[:, :2]
+    lo, hi = xy.min(0).values, xy.max(0).values
+    return [[float(lo[0]), float(lo[1]), 0.0], [float(hi[0]), float(lo[1]), 0.0], [float(hi[0]), float(hi[1]), 0.0],
+            [float(lo[0]), float(hi[1]), 0.0]] if bool(torch.isfinite(xy).all()) else []
+
+
+def _write_outputs(args: argparse.Namespace, data: dict[str, Any], frames: tuple[str, str, str]) -> None:
+    """Every requested file, prepared first, then written through temporary files renamed into place."""
+    from ccs_kornia.io.files import write_json, write_text_atomic
+    from ccs_kornia.outputs.hand_eye_exports import moveit_calibration_yaml, ros_static_transform
+
+    texts = {}
+    if args.ros_tf:
+        texts[("--ros-tf", args.ros_tf)] = ros_static_transform(data, frames)
+    if args.moveit_yaml:
+        texts[("--moveit-yaml", args.moveit_yaml)] = moveit_calibration_yaml(data, frames)
+    if args.report:
+        from ccs_kornia.outputs.report.hand_eye import write_hand_eye_report
+
+        make_dir("--report", args.report)
+        start = time.perf_counter()
+        write_hand_eye_report(args.report, data)
+        data["timings"]["report_s"] = time.perf_counter() - start
+    try:
+        write_json(args.output, data, mode=0o644)
+    except OSError as err:
+        raise UserError(f"--output {args.output}: cannot write ({err.strerror or err})") from None
+    for (option, path), text in texts.items():
+        write_text_atomic(option, path, text)
+
+
+def summary_lines(data: dict[str, Any], output: str) -> list[str]:
+    """The command's short summary: X with its 1-sigma, the held-out prediction error, the verdict."""
+    t, q = data["X_tq"]["t"], data["X_tq"]["q"]
+    std = data["X_std"]
+    held = data["heldout"]
+    what = "flange -> camera" if data["setup"] == "eye-in-hand" else "base -> camera"
+    lines = [f"X ({data['setup']}, {what}): t = ({t[0]:.5f}, {t[1]:.5f}, {t[2]:.5f}) m, q = ({q[0]:.5f}, {q[1]:.5f}, "
+             f"{q[2]:.5f}, {q[3]:.5f}); 1-sigma {std['translation_mm_norm']:.3g} mm, {std['rotation_deg_norm']:.3g} deg",
+             f"fit RMS {data['rms_px']:.3f} px over {data['num_poses']['used']} poses (started from "
+             f"{data['start']['method']}); wrote {output}"]
+    if held["rms_px"] is not None:
+        lines.append(f"held-out poses predicted from the robot alone: {held['rms_px']:.3f} px, {held['rms_mm']:.3f} mm "
+                     f"RMS ({held['poses']} poses)")
+    if data.get("robot_noise"):
+        rn = data["robot_noise"]
+        corner = f" (corners {rn['corner_px']:.3g} px)" if rn.get("corner_px") is not None else ""
+        lines.append(f"robot poses' noise: {rn['translation_mm']:.3g} mm, {rn['rotation_deg']:.3g} deg{corner}")
+    lines.append(f"verdict: {data['verdict']}")
+    return lines

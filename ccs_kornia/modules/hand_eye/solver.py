@@ -1,0 +1,375 @@
+r"""Hand-eye calibration by a joint fit of every board corner, batched over problems (docs/hand_eye.md).
+
+From board corners per view, the robot's flange pose per view and the camera, :func:`calibrate_hand_eye` estimates
+``X`` (the camera's pose on the robot) and ``Z`` (the board's pose in the robot's other frame):
+
+1. the board's pose in each view from its corners alone (homography of the undistorted corners, refined with the
+   camera held; :func:`~ccs_kornia.modules.rig.rig_init.camera_poses`);
+2. the checks of :mod:`~ccs_kornia.modules.hand_eye.degeneracy` (too few poses, tiny rotations, one axis, robot and
+   camera disagreeing in rotation or scale): a problem that fails one is refused, with the poses named;
+3. every closed form of :mod:`~ccs_kornia.modules.hand_eye.closed_forms`, each scored by the reprojection error of
+   its ``X`` and ``Z`` over all corners: the fit starts from the best (never a fixed method);
+4. the joint fit (:mod:`~ccs_kornia.modules.hand_eye.problem`, :mod:`~ccs_kornia.modules.hand_eye.fit`): all corners,
+   ``X``, ``Z``, optionally the camera's intrinsics and a robot-pose noise term; the covariance of the result;
+5. a fit whose error is far above any detector's (:data:`DISAGREE_PX` per 1000 px of diagonal) means the robot and
+   the camera disagree: refused, with a note when the inverted poses (the base in the flange frame) fit;
+6. the held-out figures (:mod:`~ccs_kornia.modules.hand_eye.heldout`) and the verdict.
+
+:class:`HandEyeSolver` is the module form; with ``corners`` (or robot poses) requiring grad, ``X``, ``Z`` and the
+free intrinsics carry gradients by implicit differentiation of the optimum
+(:mod:`~ccs_kornia.modules.hand_eye.implicit`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.so3 import exp_so3
+from ccs_kornia.modules._checks import check_shape
+from ccs_kornia.modules.calibration.lm import parameter_basis
+from ccs_kornia.modules.hand_eye.board_order import align_board_orders, renumber_corners
+from ccs_kornia.modules.hand_eye.closed_forms import closed_form_candidates
+from ccs_kornia.modules.hand_eye.degeneracy import MIN_POSES, hand_eye_issues
+from ccs_kornia.modules.hand_eye.fit import fit_problem
+from ccs_kornia.modules.hand_eye.heldout import jackknife_covariance, leave_one_pose_out
+from ccs_kornia.modules.hand_eye.noise import fit_with_noise_estimate
+from ccs_kornia.modules.hand_eye.problem import GLOBAL_POSE_PARAMS, HandEyeProblem, HandEyeState
+from ccs_kornia.modules.hand_eye.result import HandEyeResult, hand_eye_verdict
+from ccs_kornia.modules.hand_eye.setup import HandEyeSetup, invert_transforms
+from ccs_kornia.modules.rig.board_symmetry import board_symmetries, undo_symmetry
+from ccs_kornia.modules.rig.rig_camera import RigCamera, camera_params
+from ccs_kornia.modules.rig.rig_init import camera_poses
+
+__all__ = ["DISAGREE_PX", "JACKKNIFE_MIN_POSES", "HandEyeSolver", "calibrate_hand_eye"]
+
+#: a fit whose RMS exceeds this (px per 1000 px of image diagonal) is refused: robot and camera disagree
+DISAGREE_PX = 10.0
+#: where the robot-pose noise is estimated, its start: (radians, metres)
+START_NOISE = (1e-3, 1e-3)
+#: a held-out refit re-estimates the noise in this many rounds, from the full fit's estimate (more rounds change the
+#: held-out figures by little: docs/hand_eye.md)
+HELDOUT_NOISE_ROUNDS = 2
+#: the 1-sigma comes from the leave-one-pose-out refits' spread (jackknife) where at least this many poses were held
+#: out, else from the fit's covariance (which sees the corners' noise only, not a robot pose's error)
+JACKKNIFE_MIN_POSES = 5
+
+
+def _pose(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    T = torch.zeros(*R.shape[:-2], 4, 4, dtype=R.dtype, device=R.device)
+    T[..., :3, :3], T[..., :3, 3], T[..., 3, 3] = R, t, 1.0
+    return T
+
+
+def _cameras(camera: RigCamera | Sequence[RigCamera], B: int, dtype, device) -> tuple[str, torch.Tensor]:
+    cams = [camera] * B if isinstance(camera, RigCamera) else list(camera)
+    if len(cams) != B:
+        raise ValueError(f"camera: one RigCamera, or one per problem ({B}), got {len(cams)}.")
+    names = {c.model for c in cams}
+    if len(names) != 1:
+        raise ValueError(f"the cameras of one batch must share a model, got {sorted(names)}.")
+    return cams[0].model, torch.stack([camera_params(c, torch.float64) for c in cams]).to(device=device, dtype=dtype)
+
+
+def _view_rms(problem: HandEyeProblem, state: HandEyeState) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    r = problem.residuals(state)
+    on = problem.w > 0
+    sq = torch.where(on, (r * r).sum(-1), 0.0)
+    n = on.sum(-1)
+    view = (sq.sum(-1) / n.clamp_min(1)).sqrt().masked_fill(n == 0, float("nan"))
+    total = (sq.sum((1, 2)) / n.sum(-1).clamp_min(1)).sqrt()
+    return total, view, r
+
+
+def _start(problem: HandEyeProblem, A, M, usable, params) -> tuple[HandEyeState, torch.Tensor, torch.Tensor, list[str]]:
+    """Every closed form scored by its RMS over all corners; the best per problem as the start."""
+    B, V, N = problem.shape
+    names, Xs, Zs = closed_form_candidates(A, M, usable)
+    K = len(names)
+    idx = torch.arange(B, device=A.device).repeat_interleave(K)
+    sub = problem.subset(idx)
+    cand = HandEyeProblem.initial_state(Xs.reshape(B * K, 4, 4), Zs.reshape(B * K, 4, 4), params[idx], V)
+    rms = _view_rms(sub, cand)[0].reshape(B, K)
+    rms = torch.where(rms.isfinite(), rms, torch.full_like(rms, float("inf")))
+    best = rms.argmin(-1)
+    b = torch.arange(B, device=A.device)
+    state = HandEyeProblem.initial_state(Xs[b, best], Zs[b, best], params, V)
+    return state, rms, best, names
+
+
+def _fitter(robot_noise, metres_per_unit: float, max_iters: int):
+    """How a problem is fitted: plainly, with given robot-pose sigmas, or with them estimated (``"auto"``); returns
+    ``fit(problem, state) -> (FitResult, the problem as fitted, NoiseEstimate or None)``."""
+    if isinstance(robot_noise, str):
+        if robot_noise != "auto":
+            raise ValueError(f"robot_noise must be None, (rotation, translation) or 'auto', got {robot_noise!r}.")
+
+        def fit(problem, state, rounds: int = 12):
+            B = problem.shape[0]
+            # from the problem's own sigmas where it has some (a held-out refit starts from the full fit's)
+            start = problem.noise if problem.noise is not None else torch.tensor(
+                [START_NOISE[0], START_NOISE[1] / metres_per_unit], dtype=problem.w.dtype,
+                device=problem.w.device).expand(B, 2)
+            est = fit_with_noise_estimate(problem.reweighted(torch.ones(B, dtype=problem.w.dtype,
+                                                                        device=problem.w.device), start),
+                                          state, start, rounds=rounds, max_iters=max_iters)
+            return est.fit, est.problem, est
+        return fit
+
+    def plain(problem, state, rounds: int = 0):
+        return fit_problem(problem, state, max_iters=max_iters), problem, None
+    return plain
+
+
+def _solve(problem, A, M, usable, params, fitter):
+    state, start_rms, best, names = _start(problem, A, M, usable, params)
+    fit, fitted, est = fitter(problem, state)
+    return fit, fitted, est, start_rms, best, names
+
+
+def calibrate_hand_eye(
+    corners: torch.Tensor,
+    valid: torch.Tensor,
+    object_points: torch.Tensor,
+    robot_poses: torch.Tensor,
+    camera: RigCamera | Sequence[RigCamera],
+    setup: HandEyeSetup | str = HandEyeSetup.EYE_IN_HAND,
+    weights: torch.Tensor | None = None,
+    free_intrinsics: bool | Sequence[str] = False,
+    robot_noise: tuple[float, float] | str | None = "auto",
+    heldout: bool = True,
+    image_size: tuple[int, int] = (640, 480),
+    metres_per_unit: float = 1.0,
+    names: list[list[str]] | None = None,
+    min_corners: int = 4,
+    max_iters: int = 100,
+    align_orders: bool = False,
+) -> HandEyeResult:
+    r"""Hand-eye calibration of ``B`` problems (module doc).
+
+    Args:
+        corners: :math:`(B, V, N, 2)` board corners per view (anything where not valid).
+        valid: :math:`(B, V, N)` bool, the corners seen.
+        object_points: :math:`(N, 3)` the board's points, in the robot poses' unit.
+        robot_poses: :math:`(B, V, 4, 4)` the flange's pose in the base frame per view (``x_base = T x_flange``; NaN
+            where the robot's pose is missing).
+        camera: the camera (:class:`~ccs_kornia.modules.rig.rig_camera.RigCamera`), one for all or one per problem
+            (one model for the batch).
+        setup: eye-in-hand or eye-to-hand (:class:`~ccs_kornia.modules.hand_eye.setup.HandEyeSetup`).
+        weights: :math:`(B, V, N)` inverse variances of the corners (default 1).
+        free_intrinsics: fit the camera's parameters too: ``True`` (all of its model's), or their names.
+        robot_noise: the robot poses' 1-sigma, fitted as a correction per pose: ``"auto"`` (default: estimated with
+            the corners' from the data, :mod:`~ccs_kornia.modules.hand_eye.noise`), ``(rotation in radians,
+            translation in the poses' unit)``, or ``None`` (the poses taken as exact).
+        heldout: compute the leave-one-pose-out figures.
+        image_size: ``(W, H)``, for the verdict's and the refusal's pixel scales.
+        metres_per_unit: the poses' unit in metres (for the verdict's translation limits).
+        names: per problem, per view labels for the messages.
+        min_corners: a view with fewer corners is not used.
+        max_iters: iterations of the fit.
+        align_orders: the detector may number a symmetric board's corners differently from view to view (a plain
+            chessboard's 180-degree turn): give every view one numbering, agreed through the robot
+            (:mod:`~ccs_kornia.modules.hand_eye.board_order`); ``False`` where the corners carry ids (markers, tags).
+
+    Returns:
+        :class:`~ccs_kornia.modules.hand_eye.result.HandEyeResult`.
+
+    Example:
+        >>> from ccs_kornia.data.robots import render_hand_eye
+        >>> s = render_hand_eye("eye_in_hand", views=8, seed=0, noise_px=0.0, joint_noise_deg=0.0)
+        >>> cam = RigCamera("k1k2", s.K, s.dist)
+        >>> res = calibrate_hand_eye(s.corners[None], s.valid[None], s.object_points, s.robot_poses[None], cam,
+        ...                          "eye_in_hand", heldout=False)
+        >>> bool(res.success[0]), float((res.X[0] - s.X).abs().max()) < 1e-8
+        (True, True)
+    """
+    setup = HandEyeSetup.parse(setup)
+    check_shape(corners, ["B", "V", "N", "2"], "corners must be (B, V, N, 2)")
+    B, V, N = corners.shape[:3]
+    check_shape(valid, [str(B), str(V), str(N)], f"valid must be ({B}, {V}, {N})")
+    check_shape(robot_poses, [str(B), str(V), "4", "4"], f"robot_poses must be ({B}, {V}, 4, 4)")
+    if object_points.shape != (N, 3):
+        raise ValueError(f"object_points must be ({N}, 3), got {tuple(object_points.shape)}.")
+    device, dtype = corners.device, torch.float64
+    model_name, params = _cameras(camera, B, dtype, device)
+    model = camera_model(model_name)
+    corners = corners.detach().to(dtype)
+    poses = robot_poses.detach().to(dtype)
+    obj = object_points.detach().to(device=device, dtype=dtype)
+    w = valid.bool() & corners.isfinite().all(-1)
+    if weights is not None:
+        check_shape(weights, [str(B), str(V), str(N)], f"weights must be ({B}, {V}, {N})")
+        w = w & (weights > 0)
+    # 1. the board's pose in each view alone
+    rvec, tvec, ok, _ = camera_poses(params, model_name, corners, w, obj, min_corners=min_corners)
+    M = _pose(exp_so3(rvec), tvec)
+    pose_ok = poses.flatten(-2).isfinite().all(-1)
+    usable = ok & pose_ok & (w.sum(-1) >= min_corners)
+    M = torch.where(usable[..., None, None], M, torch.full_like(M, float("nan")))
+    safe_poses = torch.where(pose_ok[..., None, None], poses, torch.eye(4, dtype=dtype, device=device))
+    A = setup.chain(safe_poses)
+    order = torch.zeros(B, V, dtype=torch.long, device=device)
+    if align_orders:
+        syms = board_symmetries(obj)
+        order = align_board_orders(A, torch.where(usable[..., None, None], M, torch.eye(4, dtype=dtype, device=device)),
+                                   usable, syms)
+        if bool(order.any()):
+            corners, w = renumber_corners(corners, w, order, syms)
+            for k in range(1, len(syms)):
+                sel = order == k
+                R, t = undo_symmetry(M[..., :3, :3], M[..., :3, 3], syms[k])
+                M = torch.where(sel[..., None, None], _pose(R, t), M)
+    # 2. the checks
+    issues = hand_eye_issues(A, torch.where(usable[..., None, None], M, torch.eye(4, dtype=dtype, device=device)),
+                             usable, names)
+    wts = (w & usable[..., None]).to(dtype) * (1.0 if weights is None else weights.detach().to(dtype).clamp_min(0))
+    basis = None
+    if free_intrinsics:
+        free = None if free_intrinsics is True else list(free_intrinsics)
+        basis = parameter_basis(model, params, free)
+    fitter = _fitter(robot_noise, metres_per_unit, max_iters)
+    fixed_noise = None if isinstance(robot_noise, str) else robot_noise
+    problem = HandEyeProblem(setup, model, safe_poses, obj, corners, wts, basis, fixed_noise)
+    # 3.-4. the closed forms, the best one, the fit
+    M_safe = torch.where(usable[..., None, None], M, torch.eye(4, dtype=dtype, device=device))
+    fit, problem, est, start_rms, best, start_names = _solve(problem, A, M_safe, usable, params, fitter)
+    s = fit.state
+    rms, view_rms, residuals = _view_rms(problem, s)
+    scale = math.hypot(*image_size) / 1000.0
+    # 5. robot and camera disagree: refused, with a note where the inverted poses fit
+    refused = [any(i["severity"] == "error" for i in iss) for iss in issues]
+    far = [(not refused[b]) and not (float(rms[b]) <= DISAGREE_PX * scale) for b in range(B)]
+    if any(far):
+        idx = torch.tensor([b for b in range(B) if far[b]], device=device)
+        inv = invert_transforms(safe_poses[idx])
+        alt = HandEyeProblem(setup, model, inv, obj, corners[idx], wts[idx], None if basis is None else basis[idx],
+                             fixed_noise)
+        alt_fit = _solve(alt, setup.chain(inv), M_safe[idx], usable[idx], params[idx], fitter)[0]
+        alt_rms = _view_rms(alt, alt_fit.state)[0]
+        for k, b in enumerate(idx.tolist()):
+            worst = torch.nan_to_num(view_rms[b], nan=-1.0).argsort(descending=True)[:3].tolist()
+            labels = [names[b][v] if names else f"pose {v}" for v in worst if bool(usable[b, v])]
+            note = ""
+            if float(alt_rms[k]) < min(DISAGREE_PX * scale, float(rms[b]) / 3):
+                note = (f"; the inverted poses fit ({float(alt_rms[k]):.2f} px): the poses look like the base in the "
+                        "flange frame, give the flange in the base frame (x_base = T x_flange)")
+            issues[b].append({"severity": "error", "check": "disagree", "poses": worst,
+                              "message": f"the robot's poses and the images do not agree: the best fit is "
+                                         f"{float(rms[b]):.1f} px RMS off (worst: {', '.join(labels)}){note}; check "
+                                         "the pose file (order, units, convention) and --eye-in-hand/--eye-to-hand"})
+            refused[b] = True
+    # 6. held-out figures, uncertainty (the leave-one-pose-out refits' spread where there are enough), verdict
+    X, Z = _pose(s.RX, s.tX), _pose(s.RZ, s.tZ)
+    cov = fit.covariance
+    x_cov, z_cov = cov[:, 0:6, 0:6].clone(), cov[:, 6:12, 6:12].clone()
+    source = ["fit"] * B
+    P = params.shape[-1]
+    intr_std = torch.zeros(B, P, dtype=dtype, device=device)
+    if basis is not None:
+        pc = basis @ cov[:, GLOBAL_POSE_PARAMS:, GLOBAL_POSE_PARAMS:] @ basis.transpose(-1, -2)
+        intr_std = pc.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
+    nan = float("nan")
+    if heldout:
+        held = leave_one_pose_out(problem, s, model_name, usable, min_views=MIN_POSES, max_iters=max_iters,
+                                  refit=lambda p, st: fitter(p, st, HELDOUT_NOISE_ROUNDS)[0])
+        h_px, h_d, h_pred = held.rms_px, held.rms_distance, held.predicted
+        jx, n_out = jackknife_covariance(X, held.X)
+        jz, _ = jackknife_covariance(Z, held.Z)
+        jack = n_out >= JACKKNIFE_MIN_POSES
+        x_cov = torch.where(jack[:, None, None], jx, x_cov)
+        z_cov = torch.where(jack[:, None, None], jz, z_cov)
+        source = ["leave-one-pose-out" if bool(j) else "fit" for j in jack]
+        if basis is not None:
+            p_out = held.params
+            ok = p_out.isfinite().all(-1)
+            n = ok.sum(-1).clamp_min(1).to(dtype)
+            d = torch.where(ok[..., None], p_out - p_out.nan_to_num(0.0).sum(1, keepdim=True) / n[:, None, None], 0.0)
+            jp = ((d * d).sum(1) * ((n - 1) / n)[:, None]).sqrt()
+            intr_std = torch.where(jack[:, None], jp, intr_std)
+    else:
+        h_px = torch.full((B, V), nan, dtype=dtype, device=device)
+        h_d = h_px.clone()
+        h_pred = torch.full((B, V, N, 2), nan, dtype=dtype, device=device)
+    deg = 180.0 / math.pi
+    x_std = x_cov.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
+    z_std = z_cov.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
+    result = HandEyeResult(
+        setup=setup, success=torch.tensor([not r for r in refused], device=device),
+        reasons=["; ".join(i["message"] for i in iss if i["severity"] == "error") for iss in issues], issues=issues,
+        X=X, Z=Z, model=model_name, params=s.params, covariance=cov, x_covariance=x_cov, z_covariance=z_cov,
+        std_source=source, x_rotation_std_deg=x_std[:, 0:3] * deg, x_translation_std=x_std[:, 3:6],
+        z_rotation_std_deg=z_std[:, 0:3] * deg, z_translation_std=z_std[:, 3:6], intrinsics_std=intr_std, rms=rms, view_rms=view_rms, residuals=residuals,
+        used=usable, board_poses=M, start=[start_names[int(k)] for k in best], start_rms=start_rms,
+        start_names=start_names, heldout_rms_px=h_px, heldout_rms_distance=h_d, heldout_predicted=h_pred,
+        verdict=[], verdict_reasons=[], iterations=fit.iterations, converged=fit.converged,
+        robot_noise=None if problem.noise is None else problem.noise,
+        pixel_sigma=None if est is None else est.pixel_sigma,
+        corrections=None if problem.noise is None else (s.RE, s.tE),
+        board_order=order, corners=torch.where(w[..., None], corners, float("nan")),
+    )
+    held_all = result.heldout_rms
+    for b in range(B):
+        if refused[b]:
+            result.verdict.append("refused: " + result.reasons[b])
+            result.verdict_reasons.append([result.reasons[b]])
+            continue
+        v, why = hand_eye_verdict(float(held_all[b]), float(result.X_rotation_std_deg[b]),
+                                  float(result.X_translation_std[b]), image_size, metres_per_unit)
+        result.verdict.append(v)
+        result.verdict_reasons.append(why)
+    return result
+
+
+class HandEyeSolver(nn.Module):
+    r"""Module form of :func:`calibrate_hand_eye`, beside :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`
+    and :class:`~ccs_kornia.modules.rig.rig_solver.RigSolver`: the set-up and options fixed at construction.
+
+    Where ``corners`` or ``robot_poses`` require grad, the result's ``X``, ``Z`` and ``params`` carry gradients by
+    implicit differentiation of the optimum (:mod:`~ccs_kornia.modules.hand_eye.implicit`).
+
+    Args:
+        setup: eye-in-hand or eye-to-hand.
+        free_intrinsics, robot_noise, heldout, min_corners, max_iters, align_orders: see :func:`calibrate_hand_eye`.
+
+    Shape:
+        corners :math:`(B, V, N, 2)`, valid :math:`(B, V, N)`, object_points :math:`(N, 3)`, robot_poses
+        :math:`(B, V, 4, 4)` -> :class:`~ccs_kornia.modules.hand_eye.result.HandEyeResult`.
+
+    Example:
+        >>> from ccs_kornia.data.robots import render_hand_eye
+        >>> s = render_hand_eye("eye_to_hand", views=8, seed=1)
+        >>> solver = HandEyeSolver("eye_to_hand")
+        >>> res = solver(s.corners[None], s.valid[None], s.object_points, s.robot_poses[None], RigCamera("k1k2", s.K, s.dist))
+        >>> res.verdict[0], float((res.X[0, :3, 3] - s.X[:3, 3]).norm()) < 0.005
+        ('good', True)
+    """
+
+    def __init__(self, setup: HandEyeSetup | str = HandEyeSetup.EYE_IN_HAND, free_intrinsics: bool | Sequence[str] = False,
+                 robot_noise: tuple[float, float] | str | None = "auto", heldout: bool = True, min_corners: int = 4,
+                 max_iters: int = 100, align_orders: bool = False) -> None:
+        super().__init__()
+        self.setup = HandEyeSetup.parse(setup)
+        self.free_intrinsics = free_intrinsics
+        self.robot_noise = robot_noise
+        self.heldout = heldout
+        self.min_corners = min_corners
+        self.max_iters = max_iters
+        self.align_orders = align_orders
+
+    def forward(self, corners: torch.Tensor, valid: torch.Tensor, object_points: torch.Tensor,
+                robot_poses: torch.Tensor, camera: RigCamera | Sequence[RigCamera],
+                weights: torch.Tensor | None = None, image_size: tuple[int, int] = (640, 480),
+                metres_per_unit: float = 1.0, names: list[list[str]] | None = None) -> HandEyeResult:
+        out = calibrate_hand_eye(corners, valid, object_points, robot_poses, camera, self.setup, weights,
+                                 self.free_intrinsics, self.robot_noise, self.heldout, image_size, metres_per_unit,
+                                 names, self.min_corners, self.max_iters, self.align_orders)
+        if torch.is_grad_enabled() and (corners.requires_grad or robot_poses.requires_grad):
+            from ccs_kornia.modules.hand_eye.implicit import attach_gradients
+
+            out = attach_gradients(out, corners, valid, object_points, robot_poses, weights, self.free_intrinsics,
+                                   self.robot_noise)
+        return out
