@@ -108,7 +108,8 @@ def _lens_maps(camera):
     from ccs_kornia.modules.rig.rig_camera import normalized_points
 
     K = camera.K.double()
-    if camera.model == "none" or (camera.model != "fisheye" and not bool(camera.dist.abs().gt(0).any())):
+    fisheye = camera.camera.is_fisheye
+    if not fisheye and not bool(camera.dist.abs().gt(0).any()):  # no lens to straighten (``none`` has no terms)
         return None, None
 
     def undistort(pts: np.ndarray) -> np.ndarray:
@@ -117,7 +118,7 @@ def _lens_maps(camera):
 
     def distort(pts: np.ndarray) -> np.ndarray:
         p = torch.from_numpy(np.asarray(pts, dtype=np.float64))[None]
-        if camera.model == "fisheye":
+        if fisheye:
             D = torch.zeros(4, dtype=torch.float64)
             D[: camera.dist.shape[0]] = camera.dist.double()
             return kb_distort_points(p, K[None], D[None])[0].numpy()
