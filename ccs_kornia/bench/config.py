@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass, field, replace
 __all__ = ["SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "BenchConfig"]
 
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye", "rig",
-                             "markers")
+                             "markers", "video")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
 #: conditions of the synthetic calibration section (paper Table I, then realistic optics)
@@ -101,6 +101,11 @@ class BenchConfig:
         markers_views, markers_aprilgrid_views: rendered ChArUco / AprilGrid views per condition of the ``markers``
             section (:mod:`~ccs_kornia.bench.markers`); markers_calib_trials, markers_calib_views: its calibrations
             from partial views; markers_real_sets: its real ChArUco sets.
+        video_recordings, video_seconds, video_size: the ``video`` section's rendered recordings (how many, seconds
+            at 30 fps, ``(W, H)``; :mod:`~ccs_kornia.bench.video`); video_heldout_seconds, video_heldout_frames: the
+            held-out recording of each camera and the frames of it detected; video_command: also time ``calibrate
+            VIDEO`` end to end; video_jobs: processes; video_real_cameras, video_real_rig: the cameras of the shared
+            caliscope recording compared one by one, and whether its rig is.
     """
 
     sections: tuple[str, ...] = SECTIONS
@@ -162,6 +167,15 @@ class BenchConfig:
     markers_calib_trials: int = 5
     markers_calib_views: int = 12
     markers_real_sets: tuple[str, ...] = ("charuco_opencv_tutorial", "caliscope_4cam_charuco")
+    video_recordings: int = 2
+    video_seconds: float = 60.0
+    video_size: tuple[int, int] = (1280, 720)
+    video_heldout_seconds: float = 30.0
+    video_heldout_frames: int = 60
+    video_command: bool = True
+    video_jobs: int = 2
+    video_real_cameras: tuple[int, ...] = (0, 1, 2, 3)
+    video_real_rig: bool = True
     preset: str = "full"
     extra: dict = field(default_factory=dict)
 
@@ -186,6 +200,8 @@ class BenchConfig:
             fisheye_trials=2, fisheye_views=6, fisheye_real_sets=("ros_fisheye_mono",), rig_trials=2,
             markers_views=2, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
             markers_real_sets=("charuco_opencv_tutorial",),
+            video_recordings=1, video_seconds=12.0, video_size=(640, 360), video_heldout_seconds=6.0,
+            video_heldout_frames=8, video_real_cameras=(0,), video_real_rig=False,
         )
         return replace(base, **overrides)
 
@@ -203,7 +219,9 @@ class BenchConfig:
             wild_real_sets=("boofcv_bumblebee2_left",), wild_real_scales=(0.5,), wild_real_images=1,
             fisheye_trials=2, fisheye_views=6, fisheye_real_sets=(), rig_trials=1, rig_frames=10, preset="tiny",
             markers_views=1, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
-            markers_real_sets=(),
+            markers_real_sets=(), video_recordings=1, video_seconds=2.0, video_size=(320, 240),
+            video_heldout_seconds=2.0, video_heldout_frames=4, video_command=False, video_real_cameras=(),
+            video_real_rig=False,
         )
         return replace(base, **overrides)
 

@@ -73,71 +73,94 @@ def _tilt(obj: np.ndarray, img: np.ndarray, lo: np.ndarray, span: np.ndarray) ->
     return float(math.atan2(H[2, 1], H[2, 0]) % (2 * math.pi)), float(math.hypot(H[2, 0], H[2, 1]))
 
 
-def coverage_greedy(corners: Sequence[np.ndarray], object_points: np.ndarray, image_size: tuple[int, int],
-                    count: int, grid: int = 5) -> list[int]:
-    """caliscope's coverage-greedy choice of ``count`` frames (see the module docstring).
+def _features(pts: np.ndarray, all_obj: np.ndarray, lo: np.ndarray, span: np.ndarray, size: tuple[int, int],
+              grid: int):
+    """One view's ``(cells, pose, tilt direction, tilt magnitude, quality, corners)`` or ``None`` (not eligible)."""
+    W, H = size
+    ok = np.isfinite(pts).all(-1)
+    if ok.sum() < 6:
+        return None
+    q = _quality(all_obj[ok], pts[ok])
+    if q is None:
+        return None
+    score, inl = q
+    obj, img = all_obj[ok][inl], pts[ok][inl]
+    cols = np.clip((img[:, 0] / (W / grid)).astype(int), 0, grid - 1)
+    rows = np.clip((img[:, 1] / (H / grid)).astype(int), 0, grid - 1)
+    sx, sy = (img[:, 0].std(ddof=1) / W, img[:, 1].std(ddof=1) / H) if len(img) > 1 else (0.0, 0.0)
+    pose = np.array([img[:, 0].mean() / W, img[:, 1].mean() / H, sx, sy, sx / sy if sy > 1e-6 else 1.0])
+    direction, magnitude = _tilt(obj, img, lo, span)
+    return set(zip(rows.tolist(), cols.tolist())), pose, direction, magnitude, score, len(img)
+
+
+def coverage_greedy(corners: Sequence[Sequence[np.ndarray | None]], object_points: np.ndarray,
+                    image_sizes: Sequence[tuple[int, int]], count: int, grid: int = 5) -> list[int]:
+    """caliscope's coverage-greedy choice of ``count`` frames (see the module docstring); a rig's frames score the sum
+    over its cameras (each camera's own grid, poses and anchors).
 
     Args:
-        corners: per frame its corners :math:`(N, 2)` (NaN where not seen).
+        corners: per camera, per frame, its corners :math:`(N, 2)` (NaN where not seen; ``None``: no view).
         object_points: :math:`(N, 3)` the board's corners.
-        image_size: ``(W, H)``.
+        image_sizes: per camera ``(W, H)``.
         count: frames to choose.
         grid: cells per side of the coverage grid.
 
     Returns:
-        The chosen frames' positions in ``corners``, ascending.
+        The chosen frames' positions, ascending.
     """
-    W, H = image_size
-    data = {}
     all_obj = object_points[:, :2].astype(np.float64)
     lo, span = all_obj.min(0), np.maximum(all_obj.max(0) - all_obj.min(0), 1e-6)
-    for f, pts in enumerate(corners):
-        ok = np.isfinite(pts).all(-1)
-        if ok.sum() < 6:
-            continue
-        q = _quality(all_obj[ok], pts[ok])
-        if q is None:
-            continue
-        score, inl = q
-        obj, img = all_obj[ok][inl], pts[ok][inl]
-        cols = np.clip((img[:, 0] / (W / grid)).astype(int), 0, grid - 1)
-        rows = np.clip((img[:, 1] / (H / grid)).astype(int), 0, grid - 1)
-        cells = set(zip(rows.tolist(), cols.tolist()))
-        sx, sy = (img[:, 0].std(ddof=1) / W, img[:, 1].std(ddof=1) / H) if len(img) > 1 else (0.0, 0.0)
-        pose = np.array([img[:, 0].mean() / W, img[:, 1].mean() / H, sx, sy, sx / sy if sy > 1e-6 else 1.0])
-        direction, magnitude = _tilt(obj, img, lo, span)
-        data[f] = (cells, pose, direction, magnitude, score)
-    if not data:
+    cams = []
+    for c, views in enumerate(corners):
+        data = {}
+        for f, pts in enumerate(views):
+            if pts is not None:
+                feat = _features(np.asarray(pts, dtype=np.float64), all_obj, lo, span, image_sizes[c], grid)
+                if feat is not None:
+                    data[f] = feat
+        most = max((n for *_, n in data.values()), default=1)
+        # the corner count weighs the quality as caliscope's does (0.1 + 0.9 sqrt of the share of the most corners)
+        cams.append({f: (cells, pose, d, m, q * (0.1 + 0.9 * math.sqrt(n / max(most, 1))))
+                     for f, (cells, pose, d, m, q, n) in data.items()})
+    frames = sorted(set().union(*(set(d) for d in cams)))
+    if not frames or count < 1:
         return []
-    most = max(len(c) for c, *_ in data.values())
-    # corner count weighs the quality as caliscope's does (0.1 + 0.9 sqrt of the share of the most corners)
-    data = {f: (c, p, d, m, s * (0.1 + 0.9 * math.sqrt(len(c) / max(most, 1)))) for f, (c, p, d, m, s) in data.items()}
-    bins: dict[int, list[tuple[float, float, int]]] = {}
-    for f, (_, _, direction, magnitude, score) in data.items():
-        if magnitude >= 0.02:
-            b = min(int(direction / (2 * math.pi) * 8), 7)
-            bins.setdefault(b, []).append((-(magnitude * score), -score, f))
-    anchors = [min(bins[b])[2] for b in sorted(bins)][:count]
-    chosen = list(anchors)
-    covered = set().union(*(data[f][0] for f in chosen)) if chosen else set()
-    poses = [data[f][1] for f in chosen]
+    chosen: list[int] = []
+    for data in cams:  # each camera's anchors: the most tilted frame of each direction of tilt
+        bins: dict[int, list[tuple[float, float, int]]] = {}
+        for f, (_, _, direction, magnitude, q) in data.items():
+            if magnitude >= 0.02:
+                bins.setdefault(min(int(direction / (2 * math.pi) * 8), 7), []).append((-(magnitude * q), -q, f))
+        for b in sorted(bins):
+            f = min(bins[b])[2]
+            if f not in chosen and len(chosen) < count:
+                chosen.append(f)
+    covered = [set().union(*(d[f][0] for f in chosen if f in d)) for d in cams]
+    poses = [[d[f][1] for f in chosen if f in d] for d in cams]
     edge, corner_cells = {0, grid - 1}, {(0, 0), (0, grid - 1), (grid - 1, 0), (grid - 1, grid - 1)}
-    remaining = set(data) - set(chosen)
+    remaining = set(frames) - set(chosen)
     while len(chosen) < count and remaining:
         best = None
         for f in sorted(remaining):
-            cells, pose, _, _, q = data[f]
-            new = cells - covered
-            s = len(new) + 0.2 * sum(1 for r, c in new if r in edge or c in edge) + 0.3 * len(new & corner_cells)
-            if poses:
-                s += 0.3 * min(float(np.linalg.norm(pose - p)) for p in poses)
-            s = s * (0.5 + 0.5 * q) + 0.01 * q
-            if best is None or s > best[0]:
-                best = (s, f)
+            total = 0.0
+            for c, d in enumerate(cams):
+                if f not in d:
+                    continue
+                cells, pose, _, _, q = d[f]
+                new = cells - covered[c]
+                s = len(new) + 0.2 * sum(1 for r, k in new if r in edge or k in edge) + 0.3 * len(new & corner_cells)
+                if poses[c]:
+                    s += 0.3 * min(float(np.linalg.norm(pose - p)) for p in poses[c])
+                total += s * (0.5 + 0.5 * q) + 0.01 * q
+            if best is None or total > best[0]:
+                best = (total, f)
         if best[0] < 0.01:
             break
-        chosen.append(best[1])
-        covered |= data[best[1]][0]
-        poses.append(data[best[1]][1])
-        remaining.discard(best[1])
+        f = best[1]
+        chosen.append(f)
+        for c, d in enumerate(cams):
+            if f in d:
+                covered[c] |= d[f][0]
+                poses[c].append(d[f][1])
+        remaining.discard(f)
     return sorted(chosen)

@@ -94,6 +94,7 @@ SECTION_RUNNERS: dict[str, tuple[str, str, bool, bool]] = {
     "rig": ("ccs_kornia.bench.rig", "run_rig", False, False),
     "markers": ("ccs_kornia.bench.markers", "run_markers", False, False),
     "speed": ("ccs_kornia.bench.speed", "run_speed", True, False),
+    "video": ("ccs_kornia.bench.video", "run_video", False, False),
 }
 
 

@@ -356,10 +356,11 @@ def choose_frames(
     M = M + torch.diag_embed(pad.double())[:, None] * usable[..., None, None].double()
     links = C > 1
 
-    def greedy(views_ok: torch.Tensor, available: torch.Tensor, count: int | None, min_gain: float):
+    def greedy(views_ok: torch.Tensor, available: torch.Tensor, count: int | None, min_gain: float,
+               copies: bool = True):
         Mv = torch.where(views_ok[..., None, None], M, torch.zeros_like(M))
-        return greedy_information(Mv, A, available, _copies(cameras, views, views_ok, selection.min_change), count,
-                                  min_gain, links=links, link_weights=weight)
+        conflicts = _copies(cameras, views, views_ok, selection.min_change) if copies else None
+        return greedy_information(Mv, A, available, conflicts, count, min_gain, links=links, link_weights=weight)
 
     passed = candidate & ~gated
     choice = greedy(sharp_views, passed, selection.max_frames, selection.min_gain)
@@ -368,6 +369,8 @@ def choose_frames(
         need = min(need, selection.max_frames)
     if len(choice.order) < need:  # too few: the gated frames may come in too, all views of a frame count
         choice = greedy(usable, candidate, need, 0.0)
+    if len(choice.order) < need:  # still too few: near copies too (a camera needs some views)
+        choice = greedy(usable, candidate, need, 0.0, copies=False)
     kept = [False] * F
     for f in choice.order:
         kept[f] = True
