@@ -367,7 +367,8 @@ def choose_frames(
     need = min(selection.min_keep, int(candidate.sum()))
     if selection.max_frames is not None:
         need = min(need, selection.max_frames)
-    if len(choice.order) < need:  # too few: the gated frames may come in too, all views of a frame count
+    topped_up = len(choice.order) < need
+    if topped_up:  # too few: the gated frames may come in too, all views of a frame count
         choice = greedy(usable, candidate, need, 0.0)
     if len(choice.order) < need:  # still too few: near copies too (a camera needs some views)
         choice = greedy(usable, candidate, need, 0.0, copies=False)
@@ -379,8 +380,10 @@ def choose_frames(
         if kept[f] or not candidate[f] or reasons[f]:
             continue
         why = choice.reason[f]
-        reasons[f] = {"copy": f"near copy of {_label(labels, choice.copy_of[f])}", "cap": f"over {cap_name}"}.get(
-            why, "adds nothing")
+        # (a choice topped up to min_keep stops at that count: the others add too little, whatever the cap)
+        capped = why == "cap" and not (topped_up and len(choice.order) < (selection.max_frames or len(kept)))
+        reasons[f] = f"near copy of {_label(labels, choice.copy_of[f])}" if why == "copy" else \
+            f"over {cap_name}" if capped else "adds nothing"
     view_reasons = [["" for _ in range(0 if cam is None else cam.corners.shape[0])] for cam in cameras]
     for c, cam in enumerate(cameras):
         for f, k in enumerate(views[c]):
