@@ -53,6 +53,9 @@ def build_parser(prog: str = "python -m ccs_kornia bench") -> argparse.ArgumentP
     p.add_argument("--wild-time-limit", type=float, default=None, help="seconds a peer may spend on one wild image")
     p.add_argument("--wild-conditions", nargs="+", default=None, help="wild conditions to run (default: all)")
     p.add_argument("--wild-real-scales", nargs="+", type=float, default=None, help="rescaling of the real photos")
+    p.add_argument("--markers-views", type=int, default=None, help="ChArUco renders per condition, markers section")
+    p.add_argument("--markers-aprilgrid-views", type=int, default=None,
+                   help="AprilGrid renders per condition, markers section")
     p.add_argument("--video-recordings", type=int, default=None, help="rendered recordings of the video section")
     p.add_argument("--video-seconds", type=float, default=None, help="seconds of each rendered recording (30 fps)")
     p.add_argument("--no-cuda", action="store_true", help="do not time CUDA even when present")
@@ -79,7 +82,8 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
     overrides = {}
     for name in ("corner_images", "calib_trials", "calib_views", "calib_pool_views", "calib_trials_per_camera",
                  "real_subsets", "real_max_images", "real_dir", "dc_trials", "distortion_weights", "wild_images",
-                 "wild_big_images", "wild_free_images", "wild_real_images", "video_recordings"):
+                 "wild_big_images", "wild_free_images", "wild_real_images", "markers_views", "markers_aprilgrid_views",
+                 "video_recordings"):
         value = getattr(args, name)
         if value is not None:
             if isinstance(value, int) and value < 1:

@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass, field, replace
 __all__ = ["SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "BenchConfig"]
 
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye", "rig",
-                             "markers", "video")
+                             "markers", "rig_sessions", "video")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
 #: conditions of the synthetic calibration section (paper Table I, then realistic optics)
@@ -98,6 +98,9 @@ class BenchConfig:
             real sets.
         wild_real_scales: rescaling factors of the real photos; wild_real_images: images per set (``None``: all).
         rig_trials, rig_frames: rendered rigs of the ``rig`` section and frames per rig (:mod:`~ccs_kornia.bench.rig`).
+        rig_session_trials, rig_session_duration, rig_session_conditions, rig_session_caliscope: the
+            ``rig_sessions`` section (:mod:`~ccs_kornia.bench.rig_sessions`): rendered hand-held sessions, seconds
+            each, their conditions, and whether the shared caliscope session runs too.
         markers_views, markers_aprilgrid_views: rendered ChArUco / AprilGrid views per condition of the ``markers``
             section (:mod:`~ccs_kornia.bench.markers`); markers_calib_trials, markers_calib_views: its calibrations
             from partial views; markers_real_sets: its real ChArUco sets.
@@ -162,7 +165,11 @@ class BenchConfig:
     fisheye_real_sets: tuple[str, ...] = FISHEYE_REAL_SETS
     rig_trials: int = 30
     rig_frames: int = 20
-    markers_views: int = 340
+    rig_session_trials: int = 8
+    rig_session_duration: float = 40.0
+    rig_session_conditions: tuple[str, ...] = ("handheld", "global", "timestamps", "frozen")
+    rig_session_caliscope: bool = True
+    markers_views: int = 120
     markers_aprilgrid_views: int = 40
     markers_calib_trials: int = 5
     markers_calib_views: int = 12
@@ -198,6 +205,7 @@ class BenchConfig:
             wild_images=1, wild_big_images=1, wild_free_images=2, wild_real_sets=("opencv_left",),
             wild_real_scales=(0.5, 2.0), wild_real_images=1, wild_time_limit=1.0,
             fisheye_trials=2, fisheye_views=6, fisheye_real_sets=("ros_fisheye_mono",), rig_trials=2,
+            rig_session_trials=1, rig_session_conditions=("handheld",), rig_session_caliscope=False,
             markers_views=2, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
             markers_real_sets=("charuco_opencv_tutorial",),
             video_recordings=1, video_seconds=12.0, video_size=(640, 360), video_heldout_seconds=6.0,
@@ -218,6 +226,8 @@ class BenchConfig:
             wild_methods=None, wild_conditions=("img320", "cut"), wild_images=1, wild_big_images=1, wild_free_images=2,
             wild_real_sets=("boofcv_bumblebee2_left",), wild_real_scales=(0.5,), wild_real_images=1,
             fisheye_trials=2, fisheye_views=6, fisheye_real_sets=(), rig_trials=1, rig_frames=10, preset="tiny",
+            rig_session_trials=1, rig_session_duration=8.0, rig_session_conditions=("handheld",),
+            rig_session_caliscope=False,
             markers_views=1, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
             markers_real_sets=(), video_recordings=1, video_seconds=2.0, video_size=(320, 240),
             video_heldout_seconds=2.0, video_heldout_frames=4, video_command=False, video_real_cameras=(),

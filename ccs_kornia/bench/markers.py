@@ -2,27 +2,34 @@
 
 * **renders** (:func:`~ccs_kornia.data.marker_views.render_condition`, 640 x 480, k1 = -0.28, seeds from
   :data:`SEED`) per condition (clean, partial: cut by the frame, low light, blur, inverted: white-on-black,
-  mirrored: seen from its back):
+  mirrored: seen from its back, strong blur, small: the board far away, noise):
 
   - a ChArUco board of 6 x 8 squares (``DICT_6X6_250``; an even number of rows, so OpenCV's legacy layout differs:
-    each view is printed in one of the two layouts at random): ours (:func:`~ccs_kornia.modules.detection.markers.charuco.
-    detect_charuco`, layout found per view) against ``cv2.aruco.CharucoDetector`` with ``setLegacyPattern(False)``
-    and ``(True)`` (default parameters, as its users run it) and the better of the two per view ("told the layout");
+    each view is printed in one of the two layouts at random): ours (:func:`~ccs_kornia.modules.detection.markers.
+    charuco.charuco_paths`, layout found per view) by its marker path, its lattice path and both merged (ours, the
+    default) against ``cv2.aruco.CharucoDetector`` with ``setLegacyPattern(False)`` and ``(True)`` (default
+    parameters, as its users run it) and the better of the two per view ("told the layout");
   - Kalibr's AprilGrid 6 x 6 (``tagSpacing`` 0.3): ours (:func:`~ccs_kornia.modules.detection.markers.aprilgrid.
-    detect_aprilgrid`) against OpenCV's tag corners (``DICT_APRILTAG_36h11``, two border bits) refined by
-    ``cv2.cornerSubPix`` (2, 2) as Kalibr refines its tag corners, ids as decoded (no lattice check: Kalibr has
-    none).
+    aprilgrid_paths`), its two paths and both merged, against OpenCV's tag corners (``DICT_APRILTAG_36h11``, two
+    border bits) refined by ``cv2.cornerSubPix`` (2, 2) as Kalibr refines its tag corners, ids as decoded (no
+    lattice check: Kalibr has none).
 
-  Per method: views posed (at least 6 corners with right ids: a pose can be fitted), corners per view, wrong ids (a corner farther
-  from its id's true position than half the distance to the nearest other true corner: it is another corner), and
-  the corner error (mean and median px over the corners with a right id).
+  Per method: views posed (at least 6 corners with right ids: a pose can be fitted), the fraction of the visible
+  corners found with their right id, wrong ids (a corner farther than :data:`WRONG_PX` from its id's true position, or
+  than half the distance to the nearest other true corner where that is less), and the corner error (mean and median
+  px over the corners with a right id); and the camera calibrated from the condition's first views by each method's
+  corners (``cv2.calibrateCamera``, the renders' own 5-coefficient model, the same solver for every method): the
+  error of fx.
 * **calibration from partial views**: sets of views of the ChArUco board, every one cut by the frame; ours
   (:class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` on our corners) against ``cv2.calibrateCamera`` on
   CharucoDetector's corners (told the layout), both with the rational model (k1..k6) on the wide-angle lens: the
   error of fx and the RMS.
+* **timing**: seconds per view of the marker path alone and of both paths (the default) on clean renders.
 * **real**: ``charuco_opencv_tutorial`` (4 views and one occluded view) and ``caliscope_4cam_charuco`` (white-on-black,
-  cam_1 sees the mirrored back): corners per camera, ours against CharucoDetector (default, and told the print's
-  variant), and the corners where both find the same id more than 3 px apart (one of the two ids is wrong).
+  cam_1 sees the mirrored back): corners per camera, ours (both paths) and the marker path alone against
+  CharucoDetector (default, and told the print's variant); where both find an id, how far apart (mean px, and how
+  many more than 3 px apart: one of the two ids is wrong); and our corners off their view's lattice (more than a
+  third of a square from a homography of their neighbours: a wrong id).
 """
 
 from __future__ import annotations
@@ -44,13 +51,12 @@ from ccs_kornia.data.marker_views import (
     render_marker_view,
 )
 from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard
-from ccs_kornia.modules.detection.markers.aprilgrid import (
-    detect_aprilgrid,
-    tag_detector,
-)
-from ccs_kornia.modules.detection.markers.charuco import detect_charuco
+from ccs_kornia.modules.detection.markers.aprilgrid import aprilgrid_paths, tag_detector
+from ccs_kornia.modules.detection.markers.charuco import charuco_paths, detect_charuco
+from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 
-__all__ = ["APRILGRID", "CHARUCO", "MIN_POSED", "REAL_SETS", "SEED", "markers_md", "run_markers"]
+__all__ = ["APRILGRID", "CHARUCO", "CONDITION_CALIB_VIEWS", "MIN_POSED", "REAL_SETS", "SEED", "TIMING_VIEWS",
+           "WRONG_PX", "markers_md", "run_markers"]
 
 #: first seed of the renders (the tests use seeds below 1000)
 SEED = 700_000
@@ -59,6 +65,14 @@ CHARUCO = CharucoBoard(6, 8, 0.035, 0.0175, "DICT_6X6_250")
 APRILGRID = AprilGrid(6, 6, 0.088, 0.3)
 #: a view is posed with at least this many corners
 MIN_POSED = 6
+#: a corner farther than this (px) from its id's true position has a wrong id
+WRONG_PX = 3.0
+#: views of each condition the camera is calibrated from (fewer views: no calibration)
+CONDITION_CALIB_VIEWS = 12
+#: clean views timed per board (one batch)
+TIMING_VIEWS = 8
+#: our paths: key in the results -> the path
+OUR_PATHS = {"ours": MarkerPaths.BOTH, "marker_path": MarkerPaths.MARKERS, "lattice_path": MarkerPaths.LATTICE}
 #: the real sets: board, files per camera (glob patterns), OpenCV's variants to try when told (inverted, mirrored)
 REAL_SETS = {
     "charuco_opencv_tutorial": (CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250"),
@@ -110,23 +124,44 @@ def _score(found: np.ndarray, truth: np.ndarray) -> dict:
     nearest = np.full(len(truth), np.inf)
     nearest[ok] = d.min(1) if len(t) > 1 else np.inf
     err = np.linalg.norm(found - np.nan_to_num(truth, nan=-1e9), axis=-1)
-    wrong = seen & (~ok | (err > 0.5 * nearest))
+    wrong = seen & (~ok | (err > np.minimum(WRONG_PX, 0.5 * nearest)))
     right = seen & ~wrong
-    return {"corners": int(seen.sum()), "wrong": int(wrong.sum()), "errors": err[right].tolist()}
+    return {"corners": int(seen.sum()), "wrong": int(wrong.sum()), "visible": int(ok.sum()),
+            "errors": err[right].tolist()}
 
 
 def _summary(scores: list[dict]) -> dict:
     errors = np.array([e for s in scores for e in s["errors"]])
     views = max(len(scores), 1)
+    visible = sum(s.get("visible", 0) for s in scores)
     return {
         "views": len(scores),
         "posed": sum(s["corners"] - s["wrong"] >= MIN_POSED for s in scores),
         "corners_per_view": sum(s["corners"] for s in scores) / views,
+        "found_fraction": float(errors.size / visible) if visible else math.nan,
         "wrong_ids": sum(s["wrong"] for s in scores),
         "corners": sum(s["corners"] for s in scores),
         "mean_error_px": float(errors.mean()) if errors.size else math.nan,
         "median_error_px": float(np.median(errors)) if errors.size else math.nan,
     }
+
+
+def _calibrate(corners: list[np.ndarray], obj: np.ndarray, size: tuple[int, int]) -> float:
+    """fx error (%) of ``cv2.calibrateCamera`` (the renders' 5-coefficient model) from each view's corners ``(N, 2)``
+    (NaN: none) with the board's object points ``(N, 3)``; NaN with fewer than 4 views posed or where it fails."""
+    objs, imgs = [], []
+    for c in corners:
+        seen = np.isfinite(c).all(-1)
+        if seen.sum() >= MIN_POSED:
+            objs.append(obj[seen].astype(np.float32))
+            imgs.append(c[seen].astype(np.float32))
+    if len(objs) < 4:
+        return math.nan
+    try:
+        _, k, *_ = cv2.calibrateCamera(objs, imgs, size, None, None)
+    except cv2.error:
+        return math.nan
+    return abs(float(k[0, 0]) - K[0, 0]) / K[0, 0] * 100.0
 
 
 def _tensor(images: list[np.ndarray]) -> torch.Tensor:
@@ -135,8 +170,9 @@ def _tensor(images: list[np.ndarray]) -> torch.Tensor:
 
 def _charuco_condition(cfg, condition: str, n: int, seed: int, log) -> dict:
     rng = np.random.default_rng(seed)
-    methods = ("ours", "opencv_new", "opencv_legacy", "opencv_told")
+    methods = (*OUR_PATHS, "opencv_new", "opencv_legacy", "opencv_told")
     scores = {m: [] for m in methods}
+    kept = {m: [] for m in methods}  # the first views' corners, for the calibration
     batch = 8
     for start in range(0, n, batch):
         images, truths, layouts = [], [], []
@@ -146,32 +182,46 @@ def _charuco_condition(cfg, condition: str, n: int, seed: int, log) -> dict:
             images.append(image)
             truths.append(truth)
             layouts.append(legacy)
-        ours = detect_charuco(_tensor(images), CHARUCO, min_corners=MIN_POSED, num_workers=1)
+        ours = charuco_paths(_tensor(images), CHARUCO, min_corners=MIN_POSED, num_workers=1)
         for k, (image, truth, legacy) in enumerate(zip(images, truths, layouts)):
-            mine = ours.corners[k].double().numpy() if bool(ours.found[k]) else np.full_like(truth, np.nan)
-            scores["ours"].append(_score(mine, truth))
+            got = {}
+            for key, path in OUR_PATHS.items():
+                res = ours[path]
+                got[key] = res.corners[k].double().numpy() if bool(res.found[k]) else np.full_like(truth, np.nan)
             new, old = _opencv_charuco(CHARUCO, image, False), _opencv_charuco(CHARUCO, image, True)
-            scores["opencv_new"].append(_score(new, truth))
-            scores["opencv_legacy"].append(_score(old, truth))
-            scores["opencv_told"].append(_score(old if legacy else new, truth))
+            got.update(opencv_new=new, opencv_legacy=old, opencv_told=old if legacy else new)
+            for m in methods:
+                scores[m].append(_score(got[m], truth))
+                if len(kept[m]) < CONDITION_CALIB_VIEWS:
+                    kept[m].append(got[m])
     log(f"[bench] markers: charuco {condition}: {n} views, ours {sum(s['corners'] for s in scores['ours'])} corners")
-    return {m: _summary(s) for m, s in scores.items()}
+    obj = CHARUCO.object_points().numpy()
+    return {m: {**_summary(s), "fx_error_pct": _calibrate(kept[m], obj, (640, 480))} for m, s in scores.items()}
 
 
 def _aprilgrid_condition(cfg, condition: str, n: int, seed: int, log) -> dict:
     rng = np.random.default_rng(seed)
-    scores = {"ours": [], "opencv_subpix": []}
+    methods = (*OUR_PATHS, "opencv_subpix")
+    scores = {m: [] for m in methods}
+    kept = {m: [] for m in methods}
     batch = 8
     for start in range(0, n, batch):
         pairs = [render_condition(APRILGRID, condition, rng, supersample=cfg.supersample)
                  for _ in range(min(batch, n - start))]
-        ours = detect_aprilgrid(_tensor([p[0] for p in pairs]), APRILGRID, min_corners=MIN_POSED, num_workers=1)
+        ours = aprilgrid_paths(_tensor([p[0] for p in pairs]), APRILGRID, min_corners=MIN_POSED, num_workers=1)
         for k, (image, truth) in enumerate(pairs):
-            mine = ours.corners[k].double().numpy() if bool(ours.found[k]) else np.full_like(truth, np.nan)
-            scores["ours"].append(_score(mine, truth))
-            scores["opencv_subpix"].append(_score(_opencv_aprilgrid(APRILGRID, image), truth))
+            got = {}
+            for key, path in OUR_PATHS.items():
+                res = ours[path]
+                got[key] = res.corners[k].double().numpy() if bool(res.found[k]) else np.full_like(truth, np.nan)
+            got["opencv_subpix"] = _opencv_aprilgrid(APRILGRID, image)
+            for m in methods:
+                scores[m].append(_score(got[m], truth))
+                if len(kept[m]) < CONDITION_CALIB_VIEWS:
+                    kept[m].append(got[m])
     log(f"[bench] markers: aprilgrid {condition}: {n} views")
-    return {m: _summary(s) for m, s in scores.items()}
+    obj = APRILGRID.object_points().numpy()
+    return {m: {**_summary(s), "fx_error_pct": _calibrate(kept[m], obj, (640, 480))} for m, s in scores.items()}
 
 
 def _calibration_trial(cfg, views: int, seed: int) -> dict:
@@ -217,6 +267,26 @@ def _calibration_trial(cfg, views: int, seed: int) -> dict:
     return out
 
 
+def _off_lattice(corners: np.ndarray, board: CharucoBoard) -> int:
+    """Corners ``(N, 2)`` (NaN: none) more than a third of a square from where a homography of the found corners
+    within two squares of them puts them (at least five): a wrong id moves a corner a whole square."""
+    obj = board.object_points().numpy()[:, :2] / float(board.square)
+    seen = np.flatnonzero(np.isfinite(corners).all(-1))
+    off = 0
+    for i in seen:
+        near = seen[(np.abs(obj[seen] - obj[i]).max(-1) <= 2.0) & (seen != i)]
+        if len(near) < 5:
+            continue
+        h, _ = cv2.findHomography(obj[near], corners[near], 0)
+        if h is None:
+            continue
+        q = h @ np.append(obj[i], 1.0)
+        p = q[:2] / q[2]
+        step = np.linalg.norm(cv2.perspectiveTransform(np.array([[obj[i], obj[i] + [1.0, 0.0]]]), h)[0, 1] - p)
+        off += int(np.linalg.norm(p - corners[i]) > step / 3.0)
+    return off
+
+
 def _real_set(root: Path, name: str) -> dict | None:
     board, cameras, variants = REAL_SETS[name]
     folder = root / name
@@ -230,27 +300,38 @@ def _real_set(root: Path, name: str) -> dict | None:
         if not images:
             continue
         sizes = {im.shape for im in images}
-        row = {"images": len(images), "ours": 0, "ours_posed": 0, "opencv": 0, "opencv_posed": 0, "opencv_told": 0,
-               "opencv_told_posed": 0, "disagree": 0, "both": 0}
+        row = {"images": len(images), "opencv": 0, "opencv_posed": 0, "opencv_told": 0, "opencv_told_posed": 0}
+        for key in ("ours", "marker_path"):
+            row.update({key: 0, f"{key}_posed": 0, f"{key}_disagree": 0, f"{key}_both": 0, f"{key}_apart_px": 0.0,
+                        f"{key}_off_lattice": 0})
         for shape in sizes:
             group = [im for im in images if im.shape == shape]
-            det = detect_charuco(_tensor(group), board, num_workers=1)
+            det = charuco_paths(_tensor(group), board, num_workers=1, paths=(MarkerPaths.BOTH, MarkerPaths.MARKERS))
             for k, image in enumerate(group):
-                mine = det.corners[k].double().numpy() if bool(det.found[k]) else np.full((board.num_corners, 2),
-                                                                                           np.nan)
                 plain = _opencv_charuco(board, image, False)
                 told = max((_opencv_charuco(board, image, False, i, m) for i, m in variants),
                            key=lambda c: int(np.isfinite(c).all(-1).sum()))
-                n_mine, n_plain, n_told = (int(np.isfinite(c).all(-1).sum()) for c in (mine, plain, told))
-                row["ours"] += n_mine
-                row["ours_posed"] += n_mine >= MIN_POSED
+                n_plain, n_told = (int(np.isfinite(c).all(-1).sum()) for c in (plain, told))
                 row["opencv"] += n_plain
                 row["opencv_posed"] += n_plain >= MIN_POSED
                 row["opencv_told"] += n_told
                 row["opencv_told_posed"] += n_told >= MIN_POSED
-                both = np.isfinite(mine).all(-1) & np.isfinite(told).all(-1)
-                row["both"] += int(both.sum())
-                row["disagree"] += int((np.linalg.norm(mine[both] - told[both], axis=-1) > 3.0).sum())
+                for key, path in (("ours", MarkerPaths.BOTH), ("marker_path", MarkerPaths.MARKERS)):
+                    res = det[path]
+                    mine = res.corners[k].double().numpy() if bool(res.found[k]) else \
+                        np.full((board.num_corners, 2), np.nan)
+                    n_mine = int(np.isfinite(mine).all(-1).sum())
+                    row[key] += n_mine
+                    row[f"{key}_posed"] += n_mine >= MIN_POSED
+                    both = np.isfinite(mine).all(-1) & np.isfinite(told).all(-1)
+                    apart = np.linalg.norm(mine[both] - told[both], axis=-1)
+                    row[f"{key}_both"] += int(both.sum())
+                    row[f"{key}_disagree"] += int((apart > 3.0).sum())
+                    row[f"{key}_apart_px"] += float(apart[apart <= 3.0].sum())
+                    row[f"{key}_off_lattice"] += _off_lattice(mine, board)
+        for key in ("ours", "marker_path"):
+            agree = row[f"{key}_both"] - row[f"{key}_disagree"]
+            row[f"{key}_apart_px"] = row[f"{key}_apart_px"] / agree if agree else math.nan
         out[cam] = row
     return out
 
@@ -260,7 +341,7 @@ def run_markers(cfg, log=print) -> dict:
     ``cfg.markers_aprilgrid_views``, ``cfg.markers_calib_trials`` x ``cfg.markers_calib_views`` and
     ``cfg.markers_real_sets``."""
     t0 = time.perf_counter()
-    sec: dict = {"charuco": {}, "aprilgrid": {}, "calibration": [], "real": {},
+    sec: dict = {"charuco": {}, "aprilgrid": {}, "calibration": [], "real": {}, "conditions": list(CONDITIONS),
                  "boards": {"charuco": "6x8 squares, DICT_6X6_250, marker/square 0.5, layout random per view",
                             "aprilgrid": "6x6 tags 36h11, tagSpacing 0.3"}}
     for k, condition in enumerate(CONDITIONS):
@@ -278,18 +359,43 @@ def run_markers(cfg, log=print) -> dict:
         got = _real_set(root, name)
         sec["real"][name] = got if got is not None else {"skipped": f"not present under {root}"}
         log(f"[bench] markers: real {name}")
+    sec["timing"] = _timing(cfg)
+    log("[bench] markers: timing")
     sec["views_rendered"] = len(CONDITIONS) * (cfg.markers_views + cfg.markers_aprilgrid_views) + \
-        cfg.markers_calib_trials * cfg.markers_calib_views
+        cfg.markers_calib_trials * cfg.markers_calib_views + 2 * sec["timing"]["views"]
     sec["run_seconds"] = time.perf_counter() - t0
     return sec
 
 
-_LABELS = {"ours": "ours", "opencv_new": "CharucoDetector (legacy off)", "opencv_legacy": "CharucoDetector (legacy on)",
+def _timing(cfg) -> dict:
+    """Seconds per view of each board's detection by the marker path alone and by both paths (the default), on
+    :data:`TIMING_VIEWS` clean renders in one batch (fewer in small configurations), after one warm-up call."""
+    from ccs_kornia.modules.detection.markers.aprilgrid import detect_aprilgrid
+
+    rng = np.random.default_rng(SEED + 95_000)
+    views = max(1, min(TIMING_VIEWS, 4 * cfg.markers_views))
+    out = {"views": views}
+    for name, board, detect in (("charuco", CHARUCO, detect_charuco), ("aprilgrid", APRILGRID, detect_aprilgrid)):
+        x = _tensor([render_condition(board, "clean", rng, supersample=cfg.supersample)[0] for _ in range(views)])
+        detect(x[:1], board, num_workers=1)
+        for path in (MarkerPaths.MARKERS, MarkerPaths.BOTH):
+            t = time.perf_counter()
+            detect(x, board, num_workers=1, paths=path)
+            out[f"{name}_{path.value}_s_per_view"] = (time.perf_counter() - t) / views
+    return out
+
+
+_LABELS = {"ours": "ours", "marker_path": "ours, marker path", "lattice_path": "ours, lattice path",
+           "opencv_new": "CharucoDetector (legacy off)", "opencv_legacy": "CharucoDetector (legacy on)",
            "opencv_told": "CharucoDetector (told the layout)", "opencv_subpix": "OpenCV tags + cornerSubPix (Kalibr)"}
 
 
 def _fmt(x: float, digits: int = 3) -> str:
     return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+
+
+def _pct(x: float | None) -> str:
+    return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100.0 * x:.1f} %"
 
 
 def markers_md(sec: dict) -> list[str]:
@@ -300,18 +406,24 @@ def markers_md(sec: dict) -> list[str]:
         rows = sec.get(kind) or {}
         if not rows:
             continue
-        lines += [f"Renders, {title}: views posed (>= {MIN_POSED} corners), corners per view, wrong ids, corner error "
-                  "(px, right ids).", "",
-                  "| condition | method | views | posed | corners/view | wrong ids | mean err | median err |",
-                  "|---|---|---|---|---|---|---|---|"]
+        lines += [f"Renders, {title}: views posed (>= {MIN_POSED} corners with right ids), visible corners found with "
+                  f"their right id, corners per view, wrong ids (> {WRONG_PX:g} px from the id's true corner), corner "
+                  f"error (px, right ids), fx error of the camera calibrated from the first {CONDITION_CALIB_VIEWS} "
+                  "views (cv2.calibrateCamera on each method's corners).", "",
+                  "| condition | method | views | posed | found | corners/view | wrong ids | mean err | median err "
+                  "| fx error |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for condition, methods in rows.items():
             for m, s in methods.items():
+                fx = s.get("fx_error_pct", math.nan)
                 lines.append(f"| {condition} | {_LABELS.get(m, m)} | {s['views']} | {s['posed']} | "
-                             f"{s['corners_per_view']:.1f} | {s['wrong_ids']} | {_fmt(s['mean_error_px'])} | "
-                             f"{_fmt(s['median_error_px'])} |")
+                             f"{_pct(s.get('found_fraction'))} | {s['corners_per_view']:.1f} | {s['wrong_ids']} | "
+                             f"{_fmt(s['mean_error_px'])} | {_fmt(s['median_error_px'])} | "
+                             f"{'n/a' if math.isnan(fx) else f'{fx:.3f} %'} |")
         total = sum(methods["ours"]["views"] for methods in rows.values())
-        wrong = sum(methods["ours"]["wrong_ids"] for methods in rows.values())
-        lines += ["", f"Ours over all {total} {kind} views: {wrong} wrong ids.", ""]
+        wrong = {m: sum(methods[m]["wrong_ids"] for methods in rows.values() if m in methods) for m in OUR_PATHS}
+        lines += ["", f"Ours over all {total} {kind} views: {wrong['ours']} wrong ids (marker path "
+                      f"{wrong['marker_path']}, lattice path {wrong['lattice_path']}).", ""]
     trials = sec.get("calibration") or []
     if trials:
         lines += ["Calibration from partial views (every view cut by the frame; rational model; true fx 520):", "",
@@ -325,16 +437,30 @@ def markers_md(sec: dict) -> list[str]:
             lines.append(f"| {label} | {len(trials)} | {_fmt(float(np.nanmedian(errs)))} % | {worst} | "
                          f"{_fmt(float(np.nanmedian(rms)))} | {used:.1f} |")
         lines.append("")
+    timing = sec.get("timing") or {}
+    if timing:
+        lines += [f"Time per view ({timing['views']} clean 640x480 renders in one batch): ChArUco "
+                  f"{_fmt(timing['charuco_markers_s_per_view'])} s by the marker path alone, "
+                  f"{_fmt(timing['charuco_both_s_per_view'])} s by both paths; AprilGrid "
+                  f"{_fmt(timing['aprilgrid_markers_s_per_view'])} s and "
+                  f"{_fmt(timing['aprilgrid_both_s_per_view'])} s.",
+                  ""]
     for name, cams in (sec.get("real") or {}).items():
         if "skipped" in cams:
             lines += [f"Real `{name}`: skipped ({cams['skipped']}).", ""]
             continue
-        lines += [f"Real `{name}`: corners (views posed) per camera; 'apart': ids both find more than 3 px apart.", "",
-                  "| camera | images | ours | CharucoDetector | CharucoDetector told the variant | apart / both |",
-                  "|---|---|---|---|---|---|"]
+        lines += [f"Real `{name}`: corners (views posed) per camera; where ours and CharucoDetector (told the variant) "
+                  "both find an id: the mean distance between the two (px, those within 3 px), and how many are more "
+                  "than 3 px apart; ours off the view's lattice (a third of a square from a homography of their "
+                  "neighbours).", "",
+                  "| camera | images | ours | marker path | CharucoDetector | CharucoDetector told the variant | "
+                  "apart: ours | apart: marker path | off lattice: ours / marker path |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for cam, r in cams.items():
-            lines.append(f"| {cam} | {r['images']} | {r['ours']} ({r['ours_posed']}) | {r['opencv']} "
-                         f"({r['opencv_posed']}) | {r['opencv_told']} ({r['opencv_told_posed']}) | "
-                         f"{r['disagree']} / {r['both']} |")
+            lines.append(f"| {cam} | {r['images']} | {r['ours']} ({r['ours_posed']}) | {r['marker_path']} "
+                         f"({r['marker_path_posed']}) | {r['opencv']} ({r['opencv_posed']}) | {r['opencv_told']} "
+                         f"({r['opencv_told_posed']}) | {_fmt(r['ours_apart_px'])} px, {r['ours_disagree']} / "
+                         f"{r['ours_both']} | {_fmt(r['marker_path_apart_px'])} px, {r['marker_path_disagree']} / "
+                         f"{r['marker_path_both']} | {r['ours_off_lattice']} / {r['marker_path_off_lattice']} |")
         lines.append("")
     return lines

@@ -93,6 +93,7 @@ SECTION_RUNNERS: dict[str, tuple[str, str, bool, bool]] = {
     "fisheye": ("ccs_kornia.bench.fisheye", "run_fisheye", False, False),
     "rig": ("ccs_kornia.bench.rig", "run_rig", False, False),
     "markers": ("ccs_kornia.bench.markers", "run_markers", False, False),
+    "rig_sessions": ("ccs_kornia.bench.rig_sessions", "run_rig_sessions", False, False),
     "speed": ("ccs_kornia.bench.speed", "run_speed", True, False),
     "video": ("ccs_kornia.bench.video", "run_video", False, False),
 }

@@ -388,9 +388,25 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
         write_text_atomic("--kalibr-yaml", args.kalibr_yaml, camchain)
 
 
+def _moved(cam: dict[str, Any]) -> str:
+    """``, moved up to 2.1 sigma (cy) from its own calibration`` for a camera's summary line ("" when unknown)."""
+    moved = cam.get("intrinsics_moved_sigma")
+    if not moved:
+        return ""
+    from ccs_kornia.geometry.models.factory import camera_model
+
+    coeffs = camera_model(cam["distortion"]["model"]).param_names[4:]
+    items = [(k, moved[k]) for k in ("fx", "fy", "cx", "cy")] + list(zip(coeffs, moved["distortion"]))
+    name, value = max(((k, abs(v)) for k, v in items if v is not None), key=lambda kv: kv[1], default=(None, 0.0))
+    return f", moved up to {value:.1f} sigma ({name}) from its own calibration" if name else ""
+
+
 def summary_lines(data: dict[str, Any], output: str) -> list[str]:
-    """The command's short summary: per camera its model and RMS, per pair baseline, rotation and epipolar error, a
-    joint fit that did not converge, the verdict."""
+    """The command's short summary: per camera its model, RMS and how far the joint fit moved its intrinsics, the
+    frames whose cameras disagree, what to record next, per pair baseline, rotation and epipolar error, a joint fit
+    that did not converge, the verdict."""
+
+    from ccs_kornia.outputs.rig_records import frame_lines
 
     def fmt(value: float | None, digits: int = 3) -> str:
         return "n/a" if value is None else f"{value:.{digits}f}"
@@ -401,7 +417,9 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
         used = sum(1 for v in cam["views"] if v.get("used"))
         lines.append(f"camera {cam['name']}: {cam['distortion']['model']}, RMS {fmt(cam['rms'])} px "
                      f"(fx {K[0][0]:.2f} fy {K[1][1]:.2f} cx {K[0][2]:.2f} cy {K[1][2]:.2f}; {used} views"
-                     f"{', intrinsics fixed' if cam.get('fixed') else ''})")
+                     f"{', intrinsics fixed' if cam.get('fixed') else _moved(cam)})")
+    lines += frame_lines((data.get("frame_consistency") or {}).get("frames") or [])
+    lines += [f"to record next: {text}" for text in data.get("session_advice") or []]
     for pair in data["pairs"]:
         std = f" ± {pair['baseline_std']:.2g}" if pair.get("baseline_std") is not None else ""
         rot = f" ± {pair['rotation_std_deg']:.2g}" if pair.get("rotation_std_deg") is not None else ""

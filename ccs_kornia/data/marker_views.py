@@ -5,7 +5,8 @@ seen by a pinhole camera with OpenCV's lens distortion: every output pixel is tr
 (``cv2.undistortPoints``) to the board plane and sampled there on a supersampled grid, then area-averaged, so the
 corners' true positions are ``cv2.projectPoints`` of the board's object points. Conditions (:data:`CONDITIONS`):
 the board whole in the frame, cut by the frame (partial), low light (low contrast, sensor noise), blur, a
-white-on-black print, a board seen from its back (the image mirrored).
+white-on-black print, a board seen from its back (the image mirrored), strong blur (defocus), small markers (the board
+far away) and sensor noise.
 
 Example:
     >>> import numpy as np
@@ -24,13 +25,20 @@ import functools
 import cv2
 import numpy as np
 
-__all__ = ["CONDITIONS", "DIST", "K", "random_board_pose", "render_condition", "render_marker_view"]
+__all__ = ["CONDITIONS", "DIST", "FAR_CENTRE", "FAR_SPAN", "K", "NEAR_CENTRE", "NEAR_SPAN", "random_board_pose",
+           "render_condition", "render_marker_view"]
 
 #: the camera of the views (640 x 480 px) and its lens (strong barrel distortion, as a wide-angle lens)
 K = np.array([[520.0, 0.0, 318.0], [0.0, 520.0, 242.0], [0.0, 0.0, 1.0]])
 DIST = np.array([-0.28, 0.09, 0.0, 0.0, 0.0])
 #: the rendering conditions of :func:`render_condition`
-CONDITIONS = ("clean", "partial", "low light", "blur", "inverted", "mirrored")
+CONDITIONS = ("clean", "partial", "low light", "blur", "inverted", "mirrored", "strong blur", "small", "noise")
+#: the board's width in the image (fraction of the image width): near (every condition but ``"small"``) and far
+NEAR_SPAN = (0.45, 0.85)
+FAR_SPAN = (0.2, 0.3)
+#: where a whole board's centre lies (fraction of the image's width and height): near, and far (all over the image)
+NEAR_CENTRE = (0.35, 0.65)
+FAR_CENTRE = (0.2, 0.8)
 
 
 @functools.lru_cache(maxsize=4)
@@ -56,14 +64,18 @@ def _extent(board) -> tuple[np.ndarray, np.ndarray]:
 
 
 def random_board_pose(board, rng: np.random.Generator, partial: bool = False, k: np.ndarray = K,
-                      size: tuple[int, int] = (640, 480), tilt_deg: float = 40.0) -> tuple[np.ndarray, np.ndarray]:
-    """A random ``(rvec, tvec)`` showing ``board`` to the camera ``k``: its corners' bounding box spans 45 to 85 %
-    of the image width, tilted up to ``tilt_deg``; whole in the frame, or (``partial``) with its centre near a side
-    or corner of the frame so that the frame cuts it (about a fifth to a half of it outside)."""
+                      size: tuple[int, int] = (640, 480), tilt_deg: float = 40.0,
+                      span: tuple[float, float] = NEAR_SPAN, centre_range: tuple[float, float] = NEAR_CENTRE
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """A random ``(rvec, tvec)`` showing ``board`` to the camera ``k``: its corners' bounding box spans a fraction
+    ``span`` of the image width (45 to 85 % by default), tilted up to ``tilt_deg``; whole in the frame (its centre
+    within ``centre_range`` of the image's width and height), or
+    (``partial``) with its centre near a side or corner of the frame so that the frame cuts it (about a fifth to a
+    half of it outside)."""
     w, h = size
     lo, hi = _extent(board)
     centre = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, 0.0])
-    span = float(max(hi - lo))
+    extent = float(max(hi - lo))
     # the printed face towards the camera: a board whose y axis points up on the print (an AprilGrid: its texture
     # map flips y) is turned half a turn about its x axis
     face = np.diag([1.0, -1.0, -1.0]) if np.linalg.det(_texture(board, None, None)[1][:, :2]) < 0 else np.eye(3)
@@ -72,7 +84,7 @@ def random_board_pose(board, rng: np.random.Generator, partial: bool = False, k:
         axis[2] *= 0.5
         angle = np.deg2rad(rng.uniform(0.0, tilt_deg))
         rvec = axis / np.linalg.norm(axis) * angle
-        z = k[0, 0] * span / (rng.uniform(0.45, 0.85) * w)
+        z = k[0, 0] * extent / (rng.uniform(*span) * w)
         if partial:
             side = rng.integers(0, 4)
             u = [rng.uniform(0.0, 0.12) * w, w - rng.uniform(0.0, 0.12) * w, rng.uniform(0.2, 0.8) * w,
@@ -80,7 +92,7 @@ def random_board_pose(board, rng: np.random.Generator, partial: bool = False, k:
             v = [rng.uniform(0.2, 0.8) * h, rng.uniform(0.2, 0.8) * h, rng.uniform(0.0, 0.12) * h,
                  h - rng.uniform(0.0, 0.12) * h][side]
         else:
-            u, v = rng.uniform(0.35, 0.65) * w, rng.uniform(0.35, 0.65) * h
+            u, v = rng.uniform(*centre_range) * w, rng.uniform(*centre_range) * h
         rot = cv2.Rodrigues(rvec)[0] @ face
         rvec = cv2.Rodrigues(rot)[0].reshape(3)
         ray = np.linalg.solve(k, np.array([u, v, 1.0]))
@@ -138,12 +150,24 @@ def render_condition(board, condition: str, rng: np.random.Generator, k: np.ndar
 
     ``"low light"``: the print's black and white squeezed to about 10 and 55 grey levels with sensor noise (sigma
     2.5); ``"blur"``: a Gaussian of sigma 0.8 to 1.6 px (defocus); ``"inverted"``: a white-on-black print;
-    ``"mirrored"``: the image flipped left-right (the board seen from its back through a transparent print).
+    ``"mirrored"``: the image flipped left-right (the board seen from its back through a transparent print);
+    ``"strong blur"``: a Gaussian of sigma 1.8 to 3 px; ``"small"``: the board spans :data:`FAR_SPAN` of the image
+    width (far away: its markers' bits are one to two pixels), anywhere in the image (:data:`FAR_CENTRE`);
+    ``"noise"``: sensor noise of sigma 10 to 16 grey levels.
     Every condition but ``"partial"`` shows the board whole.
+
+    Example:
+        >>> from ccs_kornia.modules.detection.boards import CharucoBoard
+        >>> img, truth = render_condition(CharucoBoard(5, 7, 0.04, 0.02), "small", np.random.default_rng(0),
+        ...                               size=(320, 240), supersample=1)
+        >>> img.shape, bool(np.isfinite(truth).all())
+        ((240, 320), True)
     """
     if condition not in CONDITIONS:
         raise ValueError(f"unknown condition {condition!r}; expected one of {', '.join(CONDITIONS)}")
-    rvec, tvec = random_board_pose(board, rng, partial=condition == "partial", k=k, size=size)
+    far = condition == "small"
+    rvec, tvec = random_board_pose(board, rng, partial=condition == "partial", k=k, size=size,
+                                   span=FAR_SPAN if far else NEAR_SPAN, centre_range=FAR_CENTRE if far else NEAR_CENTRE)
     image, truth = render_marker_view(board, rvec, tvec, k, dist, size, supersample, legacy=legacy)
     img = image.astype(np.float64)
     if condition == "low light":
@@ -151,6 +175,10 @@ def render_condition(board, condition: str, rng: np.random.Generator, k: np.ndar
         img = lo + img / 255.0 * (hi - lo) + rng.normal(0.0, 2.5, img.shape)
     elif condition == "blur":
         img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.8, 1.6))
+    elif condition == "strong blur":
+        img = cv2.GaussianBlur(img, (0, 0), rng.uniform(1.8, 3.0))
+    elif condition == "noise":
+        img = img + rng.normal(0.0, rng.uniform(10.0, 16.0), img.shape)
     elif condition == "inverted":
         img = 255.0 - img
     image = np.clip(np.round(img), 0, 255).astype(np.uint8)

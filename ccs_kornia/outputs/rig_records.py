@@ -15,10 +15,15 @@ import torch
 from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.outputs.records import camera_record, selection_reasons
 
-__all__ = ["CONVENTION", "rig_record", "pair_record", "record_extrinsics", "rotation_angle_deg", "rig_cameras", "rectify_maps"]
+__all__ = ["CONVENTION", "INCONSISTENT_WEIGHT", "frame_lines", "frame_records", "rig_record", "pair_record",
+           "record_extrinsics", "rotation_angle_deg", "rig_cameras", "rectify_maps"]
 
 #: how the extrinsics map points: camera 0's frame to camera ``i``'s (OpenCV's ``stereoCalibrate`` convention)
 CONVENTION = "x_i = R x_0 + T"
+
+
+#: frames that weighed less than this in the final fit are named as inconsistent
+INCONSISTENT_WEIGHT = 0.5
 
 
 def _num(x: Any) -> float | None:
@@ -56,9 +61,11 @@ def record_extrinsics(extrinsics: list[dict[str, Any]]) -> tuple[torch.Tensor, t
     return R, torch.tensor([e["T"] for e in extrinsics], dtype=torch.float64)
 
 
-def pair_record(rig: Any, i: int, j: int) -> dict[str, Any]:
+def pair_record(rig: Any, i: int, j: int, labels: list[str] | None = None) -> dict[str, Any]:
     """One pair of a solved ``RigResult``: its relative pose, essential and fundamental matrices, baseline with its
-    1-sigma (known for pairs with camera 0, whose poses the fit estimates directly), epipolar errors."""
+    1-sigma (known for pairs with camera 0, whose poses the fit estimates directly), epipolar errors, the frames that
+    carried it (both cameras use them and they weigh at least :data:`INCONSISTENT_WEIGHT`; ``labels``: the frames'
+    names, else their positions)."""
     pair = rig.pair(i, j)
     baseline = float(torch.linalg.vector_norm(pair.T.double()))
     with_first = i == 0 or j == 0
@@ -74,7 +81,59 @@ def pair_record(rig: Any, i: int, j: int) -> dict[str, Any]:
         "rotation_std_deg": _num(rig.rotation_std_deg[other]) if with_first else None,
         "epipolar_rms": _num(rig.epipolar_rms[i, j]),
         "heldout_epipolar_rms": _num(rig.heldout_epipolar_rms[i, j]),
+        # frames both cameras use, each counted with its weight in the fit: how much of the session links the pair
+        "shared_frames": None if getattr(rig, "shared_frames", None) is None else _num(rig.shared_frames[i, j]),
+        "frames_carried": _carried(rig, i, j, labels),
     }
+
+
+def _carried(rig: Any, i: int, j: int, labels: list[str] | None) -> list[str] | None:
+    if getattr(rig, "frame_weight", None) is None:
+        return None
+    both = rig.used[i] & rig.used[j] & (rig.frame_weight.nan_to_num(0.0) >= INCONSISTENT_WEIGHT)
+    frames = torch.nonzero(both).flatten().tolist()
+    return [labels[f] if labels is not None else str(f) for f in frames]
+
+
+def _per_param(values: torch.Tensor) -> dict[str, Any]:
+    v = [_num(x) for x in values.double().tolist()]
+    return {"fx": v[0], "fy": v[1], "cx": v[2], "cy": v[3], "distortion": v[4:]}
+
+
+def frame_records(rig: Any, labels: list[str]) -> list[dict[str, Any]]:
+    """Per frame of a solved ``RigResult``: its label, the cameras' disagreement (px: how much worse one board pose
+    explains them than each camera's own pose; ``None`` for frames of one camera), its weight in the fit, the board's
+    motion around it (px per frame period, ``None`` when unknown) and the likely cause of a disagreement."""
+    from ccs_kornia.modules.rig.frame_consistency import disagreement_cause
+
+    if getattr(rig, "frame_disagreement", None) is None:
+        return []
+    out = []
+    for f, label in enumerate(labels):
+        d, w, m = (float(rig.frame_disagreement[f]), float(rig.frame_weight[f]), float(rig.frame_motion[f]))
+        out.append({"frame": label, "disagreement_px": _num(d), "weight": _num(w), "motion_px": _num(m),
+                    "cause": disagreement_cause(d, m) if w < INCONSISTENT_WEIGHT else ""})
+    return out
+
+
+def frame_lines(frames: list[dict[str, Any]], most: int = 10) -> list[str]:
+    """The inconsistent frames of :func:`frame_records` (weight below :data:`INCONSISTENT_WEIGHT`), the worst first,
+    as the command prints them: ``frame 0412: cameras disagree by 6.3 px, board moving (weight 0.02)``.
+
+    Example:
+        >>> frame_lines([{"frame": "0412", "disagreement_px": 6.3, "weight": 0.02, "cause": "board moving"},
+        ...              {"frame": "0413", "disagreement_px": 0.1, "weight": 1.0, "cause": ""}])
+        ['frame 0412: cameras disagree by 6.3 px, board moving (weight 0.02)']
+    """
+    bad = [f for f in frames if f.get("weight") is not None and f["weight"] < INCONSISTENT_WEIGHT
+           and f.get("disagreement_px") is not None]
+    bad.sort(key=lambda f: -f["disagreement_px"])
+    lines = [f"frame {f['frame']}: cameras disagree by {f['disagreement_px']:.1f} px"
+             f"{', ' + f['cause'] if f.get('cause') else ''} (weight {f['weight']:.2g})" for f in bad[:most]]
+    if len(bad) > most:
+        lines.append(f"... and {len(bad) - most} more frames weighed below {INCONSISTENT_WEIGHT:g} (rig.json: "
+                     "frame_consistency)")
+    return lines
 
 
 def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], square: float, detector: str,
@@ -90,7 +149,9 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
         JSON-ready dict: ``convention``, ``cameras`` (each as ``calibrate`` writes one, with ``name``, the joint fit's
         ``K``, ``distortion``, ``rms`` and ``std``, and the camera's own calibration under ``single_camera``),
         ``extrinsics``, ``rms``, ``rms_matrix`` (camera x frame, ``None`` where unused), ``frames``, ``pairs``,
-        ``board_poses`` (board -> camera 0 per frame), ``verdict``.
+        ``board_poses`` (board -> camera 0 per frame), ``verdict``, ``frame_consistency`` (per frame its
+        disagreement, weight, motion and cause: :func:`frame_records`), ``session_advice`` (what to record next);
+        per camera ``intrinsics_moved_sigma`` and ``single_camera.std``; per pair ``shared_frames``.
     """
     rig = out.rig
     cameras = []
@@ -109,12 +170,17 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
             "fixed": bool(out.fixed[c]) if out.fixed else False,
             "single_camera": single,
         })
+        if getattr(rig, "single_std", None) is not None:
+            single["std"] = _per_param(rig.single_std[c])
+            # how far the joint fit moved each intrinsic from the camera's own calibration, in its own 1-sigma
+            record["intrinsics_moved_sigma"] = _per_param(rig.intrinsics_moved_sigma[c])
         cameras.append({"name": out.names[c], **record})
     choice = getattr(out, "frame_choice", None)
     if choice is not None:  # the frame selection's reasons for the views of the frames it left out
         for c, cam in enumerate(cameras):
             selection_reasons(cam["views"], choice.view_reasons[c])
-    pairs = [pair_record(rig, i, j) for i in range(len(cameras)) for j in range(i + 1, len(cameras))]
+    labels = list(out.frames.labels)
+    pairs = [pair_record(rig, i, j, labels) for i in range(len(cameras)) for j in range(i + 1, len(cameras))]
     selection = {} if choice is None else {"selection": choice.record(list(out.candidates.labels))}
     return {
         "success": True,
@@ -134,6 +200,9 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
                         for r, t in zip(rig.board_rvec.double().tolist(), rig.board_tvec.double().tolist())],
         "verdict": rig.verdict,
         "verdict_reasons": list(getattr(rig, "reasons", []) or []),
+        "frame_consistency": {"kernel_scale_px": _num(getattr(rig, "frame_scale", float("nan"))),
+                              "frames": frame_records(rig, list(out.frames.labels))},
+        "session_advice": list(getattr(rig, "advice", []) or []),
         "fit": {"converged": bool(getattr(rig, "converged", True)), "iterations": int(getattr(rig, "iterations", 0)),
                 "frames_used": [[bool(u) for u in row] for row in rig.used.tolist()],
                 # per camera and frame: 0 where the corners kept the detector's numbering, k > 0 where the solver

@@ -26,7 +26,7 @@ summed over its cameras, plus the link it gives every pair of cameras that see i
 :func:`select_views` chooses every camera's views of a solved result and solves the cameras again on the views kept
 (the model ``--model auto`` chose on every candidate kept). :class:`FrameChoice` says, per candidate, whether it was
 kept and why not (``moving (250 px/s)``, ``blurred (corners 2.6x the median)``, ``near copy of frame 412``, ``adds
-nothing``, ``over --max-frames``). Measured figures: ``docs/benchmarks.md`` (section 10, recordings).
+nothing``, ``over --max-frames``). Measured figures: ``docs/benchmarks.md`` (section 11, recordings).
 """
 
 from __future__ import annotations

@@ -31,7 +31,12 @@ from ccs_kornia.pipeline.result import (
 )
 from ccs_kornia.pipeline.sources import FileSource, TensorSource, ViewSource
 
-__all__ = ["RigPipeline", "RigPipelineResult", "rig_observations", "unconnected_cameras"]
+__all__ = ["FLEXIBLE_COVERAGE", "RigPipeline", "RigPipelineResult", "frame_times_of", "rig_observations",
+           "unconnected_cameras"]
+
+#: ``models="auto"``: a rig camera whose boards cover less of its image than this gets ``rational`` or ``fisheye``
+#: only where no other model ties (``ModelSelection(flexible_coverage=...)``); the degeneracy checks' coverage warning
+FLEXIBLE_COVERAGE = 0.20
 
 
 @dataclass
@@ -180,6 +185,26 @@ def unconnected_cameras(valid: torch.Tensor, names: Sequence[str], labels: Seque
             f"to it ({names[0]} sees frames {frames_of(0)}; {views})")
 
 
+def frame_times_of(frames: FrameTable) -> torch.Tensor | None:
+    """The frames' times for the rig solver's board motion: the mean of the cameras' times where the frames were
+    paired by time (videos, a timestamps table; NaN for a frame without one), else their numbers where every frame
+    label is one (frames matched by the numbers in the file names), else ``None``.
+
+    Example:
+        >>> frame_times_of(FrameTable(["0416", "0417"], [[0, 1], [0, 1]], "number")).tolist()
+        [416.0, 417.0]
+        >>> frame_times_of(FrameTable(["0", "1"], [[0, 1], [0, 1]], "time", [[0.0, 0.1], [0.02, None]])).tolist()
+        [0.01, 0.1]
+    """
+    if frames.times is not None:
+        per_frame = [[row[f] for row in frames.times if row[f] is not None] for f in range(frames.num_frames)]
+        return torch.tensor([sum(t) / len(t) if t else float("nan") for t in per_frame], dtype=torch.float64)
+    try:
+        return torch.tensor([float(label) for label in frames.labels], dtype=torch.float64)
+    except ValueError:
+        return None
+
+
 def _same_position(counts: Sequence[int]) -> FrameTable:
     """Frames of in-memory views: frame ``f`` is view ``f`` of every camera that has one."""
     frames = max(counts)
@@ -194,10 +219,12 @@ class RigPipeline(nn.Module):
         detector: a detector name (``"learned"``, ``"opencv"``) or a :class:`ChessboardDetector` (shared by every
             camera).
         models: one model for every camera or one per camera (``auto``: each camera's model chosen by the
-            single-camera pipeline's cross-validation).
+            single-camera pipeline's cross-validation, ``rational`` and ``fisheye`` only where the boards cover at
+            least ``flexible_coverage`` of the image or no other model ties).
         fixed: per camera index, a ``RigCamera`` whose intrinsics are kept as they are (e.g. from an earlier
             single-camera calibration).
         solver_kwargs: options of :class:`~ccs_kornia.modules.rig.rig_solver.RigSolver` (``max_iters``, ...).
+        flexible_coverage: see ``models`` (:data:`FLEXIBLE_COVERAGE`; ``None``: the single-camera choice as it is).
         frame_selection: keep only the frames that make the best rig
             (:class:`~ccs_kornia.pipeline.frame_selection.FrameSelection`, each frame judged across its cameras)
             before the joint fit; ``None``: every frame counts.
@@ -216,6 +243,7 @@ class RigPipeline(nn.Module):
         models: str | Sequence[str] = "auto",
         fixed: dict[int, Any] | None = None,
         solver_kwargs: dict[str, Any] | None = None,
+        flexible_coverage: float | None = FLEXIBLE_COVERAGE,
         frame_selection: FrameSelection | None = None,
         **pipeline_kwargs,
     ) -> None:
@@ -224,6 +252,9 @@ class RigPipeline(nn.Module):
         self.models = models if isinstance(models, str) else list(models)
         wanted = {self.models} if isinstance(self.models, str) else set(self.models)
         self.pipelines = nn.ModuleDict({m: CalibrationPipeline(shared, model=m, **pipeline_kwargs) for m in sorted(wanted)})
+        for pipeline in self.pipelines.values():
+            if pipeline.selection is not None:
+                pipeline.selection.flexible_coverage = flexible_coverage
         self.fixed = dict(fixed or {})
         self.solver_kwargs = dict(solver_kwargs or {})
         self.frame_selection = frame_selection
@@ -371,7 +402,8 @@ class RigPipeline(nn.Module):
         sizes = [tuple(int(x) for x in r.image_size) for r in cameras]
         try:
             out.rig = solver(corners, valid, object_points, sizes, initial=initial,
-                             fixed=fixed if any(fixed) else None, names=names, weights=weights)
+                             fixed=fixed if any(fixed) else None, names=names, weights=weights,
+                             frame_times=frame_times_of(frames))
         except ValueError as err:  # the solver's refusal (e.g. cameras linked by too few corners), one line
             out.reason = str(err)
             return out

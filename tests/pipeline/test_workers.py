@@ -4,6 +4,7 @@ number of workers, failures and errors reported, the pipeline's detections uncha
 from __future__ import annotations
 
 import os
+import time
 import sys
 
 import cv2
@@ -27,6 +28,12 @@ def _sum_and_pid(images: torch.Tensor, keys: list):
     return images.sum((1, 2, 3)), os.getpid(), torch.get_num_threads()
 
 
+def _slow_sum_and_pid(images: torch.Tensor, keys: list):
+    # a batch takes long enough that, on a loaded machine too, the other worker takes the next one meanwhile
+    time.sleep(0.2)
+    return _sum_and_pid(images, keys)
+
+
 def test_chunks_and_default_workers():
     assert chunks(range(7), 3) == [[0, 1, 2], [3, 4, 5], [6]]
     assert chunks([], 4) == []
@@ -41,7 +48,7 @@ def test_workers_give_the_batches_and_values_of_one_process():
     images = torch.rand(2, 5, 1, 12, 16, generator=torch.Generator().manual_seed(0))
     source = TensorSource(images)
     serial = list(map_batches(_sum_and_pid, source, batch_size=2))
-    parallel = list(map_batches(_sum_and_pid, source, batch_size=2, workers=2))
+    parallel = list(map_batches(_slow_sum_and_pid, source, batch_size=2, workers=2))
     assert [o.keys for o in serial] == [o.keys for o in parallel]
     assert [o.keys for o in serial][:3] == [[(0, 0), (0, 1)], [(0, 2), (0, 3)], [(0, 4), (1, 0)]]
     for a, b in zip(serial, parallel):
@@ -65,7 +72,7 @@ def test_views_that_load_alone_are_shared_out_one_by_one(tmp_path):
         cv2.imwrite(paths[-1], np.full((10, 14), 40 * k, dtype=np.uint8))
     for source in (FileSource([paths]), TensorSource(torch.rand(5, 1, 10, 14))):
         serial = list(map_batches(_sum_and_pid, source, batch_size=4, max_pixels=200))  # 140 px each: alone
-        parallel = list(map_batches(_sum_and_pid, source, batch_size=4, max_pixels=200, workers=2))
+        parallel = list(map_batches(_slow_sum_and_pid, source, batch_size=4, max_pixels=200, workers=2))
         assert [o.keys for o in serial] == [o.keys for o in parallel] == [[(0, k)] for k in range(5)]
         assert len({o.value[1] for o in parallel}) == 2
         for a, b in zip(serial, parallel):

@@ -17,6 +17,12 @@ preferred model among those that predict them as well as the best one is kept:
    :data:`HALVES_CLEAR_PX` px less; the best-aligning rotation fitted out; mrcal's cross-validation diff): a model
    that fits as well but extrapolates differently from each half is not kept.
 
+With ``flexible_coverage`` (rig cameras: :class:`~ccs_kornia.pipeline.rig_pipeline.RigPipeline`), the models of
+:data:`FLEXIBLE_MODELS` are chosen only for a camera whose boards cover at least that fraction of the image
+(:func:`~ccs_kornia.modules.calibration.quality.coverage.image_coverage`), or where no other model ties with the best:
+where the boards cover a few percent of an ordinary webcam's image, every model predicts the held-out views alike and
+the fold and halves rules judge the extrapolation, where the richer models' extra freedom is unconstrained.
+
 Why this order: a richer model's held-out error comes out a hair lower by chance on noisy corners while its extra
 coefficients extrapolate wildly outside the boards, so ``rational`` comes last; ``opencv5`` costs nothing measurable
 on a ``k1k2`` lens while ``k1k2`` can double the error of an OpenCV lens, so ``opencv5`` comes first; on fisheye lenses
@@ -33,6 +39,7 @@ import torch
 from torch import nn
 
 from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.modules.calibration.quality.coverage import image_coverage
 from ccs_kornia.modules.calibration.quality.diagnostics import (
     cross_validation,
     pixel_scale,
@@ -42,8 +49,8 @@ from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 
 __all__ = [
-    "AUTO_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
-    "TIE_SIGMAS", "choose_models", "rank_models", "tied_with_best",
+    "AUTO_MODELS", "FLEXIBLE_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
+    "TIE_SIGMAS", "choose_models", "narrow_ranking", "rank_models", "tied_with_best",
 ]
 
 #: the candidates of ``model="auto"``
@@ -62,6 +69,10 @@ MIN_PAIRED_VIEWS = 6
 HALVES_CLEAR_RATIO = 0.25
 #: ... and by at least this many px less (scaled with the image as the verdict's thresholds)
 HALVES_CLEAR_PX = 1.0
+#: models whose freedom beyond the boards only a wide coverage of the image constrains (``flexible_coverage``): the
+#: fisheye model and the OpenCV models of more than five coefficients (``rational``)
+FLEXIBLE_MODELS: tuple[str, ...] = tuple(m for m in AUTO_MODELS
+                                         if camera_model(m).is_fisheye or camera_model(m).num_coeffs > 5)
 #: kept for callers of the former rule's keyword: models within this fraction of the best tie when the per-view
 #: errors are unknown (fewer than three views held out by both models)
 HELDOUT_TOLERANCE = 0.05
@@ -172,6 +183,23 @@ def rank_models(heldout: list[float], halves: list[float], tolerance: float = HE
     return ranked + outside
 
 
+def narrow_ranking(ranking: list[str], tied: list[str]) -> list[str]:
+    """The ranking of a camera whose boards cover too little of the image for :data:`FLEXIBLE_MODELS`: the first
+    tied model that is not one of them goes first (the ranking as it is when the first is not flexible, or when no
+    other model ties).
+
+    Example:
+        >>> narrow_ranking(["fisheye", "k1k2", "opencv5", "rational"], ["opencv5", "k1k2", "fisheye"])
+        ['k1k2', 'fisheye', 'opencv5', 'rational']
+        >>> narrow_ranking(["fisheye", "k1k2"], ["fisheye"])  # a fisheye lens: nothing else predicts as well
+        ['fisheye', 'k1k2']
+    """
+    supported = [n for n in ranking if n in tied and n not in FLEXIBLE_MODELS]
+    if not ranking or ranking[0] not in FLEXIBLE_MODELS or not supported:
+        return list(ranking)
+    return [supported[0]] + [n for n in ranking if n != supported[0]]
+
+
 def choose_models(heldout: torch.Tensor, halves: torch.Tensor, tolerance: float = HELDOUT_TOLERANCE,
                   view_mse: torch.Tensor | None = None) -> torch.Tensor:
     r"""Index of the chosen model per camera from the cross-validation figures (see :func:`rank_models`).
@@ -216,6 +244,8 @@ class ModelSelection(nn.Module):
             per model of :data:`AUTO_MODELS`.
         folds: folds of the held-out error.
         tolerance: see :func:`choose_models`.
+        flexible_coverage: a camera whose boards cover less than this fraction of the image gets a model of
+            :data:`FLEXIBLE_MODELS` only where no other model ties with the best (``None``: no such rule).
 
     Shape:
         corners :math:`(C, V, N, 2)`, valid :math:`(C, V, N)`, object_points :math:`(N, 3)`, image_size ``(W, H)``
@@ -240,12 +270,14 @@ class ModelSelection(nn.Module):
         (['k1k2'], 'rational')
     """
 
-    def __init__(self, solvers: dict[str, nn.Module], folds: int = 5, tolerance: float = HELDOUT_TOLERANCE) -> None:
+    def __init__(self, solvers: dict[str, nn.Module], folds: int = 5, tolerance: float = HELDOUT_TOLERANCE,
+                 flexible_coverage: float | None = None) -> None:
         super().__init__()
         if not solvers:
             raise ValueError("ModelSelection needs at least one solver.")
         self.solvers = nn.ModuleDict(solvers)
         self.folds, self.tolerance = int(folds), float(tolerance)
+        self.flexible_coverage = None if flexible_coverage is None else float(flexible_coverage)
 
     def forward(self, corners: torch.Tensor, valid: torch.Tensor, object_points: torch.Tensor,
                 image_size: tuple[int, int], weights: torch.Tensor | None = None,
@@ -299,6 +331,7 @@ class ModelSelection(nn.Module):
                                                           else len(PREFERENCE), i))
         clear_px = HALVES_CLEAR_PX * pixel_scale(image_size)
         views = valid.any(-1).sum(-1).tolist()
+        coverage = self._coverage(results, corners, valid, object_points, image_size)
         chosen: list[str | None] = []
         table = []
         for c in range(H.shape[1]):
@@ -308,6 +341,8 @@ class ModelSelection(nn.Module):
             tied = [names[simple[k]] for k, t in enumerate(tied_with_best(h, e, self.tolerance)) if t]
             # no model could be judged on held-out views (too few views for the folds): the first that calibrated
             ranking = ranking or [names[i] for i in simple if bool(results[names[i]].success[c])]
+            if coverage is not None and float(coverage[c]) < self.flexible_coverage:
+                ranking = narrow_ranking(ranking, tied)
             name = ranking[0] if ranking else None
             chosen.append(name)
             table.append({
@@ -315,12 +350,25 @@ class ModelSelection(nn.Module):
                 "heldout_rms_px": {n: _num(H[i, c]) for i, n in enumerate(names)},
                 "halves_rms_px": {n: _num(S[i, c]) for i, n in enumerate(names)},
                 "tied": tied, "folds_in_image": [n for i, n in enumerate(names) if bool(fold[i, c])],
+                **({} if coverage is None else {"coverage": float(coverage[c]),
+                                                "flexible_coverage": self.flexible_coverage}),
                 "rule": f"the first of {', '.join(PREFERENCE)} whose held-out reprojection error the views cannot tell from the best "
                         f"(within {100 * TIE_FLOOR:g} %, or a per-view excess below {TIE_SIGMAS:g} sigma of a signed-rank test) "
                         "and whose distortion does not fold inside the image, unless another's two halves agree "
-                        "clearly better",
+                        "clearly better" + ("" if coverage is None else
+                                            f"; {' and '.join(FLEXIBLE_MODELS)} only where the boards cover at least "
+                                            f"{100 * self.flexible_coverage:g} % of the image, or no other model ties"),
             })
         return results, chosen, table
+
+    def _coverage(self, results: dict[str, CalibrationResult], corners: torch.Tensor, valid: torch.Tensor,
+                  object_points: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor | None:
+        """(C,) fraction of the image the boards of the views with a board cover (``None`` without
+        ``flexible_coverage``)."""
+        if self.flexible_coverage is None:
+            return None
+        seen = valid.sum(-1) >= 4
+        return image_coverage(corners.nan_to_num(0.0), valid, object_points, seen, image_size)[:, 0]
 
 
     @staticmethod

@@ -149,20 +149,20 @@ class BoardScreen:
             params.detectInvertedMarker = True
             params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE
             if isinstance(self.board, CharucoBoard):
-                from ccs_kornia.modules.detection.markers.charuco import _board_markers
+                from ccs_kornia.modules.detection.markers.charuco import board_markers
 
-                table = _board_markers(self.board, bool(self.board.legacy))
+                table = board_markers(self.board, bool(self.board.legacy))
             else:
                 from ccs_kornia.modules.detection.boards import APRILGRID_BORDER_BITS
-                from ccs_kornia.modules.detection.markers.aprilgrid import _board_tags
+                from ccs_kornia.modules.detection.markers.aprilgrid import board_tags
 
                 params.markerBorderBits = APRILGRID_BORDER_BITS
-                table = _board_tags(self.board)
+                table = board_tags(self.board)
             self._detector = (cv2.aruco.ArucoDetector(aruco_dictionary(self.board.dictionary), params), table)
         return self._detector
 
     def _markers(self, small: np.ndarray) -> Sighting:
-        from ccs_kornia.modules.detection.markers.charuco import _lattice
+        from ccs_kornia.modules.detection.markers.marker_board import consistent_markers
 
         detector, table = self._marker_table()
         best = (np.zeros((0, 4, 2)), np.zeros((0, 4, 2)))
@@ -179,7 +179,7 @@ class BoardScreen:
             if keep.sum() <= len(best[0]):
                 continue
             pts, obj = pts[keep], np.stack([table[int(i)] for i in ids[keep]])
-            on = _lattice(pts, obj)
+            on = consistent_markers(pts, obj)
             if on.sum() > len(best[0]):
                 best = (pts[on], obj[on])
             if len(best[0]) >= self.min_markers:

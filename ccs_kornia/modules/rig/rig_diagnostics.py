@@ -31,6 +31,7 @@ class RigVerdictThresholds:
         good_epipolar / usable_epipolar: held-out epipolar RMS of a pair (the fit's when no frame could be held out).
         good_baseline_rel / usable_baseline_rel: 1-sigma of ``|T|`` over ``|T|``.
         good_rotation_deg / usable_rotation_deg: 1-sigma of the relative rotation (degrees).
+        moved_sigma: an intrinsic the joint fit moved by more than this many single-camera sigmas is a weakness.
     """
 
     good_rms: float = 1.0
@@ -41,6 +42,7 @@ class RigVerdictThresholds:
     usable_baseline_rel: float = 0.02
     good_rotation_deg: float = 0.1
     usable_rotation_deg: float = 0.5
+    moved_sigma: float = 3.0
 
 
 def epipolar_sums(
@@ -76,6 +78,9 @@ def rig_verdict(
     baseline_std: torch.Tensor,
     rotation_std_deg: torch.Tensor,
     thresholds: RigVerdictThresholds | None = None,
+    converged: bool = True,
+    iterations: int = 0,
+    moved_sigma: Sequence[float] | None = None,
 ) -> tuple[str, list[str]]:
     """``("good" | "usable" | "not reliable: <advice>", reasons)`` of one rig.
 
@@ -84,6 +89,11 @@ def rig_verdict(
         camera_rms: :math:`(C,)` px; epipolar_rms, heldout_epipolar_rms: :math:`(C, C)` px.
         baseline: :math:`(C,)` ``|T_c|``; baseline_std, rotation_std_deg: :math:`(C,)` (camera 0: 0).
         thresholds: :class:`RigVerdictThresholds`.
+        converged: the joint fit met its tolerance; one that stopped at its iteration limit (``iterations``) is not
+            usable, whatever its figures (they are those of where it stopped).
+        moved_sigma: per camera the largest move of an intrinsic in the joint fit, in units of its single-camera
+            1-sigma: beyond ``thresholds.moved_sigma`` the rig's frames disagree with the camera's own views (a
+            weakness: the verdict is at best usable).
 
     Example:
         >>> z = torch.zeros(2, 2)
@@ -141,4 +151,11 @@ def rig_verdict(
                         f"{pair}'s {label} {held:.2f} px is over {t.usable_epipolar * s:.2f} px: add frames both "
                         f"{names[i]} and {names[j]} see, spread over the image and in depth (and check that the "
                         "cameras did not move during the capture)")
+    for c, m in enumerate(moved_sigma or []):
+        if m > t.moved_sigma:
+            found.warn(f"{names[c]}: the joint fit moved its intrinsics up to {m:.1f} sigma from its own calibration")
+    if not converged:
+        found.fail(f"the joint fit stopped unconverged after {iterations} iterations",
+                   f"the joint fit stopped unconverged after {iterations} iterations (its figures are those of where "
+                   "it stopped): check the frames named as disagreeing, or hold each camera's own intrinsics fixed")
     return found.outcome()

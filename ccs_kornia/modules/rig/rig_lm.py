@@ -15,6 +15,11 @@ updated multiplicatively (``R <- exp(w) R``):
 * ``d uv / d w_f = (R_f X) x (d uv / d q)`` with ``q = R_f X + t_f`` and ``d uv / d q = (d uv / d X_c) R_c``;
 * ``d uv / d w_c = (R_c q) x (d uv / d X_c)``, ``d uv / d T_c = d uv / d X_c``.
 
+A camera's intrinsics may carry a Gaussian prior (``prior``): the residual block ``L (p_c - p0_c)`` with
+``L^T L = Lambda_c``, e.g. the information its own views give it alone, so the rig refines them where the shared frames
+inform them but cannot drag them beyond what the camera's views allow. It adds ``Lambda_c`` to the camera's block of
+``U`` and ``Lambda_c (p_c - p0_c)`` to ``e_g``; the frame poses are untouched.
+
 The covariance of the free rig parameters (frame poses marginalised) is ``sigma^2 S^{-1}`` with ``S`` the Schur
 complement at the solution and ``sigma^2 = cost / dof`` (1 with absolute weights), a pseudo-inverse where ``S`` is
 numerically singular.
@@ -51,6 +56,7 @@ class RigLMResult:
     iterations: torch.Tensor  #: (B,) int64
     converged: torch.Tensor  #: (B,) bool
     frame_used: torch.Tensor  #: (B, F) bool
+    prior_cost: torch.Tensor | None = None  #: (B,) the priors' share of ``cost`` (``None`` without priors)
 
 
 def rig_layout(models: Sequence[CameraModel]) -> tuple[list[slice], list[slice], int]:
@@ -138,24 +144,48 @@ def _equations(models, params, R, T, Rf, tf, obj, obs, sw, on, layout, frame_use
     return cost, U, W, V, eg, ep, sq
 
 
+def _prior_terms(prior, params, intr, B, G, dtype, device):
+    """The priors' cost (B,), their share of U (B, G, G) and of eg (B, G) at ``params``."""
+    cost = torch.zeros(B, dtype=dtype, device=device)
+    U = torch.zeros(B, G, G, dtype=dtype, device=device)
+    eg = torch.zeros(B, G, dtype=dtype, device=device)
+    for c, item in enumerate(prior):
+        if item is None:
+            continue
+        p0, info = item
+        d = params[c] - p0
+        g = (info @ d.unsqueeze(-1)).squeeze(-1)
+        cost = cost + (d * g).sum(-1)
+        U[:, intr[c], intr[c]] += info
+        eg[:, intr[c]] += g
+    return cost, U, eg
+
+
 class _RigProblem:
     """The rigs of :func:`rig_levenberg_marquardt` as a :class:`~ccs_kornia.modules.calibration.schur_lm.SchurProblem`:
     global unknowns the free rig parameters (:func:`rig_layout` order), items the frames' board poses; the state
     ``{"p0", .., "p{C-1}": (B, P_c) parameters, "R": (B, C, 3, 3), "T": (B, C, 3), "Rf": (B, F, 3, 3), "tf": (B, F,
     3)}``, the normal equations with the unweighted squared error per camera and frame (``sq``)."""
 
-    def __init__(self, models, layout, fi, obj, obs, sw, on, used, num_residuals, floor, eye6):
+    def __init__(self, models, layout, fi, obj, obs, sw, on, used, num_residuals, floor, eye6, prior=None):
         self.models, self.layout, self.fi, self.obj, self.obs, self.sw, self.on = models, layout, fi, obj, obs, sw, on
         self.used, self.num_residuals, self.floor, self.eye6 = used, num_residuals, floor, eye6
+        self.prior = prior  #: per camera ``(p0 (B, P_c), information (B, P_c, P_c))`` or None
 
     def params(self, s):
         return [s[f"p{c}"] for c in range(len(self.models))]
 
     def linearize(self, s):
         fi = self.fi
-        cost, U, W, V, eg, ep, sq = _equations(self.models, self.params(s), s["R"], s["T"], s["Rf"], s["tf"], self.obj,
+        params = self.params(s)
+        cost, U, W, V, eg, ep, sq = _equations(self.models, params, s["R"], s["T"], s["Rf"], s["tf"], self.obj,
                                                self.obs, self.sw, self.on, self.layout, self.used, self.eye6)
-        return {"cost": cost, "U": U[:, fi][:, :, fi], "W": W[:, :, fi], "V": V, "eg": eg[:, fi], "ep": ep, "sq": sq}
+        out = {"sq": sq}
+        if self.prior is not None:
+            pc, pU, pe = _prior_terms(self.prior, params, self.layout[0], *U.shape[:2], U.dtype, U.device)
+            cost, U, eg = torch.where(cost.isfinite(), cost + pc, cost), U + pU, eg + pe
+            out["prior_cost"] = pc
+        return {"cost": cost, "U": U[:, fi][:, :, fi], "W": W[:, :, fi], "V": V, "eg": eg[:, fi], "ep": ep, **out}
 
     def retract(self, s, dg, dp):
         intr, ext, G = self.layout
@@ -174,8 +204,9 @@ class _RigProblem:
         return torch.cat([x.abs(), s["tf"].abs().flatten(1), torch.ones_like(x[:, :1])], -1).amax(-1)
 
     def take(self, keep):
+        prior = None if self.prior is None else [None if p is None else (p[0][keep], p[1][keep]) for p in self.prior]
         return _RigProblem(self.models, self.layout, self.fi, self.obj, self.obs[keep], self.sw[keep], self.on[keep],
-                           self.used[keep], self.num_residuals[keep], self.floor[keep], self.eye6)
+                           self.used[keep], self.num_residuals[keep], self.floor[keep], self.eye6, prior)
 
 
 def rig_levenberg_marquardt(
@@ -196,6 +227,7 @@ def rig_levenberg_marquardt(
     absolute_weights: bool = False,
     check_every: int | None = None,
     stall_tol: float = 0.0,
+    prior: Sequence[tuple[torch.Tensor, torch.Tensor] | None] | None = None,
 ) -> RigLMResult:
     r"""Refine B rigs jointly (see the module doc); no Python loop over rigs or frames, one over cameras.
 
@@ -213,6 +245,10 @@ def rig_levenberg_marquardt(
         max_iters, ftol, xtol, lambda_init, check_every, stall_tol: as
             :func:`~ccs_kornia.modules.calibration.schur_lm.schur_lm`.
         absolute_weights: the weights are absolute inverse variances (covariance without ``sigma^2``).
+        prior: per camera ``None`` or ``(p0, information)``: :math:`(B, P_c)` and :math:`(B, P_c, P_c)` (symmetric,
+            positive semi-definite, in the units of the weighted squared pixel residuals): the Gaussian prior
+            ``(p_c - p0)^T information (p_c - p0)`` added to the cost (see the module doc; each prior counts
+            ``P_c`` residuals in the degrees of freedom). A fixed camera's prior has no effect.
 
     Returns:
         :class:`RigLMResult`.
@@ -260,7 +296,26 @@ def rig_levenberg_marquardt(
     eye6 = torch.eye(6, dtype=dtype, device=device)
     count = on.sum(-1)
     floor = (w.sum((1, 2, 3)) * 1e-20).clamp_min(1e-300)  # an RMS of 1e-10 px: a perfect fit
-    problem = _RigProblem(models, layout, fi, obj, obs, sw, on, frame_used, 2 * count.sum((1, 2)), floor, eye6)
+    priors = None
+    num_residuals = 2 * count.sum((1, 2))
+    if prior is not None:
+        if len(prior) != C:
+            raise ValueError(f"prior needs one entry (or None) per camera ({C}), got {len(prior)}.")
+        priors = []
+        for c, item in enumerate(prior):
+            P = models[c].num_params
+            if item is None or not bool(free[layout[0][c]].any()):
+                priors.append(None)
+                continue
+            p0, info = item
+            if p0.shape != (B, P) or info.shape != (B, P, P):
+                raise ValueError(f"prior of camera {c} must be ({B}, {P}) and ({B}, {P}, {P}), got "
+                                 f"{tuple(p0.shape)} and {tuple(info.shape)}.")
+            info = info.to(device=device, dtype=dtype)
+            priors.append((p0.to(device=device, dtype=dtype), 0.5 * (info + info.transpose(-1, -2))))
+            num_residuals = num_residuals + P
+        priors = priors if any(p is not None for p in priors) else None
+    problem = _RigProblem(models, layout, fi, obj, obs, sw, on, frame_used, num_residuals, floor, eye6, priors)
     state = {**{f"p{c}": x[c] for c in range(C)}, "R": R.to(dtype).clone(), "T": T.to(dtype).clone(), "Rf": Rf, "tf": tf}
     sol = schur_lm(problem, state, max_iters=max_iters, ftol=ftol, xtol=xtol, lambda_init=lambda_init,
                    check_every=check_every, stall_tol=stall_tol, absolute_weights=absolute_weights)
@@ -273,4 +328,5 @@ def rig_levenberg_marquardt(
     return RigLMResult(
         params=x, R=Rx, T=Tx, frame_R=Rf, frame_t=tf, cost=sol.cost, sq_error=sq, count=count, covariance=cov,
         sigma2=sol.sigma2, iterations=sol.iterations, converged=sol.converged, frame_used=frame_used,
+        prior_cost=sol.equations.get("prior_cost"),
     )

@@ -7,10 +7,18 @@ Pipeline of :class:`RigSolver` (each step a module of its own):
 2. every camera's pose relative to camera 0: robust means over shared frames, chained over the maximum spanning tree
    of the co-visibility graph (cameras not connected to camera 0: ``ValueError`` naming them and their shared frames);
 3. one joint Levenberg-Marquardt (:mod:`~ccs_kornia.modules.rig.rig_lm`) over all intrinsics, the extrinsics
-   of cameras ``1..C-1`` and one board pose per frame (frame poses eliminated by a Schur complement), then an outlier
-   check of every camera x frame observation (RMS above ``max(abs, rel * median)``) and a second fit without them;
-4. figures (:mod:`~ccs_kornia.modules.rig.rig_diagnostics`): covariance -> baseline, rotation and intrinsics
-   standard deviations; epipolar RMS on the fit frames and on frames held out (k-fold over frames); the verdict.
+   of cameras ``1..C-1`` and one board pose per frame (frame poses eliminated by a Schur complement); each camera's
+   intrinsics carry a prior, the information its own views give it alone (``intrinsics_prior``), so the rig cannot
+   drag them beyond what those views allow (the prior is held in the units of the rig's own residuals: a camera the
+   one-pose-per-frame fit leaves with k times the squared error its noise explains is held by k - 1 times its own
+   views' information, so a consistent rig is not held and an inconsistent one firmly);
+4. frames that one board pose does not explain (a board that moved between the cameras' exposures, a mis-paired
+   frame: :mod:`~ccs_kornia.modules.rig.frame_consistency`) are down-weighted by a robust kernel of their
+   disagreement and the rig fitted again (``frame_kernel``, ``frame_passes``); then an outlier check of every
+   camera x frame observation (RMS above ``max(abs, rel * median)``) and a fit without them;
+5. figures (:mod:`~ccs_kornia.modules.rig.rig_diagnostics`): covariance -> baseline, rotation and intrinsics
+   standard deviations; how far each intrinsic moved in units of its single-camera 1-sigma; epipolar RMS on the fit
+   frames and on frames held out (k-fold over frames); the links between cameras, the session's advice; the verdict.
 
 Nothing requires a camera to see the whole board or every frame: partial boards and missing frames only change the
 weights. Cameras of different models (pinhole and fisheye) mix in one rig.
@@ -27,12 +35,19 @@ from torch import nn
 from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
+from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.outliers import drop_outliers
 from ccs_kornia.modules.calibration.quality.diagnostics import split_views
 from ccs_kornia.modules.rig.board_symmetry import (
     align_frame_orders,
     board_symmetries,
     undo_symmetry,
+)
+from ccs_kornia.modules.rig.frame_consistency import (
+    FrameKernel,
+    board_motion,
+    frame_disagreement,
+    own_view_errors,
 )
 from ccs_kornia.modules.rig.rig_camera import RIG_MODELS, RigCamera, camera_from_params
 from ccs_kornia.modules.rig.rig_diagnostics import (
@@ -42,10 +57,23 @@ from ccs_kornia.modules.rig.rig_diagnostics import (
 )
 from ccs_kornia.modules.rig.rig_init import initial_rig_cameras, rig_extrinsics
 from ccs_kornia.modules.rig.rig_lm import rig_layout, rig_levenberg_marquardt
+from ccs_kornia.modules.rig.session_advice import session_advice, shared_frames
 from ccs_kornia.modules.rig.stereo import StereoPair, stereo_pair
 from ccs_kornia.runtime.threads import small_problem_threads
 
-__all__ = ["RigCamera", "RigResult", "RigSolver", "calibrate_rig"]
+__all__ = ["DRAGGED_EXCESS", "FRAME_SCALE", "FRAME_SCALE_MIN_PX", "PRIOR_INFLATION", "RigCamera", "RigResult", "RigSolver",
+           "calibrate_rig"]
+
+#: default ``intrinsics_prior``: the prior's information is divided by this factor; see ``docs/rig.md`` for the
+#: measurement behind it
+PRIOR_INFLATION = 1.0
+#: a camera whose squared error under the rig exceeds what its noise explains by this factor (1: twice) has been
+#: dragged by the rig's frames: its intrinsics' move counts in the verdict and the advice
+DRAGGED_EXCESS = 1.0
+#: a frame's disagreement is weighed against this many times the median per-view RMS of the cameras' own poses ...
+FRAME_SCALE = 3.0
+#: ... and never against less than this (px)
+FRAME_SCALE_MIN_PX = 0.1
 
 
 @dataclass
@@ -77,6 +105,26 @@ class RigResult:
     #: (C, F) int64: 0 where a camera's corners were used in the detector's numbering, k > 0 where they were
     #: renumbered by the board's k-th symmetry (1: the 180-degree turn, i.e. reversed) to agree with the frame
     corner_order: torch.Tensor | None = None
+    #: per camera the intrinsics the joint fit started from (its own calibration, or the given ``initial``)
+    single_cameras: list[RigCamera] | None = None
+    #: per camera the 1-sigma of (fx, fy, cx, cy, coeffs...) from its own views alone (zeros where fixed)
+    single_std: list[torch.Tensor] | None = None
+    #: per camera (joint - single) / single 1-sigma of every intrinsic (0 where fixed)
+    intrinsics_moved_sigma: list[torch.Tensor] | None = None
+    #: (F,) px: how much worse one board pose explains the frame's cameras than each camera's own pose (NaN for
+    #: frames with fewer than two cameras; :mod:`~ccs_kornia.modules.rig.frame_consistency`)
+    frame_disagreement: torch.Tensor | None = None
+    #: (F,) the robust weight each frame had in the final fit (1: fully counted)
+    frame_weight: torch.Tensor | None = None
+    #: (F,) px per frame period the board moved in the image around the frame (NaN without frame times/neighbours)
+    frame_motion: torch.Tensor | None = None
+    frame_scale: float = float("nan")  #: px, the scale of the frame kernel
+    #: (C, C) effective shared frames of each pair (the frame weights of the frames both cameras use)
+    shared_frames: torch.Tensor | None = None
+    advice: list[str] = field(default_factory=list)  #: what the next session should record differently
+    #: (C,) how firmly each camera's intrinsics were held: its prior's information over its own views' (the rig's
+    #: squared error of the camera over what its noise explains, less 1, over ``intrinsics_prior``); 0 without prior
+    prior_weight: torch.Tensor | None = None
 
     def pair(self, i: int, j: int) -> StereoPair:
         """Pose of camera ``j`` relative to camera ``i`` (``x_j = R x_i + T``) with ``E`` and ``F``."""
@@ -140,6 +188,15 @@ class RigSolver(nn.Module):
             180-degree turn; also 90 degrees for square grids), differently per camera and frame: each observation
             is renumbered to agree with the frame's reference camera
             (:mod:`~ccs_kornia.modules.rig.board_symmetry`; ``RigResult.corner_order`` says where).
+        intrinsics_prior: each free camera's intrinsics carry a Gaussian prior at its own calibration: the
+            information of its own views times ``k - 1`` (``k``: the camera's squared error under the rig over what
+            its noise explains; the first fit takes 1) divided by this factor; ``None``: no prior (the intrinsics
+            move wherever the joint fit takes them).
+        frame_kernel: :class:`~ccs_kornia.modules.rig.frame_consistency.FrameKernel` (or its name) weighting each
+            frame by its disagreement; ``none``: every frame counts fully.
+        frame_scale: px, the kernel's scale; default ``max(FRAME_SCALE * median own-pose view RMS,
+            FRAME_SCALE_MIN_PX)``.
+        frame_passes: reweighting passes (each a joint fit).
 
     Shape:
         corners :math:`(C, F, N, 2)` or :math:`(B, C, F, N, 2)` px (NaN where not seen), valid :math:`(C, F, N)` /
@@ -171,6 +228,10 @@ class RigSolver(nn.Module):
         min_heldout_frames: int = 4,
         thresholds: RigVerdictThresholds | None = None,
         symmetric_board: bool = True,
+        intrinsics_prior: float | None = PRIOR_INFLATION,
+        frame_kernel: FrameKernel | str = FrameKernel.CAUCHY,
+        frame_scale: float | None = None,
+        frame_passes: int = 2,
     ) -> None:
         super().__init__()
         for m in [models] if isinstance(models, str) else models:
@@ -188,6 +249,14 @@ class RigSolver(nn.Module):
         self.min_heldout_frames = max(int(min_heldout_frames), 2)
         self.thresholds = thresholds or RigVerdictThresholds()
         self.symmetric_board = bool(symmetric_board)
+        if intrinsics_prior is not None and not intrinsics_prior > 0:
+            raise ValueError(f"intrinsics_prior must be positive or None, got {intrinsics_prior}.")
+        self.intrinsics_prior = None if intrinsics_prior is None else float(intrinsics_prior)
+        self.frame_kernel = FrameKernel(frame_kernel)
+        if frame_scale is not None and not frame_scale > 0:
+            raise ValueError(f"frame_scale must be positive or None, got {frame_scale}.")
+        self.frame_scale = None if frame_scale is None else float(frame_scale)
+        self.frame_passes = max(int(frame_passes), 0)
 
     def forward(
         self,
@@ -199,6 +268,7 @@ class RigSolver(nn.Module):
         fixed: Sequence[bool] | None = None,
         names: Sequence[str] | None = None,
         weights: torch.Tensor | None = None,
+        frame_times: torch.Tensor | None = None,
     ) -> RigResult | list[RigResult]:
         """Calibrate (see the class doc).
 
@@ -211,6 +281,8 @@ class RigSolver(nn.Module):
             fixed: per camera: keep its intrinsics at ``initial`` exactly.
             names: camera names (default ``cam0, cam1, ...``).
             weights: per-corner inverse variances, shaped as ``valid``.
+            frame_times: :math:`(F,)` the frames' times (seconds, or frame numbers; NaN where unknown): the board's
+                motion around each frame is measured from its neighbours in time (``RigResult.frame_motion``).
 
         Raises:
             ValueError: bad shapes or options; cameras not connected to camera 0 through shared frames.
@@ -230,14 +302,18 @@ class RigSolver(nn.Module):
                 raise ValueError(f"{names[c]} is fixed but has no initial camera to keep.")
             if initial[c] is not None and initial[c].model != models[c]:
                 raise ValueError(f"{names[c]}: initial camera model {initial[c].model!r} differs from {models[c]!r}.")
+        if frame_times is not None and (not isinstance(frame_times, torch.Tensor) or
+                                        frame_times.shape != (corners.shape[-3],)):
+            raise ValueError(f"frame_times must be ({corners.shape[-3]},), got "
+                             f"{tuple(getattr(frame_times, 'shape', ()))}.")
         with torch.inference_mode(), small_problem_threads(corners.shape[:-1].numel(), corners.device):
             out = self._solve(corners, valid, object_points, [tuple(map(int, s)) for s in image_sizes], models,
-                              initial, fixed, names, weights, batched)
+                              initial, fixed, names, weights, batched, frame_times)
         if not torch.is_inference_mode_enabled():  # ordinary tensors out (inference tensors refuse in-place edits)
             out = [_clone(r) for r in out]
         return out if batched else out[0]
 
-    def _solve(self, corners, valid, obj, sizes, models, initial, fixed, names, weights, batched):
+    def _solve(self, corners, valid, obj, sizes, models, initial, fixed, names, weights, batched, frame_times=None):
         B, C, F, N = corners.shape[:4]
         dtype, device = self.dtype, corners.device
         corners = corners.to(dtype)
@@ -284,13 +360,51 @@ class RigSolver(nn.Module):
             if fixed[c]:
                 free[intr[c]] = False
 
+        priors, single_std, single_params = self._priors(lm_models, params, rvec, tvec, obj, corners, base_w, used,
+                                                         fixed)
+        frame_w = torch.ones(B, F, dtype=dtype, device=device)
+        prior_scale = torch.ones(B, C, dtype=dtype, device=device)
+
         def fit(use, p, R, T, fR, ft, iters=self.max_iters):
             k = use.shape[0] // B  # the held-out folds stack k copies of the rigs
-            w = base_w.repeat(k, 1, 1, 1) * use[..., None].to(dtype)
+            w = (base_w * frame_w[:, None, :, None]).repeat(k, 1, 1, 1) * use[..., None].to(dtype)
+            prior = None if priors is None else [
+                None if q is None else (q[0].repeat(k, 1), (q[1] * prior_scale[:, c, None, None]).repeat(k, 1, 1))
+                for c, q in enumerate(priors)]
             return rig_levenberg_marquardt(lm_models, p, R, T, fR, ft, obj, corners.repeat(k, 1, 1, 1, 1), w, free,
-                                           max_iters=iters, ftol=self.ftol, stall_tol=self.stall_tol)
+                                           max_iters=iters, ftol=self.ftol, stall_tol=self.stall_tol, prior=prior)
+
+        def consistency(res, use):
+            """(B, F) frame disagreements, (B,) the median own-pose view RMS of each rig and (B, C) how much more
+            than its own poses the rig's one pose per frame leaves of each camera's squared error, beyond what the
+            noise alone leaves (frames weighted as in the fit; 0 for a consistent rig)."""
+            w = base_w * use[..., None].to(dtype)
+            own = own_view_errors(lm_models, res.params, res.R, res.T, res.frame_R, res.frame_t, obj, corners, w)
+            _, per_frame = frame_disagreement(res.sq_error, own, res.count, use)
+            own_rms = (own / res.count.clamp_min(1)).sqrt().masked_fill(~use, float("nan")).flatten(1)
+            fw = frame_w[:, None] * use.to(dtype)
+            n = torch.where(use, res.count, 0).to(dtype)
+            # the noise's share: a camera's 2n residuals less its share of the frame's 6 pose unknowns (n / N_f of
+            # them under the rig, all 6 under its own pose)
+            rig_dof = (2 * n - 6 * n / n.sum(1, keepdim=True).clamp_min(1)).clamp_min(0)
+            own_dof = (2 * n - 6).clamp_min(0)
+            expected = (fw * rig_dof).sum(-1) / (fw * own_dof).sum(-1).clamp_min(1e-300)
+            ratio = (fw * res.sq_error).sum(-1) / (fw * own).sum(-1).clamp_min(1e-300)
+            excess = (ratio / expected.clamp_min(1e-300) - 1.0).nan_to_num(0.0).clamp_min(0.0)
+            return per_frame, own_rms.nanmedian(-1).values, excess
 
         res = fit(used, params, R0, T0, frame_R, frame_t)
+        scale = torch.full((B,), float("nan"), dtype=dtype, device=device)
+        passes = self.frame_passes if (self.frame_kernel.reweights or priors is not None) else 0
+        for _ in range(passes):  # frames one board pose does not explain count less (iteratively reweighted)
+            d, own_rms, ratio = consistency(res, used)
+            scale = self._scale(own_rms)
+            frame_w = self.frame_kernel.weights(d, scale[:, None])
+            # the priors in the units of the rig's own residuals, less the camera's own views the rig's data already
+            # hold: a camera the one-pose-per-frame fit leaves with k times the squared error the noise explains is
+            # held by k - 1 times its own views' information (none in a consistent rig)
+            prior_scale = ratio
+            res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
         for _ in range(2):  # outlier observations (camera x frame), then fit again without them
             rms = (res.sq_error / res.count.clamp_min(1)).sqrt()
             keep = drop_outliers(rms, used, used, self.outlier_abs_threshold, self.outlier_rel_threshold, 2)
@@ -298,10 +412,54 @@ class RigSolver(nn.Module):
                 break
             used = keep
             res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
+        d_final, own_rms, final_excess = consistency(res, used)
+        if not bool(scale.isfinite().any()):
+            scale = self._scale(own_rms)
+        motion = torch.full((B, F), float("nan"), dtype=dtype, device=device)
+        if frame_times is not None:
+            motion = board_motion(lm_models, res.params, res.R, res.T, res.frame_R, res.frame_t, obj, used,
+                                  frame_times)
+        fc = {"disagreement": d_final, "weight": frame_w, "motion": motion, "scale": scale}
+        single = {"params": single_params, "std": single_std, "excess": final_excess,
+                  "prior_scale": prior_scale if priors is not None else torch.zeros_like(prior_scale)}
 
         held = self._heldout(fit, res, used, corners, valid, models, B, C)
         return [self._result(b, res, used, corners, valid, models, names, sizes, failed[b], ext, intr, held[b],
-                             order[b]) for b in range(B)]
+                             order[b], fc, single, fixed, obj) for b in range(B)]
+
+    def _scale(self, own_rms: torch.Tensor) -> torch.Tensor:
+        """(B,) px: the frame kernel's scale (the given one, else from each rig's median own-pose view RMS)."""
+        if self.frame_scale is not None:
+            return torch.full_like(own_rms, self.frame_scale)
+        return (FRAME_SCALE * own_rms).nan_to_num(FRAME_SCALE_MIN_PX).clamp_min(FRAME_SCALE_MIN_PX)
+
+    def _priors(self, lm_models, params, rvec, tvec, obj, corners, weights, used, fixed):
+        """Per camera ``(p0, information / intrinsics_prior)`` (``None`` where fixed or without a prior: all
+        ``None`` gives ``None``), per camera the 1-sigma of its intrinsics from its own views alone (B, P) and
+        ``p0`` (B, P) (the start where fixed).
+
+        ``p0`` is the camera's calibration on its own views of the rig (its corners and weights), refined from its
+        start (its own calibration, or the given ``initial``, which is then a start and not the prior's centre);
+        the information is its own views' normal equations there, the board poses eliminated; directions its views
+        do not determine carry no information, hence no pull."""
+        priors, std, centres = [], [], []
+        for c, model in enumerate(lm_models):
+            w = weights[:, c] * used[:, c, :, None].to(weights.dtype)
+            if fixed[c] or not bool((w > 0).any()):
+                priors.append(None)
+                std.append(torch.zeros_like(params[c]))
+                centres.append(params[c])
+                continue
+            own = levenberg_marquardt(model, params[c], rvec[:, c], tvec[:, c], obj, corners[:, c], w,
+                                      max_iters=self.max_iters, ftol=self.ftol)
+            has = (w > 0).flatten(1).any(-1) & own.params.isfinite().all(-1) & own.cost.isfinite()
+            info = own.basis @ own.information @ own.basis.transpose(-1, -2)
+            p0 = torch.where(has[:, None], own.params, params[c])
+            std.append(torch.where(has[:, None], own.param_std, 0.0))
+            centres.append(p0)
+            priors.append(None if self.intrinsics_prior is None else
+                          (p0, torch.where(has[:, None, None], info / self.intrinsics_prior, 0.0)))
+        return (priors if any(p is not None for p in priors) else None), std, centres
 
     def _heldout(self, fit, res, used, corners, valid, models, B, C):
         """Per rig (C, C) epipolar RMS on held-out frames: k folds over the used frames, all refitted at once."""
@@ -338,7 +496,8 @@ class RigSolver(nn.Module):
             held.append(h)
         return held
 
-    def _result(self, b, res, used, corners, valid, models, names, sizes, failed, ext, intr, held, order) -> RigResult:
+    def _result(self, b, res, used, corners, valid, models, names, sizes, failed, ext, intr, held, order, fc,
+                single, fixed, obj) -> RigResult:
         C, F = used.shape[1:]
         dtype = res.R.dtype
         nan = float("nan")
@@ -366,9 +525,24 @@ class RigSolver(nn.Module):
         epi.fill_diagonal_(0.0)
         success = not failed and bool(res.frame_used[b].any()) and bool(torch.isfinite(cam_rms).all())
         reason = failed or ("" if success else "the joint fit failed (no finite solution)")
+        singles = [camera_from_params(models[c], single["params"][c][b].clone()) for c in range(C)]
+        sstd = [single["std"][c][b].clone() for c in range(C)]
+        moved = [torch.where(sstd[c] > 0, (res.params[c][b] - single["params"][c][b]) / sstd[c].clamp_min(1e-300),
+                             0.0) for c in range(C)]
+        # moves of the cameras the rig explains worse than their noise (in a consistent rig a move is what the shared
+        # frames know better, not a drag): those the verdict and the advice speak of
+        excess = single["excess"][b]
+        dragged = [m if float(excess[c]) >= DRAGGED_EXCESS else torch.zeros_like(m) for c, m in enumerate(moved)]
+        fw = fc["weight"][b].masked_fill(~u.any(0), float("nan"))
+        shared = shared_frames(u, fc["weight"][b])
+        advice = session_advice(names, sizes, [camera_model(m) for m in models], [p[b] for p in res.params], res.R[b],
+                                T, res.frame_R[b], res.frame_t[b], obj, corners[b], valid[b], u,
+                                fc["disagreement"][b], fw, fc["motion"][b], shared, dragged, fixed) if success else []
         if success:
             verdict, reasons = rig_verdict(names, sizes, cam_rms, epi, held, T.norm(dim=-1), bstd, rstd,
-                                           self.thresholds)
+                                           self.thresholds, converged=bool(res.converged[b]),
+                                           iterations=int(res.iterations[b]),
+                                           moved_sigma=[float(m.abs().max()) if m.numel() else 0.0 for m in dragged])
         else:
             verdict, reasons = f"not reliable: {reason}", [reason]
         return RigResult(
@@ -377,6 +551,12 @@ class RigSolver(nn.Module):
             camera_rms=cam_rms, rms=total, baseline_std=bstd, rotation_std_deg=rstd, intrinsics_std=istd,
             epipolar_rms=epi, heldout_epipolar_rms=held, verdict=verdict, reasons=reasons,
             converged=bool(res.converged[b]), iterations=int(res.iterations[b]), corner_order=order.clone(),
+            single_cameras=singles, single_std=sstd, intrinsics_moved_sigma=moved,
+            frame_disagreement=fc["disagreement"][b].clone(), frame_weight=fw, frame_motion=fc["motion"][b].clone(),
+            frame_scale=float(fc["scale"][b]), shared_frames=shared, advice=advice,
+            prior_weight=torch.tensor([0.0 if fixed[c] or self.intrinsics_prior is None else
+                                       float(single["prior_scale"][b, c]) / self.intrinsics_prior for c in range(C)],
+                                      dtype=dtype, device=T.device),
         )
 
 
@@ -418,8 +598,10 @@ def calibrate_rig(
     fixed: Sequence[bool] | None = None,
     names: Sequence[str] | None = None,
     weights: torch.Tensor | None = None,
+    frame_times: torch.Tensor | None = None,
     **kwargs,
 ) -> RigResult | list[RigResult]:
     """Functional form of :class:`RigSolver` (``kwargs`` go to its constructor)."""
-    return RigSolver(models, **kwargs)(corners, valid, object_points, image_sizes, initial, fixed, names, weights)
+    return RigSolver(models, **kwargs)(corners, valid, object_points, image_sizes, initial, fixed, names, weights,
+                                       frame_times)
 

@@ -14,8 +14,10 @@ from ccs_kornia.geometry.camera import (
 )
 from ccs_kornia.modules.calibration.model_selection import (
     AUTO_MODELS,
+    FLEXIBLE_MODELS,
     ModelSelection,
     choose_models,
+    narrow_ranking,
     rank_models,
     tied_with_best,
 )
@@ -82,6 +84,31 @@ def test_module_picks_fisheye_for_a_fisheye_and_a_polynomial_model_for_a_pinhole
         select(uv[0], valid[0], OBJ, (640, 480))
     with pytest.raises(ValueError, match="at least one"):
         ModelSelection({})
+
+
+def test_narrow_ranking():
+    # boards too narrow: the first tied model that is not flexible goes first, the others keep their order
+    assert narrow_ranking(["rational", "opencv5", "k1k2"], ["rational", "opencv5", "k1k2"]) == \
+        ["opencv5", "rational", "k1k2"]
+    assert narrow_ranking(["fisheye", "rational", "k1k2"], ["fisheye", "rational", "k1k2"])[0] == "k1k2"
+    # no other model ties (a fisheye lens), or the first is not flexible: unchanged
+    assert narrow_ranking(["fisheye", "opencv5"], ["fisheye"]) == ["fisheye", "opencv5"]
+    assert narrow_ranking(["opencv5", "rational"], ["opencv5", "rational"]) == ["opencv5", "rational"]
+    assert narrow_ranking([], []) == [] and set(FLEXIBLE_MODELS) == {"rational", "fisheye"}
+
+
+def test_flexible_coverage_keeps_the_models_a_lens_needs():
+    uv, K, K2 = _two_cameras()
+    valid = torch.ones(2, 12, 54, dtype=torch.bool) & uv.isfinite().all(-1)
+    # every camera counts as narrow: the fisheye lens keeps fisheye (no other model predicts its views as well)
+    select = ModelSelection({m: CalibrationSolver(model=m) for m in AUTO_MODELS}, flexible_coverage=1.01)
+    _, chosen, table = select(uv, valid, OBJ, (640, 480))
+    assert chosen[0] == "fisheye" and chosen[1] not in FLEXIBLE_MODELS
+    for row in table:
+        assert 0.0 < row["coverage"] <= 1.0 and row["flexible_coverage"] == 1.01
+        assert "only where the boards cover at least 101 %" in row["rule"]
+    plain = ModelSelection({m: CalibrationSolver(model=m) for m in AUTO_MODELS})(uv, valid, OBJ, (640, 480))[2]
+    assert "coverage" not in plain[0]
 
 
 def test_models_solved_elsewhere_give_the_same_choice():
