@@ -208,7 +208,7 @@ class BenchConfig:
             rig_session_trials=1, rig_session_conditions=("handheld",), rig_session_caliscope=False,
             markers_views=2, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
             markers_real_sets=("charuco_opencv_tutorial",),
-            video_recordings=1, video_seconds=12.0, video_size=(640, 360), video_heldout_seconds=6.0,
+            video_recordings=1, video_seconds=8.0, video_size=(640, 360), video_heldout_seconds=6.0,
             video_heldout_frames=8, video_real_cameras=(0,), video_real_rig=False,
         )
         return replace(base, **overrides)
