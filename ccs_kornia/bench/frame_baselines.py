@@ -33,7 +33,7 @@ def uniform_frames(candidates: Sequence[int], count: int) -> list[int]:
         return cand
     if count <= 1:
         return cand[:max(0, count)]
-    picks = sorted({cand[int(round(k))] for k in np.linspace(0, len(cand) - 1, count)})
+    picks = sorted({cand[round(k)] for k in np.linspace(0, len(cand) - 1, count)})
     return picks
 
 

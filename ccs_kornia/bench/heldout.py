@@ -90,7 +90,8 @@ def heldout_errors(K: np.ndarray, dist: np.ndarray, model: str, obj: np.ndarray,
 
 
 def transfer_errors(cameras: Sequence[tuple[np.ndarray, np.ndarray, str]], R: Sequence[np.ndarray],
-                    T: Sequence[np.ndarray], obj: np.ndarray, frames: Sequence[Sequence[np.ndarray | None]]) -> np.ndarray:
+                    T: Sequence[np.ndarray], obj: np.ndarray,
+                    frames: Sequence[Sequence[np.ndarray | None]]) -> np.ndarray:
     """Squared errors (px²) of a rig's held-out instants carried from camera to camera.
 
     Args:

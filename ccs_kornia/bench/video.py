@@ -108,7 +108,10 @@ def _camera(result):
 
 def _truth_figures(camera, K_true: np.ndarray, dist_true: np.ndarray, size: tuple[int, int]) -> dict:
     """E_FL, E_PP and the RMS projection difference over the image (rotation fitted out) against a known camera."""
-    from ccs_kornia.modules.calibration.quality.uncertainty import image_points, projection_difference
+    from ccs_kornia.modules.calibration.quality.uncertainty import (
+        image_points,
+        projection_difference,
+    )
 
     K, dist, _ = camera
     px = image_points(size, (16, 12))
@@ -239,7 +242,7 @@ def _rendered(cfg, seed: int, folder: Path, log) -> dict:
         if code == 0:
             import json
 
-            data = json.load(open(output))
+            data = json.loads(Path(output).read_text())
             screened_n = sum(len(v["frames"]) for v in data["video"])
             screening_s = sum(v["screening_s"] for v in data["video"])
             K = np.array(data["K"])
@@ -475,36 +478,40 @@ def _f(x, digits: int = 3) -> str:
 
 def video_md(sec: dict) -> list[str]:
     """The section's markdown."""
-    lines = [f"Frame choices solved with one model (`{sec['model']}`); the command's selection keeps at most "
+    lines = [(f"Frame choices solved with one model (`{sec['model']}`); the command's selection keeps at most "
              f"{sec['max_frames']} frames. Load average at the start of the section: {_f(sec.get('load_average'), 1)} "
-             "(timings on a loaded machine are upper bounds).", ""]
+             "(timings on a loaded machine are upper bounds)."), ""]
     for r in sec.get("rendered", []):
-        lines += [f"**Rendered recording, seed {r['seed']}** ({r['size'][0]}x{r['size'][1]}, {r['frames']} frames at "
+        lines += [(f"**Rendered recording, seed {r['seed']}** ({r['size'][0]}x{r['size'][1]}, {r['frames']} frames at "
                   f"30 fps, board seen by the screen in {r['board_seen']}; the full detector on every one of those at "
                   f"{_f(r['detect_fps'], 1)} frames/s; screening {_f(r['screening_fps'], 0)} frames/s, "
                   f"{sec['jobs']} processes; held-out frames: {r['heldout_frames']['still']} still, "
-                  f"{r['heldout_frames']['moving']} moving):", ""]
-        lines += ["| frames | count | E_FL px | E_PP px | projection vs truth, RMS px | held-out RMS px | held-out (still) "
-                  "RMS px |", "|---|---|---|---|---|---|---|"]
+                  f"{r['heldout_frames']['moving']} moving):"), ""]
+        lines += [("| frames | count | E_FL px | E_PP px | projection vs truth, RMS px | held-out RMS px "
+                   "| held-out (still) "
+                  "RMS px |"), "|---|---|---|---|---|---|---|"]
         for m, e in r["methods"].items():
             lines.append(f"| {m} | {e['frames']} | {_f(e.get('efl'))} | {_f(e.get('epp'))} | {_f(e.get('proj_rms'))} | "
                          f"{_f(e.get('heldout_rms'), 4)} | {_f(e.get('heldout_still_rms'), 4)} |")
         cmd = r.get("command")
         if cmd:
             if cmd.get("exit") == 0:
-                lines += ["", f"`calibrate VIDEO` end to end ({cmd['model']}, {cmd['kept']} of {cmd['candidates']} "
-                          f"candidate frames kept): {_f(cmd['wall_s'], 1)} s wall, peak memory {_f(cmd['peak_mb'], 0)} MB "
+                lines += ["", (f"`calibrate VIDEO` end to end ({cmd['model']}, {cmd['kept']} of {cmd['candidates']} "
+                          f"candidate frames kept): {_f(cmd['wall_s'], 1)} s wall, "
+                          f"peak memory {_f(cmd['peak_mb'], 0)} MB "
                           f"(PSS of its processes), screening {_f(cmd['screening_fps'], 0)} frames/s; E_FL "
-                          f"{_f(cmd['efl'])} px, E_PP {_f(cmd['epp'])} px, projection vs truth {_f(cmd['proj_rms'])} px, "
-                          f"held-out (still) {_f(cmd.get('heldout_still_rms'), 4)} px."]
+                          f"{_f(cmd['efl'])} px, E_PP {_f(cmd['epp'])} px, "
+                          f"projection vs truth {_f(cmd['proj_rms'])} px, "
+                          f"held-out (still) {_f(cmd.get('heldout_still_rms'), 4)} px.")]
             else:
                 lines += ["", f"`calibrate VIDEO` failed (exit {cmd.get('exit')})."]
         lines.append("")
     real = sec.get("real")
     if real:
-        lines += ["**The shared real recording** (caliscope, four webcams, 48 frames each at 6 fps): held-out RMS px of "
+        lines += [("**The shared real recording** (caliscope, four webcams, 48 frames each at 6 fps): "
+                   "held-out RMS px of "
                   "each fold (a choice made on alternate blocks of 8 frames, judged on the other blocks' frames; n/a: "
-                  "a fold without frames), frames chosen per fold:", "",
+                  "a fold without frames), frames chosen per fold:"), "",
                   "| camera | board in | " + " | ".join(METHODS) + " |", "|---|---|" + "---|" * len(METHODS)]
         for cam in real["cameras"]:
             cells = []
@@ -513,8 +520,8 @@ def video_md(sec: dict) -> list[str]:
                 ho = " / ".join(_f(v, 3) for v in e["heldout_rms"]) or "n/a"
                 cells.append(f"{ho} ({' + '.join(str(n) for n in e['frames'])})")
             lines.append(f"| cam_{cam['camera']} | {cam['found']} of {cam['frames']} | " + " | ".join(cells) + " |")
-        lines += ["", "On the whole recording, against caliscope's published calibration (E_FL / E_PP px; that "
-                  "calibration is no ground truth: the boards cover 3-7 % of these images):", "",
+        lines += ["", ("On the whole recording, against caliscope's published calibration (E_FL / E_PP px; that "
+                  "calibration is no ground truth: the boards cover 3-7 % of these images):"), "",
                   "| camera | " + " | ".join(METHODS) + " |", "|---|" + "---|" * len(METHODS)]
         for cam in real["cameras"]:
             cells = []
@@ -525,9 +532,10 @@ def video_md(sec: dict) -> list[str]:
             lines.append(f"| cam_{cam['camera']} | " + " | ".join(cells) + " |")
         rig = real.get("rig")
         if rig:
-            lines += ["", "Rig of the four cameras (`timestamps.csv`, frames chosen as instants), held-out transfer RMS "
+            lines += ["", ("Rig of the four cameras (`timestamps.csv`, frames chosen as instants), "
+                           "held-out transfer RMS "
                       "px of each fold (the board posed in one camera, projected into the others, on the other "
-                      "blocks' instants):", "", "| instants | fold 1 | fold 2 |", "|---|---|---|"]
+                      "blocks' instants):"), "", "| instants | fold 1 | fold 2 |", "|---|---|---|"]
             for m, folds in rig["methods"].items():
                 lines.append(f"| {m} | " + " | ".join(f"{_f(e['transfer_rms'])} ({e['instants']} instants)"
                                                      for e in folds) + " |")

@@ -45,9 +45,26 @@ from ccs_kornia.modules.calibration.quality.view_information import (
 )
 from ccs_kornia.pipeline.result import PipelineResult, corner_weights_of
 
-__all__ = ["CameraViews", "FrameChoice", "FrameSelection", "MAX_BLUR", "MAX_SPEED", "MAX_SYNC_PX", "MIN_CHANGE",
-           "MIN_GAIN", "MIN_KEEP", "SPEED_SCALE", "SYNC_SCALE_PX", "camera_views", "choose_frames", "keep_views",
-           "motion_weight", "near_copies", "select_views", "solve_chosen"]
+__all__ = [
+    "MAX_BLUR",
+    "MAX_SPEED",
+    "MAX_SYNC_PX",
+    "MIN_CHANGE",
+    "MIN_GAIN",
+    "MIN_KEEP",
+    "SPEED_SCALE",
+    "SYNC_SCALE_PX",
+    "CameraViews",
+    "FrameChoice",
+    "FrameSelection",
+    "camera_views",
+    "choose_frames",
+    "keep_views",
+    "motion_weight",
+    "near_copies",
+    "select_views",
+    "solve_chosen",
+]
 
 #: a view whose median corner precision is worse than this many times the candidates' median is blurred
 MAX_BLUR = 2.0
@@ -410,7 +427,7 @@ def _copies(cameras: Sequence[CameraViews | None], views: list[list[int | None]]
             min_change: float) -> torch.Tensor:
     """:math:`(F, F)`: frame ``v`` nearly copies frame ``u`` in every camera whose view of ``v`` counts (and that
     camera's view of ``u`` counts too)."""
-    C, F = sharp.shape
+    _C, F = sharp.shape
     out = torch.ones(F, F, dtype=torch.bool)
     any_view = torch.zeros(F, dtype=torch.bool)
     for c, cam in enumerate(cameras):

@@ -34,9 +34,14 @@ import torch
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.geometry.so3 import exp_so3
-from ccs_kornia.modules.calibration.quality.uncertainty import _project_rays, _rays, _remove_rotation, image_points
+from ccs_kornia.modules.calibration.quality.uncertainty import (
+    _project_rays,
+    _rays,
+    _remove_rotation,
+    image_points,
+)
 
-__all__ = ["GreedyChoice", "PRIOR", "greedy_information", "image_information", "view_information"]
+__all__ = ["PRIOR", "GreedyChoice", "greedy_information", "image_information", "view_information"]
 
 #: the information every camera starts from, per parameter, as a fraction of its average view's (in units where each
 #: parameter's total information is 1): keeps the first choices defined while fewer views than parameters are taken
@@ -79,7 +84,7 @@ def view_information(
     if K.dim() != 3 or rvec.dim() != 3 or rvec.shape != tvec.shape or weights.shape[:2] != rvec.shape[:2]:
         raise ValueError(f"Expected K (C, 3, 3), rvec/tvec (C, V, 3), weights (C, V, N); got {tuple(K.shape)}, "
                          f"{tuple(rvec.shape)}, {tuple(tvec.shape)}, {tuple(weights.shape)}.")
-    C, V, N = weights.shape
+    C, _V, N = weights.shape
     K, dist, rvec, tvec = K.double(), dist.double(), rvec.double(), tvec.double()
     obj = object_points.double().to(K.device)
     obj = obj.expand(C, N, 3) if obj.dim() == 2 else obj

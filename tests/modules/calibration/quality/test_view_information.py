@@ -8,7 +8,10 @@ import pytest
 import torch
 
 from ccs_kornia.geometry.camera import board_object_points, project_points
-from ccs_kornia.modules.calibration.quality.uncertainty import image_points, projection_uncertainty
+from ccs_kornia.modules.calibration.quality.uncertainty import (
+    image_points,
+    projection_uncertainty,
+)
 from ccs_kornia.modules.calibration.quality.view_information import (
     greedy_information,
     image_information,
@@ -60,7 +63,7 @@ def test_image_weights_give_the_mean_projection_uncertainty(solved):
 
 
 def test_shapes_of_a_batch_and_of_a_fisheye(device):
-    uv, rvec, tvec = _views(4)
+    _uv, rvec, tvec = _views(4)
     Kb = K.expand(3, 3, 3).to(device)
     w = torch.ones(3, 4, 54, dtype=torch.float64, device=device)
     w[1, 2] = 0  # a view without corners: no information
