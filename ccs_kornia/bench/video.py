@@ -237,7 +237,8 @@ def _rendered(cfg, seed: int, folder: Path, log) -> dict:
     if cfg.video_command:
         output = folder / f"calib_{seed}.json"
         code, wall, pss, text = run_command(["calibrate", str(path), "--board", f"{BOARD[0]}x{BOARD[1]}", "--square",
-                                             str(SQUARE), "--jobs", str(workers), "--output", str(output)])
+                                             str(SQUARE), "--jobs", str(workers), "--select", "--output",
+                                             str(output)])
         command = {"exit": code, "wall_s": wall, "peak_mb": pss}
         if code == 0:
             import json

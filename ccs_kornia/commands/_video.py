@@ -74,10 +74,10 @@ def max_frames(args: argparse.Namespace) -> int:
 
 
 def selecting(args: argparse.Namespace, video: bool) -> bool:
-    """Whether the command keeps only the frames that make the best camera (the frame selection): ``--select`` /
-    ``--no-select``, else on for recordings and off for image folders."""
-    value = getattr(args, "select", None)
-    return bool(video) if value is None else bool(value)
+    """Whether the command keeps only the frames that make the best camera (the frame selection): ``--select``;
+    off by default for recordings and folders alike, because on boards covering a few per cent of the image it keeps
+    too few frames (docs/video.md, "Frame selection")."""
+    return bool(getattr(args, "select", None))
 
 
 def detector_count(args: argparse.Namespace, video: bool = True) -> int:

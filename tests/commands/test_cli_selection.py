@@ -1,4 +1,4 @@
-"""The frame selection on the command line: on for recordings, ``--select`` for image folders, ``--max-frames`` as
+"""The frame selection on the command line: ``--select`` for recordings and image folders, ``--max-frames`` as
 its cap, the JSON's reasons for every candidate left out, ``--save-frames`` (the kept frames calibrate again as a
 folder), a rig's frames judged across its cameras, and the bad uses (one line, exit status 2)."""
 
@@ -36,8 +36,9 @@ def inputs(tmp_path_factory):
             "right": write_video(str(root / "right.avi"), board_frames(30, seed=6, shift=(-0.04, 0.0, 0.0)))}
 
 
-def test_a_recording_is_selected_by_default(inputs, tmp_path, capsys):
-    code, out, err = run(capsys, "calibrate", inputs["video"], *FAST, *ONE, "--output", tmp_path / "c.json")
+def test_a_recording_is_selected_on_request(inputs, tmp_path, capsys):
+    code, out, err = run(capsys, "calibrate", inputs["video"], *FAST, *ONE, "--select", "--output",
+                         tmp_path / "c.json")
     assert code == 0, err
     data = json.loads((tmp_path / "c.json").read_text())
     selection = data["selection"]
@@ -52,9 +53,9 @@ def test_a_recording_is_selected_by_default(inputs, tmp_path, capsys):
     assert f"frame selection: kept {selection['kept']} of {selection['candidates']} candidate frames" in out
 
 
-def test_no_select_keeps_every_frame(inputs, tmp_path, capsys):
-    code, out, err = run(capsys, "calibrate", inputs["video"], *FAST, *ONE, "--no-select", "--output",
-                         tmp_path / "c.json")
+@pytest.mark.parametrize("flag", [(), ("--no-select",)], ids=["default", "no-select"])
+def test_without_the_selection_every_frame_counts(inputs, tmp_path, capsys, flag):
+    code, out, err = run(capsys, "calibrate", inputs["video"], *FAST, *ONE, *flag, "--output", tmp_path / "c.json")
     assert code == 0, err
     data = json.loads((tmp_path / "c.json").read_text())
     assert "selection" not in data and "frame selection" not in out
@@ -62,7 +63,7 @@ def test_no_select_keeps_every_frame(inputs, tmp_path, capsys):
 
 
 def test_max_frames_caps_the_frames_kept(inputs, tmp_path, capsys):
-    code, _out, err = run(capsys, "calibrate", inputs["video"], *FAST, *ONE, "--max-frames", "4", "--output",
+    code, _out, err = run(capsys, "calibrate", inputs["video"], *FAST, *ONE, "--select", "--max-frames", "4", "--output",
                          tmp_path / "c.json")
     assert code == 0, err
     data = json.loads((tmp_path / "c.json").read_text())
@@ -92,14 +93,14 @@ def test_a_folder_with_select_and_its_frames_saved(inputs, tmp_path, capsys):
 
 
 def test_save_frames_of_a_recording_and_of_a_rig(inputs, tmp_path, capsys):
-    code, _out, err = run(capsys, "calibrate", inputs["video"], *FAST, *ONE, "--save-frames", tmp_path / "one",
-                         "--output", tmp_path / "c.json")
+    code, _out, err = run(capsys, "calibrate", inputs["video"], *FAST, *ONE, "--select", "--save-frames",
+                         tmp_path / "one", "--output", tmp_path / "c.json")
     assert code == 0, err
     names = sorted(p.name for p in (tmp_path / "one").iterdir())
     assert names and all(n.startswith("cam_") and n.endswith(".png") for n in names)
     rig = tmp_path / "rig"
-    code, _out, err = run(capsys, "calibrate-rig", inputs["video"], inputs["right"], *FAST, *SOLVE, "--save-frames",
-                          rig, "--output", tmp_path / "rig.json")
+    code, _out, err = run(capsys, "calibrate-rig", inputs["video"], inputs["right"], *FAST, *SOLVE, "--select",
+                          "--save-frames", rig, "--output", tmp_path / "rig.json")
     assert code == 0, err
     data = json.loads((tmp_path / "rig.json").read_text())
     selection = data["selection"]
