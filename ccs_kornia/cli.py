@@ -254,8 +254,9 @@ def video_options(p: argparse.ArgumentParser, rig: bool = False) -> None:
     g.add_argument("--start", type=_seconds, metavar="S", help="first frame at S seconds (default: the start)")
     g.add_argument("--end", type=_seconds, metavar="S", help="last frame at S seconds (default: the end)")
     g.add_argument("--max-frames", default=None, type=_positive_int, metavar="N",
-                   help="frames of a recording (instants of a rig) the detector looks at, at most (default 60): still "
-                        "boards in poses not seen yet, chosen after a quick screening of every frame")
+                   help="frames of a recording (instants of a rig) kept at most (default 60): still boards in poses "
+                        "not seen yet are chosen after a quick screening of every frame; with the frame selection "
+                        "(--select) the detector looks at up to 1.5 times as many and the best are kept")
     if rig:
         g.add_argument("--sync-tolerance", type=_positive_float, metavar="S",
                        help="frames of two cameras pair when their timestamps differ by at most S seconds (default: "
@@ -264,6 +265,18 @@ def video_options(p: argparse.ArgumentParser, rig: bool = False) -> None:
                        help="pair the frames as this table says: sync_index,cam_id,frame_index,frame_time per row "
                             "(caliscope's layout; cam_id = the video's position on the command line; without "
                             "frame_index a camera's rows are its frames in order)")
+
+
+def selection_options(p: argparse.ArgumentParser) -> None:
+    """``--select/--no-select`` and ``--save-frames DIR``."""
+    g = p.add_argument_group("frame selection")
+    g.add_argument("--select", action=argparse.BooleanOptionalAction, default=None,
+                   help="keep only the frames that make the best camera: still, sharp, not a near copy of one kept, "
+                        "and each lowering the predicted projection uncertainty (--max-frames caps them; the JSON's "
+                        "selection says why each other frame was left out). Default: off")
+    g.add_argument("--save-frames", metavar="DIR",
+                   help="also write the frames kept as images to DIR (created; a rig's in one folder per camera): "
+                        "the same set can be calibrated again as a folder")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -348,6 +361,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip the quality figures (cross-validation of two halves of the views, held-out views, "
                         "projection uncertainty) and the verdict; they cost a few more solves")
     p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
+    selection_options(p)
     p.set_defaults(func=calibrate.run)
 
     p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
@@ -395,6 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="do not run the distortion-correction network")
     p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     video_options(p, rig=True)
+    selection_options(p)
     p.set_defaults(func=calibrate_rig.run, model_choices=MODELS)
 
     p = sub.add_parser("calibrate-hand-eye", help="where a camera sits on a robot (eye-in-hand or eye-to-hand), "

@@ -5,6 +5,7 @@
     python -m ccs_kornia bench --sections corners speed --out /tmp/bench
     python -m ccs_kornia bench --markdown docs/benchmarks.md
     python -m ccs_kornia bench --quick --sections wild    # detection in the wild (~40 s on 2 cores)
+    python -m ccs_kornia bench --sections video           # recordings: the frames chosen (about 15 min on 2 cores)
     python -m ccs_kornia bench --sections hand_eye        # hand-eye: rendered robots against OpenCV, and a real robot
 """
 
@@ -56,6 +57,8 @@ def build_parser(prog: str = "python -m ccs_kornia bench") -> argparse.ArgumentP
     p.add_argument("--markers-views", type=int, default=None, help="ChArUco renders per condition, markers section")
     p.add_argument("--markers-aprilgrid-views", type=int, default=None,
                    help="AprilGrid renders per condition, markers section")
+    p.add_argument("--video-recordings", type=int, default=None, help="rendered recordings of the video section")
+    p.add_argument("--video-seconds", type=float, default=None, help="seconds of each rendered recording (30 fps)")
     p.add_argument("--hand-eye-trials", type=int, default=None, help="rendered robots per set-up, hand_eye section")
     p.add_argument("--no-cuda", action="store_true", help="do not time CUDA even when present")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
@@ -82,7 +85,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
     for name in ("corner_images", "calib_trials", "calib_views", "calib_pool_views", "calib_trials_per_camera",
                  "real_subsets", "real_max_images", "real_dir", "dc_trials", "distortion_weights", "wild_images",
                  "wild_big_images", "wild_free_images", "wild_real_images", "markers_views", "markers_aprilgrid_views",
-                 "hand_eye_trials"):
+                 "hand_eye_trials", "video_recordings"):
         value = getattr(args, name)
         if value is not None:
             if isinstance(value, int) and value < 1:
@@ -109,6 +112,11 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
             print(f"{prog}: error: --wild-time-limit must be > 0", file=sys.stderr)
             return 2
         overrides["wild_time_limit"] = args.wild_time_limit
+    if args.video_seconds is not None:
+        if not args.video_seconds > 0:
+            print(f"{prog}: error: --video-seconds must be > 0", file=sys.stderr)
+            return 2
+        overrides["video_seconds"] = args.video_seconds
     if args.wild_real_scales:
         overrides["wild_real_scales"] = tuple(args.wild_real_scales)
     if args.sections:

@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass, field, replace
 __all__ = ["SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "BenchConfig"]
 
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye", "rig",
-                             "markers", "rig_sessions", "hand_eye")
+                             "markers", "rig_sessions", "video", "hand_eye")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
 #: conditions of the synthetic calibration section (paper Table I, then realistic optics)
@@ -104,6 +104,11 @@ class BenchConfig:
         markers_views, markers_aprilgrid_views: rendered ChArUco / AprilGrid views per condition of the ``markers``
             section (:mod:`~ccs_kornia.bench.markers`); markers_calib_trials, markers_calib_views: its calibrations
             from partial views; markers_real_sets: its real ChArUco sets.
+        video_recordings, video_seconds, video_size: the ``video`` section's rendered recordings (how many, seconds
+            at 30 fps, ``(W, H)``; :mod:`~ccs_kornia.bench.video`); video_heldout_seconds, video_heldout_frames: the
+            held-out recording of each camera and the frames of it detected; video_command: also time ``calibrate
+            VIDEO`` end to end; video_jobs: processes; video_real_cameras, video_real_rig: the cameras of the shared
+            caliscope recording compared one by one, and whether its rig is.
         hand_eye_trials: rendered robots per set-up of the ``hand_eye`` section (:mod:`~ccs_kornia.bench.hand_eye`);
             hand_eye_views: the range of their poses; hand_eye_real: also its real robot (where the data is found).
     """
@@ -171,6 +176,15 @@ class BenchConfig:
     markers_calib_trials: int = 5
     markers_calib_views: int = 12
     markers_real_sets: tuple[str, ...] = ("charuco_opencv_tutorial", "caliscope_4cam_charuco")
+    video_recordings: int = 2
+    video_seconds: float = 60.0
+    video_size: tuple[int, int] = (1280, 720)
+    video_heldout_seconds: float = 30.0
+    video_heldout_frames: int = 60
+    video_command: bool = True
+    video_jobs: int = 2
+    video_real_cameras: tuple[int, ...] = (0, 1, 2, 3)
+    video_real_rig: bool = True
     hand_eye_trials: int = 20
     hand_eye_views: tuple[int, int] = (8, 30)
     hand_eye_real: bool = True
@@ -199,6 +213,8 @@ class BenchConfig:
             rig_session_trials=1, rig_session_conditions=("handheld",), rig_session_caliscope=False,
             markers_views=2, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
             markers_real_sets=("charuco_opencv_tutorial",), hand_eye_trials=1,
+            video_recordings=1, video_seconds=8.0, video_size=(640, 360), video_heldout_seconds=6.0,
+            video_heldout_frames=8, video_real_cameras=(0,), video_real_rig=False,
         )
         return replace(base, **overrides)
 
@@ -219,6 +235,9 @@ class BenchConfig:
             rig_session_caliscope=False,
             markers_views=1, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
             markers_real_sets=(), hand_eye_trials=1, hand_eye_views=(8, 8), hand_eye_real=False,
+            video_recordings=1, video_seconds=2.0, video_size=(320, 240),
+            video_heldout_seconds=2.0, video_heldout_frames=4, video_command=False, video_real_cameras=(),
+            video_real_rig=False,
         )
         return replace(base, **overrides)
 

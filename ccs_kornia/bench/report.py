@@ -367,17 +367,20 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
         "rig": "## 8. Camera rigs (stereo and multi-camera)",
         "markers": "## 9. Marker boards (ChArUco, AprilGrid)",
         "rig_sessions": "## 10. Rigs from hand-held sessions",
-        "hand_eye": "## 11. Hand-eye calibration (robots)",
+        "video": "## 11. Recordings: the frames chosen",
+        "hand_eye": "## 12. Hand-eye calibration (robots)",
     }
     from ccs_kornia.bench.fisheye import fisheye_md
     from ccs_kornia.bench.hand_eye import hand_eye_md
     from ccs_kornia.bench.markers import markers_md
     from ccs_kornia.bench.rig import rig_md
     from ccs_kornia.bench.rig_sessions import rig_sessions_md
+    from ccs_kornia.bench.video import video_md
 
     render = {"corners": _corners_md, "calibration": _calibration_md, "real": lambda s: _real_md(s, boxplot),
               "distortion": _distortion_md, "speed": _speed_md, "wild": _wild_md, "fisheye": fisheye_md,
-              "rig": rig_md, "markers": markers_md, "rig_sessions": rig_sessions_md, "hand_eye": hand_eye_md}
+              "rig": rig_md, "markers": markers_md, "rig_sessions": rig_sessions_md, "video": video_md,
+              "hand_eye": hand_eye_md}
     for name, title in titles.items():
         if name not in sections:
             continue

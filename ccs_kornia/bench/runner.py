@@ -96,6 +96,7 @@ SECTION_RUNNERS: dict[str, tuple[str, str, bool, bool]] = {
     "rig_sessions": ("ccs_kornia.bench.rig_sessions", "run_rig_sessions", False, False),
     "hand_eye": ("ccs_kornia.bench.hand_eye", "run_hand_eye", False, False),
     "speed": ("ccs_kornia.bench.speed", "run_speed", True, False),
+    "video": ("ccs_kornia.bench.video", "run_video", False, False),
 }
 
 

@@ -301,12 +301,14 @@ def missing_weights(err: FileNotFoundError) -> UserError:
     return UserError(str(err).replace("pass distortion_correction=False", "use --no-distortion-correction"))
 
 
-def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: bool = True, seed: int = 0):
+def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: bool = True, seed: int = 0,
+                  frame_selection=None):
     from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
     detector = make_detector_from(args)
     try:
-        return CalibrationPipeline(detector, model=model, **pipeline_options(args, use_ransac, seed))
+        return CalibrationPipeline(detector, model=model, frame_selection=frame_selection,
+                                   **pipeline_options(args, use_ransac, seed))
     except FileNotFoundError as err:
         raise missing_weights(err) from None
 

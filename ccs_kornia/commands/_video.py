@@ -18,8 +18,9 @@ from typing import Any
 
 from ccs_kornia.commands._common import UserError, info, warn
 
-__all__ = ["add_timestamps", "camera_videos", "frame_span", "make_screen", "max_frames", "pairing_lines", "rig_videos",
-           "screen_videos", "screen_workers", "screening_note", "video_inputs", "video_summary"]
+__all__ = ["add_timestamps", "camera_videos", "detector_count", "frame_span", "make_screen", "max_frames",
+           "pairing_lines", "rig_videos", "screen_videos", "screen_workers", "screening_note", "selecting",
+           "video_inputs", "video_summary"]
 
 
 def _videos_in(directory: str) -> list[str]:
@@ -70,6 +71,21 @@ def max_frames(args: argparse.Namespace) -> int:
 
     value = getattr(args, "max_frames", None)
     return DEFAULT_MAX_FRAMES if value is None else int(value)
+
+
+def selecting(args: argparse.Namespace, video: bool) -> bool:
+    """Whether the command keeps only the frames that make the best camera (the frame selection): ``--select``;
+    off by default for recordings and folders alike, because on boards covering a few per cent of the image it keeps
+    too few frames (docs/video.md, "Frame selection")."""
+    return bool(getattr(args, "select", None))
+
+
+def detector_count(args: argparse.Namespace, video: bool = True) -> int:
+    """Frames of a recording (instants of a rig) the full detector sees: ``--max-frames``, half as many again with the
+    frame selection on (:func:`~ccs_kornia.pipeline.frame_candidates.detector_frames`)."""
+    from ccs_kornia.pipeline.frame_candidates import detector_frames
+
+    return detector_frames(max_frames(args), selecting(args, video))
 
 
 def frame_span(args: argparse.Namespace):
@@ -200,7 +216,7 @@ def camera_videos(command: str, args: argparse.Namespace):
         return None
     span = frame_span(args)
     screened = screen_videos(command, paths, make_screen(args), span, screen_workers(args), skip_unreadable=True)
-    frames = camera_frames(screened, max_frames(args))
+    frames = camera_frames(screened, detector_count(args), selecting(args, True))
     report_screening(command, frames)
     return frames
 
@@ -247,7 +263,7 @@ def rig_videos(command: str, args: argparse.Namespace, names: Sequence[str]):
         pairing = pair_videos(screened, args.sync_tolerance, table, f"--timestamps {args.timestamps}")
     except ValueError as err:
         raise UserError(str(err)) from None
-    frames = rig_frames(screened, pairing, max_frames(args))
+    frames = rig_frames(screened, pairing, detector_count(args), selecting(args, True))
     for line in pairing_lines(pairing, names):
         info(line)
     report_screening(command, frames, names)

@@ -23,7 +23,8 @@ from ccs_kornia.commands._common import (
     warn,
     weak_lines,
 )
-from ccs_kornia.commands._video import add_timestamps, camera_videos, screening_note
+from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
+from ccs_kornia.commands._video import add_timestamps, camera_videos, screening_note, video_inputs
 
 __all__ = ["calibrate_files", "failure_message", "run", "verdict_line"]
 
@@ -115,6 +116,7 @@ def _failed_path(output: str) -> str:
 def run(args: argparse.Namespace) -> int:
     from ccs_kornia.io.files import write_json, write_text_atomic
     from ccs_kornia.outputs.camera_exports import ros_camera_info, write_opencv_yaml
+    from ccs_kornia.pipeline.sources import FileSource
     check_output_file("--output", args.output)
     if args.opencv_yaml:
         check_output_file("--opencv-yaml", args.opencv_yaml)
@@ -122,11 +124,18 @@ def run(args: argparse.Namespace) -> int:
         check_output_file("--ros-yaml", args.ros_yaml)
     if args.report:
         check_output_dir("--report", args.report)  # created once there is a calibration to report
+    if args.save_frames:
+        check_output_dir("--save-frames", args.save_frames)  # written once there is a calibration
+    selection = frame_selection(args, bool(video_inputs("calibrate", args.images)))
+    if args.save_frames and selection is None:
+        raise UserError("--save-frames writes the frames the frame selection kept: give --select (images are "
+                        "selected on request only), or leave out --no-select")
     device = resolve_device(args.device)
     start = time.perf_counter()
     video = camera_videos("calibrate", args)
     files = inputs("calibrate", args.images) if video is None else video.names()[0]
-    pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
+    pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed,
+                             frame_selection=selection)
     try:
         data, result = calibrate_files(
             "calibrate", files, args.board, args.square, pipeline, device, args.model, args.detector, video
@@ -154,6 +163,14 @@ def run(args: argparse.Namespace) -> int:
         data["charuco"] = charuco_record(args)
     if aprilgrid_record(args):
         data["aprilgrid"] = aprilgrid_record(args)
+    if args.save_frames:
+        source = video.source() if video is not None else FileSource([files])
+        try:
+            written = save_frames(args.save_frames, source, [[bool(v["used"]) for v in data["views"]]])
+        finally:
+            if video is not None:
+                source.close()
+        data["saved_frames"] = {"folder": args.save_frames, "files": written}
     data["timings"]["total_s"] = time.perf_counter() - start
     write_json(args.output, data)
     if os.path.isfile(_failed_path(args.output)):  # an earlier failure's record would now be stale
@@ -171,6 +188,8 @@ def run(args: argparse.Namespace) -> int:
         data["timings"]["report_s"] = time.perf_counter() - start
         write_json(args.output, data)
     _print_summary(data, args.output)
+    if args.save_frames:
+        print(f"wrote the {written} frames used to {args.save_frames}")
     if args.report:
         print(f"report: {os.path.join(args.report, 'index.html')}")
     return 0
@@ -188,6 +207,8 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
     partial = f", {n['partial']} of them partial ({hidden} left out)" if n.get("partial") else ""
     print(f"RMS {data['rms']:.4f} px over {n['used']} views (board found in {n['found']} of {n['files']} files{partial}); "
           f"wrote {output}")
+    if data.get("selection"):
+        print(selection_line(data["selection"]))
     choice = data.get("model_selection")
     if choice:
         held = choice["heldout_rms_px"]

@@ -30,7 +30,8 @@ from ccs_kornia.commands._common import (
     warn,
     weak_lines,
 )
-from ccs_kornia.commands._video import add_timestamps, rig_videos
+from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
+from ccs_kornia.commands._video import add_timestamps, rig_videos, video_inputs
 
 __all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "run", "summary_lines"]
 
@@ -172,7 +173,8 @@ def run(args: argparse.Namespace) -> int:
     for option, path in (("--opencv-yaml", args.opencv_yaml), ("--kalibr-yaml", args.kalibr_yaml)):
         if path:
             check_output_file(option, path)
-    for option, path in (("--ros-yaml-dir", args.ros_yaml_dir), ("--report", args.report)):
+    for option, path in (("--ros-yaml-dir", args.ros_yaml_dir), ("--report", args.report),
+                         ("--save-frames", args.save_frames)):
         if path:
             check_output_dir(option, path)
     c = len(folders)
@@ -192,6 +194,10 @@ def run(args: argparse.Namespace) -> int:
         options["auto_models"] = tuple(m for m in AUTO_MODELS if m != "rational")
         info(f"--kalibr-yaml: Kalibr has no rational model, so --model auto chooses among "
              f"{', '.join(options['auto_models'])} in this run")
+    selection = frame_selection(args, any(video_inputs(COMMAND, [item]) for item in folders))
+    if args.save_frames and selection is None:
+        raise UserError("--save-frames writes the frames the frame selection kept: give --select (image folders "
+                        "are selected on request only), or leave out --no-select")
     device = resolve_device(args.device)
     start = time.perf_counter()
     video = rig_videos(COMMAND, args, names)
@@ -209,7 +215,8 @@ def run(args: argparse.Namespace) -> int:
         _check_distinct_videos(names, folders)
     detector = make_detector_from(args)
     try:
-        pipeline = RigPipeline(detector, models=models, fixed={k: v[0] for k, v in fixed.items()}, **options)
+        pipeline = RigPipeline(detector, models=models, fixed={k: v[0] for k, v in fixed.items()},
+                               frame_selection=selection, **options)
     except FileNotFoundError as err:
         raise missing_weights(err) from None
     pipeline.to(device)
@@ -240,10 +247,18 @@ def run(args: argparse.Namespace) -> int:
             cam["video"] = video.records(c_)
         data["frame_times"] = frames.times
         data["frame_spread_s"] = frames.spread()
+    if args.save_frames:
+        kept, stems = _used_views(out, files)
+        data["saved_frames"] = {"folder": args.save_frames,
+                                "files": save_frames(args.save_frames, source, kept, names, stems)}
     data["device"] = str(device)
     data["timings"] = {"total_s": time.perf_counter() - start}
     weak = _weak_cameras(data) if args.allow_weak else []
     _write_outputs(args, data, names, pair)
+    if data.get("selection"):
+        print(selection_line(data["selection"]))
+    if args.save_frames:
+        print(f"wrote the {data['saved_frames']['files']} frames used to {args.save_frames} (one folder per camera)")
     for line in summary_lines(data, args.output):
         if line.startswith("verdict:"):
             for name, lines in weak:  # what --allow-weak let through, before the verdict it makes
@@ -253,6 +268,21 @@ def run(args: argparse.Namespace) -> int:
         for text in lines[:-1]:
             warn(COMMAND, f"camera {name}: {text}")
     return 0
+
+
+def _used_views(out, files: list[list[str]]) -> tuple[list[list[bool]], list[list[str]]]:
+    """Per camera, per view, whether the rig's joint fit used it, and a file stem per view naming its frame (the same
+    number in every camera: the folders pair again by it)."""
+    used = out.rig.used.cpu()
+    kept = [[False] * len(f) for f in files]
+    stems = [[""] * len(f) for f in files]
+    width = len(str(max(1, out.frames.num_frames)))
+    for c, row in enumerate(out.frames.index):
+        for f, k in enumerate(row):
+            if k is not None and k < len(files[c]):
+                kept[c][k] = bool(used[c, f])
+                stems[c][k] = f"frame_{f:0{width}d}"
+    return kept, stems
 
 
 def _weak_cameras(data: dict[str, Any]) -> list[tuple[str, list[str]]]:

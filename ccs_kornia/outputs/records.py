@@ -14,7 +14,7 @@ from ccs_kornia.modules.calibration.result import VIEW_REASONS
 from ccs_kornia.pipeline.result import PipelineResult
 from ccs_kornia.pipeline.sources import SIZE_TOLERANCE_PX
 
-__all__ = ["view_records", "camera_record", "correction_record"]
+__all__ = ["view_records", "camera_record", "correction_record", "selection_reasons"]
 
 
 def _num(x: float) -> float | None:
@@ -60,6 +60,17 @@ def view_records(result: PipelineResult, paths: list[str]) -> list[dict[str, Any
                                 f"{SIZE_TOLERANCE_PX} px: same pixel grid from the top-left corner)")
         out.append(view)
     return out
+
+
+def selection_reasons(views: list[dict[str, Any]], reasons: list[str]) -> None:
+    """The views the frame selection left out (``reasons[v]`` not empty), in their records: not used, and why
+    (``adds nothing``, ``near copy of frame 412``, ...); the first solve's pose and error of them dropped."""
+    for view, why in zip(views, reasons):
+        if not why:
+            continue
+        view.update(used=False, rms=None, reason=f"left out by the frame selection: {why}")
+        for key in ("rvec", "tvec", "rms_if_used"):
+            view.pop(key, None)
 
 
 def correction_record(result: PipelineResult) -> dict[str, Any]:
@@ -143,6 +154,10 @@ def camera_record(
                     "in the failed calibration (no consistent camera)"
                 if cand is not None and _num(cand[v]) is not None:
                     view["rms_if_used"] = float(cand[v])
+    choice = getattr(result, "frame_choice", None)
+    if choice is not None:
+        selection_reasons(views, choice.view_reasons[0])
+        data["selection"] = choice.record(paths)
     if success:
         std_i = cal.std_intrinsics.double().cpu().tolist()
         data.update({

@@ -13,7 +13,7 @@ from typing import Any
 import torch
 
 from ccs_kornia.geometry.models.factory import camera_model
-from ccs_kornia.outputs.records import camera_record
+from ccs_kornia.outputs.records import camera_record, selection_reasons
 
 __all__ = ["CONVENTION", "INCONSISTENT_WEIGHT", "frame_lines", "frame_records", "rig_record", "pair_record",
            "record_extrinsics", "rotation_angle_deg", "rig_cameras", "rectify_maps"]
@@ -175,8 +175,13 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
             # how far the joint fit moved each intrinsic from the camera's own calibration, in its own 1-sigma
             record["intrinsics_moved_sigma"] = _per_param(rig.intrinsics_moved_sigma[c])
         cameras.append({"name": out.names[c], **record})
+    choice = getattr(out, "frame_choice", None)
+    if choice is not None:  # the frame selection's reasons for the views of the frames it left out
+        for c, cam in enumerate(cameras):
+            selection_reasons(cam["views"], choice.view_reasons[c])
     labels = list(out.frames.labels)
     pairs = [pair_record(rig, i, j, labels) for i in range(len(cameras)) for j in range(i + 1, len(cameras))]
+    selection = {} if choice is None else {"selection": choice.record(list(out.candidates.labels))}
     return {
         "success": True,
         "convention": CONVENTION,
@@ -203,6 +208,7 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
                 # per camera and frame: 0 where the corners kept the detector's numbering, k > 0 where the solver
                 # renumbered a symmetric board by its k-th symmetry (1: turned 180 degrees) to agree with the frame
                 "corner_order": None if getattr(rig, "corner_order", None) is None else rig.corner_order.tolist()},
+        **selection,
     }
 
 

@@ -59,6 +59,7 @@ from ccs_kornia.modules.detection.refine.patch_refine import refine_on_patches
 from ccs_kornia.modules.detection.refine.saddle_refine import CornerRefiner
 from ccs_kornia.modules.detection.warps.warped_detection import Downscale, detect_warped
 from ccs_kornia.pipeline.differentiable import differentiable_detect, differentiable_run
+from ccs_kornia.pipeline.frame_selection import FrameSelection, select_views
 from ccs_kornia.pipeline.looks import CALIBRATED, FIRST, LOOKS, Look, Tools
 from ccs_kornia.pipeline.result import (
     PipelineResult,
@@ -131,6 +132,10 @@ class CalibrationPipeline(nn.Module):
             (:func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_uncertainty`, ``DetectionResult.sigma``)
             and weight the solver's refinements by it, so a view's soft or shaded corners count less
             (:func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_weights`).
+        frame_selection: keep only the views that make the best camera
+            (:class:`~ccs_kornia.pipeline.frame_selection.FrameSelection`: still, sharp, new, informative) and solve
+            again on them after the last solve (``PipelineResult.frame_choice`` says which and why); ``None``: every
+            view counts.
         differentiable: :meth:`forward`, :meth:`detect` and :meth:`calibrate` return corners and cameras with
             gradients to the images and the heatmap network (:mod:`~ccs_kornia.pipeline.differentiable`: the usual
             pipeline takes every decision and gives the values, in one process; the corners of found boards and the
@@ -169,6 +174,7 @@ class CalibrationPipeline(nn.Module):
         weigh_corners: bool = True,
         differentiable: bool = False,
         auto_models: Sequence[str] = AUTO_MODELS,
+        frame_selection: FrameSelection | None = None,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -213,6 +219,7 @@ class CalibrationPipeline(nn.Module):
         self.free_distortion_centre = bool(free_distortion_centre)
         self.weigh_corners = bool(weigh_corners)
         self.differentiable = bool(differentiable)
+        self.frame_selection = frame_selection
 
     # ------------------------------------------------------------------------------------------
     # the composition
@@ -293,6 +300,9 @@ class CalibrationPipeline(nn.Module):
             changed = found or changed
         if calibrate and (changed or not solved):
             out, subsets = self._solve(out, board, square, again=solved)
+        if calibrate and self.frame_selection is not None:
+            with stage("frame selection"):
+                out, subsets = select_views(self.solving, out, board, square, self.frame_selection, source)
         if calibrate and self.diagnostics:
             with stage("solver"):
                 out = diagnose_solved(self.solving, out, board, square, subsets)

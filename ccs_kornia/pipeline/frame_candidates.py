@@ -33,16 +33,34 @@ import numpy as np
 
 from ccs_kornia.modules.detection.screening import Sighting
 
-__all__ = ["DEFAULT_MAX_FRAMES", "FrameChoice", "MIN_STILL", "board_motion", "choose_frames", "outline_distance"]
+__all__ = ["CANDIDATES_PER_FRAME", "DEFAULT_MAX_FRAMES", "FrameChoice", "MIN_STILL", "SELECT_MAX_MOTION",
+           "board_motion", "choose_frames", "detector_frames", "outline_distance"]
 
 #: frames of a recording (instants of a rig) sent to the full detector at most, by default
 DEFAULT_MAX_FRAMES = 60
+#: with the frame selection (:mod:`~ccs_kornia.pipeline.frame_selection`), the full detector sees this many frames per
+#: frame kept at most: the selection chooses among them
+CANDIDATES_PER_FRAME = 1.5
+#: with the frame selection, a still frame's largest board motion (fraction of the image diagonal per frame period;
+#: 1.5 px at 1280x720): a rolling shutter bends a board that moves, which no corner precision shows
+SELECT_MAX_MOTION = 0.001
 #: largest board motion of a still frame, as a fraction of the image diagonal per frame period (4.4 px at 1280x720)
 MAX_MOTION = 0.003
 #: two frames whose outlines differ by less than this fraction of the image diagonal (mean corner distance) are copies
 MIN_CHANGE = 0.02
 #: still frames needed before moving ones are left out
 MIN_STILL = 12
+
+
+def detector_frames(max_frames: int, selecting: bool) -> int:
+    """Frames of a recording sent to the full detector: ``max_frames``, or with the frame selection
+    :data:`CANDIDATES_PER_FRAME` times as many (the selection keeps ``max_frames`` of them at most).
+
+    Example:
+        >>> detector_frames(60, False), detector_frames(60, True)
+        (60, 90)
+    """
+    return int(max_frames) if not selecting else int(math.ceil(CANDIDATES_PER_FRAME * int(max_frames)))
 
 
 def outline_distance(a: np.ndarray, b: np.ndarray) -> float:

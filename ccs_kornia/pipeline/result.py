@@ -150,6 +150,9 @@ class PipelineResult:
         diagnostics: per camera, the quality figures of the calibration (see ``docs/diagnostics.md``) or ``None``.
         model_selection: with ``model="auto"``, per camera the choice and its figures (see
             :class:`~ccs_kornia.modules.calibration.model_selection.ModelSelection`); else ``None``.
+        frame_choice: with a frame selection, per camera which views it kept and why not the others
+            (:class:`~ccs_kornia.pipeline.frame_selection.FrameChoice`; ``None`` for a camera it did not judge); else
+            ``None``.
     """
 
     detections: DetectionResult
@@ -165,6 +168,7 @@ class PipelineResult:
     camera_reasons: list[str] | str = field(default_factory=list)
     diagnostics: list[dict | None] | dict | None = None
     model_selection: list[dict | None] | dict | None = None
+    frame_choice: list[Any] | Any = None
 
     @property
     def batched(self) -> bool:
@@ -209,6 +213,7 @@ class PipelineResult:
             camera_reasons=pick(self.camera_reasons),
             diagnostics=None if self.diagnostics is None else pick(self.diagnostics),
             model_selection=None if self.model_selection is None else pick(self.model_selection),
+            frame_choice=None if self.frame_choice is None else pick(self.frame_choice),
         )
 
     @classmethod

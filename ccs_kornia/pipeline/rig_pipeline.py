@@ -23,6 +23,7 @@ from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 from ccs_kornia.pipeline.frame_matching import FrameTable, match_frames
+from ccs_kornia.pipeline.frame_selection import FrameSelection
 from ccs_kornia.pipeline.result import (
     PipelineResult,
     corner_weights_of,
@@ -56,6 +57,9 @@ class RigPipelineResult:
         rig: the solver's ``RigResult`` (``None`` when the rig could not be solved: see ``reason``).
         reason: ``""`` when solved, else one line naming the cameras (and frames) at fault.
         fixed: per camera, its intrinsics were kept as given.
+        frame_choice: with a frame selection, which of ``candidates``' frames were kept and why not the others
+            (:class:`~ccs_kornia.pipeline.frame_selection.FrameChoice`); ``frames`` then holds the kept ones.
+        candidates: the frames before the frame selection (``None`` without one).
     """
 
     names: list[str]
@@ -69,6 +73,8 @@ class RigPipelineResult:
     rig: Any = None
     reason: str = ""
     fixed: list[bool] | None = None
+    frame_choice: Any = None
+    candidates: FrameTable | None = None
 
     @property
     def success(self) -> bool:
@@ -89,6 +95,12 @@ class _Cameras(ViewSource):
 
     def pixels(self, camera: int, view: int) -> int | None:
         return self.source.pixels(self.cameras[camera], view)
+
+    def label(self, camera: int, view: int) -> str:
+        return self.source.label(self.cameras[camera], view)
+
+    def speed(self, camera: int, view: int) -> float | None:
+        return self.source.speed(self.cameras[camera], view)
 
     def _load(self, camera: int, view: int):
         return self.source._load(self.cameras[camera], view)
@@ -213,6 +225,9 @@ class RigPipeline(nn.Module):
             single-camera calibration).
         solver_kwargs: options of :class:`~ccs_kornia.modules.rig.rig_solver.RigSolver` (``max_iters``, ...).
         flexible_coverage: see ``models`` (:data:`FLEXIBLE_COVERAGE`; ``None``: the single-camera choice as it is).
+        frame_selection: keep only the frames that make the best rig
+            (:class:`~ccs_kornia.pipeline.frame_selection.FrameSelection`, each frame judged across its cameras)
+            before the joint fit; ``None``: every frame counts.
         pipeline_kwargs: options of :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` (``use_ransac``, ``workers``,
             ``distortion_correction``, ...).
 
@@ -229,6 +244,7 @@ class RigPipeline(nn.Module):
         fixed: dict[int, Any] | None = None,
         solver_kwargs: dict[str, Any] | None = None,
         flexible_coverage: float | None = FLEXIBLE_COVERAGE,
+        frame_selection: FrameSelection | None = None,
         **pipeline_kwargs,
     ) -> None:
         super().__init__()
@@ -241,6 +257,7 @@ class RigPipeline(nn.Module):
                 pipeline.selection.flexible_coverage = flexible_coverage
         self.fixed = dict(fixed or {})
         self.solver_kwargs = dict(solver_kwargs or {})
+        self.frame_selection = frame_selection
 
     def forward(self, images: torch.Tensor | Sequence[torch.Tensor], board_size: tuple[int, int], square: float = 1.0,
                 names: Sequence[str] | None = None) -> RigPipelineResult | list[RigPipelineResult]:
@@ -298,6 +315,29 @@ class RigPipeline(nn.Module):
                 out[i] = result.select(k)
         return out  # type: ignore[return-value]
 
+    def choose_frames(self, source: ViewSource | None, cameras: list[PipelineResult], frames: FrameTable,
+                      board_size: tuple[int, int], square: float) -> tuple[list[PipelineResult], FrameTable, Any]:
+        """The frame selection over the rig's frames (:func:`~ccs_kornia.pipeline.frame_selection.choose_frames`,
+        each frame judged across its cameras; the boards' speeds from ``source``, the time between a frame's cameras
+        from ``frames.times``): the cameras' results with the views left out no longer used, the kept frames, and
+        the :class:`~ccs_kornia.pipeline.frame_selection.FrameChoice`."""
+        from ccs_kornia.pipeline.frame_selection import camera_views, choose_frames, keep_views
+
+        pipeline = next(iter(self.pipelines.values()))
+        obj = grid_object_points(pipeline.detector.board, board_size, float(square), dtype=torch.float64)
+        views = []
+        for c, result in enumerate(cameras):
+            speeds = [source.speed(c, v) for v in range(source.counts[c])] if source is not None else None
+            views.append(camera_views(result, obj, pipeline.weigh_corners, speeds))
+        choice = choose_frames(views, frames.index, self.frame_selection, frames.spread(),
+                               [f"frame {label}" for label in frames.labels])
+        kept = [f for f in range(frames.num_frames) if choice.kept[f]]
+        cameras = [keep_views(result, choice.view_kept(c)) if views[c] is not None else result
+                   for c, result in enumerate(cameras)]
+        table = FrameTable([frames.labels[f] for f in kept], [[row[f] for f in kept] for row in frames.index],
+                           frames.by, None if frames.times is None else [[row[f] for f in kept] for row in frames.times])
+        return cameras, table, choice
+
     def run(
         self,
         source: ViewSource,
@@ -329,6 +369,10 @@ class RigPipeline(nn.Module):
             raise ValueError(f"{len(frames.index)} frame lists and {len(names)} names for {c} cameras.")
         from ccs_kornia.modules.rig import RigCamera, RigSolver
         cameras = cameras if cameras is not None else self.detect_and_calibrate(source, board_size, square, progress)
+        choice, candidates = None, None
+        if self.frame_selection is not None:
+            candidates = frames
+            cameras, frames, choice = self.choose_frames(source, cameras, frames, board_size, square)
         corners, valid, weights = rig_observations(cameras, frames)
         models, initial, reason = [], [], ""
         for i, result in enumerate(cameras):
@@ -346,7 +390,7 @@ class RigPipeline(nn.Module):
                 reason = reason or f"camera {names[i]}: {result.camera_reasons or 'not calibrated'}"
         fixed = [i in self.fixed for i in range(c)]
         out = RigPipelineResult(names, cameras, frames, corners, valid, weights, models, initial, reason=reason,
-                                fixed=fixed)
+                                fixed=fixed, frame_choice=choice, candidates=candidates)
         if reason:
             return out
         out.reason = unconnected_cameras(valid, names, frames.labels)

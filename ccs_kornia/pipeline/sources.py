@@ -142,6 +142,15 @@ class ViewSource:
         """A human name of one view (a file path, or ``"view 3"``)."""
         return f"view {view}"
 
+    def label(self, camera: int, view: int) -> str:
+        """One view in a sentence (``near copy of IMG_0412.jpg``): its file's name, a video's ``frame 412``."""
+        return os.path.basename(self.describe(camera, view))
+
+    def speed(self, camera: int, view: int) -> float | None:
+        """How fast the board moves in the image around this view (px/s), where the source knows (a recording's
+        screening measures it between neighbouring frames); ``None``: not known (a photo)."""
+        return None
+
     def _load(self, camera: int, view: int) -> tuple[torch.Tensor | None, str]:
         """One view as :math:`(1, H, W)` float in ``[0, 1]``, or ``(None, reason)``."""
         raise NotImplementedError
@@ -264,12 +273,13 @@ _INHERITED_DECODERS: list = []
 
 @dataclass(frozen=True)
 class VideoFrameRef:
-    """One frame of a video as a view: the video's path, the frame's index and its timestamp (s) as the first pass
-    over the video saw it (``None``: not known)."""
+    """One frame of a video as a view: the video's path, the frame's index, its timestamp (s) as the first pass
+    over the video saw it and the board's speed there (px/s, between neighbouring frames; ``None``: not known)."""
 
     video: str
     index: int
     timestamp: float | None = None
+    speed: float | None = None
 
     @property
     def name(self) -> str:
@@ -308,6 +318,15 @@ class VideoSource(ViewSource):
 
     def timestamp(self, camera: int, view: int) -> float | None:
         return self.frames[camera][view].timestamp
+
+    def label(self, camera: int, view: int) -> str:
+        ref = self.frames[camera][view]
+        if len({r.video for r in self.frames[camera]}) > 1:
+            return f"frame {os.path.basename(ref.video)}#{ref.index}"
+        return f"frame {ref.index}"
+
+    def speed(self, camera: int, view: int) -> float | None:
+        return self.frames[camera][view].speed
 
     def pixels(self, camera: int, view: int) -> int | None:
         size = self.sizes.get(self.frames[camera][view].video)

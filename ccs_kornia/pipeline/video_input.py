@@ -24,6 +24,7 @@ from ccs_kornia.io.timestamps import TimestampRow
 from ccs_kornia.io.video import FrameSpan
 from ccs_kornia.pipeline.frame_candidates import (
     DEFAULT_MAX_FRAMES,
+    SELECT_MAX_MOTION,
     FrameChoice,
     board_motion,
     choose_frames,
@@ -51,6 +52,13 @@ def _period(video: ScreenedVideo) -> float | None:
     steps = sorted(b.timestamp - a.timestamp for a, b in zip(video.frames, video.frames[1:]))
     every = max(1, int(video.span.every))
     return steps[len(steps) // 2] / every if steps and steps[len(steps) // 2] > 0 else None
+
+
+def _speed(motion: float | None, video: ScreenedVideo) -> float | None:
+    """The board's speed (px/s) from its motion per frame period (:func:`~ccs_kornia.pipeline.frame_candidates.
+    board_motion`)."""
+    period = _period(video)
+    return None if motion is None or not period else float(motion) / period
 
 
 def default_tolerance(videos: Sequence[ScreenedVideo]) -> float:
@@ -163,8 +171,15 @@ class VideoFrames:
         return out
 
 
-def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX_FRAMES) -> VideoFrames:
-    """The frame choice for one camera's videos (their frames in order, video after video).
+def _thresholds(select: bool) -> dict:
+    """The candidates' stillness: stiller for the frame selection."""
+    return {"max_motion": SELECT_MAX_MOTION} if select else {}
+
+
+def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX_FRAMES,
+                  select: bool = False) -> VideoFrames:
+    """The frame choice for one camera's videos (their frames in order, video after video); ``select``: candidates
+    for the frame selection (:mod:`~ccs_kornia.pipeline.frame_selection`: stiller ones).
 
     Example:
         >>> from ccs_kornia.io.video import FrameSpan, VideoInfo
@@ -189,7 +204,7 @@ def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX
         motion += board_motion([f.index for f in video.frames], seen)
         owner += [(v, k) for k in range(len(video.frames))]
     size = videos[0].info.size if videos else (1, 1)
-    choice = choose_frames([sightings], [labels], [motion], [size], max_frames)
+    choice = choose_frames([sightings], [labels], [motion], [size], max_frames, **_thresholds(select))
     chosen = [[[False] * len(v.frames) for v in videos]]
     reasons = [[[""] * len(v.frames) for v in videos]]
     motions = [[[None] * len(v.frames) for v in videos]]
@@ -201,13 +216,14 @@ def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX
         v, k = owner[i]
         chosen[0][v][k] = True
         frame = videos[v].frames[k]
-        refs.append(VideoFrameRef(videos[v].path, frame.index, frame.timestamp))
+        refs.append(VideoFrameRef(videos[v].path, frame.index, frame.timestamp, _speed(motion[i], videos[v])))
     return VideoFrames(list(videos), [refs], None, None, choice, chosen, reasons, motions)
 
 
 def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
-               max_frames: int = DEFAULT_MAX_FRAMES) -> VideoFrames:
-    """The frame choice for a rig (one video per camera) over the instants of ``pairing`` (:func:`pair_videos`).
+               max_frames: int = DEFAULT_MAX_FRAMES, select: bool = False) -> VideoFrames:
+    """The frame choice for a rig (one video per camera) over the instants of ``pairing`` (:func:`pair_videos`);
+    ``select``: candidates for the frame selection (stiller ones).
 
     Where every instant is kept (at most ``max_frames``), each camera's frame of it is a view; where instants are
     chosen, a camera's frame is a view where its screen saw the board. Frames the pairing left out (not in a
@@ -218,7 +234,7 @@ def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
     sightings = [[None if k is None else videos[cam].frames[k].sighting for k in pairing.index[cam]] for cam in range(c)]
     labels = [[None if k is None else str(videos[cam].frames[k].index) for k in pairing.index[cam]] for cam in range(c)]
     motion = [[None if k is None else motion_of[cam][k] for k in pairing.index[cam]] for cam in range(c)]
-    choice = choose_frames(sightings, labels, motion, [v.info.size for v in videos], max_frames)
+    choice = choose_frames(sightings, labels, motion, [v.info.size for v in videos], max_frames, **_thresholds(select))
     every = n <= max_frames
     chosen = [[[False] * len(v.frames)] for v in videos]
     reasons = [[["not in the timestamps table" if pairing.by == "table" else ""] * len(v.frames)] for v in videos]
@@ -247,7 +263,8 @@ def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
             frame = videos[cam].frames[k]
             chosen[cam][0][k] = True
             index[cam].append(len(refs[cam]))
-            refs[cam].append(VideoFrameRef(videos[cam].path, frame.index, frame.timestamp))
+            refs[cam].append(VideoFrameRef(videos[cam].path, frame.index, frame.timestamp,
+                                           _speed(motion_of[cam][k], videos[cam])))
             times_out[cam].append(pairing.times[cam][f] if pairing.times is not None else frame.timestamp)
     table = FrameTable(labels_out, index, pairing.by, times_out)
     return VideoFrames(list(videos), refs, table, pairing, choice, chosen, reasons, motions)

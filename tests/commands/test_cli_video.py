@@ -83,8 +83,9 @@ def test_detect_a_video_with_a_span(videos, tmp_path, capsys):
 
 
 def test_max_frames_bounds_the_detector_and_says_why(videos, tmp_path, capsys):
+    # (without the frame selection: --max-frames bounds the frames the detector sees)
     code, out, err = run(capsys, "calibrate", videos["avi"], *FAST, *SOLVE, "--no-diagnostics", "--max-frames", "8",
-                         "--jobs", "2", "--output", tmp_path / "c.json")
+                         "--jobs", "2", "--no-select", "--output", tmp_path / "c.json")
     assert code == 0, err
     data = json.loads((tmp_path / "c.json").read_text())
     assert 3 <= len(data["views"]) <= 8
@@ -96,8 +97,8 @@ def test_max_frames_bounds_the_detector_and_says_why(videos, tmp_path, capsys):
 
 
 def test_calibrate_rig_from_videos_by_time(videos, tmp_path, capsys):
-    code, out, err = run(capsys, "calibrate-rig", videos["avi"], videos["right"], *FAST, *SOLVE, "--output",
-                         tmp_path / "rig.json")
+    code, out, err = run(capsys, "calibrate-rig", videos["avi"], videos["right"], *FAST, *SOLVE, "--no-select",
+                         "--output", tmp_path / "rig.json")
     assert code == 0, err
     data = json.loads((tmp_path / "rig.json").read_text())
     assert data["frames_matched_by"] == "time"
@@ -111,8 +112,8 @@ def test_calibrate_rig_from_videos_by_time(videos, tmp_path, capsys):
 
 
 def test_calibrate_rig_at_different_rates(videos, tmp_path, capsys):
-    code, out, err = run(capsys, "calibrate-rig", videos["avi"], videos["right_half_rate"], *FAST, *SOLVE, "--output",
-                         tmp_path / "rig.json")
+    code, out, err = run(capsys, "calibrate-rig", videos["avi"], videos["right_half_rate"], *FAST, *SOLVE,
+                         "--no-select", "--output", tmp_path / "rig.json")
     assert code == 0, err
     data = json.loads((tmp_path / "rig.json").read_text())
     assert abs(data["pairs"][0]["baseline"] - BASELINE) < 0.003
@@ -134,7 +135,7 @@ def test_calibrate_rig_with_a_timestamps_table(videos, tmp_path, capsys):
     rows = [(100 + k, 0, k, 50.0 + k / 10) for k in range(3, 24)] + \
            [(100 + k, 1, k - 3, 50.002 + k / 10) for k in range(3, 24)]
     code, out, err = run(capsys, "calibrate-rig", videos["avi"], videos["right_late"], *FAST, *SOLVE, "--timestamps",
-                         _table(tmp_path / "t.csv", rows), "--output", tmp_path / "rig.json")
+                         _table(tmp_path / "t.csv", rows), "--no-select", "--output", tmp_path / "rig.json")
     assert code == 0, err
     data = json.loads((tmp_path / "rig.json").read_text())
     assert data["frames_matched_by"] == "table" and data["frame_labels"][0] == "103"
@@ -267,7 +268,7 @@ def test_caliscope_videos_give_the_rig_of_the_frame_folders(tmp_path, capsys):
         writer.writerow(["sync_index", "cam_id", "frame_time"])
         writer.writerows((r["sync_index"], cams.index(int(r["cam_id"])), r["frame_time"]) for r in rows)
     board = ["--charuco", "4x5", "--dictionary", "DICT_4X4_1000", "--square", "0.054", "--marker", "0.0405",
-             "--model", "k1k2", "--jobs", "2"]
+             "--model", "k1k2", "--jobs", "2", "--no-select"]
     results = {}
     for name, inputs in (("folders", [folder / f"cam_{c}" for c in cams]),
                          ("videos", [folder / "video" / f"cam_{c}.mp4" for c in cams] + ["--timestamps", table])):
