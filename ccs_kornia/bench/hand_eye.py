@@ -227,7 +227,10 @@ def visp_franka(folder: Path) -> dict:
     import re
 
     from ccs_kornia.io.images import load_image_gray
-    from ccs_kornia.modules.detection.markers.apriltag import AprilTagTarget, detect_apriltag
+    from ccs_kornia.modules.detection.markers.apriltag import (
+        AprilTagTarget,
+        detect_apriltag,
+    )
 
     text = (folder / "franka_camera.xml").read_text()
     px, py, u0, v0 = (float(re.search(f"<{k}>([^<]+)</{k}>", text).group(1)) for k in ("px", "py", "u0", "v0"))

@@ -276,7 +276,9 @@ def pipeline_options(args: argparse.Namespace, use_ransac: bool = True, seed: in
         weigh_corners=bool(getattr(args, "weigh_corners", True)),
     )
     if getattr(args, "allow_weak", False):
-        from ccs_kornia.modules.calibration.quality.degeneracy import DegeneracyThresholds
+        from ccs_kornia.modules.calibration.quality.degeneracy import (
+            DegeneracyThresholds,
+        )
 
         options["thresholds"] = DegeneracyThresholds(refuse_weak=False)
     return options
@@ -346,7 +348,10 @@ class WrongBoardWatch:
 
     def _search(self, c: int, views: list[int]) -> None:
         from ccs_kornia.io.images import load_image_gray
-        from ccs_kornia.modules.detection.checks.board_size import board_size_in, other_board_size
+        from ccs_kornia.modules.detection.checks.board_size import (
+            board_size_in,
+            other_board_size,
+        )
 
         sizes = []
         for v in views:

@@ -24,7 +24,12 @@ from ccs_kornia.commands._common import (
     weak_lines,
 )
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
-from ccs_kornia.commands._video import add_timestamps, camera_videos, screening_note, video_inputs
+from ccs_kornia.commands._video import (
+    add_timestamps,
+    camera_videos,
+    screening_note,
+    video_inputs,
+)
 
 __all__ = ["calibrate_files", "failure_message", "run", "verdict_line"]
 

@@ -319,7 +319,10 @@ def _outline(obj) -> list[list[float]]:
 def _write_outputs(args: argparse.Namespace, data: dict[str, Any], frames: tuple[str, str, str]) -> None:
     """Every requested file, prepared first, then written through temporary files renamed into place."""
     from ccs_kornia.io.files import write_json, write_text_atomic
-    from ccs_kornia.outputs.hand_eye_exports import moveit_calibration_yaml, ros_static_transform
+    from ccs_kornia.outputs.hand_eye_exports import (
+        moveit_calibration_yaml,
+        ros_static_transform,
+    )
 
     texts = {}
     if args.ros_tf:

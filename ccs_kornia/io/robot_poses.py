@@ -58,7 +58,10 @@ def _number(text: str) -> float | None:
 def _rotation(kind: str, r: np.ndarray) -> np.ndarray:
     """A rotation matrix from a rotation vector or a unit quaternion ``x, y, z, w`` (kornia's conversions)."""
     import torch
-    from kornia.geometry.conversions import axis_angle_to_rotation_matrix, quaternion_to_rotation_matrix
+    from kornia.geometry.conversions import (
+        axis_angle_to_rotation_matrix,
+        quaternion_to_rotation_matrix,
+    )
 
     t = torch.from_numpy(np.asarray(r, dtype=np.float64))[None]
     if kind == "rotvec":

@@ -321,7 +321,11 @@ class RigPipeline(nn.Module):
         each frame judged across its cameras; the boards' speeds from ``source``, the time between a frame's cameras
         from ``frames.times``): the cameras' results with the views left out no longer used, the kept frames, and
         the :class:`~ccs_kornia.pipeline.frame_selection.FrameChoice`."""
-        from ccs_kornia.pipeline.frame_selection import camera_views, choose_frames, keep_views
+        from ccs_kornia.pipeline.frame_selection import (
+            camera_views,
+            choose_frames,
+            keep_views,
+        )
 
         pipeline = next(iter(self.pipelines.values()))
         obj = grid_object_points(pipeline.detector.board, board_size, float(square), dtype=torch.float64)

@@ -9,7 +9,13 @@ import numpy as np
 import torch
 
 from ccs_kornia.bench.config import SECTIONS, BenchConfig
-from ccs_kornia.bench.hand_eye import OPENCV_METHODS, SEED, hand_eye_md, opencv_hand_eye, run_hand_eye
+from ccs_kornia.bench.hand_eye import (
+    OPENCV_METHODS,
+    SEED,
+    hand_eye_md,
+    opencv_hand_eye,
+    run_hand_eye,
+)
 from ccs_kornia.data.robots import render_hand_eye
 
 

@@ -19,8 +19,8 @@ from _real_data import REAL_DATA
 from _rig_images import ANGLE_DEG, T_REL, render_stereo, write_stereo
 
 from ccs_kornia import cli
-from ccs_kornia.runtime.errors import UserError
 from ccs_kornia.io.images import write_image
+from ccs_kornia.runtime.errors import UserError
 
 FAST = ["--board", "6x4", "--square", "0.025", "--detector", "opencv", "--no-distortion-correction", "--model", "k1k2",
         "--jobs", "1", "--no-ransac"]

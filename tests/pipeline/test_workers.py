@@ -4,8 +4,8 @@ number of workers, failures and errors reported, the pipeline's detections uncha
 from __future__ import annotations
 
 import os
-import time
 import sys
+import time
 
 import cv2
 import numpy as np

@@ -28,7 +28,11 @@ import math
 import torch
 
 from ccs_kornia.geometry.so3 import log_so3
-from ccs_kornia.modules.hand_eye.closed_forms import motion_pairs, park_martin, project_rotation
+from ccs_kornia.modules.hand_eye.closed_forms import (
+    motion_pairs,
+    park_martin,
+    project_rotation,
+)
 from ccs_kornia.modules.hand_eye.setup import invert_transforms
 
 __all__ = ["AGREE_DEG", "MIN_POSES", "ONE_AXIS_DEG", "SCALE_RANGE", "TINY_ROTATION_DEG", "WEAK_AXIS_DEG",

@@ -19,7 +19,11 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.modules.hand_eye.problem import GLOBAL_POSE_PARAMS, HandEyeProblem, HandEyeState
+from ccs_kornia.modules.hand_eye.problem import (
+    GLOBAL_POSE_PARAMS,
+    HandEyeProblem,
+    HandEyeState,
+)
 
 __all__ = ["attach_gradients", "hand_eye_cost"]
 

@@ -38,7 +38,11 @@ from ccs_kornia.modules.hand_eye.degeneracy import MIN_POSES, hand_eye_issues
 from ccs_kornia.modules.hand_eye.fit import fit_problem
 from ccs_kornia.modules.hand_eye.heldout import jackknife_covariance, leave_one_pose_out
 from ccs_kornia.modules.hand_eye.noise import fit_with_noise_estimate
-from ccs_kornia.modules.hand_eye.problem import GLOBAL_POSE_PARAMS, HandEyeProblem, HandEyeState
+from ccs_kornia.modules.hand_eye.problem import (
+    GLOBAL_POSE_PARAMS,
+    HandEyeProblem,
+    HandEyeState,
+)
 from ccs_kornia.modules.hand_eye.result import HandEyeResult, hand_eye_verdict
 from ccs_kornia.modules.hand_eye.setup import HandEyeSetup, invert_transforms
 from ccs_kornia.modules.rig.board_symmetry import board_symmetries, undo_symmetry

@@ -65,7 +65,10 @@ def test_command_line_lands_on_visps_result(tmp_path, capsys):
 
 def test_solver_on_the_same_data_with_its_figures():
     from ccs_kornia.io.images import load_image_gray
-    from ccs_kornia.modules.detection.markers.apriltag import AprilTagTarget, detect_apriltag
+    from ccs_kornia.modules.detection.markers.apriltag import (
+        AprilTagTarget,
+        detect_apriltag,
+    )
     from ccs_kornia.modules.hand_eye import calibrate_hand_eye
     from ccs_kornia.modules.rig.rig_camera import RigCamera
 

@@ -14,7 +14,9 @@ import numpy as np
 import torch
 
 from ccs_kornia.modules._checks import check_grey_images
-from ccs_kornia.modules.detection.learned.learned_detector import LearnedChessboardDetector
+from ccs_kornia.modules.detection.learned.learned_detector import (
+    LearnedChessboardDetector,
+)
 from ccs_kornia.modules.detection.refine.patch_refine import resize_to_level
 
 __all__ = ["RETRY", "corner_peaks", "shipped_detector"]

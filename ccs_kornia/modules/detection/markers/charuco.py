@@ -52,7 +52,10 @@ from ccs_kornia.modules.detection.boards import (
 )
 from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths, merge_corners
 from ccs_kornia.modules.detection.markers.lattice_names import BoardLattice
-from ccs_kornia.modules.detection.markers.lattice_path import LatticeBoard, lattice_corners
+from ccs_kornia.modules.detection.markers.lattice_path import (
+    LatticeBoard,
+    lattice_corners,
+)
 from ccs_kornia.modules.detection.markers.marker_bits import CodeTemplates, MarkerCodes
 from ccs_kornia.modules.detection.markers.marker_board import (
     VARIANTS,

@@ -26,7 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ccs_kornia.modules.detection.grid.point_lattice import organize_lattice, predict_cells
+from ccs_kornia.modules.detection.grid.point_lattice import (
+    organize_lattice,
+    predict_cells,
+)
 from ccs_kornia.modules.detection.learned.corner_peaks import corner_peaks
 from ccs_kornia.modules.detection.markers.lattice_names import (
     BoardLattice,

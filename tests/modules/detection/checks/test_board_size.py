@@ -8,7 +8,10 @@ import pytest
 import torch
 
 from ccs_kornia.data.scenes import make_calibration_set
-from ccs_kornia.modules.detection.checks.board_size import board_size_in, other_board_size
+from ccs_kornia.modules.detection.checks.board_size import (
+    board_size_in,
+    other_board_size,
+)
 
 K = torch.tensor([[520.0, 0.0, 320.0], [0.0, 520.0, 240.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
 

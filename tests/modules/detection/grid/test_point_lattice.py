@@ -7,7 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.modules.detection.grid.point_lattice import organize_lattice, predict_cells
+from ccs_kornia.modules.detection.grid.point_lattice import (
+    organize_lattice,
+    predict_cells,
+)
 
 
 def _lattice(cols: int, rows: int, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -6,7 +6,11 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.modules.detection.markers.corner_merge import AGREE_PX, MarkerPaths, merge_corners
+from ccs_kornia.modules.detection.markers.corner_merge import (
+    AGREE_PX,
+    MarkerPaths,
+    merge_corners,
+)
 
 NAN = float("nan")
 

@@ -9,7 +9,10 @@ import pytest
 
 from ccs_kornia.modules.detection.boards import CharucoBoard
 from ccs_kornia.modules.detection.markers.charuco import charuco_lattice
-from ccs_kornia.modules.detection.markers.lattice_names import LatticeNaming, name_lattice
+from ccs_kornia.modules.detection.markers.lattice_names import (
+    LatticeNaming,
+    name_lattice,
+)
 from ccs_kornia.modules.detection.markers.marker_bits import ORIENTATIONS
 
 BOARD = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250", legacy=False)

@@ -14,7 +14,11 @@ import torch
 
 from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard
 from ccs_kornia.modules.detection.markers.aprilgrid import aprilgrid_paths, board_tags
-from ccs_kornia.modules.detection.markers.charuco import board_markers, charuco_paths, detect_charuco
+from ccs_kornia.modules.detection.markers.charuco import (
+    board_markers,
+    charuco_paths,
+    detect_charuco,
+)
 from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 
 CHARUCO = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250", legacy=False)
