@@ -31,7 +31,6 @@ import os
 import sys
 from typing import Any
 
-import cv2
 import numpy as np
 import torch
 
@@ -50,6 +49,7 @@ from ccs_kornia.outputs.report.figures import (
     _residual_plot,
     _rms_chart,
     _undistorted_preview,
+    write_png,
 )
 from ccs_kornia.outputs.report.quality import (
     distortion_field_plot,
@@ -73,14 +73,6 @@ def _fmt(value: float | None, digits: int = 4) -> str:
 # ----------------------------------------------------------------------------------------------
 # the report
 # ----------------------------------------------------------------------------------------------
-
-
-def _write_png(path: str, image: np.ndarray, written: list[str]) -> bool:
-    ok, buf = cv2.imencode(".png", image)
-    if ok:
-        buf.tofile(path)
-        written.append(path)
-    return bool(ok)
 
 
 def _remove_previous(directory: str) -> None:
@@ -196,27 +188,27 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
         vis = _overlay(gray, detected, projected.get(index), gain, title)
         stem = os.path.splitext(base)[0]
         name = f"view_{index:04d}_{stem}.png"
-        if _write_png(os.path.join(views_dir, name), vis, written):
+        if write_png(os.path.join(views_dir, name), vis, written):
             overlay_names[index] = f"views/{name}"
         if view.get("used") and first_used is None and (gray.shape[1], gray.shape[0]) == size:
             first_used = (base, gray, detected)
 
     figures: list[tuple[str, str, str]] = []
     if views:
-        if _write_png(os.path.join(directory, "rms_per_view.png"), _rms_chart(views, data.get("rms")), written):
+        if write_png(os.path.join(directory, "rms_per_view.png"), _rms_chart(views, data.get("rms")), written):
             figures.append(("rms_per_view.png", "Per-view RMS",
                             "Bars: RMS reprojection error of each view under the final camera. Orange views were "
                             "excluded (RANSAC or outlier check); a view far above the dashed line deserves a look."))
     if residuals:
         fig = _residual_plot(size, np.concatenate(detected_used), np.concatenate(residuals))
-        if _write_png(os.path.join(directory, "residuals.png"), fig, written):
+        if write_png(os.path.join(directory, "residuals.png"), fig, written):
             figures.append(("residuals.png", "Residual vectors",
                             "Each arrow starts at a detected corner and points to its reprojection, magnified. "
                             "Random directions are noise; a pattern (e.g. radial at the borders) is model error."))
     coverage = None
     if detected_used:
         fig, coverage = _coverage_plot(size, detected_used, (cols, rows))
-        if _write_png(os.path.join(directory, "coverage.png"), fig, written):
+        if write_png(os.path.join(directory, "coverage.png"), fig, written):
             figures.append(("coverage.png", "Coverage",
                             "Corners per image cell over the used views. Distortion is only constrained where "
                             "corners were seen: empty borders mean extrapolated distortion there."))
@@ -224,7 +216,7 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
         base, gray, detected = first_used
         seen = np.concatenate(detected_used) if detected_used else None
         preview = _undistorted_preview(gray, K, dist, base, detected, (cols, rows), fisheye, seen)
-        if _write_png(os.path.join(directory, "undistorted.png"), preview, written):
+        if write_png(os.path.join(directory, "undistorted.png"), preview, written):
             figures.append(("undistorted.png", "Undistorted preview",
                             "A used view and the same view undistorted with the calibration, as 'undistort "
                             "--balance 0' writes it: a pinhole view centred on the optical axis, the largest "
@@ -233,14 +225,14 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
                             "should sit on them once undistorted."))
 
     field = distortion_field_plot(size, K.numpy(), dist.numpy(), fisheye)
-    if _write_png(os.path.join(directory, "distortion_field.png"), field, written):
+    if write_png(os.path.join(directory, "distortion_field.png"), field, written):
         figures.append(("distortion_field.png", "Distortion field",
                         "Where the lens moves each pixel of a pinhole camera with the same K. Beyond the covered "
                         "part of the image (coverage plot) this is extrapolated by the model."))
     quality = data.get("diagnostics") or {}
     if quality.get("uncertainty_grid_px"):
         fig = uncertainty_plot(size, quality["uncertainty_grid_px"])
-        if _write_png(os.path.join(directory, "uncertainty.png"), fig, written):
+        if write_png(os.path.join(directory, "uncertainty.png"), fig, written):
             figures.append(("uncertainty.png", "Projection uncertainty",
                             "1-sigma uncertainty of where a fixed ray lands, from the parameter covariance (the "
                             "rotation a principal-point shift mimics fitted out). High values where no board was "

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import torch
 
-__all__ = ["DISPLAY_MAX_SIDE"]
+__all__ = ["DISPLAY_MAX_SIDE", "write_png"]
 
 #: longest side of any picture in the report
 DISPLAY_MAX_SIDE = 1280
@@ -24,6 +24,17 @@ _AA = cv2.LINE_AA
 _GREEN, _RED, _YELLOW, _BLUE = (0, 170, 0), (0, 0, 230), (0, 215, 255), (230, 90, 0)
 _MAGENTA = (200, 0, 200)
 _ORANGE, _BLACK, _GREY, _WHITE = (0, 140, 255), (0, 0, 0), (150, 150, 150), (255, 255, 255)
+
+
+def write_png(path: str, image: np.ndarray, written: list[str]) -> bool:
+    """Encode ``image`` (H, W[, 3] uint8) as PNG into ``path`` (any characters in the path, through
+    :func:`numpy.ndarray.tofile`) and add the path to ``written`` (the report's manifest); False if it cannot be
+    encoded."""
+    ok, buf = cv2.imencode(".png", image)
+    if ok:
+        buf.tofile(path)
+        written.append(path)
+    return bool(ok)
 
 
 def _fmt(value: float | None, digits: int = 4) -> str:

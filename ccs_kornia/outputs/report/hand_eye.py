@@ -26,6 +26,7 @@ from ccs_kornia.outputs.report.figures import (
     _plot_frame,
     _text,
     _ticks,
+    write_png,
 )
 
 __all__ = ["pose_figure", "residuals_figure", "robot_frame_figure", "write_hand_eye_report"]
@@ -144,13 +145,7 @@ def write_hand_eye_report(directory: str, data: dict[str, Any]) -> list[str]:
     def save(name: str, image: np.ndarray | None) -> str | None:
         if image is None:
             return None
-        path = os.path.join(directory, name)
-        ok, buf = cv2.imencode(".png", image)
-        if ok:
-            buf.tofile(path)
-            written.append(path)
-            return name
-        return None
+        return name if write_png(os.path.join(directory, name), image, written) else None
 
     labels = [os.path.basename(v["path"]) for v in data["poses"]]
     parts = [("residuals.png", residuals_figure(data["poses"], labels), "residuals by pose"),

@@ -22,6 +22,7 @@ from ccs_kornia.outputs.report.figures import (
     _plot_frame,
     _text,
     _ticks,
+    write_png,
 )
 from ccs_kornia.outputs.rig_records import rectify_maps
 
@@ -133,13 +134,7 @@ def write_rig_report(directory: str, data: dict[str, Any], rect: dict[str, Any] 
     def save(name: str, image: np.ndarray | None) -> str | None:
         if image is None:
             return None
-        path = os.path.join(directory, name)
-        ok, buf = cv2.imencode(".png", image)
-        if ok:
-            buf.tofile(path)
-            written.append(path)
-            return name
-        return None
+        return name if write_png(os.path.join(directory, name), image, written) else None
 
     names = [cam["name"] for cam in data["cameras"]]
     figures = [
