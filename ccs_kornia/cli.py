@@ -271,9 +271,10 @@ def selection_options(p: argparse.ArgumentParser) -> None:
     """``--select/--no-select`` and ``--save-frames DIR``."""
     g = p.add_argument_group("frame selection")
     g.add_argument("--select", action=argparse.BooleanOptionalAction, default=None,
-                   help="keep only the frames that make the best camera: still, sharp, not a near copy of one kept, "
-                        "and each lowering the predicted projection uncertainty (--max-frames caps them; the JSON's "
-                        "selection says why each other frame was left out). Default: off")
+                   help="keep only the frames that make the best camera: still and sharp, new poses before near "
+                        "copies of kept ones, taken by how much each lowers the predicted projection uncertainty "
+                        "(--max-frames caps them; the JSON's selection says why each other frame was left out). "
+                        "Default: off")
     g.add_argument("--save-frames", metavar="DIR",
                    help="also write the frames kept as images to DIR (created; a rig's in one folder per camera): "
                         "the same set can be calibrated again as a folder")

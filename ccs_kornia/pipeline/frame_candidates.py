@@ -9,8 +9,11 @@ frames a second. :func:`choose_frames` keeps a bounded set:
    (the larger of the two sides); a frame moving more than ``max_motion`` is left out (``moving``), unless fewer than
    :data:`MIN_STILL` still frames remain (then the stillest moving ones are admitted);
 2. **new and spread out**: the frames are taken greedily, each time the one farthest (in outline distance,
-   :func:`outline_distance`, a fraction of the image diagonal) from those taken already, weighted by its stillness
-   and, for a rig, by the cameras that see it; a frame within ``min_change`` of a taken one is a ``near copy`` and stays out; at most ``max_frames``.
+   :func:`outline_distance`, as a fraction of the board's size in the image: the smaller outline's RMS distance of
+   its corners from their centre) from those taken already, weighted by its stillness and, for a rig, by the cameras
+   that see it; a frame within ``min_change`` of a taken one is a ``near copy`` and stays out; at most
+   ``max_frames``. Measured against the board, not the image: a small board far away moves little in the image when
+   it turns to a new pose.
 
 A rig is chosen by *instants* (its cameras' frames paired by :mod:`~ccs_kornia.pipeline.frame_matching`): an instant
 is as new as the newest pose it shows one of the cameras that see it (its distance to the nearest chosen instant
@@ -42,12 +45,14 @@ DEFAULT_MAX_FRAMES = 60
 #: frame kept at most: the selection chooses among them
 CANDIDATES_PER_FRAME = 1.5
 #: with the frame selection, a still frame's largest board motion (fraction of the image diagonal per frame period;
-#: 1.5 px at 1280x720): a rolling shutter bends a board that moves, which no corner precision shows
-SELECT_MAX_MOTION = 0.001
+#: 2.9 px at 1280x720): a rolling shutter bends a board that moves, which no corner precision shows (the selection
+#: weighs the motion that passes: :func:`~ccs_kornia.pipeline.frame_selection.motion_weight`)
+SELECT_MAX_MOTION = 0.002
 #: largest board motion of a still frame, as a fraction of the image diagonal per frame period (4.4 px at 1280x720)
 MAX_MOTION = 0.003
-#: two frames whose outlines differ by less than this fraction of the image diagonal (mean corner distance) are copies
-MIN_CHANGE = 0.02
+#: two frames whose outlines differ by less than this fraction of the board's size in the image (mean corner
+#: distance against the smaller outline's RMS distance of its corners from their centre) are copies
+MIN_CHANGE = 0.1
 #: still frames needed before moving ones are left out
 MIN_STILL = 12
 
@@ -134,14 +139,15 @@ def choose_frames(
         motion: per camera, per instant, :func:`board_motion` of the frame.
         image_sizes: per camera ``(W, H)``.
         max_frames: instants kept at most (>= 1).
-        max_motion, min_change: fractions of each camera's image diagonal (per frame period; mean corner distance).
+        max_motion: fraction of each camera's image diagonal per frame period.
+        min_change: mean corner distance as a fraction of the board's size in the image.
 
     Returns:
         :class:`FrameChoice`.
 
     Example:
         >>> box = np.array([[0.0, 0.0], [40.0, 0.0], [40.0, 30.0], [0.0, 30.0]])
-        >>> seen = [[Sighting(True, box + [dx, 0.0]) for dx in (0, 20, 40, 60, 80, 100, 5)]]
+        >>> seen = [[Sighting(True, box + [dx, 0.0]) for dx in (0, 20, 40, 60, 80, 100, 1)]]
         >>> c = choose_frames(seen, [[str(k) for k in range(7)]], [[0.0] * 7], [(640, 480)], max_frames=3)
         >>> c.chosen, c.reasons[0][1], c.reasons[0][6]
         ([0, 2, 5], 'over --max-frames', 'near copy of frame 0')
@@ -178,7 +184,7 @@ def choose_frames(
         for k in range(c):
             if seen[k, i]:
                 reasons[k][i] = f"moving ({moves[k, i] * diag[k]:.1f} px/frame)"
-    outlines = _Outlines(sightings, seen, diag)
+    outlines = _Outlines(sightings, seen)
     chosen = _spread(still, outlines, cameras_seeing, np.nan_to_num(worst[still] / max_motion), max_frames, min_change)
     near, distance = _nearest(still, chosen, outlines)
     novelty = np.where(seen[:, still], distance, -np.inf).max(0)
@@ -196,34 +202,45 @@ def choose_frames(
 
 
 class _Outlines:
-    """Every camera's outlines :math:`(C, F, 4, 2)` in fractions of its diagonal (NaN where not seen), and per camera
-    the distance of instants to one instant (infinite where the camera does not see both)."""
+    """Every camera's outlines :math:`(C, F, 4, 2)` (NaN where not seen) and their sizes :math:`(C, F)` (RMS distance
+    of the four corners from their centre), and per camera the distance of instants to one instant as a fraction of
+    the smaller outline's size (infinite where the camera does not see both)."""
 
-    def __init__(self, sightings, seen: np.ndarray, diag: Sequence[float]) -> None:
+    def __init__(self, sightings, seen: np.ndarray) -> None:
         c, f = seen.shape
         self.seen = seen
         self.points = np.full((c, f, 4, 2), np.nan)
+        self.size = np.full((c, f), np.nan)
         for k in range(c):
             for i in np.flatnonzero(seen[k]):
-                self.points[k, i] = sightings[k][i].outline / diag[k]
+                outline = np.asarray(sightings[k][i].outline, dtype=np.float64)
+                self.points[k, i] = outline
+                self.size[k, i] = np.sqrt(((outline - outline.mean(0)) ** 2).sum(-1).mean())
 
     def to(self, j: int, among: np.ndarray) -> np.ndarray:
         """Distances :math:`(C, len(among))` of the instants ``among`` to instant ``j``, per camera."""
         pts, ref = self.points[:, among], self.points[:, j][:, None]
         d = np.min([np.linalg.norm(pts - np.roll(ref, r, axis=2), axis=-1).mean(-1) for r in range(4)], axis=0)
-        return np.where(self.seen[:, among] & self.seen[:, j][:, None], d, np.inf)
+        size = np.fmin(self.size[:, among], self.size[:, j][:, None])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.where(size > 0, d / np.where(size > 0, size, 1.0), np.where(d > 0, np.inf, 0.0))
+        return np.where(self.seen[:, among] & self.seen[:, j][:, None], rel, np.inf)
+
+
+#: the novelty of an instant a camera sees before any of its instants is chosen: farther than any pose
+_UNSEEN = 1e6
 
 
 def _spread(pool: np.ndarray, outlines: _Outlines, cameras_seeing: np.ndarray, slowness: np.ndarray,
             max_frames: int, min_change: float) -> list[int]:
     """Farthest-point choice over ``pool``: an instant's novelty is the largest, over the cameras that see it, of its
-    distance to the nearest chosen instant that camera sees (1 where it sees none yet); weighted by the cameras that
-    see it and its stillness."""
+    distance to the nearest chosen instant that camera sees (:data:`_UNSEEN` where it sees none yet); weighted by the
+    cameras that see it and its stillness."""
     if not len(pool):
         return []
     seen = outlines.seen[:, pool]
     weight = cameras_seeing[pool] / (1.0 + slowness)
-    nearest = np.ones(seen.shape)
+    nearest = np.full(seen.shape, _UNSEEN)
     first = int(np.lexsort((slowness, -weight))[0])
     chosen = [int(pool[first])]
     taken = np.zeros(len(pool), dtype=bool)

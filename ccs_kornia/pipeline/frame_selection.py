@@ -12,11 +12,19 @@ folder's photos), :func:`choose_frames` keeps the views that are
 2. **sharp**: the median of the corners' own measured precision
    (:func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_uncertainty`) at most ``max_blur`` times the
    candidates' median (blur, defocus and low contrast soften the corners), else ``blurred``;
-3. **new**: not a near copy of a view kept already (the boards' corners within ``min_change`` of the image diagonal
-   of each other, on average);
+3. **new**: a near copy of a view kept already (the boards' corners within ``min_change`` of the board's size in
+   the image of each other, on average: :func:`near_copies`; a small board far away moves little in the image when it
+   turns, so a new pose is measured against the board, not against the image) waits until every new view is taken,
+   then counts like any view (another measurement of a pose averages its noise); where ``max_frames`` or the stop
+   comes first it is left out as a ``near copy``;
 4. **informative**: taken greedily by how much each lowers the camera's predicted projection uncertainty over the
    whole image (the solver's covariance: :mod:`~ccs_kornia.modules.calibration.quality.view_information`), until a
-   view lowers it by less than ``min_gain`` (``adds nothing``) or ``max_frames`` are kept. Fewer than ``min_keep``
+   view lowers it by less than ``min_gain`` (``adds nothing``) or ``max_frames`` are kept. The covariance counts the
+   corners' own noise only, which a view's many corners average away; the errors a whole view shares (the rolling
+   shutter's bend, the blur, the detector's bias on that board) average over views only, so a distinct view helps
+   more than the covariance says, and the covariance holds at the first solve's camera, which a few views less can
+   move far where the boards are small. So by default nothing stops the choice but ``max_frames``
+   (:data:`MIN_GAIN`): the gates and the near copies thin the frames, the order decides which the cap keeps. Fewer than ``min_keep``
    kept: the choice goes on, the views left out as moving or blurred admitted.
 
 A rig's frames are judged across its cameras (:func:`choose_frames` with several cameras): a frame is moving when
@@ -57,6 +65,7 @@ __all__ = [
     "CameraViews",
     "FrameChoice",
     "FrameSelection",
+    "board_extent",
     "camera_views",
     "choose_frames",
     "keep_views",
@@ -77,10 +86,13 @@ MAX_SPEED = 0.15
 SYNC_SCALE_PX = 1.0
 #: a rig's board that moved more than this between its cameras' frames of one instant (px) is moving
 MAX_SYNC_PX = 5.0
-#: two boards whose corners lie within this fraction of the image diagonal of each other (mean) are near copies
-MIN_CHANGE = 0.02
-#: a view that lowers the predicted projection uncertainty by less than this fraction adds nothing
-MIN_GAIN = 0.01
+#: two boards whose corners lie within this fraction of the board's size in the image (the RMS distance of its
+#: corners from their centre, the smaller board's) of each other (mean) are near copies
+MIN_CHANGE = 0.1
+#: a view that lowers the predicted projection uncertainty by less than this fraction adds nothing; none by default:
+#: the covariance counts only the corners' own noise and holds at the first solve's camera, so a small predicted gain
+#: is no proof that a view is useless (the module docstring; how it was chosen: ``docs/video.md``)
+MIN_GAIN = 0.0
 #: views kept at least (the gates admit the stillest and sharpest left out, the greedy choice goes on, up to this)
 MIN_KEEP = 8
 
@@ -179,20 +191,39 @@ def camera_views(out: PipelineResult, object_points: torch.Tensor, weigh_corners
                        speeds + [None] * (v - len(speeds)), float(cal.rms))
 
 
-def near_copies(corners: torch.Tensor, valid: torch.Tensor, distance: float, min_common: int = 4) -> torch.Tensor:
-    """:math:`(V, V)` bool: the boards of two views lie within ``distance`` px of each other (mean distance of the
-    corners both show, at least ``min_common`` of them; a view is not its own copy).
+def board_extent(corners: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """:math:`(V,)` each board's size in the image: the RMS distance (px) of its corners from their centre (0: no
+    corner).
 
     Example:
-        >>> c = torch.zeros(3, 4, 2); c[1] += 3.0; c[2] += 30.0
-        >>> near_copies(c, torch.ones(3, 4, dtype=torch.bool), 10.0).int().tolist()
+        >>> c = torch.tensor([[[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]])
+        >>> board_extent(c, torch.ones(1, 4, dtype=torch.bool))
+        tensor([1.4142])
+    """
+    w = valid.to(corners.dtype)[..., None]
+    n = w.sum(-2).clamp_min(1.0)
+    centre = (torch.where(valid[..., None], corners, torch.zeros_like(corners))).sum(-2, keepdim=True) / n[..., None, :]
+    spread = torch.where(valid[..., None], corners - centre, torch.zeros_like(corners)).pow(2).sum((-1, -2))
+    return (spread / n[..., 0]).sqrt()
+
+
+def near_copies(corners: torch.Tensor, valid: torch.Tensor, min_change: float, min_common: int = 4) -> torch.Tensor:
+    """:math:`(V, V)` bool: the boards of two views lie within ``min_change`` times the smaller board's size in the
+    image (:func:`board_extent`) of each other (mean distance of the corners both show, at least ``min_common`` of
+    them; a view is not its own copy).
+
+    Example:
+        >>> c = torch.tensor([[0.0, 0.0], [20.0, 0.0], [20.0, 20.0], [0.0, 20.0]]).repeat(3, 1, 1)
+        >>> c[1] += 0.5; c[2] += 10.0  # the board's size is 14.1 px: moved 0.7 px it is a copy at 0.1, 14 px not
+        >>> near_copies(c, torch.ones(3, 4, dtype=torch.bool), 0.1).int().tolist()
         [[0, 1, 0], [1, 0, 0], [0, 0, 0]]
     """
     both = valid[:, None] & valid[None]  # (V, V, N)
     d = (corners[:, None] - corners[None]).norm(dim=-1)
     n = both.sum(-1)
     mean = torch.where(both, d, torch.zeros_like(d)).sum(-1) / n.clamp_min(1)
-    out = (n >= min_common) & (mean < distance)
+    size = board_extent(corners, valid)
+    out = (n >= min_common) & (mean < min_change * torch.minimum(size[:, None], size[None]))
     out.fill_diagonal_(False)
     return out
 
@@ -373,11 +404,11 @@ def choose_frames(
     M = M + torch.diag_embed(pad.double())[:, None] * usable[..., None, None].double()
     links = C > 1
 
-    def greedy(views_ok: torch.Tensor, available: torch.Tensor, count: int | None, min_gain: float,
-               copies: bool = True):
+    def greedy(views_ok: torch.Tensor, available: torch.Tensor, count: int | None, min_gain: float):
         Mv = torch.where(views_ok[..., None, None], M, torch.zeros_like(M))
-        conflicts = _copies(cameras, views, views_ok, selection.min_change) if copies else None
-        return greedy_information(Mv, A, available, conflicts, count, min_gain, links=links, link_weights=weight)
+        conflicts = _copies(cameras, views, views_ok, selection.min_change)
+        return greedy_information(Mv, A, available, conflicts, count, min_gain, links=links, link_weights=weight,
+                                  copies_last=True)
 
     passed = candidate & ~gated
     choice = greedy(sharp_views, passed, selection.max_frames, selection.min_gain)
@@ -387,8 +418,6 @@ def choose_frames(
     topped_up = len(choice.order) < need
     if topped_up:  # too few: the gated frames may come in too, all views of a frame count
         choice = greedy(usable, candidate, need, 0.0)
-    if len(choice.order) < need:  # still too few: near copies too (a camera needs some views)
-        choice = greedy(usable, candidate, need, 0.0, copies=False)
     kept = [False] * F
     for f in choice.order:
         kept[f] = True
@@ -437,7 +466,7 @@ def _copies(cameras: Sequence[CameraViews | None], views: list[list[int | None]]
         if not fs:
             continue
         ks = torch.tensor([views[c][f] for f in fs])
-        near = near_copies(cam.corners[ks], cam.valid[ks], min_change * cam.diagonal)
+        near = near_copies(cam.corners[ks], cam.valid[ks], min_change)
         here = torch.zeros(F, F, dtype=torch.bool)
         idx = torch.tensor(fs)
         here[idx[:, None], idx[None]] = near

@@ -18,6 +18,7 @@ from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 from ccs_kornia.pipeline.frame_selection import (
     CameraViews,
     FrameSelection,
+    board_extent,
     choose_frames,
     motion_weight,
     near_copies,
@@ -53,14 +54,29 @@ def test_motion_weight_and_near_copies():
     assert motion_weight(None, 1000.0, 0.03) == 1.0
     assert motion_weight(30.0, 1000.0, 0.03) == pytest.approx(0.5)
     assert motion_weight(30.0, 1000.0, 0.03, 1.0, 1.0) == pytest.approx(1 / 3)
-    corners = torch.zeros(3, 5, 2)
-    corners[1] += 2.0
+    board = torch.tensor([[0.0, 0.0], [40.0, 0.0], [40.0, 30.0], [0.0, 30.0], [20.0, 15.0]])
+    corners = board.repeat(3, 1, 1)
+    corners[1] += 1.0  # 1.4 px: under a tenth of the board's size (RMS 22.4 px from its centre)
     corners[2] += 50.0
     valid = torch.ones(3, 5, dtype=torch.bool)
     valid[2, :2] = False
-    near = near_copies(corners, valid, 5.0)
+    near = near_copies(corners, valid, 0.1)
     assert near.tolist() == [[False, True, False], [True, False, False], [False, False, False]]
-    assert not bool(near_copies(corners, valid, 5.0, min_common=6).any())  # too few corners in common
+    assert not bool(near_copies(corners, valid, 0.1, min_common=6).any())  # too few corners in common
+    # measured against the board, not the image: the same motion relative to a board ten times smaller is as new
+    assert torch.equal(near_copies(corners / 10.0, valid, 0.1), near)
+    assert not bool(near_copies(corners, valid, 0.05)[0, 1])
+
+
+def test_board_extent():
+    board = torch.tensor([[[0.0, 0.0], [4.0, 0.0], [4.0, 3.0], [0.0, 3.0]]], dtype=torch.float64)
+    valid = torch.ones(1, 4, dtype=torch.bool)
+    assert board_extent(board, valid).item() == pytest.approx(2.5)
+    valid[0, 2] = False  # a corner not shown does not count, wherever its coordinates are
+    far = board.clone()
+    far[0, 2] = 1e6
+    assert board_extent(far, valid).item() == pytest.approx(board_extent(board, valid).item())
+    assert board_extent(board, torch.zeros(1, 4, dtype=torch.bool)).item() == 0.0
 
 
 def test_each_view_left_out_says_why():
@@ -72,12 +88,18 @@ def test_each_view_left_out_says_why():
     choice = choose_frames([cam], selection=FrameSelection(min_gain=0.0), labels=LABELS[:16])
     assert choice.reasons[3] == "moving (1000 px/s)" and not choice.kept[3]
     assert choice.reasons[7] == "blurred (corners 4.0x the median)" and not choice.kept[7]
-    assert choice.kept[2] != choice.kept[9]  # one of the two: the other is its near copy
-    assert choice.reasons[9 if choice.kept[2] else 2].startswith("near copy of frame ")
+    # a near copy waits until every new view is taken, then counts like any view: here it comes last
+    assert choice.kept[2] and choice.kept[9] and choice.order[-1] in (2, 9)
     assert choice.kept == [not r for r in choice.reasons] and choice.candidates == 16
+    # with the cap reached first, the copy is the one left out, and says of what
+    capped = choose_frames([cam], selection=FrameSelection(max_frames=13, min_gain=0.0), labels=LABELS[:16])
+    assert capped.kept[2] != capped.kept[9]
+    assert capped.reasons[9 if capped.kept[2] else 2] == f"near copy of frame {2 if capped.kept[2] else 9}"
+    assert sum(capped.kept) == 13
     assert choice.view_reasons[0] == choice.reasons  # one camera: its views are the frames
     record = choice.record([f"cam.mp4#{k}" for k in range(16)])
     assert record["kept"] == sum(choice.kept) and record["frames"][3]["reason"].startswith("moving")
+    assert record["order"][-1] in ("cam.mp4#2", "cam.mp4#9")
     assert len(record["uncertainty_px"][0]) == sum(choice.kept) + 1
 
 

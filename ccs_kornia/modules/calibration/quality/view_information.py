@@ -196,6 +196,7 @@ def greedy_information(
     links: bool = False,
     prior: float = PRIOR,
     link_weights: torch.Tensor | None = None,
+    copies_last: bool = False,
 ) -> GreedyChoice:
     r"""Take units (views, or a rig's instants) one at a time, each time the one that lowers the cameras' predicted
     projection uncertainty most, until none lowers it by ``min_gain`` or ``max_count`` are taken.
@@ -219,6 +220,10 @@ def greedy_information(
         prior: :data:`PRIOR`.
         link_weights: :math:`(C, V)` how much each camera's view of a unit counts toward a link (the smaller of the
             pair's; default 1).
+        copies_last: a near copy waits instead of being ruled out: once no other unit is left (or adds
+            ``min_gain``), the copies are judged like any unit, up to ``max_count`` (a copy not taken keeps the reason
+            ``"copy"``). A copy of a still board is another measurement of the same pose: its noise averages, where a
+            new pose would have added more.
 
     Returns:
         :class:`GreedyChoice`.
@@ -253,12 +258,24 @@ def greedy_information(
     copy_of = [-1] * V
     gain_of = [float("nan")] * V
     open_ = avail.clone()
+    waiting = torch.zeros_like(open_)  # near copies put off (copies_last)
     order: list[int] = []
     gains: list[float] = []
-    while bool(open_.any()):
+
+    def reopen() -> bool:  # the copies' turn: judged like any unit from now on
+        nonlocal conflicts
+        if not bool(waiting.any()):
+            return False
+        open_.copy_(open_ | waiting)
+        waiting.zero_()
+        conflicts = None
+        return True
+
+    while bool(open_.any()) or reopen():
         if max_count is not None and len(order) >= max_count:
             for v in open_.nonzero().flatten().tolist():
-                reason[v] = "cap"
+                if copy_of[v] < 0:
+                    reason[v] = "cap"
             break
         cand = open_.nonzero().flatten()
         trial = spread(H[:, None] + Ms[:, cand])  # (C, K)
@@ -274,10 +291,14 @@ def greedy_information(
             gain_of[v] = float(gain[k])
         best = int(torch.argmax(gain))
         if not float(gain[best]) >= min_gain:
+            if reopen():
+                continue
             for v in cand.tolist():
-                reason[v] = "adds nothing"
+                if copy_of[v] < 0:
+                    reason[v] = "adds nothing"
             break
         v = int(cand[best])
+        reason[v], copy_of[v] = "", -1
         order.append(v)
         gains.append(float(gain[best]))
         open_[v] = False
@@ -291,4 +312,6 @@ def greedy_information(
             for u in (conflicts[:, v].to(open_.device) & open_).nonzero().flatten().tolist():
                 open_[u] = False
                 reason[u], copy_of[u] = "copy", v
+                if copies_last:
+                    waiting[u] = True
     return GreedyChoice(order, gains, torch.stack(history, -1), reason, copy_of, gain_of)

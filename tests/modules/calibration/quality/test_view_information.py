@@ -106,6 +106,16 @@ def test_greedy_with_copies_ruled_out_takes_every_pose_once():
         copies[v, v + 6] = copies[v + 6, v] = True
     choice = greedy_information(M, A, conflicts=copies)
     assert sorted(v % 6 for v in choice.order) == list(range(6)) and choice.reason.count("copy") == 6
+    # copies last: every pose once first, then the repeats, each judged again (taken ones lose their reason)
+    last = greedy_information(M, A, conflicts=copies, copies_last=True)
+    assert sorted(v % 6 for v in last.order[:6]) == list(range(6)) and sorted(last.order) == list(range(12))
+    assert last.reason == [""] * 12 and last.copy_of == [-1] * 12
+    capped = greedy_information(M, A, conflicts=copies, copies_last=True, max_count=8)
+    assert capped.order[:6] == last.order[:6] and len(capped.order) == 8
+    assert capped.reason.count("copy") == 4 and capped.reason.count("cap") == 0
+    assert all(capped.copy_of[v] >= 0 for v in range(12) if capped.reason[v] == "copy")
+    stopped = greedy_information(M, A, conflicts=copies, copies_last=True, min_gain=1.0)  # nothing adds that much
+    assert stopped.order == [] and stopped.reason.count("adds nothing") == 12
 
 
 def test_greedy_stops_when_a_view_adds_nothing_and_rules_out_copies():
