@@ -11,7 +11,9 @@ the board in ("all"). The frame choices, each solved by the same solver (:data:`
   (:mod:`~ccs_kornia.pipeline.frame_selection`) on their detections;
 * ``all``: every frame with a board;
 * ``uniform``: as many frames as ``selected`` kept, evenly spaced over those with a board;
-* ``coverage``: as many, chosen by :func:`~ccs_kornia.bench.frame_baselines.coverage_greedy` (caliscope's scheme).
+* ``coverage``: as many, chosen by :func:`~ccs_kornia.bench.frame_baselines.coverage_greedy` (caliscope's scheme);
+* ``unselected`` (rendered recordings only): what ``calibrate VIDEO`` uses without ``--select``: the frames its
+  screening chose for the full detector (:data:`MAX_FRAMES`, stiller and spread over the poses), every one counted.
 
 Figures: the error against the true camera (E_FL, E_PP and the RMS over the image of the distance between where the
 two cameras project the same ray, the rotation between them fitted out); the held-out error on a second recording of
@@ -46,7 +48,7 @@ import torch
 from ccs_kornia.bench.frame_baselines import coverage_greedy, uniform_frames
 from ccs_kornia.bench.heldout import heldout_errors, rms, transfer_errors
 
-__all__ = ["MODEL", "SEED", "STILL_SPEED", "run_video", "video_md"]
+__all__ = ["MODEL", "RENDERED_METHODS", "SEED", "STILL_SPEED", "run_video", "video_md"]
 
 #: first seed of the rendered recordings (the tests use seeds below 1000; the selection was tuned on others)
 SEED = 600_000
@@ -59,6 +61,8 @@ SQUARE = 0.03
 #: frames the command's frame selection keeps at most (its default)
 MAX_FRAMES = 60
 METHODS = ("selected", "all", "uniform", "coverage")
+#: the rendered recordings' frame choices: :data:`METHODS` and the command's frames without the selection
+RENDERED_METHODS = (*METHODS, "unselected")
 REAL = "caliscope_4cam_charuco"
 
 
@@ -196,10 +200,14 @@ def _rendered(cfg, seed: int, folder: Path, log) -> dict:
     position = {r.index: k for k, r in enumerate(refs)}
     found = [k for k in range(len(refs)) if bool(detected.detections.found[0, k])]
     candidates = [position[r.index] for r in frames.refs[0] if r.index in position]
+    plain = camera_frames([screened], detector_frames(MAX_FRAMES, False), select=False)
+    unselected = [position[r.index] for r in plain.refs[0] if r.index in position]
     cand_source = VideoSource([[VideoFrameRef(str(path), refs[k].index, refs[k].timestamp, speed.get(refs[k].index))
                                 for k in candidates]])
     obj = np.asarray(pattern.object_points(), dtype=np.float64).reshape(-1, 3)
     choices = _choices(pipeline, detected, BOARD, found, candidates, cand_source, obj, size)
+    unselected = [k for k in unselected if bool(detected.detections.found[0, k])]
+    choices["unselected"] = (unselected, _solve(pipeline, detected, BOARD, 0, unselected))
     cand_source.close()
     # the held-out recording: the same camera, another trajectory; still frames and all of them
     held = handheld_recording(camera, pattern, cfg.video_heldout_seconds, seed=seed + 1)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 from ccs_kornia.bench.config import SECTIONS, BenchConfig
-from ccs_kornia.bench.video import METHODS, _folds, run_video, video_md
+from ccs_kornia.bench.video import RENDERED_METHODS, _folds, run_video, video_md
 
 
 def test_video_section_runs_and_reports(tmp_path):
@@ -14,7 +14,7 @@ def test_video_section_runs_and_reports(tmp_path):
     sec = run_video(BenchConfig.tiny(real_dir=str(tmp_path)), log=lambda *_: None)
     assert len(sec["rendered"]) == 1 and sec["real"] is None and "caliscope_4cam_charuco" in sec["skipped"]
     r = sec["rendered"][0]
-    assert set(r["methods"]) == set(METHODS) and r["board_seen"] <= r["frames"]
+    assert set(r["methods"]) == set(RENDERED_METHODS) and r["board_seen"] <= r["frames"]
     assert r["screening_fps"] > 0 and r["candidates"] <= r["detected"]
     chosen = r["methods"]["selected"]["frames"]
     # the baselines take as many frames as the selection kept (fewer where the frames run out)
