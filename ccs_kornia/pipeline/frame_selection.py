@@ -24,8 +24,8 @@ folder's photos), :func:`choose_frames` keeps the views that are
    shutter's bend, the blur, the detector's bias on that board) average over views only, so a distinct view helps
    more than the covariance says, and the covariance holds at the first solve's camera, which a few views less can
    move far where the boards are small. So by default nothing stops the choice but ``max_frames``
-   (:data:`MIN_GAIN`): the gates and the near copies thin the frames, the order decides which the cap keeps. Fewer than ``min_keep``
-   kept: the choice goes on, the views left out as moving or blurred admitted.
+   (:data:`MIN_GAIN`): the gates and the near copies thin the frames, the order decides which the cap keeps. Fewer
+   than ``min_keep`` kept: the choice goes on, the views left out as moving or blurred admitted.
 
 A rig's frames are judged across its cameras (:func:`choose_frames` with several cameras): a frame is moving when
 its board moves too fast in any camera, its views blurred in some cameras are left out of those, its information is
@@ -200,11 +200,11 @@ def board_extent(corners: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
         >>> board_extent(c, torch.ones(1, 4, dtype=torch.bool))
         tensor([1.4142])
     """
-    w = valid.to(corners.dtype)[..., None]
-    n = w.sum(-2).clamp_min(1.0)
-    centre = (torch.where(valid[..., None], corners, torch.zeros_like(corners))).sum(-2, keepdim=True) / n[..., None, :]
-    spread = torch.where(valid[..., None], corners - centre, torch.zeros_like(corners)).pow(2).sum((-1, -2))
-    return (spread / n[..., 0]).sqrt()
+    shown = valid[..., None]
+    n = valid.sum(-1).clamp_min(1).to(corners.dtype)  # (V,)
+    centre = torch.where(shown, corners, torch.zeros_like(corners)).sum(-2) / n[:, None]
+    spread = torch.where(shown, corners - centre[:, None], torch.zeros_like(corners)).pow(2).sum((-1, -2))
+    return (spread / n).sqrt()
 
 
 def near_copies(corners: torch.Tensor, valid: torch.Tensor, min_change: float, min_common: int = 4) -> torch.Tensor:
