@@ -148,8 +148,9 @@ def refine_tag_corners(image: np.ndarray, quad: np.ndarray, bits: int,
     Example:
         >>> img = np.full((60, 60), 230.0); img[20:40, 15:45] = 20.0
         >>> c, why = refine_tag_corners(img, np.array([[15.0, 20], [44, 21], [44, 39], [14, 39]]), 8)
-        >>> np.round(c, 2).tolist()
-        [[14.5, 19.5], [44.5, 19.5], [44.5, 39.5], [14.5, 39.5]]
+        >>> truth = np.array([[14.5, 19.5], [44.5, 19.5], [44.5, 39.5], [14.5, 39.5]])  # the dark block's corners
+        >>> bool(np.abs(c - truth).max() < 0.05), why
+        (True, '')
     """
     img = np.asarray(image, dtype=np.float32)
     corners = np.asarray(quad, dtype=np.float64).copy()
