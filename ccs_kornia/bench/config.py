@@ -176,7 +176,7 @@ class BenchConfig:
     markers_calib_trials: int = 5
     markers_calib_views: int = 12
     markers_real_sets: tuple[str, ...] = ("charuco_opencv_tutorial", "caliscope_4cam_charuco")
-    video_recordings: int = 2
+    video_recordings: int = 5
     video_seconds: float = 60.0
     video_size: tuple[int, int] = (1280, 720)
     video_heldout_seconds: float = 30.0
