@@ -190,7 +190,7 @@ def _rendered(cfg, seed: int, folder: Path, log) -> dict:
     screened = screen_video(str(path), BoardScreen(BOARD), workers=workers)
     screen_s = time.perf_counter() - t
     found_at = [k for k, f in enumerate(screened.frames) if f.found]
-    frames = camera_frames([screened], detector_frames(MAX_FRAMES, True), select=True)
+    frames = camera_frames([screened], detector_frames(MAX_FRAMES, True))
     speed = {r.index: r.speed for r in frames.refs[0]}
     refs = [VideoFrameRef(str(path), screened.frames[k].index, screened.frames[k].timestamp) for k in found_at]
     pipeline = _pipeline(make_detector("learned"), workers)
@@ -200,7 +200,7 @@ def _rendered(cfg, seed: int, folder: Path, log) -> dict:
     position = {r.index: k for k, r in enumerate(refs)}
     found = [k for k in range(len(refs)) if bool(detected.detections.found[0, k])]
     candidates = [position[r.index] for r in frames.refs[0] if r.index in position]
-    plain = camera_frames([screened], detector_frames(MAX_FRAMES, False), select=False)
+    plain = camera_frames([screened], detector_frames(MAX_FRAMES, False))
     unselected = [position[r.index] for r in plain.refs[0] if r.index in position]
     cand_source = VideoSource([[VideoFrameRef(str(path), refs[k].index, refs[k].timestamp, speed.get(refs[k].index))
                                 for k in candidates]])
@@ -326,7 +326,7 @@ def _real(cfg, folder: Path, log) -> dict:
         t = time.perf_counter()
         screened[c] = screen_video(str(video / f"cam_{c}.mp4"), BoardScreen(inner, board), workers=cfg.video_jobs)
         screen_s = time.perf_counter() - t
-        frames = camera_frames([screened[c]], len(screened[c].frames), select=True)  # every frame, with its speed
+        frames = camera_frames([screened[c]], len(screened[c].frames))  # every frame, with its speed
         refs[c] = frames.refs[0]
         speeds[c] = {"screening_fps": len(screened[c].frames) / max(screen_s, 1e-9)}
         detected[c] = _detect(pipeline, [refs[c]], inner)
@@ -529,14 +529,16 @@ def video_md(sec: dict) -> list[str]:
                 ho = " / ".join(_f(v, 3) for v in e["heldout_rms"]) or "n/a"
                 cells.append(f"{ho} ({' + '.join(str(n) for n in e['frames'])})")
             lines.append(f"| cam_{cam['camera']} | {cam['found']} of {cam['frames']} | " + " | ".join(cells) + " |")
-        lines += ["", ("On the whole recording, against caliscope's published calibration (E_FL / E_PP px; that "
-                  "calibration is no ground truth: the boards cover 3-7 % of these images):"), "",
+        lines += ["", ("On the whole recording, against caliscope's published calibration (E_FL / E_PP / projection "
+                  "over the whole image, RMS, px; that calibration is no ground truth: the boards cover 3-7 % of "
+                  "these images, so the projection compares two extrapolations towards the image's edges):"), "",
                   "| camera | " + " | ".join(METHODS) + " |", "|---|" + "---|" * len(METHODS)]
         for cam in real["cameras"]:
             cells = []
             for m in METHODS:
                 ref = cam["methods"][m]["vs_reference"]
-                cells.append("failed" if ref is None else f"{_f(ref['efl'], 1)} / {_f(ref['epp'], 1)} "
+                cells.append("failed" if ref is None else f"{_f(ref['efl'], 1)} / {_f(ref['epp'], 1)} / "
+                                                          f"{_f(ref.get('proj_rms'), 1)} "
                                                           f"({cam['methods'][m]['whole_frames']})")
             lines.append(f"| cam_{cam['camera']} | " + " | ".join(cells) + " |")
         rig = real.get("rig")

@@ -216,7 +216,7 @@ def camera_videos(command: str, args: argparse.Namespace):
         return None
     span = frame_span(args)
     screened = screen_videos(command, paths, make_screen(args), span, screen_workers(args), skip_unreadable=True)
-    frames = camera_frames(screened, detector_count(args), selecting(args, True))
+    frames = camera_frames(screened, detector_count(args))
     report_screening(command, frames)
     return frames
 
@@ -263,7 +263,7 @@ def rig_videos(command: str, args: argparse.Namespace, names: Sequence[str]):
         pairing = pair_videos(screened, args.sync_tolerance, table, f"--timestamps {args.timestamps}")
     except ValueError as err:
         raise UserError(str(err)) from None
-    frames = rig_frames(screened, pairing, detector_count(args), selecting(args, True))
+    frames = rig_frames(screened, pairing, detector_count(args))
     for line in pairing_lines(pairing, names):
         info(line)
     report_screening(command, frames, names)

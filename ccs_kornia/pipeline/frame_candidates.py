@@ -11,9 +11,11 @@ frames a second. :func:`choose_frames` keeps a bounded set:
 2. **new and spread out**: the frames are taken greedily, each time the one farthest (in outline distance,
    :func:`outline_distance`, as a fraction of the board's size in the image: the smaller outline's RMS distance of
    its corners from their centre) from those taken already, weighted by its stillness and, for a rig, by the cameras
-   that see it; a frame within ``min_change`` of a taken one is a ``near copy`` and stays out; at most
-   ``max_frames``. Measured against the board, not the image: a small board far away moves little in the image when
-   it turns to a new pose.
+   that see it; a frame within ``min_change`` of a taken one is a ``near copy`` and stays out (with ``copies``: waits
+   until every new pose is taken, then fills what is left of ``max_frames``, farthest first); at most ``max_frames``.
+   Measured against the board, not the image: a small board far away moves little in the image when it turns to a
+   new pose. Another still frame of a pose is another measurement of it: the detector's and the renderer's noise on
+   one frame average over its copies, which is what the frame selection takes them for.
 
 A rig is chosen by *instants* (its cameras' frames paired by :mod:`~ccs_kornia.pipeline.frame_matching`): an instant
 is as new as the newest pose it shows one of the cameras that see it (its distance to the nearest chosen instant
@@ -36,7 +38,7 @@ import numpy as np
 
 from ccs_kornia.modules.detection.screening import Sighting
 
-__all__ = ["CANDIDATES_PER_FRAME", "DEFAULT_MAX_FRAMES", "FrameChoice", "MIN_STILL", "SELECT_MAX_MOTION",
+__all__ = ["CANDIDATES_PER_FRAME", "DEFAULT_MAX_FRAMES", "FrameChoice", "MAX_MOTION", "MIN_STILL",
            "board_motion", "choose_frames", "detector_frames", "outline_distance"]
 
 #: frames of a recording (instants of a rig) sent to the full detector at most, by default
@@ -44,12 +46,11 @@ DEFAULT_MAX_FRAMES = 60
 #: with the frame selection (:mod:`~ccs_kornia.pipeline.frame_selection`), the full detector sees this many frames per
 #: frame kept at most: the selection chooses among them
 CANDIDATES_PER_FRAME = 1.5
-#: with the frame selection, a still frame's largest board motion (fraction of the image diagonal per frame period;
-#: 2.9 px at 1280x720): a rolling shutter bends a board that moves, which no corner precision shows (the selection
-#: weighs the motion that passes: :func:`~ccs_kornia.pipeline.frame_selection.motion_weight`)
-SELECT_MAX_MOTION = 0.002
-#: largest board motion of a still frame, as a fraction of the image diagonal per frame period (4.4 px at 1280x720)
-MAX_MOTION = 0.003
+#: largest board motion of a still frame, as a fraction of the image diagonal per frame period (1.5 px at 1280x720): a
+#: rolling shutter bends a board that moves, which no corner precision shows, and even 2-3 px a frame costs the camera
+#: more than the poses it adds (``docs/video.md``; the frame selection weighs the motion that passes:
+#: :func:`~ccs_kornia.pipeline.frame_selection.motion_weight`)
+MAX_MOTION = 0.001
 #: two frames whose outlines differ by less than this fraction of the board's size in the image (mean corner
 #: distance against the smaller outline's RMS distance of its corners from their centre) are copies
 MIN_CHANGE = 0.1
@@ -130,6 +131,7 @@ def choose_frames(
     max_frames: int = 60,
     max_motion: float = MAX_MOTION,
     min_change: float = MIN_CHANGE,
+    copies: bool = True,
 ) -> FrameChoice:
     """Choose the instants whose frames go to the full detector.
 
@@ -141,6 +143,7 @@ def choose_frames(
         max_frames: instants kept at most (>= 1).
         max_motion: fraction of each camera's image diagonal per frame period.
         min_change: mean corner distance as a fraction of the board's size in the image.
+        copies: near copies fill what is left of ``max_frames`` once every new pose is taken (else they stay out).
 
     Returns:
         :class:`FrameChoice`.
@@ -151,6 +154,9 @@ def choose_frames(
         >>> c = choose_frames(seen, [[str(k) for k in range(7)]], [[0.0] * 7], [(640, 480)], max_frames=3)
         >>> c.chosen, c.reasons[0][1], c.reasons[0][6]
         ([0, 2, 5], 'over --max-frames', 'near copy of frame 0')
+        >>> [choose_frames(seen, [[str(k) for k in range(7)]], [[0.0] * 7], [(640, 480)], max_frames=5,
+        ...                min_change=1.0, copies=fill).chosen for fill in (False, True)]  # new poses, then copies
+        [[0, 2, 5], [0, 1, 2, 3, 5]]
     """
     if max_frames < 1:
         raise ValueError(f"max_frames must be >= 1, got {max_frames}.")
@@ -185,7 +191,8 @@ def choose_frames(
             if seen[k, i]:
                 reasons[k][i] = f"moving ({moves[k, i] * diag[k]:.1f} px/frame)"
     outlines = _Outlines(sightings, seen)
-    chosen = _spread(still, outlines, cameras_seeing, np.nan_to_num(worst[still] / max_motion), max_frames, min_change)
+    chosen = _spread(still, outlines, cameras_seeing, np.nan_to_num(worst[still] / max_motion), max_frames, min_change,
+                     copies)
     near, distance = _nearest(still, chosen, outlines)
     novelty = np.where(seen[:, still], distance, -np.inf).max(0)
     for n, i in enumerate(still):
@@ -232,10 +239,11 @@ _UNSEEN = 1e6
 
 
 def _spread(pool: np.ndarray, outlines: _Outlines, cameras_seeing: np.ndarray, slowness: np.ndarray,
-            max_frames: int, min_change: float) -> list[int]:
+            max_frames: int, min_change: float, copies: bool = False) -> list[int]:
     """Farthest-point choice over ``pool``: an instant's novelty is the largest, over the cameras that see it, of its
     distance to the nearest chosen instant that camera sees (:data:`_UNSEEN` where it sees none yet); weighted by the
-    cameras that see it and its stillness."""
+    cameras that see it and its stillness. Instants less novel than ``min_change`` come only with ``copies``, after
+    every novel one."""
     if not len(pool):
         return []
     seen = outlines.seen[:, pool]
@@ -246,11 +254,15 @@ def _spread(pool: np.ndarray, outlines: _Outlines, cameras_seeing: np.ndarray, s
     taken = np.zeros(len(pool), dtype=bool)
     taken[first] = True
     nearest = np.minimum(nearest, outlines.to(chosen[0], pool))
+    floor = min_change
     while len(chosen) < max_frames:
         gap = np.where(seen, nearest, -np.inf).max(0)
-        score = np.where((gap >= min_change) & ~taken, gap * weight, -1.0)
+        score = np.where((gap >= floor) & ~taken, gap * weight, -1.0)
         k = int(np.argmax(score))
         if score[k] < 0:
+            if copies and floor > 0 and not taken.all():
+                floor = 0.0  # every new pose is taken: the copies, farthest first
+                continue
             break
         chosen.append(int(pool[k]))
         taken[k] = True

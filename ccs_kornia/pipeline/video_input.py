@@ -24,7 +24,6 @@ from ccs_kornia.io.timestamps import TimestampRow
 from ccs_kornia.io.video import FrameSpan
 from ccs_kornia.pipeline.frame_candidates import (
     DEFAULT_MAX_FRAMES,
-    SELECT_MAX_MOTION,
     FrameChoice,
     board_motion,
     choose_frames,
@@ -171,15 +170,8 @@ class VideoFrames:
         return out
 
 
-def _thresholds(select: bool) -> dict:
-    """The candidates' stillness: stiller for the frame selection."""
-    return {"max_motion": SELECT_MAX_MOTION} if select else {}
-
-
-def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX_FRAMES,
-                  select: bool = False) -> VideoFrames:
-    """The frame choice for one camera's videos (their frames in order, video after video); ``select``: candidates
-    for the frame selection (:mod:`~ccs_kornia.pipeline.frame_selection`: stiller ones).
+def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX_FRAMES) -> VideoFrames:
+    """The frame choice for one camera's videos (their frames in order, video after video).
 
     Example:
         >>> from ccs_kornia.io.video import FrameSpan, VideoInfo
@@ -204,7 +196,7 @@ def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX
         motion += board_motion([f.index for f in video.frames], seen)
         owner += [(v, k) for k in range(len(video.frames))]
     size = videos[0].info.size if videos else (1, 1)
-    choice = choose_frames([sightings], [labels], [motion], [size], max_frames, **_thresholds(select))
+    choice = choose_frames([sightings], [labels], [motion], [size], max_frames)
     chosen = [[[False] * len(v.frames) for v in videos]]
     reasons = [[[""] * len(v.frames) for v in videos]]
     motions = [[[None] * len(v.frames) for v in videos]]
@@ -221,9 +213,8 @@ def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX
 
 
 def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
-               max_frames: int = DEFAULT_MAX_FRAMES, select: bool = False) -> VideoFrames:
-    """The frame choice for a rig (one video per camera) over the instants of ``pairing`` (:func:`pair_videos`);
-    ``select``: candidates for the frame selection (stiller ones).
+               max_frames: int = DEFAULT_MAX_FRAMES) -> VideoFrames:
+    """The frame choice for a rig (one video per camera) over the instants of ``pairing`` (:func:`pair_videos`).
 
     Where every instant is kept (at most ``max_frames``), each camera's frame of it is a view; where instants are
     chosen, a camera's frame is a view where its screen saw the board. Frames the pairing left out (not in a
@@ -234,7 +225,7 @@ def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
     sightings = [[None if k is None else videos[cam].frames[k].sighting for k in pairing.index[cam]] for cam in range(c)]
     labels = [[None if k is None else str(videos[cam].frames[k].index) for k in pairing.index[cam]] for cam in range(c)]
     motion = [[None if k is None else motion_of[cam][k] for k in pairing.index[cam]] for cam in range(c)]
-    choice = choose_frames(sightings, labels, motion, [v.info.size for v in videos], max_frames, **_thresholds(select))
+    choice = choose_frames(sightings, labels, motion, [v.info.size for v in videos], max_frames)
     every = n <= max_frames
     chosen = [[[False] * len(v.frames)] for v in videos]
     reasons = [[["not in the timestamps table" if pairing.by == "table" else ""] * len(v.frames)] for v in videos]

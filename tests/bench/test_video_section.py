@@ -30,3 +30,15 @@ def test_folds_alternate_blocks():
     a, b = _folds(40)
     assert sorted(a + b) == list(range(40)) and not set(a) & set(b)
     assert a[:8] == list(range(8)) and b[:8] == list(range(8, 16))
+
+
+def test_real_recording_table_shows_projection_against_published():
+    entry = {"frames": [3, 4], "heldout_rms": [0.1, 0.2], "whole_frames": 7,
+             "vs_reference": {"efl": 1.24, "epp": 2.5, "proj_rms": 3.71}}
+    sec = {"model": "opencv5", "max_frames": 60, "jobs": 2, "rendered": [],
+           "real": {"cameras": [{"camera": 0, "found": 7, "frames": 8,
+                                 "methods": {m: dict(entry) for m in ("selected", "all", "uniform", "coverage")}}],
+                    "rig": None}}
+    md = "\n".join(video_md(sec))
+    assert "| cam_0 | 1.2 / 2.5 / 3.7 (7) |" in md
+    assert "projection over the whole image" in md

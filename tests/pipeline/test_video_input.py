@@ -12,6 +12,7 @@ from ccs_kornia.io.timestamps import TimestampRow
 from ccs_kornia.io.video import FrameSpan, VideoInfo, VideoReader
 from ccs_kornia.modules.detection.screening import BoardScreen, Sighting
 from ccs_kornia.pipeline.frame_candidates import (
+    MAX_MOTION,
     MIN_STILL,
     board_motion,
     choose_frames,
@@ -145,6 +146,27 @@ def test_moving_frames_stay_out_while_enough_are_still():
     choice = choose_frames([seen], [labels], [motion], [(640, 480)], max_frames=20)
     assert all(k % 2 == 0 for k in choice.chosen)
     assert choice.reasons[0][1] == "moving (50.0 px/frame)"
+
+
+def test_copies_fill_the_budget_after_every_new_pose():
+    shifts = [20.0 * k for k in range(10)] + [20.0 * k + 1.0 for k in range(10)]  # ten poses, each seen twice
+    seen, labels, motion = _line(shifts)
+    filled = choose_frames([seen], [labels], [motion], [(640, 480)], max_frames=15)
+    assert len(filled.chosen) == 15 and set(range(10)) <= set(filled.chosen)  # every new pose, then copies
+    left = [k for k in range(10, 20) if k not in filled.chosen]
+    assert len(left) == 5 and all(filled.reasons[0][k] == f"near copy of frame {k - 10}" for k in left)
+    kept_out = choose_frames([seen], [labels], [motion], [(640, 480)], max_frames=15, copies=False)
+    assert sorted(k % 10 for k in kept_out.chosen) == list(range(10))  # one frame of each pose
+    assert all(kept_out.reasons[0][k].startswith("near copy of frame") for k in range(20) if k not in kept_out.chosen)
+
+
+def test_the_still_gate_is_a_tenth_of_a_percent_of_the_diagonal():
+    assert MAX_MOTION * np.hypot(1280, 720) == pytest.approx(1.47, abs=0.01)  # px per frame period at 720p
+    shifts = [20.0 * k for k in range(30)]
+    motion = [2.0 if k % 2 else 1.0 for k in range(30)]  # px a frame at 1280x720: half still, half moving
+    seen, labels, _ = _line(shifts)
+    choice = choose_frames([seen], [labels], [motion], [(1280, 720)], max_frames=20)
+    assert all(k % 2 == 0 for k in choice.chosen) and choice.reasons[0][1] == "moving (2.0 px/frame)"
 
 
 def test_moving_frames_fill_in_when_too_few_are_still():
