@@ -254,9 +254,10 @@ def video_options(p: argparse.ArgumentParser, rig: bool = False) -> None:
     g.add_argument("--start", type=_seconds, metavar="S", help="first frame at S seconds (default: the start)")
     g.add_argument("--end", type=_seconds, metavar="S", help="last frame at S seconds (default: the end)")
     g.add_argument("--max-frames", default=None, type=_positive_int, metavar="N",
-                   help="frames of a recording (instants of a rig) kept at most (default 60): still boards in poses "
-                        "not seen yet are chosen after a quick screening of every frame; with the frame selection "
-                        "(--select) the detector looks at up to 1.5 times as many and the best are kept")
+                   help="frames of a recording (instants of a rig) kept at most (default 60): still boards (moving "
+                        "at most 0.1 %% of the image diagonal a frame) are chosen after a quick screening of every "
+                        "frame, poses not seen yet first, then more frames of the still poses; with the frame "
+                        "selection (--select) the detector looks at up to 1.5 times as many and the best are kept")
     if rig:
         g.add_argument("--sync-tolerance", type=_positive_float, metavar="S",
                        help="frames of two cameras pair when their timestamps differ by at most S seconds (default: "
