@@ -239,7 +239,7 @@ _UNSEEN = 1e6
 
 
 def _spread(pool: np.ndarray, outlines: _Outlines, cameras_seeing: np.ndarray, slowness: np.ndarray,
-            max_frames: int, min_change: float, copies: bool = False) -> list[int]:
+            max_frames: int, min_change: float, copies: bool) -> list[int]:
     """Farthest-point choice over ``pool``: an instant's novelty is the largest, over the cameras that see it, of its
     distance to the nearest chosen instant that camera sees (:data:`_UNSEEN` where it sees none yet); weighted by the
     cameras that see it and its stillness. Instants less novel than ``min_change`` come only with ``copies``, after
@@ -260,7 +260,7 @@ def _spread(pool: np.ndarray, outlines: _Outlines, cameras_seeing: np.ndarray, s
         score = np.where((gap >= floor) & ~taken, gap * weight, -1.0)
         k = int(np.argmax(score))
         if score[k] < 0:
-            if copies and floor > 0 and not taken.all():
+            if copies and floor > 0:
                 floor = 0.0  # every new pose is taken: the copies, farthest first
                 continue
             break

@@ -184,7 +184,8 @@ def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX
         >>> out = camera_frames([v])  # no more frames than max_frames: every frame goes to the detector
         >>> out.names(), [(f["board"], f["chosen"]) for f in out.records(0)[0]["frames"]]
         ([['a.mp4#0', 'a.mp4#1', 'a.mp4#2']], [(True, True), (False, True), (True, True)])
-        >>> [f.get("reason") for f in camera_frames([v], max_frames=2).records(0)[0]["frames"]]  # 2 copies 0: it fills
+        >>> # frame 2 is a copy of frame 0's still pose: it fills what is left of max_frames
+        >>> [f.get("reason") for f in camera_frames([v], max_frames=2).records(0)[0]["frames"]]
         [None, 'no board at screening', None]
     """
     sightings, labels, motion, owner = [], [], [], []
