@@ -13,7 +13,10 @@ the board in ("all"). The frame choices, each solved by the same solver (:data:`
 * ``uniform``: as many frames as ``selected`` kept, evenly spaced over those with a board;
 * ``coverage``: as many, chosen by :func:`~ccs_kornia.bench.frame_baselines.coverage_greedy` (caliscope's scheme);
 * ``unselected`` (rendered recordings only): what ``calibrate VIDEO`` uses without ``--select``: the frames its
-  screening chose for the full detector (:data:`MAX_FRAMES`, stiller and spread over the poses), every one counted.
+  screening chose for the full detector (:data:`MAX_FRAMES`, stiller and spread over the poses), every one counted;
+* ``still`` (rendered recordings only): every frame with a board that the screening measured still (its board moved
+  at most :data:`~ccs_kornia.pipeline.frame_candidates.MAX_MOTION` of the image diagonal a frame), however many: the
+  still gate alone, without the choice of poses or the cap.
 
 Figures: the error against the true camera (E_FL, E_PP and the RMS over the image of the distance between where the
 two cameras project the same ray, the rotation between them fitted out); the held-out error on a second recording of
@@ -61,8 +64,9 @@ SQUARE = 0.03
 #: frames the command's frame selection keeps at most (its default)
 MAX_FRAMES = 60
 METHODS = ("selected", "all", "uniform", "coverage")
-#: the rendered recordings' frame choices: :data:`METHODS` and the command's frames without the selection
-RENDERED_METHODS = (*METHODS, "unselected")
+#: the rendered recordings' frame choices: :data:`METHODS`, the command's frames without the selection and every still
+#: frame
+RENDERED_METHODS = (*METHODS, "unselected", "still")
 REAL = "caliscope_4cam_charuco"
 
 
@@ -154,6 +158,18 @@ def _choices(pipeline, detected, board: tuple[int, int], found: list[int], candi
     return out
 
 
+def _still_frames(screened, indices: list[int], size: tuple[int, int]) -> list[int]:
+    """Of the video frames ``indices``, those whose board the screening measured still: moving at most
+    :data:`~ccs_kornia.pipeline.frame_candidates.MAX_MOTION` of the image diagonal a frame (the gate of the command's
+    frame choice, :func:`~ccs_kornia.pipeline.frame_candidates.choose_frames`; an unknown motion counts as still)."""
+    from ccs_kornia.pipeline.frame_candidates import MAX_MOTION, board_motion
+
+    motion = board_motion([f.index for f in screened.frames], [f.sighting for f in screened.frames])
+    limit = MAX_MOTION * math.hypot(*size)
+    moves = {f.index: m for f, m in zip(screened.frames, motion)}
+    return [i for i in indices if moves.get(i) is None or moves[i] <= limit]
+
+
 def _selection():
     from ccs_kornia.pipeline.frame_selection import FrameSelection
 
@@ -208,6 +224,9 @@ def _rendered(cfg, seed: int, folder: Path, log) -> dict:
     choices = _choices(pipeline, detected, BOARD, found, candidates, cand_source, obj, size)
     unselected = [k for k in unselected if bool(detected.detections.found[0, k])]
     choices["unselected"] = (unselected, _solve(pipeline, detected, BOARD, 0, unselected))
+    still_found = _still_frames(screened, [refs[k].index for k in found], size)
+    still_views = [position[i] for i in still_found]
+    choices["still"] = (still_views, _solve(pipeline, detected, BOARD, 0, still_views))
     cand_source.close()
     # the held-out recording: the same camera, another trajectory; still frames and all of them
     held = handheld_recording(camera, pattern, cfg.video_heldout_seconds, seed=seed + 1)

@@ -1,4 +1,4 @@
-"""What the commands do with the frame selection: on for recordings, on request for folders (``--select``), and the
+"""What the commands do with the frame selection: on request (``--select``) for recordings and folders alike, and the
 frames kept written as images (``--save-frames``) so the same set can be calibrated again as a folder."""
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from ccs_kornia.commands._video import max_frames, selecting
 __all__ = ["frame_selection", "save_frames", "selecting", "selection_line"]
 
 
-def frame_selection(args: argparse.Namespace, video: bool):
+def frame_selection(args: argparse.Namespace):
     """The :class:`~ccs_kornia.pipeline.frame_selection.FrameSelection` the arguments ask for (``None``: every view
     counts); ``--max-frames`` caps the frames kept."""
-    if not selecting(args, video):
+    if not selecting(args):
         return None
     from ccs_kornia.pipeline.frame_selection import FrameSelection
 

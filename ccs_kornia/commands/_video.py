@@ -73,19 +73,19 @@ def max_frames(args: argparse.Namespace) -> int:
     return DEFAULT_MAX_FRAMES if value is None else int(value)
 
 
-def selecting(args: argparse.Namespace, video: bool) -> bool:
+def selecting(args: argparse.Namespace) -> bool:
     """Whether the command keeps only the frames that make the best camera (the frame selection): ``--select``;
     off by default for recordings and folders alike: on recordings the screening's choice of still frames calibrates
     as well on average, for a third less of the full detector's time (``docs/video.md``)."""
     return bool(getattr(args, "select", None))
 
 
-def detector_count(args: argparse.Namespace, video: bool = True) -> int:
+def detector_count(args: argparse.Namespace) -> int:
     """Frames of a recording (instants of a rig) the full detector sees: ``--max-frames``, half as many again with the
     frame selection on (:func:`~ccs_kornia.pipeline.frame_candidates.detector_frames`)."""
     from ccs_kornia.pipeline.frame_candidates import detector_frames
 
-    return detector_frames(max_frames(args), selecting(args, video))
+    return detector_frames(max_frames(args), selecting(args))
 
 
 def frame_span(args: argparse.Namespace):

@@ -28,7 +28,6 @@ from ccs_kornia.commands._video import (
     add_timestamps,
     camera_videos,
     screening_note,
-    video_inputs,
 )
 
 __all__ = ["calibrate_files", "failure_message", "run", "verdict_line"]
@@ -131,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
         check_output_dir("--report", args.report)  # created once there is a calibration to report
     if args.save_frames:
         check_output_dir("--save-frames", args.save_frames)  # written once there is a calibration
-    selection = frame_selection(args, bool(video_inputs("calibrate", args.images)))
+    selection = frame_selection(args)
     if args.save_frames and selection is None:
         raise UserError("--save-frames writes the frames the frame selection kept: give --select (images are "
                         "selected on request only), or leave out --no-select")

@@ -31,7 +31,7 @@ from ccs_kornia.commands._common import (
     weak_lines,
 )
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
-from ccs_kornia.commands._video import add_timestamps, rig_videos, video_inputs
+from ccs_kornia.commands._video import add_timestamps, rig_videos
 
 __all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "run", "summary_lines"]
 
@@ -194,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
         options["auto_models"] = tuple(m for m in AUTO_MODELS if m != "rational")
         info(f"--kalibr-yaml: Kalibr has no rational model, so --model auto chooses among "
              f"{', '.join(options['auto_models'])} in this run")
-    selection = frame_selection(args, any(video_inputs(COMMAND, [item]) for item in folders))
+    selection = frame_selection(args)
     if args.save_frames and selection is None:
         raise UserError("--save-frames writes the frames the frame selection kept: give --select (image folders "
                         "are selected on request only), or leave out --no-select")

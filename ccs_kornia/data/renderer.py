@@ -216,7 +216,6 @@ def _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, su
                  dark, light, fisheye, marks, y0, y1) -> Tensor:
     b = K.shape[0]
     w, h_img = image_size
-    h = y1 - y0
     dev, dt = K.device, torch.float32
     u, v, reach, front, ideal_x, ideal_y = _grid_board_coordinates(
         K, rvec, tvec, square, image_size, dist, radial, fisheye, rows=(y0, y1)

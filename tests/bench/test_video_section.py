@@ -42,3 +42,23 @@ def test_real_recording_table_shows_projection_against_published():
     md = "\n".join(video_md(sec))
     assert "| cam_0 | 1.2 / 2.5 / 3.7 (7) |" in md
     assert "projection over the whole image" in md
+
+
+def test_still_frames_are_those_the_command_gate_passes():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from ccs_kornia.bench.video import _still_frames
+    from ccs_kornia.modules.detection.screening import Sighting
+
+    box = np.array([[0.0, 0.0], [400.0, 0.0], [400.0, 300.0], [0.0, 300.0]])
+    # 1280x720: the gate is 0.1 % of the diagonal a frame, 1.47 px
+    shifts = [0.0, 1.0, 2.0, 6.0, 6.5, 7.0, 7.0]
+    frames = [SimpleNamespace(index=i, found=True, sighting=Sighting(True, box + [dx, 0.0]))
+              for i, dx in enumerate(shifts)]
+    frames.append(SimpleNamespace(index=7, found=False, sighting=Sighting(False)))
+    frames.append(SimpleNamespace(index=9, found=True, sighting=Sighting(True, box)))  # no neighbour with a board
+    still = _still_frames(SimpleNamespace(frames=frames), [0, 1, 2, 3, 4, 5, 6, 9], (1280, 720))
+    # frame 2 moved 4 px to frame 3 and frame 3 moved 4 px from frame 2; an unknown motion counts as still
+    assert still == [0, 1, 4, 5, 6, 9]
