@@ -132,8 +132,8 @@ def run(args: argparse.Namespace) -> int:
         check_output_dir("--save-frames", args.save_frames)  # written once there is a calibration
     selection = frame_selection(args)
     if args.save_frames and selection is None:
-        raise UserError("--save-frames writes the frames the frame selection kept: give --select (images are "
-                        "selected on request only), or leave out --no-select")
+        raise UserError("--save-frames writes the frames the frame selection kept: give --select (recordings and "
+                        "images alike are selected on request only), or leave out --no-select")
     device = resolve_device(args.device)
     start = time.perf_counter()
     video = camera_videos("calibrate", args)

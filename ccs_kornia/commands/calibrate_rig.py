@@ -196,8 +196,8 @@ def run(args: argparse.Namespace) -> int:
              f"{', '.join(options['auto_models'])} in this run")
     selection = frame_selection(args)
     if args.save_frames and selection is None:
-        raise UserError("--save-frames writes the frames the frame selection kept: give --select (image folders "
-                        "are selected on request only), or leave out --no-select")
+        raise UserError("--save-frames writes the frames the frame selection kept: give --select (recordings and "
+                        "image folders alike are selected on request only), or leave out --no-select")
     device = resolve_device(args.device)
     start = time.perf_counter()
     video = rig_videos(COMMAND, args, names)

@@ -1,5 +1,5 @@
-"""The ``rig_sessions`` benchmark section: a short rendered hand-held session, every method, the summary and its
-markdown; the session's conditions; the transfer error."""
+"""The ``rig_sessions`` benchmark section: a short rendered hand-held rig recording, every method, the summary and
+its markdown; the recording's conditions; the transfer error."""
 
 from __future__ import annotations
 

@@ -468,7 +468,7 @@ def test_rig_files(tmp_path):
     cams = webcam_rig(2, (160, 120), seed=1)
     rig = RigRecording(cams, ChessPattern(5, 4, 0.04),
                        sample_handheld_trajectory(cams, ChessPattern(5, 4, 0.04), 1.0, seed=0), 1.0, seed=0)
-    paths = write_rig_recording(rig, tmp_path / "session", suffix=".avi")
+    paths = write_rig_recording(rig, tmp_path / "rig_recording", suffix=".avi")
     assert [count_video_frames(p) for p in paths["videos"]] == [len(r) for r in rig.recordings]
     with open(paths["timestamps"], newline="") as fh:
         table = list(csv.DictReader(fh))

@@ -1,5 +1,5 @@
-"""What a rig's session should record next, and the verdict of a session: weak links, small boards, image corners,
-a board moving between exposures, intrinsics the rig moved, a joint fit that did not converge."""
+"""What a rig's recording should capture next, and the verdict on a recording: weak links, small boards, image
+corners, a board moving between exposures, intrinsics the rig moved, a joint fit that did not converge."""
 
 from __future__ import annotations
 
