@@ -1,4 +1,8 @@
-"""Camera, board and distortion models shared by every stage.
+"""The camera value (:class:`Camera`), board points and the distortion models every stage shares.
+
+A :class:`Camera` is what the package passes wherever it means a camera: its model as a type
+(:mod:`ccs_kornia.geometry.models`, never a name), its parameters and its image size, batched over cameras. Its
+maps (project, unproject, distort, undistort and their Jacobians) are each model's single definition.
 
 Conventions (see ``docs/architecture.md``):
 
@@ -15,10 +19,12 @@ Conventions (see ``docs/architecture.md``):
   distortion ``r_d = r_c (k0 + k1 r_c^2 + k2 r_c^4)`` and correction
   ``r_c = r_d (k0' + k1' r_d + k2' r_d^2 + k3' r_d^3 + k4' r_d^4)``.
 
-This module imports nothing else of ``ccs_kornia``.
+This module imports nothing of ``ccs_kornia`` but the camera models.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import torch
 from kornia.geometry.calibration import distort_points, undistort_points
@@ -31,6 +37,7 @@ from kornia.geometry.conversions import (
 )
 
 __all__ = [
+    "Camera",
     "DISTORTION_MODELS",
     "num_distortion_coeffs",
     "board_object_points",
@@ -513,3 +520,274 @@ def kb_undistort_points(
     u = P[..., 0, 0, None] * x + P[..., 0, 1, None] * y + P[..., 0, 2, None]
     v = P[..., 1, 1, None] * y + P[..., 1, 2, None]
     return torch.stack([u, v], -1)
+
+
+# ----------------------------------------------------------------------------------------------
+# The camera value
+# ----------------------------------------------------------------------------------------------
+
+ImageSize = tuple[int, int]
+
+
+def _image_sizes(image_size, count: int) -> tuple[ImageSize | None, ...]:
+    if image_size is None:
+        return (None,) * count
+    if len(image_size) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in image_size):
+        image_size = [image_size] * count
+    sizes = tuple(None if s is None else (int(s[0]), int(s[1])) for s in image_size)
+    if len(sizes) != count:
+        raise ValueError(f"image_size must be (W, H) or one (W, H) per camera ({count}), got {len(sizes)}.")
+    if any(s is not None and min(s) <= 0 for s in sizes):
+        raise ValueError(f"image sizes must be positive (W, H), got {sizes}.")
+    return sizes
+
+
+class Camera:
+    r"""``C`` cameras as one value: each one's model (a type), its parameters and its image size.
+
+    The parameters are each model's vector (``fx, fy, cx, cy`` then its coefficients, zero skew), the vector the
+    Levenberg–Marquardt core estimates; :attr:`K` and :attr:`dist` give them in OpenCV's layout, so they drop into
+    ``cv2`` (``cv2.fisheye`` for a fisheye) unchanged. Cameras of different models share one value (a rig, the
+    cameras of ``--model auto``): their parameter rows are NaN-padded to the longest, and every map runs once per
+    model.
+
+    Args:
+        model: one :class:`~ccs_kornia.geometry.models.base.CameraModel` for every camera, or one per camera.
+        params: :math:`(C, P)` parameters (``P`` the longest model's count; shorter rows NaN-padded), or :math:`(P,)`
+            for one camera.
+        image_size: ``(W, H)`` for every camera, one per camera, or ``None`` where unknown.
+
+    Example:
+        >>> from ccs_kornia.geometry.models import OPENCV5
+        >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
+        >>> cam = Camera.from_opencv(OPENCV5, K, torch.tensor([-0.2, 0.05, 0, 0, 0], dtype=torch.float64), (640, 480))
+        >>> uv = cam.project(torch.tensor([[[0.1, 0.0, 1.0]]], dtype=torch.float64))
+        >>> uv.tolist(), cam.undistort(uv).round(decimals=12).tolist()
+        ([[[369.90025, 240.0]]], [[[0.1, 0.0]]])
+        >>> cam.model, cam.K.shape, cam.dist.shape, cam.image_size
+        (OpenCVModel('opencv5'), torch.Size([1, 3, 3]), torch.Size([1, 5]), (640, 480))
+    """
+
+    def __init__(self, model, params: torch.Tensor, image_size=None) -> None:
+        from ccs_kornia.geometry.models.base import CameraModel
+
+        if not isinstance(params, torch.Tensor) or params.dim() not in (1, 2):
+            raise ValueError(f"Camera params must be (C, P) or (P,), got {tuple(getattr(params, 'shape', ()))}.")
+        params = params[None] if params.dim() == 1 else params
+        count = params.shape[0]
+        models = tuple(model) if isinstance(model, (tuple, list)) else (model,) * count
+        if not all(isinstance(m, CameraModel) for m in models):
+            bad = next(m for m in models if not isinstance(m, CameraModel))
+            raise TypeError(f"a Camera's model must be a CameraModel (e.g. ccs_kornia.geometry.models.OPENCV5), not "
+                            f"{bad!r}; names are read by ccs_kornia.geometry.models.camera_model.")
+        if len(models) != count:
+            raise ValueError(f"Camera has {count} parameter rows but {len(models)} models.")
+        width = max((m.num_params for m in models), default=0)
+        if count and params.shape[-1] != width:
+            raise ValueError(f"Camera params must have {width} columns for {_names(models)}, got {params.shape[-1]}.")
+        self.models: tuple = models
+        self.params: torch.Tensor = params
+        self.image_sizes: tuple[ImageSize | None, ...] = _image_sizes(image_size, count)
+
+    # -- construction ------------------------------------------------------------------------
+
+    @classmethod
+    def from_opencv(cls, model, K: torch.Tensor, dist: torch.Tensor | None = None, image_size=None) -> Camera:
+        """Cameras from OpenCV's ``K`` :math:`(C, 3, 3)` / :math:`(3, 3)` and coefficients :math:`(C, D)` / :math:`(D,)`
+        in the model's OpenCV layout (fewer: the rest zero; ``cv2.fisheye``'s ``k1..k4`` for a fisheye).
+
+        Coefficients the model does not have must be zero (``k1k2``'s ``p1, p2, k3``): they would be dropped.
+        Only one model here; :meth:`cat` joins cameras of several.
+        """
+        if not isinstance(K, torch.Tensor) or K.shape[-2:] != (3, 3) or K.dim() not in (2, 3):
+            raise ValueError(f"K must be (C, 3, 3) or (3, 3), got {tuple(getattr(K, 'shape', ()))}.")
+        K = K[None] if K.dim() == 2 else K
+        if dist is not None:
+            dist = torch.as_tensor(dist, dtype=K.dtype, device=K.device)
+            dist = dist[None] if dist.dim() == 1 else dist
+            if dist.dim() != 2 or dist.shape[-1] > model.max_coeffs:
+                raise ValueError(f"{model.name} takes (C, D) coefficients with D <= {model.max_coeffs}, got "
+                                 f"{tuple(dist.shape)}.")
+            extra = [i for i in range(dist.shape[-1]) if i not in model.coeff_index]
+            if extra and bool(dist[:, extra].ne(0).any()):
+                raise ValueError(f"the {model.name} model has no coefficient at place(s) {extra} of OpenCV's layout; "
+                                 f"they must be zero.")
+        return cls(model, model.params_from(K, dist), image_size)
+
+    @classmethod
+    def cat(cls, cameras: Sequence[Camera]) -> Camera:
+        """One value of the cameras of ``cameras``, in order (any models)."""
+        if not cameras:
+            raise ValueError("Camera.cat needs at least one camera.")
+        models = tuple(m for c in cameras for m in c.models)
+        width = max(m.num_params for m in models)
+        rows = [c.params if c.params.shape[-1] == width else torch.nn.functional.pad(
+            c.params, [0, width - c.params.shape[-1]], value=float("nan")) for c in cameras]
+        first = cameras[0].params
+        rows = [r.to(device=first.device, dtype=first.dtype) for r in rows]
+        return cls(models, torch.cat(rows), [s for c in cameras for s in c.image_sizes])
+
+    def with_params(self, params: torch.Tensor) -> Camera:
+        """The same models and sizes with other parameters :math:`(C, P)` (e.g. a solver's)."""
+        return Camera(self.models, params, self.image_sizes)
+
+    # -- what it holds ------------------------------------------------------------------------
+
+    def __len__(self) -> int:
+        return self.params.shape[0]
+
+    @property
+    def model(self):
+        """The model of every camera (an error where the cameras have several: see :attr:`models`)."""
+        if len(set(self.models)) != 1:
+            raise ValueError(f"these cameras have several models ({_names(self.models)}): use Camera.models.")
+        return self.models[0]
+
+    @property
+    def uniform(self) -> bool:
+        """Every camera has the same model."""
+        return len(set(self.models)) <= 1
+
+    @property
+    def image_size(self) -> ImageSize | None:
+        """The image size ``(W, H)`` of every camera (an error where they differ: see :attr:`image_sizes`)."""
+        if len(set(self.image_sizes)) > 1:
+            raise ValueError(f"these cameras have several image sizes ({self.image_sizes}): use Camera.image_sizes.")
+        return self.image_sizes[0] if self.image_sizes else None
+
+    @property
+    def device(self) -> torch.device:
+        return self.params.device
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.params.dtype
+
+    @property
+    def K(self) -> torch.Tensor:
+        """:math:`(C, 3, 3)` camera matrices (zero skew)."""
+        return intrinsics_matrix(self.params[:, :4])
+
+    @property
+    def dist(self) -> torch.Tensor:
+        """:math:`(C, D)` coefficients in OpenCV's layout (:attr:`~ccs_kornia.geometry.models.base.CameraModel.num_coeffs`
+        of the model; cameras of several models: NaN-padded to the widest)."""
+        if self.uniform:
+            return self.model.coeffs_from(self.params) if self.models else self.params[:, :0]
+        width = max(m.num_coeffs for m in self.models)
+        out = self.params.new_full((len(self), width), float("nan"))
+        for model, idx in self._groups():
+            d = model.coeffs_from(self.params[idx, : model.num_params])
+            out[idx, : d.shape[-1]] = d
+        return out
+
+    def coeffs(self, index: int) -> torch.Tensor:
+        """Camera ``index``'s coefficients :math:`(D,)` in its model's OpenCV layout (no padding)."""
+        model = self.models[index]
+        return model.coeffs_from(self.params[index : index + 1, : model.num_params])[0]
+
+    def __getitem__(self, index) -> Camera:
+        """Cameras ``index`` (an int, a slice, a list or a tensor of indices, or a bool mask), camera dim kept."""
+        if isinstance(index, int):
+            index = [index]
+        idx = torch.arange(len(self))[index] if not isinstance(index, torch.Tensor) else (
+            index.nonzero().flatten().cpu() if index.dtype == torch.bool else index.cpu())
+        picks = idx.reshape(-1).tolist()
+        models = tuple(self.models[i] for i in picks)
+        width = max((m.num_params for m in models), default=self.params.shape[-1])
+        return Camera(models, self.params[idx.to(self.device)][:, :width], [self.image_sizes[i] for i in picks])
+
+    def to(self, device=None, dtype: torch.dtype | None = None) -> Camera:
+        return Camera(self.models, self.params.to(device=device, dtype=dtype), self.image_sizes)
+
+    def detach(self) -> Camera:
+        return Camera(self.models, self.params.detach(), self.image_sizes)
+
+    def __repr__(self) -> str:
+        return f"Camera({_names(self.models)}, params={tuple(self.params.shape)}, image_sizes={self.image_sizes})"
+
+    # -- the maps -------------------------------------------------------------------------------
+
+    def _groups(self):
+        """``(model, index)`` for each model among the cameras (index a long tensor on the parameters' device)."""
+        seen: dict = {}
+        for i, m in enumerate(self.models):
+            seen.setdefault(m, []).append(i)
+        return [(m, torch.tensor(ix, device=self.device)) for m, ix in seen.items()]
+
+    def _map(self, name: str, inputs: torch.Tensor, jacobians: bool, out_dim: int, jac_shape=None, **kwargs):
+        """Model ``name`` map of ``inputs`` :math:`(C, *, k)`, run once per model (scattered back in camera order)."""
+        if inputs.shape[0] != len(self):
+            raise ValueError(f"{name}: expected {len(self)} cameras first, got {tuple(inputs.shape)}.")
+        params = self.params.to(inputs.dtype) if inputs.is_floating_point() else self.params
+        if self.uniform:
+            return getattr(self.model, name)(inputs, params, jacobians=jacobians, **kwargs)
+        out = inputs.new_zeros(*inputs.shape[:-1], out_dim)
+        jac = inputs.new_zeros(*inputs.shape[:-1], *jac_shape) if jacobians else None
+        for model, idx in self._groups():
+            res = getattr(model, name)(inputs[idx], params[idx, : model.num_params], jacobians=jacobians, **kwargs)
+            value, j = (res if jacobians else (res, None))
+            out[idx] = value
+            if jacobians:
+                jac[idx] = j
+        return (out, jac) if jacobians else out
+
+    def project(self, points: torch.Tensor, rvec: torch.Tensor | None = None, tvec: torch.Tensor | None = None,
+                jacobians: bool = False):
+        """Project points :math:`(C, *, 3)`: camera-frame, or world with ``rvec``/``tvec`` :math:`(C, *, 3)`
+        (OpenCV's world-to-camera pose, one per point set).
+
+        Returns:
+            pixels :math:`(C, *, 2)`; with ``jacobians`` also ``d pixel / d params`` :math:`(C, *, 2, P)` (zero
+            beyond a camera's own parameters) and ``d pixel / d point`` :math:`(C, *, 2, 3)` (camera frame).
+        """
+        if points.shape[-1] != 3:
+            raise ValueError(f"Expected (C, *, 3) points, got {tuple(points.shape)}.")
+        if rvec is not None:
+            if tvec is None:
+                raise ValueError("rvec given without tvec.")
+            points = transform_points_rt(points, rvec, tvec)
+        if points.shape[0] != len(self):
+            raise ValueError(f"project: expected {len(self)} cameras first, got {tuple(points.shape)}.")
+        params = self.params.to(points.dtype)
+        if self.uniform:
+            uv, J, Jx = self.model.project(points, params, jacobians)
+            return (uv, J, Jx) if jacobians else uv
+        uv = points.new_zeros(*points.shape[:-1], 2)
+        J = points.new_zeros(*points.shape[:-1], 2, params.shape[-1]) if jacobians else None
+        Jx = points.new_zeros(*points.shape[:-1], 2, 3) if jacobians else None
+        for model, idx in self._groups():
+            u, j, jx = model.project(points[idx], params[idx, : model.num_params], jacobians)
+            uv[idx] = u
+            if jacobians:
+                J[idx, ..., : model.num_params], Jx[idx] = j, jx
+        return (uv, J, Jx) if jacobians else uv
+
+    def distort(self, normalized: torch.Tensor, jacobians: bool = False):
+        """Normalized points :math:`(C, *, 2)` on the ``z = 1`` plane to pixels :math:`(C, *, 2)` (with ``jacobians``
+        also ``d pixel / d (x, y)`` :math:`(C, *, 2, 2)`). For a fisheye, ``(x, y) = tan(theta) (cos(phi), sin(phi))``."""
+        return self._map("distort", normalized, jacobians, 2, (2, 2))
+
+    def undistort(self, pixels: torch.Tensor, P: torch.Tensor | None = None, jacobians: bool = False):
+        """Pixels :math:`(C, *, 2)` to normalized points :math:`(C, *, 2)` (``cv2.undistortPoints``), or to pixels of
+        the pinhole camera ``P`` :math:`(C, 3, 3)` (``P = K``: the ideal pixels); with ``jacobians`` also
+        ``d out / d pixel`` :math:`(C, *, 2, 2)`. A fisheye's points are meaningful below 90 degrees
+        (:meth:`unproject` reaches beyond)."""
+        res = self._map("undistort", pixels, jacobians, 2, (2, 2))
+        xy, J = res if jacobians else (res, None)
+        if P is not None:
+            P = P.to(xy.dtype).reshape(P.shape[0], *([1] * (xy.dim() - 2)), 3, 3)
+            xy = torch.stack([P[..., 0, 0] * xy[..., 0] + P[..., 0, 1] * xy[..., 1] + P[..., 0, 2],
+                              P[..., 1, 1] * xy[..., 1] + P[..., 1, 2]], -1)
+            if jacobians:
+                J = P[..., :2, :2] @ J
+        return (xy, J) if jacobians else xy
+
+    def unproject(self, pixels: torch.Tensor, jacobians: bool = False):
+        """Pixels :math:`(C, *, 2)` to unit viewing rays :math:`(C, *, 3)` (a fisheye's beyond 90 degrees too); with
+        ``jacobians`` also ``d ray / d pixel`` :math:`(C, *, 3, 2)`."""
+        return self._map("unproject", pixels, jacobians, 3, (3, 2))
+
+
+def _names(models) -> str:
+    return ", ".join(dict.fromkeys(str(m) for m in models))

@@ -4,7 +4,9 @@
 * :class:`CentredRadialModel`: the paper's radial distortion about a free centre;
 * :class:`KannalaBrandtModel`: ``cv2.fisheye``'s Kannala–Brandt model (k1..k4), valid beyond 90 degrees.
 
-:func:`~ccs_kornia.geometry.models.factory.camera_model` builds one by name.
+The models a calibration returns are values (:data:`PINHOLE`, :data:`K1K2`, :data:`OPENCV5`, :data:`RATIONAL`,
+:data:`FISHEYE`); :func:`~ccs_kornia.geometry.models.factory.camera_model` reads one from its name (files, the
+command line).
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 
@@ -25,6 +27,12 @@ _EXPORTS = {
     "CentredRadialModel": "ccs_kornia.geometry.models.centred_radial",
     "KannalaBrandtModel": "ccs_kornia.geometry.models.fisheye",
     "camera_model": "ccs_kornia.geometry.models.factory",
+    "CAMERA_MODELS": "ccs_kornia.geometry.models.factory",
+    "PINHOLE": "ccs_kornia.geometry.models.factory",
+    "K1K2": "ccs_kornia.geometry.models.factory",
+    "OPENCV5": "ccs_kornia.geometry.models.factory",
+    "RATIONAL": "ccs_kornia.geometry.models.factory",
+    "FISHEYE": "ccs_kornia.geometry.models.factory",
 }
 
 __all__ = sorted(_EXPORTS)

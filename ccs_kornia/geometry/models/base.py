@@ -6,9 +6,15 @@ concurrent calls. It projects camera-frame points with a per-camera parameter ve
 analytic derivatives the core needs: with respect to the parameters and to the camera-frame point (the
 core builds the pose derivatives from the latter).
 
+Every other map of a camera is defined once here from that projection: :meth:`CameraModel.distort` (normalized points
+on the ``z = 1`` plane to pixels) is the projection of ``(x, y, 1)``; :meth:`CameraModel.undistort` inverts it by
+Newton's method on the model's own derivatives (a model may give a better start, or a closed inverse);
+:meth:`CameraModel.unproject` gives unit rays. Their Jacobians come from the projection's.
+
 A model also says what it is beyond the projection (:attr:`CameraModel.is_fisheye`) and how its coefficients sit in
 OpenCV's layout, the one results and files store (:attr:`CameraModel.num_coeffs`, :meth:`CameraModel.opencv_coeffs`),
-so that callers ask the model instead of testing its name.
+so that callers ask the model instead of testing its name. Models compare equal by kind and configuration, and
+``str(model)`` is the name files carry (:func:`~ccs_kornia.geometry.models.factory.camera_model` parses it back).
 """
 
 from __future__ import annotations
@@ -18,7 +24,10 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["CameraModel", "check_projection_inputs", "broadcast_params", "unit_columns"]
+__all__ = ["CameraModel", "check_projection_inputs", "broadcast_params", "unit_columns", "solve_2x2"]
+
+#: Newton steps of :meth:`CameraModel.undistort` after its start (quadratic convergence: a good start needs 2-3)
+UNDISTORT_NEWTON_STEPS = 4
 
 
 def check_projection_inputs(points: torch.Tensor, params: torch.Tensor, num_params: int) -> None:
@@ -37,10 +46,23 @@ class CameraModel:
     Every model's parameter vector starts with ``fx, fy, cx, cy``; the distortion coefficients follow.
     """
 
-    #: short name, e.g. ``"opencv5"`` or ``"fisheye"``
+    #: short name, e.g. ``"opencv5"`` or ``"fisheye"``: what files carry (``str(model)``)
     name: str = ""
     #: names of the parameters, in order
     param_names: tuple[str, ...] = ()
+
+    def _key(self) -> tuple:
+        """What makes two instances the same model (its kind, name and configuration)."""
+        return (self.name,)
+
+    def __eq__(self, other: object) -> bool:
+        return type(self) is type(other) and self._key() == other._key()  # type: ignore[attr-defined]
+
+    def __hash__(self) -> int:
+        return hash((type(self).__name__, self._key()))
+
+    def __str__(self) -> str:
+        return self.name
 
     @property
     def num_params(self) -> int:
@@ -143,8 +165,93 @@ class CameraModel:
             return uv, None, None
         return uv, torch.stack([c.expand(uv.shape) for c in dp], -1), torch.stack([c.expand(uv.shape) for c in dx], -1)
 
+    def distort(
+        self, normalized: torch.Tensor, params: torch.Tensor, jacobians: bool = False
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """Normalized points on the ``z = 1`` plane to pixels: the projection of ``(x, y, 1)``.
+
+        For a fisheye, ``(x, y)`` is ``tan(theta) (cos(phi), sin(phi))`` (``cv2.fisheye``'s undistorted points).
+
+        Args:
+            normalized: :math:`(C, *, 2)` points.
+            params: :math:`(C, P)` parameters.
+            jacobians: also return ``d pixel / d (x, y)`` :math:`(C, *, 2, 2)` (rows ``u, v``).
+
+        Returns:
+            pixels :math:`(C, *, 2)` (and the Jacobian).
+        """
+        points = torch.cat([normalized, torch.ones_like(normalized[..., :1])], -1)
+        uv, _, dx = self.columns(points, params, jacobians)
+        if not jacobians:
+            return uv
+        return uv, torch.stack([dx[0].expand(uv.shape), dx[1].expand(uv.shape)], -1)
+
+    def undistort_start(self, pixels: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """Where :meth:`undistort`'s Newton steps start: the pinhole inverse (a model with a better start overrides
+        it); pixels :math:`(C, *, 2)` in, normalized points :math:`(C, *, 2)` out."""
+        p = broadcast_params(params, pixels)
+        return (pixels - p[..., 2:4]) / p[..., 0:2]
+
+    def undistort(
+        self, pixels: torch.Tensor, params: torch.Tensor, jacobians: bool = False
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """Pixels to normalized points on the ``z = 1`` plane, the inverse of :meth:`distort` (``cv2.undistortPoints``).
+
+        Newton's method on the model's own derivatives from :meth:`undistort_start`, each step bounded to one unit of
+        the normalized plane (outside the model's monotonic range no inverse exists; the steps then stay finite).
+
+        Args:
+            pixels: :math:`(C, *, 2)` observed pixels.
+            params: :math:`(C, P)` parameters.
+            jacobians: also return ``d (x, y) / d pixel`` :math:`(C, *, 2, 2)`, the inverse of :meth:`distort`'s.
+
+        Returns:
+            normalized points :math:`(C, *, 2)` (and the Jacobian).
+        """
+        xy = self.undistort_start(pixels, params)
+        for _ in range(UNDISTORT_NEWTON_STEPS):
+            uv, J = self.distort(xy, params, jacobians=True)
+            xy = xy - solve_2x2(J, uv - pixels).clamp(-1.0, 1.0)
+        if not jacobians:
+            return xy
+        return xy, torch.linalg.inv(self.distort(xy, params, jacobians=True)[1])
+
+    def unproject(
+        self, pixels: torch.Tensor, params: torch.Tensor, jacobians: bool = False
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """Pixels to unit viewing rays, the inverse of the projection (a fisheye's reach beyond 90 degrees).
+
+        Args:
+            pixels: :math:`(C, *, 2)` observed pixels.
+            params: :math:`(C, P)` parameters.
+            jacobians: also return ``d ray / d pixel`` :math:`(C, *, 3, 2)`: the ray moves on the unit sphere, so its
+                derivative solves ``[d uv / d X; ray^T] d ray = [d uv; 0]``.
+
+        Returns:
+            rays :math:`(C, *, 3)` (and the Jacobian).
+        """
+        xy = self.undistort(pixels, params)
+        rays = torch.nn.functional.normalize(torch.cat([xy, torch.ones_like(xy[..., :1])], -1), dim=-1)
+        return (rays, self.ray_jacobian(rays, params)) if jacobians else rays
+
+    def ray_jacobian(self, rays: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """``d ray / d pixel`` :math:`(C, *, 3, 2)` of :meth:`unproject` at unit rays :math:`(C, *, 3)`."""
+        uv, _, dx = self.columns(rays, params, True)
+        Jx = torch.stack([c.expand(uv.shape) for c in dx], -1)  # (C, *, 2, 3)
+        A = torch.cat([Jx, rays.unsqueeze(-2)], -2)  # (C, *, 3, 3)
+        return torch.linalg.inv(A)[..., :2]
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r})"
+
+
+def solve_2x2(J: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """``J^-1 r`` for :math:`(*, 2, 2)` matrices and :math:`(*, 2)` vectors in closed form (a determinant below
+    ``1e-12`` in size is held there, so a singular point gives a large finite step, not a NaN)."""
+    a, b, c, d = J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1]
+    det = a * d - b * c
+    det = torch.where(det.abs() < 1e-12, torch.full_like(det, 1e-12), det)
+    return torch.stack([d * r[..., 0] - b * r[..., 1], a * r[..., 1] - c * r[..., 0]], -1) / det.unsqueeze(-1)
 
 
 def broadcast_params(params: torch.Tensor, points: torch.Tensor) -> torch.Tensor:

@@ -46,6 +46,9 @@ class CentredRadialModel(CameraModel):
         self.image_size = (int(image_size[0]), int(image_size[1]))
         self.free_centre = bool(free_centre)
 
+    def _key(self) -> tuple:
+        return (self.name, self.image_size, self.free_centre)
+
     def default_free(self) -> list[bool]:
         """``fx, fy, cx, cy, k1, k2, k3`` always; ``ox, oy`` with ``free_centre``."""
         return [True] * 7 + [self.free_centre] * 2

@@ -1,4 +1,5 @@
-"""A camera model of the LM core by name."""
+"""The camera models by value (:data:`PINHOLE`, :data:`K1K2`, :data:`OPENCV5`, :data:`RATIONAL`, :data:`FISHEYE`) and
+by name (:func:`camera_model`, the one place a name becomes a model: files and the command line carry names)."""
 
 from __future__ import annotations
 
@@ -9,29 +10,38 @@ from ccs_kornia.geometry.models.centred_radial import CentredRadialModel
 from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
 from ccs_kornia.geometry.models.opencv import OPENCV_VARIANTS, OpenCVModel
 
-__all__ = ["camera_model"]
+__all__ = ["CAMERA_MODELS", "FISHEYE", "K1K2", "OPENCV5", "PINHOLE", "RATIONAL", "camera_model"]
+
+#: the pinhole camera without lens distortion (OpenCV's model with every coefficient zero; files name it ``none``)
+PINHOLE = OpenCVModel("none")
+#: OpenCV's model with two radial terms
+K1K2 = OpenCVModel("k1k2")
+#: OpenCV's default model ``k1, k2, p1, p2, k3``
+OPENCV5 = OpenCVModel("opencv5")
+#: OpenCV's rational model ``k1 .. k6`` with the tangential terms
+RATIONAL = OpenCVModel("rational")
+#: ``cv2.fisheye``'s Kannala–Brandt model ``k1 .. k4``
+FISHEYE = KannalaBrandtModel()
+#: the models a calibration returns, by their names
+CAMERA_MODELS: dict[str, CameraModel] = {m.name: m for m in (PINHOLE, K1K2, OPENCV5, RATIONAL, FISHEYE)}
 
 
 @functools.lru_cache(maxsize=None)
 def camera_model(name: str, image_size: tuple[int, int] | None = None) -> CameraModel:
-    """A model by name: an OpenCV variant, ``fisheye`` or ``centred_radial`` (needs ``image_size``).
+    """The model a name stands for: an OpenCV variant, ``fisheye`` or ``centred_radial`` (needs ``image_size``).
 
-    Names are what results and files carry; this turns one into the model that answers questions about it
-    (e.g. :attr:`~ccs_kornia.geometry.models.base.CameraModel.is_fisheye`). Models are stateless, so one instance per
-    name is shared.
+    Names are what files and the command line carry; this is where they become models (the package passes models).
 
     Example:
+        >>> camera_model("fisheye") == FISHEYE, camera_model("k1k2").num_coeffs
+        (True, 5)
         >>> camera_model("fisheye").param_names[4:]
         ('k1', 'k2', 'k3', 'k4')
-        >>> camera_model("fisheye").is_fisheye, camera_model("k1k2").num_coeffs
-        (True, 5)
     """
-    if name in OPENCV_VARIANTS:
-        return OpenCVModel(name)
-    if name == KannalaBrandtModel.name:
-        return KannalaBrandtModel()
+    if name in CAMERA_MODELS:
+        return CAMERA_MODELS[name]
     if name == "centred_radial":
         if image_size is None:
             raise ValueError("The centred_radial model needs image_size.")
         return CentredRadialModel(image_size)
-    raise ValueError(f"Unknown camera model {name!r}; expected one of {sorted([*OPENCV_VARIANTS, 'fisheye', 'centred_radial'])}.")
+    raise ValueError(f"Unknown camera model {name!r}; expected one of {', '.join([*CAMERA_MODELS, 'centred_radial'])}.")

@@ -23,6 +23,8 @@ __all__ = ["KannalaBrandtModel"]
 
 #: below this r / z the closed forms are replaced by their series about the optical axis
 _AXIS_EPS = 1e-4
+#: Newton steps on the angle from the optical axis when inverting the projection
+ANGLE_NEWTON_STEPS = 20
 
 
 class KannalaBrandtModel(CameraModel):
@@ -73,6 +75,45 @@ class KannalaBrandtModel(CameraModel):
         intr = torch.stack([K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]], -1)
         D = K.new_zeros(K.shape[0], 4) if D is None else self.opencv_coeffs(D.to(K.dtype)).expand(K.shape[0], 4)
         return torch.cat([intr, D], -1)
+
+    def _angles(self, pixels: torch.Tensor, params: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Pixels to ``(theta, cos(phi), sin(phi))`` by Newton's method on ``theta`` (start: ``theta_d``); the
+        direction of the centre pixel itself is arbitrary: ``(1, 0)``."""
+        p = broadcast_params(params, pixels)
+        ab = (pixels - p[..., 2:4]) / p[..., 0:2]
+        a, b = ab[..., 0], ab[..., 1]
+        theta_d = (a * a + b * b).sqrt()
+        k1, k2, k3, k4 = p[..., 4], p[..., 5], p[..., 6], p[..., 7]
+        theta = theta_d
+        for _ in range(ANGLE_NEWTON_STEPS):
+            t2 = theta * theta
+            f = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - theta_d
+            df = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+            theta = theta - f / torch.where(df.abs() > 1e-12, df, torch.full_like(df, 1e-12))
+        off_centre = theta_d > 0
+        safe = torch.where(off_centre, theta_d, torch.ones_like(theta_d))
+        cos_phi = torch.where(off_centre, a / safe, torch.ones_like(a))
+        sin_phi = torch.where(off_centre, b / safe, torch.zeros_like(b))
+        return theta, cos_phi, sin_phi
+
+    def undistort(self, pixels: torch.Tensor, params: torch.Tensor, jacobians: bool = False):
+        """Pixels to ``tan(theta) (cos(phi), sin(phi))`` (``cv2.fisheye.undistortPoints``), by Newton's method on the
+        angle alone; meaningful below 90 degrees (:meth:`unproject` reaches beyond). See
+        :meth:`CameraModel.undistort`."""
+        theta, ca, sa = self._angles(pixels, params)
+        t = theta.tan()
+        xy = torch.stack([t * ca, t * sa], -1)
+        if not jacobians:
+            return xy
+        return xy, torch.linalg.inv(self.distort(xy, params, jacobians=True)[1])
+
+    def unproject(self, pixels: torch.Tensor, params: torch.Tensor, jacobians: bool = False):
+        """Unit rays ``(sin(theta) cos(phi), sin(theta) sin(phi), cos(theta))``, valid beyond 90 degrees. See
+        :meth:`CameraModel.unproject`."""
+        theta, ca, sa = self._angles(pixels, params)
+        s = theta.sin()
+        rays = torch.stack([s * ca, s * sa, theta.cos()], -1)
+        return (rays, self.ray_jacobian(rays, params)) if jacobians else rays
 
     def columns(self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True) -> tuple:
         """See :meth:`CameraModel.columns`."""

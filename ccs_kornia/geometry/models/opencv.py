@@ -14,6 +14,7 @@ even when every coefficient is zero, so the derivatives are right at the usual z
 from __future__ import annotations
 
 import torch
+from kornia.geometry.calibration import undistort_points
 
 from ccs_kornia.geometry.models.base import (
     CameraModel,
@@ -32,6 +33,8 @@ OPENCV_VARIANTS: dict[str, tuple[int, ...]] = {
     "rational": (0, 1, 2, 3, 4, 5, 6, 7),
 }
 _NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
+#: fixed-point steps of kornia's inverse that start :meth:`OpenCVModel.undistort`'s Newton steps
+FIXED_POINT_STEPS = 20
 
 
 class OpenCVModel(CameraModel):
@@ -94,6 +97,84 @@ class OpenCVModel(CameraModel):
             d = dist.to(K.dtype).expand(K.shape[0], -1)[:, :8]
             d8[:, : d.shape[-1]] = d
         return torch.cat([intr, d8[:, list(self.coeff_index)]], -1)
+
+    def undistort_start(self, pixels: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """kornia's fixed-point inverse (``undistort_points``): close to the answer under strong barrel distortion,
+        where the pinhole start would leave Newton's method outside the model's monotonic range."""
+        K = torch.zeros(*params.shape[:-1], 3, 3, dtype=params.dtype, device=params.device)
+        K[..., 0, 0], K[..., 1, 1], K[..., 0, 2], K[..., 1, 2], K[..., 2, 2] = params[..., 0], params[..., 1], \
+            params[..., 2], params[..., 3], 1.0
+        eye = torch.eye(3, dtype=params.dtype, device=params.device).expand_as(K)
+        shape = pixels.shape
+        flat = pixels.reshape(shape[0], -1, 2)
+        d = self.dist8(params)
+        return undistort_points(flat, K, d, eye, num_iters=FIXED_POINT_STEPS).reshape(shape)
+
+    def undistort(self, pixels: torch.Tensor, params: torch.Tensor, jacobians: bool = False):
+        """See :meth:`CameraModel.undistort`; the pinhole (``none``) is inverted in closed form."""
+        if not self.coeff_index:
+            xy = CameraModel.undistort_start(self, pixels, params)
+            if not jacobians:
+                return xy
+            inv_f = broadcast_params(params, pixels)[..., 0:2].reciprocal().expand_as(xy)
+            return xy, torch.diag_embed(inv_f)
+        return super().undistort(pixels, params, jacobians)
+
+    def fit_coeffs(
+        self, ideal: torch.Tensor, distorted: torch.Tensor, K: torch.Tensor, mask: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Closed-form coefficients of this variant mapping ``ideal`` pixels onto ``distorted`` pixels for a fixed ``K``.
+
+        The model is linear in its coefficients once the ideal normalized points are known (the rational model is
+        linearised by multiplying through by its denominator), so this is one batched least-squares solve. It turns a
+        measured displacement field (e.g. the distortion network's correction) into this model, to start a refinement.
+
+        Args:
+            ideal: :math:`(B, N, 2)` undistorted pixels.
+            distorted: :math:`(B, N, 2)` distorted pixels.
+            K: :math:`(B, 3, 3)`.
+            mask: optional :math:`(B, N)` weights (non-finite points are never used).
+
+        Returns:
+            :math:`(B, D)` coefficients in OpenCV's layout (:attr:`num_coeffs`; ``none``: zero columns).
+
+        Example:
+            >>> K = torch.tensor([[[500., 0, 320], [0, 500, 240], [0, 0, 1]]], dtype=torch.float64)
+            >>> ideal = torch.rand(1, 50, 2, dtype=torch.float64) * 600
+            >>> m = OpenCVModel("k1k2")
+            >>> distorted = m.distort((ideal - K[:, None, :2, 2]) / 500, m.params_from(K, torch.tensor([[-0.2, 0.05]])))
+            >>> m.fit_coeffs(ideal, distorted, K).round(decimals=6).tolist()
+            [[-0.2, 0.05, 0.0, 0.0, 0.0]]
+        """
+        if not self.coeff_index:
+            return ideal.new_zeros(ideal.shape[0], 0)
+        fx, fy = K[:, 0, 0, None], K[:, 1, 1, None]
+        cx, cy = K[:, 0, 2, None], K[:, 1, 2, None]
+        x = (ideal[..., 0] - cx) / fx
+        y = (ideal[..., 1] - cy) / fy
+        xd = (distorted[..., 0] - cx) / fx
+        yd = (distorted[..., 1] - cy) / fy
+        r2 = x * x + y * y
+        # residual rows: xd - x = x*(k1 r2 + k2 r4 + k3 r6) + 2 p1 x y + p2 (r2 + 2x^2)   (rational: times denominator)
+        cols_x = [x * r2, x * r2**2, 2 * x * y, r2 + 2 * x * x, x * r2**3]
+        cols_y = [y * r2, y * r2**2, r2 + 2 * y * y, 2 * x * y, y * r2**3]
+        bx, by = xd - x, yd - y
+        if 5 in self.coeff_index:
+            cols_x += [-xd * r2, -xd * r2**2, -xd * r2**3]
+            cols_y += [-yd * r2, -yd * r2**2, -yd * r2**3]
+        elif 2 not in self.coeff_index:
+            cols_x, cols_y = cols_x[:2], cols_y[:2]
+        A = torch.cat([torch.stack(cols_x, -1), torch.stack(cols_y, -1)], -2)  # (B, 2N, P)
+        b = torch.cat([bx, by], -1).unsqueeze(-1)
+        # points that are not finite (the hidden corners of a partial board) never count
+        use = (ideal.isfinite().all(-1) & distorted.isfinite().all(-1)).to(A.dtype)
+        wgt = use if mask is None else use * mask.to(A.dtype)
+        wgt = torch.cat([wgt, wgt], -1).unsqueeze(-1)  # one weight per x row and per y row of A
+        A, b = (A * wgt).nan_to_num(0.0), (b * wgt).nan_to_num(0.0)
+        sol = torch.linalg.lstsq(A, b).solution.squeeze(-1)
+        if sol.shape[-1] == 2:
+            sol = torch.cat([sol, torch.zeros_like(sol[:, :1]).expand(-1, 3)], -1)
+        return sol
 
     def columns(self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True) -> tuple:
         """See :meth:`CameraModel.columns` (terms of coefficients outside the variant are skipped, not zeroed).
