@@ -303,9 +303,13 @@ def missing_weights(err: FileNotFoundError) -> UserError:
     return UserError(str(err).replace("pass distortion_correction=False", "use --no-distortion-correction"))
 
 
-def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: bool = True, seed: int = 0,
+def make_pipeline(args: argparse.Namespace, model=None, use_ransac: bool = True, seed: int = 0,
                   frame_selection=None):
+    """The pipeline of a command: ``model`` a camera model or a ``ModelChoice`` (default ``OPENCV5``)."""
+    from ccs_kornia.geometry.models import OPENCV5
     from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+
+    model = OPENCV5 if model is None else model
 
     detector = make_detector_from(args)
     try:

@@ -1,17 +1,16 @@
 """Corner-level renderer of camera rigs: exact board corners seen by C cameras over F frames (no images).
 
 Each frame places one board in front of the rig (a pose board -> camera 0); each camera projects it through its own
-model (``"none" | "k1k2" | "opencv5" | "rational"`` with :func:`~ccs_kornia.geometry.camera.project_points`, ``"fisheye"``
-with :func:`~ccs_kornia.geometry.camera.kb_project_points`). A corner is invalid (NaN, ``valid = False``) where it falls
+model (:class:`~ccs_kornia.geometry.camera.Camera`). A corner is invalid (NaN, ``valid = False``) where it falls
 outside the camera's image, behind it or beyond ``max_angle_deg`` from its axis, or where the camera drops the frame
 (``drop``). Optional Gaussian pixel noise is added to
 the valid corners. The ground truth is exact; nothing here imports the solver.
 
 Example:
     >>> import torch
-    >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
-    >>> scene = render_rig([("none", K, None), ("none", K, None)], [(640, 480)] * 2,
-    ...                    R=torch.eye(3, dtype=torch.float64).expand(2, 3, 3),
+    >>> from ccs_kornia.geometry.models import PINHOLE
+    >>> cams = Camera(PINHOLE, torch.tensor([[500., 500, 320, 240]] * 2, dtype=torch.float64), (640, 480))
+    >>> scene = render_rig(cams, R=torch.eye(3, dtype=torch.float64).expand(2, 3, 3),
     ...                    T=torch.tensor([[0.0, 0, 0], [-0.1, 0, 0]], dtype=torch.float64), num_frames=4, seed=0)
     >>> scene.corners.shape, scene.valid.shape, scene.object_points.shape
     (torch.Size([2, 4, 35, 2]), torch.Size([2, 4, 35]), torch.Size([35, 3]))
@@ -20,19 +19,16 @@ Example:
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
 
 from ccs_kornia.geometry.camera import (
+    Camera,
     axis_angle_to_rotation_matrix,
     board_object_points,
-    kb_project_points,
-    project_points,
     rotation_matrix_to_axis_angle,
 )
-from ccs_kornia.geometry.models.factory import camera_model
 
 __all__ = ["RigScene", "random_board_poses", "render_rig"]
 
@@ -45,7 +41,7 @@ class RigScene:
     valid: torch.Tensor  #: (C, F, N) bool
     object_points: torch.Tensor  #: (N, 3) board points
     image_sizes: list[tuple[int, int]]  #: (W, H) per camera
-    cameras: list[tuple[str, torch.Tensor, torch.Tensor]]  #: per camera (model, K (3, 3), dist (D,))
+    cameras: Camera  #: the C cameras (float64)
     R: torch.Tensor  #: (C, 3, 3) x_c = R_c x_0 + T_c
     T: torch.Tensor  #: (C, 3)
     board_rvec: torch.Tensor  #: (F, 3) board -> camera 0
@@ -105,8 +101,7 @@ def random_board_poses(
 
 
 def render_rig(
-    cameras: Sequence[tuple[str, torch.Tensor, torch.Tensor | None]],
-    image_sizes: Sequence[tuple[int, int]],
+    cameras: Camera,
     R: torch.Tensor,
     T: torch.Tensor,
     num_frames: int = 12,
@@ -122,9 +117,7 @@ def render_rig(
     """Render the corners a rig sees.
 
     Args:
-        cameras: per camera ``(model, K (3, 3), dist (D,) or None)``; ``model`` one of ``none, k1k2, opencv5,
-            rational, fisheye`` (OpenCV order; fisheye ``k1..k4``).
-        image_sizes: ``(W, H)`` per camera.
+        cameras: the C cameras, each with its image size.
         R: :math:`(C, 3, 3)` extrinsic rotations, ``x_c = R_c x_0 + T_c``.
         T: :math:`(C, 3)` extrinsic translations (board units).
         num_frames: frames F.
@@ -141,9 +134,11 @@ def render_rig(
         :class:`RigScene`.
     """
     C = len(cameras)
-    if len(image_sizes) != C or R.shape != (C, 3, 3) or T.shape != (C, 3):
-        raise ValueError(f"cameras, image_sizes, R (C, 3, 3) and T (C, 3) must agree on C={C}.")
+    image_sizes = cameras.image_sizes
+    if any(s is None for s in image_sizes) or R.shape != (C, 3, 3) or T.shape != (C, 3):
+        raise ValueError(f"cameras (with their image sizes), R (C, 3, 3) and T (C, 3) must agree on C={C}.")
     dtype = torch.float64
+    cameras = cameras.to(dtype=dtype)
     g = torch.Generator().manual_seed(int(seed))
     obj = board_object_points(board[0], board[1], square, dtype=dtype)
     N = obj.shape[0]
@@ -156,26 +151,15 @@ def render_rig(
     x0 = obj @ Rb.transpose(-1, -2) + tvec[:, None]  # (F, N, 3) in camera 0
     corners = torch.full((C, F, N, 2), float("nan"), dtype=dtype)
     valid = torch.zeros(C, F, N, dtype=torch.bool)
-    out_cams = []
-    for c, (model, K, dist) in enumerate(cameras):
-        K = K.to(dtype)
-        dist = torch.zeros(0, dtype=dtype) if dist is None else dist.to(dtype)
-        out_cams.append((model, K, dist))
+    for c in range(C):
         Rc, Tc = R[c].to(dtype), T[c].to(dtype)
         xc = x0 @ Rc.T + Tc
-        lens = camera_model(model)
-        if lens.is_fisheye:
-            D = lens.opencv_coeffs(dist)
-            uv = kb_project_points(xc, K.expand(F, 3, 3), D.expand(F, 4))
-        else:
-            d = dist if dist.shape[0] in (0, 4, 5, 8) else lens.opencv_coeffs(dist)
-            uv = project_points(xc, K.expand(F, 3, 3), d.expand(F, -1) if d.numel() else None)
+        cam = cameras[c]
+        uv = cam.project(xc[None])[0]
         W, H = image_sizes[c]
         angle = torch.atan2(xc[..., :2].norm(dim=-1), xc[..., 2])
         inside = (uv[..., 0] >= 0) & (uv[..., 0] <= W - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= H - 1)
-        seen = inside & (angle < math.radians(max_angle_deg)) & uv.isfinite().all(-1)
-        if not lens.is_fisheye:
-            seen = seen & (xc[..., 2] > 0)
+        seen = inside & (angle < math.radians(max_angle_deg)) & uv.isfinite().all(-1) & cam.visible(xc[None])[0]
         if drop > 0:
             seen = seen & (torch.rand(F, generator=g, dtype=dtype) >= drop)[:, None]
         valid[c] = seen
@@ -185,5 +169,5 @@ def render_rig(
         corners = corners + noise_px * torch.randn(corners.shape, generator=g, dtype=dtype)
     return RigScene(
         corners=corners, valid=valid, object_points=obj, image_sizes=[tuple(map(int, s)) for s in image_sizes],
-        cameras=out_cams, R=R.to(dtype).clone(), T=T.to(dtype).clone(), board_rvec=rvec, board_tvec=tvec, exact=exact,
+        cameras=cameras, R=R.to(dtype).clone(), T=T.to(dtype).clone(), board_rvec=rvec, board_tvec=tvec, exact=exact,
     )

@@ -51,7 +51,6 @@ __all__ = [
     "radial_undistort_points",
     "radial_correct_points",
     "fit_radial_correction",
-    "fit_opencv_distortion",
     "kb_project_points",
     "kb_distort_points",
     "kb_unproject_points",
@@ -348,57 +347,6 @@ def fit_radial_correction(coeffs: torch.Tensor, image_size: tuple[int, int], num
     return sol.squeeze(-1)
 
 
-def fit_opencv_distortion(
-    ideal: torch.Tensor, distorted: torch.Tensor, K: torch.Tensor, model: str = "opencv5", mask: torch.Tensor | None = None
-) -> torch.Tensor:
-    """Closed-form OpenCV coefficients mapping ``ideal`` pixels onto ``distorted`` pixels for a fixed ``K``.
-
-    The OpenCV model is linear in its coefficients once the ideal normalized points are known (the
-    rational model is linearised by multiplying through by its denominator), so this is one batched
-    least-squares solve. It converts the paper's radial model (or any measured displacement field) to
-    the output model, e.g. to initialise the joint refinement.
-
-    Args:
-        ideal: :math:`(B, N, 2)` undistorted pixels.
-        distorted: :math:`(B, N, 2)` distorted pixels.
-        K: :math:`(B, 3, 3)`.
-        model: ``opencv5`` (k1,k2,p1,p2,k3), ``k1k2`` (k1,k2; others zero) or ``rational``.
-        mask: optional :math:`(B, N)` weights (non-finite points are never used).
-
-    Returns:
-        :math:`(B, D)` coefficients in OpenCV order (D = 5, or 8 for ``rational``).
-    """
-    fx, fy = K[:, 0, 0, None], K[:, 1, 1, None]
-    cx, cy = K[:, 0, 2, None], K[:, 1, 2, None]
-    x = (ideal[..., 0] - cx) / fx
-    y = (ideal[..., 1] - cy) / fy
-    xd = (distorted[..., 0] - cx) / fx
-    yd = (distorted[..., 1] - cy) / fy
-    r2 = x * x + y * y
-    # residual rows: xd - x = x*(k1 r2 + k2 r4 + k3 r6) + 2 p1 x y + p2 (r2 + 2x^2)   (rational: times denominator)
-    cols_x = [x * r2, x * r2**2, 2 * x * y, r2 + 2 * x * x, x * r2**3]
-    cols_y = [y * r2, y * r2**2, r2 + 2 * y * y, 2 * x * y, y * r2**3]
-    bx, by = xd - x, yd - y
-    if model == "rational":
-        cols_x += [-xd * r2, -xd * r2**2, -xd * r2**3]
-        cols_y += [-yd * r2, -yd * r2**2, -yd * r2**3]
-    elif model == "k1k2":
-        cols_x, cols_y = cols_x[:2], cols_y[:2]
-    elif model != "opencv5":
-        raise ValueError(f"Unknown model {model!r}.")
-    A = torch.cat([torch.stack(cols_x, -1), torch.stack(cols_y, -1)], -2)  # (B, 2N, P)
-    b = torch.cat([bx, by], -1).unsqueeze(-1)
-    # points that are not finite (the hidden corners of a partial board) never count
-    use = (ideal.isfinite().all(-1) & distorted.isfinite().all(-1)).to(A.dtype)
-    wgt = use if mask is None else use * mask.to(A.dtype)
-    wgt = torch.cat([wgt, wgt], -1).unsqueeze(-1)  # one weight per x row and per y row of A
-    A, b = (A * wgt).nan_to_num(0.0), (b * wgt).nan_to_num(0.0)
-    sol = torch.linalg.lstsq(A, b).solution.squeeze(-1)
-    if model == "k1k2":
-        sol = torch.cat([sol, torch.zeros_like(sol[:, :1]).expand(-1, 3)], -1)
-    return sol
-
-
 # ----------------------------------------------------------------------------------------------
 # Kannala-Brandt fisheye (cv2.fisheye's model), valid beyond 90 degrees
 # ----------------------------------------------------------------------------------------------
@@ -609,7 +557,7 @@ class Camera:
                 raise ValueError(f"{model.name} takes (C, D) coefficients with D <= {model.max_coeffs}, got "
                                  f"{tuple(dist.shape)}.")
             extra = [i for i in range(dist.shape[-1]) if i not in model.coeff_index]
-            if extra and bool(dist[:, extra].ne(0).any()):
+            if extra and bool((dist[:, extra].ne(0) & dist[:, extra].isfinite()).any()):
                 raise ValueError(f"the {model.name} model has no coefficient at place(s) {extra} of OpenCV's layout; "
                                  f"they must be zero.")
         return cls(model, model.params_from(K, dist), image_size)
@@ -665,8 +613,9 @@ class Camera:
 
     @property
     def K(self) -> torch.Tensor:
-        """:math:`(C, 3, 3)` camera matrices (zero skew)."""
-        return intrinsics_matrix(self.params[:, :4])
+        """:math:`(C, 3, 3)` camera matrices (zero skew; all NaN for a camera without intrinsics, e.g. one that failed)."""
+        K = intrinsics_matrix(self.params[:, :4])
+        return torch.where(self.params[:, :4].isnan().any(-1)[:, None, None], float("nan"), K)
 
     @property
     def dist(self) -> torch.Tensor:
@@ -702,6 +651,15 @@ class Camera:
 
     def detach(self) -> Camera:
         return Camera(self.models, self.params.detach(), self.image_sizes)
+
+    def clone(self) -> Camera:
+        return Camera(self.models, self.params.clone(), self.image_sizes)
+
+    def nan_to_num(self) -> Camera:
+        """NaN parameters replaced by a finite stand-in (``fx, fy, cx, cy``: 1, coefficients: 0), for batched maps
+        over cameras some of which failed (their results are masked afterwards)."""
+        p = self.params
+        return self.with_params(torch.cat([p[:, :4].nan_to_num(1.0), p[:, 4:].nan_to_num(0.0)], -1))
 
     def __repr__(self) -> str:
         return f"Camera({_names(self.models)}, params={tuple(self.params.shape)}, image_sizes={self.image_sizes})"
@@ -762,6 +720,16 @@ class Camera:
             if jacobians:
                 J[idx, ..., : model.num_params], Jx[idx] = j, jx
         return (uv, J, Jx) if jacobians else uv
+
+    def visible(self, points: torch.Tensor) -> torch.Tensor:
+        """Which camera-frame points :math:`(C, *, 3)` each camera images, :math:`(C, *)` bool (a pinhole camera: those
+        in front of it; a fisheye: every direction)."""
+        if self.uniform:
+            return self.model.visible(points)
+        out = torch.zeros(points.shape[:-1], dtype=torch.bool, device=points.device)
+        for model, idx in self._groups():
+            out[idx] = model.visible(points[idx])
+        return out
 
     def distort(self, normalized: torch.Tensor, jacobians: bool = False):
         """Normalized points :math:`(C, *, 2)` on the ``z = 1`` plane to pixels :math:`(C, *, 2)` (with ``jacobians``

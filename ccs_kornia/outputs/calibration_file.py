@@ -10,15 +10,17 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import torch
 
-from ccs_kornia.geometry.models.factory import camera_model
-from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
-from ccs_kornia.geometry.models.opencv import OPENCV_VARIANTS
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.factory import CAMERA_MODELS
 
-__all__ = ["CALIBRATION_COEFFS", "RigFileError", "read_calibration"]
+__all__ = ["CALIBRATION_COEFFS", "CalibrationFile", "RigFileError", "camera_from_record", "camera_record_fields",
+           "read_calibration"]
 
 
 class RigFileError(ValueError):
@@ -27,12 +29,92 @@ class RigFileError(ValueError):
 
 def _coefficient_counts() -> dict[str, tuple[int, ...]]:
     # the models as the solver writes them (``none``: five zeros, or no coefficients at all)
-    counts = {name: camera_model(name).num_coeffs for name in (*OPENCV_VARIANTS, KannalaBrandtModel.name)}
-    return {name: (n,) if n else (0, 5) for name, n in counts.items()}
+    return {name: (m.num_coeffs,) if m.num_coeffs else (0, 5) for name, m in CAMERA_MODELS.items()}
 
 
 #: distortion coefficient counts a calibration file may hold, per model
 CALIBRATION_COEFFS: dict[str, tuple[int, ...]] = _coefficient_counts()
+
+
+@dataclass
+class CalibrationFile:
+    """One camera's calibration as a file holds it: the camera (with its image size) and the calibration's views as
+    the file records them (empty when it has none)."""
+
+    camera: Camera
+    views: list = field(default_factory=list)
+
+
+def camera_record_fields(camera: Camera) -> dict[str, Any]:
+    """A camera (one) as the JSON files write it: ``image_size``, ``K`` and ``distortion`` (``model``, ``coeffs`` in
+    OpenCV's layout); the inverse of :func:`camera_from_record`.
+
+    Example:
+        >>> from ccs_kornia.geometry.models import K1K2
+        >>> cam = Camera(K1K2, torch.tensor([500., 500, 320, 240, -0.1, 0.01], dtype=torch.float64), (640, 480))
+        >>> fields = camera_record_fields(cam)
+        >>> fields["distortion"]["model"], len(fields["distortion"]["coeffs"]), fields["image_size"]
+        ('k1k2', 5, [640, 480])
+    """
+    if len(camera) != 1:
+        raise ValueError(f"camera_record_fields takes one camera, got {len(camera)}.")
+    K = camera.K[0].double().cpu()
+    size = camera.image_size
+    return {"image_size": None if size is None else [int(size[0]), int(size[1])],
+            "K": [[float(v) for v in row] for row in K.tolist()],
+            "distortion": {"model": str(camera.model), "coeffs": [float(v) for v in camera.coeffs(0).double().tolist()]}}
+
+
+def camera_from_record(data: dict[str, Any], need_size: bool = True) -> Camera:
+    """The camera of a calibration record (``K``, ``distortion``, ``image_size``: what ``calibrate`` writes, and each
+    camera of ``calibrate-rig``'s ``cameras``), checked: where files' model names become models.
+
+    Raises:
+        ValueError: one line saying what is wrong (a K that is not a camera matrix, an unknown distortion model, a
+            coefficient count that does not match it, no image size where ``need_size``).
+
+    Example:
+        >>> cam = camera_from_record({"K": [[500, 0, 320], [0, 500, 240], [0, 0, 1]], "image_size": [640, 480],
+        ...                           "distortion": {"model": "fisheye", "coeffs": [0.01, 0, 0, 0]}})
+        >>> cam.model, cam.image_size
+        (KannalaBrandtModel('fisheye'), (640, 480))
+    """
+    for key in ("K", "distortion", *(("image_size",) if need_size else ())):
+        if data.get(key) is None:
+            raise ValueError(f"not a calibration: {json.dumps(key)} is missing")
+    try:
+        K = np.array(data["K"], dtype=np.float64)
+    except (TypeError, ValueError):
+        K = np.zeros(0)
+    if K.shape != (3, 3) or not np.isfinite(K).all():
+        raise ValueError("not a calibration: K must be a 3x3 matrix of finite numbers")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise ValueError(f"not a calibration: the focal lengths fx {K[0, 0]:g}, fy {K[1, 1]:g} must be positive")
+    if not np.allclose(K[2], [0.0, 0.0, 1.0]):
+        raise ValueError("not a calibration: K's last row must be [0, 0, 1]")
+    dist = data["distortion"]
+    name = dist.get("model") if isinstance(dist, dict) else None
+    if name not in CALIBRATION_COEFFS:
+        raise ValueError(f"not a calibration: unknown distortion model {name!r} (expected one of "
+                         f"{', '.join(CALIBRATION_COEFFS)})")
+    try:
+        coeffs = np.array(dist.get("coeffs") or [], dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        coeffs = np.array([np.nan])
+    if coeffs.size not in CALIBRATION_COEFFS[name] or not np.isfinite(coeffs).all():
+        counts = " or ".join(str(n) for n in CALIBRATION_COEFFS[name])
+        raise ValueError(f"not a calibration: the {name} model has {counts} finite distortion coefficients, "
+                         f"the file gives {coeffs.size}")
+    size = data.get("image_size")
+    if size is not None or need_size:
+        if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
+            raise ValueError(f"not a calibration: image_size must be [width, height] in pixels, got {size!r}")
+    model = CAMERA_MODELS[name]
+    try:
+        return Camera.from_opencv(model, torch.from_numpy(K), torch.from_numpy(coeffs),
+                                  None if size is None else tuple(size))
+    except ValueError as err:  # e.g. k1k2 with tangential terms
+        raise ValueError(f"not a calibration: {err}") from None
 
 
 def _rig_camera(data: dict[str, Any], camera: str) -> dict[str, Any]:
@@ -47,7 +129,7 @@ def _rig_camera(data: dict[str, Any], camera: str) -> dict[str, Any]:
                      f"indices 0..{len(cameras) - 1})")
 
 
-def read_calibration(path: str | os.PathLike, camera: str | None = None) -> dict[str, Any]:
+def read_calibration(path: str | os.PathLike, camera: str | None = None) -> CalibrationFile:
     """Read and check a calibration JSON written by ``calibrate``, or one camera of a ``rig.json`` written by
     ``calibrate-rig``.
 
@@ -57,9 +139,8 @@ def read_calibration(path: str | os.PathLike, camera: str | None = None) -> dict
             to do instead.
 
     Returns:
-        ``{"K": 3x3 float64 array, "coeffs": float64 array, "model": str, "image_size": (w, h), "views": list}``;
-        ``coeffs`` holds five zeros for a calibration without distortion; ``views``: the calibration's views as the
-        file records them (empty when it has none).
+        :class:`CalibrationFile`: the camera (float64, with its image size) and the calibration's views as the file
+        records them (empty when it has none).
 
     Raises:
         ValueError: one line saying what is wrong (a file of a failed calibration says so); :class:`RigFileError`
@@ -94,35 +175,5 @@ def read_calibration(path: str | os.PathLike, camera: str | None = None) -> dict
     if data.get("success") is False:
         error = data.get("error") or "no camera was computed"
         raise ValueError(f"this is a failed calibration: {error}")
-    for key in ("K", "distortion", "image_size"):
-        if data.get(key) is None:
-            raise ValueError(f"not a calibration: {json.dumps(key)} is missing")
-    try:
-        K = np.array(data["K"], dtype=np.float64)
-    except (TypeError, ValueError):
-        K = np.zeros(0)
-    if K.shape != (3, 3) or not np.isfinite(K).all():
-        raise ValueError("not a calibration: K must be a 3x3 matrix of finite numbers")
-    if not (K[0, 0] > 0 and K[1, 1] > 0):
-        raise ValueError(f"not a calibration: the focal lengths fx {K[0, 0]:g}, fy {K[1, 1]:g} must be positive")
-    if not np.allclose(K[2], [0.0, 0.0, 1.0]):
-        raise ValueError("not a calibration: K's last row must be [0, 0, 1]")
-    dist = data["distortion"]
-    model = dist.get("model") if isinstance(dist, dict) else None
-    if model not in CALIBRATION_COEFFS:
-        raise ValueError(f"not a calibration: unknown distortion model {model!r} (expected one of "
-                         f"{', '.join(CALIBRATION_COEFFS)})")
-    try:
-        coeffs = np.array(dist.get("coeffs") or [], dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        coeffs = np.array([np.nan])
-    if coeffs.size not in CALIBRATION_COEFFS[model] or not np.isfinite(coeffs).all():
-        counts = " or ".join(str(n) for n in CALIBRATION_COEFFS[model])
-        raise ValueError(f"not a calibration: the {model} model has {counts} finite distortion coefficients, "
-                         f"the file gives {coeffs.size}")
-    size = data["image_size"]
-    if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
-        raise ValueError(f"not a calibration: image_size must be [width, height] in pixels, got {size!r}")
     views = data.get("views") if isinstance(data.get("views"), list) else []
-    return {"K": K, "coeffs": camera_model(model).opencv_coeffs(coeffs), "model": model, "image_size": tuple(size),
-            "views": views}
+    return CalibrationFile(camera_from_record(data), views)

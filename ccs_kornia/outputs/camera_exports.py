@@ -8,8 +8,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.models.factory import FISHEYE, RATIONAL
 from ccs_kornia.io.files import atomic_path
+from ccs_kornia.outputs.calibration_file import camera_from_record
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["ROS_DISTORTION_MODELS", "ros_camera_info", "write_opencv_yaml"]
@@ -30,17 +31,18 @@ def write_opencv_yaml(path: str, data: dict[str, Any]) -> None:
             fs.write("board_height", int(data["board"][1]))
             fs.write("square_size", float(data["square"]))
             fs.write("camera_matrix", np.array(data["K"], dtype=np.float64))
-            lens = camera_model(data["distortion"]["model"])
-            fs.write("distortion_coefficients", lens.opencv_coeffs(data["distortion"]["coeffs"]).reshape(-1, 1))
+            camera = camera_from_record(data)
+            fs.write("distortion_coefficients", camera.model.opencv_coeffs(camera.coeffs(0).numpy()).reshape(-1, 1))
             # which projection the coefficients belong to: cv2.fisheye's k1..k4 or cv2's polynomial model
-            fs.write("distortion_model", lens.opencv_family)
+            fs.write("distortion_model", camera.model.opencv_family)
             fs.write("avg_reprojection_error", float(data["rms"]))
         finally:
             fs.release()
 
 
-#: ROS camera_info names of the models (image_pipeline's camera_calibration writes ``equidistant`` for fisheye)
-ROS_DISTORTION_MODELS = {"fisheye": "equidistant", "rational": "rational_polynomial"}
+#: ROS camera_info names of the models (image_pipeline's camera_calibration writes ``equidistant`` for fisheye); the
+#: others are ``plumb_bob``
+ROS_DISTORTION_MODELS = {FISHEYE: "equidistant", RATIONAL: "rational_polynomial"}
 
 
 def ros_camera_info(data: dict[str, Any], camera_name: str = "camera", rectification: Any = None,
@@ -49,8 +51,9 @@ def ros_camera_info(data: dict[str, Any], camera_name: str = "camera", rectifica
     identity rectification, projection ``[K | 0]``; a stereo camera passes its ``rectification`` (3x3, ``R1``/``R2``
     of the rectification) and ``projection`` (3x4, ``P1``/``P2``)."""
     K = [float(v) for row in data["K"] for v in row]
-    coeffs = camera_model(data["distortion"]["model"]).opencv_coeffs(data["distortion"]["coeffs"]).tolist()
-    model = ROS_DISTORTION_MODELS.get(data["distortion"]["model"], "plumb_bob")
+    camera = camera_from_record(data, need_size=False)
+    coeffs = camera.model.opencv_coeffs(camera.coeffs(0).numpy()).tolist()
+    model = ROS_DISTORTION_MODELS.get(camera.model, "plumb_bob")
     P = [K[0], K[1], K[2], 0.0, K[3], K[4], K[5], 0.0, K[6], K[7], K[8], 0.0]
     if projection is not None:
         P = [float(v) for row in projection for v in row]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from ccs_kornia.outputs.calibration_file import camera_record_fields
 from ccs_kornia.modules.calibration.result import VIEW_REASONS
 from ccs_kornia.pipeline.result import PipelineResult
 from ccs_kornia.pipeline.sources import SIZE_TOLERANCE_PX
@@ -109,7 +110,7 @@ def correction_record(result: PipelineResult) -> dict[str, Any]:
 
 
 def camera_record(
-    result: PipelineResult, paths: list[str], *, board: tuple[int, int], square: float, detector: str, model: str
+    result: PipelineResult, paths: list[str], *, board: tuple[int, int], square: float, detector: str, model: Any
 ) -> dict[str, Any]:
     """The calibration JSON of one camera (DESIGN section 4) plus what helps users judge it.
 
@@ -134,7 +135,7 @@ def camera_record(
         "K": None, "distortion": None, "rms": None,
         "rms_kind": "RMS reprojection error over all corners of the used views, px",
         "views": views,
-        "board": list(board), "square": square, "detector": detector, "model": model,
+        "board": list(board), "square": square, "detector": detector, "model": str(model),
         # the fit weights each corner by the precision measured on its image (plain least squares with --unweighted)
         "corner_weights": result.detections.sigma is not None,
     }
@@ -160,9 +161,10 @@ def camera_record(
         data["selection"] = choice.record(paths)
     if success:
         std_i = cal.std_intrinsics.double().cpu().tolist()
+        fields = camera_record_fields(cal.camera)
         data.update({
-            "K": cal.K.double().cpu().tolist(),
-            "distortion": {"model": cal.model, "coeffs": cal.dist.double().cpu().tolist()},
+            "K": fields["K"],
+            "distortion": fields["distortion"],
             "rms": float(cal.rms),
             "std": {"fx": std_i[0], "fy": std_i[1], "cx": std_i[2], "cy": std_i[3],
                     "distortion": cal.std_dist.double().cpu().tolist()},

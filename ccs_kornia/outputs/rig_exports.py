@@ -11,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.models.factory import CAMERA_MODELS, FISHEYE, OPENCV5, RATIONAL
+from ccs_kornia.outputs.calibration_file import camera_from_record
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.io.files import atomic_path
 from ccs_kornia.outputs.camera_exports import ros_camera_info
@@ -20,7 +21,7 @@ from ccs_kornia.runtime.errors import UserError
 
 __all__ = [
     "rectification",
-    "opencv_coeffs",
+    "KALIBR_DISTORTION",
     "write_opencv_stereo_yaml",
     "ros_stereo_files",
     "kalibr_problem",
@@ -28,16 +29,9 @@ __all__ = [
 ]
 
 
-def opencv_coeffs(model: str, coeffs: list[float]) -> np.ndarray:
-    """A camera's coefficients as OpenCV's functions take them: ``cv2.fisheye``'s four, else at least five
-    (``k1k2`` and ``none`` padded with zeros: OpenCV takes 4, 5, 8, 12 or 14;
-    :meth:`~ccs_kornia.geometry.models.base.CameraModel.opencv_coeffs` of the model named ``model``).
-
-    Example:
-        >>> opencv_coeffs("k1k2", [-0.3, 0.1]).tolist(), opencv_coeffs("fisheye", [0.1, 0, 0, 0]).shape
-        ([-0.3, 0.1, 0.0, 0.0, 0.0], (4,))
-    """
-    return camera_model(model).opencv_coeffs(coeffs)
+#: Kalibr's distortion model of each camera model it holds (its pinhole cameras take radtan: k1, k2, p1, p2, or
+#: equidistant: fisheye k1..k4; it has no rational model)
+KALIBR_DISTORTION = {m: ("equidistant" if m == FISHEYE else "radtan") for m in CAMERA_MODELS.values() if m != RATIONAL}
 
 
 def rectification(data: dict[str, Any], i: int = 0, j: int = 1, alpha: float = 0.0) -> dict[str, Any]:
@@ -82,10 +76,10 @@ def write_opencv_stereo_yaml(path: str, data: dict[str, Any], rect: dict[str, An
                 fs.write(f"image_width{k}", int(cams[c]["image_size"][0]))
                 fs.write(f"image_height{k}", int(cams[c]["image_size"][1]))
             for k, c in (("1", i), ("2", j)):
-                model = cams[c]["distortion"]["model"]
+                camera = camera_from_record(cams[c])
                 fs.write(f"K{k}", np.array(cams[c]["K"], dtype=np.float64))
-                fs.write(f"D{k}", opencv_coeffs(model, cams[c]["distortion"]["coeffs"]).reshape(1, -1))
-                fs.write(f"distortion_model{k}", camera_model(model).opencv_family)
+                fs.write(f"D{k}", camera.model.opencv_coeffs(camera.coeffs(0).numpy()).reshape(1, -1))
+                fs.write(f"distortion_model{k}", camera.model.opencv_family)
             fs.write("R", np.asarray(rect["R"], dtype=np.float64))
             fs.write("T", np.asarray(rect["T"], dtype=np.float64).reshape(3, 1))
             fs.write("E", np.array(pair["E"], dtype=np.float64))
@@ -108,8 +102,9 @@ def ros_stereo_files(data: dict[str, Any], rect: dict[str, Any], names: tuple[st
     out = {}
     for name, c, R, P in ((names[0], i, rect["R1"], rect["P1"]), (names[1], j, rect["R2"], rect["P2"])):
         cam = dict(data["cameras"][c])
-        model = cam["distortion"]["model"]
-        cam["distortion"] = {"model": model, "coeffs": opencv_coeffs(model, cam["distortion"]["coeffs"]).tolist()}
+        camera = camera_from_record(cam)
+        cam["distortion"] = {"model": cam["distortion"]["model"],
+                             "coeffs": camera.model.opencv_coeffs(camera.coeffs(0).numpy()).tolist()}
         out[f"{name}.yaml"] = ros_camera_info(cam, name, rectification=np.asarray(R).tolist(),
                                               projection=np.asarray(P).tolist())
     return out
@@ -119,7 +114,7 @@ def kalibr_problem(data: dict[str, Any]) -> str:
     """Why the rig cannot be written as a Kalibr camchain (``""`` when it can): Kalibr's pinhole cameras take radtan
     (k1, k2, p1, p2) or equidistant (fisheye k1..k4) distortion only."""
     bad = [f"{cam['name']} ({cam['distortion']['model']})" for cam in data["cameras"]
-           if cam["distortion"]["model"] == "rational"]
+           if camera_from_record(cam).model not in KALIBR_DISTORTION]
     if bad:
         return (f"--kalibr-yaml: Kalibr has no rational (k1..k6) model, used by camera {', '.join(bad)}; "
                 "calibrate with --model opencv5, k1k2 or fisheye for a Kalibr camchain")
@@ -138,16 +133,13 @@ def kalibr_camchain(data: dict[str, Any]) -> tuple[str, list[str]]:
     text, notes = [], []
     for c, cam in enumerate(data["cameras"]):
         K = cam["K"]
-        model = cam["distortion"]["model"]
+        model = camera_from_record(cam).model
         coeffs = list(cam["distortion"]["coeffs"] or [])
-        if camera_model(model).is_fisheye:
-            kind, values = "equidistant", coeffs[:4]
-        else:
-            values = (coeffs + [0.0] * 4)[:4]
-            kind = "radtan"
-            if model == "opencv5" and len(coeffs) > 4 and coeffs[4] != 0.0:
-                notes.append(f"camera {cam['name']}: Kalibr's radtan has no k3; k3 = {coeffs[4]:.6g} left out of the "
-                             "camchain")
+        kind = KALIBR_DISTORTION[model]
+        values = (coeffs + [0.0] * 4)[:4]
+        if model == OPENCV5 and len(coeffs) > 4 and coeffs[4] != 0.0:
+            notes.append(f"camera {cam['name']}: Kalibr's radtan has no k3; k3 = {coeffs[4]:.6g} left out of the "
+                         "camchain")
         lines = [f"cam{c}:", "  camera_model: pinhole", f"  intrinsics: {row([K[0][0], K[1][1], K[0][2], K[1][2]])}",
                  f"  distortion_model: {kind}", f"  distortion_coeffs: {row(values)}",
                  f"  resolution: [{int(cam['image_size'][0])}, {int(cam['image_size'][1])}]",

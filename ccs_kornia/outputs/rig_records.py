@@ -12,7 +12,8 @@ from typing import Any
 
 import torch
 
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.outputs.calibration_file import camera_from_record, camera_record_fields
 from ccs_kornia.outputs.records import camera_record, selection_reasons
 
 __all__ = ["CONVENTION", "INCONSISTENT_WEIGHT", "frame_lines", "frame_records", "rig_record", "pair_record",
@@ -137,13 +138,14 @@ def frame_lines(frames: list[dict[str, Any]], most: int = 10) -> list[str]:
 
 
 def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], square: float, detector: str,
-               models: list[str]) -> dict[str, Any]:
+               models: list[Any]) -> dict[str, Any]:
     """The ``rig.json`` of a solved rig.
 
     Args:
         out: a :class:`~ccs_kornia.pipeline.rig_pipeline.RigPipelineResult` whose ``rig`` succeeded.
         paths: per camera its image files in the camera's own order.
-        board, square, detector: recorded as given; models: the model asked for per camera (``auto`` included).
+        board, square, detector: recorded as given; models: the model asked for per camera (a model choice
+            included).
 
     Returns:
         JSON-ready dict: ``convention``, ``cameras`` (each as ``calibrate`` writes one, with ``name``, the joint fit's
@@ -160,9 +162,10 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
         cam = rig.cameras[c]
         std = [float(v) for v in rig.intrinsics_std[c].double().tolist()]
         single = {k: record[k] for k in ("K", "distortion", "rms")}
+        fields = camera_record_fields(cam)
         record.update({
-            "K": _matrix(cam.K),
-            "distortion": {"model": cam.model, "coeffs": [float(v) for v in cam.dist.double().tolist()]},
+            "K": fields["K"],
+            "distortion": fields["distortion"],
             "rms": _num(rig.camera_rms[c]),
             "rms_kind": "RMS reprojection error over the camera's corners in the rig's joint fit, px",
             "std": {"fx": std[0], "fy": std[1], "cx": std[2], "cy": std[3], "distortion": std[4:]},
@@ -212,12 +215,9 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
     }
 
 
-def rig_cameras(data: dict[str, Any]) -> list[Any]:
-    """The cameras of a ``rig.json`` as ``RigCamera`` values (model, K, coefficients)."""
-    from ccs_kornia.modules.rig import RigCamera
-
-    return [RigCamera(cam["distortion"]["model"], torch.tensor(cam["K"], dtype=torch.float64),
-                      torch.tensor(cam["distortion"]["coeffs"] or [], dtype=torch.float64)) for cam in data["cameras"]]
+def rig_cameras(data: dict[str, Any]) -> Camera:
+    """The cameras of a ``rig.json`` (``cameras[c]``: camera c, float64, with its image size)."""
+    return Camera.cat([camera_from_record(cam) for cam in data["cameras"]])
 
 
 def rectify_maps(data: dict[str, Any], rect: dict[str, Any], i: int = 0, j: int = 1) -> list[tuple[Any, Any]]:
@@ -230,12 +230,11 @@ def rectify_maps(data: dict[str, Any], rect: dict[str, Any], i: int = 0, j: int 
     size = tuple(int(v) for v in rect["image_size"])
     maps = []
     for c, R, P in ((i, rect["R1"], rect["P1"]), (j, rect["R2"], rect["P2"])):
-        cam = data["cameras"][c]
-        K = np.array(cam["K"], dtype=np.float64)
-        lens = camera_model(cam["distortion"]["model"])
-        coeffs = lens.opencv_coeffs(cam["distortion"]["coeffs"])
+        cam = camera_from_record(data["cameras"][c])
+        K = cam.K[0].numpy()
+        coeffs = cam.model.opencv_coeffs(cam.coeffs(0).numpy())
         R, P = np.asarray(R, dtype=np.float64), np.asarray(P, dtype=np.float64)
-        if lens.is_fisheye:
+        if cam.model.is_fisheye:  # OpenCV's two APIs: cv2.fisheye for Kannala-Brandt lenses
             maps.append(cv2.fisheye.initUndistortRectifyMap(K, coeffs.reshape(4, 1), R, P, size, cv2.CV_32FC1))
         else:
             maps.append(cv2.initUndistortRectifyMap(K, coeffs, R, P, size, cv2.CV_32FC1))

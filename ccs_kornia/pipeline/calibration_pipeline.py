@@ -37,7 +37,9 @@ import torch
 from torch import nn
 
 from ccs_kornia.modules._checks import check_board_size
-from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelSelection
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import OPENCV5
+from ccs_kornia.modules.calibration.model_selection import ModelChoice, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
@@ -94,11 +96,10 @@ class CalibrationPipeline(nn.Module):
     Args:
         detector: a detector name for :func:`~ccs_kornia.modules.detection.factory.make_detector`
             (``"opencv"`` or ``"learned"``) or a :class:`ChessboardDetector` instance.
-        model: ``opencv5`` (k1, k2, p1, p2, k3), ``k1k2``, ``rational``, ``none``, ``fisheye`` (cv2.fisheye's) or
-            ``auto`` (one of :data:`~ccs_kornia.modules.calibration.model_selection.AUTO_MODELS` per camera, by
-            cross-validation; ``PipelineResult.model_selection`` says which and why).
-        auto_models: the candidates of ``model="auto"`` (default all of ``AUTO_MODELS``), e.g. without ``rational``
-            for a camera whose calibration goes to a format that cannot hold it (Kalibr's camchain).
+        model: a camera model (:mod:`ccs_kornia.geometry.models`: ``OPENCV5`` (k1, k2, p1, p2, k3), ``K1K2``,
+            ``RATIONAL``, ``PINHOLE``, ``FISHEYE`` (cv2.fisheye's)) or a
+            :class:`~ccs_kornia.modules.calibration.model_selection.ModelChoice` (one of its candidates per camera,
+            by cross-validation; ``PipelineResult.model_selection`` says which and why).
         use_ransac: reject inconsistent views with image-level RANSAC before the refinement.
         seed: seed of the RANSAC sampling (results are deterministic for a given seed).
         detection_batch_size: most images handed to the detector at once.
@@ -156,7 +157,7 @@ class CalibrationPipeline(nn.Module):
     def __init__(
         self,
         detector: str | ChessboardDetector = "learned",
-        model: str = "opencv5",
+        model: CameraModel | ModelChoice = OPENCV5,
         use_ransac: bool = True,
         seed: int = 0,
         detection_batch_size: int = 16,
@@ -173,7 +174,6 @@ class CalibrationPipeline(nn.Module):
         calibrated_look: bool = True,
         weigh_corners: bool = True,
         differentiable: bool = False,
-        auto_models: Sequence[str] = AUTO_MODELS,
         frame_selection: FrameSelection | None = None,
         **solver_kwargs,
     ) -> None:
@@ -190,15 +190,17 @@ class CalibrationPipeline(nn.Module):
         for name, value in (("min_correction", min_correction), ("max_rms_ratio", max_rms_ratio)):
             if not value >= 0:
                 raise ValueError(f"{name} must be >= 0, got {value}.")
-        candidates = tuple(dict.fromkeys(auto_models))
-        if not candidates or any(m not in AUTO_MODELS for m in candidates):
-            raise ValueError(f"auto_models must be some of {', '.join(AUTO_MODELS)}, got {list(auto_models)}.")
-        names = candidates if model == "auto" else (model,)
-        self.solvers = nn.ModuleDict({m: CalibrationSolver(model=m, use_ransac=use_ransac, seed=seed, **solver_kwargs)
-                                      for m in names})
-        # the stage alone's (auto: opencv5 where it is a candidate)
-        self.solver = self.solvers[("opencv5" if "opencv5" in names else names[0]) if model == "auto" else model]
-        self.selection = ModelSelection(dict(self.solvers)) if model == "auto" else None
+        choice = isinstance(model, ModelChoice)
+        if not choice and not isinstance(model, CameraModel):
+            raise TypeError(f"model must be a camera model (ccs_kornia.geometry.models) or a ModelChoice, got {model!r}.")
+        models = model.candidates if choice else (model,)
+        self.solver_list = nn.ModuleList([CalibrationSolver(model=m, use_ransac=use_ransac, seed=seed, **solver_kwargs)
+                                          for m in models])
+        #: the solver of each model
+        self.solvers = {s.model: s for s in self.solver_list}
+        # the stage alone's (a choice: its first candidate)
+        self.solver = self.solvers[model.first if choice else model]
+        self.selection = ModelSelection(list(self.solver_list)) if choice else None
         self.model, self.diagnostics = model, bool(diagnostics)
         #: the looks after the first, in order
         self.looks: tuple[Look, ...] = tuple(look for look in (LOOKS if looks is None else looks)
@@ -546,7 +548,7 @@ class CalibrationPipeline(nn.Module):
         size = (int(image_size[0]), int(image_size[1]))
         if sigma is not None and sigma.shape != corners.shape[:-1]:
             raise ValueError(f"sigma must have shape {tuple(corners.shape[:-1])}, got {tuple(sigma.shape)}.")
-        if (correction is not None and correction_tried is not None) or self.model == "auto":
+        if (correction is not None and correction_tried is not None) or isinstance(self.model, ModelChoice):
             single = corners.dim() == 3
             batch = (lambda x: None if x is None else x[None]) if single else (lambda x: x)
             calib = solve_group(self.solving, batch(corners).double(), batch(valid).any(-1), board, square, size,

@@ -24,6 +24,7 @@ from dataclasses import replace
 import torch
 
 from ccs_kornia.modules._checks import check_board_size
+from ccs_kornia.modules.calibration.model_selection import ModelChoice
 from ccs_kornia.modules.detection.base import (
     ChessboardDetector,
     DetectionResult,
@@ -135,12 +136,13 @@ def differentiable_run(out: PipelineResult, images: torch.Tensor, board_size: tu
         valid = measured_corners(det.corners[sel], usable[sel])
         sigma = None if det.sigma is None else det.sigma[sel]
         weights = corner_weights_of(sigma, valid) if solving.weigh_corners else None
-        if solving.model == "auto":
-            chosen = [((out.model_selection or [None] * len(out.image_size))[ci] or {}).get("chosen")
-                      for ci in sel.tolist()]
-            names = [n or next(iter(solving.solvers)) for n in chosen]
+        if isinstance(solving.model, ModelChoice):
+            tables = out.model_selection or [None] * len(out.image_size)
+            # the model chosen for each camera (the first candidate where none was)
+            names = [out.calibration.camera.models[ci] if (tables[ci] or {}).get("chosen")
+                     else next(iter(solving.solvers)) for ci in sel.tolist()]
         else:
-            names = [next(k for k, s in solving.solvers.items() if s is solving.solver)] * sel.numel()
+            names = [solving.solver.model] * sel.numel()
         # the usual solve's call: each model over every camera of the group (the RANSAC draws depend on the batch)
         results = {n: solving.solvers[n](corners[sel], valid, obj, positive_size(size), weights=weights)
                    for n in dict.fromkeys(names)}

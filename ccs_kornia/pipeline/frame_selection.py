@@ -46,6 +46,8 @@ from typing import Any
 
 import torch
 
+from ccs_kornia.geometry.camera import Camera
+
 from ccs_kornia.modules.calibration.quality.view_information import (
     greedy_information,
     image_information,
@@ -133,8 +135,7 @@ class CameraViews:
     """One camera's candidate views, as the frame selection needs them (:func:`camera_views` makes one).
 
     Attributes:
-        model: the calibration's model name.
-        K: :math:`(3, 3)`; dist: :math:`(D,)` (OpenCV's layout); image_size: ``(W, H)``.
+        camera: the first solve's camera (one, float64, with its image size).
         rvec, tvec: :math:`(V, 3)` each view's board pose from the first solve.
         corners: :math:`(V, N, 2)`; valid: :math:`(V, N)` bool; weights: :math:`(V, N)` the solver's weights.
         object_points: :math:`(N, 3)`.
@@ -144,10 +145,7 @@ class CameraViews:
         rms: the first solve's RMS reprojection error (px): the scale of the predicted uncertainty.
     """
 
-    model: str
-    K: torch.Tensor
-    dist: torch.Tensor
-    image_size: tuple[int, int]
+    camera: Camera
     rvec: torch.Tensor
     tvec: torch.Tensor
     corners: torch.Tensor
@@ -158,6 +156,11 @@ class CameraViews:
     sharpness: torch.Tensor
     speed: list[float | None]
     rms: float
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """``(W, H)``."""
+        return self.camera.image_size
 
     @property
     def diagonal(self) -> float:
@@ -184,8 +187,8 @@ def camera_views(out: PipelineResult, object_points: torch.Tensor, weigh_corners
         sharp = s.nanmedian(-1).values
     v = corners.shape[0]
     speeds = list(speed) if speed is not None else [None] * v
-    return CameraViews(str(cal.model), cal.K.double().cpu(), cal.dist.double().cpu().nan_to_num(0.0),
-                       tuple(int(x) for x in out.image_size), cal.rvec.double().cpu(), cal.tvec.double().cpu(),
+    camera = Camera(cal.camera.models, cal.camera.params.double().cpu(), tuple(int(x) for x in out.image_size))
+    return CameraViews(camera, cal.rvec.double().cpu(), cal.tvec.double().cpu(),
                        torch.where(valid[..., None], corners, torch.zeros_like(corners)), valid, weights,
                        object_points.double().cpu(), cal.used.cpu().bool() & det.found.cpu(), sharp,
                        speeds + [None] * (v - len(speeds)), float(cal.rms))
@@ -385,7 +388,7 @@ def choose_frames(
     candidate = usable.any(0)
     sharp_views = usable & ~blurred
     # each camera's information: its views that count, weighed by the board's motion
-    P = max((_num_params(cam) for cam in cameras if cam is not None), default=4)
+    P = max((cam.camera.model.num_params for cam in cameras if cam is not None), default=4)
     M = torch.zeros(C, F, P, P, dtype=torch.float64)
     A = torch.zeros(C, P, P, dtype=torch.float64)
     rms = [0.0 if cam is None else cam.rms for cam in cameras]
@@ -395,11 +398,11 @@ def choose_frames(
             continue
         ks = torch.tensor([k for _, k in keep])
         fs = [f for f, _ in keep]
-        m = view_information(cam.model, cam.K[None], cam.dist[None], cam.rvec[ks][None], cam.tvec[ks][None],
-                             cam.object_points, cam.weights[ks][None])[0]
+        m = view_information(cam.camera, cam.rvec[ks][None], cam.tvec[ks][None], cam.object_points,
+                             cam.weights[ks][None])[0]
         p = m.shape[-1]
         M[c, fs, :p, :p] = m * weight[c, fs][:, None, None]
-        A[c, :p, :p] = image_information(cam.model, cam.K[None], cam.dist[None], cam.image_size, selection.grid)[0]
+        A[c, :p, :p] = image_information(cam.camera, grid=selection.grid)[0]
     pad = A.diagonal(dim1=-2, dim2=-1) == 0  # parameters a camera does not have: inert
     M = M + torch.diag_embed(pad.double())[:, None] * usable[..., None, None].double()
     links = C > 1
@@ -444,12 +447,6 @@ def choose_frames(
     uncertainty = [[float(u) * rms[c] / math.sqrt(2.0) for u in choice.uncertainty[c].tolist()] for c in range(C)]
     return FrameChoice(kept, reasons, view_reasons, choice.copy_of, speed_of, sharp_of, gains, list(choice.order),
                        uncertainty, int(candidate.sum()))
-
-
-def _num_params(cam: CameraViews) -> int:
-    from ccs_kornia.geometry.models.factory import camera_model
-
-    return camera_model(cam.model).num_params
 
 
 def _copies(cameras: Sequence[CameraViews | None], views: list[list[int | None]], sharp: torch.Tensor,

@@ -30,7 +30,6 @@ from typing import Callable
 
 import torch
 
-from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.modules.calibration.result import ViewReason
 from ccs_kornia.modules.detection.base import (
     ChessboardDetector,
@@ -203,10 +202,10 @@ def _missed_on_fisheye_cameras(out: PipelineResult, detector: ChessboardDetector
     what straightens them (it found every missed view of the real fisheye sets, ``docs/measurements.md``); a pinhole
     lens's missed views are missed for other reasons (blur, cut boards) that a reprojection does not cure."""
     cal, det = out.calibration, out.detections
-    models = cal.model if isinstance(cal.model, tuple) else (cal.model,) * det.found.shape[0]
+    models = cal.camera.models
     same = same_size_views(out)
     ok = cal.success.to(same.device)
-    cams = [ci for ci in ok.nonzero().flatten().tolist() if camera_model(models[ci]).is_fisheye]
+    cams = [ci for ci in ok.nonzero().flatten().tolist() if models[ci].is_fisheye]
     # views without a board, and views whose corners the solver rejected as an outlier (wrong corners on the
     # original image: a board near the rim found, but mislabelled)
     outlier = cal.view_reason.to(same.device) == ViewReason.OUTLIER
@@ -221,14 +220,11 @@ def _on_virtual_views(tools: Tools, out: PipelineResult, images: torch.Tensor, k
     views by the worker processes (a whole image per process measured no faster). Found on a virtual view, a
     corner's precision is unknown (the median weight)."""
     device = out.detections.corners.device
-    lens = {ci: select_result(out.calibration, ci) for ci in dict.fromkeys(k[0] for k in keys)}
-    K = torch.stack([lens[ci].K for ci, _ in keys]).to(device)
-    dist = torch.stack([lens[ci].dist for ci, _ in keys]).to(device)
+    camera = out.calibration.camera[torch.tensor([ci for ci, _ in keys])].to(device)
     workers = tools.workers if device.type == "cpu" else 1
     pool = functools.partial(worker_pool, workers=min(workers, VIEWS_PER_ROUND)) if workers > 1 else None
     detect = functools.partial(_with_fallbacks, tools.detect, fallbacks)
-    return detect_with_calibrated_lens(detect, tools.refine, images.to(device), K, dist, True, board_size,
-                                       view_pool=pool)
+    return detect_with_calibrated_lens(detect, tools.refine, images.to(device), camera, board_size, view_pool=pool)
 
 
 def _still_missed(out: PipelineResult, detector: ChessboardDetector) -> list:

@@ -9,7 +9,8 @@ from typing import Any
 
 import torch
 
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.modules.calibration.result import VIEW_REASONS, CalibrationResult
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.modules.detection.base import DetectionResult, measured_corners
@@ -31,6 +32,8 @@ __all__ = [
 
 
 def _index(value: Any, idx: torch.Tensor | int) -> Any:
+    if isinstance(value, Camera):
+        return value[idx]
     if isinstance(value, torch.Tensor) and value.dim() > 0:
         return value[idx.to(value.device) if isinstance(idx, torch.Tensor) else idx]
     return value
@@ -39,8 +42,10 @@ def _index(value: Any, idx: torch.Tensor | int) -> Any:
 def select_result(result: Any, idx: torch.Tensor | int) -> Any:
     """Cameras ``idx`` of a dataclass result whose tensor fields all have the camera dimension first.
 
-    An ``int`` drops the camera dimension; a :math:`(K,)` long tensor keeps it. Works for
-    :class:`~ccs_kornia.modules.calibration.result.CalibrationResult` whatever optional fields it carries.
+    An ``int`` drops the camera dimension (a :class:`~ccs_kornia.geometry.camera.Camera` keeps it: one camera); a
+    :math:`(K,)` long tensor keeps it. Works for
+    :class:`~ccs_kornia.modules.calibration.result.CalibrationResult` whatever optional fields it carries; cameras of
+    one model taken from a result of several get their coefficient fields back to that model's width.
 
     Example:
         >>> d = DetectionResult(torch.zeros(3, 5, 4, 2), torch.tensor([[True] * 5] * 3))
@@ -51,39 +56,27 @@ def select_result(result: Any, idx: torch.Tensor | int) -> Any:
     for f in fields(result):
         v = getattr(result, f.name)
         values[f.name] = _index(v, idx) if f.name != "reasons" else v
-    models = values.get("model")
-    if isinstance(models, tuple):  # cameras of several models (``model="auto"``, see concat_results)
-        models = models[idx] if isinstance(idx, int) else tuple(models[i] for i in torch.as_tensor(idx).tolist())
-        values["model"] = models
-        if isinstance(models, str) or len(set(models)) == 1:
-            one = models if isinstance(models, str) else models[0]
-            values = _trim(values, dist_width(one))
-            values["model"] = models if isinstance(models, str) else one
+    camera = values.get("camera")
+    if isinstance(camera, Camera) and camera.uniform and len(camera):
+        values = _trim(values, camera.model.num_coeffs)
     return type(result)(**values)
 
 
-def dist_width(model: str) -> int:
-    """Distortion coefficients a calibration of ``model`` stores (``fisheye``: k1..k4; OpenCV variants: 0, 5 or 8)."""
-    return camera_model(model).num_coeffs
-
-
 def _trim(values: dict[str, Any], width: int) -> dict[str, Any]:
-    """Distortion fields cut back to ``width`` coefficients (after NaN padding for mixed models)."""
+    """Coefficient fields cut back to ``width`` coefficients (after NaN padding for mixed models)."""
     out = dict(values)
-    for key in ("dist", "std_dist"):
-        if isinstance(out.get(key), torch.Tensor):
-            out[key] = out[key][..., :width]
+    if isinstance(out.get("std_dist"), torch.Tensor):
+        out["std_dist"] = out["std_dist"][..., :width]
     if isinstance(out.get("cov_camera"), torch.Tensor):
         out["cov_camera"] = out["cov_camera"][..., : 4 + width, : 4 + width]
     return out
 
 
 def _pad(result: Any, width: int) -> Any:
-    """A calibration result with its distortion fields NaN-padded to ``width`` coefficients."""
+    """A calibration result with its coefficient fields NaN-padded to ``width`` coefficients."""
     values = {f.name: getattr(result, f.name) for f in fields(result)}
-    for key in ("dist", "std_dist"):
-        v = values[key]
-        values[key] = torch.cat([v, v.new_full((*v.shape[:-1], width - v.shape[-1]), float("nan"))], -1)
+    v = values["std_dist"]
+    values["std_dist"] = torch.cat([v, v.new_full((*v.shape[:-1], width - v.shape[-1]), float("nan"))], -1)
     cov = values.get("cov_camera")
     if isinstance(cov, torch.Tensor):
         n = 4 + width
@@ -94,26 +87,25 @@ def _pad(result: Any, width: int) -> Any:
 
 
 def concat_results(parts: Sequence[Any]) -> Any:
-    """Concatenate dataclass results along the camera dimension (non-tensor fields taken from the first).
+    """Concatenate dataclass results along the camera dimension (non-tensor fields taken from the first; cameras of
+    several models: the coefficient fields NaN-padded to the widest).
 
     Example:
         >>> a = DetectionResult(torch.zeros(1, 2, 4, 2), torch.ones(1, 2, dtype=torch.bool))
         >>> concat_results([a, a]).corners.shape
         torch.Size([2, 2, 4, 2])
     """
+    cameras = [getattr(p, "camera", None) for p in parts]
+    if all(isinstance(c, Camera) for c in cameras) and len({m for c in cameras for m in c.models}) > 1:
+        width = max(p.std_dist.shape[-1] for p in parts)
+        parts = [_pad(p, width) if p.std_dist.shape[-1] < width else p for p in parts]
     first = parts[0]
-    models = [getattr(p, "model", None) for p in parts]
-    if any(isinstance(m, tuple) for m in models) or len({m for m in models if isinstance(m, str)}) > 1:
-        # cameras of several models (``model="auto"``): one distortion width (NaN-padded), the model per camera
-        width = max(p.dist.shape[-1] for p in parts)
-        names = tuple(n for p, m in zip(parts, models) for n in (m if isinstance(m, tuple) else (m,) * p.K.shape[0]))
-        parts = [_pad(p, width) if p.dist.shape[-1] < width else p for p in parts]
-        first = replace(parts[0], model=names)
-        parts = [first, *parts[1:]]
     values = {}
     for f in fields(first):
         vs = [getattr(p, f.name) for p in parts]
-        if all(isinstance(v, torch.Tensor) and v.dim() > 0 for v in vs):
+        if all(isinstance(v, Camera) for v in vs):
+            values[f.name] = Camera.cat(vs)
+        elif all(isinstance(v, torch.Tensor) and v.dim() > 0 for v in vs):
             values[f.name] = torch.cat([v.to(vs[0].device) for v in vs])
         else:
             values[f.name] = vs[0]
@@ -285,7 +277,12 @@ class PipelineResult:
                               per_view(self.view_sizes), view_corrections=per_view(self.view_corrections),
                               camera_reasons=[""] * cam.shape[0])
 
-    # shortcuts to the tensors most callers want
+    # shortcuts to the values most callers want
+    @property
+    def camera(self) -> Camera:
+        """The calibrated cameras (:class:`~ccs_kornia.geometry.camera.Camera`; one camera for an unbatched result)."""
+        return self.calibration.camera
+
     @property
     def K(self) -> torch.Tensor:
         """Camera matrices :math:`(3, 3)` / :math:`(C, 3, 3)` (NaN where the calibration failed)."""
@@ -344,11 +341,16 @@ def main_size(sizes: torch.Tensor, found: torch.Tensor, present: torch.Tensor) -
 
 
 def scatter_cameras(part: CalibrationResult, index: torch.Tensor, like: CalibrationResult) -> CalibrationResult:
-    """``like`` with the cameras ``index`` replaced by ``part``'s (tensor fields of equal trailing shapes)."""
+    """``like`` with the cameras ``index`` replaced by ``part``'s (tensor fields of equal trailing shapes; the cameras
+    of ``part`` have the models of ``like``'s at ``index``)."""
     values = {}
     for key, value in like.__dict__.items():
         new = getattr(part, key)
-        if isinstance(value, torch.Tensor) and isinstance(new, torch.Tensor) and value.shape[1:] == new.shape[1:]:
+        if isinstance(value, Camera):
+            params = value.params.clone()
+            params[index.to(params.device), : new.params.shape[-1]] = new.params.to(params)
+            value = value.with_params(params)
+        elif isinstance(value, torch.Tensor) and isinstance(new, torch.Tensor) and value.shape[1:] == new.shape[1:]:
             value = value.clone()
             value[index.to(value.device)] = new.to(value)
         values[key] = value
@@ -405,7 +407,7 @@ def corner_weights_of(sigma: torch.Tensor | None, valid: torch.Tensor,
     return corner_weights(sigma.to(valid.device), valid)
 
 
-def diagnose_cameras(solvers: Mapping[str, torch.nn.Module], out: PipelineResult, usable: torch.Tensor,
+def diagnose_cameras(solvers: Mapping[CameraModel, torch.nn.Module], out: PipelineResult, usable: torch.Tensor,
                      board_size: tuple[int, int], square: float, weigh: bool = True,
                      solutions: SubsetSolutions | None = None, board: Any = None) -> list[dict | None]:
     """Quality figures and verdict of each camera of a solved ``out`` (one
@@ -422,7 +424,7 @@ def diagnose_cameras(solvers: Mapping[str, torch.nn.Module], out: PipelineResult
     found = usable & cal.success[:, None].to(usable.device)
     obj = grid_object_points(board, board_size, float(square), device=det.corners.device, dtype=torch.float64)
     diagnostics: list[dict | None] = [None] * found.shape[0]
-    models = cal.model if isinstance(cal.model, tuple) else (cal.model,) * found.shape[0]
+    models = cal.camera.models
     for size, model in dict.fromkeys(zip(out.image_size, models)):
         sel = torch.tensor([s == size and m == model for s, m in zip(out.image_size, models)], device=found.device)
         sel = (sel & cal.success.to(found.device)).nonzero().flatten()

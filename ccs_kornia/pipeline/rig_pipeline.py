@@ -18,6 +18,8 @@ from typing import Any, Callable
 import torch
 from torch import nn
 
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.modules.calibration.model_selection import ModelChoice
 from ccs_kornia.modules.detection.base import ChessboardDetector
 from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.factory import make_detector
@@ -51,9 +53,9 @@ class RigPipelineResult:
         corners: :math:`(C, F, N, 2)` float64 pixels, NaN where not observed.
         valid: :math:`(C, F, N)` bool, the corners handed to the rig solver.
         weights: :math:`(C, F, N)` per-corner weights (``None`` without corner precisions).
-        models: the model of each camera (the single-camera choice with ``model="auto"``).
-        initial: per camera the starting intrinsics (``RigCamera``; the fixed ones where given), ``None`` for a
-            camera without calibration.
+        models: the model of each camera (the single-camera choice with a model choice).
+        initial: per camera the starting intrinsics (one :class:`~ccs_kornia.geometry.camera.Camera`; the fixed
+            ones where given), ``None`` for a camera without calibration.
         rig: the solver's ``RigResult`` (``None`` when the rig could not be solved: see ``reason``).
         reason: ``""`` when solved, else one line naming the cameras (and frames) at fault.
         fixed: per camera, its intrinsics were kept as given.
@@ -68,7 +70,7 @@ class RigPipelineResult:
     corners: torch.Tensor
     valid: torch.Tensor
     weights: torch.Tensor | None
-    models: list[str]
+    models: list[Any]
     initial: list[Any]
     rig: Any = None
     reason: str = ""
@@ -218,10 +220,11 @@ class RigPipeline(nn.Module):
     Args:
         detector: a detector name (``"learned"``, ``"opencv"``) or a :class:`ChessboardDetector` (shared by every
             camera).
-        models: one model for every camera or one per camera (``auto``: each camera's model chosen by the
+        models: one model for every camera or one per camera (a camera model, or a
+            :class:`~ccs_kornia.modules.calibration.model_selection.ModelChoice`: each camera's model chosen by the
             single-camera pipeline's cross-validation, ``rational`` and ``fisheye`` only where the boards cover at
             least ``flexible_coverage`` of the image or no other model ties).
-        fixed: per camera index, a ``RigCamera`` whose intrinsics are kept as they are (e.g. from an earlier
+        fixed: per camera index, a camera (one :class:`~ccs_kornia.geometry.camera.Camera`) whose intrinsics are kept as they are (e.g. from an earlier
             single-camera calibration).
         solver_kwargs: options of :class:`~ccs_kornia.modules.rig.rig_solver.RigSolver` (``max_iters``, ...).
         flexible_coverage: see ``models`` (:data:`FLEXIBLE_COVERAGE`; ``None``: the single-camera choice as it is).
@@ -232,15 +235,16 @@ class RigPipeline(nn.Module):
             ``distortion_correction``, ...).
 
     Example:
-        >>> pipe = RigPipeline("opencv", models="k1k2", distortion_correction=False)
-        >>> sorted(pipe.pipelines)
+        >>> from ccs_kornia.geometry.models import K1K2
+        >>> pipe = RigPipeline("opencv", models=K1K2, distortion_correction=False)
+        >>> [str(m) for m in pipe.pipelines]
         ['k1k2']
     """
 
     def __init__(
         self,
         detector: str | ChessboardDetector = "learned",
-        models: str | Sequence[str] = "auto",
+        models: Any = None,
         fixed: dict[int, Any] | None = None,
         solver_kwargs: dict[str, Any] | None = None,
         flexible_coverage: float | None = FLEXIBLE_COVERAGE,
@@ -249,15 +253,23 @@ class RigPipeline(nn.Module):
     ) -> None:
         super().__init__()
         shared = make_detector(detector) if isinstance(detector, str) else detector
-        self.models = models if isinstance(models, str) else list(models)
-        wanted = {self.models} if isinstance(self.models, str) else set(self.models)
-        self.pipelines = nn.ModuleDict({m: CalibrationPipeline(shared, model=m, **pipeline_kwargs) for m in sorted(wanted)})
+        models = ModelChoice() if models is None else models
+        self.models = models if isinstance(models, (CameraModel, ModelChoice)) else list(models)
+        wanted = self._per_camera(1) if not isinstance(self.models, list) else self.models
+        self.pipeline_list = nn.ModuleList([CalibrationPipeline(shared, model=m, **pipeline_kwargs)
+                                            for m in sorted(set(wanted), key=str)])
+        #: the single-camera pipeline of each model (or model choice)
+        self.pipelines = {p.model: p for p in self.pipeline_list}
         for pipeline in self.pipelines.values():
             if pipeline.selection is not None:
                 pipeline.selection.flexible_coverage = flexible_coverage
         self.fixed = dict(fixed or {})
         self.solver_kwargs = dict(solver_kwargs or {})
         self.frame_selection = frame_selection
+
+    def _per_camera(self, count: int) -> list[Any]:
+        """The model (or model choice) of each of ``count`` cameras."""
+        return list(self.models) if isinstance(self.models, list) else [self.models] * count
 
     def forward(self, images: torch.Tensor | Sequence[torch.Tensor], board_size: tuple[int, int], square: float = 1.0,
                 names: Sequence[str] | None = None) -> RigPipelineResult | list[RigPipelineResult]:
@@ -276,8 +288,7 @@ class RigPipeline(nn.Module):
         if isinstance(images, torch.Tensor) and images.dim() == 6:
             b, c = images.shape[:2]
             source = TensorSource(images.flatten(0, 1))
-            models = [self.models] * c if isinstance(self.models, str) else list(self.models)
-            cameras = self.detect_and_calibrate(source, board_size, square, models=models * b)
+            cameras = self.detect_and_calibrate(source, board_size, square, models=self._per_camera(c) * b)
             table = _same_position([images.shape[2]] * c)
             return [self.run(_Cameras(source, range(k * c, (k + 1) * c)), board_size, square, table, names,
                              cameras=cameras[k * c:(k + 1) * c]) for k in range(b)]
@@ -292,7 +303,7 @@ class RigPipeline(nn.Module):
 
     def detect_and_calibrate(self, source: ViewSource, board_size: tuple[int, int], square: float,
                              progress: Callable[[int], None] | None = None,
-                             models: Sequence[str] | None = None, *,
+                             models: Sequence[Any] | None = None, *,
                              on_batch: Callable[[list[tuple[int, int]], torch.Tensor], None] | None = None,
                              ) -> list[PipelineResult]:
         """Every camera through the single-camera pipeline of its model (``models``: per camera of ``source``,
@@ -301,7 +312,7 @@ class RigPipeline(nn.Module):
         the cameras of ``source``."""
         c = source.num_cameras
         if models is None:
-            models = [self.models] * c if isinstance(self.models, str) else self.models
+            models = self._per_camera(c)
         if len(models) != c:
             raise ValueError(f"{len(models)} models for {c} cameras.")
         out: list[PipelineResult | None] = [None] * c
@@ -371,7 +382,7 @@ class RigPipeline(nn.Module):
             raise ValueError(f"a rig needs at least two cameras, got {c}.")
         if len(frames.index) != c or len(names) != c:
             raise ValueError(f"{len(frames.index)} frame lists and {len(names)} names for {c} cameras.")
-        from ccs_kornia.modules.rig import RigCamera, RigSolver
+        from ccs_kornia.modules.rig import RigSolver
         cameras = cameras if cameras is not None else self.detect_and_calibrate(source, board_size, square, progress)
         choice, candidates = None, None
         if self.frame_selection is not None:
@@ -382,14 +393,14 @@ class RigPipeline(nn.Module):
         for i, result in enumerate(cameras):
             cal = result.calibration
             if i in self.fixed:
-                cam = self.fixed[i]
+                cam = self.fixed[i].to("cpu", torch.float64)
                 models.append(cam.model)
-                initial.append(RigCamera(cam.model, cam.K.double().cpu(), cam.dist.double().cpu()))
+                initial.append(cam)
             elif cal is not None and bool(cal.success):
-                models.append(cal.model)
-                initial.append(RigCamera(cal.model, cal.K.double().cpu(), cal.dist.double().cpu()))
+                models.append(cal.camera.model)
+                initial.append(cal.camera.to("cpu", torch.float64))
             else:
-                models.append(cal.model if cal is not None and isinstance(cal.model, str) else "")
+                models.append(cal.camera.model if cal is not None else None)
                 initial.append(None)
                 reason = reason or f"camera {names[i]}: {result.camera_reasons or 'not calibrated'}"
         fixed = [i in self.fixed for i in range(c)]

@@ -1,7 +1,7 @@
 """The solver stage of :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` (paper Sec. III-C) on its detections.
 
-Per image size, one batched solve over the cameras; with ``model="auto"`` every candidate model solves every
-camera and :class:`~ccs_kornia.modules.calibration.model_selection.ModelSelection` picks one per camera; where the
+Per image size, one batched solve over the cameras; with a :class:`~ccs_kornia.modules.calibration.model_selection.ModelChoice`
+every candidate model solves every camera and :class:`~ccs_kornia.modules.calibration.model_selection.ModelSelection` picks one per camera; where the
 image evidence asked for the lens correction, the corrected-frame calibration then competes with the usual one.
 Kept apart from ``pipeline/calibration_pipeline.py`` so that file stays the composition; the functions take the pipeline's solvers and
 solver options as one value (:class:`Solving`).
@@ -14,7 +14,8 @@ from typing import Any, Mapping
 
 import torch
 
-from ccs_kornia.modules.calibration.model_selection import ModelSelection
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.modules.calibration.model_selection import ModelChoice, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
@@ -43,11 +44,11 @@ class Solving:
     :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline`, which makes one with its ``solving`` property).
 
     Attributes:
-        model: the model name, or ``"auto"``.
-        solvers: a :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` per model (``model="auto"``:
-            every candidate).
-        solver: the solver of ``model`` (``"auto"``: the stage alone's).
-        selection: the :class:`~ccs_kornia.modules.calibration.model_selection.ModelSelection` of ``model="auto"``.
+        model: the model, or a :class:`~ccs_kornia.modules.calibration.model_selection.ModelChoice`.
+        solvers: a :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` per model (a choice: every
+            candidate).
+        solver: the solver of ``model`` (a choice: the stage alone's).
+        selection: the :class:`~ccs_kornia.modules.calibration.model_selection.ModelSelection` of a choice.
         weigh_corners: weight the refinements by the corners' precision.
         workers: processes solving the candidate models at once on CPU.
         joint_iters, free_distortion_centre, max_rms_ratio: of the corrected-frame calibration.
@@ -55,8 +56,8 @@ class Solving:
             chessboard), whose object points the solves take (an AprilGrid's corners are not evenly spaced).
     """
 
-    model: str
-    solvers: Mapping[str, CalibrationSolver]
+    model: CameraModel | ModelChoice
+    solvers: Mapping[CameraModel, CalibrationSolver]
     solver: CalibrationSolver
     selection: ModelSelection | None
     weigh_corners: bool
@@ -81,7 +82,7 @@ def solve_detections(solving: Solving, out: PipelineResult, board_size: tuple[in
     ``out`` with ``calibration``, ``corrected``, ``correction``, ``camera_reasons`` and ``model_selection``, and the
     model selection's cross-validations (for :func:`diagnose_solved`).
 
-    With ``keep_models`` (``model="auto"``, after a first solve), each camera is solved again with the model chosen
+    With ``keep_models`` (a model choice, after a first solve), each camera is solved again with the model chosen
     in ``out.model_selection`` instead of choosing again: the solve after the second look, whose few recovered views
     would cost a whole cross-validation of every model (a tenth of a run, ``docs/benchmarks.md``, section 5) to
     confirm the choice that sent the camera to the look. The tables say on how many views the choice was made."""
@@ -96,13 +97,16 @@ def solve_detections(solving: Solving, out: PipelineResult, board_size: tuple[in
     corrected = torch.zeros(c, dtype=torch.bool, device=device)
     correction = out.correction
     selection: list[dict | None] = [None] * c
-    previous = out.model_selection if keep_models and solving.model == "auto" else None
+    choice = isinstance(solving.model, ModelChoice)
+    previous = out.model_selection if keep_models and choice else None
     # the model selection's cross-validations, kept for the diagnostics of the same calibrations (diagnose_solved)
     subsets = SubsetSolutions()
     for size in dict.fromkeys(sizes):
         sel = torch.tensor([s == size for s in sizes], device=device).nonzero().flatten()
         tried = None if out.correction_tried is None else out.correction_tried[sel]
-        models = None if previous is None else [(previous[ci] or {}).get("chosen") for ci in sel.tolist()]
+        # the model chosen before: the camera's (a camera no model calibrated has none)
+        models = None if previous is None else [out.calibration.camera.models[ci] if (previous[ci] or {}).get("chosen")
+                                                else None for ci in sel.tolist()]
         calib, refined, applied, table = solve_group(
             solving, det.corners[sel], usable[sel], board_size, square, positive_size(size),
             None if correction is None else correction[sel], tried, None if det.sigma is None else det.sigma[sel],
@@ -121,7 +125,7 @@ def solve_detections(solving: Solving, out: PipelineResult, board_size: tuple[in
     reasons = [camera_reason(calibration, ci, int(usable[ci].sum()), int(out.present[ci].sum())) for ci in range(c)]
     return replace(out, calibration=calibration, correction=correction,
                    corrected=corrected if correction is not None else None,
-                   model_selection=selection if solving.model == "auto" else None, camera_reasons=reasons), subsets
+                   model_selection=selection if choice else None, camera_reasons=reasons), subsets
 
 
 def diagnose_solved(solving: Solving, out: PipelineResult, board_size: tuple[int, int], square: float,
@@ -144,18 +148,18 @@ def _chosen_before(table: dict | None, views: int) -> dict | None:
 
 def solve_group(solving: Solving, corners: torch.Tensor, found: torch.Tensor, board_size: tuple[int, int],
                 square: float, image_size: tuple[int, int], correction: torch.Tensor | None, tried: torch.Tensor | None,
-                sigma: torch.Tensor | None = None, models: list[str | None] | None = None,
+                sigma: torch.Tensor | None = None, models: list[CameraModel | None] | None = None,
                 subsets: SubsetSolutions | None = None):
     """Cameras of one image size: ``(calibration, correction, applied, model_selection)`` (the last two ``None``
-    without a correction / without ``model="auto"``). ``sigma``: the corners'
+    without a correction / without a model choice). ``sigma``: the corners'
     :math:`(C, V, N)` precision, weighting the solves where the pipeline weighs corners. ``models``
-    (``model="auto"`` only): a model name per camera to solve with instead of choosing (the table is then ``None``;
-    a camera without a name gets the first candidate). ``subsets``: where the model selection keeps its
+    (a model choice only): a model per camera to solve with instead of choosing (the table is then ``None``;
+    a camera without one gets the first candidate). ``subsets``: where the model selection keeps its
     cross-validations. ``board_size``: checked ``(cols, rows)`` (the pipeline's edge)."""
     obj = grid_object_points(solving.board, board_size, float(square), device=corners.device, dtype=torch.float64)
     valid = measured_corners(corners, found)
     weights = corner_weights_of(sigma, valid) if solving.weigh_corners else None
-    if solving.model != "auto":
+    if not isinstance(solving.model, ModelChoice):
         with torch.inference_mode():
             usual = solving.solver(corners.to(torch.float64), valid, obj, image_size, weights=weights)
         return (*_compete(solving, solving.solver, usual, corners, found, board_size, square, image_size, correction, tried),
@@ -196,7 +200,7 @@ def _compete(solving: Solving, solver: CalibrationSolver, usual: CalibrationResu
     """Where the evidence asked for it, the corrected-frame calibration against the usual one (kept where it fits
     the observed corners clearly better); returns ``(calibration, correction, applied)``."""
     # (the corrected frame's radial model is a pinhole lens's: not for fisheye cameras)
-    if correction is None or tried is None or not bool(tried.any()) or solver.camera.is_fisheye:
+    if correction is None or tried is None or not bool(tried.any()) or solver.model.is_fisheye:
         return usual, correction, None if correction is None or tried is None else torch.zeros_like(tried)
     # only the cameras the evidence points to, and only those the usual solve could calibrate, go the corrected
     # way (a camera refused as degenerate stays refused)

@@ -7,17 +7,16 @@ import torch
 
 from ccs_kornia.geometry.camera import (
     board_object_points,
-    fit_opencv_distortion,
     fit_radial_correction,
     intrinsics_matrix,
     intrinsics_params,
-    num_distortion_coeffs,
     project_points,
     radial_correct_points,
     radial_distort_points,
     radial_undistort_points,
     undistort_pixels,
 )
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE, RATIONAL
 
 F64 = torch.float64
 
@@ -47,9 +46,6 @@ def test_intrinsics_roundtrip_and_shape_checks():
         intrinsics_matrix(torch.rand(3))
     with pytest.raises(ValueError):
         intrinsics_params(torch.rand(2, 2))
-    assert num_distortion_coeffs("rational") == 8
-    with pytest.raises(ValueError):
-        num_distortion_coeffs("fisheye")
 
 
 @pytest.mark.parametrize("ncoef", [0, 4, 5, 8])
@@ -82,10 +78,11 @@ def test_undistort_and_fit_opencv_distortion():
     ideal = project_points(obj, K, None, r, t)[None]
     distorted = project_points(obj, K, dist, r, t)[None]
     assert (undistort_pixels(distorted, K[None], dist[None]) - ideal).abs().max() < 1e-8
-    fitted = fit_opencv_distortion(ideal, distorted, K[None], "opencv5")
+    fitted = OPENCV5.fit_coeffs(ideal, distorted, K[None])
     assert torch.allclose(fitted[0], dist, atol=1e-9)
-    fitted2 = fit_opencv_distortion(ideal, distorted, K[None], "k1k2")
+    fitted2 = K1K2.fit_coeffs(ideal, distorted, K[None])
     assert fitted2.shape == (1, 5) and torch.all(fitted2[0, 2:] == 0)
+    assert PINHOLE.fit_coeffs(ideal, distorted, K[None]).shape == (1, 0)
 
 
 def test_radial_model_roundtrip_and_correction():

@@ -9,6 +9,8 @@ from ccs_kornia.data.scenes import make_calibration_set
 from ccs_kornia.geometry.metrics import e_ip
 from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline, PipelineResult
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
+from ccs_kornia.modules.calibration.model_selection import ModelChoice
 
 BOARD = (9, 6)
 SQUARE = 0.025
@@ -35,7 +37,7 @@ def images(sets):
 @pytest.fixture(scope="module")
 def batched_result(images):
     # the detection + solver plumbing; the distortion correction has its own tests below
-    return CalibrationPipeline("opencv", model="opencv5", seed=0, distortion_correction=False)(images, BOARD, SQUARE)
+    return CalibrationPipeline("opencv", model=OPENCV5, seed=0, distortion_correction=False)(images, BOARD, SQUARE)
 
 
 def test_batched_shapes(batched_result):
@@ -61,7 +63,7 @@ def test_batched_accuracy(batched_result):
 
 
 def test_unbatched_equals_batched_camera(images, batched_result):
-    pipe = CalibrationPipeline(OpenCVChessboardDetector(), model="opencv5", seed=0, distortion_correction=False)
+    pipe = CalibrationPipeline(OpenCVChessboardDetector(), model=OPENCV5, seed=0, distortion_correction=False)
     single = pipe(images[1], BOARD, SQUARE)
     assert single.calibration.K.shape == (3, 3) and single.detections.corners.shape == (VIEWS, 54, 2)
     torch.testing.assert_close(single.detections.corners, batched_result.detections.corners[1])
@@ -69,7 +71,7 @@ def test_unbatched_equals_batched_camera(images, batched_result):
 
 
 def test_stages_alone(images, batched_result):
-    pipe = CalibrationPipeline("opencv", model="k1k2", detection_batch_size=3, distortion_correction=False)
+    pipe = CalibrationPipeline("opencv", model=K1K2, detection_batch_size=3, distortion_correction=False)
     det = pipe.detect(images[0], BOARD)
     torch.testing.assert_close(det.corners, batched_result.detections.corners[0])
     # per-view validity is expanded to every corner
@@ -97,16 +99,16 @@ def test_stages_alone_reproduce_the_whole_call_with_the_corner_precision(sets, m
 
 
 def test_auto_models_are_the_candidates_of_auto():
-    pipe = CalibrationPipeline("opencv", model="auto", auto_models=("k1k2", "opencv5", "fisheye"),
+    pipe = CalibrationPipeline("opencv", model=ModelChoice(), auto_models=("k1k2", "opencv5", "fisheye"),
                                distortion_correction=False)
     assert sorted(pipe.solvers) == ["fisheye", "k1k2", "opencv5"] and pipe.solver.model == "opencv5"
-    assert sorted(CalibrationPipeline("opencv", model="auto", distortion_correction=False).solvers) == [
+    assert sorted(CalibrationPipeline("opencv", model=ModelChoice(), distortion_correction=False).solvers) == [
         "fisheye", "k1k2", "opencv5", "rational"]
-    assert list(CalibrationPipeline("opencv", model="k1k2", auto_models=("fisheye",),
+    assert list(CalibrationPipeline("opencv", model=K1K2, auto_models=("fisheye",),
                                     distortion_correction=False).solvers) == ["k1k2"]
     for bad in ((), ("pinhole",)):
         with pytest.raises(ValueError, match="auto_models"):
-            CalibrationPipeline("opencv", model="auto", auto_models=bad, distortion_correction=False)
+            CalibrationPipeline("opencv", model=ModelChoice(), auto_models=bad, distortion_correction=False)
 
 
 def test_ground_truth_corners_through_solver_stage(sets):
@@ -266,7 +268,7 @@ def test_diagnostics_after_the_second_look_equal_those_without_it(sets):
     """With the calibrated second look on, the first solve leaves the diagnostics to the final one (or computes them
     afterwards when nothing was recovered): the figures equal those of a pipeline without the look."""
     imgs = sets[1].images[None]
-    kw = dict(seed=0, distortion_correction=False, diagnostics=True, model="fisheye")
+    kw = dict(seed=0, distortion_correction=False, diagnostics=True, model=FISHEYE)
     looked = CalibrationPipeline("opencv", calibrated_look=True, **kw)(imgs, BOARD, SQUARE)
     plain = CalibrationPipeline("opencv", calibrated_look=False, **kw)(imgs, BOARD, SQUARE)
     assert looked.diagnostics is not None and looked.diagnostics[0]["success"]
@@ -281,7 +283,7 @@ def test_each_look_asks_the_detector_for_its_own_fallbacks(sets, monkeypatch):
     finer fallback levels only. The detector's own fallbacks are a value passed per call, never changed."""
     imgs = sets[1].images.clone()
     imgs[3] = 0.5  # a view without a board: the look runs for it
-    pipe = CalibrationPipeline("learned", seed=0, distortion_correction=False, model="fisheye")
+    pipe = CalibrationPipeline("learned", seed=0, distortion_correction=False, model=FISHEYE)
     own = pipe.detector.fallbacks
     seen = []
     forward = pipe.detector.forward
@@ -338,7 +340,7 @@ def test_a_large_correction_is_tried_even_where_it_does_not_straighten():
 
 
 def test_solve_after_the_second_look_keeps_the_chosen_model(sets, monkeypatch):
-    """With ``model="auto"`` the models are compared once: the solve after a look that changed the views uses the
+    """With ``model=ModelChoice()`` the models are compared once: the solve after a look that changed the views uses the
     model chosen before it (the table says on how many views), and calibrates on every view."""
     from ccs_kornia.modules.detection.base import DetectionResult
     from ccs_kornia.pipeline.looks import Look
@@ -352,7 +354,7 @@ def test_solve_after_the_second_look_keeps_the_chosen_model(sets, monkeypatch):
         return DetectionResult(sets[1].corners[2][None].float(), torch.ones(1, dtype=torch.bool), ["fake look"])
 
     look = Look("fake look", lambda out, detector: [(0, 2)], recover, needs_camera=True)
-    pipe = CalibrationPipeline("opencv", model="auto", looks=(look,), **kw)
+    pipe = CalibrationPipeline("opencv", model=ModelChoice(), looks=(look,), **kw)
     assert pipe.looks == (look,)
     calls = []
     select = pipe.selection.forward
@@ -498,7 +500,7 @@ def test_partial_boards_are_calibrated_on_their_visible_corners(sets, tmp_path):
         r = 0.4 * float((s.corners[v, k + 1] - s.corners[v, k]).norm())  # flat within about half a square
         spot = torch.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * r**2))
         images[v, 0] = (images[v, 0] + 2.0 * spot).clamp(max=1.0)
-    out = CalibrationPipeline("learned", model="opencv5", seed=0, distortion_correction=False)(images, BOARD, SQUARE)
+    out = CalibrationPipeline("learned", model=OPENCV5, seed=0, distortion_correction=False)(images, BOARD, SQUARE)
     det, cal = out.detections, out.calibration
     assert bool(det.found.all())
     hidden = ~det.valid
@@ -510,7 +512,7 @@ def test_partial_boards_are_calibrated_on_their_visible_corners(sets, tmp_path):
     assert bool(cal.success) and bool(cal.used.all()) and bool(cal.view_rms.isfinite().all())
     assert float(e_ip(cal.K.double()[None], CAMERAS[0][0][None])) < 2.0
     record = camera_record(out, [f"v{i}.png" for i in range(VIEWS)], board=BOARD, square=SQUARE, detector="learned",
-                           model="opencv5")
+                           model=OPENCV5)
     assert record["num_views"]["partial"] == 3 and record["views"][4]["hidden_corners"] == int(hidden[4].sum())
     write_json(tmp_path / "calib.json", record)
     import json
@@ -565,7 +567,7 @@ def test_diagnostics_reuse_the_model_selections_cross_validation(images, monkeyp
 
     solved, real = [], diagnostics.solve_subsets
     monkeypatch.setattr(diagnostics, "solve_subsets", lambda *a, **k: (solved.append(a[0].model), real(*a, **k))[1])
-    pipe = CalibrationPipeline("opencv", model="auto", diagnostics=True, distortion_correction=False)
+    pipe = CalibrationPipeline("opencv", model=ModelChoice(), diagnostics=True, distortion_correction=False)
     out = pipe.run(TensorSource(images[:1]), BOARD, SQUARE)
     assert sorted(solved) == sorted(AUTO_MODELS)  # the model selection's four solves, none for the diagnostics
     chosen = out.model_selection[0]["chosen"]

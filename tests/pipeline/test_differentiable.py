@@ -11,6 +11,7 @@ from ccs_kornia.geometry.camera import board_object_points
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.detection.refine.differentiable_refine import symmetry_refine
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+from ccs_kornia.geometry.models import K1K2
 
 BOARD, SQUARE = (6, 4), 0.025
 K_TRUE = torch.tensor([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]], dtype=torch.float64)
@@ -23,11 +24,11 @@ def views():
 
 @pytest.fixture(scope="module")
 def usual(views):
-    return CalibrationPipeline("learned", model="k1k2")(views.images, BOARD, SQUARE)
+    return CalibrationPipeline("learned", model=K1K2)(views.images, BOARD, SQUARE)
 
 
 def test_values_identical_to_the_usual_pipeline(views, usual):
-    pipe = CalibrationPipeline("learned", model="k1k2", differentiable=True)
+    pipe = CalibrationPipeline("learned", model=K1K2, differentiable=True)
     out = pipe(views.images.clone().requires_grad_(), BOARD, SQUARE)
     assert bool(usual.found.all()) and not usual.K.requires_grad
     assert out.K.requires_grad and out.dist.requires_grad
@@ -35,12 +36,12 @@ def test_values_identical_to_the_usual_pipeline(views, usual):
         assert torch.equal(getattr(out, name).detach(), getattr(usual, name)), name
     assert torch.equal(out.detections.corners.detach(), usual.detections.corners)
     assert out.detections.gap.abs().max() < 0.1  # the differentiated estimator's value, px from the usual corners
-    off = CalibrationPipeline("learned", model="k1k2", differentiable=False)(views.images, BOARD, SQUARE)
+    off = CalibrationPipeline("learned", model=K1K2, differentiable=False)(views.images, BOARD, SQUARE)
     assert torch.equal(off.K, usual.K) and not off.K.requires_grad
 
 
 def test_detected_corners_have_gradients_to_the_images(views, usual):
-    pipe = CalibrationPipeline("learned", model="k1k2", differentiable=True)
+    pipe = CalibrationPipeline("learned", model=K1K2, differentiable=True)
     images = views.images.clone().requires_grad_()
     det = pipe.detect(images, BOARD)
     assert torch.equal(det.corners.detach(), usual.detections.corners) and det.found.all()
@@ -50,7 +51,7 @@ def test_detected_corners_have_gradients_to_the_images(views, usual):
 
 
 def test_fx_gradient_to_the_heatmap_network(views):
-    pipe = CalibrationPipeline("learned", model="k1k2", differentiable=True)
+    pipe = CalibrationPipeline("learned", model=K1K2, differentiable=True)
     images = views.images.clone().requires_grad_()
     out = pipe(images, BOARD, SQUARE)
     out.K[0, 0].backward()
@@ -61,7 +62,7 @@ def test_fx_gradient_to_the_heatmap_network(views):
 
 
 def test_calibrate_is_differentiable(usual):
-    pipe = CalibrationPipeline("opencv", model="k1k2", differentiable=True)
+    pipe = CalibrationPipeline("opencv", model=K1K2, differentiable=True)
     corners = usual.detections.corners.clone().requires_grad_()
     calib = pipe.calibrate(corners, usual.found, BOARD, SQUARE, (320, 240))
     calib.K[0, 0].backward()
@@ -76,7 +77,7 @@ def test_gradcheck_small_refine_solve_pipeline(views, usual):
     ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij")
     basis = torch.stack([torch.sin(xs / 17.0), torch.cos(ys / 13.0), torch.sin((xs + ys) / 11.0)])  # (3, H, W)
     obj = board_object_points(*BOARD, SQUARE, dtype=torch.float64)
-    solver = CalibrationSolver(model="k1k2", use_ransac=False, reject_outliers=False, checks=False, ftol=1e-15,
+    solver = CalibrationSolver(model=K1K2, use_ransac=False, reject_outliers=False, checks=False, ftol=1e-15,
                                max_iters=300, stall_tol=0.0)
 
     def fn(a):

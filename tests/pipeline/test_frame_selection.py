@@ -24,6 +24,7 @@ from ccs_kornia.pipeline.frame_selection import (
     near_copies,
 )
 from ccs_kornia.pipeline.rig_pipeline import RigPipeline
+from ccs_kornia.geometry.models import K1K2
 
 OBJ = board_object_points(9, 6, 0.03, dtype=torch.float64)
 K = torch.tensor([[800.0, 0, 640], [0, 800, 360], [0, 0, 1]], dtype=torch.float64)
@@ -42,7 +43,7 @@ def _camera(num: int = 16, seed: int = 0, speed=None, sharpness=None, copy: dict
         rvec[k], tvec[k] = rvec[j] + 0.01, tvec[j] + 0.003
     uv = project_points(OBJ.expand(num, -1, -1), K.expand(num, 3, 3), DIST.expand(num, 5), rvec, tvec)
     uv = uv + 0.05 * torch.randn(uv.shape, generator=g, dtype=torch.float64)
-    res = CalibrationSolver(model="k1k2", use_ransac=False)(uv[None], torch.ones(1, num, 54, dtype=torch.bool), OBJ,
+    res = CalibrationSolver(model=K1K2, use_ransac=False)(uv[None], torch.ones(1, num, 54, dtype=torch.bool), OBJ,
                                                             SIZE)
     sharp = torch.full((num,), 0.01, dtype=torch.float64) if sharpness is None else torch.tensor(sharpness)
     return CameraViews("k1k2", res.K[0], res.dist[0], SIZE, res.rvec[0], res.tvec[0], uv, torch.ones(num, 54,
@@ -149,7 +150,7 @@ def views():
 
 
 def test_the_stage_in_the_pipeline_calibrates_on_the_views_kept(views):
-    pipe = CalibrationPipeline("opencv", model="k1k2", distortion_correction=False, use_ransac=False,
+    pipe = CalibrationPipeline("opencv", model=K1K2, distortion_correction=False, use_ransac=False,
                                frame_selection=FrameSelection(max_frames=10))
     out = pipe(views.images, (6, 4), 0.025)
     choice = out.frame_choice
@@ -158,21 +159,21 @@ def test_the_stage_in_the_pipeline_calibrates_on_the_views_kept(views):
     assert bool((out.used <= kept).all()) and int(out.used.sum()) >= 3
     assert bool((out.K - views.K).abs().max() < 3.0)
     record = camera_record(out, [f"v{k}.png" for k in range(18)], board=(6, 4), square=0.025, detector="opencv",
-                           model="k1k2")
+                           model=K1K2)
     left = [v for v, keep in zip(record["views"], choice.view_kept(0)) if not keep and v["found"]]
     assert left and all(v["reason"].startswith("left out by the frame selection: ") and not v["used"] for v in left)
     assert record["selection"]["kept"] == int(kept.sum()) and record["num_views"]["used"] == int(out.used.sum())
 
 
 def test_the_stage_sees_every_source_alike(views):
-    plain = CalibrationPipeline("opencv", model="k1k2", distortion_correction=False, use_ransac=False)(
+    plain = CalibrationPipeline("opencv", model=K1K2, distortion_correction=False, use_ransac=False)(
         views.images, (6, 4), 0.025)
     assert plain.frame_choice is None  # without a selection every view counts
 
 
 def test_a_rig_keeps_the_frames_chosen_across_its_cameras():
     stereo = render_stereo(frames=10, seed=3)
-    pipe = RigPipeline("opencv", models="k1k2", distortion_correction=False, use_ransac=False,
+    pipe = RigPipeline("opencv", models=K1K2, distortion_correction=False, use_ransac=False,
                        frame_selection=FrameSelection(min_gain=0.02))
     out = pipe(stereo.images, RIG_BOARD, RIG_SQUARE, names=["left", "right"])
     assert out.success, out.reason

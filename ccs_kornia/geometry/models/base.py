@@ -74,6 +74,11 @@ class CameraModel:
         """A fisheye model (``cv2.fisheye``'s functions; angles at and beyond 90 degrees project)."""
         return False
 
+    def visible(self, points: torch.Tensor) -> torch.Tensor:
+        """Which camera-frame points :math:`(*, 3)` the model images, :math:`(*)` bool: a pinhole projection only
+        those in front of the camera (a fisheye model overrides it: it sees beyond 90 degrees)."""
+        return points[..., 2] > 1e-6
+
     @property
     def opencv_family(self) -> str:
         """Which OpenCV functions take the coefficients: ``"fisheye"`` (``cv2.fisheye``) or ``"opencv"`` (``cv2``), as

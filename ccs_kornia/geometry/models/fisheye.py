@@ -48,6 +48,10 @@ class KannalaBrandtModel(CameraModel):
         """Yes: ``cv2.fisheye``'s model."""
         return True
 
+    def visible(self, points: torch.Tensor) -> torch.Tensor:
+        """Every direction (``theta = atan2(r, z)`` reaches beyond 90 degrees)."""
+        return torch.ones_like(points[..., 2], dtype=torch.bool)
+
     @property
     def coeff_index(self) -> tuple[int, ...]:
         """``k1 .. k4`` in ``cv2.fisheye``'s order."""

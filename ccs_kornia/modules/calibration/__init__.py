@@ -34,7 +34,6 @@ _EXPORTS = {
     "RefinementResult": "ccs_kornia.modules.calibration.refinement",
     "joint_refinement": "ccs_kornia.modules.calibration.refinement",
     "JointRefinement": "ccs_kornia.modules.calibration.refinement",
-    "FREE_DISTORTION": "ccs_kornia.modules.calibration.refinement",
     "centred_radial_distort": "ccs_kornia.modules.calibration.centred_radial",
     "radial_from_correction": "ccs_kornia.modules.calibration.centred_radial",
     "radial_from_points": "ccs_kornia.modules.calibration.centred_radial",

@@ -20,8 +20,7 @@ from functools import partial
 import torch
 from torch import nn
 
-from ccs_kornia.geometry.camera import kb_unproject_points
-from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
+from ccs_kornia.geometry.models.factory import FISHEYE
 from ccs_kornia.modules.calibration.fisheye_init import board_to_ray_poses, init_fisheye
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.outliers import drop_outliers
@@ -99,13 +98,14 @@ def calibrate_fisheye(
         :class:`FisheyeCalibrationResult` (no camera dim for unbatched input; failed cameras have NaN values).
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, kb_project_points
+        >>> from ccs_kornia.geometry.camera import Camera, board_object_points
+        >>> from ccs_kornia.geometry.models import FISHEYE
         >>> obj = board_object_points(6, 4, 0.05, dtype=torch.float64)
         >>> K = torch.tensor([[200., 0, 322], [0, 201, 237], [0, 0, 1]], dtype=torch.float64)
         >>> D = torch.tensor([0.02, -0.01, 0.002, 0.0], dtype=torch.float64)
         >>> rv = torch.tensor([[0.3, 0.2, 0.0], [-0.2, 0.9, 0.1], [0.1, -0.4, 0.3], [0.5, 0.1, -0.2]], dtype=torch.float64)
         >>> tv = torch.tensor([[-0.1, -0.05, 0.3], [0.0, -0.05, 0.25], [-0.2, 0.0, 0.3], [-0.1, -0.2, 0.3]], dtype=torch.float64)
-        >>> uv = kb_project_points(obj.expand(4, -1, -1), K.expand(4, 3, 3), D.expand(4, 4), rv, tv)
+        >>> uv = Camera.from_opencv(FISHEYE, K, D).project(obj, rv[None], tv[None])[0]
         >>> res = calibrate_fisheye(uv, None, obj, (640, 480))
         >>> bool(res.success), bool((res.K - K).abs().max() < 1e-6), bool(res.rms < 1e-6)
         (True, True, True)
@@ -130,7 +130,7 @@ def calibrate_fisheye(
     candidates = (w > 0).sum(-1) >= min_corners
     w = w * candidates[..., None]
     obj = object_points.to(device=dev, dtype=dt)
-    model = KannalaBrandtModel()
+    model = FISHEYE
     unknown = set(fix) - set(model.param_names)
     if unknown:
         raise ValueError(f"Unknown parameters to fix {sorted(unknown)}; expected names from {model.param_names}.")
@@ -213,8 +213,7 @@ def _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_thr
     refine again."""
     C = corners.shape[0]
     dt = torch.float64
-    K, D = _kmat(params), params[:, 4:]
-    rays = kb_unproject_points(corners.to(dt).nan_to_num(0.0), K[:, None], D[:, None])
+    rays = model.unproject(corners.to(dt).nan_to_num(0.0), params)
     rv_d, tv_d, ok_d = board_to_ray_poses(rays, obj[:, :2], w)
     rv_c = torch.where(used0[..., None], rvec, rv_d)
     tv_c = torch.where(used0[..., None], tvec, tv_d)

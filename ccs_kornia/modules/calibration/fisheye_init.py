@@ -15,11 +15,8 @@ import math
 
 import torch
 
-from ccs_kornia.geometry.camera import (
-    kb_project_points,
-    kb_unproject_points,
-    rotation_matrix_to_axis_angle,
-)
+from ccs_kornia.geometry.camera import Camera, rotation_matrix_to_axis_angle
+from ccs_kornia.geometry.models.factory import FISHEYE
 from ccs_kornia.modules._checks import broadcast_shapes
 
 __all__ = ["board_to_ray_poses", "focal_hypotheses", "init_fisheye"]
@@ -139,13 +136,14 @@ def init_fisheye(
         score :math:`(C, keep)` (mean of per-view squared RMS, capped; lower is better).
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, kb_project_points
+        >>> from ccs_kornia.geometry.camera import Camera, board_object_points
+        >>> from ccs_kornia.geometry.models import FISHEYE
         >>> obj = board_object_points(6, 4, 0.05, dtype=torch.float64)
-        >>> K = torch.tensor([[200., 0, 319.5], [0, 200, 239.5], [0, 0, 1]], dtype=torch.float64)
-        >>> rv = torch.tensor([[0.3, 0.2, 0.0], [-0.2, 0.9, 0.1], [0.1, -0.4, 0.3]], dtype=torch.float64)
-        >>> tv = torch.tensor([[-0.1, -0.05, 0.3], [0.0, -0.05, 0.25], [-0.2, 0.0, 0.3]], dtype=torch.float64)
-        >>> uv = kb_project_points(obj.expand(3, -1, -1), K.expand(3, 3, 3), torch.zeros(3, 4), rv, tv)
-        >>> params, rvec, tvec, view_rms, score = init_fisheye(uv[None], torch.ones(1, 3, 24), obj, (640, 480))
+        >>> cam = Camera(FISHEYE, torch.tensor([200., 200, 319.5, 239.5, 0, 0, 0, 0], dtype=torch.float64))
+        >>> rv = torch.tensor([[[0.3, 0.2, 0.0], [-0.2, 0.9, 0.1], [0.1, -0.4, 0.3]]], dtype=torch.float64)
+        >>> tv = torch.tensor([[[-0.1, -0.05, 0.3], [0.0, -0.05, 0.25], [-0.2, 0.0, 0.3]]], dtype=torch.float64)
+        >>> uv = cam.project(obj, rv, tv)  # (1 camera, 3 views, 24 corners, 2)
+        >>> params, rvec, tvec, view_rms, score = init_fisheye(uv, torch.ones(1, 3, 24), obj, (640, 480))
         >>> bool(abs(params[0, 0, 0] - 200) < 15)
         True
     """
@@ -164,14 +162,13 @@ def init_fisheye(
     f = focal_hypotheses(image_size, num_hypotheses, dtype=dt, device=dev)  # (Hn,)
     Hn = f.shape[0]
     centre = torch.tensor([(image_size[0] - 1) / 2.0, (image_size[1] - 1) / 2.0], dtype=dt, device=dev)
-    K = torch.zeros(Hn, 3, 3, dtype=dt, device=dev)
-    K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = f, f, centre[0], centre[1], 1.0
-    D = torch.zeros(4, dtype=dt, device=dev)
-    Kb = K[None, :, None].expand(C, Hn, V, 3, 3)
-    rays = kb_unproject_points(uv[:, None].expand(C, Hn, V, N, 2), Kb, D)
+    hypotheses = torch.zeros(Hn, 8, dtype=dt, device=dev)
+    hypotheses[:, 0], hypotheses[:, 1], hypotheses[:, 2], hypotheses[:, 3] = f, f, centre[0], centre[1]
+    lens = Camera(FISHEYE, hypotheses)  # the hypotheses first: each is a camera
+    rays = lens.unproject(uv[None].expand(Hn, C, V, N, 2)).transpose(0, 1)  # (C, Hn, V, N, 3)
     wb = w[:, None].expand(C, Hn, V, N)
     rvec, tvec, ok = board_to_ray_poses(rays, obj[:, :2], wb)
-    proj = kb_project_points(obj, Kb, D, rvec, tvec)  # (C, Hn, V, N, 2)
+    proj = lens.project(obj, rvec.transpose(0, 1), tvec.transpose(0, 1)).transpose(0, 1)  # (C, Hn, V, N, 2)
     sq = (((proj - uv[:, None]) ** 2).sum(-1) * wb).sum(-1)
     view_rms = (sq / wb.sum(-1).clamp_min(1)).sqrt()
     view_rms = torch.where(ok & view_rms.isfinite(), view_rms, float("inf"))

@@ -33,12 +33,14 @@ on a ``k1k2`` lens while ``k1k2`` can double the error of an OpenCV lens, so ``o
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import torch
 from torch import nn
 
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import CAMERA_MODELS, FISHEYE, K1K2, OPENCV5, RATIONAL
 from ccs_kornia.modules.calibration.quality.coverage import image_coverage
 from ccs_kornia.modules.calibration.quality.diagnostics import (
     cross_validation,
@@ -49,14 +51,14 @@ from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 
 __all__ = [
-    "AUTO_MODELS", "FLEXIBLE_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
+    "AUTO_MODELS", "ModelChoice", "model_or_choice", "FLEXIBLE_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
     "TIE_SIGMAS", "choose_models", "narrow_ranking", "rank_models", "tied_with_best",
 ]
 
-#: the candidates of ``model="auto"``
-AUTO_MODELS: tuple[str, ...] = ("k1k2", "opencv5", "rational", "fisheye")
+#: the candidates of the automatic model choice (``--model auto``)
+AUTO_MODELS: tuple[CameraModel, ...] = (K1K2, OPENCV5, RATIONAL, FISHEYE)
 #: among models the held-out views cannot tell apart, the earliest wins (see the module doc for the order's reasons)
-PREFERENCE: tuple[str, ...] = ("opencv5", "k1k2", "fisheye", "rational")
+PREFERENCE: tuple[CameraModel, ...] = (OPENCV5, K1K2, FISHEYE, RATIONAL)
 #: held-out errors within this fraction of the best always tie (a difference of no practical meaning)
 TIE_FLOOR = 0.01
 #: a model ties with the best unless its per-view held-out errors exceed the best's by more than this many standard
@@ -71,8 +73,7 @@ HALVES_CLEAR_RATIO = 0.25
 HALVES_CLEAR_PX = 1.0
 #: models whose freedom beyond the boards only a wide coverage of the image constrains (``flexible_coverage``): the
 #: fisheye model and the OpenCV models of more than five coefficients (``rational``)
-FLEXIBLE_MODELS: tuple[str, ...] = tuple(m for m in AUTO_MODELS
-                                         if camera_model(m).is_fisheye or camera_model(m).num_coeffs > 5)
+FLEXIBLE_MODELS: tuple[CameraModel, ...] = tuple(m for m in AUTO_MODELS if m.is_fisheye or m.num_coeffs > 5)
 #: kept for callers of the former rule's keyword: models within this fraction of the best tie when the per-view
 #: errors are unknown (fewer than three views held out by both models)
 HELDOUT_TOLERANCE = 0.05
@@ -183,15 +184,16 @@ def rank_models(heldout: list[float], halves: list[float], tolerance: float = HE
     return ranked + outside
 
 
-def narrow_ranking(ranking: list[str], tied: list[str]) -> list[str]:
+def narrow_ranking(ranking: list[CameraModel], tied: list[CameraModel]) -> list[CameraModel]:
     """The ranking of a camera whose boards cover too little of the image for :data:`FLEXIBLE_MODELS`: the first
     tied model that is not one of them goes first (the ranking as it is when the first is not flexible, or when no
     other model ties).
 
     Example:
-        >>> narrow_ranking(["fisheye", "k1k2", "opencv5", "rational"], ["opencv5", "k1k2", "fisheye"])
+        >>> from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, RATIONAL
+        >>> [str(m) for m in narrow_ranking([FISHEYE, K1K2, OPENCV5, RATIONAL], [OPENCV5, K1K2, FISHEYE])]
         ['k1k2', 'fisheye', 'opencv5', 'rational']
-        >>> narrow_ranking(["fisheye", "k1k2"], ["fisheye"])  # a fisheye lens: nothing else predicts as well
+        >>> [str(m) for m in narrow_ranking([FISHEYE, K1K2], [FISHEYE])]  # a fisheye lens: nothing else predicts as well
         ['fisheye', 'k1k2']
     """
     supported = [n for n in ranking if n in tied and n not in FLEXIBLE_MODELS]
@@ -230,18 +232,65 @@ def choose_models(heldout: torch.Tensor, halves: torch.Tensor, tolerance: float 
     return torch.tensor([r[0] if r else -1 for r in ranks], dtype=torch.long, device=heldout.device)
 
 
+@dataclass(frozen=True)
+class ModelChoice:
+    """A choice of model per camera among ``candidates``, by cross-validation (:class:`ModelSelection`): what a
+    calibration asks for where it does not name a model (``--model auto``); a selection, not a model.
+
+    Args:
+        candidates: some of :data:`AUTO_MODELS` (default all), e.g. without ``RATIONAL`` for a camera whose calibration
+            goes to a format that cannot hold it (Kalibr's camchain).
+
+    Example:
+        >>> from ccs_kornia.geometry.models import RATIONAL
+        >>> [str(m) for m in ModelChoice(tuple(m for m in AUTO_MODELS if m != RATIONAL)).candidates], str(ModelChoice())
+        (['k1k2', 'opencv5', 'fisheye'], 'auto')
+    """
+
+    candidates: tuple[CameraModel, ...] = AUTO_MODELS
+
+    def __post_init__(self) -> None:
+        candidates = tuple(dict.fromkeys(self.candidates))
+        if not candidates or any(m not in AUTO_MODELS for m in candidates):
+            raise ValueError(f"a model choice's candidates must be some of {', '.join(map(str, AUTO_MODELS))}, got "
+                             f"{', '.join(map(str, self.candidates)) or 'none'}.")
+        object.__setattr__(self, "candidates", candidates)
+
+    @property
+    def first(self) -> CameraModel:
+        """The candidate the pipeline's stage alone solves with (``OPENCV5`` where it is one)."""
+        return OPENCV5 if OPENCV5 in self.candidates else self.candidates[0]
+
+    def __str__(self) -> str:
+        return "auto"
+
+
+def model_or_choice(name: str) -> CameraModel | ModelChoice:
+    """The model a name stands for, or ``"auto"``'s :class:`ModelChoice` (where files and the command line name one).
+
+    Example:
+        >>> model_or_choice("auto"), model_or_choice("k1k2")
+        (ModelChoice(candidates=(OpenCVModel('k1k2'), OpenCVModel('opencv5'), OpenCVModel('rational'), KannalaBrandtModel('fisheye'))), OpenCVModel('k1k2'))
+    """
+    if name == str(ModelChoice()):
+        return ModelChoice()
+    if name not in CAMERA_MODELS:
+        raise ValueError(f"unknown model {name!r} (choose from auto, {', '.join(CAMERA_MODELS)})")
+    return CAMERA_MODELS[name]
+
+
 #: the models' usual cost (solve and cross-validation) in ascending order, as measured on the real sets;
 #: :class:`ModelSelection` hands them to ``map_models`` costliest first: in two worker processes the longest first ends
 #: the selection sooner (``docs/measurements.md``)
-SOLVE_COST_RANK = {"k1k2": 0, "opencv5": 1, "rational": 2, "fisheye": 3}
+SOLVE_COST_RANK: dict[CameraModel, int] = {K1K2: 0, OPENCV5: 1, RATIONAL: 2, FISHEYE: 3}
 
 
 class ModelSelection(nn.Module):
     r"""Calibrate with every candidate model and choose one per camera by cross-validation.
 
     Args:
-        solvers: ``{model name: solver}``, e.g. :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`
-            per model of :data:`AUTO_MODELS`.
+        solvers: one solver per candidate model (each with its ``model``), e.g.
+            :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` per model of :data:`AUTO_MODELS`.
         folds: folds of the held-out error.
         tolerance: see :func:`choose_models`.
         flexible_coverage: a camera whose boards cover less than this fraction of the image gets a model of
@@ -249,9 +298,10 @@ class ModelSelection(nn.Module):
 
     Shape:
         corners :math:`(C, V, N, 2)`, valid :math:`(C, V, N)`, object_points :math:`(N, 3)`, image_size ``(W, H)``
-        -> ``(results, chosen, table)``: ``{name: CalibrationResult}`` of every model, the chosen name per camera
-        (``None`` where no model calibrated it) and per camera ``{"chosen", "runner_up", "views" (with a board),
-        "heldout_rms_px": {name: px}, "halves_rms_px": {name: px}, "rule"}``.
+        -> ``(results, chosen, table)``: ``{model: CalibrationResult}`` of every model, the chosen model per camera
+        (``None`` where no model calibrated it) and per camera the figures by the models' names, as files carry them:
+        ``{"chosen", "runner_up", "views" (with a board), "heldout_rms_px": {name: px}, "halves_rms_px": {name: px},
+        "rule"}``.
 
     Example:
         >>> from ccs_kornia.geometry.camera import board_object_points, project_points
@@ -264,37 +314,42 @@ class ModelSelection(nn.Module):
         >>> d = torch.tensor([-0.2, 0.05, 0, 0, 0], dtype=torch.float64)
         >>> uv = project_points(obj.expand(10, -1, -1), K.expand(10, 3, 3), d, rv, tv)
         >>> uv = uv + 0.1 * torch.randn(uv.shape, generator=g, dtype=torch.float64)
-        >>> select = ModelSelection({m: CalibrationSolver(model=m) for m in ("k1k2", "rational")})
+        >>> from ccs_kornia.geometry.models import K1K2, RATIONAL
+        >>> select = ModelSelection([CalibrationSolver(model=m) for m in (K1K2, RATIONAL)])
         >>> _, chosen, table = select(uv[None], torch.ones(1, 10, 35, dtype=torch.bool), obj, (640, 480))
         >>> chosen, table[0]["runner_up"]
-        (['k1k2'], 'rational')
+        ([OpenCVModel('k1k2')], 'rational')
     """
 
-    def __init__(self, solvers: dict[str, nn.Module], folds: int = 5, tolerance: float = HELDOUT_TOLERANCE,
+    def __init__(self, solvers: list[nn.Module], folds: int = 5, tolerance: float = HELDOUT_TOLERANCE,
                  flexible_coverage: float | None = None) -> None:
         super().__init__()
         if not solvers:
             raise ValueError("ModelSelection needs at least one solver.")
-        self.solvers = nn.ModuleDict(solvers)
+        models = [s.model for s in solvers]
+        if len(set(models)) != len(models):
+            raise ValueError(f"ModelSelection needs one solver per model, got {', '.join(map(str, models))}.")
+        self.solvers = nn.ModuleList(solvers)
         self.folds, self.tolerance = int(folds), float(tolerance)
         self.flexible_coverage = None if flexible_coverage is None else float(flexible_coverage)
 
     def forward(self, corners: torch.Tensor, valid: torch.Tensor, object_points: torch.Tensor,
                 image_size: tuple[int, int], weights: torch.Tensor | None = None,
-                map_models: Callable[[Callable, list[str]], list] | None = None,
+                map_models: Callable[[Callable, list[CameraModel]], list] | None = None,
                 solutions: SubsetSolutions | None = None,
-                ) -> tuple[dict[str, CalibrationResult], list[str | None], list[dict]]:
-        """``map_models(fn, names)``: ``[fn(name) for name in names]`` computed elsewhere (e.g. by worker processes;
+                ) -> tuple[dict[CameraModel, CalibrationResult], list[CameraModel | None], list[dict]]:
+        """``map_models(fn, models)``: ``[fn(model) for model in models]`` computed elsewhere (e.g. by worker processes;
         each model's solve and cross-validation are independent); default here, one after the other. ``solutions``
         (:class:`~.subset_solutions.SubsetSolutions`): where each model's solved cross-validation subsets are kept,
         for the diagnostics of the chosen one (:func:`~.diagnostics.diagnose`)."""
         if corners.dim() != 4 or valid.shape != corners.shape[:-1]:
             raise ValueError(f"Expected corners (C, V, N, 2) and valid (C, V, N), got {tuple(corners.shape)} and "
                              f"{tuple(valid.shape)}.")
-        names = list(self.solvers.keys())
+        by_model = {s.model: s for s in self.solvers}
+        names = list(by_model)
 
-        def solve(name: str) -> tuple[CalibrationResult, dict | None, Any]:
-            solver = self.solvers[name]
+        def solve(name: CameraModel) -> tuple[CalibrationResult, dict | None, Any]:
+            solver = by_model[name]
             res = solver(corners, valid, object_points, image_size, weights=weights)
             if not bool(res.success.any()):
                 return res, None, None
@@ -311,7 +366,7 @@ class ModelSelection(nn.Module):
         for name in names:
             res, cv, subsets = solved[name]
             if solutions is not None and subsets is not None:
-                solutions.put(solutions.key(self.solvers[name], corners, valid, object_points, image_size, res,
+                solutions.put(solutions.key(by_model[name], corners, valid, object_points, image_size, res,
                                             self.folds, weights), subsets)
             results[name] = res
             nan = torch.full(res.success.shape, float("nan"), dtype=torch.float64, device=corners.device)
@@ -332,7 +387,7 @@ class ModelSelection(nn.Module):
         clear_px = HALVES_CLEAR_PX * pixel_scale(image_size)
         views = valid.any(-1).sum(-1).tolist()
         coverage = self._coverage(results, corners, valid, object_points, image_size)
-        chosen: list[str | None] = []
+        chosen: list[CameraModel | None] = []
         table = []
         for c in range(H.shape[1]):
             h, hv, e = H[simple, c].tolist(), S[simple, c].tolist(), E[simple, c].tolist()
@@ -346,22 +401,23 @@ class ModelSelection(nn.Module):
             name = ranking[0] if ranking else None
             chosen.append(name)
             table.append({
-                "chosen": name, "runner_up": ranking[1] if len(ranking) > 1 else None, "views": int(views[c]),
-                "heldout_rms_px": {n: _num(H[i, c]) for i, n in enumerate(names)},
-                "halves_rms_px": {n: _num(S[i, c]) for i, n in enumerate(names)},
-                "tied": tied, "folds_in_image": [n for i, n in enumerate(names) if bool(fold[i, c])],
+                "chosen": _name(name), "runner_up": _name(ranking[1]) if len(ranking) > 1 else None,
+                "views": int(views[c]),
+                "heldout_rms_px": {str(n): _num(H[i, c]) for i, n in enumerate(names)},
+                "halves_rms_px": {str(n): _num(S[i, c]) for i, n in enumerate(names)},
+                "tied": [str(n) for n in tied], "folds_in_image": [str(n) for i, n in enumerate(names) if bool(fold[i, c])],
                 **({} if coverage is None else {"coverage": float(coverage[c]),
                                                 "flexible_coverage": self.flexible_coverage}),
-                "rule": f"the first of {', '.join(PREFERENCE)} whose held-out reprojection error the views cannot tell from the best "
+                "rule": f"the first of {', '.join(map(str, PREFERENCE))} whose held-out reprojection error the views cannot tell from the best "
                         f"(within {100 * TIE_FLOOR:g} %, or a per-view excess below {TIE_SIGMAS:g} sigma of a signed-rank test) "
                         "and whose distortion does not fold inside the image, unless another's two halves agree "
                         "clearly better" + ("" if coverage is None else
-                                            f"; {' and '.join(FLEXIBLE_MODELS)} only where the boards cover at least "
+                                            f"; {' and '.join(map(str, FLEXIBLE_MODELS))} only where the boards cover at least "
                                             f"{100 * self.flexible_coverage:g} % of the image, or no other model ties"),
             })
         return results, chosen, table
 
-    def _coverage(self, results: dict[str, CalibrationResult], corners: torch.Tensor, valid: torch.Tensor,
+    def _coverage(self, results: dict[CameraModel, CalibrationResult], corners: torch.Tensor, valid: torch.Tensor,
                   object_points: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor | None:
         """(C,) fraction of the image the boards of the views with a board cover (``None`` without
         ``flexible_coverage``)."""
@@ -378,11 +434,14 @@ class ModelSelection(nn.Module):
         extrapolated wrongly; a fisheye lens's image circle may end inside the image, where the Kannala-Brandt
         model legitimately has no inverse: it is never counted as folding."""
         ok = result.success.bool()
-        if camera_model(result.model).is_fisheye or result.dist.shape[-1] == 0:
+        model = result.camera.model
+        if model.is_fisheye or not model.num_coeffs:
             return torch.zeros_like(ok)
-        K = torch.where(ok[:, None, None], result.K, torch.eye(3, dtype=result.K.dtype, device=result.K.device))
-        dist = torch.where(ok[:, None], result.dist, torch.zeros_like(result.dist)).nan_to_num(0.0)
-        return (unprojectable_fraction(K.double(), dist.double(), image_size) > 0) & ok
+        return (unprojectable_fraction(result.camera.nan_to_num().to(dtype=torch.float64), image_size) > 0) & ok
+
+
+def _name(model: CameraModel | None) -> str | None:
+    return None if model is None else str(model)
 
 
 def _num(x: torch.Tensor) -> float | None:

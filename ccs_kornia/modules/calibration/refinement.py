@@ -14,14 +14,19 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from ccs_kornia.geometry.camera import num_distortion_coeffs
-from ccs_kornia.geometry.models.opencv import OPENCV_VARIANTS, OpenCVModel
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import OPENCV5
+from ccs_kornia.geometry.models.opencv import OpenCVModel
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 
-__all__ = ["FREE_DISTORTION", "RefinementResult", "joint_refinement", "JointRefinement", "camera_covariance"]
+__all__ = ["RefinementResult", "joint_refinement", "JointRefinement", "camera_covariance"]
 
-#: indices (OpenCV order k1, k2, p1, p2, k3, k4, k5, k6) estimated by each model; the rest stay 0
-FREE_DISTORTION: dict[str, list[int]] = {name: list(index) for name, index in OPENCV_VARIANTS.items()}
+
+def _opencv_variant(model: CameraModel) -> OpenCVModel:
+    if not isinstance(model, OpenCVModel):
+        raise ValueError(f"The joint refinement takes one of OpenCV's models (ccs_kornia.geometry.models.PINHOLE, "
+                         f"K1K2, OPENCV5, RATIONAL), got {model!r}.")
+    return model
 
 
 @dataclass
@@ -43,18 +48,19 @@ class RefinementResult:
     cov_camera: torch.Tensor | None = None
 
 
-def camera_covariance(model: str, param_covariance: torch.Tensor) -> torch.Tensor:
-    """Covariance :math:`(C, 4 + D, 4 + D)` of ``(fx, fy, cx, cy, dist[:D])`` in OpenCV's storage (``D`` of
-    :func:`~ccs_kornia.geometry.camera.num_distortion_coeffs`) from that of an :class:`OpenCVModel` variant's parameters
-    :math:`(C, P, P)`: a selection, zero rows and columns for stored coefficients outside the variant (``k1k2``
+def camera_covariance(model: CameraModel, param_covariance: torch.Tensor) -> torch.Tensor:
+    """Covariance :math:`(C, 4 + D, 4 + D)` of ``(fx, fy, cx, cy, dist[:D])`` in OpenCV's storage (``D`` the model's
+    :attr:`~ccs_kornia.geometry.models.base.CameraModel.num_coeffs`) from that of the model's parameters
+    :math:`(C, P, P)`: a selection, zero rows and columns for stored coefficients outside the model (``k1k2``
     stores ``p1 = p2 = k3 = 0``).
 
     Example:
-        >>> camera_covariance("k1k2", torch.eye(6)[None]).shape
+        >>> from ccs_kornia.geometry.models import K1K2
+        >>> camera_covariance(K1K2, torch.eye(6)[None]).shape
         torch.Size([1, 9, 9])
     """
-    index = OPENCV_VARIANTS[model]
-    D = num_distortion_coeffs(model)
+    index = model.coeff_index
+    D = model.num_coeffs
     if len(index) == D:  # every stored coefficient is a parameter, in order
         return param_covariance
     rows = torch.tensor([0, 1, 2, 3, *(4 + j for j in index)], device=param_covariance.device)
@@ -98,7 +104,7 @@ def joint_refinement(
     tvec: torch.Tensor,
     dist: torch.Tensor | None = None,
     view_mask: torch.Tensor | None = None,
-    model: str = "opencv5",
+    model: OpenCVModel = OPENCV5,
     fix_aspect_ratio: bool = False,
     fix_principal_point: bool = False,
     max_iters: int = 100,
@@ -121,7 +127,8 @@ def joint_refinement(
         rvec, tvec: :math:`(C, V, 3)` initial poses.
         dist: :math:`(C, D')` initial OpenCV coefficients (default zeros).
         view_mask: :math:`(C, V)` views to use (default: views with a valid corner).
-        model: ``none`` | ``k1k2`` | ``opencv5`` | ``rational``.
+        model: one of OpenCV's models (:data:`~ccs_kornia.geometry.models.PINHOLE`, ``K1K2``, ``OPENCV5``,
+            ``RATIONAL``).
         fix_aspect_ratio, fix_principal_point, fix_intrinsics, fix_distortion: keep those at their initial values.
         max_iters, ftol, xtol, lambda_init, dtype, stall_tol: see
             :func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`.
@@ -138,17 +145,16 @@ def joint_refinement(
         >>> rvec = torch.tensor([[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]], dtype=torch.float64)
         >>> tvec = torch.tensor([[-0.1, -0.1, 1.0]], dtype=torch.float64).expand(3, 3)
         >>> uv = project_points(obj.expand(3, -1, -1), K.expand(3, 3, 3), None, rvec, tvec)
-        >>> res = joint_refinement(uv, torch.ones(3, 12, dtype=torch.bool), obj, K * 1.01, rvec, tvec, model="none")
+        >>> from ccs_kornia.geometry.models import PINHOLE
+        >>> res = joint_refinement(uv, torch.ones(3, 12, dtype=torch.bool), obj, K * 1.01, rvec, tvec, model=PINHOLE)
         >>> bool(res.rms < 1e-6)
         True
     """
-    if model not in OPENCV_VARIANTS:
-        raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(OPENCV_VARIANTS)}.")
+    cam = _opencv_variant(model)
     corners, valid, object_points, K, rvec, tvec, dist, view_mask, unbatched = _batch(
         corners, valid, object_points, K, rvec, tvec, dist, view_mask
     )
     C, V, N = corners.shape[:3]
-    cam = OpenCVModel(model)
     params = cam.params_from(K.to(device=corners.device, dtype=dtype), None if dist is None else dist.to(corners.device))
     w = valid.bool() & (valid.bool().any(-1, keepdim=True) if view_mask is None else view_mask.bool()[..., None])
     w = w.to(dtype) if weights is None else w.to(dtype) * weights.to(dtype)
@@ -159,8 +165,8 @@ def joint_refinement(
         fix_aspect_ratio=fix_aspect_ratio and not fix_intrinsics, max_iters=max_iters, ftol=ftol, xtol=xtol,
         lambda_init=lambda_init, dtype=dtype, stall_tol=stall_tol,
     )
-    D = num_distortion_coeffs(model)
-    cov = camera_covariance(model, res.param_covariance)
+    D = cam.num_coeffs
+    cov = camera_covariance(cam, res.param_covariance)
     std = cov.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
     out = RefinementResult(
         K=_k_matrix(res.params), dist=cam.dist8(res.params)[:, :D], rvec=res.rvec, tvec=res.tvec,
@@ -176,16 +182,15 @@ class JointRefinement(nn.Module):
     """Module form of :func:`joint_refinement` (options fixed at construction).
 
     Example:
-        >>> JointRefinement(model="k1k2").model
-        'k1k2'
+        >>> from ccs_kornia.geometry.models import K1K2
+        >>> JointRefinement(model=K1K2).model
+        OpenCVModel('k1k2')
     """
 
-    def __init__(self, model: str = "opencv5", fix_aspect_ratio: bool = False, fix_principal_point: bool = False,
+    def __init__(self, model: OpenCVModel = OPENCV5, fix_aspect_ratio: bool = False, fix_principal_point: bool = False,
                  max_iters: int = 100, ftol: float = 1e-12, xtol: float = 1e-12, dtype: torch.dtype = torch.float64) -> None:
         super().__init__()
-        if model not in OPENCV_VARIANTS:
-            raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(OPENCV_VARIANTS)}.")
-        self.model, self.fix_aspect_ratio, self.fix_principal_point = model, fix_aspect_ratio, fix_principal_point
+        self.model, self.fix_aspect_ratio, self.fix_principal_point = _opencv_variant(model), fix_aspect_ratio, fix_principal_point
         self.max_iters, self.ftol, self.xtol, self.dtype = max_iters, ftol, xtol, dtype
 
     def forward(self, corners, valid, object_points, K, rvec, tvec, dist=None, view_mask=None) -> RefinementResult:

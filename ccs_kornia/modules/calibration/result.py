@@ -4,8 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 from enum import IntEnum
+from typing import Any, Callable
 
 import torch
+
+from ccs_kornia.geometry.camera import Camera
 
 __all__ = ["VIEW_REASONS", "ViewReason", "CalibrationResult"]
 
@@ -45,10 +48,10 @@ VIEW_REASONS: dict[int, str] = {
 
 @dataclass
 class CalibrationResult:
-    """Calibration of C cameras from V views each (the C dim is absent for unbatched input)."""
+    """Calibration of C cameras from V views each (the C dim is absent from the per-view and per-camera tensors for
+    unbatched input; :attr:`camera` always holds the cameras, one for unbatched input)."""
 
-    K: torch.Tensor  #: (C, 3, 3)
-    dist: torch.Tensor  #: (C, D) OpenCV order (k1, k2, p1, p2, k3[, k4, k5, k6])
+    camera: Camera  #: the C cameras (their models, parameters and image size)
     rvec: torch.Tensor  #: (C, V, 3) world-to-camera axis-angle per view
     tvec: torch.Tensor  #: (C, V, 3)
     view_rms: torch.Tensor  #: (C, V) px, NaN for views not used
@@ -57,7 +60,6 @@ class CalibrationResult:
     std_intrinsics: torch.Tensor  #: (C, 4) std of fx, fy, cx, cy
     std_dist: torch.Tensor  #: (C, D)
     success: torch.Tensor  #: (C,) bool
-    model: str
     view_reason: torch.Tensor  #: (C, V) int64, :class:`ViewReason` values
     converged: torch.Tensor  #: (C,) bool, LM met its tolerance
     candidate_rms: torch.Tensor  #: (C, V) px: every view with a homography under the final model (used or not)
@@ -67,11 +69,27 @@ class CalibrationResult:
     check_value: torch.Tensor | None = None  #: (C, K) float64 measured value of each check
     check_views: torch.Tensor | None = None  #: (C, K, V) bool, views each check names
 
+    @property
+    def batched(self) -> bool:
+        """Whether the per-view tensors have the camera dimension first."""
+        return self.used.dim() == 2
+
+    @property
+    def K(self) -> torch.Tensor:
+        """:math:`(C, 3, 3)` camera matrices (:math:`(3, 3)` unbatched)."""
+        return self.camera.K if self.batched else self.camera.K[0]
+
+    @property
+    def dist(self) -> torch.Tensor:
+        """:math:`(C, D)` coefficients in OpenCV's layout (:math:`(D,)` unbatched; cameras of several models:
+        NaN-padded to the widest)."""
+        return self.camera.dist if self.batched else self.camera.dist[0]
+
     def issues(self) -> list[list[dict]]:
         """Per camera, the warnings and errors of the degeneracy checks as JSON-able dicts
         ``{"check", "severity", "message", "advice", "views"}`` (one list per camera, also for an unbatched result)."""
         if self.check_severity is None:
-            return [[] for _ in range(1 if self.K.dim() == 2 else self.K.shape[0])]
+            return [[] for _ in range(len(self.camera) if self.batched else 1)]
         from ccs_kornia.modules.calibration.quality.degeneracy import (
             issues_from_tensors,
         )
@@ -79,4 +97,15 @@ class CalibrationResult:
         return issues_from_tensors(self.check_severity, self.check_value, self.check_views)
 
     def tensors(self) -> dict[str, torch.Tensor]:
-        return {f.name: getattr(self, f.name) for f in fields(self) if isinstance(getattr(self, f.name), torch.Tensor)}
+        """The tensor fields by name (the camera's parameters as ``camera_params``)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if isinstance(getattr(self, f.name), torch.Tensor)}
+        return {"camera_params": self.camera.params, **out}
+
+    def map_tensors(self, fn: Callable[[torch.Tensor], Any], camera: Callable[[Camera], Camera] | None = None
+                    ) -> CalibrationResult:
+        """A result with ``fn`` applied to every tensor field and ``camera`` (default: unchanged) to the cameras,
+        e.g. ``result.map_tensors(lambda t: t[None])`` to add the camera dimension."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        values = {k: (fn(v) if isinstance(v, torch.Tensor) else v) for k, v in values.items()}
+        values["camera"] = camera(self.camera) if camera is not None else self.camera
+        return type(self)(**values)

@@ -8,13 +8,14 @@ bookkeeping of which view was used and why not.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 from torch import nn
 
-from ccs_kornia.geometry.camera import fit_opencv_distortion, project_points
-from ccs_kornia.geometry.models.factory import camera_model
-from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
-from ccs_kornia.geometry.models.opencv import OpenCVModel
+from ccs_kornia.geometry.camera import Camera, intrinsics_params
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import CAMERA_MODELS, FISHEYE, OPENCV5, PINHOLE
 from ccs_kornia.modules.calibration.duplicates import duplicate_views, view_differences
 from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
 from ccs_kornia.modules.calibration.homography import (
@@ -30,9 +31,7 @@ from ccs_kornia.modules.calibration.quality.degeneracy import (
 )
 from ccs_kornia.modules.calibration.ransac import ImageRansac
 from ccs_kornia.modules.calibration.refinement import (
-    FREE_DISTORTION,
     RefinementResult,
-    _k_matrix,
     joint_refinement,
 )
 from ccs_kornia.modules.calibration.result import CalibrationResult, ViewReason
@@ -71,8 +70,8 @@ class CalibrationSolver(nn.Module):
     r"""Intrinsic calibration from planar-board corners, batched over cameras.
 
     Args:
-        model: distortion model ``none`` | ``k1k2`` | ``opencv5`` | ``rational`` (OpenCV order) | ``fisheye``
-            (Kannala-Brandt ``k1..k4`` as ``cv2.fisheye``, solved by
+        model: the camera model: :data:`~ccs_kornia.geometry.models.PINHOLE`, ``K1K2``, ``OPENCV5``, ``RATIONAL``
+            (OpenCV's, coefficients in its order) or ``FISHEYE`` (Kannala-Brandt ``k1..k4`` as ``cv2.fisheye``, solved by
             :func:`~ccs_kornia.modules.calibration.fisheye_calibration.calibrate_fisheye` on the same LM core:
             its own guess-free initialisation replaces Zhang and RANSAC; the copies and degeneracy checks are
             the same).
@@ -132,18 +131,19 @@ class CalibrationSolver(nn.Module):
         >>> rvec = 0.4 * (torch.rand(8, 3, generator=g, dtype=torch.float64) - 0.5)
         >>> tvec = torch.tensor([-0.25, -0.2, 1.5], dtype=torch.float64).expand(8, 3)
         >>> uv = project_points(obj.expand(8, -1, -1), K.expand(8, 3, 3), None, rvec, tvec)
-        >>> res = CalibrationSolver(model="none")(uv, torch.ones(8, 30, dtype=torch.bool), obj, (640, 480))
+        >>> from ccs_kornia.geometry.models import PINHOLE
+        >>> res = CalibrationSolver(model=PINHOLE)(uv, torch.ones(8, 30, dtype=torch.bool), obj, (640, 480))
         >>> bool((res.K - K).abs().max() < 1e-6), bool(res.success)
         (True, True)
         >>> c = uv.clone().requires_grad_()  # gradients of the camera with respect to the corners
-        >>> CalibrationSolver(model="none")(c, None, obj, (640, 480)).K[0, 0].backward()
+        >>> CalibrationSolver(model=PINHOLE)(c, None, obj, (640, 480)).K[0, 0].backward()
         >>> c.grad.shape
         torch.Size([8, 30, 2])
     """
 
     def __init__(
         self,
-        model: str = "opencv5",
+        model: CameraModel = OPENCV5,
         use_ransac: bool = True,
         ransac_iters: int = 32,
         seed: int = 0,
@@ -169,12 +169,10 @@ class CalibrationSolver(nn.Module):
         super().__init__()
         self.checks = checks
         self.thresholds = thresholds or DegeneracyThresholds(min_views=max(int(min_views), 1))
-        names = (*FREE_DISTORTION, KannalaBrandtModel.name)
-        if model not in names:
-            raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(names)}.")
+        if model not in CAMERA_MODELS.values():
+            raise ValueError(f"CalibrationSolver's model must be one of the models {', '.join(CAMERA_MODELS)} "
+                             f"(ccs_kornia.geometry.models), got {model!r}.")
         self.model = model
-        #: the model named ``model``
-        self.camera = camera_model(model)
         self.use_ransac = use_ransac
         self.fix_aspect_ratio = fix_aspect_ratio
         self.fix_principal_point = fix_principal_point
@@ -226,7 +224,7 @@ class CalibrationSolver(nn.Module):
                 the distortion CNN. Homographies, Zhang and RANSAC then run on them (the closed form assumes a
                 pinhole camera), a distortion-free refinement on them gives the initial camera and poses, and the
                 initial distortion is fitted in closed form from those ideal projections to ``corners``
-                (:func:`~ccs_kornia.geometry.camera.fit_opencv_distortion`). The final refinement always uses ``corners``.
+                (:meth:`~ccs_kornia.geometry.models.opencv.OpenCVModel.fit_coeffs`). The final refinement always uses ``corners``.
             initial: a previous result for the same views (warm start: no RANSAC, its camera, distortion, poses
                 and used views), e.g. after the corners were refined again.
             fix_intrinsics: with ``initial``, keep its ``fx, fy, cx, cy`` and refine distortion and poses only.
@@ -245,7 +243,7 @@ class CalibrationSolver(nn.Module):
                               weights)
         if torch.is_inference_mode_enabled():
             return out
-        out = CalibrationResult(**{k: (v.clone() if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()})
+        out = out.map_tensors(torch.Tensor.clone, Camera.clone)
         if torch.is_grad_enabled() and any(
             isinstance(t, torch.Tensor) and t.requires_grad for t in (corners, object_points, weights)
         ):
@@ -260,7 +258,7 @@ class CalibrationSolver(nn.Module):
         unbatched = corners.dim() == 3
         res = out
         if unbatched:
-            res = CalibrationResult(**{k: (v[None] if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()})
+            res = out.map_tensors(lambda t: t[None])
             corners = corners[None]
             valid = None if valid is None else valid[None]
             weights = None if weights is None else weights[None]
@@ -273,32 +271,27 @@ class CalibrationSolver(nn.Module):
         obj = object_points.to(device=device, dtype=dtype)
         obj = obj.expand(C, N, 3) if obj.dim() == 2 or obj.shape[0] == 1 else obj
         obj = obj.reshape(C, N, 3)
-        K0, d0 = res.K.to(dtype), res.dist.to(dtype)
-        if self.camera.is_fisheye:  # as calibrate_fisheye's final solve: no tied aspect ratio
-            cam = KannalaBrandtModel()
-            params = torch.cat([K0[:, 0, 0:1], K0[:, 1, 1:2], K0[:, 0, 2:3], K0[:, 1, 2:3], d0], -1)
+        cam = self.model
+        params = res.camera.params.to(dtype)
+        if cam.is_fisheye:  # as calibrate_fisheye's final solve: no tied aspect ratio
             free = [not (self.fix_principal_point and n in ("cx", "cy")) for n in cam.param_names]
             tie = False
         else:  # as joint_refinement's
-            cam = OpenCVModel(self.model)
-            params = cam.params_from(K0, d0)
             free = [not fix_intrinsics] * 2 + [not (fix_intrinsics or self.fix_principal_point)] * 2
             free += [True] * (cam.num_params - 4)
             tie = self.fix_aspect_ratio and not fix_intrinsics
         basis = parameter_basis(cam, params.nan_to_num(1.0), free, tie)
         p, rv, tv = implicit_solution(cam, basis, params, res.rvec, res.tvec, c, w, obj)
-        dist = p[:, 4:] if self.camera.is_fisheye else cam.dist8(p)[:, : res.dist.shape[-1]]
         ok_cam = res.success.to(device)
         used = res.used.to(device)[..., None]
         grads = {
-            "K": torch.where(ok_cam[:, None, None], _k_matrix(p), res.K),
-            "dist": torch.where(ok_cam[:, None], dist, res.dist),
             "rvec": torch.where(used, rv, res.rvec),
             "tvec": torch.where(used, tv, res.tvec),
         }
         if unbatched:
             grads = {k: v[0] for k, v in grads.items()}
-        return CalibrationResult(**{**out.__dict__, **grads})
+        camera = res.camera.with_params(torch.where(ok_cam[:, None], p, params))
+        return replace(out, camera=camera, **grads)
 
     def _solve(self, corners, valid, object_points, image_size, init_corners, initial, fix_intrinsics,
                weights=None) -> CalibrationResult:
@@ -313,7 +306,7 @@ class CalibrationSolver(nn.Module):
             weights = None if weights is None else weights[None]
             init_corners = None if init_corners is None else init_corners[None]
             if initial is not None:
-                initial = CalibrationResult(**{k: (v[None] if isinstance(v, torch.Tensor) else v) for k, v in initial.__dict__.items()})
+                initial = initial.map_tensors(lambda t: t[None])
         C, V, N = corners.shape[:3]
         image_size = (int(image_size[0]), int(image_size[1]))
         dtype, device = self.dtype, corners.device
@@ -339,7 +332,7 @@ class CalibrationSolver(nn.Module):
             candidates = candidates & (duplicate_of < 0)
             reason = torch.where(duplicate_of >= 0, ViewReason.DUPLICATE, reason)
 
-        if self.camera.is_fisheye:
+        if self.model.is_fisheye:
             return self._solve_fisheye(corners, valid, obj, image_size, candidates, reason, duplicate_of,
                                        differences, H, unbatched, initial, weights)
 
@@ -374,18 +367,17 @@ class CalibrationSolver(nn.Module):
                 K0 = zhang_intrinsics(H_init, inliers, image_size, pp_mode, self.fix_aspect_ratio)
             rvec0, tvec0 = extrinsics_from_homography(K0, H_init)
             if init_corners is not None:
-                pin = self._refine(ideal_corners, valid, obj, K0, rvec0, tvec0, None, inliers, model="none")
+                pin = self._refine(ideal_corners, valid, obj, K0, rvec0, tvec0, None, inliers, model=PINHOLE)
                 ok_pin = pin.K.flatten(1).isfinite().all(-1)
                 K0 = torch.where(ok_pin[:, None, None], pin.K, K0)
                 rvec0 = torch.where(ok_pin[:, None, None], pin.rvec, rvec0)
                 tvec0 = torch.where(ok_pin[:, None, None], pin.tvec, tvec0)
-                if self.model != "none":
-                    ideal = project_points(obj[:, None].expand(C, V, N, 3), K0[:, None].expand(C, V, 3, 3), None, rvec0, tvec0)
-                    fit_model = "rational" if self.model == "rational" else ("k1k2" if self.model == "k1k2" else "opencv5")
+                if self.model.num_coeffs:
+                    ideal = Camera(PINHOLE, intrinsics_params(K0)).project(obj[:, None].expand(C, V, N, 3), rvec0, tvec0)
                     w_fit = (valid & inliers[..., None]).reshape(C, V * N)
-                    dist0 = fit_opencv_distortion(
+                    dist0 = self.model.fit_coeffs(
                         ideal.reshape(C, V * N, 2).nan_to_num(0.0), corners.reshape(C, V * N, 2).nan_to_num(0.0), K0,
-                        fit_model, mask=w_fit,
+                        mask=w_fit,
                     )
                     dist0 = torch.where(dist0.isfinite().all(-1, keepdim=True), dist0, torch.zeros_like(dist0))
         reason = torch.where(candidates & ~inliers, ViewReason.RANSAC_REJECTED, reason)
@@ -428,8 +420,7 @@ class CalibrationSolver(nn.Module):
             return torch.where(success.view(C, *([1] * (x.dim() - 1))), x, torch.full_like(x, nan))
 
         out = CalibrationResult(
-            K=fail_nan(res.K),
-            dist=fail_nan(res.dist),
+            camera=Camera(self.model, fail_nan(self.model.params_from(res.K, res.dist)), image_size),
             rvec=res.rvec,
             tvec=res.tvec,
             view_rms=torch.where(used, res.view_rms, torch.full_like(res.view_rms, nan)),
@@ -438,7 +429,6 @@ class CalibrationSolver(nn.Module):
             std_intrinsics=fail_nan(res.std_intrinsics),
             std_dist=fail_nan(res.std_dist),
             success=success,
-            model=self.model,
             view_reason=reason,
             converged=res.converged & success,
             candidate_rms=torch.where(candidates, cand_rms, torch.full_like(cand_rms, nan)),
@@ -448,8 +438,7 @@ class CalibrationSolver(nn.Module):
             check_views=None if report is None else report.views,
         )
         if unbatched:
-            squeezed = {k: (v[0] if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()}
-            out = CalibrationResult(**squeezed)
+            out = out.map_tensors(lambda t: t[0])
         return out
 
     def _solve_fisheye(self, corners, valid, obj, image_size, candidates, reason, duplicate_of, differences, H,
@@ -458,12 +447,12 @@ class CalibrationSolver(nn.Module):
         ``initial``, its camera and poses replace the focal-length hypotheses)."""
         C, V = corners.shape[:2]
         if not bool((obj == obj[:1]).all()):
-            raise ValueError("model='fisheye' needs one board for every camera of the batch.")
+            raise ValueError("The fisheye model needs one board for every camera of the batch.")
         warm = None
         if initial is not None:
-            if initial.model != self.model or initial.dist.shape[-1] != 4:
-                raise ValueError(f"A fisheye solver's initial result must be a fisheye calibration, got model "
-                                 f"{getattr(initial, 'model', None)!r}.")
+            if set(initial.camera.models) != {FISHEYE}:
+                raise ValueError(f"A fisheye solver's initial result must be a fisheye calibration, got "
+                                 f"{initial.camera!r}.")
             device = corners.device
             warm = (initial.K.to(device), initial.dist.to(device), initial.rvec.to(device), initial.tvec.to(device),
                     initial.used.to(device))
@@ -490,16 +479,17 @@ class CalibrationSolver(nn.Module):
             return torch.where(success.view(C, *([1] * (x.dim() - 1))), x, torch.full_like(x, float("nan")))
 
         out = CalibrationResult(
-            K=fail_nan(fish.K), dist=fail_nan(fish.D), rvec=fish.rvec, tvec=fish.tvec,
+            camera=Camera(FISHEYE, fail_nan(FISHEYE.params_from(fish.K, fish.D)), image_size),
+            rvec=fish.rvec, tvec=fish.tvec,
             view_rms=fish.view_rms, used=used, rms=fail_nan(fish.rms), std_intrinsics=fail_nan(fish.std_intrinsics),
-            std_dist=fail_nan(fish.std_dist), success=success, model=self.model, view_reason=reason,
+            std_dist=fail_nan(fish.std_dist), success=success, view_reason=reason,
             converged=fish.converged & success, candidate_rms=fish.candidate_rms, cov_camera=fail_nan(fish.covariance),
             check_severity=None if report is None else report.severity,
             check_value=None if report is None else report.value,
             check_views=None if report is None else report.views,
         )
         if unbatched:
-            out = CalibrationResult(**{k: (v[0] if isinstance(v, torch.Tensor) else v) for k, v in out.__dict__.items()})
+            out = out.map_tensors(lambda t: t[0])
         return out
 
     def _evaluate_all(self, res: RefinementResult, corners, valid, obj, H, candidates, used):

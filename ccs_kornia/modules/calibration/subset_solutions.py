@@ -11,12 +11,13 @@ solve is most of the diagnostics' time (``docs/measurements.md``).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import torch
 from torch import nn
 
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera
 
 __all__ = ["SubsetSolutions", "solve_subsets"]
 
@@ -56,9 +57,14 @@ class SubsetSolutions:
     @staticmethod
     def key(solver: nn.Module, corners: torch.Tensor, valid: torch.Tensor, object_points: torch.Tensor,
             image_size: tuple[int, int], result: Any, folds: int, weights: torch.Tensor | None) -> tuple:
-        """What the subsets' solve depends on (the calibration: every tensor of ``result`` and its model)."""
+        """What the subsets' solve depends on (the calibration: every tensor of ``result`` and its cameras)."""
+
+        def value(v: Any) -> Any:
+            return (v.params, tuple(str(m) for m in v.models), v.image_sizes) if isinstance(v, Camera) else v
+
         fields = () if result is None else tuple(sorted(
-            ((k, v) for k, v in vars(result).items() if isinstance(v, (torch.Tensor, str))), key=lambda kv: kv[0]))
+            ((k, value(v)) for k, v in vars(result).items() if isinstance(v, (torch.Tensor, Camera))),
+            key=lambda kv: kv[0]))
         return (solver, corners, valid, object_points, (int(image_size[0]), int(image_size[1])), int(folds), weights,
                 fields)
 
@@ -76,13 +82,14 @@ class SubsetSolutions:
     def put(self, key: tuple, solution: Any) -> None:
         """Keep ``solution`` for ``key`` (copies of its tensors, so later in-place changes cannot make it match)."""
         copy = tuple(x.clone() if isinstance(x, torch.Tensor) else x for x in key[1:7])
-        fields = tuple((k, v.clone() if isinstance(v, torch.Tensor) else v) for k, v in key[7])
+        fields = tuple((k, _copy(v)) for k, v in key[7])
         self._entries = [*self._entries, ((key[0], *copy, fields), solution)][-self.size:]
 
 
-def _is_fisheye(model: Any) -> bool:
-    """A camera model's name (a solver's, a result's) names a fisheye model."""
-    return isinstance(model, str) and camera_model(model).is_fisheye
+def _copy(v: Any) -> Any:
+    if isinstance(v, torch.Tensor):
+        return v.clone()
+    return tuple(_copy(x) for x in v) if isinstance(v, tuple) else v
 
 
 def solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, result=None, warm=None, weights=None):
@@ -103,12 +110,16 @@ def solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, r
     c, v = rep(corners), (valid[:, None] & subsets[..., None]).reshape(C * S, V, N)
     o = obj if obj.dim() == 2 else rep(obj)
     kw = {} if weights is None else {"weights": rep(weights) * v}
-    fisheye = _is_fisheye(getattr(solver, "model", None)) and _is_fisheye(getattr(result, "model", None))
+    model = getattr(solver, "model", None)
+    fisheye = getattr(model, "is_fisheye", False) and result is not None and all(m == model for m in result.camera.models)
     if warm is None or not fisheye or not bool(warm.any()):
         return solver(c, v, o, image_size, **kw)
-    initial = type(result)(**{k: (rep(x) if isinstance(x, torch.Tensor) and x.dim() and x.shape[0] == C else x)
-                              for k, x in result.__dict__.items()})
-    cold = ~warm.to(initial.K.device).bool().repeat(C)
-    initial.K = torch.where(cold[:, None, None], float("nan"), initial.K)  # no finite camera: the hypotheses
-    initial.used = initial.used.bool() & subsets.reshape(C * S, V)
+    each = torch.arange(C, device=result.camera.device).repeat_interleave(S)
+    initial = result.map_tensors(lambda x: rep(x) if x.dim() and x.shape[0] == C else x, lambda cam: cam[each])
+    cold = ~warm.to(initial.camera.device).bool().repeat(C)
+    params = initial.camera.params
+    # no finite camera: the hypotheses
+    params = torch.cat([torch.where(cold[:, None], float("nan"), params[:, :4]), params[:, 4:]], -1)
+    initial = replace(initial, camera=initial.camera.with_params(params),
+                      used=initial.used.bool() & subsets.reshape(C * S, V))
     return solver(c, v, o, image_size, initial=initial, **kw)

@@ -34,7 +34,6 @@ _EXPORTS = {
     "solve_with_correction": "ccs_kornia.modules.correction.corrected_frame",
     "calibrate_corrected": "ccs_kornia.modules.correction.corrected_frame",
     "correction_zoom": "ccs_kornia.modules.correction.corrected_frame",
-    "with_fields": "ccs_kornia.modules.correction.corrected_frame",
     "select_cameras": "ccs_kornia.modules.correction.corrected_frame",
 }
 

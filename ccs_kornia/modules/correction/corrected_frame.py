@@ -14,15 +14,16 @@ centred on the image keeps the usual one).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 
 from ccs_kornia.geometry.camera import (
+    Camera,
     board_object_points,
-    fit_opencv_distortion,
-    project_points,
+    intrinsics_params,
 )
-from ccs_kornia.geometry.models.opencv import OpenCVModel
+from ccs_kornia.geometry.models.factory import K1K2, OPENCV5, PINHOLE, RATIONAL
 from ccs_kornia.modules._checks import check_board_size
 from ccs_kornia.modules.calibration.centred_radial import (
     radial_from_points,
@@ -36,7 +37,7 @@ from ccs_kornia.modules.correction.correction_fit import fit_correction_to_point
 from ccs_kornia.modules.correction.radial_warp import correct_points, corrected_radius
 from ccs_kornia.modules.detection.base import measured_corners
 
-__all__ = ["solve_with_correction", "calibrate_corrected", "correction_zoom", "with_fields", "select_cameras"]
+__all__ = ["solve_with_correction", "calibrate_corrected", "correction_zoom", "select_cameras"]
 
 
 def solve_with_correction(
@@ -74,7 +75,7 @@ def solve_with_correction(
     correction = correction.to(corners.device)
     # the model selection below compares equal parameter counts: the radial model (k1, k2, k3 + centre) against
     # opencv5 (or the richer rational model); for k1k2 / none the usual calibration is kept
-    if bool(applied.any()) and solver.model in ("opencv5", "rational"):
+    if bool(applied.any()) and solver.model in (OPENCV5, RATIONAL):
         corrected, refined, model_rms = calibrate_corrected(solver, corners, found, correction, board_size, square,
                                                             image_size, joint_iters, free_distortion_centre)
         # model selection on the observed corners: the radial model about a free centre (the paper's) against
@@ -134,7 +135,7 @@ def calibrate_corrected(
     valid = measured_corners(corners, found.to(dev))
     obj = board_object_points(*check_board_size(board_size), float(square), device=dev, dtype=torch.float64)
     frame_solver = CalibrationSolver(
-        model="k1k2", use_ransac=solver.use_ransac, seed=0, fix_aspect_ratio=solver.fix_aspect_ratio,
+        model=K1K2, use_ransac=solver.use_ransac, seed=0, fix_aspect_ratio=solver.fix_aspect_ratio,
         fix_principal_point=solver.fix_principal_point,
     )
     corr = correction.to(device=dev, dtype=torch.float64)
@@ -143,7 +144,7 @@ def calibrate_corrected(
         pinhole = correct_points(corners.reshape(c, v * n, 2), corr, image_size).reshape(c, v, n, 2)
         res = frame_solver(pinhole, valid, obj, image_size)
         # 2. the correction re-fitted to that camera (absorbs the residual)
-        ideal = project_points(obj.expand(c, v, n, 3), res.K[:, None].expand(c, v, 3, 3), None, res.rvec, res.tvec)
+        ideal = Camera(PINHOLE, res.camera.params[:, :4]).project(obj.expand(c, v, n, 3), res.rvec, res.tvec)
         use = valid & res.used[..., None]
         refit = fit_correction_to_points(corners.reshape(c, v * n, 2), ideal.reshape(c, v * n, 2), image_size,
                                          use.reshape(c, v * n))
@@ -164,28 +165,30 @@ def calibrate_corrected(
             good = res.success & K1.flatten(1).isfinite().all(-1) & rad1.isfinite().all(-1) & rms1.isfinite()
             cov_k = torch.where(good[:, None, None], cov1[:, :4, :4], cov_k)
             model_rms = torch.where(good, rms1, torch.full_like(rms1, float("inf")))
-            res = with_fields(res, K=torch.where(good[:, None, None], K1, res.K),
-                              rvec=torch.where(good[:, None, None], rv1, res.rvec),
-                              tvec=torch.where(good[:, None, None], tv1, res.tvec))
-        ideal = project_points(obj.expand(c, v, n, 3), res.K[:, None].expand(c, v, 3, 3), None, res.rvec, res.tvec)
-        fit_model = {"k1k2": "k1k2", "rational": "rational"}.get(solver.model, "opencv5")
+            p = res.camera.params
+            intrinsics = torch.where(good[:, None], intrinsics_params(K1), p[:, :4])
+            res = replace(res, camera=res.camera.with_params(torch.cat([intrinsics, p[:, 4:]], -1)),
+                          rvec=torch.where(good[:, None, None], rv1, res.rvec),
+                          tvec=torch.where(good[:, None, None], tv1, res.tvec))
+        ideal = Camera(PINHOLE, res.camera.params[:, :4]).project(obj.expand(c, v, n, 3), res.rvec, res.tvec)
         use = (valid & res.used[..., None]).reshape(c, v * n)
         # a refused camera has a NaN K; a finite stand-in keeps the closed form defined (the final solve refuses
         # that camera again)
         k_safe = torch.tensor([[max(image_size), 0, (image_size[0] - 1) / 2], [0, max(image_size), (image_size[1] - 1) / 2],
                                [0, 0, 1]], dtype=res.K.dtype, device=dev)
         k_safe = torch.where(res.success[:, None, None] & res.K.isfinite(), res.K, k_safe)
-        dist0 = fit_opencv_distortion(ideal.reshape(c, v * n, 2).nan_to_num(0.0), corners.reshape(c, v * n, 2),
-                                      k_safe, fit_model, mask=use)
-        start = with_fields(res, dist=dist0.nan_to_num(0.0))
+        dist0 = solver.model.fit_coeffs(ideal.reshape(c, v * n, 2).nan_to_num(0.0), corners.reshape(c, v * n, 2),
+                                        k_safe, mask=use)
+        start = replace(res, camera=Camera(solver.model, solver.model.params_from(res.K, dist0.nan_to_num(0.0)),
+                                           image_size))
         out = solver(corners, valid, obj, image_size, initial=start, fix_intrinsics=True)
         # the intrinsics were estimated before the final fit held them: report their uncertainty, not a fixed 0
         cov = _propagated_covariance(solver.model, out, corners, valid, obj, cov_k.to(out.K.dtype))
         ok = out.success & cov.flatten(1).isfinite().all(-1)
         std = cov.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
-        out = with_fields(out, cov_camera=torch.where(ok[:, None, None], cov, out.cov_camera),
-                          std_intrinsics=torch.where(ok[:, None], std[:, :4], out.std_intrinsics),
-                          std_dist=torch.where(ok[:, None], std[:, 4:], out.std_dist))
+        out = replace(out, cov_camera=torch.where(ok[:, None, None], cov, out.cov_camera),
+                      std_intrinsics=torch.where(ok[:, None], std[:, :4], out.std_intrinsics),
+                      std_dist=torch.where(ok[:, None], std[:, 4:], out.std_dist))
     return out, corr, (out.rms if model_rms is None else model_rms)
 
 
@@ -198,11 +201,11 @@ def _propagated_covariance(model, out, corners, valid, obj, cov_k):
     ``d d / d k = A = -S_dd^-1 S_dk``, ``Cov(k, d) = cov_k A^T`` and ``Cov(d) = sigma^2 S_dd^-1 + A cov_k A^T``
     (the fit's own noise plus the intrinsics' uncertainty carried into the distortion).
     """
-    cam = OpenCVModel(model)
+    cam = model
     c, v, n = corners.shape[:3]
     if cam.num_params == 4:
         return cov_k
-    params = cam.params_from(out.K.nan_to_num(1.0), out.dist.nan_to_num(0.0))
+    params = out.camera.nan_to_num().params
     w = valid & out.used[..., None]
     lm = levenberg_marquardt(cam, params, out.rvec, out.tvec, obj, corners, w, max_iters=0)
     S = lm.information
@@ -235,19 +238,17 @@ def correction_zoom(correction: torch.Tensor, size: tuple[int, int]) -> torch.Te
     return (r / g.clamp_min(1e-6)).clamp(0.5, 1.0).min()
 
 
-def with_fields(result: CalibrationResult, **fields) -> CalibrationResult:
-    """A copy of ``result`` with some fields replaced."""
-    values = dict(result.__dict__)
-    values.update(fields)
-    return CalibrationResult(**values)
-
-
 def select_cameras(keep: torch.Tensor, a: CalibrationResult, b: CalibrationResult) -> CalibrationResult:
-    """Per camera, ``a`` where ``keep`` else ``b`` (every tensor field has the camera dimension first)."""
+    """Per camera, ``a`` where ``keep`` else ``b`` (every tensor field has the camera dimension first; the cameras
+    of both have the same models)."""
     out = {}
     for k, va in a.__dict__.items():
         vb = getattr(b, k)
-        if isinstance(va, torch.Tensor) and isinstance(vb, torch.Tensor) and va.shape == vb.shape:
+        if isinstance(va, Camera):
+            if va.models != vb.models:
+                raise ValueError(f"select_cameras: the results' cameras differ in model ({va!r}, {vb!r}).")
+            out[k] = va.with_params(torch.where(keep.to(va.device)[:, None], va.params, vb.params.to(va.params)))
+        elif isinstance(va, torch.Tensor) and isinstance(vb, torch.Tensor) and va.shape == vb.shape:
             out[k] = torch.where(keep.to(va.device).view(-1, *([1] * (va.dim() - 1))), va, vb)
         else:
             out[k] = va

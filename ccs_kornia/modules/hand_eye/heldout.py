@@ -19,7 +19,7 @@ import torch
 from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.modules.hand_eye.fit import FitResult, fit_problem
 from ccs_kornia.modules.hand_eye.problem import HandEyeProblem, HandEyeState
-from ccs_kornia.modules.rig.rig_camera import camera_from_params, normalized_points
+from ccs_kornia.geometry.camera import Camera
 
 __all__ = ["MAX_HELDOUT_CORNERS", "HeldOut", "jackknife_covariance", "leave_one_pose_out", "ray_distances"]
 
@@ -59,7 +59,7 @@ def _pose(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     return T
 
 
-def leave_one_pose_out(problem: HandEyeProblem, solution: HandEyeState, model_name: str, used: torch.Tensor,
+def leave_one_pose_out(problem: HandEyeProblem, solution: HandEyeState, used: torch.Tensor,
                        min_views: int = 3, max_iters: int = 100,
                        refit: Callable[[HandEyeProblem, HandEyeState], FitResult] | None = None) -> HeldOut:
     """Hold out each used view of each problem in turn (module doc).
@@ -67,7 +67,6 @@ def leave_one_pose_out(problem: HandEyeProblem, solution: HandEyeState, model_na
     Args:
         problem: the fitted problems (``B`` of them).
         solution: their optimum (the start of every held-out fit).
-        model_name: the camera model's name (for the lines of sight).
         used: :math:`(B, V)` the views the fit used; a view is held out where at least ``min_views`` others remain.
         min_views: views a held-out fit needs.
         max_iters: iterations of each held-out fit.
@@ -116,8 +115,7 @@ def leave_one_pose_out(problem: HandEyeProblem, solution: HandEyeState, model_na
         on = problem.w[b, v] > 0
         err = ((uv - problem.obs[b, v]) ** 2).sum(-1)
         rms_px[b, v] = (torch.where(on, err, 0.0).sum(-1) / on.sum(-1).clamp_min(1)).sqrt()
-        rays = torch.stack([normalized_points(camera_from_params(model_name, s.params[i]), problem.obs[b[i], v[i]])
-                            for i in range(K)])
+        rays = Camera(problem.model, s.params).undistort(problem.obs[b, v])
         dist = ray_distances(xc, rays)
         rms_d[b, v] = (torch.where(on, dist * dist, 0.0).sum(-1) / on.sum(-1).clamp_min(1)).sqrt()
         predicted[b, v] = uv

@@ -110,14 +110,13 @@ class _Implicit(torch.autograd.Function):
 
 
 def attach_gradients(result, corners, valid, object_points, robot_poses, weights, free_intrinsics, robot_noise):
-    """The result with ``X``, ``Z`` and ``params`` carrying implicit gradients to ``corners`` and ``robot_poses``
+    """The result with ``X``, ``Z`` and the camera's parameters carrying implicit gradients to ``corners`` and ``robot_poses``
     (whichever require grad): its fit is rebuilt as a problem (same weights, start, noise sigmas) at its optimum."""
-    from ccs_kornia.geometry.models.factory import camera_model
     from ccs_kornia.modules.calibration.lm import parameter_basis
 
     B, V, N = corners.shape[:3]
     dtype = torch.float64
-    model = camera_model(result.model)
+    model = result.camera.model
     if result.board_order is not None and bool(result.board_order.any()):  # the fit's numbering of the corners
         from ccs_kornia.modules.hand_eye.board_order import renumber_corners
         from ccs_kornia.modules.rig.board_symmetry import board_symmetries
@@ -130,15 +129,15 @@ def attach_gradients(result, corners, valid, object_points, robot_poses, weights
         w = w / (result.pixel_sigma.to(dtype) ** 2)[:, None, None]
     basis = None
     if free_intrinsics:
-        basis = parameter_basis(model, result.params.detach(), None if free_intrinsics is True else list(free_intrinsics))
+        basis = parameter_basis(model, result.camera.params.detach(), None if free_intrinsics is True else list(free_intrinsics))
     noise = result.robot_noise
     safe = torch.where(robot_poses.detach().flatten(-2).isfinite().all(-1)[..., None, None], robot_poses.detach().to(dtype),
                        torch.eye(4, dtype=dtype, device=corners.device))
     problem = HandEyeProblem(result.setup, model, safe, object_points.detach().to(dtype), corners.detach().to(dtype),
                              w, basis, noise)
-    state = HandEyeProblem.initial_state(result.X.detach(), result.Z.detach(), result.params.detach(), V)
+    state = HandEyeProblem.initial_state(result.X.detach(), result.Z.detach(), result.camera.params.detach(), V)
     if noise is not None and result.corrections is not None:
         state = state._replace(RE=result.corrections[0], tE=result.corrections[1])
-    X, Z, params = _Implicit.apply(corners, robot_poses, result.X, result.Z, result.params, problem, state)
-    result.X, result.Z, result.params = X, Z, params
+    X, Z, params = _Implicit.apply(corners, robot_poses, result.X, result.Z, result.camera.params, problem, state)
+    result.X, result.Z, result.camera = X, Z, result.camera.with_params(params)
     return result

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.modules.hand_eye.setup import HandEyeSetup
 
 __all__ = ["HandEyeResult", "HandEyeVerdictThresholds", "hand_eye_verdict"]
@@ -88,8 +89,7 @@ class HandEyeResult:
     issues: list[list[dict]]  #: per problem, every check's finding (severity, check, message, poses)
     X: torch.Tensor  #: (B, 4, 4)
     Z: torch.Tensor  #: (B, 4, 4)
-    model: str  #: the camera model's name
-    params: torch.Tensor  #: (B, P) the camera's parameters (fitted where free)
+    camera: Camera  #: the B problems' cameras (their parameters fitted where free)
     covariance: torch.Tensor  #: (B, G, G) the fit's, over (w_X, t_X, w_Z, t_Z, free intrinsics)
     x_covariance: torch.Tensor  #: (B, 6, 6) the reported covariance of X (rotation vector, translation)
     z_covariance: torch.Tensor  #: (B, 6, 6) ... of Z

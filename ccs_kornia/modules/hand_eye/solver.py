@@ -28,7 +28,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules._checks import check_shape
 from ccs_kornia.modules.calibration.lm import parameter_basis
@@ -46,7 +46,6 @@ from ccs_kornia.modules.hand_eye.problem import (
 from ccs_kornia.modules.hand_eye.result import HandEyeResult, hand_eye_verdict
 from ccs_kornia.modules.hand_eye.setup import HandEyeSetup, invert_transforms
 from ccs_kornia.modules.rig.board_symmetry import board_symmetries, undo_symmetry
-from ccs_kornia.modules.rig.rig_camera import RigCamera, camera_params
 from ccs_kornia.modules.rig.rig_init import camera_poses
 
 __all__ = ["DISAGREE_PX", "JACKKNIFE_MIN_POSES", "HandEyeSolver", "calibrate_hand_eye"]
@@ -69,14 +68,16 @@ def _pose(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     return T
 
 
-def _cameras(camera: RigCamera | Sequence[RigCamera], B: int, dtype, device) -> tuple[str, torch.Tensor]:
-    cams = [camera] * B if isinstance(camera, RigCamera) else list(camera)
-    if len(cams) != B:
-        raise ValueError(f"camera: one RigCamera, or one per problem ({B}), got {len(cams)}.")
-    names = {c.model for c in cams}
-    if len(names) != 1:
-        raise ValueError(f"the cameras of one batch must share a model, got {sorted(names)}.")
-    return cams[0].model, torch.stack([camera_params(c, torch.float64) for c in cams]).to(device=device, dtype=dtype)
+def _cameras(camera: Camera, B: int, dtype, device) -> Camera:
+    """The problems' cameras: one for all, or one per problem (one model)."""
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a Camera (ccs_kornia.geometry.camera), got {type(camera).__name__}.")
+    if len(camera) not in (1, B):
+        raise ValueError(f"camera: one camera, or one per problem ({B}), got {len(camera)}.")
+    if not camera.uniform:
+        raise ValueError(f"the cameras of one batch must share a model, got {camera!r}.")
+    params = camera.params.to(device=device, dtype=dtype).expand(B, -1).clone()
+    return Camera(camera.model, params, camera.image_sizes * (B // len(camera)))
 
 
 def _view_rms(problem: HandEyeProblem, state: HandEyeState) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -140,7 +141,7 @@ def calibrate_hand_eye(
     valid: torch.Tensor,
     object_points: torch.Tensor,
     robot_poses: torch.Tensor,
-    camera: RigCamera | Sequence[RigCamera],
+    camera: Camera,
     setup: HandEyeSetup | str = HandEyeSetup.EYE_IN_HAND,
     weights: torch.Tensor | None = None,
     free_intrinsics: bool | Sequence[str] = False,
@@ -161,8 +162,8 @@ def calibrate_hand_eye(
         object_points: :math:`(N, 3)` the board's points, in the robot poses' unit.
         robot_poses: :math:`(B, V, 4, 4)` the flange's pose in the base frame per view (``x_base = T x_flange``; NaN
             where the robot's pose is missing).
-        camera: the camera (:class:`~ccs_kornia.modules.rig.rig_camera.RigCamera`), one for all or one per problem
-            (one model for the batch).
+        camera: the camera (:class:`~ccs_kornia.geometry.camera.Camera`), one for all or one per problem (one model
+            for the batch).
         setup: eye-in-hand or eye-to-hand (:class:`~ccs_kornia.modules.hand_eye.setup.HandEyeSetup`).
         weights: :math:`(B, V, N)` inverse variances of the corners (default 1).
         free_intrinsics: fit the camera's parameters too: ``True`` (all of its model's), or their names.
@@ -184,8 +185,9 @@ def calibrate_hand_eye(
 
     Example:
         >>> from ccs_kornia.data.robots import render_hand_eye
+        >>> from ccs_kornia.geometry.models import K1K2
         >>> s = render_hand_eye("eye_in_hand", views=8, seed=0, noise_px=0.0, joint_noise_deg=0.0)
-        >>> cam = RigCamera("k1k2", s.K, s.dist)
+        >>> cam = Camera.from_opencv(K1K2, s.K, s.dist)
         >>> res = calibrate_hand_eye(s.corners[None], s.valid[None], s.object_points, s.robot_poses[None], cam,
         ...                          "eye_in_hand", heldout=False)
         >>> bool(res.success[0]), float((res.X[0] - s.X).abs().max()) < 1e-8
@@ -199,8 +201,8 @@ def calibrate_hand_eye(
     if object_points.shape != (N, 3):
         raise ValueError(f"object_points must be ({N}, 3), got {tuple(object_points.shape)}.")
     device, dtype = corners.device, torch.float64
-    model_name, params = _cameras(camera, B, dtype, device)
-    model = camera_model(model_name)
+    cameras = _cameras(camera, B, dtype, device)
+    model, params = cameras.model, cameras.params
     corners = corners.detach().to(dtype)
     poses = robot_poses.detach().to(dtype)
     obj = object_points.detach().to(device=device, dtype=dtype)
@@ -209,7 +211,7 @@ def calibrate_hand_eye(
         check_shape(weights, [str(B), str(V), str(N)], f"weights must be ({B}, {V}, {N})")
         w = w & (weights > 0)
     # 1. the board's pose in each view alone
-    rvec, tvec, ok, _ = camera_poses(params, model_name, corners, w, obj, min_corners=min_corners)
+    rvec, tvec, ok, _ = camera_poses(params, model, corners, w, obj, min_corners=min_corners)
     M = _pose(exp_so3(rvec), tvec)
     pose_ok = poses.flatten(-2).isfinite().all(-1)
     usable = ok & pose_ok & (w.sum(-1) >= min_corners)
@@ -278,7 +280,7 @@ def calibrate_hand_eye(
         intr_std = pc.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
     nan = float("nan")
     if heldout:
-        held = leave_one_pose_out(problem, s, model_name, usable, min_views=MIN_POSES, max_iters=max_iters,
+        held = leave_one_pose_out(problem, s, usable, min_views=MIN_POSES, max_iters=max_iters,
                                   refit=lambda p, st: fitter(p, st, HELDOUT_NOISE_ROUNDS)[0])
         h_px, h_d, h_pred = held.rms_px, held.rms_distance, held.predicted
         jx, n_out = jackknife_covariance(X, held.X)
@@ -304,7 +306,7 @@ def calibrate_hand_eye(
     result = HandEyeResult(
         setup=setup, success=torch.tensor([not r for r in refused], device=device),
         reasons=["; ".join(i["message"] for i in iss if i["severity"] == "error") for iss in issues], issues=issues,
-        X=X, Z=Z, model=model_name, params=s.params, covariance=cov, x_covariance=x_cov, z_covariance=z_cov,
+        X=X, Z=Z, camera=cameras.with_params(s.params), covariance=cov, x_covariance=x_cov, z_covariance=z_cov,
         std_source=source, x_rotation_std_deg=x_std[:, 0:3] * deg, x_translation_std=x_std[:, 3:6],
         z_rotation_std_deg=z_std[:, 0:3] * deg, z_translation_std=z_std[:, 3:6], intrinsics_std=intr_std, rms=rms, view_rms=view_rms, residuals=residuals,
         used=usable, board_poses=M, start=[start_names[int(k)] for k in best], start_rms=start_rms,
@@ -345,9 +347,11 @@ class HandEyeSolver(nn.Module):
 
     Example:
         >>> from ccs_kornia.data.robots import render_hand_eye
+        >>> from ccs_kornia.geometry.models import K1K2
         >>> s = render_hand_eye("eye_to_hand", views=8, seed=1)
         >>> solver = HandEyeSolver("eye_to_hand")
-        >>> res = solver(s.corners[None], s.valid[None], s.object_points, s.robot_poses[None], RigCamera("k1k2", s.K, s.dist))
+        >>> cam = Camera.from_opencv(K1K2, s.K, s.dist)
+        >>> res = solver(s.corners[None], s.valid[None], s.object_points, s.robot_poses[None], cam)
         >>> res.verdict[0], float((res.X[0, :3, 3] - s.X[:3, 3]).norm()) < 0.005
         ('good', True)
     """
@@ -365,7 +369,7 @@ class HandEyeSolver(nn.Module):
         self.align_orders = align_orders
 
     def forward(self, corners: torch.Tensor, valid: torch.Tensor, object_points: torch.Tensor,
-                robot_poses: torch.Tensor, camera: RigCamera | Sequence[RigCamera],
+                robot_poses: torch.Tensor, camera: Camera,
                 weights: torch.Tensor | None = None, image_size: tuple[int, int] = (640, 480),
                 metres_per_unit: float = 1.0, names: list[list[str]] | None = None) -> HandEyeResult:
         out = calibrate_hand_eye(corners, valid, object_points, robot_poses, camera, self.setup, weights,

@@ -14,7 +14,6 @@ from __future__ import annotations
 from ccs_kornia.runtime.lazy import lazy_exports
 
 _EXPORTS = {
-    "RigCamera": "ccs_kornia.modules.rig.rig_camera",
     "RigResult": "ccs_kornia.modules.rig.rig_solver",
     "RigSolver": "ccs_kornia.modules.rig.rig_solver",
     "calibrate_rig": "ccs_kornia.modules.rig.rig_solver",

@@ -16,7 +16,7 @@ import torch
 
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.modules.calibration.quality.verdict import Findings
-from ccs_kornia.modules.rig.rig_camera import RigCamera
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.modules.rig.stereo import epipolar_distances
 
 __all__ = ["RigVerdictThresholds", "epipolar_sums", "rig_verdict"]
@@ -46,7 +46,7 @@ class RigVerdictThresholds:
 
 
 def epipolar_sums(
-    cameras: Sequence[RigCamera], R: torch.Tensor, T: torch.Tensor, corners: torch.Tensor, valid: torch.Tensor,
+    cameras: Camera, R: torch.Tensor, T: torch.Tensor, corners: torch.Tensor, valid: torch.Tensor,
     frames: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Sum of squared symmetric epipolar distances and their count per camera pair, :math:`(C, C)` each (symmetric),

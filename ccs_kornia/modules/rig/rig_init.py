@@ -17,7 +17,8 @@ from collections.abc import Sequence
 
 import torch
 
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
@@ -27,12 +28,6 @@ from ccs_kornia.modules.rig.board_symmetry import (
     BoardSymmetry,
     symmetry_candidates,
     undo_symmetry,
-)
-from ccs_kornia.modules.rig.rig_camera import (
-    RigCamera,
-    camera_from_params,
-    camera_params,
-    normalized_points,
 )
 
 __all__ = ["calibrate_cameras", "camera_poses", "rotation_mean", "relative_pose", "spanning_tree", "rig_extrinsics",
@@ -44,20 +39,20 @@ def calibrate_cameras(
     valid: torch.Tensor,
     obj: torch.Tensor,
     image_size: tuple[int, int],
-    model: str,
+    model: CameraModel,
     min_corners: int = 6,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """One camera of B rigs calibrated alone: corners :math:`(B, F, N, 2)` -> params :math:`(B, P)`, ok :math:`(B,)`,
     rvec/tvec :math:`(B, F, 3)` and the frames the solver used :math:`(B, F)`."""
     kw = {"checks": False, "min_corners": min_corners}
     res = CalibrationSolver(model=model, **kw)(corners, valid, obj, image_size)
-    params = _params(model, res)
+    params = res.camera.params
     ok = res.success & params.isfinite().all(-1)
     if not bool(ok.all()):  # few frames: the principal point at the centre and fx = fy from one frame up
         fb = CalibrationSolver(model=model, min_views=1, fix_principal_point=True,
-                               fix_aspect_ratio=not camera_model(model).is_fisheye, use_ransac=False,
+                               fix_aspect_ratio=not model.is_fisheye, use_ransac=False,
                                **kw)(corners, valid, obj, image_size)
-        p_fb = _params(model, fb)
+        p_fb = fb.camera.params
         ok_fb = fb.success & p_fb.isfinite().all(-1) & ~ok
         params = torch.where(ok_fb[:, None], p_fb, params)
         for name in ("rvec", "tvec", "used"):
@@ -66,13 +61,9 @@ def calibrate_cameras(
     return params, ok, res.rvec, res.tvec, res.used & ok[:, None]
 
 
-def _params(model: str, res) -> torch.Tensor:
-    return camera_model(model).params_from(res.K, res.dist)
-
-
 def camera_poses(
     cam_params: torch.Tensor,
-    model: str,
+    model: CameraModel,
     corners: torch.Tensor,
     valid: torch.Tensor,
     obj: torch.Tensor,
@@ -85,7 +76,7 @@ def camera_poses(
 
     Args:
         cam_params: :math:`(B, P)` the camera's parameters (held).
-        model: its model name.
+        model: its model.
         corners: :math:`(B, F, N, 2)`; valid :math:`(B, F, N)`; obj :math:`(N, 3)`.
         rvec0, tvec0, known: optional poses :math:`(B, F, 3)` to start from where ``known`` :math:`(B, F)` is True
             (elsewhere: the homography of the undistorted corners).
@@ -96,8 +87,7 @@ def camera_poses(
     B, F, N = corners.shape[:3]
     dtype = cam_params.dtype
     enough = valid.sum(-1) >= min_corners
-    norm = torch.stack([normalized_points(camera_from_params(model, cam_params[b]), corners[b].nan_to_num(0.0))
-                        for b in range(B)])
+    norm = Camera(model, cam_params).undistort(corners.nan_to_num(0.0))
     mask = valid & enough[..., None] & norm.isfinite().all(-1)
     H, ok_h = find_homographies(obj[:, :2].expand(B, 1, N, 2), torch.where(mask[..., None], norm, 0.0), mask,
                                 return_ok=True)
@@ -109,7 +99,7 @@ def camera_poses(
         ok_h = ok_h | (known & enough)
     ok = enough & ok_h & rvec.isfinite().all(-1) & tvec.isfinite().all(-1)
     w = (valid & ok[..., None]).to(dtype)
-    m = camera_model(model)
+    m = model
     res = levenberg_marquardt(m, cam_params, rvec.nan_to_num(0.0), tvec.nan_to_num(1.0), obj, corners, w,
                               free=[False] * m.num_params, max_iters=50)
     ok = ok & res.view_rms.isfinite()
@@ -237,8 +227,8 @@ def initial_rig_cameras(
     valid: torch.Tensor,
     obj: torch.Tensor,
     image_sizes: Sequence[tuple[int, int]],
-    models: Sequence[str],
-    initial: Sequence[RigCamera | None],
+    models: Sequence[CameraModel],
+    initial: Sequence[Camera | None],
     min_corners: int = 6,
 ) -> tuple[list[torch.Tensor], torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, list[str]]:
     """Steps 1-2 for B rigs: per camera params :math:`(B, P_c)`, rvec/tvec :math:`(B, C, F, 3)`, pose ok
@@ -248,7 +238,7 @@ def initial_rig_cameras(
     for c in range(C):
         known = r0 = t0 = None
         if initial[c] is not None:
-            p = camera_params(initial[c], corners.dtype).to(corners.device).expand(B, -1).clone()
+            p = initial[c].params.to(corners.device, corners.dtype).expand(B, -1).clone()
             ok = torch.ones(B, dtype=torch.bool, device=corners.device)
         else:
             p, ok, r0, t0, known = calibrate_cameras(corners[:, c], valid[:, c], obj, image_sizes[c], models[c],
@@ -263,7 +253,7 @@ def initial_rig_cameras(
     return params, torch.stack(rv, 1), torch.stack(tv, 1), torch.stack(ok_pose, 1), torch.stack(ok_cam, 1)
 
 
-def _fallback(model: str, image_size: tuple[int, int], like: torch.Tensor) -> torch.Tensor:
+def _fallback(model: CameraModel, image_size: tuple[int, int], like: torch.Tensor) -> torch.Tensor:
     """A finite stand-in camera (``f = max(W, H)`` at the centre) for a camera whose own calibration failed."""
     W, H = image_size
     p = torch.zeros_like(like)

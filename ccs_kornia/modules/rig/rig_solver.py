@@ -32,7 +32,9 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import CAMERA_MODELS, OPENCV5
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
@@ -49,7 +51,6 @@ from ccs_kornia.modules.rig.frame_consistency import (
     frame_disagreement,
     own_view_errors,
 )
-from ccs_kornia.modules.rig.rig_camera import RIG_MODELS, RigCamera, camera_from_params
 from ccs_kornia.modules.rig.rig_diagnostics import (
     RigVerdictThresholds,
     epipolar_sums,
@@ -61,7 +62,7 @@ from ccs_kornia.modules.rig.session_advice import session_advice, shared_frames
 from ccs_kornia.modules.rig.stereo import StereoPair, stereo_pair
 from ccs_kornia.runtime.threads import small_problem_threads
 
-__all__ = ["DRAGGED_EXCESS", "FRAME_SCALE", "FRAME_SCALE_MIN_PX", "PRIOR_INFLATION", "RigCamera", "RigResult", "RigSolver",
+__all__ = ["DRAGGED_EXCESS", "FRAME_SCALE", "FRAME_SCALE_MIN_PX", "PRIOR_INFLATION", "RigResult", "RigSolver",
            "calibrate_rig"]
 
 #: default ``intrinsics_prior``: the prior's information is divided by this factor; see ``docs/rig.md`` for the
@@ -84,7 +85,7 @@ class RigResult:
     reason: str  #: "" when success; else one line naming cameras / frames
     names: list[str]
     image_sizes: list[tuple[int, int]]  #: (W, H) per camera
-    cameras: list[RigCamera]  #: solved intrinsics per camera
+    cameras: Camera  #: the C solved cameras (``cameras[c]``: camera c)
     R: torch.Tensor  #: (C, 3, 3) x_c = R_c x_0 + T_c; R_0 = I
     T: torch.Tensor  #: (C, 3) board unit; T_0 = 0
     board_rvec: torch.Tensor  #: (F, 3) board -> camera 0, NaN for frames no camera used
@@ -106,7 +107,7 @@ class RigResult:
     #: renumbered by the board's k-th symmetry (1: the 180-degree turn, i.e. reversed) to agree with the frame
     corner_order: torch.Tensor | None = None
     #: per camera the intrinsics the joint fit started from (its own calibration, or the given ``initial``)
-    single_cameras: list[RigCamera] | None = None
+    single_cameras: Camera | None = None
     #: per camera the 1-sigma of (fx, fy, cx, cy, coeffs...) from its own views alone (zeros where fixed)
     single_std: list[torch.Tensor] | None = None
     #: per camera (joint - single) / single 1-sigma of every intrinsic (0 where fixed)
@@ -158,7 +159,7 @@ def _check(corners, valid, object_points, image_sizes, weights):
 
 
 def _per_camera(value, C: int, what: str) -> list:
-    if value is None or isinstance(value, (str, bool)):
+    if value is None or isinstance(value, (str, bool, CameraModel)):
         return [value] * C
     value = list(value)
     if len(value) != C:
@@ -170,8 +171,8 @@ class RigSolver(nn.Module):
     r"""Calibrate camera rigs (intrinsics and extrinsics) from board corners; batched over rigs.
 
     Args:
-        models: one model name for every camera or one per camera (``none``, ``k1k2``, ``opencv5``, ``rational``,
-            ``fisheye``).
+        models: one model for every camera or one per camera (:mod:`ccs_kornia.geometry.models`: ``PINHOLE``,
+            ``K1K2``, ``OPENCV5``, ``RATIONAL``, ``FISHEYE``).
         dtype: solve precision.
         max_iters: joint LM iterations at most.
         min_corners: a camera x frame observation with fewer valid corners is not used.
@@ -208,15 +209,17 @@ class RigSolver(nn.Module):
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
         >>> R = torch.eye(3, dtype=torch.float64).expand(2, 3, 3)
         >>> T = torch.tensor([[0.0, 0, 0], [-0.1, 0, 0]], dtype=torch.float64)
-        >>> s = render_rig([("k1k2", K, torch.tensor([-0.1, 0.01]))] * 2, [(640, 480)] * 2, R, T, num_frames=8)
-        >>> res = RigSolver("k1k2", folds=0)(s.corners, s.valid, s.object_points, s.image_sizes)
+        >>> from ccs_kornia.geometry.models import K1K2
+        >>> cam = Camera.from_opencv(K1K2, K, torch.tensor([-0.1, 0.01], dtype=torch.float64), (640, 480))
+        >>> s = render_rig(Camera.cat([cam, cam]), R, T, num_frames=8)
+        >>> res = RigSolver(K1K2, folds=0)(s.corners, s.valid, s.object_points, s.image_sizes)
         >>> res.success, round(float(res.T[1, 0]), 6)
         (True, -0.1)
     """
 
     def __init__(
         self,
-        models: str | Sequence[str] = "opencv5",
+        models: CameraModel | Sequence[CameraModel] = OPENCV5,
         dtype: torch.dtype = torch.float64,
         max_iters: int = 100,
         min_corners: int = 6,
@@ -234,10 +237,11 @@ class RigSolver(nn.Module):
         frame_passes: int = 2,
     ) -> None:
         super().__init__()
-        for m in [models] if isinstance(models, str) else models:
-            if m not in RIG_MODELS:
-                raise ValueError(f"Unknown camera model {m!r}; expected one of {sorted(RIG_MODELS)}.")
-        self.models = models if isinstance(models, str) else list(models)
+        for m in [models] if isinstance(models, CameraModel) else models:
+            if m not in CAMERA_MODELS.values():
+                raise ValueError(f"A rig camera's model must be one of the models {', '.join(CAMERA_MODELS)} "
+                                 f"(ccs_kornia.geometry.models), got {m!r}.")
+        self.models = models if isinstance(models, CameraModel) else list(models)
         self.dtype = dtype
         self.max_iters = max_iters
         self.min_corners = max(int(min_corners), 4)
@@ -264,7 +268,7 @@ class RigSolver(nn.Module):
         valid: torch.Tensor | None,
         object_points: torch.Tensor,
         image_sizes: Sequence[tuple[int, int]],
-        initial: Sequence[RigCamera | None] | None = None,
+        initial: Sequence[Camera | None] | Camera | None = None,
         fixed: Sequence[bool] | None = None,
         names: Sequence[str] | None = None,
         weights: torch.Tensor | None = None,
@@ -277,7 +281,8 @@ class RigSolver(nn.Module):
             valid: matching bool mask (``None``: the finite corners).
             object_points: :math:`(N, 3)` board points (their unit is the unit of ``T``).
             image_sizes: ``(W, H)`` per camera.
-            initial: per camera a :class:`RigCamera` to start from (its model must be the camera's) or ``None``.
+            initial: per camera a camera to start from (one :class:`~ccs_kornia.geometry.camera.Camera`; its model
+                must be the camera's) or ``None``; or one value holding every camera's.
             fixed: per camera: keep its intrinsics at ``initial`` exactly.
             names: camera names (default ``cam0, cam1, ...``).
             weights: per-corner inverse variances, shaped as ``valid``.
@@ -294,6 +299,7 @@ class RigSolver(nn.Module):
             weights = None if weights is None else weights[None]
         C = corners.shape[1]
         models = _per_camera(self.models, C, "models")
+        initial = [initial[c] for c in range(len(initial))] if isinstance(initial, Camera) else initial
         initial = _per_camera(initial, C, "initial")
         fixed = [bool(f) for f in _per_camera(fixed if fixed is not None else False, C, "fixed")]
         names = [f"cam{c}" for c in range(C)] if names is None else [str(n) for n in _per_camera(names, C, "names")]
@@ -301,7 +307,7 @@ class RigSolver(nn.Module):
             if fixed[c] and initial[c] is None:
                 raise ValueError(f"{names[c]} is fixed but has no initial camera to keep.")
             if initial[c] is not None and initial[c].model != models[c]:
-                raise ValueError(f"{names[c]}: initial camera model {initial[c].model!r} differs from {models[c]!r}.")
+                raise ValueError(f"{names[c]}: initial camera model {initial[c].model} differs from {models[c]}.")
         if frame_times is not None and (not isinstance(frame_times, torch.Tensor) or
                                         frame_times.shape != (corners.shape[-3],)):
             raise ValueError(f"frame_times must be ({corners.shape[-3]},), got "
@@ -353,7 +359,7 @@ class RigSolver(nn.Module):
         used = ok_pose & alive[:, None, None]
         frame_R, frame_t = _frame_poses(rvec, tvec, used, valid, R0, T0)
 
-        lm_models = [camera_model(m) for m in models]
+        lm_models = list(models)
         intr, ext, G = rig_layout(lm_models)
         free = torch.ones(G, dtype=torch.bool)
         for c in range(C):
@@ -486,7 +492,7 @@ class RigSolver(nn.Module):
             counts = torch.zeros(C, C, dtype=torch.long, device=corners.device)
             for i in range(k):
                 r = i * B + b
-                cams = [camera_from_params(models[c], out.params[c][r]) for c in range(C)]
+                cams = _cameras(models, [p[r] for p in out.params], [None] * C)
                 trained = use[r].any(-1)  # cameras with frames in this fold's fit (the others were not refitted)
                 s, n = epipolar_sums(cams, out.R[r], out.T[r], corners[b], valid[b],
                                      used[b] & folds[i][b][None] & trained[:, None])
@@ -501,7 +507,7 @@ class RigSolver(nn.Module):
         C, F = used.shape[1:]
         dtype = res.R.dtype
         nan = float("nan")
-        cams = [camera_from_params(models[c], res.params[c][b].clone()) for c in range(C)]
+        cams = _cameras(models, [p[b] for p in res.params], sizes)
         u = used[b]
         rms_m = (res.sq_error[b] / res.count[b].clamp_min(1)).sqrt().masked_fill(~u, nan)
         cnt = torch.where(u, res.count[b], 0).sum(-1)
@@ -525,7 +531,7 @@ class RigSolver(nn.Module):
         epi.fill_diagonal_(0.0)
         success = not failed and bool(res.frame_used[b].any()) and bool(torch.isfinite(cam_rms).all())
         reason = failed or ("" if success else "the joint fit failed (no finite solution)")
-        singles = [camera_from_params(models[c], single["params"][c][b].clone()) for c in range(C)]
+        singles = _cameras(models, [p[b] for p in single["params"]], sizes)
         sstd = [single["std"][c][b].clone() for c in range(C)]
         moved = [torch.where(sstd[c] > 0, (res.params[c][b] - single["params"][c][b]) / sstd[c].clamp_min(1e-300),
                              0.0) for c in range(C)]
@@ -535,7 +541,7 @@ class RigSolver(nn.Module):
         dragged = [m if float(excess[c]) >= DRAGGED_EXCESS else torch.zeros_like(m) for c, m in enumerate(moved)]
         fw = fc["weight"][b].masked_fill(~u.any(0), float("nan"))
         shared = shared_frames(u, fc["weight"][b])
-        advice = session_advice(names, sizes, [camera_model(m) for m in models], [p[b] for p in res.params], res.R[b],
+        advice = session_advice(names, sizes, list(models), [p[b] for p in res.params], res.R[b],
                                 T, res.frame_R[b], res.frame_t[b], obj, corners[b], valid[b], u,
                                 fc["disagreement"][b], fw, fc["motion"][b], shared, dragged, fixed) if success else []
         if success:
@@ -566,9 +572,16 @@ def _clone(x):
         return x.clone()
     if isinstance(x, list):
         return [_clone(v) for v in x]
-    if isinstance(x, (RigResult, RigCamera)):
+    if isinstance(x, Camera):
+        return x.clone()
+    if isinstance(x, RigResult):
         return type(x)(**{k: _clone(v) for k, v in x.__dict__.items()})
     return x
+
+
+def _cameras(models: Sequence[CameraModel], params: Sequence[torch.Tensor], sizes) -> Camera:
+    """One value of C cameras from each one's model, parameters :math:`(P_c,)` and image size."""
+    return Camera.cat([Camera(m, p.clone()[None], s) for m, p, s in zip(models, params, sizes)])
 
 
 def _frame_poses(rvec, tvec, used, valid, R, T):
@@ -593,8 +606,8 @@ def calibrate_rig(
     valid: torch.Tensor | None,
     object_points: torch.Tensor,
     image_sizes: Sequence[tuple[int, int]],
-    models: str | Sequence[str] = "opencv5",
-    initial: Sequence[RigCamera | None] | None = None,
+    models: CameraModel | Sequence[CameraModel] = OPENCV5,
+    initial: Sequence[Camera | None] | Camera | None = None,
     fixed: Sequence[bool] | None = None,
     names: Sequence[str] | None = None,
     weights: torch.Tensor | None = None,

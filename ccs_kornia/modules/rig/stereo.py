@@ -13,8 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ccs_kornia.geometry.camera import kb_unproject_points
-from ccs_kornia.modules.rig.rig_camera import RigCamera, normalized_points
+from ccs_kornia.geometry.camera import Camera
 
 __all__ = ["StereoPair", "stereo_pair", "skew", "epipolar_distances", "stereo_rectify"]
 
@@ -42,38 +41,40 @@ def skew(v: torch.Tensor) -> torch.Tensor:
     return torch.stack([z, -w, y, w, z, -x, -y, x, z], -1).reshape(*v.shape[:-1], 3, 3)
 
 
-def stereo_pair(cam_i: RigCamera, cam_j: RigCamera, R: torch.Tensor, T: torch.Tensor) -> StereoPair:
-    """:class:`StereoPair` of two cameras with ``x_j = R x_i + T``.
+def stereo_pair(cam_i: Camera, cam_j: Camera, R: torch.Tensor, T: torch.Tensor) -> StereoPair:
+    """:class:`StereoPair` of two cameras (one each) with ``x_j = R x_i + T``.
 
     Example:
-        >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
-        >>> cam = RigCamera("none", K, torch.zeros(0, dtype=torch.float64))
+        >>> from ccs_kornia.geometry.models import PINHOLE
+        >>> cam = Camera(PINHOLE, torch.tensor([500., 500, 320, 240], dtype=torch.float64))
         >>> p = stereo_pair(cam, cam, torch.eye(3, dtype=torch.float64), torch.tensor([-0.1, 0, 0], dtype=torch.float64))
         >>> p.E[1:, 2].tolist()  # [T]_x: a horizontal baseline only relates the rows
         [0.1, 0.0]
     """
     E = skew(T) @ R
-    Ki, Kj = cam_i.K.to(R.dtype), cam_j.K.to(R.dtype)
+    Ki, Kj = cam_i.K[0].to(R.dtype), cam_j.K[0].to(R.dtype)
     F = torch.linalg.inv(Kj).T @ E @ torch.linalg.inv(Ki)
     return StereoPair(R=R, T=T, E=E, F=F)
 
 
 def epipolar_distances(
-    cam_i: RigCamera, cam_j: RigCamera, R: torch.Tensor, T: torch.Tensor, uv_i: torch.Tensor, uv_j: torch.Tensor,
+    cam_i: Camera, cam_j: Camera, R: torch.Tensor, T: torch.Tensor, uv_i: torch.Tensor, uv_j: torch.Tensor,
     max_angle_deg: float = 80.0,
 ) -> torch.Tensor:
     """Symmetric epipolar distance (px) of matching observed pixels :math:`(M, 2)` of cameras i and j.
 
     Both are undistorted (each with its own model) to ideal pixels ``K x``; the distance is the RMS of the two
-    point-to-epipolar-line distances, each in its own camera's pixels. A fisheye pixel further than
-    ``max_angle_deg`` from its camera's axis has no meaningful undistorted pixel (it runs to infinity at 90 degrees):
-    its distance is NaN. Returns :math:`(M,)`.
+    point-to-epipolar-line distances, each in its own camera's pixels. A pixel further than ``max_angle_deg`` from
+    its camera's axis (a fisheye's rim) has no meaningful undistorted pixel (it runs to infinity at 90 degrees): its
+    distance is NaN. Returns :math:`(M,)`.
     """
     dtype = R.dtype
     pair = stereo_pair(cam_i, cam_j, R, T)
-    ones = torch.ones_like(uv_i[..., :1], dtype=dtype)
-    xi = torch.cat([normalized_points(cam_i, uv_i.to(dtype)), ones], -1) @ cam_i.K.to(dtype).T
-    xj = torch.cat([normalized_points(cam_j, uv_j.to(dtype)), ones], -1) @ cam_j.K.to(dtype).T
+    cam_i, cam_j = cam_i.to(dtype=dtype), cam_j.to(dtype=dtype)
+    xi = cam_i.undistort(uv_i.to(dtype)[None], P=cam_i.K)[0]
+    xj = cam_j.undistort(uv_j.to(dtype)[None], P=cam_j.K)[0]
+    ones = torch.ones_like(xi[..., :1])
+    xi, xj = torch.cat([xi, ones], -1), torch.cat([xj, ones], -1)
     lj = xi @ pair.F.T  # lines in j
     li = xj @ pair.F  # lines in i
     alg = (xj * lj).sum(-1)
@@ -82,10 +83,8 @@ def epipolar_distances(
     d = ((dj * dj + di * di) / 2).sqrt()
     limit = math.cos(math.radians(max_angle_deg))
     for cam, uv in ((cam_i, uv_i), (cam_j, uv_j)):
-        if cam.camera.is_fisheye:
-            D = cam.camera.opencv_coeffs(cam.dist.to(dtype))
-            z = kb_unproject_points(uv.to(dtype)[None], cam.K.to(dtype)[None], D[None])[0, :, 2]
-            d = torch.where(z > limit, d, float("nan"))
+        z = cam.unproject(uv.to(dtype)[None])[0, :, 2]
+        d = torch.where(z > limit, d, float("nan"))
     return d
 
 
@@ -94,7 +93,7 @@ def _np(x) -> np.ndarray:
 
 
 def stereo_rectify(
-    cam1: RigCamera, cam2: RigCamera, image_size: tuple[int, int], R: torch.Tensor, T: torch.Tensor,
+    cam1: Camera, cam2: Camera, image_size: tuple[int, int], R: torch.Tensor, T: torch.Tensor,
     alpha: float = 0.0,
 ) -> dict:
     """Rectifying rotations and projections of a stereo pair (``x_2 = R x_1 + T``).
@@ -109,7 +108,7 @@ def stereo_rectify(
       rectangles ignore the distortion.
 
     Args:
-        cam1, cam2: the two cameras.
+        cam1, cam2: the two cameras (one each).
         image_size: ``(W, H)`` of the rectified images.
         R: :math:`(3, 3)`; T: :math:`(3,)` pose of camera 2 relative to camera 1.
         alpha: free scaling (0: only valid pixels, 1: all source pixels).
@@ -118,8 +117,8 @@ def stereo_rectify(
         ``{"R1", "R2", "P1", "P2", "Q"}`` (numpy float64) and ``"roi1", "roi2"`` (``(x, y, w, h)``).
 
     Example:
-        >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
-        >>> cam = RigCamera("k1k2", K, torch.tensor([-0.1, 0.01, 0, 0, 0], dtype=torch.float64))
+        >>> from ccs_kornia.geometry.models import K1K2
+        >>> cam = Camera(K1K2, torch.tensor([500., 500, 320, 240, -0.1, 0.01], dtype=torch.float64))
         >>> out = stereo_rectify(cam, cam, (640, 480), torch.eye(3, dtype=torch.float64), torch.tensor([-0.1, 0, 0.]))
         >>> sorted(out), round(float(out["P2"][0, 3] / out["P2"][0, 0]), 6)
         (['P1', 'P2', 'Q', 'R1', 'R2', 'roi1', 'roi2'], -0.1)
@@ -127,10 +126,11 @@ def stereo_rectify(
     import cv2
 
     size = (int(image_size[0]), int(image_size[1]))
-    K1, K2, Rn, Tn = _np(cam1.K), _np(cam2.K), _np(R), _np(T).reshape(3, 1)
-    fish = (cam1.camera.is_fisheye, cam2.camera.is_fisheye)
+    K1, K2, Rn, Tn = _np(cam1.K[0]), _np(cam2.K[0]), _np(R), _np(T).reshape(3, 1)
+    # OpenCV's two APIs: cv2.fisheye for Kannala-Brandt lenses, cv2 for its polynomial model
+    fish = (cam1.model.is_fisheye, cam2.model.is_fisheye)
     if all(fish):
-        D1, D2 = (c.camera.opencv_coeffs(_np(c.dist)).reshape(4, 1) for c in (cam1, cam2))
+        D1, D2 = (c.model.opencv_coeffs(_np(c.dist[0])).reshape(4, 1) for c in (cam1, cam2))
         R1, R2, P1, P2, Q = cv2.fisheye.stereoRectify(K1, D1, K2, D2, size, Rn, Tn, cv2.CALIB_ZERO_DISPARITY,
                                                       balance=float(alpha))
         roi1 = roi2 = (0, 0, size[0], size[1])
@@ -138,7 +138,7 @@ def stereo_rectify(
         if any(fish):
             d1 = d2 = np.zeros(5)
         else:
-            d1, d2 = (c.camera.opencv_coeffs(_np(c.dist)) for c in (cam1, cam2))
+            d1, d2 = (c.model.opencv_coeffs(_np(c.dist[0])) for c in (cam1, cam2))
         R1, R2, P1, P2, Q, roi1, roi2 = cv2.stereoRectify(K1, d1, K2, d2, size, Rn, Tn, flags=cv2.CALIB_ZERO_DISPARITY,
                                                           alpha=float(alpha))
     return {"R1": R1, "R2": R2, "P1": P1, "P2": P2, "Q": Q, "roi1": tuple(int(v) for v in roi1),

@@ -28,6 +28,7 @@ from ccs_kornia.modules.calibration.fisheye_init import (
     init_fisheye,
 )
 from ccs_kornia.modules.calibration.result import ViewReason
+from ccs_kornia.geometry.models import FISHEYE, K1K2
 
 F64 = torch.float64
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -254,26 +255,26 @@ def test_solver_fisheye_model_and_checks():
 
     K, D = _camera(170.0)
     _, _, uv = _views(K, D, V=8, seed=4)
-    res = CalibrationSolver(model="fisheye")(uv, None, OBJ, SIZE)
-    assert res.model == "fisheye" and bool(res.success) and res.dist.shape == (4,)
+    res = CalibrationSolver(model=FISHEYE)(uv, None, OBJ, SIZE)
+    assert res.camera.model == FISHEYE and bool(res.success) and res.dist.shape == (4,)
     torch.testing.assert_close(res.K, K, atol=1e-6, rtol=0)
     torch.testing.assert_close(res.dist, D, atol=1e-7, rtol=0)
     assert res.cov_camera.shape == (8, 8) and bool((res.view_reason == ViewReason.USED).all())
     # copies of one view are refused before the fisheye solve, as for the pinhole models
     copies = uv[:1].expand(4, -1, -1)
-    refused = CalibrationSolver(model="fisheye")(copies, None, OBJ, SIZE)
+    refused = CalibrationSolver(model=FISHEYE)(copies, None, OBJ, SIZE)
     assert not bool(refused.success) and bool((refused.view_reason[1:] == ViewReason.DUPLICATE).all())
     assert any(i["check"] == "duplicate_views" for i in refused.issues()[0])
     # batched over cameras, a failed camera beside a good one
     batch = torch.stack([uv, uv.clone().fill_(float("nan"))])
-    both = CalibrationSolver(model="fisheye")(batch, None, OBJ, SIZE)
+    both = CalibrationSolver(model=FISHEYE)(batch, None, OBJ, SIZE)
     assert both.success.tolist() == [True, False] and bool(both.K[1].isnan().all())
     # warm start from a fisheye result (the same camera back), and only from a fisheye result
-    again = CalibrationSolver(model="fisheye")(uv, None, OBJ, SIZE, initial=res)
+    again = CalibrationSolver(model=FISHEYE)(uv, None, OBJ, SIZE, initial=res)
     torch.testing.assert_close(again.K, res.K, atol=1e-6, rtol=0)
-    pinhole = CalibrationSolver(model="k1k2")(uv, None, OBJ, SIZE)
+    pinhole = CalibrationSolver(model=K1K2)(uv, None, OBJ, SIZE)
     with pytest.raises(ValueError, match="fisheye calibration"):
-        CalibrationSolver(model="fisheye")(uv, None, OBJ, SIZE, initial=pinhole)
+        CalibrationSolver(model=FISHEYE)(uv, None, OBJ, SIZE, initial=pinhole)
 
 
 def test_diagnostics_of_a_fisheye_calibration():
@@ -285,12 +286,12 @@ def test_diagnostics_of_a_fisheye_calibration():
     K, D = _camera(190.0)
     _, _, uv = _views(K, D, V=12, seed=5)
     uv = uv + 0.2 * torch.randn(uv.shape, generator=torch.Generator().manual_seed(0), dtype=F64)
-    solver = CalibrationSolver(model="fisheye")
+    solver = CalibrationSolver(model=FISHEYE)
     res = solver(uv, None, OBJ, SIZE)
     q = diagnose(res, uv, None, OBJ, SIZE, solver=solver)[0]
     assert q["success"] and 0.1 < q["heldout_rms_px"] < 0.4  # about the 0.2 px noise per axis
     assert 0 < q["uncertainty_centre_px"] < 0.5 and q["cv_rms_px"] is not None
     # the same camera against itself: no difference, also for pixels beyond 90 degrees
     px = torch.tensor([[320.0, 240.0], [5.0, 240.0], [630.0, 20.0]], dtype=F64)
-    d = projection_difference(res.K[None], res.dist[None], res.K[None], res.dist[None], px, model="fisheye")
+    d = projection_difference(res.camera, res.camera, px)
     assert bool((d.nan_to_num(0.0) < 1e-6).all()) and bool(d[0, :2].isfinite().all())

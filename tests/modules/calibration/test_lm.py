@@ -20,6 +20,7 @@ from ccs_kornia.modules.calibration.lm import (
     levenberg_marquardt,
     parameter_basis,
 )
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE
 
 F64 = torch.float64
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -36,8 +37,8 @@ def _poses(C, V, seed=0, depth=0.5):
     return rvec, off - R @ OBJ.mean(0)
 
 
-def _opencv_set(C=2, V=10, noise=0.0, seed=0, variant="opencv5"):
-    m = OpenCVModel(variant)
+def _opencv_set(C=2, V=10, noise=0.0, seed=0, variant=OPENCV5):
+    m = variant
     base = torch.tensor([520.0, 515.0, 322.0, 238.0, -0.25, 0.08, 1e-3, -8e-4, -0.02], dtype=F64)
     p = torch.stack([base * (1 + 0.02 * c) for c in range(C)])
     p = m.params_from(torch.stack([torch.tensor([[q[0], 0, q[2]], [0, q[1], q[3]], [0, 0, 1]]) for q in p]).to(F64),
@@ -70,12 +71,12 @@ def test_recovers_exact_camera_and_shapes():
     assert res.param_std.shape == (C, P) and res.iterations.dtype == torch.long and res.view_used.all()
 
 
-@pytest.mark.parametrize("model_name", ["fisheye", "centred_radial"])
+@pytest.mark.parametrize("model_name", [FISHEYE, "centred_radial"])
 def test_recovers_other_models(model_name):
     rvec, tvec = _poses(1, 8, seed=3, depth=0.35)
     R = axis_angle_to_rotation_matrix(rvec.reshape(-1, 3)).reshape(1, 8, 3, 3)
     Xc = torch.einsum("cvij,nj->cvni", R, OBJ) + tvec[:, :, None]
-    if model_name == "fisheye":
+    if model_name == FISHEYE:
         m, p = KannalaBrandtModel(), torch.tensor([[300.0, 302.0, 321.0, 238.0, 0.02, -0.01, 0.002, -0.0005]], dtype=F64)
         free = None
     else:
@@ -259,7 +260,7 @@ def _reference_lsq(residual, x0, dof_params):
     return x, r, cov
 
 
-@pytest.mark.parametrize("model", ["none", "k1k2", "opencv5"])
+@pytest.mark.parametrize("model", [PINHOLE, K1K2, OPENCV5])
 @pytest.mark.parametrize("flags", [{}, {"fix_aspect_ratio": True}, {"fix_principal_point": True},
                                    {"fix_intrinsics": True}, {"fix_distortion": True}])
 def test_joint_refinement_matches_a_dense_reference(model, flags):
@@ -273,8 +274,8 @@ def test_joint_refinement_matches_a_dense_reference(model, flags):
     valid = torch.rand(uv.shape[:-1], generator=g) > 0.1
     valid[1, 3] = False
     b = joint_refinement(uv, valid, OBJ, K, rvec + 0.01, tvec, None, None, model=model, **flags)
-    idx = list(OpenCVModel(model).coeff_index)
-    D = 0 if model == "none" else 5
+    idx = list(model.coeff_index)
+    D = 0 if model == PINHOLE else 5
     for c in range(2):
         used = valid[c].any(-1)
         w = valid[c][used].to(F64)[..., None]

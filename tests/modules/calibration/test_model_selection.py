@@ -1,4 +1,4 @@
-"""Model choice by cross-validation (``model="auto"``): the rule, the module, mixed-model batches."""
+"""Model choice by cross-validation (``model=ModelChoice()``): the rule, the module, mixed-model batches."""
 
 from __future__ import annotations
 
@@ -23,6 +23,8 @@ from ccs_kornia.modules.calibration.model_selection import (
 )
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.pipeline.result import select_result
+from ccs_kornia.modules.calibration.model_selection import ModelChoice
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, RATIONAL
 
 F64 = torch.float64
 OBJ = board_object_points(9, 6, 0.03, dtype=F64)
@@ -74,40 +76,42 @@ def _two_cameras():
 def test_module_picks_fisheye_for_a_fisheye_and_a_polynomial_model_for_a_pinhole_lens():
     uv, K, K2 = _two_cameras()
     valid = torch.ones(2, 12, 54, dtype=torch.bool) & uv.isfinite().all(-1)
-    select = ModelSelection({m: CalibrationSolver(model=m) for m in AUTO_MODELS})
+    select = ModelSelection([CalibrationSolver(model=m) for m in AUTO_MODELS])
     results, chosen, table = select(uv, valid, OBJ, (640, 480))
-    assert chosen[0] == "fisheye" and chosen[1] in ("k1k2", "opencv5")
+    assert chosen[0] == FISHEYE and chosen[1] in (K1K2, OPENCV5)
+    names = {str(m) for m in AUTO_MODELS}
     assert set(results) == set(AUTO_MODELS) and table[0]["chosen"] == "fisheye"
-    assert table[1]["runner_up"] in AUTO_MODELS and table[1]["runner_up"] != chosen[1]
-    assert set(table[0]["heldout_rms_px"]) == set(AUTO_MODELS)
+    assert table[1]["runner_up"] in names and table[1]["runner_up"] != str(chosen[1])
+    assert set(table[0]["heldout_rms_px"]) == names
     with pytest.raises(ValueError, match="Expected corners"):
         select(uv[0], valid[0], OBJ, (640, 480))
     with pytest.raises(ValueError, match="at least one"):
-        ModelSelection({})
+        ModelSelection([])
+    with pytest.raises(ValueError, match="one solver per model"):
+        ModelSelection([CalibrationSolver(model=K1K2), CalibrationSolver(model=K1K2)])
 
 
 def test_narrow_ranking():
     # boards too narrow: the first tied model that is not flexible goes first, the others keep their order
-    assert narrow_ranking(["rational", "opencv5", "k1k2"], ["rational", "opencv5", "k1k2"]) == \
-        ["opencv5", "rational", "k1k2"]
-    assert narrow_ranking(["fisheye", "rational", "k1k2"], ["fisheye", "rational", "k1k2"])[0] == "k1k2"
+    assert narrow_ranking([RATIONAL, OPENCV5, K1K2], [RATIONAL, OPENCV5, K1K2]) == [OPENCV5, RATIONAL, K1K2]
+    assert narrow_ranking([FISHEYE, RATIONAL, K1K2], [FISHEYE, RATIONAL, K1K2])[0] == K1K2
     # no other model ties (a fisheye lens), or the first is not flexible: unchanged
-    assert narrow_ranking(["fisheye", "opencv5"], ["fisheye"]) == ["fisheye", "opencv5"]
-    assert narrow_ranking(["opencv5", "rational"], ["opencv5", "rational"]) == ["opencv5", "rational"]
-    assert narrow_ranking([], []) == [] and set(FLEXIBLE_MODELS) == {"rational", "fisheye"}
+    assert narrow_ranking([FISHEYE, OPENCV5], [FISHEYE]) == [FISHEYE, OPENCV5]
+    assert narrow_ranking([OPENCV5, RATIONAL], [OPENCV5, RATIONAL]) == [OPENCV5, RATIONAL]
+    assert narrow_ranking([], []) == [] and set(FLEXIBLE_MODELS) == {RATIONAL, FISHEYE}
 
 
 def test_flexible_coverage_keeps_the_models_a_lens_needs():
     uv, K, K2 = _two_cameras()
     valid = torch.ones(2, 12, 54, dtype=torch.bool) & uv.isfinite().all(-1)
     # every camera counts as narrow: the fisheye lens keeps fisheye (no other model predicts its views as well)
-    select = ModelSelection({m: CalibrationSolver(model=m) for m in AUTO_MODELS}, flexible_coverage=1.01)
+    select = ModelSelection([CalibrationSolver(model=m) for m in AUTO_MODELS], flexible_coverage=1.01)
     _, chosen, table = select(uv, valid, OBJ, (640, 480))
-    assert chosen[0] == "fisheye" and chosen[1] not in FLEXIBLE_MODELS
+    assert chosen[0] == FISHEYE and chosen[1] not in FLEXIBLE_MODELS
     for row in table:
         assert 0.0 < row["coverage"] <= 1.0 and row["flexible_coverage"] == 1.01
         assert "only where the boards cover at least 101 %" in row["rule"]
-    plain = ModelSelection({m: CalibrationSolver(model=m) for m in AUTO_MODELS})(uv, valid, OBJ, (640, 480))[2]
+    plain = ModelSelection([CalibrationSolver(model=m) for m in AUTO_MODELS])(uv, valid, OBJ, (640, 480))[2]
     assert "coverage" not in plain[0]
 
 
@@ -118,7 +122,7 @@ def test_models_solved_elsewhere_give_the_same_choice():
 
     uv, _, _ = _two_cameras()
     valid = torch.ones(2, 12, 54, dtype=torch.bool) & uv.isfinite().all(-1)
-    select = ModelSelection({m: CalibrationSolver(model=m) for m in ("k1k2", "fisheye")})
+    select = ModelSelection([CalibrationSolver(model=m) for m in (K1K2, FISHEYE)])
     results, chosen, table = select(uv, valid, OBJ, (640, 480))
     asked = []
 
@@ -128,8 +132,8 @@ def test_models_solved_elsewhere_give_the_same_choice():
             return list(run(names))
 
     results2, chosen2, table2 = select(uv, valid, OBJ, (640, 480), map_models=in_workers)
-    assert asked == ["fisheye", "k1k2"] and chosen2 == chosen and table2 == table
-    assert list(results2) == list(results) == ["k1k2", "fisheye"]  # the results in the solvers' order
+    assert asked == [FISHEYE, K1K2] and chosen2 == chosen and table2 == table
+    assert list(results2) == list(results) == [K1K2, FISHEYE]  # the results in the solvers' order
     for name in results:
         assert torch.equal(results[name].K, results2[name].K) and torch.equal(results[name].rms, results2[name].rms)
 
@@ -140,16 +144,17 @@ def test_pipeline_auto_mixed_models_in_one_batch():
     from ccs_kornia.pipeline.solve import solve_group
 
     uv, K, K2 = _two_cameras()
-    pipe = CalibrationPipeline("opencv", model="auto", distortion_correction=False)
+    pipe = CalibrationPipeline("opencv", model=ModelChoice(), distortion_correction=False)
     calib, _, _, table = solve_group(pipe.solving, uv, torch.ones(2, 12, dtype=torch.bool), (9, 6), 0.03, (640, 480),
                                      None, None)
-    assert calib.model[0] == "fisheye" and calib.model[1] == table[1]["chosen"] and calib.dist.shape == (2, 5)
+    models = calib.camera.models
+    assert models[0] == FISHEYE and str(models[1]) == table[1]["chosen"] and calib.dist.shape == (2, 5)
     one, two = select_result(calib, 0), select_result(calib, 1)
-    assert one.model == "fisheye" and one.dist.shape == (4,) and one.cov_camera.shape == (8, 8)
+    assert one.camera.model == FISHEYE and one.dist.shape == (4,) and one.cov_camera.shape == (8, 8)
     assert two.dist.shape == (5,) and bool((one.K - K).abs().max() < 2) and bool((two.K - K2).abs().max() < 5)
     # the stage alone gives the same as the composition
     alone = pipe.calibrate(uv[1], torch.ones(12, dtype=torch.bool), (9, 6), 0.03, (640, 480))
-    assert alone.model == two.model and torch.allclose(alone.K, two.K)
+    assert alone.camera.model == two.camera.model and torch.allclose(alone.K, two.K)
 
 
 def test_the_preferred_of_the_models_the_held_out_views_cannot_tell_apart():
@@ -212,7 +217,7 @@ def test_rendered_opencv_lenses_keep_an_opencv_model():
     tv = tv * torch.tensor([1.0, 1.0, 2.0], dtype=F64)
     uv = project_points(OBJ.expand(15, -1, -1), K.expand(15, 3, 3), dist, rv, tv)
     uv = (uv + 0.3 * torch.randn(uv.shape, generator=g, dtype=F64))[None]
-    select = ModelSelection({m: CalibrationSolver(model=m) for m in AUTO_MODELS})
+    select = ModelSelection([CalibrationSolver(model=m) for m in AUTO_MODELS])
     results, chosen, table = select(uv, uv.isfinite().all(-1), OBJ, (640, 480))
-    assert chosen[0] == "opencv5", table[0]
+    assert chosen[0] == OPENCV5, table[0]
     assert table[0]["tied"][0] == "opencv5" and "rule" in table[0]

@@ -13,6 +13,7 @@ from ccs_kornia.geometry.metrics import e_ip
 from ccs_kornia.geometry.models.opencv import OpenCVModel
 from ccs_kornia.modules.calibration.refinement import JointRefinement, joint_refinement
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE, RATIONAL
 
 F64 = torch.float64
 IMAGE_SIZE = (640, 480)
@@ -30,7 +31,7 @@ class TestRefinement:
         K, obj, uv, rvec, tvec = synthetic(C=2, V=3, dist=dist8)
         R = axis_angle_to_rotation_matrix(rvec.reshape(-1, 3)).reshape(2, 3, 3, 3)
         q = torch.einsum("cvij,nj->cvni", R, obj)
-        m = OpenCVModel("rational")
+        m = RATIONAL
         p = m.params_from(K, dist8.expand(2, 8))
         out, J, Jx = m.project(q + tvec[:, :, None], p)
         assert (out - uv).abs().max() < 1e-9  # same model as camera.project_points (kornia distort_points)
@@ -50,12 +51,12 @@ class TestRefinement:
         K, obj, uv, rvec, tvec = synthetic(C=1, V=1)
         q = obj[None, None, :6] @ axis_angle_to_rotation_matrix(rvec[0]).transpose(-1, -2)
         p = torch.tensor([[600.0, 610.0, 320.0, 240.0, -0.1, 0.02, 1e-3, 1e-3, 0.0]], dtype=F64, requires_grad=True)
-        m = OpenCVModel("opencv5")
+        m = OPENCV5
         res = lambda p_: m.project(q + tvec[:, :, None], p_, False)[0] - uv[:, :, :6]  # noqa: E731
         assert torch.autograd.gradcheck(res, (p,))
 
     @pytest.mark.parametrize(
-        "model,dist", [("none", None), ("opencv5", DIST5), ("k1k2", DIST5 * torch.tensor([1, 1, 0, 0, 0]))]
+        "model,dist", [(PINHOLE, None), (OPENCV5, DIST5), (K1K2, DIST5 * torch.tensor([1, 1, 0, 0, 0]))]
     )
     def test_exact_recovery_from_perturbed_start(self, model, dist, device):
         K, obj, uv, rvec, tvec = synthetic(C=3, V=15, dist=dist)
@@ -78,7 +79,7 @@ class TestRefinement:
         # the LM crawls (to fx = 714 +- 2095 px after 1000 iterations on seed 1; the truth is 524): the stall rule
         # stops it where 10 iterations change the cost by < 1e-4, within the camera's uncertainty of the long run
         K, obj, uv, rv, tv = synthetic(C=1, V=8, dist=DIST5, noise=0.2, seed=1)
-        kw = dict(model="rational", max_iters=100, ftol=1e-10, lambda_init=1e-5)
+        kw = dict(model=RATIONAL, max_iters=100, ftol=1e-10, lambda_init=1e-5)
         crawl = joint_refinement(uv, all_valid(uv), obj, K * 1.02, rv, tv, **kw)
         stop = joint_refinement(uv, all_valid(uv), obj, K * 1.02, rv, tv, stall_tol=1e-4, **kw)
         assert int(crawl.iterations.max()) == 100 and int(stop.iterations.max()) <= 50 and bool(stop.converged.all())
@@ -88,7 +89,7 @@ class TestRefinement:
     def test_the_stall_rule_lets_a_converging_fit_finish(self):
         # 3 views, exact corners, OpenCV's five coefficients: 40 iterations of steady progress, cost to ~0
         K, obj, uv, rv, tv = synthetic(C=1, V=3, dist=DIST5, seed=8)
-        res = joint_refinement(uv, all_valid(uv), obj, K * 1.02, rv, tv, model="opencv5", max_iters=100, ftol=1e-10,
+        res = joint_refinement(uv, all_valid(uv), obj, K * 1.02, rv, tv, model=OPENCV5, max_iters=100, ftol=1e-10,
                                lambda_init=1e-5, stall_tol=1e-4)
         assert bool(res.rms.max() < 1e-6)
 
@@ -102,14 +103,14 @@ class TestRefinement:
         view_mask[0, 5] = False
         uv[0, 5] += 100.0  # unused view: garbage must not matter
         res = joint_refinement(
-            uv[0], valid[0], obj, K[0] * 1.01, rvec[0], tvec[0], view_mask=view_mask[0], model="none"
+            uv[0], valid[0], obj, K[0] * 1.01, rvec[0], tvec[0], view_mask=view_mask[0], model=PINHOLE
         )
         assert res.K.shape == (3, 3) and res.rms < 1e-6 and (res.K - K[0]).abs().max() < 1e-6
         assert res.view_rms[5].isnan() and res.view_rms.isfinite().sum() == 7
         # fixed aspect ratio and principal point keep their values
         K0 = K[0].clone()
         K0[0, 0] = K0[1, 1] = 700.0
-        res = joint_refinement(uv[0], valid[0], obj, K0, rvec[0], tvec[0], view_mask=view_mask[0], model="none",
+        res = joint_refinement(uv[0], valid[0], obj, K0, rvec[0], tvec[0], view_mask=view_mask[0], model=PINHOLE,
                                fix_aspect_ratio=True, fix_principal_point=True)
         assert res.K[0, 0] == res.K[1, 1] and res.K[0, 2] == K0[0, 2] and res.std_intrinsics[2] == 0
 
@@ -127,5 +128,5 @@ class TestRefinement:
 
     def test_many_views_single_camera(self):
         K, obj, uv, rvec, tvec = synthetic(C=1, V=500, noise=0.1, seed=11)
-        res = JointRefinement(model="none")(uv, all_valid(uv), obj, K * 1.01, rvec, tvec)
+        res = JointRefinement(model=PINHOLE)(uv, all_valid(uv), obj, K * 1.01, rvec, tvec)
         assert res.converged.all() and e_ip(res.K, K).item() < 0.1

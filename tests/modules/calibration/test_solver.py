@@ -19,6 +19,7 @@ from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.ransac import ImageRansac
 from ccs_kornia.modules.calibration.result import VIEW_REASONS, ViewReason
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE, RATIONAL
 
 F64 = torch.float64
 IMAGE_SIZE = (640, 480)
@@ -109,18 +110,18 @@ class TestRansacAndSolver:
         res = CalibrationSolver(ransac_abs_threshold=0.0, ransac_rel_threshold=1.0)(uv, all_valid(uv), obj, IMAGE_SIZE)
         assert res.used.all() and (res.K - K).abs().max() < 1e-6 and res.rms.max() < 1e-6
 
-    @pytest.mark.parametrize("model,dist", [("none", None), ("opencv5", DIST5)])
+    @pytest.mark.parametrize("model,dist", [(PINHOLE, None), (OPENCV5, DIST5)])
     def test_exact_batch(self, model, dist):
         K, obj, uv, _, _ = synthetic(C=4, V=15, dist=dist, seed=4)
         res = CalibrationSolver(model=model)(uv, all_valid(uv), obj, IMAGE_SIZE)
         assert res.success.all() and res.used.all()
         assert (res.K - K).abs().max() < 1e-3 and res.rms.max() < 1e-6
-        assert res.dist.shape == (4, 5 if model == "opencv5" else 0) and res.model == model
+        assert res.dist.shape == (4, 5 if model == OPENCV5 else 0) and res.camera.model == model
 
     def test_rational_exact(self):
         dist8 = torch.tensor([-0.2, 0.05, 1e-3, -2e-3, 0.01, 0.05, 0.01, 0.002], dtype=F64)
         K, obj, uv, _, _ = synthetic(C=1, V=15, dist=dist8, seed=6)
-        res = CalibrationSolver(model="rational")(uv[0], all_valid(uv[0]), obj, IMAGE_SIZE)
+        res = CalibrationSolver(model=RATIONAL)(uv[0], all_valid(uv[0]), obj, IMAGE_SIZE)
         assert res.dist.shape == (8,) and res.rms < 1e-6 and (res.K - K[0]).abs().max() < 1e-3
 
     def test_failed_cameras_and_padding(self):
@@ -165,10 +166,10 @@ class TestRansacAndSolver:
 
 REAL_SETS = [
     # set, board, square (mm), our model, OpenCV flags, key in opencv_results.json
-    ("opencv_left", (9, 6), 25.0, "opencv5", 0, "calib_classic_default"),
-    ("boofcv_sony_hx5v", (4, 6), 30.0, "k1k2", cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3,
+    ("opencv_left", (9, 6), 25.0, OPENCV5, 0, "calib_classic_default"),
+    ("boofcv_sony_hx5v", (4, 6), 30.0, K1K2, cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3,
      "calib_classic_k1k2_notan"),
-    ("boofcv_bumblebee2_left", (4, 6), 30.0, "k1k2", cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3,
+    ("boofcv_bumblebee2_left", (4, 6), 30.0, K1K2, cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3,
      "calib_classic_k1k2_notan"),
 ]
 

@@ -17,13 +17,14 @@ from ccs_kornia.modules.calibration.implicit import (
     so3_left_jacobian_inverse,
 )
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, RATIONAL
 
 F64 = torch.float64
 SIZE = (640, 480)
 DIST = {
-    "k1k2": [-0.25, 0.08, 0.0, 0.0, 0.0],
-    "opencv5": [-0.25, 0.08, 0.001, -0.002, 0.01],
-    "rational": [-0.25, 0.08, 0.001, -0.002, 0.01, 0.01, 0.0, 0.0],
+    K1K2: [-0.25, 0.08, 0.0, 0.0, 0.0],
+    OPENCV5: [-0.25, 0.08, 0.001, -0.002, 0.01],
+    RATIONAL: [-0.25, 0.08, 0.001, -0.002, 0.01, 0.01, 0.0, 0.0],
 }
 
 
@@ -35,7 +36,7 @@ def _corners(model: str, obj: torch.Tensor, V: int = 6, seed: int = 0, noise: fl
                       -0.06 + 0.05 * torch.randn(V, generator=g, dtype=F64),
                       0.3 + 0.1 * torch.rand(V, generator=g, dtype=F64)], -1)
     pts = obj.expand(V, -1, -1)
-    if model == "fisheye":
+    if model == FISHEYE:
         K = torch.tensor([[250.0, 0, 321], [0, 251, 239], [0, 0, 1]], dtype=F64)
         D = torch.tensor([0.03, -0.01, 0.004, -0.001], dtype=F64)
         uv = kb_project_points(pts, K.expand(V, 3, 3), D.expand(V, 4), rv, tv)
@@ -82,7 +83,7 @@ def _rel(an, fd):
     return (an - fd).norm(dim=-1) / fd.norm(dim=-1)
 
 
-@pytest.mark.parametrize("model", ["opencv5", "k1k2", "rational", "fisheye"])
+@pytest.mark.parametrize("model", [OPENCV5, K1K2, RATIONAL, FISHEYE])
 def test_corner_gradients_match_finite_differences(model):
     obj = board_object_points(6, 5, 0.03, dtype=F64)
     uv = _corners(model, obj)
@@ -94,17 +95,17 @@ def test_corner_gradients_match_finite_differences(model):
 
 def test_weight_and_board_gradients_match_finite_differences():
     obj = board_object_points(6, 5, 0.03, dtype=F64)
-    uv = _corners("k1k2", obj)
+    uv = _corners(K1K2, obj)
     w = 0.5 + torch.rand(uv.shape[:-1], generator=torch.Generator().manual_seed(2), dtype=F64)
     picks = torch.randperm(w.numel(), generator=torch.Generator().manual_seed(3))[:12]
-    an, fd = _fd_check(_solver("k1k2"), uv, obj, picks, weights=w, wrt="weights")
+    an, fd = _fd_check(_solver(K1K2), uv, obj, picks, weights=w, wrt="weights")
     assert _rel(an, fd).max() < 0.05, _rel(an, fd)
     picks = torch.arange(0, obj.numel(), 7)  # x, y and z entries of the board points
-    an, fd = _fd_check(_solver("k1k2"), uv, obj, picks, eps=1e-6, wrt="obj")
+    an, fd = _fd_check(_solver(K1K2), uv, obj, picks, eps=1e-6, wrt="obj")
     assert _rel(an, fd).max() < 0.05, _rel(an, fd)
 
 
-@pytest.mark.parametrize("model", ["k1k2", "fisheye"])
+@pytest.mark.parametrize("model", [K1K2, FISHEYE])
 def test_gradcheck(model):
     obj = board_object_points(4, 3, 0.06, dtype=F64)
     uv = _corners(model, obj, V=4, noise=0.05)
@@ -117,7 +118,7 @@ def test_gradcheck(model):
     assert torch.autograd.gradcheck(fn, (uv.clone().requires_grad_(),), eps=1e-3, atol=2e-3, rtol=1e-3)
 
 
-@pytest.mark.parametrize("model", ["opencv5", "fisheye"])
+@pytest.mark.parametrize("model", [OPENCV5, FISHEYE])
 def test_values_unchanged_by_grad(model):
     obj = board_object_points(6, 5, 0.03, dtype=F64)
     uv = _corners(model, obj, V=8)
@@ -134,8 +135,8 @@ def test_values_unchanged_by_grad(model):
 
 def test_batched_cameras_are_independent():
     obj = board_object_points(6, 5, 0.03, dtype=F64)
-    uv = torch.stack([_corners("opencv5", obj, seed=0), _corners("opencv5", obj, seed=5)])
-    solver = _solver("opencv5")
+    uv = torch.stack([_corners(OPENCV5, obj, seed=0), _corners(OPENCV5, obj, seed=5)])
+    solver = _solver(OPENCV5)
     c = uv.clone().requires_grad_()
     res = solver(c, None, obj, SIZE)
     assert res.K.shape == (2, 3, 3) and bool(res.success.all())
@@ -148,16 +149,16 @@ def test_batched_cameras_are_independent():
 
 def test_fixed_and_tied_parameters():
     obj = board_object_points(6, 5, 0.03, dtype=F64)
-    uv = _corners("k1k2", obj)
+    uv = _corners(K1K2, obj)
     c = uv.clone().requires_grad_()
-    res = _solver("k1k2", fix_principal_point=True, fix_aspect_ratio=True)(c, None, obj, SIZE)
+    res = _solver(K1K2, fix_principal_point=True, fix_aspect_ratio=True)(c, None, obj, SIZE)
     g_cx, = torch.autograd.grad(res.K[0, 2], c, retain_graph=True)
     assert g_cx.abs().max() == 0  # fixed: no gradient
     g_fx, = torch.autograd.grad(res.K[0, 0], c, retain_graph=True)
     g_fy, = torch.autograd.grad(res.K[1, 1], c)
     torch.testing.assert_close(g_fx, g_fy * (res.K[0, 0] / res.K[1, 1]).detach())  # tied: fx / fy held
     picks = torch.randperm(uv.numel(), generator=torch.Generator().manual_seed(4))[:12]
-    an, fd = _fd_check(_solver("k1k2", fix_principal_point=True, fix_aspect_ratio=True), uv, obj, picks)
+    an, fd = _fd_check(_solver(K1K2, fix_principal_point=True, fix_aspect_ratio=True), uv, obj, picks)
     keep = [0, 2, 3, 4]  # cx is fixed (both sides zero)
     assert fd[1].abs().max() == 0 and an[1].abs().max() == 0
     assert _rel(an[keep], fd[keep]).max() < 0.05
@@ -165,11 +166,11 @@ def test_fixed_and_tied_parameters():
 
 def test_unused_views_and_invalid_corners_get_no_gradient():
     obj = board_object_points(6, 5, 0.03, dtype=F64)
-    uv = _corners("k1k2", obj, V=7)
+    uv = _corners(K1K2, obj, V=7)
     uv[6] = uv[6] + 40.0 * torch.randn(uv[6].shape, generator=torch.Generator().manual_seed(6), dtype=F64)
     uv[0, :3] = float("nan")
     c = uv.clone().requires_grad_()
-    res = CalibrationSolver(model="k1k2")(c, None, obj, SIZE)
+    res = CalibrationSolver(model=K1K2)(c, None, obj, SIZE)
     assert not bool(res.used[6])
     g, = torch.autograd.grad(res.K[0, 0] + res.tvec[6].sum(), c)
     assert g.isfinite().all() and g[6].abs().max() == 0 and g[0, :3].abs().max() == 0
@@ -184,13 +185,13 @@ def test_left_jacobian_inverse_matches_log_exp():
 
 def test_implicit_solution_exceptions_and_passthrough():
     obj = board_object_points(4, 3, 0.06, dtype=F64)
-    uv = _corners("k1k2", obj, V=4)[None]
-    res = _solver("k1k2")(uv[0], None, obj, SIZE)
+    uv = _corners(K1K2, obj, V=4)[None]
+    res = _solver(K1K2)(uv[0], None, obj, SIZE)
     with pytest.raises(ValueError, match="weights"):
-        _solver("k1k2")(uv[0], None, obj, SIZE, weights=torch.ones(3))
+        _solver(K1K2)(uv[0], None, obj, SIZE, weights=torch.ones(3))
     from ccs_kornia.geometry.models import OpenCVModel
 
-    m = OpenCVModel("k1k2")
+    m = K1K2
     params = m.params_from(res.K[None], res.dist[None])
     out = implicit_solution(m, torch.eye(6, dtype=F64)[None], params, res.rvec[None], res.tvec[None], uv,
                             torch.ones(uv.shape[:-1], dtype=F64), obj[None])
@@ -199,9 +200,9 @@ def test_implicit_solution_exceptions_and_passthrough():
 
 def test_fisheye_fixed_principal_point():
     obj = board_object_points(6, 5, 0.03, dtype=F64)
-    uv = _corners("fisheye", obj)
+    uv = _corners(FISHEYE, obj)
     picks = torch.randperm(uv.numel(), generator=torch.Generator().manual_seed(7))[:10]
-    an, fd = _fd_check(_solver("fisheye", fix_principal_point=True), uv, obj, picks)
+    an, fd = _fd_check(_solver(FISHEYE, fix_principal_point=True), uv, obj, picks)
     assert an[1].abs().max() == 0 and fd[1].abs().max() == 0
     keep = [0, 2, 3, 4]
     assert _rel(an[keep], fd[keep]).max() < 0.05
@@ -209,8 +210,8 @@ def test_fisheye_fixed_principal_point():
 
 def test_fixed_intrinsics_warm_start():
     obj = board_object_points(6, 5, 0.03, dtype=F64)
-    uv = _corners("k1k2", obj)
-    solver = CalibrationSolver(model="k1k2")
+    uv = _corners(K1K2, obj)
+    solver = CalibrationSolver(model=K1K2)
     first = solver(uv, None, obj, SIZE)
     c = uv.clone().requires_grad_()
     res = solver(c, None, obj, SIZE, initial=first, fix_intrinsics=True)

@@ -28,11 +28,12 @@ def test_solver_init_corners_initial_and_fixed_intrinsics():
         assert float(e_ip(r.K, K)) < 1e-4 and float(r.rms) < 1e-6
     warm = solver(uv, valid, OBJ, SIZE, initial=started)
     torch.testing.assert_close(warm.K, started.K)
-    shifted = started.K.clone()
+    shifted = started.camera.params.clone()
     shifted[0, 0] += 2.0
     from dataclasses import replace
 
-    fixed = solver(uv, valid, OBJ, SIZE, initial=replace(started, K=shifted), fix_intrinsics=True)
+    fixed = solver(uv, valid, OBJ, SIZE, initial=replace(started, camera=started.camera.with_params(shifted)),
+                   fix_intrinsics=True)
     assert float(fixed.K[0, 0]) == float(shifted[0, 0]) and float(fixed.rms) > 1e-3
     with pytest.raises(ValueError, match="fix_intrinsics"):
         solver(uv, valid, OBJ, SIZE, fix_intrinsics=True)

@@ -9,6 +9,7 @@ from _board_views import all_valid, synthetic
 from ccs_kornia.modules.calibration.model_selection import ModelSelection
 from ccs_kornia.modules.calibration.quality.diagnostics import cross_validation
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 
 
 def _noisy_views(seed: int = 3):
@@ -20,7 +21,7 @@ def _noisy_views(seed: int = 3):
     return K, obj, uv, bad
 
 
-@pytest.mark.parametrize("model", ["opencv5", "fisheye"])
+@pytest.mark.parametrize("model", [OPENCV5, FISHEYE])
 def test_uniform_weights_change_nothing(model):
     K, obj, uv, _ = _noisy_views()
     solver = CalibrationSolver(model=model, use_ransac=False)
@@ -33,7 +34,7 @@ def test_uniform_weights_change_nothing(model):
 
 def test_down_weighted_corners_spoil_the_camera_less():
     K, obj, uv, bad = _noisy_views()
-    solver = CalibrationSolver(model="opencv5", use_ransac=False)
+    solver = CalibrationSolver(model=OPENCV5, use_ransac=False)
     plain = solver(uv, all_valid(uv), obj, (640, 480))
     w = torch.where(bad, 0.01, 1.0).to(torch.float64)
     weighted = solver(uv, all_valid(uv), obj, (640, 480), weights=w)
@@ -48,12 +49,12 @@ def test_down_weighted_corners_spoil_the_camera_less():
 def test_weights_reach_model_selection_and_cross_validation():
     K, obj, uv, bad = _noisy_views()
     w = torch.where(bad, 0.01, 1.0).to(torch.float64)
-    solvers = {m: CalibrationSolver(model=m, use_ransac=False) for m in ("k1k2", "opencv5")}
-    results, chosen, _ = ModelSelection(solvers)(uv, all_valid(uv), obj, (640, 480), weights=w)
-    direct = solvers["opencv5"](uv, all_valid(uv), obj, (640, 480), weights=w)
-    torch.testing.assert_close(results["opencv5"].K, direct.K)
-    plain = cross_validation(solvers["opencv5"], uv, all_valid(uv), obj, (640, 480), direct)
-    weighted = cross_validation(solvers["opencv5"], uv, all_valid(uv), obj, (640, 480), direct, weights=w)
+    solvers = {m: CalibrationSolver(model=m, use_ransac=False) for m in (K1K2, OPENCV5)}
+    results, chosen, _ = ModelSelection(list(solvers.values()))(uv, all_valid(uv), obj, (640, 480), weights=w)
+    direct = solvers[OPENCV5](uv, all_valid(uv), obj, (640, 480), weights=w)
+    torch.testing.assert_close(results[OPENCV5].K, direct.K)
+    plain = cross_validation(solvers[OPENCV5], uv, all_valid(uv), obj, (640, 480), direct)
+    weighted = cross_validation(solvers[OPENCV5], uv, all_valid(uv), obj, (640, 480), direct, weights=w)
     assert not torch.equal(plain["heldout_rms_px"], weighted["heldout_rms_px"]), "the subsets are solved weighted"
 
 

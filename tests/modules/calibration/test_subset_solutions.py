@@ -14,6 +14,7 @@ from ccs_kornia.modules.calibration.quality.diagnostics import (
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.pipeline.workers import worker_pool
+from ccs_kornia.geometry.models import K1K2, OPENCV5
 
 SIZE = (640, 480)
 
@@ -33,7 +34,7 @@ def _pinhole():
 
 def test_a_second_cross_validation_reuses_the_subsets_and_gives_the_same_figures():
     uv, valid = _pinhole()
-    solver = CountingSolver(model="opencv5")
+    solver = CountingSolver(model=OPENCV5)
     res = solver(uv, valid, OBJ, SIZE)
     kept = SubsetSolutions()
     CountingSolver.calls = 0
@@ -50,7 +51,7 @@ def test_a_second_cross_validation_reuses_the_subsets_and_gives_the_same_figures
 @pytest.mark.parametrize("change", ["corners", "weights", "folds", "solver", "calibration", "mask"])
 def test_other_inputs_are_solved_again(change):
     uv, valid = _pinhole()
-    solver = CountingSolver(model="opencv5")
+    solver = CountingSolver(model=OPENCV5)
     res = solver(uv, valid, OBJ, SIZE)
     kept = SubsetSolutions()
     cross_validation(solver, uv, valid, OBJ, SIZE, res, solutions=kept)
@@ -62,7 +63,7 @@ def test_other_inputs_are_solved_again(change):
     elif change == "folds":
         args["folds"] = 4
     elif change == "solver":
-        args["solver"] = CountingSolver(model="opencv5")
+        args["solver"] = CountingSolver(model=OPENCV5)
     elif change == "calibration":
         args["result"] = solver(uv[:, :11], valid[:, :11], OBJ, SIZE)
         args["corners"], args["valid"] = uv[:, :11], valid[:, :11]
@@ -78,14 +79,14 @@ def test_other_inputs_are_solved_again(change):
 def test_model_selection_keeps_the_subsets_for_the_diagnostics():
     """The selection's subsets (solved in worker processes) reach ``diagnose``: the same figures, no solve."""
     uv, valid = _pinhole()
-    solvers = {m: CountingSolver(model=m) for m in ("k1k2", "opencv5")}
+    solvers = {m: CountingSolver(model=m) for m in (K1K2, OPENCV5)}
     kept = SubsetSolutions()
 
     def in_workers(fn, names):
         with worker_pool(fn, 2) as run:
             return list(run(names))
 
-    results, chosen, _ = ModelSelection(solvers)(uv, valid, OBJ, SIZE, map_models=in_workers, solutions=kept)
+    results, chosen, _ = ModelSelection(list(solvers.values()))(uv, valid, OBJ, SIZE, map_models=in_workers, solutions=kept)
     res = results[chosen[0]]
     CountingSolver.calls = 0
     figures = diagnose(res, uv, valid, OBJ, SIZE, solver=solvers[chosen[0]], solutions=kept)

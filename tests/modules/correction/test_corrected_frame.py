@@ -12,6 +12,7 @@ from ccs_kornia.modules.correction.corrected_frame import (
     with_fields,
 )
 from ccs_kornia.modules.correction.radial_warp import corrected_radius
+from ccs_kornia.geometry.models import OPENCV5, PINHOLE
 
 
 def test_correction_zoom_keeps_the_farthest_corner_in_the_frame(device):
@@ -34,7 +35,7 @@ def test_select_cameras_and_with_fields():
     tvec = torch.tensor([-0.2, -0.15, 1.5], dtype=torch.float64).expand(2, 6, 3)
     uv = project_points(obj.expand(2, 6, -1, -1), K.expand(2, 6, 3, 3), None, rvec, tvec)
     valid = torch.ones(2, 6, 20, dtype=torch.bool)
-    a = CalibrationSolver(model="none")(uv, valid, obj, (640, 480))
+    a = CalibrationSolver(model=PINHOLE)(uv, valid, obj, (640, 480))
     b = with_fields(a, K=a.K + 1.0, rms=a.rms + 1.0)
     assert torch.equal(b.K, a.K + 1.0) and torch.equal(b.rvec, a.rvec) and b.model == a.model
     mixed = select_cameras(torch.tensor([True, False]), a, b)
@@ -63,7 +64,7 @@ def test_calibrate_corrected_reports_the_joint_covariance():
                                 torch.tensor([[6.0, -4.0]], dtype=torch.float64)).reshape(1, V, -1, 2)
     uv = uv + 0.1 * torch.randn(uv.shape, generator=g, dtype=torch.float64)
     found = torch.ones(1, V, dtype=torch.bool)
-    solver = CalibrationSolver(model="opencv5")
+    solver = CalibrationSolver(model=OPENCV5)
     out, _, model_rms = calibrate_corrected(solver, uv, found, torch.tensor([[1.0, 0, 0, 0, 0]]), board, square, size)
     assert bool(out.success[0]) and float(model_rms[0]) < 0.15
     cov = out.cov_camera[0]

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.duplicates import (
     _batch,
@@ -65,7 +67,6 @@ CHECKS: tuple[str, ...] = (
     "focal_uncertainty",  # relative std of fx, fy from the covariance (or of cx, cy to the image size when > 1)
 )
 
-_FREE_DIST = {"none": 0, "k1k2": 2, "opencv5": 5, "rational": 8, "fisheye": 4}
 
 #: the checks that say the views determine the camera weakly, not that it cannot be computed: an error of theirs is
 #: kept when ``DegeneracyThresholds.refuse_weak`` is off (a focal uncertainty that could not be computed never is)
@@ -108,16 +109,15 @@ class DegeneracyThresholds:
     refuse_weak: bool = True
 
 
-def num_camera_unknowns(model: str, fix_aspect_ratio: bool = False, fix_principal_point: bool = False) -> int:
-    """Free camera parameters (intrinsics + distortion) of the solver's model.
+def num_camera_unknowns(model: CameraModel, fix_aspect_ratio: bool = False, fix_principal_point: bool = False) -> int:
+    """Free camera parameters (intrinsics + the coefficients the model estimates) of the solver's model.
 
     Example:
-        >>> num_camera_unknowns("opencv5"), num_camera_unknowns("k1k2", fix_principal_point=True)
+        >>> from ccs_kornia.geometry.models import K1K2, OPENCV5
+        >>> num_camera_unknowns(OPENCV5), num_camera_unknowns(K1K2, fix_principal_point=True)
         (9, 4)
     """
-    if model not in _FREE_DIST:
-        raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(_FREE_DIST)}.")
-    return (1 if fix_aspect_ratio else 2) + (0 if fix_principal_point else 2) + _FREE_DIST[model]
+    return (1 if fix_aspect_ratio else 2) + (0 if fix_principal_point else 2) + sum(model.default_free()[4:])
 
 
 def _normals(rvec: torch.Tensor) -> torch.Tensor:
@@ -301,7 +301,7 @@ def check_degeneracy(
     rvec: torch.Tensor,
     K: torch.Tensor | None = None,
     std_intrinsics: torch.Tensor | None = None,
-    model: str = "opencv5",
+    model: CameraModel = OPENCV5,
     fix_aspect_ratio: bool = False,
     fix_principal_point: bool = False,
     duplicate_of: torch.Tensor | None = None,
@@ -408,20 +408,20 @@ class DegeneracyChecks(nn.Module):
         >>> tv = torch.tensor([[-0.3, -0.2, 1.5], [-0.1, -0.2, 1.5], [-0.3, 0.0, 1.6], [-0.2, -0.1, 1.4]],
         ...                   dtype=torch.float64)
         >>> uv = project_points(obj.expand(4, -1, -1), K.expand(4, 3, 3), None, rv, tv)
-        >>> rep = DegeneracyChecks(model="k1k2")(uv, None, obj, (640, 480), torch.ones(4, dtype=torch.bool), rv)
+        >>> from ccs_kornia.geometry.models import K1K2
+        >>> rep = DegeneracyChecks(model=K1K2)(uv, None, obj, (640, 480), torch.ones(4, dtype=torch.bool), rv)
         >>> [i["check"] for i in rep.issues()[0] if i["severity"] == "error"]
         ['pose_diversity']
     """
 
     def __init__(
         self,
-        model: str = "opencv5",
+        model: CameraModel = OPENCV5,
         fix_aspect_ratio: bool = False,
         fix_principal_point: bool = False,
         thresholds: DegeneracyThresholds | None = None,
     ) -> None:
         super().__init__()
-        num_camera_unknowns(model)
         self.model = model
         self.fix_aspect_ratio = fix_aspect_ratio
         self.fix_principal_point = fix_principal_point

@@ -26,8 +26,6 @@ from dataclasses import asdict, dataclass, fields, replace
 import torch
 from torch import nn
 
-from ccs_kornia.geometry.models.factory import camera_model
-from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.quality.coverage import covered_pixels
 from ccs_kornia.modules.calibration.quality.degeneracy import (
@@ -40,7 +38,6 @@ from ccs_kornia.modules.calibration.quality.uncertainty import (
     projection_uncertainty,
 )
 from ccs_kornia.modules.calibration.quality.verdict import Findings
-from ccs_kornia.modules.calibration.refinement import joint_refinement
 from ccs_kornia.modules.calibration.subset_solutions import (
     SubsetSolutions,
     solve_subsets,
@@ -57,12 +54,6 @@ def _nanrms(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
 def _nanmax(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
     m = x.nan_to_num(float("-inf")).amax(dim)
     return torch.where(m == float("-inf"), torch.full_like(m, float("nan")), m)
-
-
-def _model_name(result) -> str:
-    """The camera model's name of a one-model result (``"opencv"``, any OpenCV variant, where it names none)."""
-    model = getattr(result, "model", None)
-    return model if isinstance(model, str) and model else "opencv"
 
 
 def split_views(used: torch.Tensor, parts: int) -> torch.Tensor:
@@ -140,18 +131,15 @@ def cross_validation(
         if key is not None:
             solutions.put(key, sub)
     S = 2 + k
-    K = sub.K.reshape(C, S, 3, 3)
     D = sub.dist.shape[-1]
-    dist = sub.dist.reshape(C, S, D)
     ok = sub.success.reshape(C, S)
     px = image_points(image_size, grid).to(corners.device)
+    first = torch.arange(C, device=corners.device) * S  # camera c's subset s is at c * S + s
 
     # split halves
-    Ka, Kb = K[:, 0].nan_to_num(1.0), K[:, 1].nan_to_num(1.0)
-    da, db = dist[:, 0].nan_to_num(0.0), dist[:, 1].nan_to_num(0.0)
+    cam_a, cam_b = sub.camera[first].nan_to_num(), sub.camera[first + 1].nan_to_num()
     fit = torch.ones(px.shape[0], dtype=torch.bool, device=px.device) if fit is None else fit.to(px.device)
-    lens = _model_name(result)
-    diff = projection_difference(Ka, da, Kb, db, px, compensate_rotation=fit, model=lens)
+    diff = projection_difference(cam_a, cam_b, px, compensate_rotation=fit)
     halves_ok = ok[:, 0] & ok[:, 1]
     nan = torch.full_like(diff[:, 0], float("nan"))
     cv_rms = torch.where(halves_ok, _nanrms(diff), nan)
@@ -159,15 +147,13 @@ def cross_validation(
     expected, expected_grid = nan, torch.full_like(diff, float("nan"))
     if sub.cov_camera is not None:
         cov = sub.cov_camera.reshape(C, S, 4 + D, 4 + D)
-        ua = projection_uncertainty(Ka, da, cov[:, 0].nan_to_num(0.0), px, worst=False, compensate_rotation=fit,
-                                    model=lens)
-        ub = projection_uncertainty(Kb, db, cov[:, 1].nan_to_num(0.0), px, worst=False, compensate_rotation=fit,
-                                    model=lens)
+        ua = projection_uncertainty(cam_a, cov[:, 0].nan_to_num(0.0), px, worst=False, compensate_rotation=fit)
+        ub = projection_uncertainty(cam_b, cov[:, 1].nan_to_num(0.0), px, worst=False, compensate_rotation=fit)
         expected_grid = torch.where(halves_ok[:, None], (2 * (ua**2 + ub**2)).sqrt(), expected_grid)
         expected = torch.where(halves_ok, _nanrms((2 * (ua**2 + ub**2)).sqrt()), nan)
 
     # held-out views: poses fitted with each fold's camera fixed, started from the full solution's poses
-    Kf, df = K[:, 2:].reshape(C * k, 3, 3), dist[:, 2:].reshape(C * k, D)
+    folds_camera = sub.camera[(first[:, None] + torch.arange(2, S, device=first.device)).reshape(-1)].nan_to_num()
     okf = ok[:, 2:].reshape(C * k)
     held = fold.reshape(C * k, V) & okf[:, None]
 
@@ -176,22 +162,14 @@ def cross_validation(
         return x[:, None].expand(C, k, *x.shape[1:]).reshape(C * k, *x.shape[1:])
 
     obj = object_points if object_points.dim() == 2 else rep(object_points)
-    model = getattr(solver, "model", "opencv5")
-    if camera_model(model).is_fisheye:  # the LM core with the Kannala-Brandt model, every camera parameter held
-        kb = KannalaBrandtModel()
-        obj_k = obj if obj.dim() == 2 else obj[0]
-        pose = levenberg_marquardt(
-            kb, kb.params_from(Kf.nan_to_num(1.0), df.nan_to_num(0.0)), rep(result.rvec).nan_to_num(0.0),
-            rep(result.tvec).nan_to_num(0.0), obj_k, rep(corners).nan_to_num(0.0),
-            (rep(valid) & held[..., None]).to(K.dtype), free=[False] * 8,
-        )
-    else:
-        pose = joint_refinement(
-            rep(corners), rep(valid), obj, Kf.nan_to_num(1.0), rep(result.rvec).nan_to_num(0.0),
-            rep(result.tvec).nan_to_num(0.0), df.nan_to_num(0.0), held, model=model, fix_intrinsics=True,
-            fix_distortion=True, dtype=K.dtype,
-        )
-    npts = (rep(valid) & held[..., None]).sum(-1).to(K.dtype)
+    # the poses alone on the LM core, every camera parameter held at its fold's
+    model = folds_camera.model
+    dtype = folds_camera.dtype
+    pose = levenberg_marquardt(
+        model, folds_camera.params, rep(result.rvec).nan_to_num(0.0), rep(result.tvec).nan_to_num(0.0), obj,
+        rep(corners), (rep(valid) & held[..., None]).to(dtype), free=[False] * model.num_params, dtype=dtype,
+    )
+    npts = (rep(valid) & held[..., None]).sum(-1).to(dtype)
     sq = torch.where(held, pose.view_rms.nan_to_num(0.0) ** 2 * npts, torch.zeros_like(npts))
     # each used view is held out in exactly one fold: its squared error summed over the folds is its own
     view_sq, view_n = sq.reshape(C, k, V).sum(1), npts.reshape(C, k, V).sum(1)
@@ -414,15 +392,13 @@ def diagnose(
     if unbatched:
         corners, valid = corners[None], valid[None]
         weights = None if weights is None else weights[None]
-        result = type(result)(**{k: (v[None] if isinstance(v, torch.Tensor) else v) for k, v in result.__dict__.items()})
+        result = result.map_tensors(lambda t: t[None])
     C = corners.shape[0]
     dtype = result.K.dtype
     corners = corners.to(dtype)
     valid = valid.bool() & corners.isfinite().all(-1)
-    K, dist = result.K, result.dist
-    lens = _model_name(result)
     ok = result.success.bool()
-    Kc, dc = K.nan_to_num(1.0), dist.nan_to_num(0.0)
+    camera = result.camera.nan_to_num()
     gpx = image_points(image_size, grid).to(corners.device)
     covered = covered_pixels(corners, valid, object_points, result.used & ok[:, None], gpx)  # (C, G)
     unc5 = unc_grid = unc_fixed = None
@@ -434,9 +410,9 @@ def diagnose(
         # lens's image, often tens of px uncertain, would otherwise set the rotation and spoil the centre's figure
         on_boards = torch.where(covered.any(-1, keepdim=True), covered, torch.ones_like(covered))
         fit = torch.cat([on_boards, torch.zeros_like(on_boards[:, :5])], -1)
-        unc = projection_uncertainty(Kc, dc, cov, px, compensate_rotation=fit, model=lens)
+        unc = projection_uncertainty(camera, cov, px, compensate_rotation=fit)
         unc_grid, unc5 = unc[:, :-5], unc[:, -5:]
-        unc_fixed = projection_uncertainty(Kc, dc, cov, five, model=lens)
+        unc_fixed = projection_uncertainty(camera, cov, five)
     cv = None
     if solver is not None and bool(ok.any()):
         on_grid = torch.where(covered.any(-1, keepdim=True), covered, torch.ones_like(covered))
@@ -505,7 +481,8 @@ class CalibrationDiagnostics(nn.Module):
         >>> tv = torch.tensor([-0.1, -0.06, 0.45], dtype=torch.float64).expand(12, 3)
         >>> uv = project_points(obj.expand(12, -1, -1), K.expand(12, 3, 3), None, rv, tv)
         >>> uv = uv + 0.2 * torch.randn(uv.shape, generator=g, dtype=torch.float64)
-        >>> solver = CalibrationSolver(model="k1k2")
+        >>> from ccs_kornia.geometry.models import K1K2
+        >>> solver = CalibrationSolver(model=K1K2)
         >>> res = solver(uv, None, obj, (640, 480))
         >>> fig = CalibrationDiagnostics(solver)(res, uv, None, obj, (640, 480))[0]
         >>> fig["verdict"] in ("good", "usable"), fig["uncertainty_centre_px"] < 1.0

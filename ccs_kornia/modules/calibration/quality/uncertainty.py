@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.geometry.camera import kb_unproject_points, undistort_pixels
-from ccs_kornia.geometry.models.base import CameraModel
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera
 
-__all__ = ["ROUNDTRIP_TOL_PX", "image_points", "projection_uncertainty", "projection_difference", "unprojectable_fraction"]
+__all__ = ["ROUNDTRIP_TOL_PX", "image_points", "image_rays", "projection_difference", "projection_uncertainty",
+           "remove_rotation", "storage_jacobians", "unprojectable_fraction"]
 
 
 def image_points(image_size: tuple[int, int], grid: tuple[int, int] | None = None, dtype=torch.float64) -> torch.Tensor:
@@ -38,82 +37,69 @@ def image_points(image_size: tuple[int, int], grid: tuple[int, int] | None = Non
 #: a pixel whose unprojected ray does not project back within this (px) has no inverse under the model
 ROUNDTRIP_TOL_PX = 0.01
 
-#: projects the coefficients of any OpenCV variant (in OpenCV order, every one present)
-_OPENCV_ALL = camera_model("rational")
 
+def image_rays(camera: Camera, pixels: torch.Tensor) -> torch.Tensor:
+    """Unit camera-frame rays :math:`(C, G, 3)` of pixels :math:`(G, 2)` (or :math:`(C, G, 2)`) under each camera;
+    NaN where the model has no inverse (it folds before reaching that pixel: the ray does not project back onto it).
 
-def _lens(model: str | CameraModel) -> CameraModel:
-    """The model projecting ``dist`` as the functions here get it: a fisheye model's own, else OpenCV's with every
-    coefficient. ``model``: a model, a model name, or ``"opencv"`` (any OpenCV variant)."""
-    if isinstance(model, str):
-        model = _OPENCV_ALL if model == _OPENCV_ALL.opencv_family else camera_model(model)
-    return model if model.is_fisheye else _OPENCV_ALL
-
-
-def _rays(K: torch.Tensor, dist: torch.Tensor, pixels: torch.Tensor,
-          model: str | CameraModel = "opencv") -> torch.Tensor:
-    """(C, G, 3) camera-frame rays (z = 1; unit rays for a fisheye model, which sees beyond 90 degrees) of pixels
-    (G, 2) under each camera; NaN where the distortion model has no inverse (it folds before reaching that pixel:
-    the ray does not project back onto it)."""
-    lens = _lens(model)
-    C, G = K.shape[0], pixels.shape[0]
-    px = pixels.to(K).expand(C, G, 2)
-    if lens.is_fisheye:
-        rays = kb_unproject_points(px, K, dist)
-    else:
-        ideal = undistort_pixels(px, K, dist) if dist.shape[-1] else px
-        x = (ideal[..., 0] - K[:, None, 0, 2]) / K[:, None, 0, 0]
-        y = (ideal[..., 1] - K[:, None, 1, 2]) / K[:, None, 1, 1]
-        rays = torch.stack([x, y, torch.ones_like(x)], -1)
-    back = _project_rays(rays.nan_to_num(0.0), K, dist, model=lens)
+    Example:
+        >>> from ccs_kornia.geometry.models import PINHOLE
+        >>> cam = Camera(PINHOLE, torch.tensor([500., 500, 320, 240], dtype=torch.float64))
+        >>> image_rays(cam, torch.tensor([[320., 240.]])).tolist()
+        [[[0.0, 0.0, 1.0]]]
+    """
+    C = len(camera)
+    px = pixels.to(device=camera.device, dtype=camera.dtype).expand(C, *pixels.shape[-2:])
+    rays = camera.unproject(px)
+    back = camera.project(rays.nan_to_num(0.0))
     ok = ((back - px).norm(dim=-1) <= ROUNDTRIP_TOL_PX) & rays.isfinite().all(-1)
     return torch.where(ok[..., None], rays, torch.full_like(rays, float("nan")))
 
 
-def unprojectable_fraction(K: torch.Tensor, dist: torch.Tensor, image_size: tuple[int, int],
-                           grid: tuple[int, int] = (16, 12), model: str | CameraModel = "opencv") -> torch.Tensor:
-    r"""Fraction of an image grid where the distortion model has no inverse: it folds before reaching those pixels
+def unprojectable_fraction(camera: Camera, image_size: tuple[int, int] | None = None,
+                           grid: tuple[int, int] = (16, 12)) -> torch.Tensor:
+    r"""Fraction of an image grid where the camera model has no inverse: it folds before reaching those pixels
     (two rays onto one pixel), which no lens does — the model's extrapolation has gone wrong there.
 
     Args:
-        K: :math:`(C, 3, 3)`.
-        dist: :math:`(C, D)` (OpenCV order, or Kannala-Brandt ``k1..k4`` with ``model="fisheye"``).
-        image_size: ``(W, H)``.
+        camera: ``C`` cameras.
+        image_size: ``(W, H)`` (default: the cameras').
         grid: ``(across, down)`` pixels tested, corners included.
-        model: the cameras' model or its name (``"opencv"``: any OpenCV variant).
 
     Returns:
         :math:`(C,)` in [0, 1].
 
     Example:
-        >>> K = torch.tensor([[[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]], dtype=torch.float64)
-        >>> unprojectable_fraction(K, torch.tensor([[-0.1, 0.0, 0, 0, 0]], dtype=torch.float64), (640, 480)).tolist()
+        >>> from ccs_kornia.geometry.models import OPENCV5
+        >>> K = torch.tensor([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
+        >>> mild = Camera.from_opencv(OPENCV5, K, torch.tensor([-0.1, 0.0, 0, 0, 0], dtype=torch.float64), (640, 480))
+        >>> unprojectable_fraction(mild).tolist()
         [0.0]
-        >>> unprojectable_fraction(K, torch.tensor([[-0.6, 0.0, 0, 0, 0]], dtype=torch.float64), (640, 480)).item() > 0
+        >>> strong = Camera.from_opencv(OPENCV5, K, torch.tensor([-0.6, 0.0, 0, 0, 0], dtype=torch.float64))
+        >>> unprojectable_fraction(strong, (640, 480)).item() > 0
         True
     """
-    if K.dim() != 3 or K.shape[-2:] != (3, 3) or dist.dim() != 2 or dist.shape[0] != K.shape[0]:
-        raise ValueError(f"Expected K (C, 3, 3) and dist (C, D), got {tuple(K.shape)} and {tuple(dist.shape)}.")
-    px = image_points(image_size, grid, dtype=K.dtype).to(K.device)
-    return _rays(K, dist, px, model).isnan().any(-1).to(K.dtype).mean(-1)
+    px = image_points(image_size or camera.image_size, grid, dtype=camera.dtype).to(camera.device)
+    return image_rays(camera, px).isnan().any(-1).to(camera.dtype).mean(-1)
 
 
-def _project_rays(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, jacobians: bool = False,
-                  model: str | CameraModel = "opencv"):
-    """Pixels (C, G, 2) of rays (C, G, 3); with ``jacobians`` also d pixel / d (fx, fy, cx, cy, dist)
-    (C, G, 2, 4+D) and d pixel / d camera rotation (C, G, 2, 3)."""
-    lens = _lens(model)
-    D = dist.shape[-1]
-    # OpenCV: every coefficient present, in OpenCV order: the first 4 + D columns
-    uv, J, Jx = lens.project(rays, lens.params_from(K, dist), jacobians)
-    if not jacobians:
-        return uv
+def storage_jacobians(camera: Camera, rays: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Pixels :math:`(C, G, 2)` of rays :math:`(C, G, 3)`, d pixel / d ``(fx, fy, cx, cy, dist)`` in OpenCV's storage
+    :math:`(C, G, 2, 4 + D)` (the layout of ``CalibrationResult.cov_camera``: zero columns for stored coefficients the
+    model does not estimate) and d pixel / d camera rotation :math:`(C, G, 2, 3)`."""
+    uv, J, Jx = camera.project(rays, jacobians=True)
+    width = 4 + camera.dist.shape[-1]
+    out = J.new_zeros(*J.shape[:-1], width)
+    for model, idx in camera._groups():
+        part = J.new_zeros(idx.numel(), *J.shape[1:-1], width)
+        part[..., [0, 1, 2, 3, *(4 + i for i in model.coeff_index)]] = J[idx][..., : model.num_params]
+        out[idx] = part
     # the camera rotated, R <- exp(w) R at w = 0: d Xc / d w = -[Xc]_x, so each row becomes Xc x (d uv / d Xc)
     Jw = torch.linalg.cross(rays[..., None, :].expand_as(Jx), Jx, dim=-1)
-    return uv, J[..., : 4 + D], Jw
+    return uv, out, Jw
 
 
-def _remove_rotation(field: torch.Tensor, A: torch.Tensor, fit: torch.Tensor) -> torch.Tensor:
+def remove_rotation(field: torch.Tensor, A: torch.Tensor, fit: torch.Tensor) -> torch.Tensor:
     """Subtract from ``field`` (C, G, 2, P) the least-squares fit over the points ``fit`` (G,) or (C, G) bool of a camera
     rotation, ``A`` (C, G, 2, 3) = d pixel / d rotation; points with non-finite values are left out of the fit."""
     fit = fit.to(A.device)
@@ -127,13 +113,11 @@ def _remove_rotation(field: torch.Tensor, A: torch.Tensor, fit: torch.Tensor) ->
 
 
 def projection_uncertainty(
-    K: torch.Tensor,
-    dist: torch.Tensor,
+    camera: Camera,
     cov_camera: torch.Tensor,
     pixels: torch.Tensor,
     worst: bool = True,
     compensate_rotation: torch.Tensor | None = None,
-    model: str | CameraModel = "opencv",
 ) -> torch.Tensor:
     r"""Standard deviation (px) of the projection of the rays seen at ``pixels``, from the camera covariance.
 
@@ -147,31 +131,29 @@ def projection_uncertainty(
     of the camera, which the boards' poses absorb and which any extrinsic calibration re-estimates anyway.
 
     Args:
-        K: :math:`(C, 3, 3)`.
-        dist: :math:`(C, D)` OpenCV coefficients.
-        cov_camera: :math:`(C, 4 + D, 4 + D)` (``CalibrationResult.cov_camera``).
+        camera: ``C`` cameras.
+        cov_camera: :math:`(C, 4 + D, 4 + D)` covariance of ``fx, fy, cx, cy`` and the coefficients in OpenCV's
+            storage (``CalibrationResult.cov_camera``).
         pixels: :math:`(G, 2)` pixels, e.g. from :func:`image_points`.
         worst: worst-direction standard deviation (square root of the largest eigenvalue of
             :math:`\Sigma_q`, as mrcal); else the RMS over both directions (:math:`\sqrt{tr \Sigma_q / 2}`).
         compensate_rotation: :math:`(G,)` or per camera :math:`(C, G)` bool, pixels over which a camera rotation is
             fitted out (None: no).
-        model: the cameras' model or its name: ``dist`` in OpenCV order (``"opencv"``: any OpenCV variant), or
-            k1..k4 for a fisheye model.
 
     Returns:
         :math:`(C, G)` px; NaN where the distortion model has no inverse (see :data:`ROUNDTRIP_TOL_PX`).
 
     Example:
-        >>> K = torch.tensor([[[500., 0, 320], [0, 500, 240], [0, 0, 1]]], dtype=torch.float64)
+        >>> from ccs_kornia.geometry.models import PINHOLE
+        >>> cam = Camera(PINHOLE, torch.tensor([500., 500, 320, 240], dtype=torch.float64))
         >>> cov = torch.diag(torch.tensor([4.0, 4.0, 1.0, 1.0], dtype=torch.float64))[None]  # std 2, 2, 1, 1 px
-        >>> projection_uncertainty(K, torch.zeros(1, 0, dtype=torch.float64), cov, torch.tensor([[320., 240.]]))
+        >>> projection_uncertainty(cam, cov, torch.tensor([[320., 240.]]))
         tensor([[1.]], dtype=torch.float64)
     """
-    lens = _lens(model)
-    rays = _rays(K, dist, pixels, lens)
-    _, J, A = _project_rays(rays, K, dist, jacobians=True, model=lens)
+    rays = image_rays(camera, pixels)
+    _, J, A = storage_jacobians(camera, rays)
     if compensate_rotation is not None:
-        J = _remove_rotation(J, A, compensate_rotation.to(J.device))
+        J = remove_rotation(J, A, compensate_rotation.to(J.device))
     S = J @ cov_camera[:, None] @ J.transpose(-1, -2)  # (C, G, 2, 2)
     if not worst:
         return (S.diagonal(dim1=-2, dim2=-1).sum(-1) / 2).clamp_min(0).sqrt()
@@ -181,13 +163,10 @@ def projection_uncertainty(
 
 
 def projection_difference(
-    K_a: torch.Tensor,
-    dist_a: torch.Tensor,
-    K_b: torch.Tensor,
-    dist_b: torch.Tensor,
+    camera_a: Camera,
+    camera_b: Camera,
     pixels: torch.Tensor,
     compensate_rotation: torch.Tensor | None = None,
-    model: str | CameraModel = "opencv",
 ) -> torch.Tensor:
     r"""Distance (px) between where two calibrations of one camera project the same ray.
 
@@ -197,27 +176,26 @@ def projection_difference(
     :func:`projection_uncertainty`.
 
     Args:
-        K_a, K_b: :math:`(C, 3, 3)`.
-        dist_a, dist_b: :math:`(C, D)`.
+        camera_a, camera_b: ``C`` cameras each (any models: each projects with its own).
         pixels: :math:`(G, 2)`.
         compensate_rotation: :math:`(G,)` bool, pixels over which the rotation is fitted (None: no).
-        model: both calibrations' model or its name (``"opencv"``: any OpenCV variant).
 
     Returns:
-        :math:`(C, G)` px; NaN where camera ``a``'s distortion model has no inverse.
+        :math:`(C, G)` px; NaN where camera ``a``'s model has no inverse.
 
     Example:
-        >>> K = torch.tensor([[[500., 0, 320], [0, 500, 240], [0, 0, 1]]], dtype=torch.float64)
-        >>> K2 = K.clone(); K2[0, 0, 2] += 0.5
-        >>> d0 = torch.zeros(1, 5, dtype=torch.float64)
-        >>> projection_difference(K, d0, K2, d0, torch.tensor([[0., 0.], [320., 240.]]))
+        >>> from ccs_kornia.geometry.models import OPENCV5
+        >>> a = Camera(OPENCV5, torch.tensor([500., 500, 320, 240, 0, 0, 0, 0, 0], dtype=torch.float64))
+        >>> b = a.with_params(a.params + torch.tensor([0., 0, 0.5, 0, 0, 0, 0, 0, 0], dtype=torch.float64))
+        >>> projection_difference(a, b, torch.tensor([[0., 0.], [320., 240.]]))
         tensor([[0.5000, 0.5000]], dtype=torch.float64)
     """
-    lens = _lens(model)
-    rays = _rays(K_a, dist_a, pixels, lens)
+    rays = image_rays(camera_a, pixels)
+    camera_b = camera_b.to(rays.device, rays.dtype)
     if compensate_rotation is None:
-        q = _project_rays(rays, K_b, dist_b, model=lens)
+        q = camera_b.project(rays)
         return (q - pixels.to(q)).norm(dim=-1)
-    q, _, A = _project_rays(rays, K_b, dist_b, jacobians=True, model=lens)
-    d = _remove_rotation((q - pixels.to(q))[..., None], A, compensate_rotation.to(q.device))
+    q, _, A = camera_b.project(rays, jacobians=True)
+    A = torch.linalg.cross(rays[..., None, :].expand_as(A), A, dim=-1)
+    d = remove_rotation((q - pixels.to(q))[..., None], A, compensate_rotation.to(q.device))
     return d[..., 0].norm(dim=-1)

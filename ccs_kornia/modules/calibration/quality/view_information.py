@@ -10,14 +10,14 @@ rotation fitted out as mrcal does) is then :math:`\sqrt{\operatorname{tr}(A \Sig
 time, the view that lowers it most, until a view no longer helps.
 
 Example:
-    >>> from ccs_kornia.geometry.camera import board_object_points
+    >>> from ccs_kornia.geometry.camera import Camera, board_object_points
+    >>> from ccs_kornia.geometry.models import K1K2
     >>> obj = board_object_points(6, 4, 0.03, dtype=torch.float64)
-    >>> K = torch.tensor([[[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]], dtype=torch.float64)
+    >>> cam = Camera(K1K2, torch.tensor([500.0, 500, 320, 240, 0, 0], dtype=torch.float64), (640, 480))
     >>> rvec = torch.tensor([[[0.3, 0.0, 0.0], [0.0, 0.3, 0.0], [-0.3, 0.1, 0.0], [0.3, 0.0, 0.0]]], dtype=torch.float64)
     >>> tvec = torch.tensor([[[-0.08, -0.05, 0.5]]], dtype=torch.float64).expand(1, 4, 3)
-    >>> M = view_information("k1k2", K, torch.zeros(1, 5, dtype=torch.float64), rvec, tvec, obj,
-    ...                      torch.ones(1, 4, 24, dtype=torch.float64))
-    >>> A = image_information("k1k2", K, torch.zeros(1, 5, dtype=torch.float64), (640, 480))
+    >>> M = view_information(cam, rvec, tvec, obj, torch.ones(1, 4, 24, dtype=torch.float64))
+    >>> A = image_information(cam)
     >>> M.shape, A.shape
     (torch.Size([1, 4, 6, 6]), torch.Size([1, 6, 6]))
     >>> choice = greedy_information(M, A, max_count=3)  # the fourth view repeats the first
@@ -31,14 +31,12 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ccs_kornia.geometry.models.base import CameraModel
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.quality.uncertainty import (
-    _project_rays,
-    _rays,
-    _remove_rotation,
     image_points,
+    image_rays,
+    remove_rotation,
 )
 
 __all__ = ["PRIOR", "GreedyChoice", "greedy_information", "image_information", "view_information"]
@@ -48,19 +46,8 @@ __all__ = ["PRIOR", "GreedyChoice", "greedy_information", "image_information", "
 PRIOR = 1e-2
 
 
-def _model(model: str | CameraModel) -> CameraModel:
-    return camera_model(model) if isinstance(model, str) else model
-
-
-def _params(model: CameraModel, K: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
-    """Params :math:`(C, P)` of ``model`` from ``K`` and coefficients in OpenCV's layout."""
-    return model.params_from(K, dist[..., : model.max_coeffs] if dist.shape[-1] > model.max_coeffs else dist)
-
-
 def view_information(
-    model: str | CameraModel,
-    K: torch.Tensor,
-    dist: torch.Tensor,
+    camera: Camera,
     rvec: torch.Tensor,
     tvec: torch.Tensor,
     object_points: torch.Tensor,
@@ -69,9 +56,7 @@ def view_information(
     r"""Each view's information about the camera parameters, its board pose eliminated (Schur complement).
 
     Args:
-        model: the cameras' model or its name (parameters ``fx, fy, cx, cy`` and the model's coefficients).
-        K: :math:`(C, 3, 3)`.
-        dist: :math:`(C, D)` coefficients in OpenCV's layout (``k1..k4`` for a fisheye model).
+        camera: ``C`` cameras of one model (its parameters: ``fx, fy, cx, cy`` and the model's coefficients).
         rvec, tvec: :math:`(C, V, 3)` each view's board pose (world to camera, axis-angle), as the solver gives them.
         object_points: :math:`(N, 3)` or :math:`(C, N, 3)` the board's corners.
         weights: :math:`(C, V, N)` per-corner inverse variances (0: corner not used), as the solver's.
@@ -80,16 +65,16 @@ def view_information(
         :math:`(C, V, P, P)` float64 (zeros for a view without weighted corners); their sum over the views is the
         solver's information matrix at the same point.
     """
-    m = _model(model)
-    if K.dim() != 3 or rvec.dim() != 3 or rvec.shape != tvec.shape or weights.shape[:2] != rvec.shape[:2]:
-        raise ValueError(f"Expected K (C, 3, 3), rvec/tvec (C, V, 3), weights (C, V, N); got {tuple(K.shape)}, "
+    m = camera.model
+    if rvec.dim() != 3 or rvec.shape != tvec.shape or weights.shape[:2] != rvec.shape[:2] or len(camera) != rvec.shape[0]:
+        raise ValueError(f"Expected {len(camera)} cameras, rvec/tvec (C, V, 3), weights (C, V, N); got "
                          f"{tuple(rvec.shape)}, {tuple(tvec.shape)}, {tuple(weights.shape)}.")
     C, _V, N = weights.shape
-    K, dist, rvec, tvec = K.double(), dist.double(), rvec.double(), tvec.double()
-    obj = object_points.double().to(K.device)
+    rvec, tvec = rvec.double(), tvec.double()
+    params = camera.params.double()
+    obj = object_points.double().to(params.device)
     obj = obj.expand(C, N, 3) if obj.dim() == 2 else obj
     w = weights.double().nan_to_num(0.0).clamp_min(0.0)
-    params = _params(m, K, dist)
     R = exp_so3(rvec)
     q = torch.einsum("cvij,cnj->cvni", R, obj)  # R X, (C, V, N, 3)
     uv, dp, dx = m.columns(q + tvec[:, :, None, :], params)
@@ -118,10 +103,8 @@ def view_information(
 
 
 def image_information(
-    model: str | CameraModel,
-    K: torch.Tensor,
-    dist: torch.Tensor,
-    image_size: tuple[int, int],
+    camera: Camera,
+    image_size: tuple[int, int] | None = None,
     grid: tuple[int, int] = (16, 12),
     compensate_rotation: bool = True,
 ) -> torch.Tensor:
@@ -130,9 +113,8 @@ def image_information(
     image (both directions) of a camera with covariance :math:`\Sigma`.
 
     Args:
-        model: the cameras' model or its name.
-        K: :math:`(C, 3, 3)`; dist: :math:`(C, D)` in OpenCV's layout.
-        image_size: ``(W, H)``.
+        camera: ``C`` cameras of one model.
+        image_size: ``(W, H)`` (default: the cameras').
         grid: ``(across, down)`` pixels, the image's corners included.
         compensate_rotation: fit out the camera rotation that the boards' poses absorb, as
             :func:`~ccs_kornia.modules.calibration.quality.uncertainty.projection_uncertainty` does.
@@ -141,23 +123,21 @@ def image_information(
         :math:`(C, P, P)` float64 (pixels where the model has no inverse are left out).
 
     Example:
-        >>> K = torch.tensor([[[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]], dtype=torch.float64)
-        >>> A = image_information("none", K, torch.zeros(1, 0, dtype=torch.float64), (640, 480), compensate_rotation=False)
+        >>> from ccs_kornia.geometry.models import PINHOLE
+        >>> cam = Camera(PINHOLE, torch.tensor([500.0, 500, 320, 240], dtype=torch.float64), (640, 480))
+        >>> A = image_information(cam, compensate_rotation=False)
         >>> [round(float(x), 3) for x in A[0].diagonal()[2:]]  # a principal-point shift moves every pixel alike
         [1.0, 1.0]
     """
-    m = _model(model)
-    K, dist = K.double(), dist.double()
-    pixels = image_points(image_size, grid, dtype=K.dtype).to(K.device)
-    lens = m if m.is_fisheye else camera_model("rational")
-    full = dist if m.is_fisheye else torch.nn.functional.pad(dist, [0, 8 - dist.shape[-1]])
-    rays = _rays(K, full, pixels, lens)
+    camera = camera.to(dtype=torch.float64)
+    pixels = image_points(image_size or camera.image_size, grid, dtype=camera.dtype).to(camera.device)
+    rays = image_rays(camera, pixels)
     ok = rays.isfinite().all(-1)  # (C, G)
-    _, J, A = _project_rays(rays.nan_to_num(0.0), K, full, jacobians=True, model=lens)
-    if not m.is_fisheye:  # the variant's own coefficients among the rational model's eight
-        J = J[..., [0, 1, 2, 3, *(4 + i for i in m.coeff_index)]]
+    safe = rays.nan_to_num(0.0)
+    _, J, Jx = camera.project(safe, jacobians=True)  # the derivatives by the model's own parameters
     if compensate_rotation:
-        J = _remove_rotation(J, torch.where(ok[..., None, None], A, torch.full_like(A, float("nan"))), ok)
+        A = torch.linalg.cross(safe[..., None, :].expand_as(Jx), Jx, dim=-1)  # d pixel / d camera rotation
+        J = remove_rotation(J, torch.where(ok[..., None, None], A, torch.full_like(A, float("nan"))), ok)
     J = torch.where(ok[..., None, None], J.nan_to_num(0.0), torch.zeros_like(J)).flatten(1, 2)  # (C, 2G, P)
     return (J.transpose(-1, -2) @ J) / ok.sum(-1).clamp_min(1)[:, None, None]
 

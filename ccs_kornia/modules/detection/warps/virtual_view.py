@@ -25,11 +25,7 @@ import torch
 from kornia.geometry.grid import create_meshgrid
 from kornia.geometry.transform import remap
 
-from ccs_kornia.geometry.camera import (
-    axis_angle_to_rotation_matrix,
-    kb_project_points,
-    project_points,
-)
+from ccs_kornia.geometry.camera import Camera, axis_angle_to_rotation_matrix
 from ccs_kornia.modules._checks import check_board_size
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.warps.warped_detection import Warp, map_back
@@ -82,12 +78,15 @@ def _view_frame(direction: tuple[float, float], fov_deg: float, side: int, dtype
     return (side / 2) / math.tan(math.radians(fov_deg / 2)), R
 
 
-def _project(rays: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, fisheye: bool) -> torch.Tensor:
-    """Pixels (B, P, 2) of rays (B, P, 3) under each camera; NaN where a pinhole camera cannot see the ray."""
-    if fisheye:
-        return kb_project_points(rays, K, dist)
-    uv = project_points(rays, K, dist if dist.shape[-1] else None)
-    return torch.where((rays[..., 2:] > 1e-6), uv, torch.full_like(uv, float("nan")))
+def _project(rays: torch.Tensor, camera: Camera) -> torch.Tensor:
+    """Pixels (B, P, 2) of rays (B, P, 3) under each camera; NaN where the camera cannot see the ray."""
+    uv = camera.project(rays)
+    return torch.where(camera.visible(rays)[..., None], uv, torch.full_like(uv, float("nan")))
+
+
+def _wide(camera: Camera) -> bool:
+    """The rings of tilted views too: a fisheye lens (boards near its rim are curved far beyond the axis view)."""
+    return any(m.is_fisheye for m in camera.models)
 
 
 #: virtual views looked at per round (:func:`detect_with_calibrated_lens`): each view of a round is looked at on the
@@ -105,28 +104,27 @@ def _in_order(fn: Callable) -> Iterator[Callable[[Iterable], Iterator]]:
 @dataclass(frozen=True)
 class VirtualView(Warp):
     """The virtual pinhole view ``direction`` ``(yaw, pitch, fov)`` (degrees), ``side`` px square, of images under
-    their calibrated cameras ``K`` :math:`(B, 3, 3)`, ``dist`` :math:`(B, D)` (float64; Kannala-Brandt with
-    ``fisheye``) of ``size`` ``(W, H)``; pixels map back through rays and the calibrated projection.
+    their calibrated cameras (``B``, float64) of ``size`` ``(W, H)``; pixels map back through rays and the calibrated
+    projection.
 
     Example:
-        >>> K = torch.tensor([[[200.0, 0, 160], [0, 200, 120], [0, 0, 1]]], dtype=torch.float64)
-        >>> warp = VirtualView((0.0, 0.0, 110.0), 96, K, torch.zeros(1, 4, dtype=torch.float64), True, (320, 240))
+        >>> from ccs_kornia.geometry.models import FISHEYE
+        >>> cam = Camera(FISHEYE, torch.tensor([200.0, 200, 160, 120, 0, 0, 0, 0], dtype=torch.float64))
+        >>> warp = VirtualView((0.0, 0.0, 110.0), 96, cam, (320, 240))
         >>> warp.apply(torch.rand(1, 1, 240, 320)).shape, warp.back(torch.tensor([[[47.5, 47.5]]]))[0].tolist()
         (torch.Size([1, 1, 96, 96]), [[[160.0, 120.0]]])
     """
 
     direction: tuple[float, float, float]
     side: int
-    K: torch.Tensor
-    dist: torch.Tensor
-    fisheye: bool
+    camera: Camera
     size: tuple[int, int]
 
     def apply(self, images: torch.Tensor) -> torch.Tensor:
         yaw, pitch, fov = self.direction
         b = images.shape[0]
         rays = virtual_view_rays((yaw, pitch), fov, self.side, device=images.device)[0]
-        src = _project(rays.expand(b, -1, -1), self.K, self.dist, self.fisheye)
+        src = _project(rays.expand(b, -1, -1), self.camera)
         src = src.reshape(b, self.side, self.side, 2).float()
         # rays the camera cannot see land outside the image: zeros there, as the border of any undistortion
         src = torch.nan_to_num(src, nan=-10.0)
@@ -136,24 +134,24 @@ class VirtualView(Warp):
     def back(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         # virtual-view pixels -> rays -> the calibrated projection in the original image
         yaw, pitch, fov = self.direction
-        pix = points.to(self.K.device, torch.float64)
-        f, R = _view_frame((yaw, pitch), fov, self.side, device=self.K.device)
+        pix = points.to(self.camera.device, torch.float64)
+        f, R = _view_frame((yaw, pitch), fov, self.side, device=self.camera.device)
         c = (self.side - 1) / 2
         local = torch.stack([(pix[..., 0] - c) / f, (pix[..., 1] - c) / f, torch.ones_like(pix[..., 0])], -1)
-        back = _project(local @ R.T, self.K, self.dist, self.fisheye)
+        back = _project(local @ R.T, self.camera)
         w, h = self.size
         inside = back.isfinite().all(-1).all(-1) & (back >= 0).all(-1).all(-1)
         inside = inside & (back[..., 0] <= w - 1).all(-1) & (back[..., 1] <= h - 1).all(-1)
         return back, inside
 
 
-def _look_at_view(detect: Callable, images: torch.Tensor, K64: torch.Tensor, d64: torch.Tensor, fisheye: bool,
-                  board_size: tuple[int, int], side: int, item: tuple) -> DetectionResult:
+def _look_at_view(detect: Callable, images: torch.Tensor, camera: Camera, board_size: tuple[int, int], side: int,
+                  item: tuple) -> DetectionResult:
     """The detection on virtual view ``item = ((yaw, pitch, fov), todo)`` of the images ``todo`` (virtual-view
     pixels)."""
     direction, todo = item
     h, w = images.shape[-2:]
-    warp = VirtualView(direction, side, K64[todo], d64[todo], fisheye, (int(w), int(h)))
+    warp = VirtualView(direction, side, camera[todo], (int(w), int(h)))
     return detect(warp.apply(images[todo]), board_size)
 
 
@@ -161,9 +159,7 @@ def detect_with_calibrated_lens(
     detect: Callable[[torch.Tensor, tuple[int, int]], DetectionResult],
     refine: Callable[[torch.Tensor, torch.Tensor, tuple[int, int]], torch.Tensor],
     images: torch.Tensor,
-    K: torch.Tensor,
-    dist: torch.Tensor,
-    fisheye: bool,
+    camera: Camera,
     board_size: tuple[int, int],
     fov_deg: float = 110.0,
     side: int = 480,
@@ -178,8 +174,7 @@ def detect_with_calibrated_lens(
         detect: a detector ``(images (B,1,h,w), board) -> DetectionResult``.
         refine: full-resolution refinement ``(images, corners (B,N,2), board) -> corners``.
         images: :math:`(B, 1, H, W)` in ``[0, 1]`` (the original images of missed views).
-        K: :math:`(B, 3, 3)`; dist: :math:`(B, D)` (OpenCV order, or ``k1..k4`` with ``fisheye``).
-        fisheye: Kannala-Brandt model (the ring of tilted views is looked at too).
+        camera: each image's calibrated camera (``B``; for a fisheye the rings of tilted views are looked at too).
         board_size: ``(cols, rows)``.
         fov_deg, side: field of view of the axis view (and the first rings), size of each virtual view.
         view_pool: ``view_pool(fn)``, a context manager giving ``run(items)`` that yields ``fn(item)`` for each item
@@ -193,15 +188,14 @@ def detect_with_calibrated_lens(
     Example:
         >>> from ccs_kornia.modules.detection.factory import make_detector
         >>> det = make_detector("opencv")
-        >>> K = torch.tensor([[[200.0, 0, 160], [0, 200, 120], [0, 0, 1]]], dtype=torch.float64)
-        >>> out = detect_with_calibrated_lens(det, lambda i, c, b: c, torch.rand(1, 1, 240, 320), K,
-        ...                                   torch.zeros(1, 4, dtype=torch.float64), True, (6, 4), side=160)
+        >>> from ccs_kornia.geometry.models import FISHEYE
+        >>> cam = Camera(FISHEYE, torch.tensor([200.0, 200, 160, 120, 0, 0, 0, 0], dtype=torch.float64))
+        >>> out = detect_with_calibrated_lens(det, lambda i, c, b: c, torch.rand(1, 1, 240, 320), cam, (6, 4), side=160)
         >>> bool(out.found[0]), out.corners.shape
         (False, torch.Size([1, 24, 2]))
     """
-    if images.dim() != 4 or K.shape != (images.shape[0], 3, 3) or dist.dim() != 2:
-        raise ValueError(f"Expected images (B, 1, H, W), K (B, 3, 3), dist (B, D); got {tuple(images.shape)}, "
-                         f"{tuple(K.shape)}, {tuple(dist.shape)}.")
+    if images.dim() != 4 or len(camera) != images.shape[0]:
+        raise ValueError(f"Expected images (B, 1, H, W) and B cameras; got {tuple(images.shape)} and {len(camera)}.")
     b, _, h, w = images.shape
     cols, rows = check_board_size(board_size, min_side=1)
     n = cols * rows
@@ -209,9 +203,9 @@ def detect_with_calibrated_lens(
     out = DetectionResult(torch.zeros(b, n, 2, dtype=torch.float32, device=device),
                           torch.zeros(b, dtype=torch.bool, device=device),
                           ["board not found on the virtual pinhole views of the calibrated lens"] * b)
-    K64, d64 = K.to(device, torch.float64), dist.to(device, torch.float64)
-    views = list(enumerate(view_directions(fisheye, fov_deg)))
-    look = functools.partial(_look_at_view, detect, images, K64, d64, fisheye, board_size, side)
+    camera = camera.to(device, torch.float64)
+    views = list(enumerate(view_directions(_wide(camera), fov_deg)))
+    look = functools.partial(_look_at_view, detect, images, camera, board_size, side)
     with (view_pool or _in_order)(look) as run:
         for start in range(0, len(views), VIEWS_PER_ROUND):
             todo = (~out.found).nonzero().flatten()
@@ -223,7 +217,7 @@ def detect_with_calibrated_lens(
                 got.found = got.found.to(device) & ~out.found[todo]
                 if not bool(got.found.any()):
                     continue
-                warp = VirtualView((yaw, pitch, fov), side, K64[todo], d64[todo], fisheye, (int(w), int(h)))
+                warp = VirtualView((yaw, pitch, fov), side, camera[todo], (int(w), int(h)))
                 mapped = map_back(warp, got, refine, images[todo], board_size)
                 mapped.reasons = [f"found on virtual pinhole view {k} of the calibrated lens (direction {yaw:.0f}, "
                                   f"{pitch:.0f} deg, {fov:.0f} deg wide)"] * todo.numel()

@@ -44,6 +44,7 @@ from ccs_kornia.modules.calibration.quality.uncertainty import (
 )
 from ccs_kornia.modules.calibration.result import ViewReason
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE, RATIONAL
 
 F64 = torch.float64
 SIZE = (640, 480)
@@ -140,7 +141,7 @@ def left02_corners():
     return torch.tensor(c.reshape(-1, 2), dtype=F64)
 
 
-@pytest.mark.parametrize("model", ["opencv5", "k1k2"])
+@pytest.mark.parametrize("model", [OPENCV5, K1K2])
 def test_four_copies_of_one_photo_are_refused(left02_corners, model):
     """Four copies of left02.jpg: was success with fx 316-612 (true ~533) and no warning."""
     obj = board_object_points(9, 6, 0.025, dtype=F64)
@@ -252,9 +253,9 @@ def test_one_tilt_direction_warns():
     assert float(res.check_value[:, CHECKS.index("tilt_direction")].max()) < 1.0  # degrees across the axis
 
 
-@pytest.mark.parametrize("board,model,severity", [((2, 2), "k1k2", degeneracy.ERROR),
-                                                  ((3, 2), "opencv5", degeneracy.WARNING),
-                                                  ((3, 2), "rational", degeneracy.WARNING)])
+@pytest.mark.parametrize("board,model,severity", [((2, 2), K1K2, degeneracy.ERROR),
+                                                  ((3, 2), OPENCV5, degeneracy.WARNING),
+                                                  ((3, 2), RATIONAL, degeneracy.WARNING)])
 def test_too_few_corners_per_unknown(board, model, severity):
     d = views(C=20, V=3, board=board, seed=11)
     res = CalibrationSolver(model=model)(d["uv"], d["valid"], d["obj"], SIZE)
@@ -313,7 +314,7 @@ def test_fx_std_is_calibrated_over_200_trials():
 
 def test_cov_camera_matches_the_reported_std():
     d = views(C=4, V=8, seed=14)
-    for model in ("opencv5", "k1k2", "none"):
+    for model in (OPENCV5, K1K2, PINHOLE):
         res = CalibrationSolver(model=model)(d["uv"], d["valid"], d["obj"], SIZE)
         D = res.dist.shape[-1]
         assert res.cov_camera.shape == (4, 4 + D, 4 + D)
@@ -343,22 +344,24 @@ def _monte_carlo(model, V, sigma, M=100, seed=16):
 
 @pytest.mark.parametrize("compensate", [False, True])
 def test_projection_uncertainty_matches_monte_carlo(compensate):
+    from ccs_kornia.geometry.camera import Camera
     from ccs_kornia.modules.calibration.quality.uncertainty import (
-        _project_rays,
-        _rays,
-        _remove_rotation,
+        image_rays,
+        remove_rotation,
+        storage_jacobians,
     )
 
-    d, res = _monte_carlo("opencv5", 12, 0.3)
+    d, res = _monte_carlo(OPENCV5, 12, 0.3)
     assert bool(res.success.all())
     grid = image_points(SIZE, (16, 12))
     px = torch.cat([grid, image_points(SIZE)])
     fit = (torch.arange(px.shape[0]) < grid.shape[0]) if compensate else None
-    pred = projection_uncertainty(res.K, res.dist, res.cov_camera, px, compensate_rotation=fit)[:, -5:].nanmedian(0).values
-    q, _, A = _project_rays(_rays(d["K"], d["dist"], px).expand(res.K.shape[0], -1, -1), res.K, res.dist, True)
+    pred = projection_uncertainty(res.camera, res.cov_camera, px, compensate_rotation=fit)[:, -5:].nanmedian(0).values
+    truth = Camera.from_opencv(OPENCV5, d["K"], d["dist"], SIZE)
+    q, _, A = storage_jacobians(res.camera, image_rays(truth, px).expand(res.K.shape[0], -1, -1))
     dq = (q - px)[..., None]
     if compensate:
-        dq = _remove_rotation(dq, A, fit)
+        dq = remove_rotation(dq, A, fit)
     dq = dq[..., 0][:, -5:]
     dq = dq - dq.mean(0)
     emp = torch.linalg.eigvalsh(torch.einsum("mgi,mgj->gij", dq, dq) / (dq.shape[0] - 1))[:, -1].sqrt()
@@ -372,7 +375,7 @@ def test_projection_uncertainty_grows_with_noise_and_fewer_views():
     for key, V, noise in (("base", 16, (0.2, 0.2)), ("noisy", 16, (0.6, 0.6)), ("few", 5, (0.2, 0.2))):
         d = views(C=8, V=V, noise=noise, seed=17)
         res = solver(d["uv"], d["valid"], d["obj"], SIZE)
-        out[key] = projection_uncertainty(res.K, res.dist, res.cov_camera, image_points(SIZE)).nanmedian(0).values
+        out[key] = projection_uncertainty(res.camera, res.cov_camera, image_points(SIZE)).nanmedian(0).values
     assert (out["noisy"] > 2 * out["base"]).all() and (out["few"] > out["base"]).all()
 
 
@@ -403,17 +406,17 @@ def test_cross_validation_exposes_a_model_that_does_not_fit():
                              d["dist"][:, None].expand(6, 16, 5), d["rvec"], d["tvec"])
     d["uv"] = d["uv"] + 0.2 * torch.randn(d["uv"].shape, generator=torch.Generator().manual_seed(0), dtype=F64)
     ratios = {}
-    for model in ("none", "k1k2"):
+    for model in (PINHOLE, K1K2):
         solver = CalibrationSolver(model=model)
         res = solver(d["uv"], d["valid"], d["obj"], SIZE)
         figs = diagnose(res, d["uv"], d["valid"], d["obj"], SIZE, solver)
         ratios[model] = torch.tensor([f["cv_rms_px"] / f["cv_expected_rms_px"] for f in figs])
         verdicts = [f["verdict"] for f in figs]
-        if model == "none":  # never "good"; mostly refused as not reliable
+        if model == PINHOLE:  # never "good"; mostly refused as not reliable
             assert "good" not in verdicts and sum(v.startswith("not reliable") for v in verdicts) >= 4, verdicts
         else:  # the right model: at most one camera (weak geometry) not reliable
             assert sum(v.startswith("not reliable") for v in verdicts) <= 1, verdicts
-    assert float(ratios["none"].median()) > 2 * float(ratios["k1k2"].median()), ratios
+    assert float(ratios[PINHOLE].median()) > 2 * float(ratios[K1K2].median()), ratios
 
 
 # ------------------------------------------------------------------------------------------ diagnose / verdict

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.geometry.camera import board_object_points, project_points
+from ccs_kornia.geometry.camera import Camera, board_object_points, project_points
 from ccs_kornia.modules.calibration.quality.uncertainty import (
     image_points,
     projection_uncertainty,
@@ -18,6 +18,7 @@ from ccs_kornia.modules.calibration.quality.view_information import (
     view_information,
 )
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 
 OBJ = board_object_points(9, 6, 0.03, dtype=torch.float64)
 K = torch.tensor([[800.0, 0, 640], [0, 800, 360], [0, 0, 1]], dtype=torch.float64)
@@ -37,14 +38,13 @@ def _views(num: int = 12, seed: int = 0, noise: float = 0.1):
 @pytest.fixture(scope="module")
 def solved():
     uv, _, _ = _views()
-    res = CalibrationSolver(model="opencv5", use_ransac=False)(uv[None], torch.ones(1, 12, 54, dtype=torch.bool),
+    res = CalibrationSolver(model=OPENCV5, use_ransac=False)(uv[None], torch.ones(1, 12, 54, dtype=torch.bool),
                                                                OBJ, SIZE)
     return res
 
 
 def test_sum_of_the_views_is_the_solvers_covariance(solved):
-    M = view_information("opencv5", solved.K, solved.dist, solved.rvec, solved.tvec, OBJ,
-                         torch.ones(1, 12, 54, dtype=torch.float64))
+    M = view_information(solved.camera, solved.rvec, solved.tvec, OBJ, torch.ones(1, 12, 54, dtype=torch.float64))
     assert M.shape == (1, 12, 9, 9)
     n = 12 * 54
     sigma2 = solved.rms**2 / 2 * (2 * n) / (2 * n - 9 - 6 * 12)  # per coordinate, over the degrees of freedom
@@ -54,9 +54,9 @@ def test_sum_of_the_views_is_the_solvers_covariance(solved):
 
 
 def test_image_weights_give_the_mean_projection_uncertainty(solved):
-    A = image_information("opencv5", solved.K, solved.dist, SIZE)
+    A = image_information(solved.camera)
     grid = image_points(SIZE, (16, 12))
-    u = projection_uncertainty(solved.K, solved.dist, solved.cov_camera, grid, worst=False,
+    u = projection_uncertainty(solved.camera, solved.cov_camera, grid, worst=False,
                                compensate_rotation=torch.ones(grid.shape[0], dtype=torch.bool))
     mean = (A * solved.cov_camera.transpose(-1, -2)).sum((-1, -2)) / 2
     torch.testing.assert_close(mean, u.pow(2).mean(-1), rtol=1e-9, atol=0)
@@ -67,21 +67,21 @@ def test_shapes_of_a_batch_and_of_a_fisheye(device):
     Kb = K.expand(3, 3, 3).to(device)
     w = torch.ones(3, 4, 54, dtype=torch.float64, device=device)
     w[1, 2] = 0  # a view without corners: no information
-    M = view_information("k1k2", Kb, DIST.expand(3, 5).to(device), rvec.expand(3, 4, 3).to(device),
-                         tvec.expand(3, 4, 3).to(device), OBJ.to(device), w)
+    cams = Camera.from_opencv(K1K2, Kb, DIST[:2].expand(3, 2).to(device), SIZE)
+    M = view_information(cams, rvec.expand(3, 4, 3).to(device), tvec.expand(3, 4, 3).to(device), OBJ.to(device), w)
     assert M.shape == (3, 4, 6, 6) and M.device.type == device.type
     assert bool((M[1, 2] == 0).all()) and bool(M[0, 0].diagonal().gt(0).all())
     torch.testing.assert_close(M[0], M[2])
-    Mf = view_information("fisheye", K[None].to(device), torch.zeros(1, 4, dtype=torch.float64, device=device),
-                          rvec[None].to(device), tvec[None].to(device), OBJ.to(device), w[:1])
-    A = image_information("fisheye", K[None].to(device), torch.zeros(1, 4, dtype=torch.float64, device=device), SIZE)
+    fish = Camera.from_opencv(FISHEYE, K.to(device), None, SIZE)
+    Mf = view_information(fish, rvec[None].to(device), tvec[None].to(device), OBJ.to(device), w[:1])
+    A = image_information(fish)
     assert Mf.shape == (1, 4, 8, 8) and A.shape == (1, 8, 8)
 
 
 def test_bad_shapes_are_refused():
-    with pytest.raises(ValueError, match="Expected K"):
-        view_information("k1k2", K, DIST[None], torch.zeros(1, 2, 3), torch.zeros(1, 2, 3), OBJ,
-                         torch.ones(1, 2, 54))
+    with pytest.raises(ValueError, match="Expected 1 cameras"):
+        view_information(Camera.from_opencv(K1K2, K, DIST[:2]), torch.zeros(2, 2, 3), torch.zeros(2, 2, 3), OBJ,
+                         torch.ones(2, 2, 54))
     with pytest.raises(ValueError, match="Expected information"):
         greedy_information(torch.zeros(1, 3, 6, 6), torch.zeros(1, 5, 5))
     with pytest.raises(ValueError, match="max_count"):
@@ -90,8 +90,8 @@ def test_bad_shapes_are_refused():
 
 def _information(rvec, tvec):
     w = torch.ones(1, rvec.shape[0], 54, dtype=torch.float64)
-    return (view_information("k1k2", K[None], DIST[None], rvec[None], tvec[None], OBJ, w),
-            image_information("k1k2", K[None], DIST[None], SIZE))
+    cam = Camera.from_opencv(K1K2, K, DIST[:2], SIZE)
+    return view_information(cam, rvec[None], tvec[None], OBJ, w), image_information(cam)
 
 
 def test_greedy_with_copies_ruled_out_takes_every_pose_once():
