@@ -183,7 +183,7 @@ def calibrate_hand_eye(
         :class:`~ccs_kornia.modules.hand_eye.result.HandEyeResult`.
 
     Example:
-        >>> from ccs_kornia.data.robots import render_hand_eye
+        >>> from ccs_kornia.data.scenes.robots import render_hand_eye
         >>> s = render_hand_eye("eye_in_hand", views=8, seed=0, noise_px=0.0, joint_noise_deg=0.0)
         >>> cam = RigCamera("k1k2", s.K, s.dist)
         >>> res = calibrate_hand_eye(s.corners[None], s.valid[None], s.object_points, s.robot_poses[None], cam,
@@ -344,7 +344,7 @@ class HandEyeSolver(nn.Module):
         :math:`(B, V, 4, 4)` -> :class:`~ccs_kornia.modules.hand_eye.result.HandEyeResult`.
 
     Example:
-        >>> from ccs_kornia.data.robots import render_hand_eye
+        >>> from ccs_kornia.data.scenes.robots import render_hand_eye
         >>> s = render_hand_eye("eye_to_hand", views=8, seed=1)
         >>> solver = HandEyeSolver("eye_to_hand")
         >>> res = solver(s.corners[None], s.valid[None], s.object_points, s.robot_poses[None], RigCamera("k1k2", s.K, s.dist))
