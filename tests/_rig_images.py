@@ -1,6 +1,6 @@
 """Rendered image sets of a stereo rig for the rig tests: two cameras seeing the same board poses.
 
-Camera 0's board poses come from :func:`~ccs_kornia.data.scenes.make_calibration_set` (the board inside its image);
+Camera 0's board poses come from :func:`~ccs_kornia.data.scenes.scenes.make_calibration_set` (the board inside its image);
 camera 1 sees each board through the rig's extrinsics ``x_1 = R x_0 + T`` and is rendered with its own camera matrix
 and image size. Only frames where camera 1 sees the whole board are kept, so both cameras find every board.
 """
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import torch
 
-from ccs_kornia.data.renderer import render_chessboard
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.render.renderer import render_chessboard
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.geometry.camera import (
     axis_angle_to_rotation_matrix,
     rotation_matrix_to_axis_angle,

@@ -147,7 +147,7 @@ def test_pipeline_loads_no_lightning():
 
 def test_renderer_does_not_depend_on_the_stages():
     # the ground truth must never come from the stages it is used to test
-    loaded = _loaded_after("import ccs_kornia.data.scenes, ccs_kornia.data.targets")
+    loaded = _loaded_after("import ccs_kornia.data.scenes.scenes, ccs_kornia.data.scenes.targets")
     assert not _ours(loaded, "ccs_kornia.modules", "ccs_kornia.pipeline", "ccs_kornia.losses")
 
 

@@ -5,7 +5,7 @@
 ``--out``. Sections (paper tables in brackets): ``corners`` (III), ``calibration`` (I), ``real`` (II and the
 RPE box plot), ``distortion`` (IV), ``speed``, ``wild`` (detection in the wild), ``fisheye`` (fisheye lenses),
 ``rig`` (camera rigs), ``markers`` (ChArUco and AprilGrid boards).
-Synthetic scenes use seeds from :data:`ccs_kornia.data.datamodule.BENCH_SEED_BASE` upwards, which training never
+Synthetic scenes use seeds from :data:`ccs_kornia.data.datamodules.datamodule.BENCH_SEED_BASE` upwards, which training never
 uses.
 
 Example:

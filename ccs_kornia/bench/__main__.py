@@ -99,7 +99,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
         if not asked:
             continue
         if kind == "wild":
-            from ccs_kornia.bench.wild import WILD_CONDITIONS as known
+            from ccs_kornia.bench.sections.wild import WILD_CONDITIONS as known
         else:
             from ccs_kornia.bench.config import CALIB_CONDITIONS as known
         unknown = [c for c in asked if c not in known]

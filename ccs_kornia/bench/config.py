@@ -34,7 +34,7 @@ _CONDITION_PARTS: dict[str, tuple[str, str | None]] = {
     "optics": ("clean", None),
     "optics_blur_noise": ("blur_noise", None),
 }
-#: conditions finished by a camera's last mile, as every ``wild`` render is (``data.optics.apply_optics``: a 0.3-1 px
+#: conditions finished by a camera's last mile, as every ``wild`` render is (``data.render.optics.apply_optics``: a 0.3-1 px
 #: Gaussian point spread, read and shot noise, a tone curve of gamma 1.8-2.4: the plain renders are kinder to our
 #: detector than real optics)
 OPTICS_CONDITIONS: tuple[str, ...] = ("optics", "optics_blur_noise")
@@ -59,7 +59,7 @@ class BenchConfig:
         corner_images: images per condition (corner section).
         corner_views_per_camera: views per random camera in the corner section.
         corner_ablations: extra rows of the corner section, keys of
-            :data:`~ccs_kornia.bench.methods.ABLATIONS` (run when their base method is among ``methods``; not
+            :data:`~ccs_kornia.bench.methods.methods.ABLATIONS` (run when their base method is among ``methods``; not
             counted in *mean common*).
         error_threshold: a corner further than this (px) from the truth is wrong.
         calib_conditions: conditions of the calibration section.
@@ -87,29 +87,29 @@ class BenchConfig:
         wild_methods: detection methods of the ``wild`` section (``None``: all of ``methods``); by default the
             usual peers (OpenCV classic + cornerSubPix, SB, libcbdetect) and ours.
         wild_time_limit: seconds a peer may spend on one image of the wild section (then: no board, "timed out").
-        wild_conditions: conditions of the ``wild`` section (``None``: all of ``bench.wild.WILD_CONDITIONS``).
+        wild_conditions: conditions of the ``wild`` section (``None``: all of ``bench.sections.wild.WILD_CONDITIONS``).
         wild_images: images per wild condition; wild_big_images: per condition of 4 Mpx and more.
         wild_free_images: board-free images of the wild section.
         wild_real_sets: real sets rescaled in the wild section (``None``: all eight).
         fisheye_trials, fisheye_views, fisheye_noise, fisheye_fov, fisheye_fail_px: the synthetic part of the
             ``fisheye`` section (cameras, views each, corner noise px, field of view range in degrees, E_IP above
             which a calibration counts as failed); fisheye_rendered: also render those cameras' views and let every
-            method detect its own corners (:mod:`~ccs_kornia.bench.fisheye_rendered`); fisheye_real_sets: its
+            method detect its own corners (:mod:`~ccs_kornia.bench.sections.fisheye_rendered`); fisheye_real_sets: its
             real sets.
         wild_real_scales: rescaling factors of the real photos; wild_real_images: images per set (``None``: all).
-        rig_trials, rig_frames: rendered rigs of the ``rig`` section and frames per rig (:mod:`~ccs_kornia.bench.rig`).
+        rig_trials, rig_frames: rendered rigs of the ``rig`` section and frames per rig (:mod:`~ccs_kornia.bench.sections.rig`).
         rig_session_trials, rig_session_duration, rig_session_conditions, rig_session_caliscope: the
-            ``rig_sessions`` section (:mod:`~ccs_kornia.bench.rig_sessions`): rendered hand-held sessions, seconds
+            ``rig_sessions`` section (:mod:`~ccs_kornia.bench.sections.rig_sessions`): rendered hand-held sessions, seconds
             each, their conditions, and whether the shared caliscope session runs too.
         markers_views, markers_aprilgrid_views: rendered ChArUco / AprilGrid views per condition of the ``markers``
-            section (:mod:`~ccs_kornia.bench.markers`); markers_calib_trials, markers_calib_views: its calibrations
+            section (:mod:`~ccs_kornia.bench.sections.markers`); markers_calib_trials, markers_calib_views: its calibrations
             from partial views; markers_real_sets: its real ChArUco sets.
         video_recordings, video_seconds, video_size: the ``video`` section's rendered recordings (how many, seconds
-            at 30 fps, ``(W, H)``; :mod:`~ccs_kornia.bench.video`); video_heldout_seconds, video_heldout_frames: the
+            at 30 fps, ``(W, H)``; :mod:`~ccs_kornia.bench.sections.video`); video_heldout_seconds, video_heldout_frames: the
             held-out recording of each camera and the frames of it detected; video_command: also time ``calibrate
             VIDEO`` end to end; video_jobs: processes; video_real_cameras, video_real_rig: the cameras of the shared
             caliscope recording compared one by one, and whether its rig is.
-        hand_eye_trials: rendered robots per set-up of the ``hand_eye`` section (:mod:`~ccs_kornia.bench.hand_eye`);
+        hand_eye_trials: rendered robots per set-up of the ``hand_eye`` section (:mod:`~ccs_kornia.bench.sections.hand_eye`);
             hand_eye_views: the range of their poses; hand_eye_real: also its real robot (where the data is found).
     """
 

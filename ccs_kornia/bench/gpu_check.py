@@ -54,7 +54,7 @@ def _render(views: int, seed: int = 7) -> tuple[torch.Tensor, torch.Tensor]:
     Returns:
         ``(images, corners)``: ``(views, 1, 480, 640)`` images quantised to 8 bits, ``(views, 54, 2)`` true corners.
     """
-    from ccs_kornia.data.scenes import make_calibration_set
+    from ccs_kornia.data.scenes.scenes import make_calibration_set
 
     K = torch.tensor([[560.0, 0, 322], [0, 555, 236], [0, 0, 1]], dtype=torch.float64)
     s = make_calibration_set(K, BOARD, SQUARE, SIZE, num_views=views, seed=seed, supersample=2,

@@ -9,8 +9,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from ccs_kornia.bench.config import SECTIONS, BenchConfig
-from ccs_kornia.bench.methods import make_methods
-from ccs_kornia.bench.report import (
+from ccs_kornia.bench.methods.methods import make_methods
+from ccs_kornia.bench.report.report import (
     draw_boxplot,
     machine_info,
     render_markdown,
@@ -85,18 +85,18 @@ def run_bench(
 
 #: section -> (module, function, what it takes besides ``cfg`` and ``log``: the methods, the device)
 SECTION_RUNNERS: dict[str, tuple[str, str, bool, bool]] = {
-    "corners": ("ccs_kornia.bench.corners", "run_corners", True, False),
-    "calibration": ("ccs_kornia.bench.calibration", "run_calibration", True, True),
-    "real": ("ccs_kornia.bench.real", "run_real", True, True),
-    "distortion": ("ccs_kornia.bench.distortion", "run_distortion", True, True),
-    "wild": ("ccs_kornia.bench.wild", "run_wild", True, False),
-    "fisheye": ("ccs_kornia.bench.fisheye", "run_fisheye", False, False),
-    "rig": ("ccs_kornia.bench.rig", "run_rig", False, False),
-    "markers": ("ccs_kornia.bench.markers", "run_markers", False, False),
-    "rig_sessions": ("ccs_kornia.bench.rig_sessions", "run_rig_sessions", False, False),
-    "hand_eye": ("ccs_kornia.bench.hand_eye", "run_hand_eye", False, False),
-    "speed": ("ccs_kornia.bench.speed", "run_speed", True, False),
-    "video": ("ccs_kornia.bench.video", "run_video", False, False),
+    "corners": ("ccs_kornia.bench.sections.corners", "run_corners", True, False),
+    "calibration": ("ccs_kornia.bench.sections.calibration", "run_calibration", True, True),
+    "real": ("ccs_kornia.bench.sections.real", "run_real", True, True),
+    "distortion": ("ccs_kornia.bench.sections.distortion", "run_distortion", True, True),
+    "wild": ("ccs_kornia.bench.sections.wild", "run_wild", True, False),
+    "fisheye": ("ccs_kornia.bench.sections.fisheye", "run_fisheye", False, False),
+    "rig": ("ccs_kornia.bench.sections.rig", "run_rig", False, False),
+    "markers": ("ccs_kornia.bench.sections.markers", "run_markers", False, False),
+    "rig_sessions": ("ccs_kornia.bench.sections.rig_sessions", "run_rig_sessions", False, False),
+    "hand_eye": ("ccs_kornia.bench.sections.hand_eye", "run_hand_eye", False, False),
+    "speed": ("ccs_kornia.bench.sections.speed", "run_speed", True, False),
+    "video": ("ccs_kornia.bench.sections.video", "run_video", False, False),
 }
 
 

@@ -23,7 +23,7 @@ DEMO_VIEWS = 15
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from ccs_kornia.data.scenes import make_calibration_set
+    from ccs_kornia.data.scenes.scenes import make_calibration_set
     from ccs_kornia.geometry.metrics import e_fl, e_ip, e_pp
     from ccs_kornia.io.files import write_json
     from ccs_kornia.io.images import write_image

@@ -203,7 +203,7 @@ def undistort_pixels(
     kornia's fixed-point inverse followed by Newton steps on the normalized plane (5-coefficient models),
     which fixes the last digits and most of the cases where the fixed point oscillates under strong
     barrel distortion (kornia #4285). Outside the model's monotonic range no inverse exists; the
-    renderer (``data/lens.py``) adds a bisection start for that case.
+    renderer (``data/render/lens.py``) adds a bisection start for that case.
     """
     d = _pad_opencv(dist)
     ideal = undistort_points(points, K, d, num_iters=num_iters)

@@ -144,7 +144,7 @@ class CalibrationPipeline(nn.Module):
         solver_kwargs: further options of :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
 
     Example:
-        >>> from ccs_kornia.data.scenes import make_calibration_set
+        >>> from ccs_kornia.data.scenes.scenes import make_calibration_set
         >>> K = torch.tensor([[300., 0, 160], [0, 300, 120], [0, 0, 1]], dtype=torch.float64)
         >>> views = make_calibration_set(K, (6, 4), 0.025, (320, 240), num_views=5, seed=1, supersample=1)
         >>> out = CalibrationPipeline("opencv")(views.images, (6, 4), 0.025)

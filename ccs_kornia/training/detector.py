@@ -19,7 +19,7 @@ __all__ = ["DetectorLitModule"]
 class DetectorLitModule(L.LightningModule):
     """Trains :class:`CornerUNet` on rendered chessboards against Gaussian target heatmaps.
 
-    Batches are dicts from :class:`ccs_kornia.data.datamodule.DetectorDataModule` with ``image``
+    Batches are dicts from :class:`ccs_kornia.data.datamodules.datamodule.DetectorDataModule` with ``image``
     (B,1,H,W), ``heatmap`` (B,1,H,W), ``corners`` (B,N,2) and ``valid`` (B,N).
 
     Validation logs the heatmap loss and two figures that matter for calibration: the sub-pixel

@@ -29,7 +29,7 @@ __all__ = ["DistortionLitModule"]
 class DistortionLitModule(L.LightningModule):
     """Trains :class:`DistortionNet` with the sampling-grid loss on rendered, radially distorted boards.
 
-    Batches are dicts from :class:`ccs_kornia.data.distortion_datamodule.DistortionDataModule` with ``image``
+    Batches are dicts from :class:`ccs_kornia.data.datamodules.distortion_datamodule.DistortionDataModule` with ``image``
     (B,1,H,W), ``radial`` (B,3), ``corners`` (B,N,2), ``valid`` (B,N), ``board_size`` (B,2), ``level`` (B,).
 
     Validation logs, all in pixels of the rendered views:

@@ -40,7 +40,7 @@ class EndToEndLitModule(L.LightningModule):
     """Fine-tunes :class:`CornerUNet` on the camera the solver makes from its corners.
 
     Each batch is one rendered calibration set with its exact camera
-    (:class:`~ccs_kornia.data.calibration_datamodule.CalibrationSetDataModule`). A step:
+    (:class:`~ccs_kornia.data.datamodules.calibration_datamodule.CalibrationSetDataModule`). A step:
 
     1. the learned detector, without image refinement (``refine="none"``: its corners are the network's own Gaussian
        fits) and with the current weights, finds the boards without autograd (every discrete decision);

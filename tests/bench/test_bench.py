@@ -12,14 +12,14 @@ from _real_data import REAL_DATA
 from ccs_kornia.bench import BenchConfig, run_bench
 from ccs_kornia.bench.__main__ import main
 from ccs_kornia.bench.common import ccs_calibrate, cv2_calibrate, summary
-from ccs_kornia.bench.methods import make_methods
-from ccs_kornia.bench.report import (
+from ccs_kornia.bench.methods.methods import make_methods
+from ccs_kornia.bench.report.report import (
     HONEST_END,
     HONEST_START,
     draw_boxplot,
     write_markdown,
 )
-from ccs_kornia.bench.scenes import corner_errors, orient_grid, render_scenes
+from ccs_kornia.bench.scenes.scenes import corner_errors, orient_grid, render_scenes
 from ccs_kornia.geometry.camera import board_object_points, project_points
 
 REAL = REAL_DATA
@@ -100,7 +100,7 @@ def test_optics_conditions_finish_the_renders_and_keep_the_other_seeds():
     # the older conditions' seed index: their sorted order without the optics conditions (seed base + 1000 x index)
     severe = render_scenes(cfg, "severe", 1, 1, "calibration")
     gen = torch.Generator().manual_seed(9_000_000 + 100_000 + 1000 * 8)
-    from ccs_kornia.bench.scenes import random_cameras
+    from ccs_kornia.bench.scenes.scenes import random_cameras
 
     assert torch.equal(severe.K, random_cameras(1, cfg.image_size, gen))
 
@@ -177,7 +177,7 @@ def test_solvers_recover_exact_intrinsics():
 
 
 def test_corner_section_has_the_collinearity_rows():
-    from ccs_kornia.bench.corners import run_corners
+    from ccs_kornia.bench.sections.corners import run_corners
 
     methods = make_methods(("learned",))
     if not methods["learned"].available:
@@ -261,7 +261,7 @@ def test_markdown_keeps_hand_written_reading(tiny_run, tmp_path):
 
 
 def test_distortion_section_with_an_untrained_network(tmp_path):
-    from ccs_kornia.bench.distortion import run_distortion
+    from ccs_kornia.bench.sections.distortion import run_distortion
     from ccs_kornia.modules.correction.distortion_net import DistortionNet
 
     net = DistortionNet(base_channels=4, input_size=64)
@@ -280,7 +280,7 @@ def test_distortion_section_with_an_untrained_network(tmp_path):
         assert set(rows) == {"ccs_on", "ccs_off", "opencv", "opencv_ccs_corrected"}
         assert all(r["trials"] == 1 for r in rows.values())
         assert res[part]["correction_applied"] == 0
-    from ccs_kornia.bench.report import _distortion_md
+    from ccs_kornia.bench.report.report import _distortion_md
 
     md = "\n".join(_distortion_md(res))
     assert "Straightness" in md and "wide camera" in md
@@ -290,7 +290,7 @@ def test_distortion_section_with_an_untrained_network(tmp_path):
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="shared/data/real is not present next to the repository")
 def test_real_section_and_boxplot(tmp_path):
-    from ccs_kornia.bench.real import run_real
+    from ccs_kornia.bench.sections.real import run_real
 
     cfg = BenchConfig.tiny(real_dir=str(REAL), real_max_images=5, real_subsets=3)
     res = run_real(cfg, make_methods(("opencv_subpix",)), log=lambda *_: None)
@@ -325,7 +325,7 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
 
 
 def test_load_reference_reads_one_camera_of_a_stereo_file(tmp_path):
-    from ccs_kornia.bench.real import load_reference
+    from ccs_kornia.bench.sections.real import load_reference
 
     path = tmp_path / "stereo.yaml"
     path.write_text("left:\n  pinhole:\n    fx: 1.5\n    fy: 2.5\n    cx: 3.5\n    cy: 4.5\nmodel: stereo_camera\n"

@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.data.marker_views import render_marker_view
-from ccs_kornia.data.renderer import render_chessboard
-from ccs_kornia.data.robots import render_hand_eye
+from ccs_kornia.data.render.renderer import render_chessboard
+from ccs_kornia.data.scenes.marker_views import render_marker_view
+from ccs_kornia.data.scenes.robots import render_hand_eye
 from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.io.images import write_image
 from ccs_kornia.modules.detection.markers.apriltag import AprilTagTarget

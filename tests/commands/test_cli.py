@@ -17,7 +17,7 @@ from _real_data import REAL_DATA
 from ccs_kornia import cli
 from ccs_kornia.commands import _common
 from ccs_kornia.commands import detect as detect_command
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.geometry.metrics import e_ip
 from ccs_kornia.io.images import write_image
 
@@ -774,7 +774,7 @@ def test_jobs_option_sets_the_pipeline_workers(capsys):
 
 
 def test_the_bench_times_the_default_path_with_the_command_line_batch_size():
-    from ccs_kornia.bench.floors import CLI_BATCH_SIZE
+    from ccs_kornia.bench.sections.floors import CLI_BATCH_SIZE
 
     args = cli.build_parser().parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json"])
     assert args.batch_size == CLI_BATCH_SIZE

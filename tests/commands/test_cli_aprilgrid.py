@@ -11,7 +11,7 @@ import pytest
 
 from ccs_kornia import cli
 from ccs_kornia.commands import _common
-from ccs_kornia.data.marker_views import K, render_condition
+from ccs_kornia.data.scenes.marker_views import K, render_condition
 from ccs_kornia.modules.detection.boards import AprilGrid
 
 GRID = AprilGrid(6, 6, 0.088, 0.3)
@@ -131,7 +131,10 @@ def test_calibrate_many_needs_a_board(tmp_path, capsys):
 
 
 def test_calibrate_rig_takes_aprilgrid(tmp_path, capsys):
-    from ccs_kornia.data.marker_views import random_board_pose, render_marker_view
+    from ccs_kornia.data.scenes.marker_views import (
+        random_board_pose,
+        render_marker_view,
+    )
 
     (tmp_path / "april.yaml").write_text(YAML)
     rng = np.random.default_rng(9)

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-import ccs_kornia.data.scenes
+import ccs_kornia.data.scenes.scenes
 import ccs_kornia.io.images
 from ccs_kornia import cli
 from ccs_kornia.commands import _common
@@ -60,7 +60,7 @@ def _commands(root) -> list[tuple[list[str], str]]:
 def test_every_output_is_checked_before_any_work(folders, capsys, monkeypatch, case):
     argv, option = _commands(folders)[case]
     monkeypatch.setattr(CalibrationPipeline, "run", _no_work)
-    monkeypatch.setattr(ccs_kornia.data.scenes, "make_calibration_set", _no_work)
+    monkeypatch.setattr(ccs_kornia.data.scenes.scenes, "make_calibration_set", _no_work)
     monkeypatch.setattr(ccs_kornia.io.images, "read_image", _no_work)
     calib = {"K": [[100.0, 0, 32], [0, 100, 24], [0, 0, 1]], "distortion": {"model": "k1k2", "coeffs": [0.0] * 5},
              "image_size": [64, 48]}

@@ -231,7 +231,7 @@ def test_allow_weak_calibrates_near_parallel_views_as_not_reliable(tmp_path, cap
 
 
 def test_allow_weak_without_diagnostics_still_says_not_reliable(tmp_path, capsys):
-    from ccs_kornia.data.scenes import make_calibration_set
+    from ccs_kornia.data.scenes.scenes import make_calibration_set
 
     K = torch.tensor([[400.0, 0.0, 160.0], [0.0, 400.0, 120.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
     views = make_calibration_set(K, (7, 5), 0.025, (320, 240), num_views=5, seed=3, supersample=1, max_tilt_deg=2.0)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.data.sampling import sample_poses
+from ccs_kornia.data.scenes.sampling import sample_poses
 
 W, H = 160, 120
 

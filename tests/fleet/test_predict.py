@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.fleet.predict import (
     CalibrationLitModule,
     ImageSetDataModule,

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.io.images import write_image
 
 REPO = Path(__file__).resolve().parents[2]

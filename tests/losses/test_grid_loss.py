@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.data.sampling import sample_radial_distortion
+from ccs_kornia.data.scenes.sampling import sample_radial_distortion
 from ccs_kornia.geometry import camera
 from ccs_kornia.losses.grid_loss import (
     GridLoss,

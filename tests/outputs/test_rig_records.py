@@ -6,7 +6,7 @@ from __future__ import annotations
 import torch
 
 from ccs_kornia.commands.calibrate_rig import summary_lines
-from ccs_kornia.data.rig import render_rig
+from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.rig import RigSolver
 from ccs_kornia.outputs.rig_records import (

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.geometry.metrics import e_ip
 from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline, PipelineResult
@@ -310,7 +310,7 @@ def test_a_large_correction_is_tried_even_where_it_does_not_straighten():
     5 of 50 held-out level-2 cameras): the camera still goes to the corrected frame, which recovers it where the
     usual fit misses it by tens of px."""
     from ccs_kornia.bench.common import k0_scaled_intrinsics
-    from ccs_kornia.data.sampling import sample_poses
+    from ccs_kornia.data.scenes.sampling import sample_poses
     from ccs_kornia.geometry.camera import (
         board_object_points,
         project_points,
@@ -443,9 +443,9 @@ def test_boards_at_a_grazing_angle_are_looked_for_after_the_other_looks(monkeypa
     """The learned detector's last resort for foreshortened boards (four detections more on each view without a
     board) is deferred to the views the other looks left: the streamed pass runs without it (and restores it), the
     end of the pipeline runs it once on what is still missed, corners as precise as the detector's."""
-    from ccs_kornia.bench.scenes import quantize
-    from ccs_kornia.bench.wild import wild_spec
-    from ccs_kornia.data.wild import WildChessboards
+    from ccs_kornia.bench.scenes.scenes import quantize
+    from ccs_kornia.bench.sections.wild import wild_spec
+    from ccs_kornia.data.scenes.wild import WildChessboards
     from ccs_kornia.pipeline.sources import TensorSource
 
     spec, board = wild_spec("tilt75")  # a held-out render (the bench's seeds start at BENCH_SEED_BASE + 400000)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.geometry.camera import board_object_points
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.detection.refine.differentiable_refine import symmetry_refine

@@ -10,7 +10,7 @@ from _rig_images import BOARD as RIG_BOARD
 from _rig_images import SQUARE as RIG_SQUARE
 from _rig_images import render_stereo
 
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.geometry.camera import board_object_points, project_points
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.outputs.records import camera_record

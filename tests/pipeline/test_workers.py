@@ -118,7 +118,7 @@ def test_an_error_in_a_worker_is_raised_here():
 
 @linux
 def test_pipeline_detects_the_same_corners_with_two_workers(tmp_path):
-    from ccs_kornia.data.scenes import make_calibration_set
+    from ccs_kornia.data.scenes.scenes import make_calibration_set
     from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
     K = torch.tensor([[300.0, 0, 159.5], [0, 300, 119.5], [0, 0, 1]], dtype=torch.float64)

@@ -64,7 +64,7 @@ def test_detector_refines_at_full_resolution_on_all_threads_under_passive_waits(
     """Under passive waits the level's refinement runs on one thread and the full-resolution refinement, whose regions
     are large, on all (measured faster at 640x480 and on 1280x960 photos)."""
     import ccs_kornia.modules.detection.learned.learned_detector as learned
-    from ccs_kornia.data.scenes import make_calibration_set
+    from ccs_kornia.data.scenes.scenes import make_calibration_set
     from ccs_kornia.modules.detection.refine.saddle_refine import CornerRefiner
 
     monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from ccs_kornia.data.datamodule import DetectorDataModule, RenderedBatches
+from ccs_kornia.data.datamodules.datamodule import DetectorDataModule, RenderedBatches
 from ccs_kornia.training.detector import DetectorLitModule
 
 REPO = Path(__file__).resolve().parents[2]

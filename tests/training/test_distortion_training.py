@@ -9,7 +9,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from ccs_kornia.data.distortion_datamodule import DistortionDataModule, flip_batch
+from ccs_kornia.data.datamodules.distortion_datamodule import (
+    DistortionDataModule,
+    flip_batch,
+)
 from ccs_kornia.modules.correction.distortion_net import DistortionNet
 from ccs_kornia.modules.correction.straightness import straightness_rms
 from ccs_kornia.training.distortion import DistortionLitModule

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from ccs_kornia.data.calibration_datamodule import CalibrationSetDataModule
+from ccs_kornia.data.datamodules.calibration_datamodule import CalibrationSetDataModule
 from ccs_kornia.training.end_to_end import EndToEndLitModule, intrinsic_error
 
 REPO = Path(__file__).resolve().parents[2]

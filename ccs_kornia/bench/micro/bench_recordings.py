@@ -1,6 +1,6 @@
 """Speed of the recording renderer: a hand-held board filmed by a webcam (or a rig of webcams), frames per second.
 
-Builds :func:`~ccs_kornia.data.recordings.handheld_recording` (or :func:`~ccs_kornia.data.recordings.handheld_rig_recording`
+Builds :func:`~ccs_kornia.data.recordings.recordings.handheld_recording` (or :func:`~ccs_kornia.data.recordings.recordings.handheld_rig_recording`
 with ``--cameras N``), computes its ground truth, then renders its frames one at a time (optionally into a video
 file) and prints the wall-clock and process CPU seconds per frame, the time for the whole recording, the
 sub-exposures the motion blur needed, the share of each frame rendered (the board's box) and the peak resident
@@ -26,9 +26,9 @@ from pathlib import Path
 
 import torch
 
-from ccs_kornia.data import exposure
-from ccs_kornia.data.patterns import ChessPattern, TexturePattern
-from ccs_kornia.data.recordings import (
+from ccs_kornia.data.recordings import exposure
+from ccs_kornia.data.recordings.patterns import ChessPattern, TexturePattern
+from ccs_kornia.data.recordings.recordings import (
     handheld_recording,
     handheld_rig_recording,
     webcam,
@@ -85,7 +85,7 @@ def main() -> None:
     n = min(len(r) for r in recs) if args.frames is None else min(args.frames, min(len(r) for r in recs))
     t0, c0 = time.perf_counter(), time.process_time()
     if args.write:
-        from ccs_kornia.data import recording_files
+        from ccs_kornia.data.recordings import recording_files
 
         if rig is not None and args.frames is None:
             recording_files.write_rig_recording(rig, args.write)

@@ -1,6 +1,6 @@
 """Throughput of the synthetic chessboard renderer (images per second).
 
-Renders random scenes with :class:`ccs_kornia.data.scenes.SyntheticChessboards` (random camera,
+Renders random scenes with :class:`ccs_kornia.data.scenes.scenes.SyntheticChessboards` (random camera,
 board, pose, distortion and textured background) in batches, for each image size, condition and
 supersampling setting, and prints the images/s of the whole ``sample`` call and of the renderer alone.
 
@@ -15,9 +15,9 @@ import time
 
 import torch
 
-from ccs_kornia.data.renderer import render_chessboard
-from ccs_kornia.data.sampling import sample_poses
-from ccs_kornia.data.scenes import SyntheticChessboards
+from ccs_kornia.data.render.renderer import render_chessboard
+from ccs_kornia.data.scenes.sampling import sample_poses
+from ccs_kornia.data.scenes.scenes import SyntheticChessboards
 
 
 def _sync(device: str) -> None:

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.bench.fisheye_opencv import opencv_fisheye
+from ccs_kornia.bench.methods.fisheye_opencv import opencv_fisheye
 from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
 
 SETS = {

@@ -17,8 +17,8 @@ import time
 import numpy as np
 import torch
 
-from ccs_kornia.bench.fisheye_data import random_board_views, random_kb_cameras
-from ccs_kornia.bench.fisheye_opencv import opencv_fisheye
+from ccs_kornia.bench.methods.fisheye_opencv import opencv_fisheye
+from ccs_kornia.bench.scenes.fisheye_data import random_board_views, random_kb_cameras
 from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
 
 

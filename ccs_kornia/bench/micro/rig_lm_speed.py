@@ -17,7 +17,7 @@ import time
 
 import torch
 
-from ccs_kornia.data.rig import render_rig
+from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.rig.rig_solver import RigSolver
 

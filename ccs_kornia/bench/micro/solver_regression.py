@@ -45,7 +45,7 @@ def capture(path, real_dir):
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "..", "tests", "modules", "calibration"))
     from _board_views import synthetic
 
-    from ccs_kornia.data.scenes import make_calibration_set
+    from ccs_kornia.data.scenes.scenes import make_calibration_set
     from ccs_kornia.geometry.camera import board_object_points
     from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 

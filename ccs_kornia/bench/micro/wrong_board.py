@@ -19,7 +19,7 @@ import sys
 import tempfile
 import time
 
-from ccs_kornia.bench.real import default_real_dir
+from ccs_kornia.bench.sections.real import default_real_dir
 
 #: the second interpreter's switch: the early stop never finds another board
 _WHOLE_RUN = ("import ccs_kornia.modules.detection.checks.board_size as b; b.board_size_in = lambda image: None; "

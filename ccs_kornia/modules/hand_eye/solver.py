@@ -184,7 +184,7 @@ def calibrate_hand_eye(
         :class:`~ccs_kornia.modules.hand_eye.result.HandEyeResult`.
 
     Example:
-        >>> from ccs_kornia.data.robots import render_hand_eye
+        >>> from ccs_kornia.data.scenes.robots import render_hand_eye
         >>> from ccs_kornia.geometry.models import K1K2
         >>> s = render_hand_eye("eye_in_hand", views=8, seed=0, noise_px=0.0, joint_noise_deg=0.0)
         >>> cam = Camera.from_opencv(K1K2, s.K, s.dist)
@@ -346,7 +346,7 @@ class HandEyeSolver(nn.Module):
         :math:`(B, V, 4, 4)` -> :class:`~ccs_kornia.modules.hand_eye.result.HandEyeResult`.
 
     Example:
-        >>> from ccs_kornia.data.robots import render_hand_eye
+        >>> from ccs_kornia.data.scenes.robots import render_hand_eye
         >>> from ccs_kornia.geometry.models import K1K2
         >>> s = render_hand_eye("eye_to_hand", views=8, seed=1)
         >>> solver = HandEyeSolver("eye_to_hand")

@@ -205,7 +205,7 @@ class RigSolver(nn.Module):
         :class:`RigResult` (a list of B of them for batched input).
 
     Example:
-        >>> from ccs_kornia.data.rig import render_rig
+        >>> from ccs_kornia.data.scenes.rig import render_rig
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
         >>> R = torch.eye(3, dtype=torch.float64).expand(2, 3, 3)
         >>> T = torch.tensor([[0.0, 0, 0], [-0.1, 0, 0]], dtype=torch.float64)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.data.renderer import render_chessboard
-from ccs_kornia.data.sampling import sample_radial_distortion
+from ccs_kornia.data.render.renderer import render_chessboard
+from ccs_kornia.data.scenes.sampling import sample_radial_distortion
 from ccs_kornia.geometry import camera
 from ccs_kornia.modules.correction.radial_warp import (
     RadialUndistort,

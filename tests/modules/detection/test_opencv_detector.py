@@ -8,7 +8,7 @@ import pytest
 import torch
 from _real_data import REAL_DATA
 
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.io.images import load_image_gray
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector

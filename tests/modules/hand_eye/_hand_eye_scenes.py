@@ -6,7 +6,7 @@ import functools
 
 import torch
 
-from ccs_kornia.data.robots import render_hand_eye
+from ccs_kornia.data.scenes.robots import render_hand_eye
 from ccs_kornia.modules.rig.rig_camera import RigCamera
 
 

@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from ccs_kornia.data.rig import render_rig
+from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.models import camera_model
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.rig import RigSolver

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.data.rig import render_rig
+from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.rig import RigCamera, RigSolver, calibrate_rig, stereo_rectify
 from ccs_kornia.modules.rig.rig_camera import normalized_points

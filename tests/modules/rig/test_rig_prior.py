@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.data.rig import render_rig
+from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.camera import board_object_points, project_points
 from ccs_kornia.geometry.models import camera_model
 from ccs_kornia.geometry.so3 import exp_so3

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.data.rig import render_rig
+from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.models import camera_model
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.rig import RigSolver, rig_verdict

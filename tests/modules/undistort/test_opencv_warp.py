@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.modules.undistort.opencv_warp import (
     opencv_distorted_frame,
     opencv_undistort_image,

@@ -115,7 +115,7 @@ def saddle_scale_response(
         :math:`(B, S)` float32 responses (0 for scales too large for the image).
 
     Example:
-        >>> from ccs_kornia.data.scenes import make_calibration_set
+        >>> from ccs_kornia.data.scenes.scenes import make_calibration_set
         >>> K = torch.tensor([[800., 0, 319.5], [0, 800, 239.5], [0, 0, 1]])
         >>> views = make_calibration_set(K, (9, 6), 0.025, (640, 480), num_views=2, seed=0, supersample=1)
         >>> r = saddle_scale_response(views.images, torch.tensor([2.0, 4.0, 8.0, 16.0]))  # squares ~15 px
@@ -202,7 +202,7 @@ def estimate_square_size(
         :math:`(B,)` float32 square sizes in px.
 
     Example:
-        >>> from ccs_kornia.data.scenes import make_calibration_set
+        >>> from ccs_kornia.data.scenes.scenes import make_calibration_set
         >>> K = torch.tensor([[800., 0, 319.5], [0, 800, 239.5], [0, 0, 1]])
         >>> views = make_calibration_set(K, (9, 6), 0.025, (640, 480), num_views=2, seed=0, supersample=1)
         >>> estimate_square_size(views.images).round()  # true median squares: 14.1 and 15.2 px
@@ -310,7 +310,7 @@ class ScaleSelector(nn.Module):
 
     Example:
         >>> import torch.nn.functional as F
-        >>> from ccs_kornia.data.scenes import make_calibration_set
+        >>> from ccs_kornia.data.scenes.scenes import make_calibration_set
         >>> K = torch.tensor([[800., 0, 319.5], [0, 800, 239.5], [0, 0, 1]])
         >>> views = make_calibration_set(K, (9, 6), 0.025, (640, 480), num_views=2, seed=0, supersample=1)
         >>> big = F.interpolate(views.images, scale_factor=4.0, mode="bilinear")  # squares ~60 px

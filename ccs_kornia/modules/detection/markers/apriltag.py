@@ -95,7 +95,7 @@ class AprilTagTarget:
     def texture(self, pixels_per_bit: int = 24, legacy: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The printed tag (its id, 0 without one; a white margin of two bits around it) and the affine map
         :math:`(2, 3)` from object points ``(x, y)`` to its pixels: the renderer's interface
-        (:func:`~ccs_kornia.data.marker_views.render_marker_view`; ``legacy`` is a ChArUco board's and ignored)."""
+        (:func:`~ccs_kornia.data.scenes.marker_views.render_marker_view`; ``legacy`` is a ChArUco board's and ignored)."""
         ident = self.tag_id
         side = self.bits * pixels_per_bit
         tag = cv2.aruco.generateImageMarker(aruco_dictionary(self.dictionary), int(ident or 0), side, borderBits=1)
@@ -233,7 +233,7 @@ def detect_apriltag(
         order, ``found``, and per image how it was found or why not.
 
     Example:
-        >>> from ccs_kornia.data.marker_views import render_marker_view
+        >>> from ccs_kornia.data.scenes.marker_views import render_marker_view
         >>> t = AprilTagTarget("36h11", 0.05, tag_id=3)
         >>> k = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
         >>> img, truth = render_marker_view(t, np.array([0.2, -0.1, 0.05]), np.array([0.01, 0.0, 0.3]), k,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.modules.detection.checks.board_size import (
     board_size_in,
     other_board_size,

@@ -139,9 +139,9 @@ def test_settle_leaves_out_a_corner_off_its_junction_on_any_board():
 def test_a_wrong_corner_of_a_cut_board_is_left_out_not_reported():
     """A held-out render of a board cut by the image border whose corner 0, 8 px from the border, used to be reported
     6 px off (on an edge): left out now; without partial boards the board is refused instead."""
-    from ccs_kornia.bench.scenes import quantize
-    from ccs_kornia.bench.wild import WILD_CONDITIONS, wild_spec
-    from ccs_kornia.data.wild import WildChessboards
+    from ccs_kornia.bench.scenes.scenes import quantize
+    from ccs_kornia.bench.sections.wild import WILD_CONDITIONS, wild_spec
+    from ccs_kornia.data.scenes.wild import WildChessboards
     from ccs_kornia.modules.detection.learned.learned_detector import (
         LearnedChessboardDetector,
     )
@@ -172,9 +172,9 @@ def test_settle_refuses_a_board_with_too_few_corners_left():
 def test_a_glared_board_is_found_with_its_hidden_corners_left_out():
     """A held-out glare render whose saturating spot flattens a few corners: refused as incomplete without partial
     boards; with them, found with those corners NaN and the others as precise as on any board."""
-    from ccs_kornia.bench.scenes import quantize
-    from ccs_kornia.bench.wild import wild_spec
-    from ccs_kornia.data.wild import WildChessboards
+    from ccs_kornia.bench.scenes.scenes import quantize
+    from ccs_kornia.bench.sections.wild import wild_spec
+    from ccs_kornia.data.scenes.wild import WildChessboards
     from ccs_kornia.modules.detection.learned.learned_detector import (
         LearnedChessboardDetector,
     )
@@ -202,7 +202,7 @@ def test_detection_result_valid_leaves_out_hidden_corners():
 
 
 def test_scoring_ignores_hidden_corners():
-    from ccs_kornia.bench.scenes import corner_errors
+    from ccs_kornia.bench.scenes.scenes import corner_errors
 
     truth = np.stack(np.meshgrid(np.arange(4.0) * 10, np.arange(3.0) * 10), -1).reshape(-1, 2)
     pred = truth.copy() + 0.1
@@ -293,9 +293,9 @@ def test_a_board_whose_saddles_are_lost_at_the_glare_rim_is_found():
     incomplete; now found without the rim corners, the others as precise as on any board. Corner 49, below the spot,
     finds no saddle within its window at full resolution from the 9 px level (it would keep its level position, 2.7 px
     off): left out too."""
-    from ccs_kornia.bench.scenes import quantize
-    from ccs_kornia.bench.wild import wild_spec
-    from ccs_kornia.data.wild import WildChessboards
+    from ccs_kornia.bench.scenes.scenes import quantize
+    from ccs_kornia.bench.sections.wild import wild_spec
+    from ccs_kornia.data.scenes.wild import WildChessboards
     from ccs_kornia.modules.detection.learned.learned_detector import (
         LearnedChessboardDetector,
     )
@@ -340,9 +340,9 @@ def test_unconfirmed_corners_of_a_placed_lattice_still_refuse_it():
     """A held-out ArUco render (seed 7,810,009) whose coarse level organises 20 of 40 corners into a lattice shorter than
     the board: four of its predicted corners show no saddle beside cells it takes for hidden. Were they excused as a
     glare's rim, a board 45 px off would be returned; they refuse the placement, and a finer level finds the board."""
-    from ccs_kornia.bench.scenes import quantize
-    from ccs_kornia.bench.wild import wild_spec
-    from ccs_kornia.data.wild import WildChessboards
+    from ccs_kornia.bench.scenes.scenes import quantize
+    from ccs_kornia.bench.sections.wild import wild_spec
+    from ccs_kornia.data.scenes.wild import WildChessboards
     from ccs_kornia.modules.detection.learned.learned_detector import (
         LearnedChessboardDetector,
     )
@@ -360,9 +360,9 @@ def test_a_partial_board_refused_for_skipped_lines_at_its_level_leaves_the_other
     ChArUco board, whose other corners lost their peaks at that level, looks like a partial board): refused there,
     the other levels and looks are tried, instead of the final check refusing the image with nothing else tried."""
     import ccs_kornia.modules.detection.learned.learned_detector as ld
-    from ccs_kornia.bench.scenes import quantize
-    from ccs_kornia.bench.wild import wild_spec
-    from ccs_kornia.data.wild import WildChessboards
+    from ccs_kornia.bench.scenes.scenes import quantize
+    from ccs_kornia.bench.sections.wild import wild_spec
+    from ccs_kornia.data.scenes.wild import WildChessboards
 
     spec, board = wild_spec("glare")
     batch = WildChessboards(spec).sample(1, torch.Generator().manual_seed(HELD_OUT_GLARE_SEED + 33))

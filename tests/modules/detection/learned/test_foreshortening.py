@@ -112,9 +112,9 @@ def test_a_board_at_a_grazing_angle_is_found_only_on_a_compressed_level():
     """A held-out 75-degree render (squares foreshortened about 4:1) that no isotropic level gives: found on a
     compressed level and refined at full resolution to a few hundredths of a pixel (two corners at the far, most
     foreshortened edge left out)."""
-    from ccs_kornia.bench.scenes import quantize
-    from ccs_kornia.bench.wild import wild_spec
-    from ccs_kornia.data.wild import WildChessboards
+    from ccs_kornia.bench.scenes.scenes import quantize
+    from ccs_kornia.bench.sections.wild import wild_spec
+    from ccs_kornia.data.scenes.wild import WildChessboards
     from ccs_kornia.modules.detection.learned.learned_detector import (
         LearnedChessboardDetector,
     )

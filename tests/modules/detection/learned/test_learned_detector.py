@@ -6,8 +6,8 @@ import pytest
 import torch
 from _real_data import REAL_DATA
 
-from ccs_kornia.data.augment import textured_background
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.render.augment import textured_background
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.geometry.camera import intrinsics_matrix
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.learned.heatmap_unet import (

@@ -6,9 +6,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.bench.scenes import quantize
-from ccs_kornia.bench.wild import WILD_CONDITIONS, wild_spec
-from ccs_kornia.data.wild import WildChessboards
+from ccs_kornia.bench.scenes.scenes import quantize
+from ccs_kornia.bench.sections.wild import WILD_CONDITIONS, wild_spec
+from ccs_kornia.data.scenes.wild import WildChessboards
 from ccs_kornia.geometry.camera import board_object_points, project_points
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.grid.missing_corners import lattice_deviation

@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.learned import scale as scale_module
 from ccs_kornia.modules.detection.learned.scale import (

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.data.marker_views import render_condition
+from ccs_kornia.data.scenes.marker_views import render_condition
 from ccs_kornia.modules.detection.boards import AprilGrid, grid_object_points
 from ccs_kornia.modules.detection.markers.aprilgrid import (
     AprilGridDetector,

@@ -10,7 +10,7 @@ import pytest
 import torch
 from _real_data import REAL_DATA
 
-from ccs_kornia.data.marker_views import render_marker_view
+from ccs_kornia.data.scenes.marker_views import render_marker_view
 from ccs_kornia.modules.detection.markers.apriltag import (
     AprilTagDetector,
     AprilTagTarget,

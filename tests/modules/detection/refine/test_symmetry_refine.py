@@ -8,7 +8,7 @@ import pytest
 import torch
 from kornia.filters import gaussian_blur2d
 
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.modules.detection.refine import symmetry_refine as symmetry_module
 from ccs_kornia.modules.detection.refine.patch_refine import edge_blur
 from ccs_kornia.modules.detection.refine.saddle_refine import (
@@ -113,9 +113,9 @@ def test_shading_keeps_the_normalised_source(monkeypatch):
 def test_board_wide_vote_keeps_the_plain_fit_under_strong_motion_blur(monkeypatch):
     """A wild motion-blur render (seed outside the benchmark's) where the fit on the locally normalised image leaves
     most corners 1-6 px off: the board-wide vote keeps the fit on the plain image there."""
-    from ccs_kornia.bench.scenes import corner_errors, quantize
-    from ccs_kornia.bench.wild import WILD_CONDITIONS, wild_spec
-    from ccs_kornia.data.wild import WildChessboards
+    from ccs_kornia.bench.scenes.scenes import corner_errors, quantize
+    from ccs_kornia.bench.sections.wild import WILD_CONDITIONS, wild_spec
+    from ccs_kornia.data.scenes.wild import WildChessboards
     from ccs_kornia.modules.detection.factory import make_detector
     from ccs_kornia.modules.detection.refine import saddle_refine
 

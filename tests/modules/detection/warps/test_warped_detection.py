@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from ccs_kornia.data.scenes import make_calibration_set
+from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_uncertainty
