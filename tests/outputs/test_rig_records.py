@@ -16,20 +16,24 @@ from ccs_kornia.outputs.rig_records import (
     pair_record,
 )
 
+from _cameras import cameras
+
+from ccs_kornia.geometry.models import K1K2
+
 D = torch.float64
 K = torch.tensor([[600.0, 0, 330], [0, 605, 245], [0, 0, 1]], dtype=D)
 
 
 def solved_with_moving_frames():
-    cams = [("k1k2", K, torch.tensor([-0.12, 0.03], dtype=D))] * 2
+    cams = cameras([(K1K2, K, torch.tensor([-0.12, 0.03], dtype=D))] * 2, (640, 480))
     R = exp_so3(torch.tensor([[0.0, 0, 0], [0.01, -0.12, 0.0]], dtype=D))
     T = torch.tensor([[0.0, 0, 0], [-0.2, 0.01, 0.0]], dtype=D)
-    s = render_rig(cams, [(640, 480)] * 2, R, T, num_frames=12, seed=3, noise_px=0.1)
-    s2 = render_rig(cams, [(640, 480)] * 2, R, T - torch.tensor([0.006, 0, 0], dtype=D), num_frames=12, seed=3,
+    s = render_rig(cams, R, T, num_frames=12, seed=3, noise_px=0.1)
+    s2 = render_rig(cams, R, T - torch.tensor([0.006, 0, 0], dtype=D), num_frames=12, seed=3,
                     noise_px=0.1)
     corners = s.corners.clone()
     corners[1, [2, 7]] = s2.corners[1, [2, 7]]
-    return RigSolver("k1k2", folds=0)(corners, s.valid, s.object_points, s.image_sizes,
+    return RigSolver(K1K2, folds=0)(corners, s.valid, s.object_points, s.image_sizes,
                                       frame_times=torch.arange(12, dtype=D))
 
 

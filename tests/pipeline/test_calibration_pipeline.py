@@ -9,7 +9,7 @@ from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.geometry.metrics import e_ip
 from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline, PipelineResult
-from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE, RATIONAL
 from ccs_kornia.modules.calibration.model_selection import ModelChoice
 
 BOARD = (9, 6)
@@ -46,7 +46,7 @@ def test_batched_shapes(batched_result):
     assert det.corners.shape == (2, VIEWS, 54, 2) and det.found.shape == (2, VIEWS)
     assert cal.K.shape == (2, 3, 3) and cal.dist.shape == (2, 5)
     assert cal.rvec.shape == (2, VIEWS, 3) and cal.view_rms.shape == (2, VIEWS)
-    assert cal.model == "opencv5"
+    assert cal.camera.model == OPENCV5
 
 
 def test_batched_accuracy(batched_result):
@@ -80,7 +80,7 @@ def test_stages_alone(images, batched_result):
     assert abs(float(cal.K[0, 0]) - 620.0) < 5.0
 
 
-@pytest.mark.parametrize("model", ["opencv5", "auto"])
+@pytest.mark.parametrize("model", [OPENCV5, ModelChoice()], ids=str)
 def test_stages_alone_reproduce_the_whole_call_with_the_corner_precision(sets, model):
     """``detect`` then ``calibrate`` with the detection's ``sigma`` weighs the corners as the whole call does."""
     pipe = CalibrationPipeline("opencv", model=model, seed=0, distortion_correction=False)
@@ -99,16 +99,15 @@ def test_stages_alone_reproduce_the_whole_call_with_the_corner_precision(sets, m
 
 
 def test_auto_models_are_the_candidates_of_auto():
-    pipe = CalibrationPipeline("opencv", model=ModelChoice(), auto_models=("k1k2", "opencv5", "fisheye"),
-                               distortion_correction=False)
-    assert sorted(pipe.solvers) == ["fisheye", "k1k2", "opencv5"] and pipe.solver.model == "opencv5"
-    assert sorted(CalibrationPipeline("opencv", model=ModelChoice(), distortion_correction=False).solvers) == [
-        "fisheye", "k1k2", "opencv5", "rational"]
-    assert list(CalibrationPipeline("opencv", model=K1K2, auto_models=("fisheye",),
-                                    distortion_correction=False).solvers) == ["k1k2"]
-    for bad in ((), ("pinhole",)):
-        with pytest.raises(ValueError, match="auto_models"):
-            CalibrationPipeline("opencv", model=ModelChoice(), auto_models=bad, distortion_correction=False)
+    pipe = CalibrationPipeline("opencv", model=ModelChoice((K1K2, OPENCV5, FISHEYE)), distortion_correction=False)
+    assert list(pipe.solvers) == [K1K2, OPENCV5, FISHEYE] and pipe.solver.model == OPENCV5
+    assert list(CalibrationPipeline("opencv", model=ModelChoice(), distortion_correction=False).solvers) == [
+        K1K2, OPENCV5, RATIONAL, FISHEYE]
+    assert list(CalibrationPipeline("opencv", model=K1K2, distortion_correction=False).solvers) == [K1K2]
+    assert CalibrationPipeline("opencv", model=ModelChoice((FISHEYE,)), distortion_correction=False).solver.model == FISHEYE
+    for bad in ((), (PINHOLE,)):
+        with pytest.raises(ValueError, match="candidates"):
+            CalibrationPipeline("opencv", model=ModelChoice(bad), distortion_correction=False)
 
 
 def test_ground_truth_corners_through_solver_stage(sets):
@@ -364,16 +363,16 @@ def test_solve_after_the_second_look_keeps_the_chosen_model(sets, monkeypatch):
     table = out.model_selection[0]
     assert table["views"] == VIEWS - 1 and f"final calibration uses {VIEWS}" in table["note"]
     assert bool(out.calibration.success[0]) and int(out.calibration.used[0].sum()) == VIEWS
-    assert out.calibration.model == table["chosen"]
+    assert str(out.calibration.camera.model) == table["chosen"]
     # the same camera as a fixed-model pipeline given the same views
-    fixed = CalibrationPipeline("opencv", model=table["chosen"], **kw)
+    fixed = CalibrationPipeline("opencv", model=out.calibration.camera.model, **kw)
     given = PipelineResult.from_detections(out.detections.corners, out.detections.found, (640, 480))
     ref = fixed.finish(given, BOARD, SQUARE).calibration
     torch.testing.assert_close(out.calibration.K, ref.K)
 
 
 @pytest.mark.parametrize("detector", ["opencv", "learned"])
-@pytest.mark.parametrize("model", ["none", "k1k2", "opencv5", "rational", "fisheye", "auto"])
+@pytest.mark.parametrize("model", [PINHOLE, K1K2, OPENCV5, RATIONAL, FISHEYE, ModelChoice()], ids=str)
 def test_no_crash_and_no_nan_without_a_reason(detector, model, sets):
     """Whatever the input, a result: success with finite values, or failure with a reason per camera."""
     g = torch.Generator().manual_seed(3)
@@ -523,9 +522,9 @@ def test_partial_boards_are_calibrated_on_their_visible_corners(sets, tmp_path):
 def test_calibrated_look_tries_the_fallback_levels_in_a_second_pass_only():
     """The calibrated look: every virtual view on its first level, then the fallback levels for the images still
     without a board (one pass per entry of ``CALIBRATED.passes``)."""
-    from dataclasses import dataclass
     from types import SimpleNamespace
 
+    from ccs_kornia.geometry.camera import Camera
     from ccs_kornia.modules.detection.base import DetectionResult, Fallbacks
     from ccs_kornia.pipeline.looks import CALIBRATED, Tools
 
@@ -538,15 +537,9 @@ def test_calibrated_look_tries_the_fallback_levels_in_a_second_pass_only():
         return DetectionResult(torch.full((views.shape[0], 6, 2), 239.5), hit, ["x"] * views.shape[0])
 
     tools = Tools(detect, lambda i, c, b: c, None, SimpleNamespace(fallbacks=Fallbacks()), 1)
-    K = torch.tensor([[200.0, 0, 159.5], [0, 200, 119.5], [0, 0, 1]], dtype=torch.float64)
-    @dataclass
-    class Lens:  # the calibration's fields the look reads, one camera
-        K: torch.Tensor
-        dist: torch.Tensor
-
-    lens = Lens(K[None], torch.zeros(1, 4, dtype=torch.float64))
+    lens = Camera(FISHEYE, torch.tensor([200.0, 200, 159.5, 119.5, 0, 0, 0, 0], dtype=torch.float64))
     out = SimpleNamespace(detections=DetectionResult(torch.zeros(1, 2, 6, 2), torch.zeros(1, 2, dtype=torch.bool)),
-                          calibration=lens)
+                          calibration=SimpleNamespace(camera=lens))  # the calibration's field the look reads
     images = torch.stack([torch.full((1, 240, 320), 0.25), torch.full((1, 240, 320), 0.75)])
     got = CALIBRATED.run(tools, out, images, [(0, 0), (0, 1)], (3, 2))
     assert got.found.tolist() == [True, True]
@@ -569,6 +562,6 @@ def test_diagnostics_reuse_the_model_selections_cross_validation(images, monkeyp
     monkeypatch.setattr(diagnostics, "solve_subsets", lambda *a, **k: (solved.append(a[0].model), real(*a, **k))[1])
     pipe = CalibrationPipeline("opencv", model=ModelChoice(), diagnostics=True, distortion_correction=False)
     out = pipe.run(TensorSource(images[:1]), BOARD, SQUARE)
-    assert sorted(solved) == sorted(AUTO_MODELS)  # the model selection's four solves, none for the diagnostics
+    assert sorted(map(str, solved)) == sorted(map(str, AUTO_MODELS))  # the model selection's four solves, none for the diagnostics
     chosen = out.model_selection[0]["chosen"]
     assert out.diagnostics[0]["heldout_rms_px"] == out.model_selection[0]["heldout_rms_px"][chosen]

@@ -46,7 +46,7 @@ def _camera(num: int = 16, seed: int = 0, speed=None, sharpness=None, copy: dict
     res = CalibrationSolver(model=K1K2, use_ransac=False)(uv[None], torch.ones(1, num, 54, dtype=torch.bool), OBJ,
                                                             SIZE)
     sharp = torch.full((num,), 0.01, dtype=torch.float64) if sharpness is None else torch.tensor(sharpness)
-    return CameraViews("k1k2", res.K[0], res.dist[0], SIZE, res.rvec[0], res.tvec[0], uv, torch.ones(num, 54,
+    return CameraViews(res.camera[0], res.rvec[0], res.tvec[0], uv, torch.ones(num, 54,
                        dtype=torch.bool), torch.ones(num, 54, dtype=torch.float64), OBJ, res.used[0], sharp,
                        list(speed) if speed is not None else [None] * num, float(res.rms[0]))
 

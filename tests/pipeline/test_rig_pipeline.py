@@ -19,6 +19,7 @@ from ccs_kornia.pipeline.rig_pipeline import (
     unconnected_cameras,
 )
 from ccs_kornia.pipeline.sources import TensorSource
+from ccs_kornia.geometry.models import K1K2, OPENCV5
 
 
 def _camera(corners: torch.Tensor, found: list[bool], used: list[bool] | None = None, size=(64, 48)) -> PipelineResult:
@@ -66,7 +67,7 @@ def test_connected_rig_and_cut_camera():
 
 
 def test_fewer_than_two_cameras_raise():
-    pipe = RigPipeline("opencv", models="k1k2", distortion_correction=False, use_ransac=False)
+    pipe = RigPipeline("opencv", models=K1K2, distortion_correction=False, use_ransac=False)
     with pytest.raises(ValueError, match="at least two cameras"):
         pipe(torch.zeros(1, 3, 1, 48, 64), BOARD, SQUARE)
 
@@ -89,21 +90,21 @@ def _check_rig(out, frames: int = 8) -> None:
 
 def test_rig_from_rendered_images_of_two_sizes(stereo):
     # image sizes differ per camera: one list entry per camera
-    pipe = RigPipeline("opencv", models="k1k2", distortion_correction=False, use_ransac=False)
+    pipe = RigPipeline("opencv", models=K1K2, distortion_correction=False, use_ransac=False)
     out = pipe(stereo.images, BOARD, SQUARE, names=["left", "right"])
     _check_rig(out)
-    assert out.names == ["left", "right"] and out.models == ["k1k2", "k1k2"]
+    assert out.names == ["left", "right"] and out.models == [K1K2, K1K2]
     assert [tuple(r.image_size) for r in out.cameras] == [(320, 240), (352, 264)]
 
 
 def test_models_per_camera_and_fixed_intrinsics(stereo):
-    from ccs_kornia.modules.rig import RigCamera
+    from ccs_kornia.geometry.camera import Camera
 
-    pipe = RigPipeline("opencv", models=["k1k2", "opencv5"], distortion_correction=False, use_ransac=False)
+    pipe = RigPipeline("opencv", models=[K1K2, OPENCV5], distortion_correction=False, use_ransac=False)
     cameras = pipe.detect_and_calibrate(TensorSource(stereo.images), BOARD, SQUARE)
-    assert [r.calibration.model for r in cameras] == ["k1k2", "opencv5"]
+    assert [r.calibration.camera.model for r in cameras] == [K1K2, OPENCV5]
     K0 = cameras[0].calibration.K.double()
-    pipe.fixed = {0: RigCamera("k1k2", K0, torch.zeros(5, dtype=torch.float64))}
+    pipe.fixed = {0: Camera.from_opencv(K1K2, K0)}
     frames = FrameTable([str(k) for k in range(8)], [list(range(8))] * 2, "order")
     out = pipe.run(TensorSource(stereo.images), BOARD, SQUARE, frames, cameras=cameras)
     _check_rig(out)
@@ -115,7 +116,7 @@ def test_batch_of_rigs_matches_one_rig_at_a_time():
     stereo = render_stereo(frames=6, seed=5, size1=(320, 240))
     one = torch.stack(stereo.images)  # (C, F, 1, H, W)
     batch = torch.stack([one, one.flip(1)])  # the second rig: the same frames in reverse order
-    pipe = RigPipeline("opencv", models="k1k2", distortion_correction=False, use_ransac=False)
+    pipe = RigPipeline("opencv", models=K1K2, distortion_correction=False, use_ransac=False)
     outs = pipe(batch, BOARD, SQUARE)
     single = pipe(one, BOARD, SQUARE)
     assert isinstance(outs, list) and len(outs) == 2
@@ -130,7 +131,7 @@ def test_rig_from_files_matched_by_number(stereo, tmp_path):
     # the right camera misses frame 03 and its files are listed in another order
     left, right = write_stereo(stereo, tmp_path, frames=[list(range(8)), [k for k in range(8) if k != 2]])
     paths = [sorted(str(p) for p in left.iterdir()), sorted((str(p) for p in right.iterdir()), reverse=True)]
-    pipe = RigPipeline("opencv", models="k1k2", distortion_correction=False, use_ransac=False)
+    pipe = RigPipeline("opencv", models=K1K2, distortion_correction=False, use_ransac=False)
     out = pipe.run_files(paths, BOARD, SQUARE, names=["left", "right"])
     _check_rig(out)
     assert out.frames.by == "number" and out.frames.missing(1) == ["03"]

@@ -7,7 +7,8 @@ import functools
 import torch
 
 from ccs_kornia.data.scenes.robots import render_hand_eye
-from ccs_kornia.modules.rig.rig_camera import RigCamera
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models import K1K2
 
 
 @functools.lru_cache(maxsize=16)
@@ -17,8 +18,8 @@ def scene(setup: str, views: int = 10, seed: int = 0, noise_px: float = 0.0, joi
                            max_tilt_deg=max_tilt_deg)
 
 
-def camera(s) -> RigCamera:
-    return RigCamera("k1k2", s.K, s.dist)
+def camera(s) -> Camera:
+    return Camera.from_opencv(K1K2, s.K, s.dist)
 
 
 def batch(s, robot_poses: torch.Tensor | None = None):

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 from _real_data import REAL_DATA
+from ccs_kornia.geometry.models import PINHOLE
 
 FRANKA = REAL_DATA / "visp_franka_eye_to_hand"
 VISP_T = np.array([0.954036, -0.051236, 0.476220])
@@ -70,7 +71,7 @@ def test_solver_on_the_same_data_with_its_figures():
         detect_apriltag,
     )
     from ccs_kornia.modules.hand_eye import calibrate_hand_eye
-    from ccs_kornia.modules.rig.rig_camera import RigCamera
+    from ccs_kornia.geometry.camera import Camera
 
     images = torch.stack([torch.from_numpy(np.asarray(load_image_gray(FRANKA / f"franka_image-{i}.png")[0],
                                                       dtype=np.float32))[None] for i in range(1, 9)])
@@ -84,7 +85,7 @@ def test_solver_on_the_same_data_with_its_figures():
     K = torch.tensor([[607.5931396484375, 0, 323.46282958984375], [0, 607.574951171875, 243.25529479980469], [0, 0, 1]],
                      dtype=torch.float64)
     out = calibrate_hand_eye(det.corners[None], torch.ones(1, 8, 4, dtype=torch.bool), target.object_points(), T[None],
-                             RigCamera("none", K, torch.zeros(0, dtype=torch.float64)), "eye_to_hand")
+                             Camera.from_opencv(PINHOLE, K), "eye_to_hand")
     assert bool(out.success[0]) and out.used.all()
     # the robot's own error dominates: about a millimetre and a tenth of a degree per pose, corners to half a pixel
     sr, st = float(out.robot_noise[0, 0]), float(out.robot_noise[0, 1])

@@ -12,7 +12,8 @@ from _hand_eye_scenes import batch, camera, scene
 
 from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.modules.hand_eye import HandEyeSetup, HandEyeSolver, calibrate_hand_eye
-from ccs_kornia.modules.rig.rig_camera import RigCamera
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models import K1K2
 
 
 def _err(X, truth):
@@ -35,7 +36,7 @@ def test_a_batch_of_problems_is_each_problem_alone():
     s1, s2 = scene("eye_to_hand", views=10, seed=4, noise_px=0.2), scene("eye_to_hand", views=10, seed=5, noise_px=0.2)
     both = calibrate_hand_eye(torch.stack([s1.corners, s2.corners]), torch.stack([s1.valid, s2.valid]),
                               s1.object_points, torch.stack([s1.robot_poses, s2.robot_poses]),
-                              [camera(s1), RigCamera("k1k2", s2.K, s2.dist)], "eye_to_hand", robot_noise=None)
+                              Camera.cat([camera(s1), Camera.from_opencv(K1K2, s2.K, s2.dist)]), "eye_to_hand", robot_noise=None)
     alone = calibrate_hand_eye(*batch(s2), camera(s2), "eye_to_hand", robot_noise=None)
     assert both.X.shape == (2, 4, 4) and both.heldout_rms_px.shape == (2, 10)
     torch.testing.assert_close(both.X[1], alone.X[0], atol=1e-9, rtol=0)
@@ -74,9 +75,9 @@ def test_free_intrinsics_recover_a_wrong_focal_length():
     K = s.K.clone()
     K[0, 0] *= 1.01
     K[1, 1] *= 1.01
-    out = calibrate_hand_eye(*batch(s), RigCamera("k1k2", K, s.dist), "eye_to_hand", free_intrinsics=["fx", "fy"],
+    out = calibrate_hand_eye(*batch(s), Camera.from_opencv(K1K2, K, s.dist), "eye_to_hand", free_intrinsics=["fx", "fy"],
                              robot_noise=None, heldout=False)
-    assert abs(float(out.params[0, 0]) - float(s.K[0, 0])) < 1.0
+    assert abs(float(out.camera.params[0, 0]) - float(s.K[0, 0])) < 1.0
     assert float(out.intrinsics_std[0, 0]) > 0 and float(out.intrinsics_std[0, 2]) == 0.0
 
 

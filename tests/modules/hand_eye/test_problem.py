@@ -7,17 +7,17 @@ import pytest
 import torch
 
 from ccs_kornia.geometry.camera import board_object_points
-from ccs_kornia.geometry.models import camera_model
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.lm import parameter_basis
 from ccs_kornia.modules.hand_eye.fit import fit_problem
 from ccs_kornia.modules.hand_eye.problem import HandEyeProblem, HandEyeState
 
 
-def _problem(setup, model_name="k1k2", noise=(0.01, 0.002), B=2, V=4, seed=0, free=True):
+def _problem(setup, model=K1K2, noise=(0.01, 0.002), B=2, V=4, seed=0, free=True):
     g = torch.Generator().manual_seed(seed)
     r = lambda *s: torch.randn(*s, generator=g, dtype=torch.float64)
-    m = camera_model(model_name)
+    m = model
     T = torch.eye(4, dtype=torch.float64).repeat(B, V, 1, 1)
     T[..., :3, :3], T[..., :3, 3] = exp_so3(0.3 * r(B, V, 3)), 0.2 * r(B, V, 3)
     params = torch.tensor([[500.0, 510.0, 320.0, 240.0] + [0.01] * (m.num_params - 4)] * B, dtype=torch.float64)
@@ -32,9 +32,9 @@ def _problem(setup, model_name="k1k2", noise=(0.01, 0.002), B=2, V=4, seed=0, fr
 
 
 @pytest.mark.parametrize("setup", ["eye_in_hand", "eye_to_hand"])
-@pytest.mark.parametrize("model_name", ["opencv5", "fisheye"])
-def test_gradient_is_the_cost_derivative(setup, model_name):
-    prob, s = _problem(setup, model_name)
+@pytest.mark.parametrize("model", [OPENCV5, FISHEYE], ids=str)
+def test_gradient_is_the_cost_derivative(setup, model):
+    prob, s = _problem(setup, model)
     eq = prob.normal_equations(s)
     G, eps = prob.num_global, 1e-6
     fd = torch.zeros_like(eq.g)

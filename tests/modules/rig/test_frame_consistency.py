@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from ccs_kornia.data.scenes.rig import render_rig
-from ccs_kornia.geometry.models import camera_model
+from ccs_kornia.geometry.models import K1K2, PINHOLE, camera_model
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.rig import RigSolver
 from ccs_kornia.modules.rig.frame_consistency import (
@@ -22,6 +22,7 @@ from ccs_kornia.modules.rig.frame_consistency import (
     frame_disagreement,
     own_view_errors,
 )
+from _cameras import cameras
 
 D = torch.float64
 K = torch.tensor([[600.0, 0, 330], [0, 605, 245], [0, 0, 1]], dtype=D)
@@ -30,8 +31,8 @@ T_RIG = torch.tensor([[0.0, 0, 0], [-0.2, 0.01, 0.0], [0.2, 0.0, 0.01]], dtype=D
 
 
 def rig(C=2, frames=14, seed=3, noise=0.1, **kw):
-    cams = [("k1k2", K, torch.tensor([-0.12, 0.03], dtype=D))] * C
-    return render_rig(cams, [(640, 480)] * C, R_RIG[:C], T_RIG[:C], num_frames=frames, seed=seed, noise_px=noise,
+    cams = [(K1K2, K, torch.tensor([-0.12, 0.03], dtype=D))] * C
+    return render_rig(cameras(cams, [(640, 480)] * C), R_RIG[:C], T_RIG[:C], num_frames=frames, seed=seed, noise_px=noise,
                       **kw)
 
 
@@ -39,7 +40,7 @@ def moved(s, frames, shift):
     """Camera 1's corners of ``frames`` as if the board had moved ``shift`` (board units) along x before its
     exposure."""
     C = s.corners.shape[0]
-    s2 = render_rig([("k1k2", K, torch.tensor([-0.12, 0.03], dtype=D))] * C, s.image_sizes, R_RIG[:C],
+    s2 = render_rig(cameras([(K1K2, K, torch.tensor([-0.12, 0.03], dtype=D))] * C, s.image_sizes), R_RIG[:C],
                     T_RIG[:C] - torch.tensor([shift, 0, 0], dtype=D), num_frames=s.corners.shape[1], seed=3,
                     noise_px=0.1)
     corners = s.corners.clone()
@@ -81,7 +82,7 @@ def test_camera_board_poses_shapes(device):
 
 def test_disagreement_exact_rig_is_zero():
     s = rig(noise=0.0)
-    models = [camera_model("k1k2")] * 2
+    models = [K1K2] * 2
     params = [models[0].params_from(K[None], torch.tensor([[-0.12, 0.03]], dtype=D))] * 2
     used = s.valid.sum(-1)[None] >= 6
     w = (s.valid & used[0, ..., None]).to(D)[None]
@@ -106,7 +107,7 @@ def test_disagreement_shapes_and_nan():
 
 def test_board_motion():
     s = rig(noise=0.0)
-    models = [camera_model("k1k2")] * 2
+    models = [K1K2] * 2
     params = [models[0].params_from(K[None], torch.tensor([[-0.12, 0.03]], dtype=D))] * 2
     F = s.corners.shape[1]
     used = (s.valid.sum(-1) >= 6)[None]
@@ -132,7 +133,7 @@ def test_solver_finds_and_downweights_moving_frames():
     s = rig(frames=16)
     bad = [3, 7, 12]
     corners = moved(s, bad, 0.006)
-    res = RigSolver("k1k2", folds=0)(corners, s.valid, s.object_points, s.image_sizes)
+    res = RigSolver(K1K2, folds=0)(corners, s.valid, s.object_points, s.image_sizes)
     assert res.frame_disagreement.shape == (16,) and res.frame_weight.shape == (16,)
     low = sorted(torch.nonzero(res.frame_weight < 0.5).flatten().tolist())
     assert low == bad, (low, res.frame_disagreement)
@@ -145,8 +146,8 @@ def test_solver_finds_and_downweights_moving_frames():
 def test_frame_weighting_recovers_the_extrinsics():
     s = rig(frames=16)
     corners = moved(s, [3, 7, 12], 0.006)
-    plain = RigSolver("k1k2", folds=0, frame_kernel="none")(corners, s.valid, s.object_points, s.image_sizes)
-    weighted = RigSolver("k1k2", folds=0)(corners, s.valid, s.object_points, s.image_sizes)
+    plain = RigSolver(K1K2, folds=0, frame_kernel="none")(corners, s.valid, s.object_points, s.image_sizes)
+    weighted = RigSolver(K1K2, folds=0)(corners, s.valid, s.object_points, s.image_sizes)
     err = [float((r.T[1] - s.T[1]).norm()) for r in (plain, weighted)]
     rot = [float(log_so3(r.R[1] @ s.R[1].T).norm()) for r in (plain, weighted)]
     assert err[1] < 0.5 * err[0] and rot[1] <= rot[0]
@@ -155,19 +156,19 @@ def test_frame_weighting_recovers_the_extrinsics():
 
 def test_frame_times_give_motion_and_are_checked():
     s = rig(frames=10)
-    res = RigSolver("k1k2", folds=0)(s.corners, s.valid, s.object_points, s.image_sizes,
+    res = RigSolver(K1K2, folds=0)(s.corners, s.valid, s.object_points, s.image_sizes,
                                      frame_times=torch.arange(10, dtype=D))
     assert res.frame_motion.shape == (10,) and bool(res.frame_motion.isfinite().any())
-    nothing = RigSolver("k1k2", folds=0)(s.corners, s.valid, s.object_points, s.image_sizes)
+    nothing = RigSolver(K1K2, folds=0)(s.corners, s.valid, s.object_points, s.image_sizes)
     assert bool(nothing.frame_motion.isnan().all())
     with pytest.raises(ValueError, match="frame_times"):
-        RigSolver("k1k2", folds=0)(s.corners, s.valid, s.object_points, s.image_sizes, frame_times=torch.zeros(3))
+        RigSolver(K1K2, folds=0)(s.corners, s.valid, s.object_points, s.image_sizes, frame_times=torch.zeros(3))
 
 
 def test_frame_weighting_batch_equals_one_by_one():
     s = rig(frames=12)
     a, b = moved(s, [2, 6], 0.006), s.corners
-    solver = RigSolver("k1k2", folds=0)
+    solver = RigSolver(K1K2, folds=0)
     batch = solver(torch.stack([a, b]), torch.stack([s.valid, s.valid]), s.object_points, s.image_sizes)
     for k, corners in enumerate((a, b)):
         one = solver(corners, s.valid, s.object_points, s.image_sizes)

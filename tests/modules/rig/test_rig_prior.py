@@ -8,10 +8,11 @@ import torch
 
 from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.camera import board_object_points, project_points
-from ccs_kornia.geometry.models import camera_model
+from ccs_kornia.geometry.models import K1K2, PINHOLE, camera_model
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.rig import RigSolver
 from ccs_kornia.modules.rig.rig_lm import rig_layout, rig_levenberg_marquardt
+from _cameras import cameras
 
 D = torch.float64
 K = torch.tensor([[600.0, 0, 330], [0, 605, 245], [0, 0, 1]], dtype=D)
@@ -30,7 +31,7 @@ def two_camera_problem(device, B=1, frames=6, seed=0):
     R = torch.eye(3, dtype=D).expand(B, 2, 3, 3).to(device)
     T = torch.stack([torch.zeros(3, dtype=D), Tc + 0.01]).expand(B, 2, 3).to(device)
     start = torch.tensor([[610.0, 598.0, 325.0, 250.0]], dtype=D).expand(B, 4).to(device)
-    models = [camera_model("none")] * 2
+    models = [PINHOLE] * 2
     return models, [start, start], R, T, exp_so3(rv)[None].expand(B, -1, -1, -1).to(device), \
         tv[None].expand(B, -1, -1).to(device), obj.to(device), corners, torch.ones(B, 2, frames, 30, dtype=D,
                                                                                      device=device)
@@ -96,17 +97,17 @@ def test_prior_exceptions():
         rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w,
                                 prior=[(p[0], torch.eye(3, dtype=D)[None]), None])
     with pytest.raises(ValueError, match="intrinsics_prior"):
-        RigSolver("k1k2", intrinsics_prior=0.0)
+        RigSolver(K1K2, intrinsics_prior=0.0)
 
 
 def moving_rig(seed=3, frames=14, moved=(2, 5, 8, 11), shift=0.004):
     """Two k1k2 cameras; in ``moved`` frames camera 1 saw the board ``shift`` (board units) further along x: a board
     that moved between the two cameras' exposures."""
-    cams = [("k1k2", K, torch.tensor([-0.12, 0.03], dtype=D))] * 2
+    cams = [(K1K2, K, torch.tensor([-0.12, 0.03], dtype=D))] * 2
     R = exp_so3(torch.tensor([[0.0, 0, 0], [0.01, -0.12, 0.0]], dtype=D))
     T = torch.tensor([[0.0, 0, 0], [-0.2, 0.01, 0.0]], dtype=D)
-    s = render_rig(cams, [(640, 480)] * 2, R, T, num_frames=frames, seed=seed, noise_px=0.1)
-    s2 = render_rig(cams, [(640, 480)] * 2, R, T - torch.tensor([[shift, 0, 0]], dtype=D), num_frames=frames,
+    s = render_rig(cameras(cams, [(640, 480)] * 2), R, T, num_frames=frames, seed=seed, noise_px=0.1)
+    s2 = render_rig(cameras(cams, [(640, 480)] * 2), R, T - torch.tensor([[shift, 0, 0]], dtype=D), num_frames=frames,
                     seed=seed, noise_px=0.1)
     corners = s.corners.clone()
     for f in moved:
@@ -116,23 +117,23 @@ def moving_rig(seed=3, frames=14, moved=(2, 5, 8, 11), shift=0.004):
 
 def test_solver_reports_moves_in_single_camera_sigmas():
     s, corners = moving_rig()
-    res = RigSolver("k1k2", folds=0)(corners, s.valid, s.object_points, s.image_sizes)
+    res = RigSolver(K1K2, folds=0)(corners, s.valid, s.object_points, s.image_sizes)
     assert res.success
     assert len(res.single_cameras) == 2 and len(res.single_std) == 2 and len(res.intrinsics_moved_sigma) == 2
     for c in range(2):
         assert res.single_std[c].shape == (6,) and bool((res.single_std[c] > 0).all())
-        moved = (res.cameras[c].K[[0, 1, 0, 1], [0, 1, 2, 2]] - res.single_cameras[c].K[[0, 1, 0, 1], [0, 1, 2, 2]])
+        moved = res.cameras.params[c, :4] - res.single_cameras.params[c, :4]
         assert torch.allclose(res.intrinsics_moved_sigma[c][:4], moved / res.single_std[c][:4], atol=1e-9)
     assert res.prior_weight.shape == (2,) and bool((res.prior_weight > 0.0).all())  # the moved frames: held
 
 
 def test_prior_keeps_intrinsics_nearer_their_own_calibration():
     s, corners = moving_rig()
-    free = RigSolver("k1k2", folds=0, intrinsics_prior=None, frame_kernel="none")(corners, s.valid, s.object_points,
+    free = RigSolver(K1K2, folds=0, intrinsics_prior=None, frame_kernel="none")(corners, s.valid, s.object_points,
                                                                                   s.image_sizes)
-    held = RigSolver("k1k2", folds=0, frame_kernel="none")(corners, s.valid, s.object_points, s.image_sizes)
+    held = RigSolver(K1K2, folds=0, frame_kernel="none")(corners, s.valid, s.object_points, s.image_sizes)
     for c in range(2):
         assert float(held.intrinsics_moved_sigma[c].abs().max()) <= float(free.intrinsics_moved_sigma[c].abs().max())
-    fixed = RigSolver("k1k2", folds=0)(corners, s.valid, s.object_points, s.image_sizes, initial=held.single_cameras,
+    fixed = RigSolver(K1K2, folds=0)(corners, s.valid, s.object_points, s.image_sizes, initial=held.single_cameras,
                                        fixed=[True, False])
     assert float(fixed.intrinsics_moved_sigma[0].abs().max()) == 0.0 and float(fixed.prior_weight[0]) == 0.0

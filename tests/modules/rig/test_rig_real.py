@@ -16,6 +16,7 @@ from _real_data import REAL_DATA
 from ccs_kornia.geometry.camera import board_object_points
 from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.modules.rig import RigSolver
+from ccs_kornia.geometry.models import K1K2
 
 LEFT, RIGHT = REAL_DATA / "boofcv_bumblebee2_left", REAL_DATA / "boofcv_bumblebee2_right"
 
@@ -37,10 +38,10 @@ def test_bumblebee2_baseline_and_rotation_match_boofcv():
         row = [torch.from_numpy(np.asarray(load_image_gray(folder / f"{side}{i:02d}.jpg")[0], dtype=np.float32))[None]
                for i in range(1, 12)]
         images.append(torch.stack(row))
-    det = CalibrationPipeline(model="k1k2").detect(torch.stack(images), (4, 6))
+    det = CalibrationPipeline(model=K1K2).detect(torch.stack(images), (4, 6))
     assert bool(det.found.all())
     obj = board_object_points(4, 6, 30.0, dtype=torch.float64)
-    res = RigSolver("k1k2")(det.corners.double(), det.valid, obj, [(640, 480)] * 2, names=["left", "right"])
+    res = RigSolver(K1K2)(det.corners.double(), det.valid, obj, [(640, 480)] * 2, names=["left", "right"])
     R_ref, T_ref = _reference()
     assert res.success and res.verdict == "good", res.reasons
     assert abs(float(res.T[1].norm()) / float(T_ref.norm()) - 1) < 0.01  # baseline within 1 % (120.05 mm)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import torch
 
 from ccs_kornia.data.scenes.rig import render_rig
-from ccs_kornia.geometry.models import camera_model
+from ccs_kornia.geometry.models import K1K2, camera_model
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.rig import RigSolver, rig_verdict
 from ccs_kornia.modules.rig.session_advice import (
@@ -15,6 +15,7 @@ from ccs_kornia.modules.rig.session_advice import (
     session_advice,
     shared_frames,
 )
+from _cameras import cameras
 
 D = torch.float64
 K = torch.tensor([[600.0, 0, 330], [0, 605, 245], [0, 0, 1]], dtype=D)
@@ -23,15 +24,15 @@ T_RIG = torch.tensor([[0.0, 0, 0], [-0.2, 0.01, 0.0]], dtype=D)
 
 
 def rig(frames=12, seed=3, **kw):
-    cams = [("k1k2", K, torch.tensor([-0.12, 0.03], dtype=D))] * 2
-    return render_rig(cams, [(640, 480)] * 2, R_RIG, T_RIG, num_frames=frames, seed=seed, noise_px=0.1, **kw)
+    cams = [(K1K2, K, torch.tensor([-0.12, 0.03], dtype=D))] * 2
+    return render_rig(cameras(cams, [(640, 480)] * 2), R_RIG, T_RIG, num_frames=frames, seed=seed, noise_px=0.1, **kw)
 
 
 def advice_of(s, res=None, weight=None, disagreement=None, motion=None, moved=None):
     """session_advice of a rendered rig at its true poses (figures of the frames as given)."""
     F = s.corners.shape[1]
     used = s.valid.sum(-1) >= 6
-    m = camera_model("k1k2")
+    m = K1K2
     p = m.params_from(K[None], torch.tensor([[-0.12, 0.03]], dtype=D))[0]
     weight = torch.ones(F, dtype=D) if weight is None else weight
     return session_advice(["a", "b"], s.image_sizes, [m, m], [p, p], s.R, s.T, exp_so3(s.board_rvec), s.board_tvec,
@@ -52,7 +53,7 @@ def test_shared_frames():
 
 def test_board_fraction_shrinks_with_distance():
     s = rig()
-    m = camera_model("k1k2")
+    m = K1K2
     p = m.params_from(K[None], torch.tensor([[-0.12, 0.03]], dtype=D))[0]
     Rf, tf = exp_so3(s.board_rvec), s.board_tvec
     near = board_fraction(m, p, Rf, tf, s.object_points, (640, 480))
@@ -92,7 +93,7 @@ def test_advice_for_moved_intrinsics():
 
 def test_solver_gives_advice_for_far_boards():
     s = rig(frames=14, distance=(3.0, 4.0))
-    res = RigSolver("k1k2", folds=0)(s.corners, s.valid, s.object_points, s.image_sizes)
+    res = RigSolver(K1K2, folds=0)(s.corners, s.valid, s.object_points, s.image_sizes)
     assert res.success and isinstance(res.advice, list)
     assert any(line.startswith("bring the board closer") for line in res.advice), res.advice
     assert SMALL_BOARD > 0
@@ -120,6 +121,6 @@ def test_verdict_of_moved_intrinsics():
 
 def test_solver_verdict_says_unconverged():
     s = rig(frames=10)
-    res = RigSolver("k1k2", folds=0, max_iters=1)(s.corners, s.valid, s.object_points, s.image_sizes)
+    res = RigSolver(K1K2, folds=0, max_iters=1)(s.corners, s.valid, s.object_points, s.image_sizes)
     assert not res.converged and res.verdict.startswith("not reliable")
     assert any("unconverged" in r for r in res.reasons)
