@@ -11,8 +11,8 @@ command line).
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 
 Example:
-    >>> from ccs_kornia.geometry.models import camera_model
-    >>> camera_model("fisheye").param_names[4:]
+    >>> from ccs_kornia.geometry.models import FISHEYE
+    >>> FISHEYE.param_names[4:]
     ('k1', 'k2', 'k3', 'k4')
 """
 

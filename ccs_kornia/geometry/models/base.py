@@ -110,10 +110,10 @@ class CameraModel:
         float64 array :math:`(D',)`.
 
         Example:
-            >>> from ccs_kornia.geometry.models import camera_model
-            >>> camera_model("k1k2").opencv_coeffs([-0.3, 0.1]).tolist()
+            >>> from ccs_kornia.geometry.models import FISHEYE, K1K2
+            >>> K1K2.opencv_coeffs([-0.3, 0.1]).tolist()
             [-0.3, 0.1, 0.0, 0.0, 0.0]
-            >>> camera_model("fisheye").opencv_coeffs([]).shape
+            >>> FISHEYE.opencv_coeffs([]).shape
             (4,)
         """
         if isinstance(coeffs, torch.Tensor):

@@ -219,14 +219,14 @@ def implicit_solution(
     Example:
         >>> from ccs_kornia.geometry.camera import board_object_points, project_points
         >>> from ccs_kornia.modules.calibration.lm import levenberg_marquardt
-        >>> from ccs_kornia.geometry.models import OpenCVModel
+        >>> from ccs_kornia.geometry.models import PINHOLE
         >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)[None]
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
         >>> rv = torch.tensor([[[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]]], dtype=torch.float64)
         >>> tv = torch.tensor([-0.1, -0.1, 1.0], dtype=torch.float64).expand(1, 3, 3)
         >>> uv = project_points(obj.expand(3, -1, -1), K.expand(3, 3, 3), None, rv[0], tv[0])[None]
         >>> w = torch.ones(1, 3, 12, dtype=torch.float64)
-        >>> m = OpenCVModel("none")
+        >>> m = PINHOLE
         >>> res = levenberg_marquardt(m, torch.tensor([[505., 495., 322., 238.]], dtype=torch.float64), rv, tv, obj, uv)
         >>> _ = uv.requires_grad_()
         >>> p, r, t = implicit_solution(m, res.basis, res.params, res.rvec, res.tvec, uv, w, obj)

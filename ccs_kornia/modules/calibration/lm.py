@@ -82,8 +82,8 @@ def parameter_basis(
         The basis; the tied focal coordinate comes first, then the other free parameters in order.
 
     Example:
-        >>> from ccs_kornia.geometry.models import OpenCVModel
-        >>> m = OpenCVModel("k1k2")
+        >>> from ccs_kornia.geometry.models import K1K2
+        >>> m = K1K2
         >>> p = torch.tensor([[600., 500., 320., 240., 0., 0.]])
         >>> B = parameter_basis(m, p, free=["fx", "fy", "k1", "k2"], fix_aspect_ratio=True)
         >>> B.shape, B[0, :2, 0].tolist()
@@ -258,14 +258,14 @@ def levenberg_marquardt(
 
     Example:
         >>> from ccs_kornia.geometry.camera import board_object_points, project_points
-        >>> from ccs_kornia.geometry.models import OpenCVModel
+        >>> from ccs_kornia.geometry.models import PINHOLE
         >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
         >>> rvec = torch.tensor([[[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]]], dtype=torch.float64)
         >>> tvec = torch.tensor([-0.1, -0.1, 1.0], dtype=torch.float64).expand(1, 3, 3)
         >>> uv = project_points(obj.expand(3, -1, -1), K.expand(3, 3, 3), None, rvec[0], tvec[0])[None]
         >>> p0 = torch.tensor([[505., 495., 322., 238.]], dtype=torch.float64)
-        >>> res = levenberg_marquardt(OpenCVModel("none"), p0, rvec, tvec, obj, uv)
+        >>> res = levenberg_marquardt(PINHOLE, p0, rvec, tvec, obj, uv)
         >>> res.params.round(decimals=6).tolist(), res.covariance.shape
         ([[500.0, 500.0, 320.0, 240.0]], torch.Size([1, 4, 4]))
     """

@@ -106,7 +106,7 @@ class HandEyeProblem:
             term, one pair for all problems or :math:`(B, 2)`, or ``None`` (poses taken as exact).
 
     Example:
-        >>> from ccs_kornia.geometry.models import camera_model
+        >>> from ccs_kornia.geometry.models import PINHOLE
         >>> from ccs_kornia.geometry.camera import board_object_points
         >>> T = torch.eye(4, dtype=torch.float64).expand(1, 3, 4, 4).clone()
         >>> T[0, :, :3, :3] = exp_so3(torch.tensor([[0.0, 0, 0], [0.3, 0, 0], [0, 0.3, 0.1]], dtype=torch.float64))
@@ -114,7 +114,7 @@ class HandEyeProblem:
         >>> state = HandEyeProblem.initial_state(torch.eye(4, dtype=torch.float64)[None], torch.eye(4, dtype=torch.float64)[None],
         ...                                     torch.tensor([[500.0, 500.0, 320.0, 240.0]], dtype=torch.float64), 3)
         >>> state = state._replace(tZ=torch.tensor([[0.0, 0.0, 0.5]], dtype=torch.float64))
-        >>> prob = HandEyeProblem("eye_to_hand", camera_model("none"), T, obj, torch.zeros(1, 3, 6, 2, dtype=torch.float64),
+        >>> prob = HandEyeProblem("eye_to_hand", PINHOLE, T, obj, torch.zeros(1, 3, 6, 2, dtype=torch.float64),
         ...                       torch.ones(1, 3, 6, dtype=torch.float64))
         >>> eq = prob.normal_equations(state)
         >>> eq.U.shape, eq.W.shape

@@ -67,8 +67,8 @@ def rig_layout(models: Sequence[CameraModel]) -> tuple[list[slice], list[slice],
         ``(intrinsic slices, extrinsic slices (None for camera 0), G)``.
 
     Example:
-        >>> from ccs_kornia.geometry.models import camera_model
-        >>> intr, ext, G = rig_layout([camera_model("k1k2"), camera_model("fisheye")])
+        >>> from ccs_kornia.geometry.models import FISHEYE, K1K2, PINHOLE
+        >>> intr, ext, G = rig_layout([K1K2, FISHEYE])
         >>> intr, ext, G
         ([slice(0, 6, None), slice(6, 14, None)], [None, slice(14, 20, None)], 20)
     """
@@ -255,7 +255,7 @@ def rig_levenberg_marquardt(
 
     Example:
         >>> from ccs_kornia.geometry.camera import board_object_points, project_points
-        >>> from ccs_kornia.geometry.models import camera_model
+        >>> from ccs_kornia.geometry.models import FISHEYE, K1K2, PINHOLE
         >>> obj = board_object_points(5, 4, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
         >>> rv = torch.tensor([[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]], dtype=torch.float64)
@@ -266,7 +266,7 @@ def rig_levenberg_marquardt(
         >>> R = torch.eye(3, dtype=torch.float64).expand(1, 2, 3, 3)
         >>> T = torch.tensor([[[0.0, 0, 0], [-0.09, 0.01, 0]]], dtype=torch.float64)
         >>> p = [torch.tensor([[505., 495., 322., 238.]], dtype=torch.float64)] * 2
-        >>> m = [camera_model("none")] * 2
+        >>> m = [PINHOLE] * 2
         >>> Rf = exp_so3(rv)[None]
         >>> res = rig_levenberg_marquardt(m, p, R, T, Rf, tv[None], obj, corners, torch.ones(1, 2, 3, 20))
         >>> res.T[0, 1].round(decimals=6).tolist(), bool(res.converged)

@@ -73,11 +73,11 @@ def board_fraction(model: CameraModel, params: torch.Tensor, Rc: torch.Tensor, t
         :math:`(F,)`.
 
     Example:
-        >>> from ccs_kornia.geometry.models import camera_model
+        >>> from ccs_kornia.geometry.models import PINHOLE
         >>> obj = torch.tensor([[0.0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0.1, 0.1, 0]], dtype=torch.float64)
         >>> p = torch.tensor([100.0, 100.0, 50.0, 50.0], dtype=torch.float64)
         >>> R, t = torch.eye(3, dtype=torch.float64)[None], torch.tensor([[-0.05, -0.05, 0.2]], dtype=torch.float64)
-        >>> board_fraction(camera_model("none"), p, R, t, obj, (100, 100)).tolist()
+        >>> board_fraction(PINHOLE, p, R, t, obj, (100, 100)).tolist()
         [0.25]
     """
     lo, hi = object_points[:, :2].amin(0), object_points[:, :2].amax(0)
