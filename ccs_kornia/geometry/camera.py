@@ -36,6 +36,9 @@ from kornia.geometry.conversions import (
     rotation_matrix_to_axis_angle,
 )
 
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import OPENCV5, PINHOLE, RATIONAL
+
 __all__ = [
     "Camera",
     "DISTORTION_MODELS",
@@ -152,7 +155,8 @@ def project_points(
     rvec: torch.Tensor | None = None,
     tvec: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """Project 3D points with a pinhole camera and OpenCV distortion (as ``cv2.projectPoints``).
+    """Project 3D points with a pinhole camera and OpenCV distortion (as ``cv2.projectPoints``), in OpenCV's terms:
+    the functional form of :meth:`Camera.project` for ``K`` (zero skew) and OpenCV's coefficients.
 
     Args:
         points: :math:`(*, N, 3)` points (world frame if ``rvec``/``tvec`` given, else camera frame).
@@ -171,23 +175,25 @@ def project_points(
     """
     if points.shape[-1] != 3:
         raise ValueError(f"Expected (*, N, 3) points, got {tuple(points.shape)}.")
+    if K.shape[-2:] != (3, 3):
+        raise ValueError(f"Expected (*, 3, 3) camera matrices, got {tuple(K.shape)}.")
     if rvec is not None:
         if tvec is None:
             raise ValueError("rvec given without tvec.")
         points = transform_points_rt(points, rvec, tvec)
-    xy = points[..., :2] / points[..., 2:3]
-    # applied even when every coefficient is zero: a data-dependent branch would zero the distortion
-    # gradients at the usual zero start and break vmap / torch.compile
-    if dist is not None and dist.shape[-1] > 0:
-        eye = torch.eye(3, device=xy.device, dtype=xy.dtype).expand(*xy.shape[:-2], 3, 3)
-        d = _pad_opencv(dist).expand(*xy.shape[:-2], -1) if dist.dim() == 1 else _pad_opencv(dist)
-        xy = distort_points(xy, eye, d)
-    fx, fy = K[..., 0, 0, None], K[..., 1, 1, None]
-    cx, cy = K[..., 0, 2, None], K[..., 1, 2, None]
-    skew = K[..., 0, 1, None]
-    u = fx * xy[..., 0] + skew * xy[..., 1] + cx
-    v = fy * xy[..., 1] + cy
-    return torch.stack([u, v], -1)
+    # the model of the coefficients' count (4 and 5: OpenCV's default layout, 8: its rational model); applied even
+    # when every coefficient is zero, so the gradients at the usual zero start are those of the model
+    n = 0 if dist is None else dist.shape[-1]
+    if n not in (0, 4, 5, 8):
+        raise ValueError(f"OpenCV distortion needs 0, 4, 5 or 8 coefficients, got {n}.")
+    model = PINHOLE if n == 0 else (RATIONAL if n == 8 else OPENCV5)
+    coeffs = points.new_zeros(0) if dist is None else torch.nn.functional.pad(dist.to(points.dtype), [0, 5 - n] if n < 5 else [0, 0])
+    batch = torch.broadcast_shapes(points.shape[:-2], K.shape[:-2], coeffs.shape[:-1])
+    N = points.shape[-2]
+    params = torch.cat([intrinsics_params(K.to(points.dtype)).expand(*batch, 4),
+                        coeffs.expand(*batch, coeffs.shape[-1])], -1).reshape(-1, model.num_params)
+    uv = model.project(points.expand(*batch, N, 3).reshape(-1, N, 3), params, jacobians=False)[0]
+    return uv.reshape(*batch, N, 2)
 
 
 def distort_pixels(points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
@@ -517,8 +523,6 @@ class Camera:
     """
 
     def __init__(self, model, params: torch.Tensor, image_size=None) -> None:
-        from ccs_kornia.geometry.models.base import CameraModel
-
         if not isinstance(params, torch.Tensor) or params.dim() not in (1, 2):
             raise ValueError(f"Camera params must be (C, P) or (P,), got {tuple(getattr(params, 'shape', ()))}.")
         params = params[None] if params.dim() == 1 else params
