@@ -105,7 +105,7 @@ class LMStatus(IntEnum):
 LM_STATUS_MESSAGES: dict[int, str] = {
     LMStatus.RUNNING: "still iterating",
     LMStatus.CONVERGED: "converged",
-    LMStatus.STALLED: "stalled (the cost no longer decreased)",
+    LMStatus.STALLED: "stalled (the cost barely decreased any more)",
     LMStatus.MAX_ITERATIONS: "stopped at the iteration limit",
     LMStatus.DOMINATED: "left off: far above a converged start of the same problem",
     LMStatus.NO_DATA: "no data to fit",
@@ -485,7 +485,7 @@ def schur_lm(
                 leaving = ~alive
                 full = write_back(idx[leaving], leaving)
                 idx = idx[alive]
-                work = _map(lambda _, v: v[alive], work)
+                work = _map(lambda _, v, keep=alive: v[keep], work)
                 wp, used_f = wp.take(alive), used_f[alive]
     full = work if idx.numel() == B else write_back(idx, None)  # (no problem left early: the working set is all)
     eq = full.equations

@@ -34,7 +34,7 @@ import torch
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3
-from ccs_kornia.modules.calibration.schur_lm import LMStatus, NormalEquations, schur_lm
+from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm
 
 __all__ = ["RigLMResult", "rig_layout", "rig_levenberg_marquardt"]
 
@@ -264,6 +264,7 @@ def rig_levenberg_marquardt(
     Example:
         >>> from ccs_kornia.geometry.camera import board_object_points, project_points
         >>> from ccs_kornia.geometry.models import camera_model
+        >>> from ccs_kornia.modules.calibration.schur_lm import LMStatus
         >>> obj = board_object_points(5, 4, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
         >>> rv = torch.tensor([[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]], dtype=torch.float64)
