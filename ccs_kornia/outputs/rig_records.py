@@ -206,7 +206,8 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
         "frame_consistency": {"kernel_scale_px": _num(getattr(rig, "frame_scale", float("nan"))),
                               "frames": frame_records(rig, list(out.frames.labels))},
         "session_advice": list(getattr(rig, "advice", []) or []),
-        "fit": {"converged": bool(getattr(rig, "converged", True)), "iterations": int(getattr(rig, "iterations", 0)),
+        "fit": {"converged": bool(getattr(rig, "converged", True)), "status": rig.lm_status.message,
+                "iterations": int(getattr(rig, "iterations", 0)),
                 "frames_used": [[bool(u) for u in row] for row in rig.used.tolist()],
                 # per camera and frame: 0 where the corners kept the detector's numbering, k > 0 where the solver
                 # renumbered a symmetric board by its k-th symmetry (1: turned 180 degrees) to agree with the frame

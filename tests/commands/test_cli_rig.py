@@ -91,6 +91,7 @@ def test_rig_json(rig_run, capsys):
     order = np.array(data["fit"]["corner_order"])
     assert order.shape == (2, 8) and set(order.ravel().tolist()) <= {0, 1}
     assert np.array(data["fit"]["frames_used"]).shape == (2, 8) and data["fit"]["converged"]
+    assert data["fit"]["status"] == "converged"
 
 
 def test_opencv_stereo_yaml_loads_and_rectifies(rig_run):

@@ -43,7 +43,7 @@ class FisheyeCalibrationResult:
     std_dist: torch.Tensor  #: (C, 4) std of k1..k4
     covariance: torch.Tensor  #: (C, 8, 8) covariance of fx, fy, cx, cy, k1..k4 marginalised over the poses
     success: torch.Tensor  #: (C,) bool
-    converged: torch.Tensor  #: (C,) bool
+    lm_status: torch.Tensor  #: (C,) int64 :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus` of the final LM
     candidate_rms: torch.Tensor  #: (C, V) px of every view with corners under the final camera (used or not)
 
 
@@ -238,7 +238,7 @@ def _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_thr
         K=fail_nan(_kmat(final.params)), D=fail_nan(final.params[:, 4:]), rvec=final.rvec, tvec=final.tvec,
         view_rms=torch.where(used, final.view_rms, nan), used=used, rms=fail_nan(final.rms),
         std_intrinsics=fail_nan(std[:, :4]), std_dist=fail_nan(std[:, 4:]), covariance=fail_nan(final.param_covariance),
-        success=success, converged=final.converged & success,
+        success=success, lm_status=final.status,
         candidate_rms=torch.where(candidates, cand, nan),
     )
     return out

@@ -27,7 +27,7 @@ from torch import nn
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3 as _exp_so3
 from ccs_kornia.geometry.so3 import log_so3 as _log_so3
-from ccs_kornia.modules.calibration.schur_lm import schur_lm
+from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm
 
 __all__ = ["LMResult", "parameter_basis", "levenberg_marquardt", "LevenbergMarquardt"]
 
@@ -47,7 +47,7 @@ class LMResult:
     basis: torch.Tensor  #: (C, P, F) parameter increment = basis @ free increment
     sigma2: torch.Tensor  #: (C,) variance factor applied to the covariance
     iterations: torch.Tensor  #: (C,) int64 iterations run while the camera was active
-    converged: torch.Tensor  #: (C,) bool, a tolerance was met (False for cameras without data)
+    status: torch.Tensor  #: (C,) int64 :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus` of each camera
     num_points: torch.Tensor  #: (C,) int64 corners with positive weight
     view_used: torch.Tensor  #: (C, V) bool, views with at least one weighted corner
 
@@ -172,10 +172,17 @@ def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expa
     return cost, Gpp, Gpk, Gkk, gp, gk, view_cost
 
 
+@dataclass(kw_only=True)
+class _CameraEquations(NormalEquations):
+    """The cameras' normal equations with the weighted squared residuals per view."""
+
+    view_cost: torch.Tensor  #: (C, V)
+
+
 class _CameraProblem:
     """The cameras of :func:`levenberg_marquardt` as a :class:`~ccs_kornia.modules.calibration.schur_lm.SchurProblem`:
-    global unknowns the free camera coordinates, items the views' poses; the state ``{"x": (C, P) parameters,
-    "R": (C, V, 3, 3), "t": (C, V, 3)}``, the normal equations with the weighted squared residuals per view."""
+    global unknowns the free camera coordinates, items the views' poses; the unknowns ``{"x": (C, P) parameters,
+    "R": (C, V, 3, 3), "t": (C, V, 3)}``, the normal equations :class:`_CameraEquations`."""
 
     def __init__(self, model, obj, obs, sw, basis, tied, used, num_residuals, floor, eye6, expanded):
         self.model, self.obj, self.obs, self.sw, self.basis, self.tied = model, obj, obs, sw, basis, tied
@@ -183,9 +190,9 @@ class _CameraProblem:
         self.eye6, self.expanded = eye6, expanded
 
     def linearize(self, s):
-        eq = _normal_equations(self.model, s["R"], s["t"], s["x"], self.obj, self.obs, self.sw, self.tied, self.used,
-                               self.eye6, self.expanded)
-        return dict(zip(("cost", "U", "W", "V", "eg", "ep", "view_cost"), eq))
+        cost, U, W, V, eg, ep, view_cost = _normal_equations(self.model, s["R"], s["t"], s["x"], self.obj, self.obs,
+                                                             self.sw, self.tied, self.used, self.eye6, self.expanded)
+        return _CameraEquations(cost=cost, U=U, eg=eg, W=W, V=V, ep=ep, view_cost=view_cost)
 
     def retract(self, s, dg, dp):
         x = s["x"] + (dg if self.tied is None else (self.basis @ dg.unsqueeze(-1)).squeeze(-1))
@@ -237,19 +244,19 @@ def levenberg_marquardt(
         fix_aspect_ratio: keep ``fx / fy`` at its initial value.
         basis: :math:`(C, P, F)` explicit basis of the free increments (overrides ``free``/``fix_aspect_ratio``),
             for any tie between parameters.
-        max_iters: iterations at most.
-        ftol: a camera stops when an accepted step decreases its cost by less than ``ftol`` relative.
-        xtol: a camera stops when its step is below ``xtol`` times its largest parameter magnitude.
+        max_iters: iterations at most (a camera still iterating then ends ``MAX_ITERATIONS``).
+        ftol: a camera converges when an accepted step decreases its cost by less than ``ftol`` relative.
+        xtol: a camera converges when its step is below ``xtol`` times its largest parameter magnitude.
         lambda_init: initial Marquardt damping (relative to the diagonal).
         check_every: iterations between "all cameras done?" checks (a host sync); default 1 on CPU, 10 else.
         absolute_weights: the weights are absolute inverse variances: covariance without the ``sigma^2`` factor.
         dtype: solve precision.
-        stall_tol: a camera also stops (converged) when
+        stall_tol: a camera also ends (``STALLED``) when
             :data:`~ccs_kornia.modules.calibration.schur_lm.STALL_WINDOW` iterations together lowered its cost by
             at most ``stall_tol`` relative (0: never): a crawl along a direction the data barely determine, where
             every step still passes ``ftol`` but the fit no longer changes for any practical purpose.
         groups: :math:`(C,)` integers: cameras that are other starts of one problem (the same data). At each "all
-            done?" check a camera still iterating stops, not converged, where its cost exceeds
+            done?" check a camera still iterating ends (``DOMINATED``) where its cost exceeds
             :data:`~ccs_kornia.modules.calibration.schur_lm.DOMINATED_RATIO` times a converged camera's of its group with as many used views (it cannot be
             the group's best; fisheye hypotheses crawled 70-100 iterations at 3-44 px RMS beside a 0.17 px optimum).
 
@@ -306,11 +313,11 @@ def levenberg_marquardt(
     sol = schur_lm(problem, {"x": x, "R": _exp_so3(rv), "t": tv}, max_iters=max_iters, ftol=ftol, xtol=xtol,
                    lambda_init=lambda_init, check_every=check_every, stall_tol=stall_tol, groups=groups,
                    absolute_weights=absolute_weights)
-    x, R, tv = sol.state["x"], sol.state["R"], sol.state["t"]
+    x, R, tv = sol.unknowns["x"], sol.unknowns["R"], sol.unknowns["t"]
 
     # statistics at the solution (unit weights: the squared residuals per view are in the normal equations)
     if sw is None:
-        sq_view = sol.equations["view_cost"]
+        sq_view = sol.equations.view_cost
     else:
         q = torch.matmul(obj[:, None].expand(C, V, N, 3), R.transpose(-1, -2))
         uv = model.columns(q + tv[:, :, None, :], x, jacobians=False)[0]
@@ -323,7 +330,7 @@ def levenberg_marquardt(
     tvec_out = torch.where(used[..., None], tv, tvec.to(dtype))
     return LMResult(
         params=x, rvec=rvec_out, tvec=tvec_out, cost=sol.cost, view_rms=view_rms, rms=rms, covariance=sol.covariance,
-        information=sol.information, basis=B, sigma2=sol.sigma2, iterations=sol.iterations, converged=sol.converged,
+        information=sol.information, basis=B, sigma2=sol.sigma2, iterations=sol.iterations, status=sol.status,
         num_points=n_pts, view_used=used,
     )
 

@@ -41,7 +41,7 @@ class RefinementResult:
     rms: torch.Tensor  #: (C,) sqrt(sum squared error / number of points), as cv2.calibrateCamera
     std_intrinsics: torch.Tensor  #: (C, 4) standard deviations of fx, fy, cx, cy (0 where fixed)
     std_dist: torch.Tensor  #: (C, D) standard deviations of the coefficients (0 where fixed)
-    converged: torch.Tensor  #: (C,) bool
+    status: torch.Tensor  #: (C,) int64 :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus` of each camera
     iterations: torch.Tensor  #: (C,) LM iterations used
     num_points: torch.Tensor  #: (C,) corners used
     #: (C, 4 + D, 4 + D) covariance of (fx, fy, cx, cy, dist) (zero rows/columns for fixed parameters)
@@ -171,7 +171,7 @@ def joint_refinement(
     out = RefinementResult(
         K=_k_matrix(res.params), dist=cam.dist8(res.params)[:, :D], rvec=res.rvec, tvec=res.tvec,
         view_rms=res.view_rms, rms=res.rms, std_intrinsics=std[:, :4], std_dist=std[:, 4:],
-        converged=res.converged, iterations=res.iterations, num_points=res.num_points, cov_camera=cov,
+        status=res.status, iterations=res.iterations, num_points=res.num_points, cov_camera=cov,
     )
     if unbatched:
         out = RefinementResult(**{k: v[0] for k, v in out.__dict__.items()})

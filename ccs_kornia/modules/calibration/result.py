@@ -61,7 +61,9 @@ class CalibrationResult:
     std_dist: torch.Tensor  #: (C, D)
     success: torch.Tensor  #: (C,) bool
     view_reason: torch.Tensor  #: (C, V) int64, :class:`ViewReason` values
-    converged: torch.Tensor  #: (C,) bool, LM met its tolerance
+    #: (C,) int64 :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus` values: how the final LM of each camera
+    #: ended (``success`` says whether the camera is usable)
+    lm_status: torch.Tensor
     candidate_rms: torch.Tensor  #: (C, V) px: every view with a homography under the final model (used or not)
     # covariance and degeneracy checks; see modules/calibration/quality/degeneracy.py
     cov_camera: torch.Tensor | None = None  #: (C, 4 + D, 4 + D) covariance of (fx, fy, cx, cy, dist)

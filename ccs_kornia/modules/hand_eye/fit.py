@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ccs_kornia.modules.calibration.schur_lm import schur_lm
+from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm
 from ccs_kornia.modules.hand_eye.problem import HandEyeProblem, HandEyeState
 
 __all__ = ["FitResult", "fit_problem"]
@@ -25,12 +25,12 @@ class FitResult:
     covariance: torch.Tensor  #: (B, G, G) sigma^2 S^-1, S the global block's Schur complement (items marginalised)
     sigma2: torch.Tensor  #: (B,) cost / degrees of freedom
     iterations: torch.Tensor  #: (B,) int64
-    converged: torch.Tensor  #: (B,) bool
+    status: torch.Tensor  #: (B,) int64 :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus`
 
 
 class _SchurProblem:
     """A :class:`~ccs_kornia.modules.hand_eye.problem.HandEyeProblem` in the form the LM core takes
-    (:class:`~ccs_kornia.modules.calibration.schur_lm.SchurProblem`): the state as a dict of its fields, the robot-pose
+    (:class:`~ccs_kornia.modules.calibration.schur_lm.SchurProblem`): the unknowns as a dict of its state's fields, the robot-pose
     corrections as the items (none without the noise term)."""
 
     def __init__(self, problem: HandEyeProblem) -> None:
@@ -41,9 +41,9 @@ class _SchurProblem:
         self.num_residuals = 2 * problem.w.gt(0).sum((1, 2)) + 6 * self.used.sum(-1)
         self.floor = (problem.w.sum((1, 2)) * 1e-20).clamp_min(1e-300)  # an RMS of 1e-10 px: a perfect fit
 
-    def linearize(self, state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    def linearize(self, state: dict[str, torch.Tensor]) -> NormalEquations:
         eq = self.problem.normal_equations(HandEyeState(**state))
-        return {"cost": eq.cost, "U": eq.U, "W": eq.W, "V": eq.Vb, "eg": eq.g, "ep": eq.gv}
+        return NormalEquations(cost=eq.cost, U=eq.U, eg=eq.g, W=eq.W, V=eq.Vb, ep=eq.gv)
 
     def retract(self, state: dict[str, torch.Tensor], dg: torch.Tensor, dp: torch.Tensor) -> dict[str, torch.Tensor]:
         return self.problem.retract(HandEyeState(**state), dg, dp)._asdict()
@@ -71,4 +71,4 @@ def fit_problem(problem: HandEyeProblem, state: HandEyeState, max_iters: int = 1
         :class:`FitResult`.
     """
     res = schur_lm(_SchurProblem(problem), state._asdict(), max_iters=max_iters, ftol=ftol, xtol=xtol)
-    return FitResult(HandEyeState(**res.state), res.cost, res.covariance, res.sigma2, res.iterations, res.converged)
+    return FitResult(HandEyeState(**res.unknowns), res.cost, res.covariance, res.sigma2, res.iterations, res.status)

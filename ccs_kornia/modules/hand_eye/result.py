@@ -113,7 +113,8 @@ class HandEyeResult:
     verdict: list[str]  #: per problem
     verdict_reasons: list[list[str]] = field(default_factory=list)
     iterations: torch.Tensor | None = None  #: (B,)
-    converged: torch.Tensor | None = None  #: (B,)
+    #: (B,) int64 :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus`: how the fit ended
+    lm_status: torch.Tensor | None = None
     robot_noise: torch.Tensor | None = None  #: (B, 2) the robot poses' sigma of the fit: radians, the poses' unit
     pixel_sigma: torch.Tensor | None = None  #: (B,) the corners' sigma estimated with it (px, for unit weights)
     corrections: tuple[torch.Tensor, torch.Tensor] | None = None  #: the noise term's pose corrections (R (B, V, 3, 3), t)

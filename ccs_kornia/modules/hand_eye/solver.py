@@ -311,7 +311,7 @@ def calibrate_hand_eye(
         z_rotation_std_deg=z_std[:, 0:3] * deg, z_translation_std=z_std[:, 3:6], intrinsics_std=intr_std, rms=rms, view_rms=view_rms, residuals=residuals,
         used=usable, board_poses=M, start=[start_names[int(k)] for k in best], start_rms=start_rms,
         start_names=start_names, heldout_rms_px=h_px, heldout_rms_distance=h_d, heldout_predicted=h_pred,
-        verdict=[], verdict_reasons=[], iterations=fit.iterations, converged=fit.converged,
+        verdict=[], verdict_reasons=[], iterations=fit.iterations, lm_status=fit.status,
         robot_noise=None if problem.noise is None else problem.noise,
         pixel_sigma=None if est is None else est.pixel_sigma,
         corrections=None if problem.noise is None else (s.RE, s.tE),

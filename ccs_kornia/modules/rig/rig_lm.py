@@ -34,7 +34,7 @@ import torch
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3
-from ccs_kornia.modules.calibration.schur_lm import schur_lm
+from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm
 
 __all__ = ["RigLMResult", "rig_layout", "rig_levenberg_marquardt"]
 
@@ -54,7 +54,7 @@ class RigLMResult:
     covariance: torch.Tensor  #: (B, G, G) covariance of all rig parameters (zero rows/columns where fixed)
     sigma2: torch.Tensor  #: (B,)
     iterations: torch.Tensor  #: (B,) int64
-    converged: torch.Tensor  #: (B,) bool
+    status: torch.Tensor  #: (B,) int64 :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus` of each rig
     frame_used: torch.Tensor  #: (B, F) bool
     prior_cost: torch.Tensor | None = None  #: (B,) the priors' share of ``cost`` (``None`` without priors)
 
@@ -161,11 +161,19 @@ def _prior_terms(prior, params, intr, B, G, dtype, device):
     return cost, U, eg
 
 
+@dataclass(kw_only=True)
+class _RigEquations(NormalEquations):
+    """The rigs' normal equations with the unweighted squared error per camera and frame."""
+
+    sq: torch.Tensor  #: (B, C, F)
+    prior_cost: torch.Tensor | None = None  #: (B,) the priors' share of ``cost`` (``None`` without priors)
+
+
 class _RigProblem:
     """The rigs of :func:`rig_levenberg_marquardt` as a :class:`~ccs_kornia.modules.calibration.schur_lm.SchurProblem`:
-    global unknowns the free rig parameters (:func:`rig_layout` order), items the frames' board poses; the state
+    global unknowns the free rig parameters (:func:`rig_layout` order), items the frames' board poses; the unknowns
     ``{"p0", .., "p{C-1}": (B, P_c) parameters, "R": (B, C, 3, 3), "T": (B, C, 3), "Rf": (B, F, 3, 3), "tf": (B, F,
-    3)}``, the normal equations with the unweighted squared error per camera and frame (``sq``)."""
+    3)}``, the normal equations :class:`_RigEquations`."""
 
     def __init__(self, models, layout, fi, obj, obs, sw, on, used, num_residuals, floor, eye6, prior=None):
         self.models, self.layout, self.fi, self.obj, self.obs, self.sw, self.on = models, layout, fi, obj, obs, sw, on
@@ -180,12 +188,12 @@ class _RigProblem:
         params = self.params(s)
         cost, U, W, V, eg, ep, sq = _equations(self.models, params, s["R"], s["T"], s["Rf"], s["tf"], self.obj,
                                                self.obs, self.sw, self.on, self.layout, self.used, self.eye6)
-        out = {"sq": sq}
+        pc = None
         if self.prior is not None:
             pc, pU, pe = _prior_terms(self.prior, params, self.layout[0], *U.shape[:2], U.dtype, U.device)
             cost, U, eg = torch.where(cost.isfinite(), cost + pc, cost), U + pU, eg + pe
-            out["prior_cost"] = pc
-        return {"cost": cost, "U": U[:, fi][:, :, fi], "W": W[:, :, fi], "V": V, "eg": eg[:, fi], "ep": ep, **out}
+        return _RigEquations(cost=cost, U=U[:, fi][:, :, fi], eg=eg[:, fi], W=W[:, :, fi], V=V, ep=ep, sq=sq,
+                             prior_cost=pc)
 
     def retract(self, s, dg, dp):
         intr, ext, G = self.layout
@@ -256,6 +264,7 @@ def rig_levenberg_marquardt(
     Example:
         >>> from ccs_kornia.geometry.camera import board_object_points, project_points
         >>> from ccs_kornia.geometry.models import FISHEYE, K1K2, PINHOLE
+        >>> from ccs_kornia.modules.calibration.schur_lm import LMStatus
         >>> obj = board_object_points(5, 4, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
         >>> rv = torch.tensor([[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]], dtype=torch.float64)
@@ -269,8 +278,8 @@ def rig_levenberg_marquardt(
         >>> m = [PINHOLE] * 2
         >>> Rf = exp_so3(rv)[None]
         >>> res = rig_levenberg_marquardt(m, p, R, T, Rf, tv[None], obj, corners, torch.ones(1, 2, 3, 20))
-        >>> res.T[0, 1].round(decimals=6).tolist(), bool(res.converged)
-        ([-0.1, 0.0, 0.0], True)
+        >>> res.T[0, 1].round(decimals=6).tolist(), LMStatus(int(res.status))
+        ([-0.1, 0.0, 0.0], <LMStatus.CONVERGED: 1>)
     """
     models = list(models)
     B, C = corners.shape[:2]
@@ -319,7 +328,8 @@ def rig_levenberg_marquardt(
     state = {**{f"p{c}": x[c] for c in range(C)}, "R": R.to(dtype).clone(), "T": T.to(dtype).clone(), "Rf": Rf, "tf": tf}
     sol = schur_lm(problem, state, max_iters=max_iters, ftol=ftol, xtol=xtol, lambda_init=lambda_init,
                    check_every=check_every, stall_tol=stall_tol, absolute_weights=absolute_weights)
-    x, Rx, Tx, Rf, tf = problem.params(sol.state), sol.state["R"], sol.state["T"], sol.state["Rf"], sol.state["tf"]
+    u = sol.unknowns
+    x, Rx, Tx, Rf, tf = problem.params(u), u["R"], u["T"], u["Rf"], u["tf"]
 
     # the unweighted squared errors at the solution
     _, sq = _equations(models, x, Rx, Tx, Rf, tf, obj, obs, sw, on, layout, frame_used, eye6, jacobians=False)
@@ -327,6 +337,6 @@ def rig_levenberg_marquardt(
     cov[:, fi[:, None], fi[None, :]] = sol.covariance
     return RigLMResult(
         params=x, R=Rx, T=Tx, frame_R=Rf, frame_t=tf, cost=sol.cost, sq_error=sq, count=count, covariance=cov,
-        sigma2=sol.sigma2, iterations=sol.iterations, converged=sol.converged, frame_used=frame_used,
-        prior_cost=sol.equations.get("prior_cost"),
+        sigma2=sol.sigma2, iterations=sol.iterations, status=sol.status, frame_used=frame_used,
+        prior_cost=sol.equations.prior_cost,
     )

@@ -40,6 +40,7 @@ from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.outliers import drop_outliers
 from ccs_kornia.modules.calibration.quality.diagnostics import split_views
+from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.rig.board_symmetry import (
     align_frame_orders,
     board_symmetries,
@@ -101,7 +102,7 @@ class RigResult:
     heldout_epipolar_rms: torch.Tensor  #: (C, C) px on held-out frames (k-fold), NaN if too few frames
     verdict: str  #: "good" | "usable" | "not reliable: <what to do>"
     reasons: list[str] = field(default_factory=list)  #: what made the verdict less than good
-    converged: bool = False  #: the joint LM met its tolerance
+    lm_status: LMStatus = LMStatus.NO_DATA  #: how the joint LM ended
     iterations: int = 0  #: joint LM iterations
     #: (C, F) int64: 0 where a camera's corners were used in the detector's numbering, k > 0 where they were
     #: renumbered by the board's k-th symmetry (1: the 180-degree turn, i.e. reversed) to agree with the frame
@@ -131,6 +132,12 @@ class RigResult:
         """Pose of camera ``j`` relative to camera ``i`` (``x_j = R x_i + T``) with ``E`` and ``F``."""
         R, T = pair_pose(self.R, self.T, i, j)
         return stereo_pair(self.cameras[i], self.cameras[j], R, T)
+
+    @property
+    def converged(self) -> bool:
+        """The joint LM settled at an optimum: converged or stalled
+        (:attr:`~ccs_kornia.modules.calibration.schur_lm.LMStatus.converged`)."""
+        return self.lm_status.converged
 
     @property
     def baseline(self) -> torch.Tensor:
@@ -544,9 +551,10 @@ class RigSolver(nn.Module):
         advice = session_advice(names, sizes, list(models), [p[b] for p in res.params], res.R[b],
                                 T, res.frame_R[b], res.frame_t[b], obj, corners[b], valid[b], u,
                                 fc["disagreement"][b], fw, fc["motion"][b], shared, dragged, fixed) if success else []
+        status = LMStatus(int(res.status[b]))
         if success:
             verdict, reasons = rig_verdict(names, sizes, cam_rms, epi, held, T.norm(dim=-1), bstd, rstd,
-                                           self.thresholds, converged=bool(res.converged[b]),
+                                           self.thresholds, converged=status.converged,
                                            iterations=int(res.iterations[b]),
                                            moved_sigma=[float(m.abs().max()) if m.numel() else 0.0 for m in dragged])
         else:
@@ -556,7 +564,7 @@ class RigSolver(nn.Module):
             R=res.R[b].clone(), T=T, board_rvec=rvec, board_tvec=tvec, used=u.clone(), rms_matrix=rms_m,
             camera_rms=cam_rms, rms=total, baseline_std=bstd, rotation_std_deg=rstd, intrinsics_std=istd,
             epipolar_rms=epi, heldout_epipolar_rms=held, verdict=verdict, reasons=reasons,
-            converged=bool(res.converged[b]), iterations=int(res.iterations[b]), corner_order=order.clone(),
+            lm_status=status, iterations=int(res.iterations[b]), corner_order=order.clone(),
             single_cameras=singles, single_std=sstd, intrinsics_moved_sigma=moved,
             frame_disagreement=fc["disagreement"][b].clone(), frame_weight=fw, frame_motion=fc["motion"][b].clone(),
             frame_scale=float(fc["scale"][b]), shared_frames=shared, advice=advice,

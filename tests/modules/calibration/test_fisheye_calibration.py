@@ -29,6 +29,7 @@ from ccs_kornia.modules.calibration.fisheye_init import (
 )
 from ccs_kornia.modules.calibration.result import ViewReason
 from ccs_kornia.geometry.models import FISHEYE, K1K2
+from ccs_kornia.modules.calibration.schur_lm import LMStatus
 
 F64 = torch.float64
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -122,6 +123,7 @@ def test_calibrate_fisheye_exact_data_and_batch(fov):
     uv = torch.stack([d[2] for d in data])
     res = calibrate_fisheye(uv, None, OBJ, SIZE)
     assert res.success.all() and res.used.all() and bool((res.rms < 1e-6).all())
+    assert (res.lm_status == LMStatus.CONVERGED).all()
     for c, (K, D) in enumerate(cams):
         torch.testing.assert_close(res.K[c], K, atol=1e-6, rtol=0)
         torch.testing.assert_close(res.D[c], D, atol=1e-8, rtol=0)

@@ -21,6 +21,7 @@ from ccs_kornia.modules.calibration.lm import (
     parameter_basis,
 )
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE
+from ccs_kornia.modules.calibration.schur_lm import LMStatus
 
 F64 = torch.float64
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -64,7 +65,7 @@ def test_recovers_exact_camera_and_shapes():
     res = levenberg_marquardt(m, p0, r0, t0, OBJ, uv)
     torch.testing.assert_close(res.params, p, atol=1e-6, rtol=1e-9)
     torch.testing.assert_close(res.rvec, rvec, atol=1e-9, rtol=0)
-    assert bool((res.rms < 1e-8).all()) and bool(res.converged.all())
+    assert bool((res.rms < 1e-8).all()) and bool((res.status == LMStatus.CONVERGED).all())
     C, V, P = 2, 10, 9
     assert res.covariance.shape == (C, P, P) and res.param_covariance.shape == (C, P, P) and res.basis.shape == (C, P, P)
     assert res.view_rms.shape == (C, V) and res.cost.shape == (C,) and res.num_points.tolist() == [540, 540]
@@ -125,9 +126,9 @@ def test_groups_stop_a_start_far_above_a_converged_one():
     free = levenberg_marquardt(*args)
     grouped = levenberg_marquardt(*args, groups=torch.tensor([0, 0]))
     apart = levenberg_marquardt(*args, groups=torch.tensor([0, 1]))
-    assert free.iterations.tolist()[1] == 100 and not bool(free.converged[1])  # the crawl
+    assert free.iterations.tolist()[1] == 100 and free.status.tolist() == [LMStatus.CONVERGED, LMStatus.MAX_ITERATIONS]
     assert grouped.iterations.tolist() == [free.iterations.tolist()[0]] * 2
-    assert grouped.converged.tolist() == [True, False]
+    assert grouped.status.tolist() == [LMStatus.CONVERGED, LMStatus.DOMINATED]
     assert float(grouped.rms[1]) > 10 * float(grouped.rms[0])
     torch.testing.assert_close(grouped.params[0], free.params[0], atol=1e-9, rtol=1e-12)
     assert torch.equal(apart.iterations, free.iterations)
@@ -380,3 +381,17 @@ def test_refine_centred_radial_matches_a_dense_reference():
     few[1, 0, :7] = True  # camera 1 has fewer than 8 corners: left unchanged, NaN rms
     out = refine_centred_radial(uv, few, OBJ, K0, rvec, tvec, torch.zeros(2, 3), (640, 480))
     assert bool(out[4][1].isnan()) and torch.equal(out[0][1], K0[1]) and bool(out[4][0] < 0.1)
+
+
+def test_status_of_each_camera():
+    """A camera that fits converges, one without a weighted corner has no data (NaN RMS, its start kept), and an
+    iteration limit below what a camera needs leaves it at the limit."""
+    m, p, rvec, tvec, uv = _opencv_set()
+    p0, r0, t0 = _perturbed(p, rvec, tvec)
+    w = torch.ones(uv.shape[:-1], dtype=F64)
+    w[1] = 0
+    res = levenberg_marquardt(m, p0, r0, t0, OBJ, uv, w)
+    assert res.status.tolist() == [LMStatus.CONVERGED, LMStatus.NO_DATA] and int(res.iterations[1]) == 0
+    assert bool(res.rms[1].isnan()) and torch.equal(res.params[1], p0[1])
+    capped = levenberg_marquardt(m, p0, r0, t0, OBJ, uv, max_iters=2)
+    assert (capped.status == LMStatus.MAX_ITERATIONS).all() and (capped.iterations == 2).all()

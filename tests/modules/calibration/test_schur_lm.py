@@ -1,14 +1,23 @@
 """The LM core alone: toy problems with a known optimum (global unknowns only, and with 6-dof item blocks), batches
 of problems that converge at different iterations, the covariance against a dense solve, the step against a dense
-solve, the working set, the checks of the normal equations."""
+solve, the working set, the checks of the normal equations, how each problem ended (its status)."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import pytest
 import torch
 
 from ccs_kornia.geometry.so3 import exp_so3
-from ccs_kornia.modules.calibration.schur_lm import SchurLMResult, schur_lm, schur_step
+from ccs_kornia.modules.calibration.schur_lm import (
+    LM_STATUS_MESSAGES,
+    LMStatus,
+    NormalEquations,
+    SchurLMResult,
+    schur_lm,
+    schur_step,
+)
 
 F64 = torch.float64
 
@@ -29,7 +38,7 @@ class Exponential:
         cols = [e, a * self.x * e] + ([torch.zeros_like(e)] if self.idle else [])
         J = torch.stack(cols, -1)  # (B, N, G)
         r = a * e - self.y
-        return {"cost": (r * r).sum(-1), "U": J.mT @ J, "eg": (J.mT @ r[..., None])[..., 0]}
+        return NormalEquations(cost=(r * r).sum(-1), U=J.mT @ J, eg=(J.mT @ r[..., None])[..., 0])
 
     def retract(self, s, dg, dp):
         return {"p": s["p"] + dg}
@@ -72,8 +81,8 @@ class ScaledCloud:
         g = torch.einsum("bvnki,bvnk->bvi", J, r)
         eye6 = torch.eye(6, dtype=A.dtype, device=A.device)
         V = torch.where(self.used[..., None, None], A[..., 1:, 1:], eye6)
-        return {"cost": (r * r).sum((1, 2, 3)), "U": A[..., :1, :1].sum(1), "W": A[..., :1, 1:], "V": V,
-                "eg": g[..., :1].sum(1), "ep": g[..., 1:]}
+        return NormalEquations(cost=(r * r).sum((1, 2, 3)), U=A[..., :1, :1].sum(1), eg=g[..., :1].sum(1),
+                               W=A[..., :1, 1:], V=V, ep=g[..., 1:])
 
     def retract(self, s, dg, dp):
         return {"s": s["s"] + dg, "R": exp_so3(dp[..., :3]) @ s["R"], "t": s["t"] + dp[..., 3:]}
@@ -115,9 +124,10 @@ def test_global_only_reaches_the_optimum(device):
     prob, start, truth = _exponential(device)
     res = schur_lm(prob, start)
     assert isinstance(res, SchurLMResult)
-    assert torch.allclose(res.state["p"], truth, rtol=1e-9, atol=1e-9)
-    assert res.converged.all() and res.covariance.shape == (4, 2, 2) and res.iterations.shape == (4,)
-    assert res.equations["U"].shape == (4, 2, 2) and res.equations["W"].shape == (4, 0, 2, 6)
+    assert torch.allclose(res.unknowns["p"], truth, rtol=1e-9, atol=1e-9)
+    assert (res.status == LMStatus.CONVERGED).all() and res.status.dtype == torch.long
+    assert res.covariance.shape == (4, 2, 2) and res.iterations.shape == (4,)
+    assert res.equations.U.shape == (4, 2, 2) and res.equations.W.shape == (4, 0, 2, 6)
     assert start["p"].shape == (4, 2)  # the initial state is not modified
     assert len(set(res.iterations.tolist())) > 1  # the problems converged at different iterations
 
@@ -126,11 +136,11 @@ def test_items_reach_the_optimum_and_unused_items_stay(device):
     prob, start, (s, R, t) = _cloud(device)
     res = schur_lm(prob, start)
     used = prob.used
-    assert torch.allclose(res.state["s"], s, rtol=1e-9)
-    assert torch.allclose(res.state["R"][used], R[used], atol=1e-9)
-    assert torch.allclose(res.state["t"][used], t[used], atol=1e-9)
-    assert torch.equal(res.state["t"][~used], start["t"][~used])  # no data: never moved
-    assert res.converged.all() and res.covariance.shape == (3, 1, 1)
+    assert torch.allclose(res.unknowns["s"], s, rtol=1e-9)
+    assert torch.allclose(res.unknowns["R"][used], R[used], atol=1e-9)
+    assert torch.allclose(res.unknowns["t"][used], t[used], atol=1e-9)
+    assert torch.equal(res.unknowns["t"][~used], start["t"][~used])  # no data: never moved
+    assert (res.status == LMStatus.CONVERGED).all() and res.covariance.shape == (3, 1, 1)
 
 
 def test_batch_with_different_convergence_equals_one_by_one(device):
@@ -140,8 +150,8 @@ def test_batch_with_different_convergence_equals_one_by_one(device):
     for b in range(5):
         keep = torch.arange(5, device=device) == b
         one = schur_lm(prob.take(keep), {"p": start["p"][keep]})
-        assert torch.allclose(one.state["p"], batch.state["p"][keep], rtol=1e-12, atol=0)
-        assert torch.equal(one.iterations, batch.iterations[keep])
+        assert torch.allclose(one.unknowns["p"], batch.unknowns["p"][keep], rtol=1e-12, atol=0)
+        assert torch.equal(one.iterations, batch.iterations[keep]) and torch.equal(one.status, batch.status[keep])
         assert torch.allclose(one.covariance, batch.covariance[keep], rtol=1e-9, atol=0)
 
 
@@ -151,15 +161,15 @@ def test_working_set_and_host_checks_do_not_change_the_answer(device):
     for kwargs in ({"shrink": True, "check_every": 1}, {"shrink": True, "check_every": 10}, {"check_every": 7}):
         got = schur_lm(prob, start, **kwargs)
         for k in ("s", "R", "t"):
-            assert torch.allclose(got.state[k], ref.state[k], rtol=1e-12, atol=1e-15), (kwargs, k)
-        assert torch.equal(got.iterations, ref.iterations) and torch.equal(got.converged, ref.converged)
+            assert torch.allclose(got.unknowns[k], ref.unknowns[k], rtol=1e-12, atol=1e-15), (kwargs, k)
+        assert torch.equal(got.iterations, ref.iterations) and torch.equal(got.status, ref.status)
         assert torch.allclose(got.covariance, ref.covariance, rtol=1e-9, atol=0)
 
 
 def test_covariance_matches_a_dense_solve(device):
     prob, start, _ = _cloud(device, B=2, noise=0.02, seed=5)
     res = schur_lm(prob, start)
-    r, J = prob.jacobian(res.state)
+    r, J = prob.jacobian(res.unknowns)
     for b in range(2):
         used = prob.used[b]
         Vb, N = int(used.sum()), prob.X.shape[0]
@@ -183,7 +193,7 @@ def test_undetermined_coordinate_gets_a_huge_finite_variance(device):
     cov = res.covariance
     assert cov.isfinite().all()
     assert (cov[:, 2, 2] > 1e6 * cov[:, 0, 0]).all()  # the pseudo-inverse, not NaN
-    assert torch.allclose(res.state["p"][:, :2], truth, rtol=1e-1)
+    assert torch.allclose(res.unknowns["p"][:, :2], truth, rtol=1e-1)
 
 
 def test_absolute_weights_and_stopping_options(device):
@@ -193,10 +203,11 @@ def test_absolute_weights_and_stopping_options(device):
     assert torch.equal(absw.sigma2, torch.ones_like(absw.sigma2))
     assert torch.allclose(absw.covariance * rel.sigma2[:, None, None], rel.covariance, rtol=1e-12)
     capped = schur_lm(prob, start, max_iters=1)
-    assert (capped.iterations == 1).all() and not capped.converged.any()
+    assert (capped.iterations == 1).all() and (capped.status == LMStatus.MAX_ITERATIONS).all()
     slow = schur_lm(prob, start, lambda_init=1e6)  # heavy damping: many short steps
     stalled = schur_lm(prob, start, lambda_init=1e6, stall_tol=1e300)  # every window of 10 iterations "stalls"
-    assert (slow.iterations > 10).all() and (stalled.iterations == 10).all() and stalled.converged.all()
+    assert (slow.iterations > 10).all() and (slow.status == LMStatus.CONVERGED).all()
+    assert (stalled.iterations == 10).all() and (stalled.status == LMStatus.STALLED).all()
 
 
 def test_dominated_start_stops_early(device):
@@ -205,8 +216,9 @@ def test_dominated_start_stops_early(device):
     far = torch.cat([start["p"], start["p"] * torch.tensor([[0.01, 5.0]], dtype=F64, device=device)])  # a slow start
     free = schur_lm(both, {"p": far})
     grouped = schur_lm(both, {"p": far}, groups=torch.tensor([0, 0], device=device))
-    assert grouped.converged[0] and not grouped.converged[1] and grouped.iterations[1] < free.iterations[1]
-    assert torch.equal(grouped.state["p"][0], free.state["p"][0])
+    assert grouped.status.tolist() == [LMStatus.CONVERGED, LMStatus.DOMINATED]
+    assert grouped.iterations[1] < free.iterations[1] and free.status[1] == LMStatus.CONVERGED
+    assert torch.equal(grouped.unknowns["p"][0], free.unknowns["p"][0])
 
 
 def test_no_data_is_not_solved(device):
@@ -214,8 +226,8 @@ def test_no_data_is_not_solved(device):
     prob.used = torch.zeros_like(prob.used)
     prob.num_residuals = torch.zeros_like(prob.num_residuals)
     res = schur_lm(prob, start)
-    assert not res.converged.any() and (res.iterations == 0).all()
-    assert torch.equal(res.state["s"], start["s"])
+    assert (res.status == LMStatus.NO_DATA).all() and (res.iterations == 0).all()
+    assert torch.equal(res.unknowns["s"], start["s"])
 
 
 def test_schur_step_matches_a_dense_solve(device, dtype):
@@ -247,12 +259,54 @@ def test_schur_step_matches_a_dense_solve(device, dtype):
 def test_bad_normal_equations_are_named(device):
     prob, start, _ = _cloud(device, B=2)
     bad = ScaledCloud(prob.X, prob.Y, prob.used)
-    bad.linearize = lambda s: {**prob.linearize(s), "W": torch.zeros(2, 5, 2, 6, dtype=F64, device=device)}
+    bad.linearize = lambda s: replace(prob.linearize(s), W=torch.zeros(2, 5, 2, 6, dtype=F64, device=device))
     with pytest.raises(ValueError, match="W must be"):
         schur_lm(bad, start)
-    bad.linearize = lambda s: {k: v for k, v in prob.linearize(s).items() if k != "eg"}
-    with pytest.raises(ValueError, match="eg"):
+    bad.linearize = lambda s: replace(prob.linearize(s), V=None)
+    with pytest.raises(ValueError, match="V must be .* got None"):
         schur_lm(bad, start)
-    bad.used = prob.used[:, :, None]
+    bad.linearize = lambda s: vars(prob.linearize(s))  # the normal equations as a plain dict
+    with pytest.raises(TypeError, match="NormalEquations"):
+        schur_lm(bad, start)
+    bad.linearize, bad.used = prob.linearize, prob.used[:, :, None]
     with pytest.raises(ValueError, match="used must be"):
         schur_lm(bad, start)
+
+
+def test_status_values_and_words():
+    status = torch.tensor([LMStatus.CONVERGED, LMStatus.MAX_ITERATIONS, LMStatus.NO_DATA])
+    assert (status == LMStatus.MAX_ITERATIONS).tolist() == [False, True, False]  # a member compares with entries
+    assert [LMStatus(int(v)) for v in status] == [LMStatus.CONVERGED, LMStatus.MAX_ITERATIONS, LMStatus.NO_DATA]
+    assert set(LM_STATUS_MESSAGES) == set(LMStatus) and LMStatus.NO_DATA.message == "no data to fit"
+    assert [m for m in LMStatus if m.converged] == [LMStatus.CONVERGED, LMStatus.STALLED]
+
+
+def test_each_problem_of_a_batch_gets_its_own_status(device):
+    """One batch whose problems end differently: one without data (every item masked), one converged at the
+    iteration limit, one before it, one still running at it; each status, iteration count and solution as the
+    problem alone gets them."""
+    prob, start, _ = _cloud(device, B=4, noise=0.01, seed=2)
+    prob.used[1] = False  # no item with data: nothing to fit
+    prob = ScaledCloud(prob.X, prob.Y, prob.used)
+    start["s"][3] *= 3.0  # a farther start: slower
+    start["R"][2:] = start["R"][2:] @ start["R"][2:]
+    free = schur_lm(prob, start)
+    assert free.status.tolist() == [LMStatus.CONVERGED, LMStatus.NO_DATA, LMStatus.CONVERGED, LMStatus.CONVERGED]
+    n = free.iterations.tolist()
+    assert n[1] == 0 and n[0] < n[2] < n[3]
+    capped = schur_lm(prob, start, max_iters=n[2])
+    want = [LMStatus.CONVERGED, LMStatus.NO_DATA, LMStatus.CONVERGED, LMStatus.MAX_ITERATIONS]
+    assert capped.status.tolist() == want and torch.equal(capped.iterations, free.iterations.clamp_max(n[2]))
+    for b in range(4):
+        keep = torch.arange(4, device=device) == b
+        one = schur_lm(prob.take(keep), {k: v[keep] for k, v in start.items()}, max_iters=n[2])
+        assert torch.equal(one.status, capped.status[keep]) and torch.equal(one.iterations, capped.iterations[keep])
+        assert torch.allclose(one.unknowns["s"], capped.unknowns["s"][keep], rtol=1e-12, atol=0)
+    assert torch.equal(capped.unknowns["s"][1], start["s"][1])  # no data: the start, untouched
+
+
+def test_zero_iterations_leave_every_problem_at_the_limit(device):
+    prob, start, _ = _exponential(device, B=2)
+    res = schur_lm(prob, start, max_iters=0)
+    assert (res.status == LMStatus.MAX_ITERATIONS).all() and (res.iterations == 0).all()
+    assert torch.equal(res.unknowns["p"], start["p"])

@@ -18,6 +18,7 @@ from ccs_kornia.geometry.camera import board_object_points
 from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.ransac import ImageRansac
 from ccs_kornia.modules.calibration.result import VIEW_REASONS, ViewReason
+from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE, RATIONAL
 
@@ -114,7 +115,7 @@ class TestRansacAndSolver:
     def test_exact_batch(self, model, dist):
         K, obj, uv, _, _ = synthetic(C=4, V=15, dist=dist, seed=4)
         res = CalibrationSolver(model=model)(uv, all_valid(uv), obj, IMAGE_SIZE)
-        assert res.success.all() and res.used.all()
+        assert res.success.all() and res.used.all() and (res.lm_status == LMStatus.CONVERGED).all()
         assert (res.K - K).abs().max() < 1e-3 and res.rms.max() < 1e-6
         assert res.dist.shape == (4, 5 if model == OPENCV5 else 0) and res.camera.model == model
 
@@ -135,6 +136,8 @@ class TestRansacAndSolver:
         valid[3] = False  # camera 3: nothing at all
         res = CalibrationSolver()(uv, valid, obj, IMAGE_SIZE)
         assert res.success.tolist() == [True, False, True, False]
+        # camera 1's two views fit (too few to use them), camera 3 has nothing to fit
+        assert res.lm_status.tolist() == [LMStatus.CONVERGED] * 3 + [LMStatus.NO_DATA]
         assert res.K[[1, 3]].isnan().all() and res.K[[0, 2]].isfinite().all()
         assert (res.K[0] - K[0]).abs().max() < 1e-6 and not res.used[3].any()
         few = ViewReason.TOO_FEW_CORNERS

@@ -10,6 +10,7 @@ from ccs_kornia.geometry.camera import board_object_points
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.lm import parameter_basis
+from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.hand_eye.fit import fit_problem
 from ccs_kornia.modules.hand_eye.problem import HandEyeProblem, HandEyeState
 
@@ -82,4 +83,4 @@ def test_fit_recovers_an_exact_optimum(setup, device):
     fit = fit_problem(prob, start)
     torch.testing.assert_close(fit.state.RX, truth.RX, atol=1e-8, rtol=0)
     torch.testing.assert_close(fit.state.tZ, truth.tZ, atol=1e-8, rtol=0)
-    assert bool(fit.converged.all()) and fit.covariance.shape == (2, 12, 12)
+    assert bool((fit.status == LMStatus.CONVERGED).all()) and fit.covariance.shape == (2, 12, 12)

@@ -10,6 +10,7 @@ from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.camera import board_object_points, project_points
 from ccs_kornia.geometry.models import K1K2, PINHOLE, camera_model
 from ccs_kornia.geometry.so3 import exp_so3
+from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.rig import RigSolver
 from ccs_kornia.modules.rig.rig_lm import rig_layout, rig_levenberg_marquardt
 from _cameras import cameras
@@ -42,7 +43,7 @@ def test_prior_smoke_and_shapes(device):
     info = torch.eye(4, dtype=D, device=device)[None]
     res = rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w, prior=[(p[0], info), None])
     assert res.prior_cost is not None and res.prior_cost.shape == (1,)
-    assert bool(res.converged) and float(res.prior_cost) >= 0.0
+    assert int(res.status) == LMStatus.CONVERGED and float(res.prior_cost) >= 0.0
     assert res.covariance.shape == (1, rig_layout(models)[2], rig_layout(models)[2])
 
 

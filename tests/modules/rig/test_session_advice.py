@@ -8,6 +8,7 @@ import torch
 from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.models import K1K2, camera_model
 from ccs_kornia.geometry.so3 import exp_so3
+from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.rig import RigSolver, rig_verdict
 from ccs_kornia.modules.rig.session_advice import (
     SMALL_BOARD,
@@ -122,5 +123,5 @@ def test_verdict_of_moved_intrinsics():
 def test_solver_verdict_says_unconverged():
     s = rig(frames=10)
     res = RigSolver(K1K2, folds=0, max_iters=1)(s.corners, s.valid, s.object_points, s.image_sizes)
-    assert not res.converged and res.verdict.startswith("not reliable")
+    assert res.lm_status == LMStatus.MAX_ITERATIONS and not res.converged and res.verdict.startswith("not reliable")
     assert any("unconverged" in r for r in res.reasons)
