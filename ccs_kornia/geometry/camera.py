@@ -161,7 +161,7 @@ def project_points(
     Args:
         points: :math:`(*, N, 3)` points (world frame if ``rvec``/``tvec`` given, else camera frame).
         K: :math:`(*, 3, 3)` camera matrix.
-        dist: :math:`(*, D)` OpenCV coefficients, ``D`` in ``{0, 4, 5, 8}``; ``None`` for no distortion.
+        dist: :math:`(*, D)` OpenCV coefficients, ``D`` at most 5 (the rest zero) or 8; ``None`` for no distortion.
         rvec: :math:`(*, 3)` axis-angle rotation world-to-camera.
         tvec: :math:`(*, 3)` translation.
 
@@ -181,11 +181,11 @@ def project_points(
         if tvec is None:
             raise ValueError("rvec given without tvec.")
         points = transform_points_rt(points, rvec, tvec)
-    # the model of the coefficients' count (4 and 5: OpenCV's default layout, 8: its rational model); applied even
-    # when every coefficient is zero, so the gradients at the usual zero start are those of the model
+    # the model of the coefficients' count (up to 5: OpenCV's default layout, the rest zero; 8: its rational model);
+    # applied even when every coefficient is zero, so the gradients at the usual zero start are those of the model
     n = 0 if dist is None else dist.shape[-1]
-    if n not in (0, 4, 5, 8):
-        raise ValueError(f"OpenCV distortion needs 0, 4, 5 or 8 coefficients, got {n}.")
+    if n > 8 or n in (6, 7):
+        raise ValueError(f"OpenCV distortion needs at most 5, or 8, coefficients, got {n}.")
     model = PINHOLE if n == 0 else (RATIONAL if n == 8 else OPENCV5)
     coeffs = points.new_zeros(0) if dist is None else torch.nn.functional.pad(dist.to(points.dtype), [0, 5 - n] if n < 5 else [0, 0])
     batch = torch.broadcast_shapes(points.shape[:-2], K.shape[:-2], coeffs.shape[:-1])
