@@ -44,17 +44,17 @@ from ccs_kornia.commands import (
     rectify,
     undistort,
 )
-from ccs_kornia.commands._common import (
+from ccs_kornia.commands._boards import resolve_board
+from ccs_kornia.commands._printing import PROG
+from ccs_kornia.runtime.allocator import keep_freed_memory
+from ccs_kornia.runtime.errors import (
     EXIT_INTERNAL,
     EXIT_INTERRUPTED,
     EXIT_NO_RESULT,
     EXIT_OK,
     EXIT_USAGE,
-    PROG,
     UserError,
-    resolve_board,
 )
-from ccs_kornia.runtime.allocator import keep_freed_memory
 
 __all__ = ["main", "run", "build_parser", "UserError", "LIGHTNING_COMMANDS", "EXIT_CODES"]
 

@@ -8,8 +8,9 @@ import os
 import shutil
 from collections.abc import Sequence
 
-from ccs_kornia.commands._common import UserError, info
+from ccs_kornia.commands._printing import info
 from ccs_kornia.commands._video import max_frames, selecting
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["frame_selection", "save_frames", "selecting", "selection_line"]
 

@@ -16,7 +16,8 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from ccs_kornia.commands._common import UserError, info, warn
+from ccs_kornia.commands._printing import info, warn
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["add_timestamps", "camera_videos", "detector_count", "frame_span", "make_screen", "max_frames",
            "pairing_lines", "rig_videos", "screen_videos", "screen_workers", "screening_note", "selecting",

@@ -7,28 +7,25 @@ import os
 import time
 from typing import Any
 
-from ccs_kornia.commands._common import (
-    NoResult,
-    UserError,
-    aprilgrid_record,
-    charuco_record,
+from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import make_pipeline
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._messages import not_found_message, weak_lines
+from ccs_kornia.commands._output_paths import (
     check_output_dir,
     check_output_file,
-    inputs,
     make_dir,
-    make_pipeline,
-    not_found_message,
-    resolve_device,
-    run_files,
-    warn,
-    weak_lines,
 )
+from ccs_kornia.commands._printing import warn
+from ccs_kornia.commands._run import run_files
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
 from ccs_kornia.commands._video import (
     add_timestamps,
     camera_videos,
     screening_note,
 )
+from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["calibrate_files", "failure_message", "run", "verdict_line"]
 

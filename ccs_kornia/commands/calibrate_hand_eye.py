@@ -17,21 +17,19 @@ import sys
 import time
 from typing import Any
 
-from ccs_kornia.commands._common import (
-    UserError,
-    aprilgrid_record,
-    charuco_record,
+from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import make_pipeline
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._messages import not_found_message
+from ccs_kornia.commands._output_paths import (
     check_output_dir,
     check_output_file,
-    info,
-    inputs,
     make_dir,
-    make_pipeline,
-    not_found_message,
-    resolve_device,
-    run_files,
-    warn,
 )
+from ccs_kornia.commands._printing import info, warn
+from ccs_kornia.commands._run import run_files
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["COMMAND", "parse_frames", "parse_robot_noise", "run", "summary_lines"]
 

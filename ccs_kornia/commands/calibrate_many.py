@@ -20,19 +20,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ccs_kornia.commands._common import (
-    PROG,
-    NoResult,
-    UserError,
-    aprilgrid_record,
-    charuco_record,
-    check_output_file,
-    info,
-    make_pipeline,
-    resolve_device,
-    warn,
-)
+from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import make_pipeline
+from ccs_kornia.commands._output_paths import check_output_file
+from ccs_kornia.commands._printing import PROG, info, warn
 from ccs_kornia.commands._video import frame_span, make_screen, max_frames
+from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["run"]
 

@@ -12,26 +12,26 @@ import sys
 import time
 from typing import Any
 
-from ccs_kornia.commands._common import (
-    UserError,
-    WrongBoardWatch,
-    aprilgrid_record,
-    charuco_record,
+from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import (
+    make_detector_from,
+    missing_weights,
+    pipeline_options,
+)
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._messages import weak_lines
+from ccs_kornia.commands._output_paths import (
     check_output_dir,
     check_output_file,
-    info,
-    inputs,
-    make_detector_from,
     make_dir,
-    missing_weights,
-    parse_pair,
-    pipeline_options,
-    resolve_device,
-    warn,
-    weak_lines,
 )
+from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
+from ccs_kornia.commands._stereo_pair import parse_pair
 from ccs_kornia.commands._video import add_timestamps, rig_videos
+from ccs_kornia.commands._wrong_board import WrongBoardWatch
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "run", "summary_lines"]
 

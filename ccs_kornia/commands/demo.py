@@ -6,7 +6,10 @@ import argparse
 import os
 import time
 
-from ccs_kornia.commands._common import info, make_dir, make_pipeline, resolve_device
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import make_pipeline
+from ccs_kornia.commands._output_paths import make_dir
+from ccs_kornia.commands._printing import info
 from ccs_kornia.commands.calibrate import calibrate_files, verdict_line
 
 __all__ = ["run", "DEMO_K", "DEMO_DIST", "DEMO_IMAGE_SIZE", "DEMO_BOARD", "DEMO_SQUARE", "DEMO_VIEWS"]

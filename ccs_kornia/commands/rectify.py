@@ -11,7 +11,11 @@ import re
 import sys
 from typing import Any
 
-from ccs_kornia.commands._common import UserError, inputs, make_dir, parse_pair, warn
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._output_paths import make_dir
+from ccs_kornia.commands._printing import warn
+from ccs_kornia.commands._stereo_pair import parse_pair
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["read_rig", "run"]
 

@@ -13,14 +13,11 @@ import os
 import sys
 from typing import Any
 
-from ccs_kornia.commands._common import (
-    UserError,
-    info,
-    inputs,
-    make_dir,
-    resolve_device,
-    warn,
-)
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._output_paths import make_dir
+from ccs_kornia.commands._printing import info, warn
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["run"]
 

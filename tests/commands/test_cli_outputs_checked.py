@@ -11,9 +11,9 @@ import pytest
 import ccs_kornia.data.scenes
 import ccs_kornia.io.images
 from ccs_kornia import cli
-from ccs_kornia.commands import _common
 from ccs_kornia.io.images import write_image
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+from ccs_kornia.runtime.errors import EXIT_USAGE
 
 #: a folder where no file can be created although it exists (root may "access" /proc for writing)
 NOWHERE = "/proc"
@@ -68,7 +68,7 @@ def test_every_output_is_checked_before_any_work(folders, capsys, monkeypatch, c
     code = cli.main(argv)
     err = capsys.readouterr().err
     errors = [line for line in err.splitlines() if "error" in line]
-    assert code == _common.EXIT_USAGE, err
+    assert code == EXIT_USAGE, err
     assert len(errors) == 1 and option in errors[0] and "internal error" not in err, err
     assert not (folders / "out.json").exists()
 
