@@ -1,12 +1,13 @@
-"""What the commands say about a run's result, in words: why a board was found in no image, a board that looks
-larger than the one given, what ``--allow-weak`` let through."""
+"""What the commands say about a run's result, in words: why a board was found in no image or a camera could not be
+calibrated, a board that looks larger than the one given, what ``--allow-weak`` let through, the verdict."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["board_size_hint", "not_found_message", "weak_lines"]
+__all__ = ["board_size_hint", "failure_message", "files_note", "not_found_message", "verdict_line", "weak_lines"]
 
 
 def board_size_hint(board: tuple[int, int], reasons: Sequence[str]) -> str:
@@ -57,3 +58,44 @@ def weak_lines(data: dict[str, Any]) -> list[str]:
                                                                    ("cy", K[1][2])) if std.get(k) is not None)
     return [f"calibrated with --allow-weak although {e['message']}" for e in errors] + \
         [f"1-sigma of the intrinsics (px): {sigma}"]
+
+
+def failure_message(data: dict[str, Any], board: tuple[int, int], readable: int) -> str:
+    """Why a camera's record (:func:`~ccs_kornia.outputs.records.camera_record`, ``success`` false) holds no calibration, in
+    one line: board never found, too few usable views, the solver's refusals with the views they name."""
+    files = data["num_views"]["files"]
+    if data["num_views"]["found"] == 0:
+        return not_found_message(board, readable, files, str(data.get("detector", "")))
+    if data["num_views"]["usable"] < 3:
+        return (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
+                f"{files} files (board found in {data['num_views']['found']}); at least 3 are needed")
+    if data.get("errors"):  # the solver's refusals (degeneracy checks) name the problem and the views
+        from ccs_kornia.modules.calibration.quality.degeneracy import WEAK_CHECKS
+
+        weak = all(i.get("check") in WEAK_CHECKS and i.get("value") is not None for i in data["errors"])
+        return (f"calibration refused on {data['num_views']['usable']} views: "
+                + "; ".join(i["message"] + files_note(i) for i in data["errors"])
+                + ("; --allow-weak calibrates anyway (verdict not reliable)" if weak else ""))
+    why = data["error"] if data["error"].startswith("calibration failed") else \
+        f"calibration failed on {data['num_views']['usable']} views: {data['error']}"
+    return (f"{why}; the views may be degenerate (e.g. all fronto-parallel, or copies of one view) or "
+            "inconsistent: add views with the board tilted in different directions")
+
+
+def files_note(issue: dict[str, Any], most: int = 6) -> str:
+    """`` (files: a.jpg, b.jpg, ...)`` for the views a degeneracy check names."""
+    names = [os.path.basename(f) for f in issue.get("files", [])]
+    if not names:
+        return ""
+    more = f", ... ({len(names)} in all)" if len(names) > most else ""
+    return f" (files: {', '.join(names[:most])}{more})"
+
+
+def verdict_line(quality: dict[str, Any] | None) -> str:
+    """``verdict: ... (held-out views ... px, ...)`` from the diagnostics (empty without them)."""
+    if not quality:
+        return ""
+    figures = [f"{label} {quality[key]:.3f} px" for label, key in (
+        ("held-out views", "heldout_rms_px"), ("halves differ where the boards were by", "cv_covered_rms_px"),
+        ("uncertainty at the centre", "uncertainty_centre_px")) if quality.get(key) is not None]
+    return f"verdict: {quality['verdict']}" + (f" ({', '.join(figures)})" if figures else "")

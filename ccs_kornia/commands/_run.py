@@ -1,16 +1,20 @@
 """The pipeline's run on a command's views: a progress bar on stderr, a wrong board named early, each view that
-could not be read reported and skipped, and what the images say of a board found nowhere."""
+could not be read reported and skipped, and what the images say of a board found nowhere; for one camera, its JSON
+record, or one line saying why it could not be calibrated."""
 
 from __future__ import annotations
 
 import functools
 import sys
+from typing import Any
 
-from ccs_kornia.commands._messages import board_size_hint
+from ccs_kornia.commands._messages import board_size_hint, failure_message, files_note
 from ccs_kornia.commands._printing import warn
+from ccs_kornia.commands._video import add_timestamps
 from ccs_kornia.commands._wrong_board import WrongBoardWatch, charuco_dictionary_check
+from ccs_kornia.runtime.errors import NoResult, UserError
 
-__all__ = ["run_files"]
+__all__ = ["calibrate_files", "run_files"]
 
 
 def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int, int], square: float, device,
@@ -58,6 +62,54 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
     if hint:
         warn(command, hint)
     return out, seconds
+
+
+def calibrate_files(
+    command: str,
+    files: list[str],
+    board: tuple[int, int],
+    square: float,
+    pipeline,
+    device,
+    model: str,
+    detector_name: str,
+    video=None,
+) -> tuple[dict[str, Any], Any]:
+    """The pipeline's one composition on ``files`` (one camera); returns (JSON-ready dict, PipelineResult of it).
+
+    ``video``: the chosen frames of the camera's recordings (:class:`~ccs_kornia.pipeline.video_input.VideoFrames`,
+    ``files`` their names): the views are read from the videos, each view gets its ``timestamp`` and the record a
+    ``video`` entry per recording (what the screening saw of every frame, and why a frame was not chosen).
+
+    Raises :class:`UserError` when no calibration can be computed: :class:`NoResult` when images were read, with
+    ``partial``: the per-view record (detections and reasons) so the caller can keep it.
+    """
+    from ccs_kornia.outputs.records import camera_record
+
+    source = None if video is None else video.source()
+    out, seconds = run_files(command, pipeline, [files], board, square, device, source=source)
+    one = out.select(0)
+    data = camera_record(one, files, board=board, square=square, detector=detector_name, model=model)
+    if video is not None:
+        add_timestamps(data["views"], video.timestamps())
+        data["video"] = video.records(0)
+    data["timings"] = {"load_detect_solve_s": seconds, "images_per_s": len(files) / max(seconds, 1e-9)}
+    for view in data["views"]:
+        if view["found"] and "reason" in view and view["reason"].startswith("image size"):
+            warn(command, f"skipped {view['path']}: {view['reason']}")
+        if "note" in view:
+            warn(command, f"{view['path']}: {view['note']}")
+    for issue in data.get("warnings", []) if data["success"] else []:  # a failed camera's figures say nothing
+        warn(command, issue.get("message", str(issue)) + files_note(issue))
+    if not data["success"]:
+        readable = int(one.present.sum())
+        message = failure_message(data, board, readable)
+        if not readable:
+            raise UserError(message)
+        err = NoResult(message)
+        err.partial = data
+        raise err
+    return data, one
 
 
 def _grey8(source, camera: int, view: int):

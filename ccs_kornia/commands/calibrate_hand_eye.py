@@ -28,7 +28,7 @@ from ccs_kornia.commands._output_paths import (
     make_dir,
 )
 from ccs_kornia.commands._printing import info, warn
-from ccs_kornia.commands._run import run_files
+from ccs_kornia.commands._run import calibrate_files, run_files
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["COMMAND", "parse_frames", "parse_robot_noise", "run", "summary_lines"]
@@ -160,8 +160,6 @@ def _detect_tag(files: list[str], args, camera):
 
 def _detect_board(files: list[str], args, device, camera_given: bool):
     """A board's corners through the pipeline (and the camera calibrated from the same images when none is given)."""
-    from ccs_kornia.commands.calibrate import calibrate_files
-
     pipeline = make_pipeline(args, model=args.model)
     camera_record = None
     if camera_given:

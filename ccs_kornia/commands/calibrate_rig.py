@@ -158,7 +158,7 @@ def _check_distinct_videos(names: list[str], videos: list[str]) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from ccs_kornia.commands.calibrate import failure_message
+    from ccs_kornia.commands._messages import failure_message
     from ccs_kornia.outputs.records import camera_record
     from ccs_kornia.outputs.rig_records import rig_record
     from ccs_kornia.pipeline.frame_matching import match_frames

@@ -8,9 +8,10 @@ import time
 
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
+from ccs_kornia.commands._messages import verdict_line
 from ccs_kornia.commands._output_paths import make_dir
 from ccs_kornia.commands._printing import info
-from ccs_kornia.commands.calibrate import calibrate_files, verdict_line
+from ccs_kornia.commands._run import calibrate_files
 
 __all__ = ["run", "DEMO_K", "DEMO_DIST", "DEMO_IMAGE_SIZE", "DEMO_BOARD", "DEMO_SQUARE", "DEMO_VIEWS"]
 
