@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["aprilgrid_record", "charuco_record", "resolve_board"]
@@ -23,7 +24,6 @@ def resolve_board(args: argparse.Namespace) -> None:
         if args.marker is not None or args.legacy is not None:
             raise UserError(f"--{'marker' if args.marker is not None else 'legacy'} describes a ChArUco board, not "
                             "an --aprilgrid")
-        from ccs_kornia.modules.detection.boards import AprilGrid
 
         try:
             grid = AprilGrid.from_yaml(args.aprilgrid)
@@ -45,7 +45,6 @@ def resolve_board(args: argparse.Namespace) -> None:
     if args.marker is None:
         raise UserError("--charuco needs --marker: the marker side, in the unit of --square (e.g. --square 0.04 "
                         "--marker 0.02)")
-    from ccs_kornia.modules.detection.boards import CharucoBoard
 
     try:
         board = CharucoBoard(args.charuco[0], args.charuco[1], args.square, args.marker, args.dictionary, args.legacy)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import torch
+
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["resolve_device"]
@@ -10,8 +12,6 @@ __all__ = ["resolve_device"]
 def resolve_device(text: str):
     """The :class:`torch.device` of ``--device`` (``cpu``, ``cuda``, ``cuda:N``); a :class:`UserError` where CUDA or
     that GPU is not there."""
-    import torch
-
     if text.startswith("cuda"):
         if not torch.cuda.is_available():
             raise UserError(f"--device {text} requested but CUDA is not available on this machine; use --device cpu")

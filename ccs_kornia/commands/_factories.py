@@ -5,6 +5,13 @@ from __future__ import annotations
 
 import argparse
 
+from ccs_kornia.modules.calibration.quality.degeneracy import (
+    DegeneracyThresholds,
+)
+from ccs_kornia.modules.detection.factory import make_detector
+from ccs_kornia.modules.detection.markers.aprilgrid import AprilGridDetector
+from ccs_kornia.modules.detection.markers.charuco import CharucoDetector
+from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["make_detector_from", "make_pipeline", "missing_weights", "pipeline_options"]
@@ -13,15 +20,9 @@ __all__ = ["make_detector_from", "make_pipeline", "missing_weights", "pipeline_o
 def make_detector_from(args: argparse.Namespace):
     """The detector the command's ``--detector`` (and ``--network-precision``) name, or the ChArUco board's
     (:func:`~ccs_kornia.commands._boards.resolve_board`)."""
-    from ccs_kornia.modules.detection.factory import make_detector
-
     if getattr(args, "charuco_board", None) is not None:
-        from ccs_kornia.modules.detection.markers.charuco import CharucoDetector
-
         return CharucoDetector(args.charuco_board)
     if getattr(args, "aprilgrid_board", None) is not None:
-        from ccs_kornia.modules.detection.markers.aprilgrid import AprilGridDetector
-
         return AprilGridDetector(args.aprilgrid_board)
     options = {}
     if args.detector == "learned" and getattr(args, "network_precision", None):
@@ -44,10 +45,6 @@ def pipeline_options(args: argparse.Namespace, use_ransac: bool = True, seed: in
         weigh_corners=bool(getattr(args, "weigh_corners", True)),
     )
     if getattr(args, "allow_weak", False):
-        from ccs_kornia.modules.calibration.quality.degeneracy import (
-            DegeneracyThresholds,
-        )
-
         options["thresholds"] = DegeneracyThresholds(refuse_weak=False)
     return options
 
@@ -61,8 +58,6 @@ def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: 
                   frame_selection=None):
     """The :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` of the command's arguments, with the
     detector of :func:`make_detector_from`."""
-    from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
-
     detector = make_detector_from(args)
     try:
         return CalibrationPipeline(detector, model=model, frame_selection=frame_selection,

@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from ccs_kornia.commands._printing import warn
+from ccs_kornia.io.images import expand_inputs
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["inputs"]
@@ -14,7 +15,6 @@ __all__ = ["inputs"]
 def inputs(command: str, items: Sequence[str]) -> list[str]:
     """The image files of ``items`` in order (:func:`~ccs_kornia.io.images.expand_inputs`); a :class:`UserError` when
     there are none, a warning per item that gave none."""
-    from ccs_kornia.io.images import expand_inputs
     files, problems = expand_inputs(items)
     if not files:
         detail = "; ".join(f"{item}: {reason}" for item, reason in problems) or "nothing given"

@@ -7,6 +7,8 @@ import os
 from collections.abc import Sequence
 from typing import Any
 
+from ccs_kornia.modules.calibration.quality.degeneracy import WEAK_CHECKS
+
 __all__ = ["board_size_hint", "failure_message", "files_note", "not_found_message", "verdict_line", "weak_lines"]
 
 
@@ -70,7 +72,6 @@ def failure_message(data: dict[str, Any], board: tuple[int, int], readable: int)
         return (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
                 f"{files} files (board found in {data['num_views']['found']}); at least 3 are needed")
     if data.get("errors"):  # the solver's refusals (degeneracy checks) name the problem and the views
-        from ccs_kornia.modules.calibration.quality.degeneracy import WEAK_CHECKS
 
         weak = all(i.get("check") in WEAK_CHECKS and i.get("value") is not None for i in data["errors"])
         return (f"calibration refused on {data['num_views']['usable']} views: "

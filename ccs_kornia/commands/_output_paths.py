@@ -4,6 +4,7 @@ at once with one line (exit status 2), instead of after the whole calibration.""
 from __future__ import annotations
 
 import os
+import tempfile
 
 from ccs_kornia.runtime.errors import UserError
 
@@ -13,8 +14,6 @@ __all__ = ["check_output_dir", "check_output_file", "make_dir"]
 def _try_write_in(option: str, path: str, directory: str) -> None:
     """Create and remove a temporary file in ``directory``: the only sure test that files can be written there
     (``os.access`` says yes for root in ``/proc`` or on a read-only mount)."""
-    import tempfile
-
     try:
         fd, probe = tempfile.mkstemp(prefix=".ccs_write_test_", dir=directory)
     except OSError as err:

@@ -6,12 +6,17 @@ from __future__ import annotations
 
 import functools
 import sys
+import time
 from typing import Any
+
+from tqdm import tqdm
 
 from ccs_kornia.commands._messages import board_size_hint, failure_message, files_note
 from ccs_kornia.commands._printing import warn
 from ccs_kornia.commands._video import add_timestamps
 from ccs_kornia.commands._wrong_board import WrongBoardWatch, charuco_dictionary_check
+from ccs_kornia.outputs.records import camera_record
+from ccs_kornia.pipeline.sources import FileSource
 from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["calibrate_files", "run_files"]
@@ -26,12 +31,6 @@ def run_files(command: str, pipeline, cameras: list[list[str]], board: tuple[int
     Returns:
         ``(result, seconds)``: the batched :class:`~ccs_kornia.pipeline.result.PipelineResult` and the wall time.
     """
-    import time
-
-    from tqdm import tqdm
-
-    from ccs_kornia.pipeline.sources import FileSource
-
     source = FileSource(cameras, names) if source is None else source
     pipeline.to(device)
     start = time.perf_counter()
@@ -84,8 +83,6 @@ def calibrate_files(
     Raises :class:`UserError` when no calibration can be computed: :class:`NoResult` when images were read, with
     ``partial``: the per-view record (detections and reasons) so the caller can keep it.
     """
-    from ccs_kornia.outputs.records import camera_record
-
     source = None if video is None else video.source()
     out, seconds = run_files(command, pipeline, [files], board, square, device, source=source)
     one = out.select(0)

@@ -7,6 +7,19 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import cv2
+
+from ccs_kornia.io.images import load_image_gray
+from ccs_kornia.modules.detection.checks.board_size import (
+    board_size_in,
+    other_board_size,
+)
+from ccs_kornia.modules.detection.markers.charuco import (
+    CharucoDetector,
+    charuco_markers,
+    dictionary_hint,
+    squares_hint,
+)
 from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["WrongBoardWatch", "charuco_dictionary_check"]
@@ -19,28 +32,17 @@ def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present
     board size: a partial view of another board can fit by chance): the board size the markers fit. Either as a
     :class:`UserError` (exit status :data:`EXIT_USAGE`). ``load(k)``: view ``k`` as a grey ``uint8`` array (default:
     the file ``files[k]``)."""
-    from ccs_kornia.modules.detection.markers.charuco import (
-        CharucoDetector,
-        dictionary_hint,
-    )
-
     detector = pipeline.detector
     if not isinstance(detector, CharucoDetector) or not bool(present.any()):
         return
     off = sum(1 for r in reasons if r and r.endswith("wrong board size?"))
     if int(found.sum()) > off:
         return
-    import cv2
-
     read = load if load is not None else (lambda k: cv2.imread(files[k], cv2.IMREAD_GRAYSCALE))
     images = [read(k) for k, ok in enumerate(present.tolist()) if ok][:8]
     board = detector.board
-    from ccs_kornia.modules.detection.markers.charuco import charuco_markers
-
     images = [img for img in images if img is not None]
     if any(len(charuco_markers(img, board).ids) for img in images):
-        from ccs_kornia.modules.detection.markers.charuco import squares_hint
-
         hint = squares_hint(images, board)  # markers of the board decoded, but not where its squares put them
         if hint:
             raise UserError(hint)
@@ -80,12 +82,6 @@ class WrongBoardWatch:
                 self._search(c, sorted(seen)[:self.first])
 
     def _search(self, c: int, views: list[int]) -> None:
-        from ccs_kornia.io.images import load_image_gray
-        from ccs_kornia.modules.detection.checks.board_size import (
-            board_size_in,
-            other_board_size,
-        )
-
         sizes = []
         for v in views:
             image, _ = load_image_gray(self.cameras[c][v])

@@ -24,6 +24,10 @@ from ccs_kornia.commands._video import (
     camera_videos,
     screening_note,
 )
+from ccs_kornia.io.files import write_json, write_text_atomic
+from ccs_kornia.outputs.camera_exports import ros_camera_info, write_opencv_yaml
+from ccs_kornia.outputs.report.calibration import write_report
+from ccs_kornia.pipeline.sources import FileSource
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["run"]
@@ -35,9 +39,6 @@ def _failed_path(output: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ccs_kornia.io.files import write_json, write_text_atomic
-    from ccs_kornia.outputs.camera_exports import ros_camera_info, write_opencv_yaml
-    from ccs_kornia.pipeline.sources import FileSource
     check_output_file("--output", args.output)
     if args.opencv_yaml:
         check_output_file("--opencv-yaml", args.opencv_yaml)
@@ -101,8 +102,6 @@ def run(args: argparse.Namespace) -> int:
     if args.ros_yaml:
         write_text_atomic("--ros-yaml", args.ros_yaml, ros_camera_info(data))
     if args.report:
-        from ccs_kornia.outputs.report.calibration import write_report
-
         make_dir("--report", args.report)
         start = time.perf_counter()
         write_report(args.report, data)

@@ -12,10 +12,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
 from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
 
 from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
 from ccs_kornia.commands._devices import resolve_device
@@ -29,6 +34,28 @@ from ccs_kornia.commands._output_paths import (
 )
 from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.commands._run import calibrate_files, run_files
+from ccs_kornia.geometry.camera import distort_pixels, kb_distort_points
+from ccs_kornia.io.files import write_json, write_text_atomic
+from ccs_kornia.io.images import load_image_gray
+from ccs_kornia.io.robot_poses import match_poses, read_robot_poses
+from ccs_kornia.modules.detection.boards import grid_object_points
+from ccs_kornia.modules.detection.markers.apriltag import (
+    AprilTagTarget,
+    detect_apriltag,
+)
+from ccs_kornia.modules.hand_eye import HandEyeSetup, calibrate_hand_eye
+from ccs_kornia.modules.rig.rig_camera import (
+    RigCamera,
+    camera_from_params,
+    normalized_points,
+)
+from ccs_kornia.outputs.calibration_file import read_calibration
+from ccs_kornia.outputs.hand_eye_exports import (
+    moveit_calibration_yaml,
+    ros_static_transform,
+)
+from ccs_kornia.outputs.hand_eye_records import hand_eye_record
+from ccs_kornia.outputs.report.hand_eye import write_hand_eye_report
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["COMMAND", "parse_frames", "parse_robot_noise", "run", "summary_lines"]
@@ -52,7 +79,6 @@ def parse_robot_noise(text: str) -> tuple[float, float] | str | None:
         raise UserError(f"--robot-noise {text}: expected auto, none or DEG,MM (e.g. 0.05,0.2)") from None
     if not (deg > 0 and mm > 0):
         raise UserError(f"--robot-noise {text}: both sigmas must be positive")
-    import math
 
     return math.radians(deg), mm / 1000.0
 
@@ -74,10 +100,6 @@ def _camera(args, image_size_hint=None) -> tuple[Any, dict[str, Any]] | None:
     """The camera of ``--calibration`` as a RigCamera and its record, or None."""
     if not args.calibration:
         return None
-    import torch
-
-    from ccs_kornia.modules.rig.rig_camera import RigCamera
-    from ccs_kornia.outputs.calibration_file import read_calibration
 
     try:
         cal = read_calibration(args.calibration)
@@ -99,12 +121,6 @@ def _camera(args, image_size_hint=None) -> tuple[Any, dict[str, Any]] | None:
 
 def _lens_maps(camera):
     """Pixel maps of the camera's lens (distorted -> ideal pixels and back) for the tag's straight sides."""
-    import numpy as np
-    import torch
-
-    from ccs_kornia.geometry.camera import distort_pixels, kb_distort_points
-    from ccs_kornia.modules.rig.rig_camera import normalized_points
-
     K = camera.K.double()
     fisheye = camera.camera.is_fisheye
     if not fisheye and not bool(camera.dist.abs().gt(0).any()):  # no lens to straighten (``none`` has no terms)
@@ -127,13 +143,6 @@ def _lens_maps(camera):
 
 def _detect_tag(files: list[str], args, camera):
     """The tag's corners on every image (a progress bar): corners (V, 4, 2), found (V,), reasons, image size."""
-    import numpy as np
-    import torch
-    from tqdm import tqdm
-
-    from ccs_kornia.io.images import load_image_gray
-    from ccs_kornia.modules.detection.markers.apriltag import detect_apriltag
-
     undistort, distort = _lens_maps(camera)
     corners = torch.full((len(files), 4, 2), float("nan"), dtype=torch.float64)
     found = torch.zeros(len(files), dtype=torch.bool)
@@ -181,13 +190,6 @@ def _detect_board(files: list[str], args, device, camera_given: bool):
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-    import torch
-
-    from ccs_kornia.io.robot_poses import match_poses, read_robot_poses
-    from ccs_kornia.modules.hand_eye import HandEyeSetup
-    from ccs_kornia.modules.rig.rig_camera import RigCamera, camera_from_params
-
     setup = HandEyeSetup.EYE_IN_HAND if args.eye_in_hand else HandEyeSetup.EYE_TO_HAND
     check_output_file("--output", args.output)
     for option, path in (("--ros-tf", args.ros_tf), ("--moveit-yaml", args.moveit_yaml)):
@@ -199,8 +201,6 @@ def run(args: argparse.Namespace) -> int:
     noise = parse_robot_noise(args.robot_noise)
     tag = getattr(args, "apriltag", None)
     if tag is not None:
-        from ccs_kornia.modules.detection.markers.apriltag import AprilTagTarget
-
         if args.tag_size is None:
             raise UserError("--apriltag needs --tag-size: the black square's side in metres (e.g. 0.048)")
         args.tag_target = AprilTagTarget(tag, args.tag_size, args.tag_id)
@@ -234,8 +234,6 @@ def run(args: argparse.Namespace) -> int:
                       "corners": "top left, top right, bottom left, bottom right of the black square as printed; "
                                  "origin at the tag's centre, x right, y down, z into the print"}
     else:
-        from ccs_kornia.modules.detection.boards import grid_object_points
-
         corners, found, reasons, size, camera_record = _detect_board(files, args, device, given is not None)
         obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square)
         board_info = {"kind": getattr(args, "detector", "chessboard"), "board": list(args.board),
@@ -270,7 +268,6 @@ def run(args: argparse.Namespace) -> int:
     ok = found & torch.from_numpy(np.isfinite(T).all((-1, -2)))
     info(f"{int(ok.sum())} of {len(files)} images have both a board and a robot pose")
     valid = corners.isfinite().all(-1) & ok[:, None]
-    from ccs_kornia.modules.hand_eye import calibrate_hand_eye
 
     robot = torch.from_numpy(T)
     names = [os.path.basename(f) for f in files]
@@ -281,7 +278,6 @@ def run(args: argparse.Namespace) -> int:
         names=[names], align_orders=tag is None and board_info.get("kind") in ("learned", "opencv"))
     if not bool(result.success[0]):
         raise UserError(f"hand-eye calibration refused: {result.reasons[0]}")
-    from ccs_kornia.outputs.hand_eye_records import hand_eye_record
 
     if args.refine_intrinsics:
         refined = camera_from_params(camera.model, result.params[0])
@@ -304,8 +300,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _outline(obj) -> list[list[float]]:
     """The board's outline (its extreme corners, in order around it) in board coordinates."""
-    import torch
-
     xy = obj[:, :2]
     lo, hi = xy.min(0).values, xy.max(0).values
     return [[float(lo[0]), float(lo[1]), 0.0], [float(hi[0]), float(lo[1]), 0.0], [float(hi[0]), float(hi[1]), 0.0],
@@ -314,20 +308,12 @@ def _outline(obj) -> list[list[float]]:
 
 def _write_outputs(args: argparse.Namespace, data: dict[str, Any], frames: tuple[str, str, str]) -> None:
     """Every requested file, prepared first, then written through temporary files renamed into place."""
-    from ccs_kornia.io.files import write_json, write_text_atomic
-    from ccs_kornia.outputs.hand_eye_exports import (
-        moveit_calibration_yaml,
-        ros_static_transform,
-    )
-
     texts = {}
     if args.ros_tf:
         texts[("--ros-tf", args.ros_tf)] = ros_static_transform(data, frames)
     if args.moveit_yaml:
         texts[("--moveit-yaml", args.moveit_yaml)] = moveit_calibration_yaml(data, frames)
     if args.report:
-        from ccs_kornia.outputs.report.hand_eye import write_hand_eye_report
-
         make_dir("--report", args.report)
         start = time.perf_counter()
         write_hand_eye_report(args.report, data)

@@ -7,10 +7,15 @@ Every output is written at the end, once the rig is solved: a run that stops on 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import sys
 import time
 from typing import Any
+
+import cv2
+import torch
+from tqdm import tqdm
 
 from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
 from ccs_kornia.commands._devices import resolve_device
@@ -20,7 +25,7 @@ from ccs_kornia.commands._factories import (
     pipeline_options,
 )
 from ccs_kornia.commands._inputs import inputs
-from ccs_kornia.commands._messages import weak_lines
+from ccs_kornia.commands._messages import failure_message, weak_lines
 from ccs_kornia.commands._output_paths import (
     check_output_dir,
     check_output_file,
@@ -31,6 +36,25 @@ from ccs_kornia.commands._selection import frame_selection, save_frames, selecti
 from ccs_kornia.commands._stereo_pair import parse_pair
 from ccs_kornia.commands._video import add_timestamps, rig_videos
 from ccs_kornia.commands._wrong_board import WrongBoardWatch
+from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.io.files import write_json, write_text_atomic
+from ccs_kornia.io.images import image_pixels
+from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS
+from ccs_kornia.modules.rig import RigCamera
+from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
+from ccs_kornia.outputs.records import camera_record
+from ccs_kornia.outputs.report.rig import write_rig_report
+from ccs_kornia.outputs.rig_exports import (
+    kalibr_camchain,
+    kalibr_problem,
+    rectification,
+    ros_stereo_files,
+    write_opencv_stereo_yaml,
+)
+from ccs_kornia.outputs.rig_records import frame_lines, rig_record
+from ccs_kornia.pipeline.frame_matching import match_frames
+from ccs_kornia.pipeline.rig_pipeline import RigPipeline
+from ccs_kornia.pipeline.sources import FileSource
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "run", "summary_lines"]
@@ -77,11 +101,6 @@ def parse_names(text: str | None, cameras: int) -> list[str]:
 def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
     """``--fix-intrinsics CAM_INDEX=calib.json``: cameras whose intrinsics are kept as a ``calibrate`` JSON gives
     them; returns ``{index: (RigCamera, image_size, path)}``."""
-    import torch
-
-    from ccs_kornia.modules.rig import RigCamera
-    from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
-
     fixed: dict[int, Any] = {}
     for item in items or []:
         index, sep, path = item.partition("=")
@@ -106,10 +125,6 @@ def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
 def _camera_files(name: str, item: str) -> list[str]:
     """The camera's image files, refused at once (before any frame is matched or any image detected) when none of
     them is an image: their headers tell, without decoding them."""
-    import cv2
-
-    from ccs_kornia.io.images import image_pixels
-
     try:
         files = inputs(COMMAND, [item])
     except UserError as err:
@@ -121,8 +136,6 @@ def _camera_files(name: str, item: str) -> list[str]:
 
 
 def _file_digest(path: str) -> str:
-    import hashlib
-
     with open(path, "rb") as handle:
         return hashlib.sha1(handle.read()).hexdigest()
 
@@ -156,15 +169,6 @@ def _check_distinct_videos(names: list[str], videos: list[str]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from ccs_kornia.commands._messages import failure_message
-    from ccs_kornia.outputs.records import camera_record
-    from ccs_kornia.outputs.rig_records import rig_record
-    from ccs_kornia.pipeline.frame_matching import match_frames
-    from ccs_kornia.pipeline.rig_pipeline import RigPipeline
-    from ccs_kornia.pipeline.sources import FileSource
-
     folders = args.cameras
     if len(folders) < 2:
         raise UserError(f"a rig needs at least two camera folders or videos (one folder of images, or one video, per "
@@ -189,7 +193,6 @@ def run(args: argparse.Namespace) -> int:
     if args.kalibr_yaml and "auto" in models:
         # a camera that auto gave rational would stop the run at the end, after all the work, with no camchain:
         # this run chooses among the models Kalibr holds instead
-        from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS
 
         options["auto_models"] = tuple(m for m in AUTO_MODELS if m != "rational")
         info(f"--kalibr-yaml: Kalibr has no rational model, so --model auto chooses among "
@@ -232,7 +235,7 @@ def run(args: argparse.Namespace) -> int:
         watch = WrongBoardWatch(files, args.board, names, error=UserError) if args.detector in ("learned", "opencv") \
             else None
         cameras = pipeline.detect_and_calibrate(source, args.board, args.square, progress=advance, on_batch=watch)
-        _check_cameras(cameras, files, folders, names, fixed, args, failure_message, camera_record)
+        _check_cameras(cameras, files, folders, names, fixed, args)
         bar.set_description_str(f"{COMMAND}: solving the rig")
         out = pipeline.run(source, args.board, args.square, frames, names, cameras=cameras)
     if not out.success:
@@ -299,7 +302,7 @@ def _weak_cameras(data: dict[str, Any]) -> list[tuple[str, list[str]]]:
     return [(cam["name"], weak_lines(cam)) for cam in data["cameras"] if cam.get("errors")]
 
 
-def _check_cameras(cameras, files, folders, names, fixed, args, failure_message, camera_record) -> None:
+def _check_cameras(cameras, files, folders, names, fixed, args) -> None:
     """Warnings per unusable view, and one error line naming the first camera without a calibration."""
     for k, result in enumerate(cameras):
         v = len(files[k])
@@ -338,14 +341,6 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
     """Every requested file, prepared first (a format that cannot hold the rig stops the run before any is
     written), then written through temporary files renamed into place; the stereo files and the report's rectified
     pair hold the cameras ``pair``."""
-    from ccs_kornia.io.files import write_json, write_text_atomic
-    from ccs_kornia.outputs.rig_exports import (
-        kalibr_camchain,
-        kalibr_problem,
-        rectification,
-        ros_stereo_files,
-        write_opencv_stereo_yaml,
-    )
     i, j = pair
     stereo = args.opencv_yaml or args.ros_yaml_dir
     if stereo or args.report:
@@ -370,8 +365,6 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
         if path:  # the folders first: a folder that cannot be made stops the run before any file is written
             make_dir(option, path)
     if args.report:
-        from ccs_kornia.outputs.report.rig import write_rig_report
-
         start = time.perf_counter()
         write_rig_report(args.report, data, rect, pair)
         data["timings"]["report_s"] = time.perf_counter() - start
@@ -393,7 +386,6 @@ def _moved(cam: dict[str, Any]) -> str:
     moved = cam.get("intrinsics_moved_sigma")
     if not moved:
         return ""
-    from ccs_kornia.geometry.models.factory import camera_model
 
     coeffs = camera_model(cam["distortion"]["model"]).param_names[4:]
     items = [(k, moved[k]) for k in ("fx", "fy", "cx", "cy")] + list(zip(coeffs, moved["distortion"]))
@@ -405,8 +397,6 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
     """The command's short summary: per camera its model, RMS and how far the joint fit moved its intrinsics, the
     frames whose cameras disagree, what to record next, per pair baseline, rotation and epipolar error, a joint fit
     that did not converge, the verdict."""
-
-    from ccs_kornia.outputs.rig_records import frame_lines
 
     def fmt(value: float | None, digits: int = 3) -> str:
         return "n/a" if value is None else f"{value:.{digits}f}"

@@ -12,6 +12,8 @@ from ccs_kornia.commands._messages import not_found_message
 from ccs_kornia.commands._output_paths import check_output_file
 from ccs_kornia.commands._run import run_files
 from ccs_kornia.commands._video import add_timestamps, camera_videos, screening_note
+from ccs_kornia.io.files import write_json
+from ccs_kornia.outputs.records import correction_record, view_records
 from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["CORNER_DECIMALS", "run"]
@@ -33,9 +35,6 @@ def _image_record(view: dict) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ccs_kornia.io.files import write_json
-    from ccs_kornia.outputs.records import correction_record, view_records
-
     check_output_file("--output", args.output)
     device = resolve_device(args.device)
     video = camera_videos("detect", args)

@@ -8,9 +8,8 @@ import json
 import numpy as np
 import pytest
 
-import ccs_kornia.data.scenes
-import ccs_kornia.io.images
 from ccs_kornia import cli
+from ccs_kornia.commands import demo, rectify, undistort
 from ccs_kornia.io.images import write_image
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 from ccs_kornia.runtime.errors import EXIT_USAGE
@@ -60,8 +59,9 @@ def _commands(root) -> list[tuple[list[str], str]]:
 def test_every_output_is_checked_before_any_work(folders, capsys, monkeypatch, case):
     argv, option = _commands(folders)[case]
     monkeypatch.setattr(CalibrationPipeline, "run", _no_work)
-    monkeypatch.setattr(ccs_kornia.data.scenes, "make_calibration_set", _no_work)
-    monkeypatch.setattr(ccs_kornia.io.images, "read_image", _no_work)
+    monkeypatch.setattr(demo, "make_calibration_set", _no_work)
+    for command in (undistort, rectify):
+        monkeypatch.setattr(command, "read_image", _no_work)
     calib = {"K": [[100.0, 0, 32], [0, 100, 24], [0, 0, 1]], "distortion": {"model": "k1k2", "coeffs": [0.0] * 5},
              "image_size": [64, 48]}
     (folders / "calib.json").write_text(json.dumps(calib))

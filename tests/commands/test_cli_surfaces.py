@@ -17,11 +17,10 @@ from test_cli import assert_one_line_error, rendered, run  # noqa: F401 (``rende
 
 import ccs_kornia
 from ccs_kornia import cli
-from ccs_kornia.commands import _output_paths
+from ccs_kornia.commands import _output_paths, _wrong_board
 from ccs_kornia.commands import calibrate as calibrate_command
 from ccs_kornia.io.files import write_json
 from ccs_kornia.io.images import expand_inputs, natural_key, write_image
-from ccs_kornia.modules.detection.checks import board_size
 from ccs_kornia.outputs.calibration_file import read_calibration
 from ccs_kornia.runtime.errors import EXIT_NO_RESULT, EXIT_OK, EXIT_USAGE
 
@@ -128,7 +127,7 @@ def test_board_larger_than_given_is_said_on_the_console(rendered, tmp_path, caps
         return out
 
     monkeypatch.setattr(LearnedChessboardDetector, "forward", refused)
-    monkeypatch.setattr(board_size, "board_size_in", lambda image: None)  # no early stop: the whole run's hint
+    monkeypatch.setattr(_wrong_board, "board_size_in", lambda image: None)  # no early stop: the whole run's hint
     _, files, _ = rendered
     code, _, err = run(capsys, "calibrate", *files[:3], "--board", "8x6", "--output", str(tmp_path / "c.json"),
                        *_fast())
@@ -143,7 +142,7 @@ def test_board_larger_on_a_real_set(tmp_path, capsys, monkeypatch):
     folder = REAL_DATA / "opencv_left"
     if not folder.is_dir():
         pytest.skip(f"real data set not present at {folder}")
-    monkeypatch.setattr(board_size, "board_size_in", lambda image: None)  # every view looked at (no early stop)
+    monkeypatch.setattr(_wrong_board, "board_size_in", lambda image: None)  # every view looked at (no early stop)
     code, _, err = run(capsys, "calibrate", str(folder), "--board", "8x6", "--output", str(tmp_path / "c.json"),
                        "--jobs", "1", "--no-diagnostics")
     assert code == EXIT_NO_RESULT
