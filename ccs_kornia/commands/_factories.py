@@ -55,12 +55,13 @@ def missing_weights(err: FileNotFoundError) -> UserError:
 
 
 def make_pipeline(args: argparse.Namespace, model: str = "opencv5", use_ransac: bool = True, seed: int = 0,
-                  frame_selection=None):
+                  frame_selection=None, detector=None, **options):
     """The :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` of the command's arguments, with the
-    detector of :func:`make_detector_from`."""
-    detector = make_detector_from(args)
+    detector of :func:`make_detector_from` (or ``detector``); ``options`` replace those of the arguments
+    (:func:`pipeline_options`)."""
+    detector = make_detector_from(args) if detector is None else detector
     try:
         return CalibrationPipeline(detector, model=model, frame_selection=frame_selection,
-                                   **pipeline_options(args, use_ransac, seed))
+                                   **(pipeline_options(args, use_ransac, seed) | options))
     except FileNotFoundError as err:
         raise missing_weights(err) from None

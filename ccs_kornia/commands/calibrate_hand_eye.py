@@ -14,13 +14,11 @@ import argparse
 import json
 import math
 import os
-import sys
 import time
 from typing import Any
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
 from ccs_kornia.commands._devices import resolve_device
@@ -34,20 +32,17 @@ from ccs_kornia.commands._output_paths import (
 )
 from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.commands._run import calibrate_files, run_files
-from ccs_kornia.geometry.camera import distort_pixels, kb_distort_points
 from ccs_kornia.io.files import write_json, write_text_atomic
-from ccs_kornia.io.images import load_image_gray
 from ccs_kornia.io.robot_poses import match_poses, read_robot_poses
 from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.markers.apriltag import (
+    AprilTagDetector,
     AprilTagTarget,
-    detect_apriltag,
 )
 from ccs_kornia.modules.hand_eye import HandEyeSetup, calibrate_hand_eye
 from ccs_kornia.modules.rig.rig_camera import (
     RigCamera,
     camera_from_params,
-    normalized_points,
 )
 from ccs_kornia.outputs.calibration_file import read_calibration
 from ccs_kornia.outputs.hand_eye_exports import (
@@ -119,52 +114,22 @@ def _camera(args, image_size_hint=None) -> tuple[Any, dict[str, Any]] | None:
     return camera, record
 
 
-def _lens_maps(camera):
-    """Pixel maps of the camera's lens (distorted -> ideal pixels and back) for the tag's straight sides."""
-    K = camera.K.double()
-    fisheye = camera.camera.is_fisheye
-    if not fisheye and not bool(camera.dist.abs().gt(0).any()):  # no lens to straighten (``none`` has no terms)
-        return None, None
-
-    def undistort(pts: np.ndarray) -> np.ndarray:
-        n = normalized_points(camera, torch.from_numpy(np.asarray(pts, dtype=np.float64)))
-        return (torch.cat([n, torch.ones_like(n[..., :1])], -1) @ K.T)[..., :2].numpy()
-
-    def distort(pts: np.ndarray) -> np.ndarray:
-        p = torch.from_numpy(np.asarray(pts, dtype=np.float64))[None]
-        if fisheye:
-            D = torch.zeros(4, dtype=torch.float64)
-            D[: camera.dist.shape[0]] = camera.dist.double()
-            return kb_distort_points(p, K[None], D[None])[0].numpy()
-        return distort_pixels(p, K[None], camera.dist.double()[None])[0].numpy()
-
-    return undistort, distort
-
-
-def _detect_tag(files: list[str], args, camera):
-    """The tag's corners on every image (a progress bar): corners (V, 4, 2), found (V,), reasons, image size."""
-    undistort, distort = _lens_maps(camera)
-    corners = torch.full((len(files), 4, 2), float("nan"), dtype=torch.float64)
-    found = torch.zeros(len(files), dtype=torch.bool)
-    reasons: list[str] = []
-    size = None
-    for v, path in enumerate(tqdm(files, unit="img", desc=COMMAND, file=sys.stderr, disable=None, leave=False)):
-        gray, why = load_image_gray(path)
-        if gray is None:
-            reasons.append(why or "unreadable")
-            continue
-        h, w = gray.shape[:2]
-        if size is None:
-            size = (w, h)
-        if (w, h) != size:
-            reasons.append(f"image size {w}x{h} differs from the first image's {size[0]}x{size[1]}")
-            continue
-        det = detect_apriltag(torch.from_numpy(np.asarray(gray, dtype=np.float32))[None, None], args.tag_target,
-                              undistort, distort)
-        reasons.append(det.reasons[0])
-        if bool(det.found[0]):
-            corners[v], found[v] = det.corners[0], True
-    return corners, found, reasons, size
+def _detect_tag(files: list[str], args, device, camera):
+    """The tag's corners through the pipeline, the camera's lens straightening its sides (no correction network, no
+    corner weights: the hand-eye fit takes neither): corners (V, 4, 2), found (V,), present (V,), reasons, image size
+    (the first readable image's: an image of another size is left out)."""
+    detector = AprilTagDetector(args.tag_target, camera)
+    pipeline = make_pipeline(args, detector=detector, distortion_correction=False, weigh_corners=False)
+    out, _ = run_files(COMMAND, pipeline, [files], detector.target.board_size, args.tag_size, device, calibrate=False)
+    one = out.select(0)
+    corners, found, present, reasons = _views(one, len(files))
+    sizes = [tuple(int(x) for x in s) for s in one.view_sizes.cpu().tolist()]
+    size = next((sizes[v] for v in range(len(files)) if present[v]), None)
+    for v in range(len(files)):
+        if present[v] and sizes[v] != size:
+            found[v] = False
+            reasons[v] = f"image size {sizes[v][0]}x{sizes[v][1]} differs from the first image's {size[0]}x{size[1]}"
+    return corners, found, present, reasons, size
 
 
 def _detect_board(files: list[str], args, device, camera_given: bool):
@@ -181,12 +146,19 @@ def _detect_board(files: list[str], args, device, camera_given: bool):
         except UserError as err:
             raise type(err)(f"the camera could not be calibrated from the images ({err}); give --calibration") \
                 from None
-    det = one.detections
-    found = det.found.bool() & one.present.bool()
-    reasons = [(det.reasons[v] if det.reasons else "") or ("board found" if bool(found[v]) else "board not found")
-               for v in range(len(files))]
+    corners, found, present, reasons = _views(one, len(files))
     size = tuple(int(x) for x in one.image_size)
-    return det.corners.double(), found, reasons, size, camera_record
+    return corners, found, present, reasons, size, camera_record
+
+
+def _views(one, count: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, list[str]]:
+    """A camera's views from its pipeline result: corners (V, N, 2), found (V,), present (V,) and each view's reason."""
+    det = one.detections
+    present = one.present.bool().cpu()
+    found = det.found.bool().cpu() & present
+    reasons = [(det.reasons[v] if det.reasons else "") or ("board found" if bool(found[v]) else "board not found")
+               for v in range(count)]
+    return det.corners.double().cpu(), found, present, reasons
 
 
 def run(args: argparse.Namespace) -> int:
@@ -228,13 +200,13 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     camera_record = None
     if tag is not None:
-        corners, found, reasons, size = _detect_tag(files, args, given[0])
+        corners, found, present, reasons, size = _detect_tag(files, args, device, given[0])
         obj = args.tag_target.object_points()
         board_info = {"kind": "apriltag", "family": tag, "tag_size": args.tag_size, "tag_id": args.tag_id,
                       "corners": "top left, top right, bottom left, bottom right of the black square as printed; "
                                  "origin at the tag's centre, x right, y down, z into the print"}
     else:
-        corners, found, reasons, size, camera_record = _detect_board(files, args, device, given is not None)
+        corners, found, present, reasons, size, camera_record = _detect_board(files, args, device, given is not None)
         obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square)
         board_info = {"kind": getattr(args, "detector", "chessboard"), "board": list(args.board),
                       "square": args.square, "corners": "grid order n = row * cols + col; origin at corner 0"}
@@ -264,7 +236,8 @@ def run(args: argparse.Namespace) -> int:
     for v, path in enumerate(files):
         if path not in skipped and not bool(found[v]):
             skipped[path] = reasons[v]
-            warn(COMMAND, f"skipped {path}: {reasons[v]}")
+            if present[v]:  # (an unreadable file was said by the run)
+                warn(COMMAND, f"skipped {path}: {reasons[v]}")
     ok = found & torch.from_numpy(np.isfinite(T).all((-1, -2)))
     info(f"{int(ok.sum())} of {len(files)} images have both a board and a robot pose")
     valid = corners.isfinite().all(-1) & ok[:, None]
