@@ -26,35 +26,28 @@ when it leaves an earlier file at ``--output``. ``docs/command_line.md`` describ
 from __future__ import annotations
 
 import argparse
+import atexit
 import difflib
+import importlib
 import os
 import re
 import sys
+import threading
 from collections.abc import Sequence
 from typing import NoReturn
 
 from ccs_kornia import __version__
-from ccs_kornia.commands import (
-    calibrate,
-    calibrate_hand_eye,
-    calibrate_many,
-    calibrate_rig,
-    demo,
-    detect,
-    rectify,
-    undistort,
-)
-from ccs_kornia.commands._common import (
+from ccs_kornia.commands._printing import PROG
+from ccs_kornia.io.boards import parse_board
+from ccs_kornia.runtime.allocator import keep_freed_memory
+from ccs_kornia.runtime.errors import (
     EXIT_INTERNAL,
     EXIT_INTERRUPTED,
     EXIT_NO_RESULT,
     EXIT_OK,
     EXIT_USAGE,
-    PROG,
     UserError,
-    resolve_board,
 )
-from ccs_kornia.runtime.allocator import keep_freed_memory
 
 __all__ = ["main", "run", "build_parser", "UserError", "LIGHTNING_COMMANDS", "EXIT_CODES"]
 
@@ -128,7 +121,6 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _board_arg(text: str) -> tuple[int, int]:
-    from ccs_kornia.io.boards import parse_board
     try:
         return parse_board(text)
     except ValueError as err:
@@ -201,7 +193,6 @@ def _jobs_arg(text: str) -> int | str:
 
 
 def _squares_arg(text: str) -> tuple[int, int]:
-    from ccs_kornia.io.boards import parse_board
     try:
         sx, sy = parse_board(text)
     except ValueError:
@@ -329,7 +320,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="detect on the images as they are (by default a strongly distorted lens's images are "
                         "corrected for detection; corners are always given in the original images)")
-    p.set_defaults(func=detect.run)
 
     p = sub.add_parser("calibrate", help="calibrate a camera from chessboard images", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -364,7 +354,6 @@ def build_parser() -> argparse.ArgumentParser:
                         "projection uncertainty) and the verdict; they cost a few more solves")
     p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     selection_options(p)
-    p.set_defaults(func=calibrate.run)
 
     p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
                        "folder of board images per camera", epilog=_EXIT_HELP,
@@ -412,7 +401,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     video_options(p, rig=True)
     selection_options(p)
-    p.set_defaults(func=calibrate_rig.run, model_choices=MODELS)
+    p.set_defaults(model_choices=MODELS)
 
     p = sub.add_parser("calibrate-hand-eye", help="where a camera sits on a robot (eye-in-hand or eye-to-hand), "
                        "from board images and the robot's pose of each image", epilog=_EXIT_HELP,
@@ -464,7 +453,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="detect larger images on a downscaled copy (default 2048; 0 = off)")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="do not run the distortion-correction network")
-    p.set_defaults(func=calibrate_hand_eye.run)
 
     p = sub.add_parser("rectify", help="rectify stereo image pairs with a rig calibration")
     p.add_argument("left", metavar="LEFT_IMAGES", help="folder or glob of the first camera's images")
@@ -474,7 +462,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pair", default="0,1", metavar="I,J", help="the cameras of the pair in rig.json (default 0,1)")
     p.add_argument("--alpha", default=0.0, type=_unit_float,
                    help="0: only valid pixels (default), 1: every source pixel kept (as cv2.stereoRectify)")
-    p.set_defaults(func=rectify.run)
 
     p = sub.add_parser("undistort", help="undistort images with a calibration: pinhole views centred on the optical "
                        "axis, framed within the lens's valid field (every model, fisheye included)",
@@ -493,7 +480,6 @@ def build_parser() -> argparse.ArgumentParser:
     framing.add_argument("--fov", type=_view_angle, metavar="DEG",
                          help="horizontal field of view of the output in degrees instead of --balance (clamped to "
                               "the valid field, with a warning)")
-    p.set_defaults(func=undistort.run)
 
     p = sub.add_parser("calibrate-many", help="calibrate many cameras (one directory of images each) with "
                        "Lightning's Trainer.predict; one JSON line per camera")
@@ -540,17 +526,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true",
                    help="start the output file again (default: append, skipping sets already in it)")
     video_options(p)
-    p.set_defaults(func=calibrate_many.run)
 
     p = sub.add_parser("demo", help="render a synthetic set with a known camera, calibrate it, compare")
     p.add_argument("--out-dir", default="ccs_demo", metavar="DIR", help="where to write images and results (default ./ccs_demo)")
-    p.add_argument("--views", default=demo.DEMO_VIEWS, type=_positive_int, help=f"number of views (default {demo.DEMO_VIEWS})")
+    p.add_argument("--views", default=15, type=_positive_int, help="number of views (default %(default)s)")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
     p.add_argument("--device", default="cpu", type=_device_arg)
     p.add_argument("--seed", default=0, type=int, help="seed of the rendered poses (default 0)")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="calibrate without the distortion-correction network")
-    p.set_defaults(func=demo.run)
 
     sub.add_parser("bench", help="benchmarks against OpenCV and other peers (see --help)", add_help=False)
     for name in LIGHTNING_COMMANDS:  # listed for --help; main() forwards them before parsing
@@ -564,7 +548,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_lightning(argv: list[str]) -> int:
-    try:
+    try:  # Lightning is optional: without it the training commands say so in one line
         from ccs_kornia.training.cli import main as lightning_main
     except Exception as err:  # ImportError, or a broken optional dependency
         print(
@@ -598,6 +582,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv and argv[0] in LIGHTNING_COMMANDS:
         return _run_lightning(argv)
     if argv and argv[0] == "bench":
+        # the bench's entry point loads its own modules: imported for ``bench`` only, not at every start-up
         from ccs_kornia.bench.__main__ import main as bench_main
 
         return bench_main(argv[1:], prog=f"{PROG} bench")
@@ -608,9 +593,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(exit_.code or 0) if not isinstance(exit_.code, str) else EXIT_USAGE
     command = args.command
     try:
+        # a command's module loads torch, OpenCV and the stages: imported once the command runs, never for --help
+        # (docs/measurements.md)
+        from ccs_kornia.commands._boards import resolve_board
+
+        module = importlib.import_module(f"ccs_kornia.commands.{command.replace('-', '_')}")
         resolve_board(args)
         _resolve_model(args)
-        return int(args.func(args) or 0)
+        return int(module.run(args) or 0)
     except UserError as err:
         print(f"{PROG} {command}: error: {err}", file=sys.stderr)
         return err.exit_code
@@ -638,9 +628,6 @@ def run() -> NoReturn:
     own teardown, whose garbage collections walk torch's whole object graph: 0.5-0.8 s after every command
     (``docs/measurements.md``). Every file the package writes is closed by then.
     """
-    import atexit
-    import threading
-
     code = main()
     # what the interpreter's exit does before its teardown: wait for the threads that are not daemons, then run the
     # exit handlers

@@ -8,8 +8,13 @@ import os
 import shutil
 from collections.abc import Sequence
 
-from ccs_kornia.commands._common import UserError, info
+import cv2
+
+from ccs_kornia.commands._printing import info
 from ccs_kornia.commands._video import max_frames, selecting
+from ccs_kornia.pipeline.frame_selection import FrameSelection
+from ccs_kornia.pipeline.sources import FileSource
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["frame_selection", "save_frames", "selecting", "selection_line"]
 
@@ -19,7 +24,6 @@ def frame_selection(args: argparse.Namespace):
     counts); ``--max-frames`` caps the frames kept."""
     if not selecting(args):
         return None
-    from ccs_kornia.pipeline.frame_selection import FrameSelection
 
     return FrameSelection(max_frames=max_frames(args))
 
@@ -49,10 +53,6 @@ def save_frames(folder: str, source, kept: Sequence[Sequence[bool]], names: Sequ
     Returns:
         Files written.
     """
-    import cv2
-
-    from ccs_kornia.pipeline.sources import FileSource
-
     count = 0
     for c, keep in enumerate(kept):
         where = folder if names is None else os.path.join(folder, names[c])

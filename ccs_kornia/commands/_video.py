@@ -16,7 +16,18 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from ccs_kornia.commands._common import UserError, info, warn
+from tqdm import tqdm
+
+from ccs_kornia.commands._printing import info, warn
+from ccs_kornia.io.images import IMAGE_EXTENSIONS, natural_key
+from ccs_kornia.io.timestamps import read_timestamps
+from ccs_kornia.io.video import FrameSpan, is_video, open_video
+from ccs_kornia.modules.detection.screening import BoardScreen
+from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES, detector_frames
+from ccs_kornia.pipeline.screening import screen_video
+from ccs_kornia.pipeline.video_input import camera_frames, pair_videos, rig_frames
+from ccs_kornia.pipeline.workers import default_workers
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["add_timestamps", "camera_videos", "detector_count", "frame_span", "make_screen", "max_frames",
            "pairing_lines", "rig_videos", "screen_videos", "screen_workers", "screening_note", "selecting",
@@ -24,16 +35,11 @@ __all__ = ["add_timestamps", "camera_videos", "detector_count", "frame_span", "m
 
 
 def _videos_in(directory: str) -> list[str]:
-    from ccs_kornia.io.images import natural_key
-    from ccs_kornia.io.video import is_video
-
     return sorted((os.path.join(directory, n) for n in os.listdir(directory)
                    if is_video(n) and os.path.isfile(os.path.join(directory, n))), key=natural_key)
 
 
 def _images_in(directory: str) -> bool:
-    from ccs_kornia.io.images import IMAGE_EXTENSIONS
-
     return any(n.lower().endswith(IMAGE_EXTENSIONS) for n in os.listdir(directory))
 
 
@@ -41,8 +47,6 @@ def video_inputs(command: str, items: Sequence[str]) -> list[str]:
     """The videos the command-line ``items`` name: video files, folders holding videos (and no images), globs
     matching videos; ``[]`` when no item is a video (the images' path then reads them). Images and videos together
     are refused (:class:`UserError`): a camera's views come from one or the other."""
-    from ccs_kornia.io.video import is_video
-
     videos: list[str] = []
     others: list[str] = []
     for item in items:
@@ -67,8 +71,6 @@ def video_inputs(command: str, items: Sequence[str]) -> list[str]:
 
 def max_frames(args: argparse.Namespace) -> int:
     """``--max-frames`` (default :data:`~ccs_kornia.pipeline.frame_candidates.DEFAULT_MAX_FRAMES`)."""
-    from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES
-
     value = getattr(args, "max_frames", None)
     return DEFAULT_MAX_FRAMES if value is None else int(value)
 
@@ -83,15 +85,11 @@ def selecting(args: argparse.Namespace) -> bool:
 def detector_count(args: argparse.Namespace) -> int:
     """Frames of a recording (instants of a rig) the full detector sees: ``--max-frames``, half as many again with the
     frame selection on (:func:`~ccs_kornia.pipeline.frame_candidates.detector_frames`)."""
-    from ccs_kornia.pipeline.frame_candidates import detector_frames
-
     return detector_frames(max_frames(args), selecting(args))
 
 
 def frame_span(args: argparse.Namespace):
     """``--every``, ``--start``, ``--end`` as a :class:`~ccs_kornia.io.video.FrameSpan`."""
-    from ccs_kornia.io.video import FrameSpan
-
     try:
         return FrameSpan(getattr(args, "every", 1) or 1, getattr(args, "start", None), getattr(args, "end", None))
     except ValueError as err:
@@ -101,16 +99,12 @@ def frame_span(args: argparse.Namespace):
 def make_screen(args: argparse.Namespace):
     """The screening pass's quick look for the command's board (:class:`~ccs_kornia.modules.detection.screening.
     BoardScreen`)."""
-    from ccs_kornia.modules.detection.screening import BoardScreen
-
     board = getattr(args, "charuco_board", None) or getattr(args, "aprilgrid_board", None)
     return BoardScreen(tuple(args.board), board)
 
 
 def screen_workers(args: argparse.Namespace) -> int:
     """Processes of the screening pass: ``--jobs`` (``auto``: one per core, at most 4)."""
-    from ccs_kornia.pipeline.workers import default_workers
-
     jobs = getattr(args, "jobs", "auto")
     return default_workers("cpu") if jobs == "auto" else int(jobs)
 
@@ -132,11 +126,6 @@ def screen_videos(command: str, paths: Sequence[str], screen, span, workers: int
     Returns:
         The :class:`~ccs_kornia.pipeline.screening.ScreenedVideo` of each video read.
     """
-    from tqdm import tqdm
-
-    from ccs_kornia.io.video import open_video
-    from ccs_kornia.pipeline.screening import screen_video
-
     infos, bad = [], []
     for path in paths:
         video, reason = open_video(path)
@@ -209,8 +198,6 @@ def report_screening(command: str, frames, names: Sequence[str] | None = None) -
 def camera_videos(command: str, args: argparse.Namespace):
     """One camera's recordings (``args.images`` naming videos) screened and their frames chosen
     (:class:`~ccs_kornia.pipeline.video_input.VideoFrames`); ``None`` when the inputs are images."""
-    from ccs_kornia.pipeline.video_input import camera_frames
-
     paths = video_inputs(command, args.images)
     if not paths:
         return None
@@ -233,8 +220,6 @@ def rig_videos(command: str, args: argparse.Namespace, names: Sequence[str]):
     """A rig's recordings (``args.cameras`` naming one video per camera) screened, paired into instants and chosen
     (:class:`~ccs_kornia.pipeline.video_input.VideoFrames`); ``None`` when the cameras are image folders. Says on
     stderr how many frames each camera contributed and the largest time spread of a paired frame."""
-    from ccs_kornia.pipeline.video_input import pair_videos, rig_frames
-
     found = [video_inputs(command, [item]) for item in args.cameras]
     if not any(found):
         for option in ("timestamps", "sync_tolerance"):
@@ -249,8 +234,6 @@ def rig_videos(command: str, args: argparse.Namespace, names: Sequence[str]):
     paths = [videos[0] for videos in found]
     table = None
     if args.timestamps is not None:
-        from ccs_kornia.io.timestamps import read_timestamps
-
         try:
             table = read_timestamps(args.timestamps)
         except ValueError as err:

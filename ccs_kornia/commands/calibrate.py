@@ -7,109 +7,30 @@ import os
 import time
 from typing import Any
 
-from ccs_kornia.commands._common import (
-    NoResult,
-    UserError,
-    aprilgrid_record,
-    charuco_record,
+from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import make_pipeline
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._messages import verdict_line, weak_lines
+from ccs_kornia.commands._output_paths import (
     check_output_dir,
     check_output_file,
-    inputs,
     make_dir,
-    make_pipeline,
-    not_found_message,
-    resolve_device,
-    run_files,
-    warn,
-    weak_lines,
 )
+from ccs_kornia.commands._printing import warn
+from ccs_kornia.commands._run import calibrate_files
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
 from ccs_kornia.commands._video import (
-    add_timestamps,
     camera_videos,
     screening_note,
 )
+from ccs_kornia.io.files import write_json, write_text_atomic
+from ccs_kornia.outputs.camera_exports import ros_camera_info, write_opencv_yaml
+from ccs_kornia.outputs.report.calibration import write_report
+from ccs_kornia.pipeline.sources import FileSource
+from ccs_kornia.runtime.errors import UserError
 
-__all__ = ["calibrate_files", "failure_message", "run", "verdict_line"]
-
-
-def calibrate_files(
-    command: str,
-    files: list[str],
-    board: tuple[int, int],
-    square: float,
-    pipeline,
-    device,
-    model: str,
-    detector_name: str,
-    video=None,
-) -> tuple[dict[str, Any], Any]:
-    """The pipeline's one composition on ``files`` (one camera); returns (JSON-ready dict, PipelineResult of it).
-
-    ``video``: the chosen frames of the camera's recordings (:class:`~ccs_kornia.pipeline.video_input.VideoFrames`,
-    ``files`` their names): the views are read from the videos, each view gets its ``timestamp`` and the record a
-    ``video`` entry per recording (what the screening saw of every frame, and why a frame was not chosen).
-
-    Raises :class:`UserError` when no calibration can be computed: :class:`NoResult` when images were read, with
-    ``partial``: the per-view record (detections and reasons) so the caller can keep it.
-    """
-    from ccs_kornia.outputs.records import camera_record
-
-    source = None if video is None else video.source()
-    out, seconds = run_files(command, pipeline, [files], board, square, device, source=source)
-    one = out.select(0)
-    data = camera_record(one, files, board=board, square=square, detector=detector_name, model=model)
-    if video is not None:
-        add_timestamps(data["views"], video.timestamps())
-        data["video"] = video.records(0)
-    data["timings"] = {"load_detect_solve_s": seconds, "images_per_s": len(files) / max(seconds, 1e-9)}
-    for view in data["views"]:
-        if view["found"] and "reason" in view and view["reason"].startswith("image size"):
-            warn(command, f"skipped {view['path']}: {view['reason']}")
-        if "note" in view:
-            warn(command, f"{view['path']}: {view['note']}")
-    for issue in data.get("warnings", []) if data["success"] else []:  # a failed camera's figures say nothing
-        warn(command, issue.get("message", str(issue)) + _files_note(issue))
-    if not data["success"]:
-        readable = int(one.present.sum())
-        message = failure_message(data, board, readable)
-        if not readable:
-            raise UserError(message)
-        err = NoResult(message)
-        err.partial = data
-        raise err
-    return data, one
-
-
-def failure_message(data: dict[str, Any], board: tuple[int, int], readable: int) -> str:
-    """Why a camera's record (:func:`~ccs_kornia.outputs.records.camera_record`, ``success`` false) holds no calibration, in
-    one line: board never found, too few usable views, the solver's refusals with the views they name."""
-    files = data["num_views"]["files"]
-    if data["num_views"]["found"] == 0:
-        return not_found_message(board, readable, files, str(data.get("detector", "")))
-    if data["num_views"]["usable"] < 3:
-        return (f"only {data['num_views']['usable']} usable view(s) of the {board[0]}x{board[1]} board among "
-                f"{files} files (board found in {data['num_views']['found']}); at least 3 are needed")
-    if data.get("errors"):  # the solver's refusals (degeneracy checks) name the problem and the views
-        from ccs_kornia.modules.calibration.quality.degeneracy import WEAK_CHECKS
-
-        weak = all(i.get("check") in WEAK_CHECKS and i.get("value") is not None for i in data["errors"])
-        return (f"calibration refused on {data['num_views']['usable']} views: "
-                + "; ".join(i["message"] + _files_note(i) for i in data["errors"])
-                + ("; --allow-weak calibrates anyway (verdict not reliable)" if weak else ""))
-    why = data["error"] if data["error"].startswith("calibration failed") else \
-        f"calibration failed on {data['num_views']['usable']} views: {data['error']}"
-    return (f"{why}; the views may be degenerate (e.g. all fronto-parallel, or copies of one view) or "
-            "inconsistent: add views with the board tilted in different directions")
-
-
-def _files_note(issue: dict[str, Any], most: int = 6) -> str:
-    """`` (files: a.jpg, b.jpg, ...)`` for the views a degeneracy check names."""
-    names = [os.path.basename(f) for f in issue.get("files", [])]
-    if not names:
-        return ""
-    more = f", ... ({len(names)} in all)" if len(names) > most else ""
-    return f" (files: {', '.join(names[:most])}{more})"
+__all__ = ["run"]
 
 
 def _failed_path(output: str) -> str:
@@ -118,9 +39,6 @@ def _failed_path(output: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ccs_kornia.io.files import write_json, write_text_atomic
-    from ccs_kornia.outputs.camera_exports import ros_camera_info, write_opencv_yaml
-    from ccs_kornia.pipeline.sources import FileSource
     check_output_file("--output", args.output)
     if args.opencv_yaml:
         check_output_file("--opencv-yaml", args.opencv_yaml)
@@ -184,8 +102,6 @@ def run(args: argparse.Namespace) -> int:
     if args.ros_yaml:
         write_text_atomic("--ros-yaml", args.ros_yaml, ros_camera_info(data))
     if args.report:
-        from ccs_kornia.outputs.report.calibration import write_report
-
         make_dir("--report", args.report)
         start = time.perf_counter()
         write_report(args.report, data)
@@ -229,13 +145,3 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         line = "verdict: not reliable: " + "; ".join(dict.fromkeys(e["advice"] for e in data["errors"]))
     if line:
         print(line)
-
-
-def verdict_line(quality: dict[str, Any] | None) -> str:
-    """``verdict: ... (held-out views ... px, ...)`` from the diagnostics (empty without them)."""
-    if not quality:
-        return ""
-    figures = [f"{label} {quality[key]:.3f} px" for label, key in (
-        ("held-out views", "heldout_rms_px"), ("halves differ where the boards were by", "cv_covered_rms_px"),
-        ("uncertainty at the centre", "uncertainty_centre_px")) if quality.get(key) is not None]
-    return f"verdict: {quality['verdict']}" + (f" ({', '.join(figures)})" if figures else "")

@@ -12,26 +12,42 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
-import sys
 import time
 from typing import Any
 
-from ccs_kornia.commands._common import (
-    UserError,
-    aprilgrid_record,
-    charuco_record,
+import numpy as np
+import torch
+
+from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import make_pipeline
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._messages import not_found_message
+from ccs_kornia.commands._output_paths import (
     check_output_dir,
     check_output_file,
-    info,
-    inputs,
     make_dir,
-    make_pipeline,
-    not_found_message,
-    resolve_device,
-    run_files,
-    warn,
 )
+from ccs_kornia.commands._printing import info, warn
+from ccs_kornia.commands._run import calibrate_files, run_files
+from ccs_kornia.io.files import write_json, write_text_atomic
+from ccs_kornia.io.robot_poses import match_poses, read_robot_poses
+from ccs_kornia.modules.detection.boards import grid_object_points
+from ccs_kornia.modules.detection.markers.apriltag import (
+    AprilTagDetector,
+    AprilTagTarget,
+)
+from ccs_kornia.modules.hand_eye import HandEyeSetup, calibrate_hand_eye
+from ccs_kornia.outputs.calibration_file import camera_from_record, read_calibration
+from ccs_kornia.outputs.hand_eye_exports import (
+    moveit_calibration_yaml,
+    ros_static_transform,
+)
+from ccs_kornia.outputs.hand_eye_records import hand_eye_record
+from ccs_kornia.outputs.report.hand_eye import write_hand_eye_report
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["COMMAND", "parse_frames", "parse_robot_noise", "run", "summary_lines"]
 
@@ -54,7 +70,6 @@ def parse_robot_noise(text: str) -> tuple[float, float] | str | None:
         raise UserError(f"--robot-noise {text}: expected auto, none or DEG,MM (e.g. 0.05,0.2)") from None
     if not (deg > 0 and mm > 0):
         raise UserError(f"--robot-noise {text}: both sigmas must be positive")
-    import math
 
     return math.radians(deg), mm / 1000.0
 
@@ -72,25 +87,23 @@ def parse_frames(text: str) -> tuple[str, str, str]:
     return names[0], names[1], names[2]
 
 
+def _distortion(camera) -> dict[str, Any]:
+    """A camera's distortion as the hand-eye record gives it: the model's name and OpenCV's full coefficients."""
+    return {"model": str(camera.model), "coeffs": camera.model.opencv_coeffs(camera.coeffs(0).numpy()).tolist()}
+
+
 def _camera(args, image_size_hint=None) -> tuple[Any, dict[str, Any]] | None:
-    """The camera of ``--calibration`` as a RigCamera and its record, or None."""
+    """The camera of ``--calibration`` and its record, or None."""
     if not args.calibration:
         return None
-    import torch
-
-    from ccs_kornia.modules.rig.rig_camera import RigCamera
-    from ccs_kornia.outputs.calibration_file import read_calibration
 
     try:
         cal = read_calibration(args.calibration)
     except ValueError as err:
         raise UserError(f"--calibration {args.calibration}: {err}") from None
-    coeffs = torch.from_numpy(cal["coeffs"])
-    if cal["model"] == "none":
-        coeffs = coeffs[:0]
-    camera = RigCamera(cal["model"], torch.from_numpy(cal["K"]), coeffs)
-    record = {"source": args.calibration, "image_size": list(cal["image_size"]), "K": cal["K"].tolist(),
-              "distortion": {"model": cal["model"], "coeffs": cal["coeffs"].tolist()}}
+    camera = cal.camera
+    record = {"source": args.calibration, "image_size": list(camera.image_size), "K": camera.K[0].tolist(),
+              "distortion": _distortion(camera)}
     with open(args.calibration, encoding="utf-8") as handle:
         full = json.load(handle)
     for key in ("rms", "std"):
@@ -99,71 +112,26 @@ def _camera(args, image_size_hint=None) -> tuple[Any, dict[str, Any]] | None:
     return camera, record
 
 
-def _lens_maps(camera):
-    """Pixel maps of the camera's lens (distorted -> ideal pixels and back) for the tag's straight sides."""
-    import numpy as np
-    import torch
-
-    from ccs_kornia.geometry.camera import distort_pixels, kb_distort_points
-    from ccs_kornia.modules.rig.rig_camera import normalized_points
-
-    K = camera.K.double()
-    fisheye = camera.camera.is_fisheye
-    if not fisheye and not bool(camera.dist.abs().gt(0).any()):  # no lens to straighten (``none`` has no terms)
-        return None, None
-
-    def undistort(pts: np.ndarray) -> np.ndarray:
-        n = normalized_points(camera, torch.from_numpy(np.asarray(pts, dtype=np.float64)))
-        return (torch.cat([n, torch.ones_like(n[..., :1])], -1) @ K.T)[..., :2].numpy()
-
-    def distort(pts: np.ndarray) -> np.ndarray:
-        p = torch.from_numpy(np.asarray(pts, dtype=np.float64))[None]
-        if fisheye:
-            D = torch.zeros(4, dtype=torch.float64)
-            D[: camera.dist.shape[0]] = camera.dist.double()
-            return kb_distort_points(p, K[None], D[None])[0].numpy()
-        return distort_pixels(p, K[None], camera.dist.double()[None])[0].numpy()
-
-    return undistort, distort
-
-
-def _detect_tag(files: list[str], args, camera):
-    """The tag's corners on every image (a progress bar): corners (V, 4, 2), found (V,), reasons, image size."""
-    import numpy as np
-    import torch
-    from tqdm import tqdm
-
-    from ccs_kornia.io.images import load_image_gray
-    from ccs_kornia.modules.detection.markers.apriltag import detect_apriltag
-
-    undistort, distort = _lens_maps(camera)
-    corners = torch.full((len(files), 4, 2), float("nan"), dtype=torch.float64)
-    found = torch.zeros(len(files), dtype=torch.bool)
-    reasons: list[str] = []
-    size = None
-    for v, path in enumerate(tqdm(files, unit="img", desc=COMMAND, file=sys.stderr, disable=None, leave=False)):
-        gray, why = load_image_gray(path)
-        if gray is None:
-            reasons.append(why or "unreadable")
-            continue
-        h, w = gray.shape[:2]
-        if size is None:
-            size = (w, h)
-        if (w, h) != size:
-            reasons.append(f"image size {w}x{h} differs from the first image's {size[0]}x{size[1]}")
-            continue
-        det = detect_apriltag(torch.from_numpy(np.asarray(gray, dtype=np.float32))[None, None], args.tag_target,
-                              undistort, distort)
-        reasons.append(det.reasons[0])
-        if bool(det.found[0]):
-            corners[v], found[v] = det.corners[0], True
-    return corners, found, reasons, size
+def _detect_tag(files: list[str], args, device, camera):
+    """The tag's corners through the pipeline, the camera's lens straightening its sides (no correction network, no
+    corner weights: the hand-eye fit takes neither): corners (V, 4, 2), found (V,), present (V,), reasons, image size
+    (the first readable image's: an image of another size is left out)."""
+    detector = AprilTagDetector(args.tag_target, camera)
+    pipeline = make_pipeline(args, detector=detector, distortion_correction=False, weigh_corners=False)
+    out, _ = run_files(COMMAND, pipeline, [files], detector.target.board_size, args.tag_size, device, calibrate=False)
+    one = out.select(0)
+    corners, found, present, reasons = _views(one, len(files))
+    sizes = [tuple(int(x) for x in s) for s in one.view_sizes.cpu().tolist()]
+    size = next((sizes[v] for v in range(len(files)) if present[v]), None)
+    for v in range(len(files)):
+        if present[v] and sizes[v] != size:
+            found[v] = False
+            reasons[v] = f"image size {sizes[v][0]}x{sizes[v][1]} differs from the first image's {size[0]}x{size[1]}"
+    return corners, found, present, reasons, size
 
 
 def _detect_board(files: list[str], args, device, camera_given: bool):
     """A board's corners through the pipeline (and the camera calibrated from the same images when none is given)."""
-    from ccs_kornia.commands.calibrate import calibrate_files
-
     pipeline = make_pipeline(args, model=args.model)
     camera_record = None
     if camera_given:
@@ -176,22 +144,22 @@ def _detect_board(files: list[str], args, device, camera_given: bool):
         except UserError as err:
             raise type(err)(f"the camera could not be calibrated from the images ({err}); give --calibration") \
                 from None
-    det = one.detections
-    found = det.found.bool() & one.present.bool()
-    reasons = [(det.reasons[v] if det.reasons else "") or ("board found" if bool(found[v]) else "board not found")
-               for v in range(len(files))]
+    corners, found, present, reasons = _views(one, len(files))
     size = tuple(int(x) for x in one.image_size)
-    return det.corners.double(), found, reasons, size, camera_record
+    return corners, found, present, reasons, size, camera_record
+
+
+def _views(one, count: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, list[str]]:
+    """A camera's views from its pipeline result: corners (V, N, 2), found (V,), present (V,) and each view's reason."""
+    det = one.detections
+    present = one.present.bool().cpu()
+    found = det.found.bool().cpu() & present
+    reasons = [(det.reasons[v] if det.reasons else "") or ("board found" if bool(found[v]) else "board not found")
+               for v in range(count)]
+    return det.corners.double().cpu(), found, present, reasons
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-    import torch
-
-    from ccs_kornia.io.robot_poses import match_poses, read_robot_poses
-    from ccs_kornia.modules.hand_eye import HandEyeSetup
-    from ccs_kornia.modules.rig.rig_camera import RigCamera, camera_from_params
-
     setup = HandEyeSetup.EYE_IN_HAND if args.eye_in_hand else HandEyeSetup.EYE_TO_HAND
     check_output_file("--output", args.output)
     for option, path in (("--ros-tf", args.ros_tf), ("--moveit-yaml", args.moveit_yaml)):
@@ -203,8 +171,6 @@ def run(args: argparse.Namespace) -> int:
     noise = parse_robot_noise(args.robot_noise)
     tag = getattr(args, "apriltag", None)
     if tag is not None:
-        from ccs_kornia.modules.detection.markers.apriltag import AprilTagTarget
-
         if args.tag_size is None:
             raise UserError("--apriltag needs --tag-size: the black square's side in metres (e.g. 0.048)")
         args.tag_target = AprilTagTarget(tag, args.tag_size, args.tag_id)
@@ -232,15 +198,13 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     camera_record = None
     if tag is not None:
-        corners, found, reasons, size = _detect_tag(files, args, given[0])
+        corners, found, present, reasons, size = _detect_tag(files, args, device, given[0])
         obj = args.tag_target.object_points()
         board_info = {"kind": "apriltag", "family": tag, "tag_size": args.tag_size, "tag_id": args.tag_id,
                       "corners": "top left, top right, bottom left, bottom right of the black square as printed; "
                                  "origin at the tag's centre, x right, y down, z into the print"}
     else:
-        from ccs_kornia.modules.detection.boards import grid_object_points
-
-        corners, found, reasons, size, camera_record = _detect_board(files, args, device, given is not None)
+        corners, found, present, reasons, size, camera_record = _detect_board(files, args, device, given is not None)
         obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square)
         board_info = {"kind": getattr(args, "detector", "chessboard"), "board": list(args.board),
                       "square": args.square, "corners": "grid order n = row * cols + col; origin at corner 0"}
@@ -255,10 +219,7 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--calibration {args.calibration}: a calibration of {camera_record['image_size'][0]}x"
                             f"{camera_record['image_size'][1]} images, these are {size[0]}x{size[1]}")
     else:
-        K = torch.tensor(camera_record["K"], dtype=torch.float64)
-        model = camera_record["distortion"]["model"]
-        camera = RigCamera(model, K, torch.tensor(camera_record["distortion"]["coeffs"] or [], dtype=torch.float64)
-                           if model != "none" else torch.zeros(0, dtype=torch.float64))
+        camera = camera_from_record(camera_record)
         camera_record = {k: camera_record[k] for k in ("image_size", "K", "distortion", "rms", "std") if k in
                          camera_record} | {"source": "calibrated from these images"}
     if not bool(found.any()):
@@ -270,11 +231,11 @@ def run(args: argparse.Namespace) -> int:
     for v, path in enumerate(files):
         if path not in skipped and not bool(found[v]):
             skipped[path] = reasons[v]
-            warn(COMMAND, f"skipped {path}: {reasons[v]}")
+            if present[v]:  # (an unreadable file was said by the run)
+                warn(COMMAND, f"skipped {path}: {reasons[v]}")
     ok = found & torch.from_numpy(np.isfinite(T).all((-1, -2)))
     info(f"{int(ok.sum())} of {len(files)} images have both a board and a robot pose")
     valid = corners.isfinite().all(-1) & ok[:, None]
-    from ccs_kornia.modules.hand_eye import calibrate_hand_eye
 
     robot = torch.from_numpy(T)
     names = [os.path.basename(f) for f in files]
@@ -285,12 +246,11 @@ def run(args: argparse.Namespace) -> int:
         names=[names], align_orders=tag is None and board_info.get("kind") in ("learned", "opencv"))
     if not bool(result.success[0]):
         raise UserError(f"hand-eye calibration refused: {result.reasons[0]}")
-    from ccs_kornia.outputs.hand_eye_records import hand_eye_record
 
     if args.refine_intrinsics:
-        refined = camera_from_params(camera.model, result.params[0])
-        camera_record = dict(camera_record, K=refined.K.tolist(),
-                             distortion={"model": camera.model, "coeffs": refined.dist.tolist()},
+        refined = result.camera[0]
+        camera_record = dict(camera_record, K=refined.K[0].tolist(),
+                             distortion={"model": str(refined.model), "coeffs": refined.coeffs(0).tolist()},
                              refined_in_hand_eye_fit=True)
     board_info["outline"] = _outline(obj)
     data = hand_eye_record(result, files, 0, camera=camera_record, robot_poses=robot, corners=corners,
@@ -308,8 +268,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _outline(obj) -> list[list[float]]:
     """The board's outline (its extreme corners, in order around it) in board coordinates."""
-    import torch
-
     xy = obj[:, :2]
     lo, hi = xy.min(0).values, xy.max(0).values
     return [[float(lo[0]), float(lo[1]), 0.0], [float(hi[0]), float(lo[1]), 0.0], [float(hi[0]), float(hi[1]), 0.0],
@@ -318,20 +276,12 @@ def _outline(obj) -> list[list[float]]:
 
 def _write_outputs(args: argparse.Namespace, data: dict[str, Any], frames: tuple[str, str, str]) -> None:
     """Every requested file, prepared first, then written through temporary files renamed into place."""
-    from ccs_kornia.io.files import write_json, write_text_atomic
-    from ccs_kornia.outputs.hand_eye_exports import (
-        moveit_calibration_yaml,
-        ros_static_transform,
-    )
-
     texts = {}
     if args.ros_tf:
         texts[("--ros-tf", args.ros_tf)] = ros_static_transform(data, frames)
     if args.moveit_yaml:
         texts[("--moveit-yaml", args.moveit_yaml)] = moveit_calibration_yaml(data, frames)
     if args.report:
-        from ccs_kornia.outputs.report.hand_eye import write_hand_eye_report
-
         make_dir("--report", args.report)
         start = time.perf_counter()
         write_hand_eye_report(args.report, data)

@@ -20,27 +20,24 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ccs_kornia.commands._common import (
-    PROG,
-    NoResult,
-    UserError,
-    aprilgrid_record,
-    charuco_record,
-    check_output_file,
-    info,
-    make_pipeline,
-    resolve_device,
-    warn,
-)
+import torch
+
+from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import make_pipeline
+from ccs_kornia.commands._output_paths import check_output_file
+from ccs_kornia.commands._printing import PROG, info, warn
 from ccs_kornia.commands._video import frame_span, make_screen, max_frames
+from ccs_kornia.fleet.shards import finished_sets, not_jsonl_reason
+from ccs_kornia.io.video import is_video
+from ccs_kornia.pipeline.video_input import VideoOptions
+from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["run"]
 
 
 def _placement(args: argparse.Namespace) -> tuple[str | None, int | None]:
     """``(accelerator, devices)`` for the Trainer, refused here when this machine cannot give them."""
-    import torch
-
     accelerator, devices = args.accelerator, args.devices
     if args.device.startswith("cuda"):
         if accelerator == "cpu":
@@ -63,19 +60,17 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 0:
         raise UserError(f"--workers must be >= 0, got {args.workers}")
     accelerator, devices = _placement(args)
-    try:
+    try:  # Lightning is optional: without it this command says so in one line
         from ccs_kornia.fleet.predict import (
             calibrate_many,
             find_image_sets,
             launched_as_rank_zero,
         )
-        from ccs_kornia.fleet.shards import not_jsonl_reason
     except ImportError as err:
         raise UserError(f"calibrate-many needs Lightning ({err})") from None
     overwrite = bool(getattr(args, "overwrite", False))
     if not overwrite and (reason := not_jsonl_reason(args.output)) is not None:
         raise UserError(f"--output {args.output}: {reason}; give another file name (or --overwrite to replace it)")
-    from ccs_kornia.io.video import is_video
 
     sets, problems = find_image_sets(args.sets)
     if not sets:
@@ -87,8 +82,6 @@ def run(args: argparse.Namespace) -> int:
     pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
     video = None
     if any(len(files) == 1 and is_video(files[0]) for _, files in sets):
-        from ccs_kornia.pipeline.video_input import VideoOptions
-
         video = VideoOptions(make_screen(args), frame_span(args), max_frames(args))
     processes = (devices or 1) * args.num_nodes
     where = f"{processes} processes ({accelerator or device.type})" if processes > 1 else str(device)
@@ -116,7 +109,6 @@ def _idle_processes(sets: list, output: str, overwrite: bool, per_batch: int, pr
     form (:class:`~ccs_kornia.fleet.predict.ImageSetDataModule`): splitting them otherwise would change the lines."""
     if processes < 2:
         return ""
-    from ccs_kornia.fleet.shards import finished_sets
 
     done = set() if overwrite else finished_sets(output)
     todo = sum(1 for name, _ in sets if str(name) not in done)

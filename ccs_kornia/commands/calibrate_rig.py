@@ -7,53 +7,80 @@ Every output is written at the end, once the rig is solved: a run that stops on 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import sys
 import time
 from typing import Any
 
-from ccs_kornia.commands._common import (
-    UserError,
-    WrongBoardWatch,
-    aprilgrid_record,
-    charuco_record,
+import cv2
+import torch
+from tqdm import tqdm
+
+from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import (
+    make_detector_from,
+    missing_weights,
+    pipeline_options,
+)
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._messages import failure_message, weak_lines
+from ccs_kornia.commands._output_paths import (
     check_output_dir,
     check_output_file,
-    info,
-    inputs,
-    make_detector_from,
     make_dir,
-    missing_weights,
-    parse_pair,
-    pipeline_options,
-    resolve_device,
-    warn,
-    weak_lines,
 )
+from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
+from ccs_kornia.commands._stereo_pair import parse_pair
 from ccs_kornia.commands._video import add_timestamps, rig_videos
+from ccs_kornia.commands._wrong_board import WrongBoardWatch
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.io.files import write_json, write_text_atomic
+from ccs_kornia.io.images import image_pixels
+from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelChoice, model_or_choice
+from ccs_kornia.outputs.calibration_file import RigFileError, camera_from_record, read_calibration
+from ccs_kornia.outputs.records import camera_record
+from ccs_kornia.outputs.report.rig import write_rig_report
+from ccs_kornia.outputs.rig_exports import (
+    KALIBR_DISTORTION,
+    kalibr_camchain,
+    kalibr_problem,
+    rectification,
+    ros_stereo_files,
+    write_opencv_stereo_yaml,
+)
+from ccs_kornia.outputs.rig_records import frame_lines, rig_record
+from ccs_kornia.pipeline.frame_matching import match_frames
+from ccs_kornia.pipeline.rig_pipeline import RigPipeline
+from ccs_kornia.pipeline.sources import FileSource
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "run", "summary_lines"]
 
 COMMAND = "calibrate-rig"
 
 
-def parse_models(text: str, cameras: int, choices: tuple[str, ...]) -> list[str]:
-    """``--model``: one model for every camera or one per camera, comma-separated.
+def parse_models(text: str, cameras: int, choices: tuple[str, ...]) -> list[CameraModel | ModelChoice]:
+    """``--model``: one model for every camera or one per camera, comma-separated; each name read as its model (or
+    ``auto`` as the automatic choice).
 
     Example:
-        >>> parse_models("auto", 2, ("auto", "k1k2")), parse_models("k1k2,auto", 2, ("auto", "k1k2"))
-        (['auto', 'auto'], ['k1k2', 'auto'])
+        >>> [str(m) for m in parse_models("auto", 2, ("auto", "k1k2"))]
+        ['auto', 'auto']
+        >>> parse_models("k1k2,auto", 2, ("auto", "k1k2"))[0]
+        OpenCVModel('k1k2')
     """
-    models = [m.strip() for m in text.split(",")]
-    bad = [m for m in models if m not in choices]
+    names = [m.strip() for m in text.split(",")]
+    bad = [m for m in names if m not in choices]
     if bad:
         raise UserError(f"--model {text}: unknown model {bad[0]!r} (choose from {', '.join(choices)})")
-    if len(models) == 1:
-        return models * cameras
-    if len(models) != cameras:
-        raise UserError(f"--model {text}: {len(models)} models for {cameras} cameras (give one, or one per camera)")
-    return models
+    if len(names) == 1:
+        names = names * cameras
+    if len(names) != cameras:
+        raise UserError(f"--model {text}: {len(names)} models for {cameras} cameras (give one, or one per camera)")
+    return [model_or_choice(n) for n in names]
 
 
 def parse_names(text: str | None, cameras: int) -> list[str]:
@@ -76,12 +103,7 @@ def parse_names(text: str | None, cameras: int) -> list[str]:
 
 def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
     """``--fix-intrinsics CAM_INDEX=calib.json``: cameras whose intrinsics are kept as a ``calibrate`` JSON gives
-    them; returns ``{index: (RigCamera, image_size, path)}``."""
-    import torch
-
-    from ccs_kornia.modules.rig import RigCamera
-    from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
-
+    them; returns ``{index: (camera, image_size, path)}``."""
     fixed: dict[int, Any] = {}
     for item in items or []:
         index, sep, path = item.partition("=")
@@ -98,18 +120,13 @@ def parse_fixed(items: list[str] | None, cameras: int) -> dict[int, Any]:
         except ValueError as err:
             why = f"{path}: {err}" if os.path.exists(path) else f"cannot read {path} (no such file)"
             raise UserError(f"--fix-intrinsics {item}: {why}") from None
-        K = torch.from_numpy(calib["K"])
-        fixed[c] = (RigCamera(calib["model"], K, torch.from_numpy(calib["coeffs"])), calib["image_size"], path)
+        fixed[c] = (calib.camera, calib.camera.image_size, path)
     return fixed
 
 
 def _camera_files(name: str, item: str) -> list[str]:
     """The camera's image files, refused at once (before any frame is matched or any image detected) when none of
     them is an image: their headers tell, without decoding them."""
-    import cv2
-
-    from ccs_kornia.io.images import image_pixels
-
     try:
         files = inputs(COMMAND, [item])
     except UserError as err:
@@ -121,8 +138,6 @@ def _camera_files(name: str, item: str) -> list[str]:
 
 
 def _file_digest(path: str) -> str:
-    import hashlib
-
     with open(path, "rb") as handle:
         return hashlib.sha1(handle.read()).hexdigest()
 
@@ -156,15 +171,6 @@ def _check_distinct_videos(names: list[str], videos: list[str]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from ccs_kornia.commands.calibrate import failure_message
-    from ccs_kornia.outputs.records import camera_record
-    from ccs_kornia.outputs.rig_records import rig_record
-    from ccs_kornia.pipeline.frame_matching import match_frames
-    from ccs_kornia.pipeline.rig_pipeline import RigPipeline
-    from ccs_kornia.pipeline.sources import FileSource
-
     folders = args.cameras
     if len(folders) < 2:
         raise UserError(f"a rig needs at least two camera folders or videos (one folder of images, or one video, per "
@@ -182,18 +188,19 @@ def run(args: argparse.Namespace) -> int:
     models = parse_models(args.model, c, args.model_choices)
     fixed = parse_fixed(args.fix_intrinsics, c)
     pair = _stereo_pair(args, c)
-    if args.kalibr_yaml and "rational" in models:
-        raise UserError(f"--kalibr-yaml: Kalibr has no rational (k1..k6) model, asked for camera "
-                        f"{names[models.index('rational')]}; use --model opencv5, k1k2 or fisheye")
+    if args.kalibr_yaml:
+        unheld = [k for k, m in enumerate(models) if isinstance(m, CameraModel) and m not in KALIBR_DISTORTION]
+        if unheld:
+            raise UserError(f"--kalibr-yaml: Kalibr has no {models[unheld[0]]} model, asked for camera "
+                            f"{names[unheld[0]]}; use --model opencv5, k1k2 or fisheye")
     options = pipeline_options(args, args.use_ransac, args.seed)
-    if args.kalibr_yaml and "auto" in models:
+    if args.kalibr_yaml and any(isinstance(m, ModelChoice) for m in models):
         # a camera that auto gave rational would stop the run at the end, after all the work, with no camchain:
         # this run chooses among the models Kalibr holds instead
-        from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS
-
-        options["auto_models"] = tuple(m for m in AUTO_MODELS if m != "rational")
+        held = ModelChoice(tuple(m for m in AUTO_MODELS if m in KALIBR_DISTORTION))
+        models = [held if isinstance(m, ModelChoice) else m for m in models]
         info(f"--kalibr-yaml: Kalibr has no rational model, so --model auto chooses among "
-             f"{', '.join(options['auto_models'])} in this run")
+             f"{', '.join(map(str, held.candidates))} in this run")
     selection = frame_selection(args)
     if args.save_frames and selection is None:
         raise UserError("--save-frames writes the frames the frame selection kept: give --select (recordings and "
@@ -232,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
         watch = WrongBoardWatch(files, args.board, names, error=UserError) if args.detector in ("learned", "opencv") \
             else None
         cameras = pipeline.detect_and_calibrate(source, args.board, args.square, progress=advance, on_batch=watch)
-        _check_cameras(cameras, files, folders, names, fixed, args, failure_message, camera_record)
+        _check_cameras(cameras, files, folders, names, fixed, models, args)
         bar.set_description_str(f"{COMMAND}: solving the rig")
         out = pipeline.run(source, args.board, args.square, frames, names, cameras=cameras)
     if not out.success:
@@ -299,7 +306,7 @@ def _weak_cameras(data: dict[str, Any]) -> list[tuple[str, list[str]]]:
     return [(cam["name"], weak_lines(cam)) for cam in data["cameras"] if cam.get("errors")]
 
 
-def _check_cameras(cameras, files, folders, names, fixed, args, failure_message, camera_record) -> None:
+def _check_cameras(cameras, files, folders, names, fixed, models, args) -> None:
     """Warnings per unusable view, and one error line naming the first camera without a calibration."""
     for k, result in enumerate(cameras):
         v = len(files[k])
@@ -307,7 +314,7 @@ def _check_cameras(cameras, files, folders, names, fixed, args, failure_message,
             if not bool(result.present[i]):
                 warn(COMMAND, f"camera {names[k]}: skipped {path}: {result.detections.reasons[i]}")
         record = camera_record(result, files[k], board=args.board, square=args.square, detector=args.detector,
-                               model=args.model)
+                               model=models[k])
         for issue in record.get("warnings", []):
             warn(COMMAND, f"camera {names[k]}: {issue.get('message', issue)}")
         readable = int(result.present[:v].sum())
@@ -338,14 +345,6 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
     """Every requested file, prepared first (a format that cannot hold the rig stops the run before any is
     written), then written through temporary files renamed into place; the stereo files and the report's rectified
     pair hold the cameras ``pair``."""
-    from ccs_kornia.io.files import write_json, write_text_atomic
-    from ccs_kornia.outputs.rig_exports import (
-        kalibr_camchain,
-        kalibr_problem,
-        rectification,
-        ros_stereo_files,
-        write_opencv_stereo_yaml,
-    )
     i, j = pair
     stereo = args.opencv_yaml or args.ros_yaml_dir
     if stereo or args.report:
@@ -370,8 +369,6 @@ def _write_outputs(args: argparse.Namespace, data: dict[str, Any], names: list[s
         if path:  # the folders first: a folder that cannot be made stops the run before any file is written
             make_dir(option, path)
     if args.report:
-        from ccs_kornia.outputs.report.rig import write_rig_report
-
         start = time.perf_counter()
         write_rig_report(args.report, data, rect, pair)
         data["timings"]["report_s"] = time.perf_counter() - start
@@ -393,9 +390,8 @@ def _moved(cam: dict[str, Any]) -> str:
     moved = cam.get("intrinsics_moved_sigma")
     if not moved:
         return ""
-    from ccs_kornia.geometry.models.factory import camera_model
 
-    coeffs = camera_model(cam["distortion"]["model"]).param_names[4:]
+    coeffs = camera_from_record(cam).model.param_names[4:]
     items = [(k, moved[k]) for k in ("fx", "fy", "cx", "cy")] + list(zip(coeffs, moved["distortion"]))
     name, value = max(((k, abs(v)) for k, v in items if v is not None), key=lambda kv: kv[1], default=(None, 0.0))
     return f", moved up to {value:.1f} sigma ({name}) from its own calibration" if name else ""
@@ -405,8 +401,6 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
     """The command's short summary: per camera its model, RMS and how far the joint fit moved its intrinsics, the
     frames whose cameras disagree, what to record next, per pair baseline, rotation and epipolar error, a joint fit
     that did not converge, the verdict."""
-
-    from ccs_kornia.outputs.rig_records import frame_lines
 
     def fmt(value: float | None, digits: int = 3) -> str:
         return "n/a" if value is None else f"{value:.{digits}f}"

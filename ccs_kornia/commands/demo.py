@@ -6,10 +6,22 @@ import argparse
 import os
 import time
 
-from ccs_kornia.commands._common import info, make_dir, make_pipeline, resolve_device
-from ccs_kornia.commands.calibrate import calibrate_files, verdict_line
+import torch
 
-__all__ = ["run", "DEMO_K", "DEMO_DIST", "DEMO_IMAGE_SIZE", "DEMO_BOARD", "DEMO_SQUARE", "DEMO_VIEWS"]
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import make_pipeline
+from ccs_kornia.commands._messages import verdict_line
+from ccs_kornia.commands._output_paths import make_dir
+from ccs_kornia.commands._printing import info
+from ccs_kornia.commands._run import calibrate_files
+from ccs_kornia.data.scenes.scenes import make_calibration_set
+from ccs_kornia.geometry.models import OPENCV5
+from ccs_kornia.geometry.metrics import e_fl, e_ip, e_pp
+from ccs_kornia.io.files import write_json
+from ccs_kornia.io.images import write_image
+from ccs_kornia.outputs.report.calibration import write_report
+
+__all__ = ["run", "DEMO_K", "DEMO_DIST", "DEMO_IMAGE_SIZE", "DEMO_BOARD", "DEMO_SQUARE"]
 
 # the demo camera: independent fx/fy, off-centre principal point, strong barrel distortion
 DEMO_K = ((620.0, 0.0, 322.0), (0.0, 610.0, 236.0), (0.0, 0.0, 1.0))
@@ -17,17 +29,9 @@ DEMO_DIST = (-0.28, 0.09, 0.0005, -0.0008, 0.0)
 DEMO_IMAGE_SIZE = (640, 480)
 DEMO_BOARD = (9, 6)
 DEMO_SQUARE = 0.025
-DEMO_VIEWS = 15
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
-
-    from ccs_kornia.data.scenes.scenes import make_calibration_set
-    from ccs_kornia.geometry.metrics import e_fl, e_ip, e_pp
-    from ccs_kornia.io.files import write_json
-    from ccs_kornia.io.images import write_image
-
     device = resolve_device(args.device)
     make_dir("--out-dir", args.out_dir)
     K_true = torch.tensor(DEMO_K, dtype=torch.float64)
@@ -47,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         os.path.join(args.out_dir, "ground_truth.json"),
         {
             "image_size": list(DEMO_IMAGE_SIZE), "K": K_true.tolist(),
-            "distortion": {"model": "opencv5", "coeffs": dist_true.tolist()},
+            "distortion": {"model": str(OPENCV5), "coeffs": dist_true.tolist()},
             "board": list(DEMO_BOARD), "square": DEMO_SQUARE,
             "views": [{"path": f, "corners": batch.corners[k].tolist(), "rvec": batch.rvec[k].tolist(),
                        "tvec": batch.tvec[k].tolist()} for k, f in enumerate(files)],
@@ -57,12 +61,11 @@ def run(args: argparse.Namespace) -> int:
     pipeline = make_pipeline(argparse.Namespace(detector=args.detector, batch_size=8, jobs="auto",
                                                  distortion_correction=args.distortion_correction, diagnostics=True))
     output = os.path.join(args.out_dir, "calib.json")
-    data, _ = calibrate_files("demo", files, DEMO_BOARD, DEMO_SQUARE, pipeline, device, "opencv5", args.detector)
+    data, _ = calibrate_files("demo", files, DEMO_BOARD, DEMO_SQUARE, pipeline, device, OPENCV5, args.detector)
     data["device"] = str(device)
     data["success"] = True
     data["timings"]["render_s"] = render_s
     write_json(output, data)
-    from ccs_kornia.outputs.report.calibration import write_report
 
     report_dir = os.path.join(args.out_dir, "report")
     make_dir("--out-dir", report_dir)

@@ -4,19 +4,17 @@ from __future__ import annotations
 
 import argparse
 
-from ccs_kornia.commands._common import (
-    NoResult,
-    UserError,
-    aprilgrid_record,
-    charuco_record,
-    check_output_file,
-    inputs,
-    make_pipeline,
-    not_found_message,
-    resolve_device,
-    run_files,
-)
+from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import make_pipeline
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._messages import not_found_message
+from ccs_kornia.commands._output_paths import check_output_file
+from ccs_kornia.commands._run import run_files
 from ccs_kornia.commands._video import add_timestamps, camera_videos, screening_note
+from ccs_kornia.io.files import write_json
+from ccs_kornia.outputs.records import correction_record, view_records
+from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["CORNER_DECIMALS", "run"]
 
@@ -37,9 +35,6 @@ def _image_record(view: dict) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ccs_kornia.io.files import write_json
-    from ccs_kornia.outputs.records import correction_record, view_records
-
     check_output_file("--output", args.output)
     device = resolve_device(args.device)
     video = camera_videos("detect", args)

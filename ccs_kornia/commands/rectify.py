@@ -11,7 +11,19 @@ import re
 import sys
 from typing import Any
 
-from ccs_kornia.commands._common import UserError, inputs, make_dir, parse_pair, warn
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._output_paths import make_dir
+from ccs_kornia.commands._printing import warn
+from ccs_kornia.commands._stereo_pair import parse_pair
+from ccs_kornia.io.images import read_image, write_image
+from ccs_kornia.outputs.rig_exports import rectification
+from ccs_kornia.outputs.rig_records import rectify_maps
+from ccs_kornia.pipeline.frame_matching import match_frames
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["read_rig", "run"]
 
@@ -74,15 +86,6 @@ def _check_order(files: list[list[str]], folders: tuple[str, str], pair: tuple[i
 
 
 def run(args: argparse.Namespace) -> int:
-    import cv2
-    import numpy as np
-    from tqdm import tqdm
-
-    from ccs_kornia.io.images import read_image, write_image
-    from ccs_kornia.outputs.rig_exports import rectification
-    from ccs_kornia.outputs.rig_records import rectify_maps
-    from ccs_kornia.pipeline.frame_matching import match_frames
-
     data = read_rig(args.calibration)
     i, j = parse_pair(args.pair, len(data["cameras"]))
     files = [inputs("rectify", [args.left]), inputs("rectify", [args.right])]

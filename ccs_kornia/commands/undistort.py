@@ -9,28 +9,38 @@ images are then resampled as ``cv2.undistort`` / ``cv2.fisheye.undistortImage`` 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from typing import Any
 
-from ccs_kornia.commands._common import (
-    UserError,
-    info,
-    inputs,
-    make_dir,
-    resolve_device,
-    warn,
+import torch
+from tqdm import tqdm
+
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._output_paths import make_dir
+from ccs_kornia.commands._printing import info, warn
+from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.io.images import read_image, write_image
+from ccs_kornia.modules.undistort.fisheye_warp import (
+    fisheye_undistort_image,
+    fisheye_valid_angle,
+    fisheye_view_camera_matrix,
 )
+from ccs_kornia.modules.undistort.opencv_warp import (
+    opencv_undistort_image,
+    opencv_valid_radius,
+    opencv_view_camera_matrix,
+)
+from ccs_kornia.modules.undistort.view_camera import horizontal_fov
+from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
+from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["run"]
 
 
 def _read_calibration(path: str, camera: str | None = None) -> tuple[Any, Any, tuple[int, int] | None, bool, list]:
-    import torch
-
-    from ccs_kornia.geometry.models.factory import camera_model
-    from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
-
     try:
         calib = read_calibration(path, camera)
     except RigFileError as err:
@@ -49,8 +59,6 @@ def _calibrated_corners(views: list) -> Any:
     They bound the valid field (beyond them the model is extrapolated); a calibration without views is framed by
     the monotonic range of its model within the image alone.
     """
-    import torch
-
     try:
         rows = [[float("nan") if c is None else float(c) for c in corner[:2]]
                 for view in views if isinstance(view, dict) and view.get("used") and view.get("corners")
@@ -64,12 +72,6 @@ def _calibrated_corners(views: list) -> Any:
 def _view_camera(K: Any, dist: Any, fisheye: bool, size: tuple[int, int], field: Any, args: argparse.Namespace) -> Any:
     """The undistorted view's camera for images of ``size`` (``--balance`` or ``--fov``), with a warning when
     ``--fov`` is clamped to the valid field and one line saying how the view is framed."""
-    import math
-
-    from ccs_kornia.modules.undistort.fisheye_warp import fisheye_view_camera_matrix
-    from ccs_kornia.modules.undistort.opencv_warp import opencv_view_camera_matrix
-    from ccs_kornia.modules.undistort.view_camera import horizontal_fov
-
     make = fisheye_view_camera_matrix if fisheye else opencv_view_camera_matrix
     balance, fov_asked = getattr(args, "balance", 0.0), getattr(args, "fov", None)
     try:
@@ -88,19 +90,6 @@ def _view_camera(K: Any, dist: Any, fisheye: bool, size: tuple[int, int], field:
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
-    from tqdm import tqdm
-
-    from ccs_kornia.io.images import read_image, write_image
-    from ccs_kornia.modules.undistort.fisheye_warp import (
-        fisheye_undistort_image,
-        fisheye_valid_angle,
-    )
-    from ccs_kornia.modules.undistort.opencv_warp import (
-        opencv_undistort_image,
-        opencv_valid_radius,
-    )
-
     K, dist, calib_size, fisheye, views = _read_calibration(args.calibration, getattr(args, "camera", None))
     device = resolve_device(args.device)
     files = inputs("undistort", args.images)

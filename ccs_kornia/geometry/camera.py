@@ -735,10 +735,28 @@ class Camera:
             out[idx] = model.visible(points[idx])
         return out
 
-    def distort(self, normalized: torch.Tensor, jacobians: bool = False):
-        """Normalized points :math:`(C, *, 2)` on the ``z = 1`` plane to pixels :math:`(C, *, 2)` (with ``jacobians``
-        also ``d pixel / d (x, y)`` :math:`(C, *, 2, 2)`). For a fisheye, ``(x, y) = tan(theta) (cos(phi), sin(phi))``."""
+    def distort(self, normalized: torch.Tensor, P: torch.Tensor | None = None, jacobians: bool = False):
+        """Normalized points :math:`(C, *, 2)` on the ``z = 1`` plane, or pixels of the pinhole camera ``P``
+        :math:`(C, 3, 3)` (zero skew; ``P = K``: the ideal pixels), to pixels :math:`(C, *, 2)` (with ``jacobians``
+        also ``d pixel / d input`` :math:`(C, *, 2, 2)`); the inverse of :meth:`undistort`. For a fisheye,
+        ``(x, y) = tan(theta) (cos(phi), sin(phi))``."""
+        if P is not None:
+            P = P.to(normalized.dtype).reshape(P.shape[0], *([1] * (normalized.dim() - 2)), 3, 3)
+            y = (normalized[..., 1] - P[..., 1, 2]) / P[..., 1, 1]
+            x = (normalized[..., 0] - P[..., 0, 2] - P[..., 0, 1] * y) / P[..., 0, 0]
+            res = self._map("distort", torch.stack([x, y], -1), jacobians, 2, (2, 2))
+            if not jacobians:
+                return res
+            return res[0], res[1] @ torch.linalg.inv(P[..., :2, :2])
         return self._map("distort", normalized, jacobians, 2, (2, 2))
+
+    def straight(self) -> torch.Tensor:
+        """:math:`(C,)` bool: the camera images straight lines straight (a pinhole, or OpenCV's model with every
+        coefficient zero): it has no lens distortion to remove."""
+        out = torch.zeros(len(self), dtype=torch.bool, device=self.device)
+        for model, idx in self._groups():
+            out[idx] = model.straight(self.params[idx, : model.num_params])
+        return out
 
     def undistort(self, pixels: torch.Tensor, P: torch.Tensor | None = None, jacobians: bool = False):
         """Pixels :math:`(C, *, 2)` to normalized points :math:`(C, *, 2)` (``cv2.undistortPoints``), or to pixels of

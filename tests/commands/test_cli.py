@@ -15,11 +15,12 @@ import torch
 from _real_data import REAL_DATA
 
 from ccs_kornia import cli
-from ccs_kornia.commands import _common
+from ccs_kornia.commands import _factories, _output_paths
 from ccs_kornia.commands import detect as detect_command
 from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.geometry.metrics import e_ip
 from ccs_kornia.io.images import write_image
+from ccs_kornia.runtime.errors import EXIT_NO_RESULT
 
 BOARD = (9, 6)
 K_TRUE = torch.tensor([[600.0, 0.0, 318.0], [0.0, 595.0, 244.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
@@ -138,7 +139,7 @@ def test_copies_of_one_photo_are_refused_with_their_file_names(rendered, tmp_pat
         copies.append(str(target))
     out = tmp_path / "c.json"
     code, _, err = run(capsys, "calibrate", *copies, "--board", "9x6", "--output", str(out), "--detector", "opencv")
-    assert code == _common.EXIT_NO_RESULT and not out.exists()
+    assert code == EXIT_NO_RESULT and not out.exists()
     assert_one_line_error(err, "copies of earlier views")
     assert "(files: copy1.png, copy2.png, copy3.png)" in err
 
@@ -279,12 +280,12 @@ def test_board_never_found(tmp_path, capsys):
     for k in range(3):
         cv2.imwrite(str(tmp_path / f"blank{k}.png"), np.full((120, 160), 128, np.uint8))
     code, _, err = run(capsys, "calibrate", str(tmp_path), "--board", "9x6", "--output", str(tmp_path / "c.json"))
-    assert code == _common.EXIT_NO_RESULT
+    assert code == EXIT_NO_RESULT
     assert_one_line_error(err, "board 9x6 not found in any of 3 images")
     assert not (tmp_path / "c.json").exists()
     # detect still writes what it found (nothing) and says so
     code, _, err = run(capsys, "detect", str(tmp_path), "--board", "9x6", "--output", str(tmp_path / "d.json"))
-    assert code == _common.EXIT_NO_RESULT
+    assert code == EXIT_NO_RESULT
     assert_one_line_error(err, "not found in any")
     assert [im["found"] for im in json.loads((tmp_path / "d.json").read_text())["images"]] == [False] * 3
 
@@ -293,14 +294,14 @@ def test_wrong_board_size_finds_nothing(rendered, tmp_path, capsys):
     # 8x6 on a 9x6 board: sub-boards are rejected, so the user learns the board size is wrong
     _, files, _ = rendered
     code, _, err = run(capsys, "calibrate", *files[:3], "--board", "8x6", "--output", str(tmp_path / "c.json"))
-    assert code == _common.EXIT_NO_RESULT
+    assert code == EXIT_NO_RESULT
     assert_one_line_error(err, "check --board")
 
 
 def test_fewer_than_three_views(rendered, tmp_path, capsys):
     _, files, _ = rendered
     code, _, err = run(capsys, "calibrate", *files[:2], "--board", "9x6", "--output", str(tmp_path / "c.json"))
-    assert code == _common.EXIT_NO_RESULT
+    assert code == EXIT_NO_RESULT
     assert_one_line_error(err, "at least 3 are needed")
     assert not (tmp_path / "c.json").exists()
 
@@ -560,7 +561,7 @@ def test_failures_keep_per_image_results(tmp_path, capsys):
         cv2.imwrite(str(tmp_path / f"blank{k}.png"), np.full((120, 160), 128, np.uint8))
     (tmp_path / "junk.png").write_bytes(b"junk")
     code, _, err = run(capsys, "calibrate", str(tmp_path), "--board", "9x6", "--output", str(tmp_path / "c.json"))
-    assert code == _common.EXIT_NO_RESULT
+    assert code == EXIT_NO_RESULT
     assert_one_line_error(err, "per-image results written to")
     assert not (tmp_path / "c.json").exists()
     failed = json.loads((tmp_path / "c.failed.json").read_text())
@@ -589,7 +590,7 @@ def test_every_view_rejected_by_ransac(rendered, tmp_path, capsys, monkeypatch):
     # (the solver stage forced here is the usual one: the corrected one is switched off)
     code, _, err = run(capsys, "calibrate", *files[:4], "--board", "9x6", "--output", str(out),
                        "--no-distortion-correction", "--model", "opencv5")
-    assert code == _common.EXIT_NO_RESULT
+    assert code == EXIT_NO_RESULT
     assert_one_line_error(err, "4 rejected by image RANSAC")
     assert not out.exists()
     failed = json.loads((tmp_path / "c.failed.json").read_text())
@@ -603,7 +604,7 @@ def test_unwritable_output_directory(rendered, tmp_path, capsys, monkeypatch):
     locked.mkdir()
     real_access = os.access
     # tests may run as root, for whom chmod does not block writes: simulate the permission check
-    monkeypatch.setattr(_common.os, "access", lambda p, mode: False if str(p) == str(locked) else real_access(p, mode))
+    monkeypatch.setattr(_output_paths.os, "access", lambda p, mode: False if str(p) == str(locked) else real_access(p, mode))
     code, _, err = run(capsys, "calibrate", *files, "--board", "9x6", "--output", str(locked / "c.json"))
     assert code == 2
     assert_one_line_error(err, "is not writable")
@@ -694,7 +695,7 @@ def test_calibrate_many_exit_status_says_what_the_file_holds(rendered, tmp_path,
     assert code == 0 and "nothing to do" in stdout and "2 calibrated, 1 failed" in stdout
     for _ in range(2):  # a file of failed sets only: status 3 whether this run wrote them or found them
         code, stdout, err = run(capsys, "calibrate-many", c, "--output", str(bad), *fast)
-        assert code == _common.EXIT_NO_RESULT and "holds 1 of the 1 sets: 0 calibrated, 1 failed" in stdout
+        assert code == EXIT_NO_RESULT and "holds 1 of the 1 sets: 0 calibrated, 1 failed" in stdout
         assert_one_line_error(err, "no set could be calibrated")
     assert len(bad.read_text().splitlines()) == 1
 
@@ -712,7 +713,7 @@ def test_calibrate_many_refuses_a_json_file_that_is_not_json_lines(rendered, tmp
     assert "--overwrite" in err and out.read_text() == before
     code, _, err = run(capsys, "calibrate-many", c, "--board", "9x6", "--output", str(out), "--overwrite",
                        "--detector", "opencv", "--no-distortion-correction")
-    assert code == _common.EXIT_NO_RESULT and "no set could be calibrated" in err  # replaced by JSON Lines (c fails: 2 views)
+    assert code == EXIT_NO_RESULT and "no set could be calibrated" in err  # replaced by JSON Lines (c fails: 2 views)
     assert [json.loads(line)["set"] for line in out.read_text().splitlines()] == [c]
 
 
@@ -749,9 +750,9 @@ def test_network_precision_option_reaches_the_learned_detector(capsys):
     assert args.network_precision == "float32"  # the default: the same corners on every machine
     args = parser.parse_args(["detect", "a.png", "--board", "9x6", "--output", "o.json", "--network-precision",
                               "bfloat16", "--no-distortion-correction"])
-    assert _common.make_pipeline(args).detector.precision == "bfloat16"
+    assert _factories.make_pipeline(args).detector.precision == "bfloat16"
     args.detector = "opencv"  # the option is the learned detector's; the OpenCV one ignores it
-    assert type(_common.make_pipeline(args).detector).__name__ == "OpenCVChessboardDetector"
+    assert type(_factories.make_pipeline(args).detector).__name__ == "OpenCVChessboardDetector"
     with pytest.raises(SystemExit):
         parser.parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json", "--network-precision", "int8"])
     assert "--network-precision" in capsys.readouterr().err
@@ -763,10 +764,10 @@ def test_jobs_option_sets_the_pipeline_workers(capsys):
     parser = cli.build_parser()
     args = parser.parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json", "--no-distortion-correction"])
     assert args.jobs == "auto" and args.batch_size == 8
-    assert _common.make_pipeline(args).workers == default_workers("cpu")
+    assert _factories.make_pipeline(args).workers == default_workers("cpu")
     args = parser.parse_args(["detect", "a.png", "--board", "9x6", "--output", "o.json", "--jobs", "3",
                               "--no-distortion-correction"])
-    assert _common.make_pipeline(args).workers == 3
+    assert _factories.make_pipeline(args).workers == 3
     for bad in ("0", "two"):
         with pytest.raises(SystemExit):
             parser.parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json", "--jobs", bad])

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from ccs_kornia import cli
-from ccs_kornia.commands import _common
 from ccs_kornia.data.scenes.marker_views import K, render_condition
 from ccs_kornia.modules.detection.boards import AprilGrid
+from ccs_kornia.runtime.errors import EXIT_OK, EXIT_USAGE
 
 GRID = AprilGrid(6, 6, 0.088, 0.3)
 YAML = "target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 6\ntagSize: 0.088\ntagSpacing: 0.3\n"
@@ -51,7 +51,7 @@ def test_detect_writes_kalibr_corner_ids(target, tmp_path, capsys):
     out = tmp_path / "corners.json"
     code, stdout, _ = run(capsys, "detect", str(folder / "images"), "--aprilgrid", str(folder / "april.yaml"),
                           "--jobs", "1", "--output", str(out))
-    assert code == _common.EXIT_OK
+    assert code == EXIT_OK
     assert "6x6 AprilGrid (144 tag corners) in 10 of 10 images" in stdout
     data = json.loads(out.read_text())
     assert data["board"] == [12, 12] and data["detector"] == "aprilgrid"
@@ -71,7 +71,7 @@ def test_calibrate_from_partial_views(target, tmp_path, capsys):
     code, stdout, _ = run(capsys, "calibrate", str(folder / "images"), "--aprilgrid", str(folder / "april.yaml"),
                           "--model", "opencv5", "--jobs", "1", "--no-distortion-correction", "--no-diagnostics",
                           "--output", str(out))
-    assert code == _common.EXIT_OK, stdout
+    assert code == EXIT_OK, stdout
     data = json.loads(out.read_text())
     assert data["aprilgrid"]["tagSize"] == 0.088
     assert abs(data["K"][0][0] - K[0, 0]) < 0.005 * K[0, 0]
@@ -92,7 +92,7 @@ def test_bad_target_file(tmp_path, capsys, text, expected):
     image = tmp_path / "a.png"
     cv2.imwrite(str(image), np.full((32, 32), 128, np.uint8))
     code, _, err = run(capsys, "detect", str(image), "--aprilgrid", str(path), "--output", str(tmp_path / "o.json"))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert expected in one_error_line(err)
     assert not (tmp_path / "o.json").exists()
 
@@ -101,7 +101,7 @@ def test_aprilgrid_with_charuco_options(target, tmp_path, capsys):
     folder, _ = target
     code, _, err = run(capsys, "detect", str(folder / "images"), "--aprilgrid", str(folder / "april.yaml"),
                        "--marker", "0.02", "--output", str(tmp_path / "o.json"))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert "describes a ChArUco board" in one_error_line(err)
 
 
@@ -109,7 +109,7 @@ def test_one_board_only(target, tmp_path, capsys):
     folder, _ = target
     code, _, err = run(capsys, "detect", str(folder / "images"), "--aprilgrid", str(folder / "april.yaml"),
                        "--board", "9x6", "--output", str(tmp_path / "o.json"))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert "not allowed with argument" in one_error_line(err)
 
 
@@ -118,7 +118,7 @@ def test_calibrate_many_takes_aprilgrid(target, tmp_path, capsys):
     out = tmp_path / "many.jsonl"
     code, stdout, _ = run(capsys, "calibrate-many", str(folder / "images"), "--aprilgrid", str(folder / "april.yaml"),
                           "--model", "opencv5", "--output", str(out))
-    assert code == _common.EXIT_OK, stdout
+    assert code == EXIT_OK, stdout
     (line,) = [json.loads(x) for x in out.read_text().splitlines()]
     assert line["success"] and line["detector"] == "aprilgrid" and line["aprilgrid"]["tagRows"] == 6
     assert abs(line["K"][0][0] - K[0, 0]) < 0.005 * K[0, 0]
@@ -126,7 +126,7 @@ def test_calibrate_many_takes_aprilgrid(target, tmp_path, capsys):
 
 def test_calibrate_many_needs_a_board(tmp_path, capsys):
     code, _, err = run(capsys, "calibrate-many", str(tmp_path), "--output", str(tmp_path / "m.jsonl"))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert "--board COLSxROWS" in one_error_line(err) and "--aprilgrid TARGET_YAML" in one_error_line(err)
 
 
@@ -152,7 +152,7 @@ def test_calibrate_rig_takes_aprilgrid(tmp_path, capsys):
     out = tmp_path / "rig.json"
     code, _, err = run(capsys, "calibrate-rig", str(tmp_path / "cam0"), str(tmp_path / "cam1"), "--aprilgrid",
                        str(tmp_path / "april.yaml"), "--model", "opencv5", "--output", str(out))
-    assert code == _common.EXIT_OK, err
+    assert code == EXIT_OK, err
     data = json.loads(out.read_text())
     assert data["aprilgrid"]["tagCols"] == 6 and data["detector"] == "aprilgrid"
     t = np.array(data["extrinsics"][1]["T"], dtype=float)

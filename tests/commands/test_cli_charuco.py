@@ -12,8 +12,8 @@ from _charuco_views import POSES, K, render_view
 from _real_data import REAL_DATA
 
 from ccs_kornia import cli
-from ccs_kornia.commands import _common
 from ccs_kornia.modules.detection.boards import CharucoBoard
+from ccs_kornia.runtime.errors import EXIT_OK, EXIT_USAGE
 
 BOARD = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250")
 CHARUCO = ["--charuco", "5x7", "--dictionary", "DICT_6X6_250", "--square", "0.04", "--marker", "0.02", "--jobs", "1"]
@@ -50,7 +50,7 @@ def test_detect_writes_one_entry_per_corner_id(views, tmp_path, capsys):
     folder, truth = views
     out = tmp_path / "corners.json"
     code, stdout, _ = run(capsys, "detect", str(folder / "plain"), str(folder / "back"), *CHARUCO, "--output", str(out))
-    assert code == _common.EXIT_OK
+    assert code == EXIT_OK
     assert "5x7 ChArUco board (4x6 inner corners) in 8 of 8 images" in stdout
     data = json.loads(out.read_text())
     assert data["board"] == [4, 6] and data["detector"] == "charuco"
@@ -70,7 +70,7 @@ def test_calibrate_rendered_views(views, tmp_path, capsys):
     out = tmp_path / "camera.json"
     code, stdout, err = run(capsys, "calibrate", str(folder / "plain"), *CHARUCO, "--model", "opencv5",
                             "--no-diagnostics", "--output", str(out))
-    assert code == _common.EXIT_OK, err
+    assert code == EXIT_OK, err
     data = json.loads(out.read_text())
     assert data["charuco"]["marker"] == 0.02
     fx, fy = data["K"][0][0], data["K"][1][1]
@@ -83,7 +83,7 @@ def test_wrong_dictionary_is_named(views, tmp_path, capsys):
     args = [a if a != "DICT_6X6_250" else "DICT_4X4_250" for a in CHARUCO]
     out = tmp_path / "camera.json"
     code, _, err = run(capsys, "calibrate", str(folder / "plain"), *args, "--output", str(out))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert one_error_line(err).endswith(
         "no DICT_4X4_250 marker in any image; DICT_6X6_250 markers in 4 of them: wrong --dictionary?")
     assert not out.exists()
@@ -100,7 +100,7 @@ def test_wrong_dictionary_is_named(views, tmp_path, capsys):
 ])
 def test_bad_charuco_arguments(tmp_path, capsys, argv, phrase):
     code, _, err = run(capsys, "calibrate", str(tmp_path), *argv, "--output", str(tmp_path / "c.json"))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert phrase in one_error_line(err)
 
 
@@ -117,7 +117,7 @@ def test_real_caliscope_cameras_calibrate(tmp_path, capsys):
         code, _, err = run(capsys, "calibrate", str(folder / f"cam_{camera}"), "--charuco", "4x5", "--dictionary",
                            "DICT_4X4_1000", "--square", "0.054", "--marker", "0.0405", "--model", "opencv5",
                            "--no-diagnostics", "--jobs", "1", "--output", str(out))
-        assert code == _common.EXIT_OK, err
+        assert code == EXIT_OK, err
         fx = json.loads(out.read_text())["K"][0][0]
         ref = reference[str(camera)]["matrix"][0][0]
         print(f"\ncam_{camera}: fx {fx:.1f}, caliscope's {ref:.1f}")
@@ -127,7 +127,7 @@ def test_real_caliscope_cameras_calibrate(tmp_path, capsys):
 @pytest.mark.parametrize("command", ["detect", "calibrate-rig", "calibrate-many"])
 def test_every_board_command_takes_charuco(tmp_path, capsys, command):
     code, _, err = run(capsys, command, str(tmp_path), "--charuco", "5x7", "--output", str(tmp_path / "c.json"))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert "--charuco needs --marker" in one_error_line(err)
 
 
@@ -137,7 +137,7 @@ def test_wrong_square_count_is_named(views, tmp_path, capsys, squares):
     args = [a if a != "5x7" else squares for a in CHARUCO]
     out = tmp_path / "camera.json"
     code, _, err = run(capsys, "calibrate", str(folder / "plain"), *args, "--output", str(out))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert "the DICT_6X6_250 markers fit a 5x7 board" in one_error_line(err)
     assert f"not {squares}" in one_error_line(err) and "wrong --charuco?" in one_error_line(err)
     assert not out.exists()
@@ -152,7 +152,7 @@ def test_plain_chessboard_given_as_charuco(tmp_path, capsys):
         cv2.imwrite(str(tmp_path / f"chess_{k}.png"), np.roll(image, 20 * k, axis=1))
     out = tmp_path / "camera.json"
     code, _, err = run(capsys, "calibrate", str(tmp_path), *CHARUCO, "--output", str(out))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     line = one_error_line(err)
     assert "no DICT_6X6_250 marker in any image" in line and "is it a ChArUco board?" in line
     assert "--board" not in line

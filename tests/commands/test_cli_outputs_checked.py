@@ -8,12 +8,11 @@ import json
 import numpy as np
 import pytest
 
-import ccs_kornia.data.scenes.scenes
-import ccs_kornia.io.images
 from ccs_kornia import cli
-from ccs_kornia.commands import _common
+from ccs_kornia.commands import demo, rectify, undistort
 from ccs_kornia.io.images import write_image
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+from ccs_kornia.runtime.errors import EXIT_USAGE
 
 #: a folder where no file can be created although it exists (root may "access" /proc for writing)
 NOWHERE = "/proc"
@@ -60,15 +59,16 @@ def _commands(root) -> list[tuple[list[str], str]]:
 def test_every_output_is_checked_before_any_work(folders, capsys, monkeypatch, case):
     argv, option = _commands(folders)[case]
     monkeypatch.setattr(CalibrationPipeline, "run", _no_work)
-    monkeypatch.setattr(ccs_kornia.data.scenes.scenes, "make_calibration_set", _no_work)
-    monkeypatch.setattr(ccs_kornia.io.images, "read_image", _no_work)
+    monkeypatch.setattr(demo, "make_calibration_set", _no_work)
+    for command in (undistort, rectify):
+        monkeypatch.setattr(command, "read_image", _no_work)
     calib = {"K": [[100.0, 0, 32], [0, 100, 24], [0, 0, 1]], "distortion": {"model": "k1k2", "coeffs": [0.0] * 5},
              "image_size": [64, 48]}
     (folders / "calib.json").write_text(json.dumps(calib))
     code = cli.main(argv)
     err = capsys.readouterr().err
     errors = [line for line in err.splitlines() if "error" in line]
-    assert code == _common.EXIT_USAGE, err
+    assert code == EXIT_USAGE, err
     assert len(errors) == 1 and option in errors[0] and "internal error" not in err, err
     assert not (folders / "out.json").exists()
 

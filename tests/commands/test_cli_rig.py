@@ -19,6 +19,7 @@ from _real_data import REAL_DATA
 from _rig_images import ANGLE_DEG, T_REL, render_stereo, write_stereo
 
 from ccs_kornia import cli
+from ccs_kornia.commands import calibrate_rig
 from ccs_kornia.io.images import write_image
 from ccs_kornia.runtime.errors import UserError
 
@@ -216,9 +217,7 @@ def test_wrong_board_is_named_early(stereo, tmp_path, capsys):
 
 
 def test_a_folder_of_non_images_is_said_first(stereo, tmp_path, capsys, monkeypatch):
-    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
-
-    monkeypatch.setattr(rig_pipeline, "RigPipeline", _no_work)
+    monkeypatch.setattr(calibrate_rig, "RigPipeline", _no_work)
     left, _ = write_stereo(stereo, tmp_path)
     junk = tmp_path / "junk"
     junk.mkdir()
@@ -261,9 +260,7 @@ def test_rectify_refuses_swapped_folders(rig_run, tmp_path, capsys):
 
 
 def test_the_same_camera_twice_is_refused(stereo, tmp_path, capsys, monkeypatch):
-    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
-
-    monkeypatch.setattr(rig_pipeline, "RigPipeline", _no_work)
+    monkeypatch.setattr(calibrate_rig, "RigPipeline", _no_work)
     left, _ = write_stereo(stereo, tmp_path)
     code, _, err = run(capsys, "calibrate-rig", left, left, *FAST, "--output", tmp_path / "rig.json")
     assert_one_line_error(code, err, "cameras cam0 and cam1", "the same images")
@@ -302,9 +299,7 @@ def test_three_cameras(tmp_path, capsys):
 
 
 def test_stereo_files_of_a_larger_rig_need_the_pair(tmp_path, capsys, monkeypatch):
-    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
-
-    monkeypatch.setattr(rig_pipeline, "RigPipeline", _no_work)
+    monkeypatch.setattr(calibrate_rig, "RigPipeline", _no_work)
     for name in ("a", "b", "c"):
         (tmp_path / name).mkdir()
         assert write_image(tmp_path / name / f"{name}01.png", np.full((48, 64), float(ord(name)) / 255, np.float32))
@@ -383,15 +378,13 @@ def test_bad_options_stop_before_any_work(tmp_path, capsys, extra, phrase):
 def test_kalibr_with_auto_leaves_rational_out_of_the_candidates(tmp_path, capsys, monkeypatch):
     """Kalibr has no rational model: with --model auto the run chooses among the others (and says so) instead of
     stopping after all the work."""
-    import ccs_kornia.pipeline.rig_pipeline as rig_pipeline
-
     seen = {}
 
     def fake(detector, models, fixed, **options):
         seen.update(options, models=models)
         raise UserError("stopped before the work")
 
-    monkeypatch.setattr(rig_pipeline, "RigPipeline", fake)
+    monkeypatch.setattr(calibrate_rig, "RigPipeline", fake)
     for name in ("a", "b"):
         (tmp_path / name).mkdir()
         assert write_image(tmp_path / name / f"{name}01.png", np.full((48, 64), float(ord(name)) / 255, np.float32))

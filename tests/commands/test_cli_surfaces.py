@@ -17,12 +17,12 @@ from test_cli import assert_one_line_error, rendered, run  # noqa: F401 (``rende
 
 import ccs_kornia
 from ccs_kornia import cli
-from ccs_kornia.commands import _common
+from ccs_kornia.commands import _output_paths, _wrong_board
 from ccs_kornia.commands import calibrate as calibrate_command
 from ccs_kornia.io.files import write_json
 from ccs_kornia.io.images import expand_inputs, natural_key, write_image
-from ccs_kornia.modules.detection.checks import board_size
 from ccs_kornia.outputs.calibration_file import read_calibration
+from ccs_kornia.runtime.errors import EXIT_NO_RESULT, EXIT_OK, EXIT_USAGE
 
 
 def _no_work(*args, **kwargs):
@@ -43,16 +43,16 @@ def test_unwritable_output_is_refused_before_the_work(rendered, tmp_path, capsys
     monkeypatch.setattr(calibrate_command, "make_pipeline", _no_work)
     # a folder where no file can be created although it exists (root may "access" /proc for writing)
     code, _, err = run(capsys, "calibrate", str(folder), "--board", "9x6", "--output", "/proc/c.json")
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert_one_line_error(err, "--output /proc/c.json")
     assert "internal error" not in err
     # an existing file that is not writable (simulated: chmod does not stop root)
     locked = tmp_path / "c.json"
     locked.write_text("{}")
     real_access = os.access
-    monkeypatch.setattr(_common.os, "access", lambda p, mode: False if str(p) == str(locked) else real_access(p, mode))
+    monkeypatch.setattr(_output_paths.os, "access", lambda p, mode: False if str(p) == str(locked) else real_access(p, mode))
     code, _, err = run(capsys, "calibrate", str(folder), "--board", "9x6", "--output", str(locked))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert_one_line_error(err, "the existing file is not writable")
 
 
@@ -62,7 +62,7 @@ def test_failed_run_says_it_left_the_earlier_calibration(rendered, tmp_path, cap
     out.write_text('{"earlier": true}\n')
     code, _, err = run(capsys, "calibrate", *files[:2], "--board", "9x6", "--output", str(out),
                        "--report", str(report), *_fast())
-    assert code == _common.EXIT_NO_RESULT
+    assert code == EXIT_NO_RESULT
     assert_one_line_error(err, "the existing c.json was left as it was (not from this run)")
     assert json.loads(out.read_text()) == {"earlier": True}
     assert (tmp_path / "c.failed.json").is_file()
@@ -127,11 +127,11 @@ def test_board_larger_than_given_is_said_on_the_console(rendered, tmp_path, caps
         return out
 
     monkeypatch.setattr(LearnedChessboardDetector, "forward", refused)
-    monkeypatch.setattr(board_size, "board_size_in", lambda image: None)  # no early stop: the whole run's hint
+    monkeypatch.setattr(_wrong_board, "board_size_in", lambda image: None)  # no early stop: the whole run's hint
     _, files, _ = rendered
     code, _, err = run(capsys, "calibrate", *files[:3], "--board", "8x6", "--output", str(tmp_path / "c.json"),
                        *_fast())
-    assert code == _common.EXIT_NO_RESULT
+    assert code == EXIT_NO_RESULT
     lines = [line for line in err.splitlines() if "looks larger" in line]
     assert lines == ["ccs_kornia calibrate: warning: the board looks larger than 8x6 in 3 images: check --board "
                      "(COLSxROWS counts inner corners, where four squares meet)"]
@@ -142,10 +142,10 @@ def test_board_larger_on_a_real_set(tmp_path, capsys, monkeypatch):
     folder = REAL_DATA / "opencv_left"
     if not folder.is_dir():
         pytest.skip(f"real data set not present at {folder}")
-    monkeypatch.setattr(board_size, "board_size_in", lambda image: None)  # every view looked at (no early stop)
+    monkeypatch.setattr(_wrong_board, "board_size_in", lambda image: None)  # every view looked at (no early stop)
     code, _, err = run(capsys, "calibrate", str(folder), "--board", "8x6", "--output", str(tmp_path / "c.json"),
                        "--jobs", "1", "--no-diagnostics")
-    assert code == _common.EXIT_NO_RESULT
+    assert code == EXIT_NO_RESULT
     assert "warning: the board looks larger than 8x6 in " in err and "cover" not in err
     failed = json.loads((tmp_path / "c.failed.json").read_text())
     # a 9x6 board: no view is taken for 8x6 (left14's sub-board was once, the network missing its ninth column)
@@ -178,14 +178,14 @@ def test_wrong_board_is_named_after_the_first_views(rendered, tmp_path, capsys, 
     out = tmp_path / "c.json"
     code, _, err = run(capsys, "calibrate", str(folder), "--board", "10x7", "--output", str(out), "--batch-size", "2",
                        *_fast("--detector", "opencv"))
-    assert code == _common.EXIT_NO_RESULT  # as when the whole run finds no board
+    assert code == EXIT_NO_RESULT  # as when the whole run finds no board
     assert_one_line_error(err, "board 10x7 not found in the first 6 images, but a 9x6 board is in 6 of them: check "
                                "--board")
     assert sorted(seen) == list(range(6))  # the other six views were never detected
     assert not out.exists() and not (tmp_path / "c.failed.json").exists()
     code, _, err = run(capsys, "detect", str(folder), "--board", "7x10", "--output", str(out), "--batch-size", "4",
                        "--jobs", "1", "--detector", "opencv", "--no-distortion-correction")
-    assert code == _common.EXIT_NO_RESULT  # said the way round the board was given
+    assert code == EXIT_NO_RESULT  # said the way round the board was given
     assert_one_line_error(err, "board 7x10 not found in the first 6 images, but a 6x9 board is in 6 of them")
     assert not out.exists()
 
@@ -216,7 +216,7 @@ def test_allow_weak_calibrates_near_parallel_views_as_not_reliable(tmp_path, cap
     board = ("--charuco", "5x7", "--square", "0.04", "--marker", "0.02", "--jobs", "1")
     out = tmp_path / "c.json"
     code, _, err = run(capsys, "calibrate", *views, *board, "--output", str(out))
-    assert code == _common.EXIT_NO_RESULT
+    assert code == EXIT_NO_RESULT
     assert_one_line_error(err, "nearly parallel")
     assert "--allow-weak calibrates anyway (verdict not reliable)" in err
     code, stdout, err = run(capsys, "calibrate", *views, *board, "--output", str(out), "--allow-weak")
@@ -240,7 +240,7 @@ def test_allow_weak_without_diagnostics_still_says_not_reliable(tmp_path, capsys
     argv = ("calibrate", str(tmp_path), "--board", "7x5", "--output", str(tmp_path / "c.json"), "--jobs", "1",
             "--detector", "opencv", "--no-distortion-correction", "--model", "k1k2", "--no-diagnostics")
     code, _, err = run(capsys, *argv)
-    assert code == _common.EXIT_NO_RESULT and "--allow-weak calibrates anyway" in err
+    assert code == EXIT_NO_RESULT and "--allow-weak calibrates anyway" in err
     code, stdout, err = run(capsys, *argv, "--allow-weak")
     assert code == 0, err
     assert "verdict: not reliable: " in stdout and "1-sigma of the intrinsics (px): fx" in stdout
@@ -248,17 +248,17 @@ def test_allow_weak_without_diagnostics_still_says_not_reliable(tmp_path, capsys
 
 def test_version(capsys):
     code, out, _ = run(capsys, "--version")
-    assert code == _common.EXIT_OK and out.strip() == f"ccs_kornia {ccs_kornia.__version__}"
+    assert code == EXIT_OK and out.strip() == f"ccs_kornia {ccs_kornia.__version__}"
 
 
 def test_unknown_option_is_named(tmp_path, capsys):
     code, _, err = run(capsys, "calibrate", str(tmp_path), "--bord", "9x6", "--output", str(tmp_path / "c.json"))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert_one_line_error(err, "unrecognized option --bord (did you mean --board?)")
     assert "required" not in err
     # values that look like options are not taken for unknown ones; a missing option is still reported as such
     code, _, err = run(capsys, "calibrate", str(tmp_path), "--seed", "-1", "--output", str(tmp_path / "c.json"))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert_one_line_error(err, "the following arguments are required: --board")
 
 
@@ -267,7 +267,7 @@ def test_exit_statuses_are_listed_in_the_help(capsys):
     assert code == 0
     listed = {int(line.split()[0]) for line in out.split("exit status:")[1].splitlines() if line.strip()}
     assert listed == {code for code, _ in cli.EXIT_CODES}
-    assert len(listed) == len(cli.EXIT_CODES) and _common.EXIT_USAGE != _common.EXIT_NO_RESULT
+    assert len(listed) == len(cli.EXIT_CODES) and EXIT_USAGE != EXIT_NO_RESULT
 
 
 def test_undistort_refuses_a_failed_calibration(rendered, tmp_path, capsys):
@@ -276,7 +276,7 @@ def test_undistort_refuses_a_failed_calibration(rendered, tmp_path, capsys):
     write_json(failed, {"success": False, "K": None, "distortion": None, "image_size": [640, 480],
                         "error": "board 9x6 not found in any of 3 images"})
     code, _, err = run(capsys, "undistort", files[0], "--calibration", str(failed), "--out-dir", str(tmp_path / "o"))
-    assert code == _common.EXIT_USAGE
+    assert code == EXIT_USAGE
     assert_one_line_error(err, "this is a failed calibration: board 9x6 not found")
     assert "TypeError" not in err and not (tmp_path / "o").exists()
 

@@ -74,6 +74,11 @@ class CameraModel:
         """A fisheye model (``cv2.fisheye``'s functions; angles at and beyond 90 degrees project)."""
         return False
 
+    def straight(self, params: torch.Tensor) -> torch.Tensor:
+        """:math:`(C,)` bool: with these parameters :math:`(C, P)` the model images straight lines straight (its
+        distortion terms all zero); a model whose projection is not a pinhole's at any coefficients overrides it."""
+        return (params[:, 4:] == 0).all(-1)
+
     def visible(self, points: torch.Tensor) -> torch.Tensor:
         """Which camera-frame points :math:`(*, 3)` the model images, :math:`(*)` bool: a pinhole projection only
         those in front of the camera (a fisheye model overrides it: it sees beyond 90 degrees)."""

@@ -48,6 +48,10 @@ class KannalaBrandtModel(CameraModel):
         """Yes: ``cv2.fisheye``'s model."""
         return True
 
+    def straight(self, params: torch.Tensor) -> torch.Tensor:
+        """Never: even without coefficients the equidistant projection bends straight lines."""
+        return torch.zeros(params.shape[0], dtype=torch.bool, device=params.device)
+
     def visible(self, points: torch.Tensor) -> torch.Tensor:
         """Every direction (``theta = atan2(r, z)`` reaches beyond 90 degrees)."""
         return torch.ones_like(points[..., 2], dtype=torch.bool)

@@ -18,6 +18,9 @@ right, ``y`` down, ``z`` into the print (a chessboard's axes), so every solver t
 
 A corner moved more than :data:`MAX_SHIFT_BITS` bits from OpenCV's, or a side with too few edge points, leaves the
 tag not found in that image (with the reason).
+
+:class:`AprilTagDetector` is the same with the chessboard detectors' interface, the camera's lens given as the camera
+itself: the calibration pipeline runs it on its sources, in its batches and worker processes.
 """
 
 from __future__ import annotations
@@ -29,10 +32,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import torch
-from torch import nn
 
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.modules._checks import check_grey_images
-from ccs_kornia.modules.detection.base import DetectionResult
+from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.boards import aruco_dictionary
 
 __all__ = ["APRILTAG_FAMILIES", "MAX_SHIFT_BITS", "SEARCH_BITS", "AprilTagDetector", "AprilTagTarget",
@@ -278,17 +281,61 @@ def detect_apriltag(
     return DetectionResult(corners, found, reasons)
 
 
-class AprilTagDetector(nn.Module):
-    """Module form of :func:`detect_apriltag` for one :class:`AprilTagTarget`.
+def _lens_maps(camera: Camera):
+    """Pixel maps of the camera's lens (distorted -> ideal pixels and back) for the tag's straight sides; ``None``
+    for a lens without distortion."""
+    cam = camera.to("cpu", torch.float64)
+    if bool(cam.straight()[0]):
+        return None, None
+
+    def undistort(pts: np.ndarray) -> np.ndarray:
+        return cam.undistort(torch.from_numpy(np.asarray(pts, dtype=np.float64))[None], P=cam.K)[0].numpy()
+
+    def distort(pts: np.ndarray) -> np.ndarray:
+        return cam.distort(torch.from_numpy(np.asarray(pts, dtype=np.float64))[None], P=cam.K)[0].numpy()
+
+    return undistort, distort
+
+
+class AprilTagDetector(ChessboardDetector):
+    """The single tag with the chessboard detectors' interface, so that the calibration pipeline drives it (its
+    sources, batches and worker processes, ``calibrate=False``: a single tag does not calibrate a camera):
+    ``board_size`` is the target's ``(2, 2)``.
+
+    Each image is detected alone (:func:`detect_apriltag` on it): without the target's id every image gives its own
+    tag, whatever the batches. It decodes and refines at full resolution (``selects_scale``: the pipeline does not
+    downscale its images).
+
+    Args:
+        target: the :class:`AprilTagTarget` (its :attr:`board`).
+        camera: the camera whose lens straightens the tag's sides (its pixel maps, :func:`refine_tag_corners`);
+            ``None``: the sides are fitted on the image as it is.
 
     Example:
-        >>> AprilTagDetector(AprilTagTarget("36h11", 0.048)).target.dictionary
-        'DICT_APRILTAG_36h11'
+        >>> det = AprilTagDetector(AprilTagTarget("36h11", 0.048))
+        >>> det.target.dictionary, det(torch.zeros(2, 1, 64, 64)).found.tolist()
+        ('DICT_APRILTAG_36h11', [False, False])
     """
 
-    def __init__(self, target: AprilTagTarget) -> None:
+    selects_scale = True
+
+    def __init__(self, target: AprilTagTarget, camera: Camera | None = None) -> None:
         super().__init__()
         self.target = target
+        self.camera = camera
 
-    def forward(self, images: torch.Tensor, undistort=None, distort=None) -> DetectionResult:
-        return detect_apriltag(images, self.target, undistort, distort)
+    @property
+    def board(self) -> AprilTagTarget:
+        """The target."""
+        return self.target
+
+    def forward(self, images: torch.Tensor, board_size: tuple[int, int] | None = None) -> DetectionResult:
+        board_size = self._check_inputs(images, self.target.board_size if board_size is None else board_size)
+        if board_size != self.target.board_size:
+            raise ValueError(f"board_size {board_size} is not a single tag's corner grid {self.target.board_size}.")
+        undistort, distort = (None, None) if self.camera is None else _lens_maps(self.camera)
+        if images.shape[0] < 2:
+            return detect_apriltag(images, self.target, undistort, distort)
+        each = [detect_apriltag(images[b:b + 1], self.target, undistort, distort) for b in range(images.shape[0])]
+        return DetectionResult(torch.cat([d.corners for d in each]), torch.cat([d.found for d in each]),
+                               [r for d in each for r in d.reasons])

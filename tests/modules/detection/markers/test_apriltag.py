@@ -17,6 +17,9 @@ from ccs_kornia.modules.detection.markers.apriltag import (
     detect_apriltag,
     refine_tag_corners,
 )
+from ccs_kornia.modules.rig.rig_camera import RigCamera
+from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
+from ccs_kornia.pipeline.sources import TensorSource
 
 K = np.array([[600.0, 0.0, 320.0], [0.0, 600.0, 240.0], [0.0, 0.0, 1.0]])
 
@@ -91,6 +94,27 @@ def test_the_tag_by_id_and_the_reasons():
     assert det.found.tolist() == [False, False] and "id 8 not found (tags [7] seen)" in det.reasons[0]
     det = detect_apriltag(_batch([img, blank]), AprilTagTarget("36h11", 0.05))  # the id found in most images
     assert det.found.tolist() == [True, False] and det.reasons[0] == "apriltag 36h11 id 7"
+
+
+def test_the_detector_follows_the_camera_and_takes_each_image_alone():
+    dist = np.array([-0.35, 0.12, 0.0, 0.0, 0.0])
+    views = _views(AprilTagTarget("36h11", 0.06, tag_id=2), 2, seed=2, dist=dist) + \
+        _views(AprilTagTarget("36h11", 0.06, tag_id=5), 1, seed=4, dist=dist)
+    images = _batch([v[0] for v in views])
+    camera = RigCamera("opencv5", torch.from_numpy(K), torch.from_numpy(dist))
+    target = AprilTagTarget("36h11", 0.06)  # no id: each image's own tag
+    det = AprilTagDetector(target, camera)(images, (2, 2))
+    assert det.found.tolist() == [True, True, True] and det.reasons[2] == "apriltag 36h11 id 5"
+    err = np.concatenate([np.linalg.norm(det.corners[k].numpy() - t, axis=-1) for k, (_, t) in enumerate(views)])
+    assert err.mean() < 0.1
+    # the whole batch at once keeps the id found in most of its images
+    assert detect_apriltag(images, target).found.tolist() == [True, True, False]
+    # the pipeline drives it: the same corners in batches of two, in two worker processes
+    pipe = CalibrationPipeline(AprilTagDetector(target, camera), detection_batch_size=2, workers=2,
+                               distortion_correction=False, weigh_corners=False)
+    out = pipe.run(TensorSource(images[None]), (2, 2), calibrate=False).select(0)
+    assert torch.equal(out.detections.found, det.found)
+    assert torch.equal(out.detections.corners, det.corners) and out.detections.reasons == det.reasons
 
 
 def test_a_side_without_an_edge_is_refused():

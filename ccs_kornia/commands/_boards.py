@@ -1,0 +1,77 @@
+"""The board a command is given (``--board``, ``--charuco``, ``--aprilgrid``): checked and described once, and
+recorded in the JSON files as the user gave it."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard
+from ccs_kornia.runtime.errors import UserError
+
+__all__ = ["aprilgrid_record", "charuco_record", "resolve_board"]
+
+
+def resolve_board(args: argparse.Namespace) -> None:
+    """The board of a command with ``--board`` or ``--charuco``: ``args.board`` becomes the inner-corner grid either
+    way, ``args.charuco_board`` the :class:`~ccs_kornia.modules.detection.boards.CharucoBoard` (or ``None``) and
+    ``args.detector`` ``"charuco"`` for a ChArUco board."""
+    if not hasattr(args, "charuco"):
+        return
+    args.charuco_board = None
+    args.aprilgrid_board = None
+    if getattr(args, "aprilgrid", None) is not None:
+        if args.marker is not None or args.legacy is not None:
+            raise UserError(f"--{'marker' if args.marker is not None else 'legacy'} describes a ChArUco board, not "
+                            "an --aprilgrid")
+
+        try:
+            grid = AprilGrid.from_yaml(args.aprilgrid)
+        except OSError as err:
+            raise UserError(f"--aprilgrid: cannot read {args.aprilgrid}: {err.strerror or err}") from None
+        except ValueError as err:
+            raise UserError(f"--aprilgrid: {err}") from None
+        except Exception as err:  # a malformed YAML file
+            raise UserError(f"--aprilgrid: {args.aprilgrid} is not a readable YAML file "
+                            f"({str(err).splitlines()[0]})") from None
+        args.aprilgrid_board, args.board, args.detector = grid, grid.board_size, "aprilgrid"
+        args.square = grid.tag_size  # the world unit is tagSize's
+        return
+    if args.charuco is None:
+        if args.marker is not None or args.legacy is not None:
+            raise UserError(f"--{'marker' if args.marker is not None else 'legacy'} describes a ChArUco board: give "
+                            "--charuco SXxSY too")
+        return
+    if args.marker is None:
+        raise UserError("--charuco needs --marker: the marker side, in the unit of --square (e.g. --square 0.04 "
+                        "--marker 0.02)")
+
+    try:
+        board = CharucoBoard(args.charuco[0], args.charuco[1], args.square, args.marker, args.dictionary, args.legacy)
+    except ValueError as err:
+        raise UserError(f"--charuco: {err}") from None
+    args.charuco_board, args.board, args.detector = board, board.board_size, "charuco"
+
+
+def charuco_record(args: argparse.Namespace) -> dict[str, Any] | None:
+    """The ChArUco board of the command (``None`` for a chessboard) as the JSON files give it: OpenCV's squares,
+    sides, dictionary and layout (``legacy`` null: found on each image)."""
+    board = getattr(args, "charuco_board", None)
+    if board is None:
+        return None
+    return {"squares": [board.squares_x, board.squares_y], "square": board.square, "marker": board.marker,
+            "dictionary": board.dictionary, "legacy": board.legacy,
+            "corner_ids": "id = row * (squares_x - 1) + col, object point ((col + 1) * square, (row + 1) * square, 0)"}
+
+
+def aprilgrid_record(args: argparse.Namespace) -> dict[str, Any] | None:
+    """The AprilGrid of the command (``None`` for other boards) as the JSON files give it: Kalibr's target keys and
+    its corner numbering."""
+    grid = getattr(args, "aprilgrid_board", None)
+    if grid is None:
+        return None
+    return {"target_type": "aprilgrid", "tagCols": grid.tag_cols, "tagRows": grid.tag_rows, "tagSize": grid.tag_size,
+            "tagSpacing": grid.tag_spacing, "dictionary": grid.dictionary,
+            "corner_ids": "Kalibr's: tag t has corners base, base + 1, base + cols + 1, base + cols (bottom left, "
+                          "bottom right, top right, top left; y up), cols = 2 * tagCols, "
+                          "base = (t // tagCols) * 2 * cols + (t % tagCols) * 2"}
