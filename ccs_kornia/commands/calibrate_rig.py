@@ -391,7 +391,7 @@ def _moved(cam: dict[str, Any]) -> str:
     if not moved:
         return ""
 
-    coeffs = camera_from_record(cam).model.param_names[4:]
+    coeffs = camera_from_record(cam, need_size=False).model.param_names[4:]
     items = [(k, moved[k]) for k in ("fx", "fy", "cx", "cy")] + list(zip(coeffs, moved["distortion"]))
     name, value = max(((k, abs(v)) for k, v in items if v is not None), key=lambda kv: kv[1], default=(None, 0.0))
     return f", moved up to {value:.1f} sigma ({name}) from its own calibration" if name else ""

@@ -19,6 +19,8 @@ from _real_data import REAL_DATA
 from _rig_images import ANGLE_DEG, T_REL, render_stereo, write_stereo
 
 from ccs_kornia import cli
+from ccs_kornia.geometry.models import RATIONAL
+from ccs_kornia.modules.calibration.model_selection import ModelChoice
 from ccs_kornia.commands import calibrate_rig
 from ccs_kornia.io.images import write_image
 from ccs_kornia.runtime.errors import UserError
@@ -392,12 +394,12 @@ def test_kalibr_with_auto_leaves_rational_out_of_the_candidates(tmp_path, capsys
             "--no-distortion-correction", "--jobs", "1", "--output", tmp_path / "rig.json", "--kalibr-yaml",
             tmp_path / "chain.yaml"]
     assert cli.main([str(a) for a in [*argv, "--model", "auto,k1k2"]]) == 2
-    assert seen["models"] == ["auto", "k1k2"] and "rational" not in seen["auto_models"]
+    assert [str(m) for m in seen["models"]] == ["auto", "k1k2"] and RATIONAL not in seen["models"][0].candidates
     assert "Kalibr has no rational model, so --model auto chooses among k1k2, opencv5, fisheye" in \
         capsys.readouterr().err
     seen.clear()
     assert cli.main([str(a) for a in argv[:-2] + ["--model", "auto"]]) == 2
-    assert "auto_models" not in seen and seen["models"] == ["auto", "auto"]  # without a camchain: every candidate
+    assert seen["models"] == [ModelChoice()] * 2  # without a camchain: every candidate
 
 
 def test_allow_weak_calibrates_a_weak_rig_as_not_reliable(tmp_path, capsys):

@@ -17,6 +17,7 @@ from test_cli import assert_one_line_error, rendered, run  # noqa: F401 (``rende
 
 import ccs_kornia
 from ccs_kornia import cli
+from ccs_kornia.geometry.models import PINHOLE
 from ccs_kornia.commands import _output_paths, _wrong_board
 from ccs_kornia.commands import calibrate as calibrate_command
 from ccs_kornia.io.files import write_json
@@ -311,9 +312,9 @@ def test_calibration_file_checks(tmp_path, data, phrase):
 
 def test_calibration_file_reads_what_calibrate_writes(tmp_path):
     write_json(tmp_path / "c.json", _calibration(distortion={"model": "none", "coeffs": []}))
-    calib = read_calibration(tmp_path / "c.json")
-    assert calib["model"] == "none" and calib["image_size"] == (640, 480)
-    assert calib["K"].shape == (3, 3) and calib["coeffs"].tolist() == [0.0] * 5
+    camera = read_calibration(tmp_path / "c.json").camera
+    assert camera.model == PINHOLE and camera.image_size == (640, 480)
+    assert camera.K.shape == (1, 3, 3) and camera.coeffs(0).numel() == 0
 
 
 # ----------------------------------------------------------------------------------------------

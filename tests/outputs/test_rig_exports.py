@@ -12,7 +12,7 @@ from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.outputs.rig_exports import (
     kalibr_camchain,
     kalibr_problem,
-    opencv_coeffs,
+    KALIBR_DISTORTION,
     rectification,
     ros_stereo_files,
     write_opencv_stereo_yaml,
@@ -134,6 +134,8 @@ def test_kalibr_chain_of_three_cameras():
     assert "camera c (rational)" in kalibr_problem(_record("rational"))
 
 
-def test_opencv_coefficients():
-    assert opencv_coeffs("none", []).tolist() == [0.0] * 5
-    assert opencv_coeffs("rational", [0.1] * 8).shape == (8,)
+def test_kalibr_models():
+    from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE, RATIONAL
+
+    assert KALIBR_DISTORTION == {PINHOLE: "radtan", K1K2: "radtan", OPENCV5: "radtan", FISHEYE: "equidistant"}
+    assert RATIONAL not in KALIBR_DISTORTION
