@@ -15,7 +15,7 @@ benchmarks all call it:
 3. **solve** (Sec. III-C): per image size, one batched solver call over the cameras
    (:class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`: homographies, Zhang, image-level RANSAC,
    joint Levenberg-Marquardt). Where the pooled correction is large, the camera is also calibrated in the
-   corrected frame (:mod:`~ccs_kornia.modules.correction.corrected_frame`) and that calibration is kept only where
+   corrected frame (:mod:`~ccs_kornia.modules.calibration.corrected_frame`) and that calibration is kept only where
    it fits the observed corners clearly better (``max_rms_ratio``) than the usual one: the image's corners referee,
    not the network's estimate (which misfires on undistorted lenses and can miss a strong one's shape). A lens
    without distortion therefore keeps the calibration it gets without the correction.

@@ -14,11 +14,11 @@ from typing import Any, Mapping
 
 import torch
 
+from ccs_kornia.modules.calibration import corrected_frame
 from ccs_kornia.modules.calibration.model_selection import ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
-from ccs_kornia.modules.correction import corrected_frame
 from ccs_kornia.modules.detection.base import measured_corners
 from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.pipeline.result import (

@@ -1,5 +1,7 @@
 """Calibration stage: homographies, Zhang, RANSAC, the one Levenberg-Marquardt core (:mod:`.schur_lm`) and the camera
-on it (:mod:`.lm`), the outlier rule, the solver composing them, fisheye initialisation and calibration; the quality of
+on it (:mod:`.lm`), the outlier rule, the solver composing them, fisheye initialisation and calibration, the
+calibration in the radially corrected frame (:mod:`.corrected_frame`, on :mod:`ccs_kornia.modules.correction`'s
+warp); the quality of
 a calibration in :mod:`.quality` (the camera models are in :mod:`ccs_kornia.geometry.models`, rigs in
 :mod:`ccs_kornia.modules.rig`).
 
@@ -39,6 +41,10 @@ _EXPORTS = {
     "radial_from_correction": "ccs_kornia.modules.calibration.centred_radial",
     "radial_from_points": "ccs_kornia.modules.calibration.centred_radial",
     "refine_centred_radial": "ccs_kornia.modules.calibration.centred_radial",
+    "solve_with_correction": "ccs_kornia.modules.calibration.corrected_frame",
+    "calibrate_corrected": "ccs_kornia.modules.calibration.corrected_frame",
+    "with_fields": "ccs_kornia.modules.calibration.corrected_frame",
+    "select_cameras": "ccs_kornia.modules.calibration.corrected_frame",
     "SchurProblem": "ccs_kornia.modules.calibration.schur_lm",
     "SchurLMResult": "ccs_kornia.modules.calibration.schur_lm",
     "schur_lm": "ccs_kornia.modules.calibration.schur_lm",
