@@ -52,7 +52,6 @@ from ccs_kornia.modules.detection.base import (
     Fallbacks,
     measured_corners,
 )
-from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_uncertainty
 from ccs_kornia.modules.detection.refine.patch_refine import refine_on_patches
@@ -63,11 +62,9 @@ from ccs_kornia.pipeline.frame_selection import FrameSelection, select_views
 from ccs_kornia.pipeline.looks import CALIBRATED, FIRST, LOOKS, Look, Tools
 from ccs_kornia.pipeline.result import (
     PipelineResult,
-    corner_weights_of,
     main_size,
     module_device,
     positive_size,
-    same_size_views,
     select_result,
 )
 from ccs_kornia.pipeline.solve import (
@@ -76,6 +73,7 @@ from ccs_kornia.pipeline.solve import (
     solve_detections,
     solve_group,
 )
+from ccs_kornia.pipeline.solver_input import SolverInput
 from ccs_kornia.pipeline.sources import (  # noqa: F401
     DEFAULT_MAX_BATCH_PIXELS,
     SIZE_TOLERANCE_PX,
@@ -439,7 +437,7 @@ class CalibrationPipeline(nn.Module):
 
     def _pool(self, out: PipelineResult) -> PipelineResult:
         """``out`` with the per-view corrections pooled per camera (``correction`` and ``correction_tried``)."""
-        per_view, same = out.view_corrections, same_size_views(out)
+        per_view, same = out.view_corrections, out.same_size_views
         c = per_view.shape[0]
         device = per_view.device
         correction = torch.zeros(c, 5, dtype=torch.float64, device=device)
@@ -546,22 +544,24 @@ class CalibrationPipeline(nn.Module):
         size = (int(image_size[0]), int(image_size[1]))
         if sigma is not None and sigma.shape != corners.shape[:-1]:
             raise ValueError(f"sigma must have shape {tuple(corners.shape[:-1])}, got {tuple(sigma.shape)}.")
+        solving = self.solving
+        object_points = solving.object_points(board, square, corners.device)
+        sigma = sigma if solving.weigh_corners else None
         if (correction is not None and correction_tried is not None) or self.model == "auto":
             single = corners.dim() == 3
             batch = (lambda x: None if x is None else x[None]) if single else (lambda x: x)
-            calib = solve_group(self.solving, batch(corners).double(), batch(valid).any(-1), board, square, size,
+            # as the run solves: the measured corners of the views with any valid corner
+            inputs = SolverInput.from_views(batch(corners).double(), batch(valid).any(-1), object_points, batch(sigma))
+            calib = solve_group(solving, inputs, board, square, size,
                                 None if correction is None else batch(correction).double(),
-                                None if correction_tried is None else batch(torch.as_tensor(correction_tried)),
-                                batch(sigma))[0]
+                                None if correction_tried is None else batch(torch.as_tensor(correction_tried)))[0]
             return select_result(calib, 0) if single else calib
-        object_points = grid_object_points(self.detector.board, board, float(square),
-                                           device=corners.device, dtype=torch.float64)
-        weights = corner_weights_of(sigma, valid.bool()) if self.weigh_corners else None
+        inputs = SolverInput.from_corners(corners, valid, object_points, sigma)
         with nullcontext() if self.differentiable else torch.inference_mode():
-            return self.solver(
-                corners.to(torch.float64), valid.bool(), object_points, size,
+            return inputs.solve(
+                self.solver, size,
                 init_corners=None if init_corners is None else init_corners.to(corners.device, torch.float64),
-                initial=initial, weights=weights,
+                initial=initial,
             )
 
     def view_corrections(self, images: torch.Tensor) -> torch.Tensor:
