@@ -328,7 +328,7 @@ class RigPipeline(nn.Module):
         views = []
         for c, result in enumerate(cameras):
             speeds = [source.speed(c, v) for v in range(source.counts[c])] if source is not None else None
-            views.append(camera_views(result, obj, pipeline.weigh_corners, speeds))
+            views.append(camera_views(result, obj, pipeline.settings.weigh_corners, speeds))
         choice = choose_frames(views, frames.index, self.frame_selection, frames.spread(),
                                [f"frame {label}" for label in frames.labels])
         kept = [f for f in range(frames.num_frames) if choice.kept[f]]
