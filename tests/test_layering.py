@@ -236,6 +236,26 @@ def test_dependency_rules():
     assert not problems, "\n".join(sorted(problems))
 
 
+def _reachable(start: str) -> set[str]:
+    """Modules of ours that ``start`` imports, directly or through others (lazy imports included)."""
+    seen, todo = set(), [start]
+    while todo:
+        for nxt in GRAPH[todo.pop()]:
+            if nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    return seen
+
+
+def test_the_correction_stage_stands_below_the_solver():
+    # the solver's calibration in the corrected frame (modules/calibration/corrected_frame.py) uses the correction's
+    # warp; the correction stage itself (network, warp, pooling) imports nothing of the solver
+    for name in (n for n in MODULES if n.startswith("ccs_kornia.modules.correction")):
+        assert not _ours(_reachable(name), "ccs_kornia.modules.calibration", "ccs_kornia.modules.detection"), name
+    loaded = _loaded_after("\n".join(f"import {n}" for n in MODULES if n.startswith("ccs_kornia.modules.correction")))
+    assert not _ours(loaded, "ccs_kornia.modules.calibration", "ccs_kornia.modules.detection")
+
+
 def test_no_stage_imports_lightning_or_the_command_line():
     for name, path in MODULES.items():
         if _layer(name) in ("modules", "pipeline", "camera", "data") and not name.endswith("datamodule"):

@@ -305,7 +305,7 @@ class CalibrationLitModule(pl.LightningModule):
         for c, item in enumerate(batch):
             one = out.select(c)
             record = camera_record(one, item["files"], board=self.board_size, square=self.square,
-                                   detector=self.detector_name, model=self.pipeline.model)
+                                   detector=self.detector_name, model=self.pipeline.settings.model)
             if "video" in item:  # a recording: each view's timestamp, and what the screening saw of every frame
                 for view in record["views"]:
                     if view["path"] in item["timestamps"]:

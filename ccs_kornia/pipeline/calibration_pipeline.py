@@ -15,7 +15,7 @@ benchmarks all call it:
 3. **solve** (Sec. III-C): per image size, one batched solver call over the cameras
    (:class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`: homographies, Zhang, image-level RANSAC,
    joint Levenberg-Marquardt). Where the pooled correction is large, the camera is also calibrated in the
-   corrected frame (:mod:`~ccs_kornia.modules.correction.corrected_frame`) and that calibration is kept only where
+   corrected frame (:mod:`~ccs_kornia.modules.calibration.corrected_frame`) and that calibration is kept only where
    it fits the observed corners clearly better (``max_rms_ratio``) than the usual one: the image's corners referee,
    not the network's estimate (which misfires on undistorted lenses and can miss a strong one's shape). A lens
    without distortion therefore keeps the calibration it gets without the correction.
@@ -27,7 +27,6 @@ pixels (only corners are kept between passes). No command line, no Lightning her
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Sequence
 from contextlib import nullcontext
 from dataclasses import replace
@@ -44,47 +43,42 @@ from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
-from ccs_kornia.modules.correction.pooling import (
-    aggregate_corrections,
-    correction_displacement,
-)
+from ccs_kornia.modules.correction.pooling import pool_corrections
 from ccs_kornia.modules.detection.base import (
     ChessboardDetector,
     DetectionResult,
-    Fallbacks,
     measured_corners,
 )
-from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.factory import make_detector
-from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_uncertainty
-from ccs_kornia.modules.detection.refine.patch_refine import refine_on_patches
+from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_sigma
+from ccs_kornia.modules.detection.refine.patch_refine import refine_boards
 from ccs_kornia.modules.detection.refine.saddle_refine import CornerRefiner
-from ccs_kornia.modules.detection.warps.warped_detection import Downscale, detect_warped
+from ccs_kornia.modules.detection.warps.warped_detection import detect_images
 from ccs_kornia.pipeline.differentiable import differentiable_detect, differentiable_run
 from ccs_kornia.pipeline.frame_selection import FrameSelection, select_views
 from ccs_kornia.pipeline.looks import CALIBRATED, FIRST, LOOKS, Look, Tools
 from ccs_kornia.pipeline.result import (
     PipelineResult,
-    corner_weights_of,
     main_size,
     module_device,
     positive_size,
-    same_size_views,
     select_result,
 )
+from ccs_kornia.pipeline.settings import PipelineSettings
 from ccs_kornia.pipeline.solve import (
     Solving,
     diagnose_solved,
     solve_detections,
     solve_group,
 )
+from ccs_kornia.pipeline.solver_input import SolverInput
 from ccs_kornia.pipeline.sources import (  # noqa: F401
     DEFAULT_MAX_BATCH_PIXELS,
     SIZE_TOLERANCE_PX,
     TensorSource,
     ViewSource,
 )
-from ccs_kornia.pipeline.workers import default_workers, map_batches, workers_on
+from ccs_kornia.pipeline.workers import map_batches, workers_on
 from ccs_kornia.runtime.timing import stage
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]
@@ -93,55 +87,28 @@ __all__ = ["PipelineResult", "CalibrationPipeline"]
 class CalibrationPipeline(nn.Module):
     """Detect chessboard corners and calibrate the camera(s): correct -> detect -> solve (:meth:`run`).
 
+    The keyword arguments are the pipeline's settings, made once into one checked value
+    (:class:`~ccs_kornia.pipeline.settings.PipelineSettings`, :attr:`settings`; each option is described there); the
+    detector and the distortion network are its components. Its solver stage and its looks' detection tools are
+    values made from them once (:attr:`solving`, :attr:`tools`).
+
     Args:
         detector: a detector name for :func:`~ccs_kornia.modules.detection.factory.make_detector`
             (``"opencv"`` or ``"learned"``) or a :class:`ChessboardDetector` instance.
-        model: a camera model (:mod:`ccs_kornia.geometry.models`: ``OPENCV5`` (k1, k2, p1, p2, k3), ``K1K2``,
-            ``RATIONAL``, ``PINHOLE``, ``FISHEYE`` (cv2.fisheye's)) or a
-            :class:`~ccs_kornia.modules.calibration.model_selection.ModelChoice` (one of its candidates per camera,
-            by cross-validation; ``PipelineResult.model_selection`` says which and why).
-        use_ransac: reject inconsistent views with image-level RANSAC before the refinement.
-        seed: seed of the RANSAC sampling (results are deterministic for a given seed).
-        detection_batch_size: most images handed to the detector at once.
-        workers: processes that detect a source's views on CPU (:mod:`~ccs_kornia.pipeline.workers`: forked, one thread
-            each, the same batches and results with any number; ``"auto"``: one per core, at most 4).
-        max_batch_pixels: most pixels loaded and detected at once (bounds memory; at least one image).
-        max_detection_side: images whose longer side exceeds this are detected on a downscaled copy and refined at
-            full resolution (``None`` or 0: always detect at full resolution). A detector that picks its own
-            detection level (``selects_scale``: the learned one with ``scale="auto"``) gets the full images, and the
-            corrected copies of large images are warped at this size.
         distortion_correction: ``True`` (the shipped network), ``False`` (off), a weight-file path or a
             ``DistortionNet``.
-        min_correction: a camera's pooled correction counts as large when it moves some pixel by more than this
-            fraction of the half image diagonal (0.02: 8 px at 640x480); only then is the correction used at all.
-        max_rms_ratio: the corrected-frame calibration is kept only if its radial model's RMS on the observed
-            corners is at most this times that of the usual calibration (same parameter count for ``opencv5``).
-        joint_iters: accepted LM steps at most of the corrected-frame joint refinement (the core runs up to 10x
-            as many iterations): distorted held-out cameras need 6-18 iterations; on undistorted ones, where the free
-            distortion centre is unobservable, it crawls for 30-500 (up to 0.5 s per camera) to gain a fraction of a
-            percent of RMS, and such a camera keeps the usual calibration anyway.
-        free_distortion_centre: the corrected-frame refinement also estimates the distortion centre.
-        looks: the looks after the first, in order (:class:`~ccs_kornia.pipeline.looks.Look` values; default
-            :data:`~ccs_kornia.pipeline.looks.LOOKS`).
+        model, use_ransac, seed, detection_batch_size, workers, max_batch_pixels, max_detection_side,
+        min_correction, max_rms_ratio, joint_iters, free_distortion_centre, diagnostics, weigh_corners,
+        differentiable, frame_selection: the :class:`~ccs_kornia.pipeline.settings.PipelineSettings` of the same
+            names (``differentiable``: :meth:`forward`, :meth:`detect` and :meth:`calibrate` return corners and
+            cameras with gradients, ``docs/gradients.md``).
+        looks: the looks after the first, in order (default :data:`~ccs_kornia.pipeline.looks.LOOKS`).
         calibrated_look: keep the calibrated look among ``looks``
             (:data:`~ccs_kornia.pipeline.looks.CALIBRATED`: views missed on the originals of a camera calibrated with
             a fisheye model looked for again on virtual pinhole views of the calibrated lens, and the camera solved
             again with them).
-        diagnostics: also compute each camera's quality figures and verdict (``PipelineResult.diagnostics``; see
-            :func:`~ccs_kornia.modules.calibration.quality.diagnostics.diagnose`: several more solves per camera).
-        weigh_corners: measure each detected corner's precision on its image
-            (:func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_uncertainty`, ``DetectionResult.sigma``)
-            and weight the solver's refinements by it, so a view's soft or shaded corners count less
-            (:func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_weights`).
-        frame_selection: keep only the views that make the best camera
-            (:class:`~ccs_kornia.pipeline.frame_selection.FrameSelection`: still, sharp, new, informative) and solve
-            again on them after the last solve (``PipelineResult.frame_choice`` says which and why); ``None``: every
-            view counts.
-        differentiable: :meth:`forward`, :meth:`detect` and :meth:`calibrate` return corners and cameras with
-            gradients to the images and the heatmap network (:mod:`~ccs_kornia.pipeline.differentiable`: the usual
-            pipeline takes every decision and gives the values, in one process; the corners of found boards and the
-            solve are then differentiated; ``docs/gradients.md``). Off: no autograd anywhere, as before.
-        solver_kwargs: further options of :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`.
+        solver_kwargs: further options of :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`
+            (``PipelineSettings.solver_options``).
 
     Example:
         >>> from ccs_kornia.data.scenes.scenes import make_calibration_set
@@ -181,47 +148,38 @@ class CalibrationPipeline(nn.Module):
         self.detector = make_detector(detector) if isinstance(detector, str) else detector
         if not isinstance(self.detector, ChessboardDetector):
             raise ValueError(f"detector must be a name or a ChessboardDetector, got {type(detector).__name__}.")
-        if detection_batch_size < 1:
-            raise ValueError(f"detection_batch_size must be >= 1, got {detection_batch_size}.")
-        if max_detection_side is not None and max_detection_side != 0 and max_detection_side < 64:
-            raise ValueError(f"max_detection_side must be >= 64 (or None/0 to disable), got {max_detection_side}.")
-        if joint_iters < 0:
-            raise ValueError(f"joint_iters must be >= 0, got {joint_iters}.")
-        for name, value in (("min_correction", min_correction), ("max_rms_ratio", max_rms_ratio)):
-            if not value >= 0:
-                raise ValueError(f"{name} must be >= 0, got {value}.")
+        looks = tuple(look for look in (LOOKS if looks is None else looks) if calibrated_look or look is not CALIBRATED)
+        #: the options, checked once (:class:`~ccs_kornia.pipeline.settings.PipelineSettings`)
+        self.settings = settings = PipelineSettings(
+            model=model, use_ransac=use_ransac, seed=seed, solver_options=solver_kwargs,
+            detection_batch_size=detection_batch_size, workers=workers, max_batch_pixels=max_batch_pixels,
+            max_detection_side=max_detection_side, min_correction=min_correction, max_rms_ratio=max_rms_ratio,
+            joint_iters=joint_iters, free_distortion_centre=free_distortion_centre, diagnostics=diagnostics,
+            looks=looks,
+            weigh_corners=weigh_corners, differentiable=differentiable, frame_selection=frame_selection,
+        )
         choice = isinstance(model, ModelChoice)
-        if not choice and not isinstance(model, CameraModel):
-            raise TypeError(f"model must be a camera model (ccs_kornia.geometry.models) or a ModelChoice, got {model!r}.")
         models = model.candidates if choice else (model,)
-        self.solver_list = nn.ModuleList([CalibrationSolver(model=m, use_ransac=use_ransac, seed=seed, **solver_kwargs)
-                                          for m in models])
+        self.solver_list = nn.ModuleList([CalibrationSolver(model=m, use_ransac=use_ransac, seed=seed,
+                                                            **settings.solver_options) for m in models])
         #: the solver of each model
         self.solvers = {s.model: s for s in self.solver_list}
         # the stage alone's (a choice: its first candidate)
         self.solver = self.solvers[model.first if choice else model]
         self.selection = ModelSelection(list(self.solver_list)) if choice else None
-        self.model, self.diagnostics = model, bool(diagnostics)
-        #: the looks after the first, in order
-        self.looks: tuple[Look, ...] = tuple(look for look in (LOOKS if looks is None else looks)
-                                             if calibrated_look or look is not CALIBRATED)
-        self.detection_batch_size = int(detection_batch_size)
-        if workers != "auto" and not (isinstance(workers, int) and workers >= 1):
-            raise ValueError(f"workers must be an int >= 1 or 'auto', got {workers!r}.")
-        self.workers = default_workers("cpu") if workers == "auto" else workers
-        if differentiable:  # autograd's graph lives in this process: no worker processes
-            self.workers = 1
-        self.max_batch_pixels = max_batch_pixels
-        self.max_detection_side = int(max_detection_side) if max_detection_side else None
         self.refiner = CornerRefiner()
         self.distortion_net = load_distortion_net(distortion_correction)
-        self.min_correction = float(min_correction)
-        self.max_rms_ratio = float(max_rms_ratio)
-        self.joint_iters = int(joint_iters)
-        self.free_distortion_centre = bool(free_distortion_centre)
-        self.weigh_corners = bool(weigh_corners)
-        self.differentiable = bool(differentiable)
-        self.frame_selection = frame_selection
+        #: the solver stage's settings and solvers (:class:`~ccs_kornia.pipeline.solve.Solving`)
+        self.solving = Solving(settings.model, self.solvers, self.solver, self.selection, settings.weigh_corners,
+                               settings.workers, settings.joint_iters, settings.free_distortion_centre,
+                               settings.max_rms_ratio, self.detector.board)
+        #: what the looks detect with (:class:`~ccs_kornia.pipeline.looks.Tools`): the detector on the images as they
+        #: are or through a downscaled copy, the saddle refinement on patches, the corners' precision where weighed
+        measure = corner_sigma if settings.weigh_corners else None
+        refine = functools.partial(refine_boards, refiner=self.refiner)
+        detect = functools.partial(detect_images, detector=self.detector, max_side=settings.max_detection_side,
+                                   refine=refine, measure=measure)
+        self.tools = Tools(detect, refine, measure, self.detector, settings.workers)
 
     # ------------------------------------------------------------------------------------------
     # the composition
@@ -238,7 +196,7 @@ class CalibrationPipeline(nn.Module):
         Returns:
             :class:`~ccs_kornia.pipeline.result.PipelineResult` (no camera dimension for 4-D input).
         """
-        if self.differentiable:
+        if self.settings.differentiable:
             usual = self._usual(images, board_size, square, calibrate=True)
             return differentiable_run(usual, images, board_size, square, self.detector, self.solving)
         out = self.run(TensorSource(images), board_size, square)
@@ -265,9 +223,9 @@ class CalibrationPipeline(nn.Module):
     ) -> PipelineResult:
         """The stages in order, correct -> detect -> solve, on every camera of ``source``: one loop over the looks.
         The first look streams every view once (:meth:`detect_views`: the network's correction and the board on the
-        image as it is), the corrections are pooled per camera; each of :attr:`looks` runs on the views still missed,
-        the cameras solved before a look that needs them; a final solve where a look found boards since, then the
-        diagnostics.
+        image as it is), the corrections are pooled per camera; each of the settings' looks runs on the views still
+        missed, the cameras solved before a look that needs them; a final solve where a look found boards since, then
+        the diagnostics.
 
         Args:
             source: the views (:class:`~ccs_kornia.pipeline.sources.TensorSource` or :class:`~ccs_kornia.pipeline.sources.FileSource`;
@@ -286,7 +244,7 @@ class CalibrationPipeline(nn.Module):
         """
         board = check_board_size(board_size)
         out, pooled, solved, changed, subsets = first, False, False, False, None
-        for look in (FIRST, *self.looks):
+        for look in (FIRST, *self.settings.looks):
             if look is FIRST:
                 out = self.detect_views(source, board, progress, on_batch=on_batch) if out is None else out
                 pooled = out.view_corrections is not None and self.distortion_net is not None
@@ -302,10 +260,11 @@ class CalibrationPipeline(nn.Module):
             changed = found or changed
         if calibrate and (changed or not solved):
             out, subsets = self._solve(out, board, square, again=solved)
-        if calibrate and self.frame_selection is not None:
+        selection = self.settings.frame_selection
+        if calibrate and selection is not None:
             with stage("frame selection"):
-                out, subsets = select_views(self.solving, out, board, square, self.frame_selection, source)
-        if calibrate and self.diagnostics:
+                out, subsets = select_views(self.solving, out, board, square, selection, source)
+        if calibrate and self.settings.diagnostics:
             with stage("solver"):
                 out = diagnose_solved(self.solving, out, board, square, subsets)
         return out
@@ -329,7 +288,10 @@ class CalibrationPipeline(nn.Module):
         device = module_device(self)
         c, v, n = source.num_cameras, source.max_views, cols * rows
         corners = torch.zeros(c, v, n, 2, dtype=torch.float64, device=device)
-        sigma = torch.full((c, v, n), float("nan"), dtype=torch.float32, device=device) if self.weigh_corners else None
+        settings = self.settings
+        sigma = None
+        if settings.weigh_corners:
+            sigma = torch.full((c, v, n), float("nan"), dtype=torch.float32, device=device)
         found = torch.zeros(c, v, dtype=torch.bool, device=device)
         present = torch.zeros(c, v, dtype=torch.bool, device=device)
         sizes = torch.zeros(c, v, 2, dtype=torch.long)
@@ -340,8 +302,8 @@ class CalibrationPipeline(nn.Module):
         # batches of views, in forked worker processes on CPU (pipeline/workers.py: the same batches for any number)
         for batch in map_batches(functools.partial(self._detect_batch, board=board, device=device), source,
                                  FIRST.select(None, self.detector),
-                                 self.detection_batch_size, self.max_batch_pixels,
-                                 workers_on(device, self.workers)):
+                                 settings.detection_batch_size, settings.max_batch_pixels,
+                                 workers_on(device, settings.workers)):
             for (ci, vi), why in batch.failed:
                 reasons[ci][vi] = f"unreadable: {why}"
             if batch.size is None:
@@ -382,7 +344,7 @@ class CalibrationPipeline(nn.Module):
         calibrate: bool = True,
     ) -> PipelineResult:
         """:meth:`run` from after its first look (:meth:`detect_views`, ``first=out``): the network's corrections
-        pooled per camera, then the pipeline's :attr:`looks` in turn, each on the views missed
+        pooled per camera, then the settings' looks in turn, each on the views missed
         so far (read again from ``source``), the cameras solved before a look that needs them, and solved again at the
         end where a look found boards since.
 
@@ -405,10 +367,10 @@ class CalibrationPipeline(nn.Module):
             keys = [] if source is None else look.select(out, self.detector)
             det, found = out.detections, False
             device = det.corners.device
-            tools = self.tools
-            for batch in map_batches(functools.partial(look.run, tools, out, board_size=board), source, keys,
-                                     self.detection_batch_size, self.max_batch_pixels,
-                                     workers_on(device, self.workers) if look.in_workers else 1) if keys else ():
+            settings = self.settings
+            for batch in map_batches(functools.partial(look.run, self.tools, out, board_size=board), source, keys,
+                                     settings.detection_batch_size, settings.max_batch_pixels,
+                                     workers_on(device, settings.workers) if look.in_workers else 1) if keys else ():
                 if batch.size is None:
                     continue
                 cam = torch.tensor([k[0] for k in batch.keys], device=device)
@@ -427,21 +389,9 @@ class CalibrationPipeline(nn.Module):
         with stage("solver"):
             return solve_detections(self.solving, out, board, square, keep_models=chosen)
 
-    @property
-    def solving(self) -> Solving:
-        """The solver stage's settings (:class:`~ccs_kornia.pipeline.solve.Solving`)."""
-        return Solving(self.model, self.solvers, self.solver, self.selection, self.weigh_corners, self.workers,
-                       self.joint_iters, self.free_distortion_centre, self.max_rms_ratio, self.detector.board)
-
-    @property
-    def tools(self) -> Tools:
-        """What the looks detect with (:class:`~ccs_kornia.pipeline.looks.Tools`)."""
-        return Tools(self.detect_images, self.refine_on_patches, self.corner_sigma if self.weigh_corners else None,
-                     self.detector, self.workers)
-
     def _pool(self, out: PipelineResult) -> PipelineResult:
         """``out`` with the per-view corrections pooled per camera (``correction`` and ``correction_tried``)."""
-        per_view, same = out.view_corrections, same_size_views(out)
+        per_view, same = out.view_corrections, out.same_size_views
         c = per_view.shape[0]
         device = per_view.device
         correction = torch.zeros(c, 5, dtype=torch.float64, device=device)
@@ -450,7 +400,8 @@ class CalibrationPipeline(nn.Module):
         for size in set(out.image_size):
             sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
             mask = same[sel] & per_view[sel].isfinite().all(-1)
-            correction[sel], large[sel] = self.pool_corrections(per_view[sel], positive_size(size), mask)
+            correction[sel], large[sel] = pool_corrections(per_view[sel], positive_size(size),
+                                                           self.settings.min_correction, mask)
         # every camera with a large correction goes to the corrected frame, where the observed corners referee it
         # against the usual calibration; a gate on the network's correction straightening the boards (or on the
         # usual model's misfit) kept held-out cameras from it that needed it (docs/benchmarks.md, section 4)
@@ -471,7 +422,7 @@ class CalibrationPipeline(nn.Module):
         """
         board = check_board_size(board_size)
         out, subsets = solve_detections(self.solving, out, board, square)
-        return diagnose_solved(self.solving, out, board, square, subsets) if self.diagnostics else out
+        return diagnose_solved(self.solving, out, board, square, subsets) if self.settings.diagnostics else out
 
     # ------------------------------------------------------------------------------------------
     # the stages, each usable alone
@@ -491,7 +442,7 @@ class CalibrationPipeline(nn.Module):
         Returns:
             :class:`DetectionResult` with the leading dimensions of ``images``.
         """
-        if self.differentiable:
+        if self.settings.differentiable:
             usual = self._usual(images, board_size, 1.0, calibrate=False)
             return differentiable_detect(usual, images, board_size, self.detector)
         out = self.run(TensorSource(images), board_size, calibrate=False)
@@ -548,22 +499,24 @@ class CalibrationPipeline(nn.Module):
         size = (int(image_size[0]), int(image_size[1]))
         if sigma is not None and sigma.shape != corners.shape[:-1]:
             raise ValueError(f"sigma must have shape {tuple(corners.shape[:-1])}, got {tuple(sigma.shape)}.")
-        if (correction is not None and correction_tried is not None) or isinstance(self.model, ModelChoice):
+        solving = self.solving
+        object_points = solving.object_points(board, square, corners.device)
+        sigma = sigma if solving.weigh_corners else None
+        if (correction is not None and correction_tried is not None) or isinstance(self.settings.model, ModelChoice):
             single = corners.dim() == 3
             batch = (lambda x: None if x is None else x[None]) if single else (lambda x: x)
-            calib = solve_group(self.solving, batch(corners).double(), batch(valid).any(-1), board, square, size,
+            # as the run solves: the measured corners of the views with any valid corner
+            inputs = SolverInput.from_views(batch(corners).double(), batch(valid).any(-1), object_points, batch(sigma))
+            calib = solve_group(solving, inputs, board, square, size,
                                 None if correction is None else batch(correction).double(),
-                                None if correction_tried is None else batch(torch.as_tensor(correction_tried)),
-                                batch(sigma))[0]
+                                None if correction_tried is None else batch(torch.as_tensor(correction_tried)))[0]
             return select_result(calib, 0) if single else calib
-        object_points = grid_object_points(self.detector.board, board, float(square),
-                                           device=corners.device, dtype=torch.float64)
-        weights = corner_weights_of(sigma, valid.bool()) if self.weigh_corners else None
-        with nullcontext() if self.differentiable else torch.inference_mode():
-            return self.solver(
-                corners.to(torch.float64), valid.bool(), object_points, size,
+        inputs = SolverInput.from_corners(corners, valid, object_points, sigma)
+        with nullcontext() if self.settings.differentiable else torch.inference_mode():
+            return inputs.solve(
+                self.solver, size,
                 init_corners=None if init_corners is None else init_corners.to(corners.device, torch.float64),
-                initial=initial, weights=weights,
+                initial=initial,
             )
 
     def view_corrections(self, images: torch.Tensor) -> torch.Tensor:
@@ -573,59 +526,3 @@ class CalibrationPipeline(nn.Module):
         net = self.distortion_net.to(images.device)
         with torch.inference_mode(), stage("distortion network"):
             return torch.cat([net(images[i : i + 16].float()) for i in range(0, images.shape[0], 16)]).double()
-
-    def pool_corrections(
-        self, per_view: torch.Tensor, image_size: tuple[int, int], mask: torch.Tensor | None = None
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """One correction per camera from :math:`(C, V, 5)` per-view ones, and whether it is large :math:`(C,)`
-        (it moves some pixel by more than ``min_correction`` of the half image diagonal)."""
-        correction = aggregate_corrections(per_view.double().nan_to_num(0.0), image_size, mask)
-        return correction, self.correction_is_large(correction, image_size)
-
-    def correction_is_large(self, correction: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
-        """:math:`(C,)`: the corrections :math:`(C, 5)` move some pixel by more than ``min_correction`` of the half
-        image diagonal."""
-        half_diagonal = 0.5 * math.hypot(image_size[0], image_size[1])
-        return correction_displacement(correction, image_size) > self.min_correction * half_diagonal
-
-    def detect_images(self, images: torch.Tensor, board_size: tuple[int, int],
-                      fallbacks: Fallbacks | None = None) -> DetectionResult:
-        """The detector on ``(B, 1, H, W)`` images of one size, through a downscaled copy when they are large
-        (:class:`~ccs_kornia.modules.detection.warps.warped_detection.Downscale`), with ``fallbacks`` (``None``: the
-        detector's own); the corners' precision measured where the pipeline weighs corners."""
-        h, w = images.shape[-2:]
-        limit = self.max_detection_side
-        measure = self.corner_sigma if self.weigh_corners else None
-        with torch.inference_mode():
-            # a detector that picks its own detection level and refines at full resolution (the learned one with
-            # ``scale="auto"``, modules/detection/learned/scale.py) bounds its memory itself
-            if limit is None or max(h, w) <= limit or self.detector.selects_scale:
-                det = self.detector.detect(images.float(), board_size, fallbacks)
-                sigma = None
-                if measure is not None:
-                    # the learned detector has measured them on these images (its asymmetry check)
-                    sigma = det.sigma
-                    if sigma is None:
-                        sigma = self.corner_sigma(images, det.corners, board_size, det.found)
-                return DetectionResult(det.corners, det.found, det.reasons, sigma)
-            detect = functools.partial(self.detector.detect, fallbacks=fallbacks)
-            return detect_warped(Downscale.to_side((h, w), limit), detect, self.refine_on_patches, images, board_size,
-                                 measure)
-
-    def corner_sigma(self, images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int],
-                     found: torch.Tensor | None = None) -> torch.Tensor:
-        """Per-corner precision :math:`(B, N)` of boards :math:`(B, N, 2)` on ``images`` :math:`(B, 1, H, W)` (NaN where
-        ``found`` is false; :func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_uncertainty`)."""
-        found = torch.ones(corners.shape[0], dtype=torch.bool, device=corners.device) if found is None else found
-        with stage("corner uncertainty"):
-            return corner_uncertainty(images.float(), corners.float(), measured_corners(corners, found),
-                                      board_size).to(corners.device)
-
-    def refine_on_patches(self, images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
-        """Saddle refinement of whole boards :math:`(S, N, 2)` on ``images`` :math:`(S, 1, H, W)`, one small patch per
-        corner (:func:`~ccs_kornia.modules.detection.refine.patch_refine.refine_on_patches` with this pipeline's refiner)."""
-        r = self.refiner
-        with stage("saddle refinement"):
-            return refine_on_patches(images.float(), corners.float(), board_size, r.radius_factor, r.max_radius, r.method,
-                                     r.iterations, r.smooth_sigma, r.normalize_sigma).to(corners.dtype)
-

@@ -30,7 +30,6 @@ from ccs_kornia.modules.detection.base import (
     DetectionResult,
     measured_corners,
 )
-from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.refine.differentiable_refine import (
     SYMMETRY_STEPS,
     DifferentiableCorners,
@@ -38,9 +37,7 @@ from ccs_kornia.modules.detection.refine.differentiable_refine import (
 from ccs_kornia.pipeline.result import (
     PipelineResult,
     concat_results,
-    corner_weights_of,
     positive_size,
-    same_size_views,
     select_result,
 )
 from ccs_kornia.pipeline.solve import Solving
@@ -128,14 +125,12 @@ def differentiable_run(out: PipelineResult, images: torch.Tensor, board_size: tu
     batched = images if images.dim() == 5 else images[None]
     det = out.detections
     corners, gap = _corners(detector, batched, det, board, net)
-    usable = det.found & same_size_views(out)
-    obj = grid_object_points(solving.board, board, float(square), device=corners.device, dtype=torch.float64)
+    # the usual solve's input (its views, valid corners and weights) with the differentiable corners
+    inputs = replace(solving.inputs(out, board, square), corners=corners)
     parts, order = [], []
     for size in dict.fromkeys(out.image_size):
         sel = torch.tensor([s == size for s in out.image_size], device=corners.device).nonzero().flatten()
-        valid = measured_corners(det.corners[sel], usable[sel])
-        sigma = None if det.sigma is None else det.sigma[sel]
-        weights = corner_weights_of(sigma, valid) if solving.weigh_corners else None
+        part = inputs.cameras(sel)
         if isinstance(solving.model, ModelChoice):
             tables = out.model_selection or [None] * len(out.image_size)
             # the model chosen for each camera (the first candidate where none was)
@@ -144,8 +139,7 @@ def differentiable_run(out: PipelineResult, images: torch.Tensor, board_size: tu
         else:
             names = [solving.solver.model] * sel.numel()
         # the usual solve's call: each model over every camera of the group (the RANSAC draws depend on the batch)
-        results = {n: solving.solvers[n](corners[sel], valid, obj, positive_size(size), weights=weights)
-                   for n in dict.fromkeys(names)}
+        results = {n: part.solve(solving.solvers[n], positive_size(size)) for n in dict.fromkeys(names)}
         for k, (ci, n) in enumerate(zip(sel.tolist(), names)):
             # a camera whose corrected-frame calibration was kept: that one, without gradient
             kept = out.corrected is not None and bool(out.corrected[ci])

@@ -53,7 +53,9 @@ from ccs_kornia.modules.calibration.quality.view_information import (
     image_information,
     view_information,
 )
-from ccs_kornia.pipeline.result import PipelineResult, corner_weights_of
+from ccs_kornia.modules.detection.base import measured_corners
+from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_weights
+from ccs_kornia.pipeline.result import PipelineResult
 
 __all__ = [
     "MAX_BLUR",
@@ -176,9 +178,9 @@ def camera_views(out: PipelineResult, object_points: torch.Tensor, weigh_corners
         return None
     det = out.detections
     corners = det.corners.double().cpu()
-    valid = det.found.cpu()[:, None] & corners.isfinite().all(-1)
+    valid = measured_corners(corners, det.found.cpu())
     sigma = None if det.sigma is None else det.sigma.cpu()
-    weights = corner_weights_of(sigma[None], valid[None])[0] if (weigh_corners and sigma is not None) else None
+    weights = corner_weights(sigma, valid) if (weigh_corners and sigma is not None) else None
     weights = valid.double() if weights is None else weights.double() * valid
     if sigma is None:
         sharp = torch.full((corners.shape[0],), float("nan"), dtype=torch.float64)
@@ -510,9 +512,7 @@ def select_views(solving, out: PipelineResult, board_size: tuple[int, int], squa
         judge its views by); ``subsets`` as :func:`~ccs_kornia.pipeline.solve.solve_detections` (``None`` when
         nothing was solved again).
     """
-    from ccs_kornia.modules.detection.boards import grid_object_points
-
-    obj = grid_object_points(solving.board, board_size, float(square), dtype=torch.float64)
+    obj = solving.object_points(board_size, square)
     C, V = out.present.shape
     keep = out.detections.found.clone()
     choices: list[FrameChoice | None] = []

@@ -44,12 +44,7 @@ from ccs_kornia.modules.detection.warps.virtual_view import (
     VIEWS_PER_ROUND,
     detect_with_calibrated_lens,
 )
-from ccs_kornia.pipeline.result import (
-    PipelineResult,
-    positive_size,
-    same_size_views,
-    select_result,
-)
+from ccs_kornia.pipeline.result import PipelineResult, positive_size, select_result
 from ccs_kornia.pipeline.workers import worker_pool
 
 __all__ = ["Pass", "Tools", "Look", "own_fallbacks", "first_look_fallbacks", "second_look_fallbacks",
@@ -179,7 +174,7 @@ def _as_is(tools: Tools, out: PipelineResult | None, images: torch.Tensor, keys:
 
 def _missed_with_large_correction(out: PipelineResult, detector: ChessboardDetector) -> list:
     """Views missed on the originals of cameras whose pooled correction is large."""
-    same, det = same_size_views(out), out.detections
+    same, det = out.same_size_views, out.detections
     return [(ci, vi) for ci in out.correction_tried.nonzero().flatten().tolist()
             for vi in (same[ci] & ~det.found[ci]).nonzero().flatten().tolist()]
 
@@ -203,7 +198,7 @@ def _missed_on_fisheye_cameras(out: PipelineResult, detector: ChessboardDetector
     lens's missed views are missed for other reasons (blur, cut boards) that a reprojection does not cure."""
     cal, det = out.calibration, out.detections
     models = cal.camera.models
-    same = same_size_views(out)
+    same = out.same_size_views
     ok = cal.success.to(same.device)
     cams = [ci for ci in ok.nonzero().flatten().tolist() if models[ci].is_fisheye]
     # views without a board, and views whose corners the solver rejected as an outlier (wrong corners on the
@@ -264,13 +259,13 @@ def _with_fallbacks(detect: Callable, fallbacks: Fallbacks | None, images: torch
 def measure_straightening(out: PipelineResult, board_size: tuple[int, int]) -> PipelineResult:
     """``out`` with ``straightness``: how straight the found boards' rows and columns are before and after each
     camera's pooled correction (:func:`~ccs_kornia.modules.detection.warps.corrected_copy.straightening_evidence`)."""
-    det, same = out.detections, same_size_views(out)
+    det, usable = out.detections, out.usable_views
     device = det.corners.device
     straightness = torch.full((det.found.shape[0], 2), float("nan"), dtype=torch.float64, device=device)
     for size in set(out.image_size):
         sel = torch.tensor([s == size for s in out.image_size], device=device).nonzero().flatten()
-        before, after = straightening_evidence(det.corners[sel], det.found[sel] & same[sel], out.correction[sel],
-                                               board_size, positive_size(size))
+        before, after = straightening_evidence(det.corners[sel], usable[sel], out.correction[sel], board_size,
+                                               positive_size(size))
         straightness[sel] = torch.stack([before, after], -1)
     return replace(out, straightness=straightness)
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
@@ -12,22 +12,18 @@ import torch
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.modules.calibration.result import VIEW_REASONS, CalibrationResult
-from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
-from ccs_kornia.modules.detection.base import DetectionResult, measured_corners
+from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.pipeline.sources import SIZE_TOLERANCE_PX
 
 __all__ = [
-    "corner_weights_of",
     "PipelineResult",
     "module_device",
     "select_result",
     "concat_results",
     "scatter_cameras",
     "main_size",
-    "same_size_views",
     "positive_size",
     "camera_reason",
-    "diagnose_cameras",
 ]
 
 
@@ -166,6 +162,28 @@ class PipelineResult:
     def batched(self) -> bool:
         """Whether the camera dimension is present."""
         return self.present.dim() == 2
+
+    @property
+    def same_size_views(self) -> torch.Tensor:
+        """:math:`(C, V)` / :math:`(V,)` bool: the view was read and its size is within
+        :data:`~ccs_kornia.pipeline.sources.SIZE_TOLERANCE_PX` of its camera's ``image_size``.
+
+        Example:
+            >>> d = DetectionResult(torch.zeros(1, 3, 4, 2), torch.tensor([[True, True, False]]))
+            >>> r = PipelineResult(d, None, [(64, 48)], torch.ones(1, 3, dtype=torch.bool),
+            ...                    torch.tensor([[[64, 48], [32, 24], [64, 48]]]), camera_reasons=[""])
+            >>> r.same_size_views.tolist(), r.usable_views.tolist(), r.select(0).usable_views.tolist()
+            ([[True, False, True]], [[True, False, False]], [True, False, False])
+        """
+        main = torch.tensor(self.image_size, device=self.view_sizes.device)
+        main = main.view(-1, 1, 2) if self.batched else main
+        return self.present & ((self.view_sizes - main).abs() <= SIZE_TOLERANCE_PX).all(-1)
+
+    @property
+    def usable_views(self) -> torch.Tensor:
+        """:math:`(C, V)` / :math:`(V,)` bool: the views a solve takes, a board found on an image of its camera's
+        size (:attr:`same_size_views`)."""
+        return self.detections.found & self.same_size_views
 
     def select(self, cameras: int | Sequence[int] | torch.Tensor) -> PipelineResult:
         """The result of some cameras: an ``int`` gives one camera without the camera dimension.
@@ -363,12 +381,6 @@ def positive_size(size: tuple[int, int]) -> tuple[int, int]:
     return max(1, int(size[0])), max(1, int(size[1]))
 
 
-def same_size_views(out: PipelineResult) -> torch.Tensor:
-    """:math:`(C, V)` bool: the view was read and its size is within SIZE_TOLERANCE_PX of its camera's."""
-    main = torch.tensor(out.image_size, device=out.view_sizes.device).view(-1, 1, 2)
-    return out.present & ((out.view_sizes - main).abs() <= SIZE_TOLERANCE_PX).all(-1)
-
-
 def camera_reason(calib: CalibrationResult, c: int, usable: int, present: int) -> str:
     """Why camera ``c`` was not calibrated ('' where it was)."""
     if bool(calib.success[c]):
@@ -393,49 +405,3 @@ def module_device(module: torch.nn.Module) -> torch.device:
     for b in module.buffers():
         return b.device
     return torch.device("cpu")
-
-
-def corner_weights_of(sigma: torch.Tensor | None, valid: torch.Tensor,
-                      cameras: torch.Tensor | None = None) -> torch.Tensor | None:
-    """The solver's per-corner weights :math:`(C', V, N)` of ``cameras`` (default: all) from the detections' per-corner
-    precision (:func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_weights`; ``None`` without one)."""
-    if sigma is None:
-        return None
-    from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_weights
-
-    sigma = sigma if cameras is None else sigma[cameras.to(sigma.device)]
-    return corner_weights(sigma.to(valid.device), valid)
-
-
-def diagnose_cameras(solvers: Mapping[CameraModel, torch.nn.Module], out: PipelineResult, usable: torch.Tensor,
-                     board_size: tuple[int, int], square: float, weigh: bool = True,
-                     solutions: SubsetSolutions | None = None, board: Any = None) -> list[dict | None]:
-    """Quality figures and verdict of each camera of a solved ``out`` (one
-    :func:`~ccs_kornia.modules.calibration.quality.diagnostics.diagnose` call per image size; ``None`` for a camera
-    without a computed calibration). The halves and folds of the cross-validation are solved by ``solvers[model]``
-    (the usual path: a camera calibrated in the corrected frame is cross-validated without it), with the per-corner
-    weights the solve had (``weigh``); ``solutions``: the model selection's solved cross-validation subsets
-    (:class:`~ccs_kornia.modules.calibration.subset_solutions.SubsetSolutions`), used where the inputs are the same;
-    ``board``: the detector's board (its object points where they are not an even grid: an AprilGrid)."""
-    from ccs_kornia.modules.calibration.quality.diagnostics import diagnose
-    from ccs_kornia.modules.detection.boards import grid_object_points
-
-    det, cal = out.detections, out.calibration
-    found = usable & cal.success[:, None].to(usable.device)
-    obj = grid_object_points(board, board_size, float(square), device=det.corners.device, dtype=torch.float64)
-    diagnostics: list[dict | None] = [None] * found.shape[0]
-    models = cal.camera.models
-    for size, model in dict.fromkeys(zip(out.image_size, models)):
-        sel = torch.tensor([s == size and m == model for s, m in zip(out.image_size, models)], device=found.device)
-        sel = (sel & cal.success.to(found.device)).nonzero().flatten()
-        if sel.numel() == 0:
-            continue
-        corners = det.corners[sel].to(torch.float64)
-        valid = measured_corners(corners, found[sel])
-        weights = corner_weights_of(det.sigma, valid, sel) if weigh else None
-        with torch.inference_mode():
-            figures = diagnose(select_result(cal, sel), corners, valid, obj, positive_size(size), solver=solvers[model],
-                               weights=weights, solutions=solutions)
-        for k, ci in enumerate(sel.tolist()):
-            diagnostics[ci] = figures[k]
-    return diagnostics

@@ -20,17 +20,13 @@ from torch import nn
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.modules.calibration.model_selection import ModelChoice
-from ccs_kornia.modules.detection.base import ChessboardDetector
-from ccs_kornia.modules.detection.boards import grid_object_points
+from ccs_kornia.modules.detection.base import ChessboardDetector, measured_corners
 from ccs_kornia.modules.detection.factory import make_detector
+from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_weights
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 from ccs_kornia.pipeline.frame_matching import FrameTable, match_frames
 from ccs_kornia.pipeline.frame_selection import FrameSelection
-from ccs_kornia.pipeline.result import (
-    PipelineResult,
-    corner_weights_of,
-    same_size_views,
-)
+from ccs_kornia.pipeline.result import PipelineResult
 from ccs_kornia.pipeline.sources import FileSource, TensorSource, ViewSource
 
 __all__ = ["FLEXIBLE_COVERAGE", "RigPipeline", "RigPipelineResult", "frame_times_of", "rig_observations",
@@ -133,12 +129,12 @@ def rig_observations(
     weights = torch.zeros(c, f, n, dtype=torch.float64) if with_sigma else None
     for ci, result in enumerate(cameras):
         det, cal = result.detections, result.calibration
-        batched = PipelineResult(det, None, [result.image_size], result.present[None], result.view_sizes[None])
-        usable = det.found.cpu() & same_size_views(batched)[0].cpu()
+        usable = result.usable_views.cpu()
         if cal is not None and bool(cal.success):
             usable &= cal.used.cpu()
-        cam_valid = usable[:, None] & det.corners.cpu().isfinite().all(-1)
-        cam_weights = corner_weights_of(det.sigma[None], cam_valid[None])[0] if with_sigma else None
+        cam_valid = measured_corners(det.corners.cpu(), usable)
+        # (the weights relative to the median of the views the rig takes)
+        cam_weights = corner_weights(det.sigma.cpu(), cam_valid) if with_sigma else None
         for fi, k in enumerate(frames.index[ci]):
             if k is None or not bool(cam_valid[k].any()):
                 continue
@@ -339,11 +335,11 @@ class RigPipeline(nn.Module):
         )
 
         pipeline = next(iter(self.pipelines.values()))
-        obj = grid_object_points(pipeline.detector.board, board_size, float(square), dtype=torch.float64)
+        obj = pipeline.solving.object_points(board_size, square)
         views = []
         for c, result in enumerate(cameras):
             speeds = [source.speed(c, v) for v in range(source.counts[c])] if source is not None else None
-            views.append(camera_views(result, obj, pipeline.weigh_corners, speeds))
+            views.append(camera_views(result, obj, pipeline.settings.weigh_corners, speeds))
         choice = choose_frames(views, frames.index, self.frame_selection, frames.spread(),
                                [f"frame {label}" for label in frames.labels])
         kept = [f for f in range(frames.num_frames) if choice.kept[f]]
@@ -411,8 +407,7 @@ class RigPipeline(nn.Module):
         out.reason = unconnected_cameras(valid, names, frames.labels)
         if out.reason:
             return out
-        object_points = grid_object_points(next(iter(self.pipelines.values())).detector.board, board_size,
-                                           float(square), dtype=torch.float64)
+        object_points = next(iter(self.pipelines.values())).solving.object_points(board_size, square)
         solver = RigSolver(models=models, **self.solver_kwargs)
         sizes = [tuple(int(x) for x in r.image_size) for r in cameras]
         try:

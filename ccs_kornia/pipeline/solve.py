@@ -4,38 +4,37 @@ Per image size, one batched solve over the cameras; with a :class:`~ccs_kornia.m
 every candidate model solves every camera and :class:`~ccs_kornia.modules.calibration.model_selection.ModelSelection` picks one per camera; where the
 image evidence asked for the lens correction, the corrected-frame calibration then competes with the usual one.
 Kept apart from ``pipeline/calibration_pipeline.py`` so that file stays the composition; the functions take the pipeline's solvers and
-solver options as one value (:class:`Solving`).
+solver options as one value (:class:`Solving`) and the detections as the solver sees them, built once per solve
+(:class:`~ccs_kornia.pipeline.solver_input.SolverInput`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from typing import Any, Mapping
+from typing import Any
 
 import torch
 
 from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.modules.calibration import corrected_frame
 from ccs_kornia.modules.calibration.model_selection import ModelChoice, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
-from ccs_kornia.modules.correction import corrected_frame
-from ccs_kornia.modules.detection.base import measured_corners
 from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.pipeline.result import (
     PipelineResult,
     camera_reason,
     concat_results,
-    corner_weights_of,
-    diagnose_cameras,
     positive_size,
-    same_size_views,
     scatter_cameras,
     select_result,
 )
+from ccs_kornia.pipeline.solver_input import SolverInput
 from ccs_kornia.pipeline.workers import worker_pool, workers_on
 
-__all__ = ["Solving", "diagnose_solved", "solve_detections", "solve_group"]
+__all__ = ["Solving", "diagnose_cameras", "diagnose_solved", "solve_detections", "solve_group"]
 
 
 @dataclass(frozen=True)
@@ -67,6 +66,19 @@ class Solving:
     max_rms_ratio: float
     board: Any = None
 
+    def object_points(self, board_size: tuple[int, int], square: float,
+                      device: torch.device | str | None = None) -> torch.Tensor:
+        """:math:`(N, 3)` float64 the board's points every solve takes
+        (:func:`~ccs_kornia.modules.detection.boards.grid_object_points`: an AprilGrid's uneven grid, else the even
+        one)."""
+        return grid_object_points(self.board, board_size, float(square), device=device, dtype=torch.float64)
+
+    def inputs(self, out: PipelineResult, board_size: tuple[int, int], square: float) -> SolverInput:
+        """The solver's input of ``out``'s detections, weighted where the pipeline weighs corners
+        (:meth:`~ccs_kornia.pipeline.solver_input.SolverInput.from_result`)."""
+        obj = self.object_points(board_size, square, out.detections.corners.device)
+        return SolverInput.from_result(out, obj, self.weigh_corners)
+
 
 def _merge(parts: list[CalibrationResult], order: list[torch.Tensor], count: int) -> CalibrationResult:
     """Parts over disjoint camera indices back in camera order."""
@@ -92,7 +104,8 @@ def solve_detections(solving: Solving, out: PipelineResult, board_size: tuple[in
     c = det.found.shape[0]
     device = det.corners.device
     sizes = out.image_size
-    usable = det.found & same_size_views(out)
+    inputs = solving.inputs(out, board_size, square)
+    usable = inputs.usable
     parts, order = [], []
     corrected = torch.zeros(c, dtype=torch.bool, device=device)
     correction = out.correction
@@ -108,9 +121,8 @@ def solve_detections(solving: Solving, out: PipelineResult, board_size: tuple[in
         models = None if previous is None else [out.calibration.camera.models[ci] if (previous[ci] or {}).get("chosen")
                                                 else None for ci in sel.tolist()]
         calib, refined, applied, table = solve_group(
-            solving, det.corners[sel], usable[sel], board_size, square, positive_size(size),
-            None if correction is None else correction[sel], tried, None if det.sigma is None else det.sigma[sel],
-            models, subsets)
+            solving, inputs.cameras(sel), board_size, square, positive_size(size),
+            None if correction is None else correction[sel], tried, models, subsets)
         if table is None and previous is not None:  # the choice of the first solve, and the views it saw
             table = [_chosen_before(previous[ci], int(usable[ci].sum())) for ci in sel.tolist()]
         if applied is not None:
@@ -132,9 +144,38 @@ def diagnose_solved(solving: Solving, out: PipelineResult, board_size: tuple[int
                     subsets: SubsetSolutions | None = None) -> PipelineResult:
     """``out``, a result :func:`solve_detections` solved, with its ``diagnostics`` (``subsets``: that solve's
     cross-validations, reused where the inputs are the same)."""
-    usable = out.detections.found & same_size_views(out)
-    return replace(out, diagnostics=diagnose_cameras(solving.solvers, out, usable, board_size, square,
-                                                     solving.weigh_corners, subsets, board=solving.board))
+    inputs = solving.inputs(out, board_size, square)
+    return replace(out, diagnostics=diagnose_cameras(solving.solvers, out, inputs, subsets))
+
+
+def diagnose_cameras(solvers: Mapping[CameraModel, torch.nn.Module], out: PipelineResult, inputs: SolverInput,
+                     solutions: SubsetSolutions | None = None) -> list[dict | None]:
+    """Quality figures and verdict of each camera of a solved ``out`` (one
+    :func:`~ccs_kornia.modules.calibration.quality.diagnostics.diagnose` call per image size and model; ``None`` for
+    a camera without a computed calibration). The halves and folds of the cross-validation are solved by
+    ``solvers[model]`` (the usual path: a camera calibrated in the corrected frame is cross-validated without it) on
+    the solve's ``inputs`` (its views, corners and weights); ``solutions``: the model selection's solved
+    cross-validation subsets (:class:`~ccs_kornia.modules.calibration.subset_solutions.SubsetSolutions`), used where
+    the inputs are the same."""
+    from ccs_kornia.modules.calibration.quality.diagnostics import diagnose
+
+    cal = out.calibration
+    count = inputs.usable.shape[0]
+    device = inputs.usable.device
+    diagnostics: list[dict | None] = [None] * count
+    models = cal.camera.models
+    for size, model in dict.fromkeys(zip(out.image_size, models)):
+        sel = torch.tensor([s == size and m == model for s, m in zip(out.image_size, models)], device=device)
+        sel = (sel & cal.success.to(device)).nonzero().flatten()
+        if sel.numel() == 0:
+            continue
+        part = inputs.cameras(sel)
+        with torch.inference_mode():
+            figures = diagnose(select_result(cal, sel), part.corners, part.valid, part.object_points,
+                               positive_size(size), solver=solvers[model], weights=part.weights, solutions=solutions)
+        for k, ci in enumerate(sel.tolist()):
+            diagnostics[ci] = figures[k]
+    return diagnostics
 
 
 def _chosen_before(table: dict | None, views: int) -> dict | None:
@@ -146,29 +187,26 @@ def _chosen_before(table: dict | None, views: int) -> dict | None:
                              f"on the calibrated lens; the final calibration uses {views}"}
 
 
-def solve_group(solving: Solving, corners: torch.Tensor, found: torch.Tensor, board_size: tuple[int, int],
-                square: float, image_size: tuple[int, int], correction: torch.Tensor | None, tried: torch.Tensor | None,
-                sigma: torch.Tensor | None = None, models: list[CameraModel | None] | None = None,
-                subsets: SubsetSolutions | None = None):
+def solve_group(solving: Solving, inputs: SolverInput, board_size: tuple[int, int], square: float,
+                image_size: tuple[int, int], correction: torch.Tensor | None, tried: torch.Tensor | None,
+                models: list[CameraModel | None] | None = None, subsets: SubsetSolutions | None = None):
     """Cameras of one image size: ``(calibration, correction, applied, model_selection)`` (the last two ``None``
-    without a correction / without a model choice). ``sigma``: the corners'
-    :math:`(C, V, N)` precision, weighting the solves where the pipeline weighs corners. ``models``
-    (a model choice only): a model per camera to solve with instead of choosing (the table is then ``None``;
-    a camera without one gets the first candidate). ``subsets``: where the model selection keeps its
-    cross-validations. ``board_size``: checked ``(cols, rows)`` (the pipeline's edge)."""
-    obj = grid_object_points(solving.board, board_size, float(square), device=corners.device, dtype=torch.float64)
-    valid = measured_corners(corners, found)
-    weights = corner_weights_of(sigma, valid) if solving.weigh_corners else None
+    without a correction / without a model choice). ``inputs``: the cameras' solver input
+    (:class:`~ccs_kornia.pipeline.solver_input.SolverInput`). ``models`` (a model choice only): a model per camera to
+    solve with instead of choosing (the table is then ``None``; a camera without one gets the first candidate).
+    ``subsets``: where the model selection keeps its cross-validations. ``board_size``: checked ``(cols, rows)`` (the
+    pipeline's edge); with ``square``, the board of the corrected-frame calibration."""
+    device = inputs.corners.device
     if not isinstance(solving.model, ModelChoice):
         with torch.inference_mode():
-            usual = solving.solver(corners.to(torch.float64), valid, obj, image_size, weights=weights)
-        return (*_compete(solving, solving.solver, usual, corners, found, board_size, square, image_size, correction, tried),
+            usual = inputs.solve(solving.solver, image_size)
+        return (*_compete(solving, solving.solver, usual, inputs, board_size, square, image_size, correction, tried),
                 None)
     if models is None:
         with torch.inference_mode():
-            results, chosen, table = solving.selection(
-                corners.to(torch.float64), valid, obj, image_size, weights=weights,
-                map_models=_map_in_workers(workers_on(corners.device, solving.workers)), solutions=subsets)
+            results, chosen, table = inputs.solve(
+                solving.selection, image_size,
+                map_models=_map_in_workers(workers_on(device, solving.workers)), solutions=subsets)
         fallback = next(iter(results))  # cameras no model calibrated keep that model's (failed) result
         names = [n or fallback for n in chosen]
     else:
@@ -176,14 +214,14 @@ def solve_group(solving: Solving, corners: torch.Tensor, found: torch.Tensor, bo
         # each chosen model solves every camera of the group, as in the selection: the solver's RANSAC draws depend on
         # the batch, and a camera must get the calibration its choice was made on (docs/measurements.md)
         with torch.inference_mode():
-            results = {name: solving.solvers[name](corners.to(torch.float64), valid, obj, image_size, weights=weights)
-                       for name in dict.fromkeys(names)}
+            results = {name: inputs.solve(solving.solvers[name], image_size) for name in dict.fromkeys(names)}
     parts, order = [], []
-    applied = None if correction is None else torch.zeros(corners.shape[0], dtype=torch.bool, device=corners.device)
+    count = inputs.usable.shape[0]
+    applied = None if correction is None else torch.zeros(count, dtype=torch.bool, device=device)
     for name in dict.fromkeys(names):
-        sel = torch.tensor([n == name for n in names], device=corners.device).nonzero().flatten()
+        sel = torch.tensor([n == name for n in names], device=device).nonzero().flatten()
         calib, refined, kept = _compete(
-            solving, solving.solvers[name], select_result(results[name], sel), corners[sel], found[sel], board_size, square,
+            solving, solving.solvers[name], select_result(results[name], sel), inputs.cameras(sel), board_size, square,
             image_size, None if correction is None else correction[sel], None if tried is None else tried[sel],
         )
         if correction is not None:
@@ -192,11 +230,11 @@ def solve_group(solving: Solving, corners: torch.Tensor, found: torch.Tensor, bo
             applied[sel] = kept
         parts.append(calib)
         order.append(sel)
-    return _merge(parts, order, corners.shape[0]), correction, applied, table
+    return _merge(parts, order, count), correction, applied, table
 
 
-def _compete(solving: Solving, solver: CalibrationSolver, usual: CalibrationResult, corners, found, board_size, square, image_size,
-             correction, tried):
+def _compete(solving: Solving, solver: CalibrationSolver, usual: CalibrationResult, inputs: SolverInput, board_size,
+             square, image_size, correction, tried):
     """Where the evidence asked for it, the corrected-frame calibration against the usual one (kept where it fits
     the observed corners clearly better); returns ``(calibration, correction, applied)``."""
     # (the corrected frame's radial model is a pinhole lens's: not for fisheye cameras)
@@ -208,6 +246,7 @@ def _compete(solving: Solving, solver: CalibrationSolver, usual: CalibrationResu
     applied = torch.zeros_like(tried)
     if sel.numel() == 0:
         return usual, correction, applied
+    corners, found = inputs.corners, inputs.usable
     calib, refined, kept = corrected_frame.solve_with_correction(
         solver, select_result(usual, sel), corners[sel], found[sel], correction[sel],
         torch.ones(sel.numel(), dtype=torch.bool, device=corners.device), board_size, square, image_size,

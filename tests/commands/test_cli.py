@@ -764,10 +764,10 @@ def test_jobs_option_sets_the_pipeline_workers(capsys):
     parser = cli.build_parser()
     args = parser.parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json", "--no-distortion-correction"])
     assert args.jobs == "auto" and args.batch_size == 8
-    assert _factories.make_pipeline(args).workers == default_workers("cpu")
+    assert _factories.make_pipeline(args).settings.workers == default_workers("cpu")
     args = parser.parse_args(["detect", "a.png", "--board", "9x6", "--output", "o.json", "--jobs", "3",
                               "--no-distortion-correction"])
-    assert _factories.make_pipeline(args).workers == 3
+    assert _factories.make_pipeline(args).settings.workers == 3
     for bad in ("0", "two"):
         with pytest.raises(SystemExit):
             parser.parse_args(["calibrate", "a.png", "--board", "9x6", "--output", "o.json", "--jobs", bad])

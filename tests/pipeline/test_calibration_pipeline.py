@@ -240,7 +240,7 @@ def test_detect_corrected_large_images_downscaled_and_refined():
     from ccs_kornia.modules.detection.warps.corrected_copy import detect_on_corrected
 
     pipes = [CalibrationPipeline("opencv", max_detection_side=side) for side in (None, 640)]
-    full, small = (detect_on_corrected(p.detect_images, p.refine_on_patches, s.images, corr, BOARD) for p in pipes)
+    full, small = (detect_on_corrected(p.tools.detect, p.tools.refine, s.images, corr, BOARD) for p in pipes)
     assert bool(full.found.all()) and bool(small.found.all())
     err_full = (full.corners.double() - s.corners.double()).norm(dim=-1)
     err_small = (small.corners.double() - s.corners.double()).norm(dim=-1)
@@ -354,7 +354,7 @@ def test_solve_after_the_second_look_keeps_the_chosen_model(sets, monkeypatch):
 
     look = Look("fake look", lambda out, detector: [(0, 2)], recover, needs_camera=True)
     pipe = CalibrationPipeline("opencv", model=ModelChoice(), looks=(look,), **kw)
-    assert pipe.looks == (look,)
+    assert pipe.settings.looks == (look,)
     calls = []
     select = pipe.selection.forward
     monkeypatch.setattr(pipe.selection, "forward", lambda *a, **k: calls.append(1) or select(*a, **k))

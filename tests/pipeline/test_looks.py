@@ -73,6 +73,6 @@ def test_the_pipeline_takes_its_looks():
     from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
     kw = dict(distortion_correction=False)
-    assert CalibrationPipeline("opencv", **kw).looks == LOOKS
-    assert CalibrationPipeline("opencv", calibrated_look=False, **kw).looks == (CORRECTED, FORESHORTENED)
-    assert CalibrationPipeline("opencv", looks=(FORESHORTENED,), **kw).looks == (FORESHORTENED,)
+    assert CalibrationPipeline("opencv", **kw).settings.looks == LOOKS
+    assert CalibrationPipeline("opencv", calibrated_look=False, **kw).settings.looks == (CORRECTED, FORESHORTENED)
+    assert CalibrationPipeline("opencv", looks=(FORESHORTENED,), **kw).settings.looks == (FORESHORTENED,)

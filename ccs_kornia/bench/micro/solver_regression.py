@@ -63,7 +63,7 @@ def capture(path, real_dir):
             real[name] = {"corners": uv, "obj": board_object_points(board[0], board[1], square, dtype=F64), "size": size}
     # inputs of the corrected-frame stage: the pipeline tests' synthetic lenses and opencv_left
     corrected = {}
-    from ccs_kornia.modules.correction import corrected_frame
+    from ccs_kornia.modules.calibration import corrected_frame
 
     pipe = CalibrationPipeline("opencv", seed=0)
     grab = {}
@@ -113,11 +113,11 @@ def _record(res, extra=None):
 
 
 def run(inputs):
-    from ccs_kornia.modules.calibration.solver import CalibrationSolver
-    from ccs_kornia.modules.correction.corrected_frame import (
+    from ccs_kornia.modules.calibration.corrected_frame import (
         calibrate_corrected,
         solve_with_correction,
     )
+    from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
     data = torch.load(inputs, weights_only=False)
     out = {}

@@ -76,6 +76,7 @@ def render_wide_scenes(cfg: BenchConfig, cameras: int, views: int) -> Scenes:
 def _network_part(pipeline, scenes: Scenes, image_size: tuple[int, int], board: tuple[int, int]) -> dict:
     from ccs_kornia.geometry.camera import fit_radial_correction
     from ccs_kornia.losses.grid_loss import grid_loss, normalize_distortion_scale
+    from ccs_kornia.modules.correction.pooling import pool_corrections
     from ccs_kornia.modules.correction.radial_warp import correct_points
     from ccs_kornia.modules.correction.straightness import straightness_rms
 
@@ -85,7 +86,7 @@ def _network_part(pipeline, scenes: Scenes, image_size: tuple[int, int], board: 
     ident = torch.zeros_like(per_view)
     ident[:, 0] = 1.0
     oracle = fit_radial_correction(truth, image_size)
-    pooled, _ = pipeline.pool_corrections(per_view.reshape(c, v, 5), image_size)
+    pooled, _ = pool_corrections(per_view.reshape(c, v, 5), image_size, pipeline.settings.min_correction)
 
     def gl(pred: torch.Tensor) -> float:
         return float(grid_loss(pred.double(), truth, image_size, 16))

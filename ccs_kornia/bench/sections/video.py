@@ -142,11 +142,8 @@ def _corners(detected, camera: int, views: list[int]) -> list[np.ndarray]:
 def _choices(pipeline, detected, board: tuple[int, int], found: list[int], candidates: list[int], candidate_source,
              obj: np.ndarray, size: tuple[int, int], camera: int = 0) -> dict:
     """The four frame choices on one camera's detections: ``{method: (views, one-camera result)}``."""
-    pipeline.frame_selection = _selection()
-    try:
-        selected = _solve(pipeline, detected, board, camera, candidates, candidate_source)
-    finally:
-        pipeline.frame_selection = None
+    selecting = _pipeline(pipeline.detector, pipeline.settings.workers, _selection())
+    selected = _solve(selecting, detected, board, camera, candidates, candidate_source)
     kept = [] if selected is None or selected.frame_choice is None else \
         [candidates[v] for v, keep in enumerate(selected.frame_choice.view_kept(0)[:len(candidates)]) if keep]
     count = max(1, len(kept))
@@ -435,7 +432,7 @@ def _real_rig(folder: Path, pipeline, screened, refs, detected, obj, inner, log)
         views = []
         for c, (vs, r) in enumerate(cams):
             speeds = [refs[c][v].speed for v in vs]
-            views.append(None if r is None else camera_views(r, objt, pipeline.weigh_corners, speeds))
+            views.append(None if r is None else camera_views(r, objt, pipeline.settings.weigh_corners, speeds))
         idx = [[None if table.index[c][f] is None or table.index[c][f] not in cams[c][0]
                 else cams[c][0].index(table.index[c][f]) for f in instants] for c in range(4)]
         times = None if table.times is None else [[row[f] for f in instants] for row in table.times]

@@ -1,5 +1,7 @@
 """Calibration stage: homographies, Zhang, RANSAC, the one Levenberg-Marquardt core (:mod:`.schur_lm`) and the camera
-on it (:mod:`.lm`), the outlier rule, the solver composing them, fisheye initialisation and calibration; the quality of
+on it (:mod:`.lm`), the outlier rule, the solver composing them, fisheye initialisation and calibration, the
+calibration in the radially corrected frame (:mod:`.corrected_frame`, on :mod:`ccs_kornia.modules.correction`'s
+warp); the quality of
 a calibration in :mod:`.quality` (the camera models are in :mod:`ccs_kornia.geometry.models`, rigs in
 :mod:`ccs_kornia.modules.rig`).
 
@@ -42,6 +44,9 @@ _EXPORTS = {
     "LMState": "ccs_kornia.modules.calibration.schur_lm",
     "LMStatus": "ccs_kornia.modules.calibration.schur_lm",
     "NormalEquations": "ccs_kornia.modules.calibration.schur_lm",
+    "solve_with_correction": "ccs_kornia.modules.calibration.corrected_frame",
+    "calibrate_corrected": "ccs_kornia.modules.calibration.corrected_frame",
+    "select_cameras": "ccs_kornia.modules.calibration.corrected_frame",
     "SchurProblem": "ccs_kornia.modules.calibration.schur_lm",
     "SchurLMResult": "ccs_kornia.modules.calibration.schur_lm",
     "schur_lm": "ccs_kornia.modules.calibration.schur_lm",

@@ -1,5 +1,6 @@
-"""Distortion-correction stage (paper Sec. III-A): the network, the radial warp, pooling, the
-corrected-frame calibration (undistortion for output is :mod:`ccs_kornia.modules.undistort`).
+"""Distortion-correction stage (paper Sec. III-A): the network, the radial warp, pooling (the corrected-frame
+calibration is the solver's, :mod:`ccs_kornia.modules.calibration.corrected_frame`; undistortion for output is
+:mod:`ccs_kornia.modules.undistort`). Nothing here imports the solver.
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 
@@ -31,10 +32,7 @@ _EXPORTS = {
     "correction_displacement": "ccs_kornia.modules.correction.pooling",
     "fit_correction_to_points": "ccs_kornia.modules.correction.correction_fit",
     "straightness_rms": "ccs_kornia.modules.correction.straightness",
-    "solve_with_correction": "ccs_kornia.modules.correction.corrected_frame",
-    "calibrate_corrected": "ccs_kornia.modules.correction.corrected_frame",
-    "correction_zoom": "ccs_kornia.modules.correction.corrected_frame",
-    "select_cameras": "ccs_kornia.modules.correction.corrected_frame",
+    "correction_zoom": "ccs_kornia.modules.correction.radial_warp",
 }
 
 __all__ = sorted(_EXPORTS)

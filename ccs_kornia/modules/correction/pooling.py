@@ -2,17 +2,20 @@
 
 The views of a camera share its lens, so the network's per-view corrections are pooled into one
 (:func:`aggregate_corrections`); :func:`correction_displacement` measures how far it moves the image, which decides
-whether the correction is applied (see :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline`).
+whether the correction is applied (:func:`correction_is_large`; :func:`pool_corrections` does both, as
+:class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` pools each camera's views).
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 
 from ccs_kornia.modules._checks import check_correction
 from ccs_kornia.modules.correction.radial_warp import _radial_map
 
-__all__ = ["aggregate_corrections", "correction_displacement"]
+__all__ = ["aggregate_corrections", "correction_displacement", "correction_is_large", "pool_corrections"]
 
 
 def correction_displacement(correction: torch.Tensor, image_size: tuple[int, int], samples: int = 64) -> torch.Tensor:
@@ -76,3 +79,31 @@ def aggregate_corrections(
     ident = torch.zeros_like(sol)
     ident[:, 0] = 1.0
     return torch.where(mask.any(1, keepdim=True), sol, ident).to(corrections.dtype)
+
+
+def correction_is_large(correction: torch.Tensor, image_size: tuple[int, int], min_correction: float) -> torch.Tensor:
+    """:math:`(C,)` bool: the corrections :math:`(C, 5)` move some pixel of an image of ``image_size`` ``(W, H)`` by
+    more than ``min_correction`` of the half image diagonal (:func:`correction_displacement`).
+
+    Example:
+        >>> correction_is_large(torch.tensor([[1.0, 0, 0, 0, 0], [1.0, 0, 0.3, 0, 0]]), (640, 480), 0.02).tolist()
+        [False, True]
+    """
+    half_diagonal = 0.5 * math.hypot(image_size[0], image_size[1])
+    return correction_displacement(correction, image_size) > min_correction * half_diagonal
+
+
+def pool_corrections(per_view: torch.Tensor, image_size: tuple[int, int], min_correction: float,
+                     mask: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """One correction per camera :math:`(C, 5)` float64 from :math:`(C, V, 5)` per-view ones (NaN: no prediction;
+    ``mask`` :math:`(C, V)`: the views to pool, :func:`aggregate_corrections`), and whether it is large :math:`(C,)`
+    (:func:`correction_is_large`).
+
+    Example:
+        >>> per_view = torch.tensor([[[1.0, 0, 0.3, 0, 0], [1.0, 0, 0.3, 0, 0]]])
+        >>> correction, large = pool_corrections(per_view, (640, 480), 0.02)
+        >>> correction.shape, large.tolist()
+        (torch.Size([1, 5]), [True])
+    """
+    correction = aggregate_corrections(per_view.double().nan_to_num(0.0), image_size, mask)
+    return correction, correction_is_large(correction, image_size, min_correction)

@@ -19,6 +19,8 @@ whose content otherwise grows beyond the frame); points maps use the same conven
 
 from __future__ import annotations
 
+import math
+
 import torch
 from kornia.geometry.grid import create_meshgrid
 from kornia.geometry.transform import remap
@@ -30,6 +32,7 @@ from ccs_kornia.modules._checks import check_correction, check_points
 __all__ = [
     "correct_points",
     "corrected_radius",
+    "correction_zoom",
     "distort_points_from_correction",
     "invert_correction_radius",
     "radial_undistort_image",
@@ -287,3 +290,21 @@ def corrected_radius(radius: torch.Tensor, correction: torch.Tensor) -> torch.Te
         tensor([[0.5250]])
     """
     return _radial_map(radius, correction.unsqueeze(-2))[0]
+
+
+def correction_zoom(correction: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """Zoom that keeps the farthest original image corner in the frame after correction (in [0.5, 1]).
+
+    Args:
+        correction: :math:`(B, 5)` corrections; the smallest zoom over them is returned.
+        size: ``(W, H)``.
+
+    Example:
+        >>> float(correction_zoom(torch.tensor([[1.0, 0.0, 0.0, 0.0, 0.0]]), (64, 48)))
+        1.0
+    """
+    w, h = size
+    scale = float(max(w, h))
+    r = 0.5 * math.hypot(w - 1, h - 1) / scale
+    g = corrected_radius(torch.full_like(correction[:, :1], r, dtype=torch.float64), correction.double())[:, 0]
+    return (r / g.clamp_min(1e-6)).clamp(0.5, 1.0).min()

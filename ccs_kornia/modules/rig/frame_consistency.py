@@ -25,16 +25,15 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Sequence
 
 import torch
 
-from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
+from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
 
-__all__ = ["BOARD_MOVING", "NOT_MOTION", "FrameKernel", "board_motion", "camera_board_poses", "disagreement_cause",
-           "frame_disagreement", "own_view_errors"]
+__all__ = ["BOARD_MOVING", "NOT_MOTION", "FrameKernel", "board_motion", "disagreement_cause", "frame_disagreement",
+           "own_view_errors"]
 
 #: the cause of a disagreement no larger than the board's motion per frame period
 BOARD_MOVING = "board moving"
@@ -81,64 +80,31 @@ class FrameKernel(enum.Enum):
         return self is not FrameKernel.NONE
 
 
-def camera_board_poses(R: torch.Tensor, T: torch.Tensor, frame_R: torch.Tensor,
-                       frame_t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    r"""Each camera's board pose in every frame from the rig: ``R_c R_f``, ``R_c t_f + T_c``.
-
-    Args:
-        R, T: :math:`(B, C, 3, 3)`, :math:`(B, C, 3)` extrinsics (``x_c = R_c x_0 + T_c``).
-        frame_R, frame_t: :math:`(B, F, 3, 3)`, :math:`(B, F, 3)` board -> camera 0.
-
-    Returns:
-        :math:`(B, C, F, 3, 3)` and :math:`(B, C, F, 3)`.
-
-    Example:
-        >>> R = torch.eye(3).expand(1, 2, 3, 3)
-        >>> T = torch.tensor([[[0.0, 0, 0], [-0.1, 0, 0]]])
-        >>> Rc, tc = camera_board_poses(R, T, torch.eye(3).expand(1, 1, 3, 3), torch.tensor([[[0.0, 0, 1]]]))
-        >>> tc[0, :, 0].tolist()
-        [[0.0, 0.0, 1.0], [-0.10000000149011612, 0.0, 1.0]]
-    """
-    Rc = R[:, :, None] @ frame_R[:, None]
-    tc = (R[:, :, None] @ frame_t[:, None, :, :, None])[..., 0] + T[:, :, None]
-    return Rc, tc
-
-
-def own_view_errors(
-    models: Sequence[CameraModel],
-    params: Sequence[torch.Tensor],
-    R: torch.Tensor,
-    T: torch.Tensor,
-    frame_R: torch.Tensor,
-    frame_t: torch.Tensor,
-    object_points: torch.Tensor,
-    corners: torch.Tensor,
-    weights: torch.Tensor,
-    max_iters: int = 20,
-) -> torch.Tensor:
+def own_view_errors(rig: RigState, observations: RigObservations, max_iters: int = 20) -> torch.Tensor:
     r"""Each camera's squared pixel error per frame under its own best board pose, its intrinsics held.
 
-    Starts from the rig's pose of the board in the camera (:func:`camera_board_poses`) and refines the pose alone
+    Starts from the rig's pose of the board in the camera
+    (:meth:`~ccs_kornia.modules.rig.rig_state.RigState.board_poses`) and refines the pose alone
     (:func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt` with no camera parameter free).
 
     Args:
-        models: C camera models; params: per camera :math:`(B, P_c)`.
-        R, T, frame_R, frame_t: the rig (:func:`camera_board_poses`).
-        object_points: :math:`(N, 3)`; corners: :math:`(B, C, F, N, 2)`; weights: :math:`(B, C, F, N)` (0: unused).
+        rig: the rigs (:class:`~ccs_kornia.modules.rig.rig_state.RigState`).
+        observations: the board points, corners :math:`(B, C, F, N, 2)` and weights :math:`(B, C, F, N)` (0: unused).
         max_iters: pose iterations at most.
 
     Returns:
         :math:`(B, C, F)` unweighted sum of squared pixel errors of the used corners (0 where unused).
     """
-    Rc, tc = camera_board_poses(R, T, frame_R, frame_t)
+    Rc, tc = rig.board_poses()
+    corners, weights = observations.corners, observations.weights
     B, C, F = weights.shape[:3]
     out = corners.new_zeros(B, C, F)
-    for c, model in enumerate(models):
+    for c, model in enumerate(rig.models):
         w = weights[:, c]
         if not bool((w > 0).any()):
             continue
-        res = levenberg_marquardt(model, params[c], log_so3(Rc[:, c]), tc[:, c], object_points, corners[:, c], w,
-                                  free=[False] * model.num_params, max_iters=max_iters)
+        res = levenberg_marquardt(model, rig.params[c], log_so3(Rc[:, c]), tc[:, c], observations.object_points,
+                                  corners[:, c], w, free=[False] * model.num_params, max_iters=max_iters)
         n = (w > 0).sum(-1)
         out[:, c] = (res.view_rms.nan_to_num(0.0) ** 2 * n).to(out.dtype)
     return out
@@ -173,17 +139,7 @@ def frame_disagreement(sq_rig: torch.Tensor, sq_own: torch.Tensor, count: torch.
     return per_cam, per_frame
 
 
-def board_motion(
-    models: Sequence[CameraModel],
-    params: Sequence[torch.Tensor],
-    R: torch.Tensor,
-    T: torch.Tensor,
-    frame_R: torch.Tensor,
-    frame_t: torch.Tensor,
-    object_points: torch.Tensor,
-    used: torch.Tensor,
-    times: torch.Tensor,
-) -> torch.Tensor:
+def board_motion(rig: RigState, object_points: torch.Tensor, used: torch.Tensor, times: torch.Tensor) -> torch.Tensor:
     r"""How far the board moves in the image per frame period around each frame (px), from its fitted poses in the
     neighbouring frames.
 
@@ -192,7 +148,7 @@ def board_motion(
     the median time between consecutive used frames; the largest over the cameras and neighbours.
 
     Args:
-        models, params, R, T, frame_R, frame_t: the rig; object_points: :math:`(N, 3)`.
+        rig: the rigs (:class:`~ccs_kornia.modules.rig.rig_state.RigState`); object_points: :math:`(N, 3)`.
         used: :math:`(B, C, F)` bool observations.
         times: :math:`(F,)` the frames' times (any unit; increasing order not required), NaN where unknown.
 
@@ -200,11 +156,12 @@ def board_motion(
         :math:`(B, F)` px per frame period (NaN without a neighbour).
     """
     B, F = used.shape[0], used.shape[2]
+    frame_t = rig.frame_t
     out = torch.full((B, F), float("nan"), dtype=frame_t.dtype, device=frame_t.device)
     times = times.to(device=frame_t.device, dtype=frame_t.dtype)
     if F < 2:
         return out
-    Rc, tc = camera_board_poses(R, T, frame_R, frame_t)
+    Rc, tc = rig.board_poses()
     obj = object_points.to(frame_t)
     for b in range(B):
         frames = used[b].any(0) & times.isfinite()
@@ -214,9 +171,9 @@ def board_motion(
         order = idx[torch.argsort(times[idx])]
         gaps = (times[order[1:]] - times[order[:-1]]).abs()
         period = float(gaps[gaps > 0].median()) if bool((gaps > 0).any()) else float("nan")
-        for c, model in enumerate(models):
+        for c, model in enumerate(rig.models):
             X = (Rc[b, c] @ obj.T).transpose(-1, -2) + tc[b, c][:, None]  # (F, N, 3)
-            uv = model.columns(X[None], params[c][b : b + 1], jacobians=False)[0][0]
+            uv = model.columns(X[None], rig.params[c][b : b + 1], jacobians=False)[0][0]
             for a, z in zip(order[:-1].tolist(), order[1:].tolist()):
                 dt = abs(float(times[z] - times[a]))
                 if not (bool(used[b, c, a]) and bool(used[b, c, z])) or dt <= 0:

@@ -35,6 +35,7 @@ import torch
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm
+from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
 
 __all__ = ["RigLMResult", "rig_layout", "rig_levenberg_marquardt"]
 
@@ -43,11 +44,7 @@ __all__ = ["RigLMResult", "rig_layout", "rig_levenberg_marquardt"]
 class RigLMResult:
     """Output of :func:`rig_levenberg_marquardt` (B rigs, C cameras, F frames, G rig parameters, Gf of them free)."""
 
-    params: list[torch.Tensor]  #: per camera (B, P_c)
-    R: torch.Tensor  #: (B, C, 3, 3) extrinsic rotations (R[:, 0] = I)
-    T: torch.Tensor  #: (B, C, 3)
-    frame_R: torch.Tensor  #: (B, F, 3, 3) board -> camera 0
-    frame_t: torch.Tensor  #: (B, F, 3)
+    state: RigState  #: the rigs at the solution (frames no camera used: parked in front of camera 0)
     cost: torch.Tensor  #: (B,) weighted sum of squared residuals
     sq_error: torch.Tensor  #: (B, C, F) unweighted sum of squared pixel errors of the used corners
     count: torch.Tensor  #: (B, C, F) used corners
@@ -218,15 +215,8 @@ class _RigProblem:
 
 
 def rig_levenberg_marquardt(
-    models: Sequence[CameraModel],
-    params: Sequence[torch.Tensor],
-    R: torch.Tensor,
-    T: torch.Tensor,
-    frame_R: torch.Tensor,
-    frame_t: torch.Tensor,
-    object_points: torch.Tensor,
-    corners: torch.Tensor,
-    weights: torch.Tensor,
+    start: RigState,
+    observations: RigObservations,
     free: torch.Tensor | None = None,
     max_iters: int = 100,
     ftol: float = 1e-12,
@@ -240,15 +230,10 @@ def rig_levenberg_marquardt(
     r"""Refine B rigs jointly (see the module doc); no Python loop over rigs or frames, one over cameras.
 
     Args:
-        models: C camera models.
-        params: per camera :math:`(B, P_c)` initial parameters.
-        R: :math:`(B, C, 3, 3)` initial extrinsic rotations (``R[:, 0]`` is kept at its value, normally ``I``).
-        T: :math:`(B, C, 3)` initial extrinsic translations.
-        frame_R: :math:`(B, F, 3, 3)` initial board rotations (board to camera 0).
-        frame_t: :math:`(B, F, 3)` initial board translations.
-        object_points: :math:`(N, 3)` board points.
-        corners: :math:`(B, C, F, N, 2)` observed pixels (anything where the weight is 0).
-        weights: :math:`(B, C, F, N)` per-corner inverse variances (0: not used).
+        start: the rigs to start from (:class:`~ccs_kornia.modules.rig.rig_state.RigState`; ``R[:, 0]`` is kept at
+            its value, normally ``I``).
+        observations: the board points, the corners :math:`(B, C, F, N, 2)` and their weights :math:`(B, C, F, N)`
+            (:class:`~ccs_kornia.modules.rig.rig_state.RigObservations`).
         free: :math:`(G,)` bool, which rig parameters move (:func:`rig_layout` order; default all).
         max_iters, ftol, xtol, lambda_init, check_every, stall_tol: as
             :func:`~ccs_kornia.modules.calibration.schur_lm.schur_lm`.
@@ -276,12 +261,13 @@ def rig_levenberg_marquardt(
         >>> T = torch.tensor([[[0.0, 0, 0], [-0.09, 0.01, 0]]], dtype=torch.float64)
         >>> p = [torch.tensor([[505., 495., 322., 238.]], dtype=torch.float64)] * 2
         >>> m = [PINHOLE] * 2
-        >>> Rf = exp_so3(rv)[None]
-        >>> res = rig_levenberg_marquardt(m, p, R, T, Rf, tv[None], obj, corners, torch.ones(1, 2, 3, 20))
-        >>> res.T[0, 1].round(decimals=6).tolist(), LMStatus(int(res.status))
+        >>> start = RigState(m, p, R, T, exp_so3(rv)[None], tv[None])
+        >>> res = rig_levenberg_marquardt(start, RigObservations(obj, corners, torch.ones(1, 2, 3, 20)))
+        >>> res.state.T[0, 1].round(decimals=6).tolist(), LMStatus(int(res.status))
         ([-0.1, 0.0, 0.0], <LMStatus.CONVERGED: 1>)
     """
-    models = list(models)
+    models, params = list(start.models), start.params
+    object_points, corners, weights = observations.object_points, observations.corners, observations.weights
     B, C = corners.shape[:2]
     if len(models) != C or len(params) != C:
         raise ValueError(f"models and params need one entry per camera ({C}), got {len(models)} and {len(params)}.")
@@ -299,8 +285,8 @@ def rig_levenberg_marquardt(
     obj = object_points.to(device=device, dtype=dtype)
     frame_used = on.any(-1).any(1)  # (B, F)
     park = torch.tensor([0.0, 0.0, 1.0 + 10.0 * float(obj.abs().amax())], dtype=dtype, device=device)
-    Rf = torch.where(frame_used[..., None, None], frame_R.to(dtype), torch.eye(3, dtype=dtype, device=device))
-    tf = torch.where(frame_used[..., None], frame_t.to(dtype), park)
+    Rf = torch.where(frame_used[..., None, None], start.frame_R.to(dtype), torch.eye(3, dtype=dtype, device=device))
+    tf = torch.where(frame_used[..., None], start.frame_t.to(dtype), park)
     x = [p.to(device=device, dtype=dtype).clone() for p in params]
     eye6 = torch.eye(6, dtype=dtype, device=device)
     count = on.sum(-1)
@@ -325,7 +311,8 @@ def rig_levenberg_marquardt(
             num_residuals = num_residuals + P
         priors = priors if any(p is not None for p in priors) else None
     problem = _RigProblem(models, layout, fi, obj, obs, sw, on, frame_used, num_residuals, floor, eye6, priors)
-    state = {**{f"p{c}": x[c] for c in range(C)}, "R": R.to(dtype).clone(), "T": T.to(dtype).clone(), "Rf": Rf, "tf": tf}
+    state = {**{f"p{c}": x[c] for c in range(C)}, "R": start.R.to(dtype).clone(), "T": start.T.to(dtype).clone(),
+             "Rf": Rf, "tf": tf}
     sol = schur_lm(problem, state, max_iters=max_iters, ftol=ftol, xtol=xtol, lambda_init=lambda_init,
                    check_every=check_every, stall_tol=stall_tol, absolute_weights=absolute_weights)
     u = sol.unknowns
@@ -336,7 +323,7 @@ def rig_levenberg_marquardt(
     cov = torch.zeros(B, G, G, dtype=dtype, device=device)
     cov[:, fi[:, None], fi[None, :]] = sol.covariance
     return RigLMResult(
-        params=x, R=Rx, T=Tx, frame_R=Rf, frame_t=tf, cost=sol.cost, sq_error=sq, count=count, covariance=cov,
+        state=RigState(models, x, Rx, Tx, Rf, tf), cost=sol.cost, sq_error=sq, count=count, covariance=cov,
         sigma2=sol.sigma2, iterations=sol.iterations, status=sol.status, frame_used=frame_used,
         prior_cost=sol.equations.prior_cost,
     )

@@ -59,6 +59,7 @@ from ccs_kornia.modules.rig.rig_diagnostics import (
 )
 from ccs_kornia.modules.rig.rig_init import initial_rig_cameras, rig_extrinsics
 from ccs_kornia.modules.rig.rig_lm import rig_layout, rig_levenberg_marquardt
+from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
 from ccs_kornia.modules.rig.session_advice import session_advice, shared_frames
 from ccs_kornia.modules.rig.stereo import StereoPair, stereo_pair
 from ccs_kornia.runtime.threads import small_problem_threads
@@ -378,13 +379,13 @@ class RigSolver(nn.Module):
         frame_w = torch.ones(B, F, dtype=dtype, device=device)
         prior_scale = torch.ones(B, C, dtype=dtype, device=device)
 
-        def fit(use, p, R, T, fR, ft, iters=self.max_iters):
+        def fit(use, start: RigState, iters=self.max_iters):
             k = use.shape[0] // B  # the held-out folds stack k copies of the rigs
             w = (base_w * frame_w[:, None, :, None]).repeat(k, 1, 1, 1) * use[..., None].to(dtype)
             prior = None if priors is None else [
                 None if q is None else (q[0].repeat(k, 1), (q[1] * prior_scale[:, c, None, None]).repeat(k, 1, 1))
                 for c, q in enumerate(priors)]
-            return rig_levenberg_marquardt(lm_models, p, R, T, fR, ft, obj, corners.repeat(k, 1, 1, 1, 1), w, free,
+            return rig_levenberg_marquardt(start, RigObservations(obj, corners.repeat(k, 1, 1, 1, 1), w), free,
                                            max_iters=iters, ftol=self.ftol, stall_tol=self.stall_tol, prior=prior)
 
         def consistency(res, use):
@@ -392,7 +393,7 @@ class RigSolver(nn.Module):
             than its own poses the rig's one pose per frame leaves of each camera's squared error, beyond what the
             noise alone leaves (frames weighted as in the fit; 0 for a consistent rig)."""
             w = base_w * use[..., None].to(dtype)
-            own = own_view_errors(lm_models, res.params, res.R, res.T, res.frame_R, res.frame_t, obj, corners, w)
+            own = own_view_errors(res.state, RigObservations(obj, corners, w))
             _, per_frame = frame_disagreement(res.sq_error, own, res.count, use)
             own_rms = (own / res.count.clamp_min(1)).sqrt().masked_fill(~use, float("nan")).flatten(1)
             fw = frame_w[:, None] * use.to(dtype)
@@ -406,7 +407,7 @@ class RigSolver(nn.Module):
             excess = (ratio / expected.clamp_min(1e-300) - 1.0).nan_to_num(0.0).clamp_min(0.0)
             return per_frame, own_rms.nanmedian(-1).values, excess
 
-        res = fit(used, params, R0, T0, frame_R, frame_t)
+        res = fit(used, RigState(lm_models, params, R0, T0, frame_R, frame_t))
         scale = torch.full((B,), float("nan"), dtype=dtype, device=device)
         passes = self.frame_passes if (self.frame_kernel.reweights or priors is not None) else 0
         for _ in range(passes):  # frames one board pose does not explain count less (iteratively reweighted)
@@ -417,21 +418,20 @@ class RigSolver(nn.Module):
             # hold: a camera the one-pose-per-frame fit leaves with k times the squared error the noise explains is
             # held by k - 1 times its own views' information (none in a consistent rig)
             prior_scale = ratio
-            res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
+            res = fit(used, res.state)
         for _ in range(2):  # outlier observations (camera x frame), then fit again without them
             rms = (res.sq_error / res.count.clamp_min(1)).sqrt()
             keep = drop_outliers(rms, used, used, self.outlier_abs_threshold, self.outlier_rel_threshold, 2)
             if bool((keep == used).all()):
                 break
             used = keep
-            res = fit(used, res.params, res.R, res.T, res.frame_R, res.frame_t)
+            res = fit(used, res.state)
         d_final, own_rms, final_excess = consistency(res, used)
         if not bool(scale.isfinite().any()):
             scale = self._scale(own_rms)
         motion = torch.full((B, F), float("nan"), dtype=dtype, device=device)
         if frame_times is not None:
-            motion = board_motion(lm_models, res.params, res.R, res.T, res.frame_R, res.frame_t, obj, used,
-                                  frame_times)
+            motion = board_motion(res.state, obj, used, frame_times)
         fc = {"disagreement": d_final, "weight": frame_w, "motion": motion, "scale": scale}
         single = {"params": single_params, "std": single_std, "excess": final_excess,
                   "prior_scale": prior_scale if priors is not None else torch.zeros_like(prior_scale)}
@@ -485,11 +485,7 @@ class RigSolver(nn.Module):
         folds = split_views(frames, k).unbind(1)  # (B, F) each
         use = torch.cat([used & ~f[:, None, :] for f in folds])  # (k B, C, F)
 
-        def rep(x):
-            return x.repeat(k, *([1] * (x.dim() - 1)))
-
-        out = fit(use, [rep(p) for p in res.params], rep(res.R), rep(res.T), rep(res.frame_R), rep(res.frame_t),
-                  iters=max(self.max_iters // 2, 10))
+        out = fit(use, res.state.repeat(k), iters=max(self.max_iters // 2, 10)).state
         held = []
         for b in range(B):
             if not bool(enough[b]):
@@ -512,16 +508,17 @@ class RigSolver(nn.Module):
     def _result(self, b, res, used, corners, valid, models, names, sizes, failed, ext, intr, held, order, fc,
                 single, fixed, obj) -> RigResult:
         C, F = used.shape[1:]
-        dtype = res.R.dtype
+        rig = res.state
+        dtype = rig.R.dtype
         nan = float("nan")
-        cams = _cameras(models, [p[b] for p in res.params], sizes)
+        cams = _cameras(models, [p[b] for p in rig.params], sizes)
         u = used[b]
         rms_m = (res.sq_error[b] / res.count[b].clamp_min(1)).sqrt().masked_fill(~u, nan)
         cnt = torch.where(u, res.count[b], 0).sum(-1)
         cam_rms = (torch.where(u, res.sq_error[b], 0.0).sum(-1) / cnt.clamp_min(1)).sqrt().masked_fill(cnt == 0, nan)
         total = float((torch.where(u, res.sq_error[b], 0.0).sum() / cnt.sum().clamp_min(1)).sqrt())
         cov = res.covariance[b]
-        T = res.T[b].clone()
+        T = rig.T[b].clone()
         bstd = torch.zeros(C, dtype=dtype, device=T.device)
         rstd = torch.zeros(C, dtype=dtype, device=T.device)
         for c in range(1, C):
@@ -531,16 +528,16 @@ class RigSolver(nn.Module):
             rstd[c] = torch.rad2deg(cov[e.start : e.start + 3, e.start : e.start + 3].trace().clamp_min(0).sqrt())
         istd = [cov[intr[c], intr[c]].diagonal().clamp_min(0).sqrt().clone() for c in range(C)]
         frames = u.any(0)
-        rvec = torch.where(frames[:, None], log_so3(res.frame_R[b]), nan)
-        tvec = torch.where(frames[:, None], res.frame_t[b], nan)
-        s, n = epipolar_sums(cams, res.R[b], T, corners[b], valid[b], u)
+        rvec = torch.where(frames[:, None], log_so3(rig.frame_R[b]), nan)
+        tvec = torch.where(frames[:, None], rig.frame_t[b], nan)
+        s, n = epipolar_sums(cams, rig.R[b], T, corners[b], valid[b], u)
         epi = (s / n.clamp_min(1)).sqrt().masked_fill(n == 0, nan)
         epi.fill_diagonal_(0.0)
         success = not failed and bool(res.frame_used[b].any()) and bool(torch.isfinite(cam_rms).all())
         reason = failed or ("" if success else "the joint fit failed (no finite solution)")
         singles = _cameras(models, [p[b] for p in single["params"]], sizes)
         sstd = [single["std"][c][b].clone() for c in range(C)]
-        moved = [torch.where(sstd[c] > 0, (res.params[c][b] - single["params"][c][b]) / sstd[c].clamp_min(1e-300),
+        moved = [torch.where(sstd[c] > 0, (rig.params[c][b] - single["params"][c][b]) / sstd[c].clamp_min(1e-300),
                              0.0) for c in range(C)]
         # moves of the cameras the rig explains worse than their noise (in a consistent rig a move is what the shared
         # frames know better, not a drag): those the verdict and the advice speak of
@@ -548,9 +545,8 @@ class RigSolver(nn.Module):
         dragged = [m if float(excess[c]) >= DRAGGED_EXCESS else torch.zeros_like(m) for c, m in enumerate(moved)]
         fw = fc["weight"][b].masked_fill(~u.any(0), float("nan"))
         shared = shared_frames(u, fc["weight"][b])
-        advice = session_advice(names, sizes, list(models), [p[b] for p in res.params], res.R[b],
-                                T, res.frame_R[b], res.frame_t[b], obj, corners[b], valid[b], u,
-                                fc["disagreement"][b], fw, fc["motion"][b], shared, dragged, fixed) if success else []
+        advice = session_advice(names, sizes, rig.rig(b), obj, corners[b], valid[b], u, fc["disagreement"][b], fw,
+                                fc["motion"][b], shared, dragged, fixed) if success else []
         status = LMStatus(int(res.status[b]))
         if success:
             verdict, reasons = rig_verdict(names, sizes, cam_rms, epi, held, T.norm(dim=-1), bstd, rstd,
@@ -561,7 +557,7 @@ class RigSolver(nn.Module):
             verdict, reasons = f"not reliable: {reason}", [reason]
         return RigResult(
             success=success, reason=reason, names=list(names), image_sizes=list(sizes), cameras=cams,
-            R=res.R[b].clone(), T=T, board_rvec=rvec, board_tvec=tvec, used=u.clone(), rms_matrix=rms_m,
+            R=rig.R[b].clone(), T=T, board_rvec=rvec, board_tvec=tvec, used=u.clone(), rms_matrix=rms_m,
             camera_rms=cam_rms, rms=total, baseline_std=bstd, rotation_std_deg=rstd, intrinsics_std=istd,
             epipolar_rms=epi, heldout_epipolar_rms=held, verdict=verdict, reasons=reasons,
             lm_status=status, iterations=int(res.iterations[b]), corner_order=order.clone(),

@@ -22,11 +22,8 @@ import torch
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.modules.calibration.quality.coverage import image_coverage
-from ccs_kornia.modules.rig.frame_consistency import (
-    BOARD_MOVING,
-    camera_board_poses,
-    disagreement_cause,
-)
+from ccs_kornia.modules.rig.frame_consistency import BOARD_MOVING, disagreement_cause
+from ccs_kornia.modules.rig.rig_state import RigState
 
 __all__ = ["DISAGREEING_SHARE", "MOVED_SIGMA", "OUTER_RING", "SMALL_BOARD", "WEAK_LINK_FRAMES", "board_fraction",
            "session_advice", "shared_frames"]
@@ -98,12 +95,7 @@ def _pct(x: float) -> str:
 def session_advice(
     names: Sequence[str],
     image_sizes: Sequence[tuple[int, int]],
-    models: Sequence[CameraModel],
-    params: Sequence[torch.Tensor],
-    R: torch.Tensor,
-    T: torch.Tensor,
-    frame_R: torch.Tensor,
-    frame_t: torch.Tensor,
+    rig: RigState,
     object_points: torch.Tensor,
     corners: torch.Tensor,
     valid: torch.Tensor,
@@ -118,8 +110,8 @@ def session_advice(
     """What to record next, one line per finding (see the module doc), the most useful first.
 
     Args:
-        names, image_sizes: per camera; models, params: per camera its model and :math:`(P_c,)` parameters.
-        R, T: :math:`(C, 3, 3)`, :math:`(C, 3)` extrinsics; frame_R, frame_t: :math:`(F, 3, 3)`, :math:`(F, 3)`.
+        names, image_sizes: per camera.
+        rig: the solved rig (:class:`~ccs_kornia.modules.rig.rig_state.RigState` of one rig, ``B = 1``).
         object_points: :math:`(N, 3)`; corners: :math:`(C, F, N, 2)`; valid: :math:`(C, F, N)`; used: :math:`(C, F)`.
         disagreement, weight, motion: :math:`(F,)` per frame (:mod:`~ccs_kornia.modules.rig.frame_consistency`).
         shared: :math:`(C, C)` effective shared frames (:func:`shared_frames`).
@@ -130,7 +122,7 @@ def session_advice(
     """
     C = len(names)
     lines: list[str] = []
-    Rc, tc = camera_board_poses(R[None], T[None], frame_R[None], frame_t[None])
+    Rc, tc = rig.board_poses()
     obj = object_points.to(tc)
     weak = [(names[i], names[j], float(shared[i, j])) for i in range(C) for j in range(i + 1, C)
             if 0 < float(shared[i, j]) < WEAK_LINK_FRAMES]
@@ -156,7 +148,7 @@ def session_advice(
         views = used[c]
         if not bool(views.any()):
             continue
-        frac = board_fraction(models[c], params[c], Rc[0, c][views], tc[0, c][views], obj, image_sizes[c])
+        frac = board_fraction(rig.models[c], rig.params[c][0], Rc[0, c][views], tc[0, c][views], obj, image_sizes[c])
         median = float(frac.median())
         if median < SMALL_BOARD:
             small.append((names[c], median))

@@ -142,11 +142,12 @@ def test_pipeline_auto_mixed_models_in_one_batch():
     """Two cameras, two models: one batched result, each camera's own width of coefficients when selected."""
     from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
     from ccs_kornia.pipeline.solve import solve_group
+    from ccs_kornia.pipeline.solver_input import SolverInput
 
     uv, K, K2 = _two_cameras()
     pipe = CalibrationPipeline("opencv", model=ModelChoice(), distortion_correction=False)
-    calib, _, _, table = solve_group(pipe.solving, uv, torch.ones(2, 12, dtype=torch.bool), (9, 6), 0.03, (640, 480),
-                                     None, None)
+    inputs = SolverInput.from_views(uv, torch.ones(2, 12, dtype=torch.bool), pipe.solving.object_points((9, 6), 0.03))
+    calib, _, _, table = solve_group(pipe.solving, inputs, (9, 6), 0.03, (640, 480), None, None)
     models = calib.camera.models
     assert models[0] == FISHEYE and str(models[1]) == table[1]["chosen"] and calib.dist.shape == (2, 5)
     one, two = select_result(calib, 0), select_result(calib, 1)

@@ -13,6 +13,8 @@ from ccs_kornia.geometry import camera
 from ccs_kornia.modules.correction.radial_warp import (
     RadialUndistort,
     correct_points,
+    corrected_radius,
+    correction_zoom,
     distort_points_from_correction,
     invert_correction_radius,
     radial_undistort_image,
@@ -193,3 +195,15 @@ def test_undistorting_a_rendered_board_straightens_it():
     err_before = (distorted - ideal).abs().mean()
     err_after = ((corrected - ideal).abs() * mask).sum() / mask.sum()
     assert err_after < 0.1 * err_before
+
+
+def test_correction_zoom_keeps_the_farthest_corner_in_the_frame(device):
+    size = (640, 480)
+    identity = torch.tensor([[1.0, 0.0, 0.0, 0.0, 0.0]], device=device)
+    assert float(correction_zoom(identity, size)) == 1.0
+    barrel = torch.tensor([[1.0, 0.0, 0.3, 0.0, 0.0], [1.0, 0.0, 0.1, 0.0, 0.0]], device=device)
+    zoom = float(correction_zoom(barrel, size))
+    r = 0.5 * (639**2 + 479**2) ** 0.5 / 640
+    # the strongest correction sets the zoom: its corrected corner radius, zoomed, is the original one
+    g = float(corrected_radius(torch.tensor([[r]], dtype=torch.float64), barrel[:1].cpu().double()))
+    assert 0.5 <= zoom < 1.0 and abs(zoom * g - r) < 1e-6

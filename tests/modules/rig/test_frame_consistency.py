@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from ccs_kornia.data.scenes.rig import render_rig
-from ccs_kornia.geometry.models import K1K2, PINHOLE, camera_model
+from ccs_kornia.geometry.models import K1K2, PINHOLE
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.rig import RigSolver
 from ccs_kornia.modules.rig.frame_consistency import (
@@ -17,12 +17,12 @@ from ccs_kornia.modules.rig.frame_consistency import (
     NOT_MOTION,
     FrameKernel,
     board_motion,
-    camera_board_poses,
     disagreement_cause,
     frame_disagreement,
     own_view_errors,
 )
 from _cameras import cameras
+from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
 
 D = torch.float64
 K = torch.tensor([[600.0, 0, 330], [0, 605, 245], [0, 0, 1]], dtype=D)
@@ -69,28 +69,15 @@ def test_kernel_names():
         FrameKernel("tukey")
 
 
-def test_camera_board_poses_shapes(device):
-    B, C, F = 2, 3, 4
-    R = exp_so3(torch.randn(B * C, 3, dtype=D) * 0.1).reshape(B, C, 3, 3).to(device)
-    T = torch.randn(B, C, 3, dtype=D, device=device)
-    Rf = exp_so3(torch.randn(B * F, 3, dtype=D) * 0.1).reshape(B, F, 3, 3).to(device)
-    tf = torch.randn(B, F, 3, dtype=D, device=device)
-    Rc, tc = camera_board_poses(R, T, Rf, tf)
-    assert Rc.shape == (B, C, F, 3, 3) and tc.shape == (B, C, F, 3)
-    assert torch.allclose(Rc[1, 2, 3], R[1, 2] @ Rf[1, 3]) and torch.allclose(tc[1, 2, 3], R[1, 2] @ tf[1, 3] + T[1, 2])
-
-
 def test_disagreement_exact_rig_is_zero():
     s = rig(noise=0.0)
     models = [K1K2] * 2
     params = [models[0].params_from(K[None], torch.tensor([[-0.12, 0.03]], dtype=D))] * 2
     used = s.valid.sum(-1)[None] >= 6
     w = (s.valid & used[0, ..., None]).to(D)[None]
-    Rf, tf = exp_so3(s.board_rvec)[None], s.board_tvec[None]
-    own = own_view_errors(models, params, s.R[None], s.T[None], Rf, tf, s.object_points, s.corners[None], w)
+    state = RigState(models, params, s.R[None], s.T[None], exp_so3(s.board_rvec)[None], s.board_tvec[None])
+    own = own_view_errors(state, RigObservations(s.object_points, s.corners[None], w))
     assert own.shape == (1, 2, s.corners.shape[1]) and float(own.max()) < 1e-12
-    _, Rc_t = camera_board_poses(s.R[None], s.T[None], Rf, tf)
-    assert Rc_t.shape == (1, 2, s.corners.shape[1], 3)
 
 
 def test_disagreement_shapes_and_nan():
@@ -111,15 +98,14 @@ def test_board_motion():
     params = [models[0].params_from(K[None], torch.tensor([[-0.12, 0.03]], dtype=D))] * 2
     F = s.corners.shape[1]
     used = (s.valid.sum(-1) >= 6)[None]
-    Rf, tf = exp_so3(s.board_rvec)[None], s.board_tvec[None]
+    state = RigState(models, params, s.R[None], s.T[None], exp_so3(s.board_rvec)[None], s.board_tvec[None])
     times = torch.arange(F, dtype=D)
-    motion = board_motion(models, params, s.R[None], s.T[None], Rf, tf, s.object_points, used, times)
+    motion = board_motion(state, s.object_points, used, times)
     assert motion.shape == (1, F) and bool(motion[0, used[0].any(0)].isfinite().all())
     assert float(motion.nan_to_num(float("inf")).min()) > 1.0  # independent rendered poses: the board jumps
-    slow = board_motion(models, params, s.R[None], s.T[None], Rf, tf, s.object_points, used, 2 * times)
+    slow = board_motion(state, s.object_points, used, 2 * times)
     assert torch.allclose(slow, motion, equal_nan=True)  # per frame period: the unit of time does not matter
-    none = board_motion(models, params, s.R[None], s.T[None], Rf, tf, s.object_points, used,
-                        torch.full((F,), float("nan"), dtype=D))
+    none = board_motion(state, s.object_points, used, torch.full((F,), float("nan"), dtype=D))
     assert bool(none.isnan().all())
 
 

@@ -8,19 +8,20 @@ import torch
 
 from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.camera import board_object_points, project_points
-from ccs_kornia.geometry.models import K1K2, PINHOLE, camera_model
+from ccs_kornia.geometry.models import K1K2, PINHOLE
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.rig import RigSolver
 from ccs_kornia.modules.rig.rig_lm import rig_layout, rig_levenberg_marquardt
 from _cameras import cameras
+from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
 
 D = torch.float64
 K = torch.tensor([[600.0, 0, 330], [0, 605, 245], [0, 0, 1]], dtype=D)
 
 
 def two_camera_problem(device, B=1, frames=6, seed=0):
-    """A noise-free stereo problem for rig_levenberg_marquardt: models, start, poses, corners."""
+    """A noise-free stereo problem for rig_levenberg_marquardt: the start and the observations."""
     g = torch.Generator().manual_seed(seed)
     obj = board_object_points(6, 5, 0.05, dtype=D)
     rv = 0.4 * (torch.rand(frames, 3, generator=g, dtype=D) - 0.5)
@@ -33,70 +34,70 @@ def two_camera_problem(device, B=1, frames=6, seed=0):
     T = torch.stack([torch.zeros(3, dtype=D), Tc + 0.01]).expand(B, 2, 3).to(device)
     start = torch.tensor([[610.0, 598.0, 325.0, 250.0]], dtype=D).expand(B, 4).to(device)
     models = [PINHOLE] * 2
-    return models, [start, start], R, T, exp_so3(rv)[None].expand(B, -1, -1, -1).to(device), \
-        tv[None].expand(B, -1, -1).to(device), obj.to(device), corners, torch.ones(B, 2, frames, 30, dtype=D,
-                                                                                     device=device)
+    rig = RigState(models, [start, start], R, T, exp_so3(rv)[None].expand(B, -1, -1, -1).to(device),
+                   tv[None].expand(B, -1, -1).to(device))
+    return rig, RigObservations(obj.to(device), corners, torch.ones(B, 2, frames, 30, dtype=D, device=device))
 
 
 def test_prior_smoke_and_shapes(device):
-    models, p, R, T, Rf, tf, obj, corners, w = two_camera_problem(device)
+    rig, obs = two_camera_problem(device)
     info = torch.eye(4, dtype=D, device=device)[None]
-    res = rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w, prior=[(p[0], info), None])
+    res = rig_levenberg_marquardt(rig, obs, prior=[(rig.params[0], info), None])
     assert res.prior_cost is not None and res.prior_cost.shape == (1,)
     assert int(res.status) == LMStatus.CONVERGED and float(res.prior_cost) >= 0.0
-    assert res.covariance.shape == (1, rig_layout(models)[2], rig_layout(models)[2])
+    assert res.covariance.shape == (1, rig_layout(rig.models)[2], rig_layout(rig.models)[2])
 
 
 def test_no_prior_has_no_prior_cost(device):
-    models, p, R, T, Rf, tf, obj, corners, w = two_camera_problem(device)
-    res = rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w)
+    rig, obs = two_camera_problem(device)
+    res = rig_levenberg_marquardt(rig, obs)
     assert res.prior_cost is None
 
 
 def test_zero_information_is_no_prior(device):
-    models, p, R, T, Rf, tf, obj, corners, w = two_camera_problem(device)
+    rig, obs = two_camera_problem(device)
     zero = torch.zeros(1, 4, 4, dtype=D, device=device)
-    a = rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w)
-    b = rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w, prior=[(p[0], zero), (p[1], zero)])
-    assert torch.allclose(a.params[0], b.params[0], atol=1e-9) and torch.allclose(a.T, b.T, atol=1e-12)
+    a = rig_levenberg_marquardt(rig, obs)
+    b = rig_levenberg_marquardt(rig, obs, prior=[(rig.params[0], zero), (rig.params[1], zero)])
+    assert torch.allclose(a.state.params[0], b.state.params[0], atol=1e-9)
+    assert torch.allclose(a.state.T, b.state.T, atol=1e-12)
     assert float(b.prior_cost) == 0.0
 
 
 def test_strong_prior_holds_the_intrinsics(device):
-    models, p, R, T, Rf, tf, obj, corners, w = two_camera_problem(device)
-    free = rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w)
-    assert torch.allclose(free.params[0][0], K.to(device)[[0, 1, 0, 1], [0, 1, 2, 2]], atol=1e-6)  # the truth
+    rig, obs = two_camera_problem(device)
+    free = rig_levenberg_marquardt(rig, obs)
+    assert torch.allclose(free.state.params[0][0], K.to(device)[[0, 1, 0, 1], [0, 1, 2, 2]], atol=1e-6)  # the truth
     strong = 1e12 * torch.eye(4, dtype=D, device=device)[None]
-    held = rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w, prior=[(p[0], strong), None])
-    assert torch.allclose(held.params[0], p[0], atol=1e-3)  # camera 0 kept at its prior's centre
-    assert float((held.params[1] - p[1]).abs().max()) > 1.0  # camera 1, without a prior, still moved
+    held = rig_levenberg_marquardt(rig, obs, prior=[(rig.params[0], strong), None])
+    assert torch.allclose(held.state.params[0], rig.params[0], atol=1e-3)  # camera 0 kept at its prior's centre
+    assert float((held.state.params[1] - rig.params[1]).abs().max()) > 1.0  # camera 1, without a prior, still moved
     # a weak prior lies between: it pulls toward its centre, less than the strong one
-    weak = rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w,
-                                   prior=[(p[0], 1e-2 * torch.eye(4, dtype=D, device=device)[None]), None])
-    d_free = (free.params[0] - p[0]).norm()
-    d_weak = (weak.params[0] - p[0]).norm()
-    assert float(d_weak) < float(d_free) and float(d_weak) > float((held.params[0] - p[0]).norm())
+    weak = rig_levenberg_marquardt(rig, obs,
+                                   prior=[(rig.params[0], 1e-2 * torch.eye(4, dtype=D, device=device)[None]), None])
+    d_free = (free.state.params[0] - rig.params[0]).norm()
+    d_weak = (weak.state.params[0] - rig.params[0]).norm()
+    assert float(d_weak) < float(d_free) and float(d_weak) > float((held.state.params[0] - rig.params[0]).norm())
 
 
 def test_prior_batch_equals_one_by_one():
-    models, p, R, T, Rf, tf, obj, corners, w = two_camera_problem("cpu", B=2)
+    rig, obs = two_camera_problem("cpu", B=2)
     info = torch.stack([torch.eye(4, dtype=D), 10.0 * torch.eye(4, dtype=D)])
-    batch = rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w, prior=[(p[0], info), None])
+    batch = rig_levenberg_marquardt(rig, obs, prior=[(rig.params[0], info), None])
     for b in range(2):
-        one = rig_levenberg_marquardt(models, [x[b : b + 1] for x in p], R[b : b + 1], T[b : b + 1], Rf[b : b + 1],
-                                      tf[b : b + 1], obj, corners[b : b + 1], w[b : b + 1],
-                                      prior=[(p[0][b : b + 1], info[b : b + 1]), None])
-        assert torch.allclose(batch.params[0][b], one.params[0][0], atol=1e-8)
+        one = rig_levenberg_marquardt(rig.rig(b), RigObservations(obs.object_points, obs.corners[b : b + 1],
+                                                                  obs.weights[b : b + 1]),
+                                      prior=[(rig.params[0][b : b + 1], info[b : b + 1]), None])
+        assert torch.allclose(batch.state.params[0][b], one.state.params[0][0], atol=1e-8)
         assert torch.allclose(batch.prior_cost[b], one.prior_cost[0], rtol=1e-6, atol=1e-12)
 
 
 def test_prior_exceptions():
-    models, p, R, T, Rf, tf, obj, corners, w = two_camera_problem("cpu")
+    rig, obs = two_camera_problem("cpu")
     with pytest.raises(ValueError, match="one entry"):
-        rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w, prior=[None])
+        rig_levenberg_marquardt(rig, obs, prior=[None])
     with pytest.raises(ValueError, match="prior of camera 0"):
-        rig_levenberg_marquardt(models, p, R, T, Rf, tf, obj, corners, w,
-                                prior=[(p[0], torch.eye(3, dtype=D)[None]), None])
+        rig_levenberg_marquardt(rig, obs, prior=[(rig.params[0], torch.eye(3, dtype=D)[None]), None])
     with pytest.raises(ValueError, match="intrinsics_prior"):
         RigSolver(K1K2, intrinsics_prior=0.0)
 

@@ -10,6 +10,7 @@ from ccs_kornia.geometry.models import K1K2, camera_model
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.rig import RigSolver, rig_verdict
+from ccs_kornia.modules.rig.rig_state import RigState
 from ccs_kornia.modules.rig.session_advice import (
     SMALL_BOARD,
     board_fraction,
@@ -36,8 +37,9 @@ def advice_of(s, res=None, weight=None, disagreement=None, motion=None, moved=No
     m = K1K2
     p = m.params_from(K[None], torch.tensor([[-0.12, 0.03]], dtype=D))[0]
     weight = torch.ones(F, dtype=D) if weight is None else weight
-    return session_advice(["a", "b"], s.image_sizes, [m, m], [p, p], s.R, s.T, exp_so3(s.board_rvec), s.board_tvec,
-                          s.object_points, s.corners, s.valid, used,
+    state = RigState([m, m], [p[None], p[None]], s.R[None], s.T[None], exp_so3(s.board_rvec)[None],
+                     s.board_tvec[None])
+    return session_advice(["a", "b"], s.image_sizes, state, s.object_points, s.corners, s.valid, used,
                           torch.zeros(F, dtype=D) if disagreement is None else disagreement, weight,
                           torch.full((F,), float("nan"), dtype=D) if motion is None else motion,
                           shared_frames(used, weight), moved or [torch.zeros(6, dtype=D)] * 2, [False, False])

@@ -23,6 +23,7 @@ import math
 import torch
 from torch import nn
 
+from ccs_kornia.modules.detection.base import measured_corners
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.refine.saddle_refine import (
     _saddle_source,
@@ -30,8 +31,9 @@ from ccs_kornia.modules.detection.refine.saddle_refine import (
     _window,
 )
 from ccs_kornia.modules.detection.refine.symmetry_refine import symmetry_terms
+from ccs_kornia.runtime.timing import stage
 
-__all__ = ["corner_uncertainty", "corner_weights", "CornerUncertainty"]
+__all__ = ["corner_sigma", "corner_uncertainty", "corner_weights", "CornerUncertainty"]
 
 
 def corner_uncertainty(
@@ -102,6 +104,24 @@ def corner_uncertainty(
     var = s2 * (axx + ayy) / torch.where(good, det, torch.ones_like(det)) / 2
     out[bi, ni] = torch.where(good, var.clamp_min(0).sqrt(), torch.full_like(var, float("nan"))).to(out.device)
     return out
+
+
+def corner_sigma(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int],
+                 found: torch.Tensor | None = None) -> torch.Tensor:
+    """Per-corner precision :math:`(B, N)` of boards :math:`(B, N, 2)` on ``images`` :math:`(B, 1, H, W)`: the
+    :func:`corner_uncertainty` of their measured corners (NaN where ``found`` :math:`(B,)` is false, and at a partial
+    board's hidden corners), on the corners' device; what the pipeline measures of every board it finds.
+
+    Example:
+        >>> corners = 8.0 + 10.0 * torch.stack(torch.meshgrid(torch.arange(4.0), torch.arange(3.0), indexing="xy"), -1)
+        >>> sigma = corner_sigma(torch.rand(1, 1, 48, 64), corners.reshape(1, 12, 2), (4, 3), torch.tensor([False]))
+        >>> sigma.shape, bool(sigma.isnan().all())
+        (torch.Size([1, 12]), True)
+    """
+    found = torch.ones(corners.shape[0], dtype=torch.bool, device=corners.device) if found is None else found
+    with stage("corner uncertainty"):
+        return corner_uncertainty(images.float(), corners.float(), measured_corners(corners, found),
+                                  board_size).to(corners.device)
 
 
 def corner_weights(sigma: torch.Tensor, valid: torch.Tensor, clip: float = 10.0) -> torch.Tensor:

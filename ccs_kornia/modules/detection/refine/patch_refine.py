@@ -5,7 +5,9 @@ r"""Full-resolution refinement of boards found on a resampled detection level (s
   back to full resolution.
 * :func:`edge_blur`: the blur of a found board's square edges, measured across them.
 * :func:`refine_on_patches`: the saddle refiner at full resolution on one small patch per corner (bounded memory on
-  24 Mpx photographs), its window widened to the edge blur where the edges are soft.
+  24 Mpx photographs), its window widened to the edge blur where the edges are soft; :func:`refine_boards`: the same
+  with a :class:`~ccs_kornia.modules.detection.refine.saddle_refine.CornerRefiner`'s options (the pipeline's
+  refinement of boards found on a copy of the images).
 * :func:`refine_from_level`: coarse to fine from the detection level to full resolution.
 """
 
@@ -20,9 +22,13 @@ from ccs_kornia.modules._checks import check_board_size, check_grey_images
 from ccs_kornia.modules._resize import area_resize
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.grid.missing_corners import predict_missing_corners
-from ccs_kornia.modules.detection.refine.saddle_refine import refine_corners
+from ccs_kornia.modules.detection.refine.saddle_refine import (
+    CornerRefiner,
+    refine_corners,
+)
+from ccs_kornia.runtime.timing import stage
 
-__all__ = ["level_size", "resize_to_level", "edge_blur", "refine_on_patches", "refine_from_level"]
+__all__ = ["level_size", "resize_to_level", "edge_blur", "refine_on_patches", "refine_boards", "refine_from_level"]
 
 
 def level_size(image_size: tuple[int, int], factor: float) -> tuple[int, int]:
@@ -218,6 +224,25 @@ def refine_on_patches(
     out = (out.reshape(b, n, 2) + shift).to(corners.dtype).to(corners.device)
     ok = ok.reshape(b, n).to(corners.device)
     return (out, ok) if return_ok else out
+
+
+def refine_boards(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int],
+                  refiner: CornerRefiner) -> torch.Tensor:
+    """Saddle refinement of whole boards :math:`(S, N, 2)` on ``images`` :math:`(S, 1, H, W)`, one small patch per
+    corner (:func:`refine_on_patches` with ``refiner``'s window, method, iterations and smoothing), in the corners'
+    dtype.
+
+    Example:
+        >>> img = torch.zeros(1, 1, 64, 64)
+        >>> img[..., :32, :32] = 1.0
+        >>> img[..., 32:, 32:] = 1.0
+        >>> refine_boards(img, torch.tensor([[[31.0, 32.2], [10.0, 31.5]]]), (2, 1), CornerRefiner()).shape
+        torch.Size([1, 2, 2])
+    """
+    r = refiner
+    with stage("saddle refinement"):
+        return refine_on_patches(images.float(), corners.float(), board_size, r.radius_factor, r.max_radius, r.method,
+                                 r.iterations, r.smooth_sigma, r.normalize_sigma).to(corners.dtype)
 
 
 def refine_from_level(

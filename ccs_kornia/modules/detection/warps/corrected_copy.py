@@ -19,9 +19,9 @@ from typing import Callable
 
 import torch
 
-from ccs_kornia.modules.correction.corrected_frame import correction_zoom
 from ccs_kornia.modules.correction.radial_warp import (
     correct_points,
+    correction_zoom,
     distort_points_from_correction,
     radial_undistort_image,
 )

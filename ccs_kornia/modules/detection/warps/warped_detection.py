@@ -6,21 +6,28 @@ large image, the copy straightened by the network's pooled correction
 lens (:class:`~ccs_kornia.modules.detection.warps.virtual_view.VirtualView`). A :class:`Warp` makes the copy and
 maps its pixels back; :func:`detect_warped` runs warp -> detect -> map back -> refine at full resolution -> the
 corners' precision, and :func:`map_back` is its second half for callers that detect the copies elsewhere (in worker
-processes).
+processes). :func:`detect_images` is the first look at images as they are: the detector on them, or through a
+downscaled copy where they are large.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.modules.detection.base import DetectionResult, image_rows
+from ccs_kornia.modules.detection.base import (
+    ChessboardDetector,
+    DetectionResult,
+    Fallbacks,
+    image_rows,
+)
 from ccs_kornia.modules.detection.refine.patch_refine import level_size, resize_to_level
 
-__all__ = ["Warp", "Downscale", "Level", "detect_warped", "map_back"]
+__all__ = ["Warp", "Downscale", "Level", "detect_images", "detect_warped", "map_back"]
 
 #: ``refine(images (B, 1, H, W), corners (B, N, 2), board_size) -> corners``: a refinement on the original images
 Refine = Callable[[torch.Tensor, torch.Tensor, tuple[int, int]], torch.Tensor]
@@ -163,3 +170,35 @@ def detect_warped(warp: Warp, detect: Callable[[torch.Tensor, tuple[int, int]], 
     with torch.inference_mode():
         warped = warp.apply(images)
     return map_back(warp, detect(warped, board_size), refine, images, board_size, measure)
+
+
+def detect_images(images: torch.Tensor, board_size: tuple[int, int], fallbacks: Fallbacks | None = None, *,
+                  detector: ChessboardDetector, max_side: int | None, refine: Refine,
+                  measure: Refine | None = None) -> DetectionResult:
+    """The detector on images :math:`(B, 1, H, W)` of one size as they are, with ``fallbacks`` (``None``: the
+    detector's own); images whose longer side exceeds ``max_side`` through a downscaled copy (:class:`Downscale`,
+    :func:`detect_warped`: refined by ``refine`` at full resolution), unless the detector picks its own detection
+    level (``selects_scale``: it bounds its memory itself). ``measure``: the corners' precision
+    (``(images, corners, board_size, found) -> sigma (B, N)``), taken from the detector where it measured it on these
+    images (``None``: not measured).
+
+    Example:
+        >>> from ccs_kornia.modules.detection.factory import make_detector
+        >>> out = detect_images(torch.zeros(2, 1, 96, 128), (4, 3), detector=make_detector("opencv"), max_side=64,
+        ...                     refine=lambda i, c, b: c)
+        >>> out.corners.shape, out.found.tolist(), out.sigma
+        (torch.Size([2, 12, 2]), [False, False], None)
+    """
+    h, w = images.shape[-2:]
+    with torch.inference_mode():
+        if max_side is None or max(h, w) <= max_side or detector.selects_scale:
+            det = detector.detect(images.float(), board_size, fallbacks)
+            sigma = None
+            if measure is not None:
+                # the learned detector has measured them on these images (its asymmetry check)
+                sigma = det.sigma
+                if sigma is None:
+                    sigma = measure(images, det.corners, board_size, det.found)
+            return DetectionResult(det.corners, det.found, det.reasons, sigma)
+        detect = functools.partial(detector.detect, fallbacks=fallbacks)
+        return detect_warped(Downscale.to_side((h, w), max_side), detect, refine, images, board_size, measure)

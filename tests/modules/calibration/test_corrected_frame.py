@@ -7,25 +7,11 @@ from dataclasses import replace
 import torch
 
 from ccs_kornia.geometry.camera import board_object_points, project_points
-from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.modules.correction.corrected_frame import (
-    correction_zoom,
+from ccs_kornia.modules.calibration.corrected_frame import (
     select_cameras,
 )
-from ccs_kornia.modules.correction.radial_warp import corrected_radius
+from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.geometry.models import OPENCV5, PINHOLE
-
-
-def test_correction_zoom_keeps_the_farthest_corner_in_the_frame(device):
-    size = (640, 480)
-    identity = torch.tensor([[1.0, 0.0, 0.0, 0.0, 0.0]], device=device)
-    assert float(correction_zoom(identity, size)) == 1.0
-    barrel = torch.tensor([[1.0, 0.0, 0.3, 0.0, 0.0], [1.0, 0.0, 0.1, 0.0, 0.0]], device=device)
-    zoom = float(correction_zoom(barrel, size))
-    r = 0.5 * (639**2 + 479**2) ** 0.5 / 640
-    # the strongest correction sets the zoom: its corrected corner radius, zoomed, is the original one
-    g = float(corrected_radius(torch.tensor([[r]], dtype=torch.float64), barrel[:1].cpu().double()))
-    assert 0.5 <= zoom < 1.0 and abs(zoom * g - r) < 1e-6
 
 
 def test_select_cameras():
@@ -50,7 +36,7 @@ def test_calibrate_corrected_reports_the_joint_covariance():
     """The final fit holds the intrinsics; its covariance still has intrinsics rows (from the joint radial
     refinement) and a distortion block at least as wide as the fit's own (the intrinsics' share added)."""
     from ccs_kornia.modules.calibration.centred_radial import centred_radial_distort
-    from ccs_kornia.modules.correction.corrected_frame import calibrate_corrected
+    from ccs_kornia.modules.calibration.corrected_frame import calibrate_corrected
 
     size, board, square = (640, 480), (9, 6), 0.025
     obj = board_object_points(*board, square, dtype=torch.float64)

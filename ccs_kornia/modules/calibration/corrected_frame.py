@@ -13,7 +13,6 @@ centred on the image keeps the usual one).
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import torch
@@ -34,10 +33,10 @@ from ccs_kornia.modules.calibration.refinement import camera_covariance
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction.correction_fit import fit_correction_to_points
-from ccs_kornia.modules.correction.radial_warp import correct_points, corrected_radius
+from ccs_kornia.modules.correction.radial_warp import correct_points
 from ccs_kornia.modules.detection.base import measured_corners
 
-__all__ = ["solve_with_correction", "calibrate_corrected", "correction_zoom", "select_cameras"]
+__all__ = ["solve_with_correction", "calibrate_corrected", "select_cameras"]
 
 
 def solve_with_correction(
@@ -220,22 +219,6 @@ def _propagated_covariance(model, out, corners, valid, obj, cov_k):
     return camera_covariance(model, full)
 
 
-def correction_zoom(correction: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
-    """Zoom that keeps the farthest original image corner in the frame after correction (in [0.5, 1]).
-
-    Args:
-        correction: :math:`(B, 5)` corrections; the smallest zoom over them is returned.
-        size: ``(W, H)``.
-
-    Example:
-        >>> float(correction_zoom(torch.tensor([[1.0, 0.0, 0.0, 0.0, 0.0]]), (64, 48)))
-        1.0
-    """
-    w, h = size
-    scale = float(max(w, h))
-    r = 0.5 * math.hypot(w - 1, h - 1) / scale
-    g = corrected_radius(torch.full_like(correction[:, :1], r, dtype=torch.float64), correction.double())[:, 0]
-    return (r / g.clamp_min(1e-6)).clamp(0.5, 1.0).min()
 
 
 def select_cameras(keep: torch.Tensor, a: CalibrationResult, b: CalibrationResult) -> CalibrationResult:
