@@ -561,15 +561,6 @@ def _run_lightning(argv: list[str]) -> int:
     return int(result or 0)
 
 
-def _resolve_model(args: argparse.Namespace) -> None:
-    """``--model``'s name becomes the model (or ``auto``'s choice): where the command line's model names are read
-    (``calibrate-rig``'s list, one per camera, is read by the command)."""
-    if isinstance(getattr(args, "model", None), str) and args.command != "calibrate-rig":
-        from ccs_kornia.modules.calibration.model_selection import model_or_choice
-
-        args.model = model_or_choice(args.model)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status (:data:`EXIT_CODES`: 0 ok, 1 internal error, 2 usage or input
     error, 3 no result, 130 interrupted).
@@ -596,10 +587,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         # a command's module loads torch, OpenCV and the stages: imported once the command runs, never for --help
         # (docs/measurements.md)
         from ccs_kornia.commands._boards import resolve_board
+        from ccs_kornia.commands._models import resolve_model
 
         module = importlib.import_module(f"ccs_kornia.commands.{command.replace('-', '_')}")
         resolve_board(args)
-        _resolve_model(args)
+        resolve_model(args)
         return int(module.run(args) or 0)
     except UserError as err:
         print(f"{PROG} {command}: error: {err}", file=sys.stderr)

@@ -102,20 +102,21 @@ def _ours(loaded: set[str], *prefixes: str) -> list[str]:
 
 def test_a_calibration_loads_no_sympy():
     # torch.broadcast_shapes imports torch.fx's symbolic shapes and sympy on first use: 0.4 s of every command-line
-    # calibration (modules._checks.broadcast_shapes is used instead)
+    # calibration (runtime.checks.broadcast_shapes is used instead)
     loaded = _loaded_after(
         "import torch\n"
-        "from ccs_kornia.geometry.camera import board_object_points, kb_project_points, project_points\n"
+        "from ccs_kornia.geometry.camera import Camera, board_object_points, project_points\n"
+        "from ccs_kornia.geometry.models import FISHEYE, K1K2\n"
         "from ccs_kornia.modules.calibration.solver import CalibrationSolver\n"
         "obj = board_object_points(6, 4, 1.0).double()\n"
         "K = torch.tensor([[400.0, 0, 320], [0, 400, 240], [0, 0, 1]], dtype=torch.float64)\n"
         "rv = torch.tensor([[0.3 * (i % 3 - 1), 0.25 * (i % 2) - 0.1, 0.05 * i] for i in range(6)], dtype=torch.float64)\n"
         "tv = torch.tensor([[-2.5 + 0.2 * i, -1.5, 9.0 + i] for i in range(6)], dtype=torch.float64)\n"
         "uv = project_points(obj.expand(6, -1, -1), K.expand(6, 3, 3), None, rv, tv)\n"
-        "for model in ('k1k2', 'fisheye'):\n"
+        "for model in (K1K2, FISHEYE):\n"
         "    out = CalibrationSolver(model=model)(uv[None], torch.ones(1, 6, 24, dtype=torch.bool), obj, (640, 480))\n"
         "    assert bool(out.success.all()) and float(out.rms.max()) < 1e-3, (model, out.rms)\n"
-        "kb_project_points(torch.rand(2, 5, 3, dtype=torch.float64), K, torch.zeros(4, dtype=torch.float64))\n"
+        "Camera.from_opencv(FISHEYE, K).project(torch.rand(1, 5, 3, dtype=torch.float64))\n"
     )
     assert "sympy" not in loaded
 
@@ -124,8 +125,9 @@ def test_camera_alone_loads_no_opencv_and_no_stage():
     loaded = _loaded_after("import ccs_kornia.geometry.camera")
     assert "cv2" not in loaded
     assert not _ours(loaded, "ccs_kornia.modules", "ccs_kornia.pipeline", "ccs_kornia.data", "lightning")
-    assert _ours(loaded, "ccs_kornia") == ["ccs_kornia", "ccs_kornia.geometry", "ccs_kornia.geometry.camera",
-                                           "ccs_kornia.runtime", "ccs_kornia.runtime.lazy"]
+    models = [f"ccs_kornia.geometry.models{m}" for m in ("", ".base", ".centred_radial", ".factory", ".fisheye", ".opencv")]
+    assert _ours(loaded, "ccs_kornia") == ["ccs_kornia", "ccs_kornia.geometry", "ccs_kornia.geometry.camera", *models,
+                                           "ccs_kornia.runtime", "ccs_kornia.runtime.checks", "ccs_kornia.runtime.lazy"]
 
 
 def test_modules_load_no_lightning_cli_pipeline_or_training():

@@ -33,14 +33,16 @@ from ccs_kornia.commands._output_paths import (
 )
 from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
+from ccs_kornia.commands._models import parse_models
 from ccs_kornia.commands._stereo_pair import parse_pair
 from ccs_kornia.commands._video import add_timestamps, rig_videos
 from ccs_kornia.commands._wrong_board import WrongBoardWatch
 from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.io.files import write_json, write_text_atomic
 from ccs_kornia.io.images import image_pixels
-from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelChoice, model_or_choice
-from ccs_kornia.outputs.calibration_file import RigFileError, camera_from_record, read_calibration
+from ccs_kornia.modules.calibration.model_selection import AUTO_MODELS, ModelChoice
+from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
 from ccs_kornia.outputs.records import camera_record
 from ccs_kornia.outputs.report.rig import write_rig_report
 from ccs_kornia.outputs.rig_exports import (
@@ -57,30 +59,9 @@ from ccs_kornia.pipeline.rig_pipeline import RigPipeline
 from ccs_kornia.pipeline.sources import FileSource
 from ccs_kornia.runtime.errors import UserError
 
-__all__ = ["COMMAND", "parse_models", "parse_names", "parse_fixed", "run", "summary_lines"]
+__all__ = ["COMMAND", "parse_names", "parse_fixed", "run", "summary_lines"]
 
 COMMAND = "calibrate-rig"
-
-
-def parse_models(text: str, cameras: int, choices: tuple[str, ...]) -> list[CameraModel | ModelChoice]:
-    """``--model``: one model for every camera or one per camera, comma-separated; each name read as its model (or
-    ``auto`` as the automatic choice).
-
-    Example:
-        >>> [str(m) for m in parse_models("auto", 2, ("auto", "k1k2"))]
-        ['auto', 'auto']
-        >>> parse_models("k1k2,auto", 2, ("auto", "k1k2"))[0]
-        OpenCVModel('k1k2')
-    """
-    names = [m.strip() for m in text.split(",")]
-    bad = [m for m in names if m not in choices]
-    if bad:
-        raise UserError(f"--model {text}: unknown model {bad[0]!r} (choose from {', '.join(choices)})")
-    if len(names) == 1:
-        names = names * cameras
-    if len(names) != cameras:
-        raise UserError(f"--model {text}: {len(names)} models for {cameras} cameras (give one, or one per camera)")
-    return [model_or_choice(n) for n in names]
 
 
 def parse_names(text: str | None, cameras: int) -> list[str]:
@@ -391,7 +372,7 @@ def _moved(cam: dict[str, Any]) -> str:
     if not moved:
         return ""
 
-    coeffs = camera_from_record(cam, need_size=False).model.param_names[4:]
+    coeffs = camera_model(cam["distortion"]["model"]).param_names[4:]
     items = [(k, moved[k]) for k in ("fx", "fy", "cx", "cy")] + list(zip(coeffs, moved["distortion"]))
     name, value = max(((k, abs(v)) for k, v in items if v is not None), key=lambda kv: kv[1], default=(None, 0.0))
     return f", moved up to {value:.1f} sigma ({name}) from its own calibration" if name else ""

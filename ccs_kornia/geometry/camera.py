@@ -38,6 +38,7 @@ from kornia.geometry.conversions import (
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import OPENCV5, PINHOLE, RATIONAL
+from ccs_kornia.runtime.checks import broadcast_shapes
 
 __all__ = [
     "Camera",
@@ -188,7 +189,7 @@ def project_points(
         raise ValueError(f"OpenCV distortion needs at most 5, or 8, coefficients, got {n}.")
     model = PINHOLE if n == 0 else (RATIONAL if n == 8 else OPENCV5)
     coeffs = points.new_zeros(0) if dist is None else torch.nn.functional.pad(dist.to(points.dtype), [0, 5 - n] if n < 5 else [0, 0])
-    batch = torch.broadcast_shapes(points.shape[:-2], K.shape[:-2], coeffs.shape[:-1])
+    batch = broadcast_shapes(points.shape[:-2], K.shape[:-2], coeffs.shape[:-1])
     N = points.shape[-2]
     params = torch.cat([intrinsics_params(K.to(points.dtype)).expand(*batch, 4),
                         coeffs.expand(*batch, coeffs.shape[-1])], -1).reshape(-1, model.num_params)

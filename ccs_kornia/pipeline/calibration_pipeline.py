@@ -35,7 +35,7 @@ from typing import Callable
 import torch
 from torch import nn
 
-from ccs_kornia.modules._checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.modules.calibration.model_selection import ModelChoice, ModelSelection

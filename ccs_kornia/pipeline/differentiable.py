@@ -23,7 +23,7 @@ from dataclasses import replace
 
 import torch
 
-from ccs_kornia.modules._checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size
 from ccs_kornia.modules.calibration.model_selection import ModelChoice
 from ccs_kornia.modules.detection.base import (
     ChessboardDetector,

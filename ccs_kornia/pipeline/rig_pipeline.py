@@ -255,7 +255,7 @@ class RigPipeline(nn.Module):
         self.pipeline_list = nn.ModuleList([CalibrationPipeline(shared, model=m, **pipeline_kwargs)
                                             for m in sorted(set(wanted), key=str)])
         #: the single-camera pipeline of each model (or model choice)
-        self.pipelines = {p.model: p for p in self.pipeline_list}
+        self.pipelines = {p.settings.model: p for p in self.pipeline_list}
         for pipeline in self.pipelines.values():
             if pipeline.selection is not None:
                 pipeline.selection.flexible_coverage = flexible_coverage

@@ -23,7 +23,7 @@ from ccs_kornia.geometry.camera import (
     intrinsics_params,
 )
 from ccs_kornia.geometry.models.factory import K1K2, OPENCV5, PINHOLE, RATIONAL
-from ccs_kornia.modules._checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size
 from ccs_kornia.modules.calibration.centred_radial import (
     radial_from_points,
     refine_centred_radial,

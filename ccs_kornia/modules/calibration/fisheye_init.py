@@ -17,7 +17,7 @@ import torch
 
 from ccs_kornia.geometry.camera import Camera, rotation_matrix_to_axis_angle
 from ccs_kornia.geometry.models.factory import FISHEYE
-from ccs_kornia.modules._checks import broadcast_shapes
+from ccs_kornia.runtime.checks import broadcast_shapes
 
 __all__ = ["board_to_ray_poses", "focal_hypotheses", "init_fisheye"]
 

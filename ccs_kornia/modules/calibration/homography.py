@@ -11,7 +11,7 @@ import torch
 from kornia.geometry.homography import find_homography_dlt
 from torch import nn
 
-from ccs_kornia.modules._checks import broadcast_shapes
+from ccs_kornia.runtime.checks import broadcast_shapes
 
 __all__ = ["MIN_HOMOGRAPHY_POINTS", "find_homographies", "BatchedHomography"]
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia.modules._checks import broadcast_shapes
+from ccs_kornia.runtime.checks import broadcast_shapes
 from ccs_kornia.modules.calibration.zhang import zhang_intrinsics
 
 __all__ = ["hypothesis_view_rms", "image_ransac", "ImageRansac"]

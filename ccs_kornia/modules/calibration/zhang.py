@@ -12,7 +12,7 @@ import torch
 from torch import nn
 
 from ccs_kornia.geometry.so3 import log_so3
-from ccs_kornia.modules._checks import broadcast_shapes
+from ccs_kornia.runtime.checks import broadcast_shapes
 
 __all__ = ["zhang_intrinsics", "extrinsics_from_homography", "rotation_translation_from_homography", "ZhangInit"]
 

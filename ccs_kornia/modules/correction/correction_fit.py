@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.modules._checks import check_points
+from ccs_kornia.runtime.checks import check_points
 from ccs_kornia.modules.correction.radial_warp import _centre_scale
 
 __all__ = ["fit_correction_to_points"]

@@ -12,7 +12,7 @@ import math
 
 import torch
 
-from ccs_kornia.modules._checks import check_correction
+from ccs_kornia.runtime.checks import check_correction
 from ccs_kornia.modules.correction.radial_warp import _radial_map
 
 __all__ = ["aggregate_corrections", "correction_displacement", "correction_is_large", "pool_corrections"]

@@ -27,7 +27,7 @@ from kornia.geometry.transform import remap
 from torch import nn
 
 from ccs_kornia.geometry import camera
-from ccs_kornia.modules._checks import check_correction, check_points
+from ccs_kornia.runtime.checks import check_correction, check_points
 
 __all__ = [
     "correct_points",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia.modules._checks import check_points
+from ccs_kornia.runtime.checks import check_points
 
 __all__ = ["straightness_rms"]
 

@@ -14,7 +14,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from ccs_kornia.modules._checks import check_board_size, check_shape
+from ccs_kornia.runtime.checks import check_board_size, check_shape
 
 __all__ = ["DetectionResult", "ChessboardDetector", "Fallbacks", "image_rows", "measured_corners"]
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ccs_kornia.modules._checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size
 
 __all__ = ["APRILGRID_BORDER_BITS", "ARUCO_DICTIONARIES", "AprilGrid", "Chessboard", "CharucoBoard", "aruco_dictionary",
            "grid_object_points"]

@@ -30,7 +30,7 @@ from torch import nn
 
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.so3 import exp_so3
-from ccs_kornia.modules._checks import check_shape
+from ccs_kornia.runtime.checks import check_shape
 from ccs_kornia.modules.calibration.lm import parameter_basis
 from ccs_kornia.modules.hand_eye.board_order import align_board_orders, renumber_corners
 from ccs_kornia.modules.hand_eye.closed_forms import closed_form_candidates

@@ -27,7 +27,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.modules._checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size
 from ccs_kornia.modules.detection.base import DetectionResult, image_rows
 from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_uncertainty
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia.modules._checks import check_board_size, check_shape
+from ccs_kornia.runtime.checks import check_board_size, check_shape
 
 __all__ = ["collinearity_refine", "CollinearityRefiner"]
 

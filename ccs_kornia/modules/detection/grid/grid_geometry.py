@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 from kornia.geometry.line import fit_line
 
-from ccs_kornia.modules._checks import check_board_size, check_shape
+from ccs_kornia.runtime.checks import check_board_size, check_shape
 
 __all__ = ["grid_spacing", "line_sagitta"]
 

@@ -66,7 +66,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ccs_kornia.modules._checks import check_board_size, check_shape
+from ccs_kornia.runtime.checks import check_board_size, check_shape
 from ccs_kornia.modules.detection.grid.lattice import (
     _DIAGONALS,
     _apply_h,

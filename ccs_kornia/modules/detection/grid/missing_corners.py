@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.modules._checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size
 
 __all__ = ["lattice_deviation", "predict_missing_corners"]
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ccs_kornia.modules._checks import check_shape
+from ccs_kornia.runtime.checks import check_shape
 from ccs_kornia.modules.detection.grid.lattice import (
     _DIAGONALS,
     _board_basis,

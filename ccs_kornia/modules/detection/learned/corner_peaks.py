@@ -13,7 +13,7 @@ import functools
 import numpy as np
 import torch
 
-from ccs_kornia.modules._checks import check_grey_images
+from ccs_kornia.runtime.checks import check_grey_images
 from ccs_kornia.modules.detection.learned.learned_detector import (
     LearnedChessboardDetector,
 )

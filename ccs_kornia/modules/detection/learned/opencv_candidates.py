@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.modules._checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size
 from ccs_kornia.modules.detection.opencv_detector import _CLASSIC_FLAGS
 
 __all__ = ["OPENCV_MAX_PIXELS", "opencv_level_factor", "opencv_candidates"]

@@ -37,7 +37,7 @@ import torch.nn.functional as F
 from kornia.filters import gaussian_blur2d
 from torch import nn
 
-from ccs_kornia.modules._checks import check_board_size, check_grey_images
+from ccs_kornia.runtime.checks import check_board_size, check_grey_images
 from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules._resize import area_resize, halve
 from ccs_kornia.modules.detection.base import DetectionResult, image_rows

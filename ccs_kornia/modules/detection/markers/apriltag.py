@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.modules._checks import check_grey_images
+from ccs_kornia.runtime.checks import check_grey_images
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.boards import aruco_dictionary
 

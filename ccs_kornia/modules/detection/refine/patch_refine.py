@@ -18,7 +18,7 @@ import math
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.modules._checks import check_board_size, check_grey_images
+from ccs_kornia.runtime.checks import check_board_size, check_grey_images
 from ccs_kornia.modules._resize import area_resize
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.grid.missing_corners import predict_missing_corners

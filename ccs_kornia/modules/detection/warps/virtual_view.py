@@ -26,7 +26,7 @@ from kornia.geometry.grid import create_meshgrid
 from kornia.geometry.transform import remap
 
 from ccs_kornia.geometry.camera import Camera, axis_angle_to_rotation_matrix
-from ccs_kornia.modules._checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.warps.warped_detection import Warp, map_back
 

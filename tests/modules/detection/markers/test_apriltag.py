@@ -17,7 +17,8 @@ from ccs_kornia.modules.detection.markers.apriltag import (
     detect_apriltag,
     refine_tag_corners,
 )
-from ccs_kornia.modules.rig.rig_camera import RigCamera
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models import OPENCV5
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 from ccs_kornia.pipeline.sources import TensorSource
 
@@ -101,7 +102,7 @@ def test_the_detector_follows_the_camera_and_takes_each_image_alone():
     views = _views(AprilTagTarget("36h11", 0.06, tag_id=2), 2, seed=2, dist=dist) + \
         _views(AprilTagTarget("36h11", 0.06, tag_id=5), 1, seed=4, dist=dist)
     images = _batch([v[0] for v in views])
-    camera = RigCamera("opencv5", torch.from_numpy(K), torch.from_numpy(dist))
+    camera = Camera.from_opencv(OPENCV5, torch.from_numpy(K), torch.from_numpy(dist))
     target = AprilTagTarget("36h11", 0.06)  # no id: each image's own tag
     det = AprilTagDetector(target, camera)(images, (2, 2))
     assert det.found.tolist() == [True, True, True] and det.reasons[2] == "apriltag 36h11 id 5"

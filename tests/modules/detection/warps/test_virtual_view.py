@@ -10,7 +10,8 @@ import pytest
 import torch
 from _real_data import REAL_DATA
 
-from ccs_kornia.geometry.camera import kb_unproject_points
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models import FISHEYE
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.warps.virtual_view import (
     VIEWS_PER_ROUND,
@@ -46,10 +47,11 @@ def test_corners_are_mapped_back_exactly():
         return DetectionResult(pix.expand(images.shape[0], -1, -1).clone(), torch.ones(images.shape[0], dtype=torch.bool),
                                ["fake"] * images.shape[0])
 
-    out = detect_with_calibrated_lens(fake, lambda i, c, b: c, torch.rand(1, 1, 480, 640), K, D, True, (2, 2))
+    camera = Camera.from_opencv(FISHEYE, K, D)
+    out = detect_with_calibrated_lens(fake, lambda i, c, b: c, torch.rand(1, 1, 480, 640), camera, (2, 2))
     assert bool(out.found[0]) and "virtual pinhole view 0" in out.reasons[0]
     # back to the virtual view: the ray of each returned corner, in the virtual camera (axis view, 110 deg, 480 px)
-    rays = kb_unproject_points(out.corners.double(), K, D)
+    rays = camera.unproject(out.corners.double())
     f = 240 / math.tan(math.radians(55))
     back = rays[..., :2] / rays[..., 2:] * f + 239.5
     assert torch.allclose(back.float(), pix, atol=1e-3)
@@ -57,6 +59,10 @@ def test_corners_are_mapped_back_exactly():
 
 FISH_K = torch.tensor([[160.0, 0, 319.5], [0, 161, 239.5], [0, 0, 1]], dtype=F64)
 FISH_D = torch.tensor([0.02, -0.01, 0.002, 0.0], dtype=F64)
+
+
+def _fisheyes(n: int) -> Camera:
+    return Camera.from_opencv(FISHEYE, FISH_K.expand(n, 3, 3), FISH_D.expand(n, 4))
 
 
 def _bright_centre_detector(images, board):
@@ -75,7 +81,7 @@ def test_views_in_rounds_the_first_view_wins():
         return _bright_centre_detector(torch.ones_like(images), board)
 
     out = detect_with_calibrated_lens(every_view, lambda i, c, b: c, torch.rand(2, 1, 480, 640),
-                                      FISH_K.expand(2, 3, 3), FISH_D.expand(2, 4), True, (2, 2))
+                                      _fisheyes(2), (2, 2))
     assert out.found.tolist() == [True, True] and all("virtual pinhole view 0 " in r for r in out.reasons)
     assert calls == [2] * VIEWS_PER_ROUND  # one round, both views on both images; then nothing is left to look for
 
@@ -92,8 +98,7 @@ def test_view_pool_gives_the_same_boards():
         with worker_pool(fn, workers=2) as run:
             yield lambda items: (rounds.append([k[0] for k in items]), run(items))[1]
 
-    args = (_bright_centre_detector, lambda i, c, b: c, images, FISH_K.expand(3, 3, 3), FISH_D.expand(3, 4), True,
-            (2, 2))
+    args = (_bright_centre_detector, lambda i, c, b: c, images, _fisheyes(3), (2, 2))
     here = detect_with_calibrated_lens(*args)
     pooled = detect_with_calibrated_lens(*args, view_pool=recorded)
     assert here.found.tolist() == [True, True, False]
@@ -107,7 +112,7 @@ def test_view_pool_gives_the_same_boards():
 
 def test_shape_errors():
     with pytest.raises(ValueError, match="Expected images"):
-        detect_with_calibrated_lens(None, None, torch.rand(1, 8, 8), torch.eye(3)[None], torch.zeros(1, 4), True, (2, 2))
+        detect_with_calibrated_lens(None, None, torch.rand(1, 8, 8), _fisheyes(1), (2, 2))
 
 
 def test_finds_the_rim_boards_of_a_real_fisheye_set():
@@ -127,12 +132,12 @@ def test_finds_the_rim_boards_of_a_real_fisheye_set():
         g = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
         ok, c = cv2.findChessboardCorners(g, (8, 6), 3)
         corners.append(cv2.cornerSubPix(g, c, (5, 5), (-1, -1), (3, 30, 1e-3)).reshape(-1, 2))
-    cal = CalibrationSolver(model="fisheye")(torch.tensor(np.stack(corners), dtype=F64), None,
+    cal = CalibrationSolver(model=FISHEYE)(torch.tensor(np.stack(corners), dtype=F64), None,
                                              board_object_points(8, 6, 0.108, dtype=F64), (800, 503))
     names = ["left-0019.png", "left-0020.png", "left-0021.png"]
     images = torch.stack([torch.from_numpy(load_image_gray(str(folder / n))[0]) for n in names])[:, None].float()
-    out = detect_with_calibrated_lens(make_detector("learned"), lambda i, c, b: c, images, cal.K.expand(3, 3, 3),
-                                      cal.dist.expand(3, 4), True, (8, 6))
+    out = detect_with_calibrated_lens(make_detector("learned"), lambda i, c, b: c, images,
+                                      Camera.cat([cal.camera] * 3), (8, 6))
     assert out.found.tolist() == [True, True, True], out.reasons
     # the mapped-back corners lie on the classic detector's (up to the board's symmetric labelling)
     for k, n in enumerate(names):

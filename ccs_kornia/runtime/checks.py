@@ -1,6 +1,6 @@
-"""Shape and argument checks shared by the stages (kornia's ``KORNIA_CHECK_SHAPE`` with our error type).
+"""Shape and argument checks shared by every layer (kornia's ``KORNIA_CHECK_SHAPE`` with our error type).
 
-Every stage checks its inputs at the boundary and raises ``ValueError`` with a message that names the
+Every stage and value checks its inputs at the boundary and raises ``ValueError`` with a message that names the
 argument, the expected shape and the shape it got. The shape patterns are kornia's: ``["B", "N", "2"]``
 means three dimensions, the last of size 2; a leading ``"*"`` allows any leading dimensions.
 
