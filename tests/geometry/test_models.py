@@ -235,6 +235,41 @@ def test_opencv_coeffs_pads_to_what_opencv_takes():
                                           240 - 500 * 0.1 * (1 - 0.3 * x2 + 0.1 * x2**2)])
 
 
+# ---------------------------------------------------------------------------------------- the monotonic range
+# r_d = r (1 - 0.5 r^2) turns at r = 1 / sqrt(1.5); theta_d = theta (1 - 0.5 theta^2 + theta^4 / 60), of slope
+# 1 - 1.5 theta^2 + theta^4 / 12, at theta^2 = 6 (1.5 - sqrt(2.25 - 1 / 3)) (47.7 degrees)
+_KB_FOLD = math.tan(math.sqrt(6 * (1.5 - math.sqrt(2.25 - 1 / 3))))
+FOLDS = [("opencv5", [500.0, 500.0, 320.0, 240.0, -0.5, 0.0, 0.0, 0.0, 0.0], 1 / math.sqrt(1.5), 2e-3),
+         ("k1k2", [500.0, 500.0, 320.0, 240.0, -0.5, 0.0], 1 / math.sqrt(1.5), 2e-3),
+         ("rational", [500.0, 500.0, 320.0, 240.0, -0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], 1 / math.sqrt(1.5), 2e-3),
+         ("fisheye", [300.0, 300.0, 320.0, 240.0, -0.5, 1 / 60, 0.0, 0.0], _KB_FOLD, 2e-3)]
+
+
+@pytest.mark.parametrize("name, params, fold, tol", FOLDS, ids=[f[0] for f in FOLDS])
+def test_monotonic_radius_stops_just_before_a_known_turning_point(name, params, fold, tol, device, dtype):
+    radius = camera_model(name).monotonic_radius(torch.tensor([params], device=device, dtype=dtype), math.radians(80))
+    assert radius.shape == (1,) and radius.dtype == dtype and radius.device.type == device.type
+    assert fold - tol < float(radius[0]) <= fold * (1 + 1e-6)  # conservative: a sample before the turn
+
+
+def test_monotonic_radius_is_the_cap_without_a_turn_and_per_camera():
+    cap = math.radians(80)
+    p = torch.tensor([OPENCV_PARAMS["opencv5"], [500.0, 500.0, 320.0, 240.0, -0.5, 0.0, 0.0, 0.0, 0.0]], dtype=F64)
+    r = camera_model("opencv5").monotonic_radius(p, cap)
+    assert torch.equal(r[:1], camera_model("opencv5").monotonic_radius(p[:1], cap))  # each camera its own
+    assert float(r[0]) < math.tan(cap) and abs(float(r[1]) - 1 / math.sqrt(1.5)) < 2e-3
+    mild = torch.tensor([[500.0, 500.0, 320.0, 240.0, 0.1, 0.0, 0.0, 0.0, 0.0]], dtype=F64)
+    assert float(camera_model("opencv5").monotonic_radius(mild, cap)[0]) == math.tan(cap)
+    assert float(KannalaBrandtModel().monotonic_radius(torch.tensor([KB_PARAMS], dtype=F64), cap)[0]) == math.tan(cap)
+    assert float(camera_model("none").monotonic_radius(torch.tensor([OPENCV_PARAMS["none"]]), 0.5)[0]) == \
+        pytest.approx(math.tan(0.5))
+    # a rational denominator reaching zero ends the range too: 1 + k4 r^2 = 0 at r = 1 / sqrt(2)
+    pole = torch.tensor([[500.0, 500.0, 320.0, 240.0, 0.0, 0.0, 0.0, 0.0, 0.0, -2.0, 0.0, 0.0]], dtype=F64)
+    assert float(camera_model("rational").monotonic_radius(pole, cap)[0]) < 1 / math.sqrt(2)
+    with pytest.raises(NotImplementedError, match="monotonic"):
+        CentredRadialModel((640, 480)).monotonic_radius(torch.tensor([CR_PARAMS], dtype=F64), cap)
+
+
 # ---------------------------------------------------------------------------------------- geometry/camera.py (KB functions)
 def _kb():
     K = torch.tensor([[300.0, 0, 400.0], [0, 310.0, 250.0], [0, 0, 1]], dtype=F64)

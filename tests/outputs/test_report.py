@@ -9,25 +9,29 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.geometry.camera import board_object_points, project_points
+from ccs_kornia.geometry.camera import Camera, board_object_points
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE, camera_model
 from ccs_kornia.outputs.report.calibration import DISPLAY_MAX_SIDE, write_report
+from ccs_kornia.outputs.report.figures import _undistorted_preview
+from ccs_kornia.outputs.report.quality import distortion_field_plot
 
 BOARD = (6, 4)
 K = [[300.0, 0.0, 161.0], [0.0, 298.0, 119.0], [0.0, 0.0, 1.0]]
 DIST = [-0.1, 0.01, 0.0, 0.0, 0.0]
 
 
-def _calibration(tmp_path, size=(320, 240), views=5, unreadable=False):
+def _calibration(tmp_path, size=(320, 240), views=5, unreadable=False, model="opencv5", coeffs=DIST):
     """A calibration dict as ``calibrate`` writes it, from projected corners (no detection needed)."""
     obj = board_object_points(*BOARD, 0.03, dtype=torch.float64)
     g = torch.Generator().manual_seed(3)
     scale = size[0] / 320
     Kt = torch.tensor(K, dtype=torch.float64) * torch.tensor([[scale], [scale], [1.0]], dtype=torch.float64)
+    camera = Camera.from_opencv(camera_model(model), Kt, torch.tensor(coeffs, dtype=torch.float64), size)
     out_views = []
     for k in range(views):
         rvec = 0.5 * (torch.rand(3, generator=g, dtype=torch.float64) - 0.5)
         tvec = torch.tensor([-0.08 + 0.01 * k, -0.05, 0.35], dtype=torch.float64)
-        uv = project_points(obj, Kt, torch.tensor(DIST, dtype=torch.float64), rvec, tvec)
+        uv = camera.project(obj[None], rvec[None], tvec[None])[0]
         noisy = uv + 0.05 * torch.randn(uv.shape, generator=g, dtype=torch.float64)
         image = np.full((size[1], size[0]), 90, np.uint8)
         cv2.fillConvexPoly(image, np.round(uv[[0, BOARD[0] - 1, -1, -BOARD[0]]].numpy()).astype(np.int32), 220)
@@ -44,9 +48,9 @@ def _calibration(tmp_path, size=(320, 240), views=5, unreadable=False):
     if unreadable:  # a view whose file disappeared after calibration
         out_views[0]["path"] = str(tmp_path / "gone.png")
     return {
-        "image_size": list(size), "K": Kt.tolist(), "distortion": {"model": "opencv5", "coeffs": DIST}, "rms": 0.07,
+        "image_size": list(size), "K": Kt.tolist(), "distortion": {"model": model, "coeffs": list(coeffs)}, "rms": 0.07,
         "rms_kind": "RMS, px", "views": out_views, "board": list(BOARD), "square": 0.03, "detector": "opencv",
-        "model": "opencv5", "std": {"fx": 0.5, "fy": 0.4, "cx": 0.3, "cy": 0.2, "distortion": [1e-3] * 5},
+        "model": model, "std": {"fx": 0.5, "fy": 0.4, "cx": 0.3, "cy": 0.2, "distortion": [1e-3] * len(coeffs)},
         "num_views": {"files": views + 1, "found": views, "usable": views, "used": views - 1},
     }
 
@@ -103,6 +107,46 @@ def test_other_distortion_models(tmp_path, coeffs):
     write_report(str(tmp_path), data, progress=False)
     text = (tmp_path / "index.html").read_text()
     assert ("k6" in text) == bool(coeffs)
+
+
+def test_a_fisheye_calibration_is_reported_through_its_camera(tmp_path):
+    data = _calibration(tmp_path, views=4, model="fisheye", coeffs=[0.02, -0.01, 0.002, 0.0])
+    written = write_report(str(tmp_path), data, progress=False)
+    for name in ("residuals.png", "coverage.png", "undistorted.png", "distortion_field.png"):
+        image = cv2.imread(str(tmp_path / name))
+        assert str(tmp_path / name) in written and image is not None and image.std() > 10, name
+    text = (tmp_path / "index.html").read_text()
+    # cv2.fisheye's k1..k4 named as such (not as OpenCV's k1, k2, p1, p2)
+    assert "<td class='l'>k4</td>" in text and "<td class='l'>p1</td>" not in text
+
+
+LENSES = {"k1k2": (K1K2, [-0.3, 0.1]), "opencv5": (OPENCV5, DIST), "fisheye": (FISHEYE, [-0.05, 0.01, 0.0, 0.0])}
+
+
+@pytest.mark.parametrize("name", list(LENSES))
+def test_undistorted_preview_of_any_model_has_no_black_border(name):
+    model, coeffs = LENSES[name]
+    camera = Camera.from_opencv(model, torch.tensor(K, dtype=torch.float64), torch.tensor(coeffs), (320, 240))
+    gray = np.full((240, 320), 0.5)
+    fig = _undistorted_preview(gray, camera, "flat.png")
+    assert fig.shape == (240 + 30, 2 * 320 + 10, 3)
+    view = fig[30:, 330:]  # the undistorted tile below its title
+    assert int(view.min()) == int(view.max()) == 127  # balance 0: every pixel comes from the image
+    # the board's outer rows: drawn on both tiles where corners are given
+    obj = board_object_points(*BOARD, 0.03, dtype=torch.float64)
+    corners = camera.project(obj[None] + torch.tensor([-0.08, -0.05, 0.35], dtype=torch.float64))[0].numpy()
+    drawn = _undistorted_preview(gray, camera, "flat.png", corners, BOARD)
+    assert (np.abs(drawn[30:, 330:].astype(int) - (0, 170, 0)).sum(-1) < 60).sum() > 20  # green corners
+
+
+def test_distortion_field_of_any_model():
+    Kt = torch.tensor(K, dtype=torch.float64)
+    flat = distortion_field_plot(Camera.from_opencv(PINHOLE, Kt, None, (320, 240)))
+    fields = [distortion_field_plot(Camera.from_opencv(m, Kt, torch.tensor(c), (320, 240))) for m, c in LENSES.values()]
+    for fig in fields:
+        assert fig.shape == flat.shape and int(np.abs(fig.astype(int) - flat).max()) > 100  # arrows where it has none
+    with pytest.raises(ValueError, match="image size"):
+        distortion_field_plot(Camera.from_opencv(PINHOLE, Kt))
 
 
 def test_partial_boards_are_drawn_without_their_hidden_corners(tmp_path):

@@ -84,6 +84,21 @@ class CameraModel:
         those in front of the camera (a fisheye model overrides it: it sees beyond 90 degrees)."""
         return points[..., 2] > 1e-6
 
+    def monotonic_radius(self, params: torch.Tensor, max_angle: float) -> torch.Tensor:
+        """How far from the axis, as a radius on the normalized (``z = 1``) plane, the model's radial mapping keeps
+        increasing: beyond it several directions share one image radius (undistorting there folds the image back).
+
+        Each model gives its own rule; the result is at most ``tan(max_angle)``.
+
+        Args:
+            params: :math:`(C, P)` parameters.
+            max_angle: the widest angle from the axis asked for, in radians (below ``pi / 2``).
+
+        Returns:
+            :math:`(C,)` radius (``tan`` of an angle from the axis), in the parameters' dtype.
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no rule for the range where it is monotonic.")
+
     @property
     def opencv_family(self) -> str:
         """Which OpenCV functions take the coefficients: ``"fisheye"`` (``cv2.fisheye``) or ``"opencv"`` (``cv2``), as

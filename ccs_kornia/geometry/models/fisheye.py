@@ -25,6 +25,8 @@ __all__ = ["KannalaBrandtModel"]
 _AXIS_EPS = 1e-4
 #: Newton steps on the angle from the optical axis when inverting the projection
 ANGLE_NEWTON_STEPS = 20
+#: angles sampled by :meth:`KannalaBrandtModel.monotonic_radius`
+MONOTONIC_SAMPLES = 4096
 
 
 class KannalaBrandtModel(CameraModel):
@@ -83,6 +85,28 @@ class KannalaBrandtModel(CameraModel):
         intr = torch.stack([K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]], -1)
         D = K.new_zeros(K.shape[0], 4) if D is None else self.opencv_coeffs(D.to(K.dtype)).expand(K.shape[0], 4)
         return torch.cat([intr, D], -1)
+
+    def monotonic_radius(self, params: torch.Tensor, max_angle: float) -> torch.Tensor:
+        r"""``tan`` of the angle where ``theta_d(theta) = theta (1 + k1 theta^2 + ... + k4 theta^8)`` stops increasing,
+        at most ``tan(max_angle)``.
+
+        The slope ``d theta_d / d theta`` is sampled at :data:`MONOTONIC_SAMPLES` angles up to ``max_angle``; the
+        answer is the last sample before it first stops being positive. See :meth:`CameraModel.monotonic_radius`.
+
+        Example:
+            >>> import math
+            >>> params = torch.tensor([[300., 300., 320., 240., -0.3, 0., 0., 0.]], dtype=torch.float64)
+            >>> angle = KannalaBrandtModel().monotonic_radius(params, math.radians(80)).atan()
+            >>> round(math.degrees(angle.item()), 1)  # d theta_d / d theta = 1 - 0.9 theta^2: 1 / sqrt(0.9) rad
+            60.4
+        """
+        theta = torch.linspace(0.0, max_angle, MONOTONIC_SAMPLES + 1, dtype=params.dtype, device=params.device)[None]
+        t2 = theta * theta
+        k1, k2, k3, k4 = (params[:, 4 + i, None] for i in range(4))
+        slope = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+        index = torch.arange(MONOTONIC_SAMPLES + 1, device=params.device)
+        first_bad = torch.where(slope <= 0, index, MONOTONIC_SAMPLES + 1).amin(-1)  # the top where it never stops
+        return torch.tan(theta[0, (first_bad - 1).clamp(min=0)])
 
     def _angles(self, pixels: torch.Tensor, params: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Pixels to ``(theta, cos(phi), sin(phi))`` by Newton's method on ``theta`` (start: ``theta_d``); the

@@ -13,6 +13,8 @@ even when every coefficient is zero, so the derivatives are right at the usual z
 
 from __future__ import annotations
 
+import math
+
 import torch
 from kornia.geometry.calibration import undistort_points
 
@@ -35,6 +37,8 @@ OPENCV_VARIANTS: dict[str, tuple[int, ...]] = {
 _NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
 #: fixed-point steps of kornia's inverse that start :meth:`OpenCVModel.undistort`'s Newton steps
 FIXED_POINT_STEPS = 20
+#: radii sampled by :meth:`OpenCVModel.monotonic_radius`
+MONOTONIC_SAMPLES = 4096
 
 
 class OpenCVModel(CameraModel):
@@ -119,6 +123,32 @@ class OpenCVModel(CameraModel):
             inv_f = broadcast_params(params, pixels)[..., 0:2].reciprocal().expand_as(xy)
             return xy, torch.diag_embed(inv_f)
         return super().undistort(pixels, params, jacobians)
+
+    def monotonic_radius(self, params: torch.Tensor, max_angle: float) -> torch.Tensor:
+        r"""Where ``r_d = r (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)`` stops increasing or its
+        denominator reaches zero, as a radius on the normalized plane, at most ``tan(max_angle)``.
+
+        The mapping is sampled at :data:`MONOTONIC_SAMPLES` radii up to ``tan(max_angle)``; the answer is the sample
+        two before the first that does not increase (the turning point lies between the samples before and after
+        that one). Tangential terms are small and left out. See :meth:`CameraModel.monotonic_radius`.
+
+        Example:
+            >>> params = torch.tensor([[500., 500., 320., 240., -0.3, 0., 0., 0., 0.]], dtype=torch.float64)
+            >>> round(OpenCVModel("opencv5").monotonic_radius(params, math.radians(80)).item(), 2)  # 1 / sqrt(0.9)
+            1.05
+        """
+        d = self.dist8(params)
+        top = math.tan(max_angle)
+        r = torch.linspace(0.0, top, MONOTONIC_SAMPLES + 1, dtype=params.dtype, device=params.device)[None]
+        r2 = r * r
+        num = 1 + r2 * (d[:, 0, None] + r2 * (d[:, 1, None] + r2 * d[:, 4, None]))
+        den = 1 + r2 * (d[:, 5, None] + r2 * (d[:, 6, None] + r2 * d[:, 7, None]))
+        r_d = r * num / den
+        bad = torch.zeros_like(r_d, dtype=torch.bool)
+        bad[:, 1:] = (r_d[:, 1:] <= r_d[:, :-1]) | (den[:, 1:] <= 0)
+        index = torch.arange(MONOTONIC_SAMPLES + 1, device=params.device)
+        first_bad = torch.where(bad, index, MONOTONIC_SAMPLES + 2).amin(-1)  # the top where it never stops
+        return r[0, (first_bad - 2).clamp(min=0)]
 
     def fit_coeffs(
         self, ideal: torch.Tensor, distorted: torch.Tensor, K: torch.Tensor, mask: torch.Tensor | None = None

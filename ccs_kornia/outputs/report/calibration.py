@@ -34,13 +34,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from ccs_kornia.geometry.camera import (
-    board_object_points,
-    kb_project_points,
-    project_points,
-)
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera, board_object_points
 from ccs_kornia.io.images import load_image_gray
+from ccs_kornia.outputs.calibration_file import camera_from_record
 from ccs_kornia.outputs.report.figures import (
     DISPLAY_MAX_SIDE,
     _coverage_plot,
@@ -104,14 +100,24 @@ def _write_manifest(directory: str, written: list[str]) -> None:
         handle.write("\n")
 
 
-def _parameter_rows(data: dict[str, Any]) -> list[tuple[str, float, float | None]]:
+def _coefficient_names(model: Any, count: int) -> list[str]:
+    """Names of the first ``count`` coefficients of the model's OpenCV layout (``cv2.fisheye``'s ``k1..k4`` for a
+    fisheye; ``k1, k2, p1, p2, k3, ...`` for OpenCV's models, those the model lacks stored as zeros)."""
+    names = list(_DIST_NAMES[:count])
+    for place, name in zip(model.coeff_index, model.param_names[4:]):
+        if place < count:
+            names[place] = name
+    return names
+
+
+def _parameter_rows(data: dict[str, Any], camera: Camera) -> list[tuple[str, float, float | None]]:
     K = data["K"]
     std = data.get("std") or {}
     coeffs = data["distortion"]["coeffs"] or []
     std_dist = std.get("distortion") or [None] * len(coeffs)
     rows = [("fx", K[0][0], std.get("fx")), ("fy", K[1][1], std.get("fy")),
             ("cx", K[0][2], std.get("cx")), ("cy", K[1][2], std.get("cy"))]
-    rows += [(n, c, s) for n, c, s in zip(_DIST_NAMES, coeffs, std_dist)]
+    rows += [(n, c, s) for n, c, s in zip(_coefficient_names(camera.model, len(coeffs)), coeffs, std_dist)]
     return rows
 
 
@@ -136,12 +142,9 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     from tqdm import tqdm
 
     written: list[str] = []
-    K = torch.tensor(data["K"], dtype=torch.float64)
-    lens = camera_model(data["distortion"]["model"])
-    dist = torch.tensor(lens.opencv_coeffs(data["distortion"]["coeffs"]), dtype=torch.float64)
-    fisheye = lens.is_fisheye
+    camera = camera_from_record(data)  # float64, with its image size
     cols, rows = (int(v) for v in data["board"])
-    size = (int(data["image_size"][0]), int(data["image_size"][1]))
+    size = camera.image_size
     obj = board_object_points(cols, rows, float(data["square"]), dtype=torch.float64)
     views = data["views"]
     _remove_previous(directory)
@@ -152,9 +155,8 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     projected: dict[int, np.ndarray] = {}
     for index, view in enumerate(views):
         if view.get("corners") is not None and view.get("rvec") is not None:
-            project = kb_project_points if fisheye else project_points
-            uv = project(obj, K, dist, torch.tensor(view["rvec"], dtype=torch.float64),
-                         torch.tensor(view["tvec"], dtype=torch.float64)).numpy()
+            uv = camera.project(obj[None], torch.tensor(view["rvec"], dtype=torch.float64)[None],
+                                torch.tensor(view["tvec"], dtype=torch.float64)[None])[0].numpy()
             if np.isfinite(uv).all():
                 projected[index] = uv
     used_idx = [i for i, v in enumerate(views) if v.get("used") and i in projected]
@@ -215,7 +217,7 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     if first_used is not None:
         base, gray, detected = first_used
         seen = np.concatenate(detected_used) if detected_used else None
-        preview = _undistorted_preview(gray, K, dist, base, detected, (cols, rows), fisheye, seen)
+        preview = _undistorted_preview(gray, camera, base, detected, (cols, rows), seen)
         if write_png(os.path.join(directory, "undistorted.png"), preview, written):
             figures.append(("undistorted.png", "Undistorted preview",
                             "A used view and the same view undistorted with the calibration, as 'undistort "
@@ -224,7 +226,7 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
                             "straight; the board's outer corners (green) bow away from them under distortion and "
                             "should sit on them once undistorted."))
 
-    field = distortion_field_plot(size, K.numpy(), dist.numpy(), fisheye)
+    field = distortion_field_plot(camera)
     if write_png(os.path.join(directory, "distortion_field.png"), field, written):
         figures.append(("distortion_field.png", "Distortion field",
                         "Where the lens moves each pixel of a pinhole camera with the same K. Beyond the covered "
@@ -237,14 +239,15 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
                             "1-sigma uncertainty of where a fixed ray lands, from the parameter covariance (the "
                             "rotation a principal-point shift mimics fitted out). High values where no board was "
                             "seen: add views with the board there."))
-    written.append(_write_html(os.path.join(directory, "index.html"), data, figures, overlay_names, gain, coverage))
-    written.append(_write_markdown(os.path.join(directory, "summary.md"), data, gain))
+    written.append(_write_html(os.path.join(directory, "index.html"), data, camera, figures, overlay_names, gain,
+                               coverage))
+    written.append(_write_markdown(os.path.join(directory, "summary.md"), data, camera, gain))
     _write_manifest(directory, written)
     return written
 
 
-def _write_html(path: str, data: dict[str, Any], figures: list[tuple[str, str, str]], overlays: dict[int, str],
-                gain: float, coverage: float | None) -> str:
+def _write_html(path: str, data: dict[str, Any], camera: Camera, figures: list[tuple[str, str, str]],
+                overlays: dict[int, str], gain: float, coverage: float | None) -> str:
     esc = html.escape
     n = data.get("num_views", {})
     size = data["image_size"]
@@ -267,7 +270,7 @@ def _write_html(path: str, data: dict[str, Any], figures: list[tuple[str, str, s
     if coverage is not None:
         parts.append(f"<li>image coverage: {100 * coverage:.0f}% of the cells hold a detected corner</li>")
     parts += ["</ul>", *quality_html(data.get("diagnostics")), "<h2>Parameters</h2>", "<table><tr><th>parameter</th><th>value</th><th>std (1 sigma)</th></tr>"]
-    for name, value, std in _parameter_rows(data):
+    for name, value, std in _parameter_rows(data, camera):
         digits = 3 if name in ("fx", "fy", "cx", "cy") else 6
         parts.append(f"<tr><td class='l'>{name}</td><td>{_fmt(value, digits)}</td><td>&plusmn; {_fmt(std, digits)}</td></tr>")
     parts.append("</table><p>Standard deviations from the Gauss-Newton covariance at the solution, scaled by the "
@@ -294,7 +297,7 @@ def _write_html(path: str, data: dict[str, Any], figures: list[tuple[str, str, s
     return path
 
 
-def _write_markdown(path: str, data: dict[str, Any], gain: float) -> str:
+def _write_markdown(path: str, data: dict[str, Any], camera: Camera, gain: float) -> str:
     cols, rows = data["board"]
     lines = [
         "# Calibration report",
@@ -308,7 +311,7 @@ def _write_markdown(path: str, data: dict[str, Any], gain: float) -> str:
         "| parameter | value | std |",
         "|---|---|---|",
     ]
-    for name, value, std in _parameter_rows(data):
+    for name, value, std in _parameter_rows(data, camera):
         digits = 3 if name in ("fx", "fy", "cx", "cy") else 6
         lines.append(f"| {name} | {_fmt(value, digits)} | {_fmt(std, digits)} |")
     lines += quality_markdown(data.get("diagnostics"))

@@ -13,6 +13,8 @@ import cv2
 import numpy as np
 import torch
 
+from ccs_kornia.geometry.camera import Camera
+
 __all__ = ["DISPLAY_MAX_SIDE", "write_png"]
 
 #: longest side of any picture in the report
@@ -360,50 +362,38 @@ def _coverage_plot(size: tuple[int, int], corner_sets: list[np.ndarray], board: 
     return fig, covered
 
 
-def _undistorted_preview(gray: np.ndarray, K: torch.Tensor, dist: torch.Tensor, name: str,
-                         corners: np.ndarray | None = None, board: tuple[int, int] | None = None,
-                         fisheye: bool = False, seen: np.ndarray | None = None) -> np.ndarray:
-    """A view next to what ``undistort --balance 0`` makes of it (``seen``: the calibration's corners, which bound
-    the lens's valid field)."""
-    from ccs_kornia.geometry.camera import kb_undistort_points
-    from ccs_kornia.modules.undistort.fisheye_warp import (
-        fisheye_undistort_image,
-        fisheye_valid_angle,
-        fisheye_view_camera_matrix,
-    )
-    from ccs_kornia.modules.undistort.opencv_warp import (
-        opencv_undistort_image,
-        opencv_valid_radius,
-        opencv_view_camera_matrix,
-    )
-    from ccs_kornia.modules.undistort.view_camera import horizontal_fov
+def _resized_camera(camera: Camera, scale: float, size: tuple[int, int]) -> Camera:
+    """The same camera (one) on a pixel grid resized by ``scale`` to ``size``: the focal lengths scale and the
+    principal point moves with the pixel centres (``x' + 0.5 = s (x + 0.5)``); the lens's coefficients are kept."""
+    params = camera.params.clone()
+    params[:, 0:2] = camera.params[:, 0:2] * scale
+    params[:, 2:4] = (camera.params[:, 2:4] + 0.5) * scale - 0.5
+    return Camera(camera.models, params, size)
 
+
+def _undistorted_preview(gray: np.ndarray, camera: Camera, name: str, corners: np.ndarray | None = None,
+                         board: tuple[int, int] | None = None, seen: np.ndarray | None = None) -> np.ndarray:
+    """A view of ``camera`` (one, any model) next to what ``undistort --balance 0`` makes of it (``seen``: the
+    calibration's corners, which bound the lens's valid field)."""
+    from ccs_kornia.modules.undistort.undistort_image import undistort_image
+    from ccs_kornia.modules.undistort.valid_field import valid_radius
+    from ccs_kornia.modules.undistort.view_camera import horizontal_fov, view_camera_matrix
+
+    camera = camera.to(dtype=torch.float64)
     points_seen = None if seen is None else torch.from_numpy(np.asarray(seen, np.float64).reshape(1, -1, 2))
-    valid_field = fisheye_valid_angle if fisheye else opencv_valid_radius
-    field = valid_field(K[None], dist[None], points_seen)  # angles and radii do not change with the scale below
+    field = valid_radius(camera, points_seen)  # a radius on the normalized plane: the same at any scale below
     scale = min(1.0, 640 / max(gray.shape))
     if scale < 1.0:
         gray = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    Ks = K.clone()
-    # the same camera on the resized pixel grid (pixel centres: x' + 0.5 = s (x + 0.5))
-    Ks[0, 0], Ks[1, 1] = K[0, 0] * scale, K[1, 1] * scale
-    Ks[0, 2], Ks[1, 2] = (K[0, 2] + 0.5) * scale - 0.5, (K[1, 2] + 0.5) * scale - 0.5
-    image = torch.from_numpy(gray).double()[None, None]
     size = (gray.shape[1], gray.shape[0])
-    if fisheye:
-        P = fisheye_view_camera_matrix(Ks[None], dist[None], size, 0.0, max_angle=field)
-        out = fisheye_undistort_image(image, Ks[None], dist[None], P, max_angle=field)[0, 0].numpy()
-    else:
-        P = opencv_view_camera_matrix(Ks[None], dist[None], size, 0.0, max_radius=field)
-        out = opencv_undistort_image(image, Ks[None], dist[None], new_K=P, max_radius=field)[0, 0].numpy()
+    shown = _resized_camera(camera, scale, size)
+    image = torch.from_numpy(gray).double()[None, None]
+    P = view_camera_matrix(shown, size, 0.0, max_radius=field)
+    out = undistort_image(image, shown, P, field)[0, 0].numpy()
     points = [None, None]
     if corners is not None and board is not None:
         pts = _scaled(corners, scale)
-        if fisheye:
-            und = kb_undistort_points(torch.from_numpy(pts.reshape(-1, 2).astype(np.float64))[None], Ks[None],
-                                      dist[None], P)[0].numpy()
-        else:
-            und = cv2.undistortPoints(pts.reshape(-1, 1, 2).astype(np.float64), Ks.numpy(), dist.numpy(), P=P[0].numpy())
+        und = shown.undistort(torch.from_numpy(pts.reshape(1, -1, 2).astype(np.float64)), P)[0].numpy()
         points = [pts, und.reshape(-1, 2)]
     label = f"undistorted (undistort --balance 0: {float(horizontal_fov(P, size)[0]):.0f} deg across)"
     tiles = []

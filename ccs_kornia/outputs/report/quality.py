@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import torch
 
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.outputs.report.figures import (
     _AA,
     _BLACK,
@@ -71,25 +72,23 @@ def _field_canvas(size: tuple[int, int], title: str):
     return fig, box, scale
 
 
-def distortion_field_plot(size: tuple[int, int], K: np.ndarray, dist: np.ndarray, fisheye: bool = False,
-                          cells: int = 16) -> np.ndarray:
+def distortion_field_plot(camera: Camera, cells: int = 16) -> np.ndarray:
     """Arrows from where a pinhole camera with the same ``K`` would image each ray to where the lens images it
-    (the displacement the distortion model applies), coloured by length, over a grid of the image."""
-    from ccs_kornia.geometry.camera import distort_pixels, kb_distort_points
-
-    w_img, h_img = size
-    fig, box, scale = _field_canvas(size, "Distortion field: where the lens moves each pinhole pixel")
+    (the displacement the distortion model applies), coloured by length, over a grid of the image of ``camera`` (one
+    camera, any model, with its image size)."""
+    if len(camera) != 1 or camera.image_size is None:
+        raise ValueError(f"distortion_field_plot takes one camera with its image size, got {camera!r}.")
+    w_img, h_img = camera.image_size
+    fig, box, scale = _field_canvas((w_img, h_img), "Distortion field: where the lens moves each pinhole pixel")
     x0, y0, w, h = box
     nx, ny = cells, max(2, int(round(cells * h_img / w_img)))
     xs, ys = np.linspace(0, w_img - 1, nx), np.linspace(0, h_img - 1, ny)
     ideal = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2)
-    Kt, Dt = torch.tensor(K, dtype=torch.float64)[None], torch.tensor(dist, dtype=torch.float64)[None]
-    pts = torch.tensor(ideal, dtype=torch.float64)[None]
-    if fisheye:
-        norm = (pts - Kt[:, None, :2, 2]) / torch.stack([Kt[:, 0, 0], Kt[:, 1, 1]], -1)[:, None]
-        moved = kb_distort_points(norm, Kt, Dt)[0].numpy()
-    else:
-        moved = distort_pixels(pts, Kt, Dt)[0].numpy()
+    camera = camera.to(dtype=torch.float64)
+    K = camera.K
+    # each ideal pixel's ray on the normalized plane (the pinhole camera K), then where the lens images it
+    normalized = (torch.tensor(ideal, dtype=torch.float64)[None] - K[:, None, :2, 2]) / K[:, None, [0, 1], [0, 1]]
+    moved = camera.distort(normalized)[0].numpy()
     d = moved - ideal
     length = np.linalg.norm(d, axis=-1)
     finite = np.isfinite(length)
