@@ -21,36 +21,25 @@ from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._inputs import inputs
 from ccs_kornia.commands._output_paths import make_dir
 from ccs_kornia.commands._printing import info, warn
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.io.images import read_image, write_image
-from ccs_kornia.modules.undistort.fisheye_warp import (
-    fisheye_undistort_image,
-    fisheye_valid_angle,
-    fisheye_view_camera_matrix,
-)
-from ccs_kornia.modules.undistort.opencv_warp import (
-    opencv_undistort_image,
-    opencv_valid_radius,
-    opencv_view_camera_matrix,
-)
-from ccs_kornia.modules.undistort.view_camera import horizontal_fov
-from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
+from ccs_kornia.modules.undistort.undistort_image import undistort_image
+from ccs_kornia.modules.undistort.valid_field import valid_radius
+from ccs_kornia.modules.undistort.view_camera import horizontal_fov, view_camera_matrix
+from ccs_kornia.outputs.calibration_file import CalibrationFile, RigFileError, read_calibration
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["run"]
 
 
-def _read_calibration(path: str, camera: str | None = None) -> tuple[Any, Any, tuple[int, int] | None, bool, list]:
+def _read_calibration(path: str, camera: str | None = None) -> CalibrationFile:
     try:
-        calib = read_calibration(path, camera)
+        return read_calibration(path, camera)
     except RigFileError as err:
         raise UserError(f"--calibration {path}: {err}: rectify its stereo pairs with 'rectify', or give one of its "
                         "cameras with --camera NAME") from None
     except ValueError as err:
         raise UserError(f"--calibration {path}: {err}") from None
-    K = torch.from_numpy(calib["K"])
-    dist = torch.from_numpy(calib["coeffs"])
-    return K, dist, calib["image_size"], camera_model(calib["model"]).is_fisheye, calib["views"]
 
 
 def _calibrated_corners(views: list) -> Any:
@@ -69,17 +58,16 @@ def _calibrated_corners(views: list) -> Any:
     return points if bool(points.isfinite().all(-1).any()) else None
 
 
-def _view_camera(K: Any, dist: Any, fisheye: bool, size: tuple[int, int], field: Any, args: argparse.Namespace) -> Any:
+def _view_camera(camera: Camera, size: tuple[int, int], field: torch.Tensor, args: argparse.Namespace) -> torch.Tensor:
     """The undistorted view's camera for images of ``size`` (``--balance`` or ``--fov``), with a warning when
     ``--fov`` is clamped to the valid field and one line saying how the view is framed."""
-    make = fisheye_view_camera_matrix if fisheye else opencv_view_camera_matrix
     balance, fov_asked = getattr(args, "balance", 0.0), getattr(args, "fov", None)
     try:
-        new_K = make(K[None], dist[None], size, balance, fov_asked, field)
+        new_K = view_camera_matrix(camera, size, balance, fov_asked, field)
     except ValueError as err:
         raise UserError(f"--calibration {args.calibration}: cannot frame an undistorted view: {err}") from None
     fov = float(horizontal_fov(new_K, size)[0])
-    angle = math.degrees(float(field[0]) if fisheye else math.atan(float(field[0])))
+    angle = math.degrees(math.atan(float(field[0])))
     if fov_asked is not None and fov < fov_asked - 0.05:
         warn("undistort", f"--fov {fov_asked:g} clamped to {fov:.1f} degrees, the valid field of the lens model "
                           f"(monotonic and calibrated up to {angle:.1f} degrees from the axis)")
@@ -90,15 +78,14 @@ def _view_camera(K: Any, dist: Any, fisheye: bool, size: tuple[int, int], field:
 
 
 def run(args: argparse.Namespace) -> int:
-    K, dist, calib_size, fisheye, views = _read_calibration(args.calibration, getattr(args, "camera", None))
+    calibration = _read_calibration(args.calibration, getattr(args, "camera", None))
     device = resolve_device(args.device)
     files = inputs("undistort", args.images)
     make_dir("--out-dir", args.out_dir)
-    K, dist = K.to(device), dist.to(device)
-    corners = _calibrated_corners(views)
+    camera, calib_size = calibration.camera.to(device), calibration.camera.image_size
+    corners = _calibrated_corners(calibration.views)
     corners = None if corners is None else corners.to(device)
-    valid_field = fisheye_valid_angle if fisheye else opencv_valid_radius
-    field = valid_field(K[None], dist[None], corners)  # radians (fisheye) or tan of the angle
+    field = valid_radius(camera, corners)  # on the normalized plane: the tangent of the angle from the axis
     written, used_names, new_K = 0, set(), {}
     for path in tqdm(files, unit="img", desc="undistort", file=sys.stderr, disable=None, leave=False):
         image, reason, depth = read_image(path, gray=False)
@@ -124,11 +111,8 @@ def run(args: argparse.Namespace) -> int:
         tensor = tensor[None, None] if tensor.dim() == 2 else tensor.permute(2, 0, 1)[None]
         size = (w, h)
         if size not in new_K:
-            new_K[size] = _view_camera(K, dist, fisheye, size, field, args)
-        if fisheye:
-            out = fisheye_undistort_image(tensor.double(), K[None], dist[None], new_K[size], max_angle=field)[0]
-        else:
-            out = opencv_undistort_image(tensor.double(), K[None], dist[None], new_K=new_K[size], max_radius=field)[0]
+            new_K[size] = _view_camera(camera, size, field, args)
+        out = undistort_image(tensor.double(), camera, new_K[size], field)[0]
         if not write_image(target, out, bit_depth=16 if depth > 8 and ext.lower() in (".png", ".tif", ".tiff") else 8):
             warn("undistort", f"could not write {target}")
             continue

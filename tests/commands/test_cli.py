@@ -476,17 +476,15 @@ def test_fisheye_real_set_yaml_and_undistort(real_dir, tmp_path, capsys):
     assert code == 0 and "undistorted 1 of 1" in stdout, err
     # the written image is cv2.fisheye.undistortImage's with the view's camera, framed within the field the
     # calibration's corners reached (cv2's own matrix puts the view off-centre here: border midpoints near 90 degrees)
-    from ccs_kornia.modules.undistort.fisheye_warp import (
-        fisheye_valid_angle,
-        fisheye_view_camera_matrix,
-    )
+    from ccs_kornia.geometry.camera import Camera
+    from ccs_kornia.geometry.models import FISHEYE
+    from ccs_kornia.modules.undistort import valid_radius, view_camera_matrix
 
     src = cv2.imread(str(folder / "left-0000.png"), cv2.IMREAD_GRAYSCALE)
     Kn, Dn = np.array(K), np.array(data["distortion"]["coeffs"])
     seen = torch.tensor(np.array([c for v in data["views"] if v["used"] for c in v["corners"]], np.float64))[None]
-    angle = fisheye_valid_angle(torch.tensor(Kn)[None], torch.tensor(Dn)[None], seen)
-    P = fisheye_view_camera_matrix(torch.tensor(Kn)[None], torch.tensor(Dn)[None], (src.shape[1], src.shape[0]), 0.5,
-                                   max_angle=angle)
+    camera = Camera.from_opencv(FISHEYE, torch.tensor(Kn), torch.tensor(Dn))
+    P = view_camera_matrix(camera, (src.shape[1], src.shape[0]), 0.5, max_radius=valid_radius(camera, seen))
     ref_img = cv2.fisheye.undistortImage(src, Kn, Dn, Knew=P[0].numpy()).astype(np.float64)
     ours = cv2.imread(str(und / "left-0000.png"), cv2.IMREAD_GRAYSCALE).astype(np.float64)
     both = (ref_img > 0) & (ours > 0)
@@ -630,14 +628,14 @@ def test_undistort_roundtrip_of_our_json(rendered, tmp_path, capsys):
     code, _, _ = run(capsys, "undistort", files[2], "--calibration", str(calib), "--out-dir", str(tmp_path / "u"))
     assert code == 0
     ours = cv2.imread(str(tmp_path / "u" / os.path.basename(files[2])), cv2.IMREAD_UNCHANGED).astype(np.float64)
-    from ccs_kornia.modules.undistort.opencv_warp import (
-        opencv_valid_radius,
-        opencv_view_camera_matrix,
-    )
+    from ccs_kornia.geometry.camera import Camera
+    from ccs_kornia.geometry.models import camera_model
+    from ccs_kornia.modules.undistort import valid_radius, view_camera_matrix
 
-    K, dist = torch.tensor(data["K"])[None], torch.tensor(data["distortion"]["coeffs"])[None]
+    camera = Camera.from_opencv(camera_model(data["distortion"]["model"]), torch.tensor(data["K"]),
+                                torch.tensor(data["distortion"]["coeffs"]))
     corners = torch.tensor(np.array([c for v in data["views"] if v["used"] for c in v["corners"]], np.float64))
-    P = opencv_view_camera_matrix(K, dist, (640, 480), 0.0, max_radius=opencv_valid_radius(K, dist, corners[None]))
+    P = view_camera_matrix(camera, (640, 480), 0.0, max_radius=valid_radius(camera, corners[None]))
     ref = cv2.undistort(cv2.imread(files[2], cv2.IMREAD_UNCHANGED), np.array(data["K"]),
                         np.array(data["distortion"]["coeffs"]), newCameraMatrix=P[0].numpy()).astype(np.float64)
     diff = np.abs(ours - ref)[10:-10, 10:-10]

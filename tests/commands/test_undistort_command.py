@@ -16,11 +16,9 @@ import torch
 from _real_data import REAL_DATA
 
 from ccs_kornia import cli
-from ccs_kornia.geometry.camera import kb_undistort_points
-from ccs_kornia.modules.undistort.fisheye_warp import (
-    fisheye_valid_angle,
-    fisheye_view_camera_matrix,
-)
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models import FISHEYE
+from ccs_kornia.modules.undistort import valid_radius, view_camera_matrix
 
 SIZE = (320, 240)
 
@@ -133,20 +131,21 @@ def test_fisheye_view_shows_the_board_straight_without_black_border(fisheye_cali
     corners = [torch.tensor(np.array(v["corners"], dtype=np.float64)) for v in used]
     seen = torch.cat(corners)[None]
     # the boards nearest the axis: smallest largest corner angle
-    reach = [float(torch.nan_to_num(fisheye_valid_angle(K[None], D[None], c[None]), nan=9.0)) for c in corners]
+    camera = Camera.from_opencv(FISHEYE, K, D)
+    reach = [float(torch.nan_to_num(valid_radius(camera, c[None]), nan=float("inf"))) for c in corners]
     chosen = sorted(range(len(used)), key=reach.__getitem__)[:2]
-    angle = fisheye_valid_angle(K[None], D[None], seen)
+    field = valid_radius(camera, seen)
     focal = {}
     for balance in ("0", "1"):
         out_dir = tmp_path / balance
         code, out, err = run(capsys, "undistort", *[used[i]["path"] for i in chosen], "--calibration",
                              str(fisheye_calibrations[name]), "--out-dir", str(out_dir), "--balance", balance)
         assert code == 0 and "undistorted 2 of 2" in out, err
-        P = fisheye_view_camera_matrix(K[None], D[None], size, float(balance), max_angle=angle)
+        P = view_camera_matrix(camera, size, float(balance), max_radius=field)
         focal[balance] = float(P[0, 0, 0])
         assert f"f = {focal[balance]:.1f} px" in err
         for i in chosen:
-            view = kb_undistort_points(corners[i][None], K, D, P[0])[0].numpy()
+            view = camera.undistort(corners[i][None], P)[0].numpy()
             visible = np.isfinite(view).all(-1)
             inside = (view[visible] >= 0).all() and (view[visible, 0] <= size[0] - 1).all() and (
                 view[visible, 1] <= size[1] - 1).all()
