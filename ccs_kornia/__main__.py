@@ -5,8 +5,7 @@ from __future__ import annotations
 import os
 
 # OpenMP threads that spin while they wait for work take the CPU from the thread doing it when other processes share
-# the cores: measured on 2 shared cores (load 8), the learned detector ran 4x faster with sleeping waits, and a
-# small tensor op took 50 us instead of 10 ms. Read once, when torch loads; an explicit setting wins.
+# the cores (docs/measurements.md). Read once, when torch loads; an explicit setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from ccs_kornia.cli import run  # noqa: E402

@@ -617,7 +617,7 @@ def run() -> NoReturn:
 
     Once the command is done, threads that are not daemons are waited for, the exit handlers run (``atexit``: worker
     processes, temporary folders, logging) and the standard streams are flushed; what is skipped is the interpreter's
-    own teardown, whose garbage collections walk torch's whole object graph: 0.5-0.8 s after every command
+    own teardown, whose garbage collections walk torch's whole object graph after every command
     (``docs/measurements.md``). Every file the package writes is closed by then.
     """
     code = main()

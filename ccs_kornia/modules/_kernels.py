@@ -1,8 +1,8 @@
 """Cached 1-D Gaussian kernels.
 
-kornia's ``get_gaussian_kernel1d`` builds its kernel anew on every call (about 0.15 ms on CPU). The learned detector's
-square-size search and saddle refinement ask for the same few kernels hundreds of times per batch (3 ms per image at
-batch 1 on 640x480 renders), so they are built once per ``(size, sigma, dtype)`` here.
+kornia's ``get_gaussian_kernel1d`` builds its kernel anew on every call. The learned detector's square-size search and
+saddle refinement ask for the same few kernels hundreds of times per batch (a visible share of a small image's
+detection: ``docs/measurements.md``), so they are built once per ``(size, sigma, dtype)`` here.
 """
 
 from __future__ import annotations

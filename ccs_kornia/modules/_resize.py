@@ -2,7 +2,7 @@
 
 A separable resize is ``out = My @ image @ Mx^T`` with a short run of taps per output row of each matrix. torch's area
 interpolation (``F.interpolate(mode="area")``, i.e. ``adaptive_avg_pool2d``) is slower than that on CPU for factors
-below 2.5 that are not integers (13 photos of 1280x960 to 1 Mpx: 130 ms, against 73 ms); :func:`area_resize` gives its values
+below 2.5 that are not integers (``docs/measurements.md``); :func:`area_resize` gives its values
 (the same footprints and weights, summed in another order) through :func:`banded_product`, which multiplies each
 block of output rows only with the input rows its taps reach.
 """
@@ -17,7 +17,7 @@ import torch.nn.functional as F
 __all__ = ["BANDED_MAX_PIXELS", "area_matrix", "area_resize", "banded_product", "halve", "separable_product"]
 
 #: :func:`area_resize` uses the banded products on images of at most this many pixels (torch's area interpolation
-#: beyond: 1920x2560 to 1613x2151, 38 against 28 ms; 3000x4000 to 1261x1681, 94 against 29 ms)
+#: beyond, faster there: ``docs/measurements.md``)
 BANDED_MAX_PIXELS = 2_000_000
 
 
@@ -93,14 +93,13 @@ def area_resize(images: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     height, width = images.shape[-2:]
     if (h, w) == (height, width):
         return images
-    # torch's own is as fast from a factor of about 2.8 (640x480 to 226x170) and faster beyond (1280x960 to 160x120:
-    # 0.8 against 3.0 ms), and for integer factors (two 1280x960 to 640x480: 5.2 against 9.1 ms)
+    # torch's own is as fast or faster for large factors and for integer factors (docs/measurements.md)
     if (2 * h, 2 * w) == (height, width) and images.is_floating_point():
         return halve(images)
     small = max(height / max(h, 1), width / max(w, 1)) >= 2.5
     integer = height % h == 0 and width % w == 0
-    # and on large images (the banded blocks multiply ~32x the taps, and the dense matrices grow with both sides:
-    # 6000x4500 to 2500x1875, 1020 against 75 ms, plus 0.4 s to build the matrices of each new size)
+    # and on large images (the banded blocks multiply ~32x the taps, the dense matrices grow with both sides and
+    # each new size builds its own: docs/measurements.md)
     large = height * width > BANDED_MAX_PIXELS
     if (images.device.type != "cpu" or h > height or w > width or not images.is_floating_point() or small or integer
             or large):

@@ -4,8 +4,8 @@ glibc serves allocations above a threshold (128 KiB at first, then raised to the
 pages and unmaps them when freed, and hands the heap's free top back once it exceeds twice that threshold: such a
 tensor pays a page fault per 4 KiB page, the kernel zeroing each page, on its first write. The detector and
 the refiners allocate thousands of short-lived tensors of a few MB (one batch's regions, windows, index arrays): on
-real photographs tens of thousands of page faults per refinement pass, none with these settings, and the learned
-detector 5-10 % faster with the same corners (``docs/measurements.md``; a float64 solve can differ in its 15th digit,
+real photographs many page faults per refinement pass, none with these settings, and the learned detector faster
+with the same corners (``docs/measurements.md``; a float64 solve can differ in its 15th digit,
 as between any two runs). The command line
 applies them at start (the process is ours); library users may call :func:`keep_freed_memory` in their own program,
 or not.

@@ -40,8 +40,8 @@ def check_shape(x: object, shape: list[str], expected: str) -> None:
 
 
 def broadcast_shapes(*shapes: tuple[int, ...]) -> torch.Size:
-    """``torch.broadcast_shapes`` without its first-call cost: torch's imports ``torch.fx``'s symbolic shapes and sympy
-    (0.4 s, a tenth of a small calibration from the command line).
+    """``torch.broadcast_shapes`` without its first-call cost: torch's imports ``torch.fx``'s symbolic shapes and sympy,
+    a noticeable share of a small calibration from the command line (``docs/measurements.md``).
 
     Example:
         >>> broadcast_shapes((3, 1, 4), (5, 4))

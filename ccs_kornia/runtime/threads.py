@@ -3,13 +3,13 @@
 Two rules. :func:`small_problem_threads`: the solver's small problems run on one thread whatever the wait policy.
 :func:`light_stages_single_thread`: under passive waits the detector's light stages (scale estimate, peaks,
 organiser, the level's refinement: many small ops) run on one thread and only the network's convolutions and the
-full-resolution refinement (:func:`full_threads`) on all, 6-13 % faster on 2 idle cores with
+full-resolution refinement (:func:`full_threads`) on all, faster on 2 idle cores with
 ``OMP_WAIT_POLICY=PASSIVE``; with spinning waits two threads stay faster, so nothing changes there.
 
 The solver's tensors are small (a camera is 15 views x 54 corners): every op is a few microseconds of work, and on
 2 cores a second intra-op thread mostly adds the cost of waking it, the more so under ``OMP_WAIT_POLICY=PASSIVE``
-(which the command line sets so idle threads do not spin): one thread is faster up to some 64 cameras of a
-15-view set. The figures of both rules: ``docs/measurements.md``.
+(which the command line sets so idle threads do not spin): one thread is faster for the problems of up to
+:data:`SINGLE_THREAD_ELEMENTS` corners. The figures of both rules: ``docs/measurements.md``.
 
 Example:
     >>> with small_problem_threads(1000, torch.device("cpu")):

@@ -153,8 +153,8 @@ def calibrate_corrected(
         if joint_iters > 0:
             # 3. intrinsics, image-centred radial distortion and poses together, on the observed corners; the
             # distortion starts from a fit to those corners (where they are: the refitted correction extrapolated
-            # to the image corner can fold, and its conversion then starts the LM at k ~ 1e9, which needed more
-            # than 500 iterations, or ended in a wrong minimum, on a level-2 camera of bench §4 wide)
+            # to the image corner can fold, and its conversion then starts the LM at k ~ 1e9, which crawls for
+            # hundreds of iterations or ends in a wrong minimum: docs/measurements.md)
             radial0 = radial_from_points(ideal.reshape(c, v * n, 2), corners.reshape(c, v * n, 2), image_size,
                                          use.reshape(c, v * n))
             K1, rad1, rv1, tv1, rms1, _, _, cov1 = refine_centred_radial(

@@ -16,8 +16,8 @@ block, one 6x6 block per view, eliminated by the Schur complement and batched ov
 
 ``H`` is the exact Hessian: ``g`` is built from the camera model's analytic Jacobian columns and differentiated once
 more by autograd (one vector-Jacobian product on ``F + 6`` copies of the problem gives every block). The Gauss-Newton
-:math:`J^T W J` alone is exact only where the residuals vanish: with 0.3 px corner noise on 6-view problems its
-gradients were 3-45 % off central differences, the exact Hessian's within 0.13 %.
+:math:`J^T W J` alone is exact only where the residuals vanish: with noisy corners its gradients are off where the
+exact Hessian's agree with central differences (``docs/gradients.md``).
 
 Only the free coordinates carry gradient: a fixed parameter has zero gradient, tied ones (``basis``, e.g. a fixed
 aspect ratio) move together. Rotations are perturbed on the left, ``R <- exp(w) R`` as in the LM core; the

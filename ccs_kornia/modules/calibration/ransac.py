@@ -41,7 +41,8 @@ def hypothesis_view_rms(
         :math:`(C, S, V)` RMS in px (``inf`` where a view has no valid corner or the pose is degenerate).
     """
     # pose from K^-1 H; scoring only needs the first two rotation columns, orthonormalised symmetrically
-    # (bisector construction: as good as the SVD's nearest rotation here, and ~10x cheaper for C*S*V poses)
+    # (bisector construction: as good as the SVD's nearest rotation here, and cheaper for C*S*V poses:
+    # docs/measurements.md)
     shape = broadcast_shapes(K[:, :, None].shape, H[:, None].shape)
     A = torch.linalg.solve(K[:, :, None].expand(shape), H[:, None].expand(shape))
     a1, a2, a3 = A[..., :, 0], A[..., :, 1], A[..., :, 2]

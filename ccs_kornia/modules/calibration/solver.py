@@ -92,19 +92,15 @@ class CalibrationSolver(nn.Module):
         max_outlier_rounds: rounds of that check.
         max_iters: LM iterations at most.
         lambda_init: initial damping of the LM core (relative to the diagonal): Zhang's closed form is a good
-            start, so little damping saves iterations (1e-5: 6.5 instead of 8.8 with 1e-3 on average over 64
-            cameras, same optimum within 3e-6 px).
+            start, so little damping saves iterations, at the same optimum (``docs/measurements.md``).
         ftol: the LM stops when an accepted step lowers the cost by less than ``ftol`` times the cost. 1e-10 (the
-            cost settled to 10 digits: intrinsics within 1e-6 px of the 1e-12 optimum) takes 5 iterations where
-            1e-12 takes 8 on a 15-view set, the difference between being slower and faster than
-            ``cv2.calibrateCamera`` for one camera (bench section 5).
+            cost settled to 10 digits) reaches the optimum of tighter tolerances in fewer iterations, which decides
+            whether one camera calibrates faster than with ``cv2.calibrateCamera`` (``docs/measurements.md``).
         stall_tol: the LM also stops where 10 iterations lowered the cost by at most this fraction (RMS by half of
-            it). A model that fits converges in 4-12 iterations; the rational model on a narrow lens and an OpenCV
-            model on a fisheye crawl along directions the views do not determine, each step still passing ``ftol``:
-            on the real sets such crawls ran to the 100-iteration cap and took up to a quarter of a calibration for
-            RMS changes in the fifth digit (``docs/measurements.md``). A weakly
-            determined fit that is still converging (3 views, exact corners: 40 iterations) lowers its cost by more
-            than 1x per 10 iterations.
+            it). A model that fits converges long before; the rational model on a narrow lens and an OpenCV model on
+            a fisheye crawl along directions the views do not determine, each step still passing ``ftol``, for RMS
+            changes in the fifth digit, while a weakly determined fit that is still converging lowers its cost by far
+            more than this fraction (``docs/measurements.md``).
         checks: run the degeneracy checks of :mod:`~ccs_kornia.modules.calibration.quality.degeneracy`: copies of a view
             are dropped before the solve (:attr:`ViewReason.DUPLICATE`), a camera failing a check with severity
             ``error`` gets ``success = False``, and every result carries ``check_*`` tensors (see

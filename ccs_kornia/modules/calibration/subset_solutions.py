@@ -97,7 +97,7 @@ def solve_subsets(solver: nn.Module, corners, valid, obj, image_size, subsets, r
 
     A fisheye solver starts the subsets marked in ``warm`` (S,) from ``result`` (the calibration of all the views):
     its focal-length hypotheses cost more than the rest of the solve. Only for the k-fold training sets: their
-    optima lie next to the full one (the same held-out errors to 4 digits on every real set); the two halves start
+    optima lie next to the full one; the two halves start
     cold, since where a model is barely constrained (k1..k4 of a fisheye model on a narrow lens) where its LM ends
     depends on where it starts (``docs/measurements.md``)."""
     C, S, V = subsets.shape

@@ -21,8 +21,8 @@ __all__ = ["DetectionResult", "ChessboardDetector", "Fallbacks", "image_rows", "
 
 def image_rows(images: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
     """``images[idx]``, without a copy where ``idx`` (increasing) is a run of consecutive images (a view): a batch's
-    images are found, or share a level, more often than not, and a copy costs 0.6 ms per 640x480 image and 0.15 s
-    per 27 Mpx photograph each time.
+    images are found, or share a level, more often than not, and a copy costs its time on every call
+    (``docs/measurements.md``).
 
     Example:
         >>> x = torch.rand(4, 1, 8, 8)

@@ -2,8 +2,8 @@
 
 1. ``cv2.findChessboardCorners`` (adaptive threshold + normalisation) followed by
    ``cv2.cornerSubPix`` with a window adapted to the board (half-size about 0.45 times the smallest
-   distance between neighbouring corners, clamped to ``[2, 11]``), which on our synthetic boards
-   with exact ground truth calibrates about 5x better than the sector-based detector;
+   distance between neighbouring corners, clamped to ``[2, 11]``), which on rendered boards
+   with exact ground truth calibrates better than the sector-based detector (``docs/measurements.md``);
 2. if that fails (or its grid is rejected), ``cv2.findChessboardCornersSB`` with
    ``NORMALIZE_IMAGE | EXHAUSTIVE | ACCURACY``;
 3. every grid is checked before it is accepted: a lattice that folds, turns sharply or jumps in

@@ -182,8 +182,8 @@ def _lattice_steps(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     are NaN: the mean of the steps to the measured neighbours (``np.gradient`` on a whole board), and at measured
     corners with no measured neighbour along a direction the derivative of the homography fitted to the measured
     corners. Without that fallback a partial board whose hidden corners alternate with its measured ones (a lattice
-    through every other corner of the board, 20 of 40 corners 'hidden' off the board: two held-out ChArUco renders
-    of bench section 6) had no step anywhere, and no test of it could run."""
+    through every other corner of the board, half its corners 'hidden' off the board, as on ChArUco renders:
+    ``docs/measurements.md``) has no step anywhere, and no test of it can run."""
     steps = []
     for axis in (1, 0):
         fwd = np.diff(grid, axis=axis)
@@ -250,7 +250,7 @@ def _skipped(img: np.ndarray, grid: np.ndarray, u: np.ndarray, v: np.ndarray, ra
     The midpoints are looked at a quarter of a step out (against ``reference``) and a tenth (against the corners'
     median strength a tenth of a step out): on a board with marks inside the white squares (ChArUco) the quarter
     step of a lattice through every other corner (half a square) can land on the marks, the tenth lies on the
-    white margin around them (two held-out ChArUco renders of bench section 6, wrong boards before)."""
+    white margin around them (``docs/measurements.md``)."""
     for out in MIDPOINT_OFFSETS:
         ref = reference
         if out != MIDPOINT_OFFSETS[0]:

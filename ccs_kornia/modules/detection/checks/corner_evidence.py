@@ -94,14 +94,13 @@ def decide_corners(evidence: CornerEvidence, board_size: tuple[int, int]) -> tup
     r"""The policy: which corners the image does not show, and which refuse their board.
 
     * hidden: the checker has all but faded (contrast below :data:`HIDDEN_CONTRAST_FRACTION` of the board's: glare,
-      an occluder, a corner outside the image; confirmed saddles there are off by pixels, up to 9 px on bench glare
-      renders), or a predicted corner has no saddle and the checker has faded (below
-      :data:`UNCONFIRMED_CONTRAST_FRACTION`: at a glare's rim the saddles are lost at 30-60 %);
+      an occluder, a corner outside the image; confirmed saddles there are off by pixels), or a predicted corner has no
+      saddle and the checker has faded (below :data:`UNCONFIRMED_CONTRAST_FRACTION`: at a glare's rim the saddles are
+      lost first);
     * at a glare's rim (next to a hidden corner) nothing is taken on trust: a faded corner is hidden even with a
-      saddle (the glare's edge pulls it by pixels: 4.5 px off at 43 % of the contrast, 7.8x the median asymmetry, on a
-      held-out glare render), and so is an unconfirmed one (the saddle lost while 60-90 % of the contrast shows) where
-      the board's peaks span the board (a shorter lattice was placed by the image, and its unconfirmed corners are
-      what refuses a wrong placement: four of them on a held-out ArUco render, 45 px off once they were excused);
+      saddle (the glare's edge pulls it by pixels), and so is an unconfirmed one (the saddle lost while most of the
+      contrast shows) where the board's peaks span the board (a shorter lattice was placed by the image, and its
+      unconfirmed corners are what refuses a wrong placement); the cases behind these rules: ``docs/measurements.md``;
     * refusing: a predicted corner without a saddle that is not hidden (one wrong corner ruins a calibration).
 
     Without contrast (no partial boards) nothing is hidden.

@@ -38,16 +38,15 @@ __all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASY
 #: a corner is hidden where its checker contrast is below this fraction of the median of the board's visible corners
 HIDDEN_CONTRAST_FRACTION = 0.25
 #: a predicted corner that the saddle refinement cannot confirm is hidden below this fraction (at the rim of a glare
-#: the contrast has faded to 30-60 % of the board's where the saddles are lost)
+#: the saddles are lost before the contrast has faded below it: ``docs/measurements.md``)
 UNCONFIRMED_CONTRAST_FRACTION = 0.6
 #: on a partial board, a corner whose point-symmetry residual (:func:`corner_uncertainty`) exceeds this multiple of the
-#: board's median is left out (at the rim of a glare, on renders and real photographs with a spot added: 26-65x for
-#: corners 4-6 px off, at most 15x for good ones; ``docs/measurements.md``)
+#: board's median is left out (at the rim of a glare, on renders and real photographs with a spot added, corners
+#: pixels off exceed it and good ones stay below: ``docs/measurements.md``)
 MAX_ASYMMETRY_RATIO = 20.0
 #: on any board, a corner whose point-symmetry residual exceeds this multiple of the board's median is left out: it lies
-#: on an edge or inside a square, not on a junction (real sets: 46-178x for corners 2.7-23 px from
-#: ``findChessboardCornersSB``'s; held-out wild renders: 36-39x for corners 6-11 px off; good corners up to 21.5x at a
-#: fisheye's rim, where the lines curve within the window)
+#: on an edge or inside a square, not on a junction; good corners stay below it even at a fisheye's rim, where the
+#: lines curve within the window (``docs/measurements.md``)
 MAX_ASYMMETRY_RATIO_WHOLE = 30.0
 #: a partial board has at least this fraction of its corners: the organiser asks for peaks at this fraction of the
 #: cells, and a board left with fewer visible corners after the checks is refused (one fraction for both, so a board the

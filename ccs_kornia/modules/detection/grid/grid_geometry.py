@@ -36,8 +36,7 @@ def grid_spacing(corners: torch.Tensor, valid: torch.Tensor, board_size: tuple[i
 
     Windows of a fraction of this spacing stay clear of the neighbouring edges: on a board seen at a grazing angle the
     cells are thin parallelograms, and the next edge passes a corner at the cell's height, closer than any neighbour
-    (on held-out 75-degree renders the most sheared board's corners became five times as precise,
-    ``docs/measurements.md``).
+    (``docs/measurements.md``).
 
     Args:
         corners: :math:`(B, N, 2)` corners in grid order, ``N = cols * rows``.

@@ -1,12 +1,11 @@
 r"""Last look for boards seen at a grazing angle: detection on levels compressed along one direction.
 
 A board tilted 60-75 degrees away from the camera shows squares foreshortened 2-4:1. The heatmap network was
-trained on nearly square cells and misses many of such corners on every isotropic level (held-out 75-degree renders:
-on the misses, 32-46 of 54 corners at the best level), so no pyramid level finds the board. Compressing the image by
-``ratio`` along the squares' long side makes them nearly square again: on the levels of :func:`compress_along` the
-same network finds them. The direction is not known in advance; :func:`detect_foreshortened` tries a few in turn on
-the images still missed, maps the corners back exactly (a :class:`Compression` warp: one affine map) and lets the
-caller refine them at full resolution.
+trained on nearly square cells and misses many of such corners on every isotropic level (``docs/measurements.md``),
+so no pyramid level finds the board. Compressing the image by ``ratio`` along the squares' long side makes them
+nearly square again: on the levels of :func:`compress_along` the same network finds them. The direction is not known
+in advance; :func:`detect_foreshortened` tries a few in turn on the images still missed, maps the corners back exactly
+(a :class:`Compression` warp: one affine map) and lets the caller refine them at full resolution.
 """
 
 from __future__ import annotations
@@ -31,7 +30,7 @@ __all__ = ["FORESHORTENING_DIRECTIONS", "FORESHORTENING_RATIO", "compress_along"
 #: directions (degrees, image x towards y) along which the image is compressed, tried in this order (the axis-aligned
 #: ones need no rotation)
 FORESHORTENING_DIRECTIONS = (0.0, 90.0, 45.0, 135.0)
-#: compression of those levels (held-out 75-degree renders: 2 found every board that 3 found, and more)
+#: compression of those levels (it finds every board a stronger one finds, and more: ``docs/measurements.md``)
 FORESHORTENING_RATIO = 2.0
 
 

@@ -203,8 +203,8 @@ class CornerUNet(nn.Module):
 def cpu_has_native_bf16() -> bool:
     """Whether this CPU computes bfloat16 natively (AVX512-BF16 or AMX; read from ``/proc/cpuinfo`` on Linux).
 
-    Where it does, oneDNN's bfloat16 convolutions run about twice as fast as float32 ones; elsewhere they are
-    emulated and slower, so ``precision="auto"`` stays in float32.
+    Where it does, oneDNN's bfloat16 convolutions run faster than float32 ones (``docs/measurements.md``); elsewhere
+    they are emulated and slower, so ``precision="auto"`` stays in float32.
     """
     global _NATIVE_BF16
     if _NATIVE_BF16 is None:
@@ -233,11 +233,11 @@ def effective_precision(precision: str, device: torch.device | str = "cpu") -> s
     return "bfloat16" if low else "float32"
 
 
-#: inputs above this many pixels run through the network in tiles (:func:`run_heatmap`): in one piece, a 3.2 Mpx
-#: detection level (a 24 Mpx photograph's) adds 400 MB to the peak memory, a quarter of the 1.5 GB budget
+#: inputs above this many pixels run through the network in tiles (:func:`run_heatmap`): in one piece, the detection
+#: level of a 24 Mpx photograph takes a large share of the memory budget (``docs/measurements.md``)
 TILE_PIXELS = 2_000_000
 #: on CPU, batches above this many pixels run through the network a few whole images at a time (:func:`run_heatmap`):
-#: its activations then stay in the processor's cache between layers, about 15 % faster (``docs/measurements.md``); the
+#: its activations then stay in the processor's cache between layers, faster (``docs/measurements.md``); the
 #: same heatmaps: each image's convolutions do not depend on the others in the batch
 BATCH_PIXELS = 600_000
 #: core side of a tile (px, a multiple of every network depth's ``2 ** depth`` up to 6)
@@ -267,12 +267,12 @@ def run_heatmap(net: nn.Module, images: torch.Tensor, precision: str = "float32"
         torch.Size([1, 1, 32, 48])
     """
     if images.device.type == "cpu":
-        # converted once (re-applying ``to`` walks every module, ~1 ms per call)
+        # converted once (re-applying ``to`` walks every module on every call)
         if not all(p.is_contiguous(memory_format=torch.channels_last) for p in net.parameters() if p.dim() == 4):
             net.to(memory_format=torch.channels_last)
     b, _, h, w = images.shape
-    # a batch of more pixels than a tile runs a few images at a time (the memory of 16 one-megapixel views at once:
-    # +700 MB), and on CPU one of more than ``batch_pixels`` too (the cache); the images do not interact, so the
+    # a batch of more pixels than a tile runs a few images at a time (the memory of many one-megapixel views at
+    # once), and on CPU one of more than ``batch_pixels`` too (the cache); the images do not interact, so the
     # heatmaps are the same
     limits = [p for p in (tile_pixels, batch_pixels if images.device.type == "cpu" else None) if p is not None]
     if b > 1 and limits and b * h * w > min(limits):

@@ -78,11 +78,11 @@ def load_corner_unet(path: str | Path | None = None, map_location: str | torch.d
 
 
 #: a board found from OpenCV's candidates is refused where a refined corner lies farther than this (in squares) from
-#: where its row and column neighbours put it (exact lattices, 75-degree tilt included: at most 0.04)
+#: where its row and column neighbours put it (exact lattices, 75-degree tilt included, stay well below:
+#: ``docs/measurements.md``)
 MAX_LATTICE_DEVIATION = 0.08
 #: refinement window of boards from OpenCV's candidates, in grid spacings: such boards are mostly ones with marks in
-#: their white squares, and the usual 0.2 reaches the marks' frames (held-out ChArUco renders: from OpenCV's corners,
-#: 12/12 boards within 0.043 px mean with 0.1 or 0.12, one corner 3 px off with 0.15, five boards lost with 0.2)
+#: their white squares, and the usual 0.2 reaches the marks' frames (``docs/measurements.md``)
 MARKED_RADIUS_FACTOR = 0.1
 
 
@@ -133,7 +133,7 @@ class LearnedChessboardDetector(ChessboardDetector):
             by at most this factor (1: never).
         precision: of the heatmap network (:func:`~ccs_kornia.modules.detection.learned.heatmap_unet.run_heatmap`):
             ``"float32"`` (default), ``"bfloat16"`` or ``"auto"`` (bfloat16 where the CPU computes it natively). Opt-in:
-            bfloat16 ran 1.7x faster with AVX512-BF16 but lost boards (``docs/measurements.md``), and
+            bfloat16 ran faster with AVX512-BF16 but lost boards (``docs/measurements.md``), and
             docs/benchmarks.md is float32: one answer on every machine.
         opencv_retry: where no level gave a board from the network's peaks, look again on the corners of OpenCV's
             classic detector on a bounded level (:mod:`~ccs_kornia.modules.detection.learned.opencv_candidates`: above all
@@ -178,7 +178,8 @@ class LearnedChessboardDetector(ChessboardDetector):
             net, sigma = load_corner_unet(weights)
         elif has_batchnorm(net):
             net = copy.deepcopy(net)  # the caller's network (e.g. one in training) is left as it is
-        # inference only: batch normalisation folded into the convolutions (same heatmap, ~15 % less CPU time)
+        # inference only: batch normalisation folded into the convolutions (same heatmap, less CPU time:
+        # docs/measurements.md)
         self.net = fold_batchnorm(net)
         self.sigma = sigma
         self.peak_threshold = peak_threshold
@@ -288,7 +289,8 @@ class LearnedChessboardDetector(ChessboardDetector):
                     out.corners[b], out.sigma[b] = 0.0, float("nan")
         with stage("grid checks"):
             # every other crossing of a grid of lines is a lattice of '+' junctions the network can take for a
-            # board (1 of 126 held-out board-free images); a true board has no saddle halfway between corners
+            # board (held-out board-free images: docs/measurements.md); a true board has no saddle halfway between
+            # corners
             for b in out.found.nonzero().flatten().tolist():
                 # and a sub-board: the organiser looks for peaks past the sides, which a coarse level can lack on a
                 # whole line (squares of 5 px there, docs/measurements.md); the image shows it
@@ -311,8 +313,8 @@ class LearnedChessboardDetector(ChessboardDetector):
             out, ok = refine_from_level(full, pts, board_size, factor, radius_factor or r.radius_factor, r.max_radius,
                                         r.method, r.iterations, r.smooth_sigma, r.normalize_sigma, return_ok=True)
         # a corner that found no saddle within its window at full resolution kept its position from the level, which
-        # can be px off (held-out glare renders: a corner at the spot's rim 2.2-2.7 px off): left out like a hidden
-        # one (real sets: 6 of 5,196 corners)
+        # can be px off (a corner at a glare's rim): left out like a hidden one (rare on the real sets:
+        # docs/measurements.md)
         return out.masked_fill((~ok.to(out.device) & out.isfinite().all(-1))[..., None], float("nan"))
 
     def _foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:

@@ -8,8 +8,8 @@ them in its own grid order, refines them on the image with its own refiner and a
 checks, so the precision is the learned path's and the board convention stays one (OpenCV's classic order, the
 organiser's).
 
-The classic detector's cost grows with clutter and pixels (15 s on a 24 Mpx photo without a board in bench section 6),
-so it runs on a level of at most :data:`OPENCV_MAX_PIXELS`.
+The classic detector's cost grows with clutter and pixels (seconds on a large photo without a board:
+``docs/measurements.md``), so it runs on a level of at most :data:`OPENCV_MAX_PIXELS`.
 """
 
 from __future__ import annotations

@@ -11,8 +11,8 @@ area-downscaled copy does (area downscaling shrinks the squares and the blur ali
    the smoothing reaches the neighbouring corners of opposite sign: on a checker of square :math:`s` it peaks near
    :math:`\sigma^* = 0.37 s`, whatever the blur below that scale. L- and T-junctions (clutter, the board's outline)
    are penalised by their gradient, which an X-junction lacks. Per image, the scale whose strongest saddles are
-   strongest gives the square size (within 0.7-1.4x of the truth on renders of 8-300 px squares and on the real
-   sets). Computed on an incremental Gaussian pyramid of a copy of at most 1 Mpx.
+   strongest gives the square size (close to the truth on renders and on the real sets:
+   ``docs/measurements.md``). Computed on an incremental Gaussian pyramid of a copy of at most 1 Mpx.
 2. :func:`detection_factor`: the area-downscale factor that brings that square size to ``target_square`` px (in
    quarter-octave steps, so images of one camera share a level and stay batched), large enough that the level has
    at most ``max_pixels`` pixels (bounded memory and time on 24 Mpx photographs); tiny squares may be upsampled.
@@ -49,11 +49,11 @@ __all__ = ["PEAK_RATIO", "TARGET_SQUARE", "saddle_scale_response", "estimate_squ
            "detect_at_scale"]
 
 #: sigma* / square where the saddle response (gamma = 3, edge penalty 2) peaks, measured on rendered boards under
-#: perspective and blur (median over 96 renders of 8-300 px squares; an ideal sinusoidal checker gives 0.39)
+#: perspective and blur (``docs/measurements.md``)
 PEAK_RATIO = 0.365
 #: square size (px of the level) the learned detector runs its heatmap network at. The network was trained on squares
-#: of 6-17 px; 9 px (down from 12) runs it on 0.56x the pixels, measured the same on every real set's boards, bench
-#: section 1's errors and the held-out wild renders' detections (docs/benchmarks.md section 5)
+#: of 6-17 px; 9 px runs it on fewer pixels than larger targets with the same boards and errors
+#: (``docs/measurements.md``, docs/benchmarks.md section 5)
 TARGET_SQUARE = 9.0
 
 
@@ -65,7 +65,7 @@ def _sigmas(min_sigma: float, max_sigma: float, steps_per_octave: int) -> torch.
 def _blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
     """kornia's ``gaussian_blur2d`` (separable, reflect border) of one-channel images, as weighted sums of shifted
     slices on CPU: the same filter, but without oneDNN's one-channel convolution that kornia uses below 256x256 px
-    (4x slower than the slices there)."""
+    (slower than the slices there: ``docs/measurements.md``)."""
     k = 2 * int(math.ceil(3 * sigma)) + 1
     k = min(k, 2 * ((min(x.shape[-2:]) - 1) // 2) - 1)
     if k < 3:

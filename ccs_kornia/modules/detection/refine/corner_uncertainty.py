@@ -7,9 +7,8 @@ window has little contrast or edge length (shadows, blur, foreshortened squares)
 symmetric (noise, glare, a mark beside the corner), which is where corners are less precise.
 
 :func:`corner_uncertainty` returns its standard deviation per corner, :math:`\sqrt{\operatorname{tr}/2}`. The value is
-relative: the residuals of the smoothed image are correlated, so on renders it is 5-6x smaller than the actual error,
-but it ranks corners by it (held-out renders, 2160 corners per condition: mean true error 0.022 px in the lowest fifth
-of the estimate and 0.047 px in the highest under blur + noise; 0.047 and 0.090 in the combined condition).
+relative: the residuals of the smoothed image are correlated, so it is smaller than the actual error, but it ranks
+corners by it (``docs/measurements.md``).
 
 :func:`corner_weights` turns it into the solver's inverse variances, relative to the camera's median corner and clipped
 to ``[1 / clip, clip]``. On held-out renders the weights lower the calibration's E_IP and its spread in clean, badly

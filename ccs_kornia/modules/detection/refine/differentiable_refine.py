@@ -230,7 +230,7 @@ def differentiable_corners(
     seed from a level the corner was not found on, a corner the detector took from another source or level) and its
     gradient would be another point's: ``f`` is then started at the detached corner instead (the pixels' gradient
     only), and where that too lands farther, the corner comes back without gradient (a decision, like the others:
-    ``gap`` reports it). On the real sets this concerns a few corners in a thousand.
+    ``gap`` reports it). How many corners that concerns on the real sets: ``docs/gradients.md``.
 
     Args:
         corners: :math:`(B, N, 2)` the detector's corners (the values returned).

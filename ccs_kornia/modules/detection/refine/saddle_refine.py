@@ -65,7 +65,7 @@ POLISH_PLAIN_MARGIN = 1.5
 
 def _central_differences(image: torch.Tensor) -> torch.Tensor:
     """kornia's ``spatial_gradient(mode="diff", normalized=False)`` of (B,1,H,W) -> (B,2,H,W), the same values by two
-    subtractions (its one-in two-out 3x3 convolution: 20 ms on six 285x381 images, these 2.7 ms)."""
+    subtractions (its one-in two-out 3x3 convolution is several times slower on CPU: ``docs/measurements.md``)."""
     p = F.pad(image, (1, 1, 1, 1), mode="replicate")
     return torch.cat([p[..., 1:-1, 2:] - p[..., 1:-1, :-2], p[..., 2:, 1:-1] - p[..., :-2, 1:-1]], 1)
 

@@ -8,8 +8,7 @@ Gauss-Newton problem per corner whose Jacobian is ``grad I(c + d) - grad I(c - d
 Unlike a quadratic surface fit, this model is exact for any edge profile: it needs no heavy smoothing to make the
 junction look quadratic, and no division by a local mean (which bends the geometry wherever the mean's window sees
 the next square or the background), so it uses every pixel of a wider window at full precision: on held-out wild
-renders it lowers the mean corner error of the saddle fit alone in every condition, by up to two thirds on large
-squares (``docs/measurements.md``).
+renders it lowers the mean corner error of the saddle fit alone in every condition (``docs/measurements.md``).
 
 It works on the regions that :mod:`~ccs_kornia.modules.detection.refine.saddle_refine` already gathers and smooths per
 corner, so it adds three window samples per iteration and nothing per image.
@@ -201,8 +200,8 @@ def wide_allowed(corners: torch.Tensor, valid: torch.Tensor, board_size: tuple[i
     """The corners of organised boards that may take the wide polish, :math:`(B, N)` bool: where the board's row and
     column bend by at most :data:`WIDE_MAX_SAGITTA`
     (:func:`~ccs_kornia.modules.detection.grid.grid_geometry.line_sagitta`, on the ``valid`` corners). Measured from the
-    usual polish's corners: from the detector's coarser ones the noise alone makes half the corners of a strongly noisy
-    straight board look bent (wild renders, strong noise: 51 % allowed against 84 %)."""
+    usual polish's corners: from the detector's coarser ones the noise alone makes many corners of a strongly noisy
+    straight board look bent (``docs/measurements.md``)."""
     if min(board_size) < 2 or corners.shape[1] != board_size[0] * board_size[1]:  # one row or column: bend unknown
         return torch.zeros_like(valid)
     return line_sagitta(corners, valid, board_size) <= WIDE_MAX_SAGITTA

@@ -8,8 +8,9 @@ straightened copy where it needs it. :func:`straightening_evidence` measures wha
 detected boards (reported with every calibration): under a pinhole camera every row and column of a board is
 straight, so a correction that really removes the lens's distortion makes them straighter, and one that misfires
 (an undistorted lens) bends them. It no longer decides whether the corrected frame is tried (the observed corners
-referee that calibration): on 5 of 50 held-out level-2 cameras the network's correction did not straighten the
-boards although the corrected frame was the only calibration that recovered them.
+referee that calibration): on held-out strongly distorted cameras the network's correction did not always
+straighten the boards where the corrected frame was the only calibration that recovered them
+(``docs/measurements.md``).
 """
 
 from __future__ import annotations
