@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from ccs_kornia.geometry.camera import (
+    Camera,
     board_object_points,
     fit_radial_correction,
     intrinsics_matrix,
@@ -14,7 +15,6 @@ from ccs_kornia.geometry.camera import (
     radial_correct_points,
     radial_distort_points,
     radial_undistort_points,
-    undistort_pixels,
 )
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE, RATIONAL
 
@@ -77,7 +77,8 @@ def test_undistort_and_fit_opencv_distortion():
     obj = board_object_points(9, 6, 0.025, dtype=F64)
     ideal = project_points(obj, K, None, r, t)[None]
     distorted = project_points(obj, K, dist, r, t)[None]
-    assert (undistort_pixels(distorted, K[None], dist[None]) - ideal).abs().max() < 1e-8
+    camera = Camera.from_opencv(OPENCV5, K, dist)
+    assert (camera.undistort(distorted, K[None]) - ideal).abs().max() < 1e-8
     fitted = OPENCV5.fit_coeffs(ideal, distorted, K[None])
     assert torch.allclose(fitted[0], dist, atol=1e-9)
     fitted2 = K1K2.fit_coeffs(ideal, distorted, K[None])
@@ -111,8 +112,7 @@ def test_undistort_pixels_strong_barrel():
     K = intrinsics_matrix(torch.tensor([300.0, 300.0, 320.0, 240.0], dtype=F64))[None]
     dist = torch.tensor([[-0.37, 0.08, 0.0, 0.0, 0.0]], dtype=F64)
     ideal = torch.stack(torch.meshgrid(torch.linspace(20, 620, 13, dtype=F64), torch.linspace(20, 460, 9, dtype=F64), indexing="xy"), -1).reshape(1, -1, 2)
-    from ccs_kornia.geometry.camera import distort_pixels
-
-    distorted = distort_pixels(ideal, K, dist)
-    back = undistort_pixels(distorted, K, dist)
+    camera = Camera.from_opencv(K1K2, K, dist)
+    distorted = camera.distort((ideal - K[:, :2, 2]) / K[:, [0, 1], [0, 1]])
+    back = camera.undistort(distorted, K)
     assert (back - ideal).abs().max() < 1e-6

@@ -13,11 +13,12 @@ import torch
 from _real_data import REAL_DATA
 
 from ccs_kornia.geometry.camera import (
+    Camera,
     board_object_points,
-    kb_project_points,
     rotation_matrix_to_axis_angle,
     transform_points_rt,
 )
+from ccs_kornia.geometry.models import FISHEYE, K1K2
 from ccs_kornia.modules.calibration.fisheye_calibration import (
     FisheyeCalibrator,
     calibrate_fisheye,
@@ -28,7 +29,6 @@ from ccs_kornia.modules.calibration.fisheye_init import (
     init_fisheye,
 )
 from ccs_kornia.modules.calibration.result import ViewReason
-from ccs_kornia.geometry.models import FISHEYE, K1K2
 from ccs_kornia.modules.calibration.schur_lm import LMStatus
 
 F64 = torch.float64
@@ -63,7 +63,7 @@ def _views(K, D, V=12, seed=0, min_theta=0.0, max_theta=None):
         R = torch.stack([e1, torch.linalg.cross(e3, e1), e3], -1)
         t = d * float(torch.empty(1, dtype=F64).uniform_(0.25, 0.5, generator=g)) - R @ OBJ.mean(0)
         r = rotation_matrix_to_axis_angle(R[None])[0]
-        p = kb_project_points(OBJ, K, D, r, t)
+        p = Camera.from_opencv(FISHEYE, K, D).project(OBJ[None], r[None], t[None])[0]
         if bool(((p[:, 0] > 5) & (p[:, 0] < 634) & (p[:, 1] > 5) & (p[:, 1] < 474)).all()):
             grid = p.view(6, 9, 2)
             if min(float((grid[:, 1:] - grid[:, :-1]).norm(dim=-1).min()), float((grid[1:] - grid[:-1]).norm(dim=-1).min())) > 4:

@@ -8,13 +8,15 @@ import pytest
 import torch
 
 from ccs_kornia.geometry.camera import (
+    Camera,
     board_object_points,
-    kb_project_points,
     project_points,
 )
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, RATIONAL
 from ccs_kornia.modules.calibration.model_selection import (
     AUTO_MODELS,
     FLEXIBLE_MODELS,
+    ModelChoice,
     ModelSelection,
     choose_models,
     narrow_ranking,
@@ -23,8 +25,6 @@ from ccs_kornia.modules.calibration.model_selection import (
 )
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.pipeline.result import select_result
-from ccs_kornia.modules.calibration.model_selection import ModelChoice
-from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, RATIONAL
 
 F64 = torch.float64
 OBJ = board_object_points(9, 6, 0.03, dtype=F64)
@@ -63,7 +63,7 @@ def _two_cameras():
     rv, tv, g = _views()
     K = torch.tensor([[150.0, 0, 321], [0, 151, 239], [0, 0, 1]], dtype=F64)
     D = torch.tensor([0.03, -0.01, 0.004, -0.001], dtype=F64)
-    fish = kb_project_points(OBJ.expand(12, -1, -1), K.expand(12, 3, 3), D.expand(12, 4), rv, tv)
+    fish = Camera.from_opencv(FISHEYE, K, D).project(OBJ.expand(1, 12, -1, -1), rv[None], tv[None])[0]
     K2 = torch.tensor([[520.0, 0, 322], [0, 522, 241], [0, 0, 1]], dtype=F64)
     rv2, tv2, _ = _views(seed=1)
     tv2 = tv2 * torch.tensor([1.0, 1.0, 2.0], dtype=F64)

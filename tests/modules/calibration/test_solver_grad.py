@@ -7,17 +7,17 @@ import pytest
 import torch
 
 from ccs_kornia.geometry.camera import (
+    Camera,
     board_object_points,
-    kb_project_points,
     project_points,
 )
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, RATIONAL
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.calibration.implicit import (
     implicit_solution,
     so3_left_jacobian_inverse,
 )
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, RATIONAL
 
 F64 = torch.float64
 SIZE = (640, 480)
@@ -39,7 +39,7 @@ def _corners(model: str, obj: torch.Tensor, V: int = 6, seed: int = 0, noise: fl
     if model == FISHEYE:
         K = torch.tensor([[250.0, 0, 321], [0, 251, 239], [0, 0, 1]], dtype=F64)
         D = torch.tensor([0.03, -0.01, 0.004, -0.001], dtype=F64)
-        uv = kb_project_points(pts, K.expand(V, 3, 3), D.expand(V, 4), rv, tv)
+        uv = Camera.from_opencv(FISHEYE, K, D).project(pts[None], rv[None], tv[None])[0]
     else:
         K = torch.tensor([[520.0, 0, 322], [0, 522, 241], [0, 0, 1]], dtype=F64)
         uv = project_points(pts, K.expand(V, 3, 3), torch.tensor(DIST.get(model, [0.0] * 5), dtype=F64), rv, tv)
