@@ -28,7 +28,7 @@ from torch import Tensor
 
 from ccs_kornia.data.render.fisheye import fisheye_cameras, is_fisheye, kb_reach, kb_unproject
 from ccs_kornia.geometry import camera
-from ccs_kornia.geometry.models.factory import OPENCV5, PINHOLE
+from ccs_kornia.geometry.models.factory import FISHEYE, OPENCV5, PINHOLE
 
 __all__ = ["view_cameras", "project_board", "board_coordinates"]
 
@@ -108,14 +108,14 @@ def view_cameras(K: Tensor, dist: Tensor | None = None, fisheye: Tensor | None =
     fe_mask = is_fisheye(fisheye)
     if fe_mask is None or not bool(fe_mask.any()):
         return camera.Camera(base, base.params_from(K, dist), image_size)
-    fe_cams = fisheye_cameras(K[fe_mask], fisheye[fe_mask].to(K.dtype))
+    fe_cams = fisheye_cameras(K[fe_mask], fisheye[fe_mask], image_size)
     if bool(fe_mask.all()):
-        return camera.Camera(fe_cams.model, fe_cams.params, image_size)
-    models = tuple(fe_cams.model if f else base for f in fe_mask.tolist())
-    params = K.new_full((K.shape[0], max(base.num_params, fe_cams.model.num_params)), float("nan"))
+        return fe_cams
+    models = tuple(FISHEYE if f else base for f in fe_mask.tolist())
+    params = K.new_full((K.shape[0], max(base.num_params, FISHEYE.num_params)), float("nan"))
     rest = ~fe_mask
     params[rest, : base.num_params] = base.params_from(K[rest], None if dist is None else dist[rest])
-    params[fe_mask, : fe_cams.model.num_params] = fe_cams.params
+    params[fe_mask, : FISHEYE.num_params] = fe_cams.params
     return camera.Camera(models, params, image_size)
 
 
