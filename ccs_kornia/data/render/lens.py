@@ -26,7 +26,12 @@ import torch
 from kornia.geometry.calibration import undistort_points
 from torch import Tensor
 
-from ccs_kornia.data.render.fisheye import fisheye_cameras, is_fisheye, kb_reach, kb_unproject
+from ccs_kornia.data.render.fisheye import (
+    fisheye_cameras,
+    is_fisheye,
+    kb_reach,
+    kb_unproject,
+)
 from ccs_kornia.geometry import camera
 from ccs_kornia.geometry.models.factory import FISHEYE, OPENCV5, PINHOLE
 
