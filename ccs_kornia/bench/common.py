@@ -12,10 +12,13 @@ import torch
 
 from ccs_kornia.geometry.camera import board_object_points
 from ccs_kornia.geometry.metrics import e_fl, e_ip, e_pp
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import K1K2, OPENCV5, PINHOLE
 from ccs_kornia.modules.correction.distortion_net import DEFAULT_DISTORTION_WEIGHTS
 from ccs_kornia.modules.detection.base import measured_corners
 
 __all__ = [
+    "CV2_FLAGS",
     "cv2_calibrate",
     "ccs_calibrate",
     "calibration_metrics",
@@ -26,23 +29,24 @@ __all__ = [
     "e_ip_px",
 ]
 
-_CV2_FLAGS = {
-    "opencv5": 0,
-    "k1k2": cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3,
-    "none": cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3,
+#: ``cv2.calibrateCamera``'s flags for the models it fits the way ours do
+CV2_FLAGS: dict[CameraModel, int] = {
+    OPENCV5: 0,
+    K1K2: cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3,
+    PINHOLE: cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3,
 }
 
 
 def cv2_calibrate(
     corners: np.ndarray, found: np.ndarray, board: tuple[int, int], square: float, image_size: tuple[int, int],
-    model: str = "opencv5",
+    model: CameraModel = OPENCV5,
 ) -> dict:
     """``cv2.calibrateCamera`` on the found views of one camera.
 
     Args:
         corners: :math:`(V, N, 2)` pixels (NaN at the hidden corners of a partial board: left out).
         found: :math:`(V,)` bool.
-        model: ``opencv5`` (flags 0), ``k1k2`` (ZERO_TANGENT_DIST + FIX_K3) or ``none``.
+        model: ``OPENCV5`` (flags 0), ``K1K2`` (ZERO_TANGENT_DIST + FIX_K3) or ``PINHOLE`` (:data:`CV2_FLAGS`).
 
     Returns:
         ``{"success", "K" (3,3), "dist", "rms", "views"}`` (K NaN on failure).
@@ -58,7 +62,7 @@ def cv2_calibrate(
     obj_pts = [obj[k] for k in keep]
     try:
         rms, K, dist, _, _ = cv2.calibrateCamera(obj_pts, img_pts, tuple(int(s) for s in image_size), None, None,
-                                                 flags=_CV2_FLAGS[model])
+                                                 flags=CV2_FLAGS[model])
     except cv2.error:
         return fail
     ok = bool(np.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0)
@@ -67,13 +71,14 @@ def cv2_calibrate(
 
 def ccs_calibrate(
     corners: np.ndarray, found: np.ndarray, board: tuple[int, int], square: float, image_size: tuple[int, int],
-    model: str = "opencv5", device: str = "cpu",
+    model: CameraModel = OPENCV5, device: str = "cpu",
 ) -> dict:
     """:class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver`, batched over cameras (trials).
 
     Args:
         corners: :math:`(C, V, N, 2)` pixels.
         found: :math:`(C, V)` bool.
+        model: the camera model (:mod:`ccs_kornia.geometry.models`).
 
     Returns:
         ``{"success" (C,), "K" (C,3,3), "rms" (C,), "views" (C,) used views}`` as numpy arrays.

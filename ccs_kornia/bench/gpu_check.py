@@ -180,6 +180,7 @@ def _round_trips(images: torch.Tensor, truth: torch.Tensor) -> dict:
         ``detect_batch4``, ``detect_batch16``, ``solver_4_cameras``: synchronisations counted in one call.
     """
     from ccs_kornia.bench.common import ccs_calibrate
+    from ccs_kornia.geometry.models import OPENCV5
     from ccs_kornia.modules.detection.learned.learned_detector import (
         LearnedChessboardDetector,
     )
@@ -205,7 +206,7 @@ def _round_trips(images: torch.Tensor, truth: torch.Tensor) -> dict:
             out[f"detect_batch{b}"] = count(lambda x=x: det(x, BOARD))
     corners = truth.numpy()[None].repeat(4, 0)  # (4, V, N, 2)
     found = torch.ones(corners.shape[:2], dtype=torch.bool).numpy()
-    out["solver_4_cameras"] = count(lambda: ccs_calibrate(corners, found, BOARD, SQUARE, SIZE, "opencv5", "cuda"))
+    out["solver_4_cameras"] = count(lambda: ccs_calibrate(corners, found, BOARD, SQUARE, SIZE, OPENCV5, "cuda"))
     return out
 
 
@@ -224,6 +225,7 @@ def _throughput(images: torch.Tensor, truth: torch.Tensor, device: str, batches:
         ``detect_images_per_s`` and ``calibrations_per_s``, each keyed by the size as a string.
     """
     from ccs_kornia.bench.common import ccs_calibrate
+    from ccs_kornia.geometry.models import OPENCV5
     from ccs_kornia.modules.detection.learned.learned_detector import (
         LearnedChessboardDetector,
     )
@@ -241,7 +243,7 @@ def _throughput(images: torch.Tensor, truth: torch.Tensor, device: str, batches:
     for c in cameras:
         noisy = (truth[None] + 0.1 * torch.randn((c, *truth.shape), generator=g, dtype=torch.float64)).numpy()
         found = torch.ones(noisy.shape[:2], dtype=torch.bool).numpy()
-        sec = _best(lambda noisy=noisy, found=found: ccs_calibrate(noisy, found, BOARD, SQUARE, SIZE, "opencv5", device),
+        sec = _best(lambda noisy=noisy, found=found: ccs_calibrate(noisy, found, BOARD, SQUARE, SIZE, OPENCV5, device),
                     device, repeats=1)
         out["calibrations_per_s"][str(c)] = c / sec
         _say(f"[gpu_check] {device} solver {c} cameras: {c / sec:.1f} calibrations/s")

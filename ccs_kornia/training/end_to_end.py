@@ -8,6 +8,7 @@ import lightning as L
 import torch
 
 from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.losses.heatmap_loss import HeatmapLoss
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.detection.base import measured_corners
@@ -60,7 +61,8 @@ class EndToEndLitModule(L.LightningModule):
     Args:
         base_channels, depth, norm: the network (those of ``init_weights``).
         init_weights: exported weights to start from (default: the shipped detector); ``None`` or ``""``: random.
-        model: the solver's camera model.
+        model: the solver's camera model by its name (as the recipes' YAML writes it, e.g. ``opencv5``; read by
+            :func:`~ccs_kornia.geometry.models.factory.camera_model`).
         lr: peak learning rate of the one-cycle schedule.
         weight_decay: AdamW weight decay.
         heatmap_weight: weight of the heatmap loss.
@@ -93,7 +95,7 @@ class EndToEndLitModule(L.LightningModule):
         self.save_hyperparameters()
         self.net = CornerUNet(base_channels=base_channels, depth=depth, norm=norm)
         self.heatmap_loss = HeatmapLoss(pos_weight=pos_weight)
-        self.solver = CalibrationSolver(model=model)
+        self.solver = CalibrationSolver(model=camera_model(model))
 
     def setup(self, stage: str) -> None:
         # every stage: ``validate`` without a checkpoint measures the starting weights (a checkpoint, restored after

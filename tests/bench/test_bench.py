@@ -21,6 +21,7 @@ from ccs_kornia.bench.report.report import (
 )
 from ccs_kornia.bench.scenes.scenes import corner_errors, orient_grid, render_scenes
 from ccs_kornia.geometry.camera import board_object_points, project_points
+from ccs_kornia.geometry.models import K1K2
 
 REAL = REAL_DATA
 FAST_METHODS = ("opencv_saddle", "opencv_subpix")
@@ -160,9 +161,9 @@ def test_solvers_recover_exact_intrinsics():
     tvec = torch.tensor([-0.07, -0.06, 0.5], dtype=torch.float64).expand(V, 3)
     uv = project_points(obj.expand(V, -1, -1), K.expand(V, 3, 3), None, rvec, tvec).numpy()
     found = np.ones(V, dtype=bool)
-    cv = cv2_calibrate(uv, found, board, square, size, "k1k2")
+    cv = cv2_calibrate(uv, found, board, square, size, K1K2)
     assert cv["success"] and np.allclose(cv["K"], K.numpy(), atol=1e-3) and cv["rms"] < 1e-3
-    ours = ccs_calibrate(uv[None], found[None], board, square, size, "k1k2")
+    ours = ccs_calibrate(uv[None], found[None], board, square, size, K1K2)
     assert bool(ours["success"][0]) and np.allclose(ours["K"][0], K.numpy(), atol=1e-3)
     # fewer than three found views: a failure, not an exception
     assert not cv2_calibrate(uv, np.array([1, 1, 0, 0, 0, 0], bool), board, square, size)["success"]
@@ -170,9 +171,9 @@ def test_solvers_recover_exact_intrinsics():
     partial = uv.copy()
     partial[1, [0, 7, 12]] = np.nan
     partial[4, 20] = np.nan
-    cv = cv2_calibrate(partial, found, board, square, size, "k1k2")
+    cv = cv2_calibrate(partial, found, board, square, size, K1K2)
     assert cv["success"] and np.allclose(cv["K"], K.numpy(), atol=1e-3) and cv["rms"] < 1e-3
-    ours = ccs_calibrate(partial[None], found[None], board, square, size, "k1k2")
+    ours = ccs_calibrate(partial[None], found[None], board, square, size, K1K2)
     assert bool(ours["success"][0]) and np.allclose(ours["K"][0], K.numpy(), atol=1e-3)
 
 

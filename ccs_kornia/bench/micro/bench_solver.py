@@ -2,7 +2,7 @@
 
 Synthetic cameras (independent fx, fy, cx, cy, OpenCV distortion), 15 random board poses each, 9x6 board;
 corners exact or with Gaussian noise. Both solvers get the same corners; OpenCV with flags 0 (k1,k2,p1,p2,k3),
-ours with model="opencv5". Prints wall times and E_IP (paper metric, px) side by side.
+ours with model=OPENCV5. Prints wall times and E_IP (paper metric, px) side by side.
 
     python -m ccs_kornia.bench.micro.bench_solver --cameras 256 --views 15 --noise 0.1 [--device cuda] [--threads 1]
 """
@@ -22,6 +22,7 @@ from ccs_kornia.geometry.camera import (
     project_points,
 )
 from ccs_kornia.geometry.metrics import e_ip
+from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
 
@@ -86,7 +87,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)
     image_size = (640, 480)
-    solver = CalibrationSolver(model="opencv5", use_ransac=not args.no_ransac)
+    solver = CalibrationSolver(model=OPENCV5, use_ransac=not args.no_ransac)
     print(
         f"solver benchmark: {args.cameras} cameras x {args.views} views x 54 corners, device={args.device}, "
         f"threads={args.threads}, ransac={not args.no_ransac}, torch {torch.__version__}, OpenCV {cv2.__version__}"

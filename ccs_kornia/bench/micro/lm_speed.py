@@ -31,6 +31,7 @@ from bench_solver import opencv_loop, synthetic_cameras  # noqa: E402
 
 import ccs_kornia.modules.calibration.solver as solver_mod  # noqa: E402
 from ccs_kornia.geometry.metrics import e_ip  # noqa: E402
+from ccs_kornia.geometry.models.factory import OPENCV5  # noqa: E402
 from ccs_kornia.modules.calibration.solver import CalibrationSolver  # noqa: E402
 
 #: solver stages: (label, module attribute of solver.py or (object, method name))
@@ -138,7 +139,7 @@ def main() -> None:
         valid = torch.ones(uv.shape[:-1], dtype=torch.bool)
         n_cv = min(C, 16)  # OpenCV runs camera after camera: time a few and scale
         uvd, vd, objd = uv.to(a.device), valid.to(a.device), obj.to(a.device)
-        solvers = [CalibrationSolver(model="opencv5"), CalibrationSolver(model="opencv5", checks=False)]
+        solvers = [CalibrationSolver(model=OPENCV5), CalibrationSolver(model=OPENCV5, checks=False)]
         fns = [lambda: opencv_loop(obj, uv[:n_cv], size)] + [lambda s=s: s(uvd, vd, objd, size) for s in solvers]
         # interleaved rounds (the machine is shared: each method sees the same load), best round of each
         best, outs = interleaved(fns, a.repeats if C <= 64 else max(2, a.repeats // 2), a.device)
@@ -149,7 +150,7 @@ def main() -> None:
         for label, t, e in rows:
             print(f"{C:7d} {label:34s} {t:8.4f} {C / t:8.1f} {t_cv / t:6.2f} {e:8.4f}")
         if a.profile:
-            stages, whole = profile_stages(CalibrationSolver(model="opencv5"), (uvd, vd, objd, size), a.repeats, a.device)
+            stages, whole = profile_stages(CalibrationSolver(model=OPENCV5), (uvd, vd, objd, size), a.repeats, a.device)
             for label, t in stages.items():
                 if t > 0:
                     print(f"{'':7s}   stage {label:28s} {t:8.4f} {100 * t / whole:5.1f} %")

@@ -18,28 +18,31 @@ import time
 import torch
 
 from ccs_kornia.data.scenes.rig import render_rig
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.factory import FISHEYE, K1K2, OPENCV5
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.rig.rig_solver import RigSolver
 
 F64 = torch.float64
+SIZE = (640, 480)
 
 
 def _rig(kind: str, seed: int):
     K = torch.tensor([[520.0, 0, 320], [0, 518, 240], [0, 0, 1]], dtype=F64)
     Kf = torch.tensor([[260.0, 0, 322], [0, 259, 238], [0, 0, 1]], dtype=F64)
     if kind == "stereo":
-        cams = [("opencv5", K, torch.tensor([-0.2, 0.05, 1e-3, -5e-4, 0.0], dtype=F64))] * 2
+        cams = [Camera.from_opencv(OPENCV5, K, torch.tensor([-0.2, 0.05, 1e-3, -5e-4, 0.0], dtype=F64), SIZE)] * 2
         R = torch.eye(3, dtype=F64).expand(2, 3, 3).clone()
         T = torch.tensor([[0.0, 0, 0], [-0.12, 0.001, 0.002]], dtype=F64)
-        models = "opencv5"
+        models = OPENCV5
     else:
-        cams = [("k1k2", K, torch.tensor([-0.15, 0.03], dtype=F64)),
-                ("fisheye", Kf, torch.tensor([0.02, -0.01, 0.002, 0.0], dtype=F64))] * 2
+        cams = [Camera.from_opencv(K1K2, K, torch.tensor([-0.15, 0.03], dtype=F64), SIZE),
+                Camera.from_opencv(FISHEYE, Kf, torch.tensor([0.02, -0.01, 0.002, 0.0], dtype=F64), SIZE)] * 2
         yaw = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, -0.1, 0.0], [0.05, 0.0, 0.0]], dtype=F64)
         R = exp_so3(yaw)
         T = torch.tensor([[0.0, 0, 0], [-0.1, 0, 0], [0.1, 0, 0], [0.0, -0.1, 0]], dtype=F64)
-        models = ["k1k2", "fisheye", "k1k2", "fisheye"]
-    s = render_rig(cams, [(640, 480)] * len(cams), R, T, num_frames=20, seed=seed, noise_px=0.2, drop=0.1)
+        models = [K1K2, FISHEYE, K1K2, FISHEYE]
+    s = render_rig(Camera.cat(cams), R, T, num_frames=20, seed=seed, noise_px=0.2, drop=0.1)
     return s, models
 
 

@@ -22,12 +22,14 @@ import cv2
 import numpy as np
 import torch
 
+from ccs_kornia.geometry.models.factory import K1K2, OPENCV5, PINHOLE, RATIONAL
+
 F64 = torch.float64
 SIZE = (640, 480)
 DIST5 = torch.tensor([-0.28, 0.09, 5e-4, -8e-4, 0.01], dtype=F64)
-REAL_SETS = [("opencv_left", (9, 6), 25.0, ("opencv5", "rational", "k1k2")),
-             ("boofcv_sony_hx5v", (4, 6), 30.0, ("k1k2", "opencv5")),
-             ("boofcv_bumblebee2_left", (4, 6), 30.0, ("k1k2", "opencv5"))]
+REAL_SETS = [("opencv_left", (9, 6), 25.0, (OPENCV5, RATIONAL, K1K2)),
+             ("boofcv_sony_hx5v", (4, 6), 30.0, (K1K2, OPENCV5)),
+             ("boofcv_bumblebee2_left", (4, 6), 30.0, (K1K2, OPENCV5))]
 
 
 def _classic(setdir, size):
@@ -121,8 +123,8 @@ def run(inputs):
 
     data = torch.load(inputs, weights_only=False)
     out = {}
-    models = {"exact_none": ["none"], "exact_opencv5": ["opencv5"], "noisy_opencv5": ["opencv5", "k1k2"],
-              "noisy_k1k2": ["k1k2"], "noisy_rational": ["rational"]}
+    models = {"exact_none": [PINHOLE], "exact_opencv5": [OPENCV5], "noisy_opencv5": [OPENCV5, K1K2],
+              "noisy_k1k2": [K1K2], "noisy_rational": [RATIONAL]}
     for name, c in data["cases"].items():
         for m in models[name]:
             res = CalibrationSolver(model=m)(c["corners"], None, c["obj"], c["size"])
@@ -141,7 +143,7 @@ def run(inputs):
     from ccs_kornia.geometry.camera import board_object_points  # noqa: F401
 
     for name, g in data["corrected"].items():
-        solver = CalibrationSolver(model="opencv5", seed=0)
+        solver = CalibrationSolver(model=OPENCV5, seed=0)
         valid = g["found"][..., None].expand(g["corners"].shape[:-1])
         from ccs_kornia.geometry.camera import board_object_points as bop
 

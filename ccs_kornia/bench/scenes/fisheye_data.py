@@ -14,14 +14,15 @@ import math
 import torch
 
 from ccs_kornia.bench.scenes.scenes import quantize
+from ccs_kornia.data.render.fisheye import kb_distort_theta
 from ccs_kornia.data.render.optics import psf_and_gamma
 from ccs_kornia.data.render.renderer import render_chessboard
 from ccs_kornia.geometry.camera import (
+    Camera,
     board_object_points,
-    kb_project_points,
-    kb_unproject_points,
     rotation_matrix_to_axis_angle,
 )
+from ccs_kornia.geometry.models.factory import FISHEYE
 
 __all__ = ["random_kb_cameras", "random_board_views", "render_kb_views"]
 
@@ -38,12 +39,10 @@ def random_kb_cameras(num: int, fov_range=(120.0, 200.0), image_size=(640, 480),
         tmax = fov / 2
         D = (torch.rand(4, generator=g, dtype=dt) - 0.5) * torch.tensor([0.1, 0.02, 0.004, 0.001], dtype=dt)
         t = torch.linspace(0, tmax * 1.05 * half_diag / (W / 2), 200, dtype=dt)  # up to the image corners
-        t2 = t * t
-        dpoly = 1 + t2 * (3 * D[0] + t2 * (5 * D[1] + t2 * (7 * D[2] + t2 * 9 * D[3])))
-        if float(dpoly.min()) < 0.3:
+        _, slope = kb_distort_theta(t, D)
+        if float(slope.min()) < 0.3:
             continue  # not monotonic enough over the field of view
-        tm2 = tmax * tmax
-        theta_d = tmax * (1 + tm2 * (D[0] + tm2 * (D[1] + tm2 * (D[2] + tm2 * D[3]))))
+        theta_d, _ = kb_distort_theta(torch.tensor(tmax, dtype=dt), D)
         f = (W / 2) / float(theta_d)
         r = torch.rand(3, generator=g, dtype=dt)
         K = torch.tensor([[f, 0, (W - 1) / 2 + 20 * (float(r[1]) - 0.5)],
@@ -72,9 +71,10 @@ def random_board_views(K, D, views: int, cols: int = 9, rows: int = 6, square: f
     T = K.shape[0]
     out_r, out_t, out_uv = [], [], []
     for c in range(T):
-        Kc, Dc = K[c], D[c]
+        Kc = K[c]
+        cam = Camera.from_opencv(FISHEYE, Kc, D[c])
         # theta at the half diagonal (the field of view's rim)
-        rim = kb_unproject_points(torch.tensor([[Kc[0, 2] + half_diag, Kc[1, 2]]], dtype=dt), Kc, Dc)
+        rim = cam.unproject(torch.tensor([[[Kc[0, 2] + half_diag, Kc[1, 2]]]], dtype=dt))[0]
         tmax = float(torch.atan2(rim[0, :2].norm(), rim[0, 2]))
         got_r, got_t, got_uv = [], [], []
         while len(got_r) < views:
@@ -91,7 +91,7 @@ def random_board_views(K, D, views: int, cols: int = 9, rows: int = 6, square: f
             R = _rotation_from(e3, g)
             t = dist[:, None] * d - (R @ centre)
             rv = rotation_matrix_to_axis_angle(R)
-            uv = kb_project_points(obj.expand(M, -1, -1), Kc.expand(M, 3, 3), Dc.expand(M, 4), rv, t)
+            uv = cam.project(obj.expand(1, M, -1, -1), rv[None], t[None])[0]
             Xc = obj @ R.transpose(-1, -2) + t[:, None]
             theta = torch.atan2(Xc[..., :2].norm(dim=-1), Xc[..., 2])
             inside = (uv[..., 0] > 5) & (uv[..., 0] < W - 6) & (uv[..., 1] > 5) & (uv[..., 1] < H - 6) & (theta < tmax)
@@ -126,7 +126,8 @@ def render_kb_views(K, D, rvec, tvec, cols: int = 9, rows: int = 6, square: floa
     images, corners = [], []
     for c in range(K.shape[0]):
         v = rvec.shape[1]
-        ray = kb_unproject_points(torch.zeros(1, 2, dtype=torch.float64), K[c], D[c])  # the image's corner pixel
+        # the image's corner pixel
+        ray = Camera.from_opencv(FISHEYE, K[c].double(), D[c].double()).unproject(torch.zeros(1, 1, 2, dtype=torch.float64))[0]
         fov = 2.04 * math.degrees(float(torch.atan2(ray[0, :2].norm(), ray[0, 2])))
         img, pts = render_chessboard(K[c].expand(v, 3, 3).float(), rvec[c].float(), tvec[c].float(), (cols, rows),
                                      square, image_size, fisheye=D[c].float().expand(v, 4), fov_deg=fov,

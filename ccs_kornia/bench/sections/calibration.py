@@ -37,6 +37,9 @@ from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods.methods import DetectionMethod
 from ccs_kornia.bench.scenes.scenes import render_scenes
 from ccs_kornia.data.datamodules.datamodule import BENCH_SEED_BASE
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import OPENCV5
+from ccs_kornia.modules.calibration.model_selection import ModelChoice
 from ccs_kornia.pipeline.sources import TensorSource
 
 __all__ = ["run_calibration"]
@@ -65,7 +68,7 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
     keys = [k for k in (cfg.calib_methods or tuple(methods)) if k in methods and methods[k].available]
     out: dict = {
         "trials": cfg.calib_trials, "views": cfg.calib_views, "pool_views": cfg.calib_pool_views,
-        "trials_per_camera": per_camera, "cameras": cameras, "model": "opencv5", "methods": keys, "conditions": {},
+        "trials_per_camera": per_camera, "cameras": cameras, "model": str(OPENCV5), "methods": keys, "conditions": {},
         "not_in_section": [methods[k].label for k in methods if methods[k].available and k not in keys],
     }
     for ci, cond in enumerate(cfg.calib_conditions):
@@ -102,11 +105,11 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
             corners = pool_c[cam[:, None], views]  # (T, V, N, 2)
             found = pool_f[cam[:, None], views]  # (T, V)
             with Timer() as t_ccs:
-                r = ccs_calibrate(corners, found, cfg.board, cfg.square, cfg.image_size, "opencv5", device)
+                r = ccs_calibrate(corners, found, cfg.board, cfg.square, cfg.image_size, OPENCV5, device)
             ccs = calibration_metrics(r["K"], K_true, r["success"], r["rms"], r["views"], K_scaled)
             ccs["seconds"] = t_ccs.seconds
             with Timer() as t_cv:
-                cv = [cv2_calibrate(corners[i], found[i], cfg.board, cfg.square, cfg.image_size, "opencv5")
+                cv = [cv2_calibrate(corners[i], found[i], cfg.board, cfg.square, cfg.image_size, OPENCV5)
                       for i in range(len(sub))]
             cvm = calibration_metrics(
                 np.stack([d["K"] for d in cv]), K_true, np.array([d["success"] for d in cv]),
@@ -127,8 +130,8 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
                 res[key]["ccs_corrected"] = dc
                 log(f"[calibration] {cond:12s} {label:30s} E_IP ccs + distortion correction {_fmt(dc['e_ip'])} "
                     f"(applied on {int(applied.sum())}/{len(sub)})")
-                # the command line's default: the same path with the model chosen per trial (model="auto")
-                auto_pipe = _corrector(cfg, device, model="auto")
+                # the command line's default: the same path with the model chosen per trial (--model auto)
+                auto_pipe = _corrector(cfg, device, model=ModelChoice())
                 with Timer() as t_auto:
                     done = auto_pipe.finish(pool_out.take_views(torch.as_tensor(cam), torch.as_tensor(views)),
                                             cfg.board, cfg.square)
@@ -146,7 +149,7 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
     return out
 
 
-def _corrector(cfg: BenchConfig, device: str, model: str = "opencv5"):
+def _corrector(cfg: BenchConfig, device: str, model: CameraModel | ModelChoice = OPENCV5):
     """The pipeline whose corrected solver stage the learned detections go through (None without weights)."""
 
     net, _ = distortion_available(cfg.distortion_weights)

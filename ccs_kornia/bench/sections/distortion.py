@@ -36,6 +36,7 @@ from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods.methods import DetectionMethod
 from ccs_kornia.bench.scenes.scenes import Scenes, quantize, render_scenes
 from ccs_kornia.data.datamodules.datamodule import BENCH_SEED_BASE
+from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.modules.correction.distortion_net import DEFAULT_DISTORTION_WEIGHTS
 
 __all__ = ["run_distortion", "render_wide_scenes"]
@@ -151,7 +152,7 @@ def _calibrate_scenes(scenes: Scenes, cfg: BenchConfig, size: tuple[int, int], o
         if cv_method is not None:
             t0 = time.perf_counter()
             c, f = cv_method.detect(scenes.images[t], cfg.board)
-            d = cv2_calibrate(c, f, cfg.board, cfg.square, size, "opencv5")
+            d = cv2_calibrate(c, f, cfg.board, cfg.square, size, OPENCV5)
             seconds["opencv"] += time.perf_counter() - t0
             found_cv += int(f.sum())
             add("opencv", d["K"], d["success"], d["rms"], d["views"])

@@ -7,12 +7,12 @@ detector would give at best). A calibration fails when it raises, returns non-fi
 ``fisheye_fail_px`` (E_IP) off; E_IP statistics are over each method's successful trials.
 
 *Rendered* (:mod:`~ccs_kornia.bench.sections.fisheye_rendered`): the same kind of cameras, views rendered through the lens,
-every method detecting its own corners (the issue's "on its own corners").
+every method detecting its own corners.
 
 *Real*: the fisheye sets of ``real_dir``: (a) OpenCV classic corners (cornerSubPix, 11x11 px window) through
-``CalibrationSolver(model="fisheye")`` and through ``cv2.fisheye.calibrate`` (views it rejects dropped and rerun, as
-ROS does); (b) the default product path (``CalibrationPipeline``, learned detector, ``model="auto"``): boards found,
-the model chosen, the camera against the published reference.
+``CalibrationSolver(model=FISHEYE)`` and through ``cv2.fisheye.calibrate`` (views it rejects dropped and rerun, as
+ROS does); (b) the default product path (``CalibrationPipeline``, learned detector, ``model=ModelChoice()``, as
+``--model auto``): boards found, the model chosen, the camera against the published reference.
 """
 
 from __future__ import annotations
@@ -30,6 +30,8 @@ from ccs_kornia.bench.methods.fisheye_opencv import opencv_fisheye
 from ccs_kornia.bench.scenes.fisheye_data import random_board_views, random_kb_cameras
 from ccs_kornia.data.datamodules.datamodule import BENCH_SEED_BASE
 from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.models.factory import FISHEYE
+from ccs_kornia.modules.calibration.model_selection import ModelChoice
 
 __all__ = ["FISHEYE_SETS", "fisheye_md", "run_fisheye"]
 
@@ -59,7 +61,7 @@ def _synthetic(cfg: BenchConfig, log) -> dict:
     g = torch.Generator().manual_seed(BENCH_SEED_BASE + 700_007)
     uv = uv + cfg.fisheye_noise * torch.randn(uv.shape, generator=g, dtype=torch.float64)
     with Timer() as t_ours, torch.inference_mode():
-        res = CalibrationSolver(model="fisheye")(uv, None, obj, size)
+        res = CalibrationSolver(model=FISHEYE)(uv, None, obj, size)
     ours = [e_ip_px(res.K[c].numpy(), K[c].numpy()) if bool(res.success[c]) else float("inf")
             for c in range(cfg.fisheye_trials)]
     cv = []
@@ -117,7 +119,7 @@ def _real(cfg: BenchConfig, log) -> dict:
                        "classic_found": len(found)}
         uv = torch.tensor(np.stack([det[i] for i in found]), dtype=torch.float64)
         with torch.inference_mode():
-            ours = CalibrationSolver(model="fisheye")(uv, None, obj, size)
+            ours = CalibrationSolver(model=FISHEYE)(uv, None, obj, size)
         entry["ccs_on_classic"] = _camera(ours.K.numpy(), ours.dist.numpy(), ours.rms, ours.used.sum(), ref)
         r = opencv_fisheye(obj.numpy(), [det[i] for i in found], size)
         if not r["ok"] and guess is not None:  # as the set's publisher did
@@ -128,11 +130,11 @@ def _real(cfg: BenchConfig, log) -> dict:
             entry["opencv_on_classic"]["intrinsic_guess"] = bool(r.get("with_guess"))
             sub = torch.tensor(r["used"])
             with torch.inference_mode():
-                same = CalibrationSolver(model="fisheye")(uv[sub], None, obj, size)
+                same = CalibrationSolver(model=FISHEYE)(uv[sub], None, obj, size)
             entry["ccs_on_opencv_views_rms"] = float(same.rms)
         else:
             entry["opencv_on_classic"] = {"error": r["error"]}
-        pipe = CalibrationPipeline("learned", model="auto")
+        pipe = CalibrationPipeline("learned", model=ModelChoice())
         with Timer() as t, torch.inference_mode():
             out = pipe.run(FileSource([files]), (cols, rows), square).select(0)
         cal = out.calibration

@@ -5,7 +5,8 @@ x ``fisheye_views`` views rendered through the exact lens (:func:`~ccs_kornia.be
 point spread, gamma, read noise, 8 bits). Methods:
 
 * **ccs_kornia**: the product path, :class:`~ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline` with the learned detector,
-  once with ``model="fisheye"`` (a user who names the lens) and once with ``model="auto"`` (the default);
+  once with ``model=FISHEYE`` (a user who names the lens, ``--model fisheye``) and once with ``model=ModelChoice()``
+  (the default, ``--model auto``);
 * **cv2.fisheye.calibrate** on OpenCV's classic corners (``findChessboardCorners`` + ``cornerSubPix``, window
   0.45 spacing) and on SB's (``findChessboardCornersSB``), run as ROS users do
   (:func:`~ccs_kornia.bench.methods.fisheye_opencv.opencv_fisheye`).
@@ -32,6 +33,8 @@ from ccs_kornia.bench.scenes.fisheye_data import (
 )
 from ccs_kornia.data.datamodules.datamodule import BENCH_SEED_BASE
 from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.models.factory import FISHEYE
+from ccs_kornia.modules.calibration.model_selection import ModelChoice
 
 __all__ = ["RENDERED_METHODS", "run_fisheye_rendered", "fisheye_rendered_md"]
 
@@ -54,8 +57,8 @@ def _ours(images: torch.Tensor, K_true: torch.Tensor, log) -> dict[str, dict]:
     source = TensorSource(images)
     out: dict[str, dict] = {}
     with Timer() as t_det, torch.inference_mode():
-        detected = CalibrationPipeline("learned", model="fisheye").detect_views(source, _BOARD)
-    for model in ("fisheye", "auto"):
+        detected = CalibrationPipeline("learned", model=FISHEYE).detect_views(source, _BOARD)
+    for model in (FISHEYE, ModelChoice()):
         pipe = CalibrationPipeline("learned", model=model)
         with Timer() as t, torch.inference_mode():
             res = pipe.finish(copy.deepcopy(detected), _BOARD, _SQUARE, source)

@@ -34,10 +34,11 @@ import numpy as np
 import torch
 
 from ccs_kornia.data.scenes.robots import render_hand_eye
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.factory import PINHOLE
 from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.modules.hand_eye.closed_forms import board_in_robot
 from ccs_kornia.modules.hand_eye.solver import calibrate_hand_eye
-from ccs_kornia.modules.rig.rig_camera import RigCamera
 
 __all__ = ["FAIL_DEG", "FAIL_MM", "OPENCV_METHODS", "SEED", "SMALL_TILT_DEG", "hand_eye_md", "opencv_hand_eye",
            "run_hand_eye", "visp_franka"]
@@ -155,7 +156,8 @@ def _trial(seed: int, setup: str, views_range: tuple[int, int] = (8, 30)) -> dic
     noise_px, joint_deg = float(g.uniform(0.1, 0.3)), float(g.uniform(0.0, 0.02))
     scene = render_hand_eye(setup, views=views, seed=seed, noise_px=noise_px, joint_noise_deg=joint_deg,
                             max_tilt_deg=SMALL_TILT_DEG if small else 30.0)
-    K, dist = scene.K.numpy(), np.r_[scene.dist.numpy(), 0.0, 0.0, 0.0]
+    camera = scene.camera
+    K, dist = camera.K[0].numpy(), camera.dist[0].numpy()
     obj = scene.object_points.numpy()
     corners = scene.corners.numpy()
     T = scene.robot_poses.numpy()
@@ -163,7 +165,7 @@ def _trial(seed: int, setup: str, views_range: tuple[int, int] = (8, 30)) -> dic
     row = {"setup": setup, "views": views, "small_rotations": bool(small), "noise_px": noise_px,
            "joint_noise_deg": joint_deg}
     res = calibrate_hand_eye(scene.corners[None], scene.valid[None], scene.object_points, scene.robot_poses[None],
-                             RigCamera("k1k2", scene.K, scene.dist), setup, image_size=scene.image_size)
+                             camera, setup, image_size=scene.image_size)
     if not bool(res.success[0]):
         row["ours"] = {"failed": True, "error": res.reasons[0]}
     else:
@@ -248,8 +250,8 @@ def visp_franka(folder: Path) -> dict:
         raise RuntimeError(f"the tag was not found in every image: {det.reasons}")
     obj = target.object_points()
     res = calibrate_hand_eye(det.corners[None], torch.ones(1, n, 4, dtype=torch.bool), obj, torch.from_numpy(T)[None],
-                             RigCamera("none", torch.from_numpy(K), torch.zeros(0, dtype=torch.float64)),
-                             "eye_to_hand", image_size=(640, 480))
+                             Camera.from_opencv(PINHOLE, torch.from_numpy(K), None, (640, 480)), "eye_to_hand",
+                             image_size=(640, 480))
     ref = np.eye(4)
     ref[:3, :3], ref[:3, 3] = cv2.Rodrigues(np.array(VISP_RESULT[1]))[0], VISP_RESULT[0]
     X = res.X[0].numpy()

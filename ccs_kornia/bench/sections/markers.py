@@ -226,6 +226,7 @@ def _aprilgrid_condition(cfg, condition: str, n: int, seed: int, log) -> dict:
 
 def _calibration_trial(cfg, views: int, seed: int) -> dict:
     """One set of partial ChArUco views (new layout), calibrated by ours and by OpenCV (rational model)."""
+    from ccs_kornia.geometry.models import RATIONAL
     from ccs_kornia.modules.detection.markers.charuco import CharucoDetector
     from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
@@ -239,7 +240,7 @@ def _calibration_trial(cfg, views: int, seed: int) -> dict:
     size = (images[0].shape[1], images[0].shape[0])
     out: dict = {}
     det = detect_charuco(_tensor(images), board, num_workers=1)
-    pipe = CalibrationPipeline(CharucoDetector(board), model="rational", distortion_correction=False,
+    pipe = CalibrationPipeline(CharucoDetector(board), model=RATIONAL, distortion_correction=False,
                                diagnostics=False, use_ransac=False)
     try:
         cal = pipe.calibrate(det.corners.double(), det.found, board.board_size, board.square, size)

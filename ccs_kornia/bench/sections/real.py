@@ -23,23 +23,24 @@ from ccs_kornia.bench.common import Timer, ccs_calibrate, cv2_calibrate, summary
 from ccs_kornia.bench.config import FISHEYE_REAL_SETS, BenchConfig
 from ccs_kornia.bench.methods.methods import DetectionMethod
 from ccs_kornia.data.datamodules.datamodule import BENCH_SEED_BASE
+from ccs_kornia.geometry.models.factory import K1K2, OPENCV5
 
 __all__ = ["REAL_SETS", "default_real_dir", "load_reference", "load_real_set", "run_real"]
 
-#: known sets: board (cols, rows), square (unknown ones: unit squares), model, reference tolerance (px on f, on
+#: known sets: board (cols, rows), square (unknown ones: unit squares), camera model, reference tolerance (px on f, on
 #: the principal point) from ``shared/data/real/README.md`` and the sets' SOURCE.md
 REAL_SETS: dict[str, dict] = {
-    "opencv_left": {"board": (9, 6), "square": 0.025, "model": "opencv5", "tol_f": 4.0, "tol_pp": 5.0,
+    "opencv_left": {"board": (9, 6), "square": 0.025, "model": OPENCV5, "tol_f": 4.0, "tol_pp": 5.0,
                     "reference": "reference/left_intrinsics.yml"},
-    "udacity_camera_cal": {"board": (9, 6), "square": 1.0, "model": "opencv5"},
-    "udacity_gopro_wide": {"board": (8, 6), "square": 1.0, "model": "opencv5"},
-    "boofcv_sony_hx5v": {"board": (4, 6), "square": 0.03, "model": "k1k2", "tol_f": 3.0, "tol_pp": 3.0,
+    "udacity_camera_cal": {"board": (9, 6), "square": 1.0, "model": OPENCV5},
+    "udacity_gopro_wide": {"board": (8, 6), "square": 1.0, "model": OPENCV5},
+    "boofcv_sony_hx5v": {"board": (4, 6), "square": 0.03, "model": K1K2, "tol_f": 3.0, "tol_pp": 3.0,
                          "reference": "reference/intrinsic.yaml"},
-    "boofcv_bumblebee2_left": {"board": (4, 6), "square": 0.03, "model": "k1k2", "tol_f": 3.0, "tol_pp": 3.0,
+    "boofcv_bumblebee2_left": {"board": (4, 6), "square": 0.03, "model": K1K2, "tol_f": 3.0, "tol_pp": 3.0,
                                "reference": "reference/intrinsicLeft.yaml"},
     # the stereo partner (same instants as the left set): its intrinsics are the "right" camera of BoofCV's stereo
     # calibration
-    "boofcv_bumblebee2_right": {"board": (4, 6), "square": 0.03, "model": "k1k2", "tol_f": 3.0, "tol_pp": 3.0,
+    "boofcv_bumblebee2_right": {"board": (4, 6), "square": 0.03, "model": K1K2, "tol_f": 3.0, "tol_pp": 3.0,
                                 "reference": "stereo.yaml", "reference_section": "right"},
 }
 _IMAGE_EXT = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
@@ -135,7 +136,7 @@ def run_real(cfg: BenchConfig, methods: dict[str, DetectionMethod], device: str 
         rng = np.random.default_rng(BENCH_SEED_BASE + sum(map(ord, name)))
         subsets = np.stack([np.sort(rng.choice(n_img, k, replace=False)) for _ in range(cfg.real_subsets)])
         entry: dict = {
-            "images": n_img, "image_size": list(size), "board": list(board), "square": square, "model": model,
+            "images": n_img, "image_size": list(size), "board": list(board), "square": square, "model": str(model),
             "subset_size": k, "reference": reference, "tol_f": spec.get("tol_f"), "tol_pp": spec.get("tol_pp"),
             "methods": {},
         }

@@ -1,13 +1,13 @@
 """Rig benchmark: our rig solver against OpenCV's stereo recipe on the same rendered corners.
 
 Each trial renders a random rig (:func:`~ccs_kornia.data.scenes.rig.render_rig`): 2-4 cameras, each a pinhole
-(``opencv5`` or ``k1k2``) or a fisheye (Kannala-Brandt), baselines 0.1-0.4 m, yaw/pitch up to 15 degrees, board poses
+(``OPENCV5`` or ``K1K2``) or a fisheye (``FISHEYE``, Kannala-Brandt), baselines 0.1-0.4 m, yaw/pitch up to 15 degrees, board poses
 that leave partial boards near the image edges, cameras missing 10 % of the frames, Gaussian pixel noise of 0.1-0.3
 px. Seeds start at :data:`SEED` (disjoint from the tests').
 
 * ours: :class:`~ccs_kornia.modules.rig.rig_solver.RigSolver` on every corner;
 * OpenCV, as its users run it (full boards only): each camera alone on the frames where it sees every corner
-  (``cv2.calibrateCamera``, with ``CALIB_ZERO_TANGENT_DIST | CALIB_FIX_K3`` for ``k1k2``; ``cv2.fisheye.calibrate``
+  (``cv2.calibrateCamera``, with ``CALIB_ZERO_TANGENT_DIST | CALIB_FIX_K3`` for ``K1K2``; ``cv2.fisheye.calibrate``
   through :func:`~ccs_kornia.bench.methods.fisheye_opencv.opencv_fisheye`), then camera 0 with each other camera on the
   frames where both see every corner: ``cv2.stereoCalibrate`` (two pinholes) or ``cv2.fisheye.stereoCalibrate`` (two
   fisheyes) with ``CALIB_FIX_INTRINSIC``; a pinhole/fisheye pair has no OpenCV function, so both cameras' corners are
@@ -27,11 +27,12 @@ import cv2
 import numpy as np
 import torch
 
+from ccs_kornia.bench.common import CV2_FLAGS
 from ccs_kornia.bench.methods.fisheye_opencv import opencv_fisheye
 from ccs_kornia.data.scenes.rig import render_rig
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.factory import FISHEYE, K1K2, OPENCV5
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
-from ccs_kornia.modules.rig.rig_camera import RigCamera, normalized_points
 from ccs_kornia.modules.rig.rig_diagnostics import epipolar_sums
 from ccs_kornia.modules.rig.rig_solver import RigSolver
 
@@ -53,18 +54,18 @@ def random_rig(seed: int, frames: int = 20, board: tuple[int, int] = (9, 6), squ
     W, H = IMAGE_SIZE
     cams = []
     for c in range(C):
-        kind = "fisheye" if g.random() < 0.4 else ("opencv5" if g.random() < 0.5 else "k1k2")
-        if camera_model(kind).is_fisheye:
+        model = FISHEYE if g.random() < 0.4 else (OPENCV5 if g.random() < 0.5 else K1K2)
+        if model.is_fisheye:
             f = g.uniform(220, 320)
             dist = torch.tensor([g.uniform(-0.05, 0.05), g.uniform(-0.02, 0.02), 0.0, 0.0], dtype=torch.float64)
         else:
             f = g.uniform(450, 700)
             dist = torch.tensor([g.uniform(-0.3, -0.05), g.uniform(0.0, 0.1), 0, 0, 0], dtype=torch.float64)
-            if kind == "opencv5":
+            if model == OPENCV5:
                 dist[2:4] = torch.tensor(g.uniform(-0.001, 0.001, 2))
         K = torch.tensor([[f * g.uniform(0.99, 1.01), 0, (W - 1) / 2 + g.uniform(-10, 10)],
                           [0, f, (H - 1) / 2 + g.uniform(-10, 10)], [0, 0, 1]], dtype=torch.float64)
-        cams.append((kind, K, dist))
+        cams.append(Camera.from_opencv(model, K, dist, IMAGE_SIZE))
     rv = torch.zeros(C, 3, dtype=torch.float64)
     T = torch.zeros(C, 3, dtype=torch.float64)
     for c in range(1, C):
@@ -72,17 +73,17 @@ def random_rig(seed: int, frames: int = 20, board: tuple[int, int] = (9, 6), squ
         direction = g.normal(size=3) * np.array([1.0, 0.5, 0.2])
         T[c] = torch.tensor(direction / np.linalg.norm(direction) * g.uniform(0.1, 0.4))
     noise = float(g.uniform(0.1, 0.3))
-    scene = render_rig(cams, [IMAGE_SIZE] * C, exp_so3(rv), T, num_frames=frames, seed=seed, board=board,
+    scene = render_rig(Camera.cat(cams), exp_so3(rv), T, num_frames=frames, seed=seed, board=board,
                        square=square, noise_px=noise, drop=0.1, distance=(0.7, 1.6), spread=0.3)
     return scene, noise
 
 
 def _calibrate_one(model, obj, pts, size):
-    """One camera alone, OpenCV: (K, dist) or None."""
-    if camera_model(model).is_fisheye:
+    """One camera of ``model`` alone, OpenCV (``cv2.fisheye`` for a fisheye): (K, dist) or None."""
+    if model.is_fisheye:
         out = opencv_fisheye(obj, pts, size)
         return (out["K"], out["D"]) if out["ok"] else None
-    flags = cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3 if model == "k1k2" else 0
+    flags = CV2_FLAGS[model]
     o = [obj.astype(np.float32).reshape(-1, 1, 3)] * len(pts)
     rms, K, d, _, _ = cv2.calibrateCamera(o, [p.astype(np.float32).reshape(-1, 1, 2) for p in pts], size, None, None,
                                           flags=flags)
@@ -101,7 +102,7 @@ def opencv_rig(scene, min_frames: int = 3) -> dict:
         try:
             if len(frames) < min_frames:
                 raise ValueError(f"{len(frames)} full-board frames")
-            cams.append(_calibrate_one(scene.cameras[c][0], obj, [scene.corners[c, f].numpy() for f in frames],
+            cams.append(_calibrate_one(scene.cameras.models[c], obj, [scene.corners[c, f].numpy() for f in frames],
                                        scene.image_sizes[c]))
         except (cv2.error, ValueError) as e:
             cams.append(None)
@@ -116,7 +117,7 @@ def opencv_rig(scene, min_frames: int = 3) -> dict:
         if len(frames) < min_frames:
             poses[c] = f"{len(frames)} frames where both see the whole board"
             continue
-        fish0, fishc = (camera_model(scene.cameras[k][0]).is_fisheye for k in (0, c))
+        fish0, fishc = (scene.cameras.models[k].is_fisheye for k in (0, c))
         pts0 = [scene.corners[0, f].numpy().reshape(-1, 1, 2) for f in frames]
         ptsc = [scene.corners[c, f].numpy().reshape(-1, 1, 2) for f in frames]
         try:
@@ -130,10 +131,9 @@ def opencv_rig(scene, min_frames: int = 3) -> dict:
             else:
                 o = [obj.reshape(-1, 1, 3).astype(np.float32)] * len(frames)
                 if fish0 != fishc:  # no mixed stereo in OpenCV: undistort both first
-                    rc = [RigCamera(scene.cameras[k][0], torch.from_numpy(cams[k][0]), torch.from_numpy(cams[k][1]))
-                          for k in (0, c)]
-                    pts0 = [normalized_points(rc[0], torch.from_numpy(p)).numpy() for p in pts0]
-                    ptsc = [normalized_points(rc[1], torch.from_numpy(p)).numpy() for p in ptsc]
+                    rc = [_opencv_camera(scene.cameras.models[k], cams[k]) for k in (0, c)]
+                    pts0 = [rc[0].undistort(torch.from_numpy(p).reshape(1, -1, 2)).reshape(p.shape).numpy() for p in pts0]
+                    ptsc = [rc[1].undistort(torch.from_numpy(p).reshape(1, -1, 2)).reshape(p.shape).numpy() for p in ptsc]
                     K0 = Kc = np.eye(3)
                     d0 = dc = np.zeros(5)
                 else:
@@ -149,6 +149,12 @@ def opencv_rig(scene, min_frames: int = 3) -> dict:
     return {"cameras": cams, "poses": poses}
 
 
+def _opencv_camera(model, calibration) -> Camera:
+    """OpenCV's ``(K, dist)`` of one camera as a camera of ``model`` (float64)."""
+    K, dist = (torch.from_numpy(np.asarray(a, dtype=np.float64)) for a in calibration)
+    return Camera.from_opencv(model, K, dist.flatten())
+
+
 def _pair_errors(R, T, scene, c):
     rot = float(log_so3(torch.as_tensor(R, dtype=torch.float64) @ scene.R[c].T).norm()) * 180 / math.pi
     pct = 100 * float((torch.as_tensor(T, dtype=torch.float64).flatten() - scene.T[c]).norm() / scene.T[c].norm())
@@ -159,7 +165,7 @@ def _epipolar(cams, R, T, scene, c) -> float:
     Rr = torch.stack([torch.eye(3, dtype=torch.float64), torch.as_tensor(R, dtype=torch.float64)])
     Tr = torch.stack([torch.zeros(3, dtype=torch.float64), torch.as_tensor(T, dtype=torch.float64).flatten()])
     idx = [0, c]
-    s, n = epipolar_sums([cams[0], cams[1]], Rr, Tr, scene.corners[idx], scene.valid[idx],
+    s, n = epipolar_sums(cams, Rr, Tr, scene.corners[idx], scene.valid[idx],
                          torch.ones(2, scene.corners.shape[1], dtype=torch.bool))
     return float((s[0, 1] / n[0, 1].clamp_min(1)).sqrt()) if int(n[0, 1]) else float("nan")
 
@@ -173,7 +179,7 @@ def run_rig(cfg=None, trials: int | None = None, frames: int | None = None, seed
     for t in range(trials):
         scene, noise = random_rig(seed + t, frames)
         C = len(scene.cameras)
-        models = [c[0] for c in scene.cameras]
+        models = scene.cameras.models
         try:
             ours = RigSolver(models, folds=0)(scene.corners, scene.valid, scene.object_points, scene.image_sizes)
             ours_err = "" if ours.success else ours.reason
@@ -189,21 +195,19 @@ def run_rig(cfg=None, trials: int | None = None, frames: int | None = None, seed
                     if ours is None or ours_err:
                         row[name] = {"failed": True, "error": ours_err}
                         continue
-                    R, T, cams = ours.R[c], ours.T[c], [ours.cameras[0], ours.cameras[c]]
+                    R, T, cams = ours.R[c], ours.T[c], ours.cameras[[0, c]]
                 else:
                     pose = cv["poses"][c]
                     if isinstance(pose, str):
                         row[name] = {"failed": True, "error": pose}
                         continue
                     R, T = (torch.from_numpy(np.asarray(p, dtype=np.float64)) for p in pose)
-                    cams = [RigCamera(models[k], torch.from_numpy(cv["cameras"][k][0]).double(),
-                                      torch.from_numpy(np.asarray(cv["cameras"][k][1], dtype=np.float64)).flatten())
-                            for k in (0, c)]
+                    cams = Camera.cat([_opencv_camera(models[k], cv["cameras"][k]) for k in (0, c)])
                 rot, pct = _pair_errors(R, T, scene, c)
                 row[name] = {"rot_deg": rot, "trans_pct": pct, "epipolar_px": _epipolar(cams, R, T, scene, c),
                              "failed": not (rot <= FAIL_DEG and pct <= FAIL_PCT)}
             rows.append(row)
-        log(f"[rig] trial {t + 1}/{trials}: {C} cameras ({', '.join(models)}), noise {noise:.2f} px")
+        log(f"[rig] trial {t + 1}/{trials}: {C} cameras ({', '.join(map(str, models))}), noise {noise:.2f} px")
     def stats(found: list[dict], prefix: str = "") -> dict:
         return {f"{prefix}{k}_{q}": (float(np.percentile([o[k] for o in found], p)) if found else float("nan"))
                 for k in ("rot_deg", "trans_pct", "epipolar_px") for q, p in (("median", 50), ("p90", 90))}

@@ -19,10 +19,10 @@ Four conditions of the same sessions:
 * ``frozen``: every camera of a frame sees the board at the same instant, global shutter, no blur: what a perfect
   model of the board's motion with the true exposure times would give, the bound of what modelling it could gain.
 
-Methods, all on the same corners and the same single-camera calibrations (``opencv5``,
+Methods, all on the same corners and the same single-camera calibrations (``OPENCV5``,
 :func:`~ccs_kornia.modules.rig.rig_init.calibrate_cameras`): ``fixed`` (each camera's own calibration held, one joint
 fit of the extrinsics: ``--fix-intrinsics``), ``joint`` (free intrinsics, no prior, no frame weighting:
-``intrinsics_prior=None, frame_kernel="none"``), ``prior`` (the intrinsics prior without the frame weighting), ``ours``
+``intrinsics_prior=None, frame_kernel=FrameKernel.NONE``), ``prior`` (the intrinsics prior without the frame weighting), ``ours``
 (:class:`~ccs_kornia.modules.rig.rig_solver.RigSolver`'s defaults: the intrinsics prior and the frame weighting) and
 ``opencv`` (``cv2.calibrateMultiview`` on the whole-board observations, OpenCV calibrating each camera first; run in
 the ``handheld`` condition only, where it takes 40-120 s a session).
@@ -48,14 +48,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
-from ccs_kornia.modules.rig.rig_camera import (
-    RigCamera,
-    camera_from_params,
-    camera_params,
-)
+from ccs_kornia.modules.calibration.model_selection import ModelChoice
+from ccs_kornia.modules.rig.frame_consistency import FrameKernel
 from ccs_kornia.modules.rig.rig_init import calibrate_cameras, camera_poses
 
 __all__ = [
@@ -93,7 +91,7 @@ class Session:
     corners: torch.Tensor
     object_points: torch.Tensor
     image_sizes: list[tuple[int, int]]
-    cameras: list[RigCamera]
+    cameras: Camera
     R: torch.Tensor
     T: torch.Tensor
     frame_times: torch.Tensor
@@ -182,12 +180,12 @@ def rendered_session(seed: int, condition: str = "handheld", cameras: int | None
         px = px + noise_px * torch.randn(px.shape, generator=g, dtype=torch.float64)
         test_corners[c, ok] = torch.where((px.isfinite().all(-1).sum(-1) >= 6)[:, None, None], px, float("nan"))
     R, T = rec.extrinsics
-    truth = [RigCamera("opencv5", c.K.clone(), c.lens.dist.clone()) for c in cams]
+    truth = Camera.cat([c.camera for c in cams])
     return Session(corners, obj, [c.image_size for c in cams], truth, R, T, frame_times, test_corners,
                    spread.masked_fill(~spread.isfinite(), float("nan")))
 
 
-def transfer_error(cameras: list[RigCamera], R: torch.Tensor, T: torch.Tensor, corners: torch.Tensor,
+def transfer_error(cameras: Camera, R: torch.Tensor, T: torch.Tensor, corners: torch.Tensor,
                    valid: torch.Tensor, object_points: torch.Tensor, min_corners: int = 6) -> torch.Tensor:
     """Every corner's transfer error (px): the board posed in one camera alone (its intrinsics held), carried into
     another camera of the same frame through the rig's extrinsics and projected with that camera's intrinsics,
@@ -205,9 +203,10 @@ def transfer_error(cameras: list[RigCamera], R: torch.Tensor, T: torch.Tensor, c
     obj = object_points.double()
     valid = valid & corners.isfinite().all(-1)
     poses = []
+    cameras = cameras.to(dtype=torch.float64)
     for c in range(C):
-        p = camera_params(cameras[c], torch.float64)[None]
-        rv, tv, ok, _ = camera_poses(p, cameras[c].model, corners[c][None].double().nan_to_num(0.0), valid[c][None],
+        cam = cameras[c]
+        rv, tv, ok, _ = camera_poses(cam.params, cam.model, corners[c][None].double().nan_to_num(0.0), valid[c][None],
                                      obj, min_corners)
         poses.append((exp_so3(rv[0]), tv[0], ok[0]))
     out = []
@@ -221,8 +220,7 @@ def transfer_error(cameras: list[RigCamera], R: torch.Tensor, T: torch.Tensor, c
                 continue
             X = (poses[i][0][frames] @ obj.T).transpose(-1, -2) + poses[i][1][frames][:, None]
             Xj = X @ Rij.T + Tij
-            uv = camera_model(cameras[j].model).columns(Xj[None], camera_params(cameras[j], torch.float64)[None],
-                                                        jacobians=False)[0][0]
+            uv = cameras[j].project(Xj[None])[0]
             d = (uv - corners[j][frames].double()).norm(dim=-1)
             out.append(d[valid[j][frames] & d.isfinite()])
     return torch.cat(out) if out else torch.zeros(0, dtype=torch.float64)
@@ -230,8 +228,8 @@ def transfer_error(cameras: list[RigCamera], R: torch.Tensor, T: torch.Tensor, c
 
 def opencv_multiview(
     corners: torch.Tensor, object_points: torch.Tensor, image_sizes: list[tuple[int, int]],
-    initial: list[RigCamera] | None = None,
-) -> tuple[list[RigCamera], torch.Tensor, torch.Tensor] | str:
+    initial: Camera | None = None,
+) -> tuple[Camera, torch.Tensor, torch.Tensor] | str:
     """``cv2.calibrateMultiview`` on the observations of the whole board, every camera ``CALIB_MODEL_PINHOLE`` (5
     coefficients); with ``initial`` cameras, their intrinsics as the guess (``CALIB_USE_INTRINSIC_GUESS``, as the
     tutorial's ``find_intrinsics_in_advance``), else OpenCV calibrates each camera first. (Partial boards, given as
@@ -247,8 +245,9 @@ def opencv_multiview(
     Ks = dists = None
     flags = 0
     if initial is not None:
-        Ks = [c.K.double().numpy().copy() for c in initial]
-        dists = [np.pad(c.dist.double().numpy(), (0, 5 - c.dist.numel()))[:5].reshape(1, 5).copy() for c in initial]
+        Ks = [K.numpy().copy() for K in initial.K.double()]
+        dists = [np.pad(d, (0, 5 - d.size))[:5].reshape(1, 5).copy()
+                 for d in (initial.coeffs(c).double().numpy() for c in range(len(initial)))]
         flags = cv2.CALIB_USE_INTRINSIC_GUESS
     try:
         out = cv2.calibrateMultiview(obj, pts, [tuple(int(v) for v in s) for s in image_sizes], mask,
@@ -256,8 +255,9 @@ def opencv_multiview(
     except cv2.error as err:
         return str(err).strip().splitlines()[-1]
     _, Ks, dists, Rs, Ts = out
-    cams = [RigCamera("opencv5", torch.from_numpy(np.asarray(K, dtype=np.float64)),
-                      torch.from_numpy(np.asarray(d, dtype=np.float64).ravel()[:5])) for K, d in zip(Ks, dists)]
+    cams = Camera.cat([Camera.from_opencv(OPENCV5, torch.from_numpy(np.asarray(K, dtype=np.float64)),
+                                          torch.from_numpy(np.asarray(d, dtype=np.float64).ravel()[:5]), size)
+                       for K, d, size in zip(Ks, dists, image_sizes)])
     R = torch.stack([torch.from_numpy(np.asarray(r, dtype=np.float64).reshape(3, 3)) if np.asarray(r).size == 9 else
                      exp_so3(torch.from_numpy(np.asarray(r, dtype=np.float64).ravel())) for r in Rs])
     T = torch.stack([torch.from_numpy(np.asarray(t, dtype=np.float64).ravel()) for t in Ts])
@@ -271,8 +271,9 @@ def _errors(cams, R, T, s: Session) -> dict:
     C = len(cams)
     rot = [float(log_so3((R[c] @ s.R[c].T)[None])[0].norm()) * 180 / math.pi for c in range(1, C)]
     pct = [100 * float((T[c] - s.T[c]).norm() / s.T[c].norm()) for c in range(1, C)]
-    fx = [100 * abs(float(cams[c].K[0, 0] / s.cameras[c].K[0, 0]) - 1) for c in range(C)]
-    pp = [float((cams[c].K[:2, 2] - s.cameras[c].K[:2, 2]).norm()) for c in range(C)]
+    K, K_true = cams.K, s.cameras.K
+    fx = [100 * abs(float(K[c, 0, 0] / K_true[c, 0, 0]) - 1) for c in range(C)]
+    pp = [float((K[c, :2, 2] - K_true[c, :2, 2]).norm()) for c in range(C)]
     te = transfer_error(cams, R, T, s.test_corners, s.test_corners.isfinite().all(-1), s.object_points)
     return {"rot_deg": rot, "trans_pct": pct, "fx_pct": fx, "pp_px": pp,
             "transfer_px": float(te.median()) if te.numel() else float("nan")}
@@ -286,11 +287,12 @@ def _solve_all(s: Session, methods=METHODS) -> dict:
     valid = s.corners.isfinite().all(-1)
     initial = []
     for c in range(C):
-        p, ok, *_ = calibrate_cameras(s.corners[c][None], valid[c][None], s.object_points, s.image_sizes[c], "opencv5")
-        initial.append(camera_from_params("opencv5", p[0]) if bool(ok[0]) else None)
+        p, ok, *_ = calibrate_cameras(s.corners[c][None], valid[c][None], s.object_points, s.image_sizes[c], OPENCV5)
+        initial.append(Camera(OPENCV5, p, s.image_sizes[c]) if bool(ok[0]) else None)
     out = {}
-    opts = {"fixed": {"frame_kernel": "none"}, "joint": {"intrinsics_prior": None, "frame_kernel": "none"},
-            "prior": {"frame_kernel": "none"}, "ours": {}}
+    opts = {"fixed": {"frame_kernel": FrameKernel.NONE},
+            "joint": {"intrinsics_prior": None, "frame_kernel": FrameKernel.NONE},
+            "prior": {"frame_kernel": FrameKernel.NONE}, "ours": {}}
     for name in methods:
         t0 = time.perf_counter()
         try:
@@ -304,7 +306,7 @@ def _solve_all(s: Session, methods=METHODS) -> dict:
                 if any(c is None for c in initial):
                     out[name] = {"failed": "a camera alone could not be calibrated"}
                     continue
-                res = RigSolver("opencv5", folds=0, **opts[name])(
+                res = RigSolver(OPENCV5, folds=0, **opts[name])(
                     s.corners, valid, s.object_points, s.image_sizes, initial=initial,
                     fixed=[name == "fixed"] * C, frame_times=s.frame_times)
                 if not res.success:
@@ -389,8 +391,8 @@ def _reference(folder: Path):
 
     ref = tomllib.loads((folder / "reference" / "camera_array.toml").read_text())["cameras"]
     keys = sorted(ref, key=int)
-    cams = [RigCamera("opencv5", torch.tensor(ref[k]["matrix"], dtype=torch.float64),
-                      torch.tensor(ref[k]["distortions"], dtype=torch.float64)) for k in keys]
+    cams = Camera.cat([Camera.from_opencv(OPENCV5, torch.tensor(ref[k]["matrix"], dtype=torch.float64),
+                                          torch.tensor(ref[k]["distortions"], dtype=torch.float64)) for k in keys])
     Rw = [torch.tensor(ref[k]["rotation"], dtype=torch.float64) for k in keys]
     tw = [torch.tensor(ref[k]["translation"], dtype=torch.float64) for k in keys]
     R = torch.stack([r @ Rw[0].T for r in Rw])
@@ -398,7 +400,7 @@ def _reference(folder: Path):
     return cams, R, T
 
 
-def run_caliscope(folder: Path, models: str = "auto", folds: int = 5, log=print) -> dict:
+def run_caliscope(folder: Path, models=None, folds: int = 5, log=print) -> dict:
     """The shared caliscope session (see the module doc)."""
     from ccs_kornia.modules.calibration.quality.diagnostics import split_views
     from ccs_kornia.modules.detection.boards import CharucoBoard, grid_object_points
@@ -412,6 +414,7 @@ def run_caliscope(folder: Path, models: str = "auto", folds: int = 5, log=print)
     files = [sorted(str(p) for p in (folder / f"cam_{k}").glob("*.jpg")) for k in range(4)]
     names = [f"cam{k}" for k in range(4)]
     t0 = time.perf_counter()
+    models = ModelChoice() if models is None else models
     pipe = RigPipeline(CharucoDetector(board), models=models, workers=1, detection_batch_size=8)
     source = FileSource(files, names)
     cameras = pipe.detect_and_calibrate(source, board.board_size, board.square)
@@ -419,15 +422,14 @@ def run_caliscope(folder: Path, models: str = "auto", folds: int = 5, log=print)
     log(f"[rig_sessions] caliscope: cameras detected and calibrated in {time.perf_counter() - t0:.0f} s")
     ref_cams, ref_R, ref_T = _reference(folder)
     obj = grid_object_points(board, board.board_size, board.square, dtype=torch.float64)
-    out = {"models": models, "methods": {}}
-    variants = {"fixed": ({"frame_kernel": "none"}, True),
-                "joint": ({"intrinsics_prior": None, "frame_kernel": "none"}, False), "ours": ({}, False)}
+    out = {"models": str(models), "methods": {}}
+    variants = {"fixed": ({"frame_kernel": FrameKernel.NONE}, True),
+                "joint": ({"intrinsics_prior": None, "frame_kernel": FrameKernel.NONE}, False), "ours": ({}, False)}
     for name, (opts, fix) in variants.items():
         pipe.solver_kwargs = dict(opts)
         pipe.fixed = {}
         if fix:
-            pipe.fixed = {i: RigCamera(r.calibration.model, r.calibration.K.double().cpu(),
-                                       r.calibration.dist.double().cpu()) for i, r in enumerate(cameras)}
+            pipe.fixed = {i: r.calibration.camera.to("cpu", torch.float64) for i, r in enumerate(cameras)}
         t1 = time.perf_counter()
         res = pipe.run(source, board.board_size, board.square, frames, names, cameras=cameras)
         rig = res.rig
@@ -450,8 +452,8 @@ def run_caliscope(folder: Path, models: str = "auto", folds: int = 5, log=print)
             "heldout_transfer_px": float(held.median()),
             "transfer_px": float(transfer_error(rig.cameras, rig.R, rig.T, corners, valid, obj).median()),
             "converged": bool(rig.converged), "iterations": int(rig.iterations), "verdict": rig.verdict,
-            "models": [c.model for c in rig.cameras],
-            "fx": [float(c.K[0, 0]) for c in rig.cameras], "cy": [float(c.K[1, 2]) for c in rig.cameras],
+            "models": [str(m) for m in rig.cameras.models],
+            "fx": rig.cameras.K[:, 0, 0].tolist(), "cy": rig.cameras.K[:, 1, 2].tolist(),
             "moved_sigma_max": [float(m.abs().max()) for m in rig.intrinsics_moved_sigma],
             "rotation_from_published_deg": rot,
             "low_weight_frames": [res.frames.labels[f] for f in range(len(res.frames.labels))
@@ -462,8 +464,8 @@ def run_caliscope(folder: Path, models: str = "auto", folds: int = 5, log=print)
         log(f"[rig_sessions] caliscope {name}: held-out transfer {item['heldout_transfer_px']:.3f} px, "
             f"converged {item['converged']}, fx {[round(x, 1) for x in item['fx']]}")
     ref_held = transfer_error(ref_cams, ref_R, ref_T, res.corners, res.valid, obj)
-    out["published"] = {"transfer_px": float(ref_held.median()), "fx": [float(c.K[0, 0]) for c in ref_cams],
-                        "cy": [float(c.K[1, 2]) for c in ref_cams]}
+    out["published"] = {"transfer_px": float(ref_held.median()), "fx": ref_cams.K[:, 0, 0].tolist(),
+                        "cy": ref_cams.K[:, 1, 2].tolist()}
     return out
 
 

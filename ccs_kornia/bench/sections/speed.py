@@ -33,6 +33,7 @@ from ccs_kornia.bench.common import ccs_calibrate, cv2_calibrate, distortion_ava
 from ccs_kornia.bench.config import BenchConfig
 from ccs_kornia.bench.methods.methods import DetectionMethod
 from ccs_kornia.bench.scenes.scenes import render_scenes
+from ccs_kornia.geometry.models.factory import OPENCV5
 
 __all__ = ["run_speed", "peak_rss_mb"]
 
@@ -113,9 +114,9 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
             def whole(m=m, solver=solver):
                 c, f = m.detect(views.to(device), cfg.board)
                 if solver == "ccs":
-                    ccs_calibrate(c[None], f[None], cfg.board, cfg.square, cfg.image_size, "opencv5", device)
+                    ccs_calibrate(c[None], f[None], cfg.board, cfg.square, cfg.image_size, OPENCV5, device)
                 else:
-                    cv2_calibrate(c, f, cfg.board, cfg.square, cfg.image_size, "opencv5")
+                    cv2_calibrate(c, f, cfg.board, cfg.square, cfg.image_size, OPENCV5)
             sec = _best(whole, cfg.speed_repeats, device)
             res["calibration"][label] = {"images_per_s": views.shape[0] / sec, "seconds": sec}
             log(f"[speed] {device} whole calibration {label}: {views.shape[0] / sec:.2f} img/s ({sec:.2f} s)")
@@ -137,11 +138,11 @@ def run_speed(cfg: BenchConfig, methods: dict[str, DetectionMethod], log=print) 
             noisy = truth[None] + 0.1 * torch.randn((C, *truth.shape), generator=g, dtype=torch.float64).numpy()
             found = np.ones(noisy.shape[:2], dtype=bool)
             # both solvers timed for at least SOLVER_SECONDS (one camera: 10-15 ms a call)
-            t_ccs = _best(lambda: ccs_calibrate(noisy, found, cfg.board, cfg.square, cfg.image_size, "opencv5", device),
+            t_ccs = _best(lambda: ccs_calibrate(noisy, found, cfg.board, cfg.square, cfg.image_size, OPENCV5, device),
                           cfg.speed_repeats, device, SOLVER_SECONDS)
             entry = {"ccs_calibrations_per_s": C / t_ccs}
             if device == "cpu":
-                t_cv = _best(lambda: [cv2_calibrate(noisy[i], found1, cfg.board, cfg.square, cfg.image_size, "opencv5")
+                t_cv = _best(lambda: [cv2_calibrate(noisy[i], found1, cfg.board, cfg.square, cfg.image_size, OPENCV5)
                                       for i in range(C)], cfg.speed_repeats, "cpu", SOLVER_SECONDS)
                 entry["opencv_calibrations_per_s"] = C / t_cv
             res["solver"][str(C)] = entry

@@ -50,13 +50,15 @@ import torch
 
 from ccs_kornia.bench.methods.frame_baselines import coverage_greedy, uniform_frames
 from ccs_kornia.bench.sections.heldout import heldout_errors, rms, transfer_errors
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.factory import OPENCV5
 
 __all__ = ["MODEL", "RENDERED_METHODS", "SEED", "STILL_SPEED", "run_video", "video_md"]
 
 #: first seed of the rendered recordings (the tests use seeds below 1000; the selection was tuned on others)
 SEED = 600_000
 #: the one camera model of every frame choice's calibration (the comparison is of frames, not of models)
-MODEL = "opencv5"
+MODEL = OPENCV5
 #: a held-out frame is still when its board moves slower than this fraction of the image diagonal per second
 STILL_SPEED = 0.02
 BOARD = (9, 6)
@@ -106,29 +108,25 @@ def _solve(pipeline, detected, board: tuple[int, int], camera: int, views: list[
     return pipeline.finish(sub, board, SQUARE, source=source).select(0)
 
 
-def _camera(result):
-    """``(K, dist, model)`` as numpy of a solved one-camera result (``None`` when it failed)."""
+def _camera(result) -> Camera | None:
+    """The camera (float64) of a solved one-camera result (``None`` when it failed)."""
     if result is None or result.calibration is None or not bool(result.calibration.success):
         return None
-    cal = result.calibration
-    return cal.K.double().numpy(), cal.dist.double().numpy(), str(cal.model)
+    return result.calibration.camera.to(dtype=torch.float64)
 
 
-def _truth_figures(camera, K_true: np.ndarray, dist_true: np.ndarray, size: tuple[int, int]) -> dict:
-    """E_FL, E_PP and the RMS projection difference over the image (rotation fitted out) against a known camera."""
+def _truth_figures(camera: Camera, truth: Camera, size: tuple[int, int]) -> dict:
+    """E_FL, E_PP and the RMS projection difference over the image (rotation fitted out) against a known camera
+    (one camera each, any models)."""
     from ccs_kornia.modules.calibration.quality.uncertainty import (
         image_points,
         projection_difference,
     )
 
-    K, dist, _ = camera
     px = image_points(size, (16, 12))
-    pad = max(len(dist), len(dist_true))
-    da = torch.nn.functional.pad(torch.tensor(dist_true, dtype=torch.float64), [0, pad - len(dist_true)])[None]
-    db = torch.nn.functional.pad(torch.tensor(dist, dtype=torch.float64), [0, pad - len(dist)])[None]
-    diff = projection_difference(torch.tensor(K_true, dtype=torch.float64)[None], da,
-                                 torch.tensor(K, dtype=torch.float64)[None], db, px,
+    diff = projection_difference(truth.to(dtype=torch.float64), camera.to(dtype=torch.float64), px,
                                  compensate_rotation=torch.ones(px.shape[0], dtype=torch.bool))
+    K, K_true = camera.K[0].double().numpy(), truth.K[0].double().numpy()
     return {"efl": float(abs(K[0, 0] - K_true[0, 0]) + abs(K[1, 1] - K_true[1, 1])),
             "epp": float(abs(K[0, 2] - K_true[0, 2]) + abs(K[1, 2] - K_true[1, 2])),
             "proj_rms": float(diff.pow(2).nanmean().sqrt())}
@@ -240,8 +238,7 @@ def _rendered(cfg, seed: int, folder: Path, log) -> dict:
         nb = [j for j in (i - 1, i + 1) if 0 <= j < len(held)]
         sp = max(float((allc[j] - allc[i]).norm(dim=-1).nanmean()) for j in nb) * held.camera.fps
         (still if sp < STILL_SPEED * diag else moving).append(hdet.corners[0, k].double().numpy())
-    K_true = camera.K.double().numpy()
-    dist_true = camera.lens.dist.double().numpy() if hasattr(camera.lens, "dist") else np.zeros(5)
+    truth = camera.camera
     methods = {}
     for name, (views, result) in choices.items():
         cam = _camera(result)
@@ -249,15 +246,15 @@ def _rendered(cfg, seed: int, folder: Path, log) -> dict:
         if cam is None:
             entry["failed"] = True
         else:
-            entry.update(_truth_figures(cam, K_true, dist_true, size))
-            entry["heldout_rms"] = rms(heldout_errors(*cam, obj, still + moving))
-            entry["heldout_still_rms"] = rms(heldout_errors(*cam, obj, still))
+            entry.update(_truth_figures(cam, truth, size))
+            entry["heldout_rms"] = rms(heldout_errors(cam, obj, still + moving))
+            entry["heldout_still_rms"] = rms(heldout_errors(cam, obj, still))
         methods[name] = entry
     out = {"seed": seed, "size": list(size), "frames": len(screened.frames), "board_seen": len(found_at),
            "screening_fps": len(screened.frames) / max(screen_s, 1e-9), "detected": len(refs),
            "detect_fps": len(refs) / max(detect_s, 1e-9), "candidates": len(candidates),
            "heldout_frames": {"still": len(still), "moving": len(moving)}, "methods": methods,
-           "truth": {"K": K_true.tolist(), "dist": dist_true.tolist()}}
+           "truth": {"K": truth.K[0].tolist(), "dist": truth.dist[0].tolist()}}
     if cfg.video_command:
         output = folder / f"calib_{seed}.json"
         code, wall, pss, text = run_command(["calibrate", str(path), "--board", f"{BOARD[0]}x{BOARD[1]}", "--square",
@@ -267,17 +264,17 @@ def _rendered(cfg, seed: int, folder: Path, log) -> dict:
         if code == 0:
             import json
 
+            from ccs_kornia.outputs.calibration_file import camera_from_record
+
             data = json.loads(Path(output).read_text())
             screened_n = sum(len(v["frames"]) for v in data["video"])
             screening_s = sum(v["screening_s"] for v in data["video"])
-            K = np.array(data["K"])
+            cam = camera_from_record(data)
             command.update({"screening_fps": screened_n / max(screening_s, 1e-9), "model": data["distortion"]["model"],
                             "kept": data["selection"]["kept"], "candidates": data["selection"]["candidates"],
                             "total_s": data["timings"]["total_s"]})
-            command.update(_truth_figures((K, np.array(data["distortion"]["coeffs"]), data["distortion"]["model"]),
-                                          K_true, dist_true, size))
-            cam = (K, np.array(data["distortion"]["coeffs"]), data["distortion"]["model"])
-            command["heldout_still_rms"] = rms(heldout_errors(*cam, obj, still))
+            command.update(_truth_figures(cam, truth, size))
+            command["heldout_still_rms"] = rms(heldout_errors(cam, obj, still))
         else:
             command["output"] = text[-2000:]
         out["command"] = command
@@ -307,17 +304,14 @@ def _folds(n: int) -> list[list[int]]:
     return [[k for k in range(n) if (k // FOLD_BLOCK) % 2 == h] for h in range(2)]
 
 
-def _reference(folder: Path) -> list[dict]:
-    """caliscope's published cameras: per camera ``K``, ``dist``, ``R``, ``t`` (world to camera)."""
+def _reference(folder: Path) -> list[Camera]:
+    """caliscope's published cameras (OpenCV's five coefficients), float64."""
     import tomllib
 
     data = tomllib.loads((folder / "reference" / "camera_array.toml").read_text())
-    out = []
-    for c in range(4):
-        cam = data["cameras"][str(c)]
-        out.append({"K": np.array(cam["matrix"]), "dist": np.array(cam["distortions"]),
-                    "R": np.array(cam["rotation"]), "t": np.array(cam["translation"])})
-    return out
+    f64 = torch.float64
+    return [Camera.from_opencv(OPENCV5, torch.tensor(cam["matrix"], dtype=f64), torch.tensor(cam["distortions"], dtype=f64))
+            for cam in (data["cameras"][str(c)] for c in range(4))]
 
 
 def _real(cfg, folder: Path, log) -> dict:
@@ -364,7 +358,7 @@ def _real(cfg, folder: Path, log) -> dict:
             for m, (views, result) in choices.items():
                 cam = _camera(result)
                 folds[m].append({"frames": len(views),
-                                 "heldout_rms": None if cam is None else rms(heldout_errors(*cam, obj, held))})
+                                 "heldout_rms": None if cam is None else rms(heldout_errors(cam, obj, held))})
         source = VideoSource([[refs[c][k] for k in found]])
         whole = _choices(pipeline, det, inner, found, found, source, obj, size)
         source.close()
@@ -376,7 +370,7 @@ def _real(cfg, folder: Path, log) -> dict:
             methods[m] = {"frames": [f["frames"] for f in folds[m]], "heldout_rms": values,
                           "heldout_rms_mean": float(np.mean(values)) if len(values) == 2 else None,
                           "whole_frames": len(whole[m][0]),
-                          "vs_reference": None if cam is None else _truth_figures(cam, ref["K"], ref["dist"], size)}
+                          "vs_reference": None if cam is None else _truth_figures(cam, ref, size)}
         out["cameras"].append({"camera": c, "frames": n, "found": len(found), **speeds[c], "methods": methods})
         log(f"[video] caliscope cam_{c}: " + ", ".join(f"{m} {methods[m]['heldout_rms_mean']}" for m in METHODS))
     if cfg.video_real_rig:
@@ -387,7 +381,7 @@ def _real(cfg, folder: Path, log) -> dict:
 def _real_rig(folder: Path, pipeline, screened, refs, detected, obj, inner, log) -> dict:
     """The rig of the four cameras by instants of ``timestamps.csv``: per fold, each choice of instants."""
     from ccs_kornia.io.timestamps import read_timestamps
-    from ccs_kornia.modules.rig import RigCamera, RigSolver
+    from ccs_kornia.modules.rig import RigSolver
     from ccs_kornia.pipeline.frame_matching import FrameTable
     from ccs_kornia.pipeline.frame_selection import camera_views, choose_frames
     from ccs_kornia.pipeline.rig_pipeline import rig_observations
@@ -418,11 +412,10 @@ def _real_rig(folder: Path, pipeline, screened, refs, detected, obj, inner, log)
         sub = FrameTable([table.labels[f] for f in instants], idx, table.by)
         results = [r for _, r in cams]
         corners, valid, weights = rig_observations(results, sub)
-        initial = [RigCamera(r.calibration.model, r.calibration.K.double(), r.calibration.dist.double())
-                   for r in results]
+        initial = [r.calibration.camera.to(dtype=torch.float64) for r in results]
         try:
-            rig = RigSolver(models=[r.calibration.model for r in results])(corners, valid, objt, sizes,
-                                                                           initial=initial, weights=weights)
+            rig = RigSolver(models=[c.model for c in initial])(corners, valid, objt, sizes, initial=initial,
+                                                                weights=weights)
         except ValueError:
             return None
         return rig if bool(rig.success) else None
@@ -464,8 +457,7 @@ def _real_rig(folder: Path, pipeline, screened, refs, detected, obj, inner, log)
             rig = rig_on(instants)
             entry = {"instants": len(instants), "transfer_rms": None}
             if rig is not None:
-                cams = [(c.K.double().numpy(), c.dist.double().numpy(), c.model) for c in rig.cameras]
-                entry["transfer_rms"] = rms(transfer_errors(cams, [r.double().numpy() for r in rig.R],
+                entry["transfer_rms"] = rms(transfer_errors(rig.cameras, [r.double().numpy() for r in rig.R],
                                                             [t.double().numpy() for t in rig.T], obj, held))
                 entry["rig_rms"] = float(rig.rms)
             results[m].append(entry)
@@ -481,7 +473,7 @@ def _real_rig(folder: Path, pipeline, screened, refs, detected, obj, inner, log)
 def run_video(cfg, log=print) -> dict:
     """The ``video`` section's figures (see the module docstring)."""
     folder = Path(tempfile.mkdtemp(prefix="ccs_bench_video_"))
-    out: dict = {"rendered": [], "real": None, "skipped": {}, "model": MODEL, "max_frames": MAX_FRAMES,
+    out: dict = {"rendered": [], "real": None, "skipped": {}, "model": str(MODEL), "max_frames": MAX_FRAMES,
                  "seconds_per_recording": cfg.video_seconds, "jobs": cfg.video_jobs,
                  "load_average": os.getloadavg()[0] if hasattr(os, "getloadavg") else None}
     try:

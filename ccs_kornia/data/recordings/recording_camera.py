@@ -1,10 +1,9 @@
 """A camera that records video: intrinsics and lens, where it sits in a rig, and when each of its rows is exposed.
 
-The lens is a type (:class:`PinholeLens`, :class:`OpenCVLens`, :class:`FisheyeLens`): each projects camera-frame
-points (the ground truth: :func:`~ccs_kornia.geometry.camera.project_points`, or the Kannala-Brandt model of
-:mod:`ccs_kornia.data.render.fisheye`, valid where :func:`~ccs_kornia.data.render.lens.project_board` says so) and gives the ray of
-every pixel centre with its derivatives along the image axes (rendering: the renderer's exact inverses, computed once
-per camera and cached).
+The lens is a type (:class:`PinholeLens`, :class:`OpenCVLens`, :class:`FisheyeLens`) with its camera model
+(:attr:`Lens.model`): the camera projects camera-frame points (the ground truth: :attr:`RecordingCamera.camera`, valid
+where :func:`~ccs_kornia.data.render.lens.project_board` says so) and the lens gives the ray of every pixel centre with
+its derivatives along the image axes (rendering: the renderer's exact inverses, computed once per camera and cached).
 
 Timing of frame ``k`` (seconds): it starts at ``start + k / fps``; row ``y`` is exposed from
 ``frame_start + y * line_time`` for ``exposure`` seconds (a rolling shutter reads one row every ``line_time``; a
@@ -35,14 +34,16 @@ from functools import cached_property
 import torch
 from torch import Tensor
 
-from ccs_kornia.data.render.fisheye import kb_distort_theta, kb_fold, kb_unproject
+from ccs_kornia.data.render.fisheye import kb_fold, kb_unproject
 from ccs_kornia.data.render.lens import (
     _opencv_fold,
     _opencv_inverse_grid,
     _to_normalized,
     _undistort_opencv,
 )
-from ccs_kornia.geometry.camera import project_points
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import FISHEYE, OPENCV5, PINHOLE
 
 __all__ = ["FisheyeLens", "Lens", "OpenCVLens", "PinholeLens", "PixelRays", "RecordingCamera", "lens_from_json"]
 
@@ -88,22 +89,32 @@ def _grid_derivatives(f: Tensor) -> tuple[Tensor, Tensor]:
 
 
 class Lens:
-    """A camera's lens: where camera-frame points land (:meth:`project`) and which ray each pixel sees
-    (:meth:`rays`, :meth:`unproject`)."""
+    """A camera's lens: its camera model (:attr:`model`, :meth:`camera`: where camera-frame points land,
+    :meth:`project`) and which ray each pixel sees (:meth:`rays`, :meth:`unproject`)."""
 
-    def project(self, points: Tensor, K: Tensor, image_size: tuple[int, int]) -> tuple[Tensor, Tensor]:
-        """Camera-frame points :math:`(..., 3)` to pixels :math:`(..., 2)` and ``ok`` :math:`(...)` (in front of the
-        camera and where the lens images them without folding over: the points
-        :func:`~ccs_kornia.data.render.lens.project_board` accepts), float64."""
+    #: the lens' camera model
+    model: CameraModel = PINHOLE
+
+    @property
+    def coeffs(self) -> Tensor | None:
+        """The model's coefficients in OpenCV's layout (``None``: a pinhole's)."""
+        return None
+
+    def camera(self, K: Tensor, image_size: tuple[int, int] | None = None) -> Camera:
+        """The camera of this lens behind ``K`` :math:`(3, 3)` (zero skew), float64."""
+        return Camera.from_opencv(self.model, K.to(torch.float64), self.coeffs, image_size)
+
+    def project(self, points: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
+        """Camera-frame points :math:`(..., 3)` to pixels :math:`(..., 2)` through ``camera`` (this lens'
+        :meth:`camera`) and ``ok`` :math:`(...)` (in front of the camera and where the lens images them without
+        folding over: the points :func:`~ccs_kornia.data.render.lens.project_board` accepts), float64."""
         pts = points.to(torch.float64)
         z = pts[..., 2]
         ok = z > 1e-9
         safe = torch.cat([pts[..., :2], torch.where(ok, z, torch.ones_like(z)).unsqueeze(-1)], -1)
-        dist = self._dist(1, pts.device)
-        if dist is not None:
+        if self.coeffs is not None:
             ok = ok & ((safe[..., :2] / safe[..., 2:]).norm(dim=-1) < self._fold)
-        pix = project_points(safe, K.to(pts), None if dist is None else dist[0])
-        return pix, ok
+        return camera.to(pts.device).project(safe[None])[0], ok
 
     def rays(self, K: Tensor, image_size: tuple[int, int]) -> PixelRays:
         """The rays of every pixel centre of an image of ``image_size`` ``(W, H)``."""
@@ -116,9 +127,6 @@ class Lens:
     def to_json(self) -> dict:
         """The lens as JSON (:func:`lens_from_json` reads it back)."""
         raise NotImplementedError
-
-    def _dist(self, b: int, device) -> Tensor | None:
-        return None
 
 
 class PinholeLens(Lens):
@@ -150,6 +158,8 @@ class OpenCVLens(Lens):
         dist: five coefficients.
     """
 
+    model = OPENCV5
+
     def __init__(self, dist) -> None:
         d = torch.as_tensor(dist, dtype=torch.float64).flatten()
         if d.numel() != 5:
@@ -157,8 +167,10 @@ class OpenCVLens(Lens):
         self.dist = d
         self._fold = float(_opencv_fold(d[None])[0][0])  # normalised radius where the model folds over (inf: never)
 
-    def _dist(self, b: int, device) -> Tensor | None:
-        return self.dist.to(device).expand(b, 5)
+    @property
+    def coeffs(self) -> Tensor:
+        """``k1, k2, p1, p2, k3``."""
+        return self.dist
 
     def rays(self, K: Tensor, image_size: tuple[int, int]) -> PixelRays:
         K = K.to(torch.float64)[None]
@@ -191,6 +203,8 @@ class FisheyeLens(Lens):
         fov_deg: the field of view of the image circle.
     """
 
+    model = FISHEYE
+
     def __init__(self, k, fov_deg: float = 180.0) -> None:
         kk = torch.as_tensor(k, dtype=torch.float64).flatten()
         if kk.numel() != 4:
@@ -201,17 +215,19 @@ class FisheyeLens(Lens):
         #: the largest angle from the axis the lens images: its image circle, or where the model folds over
         self.theta_max = min(math.radians(self.fov_deg) / 2, float(kb_fold(kk[None])[0]))
 
-    def project(self, points: Tensor, K: Tensor, image_size: tuple[int, int]) -> tuple[Tensor, Tensor]:
+    @property
+    def coeffs(self) -> Tensor:
+        """``k1 .. k4``."""
+        return self.k
+
+    def project(self, points: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
+        """Camera-frame points :math:`(..., 3)` to pixels through ``camera`` (every direction) and ``ok``: inside the
+        image circle and before the model folds over."""
         pts = points.to(torch.float64)
         x, y, z = pts.unbind(-1)
         rho = (x * x + y * y).sqrt()
-        theta = torch.atan2(rho, z)
-        theta_d, _ = kb_distort_theta(theta, self.k.to(pts))
-        scale = torch.where(rho > 1e-12, theta_d / rho.clamp_min(1e-300), torch.ones_like(rho) / z.abs().clamp_min(1e-300))
-        xd, yd = x * scale, y * scale
-        Kd = K.to(pts)
-        pix = torch.stack([Kd[0, 0] * xd + Kd[0, 1] * yd + Kd[0, 2], Kd[1, 1] * yd + Kd[1, 2]], -1)
-        return pix, (theta < self.theta_max) & (rho + z.abs() > 0)
+        ok = (torch.atan2(rho, z) < self.theta_max) & (rho + z.abs() > 0)
+        return camera.to(pts.device).project(pts[None])[0], ok
 
     def _fisheye_row(self, b: int, device) -> Tensor | None:
         row = torch.cat([self.k, torch.tensor([math.radians(self.fov_deg) / 2], dtype=torch.float64)])
@@ -337,9 +353,14 @@ class RecordingCamera:
         R = self.R.to(R_rig)
         return R @ R_rig, (R @ t_rig.unsqueeze(-1)).squeeze(-1) + self.T.to(t_rig)
 
+    @cached_property
+    def camera(self) -> Camera:
+        """The camera value (its lens' model, ``K``, the coefficients and the image size), float64."""
+        return self.lens.camera(self.K, self.image_size)
+
     def project(self, points: Tensor) -> tuple[Tensor, Tensor]:
-        """Camera-frame points :math:`(B, N, 3)` to pixels and ``ok`` (:meth:`Lens.project`)."""
-        return self.lens.project(points, self.K, self.image_size)
+        """Camera-frame points :math:`(B, N, 3)` to pixels and ``ok`` (:meth:`Lens.project` through :attr:`camera`)."""
+        return self.lens.project(points, self.camera)
 
     @cached_property
     def rays(self) -> PixelRays:

@@ -1,22 +1,20 @@
-"""Kannala-Brandt (``cv2.fisheye``) lens for the renderer: exact forward projection and its exact inverse.
+"""Kannala-Brandt (``cv2.fisheye``) lens for the renderer: the views' cameras, their image circle and the exact inverse.
 
 The model (``cv2.fisheye``'s, with ``k1..k4``): a camera-frame point at angle ``theta`` from the optical axis and
 azimuth ``phi`` is imaged at radius ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)`` on
-the normalised plane, ``x_d = theta_d cos(phi)``, ``y_d = theta_d sin(phi)``, then ``u = fx x_d + s y_d + cx``,
-``v = fy y_d + cy`` (``s = K[0, 1] = fx * alpha``). ``theta = atan2(rho, z)`` (``rho = sqrt(x^2 + y^2)``), which is
-``cv2.fisheye.projectPoints``' ``atan(rho / z)`` for points in front of the camera and keeps working beyond 90
-degrees, so fields of view up to 200 degrees (and more) render correctly.
+the normalised plane, ``x_d = theta_d cos(phi)``, ``y_d = theta_d sin(phi)``, then ``u = fx x_d + cx``,
+``v = fy y_d + cy``, with ``theta = atan2(rho, z)`` (``rho = sqrt(x^2 + y^2)``), so that points beyond 90 degrees
+project and fields of view up to 200 degrees (and more) render correctly. The forward map is the camera value's
+(:data:`~ccs_kornia.geometry.models.FISHEYE`, :func:`fisheye_cameras`); this module adds what a render needs beyond
+it: the lens' image circle and its exact inverse on a pixel grid.
 
 A view's lens is the row ``(k1, k2, k3, k4, theta_max)`` of a ``(B, 5)`` tensor: ``theta_max`` (radians) is the
 half field of view, the edge of the lens' image circle (pixels beyond it are black); ``theta_max = 0`` marks a
 view that is not a fisheye (pinhole, possibly with OpenCV or the paper's distortion).
 
 Inverse (rendering): pixel -> normalised ``(x_d, y_d)`` -> ``theta_d`` -> ``theta`` (a monotone 1-D table of the
-model, then Newton steps: error ~1e-7 rad in float32) -> unit ray -> intersection with the board plane.
-Rays that miss the board or meet its plane behind the camera show background.
-
-This private implementation stays here until :mod:`ccs_kornia.geometry.camera` grows its own Kannala-Brandt functions
-(the data package only imports ``camera``).
+radial profile :func:`kb_distort_theta`, then Newton steps: error ~1e-7 rad in float32) -> unit ray -> intersection
+with the board plane. Rays that miss the board or meet its plane behind the camera show background.
 """
 
 from __future__ import annotations
@@ -27,10 +25,12 @@ import torch
 from torch import Tensor
 
 from ccs_kornia.geometry import camera
+from ccs_kornia.geometry.models.factory import FISHEYE
 
 __all__ = [
+    "fisheye_cameras",
     "kb_distort_theta",
-    "kb_project",
+    "kb_reach",
     "kb_unproject",
     "kb_fold",
     "sample_fisheye_cameras",
@@ -46,7 +46,9 @@ def is_fisheye(fisheye: Tensor | None) -> Tensor | None:
 
 
 def kb_distort_theta(theta: Tensor, k: Tensor) -> tuple[Tensor, Tensor]:
-    """``theta_d(theta)`` and its derivative; ``k`` broadcasts as ``(..., 4)`` slices ``k[..., i]``."""
+    """The lens' radial profile ``theta_d(theta)`` and its slope, the 1-D function the inverse tabulates and
+    polishes by Newton's method, and whose slope says where the model folds over (:func:`kb_fold`); ``k``
+    broadcasts as ``(..., 4)`` slices ``k[..., i]``."""
     k1, k2, k3, k4 = (k[..., i] for i in range(4))
     t2 = theta * theta
     poly = 1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))
@@ -64,31 +66,20 @@ def kb_fold(k: Tensor, theta_cap: float = math.pi) -> Tensor:
     return torch.where(bad.any(-1), t[first], torch.full_like(t[:1].expand(k.shape[0]), theta_cap))
 
 
-def kb_project(points_cam: Tensor, K: Tensor, fisheye: Tensor) -> tuple[Tensor, Tensor]:
-    """Camera-frame points to pixels through the Kannala-Brandt lens (``cv2.fisheye.projectPoints``).
+def fisheye_cameras(K: Tensor, fisheye: Tensor, image_size: tuple[int, int] | None = None) -> camera.Camera:
+    """The views' Kannala-Brandt cameras (:data:`~ccs_kornia.geometry.models.FISHEYE`): ``K`` :math:`(B, 3, 3)` (zero
+    skew) and the lens rows :math:`(B, 5)` (their ``k1..k4``), in ``K``'s dtype."""
+    return camera.Camera(FISHEYE, FISHEYE.params_from(K, fisheye[:, :4].to(K.dtype)), image_size)
 
-    Args:
-        points_cam: :math:`(B, N, 3)`.
-        K: :math:`(B, 3, 3)`.
-        fisheye: :math:`(B, 5)` ``(k1, k2, k3, k4, theta_max)``.
 
-    Returns:
-        pixels :math:`(B, N, 2)` and ``ok`` :math:`(B, N)`: the point lies inside the image circle
-        (``theta < theta_max``) and inside the part of the model that does not fold over.
-    """
+def kb_reach(points_cam: Tensor, fisheye: Tensor) -> Tensor:
+    """Which camera-frame points :math:`(B, N, 3)` a lens :math:`(B, 5)` images, :math:`(B, N)` bool: inside its image
+    circle (``theta < theta_max``) and inside the part of the model that does not fold over."""
     x, y, z = points_cam.unbind(-1)
     rho = (x * x + y * y).sqrt()
     theta = torch.atan2(rho, z)
-    k = fisheye[:, None, :4].to(points_cam.dtype)
-    theta_d, _ = kb_distort_theta(theta, k)
-    scale = torch.where(rho > 1e-12, theta_d / rho.clamp_min(1e-300), torch.ones_like(rho) / z.abs().clamp_min(1e-300))
-    xd, yd = x * scale, y * scale
-    Kd = K.to(points_cam.dtype)
-    u = Kd[:, 0, 0, None] * xd + Kd[:, 0, 1, None] * yd + Kd[:, 0, 2, None]
-    v = Kd[:, 1, 1, None] * yd + Kd[:, 1, 2, None]
     lim = torch.minimum(fisheye[:, 4].to(torch.float64), kb_fold(fisheye[:, :4])).to(points_cam.dtype)
-    ok = (theta < lim.unsqueeze(-1)) & (rho + z.abs() > 0)
-    return torch.stack([u, v], -1), ok
+    return (theta < lim.unsqueeze(-1)) & (rho + z.abs() > 0)
 
 
 def kb_unproject(xd: Tensor, yd: Tensor, fisheye: Tensor, table: int = 2048, newton: int = 3):
@@ -265,7 +256,8 @@ def sample_fisheye_poses(
         rvec = camera.rotation_matrix_to_axis_angle(R)
         obj, exists = _padded_object_points(cc, rc, sc, n_max)
         cam = camera.transform_points_rt(obj, rvec, tvec)
-        pix, ok = kb_project(cam, Kc, fe)
+        pix = fisheye_cameras(Kc, fe).project(cam)
+        ok = kb_reach(cam, fe)
         # the camera must see the board's front: the normal points away from the camera at every corner
         normal = R[:, :, 2]
         facing = ((cam * normal[:, None, :]).sum(-1) / cam.norm(dim=-1).clamp_min(1e-12)) > math.cos(math.radians(85))

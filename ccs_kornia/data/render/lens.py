@@ -1,13 +1,18 @@
 """The renderer's camera model: forward projection (ground truth) and its exact inverse (rendering).
 
+A view's lens is its camera (the camera value's map, :class:`~ccs_kornia.geometry.camera.Camera`: a pinhole, OpenCV's
+``k1, k2, p1, p2, k3`` or a Kannala-Brandt fisheye, :func:`view_cameras`) followed by the paper's radial model about
+the image centre (``camera.radial_distort_points``); the forward map (:func:`project_board`) is the camera's.
+
 The inverse distortion on the pixel grid is exact, not interpolated: the paper's model is inverted
 through a fine 1-D table plus a Newton step, the OpenCV model from a coarse exact grid plus Newton
 steps (both agree with the per-point float64 inverse :func:`board_coordinates` to ~1e-5 squares).
 
-The OpenCV inverse here (:func:`_undistort_opencv`) is :func:`ccs_kornia.geometry.camera.undistort_pixels` plus a safe
-start where kornia's fixed point stalls (a bisection on the radial factor over its monotonic range) and more
-Newton steps; ``camera.undistort_pixels`` alone leaves errors of pixels near the image corners under strong
-barrel distortion, which the renderer's ground truth cannot afford.
+The OpenCV inverse here (:func:`_undistort_opencv`) is kornia's fixed point (``undistort_points``) polished by Newton
+steps on the normalized plane, with a safe start where the fixed point stalls (a bisection on the radial factor over
+its monotonic range) and more Newton steps: the fixed point alone leaves errors of pixels near the image corners
+under strong barrel distortion (kornia #4285), which the renderer's ground truth cannot afford. Its checks measure
+the residual through the camera's forward map.
 
 Where a model folds over (its radius stops growing) the image beyond the fold has no preimage; those pixels
 are rendered black (outside the lens' image circle), and corners beyond the fold are never valid.
@@ -18,12 +23,19 @@ from __future__ import annotations
 import math
 
 import torch
+from kornia.geometry.calibration import undistort_points
 from torch import Tensor
 
-from ccs_kornia.data.render.fisheye import is_fisheye, kb_project, kb_unproject
+from ccs_kornia.data.render.fisheye import (
+    fisheye_cameras,
+    is_fisheye,
+    kb_reach,
+    kb_unproject,
+)
 from ccs_kornia.geometry import camera
+from ccs_kornia.geometry.models.factory import FISHEYE, OPENCV5, PINHOLE
 
-__all__ = ["project_board", "board_coordinates"]
+__all__ = ["view_cameras", "project_board", "board_coordinates"]
 
 _FAR = 1.0e6  # board coordinate given to pixels that see no board plane (behind the camera)
 
@@ -78,6 +90,40 @@ def _paper_radius(points: Tensor, image_size: tuple[int, int]) -> Tensor:
 # ----------------------------------------------------------------------------------------------
 
 
+def view_cameras(K: Tensor, dist: Tensor | None = None, fisheye: Tensor | None = None,
+                 image_size: tuple[int, int] | None = None) -> camera.Camera:
+    """The views' cameras as one value: a Kannala-Brandt camera where ``fisheye`` marks a view as one, else OpenCV's
+    ``k1, k2, p1, p2, k3`` where ``dist`` is given, else a pinhole.
+
+    Args:
+        K: :math:`(B, 3, 3)` (zero skew: the package's cameras have none).
+        dist: optional :math:`(B, 5)` OpenCV coefficients.
+        fisheye: optional :math:`(B, 5)` lens rows (:mod:`ccs_kornia.data.render.fisheye`).
+        image_size: ``(W, H)``.
+
+    Example:
+        >>> K = torch.tensor([[400., 0, 319.5], [0, 400, 239.5], [0, 0, 1]]).expand(2, 3, 3)
+        >>> fe = torch.tensor([[0.0, 0, 0, 0, 0], [0.01, 0, 0, 0, 1.5]])
+        >>> [str(m) for m in view_cameras(K, torch.zeros(2, 5), fe, (640, 480)).models]
+        ['opencv5', 'fisheye']
+    """
+    if bool((K[:, 0, 1] != 0).any()):
+        raise ValueError("the renderer's cameras have zero skew (K[0, 1] = 0).")
+    base = PINHOLE if dist is None else OPENCV5
+    fe_mask = is_fisheye(fisheye)
+    if fe_mask is None or not bool(fe_mask.any()):
+        return camera.Camera(base, base.params_from(K, dist), image_size)
+    fe_cams = fisheye_cameras(K[fe_mask], fisheye[fe_mask], image_size)
+    if bool(fe_mask.all()):
+        return fe_cams
+    models = tuple(FISHEYE if f else base for f in fe_mask.tolist())
+    params = K.new_full((K.shape[0], max(base.num_params, FISHEYE.num_params)), float("nan"))
+    rest = ~fe_mask
+    params[rest, : base.num_params] = base.params_from(K[rest], None if dist is None else dist[rest])
+    params[fe_mask, : FISHEYE.num_params] = fe_cams.params
+    return camera.Camera(models, params, image_size)
+
+
 def project_board(
     object_points: Tensor,
     K: Tensor,
@@ -90,9 +136,9 @@ def project_board(
 ) -> tuple[Tensor, Tensor]:
     """Forward model: world points to distorted pixels, with a visibility flag.
 
-    Applies the pose, the pinhole ``K`` with OpenCV distortion (``camera.project_points``) and then the
-    paper's radial distortion (``camera.radial_distort_points``); views marked as fisheyes in ``fisheye``
-    use the Kannala-Brandt lens instead (:func:`ccs_kornia.data.render.fisheye.kb_project`, ``cv2.fisheye``'s model).
+    Applies the pose, the views' cameras (:func:`view_cameras`: the pinhole ``K`` with OpenCV distortion, or the
+    Kannala-Brandt lens for views marked as fisheyes in ``fisheye``) and then the paper's radial distortion
+    (``camera.radial_distort_points``).
 
     Args:
         object_points: :math:`(B, N, 3)` world points.
@@ -111,27 +157,25 @@ def project_board(
     """
     cam = camera.transform_points_rt(object_points, rvec, tvec)
     fe_mask = is_fisheye(fisheye)
-    kb_pix = kb_ok = None
-    if fe_mask is not None and bool(fe_mask.any()):
-        kb_pix, kb_ok = kb_project(cam, K, fisheye)
+    fe_any = fe_mask is not None and bool(fe_mask.any())
     z = cam[..., 2]
     ok = z > 1e-9
-    cam = torch.cat([cam[..., :2], torch.where(ok, z, torch.ones_like(z)).unsqueeze(-1)], -1)
+    # a pinhole projects the points in front of it (the others, not ok, at a finite stand-in depth); a fisheye all
+    safe = torch.cat([cam[..., :2], torch.where(ok, z, torch.ones_like(z)).unsqueeze(-1)], -1)
     if dist is not None:
         r_fold, _ = _opencv_fold(dist)
-        rn = (cam[..., :2] / cam[..., 2:3]).norm(dim=-1)
+        rn = (safe[..., :2] / safe[..., 2:3]).norm(dim=-1)
         ok = ok & (rn < r_fold.to(rn.dtype).unsqueeze(-1))
-        pix = camera.project_points(cam, K, dist)
-    else:
-        pix = camera.project_points(cam, K)
+    if fe_any:
+        safe = torch.where(fe_mask.view(-1, 1, 1), cam, safe)
+    pix = view_cameras(K, dist, fisheye, image_size).project(safe)
     if radial is not None:
         r_fold, _ = _radial_fold(radial)
         ok = ok & (_paper_radius(pix, image_size) < r_fold.to(pix.dtype).unsqueeze(-1))
         pix = camera.radial_distort_points(pix, radial.to(pix.dtype), image_size)
-    if kb_pix is not None:
+    if fe_any:
         sel = fe_mask.view(-1, 1)
-        pix = torch.where(sel.unsqueeze(-1), kb_pix.to(pix.dtype), pix)
-        ok = torch.where(sel, kb_ok, ok)
+        ok = torch.where(sel, kb_reach(cam, fisheye), ok)
     return pix, ok
 
 
@@ -193,27 +237,41 @@ def _radial_start(xt: Tensor, yt: Tensor, dist: Tensor) -> tuple[Tensor, Tensor]
     return xt * ratio, yt * ratio
 
 
+def _to_pixels(xn: Tensor, yn: Tensor, K: Tensor) -> Tensor:
+    """Normalized points ``(B, P)`` to pixels ``(B, P, 2)`` (:func:`_to_normalized`'s inverse)."""
+    fx, fy = K[:, 0, 0, None], K[:, 1, 1, None]
+    cx, cy, skew = K[:, 0, 2, None], K[:, 1, 2, None], K[:, 0, 1, None]
+    return torch.stack([fx * xn + skew * yn + cx, fy * yn + cy], -1)
+
+
+def _opencv_residual(ideal: Tensor, pix: Tensor, K: Tensor, dist: Tensor) -> Tensor:
+    """How far the camera's forward map takes ideal pixels from ``pix`` (``(B, P, 2)`` each), px ``(B, P)``."""
+    xn, yn = _to_normalized(ideal[..., 0], ideal[..., 1], K)
+    back = view_cameras(K, dist).distort(torch.stack([xn, yn], -1))
+    return (back - pix).norm(dim=-1)
+
+
 def _undistort_opencv(pix: Tensor, K: Tensor, dist: Tensor, fixed_iters: int = 8, newton_iters: int = 4):
-    """Distorted to ideal pixels: kornia's fixed-point inverse (``camera.undistort_pixels``) polished by
-    Newton steps. The fixed point alone can stall or cycle for strong barrel distortion near the image
-    corners (kornia #4285); where it has not converged the start is replaced by a bisection on the
-    radial factor, which is safe over the model's monotonic range.
+    """Distorted to ideal pixels: kornia's fixed-point inverse (``undistort_points``) polished by Newton steps.
+    The fixed point alone can stall or cycle for strong barrel distortion near the image corners (kornia #4285);
+    where the polished point is still off the forward map by more than 0.01 px the start is replaced by a bisection
+    on the radial factor, which is safe over the model's monotonic range, and the Newton steps are run again.
 
     Returns ideal pixels ``(B, P, 2)`` and the forward-model residual in pixels ``(B, P)``.
     """
-    ideal = camera.undistort_pixels(pix, K, dist, num_iters=fixed_iters)
-    stalled = (camera.distort_pixels(ideal, K, dist) - pix).norm(dim=-1) > 1e-2
-    xi, yi = _to_normalized(ideal[..., 0], ideal[..., 1], K)
     xt, yt = _to_normalized(pix[..., 0], pix[..., 1], K)
+    start = undistort_points(pix, K, dist, num_iters=fixed_iters)
+    xi, yi = _to_normalized(start[..., 0], start[..., 1], K)
+    xi, yi, _ = _opencv_newton(xi, yi, xt, yt, _dist_slices(dist, 2), newton_iters)
+    ideal = _to_pixels(xi, yi, K)
+    stalled = _opencv_residual(ideal, pix, K, dist) > 1e-2
+    xi, yi = _to_normalized(ideal[..., 0], ideal[..., 1], K)
     if bool(stalled.any()):
         sx, sy = _radial_start(xt, yt, dist)
         xi, yi = torch.where(stalled, sx, xi), torch.where(stalled, sy, yi)
     xi, yi, _ = _opencv_newton(xi, yi, xt, yt, _dist_slices(dist, 2), newton_iters)
-    fx, fy = K[:, 0, 0, None], K[:, 1, 1, None]
-    cx, cy, skew = K[:, 0, 2, None], K[:, 1, 2, None], K[:, 0, 1, None]
-    ideal = torch.stack([fx * xi + skew * yi + cx, fy * yi + cy], -1)
-    residual = (camera.distort_pixels(ideal, K, dist) - pix).norm(dim=-1)
-    return ideal, residual
+    ideal = _to_pixels(xi, yi, K)
+    return ideal, _opencv_residual(ideal, pix, K, dist)
 
 
 def _board_homography_inverse(rvec: Tensor, tvec: Tensor, square: Tensor, dtype) -> Tensor:
@@ -249,8 +307,7 @@ def board_coordinates(
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Inverse model: distorted pixels to board coordinates in squares (inner corner ``(i, j)`` at ``(i, j)``).
 
-    distorted pixel -> ideal pixel (``camera.radial_undistort_points``, then ``camera.undistort_pixels``
-    polished by Newton) -> ray -> intersection with the board plane through the inverse homography
+    distorted pixel -> ideal pixel (``camera.radial_undistort_points``, then :func:`_undistort_opencv`) -> ray -> intersection with the board plane through the inverse homography
     ``(K [r1 r2 t])^-1``. This is the exact per-point path; the renderer uses the same chain on its pixel
     grid with a faster but equally exact inversion (tabulated / coarse-grid start, then Newton).
 
@@ -331,7 +388,7 @@ def _opencv_inverse_grid(
     """OpenCV-model inverse for a pixel grid ``(b, H, W)`` of normalized distorted coordinates (image rows
     ``rows = (y0, y1)``, default all).
 
-    Exact inverse (``camera.undistort_pixels`` + Newton) on a coarse grid every ``stride`` pixels,
+    Exact inverse (:func:`_undistort_opencv`) on a coarse grid every ``stride`` pixels,
     bilinearly upsampled as the start (error ~1e-2 px), then two Newton steps on every pixel (quadratic
     convergence: ~1e-7 px).
     """

@@ -18,7 +18,8 @@ through a fine 1-D table plus a Newton step, the OpenCV model from a coarse exac
 steps (both agree with the per-point float64 inverse :func:`board_coordinates` to ~1e-5 squares).
 
 Ground-truth corners never come from the image: they are the forward projection of the board's
-object points (``camera.project_points`` and ``camera.radial_distort_points``).
+object points (the views' cameras, :func:`~ccs_kornia.data.render.lens.view_cameras`, then
+``camera.radial_distort_points``).
 
 Layout of the board, in squares: inner corners at ``u = 0 .. cols-1``, ``v = 0 .. rows-1``; checker
 squares cover ``[-1, cols] x [-1, rows]`` with the top-left square ``(-1, -1)`` dark; a light border of
@@ -281,7 +282,7 @@ def render_chessboard(
     """Render chessboards seen by (distorted) cameras, with their exact corner positions.
 
     Args:
-        K: :math:`(B, 3, 3)` or :math:`(3, 3)` camera matrix.
+        K: :math:`(B, 3, 3)` or :math:`(3, 3)` camera matrix (zero skew).
         rvec: :math:`(B, 3)` world-to-camera axis-angle rotation.
         tvec: :math:`(B, 3)` translation.
         board_size: ``(cols, rows)`` inner corners, or a :math:`(B, 2)` long tensor (per-view boards).

@@ -7,7 +7,7 @@ the board from 0.35-0.6 m for eye-in-hand, the board held up to a camera 0.5-0.9
 by inverse kinematics (damped least squares from the arm's ready pose), then:
 
 * the corners are the board's points projected through the true flange pose and the camera (OpenCV's ``k1, k2``
-  lens), plus Gaussian pixel noise;
+  lens, :attr:`HandEyeScene.camera`), plus Gaussian pixel noise;
 * the *reported* flange pose is the forward kinematics of the joint angles plus Gaussian joint noise (encoder
   error): the robot-pose noise a real arm adds, in joint space.
 
@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 import torch
 
-from ccs_kornia.geometry.camera import board_object_points, project_points
+from ccs_kornia.geometry.camera import Camera, board_object_points
+from ccs_kornia.geometry.models.factory import K1K2
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 
 __all__ = ["PANDA_DH", "PANDA_LIMITS", "PANDA_READY", "HandEyeScene", "panda_flange_poses", "panda_ik",
@@ -124,6 +125,11 @@ class HandEyeScene:
     noise_px: float
     joint_noise_deg: float
 
+    @property
+    def camera(self) -> Camera:
+        """The true camera (OpenCV's ``k1, k2`` model) with its image size."""
+        return Camera.from_opencv(K1K2, self.K, self.dist, self.image_size)
+
 
 def _look(direction: torch.Tensor, roll: float) -> torch.Tensor:
     """A rotation whose z axis is ``direction`` (columns x, y, z), turned by ``roll`` about it."""
@@ -173,6 +179,7 @@ def render_hand_eye(
     K = torch.tensor([[f, 0, (W - 1) / 2 + float(uni(-8, 8, 1))], [0, f * float(uni(0.995, 1.005, 1)),
                       (H - 1) / 2 + float(uni(-8, 8, 1))], [0, 0, 1]], dtype=dt)
     dist = torch.tensor([float(uni(-0.15, 0.0, 1)), float(uni(0.0, 0.05, 1))], dtype=dt)
+    lens = Camera.from_opencv(K1K2, K, dist)
     obj = board_object_points(board[0], board[1], square, dtype=dt)
     centre = obj.mean(0)
     tilt = math.radians(max_tilt_deg)
@@ -227,8 +234,7 @@ def render_hand_eye(
             cam = torch.linalg.inv(T @ X) @ Z
         else:
             cam = torch.linalg.inv(X) @ T @ Z
-        uv = project_points(obj.expand(n, -1, -1), K.expand(n, 3, 3), dist.expand(n, 2), log_so3(cam[:, :3, :3]),
-                            cam[:, :3, 3])
+        uv = lens.project(obj.expand(1, n, -1, -1), log_so3(cam[:, :3, :3])[None], cam[None, :, :3, 3])[0]
         depth_ok = ((obj @ cam[:, :3, :3].transpose(-1, -2) + cam[:, None, :3, 3])[..., 2] > 0.1).all(-1)
         inside = ((uv[..., 0] > 10) & (uv[..., 0] < W - 11) & (uv[..., 1] > 10) & (uv[..., 1] < H - 11)).all(-1)
         keep = ok & inside & depth_ok
@@ -244,8 +250,7 @@ def render_hand_eye(
     T = torch.stack(poses)
     reported = panda_flange_poses(q + math.radians(joint_noise_deg) * torch.randn(q.shape, generator=g, dtype=dt))
     cam = (torch.linalg.inv(T @ X) @ Z) if setup == "eye_in_hand" else (torch.linalg.inv(X) @ T @ Z)
-    uv = project_points(obj.expand(views, -1, -1), K.expand(views, 3, 3), dist.expand(views, 2),
-                        log_so3(cam[:, :3, :3]), cam[:, :3, 3])
+    uv = lens.project(obj.expand(1, views, -1, -1), log_so3(cam[:, :3, :3])[None], cam[None, :, :3, 3])[0]
     uv = uv + noise_px * torch.randn(uv.shape, generator=g, dtype=dt)
     return HandEyeScene(setup, X, Z, K, dist, image_size, obj, q, T, reported, uv,
                         torch.ones(uv.shape[:2], dtype=torch.bool), float(noise_px), float(joint_noise_deg))

@@ -6,6 +6,7 @@ import math
 
 from ccs_kornia.bench.config import SECTIONS, BenchConfig
 from ccs_kornia.bench.sections.rig import SEED, random_rig, rig_md, run_rig
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 
 
 def test_rig_section_runs_and_reports():
@@ -28,4 +29,5 @@ def test_random_rig_is_deterministic_and_mixed():
     b, noise_b = random_rig(SEED + 3, 8)
     assert noise_a == noise_b and 0.1 <= noise_a <= 0.3
     assert a.corners.isnan().equal(b.corners.isnan()) and bool((a.corners == b.corners)[a.valid].all())
-    assert 2 <= len(a.cameras) <= 4
+    assert 2 <= len(a.cameras) <= 4 and a.cameras.image_sizes == ((640, 480),) * len(a.cameras)
+    assert set(a.cameras.models) <= {FISHEYE, K1K2, OPENCV5}

@@ -17,6 +17,7 @@ from ccs_kornia.bench.sections.rig_sessions import (
     run_rig_sessions,
     transfer_error,
 )
+from ccs_kornia.geometry.models import OPENCV5
 
 
 def test_rig_sessions_section_runs_and_reports():
@@ -42,7 +43,7 @@ def test_conditions_share_the_session():
     c = rendered_session(SEED + 5, "handheld", duration=6.0)
     assert a.corners.shape == b.corners.shape and torch.equal(a.R, b.R) and torch.equal(a.T, b.T)
     assert a.corners.isnan().equal(c.corners.isnan()) and bool((a.corners == c.corners)[a.corners.isfinite()].all())
-    assert [cam.K.tolist() for cam in a.cameras] == [cam.K.tolist() for cam in b.cameras]
+    assert a.cameras.models == b.cameras.models == (OPENCV5,) * len(a.cameras) and torch.equal(a.cameras.K, b.cameras.K)
     assert a.test_corners.shape[:1] == a.corners.shape[:1] and a.frame_times.shape == a.corners.shape[1:2]
     assert set(CONDITIONS) == {"handheld", "global", "timestamps", "frozen"}
 

@@ -84,7 +84,9 @@ def _subpix_error(img: torch.Tensor, corners: torch.Tensor, board=(7, 5), blur: 
 def test_lens_projection_is_the_renderers(name):
     lens = LENSES[name]
     pts = torch.tensor([[[0.1, -0.05, 0.6], [-0.2, 0.15, 0.5], [0.0, 0.0, 1.0], [0.3, 0.2, -0.5]]], dtype=torch.float64)
-    pix, ok = lens.project(pts, K, (W, H))
+    cam = RecordingCamera(K, (W, H), lens).camera
+    assert cam.model == lens.model and cam.image_size == (W, H) and torch.equal(cam.K[0], K.double())
+    pix, ok = lens.project(pts, cam)
     dist = lens.dist[None] if isinstance(lens, OpenCVLens) else None
     fe = lens._fisheye_row(1, "cpu") if isinstance(lens, FisheyeLens) else None
     ref, ref_ok = project_board(pts, K[None], torch.zeros(1, 3, dtype=torch.float64), torch.zeros(1, 3, dtype=torch.float64),
@@ -103,7 +105,7 @@ def test_lens_rays_and_derivatives(name):
     pix = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1).double()
     z = rays.z.expand(H, W) if rays.z.dim() == 0 else rays.z
     r = torch.stack([rays.x[ys, xs], rays.y[ys, xs], z[ys, xs]], -1).reshape(-1, 3).double()
-    back, ok = lens.project(r[None], K, (W, H))
+    back, ok = lens.project(r[None], lens.camera(K, (W, H)))
     assert bool(ok.all())
     assert float((back[0] - pix).abs().max()) < 2e-3  # float32 rays
     torch.testing.assert_close(lens.unproject(pix, K) / lens.unproject(pix, K).norm(dim=-1, keepdim=True),

@@ -10,15 +10,17 @@ import pytest
 import torch
 
 from ccs_kornia.data.render.fisheye import (
+    fisheye_cameras,
     kb_distort_theta,
-    kb_project,
+    kb_reach,
     kb_unproject,
     sample_fisheye_cameras,
     sample_fisheye_poses,
 )
-from ccs_kornia.data.render.lens import project_board
+from ccs_kornia.data.render.lens import project_board, view_cameras
 from ccs_kornia.data.render.renderer import render_chessboard
 from ccs_kornia.geometry import camera
+from ccs_kornia.geometry.models import FISHEYE, OPENCV5
 
 
 def _cameras(n=6, size=(640, 480), seed=0):
@@ -27,7 +29,8 @@ def _cameras(n=6, size=(640, 480), seed=0):
 
 def test_projection_matches_cv2_fisheye_to_1e6_px():
     K, fe = _cameras(6)
-    K[:, 0, 1] = 0.4  # a skew: cv2's alpha = K[0, 1] / fx
+    cams = fisheye_cameras(K, fe, (640, 480))
+    assert cams.model == FISHEYE and torch.equal(cams.K, K) and cams.image_size == (640, 480)
     g = torch.Generator().manual_seed(1)
     for i in range(6):
         pts = torch.rand(1, 200, 3, generator=g, dtype=torch.float64) * torch.tensor([4.0, 4.0, 2.0]) - torch.tensor([2.0, 2.0, -0.05])
@@ -35,12 +38,40 @@ def test_projection_matches_cv2_fisheye_to_1e6_px():
         tvec = torch.tensor([[0.1, -0.05, 0.2]], dtype=torch.float64)
         cam = camera.transform_points_rt(pts, rvec, tvec)
         front = cam[0, :, 2] > 1e-3  # cv2.fisheye models points in front of the camera only
-        pix, _ = kb_project(cam, K[i:i + 1], fe[i:i + 1])
+        pix = cams[i].project(cam)
         Kn = K[i].numpy()
         ref, _ = cv2.fisheye.projectPoints(pts[0].numpy().reshape(-1, 1, 3), rvec[0].numpy(), tvec[0].numpy(), Kn,
-                                           fe[i, :4].numpy(), alpha=float(Kn[0, 1] / Kn[0, 0]))
+                                           fe[i, :4].numpy())
         err = np.abs(ref.reshape(-1, 2) - pix[0].numpy())[front.numpy()]
         assert err.max() < 1e-6
+
+
+def test_reach_is_the_image_circle_before_the_fold():
+    fe = torch.tensor([[0.0, 0.0, 0.0, 0.0, math.radians(80.0)], [-0.2, 0.0, 0.0, 0.0, math.radians(100.0)]],
+                      dtype=torch.float64)
+    theta = torch.tensor([0.0, 1.0, math.radians(79.0), math.radians(81.0), math.radians(95.0), 3.0],
+                         dtype=torch.float64)
+    rays = torch.stack([theta.sin(), torch.zeros_like(theta), theta.cos()], -1).expand(2, -1, -1)
+    ok = kb_reach(rays, fe)
+    assert ok[0].tolist() == [True, True, True, False, False, False]
+    # k1 = -0.2: theta_d stops growing near 1.2 rad (slope 1 - 0.6 theta^2), well inside the 200-degree circle
+    assert ok[1].tolist() == [True, True, False, False, False, False]
+
+
+def test_view_cameras_give_each_view_its_model():
+    K = torch.tensor([[300.0, 0, 320], [0, 300, 240], [0, 0, 1]], dtype=torch.float64).expand(3, 3, 3)
+    dist = torch.tensor([[-0.2, 0.05, 0.0, 0.0, 0.0]] * 3, dtype=torch.float64)
+    fe = torch.tensor([[0.0] * 5, [0.02, 0.0, 0.0, 0.0, 1.6], [0.0] * 5], dtype=torch.float64)
+    cams = view_cameras(K, dist, fe, (640, 480))
+    assert cams.models == (OPENCV5, FISHEYE, OPENCV5) and cams.image_sizes == ((640, 480),) * 3
+    pts = torch.tensor([[[0.2, -0.1, 1.0], [1.0, 0.5, -0.2]]], dtype=torch.float64).expand(3, -1, -1)
+    pix = cams.project(pts)
+    torch.testing.assert_close(pix[1], fisheye_cameras(K[1:2], fe[1:2]).project(pts[1:2])[0])
+    torch.testing.assert_close(pix[0, 0], camera.project_points(pts[0, :1], K[0], dist[0])[0], atol=1e-12, rtol=0)
+    skewed = K.clone()
+    skewed[:, 0, 1] = 0.4
+    with pytest.raises(ValueError, match="skew"):
+        view_cameras(skewed, dist)
 
 
 def test_render_ground_truth_is_cv2_fisheye_projection():
