@@ -11,7 +11,8 @@ Conventions (see ``docs/architecture.md``):
 * board: ``cols x rows`` inner corners; object point ``n = j * cols + i`` is ``(i * s, j * s, 0)``;
 * poses: OpenCV's ``rvec`` (axis-angle, world-to-camera) and ``tvec``;
 * OpenCV distortion: ``(k1, k2, p1, p2, k3)`` (``opencv5``) or ``(k1, k2, p1, p2, k3, k4, k5, k6)``
-  (``rational``), applied on the normalized plane through kornia's ``distort_points``;
+  (``rational``), applied on the normalized plane as ``cv2.projectPoints`` and kornia's ``distort_points`` do
+  (:class:`~ccs_kornia.geometry.models.opencv.OpenCVModel`; its inverse starts from kornia's ``undistort_points``);
 * Kannala-Brandt fisheye (``cv2.fisheye``): ``theta = atan2(r, z)``,
   ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``, ``D = (k1, k2, k3, k4)``;
 * the paper's radial model (used for training data and the distortion CNN): radii are measured from
@@ -19,7 +20,7 @@ Conventions (see ``docs/architecture.md``):
   distortion ``r_d = r_c (k0 + k1 r_c^2 + k2 r_c^4)`` and correction
   ``r_c = r_d (k0' + k1' r_d + k2' r_d^2 + k3' r_d^3 + k4' r_d^4)``.
 
-This module imports nothing of ``ccs_kornia`` but the camera models.
+This module imports nothing of ``ccs_kornia`` but the camera models and the shared shape checks.
 """
 
 from __future__ import annotations
@@ -27,10 +28,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
-from kornia.geometry.calibration import distort_points, undistort_points
-from kornia.geometry.camera.distortion_kannala_brandt import (
-    distort_points_kannala_brandt,
-)
 from kornia.geometry.conversions import (
     axis_angle_to_rotation_matrix,
     rotation_matrix_to_axis_angle,
@@ -42,37 +39,18 @@ from ccs_kornia.runtime.checks import broadcast_shapes
 
 __all__ = [
     "Camera",
-    "DISTORTION_MODELS",
-    "num_distortion_coeffs",
     "board_object_points",
     "intrinsics_matrix",
     "intrinsics_params",
     "transform_points_rt",
     "project_points",
-    "distort_pixels",
-    "undistort_pixels",
     "radial_distort_points",
     "radial_undistort_points",
     "radial_correct_points",
     "fit_radial_correction",
-    "kb_project_points",
-    "kb_distort_points",
-    "kb_unproject_points",
-    "kb_undistort_points",
     "axis_angle_to_rotation_matrix",
     "rotation_matrix_to_axis_angle",
 ]
-
-#: output distortion models and their coefficient counts (OpenCV order)
-DISTORTION_MODELS: dict[str, int] = {"none": 0, "k1k2": 5, "opencv5": 5, "rational": 8}
-
-
-def num_distortion_coeffs(model: str) -> int:
-    """Number of OpenCV coefficients stored for ``model`` (``k1k2`` stores 5 with p1=p2=k3=0)."""
-    if model not in DISTORTION_MODELS:
-        raise ValueError(f"Unknown distortion model {model!r}; expected one of {sorted(DISTORTION_MODELS)}.")
-    return DISTORTION_MODELS[model]
-
 
 def board_object_points(
     cols: int, rows: int, square: float = 1.0, device: torch.device | str | None = None, dtype: torch.dtype = torch.float32
@@ -197,49 +175,6 @@ def project_points(
     return uv.reshape(*batch, N, 2)
 
 
-def distort_pixels(points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
-    """Ideal (undistorted) pixels to distorted pixels, OpenCV model; ``(*, N, 2)`` in and out."""
-    return distort_points(points, K, _pad_opencv(dist))
-
-
-def undistort_pixels(
-    points: torch.Tensor, K: torch.Tensor, dist: torch.Tensor, num_iters: int = 20, newton_iters: int = 4
-) -> torch.Tensor:
-    """Distorted pixels to ideal pixels, ``(*, N, 2)`` in and out.
-
-    kornia's fixed-point inverse followed by Newton steps on the normalized plane (5-coefficient models),
-    which fixes the last digits and most of the cases where the fixed point oscillates under strong
-    barrel distortion (kornia #4285). Outside the model's monotonic range no inverse exists; the
-    renderer (``data/render/lens.py``) adds a bisection start for that case.
-    """
-    d = _pad_opencv(dist)
-    ideal = undistort_points(points, K, d, num_iters=num_iters)
-    if d.shape[-1] != 5 or newton_iters <= 0:
-        return ideal
-    fx, fy = K[..., 0, 0, None], K[..., 1, 1, None]
-    cx, cy, skew = K[..., 0, 2, None], K[..., 1, 2, None], K[..., 0, 1, None]
-    yt = (points[..., 1] - cy) / fy
-    xt = (points[..., 0] - cx - skew * yt) / fx
-    yi = (ideal[..., 1] - cy) / fy
-    xi = (ideal[..., 0] - cx - skew * yi) / fx
-    k1, k2, p1, p2, k3 = (d[..., i, None] for i in range(5))
-    for _ in range(newton_iters):
-        r2 = xi * xi + yi * yi
-        g = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        gp = k1 + r2 * (2 * k2 + 3 * k3 * r2)
-        xy = xi * yi
-        ex = xi * g + 2 * p1 * xy + p2 * (r2 + 2 * xi * xi) - xt
-        ey = yi * g + p1 * (r2 + 2 * yi * yi) + 2 * p2 * xy - yt
-        a = g + 2 * xi * xi * gp + 2 * p1 * yi + 6 * p2 * xi
-        c = 2 * xy * gp + 2 * p1 * xi + 2 * p2 * yi
-        e = g + 2 * yi * yi * gp + 6 * p1 * yi + 2 * p2 * xi
-        det = a * e - c * c
-        det = torch.where(det.abs() < 1e-12, torch.full_like(det, 1e-12), det)
-        xi = xi - ((e * ex - c * ey) / det).clamp(-1.0, 1.0)
-        yi = yi - ((a * ey - c * ex) / det).clamp(-1.0, 1.0)
-    return torch.stack([fx * xi + skew * yi + cx, fy * yi + cy], -1)
-
-
 # ----------------------------------------------------------------------------------------------
 # The paper's radial model (image-centred, radius in units of max(W, H))
 # ----------------------------------------------------------------------------------------------
@@ -352,129 +287,6 @@ def fit_radial_correction(coeffs: torch.Tensor, image_size: tuple[int, int], num
     A = torch.stack([rd**p for p in range(1, 6)], -1)  # (B, S, 5): r_d * r_d^p
     sol = torch.linalg.lstsq(A, rc.expand_as(rd).unsqueeze(-1)).solution
     return sol.squeeze(-1)
-
-
-# ----------------------------------------------------------------------------------------------
-# Kannala-Brandt fisheye (cv2.fisheye's model), valid beyond 90 degrees
-# ----------------------------------------------------------------------------------------------
-
-
-def _kb_params(K: torch.Tensor, D: torch.Tensor) -> torch.Tensor:
-    if K.shape[-2:] != (3, 3) or D.shape[-1] != 4:
-        raise ValueError(f"Kannala-Brandt needs K (*, 3, 3) and D (*, 4), got {tuple(K.shape)} and {tuple(D.shape)}.")
-    intr, D = intrinsics_params(K), D.to(K.dtype)
-    # broadcast_tensors, not torch.broadcast_shapes: the latter imports sympy on first use (0.4 s per process)
-    return torch.cat(torch.broadcast_tensors(intr, D), -1)
-
-
-def kb_project_points(
-    points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, rvec: torch.Tensor | None = None, tvec: torch.Tensor | None = None
-) -> torch.Tensor:
-    """Project 3D points with the Kannala-Brandt model (as ``cv2.fisheye.projectPoints``, zero skew).
-
-    ``theta = atan2(r, z)``, so points at or beyond 90 degrees from the axis project too (``cv2.fisheye`` uses
-    ``atan(r / z)``, which agrees for ``z > 0``).
-
-    Args:
-        points: :math:`(*, N, 3)` points (world frame with ``rvec``/``tvec``, else camera frame).
-        K: :math:`(*, 3, 3)`; D: :math:`(*, 4)` ``k1..k4``; rvec, tvec: :math:`(*, 3)` optional pose.
-
-    Returns:
-        :math:`(*, N, 2)` pixels.
-
-    Example:
-        >>> K = torch.tensor([[300., 0, 320], [0, 300, 240], [0, 0, 1]])
-        >>> kb_project_points(torch.tensor([[1.0, 0.0, 0.0]]), K, torch.zeros(4))  # 90 degrees: r = f pi / 2
-        tensor([[791.2389, 240.0000]])
-    """
-    if points.shape[-1] != 3:
-        raise ValueError(f"Expected (*, N, 3) points, got {tuple(points.shape)}.")
-    if rvec is not None:
-        if tvec is None:
-            raise ValueError("rvec given without tvec.")
-        points = transform_points_rt(points, rvec, tvec)
-    p = _kb_params(K, D).unsqueeze(-2)
-    r = points[..., :2].norm(dim=-1)
-    theta = torch.atan2(r, points[..., 2])
-    t2 = theta * theta
-    theta_d = theta * (1 + t2 * (p[..., 4] + t2 * (p[..., 5] + t2 * (p[..., 6] + t2 * p[..., 7]))))
-    scale = torch.where(r > 0, theta_d / torch.where(r > 0, r, torch.ones_like(r)), 1.0 / points[..., 2])
-    u = p[..., 0] * scale * points[..., 0] + p[..., 2]
-    v = p[..., 1] * scale * points[..., 1] + p[..., 3]
-    return torch.stack([u, v], -1)
-
-
-def kb_distort_points(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor) -> torch.Tensor:
-    """Normalized points on the ``z = 1`` plane to pixels (``cv2.fisheye.distortPoints`` of normalized points).
-
-    Kornia's ``distort_points_kannala_brandt`` (its ``k0..k3`` are ``cv2.fisheye``'s ``k1..k4``); points
-    :math:`(*, N, 2)`, K :math:`(*, 3, 3)`, D :math:`(*, 4)` -> :math:`(*, N, 2)` pixels.
-    """
-    return distort_points_kannala_brandt(points, _kb_params(K, D).unsqueeze(-2).expand(*points.shape[:-1], 8))
-
-
-def _kb_angles(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, num_iters: int):
-    """Pixels to (theta, unit direction in the image plane) by Newton on theta (start: theta_d)."""
-    p = _kb_params(K, D).unsqueeze(-2)
-    fx, fy, cx, cy = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-    skew = K[..., 0, 1, None]
-    b = (points[..., 1] - cy) / fy
-    a = (points[..., 0] - cx - skew * b) / fx
-    theta_d = (a * a + b * b).sqrt()
-    k1, k2, k3, k4 = p[..., 4], p[..., 5], p[..., 6], p[..., 7]
-    theta = theta_d
-    for _ in range(num_iters):
-        t2 = theta * theta
-        f = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - theta_d
-        df = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
-        theta = theta - f / torch.where(df.abs() > 1e-12, df, torch.full_like(df, 1e-12))
-    # the direction of the centre pixel itself is arbitrary: (1, 0)
-    off_centre = theta_d > 0
-    safe = torch.where(off_centre, theta_d, torch.ones_like(theta_d))
-    cos_phi = torch.where(off_centre, a / safe, torch.ones_like(a))
-    sin_phi = torch.where(off_centre, b / safe, torch.zeros_like(b))
-    return theta, cos_phi, sin_phi
-
-
-def kb_unproject_points(points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, num_iters: int = 20) -> torch.Tensor:
-    """Pixels to unit viewing rays, the inverse of :func:`kb_project_points` (valid beyond 90 degrees).
-
-    Args:
-        points: :math:`(*, N, 2)` pixels; K :math:`(*, 3, 3)`; D :math:`(*, 4)`; num_iters: Newton steps on theta.
-
-    Returns:
-        :math:`(*, N, 3)` unit rays ``(sin(theta) cos(phi), sin(theta) sin(phi), cos(theta))``.
-
-    Example:
-        >>> K = torch.tensor([[300., 0, 320], [0, 300, 240], [0, 0, 1]], dtype=torch.float64)
-        >>> ray = kb_unproject_points(torch.tensor([[791.2389, 240.0]], dtype=torch.float64), K, torch.zeros(4))
-        >>> bool((ray - torch.tensor([1.0, 0.0, 0.0])).abs().max() < 1e-6)  # 90 degrees
-        True
-    """
-    theta, ca, sa = _kb_angles(points, K, D, num_iters)
-    return torch.stack([theta.sin() * ca, theta.sin() * sa, theta.cos()], -1)
-
-
-def kb_undistort_points(
-    points: torch.Tensor, K: torch.Tensor, D: torch.Tensor, P: torch.Tensor | None = None, num_iters: int = 20
-) -> torch.Tensor:
-    """Pixels to normalized points ``tan(theta) (cos phi, sin phi)`` (``cv2.fisheye.undistortPoints``).
-
-    Args:
-        points: :math:`(*, N, 2)` pixels; K :math:`(*, 3, 3)`; D :math:`(*, 4)`; P: optional new camera matrix.
-
-    Returns:
-        :math:`(*, N, 2)`; only meaningful below 90 degrees (use :func:`kb_unproject_points` beyond).
-    """
-    theta, ca, sa = _kb_angles(points, K, D, num_iters)
-    t = theta.tan()
-    xy = torch.stack([t * ca, t * sa], -1)
-    if P is None:
-        return xy
-    x, y = xy.unbind(-1)
-    u = P[..., 0, 0, None] * x + P[..., 0, 1, None] * y + P[..., 0, 2, None]
-    v = P[..., 1, 1, None] * y + P[..., 1, 2, None]
-    return torch.stack([u, v], -1)
 
 
 # ----------------------------------------------------------------------------------------------
