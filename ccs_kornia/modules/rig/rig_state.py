@@ -36,10 +36,10 @@ class RigState:
         frame_t: :math:`(B, F, 3)` board translations.
 
     Example:
-        >>> from ccs_kornia.geometry.models import camera_model
+        >>> from ccs_kornia.geometry.models import PINHOLE
         >>> p = torch.tensor([[500.0, 500.0, 320.0, 240.0]])
         >>> T = torch.tensor([[[0.0, 0, 0], [-0.1, 0, 0]]])
-        >>> s = RigState([camera_model("none")] * 2, [p, p], torch.eye(3).expand(1, 2, 3, 3), T,
+        >>> s = RigState([PINHOLE] * 2, [p, p], torch.eye(3).expand(1, 2, 3, 3), T,
         ...              torch.eye(3).expand(1, 4, 3, 3), torch.zeros(1, 4, 3))
         >>> s.num_cameras, s.num_frames, s.repeat(3).T.shape, s.rig(0).params[1].shape
         (2, 4, torch.Size([3, 2, 3]), torch.Size([1, 4]))
@@ -67,7 +67,7 @@ class RigState:
         Example:
             >>> from ccs_kornia.geometry.models import camera_model
             >>> p = torch.tensor([[500.0, 500.0, 320.0, 240.0]])
-            >>> s = RigState([camera_model("none")] * 2, [p, p], torch.eye(3).expand(1, 2, 3, 3),
+            >>> s = RigState([PINHOLE] * 2, [p, p], torch.eye(3).expand(1, 2, 3, 3),
             ...              torch.tensor([[[0.0, 0, 0], [-0.1, 0, 0]]]), torch.eye(3).expand(1, 1, 3, 3),
             ...              torch.tensor([[[0.0, 0, 1]]]))
             >>> s.board_poses()[1][0, :, 0].tolist()
