@@ -47,6 +47,7 @@ __all__ = [
     "radial_distort_points",
     "radial_undistort_points",
     "radial_correct_points",
+    "radial_centre_scale",
     "fit_radial_correction",
     "axis_angle_to_rotation_matrix",
     "rotation_matrix_to_axis_angle",
@@ -180,14 +181,24 @@ def project_points(
 # ----------------------------------------------------------------------------------------------
 
 
-def _centre_scale(image_size: tuple[int, int], like: torch.Tensor) -> tuple[torch.Tensor, float]:
+def radial_centre_scale(image_size: tuple[int, int], like: torch.Tensor) -> tuple[torch.Tensor, float]:
+    """The frame of the paper's radial model on a ``(W, H)`` image: its centre ``((W-1)/2, (H-1)/2)`` in pixels, a
+    :math:`(2,)` tensor on ``like``'s device and dtype, and its unit of radius ``max(W, H)`` (so ``r <= ~0.71``).
+
+    The distortion, its inverse and the network's correction (here and in :mod:`ccs_kornia.modules.correction`) all
+    measure radii in this frame.
+
+    Example:
+        >>> radial_centre_scale((640, 480), torch.zeros(1))
+        (tensor([319.5000, 239.5000]), 640.0)
+    """
     w, h = image_size
     centre = torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], device=like.device, dtype=like.dtype)
     return centre, float(max(w, h))
 
 
 def _apply_radial_factor(points: torch.Tensor, image_size: tuple[int, int], factor_fn) -> torch.Tensor:
-    centre, scale = _centre_scale(image_size, points)
+    centre, scale = radial_centre_scale(image_size, points)
     q = (points - centre) / scale
     r = q.norm(dim=-1, keepdim=True)
     return q * factor_fn(r) * scale + centre
@@ -237,7 +248,7 @@ def radial_undistort_points(
     """
     if coeffs.shape[-1] != 3:
         raise ValueError(f"Radial distortion needs (B, 3) coefficients, got {tuple(coeffs.shape)}.")
-    centre, scale = _centre_scale(image_size, points)
+    centre, scale = radial_centre_scale(image_size, points)
     q = (points - centre) / scale
     rd = q.norm(dim=-1, keepdim=True)
     k = coeffs.unsqueeze(-2)

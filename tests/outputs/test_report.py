@@ -12,7 +12,7 @@ import torch
 from ccs_kornia.geometry.camera import Camera, board_object_points
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE, camera_model
 from ccs_kornia.outputs.report.calibration import DISPLAY_MAX_SIDE, write_report
-from ccs_kornia.outputs.report.figures import _undistorted_preview
+from ccs_kornia.outputs.report.figures import undistorted_preview
 from ccs_kornia.outputs.report.quality import distortion_field_plot
 
 BOARD = (6, 4)
@@ -128,14 +128,14 @@ def test_undistorted_preview_of_any_model_has_no_black_border(name):
     model, coeffs = LENSES[name]
     camera = Camera.from_opencv(model, torch.tensor(K, dtype=torch.float64), torch.tensor(coeffs), (320, 240))
     gray = np.full((240, 320), 0.5)
-    fig = _undistorted_preview(gray, camera, "flat.png")
+    fig = undistorted_preview(gray, camera, "flat.png")
     assert fig.shape == (240 + 30, 2 * 320 + 10, 3)
     view = fig[30:, 330:]  # the undistorted tile below its title
     assert int(view.min()) == int(view.max()) == 127  # balance 0: every pixel comes from the image
     # the board's outer rows: drawn on both tiles where corners are given
     obj = board_object_points(*BOARD, 0.03, dtype=torch.float64)
     corners = camera.project(obj[None] + torch.tensor([-0.08, -0.05, 0.35], dtype=torch.float64))[0].numpy()
-    drawn = _undistorted_preview(gray, camera, "flat.png", corners, BOARD)
+    drawn = undistorted_preview(gray, camera, "flat.png", corners, BOARD)
     assert (np.abs(drawn[30:, 330:].astype(int) - (0, 170, 0)).sum(-1) < 60).sum() > 20  # green corners
 
 

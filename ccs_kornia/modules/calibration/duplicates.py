@@ -8,10 +8,30 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["view_differences", "duplicate_views"]
+__all__ = ["batch_view_corners", "view_differences", "duplicate_views"]
 
 
-def _batch(corners: torch.Tensor, valid: torch.Tensor | None):
+def batch_view_corners(
+    corners: torch.Tensor, valid: torch.Tensor | None
+) -> tuple[torch.Tensor, torch.Tensor, bool]:
+    r"""The corners of a camera's views (or of several cameras') as a batch over cameras, checked, with their mask.
+
+    The view-pair measures (:func:`view_differences`, :func:`duplicate_views`,
+    :mod:`~ccs_kornia.modules.calibration.quality.degeneracy`) take one camera or a batch of them alike.
+
+    Args:
+        corners: :math:`(C, V, N, 2)` or :math:`(V, N, 2)` px.
+        valid: matching bool mask :math:`(C, V, N)` or :math:`(V, N)` (``None``: finite corners).
+
+    Returns:
+        corners :math:`(C, V, N, 2)`, valid :math:`(C, V, N)` bool (also False where a corner is not finite), and
+        whether the input had no camera dimension (``C = 1`` added).
+
+    Example:
+        >>> corners, valid, unbatched = batch_view_corners(torch.zeros(3, 4, 2), None)
+        >>> corners.shape, valid.shape, unbatched
+        (torch.Size([1, 3, 4, 2]), torch.Size([1, 3, 4]), True)
+    """
     if corners.dim() not in (3, 4) or corners.shape[-1] != 2:
         raise ValueError(f"corners must be (C, V, N, 2) or (V, N, 2), got {tuple(corners.shape)}.")
     if valid is None:
@@ -44,7 +64,7 @@ def view_differences(corners: torch.Tensor, valid: torch.Tensor | None = None, m
         >>> round(float(d[0, 2]), 3), bool(d[0, 1] > 1)
         (0.141, True)
     """
-    corners, valid, unbatched = _batch(corners, valid)
+    corners, valid, unbatched = batch_view_corners(corners, valid)
     C, V, N = valid.shape
     m = valid.to(torch.float64)
     # centred per camera (the sums below cancel less), zero where invalid
@@ -92,7 +112,7 @@ def duplicate_views(
         >>> duplicate_views(torch.stack([uv[0], uv[1], uv[0], uv[0] + 0.01])).tolist()
         [-1, -1, 0, 0]
     """
-    corners, valid, unbatched = _batch(corners, valid)
+    corners, valid, unbatched = batch_view_corners(corners, valid)
     C, V, _ = valid.shape
     if view_mask is None:
         view_mask = valid.sum(-1) >= 4

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
+from ccs_kornia.geometry.camera import radial_centre_scale
 from ccs_kornia.runtime.checks import check_points
-from ccs_kornia.modules.correction.radial_warp import _centre_scale
 
 __all__ = ["fit_correction_to_points"]
 
@@ -42,7 +42,7 @@ def fit_correction_to_points(
     check_points(distorted)
     if ideal.shape != distorted.shape:
         raise ValueError(f"ideal must match distorted {tuple(distorted.shape)}, got {tuple(ideal.shape)}.")
-    centre, scale = _centre_scale(image_size, distorted)
+    centre, scale = radial_centre_scale(image_size, distorted)
     d = distorted - centre
     r = d.norm(dim=-1) / scale  # (B, N)
     powers = torch.stack([r**j for j in range(5)], -1)  # (B, N, 5)

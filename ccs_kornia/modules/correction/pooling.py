@@ -12,8 +12,8 @@ import math
 
 import torch
 
+from ccs_kornia.modules.correction.radial_warp import corrected_radius_and_slope
 from ccs_kornia.runtime.checks import check_correction
-from ccs_kornia.modules.correction.radial_warp import _radial_map
 
 __all__ = ["aggregate_corrections", "correction_displacement", "correction_is_large", "pool_corrections"]
 
@@ -33,7 +33,7 @@ def correction_displacement(correction: torch.Tensor, image_size: tuple[int, int
     scale = float(max(w, h))
     r_corner = 0.5 * ((w - 1) ** 2 + (h - 1) ** 2) ** 0.5 / scale
     r = torch.linspace(0.0, r_corner, samples, device=correction.device, dtype=correction.dtype)
-    g, _ = _radial_map(r.unsqueeze(0), correction.unsqueeze(1))
+    g, _ = corrected_radius_and_slope(r.unsqueeze(0), correction.unsqueeze(1))
     return ((g - r) * scale).abs().amax(-1)
 
 
@@ -71,7 +71,7 @@ def aggregate_corrections(
     w, h = int(image_size[0]), int(image_size[1])
     r_corner = 0.5 * ((w - 1) ** 2 + (h - 1) ** 2) ** 0.5 / float(max(w, h))
     r = torch.linspace(0.0, r_corner, samples, device=corrections.device, dtype=dt)
-    g, _ = _radial_map(r.view(1, 1, -1), corrections.to(dt).unsqueeze(2))  # (C, V, S)
+    g, _ = corrected_radius_and_slope(r.view(1, 1, -1), corrections.to(dt).unsqueeze(2))  # (C, V, S)
     g = torch.where(mask.unsqueeze(-1), g, torch.full_like(g, float("nan")))
     med = g.nanmedian(1).values  # (C, S)
     A = torch.stack([r ** p for p in range(1, 6)], -1)  # (S, 5): g(r) = sum_p c_p r^p

@@ -32,6 +32,7 @@ from ccs_kornia.runtime.checks import check_correction, check_points
 __all__ = [
     "correct_points",
     "corrected_radius",
+    "corrected_radius_and_slope",
     "correction_zoom",
     "distort_points_from_correction",
     "invert_correction_radius",
@@ -40,14 +41,22 @@ __all__ = [
 ]
 
 
-def _centre_scale(image_size: tuple[int, int], like: torch.Tensor) -> tuple[torch.Tensor, float]:
-    w, h = int(image_size[0]), int(image_size[1])
-    centre = torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], device=like.device, dtype=like.dtype)
-    return centre, float(max(w, h))
+def corrected_radius_and_slope(r: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The correction's radial map ``g(r) = r * poly4(r)`` and its slope ``g'(r)`` (Horner): what Newton's method
+    inverts (:func:`invert_correction_radius`) and what pooling samples along the radius
+    (:mod:`~ccs_kornia.modules.correction.pooling`).
 
+    Args:
+        r: radii (units of ``max(W, H)``), any shape :math:`(...)`.
+        c: correction coefficients :math:`(..., 5)`, broadcasting against ``r[..., None]``.
 
-def _radial_map(r: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``g(r) = r * poly4(r)`` and ``g'(r)`` (Horner), ``c`` broadcasting as ``(..., 5)`` against ``r[..., None]``."""
+    Returns:
+        ``g`` and ``g'``, both of the broadcast shape of ``r``.
+
+    Example:
+        >>> corrected_radius_and_slope(torch.tensor([0.5]), torch.tensor([1.0, 0.0, 0.2, 0.0, 0.0]))
+        (tensor([0.5250]), tensor([1.1500]))
+    """
     c0, c1, c2, c3, c4 = c.unbind(-1)
     g = r * (c0 + r * (c1 + r * (c2 + r * (c3 + r * c4))))
     dg = c0 + r * (2 * c1 + r * (3 * c2 + r * (4 * c3 + r * 5 * c4)))
@@ -78,12 +87,12 @@ def invert_correction_radius(
         cd = c.detach()
         r = rc0 / cd[..., 0].clamp_min(1e-3)
         for _ in range(num_iters):
-            g, dg = _radial_map(r, cd)
+            g, dg = corrected_radius_and_slope(r, cd)
             r = (r - (g - rc0) / dg.clamp_min(1e-3)).clamp(0.0, 4.0)
-        g, dg = _radial_map(r, cd)
+        g, dg = corrected_radius_and_slope(r, cd)
         valid = ((g - rc0).abs() < tol) & (dg > 1e-3) & torch.isfinite(r)
     # one differentiable Newton step from the (detached) root: the implicit-function gradient
-    g, dg = _radial_map(r, c)
+    g, dg = corrected_radius_and_slope(r, c)
     dg_safe = torch.where(valid, dg, torch.ones_like(dg))
     r_out = r - torch.where(valid, g - r_corrected, torch.zeros_like(g)) / dg_safe
     return r_out, valid
@@ -112,7 +121,7 @@ def correct_points(
     check_correction(correction, points.shape[0])
     out = camera.radial_correct_points(points, correction, image_size)
     if zoom != 1.0:
-        centre, _ = _centre_scale(image_size, out)
+        centre, _ = camera.radial_centre_scale(image_size, out)
         out = (out - centre) * zoom + centre
     return out
 
@@ -150,7 +159,7 @@ def distort_points_from_correction(
     check_correction(correction, points.shape[0])
     if zoom <= 0:
         raise ValueError(f"zoom must be positive, got {zoom}.")
-    centre, scale = _centre_scale(image_size, points)
+    centre, scale = camera.radial_centre_scale(image_size, points)
     q = (points - centre) / (scale * zoom)
     rc = q.norm(dim=-1)
     rd, valid = invert_correction_radius(rc, correction.to(points.dtype), num_iters=num_iters)
@@ -175,7 +184,7 @@ def _pixel_sources(h: int, w: int, correction: torch.Tensor, zoom: float, num_it
     same radius to the bit (their offsets from the centre differ in sign only), so the top-left quadrant's inverse
     radii serve all four (the same values, in less than half the time: ``docs/measurements.md``)."""
     pts = create_meshgrid(h, w, normalized_coordinates=False, device=device, dtype=dtype).reshape(1, h * w, 2)
-    centre, scale = _centre_scale((w, h), pts)
+    centre, scale = camera.radial_centre_scale((w, h), pts)
     q = (pts - centre) / (scale * zoom)
     rc = q.norm(dim=-1)  # (1, h w)
     hq, wq = (h + 1) // 2, (w + 1) // 2
@@ -289,7 +298,7 @@ def corrected_radius(radius: torch.Tensor, correction: torch.Tensor) -> torch.Te
         >>> corrected_radius(torch.tensor([[0.5]]), torch.tensor([[1.0, 0.0, 0.2, 0.0, 0.0]]))
         tensor([[0.5250]])
     """
-    return _radial_map(radius, correction.unsqueeze(-2))[0]
+    return corrected_radius_and_slope(radius, correction.unsqueeze(-2))[0]
 
 
 def correction_zoom(correction: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:

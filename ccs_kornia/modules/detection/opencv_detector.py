@@ -33,9 +33,11 @@ from ccs_kornia.modules.detection.checks.board_checks import (
     check_saddles,
 )
 
-__all__ = ["OpenCVChessboardDetector"]
+__all__ = ["CLASSIC_FLAGS", "OpenCVChessboardDetector"]
 
-_CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+#: the flags of OpenCV's classic ``findChessboardCorners``, wherever this package runs it (the baseline detector and
+#: the learned detector's candidates)
+CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 _SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
 
@@ -109,7 +111,7 @@ class OpenCVChessboardDetector(ChessboardDetector):
         if min(h, w) < 3 * (min(board_size) + 1) or max(h, w) < 3 * (max(board_size) + 1):
             return None, f"image {w}x{h} too small for a {board_size[0]}x{board_size[1]} board"
         try:
-            ok, corners = cv2.findChessboardCorners(gray8, board_size, flags=_CLASSIC_FLAGS)
+            ok, corners = cv2.findChessboardCorners(gray8, board_size, flags=CLASSIC_FLAGS)
         except cv2.error as err:  # never an exception for one odd image: it is reported as not found
             return None, f"OpenCV failed on this image ({str(err).strip().splitlines()[-1][:120]})"
         if ok and corners is not None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.modules.undistort.valid_field import _check_camera
+from ccs_kornia.modules.undistort.valid_field import check_camera
 
 __all__ = ["fisheye_new_camera_matrix"]
 
@@ -40,7 +40,7 @@ def fisheye_new_camera_matrix(
         >>> [round(P[0, i, j].item(), 2) for i, j in ((0, 0), (1, 1), (0, 2), (1, 2))]  # as cv2 (D = 0 is no pinhole)
         [233.16, 233.16, 318.92, 239.27]
     """
-    _check_camera(camera)
+    check_camera(camera)
     if not all(m.is_fisheye for m in camera.models):
         raise ValueError(f"fisheye_new_camera_matrix is cv2.fisheye's: it takes fisheye cameras, got {camera!r}.")
     if not 0.0 <= balance <= 1.0:

@@ -15,7 +15,7 @@ from kornia.geometry.grid import create_meshgrid
 from kornia.geometry.transform import remap
 
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.modules.undistort.valid_field import _check_camera
+from ccs_kornia.modules.undistort.valid_field import check_camera
 
 __all__ = ["UndistortImage", "undistort_image", "undistortion_map"]
 
@@ -24,7 +24,7 @@ _NO_SOURCE = -2.0
 
 
 def _check_view(camera: Camera, new_K: torch.Tensor | None, max_radius: torch.Tensor | None) -> None:
-    _check_camera(camera)
+    check_camera(camera)
     c = len(camera)
     if new_K is not None and (not isinstance(new_K, torch.Tensor) or new_K.shape != (c, 3, 3)):
         raise ValueError(f"new_K must be ({c}, 3, 3) for {c} camera(s), got {tuple(getattr(new_K, 'shape', ()))}.")

@@ -16,14 +16,23 @@ import torch
 
 from ccs_kornia.geometry.camera import Camera
 
-__all__ = ["MAX_VIEW_ANGLE_DEG", "valid_radius"]
+__all__ = ["MAX_VIEW_ANGLE_DEG", "check_camera", "valid_radius"]
 
 #: The widest angle from the axis a pinhole view is asked to show: at 90 degrees its image plane is infinite, and
 #: near it a few degrees of field take most of the pixels. Models valid beyond it (lenses over 160 degrees) are cut.
 MAX_VIEW_ANGLE_DEG = 80.0
 
 
-def _check_camera(camera: Camera) -> None:
+def check_camera(camera: Camera) -> None:
+    """Raise ``TypeError`` unless ``camera`` is a :class:`~ccs_kornia.geometry.camera.Camera`: the undistortion
+    functions take the camera value only (no ``K`` and coefficients apart), and say so at their boundary.
+
+    Example:
+        >>> check_camera("K.yaml")
+        Traceback (most recent call last):
+        ...
+        TypeError: camera must be a ccs_kornia.geometry.camera.Camera, got str.
+    """
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a ccs_kornia.geometry.camera.Camera, got {type(camera).__name__}.")
 
@@ -56,7 +65,7 @@ def valid_radius(camera: Camera, points: torch.Tensor | None = None) -> torch.Te
         >>> round(valid_radius(fish, corner).item(), 12)
         0.5
     """
-    _check_camera(camera)
+    check_camera(camera)
     cam = camera.to(dtype=torch.float64)
     max_angle = math.radians(MAX_VIEW_ANGLE_DEG)
     radius = cam.params.new_empty(len(cam))

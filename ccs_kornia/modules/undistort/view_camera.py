@@ -26,7 +26,7 @@ import math
 import torch
 
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.modules.undistort.valid_field import _check_camera, valid_radius
+from ccs_kornia.modules.undistort.valid_field import check_camera, valid_radius
 
 __all__ = ["horizontal_fov", "valid_region_radii", "view_camera_matrix"]
 
@@ -59,7 +59,7 @@ def valid_region_radii(
         >>> valid_region_radii(Camera.from_opencv(PINHOLE, K), torch.tensor([5.0]), (100, 80), dirs)
         tensor([[0.4950, 0.3950]], dtype=torch.float64)
     """
-    _check_camera(camera)
+    check_camera(camera)
     if directions.dim() != 3 or directions.shape[-1] != 2:
         raise ValueError(f"directions must be (B, P, 2), got {tuple(directions.shape)}.")
     if directions.shape[0] != len(camera) or max_radius.shape != (len(camera),):
@@ -141,7 +141,7 @@ def view_camera_matrix(
         >>> round(P0[0, 0, 0].item(), 1), round(P1[0, 0, 0].item(), 1)  # getOptimalNewCameraMatrix: 476.3, 433.1
         (476.3, 433.1)
     """
-    _check_camera(camera)
+    check_camera(camera)
     camera = camera.to(dtype=torch.float64)
     if max_radius is None:
         max_radius = valid_radius(camera)

@@ -37,15 +37,14 @@ import torch
 from ccs_kornia.geometry.camera import Camera, board_object_points
 from ccs_kornia.io.images import load_image_gray
 from ccs_kornia.outputs.calibration_file import camera_from_record
+from ccs_kornia.outputs.report.drawing import format_number, nice_number, write_png
 from ccs_kornia.outputs.report.figures import (
     DISPLAY_MAX_SIDE,
-    _coverage_plot,
-    _nice_number,
-    _overlay,
-    _residual_plot,
-    _rms_chart,
-    _undistorted_preview,
-    write_png,
+    coverage_plot,
+    residual_plot,
+    rms_chart,
+    undistorted_preview,
+    view_overlay,
 )
 from ccs_kornia.outputs.report.quality import (
     distortion_field_plot,
@@ -60,10 +59,6 @@ __all__ = ["write_report", "DISPLAY_MAX_SIDE", "MANIFEST"]
 MANIFEST = ".ccs_report_files"
 
 _DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
-
-
-def _fmt(value: float | None, digits: int = 4) -> str:
-    return "-" if value is None or value != value else f"{value:.{digits}f}"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -167,7 +162,7 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
                                for d in detected_used])) if detected_used else 30.0
     p95 = float(np.percentile(res_len, 95)) if res_len.size else 0.0
     # the typical large residual is drawn about a third of a square long
-    gain = _nice_number(0.35 * spacing / p95) if p95 > 0 else 20.0
+    gain = nice_number(0.35 * spacing / p95) if p95 > 0 else 20.0
     gain = float(np.clip(gain, 1.0, 10000.0))
 
     overlay_names: dict[int, str] = {}
@@ -183,11 +178,12 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
         found = view.get("found") and view.get("corners") is not None
         detected = np.asarray(view["corners"] if found else np.zeros((0, 2)), dtype=np.float64)
         base = os.path.basename(view["path"])
-        status = f"used, RMS {_fmt(view.get('rms'))} px" if view.get("used") else f"not used: {view.get('reason', '')}"
+        status = (f"used, RMS {format_number(view.get('rms'))} px" if view.get("used")
+                  else f"not used: {view.get('reason', '')}")
         if not found:
             status = f"no board: {view.get('reason', 'not found')}"
         title = f"view {index}: {base} - {status}"
-        vis = _overlay(gray, detected, projected.get(index), gain, title)
+        vis = view_overlay(gray, detected, projected.get(index), gain, title)
         stem = os.path.splitext(base)[0]
         name = f"view_{index:04d}_{stem}.png"
         if write_png(os.path.join(views_dir, name), vis, written):
@@ -197,19 +193,19 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
 
     figures: list[tuple[str, str, str]] = []
     if views:
-        if write_png(os.path.join(directory, "rms_per_view.png"), _rms_chart(views, data.get("rms")), written):
+        if write_png(os.path.join(directory, "rms_per_view.png"), rms_chart(views, data.get("rms")), written):
             figures.append(("rms_per_view.png", "Per-view RMS",
                             "Bars: RMS reprojection error of each view under the final camera. Orange views were "
                             "excluded (RANSAC or outlier check); a view far above the dashed line deserves a look."))
     if residuals:
-        fig = _residual_plot(size, np.concatenate(detected_used), np.concatenate(residuals))
+        fig = residual_plot(size, np.concatenate(detected_used), np.concatenate(residuals))
         if write_png(os.path.join(directory, "residuals.png"), fig, written):
             figures.append(("residuals.png", "Residual vectors",
                             "Each arrow starts at a detected corner and points to its reprojection, magnified. "
                             "Random directions are noise; a pattern (e.g. radial at the borders) is model error."))
     coverage = None
     if detected_used:
-        fig, coverage = _coverage_plot(size, detected_used, (cols, rows))
+        fig, coverage = coverage_plot(size, detected_used, (cols, rows))
         if write_png(os.path.join(directory, "coverage.png"), fig, written):
             figures.append(("coverage.png", "Coverage",
                             "Corners per image cell over the used views. Distortion is only constrained where "
@@ -217,7 +213,7 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     if first_used is not None:
         base, gray, detected = first_used
         seen = np.concatenate(detected_used) if detected_used else None
-        preview = _undistorted_preview(gray, camera, base, detected, (cols, rows), seen)
+        preview = undistorted_preview(gray, camera, base, detected, (cols, rows), seen)
         if write_png(os.path.join(directory, "undistorted.png"), preview, written):
             figures.append(("undistorted.png", "Undistorted preview",
                             "A used view and the same view undistorted with the calibration, as 'undistort "
@@ -265,14 +261,15 @@ def _write_html(path: str, data: dict[str, Any], camera: Camera, figures: list[t
         f"<b>{esc(str(data['distortion']['model']))}</b>, device {esc(str(data.get('device', '?')))}</li>",
         f"<li>views: {n.get('files', '?')} files, board found in {n.get('found', '?')}, "
         f"{n.get('usable', '?')} usable, <b>{n.get('used', '?')} used</b></li>",
-        f"<li>RMS reprojection error <b>{_fmt(data['rms'])} px</b> ({esc(data.get('rms_kind', ''))})</li>",
+        f"<li>RMS reprojection error <b>{format_number(data['rms'])} px</b> ({esc(data.get('rms_kind', ''))})</li>",
     ]
     if coverage is not None:
         parts.append(f"<li>image coverage: {100 * coverage:.0f}% of the cells hold a detected corner</li>")
     parts += ["</ul>", *quality_html(data.get("diagnostics")), "<h2>Parameters</h2>", "<table><tr><th>parameter</th><th>value</th><th>std (1 sigma)</th></tr>"]
     for name, value, std in _parameter_rows(data, camera):
         digits = 3 if name in ("fx", "fy", "cx", "cy") else 6
-        parts.append(f"<tr><td class='l'>{name}</td><td>{_fmt(value, digits)}</td><td>&plusmn; {_fmt(std, digits)}</td></tr>")
+        parts.append(f"<tr><td class='l'>{name}</td><td>{format_number(value, digits)}</td>"
+                     f"<td>&plusmn; {format_number(std, digits)}</td></tr>")
     parts.append("</table><p>Standard deviations from the Gauss-Newton covariance at the solution, scaled by the "
                  "residual variance (as OpenCV's <code>stdDeviationsIntrinsics</code>).</p>")
     for file, title, caption in figures:
@@ -288,7 +285,7 @@ def _write_html(path: str, data: dict[str, Any], camera: Camera, figures: list[t
         rms = view.get("rms") if view.get("used") else view.get("rms_if_used")
         parts.append(
             f"<tr{cls}><td>{index}</td><td class='l'>{esc(os.path.basename(view['path']))}</td>"
-            f"<td>{'yes' if view.get('used') else 'no'}</td><td>{_fmt(rms)}</td>"
+            f"<td>{'yes' if view.get('used') else 'no'}</td><td>{format_number(rms)}</td>"
             f"<td class='l'>{esc(view.get('reason', ''))}</td><td>{link}</td></tr>"
         )
     parts += ["</table></body></html>"]
@@ -306,19 +303,19 @@ def _write_markdown(path: str, data: dict[str, Any], camera: Camera, gain: float
         f"- board: {cols} x {rows} inner corners, square {data['square']}",
         f"- detector: {data.get('detector', '?')}, model: {data['distortion']['model']}",
         f"- views: {data.get('num_views', {})}",
-        f"- RMS reprojection error: {_fmt(data['rms'])} px ({data.get('rms_kind', '')})",
+        f"- RMS reprojection error: {format_number(data['rms'])} px ({data.get('rms_kind', '')})",
         "",
         "| parameter | value | std |",
         "|---|---|---|",
     ]
     for name, value, std in _parameter_rows(data, camera):
         digits = 3 if name in ("fx", "fy", "cx", "cy") else 6
-        lines.append(f"| {name} | {_fmt(value, digits)} | {_fmt(std, digits)} |")
+        lines.append(f"| {name} | {format_number(value, digits)} | {format_number(std, digits)} |")
     lines += quality_markdown(data.get("diagnostics"))
     lines += ["", "| view | used | RMS px | note |", "|---|---|---|---|"]
     for view in data["views"]:
         lines.append(f"| {os.path.basename(view['path'])} | {'yes' if view.get('used') else 'no'} | "
-                     f"{_fmt(view.get('rms'))} | {view.get('reason', '')} |")
+                     f"{format_number(view.get('rms'))} | {view.get('reason', '')} |")
     lines += ["", f"Overlays (views/): green circles = detected corners, red crosses = reprojected corners, "
                   f"yellow = residual x{gain:g}, blue ring = first corner (order convention). See index.html."]
     with open(path, "w", encoding="utf-8") as handle:

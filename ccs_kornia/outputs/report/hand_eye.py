@@ -1,5 +1,5 @@
 """The report of ``calibrate-hand-eye --report DIR``, drawn with OpenCV only (the plotting primitives of
-:mod:`ccs_kornia.outputs.report.figures`): per pose, the board predicted from the robot's pose alone over the image;
+:mod:`ccs_kornia.outputs.report.drawing`): per pose, the board predicted from the robot's pose alone over the image;
 the residuals by pose (the fit's and the held-out prediction's); the camera and the board in the robot's frame.
 """
 
@@ -13,19 +13,19 @@ import cv2
 import numpy as np
 
 from ccs_kornia.io.images import read_image
-from ccs_kornia.outputs.report.figures import (
-    _BLACK,
-    _BLUE,
-    _GREEN,
-    _GREY,
-    _ORANGE,
-    _RED,
-    _YELLOW,
-    _axis_max,
-    _legend,
-    _plot_frame,
-    _text,
-    _ticks,
+from ccs_kornia.outputs.report.drawing import (
+    BLACK,
+    BLUE,
+    GREEN,
+    GREY,
+    ORANGE,
+    RED,
+    YELLOW,
+    axis_max,
+    draw_legend,
+    draw_plot_frame,
+    draw_text,
+    nice_ticks,
     write_png,
 )
 
@@ -48,16 +48,16 @@ def pose_figure(gray: np.ndarray, view: dict[str, Any], title: str) -> np.ndarra
     if predicted is not None:
         for d, p in zip(observed, np.array(predicted, dtype=np.float64)):
             if np.isfinite(d).all() and np.isfinite(p).all():
-                cv2.line(vis, tuple(int(round(x)) for x in d), tuple(int(round(x)) for x in p), _YELLOW, 1, cv2.LINE_AA)
-                cv2.drawMarker(vis, tuple(int(round(x)) for x in p), _RED, cv2.MARKER_CROSS, 2 * radius + 2, 2)
+                cv2.line(vis, tuple(int(round(x)) for x in d), tuple(int(round(x)) for x in p), YELLOW, 1, cv2.LINE_AA)
+                cv2.drawMarker(vis, tuple(int(round(x)) for x in p), RED, cv2.MARKER_CROSS, 2 * radius + 2, 2)
     for d in observed[np.isfinite(observed).all(-1)]:
-        cv2.circle(vis, tuple(int(round(x)) for x in d), radius, _GREEN, 1, cv2.LINE_AA)
+        cv2.circle(vis, tuple(int(round(x)) for x in d), radius, GREEN, 1, cv2.LINE_AA)
     header = np.full((30, vis.shape[1], 3), 255, np.uint8)
-    _text(header, title, (6, 20), 0.5)
+    draw_text(header, title, (6, 20), 0.5)
     out = np.vstack([header, vis])
     if out.shape[1] >= 320:
-        _legend(out, [("circle", _GREEN, "observed corner"), ("cross", _RED, "predicted from the robot alone")],
-                (out.shape[1] - 6, 36))
+        draw_legend(out, [("circle", GREEN, "observed corner"), ("cross", RED, "predicted from the robot alone")],
+                    (out.shape[1] - 6, 36))
     return out
 
 
@@ -67,16 +67,16 @@ def residuals_figure(views: list[dict[str, Any]], labels: list[str]) -> np.ndarr
     fit = [v.get("rms_px") for v in views]
     held = [v.get("heldout_px") for v in views]
     finite = [x for x in fit + held if x is not None]
-    vmax = _axis_max(max(finite) if finite else 1.0)
+    vmax = axis_max(max(finite) if finite else 1.0)
     width = int(np.clip(140 + 40 * n, 640, 1600))
     img = np.full((420, width, 3), 255, np.uint8)
     box = (80, 50, width - 110, 300)
     x0, y0, w, h = box
-    _text(img, "Residuals by pose: the fit's RMS and the held-out prediction's (px)", (x0, 30), 0.55)
-    _plot_frame(img, box, (-0.5, n - 0.5), (0.0, vmax), "pose", "px", xticks=[float(k) for k in range(n)])
+    draw_text(img, "Residuals by pose: the fit's RMS and the held-out prediction's (px)", (x0, 30), 0.55)
+    draw_plot_frame(img, box, (-0.5, n - 0.5), (0.0, vmax), "pose", "px", xticks=[float(k) for k in range(n)])
     slot = w / max(n, 1)
     for k in range(n):
-        for j, (val, colour) in enumerate(((fit[k], _BLUE), (held[k], _ORANGE))):
+        for j, (val, colour) in enumerate(((fit[k], BLUE), (held[k], ORANGE))):
             if val is None:
                 continue
             a = int(round(x0 + k * slot + (0.12 + 0.38 * j) * slot))
@@ -85,8 +85,8 @@ def residuals_figure(views: list[dict[str, Any]], labels: list[str]) -> np.ndarr
             cv2.rectangle(img, (a, top), (b, y0 + h - 1), colour, -1)
     for k, label in enumerate(labels):
         if slot >= 30 or k % max(1, int(30 // max(slot, 1))) == 0:
-            _text(img, label[:12], (int(x0 + (k + 0.5) * slot), y0 + h + 40), 0.35, anchor="centre")
-    _legend(img, [("bar", _BLUE, "fit RMS"), ("bar", _ORANGE, "held-out prediction RMS")], (width - 10, y0))
+            draw_text(img, label[:12], (int(x0 + (k + 0.5) * slot), y0 + h + 40), 0.35, anchor="centre")
+    draw_legend(img, [("bar", BLUE, "fit RMS"), ("bar", ORANGE, "held-out prediction RMS")], (width - 10, y0))
     return img
 
 
@@ -115,7 +115,7 @@ def robot_frame_figure(data: dict[str, Any], size: int = 520) -> np.ndarray:
         xr, yr = (ci - span / 2, ci + span / 2), (cj - span / 2, cj + span / 2)
         img = np.full((size + 90, size + 100, 3), 255, np.uint8)
         box = (80, 30, size, size)
-        _plot_frame(img, box, xr, yr, xl, yl, grid=True, xticks=_ticks(*xr, 5))
+        draw_plot_frame(img, box, xr, yr, xl, yl, grid=True, xticks=nice_ticks(*xr, 5))
 
         def px(p, xr=xr, yr=yr, box=box, i=i, j=j):
             u = box[0] + (p[i] - xr[0]) / (xr[1] - xr[0]) * box[2]
@@ -123,18 +123,18 @@ def robot_frame_figure(data: dict[str, Any], size: int = 520) -> np.ndarray:
             return int(round(u)), int(round(v))
 
         for b in board_pts:
-            cv2.polylines(img, [np.array([px(p) for p in b], np.int32)], True, _GREEN, 1, cv2.LINE_AA)
+            cv2.polylines(img, [np.array([px(p) for p in b], np.int32)], True, GREEN, 1, cv2.LINE_AA)
         for p in flange:
-            cv2.circle(img, px(p), 3, _GREY, -1, cv2.LINE_AA)
+            cv2.circle(img, px(p), 3, GREY, -1, cv2.LINE_AA)
         for c in cams:
             tip = c[:3, 3] + c[:3, 2] * 0.08 * span
-            cv2.arrowedLine(img, px(c[:3, 3]), px(tip), _RED, 2, cv2.LINE_AA, tipLength=0.3)
-        cv2.drawMarker(img, px(np.zeros(3)), _BLACK, cv2.MARKER_SQUARE, 10, 2)
+            cv2.arrowedLine(img, px(c[:3, 3]), px(tip), RED, 2, cv2.LINE_AA, tipLength=0.3)
+        cv2.drawMarker(img, px(np.zeros(3)), BLACK, cv2.MARKER_SQUARE, 10, 2)
         panels.append(img)
     out = np.hstack(panels)
     header = np.full((34, out.shape[1], 3), 255, np.uint8)
-    _text(header, "The robot's base (square), the flange at each pose (grey), the camera (red: its optical axis) and "
-                  "the board (green)", (8, 22), 0.5)
+    draw_text(header, "The robot's base (square), the flange at each pose (grey), the camera (red: its optical axis) "
+              "and the board (green)", (8, 22), 0.5)
     return np.vstack([header, out])
 
 

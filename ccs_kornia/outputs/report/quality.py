@@ -11,15 +11,14 @@ import numpy as np
 import torch
 
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.outputs.report.figures import (
-    _AA,
-    _BLACK,
-    _colour_bar,
-    _fmt,
-    _image_canvas,
-    _plot_frame,
-    _pt,
-    _text,
+from ccs_kornia.outputs.report.drawing import (
+    BLACK,
+    draw_colour_bar,
+    draw_plot_frame,
+    draw_text,
+    format_number,
+    image_canvas,
+    int_point,
 )
 
 __all__ = ["QUALITY_ROWS", "distortion_field_plot", "quality_html", "quality_markdown", "uncertainty_plot"]
@@ -48,7 +47,7 @@ def quality_html(quality: dict[str, Any] | None) -> list[str]:
         parts.append(f"<p class='l'>{esc(issue['severity'])}: {esc(issue['message'])}</p>")
     parts.append("<table><tr><th>figure</th><th>px</th><th class='l'>meaning</th></tr>")
     for label, key, meaning in QUALITY_ROWS:
-        parts.append(f"<tr><td class='l'>{esc(label)}</td><td>{_fmt(quality.get(key), 3)}</td>"
+        parts.append(f"<tr><td class='l'>{esc(label)}</td><td>{format_number(quality.get(key), 3)}</td>"
                      f"<td class='l'>{esc(meaning)}</td></tr>")
     parts.append("</table><p>See docs/diagnostics.md for how each figure is computed and the verdict's thresholds.</p>")
     return parts
@@ -61,12 +60,12 @@ def quality_markdown(quality: dict[str, Any] | None) -> list[str]:
     lines = ["", "## Is this calibration good?", "", f"Verdict: **{quality.get('verdict')}**", ""]
     lines += [f"- {r}" for r in quality.get("reasons", [])]
     lines += ["", "| figure | px |", "|---|---|"]
-    lines += [f"| {label} | {_fmt(quality.get(key), 3)} |" for label, key, _ in QUALITY_ROWS]
+    lines += [f"| {label} | {format_number(quality.get(key), 3)} |" for label, key, _ in QUALITY_ROWS]
     return lines
 
 
 def _field_canvas(size: tuple[int, int], title: str):
-    fig, box, scale = _image_canvas(size, title, 150)
+    fig, box, scale = image_canvas(size, title, 150)
     x0, y0, w, h = box
     cv2.rectangle(fig, (x0, y0), (x0 + w, y0 + h), (245, 245, 245), -1)
     return fig, box, scale
@@ -102,12 +101,12 @@ def distortion_field_plot(camera: Camera, cells: int = 16) -> np.ndarray:
         end = start + gain * d[k] * scale
         colour = tuple(int(c) for c in colours[k])
         if np.linalg.norm(end - start) >= 2:
-            cv2.arrowedLine(fig, _pt(start), _pt(end), colour, 1, _AA, tipLength=0.25)
+            cv2.arrowedLine(fig, int_point(start), int_point(end), colour, 1, cv2.LINE_AA, tipLength=0.25)
         else:
-            cv2.circle(fig, _pt(start), 1, colour, -1)
-    _plot_frame(fig, box, (0.0, float(w_img)), (0.0, float(h_img)), "x (px)", "y (px)", y_down=True, grid=False)
-    _text(fig, f"arrows x{gain:.3g}", (x0 + 8, y0 + h - 10), 0.45, _BLACK)
-    _colour_bar(fig, (x0 + w + 20, y0, 18, h), vmax, "displacement (px)")
+            cv2.circle(fig, int_point(start), 1, colour, -1)
+    draw_plot_frame(fig, box, (0.0, float(w_img)), (0.0, float(h_img)), "x (px)", "y (px)", y_down=True, grid=False)
+    draw_text(fig, f"arrows x{gain:.3g}", (x0 + 8, y0 + h - 10), 0.45, BLACK)
+    draw_colour_bar(fig, (x0 + w + 20, y0, 18, h), vmax, "displacement (px)")
     return fig
 
 
@@ -123,6 +122,6 @@ def uncertainty_plot(size: tuple[int, int], grid_px: list[list[float | None]]) -
                                cv2.COLORMAP_VIRIDIS)
     colour[~finite] = (200, 200, 200)
     fig[y0:y0 + h, x0:x0 + w] = cv2.resize(colour, (w, h), interpolation=cv2.INTER_LINEAR)
-    _plot_frame(fig, box, (0.0, float(size[0])), (0.0, float(size[1])), "x (px)", "y (px)", y_down=True, grid=False)
-    _colour_bar(fig, (x0 + w + 20, y0, 18, h), vmax, "uncertainty (px)")
+    draw_plot_frame(fig, box, (0.0, float(size[0])), (0.0, float(size[1])), "x (px)", "y (px)", y_down=True, grid=False)
+    draw_colour_bar(fig, (x0 + w + 20, y0, 18, h), vmax, "uncertainty (px)")
     return fig

@@ -1,6 +1,6 @@
 """The report of ``calibrate-rig --report DIR``, drawn with OpenCV only (the plotting primitives of
-:mod:`ccs_kornia.outputs.report.figures`): the error per camera and frame, a rectified pair with horizontal lines (a point
-and its match lie on the same row when the rig is right), and the cameras and board poses seen from above.
+:mod:`ccs_kornia.outputs.report.drawing`): the error per camera and frame, a rectified pair with horizontal lines (a
+point and its match lie on the same row when the rig is right), and the cameras and board poses seen from above.
 """
 
 from __future__ import annotations
@@ -13,15 +13,15 @@ import cv2
 import numpy as np
 
 from ccs_kornia.io.images import read_image
-from ccs_kornia.outputs.report.figures import (
-    _BLACK,
-    _BLUE,
-    _GREY,
-    _RED,
-    _colour_bar,
-    _plot_frame,
-    _text,
-    _ticks,
+from ccs_kornia.outputs.report.drawing import (
+    BLACK,
+    BLUE,
+    GREY,
+    RED,
+    draw_colour_bar,
+    draw_plot_frame,
+    draw_text,
+    nice_ticks,
     write_png,
 )
 from ccs_kornia.outputs.rig_records import rectify_maps
@@ -51,14 +51,14 @@ def error_matrix_figure(rms_matrix: list[list[float | None]], names: list[str], 
             x, y = left + k * cell, top + i * cell
             colour = tuple(int(v) for v in colours[i, k]) if np.isfinite(values[i, k]) else (215, 215, 215)
             cv2.rectangle(img, (x, y), (x + cell - 1, y + cell - 1), colour, -1)
-        _text(img, names[i], (left - 8, top + i * cell + cell // 2 + 5), 0.45, anchor="right")
+        draw_text(img, names[i], (left - 8, top + i * cell + cell // 2 + 5), 0.45, anchor="right")
     step = max(1, int(np.ceil(f * 30 / (cell * f))))
     for k in range(0, f, step):
-        _text(img, labels[k], (left + k * cell + cell // 2, top + c * cell + 18), 0.38, anchor="centre")
-    cv2.rectangle(img, (left, top), (left + cell * f, top + cell * c), _BLACK, 1)
-    _text(img, "RMS reprojection error per camera and frame (px); grey: not seen", (10, 25), 0.5)
-    _text(img, "frame", (left + cell * f // 2, top + c * cell + 45), 0.5, anchor="centre")
-    _colour_bar(img, (left + cell * f + 15, top, 16, max(cell * c, 60)), vmax, "px")
+        draw_text(img, labels[k], (left + k * cell + cell // 2, top + c * cell + 18), 0.38, anchor="centre")
+    cv2.rectangle(img, (left, top), (left + cell * f, top + cell * c), BLACK, 1)
+    draw_text(img, "RMS reprojection error per camera and frame (px); grey: not seen", (10, 25), 0.5)
+    draw_text(img, "frame", (left + cell * f // 2, top + c * cell + 45), 0.5, anchor="centre")
+    draw_colour_bar(img, (left + cell * f + 15, top, 16, max(cell * c, 60)), vmax, "px")
     return img
 
 
@@ -106,8 +106,8 @@ def top_view_figure(data: dict[str, Any], size: int = 640) -> np.ndarray:
     zr = (float(points[:, 2].min()) - 0.08 * span, float(points[:, 2].min()) + 1.0 * span)
     img = np.full((size + 110, size + 100, 3), 255, np.uint8)
     box = (80, 40, size, size)
-    _plot_frame(img, box, xr, zr, "x (camera 0, the board's unit)", "z (forward)", grid=True,
-                xticks=_ticks(*xr, 5))
+    draw_plot_frame(img, box, xr, zr, "x (camera 0, the board's unit)", "z (forward)", grid=True,
+                    xticks=nice_ticks(*xr, 5))
 
     def px(p: np.ndarray) -> tuple[int, int]:
         u = box[0] + (p[0] - xr[0]) / (xr[1] - xr[0]) * box[2]
@@ -115,13 +115,13 @@ def top_view_figure(data: dict[str, Any], size: int = 640) -> np.ndarray:
         return int(round(u)), int(round(v))
 
     for b in boards:
-        cv2.polylines(img, [np.array([px(p) for p in b], np.int32)], True, _GREY, 1, cv2.LINE_AA)
+        cv2.polylines(img, [np.array([px(p) for p in b], np.int32)], True, GREY, 1, cv2.LINE_AA)
     for c, (centre, axis) in enumerate(zip(centres, axes)):
         tip = centre + axis * 0.12 * span
-        cv2.arrowedLine(img, px(centre), px(tip), _RED if c == 0 else _BLUE, 2, cv2.LINE_AA, tipLength=0.25)
-        cv2.circle(img, px(centre), 4, _BLACK, -1, cv2.LINE_AA)
-        _text(img, data["cameras"][c]["name"], (px(centre)[0] + 6, px(centre)[1] + 16), 0.45)
-    _text(img, "the rig from above: cameras (arrows: viewing direction) and board poses (grey)", (10, 25), 0.5)
+        cv2.arrowedLine(img, px(centre), px(tip), RED if c == 0 else BLUE, 2, cv2.LINE_AA, tipLength=0.25)
+        cv2.circle(img, px(centre), 4, BLACK, -1, cv2.LINE_AA)
+        draw_text(img, data["cameras"][c]["name"], (px(centre)[0] + 6, px(centre)[1] + 16), 0.45)
+    draw_text(img, "the rig from above: cameras (arrows: viewing direction) and board poses (grey)", (10, 25), 0.5)
     return img
 
 

@@ -25,7 +25,7 @@ from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.duplicates import (
-    _batch,
+    batch_view_corners,
     duplicate_views,
     view_differences,
 )
@@ -329,7 +329,7 @@ def check_degeneracy(
         :class:`DegeneracyReport`.
     """
     t = thresholds or DegeneracyThresholds()
-    corners, valid, unbatched = _batch(corners, valid)
+    corners, valid, unbatched = batch_view_corners(corners, valid)
     if unbatched:
         used, rvec = used[None], rvec[None]
         K = None if K is None else K[None]

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ccs_kornia.modules.detection.grid.lattice import _fit_homography
+from ccs_kornia.modules.detection.grid.lattice import fit_lattice_homography
 from ccs_kornia.modules.detection.grid.missing_corners import lattice_deviation
 
 __all__ = ["check_grid", "check_saddles", "skipped_line", "board_extends", "whole_board_check", "canonical_corner_order"]
@@ -200,7 +200,7 @@ def _lattice_steps(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     gap = measured & ~(np.isfinite(u).all(-1) & np.isfinite(v).all(-1))
     if gap.any() and measured.sum() >= 4:
         rows, cols = np.nonzero(measured)
-        h = _fit_homography(np.stack([cols, rows], -1).astype(np.float64), grid[measured])
+        h = fit_lattice_homography(np.stack([cols, rows], -1).astype(np.float64), grid[measured])
         gr, gc = np.nonzero(gap)
         q = np.stack([gc, gr, np.ones_like(gc)], -1).astype(np.float64) @ h.T
         p = q[:, :2] / q[:, 2:]

@@ -66,24 +66,24 @@ import numpy as np
 import torch
 from torch import nn
 
-from ccs_kornia.runtime.checks import check_board_size, check_shape
 from ccs_kornia.modules.detection.grid.lattice import (
-    _DIAGONALS,
-    _apply_h,
-    _board_basis,
-    _board_extends,
-    _cross_seeds,
-    _fit_homography,
-    _Lattice,
-    _prune_inconsistent,
-    _select_window,
+    DIAGONAL_OFFSETS,
+    Lattice,
+    apply_homography,
+    board_basis,
+    cross_seeds,
+    fit_lattice_homography,
+    lattice_extends,
+    prune_inconsistent,
+    select_window,
 )
 from ccs_kornia.modules.detection.grid.lattice_evidence import (
-    _empty_cell_contrast,
-    _empty_cells_flat,
-    _placement_contrast,
-    _square_contrast,
+    empty_cell_contrast,
+    empty_cells_flat,
+    placement_contrast,
+    square_contrast,
 )
+from ccs_kornia.runtime.checks import check_board_size, check_shape
 
 __all__ = ["organize_grid", "GridOrganizer", "is_symmetric_board"]
 
@@ -123,7 +123,7 @@ def _organize_one(
         return corners, valid, False
     dist = np.linalg.norm(p[:, None] - p[None], axis=-1)
     np.fill_diagonal(dist, np.inf)
-    seeds = _cross_seeds(p, dist, min(8, len(p) - 1))
+    seeds = cross_seeds(p, dist, min(8, len(p) - 1))
     tried_points = np.zeros(len(p), dtype=bool)
     attempts = 0
     for seed in seeds:
@@ -131,11 +131,11 @@ def _organize_one(
             break
         if tried_points[seed[0]]:
             continue  # this seed lies in a lattice that already failed: it would grow the same lattice
-        lat = _Lattice(p, seed, cols + rows + 2, tol, sigma)
+        lat = Lattice(p, seed, cols + rows + 2, tol, sigma)
         # a real cross also has its diagonal neighbours; a false peak near the board can pair up
         # true corners into a "cross" that would grow a dislocated lattice
         cross_cells, cross_idx = lat.arrays()
-        if lat.match(_DIAGONALS, cross_cells, cross_idx) < 2:
+        if lat.match(DIAGONAL_OFFSETS, cross_cells, cross_idx) < 2:
             continue
         attempts += 1
         lat.grow()
@@ -143,19 +143,19 @@ def _organize_one(
             lat.bridge(max(cols, rows))
         cells, idx = lat.arrays()
         tried_points[idx] = True
-        basis = _board_basis(cells)
+        basis = board_basis(cells)
         cells = cells @ basis.T
         lat.cells = {(int(c[0]), int(c[1])): int(i) for c, i in zip(cells, idx)}
-        windows = _select_window(cells, cols, rows, min_count, line_fraction, partial)
+        windows = select_window(cells, cols, rows, min_count, line_fraction, partial)
         if not windows:
             continue
         if len(windows) > 1:
             # a partial board's lattice shorter than the board: the hidden lines go where the image shows no checker
             if image is None:
                 continue
-            scored = [(w, _empty_cell_contrast(image, cells, p[idx], w, cols, rows)) for w in windows]
-            scored.sort(key=lambda ws: _placement_contrast(ws[1]))
-            if not _empty_cells_flat(image, cells, p[idx], scored[0][1]):
+            scored = [(w, empty_cell_contrast(image, cells, p[idx], w, cols, rows)) for w in windows]
+            scored.sort(key=lambda ws: placement_contrast(ws[1]))
+            if not empty_cells_flat(image, cells, p[idx], scored[0][1]):
                 continue  # the image shows a checker at the empty cells: corners missed, not hidden
             windows = [scored[0][0]]
         oa, ob, transposed, _ = windows[0]
@@ -167,7 +167,7 @@ def _organize_one(
         lat.cell_of_point[idx[inside]] = 1
         # drop corners that disagree with their neighbours, then fill the holes with full support
         n_window = len(lat.cells)
-        strict = _prune_inconsistent(lat, check_tolerance, sigma)
+        strict = prune_inconsistent(lat, check_tolerance, sigma)
         if n_window - len(lat.cells) > max(2, 0.1 * n_window):
             continue  # many corners disagree with their neighbours: not one consistent board
         all_cells = np.stack(np.meshgrid(np.arange(oa, oa + wa), np.arange(ob, ob + wb), indexing="ij"), -1)
@@ -177,11 +177,11 @@ def _organize_one(
             missing = np.array([c for c in all_cells if (int(c[0]), int(c[1])) not in lat.cells]).reshape(-1, 2)
             if lat.match(missing, cells, idx, strict) == 0:
                 break
-        _prune_inconsistent(lat, check_tolerance, sigma)
+        prune_inconsistent(lat, check_tolerance, sigma)
         cells, idx = lat.arrays()
         if len(idx) < min_count:
             continue
-        if _board_extends(lat, cells, idx, (oa, ob, wa, wb), strict, line_fraction):
+        if lattice_extends(lat, cells, idx, (oa, ob, wa, wb), strict, line_fraction):
             continue  # corners continue past an edge: a larger board than asked
         # lattice (a, b) -> board (i, j) before symmetry choice
         ga, gb = cells[:, 0] - oa, cells[:, 1] - ob
@@ -202,8 +202,8 @@ def _organize_one(
             a = np.linalg.lstsq(np.concatenate([t, np.ones((len(t), 1))], 1), xy, rcond=None)[0]
             if np.linalg.det(a[:2].T) <= 0:
                 continue
-            h = _fit_homography(t, xy)
-            corner0 = _apply_h(h, origin)[0]
+            h = fit_lattice_homography(t, xy)
+            corner0 = apply_homography(h, origin)[0]
             options.append((float(corner0.sum()), t, h))  # x + y of corner 0: smallest is top-left
         if not options:  # degenerate fit
             continue
@@ -212,14 +212,14 @@ def _organize_one(
         if image is not None and not is_symmetric_board((cols, rows)) and len(options) >= 2:
             # the outer square at corner 0 is dark by convention, so is every inner square whose
             # corner with the lowest (i, j) has i + j even; the 180-degree labelling sees the opposite
-            contrast = _square_contrast(image, options[0][2], cols, rows)
+            contrast = square_contrast(image, options[0][2], cols, rows)
             if np.isfinite(contrast) and abs(contrast) > 0.05:
                 chosen = options[0] if contrast > 0 else options[1]
         _, t, h = chosen
         n_idx = (t[:, 1] * cols + t[:, 0]).round().astype(np.int64)
         # holes get the homography prediction (marked invalid) so callers have a usable guess
         grid_ij = np.stack(np.meshgrid(np.arange(cols), np.arange(rows), indexing="xy"), -1).reshape(-1, 2)
-        corners = _apply_h(h, grid_ij.astype(np.float64))
+        corners = apply_homography(h, grid_ij.astype(np.float64))
         corners[n_idx] = xy
         valid[n_idx] = True
         return corners, valid, True

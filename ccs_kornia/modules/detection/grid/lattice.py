@@ -2,14 +2,16 @@
 
 * local homography prediction: Gaussian-weighted DLT homographies, one per query cell, all solved at once;
 * seeds: peaks whose nearest neighbours form a "cross" (two non-parallel pairs of opposite neighbours);
-* :class:`_Lattice`: growth from a seed, one ring per round, matching the nearest free peak to each prediction;
+* :class:`Lattice`: growth from a seed, one ring per round, matching the nearest free peak to each prediction;
 * the board basis (undoing a sheared seed basis), the ``cols x rows`` window, the leave-one-out consistency
   check and the test that the board continues past an edge.
 
 What the image says about a lattice (a partial board's placement, the two 180-degree orientations of a
 non-symmetric board) is in :mod:`~ccs_kornia.modules.detection.grid.lattice_evidence`.
 
-See :mod:`~ccs_kornia.modules.detection.grid.grid_organizer` for the method as a whole.
+The organiser (:mod:`~ccs_kornia.modules.detection.grid.grid_organizer`, a ``cols x rows`` board) and the free lattice
+of the marker boards (:mod:`~ccs_kornia.modules.detection.grid.point_lattice`, no window) are both built from these
+parts; see the organiser for the method as a whole.
 """
 
 from __future__ import annotations
@@ -18,7 +20,18 @@ import math
 
 import numpy as np
 
-__all__: list[str] = []  # helpers of grid_organizer.py only
+__all__ = [
+    "DIAGONAL_OFFSETS",
+    "Lattice",
+    "apply_homography",
+    "board_basis",
+    "cross_seeds",
+    "fit_lattice_homography",
+    "lattice_extends",
+    "local_homographies",
+    "prune_inconsistent",
+    "select_window",
+]
 
 # ----------------------------------------------------------------------------------------------
 # Local homography prediction (numpy, float64)
@@ -27,7 +40,7 @@ __all__: list[str] = []  # helpers of grid_organizer.py only
 
 def _normal_equation_layout() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Where each entry of the DLT normal equations comes from in the moment vector of
-    :func:`_local_homographies` (index 23 is a constant zero), and its sign."""
+    :func:`local_homographies` (index 23 is a constant zero), and its sign."""
     names = ["1", "u", "v", "uu", "uv", "vv", "x", "xu", "xv", "xuu", "xuv", "xvv",
              "y", "yu", "yv", "yuu", "yuv", "yvv", "ruu", "ruv", "rvv", "ru", "rv", "0"]
     k = {n: i for i, n in enumerate(names)}
@@ -57,7 +70,7 @@ _DIAG = np.arange(8)
 _RIDGE = np.array([1e-9] * 6 + [1e-5] * 2)
 
 
-def _local_homographies(
+def local_homographies(
     grid: np.ndarray, pts: np.ndarray, query: np.ndarray, sigma: float, exclude_self: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """Predict image positions of lattice cells with Gaussian-weighted local homographies.
@@ -116,8 +129,24 @@ def _local_homographies(
     return np.stack([px, py], -1) * ps + p0, jac * (ps / gs)
 
 
-def _fit_homography(grid: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Least-squares homography lattice -> image (h33 = 1), returned as a (3, 3) matrix."""
+def fit_lattice_homography(grid: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Least-squares homography lattice -> image (``h33 = 1``, inhomogeneous DLT), one for the whole lattice.
+
+    The placement of a whole board (its corner 0, its holes, the square colours) and of the lattice's cells in the
+    image checks; :func:`local_homographies` are the local ones that follow residual distortion.
+
+    Args:
+        grid: (A, 2) lattice cells (float), at least four not collinear.
+        pts: (A, 2) their image positions.
+
+    Returns:
+        (3, 3) homography, cells ``(u, v, 1)`` to image points.
+
+    Example:
+        >>> cells = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+        >>> np.allclose(fit_lattice_homography(cells, 20 * cells + 5), [[20, 0, 5], [0, 20, 5], [0, 0, 1]])
+        True
+    """
     u, v = grid[:, 0], grid[:, 1]
     x, y = pts[:, 0], pts[:, 1]
     z, o = np.zeros_like(u), np.ones_like(u)
@@ -128,7 +157,13 @@ def _fit_homography(grid: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return np.append(h, 1.0).reshape(3, 3)
 
 
-def _apply_h(h: np.ndarray, grid: np.ndarray) -> np.ndarray:
+def apply_homography(h: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Points ``grid`` (A, 2) through the homography ``h`` (3, 3), (A, 2): where a lattice fit puts its cells.
+
+    Example:
+        >>> apply_homography(np.diag([2.0, 2.0, 1.0]), np.array([[1.0, 3.0]])).tolist()
+        [[2.0, 6.0]]
+    """
     q = np.concatenate([grid, np.ones((len(grid), 1))], 1) @ h.T
     return q[:, :2] / q[:, 2:3]
 
@@ -142,8 +177,19 @@ _COS_PARALLEL = math.cos(math.radians(20.0))  # the two axes of a cross must dif
 _MAX_ARM_RATIO = 1.8  # opposite arms differ by perspective only
 
 
-def _cross_seeds(p: np.ndarray, dist: np.ndarray, k: int) -> list[tuple[int, int, int, int, int, float]]:
-    """Peaks whose ``k`` nearest neighbours contain a cross; returns (seed, +u, -u, +v, -v, score)."""
+def cross_seeds(p: np.ndarray, dist: np.ndarray, k: int) -> list[tuple[int, int, int, int, int, float]]:
+    """Seeds of a lattice: peaks whose ``k`` nearest neighbours contain a "cross" (two non-parallel pairs of opposite,
+    collinear neighbours), best first (clean crosses near the middle of the point cloud).
+
+    Args:
+        p: (n, 2) peak positions.
+        dist: (n, n) their pairwise distances, ``inf`` on the diagonal.
+        k: neighbours looked at (at most ``n - 1``).
+
+    Returns:
+        ``(seed, +u, -u, +v, -v, score)`` per seed: the peak, its four arms (peak indices) and the cross's score
+        (lower is cleaner).
+    """
     n = len(p)
     knn = np.argpartition(dist, k - 1, axis=1)[:, :k]  # (n, k), unordered
     knn = np.take_along_axis(knn, np.argsort(np.take_along_axis(dist, knn, 1), axis=1), 1)
@@ -186,11 +232,26 @@ def _cross_seeds(p: np.ndarray, dist: np.ndarray, k: int) -> list[tuple[int, int
 
 
 _NEIGHBOURS = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])
-_DIAGONALS = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0]])
+#: the four diagonal neighbours of a cell: a real seed's cross has peaks there too (a false peak beside the board can
+#: pair true corners into a cross that would grow a dislocated lattice)
+DIAGONAL_OFFSETS = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0]])
 _NEIGHBOURS8 = np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [1, 1], [1, -1], [-1, 1], [-1, -1]])
 
-class _Lattice:
-    """Sparse integer lattice of peaks grown from a seed (one image)."""
+
+class Lattice:
+    """Sparse integer lattice of peaks grown from a seed of :func:`cross_seeds` (one image).
+
+    ``cells`` maps a lattice cell ``(a, b)`` to the index of its peak; positions ``p`` are normalised by the seed's
+    arm length. :meth:`match` accepts the nearest free peaks to the cells a local homography predicts, :meth:`grow`
+    does so ring by ring, :meth:`bridge` across a gap of empty cells.
+
+    Args:
+        p: (n, 2) peak positions.
+        seed: one entry of :func:`cross_seeds`: the seed gets cell ``(0, 0)``, its arms ``(+-1, 0)``, ``(0, +-1)``.
+        max_extent: growth stays within this many cells of the seed.
+        tol: a peak is accepted within this fraction of the local square size of its predicted cell.
+        sigma: width of the local homographies' Gaussian weights, in cells.
+    """
 
     def __init__(
         self, p: np.ndarray, seed: tuple[int, int, int, int, int, float], max_extent: int, tol: float, sigma: float
@@ -225,7 +286,8 @@ class _Lattice:
         tol = self.tol if tol is None else tol
         if len(query) == 0:
             return 0
-        pred, jac = _local_homographies(support_cells, self.p[support_idx], query, self.sigma if sigma is None else sigma)
+        sigma = self.sigma if sigma is None else sigma
+        pred, jac = local_homographies(support_cells, self.p[support_idx], query, sigma)
         spacing = np.minimum(np.linalg.norm(jac[:, :, 0], axis=1), np.linalg.norm(jac[:, :, 1], axis=1))
         free = self.cell_of_point < 0
         if not free.any():
@@ -329,8 +391,8 @@ def _unimodular_bases(limit: int = 2) -> np.ndarray:
 _BASES = _unimodular_bases()
 
 
-def _board_basis(cells: np.ndarray) -> np.ndarray:
-    """Integer change of lattice basis that makes the grown lattice as compact as possible.
+def board_basis(cells: np.ndarray) -> np.ndarray:
+    """Integer change of lattice basis (2, 2) that makes the grown lattice's cells (A, 2) as compact as possible.
 
     Seeds take their arms from nearest neighbours, and under shear and foreshortening a square's
     diagonal can be shorter than its side, so the grown basis may be a sheared one of the same point
@@ -341,7 +403,7 @@ def _board_basis(cells: np.ndarray) -> np.ndarray:
     return _BASES[int(np.argmin(area))]
 
 
-def _select_window(
+def select_window(
     cells: np.ndarray, cols: int, rows: int, min_count: int, line_fraction: float, partial: bool = False
 ) -> list[tuple[int, int, bool, int]]:
     """Best ``cols x rows`` windows of the lattice, as (offset_a, offset_b, transposed, count); empty if none.
@@ -391,7 +453,7 @@ def _select_window(
     return best if partial else best[:1]
 
 
-def _prune_inconsistent(lat: _Lattice, check_tolerance: float, sigma: float, max_drops: int = 12) -> float:
+def prune_inconsistent(lat: Lattice, check_tolerance: float, sigma: float, max_drops: int = 12) -> float:
     """Leave-one-out check of every lattice corner against its neighbours' homography prediction.
 
     Corners off by more than an adaptive threshold (six robust standard deviations of the board's
@@ -404,7 +466,7 @@ def _prune_inconsistent(lat: _Lattice, check_tolerance: float, sigma: float, max
         cells, idx = lat.arrays()
         if len(idx) < 6:
             return threshold
-        pred, jac = _local_homographies(cells, lat.p[idx], cells, sigma, exclude_self=True)
+        pred, jac = local_homographies(cells, lat.p[idx], cells, sigma, exclude_self=True)
         spacing = np.minimum(np.linalg.norm(jac[:, :, 0], axis=1), np.linalg.norm(jac[:, :, 1], axis=1))
         err = np.linalg.norm(pred - lat.p[idx], axis=1) / (spacing + 1e-12)
         if it == 0:
@@ -417,15 +479,15 @@ def _prune_inconsistent(lat: _Lattice, check_tolerance: float, sigma: float, max
     return threshold
 
 
-def _board_extends(
-    lat: _Lattice,
+def lattice_extends(
+    lat: Lattice,
     cells: np.ndarray,
     idx: np.ndarray,
     window: tuple[int, int, int, int],
     tol: float,
     line_fraction: float,
 ) -> bool:
-    """Whether free peaks continue the board past one of its four edges.
+    """Whether free peaks continue the board past one of its four edges (then it is a larger board than asked).
 
     The growth may have stopped short of a row (clutter, a gap), so the line just outside every edge
     is predicted from the board itself and matched against all unused peaks.
@@ -440,7 +502,7 @@ def _board_extends(
         np.stack([a, np.full(wa, ob + wb + 0.0)], -1),
     ]
     query = np.concatenate(lines)
-    pred, jac = _local_homographies(cells, lat.p[idx], query, lat.sigma)
+    pred, jac = local_homographies(cells, lat.p[idx], query, lat.sigma)
     free = np.nonzero(lat.cell_of_point < 0)[0]
     if len(free) == 0:
         return False

@@ -14,15 +14,15 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ccs_kornia.runtime.checks import check_shape
 from ccs_kornia.modules.detection.grid.lattice import (
-    _DIAGONALS,
-    _board_basis,
-    _cross_seeds,
-    _Lattice,
-    _local_homographies,
-    _prune_inconsistent,
+    DIAGONAL_OFFSETS,
+    Lattice,
+    board_basis,
+    cross_seeds,
+    local_homographies,
+    prune_inconsistent,
 )
+from ccs_kornia.runtime.checks import check_shape
 
 __all__ = ["organize_lattice", "predict_cells"]
 
@@ -38,22 +38,22 @@ def _one_lattice(p: np.ndarray, max_extent: int, tol: float, check_tolerance: fl
     tried = np.zeros(len(p), dtype=bool)
     attempts = 0
     best: tuple[np.ndarray, np.ndarray] | None = None
-    for seed in _cross_seeds(p, dist, min(8, len(p) - 1)):
+    for seed in cross_seeds(p, dist, min(8, len(p) - 1)):
         if attempts >= max_seeds:
             break
         if tried[seed[0]]:
             continue  # this seed lies in a lattice already grown
-        lat = _Lattice(p, seed, max_extent, tol, sigma)
+        lat = Lattice(p, seed, max_extent, tol, sigma)
         cross_cells, cross_idx = lat.arrays()
-        if lat.match(_DIAGONALS, cross_cells, cross_idx) < 2:
+        if lat.match(DIAGONAL_OFFSETS, cross_cells, cross_idx) < 2:
             continue  # a real cross has its diagonal neighbours too
         attempts += 1
         lat.grow()
         cells, idx = lat.arrays()
         tried[idx] = True
-        cells = cells @ _board_basis(cells).T
+        cells = cells @ board_basis(cells).T
         lat.cells = {(int(c[0]), int(c[1])): int(i) for c, i in zip(cells, idx)}
-        _prune_inconsistent(lat, check_tolerance, sigma)
+        prune_inconsistent(lat, check_tolerance, sigma)
         cells, idx = lat.arrays()
         if len(idx) >= min_points and (best is None or len(idx) > len(best[1])):
             best = (cells, idx)
@@ -138,6 +138,6 @@ def predict_cells(cells: np.ndarray, points: np.ndarray, query: np.ndarray, sigm
     query = np.asarray(query, dtype=np.float64).reshape(-1, 2)
     if len(query) == 0:
         return np.zeros((0, 2)), np.zeros(0)
-    pred, jac = _local_homographies(cells, points, query, sigma)
+    pred, jac = local_homographies(cells, points, query, sigma)
     spacing = np.minimum(np.linalg.norm(jac[:, :, 0], axis=1), np.linalg.norm(jac[:, :, 1], axis=1))
     return pred, spacing

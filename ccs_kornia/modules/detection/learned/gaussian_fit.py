@@ -26,13 +26,20 @@ import torch
 from torch import nn
 
 from ccs_kornia.modules.detection.learned.peaks import (
-    _check_heatmap,
-    _check_window,
-    _gather_windows,
-    _window_offsets,
+    check_heatmap,
+    check_odd_window,
+    gather_windows,
 )
 
-__all__ = ["gaussian_fit", "GaussianFit"]
+__all__ = ["GaussianFit", "gaussian_fit"]
+
+
+def _window_offsets(window: int, device: torch.device, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    """Row-major offsets ``(dx, dy)`` of a ``window x window`` patch relative to its centre, each ``(K*K,)``."""
+    radius = window // 2
+    steps = torch.arange(-radius, radius + 1, device=device, dtype=dtype)
+    dy, dx = torch.meshgrid(steps, steps, indexing="ij")
+    return dx.reshape(-1), dy.reshape(-1)
 
 
 def gaussian_fit(
@@ -76,8 +83,8 @@ def gaussian_fit(
         >>> mu.round(decimals=4), sigma.round(decimals=4), ok
         (tensor([[[12.3000, 20.6000]]]), tensor([[[1.5000, 1.5000]]]), tensor([[True]]))
     """
-    _check_heatmap(heatmap)
-    _check_window(window)
+    check_heatmap(heatmap)
+    check_odd_window(window)
     if seeds.ndim != 3 or seeds.shape[0] != heatmap.shape[0] or seeds.shape[-1] != 2:
         raise ValueError(f"Expected seeds of shape (B, M, 2) with B={heatmap.shape[0]}, got {tuple(seeds.shape)}.")
     if mask is None:
@@ -112,7 +119,7 @@ def gaussian_fit(
         ok = mask.bool() & finite & inside
         centres = torch.where(ok[..., None], centres_f, torch.zeros_like(centres_f)).long()
 
-    patches = _gather_windows(heatmap, centres, window).reshape(batch * num, window * window).double()
+    patches = gather_windows(heatmap, centres, window).reshape(batch * num, window * window).double()
     usable = patches > eps
     intensity = torch.where(usable, patches, torch.zeros_like(patches))
     log_intensity = torch.log(torch.where(usable, patches, torch.ones_like(patches)))
@@ -161,7 +168,7 @@ class GaussianFit(nn.Module):
 
     def __init__(self, window: int = 7, eps: float = 1e-6) -> None:
         super().__init__()
-        _check_window(window)
+        check_odd_window(window)
         self.window = window
         self.eps = eps
 

@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 import torch
 
+from ccs_kornia.modules.detection.opencv_detector import CLASSIC_FLAGS
 from ccs_kornia.runtime.checks import check_board_size
-from ccs_kornia.modules.detection.opencv_detector import _CLASSIC_FLAGS
 
 __all__ = ["OPENCV_MAX_PIXELS", "opencv_level_factor", "opencv_candidates"]
 
@@ -74,7 +74,7 @@ def opencv_candidates(
 
     def one(gray: np.ndarray) -> np.ndarray | None:
         try:
-            ok, corners = cv2.findChessboardCorners(gray, (cols, rows), flags=_CLASSIC_FLAGS)
+            ok, corners = cv2.findChessboardCorners(gray, (cols, rows), flags=CLASSIC_FLAGS)
         except cv2.error:  # an odd image is a miss, never an exception
             return None
         return corners.reshape(n, 2) if ok and corners is not None else None

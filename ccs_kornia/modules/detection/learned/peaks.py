@@ -17,10 +17,22 @@ import torch.nn.functional as F
 from kornia.geometry.subpix import spatial_expectation2d
 from torch import nn
 
-__all__ = ["strict_local_maxima", "heatmap_peaks", "HeatmapPeaks"]
+__all__ = [
+    "strict_local_maxima", "heatmap_peaks", "HeatmapPeaks", "check_heatmap", "check_odd_window", "gather_windows",
+]
 
 
-def _check_heatmap(heatmap: torch.Tensor) -> None:
+def check_heatmap(heatmap: torch.Tensor) -> None:
+    """Raise unless ``heatmap`` is a floating-point corner heatmap :math:`(B, 1, H, W)` (``TypeError`` for a non-tensor,
+    ``ValueError`` otherwise): the check at the boundary of the heatmap's stages (peaks, Gaussian fit).
+
+    Example:
+        >>> check_heatmap(torch.zeros(2, 1, 8, 8))
+        >>> check_heatmap(torch.zeros(2, 8, 8))
+        Traceback (most recent call last):
+        ...
+        ValueError: Expected heatmap of shape (B, 1, H, W), got (2, 8, 8).
+    """
     if not isinstance(heatmap, torch.Tensor):
         raise TypeError(f"heatmap must be a torch.Tensor, got {type(heatmap)}.")
     if heatmap.ndim != 4 or heatmap.shape[1] != 1:
@@ -29,27 +41,37 @@ def _check_heatmap(heatmap: torch.Tensor) -> None:
         raise ValueError(f"heatmap must be a floating point tensor, got {heatmap.dtype}.")
 
 
-def _check_window(window: int, name: str = "window") -> None:
+def check_odd_window(window: int, name: str = "window") -> None:
+    """Raise ``ValueError`` unless ``window`` (the argument ``name``) is an odd integer >= 3: a window centred on a
+    pixel (non-maximum suppression, the peaks' weighted mean, the Gaussian fit).
+
+    Example:
+        >>> check_odd_window(5)
+        >>> check_odd_window(4, "nms_kernel")
+        Traceback (most recent call last):
+        ...
+        ValueError: nms_kernel must be an odd integer >= 3, got 4.
+    """
     if not isinstance(window, int) or window < 3 or window % 2 == 0:
         raise ValueError(f"{name} must be an odd integer >= 3, got {window!r}.")
 
 
-def _window_offsets(window: int, device: torch.device, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
-    """Row-major offsets ``(dx, dy)`` of a ``window x window`` patch relative to its centre, each ``(K*K,)``."""
-    radius = window // 2
-    steps = torch.arange(-radius, radius + 1, device=device, dtype=dtype)
-    dy, dx = torch.meshgrid(steps, steps, indexing="ij")
-    return dx.reshape(-1), dy.reshape(-1)
-
-
-def _gather_windows(heatmap: torch.Tensor, centres: torch.Tensor, window: int) -> torch.Tensor:
-    """``window x window`` patches of ``heatmap`` (B,1,H,W) centred on integer ``centres`` (B,M,2) xy.
+def gather_windows(heatmap: torch.Tensor, centres: torch.Tensor, window: int) -> torch.Tensor:
+    """``window x window`` patches of ``heatmap`` (B,1,H,W) centred on integer ``centres`` (B,M,2) xy: what the peaks'
+    weighted mean and the Gaussian fit read around each seed.
 
     Pixels outside the image read as ``0``, so a peak near the border keeps its in-image pixels only. Centres
     must lie inside the image. Differentiable with respect to ``heatmap``.
 
     Returns:
         patches of shape (B, M, window, window).
+
+    Example:
+        >>> heat = torch.arange(16.0).reshape(1, 1, 4, 4)
+        >>> gather_windows(heat, torch.tensor([[[0, 0]]]), 3)[0, 0]
+        tensor([[0., 0., 0.],
+                [0., 0., 1.],
+                [0., 4., 5.]])
     """
     batch, _, height, width = heatmap.shape
     num = centres.shape[1]
@@ -79,7 +101,7 @@ def strict_local_maxima(x: torch.Tensor, kernel: int) -> torch.Tensor:
                 [0, 0, 0, 0],
                 [1, 0, 0, 0]], dtype=torch.int32)
     """
-    _check_window(kernel, "kernel")
+    check_odd_window(kernel, "kernel")
     r = kernel // 2
     h, w = x.shape[-2:]
     padded = F.pad(x, (r, r, r, r), value=float("-inf"))
@@ -136,9 +158,9 @@ def heatmap_peaks(
         >>> seeds[0, 0], mask[0]
         (tensor([20., 10.]), tensor([ True, False, False, False]))
     """
-    _check_heatmap(heatmap)
-    _check_window(nms_kernel, "nms_kernel")
-    _check_window(refine_window, "refine_window")
+    check_heatmap(heatmap)
+    check_odd_window(nms_kernel, "nms_kernel")
+    check_odd_window(refine_window, "refine_window")
     if not isinstance(max_peaks, int) or max_peaks < 1:
         raise ValueError(f"max_peaks must be a positive integer, got {max_peaks!r}.")
     batch, _, height, width = heatmap.shape
@@ -155,7 +177,7 @@ def heatmap_peaks(
         top_index = torch.where(mask, top_index, torch.zeros_like(top_index))
         centres = torch.stack([top_index % width, top_index // width], dim=-1)  # (B, M, 2) integer xy
 
-    patches = _gather_windows(heatmap, centres, refine_window).clamp_min(0)  # (B, M, K, K)
+    patches = gather_windows(heatmap, centres, refine_window).clamp_min(0)  # (B, M, K, K)
     total = patches.sum(dim=(-2, -1), keepdim=True)
     weights = patches / total.clamp_min(torch.finfo(heatmap.dtype).tiny)
     local = spatial_expectation2d(weights, normalized_coordinates=False)  # (B, M, 2) in patch coordinates
@@ -184,8 +206,8 @@ class HeatmapPeaks(nn.Module):
         self, threshold: float = 0.3, max_peaks: int = 256, nms_kernel: int = 5, refine_window: int = 5
     ) -> None:
         super().__init__()
-        _check_window(nms_kernel, "nms_kernel")
-        _check_window(refine_window, "refine_window")
+        check_odd_window(nms_kernel, "nms_kernel")
+        check_odd_window(refine_window, "refine_window")
         self.threshold = threshold
         self.max_peaks = max_peaks
         self.nms_kernel = nms_kernel

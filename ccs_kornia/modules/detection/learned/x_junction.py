@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.modules.detection.refine.saddle_refine import _sample
+from ccs_kornia.modules.detection.refine.saddle_refine import sample_bilinear
 
 __all__ = ["x_junction_mask"]
 
@@ -64,7 +64,7 @@ def x_junction_mask(
     for factor in (radius_factor, 0.4 * radius_factor):
         rad = (factor * spacing).clamp(min_radius, max_radius)
         loc = pts[:, :, None, :] + rad[..., None, None] * ring[None, None]
-        prof = _sample(image.float(), loc)[:, 0]  # (B,M,S)
+        prof = sample_bilinear(image.float(), loc)[:, 0]  # (B,M,S)
         # circular 3-tap smoothing so pixel noise does not add crossings
         prof = (prof + prof.roll(1, -1) + prof.roll(-1, -1)) / 3
         centred = prof - prof.mean(-1, keepdim=True)

@@ -25,9 +25,9 @@ from torch import nn
 from ccs_kornia.modules.detection.base import measured_corners
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.refine.saddle_refine import (
-    _saddle_source,
-    _sample_window,
-    _window,
+    saddle_source,
+    sample_window,
+    weighted_window,
 )
 from ccs_kornia.modules.detection.refine.symmetry_refine import symmetry_terms
 from ccs_kornia.runtime.timing import stage
@@ -89,11 +89,11 @@ def corner_uncertainty(
     # corner's pixel, plus its bilinear neighbour
     q = 2 * rmax + 4
     top_left = torch.floor(c).long() - (rmax + 1)
-    src = _saddle_source(images.float(), bi.to(images.device), top_left, q, smooth_sigma, 0.0)
+    src = saddle_source(images.float(), bi.to(images.device), top_left, q, smooth_sigma, 0.0)
     local = c - top_left.to(c.dtype)
     half = (2 * rmax + 1) ** 2 // 2
-    odd = symmetry_terms(src, local, rmax, _sample_window)  # twice J_x, twice J_y, r
-    w = _window(r, rmax)[1][:, :half]
+    odd = symmetry_terms(src, local, rmax, sample_window)  # twice J_x, twice J_y, r
+    w = weighted_window(r, rmax)[1][:, :half]
     jx, jy, res = 0.5 * odd[:, 0], 0.5 * odd[:, 1], odd[:, 2]
     # the full window's normal matrix is twice the half's; s^2 is a ratio of the two halves' sums
     axx, axy, ayy = 2 * (w * jx * jx).sum(-1), 2 * (w * jx * jy).sum(-1), 2 * (w * jy * jy).sum(-1)

@@ -40,6 +40,7 @@ from kornia.filters import gaussian_blur2d
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.learned.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.refine.patch_refine import level_size
+from ccs_kornia.modules.detection.refine.saddle_refine import sample_bilinear
 
 __all__ = ["MAX_GAP", "SYMMETRY_STEPS", "symmetry_refine", "network_seeds", "differentiable_corners",
            "DifferentiableCorners"]
@@ -48,14 +49,6 @@ __all__ = ["MAX_GAP", "SYMMETRY_STEPS", "symmetry_refine", "network_seeds", "dif
 SYMMETRY_STEPS = 4
 #: farthest (px) the differentiated estimator may land from the detector's corner for the corner to carry its gradient
 MAX_GAP = 0.1
-
-
-def _sample(image: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """Bilinear samples of ``image`` (B, C, H, W) at pixel points (B, N, P, 2) -> (B, C, N, P), border values outside;
-    differentiable with respect to both."""
-    h, w = image.shape[-2:]
-    g = torch.stack([points[..., 0] * (2.0 / max(w - 1, 1)) - 1.0, points[..., 1] * (2.0 / max(h - 1, 1)) - 1.0], -1)
-    return F.grid_sample(image, g, mode="bilinear", padding_mode="border", align_corners=True)
 
 
 def _window(radius: torch.Tensor, rmax: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -124,8 +117,8 @@ def symmetry_refine(
     rmax = int(math.ceil(float(r.max())))
     off, w = _window(r, rmax)  # (P, 2), (B, N, P)
     for _ in range(steps):
-        plus = _sample(src, c[:, :, None, :] + off)  # (B, 3, N, P)
-        minus = _sample(src, c[:, :, None, :] - off)
+        plus = sample_bilinear(src, c[:, :, None, :] + off)  # (B, 3, N, P)
+        minus = sample_bilinear(src, c[:, :, None, :] - off)
         res = plus[:, 0] - minus[:, 0]  # (B, N, P)
         jx, jy = plus[:, 1] - minus[:, 1], plus[:, 2] - minus[:, 2]  # d/dc of S(c + d) - S(c - d)
         axx, axy, ayy = (w * jx * jx).sum(-1), (w * jx * jy).sum(-1), (w * jy * jy).sum(-1)

@@ -41,7 +41,15 @@ from ccs_kornia.modules.detection.refine.symmetry_refine import (
 )
 
 __all__ = [
-    "METHODS", "POLISH_PLAIN_MARGIN", "POLISH_WINDOW", "CornerRefiner", "refine_corners",
+    "METHODS",
+    "POLISH_PLAIN_MARGIN",
+    "POLISH_WINDOW",
+    "CornerRefiner",
+    "refine_corners",
+    "saddle_source",
+    "sample_bilinear",
+    "sample_window",
+    "weighted_window",
 ]
 
 #: refinement methods of :func:`refine_corners`
@@ -70,8 +78,17 @@ def _central_differences(image: torch.Tensor) -> torch.Tensor:
     return torch.cat([p[..., 1:-1, 2:] - p[..., 1:-1, :-2], p[..., 2:, 1:-1] - p[..., :-2, 1:-1]], 1)
 
 
-def _sample(image: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """Bilinear samples of ``image`` (B,C,H,W) at pixel points (B,N,P,2) -> (B,C,N,P); zeros outside."""
+def sample_bilinear(image: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Bilinear samples of ``image`` :math:`(B, C, H, W)` at pixel points :math:`(B, N, P, 2)` (the project's pixel
+    convention) -> :math:`(B, C, N, P)`; outside the image, the nearest border value. Differentiable with respect to
+    both (``grid_sample``): the refinements, the X-junction test and the differentiable corners all read the image
+    through it.
+
+    Example:
+        >>> img = torch.arange(12.0).reshape(1, 1, 3, 4)
+        >>> sample_bilinear(img, torch.tensor([[[[1.5, 1.0], [-5.0, 0.0]]]]))
+        tensor([[[[5.5000, 0.0000]]]])
+    """
     h, w = image.shape[-2:]
     gx = points[..., 0] * (2.0 / max(w - 1, 1)) - 1.0
     gy = points[..., 1] * (2.0 / max(h - 1, 1)) - 1.0
@@ -118,10 +135,12 @@ def _blurred_regions(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor
     return band.T @ (patch @ band)
 
 
-def _saddle_source(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor, q: int, smooth_sigma: float,
+def saddle_source(img: torch.Tensor, bi: torch.Tensor, top_left: torch.Tensor, q: int, smooth_sigma: float,
                    normalize_sigma: float, with_plain: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     """The saddle fit's input image (smoothed, divided by the local mean) on ``q x q`` regions, :math:`(M, 1, q, q)`
-    (with ``with_plain``, also the smoothed regions before the division).
+    (with ``with_plain``, also the smoothed regions before the division): region ``m`` of image ``bi[m]`` of ``img``
+    :math:`(B, 1, H, W)`, top-left pixel ``top_left[m]`` :math:`(M, 2)` xy. The corner uncertainty reads the same
+    source as the refinement.
 
     Equal, up to float rounding, to ``refine_corners``' whole-image source cropped there: pixels outside the image
     repeat the nearest in-image value, as bilinear sampling with ``padding_mode="border"`` reads it."""
@@ -227,14 +246,14 @@ def _refine_gradient(img, corners, valid, r, iterations, return_ok):
     sub_valid = valid[rows].gather(1, order)
     rr = r[rows].gather(1, order)
     rmax = int(torch.ceil(rr[sub_valid].max()).item())
-    off, wgt = _window(rr, rmax)
+    off, wgt = weighted_window(rr, rmax)
     src = _central_differences(img[rows])  # (b',2,H,W): gx, gy in px units
     c = c0.clone()
     ok = torch.zeros_like(sub_valid)
     step = torch.zeros_like(rr)
     for _ in range(iterations):
         pts = c[:, :, None, :] + off[None, None]  # (b',K,P,2)
-        s = _sample(src, pts)  # (b',C,K,P)
+        s = sample_bilinear(src, pts)  # (b',C,K,P)
         gx, gy = s[:, 0], s[:, 1]
         a11 = (wgt * gx * gx).sum(-1)
         a12 = (wgt * gx * gy).sum(-1)
@@ -258,10 +277,20 @@ def _refine_gradient(img, corners, valid, r, iterations, return_ok):
     return (out, ok_out) if return_ok else out
 
 
-def _sample_window(src: torch.Tensor, centre: torch.Tensor, rmax: int) -> torch.Tensor:
-    """Bilinear samples of regions ``src`` :math:`(M, 1, q, q)` at ``centre + off`` for the offsets of the
-    ``(2 rmax + 1)^2`` window (:func:`_window`), :math:`(M, P)`: whole-pixel offsets share their centre's fraction, so
-    the window is a blend of shifted crops (``grid_sample``'s values, ``align_corners=True``, while inside)."""
+def sample_window(src: torch.Tensor, centre: torch.Tensor, rmax: int) -> torch.Tensor:
+    """Bilinear samples of regions ``src`` :math:`(M, 1, q, q)` at ``centre`` :math:`(M, 2)` (region pixels) ``+ off``
+    for the offsets of the ``(2 rmax + 1)^2`` window (:func:`weighted_window`), :math:`(M, P)`: whole-pixel offsets
+    share their centre's fraction, so the window is a blend of shifted crops (``grid_sample``'s values,
+    ``align_corners=True``, while inside). The sampler of the symmetry polish
+    (:mod:`~ccs_kornia.modules.detection.refine.symmetry_refine`) and of the corner uncertainty.
+
+    Example:
+        >>> src = torch.arange(100.0).reshape(1, 1, 10, 10)
+        >>> sample_window(src, torch.tensor([[4.5, 4.0]]), 1).reshape(3, 3)
+        tensor([[33.5000, 34.5000, 35.5000],
+                [43.5000, 44.5000, 45.5000],
+                [53.5000, 54.5000, 55.5000]])
+    """
     m, q, side = src.shape[0], src.shape[-1], 2 * rmax + 1
     base = torch.floor(centre)
     # top-left pixel of the (side + 1)^2 crop, kept inside the region
@@ -278,9 +307,16 @@ def _sample_window(src: torch.Tensor, centre: torch.Tensor, rmax: int) -> torch.
     return (rows[:, :-1] + fy * (rows[:, 1:] - rows[:, :-1])).reshape(m, side * side)
 
 
-def _window(r: torch.Tensor, rmax: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Offsets :math:`(P, 2)` of a ``(2 rmax + 1)^2`` window and the weights :math:`(..., P)` of radii ``r``: a Gaussian
-    of width ``r / 1.5`` cut at ``r`` (far pixels belong to other corners)."""
+def weighted_window(r: torch.Tensor, rmax: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Offsets :math:`(P, 2)` of a ``(2 rmax + 1)^2`` window (row-major, xy) and the weights :math:`(..., P)` of radii
+    ``r`` :math:`(...)`: a Gaussian of width ``r / 1.5`` cut at ``r`` (far pixels belong to other corners). The
+    window of the saddle fit, the symmetry polish and the corner uncertainty.
+
+    Example:
+        >>> off, w = weighted_window(torch.tensor([1.0]), 1)
+        >>> off.shape, (w > 0).sum().item()
+        (torch.Size([9, 2]), 5)
+    """
     offs = torch.arange(-rmax, rmax + 1, device=r.device, dtype=r.dtype)
     oy, ox = torch.meshgrid(offs, offs, indexing="ij")
     off = torch.stack([ox.reshape(-1), oy.reshape(-1)], -1)  # (P,2)
@@ -312,7 +348,7 @@ def _refine_saddle(img, corners, valid, r, max_radius, iterations, smooth_sigma,
         wide_out, agree_out, tried_out = out.clone(), ok_out.clone(), ok_out.clone()
     for group in _radius_groups(sel, flat_r[sel]):
         rmax = int(torch.ceil(flat_r[group].max()).item())
-        off, _ = _window(flat_r[:1], rmax)
+        off, _ = weighted_window(flat_r[:1], rmax)
         # the region covers every window within rmax + 1 px of the starting pixel (a corner that moves further is
         # returned unchanged), and the polishes' windows around the saddle point plus their moves and a border
         half = 2 * rmax + 2
@@ -367,7 +403,7 @@ def _saddle_iterations(src, c0, rr, top_left, bw, lu, piv, rmax, iterations):
     ok = torch.zeros(c.shape[0], dtype=torch.bool, device=c.device)
     step = torch.zeros(c.shape[0], dtype=dt, device=c.device)
     for _ in range(iterations):
-        f = _sample_window(src, c - top_left.to(dt), rmax)  # (M,P)
+        f = sample_window(src, c - top_left.to(dt), rmax)  # (M,P)
         atb = torch.einsum("mpi,mp->mi", bw, f)
         coef = torch.linalg.lu_solve(lu, piv, atb.double().unsqueeze(-1)).squeeze(-1).to(dt)
         a, bb, cc, d, e = coef.unbind(-1)[:5]
@@ -391,12 +427,12 @@ def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smoot
     ``(corners (M, 2), agree (M,), tried (M,))`` (see :func:`wide_polish`)."""
     dev, dt = c0.device, torch.float32
     q = 2 * half + 1
-    bw = basis[None] * _window(rr, rmax)[1][..., None]  # (M,P,6)
+    bw = basis[None] * weighted_window(rr, rmax)[1][..., None]  # (M,P,6)
     ata = torch.einsum("mpi,pj->mij", bw, basis) + 1e-9 * torch.eye(6, device=dev, dtype=dt)
     # the window moves with the corner but its weights do not: one factorisation per corner
     lu, piv = torch.linalg.lu_factor(ata.double())
     top_left = c0.round().long() - half
-    src, plain = _saddle_source(img, image_index, top_left, q, smooth_sigma, normalize_sigma, with_plain=True)
+    src, plain = saddle_source(img, image_index, top_left, q, smooth_sigma, normalize_sigma, with_plain=True)
     m = c0.shape[0]
     dual = polish is not None and plain is not None
     if dual:  # both sources at once: (2M, q, q), the normalised first
@@ -425,10 +461,10 @@ def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smoot
         # two sources per corner: the normalised one cancels shading (docs/measurements.md), the plain one keeps
         # small squares, board borders and real lenses exact (the local mean sees the next square or the background
         # there)
-        w, local = _window(pr, polish_max)[1], c - top_left.to(dt)
+        w, local = weighted_window(pr, polish_max)[1], c - top_left.to(dt)
         k = 1 if plain is None else 2  # both sources in one call (half the small operations; the same values)
         pb, mb, ab = symmetry_polish(src if k == 1 else both, local.repeat(k, 1), reach.repeat(k), polish_max,
-                                     _sample_window, w.repeat(k, 1), POLISH_ITERATIONS)
+                                     sample_window, w.repeat(k, 1), POLISH_ITERATIONS)
         polished, moved, asym, p2, m2, a2 = pb[:m], mb[:m], ab[:m], pb[m:], mb[m:], ab[m:]
         if plain is not None:
             # the normalised source must be clearly more symmetric to win: where the two are close, the division's
@@ -439,8 +475,8 @@ def _saddle_group(img, c0, rr, image_index, rmax, half, basis, iterations, smoot
             moved = moved | m2
         c = torch.where((ok & moved)[..., None], polished + top_left.to(dt), c)
         if wide_max > polish_max:
-            wide, agree = wide_polish(src, polished, moved, asym, wr.clamp_max(WIDE_MAX_MOVE), wide_max, _sample_window,
-                                      _window(wr, wide_max)[1])
+            wide, agree = wide_polish(src, polished, moved, asym, wr.clamp_max(WIDE_MAX_MOVE), wide_max, sample_window,
+                                      weighted_window(wr, wide_max)[1])
             return c, ok, wide + top_left.to(dt), agree & ok, ok & moved
     return c, ok
 

@@ -71,10 +71,10 @@ def symmetry_polish(
         1 where the window shows no point symmetry), which lets a caller compare sources.
 
     Example:
-        >>> from ccs_kornia.modules.detection.refine.saddle_refine import _sample_window, _window
+        >>> from ccs_kornia.modules.detection.refine.saddle_refine import sample_window, weighted_window
         >>> img = torch.zeros(1, 1, 41, 41); img[..., :20, :20] = 1; img[..., 20:, 20:] = 1
-        >>> r = torch.tensor([6.0]); w = _window(r, 6)[1]
-        >>> symmetry_polish(img, torch.tensor([[20.2, 19.1]]), r, 6, _sample_window, w)[0].round(decimals=2)
+        >>> r = torch.tensor([6.0]); w = weighted_window(r, 6)[1]
+        >>> symmetry_polish(img, torch.tensor([[20.2, 19.1]]), r, 6, sample_window, w)[0].round(decimals=2)
         tensor([[19.5000, 19.5000]])
     """
     m, side = corners.shape[0], 2 * rmax + 1
@@ -126,9 +126,9 @@ def symmetry_terms(
         sample_window: as for :func:`symmetry_polish`.
 
     Example:
-        >>> from ccs_kornia.modules.detection.refine.saddle_refine import _sample_window
+        >>> from ccs_kornia.modules.detection.refine.saddle_refine import sample_window
         >>> img = torch.zeros(1, 1, 41, 41); img[..., :20, :20] = 1; img[..., 20:, 20:] = 1
-        >>> symmetry_terms(img, torch.tensor([[19.5, 19.5]]), 6, _sample_window)[:, 2].abs().max().item()
+        >>> symmetry_terms(img, torch.tensor([[19.5, 19.5]]), 6, sample_window)[:, 2].abs().max().item()
         0.0
     """
     m, side = centre.shape[0], 2 * rmax + 1
@@ -170,11 +170,11 @@ def wide_polish(
             weights: as for :func:`symmetry_polish`.
 
     Example:
-        >>> from ccs_kornia.modules.detection.refine.saddle_refine import _sample_window, _window
+        >>> from ccs_kornia.modules.detection.refine.saddle_refine import sample_window, weighted_window
         >>> img = torch.zeros(1, 1, 41, 41); img[..., :20, :20] = 1; img[..., 20:, 20:] = 1
         >>> r = torch.tensor([9.0])
         >>> p, agree = wide_polish(img, torch.tensor([[19.6, 19.4]]), torch.tensor([True]), torch.tensor([0.01]),
-        ...                        r.clamp_max(0.5), 9, _sample_window, _window(r, 9)[1])
+        ...                        r.clamp_max(0.5), 9, sample_window, weighted_window(r, 9)[1])
         >>> p.round(decimals=1), agree  # the corner is at (19.5, 19.5)
         (tensor([[19.5000, 19.5000]]), tensor([True]))
     """

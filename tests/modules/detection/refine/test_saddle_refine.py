@@ -91,8 +91,8 @@ def test_window_samples_and_gradient_match_the_reference_ops(device):
 
     from ccs_kornia.modules.detection.refine.saddle_refine import (
         _central_differences,
-        _sample,
-        _sample_window,
+        sample_bilinear,
+        sample_window,
     )
 
     g = torch.Generator().manual_seed(5)
@@ -106,8 +106,8 @@ def test_window_samples_and_gradient_match_the_reference_ops(device):
     offs = torch.arange(-rmax, rmax + 1, device=device, dtype=torch.float32)
     oy, ox = torch.meshgrid(offs, offs, indexing="ij")
     pts = centre[:, None] + torch.stack([ox.reshape(-1), oy.reshape(-1)], -1)
-    ref = torch.stack([_sample(regions[i : i + 1], pts[i][None, None])[0, 0, 0] for i in range(4)])
-    torch.testing.assert_close(_sample_window(regions, centre, rmax), ref, atol=1e-5, rtol=0)
+    ref = torch.stack([sample_bilinear(regions[i : i + 1], pts[i][None, None])[0, 0, 0] for i in range(4)])
+    torch.testing.assert_close(sample_window(regions, centre, rmax), ref, atol=1e-5, rtol=0)
 
 
 def test_region_source_matches_the_whole_image_filters_at_the_border(device):
@@ -115,7 +115,7 @@ def test_region_source_matches_the_whole_image_filters_at_the_border(device):
     # whole-image filters cropped with the border rule the bilinear sampling uses (repeat the nearest in-image pixel)
     from kornia.filters import gaussian_blur2d
 
-    from ccs_kornia.modules.detection.refine.saddle_refine import _saddle_source
+    from ccs_kornia.modules.detection.refine.saddle_refine import saddle_source
 
     g = torch.Generator().manual_seed(6)
     img = torch.rand(2, 1, 40, 50, generator=g).to(device)
@@ -124,7 +124,7 @@ def test_region_source_matches_the_whole_image_filters_at_the_border(device):
     # the bottom-right borders, at the origin, across one border only
     top_left = torch.tensor([[10, 12], [-5, -3], [40, 30], [-7, 30], [0, 0], [20, -7]], device=device)
     bi = torch.tensor([0, 1, 0, 1, 1, 0], device=device)
-    src, plain = _saddle_source(img, bi, top_left, q, 1.0, 6.0, with_plain=True)
+    src, plain = saddle_source(img, bi, top_left, q, 1.0, 6.0, with_plain=True)
     smooth = gaussian_blur2d(img, (7, 7), (1.0, 1.0), border_type="reflect")
     mean = gaussian_blur2d(img, (37, 37), (6.0, 6.0), border_type="replicate")
     span = torch.arange(q, device=device)

@@ -13,9 +13,9 @@ from ccs_kornia.modules.detection.refine import symmetry_refine as symmetry_modu
 from ccs_kornia.modules.detection.refine.patch_refine import edge_blur
 from ccs_kornia.modules.detection.refine.saddle_refine import (
     CornerRefiner,
-    _sample_window,
-    _window,
     refine_corners,
+    sample_window,
+    weighted_window,
 )
 from ccs_kornia.modules.detection.refine.symmetry_refine import symmetry_polish
 
@@ -47,9 +47,9 @@ def test_shapes_and_exact_on_a_sheared_corner(dtype):
     truth = torch.tensor([[31.37, 30.81]])
     img = _junction(64, (31.37, 30.81), angle=0.3, skew=0.5).to(dtype)
     r = torch.tensor([8.0, 8.0])
-    w = _window(r, 8)[1]
+    w = weighted_window(r, 8)[1]
     start = truth.repeat(2, 1) + torch.tensor([[0.6, -0.4], [-0.3, 0.5]])
-    out, ok, asym = symmetry_polish(img.expand(2, -1, -1, -1), start.to(dtype), r.to(dtype), 8, _sample_window,
+    out, ok, asym = symmetry_polish(img.expand(2, -1, -1, -1), start.to(dtype), r.to(dtype), 8, sample_window,
                                     w.to(dtype))
     assert out.shape == (2, 2) and ok.shape == (2,) and asym.shape == (2,)
     assert bool(ok.all()) and float(asym.max()) < 0.01
@@ -154,8 +154,8 @@ def test_wide_polish_averages_noise_on_a_symmetric_board():
     src, truth = _noisy_junctions(64, 0.05), torch.tensor([20.3, 19.6])
     start = truth.expand(64, 2) + 0.3
     r, rw = torch.full((64,), 4.5), torch.full((64,), 7.0)
-    usual, ok, asym = symmetry_polish(src, start, r, 5, _sample_window, _window(r, 5)[1])
-    wide, agree = wide_polish(src, usual, ok, asym, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
+    usual, ok, asym = symmetry_polish(src, start, r, 5, sample_window, weighted_window(r, 5)[1])
+    wide, agree = wide_polish(src, usual, ok, asym, rw.clamp_max(0.5), 7, sample_window, weighted_window(rw, 7)[1])
     assert bool(wide_vote(agree[None], ok[None]).all())  # one board: the vote is over all of them
     err_usual, err_wide = (usual - truth).norm(dim=-1).mean(), (wide - truth).norm(dim=-1).mean()
     assert bool(ok.all()) and float(err_wide) < 0.85 * float(err_usual)
@@ -171,12 +171,12 @@ def test_wide_polish_is_refused_where_marks_break_the_symmetry():
     src = src.clone()
     src[..., 13:16, 25:28] = 0.5  # a mark in a square, inside the wide window only (ArUco / dot codes)
     r, rw = torch.full((16,), 4.5), torch.full((16,), 7.0)
-    usual, ok, asym = symmetry_polish(src, truth.expand(16, 2) + 0.2, r, 5, _sample_window, _window(r, 5)[1])
-    _, agree = wide_polish(src, usual, ok, asym, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
+    usual, ok, asym = symmetry_polish(src, truth.expand(16, 2) + 0.2, r, 5, sample_window, weighted_window(r, 5)[1])
+    _, agree = wide_polish(src, usual, ok, asym, rw.clamp_max(0.5), 7, sample_window, weighted_window(rw, 7)[1])
     assert bool(ok.all()) and not bool(wide_vote(agree[None], ok[None]).any())
     clean = _noisy_junctions(16, 0.01)  # the same corners without the mark: the wide result is taken
-    usual, ok, asym = symmetry_polish(clean, truth.expand(16, 2) + 0.2, r, 5, _sample_window, _window(r, 5)[1])
-    wide, agree = wide_polish(clean, usual, ok, asym, rw.clamp_max(0.5), 7, _sample_window, _window(rw, 7)[1])
+    usual, ok, asym = symmetry_polish(clean, truth.expand(16, 2) + 0.2, r, 5, sample_window, weighted_window(r, 5)[1])
+    wide, agree = wide_polish(clean, usual, ok, asym, rw.clamp_max(0.5), 7, sample_window, weighted_window(rw, 7)[1])
     assert bool(wide_vote(agree[None], ok[None]).all()) and not torch.equal(wide, usual)
 
 
