@@ -65,7 +65,7 @@ class RigState:
         :math:`(B, C, F, 3)`.
 
         Example:
-            >>> from ccs_kornia.geometry.models import camera_model
+            >>> from ccs_kornia.geometry.models import PINHOLE
             >>> p = torch.tensor([[500.0, 500.0, 320.0, 240.0]])
             >>> s = RigState([PINHOLE] * 2, [p, p], torch.eye(3).expand(1, 2, 3, 3),
             ...              torch.tensor([[[0.0, 0, 0], [-0.1, 0, 0]]]), torch.eye(3).expand(1, 1, 3, 3),
