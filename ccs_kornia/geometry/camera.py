@@ -295,8 +295,7 @@ def radial_undistort_points(
     Returns:
         :math:`(B, N, 2)` ideal pixel coordinates.
     """
-    if coeffs.shape[-1] != 3:
-        raise ValueError(f"Radial distortion needs (B, 3) coefficients, got {tuple(coeffs.shape)}.")
+    check_tensor(coeffs, "coeffs", ["*", "3"], what="radial distortion coefficients (k0, k1, k2)")
     centre, scale = _centre_scale(image_size, points)
     q = (points - centre) / scale
     rd = q.norm(dim=-1, keepdim=True)

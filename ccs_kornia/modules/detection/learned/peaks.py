@@ -17,14 +17,15 @@ import torch.nn.functional as F
 from kornia.geometry.subpix import spatial_expectation2d
 from torch import nn
 
+from ccs_kornia.runtime.checks import check_tensor
+
 __all__ = ["strict_local_maxima", "heatmap_peaks", "HeatmapPeaks"]
 
 
 def _check_heatmap(heatmap: torch.Tensor) -> None:
     if not isinstance(heatmap, torch.Tensor):
         raise TypeError(f"heatmap must be a torch.Tensor, got {type(heatmap)}.")
-    if heatmap.ndim != 4 or heatmap.shape[1] != 1:
-        raise ValueError(f"Expected heatmap of shape (B, 1, H, W), got {tuple(heatmap.shape)}.")
+    check_tensor(heatmap, "heatmap", ["B", "1", "H", "W"])
     if not heatmap.is_floating_point():
         raise ValueError(f"heatmap must be a floating point tensor, got {heatmap.dtype}.")
 
