@@ -14,7 +14,6 @@ import time
 from typing import Any
 
 import cv2
-import torch
 from tqdm import tqdm
 
 from ccs_kornia.commands._boards import aprilgrid_record, charuco_record

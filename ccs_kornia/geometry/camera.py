@@ -35,7 +35,7 @@ from kornia.geometry.conversions import (
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import OPENCV5, PINHOLE, RATIONAL
-from ccs_kornia.runtime.checks import broadcast_shapes
+from ccs_kornia.runtime.checks import broadcast_shapes, check_shape, check_tensor
 
 __all__ = [
     "Camera",
@@ -90,8 +90,7 @@ def intrinsics_matrix(params: torch.Tensor) -> torch.Tensor:
                 [  0., 510., 240.],
                 [  0.,   0.,   1.]])
     """
-    if params.shape[-1] != 4:
-        raise ValueError(f"Expected (..., 4) intrinsics (fx, fy, cx, cy), got {tuple(params.shape)}.")
+    check_tensor(params, "params", ["*", "4"], what="intrinsics (fx, fy, cx, cy)")
     fx, fy, cx, cy = params.unbind(-1)
     z, o = torch.zeros_like(fx), torch.ones_like(fx)
     return torch.stack([fx, z, cx, z, fy, cy, z, z, o], -1).reshape(*params.shape[:-1], 3, 3)
@@ -99,8 +98,7 @@ def intrinsics_matrix(params: torch.Tensor) -> torch.Tensor:
 
 def intrinsics_params(K: torch.Tensor) -> torch.Tensor:
     """``(..., 3, 3)`` camera matrix to ``(..., 4)`` parameters ``(fx, fy, cx, cy)``."""
-    if K.shape[-2:] != (3, 3):
-        raise ValueError(f"Expected (..., 3, 3) camera matrix, got {tuple(K.shape)}.")
+    check_tensor(K, "K", ["*", "3", "3"], what="camera matrices")
     return torch.stack([K[..., 0, 0], K[..., 1, 1], K[..., 0, 2], K[..., 1, 2]], -1)
 
 
@@ -153,10 +151,8 @@ def project_points(
         >>> project_points(torch.tensor([[0.1, 0.0, 1.0]]), K)
         tensor([[370., 240.]])
     """
-    if points.shape[-1] != 3:
-        raise ValueError(f"Expected (*, N, 3) points, got {tuple(points.shape)}.")
-    if K.shape[-2:] != (3, 3):
-        raise ValueError(f"Expected (*, 3, 3) camera matrices, got {tuple(K.shape)}.")
+    check_tensor(points, "points", ["*", "N", "3"])
+    check_tensor(K, "K", ["*", "3", "3"], what="camera matrices")
     if rvec is not None:
         if tvec is None:
             raise ValueError("rvec given without tvec.")
@@ -221,8 +217,7 @@ def radial_distort_points(points: torch.Tensor, coeffs: torch.Tensor, image_size
         tensor([[[319.5000, 239.5000],
                  [639.0000, 479.0000]]])
     """
-    if coeffs.shape[-1] != 3:
-        raise ValueError(f"Radial distortion needs (B, 3) coefficients (k0, k1, k2), got {tuple(coeffs.shape)}.")
+    check_tensor(coeffs, "coeffs", ["*", "3"], what="radial distortion coefficients (k0, k1, k2)")
     k = coeffs.unsqueeze(-2)
 
     def factor(r):
@@ -246,8 +241,7 @@ def radial_undistort_points(
     Returns:
         :math:`(B, N, 2)` ideal pixel coordinates.
     """
-    if coeffs.shape[-1] != 3:
-        raise ValueError(f"Radial distortion needs (B, 3) coefficients, got {tuple(coeffs.shape)}.")
+    check_tensor(coeffs, "coeffs", ["*", "3"], what="radial distortion coefficients (k0, k1, k2)")
     centre, scale = radial_centre_scale(image_size, points)
     q = (points - centre) / scale
     rd = q.norm(dim=-1, keepdim=True)
@@ -274,8 +268,7 @@ def radial_correct_points(points: torch.Tensor, correction: torch.Tensor, image_
     Returns:
         :math:`(B, N, 2)` corrected pixel coordinates.
     """
-    if correction.shape[-1] != 5:
-        raise ValueError(f"Radial correction needs (B, 5) coefficients, got {tuple(correction.shape)}.")
+    check_tensor(correction, "correction", ["*", "5"], what="radial correction coefficients (k0'..k4')")
     c = correction.unsqueeze(-2)
 
     def factor(r):
@@ -347,8 +340,7 @@ class Camera:
     """
 
     def __init__(self, model, params: torch.Tensor, image_size=None) -> None:
-        if not isinstance(params, torch.Tensor) or params.dim() not in (1, 2):
-            raise ValueError(f"Camera params must be (C, P) or (P,), got {tuple(getattr(params, 'shape', ()))}.")
+        check_tensor(params, "params", ["C", "P"], ["P"], what="camera parameters")
         params = params[None] if params.dim() == 1 else params
         count = params.shape[0]
         models = tuple(model) if isinstance(model, (tuple, list)) else (model,) * count
@@ -359,8 +351,8 @@ class Camera:
         if len(models) != count:
             raise ValueError(f"Camera has {count} parameter rows but {len(models)} models.")
         width = max((m.num_params for m in models), default=0)
-        if count and params.shape[-1] != width:
-            raise ValueError(f"Camera params must have {width} columns for {_names(models)}, got {params.shape[-1]}.")
+        if count:
+            check_tensor(params, "params", ["C", width], what=f"for {_names(models)}")
         self.models: tuple = models
         self.params: torch.Tensor = params
         self.image_sizes: tuple[ImageSize | None, ...] = _image_sizes(image_size, count)
@@ -375,8 +367,7 @@ class Camera:
         Coefficients the model does not have must be zero (``k1k2``'s ``p1, p2, k3``): they would be dropped.
         Only one model here; :meth:`cat` joins cameras of several.
         """
-        if not isinstance(K, torch.Tensor) or K.shape[-2:] != (3, 3) or K.dim() not in (2, 3):
-            raise ValueError(f"K must be (C, 3, 3) or (3, 3), got {tuple(getattr(K, 'shape', ()))}.")
+        check_tensor(K, "K", ["C", "3", "3"], ["3", "3"])
         K = K[None] if K.dim() == 2 else K
         if dist is not None:
             dist = torch.as_tensor(dist, dtype=K.dtype, device=K.device)
@@ -503,8 +494,7 @@ class Camera:
 
     def _map(self, name: str, inputs: torch.Tensor, jacobians: bool, out_dim: int, jac_shape=None, **kwargs):
         """Model ``name`` map of ``inputs`` :math:`(C, *, k)`, run once per model (scattered back in camera order)."""
-        if inputs.shape[0] != len(self):
-            raise ValueError(f"{name}: expected {len(self)} cameras first, got {tuple(inputs.shape)}.")
+        check_tensor(inputs, f"{name}'s inputs", ["C", "*"], what="(cameras first)", C=len(self))
         params = self.params.to(inputs.dtype) if inputs.is_floating_point() else self.params
         if self.uniform:
             return getattr(self.model, name)(inputs, params, jacobians=jacobians, **kwargs)
@@ -527,14 +517,12 @@ class Camera:
             pixels :math:`(C, *, 2)`; with ``jacobians`` also ``d pixel / d params`` :math:`(C, *, 2, P)` (zero
             beyond a camera's own parameters) and ``d pixel / d point`` :math:`(C, *, 2, 3)` (camera frame).
         """
-        if points.shape[-1] != 3:
-            raise ValueError(f"Expected (C, *, 3) points, got {tuple(points.shape)}.")
+        check_shape(points, ["*", "3"], "points must be (C, *, 3)")
         if rvec is not None:
             if tvec is None:
                 raise ValueError("rvec given without tvec.")
             points = transform_points_rt(points, rvec, tvec)
-        if points.shape[0] != len(self):
-            raise ValueError(f"project: expected {len(self)} cameras first, got {tuple(points.shape)}.")
+        check_tensor(points, "project's points", ["C", "*"], what="(cameras first)", C=len(self))
         params = self.params.to(points.dtype)
         if self.uniform:
             uv, J, Jx = self.model.project(points, params, jacobians)

@@ -9,15 +9,16 @@ from __future__ import annotations
 
 import torch
 
+from ccs_kornia.runtime.checks import check_shape, check_tensor
+
 __all__ = ["e_fl", "e_pp", "e_ip", "rms", "per_view_rms"]
 
 
-def _params(K: torch.Tensor) -> torch.Tensor:
+def _params(K: torch.Tensor, name: str) -> torch.Tensor:
+    check_tensor(K, name, ["*", "3", "3"], ["*", "4"], what="camera matrices or (fx, fy, cx, cy)")
     if K.shape[-2:] == (3, 3):
         return torch.stack([K[..., 0, 0], K[..., 1, 1], K[..., 0, 2], K[..., 1, 2]], -1)
-    if K.shape[-1] == 4:
-        return K
-    raise ValueError(f"Expected (..., 3, 3) camera matrices or (..., 4) (fx, fy, cx, cy), got {tuple(K.shape)}.")
+    return K
 
 
 def e_fl(K: torch.Tensor, K_true: torch.Tensor) -> torch.Tensor:
@@ -27,13 +28,13 @@ def e_fl(K: torch.Tensor, K_true: torch.Tensor) -> torch.Tensor:
         >>> e_fl(torch.tensor([501., 499., 320., 240.]), torch.tensor([500., 500., 320., 240.]))
         tensor(2.)
     """
-    d = (_params(K) - _params(K_true)).abs()
+    d = (_params(K, "K") - _params(K_true, "K_true")).abs()
     return d[..., 0] + d[..., 1]
 
 
 def e_pp(K: torch.Tensor, K_true: torch.Tensor) -> torch.Tensor:
     """Principal-point error ``|cx - cx*| + |cy - cy*|`` in px, shape ``(...)``."""
-    d = (_params(K) - _params(K_true)).abs()
+    d = (_params(K, "K") - _params(K_true, "K_true")).abs()
     return d[..., 2] + d[..., 3]
 
 
@@ -64,8 +65,8 @@ def rms(projected: torch.Tensor, observed: torch.Tensor, valid: torch.Tensor | N
         >>> rms(torch.zeros(2, 2), torch.tensor([[3., 4.], [0., 0.]]))
         tensor(3.5355)
     """
-    if projected.shape[-1] != 2 or observed.shape[-1] != 2:
-        raise ValueError("projected and observed must be (*, N, 2).")
+    check_shape(projected, ["*", "2"], "projected must be (*, N, 2)")
+    check_shape(observed, ["*", "2"], "observed must be (*, N, 2)")
     sq = (projected - observed).pow(2).sum(-1)
     if valid is None:
         valid = torch.ones_like(sq, dtype=torch.bool)

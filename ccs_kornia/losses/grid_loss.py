@@ -20,6 +20,7 @@ import torch
 from torch import nn
 
 from ccs_kornia.geometry import camera
+from ccs_kornia.runtime.checks import check_correction, check_tensor
 
 __all__ = ["sampling_grid", "normalize_distortion_scale", "grid_targets", "grid_loss", "GridLoss"]
 
@@ -63,8 +64,7 @@ def normalize_distortion_scale(distortion: torch.Tensor) -> torch.Tensor:
         >>> normalize_distortion_scale(torch.tensor([[2.0, 8.0, 32.0]]))
         tensor([[1., 1., 1.]])
     """
-    if distortion.dim() != 2 or distortion.shape[-1] != 3:
-        raise ValueError(f"distortion must be (B, 3) coefficients (k0, k1, k2), got {tuple(distortion.shape)}.")
+    check_tensor(distortion, "distortion", ["B", "3"], what="coefficients (k0, k1, k2)")
     k0 = distortion[:, 0:1]
     return torch.cat([torch.ones_like(k0), distortion[:, 1:2] / k0**3, distortion[:, 2:3] / k0**5], -1)
 
@@ -84,8 +84,7 @@ def grid_targets(
         (computed in float64, returned in ``distortion``'s dtype) and ``valid`` :math:`(B, G^2)`: the inverse
         converged on the increasing branch of the distortion (points past its fold have no preimage).
     """
-    if distortion.dim() != 2 or distortion.shape[-1] != 3:
-        raise ValueError(f"distortion must be (B, 3) coefficients (k0, k1, k2), got {tuple(distortion.shape)}.")
+    check_tensor(distortion, "distortion", ["B", "3"], what="coefficients (k0, k1, k2)")
     b = distortion.shape[0]
     k = distortion.detach().to(torch.float64)
     pts = sampling_grid(image_size, grid_size, distortion.device, torch.float64).expand(b, -1, -1)
@@ -129,10 +128,8 @@ def grid_loss(
         >>> bool(grid_loss(camera.fit_radial_correction(k, (64, 48)), k, (64, 48)) < 0.01)
         True
     """
-    if correction.dim() != 2 or correction.shape[-1] != 5:
-        raise ValueError(f"correction must be (B, 5) coefficients, got {tuple(correction.shape)}.")
-    if distortion.dim() != 2 or distortion.shape != (correction.shape[0], 3):
-        raise ValueError(f"distortion must be ({correction.shape[0]}, 3), got {tuple(distortion.shape)}.")
+    check_correction(correction)
+    check_tensor(distortion, "distortion", ["B", "3"], what="coefficients (k0, k1, k2)", B=correction.shape[0])
     if reduction not in _REDUCTIONS:
         raise ValueError(f"reduction must be one of {_REDUCTIONS}, got {reduction!r}.")
     pts, tgt, valid = grid_targets(distortion, image_size, grid_size)

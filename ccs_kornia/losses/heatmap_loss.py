@@ -5,6 +5,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ccs_kornia.runtime.checks import check_same_shape, check_tensor
+
 __all__ = ["heatmap_loss", "HeatmapLoss"]
 
 _REDUCTIONS = ("mean", "sum", "none")
@@ -47,11 +49,8 @@ def heatmap_loss(
         >>> heatmap_loss(pred, target, reduction="sum", pos_weight=3.0)
         tensor(4.)
     """
-    if pred.ndim != 4 or target.shape != pred.shape:
-        raise ValueError(
-            "Expected pred and target of the same shape (B, C, H, W), "
-            f"got {tuple(pred.shape)} and {tuple(target.shape)}."
-        )
+    check_tensor(pred, "pred", ["B", "C", "H", "W"])
+    check_same_shape(target, "target", pred, "pred")
     if reduction not in _REDUCTIONS:
         raise ValueError(f"Unknown reduction {reduction!r}; expected one of {_REDUCTIONS}.")
     if pos_weight < 0:

@@ -14,6 +14,8 @@ import functools
 import torch
 import torch.nn.functional as F
 
+from ccs_kornia.runtime.checks import check_tensor
+
 __all__ = ["BANDED_MAX_PIXELS", "area_matrix", "area_resize", "banded_product", "halve", "separable_product"]
 
 #: :func:`area_resize` uses the banded products on images of at most this many pixels (torch's area interpolation
@@ -87,8 +89,7 @@ def area_resize(images: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
         >>> bool(torch.allclose(area_resize(x, (17, 23)), F.interpolate(x, size=(17, 23), mode="area"), atol=1e-6))
         True
     """
-    if images.dim() != 4:
-        raise ValueError(f"images must be (B, C, H, W), got {tuple(images.shape)}.")
+    check_tensor(images, "images", ["B", "C", "H", "W"])
     h, w = int(size[0]), int(size[1])
     height, width = images.shape[-2:]
     if (h, w) == (height, width):

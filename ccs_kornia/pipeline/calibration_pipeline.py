@@ -35,7 +35,7 @@ from typing import Callable
 import torch
 from torch import nn
 
-from ccs_kornia.runtime.checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size, check_tensor
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.modules.calibration.model_selection import ModelChoice, ModelSelection
@@ -485,20 +485,16 @@ class CalibrationPipeline(nn.Module):
             :class:`~ccs_kornia.modules.calibration.result.CalibrationResult`.
         """
         cols, rows = board = check_board_size(board_size)
-        if corners.dim() not in (3, 4) or corners.shape[-1] != 2 or corners.shape[-2] != cols * rows:
-            raise ValueError(
-                f"Expected corners (V, {cols * rows}, 2) or (C, V, {cols * rows}, 2) for a {cols}x{rows} board, "
-                f"got {tuple(corners.shape)}."
-            )
+        check_tensor(corners, "corners", ["V", "N", "2"], ["C", "V", "N", "2"], what=f"for a {cols}x{rows} board",
+                     N=cols * rows)
         if valid.shape == corners.shape[:-2]:
             valid = measured_corners(corners, valid)
-        if valid.shape != corners.shape[:-1]:
-            raise ValueError(f"valid must have shape {tuple(corners.shape[:-1])}, got {tuple(valid.shape)}.")
+        check_tensor(valid, "valid", corners.shape[:-1])
         if not square > 0:
             raise ValueError(f"square must be positive, got {square}.")
         size = (int(image_size[0]), int(image_size[1]))
-        if sigma is not None and sigma.shape != corners.shape[:-1]:
-            raise ValueError(f"sigma must have shape {tuple(corners.shape[:-1])}, got {tuple(sigma.shape)}.")
+        if sigma is not None:
+            check_tensor(sigma, "sigma", corners.shape[:-1])
         solving = self.solving
         object_points = solving.object_points(board, square, corners.device)
         sigma = sigma if solving.weigh_corners else None

@@ -44,7 +44,7 @@ from ccs_kornia.modules.detection.warps.virtual_view import (
     VIEWS_PER_ROUND,
     detect_with_calibrated_lens,
 )
-from ccs_kornia.pipeline.result import PipelineResult, positive_size, select_result
+from ccs_kornia.pipeline.result import PipelineResult, positive_size
 from ccs_kornia.pipeline.workers import worker_pool
 
 __all__ = ["Pass", "Tools", "Look", "own_fallbacks", "first_look_fallbacks", "second_look_fallbacks",

@@ -10,10 +10,10 @@ from typing import Any
 import torch
 
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.modules.calibration.result import VIEW_REASONS, CalibrationResult
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.pipeline.sources import SIZE_TOLERANCE_PX
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = [
     "PipelineResult",
@@ -246,9 +246,8 @@ class PipelineResult:
             >>> r.present.shape, r.image_size, r.view_sizes[0, 0].tolist()
             (torch.Size([2, 3]), [(64, 48), (64, 48)], [64, 48])
         """
-        if corners.dim() != 4 or corners.shape[-1] != 2 or found.shape != corners.shape[:2]:
-            raise ValueError(f"corners must be (C, V, N, 2) and found (C, V), got {tuple(corners.shape)}, "
-                             f"{tuple(found.shape)}.")
+        check_tensor(corners, "corners", ["C", "V", "N", "2"])
+        check_tensor(found, "found", corners.shape[:2])
         c, v = found.shape
         size = (int(image_size[0]), int(image_size[1]))
         sizes = torch.tensor(size, device=corners.device).expand(c, v, 2).clone()
@@ -279,8 +278,8 @@ class PipelineResult:
             raise ValueError("take_views() needs a batched result (cameras first).")
         cam = torch.as_tensor(cameras, dtype=torch.long)
         view = torch.as_tensor(views, dtype=torch.long)
-        if cam.dim() != 1 or view.dim() != 2 or view.shape[0] != cam.shape[0]:
-            raise ValueError(f"cameras must be (T,) and views (T, V'), got {tuple(cam.shape)}, {tuple(view.shape)}.")
+        check_tensor(cam, "cameras", ["T"])
+        check_tensor(view, "views", ["T", "V'"], T=cam.shape[0])
         v = self.present.shape[1]
 
         def per_view(x):

@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ccs_kornia.runtime.checks import check_tensor
+
 __all__ = ["LoadedBatch", "ViewSource", "TensorSource", "FileSource", "VideoFrameRef", "VideoSource", "prefetched",
            "DEFAULT_MAX_BATCH_PIXELS", "SIZE_TOLERANCE_PX"]
 
@@ -214,15 +216,12 @@ class TensorSource(ViewSource):
 
     def __init__(self, images: torch.Tensor | Sequence[torch.Tensor], names: Sequence[str] | None = None) -> None:
         if isinstance(images, torch.Tensor):
-            if images.dim() not in (4, 5) or images.shape[-3] != 1:
-                raise ValueError(f"Expected grey images (V, 1, H, W) or (C, V, 1, H, W), got {tuple(images.shape)}.")
+            check_tensor(images, "images", ["V", "1", "H", "W"], ["C", "V", "1", "H", "W"], what="grey images")
             cams = [images] if images.dim() == 4 else list(images.unbind(0))
         else:
             cams = list(images)
             for k, t in enumerate(cams):
-                if not isinstance(t, torch.Tensor) or t.dim() != 4 or t.shape[1] != 1:
-                    shape = tuple(t.shape) if isinstance(t, torch.Tensor) else type(t).__name__
-                    raise ValueError(f"camera {k}: expected grey images (V, 1, H, W), got {shape}.")
+                check_tensor(t, f"camera {k}'s images", ["V", "1", "H", "W"], what="grey images")
         self.images = cams
         super().__init__([t.shape[0] for t in cams], names)
 

@@ -16,7 +16,7 @@ from ccs_kornia.geometry.camera import (
     radial_distort_points,
     radial_undistort_points,
 )
-from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE, RATIONAL
+from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE
 
 F64 = torch.float64
 

@@ -160,7 +160,7 @@ def test_indexing_sizes_and_devices(device):
 def test_boundary_errors():
     with pytest.raises(TypeError, match="CameraModel"):
         Camera("opencv5", torch.zeros(1, 9))
-    with pytest.raises(ValueError, match="columns"):
+    with pytest.raises(ValueError, match=r"params must be \(C, 9\) for opencv5, got \(1, 8\)"):
         Camera(OPENCV5, torch.zeros(1, 8))
     with pytest.raises(ValueError, match="place"):
         Camera.from_opencv(K1K2, K, torch.tensor([-0.2, 0.0, 0.01, 0.0, 0.0], dtype=F64))

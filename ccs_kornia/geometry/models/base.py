@@ -24,6 +24,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from ccs_kornia.runtime.checks import check_shape, check_tensor
+
 __all__ = ["CameraModel", "check_projection_inputs", "broadcast_params", "unit_columns", "solve_2x2"]
 
 #: Newton steps of :meth:`CameraModel.undistort` after its start (quadratic convergence: a good start needs 2-3)
@@ -32,12 +34,8 @@ UNDISTORT_NEWTON_STEPS = 4
 
 def check_projection_inputs(points: torch.Tensor, params: torch.Tensor, num_params: int) -> None:
     """Shape checks shared by the models: points :math:`(C, *, 3)`, params :math:`(C, P)`."""
-    if not isinstance(points, torch.Tensor) or points.dim() < 2 or points.shape[-1] != 3:
-        raise ValueError(f"points must be (C, *, 3), got {tuple(getattr(points, 'shape', ()))}.")
-    if not isinstance(params, torch.Tensor) or params.dim() != 2 or params.shape[-1] != num_params:
-        raise ValueError(f"params must be (C, {num_params}), got {tuple(getattr(params, 'shape', ()))}.")
-    if params.shape[0] not in (1, points.shape[0]):
-        raise ValueError(f"params has {params.shape[0]} cameras but points has {points.shape[0]}.")
+    check_shape(points, ["*", "N", "3"], "points must be (C, *, 3)")
+    check_tensor(params, "params", ["1", num_params], ["C", num_params], C=points.shape[0])
 
 
 class CameraModel:

@@ -8,7 +8,7 @@ import functools
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.centred_radial import CentredRadialModel
 from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
-from ccs_kornia.geometry.models.opencv import OPENCV_VARIANTS, OpenCVModel
+from ccs_kornia.geometry.models.opencv import OpenCVModel
 
 __all__ = ["CAMERA_MODELS", "FISHEYE", "K1K2", "OPENCV5", "PINHOLE", "RATIONAL", "camera_model"]
 

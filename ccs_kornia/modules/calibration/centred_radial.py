@@ -23,6 +23,7 @@ import torch
 from ccs_kornia.geometry.models.centred_radial import CentredRadialModel
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.correction.radial_warp import corrected_radius
+from ccs_kornia.runtime.checks import check_points, check_same_shape, check_tensor
 
 __all__ = ["centred_radial_distort", "radial_from_correction", "radial_from_points", "refine_centred_radial"]
 
@@ -100,11 +101,10 @@ def radial_from_points(
         >>> bool(torch.allclose(radial_from_points(p, centred_radial_distort(p, k, (64, 48)), (64, 48)), k))
         True
     """
-    if ideal.dim() != 3 or ideal.shape[-1] != 2 or distorted.shape != ideal.shape:
-        raise ValueError(f"ideal and distorted must both be (B, N, 2), got {tuple(ideal.shape)}, "
-                         f"{tuple(distorted.shape)}.")
-    if mask is not None and mask.shape != ideal.shape[:2]:
-        raise ValueError(f"mask must be {tuple(ideal.shape[:2])}, got {tuple(mask.shape)}.")
+    check_points(ideal, "ideal")
+    check_same_shape(distorted, "distorted", ideal, "ideal")
+    if mask is not None:
+        check_tensor(mask, "mask", ideal.shape[:2])
     w, h = int(image_size[0]), int(image_size[1])
     dt = torch.float64
     centre = torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], device=ideal.device, dtype=dt)
@@ -178,13 +178,10 @@ def refine_centred_radial(
         >>> bool((K1 - K).abs().max() < 1e-4), bool((k1 - k).abs().max() < 1e-4), bool(rms < 1e-6)
         (True, True, True)
     """
-    if corners.dim() != 4 or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (C, V, N, 2), got {tuple(corners.shape)}.")
+    check_tensor(corners, "corners", ["C", "V", "N", "2"])
     c, v, n = corners.shape[:3]
-    if valid.shape != (c, v, n):
-        raise ValueError(f"valid must be {(c, v, n)}, got {tuple(valid.shape)}.")
-    if radial.shape != (c, 3):
-        raise ValueError(f"radial must be {(c, 3)}, got {tuple(radial.shape)}.")
+    check_tensor(valid, "valid", [c, v, n])
+    check_tensor(radial, "radial", [c, 3])
     dt, dev = torch.float64, corners.device
     cam = CentredRadialModel(image_size, free_centre)
     K0 = K.to(device=dev, dtype=dt)

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import torch
 
+from ccs_kornia.runtime.checks import check_tensor
+
 __all__ = ["batch_view_corners", "view_differences", "duplicate_views"]
 
 
@@ -32,12 +34,10 @@ def batch_view_corners(
         >>> corners.shape, valid.shape, unbatched
         (torch.Size([1, 3, 4, 2]), torch.Size([1, 3, 4]), True)
     """
-    if corners.dim() not in (3, 4) or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (C, V, N, 2) or (V, N, 2), got {tuple(corners.shape)}.")
+    check_tensor(corners, "corners", ["C", "V", "N", "2"], ["V", "N", "2"])
     if valid is None:
         valid = corners.isfinite().all(-1)
-    if valid.shape != corners.shape[:-1]:
-        raise ValueError(f"valid must be {tuple(corners.shape[:-1])}, got {tuple(valid.shape)}.")
+    check_tensor(valid, "valid", corners.shape[:-1])
     unbatched = corners.dim() == 3
     if unbatched:
         corners, valid = corners[None], valid[None]

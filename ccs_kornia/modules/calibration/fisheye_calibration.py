@@ -24,6 +24,7 @@ from ccs_kornia.geometry.models.factory import FISHEYE
 from ccs_kornia.modules.calibration.fisheye_init import board_to_ray_poses, init_fisheye
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.outliers import drop_outliers
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = ["FisheyeCalibrationResult", "calibrate_fisheye", "FisheyeCalibrator"]
 
@@ -115,15 +116,13 @@ def calibrate_fisheye(
         corners = corners[None]
         valid = None if valid is None else valid[None]
         weights = None if weights is None else weights[None]
-    if corners.dim() != 4 or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (C, V, N, 2) or (V, N, 2), got {tuple(corners.shape)}.")
+    check_tensor(corners, "corners", ["C", "V", "N", "2"], ["V", "N", "2"])
     C, V, N = corners.shape[:3]
-    if valid is not None and valid.shape != (C, V, N):
-        raise ValueError(f"valid must be {(C, V, N)}, got {tuple(valid.shape)}.")
-    if weights is not None and weights.shape != (C, V, N):
-        raise ValueError(f"weights must be {(C, V, N)}, got {tuple(weights.shape)}.")
-    if object_points.shape != (N, 3):
-        raise ValueError(f"object_points must be ({N}, 3), got {tuple(object_points.shape)}.")
+    if valid is not None:
+        check_tensor(valid, "valid", [C, V, N])
+    if weights is not None:
+        check_tensor(weights, "weights", [C, V, N])
+    check_tensor(object_points, "object_points", [N, 3])
     dt, dev = torch.float64, corners.device
     ok_pts = corners.isfinite().all(-1) & (True if valid is None else valid.bool())
     w = ok_pts.to(dt) if weights is None else torch.where(ok_pts, weights.to(dt), 0.0)

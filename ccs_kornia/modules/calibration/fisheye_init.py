@@ -17,7 +17,7 @@ import torch
 
 from ccs_kornia.geometry.camera import Camera, rotation_matrix_to_axis_angle
 from ccs_kornia.geometry.models.factory import FISHEYE
-from ccs_kornia.runtime.checks import broadcast_shapes
+from ccs_kornia.runtime.checks import broadcast_shapes, check_shape, check_tensor
 
 __all__ = ["board_to_ray_poses", "focal_hypotheses", "init_fisheye"]
 
@@ -45,8 +45,8 @@ def board_to_ray_poses(
         >>> bool(ok), bool((r - rvec).abs().max() < 1e-9), bool((t - tvec).abs().max() < 1e-9)
         (True, True, True)
     """
-    if rays.shape[-1] != 3 or object_xy.shape[-1] != 2:
-        raise ValueError(f"rays must be (*, N, 3) and object_xy (*, N, 2), got {tuple(rays.shape)}, {tuple(object_xy.shape)}.")
+    check_shape(rays, ["*", "3"], "rays must be (*, N, 3)")
+    check_shape(object_xy, ["*", "2"], "object_xy must be (*, N, 2)")
     shape = broadcast_shapes(rays.shape[:-1], object_xy.shape[:-1])
     a = rays.expand(*shape, 3)
     a = a / a.norm(dim=-1, keepdim=True).clamp_min(1e-300)
@@ -147,13 +147,10 @@ def init_fisheye(
         >>> bool(abs(params[0, 0, 0] - 200) < 15)
         True
     """
-    if corners.dim() != 4 or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (C, V, N, 2), got {tuple(corners.shape)}.")
+    check_tensor(corners, "corners", ["C", "V", "N", "2"])
     C, V, N = corners.shape[:3]
-    if weights.shape != (C, V, N):
-        raise ValueError(f"weights must be ({C}, {V}, {N}), got {tuple(weights.shape)}.")
-    if object_points.shape != (N, 3):
-        raise ValueError(f"object_points must be ({N}, 3), got {tuple(object_points.shape)}.")
+    check_tensor(weights, "weights", [C, V, N])
+    check_tensor(object_points, "object_points", [N, 3])
     dt, dev = torch.float64, corners.device
     uv = corners.to(dt)
     w = torch.where(uv.isfinite().all(-1), weights.to(dt), 0.0)

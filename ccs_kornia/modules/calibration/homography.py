@@ -11,7 +11,7 @@ import torch
 from kornia.geometry.homography import find_homography_dlt
 from torch import nn
 
-from ccs_kornia.runtime.checks import broadcast_shapes
+from ccs_kornia.runtime.checks import broadcast_shapes, check_tensor
 
 __all__ = ["MIN_HOMOGRAPHY_POINTS", "find_homographies", "BatchedHomography"]
 
@@ -44,18 +44,13 @@ def find_homographies(
         >>> torch.allclose(H, torch.tensor([[2., 0., 3.], [0., 2., 3.], [0., 0., 1.]]), atol=1e-5)
         True
     """
-    if image_xy.dim() < 2 or image_xy.shape[-1] != 2:
-        raise ValueError(f"image_xy must be (*, N, 2), got {tuple(image_xy.shape)}.")
-    if object_xy.dim() < 2 or object_xy.shape[-1] != 2:
-        raise ValueError(f"object_xy must be (*, N, 2), got {tuple(object_xy.shape)}.")
-    if object_xy.shape[-2] != image_xy.shape[-2]:
-        raise ValueError(f"object_xy has {object_xy.shape[-2]} points but image_xy has {image_xy.shape[-2]}.")
+    check_tensor(image_xy, "image_xy", ["*", "N", "2"])
+    check_tensor(object_xy, "object_xy", ["*", "N", "2"], N=image_xy.shape[-2])
     batch_shape = broadcast_shapes(object_xy.shape[:-2], image_xy.shape[:-2])
     num_points = image_xy.shape[-2]
     if valid is None:
         valid = torch.ones(image_xy.shape[:-1], dtype=torch.bool, device=image_xy.device)
-    if valid.shape[-1] != num_points:
-        raise ValueError(f"valid must be (*, {num_points}), got {tuple(valid.shape)}.")
+    check_tensor(valid, "valid", ["*", "N"], N=num_points)
     batch_shape = broadcast_shapes(batch_shape, valid.shape[:-1])
     if num_points < MIN_HOMOGRAPHY_POINTS:
         raise ValueError(f"A homography needs at least {MIN_HOMOGRAPHY_POINTS} points per view, got N={num_points}.")

@@ -28,6 +28,7 @@ from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3 as _exp_so3
 from ccs_kornia.geometry.so3 import log_so3 as _log_so3
 from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = ["LMResult", "parameter_basis", "levenberg_marquardt", "LevenbergMarquardt"]
 
@@ -90,8 +91,7 @@ def parameter_basis(
         (torch.Size([1, 6, 3]), [1.2000000476837158, 1.0])
     """
     P = model.num_params
-    if params.dim() != 2 or params.shape[-1] != P:
-        raise ValueError(f"params must be (C, {P}), got {tuple(params.shape)}.")
+    check_tensor(params, "params", ["C", P])
     if free is None:
         mask = list(model.default_free())
     elif len(free) and all(isinstance(f, str) for f in free):
@@ -125,17 +125,14 @@ def parameter_basis(
 def _check(model, params, rvec, tvec, object_points, corners, weights):
     if not isinstance(model, CameraModel):
         raise TypeError(f"model must be a CameraModel, got {type(model).__name__}.")
-    if corners.dim() != 4 or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (C, V, N, 2), got {tuple(corners.shape)}.")
+    check_tensor(corners, "corners", ["C", "V", "N", "2"])
     C, V, N = corners.shape[:3]
-    if params.shape != (C, model.num_params):
-        raise ValueError(f"params must be ({C}, {model.num_params}), got {tuple(params.shape)}.")
-    if rvec.shape != (C, V, 3) or tvec.shape != (C, V, 3):
-        raise ValueError(f"rvec/tvec must be ({C}, {V}, 3), got {tuple(rvec.shape)} and {tuple(tvec.shape)}.")
-    if object_points.shape not in ((N, 3), (C, N, 3)):
-        raise ValueError(f"object_points must be ({N}, 3) or ({C}, {N}, 3), got {tuple(object_points.shape)}.")
-    if weights is not None and weights.shape != (C, V, N):
-        raise ValueError(f"weights must be ({C}, {V}, {N}), got {tuple(weights.shape)}.")
+    check_tensor(params, "params", [C, model.num_params])
+    check_tensor(rvec, "rvec", [C, V, 3])
+    check_tensor(tvec, "tvec", [C, V, 3])
+    check_tensor(object_points, "object_points", [N, 3], [C, N, 3])
+    if weights is not None:
+        check_tensor(weights, "weights", [C, V, N])
 
 
 def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expanded):
@@ -294,8 +291,7 @@ def levenberg_marquardt(
         B = parameter_basis(model, x, free, fix_aspect_ratio)
         identity = B.shape[-1] == x.shape[-1] and not fix_aspect_ratio
     else:
-        if basis.dim() != 3 or basis.shape[:2] != (C, x.shape[-1]):
-            raise ValueError(f"basis must be ({C}, {x.shape[-1]}, F), got {tuple(basis.shape)}.")
+        check_tensor(basis, "basis", [C, x.shape[-1], "F"])
         B, identity = basis.to(device=device, dtype=dtype), False
     Bn = None if identity else B
 

@@ -49,6 +49,7 @@ from ccs_kornia.modules.calibration.quality.diagnostics import (
 from ccs_kornia.modules.calibration.quality.uncertainty import unprojectable_fraction
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
+from ccs_kornia.runtime.checks import check_same_shape, check_tensor
 
 __all__ = [
     "AUTO_MODELS", "ModelChoice", "model_or_choice", "FLEXIBLE_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
@@ -222,10 +223,10 @@ def choose_models(heldout: torch.Tensor, halves: torch.Tensor, tolerance: float 
         >>> choose_models(heldout, halves).tolist()
         [1]
     """
-    if heldout.shape != halves.shape or heldout.dim() != 2:
-        raise ValueError(f"heldout and halves must both be (M, C), got {tuple(heldout.shape)} and {tuple(halves.shape)}.")
-    if view_mse is not None and (view_mse.dim() != 3 or view_mse.shape[:2] != heldout.shape):
-        raise ValueError(f"view_mse must be (M, C, V) with (M, C) = {tuple(heldout.shape)}, got {tuple(view_mse.shape)}.")
+    check_tensor(heldout, "heldout", ["M", "C"])
+    check_same_shape(halves, "halves", heldout, "heldout")
+    if view_mse is not None:
+        check_tensor(view_mse, "view_mse", ["M", "C", "V"], M=heldout.shape[0], C=heldout.shape[1])
     H, S = heldout.double().cpu().T.tolist(), halves.double().cpu().T.tolist()
     E = None if view_mse is None else view_mse.double().cpu().permute(1, 0, 2).tolist()
     ranks = [rank_models(h, s, tolerance, None if E is None else E[c]) for c, (h, s) in enumerate(zip(H, S))]
@@ -342,9 +343,8 @@ class ModelSelection(nn.Module):
         each model's solve and cross-validation are independent); default here, one after the other. ``solutions``
         (:class:`~.subset_solutions.SubsetSolutions`): where each model's solved cross-validation subsets are kept,
         for the diagnostics of the chosen one (:func:`~.diagnostics.diagnose`)."""
-        if corners.dim() != 4 or valid.shape != corners.shape[:-1]:
-            raise ValueError(f"Expected corners (C, V, N, 2) and valid (C, V, N), got {tuple(corners.shape)} and "
-                             f"{tuple(valid.shape)}.")
+        check_tensor(corners, "corners", ["C", "V", "N", "2"])
+        check_tensor(valid, "valid", corners.shape[:-1])
         by_model = {s.model: s for s in self.solvers}
         names = list(by_model)
 

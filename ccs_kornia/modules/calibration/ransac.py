@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia.runtime.checks import broadcast_shapes
+from ccs_kornia.runtime.checks import broadcast_shapes, check_shape, check_tensor
 from ccs_kornia.modules.calibration.zhang import zhang_intrinsics
 
 __all__ = ["hypothesis_view_rms", "image_ransac", "ImageRansac"]
@@ -121,14 +121,11 @@ def image_ransac(
         if return_details:
             squeezed.append({k: v[0] for k, v in out[2].items()})
         return tuple(squeezed)
-    if H.dim() != 4 or H.shape[-2:] != (3, 3):
-        raise ValueError(f"H must be (C, V, 3, 3) or (V, 3, 3), got {tuple(H.shape)}.")
+    check_shape(H, ["C", "V", "3", "3"], "H must be (C, V, 3, 3) or (V, 3, 3)")
     C, V = H.shape[:2]
-    if corners.shape[:2] != (C, V) or corners.dim() != 4 or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be ({C}, {V}, N, 2), got {tuple(corners.shape)}.")
+    check_tensor(corners, "corners", [C, V, "N", 2])
     N = corners.shape[2]
-    if valid.shape != (C, V, N):
-        raise ValueError(f"valid must be {(C, V, N)}, got {tuple(valid.shape)}.")
+    check_tensor(valid, "valid", [C, V, N])
     if sample_size < 2:
         raise ValueError(f"sample_size must be >= 2, got {sample_size}.")
     if num_hypotheses < 1:

@@ -18,6 +18,7 @@ from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.geometry.models.opencv import OpenCVModel
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = ["RefinementResult", "joint_refinement", "JointRefinement", "camera_covariance"]
 
@@ -83,15 +84,12 @@ def _batch(corners, valid, object_points, K, rvec, tvec, dist, view_mask):
         dist = dist[None] if dist is not None and dist.dim() == 1 else dist
         view_mask = None if view_mask is None else view_mask[None]
         object_points = object_points[None] if object_points.dim() == 3 else object_points
-    if corners.dim() != 4 or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (C, V, N, 2) or (V, N, 2), got {tuple(corners.shape)}.")
+    check_tensor(corners, "corners", ["C", "V", "N", "2"], ["V", "N", "2"])
     C, V, N = corners.shape[:3]
-    if valid.shape != (C, V, N):
-        raise ValueError(f"valid must be {(C, V, N)}, got {tuple(valid.shape)}.")
-    if K.shape != (C, 3, 3):
-        raise ValueError(f"K must be ({C}, 3, 3), got {tuple(K.shape)}.")
-    if view_mask is not None and view_mask.shape != (C, V):
-        raise ValueError(f"view_mask must be ({C}, {V}), got {tuple(view_mask.shape)}.")
+    check_tensor(valid, "valid", [C, V, N])
+    check_tensor(K, "K", [C, 3, 3])
+    if view_mask is not None:
+        check_tensor(view_mask, "view_mask", [C, V])
     return corners, valid, object_points, K, rvec, tvec, dist, view_mask, unbatched
 
 

@@ -45,6 +45,7 @@ from typing import Any, Protocol
 import torch
 
 from ccs_kornia.geometry.spd_inverse import pseudo_inverse, spd_inverse
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = [
     "DOMINATED_RATIO",
@@ -320,20 +321,16 @@ def _complete(eq: NormalEquations, V: int) -> NormalEquations:
 def _check(problem, eq: NormalEquations) -> None:
     """The problem's masks and its first normal equations have the shapes of the protocol."""
     used = problem.used
-    if not isinstance(used, torch.Tensor) or used.dim() != 2 or used.dtype != torch.bool:
-        raise ValueError(f"problem.used must be (B, V) bool, got {tuple(getattr(used, 'shape', ()))}.")
+    check_tensor(used, "problem.used", ["B", "V"], what="bool")
+    if used.dtype != torch.bool:
+        raise ValueError(f"problem.used must be (B, V) bool, got {used.dtype}.")
     B, V = used.shape
     for name in ("num_residuals", "floor"):
-        value = getattr(problem, name)
-        if not isinstance(value, torch.Tensor) or value.shape != (B,):
-            raise ValueError(f"problem.{name} must be ({B},), got {tuple(getattr(value, 'shape', ()))}.")
-    G = eq.U.shape[-1] if eq.U.dim() == 3 else -1
+        check_tensor(getattr(problem, name), f"problem.{name}", [B])
+    G = eq.U.shape[-1] if eq.U.dim() == 3 else "G"
     shapes = {"cost": (B,), "U": (B, G, G), "W": (B, V, G, 6), "V": (B, V, 6, 6), "eg": (B, G), "ep": (B, V, 6)}
     for k, shape in shapes.items():
-        got = getattr(eq, k)
-        got = None if got is None else tuple(got.shape)
-        if got != shape:
-            raise ValueError(f"{k} must be {shape} (B={B} problems, V={V} items, G={G}), got {got}.")
+        check_tensor(getattr(eq, k), k, shape, what=f"(B={B} problems, V={V} items, G={G})")
 
 
 def _iterate(problem, s: LMState, ftol, xtol, eyeG, used_f) -> None:

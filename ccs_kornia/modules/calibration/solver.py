@@ -39,26 +39,20 @@ from ccs_kornia.modules.calibration.zhang import (
     extrinsics_from_homography,
     zhang_intrinsics,
 )
+from ccs_kornia.runtime.checks import check_same_shape, check_tensor
 from ccs_kornia.runtime.threads import small_problem_threads
 
 __all__ = ["CalibrationSolver", "calibrate"]
 
 
 def _check_inputs(corners, valid, object_points, image_size):
-    if not isinstance(corners, torch.Tensor) or corners.dim() not in (3, 4) or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (C, V, N, 2) or (V, N, 2), got {tuple(getattr(corners, 'shape', ()))}.")
+    check_tensor(corners, "corners", ["C", "V", "N", "2"], ["V", "N", "2"])
     if valid is None:
         valid = corners.isfinite().all(-1)
-    if valid.shape != corners.shape[:-1]:
-        raise ValueError(f"valid must be {tuple(corners.shape[:-1])}, got {tuple(valid.shape)}.")
+    check_tensor(valid, "valid", corners.shape[:-1])
     N = corners.shape[-2]
     C = corners.shape[0] if corners.dim() == 4 else 1
-    if object_points.dim() == 2:
-        ok = object_points.shape == (N, 3)
-    else:
-        ok = object_points.dim() == 3 and object_points.shape[1:] == (N, 3) and object_points.shape[0] in (1, C)
-    if not ok:
-        raise ValueError(f"object_points must be ({N}, 3) or ({C}, {N}, 3), got {tuple(object_points.shape)}.")
+    check_tensor(object_points, "object_points", [N, 3], [1, N, 3], [C, N, 3])
     if len(image_size) != 2 or min(int(image_size[0]), int(image_size[1])) <= 0:
         raise ValueError(f"image_size must be (W, H) with positive entries, got {image_size!r}.")
     if N < MIN_HOMOGRAPHY_POINTS:
@@ -292,11 +286,11 @@ class CalibrationSolver(nn.Module):
     def _solve(self, corners, valid, object_points, image_size, init_corners, initial, fix_intrinsics,
                weights=None) -> CalibrationResult:
         valid = _check_inputs(corners, valid, object_points, image_size)
-        if weights is not None and weights.shape != valid.shape:
-            raise ValueError(f"weights must be {tuple(valid.shape)} (as valid), got {tuple(weights.shape)}.")
+        if weights is not None:
+            check_same_shape(weights, "weights", valid, "valid")
         unbatched = corners.dim() == 3
-        if init_corners is not None and init_corners.shape != corners.shape:
-            raise ValueError(f"init_corners must match corners {tuple(corners.shape)}, got {tuple(init_corners.shape)}.")
+        if init_corners is not None:
+            check_same_shape(init_corners, "init_corners", corners, "corners")
         if unbatched:
             corners, valid = corners[None], valid[None]
             weights = None if weights is None else weights[None]

@@ -12,7 +12,7 @@ import torch
 from torch import nn
 
 from ccs_kornia.geometry.so3 import log_so3
-from ccs_kornia.runtime.checks import broadcast_shapes
+from ccs_kornia.runtime.checks import broadcast_shapes, check_tensor
 
 __all__ = ["zhang_intrinsics", "extrinsics_from_homography", "rotation_translation_from_homography", "ZhangInit"]
 
@@ -88,13 +88,11 @@ def zhang_intrinsics(
     if unbatched:
         H = H[None]
         view_mask = None if view_mask is None else view_mask[None]
-    if H.dim() != 4 or H.shape[-2:] != (3, 3):
-        raise ValueError(f"H must be (C, V, 3, 3) or (V, 3, 3), got {tuple(H.shape)}.")
+    check_tensor(H, "H", ["C", "V", "3", "3"], ["V", "3", "3"])
     C, V = H.shape[:2]
     if view_mask is None:
         view_mask = torch.ones(C, V, dtype=torch.bool, device=H.device)
-    if view_mask.shape != (C, V):
-        raise ValueError(f"view_mask must be {(C, V)}, got {tuple(view_mask.shape)}.")
+    check_tensor(view_mask, "view_mask", [C, V])
     if principal_point == "centre" and image_size is None:
         raise ValueError("principal_point='centre' needs image_size.")
     dtype = H.dtype if H.dtype in (torch.float32, torch.float64) else torch.float64
@@ -199,8 +197,8 @@ def extrinsics_from_homography(K: torch.Tensor, H: torch.Tensor) -> tuple[torch.
         >>> tvec
         tensor([0.1000, 0.2000, 2.0000], dtype=torch.float64)
     """
-    if K.shape[-2:] != (3, 3) or H.shape[-2:] != (3, 3):
-        raise ValueError(f"K and H must be (*, 3, 3), got {tuple(K.shape)} and {tuple(H.shape)}.")
+    check_tensor(K, "K", ["*", "3", "3"])
+    check_tensor(H, "H", ["*", "3", "3"])
     if K.dim() == 3 and H.dim() == 4 and K.shape[0] == H.shape[0]:
         K = K[:, None]
     R, t = rotation_translation_from_homography(K, H)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from ccs_kornia.geometry.camera import radial_centre_scale
-from ccs_kornia.runtime.checks import check_points
+from ccs_kornia.runtime.checks import check_points, check_same_shape
 
 __all__ = ["fit_correction_to_points"]
 
@@ -39,9 +39,8 @@ def fit_correction_to_points(
         >>> bool(torch.allclose(fit_correction_to_points(p, correct_points(p, c, (64, 48)), (64, 48)), c))
         True
     """
-    check_points(distorted)
-    if ideal.shape != distorted.shape:
-        raise ValueError(f"ideal must match distorted {tuple(distorted.shape)}, got {tuple(ideal.shape)}.")
+    check_points(distorted, "distorted")
+    check_same_shape(ideal, "ideal", distorted, "distorted")
     centre, scale = radial_centre_scale(image_size, distorted)
     d = distorted - centre
     r = d.norm(dim=-1) / scale  # (B, N)

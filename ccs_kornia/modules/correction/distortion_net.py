@@ -35,6 +35,7 @@ from torch import nn
 
 from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
 from ccs_kornia.modules._resize import separable_product
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = [
     "DistortionNet",
@@ -71,8 +72,7 @@ def correction_from_node_values(node_values: torch.Tensor) -> torch.Tensor:
         >>> correction_from_node_values(torch.ones(1, 5, dtype=torch.float64)).round(decimals=6).abs()
         tensor([[1., 0., 0., 0., 0.]], dtype=torch.float64)
     """
-    if node_values.shape[-1] != 5:
-        raise ValueError(f"node_values must be (..., 5), got {tuple(node_values.shape)}.")
+    check_tensor(node_values, "node_values", ["*", "5"])
     m = _node_to_coeff_matrix().to(device=node_values.device, dtype=node_values.dtype)
     return node_values @ m.T
 
@@ -128,8 +128,7 @@ def letterbox(images: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tens
         >>> out.shape, float(mask[0, 0, :, 16].sum())
         (torch.Size([1, 1, 32, 32]), 16.0)
     """
-    if images.dim() != 4:
-        raise ValueError(f"images must be (B, C, H, W), got {tuple(images.shape)}.")
+    check_tensor(images, "images", ["B", "C", "H", "W"])
     b, c, h, w = images.shape
     if max(h, w) > 8 * size:
         f = max(h, w) // (4 * size)
@@ -234,8 +233,7 @@ class DistortionNet(nn.Module):
 
     def preprocess(self, images: torch.Tensor) -> torch.Tensor:
         """Grey, standardised, letterboxed network input :math:`(B, 4, S, S)` (image, mask, x, y)."""
-        if images.dim() != 4 or images.shape[1] not in (1, 3):
-            raise ValueError(f"images must be (B, 1, H, W) or (B, 3, H, W), got {tuple(images.shape)}.")
+        check_tensor(images, "images", ["B", "1", "H", "W"], ["B", "3", "H", "W"])
         x = images.float()
         if x.shape[1] == 3:
             x = rgb_to_grayscale(x)

@@ -13,7 +13,7 @@ import math
 import torch
 
 from ccs_kornia.modules.correction.radial_warp import corrected_radius_and_slope
-from ccs_kornia.runtime.checks import check_correction
+from ccs_kornia.runtime.checks import check_correction, check_tensor
 
 __all__ = ["aggregate_corrections", "correction_displacement", "correction_is_large", "pool_corrections"]
 
@@ -60,13 +60,11 @@ def aggregate_corrections(
         >>> bool(torch.allclose(aggregate_corrections(c, (64, 48)), c[:, 0], atol=1e-5))
         True
     """
-    if corrections.dim() != 3 or corrections.shape[-1] != 5:
-        raise ValueError(f"corrections must be (C, V, 5), got {tuple(corrections.shape)}.")
+    check_tensor(corrections, "corrections", ["C", "V", "5"])
     c, v = corrections.shape[:2]
     if mask is None:
         mask = torch.ones(c, v, dtype=torch.bool, device=corrections.device)
-    if mask.shape != (c, v):
-        raise ValueError(f"mask must be {(c, v)}, got {tuple(mask.shape)}.")
+    check_tensor(mask, "mask", [c, v])
     dt = torch.float64
     w, h = int(image_size[0]), int(image_size[1])
     r_corner = 0.5 * ((w - 1) ** 2 + (h - 1) ** 2) ** 0.5 / float(max(w, h))

@@ -27,7 +27,7 @@ from kornia.geometry.transform import remap
 from torch import nn
 
 from ccs_kornia.geometry import camera
-from ccs_kornia.runtime.checks import check_correction, check_points
+from ccs_kornia.runtime.checks import check_correction, check_points, check_tensor
 
 __all__ = [
     "correct_points",
@@ -229,8 +229,7 @@ def radial_undistort_image(
         >>> bool(torch.allclose(out, img, atol=1e-5))
         True
     """
-    if images.dim() != 4:
-        raise ValueError(f"images must be (B, C, H, W), got {tuple(images.shape)}.")
+    check_tensor(images, "images", ["B", "C", "H", "W"])
     b, _, h, w = images.shape
     check_correction(correction, b)
     dtype = images.dtype if images.is_floating_point() else torch.float32

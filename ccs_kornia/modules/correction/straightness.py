@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia.runtime.checks import check_points
+from ccs_kornia.runtime.checks import check_points, check_shape, check_tensor
 
 __all__ = ["straightness_rms"]
 
@@ -34,15 +34,13 @@ def straightness_rms(
         >>> float(rms), int(n)
         (0.0, 24)
     """
-    check_points(corners)
+    check_points(corners, "corners")
     b, n = corners.shape[:2]
-    if valid.shape != (b, n):
-        raise ValueError(f"valid must be {(b, n)}, got {tuple(valid.shape)}.")
+    check_tensor(valid, "valid", [b, n])
     bs = torch.as_tensor(board_size, device=corners.device, dtype=torch.long)
     if bs.shape == (2,):
         bs = bs.expand(b, 2)
-    if tuple(bs.shape) != (b, 2):
-        raise ValueError(f"board_size must be (cols, rows) or (B, 2), got {tuple(bs.shape)}.")
+    check_shape(bs, [b, 2], f"board_size must be (cols, rows) or (B, 2) with B={b}")
     cols, rows = bs[:, 0:1], bs[:, 1:2]
     idx = torch.arange(n, device=corners.device).unsqueeze(0)
     exists = idx < cols * rows

@@ -14,7 +14,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from ccs_kornia.runtime.checks import check_board_size, check_shape
+from ccs_kornia.runtime.checks import check_board_size, check_grey_images
 
 __all__ = ["DetectionResult", "ChessboardDetector", "Fallbacks", "image_rows", "measured_corners"]
 
@@ -208,5 +208,5 @@ class ChessboardDetector(nn.Module):
 
     @staticmethod
     def _check_inputs(images: torch.Tensor, board_size: tuple[int, int]) -> tuple[int, int]:
-        check_shape(images, ["B", "1", "H", "W"], "Expected grey images of shape (B, 1, H, W)")
+        check_grey_images(images, min_side=0)
         return check_board_size(board_size)

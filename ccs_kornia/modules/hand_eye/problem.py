@@ -36,6 +36,7 @@ import torch
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.hand_eye.setup import HandEyeSetup
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = ["GLOBAL_POSE_PARAMS", "HandEyeProblem", "HandEyeState", "NormalEquations"]
 
@@ -135,10 +136,8 @@ class HandEyeProblem:
         self.setup = HandEyeSetup.parse(setup)
         self.model = model
         B, V, N = corners.shape[:3]
-        if robot_poses.shape != (B, V, 4, 4):
-            raise ValueError(f"robot_poses must be ({B}, {V}, 4, 4), got {tuple(robot_poses.shape)}.")
-        if weights.shape != (B, V, N):
-            raise ValueError(f"weights must be ({B}, {V}, {N}), got {tuple(weights.shape)}.")
+        check_tensor(robot_poses, "robot_poses", [B, V, 4, 4])
+        check_tensor(weights, "weights", [B, V, N])
         dtype = robot_poses.dtype
         self.robot_poses = robot_poses
         self.A = self.setup.chain(robot_poses)

@@ -18,6 +18,8 @@ import enum
 
 import torch
 
+from ccs_kornia.runtime.checks import check_tensor
+
 __all__ = ["HandEyeSetup", "invert_transforms"]
 
 
@@ -29,8 +31,7 @@ def invert_transforms(T: torch.Tensor) -> torch.Tensor:
         >>> invert_transforms(T)[:3, 3].tolist()
         [-1.0, -2.0, -3.0]
     """
-    if T.shape[-2:] != (4, 4):
-        raise ValueError(f"transforms must be (*, 4, 4), got {tuple(T.shape)}.")
+    check_tensor(T, "T", ["*", "4", "4"], what="transforms")
     out = torch.zeros_like(T)
     Rt = T[..., :3, :3].transpose(-1, -2)
     out[..., :3, :3] = Rt

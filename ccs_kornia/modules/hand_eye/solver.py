@@ -30,7 +30,7 @@ from torch import nn
 
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.so3 import exp_so3
-from ccs_kornia.runtime.checks import check_shape
+from ccs_kornia.runtime.checks import check_tensor
 from ccs_kornia.modules.calibration.lm import parameter_basis
 from ccs_kornia.modules.hand_eye.board_order import align_board_orders, renumber_corners
 from ccs_kornia.modules.hand_eye.closed_forms import closed_form_candidates
@@ -194,12 +194,11 @@ def calibrate_hand_eye(
         (True, True)
     """
     setup = HandEyeSetup.parse(setup)
-    check_shape(corners, ["B", "V", "N", "2"], "corners must be (B, V, N, 2)")
+    check_tensor(corners, "corners", ["B", "V", "N", "2"])
     B, V, N = corners.shape[:3]
-    check_shape(valid, [str(B), str(V), str(N)], f"valid must be ({B}, {V}, {N})")
-    check_shape(robot_poses, [str(B), str(V), "4", "4"], f"robot_poses must be ({B}, {V}, 4, 4)")
-    if object_points.shape != (N, 3):
-        raise ValueError(f"object_points must be ({N}, 3), got {tuple(object_points.shape)}.")
+    check_tensor(valid, "valid", [B, V, N])
+    check_tensor(robot_poses, "robot_poses", [B, V, 4, 4])
+    check_tensor(object_points, "object_points", [N, 3])
     device, dtype = corners.device, torch.float64
     cameras = _cameras(camera, B, dtype, device)
     model, params = cameras.model, cameras.params
@@ -208,7 +207,7 @@ def calibrate_hand_eye(
     obj = object_points.detach().to(device=device, dtype=dtype)
     w = valid.bool() & corners.isfinite().all(-1)
     if weights is not None:
-        check_shape(weights, [str(B), str(V), str(N)], f"weights must be ({B}, {V}, {N})")
+        check_tensor(weights, "weights", [B, V, N])
         w = w & (weights > 0)
     # 1. the board's pose in each view alone
     rvec, tvec, ok, _ = camera_poses(params, model, corners, w, obj, min_corners=min_corners)

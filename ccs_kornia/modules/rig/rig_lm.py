@@ -36,6 +36,7 @@ from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm
 from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = ["RigLMResult", "rig_layout", "rig_levenberg_marquardt"]
 
@@ -275,8 +276,7 @@ def rig_levenberg_marquardt(
     layout = rig_layout(models)
     G = layout[2]
     free = torch.ones(G, dtype=torch.bool) if free is None else free.bool().cpu()
-    if free.shape != (G,):
-        raise ValueError(f"free must be ({G},), got {tuple(free.shape)}.")
+    check_tensor(free, "free", [G])
     fi = torch.nonzero(free).flatten().to(device)
     w = torch.where(corners.isfinite().all(-1), weights.to(dtype), 0.0).clamp_min(0)
     on = w > 0
@@ -303,9 +303,8 @@ def rig_levenberg_marquardt(
                 priors.append(None)
                 continue
             p0, info = item
-            if p0.shape != (B, P) or info.shape != (B, P, P):
-                raise ValueError(f"prior of camera {c} must be ({B}, {P}) and ({B}, {P}, {P}), got "
-                                 f"{tuple(p0.shape)} and {tuple(info.shape)}.")
+            check_tensor(p0, f"prior of camera {c} (p0)", [B, P])
+            check_tensor(info, f"prior of camera {c} (information)", [B, P, P])
             info = info.to(device=device, dtype=dtype)
             priors.append((p0.to(device=device, dtype=dtype), 0.5 * (info + info.transpose(-1, -2))))
             num_residuals = num_residuals + P

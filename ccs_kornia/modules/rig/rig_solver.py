@@ -62,6 +62,7 @@ from ccs_kornia.modules.rig.rig_lm import rig_layout, rig_levenberg_marquardt
 from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
 from ccs_kornia.modules.rig.session_advice import session_advice, shared_frames
 from ccs_kornia.modules.rig.stereo import StereoPair, stereo_pair
+from ccs_kornia.runtime.checks import check_tensor
 from ccs_kornia.runtime.threads import small_problem_threads
 
 __all__ = ["DRAGGED_EXCESS", "FRAME_SCALE", "FRAME_SCALE_MIN_PX", "PRIOR_INFLATION", "RigResult", "RigSolver",
@@ -147,22 +148,19 @@ class RigResult:
 
 
 def _check(corners, valid, object_points, image_sizes, weights):
-    if not isinstance(corners, torch.Tensor) or corners.dim() not in (4, 5) or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (C, F, N, 2) or (B, C, F, N, 2), got {tuple(getattr(corners, 'shape', ()))}.")
+    check_tensor(corners, "corners", ["C", "F", "N", "2"], ["B", "C", "F", "N", "2"])
     if valid is None:
         valid = corners.isfinite().all(-1)
-    if not isinstance(valid, torch.Tensor) or valid.shape != corners.shape[:-1]:
-        raise ValueError(f"valid must be {tuple(corners.shape[:-1])}, got {tuple(getattr(valid, 'shape', ()))}.")
+    check_tensor(valid, "valid", corners.shape[:-1])
     N = corners.shape[-2]
-    if not isinstance(object_points, torch.Tensor) or object_points.shape != (N, 3):
-        raise ValueError(f"object_points must be ({N}, 3), got {tuple(getattr(object_points, 'shape', ()))}.")
+    check_tensor(object_points, "object_points", [N, 3])
     C = corners.shape[-4]
     if C < 2:
         raise ValueError(f"A rig needs at least 2 cameras, got C={C}.")
     if len(image_sizes) != C or any(len(s) != 2 or min(int(s[0]), int(s[1])) <= 0 for s in image_sizes):
         raise ValueError(f"image_sizes must be {C} pairs (W, H) with positive entries, got {image_sizes!r}.")
-    if weights is not None and (not isinstance(weights, torch.Tensor) or weights.shape != corners.shape[:-1]):
-        raise ValueError(f"weights must be {tuple(corners.shape[:-1])}, got {tuple(getattr(weights, 'shape', ()))}.")
+    if weights is not None:
+        check_tensor(weights, "weights", corners.shape[:-1])
     return valid
 
 
@@ -316,10 +314,8 @@ class RigSolver(nn.Module):
                 raise ValueError(f"{names[c]} is fixed but has no initial camera to keep.")
             if initial[c] is not None and initial[c].model != models[c]:
                 raise ValueError(f"{names[c]}: initial camera model {initial[c].model} differs from {models[c]}.")
-        if frame_times is not None and (not isinstance(frame_times, torch.Tensor) or
-                                        frame_times.shape != (corners.shape[-3],)):
-            raise ValueError(f"frame_times must be ({corners.shape[-3]},), got "
-                             f"{tuple(getattr(frame_times, 'shape', ()))}.")
+        if frame_times is not None:
+            check_tensor(frame_times, "frame_times", [corners.shape[-3]])
         with torch.inference_mode(), small_problem_threads(corners.shape[:-1].numel(), corners.device):
             out = self._solve(corners, valid, object_points, [tuple(map(int, s)) for s in image_sizes], models,
                               initial, fixed, names, weights, batched, frame_times)

@@ -16,6 +16,7 @@ from kornia.geometry.transform import remap
 
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.modules.undistort.valid_field import check_camera
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = ["UndistortImage", "undistort_image", "undistortion_map"]
 
@@ -26,11 +27,10 @@ _NO_SOURCE = -2.0
 def _check_view(camera: Camera, new_K: torch.Tensor | None, max_radius: torch.Tensor | None) -> None:
     check_camera(camera)
     c = len(camera)
-    if new_K is not None and (not isinstance(new_K, torch.Tensor) or new_K.shape != (c, 3, 3)):
-        raise ValueError(f"new_K must be ({c}, 3, 3) for {c} camera(s), got {tuple(getattr(new_K, 'shape', ()))}.")
-    if max_radius is not None and (not isinstance(max_radius, torch.Tensor) or max_radius.shape != (c,)):
-        raise ValueError(f"max_radius must be ({c},) for {c} camera(s), got "
-                         f"{tuple(getattr(max_radius, 'shape', ()))}.")
+    if new_K is not None:
+        check_tensor(new_K, "new_K", [c, 3, 3], what=f"for {c} camera(s)")
+    if max_radius is not None:
+        check_tensor(max_radius, "max_radius", [c], what=f"for {c} camera(s)")
 
 
 def undistortion_map(
@@ -79,8 +79,7 @@ def undistortion_map(
 
 
 def _check_images(images: torch.Tensor, camera: Camera) -> None:
-    if not isinstance(images, torch.Tensor) or images.dim() != 4:
-        raise ValueError(f"images must be (B, C, H, W), got {tuple(getattr(images, 'shape', ()))}.")
+    check_tensor(images, "images", ["B", "C", "H", "W"])
     if len(camera) not in (1, images.shape[0]):
         raise ValueError(f"{images.shape[0]} images need 1 or {images.shape[0]} cameras, got {len(camera)}.")
 

@@ -15,6 +15,7 @@ import math
 import torch
 
 from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = ["MAX_VIEW_ANGLE_DEG", "check_camera", "valid_radius"]
 
@@ -74,9 +75,7 @@ def valid_radius(camera: Camera, points: torch.Tensor | None = None) -> torch.Te
         idx = torch.tensor(index, device=cam.device)
         radius[idx] = model.monotonic_radius(cam.params[idx, : model.num_params], max_angle)
     if points is not None:
-        if not isinstance(points, torch.Tensor) or points.dim() != 3 or points.shape[0] != len(cam) \
-                or points.shape[-1] != 2:
-            raise ValueError(f"points must be ({len(cam)}, N, 2), got {tuple(getattr(points, 'shape', ()))}.")
+        check_tensor(points, "points", [len(cam), "N", 2])
         rays = cam.unproject(points.to(device=cam.device, dtype=torch.float64))
         z = rays[..., 2]
         # tan of each ray's angle from the axis; a ray at or beyond 90 degrees bounds nothing

@@ -27,6 +27,7 @@ import torch
 
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.modules.undistort.valid_field import check_camera, valid_radius
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = ["horizontal_fov", "valid_region_radii", "view_camera_matrix"]
 
@@ -60,11 +61,8 @@ def valid_region_radii(
         tensor([[0.4950, 0.3950]], dtype=torch.float64)
     """
     check_camera(camera)
-    if directions.dim() != 3 or directions.shape[-1] != 2:
-        raise ValueError(f"directions must be (B, P, 2), got {tuple(directions.shape)}.")
-    if directions.shape[0] != len(camera) or max_radius.shape != (len(camera),):
-        raise ValueError(f"{len(camera)} cameras need directions ({len(camera)}, P, 2) and max_radius "
-                         f"({len(camera)},), got {tuple(directions.shape)} and {tuple(max_radius.shape)}.")
+    check_tensor(directions, "directions", ["B", "P", "2"], what="(one per camera)", B=len(camera))
+    check_tensor(max_radius, "max_radius", [len(camera)], what="(one per camera)")
     b, p, _ = directions.shape
     w, h = float(image_size[0]), float(image_size[1])
     cam = camera.to(device=directions.device, dtype=directions.dtype)
@@ -146,8 +144,7 @@ def view_camera_matrix(
     if max_radius is None:
         max_radius = valid_radius(camera)
     K = camera.K
-    if not isinstance(max_radius, torch.Tensor) or max_radius.shape != K.shape[:1]:
-        raise ValueError(f"max_radius must be ({K.shape[0]},), got {tuple(getattr(max_radius, 'shape', ()))}.")
+    check_tensor(max_radius, "max_radius", K.shape[:1])
     max_radius = max_radius.to(K)
     if not 0.0 <= balance <= 1.0:
         raise ValueError(f"balance must be in [0, 1], got {balance}.")

@@ -115,7 +115,7 @@ def test_radial_from_points_is_exact_and_batched(device, dtype):
 
 def test_radial_from_points_exceptions():
     p = _disc_points(10, 0.5, 0)
-    with pytest.raises(ValueError, match="ideal and distorted"):
+    with pytest.raises(ValueError, match=r"distorted must be \(1, 10, 2\) \(as ideal\), got \(10, 2\)"):
         radial_from_points(p, p[0], SIZE)
     with pytest.raises(ValueError, match="mask"):
         radial_from_points(p, p, SIZE, torch.ones(1, 9, dtype=torch.bool))

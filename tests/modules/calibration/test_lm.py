@@ -13,7 +13,6 @@ from ccs_kornia.geometry.camera import (
 from ccs_kornia.geometry.models import (
     CentredRadialModel,
     KannalaBrandtModel,
-    OpenCVModel,
 )
 from ccs_kornia.modules.calibration.lm import (
     LevenbergMarquardt,

@@ -83,7 +83,7 @@ def test_module_picks_fisheye_for_a_fisheye_and_a_polynomial_model_for_a_pinhole
     assert set(results) == set(AUTO_MODELS) and table[0]["chosen"] == "fisheye"
     assert table[1]["runner_up"] in names and table[1]["runner_up"] != str(chosen[1])
     assert set(table[0]["heldout_rms_px"]) == names
-    with pytest.raises(ValueError, match="Expected corners"):
+    with pytest.raises(ValueError, match=r"corners must be \(C, V, N, 2\), got \(\d+, \d+, 2\)"):
         select(uv[0], valid[0], OBJ, (640, 480))
     with pytest.raises(ValueError, match="at least one"):
         ModelSelection([])

@@ -191,7 +191,6 @@ def test_implicit_solution_exceptions_and_passthrough():
     res = _solver(K1K2)(uv[0], None, obj, SIZE)
     with pytest.raises(ValueError, match="weights"):
         _solver(K1K2)(uv[0], None, obj, SIZE, weights=torch.ones(3))
-    from ccs_kornia.geometry.models import OpenCVModel
 
     m = K1K2
     params = m.params_from(res.K[None], res.dist[None])

@@ -156,7 +156,7 @@ def test_module_matches_function():
 def test_exceptions():
     with pytest.raises(ValueError, match="correction"):
         radial_undistort_image(torch.rand(1, 1, 8, 8), torch.ones(1, 3))
-    with pytest.raises(ValueError, match="correction batch"):
+    with pytest.raises(ValueError, match=r"correction must be \(1, 5\) or \(B, 5\) .* with B=3, got \(2, 5\)"):
         radial_undistort_image(torch.rand(3, 1, 8, 8), torch.ones(2, 5))
     with pytest.raises(ValueError, match="images"):
         radial_undistort_image(torch.rand(8, 8), torch.ones(1, 5))

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from ccs_kornia.data.scenes.rig import render_rig
-from ccs_kornia.geometry.models import K1K2, PINHOLE
+from ccs_kornia.geometry.models import K1K2
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.rig import RigSolver
 from ccs_kornia.modules.rig.frame_consistency import (

@@ -485,7 +485,6 @@ def test_camera_that_sees_no_board_fails_naming_it():
 
 def test_joint_fit_options_of_the_lm_core():
     from ccs_kornia.geometry.camera import project_points
-    from ccs_kornia.geometry.models import camera_model
     from ccs_kornia.modules.rig.rig_lm import rig_levenberg_marquardt
     from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
 

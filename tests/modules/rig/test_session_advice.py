@@ -6,7 +6,7 @@ from __future__ import annotations
 import torch
 
 from ccs_kornia.data.scenes.rig import render_rig
-from ccs_kornia.geometry.models import K1K2, camera_model
+from ccs_kornia.geometry.models import K1K2
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.rig import RigSolver, rig_verdict

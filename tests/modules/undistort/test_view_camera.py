@@ -172,7 +172,7 @@ def test_errors():
         view_camera_matrix(PIN, SIZE, fov=180.0)
     with pytest.raises(ValueError, match="directions"):
         valid_region_radii(PIN, r, SIZE, torch.ones(1, 2))
-    with pytest.raises(ValueError, match="cameras"):
+    with pytest.raises(ValueError, match=r"directions must be \(B, P, 2\) \(one per camera\) with B=1, got"):
         valid_region_radii(PIN, r, SIZE, torch.ones(2, 1, 2))
     outside = K.clone()
     outside[0, 0, 2] = -50.0  # principal point left of the image

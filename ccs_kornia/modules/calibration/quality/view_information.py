@@ -38,6 +38,7 @@ from ccs_kornia.modules.calibration.quality.uncertainty import (
     image_rays,
     remove_rotation,
 )
+from ccs_kornia.runtime.checks import check_same_shape, check_tensor
 
 __all__ = ["PRIOR", "GreedyChoice", "greedy_information", "image_information", "view_information"]
 
@@ -66,9 +67,9 @@ def view_information(
         solver's information matrix at the same point.
     """
     m = camera.model
-    if rvec.dim() != 3 or rvec.shape != tvec.shape or weights.shape[:2] != rvec.shape[:2] or len(camera) != rvec.shape[0]:
-        raise ValueError(f"Expected {len(camera)} cameras, rvec/tvec (C, V, 3), weights (C, V, N); got "
-                         f"{tuple(rvec.shape)}, {tuple(tvec.shape)}, {tuple(weights.shape)}.")
+    check_tensor(rvec, "rvec", ["C", "V", "3"], C=len(camera))
+    check_same_shape(tvec, "tvec", rvec, "rvec")
+    check_tensor(weights, "weights", ["C", "V", "N"], C=rvec.shape[0], V=rvec.shape[1])
     C, _V, N = weights.shape
     rvec, tvec = rvec.double(), tvec.double()
     params = camera.params.double()
@@ -208,10 +209,8 @@ def greedy_information(
     Returns:
         :class:`GreedyChoice`.
     """
-    if information.dim() != 4 or information.shape[-1] != information.shape[-2] or image.shape != (
-            information.shape[0], information.shape[-1], information.shape[-1]):
-        raise ValueError(f"Expected information (C, V, P, P) and image (C, P, P), got {tuple(information.shape)} and "
-                         f"{tuple(image.shape)}.")
+    check_tensor(information, "information", ["C", "V", "P", "P"], P=information.shape[-1])
+    check_tensor(image, "image", ["C", "P", "P"], C=information.shape[0], P=information.shape[-1])
     if max_count is not None and max_count < 1:
         raise ValueError(f"max_count must be >= 1, got {max_count}.")
     M = information.double()

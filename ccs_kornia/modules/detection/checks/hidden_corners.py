@@ -27,7 +27,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.runtime.checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size, check_grey_images, check_points, check_same_shape, check_tensor
 from ccs_kornia.modules.detection.base import DetectionResult, image_rows
 from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_uncertainty
 
@@ -58,11 +58,9 @@ CONTRAST_RADIUS = 0.25
 
 
 def _check(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int]) -> tuple[int, int]:
-    if not isinstance(images, torch.Tensor) or images.dim() != 4 or images.shape[1] != 1:
-        raise ValueError(f"images must be (B, 1, H, W), got {tuple(getattr(images, 'shape', ()))}.")
+    check_grey_images(images, min_side=0)
     cols, rows = check_board_size(board_size)
-    if corners.dim() != 3 or corners.shape[0] != images.shape[0] or corners.shape[1:] != (cols * rows, 2):
-        raise ValueError(f"corners must be ({images.shape[0]}, {cols * rows}, 2), got {tuple(corners.shape)}.")
+    check_points(corners, "corners", B=images.shape[0], N=cols * rows)
     return cols, rows
 
 
@@ -203,8 +201,7 @@ def relative_contrast(
         [[1.0, 1.0, 0.0, 1.0, 1.0, 0.0]]
     """
     contrast = checker_contrast(images, corners, board_size)
-    if visible.shape != contrast.shape:
-        raise ValueError(f"visible must be {tuple(contrast.shape)}, got {tuple(visible.shape)}.")
+    check_tensor(visible, "visible", contrast.shape)
     reference = torch.where(visible.to(contrast.device), contrast, torch.full_like(contrast, float("nan")))
     reference = reference.nanmedian(-1, keepdim=True).values
     return torch.where(reference > 0, contrast / reference, torch.full_like(contrast, float("nan")))
@@ -227,9 +224,8 @@ def glare_rim(candidates: torch.Tensor, hidden: torch.Tensor, board_size: tuple[
         [[True, False, True, False, True, False]]
     """
     cols, rows = check_board_size(board_size)
-    if candidates.shape != hidden.shape or candidates.dim() != 2 or candidates.shape[1] != cols * rows:
-        raise ValueError(f"candidates and hidden must both be (B, {cols * rows}), got {tuple(candidates.shape)} and "
-                         f"{tuple(hidden.shape)}.")
+    check_tensor(hidden, "hidden", ["B", "N"], N=cols * rows)
+    check_same_shape(candidates, "candidates", hidden, "hidden")
     h = F.pad(hidden.reshape(-1, rows, cols).float(), (1, 1, 1, 1))
     near = h[:, :-2, 1:-1] + h[:, 2:, 1:-1] + h[:, 1:-1, :-2] + h[:, 1:-1, 2:]
     return candidates & ~hidden & (near > 0).reshape(hidden.shape)
@@ -255,8 +251,7 @@ def spans_board(valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tenso
         [True, False]
     """
     cols, rows = check_board_size(board_size)
-    if valid.dim() != 2 or valid.shape[1] != cols * rows:
-        raise ValueError(f"valid must be (B, {cols * rows}), got {tuple(valid.shape)}.")
+    check_tensor(valid, "valid", ["B", "N"], N=cols * rows)
     g = valid.reshape(-1, rows, cols)
     return g[:, 0].any(-1) & g[:, -1].any(-1) & g[:, :, 0].any(-1) & g[:, :, -1].any(-1)
 

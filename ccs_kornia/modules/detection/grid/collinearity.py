@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia.runtime.checks import check_board_size, check_shape
+from ccs_kornia.runtime.checks import check_board_size, check_tensor
 
 __all__ = ["collinearity_refine", "CollinearityRefiner"]
 
@@ -127,12 +127,9 @@ def collinearity_refine(
         >>> bool(ok.all()), bool((refined - pts).norm(dim=-1).max() < 0.5)
         (True, True)
     """
-    check_shape(corners, ["B", "N", "2"], "corners must be (B, N, 2)")
     cols, rows = check_board_size(board_size)
-    if corners.shape[1] != cols * rows:
-        raise ValueError(f"corners hold {corners.shape[1]} points, board {cols}x{rows} needs {cols * rows}.")
-    if valid.shape != corners.shape[:2]:
-        raise ValueError(f"valid must be (B, N) = {tuple(corners.shape[:2])}, got {tuple(valid.shape)}.")
+    check_tensor(corners, "corners", ["B", "N", "2"], what=f"for a {cols}x{rows} board", N=cols * rows)
+    check_tensor(valid, "valid", corners.shape[:2])
     if iterations < 1 or min_points < 2:
         raise ValueError(f"iterations must be >= 1 and min_points >= 2, got {iterations}, {min_points}.")
     if not 0.0 <= blend <= 1.0:

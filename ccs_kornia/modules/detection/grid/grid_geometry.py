@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 from kornia.geometry.line import fit_line
 
-from ccs_kornia.runtime.checks import check_board_size, check_shape
+from ccs_kornia.runtime.checks import check_board_size, check_points
 
 __all__ = ["grid_spacing", "line_sagitta"]
 
@@ -141,7 +141,7 @@ def line_sagitta(corners: torch.Tensor, valid: torch.Tensor, board_size: tuple[i
         >>> line_sagitta(bent, torch.ones(1, 35, dtype=torch.bool), (7, 5)).median().item()  # 0.02 * 20^2 / 2
         4.0
     """
-    check_shape(corners, ["B", "N", "2"], "corners must be (B, N, 2)")
+    check_points(corners, "corners")
     cols, rows = check_board_size(board_size)
     b, n = corners.shape[:2]
     if n != cols * rows:

@@ -278,11 +278,10 @@ def organize_grid(
         (True, True, True)
     """
     check_shape(points, ["B", "M", "2"], "points must be (B, M, 2)")
-    if mask.shape != points.shape[:2]:
-        raise ValueError(f"mask must be (B, M) = {tuple(points.shape[:2])}, got {tuple(mask.shape)}.")
+    check_shape(mask, points.shape[:2], f"mask must be (B, M) = {tuple(points.shape[:2])}")
     cols, rows = check_board_size(board_size)
-    if image is not None and (image.dim() != 4 or image.shape[0] != points.shape[0]):
-        raise ValueError(f"image must be (B, C, H, W) with B = {points.shape[0]}, got {tuple(image.shape)}.")
+    if image is not None:
+        check_shape(image, [points.shape[0], "C", "H", "W"], f"image must be (B, C, H, W) with B = {points.shape[0]}")
     if not 0.0 < tolerance < 0.5 or not 0.0 < check_tolerance < 0.5:
         raise ValueError(f"tolerances must be in (0, 0.5) square sizes, got {tolerance}, {check_tolerance}.")
     bsz, n_board = points.shape[0], cols * rows

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.runtime.checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size, check_points, check_tensor
 
 __all__ = ["lattice_deviation", "predict_missing_corners"]
 
@@ -39,8 +39,8 @@ def predict_missing_corners(
         (True, True)
     """
     cols, rows = check_board_size(board_size)
-    if corners.dim() != 3 or corners.shape[1] != cols * rows or valid.shape != corners.shape[:2]:
-        raise ValueError(f"corners must be (B, {cols * rows}, 2) with a matching valid mask, got {tuple(corners.shape)}.")
+    check_points(corners, "corners", N=cols * rows)
+    check_tensor(valid, "valid", corners.shape[:2])
     b = corners.shape[0]
     g = corners.reshape(b, rows, cols, 2).clone()
     v = valid.reshape(b, rows, cols).clone()
@@ -81,8 +81,7 @@ def lattice_deviation(corners: torch.Tensor, board_size: tuple[int, int], return
         (7, 0.3)
     """
     cols, rows = check_board_size(board_size)
-    if corners.dim() != 3 or corners.shape[1] != cols * rows or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (B, {cols * rows}, 2), got {tuple(corners.shape)}.")
+    check_points(corners, "corners", N=cols * rows)
     b = corners.shape[0]
     g = corners.reshape(b, rows, cols, 2)
     v = g.isfinite().all(-1)  # hidden corners of partial boards (NaN) are no neighbours

@@ -104,8 +104,7 @@ def organize_lattice(
         (True, [3, 4])
     """
     check_shape(points, ["B", "M", "2"], "points must be (B, M, 2)")
-    if mask.shape != points.shape[:2]:
-        raise ValueError(f"mask must be (B, M) = {tuple(points.shape[:2])}, got {tuple(mask.shape)}.")
+    check_shape(mask, points.shape[:2], f"mask must be (B, M) = {tuple(points.shape[:2])}")
     if max_extent < 3:
         raise ValueError(f"max_extent must be >= 3, got {max_extent}.")
     if not 0.0 < tolerance < 0.5 or not 0.0 < check_tolerance < 0.5:

@@ -30,6 +30,7 @@ from ccs_kornia.modules.detection.learned.peaks import (
     check_odd_window,
     gather_windows,
 )
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = ["GaussianFit", "gaussian_fit"]
 
@@ -85,12 +86,10 @@ def gaussian_fit(
     """
     check_heatmap(heatmap)
     check_odd_window(window)
-    if seeds.ndim != 3 or seeds.shape[0] != heatmap.shape[0] or seeds.shape[-1] != 2:
-        raise ValueError(f"Expected seeds of shape (B, M, 2) with B={heatmap.shape[0]}, got {tuple(seeds.shape)}.")
+    check_tensor(seeds, "seeds", ["B", "M", "2"], B=heatmap.shape[0])
     if mask is None:
         mask = torch.ones(seeds.shape[:2], dtype=torch.bool, device=seeds.device)
-    if mask.shape != seeds.shape[:2]:
-        raise ValueError(f"Expected mask of shape {tuple(seeds.shape[:2])}, got {tuple(mask.shape)}.")
+    check_tensor(mask, "mask", seeds.shape[:2])
     batch, _, height, width = heatmap.shape
     num = seeds.shape[1]
     radius = window // 2

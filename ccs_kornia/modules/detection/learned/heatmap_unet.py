@@ -18,6 +18,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ccs_kornia.runtime.checks import check_tensor
+
 __all__ = ["CornerUNet", "DoubleConv", "cpu_has_native_bf16", "effective_precision", "run_heatmap", "PRECISIONS",
            "BATCH_PIXELS", "TILE_PIXELS", "TILE_SIDE", "TILE_MARGIN"]
 
@@ -173,8 +175,7 @@ class CornerUNet(nn.Module):
         return 2**self.depth
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
-        if image.ndim != 4 or image.shape[1] != self.in_channels:
-            raise ValueError(f"Expected image of shape (B, {self.in_channels}, H, W), got {tuple(image.shape)}.")
+        check_tensor(image, "image", ["B", self.in_channels, "H", "W"])
         height, width = image.shape[-2:]
         pad_h = (-height) % self.multiple
         pad_w = (-width) % self.multiple

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from ccs_kornia.modules.detection.opencv_detector import CLASSIC_FLAGS
-from ccs_kornia.runtime.checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size, check_grey_images
 
 __all__ = ["OPENCV_MAX_PIXELS", "opencv_level_factor", "opencv_candidates"]
 
@@ -66,8 +66,7 @@ def opencv_candidates(
         >>> pts.shape, bool(ok.all())
         (torch.Size([1, 24, 2]), True)
     """
-    if images.dim() != 4 or images.shape[1] != 1:
-        raise ValueError(f"Expected grey images (B, 1, H, W), got {tuple(images.shape)}.")
+    check_grey_images(images, min_side=0)
     cols, rows = check_board_size(board_size)
     n = cols * rows
     arrays = (images.detach()[:, 0].float().clamp(0, 1) * 255.0).round().to(torch.uint8).cpu().numpy()

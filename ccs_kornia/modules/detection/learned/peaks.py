@@ -17,6 +17,8 @@ import torch.nn.functional as F
 from kornia.geometry.subpix import spatial_expectation2d
 from torch import nn
 
+from ccs_kornia.runtime.checks import check_tensor
+
 __all__ = [
     "strict_local_maxima", "heatmap_peaks", "HeatmapPeaks", "check_heatmap", "check_odd_window", "gather_windows",
 ]
@@ -31,12 +33,11 @@ def check_heatmap(heatmap: torch.Tensor) -> None:
         >>> check_heatmap(torch.zeros(2, 8, 8))
         Traceback (most recent call last):
         ...
-        ValueError: Expected heatmap of shape (B, 1, H, W), got (2, 8, 8).
+        ValueError: heatmap must be (B, 1, H, W), got (2, 8, 8).
     """
     if not isinstance(heatmap, torch.Tensor):
         raise TypeError(f"heatmap must be a torch.Tensor, got {type(heatmap)}.")
-    if heatmap.ndim != 4 or heatmap.shape[1] != 1:
-        raise ValueError(f"Expected heatmap of shape (B, 1, H, W), got {tuple(heatmap.shape)}.")
+    check_tensor(heatmap, "heatmap", ["B", "1", "H", "W"])
     if not heatmap.is_floating_point():
         raise ValueError(f"heatmap must be a floating point tensor, got {heatmap.dtype}.")
 

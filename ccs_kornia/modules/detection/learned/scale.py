@@ -37,7 +37,7 @@ import torch.nn.functional as F
 from kornia.filters import gaussian_blur2d
 from torch import nn
 
-from ccs_kornia.runtime.checks import check_board_size, check_grey_images
+from ccs_kornia.runtime.checks import check_board_size, check_grey_images, check_tensor
 from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules._resize import area_resize, halve
 from ccs_kornia.modules.detection.base import DetectionResult, image_rows
@@ -405,8 +405,7 @@ def detect_at_scale(
     check_grey_images(images)
     b, _, h, w = images.shape
     factor = torch.as_tensor(factor, dtype=torch.float64).flatten()
-    if factor.numel() != b:
-        raise ValueError(f"factor must have one value per image ({b}), got {tuple(factor.shape)}.")
+    check_tensor(factor, "factor", ["B"], what="(one value per image)", B=b)
     if not bool((factor > 0).all()):
         raise ValueError("factors must be positive.")
     cols, rows = check_board_size(board_size, min_side=1)

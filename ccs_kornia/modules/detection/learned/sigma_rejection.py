@@ -10,6 +10,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ccs_kornia.runtime.checks import check_tensor
+
 __all__ = ["sigma_outlier_rejection", "SigmaOutlierRejection"]
 
 
@@ -39,10 +41,8 @@ def sigma_outlier_rejection(
         >>> sigma_outlier_rejection(sigma, torch.tensor([[True, True, False]]), 1.5, 0.5)
         tensor([[ True, False, False]])
     """
-    if sigma.ndim != 3 or sigma.shape[-1] != 2:
-        raise ValueError(f"Expected sigma of shape (B, M, 2), got {tuple(sigma.shape)}.")
-    if mask.shape != sigma.shape[:2]:
-        raise ValueError(f"Expected mask of shape {tuple(sigma.shape[:2])}, got {tuple(mask.shape)}.")
+    check_tensor(sigma, "sigma", ["B", "M", "2"])
+    check_tensor(mask, "mask", sigma.shape[:2])
     if tolerance < 0:
         raise ValueError(f"tolerance must be >= 0, got {tolerance}.")
     expected = torch.as_tensor(expected_sigma, dtype=sigma.dtype, device=sigma.device)

@@ -69,6 +69,7 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     refine_and_grow,
 )
 from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
+from ccs_kornia.runtime.checks import check_grey_images
 
 __all__ = ["GROUP", "GROWTH_ROUNDS", "GROWTH_SUPPORT", "NEIGHBOUR_RADIUS", "AprilGridDetector",
            "aprilgrid_lattice", "aprilgrid_lattice_board", "aprilgrid_paths", "aprilgrid_radius_factor",
@@ -262,8 +263,7 @@ def aprilgrid_paths(
         >>> [int(out[p].valid.sum()) for p in MarkerPaths]
         [64, 64, 64]
     """
-    if images.dim() != 4 or images.shape[1] != 1:
-        raise ValueError(f"Expected grey images of shape (B, 1, H, W), got {tuple(images.shape)}.")
+    check_grey_images(images, min_side=0)
     if min_corners < 1:
         raise ValueError(f"min_corners must be >= 1, got {min_corners}.")
     paths = tuple(MarkerPaths(p) for p in paths)

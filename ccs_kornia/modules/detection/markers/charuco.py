@@ -69,6 +69,7 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     refine_marked_corners,
 )
 from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
+from ccs_kornia.runtime.checks import check_grey_images
 
 __all__ = [
     "NEIGHBOUR_RADIUS", "CharucoDetector", "CharucoMarkers", "board_markers", "charuco_detector", "charuco_lattice",
@@ -318,8 +319,7 @@ def charuco_paths(
         >>> [int(out[p].valid.sum()) for p in MarkerPaths]
         [24, 24, 24]
     """
-    if images.dim() != 4 or images.shape[1] != 1:
-        raise ValueError(f"Expected grey images of shape (B, 1, H, W), got {tuple(images.shape)}.")
+    check_grey_images(images, min_side=0)
     if min_corners < 1:
         raise ValueError(f"min_corners must be >= 1, got {min_corners}.")
     paths = tuple(MarkerPaths(p) for p in paths)

@@ -16,6 +16,8 @@ from enum import Enum
 
 import torch
 
+from ccs_kornia.runtime.checks import check_points, check_same_shape
+
 __all__ = ["AGREE_PX", "COLLISION", "MarkerPaths", "merge_corners"]
 
 #: two paths agree on a corner within this distance (px); both refine it with the same saddle fit
@@ -58,8 +60,8 @@ def merge_corners(first: torch.Tensor, second: torch.Tensor, veto: torch.Tensor 
         >>> merged[0].tolist(), disputed[0].tolist()
         ([[10.0, 10.0], [nan, nan], [10.0, 30.0], [50.0, 50.0]], [False, True, False, False])
     """
-    if first.shape != second.shape or first.dim() != 3 or first.shape[-1] != 2:
-        raise ValueError(f"Expected two (B, N, 2) tensors, got {tuple(first.shape)} and {tuple(second.shape)}.")
+    check_points(first, "first")
+    check_same_shape(second, "second", first, "first")
     has1, has2 = first.isfinite().all(-1), second.isfinite().all(-1)
     both = has1 & has2
     apart = (first - second).norm(dim=-1) > AGREE_PX

@@ -30,6 +30,7 @@ from ccs_kornia.modules.detection.refine.saddle_refine import (
     weighted_window,
 )
 from ccs_kornia.modules.detection.refine.symmetry_refine import symmetry_terms
+from ccs_kornia.runtime.checks import check_grey_images, check_points, check_same_shape, check_tensor
 from ccs_kornia.runtime.timing import stage
 
 __all__ = ["corner_sigma", "corner_uncertainty", "corner_weights", "CornerUncertainty"]
@@ -69,12 +70,9 @@ def corner_uncertainty(
         >>> bool((clean < 1e-4).all()), bool((rough > 10 * clean).all())
         (True, True)
     """
-    if images.dim() != 4 or images.shape[1] != 1:
-        raise ValueError(f"images must be (B, 1, H, W), got {tuple(images.shape)}.")
-    if corners.dim() != 3 or corners.shape[-1] != 2 or corners.shape[0] != images.shape[0]:
-        raise ValueError(f"corners must be (B, N, 2) with B={images.shape[0]}, got {tuple(corners.shape)}.")
-    if valid.shape != corners.shape[:2]:
-        raise ValueError(f"valid must be {tuple(corners.shape[:2])}, got {tuple(valid.shape)}.")
+    check_grey_images(images, min_side=0)
+    check_points(corners, "corners", B=images.shape[0])
+    check_tensor(valid, "valid", corners.shape[:2])
     b, n = corners.shape[:2]
     out = torch.full((b, n), float("nan"), dtype=torch.float32, device=corners.device)
     pts = corners.float()
@@ -143,8 +141,7 @@ def corner_weights(sigma: torch.Tensor, valid: torch.Tensor, clip: float = 10.0)
         >>> corner_weights(s, torch.ones(1, 1, 4, dtype=torch.bool), clip=10.0)
         tensor([[[ 1.0000,  0.2500,  1.0000, 10.0000]]], dtype=torch.float64)
     """
-    if sigma.shape != valid.shape:
-        raise ValueError(f"sigma and valid must have one shape, got {tuple(sigma.shape)} and {tuple(valid.shape)}.")
+    check_same_shape(sigma, "sigma", valid, "valid")
     if not clip >= 1:
         raise ValueError(f"clip must be at least 1, got {clip}.")
     s = sigma.double()

@@ -41,6 +41,7 @@ from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.learned.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.refine.patch_refine import level_size
 from ccs_kornia.modules.detection.refine.saddle_refine import sample_bilinear
+from ccs_kornia.runtime.checks import check_grey_images, check_points, check_tensor
 
 __all__ = ["MAX_GAP", "SYMMETRY_STEPS", "symmetry_refine", "network_seeds", "differentiable_corners",
            "DifferentiableCorners"]
@@ -95,10 +96,8 @@ def symmetry_refine(
         >>> symmetry_refine(img, torch.tensor([[[15.2, 16.1]]]), 6.0).round(decimals=2)
         tensor([[[15.5000, 15.5000]]])
     """
-    if image.dim() != 4 or image.shape[1] != 1:
-        raise ValueError(f"image must be (B, 1, H, W), got {tuple(image.shape)}.")
-    if corners.dim() != 3 or corners.shape[-1] != 2 or corners.shape[0] != image.shape[0]:
-        raise ValueError(f"corners must be (B, N, 2) with B={image.shape[0]}, got {tuple(corners.shape)}.")
+    check_grey_images(image, "image", min_side=0)
+    check_points(corners, "corners", B=image.shape[0])
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}.")
     if steps == 0 or corners.shape[1] == 0:
@@ -249,10 +248,8 @@ def differentiable_corners(
         >>> out.sum().backward(); bool(img.grad.abs().sum() > 0), bool(out.detach().equal(c))
         (True, True)
     """
-    if corners.dim() != 3 or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (B, N, 2), got {tuple(corners.shape)}.")
-    if valid.shape != corners.shape[:2]:
-        raise ValueError(f"valid must be {tuple(corners.shape[:2])}, got {tuple(valid.shape)}.")
+    check_points(corners, "corners")
+    check_tensor(valid, "valid", corners.shape[:2])
     ok = valid & corners.isfinite().all(-1)
     base = torch.where(ok[..., None], corners.detach(), torch.zeros_like(corners))
     start = base if seeds is None else torch.where(ok[..., None], seeds, base.to(seeds.dtype))

@@ -18,7 +18,7 @@ import math
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.runtime.checks import check_board_size, check_grey_images
+from ccs_kornia.runtime.checks import check_board_size, check_grey_images, check_points
 from ccs_kornia.modules._resize import area_resize
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.grid.missing_corners import predict_missing_corners
@@ -183,8 +183,7 @@ def refine_on_patches(
         tensor([31.5000, 31.5000])
     """
     check_grey_images(images)
-    if corners.dim() != 3 or corners.shape[0] != images.shape[0] or corners.shape[-1] != 2:
-        raise ValueError(f"corners must be (B, N, 2) with B={images.shape[0]}, got {tuple(corners.shape)}.")
+    check_points(corners, "corners", B=images.shape[0])
     b, n = corners.shape[:2]
     h, w = images.shape[-2:]
     if n == 0 or b == 0:

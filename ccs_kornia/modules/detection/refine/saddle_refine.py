@@ -39,6 +39,7 @@ from ccs_kornia.modules.detection.refine.symmetry_refine import (
     wide_polish,
     wide_vote,
 )
+from ccs_kornia.runtime.checks import check_grey_images, check_points
 
 __all__ = [
     "METHODS",
@@ -206,10 +207,8 @@ def refine_corners(
         >>> refine_corners(img, torch.tensor([[[15.0, 16.2]]]), radius=6.0).round(decimals=2)
         tensor([[[15.5000, 15.5000]]])
     """
-    if image.dim() != 4 or image.shape[1] != 1:
-        raise ValueError(f"image must be (B, 1, H, W), got {tuple(image.shape)}.")
-    if corners.dim() != 3 or corners.shape[-1] != 2 or corners.shape[0] != image.shape[0]:
-        raise ValueError(f"corners must be (B, N, 2) with B={image.shape[0]}, got {tuple(corners.shape)}.")
+    check_grey_images(image, "image", min_side=0)
+    check_points(corners, "corners", B=image.shape[0])
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}.")
     b, n = corners.shape[:2]

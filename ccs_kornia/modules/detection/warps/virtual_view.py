@@ -26,7 +26,7 @@ from kornia.geometry.grid import create_meshgrid
 from kornia.geometry.transform import remap
 
 from ccs_kornia.geometry.camera import Camera, axis_angle_to_rotation_matrix
-from ccs_kornia.runtime.checks import check_board_size
+from ccs_kornia.runtime.checks import check_board_size, check_shape
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.warps.warped_detection import Warp, map_back
 
@@ -194,8 +194,8 @@ def detect_with_calibrated_lens(
         >>> bool(out.found[0]), out.corners.shape
         (False, torch.Size([1, 24, 2]))
     """
-    if images.dim() != 4 or len(camera) != images.shape[0]:
-        raise ValueError(f"Expected images (B, 1, H, W) and B cameras; got {tuple(images.shape)} and {len(camera)}.")
+    check_shape(images, [len(camera), "C", "H", "W"],
+                f"images must be (B, 1, H, W) with B={len(camera)} (one per camera)")
     b, _, h, w = images.shape
     cols, rows = check_board_size(board_size, min_side=1)
     n = cols * rows

@@ -281,9 +281,11 @@ def test_glare_rim_is_the_row_and_column_neighbours_of_hidden_corners():
     candidates = torch.zeros(2, 20, dtype=torch.bool)
     candidates[0, 8] = True
     assert glare_rim(candidates, hidden, (5, 4))[0].nonzero().flatten().tolist() == [8]
-    with pytest.raises(ValueError, match="must both be"):
+    with pytest.raises(ValueError, match=r"hidden must be \(B, N\) with N=20, got \(2, 12\)"):
         glare_rim(candidates, hidden[:, :12], (5, 4))
-    with pytest.raises(ValueError, match="must both be"):
+    with pytest.raises(ValueError, match=r"candidates must be \(2, 12\) \(as hidden\), got \(2, 20\)"):
+        glare_rim(candidates, hidden[:, :12], (4, 3))
+    with pytest.raises(ValueError, match=r"hidden must be \(B, N\) with N=16, got \(2, 20\)"):
         glare_rim(candidates, hidden, (4, 4))
 
 

@@ -119,9 +119,9 @@ class TestCornerUNet:
 
     def test_exceptions(self) -> None:
         net = CornerUNet(base_channels=4, depth=2)
-        with pytest.raises(ValueError, match="shape"):
+        with pytest.raises(ValueError, match=r"image must be \(B, 1, H, W\), got \(1, 32, 32\)"):
             net(torch.rand(1, 32, 32))
-        with pytest.raises(ValueError, match="shape"):
+        with pytest.raises(ValueError, match=r"image must be \(B, 1, H, W\), got \(1, 3, 32, 32\)"):
             net(torch.rand(1, 3, 32, 32))
         with pytest.raises(ValueError, match="norm"):
             CornerUNet(norm="layer")

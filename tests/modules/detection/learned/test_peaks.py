@@ -57,9 +57,9 @@ class TestHeatmapPeaks:
             torch.testing.assert_close(a, b)
 
     def test_exceptions(self) -> None:
-        with pytest.raises(ValueError, match="shape"):
+        with pytest.raises(ValueError, match=r"heatmap must be \(B, 1, H, W\), got \(1, 20, 20\)"):
             heatmap_peaks(torch.rand(1, 20, 20))
-        with pytest.raises(ValueError, match="shape"):
+        with pytest.raises(ValueError, match=r"heatmap must be \(B, 1, H, W\), got \(1, 2, 20, 20\)"):
             heatmap_peaks(torch.rand(1, 2, 20, 20))
         with pytest.raises(ValueError, match="nms_kernel"):
             heatmap_peaks(torch.rand(1, 1, 20, 20), nms_kernel=4)

@@ -62,7 +62,7 @@ def test_exceptions():
         corner_uncertainty(img, corners, ok[:, :3], (5, 5))
     with pytest.raises(ValueError, match="clip"):
         corner_weights(torch.ones(1, 3), torch.ones(1, 3, dtype=torch.bool), clip=0.5)
-    with pytest.raises(ValueError, match="shape"):
+    with pytest.raises(ValueError, match=r"sigma must be \(1, 4\) \(as valid\), got \(1, 3\)"):
         corner_weights(torch.ones(1, 3), torch.ones(1, 4, dtype=torch.bool))
 
 

@@ -111,7 +111,7 @@ def test_view_pool_gives_the_same_boards():
 
 
 def test_shape_errors():
-    with pytest.raises(ValueError, match="Expected images"):
+    with pytest.raises(ValueError, match=r"images must be \(B, 1, H, W\) with B=1 \(one per camera\), got \(1, 8, 8\)"):
         detect_with_calibrated_lens(None, None, torch.rand(1, 8, 8), _fisheyes(1), (2, 2))
 
 
