@@ -105,7 +105,8 @@ def test_a_calibration_loads_no_sympy():
     # calibration (runtime.checks.broadcast_shapes is used instead)
     loaded = _loaded_after(
         "import torch\n"
-        "from ccs_kornia.geometry.camera import Camera, board_object_points, project_points\n"
+        "from ccs_kornia.geometry.board_points import board_object_points\n"
+        "from ccs_kornia.geometry.camera import Camera, project_points\n"
         "from ccs_kornia.geometry.models import FISHEYE, K1K2\n"
         "from ccs_kornia.modules.calibration.solver import CalibrationSolver\n"
         "obj = board_object_points(6, 4, 1.0).double()\n"

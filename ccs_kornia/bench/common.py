@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.metrics import e_fl, e_ip, e_pp
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import K1K2, OPENCV5, PINHOLE

@@ -1,4 +1,4 @@
-"""The camera value (:class:`Camera`), board points and the distortion models every stage shares.
+"""The camera value (:class:`Camera`): what every stage passes for a camera, and the projection it shares.
 
 A :class:`Camera` is what the package passes wherever it means a camera: its model as a type
 (:mod:`ccs_kornia.geometry.models`, never a name), its parameters and its image size, batched over cameras. Its
@@ -8,17 +8,16 @@ Conventions (see ``docs/architecture.md``):
 
 * pixels: the centre of the top-left pixel is ``(0, 0)``, x to the right, y down (OpenCV and
   ``kornia.geometry.create_meshgrid(..., normalized_coordinates=False)``);
-* board: ``cols x rows`` inner corners; object point ``n = j * cols + i`` is ``(i * s, j * s, 0)``;
+* board: ``cols x rows`` inner corners; object point ``n = j * cols + i`` is ``(i * s, j * s, 0)``
+  (:mod:`ccs_kornia.geometry.board_points`);
 * poses: OpenCV's ``rvec`` (axis-angle, world-to-camera) and ``tvec``;
 * OpenCV distortion: ``(k1, k2, p1, p2, k3)`` (``opencv5``) or ``(k1, k2, p1, p2, k3, k4, k5, k6)``
   (``rational``), applied on the normalized plane as ``cv2.projectPoints`` and kornia's ``distort_points`` do
   (:class:`~ccs_kornia.geometry.models.opencv.OpenCVModel`; its inverse starts from kornia's ``undistort_points``);
 * Kannala-Brandt fisheye (``cv2.fisheye``): ``theta = atan2(r, z)``,
   ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``, ``D = (k1, k2, k3, k4)``;
-* the paper's radial model (used for training data and the distortion CNN): radii are measured from
-  the image centre ``((W-1)/2, (H-1)/2)`` in units of ``max(W, H)``;
-  distortion ``r_d = r_c (k0 + k1 r_c^2 + k2 r_c^4)`` and correction
-  ``r_c = r_d (k0' + k1' r_d + k2' r_d^2 + k3' r_d^3 + k4' r_d^4)``.
+* the paper's radial model (used for training data and the distortion CNN) lives in
+  :mod:`ccs_kornia.geometry.radial`.
 
 This module imports nothing of ``ccs_kornia`` but the camera models and the shared shape checks.
 """
@@ -39,46 +38,13 @@ from ccs_kornia.runtime.checks import broadcast_shapes, check_shape, check_tenso
 
 __all__ = [
     "Camera",
-    "board_object_points",
+    "axis_angle_to_rotation_matrix",
     "intrinsics_matrix",
     "intrinsics_params",
-    "transform_points_rt",
     "project_points",
-    "radial_distort_points",
-    "radial_undistort_points",
-    "radial_correct_points",
-    "radial_centre_scale",
-    "fit_radial_correction",
-    "axis_angle_to_rotation_matrix",
     "rotation_matrix_to_axis_angle",
+    "transform_points_rt",
 ]
-
-def board_object_points(
-    cols: int, rows: int, square: float = 1.0, device: torch.device | str | None = None, dtype: torch.dtype = torch.float32
-) -> torch.Tensor:
-    """Object points of a ``cols x rows`` inner-corner board in grid order.
-
-    Args:
-        cols: inner corners per row.
-        rows: number of rows of inner corners.
-        square: side of a square in world units.
-
-    Returns:
-        Tensor of shape :math:`(cols*rows, 3)`, point ``n = j*cols + i`` is ``(i*s, j*s, 0)``.
-
-    Example:
-        >>> board_object_points(3, 2, 0.5)[:4]
-        tensor([[0.0000, 0.0000, 0.0000],
-                [0.5000, 0.0000, 0.0000],
-                [1.0000, 0.0000, 0.0000],
-                [0.0000, 0.5000, 0.0000]])
-    """
-    if cols < 2 or rows < 2:
-        raise ValueError(f"A board needs at least 2x2 inner corners, got {cols}x{rows}.")
-    j, i = torch.meshgrid(
-        torch.arange(rows, device=device, dtype=dtype), torch.arange(cols, device=device, dtype=dtype), indexing="ij"
-    )
-    return torch.stack([i.reshape(-1) * square, j.reshape(-1) * square, torch.zeros_like(i).reshape(-1)], -1)
 
 
 def intrinsics_matrix(params: torch.Tensor) -> torch.Tensor:
@@ -170,127 +136,6 @@ def project_points(
                         coeffs.expand(*batch, coeffs.shape[-1])], -1).reshape(-1, model.num_params)
     uv = model.project(points.expand(*batch, N, 3).reshape(-1, N, 3), params, jacobians=False)[0]
     return uv.reshape(*batch, N, 2)
-
-
-# ----------------------------------------------------------------------------------------------
-# The paper's radial model (image-centred, radius in units of max(W, H))
-# ----------------------------------------------------------------------------------------------
-
-
-def radial_centre_scale(image_size: tuple[int, int], like: torch.Tensor) -> tuple[torch.Tensor, float]:
-    """The frame of the paper's radial model on a ``(W, H)`` image: its centre ``((W-1)/2, (H-1)/2)`` in pixels, a
-    :math:`(2,)` tensor on ``like``'s device and dtype, and its unit of radius ``max(W, H)`` (so ``r <= ~0.71``).
-
-    The distortion, its inverse and the network's correction (here and in :mod:`ccs_kornia.modules.correction`) all
-    measure radii in this frame.
-
-    Example:
-        >>> radial_centre_scale((640, 480), torch.zeros(1))
-        (tensor([319.5000, 239.5000]), 640.0)
-    """
-    w, h = image_size
-    centre = torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], device=like.device, dtype=like.dtype)
-    return centre, float(max(w, h))
-
-
-def _apply_radial_factor(points: torch.Tensor, image_size: tuple[int, int], factor_fn) -> torch.Tensor:
-    centre, scale = radial_centre_scale(image_size, points)
-    q = (points - centre) / scale
-    r = q.norm(dim=-1, keepdim=True)
-    return q * factor_fn(r) * scale + centre
-
-
-def radial_distort_points(points: torch.Tensor, coeffs: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
-    """Paper distortion ``r_d = r_c (k0 + k1 r_c^2 + k2 r_c^4)`` on pixel points.
-
-    Args:
-        points: :math:`(B, N, 2)` ideal pixel coordinates.
-        coeffs: :math:`(B, 3)` ``(k0, k1, k2)``.
-        image_size: ``(W, H)``.
-
-    Returns:
-        :math:`(B, N, 2)` distorted pixel coordinates.
-
-    Example:
-        >>> p = torch.tensor([[[319.5, 239.5], [639., 479.]]])
-        >>> radial_distort_points(p, torch.tensor([[1.0, 0.0, 0.0]]), (640, 480))
-        tensor([[[319.5000, 239.5000],
-                 [639.0000, 479.0000]]])
-    """
-    check_tensor(coeffs, "coeffs", ["*", "3"], what="radial distortion coefficients (k0, k1, k2)")
-    k = coeffs.unsqueeze(-2)
-
-    def factor(r):
-        r2 = r * r
-        return k[..., 0:1] + k[..., 1:2] * r2 + k[..., 2:3] * r2 * r2
-
-    return _apply_radial_factor(points, image_size, factor)
-
-
-def radial_undistort_points(
-    points: torch.Tensor, coeffs: torch.Tensor, image_size: tuple[int, int], num_iters: int = 12
-) -> torch.Tensor:
-    """Exact inverse of :func:`radial_distort_points` by Newton's method on the radius.
-
-    Args:
-        points: :math:`(B, N, 2)` distorted pixel coordinates.
-        coeffs: :math:`(B, 3)` distortion ``(k0, k1, k2)``.
-        image_size: ``(W, H)``.
-        num_iters: Newton steps (converges quadratically; 12 reaches float64 rounding for the paper's ranges).
-
-    Returns:
-        :math:`(B, N, 2)` ideal pixel coordinates.
-    """
-    check_tensor(coeffs, "coeffs", ["*", "3"], what="radial distortion coefficients (k0, k1, k2)")
-    centre, scale = radial_centre_scale(image_size, points)
-    q = (points - centre) / scale
-    rd = q.norm(dim=-1, keepdim=True)
-    k = coeffs.unsqueeze(-2)
-    k0, k1, k2 = k[..., 0:1], k[..., 1:2], k[..., 2:3]
-    rc = rd / k0
-    for _ in range(num_iters):
-        r2 = rc * rc
-        f = rc * (k0 + k1 * r2 + k2 * r2 * r2) - rd
-        df = k0 + 3 * k1 * r2 + 5 * k2 * r2 * r2
-        rc = rc - f / df.clamp_min(1e-6)
-    ratio = torch.where(rd > 0, rc / rd.clamp_min(1e-12), 1.0 / k0)
-    return q * ratio * scale + centre
-
-
-def radial_correct_points(points: torch.Tensor, correction: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
-    """Paper correction ``r_c = r_d (k0' + k1' r_d + k2' r_d^2 + k3' r_d^3 + k4' r_d^4)``.
-
-    Args:
-        points: :math:`(B, N, 2)` distorted pixel coordinates.
-        correction: :math:`(B, 5)` correction coefficients.
-        image_size: ``(W, H)``.
-
-    Returns:
-        :math:`(B, N, 2)` corrected pixel coordinates.
-    """
-    check_tensor(correction, "correction", ["*", "5"], what="radial correction coefficients (k0'..k4')")
-    c = correction.unsqueeze(-2)
-
-    def factor(r):
-        return c[..., 0:1] + r * (c[..., 1:2] + r * (c[..., 2:3] + r * (c[..., 3:4] + r * c[..., 4:5])))
-
-    return _apply_radial_factor(points, image_size, factor)
-
-
-def fit_radial_correction(coeffs: torch.Tensor, image_size: tuple[int, int], num_samples: int = 64) -> torch.Tensor:
-    """Least-squares correction coefficients (B, 5) that best invert distortion ``coeffs`` (B, 3).
-
-    Samples ideal radii up to the image corner, distorts them, and fits
-    ``r_c = r_d * poly4(r_d)`` in closed form. Used as the regression target/oracle of the CNN.
-    """
-    w, h = image_size
-    r_max = 0.5 * (w * w + h * h) ** 0.5 / max(w, h) * 1.02
-    rc = torch.linspace(0.0, r_max, num_samples, device=coeffs.device, dtype=coeffs.dtype)
-    k0, k1, k2 = coeffs[:, 0:1], coeffs[:, 1:2], coeffs[:, 2:3]
-    rd = rc * (k0 + k1 * rc**2 + k2 * rc**4)  # (B, S)
-    A = torch.stack([rd**p for p in range(1, 6)], -1)  # (B, S, 5): r_d * r_d^p
-    sol = torch.linalg.lstsq(A, rc.expand_as(rd).unsqueeze(-1)).solution
-    return sol.squeeze(-1)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -3,9 +3,9 @@ r"""Sampling-grid loss of the distortion CNN (paper Eq. 1, after Zhao et al.).
 The network sees a distorted image and predicts a *correction* with 5 coefficients, while the image was made
 with a 3-coefficient *distortion*; the two parameter sets are not comparable directly, so the loss compares
 what they do to points. A regular ``grid_size x grid_size`` grid of sampling points spans the distorted image;
-the predicted correction moves each point to :math:`p_{cor}` (:func:`ccs_kornia.geometry.camera.radial_correct_points`)
+the predicted correction moves each point to :math:`p_{cor}` (:func:`ccs_kornia.geometry.radial.radial_correct_points`)
 and the exact inverse of the true distortion moves it to :math:`p_{dst}`
-(:func:`ccs_kornia.geometry.camera.radial_undistort_points`). The loss is
+(:func:`ccs_kornia.geometry.radial.radial_undistort_points`). The loss is
 
 .. math::
     L_{grid} = \frac{1}{N} \sum_i^N \lVert p_{dst}^i - p_{cor}^i \rVert_1
@@ -19,7 +19,11 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia.geometry import camera
+from ccs_kornia.geometry.radial import (
+    radial_correct_points,
+    radial_distort_points,
+    radial_undistort_points,
+)
 from ccs_kornia.runtime.checks import check_correction, check_tensor
 
 __all__ = ["sampling_grid", "normalize_distortion_scale", "grid_targets", "grid_loss", "GridLoss"]
@@ -88,8 +92,8 @@ def grid_targets(
     b = distortion.shape[0]
     k = distortion.detach().to(torch.float64)
     pts = sampling_grid(image_size, grid_size, distortion.device, torch.float64).expand(b, -1, -1)
-    tgt = camera.radial_undistort_points(pts, k, image_size, num_iters=20)
-    back = camera.radial_distort_points(tgt, k, image_size)
+    tgt = radial_undistort_points(pts, k, image_size, num_iters=20)
+    back = radial_distort_points(tgt, k, image_size)
     w, h = int(image_size[0]), int(image_size[1])
     centre = torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], device=pts.device, dtype=torch.float64)
     rc = ((tgt - centre) / float(max(w, h))).norm(dim=-1)
@@ -125,7 +129,8 @@ def grid_loss(
         >>> identity = torch.tensor([[1.0, 0.0, 0.0, 0.0, 0.0]])
         >>> bool(grid_loss(identity, k, (64, 48)) > 0.5)
         True
-        >>> bool(grid_loss(camera.fit_radial_correction(k, (64, 48)), k, (64, 48)) < 0.01)
+        >>> from ccs_kornia.geometry.radial import fit_radial_correction
+        >>> bool(grid_loss(fit_radial_correction(k, (64, 48)), k, (64, 48)) < 0.01)
         True
     """
     check_correction(correction)
@@ -134,7 +139,7 @@ def grid_loss(
         raise ValueError(f"reduction must be one of {_REDUCTIONS}, got {reduction!r}.")
     pts, tgt, valid = grid_targets(distortion, image_size, grid_size)
     pts, tgt = pts.to(correction.dtype), tgt.to(correction.dtype)
-    cor = camera.radial_correct_points(pts, correction, image_size)
+    cor = radial_correct_points(pts, correction, image_size)
     err = (cor - tgt).abs().sum(-1) * valid.to(correction.dtype)
     if reduction == "none":
         return err

@@ -11,7 +11,7 @@ from pathlib import Path
 import lightning as L
 import torch
 
-from ccs_kornia.geometry.camera import fit_radial_correction
+from ccs_kornia.geometry.radial import fit_radial_correction
 from ccs_kornia.losses.grid_loss import (
     GridLoss,
     grid_loss,
@@ -35,7 +35,7 @@ class DistortionLitModule(L.LightningModule):
     Validation logs, all in pixels of the rendered views:
 
     * ``val/grid_loss``: Eq. 1 with the predicted correction; ``val/grid_loss_identity`` (no correction) and
-      ``val/grid_loss_oracle`` (``camera.fit_radial_correction`` of the true coefficients) bracket it;
+      ``val/grid_loss_oracle`` (``fit_radial_correction`` of the true coefficients) bracket it;
       ``val/grid_loss_level{i}`` and ``val/grid_loss_identity_level{i}`` per distortion level index;
     * ``val/straightness``: RMS distance of the ground-truth corners, corrected with the predicted coefficients,
       from lines fitted to each board row and column; ``val/straightness_before`` for the distorted corners.

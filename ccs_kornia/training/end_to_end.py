@@ -7,7 +7,7 @@ import copy
 import lightning as L
 import torch
 
-from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.models.factory import camera_model
 from ccs_kornia.losses.heatmap_loss import HeatmapLoss
 from ccs_kornia.modules.calibration.solver import CalibrationSolver

@@ -20,7 +20,8 @@ from ccs_kornia.bench.report.report import (
     write_markdown,
 )
 from ccs_kornia.bench.scenes.scenes import corner_errors, orient_grid, render_scenes
-from ccs_kornia.geometry.camera import board_object_points, project_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import project_points
 from ccs_kornia.geometry.models import K1K2
 
 REAL = REAL_DATA

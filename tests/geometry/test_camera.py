@@ -5,18 +5,20 @@ import numpy as np
 import pytest
 import torch
 
+from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.camera import (
     Camera,
-    board_object_points,
-    fit_radial_correction,
     intrinsics_matrix,
     intrinsics_params,
     project_points,
+)
+from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE
+from ccs_kornia.geometry.radial import (
+    fit_radial_correction,
     radial_correct_points,
     radial_distort_points,
     radial_undistort_points,
 )
-from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE
 
 F64 = torch.float64
 

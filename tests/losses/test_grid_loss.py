@@ -6,7 +6,11 @@ import pytest
 import torch
 
 from ccs_kornia.data.scenes.sampling import sample_radial_distortion
-from ccs_kornia.geometry import camera
+from ccs_kornia.geometry.radial import (
+    fit_radial_correction,
+    radial_correct_points,
+    radial_distort_points,
+)
 from ccs_kornia.losses.grid_loss import (
     GridLoss,
     grid_loss,
@@ -38,7 +42,7 @@ def test_targets_invert_the_distortion():
     k = torch.tensor([[1.0, -0.3, -0.05], [0.9, -0.4, -0.2]], dtype=torch.float64)
     pts, tgt, valid = grid_targets(k, SIZE, 8)
     assert pts.shape == tgt.shape == (2, 64, 2) and valid.shape == (2, 64)
-    torch.testing.assert_close(camera.radial_distort_points(tgt, k, SIZE)[valid], pts[valid], atol=1e-6, rtol=0)
+    torch.testing.assert_close(radial_distort_points(tgt, k, SIZE)[valid], pts[valid], atol=1e-6, rtol=0)
 
 
 def test_zero_for_exact_inverse():
@@ -52,7 +56,7 @@ def test_zero_for_exact_inverse():
 @pytest.mark.parametrize("k1", [-0.1, -0.05, 0.05])
 def test_near_zero_for_fitted_inverse_of_small_distortion(k1):
     k = torch.tensor([[1.0, k1, 0.0]], dtype=torch.float64)
-    fit = camera.fit_radial_correction(k, SIZE)
+    fit = fit_radial_correction(k, SIZE)
     assert float(grid_loss(fit, k, SIZE)) < 2e-3
     assert float(grid_loss(_identity(1), k, SIZE)) > 2.0
 
@@ -61,7 +65,7 @@ def test_near_zero_for_fitted_inverse_of_small_distortion(k1):
 def test_fit_is_far_below_identity(level):
     gen = torch.Generator().manual_seed(0)
     k = sample_radial_distortion(32, level, SIZE, gen).double()
-    fit_loss = float(grid_loss(camera.fit_radial_correction(k, SIZE), k, SIZE))
+    fit_loss = float(grid_loss(fit_radial_correction(k, SIZE), k, SIZE))
     ident_loss = float(grid_loss(_identity(32), k, SIZE))
     assert ident_loss > 10.0
     assert fit_loss < 0.05 * ident_loss, (fit_loss, ident_loss)
@@ -97,7 +101,7 @@ def test_positive_and_reductions():
     torch.testing.assert_close(mean, per_point.sum() / valid.sum())
     # the loss is the L1 norm: |dx| + |dy| per point
     pts, tgt, _ = grid_targets(k, SIZE, 8)
-    manual = (camera.radial_correct_points(pts, c, SIZE) - tgt).abs().sum(-1)
+    manual = (radial_correct_points(pts, c, SIZE) - tgt).abs().sum(-1)
     torch.testing.assert_close(per_point, manual * valid)
 
 
@@ -130,7 +134,7 @@ def test_minimising_the_loss_recovers_a_correction():
         loss.backward()
         opt.step()
     final = float(loss.detach())
-    fit = float(grid_loss(camera.fit_radial_correction(k, (128, 96)), k, (128, 96), grid_size=12))
+    fit = float(grid_loss(fit_radial_correction(k, (128, 96)), k, (128, 96), grid_size=12))
     start = float(grid_loss(_identity(1), k, (128, 96), grid_size=12))
     assert final < 0.05 * start and final < max(1.5 * fit, 0.05), (final, fit, start)
 

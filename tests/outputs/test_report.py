@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.geometry.camera import Camera, board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE, camera_model
 from ccs_kornia.outputs.report.calibration import DISPLAY_MAX_SIDE, write_report
 from ccs_kornia.outputs.report.figures import undistorted_preview

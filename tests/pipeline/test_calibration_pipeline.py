@@ -7,10 +7,10 @@ import torch
 
 from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.geometry.metrics import e_ip
-from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
-from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline, PipelineResult
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE, RATIONAL
 from ccs_kornia.modules.calibration.model_selection import ModelChoice
+from ccs_kornia.modules.detection.opencv_detector import OpenCVChessboardDetector
+from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline, PipelineResult
 
 BOARD = (9, 6)
 SQUARE = 0.025
@@ -310,11 +310,9 @@ def test_a_large_correction_is_tried_even_where_it_does_not_straighten():
     usual fit misses it by tens of px."""
     from ccs_kornia.bench.common import k0_scaled_intrinsics
     from ccs_kornia.data.scenes.sampling import sample_poses
-    from ccs_kornia.geometry.camera import (
-        board_object_points,
-        project_points,
-        radial_distort_points,
-    )
+    from ccs_kornia.geometry.board_points import board_object_points
+    from ccs_kornia.geometry.camera import project_points
+    from ccs_kornia.geometry.radial import radial_distort_points
 
     size = (640, 480)
     K = torch.tensor([[617.0, 0.0, 327.0], [0.0, 333.0, 232.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
@@ -419,7 +417,7 @@ def test_huge_board_free_images_and_wrong_shapes(detector):
 def test_corner_precision_weights_the_solve(sets):
     """The pipeline measures every found corner's precision (``detections.sigma``) and weights the solve by it;
     ``weigh_corners=False`` is the plain least-squares fit on the same corners."""
-    from ccs_kornia.geometry.camera import board_object_points
+    from ccs_kornia.geometry.board_points import board_object_points
     from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_weights
 
     imgs = sets[0].images

@@ -7,11 +7,11 @@ import pytest
 import torch
 
 from ccs_kornia.data.scenes.scenes import make_calibration_set
-from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.models import K1K2
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.detection.refine.differentiable_refine import symmetry_refine
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
-from ccs_kornia.geometry.models import K1K2
 
 BOARD, SQUARE = (6, 4), 0.025
 K_TRUE = torch.tensor([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]], dtype=torch.float64)

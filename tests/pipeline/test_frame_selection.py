@@ -11,7 +11,9 @@ from _rig_images import SQUARE as RIG_SQUARE
 from _rig_images import render_stereo
 
 from ccs_kornia.data.scenes.scenes import make_calibration_set
-from ccs_kornia.geometry.camera import board_object_points, project_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import project_points
+from ccs_kornia.geometry.models import K1K2
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.outputs.records import camera_record
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
@@ -24,7 +26,6 @@ from ccs_kornia.pipeline.frame_selection import (
     near_copies,
 )
 from ccs_kornia.pipeline.rig_pipeline import RigPipeline
-from ccs_kornia.geometry.models import K1K2
 
 OBJ = board_object_points(9, 6, 0.03, dtype=torch.float64)
 K = torch.tensor([[800.0, 0, 640], [0, 800, 360], [0, 0, 1]], dtype=torch.float64)

@@ -16,11 +16,8 @@ import time
 
 import torch
 
-from ccs_kornia.geometry.camera import (
-    board_object_points,
-    intrinsics_matrix,
-    project_points,
-)
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import intrinsics_matrix, project_points
 from ccs_kornia.modules.detection.grid.grid_organizer import organize_grid
 
 W, H = 640, 480

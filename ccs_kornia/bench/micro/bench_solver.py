@@ -16,11 +16,8 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.geometry.camera import (
-    axis_angle_to_rotation_matrix,
-    board_object_points,
-    project_points,
-)
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import axis_angle_to_rotation_matrix, project_points
 from ccs_kornia.geometry.metrics import e_ip
 from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.modules.calibration.solver import CalibrationSolver

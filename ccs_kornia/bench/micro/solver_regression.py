@@ -48,7 +48,7 @@ def capture(path, real_dir):
     from _board_views import synthetic
 
     from ccs_kornia.data.scenes.scenes import make_calibration_set
-    from ccs_kornia.geometry.camera import board_object_points
+    from ccs_kornia.geometry.board_points import board_object_points
     from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
     cases = {}
@@ -140,12 +140,11 @@ def run(inputs):
         for m in next(r[3] for r in REAL_SETS if r[0] == name):
             res = CalibrationSolver(model=m)(c["corners"], None, c["obj"], c["size"])
             out[f"real/{name}/{m}"] = _record(res)
-    from ccs_kornia.geometry.camera import board_object_points  # noqa: F401
 
     for name, g in data["corrected"].items():
         solver = CalibrationSolver(model=OPENCV5, seed=0)
         valid = g["found"][..., None].expand(g["corners"].shape[:-1])
-        from ccs_kornia.geometry.camera import board_object_points as bop
+        from ccs_kornia.geometry.board_points import board_object_points as bop
 
         obj = bop(g["board"][0], g["board"][1], g["square"], dtype=F64)
         usual = solver(g["corners"], valid, obj, g["size"])

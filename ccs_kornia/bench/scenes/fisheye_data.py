@@ -17,11 +17,8 @@ from ccs_kornia.bench.scenes.scenes import quantize
 from ccs_kornia.data.render.fisheye import kb_distort_theta
 from ccs_kornia.data.render.optics import psf_and_gamma
 from ccs_kornia.data.render.renderer import render_chessboard
-from ccs_kornia.geometry.camera import (
-    Camera,
-    board_object_points,
-    rotation_matrix_to_axis_angle,
-)
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import Camera, rotation_matrix_to_axis_angle
 from ccs_kornia.geometry.models.factory import FISHEYE
 
 __all__ = ["random_kb_cameras", "random_board_views", "render_kb_views"]

@@ -75,7 +75,7 @@ def render_wide_scenes(cfg: BenchConfig, cameras: int, views: int) -> Scenes:
 
 
 def _network_part(pipeline, scenes: Scenes, image_size: tuple[int, int], board: tuple[int, int]) -> dict:
-    from ccs_kornia.geometry.camera import fit_radial_correction
+    from ccs_kornia.geometry.radial import fit_radial_correction
     from ccs_kornia.losses.grid_loss import grid_loss, normalize_distortion_scale
     from ccs_kornia.modules.correction.pooling import pool_corrections
     from ccs_kornia.modules.correction.radial_warp import correct_points

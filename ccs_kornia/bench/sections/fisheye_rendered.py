@@ -32,7 +32,7 @@ from ccs_kornia.bench.scenes.fisheye_data import (
     render_kb_views,
 )
 from ccs_kornia.data.datamodules.datamodule import BENCH_SEED_BASE
-from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.models.factory import FISHEYE
 from ccs_kornia.modules.calibration.model_selection import ModelChoice
 

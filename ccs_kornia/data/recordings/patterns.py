@@ -35,7 +35,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ccs_kornia.data.render.renderer import _shade_footprints
-from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
 
 __all__ = ["BoardPattern", "ChessPattern", "TexturePattern"]
 

@@ -2,7 +2,7 @@
 
 A view's lens is its camera (the camera value's map, :class:`~ccs_kornia.geometry.camera.Camera`: a pinhole, OpenCV's
 ``k1, k2, p1, p2, k3`` or a Kannala-Brandt fisheye, :func:`view_cameras`) followed by the paper's radial model about
-the image centre (``camera.radial_distort_points``); the forward map (:func:`project_board`) is the camera's.
+the image centre (``radial_distort_points``); the forward map (:func:`project_board`) is the camera's.
 
 The inverse distortion on the pixel grid is exact, not interpolated: the paper's model is inverted
 through a fine 1-D table plus a Newton step, the OpenCV model from a coarse exact grid plus Newton
@@ -34,6 +34,7 @@ from ccs_kornia.data.render.fisheye import (
 )
 from ccs_kornia.geometry import camera
 from ccs_kornia.geometry.models.factory import FISHEYE, OPENCV5, PINHOLE
+from ccs_kornia.geometry.radial import radial_distort_points, radial_undistort_points
 
 __all__ = ["view_cameras", "project_board", "board_coordinates"]
 
@@ -138,7 +139,7 @@ def project_board(
 
     Applies the pose, the views' cameras (:func:`view_cameras`: the pinhole ``K`` with OpenCV distortion, or the
     Kannala-Brandt lens for views marked as fisheyes in ``fisheye``) and then the paper's radial distortion
-    (``camera.radial_distort_points``).
+    (``radial_distort_points``).
 
     Args:
         object_points: :math:`(B, N, 3)` world points.
@@ -172,7 +173,7 @@ def project_board(
     if radial is not None:
         r_fold, _ = _radial_fold(radial)
         ok = ok & (_paper_radius(pix, image_size) < r_fold.to(pix.dtype).unsqueeze(-1))
-        pix = camera.radial_distort_points(pix, radial.to(pix.dtype), image_size)
+        pix = radial_distort_points(pix, radial.to(pix.dtype), image_size)
     if fe_any:
         sel = fe_mask.view(-1, 1)
         ok = torch.where(sel, kb_reach(cam, fisheye), ok)
@@ -307,7 +308,7 @@ def board_coordinates(
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Inverse model: distorted pixels to board coordinates in squares (inner corner ``(i, j)`` at ``(i, j)``).
 
-    distorted pixel -> ideal pixel (``camera.radial_undistort_points``, then :func:`_undistort_opencv`) -> ray -> intersection with the board plane through the inverse homography
+    distorted pixel -> ideal pixel (``radial_undistort_points``, then :func:`_undistort_opencv`) -> ray -> intersection with the board plane through the inverse homography
     ``(K [r1 r2 t])^-1``. This is the exact per-point path; the renderer uses the same chain on its pixel
     grid with a faster but equally exact inversion (tabulated / coarse-grid start, then Newton).
 
@@ -330,8 +331,8 @@ def board_coordinates(
             sub, coeff = pts[idx], radial[idx].to(dtype)
             _, rd_max = _radial_fold(radial[idx])
             ok = _paper_radius(sub, image_size) < (rd_max * (1 - 1e-3)).to(dtype).unsqueeze(-1)
-            ideal = camera.radial_undistort_points(sub, coeff, image_size)
-            back = camera.radial_distort_points(ideal, coeff, image_size)
+            ideal = radial_undistort_points(sub, coeff, image_size)
+            back = radial_distort_points(ideal, coeff, image_size)
             ok = ok & ((back - sub).norm(dim=-1) < 1e-2)
             pts = pts.index_copy(0, idx, torch.where(ok.unsqueeze(-1), ideal, sub))
             reach = reach.index_copy(0, idx, ok)
@@ -351,7 +352,7 @@ def board_coordinates(
 
 
 def _radial_inverse_grid(px: Tensor, py: Tensor, radial: Tensor, image_size: tuple[int, int], table: int = 2048):
-    """Paper-model inverse on image grids ``(b, H, W)``: a 1-D table of ``camera.radial_undistort_points``
+    """Paper-model inverse on image grids ``(b, H, W)``: a 1-D table of ``radial_undistort_points``
     (exact Newton) interpolated per pixel, then one Newton step on the radius (error ~1e-9 px)."""
     w, h = image_size
     b = px.shape[0]
@@ -364,7 +365,7 @@ def _radial_inverse_grid(px: Tensor, py: Tensor, radial: Tensor, image_size: tup
     step = top / (table - 1)
     rd_tab = torch.arange(table, device=px.device, dtype=dt) * step
     probe = torch.stack([cx + rd_tab * scale, torch.full_like(rd_tab, cy)], -1).expand(b, table, 2)
-    rc_tab = (camera.radial_undistort_points(probe, radial.to(dt), image_size)[..., 0] - cx) / scale  # (b, T)
+    rc_tab = (radial_undistort_points(probe, radial.to(dt), image_size)[..., 0] - cx) / scale  # (b, T)
     t = (rd / step).reshape(b, -1)
     i0 = t.floor().clamp(0, table - 2)
     frac = t - i0

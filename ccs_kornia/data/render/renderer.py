@@ -19,7 +19,7 @@ steps (both agree with the per-point float64 inverse :func:`board_coordinates` t
 
 Ground-truth corners never come from the image: they are the forward projection of the board's
 object points (the views' cameras, :func:`~ccs_kornia.data.render.lens.view_cameras`, then
-``camera.radial_distort_points``).
+``radial_distort_points``).
 
 Layout of the board, in squares: inner corners at ``u = 0 .. cols-1``, ``v = 0 .. rows-1``; checker
 squares cover ``[-1, cols] x [-1, rows]`` with the top-left square ``(-1, -1)`` dark; a light border of

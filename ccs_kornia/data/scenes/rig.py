@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import torch
 
+from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.camera import (
     Camera,
     axis_angle_to_rotation_matrix,
-    board_object_points,
     rotation_matrix_to_axis_angle,
 )
 

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 import torch
 
-from ccs_kornia.geometry.camera import Camera, board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models.factory import K1K2
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 

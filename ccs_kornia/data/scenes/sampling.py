@@ -18,6 +18,7 @@ from ccs_kornia.data._util import (
 )
 from ccs_kornia.data.render.lens import _undistort_opencv, project_board
 from ccs_kornia.geometry import camera
+from ccs_kornia.geometry.radial import radial_undistort_points
 
 __all__ = ["RADIAL_LEVELS", "sample_radial_distortion", "sample_opencv_distortion", "sample_poses"]
 
@@ -248,7 +249,7 @@ def _sample_poses_batched(
         target = torch.stack([lo_x + (hi_x - lo_x) * pos[:, 0], lo_y + (hi_y - lo_y) * pos[:, 1]], -1).unsqueeze(1)
         # the target is a distorted pixel: find the ideal pixel it comes from
         if radc is not None:
-            target = camera.radial_undistort_points(target, radc, image_size)
+            target = radial_undistort_points(target, radc, image_size)
         if dc is not None and bool((dc != 0).any()):
             target, _ = _undistort_opencv(target, Kc, dc)
         ray = torch.cat([target[:, 0], torch.ones(pm, 1, dtype=torch.float64)], -1)

@@ -2,7 +2,7 @@
 
 The paper models the lens with a radial distortion about the image centre ``c = ((W-1)/2, (H-1)/2)``:
 ``p_d = c + (p - c) (1 + k1 r^2 + k2 r^4 + k3 r^6)``, ``r = |p - c| / max(W, H)``, applied to the pinhole
-projection ``p`` (:func:`ccs_kornia.geometry.camera.radial_distort_points` with ``k0 = 1``, plus a ``k3`` term; a ``k0``
+projection ``p`` (:func:`ccs_kornia.geometry.radial.radial_distort_points` with ``k0 = 1``, plus a ``k3`` term; a ``k0``
 other than 1 is a zoom about the centre, which belongs to the focal length). Its distortion CNN predicts the
 inverse of this map; :func:`radial_from_correction` converts such a correction into these coefficients.
 
@@ -163,7 +163,8 @@ def refine_centred_radial(
         the covariance last.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import project_points
         >>> obj = board_object_points(6, 5, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[[300., 0, 160], [0, 300, 120], [0, 0, 1]]], dtype=torch.float64)
         >>> g = torch.Generator().manual_seed(0)

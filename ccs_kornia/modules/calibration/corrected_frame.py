@@ -17,13 +17,9 @@ from dataclasses import replace
 
 import torch
 
-from ccs_kornia.geometry.camera import (
-    Camera,
-    board_object_points,
-    intrinsics_params,
-)
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import Camera, intrinsics_params
 from ccs_kornia.geometry.models.factory import K1K2, OPENCV5, PINHOLE, RATIONAL
-from ccs_kornia.runtime.checks import check_board_size
 from ccs_kornia.modules.calibration.centred_radial import (
     radial_from_points,
     refine_centred_radial,
@@ -35,6 +31,7 @@ from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.correction.correction_fit import fit_correction_to_points
 from ccs_kornia.modules.correction.radial_warp import correct_points
 from ccs_kornia.modules.detection.base import measured_corners
+from ccs_kornia.runtime.checks import check_board_size
 
 __all__ = ["solve_with_correction", "calibrate_corrected", "select_cameras"]
 

@@ -99,7 +99,8 @@ def calibrate_fisheye(
         :class:`FisheyeCalibrationResult` (no camera dim for unbatched input; failed cameras have NaN values).
 
     Example:
-        >>> from ccs_kornia.geometry.camera import Camera, board_object_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import Camera
         >>> from ccs_kornia.geometry.models import FISHEYE
         >>> obj = board_object_points(6, 4, 0.05, dtype=torch.float64)
         >>> K = torch.tensor([[200., 0, 322], [0, 201, 237], [0, 0, 1]], dtype=torch.float64)

@@ -37,7 +37,8 @@ def board_to_ray_poses(
         finite fit).
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, transform_points_rt
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import transform_points_rt
         >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)
         >>> rvec, tvec = torch.tensor([0.1, 1.7, 0.2], dtype=torch.float64), torch.tensor([0.5, 0.0, 0.1], dtype=torch.float64)
         >>> rays = transform_points_rt(obj, rvec, tvec)  # the board is beside the camera: rays beyond 90 degrees
@@ -136,7 +137,8 @@ def init_fisheye(
         score :math:`(C, keep)` (mean of per-view squared RMS, capped; lower is better).
 
     Example:
-        >>> from ccs_kornia.geometry.camera import Camera, board_object_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import Camera
         >>> from ccs_kornia.geometry.models import FISHEYE
         >>> obj = board_object_points(6, 4, 0.05, dtype=torch.float64)
         >>> cam = Camera(FISHEYE, torch.tensor([200., 200, 319.5, 239.5, 0, 0, 0, 0], dtype=torch.float64))

@@ -217,7 +217,8 @@ def implicit_solution(
         ``(params, rvec, tvec)`` carrying gradients.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import project_points
         >>> from ccs_kornia.modules.calibration.lm import levenberg_marquardt
         >>> from ccs_kornia.geometry.models import PINHOLE
         >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)[None]

@@ -261,7 +261,8 @@ def levenberg_marquardt(
         :class:`LMResult`.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import project_points
         >>> from ccs_kornia.geometry.models import PINHOLE
         >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)

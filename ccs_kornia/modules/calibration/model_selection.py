@@ -40,7 +40,13 @@ import torch
 from torch import nn
 
 from ccs_kornia.geometry.models.base import CameraModel
-from ccs_kornia.geometry.models.factory import CAMERA_MODELS, FISHEYE, K1K2, OPENCV5, RATIONAL
+from ccs_kornia.geometry.models.factory import (
+    CAMERA_MODELS,
+    FISHEYE,
+    K1K2,
+    OPENCV5,
+    RATIONAL,
+)
 from ccs_kornia.modules.calibration.quality.coverage import image_coverage
 from ccs_kornia.modules.calibration.quality.diagnostics import (
     cross_validation,
@@ -305,7 +311,8 @@ class ModelSelection(nn.Module):
         "rule"}``.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import project_points
         >>> from ccs_kornia.modules.calibration.solver import CalibrationSolver
         >>> obj = board_object_points(7, 5, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[600., 0, 330], [0, 610, 230], [0, 0, 1]], dtype=torch.float64)

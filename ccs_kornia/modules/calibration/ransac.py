@@ -19,8 +19,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ccs_kornia.runtime.checks import broadcast_shapes, check_shape, check_tensor
 from ccs_kornia.modules.calibration.zhang import zhang_intrinsics
+from ccs_kornia.runtime.checks import broadcast_shapes, check_shape, check_tensor
 
 __all__ = ["hypothesis_view_rms", "image_ransac", "ImageRansac"]
 
@@ -214,7 +214,8 @@ class ImageRansac(nn.Module):
         :math:`(N, 3)` -> inliers :math:`(C, V)`, K :math:`(C, 3, 3)`.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import project_points
         >>> from ccs_kornia.modules.calibration.homography import find_homographies
         >>> obj = board_object_points(5, 4, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[600., 0, 320], [0, 600, 240], [0, 0, 1]], dtype=torch.float64)

@@ -137,7 +137,8 @@ def joint_refinement(
         ``fx, fy, cx, cy`` and coefficients.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import project_points
         >>> obj = board_object_points(4, 3, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[500., 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
         >>> rvec = torch.tensor([[0.2, 0.1, 0.0], [-0.2, 0.3, 0.1], [0.1, -0.3, 0.2]], dtype=torch.float64)

@@ -114,7 +114,8 @@ class CalibrationSolver(nn.Module):
         input gives results without the C dim.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import project_points
         >>> obj = board_object_points(6, 5, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[600., 0, 330], [0, 610, 230], [0, 0, 1]], dtype=torch.float64)
         >>> g = torch.Generator().manual_seed(0)

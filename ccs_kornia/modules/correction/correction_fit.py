@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.geometry.camera import radial_centre_scale
+from ccs_kornia.geometry.radial import radial_centre_scale
 from ccs_kornia.runtime.checks import check_points, check_same_shape
 
 __all__ = ["fit_correction_to_points"]

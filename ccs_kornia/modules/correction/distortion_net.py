@@ -153,7 +153,7 @@ def _norm_layer(norm: str, channels: int) -> nn.Module:
 
 
 class DistortionNet(nn.Module):
-    """Regresses correction coefficients ``(k0', ..., k4')`` of :func:`ccs_kornia.geometry.camera.radial_correct_points`.
+    """Regresses correction coefficients ``(k0', ..., k4')`` of :func:`ccs_kornia.geometry.radial.radial_correct_points`.
 
     Args:
         base_channels: width of the first layer; the eight layers use ``c, 2c, 2c, 4c, 4c, 8c, 8c, 8c``.

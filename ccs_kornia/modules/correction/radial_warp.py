@@ -1,7 +1,7 @@
 """Differentiable removal of the paper's radial distortion from images and points (paper Sec. III-A).
 
 The distortion CNN predicts a *correction* ``r_c = r_d (k0' + k1' r_d + k2' r_d^2 + k3' r_d^3 + k4' r_d^4)``
-(:func:`ccs_kornia.geometry.camera.radial_correct_points`), radii measured from the image centre ``((W-1)/2, (H-1)/2)``
+(:func:`ccs_kornia.geometry.radial.radial_correct_points`), radii measured from the image centre ``((W-1)/2, (H-1)/2)``
 in units of ``max(W, H)``. It maps *distorted* pixels to *corrected* ones, which is exactly what points need.
 An image warp needs the opposite direction: for every pixel of the corrected output, the distorted source
 position to sample. That inverse has no closed form, so it is solved per pixel by Newton's method on the radius
@@ -26,7 +26,7 @@ from kornia.geometry.grid import create_meshgrid
 from kornia.geometry.transform import remap
 from torch import nn
 
-from ccs_kornia.geometry import camera
+from ccs_kornia.geometry.radial import radial_centre_scale, radial_correct_points
 from ccs_kornia.runtime.checks import check_correction, check_points, check_tensor
 
 __all__ = [
@@ -101,7 +101,7 @@ def invert_correction_radius(
 def correct_points(
     points: torch.Tensor, correction: torch.Tensor, image_size: tuple[int, int], zoom: float = 1.0
 ) -> torch.Tensor:
-    """Distorted pixels to corrected pixels (:func:`ccs_kornia.geometry.camera.radial_correct_points`, then ``zoom``).
+    """Distorted pixels to corrected pixels (:func:`ccs_kornia.geometry.radial.radial_correct_points`, then ``zoom``).
 
     Args:
         points: :math:`(B, N, 2)` distorted pixel coordinates.
@@ -119,9 +119,9 @@ def correct_points(
     """
     check_points(points)
     check_correction(correction, points.shape[0])
-    out = camera.radial_correct_points(points, correction, image_size)
+    out = radial_correct_points(points, correction, image_size)
     if zoom != 1.0:
-        centre, _ = camera.radial_centre_scale(image_size, out)
+        centre, _ = radial_centre_scale(image_size, out)
         out = (out - centre) * zoom + centre
     return out
 
@@ -159,7 +159,7 @@ def distort_points_from_correction(
     check_correction(correction, points.shape[0])
     if zoom <= 0:
         raise ValueError(f"zoom must be positive, got {zoom}.")
-    centre, scale = camera.radial_centre_scale(image_size, points)
+    centre, scale = radial_centre_scale(image_size, points)
     q = (points - centre) / (scale * zoom)
     rc = q.norm(dim=-1)
     rd, valid = invert_correction_radius(rc, correction.to(points.dtype), num_iters=num_iters)
@@ -184,7 +184,7 @@ def _pixel_sources(h: int, w: int, correction: torch.Tensor, zoom: float, num_it
     same radius to the bit (their offsets from the centre differ in sign only), so the top-left quadrant's inverse
     radii serve all four (the same values, in less than half the time: ``docs/measurements.md``)."""
     pts = create_meshgrid(h, w, normalized_coordinates=False, device=device, dtype=dtype).reshape(1, h * w, 2)
-    centre, scale = camera.radial_centre_scale((w, h), pts)
+    centre, scale = radial_centre_scale((w, h), pts)
     q = (pts - centre) / (scale * zoom)
     rc = q.norm(dim=-1)  # (1, h w)
     hq, wq = (h + 1) // 2, (w + 1) // 2

@@ -69,7 +69,7 @@ class Chessboard:
 
     def object_points(self, dtype: torch.dtype = torch.float64) -> torch.Tensor:
         """:math:`(N, 3)` corners ``(col * square, row * square, 0)`` in grid order."""
-        from ccs_kornia.geometry.camera import board_object_points
+        from ccs_kornia.geometry.board_points import board_object_points
 
         return board_object_points(self.cols, self.rows, float(self.square), dtype=dtype)
 
@@ -309,7 +309,7 @@ class AprilGrid:
 def grid_object_points(board, board_size: tuple[int, int], square: float, device: torch.device | str | None = None,
                        dtype: torch.dtype = torch.float64) -> torch.Tensor:
     """The object points by corner id that a calibration fits: the board's own where its corners are not an even grid
-    (an :class:`AprilGrid`), else :func:`~ccs_kornia.geometry.camera.board_object_points` of ``board_size`` and ``square``
+    (an :class:`AprilGrid`), else :func:`~ccs_kornia.geometry.board_points.board_object_points` of ``board_size`` and ``square``
     (chessboards and ChArUco boards: the answers do not depend on the grid's origin).
 
     Example:
@@ -322,6 +322,6 @@ def grid_object_points(board, board_size: tuple[int, int], square: float, device
         if check_board_size(board_size) != board.board_size:
             raise ValueError(f"board_size {tuple(board_size)} is not the AprilGrid's corner grid {board.board_size}")
         return board.object_points(dtype).to(device)
-    from ccs_kornia.geometry.camera import board_object_points
+    from ccs_kornia.geometry.board_points import board_object_points
 
     return board_object_points(*check_board_size(board_size), float(square), device=device, dtype=dtype)

@@ -36,7 +36,7 @@ def align_board_orders(A: torch.Tensor, M: torch.Tensor, valid: torch.Tensor, sy
         syms: :func:`~ccs_kornia.modules.rig.board_symmetry.board_symmetries` of the board.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
         >>> from ccs_kornia.modules.rig.board_symmetry import board_symmetries
         >>> syms = board_symmetries(board_object_points(3, 2, 1.0, dtype=torch.float64))
         >>> T = torch.eye(4, dtype=torch.float64).repeat(1, 3, 1, 1)

@@ -108,7 +108,7 @@ class HandEyeProblem:
 
     Example:
         >>> from ccs_kornia.geometry.models import PINHOLE
-        >>> from ccs_kornia.geometry.camera import board_object_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
         >>> T = torch.eye(4, dtype=torch.float64).expand(1, 3, 4, 4).clone()
         >>> T[0, :, :3, :3] = exp_so3(torch.tensor([[0.0, 0, 0], [0.3, 0, 0], [0, 0.3, 0.1]], dtype=torch.float64))
         >>> obj = board_object_points(3, 2, 0.05, dtype=torch.float64)

@@ -11,7 +11,7 @@ A symmetry ``s`` is a turn ``S`` about the board normal with offset ``c`` and th
 ``perm[n]``) estimates the pose ``(R S, R c + t)`` instead of ``(R, t)``.
 
 Example:
-    >>> from ccs_kornia.geometry.camera import board_object_points
+    >>> from ccs_kornia.geometry.board_points import board_object_points
     >>> syms = board_symmetries(board_object_points(3, 2, 1.0, dtype=torch.float64))
     >>> len(syms), syms[1].perm.tolist()  # identity, then the 180-degree turn (reversed order)
     (2, [5, 4, 3, 2, 1, 0])

@@ -248,7 +248,8 @@ def rig_levenberg_marquardt(
         :class:`RigLMResult`.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import project_points
         >>> from ccs_kornia.geometry.models import FISHEYE, K1K2, PINHOLE
         >>> from ccs_kornia.modules.calibration.schur_lm import LMStatus
         >>> obj = board_object_points(5, 4, 0.1, dtype=torch.float64)

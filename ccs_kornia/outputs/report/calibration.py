@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from ccs_kornia.geometry.camera import Camera, board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.io.images import load_image_gray
 from ccs_kornia.outputs.calibration_file import camera_from_record
 from ccs_kornia.outputs.report.drawing import format_number, nice_number, write_png

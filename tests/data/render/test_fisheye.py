@@ -20,6 +20,7 @@ from ccs_kornia.data.render.fisheye import (
 from ccs_kornia.data.render.lens import project_board, view_cameras
 from ccs_kornia.data.render.renderer import render_chessboard
 from ccs_kornia.geometry import camera
+from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.models import FISHEYE, OPENCV5
 
 
@@ -81,7 +82,7 @@ def test_render_ground_truth_is_cv2_fisheye_projection():
     rv, tv = sample_fisheye_poses(K, fe, cols, rows, sq, (640, 480), torch.Generator().manual_seed(3))
     _, corners = render_chessboard(K, rv, tv, (8, 6), 0.03, (640, 480), supersample=1, fisheye=fe[:, :4],
                                    fov_deg=torch.rad2deg(2 * fe[:, 4]))
-    obj = camera.board_object_points(8, 6, 0.03, dtype=torch.float64).numpy().reshape(-1, 1, 3)
+    obj = board_object_points(8, 6, 0.03, dtype=torch.float64).numpy().reshape(-1, 1, 3)
     for i in range(3):
         Kn = K[i].numpy()
         ref, _ = cv2.fisheye.projectPoints(obj, rv[i].numpy(), tv[i].numpy(), Kn, fe[i, :4].numpy())
@@ -135,7 +136,7 @@ def test_fisheye_poses_keep_every_corner_inside_and_favour_the_border():
     cols, rows = torch.full((8,), 8), torch.full((8,), 6)
     sq = torch.full((8,), 0.03, dtype=torch.float64)
     rv, tv = sample_fisheye_poses(K, fe, cols, rows, sq, (640, 480), torch.Generator().manual_seed(6))
-    obj = camera.board_object_points(8, 6, 0.03, dtype=torch.float64).expand(8, -1, -1)
+    obj = board_object_points(8, 6, 0.03, dtype=torch.float64).expand(8, -1, -1)
     pix, ok = project_board(obj, K, rv, tv, (640, 480), fisheye=fe)
     assert bool(ok.all())
     assert bool(((pix[..., 0] >= 4) & (pix[..., 0] <= 635) & (pix[..., 1] >= 4) & (pix[..., 1] <= 475)).all())

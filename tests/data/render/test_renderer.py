@@ -16,6 +16,7 @@ from ccs_kornia.data.scenes.sampling import (
     sample_radial_distortion,
 )
 from ccs_kornia.geometry import camera
+from ccs_kornia.geometry.board_points import board_object_points
 
 W, H = 160, 120
 
@@ -102,7 +103,7 @@ def test_corners_match_cv2_projection():
     dist = torch.tensor([-0.25, 0.08, 0.001, -0.0015, 0.01], dtype=torch.float64)
     r, t = _poses(4, K=K, dist=dist, seed=3)
     _, corners = render_chessboard(K, r, t, (5, 4), 0.03, (W, H), dist=dist, supersample=1)
-    obj = camera.board_object_points(5, 4, 0.03, dtype=torch.float64).numpy()
+    obj = board_object_points(5, 4, 0.03, dtype=torch.float64).numpy()
     for i in range(4):
         ref, _ = cv2.projectPoints(obj, r[i].numpy(), t[i].numpy(), K.numpy(), dist.numpy())
         np.testing.assert_allclose(corners[i].numpy(), ref.reshape(-1, 2), atol=1e-8)
@@ -113,7 +114,7 @@ def test_radial_corners_follow_paper_model():
     radial = torch.tensor([1.02, -0.3, -0.08], dtype=torch.float64)
     r, t = _poses(2, K=K, radial=radial, seed=4)
     _, corners = render_chessboard(K, r, t, (5, 4), 0.03, (W, H), radial=radial, supersample=1)
-    ideal = camera.project_points(camera.board_object_points(5, 4, 0.03, dtype=torch.float64), K, None, r, t).numpy()
+    ideal = camera.project_points(board_object_points(5, 4, 0.03, dtype=torch.float64), K, None, r, t).numpy()
     centre, scale = np.array([(W - 1) / 2, (H - 1) / 2]), max(W, H)
     q = (ideal - centre) / scale
     rc = np.linalg.norm(q, axis=-1, keepdims=True)
@@ -129,7 +130,7 @@ def test_inverse_mapping_returns_grid_coordinates(model):
     dist = torch.tensor([-0.3, 0.1, 0.0015, -0.001, 0.0], dtype=torch.float64) if model in ("opencv", "both") else None
     radial = torch.tensor([0.97, -0.3, -0.1], dtype=torch.float64) if model in ("radial", "both") else None
     r, t = _poses(3, K=K, dist=dist, radial=radial, seed=5)
-    obj = camera.board_object_points(5, 4, 0.03, dtype=torch.float64).expand(3, -1, -1)
+    obj = board_object_points(5, 4, 0.03, dtype=torch.float64).expand(3, -1, -1)
     pix, ok = project_board(obj, K.expand(3, 3, 3), r, t, (W, H),
                             None if dist is None else dist.expand(3, 5), None if radial is None else radial.expand(3, 3))
     assert bool(ok.all())

@@ -15,6 +15,8 @@ from ccs_kornia.data.scenes.sampling import (
     sample_radial_distortion,
 )
 from ccs_kornia.geometry import camera
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.radial import radial_undistort_points
 
 W, H = 160, 120
 
@@ -27,7 +29,7 @@ def test_sample_poses_keep_corners_inside(model):
     radial = sample_radial_distortion(1, "severe", (W, H), gen)[0] if model == "radial" else None
     margin = 6.0
     r, t = sample_poses(K, (5, 4), 0.03, (W, H), 24, gen, dist=dist, radial=radial, margin=margin)
-    obj = camera.board_object_points(5, 4, 0.03).expand(24, -1, -1).double()
+    obj = board_object_points(5, 4, 0.03).expand(24, -1, -1).double()
     pix, ok = project_board(obj, K.double().expand(24, 3, 3), r.double(), t.double(), (W, H),
                             None if dist is None else dist.double().expand(24, 5),
                             None if radial is None else radial.double().expand(24, 3))
@@ -69,7 +71,7 @@ def test_radial_levels():
     # displacement of the farthest image corner: 15-25 % of its ideal radius, monotonic up to it
     rd = 0.5 * math.hypot(639, 479) / 640
     corner = torch.tensor([[[639.0, 479.0]]], dtype=torch.float64).expand(200, 1, 2)
-    ideal = camera.radial_undistort_points(corner, sev, (640, 480))
+    ideal = radial_undistort_points(corner, sev, (640, 480))
     rc = (ideal[:, 0] - torch.tensor([319.5, 239.5], dtype=torch.float64)).norm(dim=-1) / 640
     disp = 1 - rd / rc
     assert float(disp.min()) > 0.149 and float(disp.max()) < 0.251

@@ -14,6 +14,7 @@ from ccs_kornia.data.scenes.scenes import (
     make_calibration_set,
 )
 from ccs_kornia.geometry import camera
+from ccs_kornia.geometry.board_points import board_object_points
 
 
 def test_make_calibration_set():
@@ -30,7 +31,7 @@ def test_make_calibration_set():
     other = make_calibration_set(K, (6, 4), 0.025, (200, 150), num_views=3, condition="blur_noise", seed=4, supersample=1)
     assert not torch.equal(b.corners, other.corners)
     # ground truth is the forward projection of the stored parameters
-    obj = camera.board_object_points(6, 4, 0.025).expand(3, -1, -1)
+    obj = board_object_points(6, 4, 0.025).expand(3, -1, -1)
     proj = camera.project_points(obj, b.K, b.dist, b.rvec, b.tvec)
     assert float((proj - b.corners).abs().max()) < 1e-3
     moved = b.to("cpu")

@@ -4,11 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from ccs_kornia.geometry.camera import (
-    axis_angle_to_rotation_matrix,
-    board_object_points,
-    project_points,
-)
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import axis_angle_to_rotation_matrix, project_points
 
 F64 = torch.float64
 

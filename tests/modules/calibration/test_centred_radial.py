@@ -6,12 +6,10 @@ import pytest
 import torch
 from _calibration_views import _views
 
-from ccs_kornia.geometry.camera import (
-    board_object_points,
-    project_points,
-    radial_undistort_points,
-)
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import project_points
 from ccs_kornia.geometry.metrics import e_ip
+from ccs_kornia.geometry.radial import radial_undistort_points
 from ccs_kornia.modules.calibration.centred_radial import (
     centred_radial_distort,
     radial_from_correction,
@@ -76,7 +74,7 @@ def test_centred_radial_batch_and_exceptions():
 
 def test_radial_from_correction_inverts_the_paper_model():
     # the paper's distortion (k0 = 1) and the correction fitted to it: back to the same coefficients
-    from ccs_kornia.geometry.camera import fit_radial_correction
+    from ccs_kornia.geometry.radial import fit_radial_correction
 
     k = torch.tensor([[1.0, -0.3, -0.05]], dtype=torch.float64)
     corr = fit_radial_correction(k, SIZE)

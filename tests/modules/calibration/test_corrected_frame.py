@@ -6,12 +6,13 @@ from dataclasses import replace
 
 import torch
 
-from ccs_kornia.geometry.camera import board_object_points, project_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import project_points
+from ccs_kornia.geometry.models import OPENCV5, PINHOLE
 from ccs_kornia.modules.calibration.corrected_frame import (
     select_cameras,
 )
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.geometry.models import OPENCV5, PINHOLE
 
 
 def test_select_cameras():

@@ -12,9 +12,9 @@ import pytest
 import torch
 from _real_data import REAL_DATA
 
+from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.camera import (
     Camera,
-    board_object_points,
     rotation_matrix_to_axis_angle,
     transform_points_rt,
 )

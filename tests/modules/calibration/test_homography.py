@@ -6,7 +6,7 @@ import pytest
 import torch
 from _board_views import all_valid, synthetic
 
-from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.modules.calibration.homography import (
     BatchedHomography,
     find_homographies,

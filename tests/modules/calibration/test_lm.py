@@ -5,12 +5,13 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.geometry.camera import (
-    axis_angle_to_rotation_matrix,
-    board_object_points,
-    project_points,
-)
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import axis_angle_to_rotation_matrix, project_points
 from ccs_kornia.geometry.models import (
+    FISHEYE,
+    K1K2,
+    OPENCV5,
+    PINHOLE,
     CentredRadialModel,
     KannalaBrandtModel,
 )
@@ -19,7 +20,6 @@ from ccs_kornia.modules.calibration.lm import (
     levenberg_marquardt,
     parameter_basis,
 )
-from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE
 from ccs_kornia.modules.calibration.schur_lm import LMStatus
 
 F64 = torch.float64

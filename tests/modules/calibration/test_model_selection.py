@@ -7,11 +7,8 @@ import math
 import pytest
 import torch
 
-from ccs_kornia.geometry.camera import (
-    Camera,
-    board_object_points,
-    project_points,
-)
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import Camera, project_points
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, RATIONAL
 from ccs_kornia.modules.calibration.model_selection import (
     AUTO_MODELS,

@@ -14,13 +14,13 @@ import torch
 from _board_views import all_valid, synthetic
 from _real_data import REAL_DATA
 
-from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE, RATIONAL
 from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.ransac import ImageRansac
 from ccs_kornia.modules.calibration.result import VIEW_REASONS, ViewReason
 from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE, RATIONAL
 
 F64 = torch.float64
 IMAGE_SIZE = (640, 480)

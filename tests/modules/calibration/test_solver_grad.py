@@ -6,11 +6,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.geometry.camera import (
-    Camera,
-    board_object_points,
-    project_points,
-)
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import Camera, project_points
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, RATIONAL
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.calibration.implicit import (

@@ -6,7 +6,8 @@ import pytest
 import torch
 from _calibration_views import _views
 
-from ccs_kornia.geometry.camera import board_object_points, project_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import project_points
 from ccs_kornia.geometry.metrics import e_ip
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.lm import parameter_basis

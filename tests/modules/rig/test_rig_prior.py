@@ -5,15 +5,16 @@ from __future__ import annotations
 
 import pytest
 import torch
+from _cameras import cameras
 
 from ccs_kornia.data.scenes.rig import render_rig
-from ccs_kornia.geometry.camera import board_object_points, project_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import project_points
 from ccs_kornia.geometry.models import K1K2, PINHOLE
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.rig import RigSolver
 from ccs_kornia.modules.rig.rig_lm import rig_layout, rig_levenberg_marquardt
-from _cameras import cameras
 from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
 
 D = torch.float64

@@ -13,10 +13,10 @@ import pytest
 import torch
 from _real_data import REAL_DATA
 
-from ccs_kornia.geometry.camera import board_object_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.models import K1K2
 from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.modules.rig import RigSolver
-from ccs_kornia.geometry.models import K1K2
 
 LEFT, RIGHT = REAL_DATA / "boofcv_bumblebee2_left", REAL_DATA / "boofcv_bumblebee2_right"
 

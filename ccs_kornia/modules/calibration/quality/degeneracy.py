@@ -401,7 +401,8 @@ class DegeneracyChecks(nn.Module):
         thresholds: :class:`DegeneracyThresholds`.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import project_points
         >>> obj = board_object_points(6, 5, 0.1, dtype=torch.float64)
         >>> K = torch.tensor([[600., 0, 320], [0, 600, 240], [0, 0, 1]], dtype=torch.float64)
         >>> rv = torch.zeros(4, 3, dtype=torch.float64)  # four fronto-parallel views

@@ -472,7 +472,8 @@ class CalibrationDiagnostics(nn.Module):
         thresholds: :class:`VerdictThresholds`.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points, project_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.camera import project_points
         >>> from ccs_kornia.modules.calibration.solver import CalibrationSolver
         >>> obj = board_object_points(9, 6, 0.025, dtype=torch.float64)
         >>> K = torch.tensor([[600., 0, 320], [0, 600, 240], [0, 0, 1]], dtype=torch.float64)

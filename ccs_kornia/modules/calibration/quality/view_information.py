@@ -10,7 +10,8 @@ rotation fitted out as mrcal does) is then :math:`\sqrt{\operatorname{tr}(A \Sig
 time, the view that lowers it most, until a view no longer helps.
 
 Example:
-    >>> from ccs_kornia.geometry.camera import Camera, board_object_points
+    >>> from ccs_kornia.geometry.board_points import board_object_points
+    >>> from ccs_kornia.geometry.camera import Camera
     >>> from ccs_kornia.geometry.models import K1K2
     >>> obj = board_object_points(6, 4, 0.03, dtype=torch.float64)
     >>> cam = Camera(K1K2, torch.tensor([500.0, 500, 320, 240, 0, 0], dtype=torch.float64), (640, 480))

@@ -120,7 +120,7 @@ def collinearity_refine(
         refined corners :math:`(B, N, 2)` and valid :math:`(B, N)` (measured, or both lines defined).
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
         >>> pts = board_object_points(5, 4)[:, :2][None] * 30 + 20
         >>> valid = torch.ones(1, 20, dtype=torch.bool); valid[0, 7] = False
         >>> refined, ok = collinearity_refine(pts + 0.1 * torch.randn_like(pts), valid, (5, 4))

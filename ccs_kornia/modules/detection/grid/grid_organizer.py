@@ -270,7 +270,7 @@ def organize_grid(
         - found :math:`(B,)` bool.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
         >>> pts = board_object_points(4, 3)[:, :2] * 20 + 10
         >>> perm = torch.randperm(12)
         >>> corners, valid, found = organize_grid(pts[perm][None], torch.ones(1, 12, dtype=torch.bool), (4, 3))

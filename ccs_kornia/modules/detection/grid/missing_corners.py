@@ -31,7 +31,7 @@ def predict_missing_corners(
         measured or predicted position.
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
         >>> pts = board_object_points(4, 3)[None, :, :2] * 10
         >>> valid = torch.ones(1, 12, dtype=torch.bool); valid[0, 0] = False
         >>> out, filled = predict_missing_corners(pts * valid[..., None], valid, (4, 3))
@@ -73,7 +73,7 @@ def lattice_deviation(corners: torch.Tensor, board_size: tuple[int, int], return
         :math:`(B, N)` deviations in squares (and the predicted positions).
 
     Example:
-        >>> from ccs_kornia.geometry.camera import board_object_points
+        >>> from ccs_kornia.geometry.board_points import board_object_points
         >>> pts = board_object_points(5, 4)[None, :, :2] * 10
         >>> pts[0, 7] += torch.tensor([3.0, 0.0])  # one corner 0.3 squares off
         >>> dev = lattice_deviation(pts, (5, 4))

@@ -15,12 +15,13 @@ import pytest
 import torch
 from _real_data import REAL_DATA
 
+from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.camera import (
     axis_angle_to_rotation_matrix,
-    board_object_points,
     project_points,
     rotation_matrix_to_axis_angle,
 )
+from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE, RATIONAL
 from ccs_kornia.modules.calibration.quality import (
     coverage,
     degeneracy,
@@ -44,7 +45,6 @@ from ccs_kornia.modules.calibration.quality.uncertainty import (
 )
 from ccs_kornia.modules.calibration.result import ViewReason
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE, RATIONAL
 
 F64 = torch.float64
 SIZE = (640, 480)

@@ -7,7 +7,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.geometry.camera import Camera, board_object_points, project_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import Camera, project_points
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 from ccs_kornia.modules.calibration.quality.uncertainty import (
     image_points,
     projection_uncertainty,
@@ -18,7 +20,6 @@ from ccs_kornia.modules.calibration.quality.view_information import (
     view_information,
 )
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 
 OBJ = board_object_points(9, 6, 0.03, dtype=torch.float64)
 K = torch.tensor([[800.0, 0, 640], [0, 800, 360], [0, 0, 1]], dtype=torch.float64)

@@ -6,9 +6,9 @@ import math
 
 import torch
 
+from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.camera import (
     axis_angle_to_rotation_matrix,
-    board_object_points,
     intrinsics_matrix,
     project_points,
     rotation_matrix_to_axis_angle,

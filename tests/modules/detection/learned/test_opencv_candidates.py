@@ -9,7 +9,8 @@ import torch
 from ccs_kornia.bench.scenes.scenes import quantize
 from ccs_kornia.bench.sections.wild import WILD_CONDITIONS, wild_spec
 from ccs_kornia.data.scenes.wild import WildChessboards
-from ccs_kornia.geometry.camera import board_object_points, project_points
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.camera import project_points
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.grid.missing_corners import lattice_deviation
 from ccs_kornia.modules.detection.learned.learned_detector import (

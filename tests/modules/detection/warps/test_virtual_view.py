@@ -119,7 +119,7 @@ def test_finds_the_rim_boards_of_a_real_fisheye_set():
     """ros_fisheye_mono: the three views the learned detector misses on the originals are found this way."""
     import cv2
 
-    from ccs_kornia.geometry.camera import board_object_points
+    from ccs_kornia.geometry.board_points import board_object_points
     from ccs_kornia.io.images import load_image_gray
     from ccs_kornia.modules.calibration.solver import CalibrationSolver
     from ccs_kornia.modules.detection.factory import make_detector
