@@ -27,6 +27,7 @@ __all__ = [
     "summary",
     "Timer",
     "e_ip_px",
+    "format_metric",
 ]
 
 #: ``cv2.calibrateCamera``'s flags for the models it fits the way ours do
@@ -179,7 +180,14 @@ def k0_scaled_intrinsics(K: np.ndarray, radial: np.ndarray, image_size: tuple[in
     return K
 
 
-def _fmt(x) -> str:
+def format_metric(x) -> str:
+    """A metric of the calibration sections' log lines (E_IP, its variance) to three decimals, ``   n/a`` where the
+    calibration gave none, so the columns of the log line up.
+
+    Example:
+        >>> format_metric(0.12345), format_metric(None)
+        ('0.123', '   n/a')
+    """
     return "   n/a" if x is None else f"{x:.3f}"
 
 

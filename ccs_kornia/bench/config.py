@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, replace
 
-__all__ = ["SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "BenchConfig"]
+__all__ = [
+    "SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "CONDITION_PARTS", "SECTION_SEED_OFFSETS", "BenchConfig",
+]
 
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye", "rig",
                              "markers", "rig_sessions", "video", "hand_eye")
@@ -21,7 +23,7 @@ METHODS: dict[str, str] = {
     "libcbdetect": "libcbdetect",
 }
 #: condition name -> (photometric condition of ``augment.CONDITIONS``, radial level or None)
-_CONDITION_PARTS: dict[str, tuple[str, str | None]] = {
+CONDITION_PARTS: dict[str, tuple[str, str | None]] = {
     "clean": ("clean", None),
     "blur_noise": ("blur_noise", None),
     "noise": ("blur_noise", None),
@@ -41,7 +43,7 @@ OPTICS_CONDITIONS: tuple[str, ...] = ("optics", "optics_blur_noise")
 #: the real sets with fisheye lenses (section 7 calibrates them with a fisheye model; section 3 leaves them out)
 FISHEYE_REAL_SETS: tuple[str, ...] = ("ros_fisheye_mono", "boofcv_fisheye_chessboard")
 #: seed offsets of the sections, so no two sections render the same scene
-_SECTION_SEED = {"corners": 0, "calibration": 100_000, "distortion": 200_000, "speed": 300_000, "wild": 400_000}
+SECTION_SEED_OFFSETS = {"corners": 0, "calibration": 100_000, "distortion": 200_000, "speed": 300_000, "wild": 400_000}
 
 
 @dataclass

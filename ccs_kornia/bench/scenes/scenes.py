@@ -15,9 +15,9 @@ import numpy as np
 import torch
 
 from ccs_kornia.bench.config import (
-    _CONDITION_PARTS,
-    _SECTION_SEED,
+    CONDITION_PARTS,
     OPTICS_CONDITIONS,
+    SECTION_SEED_OFFSETS,
     BenchConfig,
 )
 from ccs_kornia.data.datamodules.datamodule import BENCH_SEED_BASE
@@ -93,13 +93,13 @@ def render_scenes(
     Returns:
         :class:`Scenes`.
     """
-    if condition not in _CONDITION_PARTS:
-        raise ValueError(f"Unknown condition {condition!r}; expected one of {sorted(_CONDITION_PARTS)}.")
-    photometric, level = _CONDITION_PARTS[condition]
+    if condition not in CONDITION_PARTS:
+        raise ValueError(f"Unknown condition {condition!r}; expected one of {sorted(CONDITION_PARTS)}.")
+    photometric, level = CONDITION_PARTS[condition]
     # seed index: the older conditions in sorted order, the optics ones after them (their seeds never move)
-    names = sorted(c for c in _CONDITION_PARTS if c not in OPTICS_CONDITIONS) + list(OPTICS_CONDITIONS)
+    names = sorted(c for c in CONDITION_PARTS if c not in OPTICS_CONDITIONS) + list(OPTICS_CONDITIONS)
     cond_index = names.index(condition)
-    base = BENCH_SEED_BASE + _SECTION_SEED[section] + 1000 * cond_index
+    base = BENCH_SEED_BASE + SECTION_SEED_OFFSETS[section] + 1000 * cond_index
     gen = torch.Generator().manual_seed(base)
     Ks = random_cameras(cameras, cfg.image_size, gen)
     if radial is not None:

@@ -26,11 +26,11 @@ import torch
 
 from ccs_kornia.bench.common import (
     Timer,
-    _fmt,
     calibration_metrics,
     ccs_calibrate,
     cv2_calibrate,
     distortion_available,
+    format_metric,
     k0_scaled_intrinsics,
 )
 from ccs_kornia.bench.config import BenchConfig
@@ -128,8 +128,8 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
                 dc["seconds"] = t_dc.seconds
                 dc["correction_applied"] = int(applied.sum())
                 res[key]["ccs_corrected"] = dc
-                log(f"[calibration] {cond:12s} {label:30s} E_IP ccs + distortion correction {_fmt(dc['e_ip'])} "
-                    f"(applied on {int(applied.sum())}/{len(sub)})")
+                log(f"[calibration] {cond:12s} {label:30s} E_IP ccs + distortion correction "
+                    f"{format_metric(dc['e_ip'])} (applied on {int(applied.sum())}/{len(sub)})")
                 # the command line's default: the same path with the model chosen per trial (--model auto)
                 auto_pipe = _corrector(cfg, device, model=ModelChoice())
                 with Timer() as t_auto:
@@ -142,9 +142,10 @@ def run_calibration(cfg: BenchConfig, methods: dict[str, DetectionMethod], devic
                 chosen = [s["chosen"] for s in done.model_selection if s and s["chosen"]]
                 auto["models"] = {m: chosen.count(m) for m in sorted(set(chosen))}
                 res[key]["ccs_auto"] = auto
-                log(f"[calibration] {cond:12s} {label:30s} E_IP ccs+dc --model auto {_fmt(auto['e_ip'])} "
+                log(f"[calibration] {cond:12s} {label:30s} E_IP ccs+dc --model auto {format_metric(auto['e_ip'])} "
                     f"(chosen {auto['models']})")
-            log(f"[calibration] {cond:12s} {label:30s} E_IP ccs {_fmt(ccs['e_ip'])} / cv2 {_fmt(cvm['e_ip'])}")
+            log(f"[calibration] {cond:12s} {label:30s} E_IP ccs {format_metric(ccs['e_ip'])} "
+                f"/ cv2 {format_metric(cvm['e_ip'])}")
         out["conditions"][cond] = res
     return out
 

@@ -26,10 +26,10 @@ import numpy as np
 import torch
 
 from ccs_kornia.bench.common import (
-    _fmt,
     calibration_metrics,
     cv2_calibrate,
     distortion_available,
+    format_metric,
     k0_scaled_intrinsics,
 )
 from ccs_kornia.bench.config import BenchConfig
@@ -180,8 +180,8 @@ def _calibrate_scenes(scenes: Scenes, cfg: BenchConfig, size: tuple[int, int], o
         m = _score(np.stack(d["K"]), K_ref, np.array(d["ok"]), np.array(d["rms"]), np.array(d["views"]))
         m.update(label=labels[key], boards_found=found[key] / float(T * V), seconds=seconds[key])
         rows[key] = m
-        log(f"[distortion] {tag:6s} {labels[key]:55s} E_IP {_fmt(m['e_ip'])} var {_fmt(m['e_ip_var'])} "
-            f"ok {T - m['failures']}/{T} within 5px {m['within_5px']:.2f}")
+        log(f"[distortion] {tag:6s} {labels[key]:55s} E_IP {format_metric(m['e_ip'])} "
+            f"var {format_metric(m['e_ip_var'])} ok {T - m['failures']}/{T} within 5px {m['within_5px']:.2f}")
     return {"trials": T, "views": V, "image_size": list(size), "correction_applied": applied, "methods": rows}
 
 

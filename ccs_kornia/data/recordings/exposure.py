@@ -45,7 +45,7 @@ from torch import Tensor
 from ccs_kornia.data.recordings.handheld import BoardTrajectory
 from ccs_kornia.data.recordings.patterns import BoardPattern
 from ccs_kornia.data.recordings.recording_camera import PixelRays, RecordingCamera
-from ccs_kornia.data.render.lens import _FAR
+from ccs_kornia.data.render.lens import FAR_BOARD_COORDINATE
 from ccs_kornia.geometry.so3 import log_so3
 
 __all__ = ["MAX_SUBFRAME_PIXELS", "ExposureTruth", "exposure_subframes", "exposure_truth", "render_exposure"]
@@ -235,7 +235,7 @@ def _plane_coordinates(G: Tensor, rays: PixelRays):
     jac = (jac[0], jac[1], jac[2], jac[3])  # dX/dx, dX/dy, dY/dx, dY/dy
     jac = tuple(j.expand_as(X) for j in jac)
     if not every:
-        far, zero = torch.full_like(X, _FAR), torch.zeros_like(X)
+        far, zero = torch.full_like(X, FAR_BOARD_COORDINATE), torch.zeros_like(X)
         X, Y = torch.where(valid, X, far), torch.where(valid, Y, far)
         jac = tuple(torch.where(valid, j, zero) for j in jac)
     return X, Y, jac, valid

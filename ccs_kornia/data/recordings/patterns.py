@@ -34,7 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ccs_kornia.data.render.renderer import _shade_footprints
+from ccs_kornia.data.render.renderer import shade_footprints
 from ccs_kornia.geometry.board_points import board_object_points
 
 __all__ = ["BoardPattern", "ChessPattern", "TexturePattern"]
@@ -177,7 +177,7 @@ class ChessPattern(BoardPattern):
             bg = bg.reshape(1, 1, 1).expand(b, 1, 1)
         cols = torch.full((b, 1, 1), float(self.cols))
         rows = torch.full((b, 1, 1), float(self.rows))
-        return _shade_footprints(u, v, ux, uy, vx, vy, valid, cols.to(u), rows.to(u), self.border, bg, light,
+        return shade_footprints(u, v, ux, uy, vx, vy, valid, cols.to(u), rows.to(u), self.border, bg, light,
                                  contrast, supersample)
 
     def to_json(self) -> dict:

@@ -36,10 +36,10 @@ from torch import Tensor
 
 from ccs_kornia.data.render.fisheye import kb_fold, kb_unproject
 from ccs_kornia.data.render.lens import (
-    _opencv_fold,
-    _opencv_inverse_grid,
-    _to_normalized,
-    _undistort_opencv,
+    opencv_fold_radius,
+    opencv_inverse_grid,
+    pixels_to_normalized,
+    undistort_opencv_pixels,
 )
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models.base import CameraModel
@@ -135,7 +135,7 @@ class PinholeLens(Lens):
     def rays(self, K: Tensor, image_size: tuple[int, int]) -> PixelRays:
         K = K.to(torch.float64)
         xs, ys = _pixel_grid(image_size)
-        x, y = _to_normalized(xs[None], ys[None], K[None])
+        x, y = pixels_to_normalized(xs[None], ys[None], K[None])
         fx, fy, skew = float(K[0, 0]), float(K[1, 1]), float(K[0, 1])
         c = lambda v: torch.tensor(v, dtype=torch.float32)
         return PixelRays(x[0].float(), y[0].float(), c(1.0), c(1.0 / fx), c(-skew / (fx * fy)), c(0.0), c(1.0 / fy),
@@ -143,7 +143,7 @@ class PinholeLens(Lens):
 
     def unproject(self, pixels: Tensor, K: Tensor) -> Tensor:
         K = K.to(torch.float64)
-        x, y = _to_normalized(pixels[None, :, 0].double(), pixels[None, :, 1].double(), K[None])
+        x, y = pixels_to_normalized(pixels[None, :, 0].double(), pixels[None, :, 1].double(), K[None])
         return torch.stack([x[0], y[0], torch.ones_like(x[0])], -1)
 
     def to_json(self) -> dict:
@@ -165,7 +165,7 @@ class OpenCVLens(Lens):
         if d.numel() != 5:
             raise ValueError(f"OpenCVLens takes (k1, k2, p1, p2, k3), got {d.numel()} coefficients.")
         self.dist = d
-        self._fold = float(_opencv_fold(d[None])[0][0])  # normalised radius where the model folds over (inf: never)
+        self._fold = float(opencv_fold_radius(d[None])[0][0])  # normalised radius where the model folds over (inf: never)
 
     @property
     def coeffs(self) -> Tensor:
@@ -175,8 +175,8 @@ class OpenCVLens(Lens):
     def rays(self, K: Tensor, image_size: tuple[int, int]) -> PixelRays:
         K = K.to(torch.float64)[None]
         xs, ys = _pixel_grid(image_size)
-        xt, yt = _to_normalized(xs[None], ys[None], K)
-        x, y, ok = _opencv_inverse_grid(xt, yt, K, self.dist[None], image_size)
+        xt, yt = pixels_to_normalized(xs[None], ys[None], K)
+        x, y, ok = opencv_inverse_grid(xt, yt, K, self.dist[None], image_size)
         x, y, ok = x[0], y[0], ok[0]
         x_px, x_py = _grid_derivatives(x)
         y_px, y_py = _grid_derivatives(y)
@@ -186,8 +186,8 @@ class OpenCVLens(Lens):
 
     def unproject(self, pixels: Tensor, K: Tensor) -> Tensor:
         K = K.to(torch.float64)[None]
-        ideal, _ = _undistort_opencv(pixels.double()[None], K, self.dist[None])
-        x, y = _to_normalized(ideal[..., 0], ideal[..., 1], K)
+        ideal, _ = undistort_opencv_pixels(pixels.double()[None], K, self.dist[None])
+        x, y = pixels_to_normalized(ideal[..., 0], ideal[..., 1], K)
         return torch.stack([x[0], y[0], torch.ones_like(x[0])], -1)
 
     def to_json(self) -> dict:
@@ -236,7 +236,7 @@ class FisheyeLens(Lens):
     def rays(self, K: Tensor, image_size: tuple[int, int]) -> PixelRays:
         K = K.to(torch.float64)[None]
         xs, ys = _pixel_grid(image_size)
-        xd, yd = _to_normalized(xs[None], ys[None], K)
+        xd, yd = pixels_to_normalized(xs[None], ys[None], K)
         x, y, z, reach = kb_unproject(xd, yd, self._fisheye_row(1, "cpu"))
         x, y, z, reach = x[0], y[0], z[0], reach[0]
         derivs = [d.float() for f in (x, y, z) for d in _grid_derivatives(f)]
@@ -244,7 +244,7 @@ class FisheyeLens(Lens):
 
     def unproject(self, pixels: Tensor, K: Tensor) -> Tensor:
         K = K.to(torch.float64)[None]
-        xd, yd = _to_normalized(pixels[None, :, 0].double(), pixels[None, :, 1].double(), K)
+        xd, yd = pixels_to_normalized(pixels[None, :, 0].double(), pixels[None, :, 1].double(), K)
         x, y, z, _ = kb_unproject(xd, yd, self._fisheye_row(1, "cpu"))
         return torch.stack([x[0], y[0], z[0]], -1)
 

@@ -24,6 +24,7 @@ import math
 import torch
 from torch import Tensor
 
+from ccs_kornia.data.batching import padded_object_points
 from ccs_kornia.geometry import camera
 from ccs_kornia.geometry.models.factory import FISHEYE
 
@@ -221,8 +222,6 @@ def sample_fisheye_poses(
         rvec, tvec :math:`(B, 3)` float64; raises when some board finds no pose, unless ``strict=False``: then
         ``(rvec, tvec, done)`` with ``done`` :math:`(B,)` bool (zeros where not done; the caller falls back).
     """
-    from ccs_kornia.data._util import _padded_object_points
-
     w, h = image_size
     b = K.shape[0]
     g = generator
@@ -254,7 +253,7 @@ def sample_fisheye_poses(
         centre = torch.stack([(cc - 1).double() * sc / 2, (rc - 1).double() * sc / 2, torch.zeros_like(sc)], -1)
         tvec = dist[:, None] * ray - (R @ centre.unsqueeze(-1)).squeeze(-1)
         rvec = camera.rotation_matrix_to_axis_angle(R)
-        obj, exists = _padded_object_points(cc, rc, sc, n_max)
+        obj, exists = padded_object_points(cc, rc, sc, n_max)
         cam = camera.transform_points_rt(obj, rvec, tvec)
         pix = fisheye_cameras(Kc, fe).project(cam)
         ok = kb_reach(cam, fe)

@@ -42,22 +42,22 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ccs_kornia.data._util import (
-    _batched,
-    _board_tensors,
-    _check_size,
-    _padded_object_points,
-    _per_item,
+from ccs_kornia.data.batching import (
+    batched_argument,
+    board_size_tensors,
+    check_image_size,
+    padded_object_points,
+    per_view_argument,
 )
 from ccs_kornia.data.render.lens import (
-    _FAR,
-    _grid_board_coordinates,
-    _radial_is_trivial,
+    FAR_BOARD_COORDINATE,
+    grid_board_coordinates,
     project_board,
+    radial_is_identity,
 )
 from ccs_kornia.data.render.marks import MarkPattern
 
-__all__ = ["MAX_BAND_PIXELS", "render_chessboard", "fisheye_rows", "ChessboardRenderer"]
+__all__ = ["MAX_BAND_PIXELS", "render_chessboard", "fisheye_rows", "ChessboardRenderer", "render_images", "shade_footprints"]
 
 
 def _masked_gradient(f: Tensor, valid: Tensor, dim: int) -> Tensor:
@@ -129,7 +129,7 @@ def _straddles(x: Tensor, support: Tensor, hi_checker: Tensor, border: float | T
 MAX_BAND_PIXELS = 1 << 21
 
 
-def _render(
+def render_images(
     K: Tensor,
     rvec: Tensor,
     tvec: Tensor,
@@ -148,9 +148,36 @@ def _render(
     marks: MarkPattern | None = None,
     max_band_pixels: int | None = None,
 ) -> Tensor:
-    """Render ``(B, 1, H, W)`` in bands of rows (one row of halo each side for the footprint's Jacobian, so
-    the result does not depend on the band size). ``border``: light margin in squares, a number or a :math:`(B,)`
-    tensor (one per view)."""
+    """The renderer's images from arguments already batched and checked (:func:`render_chessboard` checks them and
+    adds the corners; the scene samplers, which hold their arguments as batches, call this directly).
+
+    Rendered in bands of rows (one row of halo each side for the footprint's Jacobian, so the result does not
+    depend on the band size).
+
+    Args:
+        K: :math:`(B, 3, 3)`; rvec, tvec: :math:`(B, 3)`.
+        cols, rows: :math:`(B,)` long inner corners; square: :math:`(B,)` square sides.
+        image_size: ``(W, H)``.
+        dist: :math:`(B, 5)` OpenCV coefficients or ``None``; radial: :math:`(B, 3)` paper coefficients or ``None``.
+        supersample: sub-cells per pixel side.
+        background: a grey level, or :math:`(B, 1, H, W)` / :math:`(1, 1, H, W)` images.
+        border: light margin in squares, a number or a :math:`(B,)` tensor (one per view).
+        dark, light: :math:`(B,)` grey levels of the squares.
+        fisheye: optional :math:`(B, 5)` lens rows (:func:`fisheye_rows`).
+        marks: optional marks in the light squares.
+        max_band_pixels: pixels rendered at once (default :data:`MAX_BAND_PIXELS`).
+
+    Returns:
+        :math:`(B, 1, H, W)` float32 in ``[0, 1]``.
+
+    Example:
+        >>> K = torch.tensor([[[200.0, 0, 79.5], [0, 200, 59.5], [0, 0, 1]]])
+        >>> img = render_images(K, torch.zeros(1, 3), torch.tensor([[-0.05, -0.03, 0.5]]), torch.tensor([5]),
+        ...                     torch.tensor([4]), torch.tensor([0.025]), (160, 120), None, None, 1, 0.5, 1.0,
+        ...                     torch.tensor([0.1]), torch.tensor([0.9]))
+        >>> img.shape
+        torch.Size([1, 1, 120, 160])
+    """
     b = K.shape[0]
     w, h = image_size
     limit = MAX_BAND_PIXELS if max_band_pixels is None else int(max_band_pixels)
@@ -168,12 +195,37 @@ def _render(
     return out
 
 
-def _shade_footprints(u, v, ux, uy, vx, vy, valid, cols_f, rows_f, border, bg, light, contrast, supersample,
-                      marks=None) -> Tensor:
-    """Box-filtered grey levels ``(b, h, w)`` of pixels that see the board at ``u, v`` (squares) with the footprint
-    Jacobian ``ux = du/dx, uy = du/dy, vx, vy`` (squares per pixel); pixels whose footprint straddles a board line
-    (and are ``valid``) are split into ``supersample x supersample`` sub-cells. ``cols_f``, ``rows_f``, ``light``,
-    ``contrast``: ``(b, 1, 1)``; ``bg``: ``(b, 1, 1)`` or ``(b or 1, h, w)``; ``border``: a number or ``(b, 1, 1)``."""
+def shade_footprints(u, v, ux, uy, vx, vy, valid, cols_f, rows_f, border, bg, light, contrast, supersample,
+                     marks=None) -> Tensor:
+    """Box-filtered grey levels of pixels that see the board at ``u, v`` (squares) with the footprint Jacobian
+    ``ux = du/dx, uy = du/dy, vx, vy`` (squares per pixel): the renderer's shading, shared with the recordings'
+    boards, which find their own footprints (rolling shutter, motion).
+
+    Pixels whose footprint straddles a board line (and are ``valid``) are split into ``supersample x supersample``
+    sub-cells; elsewhere one box is exact.
+
+    Args:
+        u, v, ux, uy, vx, vy: :math:`(b, h, w)`.
+        valid: :math:`(b, h, w)` bool, the pixels that see the board plane.
+        cols_f, rows_f: :math:`(b, 1, 1)` inner corners, as floats.
+        border: light margin in squares, a number or :math:`(b, 1, 1)`.
+        bg: :math:`(b, 1, 1)`, or ``(b, h, w)`` or ``(1, h, w)``: background grey levels.
+        light, contrast: :math:`(b, 1, 1)` (``contrast``: half the light minus the dark level).
+        supersample: sub-cells per pixel side.
+        marks: optional marks in the light squares.
+
+    Returns:
+        :math:`(b, h, w)` grey levels (not clamped).
+
+    Example:
+        >>> ys, xs = torch.meshgrid(torch.arange(8.0), torch.arange(8.0), indexing="ij")
+        >>> u, v = (xs / 4 - 0.5)[None], (ys / 4 - 0.5)[None]
+        >>> d, z, one = torch.full_like(u, 0.25), torch.zeros_like(u), torch.ones(1, 1, 1)
+        >>> img = shade_footprints(u, v, d, z, z, d, u == u, 2 * one, 2 * one, 1.0, 0.5 * one, 0.9 * one,
+        ...                        0.4 * one, 2)
+        >>> img.shape, bool(img.min() >= 0.1 - 1e-6 and img.max() <= 0.9 + 1e-6)
+        (torch.Size([1, 8, 8]), True)
+    """
     b, h, w = u.shape
     # box width per axis with the variance of the (rotated) footprint along that axis
     wu = (ux * ux + uy * uy).sqrt().clamp(1e-4, 4.0)
@@ -218,12 +270,12 @@ def _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, su
     b = K.shape[0]
     w, h_img = image_size
     dev, dt = K.device, torch.float32
-    u, v, reach, front, ideal_x, ideal_y = _grid_board_coordinates(
+    u, v, reach, front, ideal_x, ideal_y = grid_board_coordinates(
         K, rvec, tvec, square, image_size, dist, radial, fisheye, rows=(y0, y1)
     )
     valid = reach & front
-    u = torch.where(valid, u, torch.full_like(u, _FAR))
-    v = torch.where(valid, v, torch.full_like(v, _FAR))
+    u = torch.where(valid, u, torch.full_like(u, FAR_BOARD_COORDINATE))
+    v = torch.where(valid, v, torch.full_like(v, FAR_BOARD_COORDINATE))
     # local Jacobian of pixel -> board coordinates (squares per pixel)
     ux, uy = _masked_gradient(u, valid, 2), _masked_gradient(u, valid, 1)
     vx, vy = _masked_gradient(v, valid, 2), _masked_gradient(v, valid, 1)
@@ -240,7 +292,7 @@ def _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, su
         # straight edges bend like the board's (the distortion CNN learns from every line in the image)
         distorted = torch.zeros(b, dtype=torch.bool, device=dev)
         if radial is not None:
-            distorted |= ~_radial_is_trivial(radial).to(dev)
+            distorted |= ~radial_is_identity(radial).to(dev)
         if dist is not None:
             distorted |= (dist.abs().amax(-1) > 0).to(dev)
         if fisheye is not None:
@@ -254,7 +306,7 @@ def _render_band(K, rvec, tvec, cols, rows, square, image_size, dist, radial, su
             bg = bg.contiguous().index_copy(0, idx, warped[:, 0])
     else:
         bg = torch.full((b, 1, 1), float(background), device=dev, dtype=dt)
-    img = _shade_footprints(u, v, ux, uy, vx, vy, valid, cols_f, rows_f, border, bg, light, contrast, supersample,
+    img = shade_footprints(u, v, ux, uy, vx, vy, valid, cols_f, rows_f, border, bg, light, contrast, supersample,
                             marks)
     img = torch.where(reach, img, torch.zeros_like(img))
     return img.clamp(0.0, 1.0).unsqueeze(1)
@@ -315,17 +367,17 @@ def render_chessboard(
         >>> img.shape, corners.shape
         (torch.Size([1, 1, 120, 160]), torch.Size([1, 20, 2]))
     """
-    w, h = _check_size(image_size)
+    w, h = check_image_size(image_size)
     if rvec.dim() != 2 or rvec.shape[-1] != 3 or tvec.shape != rvec.shape:
         raise ValueError(f"rvec and tvec must both be (B, 3), got {tuple(rvec.shape)} and {tuple(tvec.shape)}.")
     b = rvec.shape[0]
     dev = rvec.device
     fdt = K.dtype if K.is_floating_point() else torch.float32
-    K = _batched(K, b, (3, 3), "K", dev, fdt)
-    dist = _batched(dist, b, (5,), "dist", dev, fdt)
-    radial = _batched(radial, b, (3,), "radial", dev, fdt)
-    cols, rows = _board_tensors(board_size, b, dev)
-    square_t = _per_item(square, b, "square", dev, fdt)
+    K = batched_argument(K, b, (3, 3), "K", dev, fdt)
+    dist = batched_argument(dist, b, (5,), "dist", dev, fdt)
+    radial = batched_argument(radial, b, (3,), "radial", dev, fdt)
+    cols, rows = board_size_tensors(board_size, b, dev)
+    square_t = per_view_argument(square, b, "square", dev, fdt)
     if int(supersample) < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}.")
     if isinstance(background, Tensor):
@@ -333,8 +385,8 @@ def render_chessboard(
             raise ValueError(f"background must be (B, 1, {h}, {w}) or (1, 1, {h}, {w}), got {tuple(background.shape)}.")
     elif background is None:
         background = 0.5
-    dark_t = _per_item(dark, b, "dark", dev, torch.float32)
-    light_t = _per_item(light, b, "light", dev, torch.float32)
+    dark_t = per_view_argument(dark, b, "dark", dev, torch.float32)
+    light_t = per_view_argument(light, b, "light", dev, torch.float32)
     fe = fisheye_rows(fisheye, fov_deg, b, dev)
     if fe is not None and (dist is not None or radial is not None):
         raise ValueError("A fisheye view takes no OpenCV or radial distortion (pass dist=None, radial=None).")
@@ -342,11 +394,11 @@ def render_chessboard(
         if marks.sat.shape[0] != b:
             raise ValueError(f"marks hold {marks.sat.shape[0]} views, expected {b}.")
         marks = marks.to(dev)
-    border_t = _per_item(border, b, "border", dev, torch.float32) if isinstance(border, Tensor) else float(border)
-    images = _render(K, rvec, tvec, cols, rows, square_t, (w, h), dist, radial, supersample, background, border_t, dark_t,
+    border_t = per_view_argument(border, b, "border", dev, torch.float32) if isinstance(border, Tensor) else float(border)
+    images = render_images(K, rvec, tvec, cols, rows, square_t, (w, h), dist, radial, supersample, background, border_t, dark_t,
                      light_t, fe, marks, max_band_pixels)
     n_max = int((cols * rows).max())
-    obj, exists = _padded_object_points(cols, rows, square_t.to(torch.float64), n_max)
+    obj, exists = padded_object_points(cols, rows, square_t.to(torch.float64), n_max)
     pix, _ = project_board(
         obj, K.to(torch.float64), rvec.to(torch.float64), tvec.to(torch.float64), (w, h),
         None if dist is None else dist.to(torch.float64), None if radial is None else radial.to(torch.float64),
@@ -360,8 +412,8 @@ def fisheye_rows(fisheye: Tensor | None, fov_deg, b: int, device) -> Tensor | No
     """The renderer's ``(B, 5)`` lens rows ``(k1..k4, theta_max)`` from coefficients and fields of view."""
     if fisheye is None:
         return None
-    k = _batched(fisheye, b, (4,), "fisheye", device, torch.float64)
-    fov = _per_item(fov_deg, b, "fov_deg", device, torch.float64)
+    k = batched_argument(fisheye, b, (4,), "fisheye", device, torch.float64)
+    fov = per_view_argument(fov_deg, b, "fov_deg", device, torch.float64)
     return torch.cat([k, torch.deg2rad(fov.clamp_min(0.0)).unsqueeze(-1) / 2], -1)
 
 
@@ -379,7 +431,7 @@ class ChessboardRenderer(torch.nn.Module):
         light: float = 0.9,
     ) -> None:
         super().__init__()
-        self.board_size, self.square, self.image_size = tuple(board_size), float(square), _check_size(image_size)
+        self.board_size, self.square, self.image_size = tuple(board_size), float(square), check_image_size(image_size)
         self.supersample, self.border, self.dark, self.light = int(supersample), float(border), float(dark), float(light)
 
     def forward(self, K, rvec, tvec, dist=None, radial=None, background=None) -> tuple[Tensor, Tensor]:

@@ -16,9 +16,9 @@ from torch import Tensor
 
 from ccs_kornia.data.render import augment
 from ccs_kornia.data.render.lens import (
-    _board_homography_inverse,
-    _normalized_to_board,
-    _to_normalized,
+    board_homography_inverse,
+    normalized_to_board,
+    pixels_to_normalized,
 )
 from ccs_kornia.data.render.optics import apply_optics
 from ccs_kornia.geometry import camera
@@ -52,14 +52,14 @@ def _plane_coords(w: int, h: int, g: torch.Generator, cell_px: float, tilt_deg: 
     z = f / cell_px  # one unit (a cell) spans cell_px at the centre
     offset = torch.tensor([_u(g, -50, 50), _u(g, -50, 50), 0.0], dtype=torch.float64)
     tvec = (torch.tensor([[0.0, 0.0, z]], dtype=torch.float64) - (R @ offset.view(3, 1)).view(1, 3))
-    G = _board_homography_inverse(camera.rotation_matrix_to_axis_angle(R), tvec, torch.ones(1, dtype=torch.float64),
+    G = board_homography_inverse(camera.rotation_matrix_to_axis_angle(R), tvec, torch.ones(1, dtype=torch.float64),
                                   torch.float64)
     offs = (torch.arange(sub, dtype=torch.float64) + 0.5) / sub - 0.5
     ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij")
     px = (xs[None, None] + offs.view(1, sub, 1, 1)).expand(sub, sub, h, w).reshape(1, -1, w)
     py = (ys[None, None] + offs.view(sub, 1, 1, 1)).expand(sub, sub, h, w).reshape(1, -1, w)
-    xn, yn = _to_normalized(px, py, K)
-    s, t, front = _normalized_to_board(xn, yn, G)
+    xn, yn = pixels_to_normalized(px, py, K)
+    s, t, front = normalized_to_board(xn, yn, G)
     return s.view(sub * sub, h, w).float(), t.view(sub * sub, h, w).float(), front.view(sub * sub, h, w)
 
 

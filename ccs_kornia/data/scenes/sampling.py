@@ -7,20 +7,18 @@ import math
 import torch
 from torch import Tensor
 
-from ccs_kornia.data._util import (
-    _batched,
-    _board_tensors,
-    _check_size,
-    _padded_object_points,
-    _rand,
-    _randint,
-    _uniform,
+from ccs_kornia.data.batching import (
+    batched_argument,
+    board_size_tensors,
+    check_image_size,
+    padded_object_points,
 )
-from ccs_kornia.data.render.lens import _undistort_opencv, project_board
+from ccs_kornia.data.random_draws import seeded_rand, seeded_randint, seeded_uniform
+from ccs_kornia.data.render.lens import project_board, undistort_opencv_pixels
 from ccs_kornia.geometry import camera
 from ccs_kornia.geometry.radial import radial_undistort_points
 
-__all__ = ["RADIAL_LEVELS", "sample_radial_distortion", "sample_opencv_distortion", "sample_poses"]
+__all__ = ["RADIAL_LEVELS", "sample_radial_distortion", "sample_opencv_distortion", "sample_poses", "sample_poses_batched"]
 
 #: radial distortion levels of the paper's model (``mild`` is accepted as an alias of ``level1``)
 RADIAL_LEVELS: tuple[str, ...] = ("none", "level1", "level2", "severe", "graded")
@@ -61,28 +59,28 @@ def sample_radial_distortion(
     if n == 0 or level == "none":
         return out.to(device=device, dtype=torch.float32)
     if level == "any":
-        which = _randint(generator, 0, 2, (n,), "cpu")
+        which = seeded_randint(generator, 0, 2, (n,), "cpu")
         for k, name in enumerate(("level1", "level2", "severe")):
             idx = (which == k).nonzero().squeeze(1)
             if idx.numel():
                 out[idx] = sample_radial_distortion(idx.numel(), name, image_size, generator).double()
         return out.to(device=device, dtype=torch.float32)
     if level == "level1":
-        out[:, 1] = _uniform(generator, (n,), -0.35, -0.2, "cpu")
-        out[:, 2] = _uniform(generator, (n,), -0.1, 0.0, "cpu")
+        out[:, 1] = seeded_uniform(generator, (n,), -0.35, -0.2, "cpu")
+        out[:, 2] = seeded_uniform(generator, (n,), -0.1, 0.0, "cpu")
     elif level == "level2":
-        out[:, 0] = _uniform(generator, (n,), 0.8, 1.2, "cpu")
-        out[:, 1] = _uniform(generator, (n,), -0.5, -0.35, "cpu")
-        out[:, 2] = _uniform(generator, (n,), -0.3, -0.1, "cpu")
+        out[:, 0] = seeded_uniform(generator, (n,), 0.8, 1.2, "cpu")
+        out[:, 1] = seeded_uniform(generator, (n,), -0.5, -0.35, "cpu")
+        out[:, 2] = seeded_uniform(generator, (n,), -0.3, -0.1, "cpu")
     else:  # severe / graded: parameterised by the displacement of the farthest image corner
         graded = level == "graded"
         r_corner = _corner_radius(image_size)
         todo = torch.arange(n)
         for _ in range(100):
             m = todo.numel()
-            disp = _uniform(generator, (m,), 0.0 if graded else 0.15, 0.25, "cpu")
-            k0 = torch.ones(m, dtype=torch.float64) if graded else _uniform(generator, (m,), 0.95, 1.05, "cpu")
-            ratio = _uniform(generator, (m,), -0.2, 0.5, "cpu")
+            disp = seeded_uniform(generator, (m,), 0.0 if graded else 0.15, 0.25, "cpu")
+            k0 = torch.ones(m, dtype=torch.float64) if graded else seeded_uniform(generator, (m,), 0.95, 1.05, "cpu")
+            ratio = seeded_uniform(generator, (m,), -0.2, 0.5, "cpu")
             rc = r_corner / (1.0 - disp)
             k1 = ((1.0 - disp) - k0) / (rc**2 + ratio * rc**4)
             k2 = ratio * k1
@@ -121,9 +119,9 @@ def sample_opencv_distortion(
     Returns:
         :math:`(num, 5)` float32 on ``K``'s device.
     """
-    w, h = _check_size(image_size)
+    w, h = check_image_size(image_size)
     n = int(num)
-    Kd = _batched(K, n, (3, 3), "K", "cpu", torch.float64)
+    Kd = batched_argument(K, n, (3, 3), "K", "cpu", torch.float64)
     out = torch.zeros(n, 5, dtype=torch.float64)
     if n == 0:
         return out.to(device=K.device, dtype=torch.float32)
@@ -137,9 +135,9 @@ def sample_opencv_distortion(
     shrink = 1.0
     for attempt in range(200):
         m = todo.numel()
-        k1 = _uniform(generator, (m,), *k1_range, "cpu") * shrink
-        k2 = _uniform(generator, (m,), *k2_range, "cpu") * shrink
-        p = _uniform(generator, (m, 2), -p_range, p_range, "cpu")
+        k1 = seeded_uniform(generator, (m,), *k1_range, "cpu") * shrink
+        k2 = seeded_uniform(generator, (m,), *k2_range, "cpu") * shrink
+        p = seeded_uniform(generator, (m, 2), -p_range, p_range, "cpu")
         g = r * (1 + k1[:, None] * r2 + k2[:, None] * r2 * r2)
         slope = 1 + 3 * k1[:, None] * r2 + 5 * k2[:, None] * r2 * r2
         # largest distorted radius reached while the slope stays healthy
@@ -165,7 +163,7 @@ def _rotation_from_angles(roll: Tensor, tilt: Tensor, azimuth: Tensor) -> Tensor
     return r_tilt @ r_roll
 
 
-def _sample_poses_batched(
+def sample_poses_batched(
     K: Tensor,
     cols: Tensor,
     rows: Tensor,
@@ -188,15 +186,45 @@ def _sample_poses_batched(
     cut: Tensor | None = None,
     strict: bool = True,
 ) -> tuple[Tensor, Tensor] | tuple[Tensor, Tensor, Tensor]:
-    """Rejection sampling of one pose per item, ``candidates`` proposals per pending item per round.
+    """:func:`sample_poses` for batches of views that each have their own camera, board and lens, with the options
+    of the training scenes: rejection sampling of one pose per view, ``candidates`` proposals per pending view per
+    round.
 
-    ``square_px`` ``(B,)`` (optional) sets the distance so that a fronto-parallel square would span that many
-    pixels (instead of ``fill_range``); ``min_tilt_deg`` forces steep views; ``cut`` ``(B,)`` asks for views
-    whose inner corners are all inside the image while the board's outer squares cross the image border.
+    Everything is float64 on the CPU (a few thousand points per round).
 
-    Everything is float64 on the CPU (a few thousand points per round). Returns ``(B, 3)`` rvec, tvec; raises
-    when some item finds no pose, unless ``strict=False``: then ``(rvec, tvec, done)`` with ``done`` ``(B,)`` bool
-    (the poses of items not done are zeros; the caller falls back).
+    Args:
+        K: :math:`(B, 3, 3)` float64.
+        cols, rows: :math:`(B,)` long inner corners; square: :math:`(B,)` float64 square sides.
+        image_size: ``(W, H)``.
+        generator: random source (draws happen on its device).
+        dist: :math:`(B, 5)` OpenCV coefficients or ``None``; radial: :math:`(B, 3)` paper coefficients or ``None``.
+        margin, max_tilt_deg, fill_range, max_roll_deg, min_square_px: as in :func:`sample_poses`.
+        partial: optional :math:`(B,)` bool, views whose board may leave the image (at least ``min_visible`` of
+            its corners inside).
+        min_visible: the fraction of a partial view's corners inside the image.
+        candidates: proposals per pending view per round; max_rounds: rounds before giving up.
+        square_px: optional :math:`(B,)`, the distance such that a fronto-parallel square spans that many pixels
+            (instead of ``fill_range``).
+        min_tilt_deg: forces steep views.
+        cut: optional :math:`(B,)` bool, views whose inner corners are all inside the image while the board's outer
+            squares cross the image border.
+        strict: raise when some view finds no pose.
+
+    Returns:
+        rvec, tvec :math:`(B, 3)` float64; with ``strict=False``, ``(rvec, tvec, done)`` with ``done`` :math:`(B,)`
+        bool (the poses of views not done are zeros; the caller falls back).
+
+    Raises:
+        RuntimeError: some view finds no pose and ``strict`` is true.
+
+    Example:
+        >>> K = torch.tensor([[400.0, 0, 319.5], [0, 400, 239.5], [0, 0, 1]], dtype=torch.float64).expand(2, 3, 3)
+        >>> rvec, tvec, done = sample_poses_batched(
+        ...     K, torch.tensor([9, 5]), torch.tensor([6, 4]), torch.tensor([0.025, 0.03], dtype=torch.float64),
+        ...     (640, 480), torch.Generator().manual_seed(0), None, None, 10.0, 50.0, (0.25, 0.8), 180.0, 6.0,
+        ...     strict=False)
+        >>> rvec.shape, done.tolist()
+        (torch.Size([2, 3]), [True, True])
     """
     w, h = image_size
     b = K.shape[0]
@@ -216,11 +244,11 @@ def _sample_poses_batched(
         Kc, cc, rc, sc, pc, cutc = K[sel], cols[sel], rows[sel], square[sel], part[sel], cut_all[sel]
         dc = None if dist is None else dist[sel]
         radc = None if radial is None else radial[sel]
-        roll = _uniform(generator, (pm,), -1.0, 1.0, "cpu") * math.radians(max_roll_deg)
-        tilt = _uniform(generator, (pm,), math.radians(min(min_tilt_deg, max_tilt_deg)), math.radians(max_tilt_deg), "cpu")
-        azim = _uniform(generator, (pm,), 0.0, 2 * math.pi, "cpu")
-        fill = _uniform(generator, (pm,), float(fill_range[0]), float(fill_range[1]), "cpu")
-        pos = _rand(generator, (pm, 2), "cpu")
+        roll = seeded_uniform(generator, (pm,), -1.0, 1.0, "cpu") * math.radians(max_roll_deg)
+        tilt = seeded_uniform(generator, (pm,), math.radians(min(min_tilt_deg, max_tilt_deg)), math.radians(max_tilt_deg), "cpu")
+        azim = seeded_uniform(generator, (pm,), 0.0, 2 * math.pi, "cpu")
+        fill = seeded_uniform(generator, (pm,), float(fill_range[0]), float(fill_range[1]), "cpu")
+        pos = seeded_rand(generator, (pm, 2), "cpu")
         R = _rotation_from_angles(roll, tilt, azim)
         # distance from the fronto-parallel bounding box of the (rolled) checker area
         wb, hb = (cc + 1).double() * sc, (rc + 1).double() * sc
@@ -251,13 +279,13 @@ def _sample_poses_batched(
         if radc is not None:
             target = radial_undistort_points(target, radc, image_size)
         if dc is not None and bool((dc != 0).any()):
-            target, _ = _undistort_opencv(target, Kc, dc)
+            target, _ = undistort_opencv_pixels(target, Kc, dc)
         ray = torch.cat([target[:, 0], torch.ones(pm, 1, dtype=torch.float64)], -1)
         ray = torch.linalg.solve(Kc, ray.unsqueeze(-1)).squeeze(-1)
         centre = torch.stack([(cc - 1).double() * sc / 2, (rc - 1).double() * sc / 2, torch.zeros_like(sc)], -1)
         tvec = z.unsqueeze(-1) * ray - (R @ centre.unsqueeze(-1)).squeeze(-1)
         rvec = camera.rotation_matrix_to_axis_angle(R)
-        obj, exists = _padded_object_points(cc, rc, sc, n_max)
+        obj, exists = padded_object_points(cc, rc, sc, n_max)
         pix, ok = project_board(obj, Kc, rvec, tvec, image_size, dc, radc)
         finite = torch.isfinite(pix).all(-1)
         inside = (
@@ -355,7 +383,7 @@ def sample_poses(
         >>> r.shape, t.shape
         (torch.Size([4, 3]), torch.Size([4, 3]))
     """
-    w, h = _check_size(image_size)
+    w, h = check_image_size(image_size)
     n = int(num)
     if n < 1:
         raise ValueError(f"num must be >= 1, got {num}.")
@@ -363,12 +391,12 @@ def sample_poses(
     if not 0 < lo <= hi:
         raise ValueError(f"fill_range must satisfy 0 < low <= high, got {fill_range}.")
     out_dtype = K.dtype if K.is_floating_point() else torch.float32
-    Kd = _batched(K, n, (3, 3), "K", "cpu", torch.float64)
-    dd = _batched(dist, n, (5,), "dist", "cpu", torch.float64)
-    rd = _batched(radial, n, (3,), "radial", "cpu", torch.float64)
-    cols, rows = _board_tensors(board_size, n, "cpu")
+    Kd = batched_argument(K, n, (3, 3), "K", "cpu", torch.float64)
+    dd = batched_argument(dist, n, (5,), "dist", "cpu", torch.float64)
+    rd = batched_argument(radial, n, (3,), "radial", "cpu", torch.float64)
+    cols, rows = board_size_tensors(board_size, n, "cpu")
     sq = torch.full((n,), float(square), dtype=torch.float64)
-    rvec, tvec = _sample_poses_batched(
+    rvec, tvec = sample_poses_batched(
         Kd, cols, rows, sq, (w, h), generator, dd, rd, float(margin), float(max_tilt_deg), (lo, hi),
         float(max_roll_deg), float(min_square_px),
     )

@@ -7,27 +7,25 @@ from dataclasses import dataclass, fields
 import torch
 from torch import Tensor
 
-from ccs_kornia.data._util import (
-    _batched,
-    _check_size,
-    _padded_object_points,
-    _rand,
-    _randint,
-    _uniform,
+from ccs_kornia.data.batching import (
+    batched_argument,
+    check_image_size,
+    padded_object_points,
 )
+from ccs_kornia.data.random_draws import seeded_rand, seeded_randint, seeded_uniform
 from ccs_kornia.data.render import augment
 from ccs_kornia.data.render.lens import project_board
-from ccs_kornia.data.render.renderer import _render, render_chessboard
+from ccs_kornia.data.render.renderer import render_chessboard, render_images
 from ccs_kornia.data.scenes.sampling import (
     RADIAL_LEVELS,
-    _sample_poses_batched,
     sample_opencv_distortion,
     sample_poses,
+    sample_poses_batched,
     sample_radial_distortion,
 )
 from ccs_kornia.geometry import camera
 
-__all__ = ["DISTORTION_MODES", "SyntheticBatch", "make_calibration_set", "SyntheticChessboards"]
+__all__ = ["DISTORTION_MODES", "SyntheticBatch", "make_calibration_set", "SyntheticChessboards", "corner_validity"]
 
 #: per-view distortion models of :class:`SyntheticChessboards`
 DISTORTION_MODES: tuple[str, ...] = ("none", "opencv", "radial")
@@ -83,7 +81,26 @@ class SyntheticBatch:
         return int(self.images.shape[0])
 
 
-def _corner_validity(corners: Tensor, ok: Tensor, exists: Tensor, image_size, margin: float) -> Tensor:
+def corner_validity(corners: Tensor, ok: Tensor, exists: Tensor, image_size, margin: float) -> Tensor:
+    """The ground truth's ``corner_valid``: the corner exists on its board, the lens shows it (``ok``), its position
+    is finite and it lies inside the image with ``margin`` pixels to spare.
+
+    Args:
+        corners: :math:`(B, N, 2)` distorted pixels.
+        ok: :math:`(B, N)` bool, visible through the lens (:func:`~ccs_kornia.data.render.lens.project_board`).
+        exists: :math:`(B, N)` bool, the corner exists (boards of different sizes are zero-padded).
+        image_size: ``(W, H)``.
+        margin: pixels a valid corner keeps from the image border.
+
+    Returns:
+        :math:`(B, N)` bool.
+
+    Example:
+        >>> corners = torch.tensor([[[10.0, 10.0], [1.0, 10.0], [10.0, float("nan")]]])
+        >>> corner_validity(corners, torch.ones(1, 3, dtype=torch.bool), torch.ones(1, 3, dtype=torch.bool),
+        ...                 (32, 24), 2.0).tolist()
+        [[True, False, False]]
+    """
     w, h = image_size
     x, y = corners[..., 0], corners[..., 1]
     inside = (x >= margin) & (x <= w - 1 - margin) & (y >= margin) & (y <= h - 1 - margin)
@@ -139,11 +156,11 @@ def make_calibration_set(
     K = torch.as_tensor(K, dtype=torch.float32)
     if K.shape != (3, 3):
         raise ValueError(f"make_calibration_set takes one (3, 3) camera matrix, got {tuple(K.shape)}.")
-    w, h = _check_size(image_size)
+    w, h = check_image_size(image_size)
     b = int(num_views)
     gen = torch.Generator().manual_seed(int(seed))
-    dist_b = _batched(dist, b, (5,), "dist", "cpu", torch.float32)
-    radial_b = _batched(radial, b, (3,), "radial", "cpu", torch.float32)
+    dist_b = batched_argument(dist, b, (5,), "dist", "cpu", torch.float32)
+    radial_b = batched_argument(radial, b, (3,), "radial", "cpu", torch.float32)
     rvec, tvec = sample_poses(
         K, board_size, square, (w, h), b, gen, dist_b, radial_b, margin=margin, max_tilt_deg=max_tilt_deg,
         fill_range=fill_range, max_roll_deg=max_roll_deg,
@@ -154,7 +171,7 @@ def make_calibration_set(
     images = augment.apply_condition(images, condition, gen)
     cols, rows = int(board_size[0]), int(board_size[1])
     exists = torch.ones(b, cols * rows, dtype=torch.bool)
-    valid = _corner_validity(corners, torch.ones_like(exists), exists, (w, h), 0.0)
+    valid = corner_validity(corners, torch.ones_like(exists), exists, (w, h), 0.0)
     return SyntheticBatch(
         images=images,
         corners=corners,
@@ -221,7 +238,7 @@ class SyntheticChessboards:
         dark_range: tuple[float, float] = (0.0, 0.3),
         light_range: tuple[float, float] = (0.65, 1.0),
     ) -> None:
-        self.image_size = _check_size(image_size)
+        self.image_size = check_image_size(image_size)
         if board_cols[0] < 2 or board_rows[0] < 2 or board_cols[1] < board_cols[0] or board_rows[1] < board_rows[0]:
             raise ValueError(f"Invalid board ranges cols={board_cols}, rows={board_rows} (need 2 <= low <= high).")
         self.board_cols, self.board_rows = (int(board_cols[0]), int(board_cols[1])), (int(board_rows[0]), int(board_rows[1]))
@@ -266,15 +283,15 @@ class SyntheticChessboards:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}.")
         w, h = self.image_size
         g = generator
-        fx = _uniform(g, (b,), *self.fx_range, "cpu")
-        fy = fx * _uniform(g, (b,), *self.aspect_range, "cpu")
-        cx = (w - 1) / 2 + self.pp_jitter * w * _uniform(g, (b,), -1.0, 1.0, "cpu")
-        cy = (h - 1) / 2 + self.pp_jitter * h * _uniform(g, (b,), -1.0, 1.0, "cpu")
+        fx = seeded_uniform(g, (b,), *self.fx_range, "cpu")
+        fy = fx * seeded_uniform(g, (b,), *self.aspect_range, "cpu")
+        cx = (w - 1) / 2 + self.pp_jitter * w * seeded_uniform(g, (b,), -1.0, 1.0, "cpu")
+        cy = (h - 1) / 2 + self.pp_jitter * h * seeded_uniform(g, (b,), -1.0, 1.0, "cpu")
         K = camera.intrinsics_matrix(torch.stack([fx, fy, cx, cy], -1))
-        cols = _randint(g, *self.board_cols, (b,), "cpu")
-        rows = _randint(g, *self.board_rows, (b,), "cpu")
-        square = _uniform(g, (b,), *self.square_range, "cpu")
-        mode = _randint(g, 0, len(self.modes) - 1, (b,), "cpu")
+        cols = seeded_randint(g, *self.board_cols, (b,), "cpu")
+        rows = seeded_randint(g, *self.board_rows, (b,), "cpu")
+        square = seeded_uniform(g, (b,), *self.square_range, "cpu")
+        mode = seeded_randint(g, 0, len(self.modes) - 1, (b,), "cpu")
         dist = torch.zeros(b, 5, dtype=torch.float64)
         radial = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64).repeat(b, 1)
         for k, name in enumerate(self.modes):
@@ -285,11 +302,11 @@ class SyntheticChessboards:
                 dist[idx] = sample_opencv_distortion(K[idx], (w, h), idx.numel(), g).double()
             else:
                 radial[idx] = sample_radial_distortion(idx.numel(), self.radial_level, (w, h), g).double()
-        cond = _randint(g, 0, len(self.conditions) - 1, (b,), "cpu")
-        partial = _rand(g, (b,), "cpu") < self.partial_prob
-        dark = _uniform(g, (b,), *self.dark_range, "cpu")
-        light = torch.maximum(_uniform(g, (b,), *self.light_range, "cpu"), dark + 0.3)
-        rvec, tvec = _sample_poses_batched(
+        cond = seeded_randint(g, 0, len(self.conditions) - 1, (b,), "cpu")
+        partial = seeded_rand(g, (b,), "cpu") < self.partial_prob
+        dark = seeded_uniform(g, (b,), *self.dark_range, "cpu")
+        light = torch.maximum(seeded_uniform(g, (b,), *self.light_range, "cpu"), dark + 0.3)
+        rvec, tvec = sample_poses_batched(
             K, cols, rows, square, (w, h), g, dist, radial, self.margin, self.max_tilt_deg, self.fill_range,
             self.max_roll_deg, min_square_px=5.0, partial=partial,
         )
@@ -298,14 +315,14 @@ class SyntheticChessboards:
         Kf, rf, tf, sf = K.to(**f32), rvec.to(**f32), tvec.to(**f32), square.to(**f32)
         distf, radf = dist.to(**f32), radial.to(**f32)
         cols_d, rows_d = cols.to(device), rows.to(device)
-        images = _render(
+        images = render_images(
             Kf, rf, tf, cols_d, rows_d, sf, (w, h), distf, radf, self.supersample, background, 1.0,
             dark.to(**f32), light.to(**f32),
         )
         # ground truth in float64 from the float32 parameters actually rendered
-        obj, exists = _padded_object_points(cols_d, rows_d, sf.double(), self.max_corners)
+        obj, exists = padded_object_points(cols_d, rows_d, sf.double(), self.max_corners)
         pix, ok = project_board(obj, Kf.double(), rf.double(), tf.double(), (w, h), distf.double(), radf.double())
-        valid = _corner_validity(pix, ok, exists, (w, h), self.margin)
+        valid = corner_validity(pix, ok, exists, (w, h), self.margin)
         corners = torch.where(exists.unsqueeze(-1) & torch.isfinite(pix), pix, torch.zeros_like(pix)).to(torch.float32)
         cond_d = cond.to(device)
         for k, name in enumerate(self.conditions):

@@ -7,7 +7,7 @@ import math
 import torch
 from torch import Tensor
 
-from ccs_kornia.data._util import _check_size
+from ccs_kornia.data.batching import check_image_size
 
 __all__ = ["gaussian_heatmaps"]
 
@@ -38,7 +38,7 @@ def gaussian_heatmaps(corners: Tensor, valid: Tensor, image_size: tuple[int, int
         raise ValueError(f"valid must be {tuple(corners.shape[:2])}, got {tuple(valid.shape)}.")
     if sigma <= 0:
         raise ValueError(f"sigma must be positive, got {sigma}.")
-    w, h = _check_size(image_size)
+    w, h = check_image_size(image_size)
     b, n = corners.shape[:2]
     dev = corners.device
     dt = corners.dtype if corners.is_floating_point() else torch.float32

@@ -18,7 +18,8 @@ from dataclasses import asdict, dataclass, replace
 
 import torch
 
-from ccs_kornia.data._util import _padded_object_points, _randint, _uniform
+from ccs_kornia.data.batching import padded_object_points
+from ccs_kornia.data.random_draws import seeded_randint, seeded_uniform
 from ccs_kornia.data.render import augment
 from ccs_kornia.data.render.fisheye import (
     is_fisheye,
@@ -28,13 +29,13 @@ from ccs_kornia.data.render.fisheye import (
 from ccs_kornia.data.render.lens import project_board
 from ccs_kornia.data.render.marks import MARK_KINDS, make_marks
 from ccs_kornia.data.render.optics import BLUR_KINDS, apply_optics, square_size_px
-from ccs_kornia.data.render.renderer import _render
+from ccs_kornia.data.render.renderer import render_images
 from ccs_kornia.data.scenes.sampling import (
-    _sample_poses_batched,
     sample_opencv_distortion,
+    sample_poses_batched,
     sample_radial_distortion,
 )
-from ccs_kornia.data.scenes.scenes import SyntheticBatch, _corner_validity
+from ccs_kornia.data.scenes.scenes import SyntheticBatch, corner_validity
 from ccs_kornia.geometry import camera
 
 __all__ = ["LENSES", "WildSpec", "WildChessboards"]
@@ -138,7 +139,7 @@ class WildSpec:
 
 
 def _pick(g: torch.Generator, names: tuple[str, ...], b: int) -> list[str]:
-    idx = _randint(g, 0, len(names) - 1, (b,), "cpu")
+    idx = seeded_randint(g, 0, len(names) - 1, (b,), "cpu")
     return [names[int(i)] for i in idx]
 
 
@@ -166,18 +167,18 @@ class WildChessboards:
         sp, g, b = self.spec, generator, int(batch_size)
         if b < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}.")
-        w, h = sp.image_sizes[int(_randint(g, 0, len(sp.image_sizes) - 1, (1,), "cpu"))]
-        cols = _randint(g, *sp.board_cols, (b,), "cpu")
-        rows = _randint(g, *sp.board_rows, (b,), "cpu")
+        w, h = sp.image_sizes[int(seeded_randint(g, 0, len(sp.image_sizes) - 1, (1,), "cpu"))]
+        cols = seeded_randint(g, *sp.board_cols, (b,), "cpu")
+        rows = seeded_randint(g, *sp.board_rows, (b,), "cpu")
         lens = _pick(g, sp.lenses, b)
         views_of = {kind: [k for k, n in enumerate(lens) if n == kind] for kind in LENSES}  # per lens kind
         fe_mask = torch.zeros(b, dtype=torch.bool)
         fe_mask[views_of["fisheye"]] = True
         # pinhole cameras (every view; fisheye views replace theirs)
-        fx = w * _uniform(g, (b,), *sp.fx_over_w, "cpu")
-        fy = fx * _uniform(g, (b,), 0.97, 1.03, "cpu")
-        cx = (w - 1) / 2 + 0.04 * w * _uniform(g, (b,), -1.0, 1.0, "cpu")
-        cy = (h - 1) / 2 + 0.04 * h * _uniform(g, (b,), -1.0, 1.0, "cpu")
+        fx = w * seeded_uniform(g, (b,), *sp.fx_over_w, "cpu")
+        fy = fx * seeded_uniform(g, (b,), 0.97, 1.03, "cpu")
+        cx = (w - 1) / 2 + 0.04 * w * seeded_uniform(g, (b,), -1.0, 1.0, "cpu")
+        cy = (h - 1) / 2 + 0.04 * h * seeded_uniform(g, (b,), -1.0, 1.0, "cpu")
         K = camera.intrinsics_matrix(torch.stack([fx, fy, cx, cy], -1))
         K_pin = K.clone()
         fisheye = torch.zeros(b, 5, dtype=torch.float64)
@@ -193,11 +194,11 @@ class WildChessboards:
                 dist[idx] = sample_opencv_distortion(K[idx], (w, h), idx.numel(), g).double()
             elif idx.numel():
                 radial[idx] = sample_radial_distortion(idx.numel(), sp.radial_level, (w, h), g).double()
-        square = _uniform(g, (b,), 0.02, 0.04, "cpu")
-        partial = _uniform(g, (b,), 0.0, 1.0, "cpu") < sp.partial_prob
-        cut = (_uniform(g, (b,), 0.0, 1.0, "cpu") < sp.cut_prob) & ~partial
+        square = seeded_uniform(g, (b,), 0.02, 0.04, "cpu")
+        partial = seeded_uniform(g, (b,), 0.0, 1.0, "cpu") < sp.partial_prob
+        cut = (seeded_uniform(g, (b,), 0.0, 1.0, "cpu") < sp.cut_prob) & ~partial
         lo, hi = math.log(sp.square_px[0]), math.log(sp.square_px[1])
-        sq_px = _uniform(g, (b,), lo, hi, "cpu").exp()
+        sq_px = seeded_uniform(g, (b,), lo, hi, "cpu").exp()
         fit = torch.minimum(torch.full((b,), float(w)), torch.full((b,), float(h))) / torch.hypot(
             (cols + 1).double(), (rows + 1).double()) * 0.95
         sq_px = torch.where(partial | cut, sq_px, torch.minimum(sq_px, fit))
@@ -205,7 +206,7 @@ class WildChessboards:
         done = torch.ones(b, dtype=torch.bool)
         pidx = (~fe_mask).nonzero().squeeze(1)
         if pidx.numel():
-            rvec[pidx], tvec[pidx], done[pidx] = _sample_poses_batched(
+            rvec[pidx], tvec[pidx], done[pidx] = sample_poses_batched(
                 K[pidx], cols[pidx], rows[pidx], square[pidx], (w, h), g, dist[pidx], radial[pidx], sp.margin,
                 sp.max_tilt_deg, (0.3, 0.8), sp.max_roll_deg, sp.min_square_px, partial=partial[pidx],
                 square_px=sq_px[pidx], min_tilt_deg=sp.min_tilt_deg, cut=cut[pidx], max_rounds=100, strict=False,
@@ -225,29 +226,29 @@ class WildChessboards:
             fidx = is_fisheye(fisheye).nonzero().squeeze(1)
         mark_names = _pick(g, sp.marks, b)
         mark_kind = torch.tensor([MARK_KINDS.index(m) for m in mark_names], dtype=torch.long)
-        fill = torch.where(mark_kind == MARK_KINDS.index("aruco"), _uniform(g, (b,), *sp.aruco_fill, "cpu"),
-                           _uniform(g, (b,), *sp.dot_fill, "cpu"))
+        fill = torch.where(mark_kind == MARK_KINDS.index("aruco"), seeded_uniform(g, (b,), *sp.aruco_fill, "cpu"),
+                           seeded_uniform(g, (b,), *sp.dot_fill, "cpu"))
         marks = make_marks(mark_kind, cols, rows, g, fill, device=device) if bool((mark_kind > 0).any()) else None
         # linear reflectances (printed black 0-10 %, paper 50-100 %): the gamma of the camera chain lifts them
-        dark = _uniform(g, (b,), 0.0, 0.1, "cpu")
-        light = torch.maximum(_uniform(g, (b,), 0.5, 1.0, "cpu"), dark + 0.35)
+        dark = seeded_uniform(g, (b,), 0.0, 0.1, "cpu")
+        light = torch.maximum(seeded_uniform(g, (b,), 0.5, 1.0, "cpu"), dark + 0.35)
         bg = augment.textured_background(b, (w, h), g, device=device) if sp.background == "texture" else 0.5
         # margin and surround (drawn only when asked for, so the default spec's stream is unchanged)
         border: float | torch.Tensor = 1.0
         if tuple(sp.border_squares) != (1.0, 1.0):
-            border = _uniform(g, (b,), *sp.border_squares, "cpu").float()
+            border = seeded_uniform(g, (b,), *sp.border_squares, "cpu").float()
         if sp.surround_prob > 0:
             bg = self._surround(bg, b, (w, h), g, device)
         f32 = dict(device=device, dtype=torch.float32)
         Kf, rf, tf, sf = K.to(**f32), rvec.to(**f32), tvec.to(**f32), square.to(**f32)
         distf, radf = dist.to(**f32), radial.to(**f32)
         fe_d = fisheye.to(device) if fidx.numel() else None
-        images = _render(Kf, rf, tf, cols.to(device), rows.to(device), sf, (w, h), distf, radf, sp.supersample, bg, border,
+        images = render_images(Kf, rf, tf, cols.to(device), rows.to(device), sf, (w, h), distf, radf, sp.supersample, bg, border,
                          dark.to(**f32), light.to(**f32), fe_d, marks)
-        obj, exists = _padded_object_points(cols, rows, sf.double().cpu(), self.max_corners)
+        obj, exists = padded_object_points(cols, rows, sf.double().cpu(), self.max_corners)
         pix, ok = project_board(obj, Kf.double().cpu(), rf.double().cpu(), tf.double().cpu(), (w, h), distf.double().cpu(),
                                 radf.double().cpu(), None if fe_d is None else fisheye)
-        valid = _corner_validity(pix, ok, exists, (w, h), sp.margin)
+        valid = corner_validity(pix, ok, exists, (w, h), sp.margin)
         corners = torch.where(exists.unsqueeze(-1) & torch.isfinite(pix), pix, torch.zeros_like(pix))
         board_size = torch.stack([cols, rows], -1)
         images = self._camera(images, g, corners, valid, board_size)
@@ -270,7 +271,7 @@ class WildChessboards:
         left = fail.clone()
         pidx = (fail & ~fe).nonzero().squeeze(1)
         if pidx.numel():
-            rv, tv, ok = _sample_poses_batched(
+            rv, tv, ok = sample_poses_batched(
                 K[pidx], cols[pidx], rows[pidx], square[pidx], size, g, dist[pidx], radial[pidx], sp.margin, tilt,
                 (0.3, 0.8), sp.max_roll_deg, sp.min_square_px, square_px=torch.minimum(sq_px[pidx], fit[pidx]) * 0.8,
                 max_rounds=20, strict=False,
@@ -300,9 +301,9 @@ class WildChessboards:
     def _surround(self, bg, b: int, size: tuple[int, int], g: torch.Generator, device) -> torch.Tensor:
         """Flat surrounds of independent grey level (with a little of the clutter's texture) for some views."""
         sp = self.spec
-        pick = _uniform(g, (b,), 0.0, 1.0, "cpu") < sp.surround_prob
-        level = _uniform(g, (b,), *sp.surround_level, "cpu").float().to(device).view(b, 1, 1, 1)
-        keep = _uniform(g, (b,), *sp.surround_texture, "cpu").float().to(device).view(b, 1, 1, 1)
+        pick = seeded_uniform(g, (b,), 0.0, 1.0, "cpu") < sp.surround_prob
+        level = seeded_uniform(g, (b,), *sp.surround_level, "cpu").float().to(device).view(b, 1, 1, 1)
+        keep = seeded_uniform(g, (b,), *sp.surround_texture, "cpu").float().to(device).view(b, 1, 1, 1)
         w, h = size
         if not isinstance(bg, torch.Tensor):
             bg = torch.full((b, 1, h, w), float(bg), device=device)
@@ -319,7 +320,7 @@ class WildChessboards:
             torch.where(valid.unsqueeze(-1), corners, centre.unsqueeze(1)).amin(1)
         size = span.norm(dim=-1).clamp_min(8.0)
         if sp.lighting_prob > 0:
-            pick = (_uniform(g, (b,), 0.0, 1.0, "cpu") < sp.lighting_prob).nonzero().squeeze(1)
+            pick = (seeded_uniform(g, (b,), 0.0, 1.0, "cpu") < sp.lighting_prob).nonzero().squeeze(1)
             if pick.numel():
                 images = images.clone()
                 images[pick] = augment.vignetting(augment.phong_lighting(images[pick], g), g)
@@ -329,7 +330,7 @@ class WildChessboards:
             gamma=sp.gamma, glare_prob=sp.glare_prob, shadow_prob=sp.shadow_prob, noise_sigma=sp.noise_sigma,
         )
         if jpeg is not None:
-            pick = (_uniform(g, (b,), 0.0, 1.0, "cpu") < sp.jpeg_prob).nonzero().squeeze(1)
+            pick = (seeded_uniform(g, (b,), 0.0, 1.0, "cpu") < sp.jpeg_prob).nonzero().squeeze(1)
             if pick.numel():
                 out[pick] = augment.jpeg(out[pick], g, quality=tuple(jpeg))
         return out

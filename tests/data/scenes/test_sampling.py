@@ -8,7 +8,11 @@ import pytest
 import torch
 from _render_helpers import _K, _poses
 
-from ccs_kornia.data.render.lens import _opencv_fold, _undistort_opencv, project_board
+from ccs_kornia.data.render.lens import (
+    opencv_fold_radius,
+    project_board,
+    undistort_opencv_pixels,
+)
 from ccs_kornia.data.scenes.sampling import (
     sample_opencv_distortion,
     sample_poses,
@@ -90,8 +94,8 @@ def test_opencv_distortion_sampling_is_invertible_over_the_image():
     assert bool(((d[:, 0] >= -0.4) & (d[:, 0] <= 0.1)).all()) and bool((d[:, 2:4].abs() <= 2e-3).all())
     # the farthest image corner must be reached before the radial factor folds
     corners = torch.tensor([[[0.0, 0.0], [639.0, 479.0]]], dtype=torch.float64).expand(100, 2, 2)
-    ideal, residual = _undistort_opencv(corners, K.double(), d)  # fixed point + Newton
+    ideal, residual = undistort_opencv_pixels(corners, K.double(), d)  # fixed point + Newton
     assert float(residual.max()) < 1e-6
-    r_fold, _ = _opencv_fold(d)
+    r_fold, _ = opencv_fold_radius(d)
     xn = (ideal - K[:, None, :2, 2].double()) / torch.stack([K[:, 0, 0], K[:, 1, 1]], -1)[:, None].double()
     assert bool((xn.norm(dim=-1) < r_fold[:, None]).all())
