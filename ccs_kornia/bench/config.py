@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, replace
 
 __all__ = [
-    "SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "METHODS", "CONDITION_PARTS", "SECTION_SEED_OFFSETS", "BenchConfig",
+    "SECTIONS", "CORNER_CONDITIONS", "CALIB_CONDITIONS", "OPTICS_CONDITIONS", "FISHEYE_REAL_SETS", "METHODS",
+    "CONDITION_PARTS", "SECTION_SEED_OFFSETS", "BenchConfig",
 ]
 
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye", "rig",

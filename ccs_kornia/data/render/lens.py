@@ -34,7 +34,7 @@ from ccs_kornia.data.render.fisheye import (
 )
 from ccs_kornia.geometry import camera
 from ccs_kornia.geometry.models.factory import FISHEYE, OPENCV5, PINHOLE
-from ccs_kornia.geometry.radial import radial_distort_points, radial_undistort_points
+from ccs_kornia.geometry.radial import radial_centre_scale, radial_distort_points, radial_undistort_points
 
 __all__ = [
     "view_cameras",
@@ -124,9 +124,9 @@ def opencv_fold_radius(dist: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def _paper_radius(points: Tensor, image_size: tuple[int, int]) -> Tensor:
-    w, h = image_size
-    centre = torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], device=points.device, dtype=points.dtype)
-    return ((points - centre) / float(max(w, h))).norm(dim=-1)
+    """The radius of pixels :math:`(*, 2)` in the paper's radial model's frame (:func:`radial_centre_scale`)."""
+    centre, scale = radial_centre_scale(image_size, points)
+    return ((points - centre) / scale).norm(dim=-1)
 
 
 # ----------------------------------------------------------------------------------------------
