@@ -7,7 +7,6 @@ import argparse
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import OPENCV5
-
 from ccs_kornia.modules.calibration.model_selection import ModelChoice
 from ccs_kornia.modules.calibration.quality.degeneracy import (
     DegeneracyThresholds,

@@ -25,6 +25,7 @@ from ccs_kornia.commands._factories import (
 )
 from ccs_kornia.commands._inputs import inputs
 from ccs_kornia.commands._messages import failure_message, weak_lines
+from ccs_kornia.commands._models import parse_models
 from ccs_kornia.commands._output_paths import (
     check_output_dir,
     check_output_file,
@@ -32,7 +33,6 @@ from ccs_kornia.commands._output_paths import (
 )
 from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
-from ccs_kornia.commands._models import parse_models
 from ccs_kornia.commands._stereo_pair import parse_pair
 from ccs_kornia.commands._video import add_timestamps, rig_videos
 from ccs_kornia.commands._wrong_board import WrongBoardWatch

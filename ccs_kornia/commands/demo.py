@@ -15,8 +15,8 @@ from ccs_kornia.commands._output_paths import make_dir
 from ccs_kornia.commands._printing import info
 from ccs_kornia.commands._run import calibrate_files
 from ccs_kornia.data.scenes.scenes import make_calibration_set
-from ccs_kornia.geometry.models import OPENCV5
 from ccs_kornia.geometry.metrics import e_fl, e_ip, e_pp
+from ccs_kornia.geometry.models import OPENCV5
 from ccs_kornia.io.files import write_json
 from ccs_kornia.io.images import write_image
 from ccs_kornia.outputs.report.calibration import write_report

@@ -26,7 +26,11 @@ from ccs_kornia.io.images import read_image, write_image
 from ccs_kornia.modules.undistort.undistort_image import undistort_image
 from ccs_kornia.modules.undistort.valid_field import valid_radius
 from ccs_kornia.modules.undistort.view_camera import horizontal_fov, view_camera_matrix
-from ccs_kornia.outputs.calibration_file import CalibrationFile, RigFileError, read_calibration
+from ccs_kornia.outputs.calibration_file import (
+    CalibrationFile,
+    RigFileError,
+    read_calibration,
+)
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["run"]

@@ -54,10 +54,10 @@ from ccs_kornia.fleet.shards import (
 from ccs_kornia.io.files import json_line
 from ccs_kornia.io.images import IMAGE_EXTENSIONS, load_image_gray
 from ccs_kornia.io.video import is_video
-from ccs_kornia.runtime.checks import check_board_size
 from ccs_kornia.outputs.records import camera_record
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 from ccs_kornia.pipeline.sources import ViewSource
+from ccs_kornia.runtime.checks import check_board_size
 
 __all__ = [
     "find_image_sets",

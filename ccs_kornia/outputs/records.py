@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from ccs_kornia.outputs.calibration_file import camera_record_fields
 from ccs_kornia.modules.calibration.result import VIEW_REASONS
+from ccs_kornia.outputs.calibration_file import camera_record_fields
 from ccs_kornia.pipeline.result import PipelineResult
 from ccs_kornia.pipeline.sources import SIZE_TOLERANCE_PX
 

@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 
 from ccs_kornia.geometry.models.factory import CAMERA_MODELS, FISHEYE, OPENCV5, RATIONAL
-from ccs_kornia.outputs.calibration_file import camera_from_record
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.io.files import atomic_path
+from ccs_kornia.outputs.calibration_file import camera_from_record
 from ccs_kornia.outputs.camera_exports import ros_camera_info
 from ccs_kornia.outputs.rig_records import record_extrinsics, rig_cameras
 from ccs_kornia.runtime.errors import UserError

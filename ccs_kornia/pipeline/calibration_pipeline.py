@@ -35,7 +35,6 @@ from typing import Callable
 import torch
 from torch import nn
 
-from ccs_kornia.runtime.checks import check_board_size, check_tensor
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.modules.calibration.model_selection import ModelChoice, ModelSelection
@@ -79,6 +78,7 @@ from ccs_kornia.pipeline.sources import (  # noqa: F401
     ViewSource,
 )
 from ccs_kornia.pipeline.workers import map_batches, workers_on
+from ccs_kornia.runtime.checks import check_board_size, check_tensor
 from ccs_kornia.runtime.timing import stage
 
 __all__ = ["PipelineResult", "CalibrationPipeline"]

@@ -23,7 +23,6 @@ from dataclasses import replace
 
 import torch
 
-from ccs_kornia.runtime.checks import check_board_size
 from ccs_kornia.modules.calibration.model_selection import ModelChoice
 from ccs_kornia.modules.detection.base import (
     ChessboardDetector,
@@ -41,6 +40,7 @@ from ccs_kornia.pipeline.result import (
     select_result,
 )
 from ccs_kornia.pipeline.solve import Solving
+from ccs_kornia.runtime.checks import check_board_size
 
 __all__ = ["differentiable_detect", "differentiable_run", "corner_module"]
 

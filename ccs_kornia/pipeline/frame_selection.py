@@ -47,7 +47,6 @@ from typing import Any
 import torch
 
 from ccs_kornia.geometry.camera import Camera
-
 from ccs_kornia.modules.calibration.quality.view_information import (
     greedy_information,
     image_information,

@@ -19,10 +19,10 @@ from _real_data import REAL_DATA
 from _rig_images import ANGLE_DEG, T_REL, render_stereo, write_stereo
 
 from ccs_kornia import cli
-from ccs_kornia.geometry.models import RATIONAL
-from ccs_kornia.modules.calibration.model_selection import ModelChoice
 from ccs_kornia.commands import calibrate_rig
+from ccs_kornia.geometry.models import RATIONAL
 from ccs_kornia.io.images import write_image
+from ccs_kornia.modules.calibration.model_selection import ModelChoice
 from ccs_kornia.runtime.errors import UserError
 
 FAST = ["--board", "6x4", "--square", "0.025", "--detector", "opencv", "--no-distortion-correction", "--model", "k1k2",

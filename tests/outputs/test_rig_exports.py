@@ -10,9 +10,9 @@ import yaml
 
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.outputs.rig_exports import (
+    KALIBR_DISTORTION,
     kalibr_camchain,
     kalibr_problem,
-    KALIBR_DISTORTION,
     rectification,
     ros_stereo_files,
     write_opencv_stereo_yaml,

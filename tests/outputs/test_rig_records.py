@@ -4,9 +4,11 @@ what to record next."""
 from __future__ import annotations
 
 import torch
+from _cameras import cameras
 
 from ccs_kornia.commands.calibrate_rig import summary_lines
 from ccs_kornia.data.scenes.rig import render_rig
+from ccs_kornia.geometry.models import K1K2
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.rig import RigSolver
 from ccs_kornia.outputs.rig_records import (
@@ -15,10 +17,6 @@ from ccs_kornia.outputs.rig_records import (
     frame_records,
     pair_record,
 )
-
-from _cameras import cameras
-
-from ccs_kornia.geometry.models import K1K2
 
 D = torch.float64
 K = torch.tensor([[600.0, 0, 330], [0, 605, 245], [0, 0, 1]], dtype=D)

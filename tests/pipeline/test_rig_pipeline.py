@@ -10,6 +10,7 @@ import pytest
 import torch
 from _rig_images import ANGLE_DEG, BOARD, SQUARE, T_REL, render_stereo, write_stereo
 
+from ccs_kornia.geometry.models import K1K2, OPENCV5
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.pipeline.frame_matching import FrameTable
 from ccs_kornia.pipeline.result import PipelineResult
@@ -19,7 +20,6 @@ from ccs_kornia.pipeline.rig_pipeline import (
     unconnected_cameras,
 )
 from ccs_kornia.pipeline.sources import TensorSource
-from ccs_kornia.geometry.models import K1K2, OPENCV5
 
 
 def _camera(corners: torch.Tensor, found: list[bool], used: list[bool] | None = None, size=(64, 48)) -> PipelineResult:

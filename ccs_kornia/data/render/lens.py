@@ -34,7 +34,11 @@ from ccs_kornia.data.render.fisheye import (
 )
 from ccs_kornia.geometry import camera
 from ccs_kornia.geometry.models.factory import FISHEYE, OPENCV5, PINHOLE
-from ccs_kornia.geometry.radial import radial_centre_scale, radial_distort_points, radial_undistort_points
+from ccs_kornia.geometry.radial import (
+    radial_centre_scale,
+    radial_distort_points,
+    radial_undistort_points,
+)
 
 __all__ = [
     "view_cameras",

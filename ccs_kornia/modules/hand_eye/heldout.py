@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import torch
 
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.modules.hand_eye.fit import FitResult, fit_problem
 from ccs_kornia.modules.hand_eye.problem import HandEyeProblem, HandEyeState
-from ccs_kornia.geometry.camera import Camera
 
 __all__ = ["MAX_HELDOUT_CORNERS", "HeldOut", "jackknife_covariance", "leave_one_pose_out", "ray_distances"]
 

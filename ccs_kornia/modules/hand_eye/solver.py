@@ -30,7 +30,6 @@ from torch import nn
 
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.so3 import exp_so3
-from ccs_kornia.runtime.checks import check_tensor
 from ccs_kornia.modules.calibration.lm import parameter_basis
 from ccs_kornia.modules.hand_eye.board_order import align_board_orders, renumber_corners
 from ccs_kornia.modules.hand_eye.closed_forms import closed_form_candidates
@@ -47,6 +46,7 @@ from ccs_kornia.modules.hand_eye.result import HandEyeResult, hand_eye_verdict
 from ccs_kornia.modules.hand_eye.setup import HandEyeSetup, invert_transforms
 from ccs_kornia.modules.rig.board_symmetry import board_symmetries, undo_symmetry
 from ccs_kornia.modules.rig.rig_init import camera_poses
+from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = ["DISAGREE_PX", "JACKKNIFE_MIN_POSES", "HandEyeSolver", "calibrate_hand_eye"]
 

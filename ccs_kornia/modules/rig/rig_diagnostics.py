@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import torch
 
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.modules.calibration.quality.verdict import Findings
-from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.modules.rig.stereo import epipolar_distances
 
 __all__ = ["RigVerdictThresholds", "epipolar_sums", "rig_verdict"]

@@ -10,10 +10,10 @@ from _board_views import all_valid, synthetic
 
 from ccs_kornia.geometry.camera import axis_angle_to_rotation_matrix
 from ccs_kornia.geometry.metrics import e_ip
+from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE, RATIONAL
 from ccs_kornia.modules.calibration.refinement import JointRefinement, joint_refinement
 from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.geometry.models import K1K2, OPENCV5, PINHOLE, RATIONAL
 
 F64 = torch.float64
 IMAGE_SIZE = (640, 480)

@@ -6,10 +6,10 @@ import pytest
 import torch
 from _board_views import all_valid, synthetic
 
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 from ccs_kornia.modules.calibration.model_selection import ModelSelection
 from ccs_kornia.modules.calibration.quality.diagnostics import cross_validation
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 
 
 def _noisy_views(seed: int = 3):

@@ -6,6 +6,7 @@ import pytest
 import torch
 from test_model_selection import OBJ, _two_cameras
 
+from ccs_kornia.geometry.models import K1K2, OPENCV5
 from ccs_kornia.modules.calibration.model_selection import ModelSelection
 from ccs_kornia.modules.calibration.quality.diagnostics import (
     cross_validation,
@@ -14,7 +15,6 @@ from ccs_kornia.modules.calibration.quality.diagnostics import (
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.pipeline.workers import worker_pool
-from ccs_kornia.geometry.models import K1K2, OPENCV5
 
 SIZE = (640, 480)
 

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 from _real_data import REAL_DATA
+
 from ccs_kornia.geometry.models import PINHOLE
 
 FRANKA = REAL_DATA / "visp_franka_eye_to_hand"
@@ -65,13 +66,13 @@ def test_command_line_lands_on_visps_result(tmp_path, capsys):
 
 
 def test_solver_on_the_same_data_with_its_figures():
+    from ccs_kornia.geometry.camera import Camera
     from ccs_kornia.io.images import load_image_gray
     from ccs_kornia.modules.detection.markers.apriltag import (
         AprilTagTarget,
         detect_apriltag,
     )
     from ccs_kornia.modules.hand_eye import calibrate_hand_eye
-    from ccs_kornia.geometry.camera import Camera
 
     images = torch.stack([torch.from_numpy(np.asarray(load_image_gray(FRANKA / f"franka_image-{i}.png")[0],
                                                       dtype=np.float32))[None] for i in range(1, 9)])

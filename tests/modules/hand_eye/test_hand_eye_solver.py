@@ -10,10 +10,10 @@ import pytest
 import torch
 from _hand_eye_scenes import batch, camera, scene
 
-from ccs_kornia.geometry.so3 import log_so3
-from ccs_kornia.modules.hand_eye import HandEyeSetup, HandEyeSolver, calibrate_hand_eye
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models import K1K2
+from ccs_kornia.geometry.so3 import log_so3
+from ccs_kornia.modules.hand_eye import HandEyeSetup, HandEyeSolver, calibrate_hand_eye
 
 
 def _err(X, truth):

@@ -7,6 +7,7 @@ import math
 
 import pytest
 import torch
+from _cameras import cameras
 
 from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.models import K1K2
@@ -21,7 +22,6 @@ from ccs_kornia.modules.rig.frame_consistency import (
     frame_disagreement,
     own_view_errors,
 )
-from _cameras import cameras
 from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
 
 D = torch.float64

@@ -8,14 +8,14 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from _cameras import cameras
 
 from ccs_kornia.data.scenes.rig import render_rig
-from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.modules.rig import RigSolver, calibrate_rig, stereo_rectify
-from _cameras import cameras
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE
+from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.calibration.schur_lm import LMStatus
+from ccs_kornia.modules.rig import RigSolver, calibrate_rig, stereo_rectify
 
 D = torch.float64
 K_WIDE = torch.tensor([[600.0, 0, 330], [0, 605, 245], [0, 0, 1]], dtype=D)

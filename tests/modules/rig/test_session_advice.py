@@ -4,6 +4,7 @@ corners, a board moving between exposures, intrinsics the rig moved, a joint fit
 from __future__ import annotations
 
 import torch
+from _cameras import cameras
 
 from ccs_kornia.data.scenes.rig import render_rig
 from ccs_kornia.geometry.models import K1K2
@@ -17,7 +18,6 @@ from ccs_kornia.modules.rig.session_advice import (
     session_advice,
     shared_frames,
 )
-from _cameras import cameras
 
 D = torch.float64
 K = torch.tensor([[600.0, 0, 330], [0, 605, 245], [0, 0, 1]], dtype=D)

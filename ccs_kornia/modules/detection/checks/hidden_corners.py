@@ -27,9 +27,15 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.runtime.checks import check_board_size, check_grey_images, check_points, check_same_shape, check_tensor
 from ccs_kornia.modules.detection.base import DetectionResult, image_rows
 from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_uncertainty
+from ccs_kornia.runtime.checks import (
+    check_board_size,
+    check_grey_images,
+    check_points,
+    check_same_shape,
+    check_tensor,
+)
 
 __all__ = ["HIDDEN_CONTRAST_FRACTION", "UNCONFIRMED_CONTRAST_FRACTION", "MAX_ASYMMETRY_RATIO", "MAX_ASYMMETRY_RATIO_WHOLE",
            "PARTIAL_BOARD_FRACTION", "checker_contrast", "glare_rim", "hidden_corners", "intensity_range", "relative_contrast",

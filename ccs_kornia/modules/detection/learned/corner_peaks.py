@@ -13,11 +13,11 @@ import functools
 import numpy as np
 import torch
 
-from ccs_kornia.runtime.checks import check_grey_images
 from ccs_kornia.modules.detection.learned.learned_detector import (
     LearnedChessboardDetector,
 )
 from ccs_kornia.modules.detection.refine.patch_refine import resize_to_level
+from ccs_kornia.runtime.checks import check_grey_images
 
 __all__ = ["RETRY", "corner_peaks", "shipped_detector"]
 

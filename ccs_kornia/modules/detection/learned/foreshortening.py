@@ -19,9 +19,9 @@ import torch.nn.functional as F
 from kornia.geometry.linalg import transform_points
 from kornia.geometry.transform import warp_affine
 
-from ccs_kornia.runtime.checks import check_board_size, check_grey_images
 from ccs_kornia.modules.detection.base import DetectionResult, image_rows
 from ccs_kornia.modules.detection.warps.warped_detection import Level, Warp, map_back
+from ccs_kornia.runtime.checks import check_board_size, check_grey_images
 from ccs_kornia.runtime.timing import stage
 
 __all__ = ["FORESHORTENING_DIRECTIONS", "FORESHORTENING_RATIO", "compress_along", "map_from_level", "Compression",

@@ -37,12 +37,12 @@ import torch.nn.functional as F
 from kornia.filters import gaussian_blur2d
 from torch import nn
 
-from ccs_kornia.runtime.checks import check_board_size, check_grey_images, check_tensor
 from ccs_kornia.modules._kernels import gaussian_kernel1d
 from ccs_kornia.modules._resize import area_resize, halve
 from ccs_kornia.modules.detection.base import DetectionResult, image_rows
 from ccs_kornia.modules.detection.refine.patch_refine import refine_from_level
 from ccs_kornia.modules.detection.warps.warped_detection import Level, map_back
+from ccs_kornia.runtime.checks import check_board_size, check_grey_images, check_tensor
 from ccs_kornia.runtime.timing import stage
 
 __all__ = ["PEAK_RATIO", "TARGET_SQUARE", "saddle_scale_response", "estimate_square_size", "detection_factor", "ScaleSelector",

@@ -34,9 +34,9 @@ import numpy as np
 import torch
 
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.runtime.checks import check_grey_images
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
 from ccs_kornia.modules.detection.boards import aruco_dictionary
+from ccs_kornia.runtime.checks import check_grey_images
 
 __all__ = ["APRILTAG_FAMILIES", "MAX_SHIFT_BITS", "SEARCH_BITS", "AprilTagDetector", "AprilTagTarget",
            "detect_apriltag", "refine_tag_corners"]

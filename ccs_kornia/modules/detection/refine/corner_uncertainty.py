@@ -30,7 +30,12 @@ from ccs_kornia.modules.detection.refine.saddle_refine import (
     weighted_window,
 )
 from ccs_kornia.modules.detection.refine.symmetry_refine import symmetry_terms
-from ccs_kornia.runtime.checks import check_grey_images, check_points, check_same_shape, check_tensor
+from ccs_kornia.runtime.checks import (
+    check_grey_images,
+    check_points,
+    check_same_shape,
+    check_tensor,
+)
 from ccs_kornia.runtime.timing import stage
 
 __all__ = ["corner_sigma", "corner_uncertainty", "corner_weights", "CornerUncertainty"]

@@ -18,7 +18,6 @@ import math
 import torch
 import torch.nn.functional as F
 
-from ccs_kornia.runtime.checks import check_board_size, check_grey_images, check_points
 from ccs_kornia.modules._resize import area_resize
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.grid.missing_corners import predict_missing_corners
@@ -26,6 +25,7 @@ from ccs_kornia.modules.detection.refine.saddle_refine import (
     CornerRefiner,
     refine_corners,
 )
+from ccs_kornia.runtime.checks import check_board_size, check_grey_images, check_points
 from ccs_kornia.runtime.timing import stage
 
 __all__ = ["level_size", "resize_to_level", "edge_blur", "refine_on_patches", "refine_boards", "refine_from_level"]

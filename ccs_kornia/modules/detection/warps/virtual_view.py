@@ -26,9 +26,9 @@ from kornia.geometry.grid import create_meshgrid
 from kornia.geometry.transform import remap
 
 from ccs_kornia.geometry.camera import Camera, axis_angle_to_rotation_matrix
-from ccs_kornia.runtime.checks import check_board_size, check_shape
 from ccs_kornia.modules.detection.base import DetectionResult
 from ccs_kornia.modules.detection.warps.warped_detection import Warp, map_back
+from ccs_kornia.runtime.checks import check_board_size, check_shape
 
 __all__ = ["VIEWS_PER_ROUND", "VirtualView", "view_directions", "virtual_view_rays", "detect_with_calibrated_lens"]
 

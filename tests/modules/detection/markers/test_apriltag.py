@@ -11,14 +11,14 @@ import torch
 from _real_data import REAL_DATA
 
 from ccs_kornia.data.scenes.marker_views import render_marker_view
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models import OPENCV5
 from ccs_kornia.modules.detection.markers.apriltag import (
     AprilTagDetector,
     AprilTagTarget,
     detect_apriltag,
     refine_tag_corners,
 )
-from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.geometry.models import OPENCV5
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 from ccs_kornia.pipeline.sources import TensorSource
 
