@@ -259,6 +259,15 @@ def test_the_correction_stage_stands_below_the_solver():
     assert not _ours(loaded, "ccs_kornia.modules.calibration", "ccs_kornia.modules.detection")
 
 
+def test_hand_eye_and_the_rig_are_siblings():
+    # both start from the board poses of a held camera and agree on a symmetric board's order
+    # (modules/calibration/board_poses.py, board_symmetry.py): neither imports the other
+    for name in (n for n in MODULES if n.startswith("ccs_kornia.modules.hand_eye")):
+        assert not _ours(_reachable(name), "ccs_kornia.modules.rig"), name
+    for name in (n for n in MODULES if n.startswith("ccs_kornia.modules.rig")):
+        assert not _ours(_reachable(name), "ccs_kornia.modules.hand_eye"), name
+
+
 def test_no_stage_imports_lightning_or_the_command_line():
     for name, path in MODULES.items():
         if _layer(name) in ("modules", "pipeline", "camera", "data") and not name.endswith("datamodule"):

@@ -52,9 +52,10 @@ from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
+from ccs_kornia.modules.calibration.board_poses import camera_poses
 from ccs_kornia.modules.calibration.model_selection import ModelChoice
 from ccs_kornia.modules.rig.frame_consistency import FrameKernel
-from ccs_kornia.modules.rig.rig_init import calibrate_cameras, camera_poses
+from ccs_kornia.modules.rig.rig_init import calibrate_cameras
 
 __all__ = [
     "CONDITIONS",

@@ -1,7 +1,7 @@
 r"""One corner numbering for every view of a symmetric board, agreed through the robot.
 
 A chessboard maps onto itself by a 180-degree turn (and 90-degree ones when square); a detector that cannot tell
-them apart may number one board's corners differently in two views (:mod:`~ccs_kornia.modules.rig.board_symmetry`).
+them apart may number one board's corners differently in two views (:mod:`~ccs_kornia.modules.calibration.board_symmetry`).
 A single camera does not care, a hand-eye fit does: the board's pose in the robot must be one for all views. The robot
 tells the orders apart: the rotation between two views is the same angle seen from the robot
 (``A_j A_i^{-1}``) and from the camera (``M_j M_i^{-1}``), for the right numbering only. :func:`align_board_orders`
@@ -15,8 +15,8 @@ from __future__ import annotations
 import torch
 
 from ccs_kornia.geometry.so3 import log_so3
+from ccs_kornia.modules.calibration.board_symmetry import BoardSymmetry, undo_symmetry
 from ccs_kornia.modules.hand_eye.setup import invert_transforms
-from ccs_kornia.modules.rig.board_symmetry import BoardSymmetry, undo_symmetry
 
 __all__ = ["align_board_orders", "renumber_corners"]
 
@@ -33,11 +33,11 @@ def align_board_orders(A: torch.Tensor, M: torch.Tensor, valid: torch.Tensor, sy
         A: :math:`(B, V, 4, 4)` the robot's chain per view.
         M: :math:`(B, V, 4, 4)` the board's pose in the camera per view, as detected.
         valid: :math:`(B, V)` the views with both.
-        syms: :func:`~ccs_kornia.modules.rig.board_symmetry.board_symmetries` of the board.
+        syms: :func:`~ccs_kornia.modules.calibration.board_symmetry.board_symmetries` of the board.
 
     Example:
         >>> from ccs_kornia.geometry.board_points import board_object_points
-        >>> from ccs_kornia.modules.rig.board_symmetry import board_symmetries
+        >>> from ccs_kornia.modules.calibration.board_symmetry import board_symmetries
         >>> syms = board_symmetries(board_object_points(3, 2, 1.0, dtype=torch.float64))
         >>> T = torch.eye(4, dtype=torch.float64).repeat(1, 3, 1, 1)
         >>> align_board_orders(T, T, torch.ones(1, 3, dtype=torch.bool), syms).tolist()

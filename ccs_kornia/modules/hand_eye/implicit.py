@@ -118,8 +118,8 @@ def attach_gradients(result, corners, valid, object_points, robot_poses, weights
     dtype = torch.float64
     model = result.camera.model
     if result.board_order is not None and bool(result.board_order.any()):  # the fit's numbering of the corners
+        from ccs_kornia.modules.calibration.board_symmetry import board_symmetries
         from ccs_kornia.modules.hand_eye.board_order import renumber_corners
-        from ccs_kornia.modules.rig.board_symmetry import board_symmetries
 
         corners, valid = renumber_corners(corners, valid, result.board_order, board_symmetries(object_points.detach()))
     w = (valid.bool() & corners.detach().isfinite().all(-1) & result.used[..., None]).to(dtype)

@@ -4,7 +4,7 @@ From board corners per view, the robot's flange pose per view and the camera, :f
 ``X`` (the camera's pose on the robot) and ``Z`` (the board's pose in the robot's other frame):
 
 1. the board's pose in each view from its corners alone (homography of the undistorted corners, refined with the
-   camera held; :func:`~ccs_kornia.modules.rig.rig_init.camera_poses`);
+   camera held; :func:`~ccs_kornia.modules.calibration.board_poses.camera_poses`);
 2. the checks of :mod:`~ccs_kornia.modules.hand_eye.degeneracy` (too few poses, tiny rotations, one axis, robot and
    camera disagreeing in rotation or scale): a problem that fails one is refused, with the poses named;
 3. every closed form of :mod:`~ccs_kornia.modules.hand_eye.closed_forms`, each scored by the reprojection error of
@@ -30,6 +30,11 @@ from torch import nn
 
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.so3 import exp_so3
+from ccs_kornia.modules.calibration.board_poses import camera_poses
+from ccs_kornia.modules.calibration.board_symmetry import (
+    board_symmetries,
+    undo_symmetry,
+)
 from ccs_kornia.modules.calibration.lm import parameter_basis
 from ccs_kornia.modules.hand_eye.board_order import align_board_orders, renumber_corners
 from ccs_kornia.modules.hand_eye.closed_forms import closed_form_candidates
@@ -44,8 +49,6 @@ from ccs_kornia.modules.hand_eye.problem import (
 )
 from ccs_kornia.modules.hand_eye.result import HandEyeResult, hand_eye_verdict
 from ccs_kornia.modules.hand_eye.setup import HandEyeSetup, invert_transforms
-from ccs_kornia.modules.rig.board_symmetry import board_symmetries, undo_symmetry
-from ccs_kornia.modules.rig.rig_init import camera_poses
 from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = ["DISAGREE_PX", "JACKKNIFE_MIN_POSES", "HandEyeSolver", "calibrate_hand_eye"]

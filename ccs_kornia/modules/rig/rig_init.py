@@ -20,17 +20,15 @@ import torch
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3
-from ccs_kornia.modules.calibration.homography import find_homographies
-from ccs_kornia.modules.calibration.lm import levenberg_marquardt
-from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.modules.calibration.zhang import extrinsics_from_homography
-from ccs_kornia.modules.rig.board_symmetry import (
+from ccs_kornia.modules.calibration.board_poses import camera_poses
+from ccs_kornia.modules.calibration.board_symmetry import (
     BoardSymmetry,
     symmetry_candidates,
     undo_symmetry,
 )
+from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
-__all__ = ["calibrate_cameras", "camera_poses", "rotation_mean", "relative_pose", "spanning_tree", "rig_extrinsics",
+__all__ = ["calibrate_cameras", "rotation_mean", "relative_pose", "spanning_tree", "rig_extrinsics",
            "initial_rig_cameras"]
 
 
@@ -59,51 +57,6 @@ def calibrate_cameras(
             getattr(res, name)[ok_fb] = getattr(fb, name)[ok_fb]
         ok = ok | ok_fb
     return params, ok, res.rvec, res.tvec, res.used & ok[:, None]
-
-
-def camera_poses(
-    cam_params: torch.Tensor,
-    model: CameraModel,
-    corners: torch.Tensor,
-    valid: torch.Tensor,
-    obj: torch.Tensor,
-    min_corners: int = 6,
-    rvec0: torch.Tensor | None = None,
-    tvec0: torch.Tensor | None = None,
-    known: torch.Tensor | None = None,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Board poses of one camera of B rigs in every frame with at least ``min_corners`` corners.
-
-    Args:
-        cam_params: :math:`(B, P)` the camera's parameters (held).
-        model: its model.
-        corners: :math:`(B, F, N, 2)`; valid :math:`(B, F, N)`; obj :math:`(N, 3)`.
-        rvec0, tvec0, known: optional poses :math:`(B, F, 3)` to start from where ``known`` :math:`(B, F)` is True
-            (elsewhere: the homography of the undistorted corners).
-
-    Returns:
-        rvec, tvec :math:`(B, F, 3)`, ok :math:`(B, F)` and the per-frame RMS :math:`(B, F)` px (NaN where not ok).
-    """
-    B, F, N = corners.shape[:3]
-    dtype = cam_params.dtype
-    enough = valid.sum(-1) >= min_corners
-    norm = Camera(model, cam_params).undistort(corners.nan_to_num(0.0))
-    mask = valid & enough[..., None] & norm.isfinite().all(-1)
-    H, ok_h = find_homographies(obj[:, :2].expand(B, 1, N, 2), torch.where(mask[..., None], norm, 0.0), mask,
-                                return_ok=True)
-    eye = torch.eye(3, dtype=dtype, device=corners.device)
-    rvec, tvec = extrinsics_from_homography(eye.expand(B, F, 3, 3), H)
-    if known is not None:
-        rvec = torch.where(known[..., None], rvec0.to(dtype), rvec)
-        tvec = torch.where(known[..., None], tvec0.to(dtype), tvec)
-        ok_h = ok_h | (known & enough)
-    ok = enough & ok_h & rvec.isfinite().all(-1) & tvec.isfinite().all(-1)
-    w = (valid & ok[..., None]).to(dtype)
-    m = model
-    res = levenberg_marquardt(m, cam_params, rvec.nan_to_num(0.0), tvec.nan_to_num(1.0), obj, corners, w,
-                              free=[False] * m.num_params, max_iters=50)
-    ok = ok & res.view_rms.isfinite()
-    return res.rvec, res.tvec, ok, res.view_rms.masked_fill(~ok, float("nan"))
 
 
 def rotation_mean(R: torch.Tensor, iters: int = 20) -> torch.Tensor:
@@ -174,7 +127,7 @@ def rig_extrinsics(
         rvec, tvec: :math:`(C, F, 3)` board -> camera poses; ok :math:`(C, F)` where they exist.
         valid: :math:`(C, F, N)` the corners (edge weights: corners seen in shared frames).
         names: camera names (for the error).
-        symmetries: the board's symmetries (:func:`~ccs_kornia.modules.rig.board_symmetry.board_symmetries`):
+        symmetries: the board's symmetries (:func:`~ccs_kornia.modules.calibration.board_symmetry.board_symmetries`):
             a camera's frames numbered differently from its tree parent's are turned back before averaging.
 
     Returns:

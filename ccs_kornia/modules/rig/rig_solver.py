@@ -37,15 +37,15 @@ from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import CAMERA_MODELS, OPENCV5
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
-from ccs_kornia.modules.calibration.lm import levenberg_marquardt
-from ccs_kornia.modules.calibration.outliers import drop_outliers
-from ccs_kornia.modules.calibration.quality.diagnostics import split_views
-from ccs_kornia.modules.calibration.schur_lm import LMStatus
-from ccs_kornia.modules.rig.board_symmetry import (
+from ccs_kornia.modules.calibration.board_symmetry import (
     align_frame_orders,
     board_symmetries,
     undo_symmetry,
 )
+from ccs_kornia.modules.calibration.lm import levenberg_marquardt
+from ccs_kornia.modules.calibration.outliers import drop_outliers
+from ccs_kornia.modules.calibration.quality.diagnostics import split_views
+from ccs_kornia.modules.calibration.schur_lm import LMStatus
 from ccs_kornia.modules.rig.frame_consistency import (
     FrameKernel,
     board_motion,
@@ -194,7 +194,7 @@ class RigSolver(nn.Module):
         symmetric_board: the detector may number a symmetric board's corners in any of its symmetric orders (a
             180-degree turn; also 90 degrees for square grids), differently per camera and frame: each observation
             is renumbered to agree with the frame's reference camera
-            (:mod:`~ccs_kornia.modules.rig.board_symmetry`; ``RigResult.corner_order`` says where).
+            (:mod:`~ccs_kornia.modules.calibration.board_symmetry`; ``RigResult.corner_order`` says where).
         intrinsics_prior: each free camera's intrinsics carry a Gaussian prior at its own calibration: the
             information of its own views times ``k - 1`` (``k``: the camera's squared error under the rig over what
             its noise explains; the first fit takes 1) divided by this factor; ``None``: no prior (the intrinsics
