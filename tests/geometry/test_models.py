@@ -259,8 +259,6 @@ def test_monotonic_radius_is_the_cap_without_a_turn_and_per_camera():
     # a rational denominator reaching zero ends the range too: 1 + k4 r^2 = 0 at r = 1 / sqrt(2)
     pole = torch.tensor([[500.0, 500.0, 320.0, 240.0, 0.0, 0.0, 0.0, 0.0, 0.0, -2.0, 0.0, 0.0]], dtype=F64)
     assert float(camera_model("rational").monotonic_radius(pole, cap)[0]) < 1 / math.sqrt(2)
-    with pytest.raises(NotImplementedError, match="monotonic"):
-        CentredRadialModel((640, 480)).monotonic_radius(torch.tensor([CR_PARAMS], dtype=F64), cap)
 
 
 # ---------------------------------------------------------------------------------------- a fisheye Camera against cv2.fisheye
@@ -304,3 +302,16 @@ def test_camera_kb_unprojection_matches_cv2_and_inverts_beyond_90_degrees():
     rays = camera.unproject(camera.project(Y[None]))[0]
     torch.testing.assert_close(rays, Y / Y.norm(dim=-1, keepdim=True), atol=1e-10, rtol=0)
     assert bool((Y[:, 2] < 0).any())
+
+
+def test_centred_radial_monotonic_radius_follows_the_focal_length_in_its_pixel_units(device, dtype):
+    # rho = r f / max(W, H); rho (1 - 0.5 rho^2) turns at rho = 1 / sqrt(1.5)
+    model = CentredRadialModel((640, 480))
+    p = torch.tensor([[640.0, 640.0, 319.5, 239.5, -0.5, 0.0, 0.0, 0.0, 0.0],
+                      [320.0, 300.0, 319.5, 239.5, -0.5, 0.0, 0.0, 0.0, 0.0]], device=device, dtype=dtype)
+    radius = model.monotonic_radius(p, math.radians(80))
+    assert radius.shape == (2,) and radius.dtype == dtype and radius.device.type == device.type
+    for got, fold in zip(radius.tolist(), (1 / math.sqrt(1.5), 2 / math.sqrt(1.5))):
+        assert fold - 4e-3 < got <= fold * (1 + 1e-6)
+    mild = torch.tensor([[640.0, 640.0, 319.5, 239.5, 0.1, 0.0, 0.0, 0.0, 0.0]], device=device, dtype=dtype)
+    assert float(model.monotonic_radius(mild, 0.5)[0]) == pytest.approx(math.tan(0.5))

@@ -86,7 +86,8 @@ class CameraModel:
         """How far from the axis, as a radius on the normalized (``z = 1``) plane, the model's radial mapping keeps
         increasing: beyond it several directions share one image radius (undistorting there folds the image back).
 
-        Each model gives its own rule; the result is at most ``tan(max_angle)``.
+        Each model gives its own rule (every model of the package overrides this); the result is at most
+        ``tan(max_angle)``.
 
         Args:
             params: :math:`(C, P)` parameters.

@@ -9,6 +9,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from ccs_kornia.geometry.models.base import (
@@ -18,7 +20,10 @@ from ccs_kornia.geometry.models.base import (
     unit_columns,
 )
 
-__all__ = ["CentredRadialModel"]
+__all__ = ["MONOTONIC_SAMPLES", "CentredRadialModel"]
+
+#: radii sampled by :meth:`CentredRadialModel.monotonic_radius` up to the widest angle asked for
+MONOTONIC_SAMPLES = 4096
 
 
 class CentredRadialModel(CameraModel):
@@ -58,6 +63,31 @@ class CentredRadialModel(CameraModel):
         intr = torch.stack([K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]], -1)
         offset = K.new_zeros(K.shape[0], 2) if offset is None else offset.to(K.dtype)
         return torch.cat([intr, radial.to(K.dtype), offset], -1)
+
+    def monotonic_radius(self, params: torch.Tensor, max_angle: float) -> torch.Tensor:
+        r"""Where ``rho (1 + k1 rho^2 + k2 rho^4 + k3 rho^6)`` stops increasing, as a radius on the normalized plane, at
+        most ``tan(max_angle)``.
+
+        ``rho = r max(fx, fy) / max(W, H)`` is the normalized radius ``r`` in the model's pixel units along the
+        longer focal length (the first direction to turn); the centre offset is small and left out. The slope
+        ``1 + 3 k1 rho^2 + 5 k2 rho^4 + 7 k3 rho^6`` is sampled at :data:`MONOTONIC_SAMPLES` radii; the answer is the
+        last sample before it first stops being positive. See :meth:`CameraModel.monotonic_radius`.
+
+        Example:
+            >>> import math
+            >>> m = CentredRadialModel((640, 480))
+            >>> params = torch.tensor([[640., 640., 319.5, 239.5, -0.3, 0., 0., 0., 0.]], dtype=torch.float64)
+            >>> round(m.monotonic_radius(params, math.radians(80)).item(), 3)  # 1 - 0.9 rho^2 = 0: 1 / sqrt(0.9)
+            1.054
+        """
+        r = torch.linspace(0.0, math.tan(max_angle), MONOTONIC_SAMPLES + 1, dtype=params.dtype,
+                           device=params.device)[None]
+        rho2 = (r * params[:, 0:2].amax(-1, keepdim=True) / float(max(self.image_size))) ** 2
+        k1, k2, k3 = (params[:, 4 + i, None] for i in range(3))
+        slope = 1 + rho2 * (3 * k1 + rho2 * (5 * k2 + rho2 * 7 * k3))
+        index = torch.arange(MONOTONIC_SAMPLES + 1, device=params.device)
+        first_bad = torch.where(slope <= 0, index, MONOTONIC_SAMPLES + 1).amin(-1)  # the top where it never stops
+        return r[0, (first_bad - 1).clamp(min=0)]
 
     def columns(self, points: torch.Tensor, params: torch.Tensor, jacobians: bool = True) -> tuple:
         """See :meth:`CameraModel.columns`."""

@@ -87,6 +87,11 @@ def test_errors():
         valid_radius(camera, torch.zeros(2, 3, 2, dtype=F64))
     with pytest.raises(TypeError, match="Camera"):
         valid_radius(K[None])
+
+
+def test_the_paper_radial_model_has_its_valid_field_too():
+    # rho = r 400 / 640; rho (1 - 0.3 rho^2) turns at rho = 1 / sqrt(0.9)
     radial = Camera(CentredRadialModel(SIZE), torch.tensor([400.0, 400, 320, 240, -0.3, 0, 0, 0, 0], dtype=F64))
-    with pytest.raises(NotImplementedError, match="monotonic"):
-        valid_radius(radial)
+    fold = 640 / 400 / math.sqrt(0.9)
+    assert fold < math.tan(math.radians(MAX_VIEW_ANGLE_DEG))
+    assert fold - 4e-3 < float(valid_radius(radial)[0]) <= fold
