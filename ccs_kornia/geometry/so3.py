@@ -23,8 +23,9 @@ _SKEW = torch.tensor([0, 6, 2, 3, 0, 4, 5, 1, 0])
 
 def exp_so3(w: torch.Tensor) -> torch.Tensor:
     """Rodrigues' formula ``I + sinc(t) K + (1 - cos t) / t^2 K^2`` for (..., 3) rotation vectors, ``t = |w|``,
-    with ``K = [w]_x``; ``torch.sinc`` is exact at and near 0, so there is no branch."""
-    t = (w * w).sum(-1).sqrt()[..., None, None]
+    with ``K = [w]_x``; ``torch.sinc`` is exact at and near 0, so there is no branch (and the angle's square is
+    floored at the smallest normal number, so forward- and reverse-mode derivatives at ``w = 0`` are finite)."""
+    t = (w * w).sum(-1).clamp_min(torch.finfo(w.dtype).tiny).sqrt()[..., None, None]
     a = torch.sinc(t * (1 / math.pi))
     b = 0.5 * torch.sinc(t * (0.5 / math.pi)).square()
     K = torch.cat([torch.zeros_like(w[..., :1]), w, -w], -1)[..., _SKEW.to(w.device)].view(*w.shape[:-1], 3, 3)

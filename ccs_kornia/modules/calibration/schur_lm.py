@@ -1,14 +1,17 @@
 r"""The one Levenberg–Marquardt loop of the package, on normal equations with the bundle-adjustment arrow structure.
 
 A *problem* (:class:`SchurProblem`) has, per batch entry, a small dense *global* block of ``G`` unknowns (a camera's
-intrinsics, a rig's intrinsics and extrinsics, a hand-eye transform) and ``V`` independent 6-unknown *item* blocks
-(one board pose per view or frame; ``V`` may be 0). Its normal equations (:class:`NormalEquations`)
+intrinsics, a rig's intrinsics and extrinsics, a hand-eye transform) and ``V`` *item* blocks of ``k`` unknowns each
+(one 6-dof board pose per view or frame; ``V`` may be 0). Its normal equations (:class:`NormalEquations`)
 
 .. math::
     \begin{pmatrix} U & W^T \\ W & \mathrm{diag}(V_i) \end{pmatrix}
     \begin{pmatrix} \delta g \\ \delta p \end{pmatrix} = -\begin{pmatrix} e_g \\ e_p \end{pmatrix}
 
-are solved by eliminating the item blocks (:func:`schur_step`), so a step costs time linear in ``V``.
+are solved by eliminating the item blocks (:func:`schur_step`), so a step costs time linear in ``V``. The items are
+independent (a block-diagonal :math:`V`) or couple their ``w`` next neighbours (a block-banded one, ``Vband``: the
+control points of a trajectory spline), eliminated then by a banded Cholesky factor
+(:mod:`~ccs_kornia.modules.calibration.block_banded`), still in time linear in ``V``.
 :func:`schur_lm` owns everything else, for every solver alike; what it carries from one iteration to the next is an
 :class:`LMState`:
 
@@ -45,6 +48,7 @@ from typing import Any, Protocol
 import torch
 
 from ccs_kornia.geometry.spd_inverse import pseudo_inverse, spd_inverse
+from ccs_kornia.modules.calibration.block_banded import block_banded_cholesky, block_banded_solve
 from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = [
@@ -125,9 +129,11 @@ class NormalEquations:
         cost: :math:`(B,)` ``r^T r`` (``inf`` where not finite).
         U: :math:`(B, G, G)` ``J_g^T J_g``.
         eg: :math:`(B, G)` ``J_g^T r``.
-        W: :math:`(B, V, G, 6)` ``J_g^T J_{p_i}`` (``None``, with ``V`` and ``ep``, for a problem without items).
-        V: :math:`(B, V, 6, 6)` ``J_{p_i}^T J_{p_i}`` (invertible where an item is not used, e.g. the identity).
-        ep: :math:`(B, V, 6)` ``J_{p_i}^T r``.
+        W: :math:`(B, V, G, k)` ``J_g^T J_{p_i}`` (``None``, with ``V`` and ``ep``, for a problem without items).
+        V: :math:`(B, V, k, k)` ``J_{p_i}^T J_{p_i}`` (invertible where an item is not used, e.g. the identity).
+        ep: :math:`(B, V, k)` ``J_{p_i}^T r``.
+        Vband: :math:`(B, V, w, k, k)` ``J_{p_i}^T J_{p_{i+j}}`` for ``j = 1 .. w`` (entries past the last item are
+            ignored), or ``None``: the items are independent.
 
     Example:
         >>> J, r = torch.tensor([[[1.0], [2.0]]]), torch.tensor([[0.5, -1.0]])
@@ -142,6 +148,7 @@ class NormalEquations:
     W: torch.Tensor | None = None
     V: torch.Tensor | None = None
     ep: torch.Tensor | None = None
+    Vband: torch.Tensor | None = None
 
 
 @dataclass
@@ -179,10 +186,10 @@ class SchurProblem(Protocol):
     unknowns with :func:`torch.where` and the working set by indexing the first dimension.
 
     Attributes:
-        used: :math:`(B, V)` bool, items with data. Their 6x6 blocks are eliminated; the others get a zero step (their
+        used: :math:`(B, V)` bool, items with data. Their ``k x k`` blocks are eliminated; the others get a zero step (their
             ``V`` block must be invertible, e.g. the identity). ``V`` may be 0 (global unknowns only).
         num_residuals: :math:`(B,)` number of scalar residuals with a positive weight (2 per image point): the degrees
-            of freedom are ``num_residuals - G - 6 * used.sum(-1)``; a problem with 0 is not solved (``NO_DATA``).
+            of freedom are ``num_residuals - G - k * used.sum(-1)``; a problem with 0 is not solved (``NO_DATA``).
         floor: :math:`(B,)` cost at or below which the fit is perfect and stops (e.g. ``1e-20`` times the sum of the
             weights: an RMS of ``1e-10``).
     """
@@ -195,7 +202,7 @@ class SchurProblem(Protocol):
         """The :class:`NormalEquations` at ``unknowns``."""
 
     def retract(self, unknowns: dict[str, torch.Tensor], dg: torch.Tensor, dp: torch.Tensor) -> dict[str, torch.Tensor]:
-        r"""New unknowns moved by the increments ``dg`` :math:`(B, G)` and ``dp`` :math:`(B, V, 6)` (rotations
+        r"""New unknowns moved by the increments ``dg`` :math:`(B, G)` and ``dp`` :math:`(B, V, k)` (rotations
         multiplicatively, e.g. ``R <- exp(w) R`` with ``w = dp[..., :3]``); never modifies ``unknowns``."""
 
     def scale(self, unknowns: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -253,7 +260,14 @@ def _solve_spd(A: torch.Tensor, b: torch.Tensor, eye: torch.Tensor) -> torch.Ten
     return x.masked_fill(bad[..., None] | ~x.isfinite(), 0.0)
 
 
-def _step(U, W, Vb, eg, ep, lam, used_f, eyeG):
+def _banded_elimination(W, Vd, Vband, ep):
+    """``(V^-1 W^T, V^-1 ep)`` of block-banded items: :math:`(B, V, k, G)` and :math:`(B, V, k)`."""
+    G = W.shape[-2]
+    Z = block_banded_solve(block_banded_cholesky(Vd, Vband), torch.cat([W.transpose(-1, -2), ep[..., None]], -1))
+    return Z[..., :G], Z[..., G]
+
+
+def _step(U, W, Vb, eg, ep, lam, used_f, eyeG, Vband=None):
     """:func:`schur_step` with the item mask as a float and the identity given (the loop's form)."""
     dU = U.diagonal(dim1=-2, dim2=-1)
     # a floor keeps the damped system definite where a column vanishes (e.g. a distortion centre at k = 0)
@@ -263,7 +277,13 @@ def _step(U, W, Vb, eg, ep, lam, used_f, eyeG):
     Ud.diagonal(dim1=-2, dim2=-1).add_(dU * lam[:, None])
     Vd = Vb.clone()
     Vd.diagonal(dim1=-2, dim2=-1).mul_((1 + lam)[:, None, None])
-    # the damped 6x6 item blocks are definite (unused items: the identity); a failed inverse is zeroed
+    if Vband is not None:
+        ZW, Ze = _banded_elimination(W, Vd, Vband, ep)
+        S = Ud - (W @ ZW).sum(1)
+        dg = _solve_spd(S, (W @ Ze[..., None]).sum(1)[..., 0] - eg, eyeG)
+        dp = Ze + (ZW @ dg[:, None, :, None])[..., 0]
+        return dg, dp * (-used_f)[..., None]
+    # the damped item blocks are definite (unused items: the identity); a failed inverse is zeroed
     Vinv = torch.linalg.inv_ex(Vd)[0].nan_to_num_(0.0, 0.0, 0.0)
     Y = W @ Vinv  # (B, V, G, 6)
     S = Ud - (Y @ W.transpose(-1, -2)).sum(1)
@@ -280,6 +300,7 @@ def schur_step(
     ep: torch.Tensor,
     used: torch.Tensor,
     damping: torch.Tensor | None = None,
+    Vband: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     r"""Damped Gauss-Newton step of arrow-structured normal equations: eliminate the item blocks, solve the global
     block (Schur complement), back-substitute.
@@ -289,13 +310,14 @@ def schur_step(
     solved gives a zero step.
 
     Args:
-        U: :math:`(B, G, G)`; W: :math:`(B, V, G, 6)`; V: :math:`(B, V, 6, 6)` (invertible where not ``used``);
-        eg: :math:`(B, G)`; ep: :math:`(B, V, 6)`: the normal equations (:meth:`SchurProblem.linearize`).
+        U: :math:`(B, G, G)`; W: :math:`(B, V, G, k)`; V: :math:`(B, V, k, k)` (invertible where not ``used``);
+        eg: :math:`(B, G)`; ep: :math:`(B, V, k)`: the normal equations (:meth:`SchurProblem.linearize`).
         used: :math:`(B, V)` items that move (the others get a zero step).
         damping: :math:`(B,)` Marquardt's :math:`\lambda` (default 0: the Gauss-Newton step).
+        Vband: :math:`(B, V, w, k, k)` the couplings of banded items (:class:`NormalEquations`), or ``None``.
 
     Returns:
-        ``(dg, dp)``: :math:`(B, G)` and :math:`(B, V, 6)`.
+        ``(dg, dp)``: :math:`(B, G)` and :math:`(B, V, k)`.
 
     Example:
         >>> U = torch.tensor([[[4.0, 1.0], [1.0, 3.0]]], dtype=torch.float64)
@@ -306,7 +328,7 @@ def schur_step(
     """
     lam = U.new_zeros(U.shape[0]) if damping is None else damping.to(U)
     eyeG = torch.eye(U.shape[-1], dtype=U.dtype, device=U.device)
-    return _step(U, W, V, eg, ep, lam, used.to(U.dtype), eyeG)
+    return _step(U, W, V, eg, ep, lam, used.to(U.dtype), eyeG, Vband)
 
 
 def _complete(eq: NormalEquations, V: int) -> NormalEquations:
@@ -328,9 +350,12 @@ def _check(problem, eq: NormalEquations) -> None:
     for name in ("num_residuals", "floor"):
         check_tensor(getattr(problem, name), f"problem.{name}", [B])
     G = eq.U.shape[-1] if eq.U.dim() == 3 else "G"
-    shapes = {"cost": (B,), "U": (B, G, G), "W": (B, V, G, 6), "V": (B, V, 6, 6), "eg": (B, G), "ep": (B, V, 6)}
-    for k, shape in shapes.items():
-        check_tensor(getattr(eq, k), k, shape, what=f"(B={B} problems, V={V} items, G={G})")
+    k = eq.V.shape[-1] if eq.V is not None and eq.V.dim() == 4 else "k"
+    shapes = {"cost": (B,), "U": (B, G, G), "W": (B, V, G, k), "V": (B, V, k, k), "eg": (B, G), "ep": (B, V, k)}
+    if eq.Vband is not None:
+        shapes["Vband"] = (B, V, "w", k, k)
+    for name, shape in shapes.items():
+        check_tensor(getattr(eq, name), name, shape, what=f"(B={B} problems, V={V} items, G={G}, k={k})")
 
 
 def _iterate(problem, s: LMState, ftol, xtol, eyeG, used_f) -> None:
@@ -338,7 +363,7 @@ def _iterate(problem, s: LMState, ftol, xtol, eyeG, used_f) -> None:
     keep their values."""
     eq, lam, cost = s.equations, s.damping, s.equations.cost
     active = s.running
-    dg, dp = _step(eq.U, eq.W, eq.V, eq.eg, eq.ep, lam, used_f, eyeG)
+    dg, dp = _step(eq.U, eq.W, eq.V, eq.eg, eq.ep, lam, used_f, eyeG, eq.Vband)
     cand = problem.retract(s.unknowns, dg, dp)
     new = _complete(problem.linearize(cand), dp.shape[1])
     cost_n = new.cost
@@ -490,11 +515,14 @@ def schur_lm(
 
     # covariance at the solution (no damping)
     U, W, Vb, cost = eq.U, eq.W, eq.V, eq.cost
-    Vinv = spd_inverse(Vb)
-    Vinv = torch.where(used[..., None, None] & Vinv.isfinite(), Vinv, torch.zeros_like(Vinv))
-    S = U - ((W @ Vinv) @ W.transpose(-1, -2)).sum(1)
+    if eq.Vband is not None:
+        S = U - (W @ _banded_elimination(W, Vb, eq.Vband, eq.ep)[0]).sum(1)
+    else:
+        Vinv = spd_inverse(Vb)
+        Vinv = torch.where(used[..., None, None] & Vinv.isfinite(), Vinv, torch.zeros_like(Vinv))
+        S = U - ((W @ Vinv) @ W.transpose(-1, -2)).sum(1)
     G = S.shape[-1]
-    dof = (problem.num_residuals - G - 6 * used.sum(-1)).clamp_min(1).to(dtype)
+    dof = (problem.num_residuals - G - Vb.shape[-1] * used.sum(-1)).clamp_min(1).to(dtype)
     sigma2 = torch.ones_like(cost) if absolute_weights else cost / dof
     cov = spd_inverse(S)
     # a (numerically) singular information matrix gives a huge, not a NaN, variance along the undetermined
