@@ -1,0 +1,294 @@
+r"""The camera-IMU fit's normal equations: a continuous-time trajectory of the IMU, its biases, gravity, and where each
+camera sits on it and when its frames were taken, fitted to every gyroscope, accelerometer and corner measurement.
+
+Unknowns (Furgale et al., "Unified temporal and spatial calibration for multi-sensor systems", IROS 2013, as Kalibr):
+
+* per control point ``k`` of a uniform cubic B-spline (:mod:`ccs_kornia.geometry.spline`), the *item* of the LM core:
+  the IMU's orientation ``R_k`` (IMU to board; moved by ``R_k exp(d)``) and position ``p_k``, and the gyroscope's and
+  accelerometer's biases ``bg_k``, ``ba_k`` (the same B-spline): 12 unknowns; a control point couples its three
+  neighbours, so the item blocks are block-banded and a step costs time linear in the recording's length;
+* the *global* unknowns: per camera ``T_cam_imu`` (``R <- exp(d) R``, ``t``) and its time shift (a frame stamped
+  ``t_cam`` by the camera is seen at IMU time ``t_cam + shift``), and gravity in the board's frame (its direction: 2
+  unknowns; its magnitude held).
+
+Residuals, each whitened by its standard deviation: gyroscope ``w(t) + bg(t) - w_meas``; accelerometer
+``R(t)^T (p''(t) - g) + ba(t) - a_meas``; every corner ``project(T_cam_imu T_imu_board(t_cam + shift) X) - uv``; the
+biases' random walk ``b_{k+1} - b_k`` with variance ``sigma_rw^2 dt``. The orientation's derivatives by its control
+points come from forward-mode differentiation of the spline (exact), the rest are written out. Per segment of the
+spline the Jacobians touch four control points and the globals, so the normal equations are accumulated per segment
+(a dense ``48 + G`` block) and then spread over the banded item blocks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch.func import jacfwd, vmap
+
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.so3 import exp_so3
+from ccs_kornia.geometry.spline import segment_of, so3_spline, spline_basis
+from ccs_kornia.modules.calibration.schur_lm import NormalEquations
+
+__all__ = ["ITEM", "ImuCameraData", "ImuCameraProblem", "Weights", "gravity_basis"]
+
+#: unknowns per control point: rotation, position, gyroscope bias, accelerometer bias
+ITEM = 12
+#: samples per chunk when accumulating the IMU's normal equations (bounds the memory of the per-sample blocks)
+_CHUNK = 4096
+
+
+def _skew(v: torch.Tensor) -> torch.Tensor:
+    z = torch.zeros_like(v[..., 0])
+    return torch.stack([z, -v[..., 2], v[..., 1], v[..., 2], z, -v[..., 0], -v[..., 1], v[..., 0], z], -1).view(
+        *v.shape[:-1], 3, 3)
+
+
+def gravity_basis(g: torch.Tensor) -> torch.Tensor:
+    """:math:`(*, 3, 2)` two unit vectors orthogonal to gravity ``g`` :math:`(*, 3)` (its direction's tangent plane).
+
+    Example:
+        >>> gravity_basis(torch.tensor([0.0, 0.0, -9.8])).T @ torch.tensor([0.0, 0.0, 1.0])
+        tensor([0., 0.])
+    """
+    n = torch.nn.functional.normalize(g, dim=-1)
+    # the axis least aligned with g, made orthogonal to it
+    e = torch.eye(3, dtype=g.dtype, device=g.device)[n.abs().argmin(-1)]
+    a = torch.nn.functional.normalize(e - (e * n).sum(-1, keepdim=True) * n, dim=-1)
+    return torch.stack([a, torch.linalg.cross(n, a)], -1)
+
+
+@dataclass
+class ImuCameraData:
+    """The measurements of one recording: one IMU and C cameras (float64).
+
+    Attributes:
+        imu_times: :math:`(N,)` s (the reference clock). gyro: :math:`(N, 3)` rad/s. accel: :math:`(N, 3)` m/s^2.
+        cameras: the C cameras (held).
+        object_points: :math:`(P, 3)` the board's points.
+        frame_times: :math:`(F,)` every camera's frames, one after the other (camera clocks).
+        frame_camera: :math:`(F,)` int64 the camera of each frame.
+        corners: :math:`(F, P, 2)`; seen: :math:`(F, P)` bool.
+    """
+
+    imu_times: torch.Tensor
+    gyro: torch.Tensor
+    accel: torch.Tensor
+    cameras: Camera
+    object_points: torch.Tensor
+    frame_times: torch.Tensor
+    frame_camera: torch.Tensor
+    corners: torch.Tensor
+    seen: torch.Tensor
+
+    @property
+    def num_cameras(self) -> int:
+        return len(self.cameras)
+
+
+@dataclass
+class Weights:
+    """Inverse variances of one sample of each measurement."""
+
+    gyro: float
+    accel: float
+    pixel: float
+    gyro_walk: float  #: of a control point's gyroscope-bias step
+    accel_walk: float  #: of a control point's accelerometer-bias step
+
+
+class ImuCameraProblem:
+    """The camera-IMU fit as a :class:`~ccs_kornia.modules.calibration.schur_lm.SchurProblem` (one recording, batch 1).
+
+    Args:
+        data: the measurements.
+        t0, dt, num_points: the spline's knots.
+        weights: the measurements' inverse variances (:class:`Weights`).
+    """
+
+    def __init__(self, data: ImuCameraData, t0: float, dt: float, num_points: int, weights: Weights) -> None:
+        self.data, self.t0, self.dt, self.M, self.w = data, t0, dt, num_points, weights
+        C = data.num_cameras
+        self.G = 7 * C + 2
+        self.L = 4 * ITEM + self.G
+        dtype, device = data.gyro.dtype, data.gyro.device
+        self.imu_seg, self.imu_u = segment_of(data.imu_times, t0, dt, num_points)
+        self.used = torch.ones(1, num_points, dtype=torch.bool, device=device)
+        n_res = 6 * data.imu_times.shape[0] + 2 * int(data.seen.sum()) + 6 * (num_points - 1)
+        self.num_residuals = torch.tensor([n_res], device=device)
+        self.floor = torch.full((1,), 1e-30, dtype=dtype, device=device)
+
+    # -- the LM core's protocol --------------------------------------------------------------------------------------
+    def take(self, keep: torch.Tensor) -> ImuCameraProblem:
+        if not bool(keep.all()):
+            raise ValueError("the camera-IMU problem is one recording: it cannot be split.")
+        return self
+
+    def scale(self, s: dict[str, torch.Tensor]) -> torch.Tensor:
+        return torch.ones(1, dtype=s["p"].dtype, device=s["p"].device)
+
+    def retract(self, s: dict[str, torch.Tensor], dg: torch.Tensor, dp: torch.Tensor) -> dict[str, torch.Tensor]:
+        C = self.data.num_cameras
+        cam = dg[:, : 7 * C].view(1, C, 7)
+        B = gravity_basis(s["g"])
+        return {
+            "R": s["R"] @ exp_so3(dp[..., 0:3]),
+            "p": s["p"] + dp[..., 3:6],
+            "bg": s["bg"] + dp[..., 6:9],
+            "ba": s["ba"] + dp[..., 9:12],
+            "Rci": exp_so3(cam[..., 0:3]) @ s["Rci"],
+            "tci": s["tci"] + cam[..., 3:6],
+            "shift": s["shift"] + cam[..., 6],
+            "g": (exp_so3((B @ dg[:, 7 * C:, None])[..., 0]) @ s["g"][..., None])[..., 0],
+        }
+
+    def linearize(self, s: dict[str, torch.Tensor]) -> NormalEquations:
+        H, b, cost = self._segment_blocks(s)
+        return self._spread(H, b, cost, s)
+
+    # -- residuals -------------------------------------------------------------------------------------------------
+    def _imu_blocks(self, s, H, b):
+        """The gyroscope's and accelerometer's residuals, accumulated into the segment blocks; their cost."""
+        d, dt, C = self.data, self.dt, self.data.num_cameras
+        R, p, bg, ba, g = s["R"][0], s["p"][0], s["bg"][0], s["ba"][0], s["g"][0]
+        gB = gravity_basis(g)
+        ar4 = torch.arange(4, device=R.device)
+        sg, sa = self.w.gyro**0.5, self.w.accel**0.5
+        cost = R.new_zeros(())
+
+        def rot(Rl, u, delta):
+            Rt, w = so3_spline(Rl @ exp_so3(delta), u, dt)
+            return (Rt, w), (Rt, w)
+
+        jac_rot = vmap(jacfwd(rot, argnums=2, has_aux=True))
+        for lo in range(0, d.imu_times.shape[0], _CHUNK):
+            sl = slice(lo, lo + _CHUNK)
+            seg, u = self.imu_seg[sl], self.imu_u[sl]
+            idx = seg[:, None] + ar4
+            n = seg.shape[0]
+            zero = torch.zeros(n, 4, 3, dtype=R.dtype, device=R.device)
+            (dR, dw), (Rt, w) = jac_rot(R[idx], u, zero)  # dR: (n, 3, 3, 4, 3), dw: (n, 3, 4, 3)
+            B0 = spline_basis(u)  # (n, 4)
+            B2 = spline_basis(u, 2) / dt**2
+            acc_w = (B2[:, None, :] @ p[idx])[:, 0]
+            v = acc_w - g
+            rg = w + (B0[:, None, :] @ bg[idx])[:, 0] - d.gyro[sl]
+            ra = (Rt.transpose(-1, -2) @ v[..., None])[..., 0] + (B0[:, None, :] @ ba[idx])[:, 0] - d.accel[sl]
+            J = R.new_zeros(n, 6, self.L)
+            eye = torch.eye(3, dtype=R.dtype, device=R.device)
+            for j in range(4):
+                o = ITEM * j
+                J[:, 0:3, o:o + 3] = dw[..., j, :]
+                J[:, 0:3, o + 6:o + 9] = B0[:, j, None, None] * eye
+                # d(R^T v) / d delta_j = (dR / d delta_j)^T v
+                J[:, 3:6, o:o + 3] = torch.einsum("nabk,na->nbk", dR[..., j, :], v)
+                J[:, 3:6, o + 3:o + 6] = B2[:, j, None, None] * Rt.transpose(-1, -2)
+                J[:, 3:6, o + 9:o + 12] = B0[:, j, None, None] * eye
+            # d(-R^T g) / d g_delta, with g <- exp(B d) g: dg = -[g]_x B d
+            J[:, 3:6, 4 * ITEM + 7 * C:] = Rt.transpose(-1, -2) @ (_skew(g) @ gB)
+            J[:, 0:3] *= sg
+            J[:, 3:6] *= sa
+            r = torch.cat([rg * sg, ra * sa], -1)
+            H.index_add_(0, seg, J.transpose(-1, -2) @ J)
+            b.index_add_(0, seg, (J.transpose(-1, -2) @ r[..., None])[..., 0])
+            cost = cost + (r * r).sum()
+        return cost
+
+    def _frame_blocks(self, s, H, b):
+        """The corners' residuals, accumulated into the segment blocks; their cost."""
+        d, dt, C = self.data, self.dt, self.data.num_cameras
+        R, p = s["R"][0], s["p"][0]
+        Rci, tci, shift = s["Rci"][0], s["tci"][0], s["shift"][0]
+        cam = d.frame_camera
+        F, P = d.corners.shape[:2]
+        tau = d.frame_times + shift[cam]
+        seg, _ = segment_of(tau, self.t0, dt, self.M)
+        idx = seg[:, None] + torch.arange(4, device=R.device)
+
+        def pose(Rl, pl, Rc, tc, sh, t_frame, i0, delta):
+            # delta: 4 x (rotation, position) of the control points, the camera's rotation, translation and shift
+            Rp = Rl @ exp_so3(delta[:12].view(4, 3))
+            pp = pl + delta[12:24].view(4, 3)
+            Rcd = exp_so3(delta[24:27]) @ Rc
+            tcd = tc + delta[27:30]
+            u = (t_frame + sh + delta[30] - self.t0) / dt - i0
+            Rt, _ = so3_spline(Rp, u, dt)
+            pt = (spline_basis(u)[None, :] @ pp)[0]
+            R_cb = Rcd @ Rt.transpose(-1, -2)
+            t_cb = tcd - R_cb @ pt
+            return (R_cb, t_cb), (R_cb, t_cb)
+
+        jac_pose = vmap(jacfwd(pose, argnums=7, has_aux=True))
+        zero = R.new_zeros(F, 31)
+        (dRcb, dtcb), (R_cb, t_cb) = jac_pose(R[idx], p[idx], Rci[cam], tci[cam], shift[cam], d.frame_times,
+                                              seg.to(R.dtype), zero)
+        # the camera pose's left perturbation (phi, rho): x_c' = x_c + phi x x_c + rho
+        dphi_m = dRcb.permute(0, 3, 1, 2) @ R_cb.transpose(-1, -2)[:, None]  # (F, 31, 3, 3)
+        dphi = torch.stack([dphi_m[..., 2, 1], dphi_m[..., 0, 2], dphi_m[..., 1, 0]], -1).transpose(1, 2)  # (F, 3, 31)
+        drho = dtcb + _skew(t_cb) @ dphi
+        Jpose = torch.cat([dphi, drho], 1)  # (F, 6, 31)
+        xc = (R_cb[:, None] @ d.object_points[None, :, :, None])[..., 0] + t_cb[:, None]
+        uv, _, Jx = d.cameras.project(xc[None].expand(C, -1, -1, -1) if C > 1 else xc[None], jacobians=True)
+        if C > 1:
+            take = cam[None, :, None, None].expand(1, F, P, 2)
+            uv = uv.gather(0, take)[0]
+            Jx = Jx.gather(0, cam[None, :, None, None, None].expand(1, F, P, 2, 3))[0]
+        else:
+            uv, Jx = uv[0], Jx[0]
+        Jcorner = torch.cat([Jx @ -_skew(xc), Jx], -1)  # (F, P, 2, 6)
+        sp = self.w.pixel**0.5
+        wgt = d.seen.to(R.dtype)[..., None] * sp
+        r = torch.where(d.seen[..., None], uv - d.corners, 0.0) * wgt
+        Jc = Jcorner * wgt[..., None]
+        Jfull = Jc @ Jpose[:, None]  # (F, P, 2, 31)
+        Hf = torch.einsum("fpia,fpib->fab", Jfull, Jfull)
+        bf = torch.einsum("fpia,fpi->fa", Jfull, r)
+        # the frame's 31 local unknowns in the segment layout
+        loc = torch.cat([(ITEM * torch.arange(4)[:, None] + torch.arange(3)).flatten(),
+                         (ITEM * torch.arange(4)[:, None] + 3 + torch.arange(3)).flatten()]).to(R.device)
+        pos = torch.cat([loc.expand(F, 24), 4 * ITEM + 7 * cam[:, None] + torch.arange(7, device=R.device)], 1)
+        flat = (pos[:, :, None] * self.L + pos[:, None, :]).flatten(1)
+        H.view(H.shape[0], -1).index_put_((seg[:, None].expand_as(flat), flat), Hf.flatten(1), accumulate=True)
+        b.index_put_((seg[:, None].expand_as(pos), pos), bf, accumulate=True)
+        return (r * r).sum()
+
+    def _segment_blocks(self, s):
+        S = self.M - 3
+        dtype, device = s["p"].dtype, s["p"].device
+        H = torch.zeros(S, self.L, self.L, dtype=dtype, device=device)
+        b = torch.zeros(S, self.L, dtype=dtype, device=device)
+        cost = self._imu_blocks(s, H, b) + self._frame_blocks(s, H, b)
+        return H, b, cost
+
+    def _spread(self, H, b, cost, s) -> NormalEquations:
+        """The banded normal equations from the per-segment blocks and the biases' random walk."""
+        M, G, k = self.M, self.G, ITEM
+        dtype, device = H.dtype, H.device
+        S = H.shape[0]
+        seg = torch.arange(S, device=device)
+        V = torch.zeros(M, k, k, dtype=dtype, device=device)
+        Vb = torch.zeros(M, 3, k, k, dtype=dtype, device=device)
+        W = torch.zeros(M, G, k, dtype=dtype, device=device)
+        ep = torch.zeros(M, k, dtype=dtype, device=device)
+        g0 = 4 * k
+        for a in range(4):
+            V.index_add_(0, seg + a, H[:, a * k:(a + 1) * k, a * k:(a + 1) * k])
+            W.index_add_(0, seg + a, H[:, g0:, a * k:(a + 1) * k])
+            ep.index_add_(0, seg + a, b[:, a * k:(a + 1) * k])
+            for c in range(a + 1, 4):
+                Vb[:, c - a - 1].index_add_(0, seg + a, H[:, a * k:(a + 1) * k, c * k:(c + 1) * k])
+        U = H[:, g0:, g0:].sum(0)
+        eg = b[:, g0:].sum(0)
+        # the biases' random walk between neighbouring control points
+        walk = torch.cat([s["bg"][0, 1:] - s["bg"][0, :-1], s["ba"][0, 1:] - s["ba"][0, :-1]], -1)  # (M-1, 6)
+        wts = torch.tensor([self.w.gyro_walk] * 3 + [self.w.accel_walk] * 3, dtype=dtype, device=device)
+        cost = cost + (walk * walk * wts).sum()
+        Dw = torch.diag(wts)
+        V[:-1, 6:, 6:] += Dw
+        V[1:, 6:, 6:] += Dw
+        Vb[:-1, 0, 6:, 6:] -= Dw
+        ep[:-1, 6:] -= walk * wts
+        ep[1:, 6:] += walk * wts
+        return NormalEquations(cost=cost.reshape(1), U=U[None], eg=eg[None], W=W[None], V=V[None], ep=ep[None],
+                               Vband=Vb[None])
