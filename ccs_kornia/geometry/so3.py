@@ -15,7 +15,7 @@ import math
 
 import torch
 
-__all__ = ["exp_so3", "log_so3"]
+__all__ = ["exp_so3", "log_so3", "right_jacobian", "right_jacobian_inverse", "skew"]
 
 #: index of the entries of [w]_x in a flat 3x3 (row-major) from (0, w1, w2, w3, -w1, -w2, -w3)
 _SKEW = torch.tensor([0, 6, 2, 3, 0, 4, 5, 1, 0])
@@ -49,3 +49,58 @@ def log_so3(R: torch.Tensor) -> torch.Tensor:
     a = torch.nn.functional.normalize(col, dim=-1)
     a = torch.where((a * v).sum(-1, keepdim=True) < 0, -a, a)
     return torch.where((cos < 0)[..., None], a * theta[..., None], small)
+
+
+def skew(v: torch.Tensor) -> torch.Tensor:
+    """The cross-product matrices ``[v]_x`` :math:`(..., 3, 3)` of vectors :math:`(..., 3)`: ``[v]_x w = v x w``.
+
+    Example:
+        >>> skew(torch.tensor([1.0, 2.0, 3.0])) @ torch.tensor([0.0, 0.0, 1.0])
+        tensor([ 2., -1.,  0.])
+    """
+    K = torch.cat([torch.zeros_like(v[..., :1]), v, -v], -1)[..., _SKEW.to(v.device)]
+    return K.view(*v.shape[:-1], 3, 3)
+
+
+def _coefficients(w: torch.Tensor, small, large):
+    """``small(t2)`` below 1e-4 rad (a series in ``t2 = |w|^2``), ``large(t, t2)`` above, per vector: :math:`(..., 1, 1)`."""
+    t2 = (w * w).sum(-1)
+    near = t2 < 1e-8
+    t = t2.masked_fill(near, 1.0).sqrt()
+    return torch.where(near, small(t2), large(t, t2.masked_fill(near, 1.0)))[..., None, None]
+
+
+def right_jacobian(w: torch.Tensor) -> torch.Tensor:
+    """The right Jacobian of SO(3) :math:`(..., 3, 3)` at rotation vectors :math:`(..., 3)`:
+    ``exp(w + d) = exp(w) exp(J_r(w) d)`` to first order in ``d``.
+
+    Example:
+        >>> w, d = torch.tensor([0.3, -0.2, 0.5], dtype=torch.float64), torch.tensor([1e-7, 2e-7, -1e-7], dtype=torch.float64)
+        >>> lhs = exp_so3(w + d)
+        >>> rhs = exp_so3(w) @ exp_so3(right_jacobian(w) @ d)
+        >>> float((lhs - rhs).abs().max()) < 1e-13
+        True
+    """
+    K = skew(w)
+    a = _coefficients(w, lambda t2: 0.5 - t2 / 24, lambda t, t2: (1 - torch.cos(t)) / t2)
+    b = _coefficients(w, lambda t2: 1 / 6 - t2 / 120, lambda t, t2: (t - torch.sin(t)) / (t2 * t))
+    J = -a * K + b * (K @ K)
+    J.diagonal(dim1=-2, dim2=-1).add_(1.0)
+    return J
+
+
+def right_jacobian_inverse(w: torch.Tensor) -> torch.Tensor:
+    """The inverse of :func:`right_jacobian` :math:`(..., 3, 3)`: ``log(exp(w) exp(d)) = w + J_r^{-1}(w) d`` to first
+    order (below pi).
+
+    Example:
+        >>> w = torch.tensor([0.3, -0.2, 0.5], dtype=torch.float64)
+        >>> torch.allclose(right_jacobian_inverse(w) @ right_jacobian(w), torch.eye(3, dtype=torch.float64))
+        True
+    """
+    K = skew(w)
+    c = _coefficients(w, lambda t2: 1 / 12 + t2 / 720,
+                      lambda t, t2: 1 / t2 - (1 + torch.cos(t)) / (2 * t * torch.sin(t)))
+    J = 0.5 * K + c * (K @ K)
+    J.diagonal(dim1=-2, dim2=-1).add_(1.0)
+    return J

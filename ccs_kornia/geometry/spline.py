@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ccs_kornia.geometry.so3 import exp_so3, log_so3
+from ccs_kornia.geometry.so3 import exp_so3, log_so3, right_jacobian, right_jacobian_inverse, skew
 
 __all__ = ["SE3Spline", "segment_of", "spline_basis", "so3_spline", "r3_spline", "fit_r3_spline"]
 
@@ -90,16 +90,24 @@ def spline_basis(u: torch.Tensor, derivative: int = 0, cumulative: bool = False)
     return powers @ M.T
 
 
-def so3_spline(R: torch.Tensor, u: torch.Tensor, dt: float) -> tuple[torch.Tensor, torch.Tensor]:
-    r"""The orientation and the body-frame angular velocity of the cumulative cubic B-spline on SO(3) in one segment.
+def so3_spline(R: torch.Tensor, u: torch.Tensor, dt: float, jacobians: bool = False):
+    r"""The orientation and the body-frame angular velocity of the cumulative cubic B-spline on SO(3) in one segment,
+    and optionally their derivatives by the control rotations.
+
+    The derivatives are by right perturbations ``R_k <- R_k exp(delta_k)`` of the four control rotations, for the
+    orientation as its own right perturbation (``R(t) <- R(t) exp(sum_k E_k delta_k)``), written out along the
+    product (:func:`~ccs_kornia.geometry.so3.right_jacobian` of each factor) and, for the angular velocity, along
+    Sommer's recursion.
 
     Args:
         R: :math:`(*, 4, 3, 3)` the segment's four control rotations.
         u: :math:`(*)` the position in the segment.
         dt: the knot spacing (s).
+        jacobians: also return ``E`` and ``d omega / d delta``.
 
     Returns:
-        ``(R(t), omega(t))``: :math:`(*, 3, 3)` and :math:`(*, 3)` (rad/s, ``R^T dR/dt = [omega]_x``).
+        ``(R(t), omega(t))``: :math:`(*, 3, 3)` and :math:`(*, 3)` (rad/s, ``R^T dR/dt = [omega]_x``); with
+        ``jacobians`` also ``E`` :math:`(*, 4, 3, 3)` and ``d omega / d delta`` :math:`(*, 4, 3, 3)`.
 
     Example:
         >>> R = exp_so3(torch.tensor([[0.0, 0.0, 0.1 * k] for k in range(4)]))
@@ -107,16 +115,45 @@ def so3_spline(R: torch.Tensor, u: torch.Tensor, dt: float) -> tuple[torch.Tenso
         >>> w
         tensor([0.0000, 0.0000, 1.0000])
     """
-    d = log_so3(R[..., :-1, :, :].transpose(-1, -2) @ R[..., 1:, :, :])  # (*, 3, 3)
+    X = R[..., :-1, :, :].transpose(-1, -2) @ R[..., 1:, :, :]
+    d = log_so3(X)  # (*, 3, 3)
     b = spline_basis(u, 0, cumulative=True)
     db = spline_basis(u, 1, cumulative=True) / dt
     out = R[..., 0, :, :]
     w = torch.zeros_like(d[..., 0, :])
+    A, ws = [], [w]
     for j in range(3):
-        A = exp_so3(b[..., j + 1, None] * d[..., j, :])
-        out = out @ A
-        w = (A.transpose(-1, -2) @ w[..., None])[..., 0] + db[..., j + 1, None] * d[..., j, :]
-    return out, w
+        Aj = exp_so3(b[..., j + 1, None] * d[..., j, :])
+        out = out @ Aj
+        w = (Aj.transpose(-1, -2) @ w[..., None])[..., 0] + db[..., j + 1, None] * d[..., j, :]
+        A.append(Aj)
+        ws.append(w)
+    if not jacobians:
+        return out, w
+    eye = torch.eye(3, dtype=R.dtype, device=R.device)
+    shape = (*d.shape[:-2], 4, 3, 3)
+    Jinv = right_jacobian_inverse(d)  # (*, 3, 3, 3)
+    # P_j = A_{j+1} ... A_3: what follows factor j in the product
+    P = [None] * 4
+    P[3] = eye.expand(*d.shape[:-2], 3, 3)
+    for j in range(2, -1, -1):
+        P[j] = A[j] @ P[j + 1]
+    E = R.new_zeros(shape)
+    E[..., 0, :, :] = P[0].transpose(-1, -2)
+    Dw = R.new_zeros(shape)
+    for j in range(1, 4):
+        # d_j = log(R_{j-1}^T R_j) moves by J_r^-1(d_j) (delta_j - X_j^T delta_{j-1})
+        Dd = R.new_zeros(shape)
+        Dd[..., j, :, :] = Jinv[..., j - 1, :, :]
+        Dd[..., j - 1, :, :] = -Jinv[..., j - 1, :, :] @ X[..., j - 1, :, :].transpose(-1, -2)
+        # A_j = exp(b_j d_j) moves on its right by N_j dd_j
+        lam = b[..., j, None, None]
+        N = lam * right_jacobian(b[..., j, None] * d[..., j - 1, :])
+        E = E + P[j].transpose(-1, -2)[..., None, :, :] @ (N[..., None, :, :] @ Dd)
+        At = A[j - 1].transpose(-1, -2)
+        G = skew((At @ ws[j - 1][..., None])[..., 0]) @ N + db[..., j, None, None] * eye
+        Dw = At[..., None, :, :] @ Dw + G[..., None, :, :] @ Dd
+    return out, w, E, Dw
 
 
 def r3_spline(p: torch.Tensor, u: torch.Tensor, dt: float, derivative: int = 0) -> torch.Tensor:

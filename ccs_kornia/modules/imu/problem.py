@@ -24,10 +24,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from torch.func import jacfwd, vmap
 
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.geometry.so3 import exp_so3
+from ccs_kornia.geometry.so3 import exp_so3, skew
 from ccs_kornia.geometry.spline import segment_of, so3_spline, spline_basis
 from ccs_kornia.modules.calibration.schur_lm import NormalEquations
 
@@ -37,12 +36,6 @@ __all__ = ["ITEM", "ImuCameraData", "ImuCameraProblem", "Weights", "gravity_basi
 ITEM = 12
 #: samples per chunk when accumulating the IMU's normal equations (bounds the memory of the per-sample blocks)
 _CHUNK = 4096
-
-
-def _skew(v: torch.Tensor) -> torch.Tensor:
-    z = torch.zeros_like(v[..., 0])
-    return torch.stack([z, -v[..., 2], v[..., 1], v[..., 2], z, -v[..., 0], -v[..., 1], v[..., 0], z], -1).view(
-        *v.shape[:-1], 3, 3)
 
 
 def gravity_basis(g: torch.Tensor) -> torch.Tensor:
@@ -156,37 +149,31 @@ class ImuCameraProblem:
         ar4 = torch.arange(4, device=R.device)
         sg, sa = self.w.gyro**0.5, self.w.accel**0.5
         cost = R.new_zeros(())
-
-        def rot(Rl, u, delta):
-            Rt, w = so3_spline(Rl @ exp_so3(delta), u, dt)
-            return (Rt, w), (Rt, w)
-
-        jac_rot = vmap(jacfwd(rot, argnums=2, has_aux=True))
         for lo in range(0, d.imu_times.shape[0], _CHUNK):
             sl = slice(lo, lo + _CHUNK)
             seg, u = self.imu_seg[sl], self.imu_u[sl]
             idx = seg[:, None] + ar4
             n = seg.shape[0]
-            zero = torch.zeros(n, 4, 3, dtype=R.dtype, device=R.device)
-            (dR, dw), (Rt, w) = jac_rot(R[idx], u, zero)  # dR: (n, 3, 3, 4, 3), dw: (n, 3, 4, 3)
+            Rt, w, E, Dw = so3_spline(R[idx], u, dt, jacobians=True)
             B0 = spline_basis(u)  # (n, 4)
             B2 = spline_basis(u, 2) / dt**2
             acc_w = (B2[:, None, :] @ p[idx])[:, 0]
             v = acc_w - g
             rg = w + (B0[:, None, :] @ bg[idx])[:, 0] - d.gyro[sl]
-            ra = (Rt.transpose(-1, -2) @ v[..., None])[..., 0] + (B0[:, None, :] @ ba[idx])[:, 0] - d.accel[sl]
+            Rtv = (Rt.transpose(-1, -2) @ v[..., None])[..., 0]
+            ra = Rtv + (B0[:, None, :] @ ba[idx])[:, 0] - d.accel[sl]
             J = R.new_zeros(n, 6, self.L)
             eye = torch.eye(3, dtype=R.dtype, device=R.device)
             for j in range(4):
                 o = ITEM * j
-                J[:, 0:3, o:o + 3] = dw[..., j, :]
+                J[:, 0:3, o:o + 3] = Dw[:, j]
                 J[:, 0:3, o + 6:o + 9] = B0[:, j, None, None] * eye
-                # d(R^T v) / d delta_j = (dR / d delta_j)^T v
-                J[:, 3:6, o:o + 3] = torch.einsum("nabk,na->nbk", dR[..., j, :], v)
+                # R <- R exp(E_j delta_j): R^T v <- R^T v + [R^T v]_x E_j delta_j
+                J[:, 3:6, o:o + 3] = skew(Rtv) @ E[:, j]
                 J[:, 3:6, o + 3:o + 6] = B2[:, j, None, None] * Rt.transpose(-1, -2)
                 J[:, 3:6, o + 9:o + 12] = B0[:, j, None, None] * eye
             # d(-R^T g) / d g_delta, with g <- exp(B d) g: dg = -[g]_x B d
-            J[:, 3:6, 4 * ITEM + 7 * C:] = Rt.transpose(-1, -2) @ (_skew(g) @ gB)
+            J[:, 3:6, 4 * ITEM + 7 * C:] = Rt.transpose(-1, -2) @ (skew(g) @ gB)
             J[:, 0:3] *= sg
             J[:, 3:6] *= sa
             r = torch.cat([rg * sg, ra * sa], -1)
@@ -203,30 +190,27 @@ class ImuCameraProblem:
         cam = d.frame_camera
         F, P = d.corners.shape[:2]
         tau = d.frame_times + shift[cam]
-        seg, _ = segment_of(tau, self.t0, dt, self.M)
+        seg, u = segment_of(tau, self.t0, dt, self.M)
         idx = seg[:, None] + torch.arange(4, device=R.device)
-
-        def pose(Rl, pl, Rc, tc, sh, t_frame, i0, delta):
-            # delta: 4 x (rotation, position) of the control points, the camera's rotation, translation and shift
-            Rp = Rl @ exp_so3(delta[:12].view(4, 3))
-            pp = pl + delta[12:24].view(4, 3)
-            Rcd = exp_so3(delta[24:27]) @ Rc
-            tcd = tc + delta[27:30]
-            u = (t_frame + sh + delta[30] - self.t0) / dt - i0
-            Rt, _ = so3_spline(Rp, u, dt)
-            pt = (spline_basis(u)[None, :] @ pp)[0]
-            R_cb = Rcd @ Rt.transpose(-1, -2)
-            t_cb = tcd - R_cb @ pt
-            return (R_cb, t_cb), (R_cb, t_cb)
-
-        jac_pose = vmap(jacfwd(pose, argnums=7, has_aux=True))
-        zero = R.new_zeros(F, 31)
-        (dRcb, dtcb), (R_cb, t_cb) = jac_pose(R[idx], p[idx], Rci[cam], tci[cam], shift[cam], d.frame_times,
-                                              seg.to(R.dtype), zero)
-        # the camera pose's left perturbation (phi, rho): x_c' = x_c + phi x x_c + rho
-        dphi_m = dRcb.permute(0, 3, 1, 2) @ R_cb.transpose(-1, -2)[:, None]  # (F, 31, 3, 3)
-        dphi = torch.stack([dphi_m[..., 2, 1], dphi_m[..., 0, 2], dphi_m[..., 1, 0]], -1).transpose(1, 2)  # (F, 3, 31)
-        drho = dtcb + _skew(t_cb) @ dphi
+        Rt, w, E, _ = so3_spline(R[idx], u, dt, jacobians=True)
+        Bu = spline_basis(u)
+        pt = (Bu[:, None, :] @ p[idx])[:, 0]
+        vel = (spline_basis(u, 1)[:, None, :] @ p[idx])[:, 0] / dt
+        Rc, tc = Rci[cam], tci[cam]
+        R_cb = Rc @ Rt.transpose(-1, -2)
+        t_cb = tc - (R_cb @ pt[..., None])[..., 0]
+        # the camera pose's left perturbation (phi, rho), x_c <- x_c + phi x x_c + rho, by the frame's 31 unknowns
+        # (4 control rotations, 4 control positions, the camera's rotation, translation and shift): with
+        # R(t) <- R(t) exp(eps), phi = phi_cam - R_cam_imu eps and rho = dt_cam + [t_cam_imu]_x phi - R_cb dp
+        eye = torch.eye(3, dtype=R.dtype, device=R.device)
+        dphi = R.new_zeros(F, 3, 31)
+        dphi[:, :, :12] = (-Rc[:, None] @ E).permute(0, 2, 1, 3).reshape(F, 3, 12)
+        dphi[:, :, 24:27] = eye
+        dphi[:, :, 30] = -(Rc @ w[..., None])[..., 0]
+        drho = skew(tc) @ dphi
+        drho[:, :, 12:24] -= (R_cb[:, :, None, :] * Bu[:, None, :, None]).reshape(F, 3, 12)
+        drho[:, :, 27:30] += eye
+        drho[:, :, 30] -= (R_cb @ vel[..., None])[..., 0]
         Jpose = torch.cat([dphi, drho], 1)  # (F, 6, 31)
         xc = (R_cb[:, None] @ d.object_points[None, :, :, None])[..., 0] + t_cb[:, None]
         uv, _, Jx = d.cameras.project(xc[None].expand(C, -1, -1, -1) if C > 1 else xc[None], jacobians=True)
@@ -236,7 +220,7 @@ class ImuCameraProblem:
             Jx = Jx.gather(0, cam[None, :, None, None, None].expand(1, F, P, 2, 3))[0]
         else:
             uv, Jx = uv[0], Jx[0]
-        Jcorner = torch.cat([Jx @ -_skew(xc), Jx], -1)  # (F, P, 2, 6)
+        Jcorner = torch.cat([Jx @ -skew(xc), Jx], -1)  # (F, P, 2, 6)
         sp = self.w.pixel**0.5
         wgt = d.seen.to(R.dtype)[..., None] * sp
         r = torch.where(d.seen[..., None], uv - d.corners, 0.0) * wgt
