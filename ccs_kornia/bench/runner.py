@@ -97,6 +97,7 @@ SECTION_RUNNERS: dict[str, tuple[str, str, bool, bool]] = {
     "hand_eye": ("ccs_kornia.bench.sections.hand_eye", "run_hand_eye", False, False),
     "speed": ("ccs_kornia.bench.sections.speed", "run_speed", True, False),
     "video": ("ccs_kornia.bench.sections.video", "run_video", False, False),
+    "imu": ("ccs_kornia.bench.sections.imu", "run_imu", False, False),
 }
 
 

@@ -13,7 +13,7 @@ exposes row ``v`` ``line_delay * v`` later than row 0.
 Example:
     >>> rec = visual_inertial_recording(duration=2.0, seed=0)
     >>> rec.gyro.shape, rec.corners[0].shape[-1], rec.frame_times[0].shape
-    (torch.Size([400, 3]), 2, torch.Size([40]))
+    (torch.Size([400, 3]), 2, torch.Size([30]))
 """
 
 from __future__ import annotations
@@ -25,22 +25,13 @@ import torch
 from torch import Tensor
 
 from ccs_kornia.geometry.camera import OPENCV5, Camera
+from ccs_kornia.geometry.imu_noise import ImuNoise
 from ccs_kornia.geometry.so3 import exp_so3
 
-__all__ = ["ImuNoiseSpec", "HandheldMotion", "VisualInertialRecording", "visual_inertial_recording"]
+__all__ = ["HandheldMotion", "VisualInertialRecording", "visual_inertial_recording"]
 
 #: standard gravity (m/s^2)
 GRAVITY = 9.80665
-
-
-@dataclass(frozen=True)
-class ImuNoiseSpec:
-    """An IMU's noise as Kalibr's ``imu.yaml`` states it (continuous-time densities); defaults: EuRoC's ADIS16448."""
-
-    gyroscope_noise_density: float = 1.6968e-4  #: rad/s/sqrt(Hz)
-    gyroscope_random_walk: float = 1.9393e-5  #: rad/s^2/sqrt(Hz)
-    accelerometer_noise_density: float = 2.0e-3  #: m/s^2/sqrt(Hz)
-    accelerometer_random_walk: float = 3.0e-3  #: m/s^3/sqrt(Hz)
 
 
 def _sinusoids(g: torch.Generator, n: int, amplitude: float, lo: float = 0.15, hi: float = 1.6):
@@ -141,7 +132,7 @@ class VisualInertialRecording:
     gravity: Tensor
     gyro_bias: Tensor
     accel_bias: Tensor
-    noise: ImuNoiseSpec
+    noise: ImuNoise
     pixel_noise: float
     motion: HandheldMotion = field(repr=False)
 
@@ -186,7 +177,7 @@ def visual_inertial_recording(
     imu_rate: float = 200.0,
     shift: float | None = None,
     line_delay: float = 0.0,
-    noise: ImuNoiseSpec | None = None,
+    noise: ImuNoise | None = None,
     pixel_noise: float = 0.2,
     board: tuple[int, int] = (7, 6),
     spacing: float = 0.08,
@@ -202,7 +193,7 @@ def visual_inertial_recording(
         fps: the cameras' frame rate. imu_rate: the IMU's (Hz).
         shift: every camera's ``timeshift_cam_imu`` (s); default drawn in -30 .. 30 ms per camera.
         line_delay: a rolling shutter's row delay (s; 0: global shutter).
-        noise: the IMU's noise (default EuRoC's). pixel_noise: the corners' (px).
+        noise: the IMU's noise (default EuRoC's; its ``update_rate`` is not used: ``imu_rate`` is). pixel_noise: the corners' (px).
         board: the board's points (columns, rows). spacing: their spacing (m).
         rotation_amplitude: the camera's swing about each axis (rad). translation_amplitude: its motion (m).
 
@@ -210,7 +201,7 @@ def visual_inertial_recording(
         :class:`VisualInertialRecording`.
     """
     g = torch.Generator().manual_seed(int(seed))
-    noise = noise or ImuNoiseSpec()
+    noise = noise or ImuNoise.euroc(imu_rate)
     f64 = torch.float64
     cols, rows = board
     jj, ii = torch.meshgrid(torch.arange(rows, dtype=f64), torch.arange(cols, dtype=f64), indexing="ij")

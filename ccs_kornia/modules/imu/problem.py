@@ -79,6 +79,35 @@ class ImuCameraData:
     def num_cameras(self) -> int:
         return len(self.cameras)
 
+    @classmethod
+    def from_corners(cls, imu_times: torch.Tensor, gyro: torch.Tensor, accel: torch.Tensor, cameras: Camera,
+                     object_points: torch.Tensor, frame_times: list[torch.Tensor], corners: list[torch.Tensor],
+                     min_corners: int = 6) -> ImuCameraData:
+        """The measurements from each camera's frame times :math:`(F_c,)` and corners :math:`(F_c, P, 2)` (NaN where
+        not seen); frames with fewer than ``min_corners`` corners are left out.
+
+        Example:
+            >>> from ccs_kornia.data.recordings.visual_inertial import visual_inertial_recording
+            >>> r = visual_inertial_recording(duration=2.0, seed=0)
+            >>> d = ImuCameraData.from_corners(r.imu_times, r.gyro, r.accel, r.cameras, r.object_points,
+            ...                                r.frame_times, r.corners)
+            >>> d.corners.shape[0] == r.frame_times[0].shape[0], d.num_cameras
+            (True, 1)
+        """
+        f64 = torch.float64
+        times, cams, obs = [], [], []
+        for c, (t, x) in enumerate(zip(frame_times, corners)):
+            seen = x.isfinite().all(-1)
+            keep = seen.sum(-1) >= min_corners
+            times.append(t[keep].to(f64))
+            obs.append(x[keep].to(f64))
+            cams.append(torch.full((int(keep.sum()),), c, dtype=torch.long))
+        x = torch.cat(obs)
+        seen = x.isfinite().all(-1)
+        return cls(imu_times=imu_times.to(f64), gyro=gyro.to(f64), accel=accel.to(f64), cameras=cameras,
+                   object_points=object_points.to(f64), frame_times=torch.cat(times), frame_camera=torch.cat(cams),
+                   corners=x.nan_to_num(0.0), seen=seen)
+
 
 @dataclass
 class Weights:
@@ -139,6 +168,31 @@ class ImuCameraProblem:
     def linearize(self, s: dict[str, torch.Tensor]) -> NormalEquations:
         H, b, cost = self._segment_blocks(s)
         return self._spread(H, b, cost, s)
+
+    def residuals(self, s: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The unweighted residuals at ``s``: gyroscope :math:`(N, 3)` rad/s, accelerometer :math:`(N, 3)` m/s^2 and
+        corners :math:`(F, P, 2)` px (0 where not seen)."""
+        d, dt, C = self.data, self.dt, self.data.num_cameras
+        R, p, bg, ba, g = s["R"][0], s["p"][0], s["bg"][0], s["ba"][0], s["g"][0]
+        idx = self.imu_seg[:, None] + torch.arange(4, device=R.device)
+        Rt, w = so3_spline(R[idx], self.imu_u, self.dt)
+        B0, B2 = spline_basis(self.imu_u), spline_basis(self.imu_u, 2) / dt**2
+        rg = w + (B0[:, None, :] @ bg[idx])[:, 0] - d.gyro
+        acc = (B2[:, None, :] @ p[idx])[:, 0] - g
+        ra = (Rt.transpose(-1, -2) @ acc[..., None])[..., 0] + (B0[:, None, :] @ ba[idx])[:, 0] - d.accel
+        cam = d.frame_camera
+        tau = d.frame_times + s["shift"][0][cam]
+        seg, u = segment_of(tau, self.t0, dt, self.M)
+        fidx = seg[:, None] + torch.arange(4, device=R.device)
+        Rf, _ = so3_spline(R[fidx], u, dt)
+        pf = (spline_basis(u)[:, None, :] @ p[fidx])[:, 0]
+        R_cb = s["Rci"][0][cam] @ Rf.transpose(-1, -2)
+        t_cb = s["tci"][0][cam] - (R_cb @ pf[..., None])[..., 0]
+        xc = (R_cb[:, None] @ d.object_points[None, :, :, None])[..., 0] + t_cb[:, None]
+        uv = d.cameras.project(xc[None].expand(C, -1, -1, -1))
+        uv = uv.gather(0, cam[None, :, None, None].expand(1, *uv.shape[1:]))[0]
+        rc = torch.where(d.seen[..., None], uv - d.corners, 0.0)
+        return rg, ra, rc
 
     # -- residuals -------------------------------------------------------------------------------------------------
     def _imu_blocks(self, s, H, b):

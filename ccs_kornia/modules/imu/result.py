@@ -1,0 +1,144 @@
+r"""The camera-IMU result and its verdict.
+
+:class:`ImuCameraResult` holds one recording's answer for C cameras. Its 1-sigma come from the fit's covariance
+(the spline, biases and gravity marginalised), with each sensor's noise as the recording shows it (variance components:
+the stated noise densities are rescaled to the residuals, :mod:`~ccs_kornia.modules.imu.solver`). Rotations are
+left perturbations in the camera's frame (``R_cam_imu <- exp(w) R_cam_imu``).
+
+The verdict (:func:`imu_camera_verdict`) reads what a user acts on: each camera's 1-sigma in rotation, translation
+and time offset, naming the camera axis along which the motion was too weak (the weakest direction of the
+covariance) and how to move; the time offset's search (an offset at its edge, a weak correlation); residuals that do
+not look like the stated noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from ccs_kornia.geometry.imu_noise import ImuNoise
+
+__all__ = ["ImuCameraResult", "ImuVerdictThresholds", "imu_camera_verdict"]
+
+#: the camera's axes in words (x right, y down, z forward)
+_AXES = ("X (left-right)", "Y (up-down)", "Z (forward-back)")
+_ROTATIONS = ("X (tilting it up and down)", "Y (panning it left and right)", "Z (rolling it about the lens)")
+
+
+@dataclass
+class ImuVerdictThresholds:
+    """Limits of the verdict on each camera's 1-sigma: rotation (degrees), translation (m), time offset (s); the ratio
+    of a sensor's residuals to its stated noise beyond which the stated noise is called off; the least correlation
+    of the angular speeds."""
+
+    good_rotation_deg: float = 0.05
+    usable_rotation_deg: float = 0.3
+    good_translation: float = 0.002
+    usable_translation: float = 0.01
+    good_shift: float = 2e-4
+    usable_shift: float = 2e-3
+    noise_ratio: float = 3.0
+    min_correlation: float = 0.5
+
+
+@dataclass
+class ImuCameraResult:
+    """Camera-IMU calibration of one recording with C cameras.
+
+    ``T_cam_imu`` maps IMU-frame points into the camera's frame; a frame stamped ``t_cam`` by a camera was seen at IMU
+    time ``t_cam + timeshift_cam_imu`` (Kalibr's conventions).
+    """
+
+    T_cam_imu: torch.Tensor  #: (C, 4, 4)
+    timeshift_cam_imu: torch.Tensor  #: (C,) s
+    rotation_std_deg: torch.Tensor  #: (C, 3) about the camera's axes
+    translation_std: torch.Tensor  #: (C, 3) m, along the camera's axes
+    timeshift_std: torch.Tensor  #: (C,) s
+    covariance: torch.Tensor  #: (G, G) of the global unknowns (per camera w, t, shift; gravity's 2)
+    gravity: torch.Tensor  #: (3,) m/s^2 in the board's frame
+    gyro_bias: torch.Tensor  #: (M, 3) the bias spline's control points, rad/s
+    accel_bias: torch.Tensor  #: (M, 3) m/s^2
+    gyro_rms: float  #: rad/s, the gyroscope's residuals
+    accel_rms: float  #: m/s^2
+    pixel_rms: torch.Tensor  #: (C,) px
+    noise_stated: ImuNoise  #: the noise the fit started from (given, or the default)
+    noise_measured: ImuNoise  #: the white noise densities the residuals show (random walks as stated)
+    pixel_sigma: float  #: px, the corners' noise the residuals show
+    noise_given: bool  #: whether the stated noise was the user's
+    alignment_shifts: torch.Tensor  #: (S,) s, the time offsets the rate alignment tried
+    alignment_correlation: torch.Tensor  #: (C, S) the angular speeds' correlation at each
+    alignment_shift: torch.Tensor  #: (C,) s, the alignment's time offset (the fit's start)
+    max_shift: float  #: s, the search's half-width
+    frames_used: torch.Tensor  #: (C,) int64
+    knot_spacing: float  #: s
+    iterations: int
+    status: int  #: :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus`
+    seconds: float  #: the fit's wall time
+    verdict: str = ""
+    verdict_reasons: list[str] = field(default_factory=list)
+    spline: dict = field(default_factory=dict, repr=False)  #: t0, dt, R, p: the IMU's trajectory (for reports)
+
+
+def _ratio(measured: float, stated: float) -> float:
+    return measured / stated if stated > 0 else float("inf")
+
+
+def imu_camera_verdict(result: ImuCameraResult, thresholds: ImuVerdictThresholds | None = None) -> tuple[str, list[str]]:
+    """``("good" | "usable" | "not reliable: <advice>", reasons)`` of a result (see the module doc).
+
+    Example:
+        >>> from ccs_kornia.data.recordings.visual_inertial import visual_inertial_recording
+        >>> from ccs_kornia.modules.imu.problem import ImuCameraData
+        >>> from ccs_kornia.modules.imu.solver import calibrate_imu_camera
+        >>> r = visual_inertial_recording(duration=8.0, seed=3)
+        >>> res = calibrate_imu_camera(ImuCameraData.from_corners(r.imu_times, r.gyro, r.accel, r.cameras,
+        ...                                                       r.object_points, r.frame_times, r.corners))
+        >>> imu_camera_verdict(res)[0]
+        'good'
+    """
+    t = thresholds or ImuVerdictThresholds()
+    bad, weak, advice = [], [], []
+    C = result.T_cam_imu.shape[0]
+    for c in range(C):
+        name = f"camera {c}: " if C > 1 else ""
+        rot = result.rotation_std_deg[c]
+        tr = result.translation_std[c]
+        r_norm, t_norm = float(rot.norm()), float(tr.norm())
+        s = float(result.timeshift_std[c])
+        if not (math.isfinite(r_norm) and math.isfinite(t_norm) and math.isfinite(s)):
+            bad.append(f"{name}the motion does not determine where the IMU sits")
+            advice.append("move the camera along and rotate it about all three of its axes, the board in view")
+            continue
+        if r_norm > t.usable_rotation_deg:
+            axis = _ROTATIONS[int(rot.argmax())]
+            bad.append(f"{name}rotation 1-sigma {r_norm:.3f} deg")
+            advice.append(f"rotate the camera more about its {axis}")
+        elif r_norm > t.good_rotation_deg:
+            weak.append(f"{name}rotation 1-sigma {r_norm:.3f} deg (most about the camera's {_ROTATIONS[int(rot.argmax())]})")
+        if t_norm > t.usable_translation:
+            axis = _AXES[int(tr.argmax())]
+            bad.append(f"{name}translation 1-sigma {1000 * t_norm:.1f} mm")
+            advice.append(f"accelerate the camera more along its {axis} axis (short, brisk moves) and rotate it more")
+        elif t_norm > t.good_translation:
+            weak.append(f"{name}translation 1-sigma {1000 * t_norm:.2f} mm (most along the camera's "
+                        f"{_AXES[int(tr.argmax())]} axis)")
+        if s > t.usable_shift:
+            bad.append(f"{name}time offset 1-sigma {1000 * s:.2f} ms")
+            advice.append("rotate the camera faster, back and forth, the board in view")
+        elif s > t.good_shift:
+            weak.append(f"{name}time offset 1-sigma {1000 * s:.3f} ms")
+        corr = float(result.alignment_correlation[c].max())
+        if corr < t.min_correlation:
+            weak.append(f"{name}the camera's and the gyroscope's angular speeds agree weakly (correlation {corr:.2f})")
+    stated, measured = result.noise_stated, result.noise_measured
+    g = _ratio(measured.gyroscope_noise_density, stated.gyroscope_noise_density)
+    a = _ratio(measured.accelerometer_noise_density, stated.accelerometer_noise_density)
+    for what, r in (("gyroscope", g), ("accelerometer", a)):
+        if result.noise_given and (r > t.noise_ratio or r < 1 / t.noise_ratio):
+            weak.append(f"the {what}'s residuals are {r:.2g}x its stated noise density: imu.yaml's value is off "
+                        "(the fit used the measured one)")
+    if bad:
+        return "not reliable: " + "; ".join(dict.fromkeys(advice)), bad + weak
+    return ("usable" if weak else "good"), weak

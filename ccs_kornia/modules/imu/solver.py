@@ -1,0 +1,204 @@
+r"""Camera-IMU calibration of one recording: where the IMU sits on each camera and the time offset between them.
+
+:func:`calibrate_imu_camera` (and its module form :class:`ImuCameraSolver`) checks the clocks, finds each frame's board
+pose, aligns each camera's angular rates with the gyroscope's (time offset and rotation,
+:mod:`~ccs_kornia.modules.imu.initial`), starts the IMU's trajectory from the frames, and fits everything jointly
+(:mod:`~ccs_kornia.modules.imu.problem` on the LM core, whose banded elimination keeps a step linear in the recording's
+length). The noise: the stated densities (Kalibr's ``imu.yaml``; EuRoC's ADIS16448 where none is given) and the
+corners' spread from their board-pose fits start the weights; then each sensor's white noise is rescaled to what its
+residuals show (variance components, two rounds), so the 1-sigma hold when the stated values are off, and the result
+says how far off they were. The random walks are kept as stated.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+
+import torch
+from torch import nn
+
+from ccs_kornia.geometry.imu_noise import ImuNoise
+from ccs_kornia.modules.calibration.schur_lm import schur_lm
+from ccs_kornia.modules.imu.initial import align_rates, board_poses, initial_unknowns
+from ccs_kornia.modules.imu.problem import ITEM, ImuCameraData, ImuCameraProblem, Weights
+from ccs_kornia.modules.imu.result import ImuCameraResult, ImuVerdictThresholds, imu_camera_verdict
+from ccs_kornia.runtime.errors import NoResult, UserError
+
+__all__ = ["ImuCameraSolver", "calibrate_imu_camera"]
+
+
+def _check_clocks(data: ImuCameraData, max_shift: float) -> None:
+    """Refuse, in one line, clocks that cannot be aligned."""
+    t = data.imu_times
+    if t.shape[0] < 100:
+        raise UserError(f"the IMU log has {t.shape[0]} samples: too short to calibrate (a recording of 30-60 s is usual).")
+    if bool((t[1:] <= t[:-1]).any()):
+        k = int((t[1:] <= t[:-1]).nonzero()[0, 0]) + 1
+        raise UserError(f"the IMU's timestamps do not increase at sample {k} ({float(t[k]):.6f} s after "
+                        f"{float(t[k - 1]):.6f} s).")
+    for c in range(data.num_cameras):
+        f = data.frame_times[data.frame_camera == c]
+        if f.shape[0] == 0:
+            raise NoResult(f"camera {c} has no frame with the board.")
+        if bool((f[1:] < f[:-1]).any()):
+            raise UserError(f"camera {c}'s frame timestamps go backwards.")
+        overlap = min(float(f[-1]), float(t[-1])) - max(float(f[0]), float(t[0]))
+        if overlap < 2.0:
+            raise UserError(f"camera {c}'s frames ({float(f[0]):.3f} .. {float(f[-1]):.3f} s) and the IMU's samples "
+                            f"({float(t[0]):.3f} .. {float(t[-1]):.3f} s) overlap by {max(overlap, 0.0):.2f} s: "
+                            "the clocks do not match (timestamps in another unit or from another origin?).")
+
+
+def _rms(x: torch.Tensor) -> float:
+    return float(x.square().mean().sqrt()) if x.numel() else float("nan")
+
+
+def calibrate_imu_camera(
+    data: ImuCameraData,
+    noise: ImuNoise | None = None,
+    knot_spacing: float = 0.02,
+    max_shift: float = 0.2,
+    estimate_noise: bool = True,
+    max_iters: int = 50,
+    thresholds: ImuVerdictThresholds | None = None,
+) -> ImuCameraResult:
+    """Calibrate the IMU against C cameras from one recording (see the module doc).
+
+    Args:
+        data: the measurements (:class:`~ccs_kornia.modules.imu.problem.ImuCameraData`; the cameras held).
+        noise: the IMU's noise (Kalibr's ``imu.yaml``); ``None``: EuRoC's ADIS16448, then measured.
+        knot_spacing: the trajectory spline's knot spacing (s).
+        max_shift: the time offset's search half-width (s).
+        estimate_noise: rescale each sensor's white noise to its residuals (variance components).
+        max_iters: LM iterations per round at most.
+        thresholds: the verdict's.
+
+    Returns:
+        :class:`~ccs_kornia.modules.imu.result.ImuCameraResult`.
+    """
+    start = time.perf_counter()
+    _check_clocks(data, max_shift)
+    rate = float((data.imu_times.shape[0] - 1) / (data.imu_times[-1] - data.imu_times[0]))
+    given = noise is not None
+    stated = noise if noise is not None else ImuNoise.euroc(rate)
+    C = data.num_cameras
+
+    R_cb, t_cb, ok = board_poses(data)
+    alignments = []
+    for c in range(C):
+        sel = (data.frame_camera == c) & ok
+        if int(sel.sum()) < 10:
+            raise NoResult(f"camera {c}: the board's pose was found in {int(sel.sum())} frames: too few to calibrate.")
+        try:
+            al = align_rates(data.frame_times[sel], R_cb[sel], ok[sel], data.imu_times, data.gyro, max_shift=max_shift)
+        except ValueError as e:
+            raise NoResult(f"camera {c}: {e}") from None
+        if abs(al.shift) > max_shift - 0.01:
+            raise NoResult(f"camera {c}: the time offset is at the search's edge ({1000 * al.shift:+.0f} ms of "
+                           f"+-{1000 * max_shift:.0f} ms): the clocks may differ by more; widen the search "
+                           "(--max-shift) or check the timestamps.")
+        alignments.append(al)
+
+    # the spline covers the IMU's samples; frames whose time falls outside it (with the offset) are left out
+    t0 = float(data.imu_times[0])
+    M = int(math.floor((float(data.imu_times[-1]) - t0) / knot_spacing)) + 3
+    t_end = t0 + (M - 3) * knot_spacing
+    tau = data.frame_times + torch.tensor([a.shift for a in alignments], dtype=data.gyro.dtype)[data.frame_camera]
+    margin = 2 * knot_spacing + 0.01
+    keep = ok & (tau > t0 + margin) & (tau < t_end - margin)
+    fit_data = replace(data, frame_times=data.frame_times[keep], frame_camera=data.frame_camera[keep],
+                       corners=data.corners[keep], seen=data.seen[keep])
+    frames_used = torch.bincount(fit_data.frame_camera, minlength=C)
+    s0 = initial_unknowns(fit_data, t0, knot_spacing, M, R_cb[keep], t_cb[keep], ok[keep], alignments)
+
+    # a sample's variance is the density squared times the rate; the corners start at 0.5 px (the rounds rescale both)
+    weights = Weights(gyro=1 / (stated.gyroscope_noise_density**2 * rate),
+                      accel=1 / (stated.accelerometer_noise_density**2 * rate),
+                      pixel=1 / 0.5**2,
+                      gyro_walk=1 / (stated.gyroscope_random_walk**2 * knot_spacing),
+                      accel_walk=1 / (stated.accelerometer_random_walk**2 * knot_spacing))
+    rounds = 3 if estimate_noise else 1
+    s = s0
+    res = None
+    iterations = 0
+    for k in range(rounds):
+        problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights)
+        res = schur_lm(problem, s, max_iters=max_iters, ftol=1e-10, absolute_weights=True)
+        s = res.unknowns
+        iterations += int(res.iterations)
+        if k + 1 == rounds:
+            break
+        rg, ra, rc = problem.residuals(s)
+        n_pts = int(fit_data.seen.sum())
+        n_total = float(problem.num_residuals)
+        dof = n_total - problem.G - ITEM * M
+        redundancy = dof / n_total
+        fg = float(rg.square().mean()) * weights.gyro / redundancy
+        fa = float(ra.square().mean()) * weights.accel / redundancy
+        fp = float(rc.square().sum()) / (2 * max(n_pts, 1)) * weights.pixel / redundancy
+        weights = replace(weights, gyro=weights.gyro / fg, accel=weights.accel / fa, pixel=weights.pixel / fp)
+
+    problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights)
+    rg, ra, rc = problem.residuals(s)
+    cov = res.covariance[0]
+    sd = cov.diagonal().clamp_min(0).sqrt()
+    T = torch.eye(4, dtype=data.gyro.dtype).repeat(C, 1, 1)
+    T[:, :3, :3], T[:, :3, 3] = s["Rci"][0], s["tci"][0]
+    per_cam = sd[: 7 * C].view(C, 7)
+    pixel_rms = torch.stack([rc[fit_data.frame_camera == c][fit_data.seen[fit_data.frame_camera == c]].square().mean().sqrt()
+                             for c in range(C)])
+    measured = replace(stated,
+                       gyroscope_noise_density=weights.gyro**-0.5 / math.sqrt(rate),
+                       accelerometer_noise_density=weights.accel**-0.5 / math.sqrt(rate), update_rate=rate)
+    out = ImuCameraResult(
+        T_cam_imu=T, timeshift_cam_imu=s["shift"][0].clone(), rotation_std_deg=per_cam[:, :3] * 180 / math.pi,
+        translation_std=per_cam[:, 3:6], timeshift_std=per_cam[:, 6], covariance=cov, gravity=s["g"][0].clone(),
+        gyro_bias=s["bg"][0].clone(), accel_bias=s["ba"][0].clone(), gyro_rms=_rms(rg), accel_rms=_rms(ra),
+        pixel_rms=pixel_rms, noise_stated=stated, noise_measured=measured, pixel_sigma=weights.pixel**-0.5,
+        noise_given=given, alignment_shifts=alignments[0].shifts,
+        alignment_correlation=torch.stack([a.correlation for a in alignments]),
+        alignment_shift=torch.tensor([a.shift for a in alignments], dtype=data.gyro.dtype), max_shift=max_shift,
+        frames_used=frames_used, knot_spacing=knot_spacing, iterations=iterations, status=int(res.status[0]),
+        seconds=time.perf_counter() - start,
+        spline={"t0": t0, "dt": knot_spacing, "R": s["R"][0].clone(), "p": s["p"][0].clone()})
+    out.verdict, out.verdict_reasons = imu_camera_verdict(out, thresholds)
+    return out
+
+
+class ImuCameraSolver(nn.Module):
+    r"""Module form of :func:`calibrate_imu_camera`, beside :class:`~ccs_kornia.modules.hand_eye.solver.HandEyeSolver`:
+    the options fixed at construction.
+
+    Args:
+        noise, knot_spacing, max_shift, estimate_noise, max_iters: see :func:`calibrate_imu_camera`.
+
+    Shape:
+        :class:`~ccs_kornia.modules.imu.problem.ImuCameraData` (IMU :math:`(N, 3)` rates and accelerations, frames
+        :math:`(F, P, 2)`) -> :class:`~ccs_kornia.modules.imu.result.ImuCameraResult` (``T_cam_imu`` :math:`(C, 4, 4)`).
+
+    Example:
+        >>> from ccs_kornia.data.recordings.visual_inertial import visual_inertial_recording
+        >>> r = visual_inertial_recording(duration=8.0, seed=3)
+        >>> data = ImuCameraData.from_corners(r.imu_times, r.gyro, r.accel, r.cameras, r.object_points,
+        ...                                   r.frame_times, r.corners)
+        >>> res = ImuCameraSolver()(data)
+        >>> float((res.T_cam_imu[0, :3, 3] - r.T_cam_imu[0, :3, 3]).norm()) < 0.005
+        True
+        >>> abs(float(res.timeshift_cam_imu[0] - r.shift[0])) < 1e-4
+        True
+    """
+
+    def __init__(self, noise: ImuNoise | None = None, knot_spacing: float = 0.02, max_shift: float = 0.2,
+                 estimate_noise: bool = True, max_iters: int = 50) -> None:
+        super().__init__()
+        self.noise = noise
+        self.knot_spacing = knot_spacing
+        self.max_shift = max_shift
+        self.estimate_noise = estimate_noise
+        self.max_iters = max_iters
+
+    def forward(self, data: ImuCameraData) -> ImuCameraResult:
+        return calibrate_imu_camera(data, self.noise, self.knot_spacing, self.max_shift, self.estimate_noise,
+                                    self.max_iters)
