@@ -1,4 +1,4 @@
-"""Command line: ``python -m ccs_kornia detect|calibrate|calibrate-rig|calibrate-hand-eye|rectify|calibrate-many|undistort|demo|fit|...``.
+"""Command line: ``python -m ccs_kornia detect|calibrate|calibrate-rig|calibrate-hand-eye|calibrate-imu|rectify|calibrate-many|undistort|demo|fit|...``.
 
 The contract (arguments and JSON layout) is fixed by ``DESIGN.md`` section 4; benchmarks rely on
 it. Behaviour on bad input:
@@ -444,6 +444,45 @@ def build_parser() -> argparse.ArgumentParser:
                    help="frame names of --ros-tf and --moveit-yaml (default base_link,tool0,camera_optical_frame)")
     p.add_argument("--report", metavar="DIR", help="also write figures (each pose's board predicted from the robot "
                    "alone, residuals by pose, the camera and board in the robot's frame) to DIR (created)")
+    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
+    p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
+    p.add_argument("--jobs", default="auto", type=_jobs_arg, metavar="N",
+                   help="processes detecting on the CPU (default: auto; 1 = this process only)")
+    p.add_argument("--batch-size", default=8, type=_positive_int, metavar="N", help="images detected at once (default 8)")
+    p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
+                   help="detect larger images on a downscaled copy (default 2048; 0 = off)")
+    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
+                   help="do not run the distortion-correction network")
+
+    p = sub.add_parser("calibrate-imu", help="where an IMU sits on a camera (or rig) and the time offset between "
+                       "their clocks, from one recording", epilog=_EXIT_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("inputs", nargs="*", metavar="CAMERA_INPUT",
+                   help="one folder of images per camera (in the rig's order), each image named by its timestamp in "
+                        "nanoseconds (EuRoC's and Kalibr's layout: cam0/data/1403636579763555584.png); or none with "
+                        "--corners")
+    p.add_argument("--corners", action="append", metavar="JSON",
+                   help="the corners detect wrote, one file per camera in the rig's order (repeat the option), each "
+                        "view with its timestamp: detection is not repeated")
+    p.add_argument("--imu", required=True, metavar="CSV",
+                   help="the IMU's samples: timestamp (ns, or s), wx,wy,wz (rad/s), ax,ay,az (m/s^2), EuRoC's layout "
+                        "(a header or none; deg/s and g are caught and converted)")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--board", type=_board_arg, metavar="COLSxROWS", help="a chessboard's inner corners, e.g. 9x6")
+    p.add_argument("--square", default=1.0, type=_positive_float, help="the board's square side in metres")
+    charuco_options(p, which)
+    p.add_argument("--calibration", action="append", metavar="FILE",
+                   help="the cameras: calibrate's JSON (one per camera, repeat the option), a calibrate-rig JSON or "
+                        "Kalibr's camchain.yaml (held in the fit)")
+    p.add_argument("--imu-yaml", metavar="YAML",
+                   help="the IMU's noise as Kalibr's imu.yaml states it (default: EuRoC's ADIS16448; either way each "
+                        "sensor's white noise is then measured from the recording)")
+    p.add_argument("--output", required=True, metavar="JSON", help="camera-IMU calibration file to write (imu_cam.json)")
+    p.add_argument("--kalibr-yaml", metavar="YAML", help="also write Kalibr's camchain-imucam.yaml")
+    p.add_argument("--max-shift", default=0.2, type=_positive_float, metavar="S",
+                   help="search the time offset within +-S seconds (default 0.2)")
+    p.add_argument("--knot-spacing", default=0.02, type=_positive_float, metavar="S",
+                   help="the IMU trajectory's knot spacing in seconds (default 0.02)")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
     p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
     p.add_argument("--jobs", default="auto", type=_jobs_arg, metavar="N",

@@ -1,0 +1,206 @@
+"""``ccs_kornia calibrate-imu``: where an IMU sits on a camera (or each camera of a rig) and the time offset between
+their clocks, from one recording (docs/imu.md).
+
+The cameras' corners come from ``detect``'s JSON (``--corners``, one per camera, each view with its ``timestamp``) or
+are detected in folders of images named by their timestamps in nanoseconds (EuRoC's and Kalibr's layout, one folder
+per camera); the cameras from ``--calibration`` (``calibrate``'s JSON, one per camera, or a ``calibrate-rig`` JSON, or
+Kalibr's ``camchain.yaml``); the IMU from a CSV (EuRoC's layout). Everything is read and checked before the fit;
+nothing is written when an input is refused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import sys
+from pathlib import Path
+
+import torch
+
+from ccs_kornia.commands._devices import resolve_device
+from ccs_kornia.commands._factories import make_pipeline
+from ccs_kornia.commands._inputs import inputs
+from ccs_kornia.commands._output_paths import check_output_file
+from ccs_kornia.commands._run import run_files
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.io.corners_file import read_corners_file
+from ccs_kornia.io.files import write_json, write_text
+from ccs_kornia.io.imu import imu_log_findings, read_imu_csv
+from ccs_kornia.io.kalibr import read_camchain, read_imu_yaml
+from ccs_kornia.modules.detection.boards import grid_object_points
+from ccs_kornia.modules.imu.problem import ImuCameraData
+from ccs_kornia.modules.imu.solver import calibrate_imu_camera
+from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
+from ccs_kornia.outputs.imu_exports import camchain_imucam_yaml
+from ccs_kornia.outputs.imu_records import imu_camera_record
+from ccs_kornia.outputs.records import view_records
+from ccs_kornia.runtime.errors import NoResult, UserError
+
+__all__ = ["run"]
+
+_NS_NAME = re.compile(r"^\d{9,}$")
+
+
+def _cameras(args: argparse.Namespace, count: int) -> tuple[Camera, list[str]]:
+    """The C cameras (held) and their names, from ``--calibration``."""
+    paths = args.calibration or []
+    if not paths:
+        raise UserError("--calibration is needed: the cameras' calibration (calibrate's JSON, one per camera; a "
+                        "calibrate-rig JSON; or Kalibr's camchain.yaml). Calibrate them first from the same recording "
+                        "(calibrate --corners ...).")
+    if len(paths) == 1 and paths[0].lower().endswith((".yaml", ".yml")):
+        try:
+            chain = read_camchain(paths[0])
+        except (OSError, ValueError) as err:
+            raise UserError(f"--calibration {paths[0]}: {err}") from None
+        if len(chain) != count:
+            raise UserError(f"--calibration {paths[0]} holds {len(chain)} camera(s), the recording {count}.")
+        return Camera.cat([c.camera for c in chain]), [c.name for c in chain]
+    cams, names = [], []
+    if len(paths) == 1 and count > 1:
+        for c in range(count):
+            try:
+                cams.append(read_calibration(paths[0], camera=str(c)).camera)
+            except (OSError, ValueError) as err:
+                raise UserError(f"--calibration {paths[0]}: camera {c}: {err}") from None
+            names.append(f"cam{c}")
+        return Camera.cat(cams), names
+    if len(paths) != count:
+        raise UserError(f"--calibration: {len(paths)} file(s) for {count} camera(s) (one per camera, in order, or one "
+                        "rig file).")
+    for c, path in enumerate(paths):
+        try:
+            cams.append(read_calibration(path).camera)
+        except RigFileError as err:
+            raise UserError(f"--calibration {path}: {err}; give it alone for a rig") from None
+        except (OSError, ValueError) as err:
+            raise UserError(f"--calibration {path}: {err}") from None
+        names.append(f"cam{c}")
+    return Camera.cat(cams), names
+
+
+def _from_corners_files(args: argparse.Namespace) -> list[tuple[torch.Tensor, torch.Tensor, tuple[int, int] | None]]:
+    """Each camera's frame times (s), corners :math:`(F, P, 2)` (NaN where not seen) and image size, from detect's
+    JSON."""
+    out = []
+    for path in args.corners:
+        try:
+            f = read_corners_file(path)
+        except (OSError, ValueError) as err:
+            raise UserError(f"--corners {path}: {err}") from None
+        views = [v for v in f.views if v.timestamp is not None]
+        if len(views) < len(f.views):
+            raise UserError(f"--corners {path}: {len(f.views) - len(views)} of its {len(f.views)} views have no "
+                            "timestamp (detect writes one for video frames; for images named by their time, rename "
+                            "nothing: give the folder to calibrate-imu instead).")
+        if not views:
+            raise NoResult(f"--corners {path}: no view.")
+        times = torch.tensor([v.timestamp for v in views], dtype=torch.float64)
+        corners = torch.stack([v.corners.to(torch.float64) for v in views])
+        order = times.argsort()
+        out.append((times[order], corners[order], f.image_size))
+    return out
+
+
+def _image_times(files: list[str], folder: str) -> torch.Tensor:
+    """The images' timestamps (s) from their names (nanoseconds)."""
+    stems = [Path(f).stem for f in files]
+    bad = [s for s in stems if not _NS_NAME.match(s)]
+    if bad:
+        raise UserError(f"{folder}: image names must be their timestamps in nanoseconds (EuRoC's and Kalibr's layout, "
+                        f"e.g. 1403636579763555584.png); {bad[0]!r} is not.")
+    return torch.tensor([int(s) for s in stems], dtype=torch.float64) * 1e-9
+
+
+def _detected(args: argparse.Namespace) -> list[tuple[torch.Tensor, torch.Tensor, tuple[int, int] | None]]:
+    """Each camera's frame times, corners and image size, detected in its folder of images."""
+    device = resolve_device(args.device)
+    pipeline = make_pipeline(args)
+    out = []
+    for folder in args.inputs:
+        if os.path.isdir(os.path.join(folder, "data")):  # EuRoC's cam0/ holds data/ and data.csv
+            folder = os.path.join(folder, "data")
+        if not os.path.isdir(folder):
+            raise UserError(f"{folder}: give one folder of images per camera (named by their timestamps in ns), or "
+                            "the corners detect wrote (--corners).")
+        files = sorted(inputs("calibrate-imu", [folder]))
+        times = _image_times(files, folder)
+        res, _ = run_files("calibrate-imu", pipeline, [files], args.board, 1.0, device, calibrate=False)
+        one = res.select(0)
+        corners = []
+        for view in view_records(one, files):
+            pts = view.get("corners") if view.get("found") else None
+            n = args.board[0] * args.board[1]
+            xy = torch.full((n, 2), float("nan"), dtype=torch.float64)
+            if pts is not None:
+                for i, p in enumerate(pts):
+                    if p is not None and p[0] is not None:
+                        xy[i] = torch.tensor(p, dtype=torch.float64)
+            corners.append(xy)
+        size = one.image_sizes[0] if hasattr(one, "image_sizes") and one.image_sizes else None
+        out.append((times, torch.stack(corners), size))
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    check_output_file("--output", args.output)
+    if args.kalibr_yaml:
+        check_output_file("--kalibr-yaml", args.kalibr_yaml)
+    if args.corners and args.inputs:
+        raise UserError("give the cameras' images or their corners (--corners), not both.")
+    if not args.corners and not args.inputs:
+        raise UserError("no camera input: one folder of images per camera, or --corners corners.json per camera.")
+    try:
+        log = read_imu_csv(args.imu)
+    except (OSError, ValueError) as err:
+        raise UserError(f"--imu {args.imu}: {err}") from None
+    noise = None
+    if args.imu_yaml:
+        try:
+            noise = read_imu_yaml(args.imu_yaml)
+        except (OSError, ValueError) as err:
+            raise UserError(f"--imu-yaml {args.imu_yaml}: {err}") from None
+    frames = _from_corners_files(args) if args.corners else _detected(args)
+    cameras, names = _cameras(args, len(frames))
+    for c, (_, x, size) in enumerate(frames):
+        expected = args.board[0] * args.board[1]
+        if x.shape[1] != expected:
+            raise UserError(f"camera {c}: the corners hold {x.shape[1]} points per view, the board {expected}: "
+                            "check --board / --charuco / --aprilgrid.")
+        cal = cameras.image_sizes[c]
+        if size is not None and cal is not None and tuple(size) != tuple(cal):
+            raise UserError(f"camera {c}: its images are {size[0]}x{size[1]}, its calibration's "
+                            f"{cal[0]}x{cal[1]}: a calibration of another resolution.")
+    obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square).to(torch.float64)
+    data = ImuCameraData.from_corners(log.t, log.gyro, log.accel, cameras, obj, [f[0] for f in frames],
+                                      [f[1] for f in frames])
+    for note in log.notes:
+        print(f"imu: {note}", file=sys.stderr)
+    result = calibrate_imu_camera(data, noise=noise, knot_spacing=args.knot_spacing, max_shift=args.max_shift)
+    findings = imu_log_findings(log)
+    extra = {"imu": {"samples": int(log.t.shape[0]), "rate_hz": round(float(findings.rate), 3),
+                     "dropped": findings.dropped, "longest_gap_s": findings.longest_gap,
+                     "saturated": findings.saturated, "notes": list(log.notes)}}
+    if findings.dropped:
+        result.verdict_reasons.append(f"the IMU dropped {findings.dropped} sample(s) (longest gap "
+                                      f"{1000 * findings.longest_gap:.1f} ms)")
+    if findings.saturated:
+        result.verdict_reasons.append(f"the IMU saturates: {findings.saturated}; move more gently")
+        if result.verdict == "good":
+            result.verdict = "usable"
+    record = imu_camera_record(result, names, extra)
+    write_json(args.output, record)
+    written = [args.output]
+    if args.kalibr_yaml:
+        write_text(args.kalibr_yaml, camchain_imucam_yaml(cameras, result.T_cam_imu, result.timeshift_cam_imu))
+        written.append(args.kalibr_yaml)
+    for c, name in enumerate(names):
+        t = result.T_cam_imu[c, :3, 3]
+        print(f"{name}: T_cam_imu translation [{t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}] m (1-sigma "
+              f"{1000 * float(result.translation_std[c].norm()):.2f} mm, {float(result.rotation_std_deg[c].norm()):.3f} "
+              f"deg); timeshift_cam_imu {1000 * float(result.timeshift_cam_imu[c]):+.3f} ms "
+              f"(1-sigma {1000 * float(result.timeshift_std[c]):.3f} ms); {int(result.frames_used[c])} frames")
+    print(f"verdict: {result.verdict}" + (f" ({'; '.join(result.verdict_reasons)})" if result.verdict_reasons else ""))
+    print("wrote " + ", ".join(written))
+    return 0

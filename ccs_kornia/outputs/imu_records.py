@@ -1,0 +1,78 @@
+"""``imu_cam.json``: the camera-IMU calibration as the command line writes it (DESIGN.md §4).
+
+Per camera ``T_cam_imu`` (4x4, ``x_cam = T_cam_imu x_imu``) and ``timeshift_cam_imu`` (s, ``t_imu = t_cam + shift``)
+with their 1-sigma; gravity in the board's frame; the biases' range; each sensor's residual RMS beside the noise it
+was stated and measured to have; the time-offset search; the verdict.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ccs_kornia.geometry.imu_noise import ImuNoise
+from ccs_kornia.modules.imu.result import ImuCameraResult
+
+__all__ = ["imu_camera_record", "noise_record"]
+
+
+def _r(x: float, digits: int = 9) -> float | None:
+    x = float(x)
+    return round(x, digits) if math.isfinite(x) else None
+
+
+def noise_record(noise: ImuNoise) -> dict[str, float]:
+    """Kalibr's four noise values and the rate."""
+    return {"accelerometer_noise_density": _r(noise.accelerometer_noise_density, 12),
+            "accelerometer_random_walk": _r(noise.accelerometer_random_walk, 12),
+            "gyroscope_noise_density": _r(noise.gyroscope_noise_density, 12),
+            "gyroscope_random_walk": _r(noise.gyroscope_random_walk, 12),
+            "update_rate": _r(noise.update_rate, 6)}
+
+
+def imu_camera_record(result: ImuCameraResult, names: list[str], extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The JSON record of a result (``names``: the cameras', in order)."""
+    cams = []
+    for c, name in enumerate(names):
+        T = result.T_cam_imu[c]
+        cams.append({
+            "name": name,
+            "T_cam_imu": [[_r(v) for v in row] for row in T.tolist()],
+            "timeshift_cam_imu": _r(result.timeshift_cam_imu[c]),
+            "rotation_std_deg": [_r(v, 6) for v in result.rotation_std_deg[c].tolist()],
+            "translation_std_m": [_r(v, 9) for v in result.translation_std[c].tolist()],
+            "timeshift_std_s": _r(result.timeshift_std[c], 9),
+            "frames_used": int(result.frames_used[c]),
+            "pixel_rms": _r(result.pixel_rms[c], 4),
+            "time_offset_search": {
+                "start_s": _r(result.alignment_shift[c]),
+                "max_shift_s": result.max_shift,
+                "peak_correlation": _r(result.alignment_correlation[c].max(), 4),
+            },
+        })
+    stated, measured = result.noise_stated, result.noise_measured
+    return {
+        "cameras": cams,
+        "convention": "x_cam = T_cam_imu x_imu; t_imu = t_cam + timeshift_cam_imu",
+        "gravity": [_r(v, 6) for v in result.gravity.tolist()],
+        "gravity_frame": "the board's",
+        "biases": {
+            "gyroscope_min": [_r(v, 6) for v in result.gyro_bias.amin(0).tolist()],
+            "gyroscope_max": [_r(v, 6) for v in result.gyro_bias.amax(0).tolist()],
+            "accelerometer_min": [_r(v, 6) for v in result.accel_bias.amin(0).tolist()],
+            "accelerometer_max": [_r(v, 6) for v in result.accel_bias.amax(0).tolist()],
+        },
+        "residuals": {
+            "gyroscope_rms": _r(result.gyro_rms, 9),
+            "gyroscope_sample_sigma_stated": _r(stated.gyroscope_noise_density * math.sqrt(measured.update_rate), 9),
+            "accelerometer_rms": _r(result.accel_rms, 9),
+            "accelerometer_sample_sigma_stated": _r(stated.accelerometer_noise_density * math.sqrt(measured.update_rate), 9),
+            "pixel_sigma": _r(result.pixel_sigma, 4),
+        },
+        "noise": {"given": result.noise_given, "stated": noise_record(stated), "measured": noise_record(measured)},
+        "fit": {"knot_spacing_s": result.knot_spacing, "iterations": result.iterations, "status": result.status,
+                "seconds": _r(result.seconds, 3)},
+        "verdict": result.verdict,
+        "verdict_reasons": list(result.verdict_reasons),
+        **(extra or {}),
+    }
