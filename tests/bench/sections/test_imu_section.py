@@ -1,0 +1,17 @@
+"""The ``imu`` benchmark section: rendered visual-inertial recordings solved against their truth, and the markdown."""
+
+from __future__ import annotations
+
+from ccs_kornia.bench.config import SECTIONS, BenchConfig
+from ccs_kornia.bench.sections.imu import SEED, imu_md, run_imu
+
+
+def test_imu_section_runs_and_reports():
+    assert "imu" in SECTIONS
+    sec = run_imu(BenchConfig.tiny(), log=lambda *_: None)
+    assert sec["trials"] == 1 and sec["seed"] == SEED and set(sec["conditions"]) == {"given"}
+    s = sec["conditions"]["given"]["summary"]
+    assert s["t_mm_median"] < 5.0 and s["r_deg_median"] < 0.1 and abs(s["shift_ms_median"]) < 0.5
+    assert 0.0 <= s["coverage"] <= 1.0 and sec["peak_rss_mb"] > 0
+    md = "\n".join(imu_md(sec))
+    assert "| given |" in md and "1-sigma coverage" in md

@@ -1,0 +1,136 @@
+import math
+
+import pytest
+import torch
+
+from ccs_kornia.data.recordings.visual_inertial import visual_inertial_recording
+from ccs_kornia.geometry.so3 import exp_so3, log_so3
+from ccs_kornia.modules.calibration.schur_lm import schur_step
+from ccs_kornia.modules.imu.initial import align_rates, board_poses
+from ccs_kornia.modules.imu.problem import ImuCameraData, ImuCameraProblem, Weights
+from ccs_kornia.modules.imu.result import imu_camera_verdict
+from ccs_kornia.modules.imu.solver import ImuCameraSolver, calibrate_imu_camera
+from ccs_kornia.runtime.errors import NoResult, UserError
+
+
+def _data(rec):
+    return ImuCameraData.from_corners(rec.imu_times, rec.gyro, rec.accel, rec.cameras, rec.object_points,
+                                      rec.frame_times, rec.corners)
+
+
+@pytest.fixture(scope="module")
+def recording():
+    return visual_inertial_recording(duration=10.0, seed=11)
+
+
+@pytest.fixture(scope="module")
+def solved(recording):
+    return calibrate_imu_camera(_data(recording), noise=recording.noise)
+
+
+class TestStart:
+    def test_rate_alignment_finds_offset_and_rotation(self, recording):
+        data = _data(recording)
+        R, t, ok = board_poses(data)
+        al = align_rates(data.frame_times, R, ok, data.imu_times, data.gyro)
+        assert abs(al.shift - float(recording.shift[0])) < 1e-3
+        err = float(log_so3(al.R_cam_imu.T @ recording.T_cam_imu[0, :3, :3]).norm()) * 180 / math.pi
+        assert err < 0.5 and al.correlation.max() > 0.9
+
+
+class TestProblem:
+    def test_normal_equations_are_the_costs_gradient(self, recording):
+        # the gradient J^T r the problem assembles equals the cost's numerical derivative along a random step
+        data = _data(visual_inertial_recording(duration=3.0, seed=12))
+        solver_noise = recording.noise
+        dt, t0 = 0.05, float(data.imu_times[0])
+        M = int((float(data.imu_times[-1]) - t0) / dt) + 3
+        w = Weights(gyro=1 / solver_noise.gyroscope_sample_sigma**2, accel=1 / solver_noise.accelerometer_sample_sigma**2,
+                    pixel=4.0, gyro_walk=1e4, accel_walk=1e2)
+        prob = ImuCameraProblem(data, t0, dt, M, w)
+        g = torch.Generator().manual_seed(0)
+        s = {"R": exp_so3(torch.randn(1, M, 3, generator=g, dtype=torch.float64).cumsum(1) * 0.05),
+             "p": torch.randn(1, M, 3, generator=g, dtype=torch.float64) * 0.1 + torch.tensor([0.2, 0.2, -0.6], dtype=torch.float64),
+             "bg": torch.zeros(1, M, 3, dtype=torch.float64), "ba": torch.zeros(1, M, 3, dtype=torch.float64),
+             "Rci": torch.eye(3, dtype=torch.float64)[None, None], "tci": torch.zeros(1, 1, 3, dtype=torch.float64),
+             "shift": torch.zeros(1, 1, dtype=torch.float64), "g": torch.tensor([[0.0, 9.8, 0.0]], dtype=torch.float64)}
+        eq = prob.linearize(s)
+        dg = torch.randn(1, prob.G, generator=g, dtype=torch.float64)
+        dp = torch.randn(1, M, 12, generator=g, dtype=torch.float64)
+        h = 1e-6
+        plus = prob.linearize(prob.retract(s, h * dg, h * dp)).cost
+        minus = prob.linearize(prob.retract(s, -h * dg, -h * dp)).cost
+        numeric = float((plus - minus) / (2 * h))
+        analytic = 2 * float((eq.eg * dg).sum() + (eq.ep * dp).sum())
+        assert analytic == pytest.approx(numeric, rel=1e-5)
+        # and the step solves the banded system
+        d_g, d_p = schur_step(eq.U, eq.W, eq.V, eq.eg, eq.ep, prob.used, Vband=eq.Vband)
+        assert torch.isfinite(d_g).all() and torch.isfinite(d_p).all()
+
+    def test_take_refuses_splitting(self, recording):
+        data = _data(visual_inertial_recording(duration=2.0, seed=13))
+        prob = ImuCameraProblem(data, 0.0, 0.05, 40, Weights(1.0, 1.0, 1.0, 1.0, 1.0))
+        assert prob.take(torch.ones(1, dtype=torch.bool)) is prob
+        with pytest.raises(ValueError):
+            prob.take(torch.zeros(1, dtype=torch.bool))
+
+
+class TestSolver:
+    def test_recovers_the_truth(self, recording, solved):
+        err_r = float(log_so3(solved.T_cam_imu[0, :3, :3] @ recording.T_cam_imu[0, :3, :3].T).norm()) * 180 / math.pi
+        err_t = float((solved.T_cam_imu[0, :3, 3] - recording.T_cam_imu[0, :3, 3]).norm())
+        err_s = abs(float(solved.timeshift_cam_imu[0] - recording.shift[0]))
+        assert err_r < 0.02 and err_t < 0.002 and err_s < 5e-5
+        # the 1-sigma are of the errors' size (not 100x off either way)
+        assert 0.01 < err_t / float(solved.translation_std[0].norm()) < 10
+        torch.testing.assert_close(solved.gravity, recording.gravity, atol=0.02, rtol=0)
+        assert solved.verdict == "good" and solved.status in (1, 2)
+
+    def test_noise_measured_when_stated_wrong(self, recording):
+        res = calibrate_imu_camera(_data(recording), noise=recording.noise.scaled(10.0))
+        ratio = res.noise_measured.gyroscope_noise_density / recording.noise.gyroscope_noise_density
+        assert 0.5 < ratio < 2.0
+        err_t = float((res.T_cam_imu[0, :3, 3] - recording.T_cam_imu[0, :3, 3]).norm())
+        assert err_t < 0.003
+        assert any("stated noise density" in r for r in res.verdict_reasons)
+
+    def test_stereo_rig(self):
+        rec = visual_inertial_recording(duration=8.0, seed=14, num_cameras=2)
+        res = ImuCameraSolver(noise=rec.noise)(_data(rec))
+        assert res.T_cam_imu.shape == (2, 4, 4)
+        for c in range(2):
+            assert float((res.T_cam_imu[c, :3, 3] - rec.T_cam_imu[c, :3, 3]).norm()) < 0.003
+            assert abs(float(res.timeshift_cam_imu[c] - rec.shift[c])) < 1e-4
+
+    def test_weak_motion_is_named(self, recording, solved):
+        import dataclasses
+
+        weak = dataclasses.replace(solved, translation_std=torch.tensor([[0.02, 0.001, 0.001]], dtype=torch.float64))
+        verdict, reasons = imu_camera_verdict(weak)
+        assert verdict.startswith("not reliable") and "X (left-right)" in verdict
+
+
+class TestRefusals:
+    def test_clocks_that_do_not_overlap(self, recording):
+        data = _data(recording)
+        data.frame_times = data.frame_times + 1000.0
+        with pytest.raises(UserError, match="overlap"):
+            calibrate_imu_camera(data)
+
+    def test_timestamps_backwards(self, recording):
+        data = _data(recording)
+        data.imu_times = data.imu_times.clone()
+        data.imu_times[50] = data.imu_times[10]
+        with pytest.raises(UserError, match="do not increase at sample 50"):
+            calibrate_imu_camera(data)
+
+    def test_offset_beyond_the_search(self):
+        rec = visual_inertial_recording(duration=10.0, seed=15, shift=0.15)
+        with pytest.raises(NoResult, match="search's edge"):
+            calibrate_imu_camera(_data(rec), max_shift=0.1)
+
+    def test_too_short(self, recording):
+        data = _data(recording)
+        data.imu_times, data.gyro, data.accel = data.imu_times[:50], data.gyro[:50], data.accel[:50]
+        with pytest.raises(UserError, match="too short"):
+            calibrate_imu_camera(data)
