@@ -10,8 +10,8 @@ intrinsics, a rig's intrinsics and extrinsics, a hand-eye transform) and ``V`` *
 
 are solved by eliminating the item blocks (:func:`schur_step`), so a step costs time linear in ``V``. The items are
 independent (a block-diagonal :math:`V`) or couple their ``w`` next neighbours (a block-banded one, ``Vband``: the
-control points of a trajectory spline), eliminated then by a banded Cholesky factor
-(:mod:`~ccs_kornia.modules.calibration.block_banded`), still in time linear in ``V``.
+control points of a trajectory spline), eliminated then by a banded solve
+(:mod:`~ccs_kornia.modules.calibration.block_banded`: block cyclic reduction), still in time linear in ``V``.
 :func:`schur_lm` owns everything else, for every solver alike; what it carries from one iteration to the next is an
 :class:`LMState`:
 
@@ -48,7 +48,7 @@ from typing import Any, Protocol
 import torch
 
 from ccs_kornia.geometry.spd_inverse import pseudo_inverse, spd_inverse
-from ccs_kornia.modules.calibration.block_banded import block_banded_cholesky, block_banded_solve
+from ccs_kornia.modules.calibration.block_banded import block_banded_solve
 from ccs_kornia.runtime.checks import check_tensor
 
 __all__ = [
@@ -263,7 +263,7 @@ def _solve_spd(A: torch.Tensor, b: torch.Tensor, eye: torch.Tensor) -> torch.Ten
 def _banded_elimination(W, Vd, Vband, ep):
     """``(V^-1 W^T, V^-1 ep)`` of block-banded items: :math:`(B, V, k, G)` and :math:`(B, V, k)`."""
     G = W.shape[-2]
-    Z = block_banded_solve(block_banded_cholesky(Vd, Vband), torch.cat([W.transpose(-1, -2), ep[..., None]], -1))
+    Z = block_banded_solve(Vd, Vband, torch.cat([W.transpose(-1, -2), ep[..., None]], -1))[0]
     return Z[..., :G], Z[..., G]
 
 

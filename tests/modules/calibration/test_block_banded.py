@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from ccs_kornia.modules.calibration.block_banded import block_banded_cholesky, block_banded_dense, block_banded_solve
+from ccs_kornia.modules.calibration.block_banded import block_banded_dense, block_banded_solve, block_tridiagonal_solve
 from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm, schur_step
 
 
@@ -31,16 +31,16 @@ class TestBlockBanded:
         D, E, A = _banded(B, V, k, w)
         torch.testing.assert_close(block_banded_dense(D, E), A)
         b = torch.randn(B, V, k, 4, dtype=torch.float64)
-        x = block_banded_solve(block_banded_cholesky(D, E), b)
+        x, failed = block_banded_solve(D, E, b)
+        assert not bool(failed.any())
         torch.testing.assert_close(x.reshape(B, V * k, 4), torch.linalg.solve(A, b.reshape(B, V * k, 4)))
 
     def test_indefinite_problem_gives_zero_and_others_unaffected(self):
         D, E, A = _banded(2, 5, 3, 2)
         D[1, 2] = -D[1, 2]
-        f = block_banded_cholesky(D, E)
-        assert f.failed.tolist() == [False, True]
         b = torch.randn(2, 5, 3, 1, dtype=torch.float64)
-        x = block_banded_solve(f, b)
+        x, failed = block_banded_solve(D, E, b)
+        assert failed.tolist() == [False, True]
         assert bool((x[1] == 0).all())
         torch.testing.assert_close(x[0].reshape(-1, 1), torch.linalg.solve(A[0], b[0].reshape(-1, 1)))
 
@@ -50,13 +50,19 @@ class TestBlockBanded:
         E2[:, -1] = 5.0
         E2[:, -2, 1] = 7.0
         b = torch.randn(1, 4, 2, 1, dtype=torch.float64)
-        torch.testing.assert_close(block_banded_solve(block_banded_cholesky(D, E2), b),
-                                   block_banded_solve(block_banded_cholesky(D, E), b))
+        torch.testing.assert_close(block_banded_solve(D, E2, b)[0], block_banded_solve(D, E, b)[0])
 
     def test_shapes_checked(self):
         D, E, _ = _banded(1, 4, 2, 2)
         with pytest.raises(ValueError):
-            block_banded_cholesky(D, E[:, :3])
+            block_banded_solve(D, E[:, :3], torch.zeros(1, 4, 2, 1, dtype=torch.float64))
+
+    @pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 8, 13])
+    def test_tridiagonal_any_length(self, n):
+        D, E, A = _banded(2, n, 3, 1, seed=n)
+        x, failed = block_tridiagonal_solve(D, E[:, : n - 1, 0], torch.ones(2, n, 3, 2, dtype=torch.float64))
+        assert not bool(failed.any())
+        torch.testing.assert_close(A @ x.reshape(2, 3 * n, 2), torch.ones(2, 3 * n, 2, dtype=torch.float64))
 
 
 class TestBandedSchur:
