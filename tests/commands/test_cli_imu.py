@@ -1,0 +1,134 @@
+"""``calibrate-imu`` on the command line: a rendered recording given as detect's corners JSON, an EuRoC-style IMU CSV
+and calibrate's JSON; the answer against the truth, Kalibr's camchain-imucam.yaml, and every refusal as one line with
+its exit status and nothing written."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import torch
+
+from ccs_kornia import cli
+from ccs_kornia.data.recordings.visual_inertial import visual_inertial_recording
+from ccs_kornia.geometry.so3 import log_so3
+from ccs_kornia.io.files import write_json
+from ccs_kornia.outputs.calibration_file import camera_record_fields
+
+EUROC_HEADER = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+                "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def write_imu_csv(path, rec, offset_s: float = 0.0) -> None:
+    rows = [EUROC_HEADER]
+    for t, w, a in zip(rec.imu_times.tolist(), rec.gyro.tolist(), rec.accel.tolist()):
+        rows.append(",".join([str(int(round((t + offset_s) * 1e9)))] + [f"{v:.9f}" for v in w + a]))
+    path.write_text("\n".join(rows) + "\n")
+
+
+def write_corners(path, rec, camera: int = 0, timestamps: bool = True) -> None:
+    images = []
+    for k, (t, xy) in enumerate(zip(rec.frame_times[camera].tolist(), rec.corners[camera])):
+        seen = xy.isfinite().all(-1)
+        corners = [[round(float(x), 4), round(float(y), 4)] if s else [None, None] for (x, y), s in zip(xy.tolist(), seen)]
+        record = {"path": f"cam{camera}.mp4#{k}", "found": bool(seen.sum() >= 6), "corners": corners}
+        if timestamps:
+            record["timestamp"] = round(t, 6)
+        images.append(record)
+    write_json(path, {"board": [7, 6], "image_size": [752, 480], "images": images})
+
+
+@pytest.fixture(scope="module")
+def recording():
+    return visual_inertial_recording(duration=10.0, seed=21)
+
+
+@pytest.fixture
+def files(tmp_path, recording):
+    write_imu_csv(tmp_path / "imu0.csv", recording)
+    write_corners(tmp_path / "cam0.json", recording)
+    write_json(tmp_path / "cam0_calib.json", {**camera_record_fields(recording.cameras[0]), "rms": 0.2})
+    return tmp_path
+
+
+def test_corners_json_and_csv_give_the_truth(capsys, files, recording):
+    out = files / "imu_cam.json"
+    code, stdout, err = run(capsys, "calibrate-imu", "--corners", files / "cam0.json", "--imu", files / "imu0.csv",
+                            "--board", "7x6", "--square", "0.08", "--calibration", files / "cam0_calib.json",
+                            "--output", out, "--kalibr-yaml", files / "camchain-imucam.yaml")
+    assert code == 0, err
+    data = json.loads(out.read_text())
+    cam = data["cameras"][0]
+    T = torch.tensor(cam["T_cam_imu"], dtype=torch.float64)
+    assert float((T[:3, 3] - recording.T_cam_imu[0, :3, 3]).norm()) < 0.003
+    assert math.degrees(float(log_so3(T[:3, :3] @ recording.T_cam_imu[0, :3, :3].T).norm())) < 0.05
+    assert abs(cam["timeshift_cam_imu"] - float(recording.shift[0])) < 1e-4
+    assert data["verdict"] in ("good", "usable") and "timeshift_cam_imu" in stdout
+    assert data["noise"]["given"] is False and data["imu"]["samples"] == recording.imu_times.shape[0]
+    from ccs_kornia.io.kalibr import read_camchain
+
+    chain = read_camchain(files / "camchain-imucam.yaml")
+    torch.testing.assert_close(torch.as_tensor(chain[0].T_cam_imu, dtype=torch.float64), T, atol=1e-6, rtol=0)
+    assert abs(chain[0].timeshift_cam_imu - cam["timeshift_cam_imu"]) < 1e-9
+
+
+def _refused(capsys, code_expected, argv, out, *phrases):
+    code, _, err = run(capsys, *argv)
+    lines = [line for line in err.splitlines() if ": error: " in line]
+    assert code == code_expected and len(lines) == 1 and "Traceback" not in err, err
+    for phrase in phrases:
+        assert phrase in lines[0], lines[0]
+    assert not out.exists()
+
+
+def _argv(files, **over):
+    args = {"--corners": files / "cam0.json", "--imu": files / "imu0.csv", "--board": "7x6", "--square": "0.08",
+            "--calibration": files / "cam0_calib.json", "--output": files / "imu_cam.json"}
+    args.update(over)
+    argv = ["calibrate-imu"]
+    for k, v in args.items():
+        if v is not None:
+            argv += [k, v]
+    return argv
+
+
+def test_clocks_that_do_not_overlap(capsys, files, recording):
+    write_imu_csv(files / "late.csv", recording, offset_s=5000.0)
+    _refused(capsys, 2, _argv(files, **{"--imu": files / "late.csv"}), files / "imu_cam.json", "overlap")
+
+
+def test_imu_file_of_the_wrong_shape(capsys, files):
+    (files / "bad.csv").write_text("1,2,3\n4,5,6\n")
+    _refused(capsys, 2, _argv(files, **{"--imu": files / "bad.csv"}), files / "imu_cam.json", "--imu")
+
+
+def test_calibration_of_another_resolution(capsys, files, recording):
+    cam = camera_record_fields(recording.cameras[0])
+    cam["image_size"] = [640, 480]
+    write_json(files / "other.json", {**cam, "rms": 0.2})
+    _refused(capsys, 2, _argv(files, **{"--calibration": files / "other.json"}), files / "imu_cam.json",
+             "another resolution")
+
+
+def test_no_calibration(capsys, files):
+    _refused(capsys, 2, _argv(files, **{"--calibration": None}), files / "imu_cam.json", "--calibration")
+
+
+def test_corners_without_timestamps(capsys, files, recording):
+    write_corners(files / "nots.json", recording, timestamps=False)
+    _refused(capsys, 2, _argv(files, **{"--corners": files / "nots.json"}), files / "imu_cam.json", "timestamp")
+
+
+def test_offset_beyond_the_search(capsys, files, recording):
+    _refused(capsys, 3, _argv(files, **{"--max-shift": "0.005"}), files / "imu_cam.json", "search's edge")
+
+
+def test_wrong_board(capsys, files):
+    _refused(capsys, 2, _argv(files, **{"--board": "9x6"}), files / "imu_cam.json", "board")
