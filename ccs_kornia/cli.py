@@ -473,7 +473,11 @@ def build_parser() -> argparse.ArgumentParser:
     charuco_options(p, which)
     p.add_argument("--calibration", action="append", metavar="FILE",
                    help="the cameras: calibrate's JSON (one per camera, repeat the option), a calibrate-rig JSON or "
-                        "Kalibr's camchain.yaml (held in the fit)")
+                        "Kalibr's camchain.yaml (held in the fit); default: each camera calibrated first from up to 40 "
+                        "of its own frames")
+    p.add_argument("--model", default="opencv5", choices=[m for m in MODELS if m != "auto"],
+                   help="camera model when a camera is calibrated from the recording (no --calibration; default "
+                        "opencv5, Kalibr's pinhole-radtan)")
     p.add_argument("--imu-yaml", metavar="YAML",
                    help="the IMU's noise as Kalibr's imu.yaml states it (default: EuRoC's ADIS16448; either way each "
                         "sensor's white noise is then measured from the recording)")

@@ -4,7 +4,7 @@ their clocks, from one recording (docs/imu.md).
 The cameras' corners come from ``detect``'s JSON (``--corners``, one per camera, each view with its ``timestamp``) or
 are detected in folders of images named by their timestamps in nanoseconds (EuRoC's and Kalibr's layout, one folder
 per camera); the cameras from ``--calibration`` (``calibrate``'s JSON, one per camera, or a ``calibrate-rig`` JSON, or
-Kalibr's ``camchain.yaml``); the IMU from a CSV (EuRoC's layout). Everything is read and checked before the fit;
+Kalibr's ``camchain.yaml``; without it each camera is calibrated first from its own frames); the IMU from a CSV (EuRoC's layout). Everything is read and checked before the fit;
 nothing is written when an input is refused.
 """
 
@@ -28,10 +28,11 @@ from ccs_kornia.io.corners_file import read_corners_file
 from ccs_kornia.io.files import write_json, write_text
 from ccs_kornia.io.imu import imu_log_findings, read_imu_csv
 from ccs_kornia.io.kalibr import read_camchain, read_imu_yaml
+from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.imu.problem import ImuCameraData
 from ccs_kornia.modules.imu.solver import calibrate_imu_camera
-from ccs_kornia.outputs.calibration_file import RigFileError, read_calibration
+from ccs_kornia.outputs.calibration_file import RigFileError, camera_record_fields, read_calibration
 from ccs_kornia.outputs.imu_exports import camchain_imucam_yaml
 from ccs_kornia.outputs.imu_records import imu_camera_record
 from ccs_kornia.outputs.records import view_records
@@ -42,13 +43,38 @@ __all__ = ["run"]
 _NS_NAME = re.compile(r"^\d{9,}$")
 
 
+#: frames of a recording a camera is calibrated from when no calibration is given
+_CALIBRATION_FRAMES = 40
+
+
+def _calibrated_here(frames, obj: torch.Tensor, model) -> tuple[Camera, list[str], list[dict]]:
+    """Each camera calibrated from its own frames (up to :data:`_CALIBRATION_FRAMES`, spread over the recording,
+    those with most corners first), with the command's model."""
+    cams, records = [], []
+    for c, (times, corners, size) in enumerate(frames):
+        if size is None:
+            raise UserError(f"camera {c}: its corners do not say the image size; give the camera's calibration "
+                            "(--calibration).")
+        seen = corners.isfinite().all(-1)
+        count = seen.sum(-1)
+        good = (count >= max(6, int(0.5 * corners.shape[1]))).nonzero()[:, 0]
+        if good.numel() < 6:
+            raise NoResult(f"camera {c}: {good.numel()} frames show half of the board or more: too few to calibrate "
+                           "the camera (give its calibration: --calibration).")
+        pick = good[torch.linspace(0, good.numel() - 1, min(_CALIBRATION_FRAMES, good.numel())).round().long()]
+        res = CalibrationSolver(model=model)(corners[pick].nan_to_num(0.0)[None], seen[pick][None], obj, tuple(size))
+        if not bool(res.success[0]):
+            raise NoResult(f"camera {c}: the camera could not be calibrated from the recording's frames; give its "
+                           "calibration (--calibration).")
+        cams.append(res.camera[0])
+        records.append({**camera_record_fields(res.camera[0]), "rms": round(float(res.rms[0]), 4),
+                        "frames": int(pick.numel()), "source": "calibrated from the same recording"})
+    return Camera.cat(cams), [f"cam{c}" for c in range(len(frames))], records
+
+
 def _cameras(args: argparse.Namespace, count: int) -> tuple[Camera, list[str]]:
     """The C cameras (held) and their names, from ``--calibration``."""
     paths = args.calibration or []
-    if not paths:
-        raise UserError("--calibration is needed: the cameras' calibration (calibrate's JSON, one per camera; a "
-                        "calibrate-rig JSON; or Kalibr's camchain.yaml). Calibrate them first from the same recording "
-                        "(calibrate --corners ...).")
     if len(paths) == 1 and paths[0].lower().endswith((".yaml", ".yml")):
         try:
             chain = read_camchain(paths[0])
@@ -162,7 +188,12 @@ def run(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as err:
             raise UserError(f"--imu-yaml {args.imu_yaml}: {err}") from None
     frames = _from_corners_files(args) if args.corners else _detected(args)
-    cameras, names = _cameras(args, len(frames))
+    obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square).to(torch.float64)
+    camera_records = None
+    if args.calibration:
+        cameras, names = _cameras(args, len(frames))
+    else:
+        cameras, names, camera_records = _calibrated_here(frames, obj, args.model)
     for c, (_, x, size) in enumerate(frames):
         expected = args.board[0] * args.board[1]
         if x.shape[1] != expected:
@@ -172,7 +203,6 @@ def run(args: argparse.Namespace) -> int:
         if size is not None and cal is not None and tuple(size) != tuple(cal):
             raise UserError(f"camera {c}: its images are {size[0]}x{size[1]}, its calibration's "
                             f"{cal[0]}x{cal[1]}: a calibration of another resolution.")
-    obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square).to(torch.float64)
     data = ImuCameraData.from_corners(log.t, log.gyro, log.accel, cameras, obj, [f[0] for f in frames],
                                       [f[1] for f in frames])
     for note in log.notes:
@@ -182,6 +212,8 @@ def run(args: argparse.Namespace) -> int:
     extra = {"imu": {"samples": int(log.t.shape[0]), "rate_hz": round(float(findings.rate), 3),
                      "dropped": findings.dropped, "longest_gap_s": findings.longest_gap,
                      "saturated": findings.saturated, "notes": list(log.notes)}}
+    if camera_records is not None:
+        extra["camera_calibrations"] = camera_records
     if findings.dropped:
         result.verdict_reasons.append(f"the IMU dropped {findings.dropped} sample(s) (longest gap "
                                       f"{1000 * findings.longest_gap:.1f} ms)")

@@ -55,6 +55,7 @@ class RateAlignment:
         shift: ``timeshift_cam_imu`` (s). R_cam_imu: :math:`(3, 3)`. gyro_bias: :math:`(3,)`.
         shifts: :math:`(S,)` the shifts tried; correlation: :math:`(S,)` the angular speeds' correlation at each.
         rms: the aligned rates' RMS difference (rad/s).
+        at_edge: the highest correlation is at the search's edge: the offset may lie beyond it.
     """
 
     shift: float
@@ -63,6 +64,7 @@ class RateAlignment:
     shifts: torch.Tensor
     correlation: torch.Tensor
     rms: float
+    at_edge: bool = False
 
 
 def _interp(t: torch.Tensor, tq: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -133,7 +135,8 @@ def align_rates(frame_times: torch.Tensor, R_cam_board: torch.Tensor, ok: torch.
     R = Vh.T @ D @ U.T
     bias = mi - R.T @ mc
     rms = float(((wc - (R @ (wi - bias)[..., None])[..., 0]) ** 2).sum(-1).mean().sqrt())
-    return RateAlignment(shift=best, R_cam_imu=R, gyro_bias=bias, shifts=shifts, correlation=corr, rms=rms)
+    return RateAlignment(shift=best, R_cam_imu=R, gyro_bias=bias, shifts=shifts, correlation=corr, rms=rms,
+                         at_edge=k <= 1 or k >= len(shifts) - 2)
 
 
 def _slerp_at(times: torch.Tensor, R: torch.Tensor, tq: torch.Tensor) -> torch.Tensor:

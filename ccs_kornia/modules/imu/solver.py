@@ -95,7 +95,7 @@ def calibrate_imu_camera(
             al = align_rates(data.frame_times[sel], R_cb[sel], ok[sel], data.imu_times, data.gyro, max_shift=max_shift)
         except ValueError as e:
             raise NoResult(f"camera {c}: {e}") from None
-        if abs(al.shift) > max_shift - 0.01:
+        if al.at_edge:
             raise NoResult(f"camera {c}: the time offset is at the search's edge ({1000 * al.shift:+.0f} ms of "
                            f"+-{1000 * max_shift:.0f} ms): the clocks may differ by more; widen the search "
                            "(--max-shift) or check the timestamps.")
