@@ -140,3 +140,35 @@ def test_offset_beyond_the_search(capsys, files, recording):
 
 def test_wrong_board(capsys, files):
     _refused(capsys, 2, _argv(files, **{"--board": "9x6"}), files / "imu_cam.json", "board")
+
+
+def test_folder_of_images_named_by_their_time(capsys, tmp_path):
+    # EuRoC's layout: cam0/data/<ns>.png, rendered along the recording's motion (a whole board in most frames)
+    import cv2
+
+    from ccs_kornia.data.render.renderer import render_chessboard
+    from ccs_kornia.geometry.so3 import log_so3 as log
+
+    rec = visual_inertial_recording(duration=6.0, seed=31, fps=10.0, rotation_amplitude=0.25,
+                                    translation_amplitude=0.08)
+    folder = tmp_path / "cam0" / "data"
+    folder.mkdir(parents=True)
+    t = rec.frame_times[0]
+    R, p = rec.motion.camera_pose(t + rec.shift[0])
+    Rcw = R.transpose(-1, -2)
+    images, _ = render_chessboard(rec.cameras.K[0].expand(len(t), 3, 3), log(Rcw), -(Rcw @ p[..., None])[..., 0],
+                                  (7, 6), 0.08, (752, 480), dist=rec.cameras.dist[0, :5], supersample=2)
+    for k, ts in enumerate(t.tolist()):
+        cv2.imwrite(str(folder / f"{int(round(ts * 1e9))}.png"), (images[k, 0].numpy() * 255).round().astype("uint8"))
+    write_imu_csv(tmp_path / "imu0.csv", rec)
+    write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
+    out = tmp_path / "imu_cam.json"
+    code, _, err = run(capsys, "calibrate-imu", tmp_path / "cam0", "--imu", tmp_path / "imu0.csv", "--board", "7x6",
+                       "--square", "0.08", "--calibration", tmp_path / "cam.json", "--detector", "opencv",
+                       "--jobs", "1", "--output", out)
+    assert code == 0, err
+    cam = json.loads(out.read_text())["cameras"][0]
+    T = torch.tensor(cam["T_cam_imu"], dtype=torch.float64)
+    assert cam["frames_used"] >= 20
+    assert float((T[:3, 3] - rec.T_cam_imu[0, :3, 3]).norm()) < 0.01
+    assert abs(cam["timeshift_cam_imu"] - float(rec.shift[0])) < 1e-3
