@@ -6,7 +6,7 @@ pose, aligns each camera's angular rates with the gyroscope's (time offset and r
 (:mod:`~ccs_kornia.modules.imu.problem` on the LM core, whose banded elimination keeps a step linear in the recording's
 length). The noise: the stated densities (Kalibr's ``imu.yaml``; EuRoC's ADIS16448 where none is given) and the
 corners' spread from their board-pose fits start the weights; then each sensor's white noise is rescaled to what its
-residuals show (variance components, two rounds), so the 1-sigma hold when the stated values are off, and the result
+residuals show (variance components) and the fit is repeated from its optimum, so the 1-sigma hold when the stated values are off, and the result
 says how far off they were. The random walks are kept as stated.
 """
 
@@ -119,13 +119,15 @@ def calibrate_imu_camera(
                       pixel=1 / 0.5**2,
                       gyro_walk=1 / (stated.gyroscope_random_walk**2 * knot_spacing),
                       accel_walk=1 / (stated.accelerometer_random_walk**2 * knot_spacing))
-    rounds = 3 if estimate_noise else 1
+    rounds = 2 if estimate_noise else 1
     s = s0
     res = None
     iterations = 0
     for k in range(rounds):
         problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights)
-        res = schur_lm(problem, s, max_iters=max_iters, ftol=1e-10, absolute_weights=True)
+        # a warm start (the previous round's optimum, reweighted) needs little damping
+        res = schur_lm(problem, s, max_iters=max_iters, ftol=1e-10, absolute_weights=True,
+                       lambda_init=1e-3 if k == 0 else 1e-6)
         s = res.unknowns
         iterations += int(res.iterations)
         if k + 1 == rounds:
