@@ -483,6 +483,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "sensor's white noise is then measured from the recording)")
     p.add_argument("--output", required=True, metavar="JSON", help="camera-IMU calibration file to write (imu_cam.json)")
     p.add_argument("--kalibr-yaml", metavar="YAML", help="also write Kalibr's camchain-imucam.yaml")
+    p.add_argument("--report", metavar="DIR", help="also write figures (the gyroscope and accelerometer against the "
+                   "fitted trajectory, the corners' residuals, the time-offset search) to DIR (created)")
     p.add_argument("--max-shift", default=0.2, type=_positive_float, metavar="S",
                    help="search the time offset within +-S seconds (default 0.2)")
     p.add_argument("--knot-spacing", default=0.02, type=_positive_float, metavar="S",

@@ -21,7 +21,7 @@ import torch
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
-from ccs_kornia.commands._output_paths import check_output_file
+from ccs_kornia.commands._output_paths import check_output_dir, check_output_file, make_dir
 from ccs_kornia.commands._run import run_files
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.io.corners_file import read_corners_file
@@ -35,6 +35,7 @@ from ccs_kornia.modules.imu.solver import calibrate_imu_camera
 from ccs_kornia.outputs.calibration_file import RigFileError, camera_record_fields, read_calibration
 from ccs_kornia.outputs.imu_exports import camchain_imucam_yaml
 from ccs_kornia.outputs.imu_records import imu_camera_record
+from ccs_kornia.outputs.report.imu import write_imu_report
 from ccs_kornia.outputs.records import view_records
 from ccs_kornia.runtime.errors import NoResult, UserError
 
@@ -173,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_file("--output", args.output)
     if args.kalibr_yaml:
         check_output_file("--kalibr-yaml", args.kalibr_yaml)
+    if args.report:
+        check_output_dir("--report", args.report)
     if args.corners and args.inputs:
         raise UserError("give the cameras' images or their corners (--corners), not both.")
     if not args.corners and not args.inputs:
@@ -227,6 +230,10 @@ def run(args: argparse.Namespace) -> int:
     if args.kalibr_yaml:
         write_text(args.kalibr_yaml, camchain_imucam_yaml(cameras, result.T_cam_imu, result.timeshift_cam_imu))
         written.append(args.kalibr_yaml)
+    if args.report:
+        make_dir("--report", args.report)
+        write_imu_report(args.report, result, data.gyro.numpy(), data.accel.numpy(), names)
+        written.append(os.path.join(args.report, "index.html"))
     for c, name in enumerate(names):
         t = result.T_cam_imu[c, :3, 3]
         print(f"{name}: T_cam_imu translation [{t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}] m (1-sigma "

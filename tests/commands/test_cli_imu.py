@@ -62,7 +62,8 @@ def test_corners_json_and_csv_give_the_truth(capsys, files, recording):
     out = files / "imu_cam.json"
     code, stdout, err = run(capsys, "calibrate-imu", "--corners", files / "cam0.json", "--imu", files / "imu0.csv",
                             "--board", "7x6", "--square", "0.08", "--calibration", files / "cam0_calib.json",
-                            "--output", out, "--kalibr-yaml", files / "camchain-imucam.yaml")
+                            "--output", out, "--kalibr-yaml", files / "camchain-imucam.yaml", "--report",
+                            files / "report")
     assert code == 0, err
     data = json.loads(out.read_text())
     cam = data["cameras"][0]
@@ -72,6 +73,8 @@ def test_corners_json_and_csv_give_the_truth(capsys, files, recording):
     assert abs(cam["timeshift_cam_imu"] - float(recording.shift[0])) < 1e-4
     assert data["verdict"] in ("good", "usable") and "timeshift_cam_imu" in stdout
     assert data["noise"]["given"] is False and data["imu"]["samples"] == recording.imu_times.shape[0]
+    for name in ("index.html", "gyroscope.png", "accelerometer.png", "reprojection_0.png", "time_offset.png"):
+        assert (files / "report" / name).stat().st_size > 1000
     from ccs_kornia.io.kalibr import read_camchain
 
     chain = read_camchain(files / "camchain-imucam.yaml")

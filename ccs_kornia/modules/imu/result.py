@@ -79,6 +79,9 @@ class ImuCameraResult:
     verdict: str = ""
     verdict_reasons: list[str] = field(default_factory=list)
     spline: dict = field(default_factory=dict, repr=False)  #: t0, dt, R, p: the IMU's trajectory (for reports)
+    #: the fit's residuals (for reports): ``imu_times`` (N,), ``gyro`` (N, 3), ``accel`` (N, 3) (prediction minus
+    #: measurement), ``frame_times`` (F,), ``frame_camera`` (F,), ``corners`` (F, P, 2) px, ``seen`` (F, P)
+    residuals: dict = field(default_factory=dict, repr=False)
 
 
 def _ratio(measured: float, stated: float) -> float:

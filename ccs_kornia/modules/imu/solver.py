@@ -164,7 +164,9 @@ def calibrate_imu_camera(
         alignment_shift=torch.tensor([a.shift for a in alignments], dtype=data.gyro.dtype), max_shift=max_shift,
         frames_used=frames_used, knot_spacing=knot_spacing, iterations=iterations, status=int(res.status[0]),
         seconds=time.perf_counter() - start,
-        spline={"t0": t0, "dt": knot_spacing, "R": s["R"][0].clone(), "p": s["p"][0].clone()})
+        spline={"t0": t0, "dt": knot_spacing, "R": s["R"][0].clone(), "p": s["p"][0].clone()},
+        residuals={"imu_times": fit_data.imu_times, "gyro": rg, "accel": ra, "frame_times": fit_data.frame_times,
+                   "frame_camera": fit_data.frame_camera, "corners": rc, "seen": fit_data.seen})
     out.verdict, out.verdict_reasons = imu_camera_verdict(out, thresholds)
     return out
 
