@@ -190,5 +190,6 @@ def initial_unknowns(data: ImuCameraData, t0: float, dt: float, num_points: int,
         "Rci": torch.stack([a.R_cam_imu for a in alignments])[None],
         "tci": data.gyro.new_zeros(1, C, 3),
         "shift": torch.tensor([[a.shift for a in alignments]], dtype=f64),
+        "delay": data.gyro.new_zeros(1, C),
         "g": g[None],
     }

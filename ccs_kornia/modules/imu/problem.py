@@ -8,8 +8,9 @@ Unknowns (Furgale et al., "Unified temporal and spatial calibration for multi-se
   accelerometer's biases ``bg_k``, ``ba_k`` (the same B-spline): 12 unknowns; a control point couples its three
   neighbours, so the item blocks are block-banded and a step costs time linear in the recording's length;
 * the *global* unknowns: per camera ``T_cam_imu`` (``R <- exp(d) R``, ``t``) and its time shift (a frame stamped
-  ``t_cam`` by the camera is seen at IMU time ``t_cam + shift``), and gravity in the board's frame (its direction: 2
-  unknowns; its magnitude held).
+  ``t_cam`` by the camera is seen at IMU time ``t_cam + shift``), for a rolling-shutter camera its row delay (row
+  ``v`` is read ``delay * v`` after row 0: each corner is an observation at its own time), and gravity in the board's
+  frame (its direction: 2 unknowns; its magnitude held).
 
 Residuals, each whitened by its standard deviation: gyroscope ``w(t) + bg(t) - w_meas``; accelerometer
 ``R(t)^T (p''(t) - g) + ba(t) - a_meas``; every corner ``project(T_cam_imu T_imu_board(t_cam + shift) X) - uv``; the
@@ -110,6 +111,22 @@ class ImuCameraData:
 
 
 @dataclass
+class _Observations:
+    """A batch of corner observations: frames ``frames`` (F,) of the data (and under a rolling shutter the corner
+    ``corner`` (F,) of each, alone), their cameras, times on the cameras' clocks (the row's, under a rolling shutter),
+    observed rows, board points (F, P, 3), corners (F, P, 2) and which are seen (F, P)."""
+
+    frames: torch.Tensor
+    corner: torch.Tensor | None
+    camera: torch.Tensor
+    times: torch.Tensor
+    rows: torch.Tensor | None
+    points: torch.Tensor
+    corners: torch.Tensor
+    seen: torch.Tensor
+
+
+@dataclass
 class Weights:
     """Inverse variances of one sample of each measurement."""
 
@@ -127,12 +144,18 @@ class ImuCameraProblem:
         data: the measurements.
         t0, dt, num_points: the spline's knots.
         weights: the measurements' inverse variances (:class:`Weights`).
+        rolling_shutter: each camera reads its rows one after the other, ``delay`` s apart (an unknown per camera,
+            ``s["delay"]``): a corner is seen at its row's time, ``t_cam + shift + delay * v`` (``v`` its observed row).
     """
 
-    def __init__(self, data: ImuCameraData, t0: float, dt: float, num_points: int, weights: Weights) -> None:
+    def __init__(self, data: ImuCameraData, t0: float, dt: float, num_points: int, weights: Weights,
+                 rolling_shutter: bool = False) -> None:
         self.data, self.t0, self.dt, self.M, self.w = data, t0, dt, num_points, weights
         C = data.num_cameras
-        self.G = 7 * C + 2
+        self.rolling_shutter = rolling_shutter
+        #: global unknowns per camera: rotation, translation, time shift (and the row delay)
+        self.K = 8 if rolling_shutter else 7
+        self.G = self.K * C + 2
         self.L = 4 * ITEM + self.G
         dtype, device = data.gyro.dtype, data.gyro.device
         self.imu_seg, self.imu_u = segment_of(data.imu_times, t0, dt, num_points)
@@ -151,8 +174,8 @@ class ImuCameraProblem:
         return torch.ones(1, dtype=s["p"].dtype, device=s["p"].device)
 
     def retract(self, s: dict[str, torch.Tensor], dg: torch.Tensor, dp: torch.Tensor) -> dict[str, torch.Tensor]:
-        C = self.data.num_cameras
-        cam = dg[:, : 7 * C].view(1, C, 7)
+        C, K = self.data.num_cameras, self.K
+        cam = dg[:, : K * C].view(1, C, K)
         B = gravity_basis(s["g"])
         return {
             "R": s["R"] @ exp_so3(dp[..., 0:3]),
@@ -162,7 +185,8 @@ class ImuCameraProblem:
             "Rci": exp_so3(cam[..., 0:3]) @ s["Rci"],
             "tci": s["tci"] + cam[..., 3:6],
             "shift": s["shift"] + cam[..., 6],
-            "g": (exp_so3((B @ dg[:, 7 * C:, None])[..., 0]) @ s["g"][..., None])[..., 0],
+            "delay": s["delay"] + cam[..., 7] if self.rolling_shutter else s["delay"],
+            "g": (exp_so3((B @ dg[:, K * C:, None])[..., 0]) @ s["g"][..., None])[..., 0],
         }
 
     def linearize(self, s: dict[str, torch.Tensor]) -> NormalEquations:
@@ -180,19 +204,63 @@ class ImuCameraProblem:
         rg = w + (B0[:, None, :] @ bg[idx])[:, 0] - d.gyro
         acc = (B2[:, None, :] @ p[idx])[:, 0] - g
         ra = (Rt.transpose(-1, -2) @ acc[..., None])[..., 0] + (B0[:, None, :] @ ba[idx])[:, 0] - d.accel
-        cam = d.frame_camera
-        tau = d.frame_times + s["shift"][0][cam]
-        seg, u = segment_of(tau, self.t0, dt, self.M)
-        fidx = seg[:, None] + torch.arange(4, device=R.device)
-        Rf, _ = so3_spline(R[fidx], u, dt)
-        pf = (spline_basis(u)[:, None, :] @ p[fidx])[:, 0]
-        R_cb = s["Rci"][0][cam] @ Rf.transpose(-1, -2)
-        t_cb = s["tci"][0][cam] - (R_cb @ pf[..., None])[..., 0]
-        xc = (R_cb[:, None] @ d.object_points[None, :, :, None])[..., 0] + t_cb[:, None]
-        uv = d.cameras.project(xc[None].expand(C, -1, -1, -1))
-        uv = uv.gather(0, cam[None, :, None, None].expand(1, *uv.shape[1:]))[0]
-        rc = torch.where(d.seen[..., None], uv - d.corners, 0.0)
+        rc = torch.zeros_like(d.corners)
+        for o in self._observations(s):
+            R_cb, t_cb = self._poses(s, o)[:2]
+            uv = self._project(R_cb, t_cb, o)[0]
+            r = torch.where(o.seen[..., None], uv - o.corners, 0.0)
+            if o.corner is None:
+                rc[o.frames] = r
+            else:
+                rc[o.frames, o.corner] = r[:, 0]
         return rg, ra, rc
+
+    def _observations(self, s):
+        """The corners as batches of :class:`_Observations` (frames, or under a rolling shutter each corner alone at
+        its row's time), at most :data:`_CHUNK` * 4 at once."""
+        d = self.data
+        F = d.corners.shape[0]
+        if not self.rolling_shutter:
+            for lo in range(0, F, _CHUNK):
+                f = torch.arange(lo, min(F, lo + _CHUNK), device=d.corners.device)
+                yield _Observations(frames=f, corner=None, camera=d.frame_camera[f], times=d.frame_times[f],
+                                    rows=None, points=d.object_points.expand(len(f), -1, -1), corners=d.corners[f],
+                                    seen=d.seen[f])
+            return
+        f_all, n_all = d.seen.nonzero(as_tuple=True)
+        for lo in range(0, f_all.shape[0], 4 * _CHUNK):
+            f, n = f_all[lo:lo + 4 * _CHUNK], n_all[lo:lo + 4 * _CHUNK]
+            cam = d.frame_camera[f]
+            v = d.corners[f, n, 1]
+            yield _Observations(frames=f, corner=n, camera=cam, times=d.frame_times[f] + s["delay"][0][cam] * v, rows=v,
+                                points=d.object_points[n][:, None], corners=d.corners[f, n][:, None],
+                                seen=torch.ones(len(f), 1, dtype=torch.bool, device=f.device))
+
+    def _poses(self, s, o):
+        """The cameras' poses (camera from board) at the observations' times, and what their derivatives need."""
+        R, p = s["R"][0], s["p"][0]
+        tau = o.times + s["shift"][0][o.camera]
+        seg, u = segment_of(tau, self.t0, self.dt, self.M)
+        idx = seg[:, None] + torch.arange(4, device=R.device)
+        Rt, w, E, _ = so3_spline(R[idx], u, self.dt, jacobians=True)
+        Bu = spline_basis(u)
+        pt = (Bu[:, None, :] @ p[idx])[:, 0]
+        vel = (spline_basis(u, 1)[:, None, :] @ p[idx])[:, 0] / self.dt
+        R_cb = s["Rci"][0][o.camera] @ Rt.transpose(-1, -2)
+        t_cb = s["tci"][0][o.camera] - (R_cb @ pt[..., None])[..., 0]
+        return R_cb, t_cb, seg, w, E, Bu, vel
+
+    def _project(self, R_cb, t_cb, o, jacobians: bool = False):
+        """The observations' points projected by their cameras (and ``d uv / d x_cam``)."""
+        C = self.data.num_cameras
+        F, P = o.points.shape[:2]
+        xc = (R_cb[:, None] @ o.points[..., None])[..., 0] + t_cb[:, None]
+        res = self.data.cameras.project(xc[None].expand(C, -1, -1, -1), jacobians=jacobians)
+        uv, Jx = (res[0], res[2]) if jacobians else (res, None)
+        uv = uv.gather(0, o.camera[None, :, None, None].expand(1, F, P, 2))[0]
+        if jacobians:
+            Jx = Jx.gather(0, o.camera[None, :, None, None, None].expand(1, F, P, 2, 3))[0]
+        return uv, Jx, xc
 
     # -- residuals -------------------------------------------------------------------------------------------------
     def _imu_blocks(self, s, H, b):
@@ -227,7 +295,7 @@ class ImuCameraProblem:
                 J[:, 3:6, o + 3:o + 6] = B2[:, j, None, None] * Rt.transpose(-1, -2)
                 J[:, 3:6, o + 9:o + 12] = B0[:, j, None, None] * eye
             # d(-R^T g) / d g_delta, with g <- exp(B d) g: dg = -[g]_x B d
-            J[:, 3:6, 4 * ITEM + 7 * C:] = Rt.transpose(-1, -2) @ (skew(g) @ gB)
+            J[:, 3:6, 4 * ITEM + self.K * C:] = Rt.transpose(-1, -2) @ (skew(g) @ gB)
             J[:, 0:3] *= sg
             J[:, 3:6] *= sa
             r = torch.cat([rg * sg, ra * sa], -1)
@@ -238,58 +306,47 @@ class ImuCameraProblem:
 
     def _frame_blocks(self, s, H, b):
         """The corners' residuals, accumulated into the segment blocks; their cost."""
-        d, dt, C = self.data, self.dt, self.data.num_cameras
-        R, p = s["R"][0], s["p"][0]
-        Rci, tci, shift = s["Rci"][0], s["tci"][0], s["shift"][0]
-        cam = d.frame_camera
-        F, P = d.corners.shape[:2]
-        tau = d.frame_times + shift[cam]
-        seg, u = segment_of(tau, self.t0, dt, self.M)
-        idx = seg[:, None] + torch.arange(4, device=R.device)
-        Rt, w, E, _ = so3_spline(R[idx], u, dt, jacobians=True)
-        Bu = spline_basis(u)
-        pt = (Bu[:, None, :] @ p[idx])[:, 0]
-        vel = (spline_basis(u, 1)[:, None, :] @ p[idx])[:, 0] / dt
-        Rc, tc = Rci[cam], tci[cam]
-        R_cb = Rc @ Rt.transpose(-1, -2)
-        t_cb = tc - (R_cb @ pt[..., None])[..., 0]
-        # the camera pose's left perturbation (phi, rho), x_c <- x_c + phi x x_c + rho, by the frame's 31 unknowns
-        # (4 control rotations, 4 control positions, the camera's rotation, translation and shift): with
-        # R(t) <- R(t) exp(eps), phi = phi_cam - R_cam_imu eps and rho = dt_cam + [t_cam_imu]_x phi - R_cb dp
-        eye = torch.eye(3, dtype=R.dtype, device=R.device)
-        dphi = R.new_zeros(F, 3, 31)
-        dphi[:, :, :12] = (-Rc[:, None] @ E).permute(0, 2, 1, 3).reshape(F, 3, 12)
-        dphi[:, :, 24:27] = eye
-        dphi[:, :, 30] = -(Rc @ w[..., None])[..., 0]
-        drho = skew(tc) @ dphi
-        drho[:, :, 12:24] -= (R_cb[:, :, None, :] * Bu[:, None, :, None]).reshape(F, 3, 12)
-        drho[:, :, 27:30] += eye
-        drho[:, :, 30] -= (R_cb @ vel[..., None])[..., 0]
-        Jpose = torch.cat([dphi, drho], 1)  # (F, 6, 31)
-        xc = (R_cb[:, None] @ d.object_points[None, :, :, None])[..., 0] + t_cb[:, None]
-        uv, _, Jx = d.cameras.project(xc[None].expand(C, -1, -1, -1) if C > 1 else xc[None], jacobians=True)
-        if C > 1:
-            take = cam[None, :, None, None].expand(1, F, P, 2)
-            uv = uv.gather(0, take)[0]
-            Jx = Jx.gather(0, cam[None, :, None, None, None].expand(1, F, P, 2, 3))[0]
-        else:
-            uv, Jx = uv[0], Jx[0]
-        Jcorner = torch.cat([Jx @ -skew(xc), Jx], -1)  # (F, P, 2, 6)
-        sp = self.w.pixel**0.5
-        wgt = d.seen.to(R.dtype)[..., None] * sp
-        r = torch.where(d.seen[..., None], uv - d.corners, 0.0) * wgt
-        Jc = Jcorner * wgt[..., None]
-        Jfull = Jc @ Jpose[:, None]  # (F, P, 2, 31)
-        Hf = torch.einsum("fpia,fpib->fab", Jfull, Jfull)
-        bf = torch.einsum("fpia,fpi->fa", Jfull, r)
-        # the frame's 31 local unknowns in the segment layout
+        d, C, K = self.data, self.data.num_cameras, self.K
+        dtype, device = d.corners.dtype, d.corners.device
+        eye = torch.eye(3, dtype=dtype, device=device)
+        n_loc = 24 + K
+        # an observation's local unknowns (4 control rotations, 4 control positions, its camera's) in the segment layout
         loc = torch.cat([(ITEM * torch.arange(4)[:, None] + torch.arange(3)).flatten(),
-                         (ITEM * torch.arange(4)[:, None] + 3 + torch.arange(3)).flatten()]).to(R.device)
-        pos = torch.cat([loc.expand(F, 24), 4 * ITEM + 7 * cam[:, None] + torch.arange(7, device=R.device)], 1)
-        flat = (pos[:, :, None] * self.L + pos[:, None, :]).flatten(1)
-        H.view(H.shape[0], -1).index_put_((seg[:, None].expand_as(flat), flat), Hf.flatten(1), accumulate=True)
-        b.index_put_((seg[:, None].expand_as(pos), pos), bf, accumulate=True)
-        return (r * r).sum()
+                         (ITEM * torch.arange(4)[:, None] + 3 + torch.arange(3)).flatten()]).to(device)
+        cost = torch.zeros((), dtype=dtype, device=device)
+        sp = self.w.pixel**0.5
+        for o in self._observations(s):
+            R_cb, t_cb, seg, w, E, Bu, vel = self._poses(s, o)
+            F = R_cb.shape[0]
+            Rc, tc = s["Rci"][0][o.camera], s["tci"][0][o.camera]
+            # the camera pose's left perturbation (phi, rho), x_c <- x_c + phi x x_c + rho, by the local unknowns: with
+            # R(t) <- R(t) exp(eps), phi = phi_cam - R_cam_imu eps and rho = dt_cam + [t_cam_imu]_x phi - R_cb dp;
+            # the time moves with the shift (and with the row delay times the row)
+            dphi = R_cb.new_zeros(F, 3, n_loc)
+            dphi[:, :, :12] = (-Rc[:, None] @ E).permute(0, 2, 1, 3).reshape(F, 3, 12)
+            dphi[:, :, 24:27] = eye
+            dphi[:, :, 30] = -(Rc @ w[..., None])[..., 0]
+            drho = skew(tc) @ dphi
+            drho[:, :, 12:24] -= (R_cb[:, :, None, :] * Bu[:, None, :, None]).reshape(F, 3, 12)
+            drho[:, :, 27:30] += eye
+            drho[:, :, 30] -= (R_cb @ vel[..., None])[..., 0]
+            if self.rolling_shutter:
+                dphi[:, :, 31] = dphi[:, :, 30] * o.rows[:, None]
+                drho[:, :, 31] = drho[:, :, 30] * o.rows[:, None]
+            Jpose = torch.cat([dphi, drho], 1)  # (F, 6, n_loc)
+            uv, Jx, xc = self._project(R_cb, t_cb, o, jacobians=True)
+            Jcorner = torch.cat([Jx @ -skew(xc), Jx], -1)  # (F, P, 2, 6)
+            wgt = o.seen.to(dtype)[..., None] * sp
+            r = torch.where(o.seen[..., None], uv - o.corners, 0.0) * wgt
+            Jfull = (Jcorner * wgt[..., None]) @ Jpose[:, None]  # (F, P, 2, n_loc)
+            Hf = torch.einsum("fpia,fpib->fab", Jfull, Jfull)
+            bf = torch.einsum("fpia,fpi->fa", Jfull, r)
+            pos = torch.cat([loc.expand(F, 24), 4 * ITEM + K * o.camera[:, None] + torch.arange(K, device=device)], 1)
+            flat = (pos[:, :, None] * self.L + pos[:, None, :]).flatten(1)
+            H.view(H.shape[0], -1).index_put_((seg[:, None].expand_as(flat), flat), Hf.flatten(1), accumulate=True)
+            b.index_put_((seg[:, None].expand_as(pos), pos), bf, accumulate=True)
+            cost = cost + (r * r).sum()
+        return cost
 
     def _segment_blocks(self, s):
         S = self.M - 3

@@ -76,6 +76,8 @@ class ImuCameraResult:
     iterations: int
     status: int  #: :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus`
     seconds: float  #: the fit's wall time
+    line_delay: torch.Tensor | None = None  #: (C,) s per row of a rolling-shutter camera (None: global shutter)
+    line_delay_std: torch.Tensor | None = None  #: (C,) s
     verdict: str = ""
     verdict_reasons: list[str] = field(default_factory=list)
     spline: dict = field(default_factory=dict, repr=False)  #: t0, dt, R, p: the IMU's trajectory (for reports)

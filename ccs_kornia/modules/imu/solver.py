@@ -63,6 +63,7 @@ def calibrate_imu_camera(
     estimate_noise: bool = True,
     max_iters: int = 50,
     thresholds: ImuVerdictThresholds | None = None,
+    rolling_shutter: bool = False,
 ) -> ImuCameraResult:
     """Calibrate the IMU against C cameras from one recording (see the module doc).
 
@@ -74,6 +75,8 @@ def calibrate_imu_camera(
         estimate_noise: rescale each sensor's white noise to its residuals (variance components).
         max_iters: LM iterations per round at most.
         thresholds: the verdict's.
+        rolling_shutter: the cameras read their rows one after the other: each camera's row delay is estimated
+            (after a first fit with a global shutter, from 0).
 
     Returns:
         :class:`~ccs_kornia.modules.imu.result.ImuCameraResult`.
@@ -120,11 +123,14 @@ def calibrate_imu_camera(
                       gyro_walk=1 / (stated.gyroscope_random_walk**2 * knot_spacing),
                       accel_walk=1 / (stated.accelerometer_random_walk**2 * knot_spacing))
     rounds = 2 if estimate_noise else 1
+    if rolling_shutter:
+        rounds = max(rounds, 2)
     s = s0
     res = None
     iterations = 0
     for k in range(rounds):
-        problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights)
+        # a rolling shutter's row delays join from the second round (the first fit starts them from a global shutter)
+        problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=rolling_shutter and k > 0)
         # a warm start (the previous round's optimum, reweighted) needs little damping
         res = schur_lm(problem, s, max_iters=max_iters, ftol=1e-10, absolute_weights=True,
                        lambda_init=1e-3 if k == 0 else 1e-6)
@@ -142,13 +148,13 @@ def calibrate_imu_camera(
         fp = float(rc.square().sum()) / (2 * max(n_pts, 1)) * weights.pixel / redundancy
         weights = replace(weights, gyro=weights.gyro / fg, accel=weights.accel / fa, pixel=weights.pixel / fp)
 
-    problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights)
+    problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=rolling_shutter)
     rg, ra, rc = problem.residuals(s)
     cov = res.covariance[0]
     sd = cov.diagonal().clamp_min(0).sqrt()
     T = torch.eye(4, dtype=data.gyro.dtype).repeat(C, 1, 1)
     T[:, :3, :3], T[:, :3, 3] = s["Rci"][0], s["tci"][0]
-    per_cam = sd[: 7 * C].view(C, 7)
+    per_cam = sd[: problem.K * C].view(C, problem.K)
     pixel_rms = torch.stack([rc[fit_data.frame_camera == c][fit_data.seen[fit_data.frame_camera == c]].square().mean().sqrt()
                              for c in range(C)])
     measured = replace(stated,
@@ -156,7 +162,9 @@ def calibrate_imu_camera(
                        accelerometer_noise_density=weights.accel**-0.5 / math.sqrt(rate), update_rate=rate)
     out = ImuCameraResult(
         T_cam_imu=T, timeshift_cam_imu=s["shift"][0].clone(), rotation_std_deg=per_cam[:, :3] * 180 / math.pi,
-        translation_std=per_cam[:, 3:6], timeshift_std=per_cam[:, 6], covariance=cov, gravity=s["g"][0].clone(),
+        translation_std=per_cam[:, 3:6], timeshift_std=per_cam[:, 6], covariance=cov,
+        line_delay=s["delay"][0].clone() if rolling_shutter else None,
+        line_delay_std=per_cam[:, 7] if rolling_shutter else None, gravity=s["g"][0].clone(),
         gyro_bias=s["bg"][0].clone(), accel_bias=s["ba"][0].clone(), gyro_rms=_rms(rg), accel_rms=_rms(ra),
         pixel_rms=pixel_rms, noise_stated=stated, noise_measured=measured, pixel_sigma=weights.pixel**-0.5,
         noise_given=given, alignment_shifts=alignments[0].shifts,
@@ -176,7 +184,7 @@ class ImuCameraSolver(nn.Module):
     the options fixed at construction.
 
     Args:
-        noise, knot_spacing, max_shift, estimate_noise, max_iters: see :func:`calibrate_imu_camera`.
+        noise, knot_spacing, max_shift, estimate_noise, max_iters, rolling_shutter: see :func:`calibrate_imu_camera`.
 
     Shape:
         :class:`~ccs_kornia.modules.imu.problem.ImuCameraData` (IMU :math:`(N, 3)` rates and accelerations, frames
@@ -195,8 +203,9 @@ class ImuCameraSolver(nn.Module):
     """
 
     def __init__(self, noise: ImuNoise | None = None, knot_spacing: float = 0.02, max_shift: float = 0.2,
-                 estimate_noise: bool = True, max_iters: int = 50) -> None:
+                 estimate_noise: bool = True, max_iters: int = 50, rolling_shutter: bool = False) -> None:
         super().__init__()
+        self.rolling_shutter = rolling_shutter
         self.noise = noise
         self.knot_spacing = knot_spacing
         self.max_shift = max_shift
@@ -205,4 +214,4 @@ class ImuCameraSolver(nn.Module):
 
     def forward(self, data: ImuCameraData) -> ImuCameraResult:
         return calibrate_imu_camera(data, self.noise, self.knot_spacing, self.max_shift, self.estimate_noise,
-                                    self.max_iters)
+                                    self.max_iters, rolling_shutter=self.rolling_shutter)

@@ -4,9 +4,9 @@ import pytest
 import torch
 
 from ccs_kornia.data.recordings.visual_inertial import visual_inertial_recording
-from ccs_kornia.geometry.so3 import exp_so3, log_so3
+from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.modules.calibration.schur_lm import schur_step
-from ccs_kornia.modules.imu.initial import align_rates, board_poses
+from ccs_kornia.modules.imu.initial import align_rates, board_poses, initial_unknowns
 from ccs_kornia.modules.imu.problem import ImuCameraData, ImuCameraProblem, Weights
 from ccs_kornia.modules.imu.result import imu_camera_verdict
 from ccs_kornia.modules.imu.solver import ImuCameraSolver, calibrate_imu_camera
@@ -39,7 +39,8 @@ class TestStart:
 
 
 class TestProblem:
-    def test_normal_equations_are_the_costs_gradient(self, recording):
+    @pytest.mark.parametrize("rolling_shutter", [False, True])
+    def test_normal_equations_are_the_costs_gradient(self, recording, rolling_shutter):
         # the gradient J^T r the problem assembles equals the cost's numerical derivative along a random step
         data = _data(visual_inertial_recording(duration=3.0, seed=12))
         solver_noise = recording.noise
@@ -47,13 +48,13 @@ class TestProblem:
         M = int((float(data.imu_times[-1]) - t0) / dt) + 3
         w = Weights(gyro=1 / solver_noise.gyroscope_sample_sigma**2, accel=1 / solver_noise.accelerometer_sample_sigma**2,
                     pixel=4.0, gyro_walk=1e4, accel_walk=1e2)
-        prob = ImuCameraProblem(data, t0, dt, M, w)
+        prob = ImuCameraProblem(data, t0, dt, M, w, rolling_shutter=rolling_shutter)
+        # a realistic point: the fit's start (from the angular rates), with a row delay
+        R, t, ok = board_poses(data)
+        al = align_rates(data.frame_times, R, ok, data.imu_times, data.gyro)
+        s = initial_unknowns(data, t0, dt, M, R, t, ok, [al])
+        s["delay"] = torch.full((1, 1), 3e-5, dtype=torch.float64)
         g = torch.Generator().manual_seed(0)
-        s = {"R": exp_so3(torch.randn(1, M, 3, generator=g, dtype=torch.float64).cumsum(1) * 0.05),
-             "p": torch.randn(1, M, 3, generator=g, dtype=torch.float64) * 0.1 + torch.tensor([0.2, 0.2, -0.6], dtype=torch.float64),
-             "bg": torch.zeros(1, M, 3, dtype=torch.float64), "ba": torch.zeros(1, M, 3, dtype=torch.float64),
-             "Rci": torch.eye(3, dtype=torch.float64)[None, None], "tci": torch.zeros(1, 1, 3, dtype=torch.float64),
-             "shift": torch.zeros(1, 1, dtype=torch.float64), "g": torch.tensor([[0.0, 9.8, 0.0]], dtype=torch.float64)}
         eq = prob.linearize(s)
         dg = torch.randn(1, prob.G, generator=g, dtype=torch.float64)
         dp = torch.randn(1, M, 12, generator=g, dtype=torch.float64)
