@@ -487,6 +487,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "fitted trajectory, the corners' residuals, the time-offset search) to DIR (created)")
     p.add_argument("--max-shift", default=0.2, type=_positive_float, metavar="S",
                    help="search the time offset within +-S seconds (default 0.2)")
+    p.add_argument("--rolling-shutter", action="store_true",
+                   help="the cameras read their rows one after the other: each corner is fitted at its row's time and "
+                        "each camera's row delay is estimated (written as line_delay_s)")
     p.add_argument("--knot-spacing", default=0.02, type=_positive_float, metavar="S",
                    help="the IMU trajectory's knot spacing in seconds (default 0.02)")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))

@@ -210,7 +210,8 @@ def run(args: argparse.Namespace) -> int:
                                       [f[1] for f in frames])
     for note in log.notes:
         print(f"imu: {note}", file=sys.stderr)
-    result = calibrate_imu_camera(data, noise=noise, knot_spacing=args.knot_spacing, max_shift=args.max_shift)
+    result = calibrate_imu_camera(data, noise=noise, knot_spacing=args.knot_spacing, max_shift=args.max_shift,
+                                  rolling_shutter=args.rolling_shutter)
     findings = imu_log_findings(log)
     extra = {"imu": {"samples": int(log.t.shape[0]), "rate_hz": round(float(findings.rate), 3),
                      "dropped": findings.dropped, "longest_gap_s": findings.longest_gap,
@@ -239,7 +240,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{name}: T_cam_imu translation [{t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}] m (1-sigma "
               f"{1000 * float(result.translation_std[c].norm()):.2f} mm, {float(result.rotation_std_deg[c].norm()):.3f} "
               f"deg); timeshift_cam_imu {1000 * float(result.timeshift_cam_imu[c]):+.3f} ms "
-              f"(1-sigma {1000 * float(result.timeshift_std[c]):.3f} ms); {int(result.frames_used[c])} frames")
+              f"(1-sigma {1000 * float(result.timeshift_std[c]):.3f} ms)"
+              + (f"; line delay {1e6 * float(result.line_delay[c]):.3f} us" if result.line_delay is not None else "")
+              + f"; {int(result.frames_used[c])} frames")
     print(f"verdict: {result.verdict}" + (f" ({'; '.join(result.verdict_reasons)})" if result.verdict_reasons else ""))
     print("wrote " + ", ".join(written))
     return 0

@@ -42,6 +42,8 @@ def imu_camera_record(result: ImuCameraResult, names: list[str], extra: dict[str
             "rotation_std_deg": [_r(v, 6) for v in result.rotation_std_deg[c].tolist()],
             "translation_std_m": [_r(v, 9) for v in result.translation_std[c].tolist()],
             "timeshift_std_s": _r(result.timeshift_std[c], 9),
+            **({"line_delay_s": _r(result.line_delay[c], 12), "line_delay_std_s": _r(result.line_delay_std[c], 12)}
+               if result.line_delay is not None else {}),
             "frames_used": int(result.frames_used[c]),
             "pixel_rms": _r(result.pixel_rms[c], 4),
             "time_offset_search": {

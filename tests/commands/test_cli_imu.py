@@ -114,6 +114,21 @@ def test_cameras_calibrated_from_the_recording(capsys, files, recording):
     assert float((T[:3, 3] - recording.T_cam_imu[0, :3, 3]).norm()) < 0.005
 
 
+def test_rolling_shutter(capsys, tmp_path):
+    rec = visual_inertial_recording(duration=8.0, seed=41, line_delay=3e-5)
+    write_imu_csv(tmp_path / "imu0.csv", rec)
+    write_corners(tmp_path / "cam0.json", rec)
+    write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
+    out = tmp_path / "imu_cam.json"
+    code, stdout, err = run(capsys, "calibrate-imu", "--corners", tmp_path / "cam0.json", "--imu", tmp_path / "imu0.csv",
+                            "--board", "7x6", "--square", "0.08", "--calibration", tmp_path / "cam.json",
+                            "--rolling-shutter", "--output", out)
+    assert code == 0, err
+    cam = json.loads(out.read_text())["cameras"][0]
+    assert abs(cam["line_delay_s"] - 3e-5) < 1e-6 and "line delay" in stdout
+    assert abs(cam["timeshift_cam_imu"] - float(rec.shift[0])) < 2e-4
+
+
 def test_clocks_that_do_not_overlap(capsys, files, recording):
     write_imu_csv(files / "late.csv", recording, offset_s=5000.0)
     _refused(capsys, 2, _argv(files, **{"--imu": files / "late.csv"}), files / "imu_cam.json", "overlap")

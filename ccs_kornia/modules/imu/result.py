@@ -31,7 +31,8 @@ _ROTATIONS = ("X (tilting it up and down)", "Y (panning it left and right)", "Z 
 class ImuVerdictThresholds:
     """Limits of the verdict on each camera's 1-sigma: rotation (degrees), translation (m), time offset (s); the ratio
     of a sensor's residuals to its stated noise beyond which the stated noise is called off; the least correlation
-    of the angular speeds."""
+    of the angular speeds; the corners' RMS (px) beyond which a global-shutter fit is asked whether the camera has a
+    rolling shutter."""
 
     good_rotation_deg: float = 0.05
     usable_rotation_deg: float = 0.3
@@ -41,6 +42,7 @@ class ImuVerdictThresholds:
     usable_shift: float = 2e-3
     noise_ratio: float = 3.0
     min_correlation: float = 0.5
+    max_pixel_rms: float = 1.0
 
 
 @dataclass
@@ -134,6 +136,9 @@ def imu_camera_verdict(result: ImuCameraResult, thresholds: ImuVerdictThresholds
             advice.append("rotate the camera faster, back and forth, the board in view")
         elif s > t.good_shift:
             weak.append(f"{name}time offset 1-sigma {1000 * s:.3f} ms")
+        px = float(result.pixel_rms[c])
+        if result.line_delay is None and px > t.max_pixel_rms:
+            weak.append(f"{name}the corners fit to {px:.2f} px RMS: a rolling-shutter camera? (--rolling-shutter)")
         corr = float(result.alignment_correlation[c].max())
         if corr < t.min_correlation:
             weak.append(f"{name}the camera's and the gyroscope's angular speeds agree weakly (correlation {corr:.2f})")
