@@ -21,7 +21,11 @@ import torch
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
-from ccs_kornia.commands._output_paths import check_output_dir, check_output_file, make_dir
+from ccs_kornia.commands._output_paths import (
+    check_output_dir,
+    check_output_file,
+    make_dir,
+)
 from ccs_kornia.commands._run import run_files
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.io.corners_file import read_corners_file
@@ -32,11 +36,15 @@ from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.imu.problem import ImuCameraData
 from ccs_kornia.modules.imu.solver import calibrate_imu_camera
-from ccs_kornia.outputs.calibration_file import RigFileError, camera_record_fields, read_calibration
+from ccs_kornia.outputs.calibration_file import (
+    RigFileError,
+    camera_record_fields,
+    read_calibration,
+)
 from ccs_kornia.outputs.imu_exports import camchain_imucam_yaml
 from ccs_kornia.outputs.imu_records import imu_camera_record
-from ccs_kornia.outputs.report.imu import write_imu_report
 from ccs_kornia.outputs.records import view_records
+from ccs_kornia.outputs.report.imu import write_imu_report
 from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["run"]

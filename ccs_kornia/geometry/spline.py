@@ -32,9 +32,15 @@ from dataclasses import dataclass
 
 import torch
 
-from ccs_kornia.geometry.so3 import exp_so3, log_so3, right_jacobian, right_jacobian_inverse, skew
+from ccs_kornia.geometry.so3 import (
+    exp_so3,
+    log_so3,
+    right_jacobian,
+    right_jacobian_inverse,
+    skew,
+)
 
-__all__ = ["SE3Spline", "segment_of", "spline_basis", "so3_spline", "r3_spline", "fit_r3_spline"]
+__all__ = ["SE3Spline", "fit_r3_spline", "r3_spline", "segment_of", "so3_spline", "spline_basis"]
 
 #: the uniform cubic B-spline's basis: ``B(u) = _BASIS @ (1, u, u^2, u^3)``
 _BASIS = torch.tensor([[1.0, -3.0, 3.0, -1.0], [4.0, 0.0, -6.0, 3.0], [1.0, 3.0, 3.0, -3.0], [0.0, 0.0, 0.0, 1.0]], dtype=torch.float64) / 6

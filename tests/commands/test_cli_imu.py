@@ -29,7 +29,7 @@ def run(capsys, *argv) -> tuple[int, str, str]:
 def write_imu_csv(path, rec, offset_s: float = 0.0) -> None:
     rows = [EUROC_HEADER]
     for t, w, a in zip(rec.imu_times.tolist(), rec.gyro.tolist(), rec.accel.tolist()):
-        rows.append(",".join([str(int(round((t + offset_s) * 1e9)))] + [f"{v:.9f}" for v in w + a]))
+        rows.append(",".join([str(round((t + offset_s) * 1e9))] + [f"{v:.9f}" for v in w + a]))
     path.write_text("\n".join(rows) + "\n")
 
 
@@ -177,7 +177,7 @@ def test_folder_of_images_named_by_their_time(capsys, tmp_path):
     images, _ = render_chessboard(rec.cameras.K[0].expand(len(t), 3, 3), log(Rcw), -(Rcw @ p[..., None])[..., 0],
                                   (7, 6), 0.08, (752, 480), dist=rec.cameras.dist[0, :5], supersample=2)
     for k, ts in enumerate(t.tolist()):
-        cv2.imwrite(str(folder / f"{int(round(ts * 1e9))}.png"), (images[k, 0].numpy() * 255).round().astype("uint8"))
+        cv2.imwrite(str(folder / f"{round(ts * 1e9)}.png"), (images[k, 0].numpy() * 255).round().astype("uint8"))
     write_imu_csv(tmp_path / "imu0.csv", rec)
     write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
     out = tmp_path / "imu_cam.json"

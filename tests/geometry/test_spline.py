@@ -2,8 +2,21 @@ import pytest
 import torch
 from torch.func import jacfwd
 
-from ccs_kornia.geometry.so3 import exp_so3, log_so3, right_jacobian, right_jacobian_inverse, skew
-from ccs_kornia.geometry.spline import SE3Spline, fit_r3_spline, r3_spline, segment_of, so3_spline, spline_basis
+from ccs_kornia.geometry.so3 import (
+    exp_so3,
+    log_so3,
+    right_jacobian,
+    right_jacobian_inverse,
+    skew,
+)
+from ccs_kornia.geometry.spline import (
+    SE3Spline,
+    fit_r3_spline,
+    r3_spline,
+    segment_of,
+    so3_spline,
+    spline_basis,
+)
 
 
 def _spline(M=10, seed=0, dtype=torch.float64):
@@ -51,7 +64,7 @@ class TestSpline:
         g = torch.Generator().manual_seed(1)
         Rl = exp_so3(torch.randn(6, 4, 3, generator=g, dtype=torch.float64).cumsum(1) * 0.3)
         u = torch.rand(6, generator=g, dtype=torch.float64)
-        R, w, E, Dw = so3_spline(Rl, u, 0.05, jacobians=True)
+        R, _w, E, Dw = so3_spline(Rl, u, 0.05, jacobians=True)
         for n in range(6):
             def f(delta, n=n):
                 return so3_spline(Rl[n] @ exp_so3(delta), u[n], 0.05)

@@ -108,12 +108,12 @@ def imu_md(sec: dict) -> list[str]:
     """Markdown of :func:`run_imu`'s result."""
     if "conditions" not in sec:
         return [f"Not run: {sec.get('error') or sec.get('skipped', '')}"]
-    lines = [f"{sec['trials']} rendered recordings of {sec['recording_s']:g} s per condition (a camera with an IMU, "
+    lines = [(f"{sec['trials']} rendered recordings of {sec['recording_s']:g} s per condition (a camera with an IMU, "
              "swung by hand before a board; 20 fps global shutter, 0.2 px corners; IMU 200 Hz with EuRoC's noise and "
              "bias walk; time offsets -30..+30 ms). Errors of T_cam_imu and the time offset against the truth, over "
-             "every camera; coverage: the error's components within their 1-sigma (68 % expected).", "",
-             "| condition | rotation deg median / max | translation mm median / max | time offset ms median / max | "
-             "1-sigma coverage | fit s median / max | verdicts |", "|---|---|---|---|---|---|---|"]
+             "every camera; coverage: the error's components within their 1-sigma (68 % expected)."), "",
+             ("| condition | rotation deg median / max | translation mm median / max | time offset ms median / max | "
+             "1-sigma coverage | fit s median / max | verdicts |"), "|---|---|---|---|---|---|---|"]
     for name, c in sec["conditions"].items():
         s = c["summary"]
         verdicts = ", ".join(f"{v} {n}" for v, n in s["verdicts"].items())
@@ -124,6 +124,6 @@ def imu_md(sec: dict) -> list[str]:
               if "line_delay_err_us_median" in c["summary"]]
     if delays:
         lines += ["", "Row delay error (median, the truth 30 us): " + ", ".join(delays) + "."]
-    lines += ["", f"Peak memory of the bench process after the section: {sec['peak_rss_mb']:.0f} MB "
-              f"({sec['threads']} torch threads).", ""]
+    lines += ["", (f"Peak memory of the bench process after the section: {sec['peak_rss_mb']:.0f} MB "
+              f"({sec['threads']} torch threads)."), ""]
     return lines

@@ -218,7 +218,7 @@ def visual_inertial_recording(
     tilt = exp_so3((torch.rand(3, generator=g, dtype=f64) - 0.5) * 1.0)
     gravity = tilt @ torch.tensor([0.0, GRAVITY, 0.0], dtype=f64)
 
-    n = int(round(duration * imu_rate))
+    n = round(duration * imu_rate)
     t_imu = torch.arange(n, dtype=f64) / imu_rate
     dt = 1.0 / imu_rate
     R_wi, _ = motion.imu_pose(t_imu)

@@ -196,7 +196,7 @@ class ImuCameraProblem:
     def residuals(self, s: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The unweighted residuals at ``s``: gyroscope :math:`(N, 3)` rad/s, accelerometer :math:`(N, 3)` m/s^2 and
         corners :math:`(F, P, 2)` px (0 where not seen)."""
-        d, dt, C = self.data, self.dt, self.data.num_cameras
+        d, dt, _C = self.data, self.dt, self.data.num_cameras
         R, p, bg, ba, g = s["R"][0], s["p"][0], s["bg"][0], s["ba"][0], s["g"][0]
         idx = self.imu_seg[:, None] + torch.arange(4, device=R.device)
         Rt, w = so3_spline(R[idx], self.imu_u, self.dt)
@@ -306,7 +306,7 @@ class ImuCameraProblem:
 
     def _frame_blocks(self, s, H, b):
         """The corners' residuals, accumulated into the segment blocks; their cost."""
-        d, C, K = self.data, self.data.num_cameras, self.K
+        d, _C, K = self.data, self.data.num_cameras, self.K
         dtype, device = d.corners.dtype, d.corners.device
         eye = torch.eye(3, dtype=dtype, device=device)
         n_loc = 24 + K

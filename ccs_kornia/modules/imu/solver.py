@@ -22,8 +22,17 @@ from torch import nn
 from ccs_kornia.geometry.imu_noise import ImuNoise
 from ccs_kornia.modules.calibration.schur_lm import schur_lm
 from ccs_kornia.modules.imu.initial import align_rates, board_poses, initial_unknowns
-from ccs_kornia.modules.imu.problem import ITEM, ImuCameraData, ImuCameraProblem, Weights
-from ccs_kornia.modules.imu.result import ImuCameraResult, ImuVerdictThresholds, imu_camera_verdict
+from ccs_kornia.modules.imu.problem import (
+    ITEM,
+    ImuCameraData,
+    ImuCameraProblem,
+    Weights,
+)
+from ccs_kornia.modules.imu.result import (
+    ImuCameraResult,
+    ImuVerdictThresholds,
+    imu_camera_verdict,
+)
 from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["ImuCameraSolver", "calibrate_imu_camera"]
@@ -106,7 +115,7 @@ def calibrate_imu_camera(
 
     # the spline covers the IMU's samples; frames whose time falls outside it (with the offset) are left out
     t0 = float(data.imu_times[0])
-    M = int(math.floor((float(data.imu_times[-1]) - t0) / knot_spacing)) + 3
+    M = math.floor((float(data.imu_times[-1]) - t0) / knot_spacing) + 3
     t_end = t0 + (M - 3) * knot_spacing
     tau = data.frame_times + torch.tensor([a.shift for a in alignments], dtype=data.gyro.dtype)[data.frame_camera]
     margin = 2 * knot_spacing + 0.01

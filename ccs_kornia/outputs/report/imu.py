@@ -89,7 +89,7 @@ def time_offset_figure(shifts: np.ndarray, correlation: np.ndarray, starts: np.n
     for c in range(correlation.shape[0]):
         _polyline(img, box, xr, yr, ms, correlation[c], BLUE, 2)
         for value, colour in ((starts[c], ORANGE), (finals[c], RED)):
-            px = int(round(x0 + (1000 * value - xr[0]) / (xr[1] - xr[0]) * w))
+            px = round(x0 + (1000 * value - xr[0]) / (xr[1] - xr[0]) * w)
             cv2.line(img, (px, y0), (px, y0 + h), colour, 1)
     draw_legend(img, [("line", BLUE, "correlation"), ("line", ORANGE, "start"), ("line", RED, "fit")], (width - 10, y0))
     return img

@@ -1,8 +1,16 @@
 import pytest
 import torch
 
-from ccs_kornia.modules.calibration.block_banded import block_banded_dense, block_banded_solve, block_tridiagonal_solve
-from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm, schur_step
+from ccs_kornia.modules.calibration.block_banded import (
+    block_banded_dense,
+    block_banded_solve,
+    block_tridiagonal_solve,
+)
+from ccs_kornia.modules.calibration.schur_lm import (
+    NormalEquations,
+    schur_lm,
+    schur_step,
+)
 
 
 def _banded(B, V, k, w, dtype=torch.float64, seed=0):

@@ -31,7 +31,7 @@ def solved(recording):
 class TestStart:
     def test_rate_alignment_finds_offset_and_rotation(self, recording):
         data = _data(recording)
-        R, t, ok = board_poses(data)
+        R, _t, ok = board_poses(data)
         al = align_rates(data.frame_times, R, ok, data.imu_times, data.gyro)
         assert abs(al.shift - float(recording.shift[0])) < 1e-3
         err = float(log_so3(al.R_cam_imu.T @ recording.T_cam_imu[0, :3, :3]).norm()) * 180 / math.pi
@@ -107,7 +107,7 @@ class TestSolver:
         import dataclasses
 
         weak = dataclasses.replace(solved, translation_std=torch.tensor([[0.02, 0.001, 0.001]], dtype=torch.float64))
-        verdict, reasons = imu_camera_verdict(weak)
+        verdict, _reasons = imu_camera_verdict(weak)
         assert verdict.startswith("not reliable") and "X (left-right)" in verdict
 
 
