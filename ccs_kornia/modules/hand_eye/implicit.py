@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import torch
 
+from ccs_kornia.geometry.so3 import skew
 from ccs_kornia.modules.hand_eye.problem import (
     GLOBAL_POSE_PARAMS,
     HandEyeProblem,
@@ -28,17 +29,11 @@ from ccs_kornia.modules.hand_eye.problem import (
 __all__ = ["attach_gradients", "hand_eye_cost"]
 
 
-def _skew(w: torch.Tensor) -> torch.Tensor:
-    z = torch.zeros_like(w[..., 0])
-    return torch.stack([z, -w[..., 2], w[..., 1], w[..., 2], z, -w[..., 0], -w[..., 1], w[..., 0], z],
-                       -1).view(*w.shape[:-1], 3, 3)
-
-
 def _perturbed(problem: HandEyeProblem, s: HandEyeState, z: torch.Tensor) -> HandEyeState:
     """The state moved by ``z`` :math:`(B, D)` to first order (all the derivatives at ``z = 0`` need)."""
     eye = torch.eye(3, dtype=z.dtype, device=z.device)
-    RX = (eye + _skew(z[:, 0:3])) @ s.RX
-    RZ = (eye + _skew(z[:, 6:9])) @ s.RZ
+    RX = (eye + skew(z[:, 0:3])) @ s.RX
+    RZ = (eye + skew(z[:, 6:9])) @ s.RZ
     params = s.params
     G = problem.num_global
     if problem.basis is not None:
@@ -46,7 +41,7 @@ def _perturbed(problem: HandEyeProblem, s: HandEyeState, z: torch.Tensor) -> Han
     RE, tE = s.RE, s.tE
     if problem.num_items:
         dv = z[:, G:].reshape(z.shape[0], -1, 6)
-        RE = (eye + _skew(dv[..., :3])) @ RE
+        RE = (eye + skew(dv[..., :3])) @ RE
         tE = tE + dv[..., 3:]
     return HandEyeState(RX, s.tX + z[:, 3:6], RZ, s.tZ + z[:, 9:12], params, RE, tE)
 
@@ -86,8 +81,8 @@ class _Implicit(torch.autograd.Function):
         gZ = torch.zeros(B, 4, 4, dtype=dtype, device=s.RX.device) if gZ is None else gZ.to(dtype)
         # the output gradients in the solver's coordinates: d X / d w_k = [e_k]_x R, d X / d t = I
         eye = torch.eye(3, dtype=dtype, device=s.RX.device)
-        rx = torch.stack([(gX[:, :3, :3] * (_skew(eye[k]).expand(B, 3, 3) @ s.RX)).sum((-1, -2)) for k in range(3)], -1)
-        rz = torch.stack([(gZ[:, :3, :3] * (_skew(eye[k]).expand(B, 3, 3) @ s.RZ)).sum((-1, -2)) for k in range(3)], -1)
+        rx = torch.stack([(gX[:, :3, :3] * (skew(eye[k]).expand(B, 3, 3) @ s.RX)).sum((-1, -2)) for k in range(3)], -1)
+        rz = torch.stack([(gZ[:, :3, :3] * (skew(eye[k]).expand(B, 3, 3) @ s.RZ)).sum((-1, -2)) for k in range(3)], -1)
         v = torch.zeros(B, D, dtype=dtype, device=s.RX.device)
         v[:, 0:3], v[:, 3:6], v[:, 6:9], v[:, 9:12] = rx, gX[:, :3, 3], rz, gZ[:, :3, 3]
         if problem.basis is not None and gP is not None:

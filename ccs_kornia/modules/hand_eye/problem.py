@@ -74,12 +74,6 @@ class NormalEquations(NamedTuple):
         return NormalEquations(*(torch.where(mask.view(-1, *([1] * (a.dim() - 1))), a, b) for a, b in zip(self, other)))
 
 
-def _skew(v: torch.Tensor) -> torch.Tensor:
-    z = torch.zeros_like(v[..., 0])
-    return torch.stack([z, -v[..., 2], v[..., 1], v[..., 2], z, -v[..., 0], -v[..., 1], v[..., 0], z],
-                       -1).view(*v.shape[:-1], 3, 3)
-
-
 def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Cross products of broadcast (..., 3) vectors (elementwise: no small batched matrix products)."""
     a1, a2, a3 = a.unbind(-1)

@@ -14,8 +14,9 @@ import numpy as np
 import torch
 
 from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.so3 import skew
 
-__all__ = ["StereoPair", "stereo_pair", "skew", "epipolar_distances", "stereo_rectify"]
+__all__ = ["StereoPair", "stereo_pair", "epipolar_distances", "stereo_rectify"]
 
 
 @dataclass
@@ -32,13 +33,6 @@ class StereoPair:
     def baseline(self) -> float:
         """``|T|`` in the board's unit."""
         return float(self.T.norm())
-
-
-def skew(v: torch.Tensor) -> torch.Tensor:
-    """Cross-product matrix :math:`(*, 3, 3)` of :math:`(*, 3)` vectors: ``skew(a) @ b == a x b``."""
-    z = torch.zeros_like(v[..., 0])
-    x, y, w = v.unbind(-1)
-    return torch.stack([z, -w, y, w, z, -x, -y, x, z], -1).reshape(*v.shape[:-1], 3, 3)
 
 
 def stereo_pair(cam_i: Camera, cam_j: Camera, R: torch.Tensor, T: torch.Tensor) -> StereoPair:
