@@ -3,11 +3,6 @@ and accelerometer (continuous time), and its rate.
 
 A sample's white noise has the standard deviation ``noise_density * sqrt(update_rate)``; a bias moves by
 ``random_walk * sqrt(dt)`` in ``dt`` seconds.
-
-Example:
-    >>> n = ImuNoise.euroc()
-    >>> round(n.gyroscope_sample_sigma, 6)
-    0.0024
 """
 
 from __future__ import annotations
@@ -20,32 +15,53 @@ __all__ = ["ImuNoise"]
 
 @dataclass(frozen=True)
 class ImuNoise:
-    """An IMU's noise densities (Kalibr's names and units) and sample rate."""
+    """An IMU's noise as Kalibr's ``imu.yaml`` states it (continuous-time densities) and its rate.
 
-    accelerometer_noise_density: float  #: m/s^2/sqrt(Hz)
-    accelerometer_random_walk: float  #: m/s^3/sqrt(Hz)
-    gyroscope_noise_density: float  #: rad/s/sqrt(Hz)
-    gyroscope_random_walk: float  #: rad/s^2/sqrt(Hz)
-    update_rate: float = 200.0  #: Hz
+    Args:
+        accelerometer_noise_density: white noise, m/s^2/sqrt(Hz).
+        accelerometer_random_walk: bias random walk, m/s^3/sqrt(Hz).
+        gyroscope_noise_density: white noise, rad/s/sqrt(Hz).
+        gyroscope_random_walk: bias random walk, rad/s^2/sqrt(Hz).
+        update_rate: samples per second (Hz), the rate the densities are discretised at.
+
+    Example:
+        >>> noise = ImuNoise.euroc()
+        >>> noise.gyroscope_noise_density, noise.update_rate
+        (0.000187, 200.0)
+        >>> round(noise.discrete_gyroscope_sigma, 7)  # the white noise of one sample, rad/s
+        0.0026446
+    """
+
+    accelerometer_noise_density: float
+    accelerometer_random_walk: float
+    gyroscope_noise_density: float
+    gyroscope_random_walk: float
+    update_rate: float
 
     @classmethod
-    def euroc(cls, update_rate: float = 200.0) -> ImuNoise:
-        """EuRoC's ADIS16448, as Kalibr's example ``imu.yaml`` states it."""
-        return cls(accelerometer_noise_density=2.0e-3, accelerometer_random_walk=3.0e-3,
-                   gyroscope_noise_density=1.6968e-4, gyroscope_random_walk=1.9393e-5, update_rate=update_rate)
+    def euroc(cls) -> ImuNoise:
+        """The ADIS16448 of the EuRoC recordings, as Kalibr's example ``imu.yaml`` gives it (200 Hz)."""
+        return cls(accelerometer_noise_density=1.86e-03, accelerometer_random_walk=4.33e-04,
+                   gyroscope_noise_density=1.87e-04, gyroscope_random_walk=2.66e-05, update_rate=200.0)
 
     @property
-    def gyroscope_sample_sigma(self) -> float:
-        """One gyroscope sample's white noise (rad/s)."""
+    def discrete_gyroscope_sigma(self) -> float:
+        """The gyroscope's white noise per sample (rad/s): the density times ``sqrt(update_rate)``, as Kalibr
+        discretises it."""
         return self.gyroscope_noise_density * math.sqrt(self.update_rate)
 
     @property
-    def accelerometer_sample_sigma(self) -> float:
-        """One accelerometer sample's white noise (m/s^2)."""
+    def discrete_accelerometer_sigma(self) -> float:
+        """The accelerometer's white noise per sample (m/s^2), as :attr:`discrete_gyroscope_sigma`."""
         return self.accelerometer_noise_density * math.sqrt(self.update_rate)
 
     def scaled(self, factor: float) -> ImuNoise:
-        """Every density times ``factor`` (a user's values off by that much)."""
+        """Every density times ``factor`` (a user's values off by that much).
+
+        Example:
+            >>> ImuNoise.euroc().scaled(10.0).gyroscope_noise_density
+            0.00187
+        """
         return replace(self, accelerometer_noise_density=self.accelerometer_noise_density * factor,
                        accelerometer_random_walk=self.accelerometer_random_walk * factor,
                        gyroscope_noise_density=self.gyroscope_noise_density * factor,

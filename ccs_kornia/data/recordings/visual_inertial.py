@@ -19,7 +19,7 @@ Example:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 from torch import Tensor
@@ -201,7 +201,7 @@ def visual_inertial_recording(
         :class:`VisualInertialRecording`.
     """
     g = torch.Generator().manual_seed(int(seed))
-    noise = noise or ImuNoise.euroc(imu_rate)
+    noise = noise or replace(ImuNoise.euroc(), update_rate=imu_rate)
     f64 = torch.float64
     cols, rows = board
     jj, ii = torch.meshgrid(torch.arange(rows, dtype=f64), torch.arange(cols, dtype=f64), indexing="ij")

@@ -94,7 +94,7 @@ def calibrate_imu_camera(
     _check_clocks(data, max_shift)
     rate = float((data.imu_times.shape[0] - 1) / (data.imu_times[-1] - data.imu_times[0]))
     given = noise is not None
-    stated = noise if noise is not None else ImuNoise.euroc(rate)
+    stated = noise if noise is not None else replace(ImuNoise.euroc(), update_rate=rate)
     C = data.num_cameras
 
     R_cb, t_cb, ok = board_poses(data)

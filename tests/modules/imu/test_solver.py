@@ -46,7 +46,7 @@ class TestProblem:
         solver_noise = recording.noise
         dt, t0 = 0.05, float(data.imu_times[0])
         M = int((float(data.imu_times[-1]) - t0) / dt) + 3
-        w = Weights(gyro=1 / solver_noise.gyroscope_sample_sigma**2, accel=1 / solver_noise.accelerometer_sample_sigma**2,
+        w = Weights(gyro=1 / solver_noise.discrete_gyroscope_sigma**2, accel=1 / solver_noise.discrete_accelerometer_sigma**2,
                     pixel=4.0, gyro_walk=1e4, accel_walk=1e2)
         prob = ImuCameraProblem(data, t0, dt, M, w, rolling_shutter=rolling_shutter)
         # a realistic point: the fit's start (from the angular rates), with a row delay
