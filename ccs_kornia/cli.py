@@ -464,7 +464,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--corners", action="append", metavar="JSON",
                    help="the corners detect wrote, one file per camera in the rig's order (repeat the option), each "
                         "view with its timestamp: detection is not repeated")
-    p.add_argument("--imu", required=True, metavar="CSV",
+    p.add_argument("--bag", metavar="BAG",
+                   help="a ROS1 or ROS2 bag holding the recording (read with rosbags, no ROS install): its "
+                        "--image-topics and --imu-topic")
+    p.add_argument("--image-topics", metavar="TOPIC[,TOPIC]", help="the bag's image topics, one per camera in order")
+    p.add_argument("--imu-topic", metavar="TOPIC", help="the bag's sensor_msgs/Imu topic (instead of --imu)")
+    p.add_argument("--imu", metavar="CSV",
                    help="the IMU's samples: timestamp (ns, or s), wx,wy,wz (rad/s), ax,ay,az (m/s^2), EuRoC's layout "
                         "(a header or none; deg/s and g are caught and converted)")
     which = p.add_mutually_exclusive_group(required=True)

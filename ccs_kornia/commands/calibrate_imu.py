@@ -14,6 +14,7 @@ import argparse
 import os
 import re
 import sys
+import tempfile
 from pathlib import Path
 
 import torch
@@ -30,8 +31,9 @@ from ccs_kornia.commands._run import run_files
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.io.corners_file import read_corners_file
 from ccs_kornia.io.files import write_json, write_text
-from ccs_kornia.io.imu import imu_log_findings, read_imu_csv
+from ccs_kornia.io.imu import ImuLog, imu_log_findings, read_imu_csv
 from ccs_kornia.io.kalibr import read_camchain, read_imu_yaml
+from ccs_kornia.io.rosbag import grey8, read_bag_images, read_bag_imu
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.imu.problem import ImuCameraData
@@ -148,12 +150,58 @@ def _image_times(files: list[str], folder: str) -> torch.Tensor:
     return torch.tensor([int(s) for s in stems], dtype=torch.float64) * 1e-9
 
 
-def _detected(args: argparse.Namespace) -> list[tuple[torch.Tensor, torch.Tensor, tuple[int, int] | None]]:
+def _bag_folders(args: argparse.Namespace, workdir: str) -> list[str]:
+    """Each image topic of ``--bag`` written as a folder of PNG files named by their header stamps (ns), the layout
+    the folders of images have: every frame is detected (a recording's screening keeps still frames; an IMU needs the
+    moving ones)."""
+    import cv2
+
+    topics = [t for t in (args.image_topics or "").split(",") if t]
+    if not topics:
+        raise UserError("--bag needs --image-topics (one per camera, comma-separated, in the rig's order).")
+    folders = []
+    for c, topic in enumerate(topics):
+        folder = os.path.join(workdir, f"cam{c}")
+        os.makedirs(folder)
+        count = 0
+        try:
+            for stamp, image in read_bag_images(args.bag, topic):
+                if image is None:
+                    continue
+                cv2.imwrite(os.path.join(folder, f"{int(round(stamp * 1e9))}.png"), grey8(image))
+                count += 1
+        except (OSError, ValueError) as err:
+            raise UserError(f"--bag {args.bag}: {err}") from None
+        if count == 0:
+            raise NoResult(f"--bag {args.bag}: topic {topic} holds no image that could be decoded.")
+        folders.append(folder)
+    return folders
+
+
+def _imu_log(args: argparse.Namespace) -> ImuLog:
+    """The IMU's samples, from ``--imu`` or the bag's ``--imu-topic``."""
+    if args.imu:
+        try:
+            return read_imu_csv(args.imu)
+        except (OSError, ValueError) as err:
+            raise UserError(f"--imu {args.imu}: {err}") from None
+    if not (args.bag and args.imu_topic):
+        raise UserError("no IMU: give --imu imu.csv, or --bag with --imu-topic.")
+    try:
+        t, gyro, accel = read_bag_imu(args.bag, args.imu_topic)
+    except (OSError, ValueError) as err:
+        raise UserError(f"--bag {args.bag}: {err}") from None
+    f64 = torch.float64
+    return ImuLog(t=torch.as_tensor(t, dtype=f64), gyro=torch.as_tensor(gyro, dtype=f64),
+                  accel=torch.as_tensor(accel, dtype=f64), notes=[f"read from {args.bag}'s {args.imu_topic}"])
+
+
+def _detected(args: argparse.Namespace, folders: list[str]) -> list[tuple[torch.Tensor, torch.Tensor, tuple[int, int] | None]]:
     """Each camera's frame times, corners and image size, detected in its folder of images."""
     device = resolve_device(args.device)
     pipeline = make_pipeline(args)
     out = []
-    for folder in args.inputs:
+    for folder in folders:
         if os.path.isdir(os.path.join(folder, "data")):  # EuRoC's cam0/ holds data/ and data.csv
             folder = os.path.join(folder, "data")
         if not os.path.isdir(folder):
@@ -184,21 +232,29 @@ def run(args: argparse.Namespace) -> int:
         check_output_file("--kalibr-yaml", args.kalibr_yaml)
     if args.report:
         check_output_dir("--report", args.report)
-    if args.corners and args.inputs:
-        raise UserError("give the cameras' images or their corners (--corners), not both.")
-    if not args.corners and not args.inputs:
-        raise UserError("no camera input: one folder of images per camera, or --corners corners.json per camera.")
-    try:
-        log = read_imu_csv(args.imu)
-    except (OSError, ValueError) as err:
-        raise UserError(f"--imu {args.imu}: {err}") from None
+    given = [what for what, value in (("folders of images", args.inputs), ("--corners", args.corners),
+                                      ("--bag", args.image_topics and args.bag)) if value]
+    if len(given) > 1:
+        raise UserError(f"give the cameras' images one way ({' or '.join(given)}), not several.")
+    if not given:
+        raise UserError("no camera input: one folder of images per camera, --corners corners.json per camera, or "
+                        "--bag with --image-topics.")
+    if args.imu and args.imu_topic:
+        raise UserError("give the IMU one way: --imu or --imu-topic, not both.")
+    log = _imu_log(args)
     noise = None
     if args.imu_yaml:
         try:
             noise = read_imu_yaml(args.imu_yaml)
         except (OSError, ValueError) as err:
             raise UserError(f"--imu-yaml {args.imu_yaml}: {err}") from None
-    frames = _from_corners_files(args) if args.corners else _detected(args)
+    if args.corners:
+        frames = _from_corners_files(args)
+    elif args.inputs:
+        frames = _detected(args, args.inputs)
+    else:
+        with tempfile.TemporaryDirectory(prefix="ccs_bag_") as workdir:
+            frames = _detected(args, _bag_folders(args, workdir))
     obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square).to(torch.float64)
     camera_records = None
     if args.calibration:
