@@ -221,7 +221,7 @@ def _detected(args: argparse.Namespace, folders: list[str]) -> list[tuple[torch.
                     if p is not None and p[0] is not None:
                         xy[i] = torch.tensor(p, dtype=torch.float64)
             corners.append(xy)
-        size = one.image_sizes[0] if hasattr(one, "image_sizes") and one.image_sizes else None
+        size = tuple(one.image_size) if one.image_size else None
         out.append((times, torch.stack(corners), size))
     return out
 
