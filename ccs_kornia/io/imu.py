@@ -141,7 +141,7 @@ class ImuFindings:
     """What weakens an IMU log without stopping its use: data for a verdict.
 
     Args:
-        rate: the measured rate (Hz): one over the median period.
+        rate: the measured rate (Hz): one over the mean period, gaps left out.
         dropped: gaps longer than :data:`GAP_FACTOR` median periods.
         longest_gap: the longest period (s).
         gyro_saturation: per axis (x, y, z) the fraction of samples at the axis' extreme value repeated (clipped).
@@ -476,12 +476,15 @@ def imu_log_findings(log: ImuLog) -> ImuFindings:
     t = log.t.detach().cpu().double().numpy()
     step = np.diff(t)
     period = float(np.median(step)) if step.size else float("nan")
-    rate = 1.0 / period if period > 0 else float("nan")
+    regular = step[step <= GAP_FACTOR * period]
+    # the mean of the regular periods, not their median: an epoch time in float64 is quantised (0.24 us at today's
+    # dates), and the quantisation cancels in a mean (the sum telescopes) but not in a median
+    rate = 1.0 / float(regular.mean()) if regular.size and period > 0 else float("nan")
     dropped = int(np.count_nonzero(step > GAP_FACTOR * period)) if step.size else 0
     gyro = log.gyro.detach().cpu().double().numpy()
     accel = log.accel.detach().cpu().double().numpy()
     return ImuFindings(
-        rate=round(rate, 9),
+        rate=rate,
         dropped=dropped,
         longest_gap=float(step.max()) if step.size else 0.0,
         gyro_saturation=tuple(_clipped_fraction(gyro[:, k]) for k in range(3)),  # type: ignore[arg-type]
