@@ -66,11 +66,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_output_file("--plot", args.plot)
     log = read_imu_csv(args.log)
-    for note in log.notes:
-        info(f"{args.log}: {note}")
     findings = imu_log_findings(log)
-    for message in findings.messages():
-        warn(COMMAND, f"{args.log}: {message}")
     check_still(log)
     rate = findings.rate
     fits, curves = {}, {}
@@ -85,6 +81,11 @@ def run(args: argparse.Namespace) -> int:
         gyroscope_random_walk=float(fits["gyro"].random_walk.mean()),
         update_rate=round(rate, 3),
     )
+    # what was read and what weakens it, once the values are known (a refusal above is one line alone)
+    for note in log.notes:
+        info(f"{args.log}: {note}")
+    for message in findings.messages():
+        warn(COMMAND, f"{args.log}: {message}")
     write_text_atomic("--output", args.output, imu_yaml(noise, args.rostopic))
     if args.plot:
         taus = curves["gyro"][0]

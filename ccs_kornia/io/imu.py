@@ -16,7 +16,8 @@ numbers:
 * gyroscope: deg/s where the 99th percentile of ``|w|`` exceeds :data:`GYRO_DEG_THRESHOLD` (20 rad/s, over 1100 deg/s:
   beyond any hand-held or vehicle motion, while a motion in deg/s passes it at 20 deg/s);
 * accelerometer: g where the median ``|a|`` is between 0.5 and 2 (gravity dominates any calibration motion's median),
-  m/s^2 between 4.9 and 19.6; anything else (a log with gravity removed, mg) is refused.
+  m/s^2 between 4.9 and 19.6, and in either unit the 5th percentile of ``|a|`` over 0.3 g (gravity is always there);
+  anything else (a log with gravity removed, mg) is refused.
 """
 
 from __future__ import annotations
@@ -426,14 +427,16 @@ def read_imu_csv(path: str) -> ImuLog:
             f"99th percentile of |w| {p99:.4g}, over {GYRO_DEG_THRESHOLD:g} rad/s")
         notes.append(f"gyroscope in deg/s ({why}): converted to rad/s")
     accel_unit = units.get("ax", "")
-    median = float(np.median(np.linalg.norm(accel, axis=1)))
-    if accel_unit == "g" or (accel_unit != "m/s^2" and 0.5 <= median <= 2.0):
+    norm = np.linalg.norm(accel, axis=1)
+    median, low = float(np.median(norm)), float(np.percentile(norm, 5))
+    if accel_unit == "g" or (accel_unit != "m/s^2" and 0.5 <= median <= 2.0 and low >= 0.3):
         accel *= GRAVITY
         why = "the header says so" if accel_unit == "g" else f"median |a| {median:.4g}, about 1"
         notes.append(f"accelerometer in g ({why}): converted to m/s^2")
-    elif accel_unit != "m/s^2" and not 0.5 * GRAVITY <= median <= 2.0 * GRAVITY:
-        raise UserError(f"{path}: the accelerometer's median |a| is {median:.4g}: neither m/s^2 (about 9.8) nor g "
-                        "(about 1); the log must hold the specific force with gravity (not removed)")
+    elif accel_unit != "m/s^2" and not (0.5 * GRAVITY <= median <= 2.0 * GRAVITY and low >= 0.3 * GRAVITY):
+        raise UserError(f"{path}: the accelerometer's median |a| is {median:.4g} (5th percentile {low:.4g}): neither "
+                        "m/s^2 (about 9.8) nor g (about 1) with gravity in it; the log must hold the specific force "
+                        "with gravity (not removed)")
     return ImuLog(torch.from_numpy(np.ascontiguousarray(t)), torch.from_numpy(gyro), torch.from_numpy(accel), notes)
 
 

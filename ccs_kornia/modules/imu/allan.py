@@ -33,7 +33,7 @@ __all__ = ["AllanNoise", "allan_deviation", "allan_taus", "noise_from_allan"]
 LONGEST_TAU_FRACTION = 0.1
 #: averaging times per decade of the default grid
 TAUS_PER_DECADE = 12
-#: a line is seen where its term is at least this share of the Allan variance at the end of the curve it rules
+#: the white noise is seen where its term is at least this share of the Allan variance at the shortest time
 SEEN_SHARE = 0.5
 
 
@@ -167,8 +167,9 @@ def noise_from_allan(taus: torch.Tensor, adev: torch.Tensor, duration: float,
 
     Raises:
         UserError: a channel whose curve does not fall along the :math:`-1/2` slope at its shortest averaging times
-            (not white noise there), or does not rise along the :math:`+1/2` slope at its longest (the log is too short
-            for the random walk: the message says how long a log is needed).
+            (not white noise there), or where the :math:`+1/2` line does not rule the curve over the last factor of
+            three of its averaging times (the log is too short for the random walk: the message says how long a log is
+            needed).
 
     Example:
         >>> g = torch.Generator().manual_seed(0)
@@ -199,10 +200,11 @@ def noise_from_allan(taus: torch.Tensor, adev: torch.Tensor, duration: float,
         if n2 / tau[0] < SEEN_SHARE * avar[0]:
             raise UserError(f"{name}: the Allan deviation does not fall along the -1/2 slope at the shortest averaging "
                             f"time ({tau[0]:.3g} s): no white noise to read (is the log still, at its raw rate?)")
-        if k2 * tau[-1] / 3.0 < SEEN_SHARE * avar[-1]:
-            # where the +1/2 line would rule (K^2 tau / 3 = N^2 / tau + B^2), seen three times further out with the
-            # log ten times longer; without a random walk term at all, ten times this log at least
-            crossing = (b2 + math.sqrt(b2 * b2 + 4.0 * k2 / 3.0 * n2)) / (2.0 * k2 / 3.0) if k2 > 0 else math.inf
+        # where the +1/2 line takes over (K^2 tau / 3 = N^2 / tau + B^2): it is read where it rules, from three times
+        # that on, so the log must reach there with ten clusters (thirty times the crossing); without a random walk
+        # term at all, ten times this log at least
+        crossing = (b2 + math.sqrt(b2 * b2 + 4.0 * k2 / 3.0 * n2)) / (2.0 * k2 / 3.0) if k2 > 0 else math.inf
+        if not 3.0 * crossing <= tau[-1]:
             needed = max(2.0 * duration, 3.0 * crossing / LONGEST_TAU_FRACTION if k2 > 0 else 10.0 * duration)
             raise UserError(f"{name}: the log is {_duration_text(duration)} long and its Allan deviation does not "
                             f"rise along the +1/2 slope up to {tau[-1]:.3g} s: the random walk cannot be read; "
