@@ -295,7 +295,7 @@ def _read_rows(path: str) -> tuple[np.ndarray, list[int], dict[str, str], list[i
     """The log's numbers ``(N, width)``, the columns of ``t wx .. az``, the header's units and each row's line number
     (1-based), read in chunks of :data:`_CHUNK` lines."""
     try:
-        handle = open(path, encoding="utf-8-sig")
+        handle = open(path, encoding="utf-8-sig")  # noqa: SIM115 (closed by the with below, after the errors of opening)
     except FileNotFoundError:
         raise UserError(f"{path}: no such file") from None
     except OSError as err:

@@ -15,7 +15,11 @@ import torch
 
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.io.imu import ImuNoise
-from ccs_kornia.outputs.rig_exports import kalibr_camera_lines, kalibr_matrix_lines, yaml_float
+from ccs_kornia.outputs.rig_exports import (
+    kalibr_camera_lines,
+    kalibr_matrix_lines,
+    yaml_float,
+)
 
 __all__ = ["camchain_imucam_yaml", "imu_yaml"]
 

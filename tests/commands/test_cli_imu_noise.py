@@ -114,7 +114,7 @@ def test_a_log_too_short_says_how_long_is_needed(tmp_path, capsys):
 def test_a_malformed_log_is_refused(tmp_path, capsys):
     t, gyro, accel = _still_log(10.0)
     path = _write(tmp_path / "bad.csv", t, gyro, accel)
-    lines = open(path).read().splitlines()
+    lines = (tmp_path / "bad.csv").read_text().splitlines()
     lines[41] = lines[41].replace(",", ";", 1)
     (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
     out = tmp_path / "imu.yaml"

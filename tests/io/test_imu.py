@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-import ccs_kornia.io.imu as imu
+from ccs_kornia.io import imu
 from ccs_kornia.io.imu import GRAVITY, ImuLog, ImuNoise, imu_log_findings, read_imu_csv
 from ccs_kornia.runtime.errors import UserError
 
@@ -46,7 +46,7 @@ def _close(log: ImuLog, t, gyro, accel, t0: float = 0.0) -> None:
 def test_euroc_layout(tmp_path):
     t, gyro, accel = _samples()
     start = 1403636579758555392
-    rows = _rows(t, gyro, accel, time_fmt=lambda x: str(start + int(round(x * 1e9))))
+    rows = _rows(t, gyro, accel, time_fmt=lambda x: str(start + round(x * 1e9)))
     log = read_imu_csv(_write(tmp_path / "data.csv", EUROC_HEADER, rows))
     _close(log, t, gyro, accel, t0=start * 1e-9)
     assert log.notes == ["timestamps in ns (the header says so)"]
@@ -57,8 +57,8 @@ def test_euroc_layout(tmp_path):
     "timestamp,wx,wy,wz,ax,ay,az",
     "time,gyro_x,gyro_y,gyro_z,acc_x,acc_y,acc_z",
     "t,omega_x,omega_y,omega_z,accel_x,accel_y,accel_z",
-    "stamp,angular_velocity.x,angular_velocity.y,angular_velocity.z,linear_acceleration.x,linear_acceleration.y,"
-    "linear_acceleration.z",
+    ("stamp,angular_velocity.x,angular_velocity.y,angular_velocity.z,linear_acceleration.x,linear_acceleration.y,"
+     "linear_acceleration.z"),
 ])
 def test_plain_headers(tmp_path, names):
     t, gyro, accel = _samples()

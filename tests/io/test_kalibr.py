@@ -82,8 +82,8 @@ def test_imu_yaml_under_one_key_with_opencv_directive_and_exponents_without_a_po
 
 
 @pytest.mark.parametrize("text,message", [
-    ("accelerometer_noise_density: 1.0e-3\n", "accelerometer_random_walk, gyroscope_noise_density, "
-                                              "gyroscope_random_walk, update_rate missing"),
+    ("accelerometer_noise_density: 1.0e-3\n",
+     "accelerometer_random_walk, gyroscope_noise_density, gyroscope_random_walk, update_rate missing"),
     (KALIBR_IMU.replace("200.0", "fast"), r"update_rate must be a finite number, got 'fast'"),
     (KALIBR_IMU.replace("2.66e-05", "-2.66e-05"), "gyroscope_random_walk must be positive"),
     ("- 1\n- 2\n", "not Kalibr's imu.yaml"),

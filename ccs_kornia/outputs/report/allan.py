@@ -11,7 +11,15 @@ import math
 import cv2
 import numpy as np
 
-from ccs_kornia.outputs.report.drawing import BLACK, BLUE, GREEN, RED, draw_legend, draw_plot_frame, draw_text
+from ccs_kornia.outputs.report.drawing import (
+    BLACK,
+    BLUE,
+    GREEN,
+    RED,
+    draw_legend,
+    draw_plot_frame,
+    draw_text,
+)
 
 __all__ = ["allan_figure"]
 
@@ -31,7 +39,7 @@ def _panel(img: np.ndarray, box: tuple[int, int, int, int], taus: np.ndarray, ad
     x0, y0, w, h = box
 
     def px(lt: float, lv: float) -> tuple[int, int]:
-        return (int(round(x0 + (lt - xr[0]) / (xr[1] - xr[0]) * w)), int(round(y0 + h - (lv - yr[0]) / (yr[1] - yr[0]) * h)))
+        return round(x0 + (lt - xr[0]) / (xr[1] - xr[0]) * w), round(y0 + h - (lv - yr[0]) / (yr[1] - yr[0]) * h)
 
     for c, (_, colour) in enumerate(_AXES):
         ok = np.isfinite(adev[:, c]) & (adev[:, c] > 0)

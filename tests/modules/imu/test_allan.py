@@ -8,7 +8,12 @@ import math
 import pytest
 import torch
 
-from ccs_kornia.modules.imu import AllanNoise, allan_deviation, allan_taus, noise_from_allan
+from ccs_kornia.modules.imu import (
+    AllanNoise,
+    allan_deviation,
+    allan_taus,
+    noise_from_allan,
+)
 from ccs_kornia.runtime.errors import UserError
 
 
