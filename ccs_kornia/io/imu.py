@@ -291,9 +291,10 @@ def _parse_chunk(path: str, lines: list[str], numbers: list[int], delimiter: str
     raise UserError(f"{path}: rows that are not {width} numbers each")  # pragma: no cover - loadtxt agrees above
 
 
-def _read_rows(path: str) -> tuple[np.ndarray, list[int], dict[str, str], list[int]]:
-    """The log's numbers ``(N, width)``, the columns of ``t wx .. az``, the header's units and each row's line number
-    (1-based), read in chunks of :data:`_CHUNK` lines."""
+def _read_rows(path: str) -> tuple[np.ndarray, dict[str, str], np.ndarray]:
+    """The log's ``t wx wy wz ax ay az`` columns ``(N, 7)``, the header's units and each row's line number (1-based),
+    read in chunks of :data:`_CHUNK` lines (the line numbers kept as an array: a Python list of them would outweigh
+    the log)."""
     try:
         handle = open(path, encoding="utf-8-sig")  # noqa: SIM115 (closed by the with below, after the errors of opening)
     except FileNotFoundError:
@@ -305,7 +306,7 @@ def _read_rows(path: str) -> tuple[np.ndarray, list[int], dict[str, str], list[i
     delimiter: str | None = None
     width = 0
     chunks: list[np.ndarray] = []
-    line_numbers: list[int] = []
+    line_numbers: list[np.ndarray] = []
     lines: list[str] = []
     numbers: list[int] = []
     with handle:
@@ -330,15 +331,15 @@ def _read_rows(path: str) -> tuple[np.ndarray, list[int], dict[str, str], list[i
                 numbers.append(number)
                 if len(lines) == _CHUNK:
                     chunks.append(_parse_chunk(path, lines, numbers, delimiter, width)[:, columns])
-                    line_numbers.extend(numbers)
+                    line_numbers.append(np.array(numbers, dtype=np.int64))
                     lines, numbers = [], []
         except UnicodeDecodeError:
             raise UserError(f"{path}: not a text file (an IMU log is a CSV of numbers)") from None
     if lines:
         chunks.append(_parse_chunk(path, lines, numbers, delimiter, width)[:, columns])
-        line_numbers.extend(numbers)
+        line_numbers.append(np.array(numbers, dtype=np.int64))
     data = np.concatenate(chunks) if chunks else np.zeros((0, 7))
-    return data, columns, units, line_numbers
+    return data, units, np.concatenate(line_numbers) if line_numbers else np.zeros(0, np.int64)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -362,7 +363,7 @@ def _time_unit(t: np.ndarray, named: str) -> tuple[str, str]:
                     "rate (5 Hz to 5 kHz)")
 
 
-def _check_times(path: str, t: np.ndarray, lines: list[int]) -> None:
+def _check_times(path: str, t: np.ndarray, lines: np.ndarray) -> None:
     step = np.diff(t)
     bad = np.flatnonzero(~(step > 0))
     if bad.size:
@@ -402,7 +403,7 @@ def read_imu_csv(path: str) -> ImuLog:
         >>> len(log), round(float(log.t[1] - log.t[0]), 6), log.gyro.dtype, log.notes
         (200, 0.005, torch.float64, ['timestamps in ns (the header says so)'])
     """
-    data, _, units, lines = _read_rows(path)
+    data, units, lines = _read_rows(path)
     if len(data) < MIN_SAMPLES:
         raise UserError(f"{path}: {len(data)} samples; an IMU log needs at least {MIN_SAMPLES}")
     finite = np.isfinite(data).all(1)
