@@ -1,4 +1,4 @@
-"""Command line: ``python -m ccs_kornia detect|calibrate|calibrate-rig|calibrate-hand-eye|calibrate-imu|rectify|calibrate-many|undistort|demo|fit|...``.
+"""Command line: ``python -m ccs_kornia detect|calibrate|calibrate-rig|calibrate-hand-eye|calibrate-imu|imu-noise|rectify|calibrate-many|undistort|demo|fit|...``.
 
 The contract (arguments and JSON layout) is fixed by ``DESIGN.md`` section 4; benchmarks rely on
 it. Behaviour on bad input:
@@ -506,6 +506,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="detect larger images on a downscaled copy (default 2048; 0 = off)")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="do not run the distortion-correction network")
+    p = sub.add_parser("imu-noise", help="an IMU's noise from a still log: the Allan deviation, Kalibr's imu.yaml",
+                       description="The Allan deviation of each axis of a still IMU log (the IMU at rest, an hour or "
+                                   "more), and Kalibr's four noise values read off it: the white noise density on the "
+                                   "-1/2 slope line at 1 s, the bias random walk on the +1/2 slope line at 3 s (the "
+                                   "mean of the three axes is written).",
+                       epilog=_EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("log", metavar="IMU_CSV",
+                   help="the still log: a CSV of timestamp (ns or s, told by the magnitude), wx, wy, wz (rad/s) and "
+                        "ax, ay, az (m/s^2); EuRoC's header, a plain header naming the columns, or none; deg/s and g "
+                        "are caught and converted")
+    p.add_argument("--output", required=True, metavar="YAML", help="Kalibr's imu.yaml to write")
+    p.add_argument("--plot", metavar="PNG", help="also write the Allan deviation figure")
+    p.add_argument("--rostopic", default="/imu0", metavar="TOPIC", help="the rostopic written in imu.yaml (default "
+                   "/imu0; Kalibr reads it)")
 
     p = sub.add_parser("rectify", help="rectify stereo image pairs with a rig calibration")
     p.add_argument("left", metavar="LEFT_IMAGES", help="folder or glob of the first camera's images")

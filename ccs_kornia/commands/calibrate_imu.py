@@ -279,14 +279,14 @@ def run(args: argparse.Namespace) -> int:
     findings = imu_log_findings(log)
     extra = {"imu": {"samples": int(log.t.shape[0]), "rate_hz": round(float(findings.rate), 3),
                      "dropped": findings.dropped, "longest_gap_s": findings.longest_gap,
-                     "saturated": findings.saturated, "notes": list(log.notes)}}
+                     "clipped": findings.saturated, "notes": list(log.notes)}}
     if camera_records is not None:
         extra["camera_calibrations"] = camera_records
     if findings.dropped:
         result.verdict_reasons.append(f"the IMU dropped {findings.dropped} sample(s) (longest gap "
                                       f"{1000 * findings.longest_gap:.1f} ms)")
     if findings.saturated:
-        result.verdict_reasons.append(f"the IMU saturates: {findings.saturated}; move more gently")
+        result.verdict_reasons.append(f"the IMU saturates ({', '.join(findings.saturated)} clipped): move more gently")
         if result.verdict == "good":
             result.verdict = "usable"
     record = imu_camera_record(result, names, extra)

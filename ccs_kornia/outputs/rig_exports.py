@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models.factory import CAMERA_MODELS, FISHEYE, OPENCV5, RATIONAL
 from ccs_kornia.geometry.poses import pair_pose
 from ccs_kornia.io.files import atomic_path
@@ -26,6 +27,9 @@ __all__ = [
     "ros_stereo_files",
     "kalibr_problem",
     "kalibr_camchain",
+    "kalibr_camera_lines",
+    "kalibr_matrix_lines",
+    "yaml_float",
 ]
 
 
@@ -121,36 +125,75 @@ def kalibr_problem(data: dict[str, Any]) -> str:
     return ""
 
 
+def kalibr_matrix_lines(key: str, R, T) -> list[str]:
+    """A 4x4 rigid transform ``[R T; 0 0 0 1]`` (``R`` 3x3, ``T`` 3) as Kalibr's YAML lists it under ``key``, indented
+    as a camera's field."""
+    lines = [f"  {key}:"]
+    for r in range(3):
+        lines.append(f"  - {_kalibr_row([*np.asarray(R[r], dtype=np.float64).tolist(), float(T[r])])}")
+    lines.append("  - [0.0, 0.0, 0.0, 1.0]")
+    return lines
+
+
+def yaml_float(value: float) -> str:
+    """A float as YAML 1.1 reads one (PyYAML, Kalibr): 12 significant digits, always with a decimal point (``1e-05``
+    would be read as text, ``200`` as an integer).
+
+    Example:
+        >>> yaml_float(1e-05), yaml_float(200.0), yaml_float(0.0031)
+        ('1.0e-05', '200.0', '0.0031')
+    """
+    text = f"{float(value):.12g}"
+    if "." in text or "n" in text:  # a decimal point already, or nan / inf
+        return text
+    mantissa, _, exponent = text.partition("e")
+    return f"{mantissa}.0e{exponent}" if exponent else f"{mantissa}.0"
+
+
+def _kalibr_row(values) -> str:
+    return "[" + ", ".join(yaml_float(v) for v in values) + "]"
+
+
+def kalibr_camera_lines(index: int, name: str, camera: Camera, cameras: int) -> tuple[list[str], list[str]]:
+    """Camera ``index`` of ``cameras`` as Kalibr's camchain lists it (``camN:``, ``camera_model``, ``intrinsics``,
+    ``distortion_model``, ``distortion_coeffs``, ``resolution``, ``rostopic: /NAME/image_raw``, ``cam_overlaps``: every
+    other camera), and notes on what the format could not hold (opencv5's k3).
+
+    Args:
+        index: its place in the chain (``camN``).
+        name: its name (the rostopic's and the notes').
+        camera: the camera (one, of a model in :data:`KALIBR_DISTORTION`, with its image size).
+        cameras: how many cameras the chain has.
+    """
+    model = camera.models[0]
+    if model not in KALIBR_DISTORTION:
+        raise ValueError(f"Kalibr has no {model.name} model (camera {name}): its pinhole cameras take radtan (k1, k2, "
+                         "p1, p2) or equidistant (k1..k4) distortion")
+    K = camera.K[0].tolist()
+    coeffs = camera.coeffs(0).tolist()
+    notes = []
+    if model == OPENCV5 and len(coeffs) > 4 and coeffs[4] != 0.0:
+        notes.append(f"camera {name}: Kalibr's radtan has no k3; k3 = {coeffs[4]:.6g} left out of the camchain")
+    width, height = camera.image_sizes[0]
+    lines = [f"cam{index}:", "  camera_model: pinhole", f"  intrinsics: {_kalibr_row([K[0][0], K[1][1], K[0][2], K[1][2]])}",
+             f"  distortion_model: {KALIBR_DISTORTION[model]}",
+             f"  distortion_coeffs: {_kalibr_row((coeffs + [0.0] * 4)[:4])}",
+             f"  resolution: [{int(width)}, {int(height)}]", f"  rostopic: /{name}/image_raw",
+             f"  cam_overlaps: [{', '.join(str(k) for k in range(cameras) if k != index)}]"]
+    return lines, notes
+
+
 def kalibr_camchain(data: dict[str, Any]) -> tuple[str, list[str]]:
     """The rig as a Kalibr camchain YAML, and notes on what the format could not hold (opencv5's k3).
 
     ``T_cn_cnm1`` of camera ``n`` maps camera ``n-1``'s frame to camera ``n``'s (4x4).
     """
-
-    def row(values) -> str:
-        return "[" + ", ".join(f"{float(v):.12g}" for v in values) + "]"
-
     text, notes = [], []
     for c, cam in enumerate(data["cameras"]):
-        K = cam["K"]
-        model = camera_from_record(cam).model
-        coeffs = list(cam["distortion"]["coeffs"] or [])
-        kind = KALIBR_DISTORTION[model]
-        values = (coeffs + [0.0] * 4)[:4]
-        if model == OPENCV5 and len(coeffs) > 4 and coeffs[4] != 0.0:
-            notes.append(f"camera {cam['name']}: Kalibr's radtan has no k3; k3 = {coeffs[4]:.6g} left out of the "
-                         "camchain")
-        lines = [f"cam{c}:", "  camera_model: pinhole", f"  intrinsics: {row([K[0][0], K[1][1], K[0][2], K[1][2]])}",
-                 f"  distortion_model: {kind}", f"  distortion_coeffs: {row(values)}",
-                 f"  resolution: [{int(cam['image_size'][0])}, {int(cam['image_size'][1])}]",
-                 f"  rostopic: /{cam['name']}/image_raw"]
-        overlaps = [k for k in range(len(data["cameras"])) if k != c]
-        lines.append(f"  cam_overlaps: [{', '.join(str(k) for k in overlaps)}]")
+        lines, said = kalibr_camera_lines(c, cam["name"], camera_from_record(cam), len(data["cameras"]))
+        notes.extend(said)
         if c > 0:
             R, T = pair_pose(*record_extrinsics(data["extrinsics"]), c - 1, c)
-            lines.append("  T_cn_cnm1:")
-            for r in range(3):
-                lines.append(f"  - {row([*R[r].tolist(), float(T[r])])}")
-            lines.append("  - [0.0, 0.0, 0.0, 1.0]")
+            lines.extend(kalibr_matrix_lines("T_cn_cnm1", R, T))
         text.extend(lines)
     return "\n".join(text) + "\n", notes

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ccs_kornia import cli
-from ccs_kornia.commands import demo, rectify, undistort
+from ccs_kornia.commands import demo, imu_noise, rectify, undistort
 from ccs_kornia.io.images import write_image
 from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 from ccs_kornia.runtime.errors import EXIT_USAGE
@@ -51,17 +51,21 @@ def _commands(root) -> list[tuple[list[str], str]]:
         (["rectify", a, b, "--calibration", str(root / "rig.json"), "--out-dir", f"{NOWHERE}/rect"], "--out-dir"),
         (["calibrate-many", str(root), *board, "--output", f"{NOWHERE}/m.jsonl"], "--output"),
         (["demo", "--out-dir", f"{NOWHERE}/demo"], "--out-dir"),
+        (["imu-noise", str(root / "imu.csv"), "--output", f"{NOWHERE}/imu.yaml"], "--output"),
+        (["imu-noise", str(root / "imu.csv"), "--output", str(root / "imu.yaml"), "--plot", f"{NOWHERE}/a.png"],
+         "--plot"),
     ]
     return cases
 
 
-@pytest.mark.parametrize("case", range(14))
+@pytest.mark.parametrize("case", range(16))
 def test_every_output_is_checked_before_any_work(folders, capsys, monkeypatch, case):
     argv, option = _commands(folders)[case]
     monkeypatch.setattr(CalibrationPipeline, "run", _no_work)
     monkeypatch.setattr(demo, "make_calibration_set", _no_work)
     for command in (undistort, rectify):
         monkeypatch.setattr(command, "read_image", _no_work)
+    monkeypatch.setattr(imu_noise, "read_imu_csv", _no_work)
     calib = {"K": [[100.0, 0, 32], [0, 100, 24], [0, 0, 1]], "distortion": {"model": "k1k2", "coeffs": [0.0] * 5},
              "image_size": [64, 48]}
     (folders / "calib.json").write_text(json.dumps(calib))
@@ -70,10 +74,11 @@ def test_every_output_is_checked_before_any_work(folders, capsys, monkeypatch, c
     errors = [line for line in err.splitlines() if "error" in line]
     assert code == EXIT_USAGE, err
     assert len(errors) == 1 and option in errors[0] and "internal error" not in err, err
-    assert not (folders / "out.json").exists()
+    assert not (folders / "out.json").exists() and not (folders / "imu.yaml").exists()
 
 
 def test_the_cases_cover_every_command(folders):
     commands = {argv[0] for argv, _ in _commands(folders)}
-    assert commands == {"detect", "calibrate", "calibrate-rig", "undistort", "rectify", "calibrate-many", "demo"}
-    assert len(_commands(folders)) == 14
+    assert commands == {"detect", "calibrate", "calibrate-rig", "undistort", "rectify", "calibrate-many", "demo",
+                        "imu-noise"}
+    assert len(_commands(folders)) == 16

@@ -3,7 +3,8 @@ recording (docs/imu.md).
 
 :class:`ImuCameraSolver` / :func:`calibrate_imu_camera` (:mod:`.solver`): the start from the angular rates
 (:mod:`.initial`), the joint fit of a continuous-time trajectory to every gyroscope, accelerometer and corner
-measurement (:mod:`.problem`), the result and its verdict (:mod:`.result`).
+measurement (:mod:`.problem`), the result and its verdict (:mod:`.result`); the IMU's noise read off a still log's
+Allan deviation (:mod:`.allan`).
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 """
@@ -22,6 +23,10 @@ _EXPORTS = {
     "imu_camera_verdict": "ccs_kornia.modules.imu.result",
     "RateAlignment": "ccs_kornia.modules.imu.initial",
     "align_rates": "ccs_kornia.modules.imu.initial",
+    "AllanNoise": "ccs_kornia.modules.imu.allan",
+    "allan_deviation": "ccs_kornia.modules.imu.allan",
+    "allan_taus": "ccs_kornia.modules.imu.allan",
+    "noise_from_allan": "ccs_kornia.modules.imu.allan",
 }
 
 __all__ = sorted(_EXPORTS)
