@@ -161,6 +161,12 @@ class ViewSource:
         """Pixels of one view without loading it, where cheaply known (``None``: unknown)."""
         return None
 
+    def given_detections(self, board_size: tuple[int, int], device: torch.device | str = "cpu"):
+        """The views' detections where the source gives them instead of images (corners detected before:
+        :class:`~ccs_kornia.pipeline.corners_input.CornersSource`), as the pipeline's first look's result; ``None``
+        (every source of images): the pipeline detects."""
+        return None
+
     def batches(
         self,
         keys: Sequence[tuple[int, int]] | None = None,
