@@ -18,7 +18,7 @@ from ccs_kornia.io.corners_file import CornersFile, read_corners_file
 from ccs_kornia.pipeline.corners_input import CornersSource
 from ccs_kornia.runtime.errors import UserError
 
-__all__ = ["check_board", "corner_files", "corners_source", "image_size_option", "report_note", "timestamps_of"]
+__all__ = ["check_board", "corner_files", "corners_source", "image_size_option", "report_note"]
 
 #: the options that read images or recordings, which a corners file replaces
 _IMAGE_OPTIONS = (("save_frames", "--save-frames"), ("timestamps", "--timestamps"), ("start", "--start"),
@@ -114,11 +114,6 @@ def corners_source(args: argparse.Namespace, inputs: Sequence[str], names: Seque
         info(f"{cf.path}: the board in {found} of {len(cf.views)} views of {w}x{h} images (corners given, not "
              "detected again)")
     return source
-
-
-def timestamps_of(source: CornersSource) -> dict[str, float | None]:
-    """Every view's timestamp by its name (for the records' ``timestamp``)."""
-    return {v.path: v.timestamp for f in source.files for v in f.views if v.timestamp is not None}
 
 
 def report_note(views: list[dict[str, Any]]) -> None:

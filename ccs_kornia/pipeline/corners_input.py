@@ -16,10 +16,11 @@ import torch
 
 from ccs_kornia.io.corners_file import CornersFile
 from ccs_kornia.modules.detection.base import DetectionResult
+from ccs_kornia.pipeline.frame_matching import FrameTable, match_by_time, match_frames
 from ccs_kornia.pipeline.result import PipelineResult
 from ccs_kornia.pipeline.sources import ViewSource
 
-__all__ = ["NO_IMAGE", "CornersSource"]
+__all__ = ["NO_IMAGE", "CornersSource", "match_given_views"]
 
 #: why a view of a corners file cannot be loaded
 NO_IMAGE = "no image: its corners were given"
@@ -109,3 +110,39 @@ class CornersSource(ViewSource):
                             None if sigma is None else sigma.to(device)),
             None, list(self.sizes), present.to(device), sizes.to(device),
             correction=None if correction is None else correction.to(device), camera_reasons=[""] * c)
+
+
+def match_given_views(source: CornersSource, tolerance: float | None = None) -> FrameTable:
+    """The views of a rig's corners files matched into frames as the rig matches its frames: by timestamp where every
+    view has one (:func:`~ccs_kornia.pipeline.frame_matching.match_by_time`, within ``tolerance`` s, by default half
+    the shortest median step between a camera's views), else by the last number in the views' names
+    (:func:`~ccs_kornia.pipeline.frame_matching.match_frames`).
+
+    Raises:
+        ValueError: the views have timestamps but no two cameras have views within the tolerance (one line).
+
+    Example:
+        >>> from ccs_kornia.io.corners_file import CornersView
+        >>> nan = torch.full((4, 2), float("nan"), dtype=torch.float64)
+        >>> cams = [[CornersView(f"c{c}.mp4#{k}", False, nan, timestamp=0.1 * k + 0.004 * c) for k in range(3)]
+        ...         for c in range(2)]
+        >>> src = CornersSource([CornersFile(f"c{c}.json", (2, 2), v, (64, 48)) for c, v in enumerate(cams)])
+        >>> match_given_views(src).index
+        [[0, 1, 2], [0, 1, 2]]
+    """
+    times = [[v.timestamp for v in f.views] for f in source.files]
+    if not all(t is not None for row in times for t in row):
+        return match_frames([[v.path for v in f.views] for f in source.files])
+    if tolerance is None:
+        steps = []
+        for row in times:
+            gaps = sorted(b - a for a, b in zip(sorted(row), sorted(row)[1:]) if b > a)
+            if gaps:
+                steps.append(gaps[len(gaps) // 2])
+        tolerance = 0.5 * min(steps) if steps else 1.0 / 60.0
+    table = match_by_time(times, float(tolerance))
+    if not any(sum(row[f] is not None for row in table.index) > 1 for f in range(table.num_frames)):
+        spans = ", ".join(f"{f.path} {min(t):.2f}-{max(t):.2f} s" for f, t in zip(source.files, times) if t)
+        raise ValueError(f"no two corners files have views within {tolerance:.4g} s of each other ({spans}): the "
+                         "recordings do not overlap in time; a larger --sync-tolerance pairs views further apart")
+    return table
