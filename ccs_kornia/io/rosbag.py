@@ -1,0 +1,219 @@
+"""ROS bags in at the boundary of the library: a recording's images and IMU samples, read without a ROS install.
+
+ROS1 bags (``.bag``) and ROS2 bags (a folder holding ``metadata.yaml``, or one ``.db3`` / ``.mcap`` storage file) are
+read with the pure-Python ``rosbags`` package. Decisions recorded here:
+
+* a message's **time** is its header's stamp in seconds (the sensor's clock, what a camera-IMU calibration needs); a
+  message whose stamp is zero (a driver that leaves it unset) gets the time the bag recorded it instead;
+* ``sensor_msgs/Image`` is read for the encodings ``mono8``, ``mono16``, ``bgr8``, ``rgb8``, ``bgra8``, ``rgba8`` (and
+  OpenCV's names of them, ``8UC1``, ``16UC1``, ``8UC3``, ``8UC4``); colour images come out in OpenCV's channel order
+  (BGR, BGRA), 16-bit ones as ``uint16``; ``sensor_msgs/CompressedImage`` is decoded by OpenCV (JPEG, PNG, 16-bit PNG
+  included);
+* a topic the bag does not have, or one of another message type, is refused in one line that lists the topics the
+  bag has (:class:`~ccs_kornia.runtime.errors.UserError`);
+* messages come in the order the bag recorded them; their stamps are given as they are (a check that they increase
+  belongs to the caller).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ccs_kornia.runtime.errors import UserError
+
+__all__ = ["IMAGE_ENCODINGS", "IMAGE_TYPES", "IMU_TYPES", "bag_topics", "read_bag_images", "read_bag_imu"]
+
+#: the ``sensor_msgs/Image`` encodings read, and the channels and bytes per channel of each
+IMAGE_ENCODINGS: dict[str, tuple[int, int]] = {
+    "mono8": (1, 1), "8uc1": (1, 1), "mono16": (1, 2), "16uc1": (1, 2), "bgr8": (3, 1), "8uc3": (3, 1),
+    "rgb8": (3, 1), "bgra8": (4, 1), "8uc4": (4, 1), "rgba8": (4, 1),
+}
+
+#: message types of images (``rosbags`` names ROS1's types as ROS2's, ``pkg/msg/Name``)
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+#: message types of IMU samples
+IMU_TYPES = ("sensor_msgs/msg/Imu",)
+
+
+@contextlib.contextmanager
+def _opened(path: str | Path) -> Iterator[Any]:
+    """The bag open for reading (``rosbags``' ``AnyReader``); a one-line :class:`UserError` where it cannot be."""
+    try:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:  # pragma: no cover - a dependency of the package
+        raise UserError("reading ROS bags needs the rosbags package (pip install rosbags)") from None
+    bag = Path(path)
+    if not bag.exists():
+        raise UserError(f"--bag {path}: no such file or folder")
+    ros1 = bag.suffix == ".bag"
+    if not ros1 and bag.is_dir() and not (bag / "metadata.yaml").is_file():
+        raise UserError(f"--bag {path}: a folder without metadata.yaml is no ROS2 bag (a ROS1 bag is one .bag file)")
+    if not ros1 and bag.is_file() and bag.suffix not in (".db3", ".mcap"):
+        raise UserError(f"--bag {path}: not a ROS bag (a ROS1 .bag file, or a ROS2 bag: its folder, .db3 or .mcap)")
+    # ROS2 storage files need not hold their message definitions: the standard ones are known
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    try:
+        reader = AnyReader([bag], default_typestore=store)
+        reader.open()
+    except Exception as err:  # noqa: BLE001 - rosbags' reader errors, a damaged file: said in one line
+        detail = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise UserError(f"--bag {path}: not a readable ROS bag ({detail})") from None
+    try:
+        yield reader
+    finally:
+        reader.close()
+
+
+def _short(msgtype: str) -> str:
+    """``sensor_msgs/Image`` for ``sensor_msgs/msg/Image``."""
+    return msgtype.replace("/msg/", "/")
+
+
+def _listing(reader: Any) -> str:
+    topics = sorted(reader.topics.items())
+    return ", ".join(f"{name} ({_short(info.msgtype)})" for name, info in topics) or "none"
+
+
+def _connections(reader: Any, path: str | Path, topic: str, types: tuple[str, ...]) -> list[Any]:
+    """The bag's connections of ``topic``, refused in one line where it has none or they hold another type."""
+    found = [c for c in reader.connections if c.topic == topic]
+    if not found:
+        raise UserError(f"--bag {path}: no topic {topic}; the bag has: {_listing(reader)}")
+    other = [c.msgtype for c in found if c.msgtype not in types]
+    if other:
+        wanted = " or ".join(_short(t) for t in types)
+        raise UserError(f"--bag {path}: topic {topic} holds {_short(other[0])} messages, not {wanted}; the bag has: "
+                        f"{_listing(reader)}")
+    return found
+
+
+def _stamp(msg: Any, recorded_ns: int) -> float:
+    """The header's stamp in seconds (the recording time where the stamp is zero)."""
+    stamp = msg.header.stamp
+    sec, nsec = int(stamp.sec), int(stamp.nanosec)
+    if sec == 0 and nsec == 0:
+        return recorded_ns * 1e-9
+    return sec + nsec * 1e-9
+
+
+def _raw_image(msg: Any, topic: str) -> np.ndarray:
+    """A ``sensor_msgs/Image`` as an array: grey :math:`(H, W)`, colour :math:`(H, W, 3|4)` in BGR(A) order."""
+    encoding = str(msg.encoding).lower()
+    if encoding not in IMAGE_ENCODINGS:
+        raise UserError(f"topic {topic}: images of encoding {msg.encoding!r} are not read (it reads "
+                        f"{', '.join(e for e in IMAGE_ENCODINGS if not e[0].isdigit())})")
+    channels, depth = IMAGE_ENCODINGS[encoding]
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if step < w * channels * depth or data.size < h * step:
+        raise UserError(f"topic {topic}: an image of {w}x{h} {msg.encoding} holds {data.size} bytes (step {step})")
+    rows = data[: h * step].reshape(h, step)[:, : w * channels * depth]
+    if depth == 2:
+        image = np.ascontiguousarray(rows).view(">u2" if msg.is_bigendian else "<u2").astype(np.uint16)
+    else:
+        image = np.ascontiguousarray(rows)
+    image = image.reshape(h, w, channels) if channels > 1 else image.reshape(h, w)
+    if encoding == "rgb8":
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    elif encoding == "rgba8":
+        image = cv2.cvtColor(image, cv2.COLOR_RGBA2BGRA)
+    return image
+
+
+def _compressed_image(msg: Any) -> np.ndarray | None:
+    """A ``sensor_msgs/CompressedImage`` decoded by OpenCV (8- or 16-bit, grey or BGR(A)); ``None`` where it does
+    not decode."""
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if data.size == 0:
+        return None
+    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if image is None or image.size == 0:
+        return None
+    return image[..., 0] if image.ndim == 3 and image.shape[2] == 1 else image
+
+
+def bag_topics(path: str | Path) -> dict[str, str]:
+    """The bag's topics and their message types (``pkg/msg/Name``, as ``rosbags`` names ROS1's and ROS2's types).
+
+    Args:
+        path: a ROS1 ``.bag`` file, or a ROS2 bag (its folder, or a ``.db3`` / ``.mcap`` file).
+
+    Returns:
+        ``{topic: message type}``, topics sorted.
+
+    Raises:
+        UserError: the path is no readable bag (one line).
+
+    Example:
+        >>> bag_topics("recording.bag")  # doctest: +SKIP
+        {'/cam0/image_raw': 'sensor_msgs/msg/Image', '/imu0': 'sensor_msgs/msg/Imu'}
+    """
+    with _opened(path) as reader:
+        return {name: info.msgtype for name, info in sorted(reader.topics.items())}
+
+
+def read_bag_images(path: str | Path, topic: str) -> Iterator[tuple[float, np.ndarray | None]]:
+    """The images of one topic, in the order the bag recorded them, read one at a time.
+
+    Args:
+        path: the bag (see :func:`bag_topics`).
+        topic: a topic of ``sensor_msgs/Image`` or ``sensor_msgs/CompressedImage`` messages.
+
+    Yields:
+        ``(timestamp, image)``: the header's stamp in seconds, and the image as ``uint8`` or ``uint16``, grey
+        :math:`(H, W)` or colour :math:`(H, W, 3)` / :math:`(H, W, 4)` in OpenCV's BGR(A) order; ``None`` for a
+        compressed image that does not decode.
+
+    Raises:
+        UserError: no such topic (the line lists the bag's topics), a topic of another type, an encoding not read.
+
+    Example:
+        >>> for t, image in read_bag_images("recording.bag", "/cam0/image_raw"):  # doctest: +SKIP
+        ...     print(f"{t:.3f}", image.shape, image.dtype)
+        1403636579.763 (480, 752) uint8
+    """
+    with _opened(path) as reader:
+        connections = _connections(reader, path, topic, IMAGE_TYPES)
+        for connection, recorded, raw in reader.messages(connections=connections):
+            msg = reader.deserialize(raw, connection.msgtype)
+            image = _compressed_image(msg) if connection.msgtype.endswith("CompressedImage") else _raw_image(msg, topic)
+            yield _stamp(msg, recorded), image
+
+
+def read_bag_imu(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The IMU samples of one topic: times, angular velocities and linear accelerations.
+
+    Args:
+        path: the bag (see :func:`bag_topics`).
+        topic: a topic of ``sensor_msgs/Imu`` messages.
+
+    Returns:
+        ``(t, gyro, accel)``: :math:`(N,)` the header stamps in seconds, :math:`(N, 3)` ``angular_velocity`` (rad/s)
+        and :math:`(N, 3)` ``linear_acceleration`` (m/s^2), float64, in the order the bag recorded them.
+
+    Raises:
+        UserError: no such topic (the line lists the bag's topics), a topic of another type.
+
+    Example:
+        >>> t, gyro, accel = read_bag_imu("recording.bag", "/imu0")  # doctest: +SKIP
+        >>> t.shape, gyro.shape, accel.shape
+        ((12000,), (12000, 3), (12000, 3))
+    """
+    times, gyro, accel = [], [], []
+    with _opened(path) as reader:
+        connections = _connections(reader, path, topic, IMU_TYPES)
+        for connection, recorded, raw in reader.messages(connections=connections):
+            msg = reader.deserialize(raw, connection.msgtype)
+            w, a = msg.angular_velocity, msg.linear_acceleration
+            times.append(_stamp(msg, recorded))
+            gyro.append((w.x, w.y, w.z))
+            accel.append((a.x, a.y, a.z))
+    return (np.asarray(times, dtype=np.float64), np.asarray(gyro, dtype=np.float64).reshape(-1, 3),
+            np.asarray(accel, dtype=np.float64).reshape(-1, 3))
