@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
-__all__ = ["BagContent", "content", "write_bag"]
+__all__ = ["BagContent", "content", "write_bag", "write_frames_bag"]
 
 #: the recording's start, as a sensor clock gives it (s since the epoch)
 T0 = 1_403_636_579
@@ -86,6 +86,37 @@ def _imu_message(store, ros1: bool, sec: int, nsec: int, gyro: tuple, accel: tup
         orientation_covariance=np.zeros(9), angular_velocity=vector(x=gyro[0], y=gyro[1], z=gyro[2]),
         angular_velocity_covariance=np.zeros(9), linear_acceleration=vector(x=accel[0], y=accel[1], z=accel[2]),
         linear_acceleration_covariance=np.zeros(9))
+
+
+def write_frames_bag(path: Path, topics: dict[str, tuple[np.ndarray, list[float]]], ros1: bool = True) -> Path:
+    """Grey ``uint8`` frames :math:`(V, H, W)` per image topic as ``mono8`` images stamped at their times (s, added
+    to :data:`T0`), written as a ROS1 ``.bag`` or a ROS2 bag folder."""
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    messages = []
+    for topic, (frames, times) in topics.items():
+        for frame, t in zip(frames, times):
+            ns = T0 * 10**9 + round(t * 1e9)
+            header = _header(store, ros1, ns // 10**9, ns % 10**9)
+            h, w = frame.shape
+            msg = store.types["sensor_msgs/msg/Image"](header=header, height=h, width=w, encoding="mono8",
+                                                       is_bigendian=0, step=w, data=frame.reshape(-1).copy())
+            messages.append((ns + 2 * 10**6, topic, msg))
+    messages.sort(key=lambda m: m[0])
+    if ros1:
+        from rosbags.rosbag1 import Writer
+        writer = Writer(path)
+    else:
+        from rosbags.rosbag2 import Writer
+        writer = Writer(path, version=9)
+    serialize = store.serialize_ros1 if ros1 else store.serialize_cdr
+    kind = "sensor_msgs/msg/Image"
+    with writer:
+        connections = {}
+        for recorded, topic, msg in messages:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, kind, typestore=store)
+            writer.write(connections[topic], recorded, serialize(msg, kind))
+    return path
 
 
 def write_bag(path: Path, bag: BagContent, ros1: bool, storage: str = "sqlite3") -> Path:

@@ -100,6 +100,8 @@ def corners_source(args: argparse.Namespace, inputs: Sequence[str], names: Seque
         return None
     if inputs:
         raise UserError(f"give either images or --corners, not both: {inputs[0]} and --corners {paths[0]}")
+    if getattr(args, "bag", None) is not None:
+        raise UserError(f"give either --corners or --bag, not both: --corners {paths[0]} and --bag {args.bag}")
     for attr, option in _IMAGE_OPTIONS:
         if getattr(args, attr, None) is not None:
             raise UserError(f"{option} reads images or recordings; with --corners the views are the corners files'")

@@ -54,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--save-frames writes the frames the frame selection kept: give --select (recordings and "
                         "images alike are selected on request only), or leave out --no-select")
     given = corners_source(args, args.images)
-    if given is None and not args.images:
-        raise UserError("no images given: give IMAGES (files, folders, globs or videos) or --corners JSON")
+    if given is None and not args.images and args.bag is None and args.image_topics is None:
+        raise UserError("no images given: give IMAGES (files, folders, globs or videos), --corners JSON or --bag BAG")
     device = resolve_device(args.device)
     start = time.perf_counter()
     video = camera_videos("calibrate", args) if given is None else None

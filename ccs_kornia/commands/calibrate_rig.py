@@ -35,7 +35,7 @@ from ccs_kornia.commands._output_paths import (
 from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
 from ccs_kornia.commands._stereo_pair import parse_pair
-from ccs_kornia.commands._video import add_timestamps, pairing_lines, rig_videos
+from ccs_kornia.commands._video import add_timestamps, bag_recordings, pairing_lines, rig_videos
 from ccs_kornia.commands._wrong_board import WrongBoardWatch
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import camera_model
@@ -156,10 +156,10 @@ def run(args: argparse.Namespace) -> int:
     if args.cameras and args.corners:
         raise UserError(f"give either camera folders or --corners, not both: {args.cameras[0]} and --corners "
                         f"{args.corners[0]}")
-    folders = args.cameras or args.corners or []
+    folders = args.cameras or args.corners or bag_recordings(args, one_camera=False)
     if len(folders) < 2:
-        what = "--corners files (one per camera)" if args.corners else \
-            "camera folders or videos (one folder of images, or one video, per camera)"
+        what = "--corners files (one per camera)" if args.corners else "--image-topics (one per camera)" if args.bag \
+            else "camera folders or videos (one folder of images, or one video, per camera)"
         raise UserError(f"a rig needs at least two {what}, got {len(folders)}{': ' if folders else ''}"
                         f"{' '.join(folders)}")
     check_output_file("--output", args.output)

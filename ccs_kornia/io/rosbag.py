@@ -12,7 +12,12 @@ read with the pure-Python ``rosbags`` package. Decisions recorded here:
 * a topic the bag does not have, or one of another message type, is refused in one line that lists the topics the
   bag has (:class:`~ccs_kornia.runtime.errors.UserError`);
 * messages come in the order the bag recorded them; their stamps are given as they are (a check that they increase
-  belongs to the caller).
+  belongs to the caller);
+* an image topic is a recording wherever a video is one (:class:`BagTopicReader`, the interface of
+  :class:`~ccs_kornia.io.video.VideoReader`): its path is ``BAG#TOPIC`` (:func:`bag_topic_path`), so its frames are
+  named ``BAG#TOPIC#INDEX`` (``INDEX`` the message's position on the topic, from 0) with their header stamps as
+  timestamps; the frames go to the detector as 8-bit grey images (colour converted, 16-bit scaled by 1/257), as a
+  video's do.
 """
 
 from __future__ import annotations
@@ -20,14 +25,18 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 
 from ccs_kornia.runtime.errors import UserError
 
-__all__ = ["IMAGE_ENCODINGS", "IMAGE_TYPES", "IMU_TYPES", "bag_topics", "read_bag_images", "read_bag_imu"]
+if TYPE_CHECKING:
+    from ccs_kornia.io.video import FrameSpan, VideoFrame, VideoInfo
+
+__all__ = ["IMAGE_ENCODINGS", "IMAGE_TYPES", "IMU_TYPES", "BagTopicReader", "bag_topic_path", "bag_topics",
+           "grey8", "open_bag_topic", "read_bag_images", "read_bag_imu", "split_bag_topic"]
 
 #: the ``sensor_msgs/Image`` encodings read, and the channels and bytes per channel of each
 IMAGE_ENCODINGS: dict[str, tuple[int, int]] = {
@@ -118,7 +127,7 @@ def _raw_image(msg: Any, topic: str) -> np.ndarray:
     if depth == 2:
         image = np.ascontiguousarray(rows).view(">u2" if msg.is_bigendian else "<u2").astype(np.uint16)
     else:
-        image = np.ascontiguousarray(rows)
+        image = rows.copy()  # the image's own memory, not a view of the message's
     image = image.reshape(h, w, channels) if channels > 1 else image.reshape(h, w)
     if encoding == "rgb8":
         image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
@@ -217,3 +226,185 @@ def read_bag_imu(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray, 
             accel.append((a.x, a.y, a.z))
     return (np.asarray(times, dtype=np.float64), np.asarray(gyro, dtype=np.float64).reshape(-1, 3),
             np.asarray(accel, dtype=np.float64).reshape(-1, 3))
+
+
+# ------------------------------------------------------------------------------------------------
+# an image topic as a recording
+# ------------------------------------------------------------------------------------------------
+
+
+def bag_topic_path(bag: str | Path, topic: str) -> str:
+    """The path of an image topic as a recording: ``BAG#TOPIC``.
+
+    Example:
+        >>> bag_topic_path("rec.bag", "/cam0/image_raw")
+        'rec.bag#/cam0/image_raw'
+    """
+    return f"{bag}#{topic}"
+
+
+def split_bag_topic(path: str) -> tuple[str, str] | None:
+    """``(bag, topic)`` of a path made by :func:`bag_topic_path`, ``None`` for other paths.
+
+    Example:
+        >>> split_bag_topic("rec.bag#/cam0/image_raw"), split_bag_topic("cam0.mp4")
+        (('rec.bag', '/cam0/image_raw'), None)
+    """
+    bag, sep, topic = str(path).partition("#/")
+    return (bag, "/" + topic) if sep and bag and "#" not in topic else None
+
+
+def grey8(image: np.ndarray) -> np.ndarray:
+    """An image as the detector reads a video's frame: grey ``uint8`` (colour converted from BGR(A), 16-bit scaled by
+    1/257).
+
+    Example:
+        >>> grey8(np.full((2, 3), 65535, np.uint16)).tolist()
+        [[255, 255, 255], [255, 255, 255]]
+    """
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    if image.dtype == np.uint16:
+        image = np.round(image.astype(np.float32) / 257.0).astype(np.uint8)
+    return np.ascontiguousarray(image)
+
+
+def _decoded(reader: Any, connection: Any, raw: bytes, topic: str) -> tuple[Any, np.ndarray | None]:
+    msg = reader.deserialize(raw, connection.msgtype)
+    image = _compressed_image(msg) if connection.msgtype.endswith("CompressedImage") else _raw_image(msg, topic)
+    return msg, image
+
+
+def open_bag_topic(path: str) -> tuple[VideoInfo | None, str]:
+    """An image topic's description as a recording's (:class:`~ccs_kornia.io.video.VideoInfo`: the first image's
+    size, the frame rate from the stamps' median step, the topic's message count), without raising:
+    ``(info, "")`` or ``(None, reason)``."""
+    from ccs_kornia.io.video import VideoInfo
+
+    bag, topic = split_bag_topic(path) or (path, "")
+    try:
+        with _opened(bag) as reader:
+            connections = _connections(reader, bag, topic, IMAGE_TYPES)
+            count = sum(int(c.msgcount) for c in connections)
+            size, stamps = None, []
+            for connection, recorded, raw in reader.messages(connections=connections):
+                msg, image = _decoded(reader, connection, raw, topic)
+                stamps.append(_stamp(msg, recorded))
+                if size is None and image is not None:
+                    size = (int(image.shape[1]), int(image.shape[0]))
+                if size is not None and len(stamps) >= 32:
+                    break
+    except UserError as err:
+        return None, str(err).removeprefix(f"--bag {bag}: ")
+    if size is None:
+        return None, f"topic {topic}: no image decodes"
+    steps = sorted(b - a for a, b in zip(stamps, stamps[1:]) if b > a)
+    fps = 1.0 / steps[len(steps) // 2] if steps else 0.0
+    return VideoInfo(path, size[0], size[1], fps if 0 < fps < 10_000 else 0.0, count), ""
+
+
+class BagTopicReader:
+    """An image topic of a bag read as a recording (the interface of :class:`~ccs_kornia.io.video.VideoReader`):
+    frames in order, each with its index on the topic and its header stamp (s), and frames got back by index.
+
+    The bag is opened by each call (its storage may not be shared between threads) and closed after it; the messages'
+    recording times, learnt by the first pass, find a frame again without reading the ones before it.
+
+    Args:
+        path: ``BAG#TOPIC`` (:func:`bag_topic_path`).
+        info: its :class:`~ccs_kornia.io.video.VideoInfo` (:func:`open_bag_topic` when not given).
+
+    Raises:
+        ValueError: the topic is not a readable image topic (one line).
+    """
+
+    def __init__(self, path: str, info: VideoInfo | None = None) -> None:
+        self.path = str(path)
+        self.bag, self.topic = split_bag_topic(self.path) or (self.path, "")
+        if info is None:
+            info, reason = open_bag_topic(self.path)
+            if info is None:
+                raise ValueError(f"{self.path}: {reason}")
+        self.info = info
+        self.stopped = ""
+        self.decoded = 0
+        self.length: int | None = None
+        self._recorded: list[int] | None = None
+
+    def close(self) -> None:
+        """Nothing stays open between calls."""
+
+    def __enter__(self) -> BagTopicReader:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def frames(self, span: FrameSpan | None = None, max_side: int | None = None) -> Iterator[VideoFrame]:
+        """The frames ``span`` asks for, in order (``--start`` / ``--end`` in seconds from the topic's first stamp);
+        a compressed image that does not decode is left out, and :attr:`stopped` says how many were."""
+        from ccs_kornia.io.video import FrameSpan, VideoFrame, _scaled
+
+        span = FrameSpan() if span is None else span
+        recorded: list[int] = []
+        first: int | None = None
+        t0: float | None = None
+        lost = 0
+        with _opened(self.bag) as reader:
+            connections = _connections(reader, self.bag, self.topic, IMAGE_TYPES)
+            for index, (connection, at, raw) in enumerate(reader.messages(connections=connections)):
+                recorded.append(at)
+                self.decoded += 1
+                msg = reader.deserialize(raw, connection.msgtype)
+                t = _stamp(msg, at)
+                t0 = t if t0 is None else t0
+                if span.past_end(t - t0):
+                    break
+                if span.before_start(t - t0):
+                    continue
+                first = index if first is None else first
+                if not span.wants(index, t - t0, first):
+                    continue
+                image = _compressed_image(msg) if connection.msgtype.endswith("CompressedImage") \
+                    else _raw_image(msg, self.topic)
+                if image is None:
+                    lost += 1
+                    continue
+                yield VideoFrame(index, t, _scaled(grey8(image), max_side))
+            else:
+                self.length = len(recorded)
+                self._recorded = recorded
+        self.stopped = f"{lost} compressed images did not decode and were left out" if lost else ""
+
+    def _recording_times(self) -> list[int]:
+        if self._recorded is None:
+            with _opened(self.bag) as reader:
+                connections = _connections(reader, self.bag, self.topic, IMAGE_TYPES)
+                self._recorded = [at for _, at, _ in reader.messages(connections=connections)]
+        return self._recorded
+
+    def read(self, index: int, timestamp: float | None = None) -> VideoFrame | None:
+        """Frame ``index`` at full size (grey ``uint8``), ``None`` where the topic has no such frame or it does not
+        decode; ``timestamp``: the stamp :meth:`frames` saw (a frame whose stamp differs is not it: ``None``)."""
+        from ccs_kornia.io.video import VideoFrame
+
+        index = int(index)
+        if index < 0:
+            raise ValueError(f"index must be >= 0, got {index}.")
+        times = self._recording_times()
+        if index >= len(times):
+            return None
+        at = times[index]
+        skip = index - times.index(at)  # messages recorded at the same time before it
+        with _opened(self.bag) as reader:
+            connections = _connections(reader, self.bag, self.topic, IMAGE_TYPES)
+            for k, (connection, got, raw) in enumerate(reader.messages(connections=connections, start=at,
+                                                                       stop=at + 1)):
+                if k < skip:
+                    continue
+                msg, image = _decoded(reader, connection, raw, self.topic)
+                t = _stamp(msg, got)
+                if image is None or (timestamp is not None and abs(t - timestamp) > 1e-6):
+                    return None
+                return VideoFrame(index, t, grey8(image))
+        return None

@@ -42,6 +42,7 @@ __all__ = [
     "is_video",
     "open_video",
     "split_frame_name",
+    "video_reader",
 ]
 
 #: file name endings read as videos (any FFmpeg container would do: these decide what a folder's videos are)
@@ -178,6 +179,10 @@ def open_video(path: str | os.PathLike) -> tuple[VideoInfo | None, str]:
         (None, 'no such file')
     """
     path = os.fspath(path)
+    from ccs_kornia.io.rosbag import open_bag_topic, split_bag_topic
+
+    if split_bag_topic(path) is not None and not os.path.exists(path):  # a bag's image topic (BAG#TOPIC)
+        return open_bag_topic(path)
     if not os.path.isfile(path):
         return None, "no such file" if not os.path.exists(path) else "not a file"
     if not os.access(path, os.R_OK):
@@ -197,6 +202,21 @@ def open_video(path: str | os.PathLike) -> tuple[VideoInfo | None, str]:
         cap.release()
     fps = fps if math.isfinite(fps) and 0 < fps < 10_000 else 0.0
     return VideoInfo(path, width, height, fps, max(0, count)), ""
+
+
+def video_reader(path: str | os.PathLike, info: VideoInfo | None = None):
+    """The reader of a recording: a :class:`VideoReader` for a video file, a
+    :class:`~ccs_kornia.io.rosbag.BagTopicReader` for a bag's image topic (``BAG#TOPIC``), both read the same way.
+
+    Raises:
+        ValueError: not a readable recording (one line).
+    """
+    path = os.fspath(path)
+    from ccs_kornia.io.rosbag import BagTopicReader, split_bag_topic
+
+    if split_bag_topic(path) is not None and not os.path.exists(path):
+        return BagTopicReader(path, info)
+    return VideoReader(path, info)
 
 
 def _capture(path: str) -> cv2.VideoCapture:

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ccs_kornia.io.video import FrameSpan, VideoInfo, VideoReader
+from ccs_kornia.io.video import FrameSpan, VideoInfo, VideoReader, video_reader
 from ccs_kornia.modules.detection.screening import BoardScreen, Sighting
 from ccs_kornia.pipeline.sources import prefetched
 from ccs_kornia.pipeline.workers import worker_pool
@@ -139,7 +139,7 @@ def screen_video(
         ([1, 3, 5], True, '')
     """
     start = time.perf_counter()
-    reader = VideoReader(video.path, video) if isinstance(video, VideoInfo) else VideoReader(video)
+    reader = video_reader(video.path, video) if isinstance(video, VideoInfo) else video_reader(video)
     out = ScreenedVideo(reader.info, span)
     task = functools.partial(_screen_batch, screen, reader.info.size)
     try:
