@@ -20,8 +20,9 @@ from tqdm import tqdm
 
 from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.io.images import IMAGE_EXTENSIONS, natural_key
+from ccs_kornia.io.recordings import open_recording
 from ccs_kornia.io.timestamps import read_timestamps
-from ccs_kornia.io.video import FrameSpan, is_video, open_video
+from ccs_kornia.io.video import FrameSpan, is_video
 from ccs_kornia.modules.detection.screening import BoardScreen
 from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES, detector_frames
 from ccs_kornia.pipeline.screening import screen_video
@@ -160,7 +161,7 @@ def screen_videos(command: str, paths: Sequence[str], screen, span, workers: int
     """
     infos, bad = [], []
     for path in paths:
-        video, reason = open_video(path)
+        video, reason = open_recording(path)
         (infos.append(video) if video is not None else bad.append((path, reason)))
     if bad and (not skip_unreadable or not infos):
         path, reason = bad[0]

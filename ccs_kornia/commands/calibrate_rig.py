@@ -35,7 +35,12 @@ from ccs_kornia.commands._output_paths import (
 from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
 from ccs_kornia.commands._stereo_pair import parse_pair
-from ccs_kornia.commands._video import add_timestamps, bag_recordings, pairing_lines, rig_videos
+from ccs_kornia.commands._video import (
+    add_timestamps,
+    bag_recordings,
+    pairing_lines,
+    rig_videos,
+)
 from ccs_kornia.commands._wrong_board import WrongBoardWatch
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import camera_model

@@ -14,7 +14,7 @@ read with the pure-Python ``rosbags`` package. Decisions recorded here:
 * messages come in the order the bag recorded them; their stamps are given as they are (a check that they increase
   belongs to the caller);
 * an image topic is a recording wherever a video is one (:class:`BagTopicReader`, the interface of
-  :class:`~ccs_kornia.io.video.VideoReader`): its path is ``BAG#TOPIC`` (:func:`bag_topic_path`), so its frames are
+  :class:`~ccs_kornia.io.video.VideoReader`; :mod:`~ccs_kornia.io.recordings` opens either): its path is ``BAG#TOPIC`` (:func:`bag_topic_path`), so its frames are
   named ``BAG#TOPIC#INDEX`` (``INDEX`` the message's position on the topic, from 0) with their header stamps as
   timestamps; the frames go to the detector as 8-bit grey images (colour converted, 16-bit scaled by 1/257), as a
   video's do.
@@ -23,17 +23,16 @@ read with the pure-Python ``rosbags`` package. Decisions recorded here:
 from __future__ import annotations
 
 import contextlib
+import itertools
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import cv2
 import numpy as np
 
+from ccs_kornia.io.video import FrameSpan, VideoFrame, VideoInfo, scaled_frame
 from ccs_kornia.runtime.errors import UserError
-
-if TYPE_CHECKING:
-    from ccs_kornia.io.video import FrameSpan, VideoFrame, VideoInfo
 
 __all__ = ["IMAGE_ENCODINGS", "IMAGE_TYPES", "IMU_TYPES", "BagTopicReader", "bag_topic_path", "bag_topics",
            "grey8", "open_bag_topic", "read_bag_images", "read_bag_imu", "split_bag_topic"]
@@ -161,8 +160,10 @@ def bag_topics(path: str | Path) -> dict[str, str]:
         UserError: the path is no readable bag (one line).
 
     Example:
-        >>> bag_topics("recording.bag")  # doctest: +SKIP
-        {'/cam0/image_raw': 'sensor_msgs/msg/Image', '/imu0': 'sensor_msgs/msg/Imu'}
+        >>> bag_topics("/nonexistent.bag")
+        Traceback (most recent call last):
+        ...
+        ccs_kornia.runtime.errors.UserError: --bag /nonexistent.bag: no such file or folder
     """
     with _opened(path) as reader:
         return {name: info.msgtype for name, info in sorted(reader.topics.items())}
@@ -184,9 +185,21 @@ def read_bag_images(path: str | Path, topic: str) -> Iterator[tuple[float, np.nd
         UserError: no such topic (the line lists the bag's topics), a topic of another type, an encoding not read.
 
     Example:
-        >>> for t, image in read_bag_images("recording.bag", "/cam0/image_raw"):  # doctest: +SKIP
-        ...     print(f"{t:.3f}", image.shape, image.dtype)
-        1403636579.763 (480, 752) uint8
+        >>> import os, tempfile
+        >>> from rosbags.rosbag1 import Writer
+        >>> from rosbags.typesys import Stores, get_typestore
+        >>> store = get_typestore(Stores.ROS1_NOETIC)
+        >>> T, Header, Image = (store.types[f"{p}/msg/{n}"] for p, n in
+        ...                     (("builtin_interfaces", "Time"), ("std_msgs", "Header"), ("sensor_msgs", "Image")))
+        >>> path = os.path.join(tempfile.mkdtemp(), "rec.bag")
+        >>> with Writer(path) as bag:
+        ...     topic = bag.add_connection("/cam0/image_raw", "sensor_msgs/msg/Image", typestore=store)
+        ...     header = Header(seq=0, stamp=T(sec=12, nanosec=500_000_000), frame_id="cam0")
+        ...     msg = Image(header=header, height=2, width=3, encoding="mono8", is_bigendian=0, step=3,
+        ...                 data=np.arange(6, dtype=np.uint8))
+        ...     bag.write(topic, 13 * 10**9, store.serialize_ros1(msg, "sensor_msgs/msg/Image"))
+        >>> [(t, image.tolist()) for t, image in read_bag_images(path, "/cam0/image_raw")]
+        [(12.5, [[0, 1, 2], [3, 4, 5]])]
     """
     with _opened(path) as reader:
         connections = _connections(reader, path, topic, IMAGE_TYPES)
@@ -211,9 +224,24 @@ def read_bag_imu(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray, 
         UserError: no such topic (the line lists the bag's topics), a topic of another type.
 
     Example:
-        >>> t, gyro, accel = read_bag_imu("recording.bag", "/imu0")  # doctest: +SKIP
-        >>> t.shape, gyro.shape, accel.shape
-        ((12000,), (12000, 3), (12000, 3))
+        >>> import os, tempfile
+        >>> from rosbags.rosbag2 import Writer
+        >>> from rosbags.typesys import Stores, get_typestore
+        >>> store = get_typestore(Stores.ROS2_HUMBLE)
+        >>> T, Header, V, Q, Imu = (store.types[n] for n in ("builtin_interfaces/msg/Time", "std_msgs/msg/Header",
+        ...                         "geometry_msgs/msg/Vector3", "geometry_msgs/msg/Quaternion", "sensor_msgs/msg/Imu"))
+        >>> path = os.path.join(tempfile.mkdtemp(), "rec")
+        >>> with Writer(path, version=9) as bag:
+        ...     topic = bag.add_connection("/imu0", "sensor_msgs/msg/Imu", typestore=store)
+        ...     for k in range(3):
+        ...         msg = Imu(header=Header(stamp=T(sec=7, nanosec=5_000_000 * k), frame_id="imu"),
+        ...                   orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=np.zeros(9),
+        ...                   angular_velocity=V(x=0.1 * k, y=0.0, z=0.0), angular_velocity_covariance=np.zeros(9),
+        ...                   linear_acceleration=V(x=0.0, y=0.0, z=9.81), linear_acceleration_covariance=np.zeros(9))
+        ...         bag.write(topic, 7 * 10**9 + 5_000_000 * k, store.serialize_cdr(msg, "sensor_msgs/msg/Imu"))
+        >>> t, gyro, accel = read_bag_imu(path, "/imu0")
+        >>> t.tolist(), gyro[:, 0].tolist(), accel[0].tolist()
+        ([7.0, 7.005, 7.01], [0.0, 0.1, 0.2], [0.0, 0.0, 9.81])
     """
     times, gyro, accel = [], [], []
     with _opened(path) as reader:
@@ -279,8 +307,6 @@ def open_bag_topic(path: str) -> tuple[VideoInfo | None, str]:
     """An image topic's description as a recording's (:class:`~ccs_kornia.io.video.VideoInfo`: the first image's
     size, the frame rate from the stamps' median step, the topic's message count), without raising:
     ``(info, "")`` or ``(None, reason)``."""
-    from ccs_kornia.io.video import VideoInfo
-
     bag, topic = split_bag_topic(path) or (path, "")
     try:
         with _opened(bag) as reader:
@@ -298,7 +324,7 @@ def open_bag_topic(path: str) -> tuple[VideoInfo | None, str]:
         return None, str(err).removeprefix(f"--bag {bag}: ")
     if size is None:
         return None, f"topic {topic}: no image decodes"
-    steps = sorted(b - a for a, b in zip(stamps, stamps[1:]) if b > a)
+    steps = sorted(b - a for a, b in itertools.pairwise(stamps) if b > a)
     fps = 1.0 / steps[len(steps) // 2] if steps else 0.0
     return VideoInfo(path, size[0], size[1], fps if 0 < fps < 10_000 else 0.0, count), ""
 
@@ -343,8 +369,6 @@ class BagTopicReader:
     def frames(self, span: FrameSpan | None = None, max_side: int | None = None) -> Iterator[VideoFrame]:
         """The frames ``span`` asks for, in order (``--start`` / ``--end`` in seconds from the topic's first stamp);
         a compressed image that does not decode is left out, and :attr:`stopped` says how many were."""
-        from ccs_kornia.io.video import FrameSpan, VideoFrame, _scaled
-
         span = FrameSpan() if span is None else span
         recorded: list[int] = []
         first: int | None = None
@@ -370,7 +394,7 @@ class BagTopicReader:
                 if image is None:
                     lost += 1
                     continue
-                yield VideoFrame(index, t, _scaled(grey8(image), max_side))
+                yield VideoFrame(index, t, scaled_frame(grey8(image), max_side))
             else:
                 self.length = len(recorded)
                 self._recorded = recorded
@@ -386,8 +410,6 @@ class BagTopicReader:
     def read(self, index: int, timestamp: float | None = None) -> VideoFrame | None:
         """Frame ``index`` at full size (grey ``uint8``), ``None`` where the topic has no such frame or it does not
         decode; ``timestamp``: the stamp :meth:`frames` saw (a frame whose stamp differs is not it: ``None``)."""
-        from ccs_kornia.io.video import VideoFrame
-
         index = int(index)
         if index < 0:
             raise ValueError(f"index must be >= 0, got {index}.")

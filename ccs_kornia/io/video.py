@@ -41,8 +41,8 @@ __all__ = [
     "frame_name",
     "is_video",
     "open_video",
+    "scaled_frame",
     "split_frame_name",
-    "video_reader",
 ]
 
 #: file name endings read as videos (any FFmpeg container would do: these decide what a folder's videos are)
@@ -179,10 +179,6 @@ def open_video(path: str | os.PathLike) -> tuple[VideoInfo | None, str]:
         (None, 'no such file')
     """
     path = os.fspath(path)
-    from ccs_kornia.io.rosbag import open_bag_topic, split_bag_topic
-
-    if split_bag_topic(path) is not None and not os.path.exists(path):  # a bag's image topic (BAG#TOPIC)
-        return open_bag_topic(path)
     if not os.path.isfile(path):
         return None, "no such file" if not os.path.exists(path) else "not a file"
     if not os.access(path, os.R_OK):
@@ -204,21 +200,6 @@ def open_video(path: str | os.PathLike) -> tuple[VideoInfo | None, str]:
     return VideoInfo(path, width, height, fps, max(0, count)), ""
 
 
-def video_reader(path: str | os.PathLike, info: VideoInfo | None = None):
-    """The reader of a recording: a :class:`VideoReader` for a video file, a
-    :class:`~ccs_kornia.io.rosbag.BagTopicReader` for a bag's image topic (``BAG#TOPIC``), both read the same way.
-
-    Raises:
-        ValueError: not a readable recording (one line).
-    """
-    path = os.fspath(path)
-    from ccs_kornia.io.rosbag import BagTopicReader, split_bag_topic
-
-    if split_bag_topic(path) is not None and not os.path.exists(path):
-        return BagTopicReader(path, info)
-    return VideoReader(path, info)
-
-
 def _capture(path: str) -> cv2.VideoCapture:
     """FFmpeg's capture of ``path``; OpenCV's warning about a file it cannot open is left out (the caller says why)."""
     logging = cv2.utils.logging
@@ -238,7 +219,13 @@ def _grey(frame: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY if frame.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
 
 
-def _scaled(image: np.ndarray, max_side: int | None) -> np.ndarray:
+def scaled_frame(image: np.ndarray, max_side: int | None) -> np.ndarray:
+    """A frame downscaled so that its longer side is at most ``max_side`` (area interpolation; ``None``: as it is).
+
+    Example:
+        >>> scaled_frame(np.zeros((480, 640), np.uint8), 320).shape
+        (240, 320)
+    """
     h, w = image.shape[:2]
     if max_side is None or max(h, w) <= max_side:
         return image
@@ -364,7 +351,7 @@ class VideoReader:
             if image is None:
                 self.stopped = self._damage(index - 1, timestamp)
                 return
-            yield VideoFrame(index, timestamp, _scaled(image, max_side))
+            yield VideoFrame(index, timestamp, scaled_frame(image, max_side))
 
     def _damage(self, last_index: int, last_time: float | None) -> str:
         """Why decoding stopped after frame ``last_index`` when the container states more (``""``: it did not)."""

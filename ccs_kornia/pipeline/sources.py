@@ -338,13 +338,13 @@ class VideoSource(ViewSource):
         return None if size is None else int(size[0] * size[1])
 
     def _reader(self, video: str):
-        from ccs_kornia.io.video import video_reader
+        from ccs_kornia.io.recordings import recording_reader
 
         if self._pid != os.getpid():  # a forked worker: the parent's decoders are the parent's, never touched here
             _INHERITED_DECODERS.append(self._readers)  # (freeing one waits for decoding threads only the parent has)
             self._readers, self._pid = {}, os.getpid()
         if video not in self._readers:
-            self._readers[video] = video_reader(video)
+            self._readers[video] = recording_reader(video)
         return self._readers[video]
 
     def _load(self, camera: int, view: int) -> tuple[torch.Tensor | None, str]:

@@ -73,7 +73,7 @@ def test_detect_then_calibrate_gives_the_calibration_of_the_images(tmp_path, cap
     detected = json.loads(corners.read_text())
     assert detected["image_size"] == [640, 480]
     assert all(len(v["corner_sigma"]) == 54 and all(s > 0 for s in v["corner_sigma"]) for v in detected["images"])
-    code, out, err = run(capsys, "calibrate", "--corners", corners, "--board", "9x6", "--square", "0.025",
+    code, _, err = run(capsys, "calibrate", "--corners", corners, "--board", "9x6", "--square", "0.025",
                          "--output", given)
     assert code == EXIT_OK, err
     assert "board in 13 of 13 views of 640x480 images (corners given, not detected again)" in err
@@ -109,10 +109,10 @@ def test_charuco_corners_give_the_calibration_of_the_images(tmp_path, capsys):
 
 
 def test_rig_from_corners_files(stereo_files, tmp_path, capsys):
-    root, folders, files = stereo_files
+    _, folders, files = stereo_files
     on_images, given = tmp_path / "images.json", tmp_path / "given.json"
     assert run(capsys, "calibrate-rig", *folders, *RIG, "--output", on_images)[0] == EXIT_OK
-    code, out, err = run(capsys, "calibrate-rig", "--corners", files[0], "--corners", files[1], *RIG,
+    code, _, err = run(capsys, "calibrate-rig", "--corners", files[0], "--corners", files[1], *RIG,
                          "--output", given)
     assert code == EXIT_OK, err
     a, b = json.loads(on_images.read_text()), json.loads(given.read_text())
@@ -126,7 +126,7 @@ def test_rig_from_corners_files(stereo_files, tmp_path, capsys):
 def test_rig_views_pair_by_their_timestamps(stereo_files, tmp_path, capsys):
     """Views with timestamps pair by time, as a rig's recordings do: the second camera 3 ms late, its first view
     missing and its views named out of order."""
-    root, folders, files = stereo_files
+    files = stereo_files[2]
     timed = []
     for c, path in enumerate(files):
         data = json.loads(path.read_text())
@@ -148,7 +148,7 @@ def test_rig_views_pair_by_their_timestamps(stereo_files, tmp_path, capsys):
 
 
 def test_image_size_is_required_where_the_file_does_not_say_it(stereo_files, tmp_path, capsys):
-    root, folders, files = stereo_files
+    files = stereo_files[2]
     data = json.loads(files[0].read_text())
     del data["image_size"]
     for view in data["images"]:
@@ -168,7 +168,7 @@ def test_image_size_is_required_where_the_file_does_not_say_it(stereo_files, tmp
 
 
 def test_report_without_the_images(stereo_files, tmp_path, capsys):
-    root, folders, files = stereo_files
+    files = stereo_files[2]
     moved = tmp_path / "corners.json"
     data = json.loads(files[0].read_text())
     for view in data["images"]:
@@ -193,7 +193,7 @@ def test_report_without_the_images(stereo_files, tmp_path, capsys):
     ],
 )
 def test_refusals_are_one_line_and_write_nothing(stereo_files, tmp_path, capsys, change, phrases):
-    root, folders, files = stereo_files
+    _, folders, files = stereo_files
     out = tmp_path / "camera.json"
     argv = ["calibrate", "--corners", files[0], "--square", "0.025", *FAST, "--output", out]
     if "--board" not in change and "--charuco" not in change:
@@ -204,7 +204,7 @@ def test_refusals_are_one_line_and_write_nothing(stereo_files, tmp_path, capsys,
 
 
 def test_files_that_are_not_corners_are_refused(stereo_files, tmp_path, capsys):
-    root, folders, files = stereo_files
+    _, folders, files = stereo_files
     calibration = tmp_path / "camera.json"
     assert run(capsys, "calibrate", folders[0], *RIG, "--output", calibration)[0] == EXIT_OK
     out = tmp_path / "again.json"

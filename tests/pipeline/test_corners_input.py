@@ -50,7 +50,7 @@ def test_the_solve_on_given_corners_is_the_solve_on_the_images(views):
     assert bool(a.success) and bool(b.success)
     # the same numbers up to the float rounding of the network's pooled correction, which differs between two runs
     # on the same images in the last bits (1e-15)
-    close = dict(rtol=1e-10, atol=1e-12)
+    close = {"rtol": 1e-10, "atol": 1e-12}
     assert torch.allclose(a.K, b.K, **close) and torch.allclose(a.dist, b.dist, **close)
     assert torch.equal(a.used, b.used) and math.isclose(float(a.rms), float(b.rms), rel_tol=1e-10)
     assert on_images.model_selection["chosen"] == given.model_selection["chosen"]
