@@ -190,6 +190,7 @@ def test_report_without_the_images(stereo_files, tmp_path, capsys):
         (["IMAGES"], ["give either images or --corners, not both"]),
         (["--save-frames", "DIR", "--select"], ["--save-frames reads images or recordings"]),
         (["--image-size", "320"], ["--image-size 320: expected WIDTHxHEIGHT"]),
+        (["--image-topics", "/cam0/image_raw"], ["--image-topics reads images or recordings"]),
     ],
 )
 def test_refusals_are_one_line_and_write_nothing(stereo_files, tmp_path, capsys, change, phrases):
