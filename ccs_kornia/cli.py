@@ -259,6 +259,33 @@ def video_options(p: argparse.ArgumentParser, rig: bool = False) -> None:
                             "frame_index a camera's rows are its frames in order)")
 
 
+def corner_options(p: argparse.ArgumentParser, rig: bool, corners: bool = True) -> None:
+    """``--corners JSON [--image-size WxH]`` (corners detected before, instead of images; where ``corners``) and
+    ``--bag BAG --image-topics TOPIC[,TOPIC...]`` (a ROS bag's images)."""
+    g = p.add_argument_group("corners detected before, or a ROS bag (instead of images)" if corners else
+                             "a ROS bag (instead of images)")
+    if corners:
+        _corners_file_options(g, rig)
+    g.add_argument("--bag", metavar="BAG",
+                   help="a ROS1 (.bag) or ROS2 (folder with metadata.yaml, or .db3 / .mcap) bag: the images of "
+                        "--image-topics as a recording (frames named BAG#TOPIC#INDEX, with their header stamps as "
+                        "timestamps), read without ROS")
+    g.add_argument("--image-topics", metavar="TOPIC[,TOPIC...]",
+                   help="the bag's image topics (sensor_msgs/Image or CompressedImage)" +
+                        (", one per camera in the rig's order" if rig else ", one"))
+
+
+def _corners_file_options(g, rig: bool) -> None:
+    g.add_argument("--corners", action="append", metavar="JSON",
+                   help=("the corners file detect wrote, one per camera in the rig's order (repeat --corners); views "
+                         "match across cameras by their timestamps where every view has one, else by the last number "
+                         "in their names" if rig else "the corners file detect wrote") +
+                        ": the solve runs on its corners, nothing is detected again; the board options still say the "
+                        "board and its square size (a file of another board is refused)")
+    g.add_argument("--image-size", metavar="WxH",
+                   help="the images' size, for a corners file that does not say it (written before detect recorded it)")
+
+
 def selection_options(p: argparse.ArgumentParser) -> None:
     """``--select/--no-select`` and ``--save-frames DIR``."""
     g = p.add_argument_group("frame selection")
@@ -285,10 +312,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
-    def common(p: argparse.ArgumentParser, board: bool = True, square: bool = False) -> None:
-        p.add_argument("images", nargs="+", metavar="IMAGES",
+    def common(p: argparse.ArgumentParser, board: bool = True, square: bool = False, corners: bool = False) -> None:
+        p.add_argument("images", nargs="*" if board else "+", metavar="IMAGES",
                        help="image files, directories or globs" + (", or videos (one camera's recordings)" if board
-                                                                    else ""))
+                                                                    else "") + (" (or --corners, --bag)" if corners
+                                                                                else " (or --bag)" if board else ""))
+        if board:
+            corner_options(p, rig=False, corners=corners)
         if board:
             which = p.add_mutually_exclusive_group(required=True)
             which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
@@ -323,7 +353,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("calibrate", help="calibrate a camera from chessboard images", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    common(p)
+    common(p, corners=True)
     p.add_argument("--square", default=1.0, type=_positive_float,
                    help="square side in world units (scales the poses only; default 1)")
     p.add_argument("--output", required=True, metavar="JSON",
@@ -358,10 +388,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
                        "folder of board images per camera", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("cameras", nargs="+", metavar="CAM_DIR",
+    p.add_argument("cameras", nargs="*", metavar="CAM_DIR",
                    help="one folder (or quoted glob) of images per camera; views match across cameras by the last number "
                         "in the file names (left07.jpg with right07.jpg), else by sorted order; or one video per "
-                        "camera, frames paired by timestamp (--sync-tolerance), by --timestamps, else by index")
+                        "camera, frames paired by timestamp (--sync-tolerance), by --timestamps, else by index "
+                        "(or --corners per camera, --bag)")
+    corner_options(p, rig=True)
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--board", type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6 (or --charuco)")
     p.add_argument("--square", default=1.0, type=_positive_float,

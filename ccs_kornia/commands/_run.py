@@ -73,6 +73,7 @@ def calibrate_files(
     model: Any,
     detector_name: str,
     video=None,
+    source=None,
 ) -> tuple[dict[str, Any], Any]:
     """The pipeline's one composition on ``files`` (one camera); returns (JSON-ready dict, PipelineResult of it).
 
@@ -80,16 +81,24 @@ def calibrate_files(
     ``files`` their names): the views are read from the videos, each view gets its ``timestamp`` and the record a
     ``video`` entry per recording (what the screening saw of every frame, and why a frame was not chosen).
 
+    ``source``: the views' corners detected before (:class:`~ccs_kornia.pipeline.corners_input.CornersSource`,
+    ``files`` their names): nothing is detected, each view gets its ``timestamp`` where the file gives one and the
+    record the file's name (``corners_file``).
+
     Raises :class:`UserError` when no calibration can be computed: :class:`NoResult` when images were read, with
     ``partial``: the per-view record (detections and reasons) so the caller can keep it.
     """
-    source = None if video is None else video.source()
+    given = source
+    source = video.source() if video is not None else given
     out, seconds = run_files(command, pipeline, [files], board, square, device, source=source)
     one = out.select(0)
     data = camera_record(one, files, board=board, square=square, detector=detector_name, model=model)
     if video is not None:
         add_timestamps(data["views"], video.timestamps())
         data["video"] = video.records(0)
+    if given is not None:
+        add_timestamps(data["views"], {name: given.timestamp(0, v) for v, name in enumerate(files)})
+        data["corners_file"] = given.files[0].path
     data["timings"] = {"load_detect_solve_s": seconds, "images_per_s": len(files) / max(seconds, 1e-9)}
     for view in data["views"]:
         if view["found"] and "reason" in view and view["reason"].startswith("image size"):

@@ -20,8 +20,9 @@ from tqdm import tqdm
 
 from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.io.images import IMAGE_EXTENSIONS, natural_key
+from ccs_kornia.io.recordings import open_recording
 from ccs_kornia.io.timestamps import read_timestamps
-from ccs_kornia.io.video import FrameSpan, is_video, open_video
+from ccs_kornia.io.video import FrameSpan, is_video
 from ccs_kornia.modules.detection.screening import BoardScreen
 from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES, detector_frames
 from ccs_kornia.pipeline.screening import screen_video
@@ -29,7 +30,7 @@ from ccs_kornia.pipeline.video_input import camera_frames, pair_videos, rig_fram
 from ccs_kornia.pipeline.workers import default_workers
 from ccs_kornia.runtime.errors import UserError
 
-__all__ = ["add_timestamps", "camera_videos", "detector_count", "frame_span", "make_screen", "max_frames",
+__all__ = ["add_timestamps", "bag_recordings", "camera_videos", "detector_count", "frame_span", "make_screen", "max_frames",
            "pairing_lines", "rig_videos", "screen_videos", "screen_workers", "screening_note", "selecting",
            "video_inputs", "video_summary"]
 
@@ -67,6 +68,38 @@ def video_inputs(command: str, items: Sequence[str]) -> list[str]:
         raise UserError(f"give either videos or images, not both: {videos[0]} is a video, {others[0]} is not")
     seen: set[str] = set()
     return [v for v in videos if not (os.path.abspath(v) in seen or seen.add(os.path.abspath(v)))]
+
+
+def bag_recordings(args: argparse.Namespace, one_camera: bool) -> list[str]:
+    """``--bag BAG --image-topics TOPIC[,TOPIC...]``: each image topic as a recording (``BAG#TOPIC``, read as a video
+    is, :class:`~ccs_kornia.io.rosbag.BagTopicReader`); ``[]`` without ``--bag``. Refused in one line: topics without
+    a bag, a bag without topics (the line lists its image topics), a bag given with images or with ``--corners``,
+    more than one topic for one camera, a topic twice."""
+    bag, topics = getattr(args, "bag", None), getattr(args, "image_topics", None)
+    if bag is None:
+        if topics is not None:
+            raise UserError("--image-topics names the image topics of a --bag; give --bag BAG too")
+        return []
+    inputs = getattr(args, "images", None) or getattr(args, "cameras", None)
+    if inputs:
+        raise UserError(f"give either images or --bag, not both: {inputs[0]} and --bag {bag}")
+    if getattr(args, "corners", None):
+        raise UserError(f"give either --corners or --bag, not both: --corners {args.corners[0]} and --bag {bag}")
+    if not topics:
+        from ccs_kornia.io.rosbag import IMAGE_TYPES, bag_topics
+
+        listed = [t for t, kind in bag_topics(bag).items() if kind in IMAGE_TYPES]
+        raise UserError(f"--bag {bag}: give --image-topics (its image topics: {', '.join(listed) or 'none'})")
+    names = [t.strip() for t in topics.split(",")]
+    if any(not t.startswith("/") or "#" in t for t in names):
+        raise UserError(f"--image-topics {topics}: topics are names like /cam0/image_raw, separated by commas")
+    if len(set(names)) != len(names):
+        raise UserError(f"--image-topics {topics}: a topic given twice (one topic per camera)")
+    if one_camera and len(names) != 1:
+        raise UserError(f"--image-topics {topics}: one camera takes one image topic (calibrate-rig takes several)")
+    from ccs_kornia.io.rosbag import bag_topic_path
+
+    return [bag_topic_path(bag, t) for t in names]
 
 
 def max_frames(args: argparse.Namespace) -> int:
@@ -128,7 +161,7 @@ def screen_videos(command: str, paths: Sequence[str], screen, span, workers: int
     """
     infos, bad = [], []
     for path in paths:
-        video, reason = open_video(path)
+        video, reason = open_recording(path)
         (infos.append(video) if video is not None else bad.append((path, reason)))
     if bad and (not skip_unreadable or not infos):
         path, reason = bad[0]
@@ -198,7 +231,7 @@ def report_screening(command: str, frames, names: Sequence[str] | None = None) -
 def camera_videos(command: str, args: argparse.Namespace):
     """One camera's recordings (``args.images`` naming videos) screened and their frames chosen
     (:class:`~ccs_kornia.pipeline.video_input.VideoFrames`); ``None`` when the inputs are images."""
-    paths = video_inputs(command, args.images)
+    paths = bag_recordings(args, one_camera=True) or video_inputs(command, args.images)
     if not paths:
         return None
     span = frame_span(args)
@@ -220,14 +253,15 @@ def rig_videos(command: str, args: argparse.Namespace, names: Sequence[str]):
     """A rig's recordings (``args.cameras`` naming one video per camera) screened, paired into instants and chosen
     (:class:`~ccs_kornia.pipeline.video_input.VideoFrames`); ``None`` when the cameras are image folders. Says on
     stderr how many frames each camera contributed and the largest time spread of a paired frame."""
-    found = [video_inputs(command, [item]) for item in args.cameras]
+    bags = bag_recordings(args, one_camera=False)
+    found = [[path] for path in bags] if bags else [video_inputs(command, [item]) for item in args.cameras]
     if not any(found):
         for option in ("timestamps", "sync_tolerance"):
             if getattr(args, option, None) is not None:
                 raise UserError(f"--{option.replace('_', '-')} pairs the frames of videos; the cameras given are image "
                                 "folders (their views pair by the numbers in the file names)")
         return None
-    for name, item, videos in zip(names, args.cameras, found):
+    for name, item, videos in zip(names, bags or args.cameras, found):
         if len(videos) != 1:
             what = "images" if not videos else f"{len(videos)} videos"
             raise UserError(f"camera {name} ({item}): a rig of recordings takes one video per camera, got {what}")

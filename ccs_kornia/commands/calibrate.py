@@ -8,6 +8,7 @@ import time
 from typing import Any
 
 from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._corners import corners_source, report_note
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
@@ -52,15 +53,22 @@ def run(args: argparse.Namespace) -> int:
     if args.save_frames and selection is None:
         raise UserError("--save-frames writes the frames the frame selection kept: give --select (recordings and "
                         "images alike are selected on request only), or leave out --no-select")
+    given = corners_source(args, args.images)
+    if given is None and not args.images and args.bag is None and args.image_topics is None:
+        raise UserError("no images given: give IMAGES (files, folders, globs or videos), --corners JSON or --bag BAG")
     device = resolve_device(args.device)
     start = time.perf_counter()
-    video = camera_videos("calibrate", args)
-    files = inputs("calibrate", args.images) if video is None else video.names()[0]
+    video = camera_videos("calibrate", args) if given is None else None
+    if given is not None:
+        files = [given.describe(0, v) for v in range(given.counts[0])]
+    else:
+        files = inputs("calibrate", args.images) if video is None else video.names()[0]
     pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed,
                              frame_selection=selection)
     try:
         data, result = calibrate_files(
-            "calibrate", files, args.board, args.square, pipeline, device, args.model, args.detector, video
+            "calibrate", files, args.board, args.square, pipeline, device, args.model, args.detector, video,
+            source=given,
         )
     except UserError as err:
         if video is not None:
@@ -103,6 +111,8 @@ def run(args: argparse.Namespace) -> int:
         write_text_atomic("--ros-yaml", args.ros_yaml, ros_camera_info(data))
     if args.report:
         make_dir("--report", args.report)
+        if given is not None:
+            report_note(data["views"])
         start = time.perf_counter()
         write_report(args.report, data)
         data["timings"]["report_s"] = time.perf_counter() - start

@@ -17,6 +17,7 @@ import cv2
 from tqdm import tqdm
 
 from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._corners import corners_source, report_note
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import (
     make_detector_from,
@@ -34,7 +35,12 @@ from ccs_kornia.commands._output_paths import (
 from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
 from ccs_kornia.commands._stereo_pair import parse_pair
-from ccs_kornia.commands._video import add_timestamps, rig_videos
+from ccs_kornia.commands._video import (
+    add_timestamps,
+    bag_recordings,
+    pairing_lines,
+    rig_videos,
+)
 from ccs_kornia.commands._wrong_board import WrongBoardWatch
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import camera_model
@@ -53,6 +59,7 @@ from ccs_kornia.outputs.rig_exports import (
     write_opencv_stereo_yaml,
 )
 from ccs_kornia.outputs.rig_records import frame_lines, rig_record
+from ccs_kornia.pipeline.corners_input import match_given_views
 from ccs_kornia.pipeline.frame_matching import match_frames
 from ccs_kornia.pipeline.rig_pipeline import RigPipeline
 from ccs_kornia.pipeline.sources import FileSource
@@ -151,10 +158,15 @@ def _check_distinct_videos(names: list[str], videos: list[str]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    folders = args.cameras
+    if args.cameras and args.corners:
+        raise UserError(f"give either camera folders or --corners, not both: {args.cameras[0]} and --corners "
+                        f"{args.corners[0]}")
+    folders = args.cameras or args.corners or bag_recordings(args, one_camera=False)
     if len(folders) < 2:
-        raise UserError(f"a rig needs at least two camera folders or videos (one folder of images, or one video, per "
-                        f"camera), got {len(folders)}: {' '.join(folders)}")
+        what = "--corners files (one per camera)" if args.corners else "--image-topics (one per camera)" if args.bag \
+            else "camera folders or videos (one folder of images, or one video, per camera)"
+        raise UserError(f"a rig needs at least two {what}, got {len(folders)}{': ' if folders else ''}"
+                        f"{' '.join(folders)}")
     check_output_file("--output", args.output)
     for option, path in (("--opencv-yaml", args.opencv_yaml), ("--kalibr-yaml", args.kalibr_yaml)):
         if path:
@@ -185,10 +197,19 @@ def run(args: argparse.Namespace) -> int:
     if args.save_frames and selection is None:
         raise UserError("--save-frames writes the frames the frame selection kept: give --select (recordings and "
                         "image folders alike are selected on request only), or leave out --no-select")
+    given = corners_source(args, args.cameras, names)
     device = resolve_device(args.device)
     start = time.perf_counter()
-    video = rig_videos(COMMAND, args, names)
-    if video is None:
+    video = rig_videos(COMMAND, args, names) if given is None else None
+    if given is not None:
+        files = [[given.describe(k, v) for v in range(given.counts[k])] for k in range(c)]
+        try:
+            frames = match_given_views(given, args.sync_tolerance)
+        except ValueError as err:
+            raise UserError(str(err)) from None
+        for line in pairing_lines(frames, names) if frames.by == "time" else ():
+            info(line)
+    elif video is None:
         files = [_camera_files(names[k], folder) for k, folder in enumerate(folders)]
         frames = match_frames(files)
         for k in range(c):
@@ -207,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
     except FileNotFoundError as err:
         raise missing_weights(err) from None
     pipeline.to(device)
-    source = FileSource(files, names) if video is None else video.source(names)
+    source = given if given is not None else FileSource(files, names) if video is None else video.source(names)
     total = sum(source.counts)
     with tqdm(total=total, unit="img", desc=COMMAND, file=sys.stderr, disable=None, leave=False) as bar:
         def advance(views: int) -> None:
@@ -234,6 +255,13 @@ def run(args: argparse.Namespace) -> int:
             cam["video"] = video.records(c_)
         data["frame_times"] = frames.times
         data["frame_spread_s"] = frames.spread()
+    if given is not None:
+        for c_, cam in enumerate(data["cameras"]):
+            add_timestamps(cam["views"], {name: given.timestamp(c_, v) for v, name in enumerate(files[c_])})
+        data["corners_files"] = list(folders)
+        if frames.times is not None:
+            data["frame_times"] = frames.times
+            data["frame_spread_s"] = frames.spread()
     if args.save_frames:
         kept, stems = _used_views(out, files)
         data["saved_frames"] = {"folder": args.save_frames,
@@ -241,6 +269,8 @@ def run(args: argparse.Namespace) -> int:
     data["device"] = str(device)
     data["timings"] = {"total_s": time.perf_counter() - start}
     weak = _weak_cameras(data) if args.allow_weak else []
+    if args.report and given is not None:
+        report_note([v for cam in data["cameras"] for v in cam["views"]])
     _write_outputs(args, data, names, pair)
     if data.get("selection"):
         print(selection_line(data["selection"]))

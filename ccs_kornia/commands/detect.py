@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
+
 from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
@@ -16,7 +18,7 @@ from ccs_kornia.io.files import write_json
 from ccs_kornia.outputs.records import correction_record, view_records
 from ccs_kornia.runtime.errors import NoResult, UserError
 
-__all__ = ["CORNER_DECIMALS", "run"]
+__all__ = ["CORNER_DECIMALS", "add_corner_sigma", "run"]
 
 #: corners are written to 1e-4 px (the float32 detections' own digits beyond that are noise, and 17 of them per
 #: coordinate made the file hard to read)
@@ -34,6 +36,17 @@ def _image_record(view: dict) -> dict:
     return record
 
 
+def add_corner_sigma(images: list[dict], sigma) -> None:
+    """Each record with corners gets ``corner_sigma``: each corner's measured precision (px; null where not
+    measured), written to float32's own digits so that a solve on the file (``--corners``) weighs its corners as the
+    solve on the images does."""
+    if sigma is None:
+        return
+    for record, row in zip(images, sigma.cpu().numpy()):
+        if record.get("corners") is not None:
+            record["corner_sigma"] = [None if not np.isfinite(s) else float(str(np.float32(s))) for s in row]
+
+
 def run(args: argparse.Namespace) -> int:
     check_output_file("--output", args.output)
     device = resolve_device(args.device)
@@ -44,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     out, elapsed = run_files("detect", pipeline, [files], args.board, 1.0, device, calibrate=False, source=source)
     one = out.select(0)
     images = [_image_record(view) for view in view_records(one, files)]
+    add_corner_sigma(images, one.detections.sigma)
     if video is not None:
         add_timestamps(images, video.timestamps())
     correction = {k: v for k, v in correction_record(one).items() if k not in _CALIBRATION_ONLY["correction"]}
@@ -51,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     n_partial = sum(1 for r in images if r.get("hidden_corners"))
     data = {
         "board": list(args.board),
+        "image_size": [int(x) for x in one.image_size],
         "detector": args.detector,
         **({"charuco": charuco_record(args)} if charuco_record(args) else {}),
         **({"aprilgrid": aprilgrid_record(args)} if aprilgrid_record(args) else {}),

@@ -41,6 +41,7 @@ __all__ = [
     "frame_name",
     "is_video",
     "open_video",
+    "scaled_frame",
     "split_frame_name",
 ]
 
@@ -218,7 +219,13 @@ def _grey(frame: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY if frame.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
 
 
-def _scaled(image: np.ndarray, max_side: int | None) -> np.ndarray:
+def scaled_frame(image: np.ndarray, max_side: int | None) -> np.ndarray:
+    """A frame downscaled so that its longer side is at most ``max_side`` (area interpolation; ``None``: as it is).
+
+    Example:
+        >>> scaled_frame(np.zeros((480, 640), np.uint8), 320).shape
+        (240, 320)
+    """
     h, w = image.shape[:2]
     if max_side is None or max(h, w) <= max_side:
         return image
@@ -344,7 +351,7 @@ class VideoReader:
             if image is None:
                 self.stopped = self._damage(index - 1, timestamp)
                 return
-            yield VideoFrame(index, timestamp, _scaled(image, max_side))
+            yield VideoFrame(index, timestamp, scaled_frame(image, max_side))
 
     def _damage(self, last_index: int, last_time: float | None) -> str:
         """Why decoding stopped after frame ``last_index`` when the container states more (``""``: it did not)."""

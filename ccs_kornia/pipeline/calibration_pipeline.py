@@ -42,7 +42,7 @@ from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.modules.correction.distortion_net import load_distortion_net
-from ccs_kornia.modules.correction.pooling import pool_corrections
+from ccs_kornia.modules.correction.pooling import correction_is_large, pool_corrections
 from ccs_kornia.modules.detection.base import (
     ChessboardDetector,
     DetectionResult,
@@ -244,19 +244,28 @@ class CalibrationPipeline(nn.Module):
         """
         board = check_board_size(board_size)
         out, pooled, solved, changed, subsets = first, False, False, False, None
+        # a source that gives its views' detections (a corners file) is the first look; the looks after it have no
+        # images to look at
+        given = None if first is not None or source is None else source.given_detections(board, module_device(self))
+        images = None if given is not None else source
         for look in (FIRST, *self.settings.looks):
             if look is FIRST:
+                out = given if out is None else out
                 out = self.detect_views(source, board, progress, on_batch=on_batch) if out is None else out
-                pooled = out.view_corrections is not None and self.distortion_net is not None
-                if pooled:
+                if self.distortion_net is None:
+                    out = out if out.correction is None else replace(out, correction=None)
+                elif out.view_corrections is not None:
                     with stage("correction evidence"):
                         out = self._pool(out)
+                elif out.correction is not None and out.correction_tried is None:
+                    out = self._judge(out)  # a correction given with the detections
+                pooled = out.correction is not None
                 continue
             if look.needs_correction and not pooled or look.needs_camera and not calibrate:
                 continue
             if look.needs_camera and (changed or not solved):
                 (out, subsets), solved, changed = self._solve(out, board, square, again=solved), True, False
-            out, found = self._look(look, source, out, board)
+            out, found = self._look(look, images, out, board)
             changed = found or changed
         if calibrate and (changed or not solved):
             out, subsets = self._solve(out, board, square, again=solved)
@@ -406,6 +415,16 @@ class CalibrationPipeline(nn.Module):
         # against the usual calibration; a gate on the network's correction straightening the boards (or on the
         # usual model's misfit) kept held-out cameras from it that needed it (docs/benchmarks.md, section 4)
         return replace(out, correction=correction, correction_tried=large)
+
+    def _judge(self, out: PipelineResult) -> PipelineResult:
+        """``out`` with ``correction_tried``: where its given correction is large (as :meth:`_pool` judges the pooled
+        one)."""
+        correction = out.correction
+        large = torch.zeros(correction.shape[0], dtype=torch.bool, device=correction.device)
+        for size in set(out.image_size):
+            sel = torch.tensor([s == size for s in out.image_size], device=correction.device).nonzero().flatten()
+            large[sel] = correction_is_large(correction[sel], positive_size(size), self.settings.min_correction)
+        return replace(out, correction_tried=large)
 
     def solve(self, out: PipelineResult, board_size: tuple[int, int], square: float = 1.0) -> PipelineResult:
         """The solver stage of :meth:`run` on its detections (:func:`~ccs_kornia.pipeline.solve.solve_detections`):

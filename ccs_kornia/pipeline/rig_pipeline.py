@@ -103,6 +103,10 @@ class _Cameras(ViewSource):
     def _load(self, camera: int, view: int):
         return self.source._load(self.cameras[camera], view)
 
+    def given_detections(self, board_size: tuple[int, int], device: torch.device | str = "cpu"):
+        given = self.source.given_detections(board_size, device)
+        return None if given is None else given.select(self.cameras)
+
 
 def rig_observations(
     cameras: Sequence[PipelineResult], frames: FrameTable

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ccs_kornia.io.recordings import recording_reader
 from ccs_kornia.io.video import FrameSpan, VideoInfo, VideoReader
 from ccs_kornia.modules.detection.screening import BoardScreen, Sighting
 from ccs_kornia.pipeline.sources import prefetched
@@ -139,7 +140,7 @@ def screen_video(
         ([1, 3, 5], True, '')
     """
     start = time.perf_counter()
-    reader = VideoReader(video.path, video) if isinstance(video, VideoInfo) else VideoReader(video)
+    reader = recording_reader(video.path, video) if isinstance(video, VideoInfo) else recording_reader(video)
     out = ScreenedVideo(reader.info, span)
     task = functools.partial(_screen_batch, screen, reader.info.size)
     try:

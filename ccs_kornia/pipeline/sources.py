@@ -161,6 +161,12 @@ class ViewSource:
         """Pixels of one view without loading it, where cheaply known (``None``: unknown)."""
         return None
 
+    def given_detections(self, board_size: tuple[int, int], device: torch.device | str = "cpu"):
+        """The views' detections where the source gives them instead of images (corners detected before:
+        :class:`~ccs_kornia.pipeline.corners_input.CornersSource`), as the pipeline's first look's result; ``None``
+        (every source of images): the pipeline detects."""
+        return None
+
     def batches(
         self,
         keys: Sequence[tuple[int, int]] | None = None,
@@ -332,13 +338,13 @@ class VideoSource(ViewSource):
         return None if size is None else int(size[0] * size[1])
 
     def _reader(self, video: str):
-        from ccs_kornia.io.video import VideoReader
+        from ccs_kornia.io.recordings import recording_reader
 
         if self._pid != os.getpid():  # a forked worker: the parent's decoders are the parent's, never touched here
             _INHERITED_DECODERS.append(self._readers)  # (freeing one waits for decoding threads only the parent has)
             self._readers, self._pid = {}, os.getpid()
         if video not in self._readers:
-            self._readers[video] = VideoReader(video)
+            self._readers[video] = recording_reader(video)
         return self._readers[video]
 
     def _load(self, camera: int, view: int) -> tuple[torch.Tensor | None, str]:
