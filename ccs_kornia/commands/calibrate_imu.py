@@ -207,8 +207,10 @@ def _detected(args: argparse.Namespace, folders: list[str]) -> list[tuple[torch.
         if not os.path.isdir(folder):
             raise UserError(f"{folder}: give one folder of images per camera (named by their timestamps in ns), or "
                             "the corners detect wrote (--corners).")
-        files = sorted(inputs("calibrate-imu", [folder]))
+        files = list(inputs("calibrate-imu", [folder]))
         times = _image_times(files, folder)
+        order = times.argsort()
+        files, times = [files[i] for i in order.tolist()], times[order]
         res, _ = run_files("calibrate-imu", pipeline, [files], args.board, 1.0, device, calibrate=False)
         one = res.select(0)
         corners = []

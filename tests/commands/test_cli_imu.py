@@ -73,7 +73,8 @@ def test_corners_json_and_csv_give_the_truth(capsys, files, recording):
     assert abs(cam["timeshift_cam_imu"] - float(recording.shift[0])) < 1e-4
     assert data["verdict"] in ("good", "usable") and "timeshift_cam_imu" in stdout
     assert data["noise"]["given"] is False and data["imu"]["samples"] == recording.imu_times.shape[0]
-    for name in ("index.html", "gyroscope.png", "accelerometer.png", "reprojection_0.png", "time_offset.png"):
+    assert "verdict" in (files / "report" / "index.html").read_text()
+    for name in ("gyroscope.png", "accelerometer.png", "reprojection_0.png", "time_offset.png"):
         assert (files / "report" / name).stat().st_size > 1000
     from ccs_kornia.io.kalibr import read_camchain
 
@@ -136,7 +137,7 @@ def test_clocks_that_do_not_overlap(capsys, files, recording):
 
 def test_imu_file_of_the_wrong_shape(capsys, files):
     (files / "bad.csv").write_text("1,2,3\n4,5,6\n")
-    _refused(capsys, 2, _argv(files, **{"--imu": files / "bad.csv"}), files / "imu_cam.json", "--imu")
+    _refused(capsys, 2, _argv(files, **{"--imu": files / "bad.csv"}), files / "imu_cam.json", "bad.csv", "takes 7")
 
 
 def test_calibration_of_another_resolution(capsys, files, recording):
