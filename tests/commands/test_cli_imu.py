@@ -161,24 +161,30 @@ def test_wrong_board(capsys, files):
     _refused(capsys, 2, _argv(files, **{"--board": "9x6"}), files / "imu_cam.json", "board")
 
 
-def test_folder_of_images_named_by_their_time(capsys, tmp_path):
-    # EuRoC's layout: cam0/data/<ns>.png, rendered along the recording's motion (a whole board in most frames)
-    import cv2
-
+def rendered_frames(seed: int):
+    """A short recording whose frames are rendered along its motion (a whole board in most frames): the recording,
+    its frame times and the images (uint8)."""
     from ccs_kornia.data.render.renderer import render_chessboard
-    from ccs_kornia.geometry.so3 import log_so3 as log
 
-    rec = visual_inertial_recording(duration=6.0, seed=31, fps=10.0, rotation_amplitude=0.25,
+    rec = visual_inertial_recording(duration=6.0, seed=seed, fps=10.0, rotation_amplitude=0.25,
                                     translation_amplitude=0.08)
-    folder = tmp_path / "cam0" / "data"
-    folder.mkdir(parents=True)
     t = rec.frame_times[0]
     R, p = rec.motion.camera_pose(t + rec.shift[0])
     Rcw = R.transpose(-1, -2)
-    images, _ = render_chessboard(rec.cameras.K[0].expand(len(t), 3, 3), log(Rcw), -(Rcw @ p[..., None])[..., 0],
+    images, _ = render_chessboard(rec.cameras.K[0].expand(len(t), 3, 3), log_so3(Rcw), -(Rcw @ p[..., None])[..., 0],
                                   (7, 6), 0.08, (752, 480), dist=rec.cameras.dist[0, :5], supersample=2)
+    return rec, t, (images[:, 0].numpy() * 255).round().astype("uint8")
+
+
+def test_folder_of_images_named_by_their_time(capsys, tmp_path):
+    # EuRoC's layout: cam0/data/<ns>.png
+    import cv2
+
+    rec, t, images = rendered_frames(31)
+    folder = tmp_path / "cam0" / "data"
+    folder.mkdir(parents=True)
     for k, ts in enumerate(t.tolist()):
-        cv2.imwrite(str(folder / f"{round(ts * 1e9)}.png"), (images[k, 0].numpy() * 255).round().astype("uint8"))
+        cv2.imwrite(str(folder / f"{round(ts * 1e9)}.png"), images[k])
     write_imu_csv(tmp_path / "imu0.csv", rec)
     write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
     out = tmp_path / "imu_cam.json"
@@ -191,3 +197,40 @@ def test_folder_of_images_named_by_their_time(capsys, tmp_path):
     assert cam["frames_used"] >= 20
     assert float((T[:3, 3] - rec.T_cam_imu[0, :3, 3]).norm()) < 0.01
     assert abs(cam["timeshift_cam_imu"] - float(rec.shift[0])) < 1e-3
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
+def test_bag(capsys, tmp_path, ros1):
+    # a bag with the camera's images and the IMU's samples, written with rosbags; the clocks from the epoch
+    from _rosbags import T0, BagContent, write_bag
+
+    rec, t, images = rendered_frames(32)
+
+    def stamp(seconds: float) -> tuple[int, int]:
+        ns = round(seconds * 1e9) + T0 * 10**9
+        return ns // 10**9, ns % 10**9
+
+    frames = [(*stamp(ts), images[k]) for k, ts in enumerate(t.tolist())]
+    imu = [(*stamp(ts), tuple(w), tuple(a)) for ts, w, a in zip(rec.imu_times.tolist(), rec.gyro.tolist(),
+                                                                rec.accel.tolist())]
+    path = write_bag(tmp_path / ("rec.bag" if ros1 else "rec"), BagContent({"/cam0/mono8": frames}, imu), ros1=ros1)
+    write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
+    out = tmp_path / "imu_cam.json"
+    code, _, err = run(capsys, "calibrate-imu", "--bag", path, "--image-topics", "/cam0/mono8", "--imu-topic", "/imu0",
+                       "--board", "7x6", "--square", "0.08", "--calibration", tmp_path / "cam.json", "--detector",
+                       "opencv", "--jobs", "1", "--output", out)
+    assert code == 0, err
+    cam = json.loads(out.read_text())["cameras"][0]
+    T = torch.tensor(cam["T_cam_imu"], dtype=torch.float64)
+    assert float((T[:3, 3] - rec.T_cam_imu[0, :3, 3]).norm()) < 0.01
+    assert abs(cam["timeshift_cam_imu"] - float(rec.shift[0])) < 1e-3
+
+
+def test_bag_without_the_topic(capsys, tmp_path, recording):
+    from _rosbags import content, write_bag
+
+    path = write_bag(tmp_path / "rec.bag", content(), ros1=True)
+    write_json(tmp_path / "cam.json", {**camera_record_fields(recording.cameras[0]), "rms": 0.2})
+    _refused(capsys, 2, ["calibrate-imu", "--bag", path, "--image-topics", "/cam0/image_raw", "--imu-topic", "/imu0",
+                         "--board", "7x6", "--square", "0.08", "--calibration", tmp_path / "cam.json", "--output",
+                         tmp_path / "imu_cam.json"], tmp_path / "imu_cam.json", "/cam0/image_raw")
