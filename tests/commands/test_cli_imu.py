@@ -199,9 +199,9 @@ def test_folder_of_images_named_by_their_time(capsys, tmp_path):
     assert abs(cam["timeshift_cam_imu"] - float(rec.shift[0])) < 1e-3
 
 
-@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
-def test_bag(capsys, tmp_path, ros1):
-    # a bag with the camera's images and the IMU's samples, written with rosbags; the clocks from the epoch
+def test_bag(capsys, tmp_path):
+    # a ROS1 bag with the camera's images and the IMU's samples, written with rosbags; the clocks from the epoch (the
+    # readers of ROS2 bags are the same functions: tests/io/test_rosbag.py)
     from _rosbags import T0, BagContent, write_bag
 
     rec, t, images = rendered_frames(32)
@@ -213,7 +213,7 @@ def test_bag(capsys, tmp_path, ros1):
     frames = [(*stamp(ts), images[k]) for k, ts in enumerate(t.tolist())]
     imu = [(*stamp(ts), tuple(w), tuple(a)) for ts, w, a in zip(rec.imu_times.tolist(), rec.gyro.tolist(),
                                                                 rec.accel.tolist())]
-    path = write_bag(tmp_path / ("rec.bag" if ros1 else "rec"), BagContent({"/cam0/mono8": frames}, imu), ros1=ros1)
+    path = write_bag(tmp_path / "rec.bag", BagContent({"/cam0/mono8": frames}, imu), ros1=True)
     write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
     out = tmp_path / "imu_cam.json"
     code, _, err = run(capsys, "calibrate-imu", "--bag", path, "--image-topics", "/cam0/mono8", "--imu-topic", "/imu0",
