@@ -299,6 +299,20 @@ def selection_options(p: argparse.ArgumentParser) -> None:
                         "the same set can be calibrated again as a folder")
 
 
+def detection_options(p: argparse.ArgumentParser) -> None:
+    """The detector's options of a command that detects boards but is not about the boards (``--detector --device
+    --jobs --batch-size --max-detection-side --no-distortion-correction``)."""
+    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
+    p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
+    p.add_argument("--jobs", default="auto", type=_jobs_arg, metavar="N",
+                   help="processes detecting on the CPU (default: auto; 1 = this process only)")
+    p.add_argument("--batch-size", default=8, type=_positive_int, metavar="N", help="images detected at once (default 8)")
+    p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
+                   help="detect larger images on a downscaled copy (default 2048; 0 = off)")
+    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
+                   help="do not run the distortion-correction network")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argparse parser of every command except the Lightning ones (forwarded untouched)."""
     parser = _Parser(
@@ -476,15 +490,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="frame names of --ros-tf and --moveit-yaml (default base_link,tool0,camera_optical_frame)")
     p.add_argument("--report", metavar="DIR", help="also write figures (each pose's board predicted from the robot "
                    "alone, residuals by pose, the camera and board in the robot's frame) to DIR (created)")
-    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
-    p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
-    p.add_argument("--jobs", default="auto", type=_jobs_arg, metavar="N",
-                   help="processes detecting on the CPU (default: auto; 1 = this process only)")
-    p.add_argument("--batch-size", default=8, type=_positive_int, metavar="N", help="images detected at once (default 8)")
-    p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
-                   help="detect larger images on a downscaled copy (default 2048; 0 = off)")
-    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
-                   help="do not run the distortion-correction network")
+    detection_options(p)
 
     p = sub.add_parser("calibrate-imu", help="where an IMU sits on a camera (or rig) and the time offset between "
                        "their clocks, from one recording", epilog=_EXIT_HELP,
@@ -529,15 +535,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "each camera's row delay is estimated (written as line_delay_s)")
     p.add_argument("--knot-spacing", default=0.02, type=_positive_float, metavar="S",
                    help="the IMU trajectory's knot spacing in seconds (default 0.02)")
-    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"))
-    p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
-    p.add_argument("--jobs", default="auto", type=_jobs_arg, metavar="N",
-                   help="processes detecting on the CPU (default: auto; 1 = this process only)")
-    p.add_argument("--batch-size", default=8, type=_positive_int, metavar="N", help="images detected at once (default 8)")
-    p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
-                   help="detect larger images on a downscaled copy (default 2048; 0 = off)")
-    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
-                   help="do not run the distortion-correction network")
+    detection_options(p)
     p = sub.add_parser("imu-noise", help="an IMU's noise from a still log: the Allan deviation, Kalibr's imu.yaml",
                        description="The Allan deviation of each axis of a still IMU log (the IMU at rest, an hour or "
                                    "more), and Kalibr's four noise values read off it: the white noise density on the "
