@@ -130,6 +130,15 @@ def test_rolling_shutter(capsys, tmp_path):
     assert abs(cam["timeshift_cam_imu"] - float(rec.shift[0])) < 2e-4
 
 
+def test_dropped_samples_are_said(capsys, files, recording):
+    lines = (files / "imu0.csv").read_text().splitlines()
+    (files / "gappy.csv").write_text("\n".join(lines[:800] + lines[830:]) + "\n")
+    code, _, err = run(capsys, *_argv(files, **{"--imu": files / "gappy.csv"}))
+    assert code == 0, err
+    data = json.loads((files / "imu_cam.json").read_text())
+    assert data["imu"]["dropped"] == 1 and any("dropped" in r for r in data["verdict_reasons"])
+
+
 def test_clocks_that_do_not_overlap(capsys, files, recording):
     write_imu_csv(files / "late.csv", recording, offset_s=5000.0)
     _refused(capsys, 2, _argv(files, **{"--imu": files / "late.csv"}), files / "imu_cam.json", "overlap")
