@@ -26,8 +26,7 @@ from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
 from ccs_kornia.commands._messages import not_found_message
 from ccs_kornia.commands._output_paths import (
-    check_output_dir,
-    check_output_file,
+    check_outputs,
     make_dir,
 )
 from ccs_kornia.commands._printing import info, warn
@@ -161,12 +160,8 @@ def _views(one, count: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, l
 
 def run(args: argparse.Namespace) -> int:
     setup = HandEyeSetup.EYE_IN_HAND if args.eye_in_hand else HandEyeSetup.EYE_TO_HAND
-    check_output_file("--output", args.output)
-    for option, path in (("--ros-tf", args.ros_tf), ("--moveit-yaml", args.moveit_yaml)):
-        if path:
-            check_output_file(option, path)
-    if args.report:
-        check_output_dir("--report", args.report)
+    check_outputs(files=[("--output", args.output), ("--ros-tf", args.ros_tf), ("--moveit-yaml", args.moveit_yaml)],
+                  dirs=[("--report", args.report)])
     frames = parse_frames(args.ros_frames)
     noise = parse_robot_noise(args.robot_noise)
     tag = getattr(args, "apriltag", None)

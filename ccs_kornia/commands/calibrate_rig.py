@@ -27,8 +27,7 @@ from ccs_kornia.commands._inputs import inputs
 from ccs_kornia.commands._messages import failure_message, weak_lines
 from ccs_kornia.commands._models import parse_models
 from ccs_kornia.commands._output_paths import (
-    check_output_dir,
-    check_output_file,
+    check_outputs,
     make_dir,
 )
 from ccs_kornia.commands._printing import info, warn
@@ -155,14 +154,10 @@ def run(args: argparse.Namespace) -> int:
     if len(folders) < 2:
         raise UserError(f"a rig needs at least two camera folders or videos (one folder of images, or one video, per "
                         f"camera), got {len(folders)}: {' '.join(folders)}")
-    check_output_file("--output", args.output)
-    for option, path in (("--opencv-yaml", args.opencv_yaml), ("--kalibr-yaml", args.kalibr_yaml)):
-        if path:
-            check_output_file(option, path)
-    for option, path in (("--ros-yaml-dir", args.ros_yaml_dir), ("--report", args.report),
-                         ("--save-frames", args.save_frames)):
-        if path:
-            check_output_dir(option, path)
+    check_outputs(files=[("--output", args.output), ("--opencv-yaml", args.opencv_yaml),
+                         ("--kalibr-yaml", args.kalibr_yaml)],
+                  dirs=[("--ros-yaml-dir", args.ros_yaml_dir), ("--report", args.report),
+                        ("--save-frames", args.save_frames)])
     c = len(folders)
     names = parse_names(args.names, c)
     models = parse_models(args.model, c, args.model_choices)

@@ -9,7 +9,7 @@ from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
 from ccs_kornia.commands._messages import not_found_message
-from ccs_kornia.commands._output_paths import check_output_file
+from ccs_kornia.commands._output_paths import check_outputs
 from ccs_kornia.commands._run import run_files
 from ccs_kornia.commands._video import add_timestamps, camera_videos, screening_note
 from ccs_kornia.io.files import write_json
@@ -35,7 +35,7 @@ def _image_record(view: dict) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_file("--output", args.output)
+    check_outputs(files=[("--output", args.output)])
     device = resolve_device(args.device)
     video = camera_videos("detect", args)
     files = inputs("detect", args.images) if video is None else video.names()[0]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -103,13 +104,16 @@ def _file_mode() -> int:
 def atomic_path(path: str | os.PathLike, mode: int | None = None) -> Iterator[str]:
     """A temporary path beside ``path`` to write to; on a clean exit it is renamed over ``path``, else removed.
 
-    The one atomic writer of the package (JSON, text exports, OpenCV FileStorage files): a reader never sees a
-    half-written file, and an existing file is only replaced once the new one is complete. The file gets the mode an
-    ordinary write would give it: an existing file's own, else the one the umask implies (not the temporary file's
-    private 600); ``mode`` (e.g. ``0o644``) sets it explicitly.
+    The one atomic writer of the package (JSON, text exports, OpenCV FileStorage files, images): a reader never sees
+    a half-written file, and an existing file is only replaced once the new one is complete. A symbolic link is
+    written through: its target gets the new file and the link stays. Only a regular file or a new path is written: a
+    device, FIFO or socket is refused, never replaced by a file. The file gets the mode an ordinary write would give
+    it: an existing file's own, else the one the umask implies (not the temporary file's private 600); ``mode``
+    (e.g. ``0o644``) sets it explicitly.
 
     Raises:
         FileNotFoundError: the parent directory does not exist (it is not created).
+        UserError: ``path`` exists and is not a regular file.
 
     Example:
         >>> import tempfile
@@ -119,10 +123,12 @@ def atomic_path(path: str | os.PathLike, mode: int | None = None) -> Iterator[st
         >>> open(target).read()
         'done'
     """
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
+    path = os.path.realpath(os.fspath(path))  # through symbolic links: the rename replaces the target, not the link
+    directory = os.path.dirname(path)
     if not os.path.isdir(directory):
         raise FileNotFoundError(f"output directory does not exist: {directory}")
+    if os.path.lexists(path) and not stat.S_ISREG(os.stat(path).st_mode):
+        raise UserError(f"{path} exists and is not a regular file (a device, FIFO or socket is never replaced)")
     if mode is None:
         mode = os.stat(path).st_mode & 0o7777 if os.path.isfile(path) else _file_mode()
     fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=os.path.splitext(path)[1], dir=directory)

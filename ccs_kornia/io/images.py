@@ -27,6 +27,8 @@ import cv2
 import numpy as np
 import torch
 
+from ccs_kornia.io.files import atomic_path
+
 __all__ = [
     "IMAGE_EXTENSIONS",
     "natural_key",
@@ -263,7 +265,8 @@ def write_image(path: str | os.PathLike, image: np.ndarray | torch.Tensor, bit_d
         bit_depth: 8 or 16.
 
     Returns:
-        True if OpenCV wrote the file.
+        True if OpenCV could encode the image in the extension's format; the file is then written atomically
+        (:func:`~ccs_kornia.io.files.atomic_path`: through a symbolic link, never over a device or FIFO).
     """
     if isinstance(image, torch.Tensor):
         image = image.detach().cpu().float()
@@ -278,7 +281,8 @@ def write_image(path: str | os.PathLike, image: np.ndarray | torch.Tensor, bit_d
     ok, buf = cv2.imencode(ext, out)
     if not ok:
         return False
-    buf.tofile(os.fspath(path))
+    with atomic_path(path) as tmp:
+        buf.tofile(tmp)
     return True
 
 
