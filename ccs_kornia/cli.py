@@ -569,6 +569,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv: arguments without the program name (default ``sys.argv[1:]``).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
+    for stream in (sys.stdout, sys.stderr):  # a file name that is not UTF-8 is printed escaped, never a crash
+        if getattr(stream, "errors", None) == "strict" and hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
     keep_freed_memory()  # this process is ours: freed tensors' memory is reused instead of mapped afresh
     if argv and argv[0] in LIGHTNING_COMMANDS:
         return _run_lightning(argv)

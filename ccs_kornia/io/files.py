@@ -21,7 +21,30 @@ import torch
 
 from ccs_kornia.runtime.errors import UserError
 
-__all__ = ["atomic_path", "json_line", "json_text", "write_json", "write_text", "write_text_atomic"]
+__all__ = ["atomic_path", "json_line", "json_text", "text_path", "write_json", "write_text", "write_text_atomic"]
+
+
+def text_path(path: str | os.PathLike) -> str:
+    """A file name as text every reader accepts: bytes that are not UTF-8 (a camera or an old file system can write
+    them; Python holds them as lone surrogates) written ``\\xNN``; a valid name is returned unchanged.
+
+    The one rendering of file names in the JSON, the reports' pages and the text drawn on their figures (OpenCV's
+    ``putText`` cannot take a lone surrogate, strict JSON readers refuse one).
+
+    Example:
+        >>> text_path(os.fsdecode(b"cam\\xff01.png"))
+        'cam\\\\xff01.png'
+        >>> text_path("left01.png")
+        'left01.png'
+    """
+    text = os.fspath(path)
+    if isinstance(text, bytes):
+        text = os.fsdecode(text)
+    try:
+        raw = text.encode("utf-8", "surrogateescape")
+    except UnicodeEncodeError:  # a surrogate no file name decodes to: shown as its code point
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+    return raw.decode("utf-8", "backslashreplace")
 
 
 def _json_default(obj: Any) -> Any:
@@ -32,16 +55,18 @@ def _json_default(obj: Any) -> Any:
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, Path):
-        return str(obj)
+        return text_path(obj)
     raise TypeError(f"Object of type {type(obj).__name__} is not JSON serializable")
 
 
 def _sanitize(obj: Any) -> Any:
-    # JSON has no NaN/Infinity: write null instead so every JSON reader accepts the file
+    # JSON has no NaN/Infinity: write null instead so every JSON reader accepts the file; no lone surrogates either
     if isinstance(obj, float):
         return obj if np.isfinite(obj) else None
+    if isinstance(obj, str):  # a file name's bytes that are not UTF-8 escaped, never a lone surrogate
+        return obj if obj.isascii() else text_path(obj)
     if isinstance(obj, dict):
-        return {k: _sanitize(v) for k, v in obj.items()}
+        return {(_sanitize(k) if isinstance(k, str) else k): _sanitize(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [_sanitize(v) for v in obj]
     if isinstance(obj, (torch.Tensor, np.ndarray, np.generic)):

@@ -160,6 +160,25 @@ def test_calibrate_without_diagnostics_and_overlay_of_a_view_without_board(rende
     assert (report / "views" / f"view_{NUM_VIEWS:04d}_blank.png").is_file()
 
 
+def test_file_names_that_are_not_utf8_are_escaped_in_the_json_and_the_report(rendered, tmp_path, capsys):
+    folder, files, _ = rendered
+    named = tmp_path / "views"
+    named.mkdir()
+    for k, path in enumerate(files):  # a 0xff byte, as a camera or an old file system can write it
+        os.link(path, os.path.join(os.fsencode(named), b"cam\xff%02d.png" % k))
+    out, report = tmp_path / "calib.json", tmp_path / "report"
+    code, stdout, err = run(capsys, "calibrate", str(named), "--board", "9x6", "--output", str(out),
+                            "--no-diagnostics", "--report", str(report), "--detector", "opencv")
+    assert code == 0, err
+    text = out.read_bytes().decode("utf-8")  # strict: no lone surrogate, every JSON reader accepts it
+    assert "\\ud" not in text
+    data = json.loads(text)
+    assert os.path.basename(data["views"][0]["path"]) == "cam\\xff00.png"
+    page = (report / "index.html").read_bytes().decode("utf-8")
+    assert "cam\\xff00.png" in page
+    assert len(list((report / "views").glob("view_*.png"))) == NUM_VIEWS
+
+
 def test_calibrate_with_glare_keeps_partial_boards(rendered, tmp_path, capsys):
     """Saturated spots over a corner of two views: the default path (learned detector, correction, diagnostics,
     report) keeps those boards with the corner left out: null in the JSON, counted, marked in the report, said."""

@@ -29,6 +29,7 @@ from __future__ import annotations
 import html
 import os
 import sys
+import urllib.parse
 from typing import Any
 
 import numpy as np
@@ -36,9 +37,10 @@ import torch
 
 from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.io.files import text_path
 from ccs_kornia.io.images import load_image_gray
 from ccs_kornia.outputs.calibration_file import camera_from_record
-from ccs_kornia.outputs.report.drawing import format_number, nice_number, write_png
+from ccs_kornia.outputs.report.drawing import format_number, nice_number, write_page, write_png
 from ccs_kornia.outputs.report.figures import (
     DISPLAY_MAX_SIDE,
     coverage_plot,
@@ -185,10 +187,10 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
             status = f"no board: {view.get('reason', 'not found')}"
         title = f"view {index}: {base} - {status}"
         vis = view_overlay(gray, detected, projected.get(index), gain, title)
-        stem = os.path.splitext(base)[0]
+        stem = text_path(os.path.splitext(base)[0])  # the page links to it: a name every browser can ask for
         name = f"view_{index:04d}_{stem}.png"
         if write_png(os.path.join(views_dir, name), vis, written):
-            overlay_names[index] = f"views/{name}"
+            overlay_names[index] = f"views/{urllib.parse.quote(name)}"
         if view.get("used") and first_used is None and (gray.shape[1], gray.shape[0]) == size:
             first_used = (base, gray, detected)
 
@@ -290,9 +292,7 @@ def _write_html(path: str, data: dict[str, Any], camera: Camera, figures: list[t
             f"<td class='l'>{esc(view.get('reason', ''))}</td><td>{link}</td></tr>"
         )
     parts += ["</table></body></html>"]
-    with open(path, "w", encoding="utf-8") as handle:
-        handle.write("\n".join(parts) + "\n")
-    return path
+    return write_page(path, "\n".join(parts) + "\n")
 
 
 def _write_markdown(path: str, data: dict[str, Any], camera: Camera, gain: float) -> str:
@@ -319,6 +319,4 @@ def _write_markdown(path: str, data: dict[str, Any], camera: Camera, gain: float
                      f"{format_number(view.get('rms'))} | {view.get('reason', '')} |")
     lines += ["", f"Overlays (views/): green circles = detected corners, red crosses = reprojected corners, "
                   f"yellow = residual x{gain:g}, blue ring = first corner (order convention). See index.html."]
-    with open(path, "w", encoding="utf-8") as handle:
-        handle.write("\n".join(lines) + "\n")
-    return path
+    return write_page(path, "\n".join(lines) + "\n")
