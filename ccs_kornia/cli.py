@@ -86,6 +86,16 @@ class _Parser(argparse.ArgumentParser):
         self._seen = list(sys.argv[1:] if args is None else args)
         return super().parse_known_args(args, namespace)
 
+    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+        """argparse's, with arguments no command takes reported by the command's parser (``ccs_kornia calibrate:
+        error: ...``), not the program's."""
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            commands = next((a.choices for a in self._actions if isinstance(a, argparse._SubParsersAction)), {})
+            owner = commands.get(getattr(parsed, "command", None), self)
+            owner.error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed
+
     def _unknown_options(self) -> list[str]:
         known = self._option_string_actions
         out = []
@@ -106,7 +116,8 @@ class _Parser(argparse.ArgumentParser):
             message = ("the following arguments are required: --board COLSxROWS (a chessboard's inner corners), "
                        f"--charuco SXxSY (a ChArUco board's squares){tag} or --aprilgrid TARGET_YAML (Kalibr's "
                        "AprilGrid)")
-        unknown = self._unknown_options() if message.startswith("the following arguments are required") else []
+        named = message.startswith(("the following arguments are required", "unrecognized arguments"))
+        unknown = self._unknown_options() if named else []
         if unknown:
             long_options = [o for o in self._option_string_actions if o.startswith("--")]
             close = difflib.get_close_matches(unknown[0], long_options, n=1)
@@ -167,6 +178,21 @@ def _positive_float(text: str) -> float:
     return value
 
 
+#: the sizes a board's square, marker or tag may have, in any unit (metres to millimetres and beyond): outside it the
+#: solver's arithmetic under- or overflows
+LENGTH_RANGE = (1e-6, 1e6)
+
+
+def _length_arg(text: str) -> float:
+    """A board's size (``--square``, ``--marker``, ``--tag-size``): a positive number within :data:`LENGTH_RANGE`."""
+    value = _positive_float(text)
+    low, high = LENGTH_RANGE
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"expected a size between {low:g} and {high:g} in the board's unit (metres, "
+                                         f"millimetres, ...), got {text}")
+    return value
+
+
 def _unit_float(text: str) -> float:
     try:
         value = float(text)
@@ -212,7 +238,7 @@ def charuco_options(p: argparse.ArgumentParser, which, square: bool = False) -> 
                         "(SY-1) inner corners are identified by the markers, so boards cut by the image's frame count")
     g.add_argument("--dictionary", default="DICT_6X6_250", metavar="DICT",
                    help="its ArUco dictionary, OpenCV's name (default DICT_6X6_250)")
-    g.add_argument("--marker", type=_positive_float, metavar="SIDE",
+    g.add_argument("--marker", type=_length_arg, metavar="SIDE",
                    help="its marker side, in the unit of --square (required with --charuco)")
     g.add_argument("--legacy", action=argparse.BooleanOptionalAction, default=None,
                    help="OpenCV's legacy layout (before 4.6) or not; default: found on each image (boards of an even "
@@ -222,7 +248,7 @@ def charuco_options(p: argparse.ArgumentParser, which, square: bool = False) -> 
                             "tagSize, tagSpacing): corners numbered as Kalibr does, identified by the tags (boards cut "
                             "by the frame count); world units are tagSize's")
     if square:
-        g.add_argument("--square", default=1.0, type=_positive_float,
+        g.add_argument("--square", default=1.0, type=_length_arg,
                        help="its square side (only the ratio to --marker matters here; default 1)")
 
 
@@ -324,7 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate", help="calibrate a camera from chessboard images", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     common(p)
-    p.add_argument("--square", default=1.0, type=_positive_float,
+    p.add_argument("--square", default=1.0, type=_length_arg,
                    help="square side in world units (scales the poses only; default 1)")
     p.add_argument("--output", required=True, metavar="JSON",
                    help="calibration file to write, only when a calibration was computed: a failed run leaves an "
@@ -364,7 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "camera, frames paired by timestamp (--sync-tolerance), by --timestamps, else by index")
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--board", type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6 (or --charuco)")
-    p.add_argument("--square", default=1.0, type=_positive_float,
+    p.add_argument("--square", default=1.0, type=_length_arg,
                    help="square side in world units: the unit of the baselines (metres for ROS and Kalibr; default 1)")
     charuco_options(p, which)
     p.add_argument("--output", required=True, metavar="JSON", help="rig calibration file to write (rig.json)")
@@ -416,16 +442,17 @@ def build_parser() -> argparse.ArgumentParser:
                        "flange (X: base -> camera)")
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--board", type=_board_arg, metavar="COLSxROWS", help="a chessboard's inner corners, e.g. 9x6")
-    p.add_argument("--square", default=1.0, type=_positive_float,
+    p.add_argument("--square", default=1.0, type=_length_arg,
                    help="the board's square side in metres (the robot poses' unit once read)")
     charuco_options(p, which)
     which.add_argument("--apriltag", choices=("36h11", "36h10", "25h9", "16h5"), metavar="FAMILY",
                        help="a single AprilTag of this family (36h11, ...) as the target; needs --tag-size and "
                             "--calibration")
-    p.add_argument("--tag-size", type=_positive_float, metavar="M", help="the tag's black square side in metres")
+    p.add_argument("--tag-size", type=_length_arg, metavar="M", help="the tag's black square side in metres")
     p.add_argument("--tag-id", type=int, metavar="ID", help="the tag's id (default: the one found in most images)")
-    p.add_argument("--pose-format", default="auto", choices=("auto", "quat", "rotvec", "matrix"),
-                   help="the poses' form (default auto: by the count of numbers per row)")
+    p.add_argument("--pose-format", default="auto", choices=("auto", "quat", "quat-wxyz", "rotvec", "matrix"),
+                   help="the poses' form (default auto: by the count of numbers per row; 7 numbers are quat, x,y,z,"
+                        "qx,qy,qz,qw; quat-wxyz is scalar first, x,y,z,qw,qx,qy,qz)")
     p.add_argument("--pose-units", default="m", choices=("m", "mm"), help="the poses' translations (default m)")
     p.add_argument("--calibration", metavar="JSON",
                    help="the camera (a calibrate JSON); default: calibrated from the same images")
@@ -489,7 +516,7 @@ def build_parser() -> argparse.ArgumentParser:
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
                        help="inner corners, e.g. 9x6 (or --charuco, --aprilgrid)")
-    p.add_argument("--square", default=1.0, type=_positive_float, help="square side in world units (default 1)")
+    p.add_argument("--square", default=1.0, type=_length_arg, help="square side in world units (default 1)")
     charuco_options(p, which)
     p.add_argument("--output", required=True, metavar="JSONL",
                    help="JSON Lines file: one calibration per set (appended to; a JSON file of another kind is refused)")

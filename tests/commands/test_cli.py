@@ -279,20 +279,43 @@ def test_malformed_board_subprocess_has_no_traceback(tmp_path):
     assert "Traceback" not in proc.stderr
 
 
-def test_unreadable_file_among_good_is_skipped(rendered, tmp_path, capsys):
+def test_unreadable_file_among_good_is_skipped(rendered, tmp_path, capfd):
     folder, files, _ = rendered
     bad = tmp_path / "broken.png"
     bad.write_bytes(b"this is not a png")
+    ok, jpeg = cv2.imencode(".jpg", cv2.imread(files[0]))
+    body = bytearray(jpeg.tobytes())
+    body[len(body) // 2:len(body) // 2 + 64] = bytes(range(64))  # a damaged body: libjpeg warns, decodes garbage
+    damaged = tmp_path / "damaged.jpg"
+    damaged.write_bytes(bytes(body))
     out = tmp_path / "c.json"
-    code, _, err = run(capsys, "calibrate", *files, str(bad), "--board", "9x6", "--output", str(out))
+    code, _, err = run(capfd, "calibrate", *files, str(bad), str(damaged), "--board", "9x6", "--output", str(out))
     assert code == 0
     assert "warning: skipped" in err and "broken.png" in err and "not a readable image" in err
     assert "Traceback" not in err
+    # libjpeg's own lines are caught: the tool's warning names the file
+    lines = err.splitlines()
+    assert not [line for line in lines if line.startswith("Corrupt JPEG data")], err
+    assert any(f"skipped {damaged}: unreadable: corrupt JPEG data" in line for line in lines), err
     data = json.loads(out.read_text())
     skipped = {s["path"]: s["reason"] for s in data["skipped"]}
     assert "not a readable image" in skipped[str(bad)]
     view = [v for v in data["views"] if v["path"] == str(bad)][0]
     assert view["used"] is False and view["rms"] is None
+
+
+def test_an_unknown_option_and_an_absurd_square_are_named_by_the_command(rendered, tmp_path, capsys):
+    folder, _, _ = rendered
+    out = tmp_path / "c.json"
+    code, _, err = run(capsys, "calibrate", str(folder), "--board", "9x6", "--output", str(out), "--bogus", "1")
+    assert code == 2 and err.startswith("ccs_kornia calibrate: error: unrecognized option --bogus"), err
+    code, _, err = run(capsys, "calibrate", str(folder), "--board", "9x6", "--output", str(out), "extra")
+    assert code == 2 and err.startswith("ccs_kornia calibrate: error: unrecognized arguments: extra"), err
+    for square in ("1e-300", "1e300"):
+        code, _, err = run(capsys, "calibrate", str(folder), "--board", "9x6", "--square", square, "--output", str(out))
+        assert_one_line_error(err, f"argument --square: expected a size between 1e-06 and 1e+06 in the board's unit")
+        assert code == 2
+    assert not out.exists()
 
 
 def test_board_never_found(tmp_path, capsys):
