@@ -55,7 +55,7 @@ from ccs_kornia.outputs.rig_records import frame_lines, rig_record
 from ccs_kornia.pipeline.frame_matching import match_frames
 from ccs_kornia.pipeline.rig_pipeline import RigPipeline
 from ccs_kornia.pipeline.sources import FileSource
-from ccs_kornia.runtime.errors import UserError
+from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["COMMAND", "parse_names", "parse_fixed", "run", "summary_lines"]
 
@@ -301,7 +301,12 @@ def _check_cameras(cameras, files, folders, names, fixed, models, args) -> None:
                 raise UserError(f"--fix-intrinsics {k}={fixed[k][2]}: calibration of {fixed[k][1][0]}x{fixed[k][1][1]} "
                                 f"images, camera {names[k]}'s are {size[0]}x{size[1]}")
         elif not record["success"]:
-            raise UserError(f"camera {names[k]} ({folders[k]}): {failure_message(record, args.board, readable)}")
+            if v == 0:  # a recording whose frames were all left out by the frame choice
+                raise NoResult(f"camera {names[k]} ({folders[k]}): no frame of its recording was chosen for the "
+                               "detector (the frame choice above says why)")
+            # images were read: too few views is a run without a result (exit 3), an unreadable set a usage error
+            error = NoResult if readable else UserError
+            raise error(f"camera {names[k]} ({folders[k]}): {failure_message(record, args.board, readable)}")
 
 
 def _stereo_pair(args: argparse.Namespace, cameras: int) -> tuple[int, int]:

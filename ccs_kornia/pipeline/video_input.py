@@ -226,7 +226,8 @@ def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
     sightings = [[None if k is None else videos[cam].frames[k].sighting for k in pairing.index[cam]] for cam in range(c)]
     labels = [[None if k is None else str(videos[cam].frames[k].index) for k in pairing.index[cam]] for cam in range(c)]
     motion = [[None if k is None else motion_of[cam][k] for k in pairing.index[cam]] for cam in range(c)]
-    choice = choose_frames(sightings, labels, motion, [v.info.size for v in videos], max_frames)
+    choice = choose_frames(sightings, labels, motion, [v.info.size for v in videos], max_frames,
+                           frame_rates=[v.info.fps for v in videos])
     every = n <= max_frames
     chosen = [[[False] * len(v.frames)] for v in videos]
     reasons = [[["not in the timestamps table" if pairing.by == "table" else ""] * len(v.frames)] for v in videos]

@@ -122,6 +122,22 @@ def test_calibrate_rig_at_different_rates(videos, tmp_path, capsys):
     assert all(int(a.rsplit("#")[1]) == 2 * int(b.rsplit("#")[1]) for a, b in paired)
 
 
+def test_a_rig_of_two_frame_rates_shares_the_frame_budget(tmp_path, capsys):
+    # 6 fps over the whole path, 12 fps over its first three quarters: the budget must keep the pairs of both cameras
+    left = board_frames(96, seed=2)[::2]
+    right = board_frames(96, seed=2, shift=(-BASELINE, 0.0, 0.0))[:72]
+    slow = write_video(str(tmp_path / "cam_6fps.avi"), left, fps=6.0)
+    fast = write_video(str(tmp_path / "cam_12fps.avi"), right, fps=12.0)
+    code, out, err = run(capsys, "calibrate-rig", slow, fast, *FAST, *SOLVE, "--no-select", "--max-frames", "20",
+                         "--output", tmp_path / "rig.json")
+    assert code == 0, err
+    data = json.loads((tmp_path / "rig.json").read_text())
+    paired = [(a, b) for a, b in zip(*data["frames"]) if a and b]
+    assert len(paired) >= 10, data["frames"]
+    assert all(int(a.rsplit("#")[1]) * 2 == int(b.rsplit("#")[1]) for a, b in paired)
+    assert abs(data["pairs"][0]["baseline"] - BASELINE) < 0.003
+
+
 def _table(path, rows) -> str:
     with open(path, "w", newline="") as handle:
         writer = csv.writer(handle)
