@@ -256,7 +256,10 @@ def rig_videos(command: str, args: argparse.Namespace, names: Sequence[str]):
 def pairing_lines(pairing, names: Sequence[str]) -> list[str]:
     """How the rig's frames were paired: by what, each camera's frames, the largest time spread of a paired frame."""
     by = {"time": "by timestamp", "index": "by frame index (the videos carry no usable timestamps)",
-          "table": "by the timestamps table"}.get(pairing.by, f"by {pairing.by}")
+          "table": "by the timestamps table (its frame_index column)",
+          "table order": "by the timestamps table read as caliscope reads it (each camera's rows in order of "
+                         "frame_time are its video's frames; a frame_index column is not used)"}.get(pairing.by,
+                                                                                                   f"by {pairing.by}")
     shared = sum(1 for f in range(pairing.num_frames) if sum(row[f] is not None for row in pairing.index) > 1)
     each = ", ".join(f"{name} {pairing.contributed(c)}" for c, name in enumerate(names))
     spread = pairing.largest_spread()

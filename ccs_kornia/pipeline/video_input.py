@@ -230,7 +230,7 @@ def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
                            frame_rates=[v.info.fps for v in videos])
     every = n <= max_frames
     chosen = [[[False] * len(v.frames)] for v in videos]
-    reasons = [[["not in the timestamps table" if pairing.by == "table" else ""] * len(v.frames)] for v in videos]
+    reasons = [[["not in the timestamps table" if pairing.by.startswith("table") else ""] * len(v.frames)] for v in videos]
     motions = [[list(m)] for m in motion_of]
     for cam in range(c):
         for f, k in enumerate(pairing.index[cam]):

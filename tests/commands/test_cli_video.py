@@ -162,6 +162,19 @@ def test_calibrate_rig_with_a_timestamps_table(videos, tmp_path, capsys):
     assert left["frames"][0]["reason"] == "not in the timestamps table"
 
 
+def test_an_older_caliscope_table_is_read_as_caliscope_reads_it(videos, tmp_path, capsys):
+    # frame_index counted from the recording's start (26-49 for videos of 24 frames): each camera's rows in time order
+    rows = [(k, cam, 26 + k, 7.0 + k / 10 + cam * 0.002) for k in range(24) for cam in (0, 1)]
+    code, out, err = run(capsys, "calibrate-rig", videos["avi"], videos["right"], *FAST, *SOLVE, "--timestamps",
+                         _table(tmp_path / "t.csv", rows), "--no-select", "--output", tmp_path / "rig.json")
+    assert code == 0, err
+    data = json.loads((tmp_path / "rig.json").read_text())
+    assert data["frames_matched_by"] == "table order"
+    assert "frames paired by the timestamps table read as caliscope reads it" in err
+    assert all(a.rsplit("#")[1] == b.rsplit("#")[1] for a, b in zip(*data["frames"]) if a and b)
+    assert abs(data["pairs"][0]["baseline"] - BASELINE) < 0.002
+
+
 def test_calibrate_many_videos(videos, tmp_path, capsys):
     code, out, err = run(capsys, "calibrate-many", videos["avi"], videos["right"], *FAST[:-2], *SOLVE, "--max-frames",
                          "10", "--output", tmp_path / "many.jsonl")
