@@ -262,9 +262,9 @@ def _seconds(text: str) -> float:
     return value
 
 
-def video_options(p: argparse.ArgumentParser, rig: bool = False) -> None:
+def video_options(p: argparse.ArgumentParser, rig: bool = False, selection: bool = True) -> None:
     """``--every N --start S --end S --max-frames N`` for recordings given instead of images (and, for a rig,
-    ``--sync-tolerance S --timestamps CSV``)."""
+    ``--sync-tolerance S --timestamps CSV``); ``selection``: the command has the frame selection (``--select``)."""
     g = p.add_argument_group("videos (mp4, mkv, avi, mov, mjpeg, ... instead of images)")
     g.add_argument("--every", default=1, type=_positive_int, metavar="N",
                    help="screen every N-th frame only (default 1: every frame)")
@@ -273,8 +273,9 @@ def video_options(p: argparse.ArgumentParser, rig: bool = False) -> None:
     g.add_argument("--max-frames", default=None, type=_positive_int, metavar="N",
                    help="frames of a recording (instants of a rig) kept at most (default 60): still boards (moving "
                         "at most 0.1 %% of the image diagonal a frame) are chosen after a quick screening of every "
-                        "frame, poses not seen yet first, then more frames of the still poses; with the frame "
-                        "selection (--select) the detector looks at up to 1.5 times as many and the best are kept")
+                        "frame, poses not seen yet first, then more frames of the still poses" +
+                        ("; with the frame selection (--select) the detector looks at up to 1.5 times as many and "
+                         "the best are kept" if selection else ""))
     if rig:
         g.add_argument("--sync-tolerance", type=_positive_float, metavar="S",
                        help="frames of two cameras pair when their timestamps differ by at most S seconds (default: "
@@ -294,8 +295,8 @@ def selection_options(p: argparse.ArgumentParser) -> None:
                         "(--max-frames caps them; the JSON's selection says why each other frame was left out). "
                         "Default: off")
     g.add_argument("--save-frames", metavar="DIR",
-                   help="also write the frames kept as images to DIR (created; a rig's in one folder per camera): "
-                        "the same set can be calibrated again as a folder")
+                   help="with --select: also write the frames it kept as images to DIR (created; a rig's in one "
+                        "folder per camera): the same set can be calibrated again as a folder")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -311,7 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
-    def common(p: argparse.ArgumentParser, board: bool = True, square: bool = False) -> None:
+    def common(p: argparse.ArgumentParser, board: bool = True, square: bool = False, selection: bool = False) -> None:
         p.add_argument("images", nargs="+", metavar="IMAGES",
                        help="image files, directories or globs" + (", or videos (one camera's recordings)" if board
                                                                     else ""))
@@ -337,7 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
                            help="the learned detector's heatmap network: float32 (default: the same corners on every "
                                 "machine), bfloat16 (about 1.7x faster on CPUs with native bfloat16, AVX512-BF16 or "
                                 "AMX, slower elsewhere; can find other boards), auto (bfloat16 where native)")
-            video_options(p)
+            video_options(p, selection=selection)
 
     p = sub.add_parser("detect", help="detect chessboard corners, write them as JSON", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -349,7 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("calibrate", help="calibrate a camera from chessboard images", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    common(p)
+    common(p, selection=True)
     p.add_argument("--square", default=1.0, type=_length_arg,
                    help="square side in world units (scales the poses only; default 1)")
     p.add_argument("--output", required=True, metavar="JSON",
@@ -552,7 +553,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="do not run the distortion-correction network")
     p.add_argument("--overwrite", action="store_true",
                    help="start the output file again (default: append, skipping sets already in it)")
-    video_options(p)
+    video_options(p, selection=False)
 
     p = sub.add_parser("demo", help="render a synthetic set with a known camera, calibrate it, compare")
     p.add_argument("--out-dir", default="ccs_demo", metavar="DIR", help="where to write images and results (default ./ccs_demo)")

@@ -55,9 +55,12 @@ def videos(tmp_path_factory):
 @pytest.mark.parametrize("kind", ["avi", "mp4"])
 def test_calibrate_a_video(videos, tmp_path, capsys, kind):
     path = videos[kind]
+    report = ["--report", tmp_path / "report"] if kind == "avi" else []
     code, out, err = run(capsys, "calibrate", path, *FAST, *SOLVE, "--no-diagnostics", "--output",
-                         tmp_path / "c.json")
+                         tmp_path / "c.json", *report)
     assert code == 0, err
+    if report:  # the report's overlays are drawn on the recording's frames
+        assert len(list((tmp_path / "report" / "views").glob("view_*.png"))) == 24
     data = json.loads((tmp_path / "c.json").read_text())
     assert abs(data["K"][0][0] - K_VIDEO[0, 0]) < 3 and abs(data["K"][1][2] - K_VIDEO[1, 2]) < 3
     views = data["views"]
