@@ -11,7 +11,7 @@ import numpy as np
 
 from ccs_kornia.io.images import load_image_gray
 from ccs_kornia.modules.detection.checks.board_size import (
-    board_size_in,
+    board_grid_in,
     other_board_size,
 )
 from ccs_kornia.modules.detection.markers.charuco import (
@@ -88,11 +88,12 @@ class WrongBoardWatch:
                 self._search(c, sorted(seen)[:self.first])
 
     def _search(self, c: int, views: list[int]) -> None:
-        sizes = []
+        grids = []
         for v in views:
             image, _ = load_image_gray(self.cameras[c][v])
-            sizes.append(None if image is None else board_size_in(image))
-        other = other_board_size(sizes, self.board)
+            grids.append(None if image is None else board_grid_in(image))
+        sizes = [None if g is None else g[0] for g in grids]
+        other = other_board_size(sizes, self.board, cut=[g is not None and g[1] for g in grids])
         if other is None:
             return
         shown = sum(1 for s in sizes if s == other)
