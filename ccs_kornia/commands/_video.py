@@ -27,7 +27,7 @@ from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES, detector_fr
 from ccs_kornia.pipeline.screening import screen_video
 from ccs_kornia.pipeline.video_input import camera_frames, pair_videos, rig_frames
 from ccs_kornia.pipeline.workers import default_workers
-from ccs_kornia.runtime.errors import UserError
+from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["add_timestamps", "camera_videos", "detector_count", "frame_span", "make_screen", "max_frames",
            "pairing_lines", "rig_videos", "screen_videos", "screen_workers", "screening_note", "selecting",
@@ -250,6 +250,10 @@ def rig_videos(command: str, args: argparse.Namespace, names: Sequence[str]):
     for line in pairing_lines(pairing, names):
         info(line)
     report_screening(command, frames, names)
+    empty = [c for c, refs in enumerate(frames.refs) if not refs]
+    if empty:
+        raise NoResult(f"camera {names[empty[0]]} ({paths[empty[0]]}): no frame of its recording was chosen for the "
+                       "detector: none of its frames pairs with another camera's at the chosen instants")
     return frames
 
 

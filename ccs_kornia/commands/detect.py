@@ -64,12 +64,14 @@ def run(args: argparse.Namespace) -> int:
     }
     if video is not None:
         data["video"] = video.records(0)
+    readable = int(one.present.sum())
+    note = "" if video is None else screening_note(video)
+    if not readable:  # a usage error: nothing is written
+        raise UserError(not_found_message(args.board, readable, len(files), args.detector) + note)
     write_json(args.output, data)
-    if n_found == 0:
-        readable = int(one.present.sum())
-        note = "" if video is None else screening_note(video)
-        raise (NoResult if readable else UserError)(
-            not_found_message(args.board, readable, len(files), args.detector) + f"{note}; wrote {args.output}")
+    if n_found == 0:  # images read, no board: the per-image reasons are kept
+        raise NoResult(not_found_message(args.board, readable, len(files), args.detector) + f"{note}; wrote "
+                       f"{args.output}")
     partial = f" ({n_partial} partial: corners under glare or occluded are null)" if n_partial else ""
     what = (f"{args.charuco[0]}x{args.charuco[1]} ChArUco board ({args.board[0]}x{args.board[1]} inner corners)"
             if charuco_record(args) else f"{args.board[0]}x{args.board[1]} board")

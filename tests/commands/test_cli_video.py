@@ -224,6 +224,14 @@ def test_video_without_a_board(videos, tmp_path, capsys):
     assert not (tmp_path / "c.json").exists()
 
 
+def test_a_rig_of_recordings_without_a_board_is_a_run_without_result(videos, tmp_path, capsys):
+    other = write_video(str(tmp_path / "blank2.avi"), np.full((12, 240, 320), 100, np.uint8), fps=5.0)
+    code, out, err = run(capsys, "calibrate-rig", videos["blank"], other, *FAST, *SOLVE, "--max-frames", "1",
+                         "--output", tmp_path / "rig.json")
+    one_error_line(code, err, status=3)
+    assert "internal error" not in err and not (tmp_path / "rig.json").exists()
+
+
 def test_span_with_no_frame(videos, tmp_path, capsys):
     code, out, err = run(capsys, "calibrate", videos["avi"], *FAST, "--start", "100", "--output", tmp_path / "c.json")
     assert "no frame between --start and --end could be read" in one_error_line(code, err)
