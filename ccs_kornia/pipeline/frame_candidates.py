@@ -21,8 +21,9 @@ A rig is chosen by *instants* (its cameras' frames paired by :mod:`~ccs_kornia.p
 is as new as the newest pose it shows one of the cameras that see it (its distance to the nearest chosen instant
 that camera sees), and an instant seen by more cameras weighs more, so the frames that tie the cameras together come
 first. A recording of at most ``max_frames`` instants keeps them all (the full detector
-decides, and no frame the screen missed is lost); where the screen saw no board at all, ``max_frames`` instants
-spread evenly over the recording go to the full detector (a board the quick look misses may still be found).
+decides, and no frame the screen missed is lost); where the screen saw no board at all, :data:`NO_BOARD_LOOKS`
+instants (at most ``max_frames``) spread evenly over the recording go to the full detector (a board the quick look
+misses may still be found).
 
 The choice records, per camera and instant, why a frame was left out; a later frame choice (the corners' own
 precision, the projection uncertainty) can start from :attr:`FrameChoice.chosen` and these records.
@@ -38,7 +39,7 @@ import numpy as np
 
 from ccs_kornia.modules.detection.screening import Sighting
 
-__all__ = ["CANDIDATES_PER_FRAME", "DEFAULT_MAX_FRAMES", "FrameChoice", "MAX_MOTION", "MIN_STILL",
+__all__ = ["CANDIDATES_PER_FRAME", "DEFAULT_MAX_FRAMES", "FrameChoice", "MAX_MOTION", "MIN_STILL", "NO_BOARD_LOOKS",
            "board_motion", "choose_frames", "detector_frames", "outline_distance"]
 
 #: frames of a recording (instants of a rig) sent to the full detector at most, by default
@@ -56,6 +57,10 @@ MAX_MOTION = 0.001
 MIN_CHANGE = 0.1
 #: still frames needed before moving ones are left out
 MIN_STILL = 12
+#: frames of a recording in which the screen saw no board that the full detector looks at all the same (spread over
+#: the recording): a board the quick look misses is found in some of them, and a recording without one costs a few
+#: detector calls, not one per frame
+NO_BOARD_LOOKS = 10
 
 
 def detector_frames(max_frames: int, selecting: bool) -> int:
@@ -182,18 +187,18 @@ def choose_frames(
         pace = moves * (rates / rates.max())[:, None]
     reasons = [["" if seen[k, i] else ("no board at screening" if sightings[k][i] is not None else "")
                 for i in range(f)] for k in range(c)]
+    if f and not seen.any():  # the screen saw no board: the full detector looks at a few frames spread over the time
+        spread = sorted({int(round(x)) for x in np.linspace(0, f - 1, min(max_frames, NO_BOARD_LOOKS))})
+        for k in range(c):
+            for i in spread:
+                reasons[k][i] = ""
+        return FrameChoice(spread, reasons, [list(m) for m in motion])
     if f <= max_frames:  # every instant goes: the full detector decides
         return FrameChoice(list(range(f)), [[""] * f for _ in range(c)], [list(m) for m in motion])
     cameras_seeing = seen.sum(0)
     worst = np.where(seen, pace, np.nan)
     worst = np.array([np.nanmax(col) if np.isfinite(col).any() else np.nan for col in worst.T])
     pool = np.flatnonzero(cameras_seeing > 0)
-    if not len(pool):  # the screen saw no board: the full detector looks at frames spread over the recording
-        spread = sorted({int(round(x)) for x in np.linspace(0, f - 1, max_frames)})
-        for k in range(c):
-            for i in spread:
-                reasons[k][i] = ""
-        return FrameChoice(spread, reasons, [list(m) for m in motion])
     still = pool[~(worst[pool] > max_motion)]  # unknown motion counts as still
     for k in range(c):  # each camera its still frames: the stillest moving ones it sees where too few are still
         mine = int(seen[k, still].sum())
