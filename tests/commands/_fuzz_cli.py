@@ -75,7 +75,7 @@ def _image_bytes(rng: random.Random, ext: str) -> bytes:
         image = np.frombuffer(rng.randbytes(48 * 64), np.uint8).reshape(48, 64)
     else:
         image = _board_image(rng)
-    ok, buf = cv2.imencode(ext if ext in (".png", ".jpg", ".bmp") else ".png", image)
+    _, buf = cv2.imencode(ext if ext in (".png", ".jpg", ".bmp") else ".png", image)
     data = bytearray(buf.tobytes())
     if kind == "damaged" and len(data) > 80:
         at = rng.randrange(40, len(data) - 20)

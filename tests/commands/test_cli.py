@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -161,14 +162,14 @@ def test_calibrate_without_diagnostics_and_overlay_of_a_view_without_board(rende
 
 
 def test_file_names_that_are_not_utf8_are_escaped_in_the_json_and_the_report(rendered, tmp_path, capsys):
-    folder, files, _ = rendered
+    _, files, _ = rendered
     named = tmp_path / "views"
     named.mkdir()
     for k, path in enumerate(files):  # a 0xff byte, as a camera or an old file system can write it
-        os.link(path, os.path.join(os.fsencode(named), b"cam\xff%02d.png" % k))
+        shutil.copyfile(path, os.path.join(os.fsencode(named), b"cam\xff%02d.png" % k))
     out, report = tmp_path / "calib.json", tmp_path / "report"
-    code, stdout, err = run(capsys, "calibrate", str(named), "--board", "9x6", "--output", str(out),
-                            "--no-diagnostics", "--report", str(report), "--detector", "opencv")
+    code, _, err = run(capsys, "calibrate", str(named), "--board", "9x6", "--output", str(out),
+                       "--no-diagnostics", "--report", str(report), "--detector", "opencv")
     assert code == 0, err
     text = out.read_bytes().decode("utf-8")  # strict: no lone surrogate, every JSON reader accepts it
     assert "\\ud" not in text
@@ -283,7 +284,7 @@ def test_unreadable_file_among_good_is_skipped(rendered, tmp_path, capfd):
     folder, files, _ = rendered
     bad = tmp_path / "broken.png"
     bad.write_bytes(b"this is not a png")
-    ok, jpeg = cv2.imencode(".jpg", cv2.imread(files[0]))
+    _, jpeg = cv2.imencode(".jpg", cv2.imread(files[0]))
     body = bytearray(jpeg.tobytes())
     body[len(body) // 2:len(body) // 2 + 64] = bytes(range(64))  # a damaged body: libjpeg warns, decodes garbage
     damaged = tmp_path / "damaged.jpg"
@@ -313,7 +314,7 @@ def test_an_unknown_option_and_an_absurd_square_are_named_by_the_command(rendere
     assert code == 2 and err.startswith("ccs_kornia calibrate: error: unrecognized arguments: extra"), err
     for square in ("1e-300", "1e300"):
         code, _, err = run(capsys, "calibrate", str(folder), "--board", "9x6", "--square", square, "--output", str(out))
-        assert_one_line_error(err, f"argument --square: expected a size between 1e-06 and 1e+06 in the board's unit")
+        assert_one_line_error(err, "argument --square: expected a size between 1e-06 and 1e+06 in the board's unit")
         assert code == 2
     assert not out.exists()
 

@@ -40,9 +40,8 @@ def test_a_fifo_is_refused_never_replaced(tmp_path):
         write_json(fifo, {"a": 1})
     link = tmp_path / "link.json"
     link.symlink_to(fifo)
-    with pytest.raises(UserError, match="not a regular file"):
-        with atomic_path(link):
-            pass
+    with pytest.raises(UserError, match="not a regular file"), atomic_path(link):
+        pass
     assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link.json", "pipe.json"]
 

@@ -41,7 +41,12 @@ from ccs_kornia.io.files import text_path
 from ccs_kornia.io.images import load_image_gray
 from ccs_kornia.io.video import VideoReader, split_frame_name
 from ccs_kornia.outputs.calibration_file import camera_from_record
-from ccs_kornia.outputs.report.drawing import format_number, nice_number, write_page, write_png
+from ccs_kornia.outputs.report.drawing import (
+    format_number,
+    nice_number,
+    write_page,
+    write_png,
+)
 from ccs_kornia.outputs.report.figures import (
     DISPLAY_MAX_SIDE,
     coverage_plot,

@@ -14,7 +14,6 @@ import numpy as np
 
 from ccs_kornia.io.images import read_image
 from ccs_kornia.outputs.report.drawing import (
-    write_page,
     BLACK,
     BLUE,
     GREEN,
@@ -27,6 +26,7 @@ from ccs_kornia.outputs.report.drawing import (
     draw_plot_frame,
     draw_text,
     nice_ticks,
+    write_page,
     write_png,
 )
 
