@@ -86,6 +86,16 @@ class _Parser(argparse.ArgumentParser):
         self._seen = list(sys.argv[1:] if args is None else args)
         return super().parse_known_args(args, namespace)
 
+    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+        """argparse's, with arguments no command takes reported by the command's parser (``ccs_kornia calibrate:
+        error: ...``), not the program's."""
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            commands = next((a.choices for a in self._actions if isinstance(a, argparse._SubParsersAction)), {})
+            owner = commands.get(getattr(parsed, "command", None), self)
+            owner.error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed
+
     def _unknown_options(self) -> list[str]:
         known = self._option_string_actions
         out = []
@@ -106,7 +116,8 @@ class _Parser(argparse.ArgumentParser):
             message = ("the following arguments are required: --board COLSxROWS (a chessboard's inner corners), "
                        f"--charuco SXxSY (a ChArUco board's squares){tag} or --aprilgrid TARGET_YAML (Kalibr's "
                        "AprilGrid)")
-        unknown = self._unknown_options() if message.startswith("the following arguments are required") else []
+        named = message.startswith(("the following arguments are required", "unrecognized arguments"))
+        unknown = self._unknown_options() if named else []
         if unknown:
             long_options = [o for o in self._option_string_actions if o.startswith("--")]
             close = difflib.get_close_matches(unknown[0], long_options, n=1)
@@ -167,6 +178,21 @@ def _positive_float(text: str) -> float:
     return value
 
 
+#: the sizes a board's square, marker or tag may have, in any unit (metres to millimetres and beyond): outside it the
+#: solver's arithmetic under- or overflows
+LENGTH_RANGE = (1e-6, 1e6)
+
+
+def _length_arg(text: str) -> float:
+    """A board's size (``--square``, ``--marker``, ``--tag-size``): a positive number within :data:`LENGTH_RANGE`."""
+    value = _positive_float(text)
+    low, high = LENGTH_RANGE
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"expected a size between {low:g} and {high:g} in the board's unit (metres, "
+                                         f"millimetres, ...), got {text}")
+    return value
+
+
 def _unit_float(text: str) -> float:
     try:
         value = float(text)
@@ -212,7 +238,7 @@ def charuco_options(p: argparse.ArgumentParser, which, square: bool = False) -> 
                         "(SY-1) inner corners are identified by the markers, so boards cut by the image's frame count")
     g.add_argument("--dictionary", default="DICT_6X6_250", metavar="DICT",
                    help="its ArUco dictionary, OpenCV's name (default DICT_6X6_250)")
-    g.add_argument("--marker", type=_positive_float, metavar="SIDE",
+    g.add_argument("--marker", type=_length_arg, metavar="SIDE",
                    help="its marker side, in the unit of --square (required with --charuco)")
     g.add_argument("--legacy", action=argparse.BooleanOptionalAction, default=None,
                    help="OpenCV's legacy layout (before 4.6) or not; default: found on each image (boards of an even "
@@ -222,7 +248,7 @@ def charuco_options(p: argparse.ArgumentParser, which, square: bool = False) -> 
                             "tagSize, tagSpacing): corners numbered as Kalibr does, identified by the tags (boards cut "
                             "by the frame count); world units are tagSize's")
     if square:
-        g.add_argument("--square", default=1.0, type=_positive_float,
+        g.add_argument("--square", default=1.0, type=_length_arg,
                        help="its square side (only the ratio to --marker matters here; default 1)")
 
 
@@ -236,9 +262,9 @@ def _seconds(text: str) -> float:
     return value
 
 
-def video_options(p: argparse.ArgumentParser, rig: bool = False) -> None:
+def video_options(p: argparse.ArgumentParser, rig: bool = False, selection: bool = True) -> None:
     """``--every N --start S --end S --max-frames N`` for recordings given instead of images (and, for a rig,
-    ``--sync-tolerance S --timestamps CSV``)."""
+    ``--sync-tolerance S --timestamps CSV``); ``selection``: the command has the frame selection (``--select``)."""
     g = p.add_argument_group("videos (mp4, mkv, avi, mov, mjpeg, ... instead of images)")
     g.add_argument("--every", default=1, type=_positive_int, metavar="N",
                    help="screen every N-th frame only (default 1: every frame)")
@@ -247,8 +273,9 @@ def video_options(p: argparse.ArgumentParser, rig: bool = False) -> None:
     g.add_argument("--max-frames", default=None, type=_positive_int, metavar="N",
                    help="frames of a recording (instants of a rig) kept at most (default 60): still boards (moving "
                         "at most 0.1 %% of the image diagonal a frame) are chosen after a quick screening of every "
-                        "frame, poses not seen yet first, then more frames of the still poses; with the frame "
-                        "selection (--select) the detector looks at up to 1.5 times as many and the best are kept")
+                        "frame, poses not seen yet first, then more frames of the still poses" +
+                        ("; with the frame selection (--select) the detector looks at up to 1.5 times as many and "
+                         "the best are kept" if selection else ""))
     if rig:
         g.add_argument("--sync-tolerance", type=_positive_float, metavar="S",
                        help="frames of two cameras pair when their timestamps differ by at most S seconds (default: "
@@ -295,8 +322,8 @@ def selection_options(p: argparse.ArgumentParser) -> None:
                         "(--max-frames caps them; the JSON's selection says why each other frame was left out). "
                         "Default: off")
     g.add_argument("--save-frames", metavar="DIR",
-                   help="also write the frames kept as images to DIR (created; a rig's in one folder per camera): "
-                        "the same set can be calibrated again as a folder")
+                   help="with --select: also write the frames it kept as images to DIR (created; a rig's in one "
+                        "folder per camera): the same set can be calibrated again as a folder")
 
 
 def detection_options(p: argparse.ArgumentParser) -> None:
@@ -326,7 +353,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
-    def common(p: argparse.ArgumentParser, board: bool = True, square: bool = False, corners: bool = False) -> None:
+    def common(p: argparse.ArgumentParser, board: bool = True, square: bool = False, corners: bool = False,
+               selection: bool = False) -> None:
         p.add_argument("images", nargs="*" if board else "+", metavar="IMAGES",
                        help="image files, directories or globs" + (", or videos (one camera's recordings)" if board
                                                                     else "") + (" (or --corners, --bag)" if corners
@@ -355,7 +383,7 @@ def build_parser() -> argparse.ArgumentParser:
                            help="the learned detector's heatmap network: float32 (default: the same corners on every "
                                 "machine), bfloat16 (about 1.7x faster on CPUs with native bfloat16, AVX512-BF16 or "
                                 "AMX, slower elsewhere; can find other boards), auto (bfloat16 where native)")
-            video_options(p)
+            video_options(p, selection=selection)
 
     p = sub.add_parser("detect", help="detect chessboard corners, write them as JSON", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -367,8 +395,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("calibrate", help="calibrate a camera from chessboard images", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    common(p, corners=True)
-    p.add_argument("--square", default=1.0, type=_positive_float,
+    common(p, corners=True, selection=True)
+    p.add_argument("--square", default=1.0, type=_length_arg,
                    help="square side in world units (scales the poses only; default 1)")
     p.add_argument("--output", required=True, metavar="JSON",
                    help="calibration file to write, only when a calibration was computed: a failed run leaves an "
@@ -410,7 +438,7 @@ def build_parser() -> argparse.ArgumentParser:
     corner_options(p, rig=True)
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--board", type=_board_arg, metavar="COLSxROWS", help="inner corners, e.g. 9x6 (or --charuco)")
-    p.add_argument("--square", default=1.0, type=_positive_float,
+    p.add_argument("--square", default=1.0, type=_length_arg,
                    help="square side in world units: the unit of the baselines (metres for ROS and Kalibr; default 1)")
     charuco_options(p, which)
     p.add_argument("--output", required=True, metavar="JSON", help="rig calibration file to write (rig.json)")
@@ -462,16 +490,17 @@ def build_parser() -> argparse.ArgumentParser:
                        "flange (X: base -> camera)")
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--board", type=_board_arg, metavar="COLSxROWS", help="a chessboard's inner corners, e.g. 9x6")
-    p.add_argument("--square", default=1.0, type=_positive_float,
+    p.add_argument("--square", default=1.0, type=_length_arg,
                    help="the board's square side in metres (the robot poses' unit once read)")
     charuco_options(p, which)
     which.add_argument("--apriltag", choices=("36h11", "36h10", "25h9", "16h5"), metavar="FAMILY",
                        help="a single AprilTag of this family (36h11, ...) as the target; needs --tag-size and "
                             "--calibration")
-    p.add_argument("--tag-size", type=_positive_float, metavar="M", help="the tag's black square side in metres")
+    p.add_argument("--tag-size", type=_length_arg, metavar="M", help="the tag's black square side in metres")
     p.add_argument("--tag-id", type=int, metavar="ID", help="the tag's id (default: the one found in most images)")
-    p.add_argument("--pose-format", default="auto", choices=("auto", "quat", "rotvec", "matrix"),
-                   help="the poses' form (default auto: by the count of numbers per row)")
+    p.add_argument("--pose-format", default="auto", choices=("auto", "quat", "quat-wxyz", "rotvec", "matrix"),
+                   help="the poses' form (default auto: by the count of numbers per row; 7 numbers are quat, x,y,z,"
+                        "qx,qy,qz,qw; quat-wxyz is scalar first, x,y,z,qw,qx,qy,qz)")
     p.add_argument("--pose-units", default="m", choices=("m", "mm"), help="the poses' translations (default m)")
     p.add_argument("--calibration", metavar="JSON",
                    help="the camera (a calibrate JSON); default: calibrated from the same images")
@@ -586,7 +615,7 @@ def build_parser() -> argparse.ArgumentParser:
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
                        help="inner corners, e.g. 9x6 (or --charuco, --aprilgrid)")
-    p.add_argument("--square", default=1.0, type=_positive_float, help="square side in world units (default 1)")
+    p.add_argument("--square", default=1.0, type=_length_arg, help="square side in world units (default 1)")
     charuco_options(p, which)
     p.add_argument("--output", required=True, metavar="JSONL",
                    help="JSON Lines file: one calibration per set (appended to; a JSON file of another kind is refused)")
@@ -622,7 +651,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="do not run the distortion-correction network")
     p.add_argument("--overwrite", action="store_true",
                    help="start the output file again (default: append, skipping sets already in it)")
-    video_options(p)
+    video_options(p, selection=False)
 
     p = sub.add_parser("demo", help="render a synthetic set with a known camera, calibrate it, compare")
     p.add_argument("--out-dir", default="ccs_demo", metavar="DIR", help="where to write images and results (default ./ccs_demo)")
@@ -666,6 +695,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv: arguments without the program name (default ``sys.argv[1:]``).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
+    for stream in (sys.stdout, sys.stderr):  # a file name that is not UTF-8 is printed escaped, never a crash
+        if getattr(stream, "errors", None) == "strict" and hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
     keep_freed_memory()  # this process is ours: freed tensors' memory is reused instead of mapped afresh
     if argv and argv[0] in LIGHTNING_COMMANDS:
         return _run_lightning(argv)

@@ -28,7 +28,7 @@ from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES, detector_fr
 from ccs_kornia.pipeline.screening import screen_video
 from ccs_kornia.pipeline.video_input import camera_frames, pair_videos, rig_frames
 from ccs_kornia.pipeline.workers import default_workers
-from ccs_kornia.runtime.errors import UserError
+from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["add_timestamps", "bag_recordings", "camera_videos", "detector_count", "frame_span", "make_screen", "max_frames",
            "pairing_lines", "rig_videos", "screen_videos", "screen_workers", "screening_note", "selecting",
@@ -284,13 +284,20 @@ def rig_videos(command: str, args: argparse.Namespace, names: Sequence[str]):
     for line in pairing_lines(pairing, names):
         info(line)
     report_screening(command, frames, names)
+    empty = [c for c, refs in enumerate(frames.refs) if not refs]
+    if empty:
+        raise NoResult(f"camera {names[empty[0]]} ({paths[empty[0]]}): no frame of its recording was chosen for the "
+                       "detector: none of its frames pairs with another camera's at the chosen instants")
     return frames
 
 
 def pairing_lines(pairing, names: Sequence[str]) -> list[str]:
     """How the rig's frames were paired: by what, each camera's frames, the largest time spread of a paired frame."""
     by = {"time": "by timestamp", "index": "by frame index (the videos carry no usable timestamps)",
-          "table": "by the timestamps table"}.get(pairing.by, f"by {pairing.by}")
+          "table": "by the timestamps table (its frame_index column)",
+          "table order": "by the timestamps table read as caliscope reads it (each camera's rows in order of "
+                         "frame_time are its video's frames; a frame_index column is not used)"}.get(pairing.by,
+                                                                                                   f"by {pairing.by}")
     shared = sum(1 for f in range(pairing.num_frames) if sum(row[f] is not None for row in pairing.index) > 1)
     each = ", ".join(f"{name} {pairing.contributed(c)}" for c, name in enumerate(names))
     spread = pairing.largest_spread()

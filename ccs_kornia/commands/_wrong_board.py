@@ -7,11 +7,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-import cv2
+import numpy as np
 
 from ccs_kornia.io.images import load_image_gray
 from ccs_kornia.modules.detection.checks.board_size import (
-    board_size_in,
+    board_grid_in,
     other_board_size,
 )
 from ccs_kornia.modules.detection.markers.charuco import (
@@ -38,7 +38,7 @@ def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present
     off = sum(1 for r in reasons if r and r.endswith("wrong board size?"))
     if int(found.sum()) > off:
         return
-    read = load if load is not None else (lambda k: cv2.imread(files[k], cv2.IMREAD_GRAYSCALE))
+    read = load if load is not None else (lambda k: _grey8(files[k]))
     images = [read(k) for k, ok in enumerate(present.tolist()) if ok][:8]
     board = detector.board
     images = [img for img in images if img is not None]
@@ -48,6 +48,12 @@ def charuco_dictionary_check(pipeline, files: Sequence[str], found: Any, present
             raise UserError(hint)
         return  # the views had too few corners, not a wrong dictionary or board size
     raise UserError(dictionary_hint(images, board))
+
+
+def _grey8(path: str) -> np.ndarray | None:
+    """The file ``path`` as a grey ``uint8`` array (``None`` where it cannot be read), decoded as every view is."""
+    image, _ = load_image_gray(path)
+    return None if image is None else np.rint(image * 255).astype(np.uint8)
 
 
 class WrongBoardWatch:
@@ -82,11 +88,12 @@ class WrongBoardWatch:
                 self._search(c, sorted(seen)[:self.first])
 
     def _search(self, c: int, views: list[int]) -> None:
-        sizes = []
+        grids = []
         for v in views:
             image, _ = load_image_gray(self.cameras[c][v])
-            sizes.append(None if image is None else board_size_in(image))
-        other = other_board_size(sizes, self.board)
+            grids.append(None if image is None else board_grid_in(image))
+        sizes = [None if g is None else g[0] for g in grids]
+        other = other_board_size(sizes, self.board, cut=[g is not None and g[1] for g in grids])
         if other is None:
             return
         shown = sum(1 for s in sizes if s == other)

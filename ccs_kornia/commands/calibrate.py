@@ -13,11 +13,7 @@ from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
 from ccs_kornia.commands._messages import verdict_line, weak_lines
-from ccs_kornia.commands._output_paths import (
-    check_output_dir,
-    check_output_file,
-    make_dir,
-)
+from ccs_kornia.commands._output_paths import check_outputs, make_dir
 from ccs_kornia.commands._printing import warn
 from ccs_kornia.commands._run import calibrate_files
 from ccs_kornia.commands._selection import frame_selection, save_frames, selection_line
@@ -40,15 +36,10 @@ def _failed_path(output: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_file("--output", args.output)
-    if args.opencv_yaml:
-        check_output_file("--opencv-yaml", args.opencv_yaml)
-    if args.ros_yaml:
-        check_output_file("--ros-yaml", args.ros_yaml)
-    if args.report:
-        check_output_dir("--report", args.report)  # created once there is a calibration to report
-    if args.save_frames:
-        check_output_dir("--save-frames", args.save_frames)  # written once there is a calibration
+    # the report and the saved frames' folders are created once there is a calibration
+    check_outputs(files=[("--output", args.output), ("--opencv-yaml", args.opencv_yaml),
+                         ("--ros-yaml", args.ros_yaml), ("--output (its failed-run record)", _failed_path(args.output))],
+                  dirs=[("--report", args.report), ("--save-frames", args.save_frames)])
     selection = frame_selection(args)
     if args.save_frames and selection is None:
         raise UserError("--save-frames writes the frames the frame selection kept: give --select (recordings and "

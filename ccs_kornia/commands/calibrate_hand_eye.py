@@ -26,8 +26,7 @@ from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
 from ccs_kornia.commands._messages import not_found_message
 from ccs_kornia.commands._output_paths import (
-    check_output_dir,
-    check_output_file,
+    check_outputs,
     make_dir,
 )
 from ccs_kornia.commands._printing import info, warn
@@ -159,14 +158,26 @@ def _views(one, count: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, l
     return det.corners.double().cpu(), found, present, reasons
 
 
+def _other_order(args: argparse.Namespace, files: list[str], poses, solve) -> str:
+    """Where quaternions refused in one order are accepted in the other (scalar first or last), the line that says so
+    and names the ``--pose-format`` that reads them; else an empty string."""
+    other = {"quat": "quat-wxyz", "quat-wxyz": "quat"}.get(poses.format)
+    if other is None:
+        return ""
+    T = match_poses(files, read_robot_poses(args.robot_poses, other, args.pose_units))[0]
+    usable = torch.from_numpy(np.isfinite(T).all((-1, -2)))
+    if not bool(solve(torch.from_numpy(T), usable, heldout=False).success[0]):
+        return ""
+    orders = {"quat": "qx,qy,qz,qw (scalar last)", "quat-wxyz": "qw,qx,qy,qz (scalar first)"}
+    return (f"the quaternions of {os.path.basename(args.robot_poses)} are in the other order: read as "
+            f"{orders[poses.format]} the robot and the images disagree, read as {orders[other]} they agree: give "
+            f"--pose-format {other}")
+
+
 def run(args: argparse.Namespace) -> int:
     setup = HandEyeSetup.EYE_IN_HAND if args.eye_in_hand else HandEyeSetup.EYE_TO_HAND
-    check_output_file("--output", args.output)
-    for option, path in (("--ros-tf", args.ros_tf), ("--moveit-yaml", args.moveit_yaml)):
-        if path:
-            check_output_file(option, path)
-    if args.report:
-        check_output_dir("--report", args.report)
+    check_outputs(files=[("--output", args.output), ("--ros-tf", args.ros_tf), ("--moveit-yaml", args.moveit_yaml)],
+                  dirs=[("--report", args.report)])
     frames = parse_frames(args.ros_frames)
     noise = parse_robot_noise(args.robot_noise)
     tag = getattr(args, "apriltag", None)
@@ -239,13 +250,18 @@ def run(args: argparse.Namespace) -> int:
 
     robot = torch.from_numpy(T)
     names = [os.path.basename(f) for f in files]
-    result = calibrate_hand_eye(
-        torch.nan_to_num(corners, nan=0.0)[None], valid[None], obj, torch.where(ok[:, None, None], robot,
-                                                                                 torch.full_like(robot, float("nan")))[None],
-        camera, setup, free_intrinsics=bool(args.refine_intrinsics), robot_noise=noise, image_size=size,
-        names=[names], align_orders=tag is None and board_info.get("kind") in ("learned", "opencv"))
+
+    def solve(robot: torch.Tensor, usable: torch.Tensor, heldout: bool = True):
+        return calibrate_hand_eye(
+            torch.nan_to_num(corners, nan=0.0)[None], valid[None] & usable[None, :, None], obj,
+            torch.where(usable[:, None, None], robot, torch.full_like(robot, float("nan")))[None], camera, setup,
+            free_intrinsics=bool(args.refine_intrinsics), robot_noise=noise, image_size=size, names=[names],
+            align_orders=tag is None and board_info.get("kind") in ("learned", "opencv"), heldout=heldout)
+
+    result = solve(robot, ok)
     if not bool(result.success[0]):
-        raise UserError(f"hand-eye calibration refused: {result.reasons[0]}")
+        order = _other_order(args, files, poses, solve)
+        raise UserError(f"hand-eye calibration refused: {order or result.reasons[0]}")
 
     if args.refine_intrinsics:
         refined = result.camera[0]

@@ -22,11 +22,7 @@ import torch
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
-from ccs_kornia.commands._output_paths import (
-    check_output_dir,
-    check_output_file,
-    make_dir,
-)
+from ccs_kornia.commands._output_paths import check_outputs, make_dir
 from ccs_kornia.commands._run import run_files
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.io.corners_file import read_corners_file
@@ -229,11 +225,8 @@ def _detected(args: argparse.Namespace, folders: list[str]) -> list[tuple[torch.
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_file("--output", args.output)
-    if args.kalibr_yaml:
-        check_output_file("--kalibr-yaml", args.kalibr_yaml)
-    if args.report:
-        check_output_dir("--report", args.report)
+    check_outputs(files=[("--output", args.output), ("--kalibr-yaml", args.kalibr_yaml)],
+                  dirs=[("--report", args.report)])
     given = [what for what, value in (("folders of images", args.inputs), ("--corners", args.corners),
                                       ("--bag", args.image_topics and args.bag)) if value]
     if len(given) > 1:

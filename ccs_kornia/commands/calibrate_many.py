@@ -25,7 +25,7 @@ import torch
 from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
-from ccs_kornia.commands._output_paths import check_output_file
+from ccs_kornia.commands._output_paths import check_outputs
 from ccs_kornia.commands._printing import PROG, info, warn
 from ccs_kornia.commands._video import frame_span, make_screen, max_frames
 from ccs_kornia.fleet.shards import finished_sets, not_jsonl_reason
@@ -55,7 +55,7 @@ def _placement(args: argparse.Namespace) -> tuple[str | None, int | None]:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_file("--output", args.output)
+    check_outputs(files=[("--output", args.output)])
     device = resolve_device(args.device)
     if args.workers < 0:
         raise UserError(f"--workers must be >= 0, got {args.workers}")

@@ -28,8 +28,7 @@ from ccs_kornia.commands._inputs import inputs
 from ccs_kornia.commands._messages import failure_message, weak_lines
 from ccs_kornia.commands._models import parse_models
 from ccs_kornia.commands._output_paths import (
-    check_output_dir,
-    check_output_file,
+    check_outputs,
     make_dir,
 )
 from ccs_kornia.commands._printing import info, warn
@@ -63,7 +62,7 @@ from ccs_kornia.pipeline.corners_input import match_given_views
 from ccs_kornia.pipeline.frame_matching import match_frames
 from ccs_kornia.pipeline.rig_pipeline import RigPipeline
 from ccs_kornia.pipeline.sources import FileSource
-from ccs_kornia.runtime.errors import UserError
+from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["COMMAND", "parse_names", "parse_fixed", "run", "summary_lines"]
 
@@ -167,14 +166,10 @@ def run(args: argparse.Namespace) -> int:
             else "camera folders or videos (one folder of images, or one video, per camera)"
         raise UserError(f"a rig needs at least two {what}, got {len(folders)}{': ' if folders else ''}"
                         f"{' '.join(folders)}")
-    check_output_file("--output", args.output)
-    for option, path in (("--opencv-yaml", args.opencv_yaml), ("--kalibr-yaml", args.kalibr_yaml)):
-        if path:
-            check_output_file(option, path)
-    for option, path in (("--ros-yaml-dir", args.ros_yaml_dir), ("--report", args.report),
-                         ("--save-frames", args.save_frames)):
-        if path:
-            check_output_dir(option, path)
+    check_outputs(files=[("--output", args.output), ("--opencv-yaml", args.opencv_yaml),
+                         ("--kalibr-yaml", args.kalibr_yaml)],
+                  dirs=[("--ros-yaml-dir", args.ros_yaml_dir), ("--report", args.report),
+                        ("--save-frames", args.save_frames)])
     c = len(folders)
     names = parse_names(args.names, c)
     models = parse_models(args.model, c, args.model_choices)
@@ -336,7 +331,12 @@ def _check_cameras(cameras, files, folders, names, fixed, models, args) -> None:
                 raise UserError(f"--fix-intrinsics {k}={fixed[k][2]}: calibration of {fixed[k][1][0]}x{fixed[k][1][1]} "
                                 f"images, camera {names[k]}'s are {size[0]}x{size[1]}")
         elif not record["success"]:
-            raise UserError(f"camera {names[k]} ({folders[k]}): {failure_message(record, args.board, readable)}")
+            if v == 0:  # a recording whose frames were all left out by the frame choice
+                raise NoResult(f"camera {names[k]} ({folders[k]}): no frame of its recording was chosen for the "
+                               "detector (the frame choice above says why)")
+            # images were read: too few views is a run without a result (exit 3), an unreadable set a usage error
+            error = NoResult if readable else UserError
+            raise error(f"camera {names[k]} ({folders[k]}): {failure_message(record, args.board, readable)}")
 
 
 def _stereo_pair(args: argparse.Namespace, cameras: int) -> tuple[int, int]:

@@ -11,7 +11,7 @@ from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
 from ccs_kornia.commands._messages import not_found_message
-from ccs_kornia.commands._output_paths import check_output_file
+from ccs_kornia.commands._output_paths import check_outputs
 from ccs_kornia.commands._run import run_files
 from ccs_kornia.commands._video import add_timestamps, camera_videos, screening_note
 from ccs_kornia.io.files import write_json
@@ -48,7 +48,7 @@ def add_corner_sigma(images: list[dict], sigma) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_file("--output", args.output)
+    check_outputs(files=[("--output", args.output)])
     device = resolve_device(args.device)
     video = camera_videos("detect", args)
     files = inputs("detect", args.images) if video is None else video.names()[0]
@@ -79,12 +79,14 @@ def run(args: argparse.Namespace) -> int:
     }
     if video is not None:
         data["video"] = video.records(0)
+    readable = int(one.present.sum())
+    note = "" if video is None else screening_note(video)
+    if not readable:  # a usage error: nothing is written
+        raise UserError(not_found_message(args.board, readable, len(files), args.detector) + note)
     write_json(args.output, data)
-    if n_found == 0:
-        readable = int(one.present.sum())
-        note = "" if video is None else screening_note(video)
-        raise (NoResult if readable else UserError)(
-            not_found_message(args.board, readable, len(files), args.detector) + f"{note}; wrote {args.output}")
+    if n_found == 0:  # images read, no board: the per-image reasons are kept
+        raise NoResult(not_found_message(args.board, readable, len(files), args.detector) + f"{note}; wrote "
+                       f"{args.output}")
     partial = f" ({n_partial} partial: corners under glare or occluded are null)" if n_partial else ""
     what = (f"{args.charuco[0]}x{args.charuco[1]} ChArUco board ({args.board[0]}x{args.board[1]} inner corners)"
             if charuco_record(args) else f"{args.board[0]}x{args.board[1]} board")

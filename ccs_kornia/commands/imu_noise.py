@@ -11,7 +11,7 @@ import argparse
 
 import numpy as np
 
-from ccs_kornia.commands._output_paths import check_output_file
+from ccs_kornia.commands._output_paths import check_outputs
 from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.io.files import write_text_atomic
 from ccs_kornia.io.imu import ImuLog, ImuNoise, imu_log_findings, read_imu_csv
@@ -62,9 +62,7 @@ def summary_lines(path: str, log: ImuLog, rate: float, fits: dict[str, AllanNois
 
 def run(args: argparse.Namespace) -> int:
     """The command: read and check the log, the Allan deviations, the noise values, the files."""
-    check_output_file("--output", args.output)
-    if args.plot:
-        check_output_file("--plot", args.plot)
+    check_outputs(files=[("--output", args.output), ("--plot", args.plot)])
     log = read_imu_csv(args.log)
     findings = imu_log_findings(log)
     check_still(log)

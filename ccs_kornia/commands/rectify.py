@@ -16,7 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ccs_kornia.commands._inputs import inputs
-from ccs_kornia.commands._output_paths import make_dir
+from ccs_kornia.commands._output_paths import check_outputs, make_dir
 from ccs_kornia.commands._printing import warn
 from ccs_kornia.commands._stereo_pair import parse_pair
 from ccs_kornia.io.images import read_image, write_image
@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     if not pairs:
         raise UserError(f"no image of {args.left} pairs with one of {args.right} (frames match by the last number in "
                         "the file names, else by sorted order)")
-    make_dir("--out-dir", args.out_dir)
+    check_outputs(dirs=[("--out-dir", args.out_dir)])  # created once there is a pair to write
     rect = rectification(data, i, j, alpha=args.alpha)
     maps = rectify_maps(data, rect, i, j)
     sizes = [tuple(int(v) for v in data["cameras"][c]["image_size"]) for c in (i, j)]
@@ -110,6 +110,8 @@ def run(args: argparse.Namespace) -> int:
             for p, why in bad:
                 warn("rectify", f"skipped the pair of {p}: {why}")
             continue
+        if not written:
+            make_dir("--out-dir", args.out_dir)
         for path, (image, _, _), (mx, my) in zip((left, right), images, maps):
             out = cv2.remap(np.ascontiguousarray(image), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
             stem, ext = os.path.splitext(os.path.basename(path))

@@ -19,7 +19,7 @@ from tqdm import tqdm
 
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._inputs import inputs
-from ccs_kornia.commands._output_paths import make_dir
+from ccs_kornia.commands._output_paths import check_outputs, make_dir
 from ccs_kornia.commands._printing import info, warn
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.io.images import read_image, write_image
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     calibration = _read_calibration(args.calibration, getattr(args, "camera", None))
     device = resolve_device(args.device)
     files = inputs("undistort", args.images)
-    make_dir("--out-dir", args.out_dir)
+    check_outputs(dirs=[("--out-dir", args.out_dir)])  # created once there is an image to write
     camera, calib_size = calibration.camera.to(device), calibration.camera.image_size
     corners = _calibrated_corners(calibration.views)
     corners = None if corners is None else corners.to(device)
@@ -117,6 +117,8 @@ def run(args: argparse.Namespace) -> int:
         if size not in new_K:
             new_K[size] = _view_camera(camera, size, field, args)
         out = undistort_image(tensor.double(), camera, new_K[size], field)[0]
+        if not written:
+            make_dir("--out-dir", args.out_dir)
         if not write_image(target, out, bit_depth=16 if depth > 8 and ext.lower() in (".png", ".tif", ".tiff") else 8):
             warn("undistort", f"could not write {target}")
             continue

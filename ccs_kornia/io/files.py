@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,7 +21,30 @@ import torch
 
 from ccs_kornia.runtime.errors import UserError
 
-__all__ = ["atomic_path", "json_line", "json_text", "write_json", "write_text", "write_text_atomic"]
+__all__ = ["atomic_path", "json_line", "json_text", "text_path", "write_json", "write_text", "write_text_atomic"]
+
+
+def text_path(path: str | os.PathLike) -> str:
+    """A file name as text every reader accepts: bytes that are not UTF-8 (a camera or an old file system can write
+    them; Python holds them as lone surrogates) written ``\\xNN``; a valid name is returned unchanged.
+
+    The one rendering of file names in the JSON, the reports' pages and the text drawn on their figures (OpenCV's
+    ``putText`` cannot take a lone surrogate, strict JSON readers refuse one).
+
+    Example:
+        >>> text_path(os.fsdecode(b"cam\\xff01.png"))
+        'cam\\\\xff01.png'
+        >>> text_path("left01.png")
+        'left01.png'
+    """
+    text = os.fspath(path)
+    if isinstance(text, bytes):
+        text = os.fsdecode(text)
+    try:
+        raw = text.encode("utf-8", "surrogateescape")
+    except UnicodeEncodeError:  # a surrogate no file name decodes to: shown as its code point
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+    return raw.decode("utf-8", "backslashreplace")
 
 
 def _json_default(obj: Any) -> Any:
@@ -31,16 +55,18 @@ def _json_default(obj: Any) -> Any:
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, Path):
-        return str(obj)
+        return text_path(obj)
     raise TypeError(f"Object of type {type(obj).__name__} is not JSON serializable")
 
 
 def _sanitize(obj: Any) -> Any:
-    # JSON has no NaN/Infinity: write null instead so every JSON reader accepts the file
+    # JSON has no NaN/Infinity: write null instead so every JSON reader accepts the file; no lone surrogates either
     if isinstance(obj, float):
         return obj if np.isfinite(obj) else None
+    if isinstance(obj, str):  # a file name's bytes that are not UTF-8 escaped, never a lone surrogate
+        return obj if obj.isascii() else text_path(obj)
     if isinstance(obj, dict):
-        return {k: _sanitize(v) for k, v in obj.items()}
+        return {(_sanitize(k) if isinstance(k, str) else k): _sanitize(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [_sanitize(v) for v in obj]
     if isinstance(obj, (torch.Tensor, np.ndarray, np.generic)):
@@ -103,13 +129,16 @@ def _file_mode() -> int:
 def atomic_path(path: str | os.PathLike, mode: int | None = None) -> Iterator[str]:
     """A temporary path beside ``path`` to write to; on a clean exit it is renamed over ``path``, else removed.
 
-    The one atomic writer of the package (JSON, text exports, OpenCV FileStorage files): a reader never sees a
-    half-written file, and an existing file is only replaced once the new one is complete. The file gets the mode an
-    ordinary write would give it: an existing file's own, else the one the umask implies (not the temporary file's
-    private 600); ``mode`` (e.g. ``0o644``) sets it explicitly.
+    The one atomic writer of the package (JSON, text exports, OpenCV FileStorage files, images): a reader never sees
+    a half-written file, and an existing file is only replaced once the new one is complete. A symbolic link is
+    written through: its target gets the new file and the link stays. Only a regular file or a new path is written: a
+    device, FIFO or socket is refused, never replaced by a file. The file gets the mode an ordinary write would give
+    it: an existing file's own, else the one the umask implies (not the temporary file's private 600); ``mode``
+    (e.g. ``0o644``) sets it explicitly.
 
     Raises:
         FileNotFoundError: the parent directory does not exist (it is not created).
+        UserError: ``path`` exists and is not a regular file.
 
     Example:
         >>> import tempfile
@@ -119,10 +148,12 @@ def atomic_path(path: str | os.PathLike, mode: int | None = None) -> Iterator[st
         >>> open(target).read()
         'done'
     """
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
+    path = os.path.realpath(os.fspath(path))  # through symbolic links: the rename replaces the target, not the link
+    directory = os.path.dirname(path)
     if not os.path.isdir(directory):
         raise FileNotFoundError(f"output directory does not exist: {directory}")
+    if os.path.lexists(path) and not stat.S_ISREG(os.stat(path).st_mode):
+        raise UserError(f"{path} exists and is not a regular file (a device, FIFO or socket is never replaced)")
     if mode is None:
         mode = os.stat(path).st_mode & 0o7777 if os.path.isfile(path) else _file_mode()
     fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=os.path.splitext(path)[1], dir=directory)

@@ -7,7 +7,8 @@ that one bad file among many is skipped, not fatal.
 Decisions recorded here:
 
 * images are decoded from bytes with ``cv2.imdecode`` (no console warnings for non-images, works
-  with any path encoding);
+  with any path encoding); libjpeg's own lines on a damaged JPEG are caught, and the file is refused with them as its
+  reason (the pixels libjpeg filled in are not the scene's);
 * the EXIF orientation flag is **ignored**: a calibration describes the sensor's pixel grid, and a
   rotated view of the same sensor would otherwise look like a different image size;
 * colour is converted with OpenCV's BGR->grey weights; an alpha channel is dropped;
@@ -19,6 +20,9 @@ from __future__ import annotations
 import glob
 import os
 import re
+import sys
+import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -26,6 +30,8 @@ from typing import Any
 import cv2
 import numpy as np
 import torch
+
+from ccs_kornia.io.files import atomic_path
 
 __all__ = [
     "IMAGE_EXTENSIONS",
@@ -159,6 +165,48 @@ def image_pixels(path: str | os.PathLike) -> int | None:
         return None
 
 
+#: one JPEG decoded at a time while libjpeg's messages are caught (they go to the process's standard error)
+_STDERR_LOCK = threading.Lock()
+#: the start of libjpeg's warnings on a damaged file ("Corrupt JPEG data: 252 extraneous bytes before marker 0xd9",
+#: "Premature end of JPEG file", ...)
+_LIBJPEG_WARNINGS = ("Corrupt JPEG data", "Premature end of JPEG file", "Invalid SOS parameters", "Warning: ")
+
+
+def _imdecode(data: np.ndarray, flags: int) -> np.ndarray | None:
+    try:
+        return cv2.imdecode(data, flags)
+    except cv2.error:
+        return None
+
+
+def _decode_jpeg(data: np.ndarray, flags: int) -> tuple[np.ndarray | None, str]:
+    """``cv2.imdecode`` of a JPEG with libjpeg's warnings caught instead of printed (libjpeg writes them to file
+    descriptor 2 itself): ``(image, warning)``. What else reached the standard error meanwhile is passed on."""
+    with _STDERR_LOCK:
+        try:
+            sys.stderr.flush()
+            saved = os.dup(2)
+        except (OSError, ValueError, AttributeError):  # no standard error to catch: decoded as it is
+            return _imdecode(data, flags), ""
+        try:
+            with tempfile.TemporaryFile() as caught:
+                os.dup2(caught.fileno(), 2)
+                try:
+                    image = _imdecode(data, flags)
+                finally:
+                    os.dup2(saved, 2)
+                caught.seek(0)
+                text = caught.read().decode("utf-8", "replace")
+        finally:
+            os.close(saved)
+    lines = text.splitlines()
+    mine = [line for line in lines if line.startswith(_LIBJPEG_WARNINGS)]
+    others = [line for line in lines if line not in mine]
+    if others:
+        os.write(2, ("\n".join(others) + "\n").encode())
+    return image, "; ".join(mine)
+
+
 def _decode(path: str, flags: int) -> tuple[np.ndarray | None, str]:
     try:
         data = np.fromfile(path, dtype=np.uint8)
@@ -166,12 +214,15 @@ def _decode(path: str, flags: int) -> tuple[np.ndarray | None, str]:
         return None, f"cannot read file: {err.strerror or err}"
     if data.size == 0:
         return None, "empty file"
-    try:
-        image = cv2.imdecode(data, flags)
-    except cv2.error:
-        image = None
+    damage = ""
+    if data[:2].tobytes() == b"\xff\xd8":
+        image, damage = _decode_jpeg(data, flags)
+    else:
+        image = _imdecode(data, flags)
     if image is None or image.size == 0:
         return None, "not a readable image (unknown format or corrupt/truncated file)"
+    if damage:  # libjpeg filled in what it could not decode: pixels a calibration must not trust
+        return None, f"corrupt JPEG data, the decoded pixels cannot be trusted (libjpeg: {damage})"
     return image, ""
 
 
@@ -263,7 +314,8 @@ def write_image(path: str | os.PathLike, image: np.ndarray | torch.Tensor, bit_d
         bit_depth: 8 or 16.
 
     Returns:
-        True if OpenCV wrote the file.
+        True if OpenCV could encode the image in the extension's format; the file is then written atomically
+        (:func:`~ccs_kornia.io.files.atomic_path`: through a symbolic link, never over a device or FIFO).
     """
     if isinstance(image, torch.Tensor):
         image = image.detach().cpu().float()
@@ -278,7 +330,8 @@ def write_image(path: str | os.PathLike, image: np.ndarray | torch.Tensor, bit_d
     ok, buf = cv2.imencode(ext, out)
     if not ok:
         return False
-    buf.tofile(os.fspath(path))
+    with atomic_path(path) as tmp:
+        buf.tofile(tmp)
     return True
 
 

@@ -4,12 +4,13 @@ Each row holds the image's file name, then the flange's pose in the robot's base
 one of three forms (:data:`POSE_FORMATS`):
 
 * ``quat``: ``x, y, z, qx, qy, qz, qw`` (a unit quaternion, scalar last: ROS's and SciPy's order);
+* ``quat-wxyz``: ``x, y, z, qw, qx, qy, qz`` (scalar first: Eigen's coefficients as written, ABB's and kornia's order);
 * ``rotvec``: ``x, y, z, rx, ry, rz`` (a rotation vector in radians: UR's and ViSP's form);
 * ``matrix``: the 16 numbers of the 4x4 matrix, row by row.
 
 Translations are in metres or millimetres (``units``); poses come back in metres. A first line whose second field is
 not a number is a header; blank lines and lines starting with ``#`` are skipped; commas, semicolons, tabs or spaces
-separate the fields. ``auto`` takes the form from the count of numbers (7, 6 or 16).
+separate the fields. ``auto`` takes the form from the count of numbers (7: ``quat``, 6 or 16).
 
 :func:`match_poses` pairs the rows with the images by file name (the whole path, the file name, or the name without
 its extension), never by order: an image without a row, or a row without an image, is reported, not shifted onto
@@ -30,7 +31,9 @@ from ccs_kornia.runtime.errors import UserError
 __all__ = ["POSE_FORMATS", "POSE_UNITS", "RobotPoses", "match_poses", "parse_robot_poses", "read_robot_poses"]
 
 #: the pose forms and their count of numbers
-POSE_FORMATS: dict[str, int] = {"quat": 7, "rotvec": 6, "matrix": 16}
+POSE_FORMATS: dict[str, int] = {"quat": 7, "quat-wxyz": 7, "rotvec": 6, "matrix": 16}
+#: the form ``auto`` reads for each count of numbers
+_AUTO_FORMATS: dict[int, str] = {7: "quat", 6: "rotvec", 16: "matrix"}
 #: translation units and their size in metres
 POSE_UNITS: dict[str, float] = {"m": 1.0, "mm": 1e-3}
 
@@ -56,7 +59,8 @@ def _number(text: str) -> float | None:
 
 
 def _rotation(kind: str, r: np.ndarray) -> np.ndarray:
-    """A rotation matrix from a rotation vector or a unit quaternion ``x, y, z, w`` (kornia's conversions)."""
+    """A rotation matrix from a rotation vector or a unit quaternion ``x, y, z, w`` (``quat``) or ``w, x, y, z``
+    (``quat-wxyz``) (kornia's conversions)."""
     import torch
     from kornia.geometry.conversions import (
         axis_angle_to_rotation_matrix,
@@ -66,6 +70,8 @@ def _rotation(kind: str, r: np.ndarray) -> np.ndarray:
     t = torch.from_numpy(np.asarray(r, dtype=np.float64))[None]
     if kind == "rotvec":
         return axis_angle_to_rotation_matrix(t)[0].numpy()
+    if kind == "quat-wxyz":
+        return quaternion_to_rotation_matrix(t)[0].numpy()
     return quaternion_to_rotation_matrix(t[:, [3, 0, 1, 2]])[0].numpy()  # kornia's quaternions are w, x, y, z
 
 
@@ -74,7 +80,7 @@ def parse_robot_poses(text: str, pose_format: str = "auto", units: str = "m", so
 
     Args:
         text: the file's text.
-        pose_format: ``quat``, ``rotvec``, ``matrix`` or ``auto`` (by the count of numbers).
+        pose_format: ``quat``, ``quat-wxyz``, ``rotvec``, ``matrix`` or ``auto`` (by the count of numbers).
         units: ``m`` or ``mm``: the translations' unit.
         source: the file's name, for the messages.
 
@@ -87,7 +93,7 @@ def parse_robot_poses(text: str, pose_format: str = "auto", units: str = "m", so
         (['a.png'], [0.1, 0.0, 0.0], -1.0)
     """
     if pose_format not in (*POSE_FORMATS, "auto"):
-        raise UserError(f"--pose-format {pose_format}: expected quat, rotvec, matrix or auto")
+        raise UserError(f"--pose-format {pose_format}: expected quat, quat-wxyz, rotvec, matrix or auto")
     if units not in POSE_UNITS:
         raise UserError(f"--pose-units {units}: expected m or mm")
     scale = POSE_UNITS[units]
@@ -110,7 +116,7 @@ def parse_robot_poses(text: str, pose_format: str = "auto", units: str = "m", so
             raise UserError(f"{where}: {bad!r} is not a number (expected the image's name, then the pose's numbers)")
         kind = fmt
         if kind is None:
-            kind = {n: k for k, n in POSE_FORMATS.items()}.get(len(values))
+            kind = _AUTO_FORMATS.get(len(values))
             if kind is None:
                 raise UserError(f"{where}: {len(values)} numbers after the name; a pose has 7 (x,y,z,qx,qy,qz,qw), "
                                 "6 (x,y,z,rx,ry,rz) or 16 (a 4x4 matrix row by row)")
@@ -122,13 +128,14 @@ def parse_robot_poses(text: str, pose_format: str = "auto", units: str = "m", so
         if not np.isfinite(v).all():
             raise UserError(f"{where}: the pose holds a non-finite number")
         T = np.eye(4)
-        if kind == "quat":
+        if kind in ("quat", "quat-wxyz"):
             q = v[3:]
             n = float(np.linalg.norm(q))
             if abs(n - 1) > 1e-2:
+                order = "qx,qy,qz,qw" if kind == "quat" else "qw,qx,qy,qz"
                 raise UserError(f"{where}: the quaternion ({', '.join(f'{x:g}' for x in q)}) has norm {n:.4g}, not 1 "
-                                "(quat is x,y,z,qx,qy,qz,qw: is this another form, e.g. Euler angles or rotvec?)")
-            T[:3, :3], T[:3, 3] = _rotation("quat", q / n), v[:3]
+                                f"({kind} is x,y,z,{order}: is this another form, e.g. Euler angles or rotvec?)")
+            T[:3, :3], T[:3, 3] = _rotation(kind, q / n), v[:3]
         elif kind == "rotvec":
             T[:3, :3], T[:3, 3] = _rotation("rotvec", v[3:]), v[:3]
             if float(np.linalg.norm(v[3:])) > 2 * math.pi + 1e-6:

@@ -3,7 +3,9 @@
 The layout is caliscope's ``timestamps.csv``: one row per camera and instant, ``sync_index,cam_id,frame_index,
 frame_time`` (``frame_time`` in seconds, any origin shared by the cameras). ``cam_id`` is the camera's position on
 the command line (0 for the first video). ``frame_index`` may be left out, as caliscope's own recordings do: a
-camera's rows are then its video's frames in order of ``frame_time``, one row per frame.
+camera's rows are then its video's frames in order of ``frame_time``, one row per frame (caliscope's reading, also
+used where an older table's ``frame_index`` counts from the recording's start and runs past the end of a video:
+:func:`~ccs_kornia.pipeline.frame_matching.match_by_table`).
 """
 
 from __future__ import annotations

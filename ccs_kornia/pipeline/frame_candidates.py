@@ -21,8 +21,9 @@ A rig is chosen by *instants* (its cameras' frames paired by :mod:`~ccs_kornia.p
 is as new as the newest pose it shows one of the cameras that see it (its distance to the nearest chosen instant
 that camera sees), and an instant seen by more cameras weighs more, so the frames that tie the cameras together come
 first. A recording of at most ``max_frames`` instants keeps them all (the full detector
-decides, and no frame the screen missed is lost); where the screen saw no board at all, ``max_frames`` instants
-spread evenly over the recording go to the full detector (a board the quick look misses may still be found).
+decides, and no frame the screen missed is lost); where the screen saw no board at all, :data:`NO_BOARD_LOOKS`
+instants (at most ``max_frames``) spread evenly over the recording go to the full detector (a board the quick look
+misses may still be found).
 
 The choice records, per camera and instant, why a frame was left out; a later frame choice (the corners' own
 precision, the projection uncertainty) can start from :attr:`FrameChoice.chosen` and these records.
@@ -38,7 +39,7 @@ import numpy as np
 
 from ccs_kornia.modules.detection.screening import Sighting
 
-__all__ = ["CANDIDATES_PER_FRAME", "DEFAULT_MAX_FRAMES", "FrameChoice", "MAX_MOTION", "MIN_STILL",
+__all__ = ["CANDIDATES_PER_FRAME", "DEFAULT_MAX_FRAMES", "FrameChoice", "MAX_MOTION", "MIN_STILL", "NO_BOARD_LOOKS",
            "board_motion", "choose_frames", "detector_frames", "outline_distance"]
 
 #: frames of a recording (instants of a rig) sent to the full detector at most, by default
@@ -56,6 +57,10 @@ MAX_MOTION = 0.001
 MIN_CHANGE = 0.1
 #: still frames needed before moving ones are left out
 MIN_STILL = 12
+#: frames of a recording in which the screen saw no board that the full detector looks at all the same (spread over
+#: the recording): a board the quick look misses is found in some of them, and a recording without one costs a few
+#: detector calls, not one per frame
+NO_BOARD_LOOKS = 10
 
 
 def detector_frames(max_frames: int, selecting: bool) -> int:
@@ -132,6 +137,7 @@ def choose_frames(
     max_motion: float = MAX_MOTION,
     min_change: float = MIN_CHANGE,
     copies: bool = True,
+    frame_rates: Sequence[float] | None = None,
 ) -> FrameChoice:
     """Choose the instants whose frames go to the full detector.
 
@@ -144,6 +150,13 @@ def choose_frames(
         max_motion: fraction of each camera's image diagonal per frame period.
         min_change: mean corner distance as a fraction of the board's size in the image.
         copies: near copies fill what is left of ``max_frames`` once every new pose is taken (else they stay out).
+        frame_rates: per camera its frames per second (a rig of several rates): the motions are compared per frame
+            period of the fastest camera (a slower camera's frame period is longer, not its board faster). ``None``
+            or a rate of 0: per each camera's own frame period.
+
+    A rig shares the budget: every camera keeps at least its share of ``max_frames`` (``max_frames // C``, or all the
+    instants it sees where fewer) and of the still frames (:data:`MIN_STILL` each), instants that several cameras see
+    counting for each of them; a camera seen in fewer instants never leaves the others without their pairs.
 
     Returns:
         :class:`FrameChoice`.
@@ -168,24 +181,30 @@ def choose_frames(
     seen = np.array([[s is not None and s.found for s in cam] for cam in sightings], dtype=bool).reshape(c, f)
     moves = np.array([[np.nan if m is None else m / diag[k] for m in cam] for k, cam in enumerate(motion)],
                      dtype=np.float64).reshape(c, f)
+    pace = moves  # the motions compared, per frame period of the fastest camera
+    rates = np.asarray(frame_rates if frame_rates is not None else [0.0] * c, dtype=np.float64)
+    if c > 1 and (rates > 0).all():
+        pace = moves * (rates / rates.max())[:, None]
     reasons = [["" if seen[k, i] else ("no board at screening" if sightings[k][i] is not None else "")
                 for i in range(f)] for k in range(c)]
-    if f <= max_frames:  # every instant goes: the full detector decides
-        return FrameChoice(list(range(f)), [[""] * f for _ in range(c)], [list(m) for m in motion])
-    cameras_seeing = seen.sum(0)
-    worst = np.where(seen, moves, np.nan)
-    worst = np.array([np.nanmax(col) if np.isfinite(col).any() else np.nan for col in worst.T])
-    pool = np.flatnonzero(cameras_seeing > 0)
-    if not len(pool):  # the screen saw no board: the full detector looks at frames spread over the recording
-        spread = sorted({int(round(x)) for x in np.linspace(0, f - 1, max_frames)})
+    if f and not seen.any():  # the screen saw no board: the full detector looks at a few frames spread over the time
+        spread = sorted({int(round(x)) for x in np.linspace(0, f - 1, min(max_frames, NO_BOARD_LOOKS))})
         for k in range(c):
             for i in spread:
                 reasons[k][i] = ""
         return FrameChoice(spread, reasons, [list(m) for m in motion])
+    if f <= max_frames:  # every instant goes: the full detector decides
+        return FrameChoice(list(range(f)), [[""] * f for _ in range(c)], [list(m) for m in motion])
+    cameras_seeing = seen.sum(0)
+    worst = np.where(seen, pace, np.nan)
+    worst = np.array([np.nanmax(col) if np.isfinite(col).any() else np.nan for col in worst.T])
+    pool = np.flatnonzero(cameras_seeing > 0)
     still = pool[~(worst[pool] > max_motion)]  # unknown motion counts as still
-    if len(still) < MIN_STILL:
-        moving = pool[worst[pool] > max_motion]
-        still = np.concatenate([still, moving[np.argsort(worst[moving])][:MIN_STILL - len(still)]])
+    for k in range(c):  # each camera its still frames: the stillest moving ones it sees where too few are still
+        mine = int(seen[k, still].sum())
+        if mine < MIN_STILL:
+            moving = np.setdiff1d(pool[seen[k, pool] & (worst[pool] > max_motion)], still)
+            still = np.concatenate([still, moving[np.argsort(worst[moving], kind="stable")][:MIN_STILL - mine]])
     for i in np.setdiff1d(pool, still):
         for k in range(c):
             if seen[k, i]:
@@ -243,7 +262,8 @@ def _spread(pool: np.ndarray, outlines: _Outlines, cameras_seeing: np.ndarray, s
     """Farthest-point choice over ``pool``: an instant's novelty is the largest, over the cameras that see it, of its
     distance to the nearest chosen instant that camera sees (:data:`_UNSEEN` where it sees none yet); weighted by the
     cameras that see it and its stillness. Instants less novel than ``min_change`` come only with ``copies``, after
-    every novel one."""
+    every novel one. While a camera has fewer than its share of ``max_frames`` (:func:`choose_frames`), the instants
+    it sees come first."""
     if not len(pool):
         return []
     seen = outlines.seen[:, pool]
@@ -255,9 +275,15 @@ def _spread(pool: np.ndarray, outlines: _Outlines, cameras_seeing: np.ndarray, s
     taken[first] = True
     nearest = np.minimum(nearest, outlines.to(chosen[0], pool))
     floor = min_change
+    # each camera's share of the budget: the instants it sees count until it has its share
+    quota = np.minimum(max_frames // seen.shape[0], seen.sum(1))
     while len(chosen) < max_frames:
         gap = np.where(seen, nearest, -np.inf).max(0)
-        score = np.where((gap >= floor) & ~taken, gap * weight, -1.0)
+        open_ = (gap >= floor) & ~taken
+        needy = seen[:, taken].sum(1) < quota
+        if needy.any() and (open_ & seen[needy].any(0)).any():
+            open_ &= seen[needy].any(0)  # a camera short of its share first
+        score = np.where(open_, gap * weight, -1.0)
         k = int(np.argmax(score))
         if score[k] < 0:
             if copies and floor > 0:

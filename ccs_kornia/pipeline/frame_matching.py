@@ -59,7 +59,8 @@ class FrameTable:
             time, a table's ``sync_index``).
         index: per camera, per frame, the file's position or ``None``.
         by: ``"number"`` (the last number in the file names), ``"order"`` (natural order), ``"time"``
-            (timestamps), ``"index"`` (video frame indices) or ``"table"`` (a timestamps table).
+            (timestamps), ``"index"`` (video frame indices), ``"table"`` (a timestamps table's ``frame_index``) or
+            ``"table order"`` (a timestamps table's rows in time order, as caliscope reads them).
         times: per camera, per frame, the time (s) it was matched by (``None`` where missing; ``None`` for files).
     """
 
@@ -211,8 +212,12 @@ def match_by_table(rows: Sequence[TimestampRow], indices: Sequence[Sequence[int]
         source: the table's name in messages.
 
     Returns:
-        :class:`FrameTable` (``by="table"``; labels: ``sync_index``, ``times``: ``frame_time``). Instants none of whose
-        frames is at hand are left out.
+        :class:`FrameTable` (labels: ``sync_index``, ``times``: ``frame_time``). Instants none of whose frames is at
+        hand are left out. ``by="table"``: a frame is its row's ``frame_index``; ``by="table order"``: each camera's
+        rows in order of ``frame_time`` are its video's frames, as caliscope reads its tables (its writer no longer
+        writes ``frame_index``, and older tables count it from the recording's start, not the video's first frame):
+        where the table has no ``frame_index``, or one past the end of a video while every camera has a row per
+        frame.
 
     Raises:
         ValueError: the table does not match the videos (a camera it names is not given, a camera has no row, an
@@ -235,10 +240,23 @@ def match_by_table(rows: Sequence[TimestampRow], indices: Sequence[Sequence[int]
     if empty:
         raise ValueError(f"{source} has no row for camera {empty[0]} (cam_id {empty[0]}: video {empty[0] + 1} on the "
                          "command line)")
+    by_order = rows[0].frame_index is None
+    if not by_order:  # a frame_index past the end of a video counts from the recording's start: caliscope's reading
+        past = [(k, max(r.frame_index for r in per_cam[k])) for k in range(c) if frame_counts[k] is not None and
+                max(r.frame_index for r in per_cam[k]) >= frame_counts[k]]
+        if past:
+            short = [k for k in range(c) if frame_counts[k] is not None and len(per_cam[k]) != frame_counts[k]]
+            if short:
+                k, last = past[0]
+                raise ValueError(f"{source}: frame_index {last} of camera {k} is past the end of its video "
+                                 f"({frame_counts[k]} frames), and the rows cannot be read as caliscope reads them "
+                                 f"(each camera's rows in time order as its video's frames): camera {short[0]} has "
+                                 f"{len(per_cam[short[0]])} rows for {frame_counts[short[0]]} frames")
+            by_order = True
     frame_of: dict[tuple[int, int], tuple[int, float]] = {}
     for k in range(c):
         cam_rows = per_cam[k]
-        if cam_rows[0].frame_index is None:  # the camera's rows are its frames in time order
+        if by_order:  # the camera's rows are its frames in time order (caliscope's reading)
             count = frame_counts[k]
             if count is not None and len(cam_rows) != count:
                 raise ValueError(f"{source} has {len(cam_rows)} rows for camera {k} but its video has {count} frames: "
@@ -247,11 +265,6 @@ def match_by_table(rows: Sequence[TimestampRow], indices: Sequence[Sequence[int]
             numbered = [(r, f) for f, r in enumerate(ordered)]
         else:
             numbered = [(r, int(r.frame_index)) for r in cam_rows]
-            count = frame_counts[k]
-            past = [f for _, f in numbered if count is not None and f >= count]
-            if past:
-                raise ValueError(f"{source}: frame_index {max(past)} of camera {k} is past the end of its video "
-                                 f"({count} frames)")
         for r, f in numbered:
             key = (r.sync_index, k)
             if key in frame_of:
@@ -273,4 +286,4 @@ def match_by_table(rows: Sequence[TimestampRow], indices: Sequence[Sequence[int]
         for k, (p, t) in enumerate(picks):
             index[k].append(p)
             stamps[k].append(t)
-    return FrameTable(labels, index, "table", stamps)
+    return FrameTable(labels, index, "table order" if by_order else "table", stamps)

@@ -218,7 +218,7 @@ def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
     """The frame choice for a rig (one video per camera) over the instants of ``pairing`` (:func:`pair_videos`).
 
     Where every instant is kept (at most ``max_frames``), each camera's frame of it is a view; where instants are
-    chosen, a camera's frame is a view where its screen saw the board. Frames the pairing left out (not in a
+    chosen, a camera's frame is a view where its screen saw the board, or where it saw the board in no frame. Frames the pairing left out (not in a
     timestamps table) are never views.
     """
     c, n = len(videos), pairing.num_frames
@@ -226,10 +226,14 @@ def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
     sightings = [[None if k is None else videos[cam].frames[k].sighting for k in pairing.index[cam]] for cam in range(c)]
     labels = [[None if k is None else str(videos[cam].frames[k].index) for k in pairing.index[cam]] for cam in range(c)]
     motion = [[None if k is None else motion_of[cam][k] for k in pairing.index[cam]] for cam in range(c)]
-    choice = choose_frames(sightings, labels, motion, [v.info.size for v in videos], max_frames)
+    choice = choose_frames(sightings, labels, motion, [v.info.size for v in videos], max_frames,
+                           frame_rates=[v.info.fps for v in videos])
     every = n <= max_frames
+    # a camera whose screen saw the board nowhere: its frames of the chosen instants go to the detector all the same
+    # (the quick look may miss a board the detector finds)
+    blind = [not any(f.found for f in v.frames) for v in videos]
     chosen = [[[False] * len(v.frames)] for v in videos]
-    reasons = [[["not in the timestamps table" if pairing.by == "table" else ""] * len(v.frames)] for v in videos]
+    reasons = [[["not in the timestamps table" if pairing.by.startswith("table") else ""] * len(v.frames)] for v in videos]
     motions = [[list(m)] for m in motion_of]
     for cam in range(c):
         for f, k in enumerate(pairing.index[cam]):
@@ -242,7 +246,7 @@ def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
         picks = []
         for cam in range(c):
             k = pairing.index[cam][f]
-            use = k is not None and (every or videos[cam].frames[k].found)
+            use = k is not None and (every or blind[cam] or videos[cam].frames[k].found)
             picks.append(k if use else None)
         if all(k is None for k in picks):
             continue

@@ -72,6 +72,8 @@ def write_poses(path: str, files: list[str], T: torch.Tensor, form: str = "rotve
         r = Rotation.from_matrix(M[:3, :3])
         if form == "quat":
             values = [*t, *r.as_quat()]
+        elif form == "quat-wxyz":
+            values = [*t, *np.roll(r.as_quat(), 1)]
         elif form == "rotvec":
             values = [*t, *r.as_rotvec()]
         else:

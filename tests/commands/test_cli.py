@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -160,6 +161,25 @@ def test_calibrate_without_diagnostics_and_overlay_of_a_view_without_board(rende
     assert (report / "views" / f"view_{NUM_VIEWS:04d}_blank.png").is_file()
 
 
+def test_file_names_that_are_not_utf8_are_escaped_in_the_json_and_the_report(rendered, tmp_path, capsys):
+    _, files, _ = rendered
+    named = tmp_path / "views"
+    named.mkdir()
+    for k, path in enumerate(files):  # a 0xff byte, as a camera or an old file system can write it
+        shutil.copyfile(path, os.path.join(os.fsencode(named), b"cam\xff%02d.png" % k))
+    out, report = tmp_path / "calib.json", tmp_path / "report"
+    code, _, err = run(capsys, "calibrate", str(named), "--board", "9x6", "--output", str(out),
+                       "--no-diagnostics", "--report", str(report), "--detector", "opencv")
+    assert code == 0, err
+    text = out.read_bytes().decode("utf-8")  # strict: no lone surrogate, every JSON reader accepts it
+    assert "\\ud" not in text
+    data = json.loads(text)
+    assert os.path.basename(data["views"][0]["path"]) == "cam\\xff00.png"
+    page = (report / "index.html").read_bytes().decode("utf-8")
+    assert "cam\\xff00.png" in page
+    assert len(list((report / "views").glob("view_*.png"))) == NUM_VIEWS
+
+
 def test_calibrate_with_glare_keeps_partial_boards(rendered, tmp_path, capsys):
     """Saturated spots over a corner of two views: the default path (learned detector, correction, diagnostics,
     report) keeps those boards with the corner left out: null in the JSON, counted, marked in the report, said."""
@@ -260,20 +280,43 @@ def test_malformed_board_subprocess_has_no_traceback(tmp_path):
     assert "Traceback" not in proc.stderr
 
 
-def test_unreadable_file_among_good_is_skipped(rendered, tmp_path, capsys):
+def test_unreadable_file_among_good_is_skipped(rendered, tmp_path, capfd):
     folder, files, _ = rendered
     bad = tmp_path / "broken.png"
     bad.write_bytes(b"this is not a png")
+    _, jpeg = cv2.imencode(".jpg", cv2.imread(files[0]))
+    body = bytearray(jpeg.tobytes())
+    body[len(body) // 2:len(body) // 2 + 64] = bytes(range(64))  # a damaged body: libjpeg warns, decodes garbage
+    damaged = tmp_path / "damaged.jpg"
+    damaged.write_bytes(bytes(body))
     out = tmp_path / "c.json"
-    code, _, err = run(capsys, "calibrate", *files, str(bad), "--board", "9x6", "--output", str(out))
+    code, _, err = run(capfd, "calibrate", *files, str(bad), str(damaged), "--board", "9x6", "--output", str(out))
     assert code == 0
     assert "warning: skipped" in err and "broken.png" in err and "not a readable image" in err
     assert "Traceback" not in err
+    # libjpeg's own lines are caught: the tool's warning names the file
+    lines = err.splitlines()
+    assert not [line for line in lines if line.startswith("Corrupt JPEG data")], err
+    assert any(f"skipped {damaged}: unreadable: corrupt JPEG data" in line for line in lines), err
     data = json.loads(out.read_text())
     skipped = {s["path"]: s["reason"] for s in data["skipped"]}
     assert "not a readable image" in skipped[str(bad)]
     view = [v for v in data["views"] if v["path"] == str(bad)][0]
     assert view["used"] is False and view["rms"] is None
+
+
+def test_an_unknown_option_and_an_absurd_square_are_named_by_the_command(rendered, tmp_path, capsys):
+    folder, _, _ = rendered
+    out = tmp_path / "c.json"
+    code, _, err = run(capsys, "calibrate", str(folder), "--board", "9x6", "--output", str(out), "--bogus", "1")
+    assert code == 2 and err.startswith("ccs_kornia calibrate: error: unrecognized option --bogus"), err
+    code, _, err = run(capsys, "calibrate", str(folder), "--board", "9x6", "--output", str(out), "extra")
+    assert code == 2 and err.startswith("ccs_kornia calibrate: error: unrecognized arguments: extra"), err
+    for square in ("1e-300", "1e300"):
+        code, _, err = run(capsys, "calibrate", str(folder), "--board", "9x6", "--square", square, "--output", str(out))
+        assert_one_line_error(err, "argument --square: expected a size between 1e-06 and 1e+06 in the board's unit")
+        assert code == 2
+    assert not out.exists()
 
 
 def test_board_never_found(tmp_path, capsys):

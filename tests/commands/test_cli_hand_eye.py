@@ -113,6 +113,17 @@ def test_mispaired_and_wrongly_scaled_poses_are_refused(tags, tmp_path, capsys):
     assert not (tmp_path / "a.json").exists() and not (tmp_path / "b.json").exists()
 
 
+def test_quaternions_scalar_first_are_named_as_such(tags, tmp_path, capsys):
+    wxyz = write_poses(str(tmp_path / "wxyz.csv"), tags["files"], tags["scene"].robot_poses, "quat-wxyz")
+    code, _, err = run(capsys, *_tag_args(tags, wxyz, tmp_path / "a.json"))
+    line = one_line_error(code, err, "quaternions", "qw,qx,qy,qz (scalar first)", "--pose-format quat-wxyz")
+    assert "--square" not in line and "--pose-units" not in line
+    code, _, err = run(capsys, *_tag_args(tags, wxyz, tmp_path / "b.json"), "--pose-format", "quat-wxyz")
+    assert code == 0, err
+    assert x_error(json.loads((tmp_path / "b.json").read_text()), tags["X"])[0] < 3.0
+    assert not (tmp_path / "a.json").exists()
+
+
 def test_missing_options(tags, tmp_path, capsys):
     poses = write_poses(str(tmp_path / "poses.csv"), tags["files"], tags["scene"].robot_poses)
     args = _tag_args(tags, poses, tmp_path / "x.json")

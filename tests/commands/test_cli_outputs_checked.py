@@ -4,6 +4,8 @@ command at once with one line naming the option (exit status 2), nothing written
 from __future__ import annotations
 
 import json
+import os
+import stat
 
 import numpy as np
 import pytest
@@ -82,3 +84,48 @@ def test_the_cases_cover_every_command(folders):
     assert commands == {"detect", "calibrate", "calibrate-rig", "undistort", "rectify", "calibrate-many", "demo",
                         "imu-noise"}
     assert len(_commands(folders)) == 16
+
+
+def _collisions(root) -> list[tuple[list[str], str]]:
+    a, b = str(root / "a"), str(root / "b")
+    board = ["--board", "9x6"]
+    c, same = str(root / "c.json"), str(root / "same")
+    link = root / "alias.json"
+    link.symlink_to(root / "c.json")
+    poses = str(root / "poses.csv")
+    return [
+        (["calibrate", a, *board, "--output", c, "--opencv-yaml", c], "--opencv-yaml"),
+        (["calibrate", a, *board, "--output", same, "--report", same], "--report"),
+        (["calibrate", a, *board, "--output", c, "--ros-yaml", str(link)], "--ros-yaml"),
+        (["calibrate", a, *board, "--output", c, "--report", same, "--save-frames", same], "--save-frames"),
+        (["calibrate-rig", a, b, *board, "--output", c, "--kalibr-yaml", c], "--kalibr-yaml"),
+        (["calibrate-rig", a, b, *board, "--output", same, "--ros-yaml-dir", same], "--ros-yaml-dir"),
+        (["calibrate-hand-eye", a, *board, "--robot-poses", poses, "--eye-in-hand", "--output", c, "--ros-tf", c],
+         "--ros-tf"),
+        (["calibrate-hand-eye", a, *board, "--robot-poses", poses, "--eye-in-hand", "--output", same,
+          "--report", same], "--report"),
+    ]
+
+
+@pytest.mark.parametrize("case", range(8))
+def test_two_outputs_naming_one_path_are_refused_before_any_work(folders, capsys, monkeypatch, case):
+    argv, option = _collisions(folders)[case]
+    monkeypatch.setattr(CalibrationPipeline, "run", _no_work)
+    before = sorted(p.name for p in folders.iterdir())
+    code = cli.main(argv)
+    err = capsys.readouterr().err
+    assert code == EXIT_USAGE, err
+    assert len(err.strip().splitlines()) == 1 and option in err and "same path" in err, err
+    assert sorted(p.name for p in folders.iterdir()) == before  # nothing written
+
+
+def test_an_output_that_is_not_a_regular_file_is_refused_before_any_work(folders, capsys, monkeypatch):
+    fifo = folders / "pipe.json"
+    os.mkfifo(fifo)
+    monkeypatch.setattr(CalibrationPipeline, "run", _no_work)
+    for option in ("--output", "--opencv-yaml"):
+        extra = [] if option == "--output" else ["--output", str(folders / "out.json")]
+        code = cli.main(["calibrate", str(folders / "a"), "--board", "9x6", *extra, option, str(fifo)])
+        err = capsys.readouterr().err
+        assert code == EXIT_USAGE and option in err and "not a regular file" in err, err
+        assert stat.S_ISFIFO(os.lstat(fifo).st_mode)

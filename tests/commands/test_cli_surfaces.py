@@ -128,7 +128,7 @@ def test_board_larger_than_given_is_said_on_the_console(rendered, tmp_path, caps
         return out
 
     monkeypatch.setattr(LearnedChessboardDetector, "forward", refused)
-    monkeypatch.setattr(_wrong_board, "board_size_in", lambda image: None)  # no early stop: the whole run's hint
+    monkeypatch.setattr(_wrong_board, "board_grid_in", lambda image: None)  # no early stop: the whole run's hint
     _, files, _ = rendered
     code, _, err = run(capsys, "calibrate", *files[:3], "--board", "8x6", "--output", str(tmp_path / "c.json"),
                        *_fast())
@@ -143,7 +143,7 @@ def test_board_larger_on_a_real_set(tmp_path, capsys, monkeypatch):
     folder = REAL_DATA / "opencv_left"
     if not folder.is_dir():
         pytest.skip(f"real data set not present at {folder}")
-    monkeypatch.setattr(_wrong_board, "board_size_in", lambda image: None)  # every view looked at (no early stop)
+    monkeypatch.setattr(_wrong_board, "board_grid_in", lambda image: None)  # every view looked at (no early stop)
     code, _, err = run(capsys, "calibrate", str(folder), "--board", "8x6", "--output", str(tmp_path / "c.json"),
                        "--jobs", "1", "--no-diagnostics")
     assert code == EXIT_NO_RESULT

@@ -14,6 +14,7 @@ from _real_data import REAL_DATA
 from _videos import BOARD, K_VIDEO, board_frames, board_video, truncated, write_video
 
 from ccs_kornia import cli
+from ccs_kornia.pipeline.frame_candidates import NO_BOARD_LOOKS
 
 FAST = ["--board", f"{BOARD[0]}x{BOARD[1]}", "--detector", "opencv", "--no-distortion-correction", "--jobs", "1"]
 SOLVE = ["--square", "0.025", "--model", "k1k2", "--no-ransac"]
@@ -55,9 +56,12 @@ def videos(tmp_path_factory):
 @pytest.mark.parametrize("kind", ["avi", "mp4"])
 def test_calibrate_a_video(videos, tmp_path, capsys, kind):
     path = videos[kind]
+    report = ["--report", tmp_path / "report"] if kind == "avi" else []
     code, out, err = run(capsys, "calibrate", path, *FAST, *SOLVE, "--no-diagnostics", "--output",
-                         tmp_path / "c.json")
+                         tmp_path / "c.json", *report)
     assert code == 0, err
+    if report:  # the report's overlays are drawn on the recording's frames
+        assert len(list((tmp_path / "report" / "views").glob("view_*.png"))) == 24
     data = json.loads((tmp_path / "c.json").read_text())
     assert abs(data["K"][0][0] - K_VIDEO[0, 0]) < 3 and abs(data["K"][1][2] - K_VIDEO[1, 2]) < 3
     views = data["views"]
@@ -122,6 +126,22 @@ def test_calibrate_rig_at_different_rates(videos, tmp_path, capsys):
     assert all(int(a.rsplit("#")[1]) == 2 * int(b.rsplit("#")[1]) for a, b in paired)
 
 
+def test_a_rig_of_two_frame_rates_shares_the_frame_budget(tmp_path, capsys):
+    # 6 fps over the whole path, 12 fps over its first three quarters: the budget must keep the pairs of both cameras
+    left = board_frames(96, seed=2)[::2]
+    right = board_frames(96, seed=2, shift=(-BASELINE, 0.0, 0.0))[:72]
+    slow = write_video(str(tmp_path / "cam_6fps.avi"), left, fps=6.0)
+    fast = write_video(str(tmp_path / "cam_12fps.avi"), right, fps=12.0)
+    code, out, err = run(capsys, "calibrate-rig", slow, fast, *FAST, *SOLVE, "--no-select", "--max-frames", "20",
+                         "--output", tmp_path / "rig.json")
+    assert code == 0, err
+    data = json.loads((tmp_path / "rig.json").read_text())
+    paired = [(a, b) for a, b in zip(*data["frames"]) if a and b]
+    assert len(paired) >= 10, data["frames"]
+    assert all(int(a.rsplit("#")[1]) * 2 == int(b.rsplit("#")[1]) for a, b in paired)
+    assert abs(data["pairs"][0]["baseline"] - BASELINE) < 0.003
+
+
 def _table(path, rows) -> str:
     with open(path, "w", newline="") as handle:
         writer = csv.writer(handle)
@@ -144,6 +164,19 @@ def test_calibrate_rig_with_a_timestamps_table(videos, tmp_path, capsys):
     assert "largest time spread of a paired frame 2.0 ms" in err
     (left,) = data["cameras"][0]["video"]
     assert left["frames"][0]["reason"] == "not in the timestamps table"
+
+
+def test_an_older_caliscope_table_is_read_as_caliscope_reads_it(videos, tmp_path, capsys):
+    # frame_index counted from the recording's start (26-49 for videos of 24 frames): each camera's rows in time order
+    rows = [(k, cam, 26 + k, 7.0 + k / 10 + cam * 0.002) for k in range(24) for cam in (0, 1)]
+    code, out, err = run(capsys, "calibrate-rig", videos["avi"], videos["right"], *FAST, *SOLVE, "--timestamps",
+                         _table(tmp_path / "t.csv", rows), "--no-select", "--output", tmp_path / "rig.json")
+    assert code == 0, err
+    data = json.loads((tmp_path / "rig.json").read_text())
+    assert data["frames_matched_by"] == "table order"
+    assert "frames paired by the timestamps table read as caliscope reads it" in err
+    assert all(a.rsplit("#")[1] == b.rsplit("#")[1] for a, b in zip(*data["frames"]) if a and b)
+    assert abs(data["pairs"][0]["baseline"] - BASELINE) < 0.002
 
 
 def test_calibrate_many_videos(videos, tmp_path, capsys):
@@ -189,7 +222,17 @@ def test_video_without_a_board(videos, tmp_path, capsys):
     code, out, err = run(capsys, "calibrate", videos["blank"], *FAST, *SOLVE, "--output", tmp_path / "c.json")
     line = one_error_line(code, err, status=3)
     assert "not found" in line and "12 frames of" in line and "the board seen in none" in line
+    # the screen saw no board: a few frames spread over the recording go to the detector, not every frame
+    assert f"not found in any of {NO_BOARD_LOOKS} images" in line
     assert not (tmp_path / "c.json").exists()
+
+
+def test_a_rig_of_recordings_without_a_board_is_a_run_without_result(videos, tmp_path, capsys):
+    other = write_video(str(tmp_path / "blank2.avi"), np.full((12, 240, 320), 100, np.uint8), fps=5.0)
+    code, out, err = run(capsys, "calibrate-rig", videos["blank"], other, *FAST, *SOLVE, "--max-frames", "1",
+                         "--output", tmp_path / "rig.json")
+    one_error_line(code, err, status=3)
+    assert "internal error" not in err and not (tmp_path / "rig.json").exists()
 
 
 def test_span_with_no_frame(videos, tmp_path, capsys):
@@ -276,7 +319,7 @@ def test_caliscope_videos_give_the_rig_of_the_frame_folders(tmp_path, capsys):
         assert code == 0, err
         results[name] = json.loads((tmp_path / f"{name}.json").read_text())
     a, b = results["folders"], results["videos"]
-    assert b["frames_matched_by"] == "table"
+    assert b["frames_matched_by"] == "table order"  # no frame_index: each camera's rows in time order, as caliscope
     assert [int(x) for x in b["frame_labels"]] == [int(x) for x in a["frame_labels"]]  # the same 48 instants
     pa, pb = a["pairs"][0], b["pairs"][0]
     print(f"\nbaseline folders {pa['baseline']:.4f} videos {pb['baseline']:.4f}; held-out epipolar RMS folders "

@@ -46,6 +46,15 @@ def _black(path: Path) -> float:
     return float((cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) == 0).mean())
 
 
+def test_no_image_undistorted_leaves_no_folder(tmp_path, capsys):
+    calib = _calibration(tmp_path, "opencv5", [[210.0, 0, 161.0], [0, 208.0, 118.0], [0, 0, 1]], [0.0] * 5)
+    (tmp_path / "broken.png").write_bytes(b"not a png")
+    code, _, err = run(capsys, "undistort", str(tmp_path / "broken.png"), "--calibration", calib, "--out-dir",
+                       str(tmp_path / "out"))
+    assert code == 2 and "no image undistorted" in err, err
+    assert not (tmp_path / "out").exists()  # a usage error writes nothing, not even an empty folder
+
+
 def test_pinhole_calibration_honours_balance(white, tmp_path, capsys):
     calib = _calibration(tmp_path, "opencv5", [[210.0, 0, 161.0], [0, 208.0, 118.0], [0, 0, 1]], [-0.3, 0.1, 0, 0, 0])
     black = {}

@@ -2,7 +2,7 @@
 views there searched for a board of another size) against the whole run with every second look.
 
 Runs the command line on a real set with a wrong board size, alternating the two, and prints each wall time and the
-medians. The early stop is switched off by a ``board_size_in`` that finds nothing (the whole run's path, as before it
+medians. The early stop is switched off by a ``board_grid_in`` that finds nothing (the whole run's path, as before it
 existed). Run it on an idle machine: on shared cores the figures are inflated.
 
     python -m ccs_kornia.bench.micro.wrong_board        # BoofCV's Bumblebee2 left camera ($CCS_REAL_DATA or ../shared)
@@ -22,7 +22,7 @@ import time
 from ccs_kornia.bench.sections.real import default_real_dir
 
 #: the second interpreter's switch: the early stop never finds another board
-_WHOLE_RUN = ("import ccs_kornia.modules.detection.checks.board_size as b; b.board_size_in = lambda image: None; "
+_WHOLE_RUN = ("import ccs_kornia.modules.detection.checks.board_size as b; b.board_grid_in = lambda image: None; "
               "from ccs_kornia.cli import run; run()")
 
 

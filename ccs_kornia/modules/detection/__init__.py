@@ -26,6 +26,7 @@ _EXPORTS = {
     "CornerEvidence": "ccs_kornia.modules.detection.checks.corner_evidence",
     "measure_corner_evidence": "ccs_kornia.modules.detection.checks.corner_evidence",
     "decide_corners": "ccs_kornia.modules.detection.checks.corner_evidence",
+    "board_grid_in": "ccs_kornia.modules.detection.checks.board_size",
     "board_size_in": "ccs_kornia.modules.detection.checks.board_size",
     "other_board_size": "ccs_kornia.modules.detection.checks.board_size",
     "opencv_candidates": "ccs_kornia.modules.detection.learned.opencv_candidates",

@@ -29,6 +29,7 @@ from __future__ import annotations
 import html
 import os
 import sys
+import urllib.parse
 from typing import Any
 
 import numpy as np
@@ -36,9 +37,16 @@ import torch
 
 from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.io.files import text_path
 from ccs_kornia.io.images import load_image_gray
+from ccs_kornia.io.video import VideoReader, split_frame_name
 from ccs_kornia.outputs.calibration_file import camera_from_record
-from ccs_kornia.outputs.report.drawing import format_number, nice_number, write_png
+from ccs_kornia.outputs.report.drawing import (
+    format_number,
+    nice_number,
+    write_page,
+    write_png,
+)
 from ccs_kornia.outputs.report.figures import (
     DISPLAY_MAX_SIDE,
     coverage_plot,
@@ -85,6 +93,22 @@ def _remove_previous(directory: str) -> None:
     views = os.path.join(directory, "views")
     if os.path.isdir(views) and not os.listdir(views):
         os.rmdir(views)
+
+
+def _view_image(view: dict[str, Any], readers: dict[str, VideoReader]) -> np.ndarray | None:
+    """A view's image as grey ``float32`` in ``[0, 1]``: its file, or its frame of a recording (``VIDEO#INDEX``, read
+    with the reader of ``readers`` for that video); ``None`` where it cannot be read."""
+    frame = split_frame_name(view["path"])
+    if frame is None:
+        return load_image_gray(view["path"])[0]
+    video, index = frame
+    try:
+        if video not in readers:
+            readers[video] = VideoReader(video)
+        got = readers[video].read(index, view.get("timestamp"))
+    except (OSError, ValueError):
+        return None
+    return None if got is None else got.image.astype(np.float32) / 255.0
 
 
 def _write_manifest(directory: str, written: list[str]) -> None:
@@ -170,10 +194,11 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     first_used: tuple[str, np.ndarray, np.ndarray] | None = None
     # every view gets an overlay: the ones without a board too, titled with the reason (what the user needs to see)
     candidates = [i for i, v in enumerate(views) if v.get("path")]
+    readers: dict[str, VideoReader] = {}
     for index in tqdm(candidates, desc="report", unit="view", file=sys.stderr, disable=None if progress is None else not progress,
                       leave=False):
         view = views[index]
-        gray, _ = load_image_gray(view["path"])
+        gray = _view_image(view, readers)
         if gray is None:
             continue
         found = view.get("found") and view.get("corners") is not None
@@ -185,12 +210,14 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
             status = f"no board: {view.get('reason', 'not found')}"
         title = f"view {index}: {base} - {status}"
         vis = view_overlay(gray, detected, projected.get(index), gain, title)
-        stem = os.path.splitext(base)[0]
+        stem = text_path(os.path.splitext(base)[0])  # the page links to it: a name every browser can ask for
         name = f"view_{index:04d}_{stem}.png"
         if write_png(os.path.join(views_dir, name), vis, written):
-            overlay_names[index] = f"views/{name}"
+            overlay_names[index] = f"views/{urllib.parse.quote(name)}"
         if view.get("used") and first_used is None and (gray.shape[1], gray.shape[0]) == size:
             first_used = (base, gray, detected)
+    for reader in readers.values():
+        reader.close()
 
     figures: list[tuple[str, str, str]] = []
     if views:
@@ -290,9 +317,7 @@ def _write_html(path: str, data: dict[str, Any], camera: Camera, figures: list[t
             f"<td class='l'>{esc(view.get('reason', ''))}</td><td>{link}</td></tr>"
         )
     parts += ["</table></body></html>"]
-    with open(path, "w", encoding="utf-8") as handle:
-        handle.write("\n".join(parts) + "\n")
-    return path
+    return write_page(path, "\n".join(parts) + "\n")
 
 
 def _write_markdown(path: str, data: dict[str, Any], camera: Camera, gain: float) -> str:
@@ -319,6 +344,4 @@ def _write_markdown(path: str, data: dict[str, Any], camera: Camera, gain: float
                      f"{format_number(view.get('rms'))} | {view.get('reason', '')} |")
     lines += ["", f"Overlays (views/): green circles = detected corners, red crosses = reprojected corners, "
                   f"yellow = residual x{gain:g}, blue ring = first corner (order convention). See index.html."]
-    with open(path, "w", encoding="utf-8") as handle:
-        handle.write("\n".join(lines) + "\n")
-    return path
+    return write_page(path, "\n".join(lines) + "\n")

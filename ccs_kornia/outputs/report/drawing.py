@@ -14,6 +14,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ccs_kornia.io.files import text_path
+
 __all__ = [
     "BLACK", "BLUE", "GREEN", "GREY", "MAGENTA", "ORANGE", "RED", "WHITE", "YELLOW",
     "axis_max", "draw_colour_bar", "draw_legend", "draw_plot_frame", "draw_text", "format_number", "image_canvas",
@@ -37,6 +39,14 @@ def write_png(path: str, image: np.ndarray, written: list[str]) -> bool:
         buf.tofile(path)
         written.append(path)
     return bool(ok)
+
+
+def write_page(path: str, text: str) -> str:
+    """Write a report's page (HTML or markdown) as UTF-8, file names that are not UTF-8 escaped
+    (:func:`~ccs_kornia.io.files.text_path`); returns ``path``."""
+    with open(path, "w", encoding="utf-8") as handle:
+        handle.write(text_path(text))
+    return path
 
 
 def format_number(value: float | None, digits: int = 4) -> str:
@@ -86,7 +96,9 @@ def _tick_label(value: float, step: float) -> str:
 def draw_text(img: np.ndarray, text: str, org: tuple[int, int], scale: float = 0.5, color=BLACK, thick: int = 1,
               anchor: str = "left") -> None:
     """Draw ``text`` on ``img`` (H, W, 3) in place, its baseline at ``org``, anchored ``"left"``, ``"centre"`` or
-    ``"right"`` of it."""
+    ``"right"`` of it. File names that are not UTF-8 are drawn escaped (:func:`~ccs_kornia.io.files.text_path`: OpenCV
+    cannot take a lone surrogate)."""
+    text = text_path(text)
     (tw, th), _ = cv2.getTextSize(text, _FONT, scale, thick)
     x, y = org
     if anchor == "centre":
@@ -97,6 +109,7 @@ def draw_text(img: np.ndarray, text: str, org: tuple[int, int], scale: float = 0
 
 
 def _vertical_text(img: np.ndarray, text: str, centre: tuple[int, int], scale: float = 0.5) -> None:
+    text = text_path(text)
     (tw, th), base = cv2.getTextSize(text, _FONT, scale, 1)
     patch = np.full((th + base + 4, tw + 4, 3), 255, np.uint8)
     cv2.putText(patch, text, (2, th + 2), _FONT, scale, BLACK, 1, _AA)

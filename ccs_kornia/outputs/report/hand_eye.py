@@ -26,6 +26,7 @@ from ccs_kornia.outputs.report.drawing import (
     draw_plot_frame,
     draw_text,
     nice_ticks,
+    write_page,
     write_png,
 )
 
@@ -174,7 +175,5 @@ def write_hand_eye_report(directory: str, data: dict[str, Any]) -> list[str]:
             f"{data['rms_px']:.3f} px; held-out prediction {held_text}; {html.escape(data['convention']['X'])}</p>"
             f"<table border=1 cellpadding=4><tr><th></th><th>value</th><th>1-sigma</th></tr>{rows}</table>{body}")
     path = os.path.join(directory, "index.html")
-    with open(path, "w", encoding="utf-8") as handle:
-        handle.write(page)
-    written.append(path)
+    written.append(write_page(path, page))
     return written

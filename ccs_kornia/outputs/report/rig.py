@@ -22,6 +22,7 @@ from ccs_kornia.outputs.report.drawing import (
     draw_plot_frame,
     draw_text,
     nice_ticks,
+    write_page,
     write_png,
 )
 from ccs_kornia.outputs.rig_records import rectify_maps
@@ -157,7 +158,5 @@ def write_rig_report(directory: str, data: dict[str, Any], rect: dict[str, Any] 
             f"{html.escape(data['convention'])}</p><table border=1 cellpadding=4><tr><th>pair</th><th>baseline</th>"
             f"<th>1-sigma</th><th>rotation (deg)</th><th>epipolar RMS (px)</th></tr>{rows}</table>{body}")
     path = os.path.join(directory, "index.html")
-    with open(path, "w", encoding="utf-8") as handle:
-        handle.write(page)
-    written.append(path)
+    written.append(write_page(path, page))
     return written

@@ -13,6 +13,7 @@ _EXPORTS = {
     "whole_board_check": "ccs_kornia.modules.detection.checks.board_checks",
     "CornerEvidence": "ccs_kornia.modules.detection.checks.corner_evidence",
     "decide_corners": "ccs_kornia.modules.detection.checks.corner_evidence",
+    "board_grid_in": "ccs_kornia.modules.detection.checks.board_size",
     "board_size_in": "ccs_kornia.modules.detection.checks.board_size",
     "other_board_size": "ccs_kornia.modules.detection.checks.board_size",
 }

@@ -9,6 +9,7 @@ import torch
 
 from ccs_kornia.data.scenes.scenes import make_calibration_set
 from ccs_kornia.modules.detection.checks.board_size import (
+    board_grid_in,
     board_size_in,
     other_board_size,
 )
@@ -56,3 +57,20 @@ def test_other_board_size():
     assert other_board_size([(9, 6)] * 5 + [(7, 5)], (5, 7)) is None  # the given board is seen: no other size
     assert other_board_size([None] * 6, (7, 5)) is None and other_board_size([], (7, 5)) is None
     assert other_board_size([(9, 6), (8, 6), (9, 6), (9, 6)], (7, 5)) == (9, 6)
+
+
+def _flat_board(squares=(10, 7), side=24, margin=40) -> np.ndarray:
+    board = np.kron((np.indices(squares[::-1]).sum(0) % 2).astype(np.uint8) * 255, np.ones((side, side), np.uint8))
+    return np.pad(board, margin, constant_values=255)
+
+
+def test_a_grid_cut_by_the_frame_is_no_evidence_of_its_size():
+    image = _flat_board()  # a 9x6 board, whole
+    assert board_grid_in(image) == ((9, 6), False)
+    cut = image[:, :250]  # its last column of squares cut by the frame: 8x6 corners visible
+    assert board_grid_in(cut) == ((8, 6), True)
+    assert board_grid_in(_flat_board((9, 7))) == ((8, 6), False)  # a whole 8x6 board
+    sizes = [(8, 6)] * 6
+    assert other_board_size(sizes, (9, 6), cut=[True] * 6) is None  # partial views of the 9x6 board given
+    assert other_board_size(sizes, (9, 6), cut=[False] * 6) == (8, 6)  # whole views of another board
+    assert other_board_size([(9, 6)] * 6, (7, 5), cut=[True] * 6) == (9, 6)  # larger than given: cut or not
