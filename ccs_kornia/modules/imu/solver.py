@@ -6,7 +6,7 @@ pose, aligns each camera's angular rates with the gyroscope's (time offset and r
 (:mod:`~ccs_kornia.modules.imu.problem` on the LM core, whose banded elimination keeps a step linear in the recording's
 length). The noise: the stated densities (Kalibr's ``imu.yaml``; EuRoC's ADIS16448 where none is given) and the
 corners' spread from their board-pose fits start the weights; then each sensor's white noise is rescaled to what its
-residuals show (variance components) and the fit is repeated from its optimum, so the 1-sigma hold when the stated values are off, and the result
+residuals show (variance components) and the fit is repeated from its optimum, until the two agree, so the 1-sigma hold when the stated values are off, and the result
 says how far off they were. The random walks are kept as stated.
 """
 
@@ -35,7 +35,12 @@ from ccs_kornia.modules.imu.result import (
 )
 from ccs_kornia.runtime.errors import NoResult, UserError
 
-__all__ = ["ImuCameraSolver", "calibrate_imu_camera"]
+__all__ = ["MAX_ROUNDS", "NOISE_SETTLED", "ImuCameraSolver", "calibrate_imu_camera"]
+
+#: the fits at most (each after a reweighting of the sensors' noise)
+MAX_ROUNDS = 4
+#: the reweighting ends when every sensor's variance factor is within this of 1 (its sigma within about 5 %)
+NOISE_SETTLED = 0.1
 
 
 def _check_clocks(data: ImuCameraData, max_shift: float) -> None:
@@ -131,31 +136,35 @@ def calibrate_imu_camera(
                       pixel=1 / 0.5**2,
                       gyro_walk=1 / (stated.gyroscope_random_walk**2 * knot_spacing),
                       accel_walk=1 / (stated.accelerometer_random_walk**2 * knot_spacing))
-    rounds = 2 if estimate_noise else 1
-    if rolling_shutter:
-        rounds = max(rounds, 2)
     s = s0
     res = None
     iterations = 0
-    for k in range(rounds):
-        # a rolling shutter's row delays join from the second round (the first fit starts them from a global shutter)
-        problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=rolling_shutter and k > 0)
+    # a rolling shutter's row delays join from the second fit (the first starts them from a global shutter); with the
+    # noise estimated, every fit is followed by a reweighting until the weights agree with the residuals within
+    # NOISE_SETTLED (at most MAX_ROUNDS fits)
+    for k in range(MAX_ROUNDS):
+        shutter = rolling_shutter and k > 0
+        problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=shutter)
         # a cost settled to 8 digits: tighter tolerances move T_cam_imu by nanometres at twice the iterations
         # (docs/imu.md); a warm start (the previous round's optimum, reweighted) needs little damping
         res = schur_lm(problem, s, max_iters=max_iters, ftol=1e-8, absolute_weights=True,
                        lambda_init=1e-3 if k == 0 else 1e-6)
         s = res.unknowns
         iterations += int(res.iterations)
-        if k + 1 == rounds:
+        if not estimate_noise and shutter == rolling_shutter:
             break
+        if not estimate_noise:
+            continue
         rg, ra, rc = problem.residuals(s)
         n_pts = int(fit_data.seen.sum())
         n_total = float(problem.num_residuals)
-        dof = n_total - problem.G - ITEM * M
-        redundancy = dof / n_total
+        redundancy = (n_total - problem.G - ITEM * M) / n_total
         fg = float(rg.square().mean()) * weights.gyro / redundancy
         fa = float(ra.square().mean()) * weights.accel / redundancy
         fp = float(rc.square().sum()) / (2 * max(n_pts, 1)) * weights.pixel / redundancy
+        settled = all(abs(f - 1) <= NOISE_SETTLED for f in (fg, fa, fp))
+        if (settled and shutter == rolling_shutter) or k + 1 == MAX_ROUNDS:
+            break
         weights = replace(weights, gyro=weights.gyro / fg, accel=weights.accel / fa, pixel=weights.pixel / fp)
 
     problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=rolling_shutter)
