@@ -201,7 +201,7 @@ class BenchConfig:
 
     @classmethod
     def full(cls, **overrides) -> BenchConfig:
-        """The full run (target: under 45 minutes on 2 CPU cores)."""
+        """The full run (target: under 60 minutes on 2 CPU cores; the camera-IMU section about 15 of them)."""
         return replace(cls(), **overrides)
 
     @classmethod
