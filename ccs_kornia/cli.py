@@ -555,6 +555,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "sensor's white noise is then measured from the recording)")
     p.add_argument("--output", required=True, metavar="JSON", help="camera-IMU calibration file to write (imu_cam.json)")
     p.add_argument("--kalibr-yaml", metavar="YAML", help="also write Kalibr's camchain-imucam.yaml")
+    p.add_argument("--ros-tf", metavar="FILE", help="also write a ROS launch file publishing each camera's optical "
+                   "frame in the IMU's frame (static transforms)")
+    p.add_argument("--ros-frames", metavar="IMU[,CAM0,...]",
+                   help="frame names of --ros-tf: the IMU's, then each camera's (default imu, then "
+                        "<camera name>_optical_frame)")
+    p.add_argument("--refine-rig", action="store_true",
+                   help="with a rig calibration (calibrate-rig JSON, camchain with T_cn_cnm1): fit each camera's "
+                        "T_cam_imu on its own and say how far the rig they imply is from the calibrated one (default: "
+                        "the rig's extrinsics held, camera 0's T_cam_imu fitted, the others following it)")
     p.add_argument("--report", metavar="DIR", help="also write figures (the gyroscope and accelerometer against the "
                    "fitted trajectory, the corners' residuals, the time-offset search) to DIR (created)")
     p.add_argument("--max-shift", default=0.2, type=_positive_float, metavar="S",

@@ -11,6 +11,8 @@ nothing is written when an input is refused.
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import os
 import re
 import sys
@@ -39,10 +41,14 @@ from ccs_kornia.outputs.calibration_file import (
     camera_record_fields,
     read_calibration,
 )
-from ccs_kornia.outputs.imu_exports import camchain_imucam_yaml
+from ccs_kornia.outputs.imu_exports import (
+    camchain_imucam_yaml,
+    imu_ros_static_transform,
+)
 from ccs_kornia.outputs.imu_records import imu_camera_record
 from ccs_kornia.outputs.records import view_records
 from ccs_kornia.outputs.report.imu import write_imu_report
+from ccs_kornia.outputs.rig_records import record_extrinsics
 from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["run"]
@@ -79,8 +85,31 @@ def _calibrated_here(frames, obj: torch.Tensor, model) -> tuple[Camera, list[str
     return Camera.cat(cams), [f"cam{c}" for c in range(len(frames))], records
 
 
-def _cameras(args: argparse.Namespace, count: int) -> tuple[Camera, list[str]]:
-    """The C cameras (held) and their names, from ``--calibration``."""
+def _camchain_rig(chain) -> torch.Tensor | None:
+    """:math:`(C, 4, 4)` each camera's pose in camera 0's frame from a camchain's ``T_cn_cnm1`` (None where one is
+    missing)."""
+    poses = [torch.eye(4, dtype=torch.float64)]
+    for cam in chain[1:]:
+        if cam.T_cn_cnm1 is None:
+            return None
+        poses.append(cam.T_cn_cnm1.to(torch.float64) @ poses[-1])
+    return torch.stack(poses)
+
+
+def _rig_file_poses(path: str, count: int) -> torch.Tensor:
+    """:math:`(C, 4, 4)` each camera's pose in camera 0's frame from a ``calibrate-rig`` JSON."""
+    with open(path, encoding="utf-8") as handle:
+        R, T = record_extrinsics(json.load(handle)["extrinsics"][:count])
+    # the record's extrinsics map camera 0's frame into each camera's (x_c = R x_0 + T), camera 0 the identity
+    poses = torch.eye(4, dtype=torch.float64).repeat(count, 1, 1)
+    poses[:, :3, :3], poses[:, :3, 3] = R, T
+    return torch.linalg.inv(poses[0]) @ poses if not torch.allclose(poses[0], torch.eye(4, dtype=torch.float64)) \
+        else poses
+
+
+def _cameras(args: argparse.Namespace, count: int) -> tuple[Camera, list[str], torch.Tensor | None]:
+    """The C cameras (held), their names and, from a rig calibration (``calibrate-rig``'s JSON or a camchain with
+    ``T_cn_cnm1``), their poses in camera 0's frame :math:`(C, 4, 4)` (else None), from ``--calibration``."""
     paths = args.calibration or []
     if len(paths) == 1 and paths[0].lower().endswith((".yaml", ".yml")):
         try:
@@ -89,7 +118,8 @@ def _cameras(args: argparse.Namespace, count: int) -> tuple[Camera, list[str]]:
             raise UserError(f"--calibration {paths[0]}: {err}") from None
         if len(chain) != count:
             raise UserError(f"--calibration {paths[0]} holds {len(chain)} camera(s), the recording {count}.")
-        return Camera.cat([c.camera for c in chain]), [c.name for c in chain]
+        return Camera.cat([c.camera for c in chain]), [c.name for c in chain], \
+            _camchain_rig(chain) if count > 1 else None
     cams, names = [], []
     if len(paths) == 1 and count > 1:
         for c in range(count):
@@ -98,7 +128,7 @@ def _cameras(args: argparse.Namespace, count: int) -> tuple[Camera, list[str]]:
             except (OSError, ValueError) as err:
                 raise UserError(f"--calibration {paths[0]}: camera {c}: {err}") from None
             names.append(f"cam{c}")
-        return Camera.cat(cams), names
+        return Camera.cat(cams), names, _rig_file_poses(paths[0], count)
     if len(paths) != count:
         raise UserError(f"--calibration: {len(paths)} file(s) for {count} camera(s) (one per camera, in order, or one "
                         "rig file).")
@@ -110,7 +140,7 @@ def _cameras(args: argparse.Namespace, count: int) -> tuple[Camera, list[str]]:
         except (OSError, ValueError) as err:
             raise UserError(f"--calibration {path}: {err}") from None
         names.append(f"cam{c}")
-    return Camera.cat(cams), names
+    return Camera.cat(cams), names, None
 
 
 def _from_corners_files(args: argparse.Namespace) -> list[tuple[torch.Tensor, torch.Tensor, tuple[int, int] | None]]:
@@ -224,8 +254,30 @@ def _detected(args: argparse.Namespace, folders: list[str]) -> list[tuple[torch.
     return out
 
 
+def _ros_frames(text: str | None, names: list[str]) -> tuple[str, list[str]]:
+    """``--ros-frames IMU[,CAM0,...]``: the IMU's frame and each camera's."""
+    parts = [p.strip() for p in (text or "imu").split(",")]
+    if not all(parts) or len(parts) not in (1, 1 + len(names)):
+        raise UserError(f"--ros-frames {text}: expected the IMU's frame name, then none or one per camera "
+                        f"({len(names)}), comma-separated")
+    return parts[0], parts[1:] or [f"{n}_optical_frame" for n in names]
+
+
+def _rig_check(T_cam_imu: torch.Tensor, rig: torch.Tensor, names: list[str]) -> list[dict]:
+    """How far the rig the fitted ``T_cam_imu`` imply (``T_c_imu T_0_imu^-1``) is from the rig's calibration, per
+    camera after the first."""
+    out = []
+    for c in range(1, T_cam_imu.shape[0]):
+        implied = T_cam_imu[c] @ torch.linalg.inv(T_cam_imu[0])
+        dR = implied[:3, :3] @ rig[c, :3, :3].T
+        angle = math.degrees(float(torch.arccos(((dR.trace() - 1) / 2).clamp(-1, 1))))
+        out.append({"names": [names[0], names[c]], "rotation_deg": round(angle, 6),
+                    "translation_mm": round(1000 * float((implied[:3, 3] - rig[c, :3, 3]).norm()), 4)})
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
-    check_outputs(files=[("--output", args.output), ("--kalibr-yaml", args.kalibr_yaml)],
+    check_outputs(files=[("--output", args.output), ("--kalibr-yaml", args.kalibr_yaml), ("--ros-tf", args.ros_tf)],
                   dirs=[("--report", args.report)])
     given = [what for what, value in (("folders of images", args.inputs), ("--corners", args.corners),
                                       ("--bag", args.image_topics and args.bag)) if value]
@@ -251,9 +303,9 @@ def run(args: argparse.Namespace) -> int:
         with tempfile.TemporaryDirectory(prefix="ccs_bag_") as workdir:
             frames = _detected(args, _bag_folders(args, workdir))
     obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square).to(torch.float64)
-    camera_records = None
+    camera_records, rig = None, None
     if args.calibration:
-        cameras, names = _cameras(args, len(frames))
+        cameras, names, rig = _cameras(args, len(frames))
     else:
         cameras, names, camera_records = _calibrated_here(frames, obj, args.model)
     for c, (_, x, size) in enumerate(frames):
@@ -265,18 +317,25 @@ def run(args: argparse.Namespace) -> int:
         if size is not None and cal is not None and tuple(size) != tuple(cal):
             raise UserError(f"camera {c}: its images are {size[0]}x{size[1]}, its calibration's "
                             f"{cal[0]}x{cal[1]}: a calibration of another resolution.")
+    ros_frames = _ros_frames(args.ros_frames, names)
     data = ImuCameraData.from_corners(log.t, log.gyro, log.accel, cameras, obj, [f[0] for f in frames],
                                       [f[1] for f in frames])
     for note in log.notes:
         print(f"imu: {note}", file=sys.stderr)
     result = calibrate_imu_camera(data, noise=noise, knot_spacing=args.knot_spacing, max_shift=args.max_shift,
-                                  rolling_shutter=args.rolling_shutter)
+                                  rolling_shutter=args.rolling_shutter, rig=None if args.refine_rig else rig)
     findings = imu_log_findings(log)
     extra = {"imu": {"samples": int(log.t.shape[0]), "rate_hz": round(float(findings.rate), 3),
                      "dropped": findings.dropped, "longest_gap_s": findings.longest_gap,
                      "clipped": findings.saturated, "notes": list(log.notes)}}
     if camera_records is not None:
         extra["camera_calibrations"] = camera_records
+    if rig is not None and args.refine_rig:
+        extra["rig_check"] = _rig_check(result.T_cam_imu, rig, names)
+        for pair in extra["rig_check"]:
+            print(f"{pair['names'][1]} from {pair['names'][0]}: the fitted T_cam_imu imply a rig "
+                  f"{pair['translation_mm']:.2f} mm and {pair['rotation_deg']:.3f} deg from its calibration",
+                  file=sys.stderr)
     if findings.dropped:
         result.verdict_reasons.append(f"the IMU dropped {findings.dropped} sample(s) (longest gap "
                                       f"{1000 * findings.longest_gap:.1f} ms)")
@@ -290,6 +349,9 @@ def run(args: argparse.Namespace) -> int:
     if args.kalibr_yaml:
         write_text(args.kalibr_yaml, camchain_imucam_yaml(cameras, result.T_cam_imu, result.timeshift_cam_imu))
         written.append(args.kalibr_yaml)
+    if args.ros_tf:
+        write_text(args.ros_tf, imu_ros_static_transform(result.T_cam_imu, *ros_frames))
+        written.append(args.ros_tf)
     if args.report:
         make_dir("--report", args.report)
         write_imu_report(args.report, result, data.gyro.numpy(), data.accel.numpy(), names)

@@ -4,9 +4,8 @@ Both publish ``X``, the camera's pose in its robot frame, as the transform from 
 flange frame for eye-in-hand, the base frame for eye-to-hand) to the camera's optical frame (the child: ``z`` along
 the optical axis, ``x`` right, ``y`` down in the image, the frame the calibration's camera uses):
 
-* :func:`ros_static_transform`: a ROS 1 launch file running ``tf2_ros static_transform_publisher`` with the
-  quaternion form of its arguments (``x y z qx qy qz qw parent child``), and the same transform as the ROS 2 command
-  line in a comment;
+* :func:`ros_static_transform`: a ROS 1 launch file running ``tf2_ros static_transform_publisher``
+  (:mod:`~ccs_kornia.outputs.ros_tf`), and the same transform as the ROS 2 command line in a comment;
 * :func:`moveit_calibration_yaml`: the calibration YAML of easy_handeye (and easy_handeye2), the file its
   ``publish`` launch loads to broadcast the transform a MoveIt planning set-up then uses: ``eye_on_hand``, the frames,
   and ``transformation: {x, y, z, qx, qy, qz, qw}``.
@@ -15,6 +14,8 @@ the optical axis, ``x`` right, ``y`` down in the image, the frame the calibratio
 from __future__ import annotations
 
 from typing import Any
+
+from ccs_kornia.outputs.ros_tf import StaticTransform, static_transform_launch
 
 __all__ = ["DEFAULT_FRAMES", "moveit_calibration_yaml", "ros_frames", "ros_static_transform"]
 
@@ -42,17 +43,8 @@ def ros_static_transform(data: dict[str, Any], frames: tuple[str, str, str] = DE
     """
     t, q = _tq(data)
     parent, child = ros_frames(data, frames)
-    nums = " ".join(f"{v:.9g}" for v in (*t, *q))
-    ros2 = (f"ros2 run tf2_ros static_transform_publisher --x {t[0]:.9g} --y {t[1]:.9g} --z {t[2]:.9g} "
-            f"--qx {q[0]:.9g} --qy {q[1]:.9g} --qz {q[2]:.9g} --qw {q[3]:.9g} --frame-id {parent} "
-            f"--child-frame-id {child}")
-    return ("<launch>\n"
-            f"  <!-- hand-eye calibration ({data['setup']}): the camera's optical frame in {parent}, metres and a "
-            "unit quaternion (x y z qx qy qz qw).\n"
-            f"       ROS 2: {ros2} -->\n"
-            f"  <node pkg=\"tf2_ros\" type=\"static_transform_publisher\" name=\"hand_eye_camera_broadcaster\"\n"
-            f"        args=\"{nums} {parent} {child}\" />\n"
-            "</launch>\n")
+    return static_transform_launch([StaticTransform(t, q, parent, child, "hand_eye_camera_broadcaster")],
+                                   f"hand-eye calibration ({data['setup']}): the camera's optical frame in {parent}")
 
 
 def moveit_calibration_yaml(data: dict[str, Any], frames: tuple[str, str, str] = DEFAULT_FRAMES) -> str:

@@ -15,30 +15,14 @@ from typing import Any
 import torch
 
 from ccs_kornia.modules.hand_eye.result import HandEyeResult
+from ccs_kornia.outputs.ros_tf import pose_tq
 
-__all__ = ["hand_eye_record", "pose_tq"]
+__all__ = ["hand_eye_record"]
 
 
 def _num(x: Any) -> float | None:
     x = float(x)
     return x if math.isfinite(x) else None
-
-
-def pose_tq(T: torch.Tensor) -> dict[str, list[float]]:
-    """``{"t": [x, y, z], "q": [qx, qy, qz, qw]}`` of a 4x4 rigid transform (``qw >= 0``).
-
-    Example:
-        >>> pose_tq(torch.eye(4, dtype=torch.float64))
-        {'t': [0.0, 0.0, 0.0], 'q': [0.0, 0.0, 0.0, 1.0]}
-    """
-    from kornia.geometry.conversions import rotation_matrix_to_quaternion
-
-    T = T.double()
-    wxyz = rotation_matrix_to_quaternion(T[:3, :3].contiguous()[None], eps=1e-12)[0]
-    wxyz = wxyz / wxyz.norm()
-    if float(wxyz[0]) < 0:
-        wxyz = -wxyz
-    return {"t": [float(v) for v in T[:3, 3]], "q": [float(wxyz[1]), float(wxyz[2]), float(wxyz[3]), float(wxyz[0])]}
 
 
 def _std(rot_deg: torch.Tensor, trans: torch.Tensor, source: str) -> dict[str, Any]:

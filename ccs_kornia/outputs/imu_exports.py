@@ -1,5 +1,5 @@
 """Kalibr's YAML files out: an IMU's ``imu.yaml`` and the cameras with their pose on the IMU and time offset,
-``camchain-imucam.yaml``.
+``camchain-imucam.yaml``; and the cameras' poses on the IMU as a ROS launch file (:func:`imu_ros_static_transform`).
 
 The cameras' fields are the camchain's (:func:`~ccs_kornia.outputs.rig_exports.kalibr_camera_lines`), with
 ``T_cam_imu`` and ``timeshift_cam_imu`` after them; :func:`ccs_kornia.io.kalibr.read_camchain` and
@@ -20,8 +20,9 @@ from ccs_kornia.outputs.rig_exports import (
     kalibr_matrix_lines,
     yaml_float,
 )
+from ccs_kornia.outputs.ros_tf import StaticTransform, pose_tq, static_transform_launch
 
-__all__ = ["camchain_imucam_yaml", "imu_yaml"]
+__all__ = ["camchain_imucam_yaml", "imu_ros_static_transform", "imu_yaml"]
 
 
 def _transforms(value, count: int, what: str) -> np.ndarray:
@@ -129,3 +130,25 @@ def imu_yaml(noise: ImuNoise, rostopic: str = "/imu0") -> str:
         f"rostopic: {rostopic}   #the IMU ROS topic\n"
         f"update_rate: {number(noise.update_rate)}   #Hz (for discretization of the values above)\n"
     )
+
+
+def imu_ros_static_transform(T_cam_imu, imu_frame: str, camera_frames: Sequence[str]) -> str:
+    """The launch file of ``calibrate-imu --ros-tf``: each camera's optical frame in the IMU's frame
+    (``T_imu_cam = T_cam_imu^-1``), one ``static_transform_publisher`` per camera.
+
+    Args:
+        T_cam_imu: :math:`(C, 4, 4)` the IMU's frame to each camera's.
+        imu_frame: the parent frame's name. camera_frames: C child frames' names.
+
+    Example:
+        >>> T = torch.eye(4, dtype=torch.float64)[None].clone()
+        >>> T[0, 0, 3] = -0.05  # the camera 5 cm along the IMU's x axis
+        >>> 'args="0.05 0 0 0 0 0 1 imu cam0_optical_frame"' in imu_ros_static_transform(T, "imu", ["cam0_optical_frame"])
+        True
+    """
+    T = torch.as_tensor(_transforms(T_cam_imu, len(camera_frames), "T_cam_imu"))
+    tfs = []
+    for c, child in enumerate(camera_frames):
+        tq = pose_tq(torch.linalg.inv(T[c]))
+        tfs.append(StaticTransform(tq["t"], tq["q"], imu_frame, child, f"imu_camera{c}_broadcaster"))
+    return static_transform_launch(tfs, f"camera-IMU calibration: each camera's optical frame in {imu_frame}")

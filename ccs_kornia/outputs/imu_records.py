@@ -56,6 +56,7 @@ def imu_camera_record(result: ImuCameraResult, names: list[str], extra: dict[str
     return {
         "cameras": cams,
         "convention": "x_cam = T_cam_imu x_imu; t_imu = t_cam + timeshift_cam_imu",
+        "rig_extrinsics": "held (the cameras' poses in camera 0's frame as calibrated)" if result.rig_held else "fitted",
         "gravity": [_r(v, 6) for v in result.gravity.tolist()],
         "gravity_frame": "the board's",
         "biases": {

@@ -130,6 +130,39 @@ def test_rolling_shutter(capsys, tmp_path):
     assert abs(cam["timeshift_cam_imu"] - float(rec.shift[0])) < 2e-4
 
 
+def test_stereo_rig_held_and_refined(capsys, tmp_path):
+    rec = visual_inertial_recording(duration=8.0, seed=42, num_cameras=2)
+    write_imu_csv(tmp_path / "imu0.csv", rec)
+    for c in range(2):
+        write_corners(tmp_path / f"cam{c}.json", rec, camera=c)
+    # a calibrate-rig JSON: each camera's record and its pose in camera 0's frame (x_c = R x_0 + T)
+    rig = rec.T_cam_imu.double() @ torch.linalg.inv(rec.T_cam_imu[0].double())
+    write_json(tmp_path / "rig.json", {
+        "cameras": [{**camera_record_fields(rec.cameras[c]), "name": f"cam{c}", "rms": 0.2} for c in range(2)],
+        "extrinsics": [{"name": f"cam{c}", "R": rig[c, :3, :3].tolist(), "T": rig[c, :3, 3].tolist()}
+                       for c in range(2)]})
+    argv = ["calibrate-imu", "--corners", tmp_path / "cam0.json", "--corners", tmp_path / "cam1.json", "--imu",
+            tmp_path / "imu0.csv", "--board", "7x6", "--square", "0.08", "--calibration", tmp_path / "rig.json"]
+    code, _, err = run(capsys, *argv, "--output", tmp_path / "held.json", "--ros-tf", tmp_path / "imu.launch")
+    assert code == 0, err
+    held = json.loads((tmp_path / "held.json").read_text())
+    assert held["rig_extrinsics"].startswith("held") and "rig_check" not in held
+    T = torch.tensor([c["T_cam_imu"] for c in held["cameras"]], dtype=torch.float64)
+    torch.testing.assert_close(T[1] @ torch.linalg.inv(T[0]), rig[1], atol=1e-8, rtol=0)
+    assert float((T[1, :3, 3] - rec.T_cam_imu[1, :3, 3]).norm()) < 0.003
+    # the launch file publishes each camera's optical frame in the IMU's: the inverse of T_cam_imu
+    launch = (tmp_path / "imu.launch").read_text()
+    args = [line for line in launch.splitlines() if line.strip().startswith("args=") and "cam1_optical_frame" in line]
+    t_imu_cam1 = torch.tensor([float(v) for v in args[0].split('"')[1].split()[:3]], dtype=torch.float64)
+    torch.testing.assert_close(t_imu_cam1, torch.linalg.inv(T[1])[:3, 3], atol=1e-6, rtol=0)
+    code, _, err = run(capsys, *argv, "--output", tmp_path / "free.json", "--refine-rig")
+    assert code == 0, err
+    free = json.loads((tmp_path / "free.json").read_text())
+    check = free["rig_check"][0]
+    assert free["rig_extrinsics"] == "fitted" and check["translation_mm"] < 3 and check["rotation_deg"] < 0.1
+    assert "imply a rig" in err
+
+
 def test_dropped_samples_are_said(capsys, files, recording):
     lines = (files / "imu0.csv").read_text().splitlines()
     (files / "gappy.csv").write_text("\n".join(lines[:800] + lines[830:]) + "\n")

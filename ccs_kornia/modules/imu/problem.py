@@ -10,7 +10,11 @@ Unknowns (Furgale et al., "Unified temporal and spatial calibration for multi-se
 * the *global* unknowns: per camera ``T_cam_imu`` (``R <- exp(d) R``, ``t``) and its time shift (a frame stamped
   ``t_cam`` by the camera is seen at IMU time ``t_cam + shift``), for a rolling-shutter camera its row delay (row
   ``v`` is read ``delay * v`` after row 0: each corner is an observation at its own time), and gravity in the board's
-  frame (its direction: 2 unknowns; its magnitude held).
+  frame (its direction: 2 unknowns; its magnitude held). A rig's cameras can be held to their calibrated poses in
+  camera 0's frame (``rig``): then only camera 0's ``T_cam_imu`` moves and the others follow it. A step of camera 0,
+  ``(d, dt)``, moves camera ``c`` (``x_c = R_c0 x_0 + t_c0``) by exactly ``(R_c0 d, R_c0 dt)``, so the held rig is the
+  linear map :attr:`ImuCameraProblem.P` from the reduced unknowns to every camera's, applied to the normal equations
+  (``P^T U P``, ``P^T W``, ``P^T e``) and to each step.
 
 Residuals, each whitened by its standard deviation: gyroscope ``w(t) + bg(t) - w_meas``; accelerometer
 ``R(t)^T (p''(t) - g) + ba(t) - a_meas``; every corner ``project(T_cam_imu T_imu_board(t_cam + shift) X) - uv``; the
@@ -146,23 +150,52 @@ class ImuCameraProblem:
         weights: the measurements' inverse variances (:class:`Weights`).
         rolling_shutter: each camera reads its rows one after the other, ``delay`` s apart (an unknown per camera,
             ``s["delay"]``): a corner is seen at its row's time, ``t_cam + shift + delay * v`` (``v`` its observed row).
+        rig: :math:`(C, 4, 4)` each camera's pose in camera 0's frame (``x_c = T_c0 x_0``), held: camera 0's
+            ``T_cam_imu`` is fitted and the others follow it (their time shifts and row delays stay their own).
+            ``None``: each camera's ``T_cam_imu`` is its own.
     """
 
     def __init__(self, data: ImuCameraData, t0: float, dt: float, num_points: int, weights: Weights,
-                 rolling_shutter: bool = False) -> None:
+                 rolling_shutter: bool = False, rig: torch.Tensor | None = None) -> None:
         self.data, self.t0, self.dt, self.M, self.w = data, t0, dt, num_points, weights
         C = data.num_cameras
         self.rolling_shutter = rolling_shutter
         #: global unknowns per camera: rotation, translation, time shift (and the row delay)
         self.K = 8 if rolling_shutter else 7
-        self.G = self.K * C + 2
-        self.L = 4 * ITEM + self.G
+        #: every camera's global unknowns and gravity's: the Jacobians' layout
+        self.G_all = self.K * C + 2
+        self.L = 4 * ITEM + self.G_all
         dtype, device = data.gyro.dtype, data.gyro.device
+        #: (G_all, G) every camera's unknowns from the fitted ones (the identity unless a rig is held)
+        self.P = self._held_rig(rig.to(dtype=dtype, device=device)) if rig is not None else None
+        self.G = self.P.shape[1] if self.P is not None else self.G_all
         self.imu_seg, self.imu_u = segment_of(data.imu_times, t0, dt, num_points)
         self.used = torch.ones(1, num_points, dtype=torch.bool, device=device)
         n_res = 6 * data.imu_times.shape[0] + 2 * int(data.seen.sum()) + 6 * (num_points - 1)
         self.num_residuals = torch.tensor([n_res], device=device)
         self.floor = torch.full((1,), 1e-30, dtype=dtype, device=device)
+
+    def _held_rig(self, rig: torch.Tensor) -> torch.Tensor:
+        """The map from the fitted globals (camera 0's rotation and translation, then each camera's time shift and row
+        delay, then gravity's two) to every camera's."""
+        C, K = self.data.num_cameras, self.K
+        T = K - 6  # per camera: the time shift (and the row delay)
+        P = rig.new_zeros(self.G_all, 6 + T * C + 2)
+        for c in range(C):
+            R = rig[c, :3, :3]
+            P[K * c:K * c + 3, 0:3] = R
+            P[K * c + 3:K * c + 6, 3:6] = R
+            P[K * c + 6:K * c + K, 6 + T * c:6 + T * (c + 1)] = torch.eye(T, dtype=rig.dtype, device=rig.device)
+        P[K * C:, -2:] = torch.eye(2, dtype=rig.dtype, device=rig.device)
+        return P
+
+    def all_globals(self, dg: torch.Tensor) -> torch.Tensor:
+        """:math:`(B, G_{all})` every camera's step (and gravity's) from a step of the fitted globals :math:`(B, G)`."""
+        return dg if self.P is None else dg @ self.P.T
+
+    def all_covariance(self, cov: torch.Tensor) -> torch.Tensor:
+        """:math:`(G_{all}, G_{all})` the covariance of every camera's globals from the fitted ones' :math:`(G, G)`."""
+        return cov if self.P is None else self.P @ cov @ self.P.T
 
     # -- the LM core's protocol --------------------------------------------------------------------------------------
     def take(self, keep: torch.Tensor) -> ImuCameraProblem:
@@ -175,6 +208,7 @@ class ImuCameraProblem:
 
     def retract(self, s: dict[str, torch.Tensor], dg: torch.Tensor, dp: torch.Tensor) -> dict[str, torch.Tensor]:
         C, K = self.data.num_cameras, self.K
+        dg = self.all_globals(dg)
         cam = dg[:, : K * C].view(1, C, K)
         B = gravity_basis(s["g"])
         return {
@@ -358,7 +392,7 @@ class ImuCameraProblem:
 
     def _spread(self, H, b, cost, s) -> NormalEquations:
         """The banded normal equations from the per-segment blocks and the biases' random walk."""
-        M, G, k = self.M, self.G, ITEM
+        M, G, k = self.M, self.G_all, ITEM
         dtype, device = H.dtype, H.device
         S = H.shape[0]
         seg = torch.arange(S, device=device)
@@ -385,5 +419,7 @@ class ImuCameraProblem:
         Vb[:-1, 0, 6:, 6:] -= Dw
         ep[:-1, 6:] -= walk * wts
         ep[1:, 6:] += walk * wts
+        if self.P is not None:
+            U, eg, W = self.P.T @ U @ self.P, self.P.T @ eg, self.P.T @ W
         return NormalEquations(cost=cost.reshape(1), U=U[None], eg=eg[None], W=W[None], V=V[None], ep=ep[None],
                                Vband=Vb[None])

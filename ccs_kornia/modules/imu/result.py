@@ -80,6 +80,7 @@ class ImuCameraResult:
     seconds: float  #: the fit's wall time
     line_delay: torch.Tensor | None = None  #: (C,) s per row of a rolling-shutter camera (None: global shutter)
     line_delay_std: torch.Tensor | None = None  #: (C,) s
+    rig_held: bool = False  #: the cameras' poses in camera 0's frame were held (a rig's extrinsics), not fitted
     verdict: str = ""
     verdict_reasons: list[str] = field(default_factory=list)
     spline: dict = field(default_factory=dict, repr=False)  #: t0, dt, R, p: the IMU's trajectory (for reports)

@@ -78,6 +78,7 @@ def calibrate_imu_camera(
     max_iters: int = 50,
     thresholds: ImuVerdictThresholds | None = None,
     rolling_shutter: bool = False,
+    rig: torch.Tensor | None = None,
 ) -> ImuCameraResult:
     """Calibrate the IMU against C cameras from one recording (see the module doc).
 
@@ -91,6 +92,9 @@ def calibrate_imu_camera(
         thresholds: the verdict's.
         rolling_shutter: the cameras read their rows one after the other: each camera's row delay is estimated
             (after a first fit with a global shutter, from 0).
+        rig: :math:`(C, 4, 4)` the cameras' poses in camera 0's frame (``x_c = T_c0 x_0``, a rig calibration's
+            extrinsics), held: camera 0's ``T_cam_imu`` is fitted and the others follow it exactly. ``None``: each
+            camera's ``T_cam_imu`` is fitted on its own.
 
     Returns:
         :class:`~ccs_kornia.modules.imu.result.ImuCameraResult`.
@@ -129,6 +133,13 @@ def calibrate_imu_camera(
                        corners=data.corners[keep], seen=data.seen[keep])
     frames_used = torch.bincount(fit_data.frame_camera, minlength=C)
     s0 = initial_unknowns(fit_data, t0, knot_spacing, M, R_cb[keep], t_cb[keep], ok[keep], alignments)
+    if rig is not None:
+        if rig.shape != (C, 4, 4):
+            raise ValueError(f"rig: one pose (4, 4) per camera ({C}), got {tuple(rig.shape)}.")
+        rig = rig.to(data.gyro.dtype)
+        # the held rig's cameras start from camera 0's T_cam_imu
+        s0["Rci"] = (rig[:, :3, :3] @ s0["Rci"][0, 0])[None]
+        s0["tci"] = ((rig[:, :3, :3] @ s0["tci"][0, 0]) + rig[:, :3, 3])[None]
 
     # a sample's variance is the density squared times the rate; the corners start at 0.5 px (the rounds rescale both)
     weights = Weights(gyro=1 / (stated.gyroscope_noise_density**2 * rate),
@@ -144,7 +155,7 @@ def calibrate_imu_camera(
     # NOISE_SETTLED (at most MAX_ROUNDS fits)
     for k in range(MAX_ROUNDS):
         shutter = rolling_shutter and k > 0
-        problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=shutter)
+        problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=shutter, rig=rig)
         # a cost settled to 8 digits: tighter tolerances move T_cam_imu by nanometres at twice the iterations
         # (docs/imu.md); a warm start (the previous round's optimum, reweighted) needs little damping
         res = schur_lm(problem, s, max_iters=max_iters, ftol=1e-8, absolute_weights=True,
@@ -167,9 +178,9 @@ def calibrate_imu_camera(
             break
         weights = replace(weights, gyro=weights.gyro / fg, accel=weights.accel / fa, pixel=weights.pixel / fp)
 
-    problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=rolling_shutter)
+    problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=rolling_shutter, rig=rig)
     rg, ra, rc = problem.residuals(s)
-    cov = res.covariance[0]
+    cov = problem.all_covariance(res.covariance[0])
     sd = cov.diagonal().clamp_min(0).sqrt()
     T = torch.eye(4, dtype=data.gyro.dtype).repeat(C, 1, 1)
     T[:, :3, :3], T[:, :3, 3] = s["Rci"][0], s["tci"][0]
@@ -183,7 +194,7 @@ def calibrate_imu_camera(
         T_cam_imu=T, timeshift_cam_imu=s["shift"][0].clone(), rotation_std_deg=per_cam[:, :3] * 180 / math.pi,
         translation_std=per_cam[:, 3:6], timeshift_std=per_cam[:, 6], covariance=cov,
         line_delay=s["delay"][0].clone() if rolling_shutter else None,
-        line_delay_std=per_cam[:, 7] if rolling_shutter else None, gravity=s["g"][0].clone(),
+        line_delay_std=per_cam[:, 7] if rolling_shutter else None, rig_held=rig is not None, gravity=s["g"][0].clone(),
         gyro_bias=s["bg"][0].clone(), accel_bias=s["ba"][0].clone(), gyro_rms=_rms(rg), accel_rms=_rms(ra),
         pixel_rms=pixel_rms, noise_stated=stated, noise_measured=measured, pixel_sigma=weights.pixel**-0.5,
         noise_given=given, alignment_shifts=alignments[0].shifts,
@@ -204,6 +215,7 @@ class ImuCameraSolver(nn.Module):
 
     Args:
         noise, knot_spacing, max_shift, estimate_noise, max_iters, rolling_shutter: see :func:`calibrate_imu_camera`.
+        rig: see :func:`calibrate_imu_camera` (held extrinsics of a rig, :math:`(C, 4, 4)`); a buffer.
 
     Shape:
         :class:`~ccs_kornia.modules.imu.problem.ImuCameraData` (IMU :math:`(N, 3)` rates and accelerations, frames
@@ -222,8 +234,10 @@ class ImuCameraSolver(nn.Module):
     """
 
     def __init__(self, noise: ImuNoise | None = None, knot_spacing: float = 0.02, max_shift: float = 0.2,
-                 estimate_noise: bool = True, max_iters: int = 50, rolling_shutter: bool = False) -> None:
+                 estimate_noise: bool = True, max_iters: int = 50, rolling_shutter: bool = False,
+                 rig: torch.Tensor | None = None) -> None:
         super().__init__()
+        self.register_buffer("rig", rig)
         self.rolling_shutter = rolling_shutter
         self.noise = noise
         self.knot_spacing = knot_spacing
@@ -233,4 +247,4 @@ class ImuCameraSolver(nn.Module):
 
     def forward(self, data: ImuCameraData) -> ImuCameraResult:
         return calibrate_imu_camera(data, self.noise, self.knot_spacing, self.max_shift, self.estimate_noise,
-                                    self.max_iters, rolling_shutter=self.rolling_shutter)
+                                    self.max_iters, rolling_shutter=self.rolling_shutter, rig=self.rig)

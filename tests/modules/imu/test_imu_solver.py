@@ -68,6 +68,36 @@ class TestProblem:
         d_g, d_p = schur_step(eq.U, eq.W, eq.V, eq.eg, eq.ep, prob.used, Vband=eq.Vband)
         assert torch.isfinite(d_g).all() and torch.isfinite(d_p).all()
 
+    def test_held_rig_normal_equations_are_the_costs_gradient(self):
+        # a held rig maps camera 0's step to every camera's: the reduced gradient is still the cost's derivative
+        rec = visual_inertial_recording(duration=3.0, seed=15, num_cameras=2)
+        data = _data(rec)
+        dt, t0 = 0.05, float(data.imu_times[0])
+        M = int((float(data.imu_times[-1]) - t0) / dt) + 3
+        rig = rec.T_cam_imu.double() @ torch.linalg.inv(rec.T_cam_imu[0].double())
+        prob = ImuCameraProblem(data, t0, dt, M, Weights(1e4, 1e2, 4.0, 1e4, 1e2), rig=rig)
+        assert prob.G == 6 + 2 + 2 and prob.G_all == 7 * 2 + 2
+        R, t, ok = board_poses(data)
+        sel = data.frame_camera == 0
+        al = align_rates(data.frame_times[sel], R[sel], ok[sel], data.imu_times, data.gyro)
+        s = initial_unknowns(data, t0, dt, M, R, t, ok, [al, al])
+        s["Rci"] = (rig[:, :3, :3] @ s["Rci"][0, 0])[None]
+        s["tci"] = (rig[:, :3, 3] + rig[:, :3, :3] @ s["tci"][0, 0])[None]
+        g = torch.Generator().manual_seed(1)
+        eq = prob.linearize(s)
+        dg = torch.randn(1, prob.G, generator=g, dtype=torch.float64)
+        dp = torch.randn(1, M, 12, generator=g, dtype=torch.float64)
+        h = 1e-6
+        plus = prob.linearize(prob.retract(s, h * dg, h * dp)).cost
+        minus = prob.linearize(prob.retract(s, -h * dg, -h * dp)).cost
+        assert 2 * float((eq.eg * dg).sum() + (eq.ep * dp).sum()) == pytest.approx(float((plus - minus) / (2 * h)),
+                                                                                    rel=1e-5)
+        # a step keeps the rig exactly
+        moved = prob.retract(s, 1e-2 * dg, 0 * dp)
+        T = torch.eye(4, dtype=torch.float64).repeat(2, 1, 1)
+        T[:, :3, :3], T[:, :3, 3] = moved["Rci"][0], moved["tci"][0]
+        torch.testing.assert_close(T[1] @ torch.linalg.inv(T[0]), rig[1], atol=1e-12, rtol=0)
+
     def test_take_refuses_splitting(self, recording):
         data = _data(visual_inertial_recording(duration=2.0, seed=13))
         prob = ImuCameraProblem(data, 0.0, 0.05, 40, Weights(1.0, 1.0, 1.0, 1.0, 1.0))
@@ -102,6 +132,17 @@ class TestSolver:
         for c in range(2):
             assert float((res.T_cam_imu[c, :3, 3] - rec.T_cam_imu[c, :3, 3]).norm()) < 0.003
             assert abs(float(res.timeshift_cam_imu[c] - rec.shift[c])) < 1e-4
+        # the rig's extrinsics held: camera 1 follows camera 0 exactly, each keeps its own time shift
+        rig = rec.T_cam_imu.double() @ torch.linalg.inv(rec.T_cam_imu[0].double())
+        held = ImuCameraSolver(noise=rec.noise, rig=rig)(_data(rec))
+        assert held.rig_held and held.covariance.shape == (16, 16)
+        torch.testing.assert_close(held.T_cam_imu[1] @ torch.linalg.inv(held.T_cam_imu[0]), rig[1], atol=1e-9, rtol=0)
+        for c in range(2):
+            assert float((held.T_cam_imu[c, :3, 3] - rec.T_cam_imu[c, :3, 3]).norm()) < 0.003
+            assert abs(float(held.timeshift_cam_imu[c] - rec.shift[c])) < 1e-4
+        # one T_cam_imu from both cameras' corners: its 1-sigma is the same for both and below the free fit's
+        torch.testing.assert_close(held.translation_std[0].norm(), held.translation_std[1].norm(), rtol=1e-6, atol=0)
+        assert float(held.translation_std[0].norm()) < float(res.translation_std[0].norm())
 
     def test_weak_motion_is_named(self, recording, solved):
         import dataclasses
