@@ -525,9 +525,18 @@ def build_parser() -> argparse.ArgumentParser:
                        "their clocks, from one recording", epilog=_EXIT_HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("inputs", nargs="*", metavar="CAMERA_INPUT",
-                   help="one folder of images per camera (in the rig's order), each image named by its timestamp in "
-                        "nanoseconds (EuRoC's and Kalibr's layout: cam0/data/1403636579763555584.png); or none with "
-                        "--corners")
+                   help="one video or one folder of images per camera (in the rig's order): a video's frame times "
+                        "are its container's, on the IMU's clock; each image named by its timestamp in nanoseconds "
+                        "(EuRoC's and Kalibr's layout: cam0/data/1403636579763555584.png); or none with --corners")
+    p.add_argument("--frame-rate", default=20.0, type=_positive_float, metavar="HZ",
+                   help="a video's frames showing the board detected at most HZ per second (default 20; the IMU "
+                        "carries the motion between them)")
+    p.add_argument("--timestamps", action="append", metavar="CSV",
+                   help="for a folder of images not named by their time: a table of its file names and timestamps "
+                        "(EuRoC's data.csv, or name,time rows; ns or s, told by the header or the spacing), one per "
+                        "folder in order (repeat the option)")
+    p.add_argument("--start", type=_seconds, metavar="S", help="a video's first frame at S seconds (default: the start)")
+    p.add_argument("--end", type=_seconds, metavar="S", help="a video's last frame at S seconds (default: the end)")
     p.add_argument("--corners", action="append", metavar="JSON",
                    help="the corners detect wrote, one file per camera in the rig's order (repeat the option), each "
                         "view with its timestamp: detection is not repeated")

@@ -2,8 +2,9 @@
 their clocks, from one recording (docs/imu.md).
 
 The cameras' corners come from ``detect``'s JSON (``--corners``, one per camera, each view with its ``timestamp``) or
-are detected in folders of images named by their timestamps in nanoseconds (EuRoC's and Kalibr's layout, one folder
-per camera); the cameras from ``--calibration`` (``calibrate``'s JSON, one per camera, or a ``calibrate-rig`` JSON, or
+are detected in videos (frame times from the container; every frame screened, those showing the board detected, moving
+ones too, at most ``--frame-rate`` per second), in folders of images named by their timestamps in nanoseconds (EuRoC's
+and Kalibr's layout, one folder per camera) or in a bag's image topics; the cameras from ``--calibration`` (``calibrate``'s JSON, one per camera, or a ``calibrate-rig`` JSON, or
 Kalibr's ``camchain.yaml``; without it each camera is calibrated first from its own frames); the IMU from a CSV (EuRoC's layout). Everything is read and checked before the fit;
 nothing is written when an input is refused.
 """
@@ -26,9 +27,17 @@ from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
 from ccs_kornia.commands._output_paths import check_outputs, make_dir
 from ccs_kornia.commands._run import run_files
+from ccs_kornia.commands._video import (
+    frame_span,
+    make_screen,
+    screen_videos,
+    screen_workers,
+    video_inputs,
+)
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.io.corners_file import read_corners_file
 from ccs_kornia.io.files import write_json, write_text
+from ccs_kornia.io.image_times import read_image_times
 from ccs_kornia.io.imu import ImuLog, imu_log_findings, read_imu_csv
 from ccs_kornia.io.kalibr import read_camchain, read_imu_yaml
 from ccs_kornia.io.rosbag import grey8, read_bag_images, read_bag_imu
@@ -49,6 +58,7 @@ from ccs_kornia.outputs.imu_records import imu_camera_record
 from ccs_kornia.outputs.records import view_records
 from ccs_kornia.outputs.report.imu import write_imu_report
 from ccs_kornia.outputs.rig_records import record_extrinsics
+from ccs_kornia.pipeline.sources import VideoFrameRef, VideoSource
 from ccs_kornia.runtime.errors import NoResult, UserError
 
 __all__ = ["run"]
@@ -172,8 +182,22 @@ def _image_times(files: list[str], folder: str) -> torch.Tensor:
     bad = [s for s in stems if not _NS_NAME.match(s)]
     if bad:
         raise UserError(f"{folder}: image names must be their timestamps in nanoseconds (EuRoC's and Kalibr's layout, "
-                        f"e.g. 1403636579763555584.png); {bad[0]!r} is not.")
+                        f"e.g. 1403636579763555584.png), or give a table of names and times (--timestamps); "
+                        f"{bad[0]!r} is not.")
     return torch.tensor([int(s) for s in stems], dtype=torch.float64) * 1e-9
+
+
+def _table_times(files: list[str], folder: str, table: str) -> torch.Tensor:
+    """The images' timestamps (s) as ``--timestamps`` lists them."""
+    try:
+        times = read_image_times(table)
+    except ValueError as err:
+        raise UserError(f"--timestamps {err}") from None
+    missing = [f for f in files if os.path.basename(f) not in times]
+    if missing:
+        raise UserError(f"--timestamps {table}: {len(missing)} of the {len(files)} images of {folder} are not listed "
+                        f"(e.g. {os.path.basename(missing[0])}).")
+    return torch.tensor([times[os.path.basename(f)] for f in files], dtype=torch.float64)
 
 
 def _bag_folders(args: argparse.Namespace, workdir: str) -> list[str]:
@@ -224,25 +248,40 @@ def _imu_log(args: argparse.Namespace) -> ImuLog:
 
 def _detected(args: argparse.Namespace, folders: list[str]) -> list[tuple[torch.Tensor, torch.Tensor, tuple[int, int] | None]]:
     """Each camera's frame times, corners and image size, detected in its folder of images."""
-    device = resolve_device(args.device)
-    pipeline = make_pipeline(args)
-    out = []
-    for folder in folders:
+    tables = args.timestamps or []
+    if tables and len(tables) != len(folders):
+        raise UserError(f"--timestamps: {len(tables)} table(s) for {len(folders)} folder(s) (one per folder, in "
+                        "order).")
+    cameras, stamps = [], []
+    for c, folder in enumerate(folders):
         if os.path.isdir(os.path.join(folder, "data")):  # EuRoC's cam0/ holds data/ and data.csv
             folder = os.path.join(folder, "data")
         if not os.path.isdir(folder):
-            raise UserError(f"{folder}: give one folder of images per camera (named by their timestamps in ns), or "
-                            "the corners detect wrote (--corners).")
+            raise UserError(f"{folder}: give one video or one folder of images per camera (named by their timestamps "
+                            "in ns), or the corners detect wrote (--corners).")
         files = list(inputs("calibrate-imu", [folder]))
-        times = _image_times(files, folder)
+        times = _image_times(files, folder) if not tables else _table_times(files, folder, tables[c])
         order = times.argsort()
-        files, times = [files[i] for i in order.tolist()], times[order]
-        res, _ = run_files("calibrate-imu", pipeline, [files], args.board, 1.0, device, calibrate=False)
+        cameras.append([files[i] for i in order.tolist()])
+        stamps.append(times[order])
+    return _detect_views(args, None, cameras, stamps)
+
+
+def _detect_views(args: argparse.Namespace, sources, cameras: list[list[str]], stamps: list[torch.Tensor]):
+    """The board detected in each camera's views (``cameras``: their names; ``sources``: per camera its views (video
+    frames), else ``None``: the files so named): per camera its times, corners :math:`(F, P, 2)` (NaN where not seen)
+    and image size."""
+    device = resolve_device(args.device)
+    pipeline = make_pipeline(args)
+    out = []
+    n = args.board[0] * args.board[1]
+    for c, (names, times) in enumerate(zip(cameras, stamps)):
+        res, _ = run_files("calibrate-imu", pipeline, [names], args.board, 1.0, device, calibrate=False,
+                           source=None if sources is None else sources[c])
         one = res.select(0)
         corners = []
-        for view in view_records(one, files):
+        for view in view_records(one, names):
             pts = view.get("corners") if view.get("found") else None
-            n = args.board[0] * args.board[1]
             xy = torch.full((n, 2), float("nan"), dtype=torch.float64)
             if pts is not None:
                 for i, p in enumerate(pts):
@@ -276,6 +315,39 @@ def _rig_check(T_cam_imu: torch.Tensor, rig: torch.Tensor, names: list[str]) -> 
     return out
 
 
+def _thinned(frames, rate: float | None) -> list:
+    """The screened frames that show the board, at most ``rate`` per second (each kept frame at least ``1 / rate``
+    after the one kept before it; ``None``: all of them)."""
+    kept, last = [], -math.inf
+    for f in frames:
+        if f.found and (rate is None or f.timestamp - last >= 1.0 / rate - 1e-9):
+            kept.append(f)
+            last = f.timestamp
+    return kept
+
+
+def _from_videos(args: argparse.Namespace, paths: list[str]) -> list[tuple[torch.Tensor, torch.Tensor, tuple[int, int]]]:
+    """Each camera's frame times (the container's, s), corners and image size from its video: every frame screened,
+    those showing the board (moving ones too: the IMU needs them; at most ``--frame-rate`` per second) detected."""
+    if args.timestamps:
+        raise UserError("--timestamps gives the times of folders of images; a video's frame times are its "
+                        "container's.")
+    screened = screen_videos("calibrate-imu", paths, make_screen(args), frame_span(args), screen_workers(args),
+                             skip_unreadable=False)
+    refs = []
+    for video in screened:
+        if not video.timestamps_usable:
+            raise UserError(f"{video.path}: the container's frame times do not increase: the frames cannot be placed "
+                            "on the IMU's clock (give the frames as images named by their time instead).")
+        kept = _thinned(video.frames, args.frame_rate)
+        if not kept:
+            raise NoResult(f"{video.path}: the board was seen in none of its {len(video.frames)} frames.")
+        refs.append([VideoFrameRef(video.path, f.index, f.timestamp) for f in kept])
+    sizes = {v.path: v.info.size for v in screened}
+    return _detect_views(args, [VideoSource([r], None, sizes) for r in refs], [[f.name for f in r] for r in refs],
+                         [torch.tensor([f.timestamp for f in r], dtype=torch.float64) for r in refs])
+
+
 def run(args: argparse.Namespace) -> int:
     check_outputs(files=[("--output", args.output), ("--kalibr-yaml", args.kalibr_yaml), ("--ros-tf", args.ros_tf)],
                   dirs=[("--report", args.report)])
@@ -286,6 +358,8 @@ def run(args: argparse.Namespace) -> int:
     if not given:
         raise UserError("no camera input: one folder of images per camera, --corners corners.json per camera, or "
                         "--bag with --image-topics.")
+    if args.timestamps and not args.inputs:
+        raise UserError("--timestamps gives the times of folders of images (not of --corners or a bag).")
     if args.imu and args.imu_topic:
         raise UserError("give the IMU one way: --imu or --imu-topic, not both.")
     log = _imu_log(args)
@@ -298,7 +372,10 @@ def run(args: argparse.Namespace) -> int:
     if args.corners:
         frames = _from_corners_files(args)
     elif args.inputs:
-        frames = _detected(args, args.inputs)
+        videos = [bool(video_inputs("calibrate-imu", [item])) for item in args.inputs]
+        if any(videos) and not all(videos):
+            raise UserError("give every camera the same way: one video each, or one folder of images each.")
+        frames = _from_videos(args, args.inputs) if all(videos) else _detected(args, args.inputs)
     else:
         with tempfile.TemporaryDirectory(prefix="ccs_bag_") as workdir:
             frames = _detected(args, _bag_folders(args, workdir))

@@ -4,6 +4,7 @@ its exit status and nothing written."""
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 
@@ -203,6 +204,7 @@ def test_wrong_board(capsys, files):
     _refused(capsys, 2, _argv(files, **{"--board": "9x6"}), files / "imu_cam.json", "board")
 
 
+@functools.lru_cache(maxsize=1)
 def rendered_frames(seed: int):
     """A short recording whose frames are rendered along its motion (a whole board in most frames): the recording,
     its frame times and the images (uint8)."""
@@ -218,21 +220,28 @@ def rendered_frames(seed: int):
     return rec, t, (images[:, 0].numpy() * 255).round().astype("uint8")
 
 
-def test_folder_of_images_named_by_their_time(capsys, tmp_path):
-    # EuRoC's layout: cam0/data/<ns>.png
+def test_folder_of_images_with_a_table_of_times(capsys, tmp_path):
+    # images not named by their time, and EuRoC's data.csv beside them (a folder of images named by their time in ns
+    # is what a bag's topic becomes: test_bag)
     import cv2
 
     rec, t, images = rendered_frames(31)
-    folder = tmp_path / "cam0" / "data"
+    folder = tmp_path / "cam0"
     folder.mkdir(parents=True)
+    rows = ["#timestamp [ns],filename"]
     for k, ts in enumerate(t.tolist()):
-        cv2.imwrite(str(folder / f"{round(ts * 1e9)}.png"), images[k])
+        cv2.imwrite(str(folder / f"frame_{k:04d}.png"), images[k])
+        rows.append(f"{round(ts * 1e9)},frame_{k:04d}.png")
+    (tmp_path / "data.csv").write_text("\n".join(rows) + "\n")
     write_imu_csv(tmp_path / "imu0.csv", rec)
     write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
     out = tmp_path / "imu_cam.json"
-    code, _, err = run(capsys, "calibrate-imu", tmp_path / "cam0", "--imu", tmp_path / "imu0.csv", "--board", "7x6",
-                       "--square", "0.08", "--calibration", tmp_path / "cam.json", "--detector", "opencv",
-                       "--jobs", "1", "--output", out)
+    argv = ["calibrate-imu", tmp_path / "cam0", "--imu", tmp_path / "imu0.csv", "--board", "7x6", "--square", "0.08",
+            "--calibration", tmp_path / "cam.json", "--detector", "opencv", "--jobs", "1", "--output", out]
+    _refused(capsys, 2, argv, out, "--timestamps", "frame_0000")
+    (tmp_path / "short.csv").write_text("\n".join(rows[:-1]) + "\n")
+    _refused(capsys, 2, argv + ["--timestamps", tmp_path / "short.csv"], out, f"1 of the {len(t)} images", "not listed")
+    code, _, err = run(capsys, *argv, "--timestamps", tmp_path / "data.csv")
     assert code == 0, err
     cam = json.loads(out.read_text())["cameras"][0]
     T = torch.tensor(cam["T_cam_imu"], dtype=torch.float64)
@@ -241,12 +250,36 @@ def test_folder_of_images_named_by_their_time(capsys, tmp_path):
     assert abs(cam["timeshift_cam_imu"] - float(rec.shift[0])) < 1e-3
 
 
+def test_video(capsys, tmp_path):
+    # a video's frame times are its container's (frame k at k / fps): the IMU's clock starts with the video
+    from _videos import write_video
+
+    rec, t, images = rendered_frames(31)
+    write_video(str(tmp_path / "cam0.avi"), images, fps=10.0)
+    write_imu_csv(tmp_path / "imu0.csv", rec, offset_s=-float(t[0]))
+    write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
+    out = tmp_path / "imu_cam.json"
+    code, _, err = run(capsys, "calibrate-imu", tmp_path / "cam0.avi", "--imu", tmp_path / "imu0.csv", "--board", "7x6",
+                       "--square", "0.08", "--calibration", tmp_path / "cam.json", "--detector", "opencv",
+                       "--jobs", "1", "--output", out)
+    assert code == 0, err
+    cam = json.loads(out.read_text())["cameras"][0]
+    T = torch.tensor(cam["T_cam_imu"], dtype=torch.float64)
+    assert cam["frames_used"] >= 20
+    assert float((T[:3, 3] - rec.T_cam_imu[0, :3, 3]).norm()) < 0.01
+    assert abs(cam["timeshift_cam_imu"] - float(rec.shift[0])) < 1e-3
+    # a video and a folder together are refused
+    (tmp_path / "cam1").mkdir()
+    _refused(capsys, 2, ["calibrate-imu", tmp_path / "cam0.avi", tmp_path / "cam1", "--imu", tmp_path / "imu0.csv",
+                         "--board", "7x6", "--output", tmp_path / "mixed.json"], tmp_path / "mixed.json", "same way")
+
+
 def test_bag(capsys, tmp_path):
     # a ROS1 bag with the camera's images and the IMU's samples, written with rosbags; the clocks from the epoch (the
     # readers of ROS2 bags are the same functions: tests/io/test_rosbag.py)
     from _rosbags import T0, BagContent, write_bag
 
-    rec, t, images = rendered_frames(32)
+    rec, t, images = rendered_frames(31)
 
     def stamp(seconds: float) -> tuple[int, int]:
         ns = round(seconds * 1e9) + T0 * 10**9
