@@ -569,6 +569,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ros-frames", metavar="IMU[,CAM0,...]",
                    help="frame names of --ros-tf: the IMU's, then each camera's (default imu, then "
                         "<camera name>_optical_frame)")
+    p.add_argument("--refine-intrinsics", action="store_true",
+                   help="refine the cameras' parameters in the fit too (from --calibration's; written as "
+                        "camera_refined with their 1-sigma); default: held")
     p.add_argument("--refine-rig", action="store_true",
                    help="with a rig calibration (calibrate-rig JSON, camchain with T_cn_cnm1): fit each camera's "
                         "T_cam_imu on its own and say how far the rig they imply is from the calibrated one (default: "

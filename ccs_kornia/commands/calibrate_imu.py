@@ -395,12 +395,16 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"camera {c}: its images are {size[0]}x{size[1]}, its calibration's "
                             f"{cal[0]}x{cal[1]}: a calibration of another resolution.")
     ros_frames = _ros_frames(args.ros_frames, names)
+    if args.refine_intrinsics and not cameras.uniform:
+        raise UserError("--refine-intrinsics: the cameras are of different models; refine them with calibrate-rig, or "
+                        "give cameras of one model.")
     data = ImuCameraData.from_corners(log.t, log.gyro, log.accel, cameras, obj, [f[0] for f in frames],
                                       [f[1] for f in frames])
     for note in log.notes:
         print(f"imu: {note}", file=sys.stderr)
     result = calibrate_imu_camera(data, noise=noise, knot_spacing=args.knot_spacing, max_shift=args.max_shift,
-                                  rolling_shutter=args.rolling_shutter, rig=None if args.refine_rig else rig)
+                                  rolling_shutter=args.rolling_shutter, rig=None if args.refine_rig else rig,
+                                  refine_intrinsics=args.refine_intrinsics)
     findings = imu_log_findings(log)
     extra = {"imu": {"samples": int(log.t.shape[0]), "rate_hz": round(float(findings.rate), 3),
                      "dropped": findings.dropped, "longest_gap_s": findings.longest_gap,
@@ -424,7 +428,7 @@ def run(args: argparse.Namespace) -> int:
     write_json(args.output, record)
     written = [args.output]
     if args.kalibr_yaml:
-        write_text(args.kalibr_yaml, camchain_imucam_yaml(cameras, result.T_cam_imu, result.timeshift_cam_imu))
+        write_text(args.kalibr_yaml, camchain_imucam_yaml(result.cameras, result.T_cam_imu, result.timeshift_cam_imu))
         written.append(args.kalibr_yaml)
     if args.ros_tf:
         write_text(args.ros_tf, imu_ros_static_transform(result.T_cam_imu, *ros_frames))
@@ -441,6 +445,11 @@ def run(args: argparse.Namespace) -> int:
               f"(1-sigma {1000 * float(result.timeshift_std[c]):.3f} ms)"
               + (f"; line delay {1e6 * float(result.line_delay[c]):.3f} us" if result.line_delay is not None else "")
               + f"; {int(result.frames_used[c])} frames")
+        if result.intrinsics_std is not None:
+            moved = (result.cameras.params[c] - cameras.params[c]).abs()
+            print(f"{name}: intrinsics refined: focal lengths moved {float(moved[:2].max()):.2f} px, centre "
+                  f"{float(moved[2:4].max()):.2f} px (1-sigma {float(result.intrinsics_std[c, :2].max()):.2f} and "
+                  f"{float(result.intrinsics_std[c, 2:4].max()):.2f} px)")
     print(f"verdict: {result.verdict}" + (f" ({'; '.join(result.verdict_reasons)})" if result.verdict_reasons else ""))
     print("wrote " + ", ".join(written))
     return 0

@@ -12,6 +12,7 @@ from typing import Any
 
 from ccs_kornia.geometry.imu_noise import ImuNoise
 from ccs_kornia.modules.imu.result import ImuCameraResult
+from ccs_kornia.outputs.calibration_file import camera_record_fields
 
 __all__ = ["imu_camera_record", "noise_record"]
 
@@ -30,6 +31,12 @@ def noise_record(noise: ImuNoise) -> dict[str, float]:
             "update_rate": _r(noise.update_rate, 6)}
 
 
+def _intrinsics_std(sd) -> dict[str, Any]:
+    """A refined camera's 1-sigma: focal lengths and centre (px), then the lens coefficients in the model's order."""
+    v = [_r(x, 9) for x in sd.tolist()]
+    return {"fx": v[0], "fy": v[1], "cx": v[2], "cy": v[3], "distortion": v[4:]}
+
+
 def imu_camera_record(result: ImuCameraResult, names: list[str], extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """The JSON record of a result (``names``: the cameras', in order)."""
     cams = []
@@ -44,6 +51,9 @@ def imu_camera_record(result: ImuCameraResult, names: list[str], extra: dict[str
             "timeshift_std_s": _r(result.timeshift_std[c], 9),
             **({"line_delay_s": _r(result.line_delay[c], 12), "line_delay_std_s": _r(result.line_delay_std[c], 12)}
                if result.line_delay is not None else {}),
+            **({"camera_refined": {**camera_record_fields(result.cameras[c]),
+                                   "std": _intrinsics_std(result.intrinsics_std[c])}}
+               if result.intrinsics_std is not None else {}),
             "frames_used": int(result.frames_used[c]),
             "pixel_rms": _r(result.pixel_rms[c], 4),
             "time_offset_search": {

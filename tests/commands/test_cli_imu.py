@@ -156,9 +156,13 @@ def test_stereo_rig_held_and_refined(capsys, tmp_path):
     args = [line for line in launch.splitlines() if line.strip().startswith("args=") and "cam1_optical_frame" in line]
     t_imu_cam1 = torch.tensor([float(v) for v in args[0].split('"')[1].split()[:3]], dtype=torch.float64)
     torch.testing.assert_close(t_imu_cam1, torch.linalg.inv(T[1])[:3, 3], atol=1e-6, rtol=0)
-    code, _, err = run(capsys, *argv, "--output", tmp_path / "free.json", "--refine-rig")
+    code, stdout, err = run(capsys, *argv, "--output", tmp_path / "free.json", "--refine-rig", "--refine-intrinsics")
     assert code == 0, err
     free = json.loads((tmp_path / "free.json").read_text())
+    refined = free["cameras"][1]["camera_refined"]
+    K = torch.tensor(refined["K"], dtype=torch.float64)
+    assert float((K - rec.cameras.K[1]).abs().max()) < 1.0 and refined["std"]["fx"] > 0
+    assert "intrinsics refined" in stdout
     check = free["rig_check"][0]
     assert free["rig_extrinsics"] == "fitted" and check["translation_mm"] < 3 and check["rotation_deg"] < 0.1
     assert "imply a rig" in err

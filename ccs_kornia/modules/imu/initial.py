@@ -191,5 +191,6 @@ def initial_unknowns(data: ImuCameraData, t0: float, dt: float, num_points: int,
         "tci": data.gyro.new_zeros(1, C, 3),
         "shift": torch.tensor([[a.shift for a in alignments]], dtype=f64),
         "delay": data.gyro.new_zeros(1, C),
+        "params": data.cameras.params.to(f64)[None].clone(),
         "g": g[None],
     }

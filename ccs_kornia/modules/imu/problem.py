@@ -10,7 +10,8 @@ Unknowns (Furgale et al., "Unified temporal and spatial calibration for multi-se
 * the *global* unknowns: per camera ``T_cam_imu`` (``R <- exp(d) R``, ``t``) and its time shift (a frame stamped
   ``t_cam`` by the camera is seen at IMU time ``t_cam + shift``), for a rolling-shutter camera its row delay (row
   ``v`` is read ``delay * v`` after row 0: each corner is an observation at its own time), and gravity in the board's
-  frame (its direction: 2 unknowns; its magnitude held). A rig's cameras can be held to their calibrated poses in
+  frame (its direction: 2 unknowns; its magnitude held); on request each camera's parameters (its lens model's,
+  refined from the same corners). A rig's cameras can be held to their calibrated poses in
   camera 0's frame (``rig``): then only camera 0's ``T_cam_imu`` moves and the others follow it. A step of camera 0,
   ``(d, dt)``, moves camera ``c`` (``x_c = R_c0 x_0 + t_c0``) by exactly ``(R_c0 d, R_c0 dt)``, so the held rig is the
   linear map :attr:`ImuCameraProblem.P` from the reduced unknowns to every camera's, applied to the normal equations
@@ -153,15 +154,24 @@ class ImuCameraProblem:
         rig: :math:`(C, 4, 4)` each camera's pose in camera 0's frame (``x_c = T_c0 x_0``), held: camera 0's
             ``T_cam_imu`` is fitted and the others follow it (their time shifts and row delays stay their own).
             ``None``: each camera's ``T_cam_imu`` is its own.
+        refine_intrinsics: each camera's parameters (``s["params"]``, its model's) are unknowns too, after the time
+            shift (and row delay); the cameras must share one model.
     """
 
     def __init__(self, data: ImuCameraData, t0: float, dt: float, num_points: int, weights: Weights,
-                 rolling_shutter: bool = False, rig: torch.Tensor | None = None) -> None:
+                 rolling_shutter: bool = False, rig: torch.Tensor | None = None,
+                 refine_intrinsics: bool = False) -> None:
         self.data, self.t0, self.dt, self.M, self.w = data, t0, dt, num_points, weights
         C = data.num_cameras
         self.rolling_shutter = rolling_shutter
-        #: global unknowns per camera: rotation, translation, time shift (and the row delay)
-        self.K = 8 if rolling_shutter else 7
+        if refine_intrinsics and not data.cameras.uniform:
+            raise ValueError("the cameras' intrinsics are refined for cameras of one model only.")
+        #: the cameras' parameters refined per camera (0: held)
+        self.NP = data.cameras.params.shape[1] if refine_intrinsics else 0
+        #: where a camera's parameters start among its global unknowns
+        self.P0 = 8 if rolling_shutter else 7
+        #: global unknowns per camera: rotation, translation, time shift (the row delay, the camera's parameters)
+        self.K = self.P0 + self.NP
         #: every camera's global unknowns and gravity's: the Jacobians' layout
         self.G_all = self.K * C + 2
         self.L = 4 * ITEM + self.G_all
@@ -220,6 +230,7 @@ class ImuCameraProblem:
             "tci": s["tci"] + cam[..., 3:6],
             "shift": s["shift"] + cam[..., 6],
             "delay": s["delay"] + cam[..., 7] if self.rolling_shutter else s["delay"],
+            "params": s["params"] + cam[..., self.P0:] if self.NP else s["params"],
             "g": (exp_so3((B @ dg[:, K * C:, None])[..., 0]) @ s["g"][..., None])[..., 0],
         }
 
@@ -241,7 +252,7 @@ class ImuCameraProblem:
         rc = torch.zeros_like(d.corners)
         for o in self._observations(s):
             R_cb, t_cb = self._poses(s, o)[:2]
-            uv = self._project(R_cb, t_cb, o)[0]
+            uv = self._project(s, R_cb, t_cb, o)[0]
             r = torch.where(o.seen[..., None], uv - o.corners, 0.0)
             if o.corner is None:
                 rc[o.frames] = r
@@ -284,17 +295,22 @@ class ImuCameraProblem:
         t_cb = s["tci"][0][o.camera] - (R_cb @ pt[..., None])[..., 0]
         return R_cb, t_cb, seg, w, E, Bu, vel
 
-    def _project(self, R_cb, t_cb, o, jacobians: bool = False):
-        """The observations' points projected by their cameras (and ``d uv / d x_cam``)."""
+    def cameras(self, s: dict[str, torch.Tensor]) -> Camera:
+        """The cameras at ``s`` (their parameters refined, or as given)."""
+        return self.data.cameras.with_params(s["params"][0]) if self.NP else self.data.cameras
+
+    def _project(self, s, R_cb, t_cb, o, jacobians: bool = False):
+        """The observations' points projected by their cameras (and ``d uv / d x_cam``, ``d uv / d params``)."""
         C = self.data.num_cameras
         F, P = o.points.shape[:2]
         xc = (R_cb[:, None] @ o.points[..., None])[..., 0] + t_cb[:, None]
-        res = self.data.cameras.project(xc[None].expand(C, -1, -1, -1), jacobians=jacobians)
-        uv, Jx = (res[0], res[2]) if jacobians else (res, None)
+        res = self.cameras(s).project(xc[None].expand(C, -1, -1, -1), jacobians=jacobians)
+        uv, Jp, Jx = res if jacobians else (res, None, None)
         uv = uv.gather(0, o.camera[None, :, None, None].expand(1, F, P, 2))[0]
         if jacobians:
             Jx = Jx.gather(0, o.camera[None, :, None, None, None].expand(1, F, P, 2, 3))[0]
-        return uv, Jx, xc
+            Jp = Jp.gather(0, o.camera[None, :, None, None, None].expand(1, F, P, 2, Jp.shape[-1]))[0]
+        return uv, Jx, xc, Jp
 
     # -- residuals -------------------------------------------------------------------------------------------------
     def _imu_blocks(self, s, H, b):
@@ -368,11 +384,13 @@ class ImuCameraProblem:
                 dphi[:, :, 31] = dphi[:, :, 30] * o.rows[:, None]
                 drho[:, :, 31] = drho[:, :, 30] * o.rows[:, None]
             Jpose = torch.cat([dphi, drho], 1)  # (F, 6, n_loc)
-            uv, Jx, xc = self._project(R_cb, t_cb, o, jacobians=True)
+            uv, Jx, xc, Jp = self._project(s, R_cb, t_cb, o, jacobians=True)
             Jcorner = torch.cat([Jx @ -skew(xc), Jx], -1)  # (F, P, 2, 6)
             wgt = o.seen.to(dtype)[..., None] * sp
             r = torch.where(o.seen[..., None], uv - o.corners, 0.0) * wgt
             Jfull = (Jcorner * wgt[..., None]) @ Jpose[:, None]  # (F, P, 2, n_loc)
+            if self.NP:
+                Jfull[..., 24 + self.P0:] = Jp * wgt[..., None]
             Hf = torch.einsum("fpia,fpib->fab", Jfull, Jfull)
             bf = torch.einsum("fpia,fpi->fa", Jfull, r)
             pos = torch.cat([loc.expand(F, 24), 4 * ITEM + K * o.camera[:, None] + torch.arange(K, device=device)], 1)

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.imu_noise import ImuNoise
 
 __all__ = ["ImuCameraResult", "ImuVerdictThresholds", "imu_camera_verdict"]
@@ -81,6 +82,8 @@ class ImuCameraResult:
     line_delay: torch.Tensor | None = None  #: (C,) s per row of a rolling-shutter camera (None: global shutter)
     line_delay_std: torch.Tensor | None = None  #: (C,) s
     rig_held: bool = False  #: the cameras' poses in camera 0's frame were held (a rig's extrinsics), not fitted
+    cameras: Camera | None = None  #: the cameras the fit used: as given, or refined (``intrinsics_std`` set)
+    intrinsics_std: torch.Tensor | None = None  #: (C, P) the refined parameters' 1-sigma (None: held)
     verdict: str = ""
     verdict_reasons: list[str] = field(default_factory=list)
     spline: dict = field(default_factory=dict, repr=False)  #: t0, dt, R, p: the IMU's trajectory (for reports)
@@ -138,8 +141,11 @@ def imu_camera_verdict(result: ImuCameraResult, thresholds: ImuVerdictThresholds
         elif s > t.good_shift:
             weak.append(f"{name}time offset 1-sigma {1000 * s:.3f} ms")
         px = float(result.pixel_rms[c])
-        if result.line_delay is None and px > t.max_pixel_rms:
-            weak.append(f"{name}the corners fit to {px:.2f} px RMS: a rolling-shutter camera? (--rolling-shutter)")
+        if px > t.max_pixel_rms:
+            causes = ([] if result.line_delay is not None else ["a rolling-shutter camera (--rolling-shutter)"]) + \
+                ([] if result.intrinsics_std is not None else ["a camera calibration that does not fit these images "
+                                                               "(--refine-intrinsics)"])
+            weak.append(f"{name}the corners fit to {px:.2f} px RMS" + (f": {' or '.join(causes)}?" if causes else ""))
         corr = float(result.alignment_correlation[c].max())
         if corr < t.min_correlation:
             weak.append(f"{name}the camera's and the gyroscope's angular speeds agree weakly (correlation {corr:.2f})")

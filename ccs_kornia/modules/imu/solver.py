@@ -79,6 +79,7 @@ def calibrate_imu_camera(
     thresholds: ImuVerdictThresholds | None = None,
     rolling_shutter: bool = False,
     rig: torch.Tensor | None = None,
+    refine_intrinsics: bool = False,
 ) -> ImuCameraResult:
     """Calibrate the IMU against C cameras from one recording (see the module doc).
 
@@ -95,6 +96,8 @@ def calibrate_imu_camera(
         rig: :math:`(C, 4, 4)` the cameras' poses in camera 0's frame (``x_c = T_c0 x_0``, a rig calibration's
             extrinsics), held: camera 0's ``T_cam_imu`` is fitted and the others follow it exactly. ``None``: each
             camera's ``T_cam_imu`` is fitted on its own.
+        refine_intrinsics: the cameras' parameters are fitted too (from the given ones; cameras of one model), else
+            held.
 
     Returns:
         :class:`~ccs_kornia.modules.imu.result.ImuCameraResult`.
@@ -155,7 +158,8 @@ def calibrate_imu_camera(
     # NOISE_SETTLED (at most MAX_ROUNDS fits)
     for k in range(MAX_ROUNDS):
         shutter = rolling_shutter and k > 0
-        problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=shutter, rig=rig)
+        problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=shutter, rig=rig,
+                                   refine_intrinsics=refine_intrinsics)
         # a cost settled to 8 digits: tighter tolerances move T_cam_imu by nanometres at twice the iterations
         # (docs/imu.md); a warm start (the previous round's optimum, reweighted) needs little damping
         res = schur_lm(problem, s, max_iters=max_iters, ftol=1e-8, absolute_weights=True,
@@ -178,7 +182,8 @@ def calibrate_imu_camera(
             break
         weights = replace(weights, gyro=weights.gyro / fg, accel=weights.accel / fa, pixel=weights.pixel / fp)
 
-    problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=rolling_shutter, rig=rig)
+    problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=rolling_shutter, rig=rig,
+                               refine_intrinsics=refine_intrinsics)
     rg, ra, rc = problem.residuals(s)
     cov = problem.all_covariance(res.covariance[0])
     sd = cov.diagonal().clamp_min(0).sqrt()
@@ -194,7 +199,8 @@ def calibrate_imu_camera(
         T_cam_imu=T, timeshift_cam_imu=s["shift"][0].clone(), rotation_std_deg=per_cam[:, :3] * 180 / math.pi,
         translation_std=per_cam[:, 3:6], timeshift_std=per_cam[:, 6], covariance=cov,
         line_delay=s["delay"][0].clone() if rolling_shutter else None,
-        line_delay_std=per_cam[:, 7] if rolling_shutter else None, rig_held=rig is not None, gravity=s["g"][0].clone(),
+        line_delay_std=per_cam[:, 7] if rolling_shutter else None, rig_held=rig is not None,
+        cameras=problem.cameras(s), intrinsics_std=per_cam[:, problem.P0:] if refine_intrinsics else None, gravity=s["g"][0].clone(),
         gyro_bias=s["bg"][0].clone(), accel_bias=s["ba"][0].clone(), gyro_rms=_rms(rg), accel_rms=_rms(ra),
         pixel_rms=pixel_rms, noise_stated=stated, noise_measured=measured, pixel_sigma=weights.pixel**-0.5,
         noise_given=given, alignment_shifts=alignments[0].shifts,
@@ -216,6 +222,7 @@ class ImuCameraSolver(nn.Module):
     Args:
         noise, knot_spacing, max_shift, estimate_noise, max_iters, rolling_shutter: see :func:`calibrate_imu_camera`.
         rig: see :func:`calibrate_imu_camera` (held extrinsics of a rig, :math:`(C, 4, 4)`); a buffer.
+        refine_intrinsics: see :func:`calibrate_imu_camera`.
 
     Shape:
         :class:`~ccs_kornia.modules.imu.problem.ImuCameraData` (IMU :math:`(N, 3)` rates and accelerations, frames
@@ -235,8 +242,9 @@ class ImuCameraSolver(nn.Module):
 
     def __init__(self, noise: ImuNoise | None = None, knot_spacing: float = 0.02, max_shift: float = 0.2,
                  estimate_noise: bool = True, max_iters: int = 50, rolling_shutter: bool = False,
-                 rig: torch.Tensor | None = None) -> None:
+                 rig: torch.Tensor | None = None, refine_intrinsics: bool = False) -> None:
         super().__init__()
+        self.refine_intrinsics = refine_intrinsics
         self.register_buffer("rig", rig)
         self.rolling_shutter = rolling_shutter
         self.noise = noise
@@ -247,4 +255,5 @@ class ImuCameraSolver(nn.Module):
 
     def forward(self, data: ImuCameraData) -> ImuCameraResult:
         return calibrate_imu_camera(data, self.noise, self.knot_spacing, self.max_shift, self.estimate_noise,
-                                    self.max_iters, rolling_shutter=self.rolling_shutter, rig=self.rig)
+                                    self.max_iters, rolling_shutter=self.rolling_shutter, rig=self.rig,
+                                    refine_intrinsics=self.refine_intrinsics)

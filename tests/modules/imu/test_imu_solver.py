@@ -69,14 +69,16 @@ class TestProblem:
         assert torch.isfinite(d_g).all() and torch.isfinite(d_p).all()
 
     def test_held_rig_normal_equations_are_the_costs_gradient(self):
-        # a held rig maps camera 0's step to every camera's: the reduced gradient is still the cost's derivative
+        # a held rig maps camera 0's step to every camera's: the reduced gradient is still the cost's derivative (the
+        # cameras' parameters refined too)
         rec = visual_inertial_recording(duration=3.0, seed=15, num_cameras=2)
         data = _data(rec)
         dt, t0 = 0.05, float(data.imu_times[0])
         M = int((float(data.imu_times[-1]) - t0) / dt) + 3
         rig = rec.T_cam_imu.double() @ torch.linalg.inv(rec.T_cam_imu[0].double())
-        prob = ImuCameraProblem(data, t0, dt, M, Weights(1e4, 1e2, 4.0, 1e4, 1e2), rig=rig)
-        assert prob.G == 6 + 2 + 2 and prob.G_all == 7 * 2 + 2
+        prob = ImuCameraProblem(data, t0, dt, M, Weights(1e4, 1e2, 4.0, 1e4, 1e2), rig=rig, refine_intrinsics=True)
+        n = data.cameras.params.shape[1]
+        assert prob.G == 6 + 2 * (1 + n) + 2 and prob.G_all == (7 + n) * 2 + 2
         R, t, ok = board_poses(data)
         sel = data.frame_camera == 0
         al = align_rates(data.frame_times[sel], R[sel], ok[sel], data.imu_times, data.gyro)
@@ -86,6 +88,8 @@ class TestProblem:
         g = torch.Generator().manual_seed(1)
         eq = prob.linearize(s)
         dg = torch.randn(1, prob.G, generator=g, dtype=torch.float64)
+        dg[:, 7:7 + n] *= 1e-2  # a lens coefficient's step of the size of the others' effect
+        dg[:, 8 + n:8 + 2 * n] *= 1e-2
         dp = torch.randn(1, M, 12, generator=g, dtype=torch.float64)
         h = 1e-6
         plus = prob.linearize(prob.retract(s, h * dg, h * dp)).cost
@@ -143,6 +147,22 @@ class TestSolver:
         # one T_cam_imu from both cameras' corners: its 1-sigma is the same for both and below the free fit's
         torch.testing.assert_close(held.translation_std[0].norm(), held.translation_std[1].norm(), rtol=1e-6, atol=0)
         assert float(held.translation_std[0].norm()) < float(res.translation_std[0].norm())
+
+    def test_refined_intrinsics(self, recording):
+        # a camera 1 % off in focal length and 3 px in its centre: held, it moves T_cam_imu by millimetres; refined,
+        # the camera and T_cam_imu come back
+        truth = recording.cameras
+        p = truth.params.clone()
+        p[0, :2] *= 1.01
+        p[0, 2:4] += torch.tensor([3.0, -2.0], dtype=p.dtype)
+        data = _data(recording)
+        data.cameras = truth.with_params(p)
+        res = calibrate_imu_camera(data, noise=recording.noise, refine_intrinsics=True)
+        err_t = float((res.T_cam_imu[0, :3, 3] - recording.T_cam_imu[0, :3, 3]).norm())
+        assert err_t < 0.002
+        assert float((res.cameras.params[0, :4] - truth.params[0, :4]).abs().max()) < 0.5
+        assert res.intrinsics_std.shape == (1, truth.params.shape[1]) and bool((res.intrinsics_std > 0).all())
+        assert float(res.pixel_rms[0]) < 0.4
 
     def test_weak_motion_is_named(self, recording, solved):
         import dataclasses
