@@ -506,6 +506,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the camera (a calibrate JSON); default: calibrated from the same images")
     p.add_argument("--model", default="auto", choices=MODELS,
                    help="camera model when the camera is calibrated from the images (default auto)")
+    p.add_argument("--imu-model", default="calibrated", choices=("calibrated", "scale-misalignment"),
+                   help="calibrated (default): the IMU reads the true rate and force (plus biases and noise); "
+                        "scale-misalignment: its scale factors, axis misalignment and the gyroscope's g-sensitivity "
+                        "are fitted too (written as imu_intrinsics with their 1-sigma)")
     p.add_argument("--refine-intrinsics", action="store_true",
                    help="fit the camera's intrinsics in the hand-eye fit too (default: held)")
     p.add_argument("--robot-noise", default="auto", metavar="auto|none|DEG,MM",
@@ -569,6 +573,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ros-frames", metavar="IMU[,CAM0,...]",
                    help="frame names of --ros-tf: the IMU's, then each camera's (default imu, then "
                         "<camera name>_optical_frame)")
+    p.add_argument("--imu-model", default="calibrated", choices=("calibrated", "scale-misalignment"),
+                   help="calibrated (default): the IMU reads the true rate and force (plus biases and noise); "
+                        "scale-misalignment: its scale factors, axis misalignment and the gyroscope's g-sensitivity "
+                        "are fitted too (written as imu_intrinsics with their 1-sigma)")
     p.add_argument("--refine-intrinsics", action="store_true",
                    help="refine the cameras' parameters in the fit too (from --calibration's; written as "
                         "camera_refined with their 1-sigma); default: held")

@@ -35,6 +35,7 @@ from ccs_kornia.commands._video import (
     video_inputs,
 )
 from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.imu_intrinsics import ImuModel
 from ccs_kornia.io.corners_file import read_corners_file
 from ccs_kornia.io.files import write_json, write_text
 from ccs_kornia.io.image_times import read_image_times
@@ -404,7 +405,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"imu: {note}", file=sys.stderr)
     result = calibrate_imu_camera(data, noise=noise, knot_spacing=args.knot_spacing, max_shift=args.max_shift,
                                   rolling_shutter=args.rolling_shutter, rig=None if args.refine_rig else rig,
-                                  refine_intrinsics=args.refine_intrinsics)
+                                  refine_intrinsics=args.refine_intrinsics, imu_model=ImuModel(args.imu_model))
     findings = imu_log_findings(log)
     extra = {"imu": {"samples": int(log.t.shape[0]), "rate_hz": round(float(findings.rate), 3),
                      "dropped": findings.dropped, "longest_gap_s": findings.longest_gap,
@@ -450,6 +451,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name}: intrinsics refined: focal lengths moved {float(moved[:2].max()):.2f} px, centre "
                   f"{float(moved[2:4].max()):.2f} px (1-sigma {float(result.intrinsics_std[c, :2].max()):.2f} and "
                   f"{float(result.intrinsics_std[c, 2:4].max()):.2f} px)")
+    if result.imu_intrinsics is not None:
+        imu, sd = result.imu_intrinsics, result.imu_intrinsics_std
+        scale_g, scale_a = imu.gyro_matrix.diagonal() - 1, imu.accel_matrix.diagonal() - 1
+        print(f"imu: gyroscope scale {', '.join(f'{100 * float(v):+.2f}' for v in scale_g)} %, accelerometer scale "
+              f"{', '.join(f'{100 * float(v):+.2f}' for v in scale_a)} % (1-sigma {100 * float(sd[:15].max()):.2f} % "
+              f"at most); g-sensitivity up to {float(imu.g_sensitivity.abs().max()) * 180 / math.pi * 9.81:.3f} "
+              "deg/s per g")
     print(f"verdict: {result.verdict}" + (f" ({'; '.join(result.verdict_reasons)})" if result.verdict_reasons else ""))
     print("wrote " + ", ".join(written))
     return 0

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from ccs_kornia.geometry.imu_intrinsics import UPPER
 from ccs_kornia.geometry.imu_noise import ImuNoise
 from ccs_kornia.modules.imu.result import ImuCameraResult
 from ccs_kornia.outputs.calibration_file import camera_record_fields
@@ -35,6 +36,25 @@ def _intrinsics_std(sd) -> dict[str, Any]:
     """A refined camera's 1-sigma: focal lengths and centre (px), then the lens coefficients in the model's order."""
     v = [_r(x, 9) for x in sd.tolist()]
     return {"fx": v[0], "fy": v[1], "cx": v[2], "cy": v[3], "distortion": v[4:]}
+
+
+def _imu_intrinsics_record(result: ImuCameraResult) -> dict[str, Any]:
+    """The IMU's estimated intrinsics (geometry.imu_intrinsics: w_m = T_g w + A_g f + b_g, a_m = T_a f + b_a) and
+    their 1-sigma."""
+    imu, sd = result.imu_intrinsics, result.imu_intrinsics_std.tolist()
+    upper = [[0.0] * 3 for _ in range(3)]
+    for k, (i, j) in enumerate(UPPER):
+        upper[i][j] = _r(sd[9 + k], 9)
+
+    def rows(m) -> list[list[float]]:
+        return [[_r(v, 9) for v in row] for row in m.tolist()]
+
+    return {"model": "scale-misalignment",
+            "convention": "gyro = T_g w + A_g f + b_g; accel = T_a f + b_a (w, f: true rate and specific force in the "
+                          "IMU's frame, the accelerometer's axes)",
+            "T_g": rows(imu.gyro_matrix), "T_a": rows(imu.accel_matrix), "A_g": rows(imu.g_sensitivity),
+            "T_g_std": [[_r(v, 9) for v in sd[3 * i:3 * i + 3]] for i in range(3)], "T_a_std": upper,
+            "A_g_std": [[_r(v, 9) for v in sd[15 + 3 * i:18 + 3 * i]] for i in range(3)]}
 
 
 def imu_camera_record(result: ImuCameraResult, names: list[str], extra: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -85,6 +105,7 @@ def imu_camera_record(result: ImuCameraResult, names: list[str], extra: dict[str
         "noise": {"given": result.noise_given, "stated": noise_record(stated), "measured": noise_record(measured)},
         "fit": {"knot_spacing_s": result.knot_spacing, "iterations": result.iterations, "status": result.status,
                 "seconds": _r(result.seconds, 3)},
+        **({"imu_intrinsics": _imu_intrinsics_record(result)} if result.imu_intrinsics is not None else {}),
         "verdict": result.verdict,
         "verdict_reasons": list(result.verdict_reasons),
         **(extra or {}),

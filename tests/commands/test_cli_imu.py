@@ -171,10 +171,16 @@ def test_stereo_rig_held_and_refined(capsys, tmp_path):
 def test_dropped_samples_are_said(capsys, files, recording):
     lines = (files / "imu0.csv").read_text().splitlines()
     (files / "gappy.csv").write_text("\n".join(lines[:800] + lines[830:]) + "\n")
-    code, _, err = run(capsys, *_argv(files, **{"--imu": files / "gappy.csv"}))
+    # with the IMU's intrinsics estimated (an ideal IMU here: they come out as the identity)
+    code, stdout, err = run(capsys, *_argv(files, **{"--imu": files / "gappy.csv"}), "--imu-model",
+                            "scale-misalignment")
     assert code == 0, err
     data = json.loads((files / "imu_cam.json").read_text())
     assert data["imu"]["dropped"] == 1 and any("dropped" in r for r in data["verdict_reasons"])
+    imu = data["imu_intrinsics"]
+    torch.testing.assert_close(torch.tensor(imu["T_g"], dtype=torch.float64), torch.eye(3, dtype=torch.float64),
+                               atol=5e-3, rtol=0)
+    assert imu["T_a_std"][1][0] == 0.0 and imu["T_a_std"][0][1] > 0 and "g-sensitivity" in stdout
 
 
 def test_clocks_that_do_not_overlap(capsys, files, recording):

@@ -25,6 +25,7 @@ import torch
 from torch import Tensor
 
 from ccs_kornia.geometry.camera import OPENCV5, Camera
+from ccs_kornia.geometry.imu_intrinsics import ImuIntrinsics
 from ccs_kornia.geometry.imu_noise import ImuNoise
 from ccs_kornia.geometry.so3 import exp_so3
 
@@ -116,6 +117,7 @@ class VisualInertialRecording:
         line_delay: :math:`(C,)` a rolling shutter's row delay (s; 0: global shutter).
         gravity: :math:`(3,)` in the board's frame. gyro_bias, accel_bias: :math:`(N, 3)` the biases' truth.
         noise: the IMU's noise densities. pixel_noise: the corners' noise (px, per coordinate).
+        imu_intrinsics: how the IMU reads the truth (ideal unless given).
         motion: the analytic motion.
     """
 
@@ -135,6 +137,7 @@ class VisualInertialRecording:
     noise: ImuNoise
     pixel_noise: float
     motion: HandheldMotion = field(repr=False)
+    imu_intrinsics: ImuIntrinsics = field(default_factory=ImuIntrinsics.identity)
 
 
 def _random_rotation(g: torch.Generator) -> Tensor:
@@ -183,6 +186,7 @@ def visual_inertial_recording(
     spacing: float = 0.08,
     rotation_amplitude: float = 0.5,
     translation_amplitude: float = 0.2,
+    imu_intrinsics: ImuIntrinsics | None = None,
 ) -> VisualInertialRecording:
     """A seeded visual-inertial recording (see the module doc).
 
@@ -196,6 +200,8 @@ def visual_inertial_recording(
         noise: the IMU's noise (default EuRoC's; its ``update_rate`` is not used: ``imu_rate`` is). pixel_noise: the corners' (px).
         board: the board's points (columns, rows). spacing: their spacing (m).
         rotation_amplitude: the camera's swing about each axis (rad). translation_amplitude: its motion (m).
+        imu_intrinsics: the IMU's scale factors, misalignment and g-sensitivity
+            (:class:`~ccs_kornia.geometry.imu_intrinsics.ImuIntrinsics`); default an ideal IMU.
 
     Returns:
         :class:`VisualInertialRecording`.
@@ -230,6 +236,8 @@ def visual_inertial_recording(
         return initial * (torch.rand(3, generator=g, dtype=f64) - 0.5) * 2 + steps.cumsum(0)
 
     bg, ba = walk(0.01, noise.gyroscope_random_walk), walk(0.1, noise.accelerometer_random_walk)
+    imu = imu_intrinsics or ImuIntrinsics.identity()
+    w_true, a_true = imu.apply(w_true, a_true)
     gyro = w_true + bg + torch.randn(n, 3, generator=g, dtype=f64) * noise.gyroscope_noise_density / math.sqrt(dt)
     accel = a_true + ba + torch.randn(n, 3, generator=g, dtype=f64) * noise.accelerometer_noise_density / math.sqrt(dt)
 
@@ -257,4 +265,4 @@ def visual_inertial_recording(
         imu_times=t_imu, gyro=gyro, accel=accel, cameras=cams, object_points=points, frame_times=times,
         corners=corners, T_cam_imu=torch.stack(T), shift=torch.tensor(shifts, dtype=f64),
         line_delay=torch.full((num_cameras,), float(line_delay), dtype=f64), gravity=gravity, gyro_bias=bg,
-        accel_bias=ba, noise=noise, pixel_noise=pixel_noise, motion=motion)
+        accel_bias=ba, noise=noise, pixel_noise=pixel_noise, motion=motion, imu_intrinsics=imu)

@@ -192,5 +192,9 @@ def initial_unknowns(data: ImuCameraData, t0: float, dt: float, num_points: int,
         "shift": torch.tensor([[a.shift for a in alignments]], dtype=f64),
         "delay": data.gyro.new_zeros(1, C),
         "params": data.cameras.params.to(f64)[None].clone(),
+        # the IMU's intrinsics: ideal (geometry.imu_intrinsics)
+        "Tg": torch.eye(3, dtype=f64)[None].clone(),
+        "Ta": torch.eye(3, dtype=f64)[None].clone(),
+        "Ag": torch.zeros(1, 3, 3, dtype=f64),
         "g": g[None],
     }

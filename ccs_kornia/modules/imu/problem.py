@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import torch
 
 from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.imu_intrinsics import UPPER, ImuModel
 from ccs_kornia.geometry.so3 import exp_so3, skew
 from ccs_kornia.geometry.spline import segment_of, so3_spline, spline_basis
 from ccs_kornia.modules.calibration.schur_lm import NormalEquations
@@ -156,11 +157,13 @@ class ImuCameraProblem:
             ``None``: each camera's ``T_cam_imu`` is its own.
         refine_intrinsics: each camera's parameters (``s["params"]``, its model's) are unknowns too, after the time
             shift (and row delay); the cameras must share one model.
+        imu_model: :attr:`ImuModel.SCALE_MISALIGNMENT`: the IMU's intrinsics (``s["Tg"]``, ``s["Ta"]``, ``s["Ag"]``,
+            :mod:`~ccs_kornia.geometry.imu_intrinsics`) are unknowns, 24 after gravity's; else they are held (ideal).
     """
 
     def __init__(self, data: ImuCameraData, t0: float, dt: float, num_points: int, weights: Weights,
                  rolling_shutter: bool = False, rig: torch.Tensor | None = None,
-                 refine_intrinsics: bool = False) -> None:
+                 refine_intrinsics: bool = False, imu_model: ImuModel = ImuModel.CALIBRATED) -> None:
         self.data, self.t0, self.dt, self.M, self.w = data, t0, dt, num_points, weights
         C = data.num_cameras
         self.rolling_shutter = rolling_shutter
@@ -172,8 +175,10 @@ class ImuCameraProblem:
         self.P0 = 8 if rolling_shutter else 7
         #: global unknowns per camera: rotation, translation, time shift (the row delay, the camera's parameters)
         self.K = self.P0 + self.NP
-        #: every camera's global unknowns and gravity's: the Jacobians' layout
-        self.G_all = self.K * C + 2
+        #: the IMU's intrinsics estimated (24 unknowns after gravity's: T_g by rows, T_a's upper triangle, A_g by rows)
+        self.NI = 24 if imu_model is ImuModel.SCALE_MISALIGNMENT else 0
+        #: every camera's global unknowns, gravity's and the IMU's: the Jacobians' layout
+        self.G_all = self.K * C + 2 + self.NI
         self.L = 4 * ITEM + self.G_all
         dtype, device = data.gyro.dtype, data.gyro.device
         #: (G_all, G) every camera's unknowns from the fitted ones (the identity unless a rig is held)
@@ -190,13 +195,14 @@ class ImuCameraProblem:
         delay, then gravity's two) to every camera's."""
         C, K = self.data.num_cameras, self.K
         T = K - 6  # per camera: the time shift (and the row delay)
-        P = rig.new_zeros(self.G_all, 6 + T * C + 2)
+        tail = self.G_all - K * C  # gravity's and the IMU's unknowns
+        P = rig.new_zeros(self.G_all, 6 + T * C + tail)
         for c in range(C):
             R = rig[c, :3, :3]
             P[K * c:K * c + 3, 0:3] = R
             P[K * c + 3:K * c + 6, 3:6] = R
             P[K * c + 6:K * c + K, 6 + T * c:6 + T * (c + 1)] = torch.eye(T, dtype=rig.dtype, device=rig.device)
-        P[K * C:, -2:] = torch.eye(2, dtype=rig.dtype, device=rig.device)
+        P[K * C:, -tail:] = torch.eye(tail, dtype=rig.dtype, device=rig.device)
         return P
 
     def all_globals(self, dg: torch.Tensor) -> torch.Tensor:
@@ -231,8 +237,18 @@ class ImuCameraProblem:
             "shift": s["shift"] + cam[..., 6],
             "delay": s["delay"] + cam[..., 7] if self.rolling_shutter else s["delay"],
             "params": s["params"] + cam[..., self.P0:] if self.NP else s["params"],
-            "g": (exp_so3((B @ dg[:, K * C:, None])[..., 0]) @ s["g"][..., None])[..., 0],
+            "g": (exp_so3((B @ dg[:, K * C:K * C + 2, None])[..., 0]) @ s["g"][..., None])[..., 0],
+            **self._imu_retract(s, dg[:, K * C + 2:]),
         }
+
+    def _imu_retract(self, s, d):
+        """The IMU's intrinsics moved by their step (held when not estimated)."""
+        if not self.NI:
+            return {"Tg": s["Tg"], "Ta": s["Ta"], "Ag": s["Ag"]}
+        Ta = s["Ta"].clone()
+        for k, (i, j) in enumerate(UPPER):
+            Ta[:, i, j] = Ta[:, i, j] + d[:, 9 + k]
+        return {"Tg": s["Tg"] + d[:, 0:9].view(-1, 3, 3), "Ta": Ta, "Ag": s["Ag"] + d[:, 15:24].view(-1, 3, 3)}
 
     def linearize(self, s: dict[str, torch.Tensor]) -> NormalEquations:
         H, b, cost = self._segment_blocks(s)
@@ -246,9 +262,11 @@ class ImuCameraProblem:
         idx = self.imu_seg[:, None] + torch.arange(4, device=R.device)
         Rt, w = so3_spline(R[idx], self.imu_u, self.dt)
         B0, B2 = spline_basis(self.imu_u), spline_basis(self.imu_u, 2) / dt**2
-        rg = w + (B0[:, None, :] @ bg[idx])[:, 0] - d.gyro
         acc = (B2[:, None, :] @ p[idx])[:, 0] - g
-        ra = (Rt.transpose(-1, -2) @ acc[..., None])[..., 0] + (B0[:, None, :] @ ba[idx])[:, 0] - d.accel
+        f = (Rt.transpose(-1, -2) @ acc[..., None])[..., 0]
+        w, f_read = self._readings(s, w, f)
+        rg = w + (B0[:, None, :] @ bg[idx])[:, 0] - d.gyro
+        ra = f_read + (B0[:, None, :] @ ba[idx])[:, 0] - d.accel
         rc = torch.zeros_like(d.corners)
         for o in self._observations(s):
             R_cb, t_cb = self._poses(s, o)[:2]
@@ -312,6 +330,14 @@ class ImuCameraProblem:
             Jp = Jp.gather(0, o.camera[None, :, None, None, None].expand(1, F, P, 2, Jp.shape[-1]))[0]
         return uv, Jx, xc, Jp
 
+    def _readings(self, s, w, f):
+        """The gyroscope's and accelerometer's readings of true rates ``w`` and specific forces ``f`` :math:`(n, 3)`
+        (the IMU's intrinsics applied where estimated)."""
+        if not self.NI:
+            return w, f
+        Tg, Ta, Ag = s["Tg"][0], s["Ta"][0], s["Ag"][0]
+        return w @ Tg.T + f @ Ag.T, f @ Ta.T
+
     # -- residuals -------------------------------------------------------------------------------------------------
     def _imu_blocks(self, s, H, b):
         """The gyroscope's and accelerometer's residuals, accumulated into the segment blocks; their cost."""
@@ -331,21 +357,34 @@ class ImuCameraProblem:
             B2 = spline_basis(u, 2) / dt**2
             acc_w = (B2[:, None, :] @ p[idx])[:, 0]
             v = acc_w - g
-            rg = w + (B0[:, None, :] @ bg[idx])[:, 0] - d.gyro[sl]
-            Rtv = (Rt.transpose(-1, -2) @ v[..., None])[..., 0]
-            ra = Rtv + (B0[:, None, :] @ ba[idx])[:, 0] - d.accel[sl]
+            Rtv = (Rt.transpose(-1, -2) @ v[..., None])[..., 0]  # the specific force in the IMU's frame
+            w_read, f_read = self._readings(s, w, Rtv)
+            rg = w_read + (B0[:, None, :] @ bg[idx])[:, 0] - d.gyro[sl]
+            ra = f_read + (B0[:, None, :] @ ba[idx])[:, 0] - d.accel[sl]
             J = R.new_zeros(n, 6, self.L)
             eye = torch.eye(3, dtype=R.dtype, device=R.device)
+            gi = 4 * ITEM + self.K * C
+            # rows 0:3 the true rate's derivatives, rows 3:6 the specific force's (the readings' below)
             for j in range(4):
                 o = ITEM * j
                 J[:, 0:3, o:o + 3] = Dw[:, j]
-                J[:, 0:3, o + 6:o + 9] = B0[:, j, None, None] * eye
                 # R <- R exp(E_j delta_j): R^T v <- R^T v + [R^T v]_x E_j delta_j
                 J[:, 3:6, o:o + 3] = skew(Rtv) @ E[:, j]
                 J[:, 3:6, o + 3:o + 6] = B2[:, j, None, None] * Rt.transpose(-1, -2)
-                J[:, 3:6, o + 9:o + 12] = B0[:, j, None, None] * eye
             # d(-R^T g) / d g_delta, with g <- exp(B d) g: dg = -[g]_x B d
-            J[:, 3:6, 4 * ITEM + self.K * C:] = Rt.transpose(-1, -2) @ (skew(g) @ gB)
+            J[:, 3:6, gi:gi + 2] = Rt.transpose(-1, -2) @ (skew(g) @ gB)
+            if self.NI:
+                Tg, Ta, Ag = s["Tg"][0], s["Ta"][0], s["Ag"][0]
+                J = torch.cat([Tg @ J[:, 0:3] + Ag @ J[:, 3:6], Ta @ J[:, 3:6]], 1)
+                for i in range(3):
+                    J[:, i, gi + 2 + 3 * i:gi + 5 + 3 * i] = w
+                    J[:, i, gi + 17 + 3 * i:gi + 20 + 3 * i] = Rtv
+                for k, (i, c) in enumerate(UPPER):
+                    J[:, 3 + i, gi + 11 + k] = Rtv[:, c]
+            for j in range(4):
+                o = ITEM * j
+                J[:, 0:3, o + 6:o + 9] = B0[:, j, None, None] * eye
+                J[:, 3:6, o + 9:o + 12] = B0[:, j, None, None] * eye
             J[:, 0:3] *= sg
             J[:, 3:6] *= sa
             r = torch.cat([rg * sg, ra * sa], -1)

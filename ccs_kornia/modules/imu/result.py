@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import torch
 
 from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.imu_intrinsics import ImuIntrinsics
 from ccs_kornia.geometry.imu_noise import ImuNoise
 
 __all__ = ["ImuCameraResult", "ImuVerdictThresholds", "imu_camera_verdict"]
@@ -84,6 +85,9 @@ class ImuCameraResult:
     rig_held: bool = False  #: the cameras' poses in camera 0's frame were held (a rig's extrinsics), not fitted
     cameras: Camera | None = None  #: the cameras the fit used: as given, or refined (``intrinsics_std`` set)
     intrinsics_std: torch.Tensor | None = None  #: (C, P) the refined parameters' 1-sigma (None: held)
+    #: the IMU's intrinsics when estimated (``--imu-model scale-misalignment``), else None (an ideal IMU)
+    imu_intrinsics: ImuIntrinsics | None = None
+    imu_intrinsics_std: torch.Tensor | None = None  #: (24,) T_g by rows, T_a's upper triangle, A_g by rows
     verdict: str = ""
     verdict_reasons: list[str] = field(default_factory=list)
     spline: dict = field(default_factory=dict, repr=False)  #: t0, dt, R, p: the IMU's trajectory (for reports)

@@ -19,6 +19,7 @@ from dataclasses import replace
 import torch
 from torch import nn
 
+from ccs_kornia.geometry.imu_intrinsics import ImuIntrinsics, ImuModel
 from ccs_kornia.geometry.imu_noise import ImuNoise
 from ccs_kornia.modules.calibration.schur_lm import schur_lm
 from ccs_kornia.modules.imu.initial import align_rates, board_poses, initial_unknowns
@@ -80,6 +81,7 @@ def calibrate_imu_camera(
     rolling_shutter: bool = False,
     rig: torch.Tensor | None = None,
     refine_intrinsics: bool = False,
+    imu_model: ImuModel = ImuModel.CALIBRATED,
 ) -> ImuCameraResult:
     """Calibrate the IMU against C cameras from one recording (see the module doc).
 
@@ -98,6 +100,8 @@ def calibrate_imu_camera(
             camera's ``T_cam_imu`` is fitted on its own.
         refine_intrinsics: the cameras' parameters are fitted too (from the given ones; cameras of one model), else
             held.
+        imu_model: :attr:`~ccs_kornia.geometry.imu_intrinsics.ImuModel.SCALE_MISALIGNMENT`: the IMU's scale factors,
+            misalignment and g-sensitivity fitted too (from an ideal IMU); else the IMU is taken as calibrated.
 
     Returns:
         :class:`~ccs_kornia.modules.imu.result.ImuCameraResult`.
@@ -159,7 +163,7 @@ def calibrate_imu_camera(
     for k in range(MAX_ROUNDS):
         shutter = rolling_shutter and k > 0
         problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=shutter, rig=rig,
-                                   refine_intrinsics=refine_intrinsics)
+                                   refine_intrinsics=refine_intrinsics, imu_model=imu_model)
         # a cost settled to 8 digits: tighter tolerances move T_cam_imu by nanometres at twice the iterations
         # (docs/imu.md); a warm start (the previous round's optimum, reweighted) needs little damping
         res = schur_lm(problem, s, max_iters=max_iters, ftol=1e-8, absolute_weights=True,
@@ -183,7 +187,7 @@ def calibrate_imu_camera(
         weights = replace(weights, gyro=weights.gyro / fg, accel=weights.accel / fa, pixel=weights.pixel / fp)
 
     problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=rolling_shutter, rig=rig,
-                               refine_intrinsics=refine_intrinsics)
+                               refine_intrinsics=refine_intrinsics, imu_model=imu_model)
     rg, ra, rc = problem.residuals(s)
     cov = problem.all_covariance(res.covariance[0])
     sd = cov.diagonal().clamp_min(0).sqrt()
@@ -200,7 +204,9 @@ def calibrate_imu_camera(
         translation_std=per_cam[:, 3:6], timeshift_std=per_cam[:, 6], covariance=cov,
         line_delay=s["delay"][0].clone() if rolling_shutter else None,
         line_delay_std=per_cam[:, 7] if rolling_shutter else None, rig_held=rig is not None,
-        cameras=problem.cameras(s), intrinsics_std=per_cam[:, problem.P0:] if refine_intrinsics else None, gravity=s["g"][0].clone(),
+        cameras=problem.cameras(s), intrinsics_std=per_cam[:, problem.P0:] if refine_intrinsics else None,
+        imu_intrinsics=ImuIntrinsics(s["Tg"][0].clone(), s["Ta"][0].clone(), s["Ag"][0].clone())
+        if problem.NI else None, imu_intrinsics_std=sd[-problem.NI:] if problem.NI else None, gravity=s["g"][0].clone(),
         gyro_bias=s["bg"][0].clone(), accel_bias=s["ba"][0].clone(), gyro_rms=_rms(rg), accel_rms=_rms(ra),
         pixel_rms=pixel_rms, noise_stated=stated, noise_measured=measured, pixel_sigma=weights.pixel**-0.5,
         noise_given=given, alignment_shifts=alignments[0].shifts,
@@ -222,7 +228,7 @@ class ImuCameraSolver(nn.Module):
     Args:
         noise, knot_spacing, max_shift, estimate_noise, max_iters, rolling_shutter: see :func:`calibrate_imu_camera`.
         rig: see :func:`calibrate_imu_camera` (held extrinsics of a rig, :math:`(C, 4, 4)`); a buffer.
-        refine_intrinsics: see :func:`calibrate_imu_camera`.
+        refine_intrinsics, imu_model: see :func:`calibrate_imu_camera`.
 
     Shape:
         :class:`~ccs_kornia.modules.imu.problem.ImuCameraData` (IMU :math:`(N, 3)` rates and accelerations, frames
@@ -242,8 +248,10 @@ class ImuCameraSolver(nn.Module):
 
     def __init__(self, noise: ImuNoise | None = None, knot_spacing: float = 0.02, max_shift: float = 0.2,
                  estimate_noise: bool = True, max_iters: int = 50, rolling_shutter: bool = False,
-                 rig: torch.Tensor | None = None, refine_intrinsics: bool = False) -> None:
+                 rig: torch.Tensor | None = None, refine_intrinsics: bool = False,
+                 imu_model: ImuModel = ImuModel.CALIBRATED) -> None:
         super().__init__()
+        self.imu_model = imu_model
         self.refine_intrinsics = refine_intrinsics
         self.register_buffer("rig", rig)
         self.rolling_shutter = rolling_shutter
@@ -256,4 +264,4 @@ class ImuCameraSolver(nn.Module):
     def forward(self, data: ImuCameraData) -> ImuCameraResult:
         return calibrate_imu_camera(data, self.noise, self.knot_spacing, self.max_shift, self.estimate_noise,
                                     self.max_iters, rolling_shutter=self.rolling_shutter, rig=self.rig,
-                                    refine_intrinsics=self.refine_intrinsics)
+                                    refine_intrinsics=self.refine_intrinsics, imu_model=self.imu_model)

@@ -4,6 +4,7 @@ import pytest
 import torch
 
 from ccs_kornia.data.recordings.visual_inertial import visual_inertial_recording
+from ccs_kornia.geometry.imu_intrinsics import ImuIntrinsics, ImuModel
 from ccs_kornia.geometry.so3 import log_so3
 from ccs_kornia.modules.calibration.schur_lm import schur_step
 from ccs_kornia.modules.imu.initial import align_rates, board_poses, initial_unknowns
@@ -70,15 +71,16 @@ class TestProblem:
 
     def test_held_rig_normal_equations_are_the_costs_gradient(self):
         # a held rig maps camera 0's step to every camera's: the reduced gradient is still the cost's derivative (the
-        # cameras' parameters refined too)
+        # cameras' parameters and the IMU's intrinsics estimated too)
         rec = visual_inertial_recording(duration=3.0, seed=15, num_cameras=2)
         data = _data(rec)
         dt, t0 = 0.05, float(data.imu_times[0])
         M = int((float(data.imu_times[-1]) - t0) / dt) + 3
         rig = rec.T_cam_imu.double() @ torch.linalg.inv(rec.T_cam_imu[0].double())
-        prob = ImuCameraProblem(data, t0, dt, M, Weights(1e4, 1e2, 4.0, 1e4, 1e2), rig=rig, refine_intrinsics=True)
+        prob = ImuCameraProblem(data, t0, dt, M, Weights(1e4, 1e2, 4.0, 1e4, 1e2), rig=rig, refine_intrinsics=True,
+                                imu_model=ImuModel.SCALE_MISALIGNMENT)
         n = data.cameras.params.shape[1]
-        assert prob.G == 6 + 2 * (1 + n) + 2 and prob.G_all == (7 + n) * 2 + 2
+        assert prob.G == 6 + 2 * (1 + n) + 2 + 24 and prob.G_all == (7 + n) * 2 + 2 + 24
         R, t, ok = board_poses(data)
         sel = data.frame_camera == 0
         al = align_rates(data.frame_times[sel], R[sel], ok[sel], data.imu_times, data.gyro)
@@ -86,10 +88,14 @@ class TestProblem:
         s["Rci"] = (rig[:, :3, :3] @ s["Rci"][0, 0])[None]
         s["tci"] = (rig[:, :3, 3] + rig[:, :3, :3] @ s["tci"][0, 0])[None]
         g = torch.Generator().manual_seed(1)
+        s["Tg"] = s["Tg"] + 0.01 * torch.randn(1, 3, 3, generator=g, dtype=torch.float64)
+        s["Ta"] = s["Ta"] + 0.01 * torch.randn(1, 3, 3, generator=g, dtype=torch.float64).triu()
+        s["Ag"] = 1e-3 * torch.randn(1, 3, 3, generator=g, dtype=torch.float64)
         eq = prob.linearize(s)
         dg = torch.randn(1, prob.G, generator=g, dtype=torch.float64)
         dg[:, 7:7 + n] *= 1e-2  # a lens coefficient's step of the size of the others' effect
         dg[:, 8 + n:8 + 2 * n] *= 1e-2
+        dg[:, -24:] *= 1e-2  # the IMU's matrices: a step of their size
         dp = torch.randn(1, M, 12, generator=g, dtype=torch.float64)
         h = 1e-6
         plus = prob.linearize(prob.retract(s, h * dg, h * dp)).cost
@@ -163,6 +169,24 @@ class TestSolver:
         assert float((res.cameras.params[0, :4] - truth.params[0, :4]).abs().max()) < 0.5
         assert res.intrinsics_std.shape == (1, truth.params.shape[1]) and bool((res.intrinsics_std > 0).all())
         assert float(res.pixel_rms[0]) < 0.4
+
+    def test_imu_intrinsics(self):
+        # an IMU 1-2 % off in scale, misaligned by a few mrad and sensitive to acceleration: the ideal model moves
+        # T_cam_imu by millimetres, scale-misalignment recovers it and the IMU's matrices
+        eye = torch.eye(3, dtype=torch.float64)
+        imu = ImuIntrinsics(eye + torch.tensor([[0.01, 0.003, -0.004], [0.002, -0.015, 0.003], [0.004, -0.005, 0.02]],
+                                               dtype=torch.float64),
+                            eye + torch.tensor([[-0.01, 0.004, 0.004], [0.0, 0.012, 0.004], [0.0, 0.0, 0.008]],
+                                               dtype=torch.float64),
+                            2e-4 * torch.tensor([[1.0, -1.0, 0.5], [0.3, 1.0, -0.7], [-0.2, 0.6, 1.0]], dtype=torch.float64))
+        rec = visual_inertial_recording(duration=12.0, seed=16, imu_intrinsics=imu)
+        res = ImuCameraSolver(noise=rec.noise, imu_model=ImuModel.SCALE_MISALIGNMENT)(_data(rec))
+        assert float((res.T_cam_imu[0, :3, 3] - rec.T_cam_imu[0, :3, 3]).norm()) < 0.002
+        est = res.imu_intrinsics
+        assert float((est.gyro_matrix - imu.gyro_matrix).abs().max()) < 2e-3
+        assert float((est.accel_matrix - imu.accel_matrix).abs().max()) < 2e-3
+        assert float((est.g_sensitivity - imu.g_sensitivity).abs().max()) < 2e-4
+        assert res.imu_intrinsics_std.shape == (24,) and bool((res.imu_intrinsics_std > 0).all())
 
     def test_weak_motion_is_named(self, recording, solved):
         import dataclasses
