@@ -47,9 +47,11 @@ class ImuIntrinsics:
 
     Example:
         >>> imu = ImuIntrinsics.identity()
-        >>> w, f = torch.tensor([[0.1, 0.0, 0.0]]), torch.tensor([[0.0, 0.0, 9.81]])
-        >>> [x.tolist() for x in imu.apply(w.double(), f.double())]
-        [[[0.1, 0.0, 0.0]], [[0.0, 0.0, 9.81]]]
+        >>> imu.accel_matrix[0, 0] = 1.01  # the accelerometer's x axis reads 1 % high
+        >>> w = torch.tensor([[0.1, 0.0, 0.0]], dtype=torch.float64)
+        >>> f = torch.tensor([[9.81, 0.0, 0.0]], dtype=torch.float64)
+        >>> [x.round(decimals=4).tolist() for x in imu.apply(w, f)]
+        [[[0.1, 0.0, 0.0]], [[9.9081, 0.0, 0.0]]]
     """
 
     gyro_matrix: torch.Tensor
