@@ -195,7 +195,8 @@ class BenchConfig:
     hand_eye_real: bool = True
     imu_trials: int = 10
     imu_seconds: float = 60.0
-    imu_conditions: tuple[str, ...] = ("given", "noise x10", "noise /10", "stereo", "rolling shutter")
+    imu_conditions: tuple[str, ...] = ("given", "noise x10", "noise /10", "stereo", "rolling shutter", "stereo, rig held",
+                                       "IMU errors, ideal model", "IMU errors, scale-misalignment")
     preset: str = "full"
     extra: dict = field(default_factory=dict)
 

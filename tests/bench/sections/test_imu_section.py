@@ -15,3 +15,14 @@ def test_imu_section_runs_and_reports():
     assert 0.0 <= s["coverage"] <= 1.0 and sec["peak_rss_mb"] > 0
     md = "\n".join(imu_md(sec))
     assert "| given |" in md and "1-sigma coverage" in md
+
+
+def test_imu_section_fits_an_imu_with_errors():
+    # the scale-misalignment condition: the IMU's intrinsics reported beside T_cam_imu
+    from dataclasses import replace
+
+    cfg = replace(BenchConfig.tiny(), imu_seconds=8.0, imu_conditions=("IMU errors, scale-misalignment",))
+    sec = run_imu(cfg, log=lambda *_: None)
+    s = sec["conditions"]["IMU errors, scale-misalignment"]["summary"]
+    assert s["t_mm_median"] < 5.0 and s["imu_matrix_err_pct_median"] < 0.5
+    assert "The IMU's intrinsics" in "\n".join(imu_md(sec))
