@@ -1,4 +1,4 @@
-"""Command line: ``python -m ccs_kornia detect|calibrate|calibrate-rig|calibrate-hand-eye|calibrate-imu|imu-noise|rectify|calibrate-many|undistort|demo|fit|...``.
+"""Command line: ``python -m ccs_kornia detect|calibrate|calibrate-rig|calibrate-hand-eye|calibrate-imu|imu-noise|compare|rectify|calibrate-many|undistort|demo|fit|...``.
 
 The contract (arguments and JSON layout) is fixed by ``DESIGN.md`` section 4; benchmarks rely on
 it. Behaviour on bad input:
@@ -506,10 +506,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the camera (a calibrate JSON); default: calibrated from the same images")
     p.add_argument("--model", default="auto", choices=MODELS,
                    help="camera model when the camera is calibrated from the images (default auto)")
-    p.add_argument("--imu-model", default="calibrated", choices=("calibrated", "scale-misalignment"),
-                   help="calibrated (default): the IMU reads the true rate and force (plus biases and noise); "
-                        "scale-misalignment: its scale factors, axis misalignment and the gyroscope's g-sensitivity "
-                        "are fitted too (written as imu_intrinsics with their 1-sigma)")
     p.add_argument("--refine-intrinsics", action="store_true",
                    help="fit the camera's intrinsics in the hand-eye fit too (default: held)")
     p.add_argument("--robot-noise", default="auto", metavar="auto|none|DEG,MM",
@@ -608,6 +604,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="PNG", help="also write the Allan deviation figure")
     p.add_argument("--rostopic", default="/imu0", metavar="TOPIC", help="the rostopic written in imu.yaml (default "
                    "/imu0; Kalibr reads it)")
+
+    p = sub.add_parser("compare", help="how far two calibrations of one camera project the same ray apart, over the "
+                       "image, beside what their uncertainty explains",
+                       description="The ray the first calibration sees at each pixel of a grid, projected by the "
+                                   "second, the rotation between the two camera frames fitted out where both saw "
+                                   "boards (mrcal's projection difference); with the difference their 1-sigma "
+                                   "predict where the files record it.",
+                       epilog=_EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("first", metavar="CALIB_A", help="a calibration JSON (calibrate's, or a rig.json with --camera)")
+    p.add_argument("second", metavar="CALIB_B", help="another calibration of the same camera")
+    p.add_argument("--camera", metavar="NAME", help="the camera of rig files (its name or index)")
+    p.add_argument("--output", metavar="JSON", help="also write the figures and the grids of differences")
+    p.add_argument("--plot", metavar="PNG", help="also write the difference over the image (and the expected one)")
 
     p = sub.add_parser("rectify", help="rectify stereo image pairs with a rig calibration")
     p.add_argument("left", metavar="LEFT_IMAGES", help="folder or glob of the first camera's images")

@@ -43,6 +43,9 @@ class CalibrationFile:
 
     camera: Camera
     views: list = field(default_factory=list)
+    #: the calibration's figures as the file records them (``diagnostics``: its projection uncertainty over the image
+    #: among them), empty when it has none
+    diagnostics: dict = field(default_factory=dict)
 
 
 def camera_record_fields(camera: Camera) -> dict[str, Any]:
@@ -176,4 +179,5 @@ def read_calibration(path: str | os.PathLike, camera: str | None = None) -> Cali
         error = data.get("error") or "no camera was computed"
         raise ValueError(f"this is a failed calibration: {error}")
     views = data.get("views") if isinstance(data.get("views"), list) else []
-    return CalibrationFile(camera_from_record(data), views)
+    diagnostics = data.get("diagnostics") if isinstance(data.get("diagnostics"), dict) else {}
+    return CalibrationFile(camera_from_record(data), views, diagnostics)

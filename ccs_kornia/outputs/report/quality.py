@@ -21,7 +21,7 @@ from ccs_kornia.outputs.report.drawing import (
     int_point,
 )
 
-__all__ = ["QUALITY_ROWS", "distortion_field_plot", "quality_html", "quality_markdown", "uncertainty_plot"]
+__all__ = ["QUALITY_ROWS", "distortion_field_plot", "grid_map_plot", "quality_html", "quality_markdown", "uncertainty_plot"]
 
 #: (label, key of the diagnostics dict, what it means)
 QUALITY_ROWS = (
@@ -113,15 +113,24 @@ def distortion_field_plot(camera: Camera, cells: int = 16) -> np.ndarray:
 def uncertainty_plot(size: tuple[int, int], grid_px: list[list[float | None]]) -> np.ndarray:
     """The 1-sigma projection uncertainty over the image (``diagnostics["uncertainty_grid_px"]``), as a colour
     map; grey where the model has no inverse."""
-    fig, box, _ = _field_canvas(size, "Projection uncertainty (1 sigma, px) over the image")
+    return grid_map_plot(size, grid_px, "Projection uncertainty (1 sigma, px) over the image", "uncertainty (px)")
+
+
+def grid_map_plot(size: tuple[int, int], grid_px: list[list[float | None]], title: str, label: str,
+                  vmax: float | None = None) -> np.ndarray:
+    """A figure (px) over a grid of the image (``down`` rows of ``across`` values, None or NaN where there is none) as a
+    colour map up to ``vmax`` (default its 95th percentile); grey where there is no value."""
+    fig, box, _ = _field_canvas(size, title)
     x0, y0, w, h = box
     values = np.array([[np.nan if v is None else v for v in row] for row in grid_px], np.float64)
     finite = np.isfinite(values)
-    vmax = max(float(np.nanpercentile(values, 95)) if finite.any() else 0.0, 1e-6)
+    if vmax is None:
+        vmax = float(np.nanpercentile(values, 95)) if finite.any() else 0.0
+    vmax = max(vmax, 1e-6)
     colour = cv2.applyColorMap(np.clip(np.nan_to_num(values) / vmax * 255, 0, 255).astype(np.uint8),
                                cv2.COLORMAP_VIRIDIS)
     colour[~finite] = (200, 200, 200)
     fig[y0:y0 + h, x0:x0 + w] = cv2.resize(colour, (w, h), interpolation=cv2.INTER_LINEAR)
     draw_plot_frame(fig, box, (0.0, float(size[0])), (0.0, float(size[1])), "x (px)", "y (px)", y_down=True, grid=False)
-    draw_colour_bar(fig, (x0 + w + 20, y0, 18, h), vmax, "uncertainty (px)")
+    draw_colour_bar(fig, (x0 + w + 20, y0, 18, h), vmax, label)
     return fig
