@@ -584,6 +584,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "fitted trajectory, the corners' residuals, the time-offset search) to DIR (created)")
     p.add_argument("--max-shift", default=0.2, type=_positive_float, metavar="S",
                    help="search the time offset within +-S seconds (default 0.2)")
+    p.add_argument("--align-clocks", action="store_true",
+                   help="the cameras' and the IMU's clocks start from different origins (a video's from 0, an IMU "
+                        "log's from the epoch): find each camera's offset from the angular speeds over the whole "
+                        "recordings first, then search --max-shift about it")
     p.add_argument("--rolling-shutter", action="store_true",
                    help="the cameras read their rows one after the other: each corner is fitted at its row's time and "
                         "each camera's row delay is estimated (written as line_delay_s)")

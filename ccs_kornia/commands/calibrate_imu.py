@@ -405,7 +405,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"imu: {note}", file=sys.stderr)
     result = calibrate_imu_camera(data, noise=noise, knot_spacing=args.knot_spacing, max_shift=args.max_shift,
                                   rolling_shutter=args.rolling_shutter, rig=None if args.refine_rig else rig,
-                                  refine_intrinsics=args.refine_intrinsics, imu_model=ImuModel(args.imu_model))
+                                  refine_intrinsics=args.refine_intrinsics, imu_model=ImuModel(args.imu_model),
+                                  align_clocks=args.align_clocks)
     findings = imu_log_findings(log)
     extra = {"imu": {"samples": int(log.t.shape[0]), "rate_hz": round(float(findings.rate), 3),
                      "dropped": findings.dropped, "longest_gap_s": findings.longest_gap,

@@ -77,6 +77,7 @@ def imu_camera_record(result: ImuCameraResult, names: list[str], extra: dict[str
             "frames_used": int(result.frames_used[c]),
             "pixel_rms": _r(result.pixel_rms[c], 4),
             "time_offset_search": {
+                **({"clock_offset_s": _r(result.clock_offset[c])} if result.clock_offset is not None else {}),
                 "start_s": _r(result.alignment_shift[c]),
                 "max_shift_s": result.max_shift,
                 "peak_correlation": _r(result.alignment_correlation[c].max(), 4),

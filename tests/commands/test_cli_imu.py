@@ -261,23 +261,27 @@ def test_folder_of_images_with_a_table_of_times(capsys, tmp_path):
 
 
 def test_video(capsys, tmp_path):
-    # a video's frame times are its container's (frame k at k / fps): the IMU's clock starts with the video
+    # a video's frame times are its container's (frame k at k / fps, from 0); the IMU's log is stamped from another
+    # origin (1000 s on): refused as clocks that do not overlap, then aligned from the motion with --align-clocks
     from _videos import write_video
 
     rec, t, images = rendered_frames(31)
     write_video(str(tmp_path / "cam0.avi"), images, fps=10.0)
-    write_imu_csv(tmp_path / "imu0.csv", rec, offset_s=-float(t[0]))
+    write_imu_csv(tmp_path / "imu0.csv", rec, offset_s=1000.0)
     write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
     out = tmp_path / "imu_cam.json"
-    code, _, err = run(capsys, "calibrate-imu", tmp_path / "cam0.avi", "--imu", tmp_path / "imu0.csv", "--board", "7x6",
-                       "--square", "0.08", "--calibration", tmp_path / "cam.json", "--detector", "opencv",
-                       "--jobs", "1", "--output", out)
+    argv = ["calibrate-imu", tmp_path / "cam0.avi", "--imu", tmp_path / "imu0.csv", "--board", "7x6", "--square",
+            "0.08", "--calibration", tmp_path / "cam.json", "--detector", "opencv", "--jobs", "1", "--output", out]
+    _refused(capsys, 2, argv, out, "overlap", "--align-clocks")
+    code, _, err = run(capsys, *argv, "--align-clocks")
     assert code == 0, err
     cam = json.loads(out.read_text())["cameras"][0]
     T = torch.tensor(cam["T_cam_imu"], dtype=torch.float64)
     assert cam["frames_used"] >= 20
     assert float((T[:3, 3] - rec.T_cam_imu[0, :3, 3]).norm()) < 0.01
-    assert abs(cam["timeshift_cam_imu"] - float(rec.shift[0])) < 1e-3
+    truth = float(t[0]) + float(rec.shift[0]) + 1000.0  # t_imu = t_video + t[0] + shift, the log 1000 s on
+    assert abs(cam["timeshift_cam_imu"] - truth) < 1e-3
+    assert abs(cam["time_offset_search"]["clock_offset_s"] - truth) < 0.05
     # a video and a folder together are refused
     (tmp_path / "cam1").mkdir()
     _refused(capsys, 2, ["calibrate-imu", tmp_path / "cam0.avi", tmp_path / "cam1", "--imu", tmp_path / "imu0.csv",

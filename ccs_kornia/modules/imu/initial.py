@@ -6,6 +6,8 @@ from their angular rates, gravity from the accelerometer, and the IMU's trajecto
   ``-max_shift .. max_shift`` (the speed does not depend on the unknown rotation between the sensors); the shift of the
   highest correlation, refined by a parabola through its neighbours. The correlation curve is kept: its peak's
   sharpness and position (at the search's edge) feed the verdict.
+* Clocks from different origins (:func:`clock_offset`, on request): the same speeds cross-correlated over every offset
+  at which the recordings overlap, on a 10 ms grid, before the search above.
 * Rotation: the camera's rates are the IMU's rotated, ``w_cam = R_cam_imu (w_imu - b_g)``: Kabsch's solution on the
   aligned rates (with the gyroscope's bias as their mean difference).
 * Trajectory: the IMU's orientation at each frame (``R_board_cam R_cam_imu``) interpolated at the knots; its position
@@ -24,7 +26,7 @@ from ccs_kornia.geometry.spline import fit_r3_spline, r3_spline, segment_of
 from ccs_kornia.modules.calibration.board_poses import camera_poses
 from ccs_kornia.modules.imu.problem import ImuCameraData
 
-__all__ = ["GRAVITY", "RateAlignment", "align_rates", "board_poses", "initial_unknowns"]
+__all__ = ["GRAVITY", "RateAlignment", "align_rates", "board_poses", "clock_offset", "initial_unknowns"]
 
 #: standard gravity (m/s^2)
 GRAVITY = 9.80665
@@ -137,6 +139,78 @@ def align_rates(frame_times: torch.Tensor, R_cam_board: torch.Tensor, ok: torch.
     rms = float(((wc - (R @ (wi - bias)[..., None])[..., 0]) ** 2).sum(-1).mean().sqrt())
     return RateAlignment(shift=best, R_cam_imu=R, gyro_bias=bias, shifts=shifts, correlation=corr, rms=rms,
                          at_edge=k <= 1 or k >= len(shifts) - 2)
+
+
+def _masked_ncc(a: torch.Tensor, b: torch.Tensor, mb: torch.Tensor, min_overlap: int) -> torch.Tensor:
+    """Normalised cross-correlation of ``a`` :math:`(A,)` with ``b`` :math:`(B,)` (valid where ``mb``) at every lag
+    ``L`` (``b[j]`` against ``a[j + L]``, ``L = -(B - 1) .. A - 1``), over the samples they share; ``-inf`` where they
+    share fewer than ``min_overlap``."""
+    n = a.shape[0] + b.shape[0] - 1
+    size = 1 << (n - 1).bit_length()
+
+    def xcorr(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        full = torch.fft.irfft(torch.fft.rfft(x, size) * torch.fft.rfft(y, size).conj(), size)
+        # lags 0 .. A-1 then -(B-1) .. -1, put in order
+        return torch.cat([full[size - (b.shape[0] - 1):], full[:a.shape[0]]])
+
+    ma = torch.ones_like(a)
+    mb = mb.to(a.dtype)
+    bm = b * mb
+    count = xcorr(ma, mb).round()
+    sa, saa, sb, sbb = xcorr(a, mb), xcorr(a * a, mb), xcorr(ma, bm), xcorr(ma, bm * b)
+    num = xcorr(a, bm)
+    c = count.clamp_min(1)
+    den = ((saa - sa * sa / c) * (sbb - sb * sb / c)).clamp_min(1e-300).sqrt()
+    ncc = (num - sa * sb / c) / den
+    return torch.where(count >= min_overlap, ncc, torch.full_like(ncc, float("-inf")))
+
+
+def clock_offset(frame_times: torch.Tensor, R_cam_board: torch.Tensor, ok: torch.Tensor, imu_times: torch.Tensor,
+                 gyro: torch.Tensor, step: float = 0.01) -> tuple[float, float]:
+    """The offset between a camera's clock and the IMU's when their origins differ (a video's from 0, an IMU log's
+    from the epoch): the angular speeds' normalised cross-correlation over every offset at which the two recordings
+    share half of the camera's span, on a ``step`` s grid (a coarse value for :func:`align_rates`).
+
+    Returns:
+        ``(offset, correlation)``: ``t_imu ~ t_cam + offset`` (s) and the peak's correlation.
+
+    Example:
+        >>> from ccs_kornia.data.recordings.visual_inertial import visual_inertial_recording
+        >>> from ccs_kornia.modules.imu.problem import ImuCameraData
+        >>> r = visual_inertial_recording(duration=12.0, seed=5)
+        >>> d = ImuCameraData.from_corners(r.imu_times, r.gyro, r.accel, r.cameras, r.object_points,
+        ...                                [r.frame_times[0] - 1000.0], r.corners)  # the camera's clock 1000 s behind
+        >>> R, _, ok = board_poses(d)
+        >>> offset, _ = clock_offset(d.frame_times, R, ok, d.imu_times, d.gyro)
+        >>> abs(offset - (1000.0 + float(r.shift[0]))) < 0.02
+        True
+    """
+    f64 = frame_times.dtype
+    pair = ok[:-1] & ok[1:]
+    dtf = frame_times[1:] - frame_times[:-1]
+    pair = pair & (dtf > 0) & (dtf < 0.2)
+    if int(pair.sum()) < 10:
+        raise ValueError("too few consecutive frames with the board to align the clocks.")
+    t_mid = (0.5 * (frame_times[1:] + frame_times[:-1]))[pair]
+    Rbc = R_cam_board.transpose(-1, -2)
+    speed_cam = (log_so3(Rbc[:-1].transpose(-1, -2) @ Rbc[1:]) / dtf[:, None])[pair].norm(dim=-1)
+    # each sensor's angular speed on its own clock's grid: the camera's where a frame pair is within a step
+    grid_c = torch.arange(float(t_mid[0]), float(t_mid[-1]), step, dtype=f64)
+    j = torch.searchsorted(t_mid, grid_c).clamp(1, t_mid.shape[0] - 1)
+    near = torch.where((grid_c - t_mid[j - 1]).abs() < (grid_c - t_mid[j]).abs(), j - 1, j)
+    cam = speed_cam[near]
+    cam_ok = (t_mid[near] - grid_c).abs() <= max(step, float(dtf[pair].median()))
+    grid_i = torch.arange(float(imu_times[0]), float(imu_times[-1]), step, dtype=f64)
+    cum = torch.cat([gyro.new_zeros(1, 3), torch.cumsum(0.5 * (gyro[1:] + gyro[:-1])
+                                                        * (imu_times[1:] - imu_times[:-1])[:, None], 0)])
+    h = 0.5 * float(dtf[pair].median())
+    imu = ((_interp(imu_times, grid_i + h, cum) - _interp(imu_times, grid_i - h, cum)) / (2 * h)).norm(dim=-1)
+    ncc = _masked_ncc(imu, cam, cam_ok, min_overlap=max(10, int(0.5 * int(cam_ok.sum()))))
+    k = int(ncc.argmax())
+    if not torch.isfinite(ncc[k]):
+        raise ValueError("the camera's and the IMU's recordings are too short to align their clocks.")
+    lag = k - (cam.shape[0] - 1)
+    return float(grid_i[0]) + lag * step - float(grid_c[0]), float(ncc[k])
 
 
 def _slerp_at(times: torch.Tensor, R: torch.Tensor, tq: torch.Tensor) -> torch.Tensor:

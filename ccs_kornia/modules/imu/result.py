@@ -74,7 +74,7 @@ class ImuCameraResult:
     alignment_shifts: torch.Tensor  #: (S,) s, the time offsets the rate alignment tried
     alignment_correlation: torch.Tensor  #: (C, S) the angular speeds' correlation at each
     alignment_shift: torch.Tensor  #: (C,) s, the alignment's time offset (the fit's start)
-    max_shift: float  #: s, the search's half-width
+    max_shift: float  #: s, the search's half-width (about the clocks' offset when they were aligned)
     frames_used: torch.Tensor  #: (C,) int64
     knot_spacing: float  #: s
     iterations: int
@@ -82,6 +82,8 @@ class ImuCameraResult:
     seconds: float  #: the fit's wall time
     line_delay: torch.Tensor | None = None  #: (C,) s per row of a rolling-shutter camera (None: global shutter)
     line_delay_std: torch.Tensor | None = None  #: (C,) s
+    #: (C,) s, each camera's clock offset found over the whole recordings before the search (clocks aligned), or None
+    clock_offset: torch.Tensor | None = None
     rig_held: bool = False  #: the cameras' poses in camera 0's frame were held (a rig's extrinsics), not fitted
     cameras: Camera | None = None  #: the cameras the fit used: as given, or refined (``intrinsics_std`` set)
     intrinsics_std: torch.Tensor | None = None  #: (C, P) the refined parameters' 1-sigma (None: held)

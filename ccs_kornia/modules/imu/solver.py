@@ -22,7 +22,7 @@ from torch import nn
 from ccs_kornia.geometry.imu_intrinsics import ImuIntrinsics, ImuModel
 from ccs_kornia.geometry.imu_noise import ImuNoise
 from ccs_kornia.modules.calibration.schur_lm import schur_lm
-from ccs_kornia.modules.imu.initial import align_rates, board_poses, initial_unknowns
+from ccs_kornia.modules.imu.initial import align_rates, board_poses, clock_offset, initial_unknowns
 from ccs_kornia.modules.imu.problem import (
     ITEM,
     ImuCameraData,
@@ -63,7 +63,8 @@ def _check_clocks(data: ImuCameraData, max_shift: float) -> None:
         if overlap < 2.0:
             raise UserError(f"camera {c}'s frames ({float(f[0]):.3f} .. {float(f[-1]):.3f} s) and the IMU's samples "
                             f"({float(t[0]):.3f} .. {float(t[-1]):.3f} s) overlap by {max(overlap, 0.0):.2f} s: "
-                            "the clocks do not match (timestamps in another unit or from another origin?).")
+                            "the clocks do not match (timestamps in another unit, or from another origin: "
+                            "--align-clocks finds their offset from the motion).")
 
 
 def _rms(x: torch.Tensor) -> float:
@@ -82,6 +83,7 @@ def calibrate_imu_camera(
     rig: torch.Tensor | None = None,
     refine_intrinsics: bool = False,
     imu_model: ImuModel = ImuModel.CALIBRATED,
+    align_clocks: bool = False,
 ) -> ImuCameraResult:
     """Calibrate the IMU against C cameras from one recording (see the module doc).
 
@@ -102,18 +104,30 @@ def calibrate_imu_camera(
             held.
         imu_model: :attr:`~ccs_kornia.geometry.imu_intrinsics.ImuModel.SCALE_MISALIGNMENT`: the IMU's scale factors,
             misalignment and g-sensitivity fitted too (from an ideal IMU); else the IMU is taken as calibrated.
+        align_clocks: the clocks have different origins (a video's from 0, an IMU log's from the epoch): each camera's
+            offset is first found from the angular speeds over the whole recordings
+            (:func:`~ccs_kornia.modules.imu.initial.clock_offset`), then searched within ``max_shift`` of it.
 
     Returns:
         :class:`~ccs_kornia.modules.imu.result.ImuCameraResult`.
     """
     start = time.perf_counter()
+    C = data.num_cameras
+    R_cb, t_cb, ok = board_poses(data)
+    clock = torch.zeros(C, dtype=data.gyro.dtype)
+    if align_clocks:
+        for c in range(C):
+            sel = data.frame_camera == c
+            try:
+                clock[c] = clock_offset(data.frame_times[sel], R_cb[sel], ok[sel], data.imu_times, data.gyro)[0]
+            except ValueError as e:
+                raise NoResult(f"camera {c}: {e}") from None
+        data = replace(data, frame_times=data.frame_times + clock[data.frame_camera])
     _check_clocks(data, max_shift)
     rate = float((data.imu_times.shape[0] - 1) / (data.imu_times[-1] - data.imu_times[0]))
     given = noise is not None
     stated = noise if noise is not None else replace(ImuNoise.euroc(), update_rate=rate)
-    C = data.num_cameras
 
-    R_cb, t_cb, ok = board_poses(data)
     alignments = []
     for c in range(C):
         sel = (data.frame_camera == c) & ok
@@ -200,7 +214,7 @@ def calibrate_imu_camera(
                        gyroscope_noise_density=weights.gyro**-0.5 / math.sqrt(rate),
                        accelerometer_noise_density=weights.accel**-0.5 / math.sqrt(rate), update_rate=rate)
     out = ImuCameraResult(
-        T_cam_imu=T, timeshift_cam_imu=s["shift"][0].clone(), rotation_std_deg=per_cam[:, :3] * 180 / math.pi,
+        T_cam_imu=T, timeshift_cam_imu=s["shift"][0] + clock, rotation_std_deg=per_cam[:, :3] * 180 / math.pi,
         translation_std=per_cam[:, 3:6], timeshift_std=per_cam[:, 6], covariance=cov,
         line_delay=s["delay"][0].clone() if rolling_shutter else None,
         line_delay_std=per_cam[:, 7] if rolling_shutter else None, rig_held=rig is not None,
@@ -211,7 +225,8 @@ def calibrate_imu_camera(
         pixel_rms=pixel_rms, noise_stated=stated, noise_measured=measured, pixel_sigma=weights.pixel**-0.5,
         noise_given=given, alignment_shifts=alignments[0].shifts,
         alignment_correlation=torch.stack([a.correlation for a in alignments]),
-        alignment_shift=torch.tensor([a.shift for a in alignments], dtype=data.gyro.dtype), max_shift=max_shift,
+        alignment_shift=torch.tensor([a.shift for a in alignments], dtype=data.gyro.dtype) + clock,
+        max_shift=max_shift, clock_offset=clock if align_clocks else None,
         frames_used=frames_used, knot_spacing=knot_spacing, iterations=iterations, status=int(res.status[0]),
         seconds=time.perf_counter() - start,
         spline={"t0": t0, "dt": knot_spacing, "R": s["R"][0].clone(), "p": s["p"][0].clone()},
@@ -228,7 +243,7 @@ class ImuCameraSolver(nn.Module):
     Args:
         noise, knot_spacing, max_shift, estimate_noise, max_iters, rolling_shutter: see :func:`calibrate_imu_camera`.
         rig: see :func:`calibrate_imu_camera` (held extrinsics of a rig, :math:`(C, 4, 4)`); a buffer.
-        refine_intrinsics, imu_model: see :func:`calibrate_imu_camera`.
+        refine_intrinsics, imu_model, align_clocks: see :func:`calibrate_imu_camera`.
 
     Shape:
         :class:`~ccs_kornia.modules.imu.problem.ImuCameraData` (IMU :math:`(N, 3)` rates and accelerations, frames
@@ -249,8 +264,9 @@ class ImuCameraSolver(nn.Module):
     def __init__(self, noise: ImuNoise | None = None, knot_spacing: float = 0.02, max_shift: float = 0.2,
                  estimate_noise: bool = True, max_iters: int = 50, rolling_shutter: bool = False,
                  rig: torch.Tensor | None = None, refine_intrinsics: bool = False,
-                 imu_model: ImuModel = ImuModel.CALIBRATED) -> None:
+                 imu_model: ImuModel = ImuModel.CALIBRATED, align_clocks: bool = False) -> None:
         super().__init__()
+        self.align_clocks = align_clocks
         self.imu_model = imu_model
         self.refine_intrinsics = refine_intrinsics
         self.register_buffer("rig", rig)
@@ -264,4 +280,5 @@ class ImuCameraSolver(nn.Module):
     def forward(self, data: ImuCameraData) -> ImuCameraResult:
         return calibrate_imu_camera(data, self.noise, self.knot_spacing, self.max_shift, self.estimate_noise,
                                     self.max_iters, rolling_shutter=self.rolling_shutter, rig=self.rig,
-                                    refine_intrinsics=self.refine_intrinsics, imu_model=self.imu_model)
+                                    refine_intrinsics=self.refine_intrinsics, imu_model=self.imu_model,
+                                    align_clocks=self.align_clocks)

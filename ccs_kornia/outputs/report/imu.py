@@ -10,6 +10,7 @@ import os
 
 import cv2
 import numpy as np
+import torch
 
 from ccs_kornia.modules.imu.result import ImuCameraResult
 from ccs_kornia.outputs.report.drawing import (
@@ -125,10 +126,13 @@ def write_imu_report(directory: str, result: ImuCameraResult, gyro: np.ndarray, 
         save(f"reprojection_{c}.png", residual_scatter_figure(corners[cam == c].reshape(-1, 2),
                                                               f"{name}: corner residuals (px)"),
              f"{name}: reprojection residuals")
+    # the search ran about each camera's clock offset (when the clocks were aligned first): drawn about it
+    clock = result.clock_offset if result.clock_offset is not None else torch.zeros_like(result.timeshift_cam_imu)
     save("time_offset.png", time_offset_figure(result.alignment_shifts.cpu().numpy(),
                                                result.alignment_correlation.cpu().numpy(),
-                                               result.alignment_shift.cpu().numpy(),
-                                               result.timeshift_cam_imu.cpu().numpy()), "the time-offset search")
+                                               (result.alignment_shift - clock).cpu().numpy(),
+                                               (result.timeshift_cam_imu - clock).cpu().numpy()),
+         "the time-offset search" + (" (about the clocks' offset)" if result.clock_offset is not None else ""))
     rows = "".join(
         f"<tr><td>{html.escape(name)}</td><td>{html.escape(str(np.round(result.T_cam_imu[c].cpu().numpy(), 6).tolist()))}"
         f"</td><td>{1000 * float(result.timeshift_cam_imu[c]):+.4f} ms</td><td>"
