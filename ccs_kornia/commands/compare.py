@@ -21,8 +21,15 @@ import torch
 
 from ccs_kornia.commands._output_paths import check_outputs
 from ccs_kornia.io.files import write_json
-from ccs_kornia.modules.calibration.quality.uncertainty import image_points, projection_difference
-from ccs_kornia.outputs.calibration_file import CalibrationFile, RigFileError, read_calibration
+from ccs_kornia.modules.calibration.quality.uncertainty import (
+    image_points,
+    projection_difference,
+)
+from ccs_kornia.outputs.calibration_file import (
+    CalibrationFile,
+    RigFileError,
+    read_calibration,
+)
 from ccs_kornia.outputs.report.drawing import write_png
 from ccs_kornia.outputs.report.quality import grid_map_plot
 from ccs_kornia.runtime.errors import UserError

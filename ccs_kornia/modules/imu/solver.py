@@ -22,7 +22,12 @@ from torch import nn
 from ccs_kornia.geometry.imu_intrinsics import ImuIntrinsics, ImuModel
 from ccs_kornia.geometry.imu_noise import ImuNoise
 from ccs_kornia.modules.calibration.schur_lm import schur_lm
-from ccs_kornia.modules.imu.initial import align_rates, board_poses, clock_offset, initial_unknowns
+from ccs_kornia.modules.imu.initial import (
+    align_rates,
+    board_poses,
+    clock_offset,
+    initial_unknowns,
+)
 from ccs_kornia.modules.imu.problem import (
     ITEM,
     ImuCameraData,
