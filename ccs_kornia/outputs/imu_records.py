@@ -102,6 +102,8 @@ def imu_camera_record(result: ImuCameraResult, names: list[str], extra: dict[str
             "accelerometer_rms": _r(result.accel_rms, 9),
             "accelerometer_sample_sigma_stated": _r(stated.accelerometer_noise_density * math.sqrt(measured.update_rate), 9),
             "pixel_sigma": _r(result.pixel_sigma, 4),
+            **{f"{sensor}_follows_readings": {"largest": _r(e, 6), "sigmas": _r(z, 2)}
+               for sensor, (e, z) in result.residual_scale.items()},
         },
         "noise": {"given": result.noise_given, "stated": noise_record(stated), "measured": noise_record(measured)},
         "fit": {"knot_spacing_s": result.knot_spacing, "iterations": result.iterations, "status": result.status,

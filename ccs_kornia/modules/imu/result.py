@@ -45,6 +45,10 @@ class ImuVerdictThresholds:
     noise_ratio: float = 3.0
     min_correlation: float = 0.5
     max_pixel_rms: float = 1.0
+    #: an ideal IMU's residual following its reading by more than this (0.1 %) ...
+    imu_scale: float = 1e-3
+    #: ... and this many standard errors: its intrinsics are asked for (``--imu-model scale-misalignment``)
+    imu_scale_sigmas: float = 6.0
 
 
 @dataclass
@@ -90,6 +94,9 @@ class ImuCameraResult:
     #: the IMU's intrinsics when estimated (``--imu-model scale-misalignment``), else None (an ideal IMU)
     imu_intrinsics: ImuIntrinsics | None = None
     imu_intrinsics_std: torch.Tensor | None = None  #: (24,) T_g by rows, T_a's upper triangle, A_g by rows
+    #: with the IMU taken as ideal: per sensor ("gyroscope", "accelerometer") how far its residuals follow its
+    #: readings, ``(largest entry of E, its ratio to its standard error)`` (:mod:`~.intrinsics_evidence`)
+    residual_scale: dict = field(default_factory=dict)
     verdict: str = ""
     verdict_reasons: list[str] = field(default_factory=list)
     spline: dict = field(default_factory=dict, repr=False)  #: t0, dt, R, p: the IMU's trajectory (for reports)
@@ -155,6 +162,10 @@ def imu_camera_verdict(result: ImuCameraResult, thresholds: ImuVerdictThresholds
         corr = float(result.alignment_correlation[c].max())
         if corr < t.min_correlation:
             weak.append(f"{name}the camera's and the gyroscope's angular speeds agree weakly (correlation {corr:.2f})")
+    for sensor, (e, z) in result.residual_scale.items():
+        if e > t.imu_scale and z > t.imu_scale_sigmas:
+            weak.append(f"the {sensor}'s residuals follow its readings ({100 * e:.2f} % of them, {z:.0f} sigma): scale "
+                        "or axis errors of the IMU: fit them (--imu-model scale-misalignment)")
     stated, measured = result.noise_stated, result.noise_measured
     g = _ratio(measured.gyroscope_noise_density, stated.gyroscope_noise_density)
     a = _ratio(measured.accelerometer_noise_density, stated.accelerometer_noise_density)

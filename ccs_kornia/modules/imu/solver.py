@@ -28,6 +28,7 @@ from ccs_kornia.modules.imu.initial import (
     clock_offset,
     initial_unknowns,
 )
+from ccs_kornia.modules.imu.intrinsics_evidence import residual_scale
 from ccs_kornia.modules.imu.problem import (
     ITEM,
     ImuCameraData,
@@ -237,6 +238,9 @@ def calibrate_imu_camera(
         spline={"t0": t0, "dt": knot_spacing, "R": s["R"][0].clone(), "p": s["p"][0].clone()},
         residuals={"imu_times": fit_data.imu_times, "gyro": rg, "accel": ra, "frame_times": fit_data.frame_times,
                    "frame_camera": fit_data.frame_camera, "corners": rc, "seen": fit_data.seen})
+    if imu_model is ImuModel.CALIBRATED:
+        out.residual_scale = {"gyroscope": residual_scale(fit_data.gyro, rg),
+                              "accelerometer": residual_scale(fit_data.accel, ra)}
     out.verdict, out.verdict_reasons = imu_camera_verdict(out, thresholds)
     return out
 

@@ -126,6 +126,8 @@ class TestSolver:
         assert 0.01 < err_t / float(solved.translation_std[0].norm()) < 10
         torch.testing.assert_close(solved.gravity, recording.gravity, atol=0.02, rtol=0)
         assert solved.verdict == "good" and solved.status in (1, 2)
+        # an ideal IMU's residuals do not follow its readings
+        assert all(z < 6 for _, z in solved.residual_scale.values())
 
     def test_noise_measured_when_stated_wrong(self, recording):
         res = calibrate_imu_camera(_data(recording), noise=recording.noise.scaled(10.0))
@@ -180,7 +182,12 @@ class TestSolver:
                                                dtype=torch.float64),
                             2e-4 * torch.tensor([[1.0, -1.0, 0.5], [0.3, 1.0, -0.7], [-0.2, 0.6, 1.0]], dtype=torch.float64))
         rec = visual_inertial_recording(duration=12.0, seed=16, imu_intrinsics=imu)
+        # fitted as an ideal IMU, the residuals follow the readings: the verdict asks for the intrinsics
+        ideal = calibrate_imu_camera(_data(rec), noise=rec.noise, max_iters=10)
+        assert any("--imu-model scale-misalignment" in r for r in ideal.verdict_reasons)
+        assert ideal.residual_scale["accelerometer"][1] > 6
         res = ImuCameraSolver(noise=rec.noise, imu_model=ImuModel.SCALE_MISALIGNMENT)(_data(rec))
+        assert res.residual_scale == {}
         assert float((res.T_cam_imu[0, :3, 3] - rec.T_cam_imu[0, :3, 3]).norm()) < 0.002
         est = res.imu_intrinsics
         assert float((est.gyro_matrix - imu.gyro_matrix).abs().max()) < 2e-3
