@@ -54,15 +54,17 @@ __all__ = [
     "PoseSuggestion",
     "candidate_poses",
     "next_poses",
+    "place_board",
     "pose_instruction",
     "uncertainty_map",
     "worst_uncertainty",
 ]
 
-#: the board centre's positions over the image, ``(across, down)``: a grid spanning the image at the board's margin
-POSITIONS = (3, 3)
+#: the board centre's positions over the image, ``(across, down)``: a grid from 10 % to 90 % of each side (a pose
+#: whose board leaves the image is left out)
+POSITIONS = (5, 5)
 #: the distances tried, as the fraction of the image width the untilted board spans at the image centre
-DISTANCES = (0.35, 0.5, 0.7)
+DISTANCES = (0.3, 0.45, 0.65)
 #: the tilts tried about each axis (degrees)
 TILTS_DEG = (-40.0, -20.0, 0.0, 20.0, 40.0)
 #: a hand-held board is not turned further than this from facing the camera (degrees, both axes together)
@@ -109,6 +111,60 @@ def _board_frame(object_points: torch.Tensor) -> tuple[torch.Tensor, torch.Tenso
     return centred, centre[0], float(centred[:, 0].amax() - centred[:, 0].amin())
 
 
+def place_board(
+    camera: Camera,
+    object_points: torch.Tensor,
+    pixels: torch.Tensor,
+    fill: torch.Tensor,
+    tilt_deg: torch.Tensor,
+    roll_deg: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    r"""Board poses from where a person holds the board: its centre on the ray of ``pixels``, at the distance where
+    the untilted board spans ``fill`` of the image width (at the camera's focal length), turned about the camera's x
+    and y axes (``tilt_deg``: positive turns the bottom edge / the left edge away) and about its own normal
+    (``roll_deg``).
+
+    Args:
+        camera: one camera with its image size.
+        object_points: :math:`(N, 3)` the board's corners (``z = 0``).
+        pixels: :math:`(K, 2)`; fill: :math:`(K,)`; tilt_deg: :math:`(K, 2)`; roll_deg: :math:`(K,)` or ``None``.
+
+    Returns:
+        ``rvec, tvec`` :math:`(K, 3)` (the pose of ``object_points`` as given, board to camera) and the corners'
+        projections :math:`(K, N, 2)` and depths :math:`(K, N)`.
+
+    Example:
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.models import PINHOLE
+        >>> cam = Camera(PINHOLE, torch.tensor([600.0, 600, 320, 240], dtype=torch.float64), (640, 480))
+        >>> obj = board_object_points(9, 6, 0.03, dtype=torch.float64)
+        >>> _, _, uv, _ = place_board(cam, obj, torch.tensor([[320.0, 240.0]], dtype=torch.float64),
+        ...                           torch.tensor([0.5], dtype=torch.float64), torch.zeros(1, 2, dtype=torch.float64))
+        >>> round(float(uv[0, :, 0].amax() - uv[0, :, 0].amin()))  # half of 640
+        320
+    """
+    check_tensor(pixels, "pixels", ["K", "2"])
+    check_tensor(tilt_deg, "tilt_deg", ["K", "2"], K=pixels.shape[0])
+    camera = camera.to(dtype=torch.float64)
+    dev = camera.device
+    W = camera.image_size[0]
+    obj, middle, width = _board_frame(object_points.double().to(dev))
+    if not width > 0:
+        raise ValueError("object_points span no width.")
+    px, fill, rad = pixels.double().to(dev), fill.double().to(dev), torch.deg2rad(tilt_deg.double().to(dev))
+    rays = camera.unproject(px[None])[0]
+    rays = rays / rays.norm(dim=-1, keepdim=True)
+    zero = torch.zeros_like(rad[:, 0])
+    R = exp_so3(torch.stack([rad[:, 0], zero, zero], -1)) @ exp_so3(torch.stack([zero, rad[:, 1], zero], -1))
+    if roll_deg is not None:
+        R = R @ exp_so3(torch.stack([zero, zero, torch.deg2rad(roll_deg.double().to(dev))], -1))
+    centre = rays * (float(camera.params[0, 0]) * width / (fill * W))[:, None]
+    pts = torch.einsum("kij,nj->kni", R, obj) + centre[:, None, :]  # (K, N, 3)
+    uv = camera.project(pts.reshape(1, -1, 3))[0].reshape(pts.shape[0], -1, 2)
+    # the pose of the board's own points: R (X - c) + t = R X + (t - R c)
+    return log_so3(R), centre - R @ middle, uv, pts[..., 2]
+
+
 def candidate_poses(
     camera: Camera,
     object_points: torch.Tensor,
@@ -123,8 +179,9 @@ def candidate_poses(
 
     The board's centre is put on the ray of each of a grid of pixels (``positions``, spanning the image), at the
     distance where the untilted board spans each fraction ``distances`` of the image width, and turned by each pair
-    of ``tilts_deg`` about the camera's x and y axes whose total turn is at most ``max_tilt_deg``. Poses with a corner
-    outside the image (less ``margin`` of its size on each side) or behind the camera are left out.
+    of ``tilts_deg`` about the camera's x and y axes whose total turn is at most ``max_tilt_deg``
+    (:func:`place_board`). Poses with a corner outside the image (less ``margin`` of its size on each side) or behind
+    the camera are left out.
 
     Args:
         camera: one camera with its image size.
@@ -149,50 +206,27 @@ def candidate_poses(
         raise ValueError(f"candidate_poses takes one camera with its image size, got {len(camera)}.")
     check_tensor(object_points, "object_points", ["N", "3"])
     camera = camera.to(dtype=torch.float64)
-    dev = camera.device
+    dev, f64 = camera.device, torch.float64
     W, H = camera.image_size
-    obj, middle, width = _board_frame(object_points.double().to(dev))
-    if not width > 0:
-        raise ValueError("object_points span no width.")
-    n = obj.shape[0]
+    n = object_points.shape[0]
     cols, rows = board_size if board_size is not None else (n, 1)
     ends = torch.tensor([0, cols - 1, cols * rows - 1, cols * (rows - 1)], device=dev)
-    fx = float(camera.params[0, 0])
-    # the centre's pixels: inside the image by a third of the largest board's span, so that some distance fits
-    span = max(distances) * W / 3
-    px = torch.stack(torch.meshgrid(
-        torch.linspace(min(span, W / 2), W - min(span, W / 2), positions[0], dtype=torch.float64, device=dev),
-        torch.linspace(min(span, H / 2), H - min(span, H / 2), positions[1], dtype=torch.float64, device=dev),
-        indexing="xy"), -1).reshape(-1, 2)
-    rays = camera.unproject(px[None])[0]  # (G, 3) unit rays
-    rays = rays / rays.norm(dim=-1, keepdim=True)
+    grid = torch.stack(torch.meshgrid(torch.linspace(0.1 * W, 0.9 * W, positions[0], dtype=f64, device=dev),
+                                      torch.linspace(0.1 * H, 0.9 * H, positions[1], dtype=f64, device=dev),
+                                      indexing="xy"), -1).reshape(-1, 2)
     tilts = torch.tensor([(a, b) for a in tilts_deg for b in tilts_deg if math.hypot(a, b) <= max_tilt_deg + 1e-9],
-                         dtype=torch.float64, device=dev)  # (T, 2)
-    rad = torch.deg2rad(tilts)
-    zero = torch.zeros_like(rad[:, 0])
-    R = exp_so3(torch.stack([rad[:, 0], zero, zero], -1)) @ exp_so3(torch.stack([zero, rad[:, 1], zero], -1))
-    fills = torch.tensor(distances, dtype=torch.float64, device=dev)
-    depth = fx * width / (fills * W)  # (D,)
-    G, D, T = px.shape[0], fills.shape[0], tilts.shape[0]
-    centre = rays[:, None, :] * depth[None, :, None]  # (G, D, 3)
-    tvec = centre[:, :, None, :].expand(G, D, T, 3).reshape(-1, 3)
-    Rk = R[None, None].expand(G, D, T, 3, 3).reshape(-1, 3, 3)
-    pts = torch.einsum("kij,nj->kni", Rk, obj) + tvec[:, None, :]  # (K, N, 3)
-    uv = camera.project(pts.reshape(1, -1, 3))[0].reshape(pts.shape[0], n, 2)
+                         dtype=f64, device=dev)  # (T, 2)
+    fills = torch.tensor(distances, dtype=f64, device=dev)
+    G, D, T = grid.shape[0], fills.shape[0], tilts.shape[0]
+    px = grid[:, None, None].expand(G, D, T, 2).reshape(-1, 2)
+    fill = fills[None, :, None].expand(G, D, T).reshape(-1)
+    tilt = tilts[None, None].expand(G, D, T, 2).reshape(-1, 2)
+    rvec, tvec, uv, depth = place_board(camera, object_points, px, fill, tilt)
     mx, my = margin * W, margin * H
-    inside = ((uv[..., 0] >= mx) & (uv[..., 0] <= W - 1 - mx) & (uv[..., 1] >= my) & (uv[..., 1] <= H - 1 - my)
-              & (pts[..., 2] > 0) & uv.isfinite().all(-1)).all(-1)
-    # the board's plane faces the camera: its normal points back toward it at the centre
-    normal = Rk[:, :, 2]
-    faces = (normal * tvec).sum(-1) > 0
-    keep = inside & faces
-    position = (px / torch.tensor([W, H], dtype=torch.float64, device=dev))[:, None, None, :].expand(G, D, T, 2)
-    fill = fills[None, :, None].expand(G, D, T)
-    tilt = tilts[None, None].expand(G, D, T, 2)
-    # the pose of the board's own points: R (X - c) + t = R X + (t - R c)
-    out = CandidatePoses(log_so3(Rk), tvec - Rk @ middle, position.reshape(-1, 2), fill.reshape(-1), tilt.reshape(-1, 2),
-                         uv[:, ends])
-    return out.take(keep)
+    keep = ((uv[..., 0] >= mx) & (uv[..., 0] <= W - 1 - mx) & (uv[..., 1] >= my) & (uv[..., 1] <= H - 1 - my)
+            & (depth > 0) & uv.isfinite().all(-1)).all(-1)
+    position = px / torch.tensor([W, H], dtype=f64, device=dev)
+    return CandidatePoses(rvec, tvec, position, fill, tilt, uv[:, ends]).take(keep)
 
 
 def _pixel_jacobians(camera: Camera, grid: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
