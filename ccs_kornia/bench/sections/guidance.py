@@ -2,18 +2,20 @@ r"""Guided capture benchmark: a simulated person following the next best pose, a
 rule and against random poses, on cameras with known truth.
 
 **The cameras** (640x480, a 9x6 board of 25 mm squares, corners projected exactly, then Gaussian detector noise of
-``noise_px``): ``normal`` (radial-tangential, 62 degrees across), ``wide`` (radial-tangential, 95 degrees across,
-strong barrel) and ``fisheye`` (Kannala-Brandt, 170 degrees across). Each is calibrated with its own model.
+``noise_px``): ``normal`` (radial-tangential, 64 degrees across), ``wide`` (radial-tangential, 104 degrees across,
+strong barrel, monotonic over the whole image) and ``fisheye`` (Kannala-Brandt, 165 degrees across, 212 on the
+diagonal). Each is calibrated with its own model.
 
 **The people.** A hand-held pose is where the board's centre sits in the image, how much of the width it fills and
 how far it is turned about the camera's x and y axes (and about its normal): what a person controls.
 
 * ``guided`` follows :mod:`~ccs_kornia.modules.calibration.quality.next_pose`: the best pose for the current
   calibration (before the first solve, for a guessed camera of the right kind) is shown; the person moves the board
-  from where it was towards it, stops short by a reaction delay (a fraction 0-40 % of the way, uniform) and holds
+  from where it was towards it, stops short by a reaction delay (a fraction 0-20 % of the way, uniform) and holds
   it with hand jitter (``jitter_mm`` per axis, ``jitter_deg`` per axis); the frame is kept where at least 60 % of the
   corners are in the image (the detector takes partial boards). The calibration is solved again at each count of
-  :data:`COUNTS`; between solves the new views' information is taken at the pose the last camera gives them.
+  :data:`COUNTS` (a solve whose RMS is over three times the noise's is not followed: the guidance keeps the camera
+  before it); between solves the new views' information is taken at the pose the last camera gives them.
 * ``ros`` waves the board about at random (positions over the whole image, 30-80 % of the width, tilts up to 45
   degrees about each axis, 20 degrees about the normal; the whole board in the image, 8 px clear of its border, as
   ROS's detector needs) and ROS's rule keeps a frame when its X, Y, size and skew parameters differ from every kept
@@ -61,7 +63,7 @@ COUNTS = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40)
 #: camera kind -> (model, true parameters, the guessed camera's focal length before the first solve)
 CAMERAS = {
     "normal": (OPENCV5, [530.0, 532.0, 322.0, 238.0, -0.12, 0.08, 0.0008, -0.0005, 0.0], 640.0),
-    "wide": (OPENCV5, [295.0, 296.0, 318.0, 243.0, -0.30, 0.09, 0.0006, 0.0004, -0.011], 640.0),
+    "wide": (OPENCV5, [330.0, 331.0, 318.0, 243.0, -0.25, 0.06, 0.0006, 0.0004, 0.0], 640.0),
     "fisheye": (FISHEYE, [215.0, 215.5, 321.0, 241.0, 0.03, -0.01, 0.004, -0.001], 640.0 / 3),
 }
 SIZE = (640, 480)
@@ -246,7 +248,7 @@ def _guided(kind: str, truth: Camera, obj: torch.Tensor, trials: int, counts: tu
             res = _solve(model, uv[:, :n], valid[:, :n], obj)
             errors[:, counts.index(n)] = projection_error(truth, res.camera).numpy()
             for t in range(trials):
-                if not bool(res.camera.params[t].isfinite().all()):
+                if not bool(res.camera.params[t].isfinite().all()) or not float(res.rms[t]) < 3 * noise * math.sqrt(2):
                     continue
                 cams[t] = res.camera[t]
                 M = view_information(cams[t], res.rvec[t:t + 1], res.tvec[t:t + 1], obj, valid[t:t + 1, :n].double())
@@ -321,6 +323,7 @@ def run_guidance_camera(kind: str, trials: int = 8, counts: tuple[int, ...] = CO
     target = float(np.nanmedian(errors["ros"][:, j40]))
     beyond = max(counts) + 10
     out: dict = {"target_px": target, "counts": list(counts), "trials": trials, "instructions": said,
+                 "noise_px": noise, "jitter_mm": jitter_mm, "jitter_deg": jitter_deg, "shortfall": shortfall,
                  "ros_goodenough": other["ros_goodenough"], "ros_frames_seen": other["ros_frames_seen"],
                  "people": {}}
     for name, e in errors.items():
@@ -353,15 +356,17 @@ def guidance_md(sec: dict) -> list[str]:
     """Markdown of :func:`run_guidance`'s result."""
     if "cameras" not in sec:
         return [f"Not run: {sec.get('error') or sec.get('skipped', '')}"]
-    lines = [(f"{sec['trials']} simulated people per camera (640x480, 9x6 board, 0.2 px detector noise): guided by the "
-              "next best pose (reaction delay: 0-40 % short of the pose; hand jitter 15 mm and 4 degrees per axis), "
+    first = next(iter(sec["cameras"].values()))
+    lines = [(f"{sec['trials']} simulated people per camera (640x480, 9x6 board, {first['noise_px']:g} px detector noise): "
+              f"guided by the next best pose (reaction delay: 0-{100 * first['shortfall']:.0f} % short of the pose; "
+              f"hand jitter {first['jitter_mm']:g} mm and {first['jitter_deg']:g} degrees per axis), "
               "ROS camera_calibration's rule on random hand-held poses (40 samples), and the random poses themselves. "
               "Error: RMS over the image of the projection difference to the true camera (px, rotation fitted out). "
               "Target: ROS's median error at its 40 samples. Frames: the median over trials of the first count of "
-              f"{', '.join(str(c) for c in next(iter(sec['cameras'].values()))['counts'])} at or below the target "
+              f"{', '.join(str(c) for c in first['counts'])} at or below the target "
               "(a trial that never reaches it counts as 10 beyond the last)."), "",
-             "| camera | target px | frames guided | frames ROS | frames random | fewer than ROS | fewer than random | "
-             "ROS goodenough (median samples) |", "|---|---|---|---|---|---|---|---|"]
+             ("| camera | target px | frames guided | frames ROS | frames random | fewer than ROS | fewer than random | "
+              "ROS goodenough (median samples) |"), "|---|---|---|---|---|---|---|---|"]
     for kind, c in sec["cameras"].items():
         p = c["people"]
         lines.append(f"| {kind} | {c['target_px']:.3f} | {p['guided']['median_frames']:g} "
