@@ -455,6 +455,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="done at N kept frames whatever the figure (default 40)")
     g.add_argument("--fast", action="store_true",
                    help="read a video file as fast as it decodes (default: at its own rate, as a camera gives it)")
+    g.add_argument("--port", default=8765, type=int, metavar="PORT",
+                   help="the page's port: http://127.0.0.1:PORT shows the live image, the coverage, the uncertainty "
+                        "map, the next pose and the kept frames (default 8765; 0: any free port)")
+    g.add_argument("--host", default="127.0.0.1", metavar="HOST",
+                   help="the interface the page listens on (default 127.0.0.1: this machine only; 0.0.0.0: every "
+                        "interface)")
+    g.add_argument("--no-page", action="store_true", help="no page: the console only")
 
     p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
                        "folder of board images per camera", epilog=_EXIT_HELP,

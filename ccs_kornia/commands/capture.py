@@ -23,6 +23,7 @@ from ccs_kornia.geometry.models.factory import K1K2
 from ccs_kornia.io.live import open_live
 from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.screening import BoardScreen
+from ccs_kornia.outputs.capture_page import CapturePage, annotate
 from ccs_kornia.pipeline.guided_capture import GuidedCapture
 from ccs_kornia.runtime.errors import NoResult, UserError
 
@@ -31,6 +32,10 @@ __all__ = ["frames_dir", "run"]
 #: the options ``calibrate`` takes for inputs other than a folder of images, set as a folder's
 _FOLDER_INPUTS = {"corners": None, "image_size": None, "bag": None, "image_topics": None, "every": 1, "start": None,
                   "end": None, "max_frames": None, "select": None, "save_frames": None}
+
+
+#: capture's own options, which calibrate does not take
+_CAPTURE_ONLY = ("sources", "frames_dir", "target", "fast", "port", "host", "no_page", "images", "max_frames")
 
 
 def frames_dir(args: argparse.Namespace) -> str:
@@ -67,6 +72,74 @@ def _fill(outline: np.ndarray, width: int) -> float:
     return float(np.ptp(outline[:, 0])) / max(1, width)
 
 
+def _frame_name(index: int) -> str:
+    return f"frame_{index:06d}.png"
+
+
+def _capture_loop(args: argparse.Namespace, source, page, obj, board, staging: str):
+    """Frames until done, the end of the stream, Ctrl-C or "calibrate now": the :class:`GuidedCapture` and why it
+    stopped."""
+    capture = None
+    said = ""
+    shown: dict = {}
+    why = "stream ended"
+    try:
+        with source:
+            for frame in source:
+                if capture is None:
+                    h, w = frame.image.shape
+                    capture = GuidedCapture(tuple(args.board), obj, (w, h), _detector(args),
+                                            live_model=_live_model(args), screen=BoardScreen(tuple(args.board), board),
+                                            target=args.target, max_frames=args.max_frames)
+                actions = page.take_actions() if page is not None else []
+                if "calibrate" in actions:
+                    why = "calibrate now"
+                    break
+                for _ in range(actions.count("undo")):
+                    gone = capture.undo()
+                    if gone is not None:
+                        os.unlink(os.path.join(staging, _frame_name(gone.index)))
+                        print(f"undone {_frame_name(gone.index)}", flush=True)
+                        shown.clear()
+                if "keep" in actions:
+                    decision = capture.keep_now(frame.image, frame.index, frame.timestamp)
+                else:
+                    decision = capture.offer(frame.image, frame.index, frame.timestamp)
+                if decision.kept:
+                    kept = capture.kept[-1]
+                    name = _frame_name(frame.index)
+                    cv2.imwrite(os.path.join(staging, name), frame.image)
+                    figure = "" if not np.isfinite(decision.worst_px) else \
+                        f"; predicted worst 1-sigma {decision.worst_px:.3f} px (target {args.target:g})"
+                    print(f"kept {name} at {frame.timestamp:.2f} s: {kept.why}{figure}", flush=True)
+                    shown.clear()
+                if not shown and capture.kept:  # what changes only with the kept frames
+                    best = capture.suggestion(_fill(capture.kept[-1].outline, capture.image_size[0]))
+                    shown = {"suggestion": best, "map": capture.uncertainty_map()}
+                    if best.instruction and best.instruction != said and not capture.done:
+                        print(f"next: {best.instruction}", flush=True)
+                        said = best.instruction
+                if page is not None:
+                    _show(page, frame.image, capture, decision, shown, args.target)
+                if decision.done:
+                    why = "target reached" if capture.worst_px <= args.target else f"--max-frames {args.max_frames} reached"
+                    break
+    except KeyboardInterrupt:
+        why = "interrupted"
+    return capture, why
+
+
+def _show(page, image: np.ndarray, capture: GuidedCapture, decision, shown: dict, target: float) -> None:
+    best = shown.get("suggestion")
+    outline = None if best is None or not len(best.poses) else best.poses.outline[0].numpy()
+    worst = capture.worst_px if np.isfinite(capture.worst_px) else None
+    page.show(annotate(image, decision.sighting.outline, [k.outline for k in capture.kept], outline,
+                       shown.get("map"), target, worst))
+    page.set_state(worst_px=worst, target_px=target, instruction="" if best is None else best.instruction,
+                   status=("target reached" if decision.done else decision.reason), done=decision.done,
+                   kept=[{"name": _frame_name(k.index), "why": k.why} for k in capture.kept])
+
+
 def run(args: argparse.Namespace) -> int:
     if len(args.sources) != 1:
         raise UserError("capture calibrates one camera: give one SOURCE (a rig's cameras: record each and use "
@@ -77,62 +150,43 @@ def run(args: argparse.Namespace) -> int:
     if os.path.isdir(folder) and os.listdir(folder):
         raise UserError(f"--frames-dir {folder} is not empty: the kept frames must be alone there (so that calibrate "
                         f"{folder} gives the same camera)")
-    source = open_live(args.sources[0], realtime=not args.fast)
+    page = None if args.no_page else CapturePage(args.host, args.port)
+    try:
+        source = open_live(args.sources[0], realtime=not args.fast)
+    except UserError:
+        if page is not None:
+            page.close()
+        raise
+    if page is not None:
+        print(f"page: {page.url}", flush=True)
     board = args.charuco_board if args.charuco_board is not None else args.aprilgrid_board
     obj = grid_object_points(board, tuple(args.board), args.square)
     staging = tempfile.mkdtemp(prefix=".capture-", dir=os.path.dirname(os.path.abspath(folder)) or ".")
-    seen = 0
-    interrupted = False
     try:
-        capture = None
-        try:
-            with source:
-                for frame in source:
-                    if capture is None:
-                        h, w = frame.image.shape
-                        capture = GuidedCapture(tuple(args.board), obj, (w, h), _detector(args),
-                                                live_model=_live_model(args), screen=BoardScreen(tuple(args.board), board),
-                                                target=args.target, max_frames=args.max_frames)
-                        said = ""
-                    decision = capture.offer(frame.image, frame.index, frame.timestamp)
-                    seen += decision.sighting.found
-                    if decision.kept:
-                        kept = capture.kept[-1]
-                        name = f"frame_{frame.index:06d}.png"
-                        cv2.imwrite(os.path.join(staging, name), frame.image)
-                        figure = "" if not np.isfinite(decision.worst_px) else \
-                            f"; predicted worst 1-sigma {decision.worst_px:.3f} px (target {args.target:g})"
-                        print(f"kept {name} at {frame.timestamp:.2f} s: {kept.why}{figure}", flush=True)
-                        words = capture.suggestion(_fill(kept.outline, w)).instruction
-                        if words and words != said and not decision.done:
-                            print(f"next: {words}", flush=True)
-                            said = words
-                    if decision.done:
-                        break
-        except KeyboardInterrupt:
-            interrupted = True
+        capture, why_stopped = _capture_loop(args, source, page, obj, board, staging)
         kept_frames = [] if capture is None else capture.kept
         if not kept_frames:
             what = "no frame came" if capture is None else (
-                "the board was never seen" if not seen else "the board was never held still at a new pose")
+                "the board was never seen" if not capture.sightings else "the board was never held still at a new pose")
             raise NoResult(f"{args.sources[0]}: {what}; nothing written")
         if len(kept_frames) < 3:
             raise NoResult(f"{args.sources[0]}: only {len(kept_frames)} frame(s) kept, at least 3 are needed to "
                            "calibrate; nothing written")
-        reached = capture.done and capture.worst_px <= args.target
-        how = ("target reached" if reached else "interrupted" if interrupted else
-               f"--max-frames {args.max_frames} reached" if len(kept_frames) >= args.max_frames else "stream ended")
-        print(f"{how}: {len(kept_frames)} frames kept; calibrating with the full pipeline", flush=True)
+        print(f"{why_stopped}: {len(kept_frames)} frames kept; calibrating with the full pipeline", flush=True)
+        if page is not None:
+            page.set_state(status=f"{why_stopped}: calibrating {len(kept_frames)} frames", done=True)
         if os.path.isdir(folder):
             os.rmdir(folder)  # empty (checked above)
-        parent = os.path.dirname(os.path.abspath(folder))
-        os.makedirs(parent, exist_ok=True)
+        os.makedirs(os.path.dirname(os.path.abspath(folder)), exist_ok=True)
         os.replace(staging, folder)
         staging = None
     finally:
         if staging is not None:
             shutil.rmtree(staging, ignore_errors=True)
-    cal = argparse.Namespace(**{**vars(args), **_FOLDER_INPUTS, "images": [folder]})
+        if page is not None:
+            page.close()
+    cal = argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in _CAPTURE_ONLY}, **_FOLDER_INPUTS,
+                             images=[folder])
     start = time.perf_counter()
     code = calibrate_camera(cal)
     print(f"wrote the {len(kept_frames)} kept frames to {folder} (calibrate {folder} gives the same camera); "

@@ -37,6 +37,7 @@ from ccs_kornia.modules.calibration.quality.next_pose import (
     PoseSuggestion,
     candidate_poses,
     next_poses,
+    uncertainty_map,
     worst_uncertainty,
 )
 from ccs_kornia.modules.calibration.quality.view_information import view_information
@@ -128,6 +129,7 @@ class GuidedCapture:
     information: torch.Tensor | None = None
     sigma: float = 0.5
     worst_px: float = math.inf
+    sightings: int = 0
     _last: tuple[float, np.ndarray] | None = None
     _solved: bool = False
 
@@ -183,6 +185,7 @@ class GuidedCapture:
 
         if not seen.found:
             return no("no board")
+        self.sightings += 1
         if last is None or timestamp <= last[0]:
             return no("moving")
         speed = float(np.linalg.norm(seen.outline - last[1], axis=-1).mean()) / (timestamp - last[0])
@@ -212,16 +215,41 @@ class GuidedCapture:
         self._update(corners)
         return CaptureDecision(True, why, seen, self.worst_px, self.done)
 
+    def keep_now(self, gray8: np.ndarray, index: int, timestamp: float) -> CaptureDecision:
+        """Keep this frame whatever the gates say (a person's choice), where the board and its corners are found."""
+        seen = self.screen(gray8)
+        corners = self.detect(gray8) if seen.found else None
+        if corners is None or np.isfinite(corners).all(-1).sum() < 4:
+            return CaptureDecision(False, "corners not found", seen, self.worst_px, self.done)
+        self.kept.append(KeptFrame(index, timestamp, corners, seen.outline.copy(), "kept by hand"))
+        self._update(corners)
+        return CaptureDecision(True, "kept by hand", seen, self.worst_px, self.done)
+
+    def uncertainty_map(self, grid: tuple[int, int] = (16, 12)) -> np.ndarray | None:
+        """The predicted worst-direction 1-sigma projection uncertainty :math:`(down, across)` px over the image
+        (``None`` before the first solve)."""
+        if not self._solved:
+            return None
+        return uncertainty_map(self.camera, self.information, self.sigma, grid,
+                               typical=self.information / len(self.kept)).numpy()
+
     def undo(self) -> KeptFrame | None:
         """Drop the last kept frame; the calibration is solved again without it."""
         if not self.kept:
             return None
         frame = self.kept.pop()
-        self._solve()
+        if len(self.kept) >= self.min_views:
+            self._solve()
+        else:  # the rough poses' information again, through the camera assumed before the first solve
+            self.camera = guess_camera(self.live_model, self.image_size)
+            self.information = torch.zeros_like(self.information)
+            self._solved, self.worst_px = False, math.inf
+            for k in self.kept:
+                self._update(k.corners, solve=False)
         return frame
 
-    def _update(self, corners: np.ndarray) -> None:
-        if len(self.kept) >= self.min_views:
+    def _update(self, corners: np.ndarray, solve: bool = True) -> None:
+        if solve and len(self.kept) >= self.min_views:
             self._solve()
             return
         valid = np.isfinite(corners).all(-1)

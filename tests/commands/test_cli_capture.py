@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 
 import numpy as np
 import pytest
@@ -33,7 +34,7 @@ def held_video(tmp_path_factory):
 
 def test_capture_keeps_frames_and_calibrate_reproduces_it(held_video, tmp_path, capsys):
     frames = tmp_path / "kept"
-    code, out, err = run(capsys, "capture", held_video, *FAST, "--fast", "--output", tmp_path / "calib.json",
+    code, out, err = run(capsys, "capture", held_video, *FAST, "--no-page", "--fast", "--output", tmp_path / "calib.json",
                          "--frames-dir", frames, "--target", "0.01")
     assert code == 0, err
     kept = sorted(os.listdir(frames))
@@ -52,7 +53,7 @@ def test_capture_keeps_frames_and_calibrate_reproduces_it(held_video, tmp_path, 
 
 
 def test_capture_stops_at_the_target(held_video, tmp_path, capsys):
-    code, out, err = run(capsys, "capture", held_video, *FAST, "--fast", "--output", tmp_path / "calib.json",
+    code, out, err = run(capsys, "capture", held_video, *FAST, "--no-page", "--fast", "--output", tmp_path / "calib.json",
                          "--target", "5")
     assert code == 0, err
     assert "target reached" in out
@@ -65,7 +66,7 @@ def test_bad_sources_are_one_line_and_write_nothing(tmp_path, capsys):
              (["capture", blank], 3, "the board was never seen"),
              (["capture", blank, blank], 2, "one SOURCE")]
     for argv, status, words in cases:
-        code, _, err = run(capsys, *argv, *FAST, "--fast", "--output", tmp_path / "calib.json")
+        code, _, err = run(capsys, *argv, *FAST, "--no-page", "--fast", "--output", tmp_path / "calib.json")
         lines = [line for line in err.splitlines() if "error" in line]
         assert code == status and len(lines) == 1 and words in lines[0], err
     assert sorted(os.listdir(tmp_path)) == ["blank.avi"]
@@ -74,10 +75,28 @@ def test_bad_sources_are_one_line_and_write_nothing(tmp_path, capsys):
 def test_a_non_empty_frames_dir_is_refused(held_video, tmp_path, capsys):
     (tmp_path / "kept").mkdir()
     (tmp_path / "kept" / "old.png").write_bytes(b"")
-    code, _, err = run(capsys, "capture", held_video, *FAST, "--output", tmp_path / "c.json", "--frames-dir",
+    code, _, err = run(capsys, "capture", held_video, *FAST, "--no-page", "--output", tmp_path / "c.json", "--frames-dir",
                        tmp_path / "kept")
     assert code == 2 and "not empty" in err
     assert not (tmp_path / "c.json").exists()
+
+
+def test_a_port_in_use_stops_before_anything(held_video, tmp_path, capsys):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        code, _, err = run(capsys, "capture", held_video, *FAST, "--port", port, "--output", tmp_path / "c.json")
+    lines = [line for line in err.splitlines() if "error" in line]
+    assert code == 2 and len(lines) == 1 and "in use" in lines[0], err
+    assert os.listdir(tmp_path) == []
+
+
+def test_the_page_runs_with_capture(held_video, tmp_path, capsys):
+    code, out, err = run(capsys, "capture", held_video, *FAST, "--fast", "--port", 0, "--output",
+                         tmp_path / "calib.json", "--target", "5")
+    assert code == 0, err
+    assert "page: http://127.0.0.1:" in out and "target reached" in out
 
 
 def test_source_kinds():

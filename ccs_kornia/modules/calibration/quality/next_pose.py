@@ -229,9 +229,23 @@ def candidate_poses(
     return CandidatePoses(rvec, tvec, position, fill, tilt, uv[:, ends]).take(keep)
 
 
+#: the last cameras' pixel derivatives (a live capture asks for the same camera's figure many times between solves)
+_JACOBIANS: dict = {}
+
+
 def _pixel_jacobians(camera: Camera, grid: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """d pixel / d the model's parameters :math:`(G, 2, P)` at a grid of pixels, the camera rotation fitted out; the
-    pixels :math:`(G, 2)` and where the model has an inverse :math:`(G,)`."""
+    pixels :math:`(G, 2)` and where the model has an inverse :math:`(G,)` (remembered for the last few cameras)."""
+    key = (str(camera.model), tuple(camera.params.flatten().tolist()), tuple(camera.image_size), tuple(grid),
+           str(camera.device))
+    if key not in _JACOBIANS:
+        if len(_JACOBIANS) >= 8:
+            _JACOBIANS.pop(next(iter(_JACOBIANS)))
+        _JACOBIANS[key] = _compute_pixel_jacobians(camera, grid)
+    return _JACOBIANS[key]
+
+
+def _compute_pixel_jacobians(camera: Camera, grid: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     pixels = image_points(camera.image_size, grid, dtype=camera.dtype).to(camera.device)
     rays = image_rays(camera, pixels)
     ok = rays.isfinite().all(-1)
@@ -285,7 +299,10 @@ def uncertainty_map(
     if typical is None:
         typical = info.reshape(-1, *info.shape[-2:]).mean(0)
     cov = sigma ** 2 * torch.linalg.pinv(_regularised(info, typical.double(), prior), hermitian=True)
-    S = torch.einsum("gip,...pq,gjq->...gij", J, cov, J)
+    # J cov J^T per pixel as one product: the pixels' outer products J_i J_j^T flattened, (*, G, 2, 2)
+    G, _, P = J.shape
+    outer = (J[:, :, None, :, None] * J[:, None, :, None, :]).reshape(G * 4, P * P)
+    S = (cov.reshape(*cov.shape[:-2], P * P) @ outer.T).reshape(*cov.shape[:-2], G, 2, 2)
     a, b, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 1]
     lam = ((a + d) / 2 + (((a - d) / 2) ** 2 + b * b).sqrt()).clamp_min(0).sqrt()
     lam = torch.where(ok, lam, torch.full_like(lam, float("nan")))
