@@ -1,6 +1,7 @@
 """Frame rate of ``capture``'s live loop and page at 720p on this machine's CPU.
 
-A 1280x720 recording of a chessboard (9x6 inner corners, moving and pausing) is rendered, then each frame goes
+A 1280x720 recording of a chessboard (9x6 inner corners, held still at hand-held poses and moved between them) is
+rendered, then each frame goes
 through what ``capture`` does with it: the guided capture's look (:class:`~ccs_kornia.pipeline.guided_capture.
 GuidedCapture`: the screen, the gates, the corners and the solve of a frame it keeps), the annotated frame and its JPEG
 for the page (:class:`~ccs_kornia.outputs.capture_page.CapturePage`), while a client reads the page's MJPEG stream.
@@ -23,7 +24,9 @@ import numpy as np
 import torch
 
 from ccs_kornia.geometry.board_points import board_object_points
-from ccs_kornia.geometry.models.factory import K1K2
+from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.factory import K1K2, PINHOLE
+from ccs_kornia.modules.calibration.quality.next_pose import place_board
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.outputs.capture_page import CapturePage, annotate
 from ccs_kornia.pipeline.guided_capture import GuidedCapture
@@ -33,26 +36,34 @@ BOARD = (9, 6)
 
 
 def render(num: int, seed: int = 0) -> list[np.ndarray]:
-    """Grey 1280x720 frames of a 10x7-square chessboard: held still for 10 frames at a pose, 5 frames moving."""
+    """Grey 1280x720 frames of a 10x7-square chessboard (25 mm squares) seen by a pinhole camera (fx 1000): held still
+    for 10 frames at a random hand-held pose (:func:`~ccs_kornia.modules.calibration.quality.next_pose.place_board`:
+    centre in the middle half of the image, 30-50 % of the width, tilted up to 35 degrees about each axis),
+    then 5 frames moving to the next."""
     rng = np.random.default_rng(seed)
-    sq = 60
-    board = np.kron((np.indices((BOARD[1] + 1, BOARD[0] + 1)).sum(0) % 2) * 200 + 30, np.ones((sq, sq)))
-    board = cv2.copyMakeBorder(board.astype(np.uint8), sq, sq, sq, sq, cv2.BORDER_CONSTANT, value=230)
-    h, w = board.shape
-    src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
+    square, px = 0.025, 40  # texture pixels per square
+    cols, rows = BOARD
+    board = np.kron((np.indices((rows + 1, cols + 1)).sum(0) % 2) * 200 + 30, np.ones((px, px))).astype(np.float32)
+    board = cv2.copyMakeBorder(board, px, px, px, px, cv2.BORDER_CONSTANT, value=230)
+    s = px / square  # the first inner corner (square, square) at texture pixel 2 px - 0.5
+    to_texture = np.array([[s, 0.0, px - 0.5], [0.0, s, px - 0.5], [0.0, 0.0, 1.0]])
+    K = np.array([[1000.0, 0.0, 639.5], [0.0, 1000.0, 359.5], [0.0, 0.0, 1.0]])
+    camera = Camera(PINHOLE, torch.tensor([1000.0, 1000.0, 639.5, 359.5], dtype=torch.float64), SIZE)
+    obj = board_object_points(cols, rows, square, dtype=torch.float64) + square  # the texture's corner at (0, 0)
+    count = num // 15 + 2
+    u = torch.from_numpy(rng.uniform(0, 1, (count, 5)))
+    pixels = torch.stack([(0.25 + 0.5 * u[:, 0]) * SIZE[0], (0.3 + 0.4 * u[:, 1]) * SIZE[1]], -1)
+    rvec, tvec, _, _ = place_board(camera, obj, pixels, 0.3 + 0.2 * u[:, 2], (u[:, 3:5] - 0.5) * 70.0)
     background = cv2.GaussianBlur(rng.uniform(60, 190, (SIZE[1], SIZE[0])).astype(np.float32), (0, 0), 8)
-    poses = []
-    for _ in range(num // 15 + 2):
-        cx, cy, s = rng.uniform(350, 930), rng.uniform(220, 500), rng.uniform(0.5, 0.8)
-        quad = np.float32([[-w / 2, -h / 2], [w / 2, -h / 2], [w / 2, h / 2], [-w / 2, h / 2]]) * s
-        quad += rng.uniform(-0.12, 0.12, (4, 2)).astype(np.float32) * np.float32([w, h]) * s  # a tilted board
-        poses.append(quad + np.float32([cx, cy]))
+    homographies = []
+    for r, t in zip(rvec.numpy(), tvec.numpy(), strict=True):
+        R, _ = cv2.Rodrigues(r)
+        homographies.append(K @ np.column_stack([R[:, 0], R[:, 1], t]) @ np.linalg.inv(to_texture))
     frames = []
     for k in range(num):
         p, t = divmod(k, 15)
-        quad = poses[p] if t < 10 else poses[p] + (poses[p + 1] - poses[p]) * (t - 9) / 6
-        H = cv2.getPerspectiveTransform(src, quad.astype(np.float32))
-        warped = cv2.warpPerspective(board.astype(np.float32), H, SIZE, borderValue=-1)
+        H = homographies[p] if t < 10 else homographies[p] + (homographies[p + 1] - homographies[p]) * (t - 9) / 6
+        warped = cv2.warpPerspective(board, H, SIZE, flags=cv2.INTER_LINEAR, borderValue=-1)
         frames.append(np.where(warped >= 0, warped, background).clip(0, 255).astype(np.uint8))
     return frames
 
