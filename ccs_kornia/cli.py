@@ -340,62 +340,10 @@ def detection_options(p: argparse.ArgumentParser) -> None:
                    help="do not run the distortion-correction network")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argparse parser of every command except the Lightning ones (forwarded untouched)."""
-    parser = _Parser(
-        prog=PROG,
-        description="Camera calibration from chessboard images (batched PyTorch/Kornia).",
-        epilog="Training: python -m ccs_kornia fit|validate|test|predict --config lightning_configs/<x>.yaml "
-        "(LightningCLI; see its --help).\n\n" + _EXIT_HELP,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    sub.required = True
-
-    def common(p: argparse.ArgumentParser, board: bool = True, square: bool = False, corners: bool = False,
-               selection: bool = False) -> None:
-        p.add_argument("images", nargs="*" if board else "+", metavar="IMAGES",
-                       help="image files, directories or globs" + (", or videos (one camera's recordings)" if board
-                                                                    else "") + (" (or --corners, --bag)" if corners
-                                                                                else " (or --bag)" if board else ""))
-        if board:
-            corner_options(p, rig=False, corners=corners)
-        if board:
-            which = p.add_mutually_exclusive_group(required=True)
-            which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
-                               help="inner corners per row x rows of inner corners, e.g. 9x6 (or --charuco)")
-            p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"),
-                           help=f"corner detector (default: {DEFAULT_DETECTOR}; a --charuco board has its own)")
-            charuco_options(p, which, square=square)
-        p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
-        if board:
-            p.add_argument("--batch-size", default=8, type=_positive_int, metavar="N",
-                           help="images loaded and processed at once by each process (default: 8; fewer when "
-                                "images are large: at most 16 Mpx per batch)")
-            p.add_argument("--jobs", default="auto", type=_jobs_arg, metavar="N",
-                           help="processes detecting on the CPU, one thread each (default: auto, one per core, at "
-                                "most 4; 1 = this process only); any number gives the same corners")
-            p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
-                           help="detect on a downscaled copy of larger images, then refine corners at full "
-                                "resolution (default: 2048; 0 = always full resolution)")
-            p.add_argument("--network-precision", default="float32", choices=("float32", "bfloat16", "auto"),
-                           help="the learned detector's heatmap network: float32 (default: the same corners on every "
-                                "machine), bfloat16 (about 1.7x faster on CPUs with native bfloat16, AVX512-BF16 or "
-                                "AMX, slower elsewhere; can find other boards), auto (bfloat16 where native)")
-            video_options(p, selection=selection)
-
-    p = sub.add_parser("detect", help="detect chessboard corners, write them as JSON", epilog=_EXIT_HELP,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    common(p, square=True)
-    p.add_argument("--output", required=True, metavar="JSON", help="corners file to write")
-    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
-                   help="detect on the images as they are (by default a strongly distorted lens's images are "
-                        "corrected for detection; corners are always given in the original images)")
-
-    p = sub.add_parser("calibrate", help="calibrate a camera from chessboard images", epilog=_EXIT_HELP,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    common(p, corners=True, selection=True)
+def calibrate_options(p: argparse.ArgumentParser) -> None:
+    """What ``calibrate`` and ``capture`` both take once the board and the inputs are said: ``--square --output
+    --model --no-ransac --seed --unweighted --report --opencv-yaml --ros-yaml --no-distortion-correction
+    --no-diagnostics --allow-weak``."""
     p.add_argument("--square", default=1.0, type=_length_arg,
                    help="square side in world units (scales the poses only; default 1)")
     p.add_argument("--output", required=True, metavar="JSON",
@@ -425,7 +373,95 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip the quality figures (cross-validation of two halves of the views, held-out views, "
                         "projection uncertainty) and the verdict; they cost a few more solves")
     p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argparse parser of every command except the Lightning ones (forwarded untouched)."""
+    parser = _Parser(
+        prog=PROG,
+        description="Camera calibration from chessboard images (batched PyTorch/Kornia).",
+        epilog="Training: python -m ccs_kornia fit|validate|test|predict --config lightning_configs/<x>.yaml "
+        "(LightningCLI; see its --help).\n\n" + _EXIT_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+
+    def common(p: argparse.ArgumentParser, board: bool = True, square: bool = False, corners: bool = False,
+               selection: bool = False, files: bool = True) -> None:
+        if files:
+            p.add_argument("images", nargs="*" if board else "+", metavar="IMAGES",
+                           help="image files, directories or globs" + (", or videos (one camera's recordings)" if board
+                                                                        else "") + (" (or --corners, --bag)" if corners
+                                                                                    else " (or --bag)" if board else ""))
+        if board and files:
+            corner_options(p, rig=False, corners=corners)
+        if board:
+            which = p.add_mutually_exclusive_group(required=True)
+            which.add_argument("--board", type=_board_arg, metavar="COLSxROWS",
+                               help="inner corners per row x rows of inner corners, e.g. 9x6 (or --charuco)")
+            p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=("learned", "opencv"),
+                           help=f"corner detector (default: {DEFAULT_DETECTOR}; a --charuco board has its own)")
+            charuco_options(p, which, square=square)
+        p.add_argument("--device", default="cpu", type=_device_arg, help="cpu, cuda or cuda:N (default: cpu)")
+        if board:
+            p.add_argument("--batch-size", default=8, type=_positive_int, metavar="N",
+                           help="images loaded and processed at once by each process (default: 8; fewer when "
+                                "images are large: at most 16 Mpx per batch)")
+            p.add_argument("--jobs", default="auto", type=_jobs_arg, metavar="N",
+                           help="processes detecting on the CPU, one thread each (default: auto, one per core, at "
+                                "most 4; 1 = this process only); any number gives the same corners")
+            p.add_argument("--max-detection-side", default=2048, type=_detection_side, metavar="PX",
+                           help="detect on a downscaled copy of larger images, then refine corners at full "
+                                "resolution (default: 2048; 0 = always full resolution)")
+            p.add_argument("--network-precision", default="float32", choices=("float32", "bfloat16", "auto"),
+                           help="the learned detector's heatmap network: float32 (default: the same corners on every "
+                                "machine), bfloat16 (about 1.7x faster on CPUs with native bfloat16, AVX512-BF16 or "
+                                "AMX, slower elsewhere; can find other boards), auto (bfloat16 where native)")
+            if files:
+                video_options(p, selection=selection)
+
+    p = sub.add_parser("detect", help="detect chessboard corners, write them as JSON", epilog=_EXIT_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    common(p, square=True)
+    p.add_argument("--output", required=True, metavar="JSON", help="corners file to write")
+    p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
+                   help="detect on the images as they are (by default a strongly distorted lens's images are "
+                        "corrected for detection; corners are always given in the original images)")
+
+    p = sub.add_parser("calibrate", help="calibrate a camera from chessboard images", epilog=_EXIT_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    common(p, corners=True, selection=True)
+    calibrate_options(p)
     selection_options(p)
+
+    p = sub.add_parser("capture", help="calibrate a camera at hand: hold the board where it says, the frames that lower "
+                       "the predicted uncertainty are kept, the camera calibrated when the target is reached",
+                       epilog=_EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("sources", nargs="+", metavar="SOURCE",
+                   help="a camera index (0), a device (/dev/video0), a stream URL (rtsp://, http://) or a video file "
+                        "(played at its own rate)")
+    common(p, files=False)
+    calibrate_options(p)
+    g = p.add_argument_group("capture")
+    g.add_argument("--frames-dir", metavar="DIR",
+                   help="write the kept frames here (created; must be empty): calibrate DIR gives the same camera "
+                        "(default: the output's name without .json, then _frames)")
+    g.add_argument("--target", default=0.1, type=_positive_float, metavar="PX",
+                   help="done when the predicted worst 1-sigma projection uncertainty over the image is at most PX "
+                        "(default 0.1)")
+    g.add_argument("--max-frames", default=40, type=_positive_int, metavar="N",
+                   help="done at N kept frames whatever the figure (default 40)")
+    g.add_argument("--fast", action="store_true",
+                   help="read a video file as fast as it decodes (default: at its own rate, as a camera gives it)")
+    g.add_argument("--port", default=8765, type=int, metavar="PORT",
+                   help="the page's port: http://127.0.0.1:PORT shows the live image, the coverage, the uncertainty "
+                        "map, the next pose and the kept frames (default 8765; 0: any free port)")
+    g.add_argument("--host", default="127.0.0.1", metavar="HOST",
+                   help="the interface the page listens on (default 127.0.0.1: this machine only; 0.0.0.0: every "
+                        "interface)")
+    g.add_argument("--no-page", action="store_true", help="no page: the console only")
 
     p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
                        "folder of board images per camera", epilog=_EXIT_HELP,

@@ -5,8 +5,9 @@ its looks are values of :mod:`.looks`; :mod:`.solve` is the solver stage (on :mo
 the solver takes them, built once), :mod:`.result` the typed result, :mod:`.sources` the views (tensors, files, video
 frames), :mod:`.workers` the worker processes, :mod:`.rig_pipeline` a rig's cameras and :mod:`.frame_matching` which
 views of a rig's cameras were taken together; recordings go through :mod:`.screening` (the quick pass over every
-frame), :mod:`.frame_candidates` (the frames the detector sees) and :mod:`.video_input`. No command line and no
-Lightning here.
+frame), :mod:`.frame_candidates` (the frames the detector sees) and :mod:`.video_input`; a live source's frames
+through :mod:`.guided_capture` (which to keep, the predicted figure, the next pose). No command line and no Lightning
+here.
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 
@@ -29,6 +30,7 @@ _EXPORTS = {
     "TensorSource": "ccs_kornia.pipeline.sources",
     "VideoSource": "ccs_kornia.pipeline.sources",
     "RigPipeline": "ccs_kornia.pipeline.rig_pipeline",
+    "GuidedCapture": "ccs_kornia.pipeline.guided_capture",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -17,8 +17,8 @@ from test_cli import assert_one_line_error, rendered, run  # noqa: F401 (``rende
 
 import ccs_kornia
 from ccs_kornia import cli
+from ccs_kornia.commands import _one_camera as calibrate_command
 from ccs_kornia.commands import _output_paths, _wrong_board
-from ccs_kornia.commands import calibrate as calibrate_command
 from ccs_kornia.geometry.models import PINHOLE
 from ccs_kornia.io.files import write_json
 from ccs_kornia.io.images import expand_inputs, natural_key, write_image

@@ -12,6 +12,8 @@ _EXPORTS = {
     "check_degeneracy": "ccs_kornia.modules.calibration.quality.degeneracy",
     "DegeneracyThresholds": "ccs_kornia.modules.calibration.quality.degeneracy",
     "projection_uncertainty": "ccs_kornia.modules.calibration.quality.uncertainty",
+    "NextBestPose": "ccs_kornia.modules.calibration.quality.next_pose",
+    "next_poses": "ccs_kornia.modules.calibration.quality.next_pose",
     "cross_validation": "ccs_kornia.modules.calibration.quality.diagnostics",
     "verdict": "ccs_kornia.modules.calibration.quality.diagnostics",
     "Findings": "ccs_kornia.modules.calibration.quality.verdict",
