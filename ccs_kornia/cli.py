@@ -306,7 +306,7 @@ def _corners_file_options(g, rig: bool) -> None:
     g.add_argument("--corners", action="append", metavar="JSON",
                    help=("the corners file detect wrote, one per camera in the rig's order (repeat --corners); views "
                          "match across cameras by their timestamps where every view has one, else by the last number "
-                         "in their names" if rig else "the corners file detect wrote") +
+                         "in their names" if rig else "the corners file detect wrote, or mrcal's corners.vnl (with --image-size)") +
                         ": the solve runs on its corners, nothing is detected again; the board options still say the "
                         "board and its square size (a file of another board is refused)")
     g.add_argument("--image-size", metavar="WxH",
