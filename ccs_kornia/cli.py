@@ -424,6 +424,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-diagnostics", dest="diagnostics", action="store_false",
                    help="skip the quality figures (cross-validation of two halves of the views, held-out views, "
                         "projection uncertainty) and the verdict; they cost a few more solves")
+    p.add_argument("--flat-board", dest="board_flatness", action="store_false",
+                   help="take the board as flat: do not fit its sag (mrcal's two-parameter bend, kept where held-out "
+                        "views say it helps; a few more solves)")
     p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     selection_options(p)
 

@@ -186,4 +186,6 @@ def camera_record(
         data["diagnostics"] = result.diagnostics
     if getattr(result, "model_selection", None) is not None:
         data["model_selection"] = result.model_selection  # --model auto: the choice, the runner-up, the figures
+    if getattr(result, "board_flatness", None) is not None:
+        data["board_flatness"] = result.board_flatness  # the board's sag, and whether held-out views kept it
     return data
