@@ -13,6 +13,7 @@ the whole set's calibration with the sag (:class:`~ccs_kornia.modules.calibratio
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, replace
 
 import torch
@@ -54,7 +55,7 @@ class BoardWarpChoice:
 
         def num(x: torch.Tensor) -> float | None:
             x = float(x)
-            return x if x == x else None
+            return x if math.isfinite(x) else None
 
         return {
             "kept": bool(self.kept[camera]),

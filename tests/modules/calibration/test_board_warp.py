@@ -9,7 +9,10 @@ import torch
 from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.camera import project_points
 from ccs_kornia.geometry.models import K1K2, OPENCV5
-from ccs_kornia.modules.calibration.board_flatness import choose_board_warp, split_halves
+from ccs_kornia.modules.calibration.board_flatness import (
+    choose_board_warp,
+    split_halves,
+)
 from ccs_kornia.modules.calibration.board_warp import board_warp_basis, warped_board
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
@@ -44,7 +47,7 @@ def test_shape_is_mrcals():
 
 def test_rendered_bent_board_is_recovered_with_its_sigma():
     truth = [-0.0015, 0.0008]
-    obj, K, uv = _views(truth)
+    obj, _, uv = _views(truth)
     flat = CalibrationSolver(model=OPENCV5)(uv, None, obj, SIZE)
     res = CalibrationSolver(model=OPENCV5, board_warp=True)(uv, None, obj, SIZE)
     assert flat.board_warp is None and bool(res.success)
