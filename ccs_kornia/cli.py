@@ -475,6 +475,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="count every corner equally (by default corners are weighted by their measured precision)")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="do not run the distortion-correction network")
+    p.add_argument("--flat-board", dest="board_flatness", action="store_false",
+                   help="take the board as flat: do not fit its sag with the rig (mrcal's two-parameter bend, kept "
+                        "where the held-out epipolar RMS says it helps; one more joint fit)")
     p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     video_options(p, rig=True)
     selection_options(p)

@@ -225,7 +225,7 @@ def test_mrcal_vnl_calibrates_with_image_size(tmp_path, capsys):
 
     from ccs_kornia.geometry.board_points import board_object_points
     from ccs_kornia.geometry.camera import project_points
-    from ccs_kornia.modules.calibration.board_warp import warped_board
+    from ccs_kornia.geometry.board_warp import warped_board
 
     # a bent board (mrcal's sag, -1 / +0.5 mm), as mrgingham would list its corners
     obj = warped_board(board_object_points(6, 5, 0.03, dtype=torch.float64),

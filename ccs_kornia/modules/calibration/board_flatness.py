@@ -18,14 +18,35 @@ from dataclasses import dataclass, replace
 
 import torch
 
+from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.modules.calibration.board_warp import warped_board
 from ccs_kornia.modules.calibration.corrected_frame import select_cameras
 from ccs_kornia.modules.calibration.refinement import joint_refinement
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
-__all__ = ["BoardWarpChoice", "choose_board_warp", "heldout_errors", "split_halves"]
+__all__ = ["BoardWarpChoice", "board_warp_determined", "choose_board_warp", "heldout_errors", "split_halves"]
+
+#: a sag below this fraction of the board's extent is no bend at all (0.2 um on a 0.2 m board): noise-free views
+#: "determine" a zero sag to many standard deviations of nothing
+MIN_SAG = 1e-6
+
+
+def board_warp_determined(warp: torch.Tensor | None, std: torch.Tensor | None, object_points: torch.Tensor,
+                          min_sigmas: float = 3.0) -> torch.Tensor | bool:
+    """Whether the views determine a sag: its larger coefficient ``min_sigmas`` standard deviations from 0 and above
+    :data:`MIN_SAG` of the board's extent (``(..., 2)`` coefficients give ``(...)``; ``False`` without a sag).
+
+    Example:
+        >>> obj = torch.tensor([[0.0, 0, 0], [0.2, 0.1, 0]])
+        >>> board_warp_determined(torch.tensor([-1e-3, 1e-5]), torch.tensor([1e-5, 1e-5]), obj).item()
+        True
+    """
+    if warp is None or std is None:
+        return False
+    extent = float((object_points[..., :2].amax(-2) - object_points[..., :2].amin(-2)).amax())
+    ratio = (warp.abs() / std).nan_to_num(0.0, posinf=0.0)
+    return (ratio.amax(-1) >= min_sigmas) & (warp.abs().amax(-1) > MIN_SAG * extent)
 
 
 @dataclass
@@ -151,7 +172,7 @@ def choose_board_warp(solver: CalibrationSolver, usual: CalibrationResult, corne
     with torch.inference_mode():
         whole = bent(corners, valid, object_points, image_size, initial=usual, weights=weights)
         warp, std = whole.board_warp, whole.std_board_warp
-        determined = ((warp.abs() / std).amax(-1) >= min_sigmas) & whole.success & usual.success
+        determined = board_warp_determined(warp, std, object_points, min_sigmas) & whole.success & usual.success
         heldout_flat = heldout_warp = torch.full((C,), float("nan"), dtype=warp.dtype, device=warp.device)
         if bool(determined.any()):  # (a sag the views do not determine is not kept: no halves to solve)
             halves = split_halves(usual.used.to(device) & determined.to(device)[:, None])

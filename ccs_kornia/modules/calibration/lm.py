@@ -14,7 +14,7 @@ is linear in the number of views and all cameras are solved by the same tensor o
   ``sum w |uv - observed|^2``.
 * The covariance of the free camera parameters is marginalised over the poses and scaled by
   ``sigma^2 = cost / dof`` (or 1 when the weights are absolute inverse variances).
-* ``board_warp``: the board's sag (:mod:`~ccs_kornia.modules.calibration.board_warp`, mrcal's two parameters) joins
+* ``board_warp``: the board's sag (:mod:`~ccs_kornia.geometry.board_warp`, mrcal's two parameters) joins
   the global unknowns after the camera's: ``d uv / d c_k = (d uv / d Xc) R e_z b_k``, ``b_k`` the sag's shape at the
   point. The camera's covariance is then marginalised over the sag too.
 """
@@ -30,7 +30,7 @@ from torch import nn
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3 as _exp_so3
 from ccs_kornia.geometry.so3 import log_so3 as _log_so3
-from ccs_kornia.modules.calibration.board_warp import board_warp_basis
+from ccs_kornia.geometry.board_warp import board_warp_basis
 from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm
 from ccs_kornia.runtime.checks import check_tensor
 
@@ -277,7 +277,7 @@ def levenberg_marquardt(
             :data:`~ccs_kornia.modules.calibration.schur_lm.DOMINATED_RATIO` times a converged camera's of its group with as many used views (it cannot be
             the group's best; fisheye hypotheses crawled 70-100 iterations at 3-44 px RMS beside a 0.17 px optimum).
         board_warp: :math:`(C, 2)` the board's sag to start from, estimated with the rest
-            (:mod:`~ccs_kornia.modules.calibration.board_warp`); ``None``: the board is flat.
+            (:mod:`~ccs_kornia.geometry.board_warp`); ``None``: the board is flat.
 
     Returns:
         :class:`LMResult` (with ``warp`` and ``warp_covariance`` where ``board_warp`` is given).

@@ -137,7 +137,7 @@ def joint_refinement(
             :func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`.
         weights: optional :math:`(C, V, N)` per-corner inverse variances (multiplied by ``valid``).
         board_warp: :math:`(C, 2)` the board's sag to start from, estimated with the rest
-            (:mod:`~ccs_kornia.modules.calibration.board_warp`); ``None``: a flat board.
+            (:mod:`~ccs_kornia.geometry.board_warp`); ``None``: a flat board.
 
     Returns:
         :class:`RefinementResult` (no camera dim for unbatched input), with the covariance of the model's

@@ -71,7 +71,7 @@ class CalibrationResult:
     check_value: torch.Tensor | None = None  #: (C, K) float64 measured value of each check
     check_views: torch.Tensor | None = None  #: (C, K, V) bool, views each check names
     #: (C, 2) the board's sag (mrcal's ``calobject_warp``: :math:`c_x, c_y` in the board's units,
-    #: :mod:`~ccs_kornia.modules.calibration.board_warp`) where the solve estimated it, else None (a flat board)
+    #: :mod:`~ccs_kornia.geometry.board_warp`) where the solve estimated it, else None (a flat board)
     board_warp: torch.Tensor | None = None
     std_board_warp: torch.Tensor | None = None  #: (C, 2) its 1-sigma
 

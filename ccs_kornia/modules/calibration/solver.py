@@ -16,7 +16,7 @@ from torch import nn
 from ccs_kornia.geometry.camera import Camera, intrinsics_params
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import CAMERA_MODELS, FISHEYE, OPENCV5, PINHOLE
-from ccs_kornia.modules.calibration.board_warp import warped_board
+from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.modules.calibration.duplicates import duplicate_views, view_differences
 from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
 from ccs_kornia.modules.calibration.homography import (
@@ -102,7 +102,7 @@ class CalibrationSolver(nn.Module):
             ``CalibrationResult.issues``).
         thresholds: :class:`~ccs_kornia.modules.calibration.quality.degeneracy.DegeneracyThresholds` of those checks.
         board_warp: estimate the board's sag jointly with the camera and poses (mrcal's two parameters,
-            :mod:`~ccs_kornia.modules.calibration.board_warp`; the OpenCV models): the result's ``board_warp`` and
+            :mod:`~ccs_kornia.geometry.board_warp`; the OpenCV models): the result's ``board_warp`` and
             ``std_board_warp``. Whether it is worth keeping is decided on held-out views
             (:func:`~ccs_kornia.modules.calibration.board_flatness.choose_board_warp`), not here.
 

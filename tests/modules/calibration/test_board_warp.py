@@ -13,7 +13,7 @@ from ccs_kornia.modules.calibration.board_flatness import (
     choose_board_warp,
     split_halves,
 )
-from ccs_kornia.modules.calibration.board_warp import board_warp_basis, warped_board
+from ccs_kornia.geometry.board_warp import board_warp_basis, warped_board
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
 SIZE = (640, 480)

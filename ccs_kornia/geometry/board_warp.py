@@ -8,8 +8,8 @@ frame), a point moves along the board's z axis by
     \Delta z = c_x (1 - u^2) + c_y (1 - v^2),
 
 zero at the edges and :math:`c_x + c_y` at the centre (metres, the board's units). ``c = (c_x, c_y)`` is exactly
-mrcal's ``calobject_warp``, so the two compare number for number. The camera, rig and hand-eye fits estimate ``c``
-jointly with everything else on the one LM core (:func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt` with
+mrcal's ``calobject_warp``, so the two compare number for number. The camera and rig fits estimate ``c``
+jointly with everything else on the one LM core (:func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt` and the rig's, with
 ``board_warp``), with its 1-sigma from the same covariance.
 """
 
