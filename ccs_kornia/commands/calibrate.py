@@ -136,6 +136,16 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         figures = ", ".join(f"{m} {v:.3f}" for m, v in held.items() if v is not None)
         print(f"model: {choice['chosen']} chosen by cross-validation (runner-up {choice['runner_up']}; "
               f"held-out RMS px: {figures})")
+    structure = data.get("residual_structure")
+    if structure and structure["model_fit"] != "fits":
+        ratio = structure.get("noise_ratio")
+        text = (f"{structure['message']} ({structure['rms_cell_means_px']:.3f} px RMS of the mean residual over "
+                f"{structure['cells']} image cells, {structure['cells_significant']} significant"
+                + (f"; residuals {ratio:.1f}x the corners' noise" if ratio else "") + ")")
+        if structure["model_fit"] == "does not fit":
+            warn("calibrate", text)
+        else:
+            print(f"residuals: {text}")
     flatness = data.get("board_flatness")
     if flatness and flatness["heldout_median_px"]["flat"] is not None:
         cx, cy = (1000 * w for w in flatness["warp_m"])

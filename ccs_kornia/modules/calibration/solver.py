@@ -13,10 +13,10 @@ from dataclasses import replace
 import torch
 from torch import nn
 
+from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.geometry.camera import Camera, intrinsics_params
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import CAMERA_MODELS, FISHEYE, OPENCV5, PINHOLE
-from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.modules.calibration.duplicates import duplicate_views, view_differences
 from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
 from ccs_kornia.modules.calibration.homography import (
@@ -29,6 +29,11 @@ from ccs_kornia.modules.calibration.outliers import drop_outliers
 from ccs_kornia.modules.calibration.quality.degeneracy import (
     DegeneracyThresholds,
     check_degeneracy,
+)
+from ccs_kornia.modules.calibration.quality.residual_structure import (
+    board_runs,
+    model_fit,
+    residual_structure,
 )
 from ccs_kornia.modules.calibration.ransac import ImageRansac
 from ccs_kornia.modules.calibration.refinement import (
@@ -453,6 +458,7 @@ class CalibrationSolver(nn.Module):
             std_board_warp=None if res.warp is None else fail_nan(
                 res.warp_covariance.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()),
         )
+        out = with_residual_structure(out, corners, valid, obj, image_size)
         if unbatched:
             out = out.map_tensors(lambda t: t[0])
         return out
@@ -504,6 +510,7 @@ class CalibrationSolver(nn.Module):
             check_value=None if report is None else report.value,
             check_views=None if report is None else report.views,
         )
+        out = with_residual_structure(out, corners, valid, obj, image_size)
         if unbatched:
             out = out.map_tensors(lambda t: t[0])
         return out
@@ -518,6 +525,21 @@ class CalibrationSolver(nn.Module):
         poses = self._refine(corners, valid, obj, res.K, rvec0, tvec0, res.dist, candidates, poses_only=True,
                              warp=res.warp)
         return poses.view_rms, poses.rvec, poses.tvec
+
+
+def with_residual_structure(out: CalibrationResult, corners: torch.Tensor, valid: torch.Tensor, obj: torch.Tensor,
+                            image_size: tuple[int, int]) -> CalibrationResult:
+    """``out`` (batched) with its residuals' structure over the image and the model-fit flag
+    (:mod:`~ccs_kornia.modules.calibration.quality.residual_structure`), from its used views' corners."""
+    C, V, N = corners.shape[:3]
+    board = obj if out.board_warp is None else warped_board(obj, out.board_warp.to(obj).nan_to_num(0.0))
+    board = board.expand(C, N, 3) if board.dim() == 2 else board
+    uv = out.camera.project(board[:, None].expand(C, V, N, 3), out.rvec.to(board), out.tvec.to(board))
+    mask = valid & out.used[..., None] & out.success[:, None, None]
+    structure = residual_structure(uv - corners, corners, mask, image_size, runs=board_runs(obj.reshape(-1, N, 3)[0]))
+    return replace(out, model_fit=model_fit(structure), structure_cells=structure.cells,
+                   structure_rms=structure.rms_cell_means, structure_significant=structure.significant,
+                   structure_worst=structure.worst, structure_median=structure.median, structure_noise=structure.noise)
 
 
 def calibrate(
