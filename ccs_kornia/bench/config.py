@@ -10,7 +10,7 @@ __all__ = [
 ]
 
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye", "rig",
-                             "markers", "rig_sessions", "video", "hand_eye", "imu")
+                             "markers", "rig_sessions", "video", "hand_eye", "imu", "precision")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
 #: conditions of the synthetic calibration section (paper Table I, then realistic optics)
@@ -116,6 +116,8 @@ class BenchConfig:
             hand_eye_views: the range of their poses; hand_eye_real: also its real robot (where the data is found).
         imu_trials, imu_seconds, imu_conditions: the ``imu`` section's rendered recordings per condition, their length
             (s) and the conditions (:data:`~ccs_kornia.bench.sections.imu.CONDITIONS`).
+        precision_models: the camera models of the ``precision`` section (:mod:`~ccs_kornia.bench.sections.precision`:
+            mrcal's published corners; ``()``: the set read, nothing solved).
     """
 
     sections: tuple[str, ...] = SECTIONS
@@ -197,6 +199,7 @@ class BenchConfig:
     imu_seconds: float = 60.0
     imu_conditions: tuple[str, ...] = ("given", "noise x10", "noise /10", "stereo", "rolling shutter")
     preset: str = "full"
+    precision_models: tuple[str, ...] = ("rational", "fisheye")
     extra: dict = field(default_factory=dict)
 
     @classmethod
@@ -221,7 +224,7 @@ class BenchConfig:
             rig_session_trials=1, rig_session_conditions=("handheld",), rig_session_caliscope=False,
             markers_views=2, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
             markers_real_sets=("charuco_opencv_tutorial",), hand_eye_trials=1,
-            imu_trials=1, imu_seconds=10.0, imu_conditions=("given",),
+            imu_trials=1, imu_seconds=10.0, imu_conditions=("given",), precision_models=("rational",),
             video_recordings=1, video_seconds=8.0, video_size=(640, 360), video_heldout_seconds=6.0,
             video_heldout_frames=8, video_real_cameras=(0,), video_real_rig=False,
         )
@@ -244,7 +247,7 @@ class BenchConfig:
             rig_session_caliscope=False,
             markers_views=1, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
             markers_real_sets=(), hand_eye_trials=1, hand_eye_views=(8, 8), hand_eye_real=False,
-            imu_trials=1, imu_seconds=6.0, imu_conditions=("given",),
+            imu_trials=1, imu_seconds=6.0, imu_conditions=("given",), precision_models=(),
             video_recordings=1, video_seconds=2.0, video_size=(320, 240),
             video_heldout_seconds=2.0, video_heldout_frames=4, video_command=False, video_real_cameras=(),
             video_real_rig=False,
