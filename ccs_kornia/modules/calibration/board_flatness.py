@@ -21,7 +21,7 @@ import torch
 from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.modules.calibration.corrected_frame import select_cameras
-from ccs_kornia.modules.calibration.refinement import joint_refinement
+from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
@@ -108,13 +108,14 @@ def heldout_errors(camera_of: CalibrationResult, corners: torch.Tensor, valid: t
     if camera_of.board_warp is not None:
         obj = warped_board(obj, camera_of.board_warp.to(obj).nan_to_num(0.0))
     model = camera_of.camera.model
-    fit = joint_refinement(corners.to(dtype), valid, obj, camera_of.K.to(dtype).nan_to_num(1.0), start.rvec, start.tvec,
-                           camera_of.dist.to(dtype).nan_to_num(0.0), views, model=model, fix_intrinsics=True,
-                           fix_distortion=True, weights=weights, dtype=dtype)
+    params = camera_of.camera.params.to(dtype).nan_to_num(1.0)
+    w = (valid & views[..., None]).to(dtype)
+    w = w if weights is None else w * weights.to(dtype)
+    fit = levenberg_marquardt(model, params, start.rvec.to(dtype), start.tvec.to(dtype), obj, corners.to(dtype), w,
+                              free=[False] * model.num_params, dtype=dtype)
     C, V, N = corners.shape[:3]
     o = obj if obj.dim() == 3 else obj.expand(C, N, 3)
-    uv = Camera(model, model.params_from(fit.K, fit.dist), camera_of.camera.image_size).project(
-        o[:, None].expand(C, V, N, 3), fit.rvec, fit.tvec)
+    uv = Camera(model, params, camera_of.camera.image_size).project(o[:, None].expand(C, V, N, 3), fit.rvec, fit.tvec)
     err = (uv - corners.to(dtype)).norm(dim=-1)
     keep = valid & views[..., None] & (camera_of.success.to(valid.device)[:, None, None])
     return torch.where(keep, err, torch.full_like(err, float("nan")))
