@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from enum import IntEnum
 from typing import Any, Callable
@@ -96,7 +97,7 @@ class CalibrationResult:
 
         def num(t):
             x = float(pick(t))
-            return x if x == x else None  # noqa: PLR0124 (NaN)
+            return x if math.isfinite(x) else None
 
         fit = ModelFit(int(pick(self.model_fit)))
         median, noise = num(self.structure_median), num(self.structure_noise)

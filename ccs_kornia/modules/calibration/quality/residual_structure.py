@@ -94,20 +94,6 @@ class ResidualStructure:
     noise: torch.Tensor | None = None
     median: torch.Tensor | None = None  #: (C,) px, the median residual length
 
-    def record(self, camera: int) -> dict:
-        """One camera's figures as JSON."""
-        def num(x):
-            x = float(x)
-            return x if x == x else None  # noqa: PLR0124 (NaN)
-
-        out = {"grid": list(self.grid), "cells": int(self.cells[camera]),
-               "rms_cell_means_px": num(self.rms_cell_means[camera]),
-               "cells_significant": int(self.significant[camera]), "worst_cell_px": num(self.worst[camera])}
-        if self.noise is not None:
-            out["median_residual_px"] = num(self.median[camera])
-            out["corner_noise_px"] = num(self.noise[camera])
-        return out
-
     @property
     def noise_ratio(self) -> torch.Tensor | None:
         """:math:`(C,)` the median residual over the corners' noise (about 1: the residuals are noise)."""
