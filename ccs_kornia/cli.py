@@ -306,7 +306,7 @@ def _corners_file_options(g, rig: bool) -> None:
     g.add_argument("--corners", action="append", metavar="JSON",
                    help=("the corners file detect wrote, one per camera in the rig's order (repeat --corners); views "
                          "match across cameras by their timestamps where every view has one, else by the last number "
-                         "in their names" if rig else "the corners file detect wrote") +
+                         "in their names" if rig else "the corners file detect wrote, or mrcal's corners.vnl (with --image-size)") +
                         ": the solve runs on its corners, nothing is detected again; the board options still say the "
                         "board and its square size (a file of another board is refused)")
     g.add_argument("--image-size", metavar="WxH",
@@ -372,6 +372,9 @@ def calibrate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-diagnostics", dest="diagnostics", action="store_false",
                    help="skip the quality figures (cross-validation of two halves of the views, held-out views, "
                         "projection uncertainty) and the verdict; they cost a few more solves")
+    p.add_argument("--flat-board", dest="board_flatness", action="store_false",
+                   help="take the board as flat: do not fit its sag (mrcal's two-parameter bend, kept where held-out "
+                        "views say it helps; a few more solves)")
     p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
 
 
@@ -508,6 +511,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="count every corner equally (by default corners are weighted by their measured precision)")
     p.add_argument("--no-distortion-correction", dest="distortion_correction", action="store_false",
                    help="do not run the distortion-correction network")
+    p.add_argument("--flat-board", dest="board_flatness", action="store_false",
+                   help="take the board as flat: do not fit its sag with the rig (mrcal's two-parameter bend, kept "
+                        "where the held-out epipolar RMS says it helps; one more joint fit)")
     p.add_argument("--allow-weak", action="store_true", help=ALLOW_WEAK_HELP)
     video_options(p, rig=True)
     selection_options(p)

@@ -10,7 +10,7 @@ __all__ = [
 ]
 
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye", "rig",
-                             "markers", "rig_sessions", "video", "hand_eye", "imu", "guidance")
+                             "markers", "rig_sessions", "video", "hand_eye", "imu", "guidance", "precision")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
 #: conditions of the synthetic calibration section (paper Table I, then realistic optics)
@@ -119,6 +119,8 @@ class BenchConfig:
         guidance_trials, guidance_cameras, guidance_counts: the ``guidance`` section's simulated people per camera kind,
             the kinds (:data:`~ccs_kornia.bench.sections.guidance.CAMERAS`) and the frame counts compared
             (:data:`~ccs_kornia.bench.sections.guidance.COUNTS`).
+        precision_models: the camera models of the ``precision`` section (:mod:`~ccs_kornia.bench.sections.precision`:
+            mrcal's published corners; ``()``: the set read, nothing solved).
     """
 
     sections: tuple[str, ...] = SECTIONS
@@ -204,6 +206,7 @@ class BenchConfig:
     guidance_cameras: tuple[str, ...] = ("normal", "wide", "fisheye")
     guidance_counts: tuple[int, ...] = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40)
     preset: str = "full"
+    precision_models: tuple[str, ...] = ("rational", "fisheye")
     extra: dict = field(default_factory=dict)
 
     @classmethod
@@ -228,7 +231,7 @@ class BenchConfig:
             rig_session_trials=1, rig_session_conditions=("handheld",), rig_session_caliscope=False,
             markers_views=2, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
             markers_real_sets=("charuco_opencv_tutorial",), hand_eye_trials=1,
-            imu_trials=1, imu_seconds=10.0, imu_conditions=("given",),
+            imu_trials=1, imu_seconds=10.0, imu_conditions=("given",), precision_models=("rational",),
             guidance_trials=2, guidance_cameras=("normal",),
             video_recordings=1, video_seconds=8.0, video_size=(640, 360), video_heldout_seconds=6.0,
             video_heldout_frames=8, video_real_cameras=(0,), video_real_rig=False,
@@ -252,7 +255,7 @@ class BenchConfig:
             rig_session_caliscope=False,
             markers_views=1, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
             markers_real_sets=(), hand_eye_trials=1, hand_eye_views=(8, 8), hand_eye_real=False,
-            imu_trials=1, imu_seconds=6.0, imu_conditions=("given",),
+            imu_trials=1, imu_seconds=6.0, imu_conditions=("given",), precision_models=(),
             guidance_trials=1, guidance_cameras=("normal",), guidance_counts=(4, 6, 8),
             video_recordings=1, video_seconds=2.0, video_size=(320, 240),
             video_heldout_seconds=2.0, video_heldout_frames=4, video_command=False, video_real_cameras=(),

@@ -99,6 +99,7 @@ SECTION_RUNNERS: dict[str, tuple[str, str, bool, bool]] = {
     "video": ("ccs_kornia.bench.sections.video", "run_video", False, False),
     "imu": ("ccs_kornia.bench.sections.imu", "run_imu", False, False),
     "guidance": ("ccs_kornia.bench.sections.guidance", "run_guidance", False, False),
+    "precision": ("ccs_kornia.bench.sections.precision", "run_precision", False, False),
 }
 
 

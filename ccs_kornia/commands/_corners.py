@@ -75,7 +75,7 @@ def corner_files(args: argparse.Namespace, paths: Sequence[str]) -> list[Corners
     size = image_size_option(getattr(args, "image_size", None))
     files = []
     for path in paths:
-        cf = read_corners_file(path)
+        cf = read_corners_file(path, tuple(args.board))
         check_board(cf, args)
         if cf.image_size is None and size is None:
             raise UserError(f"--corners {path}: the file does not say the images' size (written before detect "

@@ -46,6 +46,7 @@ def pipeline_options(args: argparse.Namespace, use_ransac: bool = True, seed: in
         distortion_correction=bool(getattr(args, "distortion_correction", False)),
         diagnostics=bool(getattr(args, "diagnostics", False)),
         weigh_corners=bool(getattr(args, "weigh_corners", True)),
+        board_flatness=bool(getattr(args, "board_flatness", False)),
     )
     if getattr(args, "allow_weak", False):
         options["thresholds"] = DegeneracyThresholds(refuse_weak=False)

@@ -138,6 +138,24 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         figures = ", ".join(f"{m} {v:.3f}" for m, v in held.items() if v is not None)
         print(f"model: {choice['chosen']} chosen by cross-validation (runner-up {choice['runner_up']}; "
               f"held-out RMS px: {figures})")
+    structure = data.get("residual_structure")
+    if structure and structure["model_fit"] != "fits":
+        ratio = structure.get("noise_ratio")
+        text = (f"{structure['message']} ({structure['rms_cell_means_px']:.3f} px RMS of the mean residual over "
+                f"{structure['cells']} image cells, {structure['cells_significant']} significant"
+                + (f"; residuals {ratio:.1f}x the corners' noise" if ratio else "") + ")")
+        if structure["model_fit"] == "does not fit":
+            warn("calibrate", text)
+        else:
+            print(f"residuals: {text}")
+    flatness = data.get("board_flatness")
+    if flatness and flatness["heldout_median_px"]["flat"] is not None:
+        cx, cy = (1000 * w for w in flatness["warp_m"])
+        sx, sy = (1000 * s for s in flatness["std_m"])
+        held = flatness["heldout_median_px"]
+        what = "kept" if flatness["kept"] else "not kept: the board taken as flat"
+        print(f"board: bent by {cx:+.3f} / {cy:+.3f} mm (1-sigma {sx:.3f} / {sy:.3f}), {what} (held-out median "
+              f"{held['flat']:.3f} px flat, {held['warp']:.3f} px bent)")
     weak = weak_lines(data)
     for text in weak[:-1]:
         warn("calibrate", text)

@@ -433,6 +433,13 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
                      f"board's unit), rotation {pair['rotation_deg']:.3f}{rot} deg, epipolar RMS "
                      f"{fmt(pair['epipolar_rms'])} px{held}")
     lines.append(f"rig RMS {fmt(data['rms'])} px over {len(data['frame_labels'])} frames; wrote {output}")
+    flatness = data.get("board_flatness")
+    if flatness and flatness.get("warp_m") and None not in flatness["warp_m"] + flatness["std_m"]:
+        held = flatness["heldout_epipolar_px"]
+        what = "kept" if flatness["kept"] else "not kept: the board taken as flat"
+        lines.append(f"board: bent by {1000 * flatness['warp_m'][0]:+.3f} / {1000 * flatness['warp_m'][1]:+.3f} mm "
+                     f"(1-sigma {1000 * flatness['std_m'][0]:.3f} / {1000 * flatness['std_m'][1]:.3f}), {what} "
+                     f"(held-out epipolar {fmt(held['flat'])} px flat, {fmt(held['warp'])} px bent)")
     fit = data.get("fit") or {}
     if fit.get("converged") is False:
         lines.append(f"warning: the joint fit did not converge in {fit.get('iterations')} iterations (it stopped at "

@@ -8,7 +8,14 @@ precision, px), ``method`` (how its board was found) and ``reason`` (why not). T
 ``image_size``, ``charuco`` / ``aprilgrid`` (the marker board the corners are numbered on) and
 ``distortion_correction`` (the network's pooled lens correction).
 
-Any file that is not such a JSON is refused in one line (:class:`~ccs_kornia.runtime.errors.UserError`).
+mrcal's ``corners.vnl`` (as mrgingham writes it) is read too (:func:`read_corners_vnl`): ``# filename x y level``, one
+line per corner, the board's corners row by row, a view's lines together (``filename - -``: no board in that image).
+It says neither the board nor the images' size, so the board comes from the command's board options and the size from
+``--image-size``. A corner's ``level`` (the pyramid level it was found at) gives its precision as mrcal weighs it: its
+weight is ``0.5 ** level`` on the residual, an inverse variance ``0.25 ** level``, so its ``sigma`` is ``2 ** level``
+(relative; ``level`` ``-``: a corner left out, not seen).
+
+Any file that is neither is refused in one line (:class:`~ccs_kornia.runtime.errors.UserError`).
 """
 
 from __future__ import annotations
@@ -22,7 +29,7 @@ import torch
 
 from ccs_kornia.runtime.errors import UserError
 
-__all__ = ["CornersFile", "CornersView", "read_corners_file"]
+__all__ = ["CornersFile", "CornersView", "read_corners_file", "read_corners_vnl"]
 
 
 @dataclass(frozen=True)
@@ -169,18 +176,118 @@ def _main_size(views: list[CornersView]) -> tuple[int, int] | None:
     return None
 
 
-def read_corners_file(path: str) -> CornersFile:
-    """Read the corners JSON ``detect`` writes (module docstring).
+def is_vnl(path: str) -> bool:
+    """The file is a vnl table (mrcal's ``corners.vnl``): its first line is a ``#`` header naming ``filename``."""
+    try:
+        with open(path, encoding="utf-8") as handle:
+            first = handle.readline()
+    except (OSError, UnicodeDecodeError):
+        return False
+    return first.startswith("#") and "filename" in first.split()
+
+
+def _vnl_number(text: str, where: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{where}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{where}: {text!r} is not a finite number")
+    return value
+
+
+def read_corners_vnl(path: str, board: tuple[int, int]) -> CornersFile:
+    """Read mrcal's ``corners.vnl`` (module docstring) for a ``board`` of ``(cols, rows)`` inner corners.
 
     Args:
         path: the file.
+        board: ``(cols, rows)``: each view with a board has ``cols * rows`` lines, row by row of the board.
+
+    Returns:
+        :class:`CornersFile` without an image size (the file does not say it), each view's ``sigma`` ``2 ** level``.
+
+    Raises:
+        UserError: the file cannot be read, a line is not ``filename x y [level]``, or a view has another number of
+            corners than the board (one line naming the file and the line).
+
+    Example:
+        >>> import os, tempfile
+        >>> path = os.path.join(tempfile.mkdtemp(), "corners.vnl")
+        >>> rows = ["# filename x y level", "a.jpg 1 2 0", "a.jpg 3 4 1", "a.jpg 5 6 -", "a.jpg 7 8 0", "b.jpg - -"]
+        >>> with open(path, "w") as f:
+        ...     _ = f.write("\\n".join(rows) + "\\n")
+        >>> cf = read_corners_vnl(path, (2, 2))
+        >>> [v.found for v in cf.views], cf.views[0].sigma.tolist(), cf.views[0].corners[2].isnan().all().item()
+        ([True, False], [1.0, 2.0, nan, 1.0], True)
+    """
+    cols, rows = board
+    n = cols * rows
+    try:
+        with open(path, encoding="utf-8") as handle:
+            lines = handle.read().splitlines()
+    except OSError as err:
+        raise UserError(f"--corners {path}: cannot read ({err.strerror or err})") from None
+    except UnicodeDecodeError:
+        raise UserError(f"--corners {path}: not a text file (expected mrcal's corners.vnl)") from None
+    order: list[str] = []
+    seen: dict[str, list[tuple[int, list[str]]]] = {}
+    try:
+        for k, line in enumerate(lines, 1):
+            fields = line.split()
+            if not fields or fields[0].startswith("#"):
+                continue
+            if len(fields) not in (3, 4):
+                raise ValueError(f"line {k}: expected filename x y [level], got {len(fields)} fields")
+            if fields[0] not in seen:
+                order.append(fields[0])
+                seen[fields[0]] = []
+            elif order[-1] != fields[0]:
+                raise ValueError(f"line {k}: the corners of {fields[0]} are not together")
+            seen[fields[0]].append((k, fields[1:]))
+        views = []
+        for name in order:
+            entries = seen[name]
+            if len(entries) == 1 and entries[0][1][0] == "-":
+                views.append(CornersView(name, False, torch.full((n, 2), math.nan, dtype=torch.float64),
+                                         reason="board not found"))
+                continue
+            if len(entries) != n:
+                raise ValueError(f"{name}: {len(entries)} corners for a {cols}x{rows} board of {n} (--board)")
+            corners = torch.full((n, 2), math.nan, dtype=torch.float64)
+            sigma = torch.full((n,), math.nan, dtype=torch.float64)
+            for j, (k, values) in enumerate(entries):
+                level = values[2] if len(values) == 3 else "0"
+                if values[0] == "-" or level == "-":
+                    continue
+                corners[j, 0] = _vnl_number(values[0], f"line {k}")
+                corners[j, 1] = _vnl_number(values[1], f"line {k}")
+                sigma[j] = 2.0 ** _vnl_number(level, f"line {k}")
+            views.append(CornersView(name, True, corners, sigma=sigma))
+    except ValueError as err:
+        raise UserError(f"--corners {path}: {err}") from None
+    if not views:
+        raise UserError(f"--corners {path}: no corners (expected mrcal's corners.vnl: filename x y level)")
+    return CornersFile(path, (cols, rows), views)
+
+
+def read_corners_file(path: str, board: tuple[int, int] | None = None) -> CornersFile:
+    """Read the corners JSON ``detect`` writes, or mrcal's ``corners.vnl`` (module docstring).
+
+    Args:
+        path: the file.
+        board: ``(cols, rows)`` of the board, which a vnl file does not say (``None``: a vnl file is refused).
 
     Returns:
         :class:`CornersFile`.
 
     Raises:
-        UserError: the file cannot be read or is not ``detect``'s JSON (one line naming the file and what is wrong).
+        UserError: the file cannot be read or is neither ``detect``'s JSON nor a corners vnl table (one line naming
+            the file and what is wrong).
     """
+    if is_vnl(path):
+        if board is None:
+            raise UserError(f"--corners {path}: a vnl table does not say its board: give the board options")
+        return read_corners_vnl(path, board)
     try:
         with open(path, encoding="utf-8") as handle:
             data = json.load(handle)

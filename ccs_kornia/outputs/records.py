@@ -186,4 +186,9 @@ def camera_record(
         data["diagnostics"] = result.diagnostics
     if getattr(result, "model_selection", None) is not None:
         data["model_selection"] = result.model_selection  # --model auto: the choice, the runner-up, the figures
+    structure = cal.residual_structure() if bool(cal.success) else None
+    if structure is not None:  # the residuals' structure over the image and whether the model fits
+        data["residual_structure"] = structure
+    if getattr(result, "board_flatness", None) is not None:
+        data["board_flatness"] = result.board_flatness  # the board's sag, and whether held-out views kept it
     return data

@@ -213,6 +213,7 @@ def rig_record(out: Any, paths: list[list[str]], *, board: tuple[int, int], squa
                 # renumbered a symmetric board by its k-th symmetry (1: turned 180 degrees) to agree with the frame
                 "corner_order": None if getattr(rig, "corner_order", None) is None else rig.corner_order.tolist()},
         **selection,
+        **({"board_flatness": out.board_flatness} if getattr(out, "board_flatness", None) is not None else {}),
     }
 
 

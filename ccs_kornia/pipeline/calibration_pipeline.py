@@ -67,6 +67,7 @@ from ccs_kornia.pipeline.settings import PipelineSettings
 from ccs_kornia.pipeline.solve import (
     Solving,
     diagnose_solved,
+    judge_flatness,
     solve_detections,
     solve_group,
 )
@@ -142,6 +143,7 @@ class CalibrationPipeline(nn.Module):
         weigh_corners: bool = True,
         differentiable: bool = False,
         frame_selection: FrameSelection | None = None,
+        board_flatness: bool = False,
         **solver_kwargs,
     ) -> None:
         super().__init__()
@@ -157,6 +159,7 @@ class CalibrationPipeline(nn.Module):
             joint_iters=joint_iters, free_distortion_centre=free_distortion_centre, diagnostics=diagnostics,
             looks=looks,
             weigh_corners=weigh_corners, differentiable=differentiable, frame_selection=frame_selection,
+            board_flatness=board_flatness,
         )
         choice = isinstance(model, ModelChoice)
         models = model.candidates if choice else (model,)
@@ -172,7 +175,7 @@ class CalibrationPipeline(nn.Module):
         #: the solver stage's settings and solvers (:class:`~ccs_kornia.pipeline.solve.Solving`)
         self.solving = Solving(settings.model, self.solvers, self.solver, self.selection, settings.weigh_corners,
                                settings.workers, settings.joint_iters, settings.free_distortion_centre,
-                               settings.max_rms_ratio, self.detector.board)
+                               settings.max_rms_ratio, self.detector.board, settings.board_flatness)
         #: what the looks detect with (:class:`~ccs_kornia.pipeline.looks.Tools`): the detector on the images as they
         #: are or through a downscaled copy, the saddle refinement on patches, the corners' precision where weighed
         measure = corner_sigma if settings.weigh_corners else None
@@ -273,6 +276,9 @@ class CalibrationPipeline(nn.Module):
         if calibrate and selection is not None:
             with stage("frame selection"):
                 out, subsets = select_views(self.solving, out, board, square, selection, source)
+        if calibrate and self.settings.board_flatness:
+            with stage("solver"):
+                out = judge_flatness(self.solving, out, board, square)
         if calibrate and self.settings.diagnostics:
             with stage("solver"):
                 out = diagnose_solved(self.solving, out, board, square, subsets)
@@ -441,6 +447,8 @@ class CalibrationPipeline(nn.Module):
         """
         board = check_board_size(board_size)
         out, subsets = solve_detections(self.solving, out, board, square)
+        if self.settings.board_flatness:
+            out = judge_flatness(self.solving, out, board, square)
         return diagnose_solved(self.solving, out, board, square, subsets) if self.settings.diagnostics else out
 
     # ------------------------------------------------------------------------------------------

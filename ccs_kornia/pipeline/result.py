@@ -138,6 +138,9 @@ class PipelineResult:
         diagnostics: per camera, the quality figures of the calibration (see ``docs/diagnostics.md``) or ``None``.
         model_selection: with ``model="auto"``, per camera the choice and its figures (see
             :class:`~ccs_kornia.modules.calibration.model_selection.ModelSelection`); else ``None``.
+        board_flatness: where the pipeline judged the board's sag, per camera what it found
+            (:meth:`~ccs_kornia.modules.calibration.board_flatness.BoardWarpChoice.record`; ``None`` for a camera not
+            judged); else ``None``.
         frame_choice: with a frame selection, per camera which views it kept and why not the others
             (:class:`~ccs_kornia.pipeline.frame_selection.FrameChoice`; ``None`` for a camera it did not judge); else
             ``None``.
@@ -157,6 +160,7 @@ class PipelineResult:
     diagnostics: list[dict | None] | dict | None = None
     model_selection: list[dict | None] | dict | None = None
     frame_choice: list[Any] | Any = None
+    board_flatness: list[dict | None] | dict | None = None
 
     @property
     def batched(self) -> bool:
@@ -224,6 +228,7 @@ class PipelineResult:
             diagnostics=None if self.diagnostics is None else pick(self.diagnostics),
             model_selection=None if self.model_selection is None else pick(self.model_selection),
             frame_choice=None if self.frame_choice is None else pick(self.frame_choice),
+            board_flatness=None if self.board_flatness is None else pick(self.board_flatness),
         )
 
     @classmethod

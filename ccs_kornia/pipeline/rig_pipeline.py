@@ -58,6 +58,7 @@ class RigPipelineResult:
         frame_choice: with a frame selection, which of ``candidates``' frames were kept and why not the others
             (:class:`~ccs_kornia.pipeline.frame_selection.FrameChoice`); ``frames`` then holds the kept ones.
         candidates: the frames before the frame selection (``None`` without one).
+        board_flatness: the board's sag and whether the rig kept it (``None``: not judged).
     """
 
     names: list[str]
@@ -73,6 +74,7 @@ class RigPipelineResult:
     fixed: list[bool] | None = None
     frame_choice: Any = None
     candidates: FrameTable | None = None
+    board_flatness: dict | None = None
 
     @property
     def success(self) -> bool:
@@ -227,6 +229,9 @@ class RigPipeline(nn.Module):
         fixed: per camera index, a camera (one :class:`~ccs_kornia.geometry.camera.Camera`) whose intrinsics are kept as they are (e.g. from an earlier
             single-camera calibration).
         solver_kwargs: options of :class:`~ccs_kornia.modules.rig.rig_solver.RigSolver` (``max_iters``, ...).
+        board_flatness: also fit the rig with the board's sag and keep it where the held-out epipolar RMS says it
+            helps (:func:`~ccs_kornia.modules.rig.rig_flatness.choose_rig_board_warp`; ``RigPipelineResult.
+            board_flatness`` says what it found).
         flexible_coverage: see ``models`` (:data:`FLEXIBLE_COVERAGE`; ``None``: the single-camera choice as it is).
         frame_selection: keep only the frames that make the best rig
             (:class:`~ccs_kornia.pipeline.frame_selection.FrameSelection`, each frame judged across its cameras)
@@ -247,6 +252,7 @@ class RigPipeline(nn.Module):
         models: Any = None,
         fixed: dict[int, Any] | None = None,
         solver_kwargs: dict[str, Any] | None = None,
+        board_flatness: bool = False,
         flexible_coverage: float | None = FLEXIBLE_COVERAGE,
         frame_selection: FrameSelection | None = None,
         **pipeline_kwargs,
@@ -265,6 +271,7 @@ class RigPipeline(nn.Module):
                 pipeline.selection.flexible_coverage = flexible_coverage
         self.fixed = dict(fixed or {})
         self.solver_kwargs = dict(solver_kwargs or {})
+        self.board_flatness = bool(board_flatness)
         self.frame_selection = frame_selection
 
     def _per_camera(self, count: int) -> list[Any]:
@@ -383,6 +390,8 @@ class RigPipeline(nn.Module):
         if len(frames.index) != c or len(names) != c:
             raise ValueError(f"{len(frames.index)} frame lists and {len(names)} names for {c} cameras.")
         from ccs_kornia.modules.rig import RigSolver
+        from ccs_kornia.modules.calibration.board_flatness import board_warp_determined
+        from ccs_kornia.modules.rig.rig_flatness import choose_rig_board_warp, not_determined
         cameras = cameras if cameras is not None else self.detect_and_calibrate(source, board_size, square, progress)
         choice, candidates = None, None
         if self.frame_selection is not None:
@@ -421,6 +430,19 @@ class RigPipeline(nn.Module):
         except ValueError as err:  # the solver's refusal (e.g. cameras linked by too few corners), one line
             out.reason = str(err)
             return out
+        if out.rig.success and self.board_flatness:
+            def bent(**options):
+                return RigSolver(models=models, board_warp=True, **(self.solver_kwargs | options))(
+                    corners, valid, object_points, sizes, initial=initial, fixed=fixed if any(fixed) else None,
+                    names=names, weights=weights, frame_times=frame_times_of(frames))
+
+            # one joint fit first says whether the frames determine a sag at all; only then the whole fit and its
+            # held-out folds
+            probe = bent(folds=0, frame_passes=0)
+            if board_warp_determined(probe.board_warp, probe.board_warp_std, object_points):
+                out.rig, out.board_flatness = choose_rig_board_warp(out.rig, bent())
+            else:
+                out.board_flatness = not_determined(probe.board_warp, probe.board_warp_std)
         if not out.rig.success:
             out.reason = out.rig.reason or "the joint fit of the rig failed"
         return out

@@ -65,6 +65,10 @@ class PipelineSettings:
             (:func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_weights`).
         differentiable: corners and cameras with gradients to the images and the heatmap network
             (:mod:`~ccs_kornia.pipeline.differentiable`; ``docs/gradients.md``). Off: no autograd anywhere.
+        board_flatness: after the last solve, fit the board's sag beside each camera's flat-board calibration and keep
+            it where held-out views say it helps (:func:`~ccs_kornia.modules.calibration.board_flatness.choose_board_warp`;
+            ``PipelineResult.board_flatness`` says what it found); the OpenCV models, not the fisheye model or a camera
+            calibrated in the corrected frame.
         frame_selection: keep only the views that make the best camera
             (:class:`~ccs_kornia.pipeline.frame_selection.FrameSelection`: still, sharp, new, informative) and solve
             again on them after the last solve (``PipelineResult.frame_choice`` says which and why); ``None``: every
@@ -98,6 +102,7 @@ class PipelineSettings:
     weigh_corners: bool = True
     differentiable: bool = False
     frame_selection: FrameSelection | None = None
+    board_flatness: bool = False
 
     def __post_init__(self) -> None:
         if self.detection_batch_size < 1:
@@ -131,6 +136,7 @@ class PipelineSettings:
             "looks": tuple(self.looks),
             "weigh_corners": bool(self.weigh_corners),
             "differentiable": bool(self.differentiable),
+            "board_flatness": bool(self.board_flatness),
         }
         for name, value in normal.items():
             object.__setattr__(self, name, value)

@@ -18,6 +18,7 @@ import torch
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.modules.calibration import corrected_frame
+from ccs_kornia.modules.calibration.board_flatness import choose_board_warp
 from ccs_kornia.modules.calibration.model_selection import ModelChoice, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
@@ -34,7 +35,7 @@ from ccs_kornia.pipeline.result import (
 from ccs_kornia.pipeline.solver_input import SolverInput
 from ccs_kornia.pipeline.workers import worker_pool, workers_on
 
-__all__ = ["Solving", "diagnose_cameras", "diagnose_solved", "solve_detections", "solve_group"]
+__all__ = ["Solving", "diagnose_cameras", "diagnose_solved", "judge_flatness", "solve_detections", "solve_group"]
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,7 @@ class Solving:
         joint_iters, free_distortion_centre, max_rms_ratio: of the corrected-frame calibration.
         board: the detector's board description (:mod:`~ccs_kornia.modules.detection.boards`; ``None``: a
             chessboard), whose object points the solves take (an AprilGrid's corners are not evenly spaced).
+        board_flatness: judge the board's sag after the last solve (:func:`judge_flatness`).
     """
 
     model: CameraModel | ModelChoice
@@ -65,6 +67,7 @@ class Solving:
     free_distortion_centre: bool
     max_rms_ratio: float
     board: Any = None
+    board_flatness: bool = False
 
     def object_points(self, board_size: tuple[int, int], square: float,
                       device: torch.device | str | None = None) -> torch.Tensor:
@@ -176,6 +179,40 @@ def diagnose_cameras(solvers: Mapping[CameraModel, torch.nn.Module], out: Pipeli
         for k, ci in enumerate(sel.tolist()):
             diagnostics[ci] = figures[k]
     return diagnostics
+
+
+def judge_flatness(solving: Solving, out: PipelineResult, board_size: tuple[int, int], square: float) -> PipelineResult:
+    """``out`` with each camera's board sag judged
+    (:func:`~ccs_kornia.modules.calibration.board_flatness.choose_board_warp`, one call per image size and model):
+    ``calibration`` the sag's where held-out views say it helps (``board_warp`` and ``std_board_warp`` filled for
+    every camera: 0 and NaN where the board stays flat) and ``board_flatness`` the figures (``None`` for a camera
+    not judged: not calibrated, a fisheye, or calibrated in the corrected frame)."""
+    cal = out.calibration
+    if cal is None:
+        return out
+    inputs = solving.inputs(out, board_size, square)
+    count = inputs.usable.shape[0]
+    device = inputs.usable.device
+    records: list[dict | None] = [None] * count
+    dtype = cal.rvec.dtype
+    merged = replace(cal, board_warp=torch.zeros(count, 2, dtype=dtype, device=cal.rvec.device),
+                     std_board_warp=torch.full((count, 2), float("nan"), dtype=dtype, device=cal.rvec.device))
+    corrected = out.corrected if out.corrected is not None else torch.zeros(count, dtype=torch.bool)
+    models = cal.camera.models
+    for size, model in dict.fromkeys(zip(out.image_size, models)):
+        if model.is_fisheye:
+            continue
+        sel = torch.tensor([s == size and m == model for s, m in zip(out.image_size, models)], device=device)
+        sel = (sel & cal.success.to(device) & ~corrected.to(device)).nonzero().flatten()
+        if sel.numel() == 0:
+            continue
+        part = inputs.cameras(sel)
+        choice = choose_board_warp(solving.solvers[model], select_result(cal, sel), part.corners, part.valid,
+                                   part.object_points, positive_size(size), part.weights)
+        merged = scatter_cameras(choice.result, sel, merged)
+        for k, ci in enumerate(sel.tolist()):
+            records[ci] = choice.record(k)
+    return replace(out, calibration=merged, board_flatness=records)
 
 
 def _chosen_before(table: dict | None, views: int) -> dict | None:

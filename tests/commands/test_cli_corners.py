@@ -218,3 +218,45 @@ def test_files_that_are_not_corners_are_refused(stereo_files, tmp_path, capsys):
     assert_refused(code, err, rig, "is given twice: one corners file per camera")
     code, _, err = run(capsys, "calibrate", *RIG, "--output", out)
     assert_refused(code, err, out, "no images given")
+
+
+def test_mrcal_vnl_calibrates_with_image_size(tmp_path, capsys):
+    import torch
+
+    from ccs_kornia.geometry.board_points import board_object_points
+    from ccs_kornia.geometry.camera import project_points
+    from ccs_kornia.geometry.board_warp import warped_board
+
+    # a bent board (mrcal's sag, -1 / +0.5 mm), as mrgingham would list its corners
+    obj = warped_board(board_object_points(6, 5, 0.03, dtype=torch.float64),
+                       torch.tensor([-0.001, 0.0005], dtype=torch.float64))
+    K = torch.tensor([[600.0, 0, 330], [0, 605, 235], [0, 0, 1]], dtype=torch.float64)
+    g = torch.Generator().manual_seed(1)
+    rvec = 0.5 * (torch.rand(10, 3, generator=g, dtype=torch.float64) - 0.5)
+    tvec = torch.tensor([-0.08, -0.06, 0.4], dtype=torch.float64) + 0.03 * torch.rand(10, 3, generator=g,
+                                                                                         dtype=torch.float64)
+    uv = project_points(obj.expand(10, -1, -1), K.expand(10, 3, 3), None, rvec, tvec)
+    lines = ["# filename x y level"]
+    for v in range(10):
+        lines += [f"frame{v:03d}.jpg {x:.4f} {y:.4f} 0" for x, y in uv[v].tolist()]
+    lines.append("frame010.jpg - -")
+    vnl, out = tmp_path / "corners.vnl", tmp_path / "calib.json"
+    vnl.write_text("\n".join(lines) + "\n")
+    code, _, err = run(capsys, "calibrate", "--corners", vnl, "--board", "6x5", "--square", "0.03", "--model",
+                       "k1k2", "--output", out)
+    assert_refused(code, err, out, "--image-size")
+    code, printed, err = run(capsys, "calibrate", "--corners", vnl, "--board", "6x5", "--square", "0.03", "--model",
+                             "k1k2", "--image-size", "640x480", "--output", out)
+    assert code == EXIT_OK, err
+    assert "board: bent by -1.000 / +0.500 mm" in printed and ", kept (held-out median" in printed
+    assert "board in 10 of 11 views of 640x480 images" in err
+    result = json.loads(out.read_text())
+    assert result["image_size"] == [640, 480] and result["rms"] < 1e-3
+    assert abs(result["K"][0][0] - 600) < 0.05 and abs(result["K"][1][2] - 235) < 0.05
+    flatness = result["board_flatness"]
+    assert flatness["kept"] and flatness["heldout_median_px"]["warp"] < 0.1 * flatness["heldout_median_px"]["flat"]
+    assert [round(w * 1000, 3) for w in flatness["warp_m"]] == [-1.0, 0.5]
+    code, _, err = run(capsys, "calibrate", "--corners", vnl, "--board", "6x5", "--square", "0.03", "--model",
+                       "k1k2", "--image-size", "640x480", "--flat-board", "--output", out)
+    flat = json.loads(out.read_text())
+    assert code == EXIT_OK and "board_flatness" not in flat and flat["rms"] > 100 * result["rms"]

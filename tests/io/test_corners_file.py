@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import pytest
 import torch
@@ -94,3 +95,37 @@ def test_other_files_are_refused_in_one_line(tmp_path, data, phrase):
 def test_a_missing_file_is_one_line(tmp_path):
     with pytest.raises(UserError, match=r"cannot read \(No such file"):
         read_corners_file(str(tmp_path / "none.json"))
+
+
+def _vnl(rows):
+    return "# filename x y level\n" + "\n".join(rows) + "\n"
+
+
+def test_mrcal_vnl_is_read_with_its_levels(tmp_path):
+    rows = [f"f0.jpg {x} {y} {lv}" for x, y, lv in ((1, 2, 0), (3, 4, 1), (5, 6, "-"), (7, 8, 2))]
+    rows += ["f1.jpg - -", "f2.jpg 1.5 2 0", "f2.jpg 3 4 0", "f2.jpg 5 6 0", "f2.jpg 7 8.25 0"]
+    cf = read_corners_file(_write(tmp_path, _vnl(rows), "corners.vnl"), (2, 2))
+    assert cf.board == (2, 2) and cf.image_size is None
+    assert [v.path for v in cf.views] == ["f0.jpg", "f1.jpg", "f2.jpg"]
+    assert [v.found for v in cf.views] == [True, False, True]
+    assert cf.views[0].corners[:2].tolist() == [[1.0, 2.0], [3.0, 4.0]]
+    assert cf.views[0].corners[2].isnan().all() and cf.views[1].corners.isnan().all()
+    # mrcal weighs a residual by 0.5 ** level: a standard deviation of 2 ** level
+    assert cf.views[0].sigma[[0, 1, 3]].tolist() == [1.0, 2.0, 4.0] and math.isnan(cf.views[0].sigma[2])
+    assert cf.views[2].corners[3].tolist() == [7.0, 8.25]
+
+
+@pytest.mark.parametrize("rows, phrase", [
+    (["a.jpg 1 2 0", "a.jpg 3 4 0", "a.jpg 5 6 0"], "3 corners for a 2x2 board"),
+    (["a.jpg 1 2 0", "b.jpg 1 2 0", "a.jpg 3 4 0"], "the corners of a.jpg are not together"),
+    (["a.jpg 1 x 0", "a.jpg 3 4 0", "a.jpg 5 6 0", "a.jpg 7 8 0"], "'x' is not a number"),
+    (["a.jpg 1 2 0 9 9"], "expected filename x y [level]"),
+])
+def test_bad_vnl_is_refused_in_one_line(tmp_path, rows, phrase):
+    with pytest.raises(UserError, match="--corners .*" + re.escape(phrase)):
+        read_corners_file(_write(tmp_path, _vnl(rows), "corners.vnl"), (2, 2))
+
+
+def test_vnl_needs_the_board(tmp_path):
+    with pytest.raises(UserError, match="does not say its board"):
+        read_corners_file(_write(tmp_path, _vnl(["a.jpg - -"]), "corners.vnl"))

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import torch
 
 from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.geometry.camera import (
     Camera,
     axis_angle_to_rotation_matrix,
@@ -112,6 +113,7 @@ def render_rig(
     drop: float = 0.0,
     board_poses: tuple[torch.Tensor, torch.Tensor] | None = None,
     max_angle_deg: float = 85.0,
+    board_warp: tuple[float, float] | None = None,
     **pose_kw,
 ) -> RigScene:
     """Render the corners a rig sees.
@@ -128,6 +130,9 @@ def render_rig(
         drop: probability that a camera misses a frame (all its corners invalid).
         board_poses: explicit ``(rvec (F, 3), tvec (F, 3))`` board -> camera 0 (else :func:`random_board_poses`).
         max_angle_deg: a corner further than this from a camera's axis is not seen.
+        board_warp: the board's sag ``(c_x, c_y)`` (mrcal's ``calobject_warp``, board units,
+            :mod:`~ccs_kornia.geometry.board_warp`): the corners are those of the bent board (``object_points`` stay
+            the flat board's, as a solver is given them); ``None``: a flat board.
         pose_kw: options of :func:`random_board_poses`.
 
     Returns:
@@ -148,7 +153,8 @@ def render_rig(
         rvec, tvec = (p.to(dtype) for p in board_poses)
     F = rvec.shape[0]
     Rb = axis_angle_to_rotation_matrix(rvec)
-    x0 = obj @ Rb.transpose(-1, -2) + tvec[:, None]  # (F, N, 3) in camera 0
+    shape = obj if board_warp is None else warped_board(obj, torch.tensor(board_warp, dtype=dtype))
+    x0 = shape @ Rb.transpose(-1, -2) + tvec[:, None]  # (F, N, 3) in camera 0
     corners = torch.full((C, F, N, 2), float("nan"), dtype=dtype)
     valid = torch.zeros(C, F, N, dtype=torch.bool)
     for c in range(C):

@@ -14,6 +14,9 @@ is linear in the number of views and all cameras are solved by the same tensor o
   ``sum w |uv - observed|^2``.
 * The covariance of the free camera parameters is marginalised over the poses and scaled by
   ``sigma^2 = cost / dof`` (or 1 when the weights are absolute inverse variances).
+* ``board_warp``: the board's sag (:mod:`~ccs_kornia.geometry.board_warp`, mrcal's two parameters) joins
+  the global unknowns after the camera's: ``d uv / d c_k = (d uv / d Xc) R e_z b_k``, ``b_k`` the sag's shape at the
+  point. The camera's covariance is then marginalised over the sag too.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from torch import nn
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3 as _exp_so3
 from ccs_kornia.geometry.so3 import log_so3 as _log_so3
+from ccs_kornia.geometry.board_warp import board_warp_basis
 from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm
 from ccs_kornia.runtime.checks import check_tensor
 
@@ -51,6 +55,10 @@ class LMResult:
     status: torch.Tensor  #: (C,) int64 :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus` of each camera
     num_points: torch.Tensor  #: (C,) int64 corners with positive weight
     view_used: torch.Tensor  #: (C, V) bool, views with at least one weighted corner
+    #: (C, 2) the board's sag (mrcal's ``calobject_warp``, board units) where ``board_warp`` was estimated, else None
+    warp: torch.Tensor | None = None
+    #: (C, 2, 2) its covariance (marginalised over the camera and the poses), or None
+    warp_covariance: torch.Tensor | None = None
 
     @property
     def param_covariance(self) -> torch.Tensor:
@@ -135,12 +143,21 @@ def _check(model, params, rvec, tvec, object_points, corners, weights):
         check_tensor(weights, "weights", [C, V, N])
 
 
-def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expanded):
-    """Per-camera normal equations at (R, t, params): cost, U (C,F,F), W (C,V,F,6), V (C,V,6,6), eg, ep."""
+def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expanded, sag=None):
+    """Per-camera normal equations at (R, t, params): cost, U (C,F,F), W (C,V,F,6), V (C,V,6,6), eg, ep. With
+    ``sag`` :math:`(C, N, 2)` (the board's sag shapes) the last two entries of ``params`` are the sag's coefficients
+    and ``obj`` is bent by them."""
     C, V = R.shape[:2]
+    if sag is not None:
+        params, warp = params[:, :-2], params[:, -2:]
+        obj = torch.cat([obj[..., :2], obj[..., 2:] + (sag * warp[:, None, :]).sum(-1, keepdim=True)], -1)
     q = torch.matmul(obj[:, None].expand(C, V, -1, 3), R.transpose(-1, -2))  # (C, V, N, 3) = R X
     uv, dp, (dx, dy, dz) = model.columns(q + t[:, :, None, :], params)
     qx, qy, qz = q[..., 0:1], q[..., 1:2], q[..., 2:3]
+    if sag is not None:  # d Xc / d c_k = R e_z b_k
+        ez = R[..., :, 2][:, :, None, :, None]  # (C, V, 1, 3, 1)
+        along = dx * ez[..., 0, :] + dy * ez[..., 1, :] + dz * ez[..., 2, :]  # (C, V, N, 2)
+        dp = [*dp, along * sag[:, None, :, 0:1], along * sag[:, None, :, 1:2]]
     # rotation R <- exp(w) R: d Xc / d w = -[q]_x, so d uv / d w = q x (d uv / d Xc), both rows at once
     cols = [*dp, qy * dz - qz * dy, qz * dx - qx * dz, qx * dy - qy * dx, dx, dy, dz, uv - obs]
     shape = uv.shape
@@ -155,7 +172,7 @@ def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expa
         A = A * sw[:, :, None, :, None]
     A = A.view(C, V, len(cols), -1)
     G = A @ A.transpose(-1, -2)  # (C, V, K, K): J^T J, J^T r and r^T r per view
-    P = params.shape[-1]
+    P = len(dp)  # the camera's parameters (and the sag's two)
     Gpp, Gpk, Gkk = G[..., :P, :P].sum(1), G[..., :P, P : P + 6], G[..., P : P + 6, P : P + 6]
     gp, gk = G[..., :P, P + 6].sum(1), G[..., P : P + 6, P + 6]
     view_cost = G[..., P + 6, P + 6]  # (C, V) weighted squared residuals per view
@@ -181,14 +198,15 @@ class _CameraProblem:
     global unknowns the free camera coordinates, items the views' poses; the unknowns ``{"x": (C, P) parameters,
     "R": (C, V, 3, 3), "t": (C, V, 3)}``, the normal equations :class:`_CameraEquations`."""
 
-    def __init__(self, model, obj, obs, sw, basis, tied, used, num_residuals, floor, eye6, expanded):
+    def __init__(self, model, obj, obs, sw, basis, tied, used, num_residuals, floor, eye6, expanded, sag=None):
         self.model, self.obj, self.obs, self.sw, self.basis, self.tied = model, obj, obs, sw, basis, tied
         self.used, self.num_residuals, self.floor = used, num_residuals, floor
-        self.eye6, self.expanded = eye6, expanded
+        self.eye6, self.expanded, self.sag = eye6, expanded, sag
 
     def linearize(self, s):
         cost, U, W, V, eg, ep, view_cost = _normal_equations(self.model, s["R"], s["t"], s["x"], self.obj, self.obs,
-                                                             self.sw, self.tied, self.used, self.eye6, self.expanded)
+                                                             self.sw, self.tied, self.used, self.eye6, self.expanded,
+                                                             self.sag)
         return _CameraEquations(cost=cost, U=U, eg=eg, W=W, V=V, ep=ep, view_cost=view_cost)
 
     def retract(self, s, dg, dp):
@@ -202,7 +220,8 @@ class _CameraProblem:
     def take(self, keep):
         sub = [None if v is None else v[keep] for v in (self.obj, self.obs, self.sw, self.basis, self.tied, self.used,
                                                          self.num_residuals, self.floor)]
-        return _CameraProblem(self.model, *sub, self.eye6, self.expanded)
+        return _CameraProblem(self.model, *sub, self.eye6, self.expanded,
+                              None if self.sag is None else self.sag[keep])
 
 
 def levenberg_marquardt(
@@ -225,6 +244,7 @@ def levenberg_marquardt(
     dtype: torch.dtype = torch.float64,
     stall_tol: float = 0.0,
     groups: torch.Tensor | None = None,
+    board_warp: torch.Tensor | None = None,
 ) -> LMResult:
     r"""Batched Levenberg–Marquardt over camera parameters and per-view poses (see the module doc).
 
@@ -256,9 +276,11 @@ def levenberg_marquardt(
             done?" check a camera still iterating ends (``DOMINATED``) where its cost exceeds
             :data:`~ccs_kornia.modules.calibration.schur_lm.DOMINATED_RATIO` times a converged camera's of its group with as many used views (it cannot be
             the group's best; fisheye hypotheses crawled 70-100 iterations at 3-44 px RMS beside a 0.17 px optimum).
+        board_warp: :math:`(C, 2)` the board's sag to start from, estimated with the rest
+            (:mod:`~ccs_kornia.geometry.board_warp`); ``None``: the board is flat.
 
     Returns:
-        :class:`LMResult`.
+        :class:`LMResult` (with ``warp`` and ``warp_covariance`` where ``board_warp`` is given).
 
     Example:
         >>> from ccs_kornia.geometry.board_points import board_object_points
@@ -295,6 +317,16 @@ def levenberg_marquardt(
         check_tensor(basis, "basis", [C, x.shape[-1], "F"])
         B, identity = basis.to(device=device, dtype=dtype), False
     Bn = None if identity else B
+    sag = None
+    if board_warp is not None:  # the sag's two coefficients after the camera's parameters, always free
+        check_tensor(board_warp, "board_warp", [C, 2])
+        sag = board_warp_basis(obj)
+        F = B.shape[-1]
+        Bw = B.new_zeros(C, x.shape[-1] + 2, F + 2)
+        Bw[:, :-2, :F] = B
+        Bw[:, -2:, F:] = torch.eye(2, dtype=dtype, device=device)
+        x = torch.cat([x, board_warp.to(device=device, dtype=dtype)], -1)
+        B, Bn = Bw, (None if identity else Bw)
 
     # unused views are parked in front of the camera so their (zero-weighted) projections stay finite
     rv = torch.where(used[..., None] & rvec.isfinite(), rvec.to(dtype), 0.0)
@@ -306,11 +338,21 @@ def levenberg_marquardt(
     n_pts = n_view.sum(-1)
     floor = (w.sum((1, 2)) * 1e-20).clamp_min(1e-300)  # an RMS of 1e-10 px: a perfect fit
     problem = _CameraProblem(model, obj, obs, sw, B, Bn, used, 2 * n_pts, floor,
-                             torch.eye(6, dtype=dtype, device=device), {})
+                             torch.eye(6, dtype=dtype, device=device), {}, sag)
     sol = schur_lm(problem, {"x": x, "R": _exp_so3(rv), "t": tv}, max_iters=max_iters, ftol=ftol, xtol=xtol,
                    lambda_init=lambda_init, check_every=check_every, stall_tol=stall_tol, groups=groups,
                    absolute_weights=absolute_weights)
     x, R, tv = sol.unknowns["x"], sol.unknowns["R"], sol.unknowns["t"]
+    covariance, information, warp, warp_cov = sol.covariance, sol.information, None, None
+    if sag is not None:  # the camera's blocks marginalised over the sag; the sag's own
+        x, warp = x[:, :-2], x[:, -2:]
+        obj = torch.cat([obj[..., :2], obj[..., 2:] + (sag * warp[:, None, :]).sum(-1, keepdim=True)], -1)
+        B = B[:, :-2, :-2]
+        warp_cov = covariance[:, -2:, -2:]
+        covariance = covariance[:, :-2, :-2]
+        S_ww = information[:, -2:, -2:]
+        S_cw = information[:, :-2, -2:]
+        information = information[:, :-2, :-2] - S_cw @ torch.linalg.pinv(S_ww) @ S_cw.transpose(-1, -2)
 
     # statistics at the solution (unit weights: the squared residuals per view are in the normal equations)
     if sw is None:
@@ -326,9 +368,9 @@ def levenberg_marquardt(
     rvec_out = torch.where(used[..., None], rvec_out, rvec.to(dtype))
     tvec_out = torch.where(used[..., None], tv, tvec.to(dtype))
     return LMResult(
-        params=x, rvec=rvec_out, tvec=tvec_out, cost=sol.cost, view_rms=view_rms, rms=rms, covariance=sol.covariance,
-        information=sol.information, basis=B, sigma2=sol.sigma2, iterations=sol.iterations, status=sol.status,
-        num_points=n_pts, view_used=used,
+        params=x, rvec=rvec_out, tvec=tvec_out, cost=sol.cost, view_rms=view_rms, rms=rms, covariance=covariance,
+        information=information, basis=B, sigma2=sol.sigma2, iterations=sol.iterations, status=sol.status,
+        num_points=n_pts, view_used=used, warp=warp, warp_covariance=warp_cov,
     )
 
 

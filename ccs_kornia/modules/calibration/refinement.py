@@ -47,6 +47,10 @@ class RefinementResult:
     num_points: torch.Tensor  #: (C,) corners used
     #: (C, 4 + D, 4 + D) covariance of (fx, fy, cx, cy, dist) (zero rows/columns for fixed parameters)
     cov_camera: torch.Tensor | None = None
+    #: (C, 2) the board's sag (mrcal's ``calobject_warp``) where it was estimated, else None
+    warp: torch.Tensor | None = None
+    #: (C, 2, 2) its covariance, else None
+    warp_covariance: torch.Tensor | None = None
 
 
 def camera_covariance(model: CameraModel, param_covariance: torch.Tensor) -> torch.Tensor:
@@ -114,6 +118,7 @@ def joint_refinement(
     fix_distortion: bool = False,
     weights: torch.Tensor | None = None,
     stall_tol: float = 0.0,
+    board_warp: torch.Tensor | None = None,
 ) -> RefinementResult:
     r"""Levenberg–Marquardt over intrinsics, OpenCV distortion and poses (the LM core with the OpenCV model).
 
@@ -131,6 +136,8 @@ def joint_refinement(
         max_iters, ftol, xtol, lambda_init, dtype, stall_tol: see
             :func:`~ccs_kornia.modules.calibration.lm.levenberg_marquardt`.
         weights: optional :math:`(C, V, N)` per-corner inverse variances (multiplied by ``valid``).
+        board_warp: :math:`(C, 2)` the board's sag to start from, estimated with the rest
+            (:mod:`~ccs_kornia.geometry.board_warp`); ``None``: a flat board.
 
     Returns:
         :class:`RefinementResult` (no camera dim for unbatched input), with the covariance of the model's
@@ -163,6 +170,7 @@ def joint_refinement(
         cam, params, rvec, tvec, object_points, corners, w, free=free,
         fix_aspect_ratio=fix_aspect_ratio and not fix_intrinsics, max_iters=max_iters, ftol=ftol, xtol=xtol,
         lambda_init=lambda_init, dtype=dtype, stall_tol=stall_tol,
+        board_warp=None if board_warp is None else (board_warp[None] if unbatched else board_warp),
     )
     D = cam.num_coeffs
     cov = camera_covariance(cam, res.param_covariance)
@@ -170,10 +178,11 @@ def joint_refinement(
     out = RefinementResult(
         K=_k_matrix(res.params), dist=cam.dist8(res.params)[:, :D], rvec=res.rvec, tvec=res.tvec,
         view_rms=res.view_rms, rms=res.rms, std_intrinsics=std[:, :4], std_dist=std[:, 4:],
-        status=res.status, iterations=res.iterations, num_points=res.num_points, cov_camera=cov,
+        status=res.status, iterations=res.iterations, num_points=res.num_points, cov_camera=cov, warp=res.warp,
+        warp_covariance=res.warp_covariance,
     )
     if unbatched:
-        out = RefinementResult(**{k: v[0] for k, v in out.__dict__.items()})
+        out = RefinementResult(**{k: None if v is None else v[0] for k, v in out.__dict__.items()})
     return out
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from enum import IntEnum
 from typing import Any, Callable
@@ -70,6 +71,41 @@ class CalibrationResult:
     check_severity: torch.Tensor | None = None  #: (C, K) int64 per degeneracy.CHECKS: 0 ok, 1 warning, 2 error
     check_value: torch.Tensor | None = None  #: (C, K) float64 measured value of each check
     check_views: torch.Tensor | None = None  #: (C, K, V) bool, views each check names
+    #: (C, 2) the board's sag (mrcal's ``calobject_warp``: :math:`c_x, c_y` in the board's units,
+    #: :mod:`~ccs_kornia.geometry.board_warp`) where the solve estimated it, else None (a flat board)
+    board_warp: torch.Tensor | None = None
+    std_board_warp: torch.Tensor | None = None  #: (C, 2) its 1-sigma
+    # whether the model fits: the residuals' structure over the image (quality/residual_structure.py)
+    #: (C,) int64 :class:`~ccs_kornia.modules.calibration.quality.residual_structure.ModelFit`: 0 the model fits, 1 its
+    #: residuals are structured, 2 it does not fit (residuals mostly its error: ``success`` alone does not say it)
+    model_fit: torch.Tensor | None = None
+    structure_cells: torch.Tensor | None = None  #: (C,) int64 image cells judged (6 x 4 grid)
+    structure_rms: torch.Tensor | None = None  #: (C,) px, RMS of the cells' mean residuals
+    structure_significant: torch.Tensor | None = None  #: (C,) int64 cells whose mean is beyond its standard error
+    structure_worst: torch.Tensor | None = None  #: (C,) px, the longest cell mean
+    structure_median: torch.Tensor | None = None  #: (C,) px, the median residual length
+    structure_noise: torch.Tensor | None = None  #: (C,) px, the corners' noise measured on the board (same scale)
+
+    def residual_structure(self, camera: int = 0) -> dict | None:
+        """One camera's residual structure and model-fit flag as JSON (``None`` where not computed)."""
+        if self.model_fit is None:
+            return None
+        from ccs_kornia.modules.calibration.quality.residual_structure import ModelFit
+
+        def pick(t):
+            return t if t.dim() == 0 else t[camera]
+
+        def num(t):
+            x = float(pick(t))
+            return x if math.isfinite(x) else None
+
+        fit = ModelFit(int(pick(self.model_fit)))
+        median, noise = num(self.structure_median), num(self.structure_noise)
+        return {"model_fit": fit.label, "message": fit.message, "grid": [6, 4],
+                "cells": int(pick(self.structure_cells)), "rms_cell_means_px": num(self.structure_rms),
+                "cells_significant": int(pick(self.structure_significant)),
+                "worst_cell_px": num(self.structure_worst), "median_residual_px": median, "corner_noise_px": noise,
+                "noise_ratio": None if median is None or not noise else median / noise}
 
     @property
     def batched(self) -> bool:

@@ -13,6 +13,7 @@ from dataclasses import replace
 import torch
 from torch import nn
 
+from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.geometry.camera import Camera, intrinsics_params
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.factory import CAMERA_MODELS, FISHEYE, OPENCV5, PINHOLE
@@ -28,6 +29,11 @@ from ccs_kornia.modules.calibration.outliers import drop_outliers
 from ccs_kornia.modules.calibration.quality.degeneracy import (
     DegeneracyThresholds,
     check_degeneracy,
+)
+from ccs_kornia.modules.calibration.quality.residual_structure import (
+    board_runs,
+    model_fit,
+    residual_structure,
 )
 from ccs_kornia.modules.calibration.ransac import ImageRansac
 from ccs_kornia.modules.calibration.refinement import (
@@ -100,6 +106,10 @@ class CalibrationSolver(nn.Module):
             ``error`` gets ``success = False``, and every result carries ``check_*`` tensors (see
             ``CalibrationResult.issues``).
         thresholds: :class:`~ccs_kornia.modules.calibration.quality.degeneracy.DegeneracyThresholds` of those checks.
+        board_warp: estimate the board's sag jointly with the camera and poses (mrcal's two parameters,
+            :mod:`~ccs_kornia.geometry.board_warp`; the OpenCV models): the result's ``board_warp`` and
+            ``std_board_warp``. Whether it is worth keeping is decided on held-out views
+            (:func:`~ccs_kornia.modules.calibration.board_flatness.choose_board_warp`), not here.
 
     Gradients: when ``corners``, ``weights`` or ``object_points`` require grad, ``K``, ``dist``, ``rvec`` and ``tvec``
     carry gradients by implicit differentiation at the final LM optimum
@@ -156,8 +166,12 @@ class CalibrationSolver(nn.Module):
         stall_tol: float = 1e-4,
         checks: bool = True,
         thresholds: DegeneracyThresholds | None = None,
+        board_warp: bool = False,
     ) -> None:
         super().__init__()
+        self.board_warp = bool(board_warp)
+        if self.board_warp and model.is_fisheye:
+            raise ValueError("board_warp is estimated with OpenCV's models, not the fisheye model.")
         self.checks = checks
         self.thresholds = thresholds or DegeneracyThresholds(min_views=max(int(min_views), 1))
         if model not in CAMERA_MODELS.values():
@@ -184,13 +198,21 @@ class CalibrationSolver(nn.Module):
         )
 
     def _refine(self, corners, valid, obj, K, rvec, tvec, dist, view_mask, fix_intrinsics: bool = False,
-                poses_only: bool = False, model=None, weights=None):
+                poses_only: bool = False, model=None, weights=None, warp=None):
+        """The joint LM; with ``board_warp`` the board's sag is estimated from ``warp`` (default flat), or held at
+        ``warp`` when only the poses move."""
+        start = None
+        if self.board_warp and model is None:
+            if poses_only:
+                obj = warped_board(obj, warp)
+            else:
+                start = warp if warp is not None else obj.new_zeros(corners.shape[0], 2)
         return joint_refinement(
             corners, valid, obj, K, rvec, tvec, dist, view_mask, model=model or self.model,
             fix_aspect_ratio=self.fix_aspect_ratio, fix_principal_point=self.fix_principal_point,
             max_iters=self.max_iters, ftol=self.ftol, lambda_init=self.lambda_init, dtype=self.dtype,
             fix_intrinsics=poses_only or fix_intrinsics, fix_distortion=poses_only, weights=weights,
-            stall_tol=self.stall_tol,
+            stall_tol=self.stall_tol, board_warp=start,
         )
 
     def forward(
@@ -262,6 +284,8 @@ class CalibrationSolver(nn.Module):
         obj = object_points.to(device=device, dtype=dtype)
         obj = obj.expand(C, N, 3) if obj.dim() == 2 or obj.shape[0] == 1 else obj
         obj = obj.reshape(C, N, 3)
+        if res.board_warp is not None:  # the sag is held as solved (a constant of the backward pass)
+            obj = warped_board(obj, res.board_warp.to(obj).nan_to_num(0.0))
         cam = self.model
         params = res.camera.params.to(dtype)
         if cam.is_fisheye:  # as calibrate_fisheye's final solve: no tied aspect ratio
@@ -374,7 +398,10 @@ class CalibrationSolver(nn.Module):
         reason = torch.where(candidates & ~inliers, ViewReason.RANSAC_REJECTED, reason)
 
         # 3. joint LM from the closed form
-        res = self._refine(corners, valid, obj, K0, rvec0, tvec0, dist0, inliers, fix_intrinsics, weights=weights)
+        warp0 = None if initial is None or initial.board_warp is None else \
+            initial.board_warp.to(device=device, dtype=dtype).nan_to_num(0.0)
+        res = self._refine(corners, valid, obj, K0, rvec0, tvec0, dist0, inliers, fix_intrinsics, weights=weights,
+                           warp=warp0)
         used = inliers & res.view_rms.isfinite()
         cand_rms = res.view_rms
 
@@ -387,7 +414,7 @@ class CalibrationSolver(nn.Module):
                 if bool((new_used == used).all()):
                     break
                 res = self._refine(corners, valid, obj, res.K, rvec_all, tvec_all, res.dist, new_used, fix_intrinsics,
-                                   weights=weights)
+                                   weights=weights, warp=res.warp)
                 used = new_used & res.view_rms.isfinite()
             cand_rms = torch.where(used, res.view_rms, cand_rms)
             reason = torch.where(candidates & ~used & inliers, ViewReason.OUTLIER, reason)
@@ -427,7 +454,11 @@ class CalibrationSolver(nn.Module):
             check_severity=None if report is None else report.severity,
             check_value=None if report is None else report.value,
             check_views=None if report is None else report.views,
+            board_warp=None if res.warp is None else fail_nan(res.warp),
+            std_board_warp=None if res.warp is None else fail_nan(
+                res.warp_covariance.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()),
         )
+        out = with_residual_structure(out, corners, valid, obj, image_size)
         if unbatched:
             out = out.map_tensors(lambda t: t[0])
         return out
@@ -479,6 +510,7 @@ class CalibrationSolver(nn.Module):
             check_value=None if report is None else report.value,
             check_views=None if report is None else report.views,
         )
+        out = with_residual_structure(out, corners, valid, obj, image_size)
         if unbatched:
             out = out.map_tensors(lambda t: t[0])
         return out
@@ -490,8 +522,24 @@ class CalibrationSolver(nn.Module):
         rvec_h, tvec_h = extrinsics_from_homography(res.K, H)
         rvec0 = torch.where(used[..., None], res.rvec, rvec_h)
         tvec0 = torch.where(used[..., None], res.tvec, tvec_h)
-        poses = self._refine(corners, valid, obj, res.K, rvec0, tvec0, res.dist, candidates, poses_only=True)
+        poses = self._refine(corners, valid, obj, res.K, rvec0, tvec0, res.dist, candidates, poses_only=True,
+                             warp=res.warp)
         return poses.view_rms, poses.rvec, poses.tvec
+
+
+def with_residual_structure(out: CalibrationResult, corners: torch.Tensor, valid: torch.Tensor, obj: torch.Tensor,
+                            image_size: tuple[int, int]) -> CalibrationResult:
+    """``out`` (batched) with its residuals' structure over the image and the model-fit flag
+    (:mod:`~ccs_kornia.modules.calibration.quality.residual_structure`), from its used views' corners."""
+    C, V, N = corners.shape[:3]
+    board = obj if out.board_warp is None else warped_board(obj, out.board_warp.to(obj).nan_to_num(0.0))
+    board = board.expand(C, N, 3) if board.dim() == 2 else board
+    uv = out.camera.project(board[:, None].expand(C, V, N, 3), out.rvec.to(board), out.tvec.to(board))
+    mask = valid & out.used[..., None] & out.success[:, None, None]
+    structure = residual_structure(uv - corners, corners, mask, image_size, runs=board_runs(obj.reshape(-1, N, 3)[0]))
+    return replace(out, model_fit=model_fit(structure), structure_cells=structure.cells,
+                   structure_rms=structure.rms_cell_means, structure_significant=structure.significant,
+                   structure_worst=structure.worst, structure_median=structure.median, structure_noise=structure.noise)
 
 
 def calibrate(

@@ -29,6 +29,7 @@ import math
 import torch
 
 from ccs_kornia.geometry.so3 import log_so3
+from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
 
@@ -97,13 +98,14 @@ def own_view_errors(rig: RigState, observations: RigObservations, max_iters: int
     """
     Rc, tc = rig.board_poses()
     corners, weights = observations.corners, observations.weights
+    board = warped_board(observations.object_points, rig.board_warp)  # (B, N, 3) where the board is bent
     B, C, F = weights.shape[:3]
     out = corners.new_zeros(B, C, F)
     for c, model in enumerate(rig.models):
         w = weights[:, c]
         if not bool((w > 0).any()):
             continue
-        res = levenberg_marquardt(model, rig.params[c], log_so3(Rc[:, c]), tc[:, c], observations.object_points,
+        res = levenberg_marquardt(model, rig.params[c], log_so3(Rc[:, c]), tc[:, c], board,
                                   corners[:, c], w, free=[False] * model.num_params, max_iters=max_iters)
         n = (w > 0).sum(-1)
         out[:, c] = (res.view_rms.nan_to_num(0.0) ** 2 * n).to(out.dtype)

@@ -23,6 +23,9 @@ inform them but cannot drag them beyond what the camera's views allow. It adds `
 The covariance of the free rig parameters (frame poses marginalised) is ``sigma^2 S^{-1}`` with ``S`` the Schur
 complement at the solution and ``sigma^2 = cost / dof`` (1 with absolute weights), a pseudo-inverse where ``S`` is
 numerically singular.
+
+A bent board (``RigState.board_warp``: mrcal's two-parameter sag, :mod:`~ccs_kornia.geometry.board_warp`)
+adds its two coefficients after the rig's parameters: ``d uv / d c_k = (d uv / d q) R_f e_z b_k``.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ import torch
 
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3
+from ccs_kornia.geometry.board_warp import board_warp_basis
 from ccs_kornia.modules.calibration.schur_lm import NormalEquations, schur_lm
 from ccs_kornia.modules.rig.rig_state import RigObservations, RigState
 from ccs_kornia.runtime.checks import check_tensor
@@ -55,6 +59,7 @@ class RigLMResult:
     status: torch.Tensor  #: (B,) int64 :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus` of each rig
     frame_used: torch.Tensor  #: (B, F) bool
     prior_cost: torch.Tensor | None = None  #: (B,) the priors' share of ``cost`` (``None`` without priors)
+    warp_covariance: torch.Tensor | None = None  #: (B, 2, 2) of the board's sag where it was estimated
 
 
 def rig_layout(models: Sequence[CameraModel]) -> tuple[list[slice], list[slice], int]:
@@ -88,12 +93,17 @@ def _cross_cols(q: torch.Tensor, d: Sequence[torch.Tensor]) -> list[torch.Tensor
     return [qy * dz - qz * dy, qz * dx - qx * dz, qx * dy - qy * dx]
 
 
-def _equations(models, params, R, T, Rf, tf, obj, obs, sw, on, layout, frame_used, eye6, jacobians=True):
+def _equations(models, params, R, T, Rf, tf, obj, obs, sw, on, layout, frame_used, eye6, jacobians=True, warp=None,
+               sag=None):
     """Normal equations of all rigs: cost (B,), U (B,G,G), W (B,F,G,6), V (B,F,6,6), eg (B,G), ep (B,F,6), plus the
-    unweighted squared error and count per camera and frame."""
+    unweighted squared error and count per camera and frame. With ``warp`` :math:`(B, 2)` and ``sag`` :math:`(N, 2)`
+    the board is bent and its sag's two coefficients are the last two of ``G``."""
     B, C, F, N = obs.shape[:4]
     intr, ext, G = layout
     dtype, device = obs.dtype, obs.device
+    if warp is not None:
+        obj = torch.cat([obj.expand(B, N, 3)[..., :2], obj[..., 2:] + (sag * warp[:, None, :]).sum(-1, keepdim=True)],
+                        -1)[:, None]
     q_rot = torch.matmul(obj.expand(B, F, N, 3), Rf.transpose(-1, -2))  # (B, F, N, 3) R_f X
     q = q_rot + tf[:, :, None, :]
     U = torch.zeros(B, G, G, dtype=dtype, device=device)
@@ -122,6 +132,11 @@ def _equations(models, params, R, T, Rf, tf, obj, obs, sw, on, layout, frame_use
         if ext[c] is not None:
             cols += [*_cross_cols(rq, [d.expand(shape) for d in dX]), *(d.expand(shape) for d in dX)]
             gi += list(range(ext[c].start, ext[c].stop))
+        if warp is not None:  # d q / d c_k = R_f e_z b_k
+            ez = Rf[..., :, 2][:, :, None, :, None]  # (B, F, 1, 3, 1)
+            along = dq[0] * ez[..., 0, :] + dq[1] * ez[..., 1, :] + dq[2] * ez[..., 2, :]
+            cols += [along * sag[:, 0:1], along * sag[:, 1:2]]
+            gi += [G - 2, G - 1]
         cols += [*_cross_cols(q_rot, dq), *dq, res]
         A = torch.stack([col.expand(shape) for col in cols], 3)  # (B, F, N, K, 2)
         A = torch.where(on[:, c, :, :, None, None], A * sw[:, c, :, :, None, None], 0.0)
@@ -173,10 +188,11 @@ class _RigProblem:
     ``{"p0", .., "p{C-1}": (B, P_c) parameters, "R": (B, C, 3, 3), "T": (B, C, 3), "Rf": (B, F, 3, 3), "tf": (B, F,
     3)}``, the normal equations :class:`_RigEquations`."""
 
-    def __init__(self, models, layout, fi, obj, obs, sw, on, used, num_residuals, floor, eye6, prior=None):
+    def __init__(self, models, layout, fi, obj, obs, sw, on, used, num_residuals, floor, eye6, prior=None, sag=None):
         self.models, self.layout, self.fi, self.obj, self.obs, self.sw, self.on = models, layout, fi, obj, obs, sw, on
         self.used, self.num_residuals, self.floor, self.eye6 = used, num_residuals, floor, eye6
         self.prior = prior  #: per camera ``(p0 (B, P_c), information (B, P_c, P_c))`` or None
+        self.sag = sag  #: (N, 2) the board's sag shapes where its sag is estimated (the unknowns' ``"w"``), or None
 
     def params(self, s):
         return [s[f"p{c}"] for c in range(len(self.models))]
@@ -185,7 +201,8 @@ class _RigProblem:
         fi = self.fi
         params = self.params(s)
         cost, U, W, V, eg, ep, sq = _equations(self.models, params, s["R"], s["T"], s["Rf"], s["tf"], self.obj,
-                                               self.obs, self.sw, self.on, self.layout, self.used, self.eye6)
+                                               self.obs, self.sw, self.on, self.layout, self.used, self.eye6,
+                                               warp=s.get("w"), sag=self.sag)
         pc = None
         if self.prior is not None:
             pc, pU, pe = _prior_terms(self.prior, params, self.layout[0], *U.shape[:2], U.dtype, U.device)
@@ -203,6 +220,8 @@ class _RigProblem:
             e = full[:, ext[c]]
             R[:, c] = exp_so3(e[:, :3]) @ s["R"][:, c]
             T[:, c] = s["T"][:, c] + e[:, 3:]
+        if "w" in s:
+            out["w"] = s["w"] + full[:, G - 2:]
         return {**out, "R": R, "T": T, "Rf": exp_so3(dp[..., :3]) @ s["Rf"], "tf": s["tf"] + dp[..., 3:]}
 
     def scale(self, s):
@@ -212,7 +231,7 @@ class _RigProblem:
     def take(self, keep):
         prior = None if self.prior is None else [None if p is None else (p[0][keep], p[1][keep]) for p in self.prior]
         return _RigProblem(self.models, self.layout, self.fi, self.obj, self.obs[keep], self.sw[keep], self.on[keep],
-                           self.used[keep], self.num_residuals[keep], self.floor[keep], self.eye6, prior)
+                           self.used[keep], self.num_residuals[keep], self.floor[keep], self.eye6, prior, self.sag)
 
 
 def rig_levenberg_marquardt(
@@ -232,7 +251,7 @@ def rig_levenberg_marquardt(
 
     Args:
         start: the rigs to start from (:class:`~ccs_kornia.modules.rig.rig_state.RigState`; ``R[:, 0]`` is kept at
-            its value, normally ``I``).
+            its value, normally ``I``); with ``board_warp``, the board's sag is estimated too (always free).
         observations: the board points, the corners :math:`(B, C, F, N, 2)` and their weights :math:`(B, C, F, N)`
             (:class:`~ccs_kornia.modules.rig.rig_state.RigObservations`).
         free: :math:`(G,)` bool, which rig parameters move (:func:`rig_layout` order; default all).
@@ -278,6 +297,11 @@ def rig_levenberg_marquardt(
     G = layout[2]
     free = torch.ones(G, dtype=torch.bool) if free is None else free.bool().cpu()
     check_tensor(free, "free", [G])
+    bent = start.board_warp is not None
+    if bent:  # the sag's two coefficients after the rig's parameters
+        check_tensor(start.board_warp, "start.board_warp", [B, 2])
+        layout = (layout[0], layout[1], G + 2)
+        free = torch.cat([free, torch.ones(2, dtype=torch.bool)])
     fi = torch.nonzero(free).flatten().to(device)
     w = torch.where(corners.isfinite().all(-1), weights.to(dtype), 0.0).clamp_min(0)
     on = w > 0
@@ -310,20 +334,26 @@ def rig_levenberg_marquardt(
             priors.append((p0.to(device=device, dtype=dtype), 0.5 * (info + info.transpose(-1, -2))))
             num_residuals = num_residuals + P
         priors = priors if any(p is not None for p in priors) else None
-    problem = _RigProblem(models, layout, fi, obj, obs, sw, on, frame_used, num_residuals, floor, eye6, priors)
+    sag = board_warp_basis(obj) if bent else None
+    problem = _RigProblem(models, layout, fi, obj, obs, sw, on, frame_used, num_residuals, floor, eye6, priors, sag)
     state = {**{f"p{c}": x[c] for c in range(C)}, "R": start.R.to(dtype).clone(), "T": start.T.to(dtype).clone(),
              "Rf": Rf, "tf": tf}
+    if bent:
+        state["w"] = start.board_warp.to(device=device, dtype=dtype)
     sol = schur_lm(problem, state, max_iters=max_iters, ftol=ftol, xtol=xtol, lambda_init=lambda_init,
                    check_every=check_every, stall_tol=stall_tol, absolute_weights=absolute_weights)
     u = sol.unknowns
     x, Rx, Tx, Rf, tf = problem.params(u), u["R"], u["T"], u["Rf"], u["tf"]
 
     # the unweighted squared errors at the solution
-    _, sq = _equations(models, x, Rx, Tx, Rf, tf, obj, obs, sw, on, layout, frame_used, eye6, jacobians=False)
-    cov = torch.zeros(B, G, G, dtype=dtype, device=device)
+    warp = u.get("w")
+    _, sq = _equations(models, x, Rx, Tx, Rf, tf, obj, obs, sw, on, layout, frame_used, eye6, jacobians=False,
+                       warp=warp, sag=sag)
+    cov = torch.zeros(B, layout[2], layout[2], dtype=dtype, device=device)
     cov[:, fi[:, None], fi[None, :]] = sol.covariance
     return RigLMResult(
-        state=RigState(models, x, Rx, Tx, Rf, tf), cost=sol.cost, sq_error=sq, count=count, covariance=cov,
-        sigma2=sol.sigma2, iterations=sol.iterations, status=sol.status, frame_used=frame_used,
-        prior_cost=sol.equations.prior_cost,
+        state=RigState(models, x, Rx, Tx, Rf, tf, warp), cost=sol.cost, sq_error=sq, count=count,
+        covariance=cov[:, :G, :G], sigma2=sol.sigma2, iterations=sol.iterations, status=sol.status,
+        frame_used=frame_used, prior_cost=sol.equations.prior_cost,
+        warp_covariance=cov[:, G:, G:] if bent else None,
     )

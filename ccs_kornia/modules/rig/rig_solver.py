@@ -129,6 +129,9 @@ class RigResult:
     #: (C,) how firmly each camera's intrinsics were held: its prior's information over its own views' (the rig's
     #: squared error of the camera over what its noise explains, less 1, over ``intrinsics_prior``); 0 without prior
     prior_weight: torch.Tensor | None = None
+    #: (2,) the board's sag (mrcal's ``calobject_warp``, board units) where the fit estimated it, else None
+    board_warp: torch.Tensor | None = None
+    board_warp_std: torch.Tensor | None = None  #: (2,) its 1-sigma
 
     def pair(self, i: int, j: int) -> StereoPair:
         """Pose of camera ``j`` relative to camera ``i`` (``x_j = R x_i + T``) with ``E`` and ``F``."""
@@ -204,6 +207,10 @@ class RigSolver(nn.Module):
         frame_scale: px, the kernel's scale; default ``max(FRAME_SCALE * median own-pose view RMS,
             FRAME_SCALE_MIN_PX)``.
         frame_passes: reweighting passes (each a joint fit).
+        board_warp: estimate the board's sag with the rig (mrcal's two parameters,
+            :mod:`~ccs_kornia.geometry.board_warp`): ``RigResult.board_warp`` and its 1-sigma. Whether it
+            is worth keeping is judged on held-out frames by the caller (the rig pipeline compares the held-out
+            epipolar RMS of both fits).
 
     Shape:
         corners :math:`(C, F, N, 2)` or :math:`(B, C, F, N, 2)` px (NaN where not seen), valid :math:`(C, F, N)` /
@@ -241,8 +248,10 @@ class RigSolver(nn.Module):
         frame_kernel: FrameKernel | str = FrameKernel.CAUCHY,
         frame_scale: float | None = None,
         frame_passes: int = 2,
+        board_warp: bool = False,
     ) -> None:
         super().__init__()
+        self.board_warp = bool(board_warp)
         for m in [models] if isinstance(models, CameraModel) else models:
             if m not in CAMERA_MODELS.values():
                 raise ValueError(f"A rig camera's model must be one of the models {', '.join(CAMERA_MODELS)} "
@@ -403,7 +412,8 @@ class RigSolver(nn.Module):
             excess = (ratio / expected.clamp_min(1e-300) - 1.0).nan_to_num(0.0).clamp_min(0.0)
             return per_frame, own_rms.nanmedian(-1).values, excess
 
-        res = fit(used, RigState(lm_models, params, R0, T0, frame_R, frame_t))
+        warp0 = torch.zeros(B, 2, dtype=dtype, device=device) if self.board_warp else None
+        res = fit(used, RigState(lm_models, params, R0, T0, frame_R, frame_t, warp0))
         scale = torch.full((B,), float("nan"), dtype=dtype, device=device)
         passes = self.frame_passes if (self.frame_kernel.reweights or priors is not None) else 0
         for _ in range(passes):  # frames one board pose does not explain count less (iteratively reweighted)
@@ -563,6 +573,9 @@ class RigSolver(nn.Module):
             prior_weight=torch.tensor([0.0 if fixed[c] or self.intrinsics_prior is None else
                                        float(single["prior_scale"][b, c]) / self.intrinsics_prior for c in range(C)],
                                       dtype=dtype, device=T.device),
+            board_warp=None if rig.board_warp is None else rig.board_warp[b].clone(),
+            board_warp_std=None if res.warp_covariance is None else
+            res.warp_covariance[b].diagonal().clamp_min(0).sqrt().clone(),
         )
 
 

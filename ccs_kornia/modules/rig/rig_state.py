@@ -34,6 +34,8 @@ class RigState:
         T: :math:`(B, C, 3)` extrinsic translations (``T[:, 0] = 0``).
         frame_R: :math:`(B, F, 3, 3)` board rotations, board -> camera 0.
         frame_t: :math:`(B, F, 3)` board translations.
+        board_warp: :math:`(B, 2)` the board's sag (mrcal's ``calobject_warp``,
+            :mod:`~ccs_kornia.geometry.board_warp`), estimated with the rest; ``None``: a flat board.
 
     Example:
         >>> from ccs_kornia.geometry.models import PINHOLE
@@ -51,6 +53,7 @@ class RigState:
     T: torch.Tensor
     frame_R: torch.Tensor
     frame_t: torch.Tensor
+    board_warp: torch.Tensor | None = None
 
     @property
     def num_cameras(self) -> int:
@@ -80,7 +83,8 @@ class RigState:
     def rig(self, b: int) -> RigState:
         """Rig ``b`` alone (the batch dimension kept, of size 1)."""
         return RigState(self.models, [p[b : b + 1] for p in self.params], self.R[b : b + 1], self.T[b : b + 1],
-                        self.frame_R[b : b + 1], self.frame_t[b : b + 1])
+                        self.frame_R[b : b + 1], self.frame_t[b : b + 1],
+                        None if self.board_warp is None else self.board_warp[b : b + 1])
 
     def repeat(self, k: int) -> RigState:
         """``k`` copies of the B rigs, :math:`(k B, ...)` (copy ``i`` of rig ``b`` at ``i B + b``)."""
@@ -88,7 +92,7 @@ class RigState:
             return x.repeat(k, *([1] * (x.dim() - 1)))
 
         return RigState(self.models, [rep(p) for p in self.params], rep(self.R), rep(self.T), rep(self.frame_R),
-                        rep(self.frame_t))
+                        rep(self.frame_t), None if self.board_warp is None else rep(self.board_warp))
 
 
 @dataclass(frozen=True)

@@ -276,6 +276,13 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
     if rms is None:
         reasons = "; ".join(dict.fromkeys(found.advice)) or "the calibration failed"
         return "not reliable: " + reasons, found.bad or ["no calibration"]
+    structure = figures.get("residual_structure") or {}
+    if structure.get("model_fit") == "does not fit":
+        ratio = structure.get("noise_ratio") or math.nan
+        found.fail(f"the model does not fit the lens: the residuals are {ratio:.1f}x the corners' noise, "
+                   f"{structure['rms_cell_means_px']:.2f} px RMS of the mean residual over "
+                   f"{structure['cells_significant']} of {structure['cells']} image cells",
+                   "choose a distortion model that fits the lens (--model auto, rational or fisheye)")
     found.grade(rms, t.good_rms_px, t.usable_rms_px,
                 f"reprojection RMS {rms:.2f} px: the corners or the lens model are off",
                 "check the corner detections in the report, or choose a distortion model that fits the lens",
@@ -381,6 +388,9 @@ def diagnose(
           was; ``cv_expected_rms_px`` / ``cv_covered_expected_rms_px``: what the halves' covariances predict for
           ``cv_rms_px`` / ``cv_covered_rms_px``;
         - ``heldout_rms_px``: k-fold held-out reprojection RMS; ``heldout_views``;
+        - ``residual_structure``: the residuals' structure over the image and whether the model fits
+          (:meth:`~ccs_kornia.modules.calibration.result.CalibrationResult.residual_structure`; where the result has
+          it): a model that does not fit makes the verdict ``not reliable``;
         - ``verdict``: ``"good"``, ``"usable"`` or ``"not reliable: <advice>"``; ``reasons``: list of str.
 
         Figures that cannot be computed are None.
@@ -457,6 +467,8 @@ def diagnose(
             fig["cv_covered_expected_rms_px"] = _f(_nanrms(cv["cv_expected_grid_px"][c][covered[c]]))
         fig["heldout_views"] = int(cv["heldout_views"][c]) if cv is not None and good else 0
         fig["covered_fraction"] = _f(covered[c].double().mean())
+        if result.model_fit is not None and good:
+            fig["residual_structure"] = result.residual_structure(c)
         fig["verdict"], fig["reasons"] = verdict(fig, issues[c], limits)
         out.append(fig)
     return out

@@ -430,7 +430,7 @@ def test_diagnose_is_json_and_documented_keys():
             "uncertainty_corners_px", "uncertainty_max_px", "uncertainty_covered_px", "uncertainty_grid_px",
             "uncertainty_fixed_ray_px", "cv_rms_px", "cv_max_px", "cv_expected_rms_px", "cv_covered_rms_px",
             "cv_covered_expected_rms_px", "heldout_rms_px", "heldout_views", "covered_fraction", "unprojectable_fraction",
-            "unprojectable_covered", "verdict", "reasons"}
+            "unprojectable_covered", "residual_structure", "verdict", "reasons"}
     assert all(set(f) == keys for f in figs), set(figs[0]) ^ keys
     for key in sorted(keys):
         assert f"``{key}``" in diagnose.__doc__, key
