@@ -98,6 +98,7 @@ SECTION_RUNNERS: dict[str, tuple[str, str, bool, bool]] = {
     "speed": ("ccs_kornia.bench.sections.speed", "run_speed", True, False),
     "video": ("ccs_kornia.bench.sections.video", "run_video", False, False),
     "imu": ("ccs_kornia.bench.sections.imu", "run_imu", False, False),
+    "real_poor": ("ccs_kornia.bench.sections.real_poor", "run_real_poor", False, False),
 }
 
 

@@ -370,11 +370,13 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
         "video": "## 11. Recordings: the frames chosen",
         "hand_eye": "## 12. Hand-eye calibration (robots)",
         "imu": "## 13. Camera-IMU calibration",
+        "real_poor": "## 14. Real photographs made poor",
     }
     from ccs_kornia.bench.sections.fisheye import fisheye_md
     from ccs_kornia.bench.sections.hand_eye import hand_eye_md
     from ccs_kornia.bench.sections.imu import imu_md
     from ccs_kornia.bench.sections.markers import markers_md
+    from ccs_kornia.bench.sections.real_poor import real_poor_md
     from ccs_kornia.bench.sections.rig import rig_md
     from ccs_kornia.bench.sections.rig_sessions import rig_sessions_md
     from ccs_kornia.bench.sections.video import video_md
@@ -382,7 +384,7 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
     render = {"corners": _corners_md, "calibration": _calibration_md, "real": lambda s: _real_md(s, boxplot),
               "distortion": _distortion_md, "speed": _speed_md, "wild": _wild_md, "fisheye": fisheye_md,
               "rig": rig_md, "markers": markers_md, "rig_sessions": rig_sessions_md, "video": video_md,
-              "hand_eye": hand_eye_md, "imu": imu_md}
+              "hand_eye": hand_eye_md, "imu": imu_md, "real_poor": real_poor_md}
     for name, title in titles.items():
         if name not in sections:
             continue
