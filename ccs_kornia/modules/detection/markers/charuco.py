@@ -50,7 +50,12 @@ from ccs_kornia.modules.detection.boards import (
     CharucoBoard,
     aruco_dictionary,
 )
-from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths, merge_corners
+from ccs_kornia.modules.detection.markers.corner_merge import (
+    MarkerPaths,
+    merge_corners,
+    path_counts,
+    paths_note,
+)
 from ccs_kornia.modules.detection.markers.lattice_names import BoardLattice
 from ccs_kornia.modules.detection.markers.lattice_path import (
     LatticeBoard,
@@ -360,14 +365,18 @@ def charuco_paths(
             corners = merge_corners(marked, lattice, veto)[0]
         else:
             corners = marked if path is MarkerPaths.MARKERS else lattice
+        named = path_counts(marked, lattice) if path is MarkerPaths.BOTH else None
         out[path] = _charuco_result(images, board, corners, outputs, notes if path.lattice else [""] * b, refused,
-                                    min_corners)
+                                    min_corners, named)
     return out
 
 
 def _charuco_result(images: torch.Tensor, board: CharucoBoard, corners: torch.Tensor, outputs: list, notes: list[str],
-                    refused: torch.Tensor, min_corners: int) -> DetectionResult:
-    """The views found (enough corners, not refused) and the reason for each."""
+                    refused: torch.Tensor, min_corners: int, named: list[tuple[int, int]] | None = None
+                    ) -> DetectionResult:
+    """The views found (enough corners, not refused) and the reason for each; ``named``: per view, the corners the
+    marker path and the lattice path named before they were merged (:func:`~ccs_kornia.modules.detection.markers.
+    corner_merge.paths_note`, at the end of a found view's reason)."""
     n = board.num_corners
     count = corners.isfinite().all(-1).sum(-1)
     found = (count >= min_corners) & ~refused
@@ -387,7 +396,8 @@ def _charuco_result(images: torch.Tensor, board: CharucoBoard, corners: torch.Te
                            f"a {board.squares_x}x{board.squares_y} board puts them ({len(markers.ids)} are): wrong "
                            "board size?")
         elif bool(found[k]):
-            reasons.append(f"charuco: {what}, {int(count[k])} of {n} corners")
+            reasons.append(f"charuco: {what}, {int(count[k])} of {n} corners"
+                           + ("" if named is None else paths_note(*named[k])))
         elif markers.ambiguous:
             reasons.append("the markers fit the new and the legacy layout alike (a board with an even number of rows "
                            "of squares, seen in part): give the layout")
