@@ -16,6 +16,7 @@ import torch
 from ccs_kornia.modules.detection.learned.learned_detector import (
     LearnedChessboardDetector,
 )
+from ccs_kornia.modules.detection.learned.scale import detection_factor
 from ccs_kornia.modules.detection.refine.patch_refine import resize_to_level
 from ccs_kornia.runtime.checks import check_grey_images
 
@@ -48,7 +49,8 @@ def _level_peaks(det: LearnedChessboardDetector, x: torch.Tensor, factor: torch.
 
 @torch.no_grad()
 def corner_peaks(images: torch.Tensor, detector: LearnedChessboardDetector | None = None, min_peaks: int = 24,
-                 retry: tuple[float, ...] = RETRY) -> list[np.ndarray]:
+                 retry: tuple[float, ...] = RETRY, square_size: torch.Tensor | None = None,
+                 level_square: float | None = None) -> list[np.ndarray]:
     r"""The corner peaks of each image: a list of :math:`(M_b, 2)` float64 arrays of full-resolution px.
 
     An image with fewer than ``min_peaks`` peaks on its level (a wrong square-size estimate: small boards of small
@@ -60,6 +62,13 @@ def corner_peaks(images: torch.Tensor, detector: LearnedChessboardDetector | Non
         detector: whose network, scale selection and peak filters are used (default: :func:`shipped_detector`).
         min_peaks: fewer peaks try the other levels.
         retry: relative factors of those levels.
+        square_size: :math:`(B,)` the board's square size in px where another cue measured it (a marker board's
+            decoded markers; NaN: not measured): its level is that size's
+            (:func:`~ccs_kornia.modules.detection.learned.scale.detection_factor`) instead of the scale selector's
+            estimate, which a scene's larger texture can mislead.
+        level_square: with ``square_size``, the squares' size in px on that level (default: the scale selector's
+            ``target_square``; larger where the corners' features are a small part of a square, as the narrow
+            band between a ChArUco board's corners and its large markers).
 
     Example:
         >>> img = torch.zeros(1, 1, 120, 160)
@@ -74,7 +83,15 @@ def corner_peaks(images: torch.Tensor, detector: LearnedChessboardDetector | Non
     check_grey_images(images)
     det = shipped_detector() if detector is None else detector
     x = images.float()
-    _, factor = det.scale_selector(x)
+    sel = det.scale_selector
+    known = torch.full((x.shape[0],), float("nan"), dtype=torch.float64) if square_size is None else \
+        torch.as_tensor(square_size, dtype=torch.float64).reshape(-1).cpu()
+    target = sel.target_square if level_square is None else max(float(level_square), sel.target_square)
+    factor = detection_factor(known, (x.shape[-1], x.shape[-2]), target, sel.max_pixels, sel.steps_per_octave,
+                              sel.min_factor)
+    guess = (~known.isfinite()).nonzero().flatten()
+    if guess.numel():  # the scale selector's estimate where no other cue measured the squares
+        factor[guess] = sel(x[guess.to(x.device)])[1].cpu().double()
     out = _level_peaks(det, x, factor)
     floor = det.scale_selector.min_factor
     for rel in retry:
