@@ -20,7 +20,7 @@ from ccs_kornia.modules.detection.learned.scale import detection_factor
 from ccs_kornia.modules.detection.refine.patch_refine import resize_to_level
 from ccs_kornia.runtime.checks import check_grey_images
 
-__all__ = ["RETRY", "corner_peaks", "shipped_detector"]
+__all__ = ["OCTAVES_OFF", "RETRY", "corner_peaks", "shipped_detector"]
 
 
 @functools.lru_cache(maxsize=1)
@@ -29,6 +29,9 @@ def shipped_detector() -> LearnedChessboardDetector:
     return LearnedChessboardDetector()
 
 
+#: a measured square size replaces the scale selector's level where the two are more than this many octaves apart
+#: (the network finds corners over about an octave of square sizes around its target)
+OCTAVES_OFF = 1.0
 #: levels tried in turn (relative to the chosen one) on an image with fewer than ``min_peaks`` peaks
 RETRY = (0.5, 2.0)
 
@@ -63,12 +66,12 @@ def corner_peaks(images: torch.Tensor, detector: LearnedChessboardDetector | Non
         min_peaks: fewer peaks try the other levels.
         retry: relative factors of those levels.
         square_size: :math:`(B,)` the board's square size in px where another cue measured it (a marker board's
-            decoded markers; NaN: not measured): its level is that size's
-            (:func:`~ccs_kornia.modules.detection.learned.scale.detection_factor`) instead of the scale selector's
-            estimate, which a scene's larger texture can mislead.
-        level_square: with ``square_size``, the squares' size in px on that level (default: the scale selector's
-            ``target_square``; larger where the corners' features are a small part of a square, as the narrow
-            band between a ChArUco board's corners and its large markers).
+            decoded markers; NaN: not measured): where the scale selector's level is more than
+            :data:`OCTAVES_OFF` octaves from that size's (:func:`~ccs_kornia.modules.detection.learned.scale.
+            detection_factor`), that size's is used (a scene's larger texture misleads the estimate).
+        level_square: with ``square_size``, the squares' size in px on the level (default: the scale selector's
+            ``target_square``); a larger one (the corners' features a small part of a square, as the narrow band
+            between a ChArUco board's corners and its large markers) always takes the measured size's level.
 
     Example:
         >>> img = torch.zeros(1, 1, 120, 160)
@@ -84,14 +87,17 @@ def corner_peaks(images: torch.Tensor, detector: LearnedChessboardDetector | Non
     det = shipped_detector() if detector is None else detector
     x = images.float()
     sel = det.scale_selector
-    known = torch.full((x.shape[0],), float("nan"), dtype=torch.float64) if square_size is None else \
-        torch.as_tensor(square_size, dtype=torch.float64).reshape(-1).cpu()
-    target = sel.target_square if level_square is None else max(float(level_square), sel.target_square)
-    factor = detection_factor(known, (x.shape[-1], x.shape[-2]), target, sel.max_pixels, sel.steps_per_octave,
-                              sel.min_factor)
-    guess = (~known.isfinite()).nonzero().flatten()
-    if guess.numel():  # the scale selector's estimate where no other cue measured the squares
-        factor[guess] = sel(x[guess.to(x.device)])[1].cpu().double()
+    factor = sel(x)[1].cpu().double()
+    if square_size is not None:
+        known = torch.as_tensor(square_size, dtype=torch.float64).reshape(-1).cpu()
+        size = (x.shape[-1], x.shape[-2])
+        at_target = detection_factor(known, size, sel.target_square, sel.max_pixels, sel.steps_per_octave,
+                                     sel.min_factor)
+        finer = level_square is not None and float(level_square) > sel.target_square
+        measured = detection_factor(known, size, float(level_square), sel.max_pixels, sel.steps_per_octave,
+                                    sel.min_factor) if finer else at_target
+        off = (at_target / factor).log2().abs() > OCTAVES_OFF
+        factor = torch.where(known.isfinite() & (off | finer), measured, factor)
     out = _level_peaks(det, x, factor)
     floor = det.scale_selector.min_factor
     for rel in retry:
