@@ -6,6 +6,7 @@
     python -m ccs_kornia bench --markdown docs/benchmarks.md
     python -m ccs_kornia bench --quick --sections wild    # detection in the wild (~40 s on 2 cores)
     python -m ccs_kornia bench --sections video           # recordings: the frames chosen (about 15 min on 2 cores)
+    python -m ccs_kornia bench --sections real_poor       # the real sets made poor (dark, blur, small, JPEG)
     python -m ccs_kornia bench --sections hand_eye        # hand-eye: rendered robots against OpenCV, and a real robot
 """
 
@@ -59,6 +60,9 @@ def build_parser(prog: str = "python -m ccs_kornia bench") -> argparse.ArgumentP
                    help="AprilGrid renders per condition, markers section")
     p.add_argument("--video-recordings", type=int, default=None, help="rendered recordings of the video section")
     p.add_argument("--video-seconds", type=float, default=None, help="seconds of each rendered recording (30 fps)")
+    p.add_argument("--real-poor-images", type=int, default=None,
+                   help="images per set (per camera) of the real_poor section")
+    p.add_argument("--real-poor-sets", nargs="+", default=None, help="real sets of the real_poor section")
     p.add_argument("--hand-eye-trials", type=int, default=None, help="rendered robots per set-up, hand_eye section")
     p.add_argument("--no-cuda", action="store_true", help="do not time CUDA even when present")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
@@ -85,7 +89,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
     for name in ("corner_images", "calib_trials", "calib_views", "calib_pool_views", "calib_trials_per_camera",
                  "real_subsets", "real_max_images", "real_dir", "dc_trials", "distortion_weights", "wild_images",
                  "wild_big_images", "wild_free_images", "wild_real_images", "markers_views", "markers_aprilgrid_views",
-                 "hand_eye_trials", "video_recordings"):
+                 "hand_eye_trials", "video_recordings", "real_poor_images"):
         value = getattr(args, name)
         if value is not None:
             if isinstance(value, int) and value < 1:
@@ -94,6 +98,8 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
             overrides[name] = value
     if args.real_sets:
         overrides["real_sets"] = tuple(args.real_sets)
+    if args.real_poor_sets:
+        overrides["real_poor_sets"] = tuple(args.real_poor_sets)
     for name, kind in (("calib_conditions", "calibration"), ("wild_conditions", "wild")):
         asked = getattr(args, name)
         if not asked:

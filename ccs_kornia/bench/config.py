@@ -10,7 +10,8 @@ __all__ = [
 ]
 
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye", "rig",
-                             "markers", "rig_sessions", "video", "hand_eye", "imu", "guidance", "precision")
+                             "markers", "rig_sessions", "video", "hand_eye", "imu", "guidance", "precision",
+                             "real_poor")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
 #: conditions of the synthetic calibration section (paper Table I, then realistic optics)
@@ -114,6 +115,10 @@ class BenchConfig:
             caliscope recording compared one by one, and whether its rig is.
         hand_eye_trials: rendered robots per set-up of the ``hand_eye`` section (:mod:`~ccs_kornia.bench.sections.hand_eye`);
             hand_eye_views: the range of their poses; hand_eye_real: also its real robot (where the data is found).
+        real_poor_images, real_poor_sets, real_poor_conditions: the ``real_poor`` section
+            (:mod:`~ccs_kornia.bench.sections.real_poor`): images per set (per camera of a multi-camera set), the sets
+            (``None``: every ChArUco and chessboard set known) and the conditions
+            (:data:`~ccs_kornia.data.render.poor_images.POOR_CONDITIONS`).
         imu_trials, imu_seconds, imu_conditions: the ``imu`` section's rendered recordings per condition, their length
             (s) and the conditions (:data:`~ccs_kornia.bench.sections.imu.CONDITIONS`).
         guidance_trials, guidance_cameras, guidance_counts: the ``guidance`` section's simulated people per camera kind,
@@ -198,6 +203,9 @@ class BenchConfig:
     hand_eye_trials: int = 20
     hand_eye_views: tuple[int, int] = (8, 30)
     hand_eye_real: bool = True
+    real_poor_images: int = 12
+    real_poor_sets: tuple[str, ...] | None = None
+    real_poor_conditions: tuple[str, ...] = ("dark", "dark sensor", "blur", "motion", "small", "jpeg")
     imu_trials: int = 10
     imu_seconds: float = 60.0
     imu_conditions: tuple[str, ...] = ("given", "noise x10", "noise /10", "stereo", "rolling shutter", "stereo, rig held",
@@ -233,6 +241,7 @@ class BenchConfig:
             markers_real_sets=("charuco_opencv_tutorial",), hand_eye_trials=1,
             imu_trials=1, imu_seconds=10.0, imu_conditions=("given",), precision_models=("rational",),
             guidance_trials=2, guidance_cameras=("normal",),
+            real_poor_images=2, real_poor_sets=("charuco_opencv_tutorial", "caliscope_4cam_charuco", "opencv_left"),
             video_recordings=1, video_seconds=8.0, video_size=(640, 360), video_heldout_seconds=6.0,
             video_heldout_frames=8, video_real_cameras=(0,), video_real_rig=False,
         )
@@ -257,6 +266,8 @@ class BenchConfig:
             markers_real_sets=(), hand_eye_trials=1, hand_eye_views=(8, 8), hand_eye_real=False,
             imu_trials=1, imu_seconds=6.0, imu_conditions=("given",), precision_models=(),
             guidance_trials=1, guidance_cameras=("normal",), guidance_counts=(4, 6, 8),
+            real_poor_images=1, real_poor_sets=("charuco_opencv_tutorial", "boofcv_bumblebee2_left"),
+            real_poor_conditions=("dark", "small"),
             video_recordings=1, video_seconds=2.0, video_size=(320, 240),
             video_heldout_seconds=2.0, video_heldout_frames=4, video_command=False, video_real_cameras=(),
             video_real_rig=False,

@@ -100,6 +100,7 @@ SECTION_RUNNERS: dict[str, tuple[str, str, bool, bool]] = {
     "imu": ("ccs_kornia.bench.sections.imu", "run_imu", False, False),
     "guidance": ("ccs_kornia.bench.sections.guidance", "run_guidance", False, False),
     "precision": ("ccs_kornia.bench.sections.precision", "run_precision", False, False),
+    "real_poor": ("ccs_kornia.bench.sections.real_poor", "run_real_poor", False, False),
 }
 
 

@@ -11,6 +11,7 @@ import math
 from typing import Any
 
 from ccs_kornia.modules.calibration.result import VIEW_REASONS
+from ccs_kornia.modules.detection.markers.corner_merge import corners_by_path
 from ccs_kornia.outputs.calibration_file import camera_record_fields
 from ccs_kornia.pipeline.result import PipelineResult
 from ccs_kornia.pipeline.sources import SIZE_TOLERANCE_PX
@@ -25,7 +26,9 @@ def _num(x: float) -> float | None:
 
 def view_records(result: PipelineResult, paths: list[str]) -> list[dict[str, Any]]:
     """One dict per view of one camera: ``path``, ``found``, ``corners`` (when found; ``[None, None]`` at the corners of a
-    partial board that the image does not show), ``hidden_corners`` (their count, where any), ``image_size``, and
+    partial board that the image does not show), ``hidden_corners`` (their count, where any), ``method`` (how it was
+    found) and, for a marker board, ``corners_by_path`` (the corners its marker path and its lattice path each named,
+    :func:`~ccs_kornia.modules.detection.markers.corner_merge.corners_by_path`), ``image_size``, and
     ``reason`` where the view cannot be used (unreadable, board not found, another image size).
 
     Args:
@@ -49,6 +52,9 @@ def view_records(result: PipelineResult, paths: list[str]) -> list[dict[str, Any
             how = det.reasons[v] if det.reasons else ""
             if how:
                 view["method"] = how
+            by_path = corners_by_path(how)
+            if by_path is not None:  # a marker board: the corners each of its paths named, before the merge
+                view["corners_by_path"] = by_path
         if not bool(result.present[v]):
             view["reason"] = (det.reasons[v] if det.reasons else "") or "unreadable"
         elif not found:

@@ -63,6 +63,12 @@ def test_detect_writes_one_entry_per_corner_id(views, tmp_path, capsys):
         assert seen.sum() >= 6 and np.isfinite(expected[seen]).all()
         assert np.abs(pts[seen] - expected[seen]).max() < 0.1  # right ids: a wrong one is tens of px off
         assert image.get("hidden_corners", 0) == 24 - seen.sum()
+        # which path named the corners: each path's count before the merge, and the merge keeps no more than both
+        by_path = image["corners_by_path"]
+        assert set(by_path) == {"marker_path", "lattice_path"} and max(by_path.values()) >= 6
+        assert seen.sum() <= by_path["marker_path"] + by_path["lattice_path"]
+        assert image["method"].endswith(f"(named by the marker path: {by_path['marker_path']}, the lattice path: "
+                                        f"{by_path['lattice_path']})")
 
 
 def test_calibrate_rendered_views(views, tmp_path, capsys):

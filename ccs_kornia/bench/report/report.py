@@ -372,6 +372,7 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
         "imu": "## 13. Camera-IMU calibration",
         "guidance": "## 14. Guided capture: the next best pose against ROS's rule",
         "precision": "## 15. Precision against mrcal (its published corners)",
+        "real_poor": "## 16. Real photographs made poor",
     }
     from ccs_kornia.bench.sections.fisheye import fisheye_md
     from ccs_kornia.bench.sections.guidance import guidance_md
@@ -379,6 +380,7 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
     from ccs_kornia.bench.sections.imu import imu_md
     from ccs_kornia.bench.sections.markers import markers_md
     from ccs_kornia.bench.sections.precision import precision_md
+    from ccs_kornia.bench.sections.real_poor import real_poor_md
     from ccs_kornia.bench.sections.rig import rig_md
     from ccs_kornia.bench.sections.rig_sessions import rig_sessions_md
     from ccs_kornia.bench.sections.video import video_md
@@ -386,7 +388,8 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
     render = {"corners": _corners_md, "calibration": _calibration_md, "real": lambda s: _real_md(s, boxplot),
               "distortion": _distortion_md, "speed": _speed_md, "wild": _wild_md, "fisheye": fisheye_md,
               "rig": rig_md, "markers": markers_md, "rig_sessions": rig_sessions_md, "video": video_md,
-              "hand_eye": hand_eye_md, "imu": imu_md, "guidance": guidance_md, "precision": precision_md}
+              "hand_eye": hand_eye_md, "imu": imu_md, "guidance": guidance_md, "precision": precision_md,
+              "real_poor": real_poor_md}
     for name, title in titles.items():
         if name not in sections:
             continue

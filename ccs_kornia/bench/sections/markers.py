@@ -80,6 +80,8 @@ REAL_SETS = {
     "caliscope_4cam_charuco": (CharucoBoard(4, 5, 0.054, 0.0405, "DICT_4X4_1000"),
                                {f"cam_{c}": (f"cam_{c}/*.jpg",) for c in range(4)},
                                ((False, False), (True, False), (False, True), (True, True))),
+    "ric_charuco_eye_to_hand": (CharucoBoard(5, 7, 0.036195, 0.018256, "DICT_6X6_250"), {"cam": ("images/*.png",)},
+                                ((False, False),)),
 }
 
 

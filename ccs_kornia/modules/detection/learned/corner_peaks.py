@@ -16,10 +16,11 @@ import torch
 from ccs_kornia.modules.detection.learned.learned_detector import (
     LearnedChessboardDetector,
 )
+from ccs_kornia.modules.detection.learned.scale import detection_factor
 from ccs_kornia.modules.detection.refine.patch_refine import resize_to_level
 from ccs_kornia.runtime.checks import check_grey_images
 
-__all__ = ["RETRY", "corner_peaks", "shipped_detector"]
+__all__ = ["OCTAVES_OFF", "RETRY", "corner_peaks", "shipped_detector"]
 
 
 @functools.lru_cache(maxsize=1)
@@ -28,6 +29,9 @@ def shipped_detector() -> LearnedChessboardDetector:
     return LearnedChessboardDetector()
 
 
+#: a measured square size replaces the scale selector's level where the two are more than this many octaves apart
+#: (the network finds corners over about an octave of square sizes around its target)
+OCTAVES_OFF = 1.0
 #: levels tried in turn (relative to the chosen one) on an image with fewer than ``min_peaks`` peaks
 RETRY = (0.5, 2.0)
 
@@ -48,7 +52,8 @@ def _level_peaks(det: LearnedChessboardDetector, x: torch.Tensor, factor: torch.
 
 @torch.no_grad()
 def corner_peaks(images: torch.Tensor, detector: LearnedChessboardDetector | None = None, min_peaks: int = 24,
-                 retry: tuple[float, ...] = RETRY) -> list[np.ndarray]:
+                 retry: tuple[float, ...] = RETRY, square_size: torch.Tensor | None = None,
+                 level_square: float | None = None) -> list[np.ndarray]:
     r"""The corner peaks of each image: a list of :math:`(M_b, 2)` float64 arrays of full-resolution px.
 
     An image with fewer than ``min_peaks`` peaks on its level (a wrong square-size estimate: small boards of small
@@ -60,6 +65,13 @@ def corner_peaks(images: torch.Tensor, detector: LearnedChessboardDetector | Non
         detector: whose network, scale selection and peak filters are used (default: :func:`shipped_detector`).
         min_peaks: fewer peaks try the other levels.
         retry: relative factors of those levels.
+        square_size: :math:`(B,)` the board's square size in px where another cue measured it (a marker board's
+            decoded markers; NaN: not measured): where the scale selector's level is more than
+            :data:`OCTAVES_OFF` octaves from that size's (:func:`~ccs_kornia.modules.detection.learned.scale.
+            detection_factor`), that size's is used (a scene's larger texture misleads the estimate).
+        level_square: with ``square_size``, the squares' size in px on the level (default: the scale selector's
+            ``target_square``); a larger one (the corners' features a small part of a square, as the narrow band
+            between a ChArUco board's corners and its large markers) always takes the measured size's level.
 
     Example:
         >>> img = torch.zeros(1, 1, 120, 160)
@@ -74,7 +86,18 @@ def corner_peaks(images: torch.Tensor, detector: LearnedChessboardDetector | Non
     check_grey_images(images)
     det = shipped_detector() if detector is None else detector
     x = images.float()
-    _, factor = det.scale_selector(x)
+    sel = det.scale_selector
+    factor = sel(x)[1].cpu().double()
+    if square_size is not None:
+        known = torch.as_tensor(square_size, dtype=torch.float64).reshape(-1).cpu()
+        size = (x.shape[-1], x.shape[-2])
+        at_target = detection_factor(known, size, sel.target_square, sel.max_pixels, sel.steps_per_octave,
+                                     sel.min_factor)
+        finer = level_square is not None and float(level_square) > sel.target_square
+        measured = detection_factor(known, size, float(level_square), sel.max_pixels, sel.steps_per_octave,
+                                    sel.min_factor) if finer else at_target
+        off = (at_target / factor).log2().abs() > OCTAVES_OFF
+        factor = torch.where(known.isfinite() & (off | finer), measured, factor)
     out = _level_peaks(det, x, factor)
     floor = det.scale_selector.min_factor
     for rel in retry:

@@ -51,7 +51,12 @@ from ccs_kornia.modules.detection.boards import (
     AprilGrid,
     aruco_dictionary,
 )
-from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths, merge_corners
+from ccs_kornia.modules.detection.markers.corner_merge import (
+    MarkerPaths,
+    merge_corners,
+    path_counts,
+    paths_note,
+)
 from ccs_kornia.modules.detection.markers.lattice_names import BoardLattice
 from ccs_kornia.modules.detection.markers.lattice_path import (
     LatticeBoard,
@@ -308,14 +313,18 @@ def aprilgrid_paths(
             corners = merge_corners(marked, lattice, veto)[0]
         else:
             corners = marked if path is MarkerPaths.MARKERS else lattice
+        named = path_counts(marked, lattice) if path is MarkerPaths.BOTH else None
         out[path] = _aprilgrid_result(images, board, corners, found_tags, notes if path.lattice else [""] * b,
-                                      refused, min_corners)
+                                      refused, min_corners, named)
     return out
 
 
 def _aprilgrid_result(images: torch.Tensor, board: AprilGrid, corners: torch.Tensor, found_tags: list,
-                      notes: list[str], refused: torch.Tensor, min_corners: int) -> DetectionResult:
-    """The views found (enough corners, not refused) and the reason for each."""
+                      notes: list[str], refused: torch.Tensor, min_corners: int,
+                      named: list[tuple[int, int]] | None = None) -> DetectionResult:
+    """The views found (enough corners, not refused) and the reason for each; ``named``: per view, the corners the
+    marker path and the lattice path named before they were merged (:func:`~ccs_kornia.modules.detection.markers.
+    corner_merge.paths_note`, at the end of a found view's reason)."""
     n = board.num_corners
     count = corners.isfinite().all(-1).sum(-1)
     found = (count >= min_corners) & ~refused
@@ -327,7 +336,8 @@ def _aprilgrid_result(images: torch.Tensor, board: AprilGrid, corners: torch.Ten
             reasons.append(f"{tags.known - len(tags.ids)} of the grid's tags are not where a {board.tag_cols}x"
                            f"{board.tag_rows} AprilGrid puts them ({len(tags.ids)} are): wrong tagCols or tagRows?")
         elif bool(found[k]):
-            reasons.append(f"aprilgrid: {what}, {int(count[k])} of {n} corners")
+            reasons.append(f"aprilgrid: {what}, {int(count[k])} of {n} corners"
+                           + ("" if named is None else paths_note(*named[k])))
         elif not len(tags.ids) and not notes[k]:
             reasons.append(f"no two {board.dictionary} tags of the grid found where it puts them")
         else:

@@ -50,7 +50,13 @@ from ccs_kornia.modules.detection.boards import (
     CharucoBoard,
     aruco_dictionary,
 )
-from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths, merge_corners
+from ccs_kornia.modules.detection.learned.scale import TARGET_SQUARE
+from ccs_kornia.modules.detection.markers.corner_merge import (
+    MarkerPaths,
+    merge_corners,
+    path_counts,
+    paths_note,
+)
 from ccs_kornia.modules.detection.markers.lattice_names import BoardLattice
 from ccs_kornia.modules.detection.markers.lattice_path import (
     LatticeBoard,
@@ -72,9 +78,23 @@ from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
 from ccs_kornia.runtime.checks import check_grey_images
 
 __all__ = [
-    "NEIGHBOUR_RADIUS", "CharucoDetector", "CharucoMarkers", "board_markers", "charuco_detector", "charuco_lattice",
-    "charuco_lattice_board", "charuco_markers", "charuco_paths", "detect_charuco", "dictionary_hint", "layout_fits",
-    "marked_radius_factor", "squares_hint",
+    "MIN_BAND_PX",
+    "NEIGHBOUR_RADIUS",
+    "CharucoDetector",
+    "CharucoMarkers",
+    "board_markers",
+    "charuco_detector",
+    "charuco_lattice",
+    "charuco_lattice_board",
+    "charuco_markers",
+    "charuco_paths",
+    "detect_charuco",
+    "dictionary_hint",
+    "lattice_level_square",
+    "layout_fits",
+    "marked_radius_factor",
+    "marker_square_size",
+    "squares_hint",
 ]
 
 #: markers whose centre lies within this many squares of a corner place it (the two touching ones at 0.71, the next
@@ -360,14 +380,18 @@ def charuco_paths(
             corners = merge_corners(marked, lattice, veto)[0]
         else:
             corners = marked if path is MarkerPaths.MARKERS else lattice
+        named = path_counts(marked, lattice) if path is MarkerPaths.BOTH else None
         out[path] = _charuco_result(images, board, corners, outputs, notes if path.lattice else [""] * b, refused,
-                                    min_corners)
+                                    min_corners, named)
     return out
 
 
 def _charuco_result(images: torch.Tensor, board: CharucoBoard, corners: torch.Tensor, outputs: list, notes: list[str],
-                    refused: torch.Tensor, min_corners: int) -> DetectionResult:
-    """The views found (enough corners, not refused) and the reason for each."""
+                    refused: torch.Tensor, min_corners: int, named: list[tuple[int, int]] | None = None
+                    ) -> DetectionResult:
+    """The views found (enough corners, not refused) and the reason for each; ``named``: per view, the corners the
+    marker path and the lattice path named before they were merged (:func:`~ccs_kornia.modules.detection.markers.
+    corner_merge.paths_note`, at the end of a found view's reason)."""
     n = board.num_corners
     count = corners.isfinite().all(-1).sum(-1)
     found = (count >= min_corners) & ~refused
@@ -387,7 +411,8 @@ def _charuco_result(images: torch.Tensor, board: CharucoBoard, corners: torch.Te
                            f"a {board.squares_x}x{board.squares_y} board puts them ({len(markers.ids)} are): wrong "
                            "board size?")
         elif bool(found[k]):
-            reasons.append(f"charuco: {what}, {int(count[k])} of {n} corners")
+            reasons.append(f"charuco: {what}, {int(count[k])} of {n} corners"
+                           + ("" if named is None else paths_note(*named[k])))
         elif markers.ambiguous:
             reasons.append("the markers fit the new and the legacy layout alike (a board with an even number of rows "
                            "of squares, seen in part): give the layout")
@@ -396,6 +421,48 @@ def _charuco_result(images: torch.Tensor, board: CharucoBoard, corners: torch.Te
         else:
             reasons.append(f"only {int(count[k])} corners from {what} (at least {min_corners} needed)")
     return DetectionResult(corners.to(images.device), found.to(images.device), reasons)
+
+
+#: the clear band between a corner and the markers beside it spans at least this many px on the lattice path's
+#: detection level (the band of a board whose markers take half their square, at the network's 9 px squares)
+MIN_BAND_PX = 2.25
+
+
+def lattice_level_square(board: CharucoBoard) -> float:
+    """The square size (px) at which the lattice path's network looks at the board: its target
+    (:data:`~ccs_kornia.modules.detection.learned.scale.TARGET_SQUARE`), or larger where the markers leave a band
+    narrower than :data:`MIN_BAND_PX` there between a corner and themselves (a corner is only that band's X).
+
+    Example:
+        >>> round(lattice_level_square(CharucoBoard(5, 7, 0.04, 0.02)), 3), round(lattice_level_square(CharucoBoard(4, 5, 0.054, 0.0405)), 3)
+        (9.0, 18.0)
+    """
+    band = 0.5 * (float(board.square) - float(board.marker)) / float(board.square)
+    return float(max(TARGET_SQUARE, MIN_BAND_PX / max(band, 1e-6)))
+
+
+def marker_square_size(markers: BoardMarkers) -> float:
+    """A view's square size in px measured by its decoded markers (NaN without any): the median over the markers of
+    the square root of their image area over their board area (in squares).
+
+    The network's detection level then follows the board, not the scene's texture, which can mislead the scale
+    estimate on a real photograph (a small board in a large room).
+
+    Example:
+        >>> board = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250")
+        >>> round(marker_square_size(charuco_markers(board.render(60, margin=30), board)))
+        59
+    """
+    if not len(markers.ids):
+        return float("nan")
+
+    def area(p: np.ndarray) -> np.ndarray:
+        x, y = p[..., 0], p[..., 1]
+        return 0.5 * np.abs((x * np.roll(y, -1, -1) - np.roll(x, -1, -1) * y).sum(-1))
+
+    ratio = area(np.asarray(markers.corners, dtype=np.float64)) / area(np.asarray(markers.board_corners,
+                                                                                  dtype=np.float64))
+    return float(np.sqrt(np.median(ratio)))
 
 
 def _lattice_path(images: torch.Tensor, board: CharucoBoard, outputs: list, layout: bool | None, factor: float,
@@ -421,7 +488,9 @@ def _lattice_path(images: torch.Tensor, board: CharucoBoard, outputs: list, layo
         spec = charuco_lattice_board(board, view_layout, factor)
         seen = [[(c, int(i), outputs[k][0].variant.endswith("inverted")) for c, i in
                  zip(outputs[k][0].corners, outputs[k][0].ids)] for k in idx]
-        got = lattice_corners(images[idx], spec, seen, known=None if known is None else known[idx])
+        square = torch.tensor([marker_square_size(outputs[k][0]) for k in idx], dtype=torch.float64)
+        got = lattice_corners(images[idx], spec, seen, known=None if known is None else known[idx],
+                              square_size=square, level_square=lattice_level_square(board))
         lattice[idx], disputed[idx] = got.corners, got.disputed
         unnamed = []
         for j, k in enumerate(idx):

@@ -8,17 +8,21 @@ r"""One policy for a marker board's two paths: the marker path's corners and the
 * a corner id that one path found disputed (a marker beside it reads as another marker) is dropped from both.
 
 A wrong id is worse than a missing corner, so every disagreement loses the corner.
+
+A found view's reason ends with how many corners each path named before the merge (:func:`paths_note`), which
+``detect`` and ``calibrate`` write per view as ``corners_by_path`` (:func:`corners_by_path`).
 """
 
 from __future__ import annotations
 
+import re
 from enum import Enum
 
 import torch
 
 from ccs_kornia.runtime.checks import check_points, check_same_shape
 
-__all__ = ["AGREE_PX", "COLLISION", "MarkerPaths", "merge_corners"]
+__all__ = ["AGREE_PX", "COLLISION", "MarkerPaths", "corners_by_path", "merge_corners", "path_counts", "paths_note"]
 
 #: two paths agree on a corner within this distance (px); both refine it with the same saddle fit
 AGREE_PX = 1.0
@@ -84,3 +88,44 @@ def merge_corners(first: torch.Tensor, second: torch.Tensor, veto: torch.Tensor 
         keep[k, idx[clash]] = False
     merged = torch.where(keep[..., None], merged, torch.full_like(merged, float("nan")))
     return merged, disputed
+
+
+_NOTE = re.compile(r"\(named by the marker path: (\d+), the lattice path: (\d+)\)")
+
+
+def path_counts(first: torch.Tensor, second: torch.Tensor) -> list[tuple[int, int]]:
+    r"""Per view, the corners each path named :math:`(B, N, 2)` (NaN where none; the marker path's, the lattice
+    path's), before they are merged.
+
+    Example:
+        >>> nan = float("nan")
+        >>> path_counts(torch.tensor([[[1.0, 1.0], [nan, nan]]]), torch.tensor([[[1.0, 1.0], [2.0, 2.0]]]))
+        [(1, 2)]
+    """
+    a = first.isfinite().all(-1).sum(-1).tolist()
+    b = second.isfinite().all(-1).sum(-1).tolist()
+    return list(zip(a, b))
+
+
+def paths_note(marker: int, lattice: int) -> str:
+    """The end of a found view's reason: how many corners each path named (:func:`corners_by_path` reads it back).
+
+    Example:
+        >>> paths_note(20, 24)
+        ' (named by the marker path: 20, the lattice path: 24)'
+    """
+    return f" (named by the marker path: {int(marker)}, the lattice path: {int(lattice)})"
+
+
+def corners_by_path(reason: str | None) -> dict[str, int] | None:
+    """``{"marker_path": m, "lattice_path": l}`` from a reason ending in :func:`paths_note` (``None`` otherwise: a
+    chessboard, or a view neither path found).
+
+    Example:
+        >>> corners_by_path("charuco: 17 DICT_6X6_250 markers, 24 of 24 corners" + paths_note(20, 24))
+        {'marker_path': 20, 'lattice_path': 24}
+        >>> corners_by_path("sb") is None
+        True
+    """
+    m = _NOTE.search(reason or "")
+    return None if m is None else {"marker_path": int(m.group(1)), "lattice_path": int(m.group(2))}

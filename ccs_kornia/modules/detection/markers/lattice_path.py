@@ -233,8 +233,8 @@ def _place(named: NamedLattice, cells: np.ndarray, points: np.ndarray, peaks: np
 
 
 def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[list[tuple[np.ndarray, int, bool]]],
-                    peaks: list[np.ndarray] | None = None, min_agree: int = 1, known: torch.Tensor | None = None
-                    ) -> LatticeCorners:
+                    peaks: list[np.ndarray] | None = None, min_agree: int = 1, known: torch.Tensor | None = None,
+                    square_size: torch.Tensor | None = None, level_square: float | None = None) -> LatticeCorners:
     r"""The lattice path (module docstring) on a batch of images.
 
     Args:
@@ -248,6 +248,10 @@ def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[lis
             within :data:`~ccs_kornia.modules.detection.markers.marker_board.MAX_MOVE` spacings of its own id's known
             corner is that corner (the same saddle fit would find it again); elsewhere it is refined here, so two
             paths that disagree still do.
+        square_size: :math:`(B,)` the lattice's square size in px where the markers measured it (NaN: not
+            measured): the network looks at the image on that size's level
+            (:func:`~ccs_kornia.modules.detection.learned.corner_peaks.corner_peaks`); ``level_square``: the
+            squares' size on that level (``None``: the network's own target).
 
     Returns:
         :class:`LatticeCorners`.
@@ -263,7 +267,7 @@ def lattice_corners(images: torch.Tensor, board: LatticeBoard, markers: list[lis
     """
     b = images.shape[0]
     n = len(board.corners)
-    peaks = corner_peaks(images) if peaks is None else peaks
+    peaks = corner_peaks(images, square_size=square_size, level_square=level_square) if peaks is None else peaks
     gray = (images.detach()[:, 0].float().clamp(0, 1) * 255.0).cpu().numpy()
     initial, spacing = np.full((b, n, 2), np.nan), np.full((b, n), np.nan)
     disputed = np.zeros((b, n), dtype=bool)

@@ -23,6 +23,8 @@ def _view(scale: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _recall(peaks: np.ndarray, truth: np.ndarray) -> int:
+    if not len(peaks):
+        return 0
     d = np.linalg.norm(truth[:, None] - peaks[None], axis=-1)
     return int((d.min(1) < 1.5).sum())
 
@@ -44,3 +46,20 @@ def test_a_coarse_first_level_is_retried_finer():
     x = torch.from_numpy(img).float()[None, None] / 255
     assert _recall(corner_peaks(x)[0], truth) >= 22
     assert len(corner_peaks(x, retry=())[0]) <= len(corner_peaks(x)[0])
+
+
+def test_a_measured_square_size_sets_the_level_without_the_scale_estimate(monkeypatch):
+    from ccs_kornia.modules.detection.learned.corner_peaks import shipped_detector
+
+    img, truth = _view(0.55)  # squares of 55 px
+    x = torch.from_numpy(img).float()[None, None] / 255
+    selector = shipped_detector().scale_selector
+    # a misled estimate (a scene's larger texture): far too coarse a level, nothing found on it
+    monkeypatch.setattr(selector, "forward", lambda images: (torch.full((images.shape[0],), 900.0),
+                                                              torch.full((images.shape[0],), 100.0, dtype=torch.float64)))
+    assert _recall(corner_peaks(x, retry=())[0], truth) == 0
+    measured = corner_peaks(x, retry=(), square_size=torch.tensor([55.0]))[0]
+    assert _recall(measured, truth) >= 22
+    # a finer level for the same board (a larger level square) still finds its corners; NaN falls back to the estimate
+    assert _recall(corner_peaks(x, retry=(), square_size=torch.tensor([55.0]), level_square=18.0)[0], truth) >= 22
+    assert _recall(corner_peaks(x, retry=(), square_size=torch.tensor([float("nan")]))[0], truth) == 0
