@@ -15,12 +15,13 @@ import json
 import math
 import os
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import torch
 
-from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._boards import board_records
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
@@ -34,6 +35,7 @@ from ccs_kornia.commands._run import calibrate_files, run_files
 from ccs_kornia.io.files import write_json, write_text_atomic
 from ccs_kornia.io.robot_poses import match_poses, read_robot_poses
 from ccs_kornia.modules.detection.boards import grid_object_points
+from ccs_kornia.modules.detection.circles.centre_bias import correct_centres
 from ccs_kornia.modules.detection.markers.apriltag import (
     AprilTagDetector,
     AprilTagTarget,
@@ -129,13 +131,19 @@ def _detect_tag(files: list[str], args, device, camera):
     return corners, found, present, reasons, size
 
 
-def _detect_board(files: list[str], args, device, camera_given: bool):
-    """A board's corners through the pipeline (and the camera calibrated from the same images when none is given)."""
+def _detect_board(files: list[str], args, device, camera):
+    """A board's corners through the pipeline (and the camera calibrated from the same images when none is given);
+    a circle grid's centres corrected for the given ``camera`` (the calibration corrects them itself)."""
     pipeline = make_pipeline(args, model=args.model)
     camera_record = None
-    if camera_given:
+    if camera is not None:
         out, _ = run_files(COMMAND, pipeline, [files], args.board, args.square, device, calibrate=False)
         one = out.select(0)
+        grid = getattr(args, "circle_board", None)
+        if grid is not None:
+            det = one.detections
+            fixed = correct_centres(det.corners, det.valid, camera, grid.object_points(), grid.dot_diameters() / 2)
+            one = replace(one, detections=replace(det, corners=fixed.to(det.corners)))
     else:
         try:
             camera_record, one = calibrate_files(COMMAND, files, args.board, args.square, pipeline, device, args.model,
@@ -215,13 +223,13 @@ def run(args: argparse.Namespace) -> int:
                       "corners": "top left, top right, bottom left, bottom right of the black square as printed; "
                                  "origin at the tag's centre, x right, y down, z into the print"}
     else:
-        corners, found, present, reasons, size, camera_record = _detect_board(files, args, device, given is not None)
-        obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square)
+        corners, found, present, reasons, size, camera_record = _detect_board(files, args, device,
+                                                                              None if given is None else given[0])
+        obj = grid_object_points(getattr(args, "aprilgrid_board", None) or getattr(args, "circle_board", None),
+                                 args.board, args.square)
         board_info = {"kind": getattr(args, "detector", "chessboard"), "board": list(args.board),
                       "square": args.square, "corners": "grid order n = row * cols + col; origin at corner 0"}
-        for key, record in (("charuco", charuco_record(args)), ("aprilgrid", aprilgrid_record(args))):
-            if record:
-                board_info[key] = record
+        board_info.update(board_records(args))
     if size is None:
         raise UserError(f"none of the {len(files)} input files could be read as an image")
     if given is not None:

@@ -138,6 +138,9 @@ class PipelineResult:
         diagnostics: per camera, the quality figures of the calibration (see ``docs/diagnostics.md``) or ``None``.
         model_selection: with ``model="auto"``, per camera the choice and its figures (see
             :class:`~ccs_kornia.modules.calibration.model_selection.ModelSelection`); else ``None``.
+        centre_bias: for a circle grid, :math:`(C, V, N, 2)` the offset of each dot's image's centre from the image of
+            its centre under the solved camera, already subtracted from ``detections.corners`` (the measured centres
+            are their sum; :mod:`~ccs_kornia.modules.detection.circles.centre_bias`); else ``None``.
         frame_choice: with a frame selection, per camera which views it kept and why not the others
             (:class:`~ccs_kornia.pipeline.frame_selection.FrameChoice`; ``None`` for a camera it did not judge); else
             ``None``.
@@ -157,6 +160,7 @@ class PipelineResult:
     diagnostics: list[dict | None] | dict | None = None
     model_selection: list[dict | None] | dict | None = None
     frame_choice: list[Any] | Any = None
+    centre_bias: torch.Tensor | None = None
 
     @property
     def batched(self) -> bool:
@@ -224,6 +228,7 @@ class PipelineResult:
             diagnostics=None if self.diagnostics is None else pick(self.diagnostics),
             model_selection=None if self.model_selection is None else pick(self.model_selection),
             frame_choice=None if self.frame_choice is None else pick(self.frame_choice),
+            centre_bias=_index(self.centre_bias, idx),
         )
 
     @classmethod
@@ -288,7 +293,8 @@ class PipelineResult:
         reasons = self.detections.reasons
         if reasons is not None:
             reasons = [reasons[int(c) * v + int(k)] for c, row in zip(cam.tolist(), view.tolist()) for k in row]
-        det = DetectionResult(per_view(self.detections.corners), per_view(self.detections.found), reasons,
+        measured = self.detections.corners if self.centre_bias is None else self.detections.corners + self.centre_bias
+        det = DetectionResult(per_view(measured), per_view(self.detections.found), reasons,
                               per_view(self.detections.sigma))
         return PipelineResult(det, None, [self.image_size[int(c)] for c in cam.tolist()], per_view(self.present),
                               per_view(self.view_sizes), view_corrections=per_view(self.view_corrections),
