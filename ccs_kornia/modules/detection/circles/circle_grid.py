@@ -69,8 +69,8 @@ def order_marked_origin(centres: np.ndarray, areas: np.ndarray, board_size: tupl
     rest = np.delete(areas, big)
     ratio = areas[big] / np.nanmedian(rest)
     if not ratio >= ORIGIN_AREA_RATIO:
-        return None, f"no origin dot: the largest dot is {ratio:.1f} times the others' area (at least " \
-                     f"{ORIGIN_AREA_RATIO:g} expected)"
+        return None, (f"no origin dot: the largest dot is {ratio:.1f} times the others' area (at least "
+                      f"{ORIGIN_AREA_RATIO:g} expected)")
     idx = np.arange(n).reshape(rows, cols)
     candidates = []
     for grid in (idx, idx.T):

@@ -70,7 +70,7 @@ def dot_moments(gray: np.ndarray, centres: np.ndarray, dark: bool = True) -> Dot
         if not hi - lo > 1e-6:
             continue
         mask = (win < 0.5 * (lo + hi)).astype(np.uint8)
-        count, labels = cv2.connectedComponents(mask, connectivity=8)
+        _, labels = cv2.connectedComponents(mask, connectivity=8)
         cx, cy = int(round(u)) - x0, int(round(v)) - y0
         own = labels[cy, cx]
         if own == 0:  # the rough centre off the dot: the nearest dark region
