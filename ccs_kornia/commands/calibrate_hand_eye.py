@@ -166,6 +166,25 @@ def _views(one, count: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, l
     return det.corners.double().cpu(), found, present, reasons
 
 
+def _size_hint(result, args: argparse.Namespace) -> str:
+    """Where the board's size disagrees with the robot's translations, the option and value that say the size the
+    robot sees; else an empty string."""
+    found = next((i for i in result.issues[0] if i.get("check") == "board_scale"), None)
+    if found is None:
+        return ""
+    s = float(found["scale"])
+    if getattr(args, "circle_board", None) is not None:
+        return f": measure the dots' spacing, or give --spacing {args.spacing * s:.5g} (given {args.spacing:g})"
+    if getattr(args, "apriltag", None) is not None:
+        return f": measure the tag, or give --tag-size {args.tag_size * s:.5g} (given {args.tag_size:g})"
+    if getattr(args, "aprilgrid_board", None) is not None:
+        return f": measure the tags, or give a tagSize of {args.aprilgrid_board.tag_size * s:.5g} in the target YAML"
+    if getattr(args, "charuco_board", None) is not None:
+        return (f": measure the squares, or give --square {args.square * s:.5g} --marker {args.marker * s:.5g} "
+                f"(given {args.square:g}, {args.marker:g})")
+    return f": measure the squares, or give --square {args.square * s:.5g} (given {args.square:g})"
+
+
 def _other_order(args: argparse.Namespace, files: list[str], poses, solve) -> str:
     """Where quaternions refused in one order are accepted in the other (scalar first or last), the line that says so
     and names the ``--pose-format`` that reads them; else an empty string."""
@@ -268,8 +287,9 @@ def run(args: argparse.Namespace) -> int:
 
     result = solve(robot, ok)
     if not bool(result.success[0]):
-        order = _other_order(args, files, poses, solve)
-        raise UserError(f"hand-eye calibration refused: {order or result.reasons[0]}")
+        board_size_hint = _size_hint(result, args)
+        order = "" if board_size_hint else _other_order(args, files, poses, solve)
+        raise UserError(f"hand-eye calibration refused: {order or result.reasons[0] + board_size_hint}")
 
     if args.refine_intrinsics:
         refined = result.camera[0]
@@ -331,7 +351,9 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
     if held["rms_px"] is not None:
         lines.append(f"held-out poses predicted from the robot alone: {held['rms_px']:.3f} px, {held['rms_mm']:.3f} mm "
                      f"RMS ({held['poses']} poses)")
-    if data.get("robot_noise"):
+    if (data.get("robot_noise") or {}).get("exact"):
+        lines.append(f"robot poses: {data['robot_noise']['note']}")
+    elif data.get("robot_noise"):
         rn = data["robot_noise"]
         corner = f" (corners {rn['corner_px']:.3g} px)" if rn.get("corner_px") is not None else ""
         lines.append(f"robot poses' noise: {rn['translation_mm']:.3g} mm, {rn['rotation_deg']:.3g} deg{corner}")

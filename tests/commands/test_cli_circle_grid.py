@@ -85,15 +85,40 @@ RIC = REAL_DATA / "ric_circlegrid_eye_in_hand"
 
 @pytest.mark.e2e
 @pytest.mark.skipif(not RIC.is_dir(), reason=f"{RIC} not found")
-def test_ric_circle_grid_calibrates_and_hand_eye_runs(tmp_path, capsys):
-    grid = ["--circles", "10x10", "--spacing", "0.0254", "--marked-origin"]
-    code, stdout, _ = run(capsys, "calibrate", str(RIC / "images"), *grid, "--output", str(tmp_path / "cal.json"))
+def test_ric_circle_grid_calibrates_and_the_robot_tells_its_spacing(tmp_path, capsys):
+    grid = ["--circles", "10x10", "--marked-origin"]
+    code, stdout, _ = run(capsys, "calibrate", str(RIC / "images"), *grid, "--spacing", "0.0254",
+                          "--output", str(tmp_path / "cal.json"))
     assert code == EXIT_OK, stdout
     cal = json.loads((tmp_path / "cal.json").read_text())
     assert sum(v["used"] for v in cal["views"]) == 15 and cal["rms"] < 0.3
-    code, stdout, _ = run(capsys, "calibrate-hand-eye", str(RIC / "images"), "--robot-poses", str(RIC / "poses.csv"),
-                          "--eye-in-hand", *grid, "--calibration", str(tmp_path / "cal.json"),
-                          "--output", str(tmp_path / "he.json"))
+    hand_eye = ["calibrate-hand-eye", str(RIC / "images"), "--robot-poses", str(RIC / "poses.csv"), "--eye-in-hand",
+                *grid, "--calibration", str(tmp_path / "cal.json")]
+    # the spacing of the source's cal_data.yaml (25.4 mm) disagrees with the robot's translations by about 2 %
+    code, _, err = run(capsys, *hand_eye, "--spacing", "0.0254", "--output", str(tmp_path / "refused.json"))
+    lines = [line for line in err.splitlines() if "error" in line]
+    assert code == EXIT_USAGE and len(lines) == 1 and "--spacing 0.0248" in lines[0], err
+    code, stdout, _ = run(capsys, *hand_eye, "--spacing", "0.02482", "--output", str(tmp_path / "he.json"))
+    assert code == EXIT_OK, stdout
     he = json.loads((tmp_path / "he.json").read_text())
     assert he["board"]["circles"]["layout"] == "marked_origin"
-    assert "held-out poses predicted" in stdout
+    assert he["heldout"]["rms_px"] < 3.0
+
+
+CHARUCO = REAL_DATA / "ric_charuco_eye_to_hand"
+
+
+@pytest.mark.e2e
+@pytest.mark.skipif(not CHARUCO.is_dir(), reason=f"{CHARUCO} not found")
+def test_a_camera_without_its_distortion_is_named(tmp_path, capsys):
+    # the set's own pinhole intrinsics (cal_data.yaml), without the lens's distortion (k1 about -0.14)
+    camera = tmp_path / "pinhole.json"
+    camera.write_text(json.dumps({"image_size": [1600, 1200], "K": [[1352.02747, 0, 789.67065],
+                                                                   [0, 1356.14287, 627.2995], [0, 0, 1]],
+                                  "distortion": {"model": "none", "coeffs": []}}))
+    code, stdout, _ = run(capsys, "calibrate-hand-eye", str(CHARUCO / "images"), "--robot-poses",
+                          str(CHARUCO / "poses.csv"), "--eye-to-hand", "--charuco", "5x7", "--square", "0.036195",
+                          "--marker", "0.018256", "--calibration", str(camera), "--output", str(tmp_path / "he.json"))
+    assert code == EXIT_OK
+    assert "verdict: not reliable: the given camera does not fit these images" in stdout
+    assert "check the robot's pose" not in stdout

@@ -295,20 +295,23 @@ def _quat_to_rvec(qx: float, qy: float, qz: float, qw: float) -> tuple[float, fl
     return (qx / s * angle, qy / s * angle, qz / s * angle) if s > 1e-12 else (0.0, 0.0, 0.0)
 
 
-#: ROS-Industrial's eye-in-hand set: its modified circle grid (SOURCE.md: 10 x 10 dots, 25.4 mm)
+#: ROS-Industrial's eye-in-hand set: its modified circle grid as its cal_data.yaml gives it (10 x 10 dots, 25.4 mm)
 RIC_CIRCLES = (10, 10, 0.0254)
 
 
 def ric_circle_grid(folder: Path) -> dict:
     """Ours and OpenCV's methods on ROS-Industrial's eye-in-hand circle-grid set: the camera calibrated by this
-    package from the same images, its corrected centres for every method (OpenCV's board poses by ``solvePnP`` on
-    them), the held-out prediction of each pose's centres from its robot pose."""
+    package from the same images (OPENCV5), its corrected centres for every method (OpenCV's board poses by
+    ``solvePnP`` on them), the views with every dot seen; the dots' spacing the robot's translations tell (this
+    package refuses the source's 25.4 mm and says the spacing it sees; every method is then run with that one); the
+    held-out prediction of each pose's centres from its robot pose."""
     from ccs_kornia.io.images import load_image_gray
     from ccs_kornia.modules.detection.boards import CircleGrid
     from ccs_kornia.modules.detection.circles.circle_grid import CircleGridDetector
     from ccs_kornia.pipeline.calibration_pipeline import CalibrationPipeline
 
-    grid = CircleGrid(*RIC_CIRCLES, marked_origin=True)
+    cols, rows, given = RIC_CIRCLES
+    grid = CircleGrid(cols, rows, given, marked_origin=True)
     poses = _csv_poses(folder / "poses.csv")
     names = sorted(poses, key=lambda n: int(n.split(".")[0]))
     images = [torch.from_numpy(np.asarray(load_image_gray(folder / "images" / n)[0], dtype=np.float32))[None]
@@ -323,9 +326,17 @@ def ric_circle_grid(folder: Path) -> dict:
     T = np.stack([poses[names[i]] for i in idx.tolist()])
     camera = res.camera
     K, dist = camera.K[0].numpy(), camera.dist[0].numpy()
-    obj = grid.object_points()
-    he = calibrate_hand_eye(corners[None], torch.ones(1, *corners.shape[:2], dtype=torch.bool), obj,
-                            torch.from_numpy(T)[None], camera, "eye_in_hand", image_size=(640, 480))
+    every = torch.ones(1, *corners.shape[:2], dtype=torch.bool)
+
+    def ours(spacing: float):
+        return calibrate_hand_eye(corners[None], every, grid.object_points() * (spacing / given),
+                                  torch.from_numpy(T)[None], camera, "eye_in_hand", image_size=(640, 480))
+
+    first = ours(given)
+    told = next((i["scale"] for i in first.issues[0] if i["check"] == "board_scale"), 1.0)
+    spacing = given * told
+    he = ours(spacing) if told != 1.0 else first
+    obj = grid.object_points() * (spacing / given)
     n = len(idx)
     M = np.stack([_pnp(obj.numpy(), corners[v].numpy(), K, dist) for v in range(n)])
     rows = {"ours": {"X": he.X[0].numpy().tolist(), "heldout_px": float(he.heldout_rms[0]),
@@ -333,7 +344,8 @@ def ric_circle_grid(folder: Path) -> dict:
                      "heldout_per_pose": he.heldout_rms_px[0].tolist(), "rms_px": float(he.rms[0]),
                      "verdict": he.verdict[0]}}
     rows.update(_opencv_rows("eye_in_hand", T, M, obj.numpy(), corners.numpy(), K, dist))
-    return {"poses": n, "camera_rms_px": float(res.rms), "methods": rows}
+    return {"poses": n, "camera_rms_px": float(res.rms), "given_spacing": given, "spacing": spacing,
+            "refused_at_given": first.reasons[0], "methods": rows}
 
 
 def run_hand_eye(cfg=None, trials: int | None = None, seed: int = SEED, log=print) -> dict:
@@ -415,7 +427,10 @@ def hand_eye_md(sec: dict) -> list[str]:
     if ric:
         lines += ["", f"Real robot, ROS-Industrial's eye-in-hand circle grid ({ric['poses']} poses with every dot seen; "
                   f"the camera calibrated by this package from the same images, RMS {ric['camera_rms_px']:.3f} px; "
-                  "its corrected centres for every method): held-out prediction RMS px over the poses.", "",
+                  f"its corrected centres for every method; the dots' spacing the robot tells, "
+                  f"{1000 * ric['spacing']:.2f} mm, for every method: at the source's {1000 * ric['given_spacing']:.1f} "
+                  f"mm ours refuses: {ric['refused_at_given'] or 'not refused'}): held-out prediction RMS px over the "
+                  "poses.", "",
                   "| method | held-out px |", "|---|---|"]
         for name, row in ric["methods"].items():
             lines.append(f"| {LABELS[name]} | " + (f"failed: {row.get('error', '')}" if "heldout_px" not in row

@@ -151,14 +151,17 @@ def detect_circle_grid(images: torch.Tensor, board: CircleGrid, min_dots: int = 
         if pts is not None:
             corners[k], found[k] = torch.from_numpy(pts), True
         reasons.append(why)
-    return DetectionResult(corners.to(images.device), found.to(images.device), reasons)
+    # every measured dot counts alike (the corners' saddle precision measures nothing on a dot)
+    sigma = torch.where(corners.isfinite().all(-1) & found[:, None], 1.0, float("nan")).to(torch.float64)
+    return DetectionResult(corners.to(images.device), found.to(images.device), reasons, sigma.to(images.device))
 
 
 class CircleGridDetector(ChessboardDetector):
     """Circle-grid detector with the chessboard detectors' interface (:func:`detect_circle_grid`): ``board_size`` is
     the grid's ``(cols, rows)`` dots; a dot not measured is NaN.
 
-    It measures the dots at full resolution (``selects_scale``: the pipeline does not downscale its images).
+    It measures the dots at full resolution (``selects_scale``: the pipeline does not downscale its images); the
+    distortion network, trained on boards of squares, does not judge its images (``lens_correction``).
 
     Args:
         board: the :class:`~ccs_kornia.modules.detection.boards.CircleGrid`.
@@ -172,6 +175,7 @@ class CircleGridDetector(ChessboardDetector):
     """
 
     selects_scale = True
+    lens_correction = False
 
     def __init__(self, board: CircleGrid, min_dots: int = 6) -> None:
         super().__init__()
