@@ -273,26 +273,11 @@ def visp_franka(folder: Path) -> dict:
 
 
 def _csv_poses(path: Path) -> dict[str, np.ndarray]:
-    """``image,x,y,z,qx,qy,qz,qw`` rows (metres) as flange -> base 4x4 by image name."""
-    out = {}
-    for line in path.read_text().splitlines()[1:]:
-        name, *vals = line.split(",")
-        x, y, z, qx, qy, qz, qw = (float(v) for v in vals)
-        T = np.eye(4)
-        T[:3, :3] = cv2.Rodrigues(np.array(_quat_to_rvec(qx, qy, qz, qw)))[0]
-        T[:3, 3] = (x, y, z)
-        out[name] = T
-    return out
+    """A pose file (``image,x,y,z,qx,qy,qz,qw``, metres) as flange -> base 4x4 by image name."""
+    from ccs_kornia.io.robot_poses import read_robot_poses
 
-
-def _quat_to_rvec(qx: float, qy: float, qz: float, qw: float) -> tuple[float, float, float]:
-    n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-    qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
-    if qw < 0:
-        qx, qy, qz, qw = -qx, -qy, -qz, -qw
-    s = math.sqrt(max(1e-300, qx * qx + qy * qy + qz * qz))
-    angle = 2 * math.atan2(s, qw)
-    return (qx / s * angle, qy / s * angle, qz / s * angle) if s > 1e-12 else (0.0, 0.0, 0.0)
+    poses = read_robot_poses(str(path))
+    return dict(zip(poses.names, poses.poses))
 
 
 #: ROS-Industrial's eye-in-hand set: its modified circle grid as its cal_data.yaml gives it (10 x 10 dots, 25.4 mm)

@@ -16,8 +16,9 @@ From board corners per view, the robot's flange pose per view and the camera, :f
    size disagrees with the robot's translations (:mod:`~ccs_kornia.modules.hand_eye.target_scale`) is refused with
    the size the robot sees;
 6. the held-out figures (:mod:`~ccs_kornia.modules.hand_eye.heldout`) and the verdict;
-7. with the robot-pose noise estimated (``"auto"``), the fit that takes the poses as exact too: kept where it
-   predicts the held-out poses at least :data:`EXACT_POSES_GAIN` times better. A real arm's errors are systematic
+7. with the robot-pose noise estimated (``"auto"``) and held-out poses predicted less than well (above the verdict's
+   ``good_heldout``), the fit that takes the poses as exact too: kept where it predicts the held-out poses at least
+   :data:`EXACT_POSES_GAIN` times better. A real arm's errors are systematic
    (joint offsets, link lengths, elasticity), not the isotropic noise the term models; its estimate then grows until
    the corrections explain each pose alone and the robot predicts little (docs/hand_eye.md); on rendered robots,
    whose pose noise is the term's, the two predict alike and the term is kept.
@@ -219,9 +220,14 @@ def calibrate_hand_eye(
     result = _calibrate(*args, robot_noise=robot_noise, heldout=heldout, **options)
     if not (heldout and isinstance(robot_noise, str) and robot_noise == "auto"):
         return result
-    # the poses taken as exact, kept where they predict the held-out poses clearly better (module doc, step 7)
+    # where held-out poses are predicted less than well, the poses taken as exact, kept where they predict them
+    # clearly better (module doc, step 7)
+    good = HandEyeVerdictThresholds().good_heldout * math.hypot(*image_size) / 1000.0
+    worth = result.success & (result.heldout_rms > good)
+    if not bool(worth.any()):
+        return dataclasses.replace(result, noise_choice=[""] * len(worth))
     exact = _calibrate(*args, robot_noise=None, heldout=True, **options)
-    better = exact.success & result.success & (exact.heldout_rms < EXACT_POSES_GAIN * result.heldout_rms)
+    better = worth & exact.success & (exact.heldout_rms < EXACT_POSES_GAIN * result.heldout_rms)
     choice = [f"the poses taken as exact: they predict held-out poses {float(exact.heldout_rms[b]):.2f} px off, the "
               f"estimated noise term ({math.degrees(float(result.robot_noise[b, 0])):.3g} deg, "
               f"{1000 * metres_per_unit * float(result.robot_noise[b, 1]):.3g} mm) "
