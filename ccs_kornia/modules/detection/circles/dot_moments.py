@@ -63,15 +63,15 @@ def dot_moments(gray: np.ndarray, centres: np.ndarray, dark: bool = True) -> Dot
         if not (np.isfinite(u) and np.isfinite(v)) or not (0 <= u <= w - 1 and 0 <= v <= h - 1):
             continue
         half = int(np.ceil(0.8 * near[k])) + EDGE_PX
-        x0, y0 = max(int(round(u)) - half, 0), max(int(round(v)) - half, 0)
-        x1, y1 = min(int(round(u)) + half + 1, w), min(int(round(v)) + half + 1, h)
+        x0, y0 = max(round(u) - half, 0), max(round(v) - half, 0)
+        x1, y1 = min(round(u) + half + 1, w), min(round(v) + half + 1, h)
         win = img[y0:y1, x0:x1]
         lo, hi = np.percentile(win, 2), np.percentile(win, 98)
         if not hi - lo > 1e-6:
             continue
         mask = (win < 0.5 * (lo + hi)).astype(np.uint8)
         _, labels = cv2.connectedComponents(mask, connectivity=8)
-        cx, cy = int(round(u)) - x0, int(round(v)) - y0
+        cx, cy = round(u) - x0, round(v) - y0
         own = labels[cy, cx]
         if own == 0:  # the rough centre off the dot: the nearest dark region
             ys, xs = np.nonzero(labels)

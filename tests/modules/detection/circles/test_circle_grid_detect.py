@@ -8,11 +8,19 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.data.scenes.marker_views import DIST, K, random_board_pose, render_marker_view
+from ccs_kornia.data.scenes.marker_views import (
+    DIST,
+    K,
+    random_board_pose,
+    render_marker_view,
+)
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models.factory import OPENCV5
 from ccs_kornia.modules.detection.boards import CircleGrid, grid_object_points
-from ccs_kornia.modules.detection.circles.centre_bias import centre_bias, correct_centres
+from ccs_kornia.modules.detection.circles.centre_bias import (
+    centre_bias,
+    correct_centres,
+)
 from ccs_kornia.modules.detection.circles.circle_grid import (
     CircleGridDetector,
     detect_circle_grid,
