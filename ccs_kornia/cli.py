@@ -114,8 +114,8 @@ class _Parser(argparse.ArgumentParser):
         if message.startswith("one of the arguments --board --charuco"):
             tag = ", --apriltag FAMILY (a single AprilTag)" if "--apriltag" in message else ""
             message = ("the following arguments are required: --board COLSxROWS (a chessboard's inner corners), "
-                       f"--charuco SXxSY (a ChArUco board's squares){tag} or --aprilgrid TARGET_YAML (Kalibr's "
-                       "AprilGrid)")
+                       f"--charuco SXxSY (a ChArUco board's squares){tag}, --aprilgrid TARGET_YAML (Kalibr's "
+                       "AprilGrid) or --circles COLSxROWS (a circle grid's dots)")
         named = message.startswith(("the following arguments are required", "unrecognized arguments"))
         unknown = self._unknown_options() if named else []
         if unknown:
@@ -218,6 +218,17 @@ def _jobs_arg(text: str) -> int | str:
         raise argparse.ArgumentTypeError(f"invalid --jobs {text!r}: expected a positive integer or auto") from None
 
 
+def _circles_arg(text: str) -> tuple[int, int]:
+    parts = str(text).strip().lower().split("x")
+    if len(parts) != 2 or not all(q.strip().isdigit() for q in parts):
+        raise argparse.ArgumentTypeError(f"invalid circle grid {text!r}: expected COLSxROWS dots, as OpenCV's "
+                                         "findCirclesGrid counts them, e.g. 4x11")
+    cols, rows = (int(q) for q in parts)
+    if min(cols, rows) < 2 or cols * rows < 6:
+        raise argparse.ArgumentTypeError(f"invalid circle grid {text!r}: at least 2 dots a side and 6 in all")
+    return cols, rows
+
+
 def _squares_arg(text: str) -> tuple[int, int]:
     try:
         sx, sy = parse_board(text)
@@ -231,7 +242,8 @@ def _squares_arg(text: str) -> tuple[int, int]:
 
 def charuco_options(p: argparse.ArgumentParser, which, square: bool = False) -> None:
     """``--charuco SXxSY`` (in ``which``, the group of ``--board``) ``--dictionary D --marker M
-    [--legacy/--no-legacy]`` (and ``--square`` where the command has none)."""
+    [--legacy/--no-legacy]``, ``--aprilgrid TARGET_YAML``, ``--circles COLSxROWS --spacing S [--asymmetric]
+    [--marked-origin] [--diameter D]`` (and ``--square`` where the command has none)."""
     g = p.add_argument_group("ChArUco boards (instead of --board)")
     which.add_argument("--charuco", type=_squares_arg, metavar="SXxSY",
                    help="a ChArUco board of SX x SY squares, as OpenCV's CharucoBoard((SX, SY), ...): its (SX-1) x "
@@ -247,6 +259,22 @@ def charuco_options(p: argparse.ArgumentParser, which, square: bool = False) -> 
                        help="Kalibr's AprilGrid, as its target YAML gives it (target_type: aprilgrid, tagCols, tagRows, "
                             "tagSize, tagSpacing): corners numbered as Kalibr does, identified by the tags (boards cut "
                             "by the frame count); world units are tagSize's")
+    c = p.add_argument_group("circle grids (instead of --board)")
+    which.add_argument("--circles", type=_circles_arg, metavar="COLSxROWS",
+                       help="a grid of COLS x ROWS dots as OpenCV's findCirclesGrid counts them (patternSize), dark "
+                            "dots on light or the inverse; their centres corrected for perspective and lens distortion "
+                            "once the camera is known")
+    c.add_argument("--spacing", type=_length_arg, metavar="S",
+                   help="distance between neighbouring dots' centres, world units (required with --circles; "
+                        "--asymmetric: OpenCV's squareSize, half the distance between the dots of one row)")
+    c.add_argument("--asymmetric", action="store_true",
+                   help="OpenCV's asymmetric grid (every other row shifted by half a pitch)")
+    c.add_argument("--marked-origin", action="store_true",
+                   help="ROS-Industrial's modified circle grid: one dot twice the others' diameter marks the origin "
+                        "(dot 0; x along its row, y up its column), which fixes the grid's orientation")
+    c.add_argument("--diameter", type=_length_arg, metavar="D",
+                   help="the (small) dots' diameter, in the unit of --spacing (default: half the distance between "
+                        "neighbouring dots)")
     if square:
         g.add_argument("--square", default=1.0, type=_length_arg,
                        help="its square side (only the ratio to --marker matters here; default 1)")

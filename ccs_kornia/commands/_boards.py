@@ -1,15 +1,36 @@
-"""The board a command is given (``--board``, ``--charuco``, ``--aprilgrid``): checked and described once, and
-recorded in the JSON files as the user gave it."""
+"""The board a command is given (``--board``, ``--charuco``, ``--aprilgrid``, ``--circles``): checked and described
+once, and recorded in the JSON files as the user gave it."""
 
 from __future__ import annotations
 
 import argparse
 from typing import Any
 
-from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard
+from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard, CircleGrid
 from ccs_kornia.runtime.errors import UserError
 
-__all__ = ["aprilgrid_record", "charuco_record", "resolve_board"]
+__all__ = ["aprilgrid_record", "board_records", "charuco_record", "circles_record", "resolve_board"]
+
+#: the options that describe a circle grid
+_CIRCLE_OPTIONS = ("spacing", "asymmetric", "marked_origin", "diameter")
+
+
+def _circles(args: argparse.Namespace) -> None:
+    """``--circles`` with its options: ``args.circle_board``, the grid's size and ``args.square`` (its spacing: the
+    world unit)."""
+    if args.marker is not None or args.legacy is not None:
+        raise UserError(f"--{'marker' if args.marker is not None else 'legacy'} describes a ChArUco board, not "
+                        "--circles")
+    if args.spacing is None:
+        raise UserError("--circles needs --spacing: the distance between neighbouring dots' centres (e.g. --spacing "
+                        "0.02)")
+    try:
+        grid = CircleGrid(args.circles[0], args.circles[1], args.spacing, args.diameter, bool(args.asymmetric),
+                          bool(args.marked_origin))
+    except ValueError as err:
+        raise UserError(f"--circles: {err}") from None
+    args.circle_board, args.board, args.detector = grid, grid.board_size, "circles"
+    args.square = grid.spacing
 
 
 def resolve_board(args: argparse.Namespace) -> None:
@@ -20,6 +41,13 @@ def resolve_board(args: argparse.Namespace) -> None:
         return
     args.charuco_board = None
     args.aprilgrid_board = None
+    args.circle_board = None
+    if getattr(args, "circles", None) is not None:
+        _circles(args)
+        return
+    given = [f"--{o.replace('_', '-')}" for o in _CIRCLE_OPTIONS if getattr(args, o, None) not in (None, False)]
+    if given:
+        raise UserError(f"{given[0]} describes a circle grid: give --circles COLSxROWS too")
     if getattr(args, "aprilgrid", None) is not None:
         if args.marker is not None or args.legacy is not None:
             raise UserError(f"--{'marker' if args.marker is not None else 'legacy'} describes a ChArUco board, not "
@@ -75,3 +103,29 @@ def aprilgrid_record(args: argparse.Namespace) -> dict[str, Any] | None:
             "corner_ids": "Kalibr's: tag t has corners base, base + 1, base + cols + 1, base + cols (bottom left, "
                           "bottom right, top right, top left; y up), cols = 2 * tagCols, "
                           "base = (t // tagCols) * 2 * cols + (t % tagCols) * 2"}
+
+
+def circles_record(args: argparse.Namespace) -> dict[str, Any] | None:
+    """The circle grid of the command (``None`` for other boards) as the JSON files give it: its dots, spacing,
+    layout and dot numbering."""
+    grid = getattr(args, "circle_board", None)
+    if grid is None:
+        return None
+    layout = "asymmetric" if grid.asymmetric else "marked_origin" if grid.marked_origin else "symmetric"
+    numbering = {"symmetric": "n = row * cols + col at (col * spacing, row * spacing, 0), OpenCV's order from the end "
+                              "nearer the image's top left",
+                 "asymmetric": "n = row * cols + col at ((2 * col + row % 2) * spacing, row * spacing, 0), OpenCV's",
+                 "marked_origin": "n = row * cols + col at (col * spacing, row * spacing, 0), dot 0 the larger one, x "
+                                  "along its row, y up its column (the print seen from the front)"}[layout]
+    return {"dots": [grid.cols, grid.rows], "spacing": grid.spacing, "diameter": grid.dot_diameter, "layout": layout,
+            "corner_ids": numbering}
+
+
+def board_records(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
+    """The marker board's or circle grid's record of the command by its JSON key (empty for a chessboard)."""
+    out = {}
+    for key, record in (("charuco", charuco_record(args)), ("aprilgrid", aprilgrid_record(args)),
+                        ("circles", circles_record(args))):
+        if record:
+            out[key] = record
+    return out

@@ -31,6 +31,8 @@ def _board_name(cf: CornersFile) -> str:
         return f"{squares[0]}x{squares[1]} ChArUco board ({cf.charuco.get('dictionary', '?')})"
     if cf.aprilgrid is not None:
         return f"{cf.aprilgrid.get('tagCols', '?')}x{cf.aprilgrid.get('tagRows', '?')} AprilGrid"
+    if cf.circles is not None:
+        return f"{cf.board[0]}x{cf.board[1]} {cf.circles.get('layout', '')} circle grid"
     return f"{cf.board[0]}x{cf.board[1]} chessboard"
 
 
@@ -40,6 +42,10 @@ def _args_board_name(args: argparse.Namespace) -> str:
         return f"{charuco.squares_x}x{charuco.squares_y} ChArUco board ({charuco.dictionary}) of --charuco"
     if grid is not None:
         return f"{grid.tag_cols}x{grid.tag_rows} AprilGrid of --aprilgrid"
+    circles = getattr(args, "circle_board", None)
+    if circles is not None:
+        layout = "asymmetric" if circles.asymmetric else "marked_origin" if circles.marked_origin else "symmetric"
+        return f"{args.board[0]}x{args.board[1]} {layout} circle grid of --circles"
     return f"{args.board[0]}x{args.board[1]} chessboard of --board"
 
 
@@ -48,7 +54,8 @@ def check_board(cf: CornersFile, args: argparse.Namespace) -> None:
     kind of board, another ChArUco dictionary or AprilGrid layout."""
     charuco, grid = getattr(args, "charuco_board", None), getattr(args, "aprilgrid_board", None)
     same = tuple(cf.board) == tuple(args.board) and (cf.charuco is None) == (charuco is None) \
-        and (cf.aprilgrid is None) == (grid is None)
+        and (cf.aprilgrid is None) == (grid is None) \
+        and (cf.circles is None) == (getattr(args, "circle_board", None) is None)
     if same and charuco is not None:
         same = list(cf.charuco.get("squares") or []) == [charuco.squares_x, charuco.squares_y] \
             and cf.charuco.get("dictionary") == charuco.dictionary

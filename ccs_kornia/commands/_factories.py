@@ -11,6 +11,7 @@ from ccs_kornia.modules.calibration.model_selection import ModelChoice
 from ccs_kornia.modules.calibration.quality.degeneracy import (
     DegeneracyThresholds,
 )
+from ccs_kornia.modules.detection.circles.circle_grid import CircleGridDetector
 from ccs_kornia.modules.detection.factory import make_detector
 from ccs_kornia.modules.detection.markers.aprilgrid import AprilGridDetector
 from ccs_kornia.modules.detection.markers.charuco import CharucoDetector
@@ -27,6 +28,8 @@ def make_detector_from(args: argparse.Namespace):
         return CharucoDetector(args.charuco_board)
     if getattr(args, "aprilgrid_board", None) is not None:
         return AprilGridDetector(args.aprilgrid_board)
+    if getattr(args, "circle_board", None) is not None:
+        return CircleGridDetector(args.circle_board)
     options = {}
     if args.detector == "learned" and getattr(args, "network_precision", None):
         options["precision"] = args.network_precision

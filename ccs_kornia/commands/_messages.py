@@ -32,6 +32,8 @@ _NOT_FOUND_CHECK = {
     "charuco": "check --charuco SXxSY (the squares, as OpenCV's CharucoBoard counts them), --dictionary and --legacy",
     "aprilgrid": "check the target YAML's tagCols and tagRows; the tags must be 36h11 with a two-bit black border, "
                  "as Kalibr prints them",
+    "circles": "check --circles COLSxROWS (the dots, as OpenCV's findCirclesGrid counts them), --asymmetric and "
+               "--marked-origin",
 }
 
 

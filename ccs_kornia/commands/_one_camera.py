@@ -8,7 +8,7 @@ import os
 import time
 from typing import Any
 
-from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._boards import board_records
 from ccs_kornia.commands._corners import corners_source, report_note
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
@@ -82,10 +82,7 @@ def calibrate_camera(args: argparse.Namespace) -> int:
     data["success"] = True
     if getattr(args, "allow_weak", False):
         data["allow_weak"] = True  # the checks in "errors" did not refuse the camera
-    if charuco_record(args):
-        data["charuco"] = charuco_record(args)
-    if aprilgrid_record(args):
-        data["aprilgrid"] = aprilgrid_record(args)
+    data.update(board_records(args))
     if args.save_frames:
         source = video.source() if video is not None else FileSource([files])
         try:
@@ -126,7 +123,7 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         f"fx {K[0][0]:.3f}  fy {K[1][1]:.3f}  cx {K[0][2]:.3f}  cy {K[1][2]:.3f}  "
         f"{data['distortion']['model']} ({coeffs})"
     )
-    hidden = "corners not seen" if "charuco" in data or "aprilgrid" in data else "corners under glare or occluded"
+    hidden = "corners not seen" if {"charuco", "aprilgrid", "circles"} & set(data) else "corners under glare or occluded"
     partial = f", {n['partial']} of them partial ({hidden} left out)" if n.get("partial") else ""
     print(f"RMS {data['rms']:.4f} px over {n['used']} views (board found in {n['found']} of {n['files']} files{partial}); "
           f"wrote {output}")

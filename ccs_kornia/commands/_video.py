@@ -132,7 +132,8 @@ def frame_span(args: argparse.Namespace):
 def make_screen(args: argparse.Namespace):
     """The screening pass's quick look for the command's board (:class:`~ccs_kornia.modules.detection.screening.
     BoardScreen`)."""
-    board = getattr(args, "charuco_board", None) or getattr(args, "aprilgrid_board", None)
+    board = getattr(args, "charuco_board", None) or getattr(args, "aprilgrid_board", None) or \
+        getattr(args, "circle_board", None)
     return BoardScreen(tuple(args.board), board)
 
 

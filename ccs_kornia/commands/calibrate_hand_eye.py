@@ -15,12 +15,13 @@ import json
 import math
 import os
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import torch
 
-from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._boards import board_records
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
@@ -34,6 +35,7 @@ from ccs_kornia.commands._run import calibrate_files, run_files
 from ccs_kornia.io.files import write_json, write_text_atomic
 from ccs_kornia.io.robot_poses import match_poses, read_robot_poses
 from ccs_kornia.modules.detection.boards import grid_object_points
+from ccs_kornia.modules.detection.circles.centre_bias import correct_centres
 from ccs_kornia.modules.detection.markers.apriltag import (
     AprilTagDetector,
     AprilTagTarget,
@@ -129,13 +131,19 @@ def _detect_tag(files: list[str], args, device, camera):
     return corners, found, present, reasons, size
 
 
-def _detect_board(files: list[str], args, device, camera_given: bool):
-    """A board's corners through the pipeline (and the camera calibrated from the same images when none is given)."""
+def _detect_board(files: list[str], args, device, camera):
+    """A board's corners through the pipeline (and the camera calibrated from the same images when none is given);
+    a circle grid's centres corrected for the given ``camera`` (the calibration corrects them itself)."""
     pipeline = make_pipeline(args, model=args.model)
     camera_record = None
-    if camera_given:
+    if camera is not None:
         out, _ = run_files(COMMAND, pipeline, [files], args.board, args.square, device, calibrate=False)
         one = out.select(0)
+        grid = getattr(args, "circle_board", None)
+        if grid is not None:
+            det = one.detections
+            fixed = correct_centres(det.corners, det.valid, camera, grid.object_points(), grid.dot_diameters() / 2)
+            one = replace(one, detections=replace(det, corners=fixed.to(det.corners)))
     else:
         try:
             camera_record, one = calibrate_files(COMMAND, files, args.board, args.square, pipeline, device, args.model,
@@ -156,6 +164,25 @@ def _views(one, count: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, l
     reasons = [(det.reasons[v] if det.reasons else "") or ("board found" if bool(found[v]) else "board not found")
                for v in range(count)]
     return det.corners.double().cpu(), found, present, reasons
+
+
+def _size_hint(result, args: argparse.Namespace) -> str:
+    """Where the board's size disagrees with the robot's translations, the option and value that say the size the
+    robot sees; else an empty string."""
+    found = next((i for i in result.issues[0] if i.get("check") == "board_scale"), None)
+    if found is None:
+        return ""
+    s = float(found["scale"])
+    if getattr(args, "circle_board", None) is not None:
+        return f": measure the dots' spacing, or give --spacing {args.spacing * s:.5g} (given {args.spacing:g})"
+    if getattr(args, "apriltag", None) is not None:
+        return f": measure the tag, or give --tag-size {args.tag_size * s:.5g} (given {args.tag_size:g})"
+    if getattr(args, "aprilgrid_board", None) is not None:
+        return f": measure the tags, or give a tagSize of {args.aprilgrid_board.tag_size * s:.5g} in the target YAML"
+    if getattr(args, "charuco_board", None) is not None:
+        return (f": measure the squares, or give --square {args.square * s:.5g} --marker {args.marker * s:.5g} "
+                f"(given {args.square:g}, {args.marker:g})")
+    return f": measure the squares, or give --square {args.square * s:.5g} (given {args.square:g})"
 
 
 def _other_order(args: argparse.Namespace, files: list[str], poses, solve) -> str:
@@ -215,13 +242,13 @@ def run(args: argparse.Namespace) -> int:
                       "corners": "top left, top right, bottom left, bottom right of the black square as printed; "
                                  "origin at the tag's centre, x right, y down, z into the print"}
     else:
-        corners, found, present, reasons, size, camera_record = _detect_board(files, args, device, given is not None)
-        obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square)
+        corners, found, present, reasons, size, camera_record = _detect_board(files, args, device,
+                                                                              None if given is None else given[0])
+        obj = grid_object_points(getattr(args, "aprilgrid_board", None) or getattr(args, "circle_board", None),
+                                 args.board, args.square)
         board_info = {"kind": getattr(args, "detector", "chessboard"), "board": list(args.board),
                       "square": args.square, "corners": "grid order n = row * cols + col; origin at corner 0"}
-        for key, record in (("charuco", charuco_record(args)), ("aprilgrid", aprilgrid_record(args))):
-            if record:
-                board_info[key] = record
+        board_info.update(board_records(args))
     if size is None:
         raise UserError(f"none of the {len(files)} input files could be read as an image")
     if given is not None:
@@ -260,8 +287,9 @@ def run(args: argparse.Namespace) -> int:
 
     result = solve(robot, ok)
     if not bool(result.success[0]):
-        order = _other_order(args, files, poses, solve)
-        raise UserError(f"hand-eye calibration refused: {order or result.reasons[0]}")
+        board_size_hint = _size_hint(result, args)
+        order = "" if board_size_hint else _other_order(args, files, poses, solve)
+        raise UserError(f"hand-eye calibration refused: {order or result.reasons[0] + board_size_hint}")
 
     if args.refine_intrinsics:
         refined = result.camera[0]
@@ -323,7 +351,9 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
     if held["rms_px"] is not None:
         lines.append(f"held-out poses predicted from the robot alone: {held['rms_px']:.3f} px, {held['rms_mm']:.3f} mm "
                      f"RMS ({held['poses']} poses)")
-    if data.get("robot_noise"):
+    if (data.get("robot_noise") or {}).get("exact"):
+        lines.append(f"robot poses: {data['robot_noise']['note']}")
+    elif data.get("robot_noise"):
         rn = data["robot_noise"]
         corner = f" (corners {rn['corner_px']:.3g} px)" if rn.get("corner_px") is not None else ""
         lines.append(f"robot poses' noise: {rn['translation_mm']:.3g} mm, {rn['rotation_deg']:.3g} deg{corner}")

@@ -380,7 +380,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         with tempfile.TemporaryDirectory(prefix="ccs_bag_") as workdir:
             frames = _detected(args, _bag_folders(args, workdir))
-    obj = grid_object_points(getattr(args, "aprilgrid_board", None), args.board, args.square).to(torch.float64)
+    obj = grid_object_points(getattr(args, "aprilgrid_board", None) or getattr(args, "circle_board", None), args.board,
+                             args.square).to(torch.float64)
     camera_records, rig = None, None
     if args.calibration:
         cameras, names, rig = _cameras(args, len(frames))

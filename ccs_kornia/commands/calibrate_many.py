@@ -22,7 +22,7 @@ import sys
 
 import torch
 
-from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._boards import board_records
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._output_paths import check_outputs
@@ -94,8 +94,7 @@ def run(args: argparse.Namespace) -> int:
         sets, args.board, args.output, square=args.square, pipeline=pipeline, detector_name=args.detector,
         device=str(device), sets_per_batch=args.sets_per_batch, num_workers=args.workers, overwrite=overwrite,
         accelerator=accelerator, devices=devices, num_nodes=args.num_nodes, strategy=args.strategy,
-        board_record={**({"charuco": charuco_record(args)} if charuco_record(args) else {}),
-                      **({"aprilgrid": aprilgrid_record(args)} if aprilgrid_record(args) else {})},
+        board_record=board_records(args),
         video=video,
     )
     if summary["rank"] != 0:

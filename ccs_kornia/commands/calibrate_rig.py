@@ -16,7 +16,7 @@ from typing import Any
 import cv2
 from tqdm import tqdm
 
-from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._boards import board_records
 from ccs_kornia.commands._corners import corners_source, report_note
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import (
@@ -241,9 +241,7 @@ def run(args: argparse.Namespace) -> int:
     if not out.success:
         raise UserError(out.reason)
     data = rig_record(out, files, board=args.board, square=args.square, detector=args.detector, models=models)
-    for key, record in (("charuco", charuco_record(args)), ("aprilgrid", aprilgrid_record(args))):
-        if record:
-            data[key] = record
+    data.update(board_records(args))
     if video is not None:
         for c_, cam in enumerate(data["cameras"]):
             add_timestamps(cam["views"], video.timestamps())

@@ -6,7 +6,7 @@ import argparse
 
 import numpy as np
 
-from ccs_kornia.commands._boards import aprilgrid_record, charuco_record
+from ccs_kornia.commands._boards import board_records
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
@@ -67,8 +67,7 @@ def run(args: argparse.Namespace) -> int:
         "board": list(args.board),
         "image_size": [int(x) for x in one.image_size],
         "detector": args.detector,
-        **({"charuco": charuco_record(args)} if charuco_record(args) else {}),
-        **({"aprilgrid": aprilgrid_record(args)} if aprilgrid_record(args) else {}),
+        **board_records(args),
         "images": images,
         "skipped": [{"path": r["path"], "reason": r["reason"]} for r in images if not r["found"] and "reason" in r
                     and r["reason"].startswith("unreadable")],
@@ -89,11 +88,13 @@ def run(args: argparse.Namespace) -> int:
                        f"{args.output}")
     partial = f" ({n_partial} partial: corners under glare or occluded are null)" if n_partial else ""
     what = (f"{args.charuco[0]}x{args.charuco[1]} ChArUco board ({args.board[0]}x{args.board[1]} inner corners)"
-            if charuco_record(args) else f"{args.board[0]}x{args.board[1]} board")
-    if aprilgrid_record(args):
+            if getattr(args, "charuco_board", None) else f"{args.board[0]}x{args.board[1]} board")
+    if getattr(args, "aprilgrid_board", None):
         grid = args.aprilgrid_board
         what = f"{grid.tag_cols}x{grid.tag_rows} AprilGrid ({grid.num_corners} tag corners)"
-    if charuco_record(args) or aprilgrid_record(args):
+    if getattr(args, "circle_board", None):
+        what = f"{args.board[0]}x{args.board[1]} circle grid"
+    if board_records(args):
         partial = partial.replace("corners under glare or occluded", "corners not seen")
     print(f"found the {what} in {n_found} of {len(files)} images{partial}; "
           f"wrote {args.output}")

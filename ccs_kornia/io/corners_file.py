@@ -75,6 +75,7 @@ class CornersFile:
             else ``None`` (files written before ``detect`` recorded sizes).
         charuco: the file's ``charuco`` record (``None``: not a ChArUco board).
         aprilgrid: the file's ``aprilgrid`` record (``None``: not an AprilGrid).
+        circles: the file's ``circles`` record (``None``: not a circle grid).
         correction: the network's pooled lens correction :math:`(5,)` where the file gives it, else ``None``.
 
     Example:
@@ -96,6 +97,7 @@ class CornersFile:
     charuco: dict[str, Any] | None = None
     aprilgrid: dict[str, Any] | None = None
     correction: torch.Tensor | None = None
+    circles: dict[str, Any] | None = None
 
     @property
     def corners(self) -> torch.Tensor:
@@ -316,10 +318,10 @@ def read_corners_file(path: str, board: tuple[int, int] | None = None) -> Corner
             if not isinstance(values, list) or len(values) != 5:
                 raise ValueError("distortion_correction.correction is not 5 numbers")
             correction = torch.tensor([_number(x) for x in values], dtype=torch.float64)
-        charuco, aprilgrid = data.get("charuco"), data.get("aprilgrid")
-        for key, value in (("charuco", charuco), ("aprilgrid", aprilgrid)):
+        charuco, aprilgrid, circles = data.get("charuco"), data.get("aprilgrid"), data.get("circles")
+        for key, value in (("charuco", charuco), ("aprilgrid", aprilgrid), ("circles", circles)):
             if value is not None and not isinstance(value, dict):
                 raise ValueError(f"{key} is not a board record")
     except ValueError as err:
         raise UserError(f"--corners {path}: {err}") from None
-    return CornersFile(path, (board[0], board[1]), views, size, charuco, aprilgrid, correction)
+    return CornersFile(path, (board[0], board[1]), views, size, charuco, aprilgrid, correction, circles)

@@ -171,7 +171,8 @@ class CalibrationPipeline(nn.Module):
         self.solver = self.solvers[model.first if choice else model]
         self.selection = ModelSelection(list(self.solver_list)) if choice else None
         self.refiner = CornerRefiner()
-        self.distortion_net = load_distortion_net(distortion_correction)
+        # (a detector whose boards the network never saw runs without it)
+        self.distortion_net = load_distortion_net(distortion_correction if self.detector.lens_correction else False)
         #: the solver stage's settings and solvers (:class:`~ccs_kornia.pipeline.solve.Solving`)
         self.solving = Solving(settings.model, self.solvers, self.solver, self.selection, settings.weigh_corners,
                                settings.workers, settings.joint_iters, settings.free_distortion_centre,

@@ -141,6 +141,9 @@ class PipelineResult:
         board_flatness: where the pipeline judged the board's sag, per camera what it found
             (:meth:`~ccs_kornia.modules.calibration.board_flatness.BoardWarpChoice.record`; ``None`` for a camera not
             judged); else ``None``.
+        centre_bias: for a circle grid, :math:`(C, V, N, 2)` the offset of each dot's image's centre from the image of
+            its centre under the solved camera, already subtracted from ``detections.corners`` (the measured centres
+            are their sum; :mod:`~ccs_kornia.modules.detection.circles.centre_bias`); else ``None``.
         frame_choice: with a frame selection, per camera which views it kept and why not the others
             (:class:`~ccs_kornia.pipeline.frame_selection.FrameChoice`; ``None`` for a camera it did not judge); else
             ``None``.
@@ -161,6 +164,7 @@ class PipelineResult:
     model_selection: list[dict | None] | dict | None = None
     frame_choice: list[Any] | Any = None
     board_flatness: list[dict | None] | dict | None = None
+    centre_bias: torch.Tensor | None = None
 
     @property
     def batched(self) -> bool:
@@ -229,6 +233,7 @@ class PipelineResult:
             model_selection=None if self.model_selection is None else pick(self.model_selection),
             frame_choice=None if self.frame_choice is None else pick(self.frame_choice),
             board_flatness=None if self.board_flatness is None else pick(self.board_flatness),
+            centre_bias=_index(self.centre_bias, idx),
         )
 
     @classmethod
@@ -293,7 +298,8 @@ class PipelineResult:
         reasons = self.detections.reasons
         if reasons is not None:
             reasons = [reasons[int(c) * v + int(k)] for c, row in zip(cam.tolist(), view.tolist()) for k in row]
-        det = DetectionResult(per_view(self.detections.corners), per_view(self.detections.found), reasons,
+        measured = self.detections.corners if self.centre_bias is None else self.detections.corners + self.centre_bias
+        det = DetectionResult(per_view(measured), per_view(self.detections.found), reasons,
                               per_view(self.detections.sigma))
         return PipelineResult(det, None, [self.image_size[int(c)] for c in cam.tolist()], per_view(self.present),
                               per_view(self.view_sizes), view_corrections=per_view(self.view_corrections),

@@ -23,7 +23,8 @@ from ccs_kornia.modules.calibration.model_selection import ModelChoice, ModelSel
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
-from ccs_kornia.modules.detection.boards import grid_object_points
+from ccs_kornia.modules.detection.boards import CircleGrid, grid_object_points
+from ccs_kornia.modules.detection.circles.centre_bias import centre_bias
 from ccs_kornia.pipeline.result import (
     PipelineResult,
     camera_reason,
@@ -35,7 +36,11 @@ from ccs_kornia.pipeline.result import (
 from ccs_kornia.pipeline.solver_input import SolverInput
 from ccs_kornia.pipeline.workers import worker_pool, workers_on
 
-__all__ = ["Solving", "diagnose_cameras", "diagnose_solved", "judge_flatness", "solve_detections", "solve_group"]
+__all__ = ["CENTRE_ROUNDS", "Solving", "diagnose_cameras", "diagnose_solved", "judge_flatness", "solve_detections", "solve_group"]
+
+#: solves that correct a circle grid's centres with the camera and poses of the solve before (after the first, on the
+#: measured centres): the correction's change in the second is far below the detector's noise (docs/detection.md)
+CENTRE_ROUNDS = 2
 
 
 @dataclass(frozen=True)
@@ -93,6 +98,40 @@ def _merge(parts: list[CalibrationResult], order: list[torch.Tensor], count: int
 
 def solve_detections(solving: Solving, out: PipelineResult, board_size: tuple[int, int], square: float,
                      keep_models: bool = False) -> tuple[PipelineResult, SubsetSolutions]:
+    """:meth:`CalibrationPipeline.solve <ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.solve>`: the
+    solve of :func:`_solve_once`; for a circle grid (:class:`~ccs_kornia.modules.detection.boards.CircleGrid`) solved
+    :data:`CENTRE_ROUNDS` times more, each on the measured centres less their offset under the camera and poses of the
+    solve before (:func:`~ccs_kornia.modules.detection.circles.centre_bias.centre_bias`); the result's
+    ``centre_bias`` holds the offset its corners are corrected by."""
+    if not isinstance(solving.board, CircleGrid):
+        return _solve_once(solving, out, board_size, square, keep_models)
+    det = out.detections
+    measured = det.corners if out.centre_bias is None else det.corners + out.centre_bias
+    base = replace(out, detections=replace(det, corners=measured), centre_bias=None)
+    solved, subsets = _solve_once(solving, base, board_size, square, keep_models)
+    for _ in range(CENTRE_ROUNDS):
+        bias = _circle_bias(solving.board, solved, board_size, square)
+        again = replace(base, detections=replace(base.detections, corners=measured - bias), centre_bias=bias)
+        solved, subsets = _solve_once(solving, again, board_size, square, keep_models)
+    return solved, subsets
+
+
+def _circle_bias(board: CircleGrid, out: PipelineResult, board_size: tuple[int, int], square: float) -> torch.Tensor:
+    """:math:`(C, V, N, 2)` each dot's centre offset under ``out``'s solved cameras and poses (zero where a camera or
+    view was not solved)."""
+    corners = out.detections.corners
+    bias = torch.zeros_like(corners, dtype=torch.float64)
+    cal = out.calibration
+    obj = grid_object_points(board, board_size, square, dtype=torch.float64)
+    radii = board.dot_diameters() / 2
+    for c in cal.success.nonzero().flatten().tolist():
+        b = centre_bias(cal.camera[c].to("cpu"), cal.rvec[c].cpu(), cal.tvec[c].cpu(), obj, radii)
+        bias[c] = torch.where(b.isfinite() & cal.used[c].cpu()[:, None, None], b, 0.0).to(bias.device)
+    return bias.to(corners.dtype)
+
+
+def _solve_once(solving: Solving, out: PipelineResult, board_size: tuple[int, int], square: float,
+                keep_models: bool = False) -> tuple[PipelineResult, SubsetSolutions]:
     """:meth:`CalibrationPipeline.solve <ccs_kornia.pipeline.calibration_pipeline.CalibrationPipeline.solve>`:
     ``out`` with ``calibration``, ``corrected``, ``correction``, ``camera_reasons`` and ``model_selection``, and the
     model selection's cross-validations (for :func:`diagnose_solved`).

@@ -162,6 +162,7 @@ class ChessboardDetector(nn.Module):
       ``forward`` (:meth:`detect`); one whose own include ``foreshortened`` implements :meth:`foreshortened`;
     * :attr:`selects_scale`: it picks its own detection level (callers need not downscale large images);
     * :attr:`board`: the board whose object points the solver takes;
+    * :attr:`lens_correction`: the distortion network's correction may be judged on its images;
     * for the differentiable corners (:mod:`~ccs_kornia.modules.detection.refine.differentiable_refine`):
       :attr:`heatmap_net`, :attr:`fit_window`, :attr:`refines_on_image` and :meth:`detection_factor`.
     """
@@ -173,6 +174,9 @@ class ChessboardDetector(nn.Module):
     #: the board description whose object points the solver takes (:mod:`~ccs_kornia.modules.detection.boards`, e.g.
     #: an AprilGrid, whose corners are not evenly spaced); ``None``: a chessboard of unit squares
     board: Any = None
+    #: the distortion network (trained on boards of squares) may judge the lens from its images and boards; ``False``
+    #: for boards it never saw (a circle grid), whose corrections it does not predict
+    lens_correction: bool = True
     #: odd window of the Gaussian fit that seeds a corner from the heatmap (with a :attr:`heatmap_net`)
     fit_window: int = 7
 

@@ -1,5 +1,6 @@
-"""Calibration boards: a plain chessboard, a ChArUco board (chessboard with ArUco markers in its white squares) and
-Kalibr's AprilGrid (AprilTags with small black squares between their corners).
+"""Calibration boards: a plain chessboard, a ChArUco board (chessboard with ArUco markers in its white squares),
+Kalibr's AprilGrid (AprilTags with small black squares between their corners) and circle grids (OpenCV's symmetric
+and asymmetric grids of dots, ROS-Industrial's modified grid whose larger dot marks the origin).
 
 All describe the same thing to the rest of the package: a corner grid ``(cols, rows)`` in grid order
 (``n = row * cols + col``) and each corner's object point. A ChArUco board's corner ids are OpenCV's
@@ -17,8 +18,8 @@ import torch
 
 from ccs_kornia.runtime.checks import check_board_size
 
-__all__ = ["APRILGRID_BORDER_BITS", "ARUCO_DICTIONARIES", "AprilGrid", "Chessboard", "CharucoBoard", "aruco_dictionary",
-           "grid_object_points"]
+__all__ = ["APRILGRID_BORDER_BITS", "ARUCO_DICTIONARIES", "AprilGrid", "Chessboard", "CharucoBoard", "CircleGrid",
+           "aruco_dictionary", "grid_object_points"]
 
 #: the predefined ArUco dictionaries, by OpenCV name (tried in this order when the named one finds nothing)
 ARUCO_DICTIONARIES: tuple[str, ...] = (
@@ -306,10 +307,124 @@ class AprilGrid:
         return art, np.array([[scale, 0.0, m - 0.5], [0.0, -scale, m + top * scale - 0.5]])
 
 
+@dataclass(frozen=True)
+class CircleGrid:
+    r"""A grid of ``cols x rows`` dots, their centres ``spacing`` apart, as OpenCV's ``cv2.findCirclesGrid`` counts
+    them (``patternSize = (cols, rows)``), dark dots on a light print or the inverse.
+
+    * symmetric (OpenCV's ``CALIB_CB_SYMMETRIC_GRID``): dot ``n = r * cols + c`` at ``(c * spacing, r * spacing, 0)``;
+    * ``asymmetric`` (``CALIB_CB_ASYMMETRIC_GRID``, rows shifted by half a pitch): dot ``n = r * cols + c`` at
+      ``((2 * c + r % 2) * spacing, r * spacing, 0)``, as OpenCV's calibration sample builds them (the dots of one
+      row are ``2 * spacing`` apart);
+    * ``marked_origin`` (ROS-Industrial's modified circle grid, a symmetric grid): dot 0 is larger (twice the
+      others' diameter) and sits at the origin; ``x`` runs along its row, ``y`` up its column when the print is seen
+      from the front (``z`` towards the viewer), which fixes the grid's orientation.
+
+    A symmetric grid without the marked origin, and an asymmetric grid of an even number of rows, look the same turned
+    by half a turn: the detector then numbers the dots from the end nearer the image's top left, which a single
+    camera's calibration does not mind (:attr:`orientation_known`).
+
+    Args:
+        cols, rows: dots per row and rows of dots.
+        spacing: distance between neighbouring dots' centres (world units; asymmetric: half the distance between the
+            dots of one row, OpenCV's ``squareSize``).
+        diameter: the dots' diameter (world units) when printed (:meth:`texture`); the detection measures each dot
+            and needs none. Default: half the distance to the nearest dot.
+        asymmetric, marked_origin: the layout (see above); not both.
+
+    Example:
+        >>> g = CircleGrid(4, 3, 0.02, asymmetric=True)
+        >>> g.board_size, [round(v, 3) for v in g.object_points()[5].tolist()]
+        ((4, 3), [0.06, 0.02, 0.0])
+    """
+
+    cols: int
+    rows: int
+    spacing: float
+    diameter: float | None = None
+    asymmetric: bool = False
+    marked_origin: bool = False
+
+    def __post_init__(self) -> None:
+        if min(int(self.cols), int(self.rows)) < 2 or int(self.cols) * int(self.rows) < 6:
+            raise ValueError(f"a circle grid needs at least 2 dots a side and 6 in all, got {self.cols}x{self.rows}")
+        if not float(self.spacing) > 0:
+            raise ValueError(f"the dots' spacing must be positive, got {self.spacing}")
+        if self.asymmetric and self.marked_origin:
+            raise ValueError("ROS-Industrial's modified circle grid (a marked origin) is a symmetric grid")
+        pitch = float(self.spacing) * (2.0 ** 0.5 if self.asymmetric else 1.0)
+        if self.diameter is not None and not 0 < float(self.diameter) < pitch:
+            raise ValueError(f"the dots' diameter must be positive and below their distance {pitch:g}, got "
+                             f"{self.diameter}")
+
+    @property
+    def board_size(self) -> tuple[int, int]:
+        """``(cols, rows)`` dots."""
+        return int(self.cols), int(self.rows)
+
+    @property
+    def num_corners(self) -> int:
+        return int(self.cols) * int(self.rows)
+
+    @property
+    def orientation_known(self) -> bool:
+        """The dots' order is fixed by the print (a marked origin, or an asymmetric grid of an odd number of rows,
+        which differs from its half-turn)."""
+        return bool(self.marked_origin) or (bool(self.asymmetric) and int(self.rows) % 2 == 1)
+
+    @property
+    def dot_diameter(self) -> float:
+        """The (small) dots' printed diameter: :attr:`diameter` or half the distance to the nearest dot."""
+        pitch = float(self.spacing) * (2.0 ** 0.5 if self.asymmetric else 1.0)
+        return float(self.diameter) if self.diameter is not None else 0.5 * pitch
+
+    def dot_diameters(self) -> torch.Tensor:
+        """:math:`(N,)` each dot's printed diameter (a marked origin: dot 0 twice the others)."""
+        d = torch.full((self.num_corners,), self.dot_diameter, dtype=torch.float64)
+        if self.marked_origin:
+            d[0] = 2.0 * self.dot_diameter
+        return d
+
+    def object_points(self, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+        """:math:`(N, 3)` dot ``n``'s centre (the class docstring gives the layouts)."""
+        r, c = torch.meshgrid(torch.arange(int(self.rows)), torch.arange(int(self.cols)), indexing="ij")
+        r, c = r.flatten().to(dtype), c.flatten().to(dtype)
+        s = float(self.spacing)
+        x = (2 * c + r % 2) * s if self.asymmetric else c * s
+        return torch.stack([x, r * s, torch.zeros_like(x)], -1)
+
+    def texture(self, pixels_per_spacing: int = 48, legacy: bool | None = None):
+        """``(image, A)``: the grid printed (dark dots on white, a margin of one pitch, anti-aliased edges) and the
+        :math:`(2, 3)` affine map from object points ``(x, y)`` to its pixel coordinates (pixel centres at integers).
+        A marked origin's grid is printed with ``y`` up, as seen from the front. ``legacy`` is ignored (ChArUco
+        boards' layout)."""
+        import cv2
+        import numpy as np
+
+        s = float(self.spacing)
+        scale = pixels_per_spacing / s
+        pts = self.object_points().numpy()[:, :2]
+        margin = 2.0 * s
+        w = int(np.ceil((pts[:, 0].max() + 2 * margin) * scale))
+        h = int(np.ceil((pts[:, 1].max() + 2 * margin) * scale))
+        flip = bool(self.marked_origin)
+        a = np.array([[scale, 0.0, margin * scale - 0.5],
+                      [0.0, -scale if flip else scale, (pts[:, 1].max() + margin if flip else margin) * scale - 0.5]])
+        # dots drawn on an 8x finer canvas (cv2.circle's sub-pixel shift), then area-averaged: anti-aliased edges
+        f, shift = 8, 4
+        big = np.full((h * f, w * f), 255, dtype=np.uint8)
+        centres = pts @ a[:, :2].T + a[:, 2]
+        for (u, v), d in zip(centres, self.dot_diameters().tolist()):
+            cu, cv_ = (u + 0.5) * f - 0.5, (v + 0.5) * f - 0.5
+            cv2.circle(big, (int(round(cu * 2 ** shift)), int(round(cv_ * 2 ** shift))),
+                       int(round(0.5 * d * scale * f * 2 ** shift)), 0, -1, cv2.LINE_AA, shift)
+        return cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA), a
+
+
 def grid_object_points(board, board_size: tuple[int, int], square: float, device: torch.device | str | None = None,
                        dtype: torch.dtype = torch.float64) -> torch.Tensor:
     """The object points by corner id that a calibration fits: the board's own where its corners are not an even grid
-    (an :class:`AprilGrid`), else :func:`~ccs_kornia.geometry.board_points.board_object_points` of ``board_size`` and ``square``
+    (an :class:`AprilGrid`, a :class:`CircleGrid`), else :func:`~ccs_kornia.geometry.board_points.board_object_points` of ``board_size`` and ``square``
     (chessboards and ChArUco boards: the answers do not depend on the grid's origin).
 
     Example:
@@ -318,9 +433,9 @@ def grid_object_points(board, board_size: tuple[int, int], square: float, device
         >>> grid_object_points(AprilGrid(2, 1, 1.0, 0.5), (4, 2), 1.0)[:4, 0].tolist()
         [0.0, 1.0, 1.5, 2.5]
     """
-    if isinstance(board, AprilGrid):
+    if isinstance(board, (AprilGrid, CircleGrid)):
         if check_board_size(board_size) != board.board_size:
-            raise ValueError(f"board_size {tuple(board_size)} is not the AprilGrid's corner grid {board.board_size}")
+            raise ValueError(f"board_size {tuple(board_size)} is not the {type(board).__name__}'s grid {board.board_size}")
         return board.object_points(dtype).to(device)
     from ccs_kornia.geometry.board_points import board_object_points
 

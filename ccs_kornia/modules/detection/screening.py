@@ -8,7 +8,8 @@ downscaled copy of each frame with OpenCV's cheapest test for the board's kind:
   few milliseconds), on a copy whose longer side is ``max_side``;
 * a ChArUco board or an AprilGrid: its markers (``cv2.aruco``, both print polarities in one pass, and the mirrored
   image where the plain one shows too few: a two-sided board's back), checked against the board's lattice, at least
-  ``min_markers``.
+  ``min_markers``;
+* a circle grid: ``cv2.findCirclesGrid`` on the copy (dark dots, then light ones).
 
 What it sees is a :class:`Sighting`: whether the board is there and its *outline* ``(4, 2)``, the image positions of
 the inner-corner grid's four extreme corners (first, end of the first row, last, start of the last row) in the
@@ -24,7 +25,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard
+from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard, CircleGrid
 
 __all__ = ["BoardScreen", "DEFAULT_SCREEN_SIDE", "Sighting", "grid_outline"]
 
@@ -67,8 +68,9 @@ class BoardScreen:
 
     Args:
         board_size: ``(cols, rows)`` inner corners.
-        board: the :class:`~ccs_kornia.modules.detection.boards.CharucoBoard` or
-            :class:`~ccs_kornia.modules.detection.boards.AprilGrid` (``None``: a chessboard).
+        board: the :class:`~ccs_kornia.modules.detection.boards.CharucoBoard`,
+            :class:`~ccs_kornia.modules.detection.boards.AprilGrid` or
+            :class:`~ccs_kornia.modules.detection.boards.CircleGrid` (``None``: a chessboard).
         max_side: the longer side of the copy looked at (frames as small or smaller are looked at as they are).
         min_markers: markers a marker board needs on the lattice to count as seen.
 
@@ -81,7 +83,7 @@ class BoardScreen:
         (True, 20, [[80, 60], [160, 60], [160, 120], [80, 120]])
     """
 
-    def __init__(self, board_size: tuple[int, int], board: CharucoBoard | AprilGrid | None = None,
+    def __init__(self, board_size: tuple[int, int], board: CharucoBoard | AprilGrid | CircleGrid | None = None,
                  max_side: int = DEFAULT_SCREEN_SIDE, min_markers: int = 2) -> None:
         if len(board_size) != 2 or min(int(board_size[0]), int(board_size[1])) < 2:
             raise ValueError(f"board_size must be (cols, rows) with at least 2 inner corners each, got {board_size}.")
@@ -92,7 +94,7 @@ class BoardScreen:
         self.max_side = int(max_side)
         self.min_markers = max(1, int(min_markers))
         self._outline_units: np.ndarray | None = None
-        if board is not None:
+        if board is not None and not isinstance(board, CircleGrid):
             cols, rows = self.board_size
             unit = float(board.square if isinstance(board, CharucoBoard) else board.tag_size)
             obj = board.object_points().numpy()[:, :2] / unit
@@ -126,7 +128,12 @@ class BoardScreen:
         small = gray8 if (w, h) != full else self.shrink(gray8)
         # pixel centres at integers: a copy scaled by s maps x to (x + 0.5) / s - 0.5
         sx, sy = full[0] / small.shape[1], full[1] / small.shape[0]
-        seen = self._chessboard(small) if self.board is None else self._markers(small)
+        if self.board is None:
+            seen = self._chessboard(small)
+        elif isinstance(self.board, CircleGrid):
+            seen = self._circles(small)
+        else:
+            seen = self._markers(small)
         if seen.outline is not None:
             seen.outline = (seen.outline + 0.5) * np.array([sx, sy]) - 0.5
         return seen
@@ -137,6 +144,15 @@ class BoardScreen:
         if not found or corners is None:
             return Sighting(False)
         return Sighting(True, grid_outline(corners.reshape(-1, 2), self.board_size), len(corners))
+
+    def _circles(self, small: np.ndarray) -> Sighting:
+        """A circle grid: ``cv2.findCirclesGrid`` on the copy, dark dots then light ones."""
+        flags = cv2.CALIB_CB_ASYMMETRIC_GRID if self.board.asymmetric else cv2.CALIB_CB_SYMMETRIC_GRID
+        for img in (small, 255 - small):
+            found, centres = cv2.findCirclesGrid(img, self.board_size, flags=flags)
+            if found and centres is not None:
+                return Sighting(True, grid_outline(centres.reshape(-1, 2), self.board_size), len(centres))
+        return Sighting(False)
 
     def _marker_table(self) -> tuple[cv2.aruco.ArucoDetector, dict[int, np.ndarray]]:
         """The marker detector (both print polarities in one pass, no corner refinement: the outline is rough) and

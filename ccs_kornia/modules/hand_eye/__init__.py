@@ -4,7 +4,8 @@ corners and robot poses, with an error a user can trust (docs/hand_eye.md).
 :class:`HandEyeSolver` / :func:`calibrate_hand_eye` (:mod:`.solver`): the board's pose per view, the checks that refuse
 degenerate or disagreeing data (:mod:`.degeneracy`), the closed forms (:mod:`.closed_forms`) as starts, the joint fit
 of every corner (:mod:`.problem` on :mod:`.fit`), the leave-one-pose-out figures (:mod:`.heldout`) and the verdict
-(:mod:`.result`); :mod:`.setup` names the two set-ups, :mod:`.implicit` gives the gradients.
+(:mod:`.result`, with :mod:`.camera_fit`: whether the camera fits its images; :mod:`.target_scale`: whether the board
+is the size it was given); :mod:`.setup` names the two set-ups, :mod:`.implicit` gives the gradients.
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
 """
@@ -27,6 +28,9 @@ _EXPORTS = {
     "hand_eye_issues": "ccs_kornia.modules.hand_eye.degeneracy",
     "closed_form_candidates": "ccs_kornia.modules.hand_eye.closed_forms",
     "leave_one_pose_out": "ccs_kornia.modules.hand_eye.heldout",
+    "board_scale": "ccs_kornia.modules.hand_eye.target_scale",
+    "calibrated_view_rms": "ccs_kornia.modules.hand_eye.camera_fit",
+    "camera_misfits": "ccs_kornia.modules.hand_eye.result",
 }
 
 __all__ = sorted(_EXPORTS)

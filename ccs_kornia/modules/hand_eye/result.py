@@ -20,12 +20,14 @@ import torch
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.modules.hand_eye.setup import HandEyeSetup
 
-__all__ = ["HandEyeResult", "HandEyeVerdictThresholds", "hand_eye_verdict"]
+__all__ = ["HandEyeResult", "HandEyeVerdictThresholds", "camera_misfits", "hand_eye_verdict"]
 
 
 @dataclass
 class HandEyeVerdictThresholds:
-    """Limits of the verdict: held-out RMS (px per 1000 px of diagonal), ``X``'s 1-sigma (degrees; metres)."""
+    """Limits of the verdict: held-out RMS (px per 1000 px of diagonal), ``X``'s 1-sigma (degrees; metres), and how
+    much more each view's own board pose leaves with the given camera than with one calibrated from the views (the
+    medians over the views: a ratio, and a difference in px) for the camera not to fit the images."""
 
     good_heldout: float = 1.5
     usable_heldout: float = 4.0
@@ -33,41 +35,83 @@ class HandEyeVerdictThresholds:
     usable_rotation_deg: float = 1.0
     good_translation: float = 0.002
     usable_translation: float = 0.01
+    camera_misfit_ratio: float = 1.3
+    camera_misfit_px: float = 0.15
+
+
+def camera_misfits(camera_fit_px: float, calibrated_fit_px: float,
+                   thresholds: HandEyeVerdictThresholds | None = None) -> bool:
+    """Whether the given camera does not fit the images: each view's own board pose leaves clearly more with it
+    (``camera_fit_px``, the median over the views) than with a camera calibrated from them (``calibrated_fit_px``);
+    ``False`` where either is not measured.
+
+    Example:
+        >>> camera_misfits(2.5, 0.3), camera_misfits(0.35, 0.3), camera_misfits(float("nan"), 0.3)
+        (True, False, False)
+    """
+    t = thresholds or HandEyeVerdictThresholds()
+    return math.isfinite(camera_fit_px) and math.isfinite(calibrated_fit_px) and \
+        camera_fit_px > t.camera_misfit_ratio * calibrated_fit_px and \
+        camera_fit_px - calibrated_fit_px > t.camera_misfit_px
 
 
 def hand_eye_verdict(heldout_rms_px: float, rotation_std_deg: float, translation_std: float,
                      image_size: tuple[int, int], metres_per_unit: float = 1.0,
-                     thresholds: HandEyeVerdictThresholds | None = None) -> tuple[str, list[str]]:
-    """``("good" | "usable" | "not reliable: <advice>", reasons)`` of one calibration.
+                     thresholds: HandEyeVerdictThresholds | None = None, camera_fit_px: float = float("nan"),
+                     calibrated_fit_px: float = float("nan"), fit_rms_px: float = float("nan")
+                     ) -> tuple[str, list[str]]:
+    """``("good" | "usable" | "not reliable: <advice>", reasons)`` of one calibration; each advice names the figure
+    that failed. Three causes are told apart: a camera that does not fit its images (each view's own pose leaves
+    clearly more with it than with a camera calibrated from the views: the robot is then not blamed for the
+    held-out error, which the camera explains), robot
+    poses that disagree with the images (held-out poses predicted far off while the camera fits), too little motion
+    (``X``'s 1-sigma).
 
     Args:
         heldout_rms_px: leave-one-pose-out RMS (px; NaN when no pose could be held out).
         rotation_std_deg, translation_std: ``X``'s 1-sigma (the norms over the axes; translation in the poses' unit).
         image_size: ``(W, H)``.
         metres_per_unit: the poses' unit in metres.
+        camera_fit_px: the median over the views of the RMS px each view's own board pose leaves with the camera (NaN:
+            not measured); calibrated_fit_px: the same with a camera calibrated from the views
+            (:func:`~ccs_kornia.modules.hand_eye.camera_fit.calibrated_view_rms`).
+        fit_rms_px: the joint fit's RMS px (for the robot's advice).
 
     Example:
         >>> hand_eye_verdict(0.6, 0.05, 0.0008, (640, 480))
         ('good', [])
         >>> hand_eye_verdict(9.0, 0.05, 0.0008, (640, 480))[0][:14]
         'not reliable: '
+        >>> hand_eye_verdict(9.0, 0.05, 0.0008, (640, 480), camera_fit_px=3.0, calibrated_fit_px=0.2)[0][:57]
+        'not reliable: the given camera does not fit these images '
     """
     t = thresholds or HandEyeVerdictThresholds()
     scale = math.hypot(*image_size) / 1000.0
     trans = translation_std * metres_per_unit
     bad, weak, advice = [], [], []
+    misfit = camera_misfits(camera_fit_px, calibrated_fit_px, t)
+    if misfit:
+        bad.append(f"each view's own board pose leaves {camera_fit_px:.2f} px RMS with the camera, "
+                   f"{calibrated_fit_px:.2f} px with one calibrated from the views")
+        advice.append(f"the given camera does not fit these images (each view's own board pose leaves "
+                      f"{camera_fit_px:.2f} px RMS with it, {calibrated_fit_px:.2f} px with a camera calibrated from "
+                      "them): calibrate it from them or give its distortion")
     if not math.isfinite(heldout_rms_px):
         weak.append("too few poses to hold one out: the prediction error is not measured")
     elif heldout_rms_px > t.usable_heldout * scale:
         bad.append(f"poses held out are predicted {heldout_rms_px:.2f} px off")
-        advice.append("check the robot's pose of each image (pose file order, units, convention) and that the "
-                      "board and camera did not move on their mounts")
+        if not misfit:
+            fit = f", while the fit of every pose is {fit_rms_px:.2f} px" if math.isfinite(fit_rms_px) else ""
+            advice.append(f"check the robot's pose of each image (held-out poses predicted {heldout_rms_px:.2f} px "
+                          f"off from the robot alone{fit}: pose file order, units, convention) and that the board "
+                          "and camera did not move on their mounts")
     elif heldout_rms_px > t.good_heldout * scale:
         weak.append(f"poses held out are predicted {heldout_rms_px:.2f} px off")
     if not (math.isfinite(rotation_std_deg) and math.isfinite(trans)) or rotation_std_deg > t.usable_rotation_deg \
             or trans > t.usable_translation:
         bad.append(f"X 1-sigma {rotation_std_deg:.3f} deg, {1000 * trans:.2f} mm")
-        advice.append("add poses rotated by 15-30 degrees about different axes, the board filling more of the image")
+        advice.append(f"add poses rotated by 15-30 degrees about different axes, the board filling more of the image "
+                      f"(X 1-sigma {rotation_std_deg:.2f} deg, {1000 * trans:.1f} mm: too little motion)")
     elif rotation_std_deg > t.good_rotation_deg or trans > t.good_translation:
         weak.append(f"X 1-sigma {rotation_std_deg:.3f} deg, {1000 * trans:.2f} mm")
     if bad:
@@ -122,6 +166,8 @@ class HandEyeResult:
     #: (1: the 180-degree turn) to agree with the other views (``residuals`` are in the board's numbering)
     board_order: torch.Tensor | None = None
     corners: torch.Tensor | None = None  #: (B, V, N, 2) the corners fitted, in the board's numbering (NaN: not seen)
+    #: per problem, why the poses were taken as exact instead of the estimated noise term ("" where they were not)
+    noise_choice: list[str] | None = None
 
     @property
     def X_rotation_std_deg(self) -> torch.Tensor:

@@ -12,8 +12,16 @@ From board corners per view, the robot's flange pose per view and the camera, :f
 4. the joint fit (:mod:`~ccs_kornia.modules.hand_eye.problem`, :mod:`~ccs_kornia.modules.hand_eye.fit`): all corners,
    ``X``, ``Z``, optionally the camera's intrinsics and a robot-pose noise term; the covariance of the result;
 5. a fit whose error is far above any detector's (:data:`DISAGREE_PX` per 1000 px of diagonal) means the robot and
-   the camera disagree: refused, with a note when the inverted poses (the base in the flange frame) fit;
-6. the held-out figures (:mod:`~ccs_kornia.modules.hand_eye.heldout`) and the verdict.
+   the camera disagree: refused, with a note when the inverted poses (the base in the flange frame) fit; a board whose
+   size disagrees with the robot's translations (:mod:`~ccs_kornia.modules.hand_eye.target_scale`) is refused with
+   the size the robot sees;
+6. the held-out figures (:mod:`~ccs_kornia.modules.hand_eye.heldout`) and the verdict;
+7. with the robot-pose noise estimated (``"auto"``) and held-out poses predicted less than well (above the verdict's
+   ``good_heldout``), the fit that takes the poses as exact too: kept where it predicts the held-out poses at least
+   :data:`EXACT_POSES_GAIN` times better. A real arm's errors are systematic
+   (joint offsets, link lengths, elasticity), not the isotropic noise the term models; its estimate then grows until
+   the corrections explain each pose alone and the robot predicts little (docs/hand_eye.md); on rendered robots,
+   whose pose noise is the term's, the two predict alike and the term is kept.
 
 :class:`HandEyeSolver` is the module form; with ``corners`` (or robot poses) requiring grad, ``X``, ``Z`` and the
 free intrinsics carry gradients by implicit differentiation of the optimum
@@ -22,6 +30,7 @@ free intrinsics carry gradients by implicit differentiation of the optimum
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 
@@ -47,11 +56,18 @@ from ccs_kornia.modules.hand_eye.problem import (
     HandEyeProblem,
     HandEyeState,
 )
-from ccs_kornia.modules.hand_eye.result import HandEyeResult, hand_eye_verdict
+from ccs_kornia.modules.hand_eye.camera_fit import calibrated_view_rms
+from ccs_kornia.modules.hand_eye.result import (
+    HandEyeResult,
+    HandEyeVerdictThresholds,
+    camera_misfits,
+    hand_eye_verdict,
+)
 from ccs_kornia.modules.hand_eye.setup import HandEyeSetup, invert_transforms
+from ccs_kornia.modules.hand_eye.target_scale import SCALE_SIGMAS, SCALE_TOLERANCE, board_scale
 from ccs_kornia.runtime.checks import check_tensor
 
-__all__ = ["DISAGREE_PX", "JACKKNIFE_MIN_POSES", "HandEyeSolver", "calibrate_hand_eye"]
+__all__ = ["DISAGREE_PX", "EXACT_POSES_GAIN", "JACKKNIFE_MIN_POSES", "HandEyeSolver", "calibrate_hand_eye"]
 
 #: a fit whose RMS exceeds this (px per 1000 px of image diagonal) is refused: robot and camera disagree
 DISAGREE_PX = 10.0
@@ -60,6 +76,8 @@ START_NOISE = (1e-3, 1e-3)
 #: a held-out refit re-estimates the noise in this many rounds, from the full fit's estimate (more rounds change the
 #: held-out figures by little: docs/hand_eye.md)
 HELDOUT_NOISE_ROUNDS = 2
+#: the poses taken as exact replace the estimated noise term where their held-out RMS is below this fraction of its
+EXACT_POSES_GAIN = 0.8
 #: the 1-sigma comes from the leave-one-pose-out refits' spread (jackknife) where at least this many poses were held
 #: out, else from the fit's covariance (which sees the corners' noise only, not a robot pose's error)
 JACKKNIFE_MIN_POSES = 5
@@ -196,6 +214,77 @@ def calibrate_hand_eye(
         >>> bool(res.success[0]), float((res.X[0] - s.X).abs().max()) < 1e-8
         (True, True)
     """
+    args = (corners, valid, object_points, robot_poses, camera, setup, weights, free_intrinsics)
+    options = dict(image_size=image_size, metres_per_unit=metres_per_unit, names=names, min_corners=min_corners,
+                   max_iters=max_iters, align_orders=align_orders)
+    result = _calibrate(*args, robot_noise=robot_noise, heldout=heldout, **options)
+    if not (heldout and isinstance(robot_noise, str) and robot_noise == "auto"):
+        return result
+    # where held-out poses are predicted less than well, the poses taken as exact, kept where they predict them
+    # clearly better (module doc, step 7)
+    good = HandEyeVerdictThresholds().good_heldout * math.hypot(*image_size) / 1000.0
+    worth = result.success & (result.heldout_rms > good)
+    if not bool(worth.any()):
+        return dataclasses.replace(result, noise_choice=[""] * len(worth))
+    exact = _calibrate(*args, robot_noise=None, heldout=True, **options)
+    better = worth & exact.success & (exact.heldout_rms < EXACT_POSES_GAIN * result.heldout_rms)
+    choice = [f"the poses taken as exact: they predict held-out poses {float(exact.heldout_rms[b]):.2f} px off, the "
+              f"estimated noise term ({math.degrees(float(result.robot_noise[b, 0])):.3g} deg, "
+              f"{1000 * metres_per_unit * float(result.robot_noise[b, 1]):.3g} mm) "
+              f"{float(result.heldout_rms[b]):.2f} px" if bool(better[b]) else "" for b in range(len(better))]
+    return _choose(result, exact, better, choice)
+
+
+def _choose(noisy: HandEyeResult, exact: HandEyeResult, pick: torch.Tensor, choice: list[str]) -> HandEyeResult:
+    """Per problem, ``exact``'s result where ``pick`` (B,), else ``noisy``'s; the noise term's figures of a problem
+    whose poses are taken as exact are zero (its corners' sigma NaN), ``noise_choice`` says why."""
+    if not bool(pick.any()):
+        return dataclasses.replace(noisy, noise_choice=choice)
+    values = {}
+    B = pick.shape[0]
+    for f in dataclasses.fields(noisy):
+        a, b = getattr(noisy, f.name), getattr(exact, f.name)
+        if f.name == "robot_noise":
+            values[f.name] = torch.where(pick[:, None].to(a.device), torch.zeros_like(a), a)
+        elif f.name == "pixel_sigma":
+            values[f.name] = None if a is None else torch.where(pick.to(a.device), float("nan"), a)
+        elif f.name == "corrections":
+            R, t = a
+            keep = pick.to(R.device)
+            values[f.name] = (torch.where(keep[:, None, None, None], torch.eye(3, dtype=R.dtype, device=R.device), R),
+                              torch.where(keep[:, None, None], torch.zeros_like(t), t))
+        elif isinstance(a, Camera):
+            values[f.name] = a.with_params(torch.where(pick[:, None].to(a.params.device), b.params, a.params))
+        elif isinstance(a, torch.Tensor) and isinstance(b, torch.Tensor) and a.dim() and a.shape[0] == B \
+                and a.shape == b.shape:
+            values[f.name] = torch.where(pick.to(a.device).reshape(B, *([1] * (a.dim() - 1))), b, a)
+        elif isinstance(a, list) and isinstance(b, list) and len(a) == B:
+            values[f.name] = [b[k] if bool(pick[k]) else a[k] for k in range(B)]
+        else:
+            values[f.name] = a
+    values["noise_choice"] = choice
+    return HandEyeResult(**values)
+
+
+def _calibrate(
+    corners: torch.Tensor,
+    valid: torch.Tensor,
+    object_points: torch.Tensor,
+    robot_poses: torch.Tensor,
+    camera: Camera,
+    setup: HandEyeSetup | str = HandEyeSetup.EYE_IN_HAND,
+    weights: torch.Tensor | None = None,
+    free_intrinsics: bool | Sequence[str] = False,
+    robot_noise: tuple[float, float] | str | None = "auto",
+    heldout: bool = True,
+    image_size: tuple[int, int] = (640, 480),
+    metres_per_unit: float = 1.0,
+    names: list[list[str]] | None = None,
+    min_corners: int = 4,
+    max_iters: int = 100,
+    align_orders: bool = False,
+) -> HandEyeResult:
+    """:func:`calibrate_hand_eye` with one robot-noise setting."""
     setup = HandEyeSetup.parse(setup)
     check_tensor(corners, "corners", ["B", "V", "N", "2"])
     B, V, N = corners.shape[:3]
@@ -213,7 +302,7 @@ def calibrate_hand_eye(
         check_tensor(weights, "weights", [B, V, N])
         w = w & (weights > 0)
     # 1. the board's pose in each view alone
-    rvec, tvec, ok, _ = camera_poses(params, model, corners, w, obj, min_corners=min_corners)
+    rvec, tvec, ok, own_rms = camera_poses(params, model, corners, w, obj, min_corners=min_corners)
     M = _pose(exp_so3(rvec), tvec)
     pose_ok = poses.flatten(-2).isfinite().all(-1)
     usable = ok & pose_ok & (w.sum(-1) >= min_corners)
@@ -270,6 +359,37 @@ def calibrate_hand_eye(
                                          f"{float(rms[b]):.1f} px RMS off (worst: {', '.join(labels)}){note}; check "
                                          "the pose file (order, units, convention) and --eye-in-hand/--eye-to-hand"})
             refused[b] = True
+    # whether the given camera fits the images: each view's own board pose with it against a camera calibrated from
+    # the same views (computed where a cause is to be named; the camera held only)
+    camera_fits: dict[int, tuple[float, float]] = {}
+
+    def camera_fit(b: int) -> tuple[float, float]:
+        if b not in camera_fits:
+            own = own_rms[b][usable[b] & own_rms[b].isfinite()]
+            if basis is not None or not own.numel():
+                camera_fits[b] = (float("nan"), float("nan"))
+            else:
+                use = (w & usable[..., None])[b:b + 1]
+                camera_fits[b] = (float(own.median()),
+                                  float(calibrated_view_rms(corners[b:b + 1], use, obj, image_size)[0]))
+        return camera_fits[b]
+
+    # 5b. the board's size against the robot's translations (with the fit's rotations): a board given at the wrong
+    # size is refused, with the size the robot sees, unless the camera does not fit the images (which biases it: the
+    # verdict then names the camera)
+    scale_s, scale_se = board_scale(A, M_safe, usable, s.RX, s.RZ)
+    for b in range(B):
+        ratio, se = float(scale_s[b]), float(scale_se[b])
+        if refused[b] or not math.isfinite(ratio) or not abs(ratio - 1.0) > max(SCALE_TOLERANCE, SCALE_SIGMAS * se):
+            continue
+        if camera_misfits(*camera_fit(b)):
+            continue
+        issues[b].append({"severity": "error", "check": "board_scale", "poses": usable[b].nonzero().flatten().tolist(),
+                          "scale": ratio, "scale_se": se,
+                          "message": f"the board's size disagrees with the robot's translations: the robot sees the "
+                                     f"board {ratio:.4f} +- {se:.4f} times the size it was given "
+                                     f"({100 * (ratio - 1):+.1f} %)"})
+        refused[b] = True
     # 6. held-out figures, uncertainty (the leave-one-pose-out refits' spread where there are enough), verdict
     X, Z = _pose(s.RX, s.tX), _pose(s.RZ, s.tZ)
     cov = fit.covariance
@@ -325,8 +445,14 @@ def calibrate_hand_eye(
             result.verdict.append("refused: " + result.reasons[b])
             result.verdict_reasons.append([result.reasons[b]])
             continue
+        # where the held-out poses are predicted less than well, whether the camera explains it (the given camera against one
+        # calibrated from the same views; the camera held only)
+        given = calibrated = float("nan")
+        if b in camera_fits or float(held_all[b]) > HandEyeVerdictThresholds().good_heldout * scale:
+            given, calibrated = camera_fit(b)
         v, why = hand_eye_verdict(float(held_all[b]), float(result.X_rotation_std_deg[b]),
-                                  float(result.X_translation_std[b]), image_size, metres_per_unit)
+                                  float(result.X_translation_std[b]), image_size, metres_per_unit,
+                                  camera_fit_px=given, calibrated_fit_px=calibrated, fit_rms_px=float(rms[b]))
         result.verdict.append(v)
         result.verdict_reasons.append(why)
     return result
