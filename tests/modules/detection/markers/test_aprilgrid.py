@@ -71,7 +71,7 @@ class TestBoard:
 
     def test_grid_object_points(self):
         assert torch.equal(grid_object_points(GRID, GRID.board_size, 1.0), GRID.object_points())
-        with pytest.raises(ValueError, match="corner grid"):
+        with pytest.raises(ValueError, match="is not the AprilGrid.s grid"):
             grid_object_points(GRID, (4, 4), 1.0)
 
     def test_print_ids_and_corners(self):
