@@ -634,6 +634,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "sensor's white noise is then measured from the recording)")
     p.add_argument("--output", required=True, metavar="JSON", help="camera-IMU calibration file to write (imu_cam.json)")
     p.add_argument("--kalibr-yaml", metavar="YAML", help="also write Kalibr's camchain-imucam.yaml")
+    p.add_argument("--kalibr-imu-yaml", metavar="YAML",
+                   help="also write the IMU as Kalibr's calibration does (imu-*.yaml: the noise the recording shows, "
+                        "the model and, with --imu-model scale-misalignment, its matrices in Kalibr's convention)")
     p.add_argument("--ros-tf", metavar="FILE", help="also write a ROS launch file publishing each camera's optical "
                    "frame in the IMU's frame (static transforms)")
     p.add_argument("--ros-frames", metavar="IMU[,CAM0,...]",

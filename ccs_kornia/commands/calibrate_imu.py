@@ -53,7 +53,9 @@ from ccs_kornia.outputs.calibration_file import (
 )
 from ccs_kornia.outputs.imu_exports import (
     camchain_imucam_yaml,
+    kalibr_imu_result_yaml,
     imu_ros_static_transform,
+    to_kalibr_imu_frame,
 )
 from ccs_kornia.outputs.imu_records import imu_camera_record
 from ccs_kornia.outputs.records import view_records
@@ -350,7 +352,8 @@ def _from_videos(args: argparse.Namespace, paths: list[str]) -> list[tuple[torch
 
 
 def run(args: argparse.Namespace) -> int:
-    check_outputs(files=[("--output", args.output), ("--kalibr-yaml", args.kalibr_yaml), ("--ros-tf", args.ros_tf)],
+    check_outputs(files=[("--output", args.output), ("--kalibr-yaml", args.kalibr_yaml),
+                         ("--kalibr-imu-yaml", args.kalibr_imu_yaml), ("--ros-tf", args.ros_tf)],
                   dirs=[("--report", args.report)])
     given = [what for what, value in (("folders of images", args.inputs), ("--corners", args.corners),
                                       ("--bag", args.image_topics and args.bag)) if value]
@@ -431,8 +434,15 @@ def run(args: argparse.Namespace) -> int:
     write_json(args.output, record)
     written = [args.output]
     if args.kalibr_yaml:
-        write_text(args.kalibr_yaml, camchain_imucam_yaml(result.cameras, result.T_cam_imu, result.timeshift_cam_imu))
+        # on Kalibr's IMU frame, which differs from the JSON's when the IMU's intrinsics were fitted
+        write_text(args.kalibr_yaml, camchain_imucam_yaml(
+            result.cameras, to_kalibr_imu_frame(result.T_cam_imu, result.imu_intrinsics), result.timeshift_cam_imu))
         written.append(args.kalibr_yaml)
+    if args.kalibr_imu_yaml:
+        write_text(args.kalibr_imu_yaml, kalibr_imu_result_yaml(
+            result.noise_measured, ImuModel(args.imu_model), result.imu_intrinsics,
+            comment="noise densities as this recording's residuals show them; random walks as stated"))
+        written.append(args.kalibr_imu_yaml)
     if args.ros_tf:
         write_text(args.ros_tf, imu_ros_static_transform(result.T_cam_imu, *ros_frames))
         written.append(args.ros_tf)

@@ -22,10 +22,11 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 
-__all__ = ["ImuIntrinsics", "ImuModel"]
+__all__ = ["ImuIntrinsics", "ImuModel", "KalibrImuMatrices"]
 
 
 class ImuModel(enum.Enum):
@@ -35,6 +36,31 @@ class ImuModel(enum.Enum):
     CALIBRATED = "calibrated"
     #: :class:`ImuIntrinsics` estimated: scale factors, misalignment, the gyroscope's rotation and g-sensitivity
     SCALE_MISALIGNMENT = "scale-misalignment"
+
+
+class KalibrImuMatrices(NamedTuple):
+    r"""The intrinsics in Kalibr's ``scale-misalignment`` convention (its ``imu-*.yaml`` result file).
+
+    Kalibr's accelerometer matrix is lower triangular, so its IMU frame is not the one :class:`ImuIntrinsics` uses
+    (upper triangular): the two differ by the rotation ``R_kalibr_imu`` (``f_kalibr = R f``), and a pose on Kalibr's
+    IMU is ``T_cam_imu`` times that rotation's inverse. Kalibr's readings are
+    :math:`a_m = M_a f_k + b_a` and :math:`\omega_m = M_g C\,\omega_k + A\,C f_k + b_g`.
+    """
+
+    accel_M: torch.Tensor  #: (3, 3) lower triangular, Kalibr's ``accelerometers: M``
+    gyro_M: torch.Tensor  #: (3, 3) lower triangular, ``gyroscopes: M``
+    gyro_C: torch.Tensor  #: (3, 3) a rotation, ``gyroscopes: C_gyro_i``
+    gyro_A: torch.Tensor  #: (3, 3) rad/s per m/s^2, ``gyroscopes: A``
+    R_kalibr_imu: torch.Tensor  #: (3, 3) the rotation from this frame to Kalibr's IMU frame
+
+
+def _lower_times_rotation(X: torch.Tensor, what: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """``X = L Q``: ``L`` lower triangular with a positive diagonal, ``Q`` a rotation (from the QR of ``X^T``)."""
+    if float(torch.linalg.det(X)) <= 0:
+        raise ValueError(f"{what} mirrors an axis (determinant <= 0): it is no scale-misalignment of a rotation")
+    Q1, R1 = torch.linalg.qr(X.T)
+    D = torch.diag(torch.sign(torch.diagonal(R1)))
+    return (D @ R1).T, D @ Q1.T
 
 
 #: the upper triangle of a 3x3 matrix, row by row: the accelerometer's 6 values
@@ -66,3 +92,26 @@ class ImuIntrinsics:
     def apply(self, rate: torch.Tensor, force: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The readings (before biases and noise) of true rates and specific forces :math:`(N, 3)`."""
         return rate @ self.gyro_matrix.T + force @ self.g_sensitivity.T, force @ self.accel_matrix.T
+
+    def to_kalibr(self) -> KalibrImuMatrices:
+        """The same IMU in Kalibr's convention (:class:`KalibrImuMatrices`): the same readings of the same motion.
+
+        Returns:
+            Kalibr's four matrices and the rotation between the two IMU frames.
+
+        Raises:
+            ValueError: a sensor matrix that mirrors an axis (no rotation relates the frames).
+
+        Example:
+            >>> imu = ImuIntrinsics.identity()
+            >>> imu.accel_matrix[0, 1] = 0.004  # the accelerometer's x axis leans towards y
+            >>> k = imu.to_kalibr()
+            >>> bool(k.accel_M[0, 1] == 0), round(float(torch.linalg.det(k.R_kalibr_imu)), 6)
+            (True, 1.0)
+            >>> f = torch.tensor([[1.0, 2.0, 3.0]], dtype=torch.float64)
+            >>> bool(torch.allclose((k.R_kalibr_imu @ f.T).T @ k.accel_M.T, imu.apply(f, f)[1]))
+            True
+        """
+        accel_M, R = _lower_times_rotation(self.accel_matrix, "the accelerometer's matrix")
+        gyro_M, C = _lower_times_rotation(self.gyro_matrix @ R.T, "the gyroscope's matrix")
+        return KalibrImuMatrices(accel_M, gyro_M, C, self.g_sensitivity @ R.T @ C.T, R)

@@ -1,5 +1,6 @@
-"""Kalibr's YAML files out: an IMU's ``imu.yaml`` and the cameras with their pose on the IMU and time offset,
-``camchain-imucam.yaml``; and the cameras' poses on the IMU as a ROS launch file (:func:`imu_ros_static_transform`).
+"""Kalibr's YAML files out: an IMU's ``imu.yaml``, the cameras with their pose on the IMU and time offset
+(``camchain-imucam.yaml``) and the IMU as Kalibr's calibration writes it (``imu-*.yaml``: its noise, its model and, for
+``scale-misalignment``, its matrices); and the cameras' poses on the IMU as a ROS launch file (:func:`imu_ros_static_transform`).
 
 The cameras' fields are the camchain's (:func:`~ccs_kornia.outputs.rig_exports.kalibr_camera_lines`), with
 ``T_cam_imu`` and ``timeshift_cam_imu`` after them; :func:`ccs_kornia.io.kalibr.read_camchain` and
@@ -14,6 +15,7 @@ import numpy as np
 import torch
 
 from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.imu_intrinsics import ImuIntrinsics, ImuModel
 from ccs_kornia.io.imu import ImuNoise
 from ccs_kornia.outputs.rig_exports import (
     kalibr_camera_lines,
@@ -22,7 +24,7 @@ from ccs_kornia.outputs.rig_exports import (
 )
 from ccs_kornia.outputs.ros_tf import StaticTransform, pose_tq, static_transform_launch
 
-__all__ = ["camchain_imucam_yaml", "imu_ros_static_transform", "imu_yaml"]
+__all__ = ["camchain_imucam_yaml", "imu_ros_static_transform", "imu_yaml", "kalibr_imu_result_yaml", "to_kalibr_imu_frame"]
 
 
 def _transforms(value, count: int, what: str) -> np.ndarray:
@@ -130,6 +132,72 @@ def imu_yaml(noise: ImuNoise, rostopic: str = "/imu0") -> str:
         f"rostopic: {rostopic}   #the IMU ROS topic\n"
         f"update_rate: {number(noise.update_rate)}   #Hz (for discretization of the values above)\n"
     )
+
+
+def to_kalibr_imu_frame(T_cam_imu, intrinsics: ImuIntrinsics | None):
+    """``T_cam_imu`` :math:`(C, 4, 4)` on Kalibr's IMU frame: unchanged for an ideal IMU (``None``); for estimated
+    intrinsics, times the rotation from Kalibr's frame to this one (:meth:`ImuIntrinsics.to_kalibr`), so that the
+    camchain and :func:`kalibr_imu_result_yaml` hold one IMU frame."""
+    if intrinsics is None:
+        return T_cam_imu
+    T = torch.as_tensor(T_cam_imu, dtype=torch.float64).clone()
+    R = intrinsics.to_kalibr().R_kalibr_imu.to(T)
+    T[..., :3, :3] = T[..., :3, :3] @ R.T
+    return T
+
+
+def _yaml_matrix(name: str, M, indent: str) -> list[str]:
+    rows = np.asarray(M.detach().cpu() if isinstance(M, torch.Tensor) else M, dtype=np.float64)
+    return [f"{indent}{name}:"] + [f"{indent}- [{', '.join(yaml_float(float(v)) for v in row)}]" for row in rows]
+
+
+def kalibr_imu_result_yaml(noise: ImuNoise, model: ImuModel = ImuModel.CALIBRATED,
+                           intrinsics: ImuIntrinsics | None = None, rostopic: str = "/imu0",
+                           comment: str | None = None) -> str:
+    """The IMU as Kalibr's camera-IMU calibration writes it (``imu-<bag>.yaml``): under ``imu0``, ``T_i_b`` (the
+    identity: one IMU), the noise, ``model``, ``rostopic``, ``time_offset`` and ``update_rate``; for
+    ``scale-misalignment`` also ``accelerometers: M`` and ``gyroscopes: A, C_gyro_i, M`` in Kalibr's convention
+    (:class:`~ccs_kornia.geometry.imu_intrinsics.KalibrImuMatrices`; pair it with a camchain written through
+    :func:`to_kalibr_imu_frame`). :func:`ccs_kornia.io.kalibr.read_imu_yaml` reads its noise back.
+
+    Args:
+        noise: the four densities and the rate.
+        model: the IMU model fitted.
+        intrinsics: the estimated intrinsics (required for ``scale-misalignment``, else ignored).
+        rostopic: the IMU's topic.
+        comment: a line written as a comment at the top (e.g. where the noise values come from).
+
+    Returns:
+        the YAML text.
+
+    Raises:
+        ValueError: ``scale-misalignment`` without intrinsics.
+
+    Example:
+        >>> import yaml
+        >>> from ccs_kornia.geometry.imu_intrinsics import ImuIntrinsics
+        >>> text = kalibr_imu_result_yaml(ImuNoise.euroc(), ImuModel.SCALE_MISALIGNMENT, ImuIntrinsics.identity())
+        >>> imu0 = yaml.safe_load(text)["imu0"]
+        >>> imu0["model"], imu0["accelerometers"]["M"][0], imu0["update_rate"]
+        ('scale-misalignment', [1.0, 0.0, 0.0], 200.0)
+    """
+    if model is ImuModel.SCALE_MISALIGNMENT and intrinsics is None:
+        raise ValueError("the scale-misalignment model needs the IMU's intrinsics")
+    lines = [f"# {comment}"] if comment else []
+    lines += ["imu0:"] + _yaml_matrix("T_i_b", np.eye(4), "  ")
+    for key, value in (("accelerometer_noise_density", noise.accelerometer_noise_density),
+                       ("accelerometer_random_walk", noise.accelerometer_random_walk),
+                       ("gyroscope_noise_density", noise.gyroscope_noise_density),
+                       ("gyroscope_random_walk", noise.gyroscope_random_walk)):
+        lines.append(f"  {key}: {yaml_float(float(value))}")
+    lines += [f"  model: {model.value}", f"  rostopic: {rostopic}", "  time_offset: 0.0",
+              f"  update_rate: {yaml_float(float(noise.update_rate))}"]
+    if model is ImuModel.SCALE_MISALIGNMENT:
+        k = intrinsics.to_kalibr()
+        lines += ["  accelerometers:"] + _yaml_matrix("M", k.accel_M, "    ")
+        lines += ["  gyroscopes:"] + _yaml_matrix("A", k.gyro_A, "    ") + _yaml_matrix("C_gyro_i", k.gyro_C, "    ")
+        lines += _yaml_matrix("M", k.gyro_M, "    ")
+    return "\n".join(lines) + "\n"
 
 
 def imu_ros_static_transform(T_cam_imu, imu_frame: str, camera_frames: Sequence[str]) -> str:

@@ -173,7 +173,8 @@ def test_dropped_samples_are_said(capsys, files, recording):
     (files / "gappy.csv").write_text("\n".join(lines[:800] + lines[830:]) + "\n")
     # with the IMU's intrinsics estimated (an ideal IMU here: they come out as the identity)
     code, stdout, err = run(capsys, *_argv(files, **{"--imu": files / "gappy.csv"}), "--imu-model",
-                            "scale-misalignment")
+                            "scale-misalignment", "--kalibr-yaml", files / "camchain-imucam.yaml",
+                            "--kalibr-imu-yaml", files / "imu-result.yaml")
     assert code == 0, err
     data = json.loads((files / "imu_cam.json").read_text())
     assert data["imu"]["dropped"] == 1 and any("dropped" in r for r in data["verdict_reasons"])
@@ -181,6 +182,21 @@ def test_dropped_samples_are_said(capsys, files, recording):
     torch.testing.assert_close(torch.tensor(imu["T_g"], dtype=torch.float64), torch.eye(3, dtype=torch.float64),
                                atol=5e-3, rtol=0)
     assert imu["T_a_std"][1][0] == 0.0 and imu["T_a_std"][0][1] > 0 and "g-sensitivity" in stdout
+    # Kalibr's files: its lower-triangular accelerometer, and the camchain on the IMU frame that matrix defines
+    import yaml
+
+    from ccs_kornia.io.kalibr import read_camchain, read_imu_yaml
+
+    imu0 = yaml.safe_load((files / "imu-result.yaml").read_text())["imu0"]
+    M_a = torch.tensor(imu0["accelerometers"]["M"], dtype=torch.float64)
+    T_a = torch.tensor(imu["T_a"], dtype=torch.float64)
+    assert imu0["model"] == "scale-misalignment" and float(torch.triu(M_a, 1).abs().max()) == 0.0
+    R = torch.linalg.solve(M_a, T_a)  # Kalibr's frame from the JSON's: T_a = M_a R
+    torch.testing.assert_close(R @ R.T, torch.eye(3, dtype=torch.float64), atol=1e-9, rtol=0)
+    T = torch.tensor(data["cameras"][0]["T_cam_imu"], dtype=torch.float64)
+    chain = torch.as_tensor(read_camchain(files / "camchain-imucam.yaml")[0].T_cam_imu, dtype=torch.float64)
+    torch.testing.assert_close(chain[:3, :3] @ R, T[:3, :3], atol=1e-6, rtol=0)
+    assert read_imu_yaml(files / "imu-result.yaml").gyroscope_noise_density > 0
 
 
 def test_clocks_that_do_not_overlap(capsys, files, recording):
