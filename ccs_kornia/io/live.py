@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ccs_kornia.io.video import _capture, _grey
+from ccs_kornia.io.video import ffmpeg_capture, grey_frame
 from ccs_kornia.runtime.errors import UserError
 
 __all__ = ["STREAM_SCHEMES", "LiveFrame", "LiveSource", "open_live", "source_kind"]
@@ -83,7 +83,7 @@ class LiveSource:
                     time.sleep(wait)
             else:
                 stamp = time.monotonic() - start
-            yield LiveFrame(np.ascontiguousarray(_grey(frame)), index, stamp)
+            yield LiveFrame(np.ascontiguousarray(grey_frame(frame)), index, stamp)
             index += 1
 
 
@@ -102,7 +102,7 @@ def open_live(text: str, realtime: bool = True) -> LiveSource:
     elif kind == "device":
         cap = cv2.VideoCapture(text, cv2.CAP_V4L2) if hasattr(cv2, "CAP_V4L2") else cv2.VideoCapture(text)
     else:
-        cap = _capture(text)
+        cap = ffmpeg_capture(text)
     if not cap.isOpened():
         cap.release()
         what = {"index": f"no camera at index {text}", "device": f"{text}: no camera there (or no permission)",

@@ -38,7 +38,9 @@ __all__ = [
     "VideoFrame",
     "VideoInfo",
     "VideoReader",
+    "ffmpeg_capture",
     "frame_name",
+    "grey_frame",
     "is_video",
     "open_video",
     "scaled_frame",
@@ -183,7 +185,7 @@ def open_video(path: str | os.PathLike) -> tuple[VideoInfo | None, str]:
         return None, "no such file" if not os.path.exists(path) else "not a file"
     if not os.access(path, os.R_OK):
         return None, "cannot read file: permission denied"
-    cap = _capture(path)
+    cap = ffmpeg_capture(path)
     try:
         if not cap.isOpened():
             return None, "not a readable video (unknown format, or a damaged or truncated file)"
@@ -200,8 +202,9 @@ def open_video(path: str | os.PathLike) -> tuple[VideoInfo | None, str]:
     return VideoInfo(path, width, height, fps, max(0, count)), ""
 
 
-def _capture(path: str) -> cv2.VideoCapture:
-    """FFmpeg's capture of ``path``; OpenCV's warning about a file it cannot open is left out (the caller says why)."""
+def ffmpeg_capture(path: str) -> cv2.VideoCapture:
+    """FFmpeg's capture of ``path`` (a file or a stream URL); OpenCV's warning about a source it cannot open is left out
+    (the caller says why)."""
     logging = cv2.utils.logging
     level = logging.getLogLevel()
     logging.setLogLevel(min(level, logging.LOG_LEVEL_ERROR))
@@ -211,7 +214,13 @@ def _capture(path: str) -> cv2.VideoCapture:
         logging.setLogLevel(level)
 
 
-def _grey(frame: np.ndarray) -> np.ndarray:
+def grey_frame(frame: np.ndarray) -> np.ndarray:
+    """A decoded frame :math:`(H, W)`, :math:`(H, W, 1)`, BGR or BGRA as one grey channel :math:`(H, W)`.
+
+    Example:
+        >>> grey_frame(np.zeros((4, 6, 3), np.uint8)).shape
+        (4, 6)
+    """
     if frame.ndim == 2:
         return frame
     if frame.shape[2] == 1:
@@ -279,7 +288,7 @@ class VideoReader:
 
     def _open(self) -> cv2.VideoCapture:
         if self._cap is None:
-            self._cap = _capture(self.path)
+            self._cap = ffmpeg_capture(self.path)
             self._next = 0
             if not self._cap.isOpened():
                 self._cap = None
@@ -310,7 +319,7 @@ class VideoReader:
 
     def _retrieve(self) -> np.ndarray | None:
         ok, frame = self._open().retrieve()
-        return _grey(frame) if ok and frame is not None and frame.size else None
+        return grey_frame(frame) if ok and frame is not None and frame.size else None
 
     # -- reading ------------------------------------------------------------------------------------
 
