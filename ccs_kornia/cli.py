@@ -493,6 +493,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the interface the page listens on (default 127.0.0.1: this machine only; 0.0.0.0: every "
                         "interface)")
     g.add_argument("--no-page", action="store_true", help="no page: the console only")
+    g.add_argument("--page-linger", default=10.0, type=float, metavar="S",
+                   help="keep the page up S seconds after calibrating, showing the verdict and the held-out figure "
+                        "(default 10; 0: close at once; Ctrl-C ends it early, the files are written)")
 
     p = sub.add_parser("calibrate-rig", help="calibrate a rig of cameras (stereo head, multi-camera robot) from one "
                        "folder of board images per camera", epilog=_EXIT_HELP,

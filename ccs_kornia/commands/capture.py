@@ -6,6 +6,7 @@ as it changes, and once the target is reached (or the stream ends, or Ctrl-C) th
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import tempfile
@@ -35,7 +36,8 @@ _FOLDER_INPUTS = {"corners": None, "image_size": None, "bag": None, "image_topic
 
 
 #: capture's own options, which calibrate does not take
-_CAPTURE_ONLY = ("sources", "frames_dir", "target", "fast", "port", "host", "no_page", "images", "max_frames")
+_CAPTURE_ONLY = ("sources", "frames_dir", "target", "fast", "port", "host", "no_page", "page_linger", "images",
+                 "max_frames")
 
 
 def frames_dir(args: argparse.Namespace) -> str:
@@ -180,15 +182,46 @@ def run(args: argparse.Namespace) -> int:
         os.makedirs(os.path.dirname(os.path.abspath(folder)), exist_ok=True)
         os.replace(staging, folder)
         staging = None
+        cal = argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in _CAPTURE_ONLY}, **_FOLDER_INPUTS,
+                                 images=[folder])
+        start = time.perf_counter()
+        code = calibrate_camera(cal)
+        print(f"wrote the {len(kept_frames)} kept frames to {folder} (calibrate {folder} gives the same camera); "
+              f"calibration {time.perf_counter() - start:.1f} s")
+        if page is not None:
+            page.set_state(status=_calibrated(args.output, len(kept_frames)), done=True)
+            _linger(page, args.page_linger)
+        return code
     finally:
         if staging is not None:
             shutil.rmtree(staging, ignore_errors=True)
         if page is not None:
             page.close()
-    cal = argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in _CAPTURE_ONLY}, **_FOLDER_INPUTS,
-                             images=[folder])
-    start = time.perf_counter()
-    code = calibrate_camera(cal)
-    print(f"wrote the {len(kept_frames)} kept frames to {folder} (calibrate {folder} gives the same camera); "
-          f"calibration {time.perf_counter() - start:.1f} s")
-    return code
+
+
+def _calibrated(output: str, frames: int) -> str:
+    """The page's last line: the verdict and the held-out figure the calibration wrote, and where."""
+    try:
+        with open(output, encoding="utf-8") as handle:
+            record = json.load(handle)
+    except (OSError, ValueError):
+        record = {}
+    diagnostics = record.get("diagnostics") or {}
+    held, rms = diagnostics.get("heldout_rms_px"), record.get("rms")
+    if isinstance(held, (int, float)):
+        said = f"{diagnostics.get('verdict', '')}, held-out views {held:.3f} px"
+    else:  # --no-diagnostics: no held-out figure
+        said = f"RMS {rms:.3f} px" if isinstance(rms, (int, float)) else "no figure"
+    return f"calibrated from {frames} frames: {said}; wrote {output}"
+
+
+def _linger(page, seconds: float) -> None:
+    """The page kept up ``seconds`` after the calibration, so that its result can be read there (Ctrl-C ends it: the
+    files are written)."""
+    if seconds <= 0:
+        return
+    print(f"the result stays on {page.url} for {seconds:g} s (Ctrl-C to end now)", flush=True)
+    try:
+        time.sleep(seconds)
+    except KeyboardInterrupt:
+        pass

@@ -6,6 +6,9 @@ from __future__ import annotations
 import json
 import os
 import socket
+import threading
+import time
+import urllib.request
 
 import numpy as np
 import pytest
@@ -92,11 +95,31 @@ def test_a_port_in_use_stops_before_anything(held_video, tmp_path, capsys):
     assert os.listdir(tmp_path) == []
 
 
-def test_the_page_runs_with_capture(held_video, tmp_path, capsys):
-    code, out, err = run(capsys, "capture", held_video, *FAST, "--fast", "--port", 0, "--output",
-                         tmp_path / "calib.json", "--target", "5")
-    assert code == 0, err
+def test_the_page_runs_with_capture_and_shows_the_result(held_video, tmp_path, capsys):
+    with socket.socket() as s:  # a free port for the page
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    result: dict = {}
+    worker = threading.Thread(target=lambda: result.update(code=cli.main([str(a) for a in (
+        "capture", held_video, *FAST[:-1], "--fast", "--port", port, "--output", tmp_path / "calib.json", "--target", "5",
+        "--page-linger", "1")])))
+    worker.start()
+    states = []
+    while worker.is_alive():
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/state.json", timeout=2) as r:
+                states.append(json.loads(r.read()))
+        except OSError:
+            pass
+        time.sleep(0.1)
+    worker.join()  # (with diagnostics: the page gives the held-out figure)
+    out, err = capsys.readouterr()
+    assert result["code"] == 0, err
     assert "page: http://127.0.0.1:" in out and "target reached" in out
+    # while the result lingers the page says it: the verdict, the held-out figure and the file
+    final = [s for s in states if s["status"].startswith("calibrated from 4 frames")]
+    assert final and final[-1]["done"] and "held-out views" in final[-1]["status"], states[-1:]
+    assert str(tmp_path / "calib.json") in final[-1]["status"] and len(final[-1]["kept"]) == 4
 
 
 def test_source_kinds():
