@@ -216,12 +216,14 @@ def _calibrated(output: str, frames: int) -> str:
 
 
 def _linger(page, seconds: float) -> None:
-    """The page kept up ``seconds`` after the calibration, so that its result can be read there (Ctrl-C ends it: the
-    files are written)."""
+    """The page kept up ``seconds`` after the calibration, so that its result can be read there (the page's close
+    button or Ctrl-C end it: the files are written)."""
     if seconds <= 0:
         return
-    print(f"the result stays on {page.url} for {seconds:g} s (Ctrl-C to end now)", flush=True)
+    print(f"the result stays on {page.url} for {seconds:g} s (its close button or Ctrl-C end it now)", flush=True)
+    end = time.monotonic() + seconds
     try:
-        time.sleep(seconds)
+        while time.monotonic() < end and "close" not in page.take_actions():
+            time.sleep(0.1)
     except KeyboardInterrupt:
         pass

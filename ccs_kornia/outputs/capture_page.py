@@ -1,10 +1,10 @@
 """``capture``'s local page: the live image with the board, the coverage so far, the predicted uncertainty map with the
 figure that decides and the target, the suggested pose's outline and instruction, the kept frames with why, and the
-keep / undo / calibrate-now buttons (keys k, u, c).
+keep / undo / calibrate-now / close buttons (keys k, u, c, q).
 
 Served by the standard library (:class:`http.server.ThreadingHTTPServer` on a daemon thread): ``/`` the page (no
 script or style from elsewhere: it works without internet), ``/stream.mjpg`` the annotated frames as an MJPEG stream,
-``/state.json`` the figures and the kept frames, ``POST /keep``, ``/undo``, ``/calibrate`` the buttons. It listens on
+``/state.json`` the figures and the kept frames, ``POST /keep``, ``/undo``, ``/calibrate``, ``/close`` the buttons. It listens on
 the loopback interface unless another host is given.
 """
 
@@ -38,12 +38,12 @@ li{font-size:13px;margin:2px 0}
 <div id="status"></div>
 <div class="next">next: <span id="next">-</span></div>
 <button onclick="act('keep')">keep (k)</button><button onclick="act('undo')">undo (u)</button>
-<button onclick="act('calibrate')">calibrate now (c)</button>
+<button onclick="act('calibrate')">calibrate now (c)</button><button onclick="act('close')">close (q)</button>
 <h4>kept frames: <span id="count">0</span></h4><ol id="kept"></ol>
 </div>
 <script>
 function act(what){fetch('/'+what,{method:'POST'});}
-document.addEventListener('keydown',e=>{const k={k:'keep',u:'undo',c:'calibrate'}[e.key];if(k)act(k);});
+document.addEventListener('keydown',e=>{const k={k:'keep',u:'undo',c:'calibrate',q:'close'}[e.key];if(k)act(k);});
 async function poll(){
  try{const s=await (await fetch('/state.json')).json();
   document.getElementById('figure').textContent=s.worst_px===null?'-':s.worst_px.toFixed(3);
@@ -156,7 +156,7 @@ class CapturePage:
 
             def do_POST(self) -> None:
                 name = self.path.strip("/")
-                if name not in ("keep", "undo", "calibrate"):
+                if name not in ("keep", "undo", "calibrate", "close"):
                     self.send_error(404)
                     return
                 with page._lock:

@@ -45,9 +45,9 @@ def test_the_page_serves_the_stream_state_and_buttons(page):
         assert r.headers["Content-Type"].startswith("multipart/x-mixed-replace")
         head = r.read(200)
     assert b"--frame" in head and b"image/jpeg" in head
-    for name in ("keep", "undo", "calibrate"):
+    for name in ("keep", "undo", "calibrate", "close"):
         urllib.request.urlopen(urllib.request.Request(page.url + name, data=b"", method="POST"), timeout=5).read()
-    assert page.take_actions() == ["keep", "undo", "calibrate"] and page.take_actions() == []
+    assert page.take_actions() == ["keep", "undo", "calibrate", "close"] and page.take_actions() == []
 
 
 def test_a_port_in_use_is_one_line():
