@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, PINHOLE, camera_model
 from ccs_kornia.outputs.report.calibration import DISPLAY_MAX_SIDE, write_report
@@ -21,9 +22,11 @@ K = [[300.0, 0.0, 161.0], [0.0, 298.0, 119.0], [0.0, 0.0, 1.0]]
 DIST = [-0.1, 0.01, 0.0, 0.0, 0.0]
 
 
-def _calibration(tmp_path, size=(320, 240), views=5, unreadable=False, model="opencv5", coeffs=DIST):
-    """A calibration dict as ``calibrate`` writes it, from projected corners (no detection needed)."""
-    obj = board_object_points(*BOARD, 0.03, dtype=torch.float64)
+def _calibration(tmp_path, size=(320, 240), views=5, unreadable=False, model="opencv5", coeffs=DIST, warp=None):
+    """A calibration dict as ``calibrate`` writes it, from projected corners (no detection needed); ``warp``: the
+    board bent by mrcal's sag (m)."""
+    obj = warped_board(board_object_points(*BOARD, 0.03, dtype=torch.float64),
+                       None if warp is None else torch.tensor(warp, dtype=torch.float64))
     g = torch.Generator().manual_seed(3)
     scale = size[0] / 320
     Kt = torch.tensor(K, dtype=torch.float64) * torch.tensor([[scale], [scale], [1.0]], dtype=torch.float64)
@@ -71,6 +74,27 @@ def test_files_and_html(tmp_path):
     # every image the page refers to exists
     for ref in re.findall(r"(?:src|href)='([^']+)'", text):
         assert (report / ref).is_file(), ref
+
+
+def test_a_bent_board_and_the_residual_structure(tmp_path):
+    data = _calibration(tmp_path, views=8, warp=(0.002, -0.001))
+    data["board_flatness"] = {"kept": True, "warp_m": [0.002, -0.001], "std_m": [1e-4, 2e-4],
+                              "heldout_median_px": {"flat": 0.41, "warp": 0.07}}
+    data["residual_structure"] = {"message": "the residuals are noise", "rms_cell_means_px": 0.01, "cells": 6,
+                                  "cells_significant": 0}
+    write_report(str(tmp_path), data, progress=False)
+    text = (tmp_path / "index.html").read_text()
+    assert "board bend (mrcal's sag c_x, c_y): +2.000 &plusmn; 0.100, -1.000 &plusmn; 0.200 mm: kept" in text
+    assert "residuals: the residuals are noise" in text and "+2.000 +- 0.100" in (tmp_path / "summary.md").read_text()
+    # the views are reprojected through the bent board: its cell means are noise (a flat board leaves mm of sag)
+    judged = re.search(r"; (\d+) of (\d+) cells judged", text)
+    assert judged and int(judged.group(2)) >= 3 and int(judged.group(1)) <= 1, judged
+    figure = cv2.imread(str(tmp_path / "residual_structure.png"))
+    assert figure is not None and figure.std() > 10
+    data["board_flatness"]["kept"] = False
+    write_report(str(tmp_path), data, progress=False)
+    judged = re.search(r"; (\d+) of (\d+) cells judged", (tmp_path / "index.html").read_text())
+    assert int(judged.group(1)) >= 2  # the same views against the flat board: the sag shows in cells
 
 
 def test_figures_are_readable_images(tmp_path):

@@ -36,10 +36,12 @@ import numpy as np
 import torch
 
 from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.io.files import text_path
 from ccs_kornia.io.images import load_image_gray
 from ccs_kornia.io.video import VideoReader, split_frame_name
+from ccs_kornia.modules.calibration.quality.residual_structure import residual_structure
 from ccs_kornia.outputs.calibration_file import camera_from_record
 from ccs_kornia.outputs.report.drawing import (
     format_number,
@@ -57,6 +59,7 @@ from ccs_kornia.outputs.report.figures import (
 )
 from ccs_kornia.outputs.report.quality import (
     distortion_field_plot,
+    grid_map_plot,
     quality_html,
     quality_markdown,
     uncertainty_plot,
@@ -166,6 +169,9 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     cols, rows = (int(v) for v in data["board"])
     size = camera.image_size
     obj = board_object_points(cols, rows, float(data["square"]), dtype=torch.float64)
+    flatness = data.get("board_flatness") or {}
+    if flatness.get("kept") and flatness.get("warp_m") is not None:  # the views were fitted to the bent board
+        obj = warped_board(obj, torch.tensor(flatness["warp_m"], dtype=torch.float64))
     views = data["views"]
     _remove_previous(directory)
     views_dir = os.path.join(directory, "views")
@@ -231,6 +237,16 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
             figures.append(("residuals.png", "Residual vectors",
                             "Each arrow starts at a detected corner and points to its reprojection, magnified. "
                             "Random directions are noise; a pattern (e.g. radial at the borders) is model error."))
+    if residuals:
+        structure = _structure_plot(size, detected_used, residuals)
+        if structure is not None and write_png(os.path.join(directory, "residual_structure.png"), structure[0],
+                                               written):
+            figures.append(("residual_structure.png", "Residual structure",
+                            f"The mean residual of each image cell (px) over the used views; {structure[1]} of "
+                            f"{structure[2]} cells judged (outlined) have a mean beyond what the corners' noise explains (99 %), "
+                            "grey cells too few corners to judge. Noise alone leaves small, scattered cell means; a "
+                            "pattern (larger towards the edges, one side) is what the model or a flat board did not "
+                            "explain."))
     coverage = None
     if detected_used:
         fig, coverage = coverage_plot(size, detected_used, (cols, rows))
@@ -270,6 +286,33 @@ def write_report(directory: str, data: dict[str, Any], progress: bool | None = N
     return written
 
 
+def _structure_plot(size: tuple[int, int], detected: list[np.ndarray], residuals: list[np.ndarray]):
+    """The residual structure figure (:func:`residual_structure`'s cell means as a map), the cells beyond their noise
+    and the cells judged; ``None`` where the views do not share one board size."""
+    if len({d.shape for d in detected}) != 1:
+        return None
+    corners = torch.from_numpy(np.stack(detected))[None]
+    res = torch.from_numpy(np.stack(residuals))[None]
+    s = residual_structure(res, corners, corners.isfinite().all(-1) & res.isfinite().all(-1), size)
+    length = s.cell_means[0].norm(dim=-1)
+    fig = grid_map_plot(size, length.tolist(), "Mean residual per image cell (px); outlined: beyond the noise",
+                        "cell mean (px)", cells=True, marked=s.cell_significant[0].tolist())
+    return fig, int(s.significant[0]), int(s.cells[0])
+
+
+def _flatness_line(flatness: dict[str, Any]) -> str | None:
+    """The report's line on the board's bend (``board_flatness`` of the JSON), or None where it was not judged."""
+    if not flatness or flatness.get("warp_m") is None:
+        return None
+    warp = [1000 * float(v) for v in flatness["warp_m"]]
+    std = [1000 * float(v) for v in flatness.get("std_m") or (float("nan"), float("nan"))]
+    held = flatness.get("heldout_median_px") or {}
+    judged = (f" (held-out median {format_number(held.get('flat'))} px flat, {format_number(held.get('warp'))} px "
+              "bent)") if held else ""
+    return (f"board bend (mrcal's sag c_x, c_y): {warp[0]:+.3f} &plusmn; {std[0]:.3f}, {warp[1]:+.3f} &plusmn; "
+            f"{std[1]:.3f} mm: {'kept' if flatness.get('kept') else 'not kept, the board taken as flat'}{judged}")
+
+
 def _write_html(path: str, data: dict[str, Any], camera: Camera, figures: list[tuple[str, str, str]],
                 overlays: dict[int, str], gain: float, coverage: float | None) -> str:
     esc = html.escape
@@ -293,6 +336,14 @@ def _write_html(path: str, data: dict[str, Any], camera: Camera, figures: list[t
     ]
     if coverage is not None:
         parts.append(f"<li>image coverage: {100 * coverage:.0f}% of the cells hold a detected corner</li>")
+    bend = _flatness_line(data.get("board_flatness") or {})
+    if bend:
+        parts.append(f"<li>{bend}</li>")
+    structure = data.get("residual_structure") or {}
+    if structure.get("message"):
+        parts.append(f"<li>residuals: {esc(structure['message'])} (RMS of the cell means "
+                     f"{format_number(structure.get('rms_cell_means_px'))} px, {structure.get('cells_significant')} "
+                     f"of {structure.get('cells')} cells beyond the noise)</li>")
     parts += ["</ul>", *quality_html(data.get("diagnostics")), "<h2>Parameters</h2>", "<table><tr><th>parameter</th><th>value</th><th>std (1 sigma)</th></tr>"]
     for name, value, std in _parameter_rows(data, camera):
         digits = 3 if name in ("fx", "fy", "cx", "cy") else 6
@@ -330,6 +381,8 @@ def _write_markdown(path: str, data: dict[str, Any], camera: Camera, gain: float
         f"- detector: {data.get('detector', '?')}, model: {data['distortion']['model']}",
         f"- views: {data.get('num_views', {})}",
         f"- RMS reprojection error: {format_number(data['rms'])} px ({data.get('rms_kind', '')})",
+        *([f"- {_flatness_line(data['board_flatness']).replace('&plusmn;', '+-')}"]
+          if _flatness_line(data.get("board_flatness") or {}) else []),
         "",
         "| parameter | value | std |",
         "|---|---|---|",

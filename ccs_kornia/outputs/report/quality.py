@@ -13,6 +13,7 @@ import torch
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.outputs.report.drawing import (
     BLACK,
+    WHITE,
     draw_colour_bar,
     draw_plot_frame,
     draw_text,
@@ -117,9 +118,11 @@ def uncertainty_plot(size: tuple[int, int], grid_px: list[list[float | None]]) -
 
 
 def grid_map_plot(size: tuple[int, int], grid_px: list[list[float | None]], title: str, label: str,
-                  vmax: float | None = None) -> np.ndarray:
+                  vmax: float | None = None, cells: bool = False, marked=None) -> np.ndarray:
     """A figure (px) over a grid of the image (``down`` rows of ``across`` values, None or NaN where there is none) as a
-    colour map up to ``vmax`` (default its 95th percentile); grey where there is no value."""
+    colour map up to ``vmax`` (default its 95th percentile); grey where there is no value. ``cells``: each value
+    drawn as its cell (a coarse grid of cell figures), not interpolated; ``marked``: a bool grid of the same shape,
+    those cells outlined in white."""
     fig, box, _ = _field_canvas(size, title)
     x0, y0, w, h = box
     values = np.array([[np.nan if v is None else v for v in row] for row in grid_px], np.float64)
@@ -130,7 +133,13 @@ def grid_map_plot(size: tuple[int, int], grid_px: list[list[float | None]], titl
     colour = cv2.applyColorMap(np.clip(np.nan_to_num(values) / vmax * 255, 0, 255).astype(np.uint8),
                                cv2.COLORMAP_VIRIDIS)
     colour[~finite] = (200, 200, 200)
-    fig[y0:y0 + h, x0:x0 + w] = cv2.resize(colour, (w, h), interpolation=cv2.INTER_LINEAR)
+    fig[y0:y0 + h, x0:x0 + w] = cv2.resize(colour, (w, h),
+                                           interpolation=cv2.INTER_NEAREST if cells else cv2.INTER_LINEAR)
+    if marked is not None:
+        down, across = values.shape
+        for r, c in zip(*np.nonzero(np.asarray(marked, bool))):
+            cv2.rectangle(fig, (x0 + round(c * w / across) + 2, y0 + round(r * h / down) + 2),
+                          (x0 + round((c + 1) * w / across) - 3, y0 + round((r + 1) * h / down) - 3), WHITE, 2)
     draw_plot_frame(fig, box, (0.0, float(size[0])), (0.0, float(size[1])), "x (px)", "y (px)", y_down=True, grid=False)
     draw_colour_bar(fig, (x0 + w + 20, y0, 18, h), vmax, label)
     return fig

@@ -93,6 +93,10 @@ class ResidualStructure:
     #: (C,) px, the corners' noise measured on the board (module docstring; NaN without four corners in a row)
     noise: torch.Tensor | None = None
     median: torch.Tensor | None = None  #: (C,) px, the median residual length
+    #: (C, rows, columns, 2) px, each cell's mean residual (NaN where too few corners to judge)
+    cell_means: torch.Tensor | None = None
+    #: (C, rows, columns) bool, the cells whose mean is beyond their standard error
+    cell_significant: torch.Tensor | None = None
 
     @property
     def noise_ratio(self) -> torch.Tensor | None:
@@ -199,7 +203,10 @@ def residual_structure(residuals: torch.Tensor, corners: torch.Tensor, mask: tor
         d3 = (r64[..., a, :] - 3 * r64[..., b, :] + 3 * r64[..., c, :] - r64[..., d, :]).norm(dim=-1)
         d3 = d3.masked_fill(~every, float("nan")).reshape(C, -1)
         noise = d3.nanmedian(-1).values / 20**0.5 if d3.shape[-1] else torch.full_like(rms, float("nan"))
-    return ResidualStructure(cells, rms_means, significant, worst, rms, (gx, gy), noise, median)
+    cell_means = mean.masked_fill(~enough[..., None], float("nan")).reshape(C, gy, gx, 2)
+    cell_significant = (enough & (chi2 > CHI2_2DOF_99)).reshape(C, gy, gx)
+    return ResidualStructure(cells, rms_means, significant, worst, rms, (gx, gy), noise, median, cell_means,
+                             cell_significant)
 
 
 def model_fit(structure: ResidualStructure, noise_px: torch.Tensor | float | None = None, noise_factor: float = 10.0,
