@@ -472,7 +472,8 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=_EXIT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("sources", nargs="+", metavar="SOURCE",
                    help="a camera index (0), a device (/dev/video0), a stream URL (rtsp://, http://) or a video file "
-                        "(played at its own rate)")
+                        "(played at its own rate); several make a rig (--output rig.json, calibrated as calibrate-rig "
+                        "would)")
     common(p, files=False)
     calibrate_options(p)
     g = p.add_argument_group("capture")

@@ -6,7 +6,6 @@ as it changes, and once the target is reached (or the stream ends, or Ctrl-C) th
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import tempfile
@@ -14,13 +13,18 @@ import time
 
 import cv2
 import numpy as np
-import torch
 
-from ccs_kornia.commands._factories import make_detector_from
+from ccs_kornia.commands._capture_rig import run_rig
+from ccs_kornia.commands._live_capture import (
+    board_fill,
+    frame_name,
+    linger,
+    live_detector,
+    live_model,
+    result_line,
+)
 from ccs_kornia.commands._one_camera import calibrate_camera
 from ccs_kornia.commands._output_paths import check_outputs
-from ccs_kornia.geometry.models.base import CameraModel
-from ccs_kornia.geometry.models.factory import K1K2
 from ccs_kornia.io.live import open_live
 from ccs_kornia.modules.detection.boards import grid_object_points
 from ccs_kornia.modules.detection.screening import BoardScreen
@@ -48,36 +52,6 @@ def frames_dir(args: argparse.Namespace) -> str:
     return f"{stem}_frames"
 
 
-def _detector(args: argparse.Namespace):
-    """Grey ``uint8`` frame -> corners :math:`(N, 2)` (NaN where not seen) or ``None``: the command's detector."""
-    detector = make_detector_from(args)
-    board_size = tuple(args.board)
-
-    def detect(gray8: np.ndarray) -> np.ndarray | None:
-        image = torch.from_numpy(gray8).float().div_(255.0)[None, None]
-        with torch.inference_mode():
-            found = detector(image, board_size)
-        if not bool(found.found[0]):
-            return None
-        return found.corners[0].double().numpy()
-
-    return detect
-
-
-def _live_model(args: argparse.Namespace):
-    """The model solved while capturing: the one asked for, or k1k2 where the full pipeline will choose
-    (``--model auto``)."""
-    return args.model if isinstance(args.model, CameraModel) else K1K2
-
-
-def _fill(outline: np.ndarray, width: int) -> float:
-    return float(np.ptp(outline[:, 0])) / max(1, width)
-
-
-def _frame_name(index: int) -> str:
-    return f"frame_{index:06d}.png"
-
-
 def _capture_loop(args: argparse.Namespace, source, page, obj, board, staging: str):
     """Frames until done, the end of the stream, Ctrl-C or "calibrate now": the :class:`GuidedCapture` and why it
     stopped."""
@@ -90,8 +64,8 @@ def _capture_loop(args: argparse.Namespace, source, page, obj, board, staging: s
             for frame in source:
                 if capture is None:
                     h, w = frame.image.shape
-                    capture = GuidedCapture(tuple(args.board), obj, (w, h), _detector(args),
-                                            live_model=_live_model(args), screen=BoardScreen(tuple(args.board), board),
+                    capture = GuidedCapture(tuple(args.board), obj, (w, h), live_detector(args),
+                                            live_model=live_model(args), screen=BoardScreen(tuple(args.board), board),
                                             target=args.target, max_frames=args.max_frames)
                 actions = page.take_actions() if page is not None else []
                 if "calibrate" in actions:
@@ -100,8 +74,8 @@ def _capture_loop(args: argparse.Namespace, source, page, obj, board, staging: s
                 for _ in range(actions.count("undo")):
                     gone = capture.undo()
                     if gone is not None:
-                        os.unlink(os.path.join(staging, _frame_name(gone.index)))
-                        print(f"undone {_frame_name(gone.index)}", flush=True)
+                        os.unlink(os.path.join(staging, frame_name(gone.index)))
+                        print(f"undone {frame_name(gone.index)}", flush=True)
                         shown.clear()
                 if "keep" in actions:
                     decision = capture.keep_now(frame.image, frame.index, frame.timestamp)
@@ -109,14 +83,14 @@ def _capture_loop(args: argparse.Namespace, source, page, obj, board, staging: s
                     decision = capture.offer(frame.image, frame.index, frame.timestamp)
                 if decision.kept:
                     kept = capture.kept[-1]
-                    name = _frame_name(frame.index)
+                    name = frame_name(frame.index)
                     cv2.imwrite(os.path.join(staging, name), frame.image)
                     figure = "" if not np.isfinite(decision.worst_px) else \
                         f"; predicted worst 1-sigma {decision.worst_px:.3f} px (target {args.target:g})"
                     print(f"kept {name} at {frame.timestamp:.2f} s: {kept.why}{figure}", flush=True)
                     shown.clear()
                 if not shown and capture.kept:  # what changes only with the kept frames
-                    best = capture.suggestion(_fill(capture.kept[-1].outline, capture.image_size[0]))
+                    best = capture.suggestion(board_fill(capture.kept[-1].outline, capture.image_size[0]))
                     shown = {"suggestion": best, "map": capture.uncertainty_map()}
                     if best.instruction and best.instruction != said and not capture.done:
                         print(f"next: {best.instruction}", flush=True)
@@ -139,19 +113,18 @@ def _show(page, image: np.ndarray, capture: GuidedCapture, decision, shown: dict
                        shown.get("map"), target, worst))
     page.set_state(worst_px=worst, target_px=target, instruction="" if best is None else best.instruction,
                    status=("target reached" if decision.done else decision.reason), done=decision.done,
-                   kept=[{"name": _frame_name(k.index), "why": k.why} for k in capture.kept])
+                   kept=[{"name": frame_name(k.index), "why": k.why} for k in capture.kept])
 
 
 def run(args: argparse.Namespace) -> int:
-    if len(args.sources) != 1:
-        raise UserError("capture calibrates one camera: give one SOURCE (a rig's cameras: record each and use "
-                        "calibrate-rig on the recordings)")
     folder = frames_dir(args)
     check_outputs(files=[("--output", args.output), ("--opencv-yaml", args.opencv_yaml), ("--ros-yaml", args.ros_yaml)],
                   dirs=[("--report", args.report), ("--frames-dir", folder)])
     if os.path.isdir(folder) and os.listdir(folder):
         raise UserError(f"--frames-dir {folder} is not empty: the kept frames must be alone there (so that calibrate "
                         f"{folder} gives the same camera)")
+    if len(args.sources) > 1:
+        return run_rig(args, folder)
     page = None if args.no_page else CapturePage(args.host, args.port)
     try:
         source = open_live(args.sources[0], realtime=not args.fast)
@@ -189,8 +162,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote the {len(kept_frames)} kept frames to {folder} (calibrate {folder} gives the same camera); "
               f"calibration {time.perf_counter() - start:.1f} s")
         if page is not None:
-            page.set_state(status=_calibrated(args.output, len(kept_frames)), done=True)
-            _linger(page, args.page_linger)
+            page.set_state(status=result_line(args.output, len(kept_frames)), done=True)
+            linger(page, args.page_linger)
         return code
     finally:
         if staging is not None:
@@ -199,31 +172,3 @@ def run(args: argparse.Namespace) -> int:
             page.close()
 
 
-def _calibrated(output: str, frames: int) -> str:
-    """The page's last line: the verdict and the held-out figure the calibration wrote, and where."""
-    try:
-        with open(output, encoding="utf-8") as handle:
-            record = json.load(handle)
-    except (OSError, ValueError):
-        record = {}
-    diagnostics = record.get("diagnostics") or {}
-    held, rms = diagnostics.get("heldout_rms_px"), record.get("rms")
-    if isinstance(held, (int, float)):
-        said = f"{diagnostics.get('verdict', '')}, held-out views {held:.3f} px"
-    else:  # --no-diagnostics: no held-out figure
-        said = f"RMS {rms:.3f} px" if isinstance(rms, (int, float)) else "no figure"
-    return f"calibrated from {frames} frames: {said}; wrote {output}"
-
-
-def _linger(page, seconds: float) -> None:
-    """The page kept up ``seconds`` after the calibration, so that its result can be read there (the page's close
-    button or Ctrl-C end it: the files are written)."""
-    if seconds <= 0:
-        return
-    print(f"the result stays on {page.url} for {seconds:g} s (its close button or Ctrl-C end it now)", flush=True)
-    end = time.monotonic() + seconds
-    try:
-        while time.monotonic() < end and "close" not in page.take_actions():
-            time.sleep(0.1)
-    except KeyboardInterrupt:
-        pass

@@ -31,6 +31,7 @@ _EXPORTS = {
     "VideoSource": "ccs_kornia.pipeline.sources",
     "RigPipeline": "ccs_kornia.pipeline.rig_pipeline",
     "GuidedCapture": "ccs_kornia.pipeline.guided_capture",
+    "RigCapture": "ccs_kornia.pipeline.rig_capture",
 }
 
 __all__ = sorted(_EXPORTS)

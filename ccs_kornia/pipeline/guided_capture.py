@@ -215,15 +215,16 @@ class GuidedCapture:
         self._update(corners)
         return CaptureDecision(True, why, seen, self.worst_px, self.done)
 
-    def keep_now(self, gray8: np.ndarray, index: int, timestamp: float) -> CaptureDecision:
-        """Keep this frame whatever the gates say (a person's choice), where the board and its corners are found."""
+    def keep_now(self, gray8: np.ndarray, index: int, timestamp: float, why: str = "kept by hand") -> CaptureDecision:
+        """Keep this frame whatever the gates say (a person's choice, or a rig's view in common), where the board and
+        its corners are found."""
         seen = self.screen(gray8)
         corners = self.detect(gray8) if seen.found else None
         if corners is None or np.isfinite(corners).all(-1).sum() < 4:
             return CaptureDecision(False, "corners not found", seen, self.worst_px, self.done)
-        self.kept.append(KeptFrame(index, timestamp, corners, seen.outline.copy(), "kept by hand"))
+        self.kept.append(KeptFrame(index, timestamp, corners, seen.outline.copy(), why))
         self._update(corners)
-        return CaptureDecision(True, "kept by hand", seen, self.worst_px, self.done)
+        return CaptureDecision(True, why, seen, self.worst_px, self.done)
 
     def uncertainty_map(self, grid: tuple[int, int] = (16, 12)) -> np.ndarray | None:
         """The predicted worst-direction 1-sigma projection uncertainty :math:`(down, across)` px over the image

@@ -67,12 +67,31 @@ def test_bad_sources_are_one_line_and_write_nothing(tmp_path, capsys):
     blank = write_video(str(tmp_path / "blank.avi"), np.full((12, 240, 320), 128, np.uint8))
     cases = [(["capture", tmp_path / "none.avi"], 2, "no such file"),
              (["capture", blank], 3, "the board was never seen"),
-             (["capture", blank, blank], 2, "one SOURCE")]
+             (["capture", blank, blank], 3, "the board was never held still")]
     for argv, status, words in cases:
         code, _, err = run(capsys, *argv, *FAST, "--no-page", "--fast", "--output", tmp_path / "calib.json")
         lines = [line for line in err.splitlines() if "error" in line]
         assert code == status and len(lines) == 1 and words in lines[0], err
     assert sorted(os.listdir(tmp_path)) == ["blank.avi"]
+
+
+def test_capture_of_a_rig_keeps_instants_and_calibrate_rig_reproduces_it(tmp_path, capsys):
+    """Two cameras 3 cm apart before one board held still at 12 poses."""
+    left = write_video(str(tmp_path / "left.avi"), np.repeat(board_frames(24, seed=3)[::2], 3, axis=0))
+    right = write_video(str(tmp_path / "right.avi"),
+                        np.repeat(board_frames(24, seed=3, shift=(-0.03, 0.0, 0.0))[::2], 3, axis=0))
+    code, out, err = run(capsys, "capture", left, right, *FAST, "--no-page", "--fast", "--output", tmp_path / "rig.json",
+                         "--target", "5")
+    assert code == 0, err
+    assert "cameras 0 and 1 need views in common" in out and "target reached: 5 instants kept" in out
+    cams = [tmp_path / "rig_frames" / f"cam{c}" for c in range(2)]
+    assert sorted(os.listdir(cams[0])) == sorted(os.listdir(cams[1])) and len(os.listdir(cams[0])) == 5
+    rig = json.loads((tmp_path / "rig.json").read_text())
+    assert abs(rig["extrinsics"][1]["T"][0] + 0.03) < 1e-3
+    code, _, err = run(capsys, "calibrate-rig", *cams, *FAST[:-1], "--output", tmp_path / "again.json")
+    assert code == 0, err
+    again = json.loads((tmp_path / "again.json").read_text())
+    assert again["extrinsics"] == rig["extrinsics"] and again["rms"] == rig["rms"]
 
 
 def test_a_non_empty_frames_dir_is_refused(held_video, tmp_path, capsys):
