@@ -8,8 +8,11 @@ covariance of the parameters :math:`\sigma^2 H^{-1}`. A board held at a new pose
 (:mod:`~ccs_kornia.modules.calibration.quality.uncertainty`, the camera rotation fitted out as mrcal does), is known
 before it is shown. :func:`candidate_poses` lays out the poses a hand-held board reaches (its centre over a grid of
 the image, a few distances, tilted about both axes, every corner inside the image), :func:`worst_uncertainty` is the
-figure that decides (the worst 1-sigma projection uncertainty over the image, px), and :func:`next_poses` ranks the
-candidates by it. :func:`pose_instruction` says the best in one line ("top left, closer, top edge tilted about 30
+figure that decides when a capture is done (the worst 1-sigma projection uncertainty over the image, px), and
+:func:`next_poses` ranks the candidates by the fourth-power mean of the 1-sigma over the image (:data:`RANK_POWER`):
+between the RMS (the error to expect over the whole image) and the worst, it weighs the worst pixels most without
+chasing the one pixel that is worst now; ranked by the worst, the guided person needed more frames on normal lenses,
+by the RMS more on wide ones (docs/capture.md). :func:`pose_instruction` says the best in one line ("top left, closer, top edge tilted about 30
 degrees away"); :class:`NextBestPose` is the module form. Nothing here needs an image or a page: a camera and its
 information in, ranked poses out.
 
@@ -48,6 +51,7 @@ __all__ = [
     "DISTANCES",
     "MAX_TILT_DEG",
     "POSITIONS",
+    "RANK_POWER",
     "TILTS_DEG",
     "CandidatePoses",
     "NextBestPose",
@@ -72,6 +76,8 @@ MAX_TILT_DEG = 50.0
 #: the information every parameter starts from, as a fraction of an average candidate's: keeps the first choices
 #: defined while no view is taken
 PRIOR = 1e-2
+#: the power mean of the 1-sigma over the image that ranks the candidate poses (2: the RMS; large: the worst)
+RANK_POWER = 4
 
 
 @dataclass
@@ -324,14 +330,17 @@ class PoseSuggestion:
     Attributes:
         poses: :class:`CandidatePoses`, best first.
         worst_px: :math:`(K,)` the worst 1-sigma projection uncertainty over the image (px) after each.
-        current_px: the figure now, before any of them.
+        current_px: the worst now, before any of them.
         instruction: the best pose in words (:func:`pose_instruction`).
+        score_px: :math:`(K,)` the fourth-power mean of the 1-sigma over the image (px) after each: what ranks
+            them (:data:`RANK_POWER`).
     """
 
     poses: CandidatePoses
     worst_px: torch.Tensor
     current_px: float
     instruction: str
+    score_px: torch.Tensor | None = None
 
     @property
     def tilt_deg(self) -> torch.Tensor:
@@ -391,8 +400,9 @@ def next_poses(
     grid: tuple[int, int] = (16, 12),
     top: int | None = None,
 ) -> PoseSuggestion:
-    r"""Rank the poses a hand-held board reaches by the worst 1-sigma projection uncertainty over the image the
-    calibration would have after a view there.
+    r"""Rank the poses a hand-held board reaches by the 1-sigma projection uncertainty over the image the calibration
+    would have after a view there: its :data:`RANK_POWER`-th power mean over the grid (the module docstring says why
+    neither the worst nor the RMS).
 
     Args:
         camera: one camera with its image size (the current calibration's, or a guess before there is one).
@@ -403,7 +413,7 @@ def next_poses(
         board_size: ``(cols, rows)`` inner corners (the outline).
         candidates: the poses to rank (default: :func:`candidate_poses`).
         current_fill: the fraction of the image width the board spans now (the instruction's "closer"/"farther").
-        grid: ``(across, down)`` pixels over which the worst is taken.
+        grid: ``(across, down)`` pixels over which the mean and the worst are taken.
         top: keep only the best ``top``.
 
     Returns:
@@ -419,14 +429,18 @@ def next_poses(
                          torch.ones(1, len(poses), obj.shape[0], dtype=torch.float64, device=camera.device))[0]
     typical = M.mean(0) if len(poses) else info
     current = float(worst_uncertainty(camera, info, sigma, grid, typical))
-    worst = worst_uncertainty(camera, info + M, sigma, grid, typical) if len(poses) else M.new_zeros(0)
-    order = torch.argsort(worst)
+    if len(poses):
+        after = uncertainty_map(camera, info + M, sigma, grid, typical).flatten(-2).nan_to_num(0.0)
+        worst, score = after.amax(-1), after.pow(RANK_POWER).mean(-1).pow(1.0 / RANK_POWER)
+    else:
+        worst = score = M.new_zeros(0)
+    order = torch.argsort(score)
     if top is not None:
         order = order[:top]
     ranked = poses.take(order)
     words = (pose_instruction(ranked.position[0], float(ranked.fill[0]), ranked.tilt_deg[0], current_fill)
              if len(ranked) else "")
-    return PoseSuggestion(ranked, worst[order], current, words)
+    return PoseSuggestion(ranked, worst[order], current, words, score[order])
 
 
 class NextBestPose(nn.Module):

@@ -83,18 +83,20 @@ def test_ranked_by_the_uncertainty_each_leaves():
     H = _information(cam, rvec, tvec).sum(0)
     s = next_poses(cam, H, OBJ, sigma=0.2, board_size=(9, 6))
     assert len(s.poses) > 50
-    assert bool((s.worst_px[1:] >= s.worst_px[:-1]).all())  # best first
-    assert float(s.worst_px[0]) < s.current_px
+    assert bool((s.score_px[1:] >= s.score_px[:-1]).all())  # best first, by the 4th-power mean over the image
+    assert float(s.worst_px[0]) < s.current_px and bool((s.score_px <= s.worst_px).all())
     # each rank is what adding that view's information gives
     M = _information(cam, s.poses.rvec[:3], s.poses.tvec[:3])
     every = candidate_poses(cam, OBJ, (9, 6))
     typical = _information(cam, every.rvec, every.tvec).mean(0)
     direct = worst_uncertainty(cam, H + M, 0.2, typical=typical)
     torch.testing.assert_close(direct, s.worst_px[:3])
+    after = uncertainty_map(cam, H + M, 0.2, typical=typical).flatten(-2)
+    torch.testing.assert_close(after.pow(4).mean(-1).pow(0.25), s.score_px[:3])
     # a second flat view at the centre is a poor suggestion: the best is tilted, and far better than it
     flat = (s.poses.tilt_deg.norm(dim=-1) == 0) & ((s.poses.position - 0.5).norm(dim=-1) < 0.01)
     assert float(s.poses.tilt_deg[0].norm()) > 0
-    assert float(s.worst_px[flat].min()) > 1.5 * float(s.worst_px[0])
+    assert float(s.score_px[flat].min()) > 1.5 * float(s.score_px[0])
     assert s.instruction == pose_instruction(s.poses.position[0], float(s.poses.fill[0]), s.poses.tilt_deg[0])
 
 
