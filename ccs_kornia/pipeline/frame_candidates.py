@@ -10,9 +10,10 @@ frames a second. :func:`choose_frames` keeps a bounded set:
    :data:`MIN_STILL` still frames remain (then the stillest moving ones are admitted), or unless the still frames do
    not cover the poses: where the board planes of a camera's still frames (:func:`outline_normals`, from each
    outline's vanishing line) lie within :data:`MIN_TILT_SPREAD` of each other, its moving frames that move at most
-   ``max_moving`` are admitted where they spread the planes wider (a board that never stops in the poses that matter
-   still calibrates the camera): the choice below weighs each frame by its stillness, so of two poses alike the
-   stiller comes first, and the corners' own precision weighs the blur that is left in the solve;
+   ``max_moving`` are admitted where they spread the planes wider, by a quarter of that angle at least (a board that
+   never stops in the poses that matter still calibrates the camera): the choice below weighs each frame by its
+   stillness, so of two poses alike the stiller comes first, and the corners' own precision weighs the blur that is
+   left in the solve;
 2. **new and spread out**: the frames are taken greedily, each time the one farthest (in outline distance,
    :func:`outline_distance`, as a fraction of the board's size in the image: the smaller outline's RMS distance of
    its corners from their centre) from those taken already, weighted by its stillness and, for a rig, by the cameras
@@ -289,7 +290,9 @@ def choose_frames(
         if still_spread[k] >= MIN_TILT_SPREAD:
             continue
         moving = np.setdiff1d(pool[seen[k, pool] & (worst[pool] > max_motion) & (worst[pool] <= fastest[k])], still)
-        if plane_spread(normals[k][np.concatenate([still[seen[k, still]], moving])]) > still_spread[k]:
+        # (by more than the rough outlines' error: a quarter of the spread wanted)
+        if plane_spread(normals[k][np.concatenate([still[seen[k, still]], moving])]) > \
+                still_spread[k] + MIN_TILT_SPREAD / 4:
             still = np.concatenate([still, moving])
     for i in np.setdiff1d(pool, still):
         for k in range(c):
