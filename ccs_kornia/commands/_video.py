@@ -25,7 +25,12 @@ from ccs_kornia.io.recordings import open_recording
 from ccs_kornia.io.timestamps import read_timestamps
 from ccs_kornia.io.video import FrameSpan, is_video
 from ccs_kornia.modules.detection.screening import BoardScreen
-from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES, MAX_MOTION, MAX_MOVING_MOTION, detector_frames
+from ccs_kornia.pipeline.frame_candidates import (
+    DEFAULT_MAX_FRAMES,
+    MAX_MOTION,
+    MAX_MOVING_MOTION,
+    detector_frames,
+)
 from ccs_kornia.pipeline.screening import screen_video
 from ccs_kornia.pipeline.video_input import camera_frames, pair_videos, rig_frames
 from ccs_kornia.pipeline.workers import default_workers

@@ -47,7 +47,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-import numpy as np
 import torch
 
 from ccs_kornia.geometry.camera import Camera
@@ -468,18 +467,19 @@ def _covering(cameras: Sequence[CameraViews | None], views: list[list[int | None
         if cam is None or not bool(moving.any()):
             continue
         normals = exp_so3(cam.rvec)[..., :, 2].numpy()  # (V, 3): the boards' z axes in the camera
-
-        def planes(frames: torch.Tensor) -> np.ndarray:
-            return normals[[views[c][f] for f in frames.nonzero().flatten().tolist()]]
-
         mine = usable[c] & passed
-        spread = plane_spread(planes(mine))
+        spread = plane_spread(normals[_views_of(views[c], mine)])
         if int(mine.sum()) < 2 or spread >= MIN_TILT_SPREAD:  # (none passes: ``min_keep`` brings the stillest in)
             continue
         extra = usable[c] & moving
-        if plane_spread(planes(mine | extra)) > spread + MIN_TILT_SPREAD / 4:
+        if plane_spread(normals[_views_of(views[c], mine | extra)]) > spread + MIN_TILT_SPREAD / 4:
             out |= extra
     return out
+
+
+def _views_of(views: list[int | None], frames: torch.Tensor) -> list[int]:
+    """A camera's views of ``frames`` :math:`(F,)` bool (frames it sees)."""
+    return [views[f] for f in frames.nonzero().flatten().tolist() if views[f] is not None]
 
 
 def _copies(cameras: Sequence[CameraViews | None], views: list[list[int | None]], sharp: torch.Tensor,

@@ -47,7 +47,6 @@ import torch
 from torch import nn
 
 from ccs_kornia.geometry.models.base import CameraModel
-from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.geometry.models.factory import (
     CAMERA_MODELS,
     FISHEYE,
@@ -55,6 +54,7 @@ from ccs_kornia.geometry.models.factory import (
     OPENCV5,
     RATIONAL,
 )
+from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.quality.coverage import image_coverage
 from ccs_kornia.modules.calibration.quality.diagnostics import (
     cross_validation,
