@@ -185,8 +185,8 @@ class FrameChoice:
         chosen: the instants (frames of one camera) kept, ascending.
         reasons: per camera, per instant, ``""`` for a kept frame, else why it stays out: ``no board at screening``, ``moving (9.3 px/frame)``, ``near copy of frame 412``, ``over --max-frames``.
         motion: per camera, per instant, the board's motion in px per frame period (``None``: unknown).
-        still: per camera, its still frames (the board seen, moving at most ``max_motion``; ``None``: not judged,
-            every instant kept).
+        still: per camera, how many of its frames are still (the board seen, moving at most ``max_motion``;
+            ``None``: not judged, every instant kept).
         still_spread_deg: per camera, the largest angle between the board planes of the frames it took as still
             (:func:`plane_spread`: the still ones, and the stillest moving ones where fewer than :data:`MIN_STILL`
             are still; ``None``: not judged).

@@ -225,9 +225,9 @@ class VerdictThresholds:
             the difference over the covered image also exceeds ``cv_min_px``.
         cv_min_px: see ``cv_ratio``.
         halves_px: split-half difference over the whole image above which the verdict says that the views do not
-            determine the distortion outside the boards (a weakness, whatever the covariances predict): for the
-            chosen model, and for a runner-up model the held-out views cannot tell from it (the camera outside the
-            boards then depends on the choice).
+            determine the distortion outside the boards (a weakness, whatever the covariances predict); for a
+            runner-up model the held-out views cannot tell from the chosen one, a note (the camera outside the
+            boards may depend on the choice; the chosen model is graded on its own figures).
         heldout_ratio: held-out RMS over the fit RMS above which the fit does not generalise (twice: failure).
         good_rms_px / usable_rms_px: reprojection RMS above which the corners or the model are suspect / wrong.
     """
@@ -338,7 +338,7 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
     runner = figures.get("runner_up") or {}
     other = runner.get("halves_rms_px")
     if runner.get("tied") and other is not None and math.isfinite(other) and other > t.halves_px:
-        found.warn(f"the runner-up model {runner['model']} predicts the held-out views as well, and its "
+        found.note(f"the runner-up model {runner['model']} predicts the held-out views as well, and its "
                    f"{HALVES_DISAGREE} by {other:.1f} px RMS over the image: outside the boards the camera depends on "
                    "the model chosen")
     if held is not None and rms > 0:

@@ -475,8 +475,8 @@ def test_the_verdict_says_what_the_halves_say():
     far = verdict({**base, "cv_rms_px": 25.5, "cv_expected_rms_px": 30.0}, [])
     assert far[0] == "usable" and any("two halves of the views disagree by 25.5 px" in r for r in far[1])
     runner = {"model": "opencv5", "halves_rms_px": 20.5, "tied": True}
-    tied = verdict({**base, "runner_up": runner}, [])
-    assert tied[0] == "usable" and "the runner-up model opencv5" in tied[1][0] and "20.5 px" in tied[1][0]
+    tied = verdict({**base, "runner_up": runner}, [])  # said, not graded: the chosen model's own halves agree
+    assert tied[0] == "good" and "the runner-up model opencv5" in tied[1][0] and "20.5 px" in tied[1][0]
     assert verdict({**base, "runner_up": {**runner, "tied": False}}, []) == ("good", [])
     assert verdict({**base, "runner_up": {**runner, "halves_rms_px": 5.0}}, []) == ("good", [])
     # the limit scales with the image as the other pixel limits
