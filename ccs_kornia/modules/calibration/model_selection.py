@@ -92,7 +92,7 @@ HALVES_CLEAR_PX = 1.0
 FLEXIBLE_MODELS: tuple[CameraModel, ...] = tuple(m for m in AUTO_MODELS if m.is_fisheye or m.num_coeffs > 5)
 #: a rational model whose radial numerator and denominator each depart from 1 more than this many times as far as
 #: their ratio (over the board points seen) cancel (:func:`radial_cancellation`; the figures on the real sets:
-#: ``docs/measurements.md``)
+#: ``docs/diagnostics.md``)
 MAX_CANCELLATION = 5.0
 #: kept for callers of the former rule's keyword: models within this fraction of the best tie when the per-view
 #: errors are unknown (fewer than three views held out by both models)
