@@ -291,7 +291,7 @@ def _seconds(text: str) -> float:
 
 
 def video_options(p: argparse.ArgumentParser, rig: bool = False, selection: bool = True) -> None:
-    """``--every N --start S --end S --max-frames N`` for recordings given instead of images (and, for a rig,
+    """``--every N --start S --end S --max-frames N --max-motion PX`` for recordings given instead of images (and, for a rig,
     ``--sync-tolerance S --timestamps CSV``); ``selection``: the command has the frame selection (``--select``)."""
     g = p.add_argument_group("videos (mp4, mkv, avi, mov, mjpeg, ... instead of images)")
     g.add_argument("--every", default=1, type=_positive_int, metavar="N",
@@ -304,6 +304,10 @@ def video_options(p: argparse.ArgumentParser, rig: bool = False, selection: bool
                         "frame, poses not seen yet first, then more frames of the still poses" +
                         ("; with the frame selection (--select) the detector looks at up to 1.5 times as many and "
                          "the best are kept" if selection else ""))
+    g.add_argument("--max-motion", default=None, type=_positive_float, metavar="PX",
+                   help="where the still frames do not cover the poses (their boards within 20 deg of each other), "
+                        "moving frames are taken too, least motion first: those whose board moves at most PX a frame "
+                        "(default 1 %% of the image diagonal)")
     if rig:
         g.add_argument("--sync-tolerance", type=_positive_float, metavar="S",
                        help="frames of two cameras pair when their timestamps differ by at most S seconds (default: "

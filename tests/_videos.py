@@ -52,24 +52,37 @@ def pose(k: int, num: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 def board_frames(num: int, seed: int = 0, blank: tuple[int, ...] = (), shift=(0.0, 0.0, 0.0)) -> np.ndarray:
     """``num`` grey ``uint8`` frames ``(V, H, W)`` of the board along :func:`pose`; frames in ``blank`` show only
     the background; ``shift``: the camera's frame moved by ``x_cam = x + shift`` (a rig's second camera)."""
+    poses = [None if k in blank else pose(k, num, seed) for k in range(num)]
+    return posed_frames([None if p is None else (p[0], p[1] + np.asarray(shift, dtype=float)) for p in poses], seed)
+
+
+def posed_frames(poses, seed: int = 0) -> np.ndarray:
+    """Grey ``uint8`` frames ``(V, H, W)`` of the board at ``poses`` (``(R, t)`` board -> camera each; ``None``: only
+    the background)."""
     texture, to_texture = _texture()
     rng = np.random.default_rng(1000 + seed)
     w, h = SIZE
     background = cv2.GaussianBlur(rng.uniform(70, 180, (2 * h, 2 * w)).astype(np.float32), (0, 0), 6)
     up = np.diag([2.0, 2.0, 1.0]) @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])  # pixel centres at integers
-    frames = np.empty((num, h, w), np.uint8)
-    for k in range(num):
-        if k in blank:
+    frames = np.empty((len(poses), h, w), np.uint8)
+    for k, board_pose in enumerate(poses):
+        if board_pose is None:
             frames[k] = cv2.resize(background, (w, h), interpolation=cv2.INTER_AREA).astype(np.uint8)
             continue
-        R, t = pose(k, num, seed)
-        t = t + np.asarray(shift, dtype=float)
+        R, t = board_pose
         H = up @ K_VIDEO @ np.column_stack([R[:, 0], R[:, 1], t]) @ np.linalg.inv(to_texture)
         warped = cv2.warpPerspective(texture.astype(np.float32), H, (2 * w, 2 * h), flags=cv2.INTER_LINEAR,
                                      borderValue=-1.0)
         image = np.where(warped >= 0, warped, background)
         frames[k] = np.clip(cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA), 0, 255).round().astype(np.uint8)
     return frames
+
+
+def tilted_pose(rx: float, ry: float, shift=(0.0, 0.0), distance: float = 0.28) -> tuple[np.ndarray, np.ndarray]:
+    """The board's centre ``distance`` m ahead (moved by ``shift`` m across), tilted by ``rx``, ``ry`` rad."""
+    R, _ = cv2.Rodrigues(np.array([rx, ry, 0.0]))
+    centre = np.array([(BOARD[0] + 1) * SQUARE / 2, (BOARD[1] + 1) * SQUARE / 2, 0.0])
+    return R, np.array([shift[0], shift[1], distance]) - R @ centre
 
 
 def write_video(path: str, frames: np.ndarray, fps: float = 10.0, fourcc: str = "MJPG") -> str:

@@ -22,7 +22,8 @@ __all__ = ["check_board", "corner_files", "corners_source", "image_size_option",
 
 #: the options that read images or recordings, which a corners file replaces
 _IMAGE_OPTIONS = (("save_frames", "--save-frames"), ("timestamps", "--timestamps"), ("start", "--start"),
-                  ("end", "--end"), ("max_frames", "--max-frames"), ("image_topics", "--image-topics"))
+                  ("end", "--end"), ("max_frames", "--max-frames"), ("max_motion", "--max-motion"),
+                  ("image_topics", "--image-topics"))
 
 
 def _board_name(cf: CornersFile) -> str:

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from ccs_kornia.modules.calibration.quality.degeneracy import WEAK_CHECKS
+from ccs_kornia.modules.calibration.quality.diagnostics import HALVES_DISAGREE
 
 __all__ = ["board_size_hint", "failure_message", "files_note", "not_found_message", "verdict_line", "weak_lines"]
 
@@ -95,10 +96,13 @@ def files_note(issue: dict[str, Any], most: int = 6) -> str:
 
 
 def verdict_line(quality: dict[str, Any] | None) -> str:
-    """``verdict: ... (held-out views ... px, ...)`` from the diagnostics (empty without them)."""
+    """``verdict: ... (held-out views ... px, ...)`` from the diagnostics (empty without them), and what the split
+    halves say where the verdict's reasons name them."""
     if not quality:
         return ""
     figures = [f"{label} {quality[key]:.3f} px" for label, key in (
         ("held-out views", "heldout_rms_px"), ("halves differ where the boards were by", "cv_covered_rms_px"),
         ("uncertainty at the centre", "uncertainty_centre_px")) if quality.get(key) is not None]
-    return f"verdict: {quality['verdict']}" + (f" ({', '.join(figures)})" if figures else "")
+    halves = [r for r in quality.get("reasons") or [] if HALVES_DISAGREE in r and r not in quality["verdict"]]
+    return (f"verdict: {quality['verdict']}" + (f" ({', '.join(figures)})" if figures else "")
+            + "".join(f"; {r}" for r in halves))

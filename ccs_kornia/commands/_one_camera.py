@@ -21,6 +21,7 @@ from ccs_kornia.commands._selection import frame_selection, save_frames, selecti
 from ccs_kornia.commands._video import (
     camera_videos,
     screening_note,
+    still_gate_cause,
 )
 from ccs_kornia.io.files import write_json, write_text_atomic
 from ccs_kornia.outputs.camera_exports import ros_camera_info, write_opencv_yaml
@@ -65,7 +66,10 @@ def calibrate_camera(args: argparse.Namespace) -> int:
         )
     except UserError as err:
         if video is not None:
-            err.args = (f"{err}{screening_note(video)}",)
+            parallel = err.partial is not None and any(e.get("check") == "pose_diversity"
+                                                       for e in err.partial.get("errors", []))
+            cause = still_gate_cause(video, args) if parallel else ""
+            err.args = (f"{cause + '; ' if cause else ''}{err}{screening_note(video)}",)
         # nothing lost: the per-image detections and reasons go next to the requested output, which
         # itself is only ever written for a computed calibration
         kept = (f"; the existing {os.path.basename(args.output)} was left as it was (not from this run)"

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import math
 import os
 import sys
 from collections.abc import Sequence
@@ -24,15 +25,20 @@ from ccs_kornia.io.recordings import open_recording
 from ccs_kornia.io.timestamps import read_timestamps
 from ccs_kornia.io.video import FrameSpan, is_video
 from ccs_kornia.modules.detection.screening import BoardScreen
-from ccs_kornia.pipeline.frame_candidates import DEFAULT_MAX_FRAMES, detector_frames
+from ccs_kornia.pipeline.frame_candidates import (
+    DEFAULT_MAX_FRAMES,
+    MAX_MOTION,
+    MAX_MOVING_MOTION,
+    detector_frames,
+)
 from ccs_kornia.pipeline.screening import screen_video
 from ccs_kornia.pipeline.video_input import camera_frames, pair_videos, rig_frames
 from ccs_kornia.pipeline.workers import default_workers
 from ccs_kornia.runtime.errors import NoResult, UserError
 
-__all__ = ["add_timestamps", "bag_recordings", "camera_videos", "detector_count", "frame_span", "make_screen", "max_frames",
-           "pairing_lines", "rig_videos", "screen_videos", "screen_workers", "screening_note", "selecting",
-           "video_inputs", "video_summary"]
+__all__ = ["add_timestamps", "bag_recordings", "camera_videos", "detector_count", "frame_span", "make_screen",
+           "max_frames", "max_motion", "pairing_lines", "rig_videos", "screen_videos", "screen_workers", "screening_note",
+           "selecting", "still_gate_cause", "video_inputs", "video_summary"]
 
 
 def _videos_in(directory: str) -> list[str]:
@@ -106,6 +112,12 @@ def max_frames(args: argparse.Namespace) -> int:
     """``--max-frames`` (default :data:`~ccs_kornia.pipeline.frame_candidates.DEFAULT_MAX_FRAMES`)."""
     value = getattr(args, "max_frames", None)
     return DEFAULT_MAX_FRAMES if value is None else int(value)
+
+
+def max_motion(args: argparse.Namespace) -> float | None:
+    """``--max-motion`` (px per frame period; ``None``: the default, a fraction of the image diagonal)."""
+    value = getattr(args, "max_motion", None)
+    return None if value is None else float(value)
 
 
 def selecting(args: argparse.Namespace) -> bool:
@@ -210,8 +222,15 @@ def video_summary(frames, names: Sequence[str] | None = None) -> list[str]:
             rate = len(video.frames) / max(video.seconds, 1e-9)
             chosen = sum(frames.chosen[c][v])
             who = f"camera {names[c]} " if names is not None else ""
+            moving = sum(frames.moving(c)[v])
+            why = ""
+            if moving:
+                gate = frames.still_gate(c)
+                spread = gate["still_spread_deg"]
+                why = (f" ({moving} of them moving: {gate['still_frames']} frames still"
+                       + (f", their boards within {spread:.0f} deg of each other" if spread is not None else "") + ")")
             lines.append(f"{who}{video.path}: {len(video.frames)} frames screened ({rate:.0f} frames/s), board seen in "
-                         f"{video.found}, {chosen} chosen for the detector")
+                         f"{video.found}, {chosen} chosen for the detector{why}")
     return lines
 
 
@@ -237,9 +256,30 @@ def camera_videos(command: str, args: argparse.Namespace):
         return None
     span = frame_span(args)
     screened = screen_videos(command, paths, make_screen(args), span, screen_workers(args), skip_unreadable=True)
-    frames = camera_frames(screened, detector_count(args))
+    frames = camera_frames(screened, detector_count(args), max_motion(args))
     report_screening(command, frames)
     return frames
+
+
+def still_gate_cause(frames, args: argparse.Namespace, camera: int = 0) -> str:
+    """The still gate named as the cause of a refusal of nearly parallel boards (``""`` where it is not one: every
+    frame went to the detector, or no frame was left out or taken for its motion)."""
+    gate = frames.still_gate(camera)
+    if gate["still_frames"] is None:
+        return ""
+    videos = frames.videos if frames.table is None else [frames.videos[camera]]
+    left = sum(r.startswith("moving") for per_video in frames.reasons[camera] for r in per_video)
+    if not left and not gate["chosen_moving"]:
+        return ""
+    diagonal = math.hypot(*videos[0].info.size)
+    fastest = max_motion(args)
+    fastest = MAX_MOVING_MOTION * diagonal if fastest is None else fastest
+    spread = gate["still_spread_deg"]
+    within = f", their boards within {spread:.0f} deg of each other" if spread is not None else ""
+    return (f"the board was never still long enough: {gate['still_frames']} frames still (moving at most "
+            f"{MAX_MOTION * diagonal:.1f} px a frame){within}, {gate['chosen_moving']} moving frames taken (at most "
+            f"{fastest:.1f} px a frame), {left} left out moving faster; hold the board still for ~0.5 s at each "
+            "pose, or pass --max-motion PX to take faster frames")
 
 
 def screening_note(frames) -> str:
@@ -281,7 +321,7 @@ def rig_videos(command: str, args: argparse.Namespace, names: Sequence[str]):
         pairing = pair_videos(screened, args.sync_tolerance, table, f"--timestamps {args.timestamps}")
     except ValueError as err:
         raise UserError(str(err)) from None
-    frames = rig_frames(screened, pairing, detector_count(args))
+    frames = rig_frames(screened, pairing, detector_count(args), max_motion(args))
     for line in pairing_lines(pairing, names):
         info(line)
     report_screening(command, frames, names)

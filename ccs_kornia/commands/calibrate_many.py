@@ -27,7 +27,7 @@ from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._output_paths import check_outputs
 from ccs_kornia.commands._printing import PROG, info, warn
-from ccs_kornia.commands._video import frame_span, make_screen, max_frames
+from ccs_kornia.commands._video import frame_span, make_screen, max_frames, max_motion
 from ccs_kornia.fleet.shards import finished_sets, not_jsonl_reason
 from ccs_kornia.io.video import is_video
 from ccs_kornia.pipeline.video_input import VideoOptions
@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     pipeline = make_pipeline(args, model=args.model, use_ransac=args.use_ransac, seed=args.seed)
     video = None
     if any(len(files) == 1 and is_video(files[0]) for _, files in sets):
-        video = VideoOptions(make_screen(args), frame_span(args), max_frames(args))
+        video = VideoOptions(make_screen(args), frame_span(args), max_frames(args), max_motion(args))
     processes = (devices or 1) * args.num_nodes
     where = f"{processes} processes ({accelerator or device.type})" if processes > 1 else str(device)
     if first:

@@ -39,6 +39,7 @@ from ccs_kornia.commands._video import (
     bag_recordings,
     pairing_lines,
     rig_videos,
+    still_gate_cause,
 )
 from ccs_kornia.commands._wrong_board import WrongBoardWatch
 from ccs_kornia.geometry.models.base import CameraModel
@@ -235,7 +236,7 @@ def run(args: argparse.Namespace) -> int:
         watch = WrongBoardWatch(files, args.board, names, error=UserError) if args.detector in ("learned", "opencv") \
             else None
         cameras = pipeline.detect_and_calibrate(source, args.board, args.square, progress=advance, on_batch=watch)
-        _check_cameras(cameras, files, folders, names, fixed, models, args)
+        _check_cameras(cameras, files, folders, names, fixed, models, args, video)
         bar.set_description_str(f"{COMMAND}: solving the rig")
         out = pipeline.run(source, args.board, args.square, frames, names, cameras=cameras)
     if not out.success:
@@ -309,8 +310,9 @@ def _weak_cameras(data: dict[str, Any]) -> list[tuple[str, list[str]]]:
     return [(cam["name"], weak_lines(cam)) for cam in data["cameras"] if cam.get("errors")]
 
 
-def _check_cameras(cameras, files, folders, names, fixed, models, args) -> None:
-    """Warnings per unusable view, and one error line naming the first camera without a calibration."""
+def _check_cameras(cameras, files, folders, names, fixed, models, args, video=None) -> None:
+    """Warnings per unusable view, and one error line naming the first camera without a calibration (a recording's
+    still gate first where it left that camera's boards nearly parallel)."""
     for k, result in enumerate(cameras):
         v = len(files[k])
         for i, path in enumerate(files[k]):
@@ -334,7 +336,10 @@ def _check_cameras(cameras, files, folders, names, fixed, models, args) -> None:
                                "detector (the frame choice above says why)")
             # images were read: too few views is a run without a result (exit 3), an unreadable set a usage error
             error = NoResult if readable else UserError
-            raise error(f"camera {names[k]} ({folders[k]}): {failure_message(record, args.board, readable)}")
+            parallel = any(e.get("check") == "pose_diversity" for e in record.get("errors", []))
+            cause = still_gate_cause(video, args, k) if video is not None and parallel else ""
+            raise error(f"camera {names[k]} ({folders[k]}): {cause + '; ' if cause else ''}"
+                        f"{failure_message(record, args.board, readable)}")
 
 
 def _stereo_pair(args: argparse.Namespace, cameras: int) -> tuple[int, int]:

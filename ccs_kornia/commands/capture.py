@@ -36,7 +36,7 @@ __all__ = ["frames_dir", "run"]
 
 #: the options ``calibrate`` takes for inputs other than a folder of images, set as a folder's
 _FOLDER_INPUTS = {"corners": None, "image_size": None, "bag": None, "image_topics": None, "every": 1, "start": None,
-                  "end": None, "max_frames": None, "select": None, "save_frames": None}
+                  "end": None, "max_frames": None, "max_motion": None, "select": None, "save_frames": None}
 
 
 #: capture's own options, which calibrate does not take

@@ -7,7 +7,13 @@ frames a second. :func:`choose_frames` keeps a bounded set:
 
 1. **still**: a board's *motion* is how far its outline moves per frame period between neighbouring screened frames
    (the larger of the two sides); a frame moving more than ``max_motion`` is left out (``moving``), unless fewer than
-   :data:`MIN_STILL` still frames remain (then the stillest moving ones are admitted);
+   :data:`MIN_STILL` still frames remain (then the stillest moving ones are admitted), or unless the still frames do
+   not cover the poses: where the board planes of a camera's still frames (:func:`outline_normals`, from each
+   outline's vanishing line) lie within :data:`MIN_TILT_SPREAD` of each other, its moving frames that move at most
+   ``max_moving`` are admitted where they spread the planes wider, by a quarter of that angle at least (a board that
+   never stops in the poses that matter still calibrates the camera): the choice below weighs each frame by its
+   stillness, so of two poses alike the stiller comes first, and the corners' own precision weighs the blur that is
+   left in the solve;
 2. **new and spread out**: the frames are taken greedily, each time the one farthest (in outline distance,
    :func:`outline_distance`, as a fraction of the board's size in the image: the smaller outline's RMS distance of
    its corners from their centre) from those taken already, weighted by its stillness and, for a rig, by the cameras
@@ -39,8 +45,9 @@ import numpy as np
 
 from ccs_kornia.modules.detection.screening import Sighting
 
-__all__ = ["CANDIDATES_PER_FRAME", "DEFAULT_MAX_FRAMES", "FrameChoice", "MAX_MOTION", "MIN_STILL", "NO_BOARD_LOOKS",
-           "board_motion", "choose_frames", "detector_frames", "outline_distance"]
+__all__ = ["CANDIDATES_PER_FRAME", "DEFAULT_MAX_FRAMES", "FrameChoice", "MAX_MOTION", "MAX_MOVING_MOTION",
+           "MIN_STILL", "MIN_TILT_SPREAD", "NO_BOARD_LOOKS", "board_motion", "choose_frames", "detector_frames",
+           "outline_distance", "outline_normals", "plane_spread"]
 
 #: frames of a recording (instants of a rig) sent to the full detector at most, by default
 DEFAULT_MAX_FRAMES = 60
@@ -57,6 +64,14 @@ MAX_MOTION = 0.001
 MIN_CHANGE = 0.1
 #: still frames needed before moving ones are left out
 MIN_STILL = 12
+#: a camera's still frames whose board planes lie within this angle of each other (deg, the largest between two) do
+#: not cover the poses: its moving frames come in (the solver warns of nearly parallel boards below the same angle:
+#: :class:`~ccs_kornia.modules.calibration.quality.degeneracy.DegeneracyThresholds`)
+MIN_TILT_SPREAD = 20.0
+#: largest board motion of a moving frame admitted to cover the poses, as a fraction of the image diagonal per frame
+#: period (15 px at 1280x720: a board exposed for a third of the frame period smears about as far as the corner
+#: detector's window reaches)
+MAX_MOVING_MOTION = 0.01
 #: frames of a recording in which the screen saw no board that the full detector looks at all the same (spread over
 #: the recording): a board the quick look misses is found in some of them, and a recording without one costs a few
 #: detector calls, not one per frame
@@ -84,6 +99,55 @@ def outline_distance(a: np.ndarray, b: np.ndarray) -> float:
         (0.0, 1.0)
     """
     return float(min(np.linalg.norm(a - np.roll(b, r, axis=0), axis=-1).mean() for r in range(4)))
+
+
+def outline_normals(outlines: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
+    """The board planes' normals :math:`(F, 3)` in the camera of outlines :math:`(F, 4, 2)` (NaN rows where not
+    seen), from each outline's vanishing line: the board's two pairs of parallel sides meet at two vanishing points,
+    and the line through them, in the image normalized by a pinhole camera with its principal point at the image
+    centre, is the plane's normal. The focal length is the median over the outlines of what their two vanishing
+    points say (the board's sides are at right angles), within 0.3 to 3 image diagonals; where no outline says
+    (boards all nearly fronto-parallel), one image diagonal. Rough (a focal length guessed, the principal point
+    assumed, the outline the screen's): enough to tell boards tilted alike from boards tilted 20 deg apart.
+
+    Example:
+        >>> box = np.array([[0.0, 0.0], [40.0, 0.0], [40.0, 30.0], [0.0, 30.0]])
+        >>> np.abs(outline_normals(box[None] + 300.0, (640, 480))).round(3).tolist()
+        [[0.0, 0.0, 1.0]]
+    """
+    pts = np.asarray(outlines, dtype=np.float64).reshape(-1, 4, 2)
+    w, h = image_size
+    diag = math.hypot(w, h)
+    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    hom = np.concatenate([(pts - centre) / diag, np.ones(pts.shape[:2] + (1,))], -1)  # in diagonals from the centre
+    p0, p1, p2, p3 = (hom[:, i] for i in range(4))
+    v1 = np.cross(np.cross(p0, p1), np.cross(p3, p2))  # the rows' vanishing point
+    v2 = np.cross(np.cross(p0, p3), np.cross(p1, p2))  # the columns'
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f2 = -(v1[:, 0] * v2[:, 0] + v1[:, 1] * v2[:, 1]) / (v1[:, 2] * v2[:, 2])
+    says = np.isfinite(f2) & (f2 > 0.3 ** 2) & (f2 < 3.0 ** 2)
+    f = math.sqrt(float(np.median(f2[says]))) if says.any() else 1.0
+    line = np.cross(v1, v2)  # the vanishing line in diagonals; in the normalized image (x / f): (a f, b f, c)
+    normal = np.stack([line[:, 0] * f, line[:, 1] * f, line[:, 2]], -1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        normal = normal / np.linalg.norm(normal, axis=-1, keepdims=True)
+    return np.where(np.isfinite(normal).all(-1, keepdims=True), normal, np.nan)
+
+
+def plane_spread(normals: np.ndarray) -> float:
+    """The largest angle (deg) between two of the planes with normals :math:`(F, 3)` (NaN rows left out; 0 for fewer
+    than two).
+
+    Example:
+        >>> n = np.array([[0.0, 0.0, 1.0], [0.0, np.sin(0.3), np.cos(0.3)], [np.nan] * 3])
+        >>> round(plane_spread(n), 1)
+        17.2
+    """
+    n = np.asarray(normals, dtype=np.float64)
+    n = n[np.isfinite(n).all(-1)]
+    if len(n) < 2:
+        return 0.0
+    return float(np.degrees(np.arccos(np.clip(np.abs(n @ n.T).min(), 0.0, 1.0))))
 
 
 def board_motion(indices: Sequence[int], sightings: Sequence[Sighting]) -> list[float | None]:
@@ -121,11 +185,20 @@ class FrameChoice:
         chosen: the instants (frames of one camera) kept, ascending.
         reasons: per camera, per instant, ``""`` for a kept frame, else why it stays out: ``no board at screening``, ``moving (9.3 px/frame)``, ``near copy of frame 412``, ``over --max-frames``.
         motion: per camera, per instant, the board's motion in px per frame period (``None``: unknown).
+        still: per camera, how many of its frames are still (the board seen, moving at most ``max_motion``;
+            ``None``: not judged, every instant kept).
+        still_spread_deg: per camera, the largest angle between the board planes of the frames it took as still
+            (:func:`plane_spread`: the still ones, and the stillest moving ones where fewer than :data:`MIN_STILL`
+            are still; ``None``: not judged).
+        moving: the chosen instants whose board moves more than ``max_motion`` in some camera.
     """
 
     chosen: list[int]
     reasons: list[list[str]]
     motion: list[list[float | None]]
+    still: list[int | None] | None = None
+    still_spread_deg: list[float | None] | None = None
+    moving: list[int] | None = None
 
 
 def choose_frames(
@@ -138,6 +211,7 @@ def choose_frames(
     min_change: float = MIN_CHANGE,
     copies: bool = True,
     frame_rates: Sequence[float] | None = None,
+    max_moving: float | Sequence[float] = MAX_MOVING_MOTION,
 ) -> FrameChoice:
     """Choose the instants whose frames go to the full detector.
 
@@ -153,6 +227,8 @@ def choose_frames(
         frame_rates: per camera its frames per second (a rig of several rates): the motions are compared per frame
             period of the fastest camera (a slower camera's frame period is longer, not its board faster). ``None``
             or a rate of 0: per each camera's own frame period.
+        max_moving: fraction of each camera's image diagonal per frame period (one, or one per camera): the fastest
+            moving frame admitted where the still frames do not cover the poses (:data:`MIN_TILT_SPREAD`).
 
     A rig shares the budget: every camera keeps at least its share of ``max_frames`` (``max_frames // C``, or all the
     instants it sees where fewer) and of the still frames (:data:`MIN_STILL` each), instants that several cameras see
@@ -200,16 +276,28 @@ def choose_frames(
     worst = np.array([np.nanmax(col) if np.isfinite(col).any() else np.nan for col in worst.T])
     pool = np.flatnonzero(cameras_seeing > 0)
     still = pool[~(worst[pool] > max_motion)]  # unknown motion counts as still
+    still_count: list[int | None] = [int(seen[k, still].sum()) for k in range(c)]
     for k in range(c):  # each camera its still frames: the stillest moving ones it sees where too few are still
         mine = int(seen[k, still].sum())
         if mine < MIN_STILL:
             moving = np.setdiff1d(pool[seen[k, pool] & (worst[pool] > max_motion)], still)
             still = np.concatenate([still, moving[np.argsort(worst[moving], kind="stable")][:MIN_STILL - mine]])
+    outlines = _Outlines(sightings, seen)
+    normals = [outline_normals(outlines.points[k], image_sizes[k]) for k in range(c)]
+    still_spread: list[float | None] = [plane_spread(normals[k][still[seen[k, still]]]) for k in range(c)]
+    fastest = np.broadcast_to(np.asarray(max_moving, dtype=np.float64), (c,))
+    for k in range(c):  # each camera whose still frames do not cover the poses: its moving ones that widen them
+        if still_spread[k] >= MIN_TILT_SPREAD:
+            continue
+        moving = np.setdiff1d(pool[seen[k, pool] & (worst[pool] > max_motion) & (worst[pool] <= fastest[k])], still)
+        # (by more than the rough outlines' error: a quarter of the spread wanted)
+        if plane_spread(normals[k][np.concatenate([still[seen[k, still]], moving])]) > \
+                still_spread[k] + MIN_TILT_SPREAD / 4:
+            still = np.concatenate([still, moving])
     for i in np.setdiff1d(pool, still):
         for k in range(c):
             if seen[k, i]:
                 reasons[k][i] = f"moving ({moves[k, i] * diag[k]:.1f} px/frame)"
-    outlines = _Outlines(sightings, seen)
     chosen = _spread(still, outlines, cameras_seeing, np.nan_to_num(worst[still] / max_motion), max_frames, min_change,
                      copies)
     near, distance = _nearest(still, chosen, outlines)
@@ -224,7 +312,8 @@ def choose_frames(
             label = labels[k][j] if j >= 0 and labels[k][j] is not None else j
             reasons[k][i] = f"near copy of frame {label}" if novelty[n] < min_change and j >= 0 else \
                 "over --max-frames"
-    return FrameChoice(sorted(chosen), reasons, [list(m) for m in motion])
+    moving_chosen = [i for i in sorted(chosen) if worst[i] > max_motion]
+    return FrameChoice(sorted(chosen), reasons, [list(m) for m in motion], still_count, still_spread, moving_chosen)
 
 
 class _Outlines:

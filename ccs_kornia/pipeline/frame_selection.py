@@ -7,8 +7,11 @@ folder's photos), :func:`choose_frames` keeps the views that are
    shows. The board's speed in the image (a recording's screening measures it between neighbouring frames:
    :meth:`~ccs_kornia.pipeline.sources.ViewSource.speed`) weighs a view's information down
    (:func:`motion_weight`: half at ``speed_scale`` image diagonals per second); faster than ``max_speed`` it is
-   ``moving`` and left out. For a rig, the board's motion between its cameras' frames of one instant (their time
-   spread times its speed) counts the same way (``sync_scale``, ``max_sync_px``);
+   ``moving`` and left out, unless the frames that pass do not cover the poses (two or more whose board planes,
+   from the first solve, lie within :data:`~ccs_kornia.pipeline.frame_candidates.MIN_TILT_SPREAD` of each other in
+   some camera): then that camera's moving frames come in where they spread the planes wider by a quarter of that
+   angle at least, their information weighed down by their speed as any view's. For a rig, the board's motion between its cameras' frames
+   of one instant (their time spread times its speed) counts the same way (``sync_scale``, ``max_sync_px``);
 2. **sharp**: the median of the corners' own measured precision
    (:func:`~ccs_kornia.modules.detection.refine.corner_uncertainty.corner_uncertainty`) at most ``max_blur`` times the
    candidates' median (blur, defocus and low contrast soften the corners), else ``blurred``;
@@ -47,6 +50,7 @@ from typing import Any
 import torch
 
 from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.quality.view_information import (
     greedy_information,
     image_information,
@@ -54,6 +58,7 @@ from ccs_kornia.modules.calibration.quality.view_information import (
 )
 from ccs_kornia.modules.detection.base import measured_corners
 from ccs_kornia.modules.detection.refine.corner_uncertainty import corner_weights
+from ccs_kornia.pipeline.frame_candidates import MIN_TILT_SPREAD, plane_spread
 from ccs_kornia.pipeline.result import PipelineResult
 
 __all__ = [
@@ -415,6 +420,8 @@ def choose_frames(
                                   copies_last=True)
 
     passed = candidate & ~gated
+    moving = gated & torch.tensor([r.startswith("moving") for r in reasons], dtype=torch.bool)
+    passed = passed | _covering(cameras, views, usable, passed, moving)
     choice = greedy(sharp_views, passed, selection.max_frames, selection.min_gain)
     need = min(selection.min_keep, int(candidate.sum()))
     if selection.max_frames is not None:
@@ -448,6 +455,31 @@ def choose_frames(
     uncertainty = [[float(u) * rms[c] / math.sqrt(2.0) for u in choice.uncertainty[c].tolist()] for c in range(C)]
     return FrameChoice(kept, reasons, view_reasons, choice.copy_of, speed_of, sharp_of, gains, list(choice.order),
                        uncertainty, int(candidate.sum()))
+
+
+def _covering(cameras: Sequence[CameraViews | None], views: list[list[int | None]], usable: torch.Tensor,
+              passed: torch.Tensor, moving: torch.Tensor) -> torch.Tensor:
+    """:math:`(F,)` the ``moving`` frames that come in for a camera whose ``passed`` frames (two at least) have board
+    planes (from the first solve) within :data:`~ccs_kornia.pipeline.frame_candidates.MIN_TILT_SPREAD` of each other, where they
+    spread that camera's planes wider by a quarter of that angle at least."""
+    out = torch.zeros_like(passed)
+    for c, cam in enumerate(cameras):
+        if cam is None or not bool(moving.any()):
+            continue
+        normals = exp_so3(cam.rvec)[..., :, 2].numpy()  # (V, 3): the boards' z axes in the camera
+        mine = usable[c] & passed
+        spread = plane_spread(normals[_views_of(views[c], mine)])
+        if int(mine.sum()) < 2 or spread >= MIN_TILT_SPREAD:  # (none passes: ``min_keep`` brings the stillest in)
+            continue
+        extra = usable[c] & moving
+        if plane_spread(normals[_views_of(views[c], mine | extra)]) > spread + MIN_TILT_SPREAD / 4:
+            out |= extra
+    return out
+
+
+def _views_of(views: list[int | None], frames: torch.Tensor) -> list[int]:
+    """A camera's views of ``frames`` :math:`(F,)` bool (frames it sees)."""
+    return [views[f] for f in frames.nonzero().flatten().tolist() if views[f] is not None]
 
 
 def _copies(cameras: Sequence[CameraViews | None], views: list[list[int | None]], sharp: torch.Tensor,

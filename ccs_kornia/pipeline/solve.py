@@ -194,7 +194,7 @@ def diagnose_cameras(solvers: Mapping[CameraModel, torch.nn.Module], out: Pipeli
                      solutions: SubsetSolutions | None = None) -> list[dict | None]:
     """Quality figures and verdict of each camera of a solved ``out`` (one
     :func:`~ccs_kornia.modules.calibration.quality.diagnostics.diagnose` call per image size and model; ``None`` for
-    a camera without a computed calibration). The halves and folds of the cross-validation are solved by
+    a camera without a computed calibration; the model choice's runner-up in the verdict where there was one). The halves and folds of the cross-validation are solved by
     ``solvers[model]`` (the usual path: a camera calibrated in the corrected frame is cross-validated without it) on
     the solve's ``inputs`` (its views, corners and weights); ``solutions``: the model selection's solved
     cross-validation subsets (:class:`~ccs_kornia.modules.calibration.subset_solutions.SubsetSolutions`), used where
@@ -212,12 +212,24 @@ def diagnose_cameras(solvers: Mapping[CameraModel, torch.nn.Module], out: Pipeli
         if sel.numel() == 0:
             continue
         part = inputs.cameras(sel)
+        runner_up = [_runner_up(out.model_selection, ci) for ci in sel.tolist()]
         with torch.inference_mode():
             figures = diagnose(select_result(cal, sel), part.corners, part.valid, part.object_points,
-                               positive_size(size), solver=solvers[model], weights=part.weights, solutions=solutions)
+                               positive_size(size), solver=solvers[model], weights=part.weights, solutions=solutions,
+                               runner_up=runner_up)
         for k, ci in enumerate(sel.tolist()):
             diagnostics[ci] = figures[k]
     return diagnostics
+
+
+def _runner_up(tables, camera: int) -> dict | None:
+    """The model choice's runner-up of ``camera`` as the verdict takes it (``None``: no choice, or no runner-up)."""
+    table = tables if isinstance(tables, dict) or tables is None else tables[camera]
+    name = None if table is None else table.get("runner_up")
+    if name is None:
+        return None
+    return {"model": name, "halves_rms_px": table["halves_rms_px"].get(name),
+            "tied": name in table.get("tied", [])}
 
 
 def judge_flatness(solving: Solving, out: PipelineResult, board_size: tuple[int, int], square: float) -> PipelineResult:

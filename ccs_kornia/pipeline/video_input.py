@@ -15,6 +15,7 @@ The steps between the screening pass (:mod:`~ccs_kornia.pipeline.screening`) and
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -24,6 +25,7 @@ from ccs_kornia.io.timestamps import TimestampRow
 from ccs_kornia.io.video import FrameSpan
 from ccs_kornia.pipeline.frame_candidates import (
     DEFAULT_MAX_FRAMES,
+    MAX_MOVING_MOTION,
     FrameChoice,
     board_motion,
     choose_frames,
@@ -118,6 +120,9 @@ class VideoFrames:
         pairing: a rig's screened frames paired into instants (``None`` for one camera).
         choice: the frame choice over the instants (one camera: its frames in order, video after video).
         chosen: per camera, per video, per screened frame, whether the frame is a view.
+        reasons, motion: per camera, per video, per screened frame, why it is not a view (``""``: it is, or no board)
+            and the board's motion (px per frame period).
+        owner: one camera: per instant of the choice, its (video, screened frame); ``None`` for a rig.
     """
 
     videos: list[ScreenedVideo]
@@ -128,6 +133,7 @@ class VideoFrames:
     chosen: list[list[list[bool]]]
     reasons: list[list[list[str]]]
     motion: list[list[list[float | None]]]
+    owner: list[tuple[int, int]] | None = None
 
     def source(self, names: Sequence[str] | None = None) -> VideoSource:
         """The chosen frames as the pipeline's views."""
@@ -141,11 +147,40 @@ class VideoFrames:
         """Every view's timestamp by its name."""
         return {r.name: r.timestamp for refs in self.refs for r in refs}
 
+    def moving(self, camera: int) -> list[list[bool]]:
+        """Per video of ``camera``, per screened frame: chosen although its board moves (the still frames did not
+        cover the poses, or too few were still: :func:`~ccs_kornia.pipeline.frame_candidates.choose_frames`)."""
+        taken = set(self.choice.moving or [])
+        out = [[False] * len(v.frames) for v in (self.videos if self.table is None else [self.videos[camera]])]
+        for i in taken:
+            for v, k in self._frames_of(camera, i):
+                out[v][k] = bool(self.chosen[camera][v][k])
+        return out
+
+    def _frames_of(self, camera: int, instant: int) -> list[tuple[int, int]]:
+        """(video, screened frame) of ``camera`` at a choice's ``instant``."""
+        if self.pairing is None:
+            return [self.owner[instant]]
+        k = self.pairing.index[camera][instant]
+        return [] if k is None else [(0, k)]
+
+    def still_gate(self, camera: int) -> dict:
+        """What the still gate did for ``camera``: ``still_frames`` (frames whose board moved at most the still
+        motion), ``still_spread_deg`` (the largest angle between their board planes, from the rough outlines),
+        ``chosen_moving`` (frames chosen although moving); ``None`` figures where the choice kept every frame."""
+        still = None if self.choice.still is None else self.choice.still[camera]
+        spread = None if self.choice.still_spread_deg is None else self.choice.still_spread_deg[camera]
+        return {"still_frames": still, "still_spread_deg": None if spread is None else round(float(spread), 1),
+                "chosen_moving": sum(sum(v) for v in self.moving(camera))}
+
     def records(self, camera: int) -> list[dict]:
         """Per video of ``camera``, what the screening saw and what the choice made of it: the JSON's ``video``
         entries (``frames``: per screened frame ``index``, ``timestamp``, ``board``, ``outline`` (px, rough),
-        ``motion_px`` (per frame period), ``chosen``, ``reason``)."""
+        ``motion_px`` (per frame period), ``chosen``, ``moving`` (chosen although moving), ``reason``; and
+        :meth:`still_gate`'s figures, the camera's over all its videos, and ``chosen_moving`` of the video)."""
         videos = self.videos if self.table is None else [self.videos[camera]]
+        moving = self.moving(camera)
+        gate = self.still_gate(camera)
         out = []
         for v, video in enumerate(videos):
             frames = []
@@ -157,6 +192,8 @@ class VideoFrames:
                                                                         for p in seen.outline],
                           "motion_px": None if motion is None else round(float(motion), 2),
                           "chosen": self.chosen[camera][v][k]}
+                if moving[v][k]:
+                    record["moving"] = True
                 if self.reasons[camera][v][k]:
                     record["reason"] = self.reasons[camera][v][k]
                 frames.append(record)
@@ -165,13 +202,26 @@ class VideoFrames:
                         "frames_stated": info.frame_count or None, "frames_decoded": video.length,
                         "every": video.span.every, "start": video.span.start, "end": video.span.end,
                         "frames_screened": len(video.frames), "board_seen": video.found,
-                        "chosen": sum(self.chosen[camera][v]), "screening_s": round(video.seconds, 3),
+                        "chosen": sum(self.chosen[camera][v]), "chosen_moving": sum(moving[v]),
+                        "still_frames": gate["still_frames"], "still_spread_deg": gate["still_spread_deg"],
+                        "screening_s": round(video.seconds, 3),
                         "stopped": video.stopped or None, "frames": frames})
         return out
 
 
-def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX_FRAMES) -> VideoFrames:
-    """The frame choice for one camera's videos (their frames in order, video after video).
+def _moving_fraction(max_motion_px: float | None, sizes: Sequence[tuple[int, int]]) -> list[float]:
+    """Per camera the fastest moving frame admitted, as a fraction of its image diagonal per frame period
+    (``max_motion_px``: px per frame period; ``None``: :data:`~ccs_kornia.pipeline.frame_candidates.MAX_MOVING_MOTION`)."""
+    if max_motion_px is None:
+        return [MAX_MOVING_MOTION] * len(sizes)
+    return [float(max_motion_px) / math.hypot(*size) for size in sizes]
+
+
+def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX_FRAMES,
+                  max_motion_px: float | None = None) -> VideoFrames:
+    """The frame choice for one camera's videos (their frames in order, video after video); ``max_motion_px``: the
+    fastest moving frame (px per frame period) taken where the still frames do not cover the poses (``None``: the
+    default of :func:`~ccs_kornia.pipeline.frame_candidates.choose_frames`).
 
     Example:
         >>> from ccs_kornia.io.video import FrameSpan, VideoInfo
@@ -197,7 +247,8 @@ def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX
         motion += board_motion([f.index for f in video.frames], seen)
         owner += [(v, k) for k in range(len(video.frames))]
     size = videos[0].info.size if videos else (1, 1)
-    choice = choose_frames([sightings], [labels], [motion], [size], max_frames)
+    choice = choose_frames([sightings], [labels], [motion], [size], max_frames,
+                           max_moving=_moving_fraction(max_motion_px, [size]))
     chosen = [[[False] * len(v.frames) for v in videos]]
     reasons = [[[""] * len(v.frames) for v in videos]]
     motions = [[[None] * len(v.frames) for v in videos]]
@@ -210,12 +261,13 @@ def camera_frames(videos: Sequence[ScreenedVideo], max_frames: int = DEFAULT_MAX
         chosen[0][v][k] = True
         frame = videos[v].frames[k]
         refs.append(VideoFrameRef(videos[v].path, frame.index, frame.timestamp, _speed(motion[i], videos[v])))
-    return VideoFrames(list(videos), [refs], None, None, choice, chosen, reasons, motions)
+    return VideoFrames(list(videos), [refs], None, None, choice, chosen, reasons, motions, owner)
 
 
 def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
-               max_frames: int = DEFAULT_MAX_FRAMES) -> VideoFrames:
-    """The frame choice for a rig (one video per camera) over the instants of ``pairing`` (:func:`pair_videos`).
+               max_frames: int = DEFAULT_MAX_FRAMES, max_motion_px: float | None = None) -> VideoFrames:
+    """The frame choice for a rig (one video per camera) over the instants of ``pairing`` (:func:`pair_videos`);
+    ``max_motion_px`` as :func:`camera_frames`.
 
     Where every instant is kept (at most ``max_frames``), each camera's frame of it is a view; where instants are
     chosen, a camera's frame is a view where its screen saw the board, or where it saw the board in no frame. Frames the pairing left out (not in a
@@ -226,8 +278,9 @@ def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
     sightings = [[None if k is None else videos[cam].frames[k].sighting for k in pairing.index[cam]] for cam in range(c)]
     labels = [[None if k is None else str(videos[cam].frames[k].index) for k in pairing.index[cam]] for cam in range(c)]
     motion = [[None if k is None else motion_of[cam][k] for k in pairing.index[cam]] for cam in range(c)]
-    choice = choose_frames(sightings, labels, motion, [v.info.size for v in videos], max_frames,
-                           frame_rates=[v.info.fps for v in videos])
+    sizes = [v.info.size for v in videos]
+    choice = choose_frames(sightings, labels, motion, sizes, max_frames, frame_rates=[v.info.fps for v in videos],
+                           max_moving=_moving_fraction(max_motion_px, sizes))
     every = n <= max_frames
     # a camera whose screen saw the board nowhere: its frames of the chosen instants go to the detector all the same
     # (the quick look may miss a board the detector finds)
@@ -269,11 +322,13 @@ def rig_frames(videos: Sequence[ScreenedVideo], pairing: FrameTable,
 @dataclass(frozen=True)
 class VideoOptions:
     """How a camera's recording becomes views: the screen (:class:`~ccs_kornia.modules.detection.screening.BoardScreen`),
-    the frames read (:class:`~ccs_kornia.io.video.FrameSpan`) and the frames kept at most."""
+    the frames read (:class:`~ccs_kornia.io.video.FrameSpan`), the frames kept at most and the fastest moving frame
+    taken (px per frame period, :func:`camera_frames`)."""
 
     screen: Any
     span: FrameSpan = FrameSpan()
     max_frames: int = DEFAULT_MAX_FRAMES
+    max_motion_px: float | None = None
 
 
 def load_video_set(path: str, options: VideoOptions) -> dict[str, Any]:
@@ -292,7 +347,7 @@ def load_video_set(path: str, options: VideoOptions) -> dict[str, Any]:
         screened = screen_video(path, options.screen, options.span)
     except ValueError as err:
         return {"files": [], "images": [], "timestamps": {}, "video": [], "error": str(err)}
-    frames = camera_frames([screened], options.max_frames)
+    frames = camera_frames([screened], options.max_frames, options.max_motion_px)
     source = frames.source()
     images: list[Any] = []
     for k, ref in enumerate(frames.refs[0]):

@@ -185,3 +185,15 @@ def test_a_rig_keeps_the_frames_chosen_across_its_cameras():
         left = [out.candidates.index[c][f] for f in range(10) if not choice.kept[f]]
         assert not bool(out.cameras[c].calibration.used[left].any()) if left else True
     assert abs(float(out.rig.T[1].norm()) - float(stereo.T.norm())) < 0.02 * float(stereo.T.norm())
+
+
+def test_moving_views_come_in_where_the_still_ones_do_not_cover_the_poses():
+    cam = _camera(14, seed=6, speed=[None] * 14)
+    parallel = torch.tensor([0.02, -0.01, 0.0], dtype=torch.float64)
+    cam.rvec[:6] = parallel + 0.005 * torch.arange(6, dtype=torch.float64)[:, None]  # still views, nearly parallel
+    cam.speed = [0.0] * 6 + [500.0] * 8  # the rest moving
+    choice = choose_frames([cam], selection=FrameSelection(min_keep=4))
+    assert any(choice.kept[6:])  # the tilted poses, though moving
+    cam.rvec[6:] = parallel  # moving views that add no pose stay out
+    choice = choose_frames([cam], selection=FrameSelection(min_keep=4))
+    assert not any(choice.kept[6:]) and all(r.startswith("moving") for r in choice.reasons[6:])

@@ -15,7 +15,14 @@ preferred model among those that predict them as well as the best one is kept:
    model's two **disjoint halves** of the views agree clearly better (their projections over
    the image differ by less than :data:`HALVES_CLEAR_RATIO` of the preferred model's difference, and by
    :data:`HALVES_CLEAR_PX` px less; the best-aligning rotation fitted out; mrcal's cross-validation diff): a model
-   that fits as well but extrapolates differently from each half is not kept.
+   that fits as well but extrapolates differently from each half is not kept;
+4. a ``rational`` model whose numerator and denominator **cancel** (:func:`radial_cancellation`: over the board
+   points its views saw, each of the radial factor's numerator :math:`1 + k_1 r^2 + k_2 r^4 + k_3 r^6` and
+   denominator :math:`1 + k_4 r^2 + k_5 r^4 + k_6 r^6` departs from 1 more than :data:`MAX_CANCELLATION` times as far
+   as their ratio does) counts as a folding one: it goes after the tied models that do not. Such coefficients are
+   not determined by the views: large terms that the other half of the fraction takes back, whose two halves of the
+   views may agree because both land on the same ridge of the fit, not because the lens is known; their agreement
+   is no reason to prefer the model.
 
 With ``flexible_coverage`` (rig cameras: :class:`~ccs_kornia.pipeline.rig_pipeline.RigPipeline`), the models of
 :data:`FLEXIBLE_MODELS` are chosen only for a camera whose boards cover at least that fraction of the image
@@ -47,6 +54,7 @@ from ccs_kornia.geometry.models.factory import (
     OPENCV5,
     RATIONAL,
 )
+from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.quality.coverage import image_coverage
 from ccs_kornia.modules.calibration.quality.diagnostics import (
     cross_validation,
@@ -58,8 +66,9 @@ from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.runtime.checks import check_same_shape, check_tensor
 
 __all__ = [
-    "AUTO_MODELS", "ModelChoice", "model_or_choice", "FLEXIBLE_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
-    "TIE_SIGMAS", "choose_models", "narrow_ranking", "rank_models", "tied_with_best",
+    "AUTO_MODELS", "ModelChoice", "model_or_choice", "FLEXIBLE_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MAX_CANCELLATION",
+    "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
+    "TIE_SIGMAS", "choose_models", "narrow_ranking", "radial_cancellation", "rank_models", "tied_with_best",
 ]
 
 #: the candidates of the automatic model choice (``--model auto``)
@@ -81,6 +90,10 @@ HALVES_CLEAR_PX = 1.0
 #: models whose freedom beyond the boards only a wide coverage of the image constrains (``flexible_coverage``): the
 #: fisheye model and the OpenCV models of more than five coefficients (``rational``)
 FLEXIBLE_MODELS: tuple[CameraModel, ...] = tuple(m for m in AUTO_MODELS if m.is_fisheye or m.num_coeffs > 5)
+#: a rational model whose radial numerator and denominator each depart from 1 more than this many times as far as
+#: their ratio (over the board points seen) cancel (:func:`radial_cancellation`; the figures on the real sets:
+#: ``docs/diagnostics.md``)
+MAX_CANCELLATION = 5.0
 #: kept for callers of the former rule's keyword: models within this fraction of the best tie when the per-view
 #: errors are unknown (fewer than three views held out by both models)
 HELDOUT_TOLERANCE = 0.05
@@ -148,14 +161,15 @@ def tied_with_best(heldout: list[float], view_mse: list[list[float]] | None = No
 
 def rank_models(heldout: list[float], halves: list[float], tolerance: float = HELDOUT_TOLERANCE,
                 view_mse: list[list[float]] | None = None, halves_clear_px: float = HALVES_CLEAR_PX,
-                folds: list[bool] | None = None) -> list[int]:
+                folds: list[bool] | None = None, cancels: list[bool] | None = None) -> list[int]:
     """Models of one camera from best to worst (indices into the lists, which are given in order of preference).
 
     The models tied with the best held-out error (:func:`tied_with_best`) come first, in order of preference, except
     that a later tied model whose halves agree clearly better (:data:`HALVES_CLEAR_RATIO`, ``halves_clear_px``) at a
     held-out error within ``tolerance`` of the earlier one's is moved before it; tied models whose distortion folds
     inside the image (``folds``: no inverse over part of it, see
-    :func:`~ccs_kornia.modules.calibration.quality.uncertainty.unprojectable_fraction`) come after the tied ones that do not;
+    :func:`~ccs_kornia.modules.calibration.quality.uncertainty.unprojectable_fraction`) or whose rational terms cancel
+    (``cancels``: :func:`radial_cancellation` above :data:`MAX_CANCELLATION`) come after the tied ones that do not;
     then the rest by held-out error. Models without a finite held-out error are left out.
 
     Example:
@@ -180,7 +194,8 @@ def rank_models(heldout: list[float], halves: list[float], tolerance: float = HE
 
     ranked: list[int] = []
     for group in (False, True):  # the tied models that map the whole image one to one first
-        rest = [k for k in sorted(inside) if bool(folds[k] if folds is not None else False) == group]
+        rest = [k for k in sorted(inside)
+                if bool((folds is not None and folds[k]) or (cancels is not None and cancels[k])) == group]
         while rest:
             pick = rest[0]
             for k in rest[1:]:  # a later model takes the pick's place only by clearly better halves, at a held-out
@@ -189,6 +204,61 @@ def rank_models(heldout: list[float], halves: list[float], tolerance: float = HE
             ranked.append(pick)
             rest.remove(pick)
     return ranked + outside
+
+
+def radial_cancellation(coeffs: torch.Tensor, r2: torch.Tensor, seen: torch.Tensor | None = None) -> torch.Tensor:
+    r"""How far a rational model's radial numerator and denominator cancel, per camera.
+
+    Over the points seen, ``min(max|N - 1|, max|D - 1|) / max|N / D - 1|`` for the numerator :math:`N = 1 + k_1 r^2 +
+    k_2 r^4 + k_3 r^6` and the denominator :math:`D = 1 + k_4 r^2 + k_5 r^4 + k_6 r^6`: below 1 the fraction
+    departs from 1 as far as its larger term does (a lens's distortion), far above 1 both terms are large and the
+    fraction small (coefficients the views do not determine).
+
+    Args:
+        coeffs: :math:`(C, 8)` OpenCV's coefficients ``k1 k2 p1 p2 k3 k4 k5 k6``.
+        r2: :math:`(C, M)` squared radii of the points' undistorted rays in the normalized image.
+        seen: :math:`(C, M)` bool, the points that count (default all).
+
+    Returns:
+        :math:`(C,)` float64 (NaN where no point counts).
+
+    Example:
+        >>> k = torch.tensor([[-8.0, 20.0, 0, 0, 1.0, -7.8, 19.0, 2.0], [-0.3, 0.1, 0, 0, 0, 0.0, 0.0, 0.05]])
+        >>> r2 = torch.linspace(0.0, 0.3, 7).expand(2, 7)
+        >>> [round(x, 1) for x in radial_cancellation(k, r2).tolist()]
+        [19.1, 0.0]
+    """
+    k, r2 = coeffs.double(), r2.double()
+    seen = torch.ones_like(r2, dtype=torch.bool) if seen is None else seen.bool()
+
+    def poly(a, b, c):
+        return 1 + a[:, None] * r2 + b[:, None] * r2 ** 2 + c[:, None] * r2 ** 3
+
+    N, D = poly(k[:, 0], k[:, 1], k[:, 4]), poly(k[:, 5], k[:, 6], k[:, 7])
+
+    def largest(x):
+        return torch.where(seen, x.abs(), torch.zeros_like(x)).amax(-1)
+
+    out = torch.minimum(largest(N - 1), largest(D - 1)) / largest(N / D - 1).clamp_min(1e-12)
+    return torch.where(seen.any(-1), out, torch.full_like(out, float("nan")))
+
+
+def _cancellation(result: CalibrationResult, object_points: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """(C,) :func:`radial_cancellation` of each camera over the board points of its used views (their rays from the
+    fitted poses); 0 for a model without a denominator, NaN for a failed camera."""
+    model = result.camera.model
+    C = result.rvec.shape[0]
+    ok = result.success.cpu().bool()
+    if model.is_fisheye or 5 not in getattr(model, "coeff_index", ()):
+        return torch.where(ok, torch.zeros(C, dtype=torch.float64), torch.full((C,), float("nan"), dtype=torch.float64))
+    R = exp_so3(result.rvec.double().cpu())  # (C, V, 3, 3)
+    obj = object_points.double().cpu()
+    obj = obj.expand(C, -1, -1) if obj.dim() == 2 else obj
+    X = torch.einsum("cvij,cnj->cvni", R, obj) + result.tvec.double().cpu()[:, :, None]
+    r2 = (X[..., :2] / X[..., 2:]).pow(2).sum(-1).flatten(1)  # (C, V * N)
+    seen = (valid.cpu().bool() & result.used.cpu().bool()[..., None] & (X[..., 2] > 0)).flatten(1)
+    out = radial_cancellation(model.dist8(result.camera.params.double().cpu()), r2.nan_to_num(0.0), seen)
+    return torch.where(ok, out, torch.full_like(out, float("nan")))
 
 
 def narrow_ranking(ranking: list[CameraModel], tied: list[CameraModel]) -> list[CameraModel]:
@@ -308,6 +378,7 @@ class ModelSelection(nn.Module):
         -> ``(results, chosen, table)``: ``{model: CalibrationResult}`` of every model, the chosen model per camera
         (``None`` where no model calibrated it) and per camera the figures by the models' names, as files carry them:
         ``{"chosen", "runner_up", "views" (with a board), "heldout_rms_px": {name: px}, "halves_rms_px": {name: px},
+        "tied", "folds_in_image", "cancellation" (:func:`radial_cancellation` of the rational models), "cancels",
         "rule"}``.
 
     Example:
@@ -388,6 +459,7 @@ class ModelSelection(nn.Module):
                 view_mse.append(nan[:, None].expand(-1, corners.shape[1]))
         H, S, E = torch.stack(heldout), torch.stack(halves), torch.stack(view_mse)
         fold = torch.stack([self._folds(results[n], image_size) for n in names])  # (M, C)
+        cancel = torch.stack([_cancellation(results[n], object_points, valid) for n in names])  # (M, C)
         # ranked in order of preference: the candidates in PREFERENCE order, any other after them in the order given
         simple = sorted(range(len(names)), key=lambda i: (PREFERENCE.index(names[i]) if names[i] in PREFERENCE
                                                           else len(PREFERENCE), i))
@@ -399,7 +471,8 @@ class ModelSelection(nn.Module):
         for c in range(H.shape[1]):
             h, hv, e = H[simple, c].tolist(), S[simple, c].tolist(), E[simple, c].tolist()
             f = fold[simple, c].tolist()
-            ranking = [names[simple[k]] for k in rank_models(h, hv, self.tolerance, e, clear_px, f)]
+            cancels = (cancel[simple, c] > MAX_CANCELLATION).tolist()
+            ranking = [names[simple[k]] for k in rank_models(h, hv, self.tolerance, e, clear_px, f, cancels)]
             tied = [names[simple[k]] for k, t in enumerate(tied_with_best(h, e, self.tolerance)) if t]
             # no model could be judged on held-out views (too few views for the folds): the first that calibrated
             ranking = ranking or [names[i] for i in simple if bool(results[names[i]].success[c])]
@@ -413,11 +486,15 @@ class ModelSelection(nn.Module):
                 "heldout_rms_px": {str(n): _num(H[i, c]) for i, n in enumerate(names)},
                 "halves_rms_px": {str(n): _num(S[i, c]) for i, n in enumerate(names)},
                 "tied": [str(n) for n in tied], "folds_in_image": [str(n) for i, n in enumerate(names) if bool(fold[i, c])],
+                "cancellation": {str(n): _num(cancel[i, c]) for i, n in enumerate(names) if cancel[i, c] != 0},
+                "cancels": [str(n) for i, n in enumerate(names) if bool(cancel[i, c] > MAX_CANCELLATION)],
                 **({} if coverage is None else {"coverage": float(coverage[c]),
                                                 "flexible_coverage": self.flexible_coverage}),
                 "rule": f"the first of {', '.join(map(str, PREFERENCE))} whose held-out reprojection error the views cannot tell from the best "
                         f"(within {100 * TIE_FLOOR:g} %, or a per-view excess below {TIE_SIGMAS:g} sigma of a signed-rank test) "
-                        "and whose distortion does not fold inside the image, unless another's two halves agree "
+                        "and whose distortion does not fold inside the image (nor its rational terms cancel: "
+                        f"numerator and denominator each more than {MAX_CANCELLATION:g}x as far from 1 as their ratio), "
+                        "unless another's two halves agree "
                         "clearly better" + ("" if coverage is None else
                                             f"; {' and '.join(map(str, FLEXIBLE_MODELS))} only where the boards cover at least "
                                             f"{100 * self.flexible_coverage:g} % of the image, or no other model ties"),

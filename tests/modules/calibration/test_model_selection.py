@@ -13,10 +13,12 @@ from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5, RATIONAL
 from ccs_kornia.modules.calibration.model_selection import (
     AUTO_MODELS,
     FLEXIBLE_MODELS,
+    MAX_CANCELLATION,
     ModelChoice,
     ModelSelection,
     choose_models,
     narrow_ranking,
+    radial_cancellation,
     rank_models,
     tied_with_best,
 )
@@ -36,6 +38,32 @@ def test_rank_models_rule():
     # halves not computed: held-out error decides among the contenders; NaN models are left out
     assert rank_models([0.2, 0.201, NAN], [NAN, NAN, 1.0]) == [0, 1]
     assert rank_models([NAN, NAN], [1.0, 2.0]) == []
+
+
+def test_a_rational_model_whose_terms_cancel_goes_after_the_tied_models():
+    # opencv_left without one view: opencv5 and rational tie, rational's halves agree clearly better
+    heldout, halves = [0.1710, 0.1797, 0.1795, 0.1697], [5.81, 0.89, 3.63, 0.79]
+    assert rank_models(heldout, halves) == [3, 0, 2, 1]
+    assert rank_models(heldout, halves, cancels=[False, False, False, True]) == [0, 3, 2, 1]
+
+
+def _radii(largest: float) -> torch.Tensor:
+    return torch.linspace(0.0, largest, 50, dtype=F64).pow(2)[None]
+
+
+@pytest.mark.parametrize("coeffs, largest, cancels", [
+    # fitted to opencv_left without one view: large terms, a mild barrel lens
+    ([-12.626, 59.863, 0.0011738, 2.2646e-05, 5.9447, -12.347, 56.31, 23.221], 0.57, True),
+    # a GoPro's wide lens and a fisheye lens, fitted on their sets: the denominator does the work
+    ([0.034653, 0.013262, -0.00043324, 0.00011306, 0.0059849, 0.30048, -0.02394, 0.017221], 1.82, False),
+    ([0.31937, -0.0056291, 0.00042133, -0.00013659, -0.00039647, 0.68146, 0.038437, -0.0028262], 3.84, False),
+    ([-0.28, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], 0.6, False),  # no denominator
+])
+def test_radial_cancellation_tells_cancelling_terms_from_a_lens(coeffs, largest, cancels):
+    value = float(radial_cancellation(torch.tensor([coeffs], dtype=F64), _radii(largest))[0])
+    assert (value > MAX_CANCELLATION) == cancels
+    seen = torch.zeros(1, 50, dtype=torch.bool)
+    assert math.isnan(float(radial_cancellation(torch.tensor([coeffs], dtype=F64), _radii(largest), seen)[0]))
 
 
 def test_choose_models_batched_and_exceptions():

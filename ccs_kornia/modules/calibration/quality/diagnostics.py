@@ -43,7 +43,7 @@ from ccs_kornia.modules.calibration.subset_solutions import (
     solve_subsets,
 )
 
-__all__ = ["image_points", "projection_uncertainty", "projection_difference", "split_views", "cross_validation",
+__all__ = ["HALVES_DISAGREE", "image_points", "projection_uncertainty", "projection_difference", "split_views", "cross_validation",
            "VerdictThresholds", "verdict", "diagnose", "CalibrationDiagnostics"]
 
 
@@ -188,6 +188,8 @@ def cross_validation(
 
 #: the image diagonal (px) for which the verdict's pixel thresholds are written (640x480)
 REFERENCE_DIAGONAL_PX = 800.0
+#: the words of the verdict's reasons on the split-half difference (the command's verdict line repeats them)
+HALVES_DISAGREE = "two halves of the views disagree"
 
 
 def pixel_scale(image_size: tuple[int, int]) -> float:
@@ -222,6 +224,10 @@ class VerdictThresholds:
             the model does not explain the data (lens not fitting the model, wrong corners); counts only when
             the difference over the covered image also exceeds ``cv_min_px``.
         cv_min_px: see ``cv_ratio``.
+        halves_px: split-half difference over the whole image above which the verdict says that the views do not
+            determine the distortion outside the boards (a weakness, whatever the covariances predict); for a
+            runner-up model the held-out views cannot tell from the chosen one, a note (the camera outside the
+            boards may depend on the choice; the chosen model is graded on its own figures).
         heldout_ratio: held-out RMS over the fit RMS above which the fit does not generalise (twice: failure).
         good_rms_px / usable_rms_px: reprojection RMS above which the corners or the model are suspect / wrong.
     """
@@ -231,6 +237,7 @@ class VerdictThresholds:
     extrapolation_px: float = 2.0
     cv_ratio: float = 3.0
     cv_min_px: float = 0.5
+    halves_px: float = 10.0
     heldout_ratio: float = 1.5
     good_rms_px: float = 1.0
     usable_rms_px: float = 2.0
@@ -246,7 +253,7 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
     Args:
         figures: one camera's figures as in :func:`diagnose` (``rms_px``, ``uncertainty_covered_px``,
             ``uncertainty_max_px``, ``cv_rms_px``, ``cv_covered_rms_px``, ``cv_expected_rms_px``,
-            ``cv_covered_expected_rms_px``, ``heldout_rms_px``; missing or None allowed).
+            ``cv_covered_expected_rms_px``, ``heldout_rms_px``, ``runner_up``; missing or None allowed).
         issues: that camera's degeneracy issues (``CalibrationResult.issues()[c]``).
         thresholds: :class:`VerdictThresholds`.
 
@@ -256,6 +263,9 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
         ('good', [])
         >>> verdict({"rms_px": 0.2, "uncertainty_covered_px": 3.1}, [])[0]
         'not reliable: add views tilted in different directions (20-45 deg) and filling more of the image'
+        >>> verdict({"rms_px": 0.2, "uncertainty_covered_px": 0.2, "cv_rms_px": 20.5, "cv_covered_rms_px": 0.1,
+        ...          "cv_expected_rms_px": 30.0, "heldout_rms_px": 0.21}, [])[1]
+        ['two halves of the views disagree by 20.5 px RMS over the image (0.10 px where the boards were): outside the boards these views do not determine the distortion']
     """
     t = thresholds or VerdictThresholds()
     found = Findings()
@@ -315,13 +325,22 @@ def verdict(figures: dict, issues: list[dict], thresholds: VerdictThresholds | N
         ratio = cv / cv_exp
         if cv_cov is not None and cv_cov_exp:  # where the boards were, if that is the worse
             ratio = max(ratio, cv_cov / cv_cov_exp)
-        text = (f"two halves of the views disagree by {cv:.2f} px RMS over the image ({cv_cov or 0:.2f} px where "
+        text = (f"{HALVES_DISAGREE} by {cv:.2f} px RMS over the image ({cv_cov or 0:.2f} px where "
                 f"the boards were), {ratio:.1f}x what the corner noise explains")
         if ratio > t.cv_ratio and (cv_cov or 0.0) > t.cv_min_px:
             found.fail(text, "the lens does not fit the distortion model or some corners are wrong: try another "
                              "model and check the views with the largest error")
         elif ratio > t.cv_ratio:
             found.warn(text)
+        elif cv > t.halves_px:
+            found.warn(f"{HALVES_DISAGREE} by {cv:.1f} px RMS over the image ({cv_cov or 0:.2f} px where the boards "
+                       "were): outside the boards these views do not determine the distortion")
+    runner = figures.get("runner_up") or {}
+    other = runner.get("halves_rms_px")
+    if runner.get("tied") and other is not None and math.isfinite(other) and other > t.halves_px:
+        found.note(f"the runner-up model {runner['model']} predicts the held-out views as well, and its "
+                   f"{HALVES_DISAGREE} by {other:.1f} px RMS over the image: outside the boards the camera depends on "
+                   "the model chosen")
     if held is not None and rms > 0:
         found.grade(held / rms, t.heldout_ratio, 2 * t.heldout_ratio,
                     f"held-out views reproject at {held:.2f} px RMS vs {rms:.2f} px on the fitted views",
@@ -346,6 +365,7 @@ def diagnose(
     thresholds: VerdictThresholds | None = None,
     weights: torch.Tensor | None = None,
     solutions: SubsetSolutions | None = None,
+    runner_up: list[dict | None] | None = None,
 ) -> list[dict]:
     r"""Quality figures and verdict of a calibration, one JSON-able dict per camera.
 
@@ -362,6 +382,9 @@ def diagnose(
         thresholds: :class:`VerdictThresholds` (pixel limits for a 640x480 image, scaled by
             :func:`pixel_scale` of ``image_size``).
         solutions: the cross-validation's solved subsets kept by an earlier one (:func:`cross_validation`).
+        runner_up: per camera, the model choice's runner-up (``{"model", "halves_rms_px", "tied"}``: its split-half
+            difference over the image, whether the held-out views tie it with the chosen model; ``None``: none),
+            kept in the figures for the verdict.
 
     Returns:
         per camera a dict with the keys:
@@ -391,6 +414,7 @@ def diagnose(
         - ``residual_structure``: the residuals' structure over the image and whether the model fits
           (:meth:`~ccs_kornia.modules.calibration.result.CalibrationResult.residual_structure`; where the result has
           it): a model that does not fit makes the verdict ``not reliable``;
+        - ``runner_up``: as given (where given);
         - ``verdict``: ``"good"``, ``"usable"`` or ``"not reliable: <advice>"``; ``reasons``: list of str.
 
         Figures that cannot be computed are None.
@@ -469,6 +493,8 @@ def diagnose(
         fig["covered_fraction"] = _f(covered[c].double().mean())
         if result.model_fit is not None and good:
             fig["residual_structure"] = result.residual_structure(c)
+        if runner_up is not None and runner_up[c] is not None:
+            fig["runner_up"] = dict(runner_up[c])
         fig["verdict"], fig["reasons"] = verdict(fig, issues[c], limits)
         out.append(fig)
     return out

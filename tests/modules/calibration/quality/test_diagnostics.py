@@ -466,6 +466,25 @@ def test_verdict_levels():
     assert verdict(base, warn) == ("usable", ["all views ...: tilt"])
 
 
+def test_the_verdict_says_what_the_halves_say():
+    base = {"rms_px": 0.15, "uncertainty_covered_px": 0.2, "uncertainty_max_px": 1.5, "cv_rms_px": 2.0,
+            "cv_covered_rms_px": 0.2, "cv_expected_rms_px": 3.0, "cv_covered_expected_rms_px": 0.2,
+            "heldout_rms_px": 0.16}
+    assert verdict(base, []) == ("good", [])
+    # halves 25.5 px apart over the image, as the covariances predict: outside the boards the views say nothing
+    far = verdict({**base, "cv_rms_px": 25.5, "cv_expected_rms_px": 30.0}, [])
+    assert far[0] == "usable" and any("two halves of the views disagree by 25.5 px" in r for r in far[1])
+    runner = {"model": "opencv5", "halves_rms_px": 20.5, "tied": True}
+    tied = verdict({**base, "runner_up": runner}, [])  # said, not graded: the chosen model's own halves agree
+    assert tied[0] == "good" and "the runner-up model opencv5" in tied[1][0] and "20.5 px" in tied[1][0]
+    assert verdict({**base, "runner_up": {**runner, "tied": False}}, []) == ("good", [])
+    assert verdict({**base, "runner_up": {**runner, "halves_rms_px": 5.0}}, []) == ("good", [])
+    # the limit scales with the image as the other pixel limits
+    wide = {**base, "cv_rms_px": 15.0, "cv_expected_rms_px": 30.0}
+    assert verdict(wide, [], diagnostics.VerdictThresholds().scaled(2.0)) == ("good", [])
+    assert verdict(wide, [])[0] == "usable"
+
+
 @pytest.mark.parametrize("module", [degeneracy, coverage, uncertainty, diagnostics])
 def test_doctests(module):
     result = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
