@@ -5,14 +5,15 @@ whole board; the ChArUco detector's corners, both paths merged) **and** OpenCV p
 :data:`AGREE_PX` of it (``cv2.findChessboardCornersSB``; ``cv2.aruco.CharucoDetector`` on the print's variants:
 inverted, mirrored). A view with a corner of ours that OpenCV does not confirm is left out whole, so no true corner of a
 kept view is missing from its labels (a missing one would teach the network that a corner is background). The labels
-file feeds :class:`~ccs_kornia.data.datamodules.real_pairs.RealPairsDataModule`, which makes degraded copies of the
-views with these labels as targets (self-training, ``lightning_configs/detector_selftrain.yaml``).
+file feeds :class:`~ccs_kornia.data.datamodules.real_pairs_datamodule.RealPairsDataModule`, which makes degraded
+copies of the views with these labels as targets (self-training, ``lightning_configs/detector_selftrain.yaml``).
 
 Command::
 
     python -m ccs_kornia.training.self_labels runs/selftrain/labels.json --real-dir ../shared/data/real
 
-(the sets of :data:`~ccs_kornia.data.datamodules.real_pairs.SELF_TRAINING_SETS` unless ``--sets`` names others).
+(the sets of :data:`~ccs_kornia.data.datamodules.real_pairs_datamodule.SELF_TRAINING_SETS` unless ``--sets`` names
+others).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import cv2
 import numpy as np
 import torch
 
-from ccs_kornia.data.datamodules.real_pairs import SELF_TRAINING_SETS
+from ccs_kornia.data.datamodules.real_pairs_datamodule import SELF_TRAINING_SETS
 
 __all__ = ["AGREE_PX", "make_self_labels", "view_labels"]
 
@@ -112,7 +113,7 @@ def _charuco_views(files: list[str], board) -> list[np.ndarray | None]:
 
 def make_self_labels(real_dir: str | Path, sets: dict | None = None, log=print) -> dict:
     """The labels of every image of ``sets`` (``{name: (kind, board, file patterns)}``, default
-    :data:`~ccs_kornia.data.datamodules.real_pairs.SELF_TRAINING_SETS`) under ``real_dir``.
+    :data:`~ccs_kornia.data.datamodules.real_pairs_datamodule.SELF_TRAINING_SETS`) under ``real_dir``.
 
     Returns:
         ``{"real_dir": str, "views": [{"set", "file" (relative to real_dir), "corners" [[x, y], ...],

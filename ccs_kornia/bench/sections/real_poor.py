@@ -19,7 +19,7 @@ sensor, Gaussian blur, motion blur, small, JPEG).
   error (mean and median px over the right ones), views with at least
   :data:`~ccs_kornia.bench.sections.markers.MIN_POSED` right corners, and for chessboards the whole boards found;
   over all sets and over the sets held out of the heatmap network's self-training
-  (:data:`~ccs_kornia.data.datamodules.real_pairs.HELD_OUT_SETS`, ``held_out`` in the JSON).
+  (:data:`~ccs_kornia.data.datamodules.real_pairs_datamodule.HELD_OUT_SETS`, ``held_out`` in the JSON).
   A chessboard's corners are compared in the best of the orderings a board's symmetry allows.
 """
 
@@ -41,7 +41,7 @@ from ccs_kornia.bench.sections.markers import (
 )
 from ccs_kornia.bench.sections.wild import WILD_REAL_SETS
 from ccs_kornia.data.datamodules.datamodule import BENCH_SEED_BASE
-from ccs_kornia.data.datamodules.real_pairs import HELD_OUT_SETS
+from ccs_kornia.data.datamodules.real_pairs_datamodule import HELD_OUT_SETS
 from ccs_kornia.data.render.poor_images import make_poor, scale_points
 from ccs_kornia.modules.detection.markers.charuco import charuco_paths
 from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths

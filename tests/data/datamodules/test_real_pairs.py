@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from ccs_kornia.data.datamodules.real_pairs import (
+from ccs_kornia.data.datamodules.real_pairs_datamodule import (
     DEGRADATIONS,
     HELD_OUT_SETS,
     SELF_TRAINING_SETS,
@@ -35,7 +35,7 @@ def _dots(size=(160, 200), spacing=24.0, offset=(20.3, 17.6)):
 
 
 def _centroid(view, p, r=4):
-    x0, y0 = int(round(p[0])), int(round(p[1]))
+    x0, y0 = round(p[0]), round(p[1])
     win = view[y0 - r:y0 + r + 1, x0 - r:x0 + r + 1].astype(np.float64)
     win = np.clip(win - np.median(view), 0, None)
     ys, xs = np.mgrid[y0 - r:y0 + r + 1, x0 - r:x0 + r + 1]

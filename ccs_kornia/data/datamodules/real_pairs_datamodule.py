@@ -32,8 +32,22 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from ccs_kornia.data.datamodules.datamodule import TRAIN_SEED_BASE, VAL_SEED_BASE, DetectorDataModule, RenderedBatches
-from ccs_kornia.data.render.poor_images import BLUR_SIGMA, DARK, GAIN, JPEG_QUALITY, MOTION_PX, READ_NOISE, SMALL
+from ccs_kornia.data.datamodules.datamodule import (
+    TRAIN_SEED_BASE,
+    VAL_SEED_BASE,
+    DetectorDataModule,
+    RenderedBatches,
+)
+from ccs_kornia.data.render.poor_images import (
+    BLUR_SIGMA,
+    DARK,
+    GAIN,
+    JPEG_QUALITY,
+    MOTION_PX,
+    READ_NOISE,
+    SMALL,
+    motion_kernel,
+)
 from ccs_kornia.data.scenes.targets import gaussian_heatmaps
 
 __all__ = ["DEGRADATIONS", "HELD_OUT_SETS", "SELF_TRAINING_SETS", "RealPairsDataModule", "degrade_crop"]
@@ -75,15 +89,6 @@ def _draw(rng: np.random.Generator, conditions: tuple[str, ...]) -> dict:
         elif c != "clean":
             raise ValueError(f"Unknown degradation {c!r}; expected 'clean' or one of {DEGRADATIONS}.")
     return p
-
-
-def _motion_kernel(length: int, angle: float) -> np.ndarray:
-    k = np.zeros((length, length), np.float32)
-    c = (length - 1) / 2.0
-    d = np.array([np.cos(angle), np.sin(angle)]) * c
-    cv2.line(k, tuple(np.round([c - d[0], c - d[1]]).astype(int).tolist()),
-             tuple(np.round([c + d[0], c + d[1]]).astype(int).tolist()), 1.0, 1, cv2.LINE_AA)
-    return k / k.sum()
 
 
 def _resize(image: np.ndarray, points: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
@@ -129,7 +134,7 @@ def degrade_crop(
         >>> v, c = degrade_crop(img, np.array([[60.0, 50.0]]), np.array([60.0, 50.0]), 20.0, 10.0, 32, {"small": 0.5},
         ...                     np.random.default_rng(0))
         >>> v.shape, c.round(2).tolist()
-        ((32, 32), [[15.5, 15.5]])
+        ((32, 32), [[16.5, 16.5]])
     """
     if gray8.ndim != 2 or gray8.dtype != np.uint8:
         raise ValueError(f"Expected a (H, W) uint8 image, got {gray8.shape} {gray8.dtype}.")
@@ -142,8 +147,8 @@ def degrade_crop(
     inner = 0.5 * crop / total
     centre = np.array([np.clip(centre[i], inner, n - 1 - inner) if n - 1 > 2 * inner else (n - 1) / 2.0
                        for i, n in enumerate((w, h))])
-    x0, y0 = int(math.floor(centre[0] - half)), int(math.floor(centre[1] - half))
-    x1, y1 = int(math.ceil(centre[0] + half)) + 1, int(math.ceil(centre[1] + half)) + 1
+    x0, y0 = math.floor(centre[0] - half), math.floor(centre[1] - half)
+    x1, y1 = math.ceil(centre[0] + half) + 1, math.ceil(centre[1] + half) + 1
     pad = (max(0, -y0), max(0, y1 - h), max(0, -x0), max(0, x1 - w))
     region = gray8[max(0, y0):min(h, y1), max(0, x0):min(w, x1)]
     if any(pad):
@@ -154,7 +159,7 @@ def degrade_crop(
     if "blur" in params:
         x = cv2.GaussianBlur(x, (0, 0), params["blur"], borderType=cv2.BORDER_REFLECT)
     if "motion" in params:
-        x = cv2.filter2D(x, -1, _motion_kernel(*params["motion"]), borderType=cv2.BORDER_REFLECT)
+        x = cv2.filter2D(x, -1, motion_kernel(*params["motion"]), borderType=cv2.BORDER_REFLECT)
     if "small" in params:
         x8 = np.clip(np.rint(x), 0, 255).astype(np.uint8)
         x8, moved = _resize(x8, np.vstack([pts, c[None]]), small)
@@ -162,7 +167,7 @@ def degrade_crop(
         total /= small
     if "light" in params:
         if params.get("sensor"):
-            x = rng.poisson(x * params["light"] / GAIN).astype(np.float32) * GAIN
+            x = rng.poisson(np.clip(x, 0.0, None) * params["light"] / GAIN).astype(np.float32) * GAIN  # no FFT ripple below 0
         else:
             x = x * params["light"]
         x = x + rng.normal(0.0, READ_NOISE, x.shape).astype(np.float32)
@@ -173,7 +178,7 @@ def degrade_crop(
             x8 = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
     x8, moved = _resize(x8, np.vstack([pts, c[None]]), total)
     pts, c = moved[:-1], moved[-1]
-    ox, oy = int(round(c[0] - crop / 2)), int(round(c[1] - crop / 2))
+    ox, oy = round(c[0] - crop / 2), round(c[1] - crop / 2)
     ox = min(max(ox, 0), x8.shape[1] - crop)
     oy = min(max(oy, 0), x8.shape[0] - crop)
     view = x8[oy:oy + crop, ox:ox + crop]
@@ -230,8 +235,17 @@ class RealPairsDataModule(L.LightningDataModule):
         _draw(np.random.default_rng(0), tuple(degradations))  # unknown names fail here, not in a worker
         self.views: list[dict] | None = None
         self.images: dict[str, np.ndarray] = {}
-        self.rendered = (DetectorDataModule(image_size=(crop, crop), batch_size=batch_size, sigma=sigma,
-                                            **(rendered or {})) if rendered_prob > 0 else None)
+        self._rendered: DetectorDataModule | None = None
+
+    @property
+    def rendered(self) -> DetectorDataModule | None:
+        """The data module of the rendered share (made on first use, outside the command line's instantiation, which
+        would hand it this module's hyperparameters)."""
+        hp = self.hparams
+        if self._rendered is None and hp.rendered_prob > 0:
+            self._rendered = DetectorDataModule(image_size=(hp.crop, hp.crop), batch_size=hp.batch_size, sigma=hp.sigma,
+                                                **(hp.rendered or {}))
+        return self._rendered
 
     def _load(self) -> list[dict]:
         if self.views is None:
@@ -279,7 +293,7 @@ class RealPairsDataModule(L.LightningDataModule):
 
     def make_batch(self, generator: torch.Generator) -> dict[str, torch.Tensor]:
         hp = self.hparams
-        n_rendered = int(round(hp.batch_size * hp.rendered_prob)) if self.rendered is not None else 0
+        n_rendered = round(hp.batch_size * hp.rendered_prob) if self.rendered is not None else 0
         rng = np.random.default_rng(int(torch.randint(0, 2**62, (1,), generator=generator)))
         images, corners = self.real_views(hp.batch_size - n_rendered, rng)
         n = max(len(c) for c in corners)
