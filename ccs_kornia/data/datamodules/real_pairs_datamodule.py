@@ -30,14 +30,8 @@ import cv2
 import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader
 
-from ccs_kornia.data.datamodules.datamodule import (
-    TRAIN_SEED_BASE,
-    VAL_SEED_BASE,
-    DetectorDataModule,
-    RenderedBatches,
-)
+from ccs_kornia.data.datamodules.datamodule import BatchStreams, DetectorDataModule
 from ccs_kornia.data.render.poor_images import (
     BLUR_SIGMA,
     DARK,
@@ -187,7 +181,7 @@ def degrade_crop(
     return view.astype(np.float32) / 255.0, pts - np.array([ox, oy], np.float64)
 
 
-class RealPairsDataModule(L.LightningDataModule):
+class RealPairsDataModule(BatchStreams, L.LightningDataModule):
     """Degraded crops of self-labelled real photographs with Gaussian target heatmaps (module doc), in the batch format
     of :class:`~ccs_kornia.data.datamodules.datamodule.DetectorDataModule` (``image``, ``heatmap``, ``corners``,
     ``valid``) for :class:`~ccs_kornia.training.detector.DetectorLitModule`.
@@ -321,12 +315,3 @@ class RealPairsDataModule(L.LightningDataModule):
                    "corners": torch.cat([pad(out["corners"]), pad(r["corners"])]),
                    "valid": torch.cat([pad(out["valid"]), pad(r["valid"])])}
         return out
-
-    def train_dataloader(self) -> DataLoader:
-        ds = RenderedBatches(self.make_batch, TRAIN_SEED_BASE + self.hparams.seed)
-        return DataLoader(ds, batch_size=None, num_workers=self.hparams.num_workers,
-                          persistent_workers=self.hparams.num_workers > 0)
-
-    def val_dataloader(self) -> DataLoader:
-        ds = RenderedBatches(self.make_batch, VAL_SEED_BASE + self.hparams.seed, self.hparams.val_batches)
-        return DataLoader(ds, batch_size=None, num_workers=0)
