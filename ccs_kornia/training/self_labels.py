@@ -54,9 +54,9 @@ def view_labels(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray | None:
     """The labels ``(N, 2)`` of one view: ``ours`` when OpenCV's ``theirs`` confirms every one, else ``None``.
 
     Example:
-        >>> ours = np.array([[10.0, 10.0], [20.0, 10.0]])
-        >>> view_labels(ours, ours + 0.3).shape, view_labels(ours, ours[:1]) is None
-        ((2, 2), True)
+        >>> ours = np.array([[10.0, 10.0], [20.0, 10.0], [10.0, 20.0], [20.0, 20.0]])
+        >>> view_labels(ours, ours + 0.3).shape, view_labels(ours, ours[:3]) is None
+        ((4, 2), True)
     """
     ours = ours[np.isfinite(ours).all(-1)]
     if len(ours) < 4 or not _confirmed(ours, theirs[np.isfinite(theirs).all(-1)]).all():
