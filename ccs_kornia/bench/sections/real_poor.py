@@ -17,7 +17,9 @@ sensor, Gaussian blur, motion blur, small, JPEG).
   :data:`~ccs_kornia.bench.sections.markers.WRONG_PX`, or half the distance to the nearest other truth corner where
   that is less, in the poor image's pixels), wrong ids (a corner of a truth id farther than that), the corner
   error (mean and median px over the right ones), views with at least
-  :data:`~ccs_kornia.bench.sections.markers.MIN_POSED` right corners, and for chessboards the whole boards found.
+  :data:`~ccs_kornia.bench.sections.markers.MIN_POSED` right corners, and for chessboards the whole boards found;
+  over all sets and over the sets held out of the heatmap network's self-training
+  (:data:`~ccs_kornia.data.datamodules.real_pairs_datamodule.HELD_OUT_SETS`, ``held_out`` in the JSON).
   A chessboard's corners are compared in the best of the orderings a board's symmetry allows.
 """
 
@@ -39,6 +41,7 @@ from ccs_kornia.bench.sections.markers import (
 )
 from ccs_kornia.bench.sections.wild import WILD_REAL_SETS
 from ccs_kornia.data.datamodules.datamodule import BENCH_SEED_BASE
+from ccs_kornia.data.datamodules.real_pairs_datamodule import HELD_OUT_SETS
 from ccs_kornia.data.render.poor_images import make_poor, scale_points
 from ccs_kornia.modules.detection.markers.charuco import charuco_paths
 from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
@@ -246,7 +249,7 @@ def run_real_poor(cfg, log=print) -> dict:
                 for condition in ("clean", *conditions):
                     for key, scores in got[condition].items():
                         per_kind[kind].setdefault(condition, {}).setdefault(key, []).extend(
-                            (s, None) for s in scores)
+                            (s, None, name) for s in scores)
                         entry.setdefault(condition, {}).setdefault(key, []).extend(scores)
             sec["sets"][name] = {"kind": kind, **{c: {k: _summary(v) for k, v in m.items()}
                                                   for c, m in entry.items()}}
@@ -267,20 +270,26 @@ def run_real_poor(cfg, log=print) -> dict:
                 entry[condition] = {}
                 for key, r in got[condition].items():
                     per_kind[kind].setdefault(condition, {}).setdefault(key, []).extend(
-                        zip(r["scores"], r["boards"]))
+                        (s, b, name) for s, b in zip(r["scores"], r["boards"]))
                     entry[condition][key] = _summary(r["scores"], r["boards"])
             sec["sets"][name] = entry
         clean = sec["sets"][name]["clean"]["ours"]
         worst = min(sec["sets"][name][c]["ours"]["found_fraction"] for c in conditions) if conditions else math.nan
         log(f"[real_poor] {name}: {clean['views']} views, {clean['truth']} truth corners; ours clean "
             f"{clean['found_fraction']:.3f}, worst poor condition {worst:.3f}")
+    sec["held_out"] = {"sets": [n for n in sec["sets"] if n in HELD_OUT_SETS], "charuco": {}, "chessboard": {}}
     for kind, rows in per_kind.items():
         for condition, methods in rows.items():
-            sec[kind][condition] = {}
-            for key, pairs in methods.items():
-                scores = [s for s, _ in pairs]
-                boards = None if kind == "charuco" else [b for _, b in pairs]
-                sec[kind][condition][key] = _summary(scores, boards)
+            for part, keep in ((sec, None), (sec["held_out"], HELD_OUT_SETS)):
+                part[kind][condition] = {}
+                for key, rows_ in methods.items():
+                    picked = [(s, b) for s, b, n in rows_ if keep is None or n in keep]
+                    if not picked:
+                        continue
+                    boards = None if kind == "charuco" else [b for _, b in picked]
+                    part[kind][condition][key] = _summary([s for s, _ in picked], boards)
+                if not part[kind][condition]:
+                    del part[kind][condition]
     return sec
 
 
@@ -305,11 +314,16 @@ def real_poor_md(sec: dict) -> list[str]:
         f"their right id (within {WRONG_PX:g} px, or half the distance to the nearest truth corner); wrong ids: a "
         "truth id's corner farther than that; error over the right ones (px of the poor image); posed: views with "
         f"at least {MIN_POSED} right corners."), ""]
-    for kind, labels, title in (("charuco", CHARUCO_METHODS, "ChArUco boards"),
-                                ("chessboard", CHESS_METHODS, "Chessboards")):
-        rows = sec.get(kind) or {}
+    held = sec.get("held_out") or {}
+    tables = [(held, "held-out sets, never seen in the heatmap network's self-training: "
+               + ", ".join(f"`{n}`" for n in held.get("sets", ())))] if held.get("sets") else []
+    tables.append((sec, "all sets"))
+    for (part, which), (kind, labels, title) in ((t, k) for t in tables for k in (
+            ("charuco", CHARUCO_METHODS, "ChArUco boards"), ("chessboard", CHESS_METHODS, "Chessboards"))):
+        rows = part.get(kind) or {}
         if not rows:
             continue
+        title = f"{title}, {which}"
         boards = kind == "chessboard"
         lines += [f"{title}:", "",
                   "| condition | method | views | truth corners | found | wrong ids | mean err | median err | posed |"

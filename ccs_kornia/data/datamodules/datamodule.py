@@ -12,7 +12,8 @@ from ccs_kornia.data.scenes.scenes import SyntheticBatch, SyntheticChessboards
 from ccs_kornia.data.scenes.targets import gaussian_heatmaps
 
 __all__ = [
-    "RenderedBatches", "DetectorDataModule", "TRAIN_SEED_BASE", "VAL_SEED_BASE", "BENCH_SEED_BASE", "wild_sampler",
+    "BatchStreams", "RenderedBatches", "DetectorDataModule", "TRAIN_SEED_BASE", "VAL_SEED_BASE", "BENCH_SEED_BASE",
+    "wild_sampler",
     "concat_batches", "DETECTOR_WILD", "DISTORTION_WILD",
 ]
 
@@ -113,7 +114,22 @@ class RenderedBatches(IterableDataset):
             i += 1
 
 
-class DetectorDataModule(L.LightningDataModule):
+class BatchStreams:
+    """The DataLoaders of a data module whose ``make_batch(generator)`` makes a whole batch: training streams from
+    ``TRAIN_SEED_BASE + seed`` on ``num_workers`` workers, validation is ``val_batches`` fixed batches from
+    ``VAL_SEED_BASE + seed`` (``seed``, ``num_workers`` and ``val_batches`` are the module's hyperparameters)."""
+
+    def train_dataloader(self) -> DataLoader:
+        ds = RenderedBatches(self.make_batch, TRAIN_SEED_BASE + self.hparams.seed)
+        return DataLoader(ds, batch_size=None, num_workers=self.hparams.num_workers,
+                          persistent_workers=self.hparams.num_workers > 0)
+
+    def val_dataloader(self) -> DataLoader:
+        ds = RenderedBatches(self.make_batch, VAL_SEED_BASE + self.hparams.seed, self.hparams.val_batches)
+        return DataLoader(ds, batch_size=None, num_workers=0)
+
+
+class DetectorDataModule(BatchStreams, L.LightningDataModule):
     """Rendered chessboards with Gaussian target heatmaps for :class:`DetectorLitModule`.
 
     Small images (default 192x144) with partial boards stand in for crops of full-size photos: the
@@ -212,12 +228,3 @@ class DetectorDataModule(L.LightningDataModule):
                    "corners": torch.cat([c, torch.zeros(n_free, n, 2)]),
                    "valid": torch.cat([b.corner_valid, torch.zeros(n_free, n, dtype=torch.bool)])}
         return out
-
-    def train_dataloader(self) -> DataLoader:
-        ds = RenderedBatches(self.make_batch, TRAIN_SEED_BASE + self.hparams.seed)
-        return DataLoader(ds, batch_size=None, num_workers=self.hparams.num_workers,
-                          persistent_workers=self.hparams.num_workers > 0)
-
-    def val_dataloader(self) -> DataLoader:
-        ds = RenderedBatches(self.make_batch, VAL_SEED_BASE + self.hparams.seed, self.hparams.val_batches)
-        return DataLoader(ds, batch_size=None, num_workers=0)

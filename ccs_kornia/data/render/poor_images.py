@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 __all__ = ["BLUR_SIGMA", "DARK", "GAIN", "JPEG_QUALITY", "MOTION_PX", "POOR_CONDITIONS", "READ_NOISE", "SMALL",
-           "make_poor", "scale_points"]
+           "make_poor", "motion_kernel", "scale_points"]
 
 #: light left in the dark conditions
 DARK = 0.12
@@ -39,8 +39,14 @@ JPEG_QUALITY = 30
 POOR_CONDITIONS: tuple[str, ...] = ("dark", "dark sensor", "blur", "motion", "small", "jpeg")
 
 
-def _motion_kernel(length: int, angle: float) -> np.ndarray:
-    """A normalised line of ``length`` px through the kernel's centre at ``angle`` (radians)."""
+def motion_kernel(length: int, angle: float) -> np.ndarray:
+    """A normalised line of ``length`` px through the kernel's centre at ``angle`` (radians), ``(length, length)``.
+
+    Example:
+        >>> k = motion_kernel(5, 0.0)
+        >>> k.shape, round(float(k.sum()), 6), round(float(k[2].sum()), 6)
+        ((5, 5), 1.0, 1.0)
+    """
     k = np.zeros((length, length), np.float32)
     c = (length - 1) / 2.0
     d = np.array([np.cos(angle), np.sin(angle)]) * c
@@ -81,7 +87,7 @@ def make_poor(gray8: np.ndarray, condition: str, rng: np.random.Generator) -> tu
     elif condition == "blur":
         y = cv2.GaussianBlur(x, (0, 0), BLUR_SIGMA, borderType=cv2.BORDER_REFLECT)
     elif condition == "motion":
-        y = cv2.filter2D(x, -1, _motion_kernel(MOTION_PX, float(rng.uniform(0.0, np.pi))),
+        y = cv2.filter2D(x, -1, motion_kernel(MOTION_PX, float(rng.uniform(0.0, np.pi))),
                          borderType=cv2.BORDER_REFLECT)
     elif condition == "small":
         return cv2.resize(gray8, None, fx=SMALL, fy=SMALL, interpolation=cv2.INTER_AREA), SMALL
