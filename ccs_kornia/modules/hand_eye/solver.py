@@ -237,6 +237,7 @@ def calibrate_hand_eye(
         return dataclasses.replace(result, noise_choice=choice)
     auto_rms = result.heldout_rms.clone()
     best = result
+    # one model at a time: a batch of every model runs each fit as long as its slowest one needs
     models = [None] + [(math.radians(deg), mm / 1000.0 / metres_per_unit) for deg in NOISE_GRID_DEG
                        for mm in NOISE_GRID_MM]
     for model in models:
@@ -246,7 +247,7 @@ def calibrate_hand_eye(
         if not bool(better.any()):
             continue
         what = "the poses taken as exact" if model is None else \
-            f"the robot's poses {math.degrees(model[0]):.3g} deg, {1000 * metres_per_unit * model[1]:.3g} mm"
+            f"the robot's poses held at {math.degrees(model[0]):.3g} deg, {1000 * metres_per_unit * model[1]:.3g} mm"
         for b in better.nonzero().flatten().tolist():
             choice[b] = (f"{what}: they predict held-out poses {float(other.heldout_rms[b]):.2f} px off, the estimated "
                          f"noise term ({math.degrees(float(result.robot_noise[b, 0])):.3g} deg, "
@@ -280,7 +281,7 @@ def _choose(current: HandEyeResult, other: HandEyeResult, pick: torch.Tensor) ->
         elif isinstance(a, torch.Tensor) and isinstance(b, torch.Tensor) and a.dim() and a.shape[0] == B \
                 and a.shape == b.shape:
             values[f.name] = torch.where(pick.to(a.device).reshape(B, *([1] * (a.dim() - 1))), b, a)
-        elif isinstance(a, list) and isinstance(b, list) and len(a) == B:
+        elif isinstance(a, list) and isinstance(b, list) and len(a) == B and f.name != "start_names":
             values[f.name] = [b[k] if bool(pick[k]) else a[k] for k in range(B)]
         else:
             values[f.name] = a
