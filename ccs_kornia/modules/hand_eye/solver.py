@@ -70,7 +70,8 @@ from ccs_kornia.modules.hand_eye.setup import HandEyeSetup, invert_transforms
 from ccs_kornia.modules.hand_eye.target_scale import SCALE_SIGMAS, SCALE_TOLERANCE, board_scale
 from ccs_kornia.runtime.checks import check_tensor
 
-__all__ = ["DISAGREE_PX", "JACKKNIFE_MIN_POSES", "NOISE_GRID_DEG", "NOISE_GRID_MM", "NOISE_MODEL_GAIN", "HandEyeSolver", "calibrate_hand_eye"]
+__all__ = ["DISAGREE_PX", "JACKKNIFE_MIN_POSES", "NOISE_GRID_DEG", "NOISE_GRID_MM", "NOISE_MODEL_GAIN", "HandEyeSolver",
+           "calibrate_hand_eye"]
 
 #: a fit whose RMS exceeds this (px per 1000 px of image diagonal) is refused: robot and camera disagree
 DISAGREE_PX = 10.0
