@@ -587,8 +587,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refine-intrinsics", action="store_true",
                    help="fit the camera's intrinsics in the hand-eye fit too (default: held)")
     p.add_argument("--robot-noise", default="auto", metavar="auto|none|DEG,MM",
-                   help="the robot poses' 1-sigma: auto (default: estimated from the data), none (exact poses) or "
-                        "DEG,MM")
+                   help="the robot poses' 1-sigma: auto (default: estimated from the data, or another model of the "
+                        "robot's error where it predicts held-out poses better), none (exact poses) or DEG,MM")
     p.add_argument("--output", required=True, metavar="JSON", help="hand-eye calibration file to write (handeye.json)")
     p.add_argument("--ros-tf", metavar="FILE", help="also write a ROS launch file with the static transform")
     p.add_argument("--moveit-yaml", metavar="FILE", help="also write the calibration YAML easy_handeye and MoveIt set-ups "

@@ -64,6 +64,8 @@ def build_parser(prog: str = "python -m ccs_kornia bench") -> argparse.ArgumentP
                    help="images per set (per camera) of the real_poor section")
     p.add_argument("--real-poor-sets", nargs="+", default=None, help="real sets of the real_poor section")
     p.add_argument("--hand-eye-trials", type=int, default=None, help="rendered robots per set-up, hand_eye section")
+    p.add_argument("--hand-eye-kinematic-trials", type=int, default=None,
+                   help="rendered arms with kinematic errors per set-up, hand_eye section")
     p.add_argument("--no-cuda", action="store_true", help="do not time CUDA even when present")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     return p
@@ -89,7 +91,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
     for name in ("corner_images", "calib_trials", "calib_views", "calib_pool_views", "calib_trials_per_camera",
                  "real_subsets", "real_max_images", "real_dir", "dc_trials", "distortion_weights", "wild_images",
                  "wild_big_images", "wild_free_images", "wild_real_images", "markers_views", "markers_aprilgrid_views",
-                 "hand_eye_trials", "video_recordings", "real_poor_images"):
+                 "hand_eye_trials", "hand_eye_kinematic_trials", "video_recordings", "real_poor_images"):
         value = getattr(args, name)
         if value is not None:
             if isinstance(value, int) and value < 1:

@@ -114,7 +114,8 @@ class BenchConfig:
             VIDEO`` end to end; video_jobs: processes; video_real_cameras, video_real_rig: the cameras of the shared
             caliscope recording compared one by one, and whether its rig is.
         hand_eye_trials: rendered robots per set-up of the ``hand_eye`` section (:mod:`~ccs_kornia.bench.sections.hand_eye`);
-            hand_eye_views: the range of their poses; hand_eye_real: also its real robot (where the data is found).
+            hand_eye_views: the range of their poses; hand_eye_kinematic_trials: rendered arms with kinematic errors per
+            set-up; hand_eye_real: also its real robots (where the data is found).
         real_poor_images, real_poor_sets, real_poor_conditions: the ``real_poor`` section
             (:mod:`~ccs_kornia.bench.sections.real_poor`): images per set (per camera of a multi-camera set), the sets
             (``None``: every ChArUco and chessboard set known) and the conditions
@@ -202,6 +203,7 @@ class BenchConfig:
     video_real_rig: bool = True
     hand_eye_trials: int = 20
     hand_eye_views: tuple[int, int] = (8, 30)
+    hand_eye_kinematic_trials: int = 6
     hand_eye_real: bool = True
     real_poor_images: int = 12
     real_poor_sets: tuple[str, ...] | None = None
@@ -238,7 +240,7 @@ class BenchConfig:
             fisheye_trials=2, fisheye_views=6, fisheye_real_sets=("ros_fisheye_mono",), rig_trials=2,
             rig_session_trials=1, rig_session_conditions=("handheld",), rig_session_caliscope=False,
             markers_views=2, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
-            markers_real_sets=("charuco_opencv_tutorial",), hand_eye_trials=1,
+            markers_real_sets=("charuco_opencv_tutorial",), hand_eye_trials=1, hand_eye_kinematic_trials=1,
             imu_trials=1, imu_seconds=10.0, imu_conditions=("given",), precision_models=("rational",),
             guidance_trials=2, guidance_cameras=("normal",),
             real_poor_images=2, real_poor_sets=("charuco_opencv_tutorial", "caliscope_4cam_charuco", "opencv_left"),
@@ -264,6 +266,7 @@ class BenchConfig:
             rig_session_caliscope=False,
             markers_views=1, markers_aprilgrid_views=1, markers_calib_trials=1, markers_calib_views=8,
             markers_real_sets=(), hand_eye_trials=1, hand_eye_views=(8, 8), hand_eye_real=False,
+            hand_eye_kinematic_trials=0,
             imu_trials=1, imu_seconds=6.0, imu_conditions=("given",), precision_models=(),
             guidance_trials=1, guidance_cameras=("normal",), guidance_counts=(4, 6, 8),
             real_poor_images=1, real_poor_sets=("charuco_opencv_tutorial", "boofcv_bumblebee2_left"),

@@ -9,7 +9,8 @@ from typing import Any
 from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard, CircleGrid
 from ccs_kornia.runtime.errors import UserError
 
-__all__ = ["aprilgrid_record", "board_records", "charuco_record", "circles_record", "resolve_board"]
+__all__ = ["aprilgrid_record", "board_records", "charuco_record", "circles_record", "require_circle_origin",
+           "resolve_board"]
 
 #: the options that describe a circle grid
 _CIRCLE_OPTIONS = ("spacing", "asymmetric", "marked_origin", "diameter")
@@ -31,6 +32,21 @@ def _circles(args: argparse.Namespace) -> None:
         raise UserError(f"--circles: {err}") from None
     args.circle_board, args.board, args.detector = grid, grid.board_size, "circles"
     args.square = grid.spacing
+
+
+def require_circle_origin(args: argparse.Namespace, what: str) -> None:
+    """Refuse a circle grid whose dots' numbering a half turn changes (a symmetric grid without ROS-Industrial's
+    marked origin, an asymmetric grid of an even number of rows) for a command that joins the board's pose across
+    views or cameras (``what``: a hand-eye calibration, a rig): its dot ids cannot be told from view to view, where
+    a single camera's calibration does not mind."""
+    grid = getattr(args, "circle_board", None)
+    if grid is None or grid.orientation_known:
+        return
+    cols, rows = grid.board_size
+    kind = f"an asymmetric grid of {rows} rows (an even number)" if grid.asymmetric else "a symmetric grid"
+    raise UserError(f"--circles {cols}x{rows}: {kind} looks the same turned by half a turn, so its dots cannot be "
+                    f"numbered alike in every view of {what}: use a grid with ROS-Industrial's origin dot "
+                    "(--marked-origin) or an --asymmetric grid of an odd number of rows")
 
 
 def resolve_board(args: argparse.Namespace) -> None:

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ccs_kornia.commands._boards import board_records
+from ccs_kornia.commands._boards import board_records, require_circle_origin
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import make_pipeline
 from ccs_kornia.commands._inputs import inputs
@@ -203,6 +203,7 @@ def _other_order(args: argparse.Namespace, files: list[str], poses, solve) -> st
 
 def run(args: argparse.Namespace) -> int:
     setup = HandEyeSetup.EYE_IN_HAND if args.eye_in_hand else HandEyeSetup.EYE_TO_HAND
+    require_circle_origin(args, "a hand-eye calibration")
     check_outputs(files=[("--output", args.output), ("--ros-tf", args.ros_tf), ("--moveit-yaml", args.moveit_yaml)],
                   dirs=[("--report", args.report)])
     frames = parse_frames(args.ros_frames)
@@ -351,7 +352,7 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
     if held["rms_px"] is not None:
         lines.append(f"held-out poses predicted from the robot alone: {held['rms_px']:.3f} px, {held['rms_mm']:.3f} mm "
                      f"RMS ({held['poses']} poses)")
-    if (data.get("robot_noise") or {}).get("exact"):
+    if data.get("robot_noise") and data["robot_noise"].get("corner_px") is None:  # a model chosen by held-out poses
         lines.append(f"robot poses: {data['robot_noise']['note']}")
     elif data.get("robot_noise"):
         rn = data["robot_noise"]

@@ -16,7 +16,7 @@ from typing import Any
 import cv2
 from tqdm import tqdm
 
-from ccs_kornia.commands._boards import board_records
+from ccs_kornia.commands._boards import board_records, require_circle_origin
 from ccs_kornia.commands._corners import corners_source, report_note
 from ccs_kornia.commands._devices import resolve_device
 from ccs_kornia.commands._factories import (
@@ -158,6 +158,7 @@ def _check_distinct_videos(names: list[str], videos: list[str]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    require_circle_origin(args, "a rig")
     if args.cameras and args.corners:
         raise UserError(f"give either camera folders or --corners, not both: {args.cameras[0]} and --corners "
                         f"{args.corners[0]}")

@@ -74,9 +74,11 @@ def hand_eye_record(result: HandEyeResult, paths: list[str], b: int = 0, *, came
             view["reason"] = "too few corners for the board's pose"
         views.append(view)
     noise = None
-    exact = result.noise_choice[b] if result.noise_choice else ""
-    if exact:
-        noise = {"rotation_deg": 0.0, "translation_mm": 0.0, "corner_px": None, "exact": True, "note": exact}
+    chosen = result.noise_choice[b] if result.noise_choice else ""
+    if chosen:
+        rn = result.robot_noise[b]
+        noise = {"rotation_deg": _num(math.degrees(float(rn[0]))), "translation_mm": _num(1000 * float(rn[1])),
+                 "corner_px": None, "exact": not bool(rn.any()), "note": chosen}
     elif result.robot_noise is not None:
         rn = result.robot_noise[b]
         noise = {"rotation_deg": _num(math.degrees(float(rn[0]))), "translation_mm": _num(1000 * float(rn[1])),

@@ -80,6 +80,32 @@ def test_option_errors(views, tmp_path, capsys, argv, words):
     assert len(lines) == 1 and words in lines[0], err
 
 
+@pytest.mark.parametrize("command", [
+    ["calibrate-hand-eye", "--robot-poses", "poses.csv", "--eye-in-hand"],
+    ["calibrate-rig", "cam1"],
+])
+@pytest.mark.parametrize("grid, words", [
+    (["--circles", "4x5", "--spacing", "0.02"], "a symmetric grid"),
+    (["--circles", "4x10", "--spacing", "0.02", "--asymmetric"], "an asymmetric grid of 10 rows"),
+])
+def test_a_grid_without_its_origin_is_refused_where_views_are_joined(tmp_path, capsys, command, grid, words):
+    # refused before any image or pose file is read: its dot ids cannot be told from view to view
+    code, stdout, err = run(capsys, command[0], str(tmp_path / "cam0"), *command[1:], *grid,
+                            "--output", str(tmp_path / "out.json"))
+    assert code == EXIT_USAGE and not stdout
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and words in lines[0], err
+    assert "--marked-origin" in lines[0] and "--asymmetric" in lines[0]
+
+
+def test_a_grid_with_its_origin_is_not_refused(tmp_path, capsys):
+    # a marked origin passes the check and fails later, on the missing pose file
+    code, _, err = run(capsys, "calibrate-hand-eye", str(tmp_path), "--robot-poses", str(tmp_path / "poses.csv"),
+                       "--eye-in-hand", "--circles", "4x5", "--spacing", "0.02", "--marked-origin",
+                       "--output", str(tmp_path / "out.json"))
+    assert code == EXIT_USAGE and "half a turn" not in err
+
+
 RIC = REAL_DATA / "ric_circlegrid_eye_in_hand"
 
 

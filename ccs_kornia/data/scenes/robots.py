@@ -9,7 +9,11 @@ by inverse kinematics (damped least squares from the arm's ready pose), then:
 * the corners are the board's points projected through the true flange pose and the camera (OpenCV's ``k1, k2``
   lens, :attr:`HandEyeScene.camera`), plus Gaussian pixel noise;
 * the *reported* flange pose is the forward kinematics of the joint angles plus Gaussian joint noise (encoder
-  error): the robot-pose noise a real arm adds, in joint space.
+  error): the robot-pose noise a real arm adds, in joint space;
+* optionally, the errors of a real arm's kinematics: the *true* arm's joint offsets and link lengths differ from the
+  published parameters the controller reports with (``joint_offset_deg``, ``link_error_mm``: one draw per scene, so
+  the error of each pose depends on the pose), and a time offset between the image and the reported pose while the
+  arm moves on through the view towards the next one (``time_offset_s``, ``move_s``).
 
 ``max_tilt_deg`` bounds the views' tilt about the nominal view (30 degrees: the rotation hand-eye needs; 4: the small
 rotations that break the closed forms). The renderer depends on :mod:`ccs_kornia.geometry` only.
@@ -58,9 +62,12 @@ def _pose(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     return T
 
 
-def panda_flange_poses(q: torch.Tensor) -> torch.Tensor:
+def panda_flange_poses(q: torch.Tensor, joint_offsets: torch.Tensor | None = None,
+                       link_errors: torch.Tensor | None = None) -> torch.Tensor:
     """The flange's pose in the base frame :math:`(*, 4, 4)` (``x_base = T x_flange``) of joint angles
-    :math:`(*, 7)` (forward kinematics, modified DH: ``RotX(alpha) TransX(a) RotZ(theta) TransZ(d)``).
+    :math:`(*, 7)` (forward kinematics, modified DH: ``RotX(alpha) TransX(a) RotZ(theta) TransZ(d)``); an arm whose
+    kinematics differ from the published ones: ``joint_offsets`` :math:`(7,)` added to the joint angles (radians),
+    ``link_errors`` :math:`(8, 2)` added to each row's ``a`` and ``d`` (metres).
 
     Example:
         >>> T = panda_flange_poses(torch.tensor(PANDA_READY, dtype=torch.float64))
@@ -69,8 +76,12 @@ def panda_flange_poses(q: torch.Tensor) -> torch.Tensor:
     """
     T = torch.eye(4, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], 4, 4)
     zero = torch.zeros_like(q[..., 0])
+    if joint_offsets is not None:
+        q = q + joint_offsets.to(q)
     for i, (a, d, alpha) in enumerate(PANDA_DH):
         theta = q[..., i] if i < 7 else zero
+        if link_errors is not None:
+            a, d = a + float(link_errors[i, 0]), d + float(link_errors[i, 1])
         R = _rot("x", torch.full_like(zero, alpha)) @ _rot("z", theta)
         t = torch.stack([torch.full_like(zero, a), -math.sin(alpha) * torch.full_like(zero, d),
                          math.cos(alpha) * torch.full_like(zero, d)], -1)
@@ -125,6 +136,9 @@ class HandEyeScene:
     valid: torch.Tensor  #: (V, N) bool
     noise_px: float
     joint_noise_deg: float
+    joint_offsets: torch.Tensor | None = None  #: (7,) the true arm's joint offsets (radians), where drawn
+    link_errors: torch.Tensor | None = None  #: (8, 2) the true arm's errors of each DH row's a and d (m), where drawn
+    time_offset_s: float = 0.0  #: the reported pose's lag behind the image (s)
 
     @property
     def camera(self) -> Camera:
@@ -153,6 +167,10 @@ def render_hand_eye(
     square: float = 0.025,
     image_size: tuple[int, int] = (640, 480),
     max_tries: int = 40,
+    joint_offset_deg: float = 0.0,
+    link_error_mm: float = 0.0,
+    time_offset_s: float = 0.0,
+    move_s: float = 2.0,
 ) -> HandEyeScene:
     """A random hand-eye scene (module doc) with ``views`` views in which the whole board is seen.
 
@@ -166,6 +184,12 @@ def render_hand_eye(
         board, square: the chessboard's inner corners and square side (m).
         image_size: ``(W, H)``.
         max_tries: rounds of candidate views drawn before giving up.
+        joint_offset_deg: the true arm's joint offsets against the reported kinematics (sigma, degrees; one draw per
+            scene).
+        link_error_mm: the true arm's link-length errors (sigma of each DH ``a`` and ``d``, millimetres; one draw).
+        time_offset_s: the reported pose lags the image by this while the arm moves at a constant joint velocity
+            from each view towards the next (``move_s`` seconds between views; the last view keeps the motion it
+            came with).
     """
     if setup not in ("eye_in_hand", "eye_to_hand"):
         raise ValueError(f"unknown set-up {setup!r}; expected eye_in_hand or eye_to_hand")
@@ -248,10 +272,21 @@ def render_hand_eye(
     if len(joints) < views:
         raise RuntimeError(f"only {len(joints)} of {views} views reachable; loosen the scene")
     q = torch.stack(joints)
-    T = torch.stack(poses)
-    reported = panda_flange_poses(q + math.radians(joint_noise_deg) * torch.randn(q.shape, generator=g, dtype=dt))
+    q_reported = q + math.radians(joint_noise_deg) * torch.randn(q.shape, generator=g, dtype=dt)
+    pixel_noise = noise_px * torch.randn(views, obj.shape[0], 2, generator=g, dtype=dt)
+    # the arm's kinematic errors are drawn after the noise: a scene without them is the one drawn before they existed
+    offsets = links = None
+    if joint_offset_deg > 0 or link_error_mm > 0:
+        offsets = math.radians(joint_offset_deg) * torch.randn(7, generator=g, dtype=dt)
+        links = link_error_mm / 1000.0 * torch.randn(len(PANDA_DH), 2, generator=g, dtype=dt)
+    T = panda_flange_poses(q, offsets, links) if offsets is not None else torch.stack(poses)
+    if time_offset_s:
+        velocity = torch.cat([q[1:] - q[:-1], q[-1:] - q[-2:-1]]) / move_s if views > 1 else torch.zeros_like(q)
+        q_reported = q_reported - velocity * time_offset_s
+    reported = panda_flange_poses(q_reported)
     cam = (torch.linalg.inv(T @ X) @ Z) if setup == "eye_in_hand" else (torch.linalg.inv(X) @ T @ Z)
     uv = lens.project(obj.expand(1, views, -1, -1), log_so3(cam[:, :3, :3])[None], cam[None, :, :3, 3])[0]
-    uv = uv + noise_px * torch.randn(uv.shape, generator=g, dtype=dt)
+    uv = uv + pixel_noise
     return HandEyeScene(setup, X, Z, K, dist, image_size, obj, q, T, reported, uv,
-                        torch.ones(uv.shape[:2], dtype=torch.bool), float(noise_px), float(joint_noise_deg))
+                        torch.ones(uv.shape[:2], dtype=torch.bool), float(noise_px), float(joint_noise_deg),
+                        offsets, links, float(time_offset_s))

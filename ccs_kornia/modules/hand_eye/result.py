@@ -166,7 +166,8 @@ class HandEyeResult:
     #: (1: the 180-degree turn) to agree with the other views (``residuals`` are in the board's numbering)
     board_order: torch.Tensor | None = None
     corners: torch.Tensor | None = None  #: (B, V, N, 2) the corners fitted, in the board's numbering (NaN: not seen)
-    #: per problem, why the poses were taken as exact instead of the estimated noise term ("" where they were not)
+    #: per problem, the model of the robot's error kept instead of the estimated noise term (the poses taken as exact,
+    #: or fixed sigmas: ``robot_noise``) and why ("" where the term was kept)
     noise_choice: list[str] | None = None
 
     @property

@@ -17,11 +17,14 @@ From board corners per view, the robot's flange pose per view and the camera, :f
    the size the robot sees;
 6. the held-out figures (:mod:`~ccs_kornia.modules.hand_eye.heldout`) and the verdict;
 7. with the robot-pose noise estimated (``"auto"``) and held-out poses predicted less than well (above the verdict's
-   ``good_heldout``), the fit that takes the poses as exact too: kept where it predicts the held-out poses at least
-   :data:`EXACT_POSES_GAIN` times better. A real arm's errors are systematic
-   (joint offsets, link lengths, elasticity), not the isotropic noise the term models; its estimate then grows until
-   the corrections explain each pose alone and the robot predicts little (docs/hand_eye.md); on rendered robots,
-   whose pose noise is the term's, the two predict alike and the term is kept.
+   ``good_heldout``), other models of the robot's error: the poses taken as exact, and fixed rotation and translation
+   sigmas weighed apart (:data:`NOISE_GRID_DEG` x :data:`NOISE_GRID_MM`); the one that predicts the held-out poses
+   best is kept where it does so at least :data:`NOISE_MODEL_GAIN` times better than the estimated term. A real arm's
+   errors are systematic (joint offsets, link lengths, elasticity), not the isotropic noise the term models, and with
+   few corners per pose its rotation and translation parts trade against the board's tilt: the variance components
+   are then weakly determined (too large on one arm, too small on another: docs/hand_eye.md) and the robot's own
+   prediction of a pose it has not seen is the better judge. On rendered robots, whose pose noise is the term's,
+   held-out poses are predicted well and the term is kept.
 
 :class:`HandEyeSolver` is the module form; with ``corners`` (or robot poses) requiring grad, ``X``, ``Z`` and the
 free intrinsics carry gradients by implicit differentiation of the optimum
@@ -67,7 +70,8 @@ from ccs_kornia.modules.hand_eye.setup import HandEyeSetup, invert_transforms
 from ccs_kornia.modules.hand_eye.target_scale import SCALE_SIGMAS, SCALE_TOLERANCE, board_scale
 from ccs_kornia.runtime.checks import check_tensor
 
-__all__ = ["DISAGREE_PX", "EXACT_POSES_GAIN", "JACKKNIFE_MIN_POSES", "HandEyeSolver", "calibrate_hand_eye"]
+__all__ = ["DISAGREE_PX", "JACKKNIFE_MIN_POSES", "NOISE_GRID_DEG", "NOISE_GRID_MM", "NOISE_MODEL_GAIN", "HandEyeSolver",
+           "calibrate_hand_eye"]
 
 #: a fit whose RMS exceeds this (px per 1000 px of image diagonal) is refused: robot and camera disagree
 DISAGREE_PX = 10.0
@@ -76,8 +80,13 @@ START_NOISE = (1e-3, 1e-3)
 #: a held-out refit re-estimates the noise in this many rounds, from the full fit's estimate (more rounds change the
 #: held-out figures by little: docs/hand_eye.md)
 HELDOUT_NOISE_ROUNDS = 2
-#: the poses taken as exact replace the estimated noise term where their held-out RMS is below this fraction of its
-EXACT_POSES_GAIN = 0.8
+#: another model of the robot's error replaces the estimated noise term where its held-out RMS is below this
+#: fraction of the term's
+NOISE_MODEL_GAIN = 0.9
+#: the fixed robot-pose sigmas tried where held-out poses are predicted less than well: every rotation sigma (degrees)
+#: with every translation sigma (millimetres), a decade apart from each other
+NOISE_GRID_DEG = (0.03, 0.3, 3.0, 30.0)
+NOISE_GRID_MM = (0.3, 3.0, 30.0)
 #: the 1-sigma comes from the leave-one-pose-out refits' spread (jackknife) where at least this many poses were held
 #: out, else from the fit's covariance (which sees the corners' noise only, not a robot pose's error)
 JACKKNIFE_MIN_POSES = 5
@@ -220,49 +229,63 @@ def calibrate_hand_eye(
     result = _calibrate(*args, robot_noise=robot_noise, heldout=heldout, **options)
     if not (heldout and isinstance(robot_noise, str) and robot_noise == "auto"):
         return result
-    # where held-out poses are predicted less than well, the poses taken as exact, kept where they predict them
-    # clearly better (module doc, step 7)
+    # where held-out poses are predicted less than well, other models of the robot's error, kept where they predict
+    # them clearly better (module doc, step 7)
     good = HandEyeVerdictThresholds().good_heldout * math.hypot(*image_size) / 1000.0
     worth = result.success & (result.heldout_rms > good)
+    choice = [""] * len(worth)
     if not bool(worth.any()):
-        return dataclasses.replace(result, noise_choice=[""] * len(worth))
-    exact = _calibrate(*args, robot_noise=None, heldout=True, **options)
-    better = worth & exact.success & (exact.heldout_rms < EXACT_POSES_GAIN * result.heldout_rms)
-    choice = [f"the poses taken as exact: they predict held-out poses {float(exact.heldout_rms[b]):.2f} px off, the "
-              f"estimated noise term ({math.degrees(float(result.robot_noise[b, 0])):.3g} deg, "
-              f"{1000 * metres_per_unit * float(result.robot_noise[b, 1]):.3g} mm) "
-              f"{float(result.heldout_rms[b]):.2f} px" if bool(better[b]) else "" for b in range(len(better))]
-    return _choose(result, exact, better, choice)
+        return dataclasses.replace(result, noise_choice=choice)
+    auto_rms = result.heldout_rms.clone()
+    best = result
+    # one model at a time: a batch of every model runs each fit as long as its slowest one needs
+    models = [None] + [(math.radians(deg), mm / 1000.0 / metres_per_unit) for deg in NOISE_GRID_DEG
+                       for mm in NOISE_GRID_MM]
+    for model in models:
+        other = _calibrate(*args, robot_noise=model, heldout=True, **options)
+        better = worth & other.success & (other.heldout_rms < NOISE_MODEL_GAIN * auto_rms) & \
+            (other.heldout_rms < best.heldout_rms)
+        if not bool(better.any()):
+            continue
+        what = "the poses taken as exact" if model is None else \
+            f"the robot's poses held at {math.degrees(model[0]):.3g} deg, {1000 * metres_per_unit * model[1]:.3g} mm"
+        for b in better.nonzero().flatten().tolist():
+            choice[b] = (f"{what}: they predict held-out poses {float(other.heldout_rms[b]):.2f} px off, the estimated "
+                         f"noise term ({math.degrees(float(result.robot_noise[b, 0])):.3g} deg, "
+                         f"{1000 * metres_per_unit * float(result.robot_noise[b, 1]):.3g} mm) "
+                         f"{float(auto_rms[b]):.2f} px")
+        best = _choose(best, other, better)
+    return dataclasses.replace(best, noise_choice=choice)
 
 
-def _choose(noisy: HandEyeResult, exact: HandEyeResult, pick: torch.Tensor, choice: list[str]) -> HandEyeResult:
-    """Per problem, ``exact``'s result where ``pick`` (B,), else ``noisy``'s; the noise term's figures of a problem
-    whose poses are taken as exact are zero (its corners' sigma NaN), ``noise_choice`` says why."""
+def _choose(current: HandEyeResult, other: HandEyeResult, pick: torch.Tensor) -> HandEyeResult:
+    """Per problem, ``other``'s result where ``pick`` (B,), else ``current``'s: ``other`` fitted with fixed robot-pose
+    sigmas or the poses taken as exact (its noise term's sigmas zero then, its corners' sigma not estimated: NaN)."""
     if not bool(pick.any()):
-        return dataclasses.replace(noisy, noise_choice=choice)
+        return current
     values = {}
     B = pick.shape[0]
-    for f in dataclasses.fields(noisy):
-        a, b = getattr(noisy, f.name), getattr(exact, f.name)
+    for f in dataclasses.fields(current):
+        a, b = getattr(current, f.name), getattr(other, f.name)
         if f.name == "robot_noise":
-            values[f.name] = torch.where(pick[:, None].to(a.device), torch.zeros_like(a), a)
+            b = torch.zeros_like(a) if b is None else b.to(a)
+            values[f.name] = torch.where(pick[:, None].to(a.device), b, a)
         elif f.name == "pixel_sigma":
             values[f.name] = None if a is None else torch.where(pick.to(a.device), float("nan"), a)
         elif f.name == "corrections":
             R, t = a
             keep = pick.to(R.device)
-            values[f.name] = (torch.where(keep[:, None, None, None], torch.eye(3, dtype=R.dtype, device=R.device), R),
-                              torch.where(keep[:, None, None], torch.zeros_like(t), t))
+            Rb, tb = (torch.eye(3, dtype=R.dtype, device=R.device).expand_as(R), torch.zeros_like(t)) if b is None else b
+            values[f.name] = (torch.where(keep[:, None, None, None], Rb, R), torch.where(keep[:, None, None], tb, t))
         elif isinstance(a, Camera):
             values[f.name] = a.with_params(torch.where(pick[:, None].to(a.params.device), b.params, a.params))
         elif isinstance(a, torch.Tensor) and isinstance(b, torch.Tensor) and a.dim() and a.shape[0] == B \
                 and a.shape == b.shape:
             values[f.name] = torch.where(pick.to(a.device).reshape(B, *([1] * (a.dim() - 1))), b, a)
-        elif isinstance(a, list) and isinstance(b, list) and len(a) == B:
+        elif isinstance(a, list) and isinstance(b, list) and len(a) == B and f.name != "start_names":
             values[f.name] = [b[k] if bool(pick[k]) else a[k] for k in range(B)]
         else:
             values[f.name] = a
-    values["noise_choice"] = choice
     return HandEyeResult(**values)
 
 

@@ -10,6 +10,7 @@ import torch
 
 from ccs_kornia.bench.config import SECTIONS, BenchConfig
 from ccs_kornia.bench.sections.hand_eye import (
+    KINEMATIC_SEED,
     OPENCV_METHODS,
     SEED,
     hand_eye_md,
@@ -30,6 +31,13 @@ def test_hand_eye_section_runs_and_reports():
     assert set(sec["summary"]) == {"ours", *OPENCV_METHODS}
     md = "\n".join(hand_eye_md(sec))
     assert "| ccs_kornia joint fit | 0/2 |" in md and "| OpenCV Tsai |" in md and "Honesty of our 1-sigma" in md
+    assert "kinematic" not in sec and "kinematic errors" not in md  # the tiny preset renders no such arm
+    # the arms with kinematic errors report as the rendered robots do (their rows here: the tiny run's)
+    sec["kinematic"] = {"trials_per_setup": 1, "seed": KINEMATIC_SEED, "rows": sec["rows"], "summary": sec["summary"]}
+    md = "\n".join(hand_eye_md(sec))
+    assert "Rendered arms with kinematic errors (1 scenes per set-up" in md
+    assert md.count("| ccs_kornia joint fit | 0/2 |") == 2
+    assert "another model of the robot's error than the estimated noise term on 0 of 2 scenes" in md
 
 
 def test_opencv_recipe_matches_the_conventions():
