@@ -11,7 +11,8 @@ per pixel of correction).
 
 :func:`splined_configuration` chooses the grid for a camera: the horizontal field of view its image spans (from the
 start's rays at the image's left and right borders), and mrcal's density of 30 x 20 for a 3:2 image of many corners,
-thinned where the corners are few.
+thinned where the corners are few. :func:`nearest_opencv` gives the OpenCV camera closest to a splined one, for tools
+that take OpenCV's coefficients only, with how far it departs over the image.
 """
 
 from __future__ import annotations
@@ -22,12 +23,14 @@ from dataclasses import replace
 import torch
 
 from ccs_kornia.geometry.camera import Camera
+from ccs_kornia.geometry.models.factory import RATIONAL
+from ccs_kornia.geometry.models.opencv import OpenCVModel
 from ccs_kornia.geometry.models.splined import SplinedStereographicModel, stereographic
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.result import CalibrationResult
 
-__all__ = ["PRIOR_CURVATURE", "PRIOR_ZERO", "calibrate_splined", "spline_from_camera", "spline_prior",
-           "splined_configuration"]
+__all__ = ["PRIOR_CURVATURE", "PRIOR_ZERO", "calibrate_splined", "nearest_opencv", "spline_from_camera",
+           "spline_prior", "splined_configuration"]
 
 #: weight of each control point's pull towards zero: a pixel's worth (``f delta_u``) of a control point costs as much
 #: as this many px^2 of one corner's residual (at the fit's mean corner weight)
@@ -110,7 +113,7 @@ def spline_from_camera(model: SplinedStereographicModel, camera: Camera, image_s
         >>> from ccs_kornia.geometry.models import K1K2
         >>> K = torch.tensor([[400., 0, 320], [0, 400, 240], [0, 0, 1]], dtype=torch.float64)
         >>> cam = Camera.from_opencv(K1K2, K, torch.tensor([-0.2, 0.05], dtype=torch.float64), (640, 480))
-        >>> m = SplinedStereographicModel(8, 6, 100)
+        >>> m = SplinedStereographicModel(12, 9, 100)
         >>> spline = Camera(m, spline_from_camera(m, cam, (640, 480)), (640, 480))
         >>> q = torch.tensor([[[100.0, 80.0], [320.0, 240.0], [600.0, 400.0]]], dtype=torch.float64)
         >>> bool((spline.project(cam.unproject(q)) - q).abs().max() < 0.05)
@@ -203,3 +206,49 @@ def calibrate_splined(
             res.warp_covariance.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()),
     )
     return out
+
+
+def nearest_opencv(camera: Camera, model: OpenCVModel = RATIONAL, grid: tuple[int, int] = (16, 12),
+                   samples: int = 80) -> tuple[Camera, torch.Tensor]:
+    """The OpenCV camera closest to a splined one (one camera, with its image size), for tools that take OpenCV's
+    coefficients only, and how far it departs over the image.
+
+    Its ``K`` is the spline's core; its coefficients are fitted (OpenCV's model is linear in them: one least-squares
+    solve) to the spline's projection at a ``samples``-wide grid of pixels in front of the camera (rays within 80
+    degrees of the axis).
+
+    Returns:
+        the OpenCV camera and, over a ``grid`` (across, down) of the image's cell centres, how far (px) it projects
+        the spline's ray of each from where the spline does: :math:`(H_g, W_g)`, NaN where the ray is beyond 80
+        degrees.
+
+    Example:
+        >>> from ccs_kornia.geometry.models import K1K2
+        >>> K = torch.tensor([[400., 0, 320], [0, 400, 240], [0, 0, 1]], dtype=torch.float64)
+        >>> lens = Camera.from_opencv(K1K2, K, torch.tensor([-0.2, 0.05], dtype=torch.float64), (640, 480))
+        >>> m = SplinedStereographicModel(10, 8, 110)
+        >>> spline = Camera(m, spline_from_camera(m, lens, (640, 480)), (640, 480))
+        >>> cam, departure = nearest_opencv(spline)
+        >>> cam.model.name, departure.shape, bool(departure.nanmean() < 0.5)
+        ('rational', torch.Size([12, 16]), True)
+    """
+    w, h = camera.image_size
+    cam = camera.to(dtype=torch.float64)
+
+    def grid_pixels(gx: int, gy: int) -> torch.Tensor:
+        ys, xs = torch.meshgrid((torch.arange(gy, dtype=torch.float64) + 0.5) * h / gy - 0.5,
+                                (torch.arange(gx, dtype=torch.float64) + 0.5) * w / gx - 0.5, indexing="ij")
+        return torch.stack([xs, ys], -1).reshape(1, -1, 2).to(cam.device)
+
+    K = cam.K
+    q = grid_pixels(samples, max(2, round(samples * h / w)))
+    rays = cam.unproject(q)
+    front = rays[..., 2] > math.cos(math.radians(80))
+    ideal = (rays[..., :2] / rays[..., 2:3].clamp_min(1e-9)) * cam.params[:, None, 0:2] + cam.params[:, None, 2:4]
+    coeffs = model.fit_coeffs(torch.where(front[..., None], ideal, 0.0), q, K, front.to(torch.float64))
+    opencv = Camera.from_opencv(model, K, coeffs, (w, h))
+    g = grid_pixels(*grid)
+    r = cam.unproject(g)
+    d = (opencv.project(r) - g).norm(dim=-1)
+    d = torch.where(r[..., 2] > math.cos(math.radians(80)), d, float("nan"))
+    return opencv, d.reshape(grid[1], grid[0])
