@@ -19,7 +19,13 @@ import os
 import torch
 
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.geometry.models.factory import K1K2, OPENCV5, PINHOLE, RATIONAL, camera_model
+from ccs_kornia.geometry.models.factory import (
+    K1K2,
+    OPENCV5,
+    PINHOLE,
+    RATIONAL,
+    camera_model,
+)
 from ccs_kornia.geometry.models.splined import SplinedStereographicModel
 
 __all__ = ["cameramodel_text", "mrcal_lensmodel", "read_cameramodel", "write_cameramodel"]

@@ -18,7 +18,7 @@ from ccs_kornia.outputs.calibration_file import camera_record_fields
 from ccs_kornia.pipeline.result import PipelineResult
 from ccs_kornia.pipeline.sources import SIZE_TOLERANCE_PX
 
-__all__ = ["view_records", "camera_record", "correction_record", "opencv_equivalent", "selection_reasons"]
+__all__ = ["camera_record", "correction_record", "opencv_equivalent", "selection_reasons", "view_records"]
 
 
 def _num(x: float) -> float | None:

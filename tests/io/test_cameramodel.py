@@ -10,9 +10,22 @@ import pytest
 import torch
 
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.geometry.models import FISHEYE, K1K2, RATIONAL, SplinedStereographicModel
-from ccs_kornia.io.cameramodel import cameramodel_text, read_cameramodel, write_cameramodel
-from ccs_kornia.outputs.calibration_file import camera_from_record, camera_record_fields, read_calibration
+from ccs_kornia.geometry.models import (
+    FISHEYE,
+    K1K2,
+    RATIONAL,
+    SplinedStereographicModel,
+)
+from ccs_kornia.io.cameramodel import (
+    cameramodel_text,
+    read_cameramodel,
+    write_cameramodel,
+)
+from ccs_kornia.outputs.calibration_file import (
+    camera_from_record,
+    camera_record_fields,
+    read_calibration,
+)
 from ccs_kornia.outputs.camera_exports import opencv_record
 from ccs_kornia.outputs.records import opencv_equivalent
 

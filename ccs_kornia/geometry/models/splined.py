@@ -22,7 +22,12 @@ import re
 
 import torch
 
-from ccs_kornia.geometry.models.base import CameraModel, broadcast_params, check_projection_inputs, solve_2x2
+from ccs_kornia.geometry.models.base import (
+    CameraModel,
+    broadcast_params,
+    check_projection_inputs,
+    solve_2x2,
+)
 
 __all__ = ["SPLINE_NAME", "SplinedStereographicModel", "cubic_bspline_weights", "stereographic", "unstereographic"]
 

@@ -171,7 +171,7 @@ def calibrate_splined(
         a :class:`CalibrationResult` with the splined camera; the fields of ``start`` it does not refit
         (RANSAC's, the checks' and the residuals' structure) are ``start``'s.
     """
-    C, V, N = corners.shape[:3]
+    C = corners.shape[0]
     dtype = torch.float64
     ok = valid & start.used[..., None] & corners.isfinite().all(-1)
     if model is None:

@@ -114,3 +114,33 @@ def test_projection_derivatives_and_round_trip():
     rays = cam.unproject(uv)
     torch.testing.assert_close(rays, torch.nn.functional.normalize(points, dim=-1), rtol=0, atol=1e-9)
     assert bool((rays[..., 2] < 0).any())  # directions beyond 90 degrees come back
+
+
+def test_auto_takes_the_spline_only_where_held_out_views_prefer_it():
+    from ccs_kornia.geometry.camera import project_points
+    from ccs_kornia.geometry.models import OPENCV5
+    from ccs_kornia.modules.calibration.splined_choice import choose_splined
+
+    # an ordinary lens the chosen model fits: the spline is not even tried
+    obj = board_object_points(10, 8, 0.03, dtype=F64)
+    K = torch.tensor([[400.0, 0, 320], [0, 400, 240], [0, 0, 1]], dtype=F64)
+    g = torch.Generator().manual_seed(3)
+    rvec = 0.6 * (torch.rand(12, 3, generator=g, dtype=F64) - 0.5)
+    tvec = torch.tensor([-0.13, -0.1, 0.45], dtype=F64) + 0.05 * torch.rand(12, 3, generator=g, dtype=F64)
+    plain = project_points(obj.expand(12, -1, -1), K.expand(12, 3, 3),
+                           torch.tensor([-0.2, 0.05, 0, 0, 0], dtype=F64).expand(12, 5), rvec, tvec)
+    plain = (plain + 0.02 * torch.randn(plain.shape, generator=g, dtype=F64))[None]
+    ok = torch.ones(plain.shape[:-1], dtype=torch.bool)
+    solver = CalibrationSolver(model=OPENCV5)
+    chosen = solver(plain, ok, obj, SIZE)
+    assert chosen.residual_structure(0)["model_fit"] == "fits"
+    keep, records = choose_splined(solver, chosen, plain, ok, obj, SIZE)
+    assert keep == [None] and records == [None]
+    # the bumpy lens: the rational model leaves structure, the spline predicts the other half's views better
+    obj, uv, valid = _views(V=16)
+    solver = CalibrationSolver(model=RATIONAL)
+    chosen = solver(uv[None], valid[None], obj, SIZE)
+    keep, records = choose_splined(solver, chosen, uv[None], valid[None], obj, SIZE)
+    figures = records[0]["heldout_median_px"]
+    assert records[0]["kept"] and figures["splined"] < 0.8 * figures["rational"]
+    assert keep[0].camera.model.name.startswith("splined_stereographic") and float(keep[0].rms) < 0.05
