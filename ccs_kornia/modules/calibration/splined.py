@@ -36,7 +36,7 @@ __all__ = ["PRIOR_CURVATURE", "PRIOR_ZERO", "calibrate_splined", "nearest_opencv
 #: as this many px^2 of one corner's residual (at the fit's mean corner weight)
 PRIOR_ZERO = 1e-6
 #: weight of each second difference of the surface (per component and direction), in the same units
-PRIOR_CURVATURE = 1e-5
+PRIOR_CURVATURE = 1e-4
 #: mrcal's grid for its wide lens (``Nx x Ny`` for a 3:2 image)
 DEFAULT_GRID = (30, 20)
 #: corners per control point below which the grid is thinned
