@@ -126,7 +126,8 @@ def test_camera_alone_loads_no_opencv_and_no_stage():
     loaded = _loaded_after("import ccs_kornia.geometry.camera")
     assert "cv2" not in loaded
     assert not _ours(loaded, "ccs_kornia.modules", "ccs_kornia.pipeline", "ccs_kornia.data", "lightning")
-    models = [f"ccs_kornia.geometry.models{m}" for m in ("", ".base", ".centred_radial", ".factory", ".fisheye", ".opencv")]
+    models = [f"ccs_kornia.geometry.models{m}" for m in ("", ".base", ".centred_radial", ".factory", ".fisheye", ".opencv",
+                                                        ".splined")]
     assert _ours(loaded, "ccs_kornia") == ["ccs_kornia", "ccs_kornia.geometry", "ccs_kornia.geometry.camera", *models,
                                            "ccs_kornia.runtime", "ccs_kornia.runtime.checks", "ccs_kornia.runtime.lazy"]
 

@@ -216,7 +216,7 @@ class BenchConfig:
     guidance_cameras: tuple[str, ...] = ("normal", "wide", "fisheye")
     guidance_counts: tuple[int, ...] = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40)
     preset: str = "full"
-    precision_models: tuple[str, ...] = ("rational", "fisheye")
+    precision_models: tuple[str, ...] = ("rational", "fisheye", "splined")
     extra: dict = field(default_factory=dict)
 
     @classmethod

@@ -17,7 +17,9 @@ import numpy as np
 import torch
 
 from ccs_kornia.geometry.camera import Camera
-from ccs_kornia.geometry.models.factory import CAMERA_MODELS
+from ccs_kornia.geometry.models.factory import CAMERA_MODELS, camera_model
+from ccs_kornia.geometry.models.splined import SPLINE_NAME
+from ccs_kornia.io.cameramodel import read_cameramodel
 
 __all__ = ["CALIBRATION_COEFFS", "CalibrationFile", "RigFileError", "camera_from_record", "camera_record_fields",
            "read_calibration"]
@@ -97,6 +99,8 @@ def camera_from_record(data: dict[str, Any], need_size: bool = True) -> Camera:
         raise ValueError("not a calibration: K's last row must be [0, 0, 1]")
     dist = data["distortion"]
     name = dist.get("model") if isinstance(dist, dict) else None
+    if isinstance(name, str) and name.startswith(SPLINE_NAME):
+        return _splined_from_record(name, K, dist, data.get("image_size"), need_size)
     if name not in CALIBRATION_COEFFS:
         raise ValueError(f"not a calibration: unknown distortion model {name!r} (expected one of "
                          f"{', '.join(CALIBRATION_COEFFS)})")
@@ -120,6 +124,25 @@ def camera_from_record(data: dict[str, Any], need_size: bool = True) -> Camera:
         raise ValueError(f"not a calibration: {err}") from None
 
 
+def _splined_from_record(name: str, K: np.ndarray, dist: dict, size: Any, need_size: bool) -> Camera:
+    """A splined camera's record: its model's name with the grid, the control points' values as ``coeffs``."""
+    try:
+        model = camera_model(name)
+    except ValueError as err:
+        raise ValueError(f"not a calibration: {err}") from None
+    try:
+        coeffs = np.array(dist.get("coeffs") or [], dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        coeffs = np.array([np.nan])
+    if coeffs.size != model.num_coeffs or not np.isfinite(coeffs).all():
+        raise ValueError(f"not a calibration: the {name} model has {model.num_coeffs} finite coefficients, the file "
+                         f"gives {coeffs.size}")
+    if size is not None or need_size:
+        if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
+            raise ValueError(f"not a calibration: image_size must be [width, height] in pixels, got {size!r}")
+    return Camera.from_opencv(model, torch.from_numpy(K), torch.from_numpy(coeffs), None if size is None else tuple(size))
+
+
 def _rig_camera(data: dict[str, Any], camera: str) -> dict[str, Any]:
     """Camera ``camera`` (its name, or its index) of a ``rig.json``: written as ``calibrate`` writes one."""
     cameras = [c for c in data["cameras"] if isinstance(c, dict)]
@@ -133,8 +156,8 @@ def _rig_camera(data: dict[str, Any], camera: str) -> dict[str, Any]:
 
 
 def read_calibration(path: str | os.PathLike, camera: str | None = None) -> CalibrationFile:
-    """Read and check a calibration JSON written by ``calibrate``, or one camera of a ``rig.json`` written by
-    ``calibrate-rig``.
+    """Read and check a calibration JSON written by ``calibrate``, one camera of a ``rig.json`` written by
+    ``calibrate-rig``, or an mrcal ``.cameramodel`` file (:mod:`~ccs_kornia.io.cameramodel`).
 
     Args:
         path: the file.
@@ -159,6 +182,10 @@ def read_calibration(path: str | os.PathLike, camera: str | None = None) -> Cali
         ...
         ValueError: not a calibration: "distortion" is missing
     """
+    if str(path).endswith(".cameramodel"):  # mrcal's format: the camera alone
+        if camera is not None:
+            raise ValueError(f"--camera {camera}: an mrcal .cameramodel file holds one camera (drop --camera)")
+        return CalibrationFile(read_cameramodel(path)[0])
     try:
         with open(path, encoding="utf-8") as handle:
             data = json.load(handle)

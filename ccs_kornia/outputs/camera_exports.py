@@ -13,11 +13,20 @@ from ccs_kornia.io.files import atomic_path
 from ccs_kornia.outputs.calibration_file import camera_from_record
 from ccs_kornia.runtime.errors import UserError
 
-__all__ = ["ROS_DISTORTION_MODELS", "ros_camera_info", "write_opencv_yaml"]
+__all__ = ["ROS_DISTORTION_MODELS", "opencv_record", "ros_camera_info", "write_opencv_yaml"]
+
+
+def opencv_record(data: dict[str, Any]) -> dict[str, Any]:
+    """The calibration record as OpenCV's functions take it: for a camera no OpenCV model holds (a splined one), its
+    closest OpenCV camera (``opencv_equivalent``) in place of its own."""
+    equivalent = data.get("opencv_equivalent")
+    return data if not equivalent else {**data, "K": equivalent["K"], "distortion": equivalent["distortion"]}
 
 
 def write_opencv_yaml(path: str, data: dict[str, Any]) -> None:
-    """A calibration as OpenCV's FileStorage YAML (the names of OpenCV's calibration sample), written atomically."""
+    """A calibration as OpenCV's FileStorage YAML (the names of OpenCV's calibration sample), written atomically (a
+    splined camera as its closest OpenCV camera, :func:`opencv_record`)."""
+    data = opencv_record(data)
     with atomic_path(path, mode=0o644) as tmp:
         fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
         if not fs.isOpened():
@@ -49,7 +58,9 @@ def ros_camera_info(data: dict[str, Any], camera_name: str = "camera", rectifica
                     projection: Any = None) -> str:
     """The calibration as a ROS ``camera_info`` YAML (``camera_calibration_parsers`` format). Monocular by default:
     identity rectification, projection ``[K | 0]``; a stereo camera passes its ``rectification`` (3x3, ``R1``/``R2``
-    of the rectification) and ``projection`` (3x4, ``P1``/``P2``)."""
+    of the rectification) and ``projection`` (3x4, ``P1``/``P2``). A splined camera is written as its closest OpenCV
+    camera (:func:`opencv_record`)."""
+    data = opencv_record(data)
     K = [float(v) for row in data["K"] for v in row]
     camera = camera_from_record(data, need_size=False)
     coeffs = camera.model.opencv_coeffs(camera.coeffs(0).numpy()).tolist()

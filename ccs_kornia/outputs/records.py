@@ -10,13 +10,15 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.modules.calibration.result import VIEW_REASONS
+from ccs_kornia.modules.calibration.splined import nearest_opencv
 from ccs_kornia.modules.detection.markers.corner_merge import corners_by_path
 from ccs_kornia.outputs.calibration_file import camera_record_fields
 from ccs_kornia.pipeline.result import PipelineResult
 from ccs_kornia.pipeline.sources import SIZE_TOLERANCE_PX
 
-__all__ = ["view_records", "camera_record", "correction_record", "selection_reasons"]
+__all__ = ["camera_record", "correction_record", "opencv_equivalent", "selection_reasons", "view_records"]
 
 
 def _num(x: float) -> float | None:
@@ -115,6 +117,20 @@ def correction_record(result: PipelineResult) -> dict[str, Any]:
     }
 
 
+def opencv_equivalent(camera: Camera) -> dict[str, Any]:
+    """For a camera no OpenCV model holds (a splined one): the closest OpenCV camera
+    (:func:`~ccs_kornia.modules.calibration.splined.nearest_opencv`, the rational model) as the JSON writes a camera, and
+    how far it departs from the camera over the image (px: RMS, largest, and per cell of a 16 x 12 grid, rows top to
+    bottom; null beyond 80 degrees). What ``--opencv-yaml`` and ``--ros-yaml`` write."""
+    opencv, departure = nearest_opencv(camera)
+    d = departure[departure.isfinite()]
+    fields = camera_record_fields(opencv)
+    return {"K": fields["K"], "distortion": fields["distortion"],
+            "departure_rms_px": float(d.square().mean().sqrt()) if d.numel() else None,
+            "departure_max_px": float(d.max()) if d.numel() else None,
+            "departure_grid_px": [[_num(v) for v in row] for row in departure.tolist()]}
+
+
 def camera_record(
     result: PipelineResult, paths: list[str], *, board: tuple[int, int], square: float, detector: str, model: Any
 ) -> dict[str, Any]:
@@ -175,6 +191,8 @@ def camera_record(
             "std": {"fx": std_i[0], "fy": std_i[1], "cx": std_i[2], "cy": std_i[3],
                     "distortion": cal.std_dist.double().cpu().tolist()},
         })
+        if cal.camera.model.opencv_family == "splined":
+            data["opencv_equivalent"] = opencv_equivalent(cal.camera)
     else:
         data["error"] = result.camera_reasons or "calibration failed"
     if cal is not None and hasattr(cal, "issues"):

@@ -222,10 +222,25 @@ def rig_cameras(data: dict[str, Any]) -> Camera:
     return Camera.cat([camera_from_record(cam) for cam in data["cameras"]])
 
 
+def _projection_maps(cam, R, P, size) -> tuple[Any, Any]:
+    """``cv2.remap``'s maps (float32 x and y) of the rectified view ``R``, ``P`` (3x3, 3x4) through ``cam``'s own
+    projection: each pixel's ray ``R^T P[:, :3]^-1 (u, v, 1)`` projected by the camera (as
+    ``cv2.initUndistortRectifyMap`` does for OpenCV's models)."""
+    import numpy as np
+
+    w, h = size
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    pix = np.stack([xs, ys, np.ones_like(xs)], -1).reshape(-1, 3)
+    rays = pix @ (R.T @ np.linalg.inv(P[:, :3])).T
+    uv = cam.project(torch.from_numpy(rays)[None].to(cam.dtype))[0].numpy().reshape(h, w, 2)
+    return uv[..., 0].astype(np.float32), uv[..., 1].astype(np.float32)
+
+
 def rectify_maps(data: dict[str, Any], rect: dict[str, Any], i: int = 0, j: int = 1) -> list[tuple[Any, Any]]:
     """``cv2.remap`` maps of cameras ``i`` and ``j`` of a ``rig.json`` into the rectified pair ``rect`` (``R1``,
-    ``P1``, ``R2``, ``P2``, ``image_size`` of a stereo rectification): ``cv2.initUndistortRectifyMap``, or
-    ``cv2.fisheye.initUndistortRectifyMap`` for a fisheye camera."""
+    ``P1``, ``R2``, ``P2``, ``image_size`` of a stereo rectification): ``cv2.initUndistortRectifyMap``,
+    ``cv2.fisheye.initUndistortRectifyMap`` for a fisheye camera, the camera's own projection for one OpenCV has no
+    model of (a splined one)."""
     import cv2
     import numpy as np
 
@@ -234,9 +249,12 @@ def rectify_maps(data: dict[str, Any], rect: dict[str, Any], i: int = 0, j: int 
     for c, R, P in ((i, rect["R1"], rect["P1"]), (j, rect["R2"], rect["P2"])):
         cam = camera_from_record(data["cameras"][c])
         K = cam.K[0].numpy()
-        coeffs = cam.model.opencv_coeffs(cam.coeffs(0).numpy())
+        coeffs = cam.model.opencv_coeffs(cam.coeffs(0).numpy()) if cam.model.opencv_family in ("opencv", "fisheye") \
+            else None
         R, P = np.asarray(R, dtype=np.float64), np.asarray(P, dtype=np.float64)
-        if cam.model.is_fisheye:  # OpenCV's two APIs: cv2.fisheye for Kannala-Brandt lenses
+        if cam.model.opencv_family not in ("opencv", "fisheye"):  # no OpenCV model (splined): its own projection
+            maps.append(_projection_maps(cam, R, P, size))
+        elif cam.model.is_fisheye:  # OpenCV's two APIs: cv2.fisheye for Kannala-Brandt lenses
             maps.append(cv2.fisheye.initUndistortRectifyMap(K, coeffs.reshape(4, 1), R, P, size, cv2.CV_32FC1))
         else:
             maps.append(cv2.initUndistortRectifyMap(K, coeffs, R, P, size, cv2.CV_32FC1))

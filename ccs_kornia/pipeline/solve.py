@@ -17,11 +17,13 @@ from typing import Any
 import torch
 
 from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.models.factory import RATIONAL
 from ccs_kornia.modules.calibration import corrected_frame
 from ccs_kornia.modules.calibration.board_flatness import choose_board_warp
 from ccs_kornia.modules.calibration.model_selection import ModelChoice, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
+from ccs_kornia.modules.calibration.splined_choice import choose_splined
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.modules.detection.boards import CircleGrid, grid_object_points
 from ccs_kornia.modules.detection.circles.centre_bias import centre_bias
@@ -215,7 +217,8 @@ def diagnose_cameras(solvers: Mapping[CameraModel, torch.nn.Module], out: Pipeli
         runner_up = [_runner_up(out.model_selection, ci) for ci in sel.tolist()]
         with torch.inference_mode():
             figures = diagnose(select_result(cal, sel), part.corners, part.valid, part.object_points,
-                               positive_size(size), solver=solvers[model], weights=part.weights, solutions=solutions,
+                               positive_size(size), solver=solvers[model] if model in solvers else
+                               CalibrationSolver(model=model), weights=part.weights, solutions=solutions,
                                runner_up=runner_up)
         for k, ci in enumerate(sel.tolist()):
             diagnostics[ci] = figures[k]
@@ -251,7 +254,7 @@ def judge_flatness(solving: Solving, out: PipelineResult, board_size: tuple[int,
     corrected = out.corrected if out.corrected is not None else torch.zeros(count, dtype=torch.bool)
     models = cal.camera.models
     for size, model in dict.fromkeys(zip(out.image_size, models)):
-        if model.is_fisheye:
+        if model.is_fisheye or model.local_support:  # (a splined camera keeps the board its start had)
             continue
         sel = torch.tensor([s == size and m == model for s, m in zip(out.image_size, models)], device=device)
         sel = (sel & cal.success.to(device) & ~corrected.to(device)).nonzero().flatten()
@@ -297,19 +300,25 @@ def solve_group(solving: Solving, inputs: SolverInput, board_size: tuple[int, in
                 map_models=_map_in_workers(workers_on(device, solving.workers)), solutions=subsets)
         fallback = next(iter(results))  # cameras no model calibrated keep that model's (failed) result
         names = [n or fallback for n in chosen]
+        splined = _splined_choice(solving, results, names, inputs, image_size, table)
     else:
         names, table = [n or next(iter(solving.solvers)) for n in models], None
         # each chosen model solves every camera of the group, as in the selection: the solver's RANSAC draws depend on
         # the batch, and a camera must get the calibration its choice was made on (docs/measurements.md)
         with torch.inference_mode():
-            results = {name: inputs.solve(solving.solvers[name], image_size) for name in dict.fromkeys(names)}
+            results = {name: inputs.solve(solver_for(solving, name), image_size) for name in dict.fromkeys(names)}
+        splined = {}
     parts, order = [], []
     count = inputs.usable.shape[0]
     applied = None if correction is None else torch.zeros(count, dtype=torch.bool, device=device)
-    for name in dict.fromkeys(names):
+    for ci, res in splined.items():  # the cameras auto calibrated splined: as they are (no corrected frame)
+        parts.append(res)
+        order.append(torch.tensor([ci], device=device))
+    names = [None if ci in splined else n for ci, n in enumerate(names)]
+    for name in dict.fromkeys(n for n in names if n is not None):
         sel = torch.tensor([n == name for n in names], device=device).nonzero().flatten()
         calib, refined, kept = _compete(
-            solving, solving.solvers[name], select_result(results[name], sel), inputs.cameras(sel), board_size, square,
+            solving, solver_for(solving, name), select_result(results[name], sel), inputs.cameras(sel), board_size, square,
             image_size, None if correction is None else correction[sel], None if tried is None else tried[sel],
         )
         if correction is not None:
@@ -319,6 +328,39 @@ def solve_group(solving: Solving, inputs: SolverInput, board_size: tuple[int, in
         parts.append(calib)
         order.append(sel)
     return _merge(parts, order, count), correction, applied, table
+
+
+def solver_for(solving: Solving, model: CameraModel) -> CalibrationSolver:
+    """The pipeline's solver of ``model``; a splined model (which ``--model auto`` may choose, its grid from the data)
+    gets one of its own, with the options of the pipeline's solvers."""
+    if model in solving.solvers:
+        return solving.solvers[model]
+    base = solving.solvers.get(RATIONAL, solving.solver)
+    return CalibrationSolver(model=model, use_ransac=base.use_ransac, seed=base.ransac.seed,
+                             fix_aspect_ratio=base.fix_aspect_ratio, fix_principal_point=base.fix_principal_point,
+                             min_corners=base.min_corners, min_views=base.min_views, max_iters=base.max_iters)
+
+
+def _splined_choice(solving: Solving, results: dict, names: list, inputs: SolverInput, image_size: tuple[int, int],
+                    table: list[dict]) -> dict[int, CalibrationResult]:
+    """``--model auto``'s splined model where held-out views prefer it to the chosen one
+    (:func:`~ccs_kornia.modules.calibration.splined_choice.choose_splined`): per camera index the splined result kept;
+    each camera's table gets the figures (``splined``) and, where kept, the spline as ``chosen``."""
+    kept: dict[int, CalibrationResult] = {}
+    device = inputs.corners.device
+    for name in dict.fromkeys(names):
+        sel = torch.tensor([n == name for n in names], device=device).nonzero().flatten()
+        part = inputs.cameras(sel)
+        with torch.inference_mode():
+            spline, records = choose_splined(solving.solvers[name], select_result(results[name], sel), part.corners,
+                                             part.valid, part.object_points, image_size, part.weights)
+        for k, ci in enumerate(sel.tolist()):
+            if records[k] is not None:
+                table[ci]["splined"] = records[k]
+            if spline[k] is not None:
+                kept[ci] = spline[k]
+                table[ci]["chosen"], table[ci]["runner_up"] = str(spline[k].camera.model), table[ci]["chosen"]
+    return kept
 
 
 def _compete(solving: Solving, solver: CalibrationSolver, usual: CalibrationResult, inputs: SolverInput, board_size,

@@ -87,3 +87,15 @@ def test_refusals(capsys, tmp_path, case):
     lines = [line for line in err.splitlines() if "error" in line]
     assert code == 2 and len(lines) == 1 and phrase in lines[0] and "Traceback" not in err
     assert not (tmp_path / "d.json").exists()
+
+
+def test_json_against_mrcal_cameramodel(capsys, tmp_path):
+    from ccs_kornia.io.cameramodel import write_cameramodel
+
+    _write(tmp_path / "a.json", _camera())
+    write_cameramodel(tmp_path / "b.cameramodel", _camera(cx=320.3)[0])  # mrcal's format (LENSMODEL_OPENCV5)
+    code, out, err = run(capsys, "compare", tmp_path / "a.json", tmp_path / "b.cameramodel", "--output",
+                         tmp_path / "d.json")
+    assert code == 0, err
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["rms_px"] < 0.05  # the same lens, the shift fitted out as a rotation

@@ -6,7 +6,8 @@ weighed by its level as mrcal weighs it: an inverse variance ``0.25 ** level``),
 (``LENSMODEL_OPENCV8`` and its splined model, both with the board's sag ``calobject_warp``).
 
 Per camera model (``rational``, the same as mrcal's OPENCV8, and ``fisheye``), with a flat board and with the sag
-(:mod:`~ccs_kornia.geometry.board_warp`):
+(:mod:`~ccs_kornia.geometry.board_warp`), and mrcal's splined stereographic model on the grid of mrcal's published
+solution (30 x 20 control points over 170 degrees) with the sag:
 
 * the whole set: RMS, the sag and its 1-sigma, the residuals' structure (6 x 4 cells: RMS of the cell means, cells
   significant; :mod:`~ccs_kornia.modules.calibration.quality.residual_structure`), the fit's wall time;
@@ -14,7 +15,8 @@ Per camera model (``rational``, the same as mrcal's OPENCV8, and ``fisheye``), w
   error (each half's camera on the other half's views, their poses refitted; the median over the corners of both
   directions) and the projection difference between the halves' cameras over the image after the rotation that aligns
   them best (as mrcal's ``show-projection-diff``: RMS over a 60 x 40 grid of the cells some board covered);
-* against mrcal's OPENCV8: the projection difference of the whole-set camera from mrcal's, the same way.
+* against mrcal's OPENCV8 and its splined solution: the projection difference of the whole-set camera from mrcal's,
+  the same way.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models import RATIONAL
 from ccs_kornia.geometry.models.factory import camera_model
+from ccs_kornia.geometry.models.splined import SplinedStereographicModel
 from ccs_kornia.io.corners_file import read_corners_vnl
 from ccs_kornia.modules.calibration.board_flatness import heldout_errors
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
@@ -42,6 +45,8 @@ __all__ = ["SET", "load_mrcal_model", "precision_md", "projection_difference", "
 #: the shared set this section runs on
 SET = "mrcal_figueroa_corners"
 SIZE = (6016, 4016)
+#: the splined model's grid where mrcal's published solution is not there to name it (mrcal's for this lens)
+SPLINED_GRID = "splined_stereographic_order=3_Nx=30_Ny=20_fov_x_deg=170"
 
 
 def load_mrcal_model(path: Path) -> dict:
@@ -116,7 +121,7 @@ def run_precision(cfg=None, log=print) -> dict:
     root = Path(getattr(cfg, "real_dir", None) or default_real_dir()) / SET
     if not (root / "corners.vnl").is_file():
         return {"skipped": f"{root / 'corners.vnl'} not found"}
-    models = tuple(getattr(cfg, "precision_models", ("rational", "fisheye")))
+    models = tuple(getattr(cfg, "precision_models", ("rational", "fisheye", "splined")))
     cf = read_corners_vnl(str(root / "corners.vnl"), (10, 10))
     corners = cf.corners[None]
     valid = corners.isfinite().all(-1)
@@ -134,10 +139,19 @@ def run_precision(cfg=None, log=print) -> dict:
     out: dict = {"set": SET, "views": V, "corners": int(valid.sum()),
                  "mrcal": {k: {"lensmodel": m["lensmodel"], "calobject_warp": m.get("calobject_warp")}
                            for k, m in mrcal.items()}, "models": {}}
+    splined_reference = None
+    if "splined" in mrcal:
+        splined_reference = Camera(camera_model(mrcal["splined"]["lensmodel"]),
+                                   torch.tensor(mrcal["splined"]["intrinsics"], dtype=torch.float64), SIZE)
     for name in models:
-        model = camera_model(name)
-        for bent in ((False, True) if not model.is_fisheye else (False,)):
+        # "splined": mrcal's splined stereographic model on the grid of mrcal's published solution, with the sag
+        model = splined_reference.model if name == "splined" and splined_reference is not None else camera_model(
+            SPLINED_GRID if name == "splined" else name)
+        spline = isinstance(model, SplinedStereographicModel)
+        for bent in ((True,) if spline else (False, True) if not model.is_fisheye else (False,)):
             key = f"{name}{' bent' if bent else ''}"
+            if spline:
+                key = f"splined {model.nx}x{model.ny} bent"
             solver = CalibrationSolver(model=model, board_warp=bent)
             start = time.perf_counter()
             whole = solver(corners, valid, obj, SIZE, weights=weights)
@@ -149,6 +163,9 @@ def run_precision(cfg=None, log=print) -> dict:
                 row["warp_std_mm"] = [1000 * float(x) for x in whole.std_board_warp[0]]
             if reference is not None and not model.is_fisheye:
                 row["vs_mrcal_opencv8_px"] = projection_difference(whole.camera, reference,
+                                                                   _covered(corners[0], whole.used[0]))
+            if splined_reference is not None:
+                row["vs_mrcal_splined_px"] = projection_difference(whole.camera, splined_reference,
                                                                    _covered(corners[0], whole.used[0]))
             for split, halves in _halves(V).items():
                 cams, errors = [], []
@@ -183,8 +200,8 @@ def precision_md(sec: dict) -> list[str]:
               "by index (alternate views) and by time (first and second half). Projection differences after the "
               "best rotation, RMS over a 60 x 40 grid where boards were."), "",
              ("| model | RMS px | sag mm (1-sigma) | cell means RMS px / significant | held-out median px: index / "
-              "time | halves differ px: index / time | vs mrcal OPENCV8 px | fit s |"),
-             "|---|---|---|---|---|---|---|---|"]
+              "time | halves differ px: index / time | vs mrcal OPENCV8 px | vs mrcal splined px | fit s |"),
+             "|---|---|---|---|---|---|---|---|---|"]
     for key, r in sec["models"].items():
         s = r.get("residual_structure") or {}
         warp = ("–" if "warp_mm" not in r else
@@ -194,7 +211,7 @@ def precision_md(sec: dict) -> list[str]:
                      f"{f(r['split_index']['heldout_median_px'])} / {f(r['split_time']['heldout_median_px'])} | "
                      f"{f(r['split_index']['projection_difference_px'])} / "
                      f"{f(r['split_time']['projection_difference_px'])} | {f(r.get('vs_mrcal_opencv8_px'))} | "
-                     f"{f(r['fit_s'], 2)} |")
+                     f"{f(r.get('vs_mrcal_splined_px'))} | {f(r['fit_s'], 2)} |")
     warps = [f"{k}: {1000 * w[0]:+.3f} / {1000 * w[1]:+.3f} mm" for k, m in sec.get("mrcal", {}).items()
              if (w := m.get("calobject_warp"))]
     if warps:

@@ -2,7 +2,9 @@
 
 * :class:`OpenCVModel`: pinhole + OpenCV polynomial distortion (``none``, ``k1k2``, ``opencv5``, ``rational``);
 * :class:`CentredRadialModel`: the paper's radial distortion about a free centre;
-* :class:`KannalaBrandtModel`: ``cv2.fisheye``'s Kannala–Brandt model (k1..k4), valid beyond 90 degrees.
+* :class:`KannalaBrandtModel`: ``cv2.fisheye``'s Kannala–Brandt model (k1..k4), valid beyond 90 degrees;
+* :class:`SplinedStereographicModel`: mrcal's splined stereographic model (a B-spline correction of the stereographic
+  projection), for any lens.
 
 The models a calibration returns are values (:data:`PINHOLE`, :data:`K1K2`, :data:`OPENCV5`, :data:`RATIONAL`,
 :data:`FISHEYE`); :func:`~ccs_kornia.geometry.models.factory.camera_model` reads one from its name (files, the
@@ -26,6 +28,7 @@ _EXPORTS = {
     "OPENCV_VARIANTS": "ccs_kornia.geometry.models.opencv",
     "CentredRadialModel": "ccs_kornia.geometry.models.centred_radial",
     "KannalaBrandtModel": "ccs_kornia.geometry.models.fisheye",
+    "SplinedStereographicModel": "ccs_kornia.geometry.models.splined",
     "camera_model": "ccs_kornia.geometry.models.factory",
     "CAMERA_MODELS": "ccs_kornia.geometry.models.factory",
     "PINHOLE": "ccs_kornia.geometry.models.factory",

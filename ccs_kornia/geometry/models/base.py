@@ -72,6 +72,18 @@ class CameraModel:
         """A fisheye model (``cv2.fisheye``'s functions; angles at and beyond 90 degrees project)."""
         return False
 
+    @property
+    def local_support(self) -> bool:
+        """Most parameters act on a small part of the image only (a spline's control points): the model gives them in
+        local form (``local_columns``: per point the pairs of parameters it depends on, the first moving ``u``, the
+        second ``v``, and their derivatives), which the LM core assembles without a column per parameter."""
+        return False
+
+    @property
+    def num_local(self) -> int:
+        """Parameters in local form (the last ones; 0 for a model without :attr:`local_support`)."""
+        return 0
+
     def straight(self, params: torch.Tensor) -> torch.Tensor:
         """:math:`(C,)` bool: with these parameters :math:`(C, P)` the model images straight lines straight (its
         distortion terms all zero); a model whose projection is not a pinhole's at any coefficients overrides it."""

@@ -9,6 +9,7 @@ from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.models.centred_radial import CentredRadialModel
 from ccs_kornia.geometry.models.fisheye import KannalaBrandtModel
 from ccs_kornia.geometry.models.opencv import OpenCVModel
+from ccs_kornia.geometry.models.splined import SPLINE_NAME, SplinedStereographicModel
 
 __all__ = ["CAMERA_MODELS", "FISHEYE", "K1K2", "OPENCV5", "PINHOLE", "RATIONAL", "camera_model"]
 
@@ -28,7 +29,9 @@ CAMERA_MODELS: dict[str, CameraModel] = {m.name: m for m in (PINHOLE, K1K2, OPEN
 
 @functools.lru_cache(maxsize=None)
 def camera_model(name: str, image_size: tuple[int, int] | None = None) -> CameraModel:
-    """The model a name stands for: an OpenCV variant, ``fisheye`` or ``centred_radial`` (needs ``image_size``).
+    """The model a name stands for: an OpenCV variant, ``fisheye``, ``centred_radial`` (needs ``image_size``) or a
+    splined stereographic model with its configuration (``splined_stereographic_order=3_Nx=30_Ny=20_fov_x_deg=170``,
+    or mrcal's ``LENSMODEL_SPLINED_STEREOGRAPHIC_...``).
 
     Names are what files and the command line carry; this is where they become models (the package passes models).
 
@@ -44,4 +47,7 @@ def camera_model(name: str, image_size: tuple[int, int] | None = None) -> Camera
         if image_size is None:
             raise ValueError("The centred_radial model needs image_size.")
         return CentredRadialModel(image_size)
-    raise ValueError(f"Unknown camera model {name!r}; expected one of {', '.join([*CAMERA_MODELS, 'centred_radial'])}.")
+    if name.startswith((SPLINE_NAME, "LENSMODEL_SPLINED_STEREOGRAPHIC")):
+        return SplinedStereographicModel.from_name(name)
+    raise ValueError(f"Unknown camera model {name!r}; expected one of {', '.join([*CAMERA_MODELS, 'centred_radial'])} or "
+                     f"{SPLINE_NAME}_order=3_Nx=.._Ny=.._fov_x_deg=...")

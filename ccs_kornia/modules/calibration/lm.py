@@ -152,7 +152,12 @@ def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expa
         params, warp = params[:, :-2], params[:, -2:]
         obj = torch.cat([obj[..., :2], obj[..., 2:] + (sag * warp[:, None, :]).sum(-1, keepdim=True)], -1)
     q = torch.matmul(obj[:, None].expand(C, V, -1, 3), R.transpose(-1, -2))  # (C, V, N, 3) = R X
-    uv, dp, (dx, dy, dz) = model.columns(q + t[:, :, None, :], params)
+    local = None
+    if model.local_support:  # most parameters in local form: (index, columns) per point, assembled below
+        uv, dp, index, d_local, (dx, dy, dz) = model.local_columns(q + t[:, :, None, :], params)
+        local = (index, d_local)
+    else:
+        uv, dp, (dx, dy, dz) = model.columns(q + t[:, :, None, :], params)
     qx, qy, qz = q[..., 0:1], q[..., 1:2], q[..., 2:3]
     if sag is not None:  # d Xc / d c_k = R e_z b_k
         ez = R[..., :, 2][:, :, None, :, None]  # (C, V, 1, 3, 1)
@@ -175,15 +180,70 @@ def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expa
     P = len(dp)  # the camera's parameters (and the sag's two)
     Gpp, Gpk, Gkk = G[..., :P, :P].sum(1), G[..., :P, P : P + 6], G[..., P : P + 6, P : P + 6]
     gp, gk = G[..., :P, P + 6].sum(1), G[..., P : P + 6, P + 6]
+    if local is not None:
+        Gpp, Gpk, gp = _with_local(model, local, A.view(C, V, len(cols), -1, 2), sw, Gpp, Gpk, gp)
     view_cost = G[..., P + 6, P + 6]  # (C, V) weighted squared residuals per view
     cost = view_cost.sum(1)
     cost = torch.where(cost.isfinite(), cost, torch.full_like(cost, float("inf")))
-    if basis is not None:
+    pick = None if basis is None or local is None else _selection(basis)
+    if pick is not None:  # a basis that selects parameters (a spline's, the core fixed): indexing, not products
+        Gpp = torch.gather(torch.gather(Gpp, 1, pick[:, :, None].expand(-1, -1, Gpp.shape[-1])), 2,
+                           pick[:, None, :].expand(-1, pick.shape[1], -1))
+        gp = torch.gather(gp, 1, pick)
+        Gpk = torch.gather(Gpk, 2, pick[:, None, :, None].expand(-1, Gpk.shape[1], -1, 6))
+    elif basis is not None:
         Bt = basis.transpose(-1, -2)
         Gpp, gp = Bt @ Gpp @ basis, (Bt @ gp.unsqueeze(-1)).squeeze(-1)
         Gpk = torch.einsum("cpf,cvpk->cvfk", basis, Gpk)
     Gkk = torch.where(used[..., None, None], Gkk, eye6)
     return cost, Gpp, Gpk, Gkk, gp, gk, view_cost
+
+
+def _selection(basis: torch.Tensor) -> torch.Tensor | None:
+    """The parameters :math:`(C, F)` a basis :math:`(C, P, F)` selects where each of its columns is a unit vector,
+    else ``None``."""
+    pick = basis.argmax(-2)
+    unit = (basis.gather(1, pick[:, None, :]) == 1).all() & (basis.sum(-2) == 1).all() & (basis >= 0).all()
+    return pick if bool(unit) else None
+
+
+def _with_local(model, local, A, sw, Gpp, Gpk, gp):
+    """The normal equations of a model with parameters in local form (each point depends on ``S`` pairs of them, one
+    moving ``u`` and the next moving ``v``: a spline's control points): ``Gpp``, ``Gpk``, ``gp`` of the dense columns
+    ``A`` :math:`(C, V, K, N, 2)` (the core, the sag, the pose, the residual) grown to every parameter, the local ones'
+    blocks summed in by their indices."""
+    index, d_local = local  # (C, V, N, S) the pairs' first parameters, (C, V, N, S, 2) d u / d first, d v / d second
+    C, V, K, N, _ = A.shape
+    D = Gpp.shape[-1]  # the dense columns: the model's core (its first ones), then the sag's
+    core = model.num_params - model.num_local
+    Pt = model.num_params + (D - core)
+    if sw is not None:
+        d_local = d_local * sw[..., None, None]
+    S = d_local.shape[-2]
+    dense = A.permute(0, 1, 3, 2, 4).reshape(C, V * N, K, 2)  # (C, M, K, 2)
+    base = torch.arange(C, device=index.device)[:, None, None] * Pt
+    vbase = (torch.arange(C, device=index.device)[:, None] * V + torch.arange(V, device=index.device)[None, :]) * Pt
+    full = Gpp.new_zeros(C * Pt * Pt)
+    lc = Gpp.new_zeros(C * Pt, D)
+    Gk = Gpk.new_zeros(C * V * Pt, 6)
+    g = gp.new_zeros(C * Pt)
+    for axis in range(2):  # u's parameters, then v's: each moves one coordinate only
+        a = d_local[..., axis].reshape(C, -1, S)  # (C, M, S)
+        idx = (index + axis).reshape(C, -1, S)
+        rows = (base + idx)[..., :, None] * Pt + idx[..., None, :]
+        full.index_add_(0, rows.reshape(-1), (a[..., :, None] * a[..., None, :]).reshape(-1))
+        cross = a[..., None] * dense[..., None, :, axis]  # (C, M, S, K): against the dense columns
+        lc.index_add_(0, (base + idx).reshape(-1), cross[..., :D].reshape(-1, D))
+        Gk.index_add_(0, (vbase[:, :, None, None] + index + axis).reshape(-1), cross[..., D : D + 6].reshape(-1, 6))
+        g.index_add_(0, (base + idx).reshape(-1), cross[..., D + 6].reshape(-1))
+    full, lc, Gk, g = full.view(C, Pt, Pt), lc.view(C, Pt, D), Gk.view(C, V, Pt, 6), g.view(C, Pt)
+    at = torch.cat([torch.arange(core), torch.arange(model.num_params, Pt)]).to(index.device)  # the dense ones' places
+    full[:, at[:, None], at[None, :]] += Gpp
+    full[:, :, at] += lc  # the local rows only: the dense ones of lc stay zero
+    full[:, at, :] += lc.transpose(-1, -2)
+    Gk[:, :, at] += Gpk
+    g[:, at] += gp
+    return full, Gk, g
 
 
 @dataclass(kw_only=True)
@@ -198,15 +258,23 @@ class _CameraProblem:
     global unknowns the free camera coordinates, items the views' poses; the unknowns ``{"x": (C, P) parameters,
     "R": (C, V, 3, 3), "t": (C, V, 3)}``, the normal equations :class:`_CameraEquations`."""
 
-    def __init__(self, model, obj, obs, sw, basis, tied, used, num_residuals, floor, eye6, expanded, sag=None):
+    def __init__(self, model, obj, obs, sw, basis, tied, used, num_residuals, floor, eye6, expanded, sag=None,
+                 prior=None):
         self.model, self.obj, self.obs, self.sw, self.basis, self.tied = model, obj, obs, sw, basis, tied
         self.used, self.num_residuals, self.floor = used, num_residuals, floor
-        self.eye6, self.expanded, self.sag = eye6, expanded, sag
+        self.eye6, self.expanded, self.sag, self.prior = eye6, expanded, sag, prior
+        # the prior's block of the free coordinates (constant: the basis is)
+        self.prior_free = None if prior is None else basis.transpose(-1, -2) @ prior @ basis
 
     def linearize(self, s):
         cost, U, W, V, eg, ep, view_cost = _normal_equations(self.model, s["R"], s["t"], s["x"], self.obj, self.obs,
                                                              self.sw, self.tied, self.used, self.eye6, self.expanded,
                                                              self.sag)
+        if self.prior is not None:  # cost x^T Lambda x: the regularisation's residuals
+            lx = (self.prior @ s["x"].unsqueeze(-1)).squeeze(-1)
+            cost = cost + (s["x"] * lx).sum(-1)
+            U = U + self.prior_free
+            eg = eg + (self.basis.transpose(-1, -2) @ lx.unsqueeze(-1)).squeeze(-1)
         return _CameraEquations(cost=cost, U=U, eg=eg, W=W, V=V, ep=ep, view_cost=view_cost)
 
     def retract(self, s, dg, dp):
@@ -221,7 +289,8 @@ class _CameraProblem:
         sub = [None if v is None else v[keep] for v in (self.obj, self.obs, self.sw, self.basis, self.tied, self.used,
                                                          self.num_residuals, self.floor)]
         return _CameraProblem(self.model, *sub, self.eye6, self.expanded,
-                              None if self.sag is None else self.sag[keep])
+                              None if self.sag is None else self.sag[keep],
+                              None if self.prior is None else self.prior[keep])
 
 
 def levenberg_marquardt(
@@ -245,6 +314,7 @@ def levenberg_marquardt(
     stall_tol: float = 0.0,
     groups: torch.Tensor | None = None,
     board_warp: torch.Tensor | None = None,
+    prior: torch.Tensor | None = None,
 ) -> LMResult:
     r"""Batched Levenberg–Marquardt over camera parameters and per-view poses (see the module doc).
 
@@ -278,6 +348,9 @@ def levenberg_marquardt(
             the group's best; fisheye hypotheses crawled 70-100 iterations at 3-44 px RMS beside a 0.17 px optimum).
         board_warp: :math:`(C, 2)` the board's sag to start from, estimated with the rest
             (:mod:`~ccs_kornia.geometry.board_warp`); ``None``: the board is flat.
+        prior: :math:`(C, P, P)` a regularisation ``x^T Lambda x`` of the parameters added to the cost (symmetric,
+            positive semi-definite; e.g. a spline's control points pulled towards zero and towards a smooth surface:
+            :func:`~ccs_kornia.modules.calibration.splined.spline_prior`).
 
     Returns:
         :class:`LMResult` (with ``warp`` and ``warp_covariance`` where ``board_warp`` is given).
@@ -337,8 +410,11 @@ def levenberg_marquardt(
     n_view = on.sum(-1)
     n_pts = n_view.sum(-1)
     floor = (w.sum((1, 2)) * 1e-20).clamp_min(1e-300)  # an RMS of 1e-10 px: a perfect fit
+    if prior is not None:
+        check_tensor(prior, "prior", [C, model.num_params, model.num_params])
+        prior = torch.nn.functional.pad(prior.to(device=device, dtype=dtype), [0, x.shape[-1] - model.num_params] * 2)
     problem = _CameraProblem(model, obj, obs, sw, B, Bn, used, 2 * n_pts, floor,
-                             torch.eye(6, dtype=dtype, device=device), {}, sag)
+                             torch.eye(6, dtype=dtype, device=device), {}, sag, prior)
     sol = schur_lm(problem, {"x": x, "R": _exp_so3(rv), "t": tv}, max_iters=max_iters, ftol=ftol, xtol=xtol,
                    lambda_init=lambda_init, check_every=check_every, stall_tol=stall_tol, groups=groups,
                    absolute_weights=absolute_weights)

@@ -47,7 +47,7 @@ from typing import Any, Protocol
 
 import torch
 
-from ccs_kornia.geometry.spd_inverse import pseudo_inverse, spd_inverse
+from ccs_kornia.geometry.spd_inverse import LARGE_SYSTEM, pseudo_inverse, spd_inverse
 from ccs_kornia.modules.calibration.block_banded import block_banded_solve
 from ccs_kornia.runtime.checks import check_tensor
 
@@ -255,8 +255,12 @@ def _solve_spd(A: torch.Tensor, b: torch.Tensor, eye: torch.Tensor) -> torch.Ten
     bad = info != 0
     # a failed factor is replaced by the identity (its solution is then zeroed)
     L = torch.where(bad[..., None, None], eye, L)
-    # (the inverse, not cholesky_solve: a problem's result does not depend on the other problems of the batch)
-    x = (torch.cholesky_inverse(L) @ (b * d).unsqueeze(-1)).squeeze(-1) * d
+    # (the inverse, not cholesky_solve: a problem's result does not depend on the other problems of the batch; a large
+    # system (a spline's) is solved: there the inverse costs seconds)
+    if A.shape[-1] > LARGE_SYSTEM:
+        x = torch.cholesky_solve((b * d).unsqueeze(-1), L).squeeze(-1) * d
+    else:
+        x = (torch.cholesky_inverse(L) @ (b * d).unsqueeze(-1)).squeeze(-1) * d
     return x.masked_fill(bad[..., None] | ~x.isfinite(), 0.0)
 
 
@@ -265,6 +269,15 @@ def _banded_elimination(W, Vd, Vband, ep):
     G = W.shape[-2]
     Z = block_banded_solve(Vd, Vband, torch.cat([W.transpose(-1, -2), ep[..., None]], -1))[0]
     return Z[..., :G], Z[..., G]
+
+
+def _items_product(Y: torch.Tensor, W: torch.Tensor) -> torch.Tensor:
+    """``sum_i Y_i W_i^T`` :math:`(B, G, G)` of :math:`(B, V, G, k)` blocks; for a large ``G`` (a spline's) one product
+    over the items and their unknowns at once, without the :math:`(B, V, G, G)` terms."""
+    if W.shape[-2] <= LARGE_SYSTEM:
+        return (Y @ W.transpose(-1, -2)).sum(1)
+    B, V, G, k = W.shape
+    return Y.transpose(1, 2).reshape(B, G, V * k) @ W.transpose(1, 2).reshape(B, G, V * k).transpose(-1, -2)
 
 
 def _step(U, W, Vb, eg, ep, lam, used_f, eyeG, Vband=None):
@@ -286,7 +299,7 @@ def _step(U, W, Vb, eg, ep, lam, used_f, eyeG, Vband=None):
     # the damped item blocks are definite (unused items: the identity); a failed inverse is zeroed
     Vinv = torch.linalg.inv_ex(Vd)[0].nan_to_num_(0.0, 0.0, 0.0)
     Y = W @ Vinv  # (B, V, G, 6)
-    S = Ud - (Y @ W.transpose(-1, -2)).sum(1)
+    S = Ud - _items_product(Y, W)
     dg = _solve_spd(S, (Y @ ep.unsqueeze(-1)).sum(1).squeeze(-1) - eg, eyeG)
     dp = (Vinv @ (ep.unsqueeze(-1) + W.transpose(-1, -2) @ dg[:, None, :, None])).squeeze(-1)
     return dg, dp * (-used_f)[..., None]
@@ -520,7 +533,7 @@ def schur_lm(
     else:
         Vinv = spd_inverse(Vb)
         Vinv = torch.where(used[..., None, None] & Vinv.isfinite(), Vinv, torch.zeros_like(Vinv))
-        S = U - ((W @ Vinv) @ W.transpose(-1, -2)).sum(1)
+        S = U - _items_product(W @ Vinv, W)
     G = S.shape[-1]
     dof = (problem.num_residuals - G - Vb.shape[-1] * used.sum(-1)).clamp_min(1).to(dtype)
     sigma2 = torch.ones_like(cost) if absolute_weights else cost / dof

@@ -16,7 +16,8 @@ from torch import nn
 from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.geometry.camera import Camera, intrinsics_params
 from ccs_kornia.geometry.models.base import CameraModel
-from ccs_kornia.geometry.models.factory import CAMERA_MODELS, FISHEYE, OPENCV5, PINHOLE
+from ccs_kornia.geometry.models.factory import CAMERA_MODELS, FISHEYE, OPENCV5, PINHOLE, RATIONAL
+from ccs_kornia.geometry.models.splined import SplinedStereographicModel
 from ccs_kornia.modules.calibration.duplicates import duplicate_views, view_differences
 from ccs_kornia.modules.calibration.fisheye_calibration import calibrate_fisheye
 from ccs_kornia.modules.calibration.homography import (
@@ -41,6 +42,7 @@ from ccs_kornia.modules.calibration.refinement import (
     joint_refinement,
 )
 from ccs_kornia.modules.calibration.result import CalibrationResult, ViewReason
+from ccs_kornia.modules.calibration.splined import calibrate_splined
 from ccs_kornia.modules.calibration.zhang import (
     extrinsics_from_homography,
     zhang_intrinsics,
@@ -106,6 +108,8 @@ class CalibrationSolver(nn.Module):
             ``error`` gets ``success = False``, and every result carries ``check_*`` tensors (see
             ``CalibrationResult.issues``).
         thresholds: :class:`~ccs_kornia.modules.calibration.quality.degeneracy.DegeneracyThresholds` of those checks.
+        A :class:`~ccs_kornia.geometry.models.splined.SplinedStereographicModel` is fitted from this solver's rational
+        fit (:mod:`~ccs_kornia.modules.calibration.splined`), or from ``initial`` where that is of the same grid.
         board_warp: estimate the board's sag jointly with the camera and poses (mrcal's two parameters,
             :mod:`~ccs_kornia.geometry.board_warp`; the OpenCV models): the result's ``board_warp`` and
             ``std_board_warp``. Whether it is worth keeping is decided on held-out views
@@ -174,9 +178,9 @@ class CalibrationSolver(nn.Module):
             raise ValueError("board_warp is estimated with OpenCV's models, not the fisheye model.")
         self.checks = checks
         self.thresholds = thresholds or DegeneracyThresholds(min_views=max(int(min_views), 1))
-        if model not in CAMERA_MODELS.values():
-            raise ValueError(f"CalibrationSolver's model must be one of the models {', '.join(CAMERA_MODELS)} "
-                             f"(ccs_kornia.geometry.models), got {model!r}.")
+        if model not in CAMERA_MODELS.values() and not isinstance(model, SplinedStereographicModel):
+            raise ValueError(f"CalibrationSolver's model must be one of the models {', '.join(CAMERA_MODELS)} or a "
+                             f"SplinedStereographicModel (ccs_kornia.geometry.models), got {model!r}.")
         self.model = model
         self.use_ransac = use_ransac
         self.fix_aspect_ratio = fix_aspect_ratio
@@ -347,6 +351,8 @@ class CalibrationSolver(nn.Module):
             candidates = candidates & (duplicate_of < 0)
             reason = torch.where(duplicate_of >= 0, ViewReason.DUPLICATE, reason)
 
+        if isinstance(self.model, SplinedStereographicModel):
+            return self._solve_splined(corners, valid, obj, image_size, initial, weights, unbatched)
         if self.model.is_fisheye:
             return self._solve_fisheye(corners, valid, obj, image_size, candidates, reason, duplicate_of,
                                        differences, H, unbatched, initial, weights)
@@ -510,6 +516,31 @@ class CalibrationSolver(nn.Module):
             check_value=None if report is None else report.value,
             check_views=None if report is None else report.views,
         )
+        out = with_residual_structure(out, corners, valid, obj, image_size)
+        if unbatched:
+            out = out.map_tensors(lambda t: t[0])
+        return out
+
+    def _solve_splined(self, corners, valid, obj, image_size, initial, weights, unbatched) -> CalibrationResult:
+        """A splined camera (:mod:`~ccs_kornia.modules.calibration.splined`): from ``initial`` where it is one of the
+        same grid, else from this solver's fit with the rational model (the fisheye model where that fails), the
+        views, outliers and checks of that start kept."""
+        spline = self.model
+        start = initial
+        if start is None or set(start.camera.models) != {spline}:
+            options = {k: getattr(self, k) for k in ("use_ransac", "fix_aspect_ratio", "dtype", "fix_principal_point",
+                                                     "reject_outliers", "outlier_abs_threshold",
+                                                     "outlier_rel_threshold", "max_outlier_rounds", "max_iters",
+                                                     "lambda_init", "ftol", "stall_tol", "checks", "thresholds",
+                                                     "min_views", "min_corners")}
+            rational = CalibrationSolver(model=RATIONAL, board_warp=self.board_warp, **options)
+            warm = initial if initial is not None and set(initial.camera.models) == {RATIONAL} else None
+            start = rational._solve(corners, valid, obj, image_size, None, warm, False, weights)
+            if not bool(start.success.all()):
+                fish = CalibrationSolver(model=FISHEYE, **options)._solve(corners, valid, obj, image_size, None, None,
+                                                                           False, weights)
+                start = fish if bool(fish.success.sum() > start.success.sum()) else start
+        out = calibrate_splined(start, corners, valid, obj, image_size, spline, weights)
         out = with_residual_structure(out, corners, valid, obj, image_size)
         if unbatched:
             out = out.map_tensors(lambda t: t[0])

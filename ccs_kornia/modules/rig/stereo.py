@@ -99,7 +99,8 @@ def stereo_rectify(
       zero coefficients): ``R1, R2, P1, P2, Q`` then hold for the undistorted images, so each camera is remapped with
       its own model's function (``cv2.fisheye.initUndistortRectifyMap`` for the fisheye,
       ``cv2.initUndistortRectifyMap`` for the other) from its own ``K, dist`` to ``R_k, P_k``; ``alpha`` and the
-      rectangles ignore the distortion.
+      rectangles ignore the distortion; the same where a camera has no OpenCV model (a splined one, remapped through
+      its own projection).
 
     Args:
         cam1, cam2: the two cameras (one each).
@@ -129,8 +130,8 @@ def stereo_rectify(
                                                       balance=float(alpha))
         roi1 = roi2 = (0, 0, size[0], size[1])
     else:
-        if any(fish):
-            d1 = d2 = np.zeros(5)
+        if any(fish) or any(c.model.opencv_family not in ("opencv", "fisheye") for c in (cam1, cam2)):
+            d1 = d2 = np.zeros(5)  # (a splined camera: the rectification of the undistorted pair, as one of each)
         else:
             d1, d2 = (c.model.opencv_coeffs(_np(c.dist[0])) for c in (cam1, cam2))
         R1, R2, P1, P2, Q, roi1, roi2 = cv2.stereoRectify(K1, d1, K2, d2, size, Rn, Tn, flags=cv2.CALIB_ZERO_DISPARITY,
