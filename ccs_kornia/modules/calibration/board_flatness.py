@@ -134,7 +134,7 @@ def choose_board_warp(solver: CalibrationSolver, usual: CalibrationResult, corne
 
     Args:
         solver: the flat-board :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` that made ``usual``
-            (an OpenCV model; its options are used for every solve, with ``board_warp`` for the sag's).
+            (an OpenCV or the fisheye model; its options are used for every solve, with ``board_warp`` for the sag's).
         usual: its result for C cameras (batched).
         corners: :math:`(C, V, N, 2)`; valid: :math:`(C, V, N)`; object_points: :math:`(N, 3)`; image_size ``(W, H)``;
         weights: :math:`(C, V, N)` or ``None``: as ``usual`` was solved.
@@ -161,8 +161,6 @@ def choose_board_warp(solver: CalibrationSolver, usual: CalibrationResult, corne
         >>> bool(choice.kept[0]), [round(w * 1000, 3) for w in choice.warp[0].tolist()]
         (True, [-2.0, 1.0])
     """
-    if solver.model.is_fisheye:
-        raise ValueError("The board's sag is estimated with OpenCV's models, not the fisheye model.")
     bent = copy.copy(solver)
     bent.board_warp = True
     flat = copy.copy(solver)
