@@ -43,7 +43,7 @@ def _perturbed(problem: HandEyeProblem, s: HandEyeState, z: torch.Tensor) -> Han
         dv = z[:, G:].reshape(z.shape[0], -1, 6)
         RE = (eye + skew(dv[..., :3])) @ RE
         tE = tE + dv[..., 3:]
-    return HandEyeState(RX, s.tX + z[:, 3:6], RZ, s.tZ + z[:, 9:12], params, RE, tE)
+    return HandEyeState(RX, s.tX + z[:, 3:6], RZ, s.tZ + z[:, 9:12], params, RE, tE, s.warp)
 
 
 def hand_eye_cost(problem: HandEyeProblem, s: HandEyeState, z: torch.Tensor) -> torch.Tensor:
