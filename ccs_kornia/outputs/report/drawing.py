@@ -70,7 +70,7 @@ def board_bend_line(flatness: dict | None) -> str | None:
 
     Example:
         >>> board_bend_line({"kept": True, "warp_m": [-1e-3, 5e-4], "std_m": [1e-5, 1e-5],
-        ...                  "heldout_median_px": {"flat": 0.92, "warp": 0.55}})[-60:]
+        ...                  "heldout_median_px": {"flat": 0.92, "warp": 0.55}}).split(": ")[-1]
         'kept (held-out median 0.9200 px flat, 0.5500 px bent)'
     """
     if not flatness or flatness.get("warp_m") is None:
