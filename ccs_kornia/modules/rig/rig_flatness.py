@@ -14,7 +14,10 @@ import math
 
 import torch
 
-from ccs_kornia.modules.calibration.board_flatness import board_warp_record, keep_board_warp
+from ccs_kornia.modules.calibration.board_flatness import (
+    board_warp_record,
+    keep_board_warp,
+)
 from ccs_kornia.modules.rig.rig_solver import RigResult
 
 __all__ = ["choose_rig_board_warp", "heldout_pairs", "not_determined"]

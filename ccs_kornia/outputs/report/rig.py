@@ -16,9 +16,9 @@ from ccs_kornia.io.images import read_image
 from ccs_kornia.outputs.report.drawing import (
     BLACK,
     BLUE,
-    board_bend_line,
     GREY,
     RED,
+    board_bend_line,
     draw_colour_bar,
     draw_plot_frame,
     draw_text,

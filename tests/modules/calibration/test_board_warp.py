@@ -7,13 +7,13 @@ from __future__ import annotations
 import torch
 
 from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.geometry.board_warp import board_warp_basis, warped_board
 from ccs_kornia.geometry.camera import Camera, project_points
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 from ccs_kornia.modules.calibration.board_flatness import (
     choose_board_warp,
     split_halves,
 )
-from ccs_kornia.geometry.board_warp import board_warp_basis, warped_board
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
 SIZE = (640, 480)
