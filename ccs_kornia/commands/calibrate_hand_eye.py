@@ -134,7 +134,8 @@ def _detect_tag(files: list[str], args, device, camera):
 def _detect_board(files: list[str], args, device, camera):
     """A board's corners through the pipeline (and the camera calibrated from the same images when none is given);
     a circle grid's centres corrected for the given ``camera`` (the calibration corrects them itself)."""
-    pipeline = make_pipeline(args, model=args.model)
+    # the camera from the same images on a flat board: the hand-eye fit judges the board's sag itself
+    pipeline = make_pipeline(args, model=args.model, board_flatness=False)
     camera_record = None
     if camera is not None:
         out, _ = run_files(COMMAND, pipeline, [files], args.board, args.square, device, calibrate=False)
