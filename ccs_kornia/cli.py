@@ -589,6 +589,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--robot-noise", default="auto", metavar="auto|none|DEG,MM",
                    help="the robot poses' 1-sigma: auto (default: estimated from the data, or another model of the "
                         "robot's error where it predicts held-out poses better), none (exact poses) or DEG,MM")
+    p.add_argument("--flat-board", dest="board_flatness", action="store_false",
+                   help="take the board as flat: do not fit its sag with X (mrcal's two-parameter bend, kept where "
+                        "held-out poses say it helps; one more fit, and the held-out refits where the poses "
+                        "determine it)")
     p.add_argument("--output", required=True, metavar="JSON", help="hand-eye calibration file to write (handeye.json)")
     p.add_argument("--ros-tf", metavar="FILE", help="also write a ROS launch file with the static transform")
     p.add_argument("--moveit-yaml", metavar="FILE", help="also write the calibration YAML easy_handeye and MoveIt set-ups "

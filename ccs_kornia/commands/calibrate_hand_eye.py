@@ -134,7 +134,8 @@ def _detect_tag(files: list[str], args, device, camera):
 def _detect_board(files: list[str], args, device, camera):
     """A board's corners through the pipeline (and the camera calibrated from the same images when none is given);
     a circle grid's centres corrected for the given ``camera`` (the calibration corrects them itself)."""
-    pipeline = make_pipeline(args, model=args.model)
+    # the camera from the same images on a flat board: the hand-eye fit judges the board's sag itself
+    pipeline = make_pipeline(args, model=args.model, board_flatness=False)
     camera_record = None
     if camera is not None:
         out, _ = run_files(COMMAND, pipeline, [files], args.board, args.square, device, calibrate=False)
@@ -284,7 +285,8 @@ def run(args: argparse.Namespace) -> int:
             torch.nan_to_num(corners, nan=0.0)[None], valid[None] & usable[None, :, None], obj,
             torch.where(usable[:, None, None], robot, torch.full_like(robot, float("nan")))[None], camera, setup,
             free_intrinsics=bool(args.refine_intrinsics), robot_noise=noise, image_size=size, names=[names],
-            align_orders=tag is None and board_info.get("kind") in ("learned", "opencv"), heldout=heldout)
+            align_orders=tag is None and board_info.get("kind") in ("learned", "opencv"), heldout=heldout,
+            board_flatness=heldout and bool(getattr(args, "board_flatness", False)))
 
     result = solve(robot, ok)
     if not bool(result.success[0]):
@@ -358,5 +360,13 @@ def summary_lines(data: dict[str, Any], output: str) -> list[str]:
         rn = data["robot_noise"]
         corner = f" (corners {rn['corner_px']:.3g} px)" if rn.get("corner_px") is not None else ""
         lines.append(f"robot poses' noise: {rn['translation_mm']:.3g} mm, {rn['rotation_deg']:.3g} deg{corner}")
+    flatness = data.get("board_flatness")
+    if flatness and flatness.get("warp_m") and None not in flatness["warp_m"] + flatness["std_m"]:
+        held = flatness["heldout_rms_px"]
+        what = "kept" if flatness["kept"] else "not kept: the board taken as flat"
+        judged = f" (held-out poses {held['flat']:.3f} px flat, {held['warp']:.3f} px bent)" \
+            if None not in (held["flat"], held["warp"]) else ""
+        lines.append(f"board: bent by {1000 * flatness['warp_m'][0]:+.3f} / {1000 * flatness['warp_m'][1]:+.3f} mm "
+                     f"(1-sigma {1000 * flatness['std_m'][0]:.3f} / {1000 * flatness['std_m'][1]:.3f}), {what}{judged}")
     lines.append(f"verdict: {data['verdict']}")
     return lines

@@ -119,6 +119,8 @@ def hand_eye_record(result: HandEyeResult, paths: list[str], b: int = 0, *, came
         "warnings": [i for i in result.issues[b] if i.get("severity") == "warning"],
         "errors": [i for i in result.issues[b] if i.get("severity") == "error"],
     }
+    if result.board_flatness is not None and result.board_flatness[b] is not None:
+        data["board_flatness"] = result.board_flatness[b]  # the board's sag, and whether held-out poses kept it
     for issue in data["warnings"] + data["errors"]:
         issue["files"] = [paths[v] for v in issue.get("poses", []) if 0 <= v < len(paths)]
     if not ok:

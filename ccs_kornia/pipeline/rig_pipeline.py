@@ -440,7 +440,7 @@ class RigPipeline(nn.Module):
             # held-out folds
             probe = bent(folds=0, frame_passes=0)
             if board_warp_determined(probe.board_warp, probe.board_warp_std, object_points):
-                out.rig, out.board_flatness = choose_rig_board_warp(out.rig, bent())
+                out.rig, out.board_flatness = choose_rig_board_warp(out.rig, bent(), object_points)
             else:
                 out.board_flatness = not_determined(probe.board_warp, probe.board_warp_std)
         if not out.rig.success:

@@ -67,8 +67,8 @@ class PipelineSettings:
             (:mod:`~ccs_kornia.pipeline.differentiable`; ``docs/gradients.md``). Off: no autograd anywhere.
         board_flatness: after the last solve, fit the board's sag beside each camera's flat-board calibration and keep
             it where held-out views say it helps (:func:`~ccs_kornia.modules.calibration.board_flatness.choose_board_warp`;
-            ``PipelineResult.board_flatness`` says what it found); the OpenCV models, not the fisheye model or a camera
-            calibrated in the corrected frame.
+            ``PipelineResult.board_flatness`` says what it found); the OpenCV and fisheye models, not a splined camera or
+            a camera calibrated in the corrected frame.
         frame_selection: keep only the views that make the best camera
             (:class:`~ccs_kornia.pipeline.frame_selection.FrameSelection`: still, sharp, new, informative) and solve
             again on them after the last solve (``PipelineResult.frame_choice`` says which and why); ``None``: every

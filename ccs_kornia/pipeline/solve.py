@@ -240,7 +240,7 @@ def judge_flatness(solving: Solving, out: PipelineResult, board_size: tuple[int,
     (:func:`~ccs_kornia.modules.calibration.board_flatness.choose_board_warp`, one call per image size and model):
     ``calibration`` the sag's where held-out views say it helps (``board_warp`` and ``std_board_warp`` filled for
     every camera: 0 and NaN where the board stays flat) and ``board_flatness`` the figures (``None`` for a camera
-    not judged: not calibrated, a fisheye, or calibrated in the corrected frame)."""
+    not judged: not calibrated, splined, or calibrated in the corrected frame)."""
     cal = out.calibration
     if cal is None:
         return out
@@ -254,7 +254,7 @@ def judge_flatness(solving: Solving, out: PipelineResult, board_size: tuple[int,
     corrected = out.corrected if out.corrected is not None else torch.zeros(count, dtype=torch.bool)
     models = cal.camera.models
     for size, model in dict.fromkeys(zip(out.image_size, models)):
-        if model.is_fisheye or model.local_support:  # (a splined camera keeps the board its start had)
+        if model.local_support:  # (a splined camera keeps the board its start had)
             continue
         sel = torch.tensor([s == size and m == model for s, m in zip(out.image_size, models)], device=device)
         sel = (sel & cal.success.to(device) & ~corrected.to(device)).nonzero().flatten()

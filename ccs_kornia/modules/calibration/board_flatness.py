@@ -25,7 +25,8 @@ from ccs_kornia.modules.calibration.lm import levenberg_marquardt
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
-__all__ = ["BoardWarpChoice", "board_warp_determined", "choose_board_warp", "heldout_errors", "split_halves"]
+__all__ = ["BoardWarpChoice", "board_warp_determined", "board_warp_record", "choose_board_warp", "heldout_errors",
+           "keep_board_warp", "split_halves"]
 
 #: a sag below this fraction of the board's extent is no bend at all (0.2 um on a 0.2 m board): noise-free views
 #: "determine" a zero sag to many standard deviations of nothing
@@ -47,6 +48,49 @@ def board_warp_determined(warp: torch.Tensor | None, std: torch.Tensor | None, o
     extent = float((object_points[..., :2].amax(-2) - object_points[..., :2].amin(-2)).amax())
     ratio = (warp.abs() / std).nan_to_num(0.0, posinf=0.0)
     return (ratio.amax(-1) >= min_sigmas) & (warp.abs().amax(-1) > MIN_SAG * extent)
+
+
+def keep_board_warp(warp: torch.Tensor | None, std: torch.Tensor | None, object_points: torch.Tensor,
+                    heldout_flat: torch.Tensor, heldout_warp: torch.Tensor, margin: float = 0.05,
+                    min_sigmas: float = 3.0) -> torch.Tensor | bool:
+    """The rule of every fit that observes a board: keep the sag where the views determine it
+    (:func:`board_warp_determined`) and its held-out error is below ``(1 - margin)`` times the flat board's (the
+    fit's own held-out figure: split halves for a camera, the rig's k folds, a robot's left-out poses).
+
+    Example:
+        >>> obj = torch.tensor([[0.0, 0, 0], [0.2, 0.1, 0]])
+        >>> w, s = torch.tensor([-1e-3, 1e-5]), torch.tensor([1e-5, 1e-5])
+        >>> [bool(keep_board_warp(w, s, obj, torch.tensor(0.9), torch.tensor(h))) for h in (0.6, 0.88)]
+        [True, False]
+    """
+    held_flat = torch.as_tensor(heldout_flat, dtype=torch.float64)
+    held_warp = torch.as_tensor(heldout_warp, dtype=torch.float64)
+    return board_warp_determined(warp, std, object_points, min_sigmas) & (held_warp < (1 - margin) * held_flat)
+
+
+def board_warp_record(kept: bool, warp: torch.Tensor | None, std: torch.Tensor | None, heldout_flat: float,
+                      heldout_warp: float, heldout: str = "heldout_median_px") -> dict:
+    """One fit's sag as JSON (the ``board_flatness`` block of every command that fits a board): ``kept``, the
+    coefficients ``warp_m`` and 1-sigma ``std_m`` (:math:`(2,)`, ``None`` where not finite), the held-out figure
+    with a flat and a bent board under the name ``heldout`` and the model.
+
+    Example:
+        >>> r = board_warp_record(True, torch.tensor([-1e-3, 5e-4]), torch.tensor([1e-5, 1e-5]), 0.9, 0.6)
+        >>> r["kept"], r["heldout_median_px"]
+        (True, {'flat': 0.9, 'warp': 0.6})
+    """
+
+    def num(x) -> float | None:
+        x = float(x)
+        return x if math.isfinite(x) else None
+
+    return {
+        "kept": bool(kept),
+        "warp_m": None if warp is None else [num(v) for v in warp],
+        "std_m": None if std is None else [num(v) for v in std],
+        heldout: {"flat": num(heldout_flat), "warp": num(heldout_warp)},
+        "model": "mrcal's calobject_warp: dz = c_x (1 - u^2) + c_y (1 - v^2), u, v in [-1, 1] over the board",
+    }
 
 
 @dataclass
@@ -72,19 +116,9 @@ class BoardWarpChoice:
     heldout_warp: torch.Tensor
 
     def record(self, camera: int) -> dict:
-        """One camera's figures as JSON (the calibration record's ``board_flatness``)."""
-
-        def num(x: torch.Tensor) -> float | None:
-            x = float(x)
-            return x if math.isfinite(x) else None
-
-        return {
-            "kept": bool(self.kept[camera]),
-            "warp_m": [num(v) for v in self.warp[camera]],
-            "std_m": [num(v) for v in self.std[camera]],
-            "heldout_median_px": {"flat": num(self.heldout_flat[camera]), "warp": num(self.heldout_warp[camera])},
-            "model": "mrcal's calobject_warp: dz = c_x (1 - u^2) + c_y (1 - v^2), u, v in [-1, 1] over the board",
-        }
+        """One camera's figures as JSON (the calibration record's ``board_flatness``, :func:`board_warp_record`)."""
+        return board_warp_record(bool(self.kept[camera]), self.warp[camera], self.std[camera],
+                                 self.heldout_flat[camera], self.heldout_warp[camera])
 
 
 def split_halves(used: torch.Tensor) -> torch.Tensor:
@@ -134,7 +168,7 @@ def choose_board_warp(solver: CalibrationSolver, usual: CalibrationResult, corne
 
     Args:
         solver: the flat-board :class:`~ccs_kornia.modules.calibration.solver.CalibrationSolver` that made ``usual``
-            (an OpenCV model; its options are used for every solve, with ``board_warp`` for the sag's).
+            (an OpenCV or the fisheye model; its options are used for every solve, with ``board_warp`` for the sag's).
         usual: its result for C cameras (batched).
         corners: :math:`(C, V, N, 2)`; valid: :math:`(C, V, N)`; object_points: :math:`(N, 3)`; image_size ``(W, H)``;
         weights: :math:`(C, V, N)` or ``None``: as ``usual`` was solved.
@@ -161,8 +195,6 @@ def choose_board_warp(solver: CalibrationSolver, usual: CalibrationResult, corne
         >>> bool(choice.kept[0]), [round(w * 1000, 3) for w in choice.warp[0].tolist()]
         (True, [-2.0, 1.0])
     """
-    if solver.model.is_fisheye:
-        raise ValueError("The board's sag is estimated with OpenCV's models, not the fisheye model.")
     bent = copy.copy(solver)
     bent.board_warp = True
     flat = copy.copy(solver)
@@ -173,7 +205,8 @@ def choose_board_warp(solver: CalibrationSolver, usual: CalibrationResult, corne
     with torch.inference_mode():
         whole = bent(corners, valid, object_points, image_size, initial=usual, weights=weights)
         warp, std = whole.board_warp, whole.std_board_warp
-        determined = board_warp_determined(warp, std, object_points, min_sigmas) & whole.success & usual.success
+        ok = whole.success & usual.success
+        determined = board_warp_determined(warp, std, object_points, min_sigmas) & ok
         heldout_flat = heldout_warp = torch.full((C,), float("nan"), dtype=warp.dtype, device=warp.device)
         if bool(determined.any()):  # (a sag the views do not determine is not kept: no halves to solve)
             halves = split_halves(usual.used.to(device) & determined.to(device)[:, None])
@@ -185,7 +218,7 @@ def choose_board_warp(solver: CalibrationSolver, usual: CalibrationResult, corne
                     half = s(corners, part, object_points, image_size, initial=usual, weights=weights)
                     errors[name].append(heldout_errors(half, corners, valid, other, object_points, usual, weights))
             heldout_flat, heldout_warp = _median(errors["flat"]), _median(errors["warp"])
-    kept = determined & (heldout_warp < (1 - margin) * heldout_flat)
+    kept = ok & keep_board_warp(warp, std, object_points, heldout_flat, heldout_warp, margin, min_sigmas)
     flat_like = replace(usual, board_warp=torch.zeros(C, 2, dtype=warp.dtype, device=warp.device),
                         std_board_warp=torch.full((C, 2), float("nan"), dtype=warp.dtype, device=warp.device))
     return BoardWarpChoice(select_cameras(kept, whole, flat_like), kept, warp, std, heldout_flat, heldout_warp)

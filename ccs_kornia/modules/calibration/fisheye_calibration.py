@@ -8,6 +8,9 @@
    (``max(abs, rel * median)``) are left out, views that failed the initialisation are re-admitted when they
    now fit, and the LM runs once more on the views kept.
 
+With ``board_warp`` the board's sag (:mod:`~ccs_kornia.geometry.board_warp`) is estimated with the camera in the LMs
+of steps 2 (warm start) and 3; the poses-only LM of step 3 holds it.
+
 The result's ``K`` and ``D`` are ``cv2.fisheye``'s (zero skew), ready for ``cv2.fisheye.undistortImage`` and
 kornia's Kannala–Brandt functions.
 """
@@ -20,6 +23,7 @@ from functools import partial
 import torch
 from torch import nn
 
+from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.geometry.models.factory import FISHEYE
 from ccs_kornia.modules.calibration.fisheye_init import board_to_ray_poses, init_fisheye
 from ccs_kornia.modules.calibration.lm import levenberg_marquardt
@@ -46,6 +50,9 @@ class FisheyeCalibrationResult:
     success: torch.Tensor  #: (C,) bool
     lm_status: torch.Tensor  #: (C,) int64 :class:`~ccs_kornia.modules.calibration.schur_lm.LMStatus` of the final LM
     candidate_rms: torch.Tensor  #: (C, V) px of every view with corners under the final camera (used or not)
+    #: (C, 2) the board's sag (mrcal's ``calobject_warp``, board units) where ``board_warp`` was given, else None
+    warp: torch.Tensor | None = None
+    warp_std: torch.Tensor | None = None  #: (C, 2) its 1-sigma
 
 
 def _kmat(p: torch.Tensor) -> torch.Tensor:
@@ -70,6 +77,7 @@ def calibrate_fisheye(
     fix: tuple[str, ...] = (),
     initial: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
     stall_tol: float = 0.0,
+    board_warp: torch.Tensor | None = None,
 ) -> FisheyeCalibrationResult:
     r"""Calibrate Kannala–Brandt fisheye cameras from planar-board corners, no intrinsic guess needed.
 
@@ -94,6 +102,9 @@ def calibrate_fisheye(
             calibration of all the views when subsets of them are calibrated (cross-validation): the hypotheses are
             skipped and the LM starts from this camera and the poses of the views it used. Cameras without a finite
             initial camera, or with fewer than ``min_views`` usable initial views, start from the hypotheses.
+        board_warp: :math:`(C, 2)` (or :math:`(2,)` unbatched) the board's sag to start from, estimated with the
+            camera (:mod:`~ccs_kornia.geometry.board_warp`; the hypotheses assume a flat board); ``None``: the board
+            is flat.
 
     Returns:
         :class:`FisheyeCalibrationResult` (no camera dim for unbatched input; failed cameras have NaN values).
@@ -136,10 +147,17 @@ def calibrate_fisheye(
         raise ValueError(f"Unknown parameters to fix {sorted(unknown)}; expected names from {model.param_names}.")
     free = [n not in fix for n in model.param_names]
     lm = partial(levenberg_marquardt, max_iters=max_iters, stall_tol=stall_tol)
+    if board_warp is not None:
+        board_warp = board_warp[None] if unbatched else board_warp
+        check_tensor(board_warp, "board_warp", [C, 2])
+        board_warp = board_warp.to(device=dev, dtype=dt)
+
+    def sag(sel: torch.Tensor) -> torch.Tensor | None:
+        return None if board_warp is None else board_warp[sel]
 
     def cold(sel: torch.Tensor) -> FisheyeCalibrationResult:
         return _calibrate(model, corners[sel], w[sel], candidates[sel], obj, free, min_views, outlier_abs_threshold,
-                          outlier_rel_threshold, lm, None, image_size, num_hypotheses, keep)
+                          outlier_rel_threshold, lm, None, image_size, num_hypotheses, keep, sag(sel))
 
     warm = torch.zeros(C, dtype=torch.bool, device=dev)
     if initial is not None:
@@ -152,11 +170,12 @@ def calibrate_fisheye(
 
     def warm_start(sel: torch.Tensor) -> FisheyeCalibrationResult:
         return _calibrate(model, corners[sel], w[sel], candidates[sel], obj, free, min_views, outlier_abs_threshold,
-                          outlier_rel_threshold, lm, (p_i[sel], rv_i[sel].to(dt), tv_i[sel].to(dt), used_i[sel]))
+                          outlier_rel_threshold, lm, (p_i[sel], rv_i[sel].to(dt), tv_i[sel].to(dt), used_i[sel]),
+                          warp=sag(sel))
 
     out = _merge_cameras(warm, warm_start, cold)
     if unbatched:
-        out = FisheyeCalibrationResult(**{f: v[0] for f, v in out.__dict__.items()})
+        out = FisheyeCalibrationResult(**{f: None if v is None else v[0] for f, v in out.__dict__.items()})
     return out
 
 
@@ -171,6 +190,9 @@ def _merge_cameras(first: torch.Tensor, run_first, run_rest) -> FisheyeCalibrati
     merged = {}
     for f, va in ra.__dict__.items():
         vb = getattr(rb, f)
+        if va is None:
+            merged[f] = None
+            continue
         v = va.new_empty((first.shape[0], *va.shape[1:]))
         v[a], v[b] = va, vb
         merged[f] = v
@@ -178,18 +200,19 @@ def _merge_cameras(first: torch.Tensor, run_first, run_rest) -> FisheyeCalibrati
 
 
 def _calibrate(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold, outlier_rel_threshold,
-               lm, initial, image_size=None, num_hypotheses=32, keep=3) -> FisheyeCalibrationResult:
+               lm, initial, image_size=None, num_hypotheses=32, keep=3, warp=None) -> FisheyeCalibrationResult:
     """Steps 1-3 of :func:`calibrate_fisheye` on batched cameras (``w`` the corner weights, ``candidates`` (C, V));
-    with ``initial = (params (C, 8), rvec, tvec, used)`` step 1 is replaced by one LM from that start."""
+    with ``initial = (params (C, 8), rvec, tvec, used)`` step 1 is replaced by one LM from that start; ``warp``
+    (C, 2) the board's sag to start from (``None``: flat)."""
     C, V, N = corners.shape[:3]
     dev = corners.device
     if initial is not None:
         p_i, rv_i, tv_i, used_i = initial
         res = lm(model, p_i, rv_i.nan_to_num(0.0), tv_i.nan_to_num(0.0), obj, corners, w * used_i[..., None],
-                 free=free)
+                 free=free, board_warp=warp)
         params, rvec, tvec, used0 = res.params, res.rvec, res.tvec, res.view_used
         return _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold,
-                       outlier_rel_threshold, lm, params, rvec, tvec, used0)
+                       outlier_rel_threshold, lm, params, rvec, tvec, used0, res.warp)
     # 1. hypotheses; 2. LM on every kept hypothesis as a camera of the batch
     p0, rv0, tv0, init_rms, _ = init_fisheye(corners, w, obj, image_size, num_hypotheses, keep)
     k = p0.shape[1]
@@ -204,13 +227,13 @@ def _calibrate(model, corners, w, candidates, obj, free, min_views, outlier_abs_
     sel = torch.arange(C, device=dev) * k + best
     params, rvec, tvec = res.params[sel], res.rvec[sel], res.tvec[sel]
     return _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold, outlier_rel_threshold,
-                   lm, params, rvec, tvec, res.view_used[sel])
+                   lm, params, rvec, tvec, res.view_used[sel], warp)
 
 
 def _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_threshold, outlier_rel_threshold,
-            lm, params, rvec, tvec, used0) -> FisheyeCalibrationResult:
-    """Step 3 of :func:`calibrate_fisheye`: re-pose every candidate view under the refined camera, reject outliers,
-    refine again."""
+            lm, params, rvec, tvec, used0, warp=None) -> FisheyeCalibrationResult:
+    """Step 3 of :func:`calibrate_fisheye`: re-pose every candidate view under the refined camera (and the board's
+    sag ``warp``, held), reject outliers, refine again (the sag with the rest)."""
     C = corners.shape[0]
     dt = torch.float64
     rays = model.unproject(corners.to(dt).nan_to_num(0.0), params)
@@ -218,10 +241,10 @@ def _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_thr
     rv_c = torch.where(used0[..., None], rvec, rv_d)
     tv_c = torch.where(used0[..., None], tvec, tv_d)
     wc = w * (used0 | ok_d)[..., None]
-    poses = lm(model, params, rv_c, tv_c, obj, corners, wc, free=[False] * 8)
+    poses = lm(model, params, rv_c, tv_c, warped_board(obj, warp), corners, wc, free=[False] * 8)
     cand_rms = poses.view_rms
     used = drop_outliers(cand_rms, used0, candidates, outlier_abs_threshold, outlier_rel_threshold, min_views)
-    final = lm(model, params, poses.rvec, poses.tvec, obj, corners, w * used[..., None], free=free)
+    final = lm(model, params, poses.rvec, poses.tvec, obj, corners, w * used[..., None], free=free, board_warp=warp)
     used = final.view_used
 
     success = (used.sum(-1) >= min_views) & final.rms.isfinite() & final.params.isfinite().all(-1)
@@ -240,6 +263,9 @@ def _finish(model, corners, w, candidates, obj, free, min_views, outlier_abs_thr
         std_intrinsics=fail_nan(std[:, :4]), std_dist=fail_nan(std[:, 4:]), covariance=fail_nan(final.param_covariance),
         success=success, lm_status=final.status,
         candidate_rms=torch.where(candidates, cand, nan),
+        warp=None if final.warp is None else fail_nan(final.warp),
+        warp_std=None if final.warp is None else fail_nan(
+            final.warp_covariance.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()),
     )
     return out
 

@@ -111,7 +111,7 @@ class CalibrationSolver(nn.Module):
         A :class:`~ccs_kornia.geometry.models.splined.SplinedStereographicModel` is fitted from this solver's rational
         fit (:mod:`~ccs_kornia.modules.calibration.splined`), or from ``initial`` where that is of the same grid.
         board_warp: estimate the board's sag jointly with the camera and poses (mrcal's two parameters,
-            :mod:`~ccs_kornia.geometry.board_warp`; the OpenCV models): the result's ``board_warp`` and
+            :mod:`~ccs_kornia.geometry.board_warp`; the OpenCV and fisheye models): the result's ``board_warp`` and
             ``std_board_warp``. Whether it is worth keeping is decided on held-out views
             (:func:`~ccs_kornia.modules.calibration.board_flatness.choose_board_warp`), not here.
 
@@ -174,8 +174,6 @@ class CalibrationSolver(nn.Module):
     ) -> None:
         super().__init__()
         self.board_warp = bool(board_warp)
-        if self.board_warp and model.is_fisheye:
-            raise ValueError("board_warp is estimated with OpenCV's models, not the fisheye model.")
         self.checks = checks
         self.thresholds = thresholds or DegeneracyThresholds(min_views=max(int(min_views), 1))
         if model not in CAMERA_MODELS.values() and not isinstance(model, SplinedStereographicModel):
@@ -484,12 +482,16 @@ class CalibrationSolver(nn.Module):
             device = corners.device
             warm = (initial.K.to(device), initial.dist.to(device), initial.rvec.to(device), initial.tvec.to(device),
                     initial.used.to(device))
+        warp0 = None
+        if self.board_warp:  # the sag from the initial result's, else from a flat board
+            start = None if initial is None else initial.board_warp
+            warp0 = obj.new_zeros(C, 2) if start is None else start.to(obj).nan_to_num(0.0)
         fish = calibrate_fisheye(
             corners, valid & candidates[..., None], obj[0], image_size, min_corners=self.min_corners,
             min_views=self.min_views, outlier_abs_threshold=self.outlier_abs_threshold,
             outlier_rel_threshold=self.outlier_rel_threshold, max_iters=self.max_iters,
             fix=(("cx", "cy") if self.fix_principal_point else ()), initial=warm, weights=weights,
-            stall_tol=self.stall_tol,
+            stall_tol=self.stall_tol, board_warp=warp0,
         )
         used = fish.used & candidates
         reason = torch.where(used, ViewReason.USED, torch.where(reason == ViewReason.USED, ViewReason.OUTLIER, reason))
@@ -515,6 +517,8 @@ class CalibrationSolver(nn.Module):
             check_severity=None if report is None else report.severity,
             check_value=None if report is None else report.value,
             check_views=None if report is None else report.views,
+            board_warp=None if fish.warp is None else fail_nan(fish.warp),
+            std_board_warp=None if fish.warp_std is None else fail_nan(fish.warp_std),
         )
         out = with_residual_structure(out, corners, valid, obj, image_size)
         if unbatched:

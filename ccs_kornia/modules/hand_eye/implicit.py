@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import torch
 
+from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.geometry.so3 import skew
 from ccs_kornia.modules.hand_eye.problem import (
     GLOBAL_POSE_PARAMS,
@@ -43,7 +44,7 @@ def _perturbed(problem: HandEyeProblem, s: HandEyeState, z: torch.Tensor) -> Han
         dv = z[:, G:].reshape(z.shape[0], -1, 6)
         RE = (eye + skew(dv[..., :3])) @ RE
         tE = tE + dv[..., 3:]
-    return HandEyeState(RX, s.tX + z[:, 3:6], RZ, s.tZ + z[:, 9:12], params, RE, tE)
+    return HandEyeState(RX, s.tX + z[:, 3:6], RZ, s.tZ + z[:, 9:12], params, RE, tE, s.warp)
 
 
 def hand_eye_cost(problem: HandEyeProblem, s: HandEyeState, z: torch.Tensor) -> torch.Tensor:
@@ -128,8 +129,10 @@ def attach_gradients(result, corners, valid, object_points, robot_poses, weights
     noise = result.robot_noise
     safe = torch.where(robot_poses.detach().flatten(-2).isfinite().all(-1)[..., None, None], robot_poses.detach().to(dtype),
                        torch.eye(4, dtype=dtype, device=corners.device))
-    problem = HandEyeProblem(result.setup, model, safe, object_points.detach().to(dtype), corners.detach().to(dtype),
-                             w, basis, noise)
+    board = object_points.detach().to(dtype)
+    if result.board_warp is not None:  # the board as the fit bent it, held (a constant of the backward pass)
+        board = warped_board(board, result.board_warp.detach().to(board).nan_to_num(0.0))
+    problem = HandEyeProblem(result.setup, model, safe, board, corners.detach().to(dtype), w, basis, noise)
     state = HandEyeProblem.initial_state(result.X.detach(), result.Z.detach(), result.camera.params.detach(), V)
     if noise is not None and result.corrections is not None:
         state = state._replace(RE=result.corrections[0], tE=result.corrections[1])

@@ -2,8 +2,9 @@ r"""The joint hand-eye fit as a least-squares *problem*: residuals, analytic nor
 
 Unknowns per problem (batched over ``B`` problems): ``X`` and the board's pose ``Z`` (6 + 6, see
 :mod:`~ccs_kornia.modules.hand_eye.setup`), optionally the camera's free intrinsics (``F`` coordinates of a
-parameter basis, as :func:`~ccs_kornia.modules.calibration.lm.parameter_basis` gives them) and, with a robot-pose noise
-term, one small 6-dof correction ``E_v`` of each view's robot pose. A board point ``p`` of view ``v`` is seen at
+parameter basis, as :func:`~ccs_kornia.modules.calibration.lm.parameter_basis` gives them), optionally the board's
+sag (mrcal's two coefficients ``c``, :mod:`~ccs_kornia.geometry.board_warp`: ``p`` then moves along the board's z by
+``b(p) . c``) and, with a robot-pose noise term, one small 6-dof correction ``E_v`` of each view's robot pose. A board point ``p`` of view ``v`` is seen at
 
 .. math::
     x_c = X^{-1} A_v' Z p, \qquad A_v' = E_v A_v \text{ (eye-in-hand)}, \quad A_v' = A_v E_v \text{ (eye-to-hand)}
@@ -14,7 +15,8 @@ corner, weighted by the corner's inverse variance. The robot-pose noise term add
 
 The normal equations have the arrow structure of the package's LM core
 (:func:`~ccs_kornia.modules.calibration.schur_lm.schur_lm`): a *global* block
-``G = 12 + F`` (``X``: rotation, translation; ``Z``: rotation, translation; the free intrinsics) and, with the noise
+``G = 12 + F (+ 2)`` (``X``: rotation, translation; ``Z``: rotation, translation; the free intrinsics; the sag) and,
+with the noise
 term, one 6x6 block per view (``V = 0`` blocks without it), coupled to the global block only:
 ``(cost, U, g, W, Vb, gv)`` with ``U = J_g^T W J_g``, ``g = J_g^T W r``, ``W = J_g^T W J_v``, ``Vb = J_v^T W J_v``
 (+ the prior), ``gv = J_v^T W r``. Rotations are updated multiplicatively on the left (``R <- exp(w) R``,
@@ -23,6 +25,7 @@ term, one 6x6 block per view (``V = 0`` blocks without it), coupled to the globa
 * ``d x_c / d w_X = R_X^T [u]_x``, ``d x_c / d t_X = -R_X^T``;
 * ``d x_c / d w_Z = -R_X^T R' [R_Z p]_x``, ``d x_c / d t_Z = R_X^T R'`` (``R'`` the rotation of the chain
   from the board's frame to the camera's robot frame);
+* ``d x_c / d c_k = R_X^T R' R_Z e_z b_k(p)`` (the sag);
 
 each times the camera model's ``d uv / d x_c``.
 """
@@ -33,6 +36,7 @@ from typing import NamedTuple
 
 import torch
 
+from ccs_kornia.geometry.board_warp import board_warp_basis
 from ccs_kornia.geometry.models.base import CameraModel
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.hand_eye.setup import HandEyeSetup
@@ -54,6 +58,7 @@ class HandEyeState(NamedTuple):
     params: torch.Tensor  #: (B, P) camera parameters (fixed ones included)
     RE: torch.Tensor  #: (B, V, 3, 3) robot-pose corrections (identity without the noise term)
     tE: torch.Tensor  #: (B, V, 3)
+    warp: torch.Tensor  #: (B, 2) the board's sag (mrcal's ``calobject_warp``; held at 0 by a flat-board problem)
 
     def select(self, mask: torch.Tensor, other: "HandEyeState") -> "HandEyeState":
         """This state where ``mask`` :math:`(B,)` is True, ``other`` elsewhere."""
@@ -99,6 +104,8 @@ class HandEyeProblem:
         basis: :math:`(B, P, F)` the free intrinsics' basis (``None`` or ``F = 0``: intrinsics held).
         robot_noise: ``(sigma_rot, sigma_trans)`` of the robot's poses (radians, the poses' unit) for the noise
             term, one pair for all problems or :math:`(B, 2)`, or ``None`` (poses taken as exact).
+        board_warp: estimate the board's sag (the state's ``warp``, two global coordinates after the intrinsics);
+            ``False``: the board is flat (``warp`` ignored).
 
     Example:
         >>> from ccs_kornia.geometry.models import PINHOLE
@@ -126,6 +133,7 @@ class HandEyeProblem:
         weights: torch.Tensor,
         basis: torch.Tensor | None = None,
         robot_noise: tuple[float, float] | torch.Tensor | None = None,
+        board_warp: bool = False,
     ) -> None:
         self.setup = HandEyeSetup.parse(setup)
         self.model = model
@@ -144,6 +152,7 @@ class HandEyeProblem:
         self.noise = None if robot_noise is None else \
             torch.as_tensor(robot_noise, dtype=dtype, device=corners.device).reshape(-1, 2).expand(B, 2)
         self.shape = (B, V, N)
+        self.sag = board_warp_basis(self.obj) if board_warp else None  # (B, N, 2)
 
     def subset(self, index: torch.Tensor, weights: torch.Tensor | None = None) -> "HandEyeProblem":
         """The problems ``index`` :math:`(K,)` of the batch as a new problem, with other corner ``weights``
@@ -151,19 +160,24 @@ class HandEyeProblem:
         w = self.w[index] if weights is None else weights
         return HandEyeProblem(self.setup, self.model, self.robot_poses[index], self.obj[index], self.obs[index], w,
                               None if self.basis is None else self.basis[index],
-                              None if self.noise is None else self.noise[index])
+                              None if self.noise is None else self.noise[index], self.sag is not None)
 
     def reweighted(self, pixel_variance: torch.Tensor, robot_noise: torch.Tensor | None) -> "HandEyeProblem":
         """The same problems with every corner's variance times ``pixel_variance`` :math:`(B,)` and the noise term's
         sigmas ``robot_noise`` :math:`(B, 2)` (``None``: none)."""
         return HandEyeProblem(self.setup, self.model, self.robot_poses, self.obj, self.obs,
-                              self.w / pixel_variance[:, None, None], self.basis, robot_noise)
+                              self.w / pixel_variance[:, None, None], self.basis, robot_noise, self.sag is not None)
 
     # -- sizes ---------------------------------------------------------------------------------------------------
     @property
+    def num_intrinsics(self) -> int:
+        """Free intrinsics ``F`` (coordinates after the 12 pose coordinates)."""
+        return 0 if self.basis is None else self.basis.shape[-1]
+
+    @property
     def num_global(self) -> int:
-        """Global coordinates ``G``: 12 pose coordinates plus the free intrinsics."""
-        return GLOBAL_POSE_PARAMS + (0 if self.basis is None else self.basis.shape[-1])
+        """Global coordinates ``G``: 12 pose coordinates plus the free intrinsics, plus the sag's two."""
+        return GLOBAL_POSE_PARAMS + self.num_intrinsics + (0 if self.sag is None else 2)
 
     @property
     def num_items(self) -> int:
@@ -179,18 +193,27 @@ class HandEyeProblem:
 
     @staticmethod
     def initial_state(X: torch.Tensor, Z: torch.Tensor, params: torch.Tensor, views: int) -> HandEyeState:
-        """A state from ``X``, ``Z`` :math:`(B, 4, 4)` and camera parameters :math:`(B, P)`, no corrections."""
+        """A state from ``X``, ``Z`` :math:`(B, 4, 4)` and camera parameters :math:`(B, P)`, no corrections, a flat
+        board."""
         B = X.shape[0]
         eye = torch.eye(3, dtype=X.dtype, device=X.device)
         return HandEyeState(X[:, :3, :3], X[:, :3, 3], Z[:, :3, :3], Z[:, :3, 3], params.to(X.dtype),
-                            eye.expand(B, views, 3, 3), X.new_zeros(B, views, 3))
+                            eye.expand(B, views, 3, 3), X.new_zeros(B, views, 3), X.new_zeros(B, 2))
+
+    def board(self, s: HandEyeState) -> torch.Tensor:
+        """The board's points :math:`(B, N, 3)` as the state has it (bent by its sag where the problem estimates
+        one)."""
+        if self.sag is None:
+            return self.obj
+        dz = (self.sag * s.warp[:, None, :]).sum(-1, keepdim=True)
+        return torch.cat([self.obj[..., :2], self.obj[..., 2:] + dz], -1)
 
     # -- the model -------------------------------------------------------------------------------------------------
     def _chain(self, s: HandEyeState):
         """Board points in the camera's robot frame ``s`` :math:`(B, V, N, 3)`, ``q = R_Z p + t_Z`` :math:`(B, N, 3)`
         and the chain's rotation from the board's robot frame, with the correction's pieces."""
         RA, tA = self.A[..., :3, :3], self.A[..., :3, 3]
-        q = self.obj @ s.RZ.transpose(-1, -2) + s.tZ[:, None]  # (B, N, 3)
+        q = self.board(s) @ s.RZ.transpose(-1, -2) + s.tZ[:, None]  # (B, N, 3)
         if self.setup is HandEyeSetup.EYE_IN_HAND:  # s = R_E (R_A q + t_A) + t_E
             s0 = q[:, None] @ RA.transpose(-1, -2) + tA[:, :, None]
             s_pt = s0 @ s.RE.transpose(-1, -2) + s.tE[:, :, None]
@@ -253,6 +276,9 @@ class HandEyeProblem:
         if self.basis is not None:
             Jp = torch.stack([d.expand(B, V * N, 2) for d in dp], -1).reshape(B, V, N, 2, -1)
             cols.append(Jp @ self.basis[:, None, None])
+        if self.sag is not None:  # d uv / d c_k = (d uv / d q) R_Z e_z b_k(p)
+            dz = (DR * s.RZ[:, None, None, None, :, 2]).sum(-1, keepdim=True)  # (B, V, N, 2, 1)
+            cols.append(dz * self.sag[:, None, :, None, :])
         G = sum(c.shape[-1] for c in cols)
         if self.noise is not None:
             if self.setup is HandEyeSetup.EYE_IN_HAND:
@@ -284,10 +310,12 @@ class HandEyeProblem:
         """The state moved by global increments ``dg`` :math:`(B, G)` and item increments ``dv`` :math:`(B, V, 6)`
         (rotations multiplied on the left by ``exp(w)``)."""
         params = s.params
+        F = GLOBAL_POSE_PARAMS + self.num_intrinsics
         if self.basis is not None:
-            params = params + (self.basis @ dg[:, GLOBAL_POSE_PARAMS:, None])[..., 0]
+            params = params + (self.basis @ dg[:, GLOBAL_POSE_PARAMS:F, None])[..., 0]
         RE, tE = s.RE, s.tE
         if dv is not None and dv.shape[1]:
             RE, tE = exp_so3(dv[..., :3]) @ RE, tE + dv[..., 3:]
+        warp = s.warp if self.sag is None else s.warp + dg[:, F:F + 2]
         return HandEyeState(exp_so3(dg[:, 0:3]) @ s.RX, s.tX + dg[:, 3:6], exp_so3(dg[:, 6:9]) @ s.RZ,
-                            s.tZ + dg[:, 9:12], params, RE, tE)
+                            s.tZ + dg[:, 9:12], params, RE, tE, warp)

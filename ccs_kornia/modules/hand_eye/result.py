@@ -169,6 +169,13 @@ class HandEyeResult:
     #: per problem, the model of the robot's error kept instead of the estimated noise term (the poses taken as exact,
     #: or fixed sigmas: ``robot_noise``) and why ("" where the term was kept)
     noise_choice: list[str] | None = None
+    #: (B, 2) the board's sag (mrcal's ``calobject_warp``, the poses' unit) where the fit estimated it (0 where a
+    #: problem kept the board flat), else None
+    board_warp: torch.Tensor | None = None
+    board_warp_std: torch.Tensor | None = None  #: (B, 2) its 1-sigma (NaN where the board was kept flat)
+    #: per problem, the sag and whether held-out poses kept it
+    #: (:func:`~ccs_kornia.modules.calibration.board_flatness.board_warp_record`; None where not judged)
+    board_flatness: list[dict | None] | None = None
 
     @property
     def X_rotation_std_deg(self) -> torch.Tensor:

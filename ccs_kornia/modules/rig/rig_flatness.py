@@ -4,8 +4,8 @@ The rig's own held-out check (k folds of frames, :class:`~ccs_kornia.modules.rig
 ``heldout_epipolar_rms``) measures what matters: how well the cameras and extrinsics fitted on some frames explain the
 others. :func:`choose_rig_board_warp` keeps the sag (:mod:`~ccs_kornia.geometry.board_warp`, fitted with the rig by
 ``RigSolver(board_warp=True)``) where it lowers the median of the camera pairs' held-out figures by ``margin`` and the
-views determine it (its larger coefficient ``min_sigmas`` standard deviations from 0), as the single camera's rule does
-(:mod:`~ccs_kornia.modules.calibration.board_flatness`).
+views determine it (its larger coefficient ``min_sigmas`` standard deviations from 0): the single camera's rule
+(:func:`~ccs_kornia.modules.calibration.board_flatness.keep_board_warp`).
 """
 
 from __future__ import annotations
@@ -14,6 +14,10 @@ import math
 
 import torch
 
+from ccs_kornia.modules.calibration.board_flatness import (
+    board_warp_record,
+    keep_board_warp,
+)
 from ccs_kornia.modules.rig.rig_solver import RigResult
 
 __all__ = ["choose_rig_board_warp", "heldout_pairs", "not_determined"]
@@ -35,14 +39,15 @@ def heldout_pairs(rig: RigResult) -> float:
     return float(upper.median()) if upper.numel() else math.nan
 
 
-def choose_rig_board_warp(flat: RigResult, bent: RigResult, margin: float = 0.05,
+def choose_rig_board_warp(flat: RigResult, bent: RigResult, object_points: torch.Tensor, margin: float = 0.05,
                           min_sigmas: float = 3.0) -> tuple[RigResult, dict]:
-    """The rig to use of a flat-board fit and a bent-board fit of the same frames, and the figures
-    (``{"kept", "warp_m", "std_m", "heldout_epipolar_px": {"flat", "warp"}}``) (module docstring)."""
+    """The rig to use of a flat-board fit and a bent-board fit of the same frames (on the board ``object_points``
+    :math:`(N, 3)`), and the figures (:func:`~ccs_kornia.modules.calibration.board_flatness.board_warp_record` with
+    ``heldout_epipolar_px``) (module docstring)."""
     held_flat, held_bent = heldout_pairs(flat), heldout_pairs(bent)
     warp, std = bent.board_warp, bent.board_warp_std
-    determined = bent.success and warp is not None and bool((warp.abs() / std).amax() >= min_sigmas)
-    kept = bool(determined and flat.success and held_bent < (1 - margin) * held_flat)
+    kept = bool(bent.success and flat.success and warp is not None and
+                keep_board_warp(warp, std, object_points, held_flat, held_bent, margin, min_sigmas))
     return (bent if kept else flat), _record(kept, warp, std, held_flat, held_bent)
 
 
@@ -51,15 +56,5 @@ def not_determined(warp: torch.Tensor | None, std: torch.Tensor | None) -> dict:
     return _record(False, warp, std, math.nan, math.nan)
 
 
-def _num(x: float) -> float | None:
-    return x if math.isfinite(x) else None
-
-
 def _record(kept, warp, std, held_flat, held_bent) -> dict:
-    return {
-        "kept": kept,
-        "warp_m": [_num(float(v)) for v in warp] if warp is not None else None,
-        "std_m": [_num(float(v)) for v in std] if std is not None else None,
-        "heldout_epipolar_px": {"flat": _num(held_flat), "warp": _num(held_bent)},
-        "model": "mrcal's calobject_warp: dz = c_x (1 - u^2) + c_y (1 - v^2), u, v in [-1, 1] over the board",
-    }
+    return board_warp_record(kept, warp, std, held_flat, held_bent, "heldout_epipolar_px")

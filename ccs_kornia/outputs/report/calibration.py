@@ -44,6 +44,7 @@ from ccs_kornia.io.video import VideoReader, split_frame_name
 from ccs_kornia.modules.calibration.quality.residual_structure import residual_structure
 from ccs_kornia.outputs.calibration_file import camera_from_record
 from ccs_kornia.outputs.report.drawing import (
+    board_bend_line,
     format_number,
     nice_number,
     write_page,
@@ -300,19 +301,6 @@ def _structure_plot(size: tuple[int, int], detected: list[np.ndarray], residuals
     return fig, int(s.significant[0]), int(s.cells[0])
 
 
-def _flatness_line(flatness: dict[str, Any]) -> str | None:
-    """The report's line on the board's bend (``board_flatness`` of the JSON), or None where it was not judged."""
-    if not flatness or flatness.get("warp_m") is None:
-        return None
-    warp = [1000 * float(v) for v in flatness["warp_m"]]
-    std = [1000 * float(v) for v in flatness.get("std_m") or (float("nan"), float("nan"))]
-    held = flatness.get("heldout_median_px") or {}
-    judged = (f" (held-out median {format_number(held.get('flat'))} px flat, {format_number(held.get('warp'))} px "
-              "bent)") if held else ""
-    return (f"board bend (mrcal's sag c_x, c_y): {warp[0]:+.3f} &plusmn; {std[0]:.3f}, {warp[1]:+.3f} &plusmn; "
-            f"{std[1]:.3f} mm: {'kept' if flatness.get('kept') else 'not kept, the board taken as flat'}{judged}")
-
-
 def _write_html(path: str, data: dict[str, Any], camera: Camera, figures: list[tuple[str, str, str]],
                 overlays: dict[int, str], gain: float, coverage: float | None) -> str:
     esc = html.escape
@@ -336,7 +324,7 @@ def _write_html(path: str, data: dict[str, Any], camera: Camera, figures: list[t
     ]
     if coverage is not None:
         parts.append(f"<li>image coverage: {100 * coverage:.0f}% of the cells hold a detected corner</li>")
-    bend = _flatness_line(data.get("board_flatness") or {})
+    bend = board_bend_line(data.get("board_flatness") or {})
     if bend:
         parts.append(f"<li>{bend}</li>")
     structure = data.get("residual_structure") or {}
@@ -381,8 +369,8 @@ def _write_markdown(path: str, data: dict[str, Any], camera: Camera, gain: float
         f"- detector: {data.get('detector', '?')}, model: {data['distortion']['model']}",
         f"- views: {data.get('num_views', {})}",
         f"- RMS reprojection error: {format_number(data['rms'])} px ({data.get('rms_kind', '')})",
-        *([f"- {_flatness_line(data['board_flatness']).replace('&plusmn;', '+-')}"]
-          if _flatness_line(data.get("board_flatness") or {}) else []),
+        *([f"- {board_bend_line(data['board_flatness']).replace('&plusmn;', '+-')}"]
+          if board_bend_line(data.get("board_flatness") or {}) else []),
         "",
         "| parameter | value | std |",
         "|---|---|---|",

@@ -18,7 +18,7 @@ from ccs_kornia.io.files import text_path
 
 __all__ = [
     "BLACK", "BLUE", "GREEN", "GREY", "MAGENTA", "ORANGE", "RED", "WHITE", "YELLOW",
-    "axis_max", "draw_colour_bar", "draw_legend", "draw_plot_frame", "draw_text", "format_number", "image_canvas",
+    "axis_max", "board_bend_line", "draw_colour_bar", "draw_legend", "draw_plot_frame", "draw_text", "format_number", "image_canvas",
     "int_point", "nice_number", "nice_ticks", "write_png",
 ]
 
@@ -57,6 +57,32 @@ def format_number(value: float | None, digits: int = 4) -> str:
         ('0.1235', '2.0', '-', '-')
     """
     return "-" if value is None or value != value else f"{value:.{digits}f}"
+
+
+#: how each fit's held-out figure of the board's sag reads (the ``board_flatness`` block's key)
+_HELDOUT_LABELS = {"heldout_median_px": "held-out median", "heldout_epipolar_px": "held-out epipolar RMS",
+                   "heldout_rms_px": "held-out poses' RMS"}
+
+
+def board_bend_line(flatness: dict | None) -> str | None:
+    """A report's line on the board's bend (the ``board_flatness`` block of a camera's, rig's or hand-eye JSON), or
+    None where it was not judged (HTML: ``&plusmn;``).
+
+    Example:
+        >>> board_bend_line({"kept": True, "warp_m": [-1e-3, 5e-4], "std_m": [1e-5, 1e-5],
+        ...                  "heldout_median_px": {"flat": 0.92, "warp": 0.55}}).split(": ")[-1]
+        'kept (held-out median 0.9200 px flat, 0.5500 px bent)'
+    """
+    if not flatness or flatness.get("warp_m") is None:
+        return None
+    warp = [1000 * float(v) for v in flatness["warp_m"]]
+    std = [1000 * float(v) for v in flatness.get("std_m") or (float("nan"), float("nan"))]
+    key = next((k for k in _HELDOUT_LABELS if k in flatness), None)
+    held = flatness.get(key) or {}
+    judged = (f" ({_HELDOUT_LABELS[key]} {format_number(held.get('flat'))} px flat, {format_number(held.get('warp'))} "
+              "px bent)") if held else ""
+    return (f"board bend (mrcal's sag c_x, c_y): {warp[0]:+.3f} &plusmn; {std[0]:.3f}, {warp[1]:+.3f} &plusmn; "
+            f"{std[1]:.3f} mm: {'kept' if flatness.get('kept') else 'not kept, the board taken as flat'}{judged}")
 
 
 def nice_number(x: float) -> float:

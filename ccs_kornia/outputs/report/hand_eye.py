@@ -22,6 +22,7 @@ from ccs_kornia.outputs.report.drawing import (
     RED,
     YELLOW,
     axis_max,
+    board_bend_line,
     draw_legend,
     draw_plot_frame,
     draw_text,
@@ -170,9 +171,12 @@ def write_hand_eye_report(directory: str, data: dict[str, Any]) -> list[str]:
             f"</td><td>{std['rotation_deg_norm']:.3g} deg</td></tr>")
     body = "".join(f"<h2>{html.escape(caption)}</h2><img src='{name}'>" for name, caption in figures if name)
     held_text = "not measured" if held["rms_px"] is None else f"{held['rms_px']:.3f} px, {held['rms_mm']:.3f} mm"
+    bend = board_bend_line(data.get("board_flatness"))
+    bend = f"<p>{bend}</p>" if bend else ""
     page = (f"<!doctype html><meta charset='utf-8'><title>hand-eye calibration</title><h1>Hand-eye calibration "
             f"({html.escape(data['setup'])})</h1><p>verdict: {html.escape(str(data['verdict']))}; fit RMS "
             f"{data['rms_px']:.3f} px; held-out prediction {held_text}; {html.escape(data['convention']['X'])}</p>"
+            f"{bend}"
             f"<table border=1 cellpadding=4><tr><th></th><th>value</th><th>1-sigma</th></tr>{rows}</table>{body}")
     path = os.path.join(directory, "index.html")
     written.append(write_page(path, page))

@@ -18,6 +18,7 @@ from ccs_kornia.outputs.report.drawing import (
     BLUE,
     GREY,
     RED,
+    board_bend_line,
     draw_colour_bar,
     draw_plot_frame,
     draw_text,
@@ -153,9 +154,11 @@ def write_rig_report(directory: str, data: dict[str, Any], rect: dict[str, Any] 
         f"<td>{cell(p.get('baseline_std'), '.3g')}</td><td>{cell(p['rotation_deg'], '.4f')}</td>"
         f"<td>{cell(p['epipolar_rms'], '.4f')}</td></tr>" for p in data["pairs"])
     body = "".join(f"<h2>{html.escape(caption)}</h2><img src='{name}'>" for name, caption in figures if name)
+    bend = board_bend_line(data.get("board_flatness"))
+    bend = f"<p>{bend}</p>" if bend else ""
     page = (f"<!doctype html><meta charset='utf-8'><title>rig calibration</title><h1>Rig calibration</h1>"
             f"<p>verdict: {html.escape(str(data['verdict']))}; RMS {data['rms']:.4f} px; convention "
-            f"{html.escape(data['convention'])}</p><table border=1 cellpadding=4><tr><th>pair</th><th>baseline</th>"
+            f"{html.escape(data['convention'])}</p>{bend}<table border=1 cellpadding=4><tr><th>pair</th><th>baseline</th>"
             f"<th>1-sigma</th><th>rotation (deg)</th><th>epipolar RMS (px)</th></tr>{rows}</table>{body}")
     path = os.path.join(directory, "index.html")
     written.append(write_page(path, page))

@@ -1,19 +1,19 @@
 """The board's sag (mrcal's two-parameter bend): its shape as mrcal defines it, recovered jointly by the camera's LM on
-rendered bent boards with its 1-sigma, and kept by the held-out rule only where the board is bent."""
+rendered bent boards with its 1-sigma (OpenCV and fisheye models), and kept by the held-out rule only where the board
+is bent."""
 
 from __future__ import annotations
 
-import pytest
 import torch
 
 from ccs_kornia.geometry.board_points import board_object_points
-from ccs_kornia.geometry.camera import project_points
-from ccs_kornia.geometry.models import K1K2, OPENCV5
+from ccs_kornia.geometry.board_warp import board_warp_basis, warped_board
+from ccs_kornia.geometry.camera import Camera, project_points
+from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 from ccs_kornia.modules.calibration.board_flatness import (
     choose_board_warp,
     split_halves,
 )
-from ccs_kornia.geometry.board_warp import board_warp_basis, warped_board
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
 
 SIZE = (640, 480)
@@ -83,8 +83,37 @@ def test_halves_alternate_over_the_used_views():
     assert a.sum() == 3 and b.sum() == 2
 
 
-def test_fisheye_is_refused():
-    from ccs_kornia.geometry.models import FISHEYE
+def _fisheye_views(warp, V=10, seed=0):
+    obj = board_object_points(8, 6, 0.04, dtype=torch.float64)
+    K = torch.tensor([[200.0, 0, 322], [0, 201, 237], [0, 0, 1]], dtype=torch.float64)
+    D = torch.tensor([0.02, -0.01, 0.002, 0.0], dtype=torch.float64)
+    g = torch.Generator().manual_seed(seed)
+    rvec = 0.9 * (torch.rand(V, 3, generator=g, dtype=torch.float64) - 0.5)
+    u = torch.rand(V, 3, generator=g, dtype=torch.float64)
+    tvec = torch.stack([-0.14 + 0.3 * (u[:, 0] - 0.5), -0.1 + 0.3 * (u[:, 1] - 0.5), 0.25 + 0.1 * u[:, 2]], -1)
+    bent = warped_board(obj, torch.tensor(warp, dtype=torch.float64))
+    uv = Camera.from_opencv(FISHEYE, K, D).project(bent, rvec[None], tvec[None])
+    return obj, uv + 0.05 * torch.randn(uv.shape, generator=g, dtype=torch.float64)
 
-    with pytest.raises(ValueError, match="fisheye"):
-        CalibrationSolver(model=FISHEYE, board_warp=True)
+
+def test_fisheye_bent_board_is_recovered_and_kept():
+    truth = torch.tensor([-0.002, 0.001], dtype=torch.float64)
+    obj, uv = _fisheye_views(truth.tolist())
+    solver = CalibrationSolver(model=FISHEYE)
+    usual = solver(uv, None, obj, SIZE)
+    choice = choose_board_warp(solver, usual, uv, uv.isfinite().all(-1), obj, SIZE)
+    assert bool(choice.kept[0]) and usual.board_warp is None
+    assert ((choice.warp[0] - truth).abs() < 4 * choice.std[0]).all() and (choice.std[0] < 1e-4).all()
+    assert choice.heldout_warp[0] < 0.5 * choice.heldout_flat[0]
+    assert choice.result.rms[0] < 0.5 * usual.rms[0]
+    assert torch.allclose(choice.result.board_warp[0], choice.warp[0])
+
+
+def test_fisheye_flat_board_stays_flat():
+    obj, uv = _fisheye_views([0.0, 0.0])
+    solver = CalibrationSolver(model=FISHEYE)
+    usual = solver(uv, None, obj, SIZE)
+    choice = choose_board_warp(solver, usual, uv, uv.isfinite().all(-1), obj, SIZE)
+    assert not bool(choice.kept[0])
+    assert torch.equal(choice.result.camera.params, usual.camera.params) and (choice.result.board_warp == 0).all()
+    assert torch.equal(choice.result.rvec, usual.rvec) and torch.equal(choice.result.tvec, usual.tvec)

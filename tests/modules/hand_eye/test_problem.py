@@ -1,5 +1,5 @@
 """The hand-eye problem: its normal equations are the cost's exact gradient and Gauss-Newton matrix (both set-ups, free
-intrinsics, the robot-pose noise term), shapes, batch independence, and the fit on exact data."""
+intrinsics, the robot-pose noise term, the board's sag), shapes, batch independence, and the fit on exact data."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from ccs_kornia.modules.hand_eye.fit import fit_problem
 from ccs_kornia.modules.hand_eye.problem import HandEyeProblem, HandEyeState
 
 
-def _problem(setup, model=K1K2, noise=(0.01, 0.002), B=2, V=4, seed=0, free=True):
+def _problem(setup, model=K1K2, noise=(0.01, 0.002), B=2, V=4, seed=0, free=True, bent=False):
     g = torch.Generator().manual_seed(seed)
     r = lambda *s: torch.randn(*s, generator=g, dtype=torch.float64)
     m = model
@@ -25,17 +25,19 @@ def _problem(setup, model=K1K2, noise=(0.01, 0.002), B=2, V=4, seed=0, free=True
     obj = board_object_points(4, 3, 0.05, dtype=torch.float64)
     basis = parameter_basis(m, params) if free else None
     prob = HandEyeProblem(setup, m, T, obj, 400 * torch.rand(B, V, 12, 2, generator=g, dtype=torch.float64),
-                          0.5 + torch.rand(B, V, 12, generator=g, dtype=torch.float64), basis, noise)
+                          0.5 + torch.rand(B, V, 12, generator=g, dtype=torch.float64), basis, noise, bent)
     s = HandEyeState(exp_so3(0.2 * r(B, 3)), 0.1 * r(B, 3), exp_so3(0.2 * r(B, 3)),
                      torch.tensor([[0.0, 0.0, 1.0]] * B, dtype=torch.float64), params, exp_so3(0.01 * r(B, V, 3)),
-                     0.003 * r(B, V, 3))
+                     0.003 * r(B, V, 3), 0.002 * r(B, 2))
     return prob, s
 
 
 @pytest.mark.parametrize("setup", ["eye_in_hand", "eye_to_hand"])
 @pytest.mark.parametrize("model", [OPENCV5, FISHEYE], ids=str)
-def test_gradient_is_the_cost_derivative(setup, model):
-    prob, s = _problem(setup, model)
+@pytest.mark.parametrize("bent", [False, True], ids=["flat", "bent"])
+def test_gradient_is_the_cost_derivative(setup, model, bent):
+    prob, s = _problem(setup, model, bent=bent)
+    assert prob.num_global == 12 + model.num_params + 2 * bent
     eq = prob.normal_equations(s)
     G, eps = prob.num_global, 1e-6
     fd = torch.zeros_like(eq.g)

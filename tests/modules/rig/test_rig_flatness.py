@@ -28,7 +28,7 @@ def test_bent_board_is_recovered_and_kept():
     err = (bent.board_warp - torch.tensor([-0.002, 0.001], dtype=torch.float64)).abs()
     assert (err < 4 * bent.board_warp_std).all() and (bent.board_warp_std < 5e-5).all()
     assert abs(float(bent.T[1, 0]) + 0.1) < abs(float(flat.T[1, 0]) + 0.1)
-    rig, record = choose_rig_board_warp(flat, bent)
+    rig, record = choose_rig_board_warp(flat, bent, s.object_points)
     assert record["kept"] and rig is bent
     assert record["heldout_epipolar_px"]["warp"] < record["heldout_epipolar_px"]["flat"]
 
@@ -37,5 +37,5 @@ def test_flat_board_stays_flat():
     s = _scene(None)
     flat = RigSolver(K1K2)(s.corners, s.valid, s.object_points, s.image_sizes)
     bent = RigSolver(K1K2, board_warp=True)(s.corners, s.valid, s.object_points, s.image_sizes)
-    rig, record = choose_rig_board_warp(flat, bent)
+    rig, record = choose_rig_board_warp(flat, bent, s.object_points)
     assert not record["kept"] and rig is flat
