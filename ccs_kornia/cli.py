@@ -138,44 +138,32 @@ def _board_arg(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(str(err)) from None
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+def _checked_number(convert, accept, expected: str):
+    """An argparse type: ``text`` converted by ``convert`` (``int`` or ``float``) and kept where ``accept(value)``;
+    otherwise one line, "expected <expected>, got <text>", as argparse prints its errors.
+
+    Example:
+        >>> _checked_number(int, lambda v: v > 2, "more than 2")("3")
+        3
+    """
+
+    def parse(text: str):
+        try:
+            value = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not accept(value):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text}")
+        return value
+
+    return parse
 
 
-def _detection_side(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if value < 0 or 0 < value < 64:
-        raise argparse.ArgumentTypeError(f"expected 0 (off) or at least 64, got {value}")
-    return value
-
-
-def _view_angle(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an angle in degrees between 0 and 180, got {text!r}") from None
-    if not 0.0 < value < 180.0:
-        raise argparse.ArgumentTypeError(f"expected an angle in degrees between 0 and 180, got {text}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
-    return value
+_positive_int = _checked_number(int, lambda v: v >= 1, "a positive integer")
+_detection_side = _checked_number(int, lambda v: v == 0 or v >= 64, "0 (off) or at least 64")
+_view_angle = _checked_number(float, lambda v: 0.0 < v < 180.0, "an angle in degrees between 0 and 180")
+_positive_float = _checked_number(float, lambda v: 0 < v < float("inf"), "a positive number")
+_unit_float = _checked_number(float, lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]")
 
 
 #: the sizes a board's square, marker or tag may have, in any unit (metres to millimetres and beyond): outside it the
@@ -190,16 +178,6 @@ def _length_arg(text: str) -> float:
     if not low <= value <= high:
         raise argparse.ArgumentTypeError(f"expected a size between {low:g} and {high:g} in the board's unit (metres, "
                                          f"millimetres, ...), got {text}")
-    return value
-
-
-def _unit_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text}")
     return value
 
 
