@@ -26,6 +26,7 @@ from ccs_kornia.commands._video import (
 from ccs_kornia.io.files import write_json, write_text_atomic
 from ccs_kornia.outputs.camera_exports import ros_camera_info, write_opencv_yaml
 from ccs_kornia.outputs.report.calibration import write_report
+from ccs_kornia.outputs.report.drawing import bend_unit
 from ccs_kornia.pipeline.sources import FileSource
 from ccs_kornia.runtime.errors import UserError
 
@@ -155,7 +156,7 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
         sx, sy = (1000 * s for s in flatness["std_m"])
         held = flatness["heldout_median_px"]
         what = "kept" if flatness["kept"] else "not kept: the board taken as flat"
-        print(f"board: bent by {cx:+.3f} / {cy:+.3f} mm (1-sigma {sx:.3f} / {sy:.3f}), {what} (held-out median "
+        print(f"board: bent by {cx:+.3f} / {cy:+.3f} {bend_unit(data.get('square'))} (1-sigma {sx:.3f} / {sy:.3f}), {what} (held-out median "
               f"{held['flat']:.3f} px flat, {held['warp']:.3f} px bent)")
     weak = weak_lines(data)
     for text in weak[:-1]:

@@ -324,7 +324,7 @@ def _write_html(path: str, data: dict[str, Any], camera: Camera, figures: list[t
     ]
     if coverage is not None:
         parts.append(f"<li>image coverage: {100 * coverage:.0f}% of the cells hold a detected corner</li>")
-    bend = board_bend_line(data.get("board_flatness") or {})
+    bend = board_bend_line(data.get("board_flatness") or {}, data.get("square"))
     if bend:
         parts.append(f"<li>{bend}</li>")
     structure = data.get("residual_structure") or {}
@@ -369,7 +369,7 @@ def _write_markdown(path: str, data: dict[str, Any], camera: Camera, gain: float
         f"- detector: {data.get('detector', '?')}, model: {data['distortion']['model']}",
         f"- views: {data.get('num_views', {})}",
         f"- RMS reprojection error: {format_number(data['rms'])} px ({data.get('rms_kind', '')})",
-        *([f"- {board_bend_line(data['board_flatness']).replace('&plusmn;', '+-')}"]
+        *([f"- {board_bend_line(data['board_flatness'], data.get('square')).replace('&plusmn;', '+-')}"]
           if board_bend_line(data.get("board_flatness") or {}) else []),
         "",
         "| parameter | value | std |",

@@ -18,7 +18,7 @@ from ccs_kornia.io.files import text_path
 
 __all__ = [
     "BLACK", "BLUE", "GREEN", "GREY", "MAGENTA", "ORANGE", "RED", "WHITE", "YELLOW",
-    "axis_max", "board_bend_line", "draw_colour_bar", "draw_legend", "draw_plot_frame", "draw_text", "format_number", "image_canvas",
+    "axis_max", "bend_unit", "board_bend_line", "draw_colour_bar", "draw_legend", "draw_plot_frame", "draw_text", "format_number", "image_canvas",
     "int_point", "nice_number", "nice_ticks", "write_png",
 ]
 
@@ -64,9 +64,10 @@ _HELDOUT_LABELS = {"heldout_median_px": "held-out median", "heldout_epipolar_px"
                    "heldout_rms_px": "held-out poses' RMS"}
 
 
-def board_bend_line(flatness: dict | None) -> str | None:
+def board_bend_line(flatness: dict | None, square: float | None = None) -> str | None:
     """A report's line on the board's bend (the ``board_flatness`` block of a camera's, rig's or hand-eye JSON), or
-    None where it was not judged (HTML: ``&plusmn;``).
+    None where it was not judged (HTML: ``&plusmn;``). The sag is in thousandths of the board's unit: mm where the
+    square was given in metres, thousandths of a square where no size was given (``square`` 1, the commands' default).
 
     Example:
         >>> board_bend_line({"kept": True, "warp_m": [-1e-3, 5e-4], "std_m": [1e-5, 1e-5],
@@ -82,7 +83,19 @@ def board_bend_line(flatness: dict | None) -> str | None:
     judged = (f" ({_HELDOUT_LABELS[key]} {format_number(held.get('flat'))} px flat, {format_number(held.get('warp'))} "
               "px bent)") if held else ""
     return (f"board bend (mrcal's sag c_x, c_y): {warp[0]:+.3f} &plusmn; {std[0]:.3f}, {warp[1]:+.3f} &plusmn; "
-            f"{std[1]:.3f} mm: {'kept' if flatness.get('kept') else 'not kept, the board taken as flat'}{judged}")
+            f"{std[1]:.3f} {bend_unit(square)}: {'kept' if flatness.get('kept') else 'not kept, the board taken as flat'}"
+            f"{judged}")
+
+
+def bend_unit(square: float | None) -> str:
+    """The unit of a board's sag times 1000: ``mm`` where the board's square was given (in metres), ``1e-3 squares``
+    where it was not (``square`` 1, the commands' default: the board's unit is then its square).
+
+    Example:
+        >>> bend_unit(0.025), bend_unit(1.0)
+        ('mm', '1e-3 squares')
+    """
+    return "1e-3 squares" if square is not None and float(square) == 1.0 else "mm"
 
 
 def nice_number(x: float) -> float:

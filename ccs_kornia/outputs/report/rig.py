@@ -154,7 +154,7 @@ def write_rig_report(directory: str, data: dict[str, Any], rect: dict[str, Any] 
         f"<td>{cell(p.get('baseline_std'), '.3g')}</td><td>{cell(p['rotation_deg'], '.4f')}</td>"
         f"<td>{cell(p['epipolar_rms'], '.4f')}</td></tr>" for p in data["pairs"])
     body = "".join(f"<h2>{html.escape(caption)}</h2><img src='{name}'>" for name, caption in figures if name)
-    bend = board_bend_line(data.get("board_flatness"))
+    bend = board_bend_line(data.get("board_flatness"), data.get("square"))
     bend = f"<p>{bend}</p>" if bend else ""
     page = (f"<!doctype html><meta charset='utf-8'><title>rig calibration</title><h1>Rig calibration</h1>"
             f"<p>verdict: {html.escape(str(data['verdict']))}; RMS {data['rms']:.4f} px; convention "
