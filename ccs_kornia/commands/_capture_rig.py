@@ -31,7 +31,7 @@ from ccs_kornia.pipeline.guided_capture import GuidedCapture
 from ccs_kornia.pipeline.rig_capture import RigCapture
 from ccs_kornia.runtime.errors import NoResult, UserError
 
-__all__ = ["camera_dirs", "run_rig"]
+__all__ = ["camera_dirs", "rig_view", "run_rig"]
 
 
 def camera_dirs(folder: str, count: int) -> list[str]:
@@ -52,6 +52,7 @@ def _rig_loop(args: argparse.Namespace, sources, page, obj, board, staging: list
     stopped."""
     rig, said, why = None, "", "stream ended"
     detect, model = live_detector(args), live_model(args)
+    shown: dict = {}  # each camera's next best pose and uncertainty map: they change only with the kept instants
     try:
         for index, frames in enumerate(zip(*sources)):
             if rig is None:
@@ -69,6 +70,7 @@ def _rig_loop(args: argparse.Namespace, sources, page, obj, board, staging: list
                     for folder in staging:
                         os.unlink(os.path.join(folder, frame_name(gone.index)))
                     print(f"undone {frame_name(gone.index)}", flush=True)
+                    shown.clear()
             stamp = frames[0].timestamp
             decision = rig.offer([f.image for f in frames], index, stamp)
             if decision.kept:
@@ -76,13 +78,20 @@ def _rig_loop(args: argparse.Namespace, sources, page, obj, board, staging: list
                 for folder, frame in zip(staging, frames):
                     cv2.imwrite(os.path.join(folder, name), frame.image)
                 print(f"kept {name} at {stamp:.2f} s: {decision.reason}", flush=True)
-            fills = [None if not cam.kept else board_fill(cam.kept[-1].outline, cam.image_size[0]) for cam in rig.cameras]
-            instruction = rig.instruction(fills) if not rig.done else ""
+                shown.clear()
+            if not shown and not rig.done:
+                fills = [None if not cam.kept else board_fill(cam.kept[-1].outline, cam.image_size[0])
+                         for cam in rig.cameras]
+                best = rig.suggestions(fills)
+                shown = {"suggestions": best, "maps": [cam.uncertainty_map() for cam in rig.cameras],
+                         "instruction": rig.instruction(fills, best)}
+            instruction = "" if rig.done else shown["instruction"]
             if instruction and instruction != said:
                 print(f"next: {instruction}", flush=True)
                 said = instruction
             if page is not None:
-                _show(page, frames, rig, decision, instruction, args.target)
+                page.show(rig_view([f.image for f in frames], rig, decision, shown, args.target))
+                _state(page, rig, decision, instruction, args.target)
             if decision.done:
                 why = "target reached" if len(rig.kept) < args.max_frames else f"--max-frames {args.max_frames} reached"
                 break
@@ -91,13 +100,38 @@ def _rig_loop(args: argparse.Namespace, sources, page, obj, board, staging: list
     return rig, why
 
 
-def _show(page, frames, rig: RigCapture, decision, instruction: str, target: float) -> None:
-    images = []
-    for cam, frame, d in zip(rig.cameras, frames, decision.decisions):
+def _caption(rig: RigCapture, c: int) -> str:
+    """Camera ``c``'s name on the page, and the camera it still needs views in common with."""
+    needs = rig.common_needed(c)
+    return f"camera {c}: needs {needs}" if needs else f"camera {c}"
+
+
+def rig_view(images: list[np.ndarray], rig: RigCapture, decision, shown: dict, target: float) -> np.ndarray:
+    """The page's image of a rig (BGR): every camera's frame side by side, each annotated as one camera's page is
+    (:func:`~ccs_kornia.outputs.capture_page.annotate`: its board, coverage, uncertainty map and its next best pose's
+    outline) and captioned with its name and the camera it still needs views in common with.
+
+    Args:
+        images: the cameras' grey ``uint8`` frames of one instant.
+        rig: the capture.
+        decision: :meth:`RigCapture.offer`'s for those frames.
+        shown: ``"suggestions"`` (:meth:`RigCapture.suggestions`) and ``"maps"`` (each camera's uncertainty map), or
+            empty (nothing suggested).
+        target: the target (px).
+    """
+    views = []
+    suggestions = shown.get("suggestions") or [None] * len(rig.cameras)
+    maps = shown.get("maps") or [None] * len(rig.cameras)
+    for c, (cam, image, d) in enumerate(zip(rig.cameras, images, decision.decisions)):
+        best = suggestions[c]
+        outline = None if best is None or not len(best.poses) else best.poses.outline[0].numpy()
         worst = cam.worst_px if np.isfinite(cam.worst_px) else None
-        images.append(annotate(frame.image, d.sighting.outline, [k.outline for k in cam.kept], None,
-                               cam.uncertainty_map(), target, worst))
-    page.show(_mosaic(images))
+        views.append(annotate(image, d.sighting.outline, [k.outline for k in cam.kept], outline, maps[c], target,
+                              worst, _caption(rig, c)))
+    return _mosaic(views)
+
+
+def _state(page, rig: RigCapture, decision, instruction: str, target: float) -> None:
     figures = [c.worst_px for c in rig.cameras if np.isfinite(c.worst_px)]
     page.set_state(worst_px=max(figures) if len(figures) == len(rig.cameras) else None, target_px=target,
                    instruction=instruction, status="target reached" if decision.done else decision.reason,

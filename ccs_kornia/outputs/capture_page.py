@@ -69,9 +69,11 @@ def _heat(values: np.ndarray, target: float, size: tuple[int, int]) -> np.ndarra
 
 
 def annotate(gray8: np.ndarray, outline: np.ndarray | None, coverage: list[np.ndarray],
-             suggested: np.ndarray | None, heat: np.ndarray | None, target: float, worst: float | None) -> np.ndarray:
+             suggested: np.ndarray | None, heat: np.ndarray | None, target: float, worst: float | None,
+             caption: str = "") -> np.ndarray:
     """The live frame as the page shows it (BGR): the kept boards' outlines filled (coverage), the board seen now
-    (green), the suggested pose's outline (orange), the uncertainty map inset at the top right with its figure.
+    (green), the suggested pose's outline (orange), the uncertainty map inset at the top right with its figure, and a
+    ``caption`` at the top left (a rig's camera: its name and the views in common it still needs).
 
     Example:
         >>> img = annotate(np.zeros((120, 160), np.uint8), np.array([[10, 10], [50, 10], [50, 40], [10, 40.]]), [],
@@ -99,6 +101,9 @@ def annotate(gray8: np.ndarray, outline: np.ndarray | None, coverage: list[np.nd
         text = "-" if worst is None else f"{worst:.3f} px / {target:g}"
         cv2.putText(img, text, (w - iw - 4, 8 + ih + 12 * thick), cv2.FONT_HERSHEY_SIMPLEX, 0.4 * thick,
                     (255, 255, 255), thick, cv2.LINE_AA)
+    if caption:
+        cv2.putText(img, caption, (6, 6 + 12 * thick), cv2.FONT_HERSHEY_SIMPLEX, 0.4 * thick, (255, 255, 255), thick,
+                    cv2.LINE_AA)
     return img
 
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ccs_kornia.modules.calibration.quality.next_pose import PoseSuggestion
 from ccs_kornia.pipeline.frame_selection import near_copies
 from ccs_kornia.pipeline.guided_capture import CaptureDecision, GuidedCapture
 
@@ -169,18 +170,42 @@ class RigCapture:
                 self.cameras[c].undo()
         return instant
 
-    def instruction(self, fills: list[float | None] | None = None) -> str:
+    def common_needed(self, camera: int) -> str:
+        """What ``camera`` still needs of the rig, in words: the camera it needs views in common with and how many
+        it has (``"views in common with camera 1 (2 of 5)"``) where it is one of the pair :meth:`needed_pair` asks
+        for once a view is kept, else ``""``."""
+        need = self.needed_pair()
+        if need is None or not any(c.kept for c in self.cameras) or camera not in need[:2]:
+            return ""
+        other = need[1] if camera == need[0] else need[0]
+        return f"views in common with camera {other} ({need[2]} of {self.min_common})"
+
+    def waiting(self) -> list[int]:
+        """The cameras with kept frames that have not yet reached their target."""
+        return [c for c, cam in enumerate(self.cameras) if cam.kept and not (cam.done or cam.worst_px <= cam.target)]
+
+    def suggestions(self, fills: list[float | None] | None = None) -> list[PoseSuggestion | None]:
+        """Each camera's next best pose (:meth:`GuidedCapture.suggestion`, ``fills`` the boards' fill now), ``None``
+        for a camera with no kept frame or at its target: what the page draws on every camera."""
+        waiting = set(self.waiting())
+        return [self.cameras[c].suggestion(None if fills is None else fills[c]) if c in waiting else None
+                for c in range(len(self.cameras))]
+
+    def instruction(self, fills: list[float | None] | None = None,
+                    suggestions: list[PoseSuggestion | None] | None = None) -> str:
         """The next thing to do, in one line: the pair that needs views in common, else the camera furthest from its
-        target and its next pose."""
+        target and its next pose (``suggestions``: :meth:`suggestions` already ranked, else that camera's is)."""
         need = self.needed_pair()
         if need is not None and any(c.kept for c in self.cameras):
             a, b, count = need
             return (f"cameras {a} and {b} need views in common ({count} of {self.min_common}): hold the board where "
                     "both see it")
-        waiting = [c for c, cam in enumerate(self.cameras) if cam.kept and not (cam.done or cam.worst_px <= cam.target)]
+        waiting = self.waiting()
         if not waiting:
             return "" if self.done else "show the board to every camera"
         c = max(waiting, key=lambda k: self.cameras[k].worst_px)
-        fill = None if fills is None else fills[c]
-        best = self.cameras[c].suggestion(fill)
+        if suggestions is not None and suggestions[c] is not None:
+            best = suggestions[c]
+        else:
+            best = self.cameras[c].suggestion(None if fills is None else fills[c])
         return f"camera {c}: {best.instruction}" if best.instruction else ""

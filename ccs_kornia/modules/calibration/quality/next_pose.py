@@ -12,7 +12,9 @@ figure that decides when a capture is done (the worst 1-sigma projection uncerta
 :func:`next_poses` ranks the candidates by the fourth-power mean of the 1-sigma over the image (:data:`RANK_POWER`):
 between the RMS (the error to expect over the whole image) and the worst, it weighs the worst pixels most without
 chasing the one pixel that is worst now; ranked by the worst, the guided person needed more frames on normal lenses,
-by the RMS more on wide ones (docs/capture.md). :func:`pose_instruction` says the best in one line ("top left, closer, top edge tilted about 30
+by the RMS more on wide ones (docs/capture.md). The mean is taken over the pixels whose rays point in front of the
+camera: a fisheye's image corners beyond 90 degrees are where no board can be seen, their uncertainty is the model's
+extrapolation, and a mean that weighs the worst pixels most would chase them. :func:`pose_instruction` says the best in one line ("top left, closer, top edge tilted about 30
 degrees away"); :class:`NextBestPose` is the module form. Nothing here needs an image or a page: a camera and its
 information in, ranked poses out.
 
@@ -239,9 +241,10 @@ def candidate_poses(
 _JACOBIANS: dict = {}
 
 
-def _pixel_jacobians(camera: Camera, grid: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _pixel_jacobians(camera: Camera, grid: tuple[int, int]) -> tuple[torch.Tensor, ...]:
     """d pixel / d the model's parameters :math:`(G, 2, P)` at a grid of pixels, the camera rotation fitted out; the
-    pixels :math:`(G, 2)` and where the model has an inverse :math:`(G,)` (remembered for the last few cameras)."""
+    pixels :math:`(G, 2)`, where the model has an inverse :math:`(G,)` and where its ray points in front of the camera
+    :math:`(G,)` (remembered for the last few cameras)."""
     key = (str(camera.model), tuple(camera.params.flatten().tolist()), tuple(camera.image_size), tuple(grid),
            str(camera.device))
     if key not in _JACOBIANS:
@@ -251,7 +254,7 @@ def _pixel_jacobians(camera: Camera, grid: tuple[int, int]) -> tuple[torch.Tenso
     return _JACOBIANS[key]
 
 
-def _compute_pixel_jacobians(camera: Camera, grid: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _compute_pixel_jacobians(camera: Camera, grid: tuple[int, int]) -> tuple[torch.Tensor, ...]:
     pixels = image_points(camera.image_size, grid, dtype=camera.dtype).to(camera.device)
     rays = image_rays(camera, pixels)
     ok = rays.isfinite().all(-1)
@@ -260,7 +263,7 @@ def _compute_pixel_jacobians(camera: Camera, grid: tuple[int, int]) -> tuple[tor
     A = torch.linalg.cross(safe[..., None, :].expand_as(Jx), Jx, dim=-1)
     J = remove_rotation(J, torch.where(ok[..., None, None], A, torch.full_like(A, float("nan"))), ok)
     J = torch.where(ok[..., None, None], J.nan_to_num(0.0), torch.zeros_like(J))
-    return J[0, ..., : camera.model.num_params], pixels, ok[0]
+    return J[0, ..., : camera.model.num_params], pixels, ok[0], ok[0] & (safe[0, :, 2] > 0)
 
 
 def _regularised(information: torch.Tensor, typical: torch.Tensor, prior: float) -> torch.Tensor:
@@ -300,7 +303,7 @@ def uncertainty_map(
         torch.Size([12, 16])
     """
     camera = camera.to(dtype=torch.float64)
-    J, _, ok = _pixel_jacobians(camera, grid)
+    J, _, ok, _ = _pixel_jacobians(camera, grid)
     info = information.double().to(camera.device)
     if typical is None:
         typical = info.reshape(-1, *info.shape[-2:]).mean(0)
@@ -332,8 +335,8 @@ class PoseSuggestion:
         worst_px: :math:`(K,)` the worst 1-sigma projection uncertainty over the image (px) after each.
         current_px: the worst now, before any of them.
         instruction: the best pose in words (:func:`pose_instruction`).
-        score_px: :math:`(K,)` the fourth-power mean of the 1-sigma over the image (px) after each: what ranks
-            them (:data:`RANK_POWER`).
+        score_px: :math:`(K,)` the fourth-power mean of the 1-sigma over the image's pixels in front of the camera
+            (px) after each: what ranks them (:data:`RANK_POWER`).
     """
 
     poses: CandidatePoses
@@ -401,8 +404,8 @@ def next_poses(
     top: int | None = None,
 ) -> PoseSuggestion:
     r"""Rank the poses a hand-held board reaches by the 1-sigma projection uncertainty over the image the calibration
-    would have after a view there: its :data:`RANK_POWER`-th power mean over the grid (the module docstring says why
-    neither the worst nor the RMS).
+    would have after a view there: its :data:`RANK_POWER`-th power mean over the grid's pixels whose rays point in
+    front of the camera (the module docstring says why neither the worst nor the RMS, and why not behind).
 
     Args:
         camera: one camera with its image size (the current calibration's, or a guess before there is one).
@@ -431,7 +434,8 @@ def next_poses(
     current = float(worst_uncertainty(camera, info, sigma, grid, typical))
     if len(poses):
         after = uncertainty_map(camera, info + M, sigma, grid, typical).flatten(-2).nan_to_num(0.0)
-        worst, score = after.amax(-1), after.pow(RANK_POWER).mean(-1).pow(1.0 / RANK_POWER)
+        seen = _pixel_jacobians(camera, grid)[3]
+        worst, score = after.amax(-1), after[:, seen].pow(RANK_POWER).mean(-1).pow(1.0 / RANK_POWER)
     else:
         worst = score = M.new_zeros(0)
     order = torch.argsort(score)

@@ -20,6 +20,7 @@ from ccs_kornia.modules.calibration.quality.next_pose import (
 )
 from ccs_kornia.modules.calibration.quality.uncertainty import (
     image_points,
+    image_rays,
     projection_uncertainty,
 )
 from ccs_kornia.modules.calibration.quality.view_information import view_information
@@ -113,6 +114,23 @@ def test_following_the_suggestions_beats_repeating_a_view():
     typical = _information(cam, nbp.candidates.rvec, nbp.candidates.tvec).mean(0)
     assert float(worst_uncertainty(cam, H, 0.2, typical=typical)) < 0.5 * float(
         worst_uncertainty(cam, Hf, 0.2, typical=typical))
+
+
+def test_a_fisheyes_pixels_behind_the_camera_do_not_rank():
+    """A fisheye of 212 degrees on the diagonal: the image corners' rays point behind the camera, where no board is
+    seen; the ranking's mean is over the other pixels (the worst still over the whole image)."""
+    cam = Camera(FISHEYE, torch.tensor([215.0, 215, 320, 240, 0.03, -0.01, 0.0, 0.0], dtype=torch.float64), SIZE)
+    rays = image_rays(cam, image_points(SIZE, (16, 12)))[0]
+    behind = rays[:, 2] <= 0
+    assert 0 < int(behind.sum()) < 40 and bool(behind.reshape(12, 16)[0, 0])  # the image's corners
+    H = _information(cam, torch.zeros(1, 3, dtype=torch.float64),
+                     torch.tensor([[-0.12, -0.075, 0.3]], dtype=torch.float64)).sum(0)
+    s = next_poses(cam, H, OBJ, sigma=0.2, board_size=(9, 6), top=3)
+    every = candidate_poses(cam, OBJ, (9, 6))
+    typical = _information(cam, every.rvec, every.tvec).mean(0)
+    after = uncertainty_map(cam, H + _information(cam, s.poses.rvec, s.poses.tvec), 0.2, typical=typical).flatten(-2)
+    torch.testing.assert_close(after[:, ~behind].pow(4).mean(-1).pow(0.25), s.score_px)
+    torch.testing.assert_close(after.amax(-1), s.worst_px)
 
 
 def test_instruction_words():
