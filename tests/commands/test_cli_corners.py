@@ -281,7 +281,7 @@ def test_model_splined_fits_the_spline_outright(tmp_path, capsys):
                    (640, 480))
     obj = board_object_points(8, 6, 0.03, dtype=torch.float64)
     g = torch.Generator().manual_seed(4)
-    V = 12
+    V = 8
     R = exp_so3(0.8 * (torch.rand(V, 3, generator=g, dtype=torch.float64) - 0.5))
     centre = torch.stack([0.4 * (torch.rand(V, generator=g, dtype=torch.float64) - 0.5),
                           0.3 * (torch.rand(V, generator=g, dtype=torch.float64) - 0.5),

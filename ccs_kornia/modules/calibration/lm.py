@@ -264,10 +264,10 @@ class _CameraProblem:
     "R": (C, V, 3, 3), "t": (C, V, 3)}``, the normal equations :class:`_CameraEquations`."""
 
     def __init__(self, model, obj, obs, sw, basis, tied, used, num_residuals, floor, eye6, expanded, sag=None,
-                 prior=None, prior_mean=None):
+                 prior=None):
         self.model, self.obj, self.obs, self.sw, self.basis, self.tied = model, obj, obs, sw, basis, tied
         self.used, self.num_residuals, self.floor = used, num_residuals, floor
-        self.eye6, self.expanded, self.sag, self.prior, self.prior_mean = eye6, expanded, sag, prior, prior_mean
+        self.eye6, self.expanded, self.sag, self.prior = eye6, expanded, sag, prior
         # the prior's block of the free coordinates (constant: the basis is)
         self.prior_free = None if prior is None else basis.transpose(-1, -2) @ prior @ basis
 
@@ -275,10 +275,9 @@ class _CameraProblem:
         cost, U, W, V, eg, ep, view_cost = _normal_equations(self.model, s["R"], s["t"], s["x"], self.obj, self.obs,
                                                              self.sw, self.tied, self.used, self.eye6, self.expanded,
                                                              self.sag)
-        if self.prior is not None:  # cost (x - m)^T Lambda (x - m): the regularisation's residuals
-            dx = s["x"] if self.prior_mean is None else s["x"] - self.prior_mean
-            lx = (self.prior @ dx.unsqueeze(-1)).squeeze(-1)
-            cost = cost + (dx * lx).sum(-1)
+        if self.prior is not None:  # cost x^T Lambda x: the regularisation's residuals
+            lx = (self.prior @ s["x"].unsqueeze(-1)).squeeze(-1)
+            cost = cost + (s["x"] * lx).sum(-1)
             U = U + self.prior_free
             eg = eg + (self.basis.transpose(-1, -2) @ lx.unsqueeze(-1)).squeeze(-1)
         return _CameraEquations(cost=cost, U=U, eg=eg, W=W, V=V, ep=ep, view_cost=view_cost)
@@ -296,8 +295,7 @@ class _CameraProblem:
                                                          self.num_residuals, self.floor)]
         return _CameraProblem(self.model, *sub, self.eye6, self.expanded,
                               None if self.sag is None else self.sag[keep],
-                              None if self.prior is None else self.prior[keep],
-                              None if self.prior_mean is None else self.prior_mean[keep])
+                              None if self.prior is None else self.prior[keep])
 
 
 def levenberg_marquardt(
@@ -322,7 +320,6 @@ def levenberg_marquardt(
     groups: torch.Tensor | None = None,
     board_warp: torch.Tensor | None = None,
     prior: torch.Tensor | None = None,
-    prior_mean: torch.Tensor | None = None,
 ) -> LMResult:
     r"""Batched Levenberg–Marquardt over camera parameters and per-view poses (see the module doc).
 
@@ -359,8 +356,6 @@ def levenberg_marquardt(
         prior: :math:`(C, P, P)` a regularisation ``x^T Lambda x`` of the parameters added to the cost (symmetric,
             positive semi-definite; e.g. a spline's control points pulled towards zero and towards a smooth surface:
             :func:`~ccs_kornia.modules.calibration.splined.spline_prior`).
-        prior_mean: :math:`(C, P)` the parameters ``m`` the prior pulls towards (its cost ``(x - m)^T Lambda (x - m)``;
-            default zero).
 
     Returns:
         :class:`LMResult` (with ``warp`` and ``warp_covariance`` where ``board_warp`` is given).
@@ -423,12 +418,8 @@ def levenberg_marquardt(
     if prior is not None:
         check_tensor(prior, "prior", [C, model.num_params, model.num_params])
         prior = torch.nn.functional.pad(prior.to(device=device, dtype=dtype), [0, x.shape[-1] - model.num_params] * 2)
-    if prior_mean is not None:
-        check_tensor(prior_mean, "prior_mean", [C, model.num_params])
-        prior_mean = torch.nn.functional.pad(prior_mean.to(device=device, dtype=dtype),
-                                             [0, x.shape[-1] - model.num_params])
     problem = _CameraProblem(model, obj, obs, sw, B, Bn, used, 2 * n_pts, floor,
-                             torch.eye(6, dtype=dtype, device=device), {}, sag, prior, prior_mean)
+                             torch.eye(6, dtype=dtype, device=device), {}, sag, prior)
     sol = schur_lm(problem, {"x": x, "R": _exp_so3(rv), "t": tv}, max_iters=max_iters, ftol=ftol, xtol=xtol,
                    lambda_init=lambda_init, check_every=check_every, stall_tol=stall_tol, groups=groups,
                    absolute_weights=absolute_weights)

@@ -152,7 +152,6 @@ def calibrate_splined(
     weights: torch.Tensor | None = None,
     max_iters: int = 50,
     ftol: float = 1e-8,
-    centre: Camera | None = None,
 ) -> CalibrationResult:
     """A splined camera from ``start``, a parametric calibration of the same views (batched, C cameras): the spline
     set to ``start``'s lens (:func:`spline_from_camera`), then the control points, the poses of ``start``'s used views
@@ -167,8 +166,6 @@ def calibrate_splined(
         model: the grid (default :func:`splined_configuration` of ``start``'s first camera).
         weights: optional :math:`(C, V, N)` per-corner inverse variances.
         max_iters, ftol: the LM's.
-        centre: a camera (C, any model) whose lens the regularisation pulls the spline towards
-            (:func:`spline_from_camera`), where the views leave it free; default none: towards zero.
 
     Returns:
         a :class:`CalibrationResult` with the splined camera; the fields of ``start`` it does not refit
@@ -191,9 +188,7 @@ def calibrate_splined(
     warp = None if start.board_warp is None else start.board_warp.to(dtype).nan_to_num(0.0)
     res = levenberg_marquardt(model, params, start.rvec.to(dtype).nan_to_num(0.0), start.tvec.to(dtype).nan_to_num(0.0),
                               obj, corners.to(dtype), w, max_iters=max_iters, ftol=ftol, xtol=1e-12, lambda_init=1e-4,
-                              board_warp=warp, prior=prior, stall_tol=1e-5,
-                              prior_mean=None if centre is None else spline_from_camera(model, centre.nan_to_num(),
-                                                                                        image_size))
+                              board_warp=warp, prior=prior, stall_tol=1e-5)
     success = start.success & res.rms.isfinite()
 
     def fail_nan(x: torch.Tensor) -> torch.Tensor:
