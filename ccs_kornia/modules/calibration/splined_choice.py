@@ -111,7 +111,7 @@ def splined_cameras(chosen: CalibrationResult, corners: torch.Tensor, valid: tor
         >>> valid = torch.ones(1, 8, 30, dtype=torch.bool)
         >>> chosen = CalibrationSolver(model=K1K2, use_ransac=False)(corners, valid, obj, (640, 480))
         >>> out, records = splined_cameras(chosen, corners, valid, obj, (640, 480))
-        >>> out[0].camera.model.name.startswith("splined"), records[0]["kept"], bool(out[0].rms < 0.01)
+        >>> out[0].camera.model.name.startswith("splined"), records[0]["kept"], bool(out[0].rms < 0.05)
         (True, True, True)
     """
     C = corners.shape[0]
