@@ -360,10 +360,11 @@ def calibrate_options(p: argparse.ArgumentParser) -> None:
                    help="calibration file to write, only when a calibration was computed: a failed run leaves an "
                         "earlier file there as it was (and says so) and writes its per-image results to "
                         "JSON.failed.json, which a later successful run removes")
-    p.add_argument("--model", default="auto", choices=MODELS,
+    p.add_argument("--model", default="auto", choices=(*MODELS, "splined"),
                    help="camera model: auto (default: k1k2, opencv5, rational or fisheye, chosen by cross-validation "
                         "on held-out views; the JSON says which and why), opencv5 (k1,k2,p1,p2,k3), rational (k1..k6), "
-                        "k1k2, none, fisheye (Kannala-Brandt k1..k4, as cv2.fisheye)")
+                        "k1k2, none, fisheye (Kannala-Brandt k1..k4, as cv2.fisheye), splined (mrcal's splined "
+                        "stereographic model fitted from auto's choice, its grid from the image and the corners)")
     p.add_argument("--no-ransac", dest="use_ransac", action="store_false", help="keep every detected view")
     p.add_argument("--seed", default=0, type=int, help="RANSAC seed (default 0)")
     p.add_argument("--unweighted", dest="weigh_corners", action="store_false",

@@ -23,7 +23,7 @@ from ccs_kornia.modules.calibration.board_flatness import choose_board_warp
 from ccs_kornia.modules.calibration.model_selection import ModelChoice, ModelSelection
 from ccs_kornia.modules.calibration.result import CalibrationResult
 from ccs_kornia.modules.calibration.solver import CalibrationSolver
-from ccs_kornia.modules.calibration.splined_choice import choose_splined
+from ccs_kornia.modules.calibration.splined_choice import choose_splined, splined_cameras
 from ccs_kornia.modules.calibration.subset_solutions import SubsetSolutions
 from ccs_kornia.modules.detection.boards import CircleGrid, grid_object_points
 from ccs_kornia.modules.detection.circles.centre_bias import centre_bias
@@ -344,16 +344,22 @@ def solver_for(solving: Solving, model: CameraModel) -> CalibrationSolver:
 def _splined_choice(solving: Solving, results: dict, names: list, inputs: SolverInput, image_size: tuple[int, int],
                     table: list[dict]) -> dict[int, CalibrationResult]:
     """``--model auto``'s splined model where held-out views prefer it to the chosen one
-    (:func:`~ccs_kornia.modules.calibration.splined_choice.choose_splined`): per camera index the splined result kept;
-    each camera's table gets the figures (``splined``) and, where kept, the spline as ``chosen``."""
+    (:func:`~ccs_kornia.modules.calibration.splined_choice.choose_splined`), ``--model splined``'s on every calibrated
+    camera (:func:`~ccs_kornia.modules.calibration.splined_choice.splined_cameras`): per camera index the splined
+    result kept; each camera's table gets the figures (``splined``) and, where kept, the spline as ``chosen``."""
     kept: dict[int, CalibrationResult] = {}
     device = inputs.corners.device
     for name in dict.fromkeys(names):
         sel = torch.tensor([n == name for n in names], device=device).nonzero().flatten()
         part = inputs.cameras(sel)
         with torch.inference_mode():
-            spline, records = choose_splined(solving.solvers[name], select_result(results[name], sel), part.corners,
-                                             part.valid, part.object_points, image_size, part.weights)
+            if solving.model.splined:
+                spline, records = splined_cameras(select_result(results[name], sel), part.corners, part.valid,
+                                                  part.object_points, image_size, part.weights)
+            else:
+                spline, records = choose_splined(solving.solvers[name], select_result(results[name], sel),
+                                                 part.corners, part.valid, part.object_points, image_size,
+                                                 part.weights)
         for k, ci in enumerate(sel.tolist()):
             if records[k] is not None:
                 table[ci]["splined"] = records[k]

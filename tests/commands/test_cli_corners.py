@@ -260,3 +260,45 @@ def test_mrcal_vnl_calibrates_with_image_size(tmp_path, capsys):
                        "k1k2", "--image-size", "640x480", "--flat-board", "--output", out)
     flat = json.loads(out.read_text())
     assert code == EXIT_OK and "board_flatness" not in flat and flat["rms"] > 100 * result["rms"]
+
+
+def test_model_splined_fits_the_spline_outright(tmp_path, capsys):
+    import torch
+
+    from ccs_kornia.geometry.board_points import board_object_points
+    from ccs_kornia.geometry.camera import Camera
+    from ccs_kornia.geometry.models import SplinedStereographicModel
+    from ccs_kornia.geometry.so3 import exp_so3
+
+    # a stereographic lens with a local bump of a few px, which no OpenCV model fits
+    lens = SplinedStereographicModel(8, 6, 120)
+    x = (torch.arange(lens.nx, dtype=torch.float64) - (lens.nx - 1) / 2) / lens.segments_per_u
+    y = (torch.arange(lens.ny, dtype=torch.float64) - (lens.ny - 1) / 2) / lens.segments_per_u
+    u = torch.stack(torch.meshgrid(y, x, indexing="ij")[::-1], -1)
+    bump = 0.01 * torch.exp(-((u - torch.tensor([0.2, 0.1], dtype=torch.float64)) ** 2).sum(-1, keepdim=True) / 0.05)
+    knots = -0.1 * (u * u).sum(-1, keepdim=True) * u + bump
+    truth = Camera(lens, torch.cat([torch.tensor([400.0, 400, 320, 240], dtype=torch.float64), knots.reshape(-1)]),
+                   (640, 480))
+    obj = board_object_points(8, 6, 0.03, dtype=torch.float64)
+    g = torch.Generator().manual_seed(4)
+    V = 8
+    R = exp_so3(0.8 * (torch.rand(V, 3, generator=g, dtype=torch.float64) - 0.5))
+    centre = torch.stack([0.4 * (torch.rand(V, generator=g, dtype=torch.float64) - 0.5),
+                          0.3 * (torch.rand(V, generator=g, dtype=torch.float64) - 0.5),
+                          0.3 + 0.1 * torch.rand(V, generator=g, dtype=torch.float64)], -1)
+    uv = truth.project((obj @ R.transpose(-1, -2) + (centre - R @ obj.mean(0))[:, None])[None])[0]
+    lines = ["# filename x y level"]
+    for v in range(V):
+        lines += [f"frame{v:03d}.jpg {x:.4f} {y:.4f} 0" if 0 < x < 639 and 0 < y < 479 else f"frame{v:03d}.jpg - -"
+                  for x, y in uv[v].tolist()]
+    vnl, out = tmp_path / "corners.vnl", tmp_path / "calib.json"
+    vnl.write_text("\n".join(lines) + "\n")
+    code, _, err = run(capsys, "calibrate", "--corners", vnl, "--board", "8x6", "--square", "0.03", "--image-size",
+                       "640x480", "--model", "splined", "--flat-board", "--no-ransac", "--no-diagnostics", "--output", out)
+    assert code == EXIT_OK, err
+    result = json.loads(out.read_text())
+    model = result["distortion"]["model"]
+    assert model.startswith("splined_stereographic") and result["rms"] < 0.05, (model, result["rms"])
+    table = result["model_selection"]
+    assert table["chosen"] == model and table["splined"]["kept"]
+    assert "asked for (--model splined)" in table["splined"]["rule"]

@@ -185,7 +185,12 @@ def _normal_equations(model, R, t, params, obj, obs, sw, basis, used, eye6, expa
     view_cost = G[..., P + 6, P + 6]  # (C, V) weighted squared residuals per view
     cost = view_cost.sum(1)
     cost = torch.where(cost.isfinite(), cost, torch.full_like(cost, float("inf")))
-    pick = None if basis is None or local is None else _selection(basis)
+    pick = None
+    if basis is not None and local is not None:  # (the basis is the solve's: its selection is read once per solve)
+        key = ("selection", id(basis))
+        if key not in expanded:
+            expanded[key] = (basis, _selection(basis))
+        pick = expanded[key][1]
     if pick is not None:  # a basis that selects parameters (a spline's, the core fixed): indexing, not products
         Gpp = torch.gather(torch.gather(Gpp, 1, pick[:, :, None].expand(-1, -1, Gpp.shape[-1])), 2,
                            pick[:, None, :].expand(-1, pick.shape[1], -1))

@@ -67,10 +67,12 @@ from ccs_kornia.runtime.checks import check_same_shape, check_tensor
 
 __all__ = [
     "AUTO_MODELS", "ModelChoice", "model_or_choice", "FLEXIBLE_MODELS", "HALVES_CLEAR_PX", "HALVES_CLEAR_RATIO", "MAX_CANCELLATION",
-    "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "TIE_FLOOR",
+    "MIN_PAIRED_VIEWS", "ModelSelection", "PREFERENCE", "SOLVE_COST_RANK", "SPLINED", "TIE_FLOOR",
     "TIE_SIGMAS", "choose_models", "narrow_ranking", "radial_cancellation", "rank_models", "tied_with_best",
 ]
 
+#: the name of the choice that ends every camera splined (``--model splined``, :class:`ModelChoice`'s ``splined``)
+SPLINED = "splined"
 #: the candidates of the automatic model choice (``--model auto``)
 AUTO_MODELS: tuple[CameraModel, ...] = (K1K2, OPENCV5, RATIONAL, FISHEYE)
 #: among models the held-out views cannot tell apart, the earliest wins (see the module doc for the order's reasons)
@@ -317,14 +319,20 @@ class ModelChoice:
     Args:
         candidates: some of :data:`AUTO_MODELS` (default all), e.g. without ``RATIONAL`` for a camera whose calibration
             goes to a format that cannot hold it (Kalibr's camchain).
+        splined: every calibrated camera ends splined (``--model splined``): the choice among ``candidates`` is the
+            spline's start, and the spline is fitted whatever held-out views say (``auto`` tries it only where the
+            chosen model's residuals have structure and keeps it where held-out views prefer it).
 
     Example:
         >>> from ccs_kornia.geometry.models import RATIONAL
         >>> [str(m) for m in ModelChoice(tuple(m for m in AUTO_MODELS if m != RATIONAL)).candidates], str(ModelChoice())
         (['k1k2', 'opencv5', 'fisheye'], 'auto')
+        >>> str(ModelChoice(splined=True))
+        'splined'
     """
 
     candidates: tuple[CameraModel, ...] = AUTO_MODELS
+    splined: bool = False
 
     def __post_init__(self) -> None:
         candidates = tuple(dict.fromkeys(self.candidates))
@@ -339,20 +347,25 @@ class ModelChoice:
         return OPENCV5 if OPENCV5 in self.candidates else self.candidates[0]
 
     def __str__(self) -> str:
-        return "auto"
+        return SPLINED if self.splined else "auto"
 
 
 def model_or_choice(name: str) -> CameraModel | ModelChoice:
-    """The model a name stands for, or ``"auto"``'s :class:`ModelChoice` (where files and the command line name one).
+    """The model a name stands for, or ``"auto"``'s (``"splined"``'s) :class:`ModelChoice` (where files and the command
+    line name one).
 
     Example:
         >>> model_or_choice("auto"), model_or_choice("k1k2")
-        (ModelChoice(candidates=(OpenCVModel('k1k2'), OpenCVModel('opencv5'), OpenCVModel('rational'), KannalaBrandtModel('fisheye'))), OpenCVModel('k1k2'))
+        (ModelChoice(candidates=(OpenCVModel('k1k2'), OpenCVModel('opencv5'), OpenCVModel('rational'), KannalaBrandtModel('fisheye')), splined=False), OpenCVModel('k1k2'))
+        >>> model_or_choice("splined").splined
+        True
     """
     if name == str(ModelChoice()):
         return ModelChoice()
+    if name == SPLINED:
+        return ModelChoice(splined=True)
     if name not in CAMERA_MODELS:
-        raise ValueError(f"unknown model {name!r} (choose from auto, {', '.join(CAMERA_MODELS)})")
+        raise ValueError(f"unknown model {name!r} (choose from auto, {SPLINED}, {', '.join(CAMERA_MODELS)})")
     return CAMERA_MODELS[name]
 
 

@@ -130,8 +130,8 @@ def spline_from_camera(model: SplinedStereographicModel, camera: Camera, image_s
     core = cam.params[:, :4]
     u, _ = stereographic(rays)
     target = (q - core[:, None, 2:4]) / core[:, None, 0:2] - u  # delta_u wanted at each sample
-    index, wts = model._patch(u)[:2]
     ok = rays.isfinite().all(-1) & target.isfinite().all(-1) & (rays[..., 2] > -0.99)
+    index, wts = model._patch(torch.where(ok[..., None], u, 0.0))[:2]  # (a sample without a ray: any patch, masked)
     n = model.nx * model.ny
     A = torch.zeros(C, q.shape[1], n, dtype=torch.float64, device=cam.device)
     A.scatter_add_(-1, index, torch.where(ok[..., None], wts, 0.0))

@@ -4,6 +4,7 @@ board's sag, the held-out error and the model-fit flag against mrcal's figures."
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 from _real_data import REAL_DATA
@@ -56,3 +57,26 @@ def test_figueroa_end_to_end(tmp_path):
     data = json.loads(out.read_text())
     assert data["success"] and data["residual_structure"]["model_fit"] == "does not fit"
     assert data["diagnostics"]["verdict"].startswith("not reliable")
+
+
+def test_mrcal_way_fits_the_rotation_near_the_centre_and_measures_where_both_saw():
+    import torch
+
+    from ccs_kornia.bench.sections.precision import mrcal_projection_difference
+    from ccs_kornia.geometry.camera import Camera
+    from ccs_kornia.geometry.models import K1K2
+
+    K = torch.tensor([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]], dtype=torch.float64)
+    a = Camera.from_opencv(K1K2, K, torch.tensor([-0.1, 0.01], dtype=torch.float64), (640, 480))
+    shifted = Camera.from_opencv(K1K2, K + torch.tensor([[0, 0, 2.0], [0, 0, 0], [0, 0, 0]], dtype=torch.float64),
+                                 torch.tensor([-0.1, 0.01], dtype=torch.float64), (640, 480))
+    everywhere = torch.tensor([[x, y] for x in range(0, 640, 10) for y in range(0, 480, 10)], dtype=torch.float64)
+    # a principal point 2 px over is nearly a rotation: what is left is far below the shift
+    assert mrcal_projection_difference(a, shifted, everywhere, everywhere) < 0.5
+    bent = Camera.from_opencv(K1K2, K, torch.tensor([-0.1, 0.03], dtype=torch.float64), (640, 480))
+    centre = torch.tensor([[320.0, 240.0]], dtype=torch.float64)
+    corner = torch.tensor([[5.0, 5.0]], dtype=torch.float64)
+    # k2 moves the corners of the image, not its centre; a grid point only one calibration saw does not count
+    assert mrcal_projection_difference(a, bent, centre, centre) < 0.01
+    assert mrcal_projection_difference(a, bent, corner, corner) > 1.0
+    assert math.isnan(mrcal_projection_difference(a, bent, centre, corner))
