@@ -36,10 +36,10 @@ from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 from ccs_kornia.modules.detection.refine.saddle_refine import refine_corners
 
 __all__ = [
-    "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_MOVE", "MAX_RADIUS", "VARIANTS", "BoardMarkers",
-    "MarkerBoardDetector", "SHARPEN_AMOUNT", "SHARPEN_SIGMA", "UPSCALE", "consistent_markers", "decode_markers",
-    "decode_with_copies", "decoding_copies", "fit_homography", "grow_corners", "map_points",
-    "markers_on_board", "place_from", "refine_and_grow", "refine_marked_corners",
+    "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_MOVE", "MAX_RADIUS", "SHARPEN_AMOUNT", "SHARPEN_SIGMA", "UPSCALE",
+    "VARIANTS", "BoardMarkers", "MarkerBoardDetector", "consistent_markers", "decode_markers", "decode_with_copies",
+    "decoding_copies", "fit_homography", "grow_corners", "map_points", "markers_on_board", "place_from",
+    "refine_and_grow", "refine_marked_corners",
 ]
 
 #: a marker belongs to the board's lattice when its corners lie within this many board units (squares, tag sides) of

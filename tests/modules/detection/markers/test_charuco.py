@@ -18,7 +18,6 @@ from ccs_kornia.modules.detection.boards import (
     Chessboard,
     aruco_dictionary,
 )
-from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 from ccs_kornia.modules.detection.markers.charuco import (
     CharucoDetector,
     charuco_markers,
@@ -26,6 +25,7 @@ from ccs_kornia.modules.detection.markers.charuco import (
     dictionary_hint,
     marked_radius_factor,
 )
+from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 
 BOARD = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250")
 
