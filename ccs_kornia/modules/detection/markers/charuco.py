@@ -6,7 +6,8 @@ the lens distortion is largest, and where a plain chessboard cannot be identifie
 The shared steps (decoding, lattice check, refinement) are :mod:`~ccs_kornia.modules.detection.markers.marker_board`'s:
 
 1. **markers**: ``cv2.aruco.ArucoDetector`` decodes the markers on the image, on its inverse (white-on-black prints)
-   and on both mirrored (a two-sided board seen from its back);
+   and on both mirrored (a two-sided board seen from its back), and adds those it reads on enhanced copies of the
+   image (its contrast stretched, sharpened, enlarged: a dim, blurred or small view);
 2. **lattice**: the decoded markers must sit where the board puts their ids
    (:func:`~ccs_kornia.modules.detection.markers.marker_board.consistent_markers`, in squares). The variant (plain,
    inverted, mirrored) with the most consistent markers is kept, and for a board of unknown layout (``legacy=None``)
@@ -69,6 +70,8 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     MarkerBoardDetector,
     consistent_markers,
     decode_markers,
+    decode_with_copies,
+    decoding_copies,
     fit_homography,
     markers_on_board,
     place_from,
@@ -153,20 +156,32 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     """The board's markers on a ``uint8`` grey image, per layout (``{legacy: markers}``; one entry where both layouts
     place every marker alike, as on boards with an odd ``squares_y``): decoded on every variant
     (:data:`~ccs_kornia.modules.detection.markers.marker_board.VARIANTS`), checked against the board's lattice, the
-    variant with the most consistent markers kept."""
+    variant with the most consistent markers kept; then the markers of the image's enhanced copies
+    (:func:`~ccs_kornia.modules.detection.markers.marker_board.decoding_copies`: contrast, sharpness, size) added on
+    the variant kept (on every variant where none was), kept where more of them sit on the lattice."""
     detector = charuco_detector(board.dictionary) if detector is None else detector
     new, old = board_markers(board, False), board_markers(board, True)
     same = new.keys() == old.keys() and all(np.allclose(new[k], old[k]) for k in new)
     layouts = {False: new} if same else {False: new, True: old}
     none = BoardMarkers.none()
     best = {legacy: CharucoMarkers(none.corners, none.ids, none.board_corners, legacy=legacy) for legacy in layouts}
-    for variant in VARIANTS:
-        pts, ids = decode_markers(gray8, detector, variant)
+
+    def keep(pts: np.ndarray, ids: np.ndarray, variant: str) -> None:
         for legacy, layout in layouts.items():
             got = markers_on_board(pts, ids, layout, variant, len(best[legacy].ids))
             if got is not None:
                 best[legacy] = CharucoMarkers(got.corners, got.ids, got.board_corners, got.variant, got.decoded,
                                               got.known, legacy=legacy)
+
+    decoded = {}
+    for variant in VARIANTS:
+        decoded[variant] = decode_markers(gray8, detector, variant)
+        keep(*decoded[variant], variant)
+    # the enhanced copies: on the variant whose markers sit on the lattice, on every variant where none do
+    found = {m.variant for m in best.values() if len(m.ids)}
+    copies = decoding_copies(gray8)
+    for variant in (v for v in VARIANTS if v in found or not found):
+        keep(*decode_with_copies(decoded[variant], copies, detector, variant), variant)
     return best
 
 

@@ -25,6 +25,7 @@ from ccs_kornia.modules.detection.markers.charuco import (
     dictionary_hint,
     marked_radius_factor,
 )
+from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 
 BOARD = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250")
 
@@ -174,6 +175,21 @@ def test_rendered_corners_beat_opencv(rendered):
           f"CharucoDetector mean {theirs.mean():.4f} max {theirs.max():.3f} on {n_theirs}")
     assert ours.mean() < theirs.mean() and ours.max() < theirs.max()
     assert n_ours >= n_theirs
+
+
+def test_dark_view_read_on_its_stretched_copy():
+    image = BOARD.render(60, margin=30)
+    truth = detect_charuco(_tensor(image), BOARD, paths=MarkerPaths.MARKERS).corners[0].numpy()
+    rng = np.random.default_rng(0)
+    dark = np.clip(np.rint(image * 0.03 + rng.normal(0.0, 0.5, image.shape)), 0, 255).astype(np.uint8)
+    plain = cv2.aruco.ArucoDetector(aruco_dictionary(BOARD.dictionary))
+    assert len(plain.detectMarkers(dark)[0]) == 0  # a few grey levels: OpenCV's thresholds read no marker
+    assert len(charuco_markers(dark, BOARD).ids) == 17
+    det = detect_charuco(_tensor(dark), BOARD, paths=MarkerPaths.MARKERS)
+    corners, valid = det.corners[0].numpy().astype(np.float64), det.valid[0].numpy()
+    assert valid.sum() == 24
+    assert np.linalg.norm(corners[valid] - truth[valid], axis=-1).max() < 0.5
+    assert _wrong_ids(BOARD, corners, valid) == 0
 
 
 def test_inverted_and_mirrored_views_name_their_variant():
