@@ -158,7 +158,8 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     (:data:`~ccs_kornia.modules.detection.markers.marker_board.VARIANTS`), checked against the board's lattice, the
     variant with the most consistent markers kept; then the markers of the image's enhanced copies
     (:func:`~ccs_kornia.modules.detection.markers.marker_board.decoding_copies`: contrast, sharpness, size) added on
-    the variant kept (on every variant where none was), kept where more of them sit on the lattice."""
+    the variant kept (on every variant where none was), kept where more of them sit on the lattice; a view whose every
+    marker is read already skips them."""
     detector = charuco_detector(board.dictionary) if detector is None else detector
     new, old = board_markers(board, False), board_markers(board, True)
     same = new.keys() == old.keys() and all(np.allclose(new[k], old[k]) for k in new)
@@ -177,7 +178,10 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     for variant in VARIANTS:
         decoded[variant] = decode_markers(gray8, detector, variant)
         keep(*decoded[variant], variant)
-    # the enhanced copies: on the variant whose markers sit on the lattice, on every variant where none do
+    # the enhanced copies: on the variant whose markers sit on the lattice, on every variant where none do; not where
+    # every marker of the board is read already (a copy can then add nothing: the image's own reading wins)
+    if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
+        return best
     found = {m.variant for m in best.values() if len(m.ids)}
     copies = decoding_copies(gray8)
     for variant in (v for v in VARIANTS if v in found or not found):
