@@ -28,10 +28,28 @@ def _sum_and_pid(images: torch.Tensor, keys: list):
     return images.sum((1, 2, 3)), os.getpid(), torch.get_num_threads()
 
 
+#: a folder where each worker process leaves its pid (set by a test before the workers are forked)
+MEETING: list[str] = []
+
+
 def _slow_sum_and_pid(images: torch.Tensor, keys: list):
-    # a batch takes long enough that, on a loaded machine too, the other worker takes the next one meanwhile
-    time.sleep(0.2)
+    # a batch waits (10 s at most) until a second process has taken one too, so that however slowly the machine
+    # starts the second worker, the batches are shared out
+    if MEETING:
+        open(os.path.join(MEETING[0], str(os.getpid())), "w").close()
+        deadline = time.monotonic() + 10.0
+        while len(os.listdir(MEETING[0])) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
     return _sum_and_pid(images, keys)
+
+
+@pytest.fixture
+def meeting(tmp_path):
+    folder = tmp_path / "meeting"
+    folder.mkdir()
+    MEETING[:] = [str(folder)]
+    yield folder
+    MEETING.clear()
 
 
 def test_chunks_and_default_workers():
@@ -44,7 +62,7 @@ def test_chunks_and_default_workers():
 
 
 @linux
-def test_workers_give_the_batches_and_values_of_one_process():
+def test_workers_give_the_batches_and_values_of_one_process(meeting):
     images = torch.rand(2, 5, 1, 12, 16, generator=torch.Generator().manual_seed(0))
     source = TensorSource(images)
     serial = list(map_batches(_sum_and_pid, source, batch_size=2))
@@ -62,7 +80,7 @@ def test_workers_give_the_batches_and_values_of_one_process():
 
 
 @linux
-def test_views_that_load_alone_are_shared_out_one_by_one(tmp_path):
+def test_views_that_load_alone_are_shared_out_one_by_one(tmp_path, meeting):
     """Views known (from their size or their file's header) to load as a batch of their own each go to the workers
     one at a time (ten large photographs were chunks of 8 and 2: one process worked while the other waited); the
     batches are the ones of one process."""
@@ -72,6 +90,8 @@ def test_views_that_load_alone_are_shared_out_one_by_one(tmp_path):
         cv2.imwrite(paths[-1], np.full((10, 14), 40 * k, dtype=np.uint8))
     for source in (FileSource([paths]), TensorSource(torch.rand(5, 1, 10, 14))):
         serial = list(map_batches(_sum_and_pid, source, batch_size=4, max_pixels=200))  # 140 px each: alone
+        for left in meeting.iterdir():
+            left.unlink()
         parallel = list(map_batches(_slow_sum_and_pid, source, batch_size=4, max_pixels=200, workers=2))
         assert [o.keys for o in serial] == [o.keys for o in parallel] == [[(0, k)] for k in range(5)]
         assert len({o.value[1] for o in parallel}) == 2
