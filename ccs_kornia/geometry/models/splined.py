@@ -206,8 +206,10 @@ class SplinedStereographicModel(CameraModel):
         depends on, their weights :math:`(C, *, 16)` and the weights' derivatives by ``u_x`` and ``u_y``."""
         gx = u[..., 0] * self.segments_per_u + (self.nx - 1) / 2
         gy = u[..., 1] * self.segments_per_u + (self.ny - 1) / 2
-        ix = gx.detach().floor().clamp(1, self.nx - 3)
-        iy = gy.detach().floor().clamp(1, self.ny - 3)
+        # a point without a ray (NaN: a view not posed, a point behind the camera) takes a valid patch, its
+        # weights and so its projection staying NaN
+        ix = gx.detach().nan_to_num(0.0).floor().clamp(1, self.nx - 3)
+        iy = gy.detach().nan_to_num(0.0).floor().clamp(1, self.ny - 3)
         wx, dwx = cubic_bspline_weights(gx - ix)
         wy, dwy = cubic_bspline_weights(gy - iy)
         steps = torch.arange(SUPPORT, device=u.device) - 1

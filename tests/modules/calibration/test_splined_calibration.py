@@ -144,3 +144,11 @@ def test_auto_takes_the_spline_only_where_held_out_views_prefer_it():
     figures = records[0]["heldout_median_px"]
     assert records[0]["kept"] and figures["splined"] < 0.8 * figures["rational"]
     assert keep[0].camera.model.name.startswith("splined_stereographic") and float(keep[0].rms) < 0.05
+
+
+def test_points_without_a_ray_project_to_nan():
+    # a view that was not posed (NaN pose) or a point behind the camera: NaN out, never an index out of range
+    camera = _truth()
+    points = torch.tensor([[[0.01, 0.02, 0.4], [float("nan"), 0.0, 0.4], [0.0, 0.0, -0.4]]], dtype=F64)
+    uv = camera.project(points)[0]
+    assert uv[0].isfinite().all() and uv[1:].isnan().all()
