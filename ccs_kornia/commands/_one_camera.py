@@ -123,7 +123,9 @@ def calibrate_camera(args: argparse.Namespace) -> int:
 def _print_summary(data: dict[str, Any], output: str) -> None:
     K = data["K"]
     n = data["num_views"]
-    coeffs = ", ".join(f"{c:.5g}" for c in data["distortion"]["coeffs"])
+    values = data["distortion"]["coeffs"]
+    # a spline's hundreds of control-point values are in the JSON; the line says how many
+    coeffs = ", ".join(f"{c:.5g}" for c in values) if len(values) <= 14 else f"{len(values)} control-point values"
     print(
         f"fx {K[0][0]:.3f}  fy {K[1][1]:.3f}  cx {K[0][2]:.3f}  cy {K[1][2]:.3f}  "
         f"{data['distortion']['model']} ({coeffs})"
@@ -138,8 +140,10 @@ def _print_summary(data: dict[str, Any], output: str) -> None:
     if choice:
         held = choice["heldout_rms_px"]
         figures = ", ".join(f"{m} {v:.3f}" for m, v in held.items() if v is not None)
-        print(f"model: {choice['chosen']} chosen by cross-validation (runner-up {choice['runner_up']}; "
-              f"held-out RMS px: {figures})")
+        spline = choice.get("splined") or {}
+        how = (f"asked for, from {choice['runner_up']} chosen by cross-validation" if "asked for" in spline.get("rule", "")
+               else "chosen by cross-validation")
+        print(f"model: {choice['chosen']} {how} (runner-up {choice['runner_up']}; held-out RMS px: {figures})")
     structure = data.get("residual_structure")
     if structure and structure["model_fit"] != "fits":
         ratio = structure.get("noise_ratio")

@@ -293,9 +293,11 @@ def test_model_splined_fits_the_spline_outright(tmp_path, capsys):
                   for x, y in uv[v].tolist()]
     vnl, out = tmp_path / "corners.vnl", tmp_path / "calib.json"
     vnl.write_text("\n".join(lines) + "\n")
-    code, _, err = run(capsys, "calibrate", "--corners", vnl, "--board", "8x6", "--square", "0.03", "--image-size",
-                       "640x480", "--model", "splined", "--flat-board", "--no-ransac", "--no-diagnostics", "--output", out)
+    code, printed, err = run(capsys, "calibrate", "--corners", vnl, "--board", "8x6", "--square", "0.03", "--image-size",
+                             "640x480", "--model", "splined", "--flat-board", "--no-ransac", "--no-diagnostics",
+                             "--output", out)
     assert code == EXIT_OK, err
+    assert " asked for, from " in printed and "control-point values)" in printed  # not hundreds of numbers
     result = json.loads(out.read_text())
     model = result["distortion"]["model"]
     assert model.startswith("splined_stereographic") and result["rms"] < 0.05, (model, result["rms"])
