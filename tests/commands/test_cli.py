@@ -463,11 +463,13 @@ def test_real_sets(real_dir, tmp_path, capsys, name, board, square, model, refer
         ("boofcv_bumblebee2_left", "4x6", "30", "k1k2", 524.61),  # every model ties; rational's extra terms are not kept
         ("ros_fisheye_mono", "8x6", "0.108", "fisheye", 290.05),
         ("boofcv_fisheye_chessboard", "6x4", "0.03", "fisheye", None),
+        # the fisheye's residuals are structured here: the spline predicts the held-out views better
+        pytest.param("udacity_gopro_wide", "8x6", "1", "splined_stereographic", None, marks=pytest.mark.e2e),
     ],
 )
 def test_model_auto_on_real_sets(real_dir, tmp_path, capsys, name, board, square, chosen, reference):
-    """The default ``--model auto``: the published focal length within 3 px, fisheye for the fisheye lenses, the
-    choice and the runner-up in the JSON and on stdout."""
+    """The default ``--model auto``: the published focal length within 3 px, fisheye for the fisheye lenses, the spline
+    where the fisheye leaves structure, the choice and the runner-up in the JSON and on stdout."""
     folder = real_dir / name
     if not folder.is_dir():
         pytest.skip(f"real data set not present at {folder}")
@@ -481,7 +483,7 @@ def test_model_auto_on_real_sets(real_dir, tmp_path, capsys, name, board, square
     assert choice["runner_up"] in ("k1k2", "opencv5", "rational", "fisheye") and choice["runner_up"] != choice["chosen"]
     assert f"model: {choice['chosen']} chosen by cross-validation" in stdout
     if chosen is not None:
-        assert choice["chosen"] == chosen, choice
+        assert choice["chosen"].startswith(chosen), choice
     if reference is not None:
         assert abs(data["K"][0][0] - reference) < 3.0, (data["K"], choice)
 
