@@ -239,19 +239,50 @@ def candidate_poses(
 
 #: the last cameras' pixel derivatives (a live capture asks for the same camera's figure many times between solves)
 _JACOBIANS: dict = {}
+#: the last cameras' candidate poses and each candidate's information (the same, for the ranking)
+_CANDIDATES: dict = {}
+
+
+def _camera_key(camera: Camera) -> tuple:
+    return (str(camera.model), tuple(camera.params.flatten().tolist()), tuple(camera.image_size), str(camera.device))
+
+
+def _remembered(store: dict, key: tuple, make):
+    """``store[key]``, made by ``make()`` when missing; the store keeps the last 8."""
+    if key not in store:
+        if len(store) >= 8:
+            store.pop(next(iter(store)))
+        store[key] = make()
+    return store[key]
+
+
+def _tensor_key(x: torch.Tensor) -> tuple:
+    return tuple(x.shape), x.detach().double().cpu().numpy().tobytes()
+
+
+def _candidates_and_information(camera: Camera, object_points: torch.Tensor, board_size: tuple[int, int] | None,
+                                candidates: CandidatePoses | None) -> tuple[CandidatePoses, torch.Tensor]:
+    """The candidate poses (:func:`candidate_poses` where none are given) and each one's information :math:`(K, P,
+    P)`, remembered for the last few cameras."""
+    obj = object_points.double().to(camera.device)
+    if candidates is None:
+        candidates = _remembered(_CANDIDATES, ("poses", _camera_key(camera), _tensor_key(obj), board_size),
+                                 lambda: candidate_poses(camera, obj, board_size))
+    poses = candidates
+
+    def information() -> torch.Tensor:
+        ones = torch.ones(1, len(poses), obj.shape[0], dtype=torch.float64, device=camera.device)
+        return view_information(camera, poses.rvec[None], poses.tvec[None], obj, ones)[0]
+
+    key = ("information", _camera_key(camera), _tensor_key(obj), _tensor_key(poses.rvec), _tensor_key(poses.tvec))
+    return poses, _remembered(_CANDIDATES, key, information)
 
 
 def _pixel_jacobians(camera: Camera, grid: tuple[int, int]) -> tuple[torch.Tensor, ...]:
     """d pixel / d the model's parameters :math:`(G, 2, P)` at a grid of pixels, the camera rotation fitted out; the
     pixels :math:`(G, 2)`, where the model has an inverse :math:`(G,)` and where its ray points in front of the camera
     :math:`(G,)` (remembered for the last few cameras)."""
-    key = (str(camera.model), tuple(camera.params.flatten().tolist()), tuple(camera.image_size), tuple(grid),
-           str(camera.device))
-    if key not in _JACOBIANS:
-        if len(_JACOBIANS) >= 8:
-            _JACOBIANS.pop(next(iter(_JACOBIANS)))
-        _JACOBIANS[key] = _compute_pixel_jacobians(camera, grid)
-    return _JACOBIANS[key]
+    return _remembered(_JACOBIANS, (*_camera_key(camera), tuple(grid)), lambda: _compute_pixel_jacobians(camera, grid))
 
 
 def _compute_pixel_jacobians(camera: Camera, grid: tuple[int, int]) -> tuple[torch.Tensor, ...]:
@@ -426,10 +457,7 @@ def next_poses(
     info = info[0] if info.dim() == 3 else info
     check_tensor(info, "information", ["P", "P"], P=camera.model.num_params)
     camera = camera.to(dtype=torch.float64)
-    poses = candidate_poses(camera, object_points, board_size) if candidates is None else candidates
-    obj = object_points.double().to(camera.device)
-    M = view_information(camera, poses.rvec[None], poses.tvec[None], obj,
-                         torch.ones(1, len(poses), obj.shape[0], dtype=torch.float64, device=camera.device))[0]
+    poses, M = _candidates_and_information(camera, object_points, board_size, candidates)
     typical = M.mean(0) if len(poses) else info
     current = float(worst_uncertainty(camera, info, sigma, grid, typical))
     if len(poses):

@@ -116,6 +116,25 @@ def test_following_the_suggestions_beats_repeating_a_view():
         worst_uncertainty(cam, Hf, 0.2, typical=typical))
 
 
+def test_a_cameras_candidates_are_remembered_not_changed():
+    """Asked again for the same camera, the ranking reuses its candidates and their information: the same answer as
+    with the candidates given; another camera gets its own."""
+    cam = _camera()
+    H = _information(cam, torch.zeros(1, 3, dtype=torch.float64),
+                     torch.tensor([[-0.12, -0.075, 0.6]], dtype=torch.float64)).sum(0)
+    first = next_poses(cam, H, OBJ, sigma=0.2, board_size=(9, 6), top=5)
+    again = next_poses(cam, H, OBJ, sigma=0.2, board_size=(9, 6), top=5)
+    given = next_poses(cam, H, OBJ, sigma=0.2, board_size=(9, 6), candidates=candidate_poses(cam, OBJ, (9, 6)), top=5)
+    for s in (again, given):
+        torch.testing.assert_close(s.score_px, first.score_px, rtol=0, atol=0)
+        torch.testing.assert_close(s.poses.rvec, first.poses.rvec, rtol=0, atol=0)
+    other = Camera(OPENCV5, cam.params * torch.tensor([1.3, 1.3, 1, 1, 1, 1, 1, 1, 1], dtype=torch.float64), SIZE)
+    mine = next_poses(other, H, OBJ, sigma=0.2, board_size=(9, 6), top=5)
+    own = next_poses(other, H, OBJ, sigma=0.2, board_size=(9, 6), candidates=candidate_poses(other, OBJ, (9, 6)), top=5)
+    torch.testing.assert_close(mine.score_px, own.score_px, rtol=0, atol=0)
+    assert not torch.equal(mine.score_px, first.score_px)
+
+
 def test_a_fisheyes_pixels_behind_the_camera_do_not_rank():
     """A fisheye of 212 degrees on the diagonal: the image corners' rays point behind the camera, where no board is
     seen; the ranking's mean is over the other pixels (the worst still over the whole image)."""
