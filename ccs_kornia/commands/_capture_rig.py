@@ -9,7 +9,6 @@ import argparse
 import os
 import shutil
 import tempfile
-import time
 from contextlib import ExitStack
 
 import cv2
@@ -17,11 +16,10 @@ import numpy as np
 
 from ccs_kornia.commands._live_capture import (
     board_fill,
+    calibrate_kept,
     frame_name,
-    linger,
     live_detector,
     live_model,
-    result_line,
 )
 from ccs_kornia.io.live import open_live
 from ccs_kornia.modules.detection.boards import grid_object_points
@@ -179,20 +177,13 @@ def run_rig(args: argparse.Namespace, folder: str) -> int:
                       f"{rig.min_common} link a pair): the rig may not calibrate", flush=True)
             if page is not None:
                 page.set_state(status=f"{why_stopped}: calibrating the rig from {len(kept)} instants", done=True)
-            if os.path.isdir(folder):
-                os.rmdir(folder)  # empty (checked by the caller)
-            os.makedirs(os.path.dirname(os.path.abspath(folder)), exist_ok=True)
-            os.replace(root, folder)
-            root = None
-            start = time.perf_counter()
-            code = _calibrate_rig(args, camera_dirs(folder, len(args.sources)))
-            print(f"wrote the {len(kept)} kept instants to {folder} (calibrate-rig "
-                  f"{' '.join(camera_dirs(folder, len(args.sources)))} gives the same rig); calibration "
-                  f"{time.perf_counter() - start:.1f} s")
-            if page is not None:
-                page.set_state(status=result_line(args.output, len(kept)), done=True)
-                linger(page, args.page_linger)
-            return code
+            folders = camera_dirs(folder, len(args.sources))
+            moved, root = root, None  # in place from here on: not removed
+            return calibrate_kept(
+                moved, folder, lambda: _calibrate_rig(args, folders),
+                lambda seconds: f"wrote the {len(kept)} kept instants to {folder} (calibrate-rig {' '.join(folders)} "
+                                f"gives the same rig); calibration {seconds:.1f} s",
+                page, args.output, len(kept), args.page_linger)
         finally:
             if root is not None:
                 shutil.rmtree(root, ignore_errors=True)

@@ -1,11 +1,14 @@
 """What ``capture`` does the same for one camera and for a rig: the detector and model used live, the kept frames'
-names, how much of the image the board fills, and the page's last line and wait once the calibration is written."""
+names, how much of the image the board fills, and the ending: the kept frames moved into place, calibrated, the page's
+last line and its wait once the calibration is written."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -79,3 +82,21 @@ def linger(page, seconds: float) -> None:
             time.sleep(0.1)
     except KeyboardInterrupt:
         pass
+
+
+def calibrate_kept(staging: str, folder: str, calibrate: Callable[[], int], wrote: Callable[[float], str], page,
+                   output: str, frames: int, page_linger: float) -> int:
+    """The end of a capture, for a camera and a rig alike: the kept frames moved from ``staging`` to ``folder`` (an
+    empty folder there is replaced), ``calibrate()`` run on them, the line ``wrote(seconds)`` printed, and the result
+    shown on the page for ``page_linger`` seconds. Returns the calibration's exit status."""
+    if os.path.isdir(folder):
+        os.rmdir(folder)  # empty (checked before the capture)
+    os.makedirs(os.path.dirname(os.path.abspath(folder)), exist_ok=True)
+    os.replace(staging, folder)
+    start = time.perf_counter()
+    code = calibrate()
+    print(wrote(time.perf_counter() - start))
+    if page is not None:
+        page.set_state(status=result_line(output, frames), done=True)
+        linger(page, page_linger)
+    return code

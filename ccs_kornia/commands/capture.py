@@ -9,7 +9,6 @@ import argparse
 import os
 import shutil
 import tempfile
-import time
 
 import cv2
 import numpy as np
@@ -17,11 +16,10 @@ import numpy as np
 from ccs_kornia.commands._capture_rig import run_rig
 from ccs_kornia.commands._live_capture import (
     board_fill,
+    calibrate_kept,
     frame_name,
-    linger,
     live_detector,
     live_model,
-    result_line,
 )
 from ccs_kornia.commands._one_camera import calibrate_camera
 from ccs_kornia.commands._output_paths import check_outputs
@@ -150,21 +148,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"{why_stopped}: {len(kept_frames)} frames kept; calibrating with the full pipeline", flush=True)
         if page is not None:
             page.set_state(status=f"{why_stopped}: calibrating {len(kept_frames)} frames", done=True)
-        if os.path.isdir(folder):
-            os.rmdir(folder)  # empty (checked above)
-        os.makedirs(os.path.dirname(os.path.abspath(folder)), exist_ok=True)
-        os.replace(staging, folder)
-        staging = None
         cal = argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in _CAPTURE_ONLY}, **_FOLDER_INPUTS,
                                  images=[folder])
-        start = time.perf_counter()
-        code = calibrate_camera(cal)
-        print(f"wrote the {len(kept_frames)} kept frames to {folder} (calibrate {folder} gives the same camera); "
-              f"calibration {time.perf_counter() - start:.1f} s")
-        if page is not None:
-            page.set_state(status=result_line(args.output, len(kept_frames)), done=True)
-            linger(page, args.page_linger)
-        return code
+        moved, staging = staging, None  # in place from here on: not removed
+        return calibrate_kept(
+            moved, folder, lambda: calibrate_camera(cal),
+            lambda seconds: f"wrote the {len(kept_frames)} kept frames to {folder} (calibrate {folder} gives the same "
+                            f"camera); calibration {seconds:.1f} s",
+            page, args.output, len(kept_frames), args.page_linger)
     finally:
         if staging is not None:
             shutil.rmtree(staging, ignore_errors=True)
