@@ -53,8 +53,8 @@ from ccs_kornia.outputs.calibration_file import (
 )
 from ccs_kornia.outputs.imu_exports import (
     camchain_imucam_yaml,
-    kalibr_imu_result_yaml,
     imu_ros_static_transform,
+    kalibr_imu_result_yaml,
     to_kalibr_imu_frame,
 )
 from ccs_kornia.outputs.imu_records import imu_camera_record

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ccs_kornia.geometry.board_warp import board_warp_basis
+from ccs_kornia.geometry.board_warp import board_warp_basis, warped_board
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.imu_intrinsics import UPPER, ImuModel
 from ccs_kornia.geometry.so3 import exp_so3, skew
@@ -270,11 +270,7 @@ class ImuCameraProblem:
 
     def board(self, s: dict[str, torch.Tensor]) -> torch.Tensor:
         """:math:`(P, 3)` the board's points as the state has them (bent by its sag where the problem estimates one)."""
-        obj = self.data.object_points
-        if self.sag is None:
-            return obj
-        dz = (self.sag * s["warp"][0]).sum(-1, keepdim=True)
-        return torch.cat([obj[:, :2], obj[:, 2:] + dz], -1)
+        return warped_board(self.data.object_points, s["warp"][0] if self.sag is not None else None)
 
     def residuals(self, s: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The unweighted residuals at ``s``: gyroscope :math:`(N, 3)` rad/s, accelerometer :math:`(N, 3)` m/s^2 and

@@ -24,6 +24,7 @@ from torch import nn
 from ccs_kornia.geometry.imu_intrinsics import ImuIntrinsics, ImuModel
 from ccs_kornia.geometry.imu_noise import ImuNoise
 from ccs_kornia.modules.calibration.schur_lm import schur_lm
+from ccs_kornia.modules.imu.imu_flatness import choose_imu_board_warp
 from ccs_kornia.modules.imu.initial import (
     align_rates,
     board_poses,
@@ -37,7 +38,6 @@ from ccs_kornia.modules.imu.problem import (
     ImuCameraProblem,
     Weights,
 )
-from ccs_kornia.modules.imu.imu_flatness import choose_imu_board_warp
 from ccs_kornia.modules.imu.result import (
     ImuCameraResult,
     ImuVerdictThresholds,
