@@ -79,7 +79,17 @@ def heldout_frames(data: ImuCameraData) -> torch.Tensor:
 
 
 def select_frames(data: ImuCameraData, keep: torch.Tensor) -> ImuCameraData:
-    """The measurements with the frames ``keep`` :math:`(F,)` only (the IMU's samples all)."""
+    """The measurements with the frames ``keep`` :math:`(F,)` only (the IMU's samples all).
+
+    Example:
+        >>> from ccs_kornia.data.recordings.visual_inertial import visual_inertial_recording
+        >>> r = visual_inertial_recording(duration=2.0, seed=0)
+        >>> d = ImuCameraData.from_corners(r.imu_times, r.gyro, r.accel, r.cameras, r.object_points, r.frame_times,
+        ...                                r.corners)
+        >>> held = heldout_frames(d)
+        >>> select_frames(d, ~held).corners.shape[0] + select_frames(d, held).corners.shape[0] == d.corners.shape[0]
+        True
+    """
     return replace(data, frame_times=data.frame_times[keep], frame_camera=data.frame_camera[keep],
                    corners=data.corners[keep], seen=data.seen[keep])
 
