@@ -657,6 +657,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "each camera's row delay is estimated (written as line_delay_s)")
     p.add_argument("--knot-spacing", default=0.02, type=_positive_float, metavar="S",
                    help="the IMU trajectory's knot spacing in seconds (default 0.02)")
+    p.add_argument("--flat-board", dest="board_flatness", action="store_false",
+                   help="take the board as flat: do not fit its sag with T_cam_imu (mrcal's two-parameter bend, kept "
+                        "where frames left out of the fit are predicted better with it; one more fit, and two fits "
+                        "without every other frame where the frames determine it)")
     detection_options(p)
     p = sub.add_parser("imu-noise", help="an IMU's noise from a still log: the Allan deviation, Kalibr's imu.yaml",
                        description="The Allan deviation of each axis of a still IMU log (the IMU at rest, an hour or "

@@ -211,7 +211,8 @@ class BenchConfig:
     imu_trials: int = 10
     imu_seconds: float = 60.0
     imu_conditions: tuple[str, ...] = ("given", "noise x10", "noise /10", "stereo", "rolling shutter", "stereo, rig held",
-                                       "IMU errors, ideal model", "IMU errors, scale-misalignment")
+                                       "IMU errors, ideal model", "IMU errors, scale-misalignment", "given, sag judged",
+                                       "bent board, flat", "bent board, sag judged")
     guidance_trials: int = 8
     guidance_cameras: tuple[str, ...] = ("normal", "wide", "fisheye")
     guidance_counts: tuple[int, ...] = (4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40)

@@ -53,12 +53,13 @@ from ccs_kornia.outputs.calibration_file import (
 )
 from ccs_kornia.outputs.imu_exports import (
     camchain_imucam_yaml,
-    kalibr_imu_result_yaml,
     imu_ros_static_transform,
+    kalibr_imu_result_yaml,
     to_kalibr_imu_frame,
 )
 from ccs_kornia.outputs.imu_records import imu_camera_record
 from ccs_kornia.outputs.records import view_records
+from ccs_kornia.outputs.report.drawing import board_bend_line
 from ccs_kornia.outputs.report.imu import write_imu_report
 from ccs_kornia.outputs.rig_records import record_extrinsics
 from ccs_kornia.pipeline.sources import VideoFrameRef, VideoSource
@@ -410,7 +411,7 @@ def run(args: argparse.Namespace) -> int:
     result = calibrate_imu_camera(data, noise=noise, knot_spacing=args.knot_spacing, max_shift=args.max_shift,
                                   rolling_shutter=args.rolling_shutter, rig=None if args.refine_rig else rig,
                                   refine_intrinsics=args.refine_intrinsics, imu_model=ImuModel(args.imu_model),
-                                  align_clocks=args.align_clocks)
+                                  align_clocks=args.align_clocks, board_flatness=args.board_flatness)
     findings = imu_log_findings(log)
     extra = {"imu": {"samples": int(log.t.shape[0]), "rate_hz": round(float(findings.rate), 3),
                      "dropped": findings.dropped, "longest_gap_s": findings.longest_gap,
@@ -448,7 +449,7 @@ def run(args: argparse.Namespace) -> int:
         written.append(args.ros_tf)
     if args.report:
         make_dir("--report", args.report)
-        write_imu_report(args.report, result, data.gyro.numpy(), data.accel.numpy(), names)
+        write_imu_report(args.report, result, data.gyro.numpy(), data.accel.numpy(), names, args.square)
         written.append(os.path.join(args.report, "index.html"))
     for c, name in enumerate(names):
         t = result.T_cam_imu[c, :3, 3]
@@ -470,6 +471,9 @@ def run(args: argparse.Namespace) -> int:
               f"{', '.join(f'{100 * float(v):+.2f}' for v in scale_a)} % (1-sigma {100 * float(sd[:15].max()):.2f} % "
               f"at most); g-sensitivity up to {float(imu.g_sensitivity.abs().max()) * 180 / math.pi * 9.81:.3f} "
               "deg/s per g")
+    bend = board_bend_line(result.board_flatness, args.square)
+    if bend:
+        print(bend.replace("&plusmn;", "+-"))
     print(f"verdict: {result.verdict}" + (f" ({'; '.join(result.verdict_reasons)})" if result.verdict_reasons else ""))
     print("wrote " + ", ".join(written))
     return 0

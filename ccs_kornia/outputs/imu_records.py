@@ -2,7 +2,8 @@
 
 Per camera ``T_cam_imu`` (4x4, ``x_cam = T_cam_imu x_imu``) and ``timeshift_cam_imu`` (s, ``t_imu = t_cam + shift``)
 with their 1-sigma; gravity in the board's frame; the biases' range; each sensor's residual RMS beside the noise it
-was stated and measured to have; the time-offset search; the verdict.
+was stated and measured to have; the time-offset search; the board's sag where it was judged (``board_flatness``, as
+every fit of a board writes it); the verdict.
 """
 
 from __future__ import annotations
@@ -109,6 +110,8 @@ def imu_camera_record(result: ImuCameraResult, names: list[str], extra: dict[str
         "fit": {"knot_spacing_s": result.knot_spacing, "iterations": result.iterations, "status": result.status,
                 "seconds": _r(result.seconds, 3)},
         **({"imu_intrinsics": _imu_intrinsics_record(result)} if result.imu_intrinsics is not None else {}),
+        # the board's sag, and whether held-out frames kept it
+        **({"board_flatness": result.board_flatness} if result.board_flatness is not None else {}),
         "verdict": result.verdict,
         "verdict_reasons": list(result.verdict_reasons),
         **(extra or {}),

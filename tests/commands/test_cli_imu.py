@@ -75,6 +75,11 @@ def test_corners_json_and_csv_give_the_truth(capsys, files, recording):
     assert data["verdict"] in ("good", "usable") and "timeshift_cam_imu" in stdout
     assert data["noise"]["given"] is False and data["imu"]["samples"] == recording.imu_times.shape[0]
     assert "verdict" in (files / "report" / "index.html").read_text()
+    # the board's sag judged by default, written as every fit of a board writes it (a flat board: not kept)
+    flatness = data["board_flatness"]
+    assert flatness["kept"] is False and len(flatness["warp_m"]) == 2 and "heldout_median_px" in flatness
+    assert "board bend (mrcal's sag c_x, c_y)" in stdout and "not kept" in stdout
+    assert "board bend" in (files / "report" / "index.html").read_text()
     for name in ("gyroscope.png", "accelerometer.png", "reprojection_0.png", "time_offset.png"):
         assert (files / "report" / name).stat().st_size > 1000
     from ccs_kornia.io.kalibr import read_camchain
@@ -97,7 +102,8 @@ def _argv(files, **over):
     args = {"--corners": files / "cam0.json", "--imu": files / "imu0.csv", "--board": "7x6", "--square": "0.08",
             "--calibration": files / "cam0_calib.json", "--output": files / "imu_cam.json"}
     args.update(over)
-    argv = ["calibrate-imu"]
+    # the board taken as flat: its sag is judged in test_corners_json_and_csv_give_the_truth
+    argv = ["calibrate-imu", "--flat-board"]
     for k, v in args.items():
         if v is not None:
             argv += [k, v]
@@ -122,9 +128,9 @@ def test_rolling_shutter(capsys, tmp_path):
     write_corners(tmp_path / "cam0.json", rec)
     write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
     out = tmp_path / "imu_cam.json"
-    code, stdout, err = run(capsys, "calibrate-imu", "--corners", tmp_path / "cam0.json", "--imu", tmp_path / "imu0.csv",
-                            "--board", "7x6", "--square", "0.08", "--calibration", tmp_path / "cam.json",
-                            "--rolling-shutter", "--output", out)
+    code, stdout, err = run(capsys, "calibrate-imu", "--flat-board", "--corners", tmp_path / "cam0.json", "--imu",
+                            tmp_path / "imu0.csv", "--board", "7x6", "--square", "0.08", "--calibration",
+                            tmp_path / "cam.json", "--rolling-shutter", "--output", out)
     assert code == 0, err
     cam = json.loads(out.read_text())["cameras"][0]
     assert abs(cam["line_delay_s"] - 3e-5) < 1e-6 and "line delay" in stdout
@@ -142,8 +148,8 @@ def test_stereo_rig_held_and_refined(capsys, tmp_path):
         "cameras": [{**camera_record_fields(rec.cameras[c]), "name": f"cam{c}", "rms": 0.2} for c in range(2)],
         "extrinsics": [{"name": f"cam{c}", "R": rig[c, :3, :3].tolist(), "T": rig[c, :3, 3].tolist()}
                        for c in range(2)]})
-    argv = ["calibrate-imu", "--corners", tmp_path / "cam0.json", "--corners", tmp_path / "cam1.json", "--imu",
-            tmp_path / "imu0.csv", "--board", "7x6", "--square", "0.08", "--calibration", tmp_path / "rig.json"]
+    argv = ["calibrate-imu", "--flat-board", "--corners", tmp_path / "cam0.json", "--corners", tmp_path / "cam1.json",
+            "--imu", tmp_path / "imu0.csv", "--board", "7x6", "--square", "0.08", "--calibration", tmp_path / "rig.json"]
     code, _, err = run(capsys, *argv, "--output", tmp_path / "held.json", "--ros-tf", tmp_path / "imu.launch")
     assert code == 0, err
     held = json.loads((tmp_path / "held.json").read_text())
@@ -262,7 +268,7 @@ def test_folder_of_images_with_a_table_of_times(capsys, tmp_path):
     write_imu_csv(tmp_path / "imu0.csv", rec)
     write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
     out = tmp_path / "imu_cam.json"
-    argv = ["calibrate-imu", tmp_path / "cam0", "--imu", tmp_path / "imu0.csv", "--board", "7x6", "--square", "0.08",
+    argv = ["calibrate-imu", "--flat-board", tmp_path / "cam0", "--imu", tmp_path / "imu0.csv", "--board", "7x6", "--square", "0.08",
             "--calibration", tmp_path / "cam.json", "--detector", "opencv", "--jobs", "1", "--output", out]
     _refused(capsys, 2, argv, out, "--timestamps", "frame_0000")
     (tmp_path / "short.csv").write_text("\n".join(rows[:-1]) + "\n")
@@ -286,7 +292,7 @@ def test_video(capsys, tmp_path):
     write_imu_csv(tmp_path / "imu0.csv", rec, offset_s=1000.0)
     write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
     out = tmp_path / "imu_cam.json"
-    argv = ["calibrate-imu", tmp_path / "cam0.avi", "--imu", tmp_path / "imu0.csv", "--board", "7x6", "--square",
+    argv = ["calibrate-imu", "--flat-board", tmp_path / "cam0.avi", "--imu", tmp_path / "imu0.csv", "--board", "7x6", "--square",
             "0.08", "--calibration", tmp_path / "cam.json", "--detector", "opencv", "--jobs", "1", "--output", out]
     _refused(capsys, 2, argv, out, "overlap", "--align-clocks")
     code, _, err = run(capsys, *argv, "--align-clocks")
@@ -321,7 +327,7 @@ def test_bag(capsys, tmp_path):
     path = write_bag(tmp_path / "rec.bag", BagContent({"/cam0/mono8": frames}, imu), ros1=True)
     write_json(tmp_path / "cam.json", {**camera_record_fields(rec.cameras[0]), "rms": 0.2})
     out = tmp_path / "imu_cam.json"
-    code, _, err = run(capsys, "calibrate-imu", "--bag", path, "--image-topics", "/cam0/mono8", "--imu-topic", "/imu0",
+    code, _, err = run(capsys, "calibrate-imu", "--flat-board", "--bag", path, "--image-topics", "/cam0/mono8", "--imu-topic", "/imu0",
                        "--board", "7x6", "--square", "0.08", "--calibration", tmp_path / "cam.json", "--detector",
                        "opencv", "--jobs", "1", "--output", out)
     assert code == 0, err

@@ -14,7 +14,10 @@ and held, one ``T_cam_imu`` fitted); a rolling-shutter camera (``rolling shutter
 the frame; fitted with its row delay); an IMU with intrinsic errors as a MEMS part has them (``IMU errors``: scale
 factors within +-1.5 %, axes misaligned and the gyroscope rotated by up to 5 mrad, g-sensitivity up to 3e-4 rad/s per
 m/s^2, drawn per trial), fitted as an ideal IMU (``IMU errors, ideal model``) and with Kalibr's scale-misalignment
-model (``IMU errors, scale-misalignment``: the intrinsics' largest error reported too).
+model (``IMU errors, scale-misalignment``: the intrinsics' largest error reported too); the board's sag judged
+(``given, sag judged``: the ``given`` recordings fitted as the command line fits them, the sag fitted and kept where
+held-out frames say it helps); a board bent by :data:`BENT` (``bent board, flat``: fitted as flat; ``bent board, sag
+judged``: the same recordings, the sag judged: the sag's error and whether it was kept reported too).
 
 Per trial: each camera's ``T_cam_imu`` error (rotation degrees, translation mm) and time-offset error (ms); the
 honesty of the 1-sigma: the fraction of the error's components (3 rotation, 3 translation, 1 time offset per camera)
@@ -37,10 +40,12 @@ from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.imu.problem import ImuCameraData
 from ccs_kornia.modules.imu.solver import calibrate_imu_camera
 
-__all__ = ["CONDITIONS", "SEED", "Condition", "imu_errors", "imu_md", "run_imu", "run_imu_trial"]
+__all__ = ["BENT", "CONDITIONS", "SEED", "Condition", "imu_errors", "imu_md", "run_imu", "run_imu_trial"]
 
 #: first seed of the trials
 SEED = 700_000
+#: the bent board's sag (m, mrcal's ``calobject_warp``): 2 mm and 1 mm at the centre of the 0.48 x 0.40 m board
+BENT = (-0.002, 0.001)
 
 
 class Condition(NamedTuple):
@@ -53,6 +58,8 @@ class Condition(NamedTuple):
     imu_errors: bool = False  #: the IMU has intrinsic errors (:func:`imu_errors`)
     imu_model: ImuModel = ImuModel.CALIBRATED  #: the model fitted
     same_as: str | None = None  #: the condition whose recordings (seeds) this one fits another way
+    board_warp: tuple[float, float] | None = None  #: the rendered board's sag (m; None: flat)
+    board_flatness: bool = False  #: the sag fitted and judged (the command line's default)
 
 
 CONDITIONS = {"given": Condition(), "noise x10": Condition(noise_factor=10.0), "noise /10": Condition(noise_factor=0.1),
@@ -60,7 +67,10 @@ CONDITIONS = {"given": Condition(), "noise x10": Condition(noise_factor=10.0), "
               "stereo, rig held": Condition(cameras=2, rig_held=True, same_as="stereo"),
               "IMU errors, ideal model": Condition(imu_errors=True),
               "IMU errors, scale-misalignment": Condition(imu_errors=True, imu_model=ImuModel.SCALE_MISALIGNMENT,
-                                                          same_as="IMU errors, ideal model")}
+                                                          same_as="IMU errors, ideal model"),
+              "given, sag judged": Condition(board_flatness=True, same_as="given"),
+              "bent board, flat": Condition(board_warp=BENT),
+              "bent board, sag judged": Condition(board_warp=BENT, board_flatness=True, same_as="bent board, flat")}
 
 
 def imu_errors(seed: int) -> ImuIntrinsics:
@@ -89,13 +99,21 @@ def run_imu_trial(seed: int, seconds: float, condition: Condition = Condition())
     """One rendered recording solved; its errors against the truth (a JSON-able dict)."""
     cameras, line_delay = condition.cameras, condition.line_delay
     rec = visual_inertial_recording(duration=seconds, seed=seed, num_cameras=cameras, line_delay=line_delay,
-                                    imu_intrinsics=imu_errors(seed + 1) if condition.imu_errors else None)
+                                    imu_intrinsics=imu_errors(seed + 1) if condition.imu_errors else None,
+                                    board_warp=condition.board_warp)
     data = ImuCameraData.from_corners(rec.imu_times, rec.gyro, rec.accel, rec.cameras, rec.object_points,
                                       rec.frame_times, rec.corners)
     rig = rec.T_cam_imu @ torch.linalg.inv(rec.T_cam_imu[0]) if condition.rig_held else None
     res = calibrate_imu_camera(data, noise=rec.noise.scaled(condition.noise_factor), rolling_shutter=line_delay > 0,
-                               rig=rig, imu_model=condition.imu_model)
+                               rig=rig, imu_model=condition.imu_model, board_flatness=condition.board_flatness)
     imu = {}
+    if res.board_flatness is not None:
+        truth = torch.tensor(condition.board_warp or (0.0, 0.0), dtype=torch.float64)
+        fitted = torch.tensor(res.board_flatness["warp_m"], dtype=torch.float64)
+        used = res.board_warp if res.board_warp is not None else torch.zeros(2, dtype=torch.float64)
+        imu["sag"] = {"kept": res.board_flatness["kept"], "fitted_err_mm": 1000 * float((fitted - truth).abs().max()),
+                      "used_err_mm": 1000 * float((used - truth).abs().max()),
+                      "heldout_px": res.board_flatness["heldout_median_px"]}
     if res.imu_intrinsics is not None:
         est, truth = res.imu_intrinsics, rec.imu_intrinsics
         imu = {"imu_matrix_err_pct": 100 * max(float((est.gyro_matrix - truth.gyro_matrix).abs().max()),
@@ -137,7 +155,11 @@ def _summary(rows: list[dict]) -> dict:
             **({"line_delay_err_us_median": med("line_delay_err_us")} if "line_delay_err_us" in per_cam[0] else {}),
             **({"imu_matrix_err_pct_median": statistics.median(r["imu_matrix_err_pct"] for r in rows),
                 "g_sensitivity_err_median": statistics.median(r["g_sensitivity_err"] for r in rows)}
-               if "imu_matrix_err_pct" in rows[0] else {})}
+               if "imu_matrix_err_pct" in rows[0] else {}),
+            **({"sag_kept": sum(r["sag"]["kept"] for r in rows),
+                "sag_fitted_err_mm_median": statistics.median(r["sag"]["fitted_err_mm"] for r in rows),
+                "sag_used_err_mm_median": statistics.median(r["sag"]["used_err_mm"] for r in rows)}
+               if "sag" in rows[0] else {})}
 
 
 def run_imu(cfg=None, log=print) -> dict:
@@ -188,6 +210,12 @@ def imu_md(sec: dict) -> list[str]:
            if "imu_matrix_err_pct_median" in c["summary"]]
     if imu:
         lines += ["", "The IMU's intrinsics, largest error of a matrix entry (median): " + "; ".join(imu) + "."]
+    sags = [f"{name}: kept in {c['summary']['sag_kept']} of {c['summary']['trials']}, the fitted sag "
+            f"{c['summary']['sag_fitted_err_mm_median']:.3f} mm from the truth (median), the board used "
+            f"{c['summary']['sag_used_err_mm_median']:.3f} mm" for name, c in sec["conditions"].items()
+            if "sag_kept" in c["summary"]]
+    if sags:
+        lines += ["", "The board's sag (largest coefficient's error): " + "; ".join(sags) + "."]
     lines += ["", (f"Peak memory of the bench process after the section: {sec['peak_rss_mb']:.0f} MB "
               f"({sec['threads']} torch threads)."), ""]
     return lines

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 import torch
 from torch import Tensor
 
+from ccs_kornia.geometry.board_warp import warped_board
 from ccs_kornia.geometry.camera import OPENCV5, Camera
 from ccs_kornia.geometry.imu_intrinsics import ImuIntrinsics
 from ccs_kornia.geometry.imu_noise import ImuNoise
@@ -187,6 +188,7 @@ def visual_inertial_recording(
     rotation_amplitude: float = 0.5,
     translation_amplitude: float = 0.2,
     imu_intrinsics: ImuIntrinsics | None = None,
+    board_warp: tuple[float, float] | None = None,
 ) -> VisualInertialRecording:
     """A seeded visual-inertial recording (see the module doc).
 
@@ -202,6 +204,9 @@ def visual_inertial_recording(
         rotation_amplitude: the camera's swing about each axis (rad). translation_amplitude: its motion (m).
         imu_intrinsics: the IMU's scale factors, misalignment and g-sensitivity
             (:class:`~ccs_kornia.geometry.imu_intrinsics.ImuIntrinsics`); default an ideal IMU.
+        board_warp: the board's sag ``(c_x, c_y)`` (m, mrcal's ``calobject_warp``,
+            :mod:`~ccs_kornia.geometry.board_warp`): the cameras see the bent board, ``object_points`` stay the flat
+            one; default a flat board.
 
     Returns:
         :class:`VisualInertialRecording`.
@@ -246,6 +251,7 @@ def visual_inertial_recording(
     dist = torch.tensor([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0], dtype=f64)
     cams = Camera.from_opencv(OPENCV5, K.expand(num_cameras, 3, 3), dist.expand(num_cameras, 5),
                               image_size=[(752, 480)] * num_cameras)
+    seen_points = points if board_warp is None else warped_board(points, torch.tensor(board_warp, dtype=f64))
     T = []
     times, corners, shifts = [], [], []
     for c in range(num_cameras):
@@ -254,7 +260,7 @@ def visual_inertial_recording(
         s = float(shift) if shift is not None else float((torch.rand((), generator=g, dtype=f64) - 0.5) * 0.06)
         phase = float(torch.rand((), generator=g, dtype=f64)) / fps
         t_cam = torch.arange(0.25 + phase, duration - 0.25, 1.0 / fps, dtype=f64)
-        obs = _observe(motion, cams[c], R_c_c0, t_c_c0, points, t_cam + s, line_delay, pixel_noise, g)
+        obs = _observe(motion, cams[c], R_c_c0, t_c_c0, seen_points, t_cam + s, line_delay, pixel_noise, g)
         Tc = torch.eye(4, dtype=f64)
         Tc[:3, :3], Tc[:3, 3] = R_c_c0 @ R_ci, R_c_c0 @ t_ci + t_c_c0
         T.append(Tc)

@@ -3,7 +3,8 @@ recording (docs/imu.md).
 
 :class:`ImuCameraSolver` / :func:`calibrate_imu_camera` (:mod:`.solver`): the start from the angular rates
 (:mod:`.initial`), the joint fit of a continuous-time trajectory to every gyroscope, accelerometer and corner
-measurement (:mod:`.problem`), the result and its verdict (:mod:`.result`); the IMU's noise read off a still log's
+measurement (:mod:`.problem`), the result and its verdict (:mod:`.result`), the board's sag judged on held-out frames
+(:mod:`.imu_flatness`); the IMU's noise read off a still log's
 Allan deviation (:mod:`.allan`).
 
 Names are imported lazily (PEP 562): importing this package loads none of its modules.
@@ -21,6 +22,8 @@ _EXPORTS = {
     "ImuCameraResult": "ccs_kornia.modules.imu.result",
     "ImuVerdictThresholds": "ccs_kornia.modules.imu.result",
     "imu_camera_verdict": "ccs_kornia.modules.imu.result",
+    "ImuBoardWarpChoice": "ccs_kornia.modules.imu.imu_flatness",
+    "choose_imu_board_warp": "ccs_kornia.modules.imu.imu_flatness",
     "RateAlignment": "ccs_kornia.modules.imu.initial",
     "align_rates": "ccs_kornia.modules.imu.initial",
     "AllanNoise": "ccs_kornia.modules.imu.allan",

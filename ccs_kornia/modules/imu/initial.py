@@ -271,4 +271,6 @@ def initial_unknowns(data: ImuCameraData, t0: float, dt: float, num_points: int,
         "Ta": torch.eye(3, dtype=f64)[None].clone(),
         "Ag": torch.zeros(1, 3, 3, dtype=f64),
         "g": g[None],
+        # the board's sag: flat (geometry.board_warp)
+        "warp": torch.zeros(1, 2, dtype=f64),
     }

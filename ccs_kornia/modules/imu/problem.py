@@ -11,7 +11,9 @@ Unknowns (Furgale et al., "Unified temporal and spatial calibration for multi-se
   ``t_cam`` by the camera is seen at IMU time ``t_cam + shift``), for a rolling-shutter camera its row delay (row
   ``v`` is read ``delay * v`` after row 0: each corner is an observation at its own time), and gravity in the board's
   frame (its direction: 2 unknowns; its magnitude held); on request each camera's parameters (its lens model's,
-  refined from the same corners). A rig's cameras can be held to their calibrated poses in
+  refined from the same corners); on request the board's sag (mrcal's two coefficients ``c``,
+  :mod:`~ccs_kornia.geometry.board_warp`: a board point ``X`` moves along the board's z by ``b(X) . c``, the last two
+  globals). A rig's cameras can be held to their calibrated poses in
   camera 0's frame (``rig``): then only camera 0's ``T_cam_imu`` moves and the others follow it. A step of camera 0,
   ``(d, dt)``, moves camera ``c`` (``x_c = R_c0 x_0 + t_c0``) by exactly ``(R_c0 d, R_c0 dt)``, so the held rig is the
   linear map :attr:`ImuCameraProblem.P` from the reduced unknowns to every camera's, applied to the normal equations
@@ -19,7 +21,8 @@ Unknowns (Furgale et al., "Unified temporal and spatial calibration for multi-se
 
 Residuals, each whitened by its standard deviation: gyroscope ``w(t) + bg(t) - w_meas``; accelerometer
 ``R(t)^T (p''(t) - g) + ba(t) - a_meas``; every corner ``project(T_cam_imu T_imu_board(t_cam + shift) X) - uv``; the
-biases' random walk ``b_{k+1} - b_k`` with variance ``sigma_rw^2 dt``. The orientation's derivatives by its control
+biases' random walk ``b_{k+1} - b_k`` with variance ``sigma_rw^2 dt``. A corner's derivative by the sag is
+``(d uv / d x_cam) R_cam_board e_z b_k(X)``. The orientation's derivatives by its control
 points come from forward-mode differentiation of the spline (exact), the rest are written out. Per segment of the
 spline the Jacobians touch four control points and the globals, so the normal equations are accumulated per segment
 (a dense ``48 + G`` block) and then spread over the banded item blocks.
@@ -31,6 +34,7 @@ from dataclasses import dataclass
 
 import torch
 
+from ccs_kornia.geometry.board_warp import board_warp_basis, warped_board
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.imu_intrinsics import UPPER, ImuModel
 from ccs_kornia.geometry.so3 import exp_so3, skew
@@ -120,7 +124,8 @@ class ImuCameraData:
 class _Observations:
     """A batch of corner observations: frames ``frames`` (F,) of the data (and under a rolling shutter the corner
     ``corner`` (F,) of each, alone), their cameras, times on the cameras' clocks (the row's, under a rolling shutter),
-    observed rows, board points (F, P, 3), corners (F, P, 2) and which are seen (F, P)."""
+    observed rows, board points (F, P, 3) (bent by the state's sag where the problem estimates one), the sag's two
+    shapes at them (F, P, 2) (``None``: a flat board), corners (F, P, 2) and which are seen (F, P)."""
 
     frames: torch.Tensor
     corner: torch.Tensor | None
@@ -128,6 +133,7 @@ class _Observations:
     times: torch.Tensor
     rows: torch.Tensor | None
     points: torch.Tensor
+    sag: torch.Tensor | None
     corners: torch.Tensor
     seen: torch.Tensor
 
@@ -159,11 +165,14 @@ class ImuCameraProblem:
             shift (and row delay); the cameras must share one model.
         imu_model: :attr:`ImuModel.SCALE_MISALIGNMENT`: the IMU's intrinsics (``s["Tg"]``, ``s["Ta"]``, ``s["Ag"]``,
             :mod:`~ccs_kornia.geometry.imu_intrinsics`) are unknowns, 24 after gravity's; else they are held (ideal).
+        board_warp: the board's sag (``s["warp"]`` :math:`(1, 2)`, mrcal's ``calobject_warp``) is an unknown too, the
+            last two globals; ``False``: the board is flat (``s["warp"]`` ignored).
     """
 
     def __init__(self, data: ImuCameraData, t0: float, dt: float, num_points: int, weights: Weights,
                  rolling_shutter: bool = False, rig: torch.Tensor | None = None,
-                 refine_intrinsics: bool = False, imu_model: ImuModel = ImuModel.CALIBRATED) -> None:
+                 refine_intrinsics: bool = False, imu_model: ImuModel = ImuModel.CALIBRATED,
+                 board_warp: bool = False) -> None:
         self.data, self.t0, self.dt, self.M, self.w = data, t0, dt, num_points, weights
         C = data.num_cameras
         self.rolling_shutter = rolling_shutter
@@ -177,8 +186,12 @@ class ImuCameraProblem:
         self.K = self.P0 + self.NP
         #: the IMU's intrinsics estimated (24 unknowns after gravity's: T_g by rows, T_a's upper triangle, A_g by rows)
         self.NI = 24 if imu_model is ImuModel.SCALE_MISALIGNMENT else 0
-        #: every camera's global unknowns, gravity's and the IMU's: the Jacobians' layout
-        self.G_all = self.K * C + 2 + self.NI
+        #: the board's sag estimated (2 unknowns, the last globals)
+        self.NW = 2 if board_warp else 0
+        #: the sag's two shapes at the board's points (P, 2), None for a flat board
+        self.sag = board_warp_basis(data.object_points) if board_warp else None
+        #: every camera's global unknowns, gravity's, the IMU's and the sag's: the Jacobians' layout
+        self.G_all = self.K * C + 2 + self.NI + self.NW
         self.L = 4 * ITEM + self.G_all
         dtype, device = data.gyro.dtype, data.gyro.device
         #: (G_all, G) every camera's unknowns from the fitted ones (the identity unless a rig is held)
@@ -192,10 +205,10 @@ class ImuCameraProblem:
 
     def _held_rig(self, rig: torch.Tensor) -> torch.Tensor:
         """The map from the fitted globals (camera 0's rotation and translation, then each camera's time shift and row
-        delay, then gravity's two) to every camera's."""
+        delay, then gravity's two, the IMU's and the sag's) to every camera's."""
         C, K = self.data.num_cameras, self.K
         T = K - 6  # per camera: the time shift (and the row delay)
-        tail = self.G_all - K * C  # gravity's and the IMU's unknowns
+        tail = self.G_all - K * C  # gravity's, the IMU's and the sag's unknowns
         P = rig.new_zeros(self.G_all, 6 + T * C + tail)
         for c in range(C):
             R = rig[c, :3, :3]
@@ -238,7 +251,8 @@ class ImuCameraProblem:
             "delay": s["delay"] + cam[..., 7] if self.rolling_shutter else s["delay"],
             "params": s["params"] + cam[..., self.P0:] if self.NP else s["params"],
             "g": (exp_so3((B @ dg[:, K * C:K * C + 2, None])[..., 0]) @ s["g"][..., None])[..., 0],
-            **self._imu_retract(s, dg[:, K * C + 2:]),
+            **self._imu_retract(s, dg[:, K * C + 2:K * C + 2 + self.NI]),
+            "warp": s["warp"] + dg[:, self.G_all - 2:] if self.NW else s["warp"],
         }
 
     def _imu_retract(self, s, d):
@@ -253,6 +267,10 @@ class ImuCameraProblem:
     def linearize(self, s: dict[str, torch.Tensor]) -> NormalEquations:
         H, b, cost = self._segment_blocks(s)
         return self._spread(H, b, cost, s)
+
+    def board(self, s: dict[str, torch.Tensor]) -> torch.Tensor:
+        """:math:`(P, 3)` the board's points as the state has them (bent by its sag where the problem estimates one)."""
+        return warped_board(self.data.object_points, s["warp"][0] if self.sag is not None else None)
 
     def residuals(self, s: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The unweighted residuals at ``s``: gyroscope :math:`(N, 3)` rad/s, accelerometer :math:`(N, 3)` m/s^2 and
@@ -283,12 +301,14 @@ class ImuCameraProblem:
         its row's time), at most :data:`_CHUNK` * 4 at once."""
         d = self.data
         F = d.corners.shape[0]
+        board = self.board(s)
         if not self.rolling_shutter:
             for lo in range(0, F, _CHUNK):
                 f = torch.arange(lo, min(F, lo + _CHUNK), device=d.corners.device)
                 yield _Observations(frames=f, corner=None, camera=d.frame_camera[f], times=d.frame_times[f],
-                                    rows=None, points=d.object_points.expand(len(f), -1, -1), corners=d.corners[f],
-                                    seen=d.seen[f])
+                                    rows=None, points=board.expand(len(f), -1, -1),
+                                    sag=None if self.sag is None else self.sag.expand(len(f), -1, -1),
+                                    corners=d.corners[f], seen=d.seen[f])
             return
         f_all, n_all = d.seen.nonzero(as_tuple=True)
         for lo in range(0, f_all.shape[0], 4 * _CHUNK):
@@ -296,7 +316,8 @@ class ImuCameraProblem:
             cam = d.frame_camera[f]
             v = d.corners[f, n, 1]
             yield _Observations(frames=f, corner=n, camera=cam, times=d.frame_times[f] + s["delay"][0][cam] * v, rows=v,
-                                points=d.object_points[n][:, None], corners=d.corners[f, n][:, None],
+                                points=board[n][:, None], sag=None if self.sag is None else self.sag[n][:, None],
+                                corners=d.corners[f, n][:, None],
                                 seen=torch.ones(len(f), 1, dtype=torch.bool, device=f.device))
 
     def _poses(self, s, o):
@@ -398,8 +419,9 @@ class ImuCameraProblem:
         d, _C, K = self.data, self.data.num_cameras, self.K
         dtype, device = d.corners.dtype, d.corners.device
         eye = torch.eye(3, dtype=dtype, device=device)
-        n_loc = 24 + K
-        # an observation's local unknowns (4 control rotations, 4 control positions, its camera's) in the segment layout
+        n_loc = 24 + K + self.NW
+        # an observation's local unknowns (4 control rotations, 4 control positions, its camera's, the sag's) in the
+        # segment layout
         loc = torch.cat([(ITEM * torch.arange(4)[:, None] + torch.arange(3)).flatten(),
                          (ITEM * torch.arange(4)[:, None] + 3 + torch.arange(3)).flatten()]).to(device)
         cost = torch.zeros((), dtype=dtype, device=device)
@@ -429,10 +451,16 @@ class ImuCameraProblem:
             r = torch.where(o.seen[..., None], uv - o.corners, 0.0) * wgt
             Jfull = (Jcorner * wgt[..., None]) @ Jpose[:, None]  # (F, P, 2, n_loc)
             if self.NP:
-                Jfull[..., 24 + self.P0:] = Jp * wgt[..., None]
+                Jfull[..., 24 + self.P0:24 + K] = Jp * wgt[..., None]
+            if self.NW:  # d x_cam / d c_k = R_cam_board e_z b_k(X)
+                dz = (Jx * R_cb[:, None, None, :, 2]).sum(-1)  # (F, P, 2)
+                Jfull[..., 24 + K:] = (dz * wgt)[..., None] * o.sag[:, :, None, :]
             Hf = torch.einsum("fpia,fpib->fab", Jfull, Jfull)
             bf = torch.einsum("fpia,fpi->fa", Jfull, r)
-            pos = torch.cat([loc.expand(F, 24), 4 * ITEM + K * o.camera[:, None] + torch.arange(K, device=device)], 1)
+            pos = [loc.expand(F, 24), 4 * ITEM + K * o.camera[:, None] + torch.arange(K, device=device)]
+            if self.NW:
+                pos.append((4 * ITEM + self.G_all - 2 + torch.arange(2, device=device)).expand(F, 2))
+            pos = torch.cat(pos, 1)
             flat = (pos[:, :, None] * self.L + pos[:, None, :]).flatten(1)
             H.view(H.shape[0], -1).index_put_((seg[:, None].expand_as(flat), flat), Hf.flatten(1), accumulate=True)
             b.index_put_((seg[:, None].expand_as(pos), pos), bf, accumulate=True)

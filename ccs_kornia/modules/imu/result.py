@@ -64,7 +64,7 @@ class ImuCameraResult:
     rotation_std_deg: torch.Tensor  #: (C, 3) about the camera's axes
     translation_std: torch.Tensor  #: (C, 3) m, along the camera's axes
     timeshift_std: torch.Tensor  #: (C,) s
-    covariance: torch.Tensor  #: (G, G) of the global unknowns (per camera w, t, shift; gravity's 2)
+    covariance: torch.Tensor  #: (G, G) of the global unknowns (per camera w, t, shift; gravity's 2; the IMU's; the sag's)
     gravity: torch.Tensor  #: (3,) m/s^2 in the board's frame
     gyro_bias: torch.Tensor  #: (M, 3) the bias spline's control points, rad/s
     accel_bias: torch.Tensor  #: (M, 3) m/s^2
@@ -97,6 +97,13 @@ class ImuCameraResult:
     #: with the IMU taken as ideal: per sensor ("gyroscope", "accelerometer") how far its residuals follow its
     #: readings, ``(largest entry of E, its ratio to its standard error)`` (:mod:`~.intrinsics_evidence`)
     residual_scale: dict = field(default_factory=dict)
+    #: (2,) the board's sag where the fit kept it (mrcal's ``calobject_warp``, the board's units;
+    #: :mod:`~ccs_kornia.modules.imu.imu_flatness`), else None (a flat board)
+    board_warp: torch.Tensor | None = None
+    board_warp_std: torch.Tensor | None = None  #: (2,) its 1-sigma
+    #: where the sag was judged, what was found
+    #: (:func:`~ccs_kornia.modules.calibration.board_flatness.board_warp_record`), else None
+    board_flatness: dict | None = None
     verdict: str = ""
     verdict_reasons: list[str] = field(default_factory=list)
     spline: dict = field(default_factory=dict, repr=False)  #: t0, dt, R, p: the IMU's trajectory (for reports)

@@ -7,7 +7,9 @@ pose, aligns each camera's angular rates with the gyroscope's (time offset and r
 length). The noise: the stated densities (Kalibr's ``imu.yaml``; EuRoC's ADIS16448 where none is given) and the
 corners' spread from their board-pose fits start the weights; then each sensor's white noise is rescaled to what its
 residuals show (variance components) and the fit is repeated from its optimum, until the two agree, so the 1-sigma hold when the stated values are off, and the result
-says how far off they were. The random walks are kept as stated.
+says how far off they were. The random walks are kept as stated. With ``board_flatness`` the board's sag is fitted too
+and kept where frames left out of the fit are predicted better with it
+(:mod:`~ccs_kornia.modules.imu.imu_flatness`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from torch import nn
 from ccs_kornia.geometry.imu_intrinsics import ImuIntrinsics, ImuModel
 from ccs_kornia.geometry.imu_noise import ImuNoise
 from ccs_kornia.modules.calibration.schur_lm import schur_lm
+from ccs_kornia.modules.imu.imu_flatness import choose_imu_board_warp
 from ccs_kornia.modules.imu.initial import (
     align_rates,
     board_poses,
@@ -90,6 +93,7 @@ def calibrate_imu_camera(
     refine_intrinsics: bool = False,
     imu_model: ImuModel = ImuModel.CALIBRATED,
     align_clocks: bool = False,
+    board_flatness: bool = False,
 ) -> ImuCameraResult:
     """Calibrate the IMU against C cameras from one recording (see the module doc).
 
@@ -113,6 +117,10 @@ def calibrate_imu_camera(
         align_clocks: the clocks have different origins (a video's from 0, an IMU log's from the epoch): each camera's
             offset is first found from the angular speeds over the whole recordings
             (:func:`~ccs_kornia.modules.imu.initial.clock_offset`), then searched within ``max_shift`` of it.
+        board_flatness: also fit the board's sag (mrcal's two coefficients, :mod:`~ccs_kornia.geometry.board_warp`)
+            and keep it where frames left out of the fit are predicted better with it
+            (:mod:`~ccs_kornia.modules.imu.imu_flatness`): the result's ``board_warp``, ``board_warp_std`` and
+            ``board_flatness``.
 
     Returns:
         :class:`~ccs_kornia.modules.imu.result.ImuCameraResult`.
@@ -206,14 +214,24 @@ def calibrate_imu_camera(
             break
         weights = replace(weights, gyro=weights.gyro / fg, accel=weights.accel / fa, pixel=weights.pixel / fp)
 
-    problem = ImuCameraProblem(fit_data, t0, knot_spacing, M, weights, rolling_shutter=rolling_shutter, rig=rig,
-                               refine_intrinsics=refine_intrinsics, imu_model=imu_model)
+    def problem_of(frames: ImuCameraData, board_warp: bool) -> ImuCameraProblem:
+        return ImuCameraProblem(frames, t0, knot_spacing, M, weights, rolling_shutter=rolling_shutter, rig=rig,
+                                refine_intrinsics=refine_intrinsics, imu_model=imu_model, board_warp=board_warp)
+
+    problem = problem_of(fit_data, False)
+    flatness = warp = warp_std = None
+    if board_flatness:
+        choice = choose_imu_board_warp(problem_of, fit_data, res, max_iters)
+        res, problem, s, flatness = choice.fit, choice.problem, choice.fit.unknowns, choice.record
+        if choice.kept:
+            warp, warp_std = choice.warp.clone(), choice.std.clone()
     rg, ra, rc = problem.residuals(s)
     cov = problem.all_covariance(res.covariance[0])
     sd = cov.diagonal().clamp_min(0).sqrt()
     T = torch.eye(4, dtype=data.gyro.dtype).repeat(C, 1, 1)
     T[:, :3, :3], T[:, :3, 3] = s["Rci"][0], s["tci"][0]
     per_cam = sd[: problem.K * C].view(C, problem.K)
+    imu_sd = sd[problem.K * C + 2:problem.K * C + 2 + problem.NI]
     pixel_rms = torch.stack([rc[fit_data.frame_camera == c][fit_data.seen[fit_data.frame_camera == c]].square().mean().sqrt()
                              for c in range(C)])
     measured = replace(stated,
@@ -226,7 +244,7 @@ def calibrate_imu_camera(
         line_delay_std=per_cam[:, 7] if rolling_shutter else None, rig_held=rig is not None,
         cameras=problem.cameras(s), intrinsics_std=per_cam[:, problem.P0:] if refine_intrinsics else None,
         imu_intrinsics=ImuIntrinsics(s["Tg"][0].clone(), s["Ta"][0].clone(), s["Ag"][0].clone())
-        if problem.NI else None, imu_intrinsics_std=sd[-problem.NI:] if problem.NI else None, gravity=s["g"][0].clone(),
+        if problem.NI else None, imu_intrinsics_std=imu_sd if problem.NI else None, gravity=s["g"][0].clone(),
         gyro_bias=s["bg"][0].clone(), accel_bias=s["ba"][0].clone(), gyro_rms=_rms(rg), accel_rms=_rms(ra),
         pixel_rms=pixel_rms, noise_stated=stated, noise_measured=measured, pixel_sigma=weights.pixel**-0.5,
         noise_given=given, alignment_shifts=alignments[0].shifts,
@@ -234,7 +252,7 @@ def calibrate_imu_camera(
         alignment_shift=torch.tensor([a.shift for a in alignments], dtype=data.gyro.dtype) + clock,
         max_shift=max_shift, clock_offset=clock if align_clocks else None,
         frames_used=frames_used, knot_spacing=knot_spacing, iterations=iterations, status=int(res.status[0]),
-        seconds=time.perf_counter() - start,
+        board_warp=warp, board_warp_std=warp_std, board_flatness=flatness, seconds=time.perf_counter() - start,
         spline={"t0": t0, "dt": knot_spacing, "R": s["R"][0].clone(), "p": s["p"][0].clone()},
         residuals={"imu_times": fit_data.imu_times, "gyro": rg, "accel": ra, "frame_times": fit_data.frame_times,
                    "frame_camera": fit_data.frame_camera, "corners": rc, "seen": fit_data.seen})
@@ -252,7 +270,7 @@ class ImuCameraSolver(nn.Module):
     Args:
         noise, knot_spacing, max_shift, estimate_noise, max_iters, rolling_shutter: see :func:`calibrate_imu_camera`.
         rig: see :func:`calibrate_imu_camera` (held extrinsics of a rig, :math:`(C, 4, 4)`); a buffer.
-        refine_intrinsics, imu_model, align_clocks: see :func:`calibrate_imu_camera`.
+        refine_intrinsics, imu_model, align_clocks, board_flatness: see :func:`calibrate_imu_camera`.
 
     Shape:
         :class:`~ccs_kornia.modules.imu.problem.ImuCameraData` (IMU :math:`(N, 3)` rates and accelerations, frames
@@ -273,8 +291,10 @@ class ImuCameraSolver(nn.Module):
     def __init__(self, noise: ImuNoise | None = None, knot_spacing: float = 0.02, max_shift: float = 0.2,
                  estimate_noise: bool = True, max_iters: int = 50, rolling_shutter: bool = False,
                  rig: torch.Tensor | None = None, refine_intrinsics: bool = False,
-                 imu_model: ImuModel = ImuModel.CALIBRATED, align_clocks: bool = False) -> None:
+                 imu_model: ImuModel = ImuModel.CALIBRATED, align_clocks: bool = False,
+                 board_flatness: bool = False) -> None:
         super().__init__()
+        self.board_flatness = board_flatness
         self.align_clocks = align_clocks
         self.imu_model = imu_model
         self.refine_intrinsics = refine_intrinsics
@@ -290,4 +310,4 @@ class ImuCameraSolver(nn.Module):
         return calibrate_imu_camera(data, self.noise, self.knot_spacing, self.max_shift, self.estimate_noise,
                                     self.max_iters, rolling_shutter=self.rolling_shutter, rig=self.rig,
                                     refine_intrinsics=self.refine_intrinsics, imu_model=self.imu_model,
-                                    align_clocks=self.align_clocks)
+                                    align_clocks=self.align_clocks, board_flatness=self.board_flatness)

@@ -81,7 +81,7 @@ def board_bend_line(flatness: dict | None, square: float | None = None) -> str |
     key = next((k for k in _HELDOUT_LABELS if k in flatness), None)
     held = flatness.get(key) or {}
     judged = (f" ({_HELDOUT_LABELS[key]} {format_number(held.get('flat'))} px flat, {format_number(held.get('warp'))} "
-              "px bent)") if held else ""
+              "px bent)") if any(v is not None for v in held.values()) else ""
     return (f"board bend (mrcal's sag c_x, c_y): {warp[0]:+.3f} &plusmn; {std[0]:.3f}, {warp[1]:+.3f} &plusmn; "
             f"{std[1]:.3f} {bend_unit(square)}: {'kept' if flatness.get('kept') else 'not kept, the board taken as flat'}"
             f"{judged}")

@@ -19,6 +19,7 @@ from ccs_kornia.outputs.report.drawing import (
     ORANGE,
     RED,
     axis_max,
+    board_bend_line,
     draw_legend,
     draw_plot_frame,
     draw_text,
@@ -97,13 +98,14 @@ def time_offset_figure(shifts: np.ndarray, correlation: np.ndarray, starts: np.n
 
 
 def write_imu_report(directory: str, result: ImuCameraResult, gyro: np.ndarray, accel: np.ndarray,
-                     names: list[str]) -> list[str]:
+                     names: list[str], square: float | None = None) -> list[str]:
     """Write the figures and an ``index.html`` into ``directory`` (which must exist); returns the files written.
 
     Args:
         result: the calibration (its ``residuals`` hold what the figures draw).
         gyro, accel: :math:`(N, 3)` the measurements the fit used (the residuals' times).
         names: the cameras'.
+        square: the board's square side as given (the unit of the board's sag, :func:`~.drawing.bend_unit`).
     """
     written: list[str] = []
     res = result.residuals
@@ -139,10 +141,11 @@ def write_imu_report(directory: str, result: ImuCameraResult, gyro: np.ndarray, 
         f"{float(result.rotation_std_deg[c].norm()):.4f} deg, {1000 * float(result.translation_std[c].norm()):.3f} mm, "
         f"{1000 * float(result.timeshift_std[c]):.4f} ms</td></tr>" for c, name in enumerate(names))
     body = "".join(f"<h2>{html.escape(caption)}</h2><img src='{name}'>" for name, caption in figures)
+    bend = board_bend_line(result.board_flatness, square)
     page = (f"<!doctype html><meta charset='utf-8'><title>camera-IMU calibration</title><h1>Camera-IMU calibration</h1>"
             f"<p>verdict: {html.escape(result.verdict)}</p><ul>"
             + "".join(f"<li>{html.escape(r)}</li>" for r in result.verdict_reasons)
-            + "</ul><table border=1 cellpadding=4><tr><th>camera</th><th>T_cam_imu</th><th>timeshift_cam_imu</th>"
+            + "</ul>" + (f"<p>{bend}</p>" if bend else "") + "<table border=1 cellpadding=4><tr><th>camera</th><th>T_cam_imu</th><th>timeshift_cam_imu</th>"
             f"<th>1-sigma</th></tr>{rows}</table>{body}")
     path = os.path.join(directory, "index.html")
     with open(path, "w", encoding="utf-8") as handle:
