@@ -6,7 +6,8 @@
 
   - a ChArUco board of 6 x 8 squares (``DICT_6X6_250``; an even number of rows, so OpenCV's legacy layout differs:
     each view is printed in one of the two layouts at random): ours (:func:`~ccs_kornia.modules.detection.markers.
-    charuco.charuco_paths`, layout found per view) by its marker path, its lattice path and both merged (ours, the
+    charuco.charuco_paths`, layout found per view; one call per print, as a user's set holds one print, since a view
+    the two layouts tie on takes the layout the call's other views vote for) by its marker path, its lattice path and both merged (ours, the
     default) against ``cv2.aruco.CharucoDetector`` with ``setLegacyPattern(False)`` and ``(True)`` (default
     parameters, as its users run it) and the better of the two per view ("told the layout");
   - Kalibr's AprilGrid 6 x 6 (``tagSpacing`` 0.3): ours (:func:`~ccs_kornia.modules.detection.markers.aprilgrid.
@@ -184,12 +185,20 @@ def _charuco_condition(cfg, condition: str, n: int, seed: int, log) -> dict:
             images.append(image)
             truths.append(truth)
             layouts.append(legacy)
-        ours = charuco_paths(_tensor(images), CHARUCO, min_corners=MIN_POSED, num_workers=1)
+        # one call per print: the detector takes a call's views as one board, whose layout the views that tell the
+        # two apart vote for (a view the layouts tie on takes it), so views of the two layouts go in separate calls
+        ours = {}
+        for layout in (False, True):
+            idx = [k for k, legacy in enumerate(layouts) if legacy == layout]
+            if idx:
+                got = charuco_paths(_tensor([images[k] for k in idx]), CHARUCO, min_corners=MIN_POSED, num_workers=1)
+                ours.update({k: {path: (res.corners[j], bool(res.found[j])) for path, res in got.items()}
+                             for j, k in enumerate(idx)})
         for k, (image, truth, legacy) in enumerate(zip(images, truths, layouts)):
             got = {}
             for key, path in OUR_PATHS.items():
-                res = ours[path]
-                got[key] = res.corners[k].double().numpy() if bool(res.found[k]) else np.full_like(truth, np.nan)
+                corners, found = ours[k][path]
+                got[key] = corners.double().numpy() if found else np.full_like(truth, np.nan)
             new, old = _opencv_charuco(CHARUCO, image, False), _opencv_charuco(CHARUCO, image, True)
             got.update(opencv_new=new, opencv_legacy=old, opencv_told=old if legacy else new)
             for m in methods:
