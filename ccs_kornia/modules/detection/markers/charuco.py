@@ -76,6 +76,7 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     markers_on_board,
     place_from,
     refine_marked_corners,
+    small_marker_scale,
 )
 from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
 from ccs_kornia.runtime.checks import check_grey_images
@@ -158,7 +159,9 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     (:data:`~ccs_kornia.modules.detection.markers.marker_board.VARIANTS`), checked against the board's lattice, the
     variant with the most consistent markers kept; then the markers of the image's enhanced copies
     (:func:`~ccs_kornia.modules.detection.markers.marker_board.decoding_copies`: contrast, sharpness, size) added on
-    the variant kept (on every variant where none was), kept where more of them sit on the lattice; a view whose every
+    the variant kept (on every variant where none was), kept where more of them sit on the lattice; where the markers
+    read are too small for OpenCV's sampling, those of a further enlarged copy
+    (:func:`~ccs_kornia.modules.detection.markers.marker_board.small_marker_scale`) the same way; a view whose every
     marker is read already skips them."""
     detector = charuco_detector(board.dictionary) if detector is None else detector
     new, old = board_markers(board, False), board_markers(board, True)
@@ -184,8 +187,24 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
         return best
     found = {m.variant for m in best.values() if len(m.ids)}
     copies = decoding_copies(gray8)
+    pooled = {}
     for variant in (v for v in VARIANTS if v in found or not found):
-        keep(*decode_with_copies(decoded[variant], copies, detector, variant), variant)
+        pooled[variant] = decode_with_copies(decoded[variant], copies, detector, variant)
+        keep(*pooled[variant], variant)
+    # markers read but too small for OpenCV's sampling: a further copy, enlarged from the stretched one until their
+    # cells reach it, on the variant they were read on (a view with no marker read pays nothing)
+    if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
+        return best
+    most = max(best.values(), key=lambda m: len(m.ids))
+    if not len(most.ids):
+        return best
+    side = float(np.median(np.linalg.norm(most.corners - np.roll(most.corners, 1, axis=1), axis=-1)))
+    cells = detector.getDictionary().markerSize + 2 * detector.getDetectorParameters().markerBorderBits
+    scale = small_marker_scale(side, cells, gray8.shape)
+    if scale:
+        stretched = copies[0][0]
+        enlarged = cv2.resize(stretched, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
+        keep(*decode_with_copies(pooled[most.variant], [(enlarged, scale)], detector, most.variant), most.variant)
     return best
 
 

@@ -7,7 +7,8 @@ its two specialisations: they say where each marker and each corner lies on thei
 * **decoding** (:func:`decode_markers`): ``cv2.aruco.ArucoDetector`` on the image, its inverse (white-on-black prints)
   and both mirrored (a two-sided board seen from its back: ids decoded on the flipped image, their corners mapped
   back), :data:`VARIANTS`; and on enhanced copies of the image (:func:`decoding_copies`: its grey levels stretched
-  to the contrast it measures, that copy sharpened, and enlarged), their markers added to the image's own
+  to the contrast it measures, that copy sharpened, and enlarged; where the markers read are still too small for
+  OpenCV's sampling, enlarged further: :func:`small_marker_scale`), their markers added to the image's own
   (:func:`decode_with_copies`): a dim view's markers span a few grey levels, a blurred one's edges are soft and a
   small one's bits a few pixels, where OpenCV's fixed thresholds read none;
 * **lattice check** (:func:`consistent_markers`, :func:`markers_on_board`): the decoded markers must sit where the
@@ -25,6 +26,7 @@ its two specialisations: they say where each marker and each corner lies on thei
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -36,10 +38,10 @@ from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 from ccs_kornia.modules.detection.refine.saddle_refine import refine_corners
 
 __all__ = [
-    "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_MOVE", "MAX_RADIUS", "SHARPEN_AMOUNT", "SHARPEN_SIGMA", "UPSCALE",
+    "CELL_PX", "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_COPY_PIXELS", "MAX_MOVE", "MAX_RADIUS", "SHARPEN_AMOUNT", "SHARPEN_SIGMA", "UPSCALE",
     "VARIANTS", "BoardMarkers", "MarkerBoardDetector", "consistent_markers", "decode_markers", "decode_with_copies",
     "decoding_copies", "fit_homography", "grow_corners", "map_points", "markers_on_board", "place_from",
-    "refine_and_grow", "refine_marked_corners",
+    "refine_and_grow", "refine_marked_corners", "small_marker_scale",
 ]
 
 #: a marker belongs to the board's lattice when its corners lie within this many board units (squares, tag sides) of
@@ -59,6 +61,11 @@ SHARPEN_SIGMA = 2.0
 SHARPEN_AMOUNT = 1.5
 #: the enlarged decoding copy's scale
 UPSCALE = 2.0
+#: a marker is read where each of its cells (its bits and its black border) spans this many pixels, as OpenCV samples
+#: it (``perspectiveRemovePixelPerCell``); smaller markers get a further copy enlarged until their cells do
+CELL_PX = 4.0
+#: the largest further enlarged copy (pixels): a bound on its cost
+MAX_COPY_PIXELS = 16_000_000
 
 
 @dataclass
@@ -136,6 +143,27 @@ def decoding_copies(gray8: np.ndarray) -> list[tuple[np.ndarray, float]]:
     sharpened = np.clip(np.rint(sharp), 0, 255).astype(np.uint8)
     enlarged = cv2.resize(stretched, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC)
     return [(stretched, 1.0), (sharpened, 1.0), (enlarged, UPSCALE)]
+
+
+def small_marker_scale(side_px: float, cells: int, shape: tuple[int, int]) -> float:
+    """The scale of a further enlarged decoding copy for a view whose decoded markers measure ``side_px`` (their
+    median side, px) across ``cells`` cells (the bits and the black border): the power of two that brings a cell to
+    :data:`CELL_PX` pixels, where that is more than the first enlarged copy's :data:`UPSCALE` and the copy of an image
+    of ``shape`` ``(H, W)`` stays within :data:`MAX_COPY_PIXELS` (halved until it does); 0 where no further copy is
+    needed or affordable. The size comes from the markers read, so a view with no marker pays nothing.
+
+    Example:
+        >>> small_marker_scale(8.0, 6, (288, 512)), small_marker_scale(30.0, 6, (288, 512))
+        (4.0, 0.0)
+        >>> small_marker_scale(4.0, 6, (720, 1280))  # 8x would be 59 Mpx: 4x
+        4.0
+    """
+    if not side_px > 0:
+        return 0.0
+    scale = 2.0 ** math.ceil(math.log2(CELL_PX * cells / side_px))
+    while scale > UPSCALE and scale * scale * shape[0] * shape[1] > MAX_COPY_PIXELS:
+        scale /= 2.0
+    return scale if scale > UPSCALE else 0.0
 
 
 def decode_with_copies(decoded: tuple[np.ndarray, np.ndarray], copies: list[tuple[np.ndarray, float]],

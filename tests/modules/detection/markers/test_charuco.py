@@ -192,6 +192,23 @@ def test_dark_view_read_on_its_stretched_copy():
     assert _wrong_ids(BOARD, corners, valid) == 0
 
 
+def test_small_markers_read_on_a_further_enlarged_copy(monkeypatch):
+    import ccs_kornia.modules.detection.markers.charuco as charuco
+
+    board = CharucoBoard(5, 7, 0.04, 0.03, "DICT_4X4_50")
+    small = cv2.resize(board.render(96, margin=48), None, fx=0.125, fy=0.125, interpolation=cv2.INTER_AREA)
+    view = np.full((288, 512), 120, np.uint8)  # a board of 12 px squares in a larger view, a little soft
+    view[40:40 + small.shape[0], 100:100 + small.shape[1]] = small
+    view = cv2.GaussianBlur(view, (0, 0), 0.6)
+    read = max(len(m.ids) for m in charuco.layout_fits(view, board).values())
+    det = detect_charuco(_tensor(view), board, paths=MarkerPaths.MARKERS)
+    monkeypatch.setattr(charuco, "small_marker_scale", lambda *args: 0.0)
+    without = max(len(m.ids) for m in charuco.layout_fits(view, board).values())
+    assert read > without > 0
+    assert int(det.valid.sum()) > int(detect_charuco(_tensor(view), board, paths=MarkerPaths.MARKERS).valid.sum())
+    assert _wrong_ids(board, det.corners[0].numpy().astype(np.float64), det.valid[0].numpy()) == 0
+
+
 def test_inverted_and_mirrored_views_name_their_variant():
     image, _ = render_view(BOARD, "whole", inverted=True, mirrored=True)
     markers = charuco_markers(image, BOARD)
