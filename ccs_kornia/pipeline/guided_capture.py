@@ -17,7 +17,8 @@ and keeps a frame when
 
 Each kept frame's corners are solved again with the ones before (``live_model``, no RANSAC) from ``min_views`` kept
 frames on; the information of the views at that solve gives the figure and the next best pose
-(:func:`~ccs_kornia.modules.calibration.quality.next_pose.next_poses`). The capture is **done** once the figure is
+(:func:`~ccs_kornia.modules.calibration.quality.next_pose.next_poses`). Before the first solve they come from a
+guessed camera whose focal length is taken from the frames kept so far (:func:`guess_camera`). The capture is **done** once the figure is
 at most ``target`` px. Nothing here reads a camera or writes a file: the ``capture`` command does.
 """
 
@@ -33,6 +34,7 @@ import torch
 
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.quality.next_pose import (
     PoseSuggestion,
     candidate_poses,
@@ -40,7 +42,6 @@ from ccs_kornia.modules.calibration.quality.next_pose import (
     uncertainty_map,
     worst_uncertainty,
 )
-from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.quality.view_information import view_information
 from ccs_kornia.modules.calibration.zhang import zhang_intrinsics
 from ccs_kornia.modules.detection.screening import BoardScreen, Sighting
