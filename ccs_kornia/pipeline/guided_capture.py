@@ -18,8 +18,9 @@ and keeps a frame when
 Each kept frame's corners are solved again with the ones before (``live_model``, no RANSAC) from ``min_views`` kept
 frames on; the information of the views at that solve gives the figure and the next best pose
 (:func:`~ccs_kornia.modules.calibration.quality.next_pose.next_poses`). Before the first solve they come from a
-guessed camera whose focal length is taken from the frames kept so far (:func:`guess_camera`). The capture is **done** once the figure is
-at most ``target`` px. Nothing here reads a camera or writes a file: the ``capture`` command does.
+guessed camera whose focal length is taken from the frames kept so far (:func:`guess_camera`). The capture is
+**done** once the figure is at most ``target`` px. Nothing here reads a camera or writes a file: the ``capture``
+command does.
 """
 
 from __future__ import annotations
