@@ -17,8 +17,10 @@ and keeps a frame when
 
 Each kept frame's corners are solved again with the ones before (``live_model``, no RANSAC) from ``min_views`` kept
 frames on; the information of the views at that solve gives the figure and the next best pose
-(:func:`~ccs_kornia.modules.calibration.quality.next_pose.next_poses`). The capture is **done** once the figure is
-at most ``target`` px. Nothing here reads a camera or writes a file: the ``capture`` command does.
+(:func:`~ccs_kornia.modules.calibration.quality.next_pose.next_poses`). Before the first solve they come from a
+guessed camera whose focal length is taken from the frames kept so far (:func:`guess_camera`). The capture is
+**done** once the figure is at most ``target`` px. Nothing here reads a camera or writes a file: the ``capture``
+command does.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import torch
 
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.quality.next_pose import (
     PoseSuggestion,
     candidate_poses,
@@ -41,6 +44,7 @@ from ccs_kornia.modules.calibration.quality.next_pose import (
     worst_uncertainty,
 )
 from ccs_kornia.modules.calibration.quality.view_information import view_information
+from ccs_kornia.modules.calibration.zhang import zhang_intrinsics
 from ccs_kornia.modules.detection.screening import BoardScreen, Sighting
 from ccs_kornia.pipeline.frame_selection import MIN_CHANGE, SPEED_SCALE, near_copies
 
@@ -52,11 +56,41 @@ MIN_GAIN = 0.02
 MIN_VIEWS = 4
 
 
-def guess_camera(model: CameraModel, image_size: tuple[int, int]) -> Camera:
+def guess_camera(model: CameraModel, image_size: tuple[int, int], corners: torch.Tensor | None = None,
+                 object_points: torch.Tensor | None = None) -> Camera:
     """The camera assumed before the first solve: the model's kind, a focal length of the image's longer side (a
-    fisheye: a third of it, about 180 degrees across), the principal point at the centre, no distortion."""
+    fisheye: a third of it, about 180 degrees across), the principal point at the centre, no distortion.
+
+    Given the views kept so far (``corners`` :math:`(V, N, 2)`, NaN where not seen, of ``object_points``
+    :math:`(N, 3)`), a lens that is not a fisheye takes its focal length from their homographies instead (Zhang's
+    closed form, the principal point at the centre, ``fx = fy``; one tilted view suffices): a wide lens's focal
+    length is far from the image's side, and the poses laid out with that guess put the board small and near the
+    image centre. A view that tells nothing (a board held flat) keeps the default.
+
+    Example:
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> from ccs_kornia.geometry.models import OPENCV5
+        >>> obj = board_object_points(9, 6, 0.025, dtype=torch.float64)
+        >>> truth = Camera(OPENCV5, torch.tensor([330.0, 330, 319.5, 239.5, 0, 0, 0, 0, 0], dtype=torch.float64),
+        ...                (640, 480))
+        >>> R = torch.tensor([[1.0, 0, 0], [0, 0.8, -0.6], [0, 0.6, 0.8]], dtype=torch.float64)  # tilted
+        >>> uv = truth.project((obj @ R.T + torch.tensor([-0.1, -0.06, 0.4], dtype=torch.float64))[None])
+        >>> round(float(guess_camera(OPENCV5, (640, 480)).params[0, 0]))
+        640
+        >>> round(float(guess_camera(OPENCV5, (640, 480), uv, obj).params[0, 0]))
+        330
+    """
     W, H = image_size
     f = max(W, H) / (3.0 if model.is_fisheye else 1.0)
+    if corners is not None and object_points is not None and not model.is_fisheye and len(corners):
+        uv = torch.as_tensor(corners, dtype=torch.float64)
+        valid = uv.isfinite().all(-1)
+        Hs, ok = find_homographies(object_points.double()[:, :2], uv.nan_to_num(0.0), valid, return_ok=True)
+        K, good = zhang_intrinsics(Hs, ok & (valid.sum(-1) >= 8), image_size, principal_point="centre",
+                                   fix_aspect_ratio=True, return_ok=True)
+        est = float(K[0, 0])
+        if bool(good) and math.isfinite(est) and 0.1 * max(W, H) < est < 10 * max(W, H):
+            f = est
     params = torch.zeros(model.num_params, dtype=torch.float64)
     params[:4] = torch.tensor([f, f, (W - 1) / 2, (H - 1) / 2], dtype=torch.float64)
     return Camera(model, params, (int(W), int(H)))
@@ -212,7 +246,7 @@ class GuidedCapture:
         why = ("the first view" if not self.kept else
                f"lowers the predicted worst uncertainty {before:.3g} -> {after:.3g} px ({100 * gain:.0f} %)")
         self.kept.append(KeptFrame(index, timestamp, corners, seen.outline.copy(), why))
-        self._update(corners)
+        self._update()
         return CaptureDecision(True, why, seen, self.worst_px, self.done)
 
     def keep_now(self, gray8: np.ndarray, index: int, timestamp: float, why: str = "kept by hand") -> CaptureDecision:
@@ -223,7 +257,7 @@ class GuidedCapture:
         if corners is None or np.isfinite(corners).all(-1).sum() < 4:
             return CaptureDecision(False, "corners not found", seen, self.worst_px, self.done)
         self.kept.append(KeptFrame(index, timestamp, corners, seen.outline.copy(), why))
-        self._update(corners)
+        self._update()
         return CaptureDecision(True, why, seen, self.worst_px, self.done)
 
     def uncertainty_map(self, grid: tuple[int, int] = (16, 12)) -> np.ndarray | None:
@@ -241,24 +275,32 @@ class GuidedCapture:
         frame = self.kept.pop()
         if len(self.kept) >= self.min_views:
             self._solve()
-        else:  # the rough poses' information again, through the camera assumed before the first solve
-            self.camera = guess_camera(self.live_model, self.image_size)
-            self.information = torch.zeros_like(self.information)
+        else:
             self._solved, self.worst_px = False, math.inf
-            for k in self.kept:
-                self._update(k.corners, solve=False)
+            self._guess()
         return frame
 
-    def _update(self, corners: np.ndarray, solve: bool = True) -> None:
-        if solve and len(self.kept) >= self.min_views:
+    def _update(self) -> None:
+        if len(self.kept) >= self.min_views:
             self._solve()
-            return
-        valid = np.isfinite(corners).all(-1)
-        ids = np.nonzero(valid)[0].tolist()
-        pose = self._pose(corners[valid], ids)
-        if pose is not None:
-            self.information = self.information + self._view_information(
-                *pose, torch.as_tensor(valid)[None]).sum(0)
+        if not self._solved:
+            self._guess()
+
+    def _guess(self) -> None:
+        """Before the first solve: the camera guessed from the frames kept (:func:`guess_camera`), its candidate
+        poses, and the information of the kept frames at their rough poses through it."""
+        corners = torch.as_tensor(np.stack([k.corners for k in self.kept])) if self.kept else None
+        camera = guess_camera(self.live_model, self.image_size, corners, self.object_points)
+        if not torch.equal(camera.params, self.camera.params):
+            self.camera = camera
+            self._candidates = candidate_poses(camera, self.object_points, self.board_size)
+        self.information = torch.zeros_like(self.information)
+        for k in self.kept:
+            valid = np.isfinite(k.corners).all(-1)
+            pose = self._pose(k.corners[valid], np.nonzero(valid)[0].tolist())
+            if pose is not None:
+                self.information = self.information + self._view_information(
+                    *pose, torch.as_tensor(valid)[None]).sum(0)
 
     def _solve(self) -> None:
         from ccs_kornia.modules.calibration.solver import CalibrationSolver

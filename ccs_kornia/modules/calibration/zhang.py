@@ -145,7 +145,7 @@ def zhang_intrinsics(
     full = torch.stack([fxn2.clamp_min(1e-300).sqrt(), fyn2.clamp_min(1e-300).sqrt(), cxn, cyn], -1)
 
     # principal point at the normalised origin: B13 = B23 = 0, unknowns (B11, B22, B33)
-    rows_c = rows[..., [0, 2]] if fix_aspect_ratio else rows[..., [0, 1, 4]]
+    rows_c = rows[..., [0, 3]] if fix_aspect_ratio else rows[..., [0, 1, 4]]  # (B11 = B22, B33)
     bc = _smallest_eigvec(rows_c.transpose(-1, -2) @ rows_c)
     bc = torch.cat([bc[..., :1], bc], -1) if fix_aspect_ratio else bc
     bc = bc * torch.where(bc[:, 2] < 0, -1.0, 1.0)[:, None]

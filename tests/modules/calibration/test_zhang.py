@@ -43,6 +43,12 @@ class TestZhang:
         # fixed aspect ratio
         Kfa = zhang_intrinsics(H, image_size=IMAGE_SIZE, fix_aspect_ratio=True)
         assert torch.allclose(Kfa[:, 0, 0], Kfa[:, 1, 1])
+        # both fixed: one view gives the one focal length of a camera centred, fx = fy
+        Kc = torch.tensor([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]], dtype=F64)
+        c, s_ = 0.8, 0.6  # a board turned about 37 degrees about the x axis, 2 m away
+        Hc = Kc @ torch.tensor([[1.0, 0, -0.1], [0, c, -0.05], [0, s_, 2.0]], dtype=F64)
+        K1c = zhang_intrinsics(Hc[None], image_size=IMAGE_SIZE, principal_point="centre", fix_aspect_ratio=True)
+        assert torch.allclose(K1c, Kc, atol=1e-6)
         # the mask removes garbage views; no views at all -> finite fallback, not ok
         Hg = H.clone()
         Hg[:, 3] = torch.randn(2, 3, 3, dtype=F64)

@@ -239,6 +239,8 @@ def candidate_poses(
 
 #: the last cameras' pixel derivatives (a live capture asks for the same camera's figure many times between solves)
 _JACOBIANS: dict = {}
+#: entries each store keeps: two per camera in the candidates' store, for a rig's or a batch's cameras asked in turn
+_REMEMBERED = 32
 #: the last cameras' candidate poses and each candidate's information (the same, for the ranking)
 _CANDIDATES: dict = {}
 
@@ -248,9 +250,9 @@ def _camera_key(camera: Camera) -> tuple:
 
 
 def _remembered(store: dict, key: tuple, make):
-    """``store[key]``, made by ``make()`` when missing; the store keeps the last 8."""
+    """``store[key]``, made by ``make()`` when missing; the store keeps the last :data:`_REMEMBERED`."""
     if key not in store:
-        if len(store) >= 8:
+        if len(store) >= _REMEMBERED:
             store.pop(next(iter(store)))
         store[key] = make()
     return store[key]
