@@ -216,33 +216,64 @@ def _with_local(model, local, A, sw, Gpp, Gpk, gp):
     """The normal equations of a model with parameters in local form (each point depends on ``S`` pairs of them, one
     moving ``u`` and the next moving ``v``: a spline's control points): ``Gpp``, ``Gpk``, ``gp`` of the dense columns
     ``A`` :math:`(C, V, K, N, 2)` (the core, the sag, the pose, the residual) grown to every parameter, the local ones'
-    blocks summed in by their indices."""
+    blocks summed in by their places.
+
+    Every point's pairs are its first pair's place plus one pattern of offsets (a patch of the spline's grid): the
+    points' ``S x S`` products and their products with the dense columns are summed per first place (whole rows at a
+    time), then placed once; the poses' are summed per view and first place the same way."""
     index, d_local = local  # (C, V, N, S) the pairs' first parameters, (C, V, N, S, 2) d u / d first, d v / d second
-    C, V, K, N, _ = A.shape
+    C, V = A.shape[:2]
     D = Gpp.shape[-1]  # the dense columns: the model's core (its first ones), then the sag's
     core = model.num_params - model.num_local
     Pt = model.num_params + (D - core)
     if sw is not None:
         d_local = d_local * sw[..., None, None]
     S = d_local.shape[-2]
-    dense = A.permute(0, 1, 3, 2, 4).reshape(C, V * N, K, 2)  # (C, M, K, 2)
-    base = torch.arange(C, device=index.device)[:, None, None] * Pt
-    vbase = (torch.arange(C, device=index.device)[:, None] * V + torch.arange(V, device=index.device)[None, :]) * Pt
-    full = Gpp.new_zeros(C * Pt * Pt)
-    lc = Gpp.new_zeros(C * Pt, D)
-    Gk = Gpk.new_zeros(C * V * Pt, 6)
-    g = gp.new_zeros(C * Pt)
+    device = index.device
+    first = index[..., 0]  # (C, V, N)
+    pattern = index.reshape(-1, S)[0] - index.reshape(-1, S)[0, 0] if index.numel() else index.new_zeros(S)
+    if not bool((index - first[..., None] == pattern).all()):
+        raise ValueError("a model's local parameters must be, for every point, its first one's place plus one pattern "
+                         "of offsets (local_columns).")
+    # (C, V, N, 2, K): the dense columns by coordinate
+    dense = A.permute(0, 1, 3, 4, 2)
+    # the places in the camera's unknowns a first place's pattern reaches (the grid's last places reach past the end:
+    # nothing is summed there, the rows are cut off)
+    places = torch.arange(Pt, device=device)
+    reach = places[:, None] + pattern[None, :]  # (Pt, S)
+    inside = places + pattern.amax() < Pt
+    reach = reach[inside]
+    cams = torch.arange(C, device=device).view(C, 1, 1)
+    pair = Gpp.new_zeros(C, Pt, S, S)
+    cross = Gpp.new_zeros(C, Pt, S, D + 1)  # against the dense core and sag, and the residual
+    # the poses': per view and first place, over the (view, place) pairs that occur only
+    key, at_key = torch.unique((torch.arange(C * V, device=device).view(C, V, 1) * Pt + first).reshape(-1),
+                               return_inverse=True)
+    pose = Gpk.new_zeros(2, key.numel(), S * 6)
     for axis in range(2):  # u's parameters, then v's: each moves one coordinate only
-        a = d_local[..., axis].reshape(C, -1, S)  # (C, M, S)
-        idx = (index + axis).reshape(C, -1, S)
-        rows = (base + idx)[..., :, None] * Pt + idx[..., None, :]
-        full.index_add_(0, rows.reshape(-1), (a[..., :, None] * a[..., None, :]).reshape(-1))
-        cross = a[..., None] * dense[..., None, :, axis]  # (C, M, S, K): against the dense columns
-        lc.index_add_(0, (base + idx).reshape(-1), cross[..., :D].reshape(-1, D))
-        Gk.index_add_(0, (vbase[:, :, None, None] + index + axis).reshape(-1), cross[..., D : D + 6].reshape(-1, 6))
-        g.index_add_(0, (base + idx).reshape(-1), cross[..., D + 6].reshape(-1))
-    full, lc, Gk, g = full.view(C, Pt, Pt), lc.view(C, Pt, D), Gk.view(C, V, Pt, 6), g.view(C, Pt)
-    at = torch.cat([torch.arange(core), torch.arange(model.num_params, Pt)]).to(index.device)  # the dense ones' places
+        a = d_local[..., axis]  # (C, V, N, S)
+        d = dense[..., axis, :]  # (C, V, N, K)
+        rows = (cams * Pt + first + axis).reshape(-1)
+        # (index_add_ of 2-D rows: one pass over the points; 3-D ones are added slice by slice)
+        pair.view(C * Pt, S * S).index_add_(0, rows, (a[..., :, None] * a[..., None, :]).reshape(-1, S * S))
+        both = torch.cat([d[..., :D], d[..., D + 6 :]], -1)  # (C, V, N, D + 1)
+        cross.view(C * Pt, S * (D + 1)).index_add_(0, rows,
+                                                   (a[..., :, None] * both[..., None, :]).reshape(-1, S * (D + 1)))
+        pose[axis].index_add_(0, at_key, (a[..., :, None] * d[..., None, D : D + 6]).reshape(-1, S * 6))
+    pair, cross = pair[:, inside], cross[:, inside]  # (C, R, S, S), (C, R, S, D + 1)
+    full = Gpp.new_zeros(C * Pt * Pt)
+    full.index_add_(0, ((cams * Pt + reach)[..., None] * Pt + reach[:, None, :]).reshape(-1), pair.reshape(-1))
+    full = full.view(C, Pt, Pt)
+    lc = Gpp.new_zeros(C * Pt, D + 1)
+    lc.index_add_(0, (cams * Pt + reach).reshape(-1), cross.reshape(-1, D + 1))
+    lc = lc.view(C, Pt, D + 1)
+    g = lc[..., D].clone()
+    lc = lc[..., :D]
+    Gk = Gpk.new_zeros(C * V * Pt, 6)
+    rows = (key[:, None] + torch.arange(2, device=device)[:, None, None] + pattern).reshape(-1)  # (axis, pair, S)
+    Gk.index_add_(0, rows, pose.reshape(-1, 6))
+    Gk = Gk.view(C, V, Pt, 6)
+    at = torch.cat([torch.arange(core), torch.arange(model.num_params, Pt)]).to(device)  # the dense ones' places
     full[:, at[:, None], at[None, :]] += Gpp
     full[:, :, at] += lc  # the local rows only: the dense ones of lc stay zero
     full[:, at, :] += lc.transpose(-1, -2)

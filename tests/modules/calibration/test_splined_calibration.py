@@ -61,13 +61,16 @@ def test_spline_recovers_a_lens_no_opencv_model_fits():
     assert float(d.square().mean().sqrt()) < 0.05
 
 
+class _Dense(SplinedStereographicModel):
+    """The same spline with every control point as a column of its own (the dense normal equations)."""
+
+    @property
+    def local_support(self) -> bool:
+        return False
+
+
 def test_sparse_normal_equations_are_the_dense_ones():
     model = SplinedStereographicModel(6, 5, 120)
-
-    class Dense(SplinedStereographicModel):
-        @property
-        def local_support(self) -> bool:
-            return False
 
     g = torch.Generator().manual_seed(1)
     C, V, N, P = 2, 3, 12, model.num_params
@@ -83,7 +86,34 @@ def test_sparse_normal_equations_are_the_dense_ones():
     basis = torch.eye(P + 2, dtype=F64)[:, [0, 1, *range(4, P + 2)]].expand(C, -1, -1)  # cx, cy fixed
     args = (R, t, x, obj, obs, sw, basis, torch.ones(C, V, dtype=torch.bool), torch.eye(6, dtype=F64))
     sparse = lm._normal_equations(model, *args, {}, board_warp_basis(obj))
-    dense = lm._normal_equations(Dense(6, 5, 120), *args, {}, board_warp_basis(obj))
+    dense = lm._normal_equations(_Dense(6, 5, 120), *args, {}, board_warp_basis(obj))
+    for a, b in zip(sparse, dense):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-9)
+
+
+def test_sparse_normal_equations_at_the_grids_edges():
+    # points past the grid's field take its edge patches (the last control points' rows), views without weight
+    model = SplinedStereographicModel(5, 4, 40)
+
+    g = torch.Generator().manual_seed(4)
+    C, V, N, P = 1, 4, 30, model.num_params
+    x = torch.zeros(C, P, dtype=F64)
+    x[:, :4] = torch.tensor([300.0, 300, 320, 240])
+    x[:, 4:] = 0.01 * torch.randn(C, P - 4, generator=g, dtype=F64)
+    obj = torch.zeros(C, N, 3, dtype=F64)
+    obj[..., :2] = 2.0 * (torch.rand(C, N, 2, generator=g, dtype=F64) - 0.5)  # up to 45 degrees off the axis
+    R = exp_so3(0.05 * torch.randn(C, V, 3, generator=g, dtype=F64))
+    t = torch.tensor([0, 0, 1.0], dtype=F64).expand(C, V, 3)
+    obs = 600 * torch.rand(C, V, N, 2, generator=g, dtype=F64)
+    sw = torch.rand(C, V, N, generator=g, dtype=F64)
+    sw[:, 1] = 0  # a view without weight
+    used = torch.tensor([[True, False, True, True]])
+    basis = torch.eye(P, dtype=F64)[:, 4:].expand(C, -1, -1)  # the core fixed, as the spline's fit has it
+    args = (R, t, x, obj, obs, sw, basis, used, torch.eye(6, dtype=F64))
+    index = model.local_columns(obj[:, None] @ R.transpose(-1, -2) + t[:, :, None], x)[2]
+    assert int(index.amax()) == P - 2  # the grid's last control point is reached
+    sparse = lm._normal_equations(model, *args, {})
+    dense = lm._normal_equations(_Dense(5, 4, 40), *args, {})
     for a, b in zip(sparse, dense):
         torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-9)
 
