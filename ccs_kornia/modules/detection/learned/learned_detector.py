@@ -21,6 +21,7 @@ from ccs_kornia.modules.detection.checks.corner_evidence import (
     decide_corners,
     measure_corner_evidence,
 )
+from ccs_kornia.modules.detection.enhanced_copies import enhanced_copies
 from ccs_kornia.modules.detection.checks.hidden_corners import (
     PARTIAL_BOARD_FRACTION,
     settle_partial_boards,
@@ -57,6 +58,10 @@ from ccs_kornia.runtime.threads import full_threads, light_stages_single_thread
 from ccs_kornia.runtime.timing import stage
 
 __all__ = ["DEFAULT_DETECTOR_WEIGHTS", "load_corner_unet", "LearnedChessboardDetector"]
+
+#: a corner that a board found on an enhanced copy and the image's own board place farther apart than this (px) is
+#: disputed: left out
+DISPUTED_PX = 1.0
 
 #: weights shipped inside the package (see docs/training.md for how they were made)
 DEFAULT_DETECTOR_WEIGHTS = Path(__file__).resolve().parents[3] / "weights" / "corner_unet.pt"
@@ -142,7 +147,14 @@ class LearnedChessboardDetector(ChessboardDetector):
         foreshortened_retry: where still no board was found, look on copies of the finest level allowed compressed
             2:1 along four directions in turn (:mod:`~ccs_kornia.modules.detection.learned.foreshortening`: boards at a
             grazing angle, whose squares are foreshortened 2-4:1).
-        (``scale_fallback``, ``scale_finest``, ``opencv_retry`` and ``foreshortened_retry`` make the detector's own
+        copies_retry: last, where the board is still not whole, look for it on the image's enhanced copies
+            (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`: contrast stretched, sharpened,
+            enlarged) with every fallback but the grazing angle's, in turn until one gives the whole board; a copy's
+            board is kept where it measures more corners than the image's, less the corners the two place more than
+            :data:`DISPUTED_PX` apart (a dim view misleads the square-size estimate, a small one's squares are a few
+            px: docs/detection.md).
+        (``scale_fallback``, ``scale_finest``, ``opencv_retry``, ``foreshortened_retry`` and ``copies_retry`` make the
+        detector's own
         :class:`~ccs_kornia.modules.detection.base.Fallbacks`, :attr:`fallbacks`; a caller passes others per call.)
         partial_boards: keep a found board whose unconfirmed corners the image does not show (saturating glare, an
             occluder: :mod:`~ccs_kornia.modules.detection.checks.hidden_corners`), with those corners NaN (left out of
@@ -172,6 +184,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         opencv_retry: bool = True,
         foreshortened_retry: bool = True,
         partial_boards: bool = True,
+        copies_retry: bool = True,
     ) -> None:
         super().__init__()
         if net is None:
@@ -203,7 +216,7 @@ class LearnedChessboardDetector(ChessboardDetector):
                                             min_factor=1.0 / max_upsampling)
         # the detector's own fallbacks; a caller passes others per call (``forward``'s ``fallbacks``)
         self.fallbacks = Fallbacks(True, tuple(float(f) for f in scale_fallback), bool(scale_finest),
-                                   bool(opencv_retry), bool(foreshortened_retry))
+                                   bool(opencv_retry), bool(foreshortened_retry), bool(copies_retry))
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
         self.precision = precision
@@ -260,9 +273,12 @@ class LearnedChessboardDetector(ChessboardDetector):
         board_size = self._check_inputs(images, board_size)
         if images.shape[0] == 0:  # an empty batch (e.g. a folder's last, empty chunk): nothing to look at
             return _empty_result(images, board_size)
+        fallbacks = self.fallbacks if fallbacks is None else fallbacks
         with light_stages_single_thread(images.device):
-            out = self._detect(images.float(), board_size, self.fallbacks if fallbacks is None else fallbacks)
-            return self._grid_checks(images, out, board_size)
+            out = self._grid_checks(images, self._detect(images.float(), board_size, fallbacks), board_size)
+            if fallbacks.copies:
+                out = self._on_copies(images, out, board_size, fallbacks)
+            return out
 
     @torch.no_grad()
     def foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
@@ -299,6 +315,45 @@ class LearnedChessboardDetector(ChessboardDetector):
                 if reason:
                     out.found[b], out.reasons[b] = False, f"board refused: {reason}"
                     out.corners[b], out.sigma[b] = 0.0, float("nan")
+        return out
+
+    def _on_copies(self, images: torch.Tensor, out: DetectionResult, board_size: tuple[int, int],
+                   fallbacks: Fallbacks) -> DetectionResult:
+        """``out`` with the boards that are not whole looked for again on each image's enhanced copies in turn
+        (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`), with ``fallbacks`` but the grazing
+        angle's; a copy's board, in the image's pixels, less the corners it and ``out``'s board place more than
+        :data:`DISPUTED_PX` apart, replaces ``out``'s where it measures more corners."""
+        n = board_size[0] * board_size[1]
+        valid = out.valid
+        todo = (valid.sum(-1) < n).nonzero().flatten().tolist()
+        if not todo:
+            return out
+        look = fallbacks.but(foreshortened=False, copies=False)
+        with stage("enhanced copies"):
+            for b in todo:
+                gray8 = (images[b, 0].float() * 255.0).round().clamp(0, 255).to(torch.uint8).cpu().numpy()
+                mine = out.corners[b].double() if bool(out.found[b]) else None
+                best = int(valid[b].sum())
+                for copy_, scale in enhanced_copies(gray8):
+                    x = torch.from_numpy(copy_).to(images.device).float()[None, None] / 255.0
+                    got = self._grid_checks(x, self._detect(x, board_size, look), board_size)
+                    if not bool(got.found[0]):
+                        continue
+                    corners = (got.corners[0].double().to(out.corners.device) + 0.5) / scale - 0.5
+                    if mine is not None:
+                        corners = _undisputed(corners, mine, board_size)
+                    count = int(corners.isfinite().all(-1).sum())
+                    if count <= best:
+                        continue
+                    best = count
+                    out.corners[b] = corners.to(out.corners.dtype)
+                    out.found[b], out.reasons[b] = True, f"{got.reasons[0]} (enhanced copy x{scale:g})"
+                    if out.sigma is not None:
+                        sigma = got.sigma[0] / scale if got.sigma is not None else float("nan")
+                        out.sigma[b] = torch.as_tensor(sigma).to(out.sigma).masked_fill(
+                            ~corners.isfinite().all(-1).to(out.sigma.device), float("nan"))
+                    if count == n:
+                        break
         return out
 
     def _refine_at_full_size(self, full: torch.Tensor, pts: torch.Tensor, board_size: tuple[int, int], factor: float,
@@ -469,6 +524,35 @@ class LearnedChessboardDetector(ChessboardDetector):
         corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
         corners = corners.masked_fill(hidden[..., None] & found[:, None, None], float("nan"))
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
+
+
+def _undisputed(corners: torch.Tensor, mine: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
+    """A board's ``corners`` ``(N, 2)`` (NaN: not measured) in the ordering of the board's lattice (its flips, and
+    quarter turns of a square board) nearest the board ``mine`` ``(N, 2)`` of the same image, NaN where the two place a
+    corner more than :data:`DISPUTED_PX` apart.
+
+    Example:
+        >>> mine = torch.tensor([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [0.0, 20.0], [float("nan")] * 2])
+        >>> other = torch.tensor([[10.0, 20.0], [0.0, 20.0], [10.0, 10.0], [0.0, 12.0], [10.0, 0.0], [0.0, 0.0]])
+        >>> _undisputed(other, mine, (2, 3)).tolist()
+        [[0.0, 0.0], [10.0, 0.0], [nan, nan], [10.0, 10.0], [0.0, 20.0], [10.0, 20.0]]
+    """
+    cols, rows = board_size
+    grid = corners.reshape(rows, cols, 2)
+    orderings = [grid, grid.flip(0), grid.flip(1), grid.flip(0, 1)]
+    if cols == rows:
+        orderings += [g.transpose(0, 1) for g in orderings]
+    both = mine.isfinite().all(-1)
+
+    def distance(g: torch.Tensor) -> torch.Tensor:
+        return (g.reshape(-1, 2) - mine).norm(dim=-1)
+
+    def spread(g: torch.Tensor) -> float:
+        d = distance(g)[both & g.reshape(-1, 2).isfinite().all(-1)]
+        return float(d.median()) if d.numel() else math.inf
+
+    best = min(orderings, key=spread).reshape(-1, 2)
+    return best.masked_fill((distance(best) > DISPUTED_PX)[:, None], float("nan"))
 
 
 def _empty_result(images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
