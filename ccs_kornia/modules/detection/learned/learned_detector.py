@@ -547,9 +547,9 @@ def _undisputed(corners: torch.Tensor, mine: torch.Tensor, board_size: tuple[int
     def distance(g: torch.Tensor) -> torch.Tensor:
         return (g.reshape(-1, 2) - mine).norm(dim=-1)
 
-    def spread(g: torch.Tensor) -> float:
+    def spread(g: torch.Tensor) -> float:  # the mean: a median ties a flip that keeps a middle line in place
         d = distance(g)[both & g.reshape(-1, 2).isfinite().all(-1)]
-        return float(d.median()) if d.numel() else math.inf
+        return float(d.mean()) if d.numel() else math.inf
 
     best = min(orderings, key=spread).reshape(-1, 2)
     return best.masked_fill((distance(best) > DISPUTED_PX)[:, None], float("nan"))
