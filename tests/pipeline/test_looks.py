@@ -64,7 +64,7 @@ def test_look_passes_skipped_where_nothing_is_left_or_nothing_to_try():
              [(0, 0), (0, 1)], (3, 2))
     assert calls == [(2, None)]  # a detector without fallbacks: a second pass would be the first again
     look, calls = _counting_look(found_on_pass=0)
-    nothing = Fallbacks(levels=(), opencv=False, foreshortened=False)
+    nothing = Fallbacks(levels=(), opencv=False, foreshortened=False, copies=False)
     look.run(Tools(None, None, None, SimpleNamespace(fallbacks=nothing), 1), None, torch.rand(2, 1, 8, 8),
              [(0, 0), (0, 1)], (3, 2))
     assert len(calls) == 1  # the second pass (no primary level, no fallback level) would try nothing
