@@ -59,8 +59,8 @@ from ccs_kornia.runtime.timing import stage
 
 __all__ = ["DEFAULT_DETECTOR_WEIGHTS", "load_corner_unet", "LearnedChessboardDetector"]
 
-#: a corner that a board found on an enhanced copy and the image's own board place farther apart than this (px) is
-#: disputed: left out
+#: a board found on an enhanced copy that places a corner of the image's own board farther than this (px) from it
+#: disputes the image's ids: it is not used
 DISPUTED_PX = 1.0
 
 #: weights shipped inside the package (see docs/training.md for how they were made)
@@ -150,8 +150,8 @@ class LearnedChessboardDetector(ChessboardDetector):
         copies_retry: last, where the board is still not whole, look for it on the image's enhanced copies
             (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`: contrast stretched, sharpened,
             enlarged) with every fallback but the grazing angle's, in turn until one gives the whole board; a copy's
-            board is kept where it measures more corners than the image's, less the corners the two place more than
-            :data:`DISPUTED_PX` apart (a dim view misleads the square-size estimate, a small one's squares are a few
+            board, refined again on the image, adds the corners the image's board lacks where that measures more
+            corners, unless it places one of the image's corners more than :data:`DISPUTED_PX` away (a dim view misleads the square-size estimate, a small one's squares are a few
             px: docs/detection.md).
         (``scale_fallback``, ``scale_finest``, ``opencv_retry``, ``foreshortened_retry`` and ``copies_retry`` make the
         detector's own
@@ -321,8 +321,9 @@ class LearnedChessboardDetector(ChessboardDetector):
                    fallbacks: Fallbacks) -> DetectionResult:
         """``out`` with the boards that are not whole looked for again on each image's enhanced copies in turn
         (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`), with ``fallbacks`` but the grazing
-        angle's; a copy's board, in the image's pixels, less the corners it and ``out``'s board place more than
-        :data:`DISPUTED_PX` apart, replaces ``out``'s where it measures more corners."""
+        angle's; a copy's board, in the image's pixels and refined again on the image, adds its corners to ``out``'s
+        board (``out``'s own corners stay as they are) where that measures more corners, unless it places one of
+        ``out``'s corners more than :data:`DISPUTED_PX` away (the two disagree on the ids: the copy's is not used)."""
         n = board_size[0] * board_size[1]
         valid = out.valid
         todo = (valid.sum(-1) < n).nonzero().flatten().tolist()
@@ -340,8 +341,17 @@ class LearnedChessboardDetector(ChessboardDetector):
                     if not bool(got.found[0]):
                         continue
                     corners = (got.corners[0].double().to(out.corners.device) + 0.5) / scale - 0.5
+                    # refined again on the image itself (where its saddle shows: the image's pixels, as every other
+                    # look's corners), and where the image's board has a corner, that corner stays as it is
+                    corners = self._refine_at_full_size(images[b : b + 1].float(), corners[None].to(images.device)
+                                                        .float(), board_size, 1.0)[0].double().to(corners.device)
                     if mine is not None:
-                        corners = _undisputed(corners, mine, board_size)
+                        # a copy's board that places a corner of the image's board elsewhere disputes its ids: not
+                        # used; else it adds the corners the image's board lacks
+                        corners = _nearest_ordering(corners, mine, board_size)
+                        if bool(((corners - mine).norm(dim=-1) > DISPUTED_PX).any()):
+                            continue
+                        corners = torch.where(mine.isfinite().all(-1, keepdim=True), mine, corners)
                     count = int(corners.isfinite().all(-1).sum())
                     if count <= best:
                         continue
@@ -526,33 +536,29 @@ class LearnedChessboardDetector(ChessboardDetector):
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
 
 
-def _undisputed(corners: torch.Tensor, mine: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
+def _nearest_ordering(corners: torch.Tensor, mine: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
     """A board's ``corners`` ``(N, 2)`` (NaN: not measured) in the ordering of the board's lattice (its flips, and
-    quarter turns of a square board) nearest the board ``mine`` ``(N, 2)`` of the same image, NaN where the two place a
-    corner more than :data:`DISPUTED_PX` apart.
+    quarter turns of a square board) nearest the board ``mine`` ``(N, 2)`` of the same image: the least mean distance
+    over the corners both measure (a median ties a flip that keeps a middle line in place).
 
     Example:
         >>> mine = torch.tensor([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [0.0, 20.0], [float("nan")] * 2])
         >>> other = torch.tensor([[10.0, 20.0], [0.0, 20.0], [10.0, 10.0], [0.0, 12.0], [10.0, 0.0], [0.0, 0.0]])
-        >>> _undisputed(other, mine, (2, 3)).tolist()
-        [[0.0, 0.0], [10.0, 0.0], [nan, nan], [10.0, 10.0], [0.0, 20.0], [10.0, 20.0]]
+        >>> _nearest_ordering(other, mine, (2, 3)).tolist()
+        [[0.0, 0.0], [10.0, 0.0], [0.0, 12.0], [10.0, 10.0], [0.0, 20.0], [10.0, 20.0]]
     """
     cols, rows = board_size
     grid = corners.reshape(rows, cols, 2)
     orderings = [grid, grid.flip(0), grid.flip(1), grid.flip(0, 1)]
     if cols == rows:
         orderings += [g.transpose(0, 1) for g in orderings]
-    both = mine.isfinite().all(-1)
 
-    def distance(g: torch.Tensor) -> torch.Tensor:
-        return (g.reshape(-1, 2) - mine).norm(dim=-1)
-
-    def spread(g: torch.Tensor) -> float:  # the mean: a median ties a flip that keeps a middle line in place
-        d = distance(g)[both & g.reshape(-1, 2).isfinite().all(-1)]
+    def spread(g: torch.Tensor) -> float:
+        d = (g.reshape(-1, 2) - mine).norm(dim=-1)
+        d = d[d.isfinite()]
         return float(d.mean()) if d.numel() else math.inf
 
-    best = min(orderings, key=spread).reshape(-1, 2)
-    return best.masked_fill((distance(best) > DISPUTED_PX)[:, None], float("nan"))
+    return min(orderings, key=spread).reshape(-1, 2)
 
 
 def _empty_result(images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
