@@ -21,11 +21,11 @@ from ccs_kornia.modules.detection.checks.corner_evidence import (
     decide_corners,
     measure_corner_evidence,
 )
-from ccs_kornia.modules.detection.enhanced_copies import enhanced_copies
 from ccs_kornia.modules.detection.checks.hidden_corners import (
     PARTIAL_BOARD_FRACTION,
     settle_partial_boards,
 )
+from ccs_kornia.modules.detection.enhanced_copies import enhanced_copies
 from ccs_kornia.modules.detection.grid.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.grid.grid_organizer import organize_grid

@@ -7,7 +7,10 @@ import torch
 
 from ccs_kornia.modules.detection.base import DetectionResult, Fallbacks
 from ccs_kornia.modules.detection.enhanced_copies import UPSCALE
-from ccs_kornia.modules.detection.learned.learned_detector import DISPUTED_PX, LearnedChessboardDetector
+from ccs_kornia.modules.detection.learned.learned_detector import (
+    DISPUTED_PX,
+    LearnedChessboardDetector,
+)
 
 BOARD = (3, 2)
 GRID = torch.tensor([[10.0 + 8 * i, 12.0 + 8 * j] for j in range(2) for i in range(3)])
