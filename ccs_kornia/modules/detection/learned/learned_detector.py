@@ -60,7 +60,8 @@ from ccs_kornia.runtime.timing import stage
 __all__ = ["DEFAULT_DETECTOR_WEIGHTS", "load_corner_unet", "LearnedChessboardDetector"]
 
 #: a board found on an enhanced copy that places a corner of the image's own board farther than this (px) from it
-#: disputes the image's ids: it is not used
+#: disputes the image's ids: it is not used; a corner of a copy's board that the image's saddle fit moves farther than
+#: this is left out
 DISPUTED_PX = 1.0
 
 #: weights shipped inside the package (see docs/training.md for how they were made)
@@ -321,7 +322,8 @@ class LearnedChessboardDetector(ChessboardDetector):
                    fallbacks: Fallbacks) -> DetectionResult:
         """``out`` with the boards that are not whole looked for again on each image's enhanced copies in turn
         (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`), with ``fallbacks`` but the grazing
-        angle's; a copy's board, in the image's pixels and refined again on the image, adds its corners to ``out``'s
+        angle's; a copy's board, in the image's pixels and refined again on the image (a corner that moves more than
+        :data:`DISPUTED_PX` there left out), adds its corners to ``out``'s
         board (``out``'s own corners stay as they are) where that measures more corners, unless it places one of
         ``out``'s corners more than :data:`DISPUTED_PX` away (the two disagree on the ids: the copy's is not used)."""
         n = board_size[0] * board_size[1]
@@ -343,8 +345,12 @@ class LearnedChessboardDetector(ChessboardDetector):
                     corners = (got.corners[0].double().to(out.corners.device) + 0.5) / scale - 0.5
                     # refined again on the image itself (where its saddle shows: the image's pixels, as every other
                     # look's corners), and where the image's board has a corner, that corner stays as it is
-                    corners = self._refine_at_full_size(images[b : b + 1].float(), corners[None].to(images.device)
+                    refined = self._refine_at_full_size(images[b : b + 1].float(), corners[None].to(images.device)
                                                         .float(), board_size, 1.0)[0].double().to(corners.device)
+                    # a corner the copy and the image place more than DISPUTED_PX apart (motion blur: the image's
+                    # saddle drifts) is disputed: left out
+                    corners = refined.masked_fill(((refined - corners).norm(dim=-1) > DISPUTED_PX)[:, None],
+                                                  float("nan"))
                     if mine is not None:
                         # a copy's board that places a corner of the image's board elsewhere disputes its ids: not
                         # used; else it adds the corners the image's board lacks
