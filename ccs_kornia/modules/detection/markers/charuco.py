@@ -237,9 +237,9 @@ def charuco_markers(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.
         return fits[True] if len(fits[True].ids) > len(fits[False].ids) else fits[False]
     if layout is not None or not len(fits[False].ids):
         return fits[bool(layout)]
-    empty = fits[False]
+    empty = fits[False]  # (its markers sit on the lattice in both layouts: not counted as off it)
     return replace(empty, corners=empty.corners[:0], ids=empty.ids[:0], board_corners=empty.board_corners[:0],
-                   ambiguous=True)
+                   known=empty.known - len(empty.ids), ambiguous=True)
 
 
 def _set_layout(fits: list[dict[bool, CharucoMarkers]]) -> bool | None:

@@ -234,7 +234,9 @@ def test_ambiguous_layout_takes_the_batchs():
     part = whole.copy()
     part[:, 30 + 60 * 4 - 8:] = 255
     alone = charuco_markers(part, board)
-    assert alone.ambiguous and not bool(detect_charuco(_tensor(part), board).found[0])
+    assert alone.ambiguous and not alone.off_lattice  # on the lattice in both layouts: not a wrong board size
+    det = detect_charuco(_tensor(part), board)
+    assert not bool(det.found[0]) and "layout alike" in det.reasons[0]
     together = detect_charuco(_tensor(whole, part), board)
     valid = together.valid[1].numpy()
     assert valid.sum() == 15
