@@ -25,7 +25,6 @@ from ccs_kornia.modules.detection.checks.hidden_corners import (
     PARTIAL_BOARD_FRACTION,
     settle_partial_boards,
 )
-from ccs_kornia.modules.detection.enhanced_copies import enhanced_copies
 from ccs_kornia.modules.detection.grid.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.grid.grid_organizer import organize_grid
@@ -58,11 +57,6 @@ from ccs_kornia.runtime.threads import full_threads, light_stages_single_thread
 from ccs_kornia.runtime.timing import stage
 
 __all__ = ["DEFAULT_DETECTOR_WEIGHTS", "load_corner_unet", "LearnedChessboardDetector"]
-
-#: a board found on an enhanced copy that places a corner of the image's own board farther than this (px) from it
-#: disputes the image's ids: it is not used; a corner of a copy's board that the image's saddle fit moves farther than
-#: this is left out
-DISPUTED_PX = 1.0
 
 #: weights shipped inside the package (see docs/training.md for how they were made)
 DEFAULT_DETECTOR_WEIGHTS = Path(__file__).resolve().parents[3] / "weights" / "corner_unet.pt"
@@ -148,14 +142,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         foreshortened_retry: where still no board was found, look on copies of the finest level allowed compressed
             2:1 along four directions in turn (:mod:`~ccs_kornia.modules.detection.learned.foreshortening`: boards at a
             grazing angle, whose squares are foreshortened 2-4:1).
-        copies_retry: last, where the board is still not whole, look for it on the image's enhanced copies
-            (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`: contrast stretched, sharpened,
-            enlarged) with every fallback but the grazing angle's, in turn until one gives the whole board; a copy's
-            board, refined again on the image, adds the corners the image's board lacks where that measures more
-            corners, unless it places one of the image's corners more than :data:`DISPUTED_PX` away (a dim view misleads the square-size estimate, a small one's squares are a few
-            px: docs/detection.md).
-        (``scale_fallback``, ``scale_finest``, ``opencv_retry``, ``foreshortened_retry`` and ``copies_retry`` make the
-        detector's own
+        (``scale_fallback``, ``scale_finest``, ``opencv_retry`` and ``foreshortened_retry`` make the detector's own
         :class:`~ccs_kornia.modules.detection.base.Fallbacks`, :attr:`fallbacks`; a caller passes others per call.)
         partial_boards: keep a found board whose unconfirmed corners the image does not show (saturating glare, an
             occluder: :mod:`~ccs_kornia.modules.detection.checks.hidden_corners`), with those corners NaN (left out of
@@ -185,7 +172,6 @@ class LearnedChessboardDetector(ChessboardDetector):
         opencv_retry: bool = True,
         foreshortened_retry: bool = True,
         partial_boards: bool = True,
-        copies_retry: bool = True,
     ) -> None:
         super().__init__()
         if net is None:
@@ -217,7 +203,7 @@ class LearnedChessboardDetector(ChessboardDetector):
                                             min_factor=1.0 / max_upsampling)
         # the detector's own fallbacks; a caller passes others per call (``forward``'s ``fallbacks``)
         self.fallbacks = Fallbacks(True, tuple(float(f) for f in scale_fallback), bool(scale_finest),
-                                   bool(opencv_retry), bool(foreshortened_retry), bool(copies_retry))
+                                   bool(opencv_retry), bool(foreshortened_retry))
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
         self.precision = precision
@@ -274,12 +260,9 @@ class LearnedChessboardDetector(ChessboardDetector):
         board_size = self._check_inputs(images, board_size)
         if images.shape[0] == 0:  # an empty batch (e.g. a folder's last, empty chunk): nothing to look at
             return _empty_result(images, board_size)
-        fallbacks = self.fallbacks if fallbacks is None else fallbacks
         with light_stages_single_thread(images.device):
-            out = self._grid_checks(images, self._detect(images.float(), board_size, fallbacks), board_size)
-            if fallbacks.copies:
-                out = self._on_copies(images, out, board_size, fallbacks)
-            return out
+            out = self._detect(images.float(), board_size, self.fallbacks if fallbacks is None else fallbacks)
+            return self._grid_checks(images, out, board_size)
 
     @torch.no_grad()
     def foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
@@ -316,60 +299,6 @@ class LearnedChessboardDetector(ChessboardDetector):
                 if reason:
                     out.found[b], out.reasons[b] = False, f"board refused: {reason}"
                     out.corners[b], out.sigma[b] = 0.0, float("nan")
-        return out
-
-    def _on_copies(self, images: torch.Tensor, out: DetectionResult, board_size: tuple[int, int],
-                   fallbacks: Fallbacks) -> DetectionResult:
-        """``out`` with the boards that are not whole looked for again on each image's enhanced copies in turn
-        (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`), with ``fallbacks`` but the grazing
-        angle's; a copy's board, in the image's pixels and refined again on the image (a corner that moves more than
-        :data:`DISPUTED_PX` there left out), adds its corners to ``out``'s
-        board (``out``'s own corners stay as they are) where that measures more corners, unless it places one of
-        ``out``'s corners more than :data:`DISPUTED_PX` away (the two disagree on the ids: the copy's is not used)."""
-        n = board_size[0] * board_size[1]
-        valid = out.valid
-        todo = (valid.sum(-1) < n).nonzero().flatten().tolist()
-        if not todo:
-            return out
-        look = fallbacks.but(foreshortened=False, copies=False)
-        with stage("enhanced copies"):
-            for b in todo:
-                gray8 = (images[b, 0].float() * 255.0).round().clamp(0, 255).to(torch.uint8).cpu().numpy()
-                mine = out.corners[b].double() if bool(out.found[b]) else None
-                best = int(valid[b].sum())
-                for copy_, scale in enhanced_copies(gray8):
-                    x = torch.from_numpy(copy_).to(images.device).float()[None, None] / 255.0
-                    got = self._grid_checks(x, self._detect(x, board_size, look), board_size)
-                    if not bool(got.found[0]):
-                        continue
-                    corners = (got.corners[0].double().to(out.corners.device) + 0.5) / scale - 0.5
-                    # refined again on the image itself (where its saddle shows: the image's pixels, as every other
-                    # look's corners), and where the image's board has a corner, that corner stays as it is
-                    refined = self._refine_at_full_size(images[b : b + 1].float(), corners[None].to(images.device)
-                                                        .float(), board_size, 1.0)[0].double().to(corners.device)
-                    # a corner the copy and the image place more than DISPUTED_PX apart (motion blur: the image's
-                    # saddle drifts) is disputed: left out
-                    corners = refined.masked_fill(((refined - corners).norm(dim=-1) > DISPUTED_PX)[:, None],
-                                                  float("nan"))
-                    if mine is not None:
-                        # a copy's board that places a corner of the image's board elsewhere disputes its ids: not
-                        # used; else it adds the corners the image's board lacks
-                        corners = _nearest_ordering(corners, mine, board_size)
-                        if bool(((corners - mine).norm(dim=-1) > DISPUTED_PX).any()):
-                            continue
-                        corners = torch.where(mine.isfinite().all(-1, keepdim=True), mine, corners)
-                    count = int(corners.isfinite().all(-1).sum())
-                    if count <= best:
-                        continue
-                    best = count
-                    out.corners[b] = corners.to(out.corners.dtype)
-                    out.found[b], out.reasons[b] = True, f"{got.reasons[0]} (enhanced copy x{scale:g})"
-                    if out.sigma is not None:
-                        sigma = got.sigma[0] / scale if got.sigma is not None else float("nan")
-                        out.sigma[b] = torch.as_tensor(sigma).to(out.sigma).masked_fill(
-                            ~corners.isfinite().all(-1).to(out.sigma.device), float("nan"))
-                    if count == n:
-                        break
         return out
 
     def _refine_at_full_size(self, full: torch.Tensor, pts: torch.Tensor, board_size: tuple[int, int], factor: float,
@@ -540,31 +469,6 @@ class LearnedChessboardDetector(ChessboardDetector):
         corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
         corners = corners.masked_fill(hidden[..., None] & found[:, None, None], float("nan"))
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
-
-
-def _nearest_ordering(corners: torch.Tensor, mine: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
-    """A board's ``corners`` ``(N, 2)`` (NaN: not measured) in the ordering of the board's lattice (its flips, and
-    quarter turns of a square board) nearest the board ``mine`` ``(N, 2)`` of the same image: the least mean distance
-    over the corners both measure (a median ties a flip that keeps a middle line in place).
-
-    Example:
-        >>> mine = torch.tensor([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [0.0, 20.0], [float("nan")] * 2])
-        >>> other = torch.tensor([[10.0, 20.0], [0.0, 20.0], [10.0, 10.0], [0.0, 12.0], [10.0, 0.0], [0.0, 0.0]])
-        >>> _nearest_ordering(other, mine, (2, 3)).tolist()
-        [[0.0, 0.0], [10.0, 0.0], [0.0, 12.0], [10.0, 10.0], [0.0, 20.0], [10.0, 20.0]]
-    """
-    cols, rows = board_size
-    grid = corners.reshape(rows, cols, 2)
-    orderings = [grid, grid.flip(0), grid.flip(1), grid.flip(0, 1)]
-    if cols == rows:
-        orderings += [g.transpose(0, 1) for g in orderings]
-
-    def spread(g: torch.Tensor) -> float:
-        d = (g.reshape(-1, 2) - mine).norm(dim=-1)
-        d = d[d.isfinite()]
-        return float(d.mean()) if d.numel() else math.inf
-
-    return min(orderings, key=spread).reshape(-1, 2)
 
 
 def _empty_result(images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
