@@ -44,16 +44,98 @@ from ccs_kornia.modules.calibration.quality.next_pose import (
     worst_uncertainty,
 )
 from ccs_kornia.modules.calibration.quality.view_information import view_information
-from ccs_kornia.modules.calibration.zhang import zhang_intrinsics
+from ccs_kornia.modules.calibration.zhang import rotation_translation_from_homography, zhang_intrinsics
 from ccs_kornia.modules.detection.screening import BoardScreen, Sighting
 from ccs_kornia.pipeline.frame_selection import MIN_CHANGE, SPEED_SCALE, near_copies
 
-__all__ = ["MIN_GAIN", "MIN_VIEWS", "CaptureDecision", "GuidedCapture", "KeptFrame", "guess_camera"]
+__all__ = ["DIVISION_RANGE", "MIN_GAIN", "MIN_TILT_DEG", "MIN_VIEWS", "CaptureDecision", "GuidedCapture", "KeptFrame", "guess_camera",
+           "radial_from_views"]
 
 #: a frame must lower the predicted worst uncertainty by at least this fraction to be kept
 MIN_GAIN = 0.02
 #: kept frames before the first solve (the predicted figure comes from the solve)
 MIN_VIEWS = 4
+
+
+#: a guess takes its focal length from the views kept where one of them is turned at least this far from facing the
+#: camera (degrees, at that focal length): a board held flat leaves the focal length undetermined
+MIN_TILT_DEG = 5.0
+#: the barrel or pincushion a guess may take, as the division model's relative change of the image corner's radius
+#: (:func:`radial_from_views`): ``-0.6`` moves the corner's ray 2.5 times further out
+DIVISION_RANGE = (-0.6, 0.4)
+
+
+def radial_from_views(corners: torch.Tensor, object_points: torch.Tensor, image_size: tuple[int, int],
+                      steps: int = 51) -> float:
+    r"""The radial distortion about the image centre that makes the views' boards most nearly flat projections: the
+    one-parameter division model ``u = c + (d - c) / (1 + kappa |d - c|^2 / R^2)`` (``d`` the pixel seen, ``R`` the
+    half-diagonal) whose undistorted corners each view's homography fits best, found over
+    :data:`DIVISION_RANGE` (a grid, then a finer one about its best). The board's straight rows tell it, tilted or
+    not; a lens's barrel is where a wide lens's poses differ most from a pinhole's.
+
+    Args:
+        corners: :math:`(V, N, 2)` px, NaN where not seen.
+        object_points: :math:`(N, 3)` the board's corners (``z = 0``).
+        image_size: ``(W, H)``.
+        steps: grid values per pass.
+
+    Returns:
+        ``kappa`` (0 where fewer than 8 corners of a view are seen).
+
+    Example:
+        >>> from ccs_kornia.geometry.board_points import board_object_points
+        >>> obj = board_object_points(9, 6, 0.025, dtype=torch.float64)
+        >>> c = torch.tensor([319.5, 239.5], dtype=torch.float64)
+        >>> flat = obj[:, :2] * 2000 + torch.tensor([150.0, 120.0], dtype=torch.float64)  # a board held flat
+        >>> seen = c + (flat - c) * 2 / (1 + (1 + 4 * 0.3 * ((flat - c) ** 2).sum(-1, keepdim=True) / 400**2).sqrt())
+        >>> round(radial_from_views(seen[None], obj, (640, 480)), 2)  # pixels seen under a division model's -0.3
+        -0.3
+    """
+    W, H = image_size
+    uv = torch.as_tensor(corners, dtype=torch.float64)
+    valid = uv.isfinite().all(-1)
+    valid = valid & (valid.sum(-1, keepdim=True) >= 8)
+    if not bool(valid.any()):
+        return 0.0
+    c = torch.tensor([(W - 1) / 2, (H - 1) / 2], dtype=torch.float64)
+    R2 = ((W - 1) / 2) ** 2 + ((H - 1) / 2) ** 2
+    d = uv.nan_to_num(0.0) - c
+    r2 = (d * d).sum(-1, keepdim=True) / R2  # (V, N, 1)
+    xy = object_points.double()[:, :2]
+
+    def cost(kappa: torch.Tensor) -> torch.Tensor:  # (K,) -> (K,) the squared residuals in the pixels seen
+        scale = 1 + kappa[:, None, None, None] * r2[None]  # (K, V, N, 1)
+        und = c + d[None] / scale.clamp_min(1e-3)
+        Hs = find_homographies(xy, und, valid[None].expand(len(kappa), -1, -1))
+        p = torch.cat([xy, torch.ones_like(xy[:, :1])], -1) @ Hs.transpose(-1, -2)
+        res = ((p[..., :2] / p[..., 2:] - und) * scale).pow(2).sum(-1)
+        return torch.where(valid[None] & (scale[..., 0] > 1e-3), res, torch.zeros_like(res)).flatten(1).sum(-1)
+
+    lo, hi = DIVISION_RANGE
+    kappa = torch.linspace(lo, hi, steps, dtype=torch.float64)
+    best = float(kappa[int(torch.argmin(cost(kappa)))])
+    step = (hi - lo) / (steps - 1)
+    kappa = torch.linspace(best - step, best + step, steps, dtype=torch.float64)
+    return float(kappa[int(torch.argmin(cost(kappa)))])
+
+
+def _division_to_radial(kappa: float, focal: float, image_size: tuple[int, int]) -> tuple[float, float] | None:
+    """The ``k1, k2`` of the pinhole's radial polynomial nearest the division model ``kappa``
+    (:func:`radial_from_views`) over the image, at the focal length given; ``None`` where it does not map the whole
+    image one to one."""
+    W, H = image_size
+    rc = math.hypot((W - 1) / 2, (H - 1) / 2) / focal  # the image corner's normalised radius
+    lam = kappa / rc**2
+    rd = torch.linspace(0.0, rc, 65, dtype=torch.float64)[1:]
+    if 1 + lam * rc**2 < 0.2:
+        return None
+    ru = rd / (1 + lam * rd**2)
+    A = torch.stack([ru**2, ru**4], -1)
+    k = torch.linalg.lstsq(A, (rd / ru - 1)[:, None]).solution[:, 0]
+    r = torch.linspace(0.0, float(ru[-1]) * 1.05, 256, dtype=torch.float64)
+    if not bool((1 + 3 * k[0] * r**2 + 5 * k[1] * r**4 > 0.05).all()):
+        return None
+    return float(k[0]), float(k[1])
 
 
 def guess_camera(model: CameraModel, image_size: tuple[int, int], corners: torch.Tensor | None = None,
@@ -62,10 +144,13 @@ def guess_camera(model: CameraModel, image_size: tuple[int, int], corners: torch
     fisheye: a third of it, about 180 degrees across), the principal point at the centre, no distortion.
 
     Given the views kept so far (``corners`` :math:`(V, N, 2)`, NaN where not seen, of ``object_points``
-    :math:`(N, 3)`), a lens that is not a fisheye takes its focal length from their homographies instead (Zhang's
-    closed form, the principal point at the centre, ``fx = fy``; one tilted view suffices): a wide lens's focal
-    length is far from the image's side, and the poses laid out with that guess put the board small and near the
-    image centre. A view that tells nothing (a board held flat) keeps the default.
+    :math:`(N, 3)`), a lens that is not a fisheye takes its radial distortion and its focal length from them
+    instead: the radial distortion about the image centre that straightens the boards (:func:`radial_from_views`,
+    as the model's ``k1, k2`` where it has them), then the focal length from the straightened boards' homographies
+    (Zhang's closed form, the principal point at the centre, ``fx = fy``; one tilted view suffices). A wide lens's
+    focal length is far from the image's side and its barrel pulls the boards in: the poses laid out for a pinhole
+    of the image's side put the board small and near the image centre. A view that tells nothing about the focal
+    length (every board held within :data:`MIN_TILT_DEG` of flat) keeps the default.
 
     Example:
         >>> from ccs_kornia.geometry.board_points import board_object_points
@@ -82,17 +167,30 @@ def guess_camera(model: CameraModel, image_size: tuple[int, int], corners: torch
     """
     W, H = image_size
     f = max(W, H) / (3.0 if model.is_fisheye else 1.0)
+    radial = None
     if corners is not None and object_points is not None and not model.is_fisheye and len(corners):
         uv = torch.as_tensor(corners, dtype=torch.float64)
         valid = uv.isfinite().all(-1)
-        Hs, ok = find_homographies(object_points.double()[:, :2], uv.nan_to_num(0.0), valid, return_ok=True)
+        kappa = radial_from_views(uv, object_points, image_size)
+        c = torch.tensor([(W - 1) / 2, (H - 1) / 2], dtype=torch.float64)
+        d = uv.nan_to_num(0.0) - c
+        straight = c + d / (1 + kappa * (d * d).sum(-1, keepdim=True) / c.pow(2).sum())
+        Hs, ok = find_homographies(object_points.double()[:, :2], straight, valid, return_ok=True)
         K, good = zhang_intrinsics(Hs, ok & (valid.sum(-1) >= 8), image_size, principal_point="centre",
                                    fix_aspect_ratio=True, return_ok=True)
         est = float(K[0, 0])
-        if bool(good) and math.isfinite(est) and 0.1 * max(W, H) < est < 10 * max(W, H):
+        used = ok & (valid.sum(-1) >= 8)
+        R, _ = rotation_translation_from_homography(K, Hs)
+        tilted = bool((R[..., 2, 2].abs()[used] < math.cos(math.radians(MIN_TILT_DEG))).any())
+        if bool(good) and tilted and math.isfinite(est) and 0.1 * max(W, H) < est < 10 * max(W, H):
             f = est
+        names = model.param_names
+        if kappa != 0.0 and "k1" in names and "k2" in names:
+            radial = _division_to_radial(kappa, f, image_size)
     params = torch.zeros(model.num_params, dtype=torch.float64)
     params[:4] = torch.tensor([f, f, (W - 1) / 2, (H - 1) / 2], dtype=torch.float64)
+    if radial is not None:
+        params[model.param_names.index("k1")], params[model.param_names.index("k2")] = radial
     return Camera(model, params, (int(W), int(H)))
 
 
