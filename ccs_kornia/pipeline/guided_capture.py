@@ -18,9 +18,9 @@ and keeps a frame when
 Each kept frame's corners are solved again with the ones before (``live_model``, no RANSAC) from ``min_views`` kept
 frames on; the information of the views at that solve gives the figure and the next best pose
 (:func:`~ccs_kornia.modules.calibration.quality.next_pose.next_poses`). Before the first solve they come from a
-guessed camera whose focal length is taken from the frames kept so far (:func:`guess_camera`). The capture is
-**done** once the figure is at most ``target`` px. Nothing here reads a camera or writes a file: the ``capture``
-command does.
+guessed camera whose focal length and barrel are taken from the frames kept so far (:func:`guess_camera`). The
+capture is **done** once the figure is at most ``target`` px. Nothing here reads a camera or writes a file: the
+``capture`` command does.
 """
 
 from __future__ import annotations
@@ -44,100 +44,26 @@ from ccs_kornia.modules.calibration.quality.next_pose import (
     worst_uncertainty,
 )
 from ccs_kornia.modules.calibration.quality.view_information import view_information
-from ccs_kornia.modules.calibration.zhang import rotation_translation_from_homography, zhang_intrinsics
+from ccs_kornia.modules.calibration.radial_guess import (
+    radial_from_views,
+    radial_polynomial_from_division,
+)
+from ccs_kornia.modules.calibration.zhang import (
+    rotation_translation_from_homography,
+    zhang_intrinsics,
+)
 from ccs_kornia.modules.detection.screening import BoardScreen, Sighting
 from ccs_kornia.pipeline.frame_selection import MIN_CHANGE, SPEED_SCALE, near_copies
 
-__all__ = ["DIVISION_RANGE", "MIN_GAIN", "MIN_TILT_DEG", "MIN_VIEWS", "CaptureDecision", "GuidedCapture", "KeptFrame", "guess_camera",
-           "radial_from_views"]
+__all__ = ["MIN_GAIN", "MIN_TILT_DEG", "MIN_VIEWS", "CaptureDecision", "GuidedCapture", "KeptFrame", "guess_camera"]
 
 #: a frame must lower the predicted worst uncertainty by at least this fraction to be kept
 MIN_GAIN = 0.02
 #: kept frames before the first solve (the predicted figure comes from the solve)
 MIN_VIEWS = 4
-
-
 #: a guess takes its focal length from the views kept where one of them is turned at least this far from facing the
 #: camera (degrees, at that focal length): a board held flat leaves the focal length undetermined
 MIN_TILT_DEG = 5.0
-#: the barrel or pincushion a guess may take, as the division model's relative change of the image corner's radius
-#: (:func:`radial_from_views`): ``-0.6`` moves the corner's ray 2.5 times further out
-DIVISION_RANGE = (-0.6, 0.4)
-
-
-def radial_from_views(corners: torch.Tensor, object_points: torch.Tensor, image_size: tuple[int, int],
-                      steps: int = 51) -> float:
-    r"""The radial distortion about the image centre that makes the views' boards most nearly flat projections: the
-    one-parameter division model ``u = c + (d - c) / (1 + kappa |d - c|^2 / R^2)`` (``d`` the pixel seen, ``R`` the
-    half-diagonal) whose undistorted corners each view's homography fits best, found over
-    :data:`DIVISION_RANGE` (a grid, then a finer one about its best). The board's straight rows tell it, tilted or
-    not; a lens's barrel is where a wide lens's poses differ most from a pinhole's.
-
-    Args:
-        corners: :math:`(V, N, 2)` px, NaN where not seen.
-        object_points: :math:`(N, 3)` the board's corners (``z = 0``).
-        image_size: ``(W, H)``.
-        steps: grid values per pass.
-
-    Returns:
-        ``kappa`` (0 where fewer than 8 corners of a view are seen).
-
-    Example:
-        >>> from ccs_kornia.geometry.board_points import board_object_points
-        >>> obj = board_object_points(9, 6, 0.025, dtype=torch.float64)
-        >>> c = torch.tensor([319.5, 239.5], dtype=torch.float64)
-        >>> flat = obj[:, :2] * 2000 + torch.tensor([150.0, 120.0], dtype=torch.float64)  # a board held flat
-        >>> seen = c + (flat - c) * 2 / (1 + (1 + 4 * 0.3 * ((flat - c) ** 2).sum(-1, keepdim=True) / 400**2).sqrt())
-        >>> round(radial_from_views(seen[None], obj, (640, 480)), 2)  # pixels seen under a division model's -0.3
-        -0.3
-    """
-    W, H = image_size
-    uv = torch.as_tensor(corners, dtype=torch.float64)
-    valid = uv.isfinite().all(-1)
-    valid = valid & (valid.sum(-1, keepdim=True) >= 8)
-    if not bool(valid.any()):
-        return 0.0
-    c = torch.tensor([(W - 1) / 2, (H - 1) / 2], dtype=torch.float64)
-    R2 = ((W - 1) / 2) ** 2 + ((H - 1) / 2) ** 2
-    d = uv.nan_to_num(0.0) - c
-    r2 = (d * d).sum(-1, keepdim=True) / R2  # (V, N, 1)
-    xy = object_points.double()[:, :2]
-
-    def cost(kappa: torch.Tensor) -> torch.Tensor:  # (K,) -> (K,) the squared residuals in the pixels seen
-        scale = 1 + kappa[:, None, None, None] * r2[None]  # (K, V, N, 1)
-        und = c + d[None] / scale.clamp_min(1e-3)
-        Hs = find_homographies(xy, und, valid[None].expand(len(kappa), -1, -1))
-        p = torch.cat([xy, torch.ones_like(xy[:, :1])], -1) @ Hs.transpose(-1, -2)
-        res = ((p[..., :2] / p[..., 2:] - und) * scale).pow(2).sum(-1)
-        return torch.where(valid[None] & (scale[..., 0] > 1e-3), res, torch.zeros_like(res)).flatten(1).sum(-1)
-
-    lo, hi = DIVISION_RANGE
-    kappa = torch.linspace(lo, hi, steps, dtype=torch.float64)
-    best = float(kappa[int(torch.argmin(cost(kappa)))])
-    step = (hi - lo) / (steps - 1)
-    kappa = torch.linspace(best - step, best + step, steps, dtype=torch.float64)
-    return float(kappa[int(torch.argmin(cost(kappa)))])
-
-
-def _division_to_radial(kappa: float, focal: float, image_size: tuple[int, int]) -> tuple[float, float] | None:
-    """The ``k1, k2`` of the pinhole's radial polynomial nearest the division model ``kappa``
-    (:func:`radial_from_views`) over the image, at the focal length given; ``None`` where it does not map the whole
-    image one to one."""
-    W, H = image_size
-    rc = math.hypot((W - 1) / 2, (H - 1) / 2) / focal  # the image corner's normalised radius
-    lam = kappa / rc**2
-    rd = torch.linspace(0.0, rc, 65, dtype=torch.float64)[1:]
-    if 1 + lam * rc**2 < 0.2:
-        return None
-    ru = rd / (1 + lam * rd**2)
-    A = torch.stack([ru**2, ru**4], -1)
-    k = torch.linalg.lstsq(A, (rd / ru - 1)[:, None]).solution[:, 0]
-    r = torch.linspace(0.0, float(ru[-1]) * 1.05, 256, dtype=torch.float64)
-    if not bool((1 + 3 * k[0] * r**2 + 5 * k[1] * r**4 > 0.05).all()):
-        return None
-    return float(k[0]), float(k[1])
-
-
 def guess_camera(model: CameraModel, image_size: tuple[int, int], corners: torch.Tensor | None = None,
                  object_points: torch.Tensor | None = None) -> Camera:
     """The camera assumed before the first solve: the model's kind, a focal length of the image's longer side (a
@@ -186,7 +112,7 @@ def guess_camera(model: CameraModel, image_size: tuple[int, int], corners: torch
             f = est
         names = model.param_names
         if kappa != 0.0 and "k1" in names and "k2" in names:
-            radial = _division_to_radial(kappa, f, image_size)
+            radial = radial_polynomial_from_division(kappa, f, image_size)
     params = torch.zeros(model.num_params, dtype=torch.float64)
     params[:4] = torch.tensor([f, f, (W - 1) / 2, (H - 1) / 2], dtype=torch.float64)
     if radial is not None:

@@ -10,8 +10,9 @@ from ccs_kornia.geometry.board_points import board_object_points
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models import FISHEYE, OPENCV5
 from ccs_kornia.geometry.so3 import exp_so3
+from ccs_kornia.modules.calibration.radial_guess import radial_from_views
 from ccs_kornia.modules.detection.screening import Sighting
-from ccs_kornia.pipeline.guided_capture import GuidedCapture, guess_camera, radial_from_views
+from ccs_kornia.pipeline.guided_capture import GuidedCapture, guess_camera
 
 OBJ = board_object_points(9, 6, 0.025, dtype=torch.float64)
 SIZE = (640, 480)
