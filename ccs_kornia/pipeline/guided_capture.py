@@ -18,9 +18,9 @@ and keeps a frame when
 Each kept frame's corners are solved again with the ones before (``live_model``, no RANSAC) from ``min_views`` kept
 frames on; the information of the views at that solve gives the figure and the next best pose
 (:func:`~ccs_kornia.modules.calibration.quality.next_pose.next_poses`). Before the first solve they come from a
-guessed camera whose focal length is taken from the frames kept so far (:func:`guess_camera`). The capture is
-**done** once the figure is at most ``target`` px. Nothing here reads a camera or writes a file: the ``capture``
-command does.
+guessed camera whose focal length and barrel are taken from the frames kept so far (:func:`guess_camera`). The
+capture is **done** once the figure is at most ``target`` px. Nothing here reads a camera or writes a file: the
+``capture`` command does.
 """
 
 from __future__ import annotations
@@ -44,28 +44,39 @@ from ccs_kornia.modules.calibration.quality.next_pose import (
     worst_uncertainty,
 )
 from ccs_kornia.modules.calibration.quality.view_information import view_information
-from ccs_kornia.modules.calibration.zhang import zhang_intrinsics
+from ccs_kornia.modules.calibration.radial_guess import (
+    radial_from_views,
+    radial_polynomial_from_division,
+)
+from ccs_kornia.modules.calibration.zhang import (
+    rotation_translation_from_homography,
+    zhang_intrinsics,
+)
 from ccs_kornia.modules.detection.screening import BoardScreen, Sighting
 from ccs_kornia.pipeline.frame_selection import MIN_CHANGE, SPEED_SCALE, near_copies
 
-__all__ = ["MIN_GAIN", "MIN_VIEWS", "CaptureDecision", "GuidedCapture", "KeptFrame", "guess_camera"]
+__all__ = ["MIN_GAIN", "MIN_TILT_DEG", "MIN_VIEWS", "CaptureDecision", "GuidedCapture", "KeptFrame", "guess_camera"]
 
 #: a frame must lower the predicted worst uncertainty by at least this fraction to be kept
 MIN_GAIN = 0.02
 #: kept frames before the first solve (the predicted figure comes from the solve)
 MIN_VIEWS = 4
-
-
+#: a guess takes its focal length from the views kept where one of them is turned at least this far from facing the
+#: camera (degrees, at that focal length): a board held flat leaves the focal length undetermined
+MIN_TILT_DEG = 5.0
 def guess_camera(model: CameraModel, image_size: tuple[int, int], corners: torch.Tensor | None = None,
                  object_points: torch.Tensor | None = None) -> Camera:
     """The camera assumed before the first solve: the model's kind, a focal length of the image's longer side (a
     fisheye: a third of it, about 180 degrees across), the principal point at the centre, no distortion.
 
     Given the views kept so far (``corners`` :math:`(V, N, 2)`, NaN where not seen, of ``object_points``
-    :math:`(N, 3)`), a lens that is not a fisheye takes its focal length from their homographies instead (Zhang's
-    closed form, the principal point at the centre, ``fx = fy``; one tilted view suffices): a wide lens's focal
-    length is far from the image's side, and the poses laid out with that guess put the board small and near the
-    image centre. A view that tells nothing (a board held flat) keeps the default.
+    :math:`(N, 3)`), a lens that is not a fisheye takes its radial distortion and its focal length from them
+    instead: the radial distortion about the image centre that straightens the boards (:func:`radial_from_views`,
+    as the model's ``k1, k2`` where it has them), then the focal length from the straightened boards' homographies
+    (Zhang's closed form, the principal point at the centre, ``fx = fy``; one tilted view suffices). A wide lens's
+    focal length is far from the image's side and its barrel pulls the boards in: the poses laid out for a pinhole
+    of the image's side put the board small and near the image centre. A view that tells nothing about the focal
+    length (every board held within :data:`MIN_TILT_DEG` of flat) keeps the default.
 
     Example:
         >>> from ccs_kornia.geometry.board_points import board_object_points
@@ -82,17 +93,30 @@ def guess_camera(model: CameraModel, image_size: tuple[int, int], corners: torch
     """
     W, H = image_size
     f = max(W, H) / (3.0 if model.is_fisheye else 1.0)
+    radial = None
     if corners is not None and object_points is not None and not model.is_fisheye and len(corners):
         uv = torch.as_tensor(corners, dtype=torch.float64)
         valid = uv.isfinite().all(-1)
-        Hs, ok = find_homographies(object_points.double()[:, :2], uv.nan_to_num(0.0), valid, return_ok=True)
+        kappa = radial_from_views(uv, object_points, image_size)
+        c = torch.tensor([(W - 1) / 2, (H - 1) / 2], dtype=torch.float64)
+        d = uv.nan_to_num(0.0) - c
+        straight = c + d / (1 + kappa * (d * d).sum(-1, keepdim=True) / c.pow(2).sum())
+        Hs, ok = find_homographies(object_points.double()[:, :2], straight, valid, return_ok=True)
         K, good = zhang_intrinsics(Hs, ok & (valid.sum(-1) >= 8), image_size, principal_point="centre",
                                    fix_aspect_ratio=True, return_ok=True)
         est = float(K[0, 0])
-        if bool(good) and math.isfinite(est) and 0.1 * max(W, H) < est < 10 * max(W, H):
+        used = ok & (valid.sum(-1) >= 8)
+        R, _ = rotation_translation_from_homography(K, Hs)
+        tilted = bool((R[..., 2, 2].abs()[used] < math.cos(math.radians(MIN_TILT_DEG))).any())
+        if bool(good) and tilted and math.isfinite(est) and 0.1 * max(W, H) < est < 10 * max(W, H):
             f = est
+        names = model.param_names
+        if kappa != 0.0 and "k1" in names and "k2" in names:
+            radial = radial_polynomial_from_division(kappa, f, image_size)
     params = torch.zeros(model.num_params, dtype=torch.float64)
     params[:4] = torch.tensor([f, f, (W - 1) / 2, (H - 1) / 2], dtype=torch.float64)
+    if radial is not None:
+        params[model.param_names.index("k1")], params[model.param_names.index("k2")] = radial
     return Camera(model, params, (int(W), int(H)))
 
 

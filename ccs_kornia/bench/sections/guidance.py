@@ -10,8 +10,8 @@ diagonal). Each is calibrated with its own model.
 how far it is turned about the camera's x and y axes (and about its normal): what a person controls.
 
 * ``guided`` follows :mod:`~ccs_kornia.modules.calibration.quality.next_pose`: the best pose for the current
-  calibration (before the first solve, for a guessed camera of the right kind whose focal length comes from the
-  frames kept so far, :func:`~ccs_kornia.pipeline.guided_capture.guess_camera`) is shown; the person moves the board
+  calibration (before the first solve, for a guessed camera of the right kind whose focal length and barrel come
+  from the frames kept so far, :func:`~ccs_kornia.pipeline.guided_capture.guess_camera`) is shown; the person moves the board
   from where it was towards it, stops short by a reaction delay (a fraction 0-20 % of the way, uniform) and holds
   it with hand jitter (``jitter_mm`` per axis, ``jitter_deg`` per axis); the frame is kept where at least 60 % of the
   corners are in the image (the detector takes partial boards). The calibration is solved again at each count of
@@ -243,7 +243,7 @@ def _guided(kind: str, truth: Camera, obj: torch.Tensor, trials: int, counts: tu
             uv[t, k] = c + noise * torch.randn(c.shape, generator=g, dtype=torch.float64)
             valid[t, k] = seen
             kept[t] += 1
-            if not solved_upto[t] and not model.is_fisheye:  # before a solve: the focal length from the views so far
+            if not solved_upto[t] and not model.is_fisheye:  # before a solve: the lens guessed from the views so far
                 seen_uv = torch.where(valid[t, :k + 1, :, None], uv[t, :k + 1], float("nan"))
                 cams[t] = guess_camera(model, SIZE, seen_uv, obj)
                 infos[t] = _views_information(cams[t], obj, uv[t, :k + 1], valid[t, :k + 1])
