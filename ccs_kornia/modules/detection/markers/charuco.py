@@ -70,6 +70,7 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     MarkerBoardDetector,
     consistent_markers,
     decode_markers,
+    deblurring_copies,
     decode_with_copies,
     decoding_copies,
     fit_homography,
@@ -159,7 +160,9 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     (:data:`~ccs_kornia.modules.detection.markers.marker_board.VARIANTS`), checked against the board's lattice, the
     variant with the most consistent markers kept; then the markers of the image's enhanced copies
     (:func:`~ccs_kornia.modules.detection.markers.marker_board.decoding_copies`: contrast, sharpness, size) added on
-    the variant kept (on every variant where none was), kept where more of them sit on the lattice; where the markers
+    the variant kept (on every variant where none was), kept where more of them sit on the lattice; where any of the
+    board's marker ids was decoded, those of copies sharpened harder for a blurred view
+    (:func:`~ccs_kornia.modules.detection.markers.marker_board.deblurring_copies`) the same way; where the markers
     read are too small for OpenCV's sampling, those of a further enlarged copy
     (:func:`~ccs_kornia.modules.detection.markers.marker_board.small_marker_scale`) the same way; a view whose every
     marker is read already skips them."""
@@ -191,10 +194,21 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     for variant in (v for v in VARIANTS if v in found or not found):
         pooled[variant] = decode_with_copies(decoded[variant], copies, detector, variant)
         keep(*pooled[variant], variant)
-    # markers read but too small for OpenCV's sampling: a further copy, enlarged from the stretched one until their
-    # cells reach it, on the variant they were read on (a view with no marker read pays nothing)
     if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
         return best
+    # a blurred view: copies sharpened harder, on the variants where any of the board's marker ids was decoded, on or
+    # off the lattice (a view with no such id, as a board-free one, pays nothing)
+    board_ids = np.array(sorted({i for layout in layouts.values() for i in layout}))
+    read = [v for v in pooled if np.isin(pooled[v][1], board_ids).any()]
+    if read:
+        deblurred = deblurring_copies(copies[0][0])
+        for variant in read:
+            pooled[variant] = decode_with_copies(pooled[variant], deblurred, detector, variant)
+            keep(*pooled[variant], variant)
+        if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
+            return best
+    # markers read but too small for OpenCV's sampling: a further copy, enlarged from the stretched one until their
+    # cells reach it, on the variant they were read on (a view with no marker read pays nothing)
     most = max(best.values(), key=lambda m: len(m.ids))
     if not len(most.ids):
         return best
