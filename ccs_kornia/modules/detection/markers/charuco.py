@@ -65,12 +65,13 @@ from ccs_kornia.modules.detection.markers.lattice_path import (
 )
 from ccs_kornia.modules.detection.markers.marker_bits import CodeTemplates, MarkerCodes
 from ccs_kornia.modules.detection.markers.marker_board import (
+    UPSCALE,
     VARIANTS,
     BoardMarkers,
     MarkerBoardDetector,
     consistent_markers,
-    decode_markers,
     deblurring_copies,
+    decode_markers,
     decode_with_copies,
     decoding_copies,
     fit_homography,
@@ -78,6 +79,10 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     place_from,
     refine_marked_corners,
     small_marker_scale,
+)
+from ccs_kornia.modules.detection.markers.motion_deblur import (
+    deblur_motion,
+    motion_blur,
 )
 from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
 from ccs_kornia.runtime.checks import check_grey_images
@@ -145,12 +150,15 @@ class CharucoMarkers(BoardMarkers):
     """A ChArUco board's markers on one image (:class:`~ccs_kornia.modules.detection.markers.marker_board.
     BoardMarkers`, board corners in squares) with the layout (legacy or not) they fit and, where the board's given
     layout is the worse fit, the other one (``better_layout``) and the markers it explains (``better_count``);
-    ``ambiguous``: both layouts explain the view's markers alike."""
+    ``ambiguous``: both layouts explain the view's markers alike; ``motion``: the straight motion blur measured on the
+    view (length px, direction radians: :func:`~ccs_kornia.modules.detection.markers.motion_deblur.motion_blur`),
+    where its markers were also read on the view with it undone, and its corners are refined there."""
 
     legacy: bool = False
     better_layout: bool | None = None
     better_count: int = 0
     ambiguous: bool = False
+    motion: tuple[int, float] | None = None
 
 
 def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.ArucoDetector | None = None
@@ -173,12 +181,14 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     none = BoardMarkers.none()
     best = {legacy: CharucoMarkers(none.corners, none.ids, none.board_corners, legacy=legacy) for legacy in layouts}
 
+    motion = None
+
     def keep(pts: np.ndarray, ids: np.ndarray, variant: str) -> None:
         for legacy, layout in layouts.items():
             got = markers_on_board(pts, ids, layout, variant, len(best[legacy].ids))
             if got is not None:
                 best[legacy] = CharucoMarkers(got.corners, got.ids, got.board_corners, got.variant, got.decoded,
-                                              got.known, legacy=legacy)
+                                              got.known, legacy=legacy, motion=motion)
 
     decoded = {}
     for variant in VARIANTS:
@@ -204,6 +214,19 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
         deblurred = deblurring_copies(copies[0][0])
         for variant in read:
             pooled[variant] = decode_with_copies(pooled[variant], deblurred, detector, variant)
+            keep(*pooled[variant], variant)
+        if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
+            return best
+    # a straight motion blur measured on the view: its Wiener-filtered copy and that copy enlarged, on the variants
+    # where markers were read (on every variant where none were)
+    motion = motion_blur(copies[0][0])
+    if motion is not None:
+        best = {legacy: replace(m, motion=motion) for legacy, m in best.items()}
+        sharp = deblur_motion(copies[0][0], *motion)
+        undone = [(sharp, 1.0), (cv2.resize(sharp, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC),
+                                  UPSCALE)]
+        for variant in read or list(pooled):
+            pooled[variant] = decode_with_copies(pooled[variant], undone, detector, variant)
             keep(*pooled[variant], variant)
         if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
             return best
@@ -411,6 +434,14 @@ def charuco_paths(
         markers = charuco_markers(gray8, board, fits=fit, layout=layout)
         outputs.append((markers, _initial_corners(markers, board, (w, h))))
     refused = torch.tensor([m.better_layout is not None or m.off_lattice for m, _ in outputs], dtype=torch.bool)
+    # a view whose motion blur was measured is refined (and its lattice looked for) with the blur undone: the line's
+    # kernel is symmetric, so undoing it moves no corner, and the corners are sharp again
+    looked = images
+    for k, (markers, _) in enumerate(outputs):
+        if markers.motion is not None:
+            looked = looked.clone() if looked is images else looked
+            sharp = deblur_motion(arrays[k], *markers.motion)
+            looked[k, 0] = torch.from_numpy(sharp).to(looked) / 255.0
     factor = marked_radius_factor(board) if radius_factor is None else float(radius_factor)
 
     nan = torch.full((b, n, 2), float("nan"))
@@ -421,10 +452,10 @@ def charuco_paths(
         spacing = np.full((b, n), np.nan)
         for k, (_, (ids, pts, sp)) in enumerate(outputs):
             initial[k, ids], spacing[k, ids] = pts, sp
-        refined, accept = refine_marked_corners(images, initial, spacing, factor)
+        refined, accept = refine_marked_corners(looked, initial, spacing, factor)
         marked = torch.where(accept[..., None], refined, nan)
     if any(p.lattice for p in paths):
-        lattice, notes, veto = _lattice_path(images, board, outputs, layout, factor, refused,
+        lattice, notes, veto = _lattice_path(looked, board, outputs, layout, factor, refused,
                                        None if MarkerPaths.LATTICE in paths else marked)
     out = {}
     for path in paths:

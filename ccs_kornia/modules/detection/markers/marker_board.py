@@ -38,10 +38,33 @@ from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 from ccs_kornia.modules.detection.refine.saddle_refine import refine_corners
 
 __all__ = [
-    "CELL_PX", "COARSE_FACTOR", "DEBLUR", "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_COPY_PIXELS", "MAX_MOVE", "MAX_RADIUS", "SHARPEN_AMOUNT", "SHARPEN_SIGMA", "UPSCALE",
-    "VARIANTS", "BoardMarkers", "MarkerBoardDetector", "consistent_markers", "decode_markers", "decode_with_copies",
-    "deblurring_copies", "decoding_copies", "fit_homography", "grow_corners", "map_points", "markers_on_board", "place_from",
-    "refine_and_grow", "refine_marked_corners", "small_marker_scale",
+    "CELL_PX",
+    "COARSE_FACTOR",
+    "DEBLUR",
+    "LATTICE_TOLERANCE",
+    "LOCAL_TOLERANCE",
+    "MAX_COPY_PIXELS",
+    "MAX_MOVE",
+    "MAX_RADIUS",
+    "SHARPEN_AMOUNT",
+    "SHARPEN_SIGMA",
+    "UPSCALE",
+    "VARIANTS",
+    "BoardMarkers",
+    "MarkerBoardDetector",
+    "consistent_markers",
+    "deblurring_copies",
+    "decode_markers",
+    "decode_with_copies",
+    "decoding_copies",
+    "fit_homography",
+    "grow_corners",
+    "map_points",
+    "markers_on_board",
+    "place_from",
+    "refine_and_grow",
+    "refine_marked_corners",
+    "small_marker_scale",
 ]
 
 #: a marker belongs to the board's lattice when its corners lie within this many board units (squares, tag sides) of
@@ -88,7 +111,7 @@ class BoardMarkers:
     known: int = 0
 
     @staticmethod
-    def none(variant: str = "plain") -> "BoardMarkers":
+    def none(variant: str = "plain") -> BoardMarkers:
         """No marker."""
         return BoardMarkers(np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64), np.zeros((0, 4, 2)), variant)
 
