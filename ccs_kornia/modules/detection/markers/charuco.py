@@ -218,16 +218,21 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
         if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
             return best
     # a straight motion blur measured on the view: its Wiener-filtered copy and that copy enlarged, on the variants
-    # where markers were read (on every variant where none were)
-    motion = motion_blur(copies[0][0])
-    if motion is not None:
-        best = {legacy: replace(m, motion=motion) for legacy, m in best.items()}
-        sharp = deblur_motion(copies[0][0], *motion)
+    # where markers were read (on every variant where none were); the view is taken as blurred so (its corners
+    # refined with the blur undone) only where the copies read more of the board's markers: a blur measured where
+    # there is none gives a copy that reads nothing new
+    blur = motion_blur(copies[0][0])
+    if blur is not None:
+        before = max(len(m.ids) for m in best.values())
+        sharp = deblur_motion(copies[0][0], *blur)
         undone = [(sharp, 1.0), (cv2.resize(sharp, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC),
                                   UPSCALE)]
         for variant in read or list(pooled):
             pooled[variant] = decode_with_copies(pooled[variant], undone, detector, variant)
             keep(*pooled[variant], variant)
+        if max(len(m.ids) for m in best.values()) > before:
+            motion = blur
+            best = {legacy: replace(m, motion=motion) for legacy, m in best.items()}
         if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
             return best
     # markers read but too small for OpenCV's sampling: a further copy, enlarged from the stretched one until their

@@ -19,11 +19,12 @@ import numpy as np
 
 __all__ = ["MIN_PEAK", "MOTION_LENGTHS", "WIENER_NOISE", "deblur_motion", "line_kernel", "motion_blur"]
 
-#: the blur lengths searched (px)
-MOTION_LENGTHS = (5, 40)
+#: the blur lengths searched (px): a shorter blur leaves markers readable, and an isotropic blur's cepstrum dips near its
+#: origin
+MOTION_LENGTHS = (9, 40)
 #: a blur is found where its cepstrum peak lies this many standard deviations below the mean of the cepstrum over the
 #: searched lengths and directions
-MIN_PEAK = 4.0
+MIN_PEAK = 5.0
 #: the Wiener filter's noise-to-signal power (of a spectrum in grey levels)
 WIENER_NOISE = 0.01
 #: directions searched over half a turn
@@ -31,6 +32,13 @@ _DIRECTIONS = 180
 #: the cepstrum is measured on the image reduced to at most this many px on its longer side (speed), the blur's length
 #: scaled back
 _MAX_SIDE = 1024
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    image = np.asarray(image)
+    if image.ndim != 2:
+        raise ValueError(f"Expected a (H, W) grey image, got shape {image.shape}.")
+    return image
 
 
 def line_kernel(length: int, angle: float) -> np.ndarray:
@@ -65,13 +73,13 @@ def motion_blur(gray8: np.ndarray) -> tuple[int, float] | None:
         >>> motion_blur(sharp.astype(np.uint8)) is None
         True
     """
-    x = np.asarray(gray8, dtype=np.float32)
+    x = _grey(gray8).astype(np.float32)
     scale = min(1.0, _MAX_SIDE / max(x.shape))
     if scale < 1.0:
         x = cv2.resize(x, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     h, w = x.shape
     lo, hi = MOTION_LENGTHS
-    lo_s, hi_s = max(2, int(math.floor(lo * scale))), int(math.ceil(hi * scale))
+    lo_s, hi_s = max(2, int(math.ceil(lo * scale))), int(math.ceil(hi * scale))
     if min(h, w) < 4 * hi_s:
         return None
     x = (x - x.mean()) * np.outer(np.hanning(h), np.hanning(w)).astype(np.float32)
@@ -104,7 +112,9 @@ def deblur_motion(gray8: np.ndarray, length: int, angle: float) -> np.ndarray:
         >>> int(abs(int(sharp[32, 28]) - 0)) < 20, int(abs(int(sharp[32, 36]) - 200)) < 20
         (True, True)
     """
-    x = np.asarray(gray8, dtype=np.float64)
+    x = _grey(gray8).astype(np.float64)
+    if int(length) < 1:
+        raise ValueError(f"the blur's length must be at least 1 px, got {length}.")
     h, w = x.shape
     k = line_kernel(length, angle).astype(np.float64)
     pad = np.zeros((h, w))
