@@ -217,18 +217,21 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
             keep(*pooled[variant], variant)
         if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
             return best
-    # a straight motion blur measured on the view: its Wiener-filtered copy and that copy enlarged, on the variants
-    # where markers were read (on every variant where none were); the view is taken as blurred so (its corners
-    # refined with the blur undone) only where the copies read more of the board's markers: a blur measured where
-    # there is none gives a copy that reads nothing new
+    # a straight motion blur measured on the view: its Wiener-filtered copy on the variants where markers were read
+    # (on every variant where none were), and that copy enlarged on those where the board's ids are read by then; the
+    # view is taken as blurred so (its corners refined with the blur undone) only where the copies read more of the
+    # board's markers: a blur measured where there is none gives a copy that reads nothing new
     blur = motion_blur(copies[0][0])
     if blur is not None:
         before = max(len(m.ids) for m in best.values())
         sharp = deblur_motion(copies[0][0], *blur)
-        undone = [(sharp, 1.0), (cv2.resize(sharp, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC),
-                                  UPSCALE)]
         for variant in read or list(pooled):
-            pooled[variant] = decode_with_copies(pooled[variant], undone, detector, variant)
+            pooled[variant] = decode_with_copies(pooled[variant], [(sharp, 1.0)], detector, variant)
+            keep(*pooled[variant], variant)
+        seen = [v for v in pooled if np.isin(pooled[v][1], board_ids).any()]
+        enlarged = cv2.resize(sharp, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC) if seen else None
+        for variant in seen:
+            pooled[variant] = decode_with_copies(pooled[variant], [(enlarged, UPSCALE)], detector, variant)
             keep(*pooled[variant], variant)
         if max(len(m.ids) for m in best.values()) > before:
             motion = blur
