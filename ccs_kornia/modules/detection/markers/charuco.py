@@ -65,10 +65,12 @@ from ccs_kornia.modules.detection.markers.lattice_path import (
 )
 from ccs_kornia.modules.detection.markers.marker_bits import CodeTemplates, MarkerCodes
 from ccs_kornia.modules.detection.markers.marker_board import (
+    UPSCALE,
     VARIANTS,
     BoardMarkers,
     MarkerBoardDetector,
     consistent_markers,
+    deblurring_copies,
     decode_markers,
     decode_with_copies,
     decoding_copies,
@@ -77,6 +79,10 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     place_from,
     refine_marked_corners,
     small_marker_scale,
+)
+from ccs_kornia.modules.detection.markers.motion_deblur import (
+    deblur_motion,
+    motion_blur,
 )
 from ccs_kornia.modules.detection.refine.saddle_refine import POLISH_WINDOW
 from ccs_kornia.runtime.checks import check_grey_images
@@ -144,12 +150,15 @@ class CharucoMarkers(BoardMarkers):
     """A ChArUco board's markers on one image (:class:`~ccs_kornia.modules.detection.markers.marker_board.
     BoardMarkers`, board corners in squares) with the layout (legacy or not) they fit and, where the board's given
     layout is the worse fit, the other one (``better_layout``) and the markers it explains (``better_count``);
-    ``ambiguous``: both layouts explain the view's markers alike."""
+    ``ambiguous``: both layouts explain the view's markers alike; ``motion``: the straight motion blur measured on the
+    view (length px, direction radians: :func:`~ccs_kornia.modules.detection.markers.motion_deblur.motion_blur`),
+    where its markers were also read on the view with it undone, and its corners are refined there."""
 
     legacy: bool = False
     better_layout: bool | None = None
     better_count: int = 0
     ambiguous: bool = False
+    motion: tuple[int, float] | None = None
 
 
 def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.ArucoDetector | None = None
@@ -159,7 +168,9 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     (:data:`~ccs_kornia.modules.detection.markers.marker_board.VARIANTS`), checked against the board's lattice, the
     variant with the most consistent markers kept; then the markers of the image's enhanced copies
     (:func:`~ccs_kornia.modules.detection.markers.marker_board.decoding_copies`: contrast, sharpness, size) added on
-    the variant kept (on every variant where none was), kept where more of them sit on the lattice; where the markers
+    the variant kept (on every variant where none was), kept where more of them sit on the lattice; where any of the
+    board's marker ids was decoded, those of copies sharpened harder for a blurred view
+    (:func:`~ccs_kornia.modules.detection.markers.marker_board.deblurring_copies`) the same way; where the markers
     read are too small for OpenCV's sampling, those of a further enlarged copy
     (:func:`~ccs_kornia.modules.detection.markers.marker_board.small_marker_scale`) the same way; a view whose every
     marker is read already skips them."""
@@ -170,12 +181,14 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     none = BoardMarkers.none()
     best = {legacy: CharucoMarkers(none.corners, none.ids, none.board_corners, legacy=legacy) for legacy in layouts}
 
+    motion = None
+
     def keep(pts: np.ndarray, ids: np.ndarray, variant: str) -> None:
         for legacy, layout in layouts.items():
             got = markers_on_board(pts, ids, layout, variant, len(best[legacy].ids))
             if got is not None:
                 best[legacy] = CharucoMarkers(got.corners, got.ids, got.board_corners, got.variant, got.decoded,
-                                              got.known, legacy=legacy)
+                                              got.known, legacy=legacy, motion=motion)
 
     decoded = {}
     for variant in VARIANTS:
@@ -191,10 +204,42 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     for variant in (v for v in VARIANTS if v in found or not found):
         pooled[variant] = decode_with_copies(decoded[variant], copies, detector, variant)
         keep(*pooled[variant], variant)
-    # markers read but too small for OpenCV's sampling: a further copy, enlarged from the stretched one until their
-    # cells reach it, on the variant they were read on (a view with no marker read pays nothing)
     if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
         return best
+    # a blurred view: copies sharpened harder, on the variants where any of the board's marker ids was decoded, on or
+    # off the lattice (a view with no such id, as a board-free one, pays nothing)
+    board_ids = np.array(sorted({i for layout in layouts.values() for i in layout}))
+    read = [v for v in pooled if np.isin(pooled[v][1], board_ids).any()]
+    if read:
+        deblurred = deblurring_copies(copies[0][0])
+        for variant in read:
+            pooled[variant] = decode_with_copies(pooled[variant], deblurred, detector, variant)
+            keep(*pooled[variant], variant)
+        if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
+            return best
+    # a straight motion blur measured on the view: its Wiener-filtered copy on the variants where markers were read
+    # (on every variant where none were), and that copy enlarged on those where the board's ids are read by then; the
+    # view is taken as blurred so (its corners refined with the blur undone) only where the copies read more of the
+    # board's markers: a blur measured where there is none gives a copy that reads nothing new
+    blur = motion_blur(copies[0][0])
+    if blur is not None:
+        before = max(len(m.ids) for m in best.values())
+        sharp = deblur_motion(copies[0][0], *blur)
+        for variant in read or list(pooled):
+            pooled[variant] = decode_with_copies(pooled[variant], [(sharp, 1.0)], detector, variant)
+            keep(*pooled[variant], variant)
+        seen = [v for v in pooled if np.isin(pooled[v][1], board_ids).any()]
+        enlarged = cv2.resize(sharp, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC) if seen else None
+        for variant in seen:
+            pooled[variant] = decode_with_copies(pooled[variant], [(enlarged, UPSCALE)], detector, variant)
+            keep(*pooled[variant], variant)
+        if max(len(m.ids) for m in best.values()) > before:
+            motion = blur
+            best = {legacy: replace(m, motion=motion) for legacy, m in best.items()}
+        if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
+            return best
+    # markers read but too small for OpenCV's sampling: a further copy, enlarged from the stretched one until their
+    # cells reach it, on the variant they were read on (a view with no marker read pays nothing)
     most = max(best.values(), key=lambda m: len(m.ids))
     if not len(most.ids):
         return best
@@ -397,6 +442,14 @@ def charuco_paths(
         markers = charuco_markers(gray8, board, fits=fit, layout=layout)
         outputs.append((markers, _initial_corners(markers, board, (w, h))))
     refused = torch.tensor([m.better_layout is not None or m.off_lattice for m, _ in outputs], dtype=torch.bool)
+    # a view whose motion blur was measured is refined (and its lattice looked for) with the blur undone: the line's
+    # kernel is symmetric, so undoing it moves no corner, and the corners are sharp again
+    looked = images
+    for k, (markers, _) in enumerate(outputs):
+        if markers.motion is not None:
+            looked = looked.clone() if looked is images else looked
+            sharp = deblur_motion(arrays[k], *markers.motion)
+            looked[k, 0] = torch.from_numpy(sharp).to(looked) / 255.0
     factor = marked_radius_factor(board) if radius_factor is None else float(radius_factor)
 
     nan = torch.full((b, n, 2), float("nan"))
@@ -407,10 +460,10 @@ def charuco_paths(
         spacing = np.full((b, n), np.nan)
         for k, (_, (ids, pts, sp)) in enumerate(outputs):
             initial[k, ids], spacing[k, ids] = pts, sp
-        refined, accept = refine_marked_corners(images, initial, spacing, factor)
+        refined, accept = refine_marked_corners(looked, initial, spacing, factor)
         marked = torch.where(accept[..., None], refined, nan)
     if any(p.lattice for p in paths):
-        lattice, notes, veto = _lattice_path(images, board, outputs, layout, factor, refused,
+        lattice, notes, veto = _lattice_path(looked, board, outputs, layout, factor, refused,
                                        None if MarkerPaths.LATTICE in paths else marked)
     out = {}
     for path in paths:

@@ -38,10 +38,33 @@ from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 from ccs_kornia.modules.detection.refine.saddle_refine import refine_corners
 
 __all__ = [
-    "CELL_PX", "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_COPY_PIXELS", "MAX_MOVE", "MAX_RADIUS", "SHARPEN_AMOUNT", "SHARPEN_SIGMA", "UPSCALE",
-    "VARIANTS", "BoardMarkers", "MarkerBoardDetector", "consistent_markers", "decode_markers", "decode_with_copies",
-    "decoding_copies", "fit_homography", "grow_corners", "map_points", "markers_on_board", "place_from",
-    "refine_and_grow", "refine_marked_corners", "small_marker_scale",
+    "CELL_PX",
+    "COARSE_FACTOR",
+    "DEBLUR",
+    "LATTICE_TOLERANCE",
+    "LOCAL_TOLERANCE",
+    "MAX_COPY_PIXELS",
+    "MAX_MOVE",
+    "MAX_RADIUS",
+    "SHARPEN_AMOUNT",
+    "SHARPEN_SIGMA",
+    "UPSCALE",
+    "VARIANTS",
+    "BoardMarkers",
+    "MarkerBoardDetector",
+    "consistent_markers",
+    "deblurring_copies",
+    "decode_markers",
+    "decode_with_copies",
+    "decoding_copies",
+    "fit_homography",
+    "grow_corners",
+    "map_points",
+    "markers_on_board",
+    "place_from",
+    "refine_and_grow",
+    "refine_marked_corners",
+    "small_marker_scale",
 ]
 
 #: a marker belongs to the board's lattice when its corners lie within this many board units (squares, tag sides) of
@@ -53,6 +76,9 @@ LOCAL_TOLERANCE = 0.25
 MAX_MOVE = 0.25
 #: largest refinement window half-size (px)
 MAX_RADIUS = 12
+#: a corner the refinement did not confirm is refined again from where a window of this many grid spacings puts it
+#: (markers decoded on a blurred view place corners px off, farther than the narrow window reaches)
+COARSE_FACTOR = 0.25
 #: the order in which image variants are decoded (the first of equal counts is kept)
 VARIANTS = ("plain", "inverted", "mirrored", "mirrored inverted")
 #: the sharpened decoding copy: an unsharp mask of this sigma (px) ...
@@ -61,6 +87,9 @@ SHARPEN_SIGMA = 2.0
 SHARPEN_AMOUNT = 1.5
 #: the enlarged decoding copy's scale
 UPSCALE = 2.0
+#: the blurred views' decoding copies (:func:`deblurring_copies`): unsharp masks (sigma px, amount), and each copy's
+#: scale
+DEBLUR = ((1.5, 4.0, 1.0), (2.5, 3.0, 2.0))
 #: a marker is read where each of its cells (its bits and its black border) spans this many pixels, as OpenCV samples
 #: it (``perspectiveRemovePixelPerCell``); smaller markers get a further copy enlarged until their cells do
 CELL_PX = 4.0
@@ -82,7 +111,7 @@ class BoardMarkers:
     known: int = 0
 
     @staticmethod
-    def none(variant: str = "plain") -> "BoardMarkers":
+    def none(variant: str = "plain") -> BoardMarkers:
         """No marker."""
         return BoardMarkers(np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64), np.zeros((0, 4, 2)), variant)
 
@@ -143,6 +172,27 @@ def decoding_copies(gray8: np.ndarray) -> list[tuple[np.ndarray, float]]:
     sharpened = np.clip(np.rint(sharp), 0, 255).astype(np.uint8)
     enlarged = cv2.resize(stretched, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC)
     return [(stretched, 1.0), (sharpened, 1.0), (enlarged, UPSCALE)]
+
+
+def deblurring_copies(stretched: np.ndarray) -> list[tuple[np.ndarray, float]]:
+    """Copies of a stretched ``uint8`` grey image ``(H, W)`` (the first of :func:`decoding_copies`) sharpened harder
+    for a blurred view (:data:`DEBLUR`: each an unsharp mask's sigma and amount, and the copy's scale), each with its
+    scale to the image. A blur of a few px merges a marker's black border with the squares beside it across the
+    narrow white margin between them, so OpenCV finds no marker outline; the milder sharpened copy does not undo it.
+
+    Example:
+        >>> edge = np.tile(np.repeat(np.array([60, 200], dtype=np.uint8), 10), (8, 1))
+        >>> [(c.shape, s) for c, s in deblurring_copies(edge)]
+        [((8, 20), 1.0), ((16, 40), 2.0)]
+    """
+    x = stretched.astype(np.float32)
+    out = []
+    for sigma, amount, scale in DEBLUR:
+        sharp = np.clip(np.rint(x + amount * (x - cv2.GaussianBlur(x, (0, 0), sigma))), 0, 255).astype(np.uint8)
+        if scale != 1.0:
+            sharp = cv2.resize(sharp, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
+        out.append((sharp, float(scale)))
+    return out
 
 
 def small_marker_scale(side_px: float, cells: int, shape: tuple[int, int]) -> float:
@@ -299,7 +349,8 @@ def refine_marked_corners(images: torch.Tensor, initial: np.ndarray, spacing: np
     :math:`(B, N)`, from ``initial`` :math:`(B, N, 2)` px (NaN: not placed) and the local grid ``spacing``
     :math:`(B, N)` px; the window's half-size is ``factor`` spacings (at least 1.5 px, at most :data:`MAX_RADIUS`).
     A corner is accepted where the refinement confirmed it, its window lies on the image and it moved by at most
-    :data:`MAX_MOVE` spacings.
+    :data:`MAX_MOVE` spacings. A corner the window does not confirm is refined once more from where a wider window
+    (:data:`COARSE_FACTOR` spacings) takes it, the narrow window again deciding.
 
     Example:
         >>> img = torch.zeros(1, 1, 40, 40)
@@ -313,8 +364,18 @@ def refine_marked_corners(images: torch.Tensor, initial: np.ndarray, spacing: np
     start = torch.from_numpy(np.nan_to_num(initial)).float()
     space = torch.from_numpy(np.nan_to_num(spacing, nan=1.0)).float()
     radius = (float(factor) * space).clamp(1.5, MAX_RADIUS)
-    refined, ok = refine_corners(images.detach().float().cpu(), start, seen, radius, "symmetric",
-                                 max_radius=MAX_RADIUS, return_ok=True)
+    gray = images.detach().float().cpu()
+    refined, ok = refine_corners(gray, start, seen, radius, "symmetric", max_radius=MAX_RADIUS, return_ok=True)
+    coarse = (COARSE_FACTOR * space).clamp(1.5, MAX_RADIUS)
+    retry = seen & ~ok & (coarse > radius)
+    if retry.any():
+        # the wide window only brings the corner within the narrow one's reach; the narrow one decides
+        near, found = refine_corners(gray, start, retry, coarse, "symmetric", max_radius=MAX_RADIUS, return_ok=True)
+        again, sure = refine_corners(gray, near, retry & found, radius, "symmetric", max_radius=MAX_RADIUS,
+                                     return_ok=True)
+        take = retry & found & sure
+        refined = torch.where(take[..., None], again, refined)
+        ok = ok | take
     moved = (refined - start).norm(dim=-1)
     # the window must lie on the image: at the frame the border's replicated pixels pull a corner off by px
     inside = (refined >= radius[..., None]).all(-1)

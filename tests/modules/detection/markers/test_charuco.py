@@ -209,6 +209,45 @@ def test_small_markers_read_on_a_further_enlarged_copy(monkeypatch):
     assert _wrong_ids(board, det.corners[0].numpy().astype(np.float64), det.valid[0].numpy()) == 0
 
 
+def test_motion_blurred_view_read_with_its_blur_undone(monkeypatch):
+    import ccs_kornia.modules.detection.markers.charuco as charuco
+    from ccs_kornia.modules.detection.markers.motion_deblur import line_kernel
+
+    image = BOARD.render(40, margin=20)
+    truth = detect_charuco(_tensor(image), BOARD, paths=MarkerPaths.MARKERS).corners[0].numpy()
+    blurred = cv2.filter2D(image, -1, line_kernel(15, 0.6), borderType=cv2.BORDER_REFLECT)
+    markers = charuco_markers(blurred, BOARD)
+    assert markers.motion is not None and abs(markers.motion[0] - 15) <= 1
+    det = detect_charuco(_tensor(blurred), BOARD, paths=MarkerPaths.MARKERS)
+    corners, valid = det.corners[0].numpy().astype(np.float64), det.valid[0].numpy()
+    assert valid.sum() >= 20
+    assert np.linalg.norm(corners[valid] - truth[valid], axis=-1).max() < 0.5
+    assert _wrong_ids(BOARD, corners, valid) == 0
+    monkeypatch.setattr(charuco, "motion_blur", lambda *args: None)
+    assert len(charuco_markers(blurred, BOARD).ids) < len(markers.ids)
+    assert int(detect_charuco(_tensor(blurred), BOARD, paths=MarkerPaths.MARKERS).valid.sum()) < valid.sum()
+
+
+def test_blurred_view_read_on_copies_sharpened_harder(monkeypatch):
+    import ccs_kornia.modules.detection.markers.charuco as charuco
+
+    blurred = cv2.GaussianBlur(BOARD.render(40, margin=20), (0, 0), 1.7)
+    read = len(charuco_markers(blurred, BOARD).ids)
+    monkeypatch.setattr(charuco, "deblurring_copies", lambda *args: [])
+    assert read > len(charuco_markers(blurred, BOARD).ids)
+
+
+def test_corner_placed_beyond_the_narrow_window_refined_from_a_wider_one():
+    from ccs_kornia.modules.detection.markers import marker_board
+
+    img = torch.zeros(1, 1, 80, 80)
+    img[..., :40, :40] = img[..., 40:, 40:] = 1.0
+    img = torch.from_numpy(cv2.GaussianBlur(img[0, 0].numpy(), (0, 0), 2.0))[None, None]
+    start = np.array([[[38.0, 38.5]]])  # 1.8 px off: beyond what the narrow window (2 px) confirms
+    out, ok = marker_board.refine_marked_corners(img, start, np.array([[40.0]]), 0.05)
+    assert bool(ok[0, 0]) and torch.allclose(out[0, 0], torch.tensor([39.5, 39.5]), atol=0.05)
+
+
 def test_inverted_and_mirrored_views_name_their_variant():
     image, _ = render_view(BOARD, "whole", inverted=True, mirrored=True)
     markers = charuco_markers(image, BOARD)
