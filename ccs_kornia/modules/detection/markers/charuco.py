@@ -51,6 +51,7 @@ from ccs_kornia.modules.detection.boards import (
     CharucoBoard,
     aruco_dictionary,
 )
+from ccs_kornia.modules.detection.enhanced_copies import enhanced_copies
 from ccs_kornia.modules.detection.learned.scale import TARGET_SQUARE
 from ccs_kornia.modules.detection.markers.corner_merge import (
     MarkerPaths,
@@ -71,7 +72,6 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     consistent_markers,
     decode_markers,
     decode_with_copies,
-    decoding_copies,
     fit_homography,
     markers_on_board,
     place_from,
@@ -158,7 +158,7 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     place every marker alike, as on boards with an odd ``squares_y``): decoded on every variant
     (:data:`~ccs_kornia.modules.detection.markers.marker_board.VARIANTS`), checked against the board's lattice, the
     variant with the most consistent markers kept; then the markers of the image's enhanced copies
-    (:func:`~ccs_kornia.modules.detection.markers.marker_board.decoding_copies`: contrast, sharpness, size) added on
+    (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`: contrast, sharpness, size) added on
     the variant kept (on every variant where none was), kept where more of them sit on the lattice; where the markers
     read are too small for OpenCV's sampling, those of a further enlarged copy
     (:func:`~ccs_kornia.modules.detection.markers.marker_board.small_marker_scale`) the same way; a view whose every
@@ -186,7 +186,7 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
         return best
     found = {m.variant for m in best.values() if len(m.ids)}
-    copies = decoding_copies(gray8)
+    copies = enhanced_copies(gray8)
     pooled = {}
     for variant in (v for v in VARIANTS if v in found or not found):
         pooled[variant] = decode_with_copies(decoded[variant], copies, detector, variant)
