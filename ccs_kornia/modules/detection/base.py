@@ -131,7 +131,7 @@ class Fallbacks:
         foreshortened: then the level compressed along a few directions (boards at a grazing angle).
         copies: last, where no board was found, the same looks (but the grazing angle's) on the image's enhanced
             copies that suit it (:func:`~ccs_kornia.modules.detection.learned.learned_detector.chessboard_copies`:
-            dim, blurred or small views).
+            dim or small views).
 
     Example:
         >>> own = Fallbacks(levels=(0.5, 2.0, 0.25))

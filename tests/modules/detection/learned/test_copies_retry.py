@@ -58,15 +58,15 @@ def test_a_dim_view_found_on_the_enlarged_copy_in_the_image_pixels(detector, mon
 
 
 def test_only_the_copies_that_suit_the_image(detector, monkeypatch):
-    """A full-contrast image is not stretched and a large one not enlarged: a board-free view of either pays for one
-    more look (the sharpened copy); an image of one grey level for none."""
+    """A full-contrast image is not stretched nor sharpened and a large one not enlarged: a board-free view of a small
+    image pays for one more look (the enlarged copy), of a large one for none; an image of one grey level for none."""
     calls = _staged(detector, monkeypatch, lambda x: None)
     assert not bool(detector(torch.rand(1, 1, 24, 40), BOARD).found[0])
-    assert [c[0] for c in calls] == [(24, 40), (24, 40), (48, 80)]  # the image, sharpened, enlarged
+    assert [c[0] for c in calls] == [(24, 40), (48, 80)]  # the image, enlarged
     side = int(SMALL_PIXELS**0.5) + 1
     calls = _staged(detector, monkeypatch, lambda x: None)
     detector(torch.rand(1, 1, side, side), BOARD)
-    assert [c[0] for c in calls] == [(side, side)] * 2  # the image, sharpened
+    assert [c[0] for c in calls] == [(side, side)]
     calls = _staged(detector, monkeypatch, lambda x: None)
     detector(torch.full((1, 1, 24, 40), 0.5), BOARD)
     assert len(calls) == 1
@@ -85,10 +85,11 @@ def test_a_board_on_the_image_skips_the_copies_and_a_call_can_switch_them_off(de
 
 
 def test_a_copy_corner_the_image_moves_is_left_out_and_a_board_left_too_small_is_not_used(detector, monkeypatch):
-    image = torch.rand(1, 1, 24, 40) * 0.9  # no board on the image itself, one on its sharpened copy
+    image = torch.rand(1, 1, 24, 40)  # no board on the image itself, one on its enlarged copy
     moved = torch.zeros(6, 1)
     moved[2] = 2 * DISPUTED_PX  # the image's saddle fit moves one corner of the copy's board far (motion blur)
-    _staged(detector, monkeypatch, lambda x: GRID if x.max() > 0.999 else None, refine=lambda c: c + moved)
+    _staged(detector, monkeypatch, lambda x: (GRID + 0.5) * UPSCALE - 0.5 if x.shape[-1] == 40 * UPSCALE else None,
+            refine=lambda c: c + moved)
     out = detector(image, BOARD)
     want = GRID.clone()
     want[2] = float("nan")
