@@ -64,8 +64,8 @@ __all__ = ["DEFAULT_DETECTOR_WEIGHTS", "DIM_SPAN", "DISPUTED_PX", "SMALL_PIXELS"
 #: a corner of a board found on an enhanced copy that the image's own saddle fit moves farther than this (px) is left
 #: out (the copy and the image disagree on where it is)
 DISPUTED_PX = 1.0
-#: the stretched copy and that copy sharpened are looked at where the image is dim: its 1st to 99th percentiles span
-#: fewer grey levels than this (a quarter of the range; elsewhere the stretch barely changes the image)
+#: the stretched copy is looked at where the image is dim: its 1st to 99th percentiles span fewer grey levels than
+#: this (a quarter of the range; elsewhere the stretch barely changes the image)
 DIM_SPAN = 64
 #: the enlarged copy is looked at where the image is small: at most this many pixels (an enlarged large image costs
 #: four times its detection and its squares are large enough already)
@@ -156,8 +156,8 @@ class LearnedChessboardDetector(ChessboardDetector):
             2:1 along four directions in turn (:mod:`~ccs_kornia.modules.detection.learned.foreshortening`: boards at a
             grazing angle, whose squares are foreshortened 2-4:1).
         copies_retry: last, where still no board was found (a partial board is kept as it is), look for it on the
-            image's enhanced copies that suit it (:func:`chessboard_copies`: contrast stretched and sharpened where the
-            image is dim, enlarged where it is small) with every fallback but the grazing angle's, in turn until one gives
+            image's enhanced copies that suit it (:func:`chessboard_copies`: contrast stretched where the image is dim,
+            enlarged where it is small) with every fallback but the grazing angle's, in turn until one gives
             the whole board; a copy's board is refined again on the image, a corner moving more than
             :data:`DISPUTED_PX` there left out (a dim view misleads the square-size estimate, a small one's squares are
             a few px: docs/detection.md).
@@ -543,14 +543,14 @@ class LearnedChessboardDetector(ChessboardDetector):
 def chessboard_copies(gray8: np.ndarray) -> list[tuple[str, np.ndarray, float]]:
     """The enhanced copies of a ``uint8`` grey image ``(H, W)`` (:func:`~ccs_kornia.modules.detection.enhanced_copies.
     enhanced_copies`) that the learned detector looks at where the image gave no board, each with its name and its
-    scale to the image: where the image is dim (its 1st to 99th percentiles span fewer than :data:`DIM_SPAN` grey
-    levels) the stretched copy and that copy sharpened, and where it is small (at most :data:`SMALL_PIXELS` pixels) the
-    enlarged copy; none for an image that is neither (a board-free photograph pays for no copy).
+    scale to the image: the stretched copy where the image is dim (its 1st to 99th percentiles span fewer than
+    :data:`DIM_SPAN` grey levels), the enlarged copy where it is small (at most :data:`SMALL_PIXELS` pixels); none for
+    an image that is neither (a board-free photograph pays for no copy).
 
     Example:
         >>> dim = np.tile(np.arange(20, dtype=np.uint8), (8, 1))
         >>> [(name, c.shape, s) for name, c, s in chessboard_copies(dim)]
-        [('stretched', (8, 20), 1.0), ('sharpened', (8, 20), 1.0), ('enlarged', (16, 40), 2.0)]
+        [('stretched', (8, 20), 1.0), ('enlarged', (16, 40), 2.0)]
         >>> chessboard_copies(np.tile(np.arange(0, 250, 5, dtype=np.uint8), (600, 10)))
         []
     """
@@ -558,9 +558,8 @@ def chessboard_copies(gray8: np.ndarray) -> list[tuple[str, np.ndarray, float]]:
     dim, small = hi - lo < DIM_SPAN, gray8.size <= SMALL_PIXELS
     if hi <= lo or not (dim or small):
         return []
-    stretched, sharpened, *enlarged = enhanced_copies(gray8, enlarge=small)
-    return ([("stretched", *stretched), ("sharpened", *sharpened)] if dim else []) + [
-        ("enlarged", *e) for e in enlarged]
+    stretched, _, *enlarged = enhanced_copies(gray8, enlarge=small)
+    return ([("stretched", *stretched)] if dim else []) + [("enlarged", *e) for e in enlarged]
 
 
 def _empty_result(images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:

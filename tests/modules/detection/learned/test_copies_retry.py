@@ -49,8 +49,8 @@ def test_a_dim_view_found_on_the_enlarged_copy_in_the_image_pixels(detector, mon
                     lambda x: (GRID + 0.5) * UPSCALE - 0.5 if x.shape[-1] == 40 * UPSCALE else None)
     out = detector(dim, BOARD)
     assert bool(out.found[0]) and torch.allclose(out.corners[0], GRID) and out.reasons[0].endswith("copy: enlarged)")
-    # the image, then its three copies (stretched, sharpened: the full range; enlarged), none of them again
-    assert [c[0] for c in calls] == [(24, 40), (24, 40), (24, 40), (48, 80), "refined"]
+    # the image, then its two copies (stretched: the full range; enlarged), none of them again
+    assert [c[0] for c in calls] == [(24, 40), (24, 40), (48, 80), "refined"]
     assert calls[-1] == ("refined", (24, 40), 1.0)  # on the image itself
     looks = calls[:-1]
     assert looks[0][1] <= 0.1 and all(c[1] > 0.9 for c in looks[1:])
@@ -58,7 +58,7 @@ def test_a_dim_view_found_on_the_enlarged_copy_in_the_image_pixels(detector, mon
 
 
 def test_only_the_copies_that_suit_the_image(detector, monkeypatch):
-    """A full-contrast image is not stretched nor sharpened and a large one not enlarged: a board-free view of a small
+    """A full-contrast image is not stretched and a large one not enlarged: a board-free view of a small
     image pays for one more look (the enlarged copy), of a large one for none; an image of one grey level for none."""
     calls = _staged(detector, monkeypatch, lambda x: None)
     assert not bool(detector(torch.rand(1, 1, 24, 40), BOARD).found[0])
