@@ -68,8 +68,9 @@ def first_look_fallbacks(own: Fallbacks) -> Fallbacks:
 def second_look_fallbacks(own: Fallbacks) -> Fallbacks:
     """A second look at missed views (corrected copies, virtual views of the calibrated lens): the finer fallback
     levels only, which find boards there; the coarser level, the octaves below, the finest level and OpenCV's
-    candidates found none and cost time on every view without a board (``docs/measurements.md``)."""
-    return own.but(levels=(0.5, 0.25), finest=False, opencv=False, foreshortened=False)
+    candidates found none and cost time on every view without a board (``docs/measurements.md``); the enhanced copies
+    were looked at by the first look already."""
+    return own.but(levels=(0.5, 0.25), finest=False, opencv=False, foreshortened=False, copies=False)
 
 
 def _virtual_view_first_level(own: Fallbacks) -> Fallbacks:

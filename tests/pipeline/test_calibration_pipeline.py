@@ -296,7 +296,7 @@ def test_each_look_asks_the_detector_for_its_own_fallbacks(sets, monkeypatch):
     monkeypatch.setattr(pipe.detector, "forward", spy)
     with pytest.raises(RuntimeError, match="second pass"):
         pipe(imgs[None], BOARD, SQUARE)
-    second = own.but(levels=(0.5, 0.25), finest=False, opencv=False, foreshortened=False)
+    second = own.but(levels=(0.5, 0.25), finest=False, opencv=False, foreshortened=False, copies=False)
     assert seen[0] == own.but(foreshortened=False)
     assert set(seen[1:-1]) == {second.but(levels=())} and len(seen[1:-1]) == 19  # the wide lens's virtual views
     assert seen[-1] == second.but(primary=False)

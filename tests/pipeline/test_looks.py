@@ -22,13 +22,14 @@ def test_the_looks_in_order_and_what_they_need():
     assert [look.needs_correction for look in LOOKS] == [True, False, False]
     assert [look.needs_camera for look in LOOKS] == [False, True, False]
     # the first look leaves out the costly last resort only; the second looks pay for the finer levels only
+    # (not the enhanced copies, which the first look tried)
     own = Fallbacks()
     assert FIRST.passes == FIRST_PASSES and FIRST_PASSES[0](own) == Fallbacks(foreshortened=False)
-    assert second_look_fallbacks(own) == Fallbacks(True, (0.5, 0.25), False, False, False)
+    assert second_look_fallbacks(own) == Fallbacks(True, (0.5, 0.25), False, False, False, False)
     assert CORRECTED.passes == (second_look_fallbacks,) and FORESHORTENED.passes == (own_fallbacks,)
     # the calibrated look: the first level alone, then the second look's fallback levels alone
-    assert [ask(own) for ask in CALIBRATED.passes] == [Fallbacks(True, (), False, False, False),
-                                                      Fallbacks(False, (0.5, 0.25), False, False, False)]
+    assert [ask(own) for ask in CALIBRATED.passes] == [Fallbacks(True, (), False, False, False, False),
+                                                      Fallbacks(False, (0.5, 0.25), False, False, False, False)]
     assert own == Fallbacks()  # a pass makes a new value, the detector's own stays as it is
 
 
@@ -63,7 +64,7 @@ def test_look_passes_skipped_where_nothing_is_left_or_nothing_to_try():
              [(0, 0), (0, 1)], (3, 2))
     assert calls == [(2, None)]  # a detector without fallbacks: a second pass would be the first again
     look, calls = _counting_look(found_on_pass=0)
-    nothing = Fallbacks(levels=(), opencv=False, foreshortened=False)
+    nothing = Fallbacks(levels=(), opencv=False, foreshortened=False, copies=False)
     look.run(Tools(None, None, None, SimpleNamespace(fallbacks=nothing), 1), None, torch.rand(2, 1, 8, 8),
              [(0, 0), (0, 1)], (3, 2))
     assert len(calls) == 1  # the second pass (no primary level, no fallback level) would try nothing

@@ -128,12 +128,15 @@ class Fallbacks:
         levels: relative factors of the levels tried in turn where the board was not found at that level.
         finest: with ``levels``, then also the octaves below the finest of them and the finest level allowed.
         opencv: then OpenCV's corner candidates on a bounded level (boards with marks in the white squares).
-        foreshortened: last, the level compressed along a few directions (boards at a grazing angle).
+        foreshortened: then the level compressed along a few directions (boards at a grazing angle).
+        copies: last, where no board was found, the same looks (but the grazing angle's) on the image's enhanced
+            copies that suit it (:func:`~ccs_kornia.modules.detection.learned.learned_detector.chessboard_copies`:
+            dim or small views).
 
     Example:
         >>> own = Fallbacks(levels=(0.5, 2.0, 0.25))
         >>> own.but(levels=(0.5,), opencv=False)
-        Fallbacks(primary=True, levels=(0.5,), finest=True, opencv=False, foreshortened=True)
+        Fallbacks(primary=True, levels=(0.5,), finest=True, opencv=False, foreshortened=True, copies=True)
     """
 
     primary: bool = True
@@ -141,6 +144,7 @@ class Fallbacks:
     finest: bool = True
     opencv: bool = True
     foreshortened: bool = True
+    copies: bool = True
 
     def but(self, **changes: Any) -> "Fallbacks":
         """A copy with ``changes``."""
@@ -149,7 +153,7 @@ class Fallbacks:
     @property
     def empty(self) -> bool:
         """Nothing to try: neither the first level nor any fallback (``finest`` counts only with ``levels``)."""
-        return not (self.primary or self.levels or self.opencv or self.foreshortened)
+        return not (self.primary or self.levels or self.opencv or self.foreshortened or self.copies)
 
 
 class ChessboardDetector(nn.Module):

@@ -34,8 +34,9 @@ def test_fill_cameras_and_views_with_precision():
 def test_fallbacks_changes_and_empty():
     own = Fallbacks(levels=(0.5, 2.0))
     assert own.but(levels=()).levels == () and own.levels == (0.5, 2.0)  # a value: never changed
-    assert not own.empty and Fallbacks(primary=False, levels=(), opencv=False, foreshortened=False).empty
-    assert not Fallbacks(primary=False, levels=(0.5,), opencv=False, foreshortened=False).empty
+    assert not own.empty and Fallbacks(primary=False, levels=(), opencv=False, foreshortened=False, copies=False).empty
+    assert not Fallbacks(primary=False, levels=(0.5,), opencv=False, foreshortened=False, copies=False).empty
+    assert not Fallbacks(primary=False, levels=(), opencv=False, foreshortened=False).empty  # the copies remain
     with pytest.raises(TypeError):
         own.but(scale=2.0)
 

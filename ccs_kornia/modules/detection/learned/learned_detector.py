@@ -7,6 +7,7 @@ import math
 from contextlib import nullcontext
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from ccs_kornia.modules._fuse import fold_batchnorm, has_batchnorm
@@ -25,6 +26,7 @@ from ccs_kornia.modules.detection.checks.hidden_corners import (
     PARTIAL_BOARD_FRACTION,
     settle_partial_boards,
 )
+from ccs_kornia.modules.detection.enhanced_copies import enhanced_copies
 from ccs_kornia.modules.detection.grid.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.grid.grid_organizer import organize_grid
@@ -56,7 +58,18 @@ from ccs_kornia.modules.detection.refine.saddle_refine import (
 from ccs_kornia.runtime.threads import full_threads, light_stages_single_thread
 from ccs_kornia.runtime.timing import stage
 
-__all__ = ["DEFAULT_DETECTOR_WEIGHTS", "load_corner_unet", "LearnedChessboardDetector"]
+__all__ = ["DEFAULT_DETECTOR_WEIGHTS", "DIM_SPAN", "DISPUTED_PX", "SMALL_PIXELS", "chessboard_copies", "load_corner_unet",
+           "LearnedChessboardDetector"]
+
+#: a corner of a board found on an enhanced copy that the image's own saddle fit moves farther than this (px) is left
+#: out (the copy and the image disagree on where it is)
+DISPUTED_PX = 1.0
+#: the stretched copy is looked at where the image is dim: its 1st to 99th percentiles span fewer grey levels than
+#: this (a quarter of the range; elsewhere the stretch barely changes the image)
+DIM_SPAN = 64
+#: the enlarged copy is looked at where the image is small: at most this many pixels (an enlarged large image costs
+#: four times its detection and its squares are large enough already)
+SMALL_PIXELS = 250_000
 
 #: weights shipped inside the package (see docs/training.md for how they were made)
 DEFAULT_DETECTOR_WEIGHTS = Path(__file__).resolve().parents[3] / "weights" / "corner_unet.pt"
@@ -142,7 +155,14 @@ class LearnedChessboardDetector(ChessboardDetector):
         foreshortened_retry: where still no board was found, look on copies of the finest level allowed compressed
             2:1 along four directions in turn (:mod:`~ccs_kornia.modules.detection.learned.foreshortening`: boards at a
             grazing angle, whose squares are foreshortened 2-4:1).
-        (``scale_fallback``, ``scale_finest``, ``opencv_retry`` and ``foreshortened_retry`` make the detector's own
+        copies_retry: last, where still no board was found (a partial board is kept as it is), look for it on the
+            image's enhanced copies that suit it (:func:`chessboard_copies`: contrast stretched where the image is dim,
+            enlarged where it is small) with every fallback but the grazing angle's, in turn until one gives
+            the whole board; a copy's board is refined again on the image, a corner moving more than
+            :data:`DISPUTED_PX` there left out (a dim view misleads the square-size estimate, a small one's squares are
+            a few px: docs/detection.md).
+        (``scale_fallback``, ``scale_finest``, ``opencv_retry``, ``foreshortened_retry`` and ``copies_retry`` make the
+        detector's own
         :class:`~ccs_kornia.modules.detection.base.Fallbacks`, :attr:`fallbacks`; a caller passes others per call.)
         partial_boards: keep a found board whose unconfirmed corners the image does not show (saturating glare, an
             occluder: :mod:`~ccs_kornia.modules.detection.checks.hidden_corners`), with those corners NaN (left out of
@@ -172,6 +192,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         opencv_retry: bool = True,
         foreshortened_retry: bool = True,
         partial_boards: bool = True,
+        copies_retry: bool = True,
     ) -> None:
         super().__init__()
         if net is None:
@@ -203,7 +224,7 @@ class LearnedChessboardDetector(ChessboardDetector):
                                             min_factor=1.0 / max_upsampling)
         # the detector's own fallbacks; a caller passes others per call (``forward``'s ``fallbacks``)
         self.fallbacks = Fallbacks(True, tuple(float(f) for f in scale_fallback), bool(scale_finest),
-                                   bool(opencv_retry), bool(foreshortened_retry))
+                                   bool(opencv_retry), bool(foreshortened_retry), bool(copies_retry))
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}.")
         self.precision = precision
@@ -260,9 +281,12 @@ class LearnedChessboardDetector(ChessboardDetector):
         board_size = self._check_inputs(images, board_size)
         if images.shape[0] == 0:  # an empty batch (e.g. a folder's last, empty chunk): nothing to look at
             return _empty_result(images, board_size)
+        fallbacks = self.fallbacks if fallbacks is None else fallbacks
         with light_stages_single_thread(images.device):
-            out = self._detect(images.float(), board_size, self.fallbacks if fallbacks is None else fallbacks)
-            return self._grid_checks(images, out, board_size)
+            out = self._grid_checks(images, self._detect(images.float(), board_size, fallbacks), board_size)
+            if fallbacks.copies:
+                out = self._on_copies(images, out, board_size, fallbacks)
+            return out
 
     @torch.no_grad()
     def foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
@@ -299,6 +323,51 @@ class LearnedChessboardDetector(ChessboardDetector):
                 if reason:
                     out.found[b], out.reasons[b] = False, f"board refused: {reason}"
                     out.corners[b], out.sigma[b] = 0.0, float("nan")
+        return out
+
+    def _on_copies(self, images: torch.Tensor, out: DetectionResult, board_size: tuple[int, int],
+                   fallbacks: Fallbacks) -> DetectionResult:
+        """``out`` with the views where no board was found looked at again on the image's enhanced copies in turn
+        (:func:`chessboard_copies`), with ``fallbacks`` but the grazing angle's, until one gives the whole board; a
+        copy's board, in the image's pixels, is refined again on the image (a corner that moves more than
+        :data:`DISPUTED_PX` there left out) and kept where it measures more corners than the copies before it (at
+        least :data:`~ccs_kornia.modules.detection.checks.hidden_corners.PARTIAL_BOARD_FRACTION` of them; all of them
+        without partial boards). A board found on the image, whole or partial, is never looked at again."""
+        n = board_size[0] * board_size[1]
+        todo = (~out.found).nonzero().flatten().tolist()
+        if not todo:
+            return out
+        look = fallbacks.but(foreshortened=False, copies=False)
+        least = math.ceil(PARTIAL_BOARD_FRACTION * n) if self.partial_boards else n
+        with stage("enhanced copies"):
+            for b in todo:
+                gray8 = (images[b, 0].float() * 255.0).round().clamp(0, 255).to(torch.uint8).cpu().numpy()
+                best = least - 1
+                for name, copy_, scale in chessboard_copies(gray8):
+                    x = torch.from_numpy(copy_).to(images.device).float()[None, None] / 255.0
+                    got = self._grid_checks(x, self._detect(x, board_size, look), board_size)
+                    if not bool(got.found[0]):
+                        continue
+                    corners = (got.corners[0].double().to(out.corners.device) + 0.5) / scale - 0.5
+                    # refined again on the image itself (where its saddle shows: the image's pixels, as every other
+                    # look's corners); a corner the copy and the image place more than DISPUTED_PX apart (motion
+                    # blur: the image's saddle drifts) is left out
+                    refined = self._refine_at_full_size(images[b : b + 1].float(), corners[None].to(images.device)
+                                                        .float(), board_size, 1.0)[0].double().to(corners.device)
+                    corners = refined.masked_fill(((refined - corners).norm(dim=-1) > DISPUTED_PX)[:, None],
+                                                  float("nan"))
+                    count = int(corners.isfinite().all(-1).sum())
+                    if count <= best:
+                        continue
+                    best = count
+                    out.corners[b] = corners.to(out.corners.dtype)
+                    out.found[b], out.reasons[b] = True, f"{got.reasons[0]} (enhanced copy: {name})"
+                    if out.sigma is not None:
+                        sigma = got.sigma[0] / scale if got.sigma is not None else float("nan")
+                        out.sigma[b] = torch.as_tensor(sigma).to(out.sigma).masked_fill(
+                            ~corners.isfinite().all(-1).to(out.sigma.device), float("nan"))
+                    if count == n:
+                        break
         return out
 
     def _refine_at_full_size(self, full: torch.Tensor, pts: torch.Tensor, board_size: tuple[int, int], factor: float,
@@ -469,6 +538,28 @@ class LearnedChessboardDetector(ChessboardDetector):
         corners = torch.where(found[:, None, None], corners, torch.zeros_like(corners))
         corners = corners.masked_fill(hidden[..., None] & found[:, None, None], float("nan"))
         return DetectionResult(corners=corners.float(), found=found, reasons=reasons)
+
+
+def chessboard_copies(gray8: np.ndarray) -> list[tuple[str, np.ndarray, float]]:
+    """The enhanced copies of a ``uint8`` grey image ``(H, W)`` (:func:`~ccs_kornia.modules.detection.enhanced_copies.
+    enhanced_copies`) that the learned detector looks at where the image gave no board, each with its name and its
+    scale to the image: the stretched copy where the image is dim (its 1st to 99th percentiles span fewer than
+    :data:`DIM_SPAN` grey levels), the enlarged copy where it is small (at most :data:`SMALL_PIXELS` pixels); none for
+    an image that is neither (a board-free photograph pays for no copy).
+
+    Example:
+        >>> dim = np.tile(np.arange(20, dtype=np.uint8), (8, 1))
+        >>> [(name, c.shape, s) for name, c, s in chessboard_copies(dim)]
+        [('stretched', (8, 20), 1.0), ('enlarged', (16, 40), 2.0)]
+        >>> chessboard_copies(np.tile(np.arange(0, 250, 5, dtype=np.uint8), (600, 10)))
+        []
+    """
+    lo, hi = np.percentile(gray8, (1.0, 99.0))
+    dim, small = hi - lo < DIM_SPAN, gray8.size <= SMALL_PIXELS
+    if hi <= lo or not (dim or small):
+        return []
+    stretched, _, *enlarged = enhanced_copies(gray8, enlarge=small)
+    return ([("stretched", *stretched)] if dim else []) + [("enlarged", *e) for e in enlarged]
 
 
 def _empty_result(images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:

@@ -51,6 +51,11 @@ from ccs_kornia.modules.detection.boards import (
     CharucoBoard,
     aruco_dictionary,
 )
+from ccs_kornia.modules.detection.enhanced_copies import (
+    UPSCALE,
+    deblurring_copies,
+    enhanced_copies,
+)
 from ccs_kornia.modules.detection.learned.scale import TARGET_SQUARE
 from ccs_kornia.modules.detection.markers.corner_merge import (
     MarkerPaths,
@@ -65,15 +70,12 @@ from ccs_kornia.modules.detection.markers.lattice_path import (
 )
 from ccs_kornia.modules.detection.markers.marker_bits import CodeTemplates, MarkerCodes
 from ccs_kornia.modules.detection.markers.marker_board import (
-    UPSCALE,
     VARIANTS,
     BoardMarkers,
     MarkerBoardDetector,
     consistent_markers,
-    deblurring_copies,
     decode_markers,
     decode_with_copies,
-    decoding_copies,
     fit_homography,
     markers_on_board,
     place_from,
@@ -167,10 +169,10 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     place every marker alike, as on boards with an odd ``squares_y``): decoded on every variant
     (:data:`~ccs_kornia.modules.detection.markers.marker_board.VARIANTS`), checked against the board's lattice, the
     variant with the most consistent markers kept; then the markers of the image's enhanced copies
-    (:func:`~ccs_kornia.modules.detection.markers.marker_board.decoding_copies`: contrast, sharpness, size) added on
+    (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`: contrast, sharpness, size) added on
     the variant kept (on every variant where none was), kept where more of them sit on the lattice; where any of the
     board's marker ids was decoded, those of copies sharpened harder for a blurred view
-    (:func:`~ccs_kornia.modules.detection.markers.marker_board.deblurring_copies`) the same way; where the markers
+    (:func:`~ccs_kornia.modules.detection.enhanced_copies.deblurring_copies`) the same way; where the markers
     read are too small for OpenCV's sampling, those of a further enlarged copy
     (:func:`~ccs_kornia.modules.detection.markers.marker_board.small_marker_scale`) the same way; a view whose every
     marker is read already skips them."""
@@ -199,7 +201,7 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
         return best
     found = {m.variant for m in best.values() if len(m.ids)}
-    copies = decoding_copies(gray8)
+    copies = enhanced_copies(gray8)
     pooled = {}
     for variant in (v for v in VARIANTS if v in found or not found):
         pooled[variant] = decode_with_copies(decoded[variant], copies, detector, variant)

@@ -6,9 +6,10 @@ its two specialisations: they say where each marker and each corner lies on thei
 
 * **decoding** (:func:`decode_markers`): ``cv2.aruco.ArucoDetector`` on the image, its inverse (white-on-black prints)
   and both mirrored (a two-sided board seen from its back: ids decoded on the flipped image, their corners mapped
-  back), :data:`VARIANTS`; and on enhanced copies of the image (:func:`decoding_copies`: its grey levels stretched
-  to the contrast it measures, that copy sharpened, and enlarged; where the markers read are still too small for
-  OpenCV's sampling, enlarged further: :func:`small_marker_scale`), their markers added to the image's own
+  back), :data:`VARIANTS`; and on enhanced copies of the image
+  (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`: its grey levels stretched to the contrast
+  it measures, that copy sharpened, and enlarged; where the markers read are still too small for OpenCV's sampling,
+  enlarged further: :func:`small_marker_scale`), their markers added to the image's own
   (:func:`decode_with_copies`): a dim view's markers span a few grey levels, a blurred one's edges are soft and a
   small one's bits a few pixels, where OpenCV's fixed thresholds read none;
 * **lattice check** (:func:`consistent_markers`, :func:`markers_on_board`): the decoded markers must sit where the
@@ -34,37 +35,15 @@ import numpy as np
 import torch
 
 from ccs_kornia.modules.detection.base import ChessboardDetector, DetectionResult
+from ccs_kornia.modules.detection.enhanced_copies import UPSCALE
 from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 from ccs_kornia.modules.detection.refine.saddle_refine import refine_corners
 
 __all__ = [
-    "CELL_PX",
-    "COARSE_FACTOR",
-    "DEBLUR",
-    "LATTICE_TOLERANCE",
-    "LOCAL_TOLERANCE",
-    "MAX_COPY_PIXELS",
-    "MAX_MOVE",
-    "MAX_RADIUS",
-    "SHARPEN_AMOUNT",
-    "SHARPEN_SIGMA",
-    "UPSCALE",
-    "VARIANTS",
-    "BoardMarkers",
-    "MarkerBoardDetector",
-    "consistent_markers",
-    "deblurring_copies",
-    "decode_markers",
-    "decode_with_copies",
-    "decoding_copies",
-    "fit_homography",
-    "grow_corners",
-    "map_points",
-    "markers_on_board",
-    "place_from",
-    "refine_and_grow",
-    "refine_marked_corners",
-    "small_marker_scale",
+    "CELL_PX", "COARSE_FACTOR", "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_COPY_PIXELS", "MAX_MOVE", "MAX_RADIUS",
+    "VARIANTS", "BoardMarkers", "MarkerBoardDetector", "consistent_markers", "decode_markers", "decode_with_copies",
+    "fit_homography", "grow_corners", "map_points", "markers_on_board", "place_from",
+    "refine_and_grow", "refine_marked_corners", "small_marker_scale",
 ]
 
 #: a marker belongs to the board's lattice when its corners lie within this many board units (squares, tag sides) of
@@ -81,15 +60,6 @@ MAX_RADIUS = 12
 COARSE_FACTOR = 0.25
 #: the order in which image variants are decoded (the first of equal counts is kept)
 VARIANTS = ("plain", "inverted", "mirrored", "mirrored inverted")
-#: the sharpened decoding copy: an unsharp mask of this sigma (px) ...
-SHARPEN_SIGMA = 2.0
-#: ... and this amount (the image plus this times its difference from the blurred image)
-SHARPEN_AMOUNT = 1.5
-#: the enlarged decoding copy's scale
-UPSCALE = 2.0
-#: the blurred views' decoding copies (:func:`deblurring_copies`): unsharp masks (sigma px, amount), and each copy's
-#: scale
-DEBLUR = ((1.5, 4.0, 1.0), (2.5, 3.0, 2.0))
 #: a marker is read where each of its cells (its bits and its black border) spans this many pixels, as OpenCV samples
 #: it (``perspectiveRemovePixelPerCell``); smaller markers get a further copy enlarged until their cells do
 CELL_PX = 4.0
@@ -152,49 +122,6 @@ def decode_markers(gray8: np.ndarray, detector: cv2.aruco.ArucoDetector, variant
     return pts, ids.reshape(-1).astype(np.int64)
 
 
-def decoding_copies(gray8: np.ndarray) -> list[tuple[np.ndarray, float]]:
-    """The copies of a ``uint8`` grey image ``(H, W)`` that markers are decoded on besides the image itself, each with
-    its scale to the image: the grey levels stretched from the image's 1st and 99th percentiles to ``0..255`` (a dim
-    view's markers span a few grey levels, less than OpenCV's adaptive threshold constant), that copy sharpened by an
-    unsharp mask (:data:`SHARPEN_SIGMA`, :data:`SHARPEN_AMOUNT`: blurred edges) and that copy enlarged
-    :data:`UPSCALE` times (cubic: markers whose bits span a few pixels).
-
-    Example:
-        >>> dim = np.tile(np.arange(20, dtype=np.uint8), (8, 1))
-        >>> [(c.shape, s, int(c.max())) for c, s in decoding_copies(dim)]
-        [((8, 20), 1.0, 255), ((8, 20), 1.0, 255), ((16, 40), 2.0, 255)]
-    """
-    lo, hi = np.percentile(gray8, (1.0, 99.0))
-    x = (gray8.astype(np.float32) - float(lo)) * (255.0 / max(float(hi - lo), 1.0))
-    stretched = np.clip(np.rint(x), 0, 255).astype(np.uint8)
-    x = stretched.astype(np.float32)
-    sharp = x + SHARPEN_AMOUNT * (x - cv2.GaussianBlur(x, (0, 0), SHARPEN_SIGMA))
-    sharpened = np.clip(np.rint(sharp), 0, 255).astype(np.uint8)
-    enlarged = cv2.resize(stretched, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC)
-    return [(stretched, 1.0), (sharpened, 1.0), (enlarged, UPSCALE)]
-
-
-def deblurring_copies(stretched: np.ndarray) -> list[tuple[np.ndarray, float]]:
-    """Copies of a stretched ``uint8`` grey image ``(H, W)`` (the first of :func:`decoding_copies`) sharpened harder
-    for a blurred view (:data:`DEBLUR`: each an unsharp mask's sigma and amount, and the copy's scale), each with its
-    scale to the image. A blur of a few px merges a marker's black border with the squares beside it across the
-    narrow white margin between them, so OpenCV finds no marker outline; the milder sharpened copy does not undo it.
-
-    Example:
-        >>> edge = np.tile(np.repeat(np.array([60, 200], dtype=np.uint8), 10), (8, 1))
-        >>> [(c.shape, s) for c, s in deblurring_copies(edge)]
-        [((8, 20), 1.0), ((16, 40), 2.0)]
-    """
-    x = stretched.astype(np.float32)
-    out = []
-    for sigma, amount, scale in DEBLUR:
-        sharp = np.clip(np.rint(x + amount * (x - cv2.GaussianBlur(x, (0, 0), sigma))), 0, 255).astype(np.uint8)
-        if scale != 1.0:
-            sharp = cv2.resize(sharp, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
-        out.append((sharp, float(scale)))
-    return out
-
-
 def small_marker_scale(side_px: float, cells: int, shape: tuple[int, int]) -> float:
     """The scale of a further enlarged decoding copy for a view whose decoded markers measure ``side_px`` (their
     median side, px) across ``cells`` cells (the bits and the black border): the power of two that brings a cell to
@@ -219,16 +146,18 @@ def small_marker_scale(side_px: float, cells: int, shape: tuple[int, int]) -> fl
 def decode_with_copies(decoded: tuple[np.ndarray, np.ndarray], copies: list[tuple[np.ndarray, float]],
                        detector: cv2.aruco.ArucoDetector, variant: str = "plain") -> tuple[np.ndarray, np.ndarray]:
     """The markers ``decoded`` on the image (corners ``(M, 4, 2)``, ids ``(M,)``: :func:`decode_markers`) followed by
-    those decoded on the same variant of its ``copies`` (:func:`decoding_copies`), their corners in the image's pixels
+    those decoded on the same variant of its ``copies``
+    (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`), their corners in the image's pixels
     (an id decoded twice is the first: :func:`markers_on_board` keeps it once).
 
     Example:
         >>> from ccs_kornia.modules.detection.boards import CharucoBoard, aruco_dictionary
+        >>> from ccs_kornia.modules.detection.enhanced_copies import enhanced_copies
         >>> board = CharucoBoard(5, 7, 0.04, 0.02, "DICT_6X6_250")
         >>> dim = (board.render(60, margin=30) * 0.03).astype(np.uint8)  # 8 grey levels
         >>> det = cv2.aruco.ArucoDetector(aruco_dictionary(board.dictionary))
         >>> mine = decode_markers(dim, det)
-        >>> len(mine[1]), len(np.unique(decode_with_copies(mine, decoding_copies(dim), det)[1]))
+        >>> len(mine[1]), len(np.unique(decode_with_copies(mine, enhanced_copies(dim), det)[1]))
         (0, 17)
     """
     pts, ids = [decoded[0]], [decoded[1]]
