@@ -26,6 +26,13 @@ UPSCALE = 2.0
 DEBLUR = ((1.5, 4.0, 1.0), (2.5, 3.0, 2.0))
 
 
+def _unsharp(gray8: np.ndarray, sigma: float, amount: float) -> np.ndarray:
+    """An unsharp mask of a ``uint8`` grey image: the image plus ``amount`` times its difference from its Gaussian
+    blur of ``sigma`` px, ``uint8``."""
+    x = gray8.astype(np.float32)
+    return np.clip(np.rint(x + amount * (x - cv2.GaussianBlur(x, (0, 0), sigma))), 0, 255).astype(np.uint8)
+
+
 def enhanced_copies(gray8: np.ndarray, enlarge: bool = True) -> list[tuple[np.ndarray, float]]:
     """The enhanced copies of a ``uint8`` grey image ``(H, W)``, each with its scale to the image (a point ``p`` of
     the image lies at ``(p + 0.5) * scale - 0.5`` in the copy): the grey levels stretched from the image's 1st and
@@ -43,9 +50,7 @@ def enhanced_copies(gray8: np.ndarray, enlarge: bool = True) -> list[tuple[np.nd
     lo, hi = np.percentile(gray8, (1.0, 99.0))
     x = (gray8.astype(np.float32) - float(lo)) * (255.0 / max(float(hi - lo), 1.0))
     stretched = np.clip(np.rint(x), 0, 255).astype(np.uint8)
-    x = stretched.astype(np.float32)
-    sharp = x + SHARPEN_AMOUNT * (x - cv2.GaussianBlur(x, (0, 0), SHARPEN_SIGMA))
-    sharpened = np.clip(np.rint(sharp), 0, 255).astype(np.uint8)
+    sharpened = _unsharp(stretched, SHARPEN_SIGMA, SHARPEN_AMOUNT)
     if not enlarge:
         return [(stretched, 1.0), (sharpened, 1.0)]
     enlarged = cv2.resize(stretched, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC)
@@ -65,10 +70,9 @@ def deblurring_copies(stretched: np.ndarray) -> list[tuple[np.ndarray, float]]:
     """
     if stretched.dtype != np.uint8 or stretched.ndim != 2:
         raise ValueError(f"expected a uint8 grey image (H, W), got {stretched.dtype} of shape {stretched.shape}.")
-    x = stretched.astype(np.float32)
     out = []
     for sigma, amount, scale in DEBLUR:
-        sharp = np.clip(np.rint(x + amount * (x - cv2.GaussianBlur(x, (0, 0), sigma))), 0, 255).astype(np.uint8)
+        sharp = _unsharp(stretched, sigma, amount)
         if scale != 1.0:
             sharp = cv2.resize(sharp, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
         out.append((sharp, float(scale)))
