@@ -15,8 +15,8 @@ how far it is turned about the camera's x and y axes (and about its normal): wha
   from where it was towards it, stops short by a reaction delay (a fraction 0-20 % of the way, uniform) and holds
   it with hand jitter (``jitter_mm`` per axis, ``jitter_deg`` per axis); the frame is kept where at least 60 % of the
   corners are in the image (the detector takes partial boards, as a ChArUco board's: the poses shown include
-  boards partly beyond the image's edge, :data:`~ccs_kornia.modules.calibration.quality.next_pose.MIN_SEEN`). The calibration is solved again at each count of
-  :data:`COUNTS` (a solve whose RMS is over three times the noise's is not followed: the guidance keeps the camera
+  boards partly beyond the image's edge, :data:`~ccs_kornia.modules.calibration.quality.next_pose.MIN_SEEN`). The
+  calibration is solved again at each count of :data:`COUNTS` (a solve whose RMS is over three times the noise's is not followed: the guidance keeps the camera
   before it); between solves the new views' information is taken at the pose the last camera gives them.
 * ``ros`` waves the board about at random (positions over the whole image, 30-80 % of the width, tilts up to 45
   degrees about each axis, 20 degrees about the normal; the whole board in the image, 8 px clear of its border, as

@@ -7,8 +7,9 @@ covariance of the parameters :math:`\sigma^2 H^{-1}`. A board held at a new pose
 :math:`\sigma^2 (H + M)^{-1}` propagated through the projection of every pixel's ray
 (:mod:`~ccs_kornia.modules.calibration.quality.uncertainty`, the camera rotation fitted out as mrcal does), is known
 before it is shown. :func:`candidate_poses` lays out the poses a hand-held board reaches (its centre over a grid of
-the image, a few distances, tilted about both axes, at least three quarters of its corners inside the image), :func:`worst_uncertainty` is the
-figure that decides when a capture is done (the worst 1-sigma projection uncertainty over the image, px), and
+the image, a few distances, tilted about both axes, at least three quarters of its corners inside the image: a board
+partly beyond the image's edge reaches its corners, :data:`MIN_SEEN`), :func:`worst_uncertainty` is the figure that
+decides when a capture is done (the worst 1-sigma projection uncertainty over the image, px), and
 :func:`next_poses` ranks the candidates by the fourth-power mean of the 1-sigma over the image (:data:`RANK_POWER`):
 between the RMS (the error to expect over the whole image) and the worst, it weighs the worst pixels most without
 chasing the one pixel that is worst now; ranked by the worst, the guided person needed more frames on normal lenses,
