@@ -399,7 +399,7 @@ def guidance_md(sec: dict) -> list[str]:
               f"hand jitter {first['jitter_mm']:g} mm and {first['jitter_deg']:g} degrees per axis), "
               "ROS camera_calibration's rule on random hand-held poses (40 samples), the random poses themselves "
               "(whole boards, as ROS's), and random poses with partial boards allowed (at least "
-              f"{100 * first.get('min_seen', MIN_SEEN):.0f} % of the corners in the image, the others left out, as "
+              f"{100 * first['min_seen']:.0f} % of the corners in the image, the others left out, as "
               "the guided person's). "
               "Error: RMS over the image of the projection difference to the true camera (px, rotation fitted out). "
               "Target: ROS's median error at its 40 samples. Frames: the median over trials of the first count of "
