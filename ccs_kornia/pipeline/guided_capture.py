@@ -35,8 +35,10 @@ import torch
 
 from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models.base import CameraModel
+from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.homography import find_homographies
 from ccs_kornia.modules.calibration.quality.next_pose import (
+    MIN_SEEN,
     PoseSuggestion,
     candidate_poses,
     next_poses,
@@ -200,7 +202,9 @@ class GuidedCapture:
         self.information = torch.zeros(P, P, dtype=torch.float64)
         cols, rows = self.board_size
         self._ends = [0, cols - 1, cols * rows - 1, cols * (rows - 1)]
-        self._candidates = candidate_poses(self.camera, self.object_points, self.board_size)
+        # boards partly beyond the image's edge are asked for only where the screen sees them
+        self._min_seen = MIN_SEEN if getattr(self.screen, "sees_partial_boards", False) else 1.0
+        self._candidates = candidate_poses(self.camera, self.object_points, self.board_size, min_seen=self._min_seen)
 
     @property
     def diagonal(self) -> float:
@@ -224,9 +228,15 @@ class GuidedCapture:
         return torch.from_numpy(r.reshape(1, 1, 3)).double(), torch.from_numpy(t.reshape(1, 1, 3)).double()
 
     def _view_information(self, rvec: torch.Tensor, tvec: torch.Tensor, valid: torch.Tensor | None = None):
-        w = torch.ones(1, rvec.shape[1], self.object_points.shape[0], dtype=torch.float64) if valid is None else \
-            valid.double()[None]
-        return view_information(self.camera, rvec, tvec, self.object_points, w)[0]
+        """The information of views at ``rvec, tvec`` :math:`(1, V, 3)`, of the corners ``valid`` :math:`(V, N)`
+        (default: those the pose puts inside the image)."""
+        if valid is None:
+            pts = torch.einsum("vij,nj->vni", exp_so3(rvec[0]), self.object_points) + tvec[0, :, None]
+            uv = self.camera.project(pts.reshape(1, -1, 3))[0].reshape(*pts.shape[:2], 2)
+            W, H = self.image_size
+            valid = ((pts[..., 2] > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= W - 1) & (uv[..., 1] >= 0)
+                     & (uv[..., 1] <= H - 1))
+        return view_information(self.camera, rvec, tvec, self.object_points, valid.double()[None])[0]
 
     def figure(self, information: torch.Tensor, typical: torch.Tensor) -> float:
         """The worst 1-sigma projection uncertainty over the image (px) for ``information`` (``typical``: an average
@@ -317,7 +327,7 @@ class GuidedCapture:
         camera = guess_camera(self.live_model, self.image_size, corners, self.object_points)
         if not torch.equal(camera.params, self.camera.params):
             self.camera = camera
-            self._candidates = candidate_poses(camera, self.object_points, self.board_size)
+            self._candidates = candidate_poses(camera, self.object_points, self.board_size, min_seen=self._min_seen)
         self.information = torch.zeros_like(self.information)
         for k in self.kept:
             valid = np.isfinite(k.corners).all(-1)
@@ -351,4 +361,4 @@ class GuidedCapture:
         """The next best pose for the current calibration (or the guessed camera before the first solve)."""
         candidates = None if self._solved else self._candidates
         return next_poses(self.camera, self.information, self.object_points, self.sigma, self.board_size,
-                          candidates=candidates, current_fill=current_fill, top=5)
+                          candidates=candidates, current_fill=current_fill, top=5, min_seen=self._min_seen)

@@ -68,3 +68,25 @@ def test_guided_capture_guesses_again_with_each_frame_before_its_first_solve():
     assert bool(torch.linalg.eigvalsh(gc.information)[-1] > 0)
     gc.undo()
     assert float(gc.camera.params[0, 0]) == 640.0 and not bool(gc.information.any()) and gc.worst_px == float("inf")
+
+
+def test_boards_partly_beyond_the_image_are_asked_for_where_the_screen_sees_them():
+    from ccs_kornia.modules.detection.boards import CharucoBoard
+    from ccs_kornia.modules.detection.screening import BoardScreen
+
+    board = CharucoBoard(10, 7, 0.025, 0.018, "DICT_6X6_250")  # 9x6 inner corners
+    obj = board.object_points().double()
+    marker = GuidedCapture((9, 6), obj, SIZE, detect=lambda k: None, live_model=OPENCV5,
+                           screen=BoardScreen((9, 6), board))
+    chess = GuidedCapture((9, 6), OBJ, SIZE, detect=lambda k: None, live_model=OPENCV5)
+    assert bool(chess.suggestion().poses.seen.all()) and bool(chess._candidates.seen.all())
+    partial = ~marker._candidates.seen.all(-1)
+    assert bool(partial.any()) and float(marker._candidates.seen.double().mean(-1).min()) >= 0.75
+    # a partial view's information counts the corners inside the image only
+    r, t = marker._candidates.rvec[partial][:1, None], marker._candidates.tvec[partial][:1, None]
+    pts = obj @ exp_so3(r[0, 0]).T + t[0, 0]
+    uv = marker.camera.project(pts[None])[0]
+    inside = ((uv >= 0) & (uv <= torch.tensor([SIZE[0] - 1.0, SIZE[1] - 1.0], dtype=torch.float64))).all(-1)[None]
+    assert not bool(inside.all())
+    torch.testing.assert_close(marker._view_information(r, t), marker._view_information(r, t, inside))
+    assert not torch.allclose(marker._view_information(r, t), marker._view_information(r, t, torch.ones_like(inside)))

@@ -14,8 +14,9 @@ how far it is turned about the camera's x and y axes (and about its normal): wha
   from the frames kept so far, :func:`~ccs_kornia.pipeline.guided_capture.guess_camera`) is shown; the person moves the board
   from where it was towards it, stops short by a reaction delay (a fraction 0-20 % of the way, uniform) and holds
   it with hand jitter (``jitter_mm`` per axis, ``jitter_deg`` per axis); the frame is kept where at least 60 % of the
-  corners are in the image (the detector takes partial boards). The calibration is solved again at each count of
-  :data:`COUNTS` (a solve whose RMS is over three times the noise's is not followed: the guidance keeps the camera
+  corners are in the image (the detector takes partial boards, as a ChArUco board's: the poses shown include
+  boards partly beyond the image's edge, :data:`~ccs_kornia.modules.calibration.quality.next_pose.MIN_SEEN`). The
+  calibration is solved again at each count of :data:`COUNTS` (a solve whose RMS is over three times the noise's is not followed: the guidance keeps the camera
   before it); between solves the new views' information is taken at the pose the last camera gives them.
 * ``ros`` waves the board about at random (positions over the whole image, 30-80 % of the width, tilts up to 45
   degrees about each axis, 20 degrees about the normal; the whole board in the image, 8 px clear of its border, as
@@ -23,6 +24,9 @@ how far it is turned about the camera's x and y axes (and about its normal): wha
   frame's by more than 0.2 (sum of absolute differences), up to 40 samples; ROS enables CALIBRATE at 40 samples or
   once its four bars are full (ranges 0.7, 0.7, 0.4, 0.5), its ``goodenough``.
 * ``random`` keeps every one of those random poses.
+* ``random_partial`` keeps random poses drawn the same way but where at least
+  :data:`~ccs_kornia.modules.calibration.quality.next_pose.MIN_SEEN` of the corners are in the image, the others left
+  out, as the guided person's: what a ChArUco board waved about at random gives (ROS's rule needs whole chessboards).
 
 **The figures.** The error against the truth: the RMS over a 16x12 grid of pixels of the distance between where the
 true and the calibrated camera project the same ray (the camera rotation fitted out, as mrcal does). The target
@@ -44,6 +48,7 @@ from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models import FISHEYE, OPENCV5
 from ccs_kornia.geometry.so3 import exp_so3, log_so3
 from ccs_kornia.modules.calibration.quality.next_pose import (
+    MIN_SEEN,
     candidate_poses,
     next_poses,
     place_board,
@@ -55,7 +60,7 @@ from ccs_kornia.modules.calibration.quality.uncertainty import (
 from ccs_kornia.modules.calibration.quality.view_information import view_information
 from ccs_kornia.pipeline.guided_capture import guess_camera
 
-__all__ = ["CAMERAS", "COUNTS", "SEED", "guidance_md", "projection_error", "ros_parameters", "run_guidance",
+__all__ = ["CAMERAS", "COUNTS", "PEOPLE", "SEED", "guidance_md", "projection_error", "ros_parameters", "run_guidance",
            "run_guidance_camera"]
 
 #: first seed of the trials
@@ -77,6 +82,8 @@ ROS_BORDER = 8.0
 ROS_MIN_DISTANCE = 0.2
 ROS_RANGES = (0.7, 0.7, 0.4, 0.5)
 ROS_SAMPLES = 40
+#: the people compared, as the tables name them
+PEOPLE = {"guided": "guided", "ros": "ros", "random": "random", "random_partial": "random, partial boards"}
 
 
 def _camera(kind: str, guess: bool = False) -> Camera:
@@ -142,8 +149,10 @@ def _inside(uv: torch.Tensor, border: float) -> torch.Tensor:
             & (uv[..., 1] >= border) & (uv[..., 1] <= SIZE[1] - 1 - border))
 
 
-def _random_stream(truth: Camera, obj: torch.Tensor, g: torch.Generator, count: int) -> tuple[torch.Tensor, ...]:
-    """Random hand-held poses with the whole board in the image, ROS's border clear: rvec, tvec (K, 3)."""
+def _random_stream(truth: Camera, obj: torch.Tensor, g: torch.Generator, count: int,
+                   min_seen: float = 1.0) -> tuple[torch.Tensor, ...]:
+    """Random hand-held poses: rvec, tvec (K, 3). With ``min_seen`` 1 the whole board in the image, ROS's border
+    clear; below 1, at least that fraction of the corners in the image (the others left out, as the guided person's)."""
     rv, tv = [], []
     while sum(len(r) for r in rv) < count:
         k = 4 * count
@@ -153,7 +162,10 @@ def _random_stream(truth: Camera, obj: torch.Tensor, g: torch.Generator, count: 
         tilt = (u[:, 3:5] - 0.5) * 90.0
         roll = (u[:, 5] - 0.5) * 40.0
         rvec, tvec, uv, depth = place_board(truth, obj, px, fill, tilt, roll)
-        ok = (_inside(uv, ROS_BORDER) & (depth > 0)).all(-1)
+        if min_seen >= 1.0:
+            ok = (_inside(uv, ROS_BORDER) & (depth > 0)).all(-1)
+        else:
+            ok = (depth > 0).all(-1) & (_inside(uv, 1.0).double().mean(-1) >= min_seen - 1e-9)
         rv.append(rvec[ok])
         tv.append(tvec[ok])
     return torch.cat(rv)[:count], torch.cat(tv)[:count]
@@ -302,6 +314,22 @@ def _ros_and_random(truth: Camera, obj: torch.Tensor, trials: int, counts: tuple
             "ros_goodenough": ros_ready, "ros_frames_seen": ros_seen}
 
 
+def _random_partial(truth: Camera, obj: torch.Tensor, trials: int, counts: tuple[int, ...], noise: float,
+                    seed: int) -> np.ndarray:
+    """Random hand-held poses where at least :data:`MIN_SEEN` of the corners are in the image, the others left out
+    (a ChArUco board's detector, as the guided person's partial boards): errors (T, len(counts))."""
+    g = torch.Generator().manual_seed(seed)
+    n_max = max(counts)
+    uv = torch.zeros(trials, n_max, obj.shape[0], 2, dtype=torch.float64)
+    valid = torch.zeros(trials, n_max, obj.shape[0], dtype=torch.bool)
+    for t in range(trials):
+        rvec, tvec = _random_stream(truth, obj, g, n_max, min_seen=MIN_SEEN)
+        c = _project(truth, obj, rvec, tvec)
+        valid[t] = _inside(c, 1.0)
+        uv[t] = c + noise * torch.randn(c.shape, generator=g, dtype=torch.float64)
+    return _errors_at_counts(truth.model, truth, uv, valid, obj, counts)
+
+
 def _frames_to(errors: np.ndarray, target: float, counts: tuple[int, ...]) -> list[int | None]:
     out = []
     for row in errors:
@@ -318,18 +346,19 @@ def _median_frames(frames: list[int | None], beyond: int) -> float:
 def run_guidance_camera(kind: str, trials: int = 8, counts: tuple[int, ...] = COUNTS, noise: float = 0.2,
                         jitter_mm: float = 15.0, jitter_deg: float = 4.0, shortfall: float = 0.2, seed: int = SEED,
                         log=print) -> dict:
-    """One camera kind: the three people's errors at :data:`COUNTS` and the frames each needs (a JSON-able dict)."""
+    """One camera kind: the four people's errors at :data:`COUNTS` and the frames each needs (a JSON-able dict)."""
     truth = _camera(kind)
     obj = board_object_points(*BOARD, SQUARE, dtype=torch.float64)
     guided, said = _guided(kind, truth, obj, trials, counts, noise, jitter_mm, jitter_deg, shortfall, seed)
     log(f"[guidance] {kind}: guided done")
     other = _ros_and_random(truth, obj, trials, counts, noise, seed + 1)
-    errors = {"guided": guided, "ros": other["ros"], "random": other["random"]}
+    errors = {"guided": guided, "ros": other["ros"], "random": other["random"],
+              "random_partial": _random_partial(truth, obj, trials, counts, noise, seed + 2)}
     j40 = counts.index(max(counts))
     target = float(np.nanmedian(errors["ros"][:, j40]))
     beyond = max(counts) + 10
     out: dict = {"target_px": target, "counts": list(counts), "trials": trials, "instructions": said,
-                 "noise_px": noise, "jitter_mm": jitter_mm, "jitter_deg": jitter_deg, "shortfall": shortfall,
+                 "noise_px": noise, "min_seen": MIN_SEEN, "jitter_mm": jitter_mm, "jitter_deg": jitter_deg, "shortfall": shortfall,
                  "ros_goodenough": other["ros_goodenough"], "ros_frames_seen": other["ros_frames_seen"],
                  "people": {}}
     for name, e in errors.items():
@@ -339,10 +368,12 @@ def run_guidance_camera(kind: str, trials: int = 8, counts: tuple[int, ...] = CO
                                "frames_to_target": frames,
                                "median_frames": _median_frames(frames, beyond),
                                "reached": sum(f is not None for f in frames)}
-    g, r, q = (out["people"][n]["median_frames"] for n in ("guided", "ros", "random"))
+    g, r, q, qp = (out["people"][n]["median_frames"] for n in ("guided", "ros", "random", "random_partial"))
     out["fewer_frames_than_ros"] = 1.0 - g / r
     out["fewer_frames_than_random"] = 1.0 - g / q
-    log(f"[guidance] {kind}: target {target:.3f} px; frames guided {g:g}, ROS {r:g}, random {q:g}")
+    out["fewer_frames_than_random_partial"] = 1.0 - g / qp
+    log(f"[guidance] {kind}: target {target:.3f} px; frames guided {g:g}, ROS {r:g}, random {q:g}, "
+        f"random with partial boards {qp:g}")
     return out
 
 
@@ -366,26 +397,28 @@ def guidance_md(sec: dict) -> list[str]:
     lines = [(f"{sec['trials']} simulated people per camera (640x480, 9x6 board, {first['noise_px']:g} px detector noise): "
               f"guided by the next best pose (reaction delay: 0-{100 * first['shortfall']:.0f} % short of the pose; "
               f"hand jitter {first['jitter_mm']:g} mm and {first['jitter_deg']:g} degrees per axis), "
-              "ROS camera_calibration's rule on random hand-held poses (40 samples), and the random poses themselves. "
+              "ROS camera_calibration's rule on random hand-held poses (40 samples), the random poses themselves "
+              "(whole boards, as ROS's), and random poses with partial boards allowed (at least "
+              f"{100 * first['min_seen']:.0f} % of the corners in the image, the others left out, as "
+              "the guided person's). "
               "Error: RMS over the image of the projection difference to the true camera (px, rotation fitted out). "
               "Target: ROS's median error at its 40 samples. Frames: the median over trials of the first count of "
               f"{', '.join(str(c) for c in first['counts'])} at or below the target "
               "(a trial that never reaches it counts as 10 beyond the last)."), "",
-             ("| camera | target px | frames guided | frames ROS | frames random | fewer than ROS | fewer than random | "
-              "ROS goodenough (median samples) |"), "|---|---|---|---|---|---|---|---|"]
+             ("| camera | target px | frames guided | frames ROS | frames random | frames random, partial boards | "
+              "fewer than ROS | fewer than random | fewer than random, partial boards | "
+              "ROS goodenough (median samples) |"), "|---|---|---|---|---|---|---|---|---|---|"]
     for kind, c in sec["cameras"].items():
-        p = c["people"]
-        lines.append(f"| {kind} | {c['target_px']:.3f} | {p['guided']['median_frames']:g} "
-                     f"({p['guided']['reached']}/{c['trials']}) | {p['ros']['median_frames']:g} "
-                     f"({p['ros']['reached']}/{c['trials']}) | {p['random']['median_frames']:g} "
-                     f"({p['random']['reached']}/{c['trials']}) | {100 * c['fewer_frames_than_ros']:.0f} % | "
-                     f"{100 * c['fewer_frames_than_random']:.0f} % | {statistics.median(c['ros_goodenough']):g} |")
+        frames = " | ".join(f"{c['people'][n]['median_frames']:g} ({c['people'][n]['reached']}/{c['trials']})"
+                            for n in PEOPLE)
+        fewer = " | ".join(f"{100 * c['fewer_frames_than_' + n]:.0f} %" for n in list(PEOPLE)[1:])
+        lines.append(f"| {kind} | {c['target_px']:.3f} | {frames} | {fewer} | {statistics.median(c['ros_goodenough']):g} |")
     lines += ["", "Median error against the truth (px) at equal frame counts:", ""]
     for kind, c in sec["cameras"].items():
         counts = c["counts"]
         lines += [f"**{kind}**", "", "| frames | " + " | ".join(str(n) for n in counts) + " |",
                   "|---|" + "---|" * len(counts)]
-        for name in ("guided", "ros", "random"):
-            lines.append(f"| {name} | " + " | ".join(f"{v:.3f}" for v in c["people"][name]["median_px"]) + " |")
+        for name, label in PEOPLE.items():
+            lines.append(f"| {label} | " + " | ".join(f"{v:.3f}" for v in c["people"][name]["median_px"]) + " |")
         lines += ["", f"First instructions (trial 1): {'; '.join(repr(s) for s in c['instructions'][:4])}.", ""]
     return lines

@@ -27,7 +27,7 @@ import numpy as np
 
 from ccs_kornia.modules.detection.boards import AprilGrid, CharucoBoard, CircleGrid
 
-__all__ = ["BoardScreen", "DEFAULT_SCREEN_SIDE", "Sighting", "grid_outline"]
+__all__ = ["DEFAULT_SCREEN_SIDE", "BoardScreen", "Sighting", "grid_outline"]
 
 #: the screen's copy of a frame has this longer side (a 1280x720 frame is looked at as 640x360)
 DEFAULT_SCREEN_SIDE = 640
@@ -100,6 +100,12 @@ class BoardScreen:
             obj = board.object_points().numpy()[:, :2] / unit
             self._outline_units = grid_outline(obj, (cols, rows))
         self._detector = None  # the marker detector, made in the process that uses it
+
+    @property
+    def sees_partial_boards(self) -> bool:
+        """Whether a board partly beyond the image's edge is seen (a marker board: its markers' homography gives the
+        outline; a chessboard's and a circle grid's test needs the whole board)."""
+        return self._outline_units is not None
 
     def scale(self, size: tuple[int, int]) -> float:
         """The factor from a ``(W, H)`` frame to the copy the screen looks at (1: looked at as it is)."""

@@ -7,16 +7,24 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
 from ccs_kornia.bench.config import SECTIONS, BenchConfig
 from ccs_kornia.bench.sections.guidance import (
+    BOARD,
+    SQUARE,
     _camera,
+    _inside,
+    _project,
+    _random_stream,
     _ros_bars_full,
     guidance_md,
     projection_error,
     ros_parameters,
     run_guidance,
 )
+from ccs_kornia.geometry.board_points import board_object_points
+from ccs_kornia.modules.calibration.quality.next_pose import MIN_SEEN
 
 
 def test_ros_parameters_as_ros_computes_them():
@@ -50,9 +58,26 @@ def test_guidance_section_runs_and_reports():
     sec = run_guidance(BenchConfig.tiny(), log=lambda *_: None)
     c = sec["cameras"]["normal"]
     assert sec["trials"] == 1 and c["counts"] == [4, 6, 8]
-    assert set(c["people"]) == {"guided", "ros", "random"}
+    assert set(c["people"]) == {"guided", "ros", "random", "random_partial"}
+    for name in ("ros", "random", "random_partial"):
+        g, q = c["people"]["guided"]["median_frames"], c["people"][name]["median_frames"]
+        assert c[f"fewer_frames_than_{name}"] == pytest.approx(1.0 - g / q)
     for p in c["people"].values():
         assert len(p["median_px"]) == 3 and all(math.isfinite(e) and 0 < e < 20 for e in p["median_px"])
     assert c["target_px"] > 0 and len(c["instructions"]) >= 3 and all(", " in s for s in c["instructions"])
     md = "\n".join(guidance_md(sec))
-    assert "| normal |" in md and "| guided |" in md
+    assert "| normal |" in md and "| guided |" in md and "| random, partial boards |" in md
+    header = next(line for line in md.splitlines() if line.startswith("| camera |"))
+    row = next(line for line in md.splitlines() if line.startswith("| normal |"))
+    assert "fewer than random, partial boards" in header and row.count("|") == header.count("|")
+
+
+def test_random_poses_with_partial_boards():
+    truth = _camera("normal")
+    obj = board_object_points(*BOARD, SQUARE, dtype=torch.float64)
+    whole = _project(truth, obj, *_random_stream(truth, obj, torch.Generator().manual_seed(0), 64))
+    assert bool(_inside(whole, 1.0).all())
+    rvec, tvec = _random_stream(truth, obj, torch.Generator().manual_seed(0), 64, min_seen=MIN_SEEN)
+    seen = _inside(_project(truth, obj, rvec, tvec), 1.0).double().mean(-1)
+    assert rvec.shape == (64, 3) and bool((seen >= MIN_SEEN).all())
+    assert bool((seen < 1).any())  # some boards partly beyond the image's edge

@@ -65,6 +65,9 @@ def test_partial_charuco_view_still_has_an_outline():
     seen = BoardScreen(board.board_size, board, max_side=image.shape[1])(image)
     assert seen.found and 2 <= seen.points < 17
     assert seen.outline[2, 1] > image.shape[0]  # the grid's far corner lies outside the view
+    # a marker board's partial views are seen, a chessboard's are not (its test needs the whole board)
+    assert BoardScreen(board.board_size, board).sees_partial_boards
+    assert not BoardScreen((9, 6)).sees_partial_boards
 
 
 def test_aprilgrid_tags():

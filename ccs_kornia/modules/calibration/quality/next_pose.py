@@ -7,8 +7,9 @@ covariance of the parameters :math:`\sigma^2 H^{-1}`. A board held at a new pose
 :math:`\sigma^2 (H + M)^{-1}` propagated through the projection of every pixel's ray
 (:mod:`~ccs_kornia.modules.calibration.quality.uncertainty`, the camera rotation fitted out as mrcal does), is known
 before it is shown. :func:`candidate_poses` lays out the poses a hand-held board reaches (its centre over a grid of
-the image, a few distances, tilted about both axes, every corner inside the image), :func:`worst_uncertainty` is the
-figure that decides when a capture is done (the worst 1-sigma projection uncertainty over the image, px), and
+the image, a few distances, tilted about both axes, at least three quarters of its corners inside the image: a board
+partly beyond the image's edge reaches its corners, :data:`MIN_SEEN`), :func:`worst_uncertainty` is the figure that
+decides when a capture is done (the worst 1-sigma projection uncertainty over the image, px), and
 :func:`next_poses` ranks the candidates by the fourth-power mean of the 1-sigma over the image (:data:`RANK_POWER`):
 between the RMS (the error to expect over the whole image) and the worst, it weighs the worst pixels most without
 chasing the one pixel that is worst now; ranked by the worst, the guided person needed more frames on normal lenses,
@@ -52,6 +53,7 @@ from ccs_kornia.runtime.checks import check_tensor
 __all__ = [
     "DISTANCES",
     "MAX_TILT_DEG",
+    "MIN_SEEN",
     "POSITIONS",
     "RANK_POWER",
     "TILTS_DEG",
@@ -75,6 +77,10 @@ DISTANCES = (0.3, 0.45, 0.65)
 TILTS_DEG = (-40.0, -20.0, 0.0, 20.0, 40.0)
 #: a hand-held board is not turned further than this from facing the camera (degrees, both axes together)
 MAX_TILT_DEG = 50.0
+#: the fraction of the board's corners a candidate pose shows inside the image at least (1: the whole board): a board
+#: partly beyond the image's edge reaches its corners and edges, where a whole board cannot; the corners outside add
+#: nothing to its information (the detectors take partial boards)
+MIN_SEEN = 0.75
 #: the information every parameter starts from, as a fraction of an average candidate's: keeps the first choices
 #: defined while no view is taken
 PRIOR = 1e-2
@@ -94,6 +100,7 @@ class CandidatePoses:
             (positive: the left edge away), degrees.
         outline: :math:`(K, 4, 2)` where the board's four extreme corners project (first, end of the first row, last,
             start of the last row), px.
+        seen: :math:`(K, N)` bool, the corners inside the image (``None``: all).
     """
 
     rvec: torch.Tensor
@@ -102,6 +109,7 @@ class CandidatePoses:
     fill: torch.Tensor
     tilt_deg: torch.Tensor
     outline: torch.Tensor
+    seen: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return int(self.rvec.shape[0])
@@ -109,7 +117,8 @@ class CandidatePoses:
     def take(self, index: torch.Tensor) -> CandidatePoses:
         """The candidates at ``index`` (a long index or a bool mask)."""
         return CandidatePoses(*(getattr(self, f)[index] for f in
-                                ("rvec", "tvec", "position", "fill", "tilt_deg", "outline")))
+                                ("rvec", "tvec", "position", "fill", "tilt_deg", "outline")),
+                              seen=None if self.seen is None else self.seen[index])
 
 
 def _board_frame(object_points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, float]:
@@ -182,14 +191,18 @@ def candidate_poses(
     tilts_deg: tuple[float, ...] = TILTS_DEG,
     max_tilt_deg: float = MAX_TILT_DEG,
     margin: float = 0.02,
+    min_seen: float | None = None,
 ) -> CandidatePoses:
-    r"""The board poses a hand-held board reaches in front of one camera, every corner inside the image.
+    r"""The board poses a hand-held board reaches in front of one camera, at least :data:`MIN_SEEN` of its corners
+    inside the image.
 
     The board's centre is put on the ray of each of a grid of pixels (``positions``, spanning the image), at the
     distance where the untilted board spans each fraction ``distances`` of the image width, and turned by each pair
     of ``tilts_deg`` about the camera's x and y axes whose total turn is at most ``max_tilt_deg``
-    (:func:`place_board`). Poses with a corner outside the image (less ``margin`` of its size on each side) or behind
-    the camera are left out.
+    (:func:`place_board`). A corner is seen where it lies inside the image less ``margin`` of its size on each side;
+    poses that show fewer than ``min_seen`` of the corners, or with a corner behind the camera, are left out. A board
+    partly beyond the image's edge puts its seen corners where a whole board cannot reach (the image's corners and
+    edges, where the distortion is least known); its information counts the seen corners only (``seen``).
 
     Args:
         camera: one camera with its image size.
@@ -198,6 +211,7 @@ def candidate_poses(
         positions, distances, tilts_deg, max_tilt_deg: :data:`POSITIONS`, :data:`DISTANCES`, :data:`TILTS_DEG`,
             :data:`MAX_TILT_DEG`.
         margin: the fraction of the image kept clear on each side.
+        min_seen: the fraction of the corners a pose shows at least (default :data:`MIN_SEEN`; 1: the whole board).
 
     Returns:
         :class:`CandidatePoses` (float64, on the camera's device).
@@ -231,10 +245,12 @@ def candidate_poses(
     tilt = tilts[None, None].expand(G, D, T, 2).reshape(-1, 2)
     rvec, tvec, uv, depth = place_board(camera, object_points, px, fill, tilt)
     mx, my = margin * W, margin * H
-    keep = ((uv[..., 0] >= mx) & (uv[..., 0] <= W - 1 - mx) & (uv[..., 1] >= my) & (uv[..., 1] <= H - 1 - my)
-            & (depth > 0) & uv.isfinite().all(-1)).all(-1)
+    seen = ((uv[..., 0] >= mx) & (uv[..., 0] <= W - 1 - mx) & (uv[..., 1] >= my) & (uv[..., 1] <= H - 1 - my)
+            & uv.isfinite().all(-1))
+    min_seen = MIN_SEEN if min_seen is None else min_seen
+    keep = (depth > 0).all(-1) & (seen.double().mean(-1) >= min_seen - 1e-9)
     position = px / torch.tensor([W, H], dtype=f64, device=dev)
-    return CandidatePoses(rvec, tvec, position, fill, tilt, uv[:, ends]).take(keep)
+    return CandidatePoses(rvec, tvec, position, fill, tilt, uv[:, ends], seen).take(keep)
 
 
 #: the last cameras' pixel derivatives (a live capture asks for the same camera's figure many times between solves)
@@ -263,20 +279,24 @@ def _tensor_key(x: torch.Tensor) -> tuple:
 
 
 def _candidates_and_information(camera: Camera, object_points: torch.Tensor, board_size: tuple[int, int] | None,
-                                candidates: CandidatePoses | None) -> tuple[CandidatePoses, torch.Tensor]:
+                                candidates: CandidatePoses | None,
+                                min_seen: float | None = None) -> tuple[CandidatePoses, torch.Tensor]:
     """The candidate poses (:func:`candidate_poses` where none are given) and each one's information :math:`(K, P,
     P)`, remembered for the last few cameras."""
     obj = object_points.double().to(camera.device)
     if candidates is None:
-        candidates = _remembered(_CANDIDATES, ("poses", _camera_key(camera), _tensor_key(obj), board_size),
-                                 lambda: candidate_poses(camera, obj, board_size))
+        min_seen = MIN_SEEN if min_seen is None else float(min_seen)
+        candidates = _remembered(_CANDIDATES, ("poses", _camera_key(camera), _tensor_key(obj), board_size, min_seen),
+                                 lambda: candidate_poses(camera, obj, board_size, min_seen=min_seen))
     poses = candidates
 
     def information() -> torch.Tensor:
-        ones = torch.ones(1, len(poses), obj.shape[0], dtype=torch.float64, device=camera.device)
-        return view_information(camera, poses.rvec[None], poses.tvec[None], obj, ones)[0]
+        seen = (torch.ones(len(poses), obj.shape[0], dtype=torch.bool, device=camera.device) if poses.seen is None
+                else poses.seen)
+        return view_information(camera, poses.rvec[None], poses.tvec[None], obj, seen[None].double())[0]
 
-    key = ("information", _camera_key(camera), _tensor_key(obj), _tensor_key(poses.rvec), _tensor_key(poses.tvec))
+    key = ("information", _camera_key(camera), _tensor_key(obj), _tensor_key(poses.rvec), _tensor_key(poses.tvec),
+           None if poses.seen is None else _tensor_key(poses.seen))
     return poses, _remembered(_CANDIDATES, key, information)
 
 
@@ -435,6 +455,7 @@ def next_poses(
     current_fill: float | None = None,
     grid: tuple[int, int] = (16, 12),
     top: int | None = None,
+    min_seen: float | None = None,
 ) -> PoseSuggestion:
     r"""Rank the poses a hand-held board reaches by the 1-sigma projection uncertainty over the image the calibration
     would have after a view there: its :data:`RANK_POWER`-th power mean over the grid's pixels whose rays point in
@@ -451,6 +472,8 @@ def next_poses(
         current_fill: the fraction of the image width the board spans now (the instruction's "closer"/"farther").
         grid: ``(across, down)`` pixels over which the mean and the worst are taken.
         top: keep only the best ``top``.
+        min_seen: where ``candidates`` is not given, the fraction of the board the poses show at least (default
+            :data:`MIN_SEEN`; 1 where the detector needs the whole board).
 
     Returns:
         :class:`PoseSuggestion`, best first (empty ``poses`` where no candidate fits the image).
@@ -459,7 +482,7 @@ def next_poses(
     info = info[0] if info.dim() == 3 else info
     check_tensor(info, "information", ["P", "P"], P=camera.model.num_params)
     camera = camera.to(dtype=torch.float64)
-    poses, M = _candidates_and_information(camera, object_points, board_size, candidates)
+    poses, M = _candidates_and_information(camera, object_points, board_size, candidates, min_seen)
     typical = M.mean(0) if len(poses) else info
     current = float(worst_uncertainty(camera, info, sigma, grid, typical))
     if len(poses):
@@ -485,6 +508,7 @@ class NextBestPose(nn.Module):
         object_points: :math:`(N, 3)`.
         board_size: ``(cols, rows)``.
         grid: ``(across, down)`` pixels.
+        min_seen: the fraction of the board the poses show at least (default :data:`MIN_SEEN`).
 
     Example:
         >>> from ccs_kornia.geometry.board_points import board_object_points
@@ -496,13 +520,13 @@ class NextBestPose(nn.Module):
     """
 
     def __init__(self, camera: Camera, object_points: torch.Tensor, board_size: tuple[int, int] | None = None,
-                 grid: tuple[int, int] = (16, 12)) -> None:
+                 grid: tuple[int, int] = (16, 12), min_seen: float | None = None) -> None:
         super().__init__()
         self.camera = camera.to(dtype=torch.float64)
         self.object_points = object_points.double()
         self.board_size = board_size
         self.grid = grid
-        self.candidates = candidate_poses(self.camera, self.object_points, board_size)
+        self.candidates = candidate_poses(self.camera, self.object_points, board_size, min_seen=min_seen)
 
     def forward(self, information: torch.Tensor, sigma: float = 1.0, current_fill: float | None = None,
                 top: int | None = None) -> PoseSuggestion:

@@ -11,6 +11,7 @@ from ccs_kornia.geometry.camera import Camera
 from ccs_kornia.geometry.models import FISHEYE, K1K2, OPENCV5
 from ccs_kornia.geometry.so3 import exp_so3
 from ccs_kornia.modules.calibration.quality.next_pose import (
+    MIN_SEEN,
     NextBestPose,
     candidate_poses,
     next_poses,
@@ -35,8 +36,8 @@ def _camera(model=OPENCV5):
     return Camera(model, torch.tensor(params, dtype=torch.float64), SIZE)
 
 
-def _information(cam, rvec, tvec):
-    w = torch.ones(1, rvec.shape[0], OBJ.shape[0], dtype=torch.float64)
+def _information(cam, rvec, tvec, seen=None):
+    w = torch.ones(1, rvec.shape[0], OBJ.shape[0], dtype=torch.float64) if seen is None else seen[None].double()
     return view_information(cam, rvec[None], tvec[None], OBJ, w)[0]
 
 
@@ -47,9 +48,15 @@ def test_candidates_fit_the_image_and_face_the_camera(model):
     assert len(poses) > 50
     pts = torch.einsum("kij,nj->kni", exp_so3(poses.rvec), OBJ) + poses.tvec[:, None]
     uv = cam.project(pts.reshape(1, -1, 3))[0].reshape(len(poses), -1, 2)
-    assert bool((uv[..., 0] >= 0).all() and (uv[..., 0] <= SIZE[0] - 1).all())
-    assert bool((uv[..., 1] >= 0).all() and (uv[..., 1] <= SIZE[1] - 1).all())
+    inside = ((uv[..., 0] >= 0) & (uv[..., 0] <= SIZE[0] - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= SIZE[1] - 1))
+    assert bool((inside | ~poses.seen).all())  # the corners seen are inside the image
+    assert float(poses.seen.double().mean(-1).min()) >= MIN_SEEN  # each pose shows enough of the board
     assert bool((pts[..., 2] > 0).all())
+    # whole boards and boards partly beyond the image's edge; with min_seen=1 the whole boards only
+    whole = poses.seen.all(-1)
+    assert bool(whole.any()) and bool((~whole).any())
+    only_whole = candidate_poses(cam, OBJ, (9, 6), min_seen=1.0)
+    assert len(only_whole) == int(whole.sum()) and bool(only_whole.seen.all())
     assert float(poses.tilt_deg.norm(dim=-1).max()) <= 50.0 + 1e-9
     # the outline is the board's four extreme corners where they project
     torch.testing.assert_close(poses.outline, uv[:, [0, 8, 53, 45]])
@@ -87,9 +94,9 @@ def test_ranked_by_the_uncertainty_each_leaves():
     assert bool((s.score_px[1:] >= s.score_px[:-1]).all())  # best first, by the 4th-power mean over the image
     assert float(s.worst_px[0]) < s.current_px and bool((s.score_px <= s.worst_px).all())
     # each rank is what adding that view's information gives
-    M = _information(cam, s.poses.rvec[:3], s.poses.tvec[:3])
+    M = _information(cam, s.poses.rvec[:3], s.poses.tvec[:3], s.poses.seen[:3])
     every = candidate_poses(cam, OBJ, (9, 6))
-    typical = _information(cam, every.rvec, every.tvec).mean(0)
+    typical = _information(cam, every.rvec, every.tvec, every.seen).mean(0)
     direct = worst_uncertainty(cam, H + M, 0.2, typical=typical)
     torch.testing.assert_close(direct, s.worst_px[:3])
     after = uncertainty_map(cam, H + M, 0.2, typical=typical).flatten(-2)
@@ -108,10 +115,10 @@ def test_following_the_suggestions_beats_repeating_a_view():
     H = torch.zeros(9, 9, dtype=torch.float64)
     for _ in range(5):
         s = nbp(H, sigma=0.2, top=1)
-        H = H + _information(cam, s.poses.rvec, s.poses.tvec)[0]
+        H = H + _information(cam, s.poses.rvec, s.poses.tvec, s.poses.seen)[0]
     fixed = nbp.candidates.take(torch.tensor([0]))
-    Hf = 5 * _information(cam, fixed.rvec, fixed.tvec)[0]
-    typical = _information(cam, nbp.candidates.rvec, nbp.candidates.tvec).mean(0)
+    Hf = 5 * _information(cam, fixed.rvec, fixed.tvec, fixed.seen)[0]
+    typical = _information(cam, nbp.candidates.rvec, nbp.candidates.tvec, nbp.candidates.seen).mean(0)
     assert float(worst_uncertainty(cam, H, 0.2, typical=typical)) < 0.5 * float(
         worst_uncertainty(cam, Hf, 0.2, typical=typical))
 
@@ -146,8 +153,9 @@ def test_a_fisheyes_pixels_behind_the_camera_do_not_rank():
                      torch.tensor([[-0.12, -0.075, 0.3]], dtype=torch.float64)).sum(0)
     s = next_poses(cam, H, OBJ, sigma=0.2, board_size=(9, 6), top=3)
     every = candidate_poses(cam, OBJ, (9, 6))
-    typical = _information(cam, every.rvec, every.tvec).mean(0)
-    after = uncertainty_map(cam, H + _information(cam, s.poses.rvec, s.poses.tvec), 0.2, typical=typical).flatten(-2)
+    typical = _information(cam, every.rvec, every.tvec, every.seen).mean(0)
+    M = _information(cam, s.poses.rvec, s.poses.tvec, s.poses.seen)
+    after = uncertainty_map(cam, H + M, 0.2, typical=typical).flatten(-2)
     torch.testing.assert_close(after[:, ~behind].pow(4).mean(-1).pow(0.25), s.score_px)
     torch.testing.assert_close(after.amax(-1), s.worst_px)
 
