@@ -82,6 +82,11 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     refine_marked_corners,
     small_marker_scale,
 )
+from ccs_kornia.modules.detection.markers.gaussian_deblur import (
+    MIN_SIGMA,
+    deblur_gaussian,
+    gaussian_blur_sigma,
+)
 from ccs_kornia.modules.detection.markers.motion_deblur import (
     deblur_motion,
     motion_blur,
@@ -161,6 +166,7 @@ class CharucoMarkers(BoardMarkers):
     better_count: int = 0
     ambiguous: bool = False
     motion: tuple[int, float] | None = None
+    defocus: float | None = None
 
 
 def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.ArucoDetector | None = None
@@ -184,13 +190,15 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     best = {legacy: CharucoMarkers(none.corners, none.ids, none.board_corners, legacy=legacy) for legacy in layouts}
 
     motion = None
+    defocus = None
 
     def keep(pts: np.ndarray, ids: np.ndarray, variant: str) -> None:
         for legacy, layout in layouts.items():
             got = markers_on_board(pts, ids, layout, variant, len(best[legacy].ids))
             if got is not None:
                 best[legacy] = CharucoMarkers(got.corners, got.ids, got.board_corners, got.variant, got.decoded,
-                                              got.known, legacy=legacy, motion=motion)
+                                              got.known, legacy=legacy, motion=motion,
+                                              defocus=defocus)
 
     decoded = {}
     for variant in VARIANTS:
@@ -240,6 +248,22 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
             best = {legacy: replace(m, motion=motion) for legacy, m in best.items()}
         if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
             return best
+    # a Gaussian blur measured on the view (none where the line's copy read more): its Wiener-filtered copy on the
+    # variant whose markers sit on the lattice (on every variant where none do)
+    if motion is None:
+        sigma = gaussian_blur_sigma(copies[0][0])
+        if sigma >= MIN_SIGMA:
+            before = max(len(m.ids) for m in best.values())
+            sharp = deblur_gaussian(copies[0][0], sigma)
+            on = [v for v in pooled if any(m.variant == v and len(m.ids) for m in best.values())]
+            for variant in on or list(pooled):
+                pooled[variant] = decode_with_copies(pooled[variant], [(sharp, 1.0)], detector, variant)
+                keep(*pooled[variant], variant)
+            if max(len(m.ids) for m in best.values()) > before:
+                defocus = sigma
+                best = {legacy: replace(m, defocus=defocus) for legacy, m in best.items()}
+            if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
+                return best
     # markers read but too small for OpenCV's sampling: a further copy, enlarged from the stretched one until their
     # cells reach it, on the variant they were read on (a view with no marker read pays nothing)
     most = max(best.values(), key=lambda m: len(m.ids))
