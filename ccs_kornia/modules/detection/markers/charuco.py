@@ -259,6 +259,11 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
             for variant in on or list(pooled):
                 pooled[variant] = decode_with_copies(pooled[variant], [(sharp, 1.0)], detector, variant)
                 keep(*pooled[variant], variant)
+            on = [v for v in pooled if any(m.variant == v and len(m.ids) for m in best.values())]
+            enlarged = cv2.resize(sharp, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC)
+            for variant in on:
+                pooled[variant] = decode_with_copies(pooled[variant], [(enlarged, UPSCALE)], detector, variant)
+                keep(*pooled[variant], variant)
             if max(len(m.ids) for m in best.values()) > before:
                 defocus = sigma
                 best = {legacy: replace(m, defocus=defocus) for legacy, m in best.items()}

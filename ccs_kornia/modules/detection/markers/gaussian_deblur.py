@@ -24,7 +24,7 @@ REBLUR_SIGMA = 2.0
 #: a blur narrower than this (px) is left to the sharpened copies: a sharp webcam frame measures 0.5 to 1.6 px
 MIN_SIGMA = 2.0
 #: the Wiener filter's noise-to-signal power (relative to the kernel's unit gain at zero frequency)
-GAUSSIAN_WIENER_NOISE = 1e-3
+GAUSSIAN_WIENER_NOISE = 3e-4
 #: the edges measured: Canny's hysteresis thresholds (grey levels of a stretched image) ...
 _CANNY = (40, 100)
 #: ... and the strongest of them, above this percentile of their gradient
