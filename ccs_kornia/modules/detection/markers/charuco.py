@@ -63,6 +63,11 @@ from ccs_kornia.modules.detection.markers.corner_merge import (
     path_counts,
     paths_note,
 )
+from ccs_kornia.modules.detection.markers.gaussian_deblur import (
+    MIN_SIGMA,
+    deblur_gaussian,
+    gaussian_blur_sigma,
+)
 from ccs_kornia.modules.detection.markers.lattice_names import BoardLattice
 from ccs_kornia.modules.detection.markers.lattice_path import (
     LatticeBoard,
@@ -81,11 +86,6 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     place_from,
     refine_marked_corners,
     small_marker_scale,
-)
-from ccs_kornia.modules.detection.markers.gaussian_deblur import (
-    MIN_SIGMA,
-    deblur_gaussian,
-    gaussian_blur_sigma,
 )
 from ccs_kornia.modules.detection.markers.motion_deblur import (
     deblur_motion,
