@@ -243,7 +243,8 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
         for variant in seen:
             pooled[variant] = decode_with_copies(pooled[variant], [(enlarged, UPSCALE)], detector, variant)
             keep(*pooled[variant], variant)
-        if max(len(m.ids) for m in best.values()) > before:
+        after = max(len(m.ids) for m in best.values())
+        if after > before or not after:
             motion = blur
             best = {legacy: replace(m, motion=motion) for legacy, m in best.items()}
         if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
@@ -264,7 +265,8 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
             for variant in on:
                 pooled[variant] = decode_with_copies(pooled[variant], [(enlarged, UPSCALE)], detector, variant)
                 keep(*pooled[variant], variant)
-            if max(len(m.ids) for m in best.values()) > before:
+            after = max(len(m.ids) for m in best.values())
+            if after > before or not after:
                 defocus = sigma
                 best = {legacy: replace(m, defocus=defocus) for legacy, m in best.items()}
             if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
@@ -477,9 +479,10 @@ def charuco_paths(
     # kernel is symmetric, so undoing it moves no corner, and the corners are sharp again
     looked = images
     for k, (markers, _) in enumerate(outputs):
-        if markers.motion is not None:
+        if markers.motion is not None or markers.defocus is not None:
             looked = looked.clone() if looked is images else looked
-            sharp = deblur_motion(arrays[k], *markers.motion)
+            sharp = (deblur_motion(arrays[k], *markers.motion) if markers.motion is not None
+                     else deblur_gaussian(arrays[k], markers.defocus))
             looked[k, 0] = torch.from_numpy(sharp).to(looked) / 255.0
     factor = marked_radius_factor(board) if radius_factor is None else float(radius_factor)
 
