@@ -7,7 +7,8 @@ The shared steps (decoding, lattice check, refinement) are :mod:`~ccs_kornia.mod
 
 1. **markers**: ``cv2.aruco.ArucoDetector`` decodes the markers on the image, on its inverse (white-on-black prints)
    and on both mirrored (a two-sided board seen from its back), and adds those it reads on enhanced copies of the
-   image (its contrast stretched, sharpened, enlarged: a dim, blurred or small view);
+   image (its contrast stretched, sharpened, enlarged: a dim, blurred or small view; with its measured motion or
+   Gaussian blur undone);
 2. **lattice**: the decoded markers must sit where the board puts their ids
    (:func:`~ccs_kornia.modules.detection.markers.marker_board.consistent_markers`, in squares). The variant (plain,
    inverted, mirrored) with the most consistent markers is kept, and for a board of unknown layout (``legacy=None``)
@@ -159,7 +160,10 @@ class CharucoMarkers(BoardMarkers):
     layout is the worse fit, the other one (``better_layout``) and the markers it explains (``better_count``);
     ``ambiguous``: both layouts explain the view's markers alike; ``motion``: the straight motion blur measured on the
     view (length px, direction radians: :func:`~ccs_kornia.modules.detection.markers.motion_deblur.motion_blur`),
-    where its markers were also read on the view with it undone, and its corners are refined there."""
+    where its markers were also read on the view with it undone, and its corners are refined there; ``defocus``: the
+    same for a Gaussian blur (sigma px: :func:`~ccs_kornia.modules.detection.markers.gaussian_deblur.
+    gaussian_blur_sigma`). Either is kept where the copy with it undone reads more of the board's markers, or where
+    none is read at all."""
 
     legacy: bool = False
     better_layout: bool | None = None
@@ -178,8 +182,12 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`: contrast, sharpness, size) added on
     the variant kept (on every variant where none was), kept where more of them sit on the lattice; where any of the
     board's marker ids was decoded, those of copies sharpened harder for a blurred view
-    (:func:`~ccs_kornia.modules.detection.enhanced_copies.deblurring_copies`) the same way; where the markers
-    read are too small for OpenCV's sampling, those of a further enlarged copy
+    (:func:`~ccs_kornia.modules.detection.enhanced_copies.deblurring_copies`) the same way; where markers are still
+    missing, those of a copy with the view's measured motion blur
+    (:func:`~ccs_kornia.modules.detection.markers.motion_deblur.motion_blur`) or else Gaussian blur
+    (:func:`~ccs_kornia.modules.detection.markers.gaussian_deblur.gaussian_blur_sigma`, at least
+    :data:`~ccs_kornia.modules.detection.markers.gaussian_deblur.MIN_SIGMA`) undone and of that copy enlarged; where
+    the markers read are too small for OpenCV's sampling, those of a further enlarged copy
     (:func:`~ccs_kornia.modules.detection.markers.marker_board.small_marker_scale`) the same way; a view whose every
     marker is read already skips them."""
     detector = charuco_detector(board.dictionary) if detector is None else detector
@@ -229,8 +237,9 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
             return best
     # a straight motion blur measured on the view: its Wiener-filtered copy on the variants where markers were read
     # (on every variant where none were), and that copy enlarged on those where the board's ids are read by then; the
-    # view is taken as blurred so (its corners refined with the blur undone) only where the copies read more of the
-    # board's markers: a blur measured where there is none gives a copy that reads nothing new
+    # view is taken as blurred so (its corners refined, its lattice's codes read, with the blur undone) where the
+    # copies read more of the board's markers, or where none is read at all (the lattice path reads its squares there):
+    # a blur measured where there is none gives a copy that reads nothing new
     blur = motion_blur(copies[0][0])
     if blur is not None:
         before = max(len(m.ids) for m in best.values())
@@ -249,8 +258,9 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
             best = {legacy: replace(m, motion=motion) for legacy, m in best.items()}
         if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
             return best
-    # a Gaussian blur measured on the view (none where the line's copy read more): its Wiener-filtered copy on the
-    # variant whose markers sit on the lattice (on every variant where none do)
+    # a Gaussian blur measured on the view (none where a motion blur was taken): its Wiener-filtered copy on the
+    # variant whose markers sit on the lattice (on every variant where none do), and that copy enlarged on the variant
+    # whose markers sit on it by then; taken as the motion blur is (a sharp view measures below MIN_SIGMA: no copy)
     if motion is None:
         sigma = gaussian_blur_sigma(copies[0][0])
         if sigma >= MIN_SIGMA:
