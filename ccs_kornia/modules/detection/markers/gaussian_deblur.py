@@ -38,8 +38,9 @@ def _grey8(image: np.ndarray) -> np.ndarray:
     return image
 
 
-def _gradient(x: np.ndarray) -> np.ndarray:
-    return np.hypot(cv2.Sobel(x, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(x, cv2.CV_32F, 0, 1, ksize=3))
+def _gradient(x: np.ndarray, where: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The gradient's magnitude of ``x`` at the pixels ``where`` (rows, columns)."""
+    return np.hypot(cv2.Sobel(x, cv2.CV_32F, 1, 0, ksize=3)[where], cv2.Sobel(x, cv2.CV_32F, 0, 1, ksize=3)[where])
 
 
 def gaussian_blur_sigma(gray8: np.ndarray) -> float:
@@ -61,8 +62,9 @@ def gaussian_blur_sigma(gray8: np.ndarray) -> float:
     if not edges.any():
         return float("nan")
     x = gray8.astype(np.float32)
-    g, g_again = _gradient(x), _gradient(cv2.GaussianBlur(x, (0, 0), REBLUR_SIGMA))
-    strong = edges & (g >= np.percentile(g[edges], _STRONGEST))
+    where = np.nonzero(edges)
+    g, g_again = _gradient(x, where), _gradient(cv2.GaussianBlur(x, (0, 0), REBLUR_SIGMA), where)
+    strong = g >= np.percentile(g, _STRONGEST)
     ratio = g[strong] / np.maximum(g_again[strong], 1e-6)
     ratio = ratio[ratio > 1.0 + 1e-4]
     if not ratio.size:
