@@ -238,8 +238,9 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     # a straight motion blur measured on the view: its Wiener-filtered copy on the variants where markers were read
     # (on every variant where none were), and that copy enlarged on those where the board's ids are read by then; the
     # view is taken as blurred so (its corners refined, its lattice's codes read, with the blur undone) where the
-    # copies read more of the board's markers, or where none is read at all (the lattice path reads its squares there):
-    # a blur measured where there is none gives a copy that reads nothing new
+    # copies read more of the board's markers, or where none is read at all and the edges across the line are blurred
+    # (the lattice path reads its squares there): a blur measured where there is none (a board's period can make a
+    # cepstrum peak) gives a copy that reads nothing new and edges that are sharp
     blur = motion_blur(copies[0][0])
     if blur is not None:
         before = max(len(m.ids) for m in best.values())
@@ -253,7 +254,7 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
             pooled[variant] = decode_with_copies(pooled[variant], [(enlarged, UPSCALE)], detector, variant)
             keep(*pooled[variant], variant)
         after = max(len(m.ids) for m in best.values())
-        if after > before or not after:
+        if after > before or (not after and gaussian_blur_sigma(copies[0][0], blur[1]) >= MIN_SIGMA):
             motion = blur
             best = {legacy: replace(m, motion=motion) for legacy, m in best.items()}
         if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):

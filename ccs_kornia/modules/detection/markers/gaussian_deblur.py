@@ -17,7 +17,7 @@ import math
 import cv2
 import numpy as np
 
-__all__ = ["GAUSSIAN_WIENER_NOISE", "MIN_SIGMA", "REBLUR_SIGMA", "deblur_gaussian", "gaussian_blur_sigma"]
+__all__ = ["ACROSS", "GAUSSIAN_WIENER_NOISE", "MIN_SIGMA", "REBLUR_SIGMA", "deblur_gaussian", "gaussian_blur_sigma"]
 
 #: the second blur of the re-blur measure (px)
 REBLUR_SIGMA = 2.0
@@ -25,6 +25,8 @@ REBLUR_SIGMA = 2.0
 MIN_SIGMA = 2.0
 #: the Wiener filter's noise-to-signal power (relative to the kernel's unit gain at zero frequency)
 GAUSSIAN_WIENER_NOISE = 3e-4
+#: the edges whose gradient lies within this angle (radians) of a direction asked for
+ACROSS = math.pi / 8
 #: the edges measured: Canny's hysteresis thresholds (grey levels of a stretched image) ...
 _CANNY = (40, 100)
 #: ... and the strongest of them, above this percentile of their gradient
@@ -38,15 +40,17 @@ def _grey8(image: np.ndarray) -> np.ndarray:
     return image
 
 
-def _gradient(x: np.ndarray, where: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """The gradient's magnitude of ``x`` at the pixels ``where`` (rows, columns)."""
-    return np.hypot(cv2.Sobel(x, cv2.CV_32F, 1, 0, ksize=3)[where], cv2.Sobel(x, cv2.CV_32F, 0, 1, ksize=3)[where])
+def _gradient(x: np.ndarray, where: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The gradient's magnitude and direction (radians) of ``x`` at the pixels ``where`` (rows, columns)."""
+    gx, gy = cv2.Sobel(x, cv2.CV_32F, 1, 0, ksize=3)[where], cv2.Sobel(x, cv2.CV_32F, 0, 1, ksize=3)[where]
+    return np.hypot(gx, gy), np.arctan2(gy, gx)
 
 
-def gaussian_blur_sigma(gray8: np.ndarray) -> float:
+def gaussian_blur_sigma(gray8: np.ndarray, direction: float | None = None) -> float:
     """The Gaussian blur (sigma, px) of a ``uint8`` grey image ``(H, W)`` measured at its strongest edges by
     re-blurring (module doc); NaN where it has no edge. A contrast-stretched image measures best (the edges are found
-    at fixed grey-level thresholds).
+    at fixed grey-level thresholds). ``direction`` (radians): only the edges whose gradient lies within
+    :data:`ACROSS` of it (either way), the blur across a motion blur's line of that direction.
 
     Example:
         >>> img = np.zeros((100, 100), np.float32)
@@ -63,7 +67,12 @@ def gaussian_blur_sigma(gray8: np.ndarray) -> float:
         return float("nan")
     x = gray8.astype(np.float32)
     where = np.nonzero(edges)
-    g, g_again = _gradient(x, where), _gradient(cv2.GaussianBlur(x, (0, 0), REBLUR_SIGMA), where)
+    (g, angle), (g_again, _) = _gradient(x, where), _gradient(cv2.GaussianBlur(x, (0, 0), REBLUR_SIGMA), where)
+    if direction is not None:
+        off = np.abs((angle - direction + 0.5 * math.pi) % math.pi - 0.5 * math.pi)
+        g, g_again = g[off <= ACROSS], g_again[off <= ACROSS]
+        if not g.size:
+            return float("nan")
     strong = g >= np.percentile(g, _STRONGEST)
     ratio = g[strong] / np.maximum(g_again[strong], 1e-6)
     ratio = ratio[ratio > 1.0 + 1e-4]
