@@ -86,3 +86,17 @@ def test_layout_fits_reads_a_blurred_board_on_the_deblurred_copy(monkeypatch):
 def test_sharp_board_takes_no_deblurred_copy():
     fit = layout_fits(_blurred_board(0.0), _BOARD)[False]
     assert len(fit.ids) == 10 and fit.defocus is None
+
+
+@pytest.mark.parametrize("angle", [0.0, math.pi / 2])
+def test_blur_across_a_motion_line_measured_in_its_direction(angle):
+    from ccs_kornia.modules.detection.markers.motion_deblur import line_kernel
+
+    # the board's edges run along the image's axes: a line along one blurs the edges across it only
+    sharp = _blurred_board(0.0, square=40).astype(np.float32)
+    smeared = cv2.filter2D(sharp, -1, line_kernel(15, angle), borderType=cv2.BORDER_REFLECT)
+    smeared = np.clip(np.rint(smeared), 0, 255).astype(np.uint8)
+    across = gaussian_blur_sigma(smeared, angle)
+    along = gaussian_blur_sigma(smeared, angle + math.pi / 2)
+    assert across >= MIN_SIGMA > along
+    assert gaussian_blur_sigma(sharp.astype(np.uint8), angle) < MIN_SIGMA
