@@ -7,7 +7,8 @@ The shared steps (decoding, lattice check, refinement) are :mod:`~ccs_kornia.mod
 
 1. **markers**: ``cv2.aruco.ArucoDetector`` decodes the markers on the image, on its inverse (white-on-black prints)
    and on both mirrored (a two-sided board seen from its back), and adds those it reads on enhanced copies of the
-   image (its contrast stretched, sharpened, enlarged: a dim, blurred or small view);
+   image (its contrast stretched, sharpened, enlarged: a dim, blurred or small view; with its measured motion or
+   Gaussian blur undone);
 2. **lattice**: the decoded markers must sit where the board puts their ids
    (:func:`~ccs_kornia.modules.detection.markers.marker_board.consistent_markers`, in squares). The variant (plain,
    inverted, mirrored) with the most consistent markers is kept, and for a board of unknown layout (``legacy=None``)
@@ -62,6 +63,11 @@ from ccs_kornia.modules.detection.markers.corner_merge import (
     merge_corners,
     path_counts,
     paths_note,
+)
+from ccs_kornia.modules.detection.markers.gaussian_deblur import (
+    MIN_SIGMA,
+    deblur_gaussian,
+    gaussian_blur_sigma,
 )
 from ccs_kornia.modules.detection.markers.lattice_names import BoardLattice
 from ccs_kornia.modules.detection.markers.lattice_path import (
@@ -154,13 +160,17 @@ class CharucoMarkers(BoardMarkers):
     layout is the worse fit, the other one (``better_layout``) and the markers it explains (``better_count``);
     ``ambiguous``: both layouts explain the view's markers alike; ``motion``: the straight motion blur measured on the
     view (length px, direction radians: :func:`~ccs_kornia.modules.detection.markers.motion_deblur.motion_blur`),
-    where its markers were also read on the view with it undone, and its corners are refined there."""
+    where its markers were also read on the view with it undone, and its corners are refined there; ``defocus``: the
+    same for a Gaussian blur (sigma px: :func:`~ccs_kornia.modules.detection.markers.gaussian_deblur.
+    gaussian_blur_sigma`). Either is kept where the copy with it undone reads more of the board's markers, or where
+    none is read at all."""
 
     legacy: bool = False
     better_layout: bool | None = None
     better_count: int = 0
     ambiguous: bool = False
     motion: tuple[int, float] | None = None
+    defocus: float | None = None
 
 
 def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.ArucoDetector | None = None
@@ -172,8 +182,12 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     (:func:`~ccs_kornia.modules.detection.enhanced_copies.enhanced_copies`: contrast, sharpness, size) added on
     the variant kept (on every variant where none was), kept where more of them sit on the lattice; where any of the
     board's marker ids was decoded, those of copies sharpened harder for a blurred view
-    (:func:`~ccs_kornia.modules.detection.enhanced_copies.deblurring_copies`) the same way; where the markers
-    read are too small for OpenCV's sampling, those of a further enlarged copy
+    (:func:`~ccs_kornia.modules.detection.enhanced_copies.deblurring_copies`) the same way; where markers are still
+    missing, those of a copy with the view's measured motion blur
+    (:func:`~ccs_kornia.modules.detection.markers.motion_deblur.motion_blur`) or else Gaussian blur
+    (:func:`~ccs_kornia.modules.detection.markers.gaussian_deblur.gaussian_blur_sigma`, at least
+    :data:`~ccs_kornia.modules.detection.markers.gaussian_deblur.MIN_SIGMA`) undone and of that copy enlarged; where
+    the markers read are too small for OpenCV's sampling, those of a further enlarged copy
     (:func:`~ccs_kornia.modules.detection.markers.marker_board.small_marker_scale`) the same way; a view whose every
     marker is read already skips them."""
     detector = charuco_detector(board.dictionary) if detector is None else detector
@@ -184,13 +198,15 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     best = {legacy: CharucoMarkers(none.corners, none.ids, none.board_corners, legacy=legacy) for legacy in layouts}
 
     motion = None
+    defocus = None
 
     def keep(pts: np.ndarray, ids: np.ndarray, variant: str) -> None:
         for legacy, layout in layouts.items():
             got = markers_on_board(pts, ids, layout, variant, len(best[legacy].ids))
             if got is not None:
                 best[legacy] = CharucoMarkers(got.corners, got.ids, got.board_corners, got.variant, got.decoded,
-                                              got.known, legacy=legacy, motion=motion)
+                                              got.known, legacy=legacy, motion=motion,
+                                              defocus=defocus)
 
     decoded = {}
     for variant in VARIANTS:
@@ -221,8 +237,10 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
             return best
     # a straight motion blur measured on the view: its Wiener-filtered copy on the variants where markers were read
     # (on every variant where none were), and that copy enlarged on those where the board's ids are read by then; the
-    # view is taken as blurred so (its corners refined with the blur undone) only where the copies read more of the
-    # board's markers: a blur measured where there is none gives a copy that reads nothing new
+    # view is taken as blurred so (its corners refined, its lattice's codes read, with the blur undone) where the
+    # copies read more of the board's markers, or where none is read at all and the edges across the line are blurred
+    # (the lattice path reads its squares there): a blur measured where there is none (a board's period can make a
+    # cepstrum peak) gives a copy that reads nothing new and edges that are sharp
     blur = motion_blur(copies[0][0])
     if blur is not None:
         before = max(len(m.ids) for m in best.values())
@@ -235,11 +253,35 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
         for variant in seen:
             pooled[variant] = decode_with_copies(pooled[variant], [(enlarged, UPSCALE)], detector, variant)
             keep(*pooled[variant], variant)
-        if max(len(m.ids) for m in best.values()) > before:
+        after = max(len(m.ids) for m in best.values())
+        if after > before or (not after and gaussian_blur_sigma(copies[0][0], blur[1]) >= MIN_SIGMA):
             motion = blur
             best = {legacy: replace(m, motion=motion) for legacy, m in best.items()}
         if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
             return best
+    # a Gaussian blur measured on the view (none where a motion blur was taken): its Wiener-filtered copy on the
+    # variant whose markers sit on the lattice (on every variant where none do), and that copy enlarged on the variant
+    # whose markers sit on it by then; taken as the motion blur is (a sharp view measures below MIN_SIGMA: no copy)
+    if motion is None:
+        sigma = gaussian_blur_sigma(copies[0][0])
+        if sigma >= MIN_SIGMA:
+            before = max(len(m.ids) for m in best.values())
+            sharp = deblur_gaussian(copies[0][0], sigma)
+            on = [v for v in pooled if any(m.variant == v and len(m.ids) for m in best.values())]
+            for variant in on or list(pooled):
+                pooled[variant] = decode_with_copies(pooled[variant], [(sharp, 1.0)], detector, variant)
+                keep(*pooled[variant], variant)
+            on = [v for v in pooled if any(m.variant == v and len(m.ids) for m in best.values())]
+            enlarged = cv2.resize(sharp, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC)
+            for variant in on:
+                pooled[variant] = decode_with_copies(pooled[variant], [(enlarged, UPSCALE)], detector, variant)
+                keep(*pooled[variant], variant)
+            after = max(len(m.ids) for m in best.values())
+            if after > before or not after:
+                defocus = sigma
+                best = {legacy: replace(m, defocus=defocus) for legacy, m in best.items()}
+            if any(len(best[legacy].ids) >= len(layout) for legacy, layout in layouts.items()):
+                return best
     # markers read but too small for OpenCV's sampling: a further copy, enlarged from the stretched one until their
     # cells reach it, on the variant they were read on (a view with no marker read pays nothing)
     most = max(best.values(), key=lambda m: len(m.ids))
@@ -448,9 +490,10 @@ def charuco_paths(
     # kernel is symmetric, so undoing it moves no corner, and the corners are sharp again
     looked = images
     for k, (markers, _) in enumerate(outputs):
-        if markers.motion is not None:
+        if markers.motion is not None or markers.defocus is not None:
             looked = looked.clone() if looked is images else looked
-            sharp = deblur_motion(arrays[k], *markers.motion)
+            sharp = (deblur_motion(arrays[k], *markers.motion) if markers.motion is not None
+                     else deblur_gaussian(arrays[k], markers.defocus))
             looked[k, 0] = torch.from_numpy(sharp).to(looked) / 255.0
     factor = marked_radius_factor(board) if radius_factor is None else float(radius_factor)
 
