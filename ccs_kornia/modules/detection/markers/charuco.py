@@ -82,7 +82,7 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     refine_marked_corners,
     small_marker_scale,
 )
-from ccs_kornia.modules.detection.markers.motion_deblur import (
+from ccs_kornia.modules.detection.motion_deblur import (
     deblur_motion,
     motion_blur,
 )
@@ -153,7 +153,7 @@ class CharucoMarkers(BoardMarkers):
     BoardMarkers`, board corners in squares) with the layout (legacy or not) they fit and, where the board's given
     layout is the worse fit, the other one (``better_layout``) and the markers it explains (``better_count``);
     ``ambiguous``: both layouts explain the view's markers alike; ``motion``: the straight motion blur measured on the
-    view (length px, direction radians: :func:`~ccs_kornia.modules.detection.markers.motion_deblur.motion_blur`),
+    view (length px, direction radians: :func:`~ccs_kornia.modules.detection.motion_deblur.motion_blur`),
     where its markers were also read on the view with it undone, and its corners are refined there."""
 
     legacy: bool = False
