@@ -28,7 +28,11 @@ from ccs_kornia.modules.detection.refine.saddle_refine import (
 from ccs_kornia.runtime.checks import check_board_size, check_grey_images, check_points
 from ccs_kornia.runtime.timing import stage
 
-__all__ = ["level_size", "resize_to_level", "edge_blur", "refine_on_patches", "refine_boards", "refine_from_level"]
+#: the smallest window half-size (px) a corner near the image's border is refined with (its window ends a px short of
+#: the border)
+MIN_BORDER_RADIUS = 1.5
+
+__all__ = ["MIN_BORDER_RADIUS", "level_size", "resize_to_level", "edge_blur", "refine_on_patches", "refine_boards", "refine_from_level"]
 
 
 def level_size(image_size: tuple[int, int], factor: float) -> tuple[int, int]:
@@ -196,6 +200,11 @@ def refine_on_patches(
         soft = blur_factor * blur.to(radius).nan_to_num(0.0)[:, None]
         radius = torch.maximum(radius, torch.minimum(soft, max_fraction * spacing))
     radius = radius.nan_to_num(5.0, posinf=float(max_radius))
+    # a window that crosses the image's border sees the border's pixels repeated, a false junction the fit is pulled
+    # to (px off on a corner a few px inside the border): the window ends a px short of the border
+    pts_ = corners.to(radius.device).float()
+    edge = torch.minimum(torch.minimum(pts_[..., 0], pts_[..., 1]), torch.minimum(w - 1 - pts_[..., 0], h - 1 - pts_[..., 1]))
+    radius = torch.minimum(radius, (edge - 1.0).nan_to_num(float(max_radius)).clamp_min(MIN_BORDER_RADIUS))
     r_max = int(math.ceil(float(radius.max())))
     if method in ("saddle", "symmetric"):
         # the saddle refiner works on one small region per corner of the image itself (bounded memory whatever the
@@ -308,5 +317,19 @@ def refine_from_level(
         corners = ((pts.double() + 0.5) * s - 0.5).to(corners.dtype)
     # squares that needed upsampling are small: their window (0.2 square) is the usual one, blur or not
     blur = edge_blur(images, corners, board_size) if factor > 1 else None
-    return refine_on_patches(images, corners, board_size, radius_factor, max_radius, *args, return_ok=return_ok,
-                             blur=blur)
+    out, ok = refine_on_patches(images, corners, board_size, radius_factor, max_radius, *args, return_ok=True, blur=blur)
+    # a corner the level placed too far off for its window (at the image's border the level's peak is cut off) is
+    # tried again from where its refined neighbours put it; the others keep their fit
+    failed = ~ok.to(out.device) & corners.isfinite().all(-1)
+    rows = failed.any(-1).nonzero().flatten()
+    if rows.numel() and min(board_size) >= 2:  # a lattice to predict from
+        good = ~failed[rows]
+        start, filled = predict_missing_corners(out[rows].masked_fill(~good[..., None], 0.0), good, board_size,
+                                                passes=max(board_size))
+        again, ok_again = refine_on_patches(images[rows], start, board_size, radius_factor, max_radius, *args,
+                                            return_ok=True, blur=None if blur is None else blur[rows])
+        take = failed[rows] & filled & ok_again.to(out.device)
+        out[rows] = torch.where(take[..., None], again.to(out), out[rows])
+        ok = ok.clone()
+        ok[rows] = ok[rows] | take.to(ok.device)
+    return (out, ok) if return_ok else out
