@@ -51,7 +51,7 @@ from ccs_kornia.modules.detection.learned.scale import (
 from ccs_kornia.modules.detection.learned.sigma_rejection import sigma_outlier_rejection
 from ccs_kornia.modules.detection.learned.x_junction import x_junction_mask
 from ccs_kornia.modules.detection.motion_deblur import REFINE_NOISE, deblur_motion, motion_blur
-from ccs_kornia.modules.detection.refine.patch_refine import refine_from_level
+from ccs_kornia.modules.detection.refine.patch_refine import refine_from_level, refine_from_neighbours
 from ccs_kornia.modules.detection.refine.saddle_refine import (
     CornerRefiner,
     refine_corners,
@@ -381,12 +381,13 @@ class LearnedChessboardDetector(ChessboardDetector):
             return pts
         # the full-resolution fit's regions are large enough for both threads (docs/measurements.md); the level's
         # refinement gains nothing from the second
-        args = (board_size, factor, radius_factor or r.radius_factor, r.max_radius, r.method, r.iterations,
-                r.smooth_sigma, r.normalize_sigma)
+        rf = radius_factor or r.radius_factor
+        args = (board_size, factor, rf, r.max_radius, r.method, r.iterations, r.smooth_sigma, r.normalize_sigma)
         with stage("saddle refinement"), full_threads():
-            out, ok = refine_from_level(full, pts, *args, return_ok=True)
+            out, ok = refine_from_level(full, pts, *args, return_ok=True, neighbours=False)
         ok = ok.to(out.device)
         failed = (~ok & out.isfinite().all(-1)).any(-1).nonzero().flatten().tolist()
+        sharp = full
         if failed:
             with stage("motion deblur"):
                 for b in failed:
@@ -398,11 +399,19 @@ class LearnedChessboardDetector(ChessboardDetector):
                     blur = motion_blur(np.clip(np.rint(gray * 255.0), 0, 255).astype(np.uint8))
                     if blur is None:
                         continue
-                    sharp = torch.from_numpy(deblur_motion(gray, *blur, REFINE_NOISE)).to(full)[None, None]
+                    deblurred = torch.from_numpy(deblur_motion(gray, *blur, REFINE_NOISE)).to(full)[None, None]
                     with full_threads():
-                        out_b, ok_b = refine_from_level(sharp, pts[b : b + 1], *args, return_ok=True)
+                        out_b, ok_b = refine_from_level(deblurred, pts[b : b + 1], *args, return_ok=True,
+                                                        neighbours=False)
                     if int(ok_b.sum()) > int(ok[b].sum()):
                         out[b], ok[b] = out_b[0].to(out), ok_b[0].to(ok)
+                        sharp = sharp.clone() if sharp is full else sharp
+                        sharp[b] = deblurred[0]
+            # the corners still without a saddle, tried again from where their refined neighbours put them (on the
+            # image the board was refined on)
+            with stage("saddle refinement"), full_threads():
+                out, ok = refine_from_neighbours(sharp, pts.to(out.device), out, ok, board_size, rf, r.max_radius,
+                                                 r.method, r.iterations, r.smooth_sigma, r.normalize_sigma)
         # a corner that found no saddle within its window at full resolution kept its position from the level, which
         # can be px off (a corner at a glare's rim): left out like a hidden one (rare on the real sets:
         # docs/measurements.md)
