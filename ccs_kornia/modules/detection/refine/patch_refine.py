@@ -342,10 +342,12 @@ def refine_from_neighbours(
     normalize_sigma: float = 6.0,
     blur: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    r"""The corners whose saddle fit failed, :math:`(B, N)` ``~ok``, tried again from where their refined neighbours
-    put them (:func:`~ccs_kornia.modules.detection.grid.missing_corners.predict_missing_corners`): a corner the level
-    placed farther off than its window (at the image's border the level's peak is cut off) finds its saddle from
-    there; the others keep their fit.
+    r"""The corners whose saddle fit failed, :math:`(B, N)` ``~ok``, from a start within ``max_radius`` px of the
+    image's border (or beyond it), tried again from where their refined neighbours put them
+    (:func:`~ccs_kornia.modules.detection.grid.missing_corners.predict_missing_corners`): at the border the level's
+    heatmap peak is cut off and can place a corner farther off than its window; from the neighbours' prediction it
+    finds its saddle. Elsewhere a failed fit is a corner the image does not show as a junction (at a glare's rim the
+    fit is pulled by px) and stays failed; the others keep their fit.
 
     Args:
         images: :math:`(B, 1, H, W)` full-resolution images.
@@ -364,7 +366,7 @@ def refine_from_neighbours(
         ...     for j in range(3):
         ...         img[..., 32 * j:32 * j + 32, 32 * i:32 * i + 32] = float((i + j) % 2)
         >>> truth = torch.tensor([[[32.0 * i - 0.5, 32.0 * j - 0.5] for j in (1, 2) for i in (1, 2, 3)]])
-        >>> start = truth.clone(); start[0, 0] += 9.0  # beyond its window
+        >>> start = truth.clone(); start[0, 0] += torch.tensor([9.0, -27.0])  # beyond its window, at the border
         >>> out, ok = refine_on_patches(img, start, (3, 2), return_ok=True)
         >>> bool(ok[0, 0])
         False
@@ -372,7 +374,12 @@ def refine_from_neighbours(
         >>> bool(ok.all()), round(float((out - truth).norm(dim=-1).max()), 2)
         (True, 0.0)
     """
-    failed = ~ok.to(refined.device) & corners.isfinite().all(-1)
+    h, w = images.shape[-2:]
+    start = corners.to(refined.device).float()
+    edge = torch.minimum(torch.minimum(start[..., 0], start[..., 1]), torch.minimum(w - 1 - start[..., 0], h - 1 - start[..., 1]))
+    # only where the level's estimate is the suspect, at the border: elsewhere a fit that fails is a corner the image
+    # does not show as a junction (a glare's rim pulls its saddle by px), left out
+    failed = ~ok.to(refined.device) & corners.isfinite().all(-1) & (edge < max_radius)
     rows = failed.any(-1).nonzero().flatten()
     if not rows.numel() or min(board_size) < 2:
         return refined, ok

@@ -41,15 +41,15 @@ def test_a_corner_near_the_border_is_not_pulled_by_it(top):
     assert bool(ok.all()) and err[0] < 0.2 and err[1:].max() < 0.01, err
 
 
-def test_a_corner_out_of_its_window_is_tried_from_its_neighbours():
-    img, truth = _rotated_checker(30.0)
+def test_a_corner_out_of_its_window_at_the_border_is_tried_from_its_neighbours():
+    img, truth = _rotated_checker(9.0)
     start = torch.from_numpy(truth).float()[None].clone()
-    start[0, 0] += torch.tensor([9.0, -7.0])  # farther than any window: the fit from there fails
+    start[0, 0] += torch.tensor([1.5, -12.0])  # the level's peak cut off by the border: beyond the window
     alone, ok_alone = refine_on_patches(img, start, BOARD, return_ok=True)
     assert not bool(ok_alone[0, 0])
     out, ok = refine_from_level(img, start, BOARD, 1.0, return_ok=True)
     err = np.linalg.norm(out[0].numpy() - truth, axis=-1)
-    assert bool(ok.all()) and err.max() < 0.01, err
+    assert bool(ok.all()) and err[0] < 0.15 and err[1:].max() < 0.01, err
 
 
 def test_the_smallest_window_at_the_border():
@@ -58,3 +58,12 @@ def test_the_smallest_window_at_the_border():
     start[0, 0, 1] = 0.5  # half a px inside: the window cannot shrink below MIN_BORDER_RADIUS
     out, ok = refine_on_patches(img, start, BOARD, return_ok=True)
     assert MIN_BORDER_RADIUS >= 1.0 and out.shape == (1, 6, 2) and bool(torch.isfinite(out).all())
+
+
+def test_a_failed_corner_inside_the_image_stays_failed():
+    """Away from the border a failed fit is a corner the image does not show as a junction: not guessed again."""
+    img, truth = _rotated_checker(30.0)
+    start = torch.from_numpy(truth).float()[None].clone()
+    start[0, 4] += torch.tensor([9.0, -7.0])
+    _, ok = refine_from_level(img, start, BOARD, 1.0, return_ok=True)
+    assert not bool(ok[0, 4]) and bool(ok[0, :4].all())
