@@ -59,15 +59,12 @@ from ccs_kornia.modules.detection.refine.saddle_refine import (
 from ccs_kornia.runtime.threads import full_threads, light_stages_single_thread
 from ccs_kornia.runtime.timing import stage
 
-__all__ = ["DEFAULT_DETECTOR_WEIGHTS", "DIM_SPAN", "DISPUTED_PX", "NOISE_SMOOTHING", "SMALL_PIXELS", "chessboard_copies", "load_corner_unet",
+__all__ = ["DEFAULT_DETECTOR_WEIGHTS", "DIM_SPAN", "DISPUTED_PX", "SMALL_PIXELS", "chessboard_copies", "load_corner_unet",
            "LearnedChessboardDetector"]
 
 #: a corner of a board found on an enhanced copy that the image's own saddle fit moves farther than this (px) is left
 #: out (the copy and the image disagree on where it is)
 DISPUTED_PX = 1.0
-#: where a board's corners still fail their saddle fit, it is refined again with the fit's smoothing this many times
-#: larger (sensor noise in a dark view breaks single corners' fits)
-NOISE_SMOOTHING = 2.0
 #: the stretched copy is looked at where the image is dim: its 1st to 99th percentiles span fewer grey levels than
 #: this (a quarter of the range; elsewhere the stretch barely changes the image)
 DIM_SPAN = 64
@@ -410,17 +407,6 @@ class LearnedChessboardDetector(ChessboardDetector):
                         out[b], ok[b] = out_b[0].to(out), ok_b[0].to(ok)
                         sharp = sharp.clone() if sharp is full else sharp
                         sharp[b] = deblurred[0]
-            # sensor noise breaks a fit the image's junction would give: the boards still short of saddles refined
-            # again with the fit's smoothing doubled (a symmetric blur: no saddle moves), kept where more are found
-            still = (~ok & out.isfinite().all(-1)).any(-1).nonzero().flatten()
-            if still.numel():
-                with stage("saddle refinement"), full_threads():
-                    smooth_args = (*args[:6], NOISE_SMOOTHING * r.smooth_sigma, r.normalize_sigma)
-                    out_s, ok_s = refine_from_level(sharp[still], pts[still], *smooth_args, return_ok=True,
-                                                    neighbours=False)
-                better = ok_s.to(ok.device).sum(-1) > ok[still].sum(-1)
-                out[still] = torch.where(better[:, None, None], out_s.to(out), out[still])
-                ok[still] = torch.where(better[:, None], ok_s.to(ok.device), ok[still])
             # the corners still without a saddle, tried again from where their refined neighbours put them (on the
             # image the board was refined on)
             with stage("saddle refinement"), full_threads():
