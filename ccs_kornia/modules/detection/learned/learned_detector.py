@@ -50,7 +50,8 @@ from ccs_kornia.modules.detection.learned.scale import (
 )
 from ccs_kornia.modules.detection.learned.sigma_rejection import sigma_outlier_rejection
 from ccs_kornia.modules.detection.learned.x_junction import x_junction_mask
-from ccs_kornia.modules.detection.refine.patch_refine import refine_from_level
+from ccs_kornia.modules.detection.motion_deblur import REFINE_NOISE, deblur_motion, motion_blur
+from ccs_kornia.modules.detection.refine.patch_refine import refine_from_level, refine_from_neighbours
 from ccs_kornia.modules.detection.refine.saddle_refine import (
     CornerRefiner,
     refine_corners,
@@ -157,10 +158,12 @@ class LearnedChessboardDetector(ChessboardDetector):
             grazing angle, whose squares are foreshortened 2-4:1).
         copies_retry: last, where still no board was found (a partial board is kept as it is), look for it on the
             image's enhanced copies that suit it (:func:`chessboard_copies`: contrast stretched where the image is dim,
-            enlarged where it is small) with every fallback but the grazing angle's, in turn until one gives
-            the whole board; a copy's board is refined again on the image, a corner moving more than
-            :data:`DISPUTED_PX` there left out (a dim view misleads the square-size estimate, a small one's squares are
-            a few px: docs/detection.md).
+            enlarged where it is small, deblurred where it shows a straight motion blur) with every fallback but the
+            grazing angle's, in turn until one gives the whole board; a copy's board is refined again on the image, a
+            corner moving more than :data:`DISPUTED_PX` there left out (a dim view misleads the square-size estimate,
+            a small one's squares are a few px: docs/detection.md). Wherever a board's corners fail their saddle fit
+            on an image that shows a straight motion blur, the board is refined again on the image with that blur
+            undone (:mod:`~ccs_kornia.modules.detection.motion_deblur`).
         (``scale_fallback``, ``scale_finest``, ``opencv_retry``, ``foreshortened_retry`` and ``copies_retry`` make the
         detector's own
         :class:`~ccs_kornia.modules.detection.base.Fallbacks`, :attr:`fallbacks`; a caller passes others per call.)
@@ -378,9 +381,37 @@ class LearnedChessboardDetector(ChessboardDetector):
             return pts
         # the full-resolution fit's regions are large enough for both threads (docs/measurements.md); the level's
         # refinement gains nothing from the second
+        rf = radius_factor or r.radius_factor
+        args = (board_size, factor, rf, r.max_radius, r.method, r.iterations, r.smooth_sigma, r.normalize_sigma)
         with stage("saddle refinement"), full_threads():
-            out, ok = refine_from_level(full, pts, board_size, factor, radius_factor or r.radius_factor, r.max_radius,
-                                        r.method, r.iterations, r.smooth_sigma, r.normalize_sigma, return_ok=True)
+            out, ok = refine_from_level(full, pts, *args, return_ok=True, neighbours=False)
+        ok = ok.to(out.device)
+        failed = (~ok & out.isfinite().all(-1)).any(-1).nonzero().flatten().tolist()
+        sharp = full
+        if failed:
+            with stage("motion deblur"):
+                for b in failed:
+                    # a straight motion blur widens the edges across it only: the saddle window, widened by the
+                    # board's median edge blur, stays too narrow there and the fit fails. Where the image shows
+                    # such a blur it is undone (a symmetric line: the saddles stay where they are) and the board
+                    # refined again there, kept where more corners find their saddle
+                    gray = full[b, 0].double().cpu().numpy()
+                    blur = motion_blur(np.clip(np.rint(gray * 255.0), 0, 255).astype(np.uint8))
+                    if blur is None:
+                        continue
+                    deblurred = torch.from_numpy(deblur_motion(gray, *blur, REFINE_NOISE)).to(full)[None, None]
+                    with full_threads():
+                        out_b, ok_b = refine_from_level(deblurred, pts[b : b + 1], *args, return_ok=True,
+                                                        neighbours=False)
+                    if int(ok_b.sum()) > int(ok[b].sum()):
+                        out[b], ok[b] = out_b[0].to(out), ok_b[0].to(ok)
+                        sharp = sharp.clone() if sharp is full else sharp
+                        sharp[b] = deblurred[0]
+            # the corners still without a saddle, tried again from where their refined neighbours put them (on the
+            # image the board was refined on)
+            with stage("saddle refinement"), full_threads():
+                out, ok = refine_from_neighbours(sharp, pts.to(out.device), out, ok, board_size, rf, r.max_radius,
+                                                 r.method, r.iterations, r.smooth_sigma, r.normalize_sigma)
         # a corner that found no saddle within its window at full resolution kept its position from the level, which
         # can be px off (a corner at a glare's rim): left out like a hidden one (rare on the real sets:
         # docs/measurements.md)
@@ -544,8 +575,10 @@ def chessboard_copies(gray8: np.ndarray) -> list[tuple[str, np.ndarray, float]]:
     """The enhanced copies of a ``uint8`` grey image ``(H, W)`` (:func:`~ccs_kornia.modules.detection.enhanced_copies.
     enhanced_copies`) that the learned detector looks at where the image gave no board, each with its name and its
     scale to the image: the stretched copy where the image is dim (its 1st to 99th percentiles span fewer than
-    :data:`DIM_SPAN` grey levels), the enlarged copy where it is small (at most :data:`SMALL_PIXELS` pixels); none for
-    an image that is neither (a board-free photograph pays for no copy).
+    :data:`DIM_SPAN` grey levels), the enlarged copy where it is small (at most :data:`SMALL_PIXELS` pixels), the
+    deblurred copy where it shows a straight motion blur
+    (:func:`~ccs_kornia.modules.detection.motion_deblur.motion_blur`: a board smeared along a line loses its corners'
+    peaks across it); none for an image that is none of these (a board-free photograph pays for its cepstrum only).
 
     Example:
         >>> dim = np.tile(np.arange(20, dtype=np.uint8), (8, 1))
@@ -555,11 +588,17 @@ def chessboard_copies(gray8: np.ndarray) -> list[tuple[str, np.ndarray, float]]:
         []
     """
     lo, hi = np.percentile(gray8, (1.0, 99.0))
-    dim, small = hi - lo < DIM_SPAN, gray8.size <= SMALL_PIXELS
-    if hi <= lo or not (dim or small):
+    if hi <= lo:
         return []
-    stretched, _, *enlarged = enhanced_copies(gray8, enlarge=small)
-    return ([("stretched", *stretched)] if dim else []) + [("enlarged", *e) for e in enlarged]
+    dim, small = hi - lo < DIM_SPAN, gray8.size <= SMALL_PIXELS
+    out = []
+    if dim or small:
+        stretched, _, *enlarged = enhanced_copies(gray8, enlarge=small)
+        out = ([("stretched", *stretched)] if dim else []) + [("enlarged", *e) for e in enlarged]
+    blur = motion_blur(gray8)
+    if blur is not None:
+        out.append(("deblurred", deblur_motion(gray8, *blur), 1.0))
+    return out
 
 
 def _empty_result(images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:

@@ -64,7 +64,7 @@ from ccs_kornia.modules.detection.markers.corner_merge import (
     path_counts,
     paths_note,
 )
-from ccs_kornia.modules.detection.markers.gaussian_deblur import (
+from ccs_kornia.modules.detection.gaussian_deblur import (
     MIN_SIGMA,
     deblur_gaussian,
     gaussian_blur_sigma,
@@ -88,7 +88,7 @@ from ccs_kornia.modules.detection.markers.marker_board import (
     refine_marked_corners,
     small_marker_scale,
 )
-from ccs_kornia.modules.detection.markers.motion_deblur import (
+from ccs_kornia.modules.detection.motion_deblur import (
     deblur_motion,
     motion_blur,
 )
@@ -159,9 +159,9 @@ class CharucoMarkers(BoardMarkers):
     BoardMarkers`, board corners in squares) with the layout (legacy or not) they fit and, where the board's given
     layout is the worse fit, the other one (``better_layout``) and the markers it explains (``better_count``);
     ``ambiguous``: both layouts explain the view's markers alike; ``motion``: the straight motion blur measured on the
-    view (length px, direction radians: :func:`~ccs_kornia.modules.detection.markers.motion_deblur.motion_blur`),
+    view (length px, direction radians: :func:`~ccs_kornia.modules.detection.motion_deblur.motion_blur`),
     where its markers were also read on the view with it undone, and its corners are refined there; ``defocus``: the
-    same for a Gaussian blur (sigma px: :func:`~ccs_kornia.modules.detection.markers.gaussian_deblur.
+    same for a Gaussian blur (sigma px: :func:`~ccs_kornia.modules.detection.gaussian_deblur.
     gaussian_blur_sigma`). Either is kept where the copy with it undone reads more of the board's markers, or where
     none is read at all."""
 
@@ -184,9 +184,9 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     board's marker ids was decoded, those of copies sharpened harder for a blurred view
     (:func:`~ccs_kornia.modules.detection.enhanced_copies.deblurring_copies`) the same way; where markers are still
     missing, those of a copy with the view's measured motion blur
-    (:func:`~ccs_kornia.modules.detection.markers.motion_deblur.motion_blur`) or else Gaussian blur
-    (:func:`~ccs_kornia.modules.detection.markers.gaussian_deblur.gaussian_blur_sigma`, at least
-    :data:`~ccs_kornia.modules.detection.markers.gaussian_deblur.MIN_SIGMA`) undone and of that copy enlarged; where
+    (:func:`~ccs_kornia.modules.detection.motion_deblur.motion_blur`) or else Gaussian blur
+    (:func:`~ccs_kornia.modules.detection.gaussian_deblur.gaussian_blur_sigma`, at least
+    :data:`~ccs_kornia.modules.detection.gaussian_deblur.MIN_SIGMA`) undone and of that copy enlarged; where
     the markers read are too small for OpenCV's sampling, those of a further enlarged copy
     (:func:`~ccs_kornia.modules.detection.markers.marker_board.small_marker_scale`) the same way; a view whose every
     marker is read already skips them."""

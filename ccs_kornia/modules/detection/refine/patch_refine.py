@@ -28,7 +28,12 @@ from ccs_kornia.modules.detection.refine.saddle_refine import (
 from ccs_kornia.runtime.checks import check_board_size, check_grey_images, check_points
 from ccs_kornia.runtime.timing import stage
 
-__all__ = ["level_size", "resize_to_level", "edge_blur", "refine_on_patches", "refine_boards", "refine_from_level"]
+#: the smallest window half-size (px) a corner near the image's border is refined with (its window ends a px short of
+#: the border)
+MIN_BORDER_RADIUS = 1.5
+
+__all__ = ["MIN_BORDER_RADIUS", "edge_blur", "level_size", "refine_boards", "refine_from_level", "refine_from_neighbours",
+           "refine_on_patches", "resize_to_level"]
 
 
 def level_size(image_size: tuple[int, int], factor: float) -> tuple[int, int]:
@@ -196,6 +201,11 @@ def refine_on_patches(
         soft = blur_factor * blur.to(radius).nan_to_num(0.0)[:, None]
         radius = torch.maximum(radius, torch.minimum(soft, max_fraction * spacing))
     radius = radius.nan_to_num(5.0, posinf=float(max_radius))
+    # a window that crosses the image's border sees the border's pixels repeated, a false junction the fit is pulled
+    # to (px off on a corner a few px inside the border): the window ends a px short of the border
+    pts_ = corners.to(radius.device).float()
+    edge = torch.minimum(torch.minimum(pts_[..., 0], pts_[..., 1]), torch.minimum(w - 1 - pts_[..., 0], h - 1 - pts_[..., 1]))
+    radius = torch.minimum(radius, (edge - 1.0).nan_to_num(float(max_radius)).clamp_min(MIN_BORDER_RADIUS))
     r_max = int(math.ceil(float(radius.max())))
     if method in ("saddle", "symmetric"):
         # the saddle refiner works on one small region per corner of the image itself (bounded memory whatever the
@@ -256,6 +266,7 @@ def refine_from_level(
     smooth_sigma: float = 1.0,
     normalize_sigma: float = 6.0,
     return_ok: bool = False,
+    neighbours: bool = True,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     r"""Refine at full resolution corners found on a level ``factor`` times smaller, :math:`(B, N, 2)`.
 
@@ -274,6 +285,8 @@ def refine_from_level(
             (:class:`~ccs_kornia.modules.detection.refine.saddle_refine.CornerRefiner`).
         return_ok: also return the full-resolution step's :math:`(B, N)` mask of corners that found a proper saddle
             within their window (False at hidden corners); the others keep the position they came with.
+        neighbours: a corner that finds none from where the level put it is tried again from where its refined
+            neighbours put it (:func:`refine_from_neighbours`).
 
     Returns:
         :math:`(B, N, 2)` refined corners (and the mask with ``return_ok``).
@@ -291,7 +304,7 @@ def refine_from_level(
         filled, _ = predict_missing_corners(corners.masked_fill(hidden[..., None], 0.0), ~hidden, board_size,
                                             passes=max(board_size))
         out, ok = refine_from_level(images, filled, board_size, factor, radius_factor, max_radius, method, iterations,
-                                    smooth_sigma, normalize_sigma, return_ok=True)
+                                    smooth_sigma, normalize_sigma, return_ok=True, neighbours=neighbours)
         out = out.masked_fill(hidden[..., None], float("nan"))
         return (out, ok & ~hidden) if return_ok else out
     args = (method, iterations, smooth_sigma, normalize_sigma)
@@ -308,5 +321,76 @@ def refine_from_level(
         corners = ((pts.double() + 0.5) * s - 0.5).to(corners.dtype)
     # squares that needed upsampling are small: their window (0.2 square) is the usual one, blur or not
     blur = edge_blur(images, corners, board_size) if factor > 1 else None
-    return refine_on_patches(images, corners, board_size, radius_factor, max_radius, *args, return_ok=return_ok,
-                             blur=blur)
+    out, ok = refine_on_patches(images, corners, board_size, radius_factor, max_radius, *args, return_ok=True, blur=blur)
+    if neighbours:
+        out, ok = refine_from_neighbours(images, corners, out, ok, board_size, radius_factor, max_radius, *args,
+                                         blur=blur)
+    return (out, ok) if return_ok else out
+
+
+def refine_from_neighbours(
+    images: torch.Tensor,
+    corners: torch.Tensor,
+    refined: torch.Tensor,
+    ok: torch.Tensor,
+    board_size: tuple[int, int],
+    radius_factor: float = 0.2,
+    max_radius: int = 12,
+    method: str = "symmetric",
+    iterations: int = 5,
+    smooth_sigma: float = 1.0,
+    normalize_sigma: float = 6.0,
+    blur: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    r"""The corners whose saddle fit failed, :math:`(B, N)` ``~ok``, from a start within ``max_radius`` px of the
+    image's border (or beyond it), tried again from where their refined neighbours put them
+    (:func:`~ccs_kornia.modules.detection.grid.missing_corners.predict_missing_corners`): at the border the level's
+    heatmap peak is cut off and can place a corner farther off than its window; from the neighbours' prediction it
+    finds its saddle. Elsewhere a failed fit is a corner the image does not show as a junction (at a glare's rim the
+    fit is pulled by px) and stays failed; the others keep their fit.
+
+    Args:
+        images: :math:`(B, 1, H, W)` full-resolution images.
+        corners: :math:`(B, N, 2)` the corners the fit started from (NaN: hidden, left alone).
+        refined, ok: :func:`refine_on_patches`'s corners and mask from them.
+        board_size: ``(cols, rows)``, at least 2x2 (a 1-wide board has no lattice to predict from: returned as is).
+        radius_factor, max_radius, method, iterations, smooth_sigma, normalize_sigma, blur: of
+            :func:`refine_on_patches`.
+
+    Returns:
+        :math:`(B, N, 2)` corners and :math:`(B, N)` mask, the corners found again added.
+
+    Example:
+        >>> img = torch.zeros(1, 1, 96, 128)
+        >>> for i in range(4):
+        ...     for j in range(3):
+        ...         img[..., 32 * j:32 * j + 32, 32 * i:32 * i + 32] = float((i + j) % 2)
+        >>> truth = torch.tensor([[[32.0 * i - 0.5, 32.0 * j - 0.5] for j in (1, 2) for i in (1, 2, 3)]])
+        >>> start = truth.clone(); start[0, 0] += torch.tensor([9.0, -27.0])  # beyond its window, at the border
+        >>> out, ok = refine_on_patches(img, start, (3, 2), return_ok=True)
+        >>> bool(ok[0, 0])
+        False
+        >>> out, ok = refine_from_neighbours(img, start, out, ok, (3, 2))
+        >>> bool(ok.all()), round(float((out - truth).norm(dim=-1).max()), 2)
+        (True, 0.0)
+    """
+    h, w = images.shape[-2:]
+    start = corners.to(refined.device).float()
+    edge = torch.minimum(torch.minimum(start[..., 0], start[..., 1]), torch.minimum(w - 1 - start[..., 0], h - 1 - start[..., 1]))
+    # only where the level's estimate is the suspect, at the border: elsewhere a fit that fails is a corner the image
+    # does not show as a junction (a glare's rim pulls its saddle by px), left out
+    failed = ~ok.to(refined.device) & corners.isfinite().all(-1) & (edge < max_radius)
+    rows = failed.any(-1).nonzero().flatten()
+    if not rows.numel() or min(board_size) < 2:
+        return refined, ok
+    good = ok[rows].to(refined.device) & refined[rows].isfinite().all(-1)
+    start, filled = predict_missing_corners(refined[rows].masked_fill(~good[..., None], 0.0), good, board_size,
+                                            passes=max(board_size))
+    again, ok_again = refine_on_patches(images[rows], start, board_size, radius_factor, max_radius, method, iterations,
+                                        smooth_sigma, normalize_sigma, return_ok=True,
+                                        blur=None if blur is None else blur[rows])
+    take = failed[rows] & filled & ok_again.to(refined.device)
+    refined, ok = refined.clone(), ok.clone()
+    refined[rows] = torch.where(take[..., None], again.to(refined), refined[rows])
+    ok[rows] = ok[rows] | take.to(ok.device)
+    return refined, ok

@@ -211,7 +211,7 @@ def test_small_markers_read_on_a_further_enlarged_copy(monkeypatch):
 
 def test_motion_blurred_view_read_with_its_blur_undone(monkeypatch):
     import ccs_kornia.modules.detection.markers.charuco as charuco
-    from ccs_kornia.modules.detection.markers.motion_deblur import line_kernel
+    from ccs_kornia.modules.detection.motion_deblur import line_kernel
 
     image = BOARD.render(40, margin=20)
     truth = detect_charuco(_tensor(image), BOARD, paths=MarkerPaths.MARKERS).corners[0].numpy()

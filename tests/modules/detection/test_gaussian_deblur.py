@@ -9,7 +9,7 @@ import pytest
 from ccs_kornia.modules.detection.boards import CharucoBoard
 from ccs_kornia.modules.detection.markers import charuco
 from ccs_kornia.modules.detection.markers.charuco import charuco_detector, layout_fits
-from ccs_kornia.modules.detection.markers.gaussian_deblur import (
+from ccs_kornia.modules.detection.gaussian_deblur import (
     MIN_SIGMA,
     deblur_gaussian,
     gaussian_blur_sigma,
@@ -90,7 +90,7 @@ def test_sharp_board_takes_no_deblurred_copy():
 
 @pytest.mark.parametrize("angle", [0.0, math.pi / 2])
 def test_blur_across_a_motion_line_measured_in_its_direction(angle):
-    from ccs_kornia.modules.detection.markers.motion_deblur import line_kernel
+    from ccs_kornia.modules.detection.motion_deblur import line_kernel
 
     # the board's edges run along the image's axes: a line along one blurs the edges across it only
     sharp = _blurred_board(0.0, square=40).astype(np.float32)

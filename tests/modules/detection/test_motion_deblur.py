@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ccs_kornia.modules.detection.boards import CharucoBoard
-from ccs_kornia.modules.detection.markers.motion_deblur import (
+from ccs_kornia.modules.detection.motion_deblur import (
     deblur_motion,
     line_kernel,
     motion_blur,
