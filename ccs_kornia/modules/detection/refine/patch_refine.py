@@ -143,6 +143,12 @@ def edge_blur(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int
     return sigma.nanmedian(-1).values
 
 
+def _to_border(points: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """Distance (px) of points :math:`(..., 2)` to the nearest border of an image ``h`` x ``w`` (negative outside)."""
+    x, y = points[..., 0], points[..., 1]
+    return torch.minimum(torch.minimum(x, y), torch.minimum(w - 1 - x, h - 1 - y))
+
+
 def refine_on_patches(
     images: torch.Tensor,
     corners: torch.Tensor,
@@ -203,8 +209,7 @@ def refine_on_patches(
     radius = radius.nan_to_num(5.0, posinf=float(max_radius))
     # a window that crosses the image's border sees the border's pixels repeated, a false junction the fit is pulled
     # to (px off on a corner a few px inside the border): the window ends a px short of the border
-    pts_ = corners.to(radius.device).float()
-    edge = torch.minimum(torch.minimum(pts_[..., 0], pts_[..., 1]), torch.minimum(w - 1 - pts_[..., 0], h - 1 - pts_[..., 1]))
+    edge = _to_border(corners.to(radius.device).float(), h, w)
     radius = torch.minimum(radius, (edge - 1.0).nan_to_num(float(max_radius)).clamp_min(MIN_BORDER_RADIUS))
     r_max = int(math.ceil(float(radius.max())))
     if method in ("saddle", "symmetric"):
@@ -374,9 +379,7 @@ def refine_from_neighbours(
         >>> bool(ok.all()), round(float((out - truth).norm(dim=-1).max()), 2)
         (True, 0.0)
     """
-    h, w = images.shape[-2:]
-    start = corners.to(refined.device).float()
-    edge = torch.minimum(torch.minimum(start[..., 0], start[..., 1]), torch.minimum(w - 1 - start[..., 0], h - 1 - start[..., 1]))
+    edge = _to_border(corners.to(refined.device).float(), *images.shape[-2:])
     # only where the level's estimate is the suspect, at the border: elsewhere a fit that fails is a corner the image
     # does not show as a junction (a glare's rim pulls its saddle by px), left out
     failed = ~ok.to(refined.device) & corners.isfinite().all(-1) & (edge < max_radius)
