@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from ccs_kornia.modules.detection.boards import CharucoBoard
-from ccs_kornia.modules.detection.markers import charuco
-from ccs_kornia.modules.detection.markers.charuco import charuco_detector, layout_fits
 from ccs_kornia.modules.detection.gaussian_deblur import (
     MIN_SIGMA,
     deblur_gaussian,
     gaussian_blur_sigma,
 )
+from ccs_kornia.modules.detection.markers import charuco
+from ccs_kornia.modules.detection.markers.charuco import charuco_detector, layout_fits
 from ccs_kornia.modules.detection.markers.marker_board import decode_markers
 
 #: a 4x4-bit board whose markers take three quarters of their square: the narrow margin a blur closes

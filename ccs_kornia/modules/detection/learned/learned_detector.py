@@ -50,8 +50,15 @@ from ccs_kornia.modules.detection.learned.scale import (
 )
 from ccs_kornia.modules.detection.learned.sigma_rejection import sigma_outlier_rejection
 from ccs_kornia.modules.detection.learned.x_junction import x_junction_mask
-from ccs_kornia.modules.detection.motion_deblur import REFINE_NOISE, deblur_motion, motion_blur
-from ccs_kornia.modules.detection.refine.patch_refine import refine_from_level, refine_from_neighbours
+from ccs_kornia.modules.detection.motion_deblur import (
+    REFINE_NOISE,
+    deblur_motion,
+    motion_blur,
+)
+from ccs_kornia.modules.detection.refine.patch_refine import (
+    refine_from_level,
+    refine_from_neighbours,
+)
 from ccs_kornia.modules.detection.refine.saddle_refine import (
     CornerRefiner,
     refine_corners,

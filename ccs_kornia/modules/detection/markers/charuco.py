@@ -57,17 +57,17 @@ from ccs_kornia.modules.detection.enhanced_copies import (
     deblurring_copies,
     enhanced_copies,
 )
+from ccs_kornia.modules.detection.gaussian_deblur import (
+    MIN_SIGMA,
+    deblur_gaussian,
+    gaussian_blur_sigma,
+)
 from ccs_kornia.modules.detection.learned.scale import TARGET_SQUARE
 from ccs_kornia.modules.detection.markers.corner_merge import (
     MarkerPaths,
     merge_corners,
     path_counts,
     paths_note,
-)
-from ccs_kornia.modules.detection.gaussian_deblur import (
-    MIN_SIGMA,
-    deblur_gaussian,
-    gaussian_blur_sigma,
 )
 from ccs_kornia.modules.detection.markers.lattice_names import BoardLattice
 from ccs_kornia.modules.detection.markers.lattice_path import (
@@ -208,6 +208,20 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
                                               got.known, legacy=legacy, motion=motion,
                                               defocus=defocus)
 
+    def read_deblurred(sharp: np.ndarray, variants: list[str], enlarge_on) -> int:
+        """Markers of a deblurred copy ``sharp`` added on ``variants``, then of that copy enlarged on the variants
+        ``enlarge_on()`` names by then; the most markers a layout now explains."""
+        for variant in variants:
+            pooled[variant] = decode_with_copies(pooled[variant], [(sharp, 1.0)], detector, variant)
+            keep(*pooled[variant], variant)
+        on = enlarge_on()
+        if on:
+            enlarged = cv2.resize(sharp, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC)
+            for variant in on:
+                pooled[variant] = decode_with_copies(pooled[variant], [(enlarged, UPSCALE)], detector, variant)
+                keep(*pooled[variant], variant)
+        return max(len(m.ids) for m in best.values())
+
     decoded = {}
     for variant in VARIANTS:
         decoded[variant] = decode_markers(gray8, detector, variant)
@@ -244,16 +258,8 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
     blur = motion_blur(copies[0][0])
     if blur is not None:
         before = max(len(m.ids) for m in best.values())
-        sharp = deblur_motion(copies[0][0], *blur)
-        for variant in read or list(pooled):
-            pooled[variant] = decode_with_copies(pooled[variant], [(sharp, 1.0)], detector, variant)
-            keep(*pooled[variant], variant)
-        seen = [v for v in pooled if np.isin(pooled[v][1], board_ids).any()]
-        enlarged = cv2.resize(sharp, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC) if seen else None
-        for variant in seen:
-            pooled[variant] = decode_with_copies(pooled[variant], [(enlarged, UPSCALE)], detector, variant)
-            keep(*pooled[variant], variant)
-        after = max(len(m.ids) for m in best.values())
+        after = read_deblurred(deblur_motion(copies[0][0], *blur), read or list(pooled),
+                               lambda: [v for v in pooled if np.isin(pooled[v][1], board_ids).any()])
         if after > before or (not after and gaussian_blur_sigma(copies[0][0], blur[1]) >= MIN_SIGMA):
             motion = blur
             best = {legacy: replace(m, motion=motion) for legacy, m in best.items()}
@@ -266,17 +272,11 @@ def layout_fits(gray8: np.ndarray, board: CharucoBoard, detector: cv2.aruco.Aruc
         sigma = gaussian_blur_sigma(copies[0][0])
         if sigma >= MIN_SIGMA:
             before = max(len(m.ids) for m in best.values())
-            sharp = deblur_gaussian(copies[0][0], sigma)
-            on = [v for v in pooled if any(m.variant == v and len(m.ids) for m in best.values())]
-            for variant in on or list(pooled):
-                pooled[variant] = decode_with_copies(pooled[variant], [(sharp, 1.0)], detector, variant)
-                keep(*pooled[variant], variant)
-            on = [v for v in pooled if any(m.variant == v and len(m.ids) for m in best.values())]
-            enlarged = cv2.resize(sharp, None, fx=UPSCALE, fy=UPSCALE, interpolation=cv2.INTER_CUBIC)
-            for variant in on:
-                pooled[variant] = decode_with_copies(pooled[variant], [(enlarged, UPSCALE)], detector, variant)
-                keep(*pooled[variant], variant)
-            after = max(len(m.ids) for m in best.values())
+
+            def on_lattice() -> list[str]:
+                return [v for v in pooled if any(m.variant == v and len(m.ids) for m in best.values())]
+
+            after = read_deblurred(deblur_gaussian(copies[0][0], sigma), on_lattice() or list(pooled), on_lattice)
             if after > before or not after:
                 defocus = sigma
                 best = {legacy: replace(m, defocus=defocus) for legacy, m in best.items()}
