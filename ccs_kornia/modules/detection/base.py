@@ -129,7 +129,7 @@ class Fallbacks:
         finest: with ``levels``, then also the octaves below the finest of them and the finest level allowed.
         opencv: then OpenCV's corner candidates on a bounded level (boards with marks in the white squares).
         foreshortened: then the level compressed along a few directions (boards at a grazing angle).
-        copies: last, where no board was found, the same looks (but the grazing angle's) on the image's enhanced
+        copies: last, where no board was found, the same looks (the grazing angle's included) on the image's enhanced
             copies that suit it (:func:`~ccs_kornia.modules.detection.learned.learned_detector.chessboard_copies`:
             dim or small views).
 

@@ -15,11 +15,14 @@ OpenCV hands us one board at a time anyway, so these run per board on the CPU.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
 from ccs_kornia.modules.detection.grid.lattice import fit_lattice_homography
 from ccs_kornia.modules.detection.grid.missing_corners import lattice_deviation
+from ccs_kornia.modules.detection.refine.image_noise import noise_sigma
 
 __all__ = ["check_grid", "check_saddles", "skipped_line", "board_extends", "whole_board_check", "canonical_corner_order"]
 
@@ -269,9 +272,27 @@ def _skipped(img: np.ndarray, grid: np.ndarray, u: np.ndarray, v: np.ndarray, ra
         for (_, name), (mid, _, _) in zip(axes, mids):
             s, a = strength[start:start + len(mid)], asym[start:start + len(mid)]
             start += len(mid)
-            if ((s > 0.5 * ref) & (a < s)).any():
+            if ((s > 0.5 * ref) & (a < s)).any() and ((s > 0.5 * ref) & (a < s - _noise_margin(img, grid, radius))).any():
                 return f"the grid skips a {name} of corners (a corner lies between two detected neighbours)"
     return ""
+
+
+def _noise_margin(img: np.ndarray, grid: np.ndarray, radius: float) -> float:
+    """How far a midpoint's saddle strength must exceed its asymmetry to count (:func:`_skipped`): two standard
+    deviations of their difference where the quadrant means (boxes of ``2 r + 1`` px a side) carry the image's noise
+    (:func:`~ccs_kornia.modules.detection.refine.image_noise.noise_sigma` over the board's bounding box). On a
+    photograph taken in the dark the boxes of a tenth of a step (1 px on a foreshortened board) make a square's edge
+    read as a saddle; on a photograph in good light the margin is a fraction of a grey level."""
+    h, w = img.shape
+    pts = grid.reshape(-1, 2)
+    pts = pts[np.isfinite(pts).all(-1)]
+    x0, y0 = np.clip(np.floor(pts.min(0)).astype(int), 0, None)
+    x1, y1 = np.minimum(np.ceil(pts.max(0)).astype(int) + 1, (w, h))
+    if x1 - x0 < 3 or y1 - y0 < 3:
+        return 0.0
+    r = max(1, int(round(radius)))
+    sigma = float(noise_sigma(torch.from_numpy(np.ascontiguousarray(img[y0:y1, x0:x1]))[None, None])[0])
+    return 2.0 * math.sqrt(3.0) * sigma / (2 * r + 1)
 
 
 def skipped_line(image: np.ndarray, corners: np.ndarray, board_size: tuple[int, int]) -> str:

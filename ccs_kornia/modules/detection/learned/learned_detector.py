@@ -55,6 +55,7 @@ from ccs_kornia.modules.detection.motion_deblur import (
     deblur_motion,
     motion_blur,
 )
+from ccs_kornia.modules.detection.refine.image_noise import NOISY, noise_to_contrast
 from ccs_kornia.modules.detection.refine.patch_refine import (
     refine_from_level,
     refine_from_neighbours,
@@ -165,12 +166,15 @@ class LearnedChessboardDetector(ChessboardDetector):
             grazing angle, whose squares are foreshortened 2-4:1).
         copies_retry: last, where still no board was found (a partial board is kept as it is), look for it on the
             image's enhanced copies that suit it (:func:`chessboard_copies`: contrast stretched where the image is dim,
-            enlarged where it is small, deblurred where it shows a straight motion blur) with every fallback but the
-            grazing angle's, in turn until one gives the whole board; a copy's board is refined again on the image, a
+            enlarged where it is small, deblurred where it shows a straight motion blur) with every fallback, in turn
+            until one gives the whole board; a copy's board is refined again on the image, a
             corner moving more than :data:`DISPUTED_PX` there left out (a dim view misleads the square-size estimate,
             a small one's squares are a few px: docs/detection.md). Wherever a board's corners fail their saddle fit
             on an image that shows a straight motion blur, the board is refined again on the image with that blur
-            undone (:mod:`~ccs_kornia.modules.detection.motion_deblur`).
+            undone (:mod:`~ccs_kornia.modules.detection.motion_deblur`); wherever they fail on a noisy board
+            (:func:`~ccs_kornia.modules.detection.refine.image_noise.noise_to_contrast` above
+            :data:`~ccs_kornia.modules.detection.refine.image_noise.NOISY`: a photograph taken in the dark), they are
+            fitted again with the smoothing doubled.
         (``scale_fallback``, ``scale_finest``, ``opencv_retry``, ``foreshortened_retry`` and ``copies_retry`` make the
         detector's own
         :class:`~ccs_kornia.modules.detection.base.Fallbacks`, :attr:`fallbacks`; a caller passes others per call.)
@@ -338,7 +342,8 @@ class LearnedChessboardDetector(ChessboardDetector):
     def _on_copies(self, images: torch.Tensor, out: DetectionResult, board_size: tuple[int, int],
                    fallbacks: Fallbacks) -> DetectionResult:
         """``out`` with the views where no board was found looked at again on the image's enhanced copies in turn
-        (:func:`chessboard_copies`), with ``fallbacks`` but the grazing angle's, until one gives the whole board; a
+        (:func:`chessboard_copies`), with ``fallbacks`` (the grazing angle's included: a dark fisheye view's board at a grazing angle is
+        found by that look on the stretched copy only), until one gives the whole board; a
         copy's board, in the image's pixels, is refined again on the image (a corner that moves more than
         :data:`DISPUTED_PX` there left out) and kept where it measures more corners than the copies before it (at
         least :data:`~ccs_kornia.modules.detection.checks.hidden_corners.PARTIAL_BOARD_FRACTION` of them; all of them
@@ -347,7 +352,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         todo = (~out.found).nonzero().flatten().tolist()
         if not todo:
             return out
-        look = fallbacks.but(foreshortened=False, copies=False)
+        look = fallbacks.but(copies=False)
         least = math.ceil(PARTIAL_BOARD_FRACTION * n) if self.partial_boards else n
         with stage("enhanced copies"):
             for b in todo:
@@ -419,6 +424,19 @@ class LearnedChessboardDetector(ChessboardDetector):
             with stage("saddle refinement"), full_threads():
                 out, ok = refine_from_neighbours(sharp, pts.to(out.device), out, ok, board_size, rf, r.max_radius,
                                                  r.method, r.iterations, r.smooth_sigma, r.normalize_sigma)
+            # on a noisy board (a dark photograph's shot noise) a low-contrast corner's Hessian is the noise's: its
+            # fit is tried again with the smoothing doubled, and only the corners that failed take the new fit
+            short = (~ok & out.isfinite().all(-1)).any(-1).nonzero().flatten()
+            if short.numel():
+                noisy = short[noise_to_contrast(sharp[short], out[short].to(sharp.device), board_size).cpu() > NOISY]
+                if noisy.numel():
+                    with stage("saddle refinement"), full_threads():
+                        again, ok_again = refine_from_level(sharp[noisy], pts[noisy].to(sharp.device), board_size,
+                                                            factor, rf, r.max_radius, r.method, r.iterations,
+                                                            2.0 * r.smooth_sigma, r.normalize_sigma, return_ok=True)
+                    take = ~ok[noisy] & ok_again.to(ok.device)
+                    out[noisy] = torch.where(take[..., None], again.to(out), out[noisy])
+                    ok[noisy] = ok[noisy] | take
         # a corner that found no saddle within its window at full resolution kept its position from the level, which
         # can be px off (a corner at a glare's rim): left out like a hidden one (rare on the real sets:
         # docs/measurements.md)

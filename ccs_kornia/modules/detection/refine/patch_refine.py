@@ -74,7 +74,8 @@ def resize_to_level(images: torch.Tensor, factor: float) -> tuple[torch.Tensor, 
     return level, scale
 
 
-def edge_blur(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int], samples: int | None = None) -> torch.Tensor:
+def edge_blur(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int, int], samples: int | None = None,
+              return_contrast: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     r"""Blur (Gaussian sigma, px) of the square edges of each found board, :math:`(B,)`.
 
     The intensity is sampled across every edge between two neighbouring corners, at the edge's midpoint, along its
@@ -87,10 +88,12 @@ def edge_blur(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int
         corners: :math:`(B, N, 2)` complete boards in grid order, ``N = cols * rows``.
         board_size: ``(cols, rows)``.
         samples: samples per profile (default: about one per px, 31 to 257).
+        return_contrast: also return the median step between the two plateaus of the edges measured (the board's
+            contrast, in the images' units).
 
     Returns:
         :math:`(B,)` float32 blur in px (includes the optics and the pixel footprint; about 0.5-0.7 px for sharp
-        images).
+        images), and with ``return_contrast`` the :math:`(B,)` contrast.
 
     Example:
         >>> img = torch.zeros(1, 1, 64, 64); img[..., :32, :32] = 1; img[..., 32:, 32:] = 1
@@ -140,6 +143,8 @@ def edge_blur(images: torch.Tensor, corners: torch.Tensor, board_size: tuple[int
     contrast = total[..., 0]
     ok = contrast > 0.5 * contrast.median(-1, keepdim=True).values  # edges with the board's contrast
     sigma = torch.where(ok, sigma, torch.full_like(sigma, float("nan")))
+    if return_contrast:
+        return sigma.nanmedian(-1).values, torch.where(ok, contrast, torch.nan).nanmedian(-1).values
     return sigma.nanmedian(-1).values
 
 

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ccs_kornia.modules.detection.checks.board_checks import (
+    _noise_margin,
     _sample,
     board_extends,
     canonical_corner_order,
@@ -151,3 +153,28 @@ def test_whole_board_check_spares_a_whole_board_and_answers_the_first_failure():
     assert whole_board_check(img, sub, (4, 4)) == "the checker pattern continues past its right side"
     sub[5] += (5.0, 0.0)
     assert "squares off" in whole_board_check(img, sub, (4, 4), max_deviation=0.08), "the lattice is judged first"
+
+
+def _foreshortened(noise: float, seed: int) -> np.ndarray:
+    """A dark checker foreshortened 1.8:1 (squares 18 x 10 px, contrast 0.2) with Gaussian noise."""
+    yy, xx = np.mgrid[:120, :200]
+    img = ((xx // 18 + yy // 10) % 2).astype(np.float32) * 0.2 + 0.1
+    return img + np.random.default_rng(seed).normal(0.0, noise, img.shape).astype(np.float32)
+
+
+def test_noise_margin_follows_the_image_noise():
+    board = np.stack(np.meshgrid(np.arange(1, 10) * 18 - 0.5, np.arange(1, 11) * 10 - 0.5, indexing="xy"), -1)
+    assert _noise_margin(_foreshortened(0.0, 0), board, 1.0) < 0.02  # the edges alone
+    # two standard deviations of a strength minus an asymmetry of 3x3 box means
+    assert _noise_margin(_foreshortened(0.06, 0), board, 1.0) == pytest.approx(2 * np.sqrt(3) * 0.06 / 3, rel=0.15)
+
+
+def test_skipped_line_under_noise_spares_a_board_and_still_refuses_a_skipped_row():
+    grid = np.stack(np.meshgrid(np.arange(1, 10) * 18 - 0.5, np.arange(1, 11) * 10 - 0.5, indexing="xy"), -1).reshape(-1, 2)
+    every_other = np.stack(np.meshgrid(np.arange(1, 10) * 18 - 0.5, np.arange(1, 11, 2) * 10 - 0.5, indexing="xy"),
+                           -1).reshape(-1, 2)
+    for seed in range(8):
+        img = _foreshortened(0.07, seed)  # noise a third of the contrast (a photograph in the dark)
+        jitter = np.random.default_rng(100 + seed).uniform(-0.7, 0.7, grid.shape)  # corners as fitted in that noise
+        assert skipped_line(img, grid + jitter, (9, 10)) == ""
+        assert "skips a column" in skipped_line(img, every_other, (9, 5))  # a corner halfway down each column

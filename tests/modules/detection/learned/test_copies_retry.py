@@ -54,7 +54,7 @@ def test_a_dim_view_found_on_the_enlarged_copy_in_the_image_pixels(detector, mon
     assert calls[-1] == ("refined", (24, 40), 1.0)  # on the image itself
     looks = calls[:-1]
     assert looks[0][1] <= 0.1 and all(c[1] > 0.9 for c in looks[1:])
-    assert all(not c[2].copies and not c[2].foreshortened and c[2].opencv for c in looks[1:])
+    assert all(not c[2].copies and c[2].foreshortened and c[2].opencv for c in looks[1:])
 
 
 def test_only_the_copies_that_suit_the_image(detector, monkeypatch):
