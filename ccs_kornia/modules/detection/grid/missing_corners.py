@@ -6,7 +6,7 @@ import torch
 
 from ccs_kornia.runtime.checks import check_board_size, check_points, check_tensor
 
-__all__ = ["lattice_deviation", "predict_missing_corners"]
+__all__ = ["lattice_deviation", "predict_missing_corners", "unconfirmed_corners"]
 
 
 def predict_missing_corners(
@@ -96,6 +96,33 @@ def lattice_deviation(corners: torch.Tensor, board_size: tuple[int, int], return
     if return_estimate:
         return dev, torch.where((count > 0)[..., None], estimate, corners.reshape(b, rows, cols, 2)).reshape(b, -1, 2)
     return dev
+
+
+def unconfirmed_corners(valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
+    r"""The measured corners none of whose eight grid neighbours is measured, :math:`(B, N)`.
+
+    Nothing on the board confirms that such a corner is the one its id names: its row and column neighbours predict
+    nothing (:func:`lattice_deviation` gives it 0), and on a board foreshortened to squares a few px tall a lone
+    corner's saddle fit can converge onto the next row's corner. A disputed corner is dropped, never guessed.
+
+    Args:
+        valid: :math:`(B, N)` bool, the measured corners, ``N = cols * rows`` in grid order.
+        board_size: ``(cols, rows)``.
+
+    Returns:
+        :math:`(B, N)` bool.
+
+    Example:
+        >>> valid = torch.tensor([[True, False, False, False, False, True, True, True, True]])
+        >>> unconfirmed_corners(valid, (3, 3)).nonzero()[:, 1].tolist()
+        [0]
+    """
+    cols, rows = check_board_size(board_size, min_side=1)
+    check_tensor(valid, "valid", ["B", str(cols * rows)])
+    grid = valid.reshape(-1, 1, rows, cols).float()
+    # measured corners in each 3x3 neighbourhood, the corner itself taken out
+    around = torch.nn.functional.avg_pool2d(grid, 3, stride=1, padding=1, count_include_pad=True) * 9.0 - grid
+    return valid & (around.reshape(valid.shape) < 0.5)
 
 
 def _shifted(x: torch.Tensor, k: int, dim: int) -> torch.Tensor:

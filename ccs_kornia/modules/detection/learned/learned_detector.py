@@ -30,7 +30,10 @@ from ccs_kornia.modules.detection.enhanced_copies import enhanced_copies
 from ccs_kornia.modules.detection.grid.collinearity import collinearity_refine
 from ccs_kornia.modules.detection.grid.grid_geometry import grid_spacing
 from ccs_kornia.modules.detection.grid.grid_organizer import organize_grid
-from ccs_kornia.modules.detection.grid.missing_corners import predict_missing_corners
+from ccs_kornia.modules.detection.grid.missing_corners import (
+    predict_missing_corners,
+    unconfirmed_corners,
+)
 from ccs_kornia.modules.detection.learned.foreshortening import detect_foreshortened
 from ccs_kornia.modules.detection.learned.gaussian_fit import gaussian_fit
 from ccs_kornia.modules.detection.learned.heatmap_unet import (
@@ -439,8 +442,11 @@ class LearnedChessboardDetector(ChessboardDetector):
                     ok[noisy] = ok[noisy] | take
         # a corner that found no saddle within its window at full resolution kept its position from the level, which
         # can be px off (a corner at a glare's rim): left out like a hidden one (rare on the real sets:
-        # docs/measurements.md)
-        return out.masked_fill((~ok.to(out.device) & out.isfinite().all(-1))[..., None], float("nan"))
+        # docs/measurements.md); and so is one whose eight neighbours all were: nothing confirms its saddle is its
+        # own (a dark board at a grazing angle: a lone corner's fit went to the next row's corner)
+        out = out.masked_fill((~ok.to(out.device) & out.isfinite().all(-1))[..., None], float("nan"))
+        alone = unconfirmed_corners(out.isfinite().all(-1), board_size)
+        return out.masked_fill(alone[..., None], float("nan"))
 
     def _foreshortened(self, images: torch.Tensor, board_size: tuple[int, int]) -> DetectionResult:
         h, w = images.shape[-2:]
