@@ -272,7 +272,9 @@ def _skipped(img: np.ndarray, grid: np.ndarray, u: np.ndarray, v: np.ndarray, ra
         for (_, name), (mid, _, _) in zip(axes, mids):
             s, a = strength[start:start + len(mid)], asym[start:start + len(mid)]
             start += len(mid)
-            if ((s > 0.5 * ref) & (a < s)).any() and ((s > 0.5 * ref) & (a < s - _noise_margin(img, grid, radius))).any():
+            saddle = (s > 0.5 * ref) & (a < s)
+            # the noise's margin is measured only where a midpoint reads as a saddle at all
+            if saddle.any() and (saddle & (a < s - _noise_margin(img, grid, radius))).any():
                 return f"the grid skips a {name} of corners (a corner lies between two detected neighbours)"
     return ""
 

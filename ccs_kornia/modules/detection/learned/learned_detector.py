@@ -170,8 +170,7 @@ class LearnedChessboardDetector(ChessboardDetector):
         copies_retry: last, where still no board was found (a partial board is kept as it is), look for it on the
             image's enhanced copies that suit it (:func:`chessboard_copies`: contrast stretched where the image is dim,
             enlarged where it is small, deblurred where it shows a straight motion blur) with every fallback, in turn
-            until one gives the whole board; a copy's board is refined again on the image, a
-            corner moving more than :data:`DISPUTED_PX` there left out (a dim view misleads the square-size estimate,
+            until one gives the whole board; a copy's board is refined again on the image, a corner moving more than :data:`DISPUTED_PX` there left out (a dim view misleads the square-size estimate,
             a small one's squares are a few px: docs/detection.md). Wherever a board's corners fail their saddle fit
             on an image that shows a straight motion blur, the board is refined again on the image with that blur
             undone (:mod:`~ccs_kornia.modules.detection.motion_deblur`); wherever they fail on a noisy board
@@ -345,9 +344,9 @@ class LearnedChessboardDetector(ChessboardDetector):
     def _on_copies(self, images: torch.Tensor, out: DetectionResult, board_size: tuple[int, int],
                    fallbacks: Fallbacks) -> DetectionResult:
         """``out`` with the views where no board was found looked at again on the image's enhanced copies in turn
-        (:func:`chessboard_copies`), with ``fallbacks`` (the grazing angle's included: a dark fisheye view's board at a grazing angle is
-        found by that look on the stretched copy only), until one gives the whole board; a
-        copy's board, in the image's pixels, is refined again on the image (a corner that moves more than
+        (:func:`chessboard_copies`), with ``fallbacks`` (the grazing angle's included: a dark fisheye view's board at
+        a grazing angle is found by that look on the stretched copy only), until one gives the whole board; a copy's
+        board, in the image's pixels, is refined again on the image (a corner that moves more than
         :data:`DISPUTED_PX` there left out) and kept where it measures more corners than the copies before it (at
         least :data:`~ccs_kornia.modules.detection.checks.hidden_corners.PARTIAL_BOARD_FRACTION` of them; all of them
         without partial boards). A board found on the image, whole or partial, is never looked at again."""

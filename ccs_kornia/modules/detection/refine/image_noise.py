@@ -2,8 +2,8 @@ r"""How noisy an image is against a board's contrast: where the saddle fit needs
 
 The saddle fit smooths the image around a corner (``smooth_sigma``) before it takes the Hessian; the default suits the
 photographs a camera gives in good light, whose noise is a few per cent of the board's contrast at most (the shared
-real sets: 0.2-2 %). A board photographed in the dark with a sensor's shot noise sits at 7-20 % (the same photographs
-darkened x0.12 with Poisson photo-electrons): there the Hessian of a low-contrast corner is the noise's, and the fit
+real sets as taken, reduced x0.4 or JPEG-compressed too: 0.1-2.5 %). A board photographed in the dark sits at 7-29 %
+(the same photographs darkened x0.12 with Gaussian noise or as Poisson photo-electrons): there the Hessian of a low-contrast corner is the noise's, and the fit
 finds no saddle where the board plainly has one. :func:`noise_sigma` measures the noise (Immerkær's estimator: the
 mean absolute response of a filter that cancels any locally planar image, so edges weigh little),
 :func:`noise_to_contrast` divides it by the board's contrast measured on its edges
@@ -29,8 +29,8 @@ from ccs_kornia.runtime.checks import check_grey_images
 
 __all__ = ["NOISY", "noise_sigma", "noise_to_contrast"]
 
-#: the noise-to-contrast ratio above which a board counts as noisy: the shared real photographs, as taken, are at
-#: 0.02 or less; darkened x0.12 with noise (Gaussian or shot noise) at 0.066 or more
+#: the noise-to-contrast ratio above which a board counts as noisy: the shared real photographs, as taken (blurred,
+#: reduced or compressed too), are at 0.025 or less; darkened x0.12 with noise (Gaussian or shot noise) at 0.070 or more
 NOISY = 0.04
 
 # Immerkær's filter: the difference of two Laplacians, zero on any planar patch
