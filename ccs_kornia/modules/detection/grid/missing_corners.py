@@ -99,11 +99,13 @@ def lattice_deviation(corners: torch.Tensor, board_size: tuple[int, int], return
 
 
 def unconfirmed_corners(valid: torch.Tensor, board_size: tuple[int, int]) -> torch.Tensor:
-    r"""The measured corners none of whose eight grid neighbours is measured, :math:`(B, N)`.
+    r"""The measured corners that their row and column neighbours cannot predict, :math:`(B, N)`.
 
-    Nothing on the board confirms that such a corner is the one its id names: its row and column neighbours predict
-    nothing (:func:`lattice_deviation` gives it 0), and on a board foreshortened to squares a few px tall a lone
-    corner's saddle fit can converge onto the next row's corner. A disputed corner is dropped, never guessed.
+    A corner is confirmed by the lattice of its measured neighbours: two in a row or column on one side of it, or one
+    on each side (:func:`lattice_deviation`'s prediction). Where there is neither, nothing on the board confirms that
+    the corner is the one its id names (:func:`lattice_deviation` gives it 0): on a board foreshortened to squares a
+    few px tall, a corner whose row and column neighbours were lost had its saddle fit converge onto the next row's
+    corner. A disputed corner is dropped, never guessed.
 
     Args:
         valid: :math:`(B, N)` bool, the measured corners, ``N = cols * rows`` in grid order.
@@ -113,16 +115,17 @@ def unconfirmed_corners(valid: torch.Tensor, board_size: tuple[int, int]) -> tor
         :math:`(B, N)` bool.
 
     Example:
-        >>> valid = torch.tensor([[True, False, False, False, False, True, True, True, True]])
-        >>> unconfirmed_corners(valid, (3, 3)).nonzero()[:, 1].tolist()
+        >>> valid = torch.tensor([[True, False, True, True,
+        ...                        False, True, True, True,
+        ...                        True, True, True, True]])
+        >>> unconfirmed_corners(valid, (4, 3)).nonzero()[:, 1].tolist()  # corner 0: its right and lower neighbours lost
         [0]
     """
     cols, rows = check_board_size(board_size, min_side=1)
     check_tensor(valid, "valid", ["B", str(cols * rows)])
-    grid = valid.reshape(-1, 1, rows, cols).float()
-    # measured corners in each 3x3 neighbourhood, the corner itself taken out
-    around = torch.nn.functional.avg_pool2d(grid, 3, stride=1, padding=1, count_include_pad=True) * 9.0 - grid
-    return valid & (around.reshape(valid.shape) < 0.5)
+    v = valid.reshape(-1, rows, cols)
+    _, count = _neighbour_estimate(torch.zeros(*v.shape, 2, device=valid.device), v)
+    return valid & (count.reshape(valid.shape) == 0)
 
 
 def _shifted(x: torch.Tensor, k: int, dim: int) -> torch.Tensor:

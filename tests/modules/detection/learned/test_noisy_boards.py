@@ -1,5 +1,5 @@
-"""A chessboard photographed in the dark: corners whose saddle fit fails in the noise fitted again with the smoothing
-doubled (only those), and the real dark fisheye views whole."""
+"""A chessboard photographed in the dark: corners whose saddle fit fails in the noise, and corners the level calls
+hidden inside the image, fitted again with the smoothing doubled (only those), and the real dark fisheye views whole."""
 
 from __future__ import annotations
 
@@ -56,6 +56,25 @@ def test_only_a_noisy_boards_failed_corners_take_the_smoother_fit(detector, monk
     else:  # noise 0.2 of the contrast: fitted again with the smoothing doubled
         assert calls == [detector.refiner.smooth_sigma, 2.0 * detector.refiner.smooth_sigma]
         assert float((out[0, 8] - truth[0, 8]).norm()) < 0.5
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.02])
+def test_a_noisy_boards_hidden_corners_inside_the_image_are_fitted_again(detector, monkeypatch, noise):
+    img, truth = _checker(noise)
+    img, truth = img[..., 8:, 8:], truth - 8.0  # the first corner 7.5 px from the image's border
+    monkeypatch.setattr(ld, "motion_blur", lambda gray8: None)
+    start = truth + 0.3
+    start[0, [8, 9, 0]] = float("nan")  # the level called two corners inside the image hidden, and one at its border
+    out = detector._refine_at_full_size(img, start, BOARD, 1.0)
+    err = (out[0] - truth[0]).norm(dim=-1)
+    seen = torch.ones(35, dtype=torch.bool)
+    seen[[8, 9, 0]] = False
+    assert bool((err[seen] < 0.5).all())
+    assert bool(out[0, 0].isnan().all())  # within the fit's largest window of the border: left alone
+    if noise == 0.0:  # in good light the level's verdict stands
+        assert bool(out[0, [8, 9]].isnan().all())
+    else:  # in the noise: fitted from where their neighbours put them
+        assert bool((err[[8, 9]] < 0.5).all())
 
 
 @pytest.mark.skipif(not FISHEYE.is_dir(), reason=f"real photographs not found: {FISHEYE}")
