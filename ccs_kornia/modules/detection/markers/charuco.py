@@ -361,6 +361,16 @@ def _initial_corners(markers: CharucoMarkers, board: CharucoBoard, image_size: t
             if hom is None:
                 continue
             p, space = place_from(hom, c)
+            # the markers touching the corner place it better than those around it (a homography over those bends
+            # by more than the clear band under a strong lens): the midpoint of two markers' corners facing it, or
+            # one marker's own homography a fraction of a square beyond its corner
+            touching = np.flatnonzero(d < 0.75)
+            if len(touching) >= 2:
+                p = np.mean([markers.corners[k][np.argmin(np.linalg.norm(markers.board_corners[k] - c, axis=-1))]
+                             for k in touching], axis=0)
+            else:
+                own = fit_homography(markers.board_corners[touching], markers.corners[touching])
+                p = p if own is None else place_from(own, c)[0]
             if not (np.isfinite(p).all() and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):
                 continue
             ids.append(row * cols + col)
