@@ -25,10 +25,22 @@ import numpy as np
 import torch
 
 from ccs_kornia.bench.sections.markers import _opencv_charuco
-from ccs_kornia.bench.sections.real_poor import CHARUCO_METHODS, _fmt, _pct, _summary, score_view
+from ccs_kornia.bench.sections.real_poor import (
+    CHARUCO_METHODS,
+    _fmt,
+    _pct,
+    _summary,
+    score_view,
+)
 from ccs_kornia.data.datamodules.datamodule import BENCH_SEED_BASE
 from ccs_kornia.data.render.poor_images import make_poor, scale_points
-from ccs_kornia.data.scenes.action_camera import ACTION_DIST, ACTION_K, ACTION_SIZE, SPAN, render_action_view
+from ccs_kornia.data.scenes.action_camera import (
+    ACTION_DIST,
+    ACTION_K,
+    ACTION_SIZE,
+    SPAN,
+    render_action_view,
+)
 from ccs_kornia.modules.detection.boards import CharucoBoard
 from ccs_kornia.modules.detection.markers.charuco import charuco_paths
 from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
@@ -96,6 +108,6 @@ def action_camera_md(sec: dict) -> list[str]:
                          f"{_fmt(s['median_error_px'])} | {s['posed']} |")
     worst = min(m["ours"]["found_fraction"] for m in sec["results"].values())
     wrong = sum(m["ours"]["wrong_ids"] for m in sec["results"].values())
-    lines += ["", f"Ours: worst condition {_pct(worst if not math.isnan(worst) else None)} of the truth corners found, "
-                  f"{wrong} wrong ids over all conditions.", ""]
+    lines += ["", (f"Ours: worst condition {_pct(worst if not math.isnan(worst) else None)} of the truth corners "
+                   f"found, {wrong} wrong ids over all conditions."), ""]
     return lines

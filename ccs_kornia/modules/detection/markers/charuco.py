@@ -76,6 +76,7 @@ from ccs_kornia.modules.detection.markers.lattice_path import (
 )
 from ccs_kornia.modules.detection.markers.marker_bits import CodeTemplates, MarkerCodes
 from ccs_kornia.modules.detection.markers.marker_board import (
+    MAX_MOVE,
     VARIANTS,
     BoardMarkers,
     MarkerBoardDetector,
@@ -520,6 +521,12 @@ def charuco_paths(
     if any(p.lattice for p in paths):
         lattice, notes, veto = _lattice_path(looked, board, outputs, layout, factor, refused,
                                        None if MarkerPaths.LATTICE in paths else marked)
+    if MarkerPaths.BOTH in paths:
+        # a lattice corner farther from where the markers touching it put it than the marker path lets its own move
+        # (a heatmap peak beside the corner, named by the lattice): disputed
+        placed = torch.from_numpy(initial).float()
+        far = (lattice - placed).norm(dim=-1) > MAX_MOVE * torch.from_numpy(spacing).float()
+        veto = veto | (far & ~marked.isfinite().all(-1))
     out = {}
     for path in paths:
         if path is MarkerPaths.BOTH:
