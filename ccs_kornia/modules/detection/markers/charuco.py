@@ -64,6 +64,7 @@ from ccs_kornia.modules.detection.gaussian_deblur import (
 )
 from ccs_kornia.modules.detection.learned.scale import TARGET_SQUARE
 from ccs_kornia.modules.detection.markers.corner_merge import (
+    AGREE_PX,
     MarkerPaths,
     merge_corners,
     path_counts,
@@ -362,22 +363,34 @@ def _initial_corners(markers: CharucoMarkers, board: CharucoBoard, image_size: t
             if hom is None:
                 continue
             p, space = place_from(hom, c)
-            # the markers touching the corner place it better than those around it (a homography over those bends
-            # by more than the clear band under a strong lens): the midpoint of two markers' corners facing it, or
-            # one marker's own homography a fraction of a square beyond its corner
-            touching = np.flatnonzero(d < 0.75)
-            if len(touching) >= 2:
-                p = np.mean([markers.corners[k][np.argmin(np.linalg.norm(markers.board_corners[k] - c, axis=-1))]
-                             for k in touching], axis=0)
-            else:
-                own = fit_homography(markers.board_corners[touching], markers.corners[touching])
-                p = p if own is None else place_from(own, c)[0]
             if not (np.isfinite(p).all() and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):
                 continue
             ids.append(row * cols + col)
             points.append(p)
             spacing.append(space)
     return np.array(ids, dtype=np.int64), np.array(points).reshape(-1, 2), np.array(spacing)
+
+
+def _touching_corners(markers: CharucoMarkers, board: CharucoBoard, ids: np.ndarray, fallback: np.ndarray
+                      ) -> np.ndarray:
+    """Corners ``ids`` ``(K,)`` placed by the markers touching them ``(K, 2)`` px: the midpoint of two markers'
+    corners facing the corner, or one marker's own homography a fraction of a square beyond its corner (``fallback``
+    ``(K, 2)`` where it has none). Under a strong lens a homography of the markers within
+    :data:`NEIGHBOUR_RADIUS` bends by more than a large marker's clear band; the touching markers do not reach as far."""
+    cols = board.board_size[0]
+    centres = markers.board_corners.mean(1)
+    out = np.array(fallback, dtype=np.float64, copy=True).reshape(-1, 2)
+    for j, i in enumerate(np.asarray(ids).tolist()):
+        c = np.array([i % cols + 1.0, i // cols + 1.0])
+        touching = np.flatnonzero(np.linalg.norm(centres - c, axis=-1) < 0.75)
+        if len(touching) >= 2:
+            out[j] = np.mean([markers.corners[k][np.argmin(np.linalg.norm(markers.board_corners[k] - c, axis=-1))]
+                              for k in touching], axis=0)
+        elif len(touching) == 1:
+            own = fit_homography(markers.board_corners[touching], markers.corners[touching])
+            if own is not None:
+                out[j] = place_from(own, c)[0]
+    return out
 
 
 @functools.lru_cache(maxsize=8)
@@ -513,10 +526,24 @@ def charuco_paths(
     veto = torch.zeros(b, n, dtype=torch.bool)
     if any(p.markers for p in paths):
         initial = np.full((b, n, 2), np.nan)
+        touched = np.full((b, n, 2), np.nan)
         spacing = np.full((b, n), np.nan)
-        for k, (_, (ids, pts, sp)) in enumerate(outputs):
+        for k, (markers, (ids, pts, sp)) in enumerate(outputs):
             initial[k, ids], spacing[k, ids] = pts, sp
+            touched[k, ids] = _touching_corners(markers, board, ids, pts)
         refined, accept = refine_marked_corners(looked, initial, spacing, factor)
+        # refined again from where the markers touching each corner put it: a corner only that start confirms is
+        # kept; one both starts confirm at places more than AGREE_PX apart is dropped (one of them settled on a
+        # marker's edge beside the corner); one only the first confirms, farther than half the clear band from where
+        # the touching markers put it, is doubtful: kept by the marker path, by both merged only where the lattice
+        # path agrees
+        again, sure = refine_marked_corners(looked, touched, spacing, factor)
+        apart = (refined - again).norm(dim=-1) > AGREE_PX
+        half_band = 0.25 * (1.0 - float(board.marker) / float(board.square))
+        doubtful = accept & ~sure & ((refined - torch.from_numpy(touched).float()).norm(dim=-1) >
+                                     half_band * torch.from_numpy(spacing).float())
+        refined = torch.where(accept[..., None], refined, again)
+        accept = torch.where(accept & sure, ~apart, accept | sure)
         marked = torch.where(accept[..., None], refined, nan)
     if any(p.lattice for p in paths):
         lattice, notes, veto = _lattice_path(looked, board, outputs, layout, factor, refused,
@@ -524,9 +551,10 @@ def charuco_paths(
     if MarkerPaths.BOTH in paths:
         # a lattice corner farther from where the markers touching it put it than the marker path lets its own move
         # (a heatmap peak beside the corner, named by the lattice): disputed
-        placed = torch.from_numpy(initial).float()
+        placed = torch.from_numpy(touched).float()
         far = (lattice - placed).norm(dim=-1) > MAX_MOVE * torch.from_numpy(spacing).float()
         veto = veto | (far & ~marked.isfinite().all(-1))
+        veto = veto | (doubtful & ~((marked - lattice).norm(dim=-1) <= AGREE_PX))
     out = {}
     for path in paths:
         if path is MarkerPaths.BOTH:

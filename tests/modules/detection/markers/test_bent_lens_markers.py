@@ -18,6 +18,7 @@ from ccs_kornia.modules.detection.boards import CharucoBoard
 from ccs_kornia.modules.detection.markers.charuco import (
     CharucoMarkers,
     _initial_corners,
+    _touching_corners,
     board_markers,
 )
 from ccs_kornia.modules.detection.markers.marker_board import consistent_markers
@@ -62,7 +63,8 @@ def test_a_wrong_id_stays_off_the_lattice():
 def test_initial_corners_within_the_clear_band(seed):
     ids, img, obj, (rvec, tvec) = _projected_markers(seed)
     markers = CharucoMarkers(img, ids, obj)
-    cid, pts, spacing = _initial_corners(markers, BOARD, ACTION_SIZE)
+    cid, ring, spacing = _initial_corners(markers, BOARD, ACTION_SIZE)
+    pts = _touching_corners(markers, BOARD, cid, ring)
     truth, _ = cv2.projectPoints(BOARD.object_points().numpy()[cid], rvec, tvec, ACTION_K, ACTION_DIST)
     err = np.linalg.norm(pts - truth.reshape(-1, 2), axis=-1) / spacing
     band = 0.5 * (BOARD.square - BOARD.marker) / BOARD.square
