@@ -17,11 +17,13 @@ The shared steps (decoding, lattice check, refinement) are :mod:`~ccs_kornia.mod
    (:func:`charuco_markers`); a view with more of the board's marker ids off its lattice than on it is refused (the
    markers of another board: a wrong board size, :attr:`CharucoMarkers.off_lattice`);
 3. **initial corners**: each inner corner from the markers around it (:data:`NEIGHBOUR_RADIUS` squares, one of them
-   touching it): a local homography, so the lens distortion matters little;
+   touching it): a local homography, so the lens distortion matters little; and a second start from the markers
+   touching it alone (:func:`_touching_corners`), closer under a strong lens;
 4. **refinement and check**: :func:`~ccs_kornia.modules.detection.markers.marker_board.refine_marked_corners` with
    a window that stays in the clear band between the corner and the markers (:func:`marked_radius_factor`): a corner
    the refinement did not confirm, whose window leaves the image, or that moved by more than a quarter square from
-   where the markers put it, is dropped (a wrong corner is worse than a missing one).
+   where the markers put it, is dropped (a wrong corner is worse than a missing one); both starts are refined, a
+   corner kept where one confirms it, dropped where both do at places more than 1 px apart.
 
 These steps are the **marker path**: a corner exists only where OpenCV decodes a marker beside it. The **lattice
 path** (:mod:`~ccs_kornia.modules.detection.markers.lattice_path`) finds every corner of the chessboard lattice the
