@@ -45,12 +45,14 @@ from ccs_kornia.modules.detection.boards import CharucoBoard
 from ccs_kornia.modules.detection.markers.charuco import charuco_paths
 from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 
-__all__ = ["BOARD", "SEED", "action_camera_md", "run_action_camera"]
+__all__ = ["BOARD", "LABELS", "SEED", "action_camera_md", "run_action_camera"]
 
 #: the board: 19 x 10 squares of 4 cm, 3 cm markers of a 4 x 4 dictionary (OpenCV's current layout)
 BOARD = CharucoBoard(19, 10, 0.04, 0.03, "DICT_4X4_250", legacy=False)
 #: view ``v``'s render is seeded ``SEED + v``; its poor copy under condition ``c`` ``SEED + 100_000 (c + 1) + v``
 SEED = BENCH_SEED_BASE + 760_000
+#: the rows' labels
+LABELS = {**CHARUCO_METHODS, "opencv": "CharucoDetector (told the layout)"}
 _PATHS = {"ours": MarkerPaths.BOTH, "marker_path": MarkerPaths.MARKERS, "lattice_path": MarkerPaths.LATTICE}
 
 
@@ -103,7 +105,7 @@ def action_camera_md(sec: dict) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|"]
     for condition, methods in sec["results"].items():
         for key, s in methods.items():
-            lines.append(f"| {condition} | {CHARUCO_METHODS.get(key, key)} | {s['views']} | {s['truth']} | "
+            lines.append(f"| {condition} | {LABELS.get(key, key)} | {s['views']} | {s['truth']} | "
                          f"{_pct(s['found_fraction'])} | {s['wrong_ids']} | {_fmt(s['mean_error_px'])} | "
                          f"{_fmt(s['median_error_px'])} | {s['posed']} |")
     worst = min(m["ours"]["found_fraction"] for m in sec["results"].values())
