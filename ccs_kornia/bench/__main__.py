@@ -7,6 +7,7 @@
     python -m ccs_kornia bench --quick --sections wild    # detection in the wild (~40 s on 2 cores)
     python -m ccs_kornia bench --sections video           # recordings: the frames chosen (about 15 min on 2 cores)
     python -m ccs_kornia bench --sections real_poor       # the real sets made poor (dark, blur, small, JPEG)
+    python -m ccs_kornia bench --sections action_camera   # an action camera's large ChArUco board made poor
     python -m ccs_kornia bench --sections hand_eye        # hand-eye: rendered robots against OpenCV, and a real robot
 """
 
@@ -63,6 +64,8 @@ def build_parser(prog: str = "python -m ccs_kornia bench") -> argparse.ArgumentP
     p.add_argument("--real-poor-images", type=int, default=None,
                    help="images per set (per camera) of the real_poor section")
     p.add_argument("--real-poor-sets", nargs="+", default=None, help="real sets of the real_poor section")
+    p.add_argument("--action-camera-views", type=int, default=None,
+                   help="rendered views per condition of the action_camera section")
     p.add_argument("--hand-eye-trials", type=int, default=None, help="rendered robots per set-up, hand_eye section")
     p.add_argument("--hand-eye-kinematic-trials", type=int, default=None,
                    help="rendered arms with kinematic errors per set-up, hand_eye section")
@@ -91,7 +94,8 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m ccs_kornia be
     for name in ("corner_images", "calib_trials", "calib_views", "calib_pool_views", "calib_trials_per_camera",
                  "real_subsets", "real_max_images", "real_dir", "dc_trials", "distortion_weights", "wild_images",
                  "wild_big_images", "wild_free_images", "wild_real_images", "markers_views", "markers_aprilgrid_views",
-                 "hand_eye_trials", "hand_eye_kinematic_trials", "video_recordings", "real_poor_images"):
+                 "hand_eye_trials", "hand_eye_kinematic_trials", "video_recordings", "real_poor_images",
+                 "action_camera_views"):
         value = getattr(args, name)
         if value is not None:
             if isinstance(value, int) and value < 1:

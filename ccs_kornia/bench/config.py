@@ -11,7 +11,7 @@ __all__ = [
 
 SECTIONS: tuple[str, ...] = ("corners", "calibration", "real", "distortion", "speed", "wild", "fisheye", "rig",
                              "markers", "rig_sessions", "video", "hand_eye", "imu", "guidance", "precision",
-                             "real_poor")
+                             "real_poor", "action_camera")
 #: conditions of the corner-accuracy section (paper Table III plus the design's extra ones)
 CORNER_CONDITIONS: tuple[str, ...] = ("clean", "blur_noise", "bad_lighting", "mild", "severe", "combined")
 #: conditions of the synthetic calibration section (paper Table I, then realistic optics)
@@ -120,6 +120,8 @@ class BenchConfig:
             (:mod:`~ccs_kornia.bench.sections.real_poor`): images per set (per camera of a multi-camera set), the sets
             (``None``: every ChArUco and chessboard set known) and the conditions
             (:data:`~ccs_kornia.data.render.poor_images.POOR_CONDITIONS`).
+        action_camera_views: rendered views of the ``action_camera`` section
+            (:mod:`~ccs_kornia.bench.sections.action_camera`), each under ``real_poor_conditions`` too.
         imu_trials, imu_seconds, imu_conditions: the ``imu`` section's rendered recordings per condition, their length
             (s) and the conditions (:data:`~ccs_kornia.bench.sections.imu.CONDITIONS`).
         guidance_trials, guidance_cameras, guidance_counts: the ``guidance`` section's simulated people per camera kind,
@@ -208,6 +210,7 @@ class BenchConfig:
     real_poor_images: int = 12
     real_poor_sets: tuple[str, ...] | None = None
     real_poor_conditions: tuple[str, ...] = ("dark", "dark sensor", "blur", "motion", "small", "jpeg")
+    action_camera_views: int = 16
     imu_trials: int = 10
     imu_seconds: float = 60.0
     imu_conditions: tuple[str, ...] = ("given", "noise x10", "noise /10", "stereo", "rolling shutter", "stereo, rig held",
@@ -245,6 +248,7 @@ class BenchConfig:
             imu_trials=1, imu_seconds=10.0, imu_conditions=("given",), precision_models=("rational",),
             guidance_trials=2, guidance_cameras=("normal",),
             real_poor_images=2, real_poor_sets=("charuco_opencv_tutorial", "caliscope_4cam_charuco", "opencv_left"),
+            action_camera_views=1,
             video_recordings=1, video_seconds=8.0, video_size=(640, 360), video_heldout_seconds=6.0,
             video_heldout_frames=8, video_real_cameras=(0,), video_real_rig=False,
         )
@@ -271,7 +275,7 @@ class BenchConfig:
             imu_trials=1, imu_seconds=6.0, imu_conditions=("given",), precision_models=(),
             guidance_trials=1, guidance_cameras=("normal",), guidance_counts=(4, 6, 8),
             real_poor_images=1, real_poor_sets=("charuco_opencv_tutorial", "boofcv_bumblebee2_left"),
-            real_poor_conditions=("dark", "small"),
+            real_poor_conditions=("dark", "small"), action_camera_views=1,
             video_recordings=1, video_seconds=2.0, video_size=(320, 240),
             video_heldout_seconds=2.0, video_heldout_frames=4, video_command=False, video_real_cameras=(),
             video_real_rig=False,

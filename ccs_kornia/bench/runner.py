@@ -101,6 +101,7 @@ SECTION_RUNNERS: dict[str, tuple[str, str, bool, bool]] = {
     "guidance": ("ccs_kornia.bench.sections.guidance", "run_guidance", False, False),
     "precision": ("ccs_kornia.bench.sections.precision", "run_precision", False, False),
     "real_poor": ("ccs_kornia.bench.sections.real_poor", "run_real_poor", False, False),
+    "action_camera": ("ccs_kornia.bench.sections.action_camera", "run_action_camera", False, False),
 }
 
 

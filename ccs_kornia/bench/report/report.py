@@ -373,7 +373,9 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
         "guidance": "## 14. Guided capture: the next best pose against ROS's rule",
         "precision": "## 15. Precision against mrcal (its published corners)",
         "real_poor": "## 16. Real photographs made poor",
+        "action_camera": "## 17. An action camera's large ChArUco board made poor (rendered)",
     }
+    from ccs_kornia.bench.sections.action_camera import action_camera_md
     from ccs_kornia.bench.sections.fisheye import fisheye_md
     from ccs_kornia.bench.sections.guidance import guidance_md
     from ccs_kornia.bench.sections.hand_eye import hand_eye_md
@@ -389,7 +391,7 @@ def render_markdown(results: dict, boxplot: str | None = None, honest: str | Non
               "distortion": _distortion_md, "speed": _speed_md, "wild": _wild_md, "fisheye": fisheye_md,
               "rig": rig_md, "markers": markers_md, "rig_sessions": rig_sessions_md, "video": video_md,
               "hand_eye": hand_eye_md, "imu": imu_md, "guidance": guidance_md, "precision": precision_md,
-              "real_poor": real_poor_md}
+              "real_poor": real_poor_md, "action_camera": action_camera_md}
     for name, title in titles.items():
         if name not in sections:
             continue

@@ -17,11 +17,13 @@ The shared steps (decoding, lattice check, refinement) are :mod:`~ccs_kornia.mod
    (:func:`charuco_markers`); a view with more of the board's marker ids off its lattice than on it is refused (the
    markers of another board: a wrong board size, :attr:`CharucoMarkers.off_lattice`);
 3. **initial corners**: each inner corner from the markers around it (:data:`NEIGHBOUR_RADIUS` squares, one of them
-   touching it): a local homography, so the lens distortion matters little;
+   touching it): a local homography, so the lens distortion matters little; and a second start from the markers
+   touching it alone (:func:`_touching_corners`), closer under a strong lens;
 4. **refinement and check**: :func:`~ccs_kornia.modules.detection.markers.marker_board.refine_marked_corners` with
    a window that stays in the clear band between the corner and the markers (:func:`marked_radius_factor`): a corner
    the refinement did not confirm, whose window leaves the image, or that moved by more than a quarter square from
-   where the markers put it, is dropped (a wrong corner is worse than a missing one).
+   where the markers put it, is dropped (a wrong corner is worse than a missing one); both starts are refined, a
+   corner kept where one confirms it, dropped where both do at places more than 1 px apart.
 
 These steps are the **marker path**: a corner exists only where OpenCV decodes a marker beside it. The **lattice
 path** (:mod:`~ccs_kornia.modules.detection.markers.lattice_path`) finds every corner of the chessboard lattice the
@@ -64,6 +66,7 @@ from ccs_kornia.modules.detection.gaussian_deblur import (
 )
 from ccs_kornia.modules.detection.learned.scale import TARGET_SQUARE
 from ccs_kornia.modules.detection.markers.corner_merge import (
+    AGREE_PX,
     MarkerPaths,
     merge_corners,
     path_counts,
@@ -76,6 +79,7 @@ from ccs_kornia.modules.detection.markers.lattice_path import (
 )
 from ccs_kornia.modules.detection.markers.marker_bits import CodeTemplates, MarkerCodes
 from ccs_kornia.modules.detection.markers.marker_board import (
+    MAX_MOVE,
     VARIANTS,
     BoardMarkers,
     MarkerBoardDetector,
@@ -369,6 +373,28 @@ def _initial_corners(markers: CharucoMarkers, board: CharucoBoard, image_size: t
     return np.array(ids, dtype=np.int64), np.array(points).reshape(-1, 2), np.array(spacing)
 
 
+def _touching_corners(markers: CharucoMarkers, board: CharucoBoard, ids: np.ndarray, fallback: np.ndarray
+                      ) -> np.ndarray:
+    """Corners ``ids`` ``(K,)`` placed by the markers touching them ``(K, 2)`` px: the midpoint of two markers'
+    corners facing the corner, or one marker's own homography a fraction of a square beyond its corner (``fallback``
+    ``(K, 2)`` where it has none). Under a strong lens a homography of the markers within
+    :data:`NEIGHBOUR_RADIUS` bends by more than a large marker's clear band; the touching markers do not reach as far."""
+    cols = board.board_size[0]
+    centres = markers.board_corners.mean(1)
+    out = np.array(fallback, dtype=np.float64, copy=True).reshape(-1, 2)
+    for j, i in enumerate(np.asarray(ids).tolist()):
+        c = np.array([i % cols + 1.0, i // cols + 1.0])
+        touching = np.flatnonzero(np.linalg.norm(centres - c, axis=-1) < 0.75)
+        if len(touching) >= 2:
+            out[j] = np.mean([markers.corners[k][np.argmin(np.linalg.norm(markers.board_corners[k] - c, axis=-1))]
+                              for k in touching], axis=0)
+        elif len(touching) == 1:
+            own = fit_homography(markers.board_corners[touching], markers.corners[touching])
+            if own is not None:
+                out[j] = place_from(own, c)[0]
+    return out
+
+
 @functools.lru_cache(maxsize=8)
 def charuco_lattice(board: CharucoBoard, layout: bool | None = None) -> BoardLattice:
     """The board's corner lattice for naming (:mod:`~ccs_kornia.modules.detection.markers.lattice_names`): inner
@@ -502,14 +528,35 @@ def charuco_paths(
     veto = torch.zeros(b, n, dtype=torch.bool)
     if any(p.markers for p in paths):
         initial = np.full((b, n, 2), np.nan)
+        touched = np.full((b, n, 2), np.nan)
         spacing = np.full((b, n), np.nan)
-        for k, (_, (ids, pts, sp)) in enumerate(outputs):
+        for k, (markers, (ids, pts, sp)) in enumerate(outputs):
             initial[k, ids], spacing[k, ids] = pts, sp
+            touched[k, ids] = _touching_corners(markers, board, ids, pts)
         refined, accept = refine_marked_corners(looked, initial, spacing, factor)
+        # refined again from where the markers touching each corner put it: a corner only that start confirms is
+        # kept; one both starts confirm at places more than AGREE_PX apart is dropped (one of them settled on a
+        # marker's edge beside the corner); one only the first confirms, farther than half the clear band from where
+        # the touching markers put it, is doubtful: kept by the marker path, by both merged only where the lattice
+        # path agrees
+        again, sure = refine_marked_corners(looked, touched, spacing, factor)
+        apart = (refined - again).norm(dim=-1) > AGREE_PX
+        half_band = 0.25 * (1.0 - float(board.marker) / float(board.square))
+        doubtful = accept & ~sure & ((refined - torch.from_numpy(touched).float()).norm(dim=-1) >
+                                     half_band * torch.from_numpy(spacing).float())
+        refined = torch.where(accept[..., None], refined, again)
+        accept = torch.where(accept & sure, ~apart, accept | sure)
         marked = torch.where(accept[..., None], refined, nan)
     if any(p.lattice for p in paths):
         lattice, notes, veto = _lattice_path(looked, board, outputs, layout, factor, refused,
                                        None if MarkerPaths.LATTICE in paths else marked)
+    if MarkerPaths.BOTH in paths:
+        # a lattice corner farther from where the markers touching it put it than the marker path lets its own move
+        # (a heatmap peak beside the corner, named by the lattice): disputed
+        placed = torch.from_numpy(touched).float()
+        far = (lattice - placed).norm(dim=-1) > MAX_MOVE * torch.from_numpy(spacing).float()
+        veto = veto | (far & ~marked.isfinite().all(-1))
+        veto = veto | (doubtful & ~((marked - lattice).norm(dim=-1) <= AGREE_PX))
     out = {}
     for path in paths:
         if path is MarkerPaths.BOTH:

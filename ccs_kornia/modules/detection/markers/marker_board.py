@@ -16,7 +16,7 @@ its two specialisations: they say where each marker and each corner lies on thei
   board puts their ids: a homography from the image to the board, grown from every single marker in turn, keeps the
   largest consistent set (within :data:`LATTICE_TOLERANCE` board units); markers the global homography misses (strong
   distortion) join where a homography fitted to their consistent neighbours puts them within
-  :data:`LOCAL_TOLERANCE`;
+  :data:`LOCAL_TOLERANCE`, or their centre within :data:`LOCAL_CENTRE_TOLERANCE`;
 * **refinement and check** (:func:`refine_marked_corners`): this package's saddle fit and symmetry polish; a corner the
   refinement did not confirm, whose window leaves the image, or that moved by more than :data:`MAX_MOVE` grid spacings
   from where its markers put it, is dropped (a wrong corner is worse than a missing one);
@@ -40,7 +40,7 @@ from ccs_kornia.modules.detection.markers.corner_merge import MarkerPaths
 from ccs_kornia.modules.detection.refine.saddle_refine import refine_corners
 
 __all__ = [
-    "CELL_PX", "COARSE_FACTOR", "LATTICE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_COPY_PIXELS", "MAX_MOVE", "MAX_RADIUS",
+    "CELL_PX", "COARSE_FACTOR", "LATTICE_TOLERANCE", "LOCAL_CENTRE_TOLERANCE", "LOCAL_TOLERANCE", "MAX_COPY_PIXELS", "MAX_MOVE", "MAX_RADIUS",
     "VARIANTS", "BoardMarkers", "MarkerBoardDetector", "consistent_markers", "decode_markers", "decode_with_copies",
     "fit_homography", "grow_corners", "map_points", "markers_on_board", "place_from",
     "refine_and_grow", "refine_marked_corners", "small_marker_scale",
@@ -51,6 +51,11 @@ __all__ = [
 LATTICE_TOLERANCE = 0.5
 #: ... or within this many units of where a homography fitted to its consistent neighbours puts them
 LOCAL_TOLERANCE = 0.25
+#: ... or, its centre, within this many units of where that homography puts it (its corners within twice
+#: :data:`LATTICE_TOLERANCE`): near the frame of a strongly bent lens, a homography of the neighbours on one side
+#: bends a marker's far corners off by more than :data:`LOCAL_TOLERANCE`, its centre less (a wrong id's centre lies
+#: at least 1.3 units from its slot)
+LOCAL_CENTRE_TOLERANCE = 0.5
 #: a refined corner farther than this (grid spacings) from where its markers put it is dropped
 MAX_MOVE = 0.25
 #: largest refinement window half-size (px)
@@ -198,7 +203,8 @@ def consistent_markers(image_pts: np.ndarray, board_pts: np.ndarray) -> np.ndarr
     """Mask ``(M,)`` of the markers (corners ``(M, 4, 2)`` px, on the board ``(M, 4, 2)``) consistent with the board:
     the largest set a homography (image -> board) grown from each single marker explains within
     :data:`LATTICE_TOLERANCE`, then the markers a homography of their consistent neighbours explains within
-    :data:`LOCAL_TOLERANCE`. At least two markers: a lone marker cannot be checked.
+    :data:`LOCAL_TOLERANCE` (or their centre within :data:`LOCAL_CENTRE_TOLERANCE`). At least two markers: a lone
+    marker cannot be checked.
 
     Example:
         >>> board = np.array([[[0, 0], [1, 0], [1, 1], [0, 1]], [[2, 0], [3, 0], [3, 1], [2, 1]],
@@ -240,8 +246,12 @@ def consistent_markers(image_pts: np.ndarray, board_pts: np.ndarray) -> np.ndarr
             if near.sum() < 2:
                 continue
             h = fit_homography(image_pts[near], board_pts[near])
-            if h is not None and np.linalg.norm(map_points(h, image_pts[k]) - board_pts[k], axis=-1).max() < \
-                    LOCAL_TOLERANCE:
+            if h is None:
+                continue
+            placed = map_points(h, image_pts[k])
+            err = np.linalg.norm(placed - board_pts[k], axis=-1).max()
+            if err < LOCAL_TOLERANCE or (err < 2.0 * LATTICE_TOLERANCE and np.linalg.norm(
+                    placed.mean(0) - centres[k]) < LOCAL_CENTRE_TOLERANCE):
                 best[k] = changed = True
     return best
 
