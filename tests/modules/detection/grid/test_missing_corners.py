@@ -3,7 +3,10 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ccs_kornia.modules.detection.grid.missing_corners import lattice_deviation, unconfirmed_corners
+from ccs_kornia.modules.detection.grid.missing_corners import (
+    lattice_deviation,
+    unconfirmed_corners,
+)
 
 
 class TestUnconfirmedCorners:
